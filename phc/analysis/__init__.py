@@ -1,0 +1,1 @@
+"""Structural analysis on integer incidence data (no sympy beyond building it)."""

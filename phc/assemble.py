@@ -1,0 +1,325 @@
+"""Assemble lowered components into one flat :class:`~phc.dae.Dae` (pipeline stage 6).
+
+Order matters:
+
+1. check connections (existence, compatibility, each port used once, no dangling port);
+2. merge connected port variables by a signed union–find (``f₁ = f₂``, ``e₁ = −e₂``,
+   seed eq. couplcond) and substitute component-defined port values;
+3. add position invariants of connected ports with positions, and the GGL multipliers
+   for all position invariants: the storage flow of each constrained configuration
+   variable becomes ``ẋ + (∂g/∂x)ᵀη`` (Gear, Gupta & Leimkuhler 1985), which keeps
+   ``g(x) = 0`` at position level with index 2;
+4. top-level exposed ports get their inputs (default: free, zero effort);
+5. the energy accumulator ``Ė = P_ports + P_diss`` so that
+   ``H(t) − H(0) + E(t)`` is the energy-balance residual (seed, Remark "Energy balance").
+"""
+
+from __future__ import annotations
+
+import difflib
+from typing import Optional
+
+import sympy as sp
+
+from phc.dae import T, Dae, Equation, InitialValue, Invariant, Variable
+from phc.diagnostics import Diagnostic
+from phc.spec.model import InitialSpec
+
+
+class _SignedUnionFind:
+    """x = s·root bookkeeping for alias elimination."""
+
+    def __init__(self) -> None:
+        self.parent: dict[sp.Symbol, tuple[sp.Symbol, int]] = {}
+
+    def find(self, x):
+        sign = 1
+        path = []
+        while x in self.parent:
+            p, s = self.parent[x]
+            path.append((x, sign))
+            sign *= s
+            x = p
+        for node, s0 in path:  # path compression
+            self.parent[node] = (x, sign * s0)
+        return x, sign
+
+    def union(self, a, b, sign):
+        """Impose a = sign·b. Returns (root_a, root_b, rel) with root_a = rel·root_b, or None if same class."""
+        ra, sa = self.find(a)
+        rb, sb = self.find(b)
+        rel = sign * sb * sa
+        if ra == rb:
+            return ra, rb, rel
+        self.parent[ra] = (rb, rel)
+        return ra, rb, rel
+
+
+def _check_connections(b, ctx) -> list[tuple]:
+    """Resolve, check and return (port_a, port_b, span, label) for valid connections."""
+    used: dict[str, str] = {}
+    valid = []
+    for a_name, b_name, span, label in b.connections:
+        a_full, b_full = b.resolve_alias(a_name), b.resolve_alias(b_name)
+        pa, pb = b.ports.get(a_full), b.ports.get(b_full)
+        if pa is None or pb is None:
+            continue  # already reported by _check_refs
+        ok = True
+        if a_full == b_full:
+            b.diags.append(Diagnostic("PHC-E202", f"port `{a_name}` is connected to itself", span=span,
+                                      path=label))
+            continue
+        for p, shown in ((pa, a_name), (pb, b_name)):
+            if p.name in used:
+                b.diags.append(Diagnostic(
+                    "PHC-E203", f"port `{shown}` is connected twice (also in {used[p.name]})", span=span,
+                    hint="use a `junction` component to join more than two ports", path=label))
+                ok = False
+            used[p.name] = label
+        if pa.domain != pb.domain and "generic" not in (pa.domain, pb.domain):
+            b.diags.append(Diagnostic(
+                "PHC-E204", f"port `{a_name}` is {pa.domain} but port `{b_name}` it connects to is {pb.domain}",
+                span=span, hint="connect ports of the same physical domain", path=label))
+            ok = False
+        if pa.dimension != pb.dimension:
+            b.diags.append(Diagnostic(
+                "PHC-E205", f"port `{a_name}` has dimension {pa.dimension}, but port `{b_name}` it connects "
+                f"to has dimension {pb.dimension}", span=span, path=label,
+                hint="use an `orthogonal_transform` with `split` to connect parts of a vector port"))
+            ok = False
+        if pa.frame and pb.frame and pa.frame != pb.frame:
+            b.diags.append(Diagnostic(
+                "PHC-E206", f"port `{a_name}` is in frame `{pa.frame}` but port `{b_name}` is in frame "
+                f"`{pb.frame}`", span=span, path=label,
+                hint="insert an `orthogonal_transform` between the frames"))
+            ok = False
+        if ok:
+            valid.append((pa, pb, span, label))
+    exposed = set()
+    for pname, exp in ctx.spec.ports.items():
+        full = b.resolve_alias(exp.port)
+        if full in b.ports:
+            if full in used:
+                b.diags.append(Diagnostic(
+                    "PHC-E207", f"port `{exp.port}` is both exposed as `{pname}` and connected ({used[full]})",
+                    span=ctx.smap.locate(("ports", pname)), path=f"ports.{pname}",
+                    hint="a port is either connected or exposed; use a `junction` to do both"))
+            exposed.add(full)
+            b.exposed_top[pname] = (full, ctx.smap.locate(("ports", pname)))
+    nested_exposed = set(b.port_aliases.values())
+    for name, port in b.ports.items():
+        if name not in used and name not in exposed and name not in nested_exposed:
+            b.diags.append(Diagnostic(
+                "PHC-E208", f"port `{name}` is not connected", span=port.span, path=name,
+                hint="connect it, expose it under `ports:`, or terminate it with a `zero_effort` (free) or "
+                "`zero_flow` (fixed) component"))
+    return valid
+
+
+def assemble(b, ctx) -> Optional[Dae]:
+    """Build the :class:`Dae` from a :class:`phc.elaborate.Builder` after lowering."""
+    connections = _check_connections(b, ctx)
+    if b.diags.has_errors:
+        return None
+    uf = _SignedUnionFind()
+    defs = dict(b.definitions)
+    rows: list[Equation] = list(b.equations)
+
+    def merge(x, y, sign, label, span):
+        ra, rb, rel = uf.union(x, y, sign)
+        if ra == rb:
+            return
+        da, db = defs.pop(ra, None), defs.get(rb)
+        if da is not None and db is not None:
+            rows.append(Equation(da - rel * db, label, "coupling", "", span))
+        elif da is not None:
+            defs[rb] = rel * da
+
+    for pa, pb, span, label in connections:
+        for k in range(pa.dimension):
+            merge(pa.f[k], pb.f[k], 1, f"{label}.f[{k}]", span)
+            merge(pa.e[k], pb.e[k], -1, f"{label}.e[{k}]", span)
+        if pa.position is not None and pb.position is not None:
+            for k in range(pa.dimension):
+                b.invariants.append(Invariant(f"{label}.position[{k}]", pa.position[k] - pb.position[k],
+                                              "", span))
+
+    # Top-level exposed ports: inputs or free.
+    sim = ctx.spec.simulation
+    port_power = sp.Integer(0)
+    external = []
+    for pname, (full, span) in b.exposed_top.items():
+        port = b.ports[full]
+        external.append(pname)
+        inp = sim.inputs.get(pname)
+        path = ("simulation", "inputs", pname)
+        if inp is None:
+            targets, values, what = port.e, [0] * port.dimension, "effort"
+        elif inp.effort is not None:
+            targets, what = port.e, "effort"
+            values = b.vector(ctx, inp.effort, (*path, "effort"), {"t": T, **ctx.params}, port.dimension,
+                              f"input effort of `{pname}`")
+        else:
+            targets, what = port.f, "flow"
+            values = b.vector(ctx, inp.flow, (*path, "flow"), {"t": T, **ctx.params}, port.dimension,
+                              f"input flow of `{pname}`")
+        for k, (sym, val) in enumerate(zip(targets, values)):
+            root, sign = uf.find(sym)
+            if root in defs:
+                rows.append(Equation(sign * defs[root] - val, f"inputs.{pname}[{k}]", "input", "", span))
+            else:
+                defs[root] = sign * sp.sympify(val)  # safe: val is a sympy object or the int 0
+        port_power += sum(fk * ek for fk, ek in zip(port.f, port.e))
+    for pname in sim.inputs:
+        if pname not in b.exposed_top:
+            close = difflib.get_close_matches(pname, list(b.exposed_top), n=1)
+            b.error("PHC-E209", f"input for `{pname}`, which is not an exposed port of the model", ctx,
+                    ("simulation", "inputs", pname), key=True,
+                    hint=f"did you mean `{close[0]}`?" if close else "expose the port under `ports:` first")
+
+    subs = _resolve_definitions(uf, defs, rows, b)
+
+    # GGL stabilization of position invariants.
+    states = {v.symbol: v for v in b.variables if v.differential}
+    variables = [v for v in b.variables if v.differential or (uf.find(v.symbol)[0] == v.symbol
+                                                                and v.symbol not in defs)]
+    corrections: dict[sp.Symbol, sp.Expr] = {}
+    invariants = []
+    for i, inv in enumerate(b.invariants):
+        g = inv.expr.xreplace(subs)
+        xs = sorted(g.free_symbols & set(states), key=lambda s: s.name)
+        if not xs:
+            continue
+        invariants.append(Invariant(inv.label, g, inv.component, inv.span))
+        eta = sp.Symbol(f"ggl.eta[{len(invariants) - 1}]", real=True)
+        variables.append(Variable(eta.name, eta, False, "multiplier", inv.component or "ggl", None, inv.span))
+        rows.append(Equation(g, f"{inv.label}", "position_constraint", inv.component, inv.span))
+        for x in xs:
+            corrections[x] = corrections.get(x, 0) + sp.diff(g, x) * eta
+    dsubs = {states[x].dsymbol: states[x].dsymbol + c for x, c in corrections.items()}
+
+    def final(expr):
+        return expr.xreplace(subs).xreplace(dsubs) if dsubs else expr.xreplace(subs)
+
+    equations = []
+    for eq in rows:
+        ex = final(eq.expr)
+        if ex == 0:
+            continue
+        if not (ex.free_symbols - {T} - {p.symbol for p in b.parameters.values()}) and ex.is_number and ex != 0:
+            b.diags.append(Diagnostic("PHC-E301", f"equation `{eq.label}` reduces to the contradiction "
+                                      f"{ex} = 0", span=eq.span))
+            continue
+        equations.append(Equation(ex, eq.label, eq.kind, eq.component, eq.span))
+
+    hamiltonian = sum((final(h) for h in b.hamiltonian), sp.Integer(0))
+    dissipation = sum((final(d) for d in b.dissipation), sp.Integer(0))
+    port_power = final(port_power)
+    energy = sp.Symbol("energy.supplied", real=True)
+    denergy = sp.Symbol("der(energy.supplied)", real=True)
+    variables.append(Variable(energy.name, energy, True, "energy", "energy", denergy, None))
+    equations.append(Equation(denergy - port_power - dissipation, "energy.balance", "energy", "energy", None))
+
+    scope = _output_scope(b, subs, hamiltonian)
+    outputs = []
+    for oname, oexpr in sim.outputs.items():
+        outputs.append((oname, final(b.expr(ctx, oexpr, ("simulation", "outputs", oname), scope))))
+    initial = _initial_values(b, ctx, {v.name for v in variables if v.differential})
+    velocity_invariants = tuple(Invariant(v.label, final(v.expr), v.component, v.span)
+                                for v in b.velocity_invariants)
+    return Dae(
+        name=ctx.spec.name or ctx.file.rsplit("/", 1)[-1].rsplit(".", 1)[0],
+        variables=tuple(variables),
+        equations=tuple(equations),
+        parameters=tuple(b.parameters.values()),
+        hamiltonian=hamiltonian,
+        dissipation=dissipation,
+        port_power=port_power,
+        invariants=tuple(invariants),
+        velocity_invariants=velocity_invariants,
+        outputs=tuple(outputs),
+        initial=tuple(initial),
+        external_ports=tuple(external),
+        sources=tuple(b.sources),
+        options={"t_start": sim.t_start, "t_end": sim.t_end, "n_out": sim.n_out, "rtol": sim.rtol,
+                 "atol": sim.atol, "max_steps": sim.max_steps, "solver": sim.solver},
+    )
+
+
+def _resolve_definitions(uf, defs, rows, b) -> dict:
+    """Substitution symbol → expression for every aliased or defined port variable.
+
+    A definition may refer to other defined symbols; they are resolved recursively.
+    A cycle (a junction port wired back to the same junction) turns the definition
+    back into an equation.
+    """
+    cache: dict = {}
+    visiting: set = set()
+    all_syms = set(uf.parent) | set(defs)
+
+    def resolve_root(root):
+        if root in cache:
+            return cache[root]
+        if root not in defs:
+            cache[root] = root
+            return root
+        if root in visiting:
+            return root
+        visiting.add(root)
+        expr = defs[root]
+        expr = expr.xreplace({s: value(s) for s in expr.free_symbols if s in all_syms})
+        visiting.discard(root)
+        if root in expr.free_symbols:
+            rows.append(Equation(root - expr, f"{root.name}.definition", "coupling", "", None))
+            del defs[root]
+            cache[root] = root
+            return root
+        cache[root] = expr
+        return expr
+
+    def value(sym):
+        root, sign = uf.find(sym)
+        return sign * resolve_root(root)
+
+    return {s: value(s) for s in all_syms}
+
+
+def _output_scope(b, subs, hamiltonian) -> dict:
+    scope: dict = {"t": T, "H": hamiltonian}
+    vectors: dict[str, dict[int, sp.Expr]] = {}
+    for v in b.variables:
+        val = subs.get(v.symbol, v.symbol)
+        if v.name.endswith("]"):
+            base, idx = v.name[:-1].rsplit("[", 1)
+            vectors.setdefault(base, {})[int(idx)] = val
+        else:
+            scope[v.name] = val
+    for base, items in vectors.items():
+        scope[base] = [items[i] for i in sorted(items)]
+    for p in b.parameters.values():
+        scope[p.name] = p.symbol
+    return scope
+
+
+def _initial_values(b, ctx, state_names: set[str]) -> list[InitialValue]:
+    out = []
+    for name, spec in ctx.spec.simulation.initial.items():
+        path = ("simulation", "initial", name)
+        if name not in state_names:
+            close = difflib.get_close_matches(name, sorted(state_names), n=1)
+            b.error("PHC-E210", f"`{name}` is not a state of the model; initial values are given for states",
+                    ctx, path, key=True, hint=f"did you mean `{close[0]}`?" if close else
+                    f"states: {', '.join(sorted(state_names - {'energy.supplied'})[:10])}")
+            continue
+        value, guess = (spec.value, spec.guess) if isinstance(spec, InitialSpec) else (spec, False)
+        vpath = (*path, "value") if isinstance(spec, InitialSpec) else path
+        ex = b.expr(ctx, value, vpath, dict(ctx.params))
+        num = ex.xreplace({p.symbol: p.default for p in b.parameters.values()})
+        try:
+            val = float(num)
+        except TypeError:
+            b.error("PHC-E211", f"initial value of `{name}` must be a number or an expression of parameters",
+                    ctx, vpath)
+            continue
+        out.append(InitialValue(name, val, guess, ctx.smap.locate(vpath)))
+    return out

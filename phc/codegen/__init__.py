@@ -1,0 +1,1 @@
+"""Code generation: lower the DAE to an IR, print a standalone module, load it."""

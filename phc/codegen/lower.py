@@ -1,0 +1,117 @@
+"""Lower a :class:`~phc.dae.Dae` to a :class:`ResidualIR` (pipeline stage 8a).
+
+The IR is everything the printer needs and nothing else: the ordered variables and
+parameters, the residual rows, the analytic Jacobian ``dF/dy + cj·dF/dẏ`` as a sparse
+pattern in compressed-sparse-column order (the order SUNDIALS' sparse solver expects),
+and the auxiliary functions (Hamiltonian, powers, invariants, outputs). No analysis
+happens in the printer; no printing happens here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import networkx as nx
+import sympy as sp
+
+from phc.dae import T, Dae
+
+
+@dataclass(frozen=True)
+class ResidualIR:
+    name: str
+    variables: tuple[str, ...]
+    differential: tuple[bool, ...]
+    roles: tuple[str, ...]
+    equation_labels: tuple[str, ...]
+    y_symbols: tuple[sp.Symbol, ...]
+    yp_symbols: tuple[sp.Symbol, ...]
+    parameters: tuple[str, ...]
+    base_parameters: tuple[int, ...]
+    parameter_defaults: tuple[float, ...]
+    p_symbols: tuple[sp.Symbol, ...]
+    derived: tuple[tuple[int, sp.Expr], ...]
+    residual: tuple[sp.Expr, ...]
+    jac_rows: tuple[int, ...]
+    jac_cols: tuple[int, ...]
+    jac_dy: tuple[sp.Expr, ...]
+    jac_dyp: tuple[sp.Expr, ...]
+    hamiltonian: sp.Expr
+    port_power: sp.Expr
+    dissipation: sp.Expr
+    invariants: tuple[sp.Expr, ...]
+    invariant_labels: tuple[str, ...]
+    velocity_invariants: tuple[sp.Expr, ...]
+    velocity_invariant_labels: tuple[str, ...]
+    outputs: tuple[tuple[str, sp.Expr], ...]
+    sources: tuple[str, ...]
+
+
+def _ordered_parameters(dae: Dae):
+    """Base parameters first, then derived ones in dependency order."""
+    base = [p for p in dae.parameters if p.expr is None]
+    derived = [p for p in dae.parameters if p.expr is not None]
+    graph = nx.DiGraph()
+    by_symbol = {p.symbol: p for p in derived}
+    graph.add_nodes_from(by_symbol)
+    for p in derived:
+        for dep in p.expr.free_symbols & set(by_symbol):
+            graph.add_edge(dep, p.symbol)
+    order = [by_symbol[s] for s in nx.topological_sort(graph)]
+    return base + order
+
+
+def lower_residual(dae: Dae) -> ResidualIR:
+    """Differentiate the residual and order everything for printing.
+
+    Parameters
+    ----------
+    dae : Dae
+        The assembled system.
+
+    Returns
+    -------
+    ResidualIR
+    """
+    params = _ordered_parameters(dae)
+    y = [v.symbol for v in dae.variables]
+    yp = [v.dsymbol if v.differential else None for v in dae.variables]
+    col_of_y = {s: j for j, s in enumerate(y)}
+    col_of_yp = {s: j for j, s in enumerate(yp) if s is not None}
+    entries: dict[tuple[int, int], list] = {}
+    for i, eq in enumerate(dae.equations):
+        syms = eq.expr.free_symbols
+        for s in syms:
+            if s in col_of_y:
+                entries.setdefault((i, col_of_y[s]), [0, 0])[0] = sp.diff(eq.expr, s)
+            elif s in col_of_yp:
+                entries.setdefault((i, col_of_yp[s]), [0, 0])[1] = sp.diff(eq.expr, s)
+    keys = sorted(entries, key=lambda ij: (ij[1], ij[0]))
+    return ResidualIR(
+        name=dae.name,
+        variables=tuple(v.name for v in dae.variables),
+        differential=tuple(v.differential for v in dae.variables),
+        roles=tuple(v.role for v in dae.variables),
+        equation_labels=tuple(eq.label for eq in dae.equations),
+        y_symbols=tuple(y),
+        yp_symbols=tuple(s if s is not None else sp.Symbol(f"der({v.name})") for s, v in zip(yp, dae.variables)),
+        parameters=tuple(p.name for p in params),
+        base_parameters=tuple(i for i, p in enumerate(params) if p.expr is None),
+        parameter_defaults=tuple(p.default for p in params),
+        p_symbols=tuple(p.symbol for p in params),
+        derived=tuple((i, p.expr) for i, p in enumerate(params) if p.expr is not None),
+        residual=tuple(eq.expr for eq in dae.equations),
+        jac_rows=tuple(k[0] for k in keys),
+        jac_cols=tuple(k[1] for k in keys),
+        jac_dy=tuple(sp.Integer(0) if entries[k][0] == 0 else entries[k][0] for k in keys),
+        jac_dyp=tuple(sp.Integer(0) if entries[k][1] == 0 else entries[k][1] for k in keys),
+        hamiltonian=dae.hamiltonian,
+        port_power=dae.port_power,
+        dissipation=dae.dissipation,
+        invariants=tuple(inv.expr for inv in dae.invariants),
+        invariant_labels=tuple(inv.label for inv in dae.invariants),
+        velocity_invariants=tuple(inv.expr for inv in dae.velocity_invariants),
+        velocity_invariant_labels=tuple(inv.label for inv in dae.velocity_invariants),
+        outputs=dae.outputs,
+        sources=dae.sources,
+    )

@@ -1,0 +1,107 @@
+"""The flat relation system every model is lowered to (pipeline stage "assemble").
+
+A :class:`Dae` is ``F(t, y, ẏ, p) = 0``: variables (differential states and algebraic
+variables), equations tagged with their origin, the Hamiltonian, the dissipated and
+port powers for the energy balance (seed, Remark "Energy balance"), and the position
+invariants that the stabilized formulation keeps. It holds sympy expressions of small
+nonlinear parts only; it is frozen once built.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional
+
+import sympy as sp
+
+from phc.source import SourceSpan
+
+T = sp.Symbol("t", real=True)
+"""The time symbol shared by all expressions."""
+
+
+@dataclass(frozen=True)
+class Variable:
+    """One unknown of the DAE.
+
+    `role` is one of: ``state``, ``velocity``, ``flow``, ``effort``, ``multiplier``,
+    ``resistive``, ``energy``. Differential variables are the energy (storage) states and
+    the energy-balance accumulator; every other variable is algebraic.
+    """
+
+    name: str
+    symbol: sp.Symbol
+    differential: bool
+    role: str
+    component: str
+    dsymbol: Optional[sp.Symbol] = None
+    span: Optional[SourceSpan] = None
+
+
+@dataclass(frozen=True)
+class Equation:
+    """One residual row ``expr = 0`` with its origin (component, kind, label, source)."""
+
+    expr: sp.Expr
+    label: str
+    kind: str
+    component: str
+    span: Optional[SourceSpan] = None
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """A run-time parameter. `expr` is set for derived parameters (in other parameters)."""
+
+    name: str
+    symbol: sp.Symbol
+    default: float
+    expr: Optional[sp.Expr] = None
+    unit: Optional[str] = None
+    description: Optional[str] = None
+    span: Optional[SourceSpan] = None
+
+
+@dataclass(frozen=True)
+class Invariant:
+    """A position-level relation g(x, t) = 0 that the exact flow preserves."""
+
+    label: str
+    expr: sp.Expr
+    component: str
+    span: Optional[SourceSpan] = None
+
+
+@dataclass(frozen=True)
+class InitialValue:
+    name: str
+    value: float
+    guess: bool
+    span: Optional[SourceSpan] = None
+
+
+@dataclass(frozen=True)
+class Dae:
+    """The assembled system. See the module docstring."""
+
+    name: str
+    variables: tuple[Variable, ...]
+    equations: tuple[Equation, ...]
+    parameters: tuple[Parameter, ...]
+    hamiltonian: sp.Expr
+    dissipation: sp.Expr
+    port_power: sp.Expr
+    invariants: tuple[Invariant, ...] = ()
+    velocity_invariants: tuple[Invariant, ...] = ()
+    outputs: tuple[tuple[str, sp.Expr], ...] = ()
+    initial: tuple[InitialValue, ...] = ()
+    external_ports: tuple[str, ...] = ()
+    sources: tuple[str, ...] = ()
+    options: dict = field(default_factory=dict)
+
+    @property
+    def n_states(self) -> int:
+        return sum(1 for v in self.variables if v.differential)
+
+    def variable_index(self) -> dict[str, int]:
+        return {v.name: i for i, v in enumerate(self.variables)}

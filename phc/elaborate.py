@@ -1,0 +1,368 @@
+"""Elaborate model files into one flat :class:`~phc.dae.Dae` (pipeline stages 1–2 and 6).
+
+What happens here, in order:
+
+1. read each YAML file with positions (:mod:`phc.source`) and validate it into a
+   :class:`~phc.spec.ModelSpec`; nested ``type: model`` components are read the same
+   way, relative to the file that uses them (cycles are errors);
+2. create parameters (derived ones stay expressions of the others, so one compiled
+   module serves a whole parameter study);
+3. lower each component to variables, equations and ports (:mod:`phc.library`);
+4. join connected ports: ``f₁ = f₂``, ``e₁ = −e₂`` (seed eq. couplcond). Port variables
+   are merged by a signed union–find instead of being kept as coupling rows (alias
+   elimination); a port variable that a component defines explicitly (a mass's velocity
+   ``p/m``) is substituted, so only genuinely implicit relations remain as rows;
+5. add position-level invariants with Gear–Gupta–Leimkuhler multipliers, the energy
+   accumulator, inputs and outputs.
+
+Every problem becomes a located :class:`~phc.diagnostics.Diagnostic`; nothing raises
+for a user mistake, and nothing is evaluated: expressions go through
+:func:`phc.spec.expressions.parse_expression`.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Optional, Sequence
+
+import networkx as nx
+import pydantic
+import sympy as sp
+
+from phc.dae import T, Dae, Equation, InitialValue, Invariant, Parameter, Variable
+from phc.diagnostics import Diagnostic, DiagnosticList, from_pydantic
+from phc.source import SourceMap, SourceSpan, read_yaml_file
+from phc.spec import ModelSpec
+from phc.spec.components import ModelComponentSpec
+from phc.spec.expressions import ExpressionError, parse_equation, parse_expression
+from phc.spec.model import InitialSpec, ParameterSpec
+
+
+@dataclass
+class Port:
+    """A power port after lowering: flow and effort symbols of one component."""
+
+    name: str
+    component: str
+    domain: str
+    dimension: int
+    frame: Optional[str]
+    f: list[sp.Symbol]
+    e: list[sp.Symbol]
+    position: Optional[list[sp.Expr]] = None
+    span: Optional[SourceSpan] = None
+
+
+@dataclass
+class FileContext:
+    """Where a (possibly nested) model file sits: its source map and name prefix."""
+
+    file: str
+    smap: SourceMap
+    prefix: str
+    spec: ModelSpec
+    params: dict[str, Any] = field(default_factory=dict)
+
+
+class ExpressionScope(dict):
+    """Names visible to an expression: sympy symbols/expressions or vectors of them."""
+
+
+def load_spec(path: str | os.PathLike) -> tuple[Optional[ModelSpec], Optional[SourceMap], DiagnosticList]:
+    """Read and validate one model file (no elaboration).
+
+    Returns
+    -------
+    spec, smap, diagnostics
+        `spec` is None when the file has errors.
+    """
+    diags = DiagnosticList()
+    data, smap, problems = read_yaml_file(path)
+    diags.extend(problems)
+    if diags.has_errors or smap is None:
+        return None, smap, diags
+    if data is None:
+        diags.append(Diagnostic("PHC-E005", "the model file is empty; it needs at least `components`",
+                                span=SourceSpan(str(path), 1, 1)))
+        return None, smap, diags
+    if not isinstance(data, dict):
+        diags.append(Diagnostic("PHC-E013", "a model file must be a mapping with `components`, "
+                                "`connections`, ...", span=smap.locate(())))
+        return None, smap, diags
+    try:
+        spec = ModelSpec.model_validate(data)
+    except pydantic.ValidationError as err:
+        diags.extend(from_pydantic(err, smap))
+        return None, smap, diags
+    return spec, smap, diags
+
+
+class Builder:
+    """Collects variables, equations and ports while components are lowered."""
+
+    def __init__(self) -> None:
+        self.diags = DiagnosticList()
+        self.variables: list[Variable] = []
+        self.equations: list[Equation] = []
+        self.parameters: dict[str, Parameter] = {}
+        self.definitions: dict[sp.Symbol, sp.Expr] = {}
+        self.ports: dict[str, Port] = {}
+        self.port_aliases: dict[str, str] = {}
+        self.hamiltonian: list[sp.Expr] = []
+        self.dissipation: list[sp.Expr] = []
+        self.invariants: list[Invariant] = []
+        self.velocity_invariants: list[Invariant] = []
+        self.connections: list[tuple[str, str, Optional[SourceSpan], str]] = []
+        self.exposed_top: dict[str, tuple[str, Optional[SourceSpan]]] = {}
+        self.sources: list[str] = []
+        self._file_stack: list[str] = []
+
+    # -- diagnostics ----------------------------------------------------------------
+    def error(self, code: str, message: str, ctx: Optional[FileContext], path: Sequence = (),
+              hint: Optional[str] = None, severity: str = "error", key: bool = False) -> None:
+        span = None
+        if ctx is not None:
+            span = ctx.smap.locate_key(tuple(path)) if key else ctx.smap.locate(tuple(path))
+        dotted = ".".join(str(p) for p in path) or None
+        self.diags.append(Diagnostic(code, message, span=span, hint=hint, severity=severity, path=dotted))
+
+    def span(self, ctx: FileContext, path: Sequence) -> SourceSpan:
+        return ctx.smap.locate(tuple(path))
+
+    # -- expressions ----------------------------------------------------------------
+    def expr(self, ctx: FileContext, value: Any, path: Sequence, names: dict,
+             equation: bool = False) -> sp.Expr:
+        """Parse a number or expression string at `path`; on error record it and return 0."""
+        try:
+            if equation:
+                return parse_equation(value, names)
+            return parse_expression(value, names)
+        except ExpressionError as err:
+            span = ctx.smap.locate(tuple(path))
+            if isinstance(value, str):
+                span = SourceSpan(span.file, span.line, span.col + ctx.smap.value_offset(tuple(path)) + err.col)
+            self.diags.append(Diagnostic("PHC-E101", f"in expression `{value}`: {err.message}", span=span,
+                                         hint=err.hint, path=".".join(str(p) for p in path)))
+            return sp.Integer(0)
+
+    def vector(self, ctx, values, path, names, length: Optional[int] = None, what: str = "vector") -> list[sp.Expr]:
+        if not isinstance(values, list):
+            values = [values]
+        if length is not None and len(values) != length:
+            self.error("PHC-E102", f"{what} has {len(values)} entries, expected {length}", ctx, path)
+        return [self.expr(ctx, v, (*path, i), names) for i, v in enumerate(values)]
+
+    def matrix(self, ctx, rows, path, names, shape: tuple[Optional[int], Optional[int]], what: str) -> sp.Matrix:
+        n, m = shape
+        if n is not None and len(rows) != n:
+            self.error("PHC-E102", f"{what} has {len(rows)} rows, expected {n}", ctx, path)
+        out = []
+        for i, row in enumerate(rows):
+            if not isinstance(row, list):
+                row = [row]
+            if m is not None and len(row) != m:
+                self.error("PHC-E102", f"row {i} of {what} has {len(row)} entries, expected {m}", ctx, (*path, i))
+            out.append([self.expr(ctx, v, (*path, i, j), names) for j, v in enumerate(row)])
+        if n is not None and m is not None and (len(out) != n or any(len(r) != m for r in out)):
+            return sp.zeros(n, m)
+        if not out:
+            return sp.zeros(0, m or 0)
+        return sp.Matrix(out)
+
+    # -- variables --------------------------------------------------------------------
+    def add_state(self, component: str, local: str, span=None) -> tuple[sp.Symbol, sp.Symbol]:
+        name = f"{component}.{local}"
+        sym = sp.Symbol(name, real=True)
+        dsym = sp.Symbol(f"der({name})", real=True)
+        self.variables.append(Variable(name, sym, True, "state", component, dsym, span))
+        return sym, dsym
+
+    def add_algebraic(self, component: str, local: str, role: str, span=None) -> sp.Symbol:
+        name = f"{component}.{local}"
+        sym = sp.Symbol(name, real=True)
+        self.variables.append(Variable(name, sym, False, role, component, None, span))
+        return sym
+
+    def add_equation(self, expr: sp.Expr, component: str, kind: str, label: str, span=None) -> None:
+        self.equations.append(Equation(sp.sympify(expr), f"{component}.{label}", kind, component, span))  # safe: expr is a sympy object built by phc
+
+    def define(self, sym: sp.Symbol, expr: sp.Expr) -> None:
+        """Give a port variable an explicit value (an output of its component)."""
+        self.definitions[sym] = expr
+
+    def add_port(self, component: str, local: str, domain: str, dimension: int, frame=None,
+                 span=None, position=None) -> Port:
+        full = f"{component}.{local}"
+        if dimension == 1:
+            f = [self.add_algebraic(component, f"{local}.f", "flow", span)]
+            e = [self.add_algebraic(component, f"{local}.e", "effort", span)]
+        else:
+            f = [self.add_algebraic(component, f"{local}.f[{k}]", "flow", span) for k in range(dimension)]
+            e = [self.add_algebraic(component, f"{local}.e[{k}]", "effort", span) for k in range(dimension)]
+        port = Port(full, component, domain, dimension, frame, f, e, position, span)
+        self.ports[full] = port
+        return port
+
+    def add_invariant(self, expr: sp.Expr, component: str, label: str, span=None, velocity=False) -> None:
+        inv = Invariant(f"{component}.{label}", expr, component, span)
+        (self.velocity_invariants if velocity else self.invariants).append(inv)
+
+    # -- parameters -------------------------------------------------------------------
+    def add_parameters(self, ctx: FileContext, entries: dict[str, tuple[Any, Sequence, Optional[FileContext]]],
+                       units: dict[str, tuple]) -> None:
+        """Create parameters `ctx.prefix + name`; values may use each other (acyclic)."""
+        symbols = {name: sp.Symbol(ctx.prefix + name, real=True) for name in entries}
+        ctx.params.update(symbols)
+        exprs: dict[str, sp.Expr] = {}
+        for name, (value, path, value_ctx) in entries.items():
+            vctx = value_ctx or ctx
+            scope = ExpressionScope(vctx.params) if value_ctx is not None else ExpressionScope(symbols)
+            exprs[name] = self.expr(vctx, value, path, scope)
+        graph = nx.DiGraph()
+        graph.add_nodes_from(symbols.values())
+        for name, ex in exprs.items():
+            for dep in ex.free_symbols & set(symbols.values()):
+                graph.add_edge(dep, symbols[name])
+        try:
+            order = list(nx.topological_sort(graph))
+        except nx.NetworkXUnfeasible:
+            cycle = nx.find_cycle(graph)
+            names = " -> ".join(str(a) for a, _ in cycle)
+            first = str(cycle[0][0]).rsplit(".", 1)[-1]
+            self.error("PHC-E103", f"parameters depend on each other in a cycle: {names}", ctx,
+                       entries[first][1], hint="give one of them a number")
+            return
+        values: dict[sp.Symbol, float] = {}
+        by_symbol = {s: n for n, s in symbols.items()}
+        for sym in order:
+            name = by_symbol[sym]
+            ex = exprs[name]
+            known = {s: v for s, v in values.items()}
+            known.update({p.symbol: p.default for p in self.parameters.values()})
+            try:
+                val = float(ex.xreplace(known).evalf())
+            except (TypeError, ValueError):
+                val = math.nan
+            path = entries[name][1]
+            if not math.isfinite(val):
+                self.error("PHC-E104", f"parameter `{name}` does not evaluate to a finite number "
+                           f"(got {ex})", entries[name][2] or ctx, path)
+                val = 0.0
+            values[sym] = val
+            unit, desc = units.get(name, (None, None))
+            derived = ex if not ex.is_Number else None
+            self.parameters[sym.name] = Parameter(sym.name, sym, val, derived, unit, desc,
+                                                  (entries[name][2] or ctx).smap.locate(tuple(path)))
+
+    # -- files ------------------------------------------------------------------------
+    def load_file(self, path: Path, prefix: str, overrides: dict, parent: Optional[FileContext],
+                  ref_path: Sequence = ()) -> Optional[FileContext]:
+        key = str(path.resolve())
+        if key in self._file_stack:
+            self.error("PHC-E106", f"model `{path}` includes itself (nesting cycle)", parent, ref_path)
+            return None
+        spec, smap, diags = load_spec(path)
+        self.diags.extend(diags)
+        if spec is None:
+            return None
+        self.sources.append(str(path))
+        ctx = FileContext(str(path), smap, prefix, spec)
+        self._file_stack.append(key)
+        try:
+            self._elaborate_file(ctx, overrides)
+        finally:
+            self._file_stack.pop()
+        return ctx
+
+    def _elaborate_file(self, ctx: FileContext, overrides: dict) -> None:
+        from phc.library import LOWERERS
+
+        spec = ctx.spec
+        entries, units = {}, {}
+        for name, p in spec.parameters.items():
+            if isinstance(p, ParameterSpec):
+                entries[name] = (p.value, ("parameters", name, "value"), None)
+                units[name] = (p.unit, p.description)
+            else:
+                entries[name] = (p, ("parameters", name), None)
+        for name, (value, path, octx) in overrides.items():
+            if name not in entries:
+                close = difflib.get_close_matches(name, list(entries), n=1)
+                self.error("PHC-E105", f"nested model `{ctx.file}` has no parameter `{name}`", octx, path,
+                           hint=f"did you mean `{close[0]}`?" if close else
+                           f"its parameters are: {', '.join(sorted(entries)) or 'none'}", key=True)
+                continue
+            entries[name] = (value, path, octx)
+        self.add_parameters(ctx, entries, units)
+        for cname, comp in spec.components.items():
+            full = ctx.prefix + cname
+            path = ("components", cname)
+            if isinstance(comp, ModelComponentSpec):
+                sub = Path(ctx.file).parent / comp.file
+                if not sub.is_file():
+                    self.error("PHC-E107", f"nested model file `{comp.file}` not found (looked for `{sub}`)",
+                               ctx, (*path, "file"))
+                    continue
+                ov = {k: (v, (*path, "parameters", k), ctx) for k, v in comp.parameters.items()}
+                sub_ctx = self.load_file(sub, full + ".", ov, ctx, (*path, "file"))
+                if sub_ctx is not None:
+                    for pname, exposed in sub_ctx.spec.ports.items():
+                        self.port_aliases[f"{full}.{pname}"] = sub_ctx.prefix + exposed.port
+                continue
+            LOWERERS[comp.type](self, ctx, full, comp, path)
+        for i, conn in enumerate(spec.connections):
+            a, b = (ctx.prefix + ref for ref in conn.between)
+            self.connections.append((a, b, ctx.smap.locate(("connections", i)), f"connections[{i}]"))
+            self._conn_ctx = ctx
+        self._check_refs(ctx)
+
+    def _check_refs(self, ctx: FileContext) -> None:
+        """Check that connections and exposed ports of this file name existing ports."""
+        spec = ctx.spec
+        for i, conn in enumerate(spec.connections):
+            for j, ref in enumerate(conn.between):
+                self._resolve_port(ctx, ref, ("connections", i, "between", j))
+        for pname, exposed in spec.ports.items():
+            self._resolve_port(ctx, exposed.port, ("ports", pname, "port"))
+
+    def _resolve_port(self, ctx: FileContext, ref: str, path) -> Optional[Port]:
+        full = self.resolve_alias(ctx.prefix + ref)
+        if full in self.ports:
+            return self.ports[full]
+        local = [n[len(ctx.prefix):] for n in list(self.ports) + list(self.port_aliases)
+                 if n.startswith(ctx.prefix) and "." not in n[len(ctx.prefix):].split(".", 1)[-1]]
+        close = difflib.get_close_matches(ref, local, n=1)
+        if "." not in ref:
+            msg = f"`{ref}` is not a port reference; write `component.port`"
+        else:
+            msg = f"unknown port `{ref}`"
+        self.error("PHC-E201", msg, ctx, path,
+                   hint=f"did you mean `{close[0]}`?" if close else
+                   (f"known ports: {', '.join(sorted(local)[:8])}" if local else None))
+        return None
+
+    def resolve_alias(self, name: str) -> str:
+        seen = set()
+        while name in self.port_aliases and name not in seen:
+            seen.add(name)
+            name = self.port_aliases[name]
+        return name
+
+
+def elaborate(path: str | os.PathLike) -> tuple[Optional[Dae], DiagnosticList]:
+    """Read a model file (and the files it nests) and build its flat :class:`Dae`.
+
+    Returns ``(dae, diagnostics)``; `dae` is None when any error was found.
+    """
+    from phc.assemble import assemble
+
+    builder = Builder()
+    ctx = builder.load_file(Path(path), "", {}, None)
+    if ctx is None or builder.diags.has_errors:
+        return None, builder.diags.sorted()
+    dae = assemble(builder, ctx)
+    return (None if builder.diags.has_errors else dae), builder.diags.sorted()

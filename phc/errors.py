@@ -1,0 +1,37 @@
+"""Exceptions. User mistakes are reported as diagnostics; these stop a stage.
+
+``PhcError``
+    base of everything phc raises on purpose.
+``ModelError``
+    the model has errors; ``.diagnostics`` holds them (one located line each).
+``InconsistentInitialError``
+    fixed initial values violate the equations; ``.problems`` names the equations.
+``SimulationSetupError``
+    invalid simulation options or missing optional dependency.
+"""
+
+from __future__ import annotations
+
+
+class PhcError(Exception):
+    """Base class of phc's exceptions."""
+
+
+class ModelError(PhcError):
+    """Raised by :func:`phc.load_model` / :func:`phc.compile_model` when the model has errors."""
+
+    def __init__(self, diagnostics):
+        self.diagnostics = diagnostics
+        super().__init__("\n".join(d.render() for d in diagnostics if d.severity == "error"))
+
+
+class InconsistentInitialError(PhcError):
+    """Fixed initial values violate the model's equations or hidden constraints."""
+
+    def __init__(self, problems: list[str]):
+        self.problems = problems
+        super().__init__("inconsistent initial values: " + "; ".join(problems))
+
+
+class SimulationSetupError(PhcError, ValueError):
+    """Invalid simulation options (raised before integrating)."""

@@ -1,0 +1,32 @@
+"""Lowering of each component ``type`` to variables, equations and ports.
+
+``LOWERERS[type](builder, ctx, full_name, spec, path)`` adds the component's variables,
+equations, Hamiltonian, dissipation and ports to the :class:`phc.elaborate.Builder`.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+
+from phc.library import lumped
+from phc.library.phs import lower_phs
+from phc.library.rigid import lower_rigid
+
+LOWERERS = {
+    "phs": lower_phs,
+    "rigid": lower_rigid,
+    "mass": partial(lumped.lower_inertia, coeff_field="m", state="p"),
+    "inductor": partial(lumped.lower_inertia, coeff_field="L", state="phi"),
+    "spring": partial(lumped.lower_compliance, coeff_field="k", state="x", inverse=False),
+    "capacitor": partial(lumped.lower_compliance, coeff_field="C", state="q", inverse=True),
+    "damper": partial(lumped.lower_resistance, coeff_field="d"),
+    "resistor": partial(lumped.lower_resistance, coeff_field="R"),
+    "effort_source": partial(lumped.lower_source, which="effort"),
+    "flow_source": partial(lumped.lower_source, which="flow"),
+    "zero_effort": partial(lumped.lower_termination, which="effort"),
+    "zero_flow": partial(lumped.lower_termination, which="flow"),
+    "orthogonal_transform": lumped.lower_transform,
+    "junction": lumped.lower_junction,
+}
+
+__all__ = ["LOWERERS"]

@@ -1,0 +1,182 @@
+"""Library one-ports, sources, terminations, junctions and the orthogonal transform.
+
+Every element is written in the generator sign convention of the seed (section 2):
+``f·e`` is the power the element delivers through its port, and efforts are reaction
+quantities (``e = −F_acting``). A one-port with several ports sits on an implicit
+1-junction: all its ports share the element's flow and their efforts add up.
+
+Storage elements (seed Def. "Port-Hamiltonian system" with ``e_L = ∇H``):
+
+=========  =================  ===========================  =====================
+element    state x            H(x)                         port relation
+=========  =================  ===========================  =====================
+mass       momentum p         |p|²/2m                      f = p/m, ṗ = −Σe
+inductor   flux φ             φ²/2L                        f = φ/L, φ̇ = −Σe
+spring     elongation x       k|x|²/2                      ẋ = f, Σe = −kx
+capacitor  charge q           q²/2C                        q̇ = f, Σe = −q/C
+=========  =================  ===========================  =====================
+
+Resistive elements: ``Σe = −d f`` (dissipating ``d|f|² ≥ 0``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import sympy as sp
+
+from phc.dae import T
+
+DEFAULT_DOMAIN = {
+    "mass": "mechanical.translational", "spring": "mechanical.translational",
+    "damper": "mechanical.translational", "inductor": "electrical", "capacitor": "electrical",
+    "resistor": "electrical",
+}
+
+
+def _scope(ctx):
+    return {"t": T, **ctx.params}
+
+
+def _one_port_ports(b, ctx, name, spec, path, kind):
+    domain = spec.domain or DEFAULT_DOMAIN.get(kind, "generic")
+    span = ctx.smap.locate(path)
+    return [b.add_port(name, p, domain, spec.dimension, span=span) for p in spec.ports]
+
+
+def _suffix(dim, k):
+    return "" if dim == 1 else f"[{k}]"
+
+
+def lower_inertia(b, ctx, name, spec, path, coeff_field: str, state: str):
+    """mass / inductor: H = |x|²/(2c), every port flow = x/c, ẋ = −Σ e."""
+    c = b.expr(ctx, getattr(spec, coeff_field), (*path, coeff_field), _scope(ctx))
+    ports = _one_port_ports(b, ctx, name, spec, path, spec.type)
+    dim = spec.dimension
+    span = ctx.smap.locate(path)
+    h = sp.Integer(0)
+    for k in range(dim):
+        x, dx = b.add_state(name, state + _suffix(dim, k), span)
+        for port in ports:
+            b.define(port.f[k], x / c)
+        b.add_equation(dx + sum(port.e[k] for port in ports), name, "storage", f"balance[{k}]", span)
+        h += x**2 / (2 * c)
+    b.hamiltonian.append(h)
+
+
+def lower_compliance(b, ctx, name, spec, path, coeff_field: str, state: str, inverse: bool):
+    """spring / capacitor: H = k|x|²/2, ẋ = f (shared), Σ e = −kx."""
+    c = b.expr(ctx, getattr(spec, coeff_field), (*path, coeff_field), _scope(ctx))
+    k_eff = 1 / c if inverse else c
+    ports = _one_port_ports(b, ctx, name, spec, path, spec.type)
+    dim = spec.dimension
+    span = ctx.smap.locate(path)
+    h = sp.Integer(0)
+    for k in range(dim):
+        x, dx = b.add_state(name, state + _suffix(dim, k), span)
+        b.define(ports[0].f[k], dx)
+        for port in ports[1:]:
+            b.define(port.f[k], dx)
+        if len(ports) == 1:
+            b.define(ports[0].e[k], -k_eff * x)
+        else:
+            b.add_equation(sum(port.e[k] for port in ports) + k_eff * x, name, "storage", f"force[{k}]", span)
+        h += k_eff * x**2 / 2
+    b.hamiltonian.append(h)
+
+
+def lower_resistance(b, ctx, name, spec, path, coeff_field: str):
+    """damper / resistor: Σ e = −d f, dissipation d|f|²."""
+    d = b.expr(ctx, getattr(spec, coeff_field), (*path, coeff_field), _scope(ctx))
+    ports = _one_port_ports(b, ctx, name, spec, path, spec.type)
+    span = ctx.smap.locate(path)
+    diss = sp.Integer(0)
+    for k in range(spec.dimension):
+        f = ports[0].f[k]
+        for port in ports[1:]:
+            b.define(port.f[k], f)
+        if len(ports) == 1:
+            b.define(ports[0].e[k], -d * f)
+        else:
+            b.add_equation(sum(port.e[k] for port in ports) + d * f, name, "resistive", f"law[{k}]", span)
+        diss += d * f**2
+    b.dissipation.append(diss)
+
+
+def lower_source(b, ctx, name, spec, path, which: str):
+    """effort_source / flow_source: the named port variable is a function of t."""
+    ports = _one_port_ports(b, ctx, name, spec, path, spec.type)
+    values = b.vector(ctx, spec.value, (*path, "value"), _scope(ctx), spec.dimension, "`value`")
+    position = None
+    if getattr(spec, "position", None) is not None:
+        position = b.vector(ctx, spec.position, (*path, "position"), _scope(ctx), spec.dimension, "`position`")
+    for port in ports:
+        port.position = position
+        for k in range(spec.dimension):
+            b.define((port.e if which == "effort" else port.f)[k], values[k])
+    if len(ports) > 1:
+        # Several ports of one source share the imposed variable; the other adds up to zero power.
+        other = "f" if which == "effort" else "e"
+        for k in range(spec.dimension):
+            b.add_equation(sum(getattr(p, other)[k] for p in ports[1:]) - getattr(ports[0], other)[k],
+                           name, "dirac", f"share[{k}]", ctx.smap.locate(path))
+
+
+def lower_termination(b, ctx, name, spec, path, which: str):
+    """zero_effort (e = 0, seed D_pin) / zero_flow (f = 0, seed D_guide)."""
+    ports = _one_port_ports(b, ctx, name, spec, path, spec.type)
+    position = None
+    if getattr(spec, "position", None) is not None:
+        position = b.vector(ctx, spec.position, (*path, "position"), _scope(ctx), spec.dimension, "`position`")
+    for port in ports:
+        port.position = position
+        for k in range(spec.dimension):
+            b.define((port.e if which == "effort" else port.f)[k], sp.Integer(0))
+
+
+def lower_transform(b, ctx, name, spec, path):
+    """orthogonal_transform: f_b = Q f_a, e_a = −Qᵀ e_b (power preserving since QᵀQ = I)."""
+    n = len(spec.Q)
+    Q = b.matrix(ctx, spec.Q, (*path, "Q"), _scope(ctx), (n, n), "`Q`")
+    numeric = Q.xreplace({p.symbol: p.default for p in b.parameters.values()}).subs(T, 0.0)
+    try:
+        qn = np.array(numeric.evalf(), dtype=float)
+        if not np.allclose(qn.T @ qn, np.eye(n), atol=1e-10):
+            b.error("PHC-E401", f"`Q` of `{name}` is not orthogonal at the default parameters "
+                    f"(|QᵀQ − I| = {np.abs(qn.T @ qn - np.eye(n)).max():.3g}); the transform would not "
+                    "preserve power", ctx, (*path, "Q"))
+    except (TypeError, ValueError):
+        pass
+    domain = spec.domain or "generic"
+    span = ctx.smap.locate(path)
+    a = b.add_port(name, "a", domain, n, span=span)
+    if spec.split:
+        total = sum(spec.split.values())
+        if total != n:
+            b.error("PHC-E102", f"`split` dimensions add up to {total}, but `Q` is {n} × {n}", ctx, (*path, "split"))
+            return
+        outs = [b.add_port(name, pname, domain, dim, span=span) for pname, dim in spec.split.items()]
+        fb = [s for p in outs for s in p.f]
+        eb = [s for p in outs for s in p.e]
+    else:
+        out = b.add_port(name, "b", domain, n, span=span)
+        fb, eb = out.f, out.e
+    fa = sp.Matrix(a.f)
+    ebm = sp.Matrix(eb)
+    qf = Q * fa
+    qte = -Q.T * ebm
+    for k in range(n):
+        b.define(fb[k], qf[k])
+        b.define(a.e[k], qte[k])
+
+
+def lower_junction(b, ctx, name, spec, path):
+    """junction: common_flow (1-junction) or common_effort (0-junction); power Σ f·e = 0."""
+    domain = spec.domain or "generic"
+    span = ctx.smap.locate(path)
+    ports = [b.add_port(name, p, domain, spec.dimension, span=span) for p in spec.ports]
+    shared, summed = ("f", "e") if spec.kind == "common_flow" else ("e", "f")
+    for k in range(spec.dimension):
+        first = getattr(ports[0], shared)[k]
+        for port in ports[1:]:
+            b.define(getattr(port, shared)[k], first)
+        b.add_equation(sum(getattr(p, summed)[k] for p in ports), name, "dirac", f"sum[{k}]", span)

@@ -1,0 +1,181 @@
+"""User-defined port-Hamiltonian components (``type: phs``).
+
+Two ways to give the Dirac structure (seed section 2.1):
+
+* input-state-output form with J(x) skew, R(x) ⪰ 0 and per-port B(x)::
+
+      ẋ = (J − R)∇H − Σ_{effort_in} B e + Σ_{flow_in} B f,
+      f = Bᵀ∇H  (effort_in ports),      e = −Bᵀ∇H  (flow_in ports),
+
+  so that dH/dt = −∇HᵀR∇H − Σ f·e (seed, Remark "Energy balance");
+* kernel form: linear relations ``F f + E e + G λ = 0`` among the flows ``f_*`` and
+  efforts ``e_*`` of states, ports and resistive ports, with latent multipliers λ, as in
+  the seed's eq. (rigidDirac2) with its ∃μ. Storage flows are ``f_x = ẋ`` and storage
+  efforts ``e_x = ∂H/∂x``; resistive ports get their own constitutive laws.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import sympy as sp
+
+from phc.dae import T, Parameter
+
+
+def local_scope(b, ctx, name, spec, path) -> dict:
+    """Scope with the model's parameters, `t` and the component's own `parameters`."""
+    scope = {"t": T, **ctx.params}
+    for pname, value in spec.parameters.items():
+        ppath = (*path, "parameters", pname)
+        if pname in scope and pname in ctx.params:
+            b.error("PHC-E108", f"local parameter `{pname}` of `{name}` shadows a model parameter", ctx, ppath,
+                    hint="rename it", severity="warning", key=True)
+        ex = b.expr(ctx, value, ppath, scope)
+        sym = sp.Symbol(f"{name}.{pname}", real=True)
+        known = {p.symbol: p.default for p in b.parameters.values()}
+        try:
+            default = float(ex.xreplace(known).evalf())
+        except (TypeError, ValueError):
+            b.error("PHC-E104", f"local parameter `{pname}` of `{name}` must depend on parameters only", ctx, ppath)
+            default = 0.0
+        b.parameters[sym.name] = Parameter(sym.name, sym, default, None if ex.is_Number else ex,
+                                           span=ctx.smap.locate(ppath))
+        scope[pname] = sym
+    return scope
+
+
+def _port_scope(port) -> tuple:
+    if port.dimension == 1:
+        return port.f[0], port.e[0]
+    return list(port.f), list(port.e)
+
+
+def numeric_defaults(b, expr):
+    """Value of a parameter-only expression at the default parameters (t = 0)."""
+    return expr.xreplace({p.symbol: p.default for p in b.parameters.values()}).subs(T, 0.0)
+
+
+def lower_phs(b, ctx, name, spec, path):
+    scope = local_scope(b, ctx, name, spec, path)
+    span = ctx.smap.locate(path)
+    xs, dxs = [], []
+    for i, sname in enumerate(spec.states):
+        if sname in scope:
+            b.error("PHC-E109", f"state `{sname}` of `{name}` clashes with a parameter name", ctx,
+                    (*path, "states", i))
+        x, dx = b.add_state(name, sname, span)
+        xs.append(x)
+        dxs.append(dx)
+        scope[sname] = x
+    n = len(xs)
+    H = b.expr(ctx, spec.hamiltonian, (*path, "hamiltonian"), scope)
+    grad = sp.Matrix([sp.diff(H, x) for x in xs]) if n else sp.zeros(0, 1)
+    b.hamiltonian.append(H)
+    if spec.J is not None:
+        _lower_jrb(b, ctx, name, spec, path, scope, xs, dxs, grad, span)
+    else:
+        _lower_kernel(b, ctx, name, spec, path, scope, xs, dxs, grad, span)
+
+
+def _lower_jrb(b, ctx, name, spec, path, scope, xs, dxs, grad, span):
+    n = len(xs)
+    J = b.matrix(ctx, spec.J, (*path, "J"), scope, (n, n), "`J`")
+    R = b.matrix(ctx, spec.R, (*path, "R"), scope, (n, n), "`R`") if spec.R is not None else sp.zeros(n, n)
+    _check_structure(b, ctx, name, path, J, R, xs)
+    rhs = (J - R) * grad
+    for pname, pspec in spec.ports.items():
+        ppath = (*path, "ports", pname)
+        port = b.add_port(name, pname, pspec.domain, pspec.dimension, pspec.frame, span)
+        if pspec.B is None:
+            b.error("PHC-E110", f"port `{pname}` of `{name}` needs `B` (n_states × dimension) in J/R/B form",
+                    ctx, ppath)
+            continue
+        B = b.matrix(ctx, pspec.B, (*ppath, "B"), scope, (n, pspec.dimension), "`B`")
+        out = B.T * grad
+        if pspec.causality == "effort_in":
+            rhs -= B * sp.Matrix(port.e)
+            for k in range(pspec.dimension):
+                b.define(port.f[k], out[k])
+        else:
+            rhs += B * sp.Matrix(port.f)
+            for k in range(pspec.dimension):
+                b.define(port.e[k], -out[k])
+    for i in range(n):
+        b.add_equation(dxs[i] - rhs[i], name, "dirac", f"dynamics[{i}]", span)
+    b.dissipation.append((grad.T * R * grad)[0, 0] if n else sp.Integer(0))
+    if spec.relations is None and (spec.multipliers or spec.resistive):
+        b.error("PHC-E111", f"`multipliers` and `resistive` belong to the kernel form (`relations`) of `{name}`",
+                ctx, path)
+
+
+def _check_structure(b, ctx, name, path, J, R, xs):
+    """J skew and R symmetric PSD at a few sampled states (default parameters)."""
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        point = {x: float(v) for x, v in zip(xs, rng.normal(size=len(xs)))}
+        try:
+            Jn = np.array(numeric_defaults(b, J.xreplace(point)).evalf(), dtype=float)
+            Rn = np.array(numeric_defaults(b, R.xreplace(point)).evalf(), dtype=float)
+        except (TypeError, ValueError):
+            return
+        scale = max(1.0, np.abs(Jn).max(initial=0), np.abs(Rn).max(initial=0))
+        if np.abs(Jn + Jn.T).max(initial=0) > 1e-10 * scale:
+            b.error("PHC-E402", f"`J` of `{name}` is not skew-symmetric (max |J + Jᵀ| = "
+                    f"{np.abs(Jn + Jn.T).max():.3g}); power would not be conserved", ctx, (*path, "J"))
+            return
+        if np.abs(Rn - Rn.T).max(initial=0) > 1e-10 * scale:
+            b.error("PHC-E403", f"`R` of `{name}` is not symmetric", ctx, (*path, "R"))
+            return
+        if Rn.size and np.linalg.eigvalsh(Rn).min() < -1e-10 * scale:
+            b.error("PHC-E404", f"`R` of `{name}` is not positive semidefinite (smallest eigenvalue "
+                    f"{np.linalg.eigvalsh(Rn).min():.3g}); it would generate energy", ctx, (*path, "R"))
+            return
+
+
+def _lower_kernel(b, ctx, name, spec, path, scope, xs, dxs, grad, span):
+    for i, (x, dx) in enumerate(zip(xs, dxs)):
+        local = x.name.rsplit(".", 1)[-1]
+        scope[f"f_{local}"] = dx
+        scope[f"e_{local}"] = grad[i]
+    dim_z = len(xs)
+    for pname, pspec in spec.ports.items():
+        if pspec.B is not None:
+            b.error("PHC-E112", f"port `{pname}` of `{name}` has `B`, which only applies to the J/R/B form",
+                    ctx, (*path, "ports", pname, "B"))
+        port = b.add_port(name, pname, pspec.domain, pspec.dimension, pspec.frame, span)
+        scope[f"f_{pname}"], scope[f"e_{pname}"] = _port_scope(port)
+        dim_z += pspec.dimension
+    diss = sp.Integer(0)
+    laws = []
+    for rname, rspec in spec.resistive.items():
+        d = rspec.dimension
+        fs = [b.add_algebraic(name, f"{rname}.f" + ("" if d == 1 else f"[{k}]"), "resistive", span)
+              for k in range(d)]
+        es = [b.add_algebraic(name, f"{rname}.e" + ("" if d == 1 else f"[{k}]"), "resistive", span)
+              for k in range(d)]
+        scope[f"f_{rname}"] = fs[0] if d == 1 else fs
+        scope[f"e_{rname}"] = es[0] if d == 1 else es
+        diss += sum(f * e for f, e in zip(fs, es))
+        dim_z += d
+        laws.append((rname, rspec))
+    for mname in spec.multipliers:
+        scope[mname] = b.add_algebraic(name, mname, "multiplier", span)
+    relations = spec.relations or []
+    expected = dim_z + len(spec.multipliers)
+    if len(relations) != expected:
+        b.error("PHC-E113", f"`{name}` has {len(relations)} Dirac relations, but a Dirac structure on its "
+                f"{dim_z} flow/effort pairs with {len(spec.multipliers)} multiplier(s) needs {expected}",
+                ctx, (*path, "relations"),
+                hint="one relation per state, port component and resistive component, plus one per multiplier")
+    for i, rel in enumerate(relations):
+        ex = b.expr(ctx, rel, (*path, "relations", i), scope, equation=True)
+        b.add_equation(ex, name, "dirac", f"relations[{i}]", ctx.smap.locate((*path, "relations", i)))
+    for rname, rspec in laws:
+        if len(rspec.law) != rspec.dimension:
+            b.error("PHC-E114", f"resistive port `{rname}` of `{name}` has dimension {rspec.dimension} but "
+                    f"{len(rspec.law)} law equation(s)", ctx, (*path, "resistive", rname, "law"))
+        for k, law in enumerate(rspec.law):
+            lpath = (*path, "resistive", rname, "law", k)
+            ex = b.expr(ctx, law, lpath, scope, equation=True)
+            b.add_equation(ex, name, "resistive", f"{rname}.law[{k}]", ctx.smap.locate(lpath))
+    b.dissipation.append(diss)

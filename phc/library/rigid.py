@@ -1,0 +1,161 @@
+"""Rigid multibody components (``type: rigid``), seed section 3, eq. (mks2).
+
+State ``x_r = (q, p)`` with ``p = M(q) v`` and ``H = ½ pᵀv + V(q)``. The lowered rows are::
+
+    q̇ − Z(q) v                                                    = 0   (kinematics)
+    ṗ + Zᵀ(∇V + c'ᵀλ − ½ vᵀ∂M/∂q v) + F_d + G(p) v + Aᵀμ + Σ B_i e_i = 0   (momentum)
+    c'(q) Z(q) v = 0,   A(q) v = 0                                      (velocity level)
+    f_i = B_i(q)ᵀ v                                                     (port flows)
+
+and the position constraints ``c(q) = 0`` are registered as invariants; assembly keeps
+them by Gear–Gupta–Leimkuhler stabilization (the kinematics row becomes
+``q̇ − Zv + c'(q)ᵀη = 0``), which gives an index-2 system whose position constraints do
+not drift. The term ``−½ vᵀ∂M/∂q v`` is ``∂H/∂q`` at fixed p for configuration-dependent
+mass matrices (joint-coordinate models); it vanishes for the seed's constant M.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import sympy as sp
+
+from phc.library.phs import local_scope, numeric_defaults
+
+
+def lower_rigid(b, ctx, name, spec, path):
+    scope = local_scope(b, ctx, name, spec, path)
+    span = ctx.smap.locate(path)
+    nq = len(spec.q)
+    vnames = spec.v if spec.v is not None else [f"v_{q}" for q in spec.q]
+    nv = len(vnames)
+    if spec.Z is None and nv != nq:
+        b.error("PHC-E120", f"`{name}` has {nq} configuration variables and {nv} velocities; give `Z` "
+                f"({nq} × {nv}) with q̇ = Z v", ctx, (*path, "v"))
+        return
+    q, dq = [], []
+    for i, qn in enumerate(spec.q):
+        s, ds = b.add_state(name, qn, span)
+        q.append(s)
+        dq.append(ds)
+        scope[qn] = s
+    p, dp = [], []
+    for vn in vnames:
+        s, ds = b.add_state(name, f"p_{vn}", span)
+        p.append(s)
+        dp.append(ds)
+        scope[f"p_{vn}"] = s
+    v = [b.add_algebraic(name, vn, "velocity", span) for vn in vnames]
+    for vn, s in zip(vnames, v):
+        scope[vn] = s
+    qv, pv, vv = sp.Matrix(q), sp.Matrix(p), sp.Matrix(v)
+
+    M = b.matrix(ctx, spec.M, (*path, "M"), scope, (nv, nv), "`M`")
+    Z = (b.matrix(ctx, spec.Z, (*path, "Z"), scope, (nq, nv), "`Z`") if spec.Z is not None
+         else sp.eye(nq))
+    V = b.expr(ctx, spec.V, (*path, "V"), scope)
+    c = sp.Matrix([b.expr(ctx, ci, (*path, "constraints", i), scope) for i, ci in enumerate(spec.constraints)])
+    A = (b.matrix(ctx, spec.velocity_constraints, (*path, "velocity_constraints"), scope, (None, nv),
+                  "`velocity_constraints`") if spec.velocity_constraints else sp.zeros(0, nv))
+    Fd = (sp.Matrix(b.vector(ctx, spec.damping, (*path, "damping"), scope, nv, "`damping`"))
+          if spec.damping is not None else sp.zeros(nv, 1))
+    G = (b.matrix(ctx, spec.G, (*path, "G"), scope, (nv, nv), "`G`") if spec.G is not None
+         else sp.zeros(nv, nv))
+    if b.diags.has_errors:
+        return
+    _check_mass_matrix(b, ctx, name, path, M, q)
+
+    # Velocities: explicit for constant M, implicit rows otherwise.
+    m_depends_on_q = bool(M.free_symbols & set(q))
+    if not m_depends_on_q:
+        Minv = M.inv() if nv <= 6 else None
+        if Minv is not None:
+            vdef = Minv * pv
+            for k in range(nv):
+                b.define(v[k], sp.simplify(vdef[k]))
+        else:
+            rows = M * vv - pv
+            for k in range(nv):
+                b.add_equation(rows[k], name, "storage", f"momentum_definition[{k}]", span)
+    else:
+        rows = M * vv - pv
+        for k in range(nv):
+            b.add_equation(rows[k], name, "storage", f"momentum_definition[{k}]", span)
+
+    lam = [b.add_algebraic(name, f"lambda[{i}]", "multiplier", span) for i in range(len(c))]
+    mu = [b.add_algebraic(name, f"mu[{i}]", "multiplier", span) for i in range(A.rows)]
+    gradV = sp.Matrix([sp.diff(V, qi) for qi in q])
+    cq = c.jacobian(qv) if len(c) else sp.zeros(0, nq)
+    e_q = gradV + (cq.T * sp.Matrix(lam) if len(c) else sp.zeros(nq, 1))
+    if m_depends_on_q:
+        e_q -= sp.Matrix([(vv.T * sp.diff(M, qi) * vv)[0, 0] / 2 for qi in q])
+    force = Z.T * e_q + Fd + G * vv + (A.T * sp.Matrix(mu) if A.rows else sp.zeros(nv, 1))
+
+    for pname, pspec in spec.ports.items():
+        ppath = (*path, "ports", pname)
+        B = b.matrix(ctx, pspec.B, (*ppath, "B"), scope, (nv, pspec.dimension), "`B`")
+        position = None
+        if pspec.position is not None:
+            position = b.vector(ctx, pspec.position, (*ppath, "position"), scope, pspec.dimension, "`position`")
+        port = b.add_port(name, pname, pspec.domain, pspec.dimension, pspec.frame, span, position)
+        vel = B.T * vv
+        for k in range(pspec.dimension):
+            b.define(port.f[k], vel[k])
+        force += B * sp.Matrix(port.e)
+        if position is not None and not b.diags.has_errors:
+            _check_port_position(b, ctx, name, pname, ppath, sp.Matrix(position), qv, Z, B)
+
+    kin = dq_minus = sp.Matrix(dq) - Z * vv
+    for i in range(nq):
+        b.add_equation(kin[i], name, "kinematics", f"kinematics[{i}]", span)
+    mom = sp.Matrix(dp) + force
+    for i in range(nv):
+        b.add_equation(mom[i], name, "dynamics", f"momentum[{i}]", span)
+    vel_c = cq * Z * vv if len(c) else sp.zeros(0, 1)
+    for i in range(len(c)):
+        cspan = ctx.smap.locate((*path, "constraints", i))
+        b.add_equation(vel_c[i], name, "velocity_constraint", f"constraints[{i}].velocity", cspan)
+        b.add_invariant(c[i], name, f"constraints[{i}]", cspan)
+        b.add_invariant(vel_c[i], name, f"constraints[{i}].velocity", cspan, velocity=True)
+    av = A * vv if A.rows else sp.zeros(0, 1)
+    for i in range(A.rows):
+        cspan = ctx.smap.locate((*path, "velocity_constraints", i))
+        b.add_equation(av[i], name, "velocity_constraint", f"velocity_constraints[{i}]", cspan)
+        b.add_invariant(av[i], name, f"velocity_constraints[{i}]", cspan, velocity=True)
+    del dq_minus
+    b.hamiltonian.append((pv.T * vv)[0, 0] / 2 + V)
+    b.dissipation.append((vv.T * Fd)[0, 0])
+
+
+def _sample_points(q, n=3):
+    rng = np.random.default_rng(1)
+    return [{qi: float(x) for qi, x in zip(q, rng.uniform(-1.0, 1.0, len(q)))} for _ in range(n)]
+
+
+def _check_mass_matrix(b, ctx, name, path, M, q):
+    for point in _sample_points(q):
+        try:
+            Mn = np.array(numeric_defaults(b, M.xreplace(point)).evalf(), dtype=float)
+        except (TypeError, ValueError):
+            return
+        if np.abs(Mn - Mn.T).max(initial=0) > 1e-12 * max(1.0, np.abs(Mn).max(initial=0)):
+            b.error("PHC-E121", f"mass matrix `M` of `{name}` is not symmetric", ctx, (*path, "M"))
+            return
+        if Mn.size and np.linalg.eigvalsh(Mn).min() <= 0:
+            b.error("PHC-E122", f"mass matrix `M` of `{name}` is not positive definite at the default "
+                    f"parameters (smallest eigenvalue {np.linalg.eigvalsh(Mn).min():.3g})", ctx, (*path, "M"))
+            return
+
+
+def _check_port_position(b, ctx, name, pname, ppath, r, qv, Z, B):
+    """d/dt r(q) must equal the port flow Bᵀv, i.e. ∂r/∂q · Z = Bᵀ, at sampled q."""
+    D = r.jacobian(qv) * Z - B.T
+    for point in _sample_points(list(qv)):
+        try:
+            Dn = np.array(numeric_defaults(b, D.xreplace(point)).evalf(), dtype=float)
+        except (TypeError, ValueError):
+            return
+        if np.abs(Dn).max(initial=0) > 1e-9:
+            b.error("PHC-E123", f"`position` of port `{pname}` of `{name}` does not match its velocity map: "
+                    f"∂r/∂q·Z − Bᵀ ≠ 0 (max {np.abs(Dn).max():.3g}); its time derivative must be the port flow "
+                    "Bᵀv", ctx, (*ppath, "position"))
+            return

@@ -1,0 +1,84 @@
+"""`SimResult`: what a simulation returns, successful or not."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+
+
+@dataclass
+class SimResult:
+    """Time series and figures of one run.
+
+    A failed run (``success=False``) keeps everything computed up to the failure.
+    ``energy_balance_error`` is ``max |H(t) − H(t₀) + ∫(P_ports + P_diss) dt|``, zero in
+    exact arithmetic by the seed's Remark "Energy balance"; ``energy_balance_relative``
+    divides it by the largest |H| seen. ``constraint_drift`` is the largest |g| of the
+    position-level invariants over the output times, ``velocity_drift`` the same for the
+    velocity constraints.
+    """
+
+    success: bool
+    message: str
+    t: np.ndarray
+    y: np.ndarray
+    yp: np.ndarray
+    variables: tuple[str, ...]
+    differential: np.ndarray
+    H: np.ndarray
+    port_power: np.ndarray
+    dissipation: np.ndarray
+    energy_supplied: np.ndarray
+    outputs: dict[str, np.ndarray] = field(default_factory=dict)
+    invariants: Optional[np.ndarray] = None
+    invariant_labels: tuple[str, ...] = ()
+    velocity_invariants: Optional[np.ndarray] = None
+    energy_balance_error: float = float("nan")
+    energy_balance_relative: float = float("nan")
+    constraint_drift: float = 0.0
+    velocity_drift: float = 0.0
+    steps: int = 0
+    n_residual_evals: int = 0
+    n_jacobian_evals: int = 0
+    cpu_time_s: float = 0.0
+    n_states: int = 0
+    n_equations: int = 0
+    solver: str = "ida"
+    rtol: float = 0.0
+    atol: float = 0.0
+    initial_choices: dict[str, float] = field(default_factory=dict)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        """Time series of a variable or output by name."""
+        if name in self.outputs:
+            return self.outputs[name]
+        if name == "H":
+            return self.H
+        try:
+            return self.y[:, self.variables.index(name)]
+        except ValueError:
+            raise KeyError(f"no variable or output named `{name}`") from None
+
+    def summary(self) -> dict:
+        """The JSON summary printed by `phc simulate --format json`."""
+        return {
+            "success": bool(self.success),
+            "message": self.message,
+            "solver": self.solver,
+            "rtol": self.rtol,
+            "atol": self.atol,
+            "n_states": int(self.n_states),
+            "n_equations": int(self.n_equations),
+            "t_final": float(self.t[-1]) if len(self.t) else None,
+            "steps": int(self.steps),
+            "n_residual_evals": int(self.n_residual_evals),
+            "n_jacobian_evals": int(self.n_jacobian_evals),
+            "cpu_time_s": float(self.cpu_time_s),
+            "energy_balance_error": float(self.energy_balance_error),
+            "energy_balance_relative": float(self.energy_balance_relative),
+            "constraint_drift": float(self.constraint_drift),
+            "velocity_drift": float(self.velocity_drift),
+            "initial_choices": self.initial_choices,
+        }

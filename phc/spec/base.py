@@ -1,0 +1,52 @@
+"""The strict pydantic base shared by every input model (the `*Spec` layer).
+
+A model file is data: the spec layer only checks shapes, types and names.
+Expressions stay strings (or numbers) here; they are parsed against the names
+in scope by :mod:`phc.elaborate` through the whitelisting parser in
+:mod:`phc.spec.expressions`, never by ``eval``.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Annotated, Union
+
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, StrictFloat, StrictInt
+
+IDENTIFIER_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+
+
+class SpecModel(BaseModel):
+    """Base of all spec models: unknown keys are errors, numbers must be finite."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        allow_inf_nan=False,
+        frozen=True,
+        use_attribute_docstrings=True,
+        populate_by_name=True,
+    )
+
+
+def _check_identifier(name: str) -> str:
+    if not IDENTIFIER_RE.match(name):
+        raise ValueError(
+            f"`{name}` is not a valid name; use a letter followed by letters, digits or `_`"
+        )
+    return name
+
+
+Identifier = Annotated[str, AfterValidator(_check_identifier)]
+"""A name: a letter followed by letters, digits or underscores."""
+
+Expr = Annotated[
+    Union[StrictInt, StrictFloat, str],
+    Field(
+        description="A number or an expression string over parameters, states and `t` "
+        "(operators + - * / **, functions sin cos tan exp log sqrt abs min max atan2 ifelse ...).",
+    ),
+]
+"""A number, or an expression string parsed by the whitelisting parser."""
+
+Vector = list[Expr]
+Matrix = list[list[Expr]]

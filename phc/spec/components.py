@@ -1,0 +1,289 @@
+"""Component specs: user-defined (`phs`, `rigid`), nested models and the library.
+
+Each class is one ``type:`` of a component entry in a model file. The union
+:data:`ComponentSpec` is discriminated on ``type``. The physics of each type
+lives in :mod:`phc.library`; this module only describes what a user may write.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal, Optional, Union
+
+from pydantic import Field, model_validator
+
+from phc.spec.base import Expr, Identifier, Matrix, SpecModel, Vector
+
+Domain = Literal[
+    "mechanical.translational",
+    "mechanical.rotational",
+    "electrical",
+    "hydraulic",
+    "thermal",
+    "generic",
+]
+"""Physical domain of a power port. Connected ports must share it."""
+
+
+class _Component(SpecModel):
+    description: Optional[str] = None
+    """Free text shown in reports."""
+
+
+class PortSpec(SpecModel):
+    """A power port: a flow vector f and an effort vector e of equal dimension.
+
+    Generator sign convention (seed, Remark "Sign convention"): ``f·e`` is the power the
+    component delivers through the port; mechanical efforts are reaction forces
+    (``e = -F_acting``).
+    """
+
+    domain: Domain = "generic"
+    """Physical domain; connected ports must have the same domain."""
+    dimension: int = Field(1, ge=1, le=64)
+    """Number of flow (and effort) components."""
+    frame: Optional[str] = None
+    """Name of the coordinate frame of vector ports; connected ports must agree when both give one."""
+    description: Optional[str] = None
+
+
+class PhsPortSpec(PortSpec):
+    """A port of a `phs` component in input-state-output form.
+
+    ``causality: effort_in``: ``ẋ = (J−R)∇H − B e``, ``f = Bᵀ∇H``.
+    ``causality: flow_in``: ``ẋ = (J−R)∇H + B f``, ``e = −Bᵀ∇H``.
+    Both give ``dH/dt = −∇HᵀR∇H − f·e`` (seed, Remark "Energy balance").
+    """
+
+    B: Optional[Matrix] = None
+    """Input matrix (n_states × dimension). Only in J/R/B form."""
+    causality: Literal["effort_in", "flow_in"] = "effort_in"
+    """Which port variable is the input in J/R/B form."""
+
+
+class ResistiveSpec(SpecModel):
+    """A resistive port (f_R, e_R) with a constitutive law; passive when f_R·e_R ≥ 0."""
+
+    dimension: int = Field(1, ge=1, le=64)
+    law: list[str]
+    """`dimension` equations relating `f_<name>` and `e_<name>`, e.g. `e_R = r*f_R`."""
+
+
+class PhsSpec(_Component):
+    """A user-defined port-Hamiltonian component.
+
+    Either in input-state-output form (give `J`, optionally `R` and each port's `B`) or in
+    kernel form (give `relations`: linear relations among the flows `f_*` and efforts `e_*`
+    of states, ports and resistive ports, with optional latent `multipliers`, as in the
+    seed's eq. (rigidDirac2) with its ∃μ). States' flows are `f_x = dx/dt`, their efforts
+    `e_x = ∂H/∂x`.
+    """
+
+    type: Literal["phs"]
+    parameters: dict[Identifier, Expr] = {}
+    """Local parameters (may refer to model parameters)."""
+    states: list[Identifier]
+    """Energy variables x."""
+    hamiltonian: Expr = 0
+    """H(x): the stored energy."""
+    J: Optional[Matrix] = None
+    """Skew-symmetric interconnection matrix J(x) (n_states × n_states)."""
+    R: Optional[Matrix] = None
+    """Symmetric positive semidefinite dissipation matrix R(x)."""
+    ports: dict[Identifier, PhsPortSpec] = {}
+    multipliers: list[Identifier] = []
+    """Latent variables of the kernel form."""
+    relations: Optional[list[str]] = None
+    """Dirac relations (kernel form), one equation each."""
+    resistive: dict[Identifier, ResistiveSpec] = {}
+    """Resistive ports (kernel form)."""
+
+    @model_validator(mode="after")
+    def _one_form(self):
+        if self.J is not None and self.relations is not None:
+            raise ValueError("give either `J` (input-state-output form) or `relations` (kernel form), not both")
+        if self.J is None and self.relations is None:
+            raise ValueError("a `phs` component needs `J` (input-state-output form) or `relations` (kernel form)")
+        return self
+
+
+class RigidPortSpec(PortSpec):
+    """A port of a rigid multibody component: its flow is ``Bᵀ(q) v`` (seed eq. mks2)."""
+
+    B: Matrix
+    """Port map B(q) (n_velocities × dimension)."""
+    position: Optional[Vector] = None
+    """Position r(q) of the port (dimension entries) with ``d/dt r(q) = Bᵀv``. When two
+    connected ports both give positions, phc keeps ``r₁ = r₂`` at position level (GGL
+    stabilization) so the joint does not drift."""
+
+
+class RigidSpec(_Component):
+    """Rigid multibody data of the seed's section 3 (eq. mks2).
+
+    State (q, p) with p = M(q) v; H = ½ pᵀv + V(q). Position constraints c(q) = 0 are
+    integrated in the stabilized index-2 (Gear–Gupta–Leimkuhler) form.
+    """
+
+    type: Literal["rigid"]
+    parameters: dict[Identifier, Expr] = {}
+    q: list[Identifier]
+    """Configuration variables."""
+    v: Optional[list[Identifier]] = None
+    """Generalized velocities (default: `v_<q>` for each q; requires Z square)."""
+    M: Matrix
+    """Mass matrix, constant or configuration dependent M(q); symmetric positive definite."""
+    Z: Optional[Matrix] = None
+    """Kinematics q̇ = Z(q) v (n_q × n_v). Default identity."""
+    V: Expr = 0
+    """Potential energy V(q)."""
+    constraints: list[Expr] = []
+    """Position constraints c(q) = 0."""
+    velocity_constraints: Matrix = []
+    """Rows of A(q) in the velocity constraints A(q) v = 0."""
+    damping: Optional[Vector] = None
+    """Damping force F_d(q, v) with vᵀF_d ≥ 0."""
+    G: Optional[Matrix] = None
+    """Skew gyroscopic matrix G(p)."""
+    ports: dict[Identifier, RigidPortSpec] = {}
+
+
+class ModelComponentSpec(_Component):
+    """Another model file used as a component; its exposed `ports` become this component's ports."""
+
+    type: Literal["model"]
+    file: str
+    """Path of the model file, relative to this file."""
+    parameters: dict[Identifier, Expr] = {}
+    """Overrides of the nested model's parameters (expressions in this model's parameters)."""
+
+
+class _OnePort(_Component):
+    domain: Optional[Domain] = None
+    """Domain of the port (default depends on the type)."""
+    dimension: int = Field(1, ge=1, le=64)
+    ports: list[Identifier] = ["port"]
+    """Port names. Several ports share the same flow (like a 1-junction): a mass with
+    several attachment points."""
+
+
+class MassSpec(_OnePort):
+    """Mass (or inertia): H = |p|²/2m, port flow p/m, ṗ = −Σ e."""
+
+    type: Literal["mass"]
+    m: Expr
+
+
+class InductorSpec(_OnePort):
+    """Inductor: H = φ²/2L, port flow (current) φ/L, φ̇ = −Σ e."""
+
+    type: Literal["inductor"]
+    L: Expr
+
+
+class SpringSpec(_OnePort):
+    """Linear spring: H = k|x|²/2, ẋ = f, e = −kx (one port: its elongation rate)."""
+
+    type: Literal["spring"]
+    k: Expr
+
+
+class CapacitorSpec(_OnePort):
+    """Capacitor: H = q²/2C, q̇ = f (current), e = −q/C."""
+
+    type: Literal["capacitor"]
+    C: Expr
+
+
+class DamperSpec(_OnePort):
+    """Linear damper: e = −d f, dissipating d|f|² ≥ 0."""
+
+    type: Literal["damper"]
+    d: Expr
+
+
+class ResistorSpec(_OnePort):
+    """Linear resistor: e = −R f (voltage drop), dissipating R f² ≥ 0."""
+
+    type: Literal["resistor"]
+    R: Expr
+
+
+class EffortSourceSpec(_OnePort):
+    """Imposes the effort it applies to its neighbour: e = value(t)."""
+
+    type: Literal["effort_source"]
+    value: Union[Expr, Vector]
+    """Expression(s) in `t` and parameters."""
+
+
+class FlowSourceSpec(_OnePort):
+    """Imposes the flow: f = value(t)."""
+
+    type: Literal["flow_source"]
+    value: Union[Expr, Vector]
+    position: Optional[Vector] = None
+    """Optional position (integral of the flow) in `t`; lets phc keep the driven
+    coordinate at position level."""
+
+
+class ZeroEffortSpec(_OnePort):
+    """Termination e = 0 with free flow (the seed's D_pin / D_free)."""
+
+    type: Literal["zero_effort"]
+
+
+class ZeroFlowSpec(_OnePort):
+    """Termination f = 0 with free effort (the seed's D_guide, a fixed support)."""
+
+    type: Literal["zero_flow"]
+    position: Optional[Vector] = None
+    """Optional fixed position of the support; with a rigid port position it gives a
+    position-level constraint."""
+
+
+class OrthogonalTransformSpec(_Component):
+    """Power-preserving port transform (the seed's Q_s, eq. slider-crank-guide-transformation).
+
+    Port `a` (dimension n) and port `b`: ``f_b = Q f_a``, ``e_b = −Q e_a`` so that
+    ``f_a·e_a + f_b·e_b = 0``. Connected to a port (f, e) of a neighbour, `b` carries
+    (Q f, Q e). With `split`, `b` is replaced by ports with the given dimensions.
+    """
+
+    type: Literal["orthogonal_transform"]
+    Q: Matrix
+    """Orthogonal n × n matrix (constant or modulated by parameters/time)."""
+    domain: Optional[Domain] = None
+    split: Optional[dict[Identifier, int]] = None
+    """Output ports and their dimensions, in order (e.g. `{s: 1, n: 1}`)."""
+
+
+class JunctionSpec(_Component):
+    """A power-conserving junction of n ports.
+
+    `common_flow` (1-junction): all flows equal, efforts sum to zero (series electrical
+    connection, forces on one body). `common_effort` (0-junction): all efforts equal,
+    flows sum to zero.
+    """
+
+    type: Literal["junction"]
+    kind: Literal["common_flow", "common_effort"]
+    ports: list[Identifier] = Field(min_length=2)
+    domain: Optional[Domain] = None
+    dimension: int = Field(1, ge=1, le=64)
+
+
+LIBRARY_TYPES = (
+    MassSpec, InductorSpec, SpringSpec, CapacitorSpec, DamperSpec, ResistorSpec,
+    EffortSourceSpec, FlowSourceSpec, ZeroEffortSpec, ZeroFlowSpec,
+    OrthogonalTransformSpec, JunctionSpec,
+)
+
+ComponentSpec = Annotated[
+    Union[
+        PhsSpec, RigidSpec, ModelComponentSpec,
+        MassSpec, InductorSpec, SpringSpec, CapacitorSpec, DamperSpec, ResistorSpec,
+        EffortSourceSpec, FlowSourceSpec, ZeroEffortSpec, ZeroFlowSpec,
+        OrthogonalTransformSpec, JunctionSpec,
+    ],
+    Field(discriminator="type"),
+]

@@ -1,0 +1,532 @@
+"""Whitelisting parser for the expression strings in model files.
+
+A model file is *data*: whoever hands us a YAML file must not be able to run
+code with it. Expression strings (``m*g*y + 0.5*k*(x - l0)**2``) are therefore
+never given to ``eval``/``exec`` nor to ``sympy.sympify``/``parse_expr`` (which
+call ``eval``). Instead the text is parsed with ``ast.parse(mode="eval")`` and
+the tree is walked against a whitelist of node types, building sympy objects
+directly. Anything not on the list -- attribute access, lambdas, strings,
+comprehensions, unknown functions, ... -- is an :class:`ExpressionError` that
+names the construct and the column where it starts. Resource limits (text
+length, node count, nesting depth, exponent size) keep hostile input from
+exhausting time or memory during parsing or sympy's automatic evaluation.
+"""
+
+from __future__ import annotations
+
+import ast
+import difflib
+import math
+import warnings
+from dataclasses import dataclass
+from typing import Callable, Mapping
+
+import sympy as sp
+
+__all__ = ["CONSTANTS", "FUNCTIONS", "ExpressionError", "FunctionSpec",
+           "parse_equation", "parse_expression", "validate_syntax"]
+
+MAX_LENGTH = 10_000      # characters of expression text
+MAX_NODES = 2_000        # AST nodes
+MAX_DEPTH = 100          # nesting levels (a flat chain of + or * counts as one)
+MAX_EXPONENT = 64        # |constant exponent|
+MAX_DIGITS = 30          # digits of an integer literal
+MAX_BITS = 4_096         # estimated size of an exact numeric power
+
+
+class ExpressionError(ValueError):
+    """A malformed or forbidden expression.
+
+    Parameters
+    ----------
+    message : str
+        What is wrong, naming the offending construct.
+    col : int
+        0-based character offset in the expression text where the problem starts.
+    hint : str or None
+        Optional fix suggestion, e.g. ``"did you mean `theta`?"``.
+    """
+
+    def __init__(self, message: str, col: int = 0, hint: str | None = None):
+        super().__init__(message)
+        self.message, self.col, self.hint = message, col, hint
+
+    def __str__(self) -> str:
+        return self.message if self.hint is None else f"{self.message} ({self.hint})"
+
+    def shifted(self, offset: int) -> "ExpressionError":
+        """Return a copy whose column is moved right by `offset` characters."""
+        return ExpressionError(self.message, self.col + offset, self.hint)
+
+
+@dataclass(frozen=True)
+class FunctionSpec:
+    """A whitelisted function: positional arity range and the sympy builder."""
+
+    min_args: int
+    max_args: int | None      # None: no upper bound
+    build: Callable[..., sp.Basic]
+
+
+def _one(f: Callable) -> FunctionSpec:
+    return FunctionSpec(1, 1, f)
+
+
+FUNCTIONS: dict[str, FunctionSpec] = {
+    "sin": _one(sp.sin), "cos": _one(sp.cos), "tan": _one(sp.tan),
+    "asin": _one(sp.asin), "acos": _one(sp.acos), "atan": _one(sp.atan),
+    "atan2": FunctionSpec(2, 2, sp.atan2),
+    "sinh": _one(sp.sinh), "cosh": _one(sp.cosh), "tanh": _one(sp.tanh),
+    "exp": _one(sp.exp), "log": _one(sp.log), "sqrt": _one(sp.sqrt),
+    "abs": _one(sp.Abs), "sign": _one(sp.sign),
+    "min": FunctionSpec(2, None, sp.Min), "max": FunctionSpec(2, None, sp.Max),
+    "heaviside": _one(lambda x: sp.Heaviside(x, 1)),
+    "ifelse": FunctionSpec(3, 3, lambda c, a, b: sp.Piecewise((a, c), (b, True))),
+}
+CONSTANTS: dict[str, sp.Expr] = {"pi": sp.pi}
+
+_ARITH = {ast.Add: "+", ast.Sub: "-", ast.Mult: "*", ast.Div: "/", ast.Pow: "**"}
+_FORBIDDEN_OPS = {ast.FloorDiv: "//", ast.Mod: "%", ast.MatMult: "@", ast.LShift: "<<",
+                  ast.RShift: ">>", ast.BitOr: "|", ast.BitXor: "^", ast.BitAnd: "&"}
+_CHAIN = {ast.Add: "sum", ast.Sub: "sum", ast.Mult: "product", ast.Div: "product"}
+_RELATIONS = {ast.Lt: ("<", sp.Lt), ast.LtE: ("<=", sp.Le), ast.Gt: (">", sp.Gt),
+              ast.GtE: (">=", sp.Ge), ast.Eq: ("==", sp.Eq), ast.NotEq: ("!=", sp.Ne)}
+_CONDITIONS = (ast.Compare, ast.BoolOp)
+_UNDEFINED = (sp.zoo, sp.oo, sp.S.NegativeInfinity, sp.nan)
+_REJECTED = {
+    ast.Lambda: "lambda expressions", ast.ListComp: "comprehensions", ast.SetComp: "comprehensions",
+    ast.DictComp: "comprehensions", ast.GeneratorExp: "generator expressions",
+    ast.JoinedStr: "f-strings", ast.FormattedValue: "f-strings",
+    ast.NamedExpr: "assignment expressions (`:=`)", ast.Starred: "starred expressions (`*x`)",
+    ast.Dict: "dict displays", ast.Set: "set displays", ast.List: "list displays",
+    ast.Tuple: "tuples", ast.IfExp: "conditional expressions (`a if c else b`)",
+    ast.Await: "`await` expressions", ast.Yield: "`yield` expressions",
+    ast.YieldFrom: "`yield` expressions", ast.Slice: "slices",
+}
+
+
+def _suggest(word: str, candidates, what: str = "known names") -> str | None:
+    """A did-you-mean hint, else a short list of what exists, else None."""
+    candidates = sorted(set(candidates))
+    close = [c for c in candidates if c.lower() == word.lower()]
+    close = close or difflib.get_close_matches(word, candidates, n=1)
+    if close:
+        return f"did you mean `{close[0]}`?"
+    if not candidates:
+        return None
+    more = f" (and {len(candidates) - 8} more)" if len(candidates) > 8 else ""
+    return f"{what}: " + ", ".join(f"`{c}`" for c in candidates[:8]) + more
+
+
+def _is_cond(node: ast.AST) -> bool:
+    return isinstance(node, _CONDITIONS) or (isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.Not))
+
+
+def _literal(value: object, col: int) -> sp.Expr:
+    """Turn an int/float literal into a sympy number; everything else is an error."""
+    if isinstance(value, bool) or value is None or value is Ellipsis:
+        raise ExpressionError(f"`{value!r}` is not allowed in an expression", col)
+    if isinstance(value, int):
+        if abs(value) >= 10 ** MAX_DIGITS:
+            raise ExpressionError(f"integer literal has more than {MAX_DIGITS} digits", col)
+        return sp.Integer(value)
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            raise ExpressionError("number is not finite", col)
+        return sp.Float(value)
+    kind = {str: "string literals", bytes: "bytes literals", complex: "complex numbers"}
+    raise ExpressionError(f"{kind.get(type(value), type(value).__name__ + ' values')} are not allowed", col)
+
+
+class _Converter:
+    """Walks a parsed tree, checking every node and building the sympy result.
+
+    `names` is None in syntax-only mode: every name then becomes a fresh Symbol.
+    """
+
+    def __init__(self, text: str, names: Mapping[str, object] | None):
+        self.text, self.names = text, names
+        self._bytes = None if text.isascii() else text.encode("utf-8")
+
+    # -- positions and errors ------------------------------------------------
+    def col(self, node: ast.AST, end: bool = False) -> int:
+        col = node.end_col_offset if end else node.col_offset
+        if self._bytes is not None:   # ast offsets are UTF-8 byte offsets
+            col = len(self._bytes[:col].decode("utf-8", errors="ignore"))
+        return col
+
+    def fail(self, message: str, node: ast.AST, hint: str | None = None) -> None:
+        raise ExpressionError(message, self.col(node), hint)
+
+    def op_col(self, node: ast.BinOp) -> int:
+        """Column of the operator symbol between the operands of `node`."""
+        start, stop = self.col(node.left, end=True), self.col(node.right)
+        symbol = _ARITH.get(type(node.op)) or _FORBIDDEN_OPS.get(type(node.op), "")
+        found = self.text.find(symbol, start, stop) if symbol else -1
+        return found if found >= 0 else self.col(node)
+
+    def build(self, node: ast.AST, func: Callable, *args) -> sp.Basic:
+        """Call a sympy constructor, turning sympy's complaints into ExpressionErrors."""
+        try:
+            result = func(*args)
+        except (TypeError, ValueError, ArithmeticError, NotImplementedError) as exc:
+            raise ExpressionError(f"cannot build expression: {exc}", self.col(node)) from None
+        if result in _UNDEFINED:
+            self.fail("expression is undefined or infinite here", node)
+        if isinstance(result, sp.Float) and not math.isfinite(float(result)):
+            self.fail("number is not finite", node)
+        return result
+
+    def check_depth(self, tree: ast.Expression) -> None:
+        """Reject trees nested deeper than MAX_DEPTH (iteratively; flat +/* chains count once)."""
+        stack = [(tree.body, 1)]
+        while stack:
+            node, depth = stack.pop()
+            if depth > MAX_DEPTH:
+                self.fail("expression is nested too deeply", node)
+            for child in ast.iter_child_nodes(node):
+                flat = (isinstance(node, ast.BinOp) and child is node.left and isinstance(child, ast.BinOp)
+                        and _CHAIN.get(type(child.op), 0) == _CHAIN.get(type(node.op), 1))
+                if isinstance(child, ast.expr):
+                    stack.append((child, depth if flat else depth + 1))
+
+    # -- dispatch --------------------------------------------------------------
+    def visit(self, node: ast.AST) -> sp.Expr:
+        method = getattr(self, "visit_" + type(node).__name__, None)
+        if method is None:
+            self.reject(node)
+        return method(node)
+
+    def reject(self, node: ast.AST) -> None:
+        if isinstance(node, ast.Compare):
+            symbol = _RELATIONS.get(type(node.ops[0]), (type(node.ops[0]).__name__,))[0]
+            self.fail(f"comparison `{symbol}` is only allowed in the first argument of `ifelse`", node,
+                      "write e.g. `ifelse(x < 0, a, b)`; an equation uses a single `=`")
+        if _is_cond(node):
+            op = {ast.And: "and", ast.Or: "or"}.get(type(getattr(node, "op", None)), "not")
+            self.fail(f"boolean operator `{op}` is only allowed in the first argument of `ifelse`", node)
+        what = _REJECTED.get(type(node), f"{type(node).__name__} expressions")
+        hint = "use `ifelse(c, a, b)`" if isinstance(node, ast.IfExp) else None
+        self.fail(f"{what} are not allowed", node, hint)
+
+    def visit_Constant(self, node: ast.Constant) -> sp.Expr:
+        return _literal(node.value, self.col(node))
+
+    # -- names -----------------------------------------------------------------
+    def dotted(self, node: ast.AST) -> str | None:
+        """`a.b.c` for an Attribute chain rooted at a Name, None for other roots."""
+        parts = []
+        while isinstance(node, ast.Attribute):
+            if node.attr.startswith("_"):
+                col = self.col(node, end=True) - len(node.attr)
+                raise ExpressionError("attribute access is not allowed", col)
+            parts.append(node.attr)
+            node = node.value
+        if not isinstance(node, ast.Name):
+            return None
+        return ".".join([node.id, *reversed(parts)])
+
+    def lookup(self, name: str, node: ast.AST) -> object:
+        if self.names is None:
+            return CONSTANTS.get(name) or sp.Symbol(name)
+        if name in self.names:
+            return self.names[name]
+        if name in CONSTANTS:
+            return CONSTANTS[name]
+        if name in FUNCTIONS:
+            self.fail(f"`{name}` is a function; call it like `{name}(x)`", node)
+        self.fail(f"unknown name `{name}`", node, _suggest(name, [*self.names, *CONSTANTS]))
+
+    def visit_Name(self, node: ast.AST) -> sp.Expr:
+        name = self.dotted(node)
+        if name is None:   # attribute on a non-name, e.g. `(x + 1).real`
+            self.visit(node.value)
+            raise ExpressionError("attribute access is not allowed", self.col(node, end=True) - len(node.attr))
+        value = self.lookup(name, node)
+        if isinstance(value, (list, tuple, sp.MatrixBase)):
+            self.fail(f"`{name}` is a vector of length {len(value)}; index it like `{name}[0]`", node)
+        if isinstance(value, bool) or not isinstance(value, (sp.Basic, int, float)):
+            raise TypeError(f"names[{name!r}] must be a sympy expression or a sequence of them, "
+                            f"not {type(value).__name__}")
+        return value if isinstance(value, sp.Basic) else _literal(value, self.col(node))
+
+    visit_Attribute = visit_Name
+
+    def visit_Subscript(self, node: ast.Subscript) -> sp.Expr:
+        index = node.slice
+        if isinstance(index, ast.Slice):
+            self.fail("slices are not allowed", index)
+        sign = 1
+        if isinstance(index, ast.UnaryOp) and isinstance(index.op, (ast.USub, ast.UAdd)):
+            sign = -1 if isinstance(index.op, ast.USub) else 1
+            index = index.operand
+        if not (isinstance(index, ast.Constant) and type(index.value) is int):
+            self.fail("index must be an integer literal, like `p[0]`", node.slice)
+        i = sign * index.value
+        name = self.dotted(node.value) if isinstance(node.value, (ast.Name, ast.Attribute)) else None
+        if name is None:
+            self.fail("indexing is only allowed on vector names, like `p[0]`", node)
+        if self.names is None:
+            return sp.Symbol(f"{name}[{i}]")
+        value = self.lookup(name, node.value)
+        if not isinstance(value, (list, tuple, sp.MatrixBase)):
+            self.fail(f"`{name}` is not a vector and cannot be indexed", node)
+        if not -len(value) <= i < len(value):
+            self.fail(f"index {i} is out of range for `{name}` (length {len(value)})", node.slice)
+        item = value[i]
+        return item if isinstance(item, sp.Basic) else _literal(item, self.col(node))
+
+    # -- arithmetic ------------------------------------------------------------
+    def visit_UnaryOp(self, node: ast.UnaryOp) -> sp.Expr:
+        if isinstance(node.op, ast.Not):
+            self.reject(node)
+        if isinstance(node.op, ast.Invert):
+            self.fail("operator `~` is not allowed", node)
+        operand = self.visit(node.operand)
+        return operand if isinstance(node.op, ast.UAdd) else self.build(node, sp.Mul, sp.Integer(-1), operand)
+
+    def visit_BinOp(self, node: ast.BinOp) -> sp.Expr:
+        kind = _CHAIN.get(type(node.op))
+        if kind is None:
+            if isinstance(node.op, ast.Pow):
+                return self.power(node)
+            symbol = _FORBIDDEN_OPS.get(type(node.op), type(node.op).__name__)
+            hint = "use `**` for powers" if symbol == "^" else None
+            raise ExpressionError(f"operator `{symbol}` is not allowed", self.op_col(node), hint)
+        chain = []   # flatten the left-nested chain iteratively: a + b - c + ...
+        while isinstance(node, ast.BinOp) and _CHAIN.get(type(node.op)) == kind:
+            chain.append(node)
+            node = node.left
+        result = self.visit(node)
+        for link in reversed(chain):
+            rhs = self.visit(link.right)
+            if isinstance(link.op, ast.Sub):
+                rhs = self.build(link.right, sp.Mul, sp.Integer(-1), rhs)
+            elif isinstance(link.op, ast.Div):
+                if rhs.is_zero:
+                    raise ExpressionError("division by zero", self.op_col(link))
+                rhs = self.checked_pow(link.right, rhs, sp.Integer(-1), link.right)
+            result = self.build(link, sp.Add if kind == "sum" else sp.Mul, result, rhs)
+        return result
+
+    def power(self, node: ast.BinOp) -> sp.Expr:
+        return self.checked_pow(node, self.visit(node.left), self.visit(node.right), node.right)
+
+    def checked_pow(self, node: ast.AST, base: sp.Expr, exponent: sp.Expr, exp_node: ast.AST) -> sp.Expr:
+        """Build ``base**exponent`` unless the exponent or the exact result is absurdly large."""
+        if exponent.is_number:
+            size = exponent if exponent.is_Number else self.build(exp_node, lambda: sp.Abs(exponent).evalf(15))
+            if size.is_Number and abs(size) > MAX_EXPONENT:
+                self.fail(f"exponent {exponent} is too large (at most {MAX_EXPONENT})", exp_node)
+            if base.is_Rational and exponent.is_Number:
+                bits = max(abs(base.p).bit_length(), base.q.bit_length()) * abs(float(exponent))
+                if bits > MAX_BITS:
+                    self.fail(f"number {base}**{exponent} is too large", node)
+        return self.build(node, sp.Pow, base, exponent)
+
+    # -- functions and conditions ---------------------------------------------
+    def visit_Call(self, node: ast.Call) -> sp.Expr:
+        func = node.func
+        if not isinstance(func, ast.Name):
+            name = self.dotted(func) if isinstance(func, ast.Attribute) else None
+            if name is not None:
+                self.fail(f"unknown function `{name}`", func, _suggest(name, FUNCTIONS, "functions"))
+            self.visit(func.value if isinstance(func, ast.Attribute) else func)
+            self.fail("only the built-in functions can be called, by name", func)
+        spec = FUNCTIONS.get(func.id)
+        if spec is None:
+            self.fail(f"unknown function `{func.id}`", func, _suggest(func.id, FUNCTIONS, "functions"))
+        if node.keywords:
+            self.fail("keyword arguments are not allowed", node.keywords[0])
+        for arg in node.args:
+            if isinstance(arg, ast.Starred):
+                self.fail("starred arguments (`*x`) are not allowed", arg)
+        n = len(node.args)
+        if n < spec.min_args or (spec.max_args is not None and n > spec.max_args):
+            want = (f"{spec.min_args} or more" if spec.max_args is None else
+                    str(spec.min_args) if spec.min_args == spec.max_args else f"{spec.min_args} to {spec.max_args}")
+            self.fail(f"`{func.id}` takes {want} argument{'s' if want != '1' else ''} (got {n})", node)
+        if func.id == "ifelse":
+            args = [self.condition(node.args[0]), *map(self.visit, node.args[1:])]
+        else:
+            args = [self.visit(arg) for arg in node.args]
+        return self.build(node, spec.build, *args)
+
+    def condition(self, node: ast.AST) -> sp.Basic:
+        """A comparison (chains allowed) possibly combined with and/or/not."""
+        if isinstance(node, ast.BoolOp):
+            parts = [self.condition(v) for v in node.values]
+            return self.build(node, sp.And if isinstance(node.op, ast.And) else sp.Or, *parts)
+        if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.Not):
+            return self.build(node, sp.Not, self.condition(node.operand))
+        if not isinstance(node, ast.Compare):
+            self.fail("expected a condition such as `x < 0` (comparisons combined with and/or/not)", node)
+        relations, left = [], self.visit(node.left)
+        for op, comparator in zip(node.ops, node.comparators):
+            if type(op) not in _RELATIONS:
+                symbol = {ast.Is: "is", ast.IsNot: "is not", ast.In: "in", ast.NotIn: "not in"}[type(op)]
+                self.fail(f"operator `{symbol}` is not allowed", comparator)
+            right = self.visit(comparator)
+            relations.append(self.build(node, _RELATIONS[type(op)][1], left, right))
+            left = right
+        return relations[0] if len(relations) == 1 else self.build(node, sp.And, *relations)
+
+
+def _parse_tree(text: str) -> tuple[ast.Expression, str, int]:
+    """Check limits and parse; return the tree, the parsed text and its offset in `text`."""
+    if len(text) > MAX_LENGTH:
+        raise ExpressionError(f"expression is too long ({len(text)} characters, at most {MAX_LENGTH})")
+    body = text.lstrip()
+    offset = len(text) - len(body)
+    if not body.strip():
+        raise ExpressionError("empty expression", len(text))
+    if "#" in body:
+        raise ExpressionError("comments are not allowed in expressions", offset + body.index("#"))
+    body = body.replace("\r", " ").replace("\n", " ")   # newlines are plain whitespace
+    try:
+        with warnings.catch_warnings():   # e.g. SyntaxWarning "invalid decimal literal"
+            warnings.simplefilter("ignore")
+            tree = ast.parse(body, mode="eval")
+    except SyntaxError as exc:
+        col = offset + min(max((exc.offset or 1) - 1, 0), len(body))
+        if "too many nested parentheses" in str(exc.msg):
+            raise ExpressionError("expression is nested too deeply", col) from None
+        detail = "" if exc.msg == "invalid syntax" else f": {exc.msg}"
+        raise ExpressionError(f"invalid syntax{detail}", col) from None
+    except (RecursionError, MemoryError):
+        raise ExpressionError("expression is nested too deeply", offset) from None
+    except ValueError as exc:   # e.g. null bytes on some Python versions
+        raise ExpressionError(f"invalid syntax: {exc}", offset) from None
+    count = sum(1 for _ in ast.walk(tree))
+    if count > MAX_NODES:
+        raise ExpressionError(f"expression is too complex ({count} syntax nodes, at most {MAX_NODES})", offset)
+    return tree, body, offset
+
+
+def _convert(text: object, names: Mapping[str, object] | None, allow_relational: bool) -> sp.Basic:
+    if isinstance(text, (int, float)) and not isinstance(text, bool):
+        return _literal(text, 0)
+    if not isinstance(text, str):
+        raise ExpressionError(f"expected an expression (text or number), got {type(text).__name__}")
+    tree, body, offset = _parse_tree(text)
+    try:
+        converter = _Converter(body, names)
+        converter.check_depth(tree)
+        if allow_relational and _is_cond(tree.body):
+            result = converter.condition(tree.body)
+        else:
+            result = converter.visit(tree.body)
+        if result.has(*_UNDEFINED):
+            raise ExpressionError("expression is undefined or infinite (division by zero?)", 0)
+    except ExpressionError as err:
+        raise err.shifted(offset) from None
+    except RecursionError:
+        raise ExpressionError("expression is nested too deeply", offset) from None
+    return result
+
+
+def parse_expression(text: str | int | float, names: Mapping[str, object], *,
+                     allow_relational: bool = False) -> sp.Expr:
+    """Parse an expression string (or a plain number) into a sympy expression.
+
+    Parameters
+    ----------
+    text : str, int or float
+        The expression, e.g. ``"m*g*y + 0.5*k*(x - l0)**2"``. Numbers are
+        converted directly (floats must be finite).
+    names : Mapping[str, object]
+        Identifiers in scope: a (possibly dotted, ``"crank.theta"``) name maps to
+        a sympy expression, or to a list/tuple/Matrix of them that the text
+        must index with an integer literal (``p[0]``, ``p[-1]``). Names shadow
+        :data:`CONSTANTS`.
+    allow_relational : bool, optional
+        Also accept a top-level condition (comparison, ``and``/``or``/``not``).
+        Otherwise conditions are only allowed as the first argument of ``ifelse``.
+
+    Returns
+    -------
+    sympy.Expr
+        The expression (a sympy Boolean for a top-level condition).
+
+    Raises
+    ------
+    ExpressionError
+        For syntax errors, constructs outside the whitelist, unknown names or
+        functions, wrong arities, and values or sizes beyond the limits.
+    """
+    return _convert(text, names, allow_relational)
+
+
+def _split_equation(text: str) -> int | None:
+    """Index of the single top-level `=` of `text`, or None if there is none."""
+    found, depth = [], 0
+    for i, ch in enumerate(text):
+        if ch in "([{":
+            depth += 1
+        elif ch in ")]}":
+            depth -= 1
+        elif (ch == "=" and depth == 0 and (i == 0 or text[i - 1] not in "=<>!:")
+              and text[i + 1:i + 2] != "="):
+            found.append(i)
+    if len(found) > 1:
+        raise ExpressionError("an equation must contain a single `=`", found[1])
+    return found[0] if found else None
+
+
+def parse_equation(text: str, names: Mapping[str, object]) -> sp.Expr:
+    """Parse ``"lhs = rhs"`` into the residual ``lhs - rhs``.
+
+    Parameters
+    ----------
+    text : str
+        An equation with one top-level ``=`` (not part of ``==``, ``<=``,
+        ``>=``, ``!=``). Text without ``=`` is read as ``"text = 0"``; a plain
+        number is accepted likewise.
+    names : Mapping[str, object]
+        Identifiers in scope, as for :func:`parse_expression`.
+
+    Returns
+    -------
+    sympy.Expr
+        ``lhs - rhs``.
+
+    Raises
+    ------
+    ExpressionError
+        As :func:`parse_expression`; columns refer to the whole equation text.
+    """
+    if not isinstance(text, str):
+        return parse_expression(text, names)
+    if len(text) > MAX_LENGTH:
+        raise ExpressionError(f"expression is too long ({len(text)} characters, at most {MAX_LENGTH})")
+    eq = _split_equation(text)
+    if eq is None:
+        return parse_expression(text, names)
+    lhs = parse_expression(text[:eq], names)
+    try:
+        rhs = parse_expression(text[eq + 1:], names)
+    except ExpressionError as err:
+        raise err.shifted(eq + 1) from None
+    return sp.Add(lhs, sp.Mul(sp.Integer(-1), rhs))
+
+
+def validate_syntax(text: str, *, allow_relational: bool = False) -> None:
+    """Check an expression against the whitelist without resolving names.
+
+    Every identifier (``x``, ``a.b``, ``p[2]``) is accepted as a free symbol;
+    everything else is checked as in :func:`parse_expression` (node types,
+    functions and arities, literals, limits).
+
+    Parameters
+    ----------
+    text : str
+        The expression text.
+    allow_relational : bool, optional
+        Accept a top-level condition, as in :func:`parse_expression`.
+
+    Raises
+    ------
+    ExpressionError
+        If the text is not a valid, whitelisted expression.
+    """
+    _convert(text, None, allow_relational)

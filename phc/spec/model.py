@@ -1,0 +1,105 @@
+"""`ModelSpec`: the top level of a model file (format version 1)."""
+
+from __future__ import annotations
+
+from typing import Literal, Optional, Union
+
+from pydantic import Field, field_validator, model_validator
+
+from phc.spec.base import Expr, Identifier, SpecModel, Vector
+from phc.spec.components import ComponentSpec
+
+FORMAT_VERSION = 1
+
+
+class ParameterSpec(SpecModel):
+    """A named parameter. Its value is a number or an expression of other parameters."""
+
+    value: Expr
+    unit: Optional[str] = None
+    description: Optional[str] = None
+
+
+class ConnectionSpec(SpecModel):
+    """Joins two ports: ``f₁ = f₂``, ``e₁ = −e₂`` (seed eq. couplcond)."""
+
+    between: tuple[str, str]
+    """The two ports, each as `component.port`."""
+    description: Optional[str] = None
+
+
+class ExposedPortSpec(SpecModel):
+    """A port of an inner component made a port of this model."""
+
+    port: str
+    """The inner port, as `component.port`."""
+    description: Optional[str] = None
+
+
+class InitialSpec(SpecModel):
+    """An initial value that is either fixed or only a guess for consistent initialization."""
+
+    value: Expr
+    guess: bool = False
+    """When true, phc may change the value to satisfy the constraints (and says so)."""
+
+
+class InputSpec(SpecModel):
+    """Drives an exposed port: give its effort or its flow as functions of `t`."""
+
+    effort: Optional[Union[Expr, Vector]] = None
+    flow: Optional[Union[Expr, Vector]] = None
+
+    @model_validator(mode="after")
+    def _exactly_one(self):
+        if (self.effort is None) == (self.flow is None):
+            raise ValueError("give exactly one of `effort` or `flow`")
+        return self
+
+
+class SimulationSpec(SpecModel):
+    """Defaults for `phc simulate` on this model."""
+
+    t_end: float = Field(1.0, gt=0)
+    t_start: float = 0.0
+    n_out: int = Field(201, ge=2, le=10_000_000)
+    """Number of output points (including both ends)."""
+    rtol: float = Field(1e-8, gt=0, lt=1)
+    atol: float = Field(1e-10, gt=0)
+    max_steps: int = Field(1_000_000, ge=1)
+    """Maximum number of solver steps over the whole run."""
+    solver: Literal["ida"] = "ida"
+    initial: dict[str, Union[Expr, InitialSpec]] = {}
+    """Initial values by variable name (`component.state`). Unlisted states start as a
+    guess of 0 and are solved for by consistent initialization."""
+    inputs: dict[str, InputSpec] = {}
+    """Inputs on exposed ports. An exposed port without input is free (zero effort)."""
+    outputs: dict[Identifier, Expr] = {}
+    """Named output expressions over variables (`component.x`), `t` and `H`."""
+
+
+class ModelSpec(SpecModel):
+    """A port-Hamiltonian model: components, how their ports are connected, and exposed ports."""
+
+    format_version: Literal[1] = Field(
+        1, description="Version of the model language. Only 1 exists."
+    )
+    name: Optional[Identifier] = None
+    description: Optional[str] = None
+    parameters: dict[Identifier, Union[ParameterSpec, Expr]] = {}
+    """Parameters, either `name: value` or `name: {value, unit, description}`."""
+    components: dict[Identifier, ComponentSpec] = Field(min_length=1)
+    connections: list[ConnectionSpec] = []
+    ports: dict[Identifier, ExposedPortSpec] = {}
+    """Ports exposed to the outside (for nesting, or driven by `simulation.inputs`)."""
+    simulation: SimulationSpec = SimulationSpec()
+
+    @field_validator("connections", mode="before")
+    @classmethod
+    def _short_connections(cls, value):
+        # `- [a.p, b.q]` is shorthand for `- {between: [a.p, b.q]}`.
+        if isinstance(value, list):
+            return [
+                {"between": item} if isinstance(item, (list, tuple)) else item for item in value
+            ]
+        return value
