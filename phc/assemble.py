@@ -214,7 +214,7 @@ def assemble(b, ctx) -> Optional[Dae]:
 
     hamiltonian = sum((final(h) for h in b.hamiltonian), sp.Integer(0))
     dissipation = sum((final(d) for d in b.dissipation), sp.Integer(0))
-    port_power = final(port_power)
+    port_power = final(port_power + sum(b.source_power, sp.Integer(0)))
     energy = sp.Symbol("energy.supplied", real=True)
     denergy = sp.Symbol("der(energy.supplied)", real=True)
     variables.append(Variable(energy.name, energy, True, "energy", "energy", denergy, None))

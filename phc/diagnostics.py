@@ -381,9 +381,7 @@ def from_pydantic(err: pydantic.ValidationError, smap: SourceMap, *, root_path: 
     keeps its own code; " hint: " in a validator message becomes the hint.
     """
     root = tuple(root_path)
-    out: list[Diagnostic] = []
-    index: dict[tuple, int] = {}
-    expected_seen: dict[int, list[str]] = {}
+    records: list[dict[str, Any]] = []
     for e in err.errors(include_url=False):
         loc = tuple(e.get("loc", ()))
         code, message, hint, expected = _convert(e, allowed_keys)
@@ -394,29 +392,47 @@ def from_pydantic(err: pydantic.ValidationError, smap: SourceMap, *, root_path: 
         elif loc and loc[-1] == "[key]":  # bad dict key: point at the key itself
             full = full[:-1]
             span = smap.locate_key(full)
-        elif etype in ("union_tag_invalid",) and smap.has(smap.resolved_path(full) + (_disc(e),)):
+        elif etype == "union_tag_invalid" and smap.has(smap.resolved_path(full) + (_disc(e),)):
             span = smap.locate(smap.resolved_path(full) + (_disc(e),))
         else:
             span = smap.locate(full)
         resolved = smap.resolved_path(full)
+        branch = len(resolved) < len(full)  # pydantic tag/type elements: possibly a union member
         if etype == "extra_forbidden" and (not resolved or resolved[-1] != loc[-1]):
             resolved = resolved + (loc[-1],)
-        dotted = ".".join(str(p) for p in resolved) or None
-        detail = loc[-1] if code in ("PHC-E010", "PHC-E011") and loc else None
-        key = (span, code, detail)
+        records.append(dict(code=code, message=message, hint=hint, expected=expected, span=span,
+                            resolved=resolved, branch=branch, input=e.get("input"),
+                            detail=loc[-1] if code in ("PHC-E010", "PHC-E011") and loc else None))
+
+    def superseded(rec: dict[str, Any]) -> bool:
+        # a wrong-type error of one union member is noise when another member matched the
+        # shape and reported something more specific at or below the same place
+        if rec["code"] != "PHC-E013" or not rec["branch"]:
+            return False
+        n = len(rec["resolved"])
+        return any(o["code"] != "PHC-E013" and o["resolved"][:n] == rec["resolved"] for o in records)
+
+    out: list[Diagnostic] = []
+    index: dict[tuple, int] = {}
+    expected_seen: dict[int, list[str]] = {}
+    for rec in records:
+        if superseded(rec):
+            continue
+        code, span = rec["code"], rec["span"]
+        key = (span, code, rec["detail"])
         if key in index:
-            if code == "PHC-E013" and expected:
-                i = index[key]
-                seen = expected_seen[i]
-                if expected not in seen:
-                    seen.append(expected)
-                    value = e.get("input")
-                    out[i] = Diagnostic(code, f"expected {' or '.join(seen)}, got {_found(value)}",
-                                        span=span, hint=out[i].hint, path=out[i].path)
+            i = index[key]
+            seen = expected_seen[i]
+            if code == "PHC-E013" and rec["expected"] and rec["expected"] not in seen:
+                seen.append(rec["expected"])
+                alternatives = seen[0] if len(seen) == 1 else ", ".join(seen[:-1]) + " or " + seen[-1]
+                out[i] = Diagnostic(code, f"expected {alternatives}, got {_found(rec['input'])}",
+                                    span=span, hint=out[i].hint, path=out[i].path)
             continue
         index[key] = len(out)
-        expected_seen[len(out)] = [expected] if expected else []
-        out.append(Diagnostic(code, message, span=span, hint=hint, path=dotted))
+        expected_seen[len(out)] = [rec["expected"]] if rec["expected"] else []
+        dotted = ".".join(str(p) for p in rec["resolved"]) or None
+        out.append(Diagnostic(code, rec["message"], span=span, hint=rec["hint"], path=dotted))
     return out
 
 

@@ -114,6 +114,7 @@ class Builder:
         self.port_aliases: dict[str, str] = {}
         self.hamiltonian: list[sp.Expr] = []
         self.dissipation: list[sp.Expr] = []
+        self.source_power: list[sp.Expr] = []
         self.invariants: list[Invariant] = []
         self.velocity_invariants: list[Invariant] = []
         self.connections: list[tuple[str, str, Optional[SourceSpan], str]] = []

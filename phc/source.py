@@ -12,6 +12,7 @@ keys, unsafe tags, alias bombs, unreadable files) are returned as
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass
 from typing import Any, Iterator, Sequence, Union
 
@@ -23,6 +24,7 @@ from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 from phc.diagnostics import Diagnostic
 
 __all__ = [
+    "MAX_FLOW_DEPTH",
     "MAX_NODES",
     "PathElem",
     "SourceMap",
@@ -33,6 +35,9 @@ __all__ = [
 
 MAX_NODES = 100_000
 """Largest number of nodes (after expanding aliases) a document may construct."""
+
+MAX_FLOW_DEPTH = 200
+"""Deepest nesting of flow collections (``[...]``, ``{...}``) accepted."""
 
 PathElem = Union[str, int]
 
@@ -364,6 +369,59 @@ def _marked_error(err: yaml.MarkedYAMLError, file: str) -> Diagnostic:
     return Diagnostic("PHC-E001", message, span=_span(file, mark), hint=_syntax_hint(problem))
 
 
+_FLOW_CHARS = re.compile(r"[\[\]{}'\"#\\]")
+_TOKEN_START = frozenset(" \t\r\n[{,:-?")
+
+
+def _flow_too_deep(text: str, limit: int) -> int:
+    """Offset where ``[``/``{`` nesting first exceeds `limit`, or -1.
+
+    PyYAML's pure-Python scanner is quadratic (or worse) in the flow nesting
+    depth, so absurd nesting is refused before parsing.  The scan is
+    approximate: quoted scalars (opened at a token boundary) and comments are
+    skipped.
+    """
+    depth = 0
+    pos = 0
+    search = _FLOW_CHARS.search
+    while True:
+        m = search(text, pos)
+        if m is None:
+            return -1
+        ch, pos = m.group(), m.end()
+        before = text[m.start() - 1] if m.start() else "\n"
+        if ch == "#" and before in _TOKEN_START:  # comment: skip to end of line
+            pos = text.find("\n", pos)
+            if pos < 0:
+                return -1
+        elif ch == "'" and before in _TOKEN_START:  # '...' with '' as escaped quote
+            while True:
+                pos = text.find("'", pos)
+                if pos < 0:
+                    return -1
+                if text.startswith("''", pos):
+                    pos += 2
+                    continue
+                pos += 1
+                break
+        elif ch == '"' and before in _TOKEN_START:  # "..." with backslash escapes
+            while True:
+                nxt = min((i for i in (text.find('"', pos), text.find("\\", pos)) if i >= 0), default=-1)
+                if nxt < 0:
+                    return -1
+                if text[nxt] == "\\":
+                    pos = nxt + 2
+                    continue
+                pos = nxt + 1
+                break
+        elif ch in "[{":
+            depth += 1
+            if depth > limit:
+                return m.start()
+        elif ch in "]}":
+            depth = max(0, depth - 1)
+
+
 def _offset_span(text: str, file: str, pos: int) -> SourceSpan:
     pos = max(0, min(pos, len(text)))
     line = text.count("\n", 0, pos) + 1
@@ -514,11 +572,15 @@ class _Builder:
             return None
 
     def error(self, node: Node, exc: Exception) -> None:
-        reason = getattr(exc, "problem", None) or str(exc) or type(exc).__name__
-        reason = " ".join(str(reason).split())
+        message = f"invalid `{_tag_text(node.tag)}` value"
+        if isinstance(node, ScalarNode):
+            text = " ".join(node.value.split())
+            message += f" `{text[:37] + '...' if len(text) > 40 else text}`"
+        problem = getattr(exc, "problem", None)
+        if problem:
+            message += ": " + " ".join(str(problem).split())
         self.diags.append(Diagnostic(
-            "PHC-E001", f"invalid `{_tag_text(node.tag)}` value: {reason}",
-            span=_span(self.file, node.start_mark), hint="remove the tag or fix the value"))
+            "PHC-E001", message, span=_span(self.file, node.start_mark), hint="remove the tag or fix the value"))
 
 
 def load_yaml(text: str, file: str, *, max_nodes: int = MAX_NODES
@@ -555,6 +617,11 @@ def load_yaml(text: str, file: str, *, max_nodes: int = MAX_NODES
     constructors are used, so loading never executes code.
     """
     diags: list[Diagnostic] = []
+    deep = _flow_too_deep(text, MAX_FLOW_DEPTH)
+    if deep >= 0:
+        return None, None, [Diagnostic(
+            "PHC-E003", f"document nested too deeply (more than {MAX_FLOW_DEPTH} levels of `[` / `{{`)",
+            span=_offset_span(text, file, deep))]
     loader: yaml.SafeLoader | None = None
     try:
         loader = yaml.SafeLoader(text)

@@ -270,3 +270,17 @@ def test_not_utf8(tmp_path):
 
 def test_span_str():
     assert str(SourceSpan("a/b.yaml", 3, 7)) == "a/b.yaml:3:7"
+
+
+def test_deep_flow_nesting_stopped_quickly():
+    start = time.perf_counter()
+    data, _, diags = _load("a: " + "[" * 5000 + "]" * 5000 + "\n")
+    assert time.perf_counter() - start < 1.0
+    assert data is None
+    assert [(d.code, d.span.line) for d in diags] == [("PHC-E003", 1)]
+
+
+def test_brackets_in_quotes_and_comments_are_not_nesting():
+    text = "a: '" + "[" * 300 + "'\nb: \"" + "{" * 300 + "\"  # " + "[" * 300 + "\n"
+    data, _, diags = _load(text)
+    assert diags == [] and data["a"] == "[" * 300

@@ -153,6 +153,11 @@ class ModulePrinter:
         parts.append(self._function(
             "residual(t, y, yp, p, out)", "Residual F(t, y, yp, p) written into `out`.",
             ir.residual, [f"out[{i}]" for i in range(len(ir.residual))]))
+        dt_rows = [(i, sp.diff(e, T)) for i, e in enumerate(ir.residual)]
+        dt_rows = [(i, e) for i, e in dt_rows if e != 0]
+        parts.append(self._function(
+            "residual_t(t, y, yp, p, out)", "Explicit time derivative dF/dt (consistent initialization).",
+            [e for _, e in dt_rows], [f"out[{i}]" for i, _ in dt_rows], prologue=["out[:] = 0.0"]))
         jac = [dy + sp.Symbol("cj") * dyp if dyp != 0 else dy for dy, dyp in zip(ir.jac_dy, ir.jac_dyp)]
         self.names[sp.Symbol("cj")] = "cj"
         parts.append(self._function(
@@ -161,6 +166,11 @@ class ModulePrinter:
             jac, [f"out[{k}]" for k in range(len(jac))]))
         parts.append(self._function("hamiltonian(t, y, p)", "Total stored energy H.",
                                     [ir.hamiltonian], ["H"], epilogue=["return H"]))
+        terms = sp.Add.make_args(ir.hamiltonian)
+        parts.append(self._function(
+            "energy_scale(t, y, p)",
+            "Sum of |terms| of H: the scale for relative energy errors (H itself may be ~0).",
+            [sum((sp.Abs(term) for term in terms), sp.Integer(0))], ["S"], epilogue=["return S"]))
         parts.append(self._function(
             "powers(t, y, yp, p)",
             "(power delivered through the external ports, power dissipated), seed Remark 'Energy balance'.",

@@ -113,6 +113,9 @@ def lower_source(b, ctx, name, spec, path, which: str):
         port.position = position
         for k in range(spec.dimension):
             b.define((port.e if which == "effort" else port.f)[k], values[k])
+        # A source is the environment: the power it delivers, f·e, is supplied to the
+        # model, i.e. −f·e is delivered by the model (seed, Remark "Energy balance").
+        b.source_power.append(-sum(fk * ek for fk, ek in zip(port.f, port.e)))
     if len(ports) > 1:
         # Several ports of one source share the imposed variable; the other adds up to zero power.
         other = "f" if which == "effort" else "e"

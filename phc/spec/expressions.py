@@ -68,6 +68,12 @@ class FunctionSpec:
     build: Callable[..., sp.Basic]
 
 
+def _minmax(f: Callable, args: tuple) -> sp.Expr:
+    # sympy simplifies symbolic Min/Max with pairwise assumption queries, which is
+    # quadratic-or-worse (seconds for a few dozen arguments): only fold numbers.
+    return f(*args, evaluate=all(a.is_Number for a in args))
+
+
 def _one(f: Callable) -> FunctionSpec:
     return FunctionSpec(1, 1, f)
 
@@ -79,7 +85,8 @@ FUNCTIONS: dict[str, FunctionSpec] = {
     "sinh": _one(sp.sinh), "cosh": _one(sp.cosh), "tanh": _one(sp.tanh),
     "exp": _one(sp.exp), "log": _one(sp.log), "sqrt": _one(sp.sqrt),
     "abs": _one(sp.Abs), "sign": _one(sp.sign),
-    "min": FunctionSpec(2, None, sp.Min), "max": FunctionSpec(2, None, sp.Max),
+    "min": FunctionSpec(2, None, lambda *a: _minmax(sp.Min, a)),
+    "max": FunctionSpec(2, None, lambda *a: _minmax(sp.Max, a)),
     "heaviside": _one(lambda x: sp.Heaviside(x, 1)),
     "ifelse": FunctionSpec(3, 3, lambda c, a, b: sp.Piecewise((a, c), (b, True))),
 }

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sps
+from scipy.optimize import least_squares
 
 from phc.errors import InconsistentInitialError
 
@@ -98,12 +99,9 @@ def consistent_initial_conditions(mod, p, t0: float, values: dict[int, float], f
         jy, jyp = jac.split(t0, y_, yp_)
         ydot = z_.copy()
         ydot[dif] = yp_[dif]
-        h = 1e-7 * max(1.0, abs(t0))
-        Fp = np.zeros(m)
-        Fm = np.zeros(m)
-        mod.residual(t0 + h, y_, yp_, p, Fp)
-        mod.residual(t0 - h, y_, yp_, p, Fm)
-        return jy @ ydot + jyp @ w_ + (Fp - Fm) / (2 * h), jy, jyp
+        Ft = np.zeros(m)
+        mod.residual_t(t0, y_, yp_, p, Ft)
+        return jy @ ydot + jyp @ w_ + Ft, jy, jyp
 
     def G(y_, yp_, z_, w_):
         d, _, _ = residual_D(y_, yp_, z_, w_)
@@ -112,54 +110,68 @@ def consistent_initial_conditions(mod, p, t0: float, values: dict[int, float], f
     def norm(g):
         return float(np.abs(g).max(initial=0.0))
 
-    it = 0
-    g = G(y, yp, z, w)
-    for it in range(1, max_iter + 1):
-        if norm(g) <= tol:
-            break
-        _, jy, jyp = residual_D(y, yp, z, w)
-        # Columns: [y_free | yp_diff | z_alg | w_diff]
-        JF = sps.hstack([jy[:, free_y], jyp[:, dif], sps.csc_matrix((m, len(alg))),
-                         sps.csc_matrix((m, len(dif)))]).toarray()
-        JD = np.zeros((m, len(free_y) + len(dif) + len(alg) + len(dif)))
-        base_d, _, _ = residual_D(y, yp, z, w)
+    nf, nd, na = len(free_y), len(dif), len(alg)
+
+    def unpack(u):
+        y_, yp_, z_, w_ = y.copy(), yp.copy(), z.copy(), w.copy()
+        y_[free_y] = u[:nf]
+        yp_[dif] = u[nf:nf + nd]
+        z_[alg] = u[nf + nd:nf + nd + na]
+        w_[dif] = u[nf + nd + na:]
+        return y_, yp_, z_, w_
+
+    def fun(u):
+        return G(*unpack(u))
+
+    def jacobian(u):
+        y_, yp_, z_, w_ = unpack(u)
+        base_d, jy, jyp = residual_D(y_, yp_, z_, w_)
+        # Columns: [y_free | yp_diff | z_alg | w_diff]; F is linear in them except y.
+        JF = sps.hstack([jy[:, free_y], jyp[:, dif], sps.csc_matrix((m, na)), sps.csc_matrix((m, nd))]).toarray()
+        JD = np.zeros((m, nf + nd + na + nd))
         col = 0
-        for j in free_y:  # finite differences of D in y (second-order terms)
-            h = 1e-7 * max(1.0, abs(y[j]))
-            yh = y.copy()
+        for j in free_y:  # D is bilinear: finite differences for its y and ẏ columns
+            h = 1e-7 * max(1.0, abs(y_[j]))
+            yh = y_.copy()
             yh[j] += h
-            JD[:, col] = (residual_D(yh, yp, z, w)[0] - base_d) / h
+            JD[:, col] = (residual_D(yh, yp_, z_, w_)[0] - base_d) / h
             col += 1
         for j in dif:
-            h = 1e-7 * max(1.0, abs(yp[j]))
-            yph = yp.copy()
+            h = 1e-7 * max(1.0, abs(yp_[j]))
+            yph = yp_.copy()
             yph[j] += h
-            JD[:, col] = (residual_D(y, yph, z, w)[0] - base_d) / h
+            JD[:, col] = (residual_D(y_, yph, z_, w_)[0] - base_d) / h
             col += 1
-        JD[:, col:col + len(alg)] = jy[:, alg].toarray()
-        col += len(alg)
-        JD[:, col:] = jyp[:, dif].toarray()
-        J = np.vstack([JF, JD])
-        step = np.linalg.lstsq(J, -g, rcond=None)[0]
-        alpha = 1.0
-        g0 = norm(g)
-        for _ in range(30):
-            y2, yp2, z2, w2 = y.copy(), yp.copy(), z.copy(), w.copy()
-            k = 0
-            y2[free_y] += alpha * step[k:k + len(free_y)]
-            k += len(free_y)
-            yp2[dif] += alpha * step[k:k + len(dif)]
-            k += len(dif)
-            z2[alg] += alpha * step[k:k + len(alg)]
-            k += len(alg)
-            w2[dif] += alpha * step[k:k + len(dif)]
-            g2 = G(y2, yp2, z2, w2)
-            if norm(g2) < g0 or alpha < 1e-6:
-                break
-            alpha /= 2
-        if norm(g2) >= g0 and alpha < 1e-6:
+        JD[:, col:col + na] = jy[:, alg].toarray()
+        JD[:, col + na:] = jyp[:, dif].toarray()
+        return np.vstack([JF, JD])
+
+    u = np.concatenate([y[free_y], yp[dif], z[alg], w[dif]])
+    g = fun(u)
+    it = 0
+    # Gauss–Newton with minimum-norm steps. D is bilinear (velocity products, forces
+    # times rotation rates): from a rough guess the first step ignores those products,
+    # so the residual may grow once before quadratic convergence (seen on the
+    # slider–crank at dead centre). Full steps, no monotonicity test; the best iterate
+    # is kept, and a trust-region solve is the fallback.
+    best = (norm(g), u)
+    for _ in range(max_iter // 4):
+        if norm(g) <= tol:
             break
-        y, yp, z, w, g = y2, yp2, z2, w2, g2
+        it += 1
+        u = u + np.linalg.lstsq(jacobian(u), -g, rcond=None)[0]
+        g = fun(u)
+        if not np.all(np.isfinite(g)):
+            break
+        if norm(g) < best[0]:
+            best = (norm(g), u)
+    g_best, u = best
+    g = fun(u)
+    if g_best > tol:
+        sol = least_squares(fun, u, jac=jacobian, method="trf", xtol=1e-14, ftol=1e-14, gtol=1e-14,
+                            max_nfev=max_iter * 10)
+        u, g, it = sol.x, sol.fun, it + sol.nfev
+    y, yp, z, w = unpack(u)
     f_final = residual_F(y, yp)
     d_final = g[m:]
     scale = max(1.0, float(np.abs(y).max(initial=0)))

@@ -13,9 +13,9 @@ from typing import Callable, Optional
 import numpy as np
 
 from phc.errors import InconsistentInitialError, SimulationSetupError
-from phc.simulate.ida import integrate_ida
-from phc.simulate.initial import consistent_initial_conditions
-from phc.simulate.result import SimResult
+from phc.simulation.ida import integrate_ida
+from phc.simulation.initial import consistent_initial_conditions
+from phc.simulation.result import SimResult
 
 BACKENDS = {"ida": integrate_ida}
 
@@ -115,7 +115,7 @@ def _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol) -> SimResult:
     powers = np.array([mod.powers(ti, yi, ypi, p) for ti, yi, ypi in zip(t, y, yp)], dtype=float).reshape(-1, 2)
     energy = y[:, mod.VARIABLES.index("energy.supplied")]
     balance = H - H[0] + energy
-    scale = float(np.abs(H).max(initial=0.0))
+    scale = max((float(mod.energy_scale(ti, yi, p)) for ti, yi in zip(t, y)), default=0.0)
     inv = np.array([mod.invariants(ti, yi, p) for ti, yi in zip(t, y)], dtype=float).reshape(len(t), -1)
     vinv = np.array([mod.velocity_invariants(ti, yi, p) for ti, yi in zip(t, y)], dtype=float).reshape(len(t), -1)
     outs = np.array([mod.outputs(ti, yi, ypi, p) for ti, yi, ypi in zip(t, y, yp)], dtype=float)
