@@ -34,7 +34,7 @@ import pydantic
 import sympy as sp
 
 from phc.dae import T, Dae, Equation, InitialValue, Invariant, Parameter, Variable
-from phc.diagnostics import Diagnostic, DiagnosticList, from_pydantic
+from phc.diagnostics import Diagnostic, DiagnosticList, allowed_keys_from_model, from_pydantic
 from phc.source import SourceMap, SourceSpan, read_yaml_file
 from phc.spec import ModelSpec
 from phc.spec.components import ModelComponentSpec
@@ -72,6 +72,9 @@ class ExpressionScope(dict):
     """Names visible to an expression: sympy symbols/expressions or vectors of them."""
 
 
+_ALLOWED_KEYS = allowed_keys_from_model(ModelSpec)
+
+
 def load_spec(path: str | os.PathLike) -> tuple[Optional[ModelSpec], Optional[SourceMap], DiagnosticList]:
     """Read and validate one model file (no elaboration).
 
@@ -96,7 +99,7 @@ def load_spec(path: str | os.PathLike) -> tuple[Optional[ModelSpec], Optional[So
     try:
         spec = ModelSpec.model_validate(data)
     except pydantic.ValidationError as err:
-        diags.extend(from_pydantic(err, smap))
+        diags.extend(from_pydantic(err, smap, allowed_keys=_ALLOWED_KEYS))
         return None, smap, diags
     return spec, smap, diags
 

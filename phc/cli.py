@@ -1,0 +1,248 @@
+"""The `phc` command line: validate, compile, simulate, schema.
+
+Exit codes: 0 success, 1 model errors (or a failed simulation), 2 usage errors.
+A user mistake never produces a traceback: it is printed as one located line per
+problem. Set ``PHC_DEBUG=1`` to see tracebacks of internal errors.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Optional, Sequence
+
+import numpy as np
+
+from phc import __version__
+
+EXIT_OK, EXIT_MODEL, EXIT_USAGE = 0, 1, 2
+
+
+class UsageError(Exception):
+    """A wrong command-line argument."""
+
+
+def _print_diagnostics(diags, fmt: str = "text", stream=None) -> None:
+    stream = stream or sys.stderr
+    if fmt == "json":
+        return
+    for d in diags:
+        print(d.render(), file=stream)
+
+
+def _parse_params(items: Sequence[str]) -> dict[str, float]:
+    out = {}
+    for item in items or []:
+        if "=" not in item:
+            raise UsageError(f"--param expects NAME=VALUE, got `{item}`")
+        name, value = item.split("=", 1)
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            raise UsageError(f"--param {name}: `{value}` is not a number") from None
+    return out
+
+
+def cmd_validate(args) -> int:
+    from phc.pipeline import build_dae
+
+    status = EXIT_OK
+    report = []
+    for path in args.files:
+        dae, diags = build_dae(path)
+        _print_diagnostics(diags, args.format)
+        ok = dae is not None and not diags.has_errors
+        report.append({"file": path, "valid": ok, "diagnostics": diags.to_json()})
+        if not ok:
+            status = EXIT_MODEL
+        elif args.format == "text":
+            print(f"{path}: ok ({dae.n_states - 1} states, {len(dae.equations)} equations, "
+                  f"{len(dae.variables)} unknowns)")
+    if args.format == "json":
+        print(json.dumps(report, indent=2))
+    return status
+
+
+def cmd_compile(args) -> int:
+    from phc.errors import ModelError
+    from phc.pipeline import compile_model
+
+    try:
+        compiled = compile_model(args.file)
+    except ModelError as err:
+        _print_diagnostics(err.diagnostics)
+        return EXIT_MODEL
+    _print_diagnostics([d for d in compiled.diagnostics if d.severity != "error"])
+    out_dir = Path(args.output)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    target = out_dir / f"{compiled.name}.py"
+    target.write_text(compiled.source)
+    print(f"{args.file}: wrote {target} ({compiled.n_states} states, {compiled.n_equations} equations, "
+          f"{compiled.jacobian_nnz} Jacobian nonzeros, compiled in {sum(compiled.timings.values()):.2f} s)")
+    return EXIT_OK
+
+
+def _write_results(result, path: str) -> None:
+    columns = {"t": result.t}
+    for j, name in enumerate(result.variables):
+        columns[name] = result.y[:, j]
+    for name, values in result.outputs.items():
+        columns[f"output.{name}"] = values
+    columns["H"] = result.H
+    columns["P_ports"] = result.port_power
+    columns["P_diss"] = result.dissipation
+    columns["energy_balance"] = result.H - result.H[0] + result.energy_supplied
+    if path.endswith(".npz"):
+        np.savez(path, **columns)
+    elif path.endswith(".csv"):
+        data = np.column_stack(list(columns.values())) if len(result.t) else np.zeros((0, len(columns)))
+        np.savetxt(path, data, delimiter=",", header=",".join(columns), comments="", fmt="%.17g")
+    else:
+        raise UsageError(f"--out must end in .csv or .npz, got `{path}`")
+
+
+def _summary_text(name: str, result) -> str:
+    s = result.summary()
+    lines = [
+        f"{name}: {'success' if s['success'] else 'FAILED'} — {s['message']}",
+        f"  size     {s['n_states']} states, {s['n_equations']} equations; solver {s['solver']} "
+        f"(rtol {s['rtol']:.1e}, atol {s['atol']:.1e})",
+        f"  work     {s['steps']} steps, {s['n_residual_evals']} residual and {s['n_jacobian_evals']} "
+        f"Jacobian evaluations, {s['cpu_time_s']:.3f} s CPU, t_final {s['t_final']:.6g}",
+        f"  energy   balance error {s['energy_balance_error']:.3e} (relative {s['energy_balance_relative']:.3e})",
+        f"  drift    position constraints {s['constraint_drift']:.3e}, velocity constraints "
+        f"{s['velocity_drift']:.3e}",
+    ]
+    if s["initial_choices"]:
+        chosen = ", ".join(f"{k} = {v:.6g}" for k, v in s["initial_choices"].items())
+        lines.append(f"  initial  chosen by consistent initialization: {chosen}")
+    return "\n".join(lines)
+
+
+def cmd_simulate(args) -> int:
+    from phc.errors import InconsistentInitialError, ModelError, SimulationSetupError
+    from phc.pipeline import compile_model
+    from phc.progress import Progress
+    from phc.simulation import simulate
+
+    if args.out and not (args.out.endswith(".csv") or args.out.endswith(".npz")):
+        raise UsageError(f"--out must end in .csv or .npz, got `{args.out}`")
+    params = _parse_params(args.param)
+    try:
+        compiled = compile_model(args.file)
+    except ModelError as err:
+        _print_diagnostics(err.diagnostics)
+        return EXIT_MODEL
+    opts = compiled.dae.options
+    t_end = args.t_end if args.t_end is not None else opts["t_end"]
+    progress = Progress(opts["t_start"], t_end, label=compiled.name, enabled=not args.quiet)
+    try:
+        result = simulate(compiled, t_end=args.t_end, params=params, rtol=args.rtol, atol=args.atol,
+                          n_out=args.n_out, progress=progress)
+    except InconsistentInitialError as err:
+        progress.close()
+        for line in err.problems:
+            print(f"{args.file}: inconsistent initial values: {line}", file=sys.stderr)
+        print(f"{args.file}: hint: change the fixed initial values or mark one as a guess "
+              "(`name: {value: ..., guess: true}`)", file=sys.stderr)
+        return EXIT_MODEL
+    except SimulationSetupError as err:
+        progress.close()
+        raise UsageError(str(err)) from err
+    progress.close()
+    if args.out:
+        _write_results(result, args.out)
+    if args.format == "json":
+        summary = result.summary()
+        summary["model"] = compiled.name
+        summary["compile_time_s"] = sum(compiled.timings.values())
+        if args.out:
+            summary["output_file"] = args.out
+        print(json.dumps(summary, indent=2))
+    else:
+        print(_summary_text(compiled.name, result))
+        if args.out:
+            print(f"  wrote    {args.out}")
+    return EXIT_OK if result.success else EXIT_MODEL
+
+
+def cmd_schema(args) -> int:
+    from phc.spec.export import SCHEMAS, schema_text, stale_schemas, write_schemas
+
+    if args.check:
+        stale = stale_schemas(args.dir)
+        if stale:
+            for path in stale:
+                print(f"{path}: stale or missing; regenerate with `phc schema --write --dir {args.dir}`",
+                      file=sys.stderr)
+            return EXIT_MODEL
+        print(f"{args.dir}: schemas up to date ({', '.join(SCHEMAS)})")
+        return EXIT_OK
+    if args.write:
+        for path in write_schemas(args.dir):
+            print(f"wrote {path}")
+        return EXIT_OK
+    sys.stdout.write(schema_text(args.name))
+    return EXIT_OK
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="phc", description="Compiler for port-Hamiltonian models.")
+    parser.add_argument("--version", action="version", version=f"phc {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("validate", help="check model files (schema, names, expressions, structure)")
+    p.add_argument("files", nargs="+", metavar="FILE")
+    p.add_argument("--format", choices=("text", "json"), default="text")
+    p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("compile", help="generate the residual module of a model")
+    p.add_argument("file", metavar="FILE")
+    p.add_argument("-o", "--output", default=".", metavar="DIR", help="directory for the generated module")
+    p.set_defaults(func=cmd_compile)
+
+    p = sub.add_parser("simulate", help="compile and simulate a model")
+    p.add_argument("file", metavar="FILE")
+    p.add_argument("--t-end", type=float, help="end time (default: the model's simulation.t_end)")
+    p.add_argument("--n-out", type=int, help="number of output points")
+    p.add_argument("--rtol", type=float)
+    p.add_argument("--atol", type=float)
+    p.add_argument("--param", action="append", metavar="NAME=VALUE", help="override a parameter (repeatable)")
+    p.add_argument("--out", metavar="FILE", help="write results to FILE (.csv or .npz)")
+    p.add_argument("--format", choices=("text", "json"), default="text")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("schema", help="print, write or check the JSON Schemas of the model language")
+    p.add_argument("--name", default="model.schema.json")
+    p.add_argument("--write", action="store_true", help="write the schemas into --dir")
+    p.add_argument("--check", action="store_true", help="fail if the schemas in --dir are stale")
+    p.add_argument("--dir", default="schemas")
+    p.set_defaults(func=cmd_schema)
+    return parser
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except UsageError as err:
+        print(f"phc {args.command}: error: {err}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print("phc: interrupted", file=sys.stderr)
+        return 130
+    except Exception as err:  # an internal error, not a user mistake
+        if os.environ.get("PHC_DEBUG"):
+            raise
+        print(f"phc {args.command}: internal error: {type(err).__name__}: {err} "
+              "(please report it; rerun with PHC_DEBUG=1 for a traceback)", file=sys.stderr)
+        return EXIT_USAGE
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
