@@ -21,7 +21,7 @@ from typing import Optional
 
 import sympy as sp
 
-from phc.dae import T, Dae, Equation, InitialValue, Invariant, Variable
+from phc.dae import T, Dae, Equation, InitialValue, Invariant, LinearBlock, Variable
 from phc.diagnostics import Diagnostic
 from phc.spec.model import InitialSpec
 
@@ -168,7 +168,7 @@ def assemble(b, ctx) -> Optional[Dae]:
             if root in defs:
                 rows.append(Equation(sign * defs[root] - val, f"inputs.{pname}[{k}]", "input", "", span))
             else:
-                defs[root] = sign * sp.sympify(val)  # safe: val is a sympy object or the int 0
+                defs[root] = sign * (val if isinstance(val, sp.Basic) else sp.Integer(val))
         port_power += sum(fk * ek for fk, ek in zip(port.f, port.e))
     for pname in sim.inputs:
         if pname not in b.exposed_top:
@@ -202,15 +202,26 @@ def assemble(b, ctx) -> Optional[Dae]:
         return expr.xreplace(subs).xreplace(dsubs) if dsubs else expr.xreplace(subs)
 
     equations = []
-    for eq in rows:
+    new_index: dict[int, int] = {}
+    for i, eq in enumerate(rows):
         ex = final(eq.expr)
-        if ex == 0:
+        if ex == 0 and eq.kind != "linear":
             continue
-        if not (ex.free_symbols - {T} - {p.symbol for p in b.parameters.values()}) and ex.is_number and ex != 0:
+        if (eq.kind != "linear" and not (ex.free_symbols - {T} - {p.symbol for p in b.parameters.values()})
+                and ex.is_number and ex != 0):
             b.diags.append(Diagnostic("PHC-E301", f"equation `{eq.label}` reduces to the contradiction "
                                       f"{ex} = 0", span=eq.span))
             continue
+        new_index[i] = len(equations)
         equations.append(Equation(ex, eq.label, eq.kind, eq.component, eq.span))
+    linear_blocks = []
+    for block in b.linear_blocks:
+        for term in block.terms:
+            for sym in term.symbols:  # sparse blocks refer to internal variables only
+                if subs.get(sym, sym) != sym:
+                    raise AssertionError(f"linear block `{block.label}` refers to the port variable `{sym}`")
+        linear_blocks.append(LinearBlock(block.label, block.component, tuple(new_index[r] for r in block.rows),
+                                         block.terms, block.span))
 
     hamiltonian = sum((final(h) for h in b.hamiltonian), sp.Integer(0))
     dissipation = sum((final(d) for d in b.dissipation), sp.Integer(0))
@@ -241,6 +252,9 @@ def assemble(b, ctx) -> Optional[Dae]:
         initial=tuple(initial),
         external_ports=tuple(external),
         sources=tuple(b.sources),
+        linear_blocks=tuple(linear_blocks),
+        quadratic_energy=tuple(b.quadratic_energy),
+        quadratic_dissipation=tuple(b.quadratic_dissipation),
         options={"t_start": sim.t_start, "t_end": sim.t_end, "n_out": sim.n_out, "rtol": sim.rtol,
                  "atol": sim.atol, "max_steps": sim.max_steps, "solver": sim.solver},
     )

@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Optional
 
+import scipy.sparse as sps
 import sympy as sp
 
 from phc.source import SourceSpan
@@ -80,6 +81,38 @@ class InitialValue:
     span: Optional[SourceSpan] = None
 
 
+@dataclass(frozen=True, eq=False)
+class LinearTerm:
+    """``coeff · A · v`` with v the values (or, if `derivative`, the time derivatives) of
+    `symbols`; `coeff` depends on parameters only. Large linear parts (discretized PDEs,
+    FE exports) stay sparse matrices instead of sympy scalars."""
+
+    coeff: sp.Expr
+    matrix: sps.csr_matrix
+    symbols: tuple[sp.Symbol, ...]
+    derivative: bool = False
+
+
+@dataclass(frozen=True, eq=False)
+class LinearBlock:
+    """Rows `rows` of the residual get ``Σ terms`` added to their sympy part."""
+
+    label: str
+    component: str
+    rows: tuple[int, ...]
+    terms: tuple[LinearTerm, ...]
+    span: Optional[SourceSpan] = None
+
+
+@dataclass(frozen=True, eq=False)
+class QuadraticForm:
+    """``coeff · xᵀ A x`` over `symbols` (A symmetric, sparse): energy or dissipation."""
+
+    coeff: sp.Expr
+    matrix: sps.csr_matrix
+    symbols: tuple[sp.Symbol, ...]
+
+
 @dataclass(frozen=True)
 class Dae:
     """The assembled system. See the module docstring."""
@@ -98,6 +131,9 @@ class Dae:
     external_ports: tuple[str, ...] = ()
     sources: tuple[str, ...] = ()
     options: dict = field(default_factory=dict)
+    linear_blocks: tuple[LinearBlock, ...] = ()
+    quadratic_energy: tuple[QuadraticForm, ...] = ()
+    quadratic_dissipation: tuple[QuadraticForm, ...] = ()
 
     @property
     def n_states(self) -> int:

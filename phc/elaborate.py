@@ -118,6 +118,9 @@ class Builder:
         self.hamiltonian: list[sp.Expr] = []
         self.dissipation: list[sp.Expr] = []
         self.source_power: list[sp.Expr] = []
+        self.linear_blocks: list = []
+        self.quadratic_energy: list = []
+        self.quadratic_dissipation: list = []
         self.invariants: list[Invariant] = []
         self.velocity_invariants: list[Invariant] = []
         self.connections: list[tuple[str, str, Optional[SourceSpan], str]] = []
@@ -192,7 +195,27 @@ class Builder:
         return sym
 
     def add_equation(self, expr: sp.Expr, component: str, kind: str, label: str, span=None) -> None:
-        self.equations.append(Equation(sp.sympify(expr), f"{component}.{label}", kind, component, span))  # safe: expr is a sympy object built by phc
+        expr = expr if isinstance(expr, sp.Basic) else sp.Integer(expr)
+        self.equations.append(Equation(expr, f"{component}.{label}", kind, component, span))
+
+    def add_linear_rows(self, component: str, label: str, n_rows: int, terms, span=None) -> list[int]:
+        """Append `n_rows` rows whose residual is ``Σ terms`` (sparse) plus a sympy part (0 for now).
+
+        Returns the row indices so that the caller can add sympy couplings with
+        :meth:`add_to_row` (boundary ports of a discretized PDE).
+        """
+        from phc.dae import LinearBlock
+
+        start = len(self.equations)
+        for i in range(n_rows):
+            self.equations.append(Equation(sp.Integer(0), f"{component}.{label}[{i}]", "linear", component, span))
+        rows = tuple(range(start, start + n_rows))
+        self.linear_blocks.append(LinearBlock(f"{component}.{label}", component, rows, tuple(terms), span))
+        return list(rows)
+
+    def add_to_row(self, row: int, expr: sp.Expr) -> None:
+        eq = self.equations[row]
+        self.equations[row] = Equation(eq.expr + expr, eq.label, eq.kind, eq.component, eq.span)
 
     def define(self, sym: sp.Symbol, expr: sp.Expr) -> None:
         """Give a port variable an explicit value (an output of its component)."""

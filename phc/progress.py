@@ -36,6 +36,10 @@ class Progress:
         self.stream.flush()
         self._drawn = True
 
+    def restart(self) -> None:
+        """Start timing now (after setup work such as initialization)."""
+        self.start = time.monotonic()
+
     def close(self) -> None:
         if self._drawn:
             self.stream.write("\n")

@@ -21,7 +21,13 @@ def incidence(dae: Dae) -> list[set[int]]:
         col[v.symbol] = j
         if v.dsymbol is not None:
             col[v.dsymbol] = j
-    return [{col[s] for s in eq.expr.free_symbols if s in col} for eq in dae.equations]
+    rows = [{col[s] for s in eq.expr.free_symbols if s in col} for eq in dae.equations]
+    for block in dae.linear_blocks:
+        for term in block.terms:
+            coo = term.matrix.tocoo()
+            for i, j in zip(coo.row, coo.col):
+                rows[block.rows[i]].add(col[term.symbols[j]])
+    return rows
 
 
 def maximum_matching(dae: Dae) -> dict[int, int]:

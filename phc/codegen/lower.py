@@ -12,9 +12,31 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import networkx as nx
+import numpy as np
+import scipy.sparse as sps
 import sympy as sp
 
 from phc.dae import T, Dae
+
+
+@dataclass(frozen=True, eq=False)
+class LinearTermIR:
+    """``out[rows] += coeff · A @ v[cols]`` with v = y or ẏ; `pos` are the CSC positions
+    of A's entries (in A.data order) in the Jacobian data."""
+
+    coeff: sp.Expr
+    matrix: sps.csr_matrix
+    rows: np.ndarray
+    cols: np.ndarray
+    derivative: bool
+    pos: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class QuadraticIR:
+    coeff: sp.Expr
+    matrix: sps.csr_matrix
+    cols: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -45,6 +67,9 @@ class ResidualIR:
     velocity_invariant_labels: tuple[str, ...]
     outputs: tuple[tuple[str, sp.Expr], ...]
     sources: tuple[str, ...]
+    linear_terms: tuple[LinearTermIR, ...] = ()
+    quadratic_energy: tuple[QuadraticIR, ...] = ()
+    quadratic_dissipation: tuple[QuadraticIR, ...] = ()
 
 
 def _ordered_parameters(dae: Dae):
@@ -86,7 +111,30 @@ def lower_residual(dae: Dae) -> ResidualIR:
                 entries.setdefault((i, col_of_y[s]), [0, 0])[0] = sp.diff(eq.expr, s)
             elif s in col_of_yp:
                 entries.setdefault((i, col_of_yp[s]), [0, 0])[1] = sp.diff(eq.expr, s)
+    raw_terms = []
+    for block in dae.linear_blocks:
+        rows = np.asarray(block.rows, dtype=np.int64)
+        for term in block.terms:
+            A = sps.csr_matrix(term.matrix)
+            A.sum_duplicates()
+            A.sort_indices()
+            cols = np.array([col_of_y[sym] for sym in term.symbols], dtype=np.int64)
+            coo = A.tocoo()  # same entry order as A.data for a canonical CSR
+            gr, gc = rows[coo.row], cols[coo.col]
+            for i, j in zip(gr.tolist(), gc.tolist()):
+                entries.setdefault((i, j), [0, 0])
+            raw_terms.append((term, A, rows, cols, gr, gc))
     keys = sorted(entries, key=lambda ij: (ij[1], ij[0]))
+    position = {k: n for n, k in enumerate(keys)}
+    linear_terms = tuple(
+        LinearTermIR(term.coeff, A, rows, cols, term.derivative,
+                     np.array([position[(i, j)] for i, j in zip(gr.tolist(), gc.tolist())], dtype=np.int64))
+        for term, A, rows, cols, gr, gc in raw_terms)
+
+    def quadratic(forms):
+        return tuple(QuadraticIR(f.coeff, sps.csr_matrix(f.matrix),
+                                 np.array([col_of_y[sym] for sym in f.symbols], dtype=np.int64)) for f in forms)
+
     return ResidualIR(
         name=dae.name,
         variables=tuple(v.name for v in dae.variables),
@@ -114,4 +162,7 @@ def lower_residual(dae: Dae) -> ResidualIR:
         velocity_invariant_labels=tuple(inv.label for inv in dae.velocity_invariants),
         outputs=dae.outputs,
         sources=dae.sources,
+        linear_terms=linear_terms,
+        quadratic_energy=quadratic(dae.quadratic_energy),
+        quadratic_dissipation=quadratic(dae.quadratic_dissipation),
     )

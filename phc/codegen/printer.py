@@ -62,6 +62,13 @@ def _array(values: Sequence, dtype: str) -> str:
     return f"np.array([{body}], dtype={dtype})"
 
 
+def _sparse_constant(name: str, matrix) -> list[str]:
+    m = matrix.tocsr()
+    return [f"{name} = _sps.csr_matrix(({_array(m.data.tolist(), 'float')}, "
+            f"{_array(m.indices.tolist(), 'np.int64')}, {_array(m.indptr.tolist(), 'np.int64')}), "
+            f"shape={tuple(int(x) for x in m.shape)!r})"]
+
+
 def _tuple(values: Sequence[str]) -> str:
     if not values:
         return "()"
@@ -86,6 +93,13 @@ class ModulePrinter:
             self.names[s] = ident = _identifier(name, taken)
             self.unpack_p[s] = f"{ident} = p[{j}]"
         self.printer = _Printer(self.names)
+
+    def _jac_dependencies(self, symbols) -> list[int]:
+        """Indices of the variables (or derivatives) the Jacobian entries depend on."""
+        used = set()
+        for e in list(self.ir.jac_dy) + list(self.ir.jac_dyp):
+            used |= e.free_symbols
+        return [j for j, s in enumerate(symbols) if s in used]
 
     def _body(self, exprs: Sequence[sp.Expr], targets: Sequence[str]) -> list[str]:
         """Unpack used symbols, common subexpressions, then one assignment per target."""
@@ -135,8 +149,24 @@ class ModulePrinter:
             f"OUTPUTS = {_tuple([name for name, _ in ir.outputs])}",
             f"JAC_ROWS = {_array(ir.jac_rows, 'np.int64')}",
             f"JAC_COLS = {_array(ir.jac_cols, 'np.int64')}",
+            f"JAC_DEPENDS_ON_Y = {_array(self._jac_dependencies(ir.y_symbols), 'np.int64')}",
+            f"JAC_DEPENDS_ON_YP = {_array(self._jac_dependencies(ir.yp_symbols), 'np.int64')}",
             "",
         ]
+        sparse_consts = []
+        for k, t in enumerate(ir.linear_terms):
+            sparse_consts += _sparse_constant(f"_LIN{k}", t.matrix)
+            sparse_consts += [f"_LIN{k}_ROWS = {_array(t.rows.tolist(), 'np.int64')}",
+                              f"_LIN{k}_COLS = {_array(t.cols.tolist(), 'np.int64')}",
+                              f"_LIN{k}_POS = {_array(t.pos.tolist(), 'np.int64')}"]
+        for prefix, forms in (("QE", ir.quadratic_energy), ("QD", ir.quadratic_dissipation)):
+            for k, f in enumerate(forms):
+                sparse_consts += _sparse_constant(f"_{prefix}{k}", f.matrix)
+                sparse_consts.append(f"_{prefix}{k}_COLS = {_array(f.cols.tolist(), 'np.int64')}")
+        if sparse_consts:
+            parts[1] = "import math\n\nimport numpy as np\nimport scipy.sparse as _sps\n"
+            parts += ["# Sparse linear parts (discretized PDEs, matrix-defined components).",
+                      *sparse_consts, ""]
         # Derived parameters are computed once per run, not in every residual call.
         derived_lines = ["p = np.array(PARAMETER_DEFAULTS, dtype=float)",
                          "p[list(BASE_PARAMETERS)] = base"]
@@ -150,9 +180,21 @@ class ModulePrinter:
                      "    if base is None:\n"
                      "        base = PARAMETER_DEFAULTS[list(BASE_PARAMETERS)]\n"
                      + "".join(f"    {line}\n" for line in derived_lines))
-        parts.append(self._function(
-            "residual(t, y, yp, p, out)", "Residual F(t, y, yp, p) written into `out`.",
-            ir.residual, [f"out[{i}]" for i in range(len(ir.residual))]))
+        lin = ir.linear_terms
+        coeff_targets = [f"_k{k}" for k in range(len(lin))]
+        coeffs = [term.coeff for term in lin]
+        if lin:
+            rows = [(i, e) for i, e in enumerate(ir.residual) if e != 0]
+            lin_lines = [f"out[_LIN{k}_ROWS] += _k{k} * (_LIN{k} @ {'yp' if t.derivative else 'y'}[_LIN{k}_COLS])"
+                         for k, t in enumerate(lin)]
+            parts.append(self._function(
+                "residual(t, y, yp, p, out)", "Residual F(t, y, yp, p) written into `out`.",
+                [e for _, e in rows] + coeffs, [f"out[{i}]" for i, _ in rows] + coeff_targets,
+                prologue=["out[:] = 0.0"], epilogue=lin_lines))
+        else:
+            parts.append(self._function(
+                "residual(t, y, yp, p, out)", "Residual F(t, y, yp, p) written into `out`.",
+                ir.residual, [f"out[{i}]" for i in range(len(ir.residual))]))
         dt_rows = [(i, sp.diff(e, T)) for i, e in enumerate(ir.residual)]
         dt_rows = [(i, e) for i, e in dt_rows if e != 0]
         parts.append(self._function(
@@ -160,21 +202,41 @@ class ModulePrinter:
             [e for _, e in dt_rows], [f"out[{i}]" for i, _ in dt_rows], prologue=["out[:] = 0.0"]))
         jac = [dy + sp.Symbol("cj") * dyp if dyp != 0 else dy for dy, dyp in zip(ir.jac_dy, ir.jac_dyp)]
         self.names[sp.Symbol("cj")] = "cj"
-        parts.append(self._function(
-            "jacobian(t, y, yp, p, cj, out)",
-            "Data of dF/dy + cj*dF/dyp in CSC order of (JAC_ROWS, JAC_COLS), written into `out`.",
-            jac, [f"out[{k}]" for k in range(len(jac))]))
+        jdoc = "Data of dF/dy + cj*dF/dyp in CSC order of (JAC_ROWS, JAC_COLS), written into `out`."
+        if lin:
+            nz = [(k, e) for k, e in enumerate(jac) if e != 0]
+            lin_lines = [f"out[_LIN{k}_POS] += {'cj * ' if t.derivative else ''}_k{k} * _LIN{k}.data"
+                         for k, t in enumerate(lin)]
+            parts.append(self._function(
+                "jacobian(t, y, yp, p, cj, out)", jdoc, [e for _, e in nz] + coeffs,
+                [f"out[{k}]" for k, _ in nz] + coeff_targets, prologue=["out[:] = 0.0"], epilogue=lin_lines))
+        else:
+            parts.append(self._function("jacobian(t, y, yp, p, cj, out)", jdoc, jac,
+                                        [f"out[{k}]" for k in range(len(jac))]))
+
+        def quadratic(forms, prefix, target, absolute=False):
+            lines = []
+            for k, _ in enumerate(forms):
+                value = f"_q{prefix}{k} * (y[_{prefix}{k}_COLS] @ (_{prefix}{k} @ y[_{prefix}{k}_COLS]))"
+                lines.append(f"{target} += {'abs(' + value + ')' if absolute else value}")
+            return [f.coeff for f in forms], [f"_q{prefix}{k}" for k in range(len(forms))], lines
+
+        qe, qe_t, qe_lines = quadratic(ir.quadratic_energy, "QE", "H")
         parts.append(self._function("hamiltonian(t, y, p)", "Total stored energy H.",
-                                    [ir.hamiltonian], ["H"], epilogue=["return H"]))
+                                    [ir.hamiltonian] + qe, ["H"] + qe_t, epilogue=qe_lines + ["return H"]))
         terms = sp.Add.make_args(ir.hamiltonian)
+        qe, qe_t, qe_lines = quadratic(ir.quadratic_energy, "QE", "S", absolute=True)
         parts.append(self._function(
             "energy_scale(t, y, p)",
             "Sum of |terms| of H: the scale for relative energy errors (H itself may be ~0).",
-            [sum((sp.Abs(term) for term in terms), sp.Integer(0))], ["S"], epilogue=["return S"]))
+            [sum((sp.Abs(term) for term in terms), sp.Integer(0))] + qe, ["S"] + qe_t,
+            epilogue=qe_lines + ["return S"]))
+        qd, qd_t, qd_lines = quadratic(ir.quadratic_dissipation, "QD", "P_diss")
         parts.append(self._function(
             "powers(t, y, yp, p)",
             "(power delivered through the external ports, power dissipated), seed Remark 'Energy balance'.",
-            [ir.port_power, ir.dissipation], ["P_ports", "P_diss"], epilogue=["return P_ports, P_diss"]))
+            [ir.port_power, ir.dissipation] + qd, ["P_ports", "P_diss"] + qd_t,
+            epilogue=qd_lines + ["return P_ports, P_diss"]))
         for fname, exprs, doc in (
             ("invariants", ir.invariants, "Position-level invariants g(t, y) (zero on exact solutions)."),
             ("velocity_invariants", ir.velocity_invariants, "Velocity-level constraints (zero on exact solutions)."),

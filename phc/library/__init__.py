@@ -9,11 +9,13 @@ from __future__ import annotations
 from functools import partial
 
 from phc.library import lumped
+from phc.library.linear import lower_linear_phs
 from phc.library.phs import lower_phs
 from phc.library.rigid import lower_rigid
 
 LOWERERS = {
     "phs": lower_phs,
+    "linear_phs": lower_linear_phs,
     "rigid": lower_rigid,
     "mass": partial(lumped.lower_inertia, coeff_field="m", state="p"),
     "inductor": partial(lumped.lower_inertia, coeff_field="L", state="phi"),

@@ -103,6 +103,8 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
     fixed.add(energy_idx)
     cpu0 = time.process_time()
     init = consistent_initial_conditions(mod, p, t0, values, fixed)
+    if hasattr(progress, "restart"):
+        progress.restart()
     out = BACKENDS[solver](mod, p, t_out, init.y0, init.yp0, rtol=rtol, atol=atol, max_steps=max_steps,
                            progress=progress)
     cpu = time.process_time() - cpu0

@@ -14,6 +14,7 @@ times inside the last step are filled by IDA's own interpolation.
 from __future__ import annotations
 
 import time
+import warnings
 
 import numpy as np
 import scipy.sparse as sps
@@ -72,7 +73,10 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     if sparse:
         pattern = sps.csc_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
         options.update(linsolver="sparse", sparsity=pattern)
-    solver = IDA(resfn, **options)
+    with warnings.catch_warnings():
+        # scikit-sundae warns that its own sparse approximation is unused: we pass jacfn.
+        warnings.filterwarnings("ignore", message="Custom sparse Jacobian approximation")
+        solver = IDA(resfn, **options)
     t_out = np.asarray(t_out, dtype=float)
     ys = np.empty((len(t_out), n))
     yps = np.empty((len(t_out), n))

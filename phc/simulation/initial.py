@@ -2,24 +2,38 @@
 
 Given fixed initial values for some states and guesses for the rest, find ``(y₀, ẏ₀)``
 with ``F(t₀, y₀, ẏ₀) = 0`` that also satisfies the hidden constraints of the index-2
-formulation. Those are obtained by one differentiation of every row,
-``D = F_y ẏ + F_ẏ ÿ + F_t = 0``, with the second derivatives as extra (nuisance)
-unknowns — the numeric counterpart of one Pantelides step. The system ``[F; D] = 0`` is
-solved by a Gauss–Newton iteration with minimum-norm steps, starting from the guesses,
-so free values move as little as needed. Fixed values are never moved: if the
+formulation. Those come from one differentiation of the rows,
+``D = F_y ẏ + F_ẏ ÿ + F_t = 0``, with the second derivatives ÿ and the derivatives of
+algebraic variables as extra (nuisance) unknowns — the numeric counterpart of one
+Pantelides step. Rows whose derivative can always be satisfied by a nuisance unknown of
+their own (found by a maximum matching of rows to ÿ on the pattern of F_ẏ) are dropped
+with that unknown, so an ODE-like block adds nothing.
+
+The system ``[F; D] = 0`` is solved by Gauss–Newton with weighted minimum-norm steps:
+moving a guessed state is expensive, everything else cheap, so guesses change only as
+much as the constraints demand. Stage 1 holds all states at their values; stage 2 (only
+if stage 1 fails) lets the guessed states move. Fixed values are never moved: if the
 equations cannot hold with them, the rows that fail are reported with the variables
-they involve (never a silent snap onto the constraint manifold).
+they involve — never a silent snap onto the constraint manifold.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import networkx as nx
 import numpy as np
 import scipy.sparse as sps
+import scipy.sparse.linalg as spla
 from scipy.optimize import least_squares
 
 from phc.errors import InconsistentInitialError
+
+CHEAP = 1e4
+"""Weight of unknowns that may change freely (derivatives, algebraic variables)."""
+
+DENSE_LIMIT = 4_000_000
+"""Problems with at most this many Jacobian entries use dense least squares."""
 
 
 @dataclass
@@ -31,30 +45,161 @@ class InitialResult:
     iterations: int = 0
 
 
-class _Jacobians:
-    def __init__(self, mod, p):
-        self.mod = mod
-        self.p = p
+class _Problem:
+    """``G(u) = [F; D_kept]`` over the unknowns ``u = [y_free, ẏ_diff, z, w]``."""
+
+    def __init__(self, mod, p, t0, y, fixed):
+        self.mod, self.p, self.t0 = mod, p, t0
         n = mod.N
-        self.shape = (len(mod.EQUATIONS), n)
-        self.rows = mod.JAC_ROWS
-        self.cols = mod.JAC_COLS
+        self.m = len(mod.EQUATIONS)
+        self.rows, self.cols = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
         self.buf = np.zeros(len(self.rows))
+        diff = np.asarray(mod.DIFFERENTIAL, dtype=bool)
+        self.dif = np.flatnonzero(diff)
+        self.free = np.array([j for j in range(n) if j not in fixed], dtype=np.int64)
+        self.y = y.copy()
+        self.yp = np.zeros(n)
+        jy, jyp = self.split(self.y, self.yp)
+        self.kept = self._kept_rows(jyp)
+        sub_y, sub_yp = jy[self.kept], jyp[self.kept]
+        self.zc = np.flatnonzero(~diff & (np.asarray(abs(sub_y).sum(axis=0)).ravel() > 0))
+        self.wc = np.flatnonzero(diff & (np.asarray(abs(sub_yp).sum(axis=0)).ravel() > 0))
+        self.z = np.zeros(n)
+        self.w = np.zeros(n)
+        depends_y = set(np.asarray(getattr(mod, "JAC_DEPENDS_ON_Y", range(n))).tolist())
+        depends_yp = set(np.asarray(getattr(mod, "JAC_DEPENDS_ON_YP", range(n))).tolist())
+        self.fd_y = [j for j in self.free if j in depends_y] if len(self.kept) else []
+        self.fd_yp = [j for j in self.dif if j in depends_yp] if len(self.kept) else []
+        weights = np.concatenate([np.where(diff[self.free], 1.0, CHEAP), np.full(len(self.dif), CHEAP),
+                                  np.full(len(self.zc) + len(self.wc), CHEAP)])
+        self.weights = weights
+        self.sizes = (len(self.free), len(self.dif), len(self.zc), len(self.wc))
 
-    def _matrix(self, data):
-        return sps.csc_matrix((data, (self.rows, self.cols)), shape=self.shape)
-
-    def split(self, t, y, yp):
-        """(F_y, F_ẏ) as sparse matrices."""
-        self.mod.jacobian(t, y, yp, self.p, 0.0, self.buf)
+    def split(self, y, yp):
+        """(F_y, F_ẏ) as sparse CSC matrices."""
+        mod = self.mod
+        shape = (self.m, mod.N)
+        mod.jacobian(self.t0, y, yp, self.p, 0.0, self.buf)
         jy = self.buf.copy()
-        self.mod.jacobian(t, y, yp, self.p, 1.0, self.buf)
+        mod.jacobian(self.t0, y, yp, self.p, 1.0, self.buf)
         jyp = self.buf - jy
-        return self._matrix(jy), self._matrix(jyp)
+        return (sps.csc_matrix((jy, (self.rows, self.cols)), shape=shape).tocsr(),
+                sps.csc_matrix((jyp, (self.rows, self.cols)), shape=shape).tocsr())
+
+    def _kept_rows(self, jyp) -> np.ndarray:
+        """Rows whose time derivative carries information (not absorbed by a private ÿ)."""
+        coo = jyp.tocoo()
+        graph = nx.Graph()
+        row_nodes = [("eq", i) for i in range(self.m)]
+        graph.add_nodes_from(row_nodes)
+        graph.add_edges_from((("eq", int(i)), ("var", int(j))) for i, j, v in zip(coo.row, coo.col, coo.data)
+                             if v != 0)
+        matching = nx.bipartite.hopcroft_karp_matching(graph, top_nodes=row_nodes)
+        return np.array([i for i in range(self.m) if ("eq", i) not in matching], dtype=np.int64)
+
+    def unpack(self, u):
+        nf, nd, nz, nw = self.sizes
+        y, yp, z, w = self.y.copy(), self.yp.copy(), self.z.copy(), self.w.copy()
+        y[self.free] = u[:nf]
+        yp[self.dif] = u[nf:nf + nd]
+        z[self.zc] = u[nf + nd:nf + nd + nz]
+        w[self.wc] = u[nf + nd + nz:]
+        return y, yp, z, w
+
+    def pack(self):
+        return np.concatenate([self.y[self.free], self.yp[self.dif], self.z[self.zc], self.w[self.wc]])
+
+    def F(self, y, yp):
+        out = np.zeros(self.m)
+        self.mod.residual(self.t0, y, yp, self.p, out)
+        return out
+
+    def D(self, y, yp, z, w, jy=None, jyp=None):
+        if not len(self.kept):
+            return np.zeros(0)
+        if jy is None:
+            jy, jyp = self.split(y, yp)
+        ydot = z.copy()
+        ydot[self.dif] = yp[self.dif]
+        ft = np.zeros(self.m)
+        self.mod.residual_t(self.t0, y, yp, self.p, ft)
+        k = self.kept
+        return jy[k] @ ydot + jyp[k] @ w + ft[k]
+
+    def G(self, u):
+        y, yp, z, w = self.unpack(u)
+        return np.concatenate([self.F(y, yp), self.D(y, yp, z, w)])
+
+    def jacobian(self, u):
+        y, yp, z, w = self.unpack(u)
+        jy, jyp = self.split(y, yp)
+        k = self.kept
+        nk = len(k)
+        JF = sps.hstack([jy[:, self.free], jyp[:, self.dif], sps.csr_matrix((self.m, len(self.zc) + len(self.wc)))])
+        if not nk:
+            return JF.tocsr()
+        base = self.D(y, yp, z, w, jy, jyp)
+        # D is bilinear: exact parts plus finite differences where the Jacobian varies.
+        dy = sps.lil_matrix((nk, len(self.free)))
+        free_pos = {j: i for i, j in enumerate(self.free)}
+        for j in self.fd_y:
+            h = 1e-7 * max(1.0, abs(y[j]))
+            yh = y.copy()
+            yh[j] += h
+            dy[:, free_pos[j]] = ((self.D(yh, yp, z, w) - base) / h)[:, None]
+        dyp = jy[k][:, self.dif].tolil()
+        dif_pos = {j: i for i, j in enumerate(self.dif)}
+        for j in self.fd_yp:
+            h = 1e-7 * max(1.0, abs(yp[j]))
+            yph = yp.copy()
+            yph[j] += h
+            col = (self.D(y, yph, z, w) - base) / h
+            dyp[:, dif_pos[j]] = col[:, None]  # includes the exact F_y[:, j] part
+        JD = sps.hstack([dy.tocsr(), dyp.tocsr(), jy[k][:, self.zc], jyp[k][:, self.wc]])
+        return sps.vstack([JF, JD]).tocsr()
+
+    def step(self, J, g):
+        """Weighted minimum-norm solution of J Δu = −g."""
+        JW = J @ sps.diags(self.weights)
+        if JW.shape[0] * JW.shape[1] <= DENSE_LIMIT:
+            v = np.linalg.lstsq(JW.toarray(), -g, rcond=None)[0]
+        else:
+            v = spla.lsmr(JW, -g, atol=1e-15, btol=1e-15, maxiter=20 * max(JW.shape))[0]
+        return self.weights * v
+
+
+def _norm(g) -> float:
+    return float(np.abs(g).max(initial=0.0))
+
+
+def _solve(prob: _Problem, tol: float, max_iter: int):
+    u = prob.pack()
+    g = prob.G(u)
+    best = (_norm(g), u)
+    it = 0
+    # Full Gauss–Newton steps, no monotonicity test: D is bilinear (velocity products,
+    # forces times rotation rates), so from a rough guess the residual may grow once
+    # before converging quadratically (seen on the slider–crank at dead centre).
+    for it in range(1, max_iter + 1):
+        if best[0] <= tol:
+            break
+        u = u + prob.step(prob.jacobian(u), g)
+        g = prob.G(u)
+        if not np.all(np.isfinite(g)):
+            break
+        if _norm(g) < best[0]:
+            best = (_norm(g), u)
+    if best[0] > tol and len(u) * len(g) <= DENSE_LIMIT:
+        sol = least_squares(prob.G, best[1], jac=lambda x: prob.jacobian(x).toarray(), method="trf",
+                            xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200)
+        if _norm(sol.fun) < best[0]:
+            best = (_norm(sol.fun), sol.x)
+        it += sol.nfev
+    return best[1], it
 
 
 def consistent_initial_conditions(mod, p, t0: float, values: dict[int, float], fixed: set[int],
-                                  tol: float = 1e-10, max_iter: int = 60) -> InitialResult:
+                                  tol: float = 1e-10, max_iter: int = 15) -> InitialResult:
     """Solve for consistent ``(y₀, ẏ₀)``.
 
     Parameters
@@ -76,112 +221,29 @@ def consistent_initial_conditions(mod, p, t0: float, values: dict[int, float], f
         When the fixed values violate an equation; the message names the equation(s).
     """
     n = mod.N
-    diff = np.asarray(mod.DIFFERENTIAL, dtype=bool)
     y = np.zeros(n)
     for j, v in values.items():
         y[j] = v
-    yp = np.zeros(n)
-    free_y = np.array([j for j in range(n) if j not in fixed], dtype=int)
-    dif = np.flatnonzero(diff)
-    alg = np.flatnonzero(~diff)
-    jac = _Jacobians(mod, p)
-    m = len(mod.EQUATIONS)
-    nu = len(free_y) + len(dif) + n + len(dif)  # y_free, ẏ (diff), ẏ (all, nuisance for alg), ÿ (diff)
-    z = np.zeros(n)   # d/dt y for the D rows (diff part tied to yp)
-    w = np.zeros(n)   # second derivatives of differential variables
-    F = np.zeros(m)
-
-    def residual_F(y_, yp_):
-        mod.residual(t0, y_, yp_, p, F)
-        return F.copy()
-
-    def residual_D(y_, yp_, z_, w_):
-        jy, jyp = jac.split(t0, y_, yp_)
-        ydot = z_.copy()
-        ydot[dif] = yp_[dif]
-        Ft = np.zeros(m)
-        mod.residual_t(t0, y_, yp_, p, Ft)
-        return jy @ ydot + jyp @ w_ + Ft, jy, jyp
-
-    def G(y_, yp_, z_, w_):
-        d, _, _ = residual_D(y_, yp_, z_, w_)
-        return np.concatenate([residual_F(y_, yp_), d])
-
-    def norm(g):
-        return float(np.abs(g).max(initial=0.0))
-
-    nf, nd, na = len(free_y), len(dif), len(alg)
-
-    def unpack(u):
-        y_, yp_, z_, w_ = y.copy(), yp.copy(), z.copy(), w.copy()
-        y_[free_y] = u[:nf]
-        yp_[dif] = u[nf:nf + nd]
-        z_[alg] = u[nf + nd:nf + nd + na]
-        w_[dif] = u[nf + nd + na:]
-        return y_, yp_, z_, w_
-
-    def fun(u):
-        return G(*unpack(u))
-
-    def jacobian(u):
-        y_, yp_, z_, w_ = unpack(u)
-        base_d, jy, jyp = residual_D(y_, yp_, z_, w_)
-        # Columns: [y_free | yp_diff | z_alg | w_diff]; F is linear in them except y.
-        JF = sps.hstack([jy[:, free_y], jyp[:, dif], sps.csc_matrix((m, na)), sps.csc_matrix((m, nd))]).toarray()
-        JD = np.zeros((m, nf + nd + na + nd))
-        col = 0
-        for j in free_y:  # D is bilinear: finite differences for its y and ẏ columns
-            h = 1e-7 * max(1.0, abs(y_[j]))
-            yh = y_.copy()
-            yh[j] += h
-            JD[:, col] = (residual_D(yh, yp_, z_, w_)[0] - base_d) / h
-            col += 1
-        for j in dif:
-            h = 1e-7 * max(1.0, abs(yp_[j]))
-            yph = yp_.copy()
-            yph[j] += h
-            JD[:, col] = (residual_D(y_, yph, z_, w_)[0] - base_d) / h
-            col += 1
-        JD[:, col:col + na] = jy[:, alg].toarray()
-        JD[:, col + na:] = jyp[:, dif].toarray()
-        return np.vstack([JF, JD])
-
-    u = np.concatenate([y[free_y], yp[dif], z[alg], w[dif]])
-    g = fun(u)
-    it = 0
-    # Gauss–Newton with minimum-norm steps. D is bilinear (velocity products, forces
-    # times rotation rates): from a rough guess the first step ignores those products,
-    # so the residual may grow once before quadratic convergence (seen on the
-    # slider–crank at dead centre). Full steps, no monotonicity test; the best iterate
-    # is kept, and a trust-region solve is the fallback.
-    best = (norm(g), u)
-    for _ in range(max_iter // 4):
-        if norm(g) <= tol:
-            break
-        it += 1
-        u = u + np.linalg.lstsq(jacobian(u), -g, rcond=None)[0]
-        g = fun(u)
-        if not np.all(np.isfinite(g)):
-            break
-        if norm(g) < best[0]:
-            best = (norm(g), u)
-    g_best, u = best
-    g = fun(u)
-    if g_best > tol:
-        sol = least_squares(fun, u, jac=jacobian, method="trf", xtol=1e-14, ftol=1e-14, gtol=1e-14,
-                            max_nfev=max_iter * 10)
-        u, g, it = sol.x, sol.fun, it + sol.nfev
-    y, yp, z, w = unpack(u)
-    f_final = residual_F(y, yp)
-    d_final = g[m:]
     scale = max(1.0, float(np.abs(y).max(initial=0)))
+    dif = set(np.flatnonzero(np.asarray(mod.DIFFERENTIAL)).tolist())
+    stages = [fixed | dif] if fixed >= dif else [fixed | dif, fixed]
+    total = 0
+    for stage_fixed in stages:
+        prob = _Problem(mod, p, t0, y, stage_fixed)
+        u, it = _solve(prob, tol * scale, max_iter)
+        total += it
+        y1, yp1, _, _ = prob.unpack(u)
+        g = prob.G(u)
+        if _norm(g) <= 1e3 * tol * scale:
+            chosen = {mod.VARIABLES[j]: float(y1[j]) for j in sorted(dif) if j not in fixed
+                      and mod.ROLES[j] != "energy" and abs(y1[j] - values.get(j, 0.0)) > 1e-12 * scale}
+            return InitialResult(y1, yp1, chosen, _norm(g), total)
+    f_final = g[:prob.m]
+    d_final = np.zeros(prob.m)
+    d_final[prob.kept] = g[prob.m:]
     bad = np.flatnonzero(np.abs(f_final) > 1e3 * tol * scale)
     bad_d = np.flatnonzero(np.abs(d_final) > 1e-6 * scale)
-    if len(bad) or len(bad_d):
-        raise InconsistentInitialError(_explain(mod, f_final, d_final, bad, bad_d, fixed))
-    chosen = {mod.VARIABLES[j]: float(y[j]) for j in dif if j not in fixed
-              and mod.ROLES[j] != "energy" and abs(y[j] - values.get(j, 0.0)) > 1e-12 * scale}
-    return InitialResult(y, yp, chosen, norm(g), it)
+    raise InconsistentInitialError(_explain(mod, f_final, d_final, bad, bad_d, fixed))
 
 
 def _explain(mod, f, d, bad, bad_d, fixed) -> list[str]:
@@ -192,4 +254,4 @@ def _explain(mod, f, d, bad, bad_d, fixed) -> list[str]:
             involved = sorted({mod.VARIABLES[j] for j in jcols[jrows == i] if j in fixed})
             fixed_txt = f" (fixed values involved: {', '.join(f'`{v}`' for v in involved)})" if involved else ""
             lines.append(f"equation `{mod.EQUATIONS[i]}` {what} by {res[i]:.3g} at t0{fixed_txt}")
-    return lines
+    return lines or ["the initialization did not converge; give better initial values or guesses"]

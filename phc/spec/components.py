@@ -106,6 +106,47 @@ class PhsSpec(_Component):
         return self
 
 
+MatrixRef = Union[Matrix, str]
+"""A matrix given inline (rows of numbers) or as the name of an array in the `matrices` file."""
+
+
+class LinearPhsPortSpec(PortSpec):
+    """A port of a `linear_phs` component (input-state-output form, see `PhsPortSpec`)."""
+
+    B: MatrixRef
+    """Input matrix (n_states × dimension), inline or the name of an array in `matrices`."""
+    causality: Literal["effort_in", "flow_in"] = "effort_in"
+
+
+class LinearPhsSpec(_Component):
+    """A linear port-Hamiltonian system given by (possibly large, sparse) matrices::
+
+        E ẋ = (J − R) Q x − Σ_{effort_in} B e + Σ_{flow_in} B f,   H = ½ xᵀQx,
+
+    with J skew, R ⪰ 0, Q ≻ 0 symmetric. The matrices stay sparse through compilation
+    (no per-entry symbolic work), so models exported from FE codes with thousands of
+    states compile quickly. Each matrix can be scaled by a parameter expression in
+    `scale`, keeping parameters run-time arguments.
+    """
+
+    type: Literal["linear_phs"]
+    parameters: dict[Identifier, Expr] = {}
+    states: Union[int, list[Identifier]]
+    """Number of states (named `x[0]`, `x[1]`, ...) or their names."""
+    matrices: Optional[str] = None
+    """An `.npz` file (relative to the model file) holding named arrays: dense 2-D arrays,
+    or sparse ones stored as `NAME.data`, `NAME.indices`, `NAME.indptr`, `NAME.shape` (CSR)."""
+    J: MatrixRef
+    R: Optional[MatrixRef] = None
+    Q: Optional[MatrixRef] = None
+    """Energy matrix (default identity)."""
+    E: Optional[MatrixRef] = None
+    """Descriptor matrix on ẋ (default identity)."""
+    scale: dict[Literal["J", "R", "Q", "E"], Expr] = {}
+    """Scalar factors (expressions in parameters) multiplying the matrices."""
+    ports: dict[Identifier, LinearPhsPortSpec] = {}
+
+
 class RigidPortSpec(PortSpec):
     """A port of a rigid multibody component: its flow is ``Bᵀ(q) v`` (seed eq. mks2)."""
 
@@ -280,7 +321,7 @@ LIBRARY_TYPES = (
 
 ComponentSpec = Annotated[
     Union[
-        PhsSpec, RigidSpec, ModelComponentSpec,
+        PhsSpec, LinearPhsSpec, RigidSpec, ModelComponentSpec,
         MassSpec, InductorSpec, SpringSpec, CapacitorSpec, DamperSpec, ResistorSpec,
         EffortSourceSpec, FlowSourceSpec, ZeroEffortSpec, ZeroFlowSpec,
         OrthogonalTransformSpec, JunctionSpec,

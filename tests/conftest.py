@@ -1,0 +1,23 @@
+"""Shared pytest configuration for the phc test suite.
+
+Generated residual modules are cached on disk (:mod:`phc.codegen.load`); the tests
+point that cache at a per-session temporary directory so they never touch the
+user's ``~/.cache/phc`` and always start from an empty cache.
+"""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _isolated_phc_cache(tmp_path_factory):
+    previous = os.environ.get("PHC_CACHE_DIR")
+    os.environ["PHC_CACHE_DIR"] = str(tmp_path_factory.mktemp("phc-cache"))
+    yield
+    if previous is None:
+        os.environ.pop("PHC_CACHE_DIR", None)
+    else:
+        os.environ["PHC_CACHE_DIR"] = previous

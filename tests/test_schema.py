@@ -1,0 +1,137 @@
+"""Tests for the published JSON Schema of the model language (:mod:`phc.spec.export`,
+``phc schema`` in :mod:`phc.cli`).
+
+The schema in ``schemas/`` must be up to date with the pydantic models, the check must
+detect a stale copy, and the independent :mod:`jsonschema` validator must agree with
+pydantic on the shipped models and on a broken one.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+from pathlib import Path
+
+import jsonschema
+import pydantic
+import pytest
+import yaml
+
+from phc.cli import main
+from phc.spec import ModelSpec
+from phc.spec.export import SCHEMAS, schema_text
+
+REPO = Path(__file__).resolve().parents[1]
+SCHEMA_DIR = REPO / "schemas"
+SCHEMA_FILE = SCHEMA_DIR / "model.schema.json"
+MODEL_FILES = sorted((REPO / "models").glob("*.yaml"))
+SCHEMA_COMMENT = "# yaml-language-server: $schema="
+
+
+def load_yaml(path: Path):
+    return yaml.safe_load(path.read_text())
+
+
+def validator() -> jsonschema.Draft202012Validator:
+    return jsonschema.Draft202012Validator(json.loads(SCHEMA_FILE.read_text()))
+
+
+def uses_connection_shorthand(path: Path) -> bool:
+    return any(isinstance(item, list) for item in load_yaml(path).get("connections") or [])
+
+
+SHORTHAND_XFAIL = pytest.mark.xfail(
+    strict=True,
+    reason="schemas/model.schema.json rejects the `- [a.port, b.port]` connection shorthand: the schema is "
+           "generated from ConnectionSpec, but the shorthand is only accepted by the mode='before' validator "
+           "ModelSpec._short_connections, which model_json_schema() cannot see",
+)
+
+
+# -- phc schema --check ------------------------------------------------------------
+
+
+def test_schema_check_passes_on_the_repository(capsys):
+    assert main(["schema", "--check", "--dir", str(SCHEMA_DIR)]) == 0
+    captured = capsys.readouterr()
+    assert "up to date" in captured.out
+    assert captured.err == ""
+
+
+def test_schema_check_detects_a_stale_copy(tmp_path, capsys):
+    schema = json.loads(SCHEMA_FILE.read_text())
+    schema["description"] = "edited by hand"
+    (tmp_path / "model.schema.json").write_text(json.dumps(schema, indent=2) + "\n")
+    assert main(["schema", "--check", "--dir", str(tmp_path)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert "model.schema.json" in err[0]
+    assert f"phc schema --write --dir {tmp_path}" in err[0]
+
+
+def test_schema_check_detects_a_missing_file(tmp_path, capsys):
+    assert main(["schema", "--check", "--dir", str(tmp_path)]) == 1
+    assert f"phc schema --write --dir {tmp_path}" in capsys.readouterr().err
+
+
+def test_schema_write_then_check_round_trips(tmp_path, capsys):
+    assert main(["schema", "--write", "--dir", str(tmp_path)]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(SCHEMAS)
+    for name in SCHEMAS:
+        assert (tmp_path / name).read_text() == schema_text(name)
+    assert main(["schema", "--check", "--dir", str(tmp_path)]) == 0
+
+
+def test_schema_is_a_valid_draft_2020_12_schema():
+    schema = json.loads(SCHEMA_FILE.read_text())
+    assert schema["$schema"] == "https://json-schema.org/draft/2020-12/schema"
+    jsonschema.Draft202012Validator.check_schema(schema)
+
+
+# -- models against the schema -----------------------------------------------------
+
+
+@pytest.mark.parametrize("path", [
+    pytest.param(p, id=p.stem, marks=[SHORTHAND_XFAIL] if uses_connection_shorthand(p) else [])
+    for p in MODEL_FILES
+])
+def test_shipped_model_validates_against_the_json_schema(path):
+    errors = [f"{list(e.absolute_path)}: {e.message}" for e in validator().iter_errors(load_yaml(path))]
+    assert errors == []
+
+
+@pytest.mark.parametrize("path", MODEL_FILES, ids=[p.stem for p in MODEL_FILES])
+def test_shipped_model_validates_with_pydantic(path):
+    spec = ModelSpec.model_validate(load_yaml(path))
+    assert spec.name == path.stem
+
+
+@pytest.mark.parametrize("path", MODEL_FILES, ids=[p.stem for p in MODEL_FILES])
+def test_shipped_model_declares_the_schema_on_its_first_line(path):
+    first = path.read_text().splitlines()[0]
+    assert first.startswith(SCHEMA_COMMENT)
+    target = (path.parent / first[len(SCHEMA_COMMENT):].strip()).resolve()
+    assert target == SCHEMA_FILE.resolve()
+
+
+@pytest.mark.parametrize("where", ["top", "component", "simulation"])
+def test_unknown_key_fails_both_jsonschema_and_pydantic(where):
+    data = copy.deepcopy(load_yaml(REPO / "models" / "pendulum.yaml"))  # no connection shorthand
+    assert list(validator().iter_errors(data)) == []
+    if where == "top":
+        data["colour"] = "red"
+    elif where == "component":
+        data["components"]["pendulum"]["mass"] = 1.0
+    else:
+        data["simulation"]["t_stop"] = 3.0
+    assert list(validator().iter_errors(data)) != []
+    with pytest.raises(pydantic.ValidationError):
+        ModelSpec.model_validate(data)
+
+
+def test_wrong_type_fails_both_jsonschema_and_pydantic():
+    data = copy.deepcopy(load_yaml(REPO / "models" / "pendulum.yaml"))
+    data["simulation"]["n_out"] = "many"
+    assert list(validator().iter_errors(data)) != []
+    with pytest.raises(pydantic.ValidationError):
+        ModelSpec.model_validate(data)
