@@ -34,9 +34,13 @@ class LinearTermIR:
 
 @dataclass(frozen=True, eq=False)
 class QuadraticIR:
+    """``coeff · xᵀAx`` with x = y[cols]; for dissipation forms, `pos` are the Jacobian
+    data positions of the energy-balance row at `cols` (its gradient is 2·coeff·A x)."""
+
     coeff: sp.Expr
     matrix: sps.csr_matrix
     cols: np.ndarray
+    pos: np.ndarray = None
 
 
 @dataclass(frozen=True)
@@ -70,6 +74,7 @@ class ResidualIR:
     linear_terms: tuple[LinearTermIR, ...] = ()
     quadratic_energy: tuple[QuadraticIR, ...] = ()
     quadratic_dissipation: tuple[QuadraticIR, ...] = ()
+    energy_row: int = -1
 
 
 def _ordered_parameters(dae: Dae):
@@ -124,6 +129,12 @@ def lower_residual(dae: Dae) -> ResidualIR:
             for i, j in zip(gr.tolist(), gc.tolist()):
                 entries.setdefault((i, j), [0, 0])
             raw_terms.append((term, A, rows, cols, gr, gc))
+    # The energy accumulator row Ė − P_ports − P_diss depends on every state of a
+    # quadratic dissipation form (a dense row, one per model).
+    energy_row = next(i for i, eq in enumerate(dae.equations) if eq.kind == "energy")
+    for form in dae.quadratic_dissipation:
+        for sym in form.symbols:
+            entries.setdefault((energy_row, col_of_y[sym]), [0, 0])
     keys = sorted(entries, key=lambda ij: (ij[1], ij[0]))
     position = {k: n for n, k in enumerate(keys)}
     linear_terms = tuple(
@@ -131,9 +142,13 @@ def lower_residual(dae: Dae) -> ResidualIR:
                      np.array([position[(i, j)] for i, j in zip(gr.tolist(), gc.tolist())], dtype=np.int64))
         for term, A, rows, cols, gr, gc in raw_terms)
 
-    def quadratic(forms):
-        return tuple(QuadraticIR(f.coeff, sps.csr_matrix(f.matrix),
-                                 np.array([col_of_y[sym] for sym in f.symbols], dtype=np.int64)) for f in forms)
+    def quadratic(forms, with_pos=False):
+        out = []
+        for f in forms:
+            cols = np.array([col_of_y[sym] for sym in f.symbols], dtype=np.int64)
+            pos = (np.array([position[(energy_row, int(c))] for c in cols], dtype=np.int64) if with_pos else None)
+            out.append(QuadraticIR(f.coeff, sps.csr_matrix(f.matrix), cols, pos))
+        return tuple(out)
 
     return ResidualIR(
         name=dae.name,
@@ -164,5 +179,6 @@ def lower_residual(dae: Dae) -> ResidualIR:
         sources=dae.sources,
         linear_terms=linear_terms,
         quadratic_energy=quadratic(dae.quadratic_energy),
-        quadratic_dissipation=quadratic(dae.quadratic_dissipation),
+        quadratic_dissipation=quadratic(dae.quadratic_dissipation, with_pos=True),
+        energy_row=energy_row,
     )

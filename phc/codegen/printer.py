@@ -163,6 +163,8 @@ class ModulePrinter:
             for k, f in enumerate(forms):
                 sparse_consts += _sparse_constant(f"_{prefix}{k}", f.matrix)
                 sparse_consts.append(f"_{prefix}{k}_COLS = {_array(f.cols.tolist(), 'np.int64')}")
+                if f.pos is not None:
+                    sparse_consts.append(f"_{prefix}{k}_POS = {_array(f.pos.tolist(), 'np.int64')}")
         if sparse_consts:
             parts[1] = "import math\n\nimport numpy as np\nimport scipy.sparse as _sps\n"
             parts += ["# Sparse linear parts (discretized PDEs, matrix-defined components).",
@@ -183,14 +185,20 @@ class ModulePrinter:
         lin = ir.linear_terms
         coeff_targets = [f"_k{k}" for k in range(len(lin))]
         coeffs = [term.coeff for term in lin]
-        if lin:
+        qd_coeffs = [f.coeff for f in ir.quadratic_dissipation]
+        qd_targets = [f"_qQD{k}" for k in range(len(qd_coeffs))]
+        qd_res = [f"out[{ir.energy_row}] -= _qQD{k} * (y[_QD{k}_COLS] @ (_QD{k} @ y[_QD{k}_COLS]))"
+                  for k in range(len(qd_coeffs))]
+        qd_jac = [f"out[_QD{k}_POS] -= 2.0 * _qQD{k} * (_QD{k} @ y[_QD{k}_COLS])" for k in range(len(qd_coeffs))]
+        coeffs, coeff_targets = coeffs + qd_coeffs, coeff_targets + qd_targets
+        if lin or qd_coeffs:
             rows = [(i, e) for i, e in enumerate(ir.residual) if e != 0]
             lin_lines = [f"out[_LIN{k}_ROWS] += _k{k} * (_LIN{k} @ {'yp' if t.derivative else 'y'}[_LIN{k}_COLS])"
                          for k, t in enumerate(lin)]
             parts.append(self._function(
                 "residual(t, y, yp, p, out)", "Residual F(t, y, yp, p) written into `out`.",
                 [e for _, e in rows] + coeffs, [f"out[{i}]" for i, _ in rows] + coeff_targets,
-                prologue=["out[:] = 0.0"], epilogue=lin_lines))
+                prologue=["out[:] = 0.0"], epilogue=lin_lines + qd_res))
         else:
             parts.append(self._function(
                 "residual(t, y, yp, p, out)", "Residual F(t, y, yp, p) written into `out`.",
@@ -203,13 +211,14 @@ class ModulePrinter:
         jac = [dy + sp.Symbol("cj") * dyp if dyp != 0 else dy for dy, dyp in zip(ir.jac_dy, ir.jac_dyp)]
         self.names[sp.Symbol("cj")] = "cj"
         jdoc = "Data of dF/dy + cj*dF/dyp in CSC order of (JAC_ROWS, JAC_COLS), written into `out`."
-        if lin:
+        if lin or qd_coeffs:
             nz = [(k, e) for k, e in enumerate(jac) if e != 0]
             lin_lines = [f"out[_LIN{k}_POS] += {'cj * ' if t.derivative else ''}_k{k} * _LIN{k}.data"
                          for k, t in enumerate(lin)]
             parts.append(self._function(
                 "jacobian(t, y, yp, p, cj, out)", jdoc, [e for _, e in nz] + coeffs,
-                [f"out[{k}]" for k, _ in nz] + coeff_targets, prologue=["out[:] = 0.0"], epilogue=lin_lines))
+                [f"out[{k}]" for k, _ in nz] + coeff_targets, prologue=["out[:] = 0.0"],
+                epilogue=lin_lines + qd_jac))
         else:
             parts.append(self._function("jacobian(t, y, yp, p, cj, out)", jdoc, jac,
                                         [f"out[{k}]" for k in range(len(jac))]))

@@ -374,6 +374,9 @@ class _Converter:
                 symbol = {ast.Is: "is", ast.IsNot: "is not", ast.In: "in", ast.NotIn: "not in"}[type(op)]
                 self.fail(f"operator `{symbol}` is not allowed", comparator)
             right = self.visit(comparator)
+            if left.has(sp.Piecewise) or right.has(sp.Piecewise):
+                # sympy rewrites such conditions by solving inequalities: exponential time
+                self.fail("`ifelse` cannot be used inside a condition", node)
             relations.append(self.build(node, _RELATIONS[type(op)][1], left, right))
             left = right
         return relations[0] if len(relations) == 1 else self.build(node, sp.And, *relations)
