@@ -127,6 +127,7 @@ class Builder:
         self.exposed_top: dict[str, tuple[str, Optional[SourceSpan]]] = {}
         self.sources: list[str] = []
         self._file_stack: list[str] = []
+        self.failed: set[str] = set()
 
     # -- diagnostics ----------------------------------------------------------------
     def error(self, code: str, message: str, ctx: Optional[FileContext], path: Sequence = (),
@@ -340,7 +341,10 @@ class Builder:
                     for pname, exposed in sub_ctx.spec.ports.items():
                         self.port_aliases[f"{full}.{pname}"] = sub_ctx.prefix + exposed.port
                 continue
+            n_errors = len(self.diags.errors)
             LOWERERS[comp.type](self, ctx, full, comp, path)
+            if len(self.diags.errors) > n_errors:
+                self.failed.add(full)  # its ports may be missing: do not report them again
         for i, conn in enumerate(spec.connections):
             a, b = (ctx.prefix + ref for ref in conn.between)
             self.connections.append((a, b, ctx.smap.locate(("connections", i)), f"connections[{i}]"))
@@ -360,6 +364,8 @@ class Builder:
         full = self.resolve_alias(ctx.prefix + ref)
         if full in self.ports:
             return self.ports[full]
+        if ctx.prefix + ref.split(".", 1)[0] in self.failed:
+            return None
         local = [n[len(ctx.prefix):] for n in list(self.ports) + list(self.port_aliases)
                  if n.startswith(ctx.prefix) and "." not in n[len(ctx.prefix):].split(".", 1)[-1]]
         close = difflib.get_close_matches(ref, local, n=1)
