@@ -179,6 +179,7 @@ def _assert_refused(path: Path, marker: Path, capsys) -> None:
     assert code == 1, err
     assert "Traceback" not in err and "internal error" not in err
     assert f"{path.parent}/" in err
+    assert "[PHC-E101]" in err or "[PHC-E001]" in err   # refused as an expression or a YAML tag
     dae, diags = phc.build_dae(path)
     assert dae is None and diags.has_errors
     with pytest.raises(ModelError):
