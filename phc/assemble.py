@@ -66,6 +66,7 @@ def _check_connections(b, ctx) -> list[tuple]:
             continue  # already reported by _check_refs
         ok = True
         if a_full == b_full:
+            used[a_full] = label
             b.diags.append(Diagnostic("PHC-E202", f"port `{a_name}` is connected to itself", span=span,
                                       path=label))
             continue
@@ -328,7 +329,7 @@ def _initial_values(b, ctx, state_names: set[str]) -> list[InitialValue]:
         value, guess = (spec.value, spec.guess) if isinstance(spec, InitialSpec) else (spec, False)
         vpath = (*path, "value") if isinstance(spec, InitialSpec) else path
         ex = b.expr(ctx, value, vpath, dict(ctx.params))
-        num = ex.xreplace({p.symbol: p.default for p in b.parameters.values()})
+        num = ex.xreplace(b.default_values())
         try:
             val = float(num)
         except TypeError:

@@ -410,7 +410,8 @@ def from_pydantic(err: pydantic.ValidationError, smap: SourceMap, *, root_path: 
         if rec["code"] != "PHC-E013" or not rec["branch"]:
             return False
         n = len(rec["resolved"])
-        return any(o["code"] != "PHC-E013" and o["resolved"][:n] == rec["resolved"] for o in records)
+        return any(o is not rec and (o["code"] != "PHC-E013" or len(o["resolved"]) > n)
+                   and o["resolved"][:n] == rec["resolved"] for o in records)
 
     out: list[Diagnostic] = []
     index: dict[tuple, int] = {}

@@ -150,9 +150,8 @@ class Builder:
                 return parse_equation(value, names)
             return parse_expression(value, names)
         except ExpressionError as err:
-            span = ctx.smap.locate(tuple(path))
-            if isinstance(value, str):
-                span = SourceSpan(span.file, span.line, span.col + ctx.smap.value_offset(tuple(path)) + err.col)
+            span = (ctx.smap.locate_in_value(tuple(path), err.col) if isinstance(value, str)
+                    else ctx.smap.locate(tuple(path)))
             self.diags.append(Diagnostic("PHC-E101", f"in expression `{value}`: {err.message}", span=span,
                                          hint=err.hint, path=".".join(str(p) for p in path)))
             return sp.Integer(0)
@@ -225,6 +224,9 @@ class Builder:
     def add_port(self, component: str, local: str, domain: str, dimension: int, frame=None,
                  span=None, position=None) -> Port:
         full = f"{component}.{local}"
+        if full in self.ports:
+            self.diags.append(Diagnostic("PHC-E207", f"component `{component}` declares port `{local}` twice",
+                                         span=span, hint="give each port its own name", path=full))
         if dimension == 1:
             f = [self.add_algebraic(component, f"{local}.f", "flow", span)]
             e = [self.add_algebraic(component, f"{local}.e", "effort", span)]
@@ -240,6 +242,10 @@ class Builder:
         (self.velocity_invariants if velocity else self.invariants).append(inv)
 
     # -- parameters -------------------------------------------------------------------
+    def default_values(self) -> dict:
+        """Parameter symbol → its default as a sympy Float (xreplace-safe)."""
+        return {p.symbol: sp.Float(p.default) for p in self.parameters.values()}
+
     def add_parameters(self, ctx: FileContext, entries: dict[str, tuple[Any, Sequence, Optional[FileContext]]],
                        units: dict[str, tuple]) -> None:
         """Create parameters `ctx.prefix + name`; values may use each other (acyclic)."""
@@ -269,8 +275,8 @@ class Builder:
         for sym in order:
             name = by_symbol[sym]
             ex = exprs[name]
-            known = {s: v for s, v in values.items()}
-            known.update({p.symbol: p.default for p in self.parameters.values()})
+            known = {s: sp.Float(v) for s, v in values.items()}
+            known.update(self.default_values())
             try:
                 val = float(ex.xreplace(known).evalf())
             except (TypeError, ValueError):
@@ -332,12 +338,15 @@ class Builder:
             if isinstance(comp, ModelComponentSpec):
                 sub = Path(ctx.file).parent / comp.file
                 if not sub.is_file():
-                    self.error("PHC-E107", f"nested model file `{comp.file}` not found (looked for `{sub}`)",
-                               ctx, (*path, "file"))
+                    self.error("PHC-E107", f"nested model file `{comp.file}` not found"
+                               + (f" (looked for `{sub}`)" if str(sub) != comp.file else ""), ctx, (*path, "file"))
+                    self.failed.add(full)
                     continue
                 ov = {k: (v, (*path, "parameters", k), ctx) for k, v in comp.parameters.items()}
                 sub_ctx = self.load_file(sub, full + ".", ov, ctx, (*path, "file"))
-                if sub_ctx is not None:
+                if sub_ctx is None:
+                    self.failed.add(full)
+                else:
                     for pname, exposed in sub_ctx.spec.ports.items():
                         self.port_aliases[f"{full}.{pname}"] = sub_ctx.prefix + exposed.port
                 continue

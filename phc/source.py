@@ -294,6 +294,48 @@ class SourceMap:
             return 1
         return 0
 
+    def locate_in_value(self, path: Sequence[PathElem] | str, offset: int) -> SourceSpan:
+        """Position of character `offset` of the (folded) string value at `path`.
+
+        Single-line scalars map directly (plus one for a quote); multi-line plain,
+        quoted and block (``|``, ``>``) scalars are mapped through their folding, so
+        an error inside a long expression points at the right line and column.
+        """
+        span = self.locate(path)
+        node = self.node(path)
+        if not isinstance(node, ScalarNode):
+            return span
+        start, end = node.start_mark, node.end_mark
+        buffer = getattr(start, "buffer", None)
+        if buffer is None or (start.line == end.line and node.style not in ("|", ">")):
+            return SourceSpan(span.file, span.line, span.col + self.value_offset(path) + offset)
+        raw = buffer[start.index:end.index]
+        lines = raw.split("\n")
+        positions: list[tuple[int, int]] = []
+        block = node.style in ("|", ">")
+        quoted = node.style in ("'", '"')
+        for k, text in enumerate(lines):
+            if block and k == 0:
+                continue  # the header line `|` / `>-`
+            line_no = start.line + k
+            if k == 0:
+                lead, body = start.column + (1 if quoted else 0), text[1:] if quoted else text
+            else:
+                body = text.lstrip()
+                lead = len(text) - len(body)
+            body = body.rstrip()
+            if quoted and k == len(lines) - 1 and body.endswith(node.style):
+                body = body[:-1]
+            if not body:
+                continue
+            if positions:
+                positions.append(positions[-1][0:1] + (positions[-1][1] + 1,))
+            positions.extend((line_no, lead + i) for i in range(len(body)))
+        if not positions:
+            return span
+        line, col = positions[min(max(offset, 0), len(positions) - 1)]
+        return SourceSpan(span.file, line + 1, col + 1)
+
     def has(self, path: Sequence[PathElem] | str) -> bool:
         """Whether every element of `path` resolves exactly (no skipping).
 

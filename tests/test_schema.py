@@ -36,16 +36,6 @@ def validator() -> jsonschema.Draft202012Validator:
     return jsonschema.Draft202012Validator(json.loads(SCHEMA_FILE.read_text()))
 
 
-def uses_connection_shorthand(path: Path) -> bool:
-    return any(isinstance(item, list) for item in load_yaml(path).get("connections") or [])
-
-
-SHORTHAND_XFAIL = pytest.mark.xfail(
-    strict=True,
-    reason="schemas/model.schema.json rejects the `- [a.port, b.port]` connection shorthand: the schema is "
-           "generated from ConnectionSpec, but the shorthand is only accepted by the mode='before' validator "
-           "ModelSpec._short_connections, which model_json_schema() cannot see",
-)
 
 
 # -- phc schema --check ------------------------------------------------------------
@@ -92,7 +82,7 @@ def test_schema_is_a_valid_draft_2020_12_schema():
 
 
 @pytest.mark.parametrize("path", [
-    pytest.param(p, id=p.stem, marks=[SHORTHAND_XFAIL] if uses_connection_shorthand(p) else [])
+    pytest.param(p, id=p.stem)
     for p in MODEL_FILES
 ])
 def test_shipped_model_validates_against_the_json_schema(path):

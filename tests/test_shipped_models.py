@@ -181,9 +181,6 @@ def test_slider_crank_energy_balance_closes_with_the_drive_work():
 # -- solver statistics -------------------------------------------------------------
 
 
-@pytest.mark.xfail(strict=True, reason="IDA backend counts one extra 'step' after every output interpolation: "
-                   "IDASolve in ONE_STEP mode returns t_n without stepping once t_n is past the last "
-                   "returned time, so SimResult.steps grows with n_out")
 def test_step_count_does_not_depend_on_the_number_of_outputs():
     model = compiled("pendulum")
     few = phc.simulate(model, t_end=0.5, n_out=2)

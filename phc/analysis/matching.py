@@ -38,6 +38,14 @@ def maximum_matching(dae: Dae) -> dict[int, int]:
     graph.add_nodes_from(("var", j) for j in range(len(dae.variables)))
     for i, cols in enumerate(incidence(dae)):
         graph.add_edges_from((("eq", i), ("var", j)) for j in cols)
+    # The energy accumulator Ė = P is matched to its own row first: it is phc's
+    # bookkeeping, and must never be reported as an undetermined unknown.
+    for i, eq in enumerate(dae.equations):
+        if eq.kind == "energy":
+            j = next(j for j, v in enumerate(dae.variables) if v.role == "energy")
+            graph.remove_edges_from(list(graph.edges(("eq", i))))
+            graph.remove_edges_from(list(graph.edges(("var", j))))
+            graph.add_edge(("eq", i), ("var", j))
     matching = nx.bipartite.hopcroft_karp_matching(graph, top_nodes=eq_nodes)
     return {node[1]: matching[node][1] for node in eq_nodes if node in matching}
 

@@ -43,13 +43,27 @@ def _one_port_ports(b, ctx, name, spec, path, kind):
     return [b.add_port(name, p, domain, spec.dimension, span=span) for p in spec.ports]
 
 
+def _check_coefficient(b, ctx, name, spec, path, field, strict, meaning):
+    """Storage coefficients must be positive (H bounded below), resistances ≥ 0 (passive)."""
+    value = getattr(spec, field)
+    ex = b.expr(ctx, value, (*path, field), _scope(ctx))
+    try:
+        num = float(ex.xreplace(b.default_values()).xreplace({T: sp.Float(0)}))
+    except (TypeError, ValueError):
+        return ex
+    if (strict and not num > 0) or (not strict and num < 0):
+        b.error("PHC-E405", f"`{field}` of `{name}` is {num:g} at the default parameters; {meaning}",
+                ctx, (*path, field))
+    return ex
+
+
 def _suffix(dim, k):
     return "" if dim == 1 else f"[{k}]"
 
 
 def lower_inertia(b, ctx, name, spec, path, coeff_field: str, state: str):
     """mass / inductor: H = |x|²/(2c), every port flow = x/c, ẋ = −Σ e."""
-    c = b.expr(ctx, getattr(spec, coeff_field), (*path, coeff_field), _scope(ctx))
+    c = _check_coefficient(b, ctx, name, spec, path, coeff_field, True, "it must be positive")
     ports = _one_port_ports(b, ctx, name, spec, path, spec.type)
     dim = spec.dimension
     span = ctx.smap.locate(path)
@@ -65,7 +79,8 @@ def lower_inertia(b, ctx, name, spec, path, coeff_field: str, state: str):
 
 def lower_compliance(b, ctx, name, spec, path, coeff_field: str, state: str, inverse: bool):
     """spring / capacitor: H = k|x|²/2, ẋ = f (shared), Σ e = −kx."""
-    c = b.expr(ctx, getattr(spec, coeff_field), (*path, coeff_field), _scope(ctx))
+    c = _check_coefficient(b, ctx, name, spec, path, coeff_field, True,
+                           "it must be positive for the stored energy to be bounded below")
     k_eff = 1 / c if inverse else c
     ports = _one_port_ports(b, ctx, name, spec, path, spec.type)
     dim = spec.dimension
@@ -86,7 +101,8 @@ def lower_compliance(b, ctx, name, spec, path, coeff_field: str, state: str, inv
 
 def lower_resistance(b, ctx, name, spec, path, coeff_field: str):
     """damper / resistor: Σ e = −d f, dissipation d|f|²."""
-    d = b.expr(ctx, getattr(spec, coeff_field), (*path, coeff_field), _scope(ctx))
+    d = _check_coefficient(b, ctx, name, spec, path, coeff_field, False,
+                           "a negative resistance generates energy (it must be ≥ 0)")
     ports = _one_port_ports(b, ctx, name, spec, path, spec.type)
     span = ctx.smap.locate(path)
     diss = sp.Integer(0)
@@ -140,7 +156,7 @@ def lower_transform(b, ctx, name, spec, path):
     """orthogonal_transform: f_b = Q f_a, e_a = −Qᵀ e_b (power preserving since QᵀQ = I)."""
     n = len(spec.Q)
     Q = b.matrix(ctx, spec.Q, (*path, "Q"), _scope(ctx), (n, n), "`Q`")
-    numeric = Q.xreplace({p.symbol: p.default for p in b.parameters.values()}).subs(T, 0.0)
+    numeric = Q.xreplace(b.default_values()).subs(T, 0.0)
     try:
         qn = np.array(numeric.evalf(), dtype=float)
         if not np.allclose(qn.T @ qn, np.eye(n), atol=1e-10):

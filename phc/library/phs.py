@@ -32,7 +32,7 @@ def local_scope(b, ctx, name, spec, path) -> dict:
                     hint="rename it", severity="warning", key=True)
         ex = b.expr(ctx, value, ppath, scope)
         sym = sp.Symbol(f"{name}.{pname}", real=True)
-        known = {p.symbol: p.default for p in b.parameters.values()}
+        known = b.default_values()
         try:
             default = float(ex.xreplace(known).evalf())
         except (TypeError, ValueError):
@@ -52,7 +52,7 @@ def _port_scope(port) -> tuple:
 
 def numeric_defaults(b, expr):
     """Value of a parameter-only expression at the default parameters (t = 0)."""
-    return expr.xreplace({p.symbol: p.default for p in b.parameters.values()}).subs(T, 0.0)
+    return expr.xreplace(b.default_values()).subs(T, 0.0)
 
 
 def lower_phs(b, ctx, name, spec, path):
@@ -133,17 +133,25 @@ def _check_structure(b, ctx, name, path, J, R, xs):
 
 
 def _lower_kernel(b, ctx, name, spec, path, scope, xs, dxs, grad, span):
+    def bind(key, value, what):
+        if key in scope:
+            b.error("PHC-E115", f"the name `{key}` ({what}) clashes with another name of `{name}`", ctx, path,
+                    hint="`f_x`/`e_x` are generated for every state, port and resistive port `x`; rename one")
+        scope[key] = value
+
     for i, (x, dx) in enumerate(zip(xs, dxs)):
         local = x.name.rsplit(".", 1)[-1]
-        scope[f"f_{local}"] = dx
-        scope[f"e_{local}"] = grad[i]
+        bind(f"f_{local}", dx, f"flow of state `{local}`")
+        bind(f"e_{local}", grad[i], f"effort of state `{local}`")
     dim_z = len(xs)
     for pname, pspec in spec.ports.items():
         if pspec.B is not None:
             b.error("PHC-E112", f"port `{pname}` of `{name}` has `B`, which only applies to the J/R/B form",
                     ctx, (*path, "ports", pname, "B"))
         port = b.add_port(name, pname, pspec.domain, pspec.dimension, pspec.frame, span)
-        scope[f"f_{pname}"], scope[f"e_{pname}"] = _port_scope(port)
+        fp, ep = _port_scope(port)
+        bind(f"f_{pname}", fp, f"flow of port `{pname}`")
+        bind(f"e_{pname}", ep, f"effort of port `{pname}`")
         dim_z += pspec.dimension
     diss = sp.Integer(0)
     laws = []
@@ -153,13 +161,13 @@ def _lower_kernel(b, ctx, name, spec, path, scope, xs, dxs, grad, span):
               for k in range(d)]
         es = [b.add_algebraic(name, f"{rname}.e" + ("" if d == 1 else f"[{k}]"), "resistive", span)
               for k in range(d)]
-        scope[f"f_{rname}"] = fs[0] if d == 1 else fs
-        scope[f"e_{rname}"] = es[0] if d == 1 else es
+        bind(f"f_{rname}", fs[0] if d == 1 else fs, f"flow of resistive port `{rname}`")
+        bind(f"e_{rname}", es[0] if d == 1 else es, f"effort of resistive port `{rname}`")
         diss += sum(f * e for f, e in zip(fs, es))
         dim_z += d
         laws.append((rname, rspec))
     for mname in spec.multipliers:
-        scope[mname] = b.add_algebraic(name, mname, "multiplier", span)
+        bind(mname, b.add_algebraic(name, mname, "multiplier", span), f"multiplier `{mname}`")
     relations = spec.relations or []
     expected = dim_z + len(spec.multipliers)
     if len(relations) != expected:

@@ -89,9 +89,13 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     k, steps, ok, message = 1, 0, True, "integration finished"
     nfev = njev = 0
     t_end = t_out[-1]
+    t_last = float(t_out[0])
     while k < len(t_out):
         res = solver.step(t_end, method="onestep", tstop=t_end)
-        steps += 1
+        t_step = float(np.atleast_1d(res.t)[-1])
+        if t_step != t_last:  # a onestep call after an interpolation may return without stepping
+            steps += 1
+            t_last = t_step
         nfev, njev = getattr(res, "nfev", nfev), getattr(res, "njev", njev)
         if not res.success:
             ok = False

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal, Optional, Union
 
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from phc.spec.base import Expr, Identifier, Matrix, SpecModel, Vector
 
@@ -22,6 +22,15 @@ Domain = Literal[
     "generic",
 ]
 """Physical domain of a power port. Connected ports must share it."""
+
+
+def _unique(names: list[str]) -> list[str]:
+    seen = set()
+    for name in names:
+        if name in seen:
+            raise ValueError(f"port `{name}` is listed twice; give each port its own name")
+        seen.add(name)
+    return names
 
 
 class _Component(SpecModel):
@@ -167,11 +176,11 @@ class RigidSpec(_Component):
 
     type: Literal["rigid"]
     parameters: dict[Identifier, Expr] = {}
-    q: list[Identifier]
+    q: list[Identifier] = Field(min_length=1)
     """Configuration variables."""
     v: Optional[list[Identifier]] = None
     """Generalized velocities (default: `v_<q>` for each q; requires Z square)."""
-    M: Matrix
+    M: Matrix = Field(min_length=1)
     """Mass matrix, constant or configuration dependent M(q); symmetric positive definite."""
     Z: Optional[Matrix] = None
     """Kinematics q̇ = Z(q) v (n_q × n_v). Default identity."""
@@ -202,9 +211,14 @@ class _OnePort(_Component):
     domain: Optional[Domain] = None
     """Domain of the port (default depends on the type)."""
     dimension: int = Field(1, ge=1, le=64)
-    ports: list[Identifier] = ["port"]
+    ports: list[Identifier] = Field(["port"], min_length=1)
     """Port names. Several ports share the same flow (like a 1-junction): a mass with
     several attachment points."""
+
+    @field_validator("ports")
+    @classmethod
+    def _unique_ports(cls, value):
+        return _unique(value)
 
 
 class MassSpec(_OnePort):
@@ -309,6 +323,11 @@ class JunctionSpec(_Component):
     type: Literal["junction"]
     kind: Literal["common_flow", "common_effort"]
     ports: list[Identifier] = Field(min_length=2)
+
+    @field_validator("ports")
+    @classmethod
+    def _unique_ports(cls, value):
+        return _unique(value)
     domain: Optional[Domain] = None
     dimension: int = Field(1, ge=1, le=64)
 

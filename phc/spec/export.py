@@ -20,6 +20,13 @@ def build_schema(name: str = "model.schema.json") -> dict:
     """The JSON Schema (draft 2020-12) for one of :data:`SCHEMAS`."""
     model = SCHEMAS[name]
     schema = model.model_json_schema(mode="validation")
+    if name == "model.schema.json":
+        # The shorthand `- [a.port, b.port]` is accepted by a mode="before" validator
+        # that pydantic's schema cannot see; publish it so editors accept it too.
+        conn = schema["properties"]["connections"]
+        conn["items"] = {"anyOf": [conn["items"], {
+            "type": "array", "items": {"type": "string"}, "minItems": 2, "maxItems": 2,
+            "description": "Shorthand for `{between: [a, b]}`."}]}
     return {
         "$schema": "https://json-schema.org/draft/2020-12/schema",
         "$id": SCHEMA_BASE_ID + name,

@@ -7,14 +7,20 @@ call ``eval``). Instead the text is parsed with ``ast.parse(mode="eval")`` and
 the tree is walked against a whitelist of node types, building sympy objects
 directly. Anything not on the list -- attribute access, lambdas, strings,
 comprehensions, unknown functions, ... -- is an :class:`ExpressionError` that
-names the construct and the column where it starts. Resource limits (text
-length, node count, nesting depth, exponent size) keep hostile input from
-exhausting time or memory during parsing or sympy's automatic evaluation.
+names the construct and the column where it starts.
+
+Hostile input must not exhaust time or memory either, neither in ``ast.parse``
+nor in sympy's automatic evaluation: the text length, node count, nesting depth
+and constant exponents are bounded, every constant sub-expression must fit a
+double (so ``9**9**9`` or ``sin(exp(exp(exp(9))))`` fail fast instead of making
+sympy compute or hang), ``min``/``max`` only fold numbers, and ``ifelse`` may not
+appear inside a condition (sympy would solve inequalities to simplify it).
 """
 
 from __future__ import annotations
 
 import ast
+import cmath
 import difflib
 import math
 import warnings
@@ -31,7 +37,6 @@ MAX_NODES = 2_000        # AST nodes
 MAX_DEPTH = 100          # nesting levels (a flat chain of + or * counts as one)
 MAX_EXPONENT = 64        # |constant exponent|
 MAX_DIGITS = 30          # digits of an integer literal
-MAX_BITS = 4_096         # estimated size of an exact numeric power
 
 
 class ExpressionError(ValueError):
@@ -99,7 +104,7 @@ _CHAIN = {ast.Add: "sum", ast.Sub: "sum", ast.Mult: "product", ast.Div: "product
 _RELATIONS = {ast.Lt: ("<", sp.Lt), ast.LtE: ("<=", sp.Le), ast.Gt: (">", sp.Gt),
               ast.GtE: (">=", sp.Ge), ast.Eq: ("==", sp.Eq), ast.NotEq: ("!=", sp.Ne)}
 _CONDITIONS = (ast.Compare, ast.BoolOp)
-_UNDEFINED = (sp.zoo, sp.oo, sp.S.NegativeInfinity, sp.nan)
+_UNDEFINED = (sp.zoo, sp.oo, -sp.oo, sp.nan)
 _REJECTED = {
     ast.Lambda: "lambda expressions", ast.ListComp: "comprehensions", ast.SetComp: "comprehensions",
     ast.DictComp: "comprehensions", ast.GeneratorExp: "generator expressions",
@@ -123,6 +128,14 @@ def _suggest(word: str, candidates, what: str = "known names") -> str | None:
         return None
     more = f" (and {len(candidates) - 8} more)" if len(candidates) > 8 else ""
     return f"{what}: " + ", ".join(f"`{c}`" for c in candidates[:8]) + more
+
+
+def _to_complex(value: sp.Basic) -> complex:
+    """`complex(value)`, with overflow mapped to infinity."""
+    try:
+        return complex(value)
+    except OverflowError:
+        return complex(math.inf)
 
 
 def _is_cond(node: ast.AST) -> bool:
@@ -154,6 +167,7 @@ class _Converter:
     def __init__(self, text: str, names: Mapping[str, object] | None):
         self.text, self.names = text, names
         self._bytes = None if text.isascii() else text.encode("utf-8")
+        self._approx: dict[sp.Basic, complex | None] = {}
 
     # -- positions and errors ------------------------------------------------
     def col(self, node: ast.AST, end: bool = False) -> int:
@@ -180,9 +194,40 @@ class _Converter:
             raise ExpressionError(f"cannot build expression: {exc}", self.col(node)) from None
         if result in _UNDEFINED:
             self.fail("expression is undefined or infinite here", node)
-        if isinstance(result, sp.Float) and not math.isfinite(float(result)):
-            self.fail("number is not finite", node)
+        value = self.approx(result)
+        if value is not None and not cmath.isfinite(value):
+            self.fail("value is too large (it overflows double precision)", node)
         return result
+
+    def approx(self, expr: sp.Basic) -> complex | None:
+        """Double-precision value of a constant sub-expression, None if it has symbols.
+
+        Every constant built so far is checked to fit a double, so sympy's own
+        numeric evaluation (which assumption queries trigger) stays cheap; without
+        this, ``sin(exp(exp(exp(9))))`` makes sympy hang or overflow. Values are
+        memoized and computed from the arguments' approximations, not re-evaluated.
+        """
+        if expr in self._approx:
+            return self._approx[expr]
+        value = None
+        if isinstance(expr, sp.Piecewise):   # bounded by its largest branch
+            values = [self.approx(branch) for branch, _ in expr.args]
+            value = None if None in values else max(values, key=abs)
+        elif not isinstance(expr, sp.Expr):
+            pass
+        elif not expr.args:
+            value = _to_complex(expr.evalf(17)) if expr.is_number else None
+        else:
+            args = [self.approx(arg) for arg in expr.args]
+            if None not in args:
+                numbers = [sp.Float(a.real) if not a.imag else sp.Float(a.real) + sp.Float(a.imag) * sp.I
+                           for a in args]
+                try:
+                    value = _to_complex(expr.func(*numbers))
+                except (TypeError, ValueError, ArithmeticError, NotImplementedError):
+                    value = None
+        self._approx[expr] = value
+        return value
 
     def check_depth(self, tree: ast.Expression) -> None:
         """Reject trees nested deeper than MAX_DEPTH (iteratively; flat +/* chains count once)."""
@@ -310,7 +355,7 @@ class _Converter:
             if isinstance(link.op, ast.Sub):
                 rhs = self.build(link.right, sp.Mul, sp.Integer(-1), rhs)
             elif isinstance(link.op, ast.Div):
-                if rhs.is_zero:
+                if rhs.is_Number and rhs.is_zero:
                     raise ExpressionError("division by zero", self.op_col(link))
                 rhs = self.checked_pow(link.right, rhs, sp.Integer(-1), link.right)
             result = self.build(link, sp.Add if kind == "sum" else sp.Mul, result, rhs)
@@ -320,15 +365,10 @@ class _Converter:
         return self.checked_pow(node, self.visit(node.left), self.visit(node.right), node.right)
 
     def checked_pow(self, node: ast.AST, base: sp.Expr, exponent: sp.Expr, exp_node: ast.AST) -> sp.Expr:
-        """Build ``base**exponent`` unless the exponent or the exact result is absurdly large."""
-        if exponent.is_number:
-            size = exponent if exponent.is_Number else self.build(exp_node, lambda: sp.Abs(exponent).evalf(15))
-            if size.is_Number and abs(size) > MAX_EXPONENT:
-                self.fail(f"exponent {exponent} is too large (at most {MAX_EXPONENT})", exp_node)
-            if base.is_Rational and exponent.is_Number:
-                bits = max(abs(base.p).bit_length(), base.q.bit_length()) * abs(float(exponent))
-                if bits > MAX_BITS:
-                    self.fail(f"number {base}**{exponent} is too large", node)
+        """Build ``base**exponent`` unless the exponent is a constant beyond MAX_EXPONENT."""
+        size = self.approx(exponent)
+        if size is not None and not abs(size) <= MAX_EXPONENT:
+            self.fail(f"exponent {exponent} is too large (at most {MAX_EXPONENT})", exp_node)
         return self.build(node, sp.Pow, base, exponent)
 
     # -- functions and conditions ---------------------------------------------

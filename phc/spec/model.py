@@ -27,6 +27,13 @@ class ConnectionSpec(SpecModel):
     """The two ports, each as `component.port`."""
     description: Optional[str] = None
 
+    @field_validator("between", mode="before")
+    @classmethod
+    def _two_ports(cls, value):
+        if isinstance(value, (list, tuple)) and len(value) != 2:
+            raise ValueError(f"a connection joins exactly 2 ports, got {len(value)}")
+        return value
+
 
 class ExposedPortSpec(SpecModel):
     """A port of an inner component made a port of this model."""
