@@ -46,7 +46,10 @@ def _one_port_ports(b, ctx, name, spec, path, kind):
 def _check_coefficient(b, ctx, name, spec, path, field, strict, meaning):
     """Storage coefficients must be positive (H bounded below), resistances ≥ 0 (passive)."""
     value = getattr(spec, field)
+    n_errors = len(b.diags.errors)
     ex = b.expr(ctx, value, (*path, field), _scope(ctx))
+    if len(b.diags.errors) > n_errors:
+        return ex  # already reported; its placeholder value says nothing
     try:
         num = float(ex.xreplace(b.default_values()).xreplace({T: sp.Float(0)}))
     except (TypeError, ValueError):
