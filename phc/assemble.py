@@ -21,7 +21,7 @@ from typing import Optional
 
 import sympy as sp
 
-from phc.dae import T, Dae, Equation, InitialValue, Invariant, LinearBlock, Variable
+from phc.dae import T, Dae, Equation, InitialValue, Invariant, LinearBlock, PortInfo, Topology, Variable
 from phc.diagnostics import Diagnostic
 from phc.spec.model import InitialSpec
 
@@ -236,10 +236,22 @@ def assemble(b, ctx) -> Optional[Dae]:
     outputs = []
     for oname, oexpr in sim.outputs.items():
         outputs.append((oname, final(b.expr(ctx, oexpr, ("simulation", "outputs", oname), scope))))
-    initial = _initial_values(b, ctx, {v.name for v in variables if v.differential})
     velocity_invariants = tuple(Invariant(v.label, final(v.expr), v.component, v.span)
                                 for v in b.velocity_invariants)
+    initial = _initial_values(b, ctx, {v.name for v in variables if v.differential})
+    topology = Topology(
+        components=tuple(b.components),
+        ports=tuple(PortInfo(p.name, p.component, p.domain, p.dimension, p.frame, p.span) for p in b.ports.values()),
+        connections=tuple((pa.name, pb.name, label, span) for pa, pb, span, label in connections),
+        exposed=tuple((pname, full) for pname, (full, _) in b.exposed_top.items()),
+        dirac=tuple(b.dirac),
+        rigid_constraints=tuple(b.rigid_constraints),
+        resistive_laws=tuple(b.resistive_laws),
+        parameter_defaults=b.default_values(),
+        initial={sp.Symbol(iv.name, real=True): iv.value for iv in initial},
+    )
     return Dae(
+        topology=topology,
         name=ctx.spec.name or ctx.file.rsplit("/", 1)[-1].rsplit(".", 1)[0],
         variables=tuple(variables),
         equations=tuple(equations),

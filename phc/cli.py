@@ -1,4 +1,4 @@
-"""The `phc` command line: validate, compile, simulate, schema.
+"""The `phc` command line: validate, check, graph, compile, simulate, schema.
 
 Exit codes: 0 success, 1 model errors (or a failed simulation), 2 usage errors.
 A user mistake never produces a traceback: it is printed as one located line per
@@ -169,6 +169,70 @@ def cmd_simulate(args) -> int:
     return EXIT_OK if result.success else EXIT_MODEL
 
 
+def cmd_check(args) -> int:
+    from phc.checks.certify import certify
+    from phc.pipeline import build_dae
+
+    dae, diags = build_dae(args.file)
+    if dae is None:
+        _print_diagnostics(diags)
+        if args.format == "json":
+            print(json.dumps({"model": args.file, "certified": False, "diagnostics": diags.to_json()}, indent=2))
+        return EXIT_MODEL
+    cert = certify(dae, n_random=args.samples)
+    if args.format == "json":
+        print(json.dumps(cert.to_dict(), indent=2))
+    else:
+        print(cert.render_text())
+    return EXIT_OK if cert.certified else EXIT_MODEL
+
+
+def cmd_graph(args) -> int:
+    from phc.checks.graph import to_dot
+    from phc.pipeline import build_dae
+
+    dae, diags = build_dae(args.file)
+    if dae is None:
+        _print_diagnostics(diags)
+        return EXIT_MODEL
+    dot = to_dot(dae.topology, dae.name)
+    if not args.output or args.output == "-":
+        sys.stdout.write(dot)
+        return EXIT_OK
+    if args.output.endswith(".dot"):
+        Path(args.output).write_text(dot)
+    elif args.output.endswith(".png"):
+        _draw_png(dae, args.output)
+    else:
+        raise UsageError(f"-o must end in .dot or .png, got `{args.output}`")
+    print(f"{args.file}: wrote {args.output}")
+    return EXIT_OK
+
+
+def _draw_png(dae, path: str) -> None:
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise UsageError("drawing PNG needs matplotlib: pip install 'phc[plot]' (or write DOT with -o file.dot)")
+    import networkx as nx
+
+    from phc.checks.graph import component_graph
+
+    graph = component_graph(dae.topology)
+    fig, ax = plt.subplots(figsize=(8, 6))
+    pos = nx.spring_layout(graph, seed=1)
+    nx.draw_networkx(graph, pos, ax=ax, node_color="#cfe2f3", node_size=1600, font_size=9)
+    labels = {(u, v): d["label"] for u, v, d in graph.edges(data=True)}
+    nx.draw_networkx_edge_labels(graph, pos, edge_labels=labels, ax=ax, font_size=7)
+    ax.set_title(f"{dae.name}: interconnection graph")
+    ax.axis("off")
+    fig.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(fig)
+
+
 def cmd_schema(args) -> int:
     from phc.spec.export import SCHEMAS, schema_text, stale_schemas, write_schemas
 
@@ -215,6 +279,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--format", choices=("text", "json"), default="text")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("check", help="certify Dirac structures and couplings (the seed's section 2)")
+    p.add_argument("file", metavar="FILE")
+    p.add_argument("--format", choices=("text", "json"), default="text")
+    p.add_argument("--samples", type=int, default=2, help="random states sampled besides the initial one")
+    p.set_defaults(func=cmd_check)
+
+    p = sub.add_parser("graph", help="draw the interconnection graph (DOT, or PNG with matplotlib)")
+    p.add_argument("file", metavar="FILE")
+    p.add_argument("-o", "--output", metavar="OUT", help="out.dot or out.png (default: DOT on stdout)")
+    p.set_defaults(func=cmd_graph)
 
     p = sub.add_parser("schema", help="print, write or check the JSON Schemas of the model language")
     p.add_argument("--name", default="model.schema.json")

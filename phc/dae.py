@@ -113,6 +113,54 @@ class QuadraticForm:
     symbols: tuple[sp.Symbol, ...]
 
 
+@dataclass(frozen=True, eq=False)
+class DiracRelations:
+    """The Dirac structure of one component in kernel form (for certification).
+
+    ``relations`` are linear in `flows`, `efforts` and `multipliers` (the seed's
+    ``F f + E e + G λ = 0``, eq. rigidDirac2 with its ∃μ); their coefficients may depend
+    on `states` (modulation) and parameters. `ports` maps each port name to the indices
+    of its flow and effort entries in `flows`/`efforts`. Storage and resistive pairs are
+    the other entries. ``passive_checks`` are extra statements the certificate tests.
+    """
+
+    component: str
+    kind: str
+    flows: tuple[sp.Symbol, ...]
+    efforts: tuple[sp.Symbol, ...]
+    multipliers: tuple[sp.Symbol, ...]
+    relations: tuple[sp.Expr, ...]
+    ports: dict
+    states: tuple[sp.Symbol, ...] = ()
+    span: Optional[SourceSpan] = None
+    note: str = ""
+
+
+@dataclass(frozen=True)
+class PortInfo:
+    name: str
+    component: str
+    domain: str
+    dimension: int
+    frame: Optional[str]
+    span: Optional[SourceSpan] = None
+
+
+@dataclass(frozen=True)
+class Topology:
+    """Components, ports and connections as written (after nesting is flattened)."""
+
+    components: tuple[tuple[str, str, Optional[SourceSpan]], ...]
+    ports: tuple[PortInfo, ...]
+    connections: tuple[tuple[str, str, str, Optional[SourceSpan]], ...]
+    exposed: tuple[tuple[str, str], ...]
+    dirac: tuple[DiracRelations, ...] = ()
+    rigid_constraints: tuple = ()
+    resistive_laws: tuple = ()
+    parameter_defaults: dict = field(default_factory=dict)
+    initial: dict = field(default_factory=dict)
+
+
 @dataclass(frozen=True)
 class Dae:
     """The assembled system. See the module docstring."""
@@ -134,6 +182,7 @@ class Dae:
     linear_blocks: tuple[LinearBlock, ...] = ()
     quadratic_energy: tuple[QuadraticForm, ...] = ()
     quadratic_dissipation: tuple[QuadraticForm, ...] = ()
+    topology: Optional[Topology] = None
 
     @property
     def n_states(self) -> int:

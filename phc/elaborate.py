@@ -128,6 +128,10 @@ class Builder:
         self.sources: list[str] = []
         self._file_stack: list[str] = []
         self.failed: set[str] = set()
+        self.components: list[tuple[str, str, Optional[SourceSpan]]] = []
+        self.dirac: list = []
+        self.resistive_laws: list = []
+        self.rigid_constraints: list = []
 
     # -- diagnostics ----------------------------------------------------------------
     def error(self, code: str, message: str, ctx: Optional[FileContext], path: Sequence = (),
@@ -351,6 +355,7 @@ class Builder:
                         self.port_aliases[f"{full}.{pname}"] = sub_ctx.prefix + exposed.port
                 continue
             n_errors = len(self.diags.errors)
+            self.components.append((full, comp.type, ctx.smap.locate(path)))
             LOWERERS[comp.type](self, ctx, full, comp, path)
             if len(self.diags.errors) > n_errors:
                 self.failed.add(full)  # its ports may be missing: do not report them again

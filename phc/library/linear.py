@@ -16,6 +16,7 @@ import scipy.sparse as sps
 import sympy as sp
 
 from phc.dae import LinearTerm, QuadraticForm
+from phc.library.dirac import DiracBuilder
 from phc.library.phs import local_scope
 
 
@@ -98,6 +99,10 @@ def lower_linear_phs(b, ctx, name, spec, path):
     if R.nnz:
         terms.append(LinearTerm(scale["R"] * scale["Q"], (R @ Q).tocsr(), x))
     rows = b.add_linear_rows(name, "dynamics", n, terms, span)
+    # Certification sees only the ports: with e_x = Qx free, f = Bᵀe_x ranges over im Bᵀ
+    # (effort_in) and the other port variable is free; one multiplier per row of B used.
+    d = DiracBuilder(name, "linear_phs", span)
+    lam: dict[int, sp.Symbol] = {}
     for pname, pspec in spec.ports.items():
         ppath = (*path, "ports", pname)
         port = b.add_port(name, pname, pspec.domain, pspec.dimension, pspec.frame, span)
@@ -106,6 +111,13 @@ def lower_linear_phs(b, ctx, name, spec, path):
             continue
         inputs = port.e if pspec.causality == "effort_in" else port.f
         sign = 1 if pspec.causality == "effort_in" else -1
+        d.port(port)
+        Bl = B.tocsc()
+        for k in range(pspec.dimension):
+            lo, hi = Bl.indptr[k], Bl.indptr[k + 1]
+            proj = sum((float(v) * lam.setdefault(int(i), d.mult(f"ex[{int(i)}]"))
+                        for i, v in zip(Bl.indices[lo:hi], Bl.data[lo:hi])), sp.Integer(0))
+            d.rel(port.f[k] - proj if pspec.causality == "effort_in" else port.e[k] + proj)
         Bc = B.tocoo()
         for i, k, v in zip(Bc.row, Bc.col, Bc.data):
             b.add_to_row(rows[i], sign * float(v) * inputs[k])
@@ -118,6 +130,8 @@ def lower_linear_phs(b, ctx, name, spec, path):
                 b.define(port.f[k], out)
             else:
                 b.define(port.e[k], -out)
+    d.register(b, kind="port_projection", note="matrix component: J skew, R and Q symmetric checked; ports "
+               "certified through im Bᵀ")
     b.quadratic_energy.append(QuadraticForm(scale["Q"] / 2, Q.tocsr(), x))
     if R.nnz:
         b.quadratic_dissipation.append(QuadraticForm(scale["R"] * scale["Q"] ** 2, (Q.T @ R @ Q).tocsr(), x))

@@ -25,6 +25,7 @@ import numpy as np
 import sympy as sp
 
 from phc.dae import T
+from phc.library.dirac import DiracBuilder
 
 DEFAULT_DOMAIN = {
     "mass": "mechanical.translational", "spring": "mechanical.translational",
@@ -71,13 +72,21 @@ def lower_inertia(b, ctx, name, spec, path, coeff_field: str, state: str):
     dim = spec.dimension
     span = ctx.smap.locate(path)
     h = sp.Integer(0)
+    d = DiracBuilder(name, spec.type, span)
+    for port in ports:
+        d.port(port)
     for k in range(dim):
         x, dx = b.add_state(name, state + _suffix(dim, k), span)
         for port in ports:
             b.define(port.f[k], x / c)
         b.add_equation(dx + sum(port.e[k] for port in ports), name, "storage", f"balance[{k}]", span)
         h += x**2 / (2 * c)
+        fx, ex = d.pair(state + _suffix(dim, k))
+        for port in ports:
+            d.rel(port.f[k] - ex)
+        d.rel(fx + sum(port.e[k] for port in ports))
     b.hamiltonian.append(h)
+    d.register(b)
 
 
 def lower_compliance(b, ctx, name, spec, path, coeff_field: str, state: str, inverse: bool):
@@ -89,7 +98,15 @@ def lower_compliance(b, ctx, name, spec, path, coeff_field: str, state: str, inv
     dim = spec.dimension
     span = ctx.smap.locate(path)
     h = sp.Integer(0)
+    d = DiracBuilder(name, spec.type, span)
+    for port in ports:
+        d.port(port)
     for k in range(dim):
+        fx, ex = d.pair(state + _suffix(dim, k))
+        d.rel(fx - ports[0].f[k])
+        for port in ports[1:]:
+            d.rel(port.f[k] - ports[0].f[k])
+        d.rel(sum(port.e[k] for port in ports) + ex)
         x, dx = b.add_state(name, state + _suffix(dim, k), span)
         b.define(ports[0].f[k], dx)
         for port in ports[1:]:
@@ -100,6 +117,7 @@ def lower_compliance(b, ctx, name, spec, path, coeff_field: str, state: str, inv
             b.add_equation(sum(port.e[k] for port in ports) + k_eff * x, name, "storage", f"force[{k}]", span)
         h += k_eff * x**2 / 2
     b.hamiltonian.append(h)
+    d.register(b)
 
 
 def lower_resistance(b, ctx, name, spec, path, coeff_field: str):
@@ -109,6 +127,16 @@ def lower_resistance(b, ctx, name, spec, path, coeff_field: str):
     ports = _one_port_ports(b, ctx, name, spec, path, spec.type)
     span = ctx.smap.locate(path)
     diss = sp.Integer(0)
+    dr = DiracBuilder(name, spec.type, span)
+    for port in ports:
+        dr.port(port)
+    for k in range(spec.dimension):
+        fr, er = dr.pair(f"R{_suffix(spec.dimension, k)}")
+        dr.rel(fr - ports[0].f[k])
+        for port in ports[1:]:
+            dr.rel(port.f[k] - ports[0].f[k])
+        dr.rel(sum(port.e[k] for port in ports) + er)
+    dr.register(b)
     for k in range(spec.dimension):
         f = ports[0].f[k]
         for port in ports[1:]:
@@ -128,6 +156,14 @@ def lower_source(b, ctx, name, spec, path, which: str):
     position = None
     if getattr(spec, "position", None) is not None:
         position = b.vector(ctx, spec.position, (*path, "position"), _scope(ctx), spec.dimension, "`position`")
+    d = DiracBuilder(name, spec.type, ctx.smap.locate(path))
+    for port in ports:
+        d.port(port)
+        for k in range(spec.dimension):  # the environment's port, joined to this one
+            fe, ee = d.pair(f"{port.name.rsplit('.', 1)[-1]}.env{_suffix(spec.dimension, k)}")
+            d.rel(fe - port.f[k])
+            d.rel(ee + port.e[k])
+    d.register(b, note="an external port: the environment imposes its " + which)
     for port in ports:
         port.position = position
         for k in range(spec.dimension):
@@ -149,10 +185,14 @@ def lower_termination(b, ctx, name, spec, path, which: str):
     position = None
     if getattr(spec, "position", None) is not None:
         position = b.vector(ctx, spec.position, (*path, "position"), _scope(ctx), spec.dimension, "`position`")
+    d = DiracBuilder(name, spec.type, ctx.smap.locate(path))
     for port in ports:
         port.position = position
+        d.port(port)
         for k in range(spec.dimension):
             b.define((port.e if which == "effort" else port.f)[k], sp.Integer(0))
+            d.rel((port.e if which == "effort" else port.f)[k])
+    d.register(b)
 
 
 def lower_transform(b, ctx, name, spec, path):
@@ -186,9 +226,16 @@ def lower_transform(b, ctx, name, spec, path):
     ebm = sp.Matrix(eb)
     qf = Q * fa
     qte = -Q.T * ebm
+    d = DiracBuilder(name, spec.type, span)
+    d.port(a)
+    for p in (outs if spec.split else [out]):
+        d.port(p)
     for k in range(n):
         b.define(fb[k], qf[k])
         b.define(a.e[k], qte[k])
+        d.rel(fb[k] - qf[k])
+        d.rel(a.e[k] - qte[k])
+    d.register(b)
 
 
 def lower_junction(b, ctx, name, spec, path):
@@ -197,8 +244,14 @@ def lower_junction(b, ctx, name, spec, path):
     span = ctx.smap.locate(path)
     ports = [b.add_port(name, p, domain, spec.dimension, span=span) for p in spec.ports]
     shared, summed = ("f", "e") if spec.kind == "common_flow" else ("e", "f")
+    d = DiracBuilder(name, spec.type, span)
+    for port in ports:
+        d.port(port)
     for k in range(spec.dimension):
         first = getattr(ports[0], shared)[k]
         for port in ports[1:]:
             b.define(getattr(port, shared)[k], first)
+            d.rel(getattr(port, shared)[k] - first)
         b.add_equation(sum(getattr(p, summed)[k] for p in ports), name, "dirac", f"sum[{k}]", span)
+        d.rel(sum(getattr(p, summed)[k] for p in ports))
+    d.register(b)

@@ -20,6 +20,8 @@ import numpy as np
 import sympy as sp
 
 from phc.dae import T, Parameter
+from phc.library.dirac import DiracBuilder
+from phc.spec.expressions import ExpressionError, parse_equation
 
 
 def local_scope(b, ctx, name, spec, path) -> dict:
@@ -83,6 +85,10 @@ def _lower_jrb(b, ctx, name, spec, path, scope, xs, dxs, grad, span):
     R = b.matrix(ctx, spec.R, (*path, "R"), scope, (n, n), "`R`") if spec.R is not None else sp.zeros(n, n)
     _check_structure(b, ctx, name, path, J, R, xs)
     rhs = (J - R) * grad
+    d = DiracBuilder(name, "phs", span)
+    pairs = [d.pair(x.name.rsplit(".", 1)[-1]) for x in xs]
+    ex_vec = sp.Matrix([e for _, e in pairs]) if n else sp.zeros(0, 1)
+    d_rows = sp.Matrix([f for f, _ in pairs]) - J * ex_vec if n else sp.zeros(0, 1)
     for pname, pspec in spec.ports.items():
         ppath = (*path, "ports", pname)
         port = b.add_port(name, pname, pspec.domain, pspec.dimension, pspec.frame, span)
@@ -92,16 +98,24 @@ def _lower_jrb(b, ctx, name, spec, path, scope, xs, dxs, grad, span):
             continue
         B = b.matrix(ctx, pspec.B, (*ppath, "B"), scope, (n, pspec.dimension), "`B`")
         out = B.T * grad
+        d.port(port)
+        d_out = B.T * ex_vec
         if pspec.causality == "effort_in":
             rhs -= B * sp.Matrix(port.e)
+            d_rows += B * sp.Matrix(port.e)
             for k in range(pspec.dimension):
                 b.define(port.f[k], out[k])
+                d.rel(port.f[k] - d_out[k])
         else:
             rhs += B * sp.Matrix(port.f)
+            d_rows -= B * sp.Matrix(port.f)
             for k in range(pspec.dimension):
                 b.define(port.e[k], -out[k])
+                d.rel(port.e[k] + d_out[k])
     for i in range(n):
         b.add_equation(dxs[i] - rhs[i], name, "dirac", f"dynamics[{i}]", span)
+        d.rel(d_rows[i])
+    d.register(b, states=xs, note="lossless part (J, B); R is checked separately")
     b.dissipation.append((grad.T * R * grad)[0, 0] if n else sp.Integer(0))
     if spec.relations is None and (spec.multipliers or spec.resistive):
         b.error("PHC-E111", f"`multipliers` and `resistive` belong to the kernel form (`relations`) of `{name}`",
@@ -175,15 +189,39 @@ def _lower_kernel(b, ctx, name, spec, path, scope, xs, dxs, grad, span):
                 f"{dim_z} flow/effort pairs with {len(spec.multipliers)} multiplier(s) needs {expected}",
                 ctx, (*path, "relations"),
                 hint="one relation per state, port component and resistive component, plus one per multiplier")
+    d = DiracBuilder(name, "phs", span)
+    cert_scope = dict(scope)
+    for x in xs:
+        local = x.name.rsplit(".", 1)[-1]
+        cert_scope[f"f_{local}"], cert_scope[f"e_{local}"] = d.pair(local)
+    for pname in spec.ports:
+        d.port(b.ports[f"{name}.{pname}"])
+    for rname, rspec in laws:
+        fr, er = cert_scope[f"f_{rname}"], cert_scope[f"e_{rname}"]
+        for fk, ek in zip(fr if isinstance(fr, list) else [fr], er if isinstance(er, list) else [er]):
+            d.flows.append(fk)
+            d.efforts.append(ek)
+    for mname in spec.multipliers:
+        d.multipliers.append(scope[mname])
     for i, rel in enumerate(relations):
         ex = b.expr(ctx, rel, (*path, "relations", i), scope, equation=True)
         b.add_equation(ex, name, "dirac", f"relations[{i}]", ctx.smap.locate((*path, "relations", i)))
+        try:
+            d.rel(parse_equation(rel, cert_scope))
+        except ExpressionError:
+            pass  # reported above
+    law_exprs: dict[str, list] = {}
     for rname, rspec in laws:
+        law_exprs[rname] = []
         if len(rspec.law) != rspec.dimension:
             b.error("PHC-E114", f"resistive port `{rname}` of `{name}` has dimension {rspec.dimension} but "
                     f"{len(rspec.law)} law equation(s)", ctx, (*path, "resistive", rname, "law"))
         for k, law in enumerate(rspec.law):
             lpath = (*path, "resistive", rname, "law", k)
             ex = b.expr(ctx, law, lpath, scope, equation=True)
+            law_exprs[rname].append(ex)
             b.add_equation(ex, name, "resistive", f"{rname}.law[{k}]", ctx.smap.locate(lpath))
     b.dissipation.append(diss)
+    d.register(b, states=xs)
+    b.resistive_laws.append((name, [(scope[f"f_{r}"], scope[f"e_{r}"], law_exprs[r]) for r, _ in laws],
+                             ctx, path))

@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 import sympy as sp
 
+from phc.library.dirac import DiracBuilder
 from phc.library.phs import local_scope, numeric_defaults
 
 
@@ -104,6 +105,11 @@ def lower_rigid(b, ctx, name, spec, path):
         if position is not None and not b.diags.has_errors:
             _check_port_position(b, ctx, name, pname, ppath, sp.Matrix(position), qv, Z, B)
 
+    _register_dirac(b, name, span, spec, q, p, Z, A, G, [b.ports[f"{name}.{pn}"] for pn in spec.ports],
+                    [b.matrix(ctx, ps.B, (*path, "ports", pn, "B"), scope, (nv, ps.dimension), "`B`")
+                     for pn, ps in spec.ports.items()])
+    b.rigid_constraints.append((name, ctx, path, q, cq, A, [f"constraints[{i}]" for i in range(len(c))],
+                                [f"velocity_constraints[{i}]" for i in range(A.rows)]))
     kin = dq_minus = sp.Matrix(dq) - Z * vv
     for i in range(nq):
         b.add_equation(kin[i], name, "kinematics", f"kinematics[{i}]", span)
@@ -124,6 +130,39 @@ def lower_rigid(b, ctx, name, spec, path):
     del dq_minus
     b.hamiltonian.append((pv.T * vv)[0, 0] / 2 + V)
     b.dissipation.append((vv.T * Fd)[0, 0])
+
+
+def _register_dirac(b, name, span, spec, q, p, Z, A, G, ports, Bs):
+    """The seed's eq. (rigidDirac2): flows (v_Lf, F_Lf, v_R, v_ports), efforts
+    (F_Le, v_Le, F_R, F_ports), multiplier μ for A(q)v = 0."""
+    d = DiracBuilder(name, "rigid", span)
+    nq, nv = len(q), len(p)
+    v_lf = [d.pair(f"q{i}")[0] for i in range(nq)]
+    F_le = d.efforts[-nq:] if nq else []
+    F_lf = [d.pair(f"p{i}")[0] for i in range(nv)]
+    v_le = d.efforts[-nv:]
+    v_r = [d.pair(f"R{i}")[0] for i in range(nv)]
+    F_r = d.efforts[-nv:]
+    for port in ports:
+        d.port(port)
+    mu = [d.mult(f"mu[{i}]") for i in range(A.rows)]
+    vle = sp.Matrix(v_le)
+    for i, row in enumerate(sp.Matrix(v_lf) - Z * vle):
+        d.rel(row)
+    for i in range(nv):
+        d.rel(v_r[i] - v_le[i])
+    for row in (A * vle if A.rows else []):
+        d.rel(row)
+    force = sp.Matrix(F_lf) + Z.T * sp.Matrix(F_le) + G * vle + sp.Matrix(F_r)
+    if A.rows:
+        force += A.T * sp.Matrix(mu)
+    for port, B in zip(ports, Bs):
+        for k, row in enumerate(sp.Matrix(port.f) - B.T * vle):
+            d.rel(row)
+        force += B * sp.Matrix(port.e)
+    for row in force:
+        d.rel(row)
+    d.register(b, states=tuple(q) + tuple(p))
 
 
 def _sample_points(q, n=3):

@@ -1,0 +1,1 @@
+"""Read-only checks on an assembled model: interconnection graph and certificates."""

@@ -1,0 +1,375 @@
+"""Certificates: Dirac property of every component and surjectivity of every coupling.
+
+This is the seed's section 2 done numerically, at sampled states:
+
+* **Dirac property** (Def. "Dirac structure", Remark on finite dimensions): in kernel
+  form ``F f + E e + G λ = 0`` the structure is ``D = {(f, e) : ∃λ …}``; it is Dirac iff
+  ``dim D = dim Z`` and it is power-isotropic, ``⟨f₁, e₂⟩ + ⟨f₂, e₁⟩ = 0`` on a basis.
+* **Coupling map Γ** (Prop. "Interconnection through a finite-dimensional coupling
+  space"): the components are interconnected one connection at a time in breadth-first
+  order (Remark "Associativity of interconnection"); at each step
+  ``Γ(d₁, d₂) = (f_c1 − f_c2, e_c1 + e_c2)`` must be onto ``Z_c × Z_c``. Γ only sees the
+  coupling components, so each component is represented by the projection of its Dirac
+  structure onto its ports — the cost grows linearly with the number of components.
+* rigid components: ``c'(q)`` and ``A(q)`` of full row rank at the initial
+  configuration (dependent rows are named); resistive laws passive (``f·e ≥ 0``).
+
+Rank decisions use singular values relative to the largest one: a singular value
+counts when ``σ > RANK_RTOL · σ_max`` (with an absolute floor for all-zero blocks).
+With entries of order one this separates rank from round-off by several orders of
+magnitude; a coupling that is merely ill-conditioned (``σ_min/σ_max`` below
+``WARN_RTOL``) is reported as a warning.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+import scipy.linalg as sla
+import sympy as sp
+
+from phc.checks.graph import component_of, independent_parts, kinematic_loops, traversal_order
+from phc.dae import Dae, DiracRelations
+from phc.diagnostics import Diagnostic, DiagnosticList
+
+RANK_RTOL = 1e-9
+"""Relative singular-value threshold for numerical rank."""
+WARN_RTOL = 1e-6
+"""Couplings with σ_min/σ_max below this are flagged as ill-conditioned."""
+ISOTROPY_TOL = 1e-9
+"""Largest allowed |⟨f₁,e₂⟩ + ⟨f₂,e₁⟩| on an orthonormal basis of D."""
+
+
+@dataclass
+class ComponentCertificate:
+    name: str
+    kind: str
+    dim_z: int
+    dim_d: Optional[int] = None
+    isotropy: Optional[float] = None
+    dirac: Optional[bool] = None
+    note: str = ""
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "kind": self.kind, "dim_z": self.dim_z, "dim_d": self.dim_d,
+                "isotropy_error": self.isotropy, "dirac": self.dirac, "note": self.note}
+
+
+@dataclass
+class ConnectionCertificate:
+    label: str
+    port_a: str
+    port_b: str
+    needed: int
+    achieved: int = -1
+    conditioning: float = 1.0
+    failing_samples: list = field(default_factory=list)
+    span: object = None
+
+    @property
+    def surjective(self) -> bool:
+        return self.achieved == self.needed
+
+    def to_dict(self) -> dict:
+        return {"label": self.label, "ports": [self.port_a, self.port_b], "rank_needed": self.needed,
+                "rank_achieved": self.achieved, "surjective": self.surjective,
+                "sigma_ratio": self.conditioning, "failing_samples": self.failing_samples}
+
+
+@dataclass
+class Certificate:
+    model: str
+    components: list[ComponentCertificate]
+    connections: list[ConnectionCertificate]
+    loops: list[list[str]]
+    parts: list[list[str]]
+    diagnostics: DiagnosticList
+    n_samples: int
+
+    @property
+    def certified(self) -> bool:
+        return (not self.diagnostics.has_errors and all(c.dirac is not False for c in self.components)
+                and all(c.surjective for c in self.connections))
+
+    def to_dict(self) -> dict:
+        return {"model": self.model, "certified": self.certified, "samples": self.n_samples,
+                "components": [c.to_dict() for c in self.components],
+                "connections": [c.to_dict() for c in self.connections],
+                "loops": self.loops, "independent_parts": self.parts,
+                "diagnostics": self.diagnostics.to_json()}
+
+    def render_text(self) -> str:
+        lines = [f"{self.model}: {'certified' if self.certified else 'NOT certified'} "
+                 f"({self.n_samples} sampled states)", "components"]
+        width = max([len(c.name) for c in self.components] + [4])
+        for c in self.components:
+            if c.dirac is None:
+                status = f"ports only: {c.note}"
+            else:
+                status = (f"Dirac {'ok' if c.dirac else 'FAILED'}: dim D {c.dim_d} / dim Z {c.dim_z}, "
+                          f"isotropy {c.isotropy:.1e}")
+            lines.append(f"  {c.name:<{width}}  {c.kind:<20} {status}")
+        lines.append("connections (breadth-first; rank of Γ achieved / needed)")
+        for c in self.connections:
+            fail = f", fails at {len(c.failing_samples)} sample(s)" if c.failing_samples else ""
+            lines.append(f"  {c.label:<16} {c.port_a} — {c.port_b}: rank {c.achieved}/{c.needed}"
+                         f"{' surjective' if c.surjective else ' NOT surjective'} "
+                         f"(σ_min/σ_max {c.conditioning:.1e}){fail}")
+        lines.append("kinematic loops: " + ("; ".join(" – ".join(loop) for loop in self.loops)
+                                            if self.loops else "none"))
+        if len(self.parts) > 1:
+            lines.append(f"independent parts: {len(self.parts)}: "
+                         + "; ".join("{" + ", ".join(p) + "}" for p in self.parts))
+        for d in self.diagnostics:
+            lines.append(d.render())
+        return "\n".join(lines)
+
+
+def _rank(s: np.ndarray) -> int:
+    if not len(s) or s[0] <= 1e-300:
+        return 0
+    return int(np.sum(s > RANK_RTOL * s[0]))
+
+
+def _orth(matrix: np.ndarray) -> np.ndarray:
+    if matrix.size == 0:
+        return matrix.reshape(matrix.shape[0], 0)
+    u, s, _ = np.linalg.svd(matrix, full_matrices=False)
+    return u[:, :_rank(s)]
+
+
+def _null(matrix: np.ndarray, n_cols: int) -> np.ndarray:
+    if matrix.shape[0] == 0:
+        return np.eye(n_cols)
+    _, s, vh = np.linalg.svd(matrix, full_matrices=True)
+    return vh[_rank(s):].T
+
+
+class _Component:
+    """Numeric evaluation of one component's kernel representation."""
+
+    def __init__(self, rel: DiracRelations, defaults: dict):
+        self.rel = rel
+        variables = list(rel.flows) + list(rel.efforts) + list(rel.multipliers)
+        relations = sp.Matrix(list(rel.relations)) if rel.relations else sp.zeros(0, len(variables))
+        K = relations.jacobian(variables) if rel.relations else sp.zeros(0, len(variables))
+        self.K = K.xreplace(defaults)
+        self.n = len(rel.flows)
+
+    def matrix(self, point: dict) -> np.ndarray:
+        K = self.K.xreplace(point) if point else self.K
+        return np.array(K.evalf(), dtype=float).reshape(self.K.shape)
+
+    def structure(self, point):
+        """Orthonormal basis of D (rows: flows then efforts)."""
+        K = self.matrix(point)
+        N = _null(K, K.shape[1])
+        return _orth(N[:2 * self.n])
+
+    def port_rows(self) -> tuple[list[str], dict]:
+        rows, order = {}, []
+        for pname, (fi, ei) in self.rel.ports.items():
+            order.append(pname)
+            rows[pname] = (list(fi), [self.n + i for i in ei])
+        return order, rows
+
+
+def _samples(dae: Dae, n_random: int, seed: int) -> list[dict]:
+    top = dae.topology
+    states = {s for rel in top.dirac for s in rel.states}
+    rng = np.random.default_rng(seed)
+    first = {s: sp.Float(float(top.initial.get(s, 0.3))) for s in states}
+    samples = [first]
+    for _ in range(n_random):
+        samples.append({s: sp.Float(float(x)) for s, x in zip(sorted(states, key=str), rng.uniform(-1, 1, len(states)))})
+    return samples
+
+
+def certify(dae: Dae, n_random: int = 2, seed: int = 0) -> Certificate:
+    """Certify the Dirac structures and couplings of an assembled model.
+
+    Parameters
+    ----------
+    dae : Dae
+        From :func:`phc.build_dae`.
+    n_random : int
+        Random states sampled besides the initial one.
+
+    Returns
+    -------
+    Certificate
+        ``certified`` is True when every check passed; problems are located diagnostics.
+    """
+    top = dae.topology
+    diags = DiagnosticList()
+    samples = _samples(dae, n_random, seed)
+    comps = {rel.component: _Component(rel, top.parameter_defaults) for rel in top.dirac}
+    comp_certs = []
+    projections: list[dict] = [{} for _ in samples]
+    for rel in top.dirac:
+        comp = comps[rel.component]
+        cert = ComponentCertificate(rel.component, rel.kind, comp.n, note=rel.note)
+        order, rows = comp.port_rows()
+        for k, point in enumerate(samples):
+            local = {s: v for s, v in point.items() if s in rel.states}
+            D = comp.structure(local)
+            if rel.kind != "port_projection":
+                f, e = D[:comp.n], D[comp.n:]
+                iso = float(np.abs(f.T @ e + e.T @ f).max(initial=0.0))
+                cert.dim_d = D.shape[1] if cert.dim_d is None else min(cert.dim_d, D.shape[1])
+                cert.isotropy = iso if cert.isotropy is None else max(cert.isotropy, iso)
+            sel = [i for pname in order for i in rows[pname][0] + rows[pname][1]]
+            P = _orth(D[sel]) if sel else np.zeros((0, 0))
+            offset, rmap = 0, {}
+            for pname in order:
+                d = len(rows[pname][0])
+                rmap[f"{rel.component}.{pname}"] = (list(range(offset, offset + d)),
+                                                   list(range(offset + d, offset + 2 * d)))
+                offset += 2 * d
+            projections[k][rel.component] = (P, rmap)
+        if rel.kind != "port_projection":
+            cert.dirac = cert.dim_d == comp.n and cert.isotropy <= ISOTROPY_TOL
+            if not cert.dirac:
+                why = (f"its relations define a subspace of dimension {cert.dim_d}, but a Dirac structure on "
+                       f"{comp.n} flow/effort pairs has dimension {comp.n}" if cert.dim_d != comp.n else
+                       f"it is not power-isotropic (|⟨f₁,e₂⟩ + ⟨f₂,e₁⟩| up to {cert.isotropy:.2g})")
+                diags.append(Diagnostic("PHC-E420", f"component `{rel.component}` is not a Dirac structure: {why}",
+                                        span=rel.span, path=rel.component,
+                                        hint="check the relations: one per flow/effort pair, power conserving"))
+        comp_certs.append(cert)
+    conn_certs = _couplings(top, projections, samples, diags)
+    _rigid_ranks(top, samples[0], diags)
+    _passivity(top, diags, seed)
+    loops = kinematic_loops(top)
+    parts = independent_parts(top)
+    if len(parts) > 1:
+        diags.append(Diagnostic("PHC-W201", f"the model has {len(parts)} independent parts with no connection "
+                                "between them: " + "; ".join("{" + ", ".join(p) + "}" for p in parts),
+                                severity="warning", hint="intended? each part is simulated independently"))
+    return Certificate(dae.name, comp_certs, conn_certs, loops, parts, diags.sorted(), len(samples))
+
+
+def _couplings(top, projections, samples, diags) -> list[ConnectionCertificate]:
+    """Interconnect one coupling at a time (BFS) and test the rank of Γ at each step."""
+    owner = component_of(top)
+    order = traversal_order(top)
+    spans = {label: span for _, _, label, span in top.connections}
+    certs = [ConnectionCertificate(label, a, b, 2 * next(p.dimension for p in top.ports if p.name == a),
+                                   span=spans.get(label)) for a, b, label in order]
+    for k, point in enumerate(samples):
+        cluster_of = {name: name for name in projections[k]}
+        clusters = {name: projections[k][name] for name in projections[k]}
+        for cert, (a, b, label) in zip(certs, order):
+            ca, cb = cluster_of.get(owner[a]), cluster_of.get(owner[b])
+            if ca is None or cb is None:
+                continue
+            Va, ma = clusters[ca]
+            if ca == cb:
+                V, rmap = Va, dict(ma)
+            else:
+                Vb, mb = clusters[cb]
+                V = sla.block_diag(Va, Vb)
+                shift = Va.shape[0]
+                rmap = dict(ma)
+                rmap.update({p: ([i + shift for i in f], [i + shift for i in e]) for p, (f, e) in mb.items()})
+            fa, ea = rmap[a]
+            fb, eb = rmap[b]
+            S = np.zeros((cert.needed, V.shape[0]))
+            d = cert.needed // 2
+            for i in range(d):
+                S[i, fa[i]], S[i, fb[i]] = 1.0, -1.0
+                S[d + i, ea[i]], S[d + i, eb[i]] = 1.0, 1.0
+            GV = S @ V
+            s = np.linalg.svd(GV, compute_uv=False) if GV.size else np.zeros(0)
+            rank = _rank(s)
+            ratio = float(s[-1] / s[0]) if len(s) >= cert.needed and s[0] > 0 else 0.0
+            cert.achieved = rank if cert.achieved < 0 else min(cert.achieved, rank)
+            cert.conditioning = min(cert.conditioning, ratio)
+            if rank < cert.needed:
+                cert.failing_samples.append({str(sym): float(v) for sym, v in point.items()
+                                             if str(sym).split(".")[0] in (owner[a], owner[b])})
+            # The interconnected structure: ker(ΓV), coupling rows removed.
+            W = V @ _null(GV, V.shape[1])
+            keep = [i for i in range(V.shape[0]) if i not in set(fa + ea + fb + eb)]
+            new_rows, pos = {}, {i: n for n, i in enumerate(keep)}
+            for p, (f, e) in rmap.items():
+                if p not in (a, b):
+                    new_rows[p] = ([pos[i] for i in f], [pos[i] for i in e])
+            merged = (_orth(W[keep]) if keep else np.zeros((0, 0)), new_rows)
+            for name, c in list(cluster_of.items()):
+                if c in (ca, cb):
+                    cluster_of[name] = ca
+            clusters[ca] = merged
+            if cb != ca:
+                del clusters[cb]
+    for cert in certs:
+        if not cert.surjective:
+            where = ("at every sampled state" if len(cert.failing_samples) == len(samples)
+                     else f"at {len(cert.failing_samples)} of {len(samples)} sampled states, e.g. "
+                     + ", ".join(f"{k} = {v:.3g}" for k, v in list(cert.failing_samples[0].items())[:6]))
+            diags.append(Diagnostic(
+                "PHC-E421", f"connection `{cert.port_a}` — `{cert.port_b}` is not surjective: rank of the coupling "
+                f"map Γ is {cert.achieved}, needs {cert.needed} ({where}); the interconnection is not a Dirac "
+                "structure there", span=cert.span, path=cert.label,
+                hint="both sides impose the same flow or effort (e.g. two sources, two terminations, or a "
+                "constraint that removes the port's freedom)"))
+        elif cert.conditioning < WARN_RTOL:
+            diags.append(Diagnostic(
+                "PHC-W221", f"connection `{cert.port_a}` — `{cert.port_b}` is nearly singular (σ_min/σ_max = "
+                f"{cert.conditioning:.1e} at a sampled state)", span=cert.span, path=cert.label, severity="warning"))
+    return certs
+
+
+def _rigid_ranks(top, point, diags) -> None:
+    """c'(q) and A(q) of full row rank at the initial configuration; name dependent rows."""
+    for name, ctx, path, q, cq, A, labels_c, labels_a in top.rigid_constraints:
+        for mat, labels, what in ((cq, labels_c, "position constraints c'(q)"),
+                                  (A, labels_a, "velocity constraints A(q)")):
+            if not mat.rows:
+                continue
+            M = np.array(mat.xreplace(top.parameter_defaults).xreplace(
+                {s: point.get(s, sp.Float(0.3)) for s in q}).evalf(), dtype=float)
+            dependent = []
+            for i in range(M.shape[0]):
+                rows = [j for j in range(i + 1) if j not in dependent]
+                s = np.linalg.svd(M[rows], compute_uv=False)
+                if _rank(s) < len(rows):
+                    dependent.append(i)
+            if dependent:
+                names = ", ".join(f"`{labels[i]}`" for i in dependent)
+                key = "constraints" if labels is labels_c else "velocity_constraints"
+                diags.append(Diagnostic(
+                    "PHC-E410", f"the {what} of `{name}` are redundant at the initial configuration: {names} "
+                    "depend(s) on the rows before", span=ctx.smap.locate((*path, key, dependent[0])),
+                    path=f"{name}.{labels[dependent[0]]}",
+                    hint="remove the redundant constraint; its multiplier would not be unique"))
+
+
+def _passivity(top, diags, seed) -> None:
+    """f·e ≥ 0 for user resistive laws at random flows (laws solved for the efforts)."""
+    rng = np.random.default_rng(seed + 1)
+    for name, ports, ctx, path in top.resistive_laws:
+        for f_syms, e_syms, laws in ports:
+            fs = f_syms if isinstance(f_syms, list) else [f_syms]
+            es = e_syms if isinstance(e_syms, list) else [e_syms]
+            if len(laws) != len(es):
+                continue
+            for _ in range(3):
+                point = {s: sp.Float(float(x)) for s, x in zip(fs, rng.uniform(-2, 2, len(fs)))}
+                eqs = [law.xreplace(top.parameter_defaults).xreplace(point) for law in laws]
+                try:
+                    sol = sp.solve(eqs, es, dict=True)
+                except NotImplementedError:
+                    break
+                if not sol:
+                    break
+                power = sum(float(point[f]) * float(sol[0].get(e, 0.0)) for f, e in zip(fs, es))
+                if power < -1e-12:
+                    label = str(es[0]).rsplit(".", 1)[0]
+                    diags.append(Diagnostic(
+                        "PHC-E406", f"resistive port `{label}` of `{name}` is not passive: f·e = {power:.3g} < 0 at "
+                        f"f = {[round(float(point[f]), 3) for f in fs]}", span=ctx.smap.locate((*path, "resistive")),
+                        path=name, hint="a resistive law must satisfy f·e ≥ 0 (it dissipates energy)"))
+                    break
