@@ -348,5 +348,5 @@ def _initial_values(b, ctx, state_names: set[str]) -> list[InitialValue]:
             b.error("PHC-E211", f"initial value of `{name}` must be a number or an expression of parameters",
                     ctx, vpath)
             continue
-        out.append(InitialValue(name, val, guess, ctx.smap.locate(vpath)))
+        out.append(InitialValue(name, val, guess, ctx.smap.locate(vpath), None if ex.is_Number else ex))
     return out

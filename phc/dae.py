@@ -75,10 +75,13 @@ class Invariant:
 
 @dataclass(frozen=True)
 class InitialValue:
+    """An initial value; `expr` (in parameters) is re-evaluated with run-time parameters."""
+
     name: str
     value: float
     guess: bool
     span: Optional[SourceSpan] = None
+    expr: Optional[sp.Expr] = None
 
 
 @dataclass(frozen=True, eq=False)

@@ -11,6 +11,7 @@ import time
 from typing import Callable, Optional
 
 import numpy as np
+import sympy as sp
 
 from phc.errors import InconsistentInitialError, SimulationSetupError
 from phc.simulation.ida import integrate_ida
@@ -88,8 +89,10 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
     p = parameter_vector(mod, params)
     index = {name: j for j, name in enumerate(mod.VARIABLES)}
     values, fixed = {}, set()
+    by_name = {par.symbol: sp.Float(float(p[mod.PARAMETERS.index(par.name)])) for par in compiled.dae.parameters}
     for iv in compiled.dae.initial:
-        values[index[iv.name]] = iv.value
+        # initial values written as parameter expressions follow parameter overrides
+        values[index[iv.name]] = float(iv.expr.xreplace(by_name)) if iv.expr is not None else iv.value
         if not iv.guess:
             fixed.add(index[iv.name])
     for name, spec in (initial or {}).items():

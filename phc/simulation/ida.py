@@ -20,6 +20,7 @@ import numpy as np
 import scipy.sparse as sps
 
 from phc.errors import SimulationSetupError
+from phc.simulation.monitor import SingularityMonitor
 
 ALGEBRAIC_ATOL = 1e8
 """Absolute tolerance on algebraic variables: effectively removes them from the error test."""
@@ -90,12 +91,15 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     nfev = njev = 0
     t_end = t_out[-1]
     t_last = float(t_out[0])
+    h_last = 0.0
+    monitor = SingularityMonitor(mod, p)
+    monitor_every = 5 if n <= 60 else 20
     while k < len(t_out):
         res = solver.step(t_end, method="onestep", tstop=t_end)
         t_step = float(np.atleast_1d(res.t)[-1])
         if t_step != t_last:  # a onestep call after an interpolation may return without stepping
             steps += 1
-            t_last = t_step
+            h_last, t_last = t_step - t_last, t_step
         nfev, njev = getattr(res, "nfev", nfev), getattr(res, "njev", njev)
         if not res.success:
             ok = False
@@ -103,6 +107,11 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
             message = f"IDA failed at t = {float(res.t):.6g} (status {res.status}: {res.message}); {hint}"
             break
         t_now = float(np.atleast_1d(res.t)[-1])
+        if monitor.enabled and (steps % monitor_every == 0):
+            warning = monitor.check(t_now, np.atleast_2d(res.y)[-1], np.atleast_2d(res.yp)[-1], h_last)
+            if warning:
+                ok, message = False, warning
+                break
         while k < len(t_out) and t_out[k] <= t_now + 1e-14 * max(1.0, abs(t_now)):
             r = solver.step(t_out[k], method="normal")
             ys[k] = np.atleast_2d(r.y)[-1]
@@ -116,4 +125,4 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
                        "loosen the tolerances")
             break
     return dict(t=t_out[:k], y=ys[:k], yp=yps[:k], steps=steps, nfev=nfev, njev=njev, success=ok,
-                message=message, cpu=time.process_time() - start)
+                message=message, cpu=time.process_time() - start, conditioning=monitor.worst)
