@@ -170,16 +170,20 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_check(args) -> int:
+    from phc.analysis.matching import check_balance
     from phc.checks.certify import certify
-    from phc.pipeline import build_dae
+    from phc.elaborate import elaborate
 
-    dae, diags = build_dae(args.file)
+    # Certify even a structurally unbalanced model: the coupling certificate says why.
+    dae, diags = elaborate(args.file)
     if dae is None:
         _print_diagnostics(diags)
         if args.format == "json":
             print(json.dumps({"model": args.file, "certified": False, "diagnostics": diags.to_json()}, indent=2))
         return EXIT_MODEL
     cert = certify(dae, n_random=args.samples)
+    cert.diagnostics.extend(d for d in list(diags) + check_balance(dae) if d not in cert.diagnostics)
+    cert.diagnostics[:] = cert.diagnostics.sorted()
     if args.format == "json":
         print(json.dumps(cert.to_dict(), indent=2))
     else:
