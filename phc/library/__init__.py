@@ -9,6 +9,7 @@ from __future__ import annotations
 from functools import partial
 
 from phc.library import lumped
+from phc.library.beams import lower_euler_bernoulli, lower_string, lower_timoshenko
 from phc.library.linear import lower_linear_phs
 from phc.library.phs import lower_phs
 from phc.library.rigid import lower_rigid
@@ -29,6 +30,9 @@ LOWERERS = {
     "zero_flow": partial(lumped.lower_termination, which="flow"),
     "orthogonal_transform": lumped.lower_transform,
     "junction": lumped.lower_junction,
+    "string": lower_string,
+    "timoshenko_beam": lower_timoshenko,
+    "euler_bernoulli_beam": lower_euler_bernoulli,
 }
 
 __all__ = ["LOWERERS"]

@@ -332,6 +332,64 @@ class JunctionSpec(_Component):
     dimension: int = Field(1, ge=1, le=64)
 
 
+class _Distributed(_Component):
+    """A 1-D pH PDE component (seed eq. BH1gen), discretized by a structure-preserving
+    mixed finite element method that keeps the boundary ports."""
+
+    length: Expr
+    """Length L of the domain [0, L] (evaluated at the default parameters: it fixes the mesh)."""
+    elements: int = Field(16, ge=1, le=200_000)
+    """Number of finite elements."""
+    damping: Optional[Expr] = None
+    """Viscous damping per unit length on the transverse momentum (the D term of eq. BH1gen);
+    may depend on `xi`."""
+
+
+class StringSpec(_Distributed):
+    """Vibrating string (seed Example ex:expde (a)): state (p, ε), H = ½∫(p²/ρ + Tε²).
+
+    Ports `a`, `b`: transverse velocity and reaction force at ξ = 0 and ξ = L.
+    """
+
+    type: Literal["string"]
+    rho: Expr
+    """Mass per unit length ρ(ξ) (may depend on `xi`)."""
+    T: Expr
+    """Tension T(ξ)."""
+
+
+class TimoshenkoBeamSpec(_Distributed):
+    """Timoshenko beam (seed Example ex:expde (b)): state (γ, p, θ, M).
+
+    Ports `a`, `b` (transverse velocity / shear force) and `a_rot`, `b_rot` (angular
+    velocity / moment) at the two ends.
+    """
+
+    type: Literal["timoshenko_beam"]
+    rho: Expr
+    """Mass per unit length."""
+    I_rho: Expr
+    """Rotary inertia per unit length."""
+    EI: Expr
+    """Bending stiffness."""
+    K: Expr
+    """Shear stiffness (κ G A)."""
+
+
+class EulerBernoulliBeamSpec(_Distributed):
+    """Euler–Bernoulli beam (seed Example ex:expde (c)): state (κ, p), N = 2.
+
+    Ports `a`, `b` (transverse velocity / shear force) and `a_rot`, `b_rot` (angular
+    velocity / moment) at the two ends.
+    """
+
+    type: Literal["euler_bernoulli_beam"]
+    rhoA: Expr
+    """Mass per unit length ρA(ξ)."""
+    EI: Expr
+    """Bending stiffness EI(ξ)."""
+
+
 LIBRARY_TYPES = (
     MassSpec, InductorSpec, SpringSpec, CapacitorSpec, DamperSpec, ResistorSpec,
     EffortSourceSpec, FlowSourceSpec, ZeroEffortSpec, ZeroFlowSpec,
@@ -344,6 +402,7 @@ ComponentSpec = Annotated[
         MassSpec, InductorSpec, SpringSpec, CapacitorSpec, DamperSpec, ResistorSpec,
         EffortSourceSpec, FlowSourceSpec, ZeroEffortSpec, ZeroFlowSpec,
         OrthogonalTransformSpec, JunctionSpec,
+        StringSpec, TimoshenkoBeamSpec, EulerBernoulliBeamSpec,
     ],
     Field(discriminator="type"),
 ]

@@ -1,0 +1,231 @@
+"""Strings and beams: 1-D pH PDEs (seed eq. BH1gen, Example ex:expde) discretized by a
+partitioned mixed finite element method that keeps the boundary ports.
+
+The state is split into two groups coupled by the highest-order operator:
+"velocity-like" variables (momentum densities, space ``S_A``) whose equations are
+integrated by parts N times, and "strain-like" variables (space ``S_B``). For a string
+(N = 1) with co-energies ``e_p = p/ρ`` and ``e_ε = Tε``::
+
+    ∫ φ ṗ = −∫ φ' e_ε + [φ e_ε]₀ᴸ,        ∫ ψ ε̇ = ∫ ψ ∂e_p,
+    ∫ φ e_p = ∫ φ p/ρ,                    ∫ ψ e_ε = ∫ ψ T ε,
+
+so in matrix form ``M_A ṗ = −Dᵀ e_ε − B_∂ e_∂``, ``M_B ε̇ = D e_p``, ``M_A e_A = M_A^{1/ρ} p``,
+``M_B e_B = M_B^{T} ε``. The interconnection matrix ``[[0, −Dᵀ], [D, 0]]`` is skew for any
+mesh and the energy ``H = ½ pᵀM_A^{1/ρ}p + ½ εᵀM_B^{T}ε`` obeys
+``dH/dt = −f_∂·e_∂ − e_pᵀ M^{d} e_p`` exactly: the discrete power balance holds to
+round-off. The boundary efforts (reaction forces and moments, the seed's physical
+choice of W_f, W_e) are the inputs and the co-located flows (end velocities and angular
+velocities) are the nodal values of the velocity co-energy: no boundary port is lost.
+
+Spaces (``phc.discretize.fem1d``): string and Timoshenko beam use P1 for momenta and P0
+for strains (frequency error O(h²)); the Euler–Bernoulli beam (N = 2, integrated by
+parts twice) uses C¹ Hermite cubics for the momentum and discontinuous P1 for the
+curvature (frequency error O(h⁴)).
+
+All blocks stay sparse (:class:`~phc.dae.LinearTerm`); constant coefficients stay
+run-time parameters, coefficients that vary with ``xi`` are evaluated at compile time.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sps
+import sympy as sp
+
+from phc.dae import T, LinearTerm, QuadraticForm
+from phc.discretize.fem1d import DP1, H3, P0, P1, Mesh, assemble
+from phc.library.dirac import DiracBuilder
+
+XI = sp.Symbol("xi", real=True)
+
+
+class _Coefficient:
+    """A coefficient c(ξ): a run-time parameter expression, or numbers baked at compile time."""
+
+    def __init__(self, b, ctx, value, path):
+        scope = {"t": T, "xi": XI, **ctx.params}
+        self.expr = b.expr(ctx, value, path, scope)
+        self.varies = XI in self.expr.free_symbols
+        if T in self.expr.free_symbols:
+            b.error("PHC-E140", "coefficients of a distributed component may not depend on `t`", ctx, path)
+        self.defaults = b.default_values()
+        self.ctx, self.path, self.b = ctx, path, b
+
+    def scale(self) -> sp.Expr:
+        return sp.Integer(1) if self.varies else self.expr
+
+    def function(self):
+        if not self.varies:
+            return None
+        numeric = self.expr.xreplace(self.defaults)
+        fn = sp.lambdify(XI, numeric, modules="numpy")  # a phc-built sympy tree, not user text
+        return lambda xi: np.broadcast_to(np.asarray(fn(xi), dtype=float), xi.shape)
+
+    def check_positive(self, name, what, mesh):
+        xi = mesh.quadrature_points().ravel()
+        try:
+            values = (self.function()(xi) if self.varies
+                      else np.full_like(xi, float(self.expr.xreplace(self.defaults))))
+        except (TypeError, ValueError):
+            return
+        if not np.all(values > 0):
+            self.b.error("PHC-E141", f"`{what}` of `{name}` must be positive on [0, L] (min {values.min():.3g}); "
+                         "the energy density must be positive definite (H ≻ 0 in eq. BH1gen)", self.ctx, self.path)
+
+
+def _mesh(b, ctx, name, spec, path) -> Mesh | None:
+    ex = b.expr(ctx, spec.length, (*path, "length"), dict(ctx.params))
+    try:
+        length = float(ex.xreplace(b.default_values()))
+    except TypeError:
+        b.error("PHC-E142", f"`length` of `{name}` must be a number or an expression of parameters", ctx,
+                (*path, "length"))
+        return None
+    if not length > 0:
+        b.error("PHC-E142", f"`length` of `{name}` must be positive, got {length:g}", ctx, (*path, "length"))
+        return None
+    return Mesh(length, spec.elements)
+
+
+class _Field:
+    """One state variable of the PDE: its space, state and co-energy DOF symbols."""
+
+    def __init__(self, b, name, local, space, span):
+        self.space = space
+        n = space.size
+        self.x = [b.add_state(name, f"{local}[{i}]", span)[0] for i in range(n)]
+        self.e = [b.add_algebraic(name, f"e_{local}[{i}]", "effort", span) for i in range(n)]
+
+
+def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, couplings, skew, ports, order):
+    """Assemble the partitioned mixed system.
+
+    fields_a / fields_b: {local: (_Field, coefficient of H)};
+    couplings: (a_local, b_local, s) with ``ẋ_b ∋ s ∂^N e_a`` and hence, since
+    ``P_Nᵀ = (−1)^{N+1} P_N``, ``ẋ_a ∋ s (−1)^{N+1} ∂^N e_b``; after N integrations by
+    parts the residual rows are ``M ẋ_b − s D e_a`` and ``M ẋ_a + s Dᵀ e_b + boundary``
+    with ``D_ji = ∫ ψ_j ∂^N φ_i``: the interconnection ``[[0, −sDᵀ], [sD, 0]]`` is skew;
+    skew: (row_local, col_local, value) zero-order couplings (entries of P_0);
+    ports: (port_name, a_local, end, derivative, domain) — the flow is ``∂^derivative e_a``
+    at the end; the effort enters the a-rows through the same basis function.
+    """
+    span = ctx.smap.locate(path)
+    fields = {**fields_a, **fields_b}
+    mass = {local: assemble(fld.space, 0, fld.space, 0) for local, (fld, _) in fields.items()}
+    terms = {local: [LinearTerm(sp.Integer(1), mass[local], tuple(fld.x), derivative=True)]
+             for local, (fld, _) in fields.items()}
+    for a_local, b_local, sign in couplings:
+        fa, fb = fields_a[a_local][0], fields_b[b_local][0]
+        Dm = assemble(fb.space, 0, fa.space, order)
+        terms[b_local].append(LinearTerm(sp.Integer(-sign), Dm, tuple(fa.e)))
+        terms[a_local].append(LinearTerm(sp.Integer(sign), Dm.T.tocsr(), tuple(fb.e)))
+    for row_local, col_local, value in skew:
+        fr, fc = fields[row_local][0], fields[col_local][0]
+        terms[row_local].append(LinearTerm(sp.Float(-value), assemble(fr.space, 0, fc.space, 0), tuple(fc.e)))
+    if spec.damping is not None:
+        coeff = _Coefficient(b, ctx, spec.damping, (*path, "damping"))
+        a_local = next(iter(fields_a))
+        fld = fields_a[a_local][0]
+        Md = assemble(fld.space, 0, fld.space, 0, coeff.function())
+        terms[a_local].append(LinearTerm(coeff.scale(), Md, tuple(fld.e)))
+        b.quadratic_dissipation.append(QuadraticForm(coeff.scale(), Md, tuple(fld.e)))
+    rows = {local: b.add_linear_rows(name, f"{local}.dynamics", fields[local][0].space.size, terms[local], span)
+            for local in fields}
+    # Constitutive rows M e − M^{H} x = 0 and the energy ½ xᵀ M^{H} x.
+    for local, (fld, coeff) in fields.items():
+        MH = assemble(fld.space, 0, fld.space, 0, coeff.function())
+        b.add_linear_rows(name, f"{local}.coenergy", fld.space.size,
+                          [LinearTerm(sp.Integer(1), mass[local], tuple(fld.e)),
+                           LinearTerm(-coeff.scale(), MH, tuple(fld.x))], span)
+        b.quadratic_energy.append(QuadraticForm(coeff.scale() / 2, MH, tuple(fld.x)))
+    # Boundary ports: effort inputs enter the a-rows; flows are traces of e_a.
+    d = DiracBuilder(name, spec.type, span)
+    for pname, a_local, end, derivative, domain in ports:
+        fld = fields_a[a_local][0]
+        port = b.add_port(name, pname, domain, 1, span=span)
+        dof = _end_dof(fld.space, end, derivative)
+        b.define(port.f[0], fld.e[dof])
+        b.add_to_row(rows[a_local][dof], port.e[0])
+        d.port(port)  # certification: both the trace and the boundary effort are free
+        d.rel(port.f[0] - d.mult(f"trace_{pname}"))
+    d.register(b, kind="port_projection", note="discretized PDE: skew interconnection by construction; ports "
+               "certified through their traces")
+
+
+def _end_dof(space, end: str, derivative: int) -> int:
+    n = space.mesh.elements
+    if isinstance(space, H3):
+        node = 0 if end == "a" else n
+        return 2 * node + derivative
+    if derivative:
+        raise ValueError("slope DOFs need Hermite elements")
+    return 0 if end == "a" else space.size - 1
+
+
+def lower_string(b, ctx, name, spec, path):
+    mesh = _mesh(b, ctx, name, spec, path)
+    if mesh is None:
+        return
+    span = ctx.smap.locate(path)
+    rho = _Coefficient(b, ctx, spec.rho, (*path, "rho"))
+    tension = _Coefficient(b, ctx, spec.T, (*path, "T"))
+    rho.check_positive(name, "rho", mesh)
+    tension.check_positive(name, "T", mesh)
+    inv_rho = _inverse(b, ctx, rho, (*path, "rho"))
+    p = _Field(b, name, "p", P1(mesh), span)
+    eps = _Field(b, name, "eps", P0(mesh), span)
+    _lower_partitioned(b, ctx, name, spec, path, mesh, {"p": (p, inv_rho)}, {"eps": (eps, tension)},
+                       [("p", "eps", 1)], [], [("a", "p", "a", 0, "mechanical.translational"),
+                                               ("b", "p", "b", 0, "mechanical.translational")], order=1)
+
+
+def lower_timoshenko(b, ctx, name, spec, path):
+    mesh = _mesh(b, ctx, name, spec, path)
+    if mesh is None:
+        return
+    span = ctx.smap.locate(path)
+    coeffs = {k: _Coefficient(b, ctx, getattr(spec, k), (*path, k)) for k in ("rho", "I_rho", "EI", "K")}
+    for k, c in coeffs.items():
+        c.check_positive(name, k, mesh)
+    p = _Field(b, name, "p", P1(mesh), span)
+    m = _Field(b, name, "M", P1(mesh), span)
+    gamma = _Field(b, name, "gamma", P0(mesh), span)
+    theta = _Field(b, name, "theta", P0(mesh), span)
+    _lower_partitioned(
+        b, ctx, name, spec, path, mesh,
+        {"p": (p, _inverse(b, ctx, coeffs["rho"], (*path, "rho"))),
+         "M": (m, _inverse(b, ctx, coeffs["I_rho"], (*path, "I_rho")))},
+        {"gamma": (gamma, coeffs["K"]), "theta": (theta, coeffs["EI"])},
+        [("p", "gamma", 1), ("M", "theta", 1)],
+        [("M", "gamma", 1.0), ("gamma", "M", -1.0)],  # P0 of Example ex:expde (b)
+        [("a", "p", "a", 0, "mechanical.translational"), ("b", "p", "b", 0, "mechanical.translational"),
+         ("a_rot", "M", "a", 0, "mechanical.rotational"), ("b_rot", "M", "b", 0, "mechanical.rotational")],
+        order=1)
+
+
+def lower_euler_bernoulli(b, ctx, name, spec, path):
+    mesh = _mesh(b, ctx, name, spec, path)
+    if mesh is None:
+        return
+    span = ctx.smap.locate(path)
+    rho = _Coefficient(b, ctx, spec.rhoA, (*path, "rhoA"))
+    ei = _Coefficient(b, ctx, spec.EI, (*path, "EI"))
+    rho.check_positive(name, "rhoA", mesh)
+    ei.check_positive(name, "EI", mesh)
+    p = _Field(b, name, "p", H3(mesh), span)
+    kappa = _Field(b, name, "kappa", DP1(mesh), span)
+    # P_2 = [[0, 1], [-1, 0]] on (κ, p): ṗ = −∂²e_κ, κ̇ = ∂²e_p.
+    _lower_partitioned(
+        b, ctx, name, spec, path, mesh, {"p": (p, _inverse(b, ctx, rho, (*path, "rhoA")))},
+        {"kappa": (kappa, ei)}, [("p", "kappa", 1)], [],
+        [("a", "p", "a", 0, "mechanical.translational"), ("b", "p", "b", 0, "mechanical.translational"),
+         ("a_rot", "p", "a", 1, "mechanical.rotational"), ("b_rot", "p", "b", 1, "mechanical.rotational")],
+        order=2)
+
+
+def _inverse(b, ctx, coeff, path):
+    """The coefficient 1/c (for momentum densities: e_p = p/ρ)."""
+    inv = _Coefficient.__new__(_Coefficient)
+    inv.__dict__.update(coeff.__dict__)
+    inv.expr = 1 / coeff.expr
+    return inv
