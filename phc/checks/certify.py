@@ -67,6 +67,8 @@ class ConnectionCertificate:
     conditioning: float = 1.0
     failing_samples: list = field(default_factory=list)
     span: object = None
+    condition: Optional[str] = None
+    """Symbolic failure set (where all maximal minors of Γ vanish), when it was computed."""
 
     @property
     def surjective(self) -> bool:
@@ -75,7 +77,8 @@ class ConnectionCertificate:
     def to_dict(self) -> dict:
         return {"label": self.label, "ports": [self.port_a, self.port_b], "rank_needed": self.needed,
                 "rank_achieved": self.achieved, "surjective": self.surjective,
-                "sigma_ratio": self.conditioning, "failing_samples": self.failing_samples}
+                "sigma_ratio": self.conditioning, "failing_samples": self.failing_samples,
+                "failure_condition": self.condition}
 
 
 @dataclass
@@ -114,9 +117,10 @@ class Certificate:
         lines.append("connections (breadth-first; rank of Γ achieved / needed)")
         for c in self.connections:
             fail = f", fails at {len(c.failing_samples)} sample(s)" if c.failing_samples else ""
+            cond = f"; loses rank where {c.condition}" if c.condition else ""
             lines.append(f"  {c.label:<16} {c.port_a} — {c.port_b}: rank {c.achieved}/{c.needed}"
                          f"{' surjective' if c.surjective else ' NOT surjective'} "
-                         f"(σ_min/σ_max {c.conditioning:.1e}){fail}")
+                         f"(σ_min/σ_max {c.conditioning:.1e}){fail}{cond}")
         lines.append("kinematic loops: " + ("; ".join(" – ".join(loop) for loop in self.loops)
                                             if self.loops else "none"))
         if len(self.parts) > 1:
@@ -304,6 +308,10 @@ def _couplings(top, projections, samples, diags) -> list[ConnectionCertificate]:
             clusters[ca] = merged
             if cb != ca:
                 del clusters[cb]
+    comps = {rel.component: rel for rel in top.dirac}
+    for cert in certs:
+        cert.condition = _symbolic_condition(comps.get(owner[cert.port_a]), comps.get(owner[cert.port_b]),
+                                             cert.port_a, cert.port_b, top.parameter_defaults)
     for cert in certs:
         if not cert.surjective:
             where = ("at every sampled state" if len(cert.failing_samples) == len(samples)
@@ -311,8 +319,9 @@ def _couplings(top, projections, samples, diags) -> list[ConnectionCertificate]:
                      + ", ".join(f"{k} = {v:.3g}" for k, v in list(cert.failing_samples[0].items())[:6]))
             diags.append(Diagnostic(
                 "PHC-E421", f"connection `{cert.port_a}` — `{cert.port_b}` is not surjective: rank of the coupling "
-                f"map Γ is {cert.achieved}, needs {cert.needed} ({where}); the interconnection is not a Dirac "
-                "structure there", span=cert.span, path=cert.label,
+                f"map Γ is {cert.achieved}, needs {cert.needed} ({where})"
+                + (f"; it fails where {cert.condition}" if cert.condition else "")
+                + "; the interconnection is not a Dirac structure there", span=cert.span, path=cert.label,
                 hint="both sides impose the same flow or effort (e.g. two sources, two terminations, or a "
                 "constraint that removes the port's freedom)"))
         elif cert.conditioning < WARN_RTOL:
@@ -320,6 +329,67 @@ def _couplings(top, projections, samples, diags) -> list[ConnectionCertificate]:
                 "PHC-W221", f"connection `{cert.port_a}` — `{cert.port_b}` is nearly singular (σ_min/σ_max = "
                 f"{cert.conditioning:.1e} at a sampled state)", span=cert.span, path=cert.label, severity="warning"))
     return certs
+
+
+SYMBOLIC_MAX_COLUMNS = 16
+"""Kernel representations up to this many columns are also analysed symbolically."""
+
+
+def _port_projection_symbolic(rel, port: str, defaults) -> Optional[sp.Matrix]:
+    variables = list(rel.flows) + list(rel.efforts) + list(rel.multipliers)
+    if not rel.relations or len(variables) > SYMBOLIC_MAX_COLUMNS:
+        return None
+    K = sp.Matrix(list(rel.relations)).jacobian(variables).xreplace(defaults)
+    basis = K.nullspace(simplify=True)
+    if not basis:
+        return None
+    N = sp.Matrix.hstack(*basis)
+    fi, ei = rel.ports[port.rsplit(".", 1)[-1]]
+    n = len(rel.flows)
+    return N.extract(list(fi) + [n + i for i in ei], list(range(N.cols)))
+
+
+def _symbolic_condition(rel_a, rel_b, port_a, port_b, defaults) -> Optional[str]:
+    """Where the coupling map of two modulated components loses rank, as an equation.
+
+    Γ restricted to the two components' port projections is a small symbolic matrix;
+    it loses rank exactly where all its maximal minors vanish. We take the greatest
+    common divisor of a few maximal minors (chosen nonsingular at random states) and
+    report its non-constant factors, e.g. ``cos(th) = 0``. Only computed when both
+    kernel representations are small and at least one depends on the state.
+    """
+    if rel_a is None or rel_b is None or rel_a is rel_b:
+        return None
+    try:
+        Pa = _port_projection_symbolic(rel_a, port_a, defaults)
+        Pb = _port_projection_symbolic(rel_b, port_b, defaults)
+        if Pa is None or Pb is None or not (Pa.free_symbols | Pb.free_symbols):
+            return None  # too large, or constant: the numeric rank is then exact
+        d = Pa.rows // 2
+        M = sp.Matrix.vstack(sp.Matrix.hstack(Pa[:d, :], -Pb[:d, :]), sp.Matrix.hstack(Pa[d:, :], Pb[d:, :]))
+        states = sorted(M.free_symbols, key=str)
+        rng = np.random.default_rng(7)
+        minors = []
+        for _ in range(3):
+            point = {s: sp.Float(float(x)) for s, x in zip(states, rng.uniform(-1, 1, len(states)))}
+            Mn = np.array(M.xreplace(point).evalf(), dtype=float)
+            cols, rank = [], 0
+            for j in range(Mn.shape[1]):
+                if np.linalg.matrix_rank(Mn[:, cols + [j]], tol=1e-10) > rank:
+                    cols.append(j)
+                    rank += 1
+            if rank < M.rows:
+                return "everywhere (rank deficient at generic states)"
+            minors.append(sp.factor(sp.simplify(M.extract(list(range(M.rows)), cols).det())))
+        g = minors[0]
+        for m in minors[1:]:
+            g = sp.gcd(g, m)
+        factors = [f for f, _ in sp.factor_list(g)[1] if f.free_symbols]
+        if not factors:
+            return None
+        return " or ".join(f"{sp.sstr(f)} = 0" for f in factors)
+    except (ValueError, TypeError, NotImplementedError, ZeroDivisionError, sp.PolynomialError):
+        return None
 
 
 def _rigid_ranks(top, point, diags) -> None:

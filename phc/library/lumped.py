@@ -156,14 +156,15 @@ def lower_source(b, ctx, name, spec, path, which: str):
     position = None
     if getattr(spec, "position", None) is not None:
         position = b.vector(ctx, spec.position, (*path, "position"), _scope(ctx), spec.dimension, "`position`")
+    # Certified as what it imposes: the linear part of e = u(t) (f = u(t)) is the
+    # termination e = 0 (f = 0), so a source that cannot drive its neighbour (a port
+    # whose flow map loses rank) shows up as a coupling that is not surjective.
     d = DiracBuilder(name, spec.type, ctx.smap.locate(path))
     for port in ports:
         d.port(port)
-        for k in range(spec.dimension):  # the environment's port, joined to this one
-            fe, ee = d.pair(f"{port.name.rsplit('.', 1)[-1]}.env{_suffix(spec.dimension, k)}")
-            d.rel(fe - port.f[k])
-            d.rel(ee + port.e[k])
-    d.register(b, note="an external port: the environment imposes its " + which)
+        for k in range(spec.dimension):
+            d.rel((port.e if which == "effort" else port.f)[k])
+    d.register(b, note=f"imposes its {which} (certified as the termination {which[0]} = 0 plus an input)")
     for port in ports:
         port.position = position
         for k in range(spec.dimension):
