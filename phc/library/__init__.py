@@ -11,6 +11,7 @@ from functools import partial
 from phc.library import lumped
 from phc.library.beams import lower_euler_bernoulli, lower_string, lower_timoshenko
 from phc.library.linear import lower_linear_phs
+from phc.library.pde1d import lower_pde1d
 from phc.library.phs import lower_phs
 from phc.library.rigid import lower_rigid
 
@@ -33,6 +34,7 @@ LOWERERS = {
     "string": lower_string,
     "timoshenko_beam": lower_timoshenko,
     "euler_bernoulli_beam": lower_euler_bernoulli,
+    "pde1d": lower_pde1d,
 }
 
 __all__ = ["LOWERERS"]

@@ -122,7 +122,7 @@ def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, coupl
     for row_local, col_local, value in skew:
         fr, fc = fields[row_local][0], fields[col_local][0]
         terms[row_local].append(LinearTerm(sp.Float(-value), assemble(fr.space, 0, fc.space, 0), tuple(fc.e)))
-    if spec.damping is not None:
+    if getattr(spec, "damping", None) is not None:
         coeff = _Coefficient(b, ctx, spec.damping, (*path, "damping"))
         a_local = next(iter(fields_a))
         fld = fields_a[a_local][0]
@@ -150,6 +150,7 @@ def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, coupl
         d.rel(port.f[0] - d.mult(f"trace_{pname}"))
     d.register(b, kind="port_projection", note="discretized PDE: skew interconnection by construction; ports "
                "certified through their traces")
+    return rows
 
 
 def _end_dof(space, end: str, derivative: int) -> int:

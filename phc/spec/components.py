@@ -390,6 +390,38 @@ class EulerBernoulliBeamSpec(_Distributed):
     """Bending stiffness EI(ξ)."""
 
 
+class Pde1dSpec(_Component):
+    """A generic 1-D port-Hamiltonian PDE (seed eq. BH1gen) with boundary ports (eq. flixBnd)::
+
+        ∂x/∂t = −D H x + Σ_k P_k ∂^k(H x),   f_∂ = W_f γ(Hx),   e_∂ = W_e γ(Hx),
+
+    with ``P_k = (−1)^{k+1} P_kᵀ``, ``P_N`` invertible, ``H ≻ 0``, ``D + Dᵀ ⪰ 0``,
+    ``[W_f; W_e]`` invertible and the Green identity (eq. BNDtriplet) — all checked.
+    """
+
+    type: Literal["pde1d"]
+    parameters: dict[Identifier, Expr] = {}
+    order: Literal[1, 2]
+    """N, the order of the differential operator."""
+    variables: list[Identifier] = Field(min_length=1)
+    """Names of the d components of the state x."""
+    P: list[Matrix]
+    """P_0, …, P_N (numbers), each d × d."""
+    H: Matrix
+    """Energy density matrix H(ξ) (d × d, expressions in `xi` and parameters)."""
+    D: Optional[Matrix] = None
+    """Dissipation matrix D(ξ) (d × d)."""
+    W_f: Matrix
+    """Boundary flow map (Nd × 2Nd numbers) on γ(Hx) = (e(b), …, e^{(N−1)}(b), e(a), …)."""
+    W_e: Matrix
+    """Boundary effort map (Nd × 2Nd numbers)."""
+    ports: list[Identifier]
+    """Names of the Nd boundary ports: port i has flow f_∂[i] and effort e_∂[i]."""
+    port_domains: Optional[list[Domain]] = None
+    length: Expr
+    elements: int = Field(16, ge=1, le=200_000)
+
+
 LIBRARY_TYPES = (
     MassSpec, InductorSpec, SpringSpec, CapacitorSpec, DamperSpec, ResistorSpec,
     EffortSourceSpec, FlowSourceSpec, ZeroEffortSpec, ZeroFlowSpec,
@@ -402,7 +434,7 @@ ComponentSpec = Annotated[
         MassSpec, InductorSpec, SpringSpec, CapacitorSpec, DamperSpec, ResistorSpec,
         EffortSourceSpec, FlowSourceSpec, ZeroEffortSpec, ZeroFlowSpec,
         OrthogonalTransformSpec, JunctionSpec,
-        StringSpec, TimoshenkoBeamSpec, EulerBernoulliBeamSpec,
+        StringSpec, TimoshenkoBeamSpec, EulerBernoulliBeamSpec, Pde1dSpec,
     ],
     Field(discriminator="type"),
 ]
