@@ -252,6 +252,7 @@ def assemble(b, ctx) -> Optional[Dae]:
     )
     return Dae(
         topology=topology,
+        initial_relations=tuple(b.initial_relations),
         name=ctx.spec.name or ctx.file.rsplit("/", 1)[-1].rsplit(".", 1)[0],
         variables=tuple(variables),
         equations=tuple(equations),
@@ -325,6 +326,16 @@ def _output_scope(b, subs, hamiltonian) -> dict:
         scope[base] = [items[i] for i in sorted(items)]
     for p in b.parameters.values():
         scope[p.name] = p.symbol
+    vectors_extra: dict[str, dict[int, sp.Expr]] = {}
+    for name, expr in b.extra_outputs.items():  # component outputs such as a beam's w(ξ)
+        value = expr.xreplace(subs)
+        if name.endswith("]"):
+            base, idx = name[:-1].rsplit("[", 1)
+            vectors_extra.setdefault(base, {})[int(idx)] = value
+        else:
+            scope[name] = value
+    for base, items in vectors_extra.items():
+        scope[base] = [items[i] for i in sorted(items)]
     return scope
 
 

@@ -186,6 +186,9 @@ class Dae:
     quadratic_energy: tuple[QuadraticForm, ...] = ()
     quadratic_dissipation: tuple[QuadraticForm, ...] = ()
     topology: Optional[Topology] = None
+    initial_relations: tuple[tuple[str, dict], ...] = ()
+    """Linear relations Σ c_v·v = 0 imposed only at t₀ (e.g. a beam starting straight and
+    moving rigidly), as (label, {variable symbol: coefficient})."""
 
     @property
     def n_states(self) -> int:

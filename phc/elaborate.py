@@ -132,6 +132,8 @@ class Builder:
         self.dirac: list = []
         self.resistive_laws: list = []
         self.rigid_constraints: list = []
+        self.extra_outputs: dict = {}
+        self.initial_relations: list = []
 
     # -- diagnostics ----------------------------------------------------------------
     def error(self, code: str, message: str, ctx: Optional[FileContext], path: Sequence = (),

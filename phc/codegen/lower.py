@@ -75,6 +75,10 @@ class ResidualIR:
     quadratic_energy: tuple[QuadraticIR, ...] = ()
     quadratic_dissipation: tuple[QuadraticIR, ...] = ()
     energy_row: int = -1
+    initial_rows: tuple = ()
+    initial_cols: tuple = ()
+    initial_data: tuple = ()
+    initial_labels: tuple = ()
 
 
 def _ordered_parameters(dae: Dae):
@@ -181,4 +185,8 @@ def lower_residual(dae: Dae) -> ResidualIR:
         quadratic_energy=quadratic(dae.quadratic_energy),
         quadratic_dissipation=quadratic(dae.quadratic_dissipation, with_pos=True),
         energy_row=energy_row,
+        initial_rows=tuple(i for i, (_, rel) in enumerate(dae.initial_relations) for _ in rel),
+        initial_cols=tuple(col_of_y[s] for _, rel in dae.initial_relations for s in rel),
+        initial_data=tuple(float(c) for _, rel in dae.initial_relations for c in rel.values()),
+        initial_labels=tuple(label for label, _ in dae.initial_relations),
     )

@@ -11,6 +11,7 @@ from functools import partial
 from phc.library import lumped
 from phc.library.beams import lower_euler_bernoulli, lower_string, lower_timoshenko
 from phc.library.linear import lower_linear_phs
+from phc.library.moving import lower_crank_wheel, lower_moving_beam
 from phc.library.pde1d import lower_pde1d
 from phc.library.phs import lower_phs
 from phc.library.rigid import lower_rigid
@@ -35,6 +36,8 @@ LOWERERS = {
     "timoshenko_beam": lower_timoshenko,
     "euler_bernoulli_beam": lower_euler_bernoulli,
     "pde1d": lower_pde1d,
+    "moving_beam": lower_moving_beam,
+    "crank_wheel": lower_crank_wheel,
 }
 
 __all__ = ["LOWERERS"]

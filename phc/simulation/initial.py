@@ -74,6 +74,10 @@ class _Problem:
                                   np.full(len(self.zc) + len(self.wc), CHEAP)])
         self.weights = weights
         self.sizes = (len(self.free), len(self.dif), len(self.zc), len(self.wc))
+        n_init = len(getattr(mod, "INITIAL", ()))
+        self.C = sps.csr_matrix((np.asarray(getattr(mod, "INITIAL_DATA", [])),
+                                 (np.asarray(getattr(mod, "INITIAL_ROWS", []), dtype=np.int64),
+                                  np.asarray(getattr(mod, "INITIAL_COLS", []), dtype=np.int64))), shape=(n_init, n))
 
     def split(self, y, yp):
         """(F_y, F_ẏ) as sparse CSC matrices."""
@@ -128,7 +132,7 @@ class _Problem:
 
     def G(self, u):
         y, yp, z, w = self.unpack(u)
-        return np.concatenate([self.F(y, yp), self.D(y, yp, z, w)])
+        return np.concatenate([self.F(y, yp), self.D(y, yp, z, w), self.C @ y])
 
     def jacobian(self, u):
         y, yp, z, w = self.unpack(u)
@@ -136,8 +140,9 @@ class _Problem:
         k = self.kept
         nk = len(k)
         JF = sps.hstack([jy[:, self.free], jyp[:, self.dif], sps.csr_matrix((self.m, len(self.zc) + len(self.wc)))])
+        JC = sps.hstack([self.C[:, self.free], sps.csr_matrix((self.C.shape[0], JF.shape[1] - len(self.free)))])
         if not nk:
-            return JF.tocsr()
+            return sps.vstack([JF, JC]).tocsr()
         base = self.D(y, yp, z, w, jy, jyp)
         # D is bilinear: exact parts plus finite differences where the Jacobian varies.
         dy = sps.lil_matrix((nk, len(self.free)))
@@ -156,7 +161,7 @@ class _Problem:
             col = (self.D(y, yph, z, w) - base) / h
             dyp[:, dif_pos[j]] = col[:, None]  # includes the exact F_y[:, j] part
         JD = sps.hstack([dy.tocsr(), dyp.tocsr(), jy[k][:, self.zc], jyp[k][:, self.wc]])
-        return sps.vstack([JF, JD]).tocsr()
+        return sps.vstack([JF, JD, JC]).tocsr()
 
     def step(self, J, g):
         """Weighted minimum-norm solution of J Δu = −g."""
@@ -240,7 +245,7 @@ def consistent_initial_conditions(mod, p, t0: float, values: dict[int, float], f
             return InitialResult(y1, yp1, chosen, _norm(g), total)
     f_final = g[:prob.m]
     d_final = np.zeros(prob.m)
-    d_final[prob.kept] = g[prob.m:]
+    d_final[prob.kept] = g[prob.m:prob.m + len(prob.kept)]
     bad = np.flatnonzero(np.abs(f_final) > 1e3 * tol * scale)
     bad_d = np.flatnonzero(np.abs(d_final) > 1e-6 * scale)
     raise InconsistentInitialError(_explain(mod, f_final, d_final, bad, bad_d, fixed))

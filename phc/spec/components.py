@@ -390,6 +390,46 @@ class EulerBernoulliBeamSpec(_Distributed):
     """Bending stiffness EI(ξ)."""
 
 
+class MovingBeamSpec(_Component):
+    """Planar Euler–Bernoulli beam in a chord frame (seed section 5.1, eqs.
+    flexbeam-kinematics … flexbeam-endpoint-outputs).
+
+    State: endpoint positions q0, qf, tangential momentum p_t, curvature κ(ξ) and transverse
+    momentum density p_b(ξ); Hamiltonian eq. flexbeam-H. Ports: `p0`, `pf` (planar
+    translational, positions q0 and qf) and `m0`, `mf` (rotational: angular velocity /
+    reaction moment). The chord length |qf − q0| = L is kept as a position invariant.
+    """
+
+    type: Literal["moving_beam"]
+    length: Expr
+    rhoA: Expr
+    """Mass per unit length ρ (constant)."""
+    EI: Expr
+    """Bending stiffness (constant)."""
+    elements: int = Field(8, ge=1, le=100_000)
+    initial_shape: Literal["straight", "free"] = "straight"
+    """`straight`: at t₀ the rod is undeformed unless initial curvatures are given, and moves
+    rigidly (no elastic velocity); `free`: phc chooses the initial elastic velocity."""
+    deflection_at: list[float] = [0.5]
+    """Fractions ξ/L where the transverse deflection w(ξ) is available as output
+    `<name>.w[i]` (reconstructed from κ with w(0) = w(L) = 0, seed Remark on the relative
+    displacement)."""
+
+
+class CrankWheelSpec(_Component):
+    """Rigid crank wheel of the seed's section 5.2 (eq. slider-crank-wheel-dirac).
+
+    State (θ, p_θ), H = p_θ²/2I. Ports `drive` (rotational: angular velocity / reaction
+    torque, position θ) and `pin` (planar: crank-pin velocity r a⊥(θ) θ̇, position
+    q_O + r a(θ)).
+    """
+
+    type: Literal["crank_wheel"]
+    radius: Expr
+    inertia: Expr
+    center: list[Expr] = [0, 0]
+
+
 class Pde1dSpec(_Component):
     """A generic 1-D port-Hamiltonian PDE (seed eq. BH1gen) with boundary ports (eq. flixBnd)::
 
@@ -434,7 +474,7 @@ ComponentSpec = Annotated[
         MassSpec, InductorSpec, SpringSpec, CapacitorSpec, DamperSpec, ResistorSpec,
         EffortSourceSpec, FlowSourceSpec, ZeroEffortSpec, ZeroFlowSpec,
         OrthogonalTransformSpec, JunctionSpec,
-        StringSpec, TimoshenkoBeamSpec, EulerBernoulliBeamSpec, Pde1dSpec,
+        StringSpec, TimoshenkoBeamSpec, EulerBernoulliBeamSpec, Pde1dSpec, MovingBeamSpec, CrankWheelSpec,
     ],
     Field(discriminator="type"),
 ]

@@ -1,0 +1,169 @@
+"""The moving-frame Euler–Bernoulli beam and the crank wheel (seed section 5).
+
+Moving beam (eqs. flexbeam-kinematics, flexbeam-H, flexbeam-dynamics,
+flexbeam-boundary-conditions, flexbeam-endpoint-outputs), with the chord frame
+``t = (q_f − q_0)/ℓ``, ``n = J t`` and ``ω = (v_nf − v_n0)/L``::
+
+    q̇_r   = Z(q_r) (p_t/m, v_b(0), v_b(L))
+    ṗ_t   = ω ∫ p_b dξ − tᵀe_0 − tᵀe_f                    (e = −F, generator convention)
+    κ̇     = ∂²(ρ⁻¹p_b)
+    ṗ_b   = −∂²(EIκ) − ρ ω p_t/m
+
+The flexible part is the Euler–Bernoulli discretization of :mod:`phc.library.beams`
+(Hermite cubics for p_b, discontinuous P1 for κ), whose natural boundary efforts are the
+normal components ``nᵀe_0``, ``nᵀe_f`` and the moment efforts: this is the seed's
+interconnection of the rigid part (eq. flexbeam-rigid-dirac) and the flexible part
+(eq. flexbeam-flexible-dirac) through the coupling space R⁴ (Prop.
+flexbeam-interconnection). The modulation terms ``ω ∫p_b`` and ``−ρωp_t/m`` (K_r, K_f,
+Prop. flexbeam-flexible-modulation) are discretized with the same functional
+``r_j = ∫ρφ_j`` on both sides, so they cancel exactly in the discrete power balance:
+``e_t·ω rᵀe_p − Σ_j e_p,j ω e_t r_j = 0``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import sympy as sp
+
+from phc.dae import T
+from phc.discretize.fem1d import DP1, H3, _GAUSS_W
+from phc.library.beams import _Coefficient, _Field, _inverse, _lower_partitioned, _mesh
+from phc.library.dirac import DiracBuilder
+
+
+def _deflection_functional(mesh, kappa_space, xi_star: float) -> np.ndarray:
+    """g with w(ξ*) = Σ g_k κ_k for w'' = κ, w(0) = w(L) = 0 (Green's function)."""
+    L = mesh.length
+    pts = mesh.quadrature_points()  # (e, g)
+    green = np.where(pts <= xi_star, pts * (xi_star - L) / L, xi_star * (pts - L) / L)
+    vals = kappa_space.values(0)  # (nl, g)
+    local = np.einsum("ag,eg,g->ea", vals, green, mesh.h * _GAUSS_W)
+    g = np.zeros(kappa_space.size)
+    np.add.at(g, kappa_space.dofs().ravel(), local.ravel())
+    return g
+
+
+def lower_moving_beam(b, ctx, name, spec, path):
+    mesh = _mesh(b, ctx, name, spec, path)
+    if mesh is None:
+        return
+    span = ctx.smap.locate(path)
+    rho = _Coefficient(b, ctx, spec.rhoA, (*path, "rhoA"))
+    ei = _Coefficient(b, ctx, spec.EI, (*path, "EI"))
+    for c, what in ((rho, "rhoA"), (ei, "EI")):
+        c.check_positive(name, what, mesh)
+        if c.varies:
+            b.error("PHC-E143", f"`{what}` of the moving beam `{name}` must be constant along the beam", ctx,
+                    (*path, what))
+            return
+    L = sp.Float(mesh.length)
+    p = _Field(b, name, "p", H3(mesh), span)
+    kappa = _Field(b, name, "kappa", DP1(mesh), span)
+    rows = _lower_partitioned(b, ctx, name, spec, path, mesh, {"p": (p, _inverse(b, ctx, rho, (*path, "rhoA")))},
+                              {"kappa": (kappa, ei)}, [("p", "kappa", 1)], [], [], order=2)
+    n_el = mesh.elements
+    dof0, dofL, slope0, slopeL = 0, 2 * n_el, 1, 2 * n_el + 1
+    # Rigid part.
+    q = [b.add_state(name, f"{pt}[{k}]", span) for pt in ("q0", "qf") for k in range(2)]
+    (q0x, dq0x), (q0y, dq0y), (qfx, dqfx), (qfy, dqfy) = q
+    pt, dpt = b.add_state(name, "p_t", span)
+    mass = rho.expr * L
+    chord = sp.Matrix([qfx - q0x, qfy - q0y])
+    ell = sp.sqrt(chord.dot(chord))
+    tv = chord / ell
+    nv = sp.Matrix([-tv[1], tv[0]])
+    e_t = pt / mass
+    v0, vL = p.e[dof0], p.e[dofL]
+    omega = (vL - v0) / L
+    v_end0 = e_t * tv + v0 * nv
+    v_endf = e_t * tv + vL * nv
+    for k, (dq, v) in enumerate(((dq0x, v_end0[0]), (dq0y, v_end0[1]), (dqfx, v_endf[0]), (dqfy, v_endf[1]))):
+        b.add_equation(dq - v, name, "kinematics", f"kinematics[{k}]", span)
+    # r_j = ∫ ρ φ_j (H3 basis): the same functional in both modulation terms.
+    space = p.space
+    local = np.einsum("ag,g->a", space.values(0), mesh.h * _GAUSS_W)
+    r = np.zeros(space.size)
+    np.add.at(r, space.dofs().ravel(), np.broadcast_to(local, (n_el, len(local))).ravel())
+    r_expr = rho.expr * sum((float(rj) * ej for rj, ej in zip(r, p.e) if rj), sp.Integer(0))
+    ports = {}
+    for pname, pos in (("p0", [q0x, q0y]), ("pf", [qfx, qfy])):
+        ports[pname] = b.add_port(name, pname, "mechanical.translational", 2, span=span, position=pos)
+    for pname in ("m0", "mf"):
+        ports[pname] = b.add_port(name, pname, "mechanical.rotational", 1, span=span)
+    e0, ef = sp.Matrix(ports["p0"].e), sp.Matrix(ports["pf"].e)
+    b.add_equation(dpt - omega * r_expr + tv.dot(e0) + tv.dot(ef), name, "dynamics", "tangential_momentum", span)
+    for j, rj in enumerate(r):
+        if rj:
+            b.add_to_row(rows["p"][j], omega * e_t * rho.expr * float(rj))
+    for k in range(2):
+        b.define(ports["p0"].f[k], v_end0[k])
+        b.define(ports["pf"].f[k], v_endf[k])
+    b.add_to_row(rows["p"][dof0], nv.dot(e0))
+    b.add_to_row(rows["p"][dofL], nv.dot(ef))
+    b.define(ports["m0"].f[0], p.e[slope0])
+    b.add_to_row(rows["p"][slope0], ports["m0"].e[0])
+    b.define(ports["mf"].f[0], p.e[slopeL])
+    b.add_to_row(rows["p"][slopeL], ports["mf"].e[0])
+    b.hamiltonian.append(pt**2 / (2 * mass))
+    b.add_invariant(chord.dot(chord) - L**2, name, "chord_length", span)
+    for i, frac in enumerate(spec.deflection_at):
+        g = _deflection_functional(mesh, kappa.space, float(frac) * mesh.length)
+        b.extra_outputs[f"{name}.w[{i}]"] = sum((float(gk) * xk for gk, xk in zip(g, kappa.x) if gk), sp.Integer(0))
+    b.extra_outputs[f"{name}.omega"] = omega
+    if spec.initial_shape == "straight":
+        # At t₀ the rod moves rigidly: the velocity field e_p = ρ⁻¹p_b is affine between the
+        # end normal velocities (values at the nodes, slopes (v_f − v_0)/L).
+        nodes = mesh.nodes
+        for i in range(1, n_el):
+            frac = float(nodes[i] / mesh.length)
+            b.initial_relations.append((f"{name}.rigid_start.value[{i}]",
+                                        {p.e[2 * i]: 1.0, v0: -(1.0 - frac), vL: -frac}))
+        for i in range(n_el + 1):
+            b.initial_relations.append((f"{name}.rigid_start.slope[{i}]",
+                                        {p.e[2 * i + 1]: 1.0, vL: -1.0 / mesh.length, v0: 1.0 / mesh.length}))
+    # Certification: flows of the four ports range over (λ_t t + λ_0 n, λ_t t + λ_f n, λ_a, λ_b).
+    d = DiracBuilder(name, "moving_beam", span)
+    lt, l0, lf, la, lb = (d.mult(x) for x in ("lt", "l0", "lf", "la", "lb"))
+    for pname in ("p0", "pf", "m0", "mf"):
+        d.port(ports[pname])
+    for k in range(2):
+        d.rel(ports["p0"].f[k] - (lt * tv[k] + l0 * nv[k]))
+        d.rel(ports["pf"].f[k] - (lt * tv[k] + lf * nv[k]))
+    d.rel(ports["m0"].f[0] - la)
+    d.rel(ports["mf"].f[0] - lb)
+    d.register(b, states=(q0x, q0y, qfx, qfy), kind="port_projection",
+               note="moving beam: rigid part ⊕ flexible part through R⁴ (seed Prop. flexbeam-interconnection)")
+
+
+def lower_crank_wheel(b, ctx, name, spec, path):
+    """Seed eq. (slider-crank-wheel-dirac): θ̇ = e_p, 0 = ṗ_θ + e_τ + r a⊥(θ)ᵀ e_c."""
+    span = ctx.smap.locate(path)
+    scope = {"t": T, **ctx.params}
+    radius = b.expr(ctx, spec.radius, (*path, "radius"), scope)
+    inertia = b.expr(ctx, spec.inertia, (*path, "inertia"), scope)
+    center = b.vector(ctx, spec.center, (*path, "center"), scope, 2, "`center`")
+    theta, dtheta = b.add_state(name, "theta", span)
+    ptheta, dptheta = b.add_state(name, "p_theta", span)
+    a = sp.Matrix([sp.cos(theta), sp.sin(theta)])
+    a_perp = sp.Matrix([-sp.sin(theta), sp.cos(theta)])
+    ep = ptheta / inertia
+    drive = b.add_port(name, "drive", "mechanical.rotational", 1, span=span, position=[theta])
+    pin = b.add_port(name, "pin", "mechanical.translational", 2, span=span,
+                     position=[center[0] + radius * a[0], center[1] + radius * a[1]])
+    b.define(drive.f[0], ep)
+    for k in range(2):
+        b.define(pin.f[k], radius * a_perp[k] * ep)
+    b.add_equation(dtheta - ep, name, "kinematics", "kinematics", span)
+    b.add_equation(dptheta + drive.e[0] + radius * a_perp.dot(sp.Matrix(pin.e)), name, "dynamics", "momentum", span)
+    b.hamiltonian.append(ptheta**2 / (2 * inertia))
+    d = DiracBuilder(name, "crank_wheel", span)
+    f_th, e_th = d.pair("theta")
+    f_p, e_p = d.pair("p_theta")
+    d.port(drive)
+    d.port(pin)
+    d.rel(f_th - e_p)
+    d.rel(drive.f[0] - e_p)
+    for k in range(2):
+        d.rel(pin.f[k] - radius * a_perp[k] * e_p)
+    d.rel(f_p + e_th + drive.e[0] + radius * a_perp.dot(sp.Matrix(pin.e)))
+    d.register(b, states=(theta,), note="seed eq. slider-crank-wheel-dirac (five-dimensional)")
