@@ -136,6 +136,7 @@ def assemble(b, ctx) -> Optional[Dae]:
         elif da is not None:
             defs[rb] = rel * da
 
+    _propagate_positions(b, connections)
     for pa, pb, span, label in connections:
         for k in range(pa.dimension):
             merge(pa.f[k], pb.f[k], 1, f"{label}.f[{k}]", span)
@@ -272,6 +273,25 @@ def assemble(b, ctx) -> Optional[Dae]:
         options={"t_start": sim.t_start, "t_end": sim.t_end, "n_out": sim.n_out, "rtol": sim.rtol,
                  "atol": sim.atol, "max_steps": sim.max_steps, "solver": sim.solver},
     )
+
+
+def _propagate_positions(b, connections) -> None:
+    """Positions through orthogonal transforms: output ports get Q·r of the input's neighbour."""
+    neighbour = {}
+    for pa, pb, _, _ in connections:
+        neighbour[pa.name], neighbour[pb.name] = pb, pa
+    for _ in range(len(b.position_maps)):  # chains of transforms
+        changed = False
+        for a_name, outputs, Q in b.position_maps:
+            nb = neighbour.get(a_name)
+            if nb is None or nb.position is None or b.ports[outputs[0][0]].position is not None:
+                continue
+            r = Q * sp.Matrix(nb.position)
+            for out_name, lo, hi in outputs:
+                b.ports[out_name].position = [r[k] for k in range(lo, hi)]
+            changed = True
+        if not changed:
+            break
 
 
 def _resolve_definitions(uf, defs, rows, b) -> dict:

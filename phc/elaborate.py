@@ -134,6 +134,7 @@ class Builder:
         self.rigid_constraints: list = []
         self.extra_outputs: dict = {}
         self.initial_relations: list = []
+        self.position_maps: list = []
 
     # -- diagnostics ----------------------------------------------------------------
     def error(self, code: str, message: str, ctx: Optional[FileContext], path: Sequence = (),

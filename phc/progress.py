@@ -24,15 +24,17 @@ class Progress:
             return
         now = time.monotonic()
         elapsed = now - self.start
-        if elapsed < self.delay or now - self._last < 0.25:
+        tty = getattr(self.stream, "isatty", lambda: False)()
+        # A terminal gets a redrawn bar; a log gets one line every 10 s.
+        if elapsed < self.delay or now - self._last < (0.25 if tty else 10.0):
             return
         self._last = now
         frac = min(1.0, max(0.0, (t - self.t0) / (self.t1 - self.t0))) if self.t1 > self.t0 else 1.0
         width = 30
         bar = "#" * int(frac * width)
         eta = elapsed / frac - elapsed if frac > 0 else float("nan")
-        self.stream.write(f"\r{self.label} [{bar:<{width}}] {100 * frac:5.1f}%  t = {t:.4g}  "
-                          f"elapsed {elapsed:.1f} s  eta {eta:.1f} s ")
+        self.stream.write(f"{chr(13) if tty else ''}{self.label} [{bar:<{width}}] {100 * frac:5.1f}%  t = {t:.4g}  "
+                          f"elapsed {elapsed:.1f} s  eta {eta:.1f} s {'' if tty else chr(10)}")
         self.stream.flush()
         self._drawn = True
 
@@ -41,6 +43,6 @@ class Progress:
         self.start = time.monotonic()
 
     def close(self) -> None:
-        if self._drawn:
+        if self._drawn and getattr(self.stream, "isatty", lambda: False)():
             self.stream.write("\n")
             self.stream.flush()

@@ -148,8 +148,9 @@ def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, coupl
         b.add_to_row(rows[a_local][dof], port.e[0])
         d.port(port)  # certification: both the trace and the boundary effort are free
         d.rel(port.f[0] - d.mult(f"trace_{pname}"))
-    d.register(b, kind="port_projection", note="discretized PDE: skew interconnection by construction; ports "
-               "certified through their traces")
+    if ports:
+        d.register(b, kind="port_projection", note="discretized PDE: skew interconnection by construction; ports "
+                   "certified through their traces")
     return rows
 
 

@@ -223,6 +223,13 @@ def lower_transform(b, ctx, name, spec, path):
     else:
         out = b.add_port(name, "b", domain, n, span=span)
         fb, eb = out.f, out.e
+    # Positions follow the flows: if the neighbour of `a` has a position r, the output
+    # ports have position Q r (assembly fills it in once connections are known).
+    offsets, start = [], 0
+    for p in (outs if spec.split else [out]):
+        offsets.append((p.name, start, start + p.dimension))
+        start += p.dimension
+    b.position_maps.append((a.name, offsets, Q))
     fa = sp.Matrix(a.f)
     ebm = sp.Matrix(eb)
     qf = Q * fa

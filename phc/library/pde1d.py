@@ -179,6 +179,15 @@ def lower_pde1d(b, ctx, name, spec, path):
             if T[k, c_idx]:
                 flow += float(T[k, c_idx]) * fld.e[_end_dof(fld.space, end, deriv)]
         b.define(port.f[0], flow)
+    from phc.library.dirac import DiracBuilder
+
+    d = DiracBuilder(name, "pde1d", span)
+    for port in ports:
+        d.port(port)
+    lam = {c: d.mult(f"trace[{c}]") for c in cols}
+    for k, port in enumerate(ports):
+        d.rel(port.f[0] - sum((float(T[k, i]) * lam[c] for i, c in enumerate(cols) if T[k, i]), sp.Integer(0)))
+    d.register(b, kind="port_projection", note="discretized PDE: ports certified through im W_f on the traces")
     # e_nat = Tᵀ e_∂ enters the row of each natural trace DOF.
     for c_idx, c in enumerate(cols):
         var, end, deriv = nat[c]

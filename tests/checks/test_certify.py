@@ -34,8 +34,23 @@ from phc.elaborate import elaborate
 
 REPO = Path(__file__).resolve().parents[2]
 MODELS = REPO / "models"
-MODEL_FILES = sorted(MODELS.glob("*.yaml"))
 SLIDER_CRANK = MODELS / "rigid_slider_crank.yaml"
+
+KNOWN_BROKEN: dict[str, str] = {}
+"""Shipped models phc cannot certify today (strict xfail; remove the entry once fixed)."""
+
+
+def _model_params() -> list:
+    out = []
+    for path in sorted(MODELS.glob("*.yaml")):
+        reason = KNOWN_BROKEN.get(path.stem)
+        marks = [pytest.mark.xfail(strict=True, reason=reason)] if reason else []
+        out.append(pytest.param(path, id=path.stem, marks=marks))
+    return out
+
+
+MODEL_FILES = sorted(MODELS.glob("*.yaml"))
+MODEL_PARAMS = _model_params()
 
 
 def _certificate(path):
@@ -55,7 +70,7 @@ def test_there_are_shipped_models():
     assert len(MODEL_FILES) >= 4
 
 
-@pytest.mark.parametrize("path", MODEL_FILES, ids=[p.stem for p in MODEL_FILES])
+@pytest.mark.parametrize("path", MODEL_PARAMS)
 def test_shipped_model_is_certified(path):
     dae, cert = _certificate(path)
     assert cert.certified, cert.render_text()
@@ -104,7 +119,7 @@ def test_component_dimensions(name):
     assert all(c.dim_d == c.dim_z for c in cert.components)
 
 
-@pytest.mark.parametrize("path", MODEL_FILES, ids=[p.stem for p in MODEL_FILES])
+@pytest.mark.parametrize("path", MODEL_PARAMS)
 def test_rigid_dim_z_formula_from_the_yaml(path):
     """dim Z = n_q + 2 n_v + Σ port dimensions for every rigid component, read from the file."""
     spec = yaml.safe_load(path.read_text())
@@ -162,7 +177,7 @@ def test_phc_check_json_for_rigid_slider_crank(capsys):
     assert not any(d["severity"] == "error" for d in report["diagnostics"])
 
 
-@pytest.mark.parametrize("path", MODEL_FILES, ids=[p.stem for p in MODEL_FILES])
+@pytest.mark.parametrize("path", MODEL_PARAMS)
 def test_phc_check_text_says_certified(path, capsys):
     assert main(["check", str(path)]) == 0
     out = capsys.readouterr().out
@@ -404,3 +419,36 @@ def test_slider_crank_singular_configuration_is_not_certified(tmp_path):
     assert failing[0].failing_samples[0]["rod.phi"] == pytest.approx(-math.pi / 2)
     e421 = [d for d in cert.diagnostics if d.code == "PHC-E421"]
     assert len(e421) == 1 and "at 1 of 3 sampled states" in e421[0].message
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "the symbolic failure set of Γ is wrong for port maps with several state-dependent "
+    "entries: _symbolic_condition picks the maximal minors' columns greedily at 3 random states, "
+    "which gives the same column set each time, so the 'gcd of a few minors' is one minor and "
+    "its zero set is reported; for B(q) = (x, y)ᵀ against a fixed support it reports "
+    "'loses rank where bob.x = 0' although Γ has full rank at x = 0, y = 1 (phc certifies that "
+    "very state); the true failure set is x = y = 0, which no single equation f = 0 of one gcd "
+    "factor can express"))
+def test_symbolic_failure_condition_is_not_claimed_where_gamma_has_full_rank(tmp_path):
+    path = tmp_path / "model.yaml"
+    path.write_text(
+        "format_version: 1\n"
+        "components:\n"
+        "  bob:\n"
+        "    type: rigid\n"
+        "    q: [x, y]\n"
+        "    M: [[1, 0], [0, 1]]\n"
+        "    ports:\n"
+        "      rope:\n"
+        "        B: [[x], [y]]\n"
+        "  anchor: {type: zero_flow}\n"
+        "connections:\n"
+        "  - [bob.rope, anchor.port]\n"
+        "simulation:\n"
+        "  initial: {bob.x: 0.0, bob.y: 1.0}\n")
+    _, cert = _certificate(path)
+    (conn,) = cert.connections
+    assert conn.surjective and conn.failing_samples == []   # full rank at x = 0, y = 1 ...
+    assert cert.certified
+    # ... so a failure set, if reported, must involve y as well (it is x = y = 0).
+    assert conn.condition is None or "bob.y" in conn.condition

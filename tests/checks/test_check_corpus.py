@@ -194,7 +194,7 @@ def test_check_output_does_not_depend_on_hash_seed(tmp_path):
     (tmp_path / "model.yaml").write_text(WHEEL_ON_SUPPORT)
     env = dict(os.environ)
     procs = []
-    for seed in ("0", "1", "2", "3"):
+    for seed in ("0", "1"):   # two seeds that give different orders with phc as of this test
         env["PYTHONHASHSEED"] = seed
         procs.append(subprocess.Popen([sys.executable, "-m", "phc", "check", "model.yaml"], cwd=tmp_path,
                                       env=dict(env), stdout=subprocess.PIPE, stderr=subprocess.PIPE,

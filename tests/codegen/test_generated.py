@@ -87,7 +87,7 @@ STANDALONE_SCRIPT = textwrap.dedent(
     """
     import importlib.util, json, sys
 
-    BLOCKED = {"phc", "sympy", "scipy", "networkx", "pydantic", "yaml", "sksundae"}
+    BLOCKED = {"phc", "sympy", "networkx", "pydantic", "yaml", "sksundae"}  # numpy and scipy are allowed
 
     class Blocker:
         def find_spec(self, name, path=None, target=None):
