@@ -184,10 +184,11 @@ def _samples(dae: Dae, n_random: int, seed: int) -> list[dict]:
     top = dae.topology
     states = {s for rel in top.dirac for s in rel.states}
     rng = np.random.default_rng(seed)
+    states = sorted(states, key=str)  # deterministic order (reports list states in it)
     first = {s: sp.Float(float(top.initial.get(s, 0.3))) for s in states}
     samples = [first]
     for _ in range(n_random):
-        samples.append({s: sp.Float(float(x)) for s, x in zip(sorted(states, key=str), rng.uniform(-1, 1, len(states)))})
+        samples.append({s: sp.Float(float(x)) for s, x in zip(states, rng.uniform(-1, 1, len(states)))})
     return samples
 
 
@@ -221,7 +222,8 @@ def certify(dae: Dae, n_random: int = 2, seed: int = 0) -> Certificate:
             D = comp.structure(local)
             if rel.kind != "port_projection":
                 f, e = D[:comp.n], D[comp.n:]
-                iso = float(np.abs(f.T @ e + e.T @ f).max(initial=0.0))
+                S = f.T @ e + e.T @ f
+                iso = float(np.abs(np.linalg.eigvalsh(S)).max(initial=0.0)) if S.size else 0.0
                 cert.dim_d = D.shape[1] if cert.dim_d is None else min(cert.dim_d, D.shape[1])
                 cert.isotropy = iso if cert.isotropy is None else max(cert.isotropy, iso)
             sel = [i for pname in order for i in rows[pname][0] + rows[pname][1]]
@@ -370,11 +372,11 @@ def _symbolic_condition(rel_a, rel_b, port_a, port_b, defaults) -> Optional[str]
         states = sorted(M.free_symbols, key=str)
         rng = np.random.default_rng(7)
         minors = []
-        for _ in range(3):
+        for _ in range(4):
             point = {s: sp.Float(float(x)) for s, x in zip(states, rng.uniform(-1, 1, len(states)))}
             Mn = np.array(M.xreplace(point).evalf(), dtype=float)
             cols, rank = [], 0
-            for j in range(Mn.shape[1]):
+            for j in rng.permutation(Mn.shape[1]).tolist():
                 if np.linalg.matrix_rank(Mn[:, cols + [j]], tol=1e-10) > rank:
                     cols.append(j)
                     rank += 1
@@ -385,11 +387,27 @@ def _symbolic_condition(rel_a, rel_b, port_a, port_b, defaults) -> Optional[str]
         for m in minors[1:]:
             g = sp.gcd(g, m)
         factors = [f for f, _ in sp.factor_list(g)[1] if f.free_symbols]
-        if not factors:
-            return None
+        if not factors or not all(_rank_drops_on(M, f, states, rng) for f in factors):
+            return None  # the candidate set did not check out numerically: report nothing
         return " or ".join(f"{sp.sstr(f)} = 0" for f in factors)
     except (ValueError, TypeError, NotImplementedError, ZeroDivisionError, sp.PolynomialError):
         return None
+
+
+def _rank_drops_on(M, factor, states, rng) -> bool:
+    """Check numerically that M loses rank at random points of {factor = 0}."""
+    sym = sorted(factor.free_symbols, key=str)[0]
+    for _ in range(3):
+        others = {s: sp.Float(float(x)) for s, x in zip(states, rng.uniform(-1, 1, len(states))) if s != sym}
+        roots = [r for r in sp.solve(factor.xreplace(others), sym) if r.is_real]
+        if not roots:
+            return False
+        point = {**others, sym: roots[0]}
+        Mn = np.array(M.xreplace(point).evalf(), dtype=float)
+        s = np.linalg.svd(Mn, compute_uv=False)
+        if _rank(s) >= M.rows:
+            return False
+    return True
 
 
 def _rigid_ranks(top, point, diags) -> None:

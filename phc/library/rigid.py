@@ -105,7 +105,10 @@ def lower_rigid(b, ctx, name, spec, path):
         if position is not None and not b.diags.has_errors:
             _check_port_position(b, ctx, name, pname, ppath, sp.Matrix(position), qv, Z, B)
 
-    _register_dirac(b, name, span, spec, q, p, Z, A, G, [b.ports[f"{name}.{pn}"] for pn in spec.ports],
+    # Certified with the velocity form of the position constraints, c'(q)Z v = 0, next to
+    # A(q) v = 0: what the ports can do is restricted by both.
+    A_cert = sp.Matrix.vstack(cq * Z, A) if len(c) else A
+    _register_dirac(b, name, span, spec, q, p, Z, A_cert, G, [b.ports[f"{name}.{pn}"] for pn in spec.ports],
                     [b.matrix(ctx, ps.B, (*path, "ports", pn, "B"), scope, (nv, ps.dimension), "`B`")
                      for pn, ps in spec.ports.items()])
     b.rigid_constraints.append((name, ctx, path, q, cq, A, [f"constraints[{i}]" for i in range(len(c))],

@@ -347,11 +347,6 @@ def test_non_skew_J_is_rejected(component):
 # -- singular configurations and known bugs (strict xfail: they fail once phc is fixed) ---
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "isotropy error depends on the orthonormal basis of D that the SVD returns: certify takes "
-    "max|FᵀE + EᵀF| entrywise on that basis, which for this 2-dim D is 0.25 instead of the "
-    "basis-independent maximum over unit elements, ‖FᵀE + EᵀF‖₂ = 1/√10 ≈ 0.316; the message "
-    "'|⟨f₁,e₂⟩ + ⟨f₂,e₁⟩| up to 0.25' understates it and may change with the LAPACK build"))
 def test_isotropy_error_is_the_maximum_over_unit_elements(tmp_path):
     path = tmp_path / "model.yaml"
     path.write_text(
@@ -421,14 +416,6 @@ def test_slider_crank_singular_configuration_is_not_certified(tmp_path):
     assert len(e421) == 1 and "at 1 of 3 sampled states" in e421[0].message
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "the symbolic failure set of Γ is wrong for port maps with several state-dependent "
-    "entries: _symbolic_condition picks the maximal minors' columns greedily at 3 random states, "
-    "which gives the same column set each time, so the 'gcd of a few minors' is one minor and "
-    "its zero set is reported; for B(q) = (x, y)ᵀ against a fixed support it reports "
-    "'loses rank where bob.x = 0' although Γ has full rank at x = 0, y = 1 (phc certifies that "
-    "very state); the true failure set is x = y = 0, which no single equation f = 0 of one gcd "
-    "factor can express"))
 def test_symbolic_failure_condition_is_not_claimed_where_gamma_has_full_rank(tmp_path):
     path = tmp_path / "model.yaml"
     path.write_text(

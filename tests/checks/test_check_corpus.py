@@ -185,11 +185,6 @@ simulation:
 """
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "certify._samples builds the initial sample by iterating a set of sympy symbols "
-    "(`{s: ... for s in states}`), so the `e.g. wheel.th = 1.57, wheel.p_v_th = 0.3` part of "
-    "PHC-E421 (and failing_samples in the JSON report) comes out in an order that changes with "
-    "PYTHONHASHSEED; it should follow a fixed order (the components' state order)"))
 def test_check_output_does_not_depend_on_hash_seed(tmp_path):
     (tmp_path / "model.yaml").write_text(WHEEL_ON_SUPPORT)
     env = dict(os.environ)
