@@ -118,6 +118,8 @@ def lower_moving_beam(b, ctx, name, spec, path):
             frac = float(nodes[i] / mesh.length)
             b.initial_relations.append((f"{name}.rigid_start.value[{i}]",
                                         {p.e[2 * i]: 1.0, v0: -(1.0 - frac), vL: -frac}))
+        for k, xk in enumerate(kappa.x):  # undeformed
+            b.initial_relations.append((f"{name}.straight_start[{k}]", {xk: 1.0}))
         for i in range(n_el + 1):
             b.initial_relations.append((f"{name}.rigid_start.slope[{i}]",
                                         {p.e[2 * i + 1]: 1.0, vL: -1.0 / mesh.length, v0: 1.0 / mesh.length}))

@@ -15,6 +15,7 @@ from __future__ import annotations
 from typing import Optional
 
 import numpy as np
+import scipy.linalg as sla
 
 THRESHOLD = 1e-11
 """σ_min/σ_max of the equilibrated iteration matrix below which a run stops."""
@@ -40,8 +41,12 @@ class SingularityMonitor:
             J /= np.where(r > 0, r, 1.0)[:, None]
             c = np.abs(J).max(axis=0)
             J /= np.where(c > 0, c, 1.0)[None, :]
-        u, s, _ = np.linalg.svd(J)
-        return (float(s[-1] / s[0]) if s[0] > 0 else 0.0), u[:, -1]
+        s = sla.svdvals(J)  # singular values only: the vectors are computed when needed
+        ratio = float(s[-1] / s[0]) if s[0] > 0 else 0.0
+        if ratio >= self.threshold:
+            return ratio, None
+        u, _, _ = np.linalg.svd(J)
+        return ratio, u[:, -1]
 
     def check(self, t, y, yp, h) -> Optional[str]:
         """A message if the iteration matrix is nearly singular, else None."""
