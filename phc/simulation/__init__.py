@@ -109,7 +109,7 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
     if hasattr(progress, "restart"):
         progress.restart()
     out = BACKENDS[solver](mod, p, t_out, init.y0, init.yp0, rtol=rtol, atol=atol, max_steps=max_steps,
-                           progress=progress)
+                           progress=progress, max_order=opts.get("max_order", 5))
     cpu = time.process_time() - cpu0
     return _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol)
 

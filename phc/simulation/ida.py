@@ -26,6 +26,9 @@ ALGEBRAIC_ATOL = 1e8
 """Absolute tolerance on algebraic variables: effectively removes them from the error test."""
 
 DENSE_LIMIT = 80
+
+MAX_ORDER = 5
+"""Maximum BDF order (5 is IDA's default; 2 is A-stable for undamped stiff oscillations)."""
 """Systems up to this size use the dense linear solver; larger ones the sparse one."""
 
 _STATUS_HINTS = {
@@ -46,7 +49,7 @@ def _import_ida():
     return IDA
 
 
-def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=None):
+def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=None, max_order=None):
     """Integrate from ``t_out[0]`` and return a dict of arrays and statistics."""
     IDA = _import_ida()
     n = mod.N
@@ -70,7 +73,7 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
 
     atol_vec = np.where(diff, atol, ALGEBRAIC_ATOL)
     options = dict(rtol=rtol, atol=atol_vec, jacfn=jacfn, algebraic_idx=[int(j) for j in np.flatnonzero(~diff)],
-                   max_num_steps=max(10, max_steps))
+                   max_num_steps=max(10, max_steps), max_order=int(max_order or MAX_ORDER))
     if sparse:
         pattern = sps.csc_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
         options.update(linsolver="sparse", sparsity=pattern)

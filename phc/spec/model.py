@@ -76,6 +76,9 @@ class SimulationSpec(SpecModel):
     max_steps: int = Field(1_000_000, ge=1)
     """Maximum number of solver steps over the whole run."""
     solver: Literal["ida"] = "ida"
+    max_order: int = Field(5, ge=1, le=5)
+    """Maximum BDF order of IDA. 2 (A-stable) suits undamped stiff oscillations such as
+    fine beam meshes: orders 3–5 must resolve the highest modes to stay stable."""
     initial: dict[str, Union[Expr, InitialSpec]] = {}
     """Initial values by variable name (`component.state`). Unlisted states start as a
     guess of 0 and are solved for by consistent initialization."""
