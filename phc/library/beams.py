@@ -58,7 +58,9 @@ class _Coefficient:
         if not self.varies:
             return None
         numeric = self.expr.xreplace(self.defaults)
-        fn = sp.lambdify(XI, numeric, modules="numpy")  # a phc-built sympy tree, not user text
+        # safe: lambdify prints a sympy tree built by the whitelisting parser, whose only
+        # symbol left is `xi` (parameters substituted), never user text.
+        fn = sp.lambdify(XI, numeric, modules="numpy")
         return lambda xi: np.broadcast_to(np.asarray(fn(xi), dtype=float), xi.shape)
 
     def check_positive(self, name, what, mesh):
@@ -164,68 +166,74 @@ def _end_dof(space, end: str, derivative: int) -> int:
     return 0 if end == "a" else space.size - 1
 
 
-def lower_string(b, ctx, name, spec, path):
+def prepare(b, ctx, name, spec, path, fields: tuple[str, ...]):
+    """Mesh, source span and the checked positive coefficients ``fields`` of a component."""
     mesh = _mesh(b, ctx, name, spec, path)
     if mesh is None:
+        return None
+    coeffs = {k: _Coefficient(b, ctx, getattr(spec, k), (*path, k)) for k in fields}
+    for k, c in coeffs.items():
+        c.check_positive(name, k, mesh)
+    return mesh, ctx.smap.locate(path), coeffs
+
+
+TRANSLATIONAL, ROTATIONAL = "mechanical.translational", "mechanical.rotational"
+
+
+def lower_string(b, ctx, name, spec, path):
+    prep = prepare(b, ctx, name, spec, path, ("rho", "T"))
+    if prep is None:
         return
-    span = ctx.smap.locate(path)
-    rho = _Coefficient(b, ctx, spec.rho, (*path, "rho"))
-    tension = _Coefficient(b, ctx, spec.T, (*path, "T"))
-    rho.check_positive(name, "rho", mesh)
-    tension.check_positive(name, "T", mesh)
-    inv_rho = _inverse(b, ctx, rho, (*path, "rho"))
+    mesh, span, c = prep
     p = _Field(b, name, "p", P1(mesh), span)
     eps = _Field(b, name, "eps", P0(mesh), span)
-    _lower_partitioned(b, ctx, name, spec, path, mesh, {"p": (p, inv_rho)}, {"eps": (eps, tension)},
-                       [("p", "eps", 1)], [], [("a", "p", "a", 0, "mechanical.translational"),
-                                               ("b", "p", "b", 0, "mechanical.translational")], order=1)
+    _lower_partitioned(b, ctx, name, spec, path, mesh, {"p": (p, _inverse(c["rho"]))}, {"eps": (eps, c["T"])},
+                       [("p", "eps", 1)], [], [("a", "p", "a", 0, TRANSLATIONAL), ("b", "p", "b", 0, TRANSLATIONAL)],
+                       order=1)
 
 
 def lower_timoshenko(b, ctx, name, spec, path):
-    mesh = _mesh(b, ctx, name, spec, path)
-    if mesh is None:
+    prep = prepare(b, ctx, name, spec, path, ("rho", "I_rho", "EI", "K"))
+    if prep is None:
         return
-    span = ctx.smap.locate(path)
-    coeffs = {k: _Coefficient(b, ctx, getattr(spec, k), (*path, k)) for k in ("rho", "I_rho", "EI", "K")}
-    for k, c in coeffs.items():
-        c.check_positive(name, k, mesh)
+    mesh, span, c = prep
     p = _Field(b, name, "p", P1(mesh), span)
     m = _Field(b, name, "M", P1(mesh), span)
     gamma = _Field(b, name, "gamma", P0(mesh), span)
     theta = _Field(b, name, "theta", P0(mesh), span)
     _lower_partitioned(
         b, ctx, name, spec, path, mesh,
-        {"p": (p, _inverse(b, ctx, coeffs["rho"], (*path, "rho"))),
-         "M": (m, _inverse(b, ctx, coeffs["I_rho"], (*path, "I_rho")))},
-        {"gamma": (gamma, coeffs["K"]), "theta": (theta, coeffs["EI"])},
+        {"p": (p, _inverse(c["rho"])), "M": (m, _inverse(c["I_rho"]))},
+        {"gamma": (gamma, c["K"]), "theta": (theta, c["EI"])},
         [("p", "gamma", 1), ("M", "theta", 1)],
         [("M", "gamma", 1.0), ("gamma", "M", -1.0)],  # P0 of Example ex:expde (b)
-        [("a", "p", "a", 0, "mechanical.translational"), ("b", "p", "b", 0, "mechanical.translational"),
-         ("a_rot", "M", "a", 0, "mechanical.rotational"), ("b_rot", "M", "b", 0, "mechanical.rotational")],
+        [("a", "p", "a", 0, TRANSLATIONAL), ("b", "p", "b", 0, TRANSLATIONAL),
+         ("a_rot", "M", "a", 0, ROTATIONAL), ("b_rot", "M", "b", 0, ROTATIONAL)],
         order=1)
 
 
-def lower_euler_bernoulli(b, ctx, name, spec, path):
-    mesh = _mesh(b, ctx, name, spec, path)
-    if mesh is None:
-        return
-    span = ctx.smap.locate(path)
-    rho = _Coefficient(b, ctx, spec.rhoA, (*path, "rhoA"))
-    ei = _Coefficient(b, ctx, spec.EI, (*path, "EI"))
-    rho.check_positive(name, "rhoA", mesh)
-    ei.check_positive(name, "EI", mesh)
+def euler_bernoulli_fields(b, name, mesh, span, c):
+    """Hermite momentum and DP1 curvature fields with their energy coefficients."""
     p = _Field(b, name, "p", H3(mesh), span)
     kappa = _Field(b, name, "kappa", DP1(mesh), span)
+    return p, kappa, {"p": (p, _inverse(c["rhoA"]))}, {"kappa": (kappa, c["EI"])}
+
+
+def lower_euler_bernoulli(b, ctx, name, spec, path):
+    prep = prepare(b, ctx, name, spec, path, ("rhoA", "EI"))
+    if prep is None:
+        return
+    mesh, span, c = prep
+    _, _, fields_a, fields_b = euler_bernoulli_fields(b, name, mesh, span, c)
     # P_2 = [[0, 1], [-1, 0]] on (κ, p): ṗ = −∂²e_κ, κ̇ = ∂²e_p.
     _lower_partitioned(
-        b, ctx, name, spec, path, mesh, {"p": (p, _inverse(b, ctx, rho, (*path, "rhoA")))},
-        {"kappa": (kappa, ei)}, [("p", "kappa", 1)], [],
-        [("a", "p", "a", 0, "mechanical.translational"), ("b", "p", "b", 0, "mechanical.translational"),
-         ("a_rot", "p", "a", 1, "mechanical.rotational"), ("b_rot", "p", "b", 1, "mechanical.rotational")],
+        b, ctx, name, spec, path, mesh, fields_a, fields_b, [("p", "kappa", 1)], [],
+        [("a", "p", "a", 0, TRANSLATIONAL), ("b", "p", "b", 0, TRANSLATIONAL),
+         ("a_rot", "p", "a", 1, ROTATIONAL), ("b_rot", "p", "b", 1, ROTATIONAL)],
         order=2)
 
 
-def _inverse(b, ctx, coeff, path):
+def _inverse(coeff):
     """The coefficient 1/c (for momentum densities: e_p = p/ρ)."""
     inv = _Coefficient.__new__(_Coefficient)
     inv.__dict__.update(coeff.__dict__)

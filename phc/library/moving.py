@@ -26,8 +26,8 @@ import numpy as np
 import sympy as sp
 
 from phc.dae import T
-from phc.discretize.fem1d import DP1, H3, _GAUSS_W
-from phc.library.beams import _Coefficient, _Field, _inverse, _lower_partitioned, _mesh
+from phc.discretize.fem1d import _GAUSS_W
+from phc.library.beams import _lower_partitioned, euler_bernoulli_fields, prepare
 from phc.library.dirac import DiracBuilder
 
 
@@ -44,23 +44,20 @@ def _deflection_functional(mesh, kappa_space, xi_star: float) -> np.ndarray:
 
 
 def lower_moving_beam(b, ctx, name, spec, path):
-    mesh = _mesh(b, ctx, name, spec, path)
-    if mesh is None:
+    prep = prepare(b, ctx, name, spec, path, ("rhoA", "EI"))
+    if prep is None:
         return
-    span = ctx.smap.locate(path)
-    rho = _Coefficient(b, ctx, spec.rhoA, (*path, "rhoA"))
-    ei = _Coefficient(b, ctx, spec.EI, (*path, "EI"))
-    for c, what in ((rho, "rhoA"), (ei, "EI")):
-        c.check_positive(name, what, mesh)
+    mesh, span, coeffs = prep
+    rho = coeffs["rhoA"]
+    for what, c in coeffs.items():
         if c.varies:
             b.error("PHC-E143", f"`{what}` of the moving beam `{name}` must be constant along the beam", ctx,
                     (*path, what))
             return
     L = sp.Float(mesh.length)
-    p = _Field(b, name, "p", H3(mesh), span)
-    kappa = _Field(b, name, "kappa", DP1(mesh), span)
-    rows = _lower_partitioned(b, ctx, name, spec, path, mesh, {"p": (p, _inverse(b, ctx, rho, (*path, "rhoA")))},
-                              {"kappa": (kappa, ei)}, [("p", "kappa", 1)], [], [], order=2)
+    p, kappa, fields_a, fields_b = euler_bernoulli_fields(b, name, mesh, span, coeffs)
+    rows = _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, [("p", "kappa", 1)], [], [],
+                              order=2)
     n_el = mesh.elements
     dof0, dofL, slope0, slopeL = 0, 2 * n_el, 1, 2 * n_el + 1
     # Rigid part.
