@@ -225,9 +225,11 @@ def assemble(b, ctx) -> Optional[Dae]:
         linear_blocks.append(LinearBlock(block.label, block.component, tuple(new_index[r] for r in block.rows),
                                          block.terms, block.span))
 
-    hamiltonian = sum((final(h) for h in b.hamiltonian), sp.Integer(0))
-    dissipation = sum((final(d) for d in b.dissipation), sp.Integer(0))
-    port_power = final(port_power + sum(b.source_power, sp.Integer(0)))
+    # sp.Add(*terms) is linear in the number of terms; Python's sum() re-canonicalizes
+    # the growing Add at every step (quadratic, visible at a few hundred components).
+    hamiltonian = sp.Add(*[final(h) for h in b.hamiltonian])
+    dissipation = sp.Add(*[final(d) for d in b.dissipation])
+    port_power = final(sp.Add(port_power, *b.source_power))
     energy = sp.Symbol("energy.supplied", real=True)
     denergy = sp.Symbol("der(energy.supplied)", real=True)
     variables.append(Variable(energy.name, energy, True, "energy", "energy", denergy, None))

@@ -262,10 +262,11 @@ def _couplings(top, projections, samples, diags) -> list[ConnectionCertificate]:
     owner = component_of(top)
     order = traversal_order(top)
     spans = {label: span for _, _, label, span in top.connections}
-    certs = [ConnectionCertificate(label, a, b, 2 * next(p.dimension for p in top.ports if p.name == a),
-                                   span=spans.get(label)) for a, b, label in order]
+    dims = {p.name: p.dimension for p in top.ports}
+    certs = [ConnectionCertificate(label, a, b, 2 * dims[a], span=spans.get(label)) for a, b, label in order]
     for k, point in enumerate(samples):
         cluster_of = {name: name for name in projections[k]}
+        members = {name: [name] for name in projections[k]}
         clusters = {name: projections[k][name] for name in projections[k]}
         for cert, (a, b, label) in zip(certs, order):
             ca, cb = cluster_of.get(owner[a]), cluster_of.get(owner[b])
@@ -304,11 +305,11 @@ def _couplings(top, projections, samples, diags) -> list[ConnectionCertificate]:
                 if p not in (a, b):
                     new_rows[p] = ([pos[i] for i in f], [pos[i] for i in e])
             merged = (_orth(W[keep]) if keep else np.zeros((0, 0)), new_rows)
-            for name, c in list(cluster_of.items()):
-                if c in (ca, cb):
-                    cluster_of[name] = ca
             clusters[ca] = merged
-            if cb != ca:
+            if cb != ca:  # relabel only the smaller side's members: linear overall
+                for name in members[cb]:
+                    cluster_of[name] = ca
+                members[ca].extend(members.pop(cb))
                 del clusters[cb]
     comps = {rel.component: rel for rel in top.dirac}
     for cert in certs:
