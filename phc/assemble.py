@@ -256,6 +256,7 @@ def assemble(b, ctx) -> Optional[Dae]:
     return Dae(
         topology=topology,
         initial_relations=tuple(b.initial_relations),
+        compile_time_parameters=tuple(sorted(_base_parameters(b, b.compile_time_parameters))),
         name=ctx.spec.name or ctx.file.rsplit("/", 1)[-1].rsplit(".", 1)[0],
         variables=tuple(variables),
         equations=tuple(equations),
@@ -276,6 +277,19 @@ def assemble(b, ctx) -> Optional[Dae]:
                  "atol": sim.atol, "max_steps": sim.max_steps, "solver": sim.solver,
                  "max_order": sim.max_order},
     )
+
+
+def _base_parameters(b, symbols) -> set[str]:
+    """Names of the base parameters the given parameter symbols depend on."""
+    by_symbol = {p.symbol: p for p in b.parameters.values()}
+    out, todo = set(), [s for s in symbols if s in by_symbol]
+    while todo:
+        par = by_symbol[todo.pop()]
+        if par.expr is None:
+            out.add(par.name)
+        else:
+            todo.extend(s for s in par.expr.free_symbols if s in by_symbol)
+    return out
 
 
 def _propagate_positions(b, connections) -> None:

@@ -186,6 +186,9 @@ class Dae:
     quadratic_energy: tuple[QuadraticForm, ...] = ()
     quadratic_dissipation: tuple[QuadraticForm, ...] = ()
     topology: Optional[Topology] = None
+    compile_time_parameters: tuple[str, ...] = ()
+    """Parameters whose values were used at compile time (mesh length, ξ-dependent
+    coefficients): overriding them at run time is refused."""
     initial_relations: tuple[tuple[str, dict], ...] = ()
     """Linear relations Σ c_v·v = 0 imposed only at t₀ (e.g. a beam starting straight and
     moving rigidly), as (label, {variable symbol: coefficient})."""

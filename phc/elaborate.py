@@ -135,6 +135,7 @@ class Builder:
         self.extra_outputs: dict = {}
         self.initial_relations: list = []
         self.position_maps: list = []
+        self.compile_time_parameters: set = set()
 
     # -- diagnostics ----------------------------------------------------------------
     def error(self, code: str, message: str, ctx: Optional[FileContext], path: Sequence = (),

@@ -79,6 +79,7 @@ class ResidualIR:
     initial_cols: tuple = ()
     initial_data: tuple = ()
     initial_labels: tuple = ()
+    compile_time_parameters: tuple = ()
 
 
 def _ordered_parameters(dae: Dae):
@@ -189,4 +190,5 @@ def lower_residual(dae: Dae) -> ResidualIR:
         initial_cols=tuple(col_of_y[s] for _, rel in dae.initial_relations for s in rel),
         initial_data=tuple(float(c) for _, rel in dae.initial_relations for c in rel.values()),
         initial_labels=tuple(label for label, _ in dae.initial_relations),
+        compile_time_parameters=dae.compile_time_parameters,
     )

@@ -145,6 +145,8 @@ class ModulePrinter:
             f"PARAMETERS = {_tuple(ir.parameters)}",
             f"BASE_PARAMETERS = {tuple(ir.base_parameters)!r}",
             f"PARAMETER_DEFAULTS = {_array(ir.parameter_defaults, 'float')}",
+            "# Parameters fixed at compile time (mesh length, ξ-dependent coefficients): recompile to change.",
+            f"COMPILE_TIME_PARAMETERS = {_tuple(ir.compile_time_parameters)}",
             f"INVARIANTS = {_tuple(ir.invariant_labels)}",
             f"VELOCITY_INVARIANTS = {_tuple(ir.velocity_invariant_labels)}",
             "# Linear relations C y = 0 that hold at the initial time only (INITIAL[i] is row i).",

@@ -177,5 +177,8 @@ def assemble(rows: Space, r: int, cols: Space, c: int,
     ii = np.broadcast_to(di[:, :, None], local.shape).ravel()
     jj = np.broadcast_to(dj[:, None, :], local.shape).ravel()
     matrix = sps.coo_matrix((local.ravel(), (ii, jj)), shape=(rows.size, cols.size)).tocsr()
+    # Integrals that vanish exactly come out as quadrature round-off: drop them.
+    if matrix.nnz:
+        matrix.data[np.abs(matrix.data) <= 1e-13 * np.abs(matrix.data).max()] = 0.0
     matrix.eliminate_zeros()
     return matrix

@@ -57,26 +57,36 @@ class _Coefficient:
     def function(self):
         if not self.varies:
             return None
+        # evaluated at the default parameters: those parameters are fixed at compile time
+        self.b.compile_time_parameters |= self.expr.free_symbols - {XI}
         numeric = self.expr.xreplace(self.defaults)
         # safe: lambdify prints a sympy tree built by the whitelisting parser, whose only
         # symbol left is `xi` (parameters substituted), never user text.
         fn = sp.lambdify(XI, numeric, modules="numpy")
         return lambda xi: np.broadcast_to(np.asarray(fn(xi), dtype=float), xi.shape)
 
-    def check_positive(self, name, what, mesh):
-        xi = mesh.quadrature_points().ravel()
+    def check_positive(self, name, what, mesh, strict: bool = True):
+        # Gauss points and the nodes (which include both ends of [0, L]).
+        xi = np.concatenate([mesh.quadrature_points().ravel(), mesh.nodes])
         try:
             values = (self.function()(xi) if self.varies
                       else np.full_like(xi, float(self.expr.xreplace(self.defaults))))
         except (TypeError, ValueError):
             return
-        if not np.all(values > 0):
+        if strict and not np.all(values > 0):
             self.b.error("PHC-E141", f"`{what}` of `{name}` must be positive on [0, L] (min {values.min():.3g}); "
                          "the energy density must be positive definite (H ≻ 0 in eq. BH1gen)", self.ctx, self.path)
+        elif not strict and not np.all(values >= 0):
+            self.b.error("PHC-E141", f"`{what}` of `{name}` must be non-negative on [0, L] (min {values.min():.3g}); "
+                         "a negative damping generates energy (D + Dᵀ ⪰ 0 in eq. BH1gen)", self.ctx, self.path)
 
 
 def _mesh(b, ctx, name, spec, path) -> Mesh | None:
+    n_errors = len(b.diags.errors)
     ex = b.expr(ctx, spec.length, (*path, "length"), dict(ctx.params))
+    if len(b.diags.errors) > n_errors:
+        return None  # already reported
+    b.compile_time_parameters |= ex.free_symbols  # the mesh is fixed at compile time
     try:
         length = float(ex.xreplace(b.default_values()))
     except TypeError:
@@ -126,6 +136,7 @@ def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, coupl
         terms[row_local].append(LinearTerm(sp.Float(-value), assemble(fr.space, 0, fc.space, 0), tuple(fc.e)))
     if getattr(spec, "damping", None) is not None:
         coeff = _Coefficient(b, ctx, spec.damping, (*path, "damping"))
+        coeff.check_positive(name, "damping", mesh, strict=False)
         a_local = next(iter(fields_a))
         fld = fields_a[a_local][0]
         Md = assemble(fld.space, 0, fld.space, 0, coeff.function())

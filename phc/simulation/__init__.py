@@ -26,7 +26,12 @@ def parameter_vector(mod, overrides: Optional[dict] = None) -> np.ndarray:
     base_idx = list(mod.BASE_PARAMETERS)
     base = np.array(mod.PARAMETER_DEFAULTS, dtype=float)[base_idx]
     names = [mod.PARAMETERS[i] for i in base_idx]
+    fixed = set(getattr(mod, "COMPILE_TIME_PARAMETERS", ()))
     for key, value in (overrides or {}).items():
+        if key in fixed and float(value) != float(base[names.index(key)]):
+            raise SimulationSetupError(f"parameter `{key}` was used at compile time (a mesh length or a "
+                                       "coefficient varying along a distributed component); change it in the "
+                                       "model and recompile")
         if key not in names:
             if key in mod.PARAMETERS:
                 raise SimulationSetupError(f"parameter `{key}` is derived from other parameters; override those")

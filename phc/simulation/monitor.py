@@ -19,7 +19,7 @@ import scipy.linalg as sla
 
 THRESHOLD = 1e-11
 """σ_min/σ_max of the equilibrated iteration matrix below which a run stops."""
-MAX_SIZE = 200
+MAX_SIZE = 120
 """Systems larger than this are not monitored (the dense SVD would dominate)."""
 
 

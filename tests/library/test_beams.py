@@ -454,32 +454,21 @@ def test_invalid_distributed_components_give_one_located_diagnostic(key, value, 
     assert diag.span is not None and diag.span.line == line_of(text, key)
 
 
-@pytest.mark.xfail(strict=True, reason="phc bug: an unknown name in `length` gives PHC-E101 and also a "
-                   "spurious `length ... must be positive, got 0` [PHC-E142] (beams._mesh goes on with the "
-                   "failed expression as 0)")
 def test_unknown_name_in_length_gives_only_the_unknown_name_error(tmp_path):
     errors, _ = model_errors(tmp_path, eb_body(8, length="L2"))
     assert [d.code for d in errors] == ["PHC-E101"]
 
 
-@pytest.mark.xfail(strict=True, reason="phc bug: the positivity check of coefficients samples only the "
-                   "Gauss points, so EI < 0 on [0, 0.001) (left of the first Gauss point at ~0.0018) "
-                   "passes although the message promises `positive on [0, L]`")
 def test_coefficient_negative_near_an_end_is_rejected(tmp_path):
     errors, _ = model_errors(tmp_path, eb_body(8, EI="EI*(xi - 0.001)"))
     assert [d.code for d in errors] == ["PHC-E141"]
 
 
-@pytest.mark.xfail(strict=True, reason="phc bug: a negative `damping` is accepted; the seed (eq. BH1gen) "
-                   "requires D + Dᵀ ⪰ 0, and the compiled model then gains energy (P_diss < 0)")
 def test_negative_damping_is_rejected(tmp_path):
     errors, _ = model_errors(tmp_path, eb_body(8, damping=-0.5))
     assert [d.path for d in errors] == ["components.body.damping"]
 
 
-@pytest.mark.xfail(strict=True, reason="phc bug: a run-time override of a parameter that fixes the mesh "
-                   "(`length`) or enters a xi-dependent coefficient is silently ignored (those are baked "
-                   "at compile time); parameter_vector/simulate should refuse it or honour it")
 @pytest.mark.parametrize("name, body, factor, ratio", [
     ("L", eb_body(8, length="L"), 2.0, 0.25),
     ("rhoA", eb_body(8, rhoA="rhoA*(1 + 0.5*xi/L)"), 4.0, 0.5),
