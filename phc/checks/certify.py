@@ -311,10 +311,8 @@ def _couplings(top, projections, samples, diags) -> list[ConnectionCertificate]:
                     cluster_of[name] = ca
                 members[ca].extend(members.pop(cb))
                 del clusters[cb]
-    comps = {rel.component: rel for rel in top.dirac}
-    for cert in certs:
-        cert.condition = _symbolic_condition(comps.get(owner[cert.port_a]), comps.get(owner[cert.port_b]),
-                                             cert.port_a, cert.port_b, top.parameter_defaults)
+    for cert, condition in zip(certs, _symbolic_conditions(top, order, owner, certs)):
+        cert.condition = condition
     for cert in certs:
         if not cert.surjective:
             where = ("at every sampled state" if len(cert.failing_samples) == len(samples)
@@ -334,81 +332,116 @@ def _couplings(top, projections, samples, diags) -> list[ConnectionCertificate]:
     return certs
 
 
-SYMBOLIC_MAX_COLUMNS = 16
-"""Kernel representations up to this many columns are also analysed symbolically."""
+SYMBOLIC_MAX_ROWS = 24
+"""Failing couplings whose composite relation matrix has at most this many independent rows
+are also analysed symbolically."""
 
 
-def _port_projection_symbolic(rel, port: str, defaults) -> Optional[sp.Matrix]:
-    variables = list(rel.flows) + list(rel.efforts) + list(rel.multipliers)
-    if not rel.relations or len(variables) > SYMBOLIC_MAX_COLUMNS:
-        return None
-    K = sp.Matrix(list(rel.relations)).jacobian(variables).xreplace(defaults)
-    basis = K.nullspace(simplify=True)
-    if not basis:
-        return None
-    N = sp.Matrix.hstack(*basis)
-    fi, ei = rel.ports[port.rsplit(".", 1)[-1]]
-    n = len(rel.flows)
-    return N.extract(list(fi) + [n + i for i in ei], list(range(N.cols)))
+def _symbolic_conditions(top, order, owner, certs) -> list[Optional[str]]:
+    """Where each coupling map loses rank, as equations in the states (when small enough).
 
-
-def _symbolic_condition(rel_a, rel_b, port_a, port_b, defaults) -> Optional[str]:
-    """Where the coupling map of two modulated components loses rank, as an equation.
-
-    Γ restricted to the two components' port projections is a small symbolic matrix;
-    it loses rank exactly where all its maximal minors vanish. We take the greatest
-    common divisor of a few maximal minors (chosen nonsingular at random states) and
-    report its non-constant factors, e.g. ``cos(th) = 0``. Only computed when both
-    kernel representations are small and at least one depends on the state.
+    The interconnected structure up to a connection is kept in kernel form: the relations
+    of all components of the two clusters plus the coupling rows of earlier connections,
+    over all their variables (eliminated port variables stay as latent ones). With K those
+    relations and S the rows ``(f_a − f_b, e_a + e_b)`` of the connection, Γ is onto iff
+    ``rank [K; S] = rank K + 2 dim``; rank K is constant (Dirac components), so Γ fails
+    exactly where all maximal minors of ``[K; S]`` vanish. One maximal minor is computed
+    exactly (rational parameters, non-polynomial sub-expressions replaced by symbols), its
+    factors are candidates, and a candidate is reported only if the rank of ``[K; S]`` is
+    seen to drop at random points of its zero set.
     """
-    if rel_a is None or rel_b is None or rel_a is rel_b:
-        return None
-    try:
-        Pa = _port_projection_symbolic(rel_a, port_a, defaults)
-        Pb = _port_projection_symbolic(rel_b, port_b, defaults)
-        if Pa is None or Pb is None or not (Pa.free_symbols | Pb.free_symbols):
-            return None  # too large, or constant: the numeric rank is then exact
-        d = Pa.rows // 2
-        M = sp.Matrix.vstack(sp.Matrix.hstack(Pa[:d, :], -Pb[:d, :]), sp.Matrix.hstack(Pa[d:, :], Pb[d:, :]))
-        states = sorted(M.free_symbols, key=str)
-        rng = np.random.default_rng(7)
-        minors = []
-        for _ in range(4):
-            point = {s: sp.Float(float(x)) for s, x in zip(states, rng.uniform(-1, 1, len(states)))}
-            Mn = np.array(M.xreplace(point).evalf(), dtype=float)
-            cols, rank = [], 0
-            for j in rng.permutation(Mn.shape[1]).tolist():
-                if np.linalg.matrix_rank(Mn[:, cols + [j]], tol=1e-10) > rank:
-                    cols.append(j)
-                    rank += 1
-            if rank < M.rows:
-                return "everywhere (rank deficient at generic states)"
-            minors.append(sp.factor(sp.simplify(M.extract(list(range(M.rows)), cols).det())))
-        g = minors[0]
-        for m in minors[1:]:
-            g = sp.gcd(g, m)
-        factors = [f for f, _ in sp.factor_list(g)[1] if f.free_symbols]
-        if not factors or not all(_rank_drops_on(M, f, states, rng) for f in factors):
-            return None  # the candidate set did not check out numerically: report nothing
-        return " or ".join(f"{sp.sstr(f)} = 0" for f in factors)
-    except (ValueError, TypeError, NotImplementedError, ZeroDivisionError, sp.PolynomialError):
-        return None
+    rels = {r.component: r for r in top.dirac}
+    exact = {sym: sp.Rational(repr(float(v))) for sym, v in top.parameter_defaults.items()}
+    cluster_of = {c: c for c in rels}
+    members = {c: [c] for c in rels}
+    rows = {c: list(rels[c].relations) for c in rels}
+    cols = {c: list(rels[c].flows) + list(rels[c].efforts) + list(rels[c].multipliers) for c in rels}
+    ports = {}
+    for r in rels.values():
+        for pname, (fi, ei) in r.ports.items():
+            ports[f"{r.component}.{pname}"] = ([r.flows[i] for i in fi], [r.efforts[i] for i in ei])
+    out: list[Optional[str]] = []
+    rng = np.random.default_rng(11)
+    for cert, (a, b, _) in zip(certs, order):
+        ca, cb = cluster_of.get(owner[a]), cluster_of.get(owner[b])
+        if ca is None or cb is None or a not in ports or b not in ports:
+            out.append(None)
+            continue
+        K_rows = rows[ca] + ([] if ca == cb else rows[cb])
+        K_cols = cols[ca] + ([] if ca == cb else cols[cb])
+        (fa, ea), (fb, eb) = ports[a], ports[b]
+        S = [x - y for x, y in zip(fa, fb)] + [x + y for x, y in zip(ea, eb)]
+        condition = None
+        if not cert.surjective:  # only where the numeric certificate found a failure
+            try:
+                condition = _condition(K_rows, S, K_cols, exact, rng, SYMBOLIC_MAX_ROWS)
+            except (ValueError, TypeError, NotImplementedError, ZeroDivisionError, sp.PolynomialError):
+                condition = None
+        out.append(condition)
+        rows[ca] = K_rows + S
+        cols[ca] = K_cols
+        if cb != ca:
+            for name in members[cb]:
+                cluster_of[name] = ca
+            members[ca].extend(members.pop(cb))
+            del rows[cb], cols[cb]
+    return out
 
 
-def _rank_drops_on(M, factor, states, rng) -> bool:
+def _condition(K_rows, S, variables, exact, rng, limit) -> Optional[str]:
+    full = sp.Matrix(K_rows + S).jacobian(variables).xreplace(exact)
+    states = sorted(full.free_symbols, key=str)
+    if not states:
+        return None  # constant: the numeric rank is exact
+    point = {s: sp.Float(float(x)) for s, x in zip(states, rng.uniform(-1, 1, len(states)))}
+    Fn = np.array(full.xreplace(point).evalf(), dtype=float)
+    r1 = int(np.linalg.matrix_rank(Fn))
+    if r1 > limit:
+        return None
+    pick_rows, rank = [], 0
+    for i in range(Fn.shape[0]):
+        if np.linalg.matrix_rank(Fn[pick_rows + [i]]) > rank:
+            pick_rows.append(i)
+            rank += 1
+    pick_cols, rank = [], 0
+    for j in rng.permutation(Fn.shape[1]).tolist():
+        if np.linalg.matrix_rank(Fn[np.ix_(pick_rows, pick_cols + [j])]) > rank:
+            pick_cols.append(j)
+            rank += 1
+    atoms: dict = {}
+
+    def atomize(e):
+        return e.replace(lambda x: x.is_Function or (x.is_Pow and not x.exp.is_Integer),
+                         lambda x: atoms.setdefault(x, sp.Dummy(f"a{len(atoms)}")))
+
+    minor = full.extract(pick_rows, pick_cols).applyfunc(atomize).det(method="berkowitz")
+    back = {v: k for k, v in atoms.items()}
+    factors = [f.xreplace(back) for f, _ in sp.factor_list(sp.expand(minor))[1] if f.free_symbols]
+    # Keep the factors on whose zero set the rank of [K; S] really drops.
+    kept = [f for f in factors if not (f.is_Pow and f.exp < 0) and _rank_drops_on(full, f, states, rng, r1)]
+    return " or ".join(f"{sp.sstr(sp.simplify(f))} = 0" for f in kept) or None
+
+
+def _rank_drops_on(M, factor, states, rng, full_rank) -> bool:
     """Check numerically that M loses rank at random points of {factor = 0}."""
-    sym = sorted(factor.free_symbols, key=str)[0]
-    for _ in range(3):
-        others = {s: sp.Float(float(x)) for s, x in zip(states, rng.uniform(-1, 1, len(states))) if s != sym}
-        roots = [r for r in sp.solve(factor.xreplace(others), sym) if r.is_real]
-        if not roots:
-            return False
-        point = {**others, sym: roots[0]}
-        Mn = np.array(M.xreplace(point).evalf(), dtype=float)
-        s = np.linalg.svd(Mn, compute_uv=False)
-        if _rank(s) >= M.rows:
-            return False
-    return True
+    syms = sorted(factor.free_symbols, key=str)
+    for sym in syms:
+        hits = 0
+        for _ in range(3):
+            others = {s: sp.Float(float(x)) for s, x in zip(states, rng.uniform(-1, 1, len(states))) if s != sym}
+            try:
+                roots = [r for r in sp.solve(factor.xreplace(others), sym) if r.is_real]
+            except NotImplementedError:
+                roots = []
+            if not roots:
+                break
+            Mn = np.array(M.xreplace({**others, sym: roots[0]}).evalf(), dtype=float)
+            if _rank(np.linalg.svd(Mn, compute_uv=False)) >= full_rank:
+                return False
+            hits += 1
+        if hits:
+            return True
+    return False
 
 
 def _rigid_ranks(top, point, diags) -> None:
