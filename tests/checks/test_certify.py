@@ -439,3 +439,22 @@ def test_symbolic_failure_condition_is_not_claimed_where_gamma_has_full_rank(tmp
     assert cert.certified
     # ... so a failure set, if reported, must involve y as well (it is x = y = 0).
     assert conn.condition is None or "bob.y" in conn.condition
+
+
+@pytest.mark.parametrize("theta, certified", [(0.7, True), (1.5707963267948966, False)])
+def test_flexible_slider_crank_with_the_rod_orthogonal_to_the_guide(tmp_path, theta, certified):
+    """Seed section 5.2: Γ is onto where a_s·t ≠ 0 — a sufficient condition. With the rod
+    orthogonal to the guide (a_s·t = 0) the wheel's pin velocity still restores the rank
+    unless it is parallel to the rod normal as well (θ = π/2 here): phc finds exactly that."""
+    text = (MODELS / "flexible_slider_crank.yaml").read_text()
+    text = text.replace("    wheel.theta: 0.0", f"    wheel.theta: {theta}")
+    text = text.replace("    rod.q0[0]: r\n", "    rod.q0[0]: 0.0\n").replace("    rod.q0[1]: 0.0", "    rod.q0[1]: 0.3")
+    text = text.replace("    rod.qf[0]: r + L", "    rod.qf[0]: 0.0")
+    path = tmp_path / "fsc.yaml"
+    path.write_text(text)
+    cert = certify(phc.build_dae(path)[0])
+    assert cert.certified is certified
+    if not certified:
+        [bad] = [c for c in cert.connections if not c.surjective]
+        assert (bad.port_a, bad.port_b) == ("wheel.pin", "rod.p0")
+        assert bad.failing_samples[0]["wheel.theta"] == pytest.approx(theta)
