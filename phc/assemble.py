@@ -156,13 +156,13 @@ def assemble(b, ctx) -> Optional[Dae]:
         inp = sim.inputs.get(pname)
         path = ("simulation", "inputs", pname)
         if inp is None:
-            targets, values, what = port.e, [0] * port.dimension, "effort"
+            targets, values = port.e, [0] * port.dimension
         elif inp.effort is not None:
-            targets, what = port.e, "effort"
+            targets = port.e
             values = b.vector(ctx, inp.effort, (*path, "effort"), {"t": T, **ctx.params}, port.dimension,
                               f"input effort of `{pname}`")
         else:
-            targets, what = port.f, "flow"
+            targets = port.f
             values = b.vector(ctx, inp.flow, (*path, "flow"), {"t": T, **ctx.params}, port.dimension,
                               f"input flow of `{pname}`")
         for k, (sym, val) in enumerate(zip(targets, values)):

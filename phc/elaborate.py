@@ -33,13 +33,13 @@ import networkx as nx
 import pydantic
 import sympy as sp
 
-from phc.dae import T, Dae, Equation, InitialValue, Invariant, Parameter, Variable
+from phc.dae import Dae, Equation, Invariant, Parameter, Variable
 from phc.diagnostics import Diagnostic, DiagnosticList, allowed_keys_from_model, from_pydantic
 from phc.source import SourceMap, SourceSpan, read_yaml_file
 from phc.spec import ModelSpec
 from phc.spec.components import ModelComponentSpec
 from phc.spec.expressions import ExpressionError, parse_equation, parse_expression
-from phc.spec.model import InitialSpec, ParameterSpec
+from phc.spec.model import ParameterSpec
 
 
 @dataclass
@@ -366,7 +366,6 @@ class Builder:
         for i, conn in enumerate(spec.connections):
             a, b = (ctx.prefix + ref for ref in conn.between)
             self.connections.append((a, b, ctx.smap.locate(("connections", i)), f"connections[{i}]"))
-            self._conn_ctx = ctx
         self._check_refs(ctx)
 
     def _check_refs(self, ctx: FileContext) -> None:

@@ -16,7 +16,7 @@ import numpy as np
 import scipy.sparse as sps
 import sympy as sp
 
-from phc.dae import T, Dae
+from phc.dae import Dae
 
 
 @dataclass(frozen=True, eq=False)

@@ -19,7 +19,7 @@ from __future__ import annotations
 import keyword
 import os
 import re
-from typing import Iterable, Sequence
+from typing import Sequence
 
 import sympy as sp
 from sympy.printing.pycode import PythonCodePrinter

@@ -29,7 +29,6 @@ run-time parameters, coefficients that vary with ``xi`` are evaluated at compile
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sps
 import sympy as sp
 
 from phc.dae import T, LinearTerm, QuadraticForm
