@@ -21,6 +21,7 @@ import os
 import re
 from typing import Sequence
 
+import numpy as np
 import sympy as sp
 from sympy.printing.pycode import PythonCodePrinter
 
@@ -63,6 +64,30 @@ def _array(values: Sequence, dtype: str) -> str:
     return f"np.array([{body}], dtype={dtype})"
 
 
+def _fuse(terms, m: int, n: int) -> dict:
+    """One sparse pattern for several linear terms: global CSR structure, each term's
+    positions in it, and the Jacobian data positions of the pattern entries."""
+    rows, cols, jac, owner = [], [], [], []
+    datas = []
+    for k, t in enumerate(terms):
+        coo = t.matrix.tocoo()
+        rows.append(t.rows[coo.row])
+        cols.append(t.cols[coo.col])
+        jac.append(t.pos)
+        datas.append(coo.data)
+        owner.append(np.full(len(coo.data), k))
+    r, c, j = np.concatenate(rows), np.concatenate(cols), np.concatenate(jac)
+    keys = r * n + c
+    unique, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+    ur = unique // n
+    indptr = np.zeros(m + 1, dtype=np.int64)
+    np.add.at(indptr, ur + 1, 1)
+    indptr = np.cumsum(indptr)
+    offsets = np.cumsum([0] + [len(d) for d in datas])
+    return {"indptr": indptr, "indices": unique % n, "jac": j[first],
+            "pos": [inverse[offsets[k]:offsets[k + 1]] for k in range(len(terms))], "data": datas}
+
+
 def _sparse_constant(name: str, matrix) -> list[str]:
     m = matrix.tocsr()
     return [f"{name} = _sps.csr_matrix(({_array(m.data.tolist(), 'float')}, "
@@ -94,6 +119,35 @@ class ModulePrinter:
             self.names[s] = ident = _identifier(name, taken)
             self.unpack_p[s] = f"{ident} = p[{j}]"
         self.printer = _Printer(self.names)
+        self.accumulate: set = set()  # targets that add to a precomputed value
+
+    def _linear_function(self, m: int, n: int) -> str:
+        """`_linear(p)`: the fused sparse matrices of all linear blocks, computed once per
+        parameter vector (their coefficients depend on parameters only)."""
+        exprs, targets, lines = [], [], []
+        for wrt, (terms, fused) in self.fused.items():
+            lines.append(f"_d{wrt} = np.zeros({len(fused['indices'])})")
+            for k, t in enumerate(terms):
+                exprs.append(t.coeff)
+                targets.append(f"_c{wrt}{k}")
+                lines.append(f"np.add.at(_d{wrt}, _L{wrt}{k}_POS, _c{wrt}{k} * _L{wrt}{k}_DATA)")
+            lines.append(f"_A{wrt} = _sps.csr_matrix((_d{wrt}, _L{wrt}_INDICES, _L{wrt}_INDPTR), shape=({m}, {n}))")
+        # One stacked matrix [A_y, A_ẏ] acting on [y; ẏ], and the linear part of the Jacobian
+        # data as two full-length arrays: the hot path is one mat-vec and one axpy.
+        parts = []
+        for wrt in ("Y", "YP"):
+            lines.append(f"_J{wrt} = np.zeros(len(JAC_ROWS))")
+            if wrt in self.fused:
+                lines.append(f"_J{wrt}[_L{wrt}_JAC] = _d{wrt}")
+                parts.append(f"_A{wrt}")
+            else:
+                parts.append(f"_sps.csr_matrix(({m}, {n}))")
+        lines += [f"_A = _sps.hstack([{', '.join(parts)}]).tocsr()",
+                  "_LINEAR_CACHE.clear()", "_LINEAR_CACHE[key] = (_A, _JY, _JYP)", "return _LINEAR_CACHE[key]"]
+        body = self._function("_linear(p)", "Fused sparse linear blocks (A_y, A_ẏ and their data), cached per p.",
+                              exprs, targets, prologue=["key = p.tobytes()", "if key in _LINEAR_CACHE:",
+                                                        "    return _LINEAR_CACHE[key]"], epilogue=lines)
+        return "_LINEAR_CACHE = {}\n\n\n" + body
 
     def _jac_dependencies(self, symbols) -> list[int]:
         """Indices of the variables (or derivatives) the Jacobian entries depend on."""
@@ -114,7 +168,8 @@ class ModulePrinter:
         for sym, rhs in replacements:
             lines.append(f"{sym} = {self.printer.doprint(rhs)}")
         for target, e in zip(targets, reduced):
-            lines.append(f"{target} = {self.printer.doprint(e)}")
+            op = "+=" if target in self.accumulate else "="
+            lines.append(f"{target} {op} {self.printer.doprint(e)}")
         return lines
 
     def _function(self, signature: str, doc: str, exprs, targets, prologue=(), epilogue=()) -> str:
@@ -162,11 +217,19 @@ class ModulePrinter:
             "",
         ]
         sparse_consts = []
-        for k, t in enumerate(ir.linear_terms):
-            sparse_consts += _sparse_constant(f"_LIN{k}", t.matrix)
-            sparse_consts += [f"_LIN{k}_ROWS = {_array(t.rows.tolist(), 'np.int64')}",
-                              f"_LIN{k}_COLS = {_array(t.cols.tolist(), 'np.int64')}",
-                              f"_LIN{k}_POS = {_array(t.pos.tolist(), 'np.int64')}"]
+        self.fused = {}
+        for wrt, derivative in (("Y", False), ("YP", True)):
+            terms = [t for t in ir.linear_terms if t.derivative == derivative]
+            if not terms:
+                continue
+            fused = _fuse(terms, len(ir.residual), n)
+            self.fused[wrt] = (terms, fused)
+            sparse_consts += [f"_L{wrt}_INDPTR = {_array(fused['indptr'].tolist(), 'np.int64')}",
+                              f"_L{wrt}_INDICES = {_array(fused['indices'].tolist(), 'np.int64')}",
+                              f"_L{wrt}_JAC = {_array(fused['jac'].tolist(), 'np.int64')}"]
+            for k, (pos, data) in enumerate(zip(fused["pos"], fused["data"])):
+                sparse_consts += [f"_L{wrt}{k}_POS = {_array(pos.tolist(), 'np.int64')}",
+                                  f"_L{wrt}{k}_DATA = {_array(data.tolist(), 'float')}"]
         for prefix, forms in (("QE", ir.quadratic_energy), ("QD", ir.quadratic_dissipation)):
             for k, f in enumerate(forms):
                 sparse_consts += _sparse_constant(f"_{prefix}{k}", f.matrix)
@@ -191,21 +254,19 @@ class ModulePrinter:
                      "        base = PARAMETER_DEFAULTS[list(BASE_PARAMETERS)]\n"
                      + "".join(f"    {line}\n" for line in derived_lines))
         lin = ir.linear_terms
-        coeff_targets = [f"_k{k}" for k in range(len(lin))]
-        coeffs = [term.coeff for term in lin]
+        if lin:
+            parts.append(self._linear_function(len(ir.residual), n))
         qd_coeffs = [f.coeff for f in ir.quadratic_dissipation]
         qd_targets = [f"_qQD{k}" for k in range(len(qd_coeffs))]
         qd_res = [f"out[{ir.energy_row}] -= _qQD{k} * (y[_QD{k}_COLS] @ (_QD{k} @ y[_QD{k}_COLS]))"
                   for k in range(len(qd_coeffs))]
         qd_jac = [f"out[_QD{k}_POS] -= 2.0 * _qQD{k} * (_QD{k} @ y[_QD{k}_COLS])" for k in range(len(qd_coeffs))]
-        coeffs, coeff_targets = coeffs + qd_coeffs, coeff_targets + qd_targets
         if lin or qd_coeffs:
             rows = [(i, e) for i, e in enumerate(ir.residual) if e != 0]
-            lin_lines = [f"out[_LIN{k}_ROWS] += _k{k} * (_LIN{k} @ {'yp' if t.derivative else 'y'}[_LIN{k}_COLS])"
-                         for k, t in enumerate(lin)]
+            lin_lines = (["_A, _JY, _JYP = _linear(p)", "out += _A @ np.concatenate((y, yp))"] if lin else [])
             parts.append(self._function(
                 "residual(t, y, yp, p, out)", "Residual F(t, y, yp, p) written into `out`.",
-                [e for _, e in rows] + coeffs, [f"out[{i}]" for i, _ in rows] + coeff_targets,
+                [e for _, e in rows] + qd_coeffs, [f"out[{i}]" for i, _ in rows] + qd_targets,
                 prologue=["out[:] = 0.0"], epilogue=lin_lines + qd_res))
         else:
             parts.append(self._function(
@@ -221,12 +282,13 @@ class ModulePrinter:
         jdoc = "Data of dF/dy + cj*dF/dyp in CSC order of (JAC_ROWS, JAC_COLS), written into `out`."
         if lin or qd_coeffs:
             nz = [(k, e) for k, e in enumerate(jac) if e != 0]
-            lin_lines = [f"out[_LIN{k}_POS] += {'cj * ' if t.derivative else ''}_k{k} * _LIN{k}.data"
-                         for k, t in enumerate(lin)]
+            prologue = (["_A, _JY, _JYP = _linear(p)", "np.multiply(_JYP, cj, out=out)", "out += _JY"] if lin
+                        else ["out[:] = 0.0"])
+            self.accumulate = {f"out[{k}]" for k, _ in nz}
             parts.append(self._function(
-                "jacobian(t, y, yp, p, cj, out)", jdoc, [e for _, e in nz] + coeffs,
-                [f"out[{k}]" for k, _ in nz] + coeff_targets, prologue=["out[:] = 0.0"],
-                epilogue=lin_lines + qd_jac))
+                "jacobian(t, y, yp, p, cj, out)", jdoc, [e for _, e in nz] + qd_coeffs,
+                [f"out[{k}]" for k, _ in nz] + qd_targets, prologue=prologue, epilogue=qd_jac))
+            self.accumulate = set()
         else:
             parts.append(self._function("jacobian(t, y, yp, p, cj, out)", jdoc, jac,
                                         [f"out[{k}]" for k in range(len(jac))]))
