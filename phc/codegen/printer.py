@@ -16,6 +16,7 @@ This printer only builds strings; all analysis happened in :mod:`phc.codegen.low
 
 from __future__ import annotations
 
+import base64
 import keyword
 import os
 import re
@@ -59,7 +60,17 @@ def _identifier(name: str, taken: set) -> str:
     return ident
 
 
+PACK_LIMIT = 256
+"""Arrays longer than this are printed as base64 of their bytes: a 1000-element beam's
+40 000 matrix entries as float literals take seconds for Python to compile."""
+
+
 def _array(values: Sequence, dtype: str) -> str:
+    values = list(values)
+    if len(values) > PACK_LIMIT and dtype in ("float", "np.int64"):
+        np_dtype = "<f8" if dtype == "float" else "<i8"
+        packed = base64.b64encode(np.asarray(values, dtype=np_dtype).tobytes()).decode()
+        return f"_unpack('{packed}', '{np_dtype}')"
     body = ", ".join(repr(v) for v in values)
     return f"np.array([{body}], dtype={dtype})"
 
@@ -190,7 +201,10 @@ class ModulePrinter:
             "order of PARAMETERS[i] for i in BASE_PARAMETERS. The Jacobian dF/dy + cj*dF/dyp is\n"
             "returned as data in compressed-sparse-column order of (JAC_ROWS, JAC_COLS).\n"
             '"""\n',
-            "import math\n\nimport numpy as np\n",
+            "import base64\nimport math\n\nimport numpy as np\n\n\n"
+            "def _unpack(text, dtype):\n"
+            "    \"\"\"A long constant array stored as base64 of its little-endian bytes.\"\"\"\n"
+            "    return np.frombuffer(base64.b64decode(text), dtype=dtype).copy()\n",
             f"MODEL = {ir.name!r}",
             f"N = {n}",
             f"VARIABLES = {_tuple(ir.variables)}",
@@ -237,7 +251,7 @@ class ModulePrinter:
                 if f.pos is not None:
                     sparse_consts.append(f"_{prefix}{k}_POS = {_array(f.pos.tolist(), 'np.int64')}")
         if sparse_consts:
-            parts[1] = "import math\n\nimport numpy as np\nimport scipy.sparse as _sps\n"
+            parts[1] = parts[1].replace("import numpy as np\n", "import numpy as np\nimport scipy.sparse as _sps\n", 1)
             parts += ["# Sparse linear parts (discretized PDEs, matrix-defined components).",
                       *sparse_consts, ""]
         # Derived parameters are computed once per run, not in every residual call.
