@@ -29,6 +29,7 @@ run-time parameters, coefficients that vary with ``xi`` are evaluated at compile
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sps
 import sympy as sp
 
 from phc.dae import T, LinearTerm, QuadraticForm
@@ -108,7 +109,8 @@ class _Field:
         self.e = [b.add_algebraic(name, f"e_{local}[{i}]", "effort", span) for i in range(n)]
 
 
-def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, couplings, skew, ports, order):
+def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, couplings, skew, ports, order,
+                       dissipation=()):
     """Assemble the partitioned mixed system.
 
     fields_a / fields_b: {local: (_Field, coefficient of H)};
@@ -117,6 +119,7 @@ def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, coupl
     parts the residual rows are ``M ẋ_b − s D e_a`` and ``M ẋ_a + s Dᵀ e_b + boundary``
     with ``D_ji = ∫ ψ_j ∂^N φ_i``: the interconnection ``[[0, −sDᵀ], [sD, 0]]`` is skew;
     skew: (row_local, col_local, value) zero-order couplings (entries of P_0);
+    dissipation: (row_local, col_local, coefficient) entries of D in ``−D H x`` (eq. BH1gen);
     ports: (port_name, a_local, end, derivative, domain) — the flow is ``∂^derivative e_a``
     at the end; the effort enters the a-rows through the same basis function.
     """
@@ -133,6 +136,29 @@ def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, coupl
     for row_local, col_local, value in skew:
         fr, fc = fields[row_local][0], fields[col_local][0]
         terms[row_local].append(LinearTerm(sp.Float(-value), assemble(fr.space, 0, fc.space, 0), tuple(fc.e)))
+    if dissipation:
+        # rows i get +∫ basis_i D_ij basis_j e_j; the dissipated power is the quadratic form
+        # of the symmetric part over all co-energies (D + Dᵀ ⪰ 0 checked by the caller).
+        order_e = [local for local in fields]
+        offsets = np.cumsum([0] + [fields[l][0].space.size for l in order_e])
+        blocks = {}
+        for row_local, col_local, coeff in dissipation:
+            fr, fc = fields[row_local][0], fields[col_local][0]
+            Mrc = assemble(fr.space, 0, fc.space, 0, coeff.function())
+            terms[row_local].append(LinearTerm(coeff.scale(), Mrc, tuple(fc.e)))
+            blocks[(row_local, col_local)] = (coeff.scale(), Mrc)
+        scales = {sc for sc, _ in blocks.values()}
+        if len(scales) == 1:
+            total = sps.lil_matrix((offsets[-1], offsets[-1]))
+            for (rl, cl), (_, Mrc) in blocks.items():
+                i0, j0 = offsets[order_e.index(rl)], offsets[order_e.index(cl)]
+                total[i0:i0 + Mrc.shape[0], j0:j0 + Mrc.shape[1]] = Mrc
+            total = total.tocsr()
+            b.quadratic_dissipation.append(QuadraticForm(scales.pop(), ((total + total.T) / 2).tocsr(),
+                                                         tuple(e for l in order_e for e in fields[l][0].e)))
+        else:
+            b.error("PHC-E158", f"the entries of `D` of `{name}` must share one parameter factor (or be numbers)",
+                    ctx, (*path, "D"))
     if getattr(spec, "damping", None) is not None:
         coeff = _Coefficient(b, ctx, spec.damping, (*path, "damping"))
         coeff.check_positive(name, "damping", mesh, strict=False)

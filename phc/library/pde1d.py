@@ -3,7 +3,9 @@
 Checks (each failure is a located error naming the identity that fails):
 
 * ``P_k = (−1)^{k+1} P_kᵀ`` for every k, ``P_N`` invertible (eq. BH1gen);
-* ``H(ξ)`` symmetric positive definite and ``D(ξ) + D(ξ)ᵀ ⪰ 0`` at the quadrature points;
+* ``H(ξ)`` symmetric positive definite and ``D(ξ) + D(ξ)ᵀ ⪰ 0`` at the quadrature points
+  (D is discretized like the co-energy couplings, its dissipated power is the quadratic
+  form of its symmetric part);
 * ``W = [W_f; W_e]`` invertible and the Green identity (eq. BNDtriplet)
   ``⟨z, Σ P_k z^{(k)}⟩ = −(W_f γ(z))ᵀ(W_e γ(z))`` — verified on random polynomials z,
   which determine the quadratic boundary form completely.
@@ -122,9 +124,11 @@ def lower_pde1d(b, ctx, name, spec, path):
             b.error("PHC-E153", f"`D + Dᵀ` of `{name}` must be positive semidefinite (the PDE would generate energy)",
                     ctx, (*path, "D"))
             return
-        b.error("PHC-E158", f"`D` of `{name}`: distributed dissipation of `pde1d` is not discretized yet; use the "
-                "`damping` option of the library strings and beams", ctx, (*path, "D"), severity="error")
-        return
+    dissipation = []
+    if spec.D is not None:
+        # −D e in eq. BH1gen: rows of variable i get +∫ basis_i D_ij basis_j e_j.
+        dissipation = [(spec.variables[i], spec.variables[j], Dc[i][j]) for i in range(d) for j in range(d)
+                       if np.abs(Dv[i, j]).max() > 0]
     # Partition of the variables by the pattern of P_N (a bipartite graph).
     graph = nx.Graph()
     graph.add_nodes_from(range(d))
@@ -163,7 +167,7 @@ def lower_pde1d(b, ctx, name, spec, path):
         return
     rows = _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b,
                               [(a, bb, sp.Integer(int(s)) if float(s).is_integer() else sp.Float(s))
-                               for a, bb, s in couplings], skew, [], order=N)
+                               for a, bb, s in couplings], skew, [], order=N, dissipation=dissipation)
     # Natural flows: traces of e_a (and slopes for N = 2) in the order of γ.
     nat = [(spec.variables[i], "b" if blk < N else "a", blk % N) for blk in range(2 * N) for i in range(d)]
     cols = [c for c, (var, _, _) in enumerate(nat) if var in fields_a]

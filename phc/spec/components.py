@@ -450,7 +450,8 @@ class Pde1dSpec(_Component):
     H: Matrix
     """Energy density matrix H(ξ) (d × d, expressions in `xi` and parameters)."""
     D: Optional[Matrix] = None
-    """Dissipation matrix D(ξ) (d × d)."""
+    """Dissipation matrix D(ξ) (d × d) with D + Dᵀ ⪰ 0; its entries share one parameter
+    factor (or are numbers)."""
     W_f: Matrix
     """Boundary flow map (Nd × 2Nd numbers) on γ(Hx) = (e(b), …, e^{(N−1)}(b), e(a), …)."""
     W_e: Matrix
