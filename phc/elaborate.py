@@ -340,6 +340,7 @@ class Builder:
                 continue
             entries[name] = (value, path, octx)
         self.add_parameters(ctx, entries, units)
+        deferred = []
         for cname, comp in spec.components.items():
             full = ctx.prefix + cname
             path = ("components", cname)
@@ -358,15 +359,23 @@ class Builder:
                     for pname, exposed in sub_ctx.spec.ports.items():
                         self.port_aliases[f"{full}.{pname}"] = sub_ctx.prefix + exposed.port
                 continue
-            n_errors = len(self.diags.errors)
-            self.components.append((full, comp.type, ctx.smap.locate(path)))
-            LOWERERS[comp.type](self, ctx, full, comp, path)
-            if len(self.diags.errors) > n_errors:
-                self.failed.add(full)  # its ports may be missing: do not report them again
+            if comp.type == "modulation":  # may use other components' states: lower them last
+                deferred.append((cname, comp, full, path))
+                continue
+            self._lower(LOWERERS, ctx, full, comp, path)
+        for cname, comp, full, path in deferred:
+            self._lower(LOWERERS, ctx, full, comp, path)
         for i, conn in enumerate(spec.connections):
             a, b = (ctx.prefix + ref for ref in conn.between)
             self.connections.append((a, b, ctx.smap.locate(("connections", i)), f"connections[{i}]"))
         self._check_refs(ctx)
+
+    def _lower(self, lowerers, ctx, full, comp, path) -> None:
+        n_errors = len(self.diags.errors)
+        self.components.append((full, comp.type, ctx.smap.locate(path)))
+        lowerers[comp.type](self, ctx, full, comp, path)
+        if len(self.diags.errors) > n_errors:
+            self.failed.add(full)  # its ports may be missing: do not report them again
 
     def _check_refs(self, ctx: FileContext) -> None:
         """Check that connections and exposed ports of this file name existing ports."""

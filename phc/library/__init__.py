@@ -32,6 +32,7 @@ LOWERERS = {
     "zero_flow": partial(lumped.lower_termination, which="flow"),
     "orthogonal_transform": lumped.lower_transform,
     "junction": lumped.lower_junction,
+    "modulation": lumped.lower_modulation,
     "string": lower_string,
     "timoshenko_beam": lower_timoshenko,
     "euler_bernoulli_beam": lower_euler_bernoulli,

@@ -263,3 +263,49 @@ def lower_junction(b, ctx, name, spec, path):
         b.add_equation(sum(getattr(p, summed)[k] for p in ports), name, "dirac", f"sum[{k}]", span)
         d.rel(sum(getattr(p, summed)[k] for p in ports))
     d.register(b)
+
+
+def lower_modulation(b, ctx, name, spec, path):
+    """Seed section 4.2: f_b = f_a, e_b = −e_a + K(x) f_a with K(x) skew.
+
+    Lowered after all other components, so K may use their states by full name.
+    """
+    n = len(spec.K)
+    scope = {"t": T, **ctx.params}
+    vectors: dict = {}
+    for v in b.variables:
+        if v.differential:
+            if v.name.endswith("]"):
+                base, idx = v.name[:-1].rsplit("[", 1)
+                vectors.setdefault(base, {})[int(idx)] = v.symbol
+            else:
+                scope[v.name] = v.symbol
+    for base, items in vectors.items():
+        scope[base] = [items[i] for i in sorted(items)]
+    K = b.matrix(ctx, spec.K, (*path, "K"), scope, (n, n), "`K`")
+    states = sorted(K.free_symbols - {T} - set(b.default_values()), key=str)
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        point = {s: sp.Float(float(x)) for s, x in zip(states, rng.uniform(-1, 1, len(states)))}
+        try:
+            Kn = np.array(K.xreplace(b.default_values()).xreplace(point).subs(T, 0.3).evalf(), dtype=float)
+        except (TypeError, ValueError):
+            break
+        if np.abs(Kn + Kn.T).max(initial=0) > 1e-10 * max(1.0, np.abs(Kn).max(initial=0)):
+            b.error("PHC-E402", f"`K` of `{name}` is not skew-symmetric (max |K + Kᵀ| = {np.abs(Kn + Kn.T).max():.3g}); "
+                    "the modulation would not preserve power (seed section 4.2)", ctx, (*path, "K"))
+            return
+    domain = spec.domain or "generic"
+    span = ctx.smap.locate(path)
+    a = b.add_port(name, "a", domain, n, span=span)
+    out = b.add_port(name, "b", domain, n, span=span)
+    Kf = K * sp.Matrix(a.f)
+    d = DiracBuilder(name, spec.type, span)
+    d.port(a)
+    d.port(out)
+    for k in range(n):
+        b.define(out.f[k], a.f[k])
+        b.define(a.e[k], -out.e[k] + Kf[k])
+        d.rel(out.f[k] - a.f[k])
+        d.rel(a.e[k] + out.e[k] - Kf[k])
+    d.register(b, states=tuple(states), note="power-preserving modulation U_x of seed section 4.2")

@@ -312,6 +312,22 @@ class OrthogonalTransformSpec(_Component):
     """Output ports and their dimensions, in order (e.g. `{s: 1, n: 1}`)."""
 
 
+class ModulationSpec(_Component):
+    """Finite-dimensional modulation of port variables (seed section 4.2).
+
+    Between port `a` (towards a fixed Dirac structure) and port `b` (outside):
+    ``f_b = f_a``, ``e_b = −e_a + K(x) f_a`` with K skew, i.e. the seed's
+    ``U_x : (f_m, e_m) ↦ (f_m, e_m + K(x) f_m)``. Power preserving for every x:
+    ``f_a·e_a + f_b·e_b = f_aᵀK(x)f_a = 0``. K may depend on `t`, parameters and the
+    states of other components, written by their full names (e.g. `wheel.theta`).
+    """
+
+    type: Literal["modulation"]
+    K: Matrix
+    """Skew-symmetric n × n matrix K(x)."""
+    domain: Optional[Domain] = None
+
+
 class JunctionSpec(_Component):
     """A power-conserving junction of n ports.
 
@@ -474,7 +490,7 @@ ComponentSpec = Annotated[
         PhsSpec, LinearPhsSpec, RigidSpec, ModelComponentSpec,
         MassSpec, InductorSpec, SpringSpec, CapacitorSpec, DamperSpec, ResistorSpec,
         EffortSourceSpec, FlowSourceSpec, ZeroEffortSpec, ZeroFlowSpec,
-        OrthogonalTransformSpec, JunctionSpec,
+        OrthogonalTransformSpec, JunctionSpec, ModulationSpec,
         StringSpec, TimoshenkoBeamSpec, EulerBernoulliBeamSpec, Pde1dSpec, MovingBeamSpec, CrankWheelSpec,
     ],
     Field(discriminator="type"),
