@@ -59,11 +59,17 @@ def _check_connections(b, ctx) -> list[tuple]:
     """Resolve, check and return (port_a, port_b, span, label) for valid connections."""
     used: dict[str, str] = {}
     valid = []
+    suspects = set(b.failed)  # components whose ports may be the target of a broken reference
     for a_name, b_name, span, label in b.connections:
         a_full, b_full = b.resolve_alias(a_name), b.resolve_alias(b_name)
         pa, pb = b.ports.get(a_full), b.ports.get(b_full)
         if pa is None or pb is None:
-            continue  # already reported by _check_refs
+            for p, ref in ((pa, a_full), (pb, b_full)):  # the broken end is already reported
+                if p is not None:
+                    used.setdefault(p.name, label)
+                else:
+                    suspects.add(ref.rsplit(".", 1)[0] if "." in ref else ref)
+            continue
         ok = True
         if a_full == b_full:
             used[a_full] = label
@@ -109,6 +115,8 @@ def _check_connections(b, ctx) -> list[tuple]:
             b.exposed_top[pname] = (full, ctx.smap.locate(("ports", pname)))
     nested_exposed = set(b.port_aliases.values())
     for name, port in b.ports.items():
+        if port.component in suspects:
+            continue  # do not cascade from a broken reference or a component that failed
         if name not in used and name not in exposed and name not in nested_exposed:
             b.diags.append(Diagnostic(
                 "PHC-E208", f"port `{name}` is not connected", span=port.span, path=name,

@@ -417,11 +417,16 @@ def elaborate(path: str | os.PathLike) -> tuple[Optional[Dae], DiagnosticList]:
 
     Returns ``(dae, diagnostics)``; `dae` is None when any error was found.
     """
-    from phc.assemble import assemble
+    from phc.assemble import _check_connections, assemble
 
     builder = Builder()
     ctx = builder.load_file(Path(path), "", {}, None)
-    if ctx is None or builder.diags.has_errors:
+    if ctx is None:
         return None, builder.diags.sorted()
+    if builder.diags.has_errors:
+        # Collect, don't stop: the wiring can still be checked (components that failed
+        # to lower are skipped there).
+        _check_connections(builder, ctx)
+        return None, DiagnosticList(dict.fromkeys(builder.diags)).sorted()
     dae = assemble(builder, ctx)
     return (None if builder.diags.has_errors else dae), builder.diags.sorted()
