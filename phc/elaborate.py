@@ -68,10 +68,6 @@ class FileContext:
     params: dict[str, Any] = field(default_factory=dict)
 
 
-class ExpressionScope(dict):
-    """Names visible to an expression: sympy symbols/expressions or vectors of them."""
-
-
 _ALLOWED_KEYS = allowed_keys_from_model(ModelSpec)
 
 
@@ -145,9 +141,6 @@ class Builder:
             span = ctx.smap.locate_key(tuple(path)) if key else ctx.smap.locate(tuple(path))
         dotted = ".".join(str(p) for p in path) or None
         self.diags.append(Diagnostic(code, message, span=span, hint=hint, severity=severity, path=dotted))
-
-    def span(self, ctx: FileContext, path: Sequence) -> SourceSpan:
-        return ctx.smap.locate(tuple(path))
 
     # -- expressions ----------------------------------------------------------------
     def expr(self, ctx: FileContext, value: Any, path: Sequence, names: dict,
@@ -262,7 +255,7 @@ class Builder:
         exprs: dict[str, sp.Expr] = {}
         for name, (value, path, value_ctx) in entries.items():
             vctx = value_ctx or ctx
-            scope = ExpressionScope(vctx.params) if value_ctx is not None else ExpressionScope(symbols)
+            scope = dict(vctx.params) if value_ctx is not None else dict(symbols)
             exprs[name] = self.expr(vctx, value, path, scope)
         graph = nx.DiGraph()
         graph.add_nodes_from(symbols.values())
