@@ -251,9 +251,11 @@ def certify(dae: Dae, n_random: int = 2, seed: int = 0) -> Certificate:
     loops = kinematic_loops(top)
     parts = independent_parts(top)
     if len(parts) > 1:
+        spans = {name: span for name, _, span in top.components}
         diags.append(Diagnostic("PHC-W201", f"the model has {len(parts)} independent parts with no connection "
                                 "between them: " + "; ".join("{" + ", ".join(p) + "}" for p in parts),
-                                severity="warning", hint="intended? each part is simulated independently"))
+                                span=spans.get(parts[1][0]), path=parts[1][0], severity="warning",
+                                hint="intended? each part is simulated independently"))
     return Certificate(dae.name, comp_certs, conn_certs, loops, parts, diags.sorted(), len(samples))
 
 
