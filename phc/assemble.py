@@ -283,7 +283,7 @@ def assemble(b, ctx) -> Optional[Dae]:
         quadratic_dissipation=tuple(b.quadratic_dissipation),
         options={"t_start": sim.t_start, "t_end": sim.t_end, "n_out": sim.n_out, "rtol": sim.rtol,
                  "atol": sim.atol, "max_steps": sim.max_steps, "solver": sim.solver,
-                 "max_order": sim.max_order},
+                 "max_order": sim.max_order, "step": sim.step},
     )
 
 

@@ -141,7 +141,7 @@ def cmd_simulate(args) -> int:
     progress = Progress(opts["t_start"], t_end, label=compiled.name, enabled=not args.quiet)
     try:
         result = simulate(compiled, t_end=args.t_end, params=params, rtol=args.rtol, atol=args.atol,
-                          n_out=args.n_out, progress=progress)
+                          n_out=args.n_out, progress=progress, solver=args.solver, step=args.step)
     except InconsistentInitialError as err:
         progress.close()
         for line in err.problems:
@@ -276,6 +276,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("file", metavar="FILE")
     p.add_argument("--t-end", type=float, help="end time (default: the model's simulation.t_end)")
     p.add_argument("--n-out", type=int, help="number of output points")
+    p.add_argument("--solver", choices=("ida", "midpoint"), help="integrator (default: the model's)")
+    p.add_argument("--step", type=float, help="step size of the midpoint solver")
     p.add_argument("--rtol", type=float)
     p.add_argument("--atol", type=float)
     p.add_argument("--param", action="append", metavar="NAME=VALUE", help="override a parameter (repeatable)")

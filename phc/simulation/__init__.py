@@ -16,9 +16,10 @@ import sympy as sp
 from phc.errors import InconsistentInitialError, SimulationSetupError
 from phc.simulation.ida import integrate_ida
 from phc.simulation.initial import consistent_initial_conditions
+from phc.simulation.midpoint import integrate_midpoint
 from phc.simulation.result import SimResult
 
-BACKENDS = {"ida": integrate_ida}
+BACKENDS = {"ida": integrate_ida, "midpoint": integrate_midpoint}
 
 
 def parameter_vector(mod, overrides: Optional[dict] = None) -> np.ndarray:
@@ -43,7 +44,8 @@ def parameter_vector(mod, overrides: Optional[dict] = None) -> np.ndarray:
 def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] = None,
              rtol: Optional[float] = None, atol: Optional[float] = None, n_out: Optional[int] = None,
              t_eval=None, initial: Optional[dict] = None, solver: Optional[str] = None,
-             max_steps: Optional[int] = None, progress: Optional[Callable[[float], None]] = None) -> SimResult:
+             max_steps: Optional[int] = None, progress: Optional[Callable[[float], None]] = None,
+             step: Optional[float] = None) -> SimResult:
     """Simulate a compiled model.
 
     Parameters
@@ -54,6 +56,9 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
         Override the model's `simulation` defaults.
     t_eval : array_like, optional
         Output times (overrides `n_out`).
+    step : float, optional
+        Step size of the fixed-step `midpoint` solver (default: the model's
+        `simulation.step`, else the output interval).
     params : dict, optional
         Base-parameter overrides by name (one compilation serves a parameter study).
     initial : dict, optional
@@ -113,8 +118,9 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
     init = consistent_initial_conditions(mod, p, t0, values, fixed)
     if hasattr(progress, "restart"):
         progress.restart()
+    extra = {"step": step if step is not None else opts.get("step")} if solver == "midpoint" else {}
     out = BACKENDS[solver](mod, p, t_out, init.y0, init.yp0, rtol=rtol, atol=atol, max_steps=max_steps,
-                           progress=progress, max_order=opts.get("max_order", 5))
+                           progress=progress, max_order=opts.get("max_order", 5), **extra)
     cpu = time.process_time() - cpu0
     return _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol)
 

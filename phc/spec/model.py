@@ -75,7 +75,12 @@ class SimulationSpec(SpecModel):
     atol: float = Field(1e-10, gt=0)
     max_steps: int = Field(1_000_000, ge=1)
     """Maximum number of solver steps over the whole run."""
-    solver: Literal["ida"] = "ida"
+    solver: Literal["ida", "midpoint"] = "ida"
+    """`ida`: SUNDIALS IDA (variable-order BDF, error control by `rtol`/`atol`); `midpoint`:
+    the implicit midpoint rule with fixed `step`, whose discrete energy balance is exact for
+    quadratic Hamiltonians and constant Dirac structures."""
+    step: Optional[float] = Field(None, gt=0)
+    """Step size of the `midpoint` solver (default: the output interval)."""
     max_order: int = Field(5, ge=1, le=5)
     """Maximum BDF order of IDA. 2 (A-stable) suits undamped stiff oscillations such as
     fine beam meshes: orders 3–5 must resolve the highest modes to stay stable."""
