@@ -45,12 +45,14 @@ def integrate_midpoint(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progres
     steps = nfev = njev = 0
     ok, message = True, "integration finished"
     projector = _Projector(mod, p, y) if len(getattr(mod, "INVARIANTS", ())) else None
+    y_prev, h_prev = None, 1.0
     k = 1
     for k in range(1, len(t_out)):
         h = (t_out[k] - t_out[k - 1]) / substeps
         t = t_out[k - 1]
         for _ in range(substeps):
-            y_new = y + h * ((y - y_prev) / h_prev if steps else np.asarray(yp0, dtype=float))  # predictor
+            slope = np.asarray(yp0, dtype=float) if y_prev is None else (y - y_prev) / h_prev
+            y_new = y + h * slope  # predictor
             converged, last = False, np.inf
             for _it in range(MAX_NEWTON):
                 mid, z = 0.5 * (y + y_new), (y_new - y) / h
