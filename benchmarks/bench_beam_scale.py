@@ -29,6 +29,9 @@ import scipy.sparse as sps
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import phc  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _timing import best_of  # noqa: E402
+
 MODEL = """format_version: 1
 name: cantilever{n}
 parameters:
@@ -47,16 +50,6 @@ connections:
   - [beam.b, load.port]
   - [beam.b_rot, free_rot.port]
 """
-
-
-def best_of(fn, repeat=7, number=50):
-    times = []
-    for _ in range(repeat):
-        t = time.perf_counter()
-        for _ in range(number):
-            fn()
-        times.append((time.perf_counter() - t) / number)
-    return min(times), float(np.median(times))
 
 
 def measure(directory: Path, n: int):

@@ -23,6 +23,9 @@ import scipy.sparse as sps
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import phc  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _timing import best_of  # noqa: E402
+
 
 def write_chain(directory: Path, n: int) -> tuple[Path, sps.csr_matrix]:
     D = sps.diags([np.ones(n), -np.ones(n - 1)], [0, -1], shape=(n, n))
@@ -48,16 +51,6 @@ connections:
   - [chain.tip, free.port]
 """)
     return path, (4.0 * J).tocsr()
-
-
-def best_of(fn, repeat=7, number=50):
-    times = []
-    for _ in range(repeat):
-        t = time.perf_counter()
-        for _ in range(number):
-            fn()
-        times.append((time.perf_counter() - t) / number)
-    return min(times), float(np.median(times)), max(times)
 
 
 def main(sizes=(125, 250, 500, 1000, 2000)) -> None:
