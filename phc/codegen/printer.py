@@ -99,6 +99,33 @@ def _fuse(terms, m: int, n: int) -> dict:
             "pos": [inverse[offsets[k]:offsets[k + 1]] for k in range(len(terms))], "data": datas}
 
 
+_MATVEC_HELPERS = '''
+try:  # scipy's compiled CSR kernel: out += A @ x without temporaries (private; fall back if moved)
+    from scipy.sparse._sparsetools import csr_matvec as _csr_matvec
+except ImportError:  # pragma: no cover
+    _csr_matvec = None
+_YYP = np.zeros(2 * N)  # [y; yp] for the stacked linear blocks
+
+
+def _matvec_add(A, x, out):
+    """out += A @ x for a CSR matrix A (float64 data, contiguous x and out)."""
+    if _csr_matvec is not None and out.flags.c_contiguous and out.dtype == np.float64:
+        _csr_matvec(A.shape[0], A.shape[1], A.indptr, A.indices, A.data, x, out)
+    else:
+        out += A @ x
+
+
+def _axpy(a, x, out):
+    """out += a * x in one BLAS pass."""
+    if out.flags.c_contiguous and out.dtype == np.float64:
+        z = _daxpy(x, out, a=a)
+        if z is not out:  # pragma: no cover - f2py made a copy
+            out[:] = z
+    else:
+        out += a * x
+'''
+
+
 def _sparse_constant(name: str, matrix) -> list[str]:
     m = matrix.tocsr()
     return [f"{name} = _sps.csr_matrix(({_array(m.data.tolist(), 'float')}, "
@@ -154,6 +181,7 @@ class ModulePrinter:
             else:
                 parts.append(f"_sps.csr_matrix(({m}, {n}))")
         lines += [f"_A = _sps.hstack([{', '.join(parts)}]).tocsr()",
+                  "_A.sum_duplicates()",
                   "_LINEAR_CACHE.clear()", "_LINEAR_CACHE[key] = (_A, _JY, _JYP)", "return _LINEAR_CACHE[key]"]
         body = self._function("_linear(p)", "Fused sparse linear blocks (A_y, A_ẏ and their data), cached per p.",
                               exprs, targets, prologue=["key = p.tobytes()", "if key in _LINEAR_CACHE:",
@@ -251,7 +279,9 @@ class ModulePrinter:
                 if f.pos is not None:
                     sparse_consts.append(f"_{prefix}{k}_POS = {_array(f.pos.tolist(), 'np.int64')}")
         if sparse_consts:
-            parts[1] = parts[1].replace("import numpy as np\n", "import numpy as np\nimport scipy.sparse as _sps\n", 1)
+            parts[1] = parts[1].replace("import numpy as np\n", "import numpy as np\nimport scipy.sparse as _sps\n"
+                                        "from scipy.linalg.blas import daxpy as _daxpy\n", 1)
+            parts.append(_MATVEC_HELPERS)
             parts += ["# Sparse linear parts (discretized PDEs, matrix-defined components).",
                       *sparse_consts, ""]
         # Derived parameters are computed once per run, not in every residual call.
@@ -277,7 +307,8 @@ class ModulePrinter:
         qd_jac = [f"out[_QD{k}_POS] -= 2.0 * _qQD{k} * (_QD{k} @ y[_QD{k}_COLS])" for k in range(len(qd_coeffs))]
         if lin or qd_coeffs:
             rows = [(i, e) for i, e in enumerate(ir.residual) if e != 0]
-            lin_lines = (["_A, _JY, _JYP = _linear(p)", "out += _A @ np.concatenate((y, yp))"] if lin else [])
+            lin_lines = (["_A, _JY, _JYP = _linear(p)", "_YYP[:N] = y", "_YYP[N:] = yp",
+                          "_matvec_add(_A, _YYP, out)"] if lin else [])
             parts.append(self._function(
                 "residual(t, y, yp, p, out)", "Residual F(t, y, yp, p) written into `out`.",
                 [e for _, e in rows] + qd_coeffs, [f"out[{i}]" for i, _ in rows] + qd_targets,
@@ -296,7 +327,7 @@ class ModulePrinter:
         jdoc = "Data of dF/dy + cj*dF/dyp in CSC order of (JAC_ROWS, JAC_COLS), written into `out`."
         if lin or qd_coeffs:
             nz = [(k, e) for k, e in enumerate(jac) if e != 0]
-            prologue = (["_A, _JY, _JYP = _linear(p)", "np.multiply(_JYP, cj, out=out)", "out += _JY"] if lin
+            prologue = (["_A, _JY, _JYP = _linear(p)", "out[:] = _JY", "_axpy(cj, _JYP, out)"] if lin
                         else ["out[:] = 0.0"])
             self.accumulate = {f"out[{k}]" for k, _ in nz}
             parts.append(self._function(
