@@ -125,7 +125,15 @@ def plot_outputs(result, path, names: Optional[Sequence[str]] = None, title: Opt
     SimulationSetupError
         A requested name is not an output or variable of the run.
     """
-    _require_matplotlib("--plot")
+    fig = outputs_figure(result, names, title)
+    path = Path(path)
+    fig.savefig(path, dpi=dpi)
+    return path
+
+
+def outputs_figure(result, names: Optional[Sequence[str]] = None, title: Optional[str] = None):
+    """The matplotlib Figure that :func:`plot_outputs` writes (Agg canvas)."""
+    _require_matplotlib("plotting")
     if names is None:
         names = list(result.outputs) or ["H"]
     names = list(names)
@@ -150,7 +158,7 @@ def plot_outputs(result, path, names: Optional[Sequence[str]] = None, title: Opt
         ax.set_ylabel(name)
         ax.grid(True, alpha=0.3)
         if not result.success and stop is not None:
-            ax.axvline(stop, color="#c0392b", ls="--", lw=1.2)
+            ax.axvline(stop, color="#c0392b", ls="--", lw=1.2, label="stopped")
     axes[-1].set_xlabel("t [s]")
     if not result.success and stop is not None:
         axes[0].annotate(f"stopped at t = {stop:.6g}", xy=(stop, 1.0), xycoords=("data", "axes fraction"),
@@ -163,9 +171,7 @@ def plot_outputs(result, path, names: Optional[Sequence[str]] = None, title: Opt
     if heading:
         fig.suptitle(heading, fontsize=10, color="#c0392b" if not result.success else "black")
     fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=dpi)
-    return path
+    return fig
 
 
 def _shorten(text: str, n: int) -> str:
@@ -368,10 +374,21 @@ def _beam_deflection(full, spec, prefix, scope, n_kappa: int, chord0: float):
         length = chord0
     mesh = Mesh(length, elements)
     space = DP1(mesh)
-    n_xi = min(8 * elements, 240) + 1
-    xi = np.linspace(0.0, length, n_xi)
-    G = np.stack([_deflection_functional(mesh, space, float(x)) for x in xi])
-    return xi, G
+    # Nodal values by the component's own functional (exact at nodes: the Green's function
+    # is linear on each element there), then the exact cubic of w'' = κ inside each element.
+    nodal = np.stack([_deflection_functional(mesh, space, float(x)) for x in mesh.nodes])
+    per = max(1, min(8, 240 // elements))
+    h = mesh.h
+    xi, rows = [0.0], [nodal[0]]
+    for e in range(elements):
+        for j in range(1, per + 1):
+            s = h * j / per
+            row = (1 - s / h) * nodal[e] + (s / h) * nodal[e + 1]
+            row[2 * e] += -s * h / 3 + s**2 / 2 - s**3 / (6 * h)
+            row[2 * e + 1] += -s * h / 6 + s**3 / (6 * h)
+            xi.append(mesh.nodes[e] + s)
+            rows.append(row)
+    return np.array(xi), np.stack(rows)
 
 
 def _moving_beam(full, spec, prefix, scope, points, magnify):
@@ -592,9 +609,11 @@ def _draw(ax, mech: _Mechanism, k: int, title: str | None = "") -> list:
     handles = []
     for p in mech.parts:
         if p.kind == "circle":
-            art = ax.add_patch(Circle(tuple(np.asarray(p.xy, dtype=float)), p.radius, zorder=p.z, **p.style))
+            art = ax.add_patch(Circle(tuple(np.asarray(p.xy, dtype=float)), p.radius, zorder=p.z, label=p.label,
+                                      **p.style))
         elif p.kind in ("polyline", "point", "trail"):
-            (art,) = ax.plot([], [], zorder=p.z, **({"ls": "none"} if p.kind == "point" else {}), **p.style)
+            (art,) = ax.plot([], [], zorder=p.z, label=p.label, **({"ls": "none"} if p.kind == "point" else {}),
+                             **p.style)
         else:  # guide: re-created per frame (an infinite line through the slider)
             art = None
         handles.append((p, art))
@@ -627,7 +646,8 @@ def _update(ax, mech: _Mechanism, k: int, title: str | None = None, animated: bo
                 art = None
             pt, d = p.xy[k], p.direction[k]
             if np.all(np.isfinite(pt)) and np.all(np.isfinite(d)) and np.linalg.norm(d) > 0:
-                art = ax.axline(tuple(pt), tuple(pt + d), zorder=p.z, animated=animated, **p.style)
+                art = ax.axline(tuple(pt), tuple(pt + d), zorder=p.z, animated=animated, label=p.label,
+                                **p.style)
             handles[i] = (p, art)
         if art is not None and p.kind != "circle":
             artists.append(art)
@@ -675,7 +695,7 @@ def frame(compiled, result, k: int, ax, magnify: float = 1.0, *, params: Optiona
     NothingToAnimate
         The model has no mechanism to draw.
     """
-    _require_matplotlib("animate")
+    _require_matplotlib("animation")
     mech = _mechanism(compiled, result, magnify, params)
     k = int(k) % len(mech.t)
     return _draw(ax, mech, k, _title(compiled, result, mech, k, magnify))
@@ -726,11 +746,11 @@ def animate(compiled, result, path, magnify: float = 1.0, fps: float = 20.0, max
     NothingToAnimate
         The model has no mechanism to draw.
     """
-    _require_matplotlib("animate")
+    _require_matplotlib("animation")
     try:
         from PIL import Image
     except ImportError:  # pragma: no cover - Pillow is a dependency of matplotlib
-        raise PlotUnavailable("animate") from None
+        raise PlotUnavailable("animation") from None
     mech = _mechanism(compiled, result, magnify, params)
     x0, x1, y0, y1 = mech.limits
     aspect = (y1 - y0) / max(x1 - x0, 1e-12)
