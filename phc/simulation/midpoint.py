@@ -8,8 +8,10 @@ quadratic H, and power-isotropy of the Dirac structure (seed, Def. of a Dirac st
 Remark "Energy balance") at the one point ``y_mid`` where every row of F is evaluated —
 modulations, constraints and multipliers included — does the rest. The energy accumulator
 of the DAE is integrated by the same rule, so the reported balance residual is the discrete
-one. Constraints are imposed at the midpoints; the position invariants are projected back
-at the step ends (:class:`Projector`). Non-quadratic Hamiltonians: see
+one. Velocity-level constraints are imposed at the midpoints, the position constraints
+``g(q) = 0`` of the GGL formulation (seed, rigid multibody DAE) at the step ends, so
+they do not drift (:class:`StageSolver`); invariants that are not rows of F are projected
+back at the step ends (:class:`Projector`). Non-quadratic Hamiltonians: see
 :mod:`phc.simulation.discrete_gradient`.
 
 Linear algebra (why it is cheap)
@@ -32,11 +34,11 @@ import numpy as np
 import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 
-NEWTON_TOL = 1e-13
+NEWTON_TOL = 1e-14
 """Newton stops when the estimated error ``θ/(1−θ)·|Δ|`` of the iterate is below this
 (relative to ``|y| + 1``); stagnation at round-off level is accepted as well."""
-MAX_NEWTON = 12
-"""Iterations with one factorization before a refactorization is forced."""
+MAX_NEWTON = 30
+"""Iterations of one step (refactorizations included) before the step is declared failed."""
 REFACTOR_RATE = 0.25
 """Contraction rate θ = |Δ_k|/|Δ_{k−1}| above which the Newton matrix is refreshed."""
 MAX_AGE = 200
@@ -44,24 +46,35 @@ MAX_AGE = 200
 
 
 class NewtonMatrix:
-    """Sparse LU of ``s·(F_y + c_j F_ẏ)`` with ``c_j = 1/(s h)``, cached between steps."""
+    """Sparse LU of the Newton matrix of a step, cached between steps.
 
-    def __init__(self, mod, p):
+    Rows ``F_i`` evaluated at the stage point contribute ``s·(F_y + c_j F_ẏ)`` with
+    ``c_j = 1/(s h)``; the position-constraint rows ``end_rows``, imposed at the step end,
+    contribute ``g_y(y_{n+1})``."""
+
+    def __init__(self, mod, p, end_rows=()):
         self.mod, self.p, self.n = mod, p, mod.N
         rows, cols = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
         # JAC_ROWS/JAC_COLS are in CSC order: build the structure once
         self.indices = rows.astype(np.int32)
         self.indptr = np.searchsorted(cols, np.arange(self.n + 1)).astype(np.int32)
         self.buf = np.zeros(len(rows))
+        self.end_buf = np.zeros(len(rows))
+        self.end_mask = np.isin(rows, np.asarray(end_rows, dtype=int))
         self.lu = None
         self.h = self.s = None
         self.age = 0
         self.factorizations = 0
 
-    def factor(self, t, y, yp, h, s=0.5) -> bool:
-        """Factorize at ``(t, y, yp)``; False if the matrix is singular."""
-        self.mod.jacobian(t, y, yp, self.p, 1.0 / (s * h), self.buf)
-        J = sps.csc_matrix((s * self.buf, self.indices, self.indptr), shape=(self.n, self.n))
+    def factor(self, t, h, y, y1, s=0.5) -> bool:
+        """Factorize for the iterate ``y1`` of the step from ``(t, y)``; False if singular."""
+        d = y1 - y
+        self.mod.jacobian(t + s * h, y + s * d, d / h, self.p, 1.0 / (s * h), self.buf)
+        data = s * self.buf
+        if self.end_mask.any():
+            self.mod.jacobian(t + h, y1, d / h, self.p, 1.0 / (s * h), self.end_buf)
+            data[self.end_mask] = self.end_buf[self.end_mask]
+        J = sps.csc_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
         self.factorizations += 1
         try:
             self.lu = spla.splu(J)
@@ -79,75 +92,93 @@ class NewtonMatrix:
         return self.lu.solve(rhs)
 
 
+def constraint_rows(mod) -> np.ndarray:
+    """Rows of F that are position invariants g(y) = 0 (GGL formulation), in INVARIANTS order."""
+    eqs = list(mod.EQUATIONS)
+    labels = list(getattr(mod, "INVARIANTS", ()))
+    if not labels or not all(label in eqs for label in labels):
+        return np.array([], dtype=int)
+    return np.array([eqs.index(label) for label in labels], dtype=int)
+
+
 class StageSolver:
-    """Solves ``F(t + s h, y + s (y1 − y), (y1 − y)/h) = 0`` for ``y1`` by simplified Newton.
+    """Solves ``F(t + s h, y + s (y1 − y), (y1 − y)/h) = 0`` for ``y1`` by simplified Newton,
+    with the position-constraint rows replaced by ``g(t + h, y1) = 0``.
 
     ``s = 1/2`` is the implicit midpoint rule; the discrete-gradient step moves ``s``.
+    Imposing the position constraints at the step ends (and the velocity constraints and
+    everything else at the stage point) keeps them drift-free to the Newton tolerance; for
+    constraints quadratic in the positions (a Cartesian pendulum, a chord length)
+    ``g(q_{n+1}) − g(q_n) = G(q_mid)(q_{n+1} − q_n)`` makes the GGL multiplier η vanish, so
+    it does no work and the midpoint energy balance stays exact.
     """
 
-    def __init__(self, mod, p):
+    def __init__(self, mod, p, end_constraints=True):
         self.mod, self.p = mod, p
-        self.matrix = NewtonMatrix(mod, p)
+        self.end_rows = constraint_rows(mod) if end_constraints else np.array([], dtype=int)
+        self.matrix = NewtonMatrix(mod, p, self.end_rows)
         self.res = np.zeros(mod.N)
         self.nfev = 0
         self.singular = False
 
+    def residual(self, t, h, y, y1, s):
+        d = y1 - y
+        self.mod.residual(t + s * h, y + s * d, d / h, self.p, self.res)
+        if len(self.end_rows):
+            self.res[self.end_rows] = self.mod.invariants(t + h, y1, self.p)
+        self.nfev += 1
+        return self.res
+
     def solve(self, t, h, y, y1, s=0.5):
         """Return ``(y1, converged)``; ``self.singular`` tells a singular Newton matrix."""
-        matrix, res, mod, p = self.matrix, self.res, self.mod, self.p
+        matrix = self.matrix
         self.singular = False
         start = y1.copy()
         y1 = y1.copy()
-        fresh = False
         matrix.age += 1
+        since = 1  # iterations since the last factorization (1: not factorized in this solve)
         if matrix.stale(h, s):
             if not self._refactor(t, h, y, y1, s):
                 return y1, False
-            fresh = True
-        last = theta = None
-        it = 0
-        while True:
-            d = y1 - y
-            mod.residual(t + s * h, y + s * d, d / h, p, res)
-            self.nfev += 1
-            delta = matrix.solve(-res)
-            if not np.all(np.isfinite(delta)):
-                size = np.inf
-            else:
-                size = float(np.abs(delta).max())
+            since = 0
+        last = None
+        for _ in range(MAX_NEWTON):
+            delta = matrix.solve(-self.residual(t, h, y, y1, s))
+            size = float(np.abs(delta).max())
             scale = 1.0 + float(np.abs(y1).max())
-            if last is not None and last > 0:
-                theta = size / last
-            if not np.isfinite(size) or (theta is not None and theta >= 1.0 and size > 1e3 * NEWTON_TOL * scale):
-                # diverging: refresh the matrix at the start value and begin again
-                if fresh:
+            if not np.isfinite(size):
+                if since == 0:
                     return y1, False
                 y1 = start.copy()
                 if not self._refactor(t, h, y, y1, s):
                     return y1, False
-                fresh, last, theta, it = True, None, None, 0
+                since, last = 0, None
+                continue
+            theta = size / last if last else None
+            if theta is not None and theta >= 1.0 and since > 0 and size > 1e3 * NEWTON_TOL * scale:
+                # the old matrix no longer contracts: refresh it here and retry
+                if not self._refactor(t, h, y, y1, s):
+                    return y1, False
+                since, last = 0, None
                 continue
             y1 += delta
-            it += 1
-            if size <= NEWTON_TOL * scale * 1e-2:
+            since += 1
+            if size <= 1e-2 * NEWTON_TOL * scale:
                 return y1, True
             if theta is not None:
                 if theta < 1.0 and theta / (1.0 - theta) * size <= NEWTON_TOL * scale:
                     return y1, True
                 if theta >= 0.5 and size <= 1e3 * NEWTON_TOL * scale:
                     return y1, True  # stagnating at round-off level: accept
-            if theta is not None and theta > REFACTOR_RATE and not fresh or it >= MAX_NEWTON:
-                if fresh and it >= MAX_NEWTON:
-                    return y1, False
-                if not self._refactor(t, h, y, y1, s):
-                    return y1, False
-                fresh, last, theta, it = True, None, None, 0
-                continue
+                if theta > REFACTOR_RATE:
+                    if not self._refactor(t, h, y, y1, s):
+                        return y1, False
+                    since, size = 0, None
             last = size
+        return y1, False
 
     def _refactor(self, t, h, y, y1, s) -> bool:
-        d = y1 - y
-        ok = self.matrix.factor(t + s * h, y + s * d, d / h, h, s)
+        ok = self.matrix.factor(t, h, y, y1, s)
         self.singular = not ok
         return ok
 
@@ -158,8 +189,8 @@ class Projector:
     differential variables g depends on. The invariant Jacobian G is computed by finite
     differences once and reused (a chord iteration) until the iteration contracts slowly.
     Energies that do not depend on those variables (kinetic energies, the beam's) are
-    untouched, so the discrete energy balance stays exact; when H depends on them (a
-    potential such as ``m g y``), see :class:`EnergyProjector`."""
+    untouched, so the discrete energy balance stays exact. Used only when the invariants
+    are not rows of F (otherwise :class:`StageSolver` imposes them at the step ends)."""
 
     TOL = 1e-14
 
@@ -214,54 +245,11 @@ class Projector:
         return y
 
 
-class EnergyProjector(Projector):
-    """Projection onto ``{g(y) = 0, H(y) = H(ŷ)}`` for Hamiltonians that depend on the
-    projected positions: the step end ŷ is moved (minimum norm, in the positions and the
-    variables H depends on) so that the invariants hold *and* the stored energy is the one
-    the step produced — the discrete energy balance stays exact while the constraints do not
-    drift (the GGL formulation alone keeps them at the midpoints only)."""
-
-    def __init__(self, mod, p, y, t=0.0):
-        super().__init__(mod, p, y, t)
-        h0 = mod.hamiltonian(t, y, p)
-        extra = []
-        for j in np.flatnonzero(np.asarray(mod.DIFFERENTIAL)):
-            if j in self.cols or mod.VARIABLES[j] == "energy.supplied":
-                continue
-            yh = y.copy()
-            yh[j] += 1e-6 * max(1.0, abs(y[j]))
-            if mod.hamiltonian(t, yh, p) != h0:
-                extra.append(j)
-        self.cols = np.concatenate([self.cols, np.array(extra, dtype=int)]).astype(int)
-        self.target = None
-
-    @staticmethod
-    def needed(mod, p, y, cols, t=0.0) -> bool:
-        """Does H change with the variables the invariants depend on?"""
-        h0 = mod.hamiltonian(t, y, p)
-        for j in cols:
-            yh = y.copy()
-            yh[j] += 1e-6 * max(1.0, abs(y[j]))
-            if abs(mod.hamiltonian(t, yh, p) - h0) > 1e-13 * (1.0 + abs(h0)):
-                return True
-        return False
-
-    def _constraints(self, t, y):
-        return np.append(self.mod.invariants(t, y, self.p), self.mod.hamiltonian(t, y, self.p) - self.target)
-
-    def project(self, t, y):
-        self.target = self.mod.hamiltonian(t, y, self.p)
-        return super().project(t, y)
-
-
 def make_projector(mod, p, y, t=0.0):
-    """The projector the model needs, or None without position invariants."""
-    if not len(getattr(mod, "INVARIANTS", ())):
+    """The projector for invariants the stage solver does not impose at the step ends, or None."""
+    if not len(getattr(mod, "INVARIANTS", ())) or len(constraint_rows(mod)):
         return None
-    plain = Projector(mod, p, y, t)
-    if EnergyProjector.needed(mod, p, y, plain.cols, t):
-        return EnergyProjector(mod, p, y, t)
-    return plain
+    return Projector(mod, p, y, t)
 
 
 def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, advance, name, project=True):
