@@ -246,6 +246,11 @@ def assemble(b, ctx) -> Optional[Dae]:
     scope = _output_scope(b, subs, hamiltonian)
     outputs = []
     for oname, oexpr in sim.outputs.items():
+        missing = [name for name in b.unavailable if isinstance(oexpr, str) and name in oexpr]
+        if missing:
+            b.error("PHC-E604", f"output `{oname}` uses `{missing[0]}`, but {b.unavailable[missing[0]]}", ctx,
+                    ("simulation", "outputs", oname), hint="turn the effect on, or drop the output")
+            continue
         outputs.append((oname, final(b.expr(ctx, oexpr, ("simulation", "outputs", oname), scope))))
     velocity_invariants = tuple(Invariant(v.label, final(v.expr), v.component, v.span)
                                 for v in b.velocity_invariants)

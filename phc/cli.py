@@ -82,7 +82,29 @@ def cmd_compile(args) -> int:
     target.write_text(compiled.source)
     print(f"{args.file}: wrote {target} ({compiled.n_states} states, {compiled.n_equations} equations, "
           f"{compiled.jacobian_nnz} Jacobian nonzeros, compiled in {sum(compiled.timings.values()):.2f} s)")
+    for line in _left_out_lines(compiled):
+        print(line)
     return EXIT_OK
+
+
+def _size_text(size: dict) -> str:
+    return f"{size['states']} states, {size['equations']} equations, {size['jacobian_nnz']} Jacobian nonzeros"
+
+
+def _left_out_lines(compiled) -> list[str]:
+    """What a scene left out, and the compiled size against the full model."""
+    lines = [f"  left out {comp}: {what} — {why}" for comp, what, why in compiled.left_out]
+    full = compiled.full_size()
+    if full is not None:
+        lines.append(f"  full     model {compiled.scene.spec.model}: {_size_text(full)}")
+    return lines
+
+
+def _compiled_json(compiled) -> dict:
+    return {"compiled": {**compiled.size(), "compile_time_s": sum(compiled.timings.values())},
+            "full_model": compiled.full_size(),
+            "left_out": [{"component": c, "what": w, "why": y} for c, w, y in compiled.left_out],
+            **({"scene": compiled.scene.name} if compiled.scene is not None else {})}
 
 
 def _write_results(result, path: str) -> None:
@@ -155,27 +177,93 @@ def cmd_simulate(args) -> int:
     progress.close()
     if args.out:
         _write_results(result, args.out)
+    if args.plot:
+        _plot(result, args.plot, compiled.name)
     if args.format == "json":
         summary = result.summary()
         summary["model"] = compiled.name
         summary["compile_time_s"] = sum(compiled.timings.values())
+        summary.update(_compiled_json(compiled))
         if args.out:
             summary["output_file"] = args.out
+        if args.plot:
+            summary["plot_file"] = args.plot
         print(json.dumps(summary, indent=2))
     else:
-        print(_summary_text(compiled.name, result))
+        label = f"{compiled.scene.name} (scene of {compiled.name})" if compiled.scene else compiled.name
+        print(_summary_text(label, result))
+        print(f"  compiled {_size_text(compiled.size())} in {sum(compiled.timings.values()):.2f} s")
+        for line in _left_out_lines(compiled):
+            print(line)
         if args.out:
             print(f"  wrote    {args.out}")
+        if args.plot:
+            print(f"  plotted  {args.plot}")
+    return EXIT_OK if result.success else EXIT_MODEL
+
+
+def _plot(result, path: str, title: str) -> None:
+    from phc import viz
+
+    try:
+        viz.plot_outputs(result, path, title=title)
+    except viz.PlotUnavailable as err:
+        raise UsageError(str(err)) from err
+
+
+def _solver_names() -> tuple[str, ...]:
+    from typing import get_args
+
+    from phc.spec.model import SOLVERS
+
+    return get_args(SOLVERS)
+
+
+def cmd_animate(args) -> int:
+    from phc import viz
+    from phc.errors import InconsistentInitialError, ModelError, SimulationSetupError
+    from phc.pipeline import compile_model
+    from phc.progress import Progress
+    from phc.simulation import simulate
+
+    if not args.output.endswith(".gif"):
+        raise UsageError(f"-o must end in .gif, got `{args.output}`")
+    try:
+        compiled = compile_model(args.file)
+    except ModelError as err:
+        _print_diagnostics(err.diagnostics)
+        return EXIT_MODEL
+    opts = compiled.dae.options
+    t_end = args.t_end if args.t_end is not None else opts["t_end"]
+    progress = Progress(opts["t_start"], t_end, label=compiled.name, enabled=not args.quiet)
+    try:
+        result = simulate(compiled, t_end=args.t_end, progress=progress)
+    except InconsistentInitialError as err:
+        progress.close()
+        for line in err.problems:
+            print(f"{args.file}: inconsistent initial values: {line}", file=sys.stderr)
+        return EXIT_MODEL
+    except SimulationSetupError as err:
+        progress.close()
+        raise UsageError(str(err)) from err
+    progress.close()
+    if not result.success:
+        print(f"{args.file}: simulation stopped: {result.message}; animating the results so far", file=sys.stderr)
+    try:
+        viz.animate(compiled, result, args.output, magnify=args.magnify, fps=args.fps, max_frames=args.frames)
+    except viz.PlotUnavailable as err:
+        raise UsageError(str(err)) from err
+    print(f"{args.file}: wrote {args.output}")
     return EXIT_OK if result.success else EXIT_MODEL
 
 
 def cmd_check(args) -> int:
     from phc.analysis.matching import check_balance
     from phc.checks.certify import certify
-    from phc.elaborate import elaborate
+    from phc.pipeline import elaborate_file
 
     # Certify even a structurally unbalanced model: the coupling certificate says why.
-    dae, diags = elaborate(args.file)
+    dae, diags = elaborate_file(args.file)
     if dae is None:
         _print_diagnostics(diags)
         if args.format == "json":
@@ -272,11 +360,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", default=".", metavar="DIR", help="directory for the generated module")
     p.set_defaults(func=cmd_compile)
 
-    p = sub.add_parser("simulate", help="compile and simulate a model")
-    p.add_argument("file", metavar="FILE")
+    p = sub.add_parser("simulate", help="compile and simulate a model or a scene")
+    p.add_argument("file", metavar="FILE", help="a model file, or a scene file (models/scenes/*.yaml)")
     p.add_argument("--t-end", type=float, help="end time (default: the model's simulation.t_end)")
     p.add_argument("--n-out", type=int, help="number of output points")
-    p.add_argument("--solver", choices=("ida", "midpoint"), help="integrator (default: the model's)")
+    p.add_argument("--solver", choices=_solver_names(), help="integrator (default: the model's)")
     p.add_argument("--step", type=float, help="step size of the midpoint solver")
     p.add_argument("--rtol", type=float)
     p.add_argument("--atol", type=float)
@@ -284,7 +372,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", metavar="FILE", help="write results to FILE (.csv or .npz)")
     p.add_argument("--format", choices=("text", "json"), default="text")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--plot", metavar="OUT.png", help="draw the requested outputs over time (needs phc[plot])")
     p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("animate", help="simulate and draw the planar mechanism frame by frame (GIF)")
+    p.add_argument("file", metavar="FILE", help="a scene or model file")
+    p.add_argument("-o", "--output", metavar="OUT.gif", required=True)
+    p.add_argument("--magnify", type=float, default=1.0, help="magnify the beam deflection in the picture")
+    p.add_argument("--frames", type=int, default=100, help="at most this many frames")
+    p.add_argument("--fps", type=int, default=20)
+    p.add_argument("--t-end", type=float)
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_animate)
 
     p = sub.add_parser("check", help="certify Dirac structures and couplings (the seed's section 2)")
     p.add_argument("file", metavar="FILE")

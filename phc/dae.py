@@ -192,6 +192,9 @@ class Dae:
     initial_relations: tuple[tuple[str, dict], ...] = ()
     """Linear relations Σ c_v·v = 0 imposed only at t₀ (e.g. a beam starting straight and
     moving rigidly), as (label, {variable symbol: coefficient})."""
+    left_out: tuple[tuple[str, str, str], ...] = ()
+    """What was not compiled, as (component, what, why): effects that are off, components
+    pruned by a scene."""
 
     @property
     def n_states(self) -> int:

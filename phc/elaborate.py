@@ -22,6 +22,7 @@ for a user mistake, and nothing is evaluated: expressions go through
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import math
 import os
@@ -132,6 +133,12 @@ class Builder:
         self.initial_relations: list = []
         self.position_maps: list = []
         self.compile_time_parameters: set = set()
+        self.effect_overrides: dict[str, tuple[dict, Optional[SourceSpan]]] = {}
+        self.mesh_overrides: dict[str, tuple[int, Optional[SourceSpan]]] = {}
+        self.skip: set[str] = set()  # components left out (pruned by a scene)
+        self.scene = None
+        self.left_out: list[tuple[str, str, str]] = []
+        self.unavailable: dict[str, str] = {}  # name -> why (an effect that is off)
 
     # -- diagnostics ----------------------------------------------------------------
     def error(self, code: str, message: str, ctx: Optional[FileContext], path: Sequence = (),
@@ -141,6 +148,10 @@ class Builder:
             span = ctx.smap.locate_key(tuple(path)) if key else ctx.smap.locate(tuple(path))
         dotted = ".".join(str(p) for p in path) or None
         self.diags.append(Diagnostic(code, message, span=span, hint=hint, severity=severity, path=dotted))
+
+    def leave_out(self, component: str, what: str, why: str) -> None:
+        """Record a part of a component that is not compiled (reported to the user)."""
+        self.left_out.append((component, what, why))
 
     # -- expressions ----------------------------------------------------------------
     def expr(self, ctx: FileContext, value: Any, path: Sequence, names: dict,
@@ -304,6 +315,11 @@ class Builder:
         self.diags.extend(diags)
         if spec is None:
             return None
+        if parent is None and self.scene is not None:
+            spec, smap = self.scene.apply(self, spec, smap)
+            sctx = FileContext(str(self.scene.path), self.scene.smap, "", None)
+            overrides = {k: (v, ("parameters", k), sctx) for k, v in self.scene.spec.parameters.items()}
+            self.sources.append(str(self.scene.path))
         self.sources.append(str(path))
         ctx = FileContext(str(path), smap, prefix, spec)
         self._file_stack.append(key)
@@ -327,7 +343,7 @@ class Builder:
         for name, (value, path, octx) in overrides.items():
             if name not in entries:
                 close = difflib.get_close_matches(name, list(entries), n=1)
-                self.error("PHC-E105", f"nested model `{ctx.file}` has no parameter `{name}`", octx, path,
+                self.error("PHC-E105", f"{'nested ' if ctx.prefix else ''}model `{ctx.file}` has no parameter `{name}`", octx, path,
                            hint=f"did you mean `{close[0]}`?" if close else
                            f"its parameters are: {', '.join(sorted(entries)) or 'none'}", key=True)
                 continue
@@ -337,6 +353,8 @@ class Builder:
         for cname, comp in spec.components.items():
             full = ctx.prefix + cname
             path = ("components", cname)
+            if full in self.skip:
+                continue
             if isinstance(comp, ModelComponentSpec):
                 sub = Path(ctx.file).parent / comp.file
                 if not sub.is_file():
@@ -359,21 +377,46 @@ class Builder:
         for cname, comp, full, path in deferred:
             self._lower(LOWERERS, ctx, full, comp, path)
         for i, conn in enumerate(spec.connections):
+            if self._skipped(ctx, conn.between[0]):
+                continue
             a, b = (ctx.prefix + ref for ref in conn.between)
             self.connections.append((a, b, ctx.smap.locate(("connections", i)), f"connections[{i}]"))
         self._check_refs(ctx)
 
     def _lower(self, lowerers, ctx, full, comp, path) -> None:
+        if full in self.effect_overrides:
+            from phc.effects import apply_overrides
+
+            overrides, span = self.effect_overrides[full]
+            comp, problem = apply_overrides(comp, overrides)
+            if problem:
+                self.diags.append(Diagnostic("PHC-E601", f"effects of `{full}`: {problem}", span=span,
+                                             path=f"effects.{full}"))
+                self.failed.add(full)
+                return
+        if full in self.mesh_overrides:
+            elements, span = self.mesh_overrides[full]
+            if "elements" not in type(comp).model_fields:
+                self.diags.append(Diagnostic("PHC-E603", f"`{full}` ({comp.type}) has no mesh; `accuracy.mesh` "
+                                             "applies to distributed components", span=span))
+                self.failed.add(full)
+                return
+            comp = comp.model_copy(update={"elements": elements})
         n_errors = len(self.diags.errors)
         self.components.append((full, comp.type, ctx.smap.locate(path)))
         lowerers[comp.type](self, ctx, full, comp, path)
         if len(self.diags.errors) > n_errors:
             self.failed.add(full)  # its ports may be missing: do not report them again
 
+    def _skipped(self, ctx: FileContext, ref: str) -> bool:
+        return ctx.prefix + ref.split(".", 1)[0] in self.skip
+
     def _check_refs(self, ctx: FileContext) -> None:
         """Check that connections and exposed ports of this file name existing ports."""
         spec = ctx.spec
         for i, conn in enumerate(spec.connections):
+            if self._skipped(ctx, conn.between[0]):
+                continue
             for j, ref in enumerate(conn.between):
                 self._resolve_port(ctx, ref, ("connections", i, "between", j))
         for pname, exposed in spec.ports.items():
@@ -405,14 +448,16 @@ class Builder:
         return name
 
 
-def elaborate(path: str | os.PathLike) -> tuple[Optional[Dae], DiagnosticList]:
+def elaborate(path: str | os.PathLike, scene=None) -> tuple[Optional[Dae], DiagnosticList]:
     """Read a model file (and the files it nests) and build its flat :class:`Dae`.
 
+    `scene` (a :class:`phc.scene.Scene`) applies a scene's overrides, effects and pruning.
     Returns ``(dae, diagnostics)``; `dae` is None when any error was found.
     """
     from phc.assemble import _check_connections, assemble
 
     builder = Builder()
+    builder.scene = scene
     ctx = builder.load_file(Path(path), "", {}, None)
     if ctx is None:
         return None, builder.diags.sorted()
@@ -422,4 +467,6 @@ def elaborate(path: str | os.PathLike) -> tuple[Optional[Dae], DiagnosticList]:
         _check_connections(builder, ctx)
         return None, DiagnosticList(dict.fromkeys(builder.diags)).sorted()
     dae = assemble(builder, ctx)
+    if dae is not None and builder.left_out:
+        dae = dataclasses.replace(dae, left_out=tuple(builder.left_out))
     return (None if builder.diags.has_errors else dae), builder.diags.sorted()

@@ -21,6 +21,7 @@ from phc.dae import Dae
 from phc.diagnostics import DiagnosticList
 from phc.elaborate import elaborate
 from phc.errors import ModelError
+from phc.scene import Scene, is_scene_file, load_scene
 
 
 @dataclass
@@ -34,6 +35,8 @@ class CompiledModel:
     module_path: Path
     diagnostics: DiagnosticList
     timings: dict[str, float] = field(default_factory=dict)
+    scene: Optional[Scene] = None
+    """The scene this was compiled for (None for a plain model file)."""
 
     @property
     def n_states(self) -> int:
@@ -47,10 +50,38 @@ class CompiledModel:
     def jacobian_nnz(self) -> int:
         return len(self.module.JAC_ROWS)
 
+    @property
+    def left_out(self) -> tuple[tuple[str, str, str], ...]:
+        """What was not compiled, as (component, what, why)."""
+        return self.dae.left_out
 
-def build_dae(path: str | os.PathLike) -> tuple[Optional[Dae], DiagnosticList]:
-    """Stages 1–7: read, elaborate, assemble and check one model file."""
-    dae, diags = elaborate(path)
+    def size(self) -> dict[str, int]:
+        return {"states": self.n_states, "equations": self.n_equations, "jacobian_nnz": self.jacobian_nnz}
+
+    def full_size(self) -> Optional[dict[str, int]]:
+        """Size of the scene's model compiled with its own settings (everything on, nothing
+        pruned), for comparison; None for a plain model or when nothing was left out."""
+        if self.scene is None or not self.left_out:
+            return None
+        full = compile_model(self.scene.model_path)
+        return full.size()
+
+
+def elaborate_file(path: str | os.PathLike, scene: Optional[Scene] = None) -> tuple[Optional[Dae], DiagnosticList]:
+    """Elaborate a model file, or a scene file (its model with the scene applied)."""
+    if scene is None and is_scene_file(path):
+        scene, diags = load_scene(path)
+        if scene is None:
+            return None, DiagnosticList(diags).sorted()
+    if scene is not None:
+        return elaborate(scene.model_path, scene)
+    return elaborate(path)
+
+
+def build_dae(path: str | os.PathLike, scene: Optional[Scene] = None) -> tuple[Optional[Dae], DiagnosticList]:
+    """Stages 1–7: read, elaborate, assemble and check one model file, or a scene file
+    (then its model with the scene applied)."""
+    dae, diags = elaborate_file(path, scene)
     if dae is not None:
         # Structural solvability before any code is generated.
         diags.extend(check_balance(dae))
@@ -60,7 +91,8 @@ def build_dae(path: str | os.PathLike) -> tuple[Optional[Dae], DiagnosticList]:
 
 
 def compile_model(path: str | os.PathLike) -> CompiledModel:
-    """Compile a model file to a loaded residual module.
+    """Compile a model file (or a scene file: its model as the scene asks) to a loaded
+    residual module.
 
     Raises
     ------
@@ -69,7 +101,12 @@ def compile_model(path: str | os.PathLike) -> CompiledModel:
     """
     timings = {}
     t = time.perf_counter()
-    dae, diags = build_dae(path)
+    scene = None
+    if is_scene_file(path):
+        scene, diags = load_scene(path)
+        if scene is None:
+            raise ModelError(DiagnosticList(diags).sorted())
+    dae, diags = build_dae(path, scene)
     timings["elaborate"] = time.perf_counter() - t
     if dae is None:
         raise ModelError(diags)
@@ -82,4 +119,4 @@ def compile_model(path: str | os.PathLike) -> CompiledModel:
     t = time.perf_counter()
     module, module_path = load_generated(source, dae.name)
     timings["load"] = time.perf_counter() - t
-    return CompiledModel(dae.name, dae, module, source, module_path, diags, timings)
+    return CompiledModel(dae.name, dae, module, source, module_path, diags, timings, scene)

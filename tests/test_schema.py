@@ -52,6 +52,7 @@ def test_schema_check_detects_a_stale_copy(tmp_path, capsys):
     schema = json.loads(SCHEMA_FILE.read_text())
     schema["description"] = "edited by hand"
     (tmp_path / "model.schema.json").write_text(json.dumps(schema, indent=2) + "\n")
+    (tmp_path / "scene.schema.json").write_text((SCHEMA_DIR / "scene.schema.json").read_text())
     assert main(["schema", "--check", "--dir", str(tmp_path)]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1

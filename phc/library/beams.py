@@ -110,7 +110,7 @@ class _Field:
 
 
 def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, couplings, skew, ports, order,
-                       dissipation=()):
+                       dissipation=(), kelvin_voigt=False):
     """Assemble the partitioned mixed system.
 
     fields_a / fields_b: {local: (_Field, coefficient of H)};
@@ -121,7 +121,9 @@ def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, coupl
     skew: (row_local, col_local, value) zero-order couplings (entries of P_0);
     dissipation: (row_local, col_local, coefficient) entries of D in ``−D H x`` (eq. BH1gen);
     ports: (port_name, a_local, end, derivative, domain) — the flow is ``∂^derivative e_a``
-    at the end; the effort enters the a-rows through the same basis function.
+    at the end; the effort enters the a-rows through the same basis function;
+    kelvin_voigt: the `damping` coefficient c acts on the strain rate (``ṗ ∋ −∂^N(c ∂^N e_p)``,
+    rows ``+∫ c ∂^Nφ_i ∂^Nφ_j e_j``) instead of on the velocity: rigid motion is not damped.
     """
     span = ctx.smap.locate(path)
     fields = {**fields_a, **fields_b}
@@ -159,12 +161,15 @@ def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, coupl
         else:
             b.error("PHC-E158", f"the entries of `D` of `{name}` must share one parameter factor (or be numbers)",
                     ctx, (*path, "D"))
-    if getattr(spec, "damping", None) is not None:
+    if getattr(spec, "damping", None) is not None and not spec.effects.damping:
+        b.leave_out(name, "distributed damping", "effect `damping` is off")
+    elif getattr(spec, "damping", None) is not None:
         coeff = _Coefficient(b, ctx, spec.damping, (*path, "damping"))
         coeff.check_positive(name, "damping", mesh, strict=False)
         a_local = next(iter(fields_a))
         fld = fields_a[a_local][0]
-        Md = assemble(fld.space, 0, fld.space, 0, coeff.function())
+        k = order if kelvin_voigt else 0
+        Md = assemble(fld.space, k, fld.space, k, coeff.function())
         terms[a_local].append(LinearTerm(coeff.scale(), Md, tuple(fld.e)))
         b.quadratic_dissipation.append(QuadraticForm(coeff.scale(), Md, tuple(fld.e)))
     rows = {local: b.add_linear_rows(name, f"{local}.dynamics", fields[local][0].space.size, terms[local], span)

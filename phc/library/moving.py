@@ -44,6 +44,9 @@ def _deflection_functional(mesh, kappa_space, xi_star: float) -> np.ndarray:
 
 
 def lower_moving_beam(b, ctx, name, spec, path):
+    if not spec.effects.flexibility:
+        _lower_rigid_link(b, ctx, name, spec, path)
+        return
     prep = prepare(b, ctx, name, spec, path, ("rhoA", "EI"))
     if prep is None:
         return
@@ -57,7 +60,7 @@ def lower_moving_beam(b, ctx, name, spec, path):
     L = sp.Float(mesh.length)
     p, kappa, fields_a, fields_b = euler_bernoulli_fields(b, name, mesh, span, coeffs)
     rows = _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, [("p", "kappa", 1)], [], [],
-                              order=2)
+                              order=2, kelvin_voigt=True)
     n_el = mesh.elements
     dof0, dofL, slope0, slopeL = 0, 2 * n_el, 1, 2 * n_el + 1
     # Rigid part.
@@ -88,9 +91,13 @@ def lower_moving_beam(b, ctx, name, spec, path):
     for pname in ("m0", "mf"):
         ports[pname] = b.add_port(name, pname, "mechanical.rotational", 1, span=span)
     e0, ef = sp.Matrix(ports["p0"].e), sp.Matrix(ports["pf"].e)
-    b.add_equation(dpt - omega * r_expr + tv.dot(e0) + tv.dot(ef), name, "dynamics", "tangential_momentum", span)
+    frame = 1 if spec.effects.moving_frame else 0
+    if not frame:
+        b.leave_out(name, "moving-frame terms K_r, K_f (ω∫p_b, −ρωp_t/m)", "effect `moving_frame` is off")
+    b.add_equation(dpt - frame * omega * r_expr + tv.dot(e0) + tv.dot(ef), name, "dynamics", "tangential_momentum",
+                   span)
     for j, rj in enumerate(r):
-        if rj:
+        if rj and frame:
             b.add_to_row(rows["p"][j], omega * e_t * rho.expr * float(rj))
     for k in range(2):
         b.define(ports["p0"].f[k], v_end0[k])
@@ -132,6 +139,84 @@ def lower_moving_beam(b, ctx, name, spec, path):
     d.rel(ports["mf"].f[0] - lb)
     d.register(b, states=(q0x, q0y, qfx, qfy), kind="port_projection",
                note="moving beam: rigid part ⊕ flexible part through R⁴ (seed Prop. flexbeam-interconnection)")
+
+
+def _lower_rigid_link(b, ctx, name, spec, path):
+    """The moving beam with `flexibility` off: a rigid uniform link with the same mass and
+    rigid-body inertia (m = ρL, J = mL²/12 about the centre).
+
+    Endpoint coordinates q = (q0, qf) with the kinetic energy of a uniform bar,
+    ``T = (m/6)(|v0|² + v0·vf + |vf|²)``, i.e. the constant mass matrix
+    ``M = (m/6)[[2I, I], [I, 2I]]`` (seed eq. mks2 with Z = I), and the chord constraint
+    ``|qf − q0|² = L²`` kept at position level (GGL, like every rigid constraint). Ports as
+    the flexible beam: `p0`, `pf` (end velocities, positions q0, qf) and `m0`, `mf` (both
+    carry the link's angular velocity ω = nᵀ(vf − v0)/L). States keep the flexible beam's
+    names (`q0[k]`, `qf[k]`), so scenes switch the effect without renaming anything.
+    """
+    span = ctx.smap.locate(path)
+    scope = {"t": T, **ctx.params}
+    n_errors = len(b.diags.errors)
+    rho = b.expr(ctx, spec.rhoA, (*path, "rhoA"), scope)
+    length = b.expr(ctx, spec.length, (*path, "length"), scope)
+    if len(b.diags.errors) > n_errors:
+        return
+    b.leave_out(name, f"elastic deformation ({spec.elements} elements: curvature and transverse momentum)",
+                "effect `flexibility` is off: a rigid link with the same mass and inertia")
+    for i in range(len(spec.deflection_at)):
+        b.unavailable[f"{name}.w[{i}]"] = f"the deflection of `{name}` needs effect `flexibility`, which is off"
+    mass = rho * length
+    q = [b.add_state(name, f"{pt}[{k}]", span) for pt in ("q0", "qf") for k in range(2)]
+    qv = sp.Matrix([s for s, _ in q])
+    mom = [b.add_state(name, f"p[{k}]", span) for k in range(4)]
+    pv = sp.Matrix([s for s, _ in mom])
+    # v = M⁻¹p with M⁻¹ = (2/m)[[2I, −I], [−I, 2I]]
+    Minv = (2 / mass) * sp.Matrix([[2, 0, -1, 0], [0, 2, 0, -1], [-1, 0, 2, 0], [0, -1, 0, 2]])
+    v = Minv * pv
+    chord = sp.Matrix([qv[2] - qv[0], qv[3] - qv[1]])
+    c = chord.dot(chord) - length**2
+    cq = sp.Matrix([[sp.diff(c, x) for x in qv]])
+    nvec = sp.Matrix([-chord[1], chord[0]]) / length
+    Bm = sp.Matrix([-nvec[0], -nvec[1], nvec[0], nvec[1]]) / length  # ω = Bmᵀ v
+    lam = b.add_algebraic(name, "lambda[0]", "multiplier", span)
+    ports = {}
+    for pname, pos in (("p0", [qv[0], qv[1]]), ("pf", [qv[2], qv[3]])):
+        ports[pname] = b.add_port(name, pname, "mechanical.translational", 2, span=span, position=pos)
+    for pname in ("m0", "mf"):
+        ports[pname] = b.add_port(name, pname, "mechanical.rotational", 1, span=span)
+    Bp0 = sp.Matrix([[1, 0], [0, 1], [0, 0], [0, 0]])
+    Bpf = sp.Matrix([[0, 0], [0, 0], [1, 0], [0, 1]])
+    force = cq.T * lam + Bp0 * sp.Matrix(ports["p0"].e) + Bpf * sp.Matrix(ports["pf"].e)
+    force += Bm * (ports["m0"].e[0] + ports["mf"].e[0])
+    for k in range(2):
+        b.define(ports["p0"].f[k], v[k])
+        b.define(ports["pf"].f[k], v[2 + k])
+    omega = (Bm.T * v)[0, 0]
+    b.define(ports["m0"].f[0], omega)
+    b.define(ports["mf"].f[0], omega)
+    for k in range(4):
+        b.add_equation(q[k][1] - v[k], name, "kinematics", f"kinematics[{k}]", span)
+        b.add_equation(mom[k][1] + force[k], name, "dynamics", f"momentum[{k}]", span)
+    vel_c = (cq * v)[0, 0]
+    b.add_equation(vel_c, name, "velocity_constraint", "chord_length.velocity", span)
+    b.add_invariant(c, name, "chord_length", span)
+    b.add_invariant(vel_c, name, "chord_length.velocity", span, velocity=True)
+    b.rigid_constraints.append((name, ctx, path, list(qv), cq, sp.zeros(0, 4), ["chord_length"], []))
+    b.hamiltonian.append((pv.T * v)[0, 0] / 2)
+    b.extra_outputs[f"{name}.omega"] = omega
+    d = DiracBuilder(name, "moving_beam", span)
+    l0x, l0y, lfx, lfy = (d.mult(x) for x in ("l0x", "l0y", "lfx", "lfy"))
+    for pname in ("p0", "pf", "m0", "mf"):
+        d.port(ports[pname])
+    lv = sp.Matrix([l0x, l0y, lfx, lfy])
+    d.rel((cq * lv)[0, 0])
+    for k, lk in enumerate((l0x, l0y)):
+        d.rel(ports["p0"].f[k] - lk)
+    for k, lk in enumerate((lfx, lfy)):
+        d.rel(ports["pf"].f[k] - lk)
+    d.rel(ports["m0"].f[0] - (Bm.T * lv)[0, 0])
+    d.rel(ports["mf"].f[0] - (Bm.T * lv)[0, 0])
+    d.register(b, states=tuple(qv), kind="port_projection",
+               note="moving beam with flexibility off: a rigid link (seed eq. mks2, chord constraint)")
 
 
 def lower_crank_wheel(b, ctx, name, spec, path):

@@ -20,6 +20,7 @@ import numpy as np
 import sympy as sp
 
 from phc.dae import T, Parameter
+from phc.effects import is_on, summed_terms, user_effect_scope
 from phc.library.dirac import DiracBuilder
 from phc.spec.expressions import ExpressionError, parse_equation
 
@@ -27,6 +28,11 @@ from phc.spec.expressions import ExpressionError, parse_equation
 def local_scope(b, ctx, name, spec, path) -> dict:
     """Scope with the model's parameters, `t` and the component's own `parameters`."""
     scope = {"t": T, **ctx.params}
+    for ename, flag in user_effect_scope(spec).items():  # declared effects: 0/1 factors
+        if ename in scope:
+            b.error("PHC-E112", f"effect `{ename}` of `{name}` has the name of a parameter; rename one of them",
+                    ctx, (*path, "effects", ename), key=True)
+        scope[ename] = flag
     for pname, value in spec.parameters.items():
         ppath = (*path, "parameters", pname)
         if pname in scope and pname in ctx.params:
@@ -70,7 +76,9 @@ def lower_phs(b, ctx, name, spec, path):
         dxs.append(dx)
         scope[sname] = x
     n = len(xs)
-    H = b.expr(ctx, spec.hamiltonian, (*path, "hamiltonian"), scope)
+    H, dropped = summed_terms(b, ctx, spec, "hamiltonian", path, scope)
+    for term in dropped:
+        b.leave_out(name, f"Hamiltonian term `{term}`", f"effect `{term}` is off")
     grad = sp.Matrix([sp.diff(H, x) for x in xs]) if n else sp.zeros(0, 1)
     b.hamiltonian.append(H)
     if spec.J is not None:
@@ -83,6 +91,9 @@ def _lower_jrb(b, ctx, name, spec, path, scope, xs, dxs, grad, span):
     n = len(xs)
     J = b.matrix(ctx, spec.J, (*path, "J"), scope, (n, n), "`J`")
     R = b.matrix(ctx, spec.R, (*path, "R"), scope, (n, n), "`R`") if spec.R is not None else sp.zeros(n, n)
+    if spec.R is not None and not is_on(spec, "damping"):
+        b.leave_out(name, "dissipation `R`", "effect `damping` is off")
+        R = sp.zeros(n, n)
     _check_structure(b, ctx, name, path, J, R, xs)
     rhs = (J - R) * grad
     d = DiracBuilder(name, "phs", span)

@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 import sympy as sp
 
+from phc.effects import is_on, summed_terms
 from phc.library.dirac import DiracBuilder
 from phc.library.phs import local_scope, numeric_defaults
 
@@ -53,12 +54,17 @@ def lower_rigid(b, ctx, name, spec, path):
     M = b.matrix(ctx, spec.M, (*path, "M"), scope, (nv, nv), "`M`")
     Z = (b.matrix(ctx, spec.Z, (*path, "Z"), scope, (nq, nv), "`Z`") if spec.Z is not None
          else sp.eye(nq))
-    V = b.expr(ctx, spec.V, (*path, "V"), scope)
+    V, dropped = summed_terms(b, ctx, spec, "V", path, scope)
+    for term in dropped:
+        b.leave_out(name, f"potential term `{term}`", f"effect `{term}` is off")
     c = sp.Matrix([b.expr(ctx, ci, (*path, "constraints", i), scope) for i, ci in enumerate(spec.constraints)])
     A = (b.matrix(ctx, spec.velocity_constraints, (*path, "velocity_constraints"), scope, (None, nv),
                   "`velocity_constraints`") if spec.velocity_constraints else sp.zeros(0, nv))
     Fd = (sp.Matrix(b.vector(ctx, spec.damping, (*path, "damping"), scope, nv, "`damping`"))
           if spec.damping is not None else sp.zeros(nv, 1))
+    if spec.damping is not None and not is_on(spec, "damping"):
+        b.leave_out(name, "damping force", "effect `damping` is off")
+        Fd = sp.zeros(nv, 1)
     G = (b.matrix(ctx, spec.G, (*path, "G"), scope, (nv, nv), "`G`") if spec.G is not None
          else sp.zeros(nv, nv))
     if b.diags.has_errors:

@@ -38,6 +38,54 @@ class _Component(SpecModel):
     """Free text shown in reports."""
 
 
+class _Effects(SpecModel):
+    """Optional physics of a component, each on (`true`) or off (`false`). A scene
+    (`models/scenes/*.yaml`, key `effects`) overrides them per run; an effect that is off
+    does not appear in the generated code."""
+
+
+class DistributedEffects(_Effects):
+    """Effects of the library PDE components (`string`, `euler_bernoulli_beam`)."""
+
+    damping: bool = True
+    """Distributed viscous damping (the component's `damping` coefficient; nothing without one)."""
+    modes: Optional[int] = Field(None, ge=1)
+    """Keep only the k lowest modes of the discretized PDE (structure-preserving modal
+    truncation: the reduced system is again pH with the same boundary ports). Default: all."""
+
+
+class TimoshenkoEffects(DistributedEffects):
+    """Effects of the `timoshenko_beam`; with `shear` and `rotary_inertia` both off it behaves
+    as an Euler–Bernoulli beam."""
+
+    shear: bool = True
+    """Shear deformation (off: the shear strain is constrained to zero, infinite shear stiffness)."""
+    rotary_inertia: bool = True
+    """Rotary inertia of the cross-sections (off: their angular momentum is neglected)."""
+
+
+class MovingBeamEffects(_Effects):
+    """Effects of the `moving_beam` (seed section 5.1)."""
+
+    flexibility: bool = True
+    """Elastic deformation (off: a rigid link with the same mass and rigid-body inertia —
+    the flexible slider–crank becomes the rigid one)."""
+    moving_frame: bool = True
+    """The modulation terms K_r, K_f of the moving frame (seed Prop.
+    flexbeam-flexible-modulation): ω∫p_b in the tangential momentum and −ρωp_t/m in the
+    transverse momentum. Off drops both (they exchange power with each other only)."""
+    damping: bool = True
+    """Kelvin–Voigt damping of the elastic motion (the `damping` coefficient)."""
+    modes: Optional[int] = Field(None, ge=1)
+    """Keep only the k lowest modes of the elastic part (see `DistributedEffects.modes`)."""
+
+
+UserEffects = dict[Identifier, bool]
+"""Effects of user-defined components: name → default. Each name can be used as a 0/1
+factor in the component's expressions, and names terms of a Hamiltonian or potential
+written as a mapping."""
+
+
 class PortSpec(SpecModel):
     """A power port: a flow vector f and an effort vector e of equal dimension.
 
@@ -92,8 +140,9 @@ class PhsSpec(_Component):
     """Local parameters (may refer to model parameters)."""
     states: list[Identifier]
     """Energy variables x."""
-    hamiltonian: Expr = 0
-    """H(x): the stored energy."""
+    hamiltonian: Union[Expr, dict[Identifier, Expr]] = 0
+    """H(x): the stored energy; or a mapping of named terms (summed), where a term named
+    after an effect is dropped when that effect is off."""
     J: Optional[Matrix] = None
     """Skew-symmetric interconnection matrix J(x) (n_states × n_states)."""
     R: Optional[Matrix] = None
@@ -105,6 +154,8 @@ class PhsSpec(_Component):
     """Dirac relations (kernel form), one equation each."""
     resistive: dict[Identifier, ResistiveSpec] = {}
     """Resistive ports (kernel form)."""
+    effects: UserEffects = {}
+    """Named effects and their defaults (built in: `damping`, which switches `R`)."""
 
     @model_validator(mode="after")
     def _one_form(self):
@@ -184,8 +235,10 @@ class RigidSpec(_Component):
     """Mass matrix, constant or configuration dependent M(q); symmetric positive definite."""
     Z: Optional[Matrix] = None
     """Kinematics q̇ = Z(q) v (n_q × n_v). Default identity."""
-    V: Expr = 0
-    """Potential energy V(q)."""
+    V: Union[Expr, dict[Identifier, Expr]] = 0
+    """Potential energy V(q); or a mapping of named terms (summed), e.g.
+    `{gravity: m*g*y, spring: k*x**2/2}`, where a term named after an effect is dropped when
+    that effect is off."""
     constraints: list[Expr] = []
     """Position constraints c(q) = 0."""
     velocity_constraints: Matrix = []
@@ -195,6 +248,9 @@ class RigidSpec(_Component):
     G: Optional[Matrix] = None
     """Skew gyroscopic matrix G(p)."""
     ports: dict[Identifier, RigidPortSpec] = {}
+    effects: UserEffects = {}
+    """Named effects and their defaults (built in: `gravity`, which switches the `V` term named
+    `gravity`, and `damping`, which switches `damping`)."""
 
 
 class ModelComponentSpec(_Component):
@@ -359,6 +415,7 @@ class _Distributed(_Component):
     damping: Optional[Expr] = None
     """Viscous damping per unit length on the transverse momentum (the D term of eq. BH1gen);
     may depend on `xi`."""
+    effects: DistributedEffects = DistributedEffects()
 
 
 class StringSpec(_Distributed):
@@ -390,6 +447,7 @@ class TimoshenkoBeamSpec(_Distributed):
     """Bending stiffness."""
     K: Expr
     """Shear stiffness (κ G A)."""
+    effects: TimoshenkoEffects = TimoshenkoEffects()
 
 
 class EulerBernoulliBeamSpec(_Distributed):
@@ -430,6 +488,10 @@ class MovingBeamSpec(_Component):
     """Fractions ξ/L where the transverse deflection w(ξ) is available as output
     `<name>.w[i]` (reconstructed from κ with w(0) = w(L) = 0, seed Remark on the relative
     displacement)."""
+    damping: Optional[Expr] = None
+    """Kelvin–Voigt damping c (N·m²·s): the bending moment gains c·κ̇, which damps the
+    elastic motion and not the rigid one."""
+    effects: MovingBeamEffects = MovingBeamEffects()
 
 
 class CrankWheelSpec(_Component):

@@ -11,9 +11,10 @@ import json
 from pathlib import Path
 
 from phc.spec.model import ModelSpec
+from phc.spec.scene import SceneSpec
 
 SCHEMA_BASE_ID = "https://phc.dev/schemas/"
-SCHEMAS = {"model.schema.json": ModelSpec}
+SCHEMAS = {"model.schema.json": ModelSpec, "scene.schema.json": SceneSpec}
 
 
 def build_schema(name: str = "model.schema.json") -> dict:

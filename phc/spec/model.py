@@ -51,17 +51,45 @@ class InitialSpec(SpecModel):
     """When true, phc may change the value to satisfy the constraints (and says so)."""
 
 
-class InputSpec(SpecModel):
-    """Drives an exposed port: give its effort or its flow as functions of `t`."""
+class PieceSpec(SpecModel):
+    """One piece of a piecewise signal: `value` until time `until` (the last piece may omit it)."""
 
-    effort: Optional[Union[Expr, Vector]] = None
-    flow: Optional[Union[Expr, Vector]] = None
+    until: Optional[float] = None
+    value: Expr
+
+
+class TableSpec(SpecModel):
+    """A signal from a CSV table with a header row, interpolated in time."""
+
+    file: str
+    """CSV file, relative to the file that names it."""
+    column: str
+    """Column of the values."""
+    time_column: str = "t"
+    interpolation: Literal["linear", "previous"] = "linear"
+    """`linear` between rows, or `previous` (piecewise constant, zero-order hold). Outside
+    the table the first or last value holds."""
+
+
+Signal = Union[Expr, list[PieceSpec], TableSpec]
+"""An input signal: an expression in `t`, a list of pieces `{until, value}`, or a table."""
+
+
+class InputSpec(SpecModel):
+    """Drives an exposed port: give its effort or its flow as a function of `t` (an
+    expression, a piecewise definition or a CSV table; one per component of a vector port)."""
+
+    effort: Optional[Union[Signal, list[Signal]]] = None
+    flow: Optional[Union[Signal, list[Signal]]] = None
 
     @model_validator(mode="after")
     def _exactly_one(self):
         if (self.effort is None) == (self.flow is None):
             raise ValueError("give exactly one of `effort` or `flow`")
         return self
+
+
+SOLVERS = Literal["ida", "midpoint"]
 
 
 class SimulationSpec(SpecModel):
@@ -75,7 +103,7 @@ class SimulationSpec(SpecModel):
     atol: float = Field(1e-10, gt=0)
     max_steps: int = Field(1_000_000, ge=1)
     """Maximum number of solver steps over the whole run."""
-    solver: Literal["ida", "midpoint"] = "ida"
+    solver: SOLVERS = "ida"
     """`ida`: SUNDIALS IDA (variable-order BDF, error control by `rtol`/`atol`); `midpoint`:
     the implicit midpoint rule with fixed `step`, whose discrete energy balance is exact for
     quadratic Hamiltonians and constant Dirac structures."""

@@ -1,0 +1,186 @@
+"""Scenes: read a scene file and apply it to its model before elaboration.
+
+A scene (:class:`~phc.spec.scene.SceneSpec`) changes what is compiled, not the model file:
+
+* parameter overrides of the model's top-level parameters;
+* effects per component and mesh sizes (applied when each component is lowered, see
+  :meth:`phc.elaborate.Builder._lower`);
+* the simulation settings — time span, initial values and inputs (merged over the
+  model's), outputs (replacing the model's), tolerances, step and solver;
+* pruning: components that cannot influence the requested outputs are not lowered at
+  all. The interconnection graph (networkx) has the top-level components as nodes and an
+  edge per connection (and from a modulation to each component whose states it reads); a
+  component is kept when its connected part contains a component an output refers to.
+  Power ports couple both ways, so a part with no path to an output cannot change it.
+  Outputs that use `H` (the total energy) keep everything.
+
+Diagnostics about what the scene wrote point into the scene file: the model's source map
+is overlaid by the scene's for the entries the scene provides.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Optional
+
+import networkx as nx
+import pydantic
+
+from phc.diagnostics import Diagnostic, DiagnosticList, allowed_keys_from_model, from_pydantic
+from phc.source import SourceMap, SourceSpan, read_yaml_file
+from phc.spec.scene import SceneSpec
+
+_ALLOWED_KEYS = allowed_keys_from_model(SceneSpec)
+_REFERENCE = re.compile(r"(?<![\w.])([A-Za-z][A-Za-z0-9_]*)\.[A-Za-z_]")
+_NAME = re.compile(r"(?<![\w.])([A-Za-z][A-Za-z0-9_]*)(?![\w.(])")
+
+
+def is_scene_file(path: str | os.PathLike) -> bool:
+    """True when the YAML file is a scene (it names a `model` and has no `components`)."""
+    data, _, problems = read_yaml_file(path)
+    return not problems and isinstance(data, dict) and "model" in data and "components" not in data
+
+
+@dataclass
+class Scene:
+    """A validated scene file."""
+
+    path: Path
+    spec: SceneSpec
+    smap: SourceMap
+    left_out: list[tuple[str, str, str]] = field(default_factory=list)
+
+    @property
+    def model_path(self) -> Path:
+        return self.path.parent / self.spec.model
+
+    @property
+    def name(self) -> str:
+        return self.spec.name or self.path.stem
+
+    def locate(self, *path) -> SourceSpan:
+        return self.smap.locate(tuple(path))
+
+    # -- application --------------------------------------------------------------------
+    def apply(self, builder, spec, smap):
+        """The model spec and source map the builder elaborates for this scene; registers
+        effect and mesh overrides and the components to leave out."""
+        s = self.spec
+        sim = spec.simulation
+        update: dict[str, Any] = {}
+        for key in ("t_start", "t_end", "n_out", "solver"):
+            if getattr(s, key) is not None:
+                update[key] = getattr(s, key)
+        for key in ("rtol", "atol", "step", "max_order"):
+            if getattr(s.accuracy, key) is not None:
+                update[key] = getattr(s.accuracy, key)
+        update["initial"] = {**sim.initial, **s.initial}
+        update["inputs"] = {**sim.inputs, **s.inputs}
+        if s.outputs:
+            update["outputs"] = dict(s.outputs)
+        for comp, effects in s.effects.items():
+            builder.effect_overrides[comp] = (dict(effects), self.locate("effects", comp))
+        for comp, elements in s.accuracy.mesh.items():
+            builder.mesh_overrides[comp] = (elements, self.locate("accuracy", "mesh", comp))
+        for comp in list(s.effects) + list(s.accuracy.mesh):
+            top = comp.split(".", 1)[0]
+            if top not in spec.components:
+                where = ("effects", comp) if comp in s.effects else ("accuracy", "mesh", comp)
+                builder.diags.append(Diagnostic(
+                    "PHC-E602", f"the model has no component `{top}`", span=self.smap.locate_key(where),
+                    hint=f"components: {', '.join(spec.components)}"))
+        outputs = update.get("outputs", sim.outputs)
+        if s.prune and outputs:
+            skip, reason = _prune(spec, outputs)
+            for comp in sorted(skip):
+                builder.skip.add(comp)
+                builder.leave_out(comp, "the whole component", reason)
+            exposed = {pname for pname, exp in spec.ports.items() if exp.port.split(".", 1)[0] in skip}
+            update["inputs"] = {k: v for k, v in update["inputs"].items() if k not in exposed}
+            spec = spec.model_copy(update={"ports": {k: v for k, v in spec.ports.items() if k not in exposed}})
+        new_sim = type(sim).model_validate({**sim.model_dump(exclude_unset=True), **update})
+        return spec.model_copy(update={"simulation": new_sim}), _Overlay(smap, self.smap, s)
+
+
+def _prune(spec, outputs: dict) -> tuple[set[str], str]:
+    """Top-level components not connected to any component the outputs refer to."""
+    texts = [str(v) for v in outputs.values()]
+    if any("H" in _NAME.findall(t) for t in texts):
+        return set(), ""
+    graph = nx.Graph()
+    graph.add_nodes_from(spec.components)
+    for conn in spec.connections:
+        a, b = (ref.split(".", 1)[0] for ref in conn.between)
+        graph.add_edge(a, b)
+    for cname, comp in spec.components.items():
+        if comp.type == "modulation":  # reads other components' states
+            for other in _REFERENCE.findall(repr(comp.model_dump())):
+                if other in spec.components:
+                    graph.add_edge(cname, other)
+    wanted = {m for t in texts for m in _REFERENCE.findall(t) if m in spec.components}
+    if not wanted:
+        return set(), ""
+    keep = set().union(*(nx.node_connected_component(graph, c) for c in wanted))
+    skip = set(spec.components) - keep
+    reason = ("cannot influence the requested outputs (not connected to "
+              + ", ".join(f"`{c}`" for c in sorted(wanted)) + ")")
+    return skip, reason
+
+
+class _Overlay:
+    """The model's source map, with the scene's entries located in the scene file."""
+
+    _MOVED = {"initial": ("initial",), "inputs": ("inputs",), "outputs": ("outputs",)}
+
+    def __init__(self, model: SourceMap, scene: SourceMap, spec: SceneSpec) -> None:
+        self.model, self.scene, self.spec = model, scene, spec
+
+    def __getattr__(self, name):
+        return getattr(self.model, name)
+
+    def _route(self, path):
+        path = tuple(path)
+        if len(path) >= 3 and path[0] == "simulation" and path[1] in self._MOVED:
+            moved = (path[1], *path[2:])
+            if self.scene.has(moved[:2]):
+                return self.scene, moved
+        return self.model, path
+
+    def locate(self, path):
+        smap, path = self._route(path)
+        return smap.locate(path)
+
+    def locate_key(self, path):
+        smap, path = self._route(path)
+        return smap.locate_key(path)
+
+    def locate_in_value(self, path, offset):
+        smap, path = self._route(path)
+        return smap.locate_in_value(path, offset)
+
+
+def load_scene(path: str | os.PathLike) -> tuple[Optional[Scene], DiagnosticList]:
+    """Read and validate a scene file (its model is read later, by elaboration)."""
+    diags = DiagnosticList()
+    data, smap, problems = read_yaml_file(path)
+    diags.extend(problems)
+    if diags.has_errors or smap is None:
+        return None, diags
+    if not isinstance(data, dict):
+        diags.append(Diagnostic("PHC-E013", "a scene file must be a mapping with `model`, `outputs`, ...",
+                                span=smap.locate(())))
+        return None, diags
+    try:
+        spec = SceneSpec.model_validate(data)
+    except pydantic.ValidationError as err:
+        diags.extend(from_pydantic(err, smap, allowed_keys=_ALLOWED_KEYS))
+        return None, diags
+    scene = Scene(Path(path), spec, smap)
+    if not scene.model_path.is_file():
+        diags.append(Diagnostic("PHC-E107", f"model file `{spec.model}` not found (looked for `{scene.model_path}`)",
+                                span=smap.locate(("model",)), hint="the path is relative to the scene file"))
+        return None, diags
+    return scene, diags

@@ -1,0 +1,63 @@
+"""`SceneSpec`: one simulation scenario of a model (``models/scenes/*.yaml``).
+
+A model says what a system *is*; a scene says what one simulation *needs*: the time span
+and output grid, the initial state, inputs on exposed ports, parameter overrides, which
+effects are on, the requested outputs, the accuracy target and the solver. phc compiles
+only what the scene calls for and reports what it left out.
+"""
+
+from __future__ import annotations
+
+from typing import Literal, Optional, Union
+
+from pydantic import Field
+
+from phc.spec.base import Expr, Identifier, SpecModel
+from phc.spec.model import InitialSpec, InputSpec, SOLVERS
+
+
+class AccuracySpec(SpecModel):
+    """Accuracy target: solver tolerances, step, and mesh sizes."""
+
+    rtol: Optional[float] = Field(None, gt=0, lt=1)
+    atol: Optional[float] = Field(None, gt=0)
+    step: Optional[float] = Field(None, gt=0)
+    """Step size of the fixed-step solvers."""
+    max_order: Optional[int] = Field(None, ge=1, le=5)
+    mesh: dict[str, int] = {}
+    """Number of elements per distributed component (`component: elements`), overriding
+    the model's `elements`."""
+
+
+EffectValue = Union[bool, int]
+
+
+class SceneSpec(SpecModel):
+    """A simulation scenario: a model plus what this run needs."""
+
+    format_version: Literal[1] = 1
+    model: str
+    """The model file, relative to this scene file."""
+    name: Optional[Identifier] = None
+    description: Optional[str] = None
+    parameters: dict[Identifier, Union[int, float]] = {}
+    """Overrides of the model's top-level parameters (numbers)."""
+    effects: dict[str, dict[Identifier, EffectValue]] = {}
+    """Effects per component (`component: {effect: on|off|k}`; nested components by dotted
+    name). Effects left out keep the model's values."""
+    t_start: Optional[float] = None
+    t_end: Optional[float] = Field(None, gt=0)
+    n_out: Optional[int] = Field(None, ge=2, le=10_000_000)
+    initial: dict[str, Union[Expr, InitialSpec]] = {}
+    """Initial values by state name, merged over the model's (a value here wins). phc
+    completes the rest by consistent initialization and reports what it chose."""
+    inputs: dict[str, InputSpec] = {}
+    """Inputs on exposed ports, merged over the model's."""
+    outputs: dict[Identifier, Expr] = {}
+    """Requested outputs (replace the model's when given): expressions over states, port
+    variables, component outputs such as a beam's `w[i]`, `t` and `H`."""
+    accuracy: AccuracySpec = AccuracySpec()
+    solver: Optional[SOLVERS] = None
+    prune: bool = True
+    """Leave out the subsystems that cannot influence the requested outputs (components
+    not connected to any component an output refers to)."""
