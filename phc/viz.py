@@ -46,6 +46,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from phc.errors import SimulationSetupError
+from phc.spec.expressions import ExpressionError
 
 INSTALL_HINT = 'pip install "phc[plot]"'
 
@@ -226,12 +227,6 @@ class _Scope:
         i = self.index.get(name)
         return None if i is None else self.y[:, i]
 
-    def param(self, prefix: str, name: str) -> Optional[float]:
-        for key in (prefix + name, name):
-            if key in self.params:
-                return self.params[key]
-        return None
-
 
 def _load_component_specs(compiled) -> dict:
     """Component full name → (type, spec, prefix); spec None when it cannot be read."""
@@ -312,16 +307,19 @@ def _build(compiled, result, magnify: float = 1.0, params: Optional[dict] = None
     magnified = False
     n_rigid = 0
     for full, (ctype, spec, prefix) in specs.items():
-        if ctype == "crank_wheel":
-            parts.extend(_crank_wheel(full, spec, prefix, scope, points))
-        elif ctype == "moving_beam":
-            new, mag = _moving_beam(full, spec, prefix, scope, points, magnify)
-            parts.extend(new)
-            magnified |= mag
-        elif ctype == "rigid" and spec is not None:
-            color = _LINK_COLORS[n_rigid % len(_LINK_COLORS)]
-            n_rigid += 1
-            parts.extend(_rigid(full, spec, prefix, scope, points, color))
+        try:
+            if ctype == "crank_wheel":
+                parts.extend(_crank_wheel(full, spec, prefix, scope, points))
+            elif ctype == "moving_beam":
+                new, mag = _moving_beam(full, spec, prefix, scope, points, magnify)
+                parts.extend(new)
+                magnified |= mag
+            elif ctype == "rigid" and spec is not None:
+                color = _LINK_COLORS[n_rigid % len(_LINK_COLORS)]
+                n_rigid += 1
+                parts.extend(_rigid(full, spec, prefix, scope, points, color))
+        except ExpressionError:  # the model file changed since it was compiled: skip the part
+            continue
     for full, (ctype, spec, prefix) in specs.items():
         if ctype == "orthogonal_transform" and spec is not None:
             parts.extend(_guide(full, spec, prefix, scope, points, neighbour, specs))
