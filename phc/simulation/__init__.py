@@ -14,12 +14,16 @@ import numpy as np
 import sympy as sp
 
 from phc.errors import InconsistentInitialError, SimulationSetupError
+from phc.simulation.discrete_gradient import integrate_discrete_gradient
 from phc.simulation.ida import integrate_ida
 from phc.simulation.initial import consistent_initial_conditions
 from phc.simulation.midpoint import integrate_midpoint
 from phc.simulation.result import SimResult
 
-BACKENDS = {"ida": integrate_ida, "midpoint": integrate_midpoint}
+BACKENDS = {"ida": integrate_ida, "midpoint": integrate_midpoint, "discrete_gradient": integrate_discrete_gradient}
+"""Integrators by name: `ida` (variable-order BDF), and the fixed-step structure-preserving
+`midpoint` (energy-exact for quadratic H) and `discrete_gradient` (energy-exact for any H)."""
+FIXED_STEP = ("midpoint", "discrete_gradient")
 
 
 def parameter_vector(mod, overrides: Optional[dict] = None) -> np.ndarray:
@@ -57,8 +61,8 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
     t_eval : array_like, optional
         Output times (overrides `n_out`).
     step : float, optional
-        Step size of the fixed-step `midpoint` solver (default: the model's
-        `simulation.step`, else the output interval).
+        Step size of the fixed-step `midpoint` and `discrete_gradient` solvers (default:
+        the model's `simulation.step`, else the output interval).
     params : dict, optional
         Base-parameter overrides by name (one compilation serves a parameter study).
     initial : dict, optional
@@ -118,7 +122,7 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
     init = consistent_initial_conditions(mod, p, t0, values, fixed)
     if hasattr(progress, "restart"):
         progress.restart()
-    extra = {"step": step if step is not None else opts.get("step")} if solver == "midpoint" else {}
+    extra = {"step": step if step is not None else opts.get("step")} if solver in FIXED_STEP else {}
     out = BACKENDS[solver](mod, p, t_out, init.y0, init.yp0, rtol=rtol, atol=atol, max_steps=max_steps,
                            progress=progress, max_order=opts.get("max_order", 5), **extra)
     cpu = time.process_time() - cpu0

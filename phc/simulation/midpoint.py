@@ -265,7 +265,7 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
     ys[0], yps[0] = y0, yp0
     start = time.process_time()
     y = np.array(y0, dtype=float)
-    steps = 0
+    steps = split = 0
     ok, message = True, "integration finished"
     projector = make_projector(mod, p, y, float(t_out[0])) if project else None
     y_prev, h_prev = None, 1.0
@@ -281,6 +281,11 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
         for _ in range(substeps):
             mid_guess = y + 0.5 * h * mid_slope if mid is None else mid + 0.5 * (h + h_prev) * mid_slope
             y_new, converged, reason = advance(t, h, y, 2.0 * mid_guess - y)
+            if not converged:
+                # a step of the order of the period defeats the extrapolation: retry from y,
+                # then split the step (any step size keeps the structure-preserving property)
+                y_new, converged, reason = _subdivide(advance, t, h, y, MAX_SPLIT)
+                split += converged
             if not converged:
                 ok, message = False, f"{name}: {reason} at t = {t:.6g}; results up to this time are kept"
                 break
@@ -303,8 +308,26 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
         yps[k] = (y - y_prev) / h_prev
         if progress is not None:
             progress(t)
+    if ok and split:
+        message += (f"; {split} step(s) needed a restart or a split for Newton to converge (the step is long "
+                    "for the dynamics)")
     return dict(t=t_out[:k + 1], y=ys[:k + 1], yp=yps[:k + 1], steps=steps, success=ok, message=message,
                 cpu=time.process_time() - start)
+
+
+MAX_SPLIT = 4
+"""A step whose Newton iteration fails is retried from the constant predictor, then split
+in halves up to this depth (at most 2⁴ sub-steps)."""
+
+
+def _subdivide(advance, t, h, y, depth):
+    y1, ok, reason = advance(t, h, y, y.copy())
+    if ok or depth == 0:
+        return y1, ok, reason
+    y_half, ok, reason = _subdivide(advance, t, 0.5 * h, y, depth - 1)
+    if not ok:
+        return y_half, ok, reason
+    return _subdivide(advance, t + 0.5 * h, 0.5 * h, y_half, depth - 1)
 
 
 SINGULAR_HINT = ("singular Newton matrix; the model may be at a singular configuration (an interconnection "

@@ -1,0 +1,84 @@
+"""Tests of `phc.simulation.discrete_gradient` (energy-exact step for non-quadratic H)."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import phc
+
+REPO = Path(__file__).resolve().parents[2]
+HARD = REPO / "tests" / "hard" / "models"
+
+
+@pytest.fixture(scope="module")
+def pendulum():
+    return phc.compile_model(HARD / "pendulum_minimal.yaml")
+
+
+@pytest.fixture(scope="module")
+def duffing():
+    return phc.compile_model(HARD / "duffing.yaml")
+
+
+def _per_step_balance(result):
+    """|H(y_{n+1}) − H(y_n) + E_{n+1} − E_n| of every step, relative to the energy scale."""
+    b = result.H + result.energy_supplied
+    return np.abs(np.diff(b)) / np.abs(result.H).max()
+
+
+@pytest.mark.parametrize("h", [0.01, 0.2, 0.7])
+@pytest.mark.parametrize("model", ["pendulum", "duffing"])
+def test_discrete_energy_balance_holds_at_every_step_for_any_step_size(model, h, request):
+    compiled = request.getfixturevalue(model)
+    t = np.arange(0, 61) * h  # one step per output: every step is checked
+    dg = phc.simulate(compiled, solver="discrete_gradient", t_eval=t)
+    assert dg.success, dg.message
+    assert _per_step_balance(dg).max() < 1e-14
+    # the same steps by the midpoint rule violate the balance (H is not quadratic) …
+    mp = phc.simulate(compiled, solver="midpoint", t_eval=t)
+    assert mp.success
+    assert _per_step_balance(mp).max() > 1e3 * _per_step_balance(dg).max()
+
+
+def test_large_step_pendulum_stays_on_its_energy_level_over_long_times(pendulum):
+    """Step h = 0.5 s (a sixth of the period at q0 = 2.5 rad): no drift over 1000 steps."""
+    r = phc.simulate(pendulum, solver="discrete_gradient", step=0.5, t_end=500.0, n_out=1001)
+    assert r.success
+    assert r.energy_balance_relative < 1e-12
+    assert np.abs(r["pend.q"]).max() < np.pi  # still librating, never over the top
+
+
+def test_dissipation_is_accounted_exactly(duffing):
+    r = phc.simulate(duffing, solver="discrete_gradient", step=0.3, params={"c": 0.5}, t_end=30.0, n_out=101)
+    assert r.success
+    assert r.H[-1] < 1e-2 * r.H[0]  # the damper removed the energy …
+    assert r.energy_balance_relative < 1e-13  # … and the accumulator booked every joule
+
+
+def test_second_order_convergence(pendulum):
+    """Symmetric method (the evaluation point is the root nearest 1/2): order 2."""
+    ref = phc.simulate(pendulum, solver="ida", t_end=2.0, n_out=5, rtol=1e-12, atol=1e-12)
+    errors = []
+    for h in (0.02, 0.01, 0.005):
+        r = phc.simulate(pendulum, solver="discrete_gradient", step=h, t_end=2.0, n_out=5)
+        errors.append(np.abs(r["pend.q"] - ref["pend.q"]).max())
+    orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
+    assert np.all(np.abs(orders - 2.0) < 0.1), orders
+
+
+def test_quadratic_hamiltonian_gives_the_midpoint_rule():
+    compiled = phc.compile_model(REPO / "models" / "mass_spring_damper.yaml")
+    a = phc.simulate(compiled, solver="discrete_gradient", step=0.1, n_out=21)
+    b = phc.simulate(compiled, solver="midpoint", step=0.1, n_out=21)
+    assert a.success and b.success
+    np.testing.assert_allclose(a.y, b.y, rtol=0, atol=1e-13)
+
+
+def test_constrained_pendulum_energy_and_constraint_exact_with_large_steps():
+    """Cartesian pendulum (GGL index 2): positions constrained at the step ends."""
+    compiled = phc.compile_model(REPO / "models" / "pendulum.yaml")
+    r = phc.simulate(compiled, solver="discrete_gradient", step=0.1, t_end=50.0, n_out=101)
+    assert r.success, r.message
+    assert r.energy_balance_relative < 1e-12
+    assert r.constraint_drift < 1e-12
