@@ -23,7 +23,8 @@ import sympy as sp
 
 from phc.dae import T, Dae, Equation, InitialValue, Invariant, LinearBlock, PortInfo, Topology, Variable
 from phc.diagnostics import Diagnostic
-from phc.spec.model import InitialSpec
+from phc.inputs import SignalBuilder
+from phc.spec.model import InitialSpec, PieceSpec
 
 
 class _SignedUnionFind:
@@ -156,6 +157,7 @@ def assemble(b, ctx) -> Optional[Dae]:
 
     # Top-level exposed ports: inputs or free.
     sim = ctx.spec.simulation
+    signals = SignalBuilder()
     port_power = sp.Integer(0)
     external = []
     for pname, (full, span) in b.exposed_top.items():
@@ -165,14 +167,11 @@ def assemble(b, ctx) -> Optional[Dae]:
         path = ("simulation", "inputs", pname)
         if inp is None:
             targets, values = port.e, [0] * port.dimension
-        elif inp.effort is not None:
-            targets = port.e
-            values = b.vector(ctx, inp.effort, (*path, "effort"), {"t": T, **ctx.params}, port.dimension,
-                              f"input effort of `{pname}`")
         else:
-            targets = port.f
-            values = b.vector(ctx, inp.flow, (*path, "flow"), {"t": T, **ctx.params}, port.dimension,
-                              f"input flow of `{pname}`")
+            which = "effort" if inp.effort is not None else "flow"
+            targets = port.e if which == "effort" else port.f
+            values = _signals(b, ctx, signals, getattr(inp, which), (*path, which), port.dimension,
+                              f"input {which} of `{pname}`")
         for k, (sym, val) in enumerate(zip(targets, values)):
             root, sign = uf.find(sym)
             if root in defs:
@@ -286,10 +285,23 @@ def assemble(b, ctx) -> Optional[Dae]:
         linear_blocks=tuple(linear_blocks),
         quadratic_energy=tuple(b.quadratic_energy),
         quadratic_dissipation=tuple(b.quadratic_dissipation),
+        input_tables=tuple(signals.tables),
+        breakpoints=tuple(sorted(signals.breakpoints)),
         options={"t_start": sim.t_start, "t_end": sim.t_end, "n_out": sim.n_out, "rtol": sim.rtol,
                  "atol": sim.atol, "max_steps": sim.max_steps, "solver": sim.solver,
                  "max_order": sim.max_order, "step": sim.step},
     )
+
+
+def _signals(b, ctx, signals, value, path, dimension, what) -> list:
+    """The input signal(s) of a port: one per component (a scalar port takes one signal)."""
+    scope = {"t": T, **ctx.params}
+    is_vector = isinstance(value, list) and not (value and isinstance(value[0], PieceSpec))
+    items = value if is_vector else [value]
+    if len(items) != dimension:
+        b.error("PHC-E102", f"{what} has {len(items)} entries, expected {dimension}", ctx, path)
+        return [sp.Integer(0)] * dimension
+    return [signals.signal(b, ctx, v, (*path, i) if is_vector else path, scope) for i, v in enumerate(items)]
 
 
 def _base_parameters(b, symbols) -> set[str]:

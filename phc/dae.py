@@ -192,6 +192,10 @@ class Dae:
     initial_relations: tuple[tuple[str, dict], ...] = ()
     """Linear relations Σ c_v·v = 0 imposed only at t₀ (e.g. a beam starting straight and
     moving rigidly), as (label, {variable symbol: coefficient})."""
+    input_tables: tuple = ()
+    """Input tables as (times, values, interpolation) (:mod:`phc.inputs`)."""
+    breakpoints: tuple[float, ...] = ()
+    """Times where an input is not smooth: the integrators stop and restart there."""
     left_out: tuple[tuple[str, str, str], ...] = ()
     """What was not compiled, as (component, what, why): effects that are off, components
     pruned by a scene."""

@@ -100,6 +100,7 @@ class Scene:
                 builder.leave_out(comp, "the whole component", reason)
             exposed = {pname for pname, exp in spec.ports.items() if exp.port.split(".", 1)[0] in skip}
             update["inputs"] = {k: v for k, v in update["inputs"].items() if k not in exposed}
+            update["initial"] = {k: v for k, v in update["initial"].items() if k.split(".", 1)[0] not in skip}
             spec = spec.model_copy(update={"ports": {k: v for k, v in spec.ports.items() if k not in exposed}})
         new_sim = type(sim).model_validate({**sim.model_dump(exclude_unset=True), **update})
         return spec.model_copy(update={"simulation": new_sim}), _Overlay(smap, self.smap, s)

@@ -80,6 +80,8 @@ class ResidualIR:
     initial_data: tuple = ()
     initial_labels: tuple = ()
     compile_time_parameters: tuple = ()
+    input_tables: tuple = ()
+    breakpoints: tuple = ()
 
 
 def _ordered_parameters(dae: Dae):
@@ -191,4 +193,6 @@ def lower_residual(dae: Dae) -> ResidualIR:
         initial_data=tuple(float(c) for _, rel in dae.initial_relations for c in rel.values()),
         initial_labels=tuple(label for label, _ in dae.initial_relations),
         compile_time_parameters=dae.compile_time_parameters,
+        input_tables=dae.input_tables,
+        breakpoints=dae.breakpoints,
     )

@@ -29,6 +29,7 @@ from sympy.printing.pycode import PythonCodePrinter
 from phc import __version__
 from phc.codegen.lower import ResidualIR
 from phc.dae import T
+from phc.inputs import table_arrays
 
 
 class _Printer(PythonCodePrinter):
@@ -46,6 +47,14 @@ class _Printer(PythonCodePrinter):
 
     def _print_Rational(self, expr):
         return f"({expr.p}/{expr.q})"
+
+    def _print_InputTable(self, expr):
+        k = int(expr.args[0])
+        return f"_table(_TABLE{k}_T, _TABLE{k}_V, _TABLE{k}_KIND, {self._print(expr.args[1])})"
+
+    def _print_InputTableSlope(self, expr):
+        k = int(expr.args[0])
+        return f"_table_slope(_TABLE{k}_T, _TABLE{k}_V, _TABLE{k}_KIND, {self._print(expr.args[1])})"
 
 
 def _identifier(name: str, taken: set) -> str:
@@ -123,6 +132,23 @@ def _axpy(a, x, out):
             out[:] = z
     else:
         out += a * x
+'''
+
+
+_TABLE_HELPERS = '''
+def _table(times, values, kind, t):
+    """Value of an input table at t: linear or zero-order hold; end values hold outside."""
+    if kind == "previous":
+        return float(values[max(int(np.searchsorted(times, t, side="right")) - 1, 0)])
+    return float(np.interp(t, times, values))
+
+
+def _table_slope(times, values, kind, t):
+    """d/dt of the table's interpolant (0 for a zero-order hold and outside the table)."""
+    if kind == "previous" or t < times[0] or t >= times[-1]:
+        return 0.0
+    i = int(np.searchsorted(times, t, side="right")) - 1
+    return float((values[i + 1] - values[i]) / (times[i + 1] - times[i]))
 '''
 
 
@@ -256,8 +282,13 @@ class ModulePrinter:
             f"JAC_COLS = {_array(ir.jac_cols, 'np.int64')}",
             f"JAC_DEPENDS_ON_Y = {_array(self._jac_dependencies(ir.y_symbols), 'np.int64')}",
             f"JAC_DEPENDS_ON_YP = {_array(self._jac_dependencies(ir.yp_symbols), 'np.int64')}",
+            "# Times where an input is not smooth (ends of pieces, table rows): integrate up to each.",
+            f"BREAKPOINTS = {tuple(float(x) for x in ir.breakpoints)!r}",
             "",
         ]
+        if ir.input_tables:
+            parts += ["# Input tables (CSV) and their interpolation.", *table_arrays(ir.input_tables), "",
+                      _TABLE_HELPERS]
         sparse_consts = []
         self.fused = {}
         for wrt, derivative in (("Y", False), ("YP", True)):

@@ -49,7 +49,7 @@ class InitialResult:
 class _Problem:
     """``G(u) = [F; D_kept]`` over the unknowns ``u = [y_free, ẏ_diff, z, w]``."""
 
-    def __init__(self, mod, p, t0, y, fixed):
+    def __init__(self, mod, p, t0, y, fixed, initial_relations=True):
         self.mod, self.p, self.t0 = mod, p, t0
         n = mod.N
         self.m = len(mod.EQUATIONS)
@@ -85,6 +85,8 @@ class _Problem:
         self.C = sps.csr_matrix((np.asarray(getattr(mod, "INITIAL_DATA", [])),
                                  (np.asarray(getattr(mod, "INITIAL_ROWS", []), dtype=np.int64),
                                   np.asarray(getattr(mod, "INITIAL_COLS", []), dtype=np.int64))), shape=(n_init, n))
+        if not initial_relations:
+            self.C = sps.csr_matrix((0, n))
 
     def split(self, y, yp):
         """(F_y, F_ẏ) as sparse CSC matrices."""
@@ -214,7 +216,8 @@ def _solve(prob: _Problem, tol: float, max_iter: int):
 
 
 def consistent_initial_conditions(mod, p, t0: float, values: dict[int, float], fixed: set[int],
-                                  tol: float = 1e-11, max_iter: int = 25) -> InitialResult:
+                                  tol: float = 1e-11, max_iter: int = 25,
+                                  initial_relations: bool = True) -> InitialResult:
     """Solve for consistent ``(y₀, ẏ₀)``.
 
     Parameters
@@ -229,6 +232,9 @@ def consistent_initial_conditions(mod, p, t0: float, values: dict[int, float], f
         Initial value (fixed or guess) by variable index; others start at 0.
     fixed : set of int
         Indices whose value must not change.
+    initial_relations : bool
+        Impose the module's INITIAL relations (true at the start of a run, false when
+        restarting at an input breakpoint).
 
     Raises
     ------
@@ -244,7 +250,7 @@ def consistent_initial_conditions(mod, p, t0: float, values: dict[int, float], f
     stages = [fixed | dif] if fixed >= dif else [fixed | dif, fixed]
     total = 0
     for stage_fixed in stages:
-        prob = _Problem(mod, p, t0, y, stage_fixed)
+        prob = _Problem(mod, p, t0, y, stage_fixed, initial_relations)
         u, it = _solve(prob, tol * scale, max_iter)
         total += it
         y1, yp1, _, _ = prob.unpack(u)
