@@ -110,13 +110,13 @@ class DiscreteGradientStep:
 
 
 def integrate_discrete_gradient(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=None, max_order=None,
-                                step=None):
+                                step=None, names=None):
     """Fixed-step discrete-gradient integration from ``t_out[0]``; output at every ``t_out``
     (each output interval is split into equal steps no longer than `step`). Returns the same
     dict as the IDA backend."""
     del rtol, atol, max_order  # a fixed-step method: accuracy is set by `step`
     advance = DiscreteGradientStep(mod, p)
     out = integrate_fixed_step(mod, p, t_out, y0, yp0, max_steps=max_steps, progress=progress, step=step,
-                               advance=advance, name="discrete gradient")
+                               advance=advance, name="discrete gradient", names=names)
     out.update(nfev=advance.stage.nfev, njev=advance.stage.matrix.factorizations)
     return out

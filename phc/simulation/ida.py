@@ -49,7 +49,7 @@ def _import_ida():
     return IDA
 
 
-def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=None, max_order=None):
+def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=None, max_order=None, names=None):
     """Integrate from ``t_out[0]`` and return a dict of arrays and statistics."""
     IDA = _import_ida()
     n = mod.N
@@ -95,7 +95,7 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     t_end = t_out[-1]
     t_last = float(t_out[0])
     h_last = 0.0
-    monitor = SingularityMonitor(mod, p)
+    monitor = SingularityMonitor(mod, p, names=names)
     monitor_every = 5 if n <= 60 else 20
     while k < len(t_out):
         res = solver.step(t_end, method="onestep", tstop=t_end)

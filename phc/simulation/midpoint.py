@@ -34,6 +34,8 @@ import numpy as np
 import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 
+from phc.simulation.monitor import SingularityMonitor
+
 NEWTON_TOL = 1e-14
 """Newton stops when the estimated error ``θ/(1−θ)·|Δ|`` of the iterate is below this
 (relative to ``|y| + 1``); stagnation at round-off level is accepted as well."""
@@ -252,12 +254,17 @@ def make_projector(mod, p, y, t=0.0):
     return Projector(mod, p, y, t)
 
 
-def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, advance, name, project=True):
+def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, advance, name, project=True,
+                         names=None):
     """Fixed-step driver shared by the structure-preserving backends.
 
     ``advance(t, h, y, guess) -> (y1, ok, reason)`` takes one step. Output at every
     ``t_out`` (each output interval is split into equal steps no longer than ``step``).
-    Returns the same dict as the IDA backend."""
+    The :class:`~phc.simulation.monitor.SingularityMonitor` looks at the iteration matrix
+    every :data:`MONITOR_EVERY` steps and at every step Newton found hard (a restart, a
+    split or a failure): a run through a configuration where an interconnection loses
+    surjectivity stops there instead of stepping over it. Returns the same dict as the
+    IDA backend."""
     n = mod.N
     t_out = np.asarray(t_out, dtype=float)
     intervals = np.diff(t_out)
@@ -267,6 +274,7 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
     y = np.array(y0, dtype=float)
     steps = split = 0
     ok, message = True, "integration finished"
+    monitor = SingularityMonitor(mod, p, names=names)
     projector = make_projector(mod, p, y, float(t_out[0])) if project else None
     y_prev, h_prev = None, 1.0
     # Predictor: extrapolate the step midpoints m = (y_n + y_{n+1})/2, not the step ends —
@@ -281,11 +289,22 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
         for _ in range(substeps):
             mid_guess = y + 0.5 * h * mid_slope if mid is None else mid + 0.5 * (h + h_prev) * mid_slope
             y_new, converged, reason = advance(t, h, y, 2.0 * mid_guess - y)
+            hard = not converged
             if not converged:
                 # a step of the order of the period defeats the extrapolation: retry from y,
                 # then split the step (any step size keeps the structure-preserving property)
                 y_new, converged, reason = _subdivide(advance, t, h, y, MAX_SPLIT)
                 split += converged
+            if monitor.enabled and (hard or steps % MONITOR_EVERY == 0):
+                # a fixed step cannot land on the singular set, only pass it at a distance ~h:
+                # where Newton struggled, a looser threshold decides
+                limit = HARD_STEP_THRESHOLD if hard else None
+                warning = monitor.check(t, y, (y_new - y) / h if converged else mid_slope, 0.5 * h, limit)
+                if warning is None and converged and hard:
+                    warning = monitor.check(t + h, y_new, (y_new - y) / h, 0.5 * h, limit)
+                if warning:
+                    ok, message = False, f"{name}: {warning}"
+                    break
             if not converged:
                 ok, message = False, f"{name}: {reason} at t = {t:.6g}; results up to this time are kept"
                 break
@@ -318,6 +337,10 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
 MAX_SPLIT = 4
 """A step whose Newton iteration fails is retried from the constant predictor, then split
 in halves up to this depth (at most 2⁴ sub-steps)."""
+MONITOR_EVERY = 100
+"""Steps between two routine looks of the singularity monitor (a dense SVD)."""
+HARD_STEP_THRESHOLD = 1e-6
+"""σ_min/σ_max below which a step Newton could not do from the predictor stops the run."""
 
 
 def _subdivide(advance, t, h, y, depth):
@@ -336,7 +359,7 @@ NEWTON_HINT = "Newton did not converge; reduce `step` (simulation.step)"
 
 
 def integrate_midpoint(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=None, max_order=None,
-                       step=None):
+                       step=None, names=None):
     """Fixed-step implicit midpoint from ``t_out[0]``; output at every ``t_out`` (each output
     interval is split into equal steps no longer than `step`). Returns the same dict as the
     IDA backend."""
@@ -348,6 +371,6 @@ def integrate_midpoint(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progres
         return y1, ok, (SINGULAR_HINT if stage.singular else NEWTON_HINT)
 
     out = integrate_fixed_step(mod, p, t_out, y0, yp0, max_steps=max_steps, progress=progress, step=step,
-                               advance=advance, name="implicit midpoint")
+                               advance=advance, name="implicit midpoint", names=names)
     out.update(nfev=stage.nfev, njev=stage.matrix.factorizations)
     return out

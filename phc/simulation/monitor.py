@@ -23,9 +23,32 @@ MAX_SIZE = 120
 """Systems larger than this are not monitored (the dense SVD would dominate)."""
 
 
+def describe_equations(compiled) -> dict[str, str]:
+    """Readable names of the equations a monitor message may cite: a coupling row
+    ``connections[k]…`` becomes the connection `a — b` with its place in the model file."""
+    names = {}
+    topology = getattr(compiled.dae, "topology", None)
+    where = {}
+    for a, b, label, span in getattr(topology, "connections", ()) or ():
+        loc = f" ({span.file}:{span.line})" if span is not None else ""
+        where[label] = f"connection `{a} — {b}`{loc}"
+    for eq in compiled.dae.equations:
+        head = eq.label.split(".")[0]
+        if head in where:
+            names[eq.label] = f"{where[head]} row `{eq.label}`"
+    return names
+
+
 class SingularityMonitor:
-    def __init__(self, mod, p, threshold: float = THRESHOLD):
+    """Stops a run where the iteration matrix becomes numerically singular.
+
+    ``check(t, y, yp, h)`` returns None or a message naming the time, the equations that
+    become dependent (with the connections they belong to, from ``names``) and the
+    condition that fails."""
+
+    def __init__(self, mod, p, threshold: float = THRESHOLD, names: Optional[dict] = None):
         self.mod, self.p, self.threshold = mod, p, threshold
+        self.names = dict(names or {})
         self.rows, self.cols = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
         self.buf = np.zeros(len(self.rows))
         self.enabled = mod.N <= MAX_SIZE
@@ -48,17 +71,31 @@ class SingularityMonitor:
         u, _, _ = np.linalg.svd(J)
         return ratio, u[:, -1]
 
-    def check(self, t, y, yp, h) -> Optional[str]:
-        """A message if the iteration matrix is nearly singular, else None."""
+    def check(self, t, y, yp, h, threshold: Optional[float] = None) -> Optional[str]:
+        """A message if the iteration matrix is nearly singular, else None.
+
+        `threshold` overrides :data:`THRESHOLD` for this look (a fixed-step solver whose
+        Newton iteration already failed near the state uses a looser one)."""
         if not self.enabled or h <= 0:
             return None
-        ratio, u = self.ratio(t, y, yp, h)
+        threshold = self.threshold if threshold is None else threshold
+        saved, self.threshold = self.threshold, threshold
+        try:
+            ratio, u = self.ratio(t, y, yp, h)
+        finally:
+            self.threshold = saved
         self.worst = min(self.worst, ratio)
-        if ratio >= self.threshold:
+        if ratio >= threshold:
             return None
         culprits = [self.mod.EQUATIONS[i] for i in np.argsort(-np.abs(u))[:4] if abs(u[i]) > 0.1]
+        connections = sorted({self.names[c].split(" row ")[0] for c in culprits if c in self.names})
+        where = f" at {', '.join(connections)}" if connections else ""
+        positional = [c for c in culprits if c in set(getattr(self.mod, "INVARIANTS", ()))]
+        condition = (f"the gradients of the position constraints {', '.join(f'`{c}`' for c in positional)} are "
+                     "linearly dependent" if len(positional) >= 2 else "their Jacobian rows are linearly dependent")
         return (f"stopped at t = {t:.6g} near a singular configuration: the equations "
-                f"{', '.join(f'`{c}`' for c in culprits)} become dependent (σ_min/σ_max = {ratio:.1e}); "
-                "the interconnection loses surjectivity here, so the model is not a port-Hamiltonian "
-                "system at this state (run `phc check` for the coupling certificate); results up to this time "
-                "are kept")
+                f"{', '.join(f'`{c}`' for c in culprits)} become dependent{where}. Condition: {condition} "
+                f"(σ_min/σ_max of the equilibrated iteration matrix = {ratio:.1e} < {threshold:.0e}), so the "
+                "coupling map loses surjectivity (e.g. a guide with a_s·t = 0: the rod perpendicular to the guide) "
+                "and the model is not a port-Hamiltonian system at this state (run `phc check` for the coupling "
+                "certificate); results up to this time are kept")
