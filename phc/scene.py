@@ -81,6 +81,15 @@ class Scene:
         update["inputs"] = {**sim.inputs, **s.inputs}
         if s.outputs:
             update["outputs"] = dict(s.outputs)
+        outputs = update.get("outputs", sim.outputs)
+        for name, expr in s.reference.items():  # closed forms ride along as outputs
+            if name not in outputs:
+                builder.diags.append(Diagnostic(
+                    "PHC-E605", f"reference for `{name}`, which is not a requested output",
+                    span=self.smap.locate_key(("reference", name)),
+                    hint=f"outputs: {', '.join(outputs) or 'none'}"))
+                continue
+            update["outputs"] = {**outputs, **update.get("outputs", {}), reference_name(name): expr}
         for comp, effects in s.effects.items():
             builder.effect_overrides[comp] = (dict(effects), self.locate("effects", comp))
         for comp, elements in s.accuracy.mesh.items():
@@ -104,6 +113,11 @@ class Scene:
             spec = spec.model_copy(update={"ports": {k: v for k, v in spec.ports.items() if k not in exposed}})
         new_sim = type(sim).model_validate({**sim.model_dump(exclude_unset=True), **update})
         return spec.model_copy(update={"simulation": new_sim}), _Overlay(smap, self.smap, s)
+
+
+def reference_name(output: str) -> str:
+    """Name of the output that carries the closed-form reference of `output`."""
+    return f"{output}_reference"
 
 
 def _prune(spec, outputs: dict) -> tuple[set[str], str]:
@@ -148,6 +162,9 @@ class _Overlay:
             moved = (path[1], *path[2:])
             if self.scene.has(moved[:2]):
                 return self.scene, moved
+            base = str(path[2]).removesuffix("_reference")
+            if path[1] == "outputs" and self.scene.has(("reference", base)):
+                return self.scene, ("reference", base, *path[3:])
         return self.model, path
 
     def locate(self, path):

@@ -29,6 +29,21 @@ class AccuracySpec(SpecModel):
     the model's `elements`."""
 
 
+class BenchSpec(SpecModel):
+    """The sweep of `phc bench` (a work-precision study of this scene)."""
+
+    solvers: Optional[list[SOLVERS]] = None
+    """Solvers to compare (default: all of phc's)."""
+    tolerances: list[float] = Field([1e-4, 1e-6, 1e-8], min_length=1)
+    """Relative tolerances of the error-controlled solvers (atol = rtol/100)."""
+    steps: list[float] = []
+    """Step sizes of the fixed-step solvers (default: derived from the output interval)."""
+    meshes: dict[str, list[int]] = {}
+    """Element counts to sweep per distributed component."""
+    repeats: int = Field(1, ge=1, le=20)
+    """Runs per point; the CPU time reported is the minimum."""
+
+
 EffectValue = Union[bool, int]
 
 
@@ -58,6 +73,10 @@ class SceneSpec(SpecModel):
     variables, component outputs such as a beam's `w[i]`, `t` and `H`."""
     accuracy: AccuracySpec = AccuracySpec()
     solver: Optional[SOLVERS] = None
+    reference: dict[Identifier, Expr] = {}
+    """Closed forms of requested outputs (expressions in `t` and parameters): `phc bench` and
+    `--estimate-error` measure errors against them instead of a reference run."""
+    bench: BenchSpec = BenchSpec()
     prune: bool = True
     """Leave out the subsystems that cannot influence the requested outputs (components
     not connected to any component an output refers to)."""
