@@ -1,0 +1,1 @@
+"""Peer implementations for ``benchmarks/bench_peers.py`` (no phc imports in the peers)."""
