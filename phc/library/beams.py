@@ -197,6 +197,54 @@ def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, coupl
     return rows
 
 
+class FullFields:
+    """Traces, loads and functionals of the full discretization's fields (the interface
+    :class:`phc.library.modal.ReducedFields` shares, so callers such as the moving beam
+    work on either)."""
+
+    def __init__(self, b, rows, fields):
+        self.b, self.rows, self.fields = b, rows, fields
+
+    def trace(self, local, dof) -> sp.Expr:
+        return self.fields[local][0].e[dof]
+
+    def load(self, local, dof, expr) -> None:
+        self.b.add_to_row(self.rows[local][dof], expr)
+
+    def load_vector(self, local, r, expr) -> None:
+        for j, rj in enumerate(r):
+            if rj:
+                self.b.add_to_row(self.rows[local][j], expr * float(rj))
+
+    def pair(self, local, r) -> sp.Expr:
+        return sum((float(rj) * ej for rj, ej in zip(r, self.fields[local][0].e) if rj), sp.Integer(0))
+
+    def state_functional(self, local, g) -> sp.Expr:
+        return sum((float(gk) * xk for gk, xk in zip(g, self.fields[local][0].x) if gk), sp.Integer(0))
+
+
+def modes_of(spec):
+    """The `modes` effect of a component (None: keep all)."""
+    return getattr(getattr(spec, "effects", None), "modes", None)
+
+
+def _lower_fields(b, ctx, name, spec, path, mesh, span, spaces_a, spaces_b, couplings, skew, ports, order,
+                  boundary=None, kelvin_voigt=False):
+    """Full or modally truncated (effect `modes`) lowering of fields ``{local: (space, coefficient)}``;
+    returns a :class:`FullFields` or :class:`~phc.library.modal.ReducedFields`."""
+    k = modes_of(spec)
+    if k is not None:
+        from phc.library.modal import lower_modal
+
+        return lower_modal(b, ctx, name, spec, path, mesh, spaces_a, spaces_b, couplings, skew, ports, order, k,
+                           boundary=boundary, kelvin_voigt=kelvin_voigt)
+    fields_a = {l: (_Field(b, name, l, s, span), c) for l, (s, c) in spaces_a.items()}
+    fields_b = {l: (_Field(b, name, l, s, span), c) for l, (s, c) in spaces_b.items()}
+    rows = _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, couplings, skew, ports, order,
+                              kelvin_voigt=kelvin_voigt)
+    return FullFields(b, rows, {**fields_a, **fields_b})
+
+
 def _end_dof(space, end: str, derivative: int) -> int:
     n = space.mesh.elements
     if isinstance(space, H3):
@@ -226,11 +274,9 @@ def lower_string(b, ctx, name, spec, path):
     if prep is None:
         return
     mesh, span, c = prep
-    p = _Field(b, name, "p", P1(mesh), span)
-    eps = _Field(b, name, "eps", P0(mesh), span)
-    _lower_partitioned(b, ctx, name, spec, path, mesh, {"p": (p, _inverse(c["rho"]))}, {"eps": (eps, c["T"])},
-                       [("p", "eps", 1)], [], [("a", "p", "a", 0, TRANSLATIONAL), ("b", "p", "b", 0, TRANSLATIONAL)],
-                       order=1)
+    _lower_fields(b, ctx, name, spec, path, mesh, span, {"p": (P1(mesh), _inverse(c["rho"]))},
+                  {"eps": (P0(mesh), c["T"])}, [("p", "eps", 1)], [],
+                  [("a", "p", "a", 0, TRANSLATIONAL), ("b", "p", "b", 0, TRANSLATIONAL)], order=1)
 
 
 def lower_timoshenko(b, ctx, name, spec, path):
@@ -238,14 +284,10 @@ def lower_timoshenko(b, ctx, name, spec, path):
     if prep is None:
         return
     mesh, span, c = prep
-    p = _Field(b, name, "p", P1(mesh), span)
-    m = _Field(b, name, "M", P1(mesh), span)
-    gamma = _Field(b, name, "gamma", P0(mesh), span)
-    theta = _Field(b, name, "theta", P0(mesh), span)
-    _lower_partitioned(
-        b, ctx, name, spec, path, mesh,
-        {"p": (p, _inverse(c["rho"])), "M": (m, _inverse(c["I_rho"]))},
-        {"gamma": (gamma, c["K"]), "theta": (theta, c["EI"])},
+    _lower_fields(
+        b, ctx, name, spec, path, mesh, span,
+        {"p": (P1(mesh), _inverse(c["rho"])), "M": (P1(mesh), _inverse(c["I_rho"]))},
+        {"gamma": (P0(mesh), c["K"]), "theta": (P0(mesh), c["EI"])},
         [("p", "gamma", 1), ("M", "theta", 1)],
         [("M", "gamma", 1.0), ("gamma", "M", -1.0)],  # P0 of Example ex:expde (b)
         [("a", "p", "a", 0, TRANSLATIONAL), ("b", "p", "b", 0, TRANSLATIONAL),
@@ -253,22 +295,15 @@ def lower_timoshenko(b, ctx, name, spec, path):
         order=1)
 
 
-def euler_bernoulli_fields(b, name, mesh, span, c):
-    """Hermite momentum and DP1 curvature fields with their energy coefficients."""
-    p = _Field(b, name, "p", H3(mesh), span)
-    kappa = _Field(b, name, "kappa", DP1(mesh), span)
-    return p, kappa, {"p": (p, _inverse(c["rhoA"]))}, {"kappa": (kappa, c["EI"])}
-
-
 def lower_euler_bernoulli(b, ctx, name, spec, path):
     prep = prepare(b, ctx, name, spec, path, ("rhoA", "EI"))
     if prep is None:
         return
     mesh, span, c = prep
-    _, _, fields_a, fields_b = euler_bernoulli_fields(b, name, mesh, span, c)
     # P_2 = [[0, 1], [-1, 0]] on (κ, p): ṗ = −∂²e_κ, κ̇ = ∂²e_p.
-    _lower_partitioned(
-        b, ctx, name, spec, path, mesh, fields_a, fields_b, [("p", "kappa", 1)], [],
+    _lower_fields(
+        b, ctx, name, spec, path, mesh, span, {"p": (H3(mesh), _inverse(c["rhoA"]))},
+        {"kappa": (DP1(mesh), c["EI"])}, [("p", "kappa", 1)], [],
         [("a", "p", "a", 0, TRANSLATIONAL), ("b", "p", "b", 0, TRANSLATIONAL),
          ("a_rot", "p", "a", 1, ROTATIONAL), ("b_rot", "p", "b", 1, ROTATIONAL)],
         order=2)

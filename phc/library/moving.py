@@ -27,7 +27,8 @@ import sympy as sp
 
 from phc.dae import T
 from phc.discretize.fem1d import _GAUSS_W
-from phc.library.beams import _lower_partitioned, euler_bernoulli_fields, prepare
+from phc.discretize.fem1d import DP1, H3
+from phc.library.beams import FullFields, _inverse, _lower_fields, prepare
 from phc.library.dirac import DiracBuilder
 
 
@@ -58,11 +59,15 @@ def lower_moving_beam(b, ctx, name, spec, path):
                     (*path, what))
             return
     L = sp.Float(mesh.length)
-    p, kappa, fields_a, fields_b = euler_bernoulli_fields(b, name, mesh, span, coeffs)
-    rows = _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, [("p", "kappa", 1)], [], [],
-                              order=2, kelvin_voigt=True)
     n_el = mesh.elements
     dof0, dofL, slope0, slopeL = 0, 2 * n_el, 1, 2 * n_el + 1
+    # The four trace DOFs (v0, v0', vL, vL') carry the coupling to the rigid part; with
+    # `modes` they are the static-mode coordinates of the reduced field (phc.library.modal).
+    space, kappa_space = H3(mesh), DP1(mesh)
+    fields = _lower_fields(b, ctx, name, spec, path, mesh, span, {"p": (space, _inverse(rho))},
+                           {"kappa": (kappa_space, coeffs["EI"])}, [("p", "kappa", 1)], [], [], order=2,
+                           boundary=[("p", "a", 0), ("p", "a", 1), ("p", "b", 0), ("p", "b", 1)],
+                           kelvin_voigt=True)
     # Rigid part.
     q = [b.add_state(name, f"{pt}[{k}]", span) for pt in ("q0", "qf") for k in range(2)]
     (q0x, dq0x), (q0y, dq0y), (qfx, dqfx), (qfy, dqfy) = q
@@ -73,18 +78,17 @@ def lower_moving_beam(b, ctx, name, spec, path):
     tv = chord / ell
     nv = sp.Matrix([-tv[1], tv[0]])
     e_t = pt / mass
-    v0, vL = p.e[dof0], p.e[dofL]
+    v0, vL = fields.trace("p", dof0), fields.trace("p", dofL)
     omega = (vL - v0) / L
     v_end0 = e_t * tv + v0 * nv
     v_endf = e_t * tv + vL * nv
     for k, (dq, v) in enumerate(((dq0x, v_end0[0]), (dq0y, v_end0[1]), (dqfx, v_endf[0]), (dqfy, v_endf[1]))):
         b.add_equation(dq - v, name, "kinematics", f"kinematics[{k}]", span)
     # r_j = ∫ ρ φ_j (H3 basis): the same functional in both modulation terms.
-    space = p.space
     local = np.einsum("ag,g->a", space.values(0), mesh.h * _GAUSS_W)
     r = np.zeros(space.size)
     np.add.at(r, space.dofs().ravel(), np.broadcast_to(local, (n_el, len(local))).ravel())
-    r_expr = rho.expr * sum((float(rj) * ej for rj, ej in zip(r, p.e) if rj), sp.Integer(0))
+    r_expr = rho.expr * fields.pair("p", r)
     ports = {}
     for pname, pos in (("p0", [q0x, q0y]), ("pf", [qfx, qfy])):
         ports[pname] = b.add_port(name, pname, "mechanical.translational", 2, span=span, position=pos)
@@ -96,25 +100,36 @@ def lower_moving_beam(b, ctx, name, spec, path):
         b.leave_out(name, "moving-frame terms K_r, K_f (ω∫p_b, −ρωp_t/m)", "effect `moving_frame` is off")
     b.add_equation(dpt - frame * omega * r_expr + tv.dot(e0) + tv.dot(ef), name, "dynamics", "tangential_momentum",
                    span)
-    for j, rj in enumerate(r):
-        if rj and frame:
-            b.add_to_row(rows["p"][j], omega * e_t * rho.expr * float(rj))
+    if frame:
+        fields.load_vector("p", r, omega * e_t * rho.expr)
     for k in range(2):
         b.define(ports["p0"].f[k], v_end0[k])
         b.define(ports["pf"].f[k], v_endf[k])
-    b.add_to_row(rows["p"][dof0], nv.dot(e0))
-    b.add_to_row(rows["p"][dofL], nv.dot(ef))
-    b.define(ports["m0"].f[0], p.e[slope0])
-    b.add_to_row(rows["p"][slope0], ports["m0"].e[0])
-    b.define(ports["mf"].f[0], p.e[slopeL])
-    b.add_to_row(rows["p"][slopeL], ports["mf"].e[0])
+    fields.load("p", dof0, nv.dot(e0))
+    fields.load("p", dofL, nv.dot(ef))
+    b.define(ports["m0"].f[0], fields.trace("p", slope0))
+    fields.load("p", slope0, ports["m0"].e[0])
+    b.define(ports["mf"].f[0], fields.trace("p", slopeL))
+    fields.load("p", slopeL, ports["mf"].e[0])
     b.hamiltonian.append(pt**2 / (2 * mass))
     b.add_invariant(chord.dot(chord) - L**2, name, "chord_length", span)
     for i, frac in enumerate(spec.deflection_at):
-        g = _deflection_functional(mesh, kappa.space, float(frac) * mesh.length)
-        b.extra_outputs[f"{name}.w[{i}]"] = sum((float(gk) * xk for gk, xk in zip(g, kappa.x) if gk), sp.Integer(0))
+        g = _deflection_functional(mesh, kappa_space, float(frac) * mesh.length)
+        b.extra_outputs[f"{name}.w[{i}]"] = fields.state_functional("kappa", g)
     b.extra_outputs[f"{name}.omega"] = omega
-    if spec.initial_shape == "straight":
+    if spec.initial_shape == "straight" and not isinstance(fields, FullFields):
+        # Reduced: the static modes reproduce affine fields, so a rigid start is "no
+        # fixed-interface motion, end slopes (v_f − v_0)/L, no strain".
+        n_static = 4
+        for i, zi in enumerate(fields.za[n_static:]):
+            b.initial_relations.append((f"{name}.rigid_start.mode[{i}]", {zi: 1.0}))
+        for i, zi in enumerate(fields.zb):
+            b.initial_relations.append((f"{name}.straight_start[{i}]", {zi: 1.0}))
+        for label, zi in (("a", fields.za[1]), ("b", fields.za[3])):
+            b.initial_relations.append((f"{name}.rigid_start.slope_{label}",
+                                        {zi: 1.0, fields.za[2]: -1.0 / mesh.length, fields.za[0]: 1.0 / mesh.length}))
+    elif spec.initial_shape == "straight":
+        p, kappa = fields.fields["p"][0], fields.fields["kappa"][0]
         # At t₀ the rod moves rigidly: the velocity field e_p = ρ⁻¹p_b is affine between the
         # end normal velocities (values at the nodes, slopes (v_f − v_0)/L).
         nodes = mesh.nodes
