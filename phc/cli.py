@@ -11,6 +11,7 @@ import argparse
 import json
 import os
 import sys
+from contextlib import nullcontext
 from pathlib import Path
 from typing import Optional, Sequence
 
@@ -147,6 +148,8 @@ def _summary_text(name: str, result) -> str:
 def cmd_simulate(args) -> int:
     from phc.errors import InconsistentInitialError, ModelError, SimulationSetupError
     from phc.pipeline import compile_model
+    from phc.accuracy import estimate_errors
+    from phc.profile import profiled
     from phc.progress import Progress
     from phc.simulation import simulate
 
@@ -161,9 +164,20 @@ def cmd_simulate(args) -> int:
     opts = compiled.dae.options
     t_end = args.t_end if args.t_end is not None else opts["t_end"]
     progress = Progress(opts["t_start"], t_end, label=compiled.name, enabled=not args.quiet)
+    run_kwargs = dict(t_end=args.t_end, params=params, rtol=args.rtol, atol=args.atol, n_out=args.n_out,
+                      solver=args.solver, step=args.step)
+    estimates, prof = [], None
     try:
-        result = simulate(compiled, t_end=args.t_end, params=params, rtol=args.rtol, atol=args.atol,
-                          n_out=args.n_out, progress=progress, solver=args.solver, step=args.step)
+        with (profiled(compiled) if args.profile else nullcontext()) as prof:
+            result = simulate(compiled, progress=progress, **run_kwargs)
+            if prof is not None:
+                prof.run_cpu = result.cpu_time_s
+        if args.estimate_error:
+            progress.close()
+            if not args.quiet:
+                print(f"{args.file}: estimating errors (a rerun with a finer step or tolerance, and one on "
+                      "refined meshes)...", file=sys.stderr)
+            estimates = estimate_errors(compiled, result, run_kwargs)
     except InconsistentInitialError as err:
         progress.close()
         for line in err.problems:
@@ -184,6 +198,10 @@ def cmd_simulate(args) -> int:
         summary["model"] = compiled.name
         summary["compile_time_s"] = sum(compiled.timings.values())
         summary.update(_compiled_json(compiled))
+        if args.estimate_error:
+            summary["error_estimates"] = [e.to_dict() for e in estimates]
+        if prof is not None:
+            summary["profile"] = prof.to_dict()
         if args.out:
             summary["output_file"] = args.out
         if args.plot:
@@ -195,6 +213,12 @@ def cmd_simulate(args) -> int:
         print(f"  compiled {_size_text(compiled.size())} in {sum(compiled.timings.values()):.2f} s")
         for line in _left_out_lines(compiled):
             print(line)
+        for e in estimates:
+            worst = max(e.per_output, key=e.per_output.get) if e.per_output else "-"
+            status = "" if e.ok else f" (the rerun failed: {e.message})"
+            print(f"  error    {e.kind} ≈ {e.max:.3e} (largest in `{worst}`): {e.method}{status}")
+        if prof is not None:
+            print(prof.render_text())
         if args.out:
             print(f"  wrote    {args.out}")
         if args.plot:
@@ -373,6 +397,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--format", choices=("text", "json"), default="text")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--plot", metavar="OUT.png", help="draw the requested outputs over time (needs phc[plot])")
+    p.add_argument("--estimate-error", action="store_true",
+                   help="estimate the temporal (finer step/tolerance) and spatial (refined meshes) errors of the "
+                   "outputs by Richardson extrapolation from reruns")
+    p.add_argument("--profile", action="store_true",
+                   help="break the CPU time into compile stages, residual and Jacobian evaluations and solver work")
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("animate", help="simulate and draw the planar mechanism frame by frame (GIF)")

@@ -197,6 +197,8 @@ class Dae:
     breakpoints: tuple[float, ...] = ()
     """Times where an input is not smooth: the integrators stop and restart there."""
     left_out: tuple[tuple[str, str, str], ...] = ()
+    meshes: dict = field(default_factory=dict)
+    """Distributed components: full name -> (type, number of elements)."""
     """What was not compiled, as (component, what, why): effects that are off, components
     pruned by a scene."""
 

@@ -136,6 +136,7 @@ class Builder:
         self.effect_overrides: dict[str, tuple[dict, Optional[SourceSpan]]] = {}
         self.mesh_overrides: dict[str, tuple[int, Optional[SourceSpan]]] = {}
         self.skip: set[str] = set()  # components left out (pruned by a scene)
+        self.meshes: dict[str, tuple[str, int]] = {}  # distributed component -> (type, elements)
         self.scene = None
         self.left_out: list[tuple[str, str, str]] = []
         self.unavailable: dict[str, str] = {}  # name -> why (an effect that is off)
@@ -402,6 +403,8 @@ class Builder:
                 self.failed.add(full)
                 return
             comp = comp.model_copy(update={"elements": elements})
+        if "elements" in type(comp).model_fields:
+            self.meshes[full] = (comp.type, comp.elements)
         n_errors = len(self.diags.errors)
         self.components.append((full, comp.type, ctx.smap.locate(path)))
         lowerers[comp.type](self, ctx, full, comp, path)
@@ -467,6 +470,6 @@ def elaborate(path: str | os.PathLike, scene=None) -> tuple[Optional[Dae], Diagn
         _check_connections(builder, ctx)
         return None, DiagnosticList(dict.fromkeys(builder.diags)).sorted()
     dae = assemble(builder, ctx)
-    if dae is not None and builder.left_out:
-        dae = dataclasses.replace(dae, left_out=tuple(builder.left_out))
+    if dae is not None:
+        dae = dataclasses.replace(dae, left_out=tuple(builder.left_out), meshes=dict(builder.meshes))
     return (None if builder.diags.has_errors else dae), builder.diags.sorted()

@@ -90,9 +90,9 @@ def build_dae(path: str | os.PathLike, scene: Optional[Scene] = None) -> tuple[O
     return dae, DiagnosticList(diags).sorted()
 
 
-def compile_model(path: str | os.PathLike) -> CompiledModel:
+def compile_model(path: str | os.PathLike, scene: Optional[Scene] = None) -> CompiledModel:
     """Compile a model file (or a scene file: its model as the scene asks) to a loaded
-    residual module.
+    residual module. `scene` applies an in-memory scene instead (`path` is then unused).
 
     Raises
     ------
@@ -101,8 +101,7 @@ def compile_model(path: str | os.PathLike) -> CompiledModel:
     """
     timings = {}
     t = time.perf_counter()
-    scene = None
-    if is_scene_file(path):
+    if scene is None and is_scene_file(path):
         scene, diags = load_scene(path)
         if scene is None:
             raise ModelError(DiagnosticList(diags).sorted())

@@ -1,0 +1,133 @@
+"""Error estimates of a run: ``phc simulate --estimate-error``.
+
+Every run reports its energy-balance residual and constraint drift (what the structure
+guarantees). On request phc also estimates the *discretization* errors of the requested
+outputs by Richardson extrapolation from a second run:
+
+* **temporal**: a fixed-step solver (order 2) reruns with half the step; the error of the
+  first run is ``|y_h − y_{h/2}| · 2²/(2² − 1)``. IDA reruns with tolerances / 10; its error
+  is taken as ``|y_tol − y_{tol/10}| · 10/9`` (error roughly proportional to the tolerance);
+* **spatial**: every distributed component is recompiled with twice the elements (same
+  solver settings) and ``|y_n − y_{2n}| · 2^q/(2^q − 1)``, with q the method's order:
+  2 for strings, Timoshenko beams and pde1d (P1/P0 mixed elements), 4 for Euler–Bernoulli
+  and moving beams (Hermite cubics) — see README, "Distributed components".
+
+Estimates are maxima over the output grid, per output. They are estimates: they assume
+the asymptotic regime (errors dominated by the leading term), which the reruns also let a
+user check (halving again should divide the estimate by 2^order).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+
+from phc.source import SourceMap
+from phc.spec.scene import AccuracySpec, SceneSpec
+
+SPATIAL_ORDER = {"string": 2, "timoshenko_beam": 2, "pde1d": 2, "euler_bernoulli_beam": 4, "moving_beam": 4}
+FIXED_STEP_ORDER = 2
+IDA_TOL_FACTOR = 10.0
+
+
+@dataclass
+class ErrorEstimate:
+    kind: str
+    """`temporal` or `spatial`."""
+    method: str
+    per_output: dict[str, float]
+    cpu_time_s: float
+    ok: bool = True
+    message: str = ""
+
+    @property
+    def max(self) -> float:
+        return max(self.per_output.values(), default=0.0)
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "method": self.method, "max": self.max, "per_output": self.per_output,
+                "cpu_time_s": self.cpu_time_s, "ok": self.ok, "message": self.message}
+
+
+def _observed(result) -> dict[str, np.ndarray]:
+    """The quantities compared: the requested outputs, else the energy states."""
+    if result.outputs:
+        return {k: v for k, v in result.outputs.items() if not k.endswith("_reference")}
+    cols = np.flatnonzero(result.differential)
+    return {"states": result.y[:, cols]}
+
+
+def _difference(a, b) -> dict[str, float]:
+    oa, ob = _observed(a), _observed(b)
+    n = min(len(a.t), len(b.t))
+    return {k: float(np.abs(np.asarray(oa[k])[:n] - np.asarray(ob[k])[:n]).max(initial=0.0)) for k in oa}
+
+
+def temporal_estimate(compiled, result, run_kwargs: dict) -> ErrorEstimate:
+    from phc.simulation import FIXED_STEP, simulate
+
+    kwargs = dict(run_kwargs, t_eval=result.t)
+    kwargs.pop("n_out", None)
+    if result.solver in FIXED_STEP:
+        opts = compiled.dae.options
+        h = kwargs.get("step") or opts.get("step") or float(np.diff(result.t).min())
+        fine = simulate(compiled, **dict(kwargs, step=h / 2))
+        factor = 2**FIXED_STEP_ORDER / (2**FIXED_STEP_ORDER - 1)
+        method = f"rerun with half the step (h = {h:.3g} → {h / 2:.3g}), Richardson order {FIXED_STEP_ORDER}"
+    else:
+        fine = simulate(compiled, **dict(kwargs, rtol=result.rtol / IDA_TOL_FACTOR, atol=result.atol / IDA_TOL_FACTOR))
+        factor = IDA_TOL_FACTOR / (IDA_TOL_FACTOR - 1)
+        method = f"rerun with rtol {result.rtol / IDA_TOL_FACTOR:.1e}, atol {result.atol / IDA_TOL_FACTOR:.1e}"
+    est = {k: factor * v for k, v in _difference(result, fine).items()}
+    return ErrorEstimate("temporal", method, est, fine.cpu_time_s, fine.success, "" if fine.success else fine.message)
+
+
+def refined_scene(compiled, factor: int = 2):
+    """An in-memory scene: the compiled one (or a plain model) with every mesh × factor."""
+    from phc.scene import Scene
+
+    meshes = {name: n * factor for name, (_, n) in compiled.dae.meshes.items()}
+    if compiled.scene is not None:
+        base = compiled.scene
+        accuracy = base.spec.accuracy.model_copy(update={"mesh": {**base.spec.accuracy.mesh, **meshes}})
+        return Scene(base.path, base.spec.model_copy(update={"accuracy": accuracy}), base.smap)
+    model = Path(compiled.dae.sources[0])
+    spec = SceneSpec(model=model.name, accuracy=AccuracySpec(mesh=meshes), prune=False)
+    return Scene(model.parent / f"{model.stem}.refined.yaml", spec, SourceMap(str(model), None))
+
+
+def spatial_estimate(compiled, result, run_kwargs: dict) -> Optional[ErrorEstimate]:
+    from phc.pipeline import compile_model
+    from phc.simulation import simulate
+
+    meshes = compiled.dae.meshes
+    if not meshes:
+        return None
+    order = min(SPATIAL_ORDER.get(kind, 2) for kind, _ in meshes.values())
+    fine_model = compile_model(compiled.dae.sources[-1], scene=refined_scene(compiled))
+    kwargs = dict(run_kwargs, t_eval=result.t)
+    kwargs.pop("n_out", None)
+    fine = simulate(fine_model, **kwargs)
+    factor = 2**order / (2**order - 1)
+    est = {k: factor * v for k, v in _difference(result, fine).items()}
+    sizes = ", ".join(f"{name} {n} → {2 * n}" for name, (_, n) in meshes.items())
+    return ErrorEstimate("spatial", f"rerun with twice the elements ({sizes}), Richardson order {order}", est,
+                         fine.cpu_time_s, fine.success, "" if fine.success else fine.message)
+
+
+def estimate_errors(compiled, result, run_kwargs: Optional[dict] = None) -> list[ErrorEstimate]:
+    """Temporal and (for models with distributed components) spatial error estimates of
+    `result`, obtained with the same `run_kwargs` that produced it (`simulate` keywords)."""
+    run_kwargs = {k: v for k, v in (run_kwargs or {}).items() if k != "progress"}
+    out = [temporal_estimate(compiled, result, run_kwargs)]
+    spatial = spatial_estimate(compiled, result, run_kwargs)
+    if spatial is not None:
+        out.append(spatial)
+    return out
+
+
+__all__ = ["ErrorEstimate", "estimate_errors", "temporal_estimate", "spatial_estimate", "refined_scene",
+           "SPATIAL_ORDER"]

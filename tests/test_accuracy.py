@@ -1,0 +1,68 @@
+"""Error estimates (`--estimate-error`) bracket the true error on closed forms; `--profile`."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import phc
+from phc.accuracy import estimate_errors
+from phc.cli import main
+
+MODELS = Path(__file__).resolve().parents[1] / "models"
+
+
+def msd_exact(t):
+    w = np.sqrt(3.96)  # m = 1, k = 4, c = 0.4: ω_d = √(k/m − (c/2m)²)
+    return 0.5 * np.exp(-0.2 * t) * (np.cos(w * t) + 0.2 / w * np.sin(w * t))
+
+
+@pytest.mark.parametrize("kwargs", [dict(solver="midpoint", step=0.01), dict(rtol=1e-6, atol=1e-8),
+                                    dict(rtol=1e-9, atol=1e-11)])
+def test_temporal_estimate_brackets_the_true_error(kwargs):
+    compiled = phc.compile_model(MODELS / "mass_spring_damper.yaml")
+    result = phc.simulate(compiled, **kwargs)
+    true = np.abs(result.outputs["x"] - msd_exact(result.t)).max()
+    (temporal,) = estimate_errors(compiled, result, kwargs)
+    assert temporal.kind == "temporal" and temporal.ok
+    assert true / 3 < temporal.per_output["x"] < 3 * true
+
+
+def test_spatial_estimate_brackets_the_true_error_of_a_string(tmp_path):
+    """d'Alembert: a force pulse F(t) on the end of a string fixed at the other end gives the
+    end velocity (F(t) − 2F(t − τ) + 2F(t − 2τ) − …)/Z, Z = √(Tρ), τ = 2L/c."""
+    scene = tmp_path / "s.yaml"
+    scene.write_text(f"model: {MODELS / 'vibrating_string.yaml'}\nt_end: 0.03\nn_out: 301\n"
+                     "accuracy: {mesh: {string: 32}}\noutputs: {v: string.b.f}\n")
+    compiled = phc.compile_model(scene)
+    result = phc.simulate(compiled)
+    rho, T, L, F0, tp = 0.01, 64.0, 0.64, 1.0, 0.004
+    Z, tau = np.sqrt(T * rho), 2 * L / np.sqrt(T / rho)
+
+    def F(s):
+        return np.where((s > 0) & (s < tp), F0 * np.sin(np.pi * s / tp) ** 2, 0.0)
+
+    exact = (F(result.t) - 2 * F(result.t - tau) + 2 * F(result.t - 2 * tau)) / Z
+    v = result.outputs["v"]
+    true = min(np.abs(v - exact).max(), np.abs(v + exact).max())  # port sign convention aside
+    temporal, spatial = estimate_errors(compiled, result, {})
+    assert spatial.kind == "spatial" and "32 → 64" in spatial.method
+    assert true / 2 < spatial.per_output["v"] < 2 * true
+    assert temporal.per_output["v"] < 1e-3 * true  # the mesh, not the time step, limits this run
+
+
+def test_cli_estimate_error_and_profile(capsys):
+    args = ["simulate", str(MODELS / "mass_spring_damper.yaml"), "--quiet", "--estimate-error", "--profile"]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "error    temporal ≈" in out and "profile  (CPU seconds)" in out and "residual evaluations" in out
+    assert main(args + ["--format", "json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["error_estimates"][0]["kind"] == "temporal"
+    prof = data["profile"]
+    assert prof["residual evaluations"]["seconds"] > 0
+    assert "calls" in prof["Jacobian evaluations"]["note"]
+    assert all(v["seconds"] >= 0 for v in prof.values())
