@@ -1,0 +1,677 @@
+"""`phc bench SCENE.yaml`: a work-precision study of a scene.
+
+:func:`run_bench` sweeps
+
+    solvers × (relative tolerances for the error-controlled `ida` | steps for the fixed-step
+    `midpoint` and `discrete_gradient`) × mesh sizes of the distributed components,
+
+runs each point on the scene's output grid (``t_start … t_end`` with ``n_out`` points) and
+measures, per point:
+
+* the **error** of every requested output against a reference, ``max_t |y(t) − y_ref(t)|``
+  over the output grid (absolute), and the same divided by the range ``max y_ref − min
+  y_ref`` of the reference (relative); the row's ``error`` / ``error_relative`` are the
+  maxima over the outputs;
+* the **CPU time** (process time of :func:`phc.simulate`, consistent initialization
+  included; the minimum over ``repeats`` runs, the median is kept as a noise figure),
+  the steps, residual and Jacobian evaluations;
+* the **structure figures**: the relative energy-balance residual and the position
+  constraint drift;
+* success and the solver's message — a failed run is a row, never an exception.
+
+The reference of an output is
+
+* its **closed form** when the scene gives one under ``reference:`` — the compiled scene
+  then carries it as the extra output ``<output>_reference`` (:func:`phc.scene.reference_name`)
+  and every run evaluates it on its own grid;
+* otherwise a **reference run**: IDA at a tight tolerance (``min(1e-10, tightest swept
+  tolerance / 100)``, ``atol = rtol / 100``) on the finest mesh swept (the largest element
+  count of each swept component), on the same output grid. The spatial error of that mesh
+  itself is therefore not part of the measured error — the error of a coarse mesh is
+  measured relative to the finest one. The run is cached on disk (``$PHC_CACHE_DIR/bench``,
+  default ``~/.cache/phc/bench``) under the SHA-256 of the scene file, the model file, the
+  phc version and the reference settings, so a repeated bench does not recompute it.
+
+Mesh variants are compiled from a temporary copy of the scene whose ``model:`` is the
+absolute path of the scene's model and whose ``accuracy.mesh`` has the swept element
+counts merged in; each variant is compiled once and serves all its solver settings.
+
+The results are written to ``out_dir`` as ``bench.csv``, ``bench.md`` (a Markdown table) and,
+when matplotlib is installed (the ``plot`` extra), ``bench.png``: the work-precision plot,
+error against CPU time on log–log axes, one line per solver and mesh. A Ctrl-C during the
+sweep stops it; the rows finished so far are written and the report says it was
+interrupted.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import itertools
+import json
+import math
+import os
+import statistics
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Optional, Union
+
+import numpy as np
+import yaml
+
+import phc
+from phc.errors import ModelError, SimulationSetupError
+from phc.scene import is_scene_file, load_scene, reference_name
+from phc.simulation import BACKENDS, FIXED_STEP
+
+DEFAULT_TOLERANCES = (1e-4, 1e-6, 1e-8)
+STEP_DIVISORS = (1, 4, 16)
+"""Default steps of the fixed-step solvers: the output interval divided by these (or, when
+the scene or model sets a `step`, that step times 4, 2 and 1)."""
+INSTALL_HINT = 'pip install "phc[plot]"'
+
+
+# ---------------------------------------------------------------------------------------
+# results
+
+
+@dataclass
+class BenchRow:
+    """One point of the sweep."""
+
+    solver: str
+    mesh: dict[str, int]
+    rtol: Optional[float] = None
+    atol: Optional[float] = None
+    step: Optional[float] = None
+    success: bool = False
+    message: str = ""
+    cpu_time_s: float = math.nan
+    """Minimum CPU time over the repeats."""
+    cpu_time_median_s: float = math.nan
+    repeats: int = 0
+    steps: int = 0
+    n_residual_evals: int = 0
+    n_jacobian_evals: int = 0
+    energy_balance_relative: float = math.nan
+    constraint_drift: float = math.nan
+    errors: dict[str, float] = field(default_factory=dict)
+    """max_t |y − y_ref| per output."""
+    relative_errors: dict[str, float] = field(default_factory=dict)
+    """errors divided by the range of the reference output."""
+
+    @property
+    def fixed_step(self) -> bool:
+        return self.step is not None
+
+    @property
+    def setting(self) -> str:
+        """`rtol 1e-06` or `step 2.5e-04`."""
+        return f"step {self.step:.3g}" if self.fixed_step else f"rtol {self.rtol:.3g}"
+
+    @property
+    def mesh_label(self) -> str:
+        return mesh_label(self.mesh)
+
+    @property
+    def error(self) -> float:
+        """Largest absolute error over the outputs (nan when any is unknown)."""
+        return _max_or_nan(self.errors.values())
+
+    @property
+    def error_relative(self) -> float:
+        return _max_or_nan(self.relative_errors.values())
+
+    def as_dict(self, outputs) -> dict:
+        row = {
+            "solver": self.solver, "mesh": self.mesh_label,
+            "rtol": _blank(self.rtol), "atol": _blank(self.atol), "step": _blank(self.step),
+            "success": self.success, "cpu_time_s": self.cpu_time_s, "cpu_time_median_s": self.cpu_time_median_s,
+            "repeats": self.repeats, "steps": self.steps, "n_residual_evals": self.n_residual_evals,
+            "n_jacobian_evals": self.n_jacobian_evals, "error": self.error, "error_relative": self.error_relative,
+        }
+        for name in outputs:
+            row[f"error_{name}"] = self.errors.get(name, math.nan)
+        for name in outputs:
+            row[f"error_relative_{name}"] = self.relative_errors.get(name, math.nan)
+        row.update(energy_balance_relative=self.energy_balance_relative, constraint_drift=self.constraint_drift,
+                   message=self.message)
+        return row
+
+
+@dataclass
+class BenchReport:
+    """What :func:`run_bench` measured and wrote."""
+
+    scene: Path
+    name: str
+    outputs: list[str]
+    rows: list[BenchRow] = field(default_factory=list)
+    planned: int = 0
+    """Number of sweep points asked for (rows ≤ planned when interrupted)."""
+    reference: dict[str, str] = field(default_factory=dict)
+    """Per output: `closed form` or `reference run`."""
+    reference_settings: dict = field(default_factory=dict)
+    """Solver, tolerances and mesh of the reference run (empty when only closed forms)."""
+    reference_cache_hit: bool = False
+    reference_cache_path: Optional[Path] = None
+    reference_message: str = ""
+    """Why the reference run failed (empty when it did not)."""
+    paths: dict[str, Path] = field(default_factory=dict)
+    """`csv`, `md` and (with matplotlib) `png`."""
+    plot_skipped: str = ""
+    """Why no PNG was written (empty when it was)."""
+    interrupted: bool = False
+    elapsed_s: float = 0.0
+
+    @property
+    def success(self) -> bool:
+        return not self.interrupted and all(r.success for r in self.rows) and not self.reference_message
+
+    def render_text(self) -> str:
+        """A short summary: the sweep, the reference, the best point per solver, the files."""
+        lines = [f"{self.name}: work-precision sweep, {len(self.rows)} of {self.planned} runs"
+                 + (" — INTERRUPTED, finished rows kept" if self.interrupted else "")
+                 + f" ({self.elapsed_s:.1f} s)"]
+        kinds = {}
+        for out, kind in self.reference.items():
+            kinds.setdefault(kind, []).append(out)
+        for kind, outs in kinds.items():
+            what = kind
+            if kind == "reference run" and self.reference_settings:
+                s = self.reference_settings
+                what += (f" ({s['solver']} rtol {s['rtol']:.1e}, atol {s['atol']:.1e}, mesh {mesh_label(s['mesh'])}"
+                         + ("; cached" if self.reference_cache_hit else "") + ")")
+            lines.append(f"  reference  {what}: {', '.join(outs)}")
+        if self.reference_message:
+            lines.append(f"  reference  FAILED: {self.reference_message}")
+        failed = [r for r in self.rows if not r.success]
+        lines.append(f"  runs       {len(self.rows) - len(failed)} succeeded, {len(failed)} failed")
+        for r in self.rows:
+            status = "ok " if r.success else "FAIL"
+            lines.append(f"  {status} {r.solver:<17} {r.mesh_label:<12} {r.setting:<16} "
+                         f"error {_fmt(r.error)} (rel {_fmt(r.error_relative)})  cpu {_fmt(r.cpu_time_s, '.3g')} s  "
+                         f"steps {r.steps}  energy {_fmt(r.energy_balance_relative)}"
+                         + ("" if r.success else f"  — {_short(r.message)}"))
+        for key in ("csv", "md", "png"):
+            if key in self.paths:
+                lines.append(f"  wrote      {self.paths[key]}")
+        if self.plot_skipped:
+            lines.append(f"  plot       skipped: {self.plot_skipped}")
+        return "\n".join(lines)
+
+    def summary(self) -> dict:
+        """JSON-ready form (for `--format json`)."""
+        return {
+            "scene": str(self.scene), "name": self.name, "outputs": self.outputs, "planned": self.planned,
+            "interrupted": self.interrupted, "reference": self.reference,
+            "reference_settings": {k: (mesh_label(v) if k == "mesh" else v) for k, v in self.reference_settings.items()},
+            "reference_cache_hit": self.reference_cache_hit, "reference_message": self.reference_message,
+            "rows": [_jsonable(r.as_dict(self.outputs)) for r in self.rows],
+            "paths": {k: str(v) for k, v in self.paths.items()}, "plot_skipped": self.plot_skipped,
+        }
+
+
+# ---------------------------------------------------------------------------------------
+# the sweep
+
+
+def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=None, steps=None, meshes=None,
+              repeats: Optional[int] = None, out_dir: Union[str, os.PathLike] = ".",
+              reference_cache: Union[None, bool, str, os.PathLike] = None, progress: bool = True,
+              plot: bool = True, outputs=None, stream=None) -> BenchReport:
+    """Run the work-precision study of a scene and write ``bench.csv``, ``bench.md`` and
+    ``bench.png`` into `out_dir`.
+
+    Parameters
+    ----------
+    scene_path
+        A scene file (a plain model file works too: its `simulation` outputs are used).
+    solvers, tolerances, steps, meshes, repeats : optional
+        Override the scene's ``bench`` section. `tolerances` are the relative tolerances of
+        the error-controlled solvers (``atol = rtol/100``); `steps` the step sizes of the
+        fixed-step ones (default: the scene's step × 4, 2, 1, else the output interval /1,
+        /4, /16); `meshes` maps a distributed component to the element counts to sweep (the
+        product over components is swept); `repeats` runs per point (CPU time: the minimum).
+    out_dir
+        Where the files go (created if missing).
+    reference_cache
+        Directory of the reference-run cache (default ``$PHC_CACHE_DIR/bench``); ``False``
+        computes the reference every time and stores nothing.
+    progress
+        Draw a progress bar over the sweep on `stream` (default stderr).
+    plot
+        Write the PNG (skipped, and said so in the report, without matplotlib).
+    outputs
+        The outputs to measure (default: all the scene's requested outputs).
+
+    Returns
+    -------
+    BenchReport
+        Rows, the files written, whether the sweep was interrupted.
+
+    Raises
+    ------
+    ModelError
+        When the scene itself does not compile (a mesh variant that fails is a failed row).
+    """
+    started = time.perf_counter()
+    scene_path = Path(scene_path)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    base = phc.compile_model(scene_path)
+    bench_spec = base.scene.spec.bench if base.scene is not None else None
+    model_path = (base.scene.model_path if base.scene is not None else scene_path).resolve()
+
+    # -- what to sweep -----------------------------------------------------------------
+    opts = dict(base.dae.options)
+    t0, t1, n_out = float(opts["t_start"]), float(opts["t_end"]), int(opts["n_out"])
+    t_out = np.linspace(t0, t1, n_out)
+    solvers = list(solvers or (bench_spec.solvers if bench_spec and bench_spec.solvers else BACKENDS))
+    tolerances = [float(x) for x in (tolerances or (bench_spec.tolerances if bench_spec else DEFAULT_TOLERANCES))]
+    if not steps:
+        steps = list(bench_spec.steps) if bench_spec and bench_spec.steps else _default_steps(opts, t1 - t0, n_out)
+    steps = [float(x) for x in steps]
+    meshes = dict(meshes if meshes is not None else (bench_spec.meshes if bench_spec else {}))
+    repeats = int(repeats or (bench_spec.repeats if bench_spec else 1))
+    mesh_points = _mesh_product(meshes)
+    points = [(mesh, solver, value) for mesh in mesh_points for solver in solvers
+              for value in (steps if solver in FIXED_STEP else tolerances)]
+
+    all_outputs = [name for name in base.module.OUTPUTS if not _is_reference_output(name, base.module.OUTPUTS)]
+    outputs = list(outputs) if outputs else all_outputs
+    unknown = [o for o in outputs if o not in all_outputs]
+    if unknown:
+        raise SimulationSetupError(f"unknown output(s) {', '.join(unknown)}; "
+                                              f"the scene has {', '.join(all_outputs) or 'none'}")
+    closed = [o for o in outputs if reference_name(o) in base.module.OUTPUTS]
+    report = BenchReport(scene_path, base.scene.name if base.scene is not None else base.name, outputs,
+                         planned=len(points),
+                         reference={o: ("closed form" if o in closed else "reference run") for o in outputs})
+    need_run = [o for o in outputs if o not in closed]
+    bar = _SweepBar(len(points) + (1 if need_run else 0), enabled=progress, stream=stream)
+    compiled_cache: dict[tuple, object] = {(): base} if not meshes else {}
+    reference: dict[str, np.ndarray] = {}
+
+    with tempfile.TemporaryDirectory(prefix="phc-bench-") as tmp:
+        def compiled_for(mesh: dict):
+            key = tuple(sorted(mesh.items()))
+            if key not in compiled_cache:
+                try:
+                    compiled_cache[key] = phc.compile_model(_variant_scene(scene_path, model_path, mesh, tmp))
+                except ModelError as err:
+                    compiled_cache[key] = err
+            return compiled_cache[key]
+
+        try:
+            # -- the reference run (closed forms ride along in every run) --------------
+            if need_run:
+                ref_mesh = {comp: max(counts) for comp, counts in meshes.items()}
+                ref_rtol = min(1e-10, min(tolerances) / 100)
+                settings = dict(solver="ida", rtol=ref_rtol, atol=ref_rtol / 100, mesh=ref_mesh)
+                report.reference_settings = settings
+                bar.show("reference run " + _point_label(ref_mesh, "ida", ref_rtol))
+                reference, report.reference_cache_hit, report.reference_cache_path, report.reference_message = \
+                    _reference_run(scene_path, model_path, settings, t_out, need_run, reference_cache,
+                                   lambda: compiled_for(ref_mesh))
+                bar.advance()
+            # -- the sweep ----------------------------------------------------------------
+            for mesh, solver, value in points:
+                bar.show(_point_label(mesh, solver, value))
+                compiled = compiled_for(mesh)
+                row = _run_point(compiled, solver, value, mesh, t_out, repeats, outputs, closed, reference,
+                                 report.reference_message)
+                report.rows.append(row)
+                bar.advance()
+        except KeyboardInterrupt:
+            report.interrupted = True
+        finally:
+            bar.close()
+
+    report.elapsed_s = time.perf_counter() - started
+    _write_files(report, out_dir, plot)
+    return report
+
+
+def _default_steps(opts: dict, span: float, n_out: int) -> list[float]:
+    step = opts.get("step")
+    if step:
+        return [4 * float(step), 2 * float(step), float(step)]
+    dt = span / max(n_out - 1, 1)
+    return [dt / d for d in STEP_DIVISORS]
+
+
+def _mesh_product(meshes: dict[str, list[int]]) -> list[dict[str, int]]:
+    if not meshes:
+        return [{}]
+    comps = list(meshes)
+    return [dict(zip(comps, combo)) for combo in itertools.product(*(sorted(set(meshes[c])) for c in comps))]
+
+
+def _is_reference_output(name: str, names) -> bool:
+    return name.endswith("_reference") and name.removesuffix("_reference") in names
+
+
+def _variant_scene(scene_path: Path, model_path: Path, mesh: dict, tmp: str) -> Path:
+    """A copy of the scene with `accuracy.mesh` merged and `model:` absolute."""
+    key = "_".join(f"{c.replace('.', '-')}{n}" for c, n in sorted(mesh.items())) or "base"
+    folder = Path(tmp) / key
+    folder.mkdir(exist_ok=True)
+    if not is_scene_file(scene_path):  # a plain model file: wrap it in a scene
+        data = {"format_version": 1, "model": str(model_path), "name": _identifier(scene_path.stem)}
+    else:
+        data = yaml.safe_load(scene_path.read_text()) or {}
+        data["model"] = str(model_path)
+    accuracy = dict(data.get("accuracy") or {})
+    accuracy["mesh"] = {**(accuracy.get("mesh") or {}), **mesh}
+    data["accuracy"] = accuracy
+    path = folder / scene_path.name
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def _identifier(text: str) -> str:
+    out = "".join(ch if ch.isalnum() or ch == "_" else "_" for ch in text)
+    return out if out and out[0].isalpha() else f"m_{out}"
+
+
+def _simulate_once(compiled, solver, value, t_out):
+    """One run; any exception (bad option, inconsistent start) becomes a failed result."""
+    kwargs = dict(solver=solver, t_eval=t_out)
+    if solver in FIXED_STEP:
+        kwargs["step"] = value
+    else:
+        kwargs.update(rtol=value, atol=value / 100)
+    try:
+        return phc.simulate(compiled, **kwargs), ""
+    except Exception as err:  # noqa: BLE001 — a failed point is a row, not an exception
+        return None, f"{type(err).__name__}: {err}"
+
+
+def _run_point(compiled, solver, value, mesh, t_out, repeats, outputs, closed, reference, ref_message) -> BenchRow:
+    row = BenchRow(solver, dict(mesh))
+    if solver in FIXED_STEP:
+        row.step = value
+    else:
+        row.rtol, row.atol = value, value / 100
+    if isinstance(compiled, Exception):
+        row.message = f"compilation failed: {_short(str(compiled), 300)}"
+        return row
+    times, result = [], None
+    for _ in range(repeats):
+        res, problem = _simulate_once(compiled, solver, value, t_out)
+        if res is None:
+            row.message = problem
+            return row
+        result = result or res
+        times.append(res.cpu_time_s)
+        if not res.success:
+            break
+    row.success, row.message = bool(result.success), result.message
+    row.cpu_time_s, row.cpu_time_median_s, row.repeats = min(times), statistics.median(times), len(times)
+    row.steps, row.n_residual_evals, row.n_jacobian_evals = result.steps, result.n_residual_evals, result.n_jacobian_evals
+    row.energy_balance_relative = float(result.energy_balance_relative)
+    row.constraint_drift = float(result.constraint_drift)
+    complete = result.success and len(result.t) == len(t_out) and np.allclose(result.t, t_out, rtol=0, atol=1e-12 * (
+        1 + abs(t_out[-1])))
+    for name in outputs:
+        if name in closed:
+            ref = result.outputs[reference_name(name)]
+        else:
+            ref = reference.get(name)
+        if not complete or ref is None:
+            row.errors[name] = row.relative_errors[name] = math.nan
+            continue
+        err = float(np.max(np.abs(result.outputs[name] - ref)))
+        span = float(np.max(ref) - np.min(ref))
+        scale = span if span > 0 else float(np.max(np.abs(ref)))
+        row.errors[name] = err
+        row.relative_errors[name] = err / scale if scale > 0 else math.nan
+    if not result.success:
+        row.message = result.message
+    elif ref_message and any(name not in closed for name in outputs):
+        row.message = "no reference: " + ref_message
+    return row
+
+
+# ---------------------------------------------------------------------------------------
+# the reference run and its cache
+
+
+def _cache_dir(reference_cache) -> Optional[Path]:
+    if reference_cache is False:
+        return None
+    if reference_cache not in (None, True):
+        path = Path(reference_cache)
+    else:
+        from phc.codegen.load import cache_dir
+        path = cache_dir() / "bench"
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return None
+    return path
+
+
+def reference_key(scene_path: Path, model_path: Path, settings: dict, t_out: np.ndarray, outputs) -> str:
+    """SHA-256 of the scene file, the model file, the phc version and the reference
+    settings (solver, tolerances, mesh, output grid, outputs)."""
+    h = hashlib.sha256()
+    for path in (scene_path, model_path):
+        h.update(Path(path).read_bytes())
+        h.update(b"\0")
+    meta = dict(settings, t=[float(t_out[0]), float(t_out[-1]), len(t_out)], outputs=sorted(outputs),
+                version=phc.__version__)
+    h.update(json.dumps(meta, sort_keys=True, default=str).encode())
+    return h.hexdigest()[:32]
+
+
+def _reference_run(scene_path, model_path, settings, t_out, outputs, reference_cache, compile_fn):
+    """(outputs by name, cache hit, cache file, failure message)."""
+    folder = _cache_dir(reference_cache)
+    path = None
+    if folder is not None:
+        path = folder / f"ref_{reference_key(scene_path, model_path, settings, t_out, outputs)}.npz"
+        if path.is_file():
+            try:
+                with np.load(path) as data:
+                    if np.array_equal(data["t"], t_out):
+                        return {name: np.array(data[f"out_{name}"]) for name in outputs}, True, path, ""
+            except (OSError, KeyError, ValueError):
+                pass  # a damaged entry is recomputed
+    compiled = compile_fn()
+    if isinstance(compiled, Exception):
+        return {}, False, path, f"the reference mesh does not compile: {_short(str(compiled), 300)}"
+    res, problem = _simulate_once(compiled, settings["solver"], settings["rtol"], t_out)
+    if res is None:
+        return {}, False, path, problem
+    if not res.success or len(res.t) != len(t_out):
+        return {}, False, path, res.message
+    ref = {name: np.asarray(res.outputs[name], dtype=float) for name in outputs}
+    if path is not None:
+        tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
+        try:
+            np.savez(tmp, t=t_out, **{f"out_{k}": v for k, v in ref.items()},
+                     meta=json.dumps(dict(settings, scene=str(scene_path), cpu_time_s=res.cpu_time_s), default=str))
+            os.replace(tmp, path)
+        except OSError:
+            pass
+    return ref, False, path, ""
+
+
+# ---------------------------------------------------------------------------------------
+# output files
+
+
+def _write_files(report: BenchReport, out_dir: Path, plot: bool) -> None:
+    rows = [r.as_dict(report.outputs) for r in report.rows]
+    columns = list(BenchRow("", {}).as_dict(report.outputs))
+    csv_path = out_dir / "bench.csv"
+    with open(csv_path, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=columns)
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: _csv_value(v) for k, v in row.items()})
+    report.paths["csv"] = csv_path
+    md_path = out_dir / "bench.md"
+    md_path.write_text(_markdown(report))
+    report.paths["md"] = md_path
+    if not plot:
+        report.plot_skipped = "not requested"
+        return
+    try:
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+    except ImportError:
+        report.plot_skipped = f"matplotlib is not installed ({INSTALL_HINT})"
+        return
+    png = out_dir / "bench.png"
+    _plot(report, png, Figure, FigureCanvasAgg)
+    report.paths["png"] = png
+
+
+def _markdown(report: BenchReport) -> str:
+    lines = [f"# Work-precision: {report.name}", ""]
+    refs = []
+    for out, kind in report.reference.items():
+        if kind == "reference run" and report.reference_settings:
+            s = report.reference_settings
+            kind = f"reference run ({s['solver']}, rtol {s['rtol']:.1e}, mesh {mesh_label(s['mesh'])})"
+        refs.append(f"`{out}`: {kind}")
+    lines.append("Error: max over the output grid of |output − reference|, the largest over the outputs "
+                 "(relative: divided by the reference's range). Reference — " + "; ".join(refs) + ".")
+    if report.reference_message:
+        lines.append(f"\n**The reference run failed**: {report.reference_message}")
+    if report.interrupted:
+        lines.append(f"\n**Interrupted**: {len(report.rows)} of {report.planned} runs finished.")
+    lines += ["", "| solver | mesh | rtol / step | ok | CPU [s] | steps | error | rel. error | "
+              "energy balance (rel.) | constraint drift | message |",
+              "|---|---|---|---|---:|---:|---:|---:|---:|---:|---|"]
+    for r in report.rows:
+        lines.append(f"| {r.solver} | {r.mesh_label} | {r.setting} | {'yes' if r.success else 'no'} | "
+                     f"{_fmt(r.cpu_time_s, '.3g')} | {r.steps} | {_fmt(r.error)} | {_fmt(r.error_relative)} | "
+                     f"{_fmt(r.energy_balance_relative)} | {_fmt(r.constraint_drift)} | "
+                     f"{_short(r.message).replace('|', '/')} |")
+    return "\n".join(lines) + "\n"
+
+
+def _plot(report: BenchReport, path: Path, Figure, Canvas) -> None:
+    fig = Figure(figsize=(7, 5))
+    Canvas(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    groups: dict[tuple[str, str], list[BenchRow]] = {}
+    for r in report.rows:
+        groups.setdefault((r.solver, r.mesh_label), []).append(r)
+    drawn = 0
+    for (solver, mesh), rows in groups.items():
+        pts = sorted((r.cpu_time_s, r.error, r) for r in rows
+                     if r.success and r.cpu_time_s > 0 and np.isfinite(r.error) and r.error > 0)
+        if not pts:
+            continue
+        label = solver if mesh == "default" else f"{solver}, {mesh}"
+        ax.loglog([p[0] for p in pts], [p[1] for p in pts], "o-", label=label)
+        for cpu, err, r in pts:
+            ax.annotate(f"{r.step:.2g}" if r.fixed_step else f"{r.rtol:.0e}", (cpu, err), fontsize=7,
+                        textcoords="offset points", xytext=(4, 4))
+        drawn += 1
+    ax.set_xlabel("CPU time [s]")
+    ax.set_ylabel("max error of the outputs (absolute)")
+    ax.set_title(f"{report.name}: work-precision" + (" (interrupted)" if report.interrupted else ""))
+    ax.grid(True, which="both", alpha=0.3)
+    if drawn:
+        ax.legend(fontsize=8)
+    else:
+        ax.text(0.5, 0.5, "no successful run with a finite, nonzero error", ha="center", va="center",
+                transform=ax.transAxes)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+# ---------------------------------------------------------------------------------------
+# progress and formatting
+
+
+class _SweepBar:
+    """A bar over the sweep's points: redrawn on a terminal, one line per point in a log."""
+
+    def __init__(self, total: int, enabled: bool = True, stream=None) -> None:
+        self.total, self.done, self.enabled = total, 0, enabled and total > 0
+        self.stream = stream or sys.stderr
+        self.tty = getattr(self.stream, "isatty", lambda: False)()
+        self.start = time.monotonic()
+        self.label = ""
+
+    def show(self, label: str) -> None:
+        self.label = label
+        if self.enabled and self.tty:
+            self._draw()
+
+    def advance(self) -> None:
+        self.done += 1
+        if self.enabled:
+            self._draw(log=not self.tty)
+
+    def _draw(self, log: bool = False) -> None:
+        width = 30
+        frac = self.done / self.total
+        elapsed = time.monotonic() - self.start
+        eta = f"eta {elapsed / frac - elapsed:.0f} s" if self.done else ""
+        text = f"bench [{'#' * int(frac * width):<{width}}] {self.done}/{self.total}  {self.label}  " \
+               f"elapsed {elapsed:.1f} s {eta}"
+        if self.tty:
+            self.stream.write("\r" + text[:160].ljust(120))
+        elif log:
+            self.stream.write(text + "\n")
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.enabled and self.tty:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+def mesh_label(mesh: dict) -> str:
+    return ",".join(f"{c}={n}" for c, n in sorted(mesh.items())) or "default"
+
+
+def _point_label(mesh, solver, value) -> str:
+    setting = f"step {value:.3g}" if solver in FIXED_STEP else f"rtol {value:.0e}"
+    return f"{solver} {setting}" + ("" if not mesh else f" {mesh_label(mesh)}")
+
+
+def _max_or_nan(values) -> float:
+    values = list(values)
+    if not values or any(not np.isfinite(v) for v in values):
+        return math.nan
+    return float(max(values))
+
+
+def _blank(value):
+    return "" if value is None else value
+
+
+def _csv_value(value):
+    if isinstance(value, float):
+        return "" if math.isnan(value) else repr(value)
+    return value
+
+
+def _fmt(value, spec: str = ".2e") -> str:
+    if value is None or (isinstance(value, float) and not np.isfinite(value)):
+        return "—"
+    return format(value, spec)
+
+
+def _short(text: str, n: int = 120) -> str:
+    text = " ".join(str(text).split())
+    return text if len(text) <= n else text[: n - 1] + "…"
+
+
+def _jsonable(row: dict) -> dict:
+    return {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in row.items()}
+
+
+__all__ = ["run_bench", "BenchReport", "BenchRow", "reference_key", "mesh_label"]

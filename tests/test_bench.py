@@ -1,0 +1,158 @@
+"""`phc bench` (issue 7 item 2): a tiny work-precision sweep in CI.
+
+The mass–spring–damper of models/mass_spring_damper.yaml (m = 1, k = 4, c = 0.4,
+x(0) = 0.5, v(0) = 0) has the closed form x(t) = 0.5 e^{−0.2t}(cos ωt + (0.2/ω) sin ωt),
+ω = √(k/m − (c/2m)²) = √3.96.
+"""
+
+from __future__ import annotations
+
+import csv
+import importlib.util
+import math
+from pathlib import Path
+
+import pytest
+import yaml
+
+import phc
+from phc.bench import run_bench
+
+ROOT = Path(__file__).resolve().parents[1]
+MSD = ROOT / "models" / "mass_spring_damper.yaml"
+STRING = ROOT / "models" / "vibrating_string.yaml"
+CLOSED_FORM = "0.5*exp(-0.2*t)*(cos(sqrt(3.96)*t) + 0.2/sqrt(3.96)*sin(sqrt(3.96)*t))"
+HAVE_MPL = importlib.util.find_spec("matplotlib") is not None
+
+
+def msd_scene(tmp_path: Path, reference: bool = True, name: str = "msd") -> Path:
+    text = (f"format_version: 1\nmodel: {MSD}\nname: {name}\nt_end: 5.0\nn_out: 51\n"
+            "outputs: {x: spring.x}\n")
+    if reference:
+        text += f"reference:\n  x: {CLOSED_FORM}\n"
+    path = tmp_path / f"{name}.yaml"
+    path.write_text(text)
+    return path
+
+
+def csv_rows(path: Path) -> list[dict]:
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def table_rows(path: Path) -> list[str]:
+    return [line for line in path.read_text().splitlines() if line.startswith("| ") and not line.startswith("| solver")]
+
+
+def test_closed_form_matches_the_model_file():
+    params = yaml.safe_load(MSD.read_text())
+    values = {k: v["value"] for k, v in params["parameters"].items()}
+    assert (values["m"], values["k"], values["c"]) == (1.0, 4.0, 0.4)
+    assert params["simulation"]["initial"] == {"spring.x": 0.5, "mass.p": 0.0}
+    zeta_omega = values["c"] / (2 * values["m"])
+    assert math.isclose(zeta_omega, 0.2) and math.isclose(values["k"] / values["m"] - zeta_omega ** 2, 3.96)
+
+
+def test_tiny_sweep_against_a_closed_form(tmp_path):
+    report = run_bench(msd_scene(tmp_path), solvers=["ida", "midpoint"], tolerances=[1e-5, 1e-8],
+                       steps=[0.1, 0.05], out_dir=tmp_path / "out", progress=False)
+    assert not report.interrupted and report.success, report.render_text()
+    assert report.reference == {"x": "closed form"} and not report.reference_settings
+    assert len(report.rows) == 4
+    rows = csv_rows(tmp_path / "out" / "bench.csv")
+    assert len(rows) == 4 and [r["solver"] for r in rows] == ["ida", "ida", "midpoint", "midpoint"]
+    assert len(table_rows(tmp_path / "out" / "bench.md")) == 4
+    ida = [r for r in report.rows if r.solver == "ida"]
+    assert ida[1].error < ida[0].error / 10  # tighter tolerance, smaller error
+    mid = [r for r in report.rows if r.solver == "midpoint"]
+    assert 3.5 < mid[0].error / mid[1].error < 4.5  # order 2: halving the step quarters the error
+    assert all(r.energy_balance_relative < 1e-12 for r in mid)  # midpoint is energy-exact for quadratic H
+    assert float(rows[0]["error_x"]) == pytest.approx(ida[0].error)
+    if HAVE_MPL:
+        assert (tmp_path / "out" / "bench.png").stat().st_size > 0 and "png" in report.paths
+    else:
+        assert "matplotlib" in report.plot_skipped
+    text = report.render_text()
+    assert "closed form: x" in text and "bench.csv" in text
+
+
+def test_reference_run_is_cached(tmp_path):
+    cache = tmp_path / "cache"
+    scene = msd_scene(tmp_path, reference=False)
+    kwargs = dict(solvers=["ida"], tolerances=[1e-6], out_dir=tmp_path / "out", reference_cache=cache,
+                  progress=False, plot=False)
+    first = run_bench(scene, **kwargs)
+    assert first.reference == {"x": "reference run"} and not first.reference_cache_hit
+    assert first.reference_settings["rtol"] <= 1e-8 and first.reference_cache_path.is_file()
+    calls = []
+    original = phc.simulate
+
+    def counting(*args, **kw):
+        calls.append(kw)
+        return original(*args, **kw)
+
+    import phc as phc_module
+    phc_module.simulate, saved = counting, phc_module.simulate
+    try:
+        second = run_bench(scene, **kwargs)
+    finally:
+        phc_module.simulate = saved
+    assert second.reference_cache_hit and len(calls) == 1  # only the swept point ran
+    assert second.rows[0].error == pytest.approx(first.rows[0].error)
+    assert 0 < first.rows[0].error < 1e-4
+    assert "cached" in second.render_text() and second.plot_skipped == "not requested"
+    # another scene content is another key
+    scene.write_text(scene.read_text().replace("n_out: 51", "n_out: 41"))
+    third = run_bench(scene, **kwargs)
+    assert not third.reference_cache_hit
+
+
+def test_interrupt_keeps_the_finished_rows(tmp_path, monkeypatch):
+    original = phc.simulate
+    calls = []
+
+    def interrupting(*args, **kw):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return original(*args, **kw)
+
+    monkeypatch.setattr(phc, "simulate", interrupting)
+    report = run_bench(msd_scene(tmp_path), solvers=["ida", "midpoint"], tolerances=[1e-5, 1e-8],
+                       steps=[0.1, 0.05], out_dir=tmp_path, progress=False, plot=False)
+    assert report.interrupted and not report.success
+    assert len(report.rows) == 2 and report.planned == 4
+    assert len(csv_rows(tmp_path / "bench.csv")) == 2
+    assert "Interrupted" in (tmp_path / "bench.md").read_text()
+    assert "INTERRUPTED" in report.render_text()
+
+
+def test_a_failed_run_is_a_row(tmp_path):
+    report = run_bench(msd_scene(tmp_path), solvers=["ida", "no_such_solver"], tolerances=[1e-6],
+                       out_dir=tmp_path, progress=False, plot=False)
+    assert [r.success for r in report.rows] == [True, False]
+    assert "unknown solver" in report.rows[1].message and math.isnan(report.rows[1].error)
+    assert "unknown solver" in csv_rows(tmp_path / "bench.csv")[1]["message"]
+
+
+def test_without_matplotlib_the_png_is_skipped(tmp_path, monkeypatch):
+    import sys
+    monkeypatch.setitem(sys.modules, "matplotlib.figure", None)  # makes the import fail
+    report = run_bench(msd_scene(tmp_path), solvers=["ida"], tolerances=[1e-6], out_dir=tmp_path, progress=False)
+    assert "matplotlib is not installed" in report.plot_skipped
+    assert not (tmp_path / "bench.png").exists() and "png" not in report.paths
+    assert "plot       skipped" in report.render_text()
+
+
+def test_mesh_sweep_against_the_finest_mesh(tmp_path):
+    scene = tmp_path / "string.yaml"
+    scene.write_text(f"format_version: 1\nmodel: {STRING}\nt_end: 0.003\nn_out: 31\n"
+                     "outputs: {end_velocity: string.b.f}\n")
+    report = run_bench(scene, solvers=["ida"], tolerances=[1e-7], meshes={"string": [4, 8]},
+                       out_dir=tmp_path / "out", reference_cache=tmp_path / "cache", progress=False, plot=False)
+    assert report.success, report.render_text()
+    assert report.reference_settings["mesh"] == {"string": 8}
+    coarse, fine = report.rows
+    assert (coarse.mesh, fine.mesh) == ({"string": 4}, {"string": 8})
+    assert fine.error < coarse.error / 10  # the finest mesh differs from its reference only in time
+    assert [r["mesh"] for r in csv_rows(tmp_path / "out" / "bench.csv")] == ["string=4", "string=8"]
