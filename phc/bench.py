@@ -336,6 +336,23 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
     return report
 
 
+def parse_meshes(items) -> dict[str, list[int]]:
+    """Mesh options of the command line, ``["rod=4,8,16", "beam=2,4"]`` → ``{"rod": [4, 8, 16],
+    "beam": [2, 4]}`` (a component may be given more than once; its counts are merged)."""
+    meshes: dict[str, list[int]] = {}
+    for item in items or ():
+        comp, sep, counts = str(item).partition("=")
+        try:
+            values = [int(c) for c in counts.split(",") if c.strip()]
+        except ValueError:
+            values = []
+        if not sep or not comp.strip() or not values or min(values) < 1:
+            raise SimulationSetupError(f"mesh option `{item}`: write COMPONENT=N1,N2,... (positive element counts)")
+        meshes.setdefault(comp.strip(), [])
+        meshes[comp.strip()] += [v for v in values if v not in meshes[comp.strip()]]
+    return meshes
+
+
 def _default_steps(opts: dict, span: float, n_out: int) -> list[float]:
     step = opts.get("step")
     if step:
@@ -674,4 +691,4 @@ def _jsonable(row: dict) -> dict:
     return {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in row.items()}
 
 
-__all__ = ["run_bench", "BenchReport", "BenchRow", "reference_key", "mesh_label"]
+__all__ = ["run_bench", "BenchReport", "BenchRow", "parse_meshes", "reference_key", "mesh_label"]

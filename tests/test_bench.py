@@ -156,3 +156,16 @@ def test_mesh_sweep_against_the_finest_mesh(tmp_path):
     assert (coarse.mesh, fine.mesh) == ({"string": 4}, {"string": 8})
     assert fine.error < coarse.error / 10  # the finest mesh differs from its reference only in time
     assert [r["mesh"] for r in csv_rows(tmp_path / "out" / "bench.csv")] == ["string=4", "string=8"]
+
+
+def test_parse_meshes_and_repeats(tmp_path):
+    from phc.bench import parse_meshes
+    from phc.errors import SimulationSetupError
+    assert parse_meshes(["rod=4,8", "beam=2", "rod=16"]) == {"rod": [4, 8, 16], "beam": [2]}
+    for bad in ("rod", "rod=", "rod=a", "=4", "rod=0"):
+        with pytest.raises(SimulationSetupError):
+            parse_meshes([bad])
+    report = run_bench(msd_scene(tmp_path), solvers=["midpoint"], steps=[0.1], repeats=3, out_dir=tmp_path,
+                       progress=False, plot=False)
+    row = report.rows[0]
+    assert row.repeats == 3 and row.cpu_time_s <= row.cpu_time_median_s
