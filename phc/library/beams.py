@@ -102,10 +102,11 @@ def _mesh(b, ctx, name, spec, path) -> Mesh | None:
 class _Field:
     """One state variable of the PDE: its space, state and co-energy DOF symbols."""
 
-    def __init__(self, b, name, local, space, span):
+    def __init__(self, b, name, local, space, span, stored: bool = True):
         self.space = space
         n = space.size
-        self.x = [b.add_state(name, f"{local}[{i}]", span)[0] for i in range(n)]
+        # a field without energy (an effect off) has no state: its co-energy is a multiplier
+        self.x = [b.add_state(name, f"{local}[{i}]", span)[0] for i in range(n)] if stored else []
         self.e = [b.add_algebraic(name, f"e_{local}[{i}]", "effort", span) for i in range(n)]
 
 
@@ -128,8 +129,8 @@ def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, coupl
     span = ctx.smap.locate(path)
     fields = {**fields_a, **fields_b}
     mass = {local: assemble(fld.space, 0, fld.space, 0) for local, (fld, _) in fields.items()}
-    terms = {local: [LinearTerm(sp.Integer(1), mass[local], tuple(fld.x), derivative=True)]
-             for local, (fld, _) in fields.items()}
+    terms = {local: [LinearTerm(sp.Integer(1), mass[local], tuple(fld.x), derivative=True)] if coeff is not None
+             else [] for local, (fld, coeff) in fields.items()}
     for a_local, b_local, sign in couplings:
         fa, fb = fields_a[a_local][0], fields_b[b_local][0]
         Dm = assemble(fb.space, 0, fa.space, order)
@@ -176,6 +177,8 @@ def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, coupl
             for local in fields}
     # Constitutive rows M e − M^{H} x = 0 and the energy ½ xᵀ M^{H} x.
     for local, (fld, coeff) in fields.items():
+        if coeff is None:
+            continue  # no energy: the rows of this field are constraints, e its multiplier
         MH = assemble(fld.space, 0, fld.space, 0, coeff.function())
         b.add_linear_rows(name, f"{local}.coenergy", fld.space.size,
                           [LinearTerm(sp.Integer(1), mass[local], tuple(fld.e)),
@@ -233,13 +236,17 @@ def _lower_fields(b, ctx, name, spec, path, mesh, span, spaces_a, spaces_b, coup
     """Full or modally truncated (effect `modes`) lowering of fields ``{local: (space, coefficient)}``;
     returns a :class:`FullFields` or :class:`~phc.library.modal.ReducedFields`."""
     k = modes_of(spec)
+    if k is not None and any(c is None for _, c in (*spaces_a.values(), *spaces_b.values())):
+        b.error("PHC-E144", f"effect `modes` of `{name}` needs every field to store energy; turn `shear` and "
+                "`rotary_inertia` on, or drop `modes`", ctx, path)
+        return None
     if k is not None:
         from phc.library.modal import lower_modal
 
         return lower_modal(b, ctx, name, spec, path, mesh, spaces_a, spaces_b, couplings, skew, ports, order, k,
                            boundary=boundary, kelvin_voigt=kelvin_voigt)
-    fields_a = {l: (_Field(b, name, l, s, span), c) for l, (s, c) in spaces_a.items()}
-    fields_b = {l: (_Field(b, name, l, s, span), c) for l, (s, c) in spaces_b.items()}
+    fields_a = {l: (_Field(b, name, l, s, span, c is not None), c) for l, (s, c) in spaces_a.items()}
+    fields_b = {l: (_Field(b, name, l, s, span, c is not None), c) for l, (s, c) in spaces_b.items()}
     rows = _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, couplings, skew, ports, order,
                               kelvin_voigt=kelvin_voigt)
     return FullFields(b, rows, {**fields_a, **fields_b})
@@ -284,10 +291,24 @@ def lower_timoshenko(b, ctx, name, spec, path):
     if prep is None:
         return
     mesh, span, c = prep
+    # Effects (seed Example ex:expde (c): both off → Euler–Bernoulli). `rotary_inertia`
+    # off: the energy ½∫M²/I_ρ is dropped, so the M rows become the algebraic moment balance
+    # 0 = ∂(EIθ) + Kγ (eq. beam_eq2 without I_ρ φ̈) and e_M = φ̇ is a multiplier. `shear`
+    # off (K → ∞): the energy ½∫Kγ² is dropped, the γ rows become the constraint
+    # γ̇ = ∂e_p − e_M = 0 (tested with P0: ∂w − φ = 0 per element) and e_γ = Kγ, the shear
+    # force, is its Lagrange multiplier.
+    inertia = _inverse(c["I_rho"]) if spec.effects.rotary_inertia else None
+    shear = c["K"] if spec.effects.shear else None
+    if inertia is None:
+        b.leave_out(name, "rotary inertia (the energy ½∫M²/I_ρ; M rows become the moment balance)",
+                    "effect `rotary_inertia` is off")
+    if shear is None:
+        b.leave_out(name, "shear deformation (the energy ½∫Kγ²; γ̇ = ∂e_p − e_M = 0 is a constraint)",
+                    "effect `shear` is off")
     _lower_fields(
         b, ctx, name, spec, path, mesh, span,
-        {"p": (P1(mesh), _inverse(c["rho"])), "M": (P1(mesh), _inverse(c["I_rho"]))},
-        {"gamma": (P0(mesh), c["K"]), "theta": (P0(mesh), c["EI"])},
+        {"p": (P1(mesh), _inverse(c["rho"])), "M": (P1(mesh), inertia)},
+        {"gamma": (P0(mesh), shear), "theta": (P0(mesh), c["EI"])},
         [("p", "gamma", 1), ("M", "theta", 1)],
         [("M", "gamma", 1.0), ("gamma", "M", -1.0)],  # P0 of Example ex:expde (b)
         [("a", "p", "a", 0, TRANSLATIONAL), ("b", "p", "b", 0, TRANSLATIONAL),

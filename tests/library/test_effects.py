@@ -147,3 +147,52 @@ def test_moving_beam_modes_keep_deflection_output_and_energy(workdir):
                        np.abs(reduced["slider_x"] - full["slider_x"]).max()))
     assert errors[1][0] < errors[0][0] < 0.02 * np.abs(w_full).max()
     assert errors[1][1] < errors[0][1] < 1e-6
+
+
+# -- Timoshenko beam: `shear` and `rotary_inertia` -------------------------------------
+
+
+def _timoshenko_pinned(workdir, n, **effects):
+    return _compile(workdir, f"timo{n}", timoshenko_body(n, effects=effects), PINNED, TIMOSHENKO_PARAMS)
+
+
+def test_timoshenko_without_shear_and_rotary_inertia_is_euler_bernoulli(workdir):
+    """Seed Example ex:expde (c): both effects off give the Euler–Bernoulli beam. Simply
+    supported: ω_n = (nπ/L)² √(EI/ρA) (eq. euler-bernoulli-reference). The constrained
+    P1/P0 discretization converges at O(h²), so the errors drop 4× per refinement and the
+    Richardson extrapolation hits the closed form."""
+    from test_beams import EI, LENGTH, RHO_A
+
+    closed = np.array([(n * math.pi / LENGTH) ** 2 * math.sqrt(EI / RHO_A) for n in (1, 2)])
+    errors = []
+    for n in (8, 16, 32):
+        compiled = _timoshenko_pinned(workdir, n, shear=False, rotary_inertia=False)
+        errors.append(eigenfrequencies(compiled.module, 2) / closed - 1)
+        assert not any(".gamma[" in v or ".M[" in v for v in compiled.module.VARIABLES)  # no such states
+    errors = np.array(errors)
+    ratios = errors[:-1] / errors[1:]
+    assert np.all(np.abs(ratios - 4.0) < 0.25)  # 4.01–4.19: asymptotic from n = 8
+    assert np.abs((4 * errors[2] - errors[1]) / 3).max() < 1e-4
+
+
+def test_timoshenko_effects_off_stiffen(workdir):
+    """Infinite shear stiffness or no rotary inertia raises every frequency of the same mesh
+    (Rayleigh quotient: more stiffness, less kinetic energy); what is left out is reported."""
+    reference = eigenfrequencies(_timoshenko_pinned(workdir, 16).module, 3)
+    for effects in ({"shear": False}, {"rotary_inertia": False}):
+        compiled = _timoshenko_pinned(workdir, 16, **effects)
+        assert np.all(eigenfrequencies(compiled.module, 3) > reference)
+        (effect,) = effects
+        assert any(why == f"effect `{effect}` is off" for _, _, why in compiled.dae.left_out)
+
+
+def test_timoshenko_euler_bernoulli_limit_keeps_energy_balance(workdir):
+    """The constrained (index-2) system simulates with the midpoint rule and its discrete
+    energy balance, driven through the tip, holds to round-off."""
+    ends = {"a": "zero_flow", "a_rot": "zero_flow", "b": "0.5*sin(2000*t)", "b_rot": "zero_effort"}
+    compiled = _compile(workdir, "timo_drive", timoshenko_body(8, effects={"shear": False, "rotary_inertia": False}),
+                        ends, TIMOSHENKO_PARAMS,
+                        simulation={"t_end": 0.005, "n_out": 51, "solver": "midpoint", "step": 1e-5})
+    result = phc.simulate(compiled)
+    assert result.success
+    assert result.energy_balance_relative < 1e-10
