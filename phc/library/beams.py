@@ -24,6 +24,11 @@ curvature (frequency error O(h⁴)).
 
 All blocks stay sparse (:class:`~phc.dae.LinearTerm`); constant coefficients stay
 run-time parameters, coefficients that vary with ``xi`` are evaluated at compile time.
+
+Effects: `damping`; `modes: k` hands the same fields to :mod:`phc.library.modal`
+(structure-preserving modal truncation); the Timoshenko beam's `shear` and
+`rotary_inertia` drop a field's energy, which turns its rows into constraints whose
+co-energy is the multiplier (both off: the Euler–Bernoulli limit of Example ex:expde).
 """
 
 from __future__ import annotations
