@@ -195,7 +195,7 @@ def cmd_simulate(args) -> int:
         _plot(result, args.plot, compiled.name)
     if args.format == "json":
         summary = result.summary()
-        summary["model"] = compiled.name
+        summary["model"] = compiled.dae.name
         summary["compile_time_s"] = sum(compiled.timings.values())
         summary.update(_compiled_json(compiled))
         if args.estimate_error:
@@ -208,7 +208,7 @@ def cmd_simulate(args) -> int:
             summary["plot_file"] = args.plot
         print(json.dumps(summary, indent=2))
     else:
-        label = f"{compiled.scene.name} (scene of {compiled.name})" if compiled.scene else compiled.name
+        label = f"{compiled.name} (scene of {compiled.dae.name})" if compiled.scene else compiled.name
         print(_summary_text(label, result))
         print(f"  compiled {_size_text(compiled.size())} in {sum(compiled.timings.values()):.2f} s")
         for line in _left_out_lines(compiled):

@@ -116,6 +116,7 @@ def compile_model(path: str | os.PathLike, scene: Optional[Scene] = None) -> Com
     source = print_module(ir)
     timings["print"] = time.perf_counter() - t
     t = time.perf_counter()
-    module, module_path = load_generated(source, dae.name)
+    name = scene.name if scene is not None else dae.name
+    module, module_path = load_generated(source, name)
     timings["load"] = time.perf_counter() - t
-    return CompiledModel(dae.name, dae, module, source, module_path, diags, timings, scene)
+    return CompiledModel(name, dae, module, source, module_path, diags, timings, scene)
