@@ -25,7 +25,8 @@ The reference of an output is
   then carries it as the extra output ``<output>_reference`` (:func:`phc.scene.reference_name`)
   and every run evaluates it on its own grid;
 * otherwise a **reference run**: IDA at a tight tolerance (``min(1e-10, tightest swept
-  tolerance / 100)``, ``atol = rtol / 100``) on the finest mesh swept (the largest element
+  tolerance / 100)``, ``atol = rtol / 100``, BDF orders up to 5 whatever the scene caps
+  them at, up to 10⁷ steps) on the finest mesh swept (the largest element
   count of each swept component), on the same output grid. The spatial error of that mesh
   itself is therefore not part of the measured error — the error of a coarse mesh is
   measured relative to the finest one. The run is cached on disk (``$PHC_CACHE_DIR/bench``,
@@ -71,6 +72,13 @@ DEFAULT_TOLERANCES = (1e-4, 1e-6, 1e-8)
 STEP_DIVISORS = (1, 4, 16)
 """Default steps of the fixed-step solvers: the output interval divided by these (or, when
 the scene or model sets a `step`, that step times 4, 2 and 1)."""
+REFERENCE_RTOL = 1e-10
+"""Relative tolerance of the reference run (tighter when the sweep goes below 1e-8)."""
+REFERENCE_MAX_ORDER = 5
+"""BDF order limit of the reference run. A scene may cap IDA's order for efficiency at loose
+tolerances (BDF2 is A-stable for undamped high modes); at the reference's tight tolerance
+the high orders are far cheaper (BDF2 at rtol 1e-10 needs millions of steps)."""
+REFERENCE_MAX_STEPS = 10_000_000
 INSTALL_HINT = 'pip install "phc[plot]"'
 
 
@@ -183,7 +191,8 @@ class BenchReport:
             what = kind
             if kind == "reference run" and self.reference_settings:
                 s = self.reference_settings
-                what += (f" ({s['solver']} rtol {s['rtol']:.1e}, atol {s['atol']:.1e}, mesh {mesh_label(s['mesh'])}"
+                what += (f" ({s['solver']} rtol {s['rtol']:.1e}, atol {s['atol']:.1e}, mesh {mesh_label(s['mesh'])}, "
+                         f"{_fmt(s.get('cpu_time_s', math.nan), '.3g')} s CPU"
                          + ("; cached" if self.reference_cache_hit else "") + ")")
             lines.append(f"  reference  {what}: {', '.join(outs)}")
         if self.reference_message:
@@ -195,7 +204,7 @@ class BenchReport:
             lines.append(f"  {status} {r.solver:<17} {r.mesh_label:<12} {r.setting:<16} "
                          f"error {_fmt(r.error)} (rel {_fmt(r.error_relative)})  cpu {_fmt(r.cpu_time_s, '.3g')} s  "
                          f"steps {r.steps}  energy {_fmt(r.energy_balance_relative)}"
-                         + ("" if r.success else f"  — {_short(r.message)}"))
+                         + ("" if r.success and np.isfinite(r.error) else f"  — {_short(r.message)}"))
         for key in ("csv", "md", "png"):
             if key in self.paths:
                 lines.append(f"  wrote      {self.paths[key]}")
@@ -222,7 +231,8 @@ class BenchReport:
 def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=None, steps=None, meshes=None,
               repeats: Optional[int] = None, out_dir: Union[str, os.PathLike] = ".",
               reference_cache: Union[None, bool, str, os.PathLike] = None, progress: bool = True,
-              plot: bool = True, outputs=None, stream=None) -> BenchReport:
+              plot: bool = True, outputs=None, reference_rtol: Optional[float] = None,
+              stream=None) -> BenchReport:
     """Run the work-precision study of a scene and write ``bench.csv``, ``bench.md`` and
     ``bench.png`` into `out_dir`.
 
@@ -247,6 +257,9 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
         Write the PNG (skipped, and said so in the report, without matplotlib).
     outputs
         The outputs to measure (default: all the scene's requested outputs).
+    reference_rtol
+        Relative tolerance of the reference run (default ``min(1e-10, tightest swept
+        tolerance / 100)``; ``atol = rtol / 100``).
 
     Returns
     -------
@@ -297,11 +310,14 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
     reference: dict[str, np.ndarray] = {}
 
     with tempfile.TemporaryDirectory(prefix="phc-bench-") as tmp:
-        def compiled_for(mesh: dict):
+        def compiled_for(mesh: dict, max_order: Optional[int] = None):
             key = tuple(sorted(mesh.items()))
+            if max_order is not None and int(base.dae.options.get("max_order", 5)) != max_order:
+                key += (("max_order", max_order),)
             if key not in compiled_cache:
                 try:
-                    compiled_cache[key] = phc.compile_model(_variant_scene(scene_path, model_path, mesh, tmp))
+                    compiled_cache[key] = phc.compile_model(
+                        _variant_scene(scene_path, model_path, mesh, tmp, max_order=dict(key).get("max_order")))
                 except ModelError as err:
                     compiled_cache[key] = err
             return compiled_cache[key]
@@ -310,13 +326,14 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
             # -- the reference run (closed forms ride along in every run) --------------
             if need_run:
                 ref_mesh = {comp: max(counts) for comp, counts in meshes.items()}
-                ref_rtol = min(1e-10, min(tolerances) / 100)
-                settings = dict(solver="ida", rtol=ref_rtol, atol=ref_rtol / 100, mesh=ref_mesh)
+                ref_rtol = float(reference_rtol or min(REFERENCE_RTOL, min(tolerances) / 100))
+                settings = dict(solver="ida", rtol=ref_rtol, atol=ref_rtol / 100, mesh=ref_mesh,
+                                max_order=REFERENCE_MAX_ORDER, max_steps=REFERENCE_MAX_STEPS)
                 report.reference_settings = settings
                 bar.show("reference run " + _point_label(ref_mesh, "ida", ref_rtol))
                 reference, report.reference_cache_hit, report.reference_cache_path, report.reference_message = \
                     _reference_run(scene_path, model_path, settings, t_out, need_run, reference_cache,
-                                   lambda: compiled_for(ref_mesh))
+                                   lambda: compiled_for(ref_mesh, REFERENCE_MAX_ORDER))
                 bar.advance()
             # -- the sweep ----------------------------------------------------------------
             for mesh, solver, value in points:
@@ -372,9 +389,12 @@ def _is_reference_output(name: str, names) -> bool:
     return name.endswith("_reference") and name.removesuffix("_reference") in names
 
 
-def _variant_scene(scene_path: Path, model_path: Path, mesh: dict, tmp: str) -> Path:
-    """A copy of the scene with `accuracy.mesh` merged and `model:` absolute."""
+def _variant_scene(scene_path: Path, model_path: Path, mesh: dict, tmp: str, max_order: Optional[int] = None) -> Path:
+    """A copy of the scene with `accuracy.mesh` merged (and `accuracy.max_order` set when
+    given) and `model:` absolute."""
     key = "_".join(f"{c.replace('.', '-')}{n}" for c, n in sorted(mesh.items())) or "base"
+    if max_order is not None:
+        key += f"_order{max_order}"
     folder = Path(tmp) / key
     folder.mkdir(exist_ok=True)
     if not is_scene_file(scene_path):  # a plain model file: wrap it in a scene
@@ -384,6 +404,8 @@ def _variant_scene(scene_path: Path, model_path: Path, mesh: dict, tmp: str) -> 
         data["model"] = str(model_path)
     accuracy = dict(data.get("accuracy") or {})
     accuracy["mesh"] = {**(accuracy.get("mesh") or {}), **mesh}
+    if max_order is not None:
+        accuracy["max_order"] = int(max_order)
     data["accuracy"] = accuracy
     path = folder / scene_path.name
     path.write_text(yaml.safe_dump(data, sort_keys=False))
@@ -395,9 +417,9 @@ def _identifier(text: str) -> str:
     return out if out and out[0].isalpha() else f"m_{out}"
 
 
-def _simulate_once(compiled, solver, value, t_out):
+def _simulate_once(compiled, solver, value, t_out, **extra):
     """One run; any exception (bad option, inconsistent start) becomes a failed result."""
-    kwargs = dict(solver=solver, t_eval=t_out)
+    kwargs = dict(solver=solver, t_eval=t_out, **extra)
     if solver in FIXED_STEP:
         kwargs["step"] = value
     else:
@@ -496,23 +518,27 @@ def _reference_run(scene_path, model_path, settings, t_out, outputs, reference_c
             try:
                 with np.load(path) as data:
                     if np.array_equal(data["t"], t_out):
+                        meta = json.loads(str(data["meta"]))
+                        settings["cpu_time_s"] = float(meta.get("cpu_time_s", math.nan))
                         return {name: np.array(data[f"out_{name}"]) for name in outputs}, True, path, ""
             except (OSError, KeyError, ValueError):
                 pass  # a damaged entry is recomputed
     compiled = compile_fn()
     if isinstance(compiled, Exception):
         return {}, False, path, f"the reference mesh does not compile: {_short(str(compiled), 300)}"
-    res, problem = _simulate_once(compiled, settings["solver"], settings["rtol"], t_out)
+    res, problem = _simulate_once(compiled, settings["solver"], settings["rtol"], t_out,
+                                  max_steps=settings["max_steps"])
     if res is None:
         return {}, False, path, problem
     if not res.success or len(res.t) != len(t_out):
         return {}, False, path, res.message
+    settings["cpu_time_s"] = float(res.cpu_time_s)
     ref = {name: np.asarray(res.outputs[name], dtype=float) for name in outputs}
     if path is not None:
         tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
         try:
             np.savez(tmp, t=t_out, **{f"out_{k}": v for k, v in ref.items()},
-                     meta=json.dumps(dict(settings, scene=str(scene_path), cpu_time_s=res.cpu_time_s), default=str))
+                     meta=json.dumps(dict(settings, scene=str(scene_path)), default=str))
             os.replace(tmp, path)
         except OSError:
             pass
