@@ -241,7 +241,7 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
     scene_path
         A scene file (a plain model file works too: its `simulation` outputs are used).
     solvers, tolerances, steps, meshes, repeats : optional
-        Override the scene's ``bench`` section. `tolerances` are the relative tolerances of
+        Override the scene's ``bench`` section (``None`` or empty: the scene's). `tolerances` are the relative tolerances of
         the error-controlled solvers (``atol = rtol/100``); `steps` the step sizes of the
         fixed-step ones (default: the scene's step × 4, 2, 1, else the output interval /1,
         /4, /16); `meshes` maps a distributed component to the element counts to sweep (the
@@ -288,7 +288,7 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
     if not steps:
         steps = list(bench_spec.steps) if bench_spec and bench_spec.steps else _default_steps(opts, t1 - t0, n_out)
     steps = [float(x) for x in steps]
-    meshes = dict(meshes if meshes is not None else (bench_spec.meshes if bench_spec else {}))
+    meshes = dict(meshes or (bench_spec.meshes if bench_spec else {}))
     repeats = int(repeats or (bench_spec.repeats if bench_spec else 1))
     mesh_points = _mesh_product(meshes)
     points = [(mesh, solver, value) for mesh in mesh_points for solver in solvers
@@ -299,7 +299,7 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
     unknown = [o for o in outputs if o not in all_outputs]
     if unknown:
         raise SimulationSetupError(f"unknown output(s) {', '.join(unknown)}; "
-                                              f"the scene has {', '.join(all_outputs) or 'none'}")
+                                   f"the scene has {', '.join(all_outputs) or 'none'}")
     closed = [o for o in outputs if reference_name(o) in base.module.OUTPUTS]
     report = BenchReport(scene_path, base.scene.name if base.scene is not None else base.name, outputs,
                          planned=len(points),
