@@ -65,7 +65,7 @@ import yaml
 
 import phc
 from phc.errors import ModelError, SimulationSetupError
-from phc.scene import is_scene_file, load_scene, reference_name
+from phc.scene import is_scene_file, reference_name
 from phc.simulation import BACKENDS, FIXED_STEP
 
 DEFAULT_TOLERANCES = (1e-4, 1e-6, 1e-8)
@@ -590,8 +590,8 @@ def _markdown(report: BenchReport) -> str:
         lines.append(f"\n**The reference run failed**: {report.reference_message}")
     if report.interrupted:
         lines.append(f"\n**Interrupted**: {len(report.rows)} of {report.planned} runs finished.")
-    lines += ["", "| solver | mesh | rtol / step | ok | CPU [s] | steps | error | rel. error | "
-              "energy balance (rel.) | constraint drift | message |",
+    lines += ["", ("| solver | mesh | rtol / step | ok | CPU [s] | steps | error | rel. error | "
+                   "energy balance (rel.) | constraint drift | message |"),
               "|---|---|---|---|---:|---:|---:|---:|---:|---:|---|"]
     for r in report.rows:
         lines.append(f"| {r.solver} | {r.mesh_label} | {r.setting} | {'yes' if r.success else 'no'} | "
