@@ -20,7 +20,7 @@ import numpy as np
 import scipy.sparse as sps
 
 from phc.errors import SimulationSetupError
-from phc.simulation.monitor import SingularityMonitor
+from phc.simulation.monitor import SingularityMonitor, check_scales
 
 ALGEBRAIC_ATOL = 1e8
 """Absolute tolerance on algebraic variables: effectively removes them from the error test."""
@@ -82,6 +82,10 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
         warnings.filterwarnings("ignore", message="Custom sparse Jacobian approximation")
         solver = IDA(resfn, **options)
     t_out = np.asarray(t_out, dtype=float)
+    def scales(failed):
+        return check_scales(mod, np.asarray(y0, dtype=float), np.asarray(yp0, dtype=float),
+                            float(t_out[-1] - t_out[0]), rtol, atol, failed)
+
     ys = np.empty((len(t_out), n))
     yps = np.empty((len(t_out), n))
     ys[0], yps[0] = y0, yp0
@@ -89,7 +93,8 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     init = solver.init_step(t_out[0], y0, yp0)
     if not init.success:
         return dict(t=t_out[:1], y=ys[:1], yp=yps[:1], steps=0, nfev=0, njev=0, success=False,
-                    message=f"IDA could not start: {init.message}", cpu=time.process_time() - start)
+                    message=f"IDA could not start: {init.message}" + (f"; {scales(True)}" if scales(True) else ""),
+                    cpu=time.process_time() - start)
     k, steps, ok, message = 1, 0, True, "integration finished"
     nfev = njev = 0
     t_end = t_out[-1]
@@ -127,5 +132,8 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
             message = (f"stopped after {steps} steps at t = {t_now:.6g} (max_steps); raise `max_steps` or "
                        "loosen the tolerances")
             break
+    note = scales(not ok) if not message.startswith("stopped at") else None
+    if note:
+        message = f"{message}; {note}"
     return dict(t=t_out[:k], y=ys[:k], yp=yps[:k], steps=steps, nfev=nfev, njev=njev, success=ok,
                 message=message, cpu=time.process_time() - start, conditioning=monitor.worst)

@@ -99,3 +99,45 @@ class SingularityMonitor:
                 "coupling map loses surjectivity (e.g. a guide with a_s·t = 0: the rod perpendicular to the guide) "
                 "and the model is not a port-Hamiltonian system at this state (run `phc check` for the coupling "
                 "certificate); results up to this time are kept")
+
+
+SMALL_STATE = 1e2
+"""A state whose size is below this times `atol` is resolved to fewer than ~2 digits."""
+SPREAD = 1e8
+"""States spanning more orders of magnitude than this strain a scalar `rtol`."""
+
+
+def check_scales(mod, y0, yp0, span, rtol, atol, failed: bool = False) -> Optional[str]:
+    """A conditioning warning when the model's states are badly scaled for the tolerances.
+
+    The size of a differential variable is ``max(|y0|, |ẏ0|·span)``. States far below
+    `atol` (a mass of 1e-9 kg moving at mm/s has momenta ~1e-12) are integrated without
+    relative accuracy; states spanning many orders of magnitude, or an `rtol` close to
+    machine precision, make the error test fail; these two are reported only with
+    ``failed`` (a successful run was accurate despite them). None when nothing is found."""
+    diff = np.asarray(mod.DIFFERENTIAL, dtype=bool).copy()
+    names = list(mod.VARIABLES)
+    if "energy.supplied" in names:
+        diff[names.index("energy.supplied")] = False
+    size = np.maximum(np.abs(y0), np.abs(yp0) * span)[diff]
+    labels = [names[j] for j in np.flatnonzero(diff)]
+    nonzero = size > 0
+    if not nonzero.any():
+        return None
+    notes = []
+    small = [(labels[i], size[i]) for i in np.flatnonzero(nonzero) if size[i] < SMALL_STATE * atol]
+    if small:
+        listed = ", ".join(f"`{n}` (~{s:.0e})" for n, s in small[:3])
+        notes.append(f"states {listed} are below {SMALL_STATE:g}×atol = {SMALL_STATE * atol:.0e}, so they are "
+                     "integrated without relative accuracy")
+    big, tiny = size[nonzero].max(), size[nonzero].min()
+    if failed and big > SPREAD * tiny:
+        i_big, i_tiny = int(np.argmax(np.where(nonzero, size, -1))), int(np.argmin(np.where(nonzero, size, np.inf)))
+        notes.append(f"the states span {big / tiny:.0e} in size (`{labels[i_big]}` ~{big:.0e}, "
+                     f"`{labels[i_tiny]}` ~{tiny:.0e})")
+    if failed and rtol < 1e-11:
+        notes.append(f"rtol = {rtol:g} is close to machine precision")
+    if not notes:
+        return None
+    return ("conditioning warning: " + "; ".join(notes) + ". Nondimensionalize the model (choose units in "
+            "which the states are of order one) or set `atol` below the smallest state and `rtol` ≥ 1e-10")
