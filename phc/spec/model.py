@@ -89,7 +89,7 @@ class InputSpec(SpecModel):
         return self
 
 
-SOLVERS = Literal["ida", "midpoint"]
+SOLVERS = Literal["ida", "midpoint", "discrete_gradient"]
 
 
 class SimulationSpec(SpecModel):
@@ -106,9 +106,10 @@ class SimulationSpec(SpecModel):
     solver: SOLVERS = "ida"
     """`ida`: SUNDIALS IDA (variable-order BDF, error control by `rtol`/`atol`); `midpoint`:
     the implicit midpoint rule with fixed `step`, whose discrete energy balance is exact for
-    quadratic Hamiltonians and constant Dirac structures."""
+    quadratic Hamiltonians; `discrete_gradient`: a discrete-gradient step with fixed `step`,
+    exact for any Hamiltonian (the midpoint rule when H is quadratic)."""
     step: Optional[float] = Field(None, gt=0)
-    """Step size of the `midpoint` solver (default: the output interval)."""
+    """Step size of the `midpoint` and `discrete_gradient` solvers (default: the output interval)."""
     max_order: int = Field(5, ge=1, le=5)
     """Maximum BDF order of IDA. 2 (A-stable) suits undamped stiff oscillations such as
     fine beam meshes: orders 3–5 must resolve the highest modes to stay stable."""
