@@ -610,8 +610,10 @@ def _plot(report: BenchReport, path: Path, Figure, Canvas) -> None:
         groups.setdefault((r.solver, r.mesh_label), []).append(r)
     drawn = 0
     for (solver, mesh), rows in groups.items():
-        pts = sorted((r.cpu_time_s, r.error, r) for r in rows
-                     if r.success and r.cpu_time_s > 0 and np.isfinite(r.error) and r.error > 0)
+        # joined from the loosest setting to the tightest (not by CPU time: timing noise
+        # must show as a kink, not reorder the line)
+        ok = [r for r in rows if r.success and r.cpu_time_s > 0 and np.isfinite(r.error) and r.error > 0]
+        pts = [(r.cpu_time_s, r.error, r) for r in sorted(ok, key=lambda r: -(r.step if r.fixed_step else r.rtol))]
         if not pts:
             continue
         label = solver if mesh == "default" else f"{solver}, {mesh}"
