@@ -281,6 +281,26 @@ def cmd_animate(args) -> int:
     return EXIT_OK if result.success else EXIT_MODEL
 
 
+def cmd_bench(args) -> int:
+    from phc.bench import parse_meshes, run_bench
+    from phc.errors import ModelError, SimulationSetupError
+
+    try:
+        report = run_bench(args.scene, solvers=args.solvers, tolerances=args.tolerances, steps=args.steps,
+                           meshes=parse_meshes(args.mesh), repeats=args.repeats, out_dir=args.out_dir,
+                           reference_cache=False if args.no_cache else None, progress=not args.quiet,
+                           plot=not args.no_plot, outputs=args.outputs, reference_rtol=args.reference_rtol)
+    except ModelError as err:
+        _print_diagnostics(err.diagnostics)
+        return EXIT_MODEL
+    except SimulationSetupError as err:
+        raise UsageError(str(err)) from err
+    print(report.render_text() if args.format == "text" else json.dumps(report.summary(), indent=2))
+    if report.interrupted:
+        return 130
+    return EXIT_OK if report.success else EXIT_MODEL
+
+
 def cmd_check(args) -> int:
     from phc.analysis.matching import check_balance
     from phc.checks.certify import certify
@@ -413,6 +433,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--t-end", type=float)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_animate)
+
+    p = sub.add_parser("bench", help="work-precision study of a scene: error vs CPU time across solvers, "
+                       "tolerances and meshes (CSV, Markdown, PNG)")
+    p.add_argument("scene", metavar="SCENE")
+    p.add_argument("--solver", action="append", dest="solvers", choices=_solver_names(),
+                   help="solver to sweep (repeatable; default: the scene's bench.solvers, else all)")
+    p.add_argument("--tol", action="append", type=float, dest="tolerances", help="rtol of IDA (repeatable)")
+    p.add_argument("--step", action="append", type=float, dest="steps", help="step of fixed-step solvers (repeatable)")
+    p.add_argument("--mesh", action="append", metavar="COMP=N1,N2,...", help="element counts to sweep (repeatable)")
+    p.add_argument("--repeats", type=int, help="runs per point; the minimum CPU time is reported")
+    p.add_argument("--output", action="append", dest="outputs", help="outputs whose error is measured (repeatable)")
+    p.add_argument("--reference-rtol", type=float, help="rtol of the reference run (no closed form)")
+    p.add_argument("--out-dir", default=".", help="where bench.csv, bench.md and bench.png go")
+    p.add_argument("--no-cache", action="store_true", help="recompute the reference run")
+    p.add_argument("--no-plot", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--format", choices=("text", "json"), default="text")
+    p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser("check", help="certify Dirac structures and couplings (the seed's section 2)")
     p.add_argument("file", metavar="FILE")

@@ -169,3 +169,18 @@ def test_parse_meshes_and_repeats(tmp_path):
                        progress=False, plot=False)
     row = report.rows[0]
     assert row.repeats == 3 and row.cpu_time_s <= row.cpu_time_median_s
+
+
+def test_cli_bench_runs_a_tiny_sweep(tmp_path, capsys):
+    from phc.cli import main
+
+    scene = msd_scene(tmp_path)
+    out = tmp_path / "cli"
+    args = ["bench", str(scene), "--solver", "midpoint", "--step", "0.1", "--step", "0.05", "--quiet",
+            "--no-plot", "--out-dir", str(out)]
+    assert main(args) == 0
+    text = capsys.readouterr().out
+    assert "closed form: x" in text and (out / "bench.csv").is_file() and (out / "bench.md").is_file()
+    assert len(csv_rows(out / "bench.csv")) == 2
+    assert main(args + ["--format", "json"]) == 0
+    assert '"interrupted": false' in capsys.readouterr().out.replace("False", "false")
