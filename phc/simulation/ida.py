@@ -101,6 +101,7 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     t_last = float(t_out[0])
     h_last = 0.0
     monitor = SingularityMonitor(mod, p, names=names)
+    monitor.h_floor = 1e-6 * float(t_out[-1] - t_out[0])
     monitor_every = 5 if n <= 60 else 20
     while k < len(t_out):
         res = solver.step(t_end, method="onestep", tstop=t_end)

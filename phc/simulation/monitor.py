@@ -49,6 +49,10 @@ class SingularityMonitor:
     def __init__(self, mod, p, threshold: float = THRESHOLD, names: Optional[dict] = None):
         self.mod, self.p, self.threshold = mod, p, threshold
         self.names = dict(names or {})
+        self.h_floor = 0.0
+        """Steps shorter than this are looked at as if they were this long: an index-2
+        iteration matrix is conditioned like h² however regular the configuration, and a
+        BDF code starts (and restarts) with tiny steps. Integrators set it from the span."""
         self.rows, self.cols = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
         self.buf = np.zeros(len(self.rows))
         self.enabled = mod.N <= MAX_SIZE
@@ -79,6 +83,7 @@ class SingularityMonitor:
         if not self.enabled or h <= 0:
             return None
         threshold = self.threshold if threshold is None else threshold
+        h = max(h, self.h_floor)
         saved, self.threshold = self.threshold, threshold
         try:
             ratio, u = self.ratio(t, y, yp, h)
