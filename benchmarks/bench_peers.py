@@ -20,8 +20,9 @@ fixed steps that divide the output interval) and the loosest setting whose error
 target (1e-6 resp. 2e-6) is then timed: wall clock of the whole solve (phc: ``phc.simulate``
 with consistent initialization and post-processing; solve_ivp: the call; Exudyn:
 ``SolveDynamic`` on the assembled system), ``repeat`` runs, min / median / max. Compile
-time of phc (and Exudyn's model assembly) is reported separately. Ratios are peer time
-over phc time from the medians, with the range min/max … max/min.
+time of phc (and Exudyn's model assembly) is reported separately. "÷ fastest phc" is a
+configuration's time over that of the fastest phc solver at the same criterion (medians;
+range min/max … max/min): above 1, phc is faster by that factor. BLAS runs on one thread.
 
 Run: ``python benchmarks/bench_peers.py [--repeat 5] [--part a|b|ab]`` (prints Markdown).
 """
@@ -38,7 +39,12 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
+# One thread for BLAS/OpenMP: the dense solves here are tiny (41×41 at most), and a threaded
+# BLAS on a loaded 2-core machine slowed every solver by up to 10× and made timings erratic.
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -127,7 +133,7 @@ def fmt_setting(s):
 
 
 def ratio_cells(peer, ours):
-    """median ratio and range (peer / phc)."""
+    """median ratio and range (peer / phc): min/max … max/min."""
     return f"{peer[1] / ours[1]:.2f}", f"{peer[0] / ours[2]:.2f}–{peer[2] / ours[0]:.2f}"
 
 
@@ -149,6 +155,10 @@ def part_a(repeat, methods):
         ver[h] = (r["slider_x"], r["midspan_deflection"])
     rich_x = (4 * ver[1e-5][0] - ver[2e-5][0]) / 3
     rich_w = (4 * ver[1e-5][1] - ver[2e-5][1]) / 3
+    t = time.perf_counter()
+    r = phc.simulate(compiled, solver="ida", rtol=1e-8, atol=1e-10, n_out=201)
+    t_ida = time.perf_counter() - t
+    ida_x, ida_w = r["slider_x"], r["midspan_deflection"]
     print(f"Reference: hand-written model, LSODA rtol 1e-9 with the analytic Jacobian ({t_ref:.1f} s); "
           f"x_slider(0.1 s) = {xr[-1]:.10f} m, midspan deflection w(L/2, 0.1 s) = {wr[-1]:.6e} m.\n")
     print("Verification against phc (max over the 201 output times):\n")
@@ -157,7 +167,9 @@ def part_a(repeat, methods):
     print("|---|---:|---:|")
     print(f"| midpoint h = 1e-5 | {np.abs(ver[1e-5][0] - xr).max():.2e} | {np.abs(ver[1e-5][1] - wr).max():.2e} |")
     print(f"| Richardson of midpoint h = 2e-5, 1e-5 | {np.abs(rich_x - xr).max():.2e} | "
-          f"{np.abs(rich_w - wr).max():.2e} |\n")
+          f"{np.abs(rich_w - wr).max():.2e} |")
+    print(f"| ida rtol 1e-8, atol 1e-10 ({t_ida:.0f} s) | {np.abs(ida_x - xr).max():.2e} | "
+          f"{np.abs(ida_w - wr).max():.2e} |\n")
     print(f"phc compile (not in the times below): {cold:.2f} s with an empty cache, {warm:.2f} s cached.\n")
 
     rows, chosen = [], {}
@@ -198,27 +210,30 @@ def part_a(repeat, methods):
 
 
 def report(metric, configs, chosen, timings, repeat, tol, rows, extra=None):
+    """One table; "÷ phc" = this configuration's time over the fastest phc solver's (medians; range
+    min/max … max/min), so a peer row above 1 means phc is faster by that factor."""
     what = "max over the output grid" if metric == "max" else "at the final time"
     errs = {(label, st): e[metric] for label, st, e, dt, ok in rows if ok}
     sel = {label: by[metric] for label, by in chosen.items()}
     ours = [label for label in configs if label.startswith("phc") and sel[label] is not None]
-    print(f"\nTime to solution at slider error ≤ {tol:g}, {what} ({repeat} runs each, wall clock):\n")
-    head = "| configuration | setting | error [m] |" + (" energy drift |" if extra else "")
-    head += " min [s] | median [s] | max [s] |" + "".join(f" {c} / this (median) | range |" for c in ours)
-    print(head)
-    print("|---|---:|---:|" + ("---:|" if extra else "") + "---:|---:|---:|" + "---:|---:|" * len(ours))
+    best = min(ours, key=lambda c: timings[(c, sel[c])][1]) if ours else None
+    print(f"\nTime to solution at slider error ≤ {tol:g}, {what} ({repeat} runs each, wall clock; "
+          f"fastest phc solver: {best}):\n")
+    print("| configuration | setting | error [m] |" + (" energy drift |" if extra else "")
+          + " min [s] | median [s] | max [s] | ÷ fastest phc (median) | range |")
+    print("|---|---:|---:|" + ("---:|" if extra else "") + "---:|---:|---:|---:|---:|")
     for label in configs:
         st = sel[label]
         if st is None:
-            print(f"| {label} | not reached in the sweep |" + " |" * (4 + bool(extra) + 2 * len(ours)))
+            print(f"| {label} | not reached in the sweep |" + " |" * (5 + bool(extra)))
             continue
         mn, md, mx = timings[(label, st)]
         line = f"| {label} | {configs[label][0]} {fmt_setting(st)} | {errs[(label, st)]:.2e} |"
         if extra:
             line += f" {extra[(label, st)]:.1e} |"
         line += f" {mn:.3f} | {md:.3f} | {mx:.3f} |"
-        for c in ours:
-            a, b = ratio_cells(timings[(c, sel[c])], timings[(label, st)])
+        if best is not None:
+            a, b = ratio_cells(timings[(label, st)], timings[(best, sel[best])])
             line += f" {a} | {b} |"
         print(line)
 
