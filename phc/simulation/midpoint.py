@@ -43,6 +43,9 @@ MAX_NEWTON = 30
 """Iterations of one step (refactorizations included) before the step is declared failed."""
 REFACTOR_RATE = 0.25
 """Contraction rate θ = |Δ_k|/|Δ_{k−1}| above which the Newton matrix is refreshed."""
+ROUNDOFF_FLOOR = 1e-9
+"""A correction this small (relative to |y| + 1) that a freshly factorized matrix cannot
+reduce is round-off amplified by the matrix's conditioning: the iterate is accepted."""
 MAX_AGE = 200
 """Steps after which the Newton matrix is refreshed regardless (state-dependent Jacobians)."""
 
@@ -122,6 +125,8 @@ class StageSolver:
         self.res = np.zeros(mod.N)
         self.nfev = 0
         self.singular = False
+        self.refreshed = False
+        self.ill_conditioned = False
 
     def residual(self, t, h, y, y1, s):
         d = y1 - y
@@ -138,6 +143,8 @@ class StageSolver:
         start = y1.copy()
         y1 = y1.copy()
         matrix.age += 1
+        self.refreshed = False  # set when the matrix is factorized in this step
+        self.ill_conditioned = False
         since = 1  # iterations since the last factorization (1: not factorized in this solve)
         if matrix.stale(h, s):
             if not self._refactor(t, h, y, y1, s):
@@ -157,6 +164,12 @@ class StageSolver:
                 since, last = 0, None
                 continue
             theta = size / last if last else None
+            if self.refreshed and theta is not None and theta >= 0.5 and size <= ROUNDOFF_FLOOR * scale:
+                # no progress with a fresh matrix: round-off amplified by its conditioning
+                # (a multiplier at rest, say) — the iterate is as good as it gets, but the
+                # driver is told (the conditioning may come from a singular configuration)
+                self.ill_conditioned = True
+                return y1 + delta, True
             if theta is not None and theta >= 1.0 and since > 0 and size > 1e3 * NEWTON_TOL * scale:
                 # the old matrix no longer contracts: refresh it here and retry
                 if not self._refactor(t, h, y, y1, s):
@@ -180,6 +193,7 @@ class StageSolver:
         return y1, False
 
     def _refactor(self, t, h, y, y1, s) -> bool:
+        self.refreshed = True
         ok = self.matrix.factor(t, h, y, y1, s)
         self.singular = not ok
         return ok
@@ -275,6 +289,7 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
     steps = split = 0
     ok, message = True, "integration finished"
     monitor = SingularityMonitor(mod, p, names=names)
+    last_look = -MONITOR_EVERY
     projector = make_projector(mod, p, y, float(t_out[0])) if project else None
     y_prev, h_prev = None, 1.0
     # Predictor: extrapolate the step midpoints m = (y_n + y_{n+1})/2, not the step ends —
@@ -289,13 +304,17 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
         for _ in range(substeps):
             mid_guess = y + 0.5 * h * mid_slope if mid is None else mid + 0.5 * (h + h_prev) * mid_slope
             y_new, converged, reason = advance(t, h, y, 2.0 * mid_guess - y)
+            stage = getattr(advance, "stage", None)
             hard = not converged
+            if stage is not None and stage.ill_conditioned and steps - last_look >= 10:
+                hard = True
             if not converged:
                 # a step of the order of the period defeats the extrapolation: retry from y,
                 # then split the step (any step size keeps the structure-preserving property)
                 y_new, converged, reason = _subdivide(advance, t, h, y, MAX_SPLIT)
                 split += converged
             if monitor.enabled and (hard or steps % MONITOR_EVERY == 0):
+                last_look = steps
                 # a fixed step cannot land on the singular set, only pass it at a distance ~h:
                 # where Newton struggled, a looser threshold decides
                 limit = HARD_STEP_THRESHOLD if hard else None
@@ -369,6 +388,8 @@ def integrate_midpoint(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progres
     def advance(t, h, y, guess):
         y1, ok = stage.solve(t, h, y, guess, 0.5)
         return y1, ok, (SINGULAR_HINT if stage.singular else NEWTON_HINT)
+
+    advance.stage = stage
 
     out = integrate_fixed_step(mod, p, t_out, y0, yp0, max_steps=max_steps, progress=progress, step=step,
                                advance=advance, name="implicit midpoint", names=names)
