@@ -18,6 +18,7 @@ from phc.simulation.discrete_gradient import integrate_discrete_gradient
 from phc.simulation.ida import integrate_ida
 from phc.simulation.initial import consistent_initial_conditions
 from phc.simulation.midpoint import integrate_midpoint
+from phc.simulation.monitor import describe_equations
 from phc.simulation.result import SimResult
 
 BACKENDS = {"ida": integrate_ida, "midpoint": integrate_midpoint, "discrete_gradient": integrate_discrete_gradient}
@@ -124,7 +125,8 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
         progress.restart()
     extra = {"step": step if step is not None else opts.get("step")} if solver in FIXED_STEP else {}
     out = BACKENDS[solver](mod, p, t_out, init.y0, init.yp0, rtol=rtol, atol=atol, max_steps=max_steps,
-                           progress=progress, max_order=opts.get("max_order", 5), **extra)
+                           progress=progress, max_order=opts.get("max_order", 5), names=describe_equations(compiled),
+                           **extra)
     cpu = time.process_time() - cpu0
     return _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol)
 
