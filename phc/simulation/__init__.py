@@ -8,12 +8,14 @@ exception; invalid options raise :class:`~phc.errors.SimulationSetupError` at on
 from __future__ import annotations
 
 import time
+from functools import partial
 from typing import Callable, Optional
 
 import numpy as np
 import sympy as sp
 
 from phc.errors import InconsistentInitialError, SimulationSetupError
+from phc.inputs import breakpoints_within
 from phc.simulation.discrete_gradient import integrate_discrete_gradient
 from phc.simulation.ida import integrate_ida
 from phc.simulation.initial import consistent_initial_conditions
@@ -124,11 +126,50 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
     if hasattr(progress, "restart"):
         progress.restart()
     extra = {"step": step if step is not None else opts.get("step")} if solver in FIXED_STEP else {}
-    out = BACKENDS[solver](mod, p, t_out, init.y0, init.yp0, rtol=rtol, atol=atol, max_steps=max_steps,
-                           progress=progress, max_order=opts.get("max_order", 5), names=describe_equations(compiled),
-                           **extra)
+    run = partial(BACKENDS[solver], mod, p, rtol=rtol, atol=atol, max_steps=max_steps, progress=progress,
+                  max_order=opts.get("max_order", 5), names=describe_equations(compiled), **extra)
+    out = _integrate_with_breakpoints(run, mod, p, t_out, init)
     cpu = time.process_time() - cpu0
     return _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol)
+
+
+def _integrate_with_breakpoints(run, mod, p, t_out, init) -> dict:
+    """Integrate over `t_out`, stopping at each input breakpoint (module BREAKPOINTS: ends of
+    pieces, table rows) and restarting there from a consistent state: the differential
+    variables are continuous, the algebraic ones and ẏ may jump. A step input is thus
+    located exactly rather than found by step rejections."""
+    t0, t1 = float(t_out[0]), float(t_out[-1])
+    breaks = breakpoints_within(getattr(mod, "BREAKPOINTS", ()), t0, t1)
+    if not breaks:
+        return run(t_out, init.y0, init.yp0)
+    ends = [*breaks, t1]
+    y0, yp0, start = init.y0, init.yp0, t0
+    pieces, total = [], dict(steps=0, nfev=0, njev=0)
+    out = None
+    for end in ends:
+        inner = t_out[(t_out > start) & (t_out < end)]
+        grid = np.concatenate([[start], inner, [end]])
+        out = run(grid, y0, yp0)
+        for key in total:
+            total[key] += out[key]
+        keep = np.isin(out["t"], t_out)
+        pieces.append({k: out[k][keep] for k in ("t", "y", "yp")})
+        if not out["success"] or end == t1:
+            break
+        y_end = out["y"][-1]
+        dif = set(np.flatnonzero(np.asarray(mod.DIFFERENTIAL)).tolist())
+        try:
+            restart = consistent_initial_conditions(mod, p, end, dict(enumerate(y_end)), dif,
+                                                    initial_relations=False)
+        except InconsistentInitialError as err:
+            out = dict(out, success=False, message=f"cannot restart after the input breakpoint at t = {end:.6g}: "
+                       + "; ".join(err.problems))
+            break
+        y0, yp0, start = restart.y0, restart.yp0, end
+    merged = {k: np.concatenate([pc[k] for pc in pieces]) for k in ("t", "y", "yp")}
+    _, first = np.unique(merged["t"], return_index=True)  # a breakpoint on the grid appears twice
+    merged = {k: v[np.sort(first)] for k, v in merged.items()}
+    return dict(out, **merged, **total)
 
 
 def _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol) -> SimResult:
