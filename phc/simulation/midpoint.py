@@ -164,6 +164,8 @@ class StageSolver:
                 since, last = 0, None
                 continue
             theta = size / last if last else None
+            if theta is not None and theta >= 0.5 and size <= 1e3 * NEWTON_TOL * scale:
+                return y1 + delta, True  # stagnating at round-off level: accept
             if self.refreshed and theta is not None and theta >= 0.5 and size <= ROUNDOFF_FLOOR * scale:
                 # no progress with a fresh matrix: round-off amplified by its conditioning
                 # (a multiplier at rest, say) — the iterate is as good as it gets, but the
