@@ -20,7 +20,7 @@ from phc.checks.certify import certify
 from phc.errors import ModelError
 from phc.pipeline import elaborate_file
 
-SETTINGS = dict(max_examples=8, deadline=None, derandomize=True,
+SETTINGS = dict(max_examples=6, deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
 
 
