@@ -11,7 +11,7 @@ import argparse
 import json
 import os
 import sys
-from contextlib import nullcontext
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 from typing import Optional, Sequence
 
@@ -68,14 +68,7 @@ def cmd_validate(args) -> int:
 
 
 def cmd_compile(args) -> int:
-    from phc.errors import ModelError
-    from phc.pipeline import compile_model
-
-    try:
-        compiled = compile_model(args.file)
-    except ModelError as err:
-        _print_diagnostics(err.diagnostics)
-        return EXIT_MODEL
+    compiled = _compile_or_exit(args.file)
     _print_diagnostics([d for d in compiled.diagnostics if d.severity != "error"])
     out_dir = Path(args.output)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -145,29 +138,69 @@ def _summary_text(name: str, result) -> str:
     return "\n".join(lines)
 
 
-def cmd_simulate(args) -> int:
-    from phc.errors import InconsistentInitialError, ModelError, SimulationSetupError
+class _Exit(Exception):
+    """Leave a command with this exit code (the problem was already printed)."""
+
+    def __init__(self, code: int) -> None:
+        super().__init__(code)
+        self.code = code
+
+
+def _compile_or_exit(path: str):
+    """Compile a model or scene file; print its diagnostics and exit 1 on errors."""
+    from phc.errors import ModelError
     from phc.pipeline import compile_model
+
+    try:
+        return compile_model(path)
+    except ModelError as err:
+        _print_diagnostics(err.diagnostics)
+        raise _Exit(EXIT_MODEL) from None
+
+
+def _progress_for(compiled, t_end, quiet: bool):
+    from phc.progress import Progress
+
+    opts = compiled.dae.options
+    end = t_end if t_end is not None else opts["t_end"]
+    return Progress(opts["t_start"], end, label=compiled.name, enabled=not quiet)
+
+
+@contextmanager
+def _simulation_errors(path: str, progress):
+    """Turn setup mistakes into usage errors and inconsistent initial values into located
+    lines; the progress bar is closed either way."""
+    from phc.errors import InconsistentInitialError, SimulationSetupError
+
+    try:
+        yield
+    except InconsistentInitialError as err:
+        progress.close()
+        for line in err.problems:
+            print(f"{path}: inconsistent initial values: {line}", file=sys.stderr)
+        print(f"{path}: hint: change the fixed initial values or mark one as a guess "
+              "(`name: {value: ..., guess: true}`)", file=sys.stderr)
+        raise _Exit(EXIT_MODEL) from None
+    except SimulationSetupError as err:
+        progress.close()
+        raise UsageError(str(err)) from err
+    progress.close()
+
+
+def cmd_simulate(args) -> int:
     from phc.accuracy import estimate_errors
     from phc.profile import profiled
-    from phc.progress import Progress
     from phc.simulation import simulate
 
     if args.out and not (args.out.endswith(".csv") or args.out.endswith(".npz")):
         raise UsageError(f"--out must end in .csv or .npz, got `{args.out}`")
     params = _parse_params(args.param)
-    try:
-        compiled = compile_model(args.file)
-    except ModelError as err:
-        _print_diagnostics(err.diagnostics)
-        return EXIT_MODEL
-    opts = compiled.dae.options
-    t_end = args.t_end if args.t_end is not None else opts["t_end"]
-    progress = Progress(opts["t_start"], t_end, label=compiled.name, enabled=not args.quiet)
+    compiled = _compile_or_exit(args.file)
+    progress = _progress_for(compiled, args.t_end, args.quiet)
     run_kwargs = dict(t_end=args.t_end, params=params, rtol=args.rtol, atol=args.atol, n_out=args.n_out,
                       solver=args.solver, step=args.step)
     estimates, prof = [], None
-    try:
+    with _simulation_errors(args.file, progress):
         with (profiled(compiled) if args.profile else nullcontext()) as prof:
             result = simulate(compiled, progress=progress, **run_kwargs)
             if prof is not None:
@@ -178,17 +211,6 @@ def cmd_simulate(args) -> int:
                 print(f"{args.file}: estimating errors (a rerun with a finer step or tolerance, and one on "
                       "refined meshes)...", file=sys.stderr)
             estimates = estimate_errors(compiled, result, run_kwargs)
-    except InconsistentInitialError as err:
-        progress.close()
-        for line in err.problems:
-            print(f"{args.file}: inconsistent initial values: {line}", file=sys.stderr)
-        print(f"{args.file}: hint: change the fixed initial values or mark one as a guess "
-              "(`name: {value: ..., guess: true}`)", file=sys.stderr)
-        return EXIT_MODEL
-    except SimulationSetupError as err:
-        progress.close()
-        raise UsageError(str(err)) from err
-    progress.close()
     if args.out:
         _write_results(result, args.out)
     if args.plot:
@@ -245,32 +267,14 @@ def _solver_names() -> tuple[str, ...]:
 
 def cmd_animate(args) -> int:
     from phc import viz
-    from phc.errors import InconsistentInitialError, ModelError, SimulationSetupError
-    from phc.pipeline import compile_model
-    from phc.progress import Progress
     from phc.simulation import simulate
 
     if not args.output.endswith(".gif"):
         raise UsageError(f"-o must end in .gif, got `{args.output}`")
-    try:
-        compiled = compile_model(args.file)
-    except ModelError as err:
-        _print_diagnostics(err.diagnostics)
-        return EXIT_MODEL
-    opts = compiled.dae.options
-    t_end = args.t_end if args.t_end is not None else opts["t_end"]
-    progress = Progress(opts["t_start"], t_end, label=compiled.name, enabled=not args.quiet)
-    try:
+    compiled = _compile_or_exit(args.file)
+    progress = _progress_for(compiled, args.t_end, args.quiet)
+    with _simulation_errors(args.file, progress):
         result = simulate(compiled, t_end=args.t_end, progress=progress)
-    except InconsistentInitialError as err:
-        progress.close()
-        for line in err.problems:
-            print(f"{args.file}: inconsistent initial values: {line}", file=sys.stderr)
-        return EXIT_MODEL
-    except SimulationSetupError as err:
-        progress.close()
-        raise UsageError(str(err)) from err
-    progress.close()
     if not result.success:
         print(f"{args.file}: simulation stopped: {result.message}; animating the results so far", file=sys.stderr)
     try:
@@ -477,6 +481,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     args = parser.parse_args(argv)
     try:
         return args.func(args)
+    except _Exit as done:
+        return done.code
     except UsageError as err:
         print(f"phc {args.command}: error: {err}", file=sys.stderr)
         return EXIT_USAGE

@@ -157,7 +157,7 @@ def lower_modal(b, ctx, name, spec, path, mesh, fields_a, fields_b, couplings, s
     # K̂ = M Q̂⁻¹ M per field (dense), and the state map Q̂⁻¹ M.
     qinv_m = {l: np.linalg.solve(qhat[l].toarray(), mass[l].toarray()) for l in fields}
     khat = {l: mass[l].toarray() @ qinv_m[l] for l in fields}
-    s_num = {l: float(sp.sympify(scale[l]).xreplace(defaults)) for l in fields}
+    s_num = {l: float(scale[l].xreplace(defaults)) for l in fields}  # scale() is a sympy expression
 
     def idx(local):
         o = offsets[local]
