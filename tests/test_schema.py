@@ -126,3 +126,34 @@ def test_wrong_type_fails_both_jsonschema_and_pydantic():
     assert list(validator().iter_errors(data)) != []
     with pytest.raises(pydantic.ValidationError):
         ModelSpec.model_validate(data)
+
+
+# -- scenes against the scene schema ----------------------------------------------------
+
+SCENE_SCHEMA_FILE = SCHEMA_DIR / "scene.schema.json"
+SCENE_FILES = sorted((REPO / "models" / "scenes").glob("*.yaml"))
+
+
+def test_scene_schema_is_a_valid_draft_2020_12_schema():
+    jsonschema.Draft202012Validator.check_schema(json.loads(SCENE_SCHEMA_FILE.read_text()))
+
+
+@pytest.mark.parametrize("path", SCENE_FILES, ids=[p.stem for p in SCENE_FILES])
+def test_shipped_scene_validates_against_the_scene_schema_and_declares_it(path):
+    schema = json.loads(SCENE_SCHEMA_FILE.read_text())
+    errors = [e.message for e in jsonschema.Draft202012Validator(schema).iter_errors(load_yaml(path))]
+    assert errors == []
+    first = path.read_text().splitlines()[0]
+    assert first.startswith(SCHEMA_COMMENT)
+    assert (path.parent / first[len(SCHEMA_COMMENT):].strip()).resolve() == SCENE_SCHEMA_FILE.resolve()
+
+
+def test_scene_unknown_key_fails_both_jsonschema_and_pydantic():
+    from phc.spec.scene import SceneSpec
+
+    data = load_yaml(SCENE_FILES[0])
+    data["effectz"] = {}
+    schema = json.loads(SCENE_SCHEMA_FILE.read_text())
+    assert list(jsonschema.Draft202012Validator(schema).iter_errors(data))
+    with pytest.raises(pydantic.ValidationError):
+        SceneSpec.model_validate(data)
