@@ -39,8 +39,7 @@ def effect_names(spec) -> dict[str, Any]:
 
 def is_on(spec, name: str) -> bool:
     """Whether effect `name` of a component is on (unknown names count as on)."""
-    value = effect_names(spec).get(name, True)
-    return bool(value) if not isinstance(value, bool) else value
+    return bool(effect_names(spec).get(name, True))
 
 
 def apply_overrides(spec, overrides: dict[str, Any]) -> tuple[Any, Optional[str]]:
