@@ -489,6 +489,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except KeyboardInterrupt:
         print("phc: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # the reader went away (`phc ... | head`): not an error of ours
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return EXIT_OK
     except Exception as err:  # an internal error, not a user mistake
         if os.environ.get("PHC_DEBUG"):
             raise
