@@ -4,9 +4,10 @@ Every run reports its energy-balance residual and constraint drift (what the str
 guarantees). On request phc also estimates the *discretization* errors of the requested
 outputs by Richardson extrapolation from a second run:
 
-* **temporal**: a fixed-step solver (order 2) reruns with half the step; the error of the
-  first run is ``|y_h − y_{h/2}| · 2²/(2² − 1)``. IDA reruns with tolerances / 10; its error
-  is taken as ``|y_tol − y_{tol/10}| · 10/9`` (error roughly proportional to the tolerance);
+* **temporal**: a fixed-step solver (order q: 2, 4 for ``midpoint4``) reruns with half the
+  step; the error of the first run is ``|y_h − y_{h/2}| · 2^q/(2^q − 1)``. IDA reruns with
+  tolerances / 10; its error is taken as ``|y_tol − y_{tol/10}| · 10/9`` (error roughly
+  proportional to the tolerance);
 * **spatial**: every distributed component is recompiled with twice the elements (same
   solver settings) and ``|y_n − y_{2n}| · 2^q/(2^q − 1)``, with q the method's order:
   2 for strings, Timoshenko beams and pde1d (P1/P0 mixed elements), 4 for Euler–Bernoulli
@@ -29,7 +30,8 @@ from phc.source import SourceMap
 from phc.spec.scene import AccuracySpec, SceneSpec
 
 SPATIAL_ORDER = {"string": 2, "timoshenko_beam": 2, "pde1d": 2, "euler_bernoulli_beam": 4, "moving_beam": 4}
-FIXED_STEP_ORDER = 2
+FIXED_STEP_ORDER = {"midpoint": 2, "discrete_gradient": 2, "midpoint4": 4}
+"""Order of each fixed-step solver (the Richardson factor of the half-step rerun)."""
 IDA_TOL_FACTOR = 10.0
 
 
@@ -75,8 +77,9 @@ def temporal_estimate(compiled, result, run_kwargs: dict) -> ErrorEstimate:
         opts = compiled.dae.options
         h = kwargs.get("step") or opts.get("step") or float(np.diff(result.t).min())
         fine = simulate(compiled, **dict(kwargs, step=h / 2))
-        factor = 2**FIXED_STEP_ORDER / (2**FIXED_STEP_ORDER - 1)
-        method = f"rerun with half the step (h = {h:.3g} → {h / 2:.3g}), Richardson order {FIXED_STEP_ORDER}"
+        q = FIXED_STEP_ORDER.get(result.solver, 2)
+        factor = 2**q / (2**q - 1)
+        method = f"rerun with half the step (h = {h:.3g} → {h / 2:.3g}), Richardson order {q}"
     else:
         fine = simulate(compiled, **dict(kwargs, rtol=result.rtol / IDA_TOL_FACTOR, atol=result.atol / IDA_TOL_FACTOR))
         factor = IDA_TOL_FACTOR / (IDA_TOL_FACTOR - 1)

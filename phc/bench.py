@@ -3,7 +3,7 @@
 :func:`run_bench` sweeps
 
     solvers × (relative tolerances for the error-controlled `ida` | steps for the fixed-step
-    `midpoint` and `discrete_gradient`) × mesh sizes of the distributed components,
+    `midpoint`, `discrete_gradient` and `midpoint4`) × mesh sizes of the distributed components,
 
 runs each point on the scene's output grid (``t_start … t_end`` with ``n_out`` points) and
 measures, per point:

@@ -20,13 +20,16 @@ from phc.simulation.discrete_gradient import integrate_discrete_gradient
 from phc.simulation.ida import integrate_ida
 from phc.simulation.initial import consistent_initial_conditions
 from phc.simulation.midpoint import integrate_midpoint
+from phc.simulation.midpoint4 import integrate_midpoint4
 from phc.simulation.monitor import describe_equations
 from phc.simulation.result import SimResult
 
-BACKENDS = {"ida": integrate_ida, "midpoint": integrate_midpoint, "discrete_gradient": integrate_discrete_gradient}
+BACKENDS = {"ida": integrate_ida, "midpoint": integrate_midpoint, "discrete_gradient": integrate_discrete_gradient,
+            "midpoint4": integrate_midpoint4}
 """Integrators by name: `ida` (variable-order BDF), and the fixed-step structure-preserving
-`midpoint` (energy-exact for quadratic H) and `discrete_gradient` (energy-exact for any H)."""
-FIXED_STEP = ("midpoint", "discrete_gradient")
+`midpoint` (energy-exact for quadratic H), `discrete_gradient` (energy-exact for any H) and
+`midpoint4` (order 4: a composition of three midpoint substeps, energy-exact for quadratic H)."""
+FIXED_STEP = ("midpoint", "discrete_gradient", "midpoint4")
 
 
 def parameter_vector(mod, overrides: Optional[dict] = None) -> np.ndarray:
@@ -64,7 +67,7 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
     t_eval : array_like, optional
         Output times (overrides `n_out`).
     step : float, optional
-        Step size of the fixed-step `midpoint` and `discrete_gradient` solvers (default:
+        Step size of the fixed-step `midpoint`, `discrete_gradient` and `midpoint4` solvers (default:
         the model's `simulation.step`, else the output interval).
     params : dict, optional
         Base-parameter overrides by name (one compilation serves a parameter study).

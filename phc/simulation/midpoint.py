@@ -90,7 +90,7 @@ class NewtonMatrix:
         return True
 
     def stale(self, h, s) -> bool:
-        return (self.lu is None or abs(h - self.h) > 1e-3 * h or abs(s - self.s) > 0.2
+        return (self.lu is None or abs(h - self.h) > 1e-3 * abs(h) or abs(s - self.s) > 0.2
                 or self.age >= MAX_AGE)
 
     def solve(self, rhs):

@@ -1,0 +1,91 @@
+"""Tests of `phc.simulation.midpoint4` (triple-jump composition of the midpoint rule, order 4)."""
+
+from pathlib import Path
+
+import numpy as np
+
+import phc
+from phc.simulation.midpoint4 import GAMMA1, GAMMA2
+
+MODELS = Path(__file__).resolve().parents[2] / "models"
+
+
+def test_triple_jump_coefficients():
+    assert abs(2 * GAMMA1 + GAMMA2 - 1.0) < 1e-15  # consistent
+    assert abs(2 * GAMMA1**3 + GAMMA2**3) < 1e-14  # third-order error term cancels
+    assert GAMMA2 < 0
+
+
+def test_fourth_order_convergence_to_the_closed_form():
+    """Damped oscillator: the backward middle substep does not spoil order or stability."""
+    compiled = phc.compile_model(MODELS / "mass_spring_damper.yaml")
+    w = np.sqrt(3.96)
+    errors = []
+    for step in (0.05, 0.025, 0.0125):
+        r = phc.simulate(compiled, solver="midpoint4", step=step, t_end=10.0, n_out=11)
+        assert r.success
+        exact = 0.5 * np.exp(-0.2 * r.t) * (np.cos(w * r.t) + 0.2 / w * np.sin(w * r.t))
+        errors.append(np.abs(r["x"] - exact).max())
+    orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
+    assert np.all(np.abs(orders - 4.0) < 0.3)  # 3.97, 3.99 measured
+    assert errors[-1] < 1e-7
+
+
+def test_damped_oscillator_decays_at_large_steps():
+    compiled = phc.compile_model(MODELS / "mass_spring_damper.yaml")
+    for step in (1.0, 5.0):
+        r = phc.simulate(compiled, solver="midpoint4", step=step, t_end=100.0, n_out=11)
+        assert r.success
+        assert np.all(np.diff(r.H) <= 1e-15) and r.H[-1] < r.H[0]
+        assert r.energy_balance_relative < 1e-13
+
+
+def test_energy_balance_exact_for_a_lossless_model_at_large_steps():
+    """Quadratic H: every substep is energy exact, so the composite step is."""
+    compiled = phc.compile_model(MODELS / "mass_spring_damper.yaml")
+    for step in (0.3, 2.0):
+        r = phc.simulate(compiled, solver="midpoint4", step=step, t_end=200.0, n_out=11, params={"c": 0.0})
+        assert r.success
+        assert r.energy_balance_relative < 1e-13
+        assert abs(r.H[-1] - r.H[0]) < 1e-13 * r.H[0]
+    string = phc.compile_model(MODELS / "vibrating_string.yaml")
+    r = phc.simulate(string, solver="midpoint4", step=1e-4, n_out=11)
+    assert r.success and r.energy_balance_relative < 1e-12
+
+
+def test_pendulum_constraints_do_not_drift():
+    """Position constraints at every substep end: no drift over many periods, fourth order in
+    the positions."""
+    compiled = phc.compile_model(MODELS / "pendulum.yaml")
+    r = phc.simulate(compiled, solver="midpoint4", step=0.05, t_end=200.0, n_out=201)
+    assert r.success
+    assert r.constraint_drift < 1e-10
+    assert np.abs(r["rod_length_error"]).max() < 1e-10
+    assert r.energy_balance_relative < 1e-10  # H and the constraint are quadratic
+    fine = phc.simulate(compiled, solver="midpoint4", step=0.0025, t_end=2.0, n_out=11)
+    errors = [np.abs(phc.simulate(compiled, solver="midpoint4", step=h, t_end=2.0, n_out=11)["pendulum.x"]
+                     - fine["pendulum.x"]).max() for h in (0.02, 0.01)]
+    assert 3.6 < np.log2(errors[0] / errors[1]) < 4.4
+
+
+def test_one_newton_matrix_per_substep_size():
+    """The two substep sizes keep their own factorizations: far fewer than substeps."""
+    compiled = phc.compile_model(MODELS / "flexible_slider_crank.yaml")
+    r = phc.simulate(compiled, solver="midpoint4", step=1e-4, t_end=0.02, n_out=3)
+    assert r.success
+    assert r.n_jacobian_evals < 0.25 * 3 * r.steps  # 88 factorizations for 600 substeps measured
+    assert r.energy_balance_relative < 1e-12 and r.constraint_drift < 1e-12
+
+
+def test_error_estimate_uses_order_4():
+    from phc.accuracy import temporal_estimate
+
+    compiled = phc.compile_model(MODELS / "mass_spring_damper.yaml")
+    kwargs = dict(solver="midpoint4", step=0.05, t_end=5.0, n_out=11)
+    r = phc.simulate(compiled, **kwargs)
+    est = temporal_estimate(compiled, r, kwargs)
+    assert "order 4" in est.method
+    w = np.sqrt(3.96)
+    exact = 0.5 * np.exp(-0.2 * r.t) * (np.cos(w * r.t) + 0.2 / w * np.sin(w * r.t))
+    true = np.abs(r["x"] - exact).max()
+    assert true / 3 < est.per_output["x"] < 3 * true
