@@ -26,7 +26,10 @@ power) — passivity is not guaranteed step by step. ``R(γ₁z)² R(γ₂z)`` h
 ``z = 2/γ₂ ≈ −1.17`` and ``|R| > 1`` only in a small disk around it (``−1.20 … −1.13`` on the
 real axis, ``|Im z| ≲ 0.03``), elsewhere in the left half-plane ``|R| ≤ 1``: a nearly real
 (overdamped) mode with ``h·|λ|`` in that band grows. Example: the mass–spring–damper with
-c = 100 (λ ≈ −100) blows up at h = 0.0115 s and is fine at 0.01 and 0.0125 s.
+c = 100 (λ ≈ −100) blows up at h = 0.0115 s and is fine at 0.01 and 0.0125 s. Guard:
+a composite step whose net dissipated energy ``Σ γᵢh·P_diss(midpointᵢ)`` is negative
+violates passivity and is rejected (the driver retries it in smaller pieces, which leaves
+the band, and says so); it is never reported as a success silently.
 """
 
 from __future__ import annotations
@@ -35,6 +38,9 @@ import numpy as np
 
 from phc.simulation.midpoint import NEWTON_HINT, SINGULAR_HINT, StageSolver, integrate_fixed_step
 
+PASSIVITY_HINT = ("the step added energy through dissipation (the backward substep of the composition "
+                  "outweighed the forward ones: a damped mode with h·|λ| near 1.17); change `step` by about "
+                  "10 %, or use `midpoint`")
 GAMMA1 = 1.0 / (2.0 - 2.0 ** (1.0 / 3.0))
 GAMMA2 = -(2.0 ** (1.0 / 3.0)) / (2.0 - 2.0 ** (1.0 / 3.0))
 FRACTIONS = (GAMMA1, GAMMA2, GAMMA1)
@@ -52,6 +58,7 @@ class Midpoint4Step:
     ``2·m − y_start``. Without history, from the driver's guess of the step end."""
 
     def __init__(self, mod, p):
+        self.mod, self.p = mod, p
         self.stages = (StageSolver(mod, p), StageSolver(mod, p))  # γ₁h and γ₂h
         self.stage = self  # for the driver's look at `ill_conditioned`
         self.ill_conditioned = False
@@ -79,6 +86,7 @@ class Midpoint4Step:
         self.ill_conditioned = self.singular = False
         start, tau = y, t
         values = []
+        dissipated = scale = 0.0
         for i, fraction in enumerate(FRACTIONS):
             stage = self.stages[0 if i != 1 else 1]
             hs = fraction * h
@@ -88,18 +96,73 @@ class Midpoint4Step:
                 self.singular = stage.singular
                 self.history.clear()
                 return y1, False, (SINGULAR_HINT if stage.singular else NEWTON_HINT)
-            values.append(0.5 * (start + y1))
+            mid = 0.5 * (start + y1)
+            diss = hs * float(self.mod.powers(tau + 0.5 * hs, mid, (y1 - start) / hs, self.p)[1])
+            dissipated += diss
+            scale += abs(diss)
+            values.append(mid)
             start, tau = y1, tau + hs
+        if dissipated < -1e-9 * scale - 1e-300:
+            # passivity violated over the composite step: a damped mode in the band where the
+            # backward substep's anti-dissipation wins (see the module docstring)
+            self.history.clear()
+            return start, False, PASSIVITY_HINT
         self.history = (self.history + [([t + c * h for c in MID_TIMES], values)])[-2:]
         return start, True, ""
+
+
+UNSTABLE_BAND = (1.10, 1.23)
+"""h·|λ| range (with |Im λ| ≤ 0.1|λ|, Re λ < 0) treated as inside the composition's unstable disk."""
+SPECTRUM_LIMIT = 400
+"""Largest system whose linearized spectrum is checked at the start (dense eigenproblem)."""
+
+
+def unstable_modes(mod, p, t0, y0, yp0, steps) -> list[tuple[float, complex]]:
+    """(h, λ) pairs of damped modes of the linearization at the start for which a step h
+    falls in the composition's unstable band: eigenvalues of ``F_y v = −λ F_ẏ v``."""
+    import scipy.linalg as sla
+
+    n = mod.N
+    if n > SPECTRUM_LIMIT:
+        return []
+    rows, cols = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
+    buf = np.zeros(len(rows))
+    mod.jacobian(t0, y0, yp0, p, 0.0, buf)
+    fy = np.zeros((n, n))
+    np.add.at(fy, (rows, cols), buf)
+    mod.jacobian(t0, y0, yp0, p, 1.0, buf)
+    fyp = -fy
+    np.add.at(fyp, (rows, cols), buf)
+    with np.errstate(all="ignore"):
+        lam = sla.eigvals(fy, -fyp)
+    lam = lam[np.isfinite(lam)]
+    hits = []
+    for h in steps:
+        for mu in lam:
+            size = abs(mu)
+            if mu.real < 0 and abs(mu.imag) <= 0.1 * size and UNSTABLE_BAND[0] <= h * size <= UNSTABLE_BAND[1]:
+                hits.append((h, complex(mu)))
+    return hits
 
 
 def integrate_midpoint4(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=None, max_order=None,
                         step=None, names=None):
     """Fixed-step fourth-order composition of the implicit midpoint rule from ``t_out[0]``;
     output at every ``t_out`` (each output interval is split into equal steps no longer than
-    `step`). Returns the same dict as the IDA backend."""
+    `step`). Returns the same dict as the IDA backend. A step that puts a damped mode of the
+    linearization at the start into the method's unstable band is refused before the run."""
     del rtol, atol, max_order  # a fixed-step method: accuracy is set by `step`
+    intervals = np.diff(np.asarray(t_out, dtype=float))
+    steps = sorted({float(d / max(1, int(np.ceil(d / step - 1e-9)))) if step else float(d) for d in intervals})
+    hits = unstable_modes(mod, p, float(t_out[0]), y0, yp0, steps)
+    if hits:
+        h, mu = hits[0]
+        return dict(t=np.asarray(t_out[:1], dtype=float), y=np.atleast_2d(y0), yp=np.atleast_2d(yp0), steps=0,
+                    nfev=0, njev=0, success=False, cpu=0.0,
+                    message=(f"midpoint4: step h = {h:.4g} puts a damped mode (λ = {mu.real:.4g}"
+                             f"{mu.imag:+.2g}j) at h·|λ| = {h * abs(mu):.3f}, inside the composition's unstable band "
+                             f"{UNSTABLE_BAND[0]}–{UNSTABLE_BAND[1]}: its backward substep would amplify it; change "
+                             "`step` (e.g. by 20 %) or use `midpoint`"))
     advance = Midpoint4Step(mod, p)
     out = integrate_fixed_step(mod, p, t_out, y0, yp0, max_steps=max_steps, progress=progress, step=step,
                                advance=advance, name="midpoint composition (order 4)", names=names)

@@ -89,3 +89,20 @@ def test_error_estimate_uses_order_4():
     exact = 0.5 * np.exp(-0.2 * r.t) * (np.cos(w * r.t) + 0.2 / w * np.sin(w * r.t))
     true = np.abs(r["x"] - exact).max()
     assert true / 3 < est.per_output["x"] < 3 * true
+
+
+def test_a_step_in_the_unstable_band_of_a_damped_mode_is_refused(tmp_path):
+    """c = 100: an overdamped mode λ ≈ −100. At h = 0.0115 (h·|λ| ≈ 1.15, inside the
+    composition's unstable disk) the run stops before starting with a message naming the mode;
+    at h = 0.01 it runs and matches IDA."""
+    src = (Path(__file__).resolve().parents[2] / "models" / "mass_spring_damper.yaml").read_text()
+    model = tmp_path / "stiff_damper.yaml"
+    model.write_text(src.replace("c: {value: 0.4", "c: {value: 100.0"))
+    compiled = phc.compile_model(model)
+    bad = phc.simulate(compiled, solver="midpoint4", step=0.0115, t_end=2.0, n_out=3)
+    assert not bad.success
+    assert "unstable band" in bad.message and "-99.9" in bad.message and "change `step`" in bad.message
+    good = phc.simulate(compiled, solver="midpoint4", step=0.01, t_end=2.0, n_out=3)
+    ref = phc.simulate(compiled, t_end=2.0, n_out=3, rtol=1e-12, atol=1e-14)
+    assert good.success
+    assert np.abs(good.y[-1] - ref.y[-1]).max() < 1e-6
