@@ -31,23 +31,27 @@ def incidence(dae: Dae) -> list[set[int]]:
 
 
 def maximum_matching(dae: Dae) -> dict[int, int]:
-    """Maximum matching equation index → variable index (networkx Hopcroft–Karp)."""
+    """Maximum matching equation index → variable index (networkx Hopcroft–Karp).
+
+    Nodes are integers (equation i → i, variable j → m + j): their hashes do not depend on
+    PYTHONHASHSEED, so which of several redundant rows is reported is reproducible."""
+    m = len(dae.equations)
     graph = nx.Graph()
-    eq_nodes = [("eq", i) for i in range(len(dae.equations))]
+    eq_nodes = list(range(m))
     graph.add_nodes_from(eq_nodes)
-    graph.add_nodes_from(("var", j) for j in range(len(dae.variables)))
+    graph.add_nodes_from(m + j for j in range(len(dae.variables)))
     for i, cols in enumerate(incidence(dae)):
-        graph.add_edges_from((("eq", i), ("var", j)) for j in cols)
+        graph.add_edges_from((i, m + j) for j in sorted(cols))
     # The energy accumulator Ė = P is matched to its own row first: it is phc's
     # bookkeeping, and must never be reported as an undetermined unknown.
     for i, eq in enumerate(dae.equations):
         if eq.kind == "energy":
             j = next(j for j, v in enumerate(dae.variables) if v.role == "energy")
-            graph.remove_edges_from(list(graph.edges(("eq", i))))
-            graph.remove_edges_from(list(graph.edges(("var", j))))
-            graph.add_edge(("eq", i), ("var", j))
+            graph.remove_edges_from(list(graph.edges(i)))
+            graph.remove_edges_from(list(graph.edges(m + j)))
+            graph.add_edge(i, m + j)
     matching = nx.bipartite.hopcroft_karp_matching(graph, top_nodes=eq_nodes)
-    return {node[1]: matching[node][1] for node in eq_nodes if node in matching}
+    return {i: matching[i] - m for i in eq_nodes if i in matching}
 
 
 def check_balance(dae: Dae) -> list[Diagnostic]:
