@@ -125,7 +125,7 @@ def _summary_text(name: str, result) -> str:
     lines = [
         f"{name}: {'success' if s['success'] else 'FAILED'} — {s['message']}",
         f"  size     {s['n_states']} states, {s['n_equations']} equations; solver {s['solver']} "
-        f"(rtol {s['rtol']:.1e}, atol {s['atol']:.1e})",
+        + (f"(fixed step {s['step']:.3g})" if s.get("step") else f"(rtol {s['rtol']:.1e}, atol {s['atol']:.1e})"),
         f"  work     {s['steps']} steps, {s['n_residual_evals']} residual and {s['n_jacobian_evals']} "
         f"Jacobian evaluations, {s['cpu_time_s']:.3f} s CPU, t_final {s['t_final']:.6g}",
         f"  energy   balance error {s['energy_balance_error']:.3e} (relative {s['energy_balance_relative']:.3e})",

@@ -133,7 +133,12 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
                   max_order=opts.get("max_order", 5), names=describe_equations(compiled), **extra)
     out = _integrate_with_breakpoints(run, mod, p, t_out, init)
     cpu = time.process_time() - cpu0
-    return _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol)
+    result = _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol)
+    if solver in FIXED_STEP:  # the step actually taken: no longer than `step` nor an output interval
+        intervals = np.diff(t_out)
+        h = extra["step"]
+        result.step = float(max(d / max(1, int(np.ceil(d / h - 1e-9))) if h else d for d in intervals))
+    return result
 
 
 def _integrate_with_breakpoints(run, mod, p, t_out, init) -> dict:

@@ -48,6 +48,8 @@ class SimResult:
     solver: str = "ida"
     rtol: float = 0.0
     atol: float = 0.0
+    step: Optional[float] = None
+    """Step of the fixed-step solvers (their accuracy setting; rtol/atol do not apply)."""
     initial_choices: dict[str, float] = field(default_factory=dict)
 
     def __getitem__(self, name: str) -> np.ndarray:
@@ -69,6 +71,7 @@ class SimResult:
             "solver": self.solver,
             "rtol": self.rtol,
             "atol": self.atol,
+            "step": self.step,
             "n_states": int(self.n_states),
             "n_equations": int(self.n_equations),
             "t_final": float(self.t[-1]) if len(self.t) else None,
