@@ -148,6 +148,8 @@ class Builder:
         if ctx is not None:
             span = ctx.smap.locate_key(tuple(path)) if key else ctx.smap.locate(tuple(path))
         dotted = ".".join(str(p) for p in path) or None
+        if ctx is not None and hasattr(ctx.smap, "dotted") and path:  # a scene's entries, as written there
+            dotted = ctx.smap.dotted(tuple(path))
         self.diags.append(Diagnostic(code, message, span=span, hint=hint, severity=severity, path=dotted))
 
     def leave_out(self, component: str, what: str, why: str) -> None:
@@ -165,8 +167,10 @@ class Builder:
         except ExpressionError as err:
             span = (ctx.smap.locate_in_value(tuple(path), err.col) if isinstance(value, str)
                     else ctx.smap.locate(tuple(path)))
+            dotted = (ctx.smap.dotted(tuple(path)) if hasattr(ctx.smap, "dotted")
+                      else ".".join(str(p) for p in path))
             self.diags.append(Diagnostic("PHC-E101", f"in expression `{value}`: {err.message}", span=span,
-                                         hint=err.hint, path=".".join(str(p) for p in path)))
+                                         hint=err.hint, path=dotted))
             return sp.Integer(0)
 
     def vector(self, ctx, values, path, names, length: Optional[int] = None, what: str = "vector") -> list[sp.Expr]:

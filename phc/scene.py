@@ -171,6 +171,10 @@ class _Overlay:
         smap, path = self._route(path)
         return smap.locate(path)
 
+    def dotted(self, path) -> str:
+        """The path as the user wrote it (scene entries without the `simulation.` prefix)."""
+        return ".".join(str(p) for p in self._route(path)[1])
+
     def locate_key(self, path):
         smap, path = self._route(path)
         return smap.locate_key(path)
