@@ -97,7 +97,7 @@ outputs:
 """)
     lines = diagnostics(scene)
     assert len(lines) == 1
-    assert lines[0].startswith(f"{scene}:6:8:")
+    assert lines[0].startswith(f"{scene}:6:8: outputs.mid:")  # the path as written in the scene
     assert "rod.w[0]" in lines[0] and "flexibility" in lines[0] and "PHC-E604" in lines[0]
 
 
