@@ -79,17 +79,17 @@ class Scene:
                 update[key] = getattr(s.accuracy, key)
         update["initial"] = {**sim.initial, **s.initial}
         update["inputs"] = {**sim.inputs, **s.inputs}
-        if s.outputs:
-            update["outputs"] = dict(s.outputs)
-        outputs = update.get("outputs", sim.outputs)
+        outputs = dict(s.outputs or sim.outputs)
+        requested = list(outputs)
         for name, expr in s.reference.items():  # closed forms ride along as outputs
-            if name not in outputs:
+            if name in requested:
+                outputs[reference_name(name)] = expr
+            else:
                 builder.diags.append(Diagnostic(
                     "PHC-E605", f"reference for `{name}`, which is not a requested output",
                     span=self.smap.locate_key(("reference", name)),
-                    hint=f"outputs: {', '.join(outputs) or 'none'}"))
-                continue
-            update["outputs"] = {**outputs, **update.get("outputs", {}), reference_name(name): expr}
+                    hint=f"outputs: {', '.join(requested) or 'none'}"))
+        update["outputs"] = outputs
         for comp, effects in s.effects.items():
             builder.effect_overrides[comp] = (dict(effects), self.locate("effects", comp))
         for comp, elements in s.accuracy.mesh.items():
@@ -101,7 +101,6 @@ class Scene:
                 builder.diags.append(Diagnostic(
                     "PHC-E602", f"the model has no component `{top}`", span=self.smap.locate_key(where),
                     hint=f"components: {', '.join(spec.components)}"))
-        outputs = update.get("outputs", sim.outputs)
         if s.prune and outputs:
             skip, reason = _prune(spec, outputs)
             for comp in sorted(skip):
