@@ -8,6 +8,8 @@
     fixed initial values violate the equations; ``.problems`` names the equations.
 ``SimulationSetupError``
     invalid simulation options or missing optional dependency.
+``CodegenError``
+    the code generator met something it cannot print (a phc bug, never a user mistake).
 """
 
 from __future__ import annotations
@@ -35,3 +37,7 @@ class InconsistentInitialError(PhcError):
 
 class SimulationSetupError(PhcError, ValueError):
     """Invalid simulation options (raised before integrating)."""
+
+
+class CodegenError(PhcError):
+    """The code generator met an expression it has no printed form for."""

@@ -13,7 +13,18 @@ from typing import Annotated, Union
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, StrictFloat, StrictInt
 
-IDENTIFIER_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+from phc.spec.expressions import FUNCTIONS
+
+IDENTIFIER_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
+"""A name, matched with ``fullmatch`` (``$`` would accept a trailing newline)."""
+
+RESERVED: dict[str, str] = {
+    "t": "time",
+    "pi": "the constant π",
+    "H": "the total energy, an output of every model",
+    **{name: "a function of the expression language" for name in FUNCTIONS},
+}
+"""Names phc gives a meaning in expressions and outputs; a model may not declare them."""
 
 
 class SpecModel(BaseModel):
@@ -29,10 +40,11 @@ class SpecModel(BaseModel):
 
 
 def _check_identifier(name: str) -> str:
-    if not IDENTIFIER_RE.match(name):
-        raise ValueError(
-            f"`{name}` is not a valid name; use a letter followed by letters, digits or `_`"
-        )
+    if not IDENTIFIER_RE.fullmatch(name):
+        shown = f"`{name}`" if name.isprintable() else repr(name)  # a newline stays visible
+        raise ValueError(f"{shown} is not a valid name; use a letter followed by letters, digits or `_`")
+    if name in RESERVED:
+        raise ValueError(f"`{name}` is reserved by phc ({RESERVED[name]}); choose another name")
     return name
 
 
