@@ -11,6 +11,7 @@ import argparse
 import json
 import os
 import sys
+import warnings
 from contextlib import contextmanager, nullcontext
 from pathlib import Path
 from typing import Optional, Sequence
@@ -20,6 +21,7 @@ import numpy as np
 from phc import __version__
 
 EXIT_OK, EXIT_MODEL, EXIT_USAGE = 0, 1, 2
+_python_showwarning = warnings.showwarning
 
 
 class UsageError(Exception):
@@ -393,6 +395,29 @@ def cmd_schema(args) -> int:
     return EXIT_OK
 
 
+def cmd_cache(args) -> int:
+    from phc.codegen import load
+
+    if args.action == "clean":
+        files, size = load.clean()
+        print(f"{load.cache_dir()}: removed {files} files ({size / 2**20:.1f} MiB)")
+        return EXIT_OK
+    info = load.info()
+    print(f"{info.path}: {info.files} files, {info.bytes / 2**20:.1f} MiB "
+          f"(cap {info.cap_bytes / 2**20:.0f} MiB, PHC_CACHE_MAX_MB; least recently used evicted first)")
+    return EXIT_OK
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """phc's own warnings as one line `phc: warning: ...`; others as Python prints them."""
+    from phc.codegen.load import CacheWarning
+
+    if issubclass(category, CacheWarning):
+        print(f"phc: warning: {message}", file=sys.stderr)
+    else:
+        _python_showwarning(message, category, filename, lineno, file, line)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="phc", description="Compiler for port-Hamiltonian models.")
     parser.add_argument("--version", action="version", version=f"phc {__version__}")
@@ -473,12 +498,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--check", action="store_true", help="fail if the schemas in --dir are stale")
     p.add_argument("--dir", default="schemas")
     p.set_defaults(func=cmd_schema)
+
+    p = sub.add_parser("cache", help="show or empty the cache of generated modules and bench references")
+    p.add_argument("action", choices=("info", "clean"), nargs="?", default="info")
+    p.set_defaults(func=cmd_cache)
     return parser
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    warnings.showwarning = _show_warning
     try:
         return args.func(args)
     except _Exit as done:

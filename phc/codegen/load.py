@@ -1,46 +1,226 @@
-"""Load generated residual modules, cached on disk by content hash.
+"""Load generated residual modules; keep a private on-disk cache of their source.
 
-The module text is written to ``$PHC_CACHE_DIR`` (default ``~/.cache/phc``) under the
-SHA-256 of its source and imported with :mod:`importlib`, so recompiling an unchanged
-model reuses the file and the generated code can be inspected or imported on its own.
+Input: the module's source text (from :mod:`phc.codegen.printer`). Output: the executed
+module and the path of its cached copy.
+
+The source is compiled *from the text in memory* (``compile(source, path, "exec")`` into a
+fresh module object): the file on disk is written for people and tools to read or import
+on their own, never read back by phc. So nobody who can write the cache directory can make
+phc run other code by swapping the file between a check and an import, or by planting a
+``__pycache__`` entry (an unchecked hash-based ``.pyc``, PEP 552) that an importer would
+prefer; and phc never writes bytecode for generated modules.
+
+The cache lives in ``$PHC_CACHE_DIR``, else ``$XDG_CACHE_HOME/phc``, else ``~/.cache/phc``.
+It is created private (mode 0700) and refused when another user owns it or others may
+write it; phc then uses a private temporary directory for the run and says so (there is no
+shared ``/tmp`` fallback). Files are named by the SHA-256 of their content; the cache is
+capped (``$PHC_CACHE_MAX_MB``, default 512 MiB) by evicting the least recently used files.
+``phc cache info`` and ``phc cache clean`` show and empty it.
 """
 
 from __future__ import annotations
 
+import atexit
 import hashlib
-import importlib.util
 import os
+import shutil
+import stat
 import tempfile
+import warnings
+from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
 
+DEFAULT_CAP_MB = 512
+"""Default size cap of the cache in MiB (``$PHC_CACHE_MAX_MB`` overrides it)."""
+
+_PRIVATE_FALLBACK: Path | None = None
+
+
+class CacheWarning(UserWarning):
+    """The configured cache directory is unusable or not private; a temporary one is used."""
+
+
+def configured_cache_dir() -> Path:
+    """The cache directory phc is configured to use (it may not exist yet)."""
+    root = os.environ.get("PHC_CACHE_DIR")
+    if root:
+        return Path(root)
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    return (Path(xdg) if xdg else Path.home() / ".cache") / "phc"
+
+
+def _problem(path: Path) -> str | None:
+    """Why `path` is not a private cache directory, or None if it is."""
+    try:
+        st = os.lstat(path)
+    except OSError as err:
+        return f"cannot be used ({err.strerror})"
+    if stat.S_ISLNK(st.st_mode):
+        return "is a symbolic link"
+    if not stat.S_ISDIR(st.st_mode):
+        return "is not a directory"
+    if hasattr(os, "getuid") and st.st_uid != os.getuid():
+        return f"is owned by another user (uid {st.st_uid})"
+    if st.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
+        return f"is writable by other users (mode {stat.S_IMODE(st.st_mode):o}); run `chmod go-w {path}`"
+    if not os.access(path, os.W_OK | os.X_OK):
+        return "is not writable"
+    return None
+
 
 def cache_dir() -> Path:
-    root = os.environ.get("PHC_CACHE_DIR")
-    path = Path(root) if root else Path.home() / ".cache" / "phc"
+    """The private cache directory (created with mode 0700 if missing).
+
+    A directory that another user owns or others may write is refused: phc then uses a
+    private temporary directory for the rest of the process and warns once.
+    """
+    global _PRIVATE_FALLBACK
+    path = configured_cache_dir()
     try:
-        path.mkdir(parents=True, exist_ok=True)
-        probe = path / ".probe"
-        probe.touch()
-    except OSError:
-        path = Path(tempfile.gettempdir()) / "phc-cache"
-        path.mkdir(parents=True, exist_ok=True)
-    return path
+        path.mkdir(mode=0o700, parents=True, exist_ok=True)
+        problem = _problem(path)
+    except OSError as err:
+        problem = f"cannot be created ({err.strerror})"
+    if problem is None:
+        return path
+    if _PRIVATE_FALLBACK is None or not _PRIVATE_FALLBACK.is_dir():
+        _PRIVATE_FALLBACK = Path(tempfile.mkdtemp(prefix="phc-cache-"))  # mode 0700, ours
+        atexit.register(shutil.rmtree, _PRIVATE_FALLBACK, ignore_errors=True)
+        warnings.warn(f"cache directory {path} {problem}; using the private temporary directory "
+                      f"{_PRIVATE_FALLBACK} for this run (set PHC_CACHE_DIR to a private directory)",
+                      CacheWarning, stacklevel=2)
+    return _PRIVATE_FALLBACK
 
 
 def source_hash(source: str) -> str:
     return hashlib.sha256(source.encode()).hexdigest()[:20]
 
 
-def load_generated(source: str, name: str = "model") -> tuple[ModuleType, Path]:
-    """Write (if new) and import the generated module; returns (module, path)."""
-    digest = source_hash(source)
-    path = cache_dir() / f"phc_{digest}.py"
-    if not path.exists() or path.read_text() != source:
-        tmp = path.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_text(source)
+def write_atomic(path: Path, data: bytes) -> None:
+    """Write `data` to `path` through a private temporary file and a rename."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
         os.replace(tmp, path)
-    spec = importlib.util.spec_from_file_location(f"phc_generated_{digest}", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
+def load_generated(source: str, name: str = "model") -> tuple[ModuleType, Path]:
+    """Execute the generated module from `source` (in memory); returns (module, path).
+
+    The cached copy at `path` is (re)written when missing or different, for readers; the
+    module object is built from `source` itself, so the file's content never matters.
+    """
+    digest = source_hash(source)
+    folder = cache_dir()
+    path = folder / f"phc_{digest}.py"
+    data = source.encode()
+    try:
+        same = path.is_file() and not path.is_symlink() and path.read_bytes() == data
+        if same:
+            os.utime(path)  # most recently used
+        else:
+            if path.is_symlink() or path.exists():
+                path.unlink()
+            write_atomic(path, data)
+            enforce_cap(folder)
+    except OSError as err:  # a full or read-only disk costs the readable copy, not the run
+        warnings.warn(f"could not write the generated module to {path}: {err.strerror}", CacheWarning,
+                      stacklevel=2)
+    module = ModuleType(f"phc_generated_{digest}", None)
+    module.__file__ = str(path)
+    code = compile(source, str(path), "exec", dont_inherit=True)
+    exec(code, module.__dict__)  # noqa: S102 - phc's own printer output, verified text in memory
     return module, path
+
+
+# ---------------------------------------------------------------------------------------
+# size cap, info and clean
+
+
+def _cap_bytes() -> int:
+    try:
+        mb = float(os.environ.get("PHC_CACHE_MAX_MB", DEFAULT_CAP_MB))
+    except ValueError:
+        mb = DEFAULT_CAP_MB
+    return int(max(mb, 0) * 2**20)
+
+
+def _entries(folder: Path) -> list[tuple[float, int, Path]]:
+    """(last use, size, path) of phc's files in the cache (generated modules, bench references)."""
+    out = []
+    for pattern in ("phc_*.py", "bench/ref_*.npz"):
+        for p in folder.glob(pattern):
+            try:
+                st = p.lstat()
+            except OSError:
+                continue
+            if stat.S_ISREG(st.st_mode):
+                out.append((max(st.st_mtime, st.st_atime), st.st_size, p))
+    return out
+
+
+def enforce_cap(folder: Path | None = None, cap: int | None = None) -> int:
+    """Evict least recently used entries until the cache is under its cap; returns bytes freed."""
+    folder = cache_dir() if folder is None else folder
+    cap = _cap_bytes() if cap is None else cap
+    entries = sorted(_entries(folder))
+    total = sum(size for _, size, _ in entries)
+    freed = 0
+    for _, size, p in entries:
+        if total <= cap:
+            break
+        try:
+            p.unlink()
+        except OSError:
+            continue
+        total -= size
+        freed += size
+    return freed
+
+
+@dataclass(frozen=True)
+class CacheInfo:
+    path: Path
+    files: int
+    bytes: int
+    cap_bytes: int
+
+
+def info() -> CacheInfo:
+    folder = cache_dir()
+    entries = _entries(folder)
+    return CacheInfo(folder, len(entries), sum(size for _, size, _ in entries), _cap_bytes())
+
+
+def clean() -> tuple[int, int]:
+    """Remove every cached module and bench reference; returns (files, bytes) removed."""
+    folder = cache_dir()
+    files = size = 0
+    for _, n, p in _entries(folder):
+        try:
+            p.unlink()
+        except OSError:
+            continue
+        files += 1
+        size += n
+    pycache = folder / "__pycache__"  # left by an earlier phc that imported from the cache
+    if pycache.is_dir() and not pycache.is_symlink():
+        for p in pycache.glob("phc_*.pyc"):
+            try:
+                p.unlink()
+            except OSError:
+                pass
+    return files, size
+
+
+__all__ = ["CacheInfo", "CacheWarning", "cache_dir", "clean", "configured_cache_dir", "enforce_cap", "info",
+           "load_generated", "source_hash", "write_atomic"]
+
