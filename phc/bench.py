@@ -65,6 +65,7 @@ import yaml
 
 import phc
 from phc.errors import ModelError, SimulationSetupError
+from phc.io import atomic_write, write_text
 from phc.scene import is_scene_file, reference_name
 from phc.simulation import BACKENDS, FIXED_STEP
 
@@ -535,11 +536,10 @@ def _reference_run(scene_path, model_path, settings, t_out, outputs, reference_c
     settings["cpu_time_s"] = float(res.cpu_time_s)
     ref = {name: np.asarray(res.outputs[name], dtype=float) for name in outputs}
     if path is not None:
-        tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
         try:
-            np.savez(tmp, t=t_out, **{f"out_{k}": v for k, v in ref.items()},
-                     meta=json.dumps(dict(settings, scene=str(scene_path)), default=str))
-            os.replace(tmp, path)
+            with atomic_write(path) as fh:
+                np.savez(fh, t=t_out, **{f"out_{k}": v for k, v in ref.items()},
+                         meta=json.dumps(dict(settings, scene=str(scene_path)), default=str))
         except OSError:
             pass
     return ref, False, path, ""
@@ -553,14 +553,14 @@ def _write_files(report: BenchReport, out_dir: Path, plot: bool) -> None:
     rows = [r.as_dict(report.outputs) for r in report.rows]
     columns = list(BenchRow("", {}).as_dict(report.outputs))
     csv_path = out_dir / "bench.csv"
-    with open(csv_path, "w", newline="") as fh:
+    with atomic_write(csv_path, "w", newline="") as fh:  # every file: temporary file + rename
         writer = csv.DictWriter(fh, fieldnames=columns)
         writer.writeheader()
         for row in rows:
             writer.writerow({k: _csv_value(v) for k, v in row.items()})
     report.paths["csv"] = csv_path
     md_path = out_dir / "bench.md"
-    md_path.write_text(_markdown(report))
+    write_text(md_path, _markdown(report))
     report.paths["md"] = md_path
     if not plot:
         report.plot_skipped = "not requested"
@@ -632,7 +632,8 @@ def _plot(report: BenchReport, path: Path, Figure, Canvas) -> None:
         ax.text(0.5, 0.5, "no successful run with a finite, nonzero error", ha="center", va="center",
                 transform=ax.transAxes)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    with atomic_write(path) as fh:
+        fig.savefig(fh, format="png", dpi=120)
 
 
 # ---------------------------------------------------------------------------------------

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import warnings
@@ -21,6 +22,7 @@ import numpy as np
 from phc import __version__
 
 EXIT_OK, EXIT_MODEL, EXIT_USAGE = 0, 1, 2
+EXIT_INTERRUPTED = 130
 _python_showwarning = warnings.showwarning
 
 
@@ -46,7 +48,76 @@ def _parse_params(items: Sequence[str]) -> dict[str, float]:
             out[name.strip()] = float(value)
         except ValueError:
             raise UsageError(f"--param {name}: `{value}` is not a number") from None
+        if not math.isfinite(out[name.strip()]):
+            raise UsageError(f"--param {name}: the value must be a finite number, got {value}")
     return out
+
+
+# Numeric options, checked in one place before any work: (command, dest) -> (option, kind,
+# low, high). Kinds: "positive" (finite, > 0, <= high), "fraction" (0 < x < 1), "count"
+# (a whole number in [low, high]). Limits follow the model language's `simulation` section
+# (n_out 2 ... 10 000 000; rtol in (0, 1); t_end, step, atol finite and positive).
+NUMERIC_OPTIONS = {
+    ("simulate", "t_end"): ("--t-end", "positive", 0, math.inf),
+    ("simulate", "n_out"): ("--n-out", "count", 2, 10_000_000),
+    ("simulate", "step"): ("--step", "positive", 0, math.inf),
+    ("simulate", "rtol"): ("--rtol", "fraction", 0, 1),
+    ("simulate", "atol"): ("--atol", "positive", 0, math.inf),
+    ("animate", "t_end"): ("--t-end", "positive", 0, math.inf),
+    ("animate", "magnify"): ("--magnify", "positive", 0, 1e6),
+    ("animate", "frames"): ("--frames", "count", 1, 10_000),
+    ("animate", "fps"): ("--fps", "count", 1, 100),
+    ("bench", "tolerances"): ("--tol", "fraction", 0, 1),
+    ("bench", "steps"): ("--step", "positive", 0, math.inf),
+    ("bench", "repeats"): ("--repeats", "count", 1, 1000),
+    ("bench", "reference_rtol"): ("--reference-rtol", "fraction", 0, 1),
+    ("check", "samples"): ("--samples", "count", 0, 1000),
+}
+
+# Output paths, checked before any work: (command, dest) -> accepted extensions, or None
+# for a folder (created if missing). "-" (stdout) is always accepted where it makes sense.
+OUTPUT_OPTIONS = {
+    ("simulate", "out"): ("--out", (".csv", ".npz")),
+    ("simulate", "plot"): ("--plot", (".png", ".pdf", ".svg")),
+    ("animate", "output"): ("-o", (".gif",)),
+    ("graph", "output"): ("-o", (".dot", ".png")),
+    ("compile", "output"): ("-o", None),
+    ("bench", "out_dir"): ("--out-dir", None),
+}
+
+
+def _check_number(option: str, kind: str, low: float, high: float, value) -> None:
+    shown = f"{value:g}" if isinstance(value, float) else str(value)
+    if kind == "count":
+        if not low <= value <= high:
+            raise UsageError(f"{option} must be a whole number from {low} to {high}, got {shown}")
+    elif kind == "fraction":
+        if not low < value < high:
+            raise UsageError(f"{option} must be a number between {low} and {high} (exclusive), got {shown}")
+    elif not (low < value <= high and math.isfinite(value)):
+        upper = "" if high == math.inf else f" up to {high:g}"
+        raise UsageError(f"{option} must be a finite positive number{upper}, got {shown}")
+
+
+def _check_arguments(args) -> None:
+    """Numeric options and output paths of the command, before any work (usage errors)."""
+    from phc.io import OutputPathError, check_output_dir, check_output_file
+
+    for (command, dest), (option, kind, low, high) in NUMERIC_OPTIONS.items():
+        value = getattr(args, dest, None) if args.command == command else None
+        for item in (value if isinstance(value, list) else [value] if value is not None else []):
+            _check_number(option, kind, low, high, item)
+    for (command, dest), (option, suffixes) in OUTPUT_OPTIONS.items():
+        path = getattr(args, dest, None) if args.command == command else None
+        if not path or path == "-" and command == "graph":
+            continue
+        try:
+            if suffixes is None:
+                check_output_dir(path, option)
+            else:
+                check_output_file(path, option, suffixes)
+        except OutputPathError as err:
+            raise UsageError(str(err)) from None
 
 
 def cmd_validate(args) -> int:
@@ -72,10 +143,11 @@ def cmd_validate(args) -> int:
 def cmd_compile(args) -> int:
     compiled = _compile_or_exit(args.file)
     _print_diagnostics([d for d in compiled.diagnostics if d.severity != "error"])
+    from phc.io import write_text
+
     out_dir = Path(args.output)
     out_dir.mkdir(parents=True, exist_ok=True)
-    target = out_dir / f"{compiled.name}.py"
-    target.write_text(compiled.source)
+    target = write_text(out_dir / f"{compiled.name}.py", compiled.source)
     print(f"{args.file}: wrote {target} ({compiled.n_states} states, {compiled.n_equations} equations, "
           f"{compiled.jacobian_nnz} Jacobian nonzeros, compiled in {sum(compiled.timings.values()):.2f} s)")
     for line in _left_out_lines(compiled):
@@ -113,11 +185,15 @@ def _write_results(result, path: str) -> None:
     columns["P_ports"] = result.port_power
     columns["P_diss"] = result.dissipation
     columns["energy_balance"] = result.H - result.H[0] + result.energy_supplied
+    from phc.io import atomic_write
+
     if path.endswith(".npz"):
-        np.savez(path, **columns)
+        with atomic_write(path) as fh:
+            np.savez(fh, **columns)
     elif path.endswith(".csv"):
         data = np.column_stack(list(columns.values())) if len(result.t) else np.zeros((0, len(columns)))
-        np.savetxt(path, data, delimiter=",", header=",".join(columns), comments="", fmt="%.17g")
+        with atomic_write(path) as fh:
+            np.savetxt(fh, data, delimiter=",", header=",".join(columns), comments="", fmt="%.17g")
     else:
         raise UsageError(f"--out must end in .csv or .npz, got `{path}`")
 
@@ -125,7 +201,8 @@ def _write_results(result, path: str) -> None:
 def _summary_text(name: str, result) -> str:
     s = result.summary()
     lines = [
-        f"{name}: {'success' if s['success'] else 'FAILED'} — {s['message']}",
+        f"{name}: {'success' if s['success'] else 'INTERRUPTED' if s.get('interrupted') else 'FAILED'} "
+        f"— {s['message']}",
         f"  size     {s['n_states']} states, {s['n_equations']} equations; solver {s['solver']} "
         + (f"(fixed step {s['step']:.3g})" if s.get("step") else f"(rtol {s['rtol']:.1e}, atol {s['atol']:.1e})"),
         f"  work     {s['steps']} steps, {s['n_residual_evals']} residual and {s['n_jacobian_evals']} "
@@ -173,6 +250,7 @@ def _simulation_errors(path: str, progress):
     """Turn setup mistakes into usage errors and inconsistent initial values into located
     lines; the progress bar is closed either way."""
     from phc.errors import InconsistentInitialError, SimulationSetupError
+    from phc.simulation import ModelEvaluationError
 
     try:
         yield
@@ -186,33 +264,45 @@ def _simulation_errors(path: str, progress):
     except SimulationSetupError as err:
         progress.close()
         raise UsageError(str(err)) from err
+    except ModelEvaluationError as err:  # the model cannot be evaluated at the start
+        progress.close()
+        print(f"{path}: {err}", file=sys.stderr)
+        raise _Exit(EXIT_MODEL) from None
+    except KeyboardInterrupt:
+        progress.close()
+        raise
     progress.close()
 
 
 def cmd_simulate(args) -> int:
     from phc.accuracy import estimate_errors
     from phc.profile import profiled
-    from phc.simulation import simulate
+    from phc.simulation import SimulationInterrupted, simulate
 
-    if args.out and not (args.out.endswith(".csv") or args.out.endswith(".npz")):
-        raise UsageError(f"--out must end in .csv or .npz, got `{args.out}`")
     params = _parse_params(args.param)
     compiled = _compile_or_exit(args.file)
     progress = _progress_for(compiled, args.t_end, args.quiet)
     run_kwargs = dict(t_end=args.t_end, params=params, rtol=args.rtol, atol=args.atol, n_out=args.n_out,
                       solver=args.solver, step=args.step)
-    estimates, prof = [], None
+    estimates, prof, interrupted = [], None, False
     with _simulation_errors(args.file, progress):
-        with (profiled(compiled) if args.profile else nullcontext()) as prof:
-            result = simulate(compiled, progress=progress, **run_kwargs)
-            if prof is not None:
-                prof.run_cpu = result.cpu_time_s
-        if args.estimate_error:
+        try:  # Ctrl-C: keep what was computed (written below), exit 130
+            with (profiled(compiled) if args.profile else nullcontext()) as prof:
+                result = simulate(compiled, progress=progress, **run_kwargs)
+        except SimulationInterrupted as stop:
+            result, interrupted = stop.result, True
+        if prof is not None:
+            prof.run_cpu = result.cpu_time_s
+        if args.estimate_error and not interrupted:
             progress.close()
             if not args.quiet:
                 print(f"{args.file}: estimating errors (a rerun with a finer step or tolerance, and one on "
                       "refined meshes)...", file=sys.stderr)
-            estimates = estimate_errors(compiled, result, run_kwargs)
+            try:
+                estimates = estimate_errors(compiled, result, run_kwargs)
+            except KeyboardInterrupt:
+                interrupted = True
+                print(f"{args.file}: error estimation interrupted; the run itself is complete", file=sys.stderr)
     if args.out:
         _write_results(result, args.out)
     if args.plot:
@@ -247,6 +337,12 @@ def cmd_simulate(args) -> int:
             print(f"  wrote    {args.out}")
         if args.plot:
             print(f"  plotted  {args.plot}")
+    if interrupted:
+        kept = [f for f in (args.out, args.plot) if f]
+        where = f"; the results so far are in {' and '.join(kept)}" if kept else " (no --out given: nothing written)"
+        reached = f"t = {result.t[-1]:.6g}" if len(result.t) else "the start"
+        print(f"phc simulate: interrupted at {reached}{where}", file=sys.stderr)
+        return EXIT_INTERRUPTED
     return EXIT_OK if result.success else EXIT_MODEL
 
 
@@ -269,14 +365,16 @@ def _solver_names() -> tuple[str, ...]:
 
 def cmd_animate(args) -> int:
     from phc import viz
-    from phc.simulation import simulate
+    from phc.simulation import SimulationInterrupted, simulate
 
-    if not args.output.endswith(".gif"):
-        raise UsageError(f"-o must end in .gif, got `{args.output}`")
     compiled = _compile_or_exit(args.file)
     progress = _progress_for(compiled, args.t_end, args.quiet)
+    interrupted = False
     with _simulation_errors(args.file, progress):
-        result = simulate(compiled, t_end=args.t_end, progress=progress)
+        try:
+            result = simulate(compiled, t_end=args.t_end, progress=progress)
+        except SimulationInterrupted as stop:  # Ctrl-C: animate what was computed, exit 130
+            result, interrupted = stop.result, True
     if not result.success:
         print(f"{args.file}: simulation stopped: {result.message}; animating the results so far", file=sys.stderr)
     try:
@@ -284,6 +382,8 @@ def cmd_animate(args) -> int:
     except viz.PlotUnavailable as err:
         raise UsageError(str(err)) from err
     print(f"{args.file}: wrote {args.output}")
+    if interrupted:
+        return EXIT_INTERRUPTED
     return EXIT_OK if result.success else EXIT_MODEL
 
 
@@ -342,7 +442,9 @@ def cmd_graph(args) -> int:
         sys.stdout.write(dot)
         return EXIT_OK
     if args.output.endswith(".dot"):
-        Path(args.output).write_text(dot)
+        from phc.io import write_text
+
+        write_text(args.output, dot)
     elif args.output.endswith(".png"):
         _draw_png(dae, args.output)
     else:
@@ -371,7 +473,10 @@ def _draw_png(dae, path: str) -> None:
     nx.draw_networkx_edge_labels(graph, pos, edge_labels=labels, ax=ax, font_size=7)
     ax.set_title(f"{dae.name}: interconnection graph")
     ax.axis("off")
-    fig.savefig(path, dpi=120, bbox_inches="tight")
+    from phc.io import atomic_write
+
+    with atomic_write(path) as fh:
+        fig.savefig(fh, format="png", dpi=120, bbox_inches="tight")
     plt.close(fig)
 
 
@@ -510,6 +615,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     args = parser.parse_args(argv)
     warnings.showwarning = _show_warning
     try:
+        _check_arguments(args)
         return args.func(args)
     except _Exit as done:
         return done.code

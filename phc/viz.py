@@ -126,9 +126,12 @@ def plot_outputs(result, path, names: Optional[Sequence[str]] = None, title: Opt
     SimulationSetupError
         A requested name is not an output or variable of the run.
     """
+    from phc.io import atomic_write
+
     fig = outputs_figure(result, names, title)
     path = Path(path)
-    fig.savefig(path, dpi=dpi)
+    with atomic_write(path) as fh:  # a killed process leaves no truncated picture
+        fig.savefig(fh, format=path.suffix.lstrip(".").lower() or "png", dpi=dpi)
     return path
 
 
@@ -778,7 +781,10 @@ def animate(compiled, result, path, magnify: float = 1.0, fps: float = 20.0, max
         if palette is None:  # one palette for all frames: the colours do not change
             palette = rgb.quantize(colors=128, method=Image.Quantize.FASTOCTREE)
         frames.append(rgb.quantize(palette=palette, dither=Image.Dither.NONE))
+    from phc.io import atomic_write
+
     path = Path(path)
-    frames[0].save(path, format="GIF", save_all=True, append_images=frames[1:],
-                   duration=max(int(round(1000.0 / fps)), 10), loop=0)
+    with atomic_write(path) as fh:  # a killed process leaves no truncated animation
+        frames[0].save(fh, format="GIF", save_all=True, append_images=frames[1:],
+                       duration=max(int(round(1000.0 / fps)), 10), loop=0)
     return path

@@ -7,6 +7,7 @@ exception; invalid options raise :class:`~phc.errors.SimulationSetupError` at on
 
 from __future__ import annotations
 
+import math
 import time
 from functools import partial
 from typing import Callable, Optional
@@ -17,12 +18,14 @@ import sympy as sp
 from phc.errors import InconsistentInitialError, SimulationSetupError
 from phc.inputs import breakpoints_within
 from phc.simulation.discrete_gradient import integrate_discrete_gradient
+from phc.simulation.guard import CATCH as GUARD_CATCH
+from phc.simulation.guard import ModelEvaluationError, guard, quiet_floating_point
 from phc.simulation.ida import integrate_ida
 from phc.simulation.initial import consistent_initial_conditions
 from phc.simulation.midpoint import integrate_midpoint
 from phc.simulation.midpoint4 import integrate_midpoint4
 from phc.simulation.monitor import describe_equations
-from phc.simulation.result import SimResult
+from phc.simulation.result import SimResult, SimulationInterrupted
 
 BACKENDS = {"ida": integrate_ida, "midpoint": integrate_midpoint, "discrete_gradient": integrate_discrete_gradient,
             "midpoint4": integrate_midpoint4}
@@ -30,6 +33,10 @@ BACKENDS = {"ida": integrate_ida, "midpoint": integrate_midpoint, "discrete_grad
 `midpoint` (energy-exact for quadratic H), `discrete_gradient` (energy-exact for any H) and
 `midpoint4` (order 4: a composition of three midpoint substeps, energy-exact for quadratic H)."""
 FIXED_STEP = ("midpoint", "discrete_gradient", "midpoint4")
+N_OUT_LIMITS = (2, 10_000_000)
+"""Smallest and largest number of output points (the model language's `simulation.n_out`)."""
+MAX_STEPS_LIMIT = 2 ** 31 - 1
+"""Largest `max_steps`: IDA stores it in a C long (32 bits on some platforms)."""
 
 
 def parameter_vector(mod, overrides: Optional[dict] = None) -> np.ndarray:
@@ -47,8 +54,17 @@ def parameter_vector(mod, overrides: Optional[dict] = None) -> np.ndarray:
             if key in mod.PARAMETERS:
                 raise SimulationSetupError(f"parameter `{key}` is derived from other parameters; override those")
             raise SimulationSetupError(f"unknown parameter `{key}`; known: {', '.join(names)}")
+        if not math.isfinite(float(value)):
+            raise SimulationSetupError(f"parameter `{key}` must be a finite number, got {value}")
         base[names.index(key)] = float(value)
-    return mod.full_parameters(base)
+    with quiet_floating_point():
+        full = mod.full_parameters(base)
+    bad = [name for name, value in zip(mod.PARAMETERS, np.asarray(full, dtype=float)) if not math.isfinite(value)]
+    if bad:
+        given = ", ".join(f"{k} = {v:g}" for k, v in (overrides or {}).items())
+        raise SimulationSetupError(f"derived parameter `{bad[0]}` is not finite"
+                                   + (f" with {given}" if given else "") + "; check the parameter values")
+    return full
 
 
 def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] = None,
@@ -86,26 +102,34 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
     InconsistentInitialError
         When fixed initial values violate the equations.
     """
-    mod = compiled.module
+    mod = guard(compiled.module, getattr(compiled, "source", None), _locator(compiled))
     opts = dict(compiled.dae.options)
     t0 = float(opts["t_start"])
     t1 = float(t_end if t_end is not None else opts["t_end"])
     rtol = float(rtol if rtol is not None else opts["rtol"])
     atol = float(atol if atol is not None else opts["atol"])
-    max_steps = int(max_steps if max_steps is not None else opts["max_steps"])
+    max_steps = _count("max_steps", max_steps if max_steps is not None else opts["max_steps"], 1, MAX_STEPS_LIMIT)
     solver = solver or opts["solver"]
     if solver not in BACKENDS:
         raise SimulationSetupError(f"unknown solver `{solver}`; choose one of {', '.join(BACKENDS)}")
-    if not t1 > t0:
-        raise SimulationSetupError(f"`t_end` ({t1}) must be greater than the start time ({t0})")
-    if not (0 < rtol < 1) or atol <= 0:
-        raise SimulationSetupError("`rtol` must be in (0, 1) and `atol` positive")
+    if not math.isfinite(t1) or not math.isfinite(t1 - t0) or not t1 > t0:
+        raise SimulationSetupError(f"`t_end` ({t1}) must be a finite time greater than the start time ({t0})")
+    if not (0 < rtol < 1) or not (0 < atol < math.inf):
+        raise SimulationSetupError("`rtol` must be in (0, 1) and `atol` a finite positive number")
     if t_eval is not None:
-        t_out = np.asarray(t_eval, dtype=float)
+        t_out = np.asarray(t_eval, dtype=float).ravel()
+        if not len(t_out) or not np.isfinite(t_out).all() or np.any(np.diff(t_out) <= 0) or t_out[0] < t0:
+            raise SimulationSetupError("`t_eval` must be finite, increasing output times from the start time on")
         if t_out[0] != t0:
             t_out = np.concatenate([[t0], t_out])
     else:
-        t_out = np.linspace(t0, t1, int(n_out or opts["n_out"]))
+        t_out = np.linspace(t0, t1, _count("n_out", n_out if n_out is not None else opts["n_out"], *N_OUT_LIMITS))
+    step = step if step is not None else (opts.get("step") if solver in FIXED_STEP else None)
+    if step is not None:
+        step = float(step)
+        if not (0 < step < math.inf) or not math.isfinite((t_out[-1] - t0) / step):
+            raise SimulationSetupError(f"`step` must be a finite positive number no smaller than the time span "
+                                       f"over 1e300, got {step}")
     p = parameter_vector(mod, params)
     index = {name: j for j, name in enumerate(mod.VARIABLES)}
     values, fixed = {}, set()
@@ -119,26 +143,105 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
         if name not in index or not mod.DIFFERENTIAL[index[name]]:
             raise SimulationSetupError(f"`{name}` is not a state of the model")
         value, guess = spec if isinstance(spec, tuple) else (spec, False)
+        if not math.isfinite(float(value)):
+            raise SimulationSetupError(f"initial value of `{name}` must be a finite number, got {value}")
         values[index[name]] = float(value)
         (fixed.discard if guess else fixed.add)(index[name])
+    bad = [mod.VARIABLES[j] for j, v in values.items() if not math.isfinite(v)]
+    if bad:
+        raise SimulationSetupError(f"the initial value of `{bad[0]}` is not finite with these parameter values")
     energy_idx = index["energy.supplied"]
     values[energy_idx] = 0.0
     fixed.add(energy_idx)
     cpu0 = time.process_time()
-    init = consistent_initial_conditions(mod, p, t0, values, fixed)
-    if hasattr(progress, "restart"):
-        progress.restart()
-    extra = {"step": step if step is not None else opts.get("step")} if solver in FIXED_STEP else {}
-    run = partial(BACKENDS[solver], mod, p, rtol=rtol, atol=atol, max_steps=max_steps, progress=progress,
-                  max_order=opts.get("max_order", 5), names=describe_equations(compiled), **extra)
-    out = _integrate_with_breakpoints(run, mod, p, t_out, init)
-    cpu = time.process_time() - cpu0
-    result = _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol)
+    with quiet_floating_point():
+        try:
+            init = consistent_initial_conditions(mod, p, t0, values, fixed)
+        except ModelEvaluationError as err:
+            raise _setup_error(err, params) from None
+        if hasattr(progress, "restart"):
+            progress.restart()
+        extra = {"step": step} if solver in FIXED_STEP else {}
+        run = partial(BACKENDS[solver], mod, p, rtol=rtol, atol=atol, max_steps=max_steps, progress=progress,
+                      max_order=opts.get("max_order", 5), names=describe_equations(compiled), **extra)
+        out = _integrate_with_breakpoints(run, mod, p, t_out, init)
+        cpu = time.process_time() - cpu0
+        result = _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol, params)
     if solver in FIXED_STEP:  # the step actually taken: no longer than `step` nor an output interval
         intervals = np.diff(t_out)
         h = extra["step"]
         result.step = float(max(d / max(1, int(np.ceil(d / h - 1e-9))) if h else d for d in intervals))
+    if result.interrupted:
+        raise SimulationInterrupted(result)
     return result
+
+
+def _count(name: str, value, low: int, high: int) -> int:
+    """An integer option within [low, high]."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        number = math.nan
+    if not math.isfinite(number) or number != int(number) or not low <= number <= high:
+        raise SimulationSetupError(f"`{name}` must be a whole number from {low} to {high}, got {value}")
+    return int(number)
+
+
+def _setup_error(err: ModelEvaluationError, params: Optional[dict]) -> Exception:
+    """A model that cannot be evaluated at the start: blamed on an overridden parameter it
+    uses (a setup mistake), else returned as it is (a model error)."""
+    blamed = [name for name in err.parameters if name in (params or {})]
+    if blamed:
+        values = ", ".join(f"`{name}` = {err.parameters[name]:g}" for name in blamed)
+        inside = f" in `{err.expression}`" if err.expression else ""
+        return SimulationSetupError(f"parameter {values} makes the model impossible to evaluate: {err.reason}{inside} "
+                                    f"({err.subject} at t = {err.t:.6g}); choose another value")
+    return err
+
+
+def _locator(compiled) -> Callable[[str, str], Optional[str]]:
+    """``locate(kind, label) -> "file:line"`` for equations, invariants and outputs (best effort)."""
+    dae = compiled.dae
+    spans = {}
+    for eq in dae.equations:
+        if eq.span is not None:
+            spans[("equation", eq.label)] = eq.span
+    for inv in tuple(dae.invariants) + tuple(dae.velocity_invariants):
+        if inv.span is not None:
+            spans[("invariant", inv.label)] = inv.span
+
+    def locate(kind: str, label: str) -> Optional[str]:
+        span = spans.get((kind, label))
+        if span is None and kind == "output":
+            span = _output_span(compiled, label)
+        return f"{span.file}:{span.line}" if span is not None else None
+
+    return locate
+
+
+def _output_span(compiled, name: str):
+    """Where output `name` is written: the scene's `outputs`/`reference`, else the model's
+    `simulation.outputs`."""
+    try:
+        scene = getattr(compiled, "scene", None)
+        if scene is not None:
+            spec = scene.spec
+            if name in (spec.outputs or {}):
+                return scene.smap.locate_key(("outputs", name))
+            base = name.removesuffix("_reference")
+            if base != name and base in (spec.reference or {}):
+                return scene.smap.locate_key(("reference", base))
+            path = scene.model_path
+        else:
+            path = compiled.dae.sources[-1]
+        from phc.source import read_yaml_file
+
+        data, smap, _ = read_yaml_file(path)
+        if smap is None or name not in ((data or {}).get("simulation") or {}).get("outputs", {}):
+            return None
+        return smap.locate_key(("simulation", "outputs", name))
+    except Exception:  # noqa: BLE001 — a location is a courtesy, never a new failure
+        return None
 
 
 def _integrate_with_breakpoints(run, mod, p, t_out, init) -> dict:
@@ -149,7 +252,7 @@ def _integrate_with_breakpoints(run, mod, p, t_out, init) -> dict:
     t0, t1 = float(t_out[0]), float(t_out[-1])
     breaks = breakpoints_within(getattr(mod, "BREAKPOINTS", ()), t0, t1)
     if not breaks:
-        return run(t_out, init.y0, init.yp0)
+        return _run_safely(run, t_out, init.y0, init.yp0)
     ends = [*breaks, t1]
     y0, yp0, start = init.y0, init.yp0, t0
     pieces, total = [], dict(steps=0, nfev=0, njev=0)
@@ -157,7 +260,7 @@ def _integrate_with_breakpoints(run, mod, p, t_out, init) -> dict:
     for end in ends:
         inner = t_out[(t_out > start) & (t_out < end)]
         grid = np.concatenate([[start], inner, [end]])
-        out = run(grid, y0, yp0)
+        out = _run_safely(run, grid, y0, yp0)
         for key in total:
             total[key] += out[key]
         keep = np.isin(out["t"], t_out)
@@ -173,6 +276,13 @@ def _integrate_with_breakpoints(run, mod, p, t_out, init) -> dict:
             out = dict(out, success=False, message=f"cannot restart after the input breakpoint at t = {end:.6g}: "
                        + "; ".join(err.problems))
             break
+        except ModelEvaluationError as err:
+            out = dict(out, success=False, message=f"cannot restart after the input breakpoint at t = {end:.6g}: "
+                       f"{err}")
+            break
+        except KeyboardInterrupt:
+            out = dict(out, success=False, interrupted=True, message=f"interrupted at t = {end:.6g}")
+            break
         y0, yp0, start = restart.y0, restart.yp0, end
     merged = {k: np.concatenate([pc[k] for pc in pieces]) for k in ("t", "y", "yp")}
     _, first = np.unique(merged["t"], return_index=True)  # a breakpoint on the grid appears twice
@@ -180,20 +290,76 @@ def _integrate_with_breakpoints(run, mod, p, t_out, init) -> dict:
     return dict(out, **merged, **total)
 
 
-def _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol) -> SimResult:
-    t, y, yp = out["t"], out["y"], out["yp"]
-    H = np.array([mod.hamiltonian(ti, yi, p) for ti, yi in zip(t, y)], dtype=float)
-    powers = np.array([mod.powers(ti, yi, ypi, p) for ti, yi, ypi in zip(t, y, yp)], dtype=float).reshape(-1, 2)
+def _run_safely(run, t_out, y0, yp0) -> dict:
+    """Run a backend; if it raises on a model evaluation or Ctrl-C before it could return its
+    partial results, keep the start point."""
+    try:
+        return run(t_out, y0, yp0)
+    except (ModelEvaluationError, KeyboardInterrupt) as err:
+        t0 = float(t_out[0])
+        interrupted = isinstance(err, KeyboardInterrupt)
+        message = f"interrupted at t = {t0:.6g}" if interrupted else f"{err}; only the start point is kept"
+        return dict(t=np.asarray(t_out[:1], dtype=float), y=np.atleast_2d(np.asarray(y0, dtype=float)),
+                    yp=np.atleast_2d(np.asarray(yp0, dtype=float)), steps=0, nfev=0, njev=0, success=False,
+                    message=message, interrupted=interrupted, cpu=0.0)
+
+
+def _evaluate_along(mod, out) -> tuple[dict, Optional[ModelEvaluationError]]:
+    """H, powers, invariants and outputs at the output times; stops at the first time where
+    one cannot be evaluated (the results are cut there). Evaluated unguarded first (fast);
+    only when that fails is the run repeated point by point through the guards."""
+    t, y, yp, p = out["t"], out["y"], out["yp"], out["p"]
+    raw = getattr(mod, "module", mod)
+    try:
+        rows = {"H": [raw.hamiltonian(ti, yi, p) for ti, yi in zip(t, y)],
+                "powers": [raw.powers(ti, yi, ypi, p) for ti, yi, ypi in zip(t, y, yp)],
+                "scale": [float(raw.energy_scale(ti, yi, p)) for ti, yi in zip(t, y)],
+                "inv": [raw.invariants(ti, yi, p) for ti, yi in zip(t, y)],
+                "vinv": [raw.velocity_invariants(ti, yi, p) for ti, yi in zip(t, y)],
+                "outs": [raw.outputs(ti, yi, ypi, p) for ti, yi, ypi in zip(t, y, yp)]}
+        if all(np.isfinite(np.asarray(v, dtype=float)).all() for v in rows.values()):
+            return rows, None
+    except GUARD_CATCH:
+        pass
+    rows = {"H": [], "powers": [], "scale": [], "inv": [], "vinv": [], "outs": []}
+    failure = None
+    for ti, yi, ypi in zip(t, y, yp):
+        try:
+            row = dict(H=mod.hamiltonian(ti, yi, p), powers=mod.powers(ti, yi, ypi, p),
+                       scale=float(mod.energy_scale(ti, yi, p)), inv=mod.invariants(ti, yi, p),
+                       vinv=mod.velocity_invariants(ti, yi, p), outs=mod.outputs(ti, yi, ypi, p))
+        except ModelEvaluationError as err:
+            failure = err
+            break
+        for key, value in row.items():
+            rows[key].append(value)
+    return rows, failure
+
+
+def _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol, params=None) -> SimResult:
+    rows, failure = _evaluate_along(mod, dict(out, p=p))
+    n = len(rows["H"])
+    if n == 0:  # not even the start point can be evaluated: nothing to keep
+        raise _setup_error(failure, params)
+    t, y, yp = out["t"][:n], out["y"][:n], out["yp"][:n]
+    success, message = out["success"], out["message"]
+    if failure is not None:
+        if out["success"]:
+            message = f"{failure}; results up to t = {t[-1]:.6g} are kept"
+        else:  # the solver stopped where the model cannot be evaluated: its last point goes too
+            message = f"{out['message']} (cut to t = {t[-1]:.6g}: the {failure.function} fail at t = {failure.t:.6g})"
+        success = False
+    H = np.array(rows["H"], dtype=float)
+    powers = np.array(rows["powers"], dtype=float).reshape(-1, 2)
     energy = y[:, mod.VARIABLES.index("energy.supplied")]
     balance = H - H[0] + energy
-    scale = max((float(mod.energy_scale(ti, yi, p)) for ti, yi in zip(t, y)), default=0.0)
-    inv = np.array([mod.invariants(ti, yi, p) for ti, yi in zip(t, y)], dtype=float).reshape(len(t), -1)
-    vinv = np.array([mod.velocity_invariants(ti, yi, p) for ti, yi in zip(t, y)], dtype=float).reshape(len(t), -1)
-    outs = np.array([mod.outputs(ti, yi, ypi, p) for ti, yi, ypi in zip(t, y, yp)], dtype=float)
-    outs = outs.reshape(len(t), len(mod.OUTPUTS))
+    scale = max(rows["scale"], default=0.0)
+    inv = np.array(rows["inv"], dtype=float).reshape(n, -1)
+    vinv = np.array(rows["vinv"], dtype=float).reshape(n, -1)
+    outs = np.array(rows["outs"], dtype=float).reshape(n, len(mod.OUTPUTS))
     dae = compiled.dae
     return SimResult(
-        success=out["success"], message=out["message"], t=t, y=y, yp=yp, variables=tuple(mod.VARIABLES),
+        success=success, message=message, t=t, y=y, yp=yp, variables=tuple(mod.VARIABLES),
         differential=np.asarray(mod.DIFFERENTIAL), H=H, port_power=powers[:, 0], dissipation=powers[:, 1],
         energy_supplied=energy, outputs={name: outs[:, i] for i, name in enumerate(mod.OUTPUTS)},
         invariants=inv, invariant_labels=tuple(mod.INVARIANTS), velocity_invariants=vinv,
@@ -202,8 +368,9 @@ def _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol) -> SimResult:
         constraint_drift=float(np.abs(inv).max(initial=0.0)), velocity_drift=float(np.abs(vinv).max(initial=0.0)),
         steps=out["steps"], n_residual_evals=out["nfev"], n_jacobian_evals=out["njev"], cpu_time_s=cpu,
         n_states=dae.n_states - 1, n_equations=len(dae.equations), solver=solver, rtol=rtol, atol=atol,
-        initial_choices=init.chosen,
+        initial_choices=init.chosen, interrupted=bool(out.get("interrupted", False)),
     )
 
 
-__all__ = ["simulate", "SimResult", "BACKENDS", "InconsistentInitialError", "parameter_vector"]
+__all__ = ["simulate", "SimResult", "SimulationInterrupted", "ModelEvaluationError", "BACKENDS",
+           "InconsistentInitialError", "parameter_vector"]

@@ -34,6 +34,7 @@ import numpy as np
 import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 
+from phc.simulation.guard import ModelEvaluationError
 from phc.simulation.monitor import SingularityMonitor
 
 NEWTON_TOL = 1e-14
@@ -127,6 +128,8 @@ class StageSolver:
         self.singular = False
         self.refreshed = False
         self.ill_conditioned = False
+        self.evaluation_error = None
+        """The :class:`~phc.simulation.guard.ModelEvaluationError` that stopped the last solve, if any."""
 
     def residual(self, t, h, y, y1, s):
         d = y1 - y
@@ -137,7 +140,17 @@ class StageSolver:
         return self.res
 
     def solve(self, t, h, y, y1, s=0.5):
-        """Return ``(y1, converged)``; ``self.singular`` tells a singular Newton matrix."""
+        """Return ``(y1, converged)``; ``self.singular`` tells a singular Newton matrix,
+        ``self.evaluation_error`` a model function that could not be evaluated at an iterate
+        (outside its domain: a shorter step may stay inside)."""
+        self.evaluation_error = None
+        try:
+            return self._solve(t, h, y, y1, s)
+        except ModelEvaluationError as err:
+            self.evaluation_error = err
+            return y1, False
+
+    def _solve(self, t, h, y, y1, s):
         matrix = self.matrix
         self.singular = False
         start = y1.copy()
@@ -299,60 +312,73 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
     # values from step end to step end, which ruins an extrapolation of the ends.
     mid, mid_slope = None, np.asarray(yp0, dtype=float)
     k = 0
-    for k in range(1, len(t_out)):
-        substeps = max(1, int(np.ceil(intervals[k - 1] / step - 1e-9))) if step else 1
-        h = intervals[k - 1] / substeps
-        t = t_out[k - 1]
-        for _ in range(substeps):
-            mid_guess = y + 0.5 * h * mid_slope if mid is None else mid + 0.5 * (h + h_prev) * mid_slope
-            y_new, converged, reason = advance(t, h, y, 2.0 * mid_guess - y)
-            stage = getattr(advance, "stage", None)
-            hard = not converged
-            if stage is not None and stage.ill_conditioned and steps - last_look >= 10:
-                hard = True
-            if not converged:
-                # a step of the order of the period defeats the extrapolation: retry from y,
-                # then split the step (any step size keeps the structure-preserving property)
-                y_new, converged, reason = _subdivide(advance, t, h, y, MAX_SPLIT)
-                split += converged
-            if monitor.enabled and (hard or steps % MONITOR_EVERY == 0):
-                last_look = steps
-                # a fixed step cannot land on the singular set, only pass it at a distance ~h:
-                # where Newton struggled, a looser threshold decides
-                limit = HARD_STEP_THRESHOLD if hard else None
-                warning = monitor.check(t, y, (y_new - y) / h if converged else mid_slope, 0.5 * h, limit)
-                if warning is None and converged and hard:
-                    warning = monitor.check(t + h, y_new, (y_new - y) / h, 0.5 * h, limit)
-                if warning:
-                    ok, message = False, f"{name}: {warning}"
+    interrupted = False
+    try:
+        for k in range(1, len(t_out)):
+            substeps = max(1, int(np.ceil(intervals[k - 1] / step - 1e-9))) if step else 1
+            h = intervals[k - 1] / substeps
+            t = t_out[k - 1]
+            for _ in range(substeps):
+                mid_guess = y + 0.5 * h * mid_slope if mid is None else mid + 0.5 * (h + h_prev) * mid_slope
+                y_new, converged, reason = advance(t, h, y, 2.0 * mid_guess - y)
+                stage = getattr(advance, "stage", None)
+                hard = not converged
+                if stage is not None and stage.ill_conditioned and steps - last_look >= 10:
+                    hard = True
+                if not converged:
+                    # a step of the order of the period defeats the extrapolation: retry from y,
+                    # then split the step (any step size keeps the structure-preserving property)
+                    y_new, converged, reason = _subdivide(advance, t, h, y, MAX_SPLIT)
+                    split += converged
+                if monitor.enabled and (hard or steps % MONITOR_EVERY == 0):
+                    last_look = steps
+                    # a fixed step cannot land on the singular set, only pass it at a distance ~h:
+                    # where Newton struggled, a looser threshold decides
+                    limit = HARD_STEP_THRESHOLD if hard else None
+                    warning = monitor.check(t, y, (y_new - y) / h if converged else mid_slope, 0.5 * h, limit)
+                    if warning is None and converged and hard:
+                        warning = monitor.check(t + h, y_new, (y_new - y) / h, 0.5 * h, limit)
+                    if warning:
+                        ok, message = False, f"{name}: {warning}"
+                        break
+                if not converged:
+                    failed = getattr(stage, "evaluation_error", None)
+                    if failed is not None:  # not even a split step stays inside the domain
+                        ok, message = False, f"{name}: {failed}; results up to t = {t:.6g} are kept"
+                    else:
+                        ok, message = False, f"{name}: {reason} at t = {t:.6g}; results up to this time are kept"
                     break
-            if not converged:
-                ok, message = False, f"{name}: {reason} at t = {t:.6g}; results up to this time are kept"
+                new_mid = 0.5 * (y + y_new)
+                if mid is not None:
+                    mid_slope = (new_mid - mid) / (0.5 * (h + h_prev))
+                mid = new_mid
+                y_prev, h_prev = y, h
+                y = projector.project(t + h, y_new) if projector else y_new
+                t += h
+                steps += 1
+                if steps >= max_steps:
+                    ok, message = False, (f"stopped after {steps} steps at t = {t:.6g} (max_steps); raise `max_steps` "
+                                          "or the step size")
+                    break
+            if not ok:
+                k -= 1
                 break
-            new_mid = 0.5 * (y + y_new)
-            if mid is not None:
-                mid_slope = (new_mid - mid) / (0.5 * (h + h_prev))
-            mid = new_mid
-            y_prev, h_prev = y, h
-            y = projector.project(t + h, y_new) if projector else y_new
-            t += h
-            steps += 1
-            if steps >= max_steps:
-                ok, message = False, (f"stopped after {steps} steps at t = {t:.6g} (max_steps); raise `max_steps` "
-                                      "or the step size")
-                break
-        if not ok:
-            k -= 1
-            break
-        ys[k] = y
-        yps[k] = (y - y_prev) / h_prev
-        if progress is not None:
-            progress(t)
+            ys[k] = y
+            yps[k] = (y - y_prev) / h_prev
+            if progress is not None:
+                progress(t)
+    except ModelEvaluationError as err:
+        k = max(k - 1, 0)
+        ok, message = False, f"{name}: {err}; results up to t = {t_out[k]:.6g} are kept"
+    except KeyboardInterrupt:
+        k = max(k - 1, 0)
+        ok, interrupted = False, True
+        message = f"interrupted at t = {t_out[k]:.6g}"
     if ok and split:
         message += (f"; {split} step(s) needed a restart or a split for Newton to converge (the step is long "
                     "for the dynamics)")
     return dict(t=t_out[:k + 1], y=ys[:k + 1], yp=yps[:k + 1], steps=steps, success=ok, message=message,
-                cpu=time.process_time() - start)
+                cpu=time.process_time() - start, interrupted=interrupted)
 
 
 MAX_SPLIT = 4

@@ -66,6 +66,11 @@ class Midpoint4Step:
         self.history = []  # [(times of the substep midpoints, their values)], at most two
 
     @property
+    def evaluation_error(self):
+        """The model evaluation that stopped the last substep, if any."""
+        return next((s.evaluation_error for s in self.stages if s.evaluation_error is not None), None)
+
+    @property
     def nfev(self):
         return sum(s.nfev for s in self.stages)
 

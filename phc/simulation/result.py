@@ -51,6 +51,8 @@ class SimResult:
     step: Optional[float] = None
     """Step of the fixed-step solvers (their accuracy setting; rtol/atol do not apply)."""
     initial_choices: dict[str, float] = field(default_factory=dict)
+    interrupted: bool = False
+    """The run was stopped by Ctrl-C (KeyboardInterrupt); the results are those computed so far."""
 
     def __getitem__(self, name: str) -> np.ndarray:
         """Time series of a variable or output by name."""
@@ -68,6 +70,7 @@ class SimResult:
         return {
             "success": bool(self.success),
             "message": self.message,
+            "interrupted": bool(self.interrupted),
             "solver": self.solver,
             "rtol": self.rtol,
             "atol": self.atol,
@@ -85,3 +88,13 @@ class SimResult:
             "velocity_drift": float(self.velocity_drift),
             "initial_choices": self.initial_choices,
         }
+
+
+class SimulationInterrupted(KeyboardInterrupt):
+    """Ctrl-C during :func:`phc.simulate`: a ``KeyboardInterrupt`` that carries the partial
+    result (``.result``, ``success`` False, ``interrupted`` True) so that a caller can keep
+    what was computed; a caller that does not look at it stops as on any Ctrl-C."""
+
+    def __init__(self, result: SimResult):
+        super().__init__(result.message)
+        self.result = result
