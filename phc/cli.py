@@ -523,6 +523,17 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
         _python_showwarning(message, category, filename, lineno, file, line)
 
 
+def _allowed_paths(args):
+    """Files under each `--allow-path DIR` may be referenced too (see phc.files)."""
+    from phc.files import allow_paths
+
+    dirs = getattr(args, "allow_path", None) or []
+    for d in dirs:
+        if not Path(d).is_dir():
+            raise UsageError(f"--allow-path `{d}` is not a directory")
+    return allow_paths(dirs)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="phc", description="Compiler for port-Hamiltonian models.")
     parser.add_argument("--version", action="version", version=f"phc {__version__}")
@@ -607,6 +618,11 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("cache", help="show or empty the cache of generated modules and bench references")
     p.add_argument("action", choices=("info", "clean"), nargs="?", default="info")
     p.set_defaults(func=cmd_cache)
+    for name in ("validate", "compile", "simulate", "animate", "bench", "check", "graph"):
+        sub.choices[name].add_argument(
+            "--allow-path", action="append", default=[], metavar="DIR",
+            help="also allow files under DIR to be referenced (nested models, tables, matrices); by default "
+            "they must lie in the directory of the model or scene file (repeatable; env PHC_ALLOW_PATH)")
     return parser
 
 
@@ -616,7 +632,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     warnings.showwarning = _show_warning
     try:
         _check_arguments(args)
-        return args.func(args)
+        with _allowed_paths(args):
+            return args.func(args)
     except _Exit as done:
         return done.code
     except UsageError as err:

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import itertools
 import math
 import os
 from dataclasses import dataclass, field
@@ -36,7 +37,8 @@ import sympy as sp
 
 from phc.dae import Dae, Equation, Invariant, Parameter, Variable
 from phc.diagnostics import Diagnostic, DiagnosticList, allowed_keys_from_model, from_pydantic
-from phc.source import SourceMap, SourceSpan, read_yaml_file
+from phc.files import MAX_INCLUDE_DEPTH, MAX_MODEL_INSTANCES, FileAccess, FileRefused
+from phc.source import SourceMap, SourceSpan, load_yaml, read_yaml_file
 from phc.spec import ModelSpec
 from phc.spec.components import ModelComponentSpec
 from phc.spec.expressions import ExpressionError, parse_equation, parse_expression
@@ -80,8 +82,26 @@ def load_spec(path: str | os.PathLike) -> tuple[Optional[ModelSpec], Optional[So
     spec, smap, diagnostics
         `spec` is None when the file has errors.
     """
-    diags = DiagnosticList()
     data, smap, problems = read_yaml_file(path)
+    return _spec_from_yaml(path, data, smap, problems)
+
+
+def load_spec_bytes(raw: bytes, path: str | os.PathLike) -> tuple[Optional[ModelSpec], Optional[SourceMap],
+                                                                  DiagnosticList]:
+    """:func:`load_spec` of a file's content already read (`path` names it in diagnostics)."""
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as err:
+        line = raw.count(b"\n", 0, err.start) + 1
+        return None, None, DiagnosticList([Diagnostic(
+            "PHC-E004", f"the file is not valid UTF-8 (byte {raw[err.start]:#04x} on line {line})",
+            span=SourceSpan(str(path), 1, 1), hint="save the file with UTF-8 encoding")])
+    data, smap, problems = load_yaml(text, str(path))
+    return _spec_from_yaml(path, data, smap, problems)
+
+
+def _spec_from_yaml(path, data, smap, problems) -> tuple[Optional[ModelSpec], Optional[SourceMap], DiagnosticList]:
+    diags = DiagnosticList()
     diags.extend(problems)
     if diags.has_errors or smap is None:
         return None, smap, diags
@@ -140,6 +160,9 @@ class Builder:
         self.scene = None
         self.left_out: list[tuple[str, str, str]] = []
         self.unavailable: dict[str, str] = {}  # name -> why (an effect that is off)
+        self.files = FileAccess()  # referenced files stay inside the top-level file's directory
+        self._specs: dict[str, tuple] = {}  # resolved path -> (spec, smap) of a nested file, read once
+        self._default_values: dict = {}  # parameter symbol -> its default as Float (see default_values)
 
     # -- diagnostics ----------------------------------------------------------------
     def error(self, code: str, message: str, ctx: Optional[FileContext], path: Sequence = (),
@@ -260,8 +283,15 @@ class Builder:
 
     # -- parameters -------------------------------------------------------------------
     def default_values(self) -> dict:
-        """Parameter symbol → its default as a sympy Float (xreplace-safe)."""
-        return {p.symbol: sp.Float(p.default) for p in self.parameters.values()}
+        """Parameter symbol → its default as a sympy Float (xreplace-safe).
+
+        Called by every lowerer: parameters are only ever added, so the Floats of those
+        seen before are kept and only new ones are converted (linear in the model's size)."""
+        if len(self._default_values) != len(self.parameters):
+            start = len(self._default_values)
+            for p in itertools.islice(list(self.parameters.values()), start, None):
+                self._default_values[p.symbol] = sp.Float(p.default)
+        return dict(self._default_values)
 
     def add_parameters(self, ctx: FileContext, entries: dict[str, tuple[Any, Sequence, Optional[FileContext]]],
                        units: dict[str, tuple]) -> None:
@@ -292,8 +322,14 @@ class Builder:
         for sym in order:
             name = by_symbol[sym]
             ex = exprs[name]
-            known = {s: sp.Float(v) for s, v in values.items()}
-            known.update(self.default_values())
+            # Only the symbols the value uses (all defaults at each parameter: quadratic).
+            known = {}
+            for s in ex.free_symbols:
+                known_p = self.parameters.get(s.name)
+                if known_p is not None and known_p.symbol == s:
+                    known[s] = sp.Float(known_p.default)
+                elif s in values:
+                    known[s] = sp.Float(values[s])
             try:
                 val = float(ex.xreplace(known).evalf())
             except (TypeError, ValueError):
@@ -311,15 +347,25 @@ class Builder:
 
     # -- files ------------------------------------------------------------------------
     def load_file(self, path: Path, prefix: str, overrides: dict, parent: Optional[FileContext],
-                  ref_path: Sequence = ()) -> Optional[FileContext]:
-        key = str(path.resolve())
+                  ref_path: Sequence = (), real: Optional[Path] = None, ref: str = "") -> Optional[FileContext]:
+        """Elaborate one model file: the top-level one (`parent` None) or a nested one, whose
+        resolved path `real` comes from :meth:`_nested_ref` (read once, see :meth:`_nested_spec`)."""
+        key = str(real if real is not None else path.resolve())
         if key in self._file_stack:
             self.error("PHC-E106", f"model `{path}` includes itself (nesting cycle)", parent, ref_path)
             return None
-        spec, smap, diags = load_spec(path)
-        self.diags.extend(diags)
+        if parent is None:
+            spec, smap, diags = load_spec(path)
+            self.diags.extend(diags)
+        else:
+            spec, smap = self._nested_spec(Path(key), path, ref or str(path), parent, ref_path)
         if spec is None:
             return None
+        if parent is None:
+            # Files the model refers to must lie in its directory (or the scene's).
+            self.files.add_root(Path(key).parent)
+            if self.scene is not None:
+                self.files.add_root(Path(os.path.realpath(self.scene.path)).parent)
         if parent is None and self.scene is not None:
             spec, smap = self.scene.apply(self, spec, smap)
             sctx = FileContext(str(self.scene.path), self.scene.smap, "", None)
@@ -327,12 +373,98 @@ class Builder:
             self.sources.append(str(self.scene.path))
         self.sources.append(str(path))
         ctx = FileContext(str(path), smap, prefix, spec)
+        if parent is None and not self._check_expansion(ctx, key):
+            return None
         self._file_stack.append(key)
         try:
             self._elaborate_file(ctx, overrides)
         finally:
             self._file_stack.pop()
         return ctx
+
+    def _nested_ref(self, ctx: FileContext, ref: str, path: Sequence, report: bool = True
+                    ) -> Optional[tuple[Path, Path]]:
+        """``(shown, real)`` of a nested model file named at `path` of `ctx` (see
+        :class:`phc.files.FileAccess`); a refusal is reported at that `file:` key."""
+        try:
+            found = self.files.resolve(ctx.file, ref, "model")
+        except FileRefused as err:
+            if report:
+                self.error("PHC-E107" if err.reason == "missing" else "PHC-E116", err.message, ctx, path,
+                           hint=err.hint)
+            return None
+        if report and len(self._file_stack) > MAX_INCLUDE_DEPTH:
+            self.error("PHC-E117", f"model files nest more than {MAX_INCLUDE_DEPTH} levels deep", ctx, path,
+                       hint="a chain of `type: model` includes this long is likely a mistake; flatten some levels")
+            return None
+        return found
+
+    def _nested_spec(self, real: Path, shown: Path, ref: str, parent: FileContext, ref_path: Sequence):
+        """``(spec, smap)`` of a nested model file, read and validated once per resolved path
+        (a file included many times is parsed once and its problems are reported once)."""
+        key = str(real)
+        if key not in self._specs:
+            try:
+                raw = self.files.read_bytes(real, ref, "model")
+            except FileRefused as err:
+                self.error("PHC-E116", err.message, parent, ref_path, hint=err.hint)
+                self._specs[key] = (None, None)
+                return self._specs[key]
+            spec, smap, diags = load_spec_bytes(raw, shown)
+            self.diags.extend(diags)
+            self._specs[key] = (spec, smap)
+        return self._specs[key]
+
+    def _check_expansion(self, ctx: FileContext, key: str) -> bool:
+        """Before anything is lowered: count the copies of nested model files the top-level
+        file expands to and refuse more than :data:`~phc.files.MAX_MODEL_INSTANCES`.
+
+        Each ``type: model`` entry is its own copy (its own states), so a file included
+        twice at each of 18 levels ("diamonds") expands to 2¹⁸ copies although each file is
+        read only once. Counting is memoized per file, so it is linear in the number of
+        files and references however large the expansion."""
+        memo: dict[str, int] = {}
+
+        def copies(fctx: FileContext, fkey: str, stack: set, depth: int) -> int:
+            if fkey in memo:
+                return memo[fkey]
+            total = 0
+            if depth <= MAX_INCLUDE_DEPTH:  # deeper: elaboration reports the depth
+                for cname, comp in fctx.spec.components.items():
+                    if isinstance(comp, ModelComponentSpec):
+                        total += child(fctx, cname, comp, stack, depth)
+            memo[fkey] = total
+            return total
+
+        def child(fctx: FileContext, cname: str, comp, stack: set, depth: int) -> int:
+            path = ("components", cname, "file")
+            found = self._nested_ref(fctx, comp.file, path, report=False)
+            if found is None or str(found[1]) in stack:
+                return 0  # elaboration reports refusals and cycles
+            spec, smap = self._nested_spec(found[1], found[0], comp.file, fctx, path)
+            if spec is None:
+                return 0
+            sub = str(found[1])
+            stack.add(sub)
+            try:
+                return 1 + copies(FileContext(str(found[0]), smap, "", spec), sub, stack, depth + 1)
+            finally:
+                stack.discard(sub)
+
+        per_entry = {}
+        for cname, comp in ctx.spec.components.items():
+            if isinstance(comp, ModelComponentSpec) and cname not in self.skip:
+                per_entry[cname] = child(ctx, cname, comp, {key}, 1)
+        total = sum(per_entry.values())
+        if total <= MAX_MODEL_INSTANCES:
+            return True
+        worst = max(per_entry, key=per_entry.get)
+        self.error("PHC-E117", f"nested models expand to {total:,} copies of model files, above the limit of "
+                   f"{MAX_MODEL_INSTANCES:,}; `{worst}` brings {per_entry[worst]:,} of them", ctx,
+                   ("components", worst, "file"),
+                   hint="every `type: model` entry is a separate copy, so a file included twice at each level "
+                   "doubles the copies per level; include fewer copies or flatten the model")
+        return False
 
     def _elaborate_file(self, ctx: FileContext, overrides: dict) -> None:
         from phc.library import LOWERERS
@@ -361,14 +493,13 @@ class Builder:
             if full in self.skip:
                 continue
             if isinstance(comp, ModelComponentSpec):
-                sub = Path(ctx.file).parent / comp.file
-                if not sub.is_file():
-                    self.error("PHC-E107", f"nested model file `{comp.file}` not found"
-                               + (f" (looked for `{sub}`)" if str(sub) != comp.file else ""), ctx, (*path, "file"))
+                found = self._nested_ref(ctx, comp.file, (*path, "file"))
+                if found is None:
                     self.failed.add(full)
                     continue
+                sub, real = found
                 ov = {k: (v, (*path, "parameters", k), ctx) for k, v in comp.parameters.items()}
-                sub_ctx = self.load_file(sub, full + ".", ov, ctx, (*path, "file"))
+                sub_ctx = self.load_file(sub, full + ".", ov, ctx, (*path, "file"), real, comp.file)
                 if sub_ctx is None:
                     self.failed.add(full)
                 else:

@@ -3,23 +3,32 @@
 Every signal becomes a sympy expression in ``t`` (pipeline stage 5). A piecewise signal is a
 ``Piecewise``; a table is an :class:`InputTable` node that the code printer turns into
 ``numpy.interp`` over constant arrays in the generated module (so the module stays
-standalone). The times where a signal is not smooth — the ends of pieces and the rows of a
-table — are *breakpoints*: the integrators stop there and restart from a consistent state,
-so a step input is located exactly instead of being found by step rejections.
+standalone). The times where a signal is not smooth — the ends of pieces, the jumps of a
+zero-order-hold table and (up to :data:`MAX_KINK_BREAKPOINTS`) the kinks of a linear one,
+see :func:`table_breakpoints` — are *breakpoints*: the integrators stop there and restart
+from a consistent state, so a step input is located exactly instead of being found by step
+rejections.
 
-Tables are read with the csv module (numbers only); nothing in a model or scene file is
-executed.
+Tables are read with the csv module (numbers only), through :mod:`phc.files` (inside the
+model's tree, regular files, bounded size, at most :data:`MAX_TABLE_ROWS` rows); nothing in
+a model or scene file is executed, and no message quotes a table's content beyond the
+column names of a header that parsed as one.
 """
 
 from __future__ import annotations
 
 import csv
-import math
+import difflib
+import io
+import re
 from pathlib import Path
+from typing import Optional
+
 import numpy as np
 import sympy as sp
 
 from phc.dae import T
+from phc.files import FileAccess, FileRefused
 from phc.spec.model import PieceSpec, TableSpec
 
 MAX_TABLE_ROWS = 1_000_000
@@ -46,41 +55,156 @@ class InputTableSlope(sp.Function):
 
 
 class TableError(Exception):
-    """A table file that cannot be used; `message` says why."""
+    """A table file that cannot be used; `message` says why (never quoting the file's
+    content beyond a column name of a header that parsed as one)."""
 
 
-def read_table(path: Path, spec: TableSpec) -> tuple[np.ndarray, np.ndarray]:
-    """Times and values of a CSV table (header row, numeric columns)."""
+MAX_KINK_BREAKPOINTS = 256
+"""At most this many kinks of one linearly interpolated table become breakpoints (see
+:func:`table_breakpoints`)."""
+
+_COLUMN_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_.\[\]()/ -]{0,63}")
+"""What a header cell must look like for phc to show it in a message."""
+
+
+def _is_number(text: str) -> bool:
     try:
-        with open(path, newline="", encoding="utf-8") as fh:
-            rows = list(csv.reader(fh))
-    except (OSError, UnicodeDecodeError) as err:
-        raise TableError(f"cannot read table `{spec.file}` ({err.__class__.__name__}: {err})") from None
-    rows = [r for r in rows if r and any(c.strip() for c in r)]
-    if len(rows) < 2:
-        raise TableError(f"table `{spec.file}` needs a header row and at least one data row")
-    if len(rows) > MAX_TABLE_ROWS:
-        raise TableError(f"table `{spec.file}` has more than {MAX_TABLE_ROWS} rows")
-    header = [h.strip() for h in rows[0]]
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _shown_columns(header: list[str], first_row: Optional[list[str]]) -> Optional[list[str]]:
+    """The header's column names if they may be shown in a message, else None.
+
+    A message about a table must not leak the file's content (a table name can point at
+    a file of secrets): names are shown only when the first row parsed as a header —
+    every cell a plain name — above a row of numbers."""
+    if not header or len(header) > 64 or not all(_COLUMN_NAME.fullmatch(h) for h in header):
+        return None
+    if first_row is None or not first_row or not all(_is_number(c) for c in first_row):
+        return None
+    return header
+
+
+def _csv_problem(err: csv.Error, line: int, name: str) -> str:
+    text = str(err)
+    if "field larger than field limit" in text:
+        return (f"table `{name}` line {line}: a field is longer than {csv.field_size_limit()} characters; a table "
+                "holds numbers")
+    if "NUL" in text:
+        return f"table `{name}` line {line}: contains a NUL byte; a table is a text file of numbers"
+    return f"table `{name}` line {line}: not valid CSV (unbalanced quotes or a stray line break)"
+
+
+def read_table(path: Path, spec: TableSpec, data: Optional[bytes] = None) -> tuple[np.ndarray, np.ndarray]:
+    """Times and values of a CSV table (header row, numeric columns).
+
+    `data` is the file's content when the caller has read it (through
+    :class:`phc.files.FileAccess`, as elaboration does); otherwise `path` is opened the
+    same safe way (a regular file within the size limit). At most :data:`MAX_TABLE_ROWS`
+    data rows; rows are streamed, so a larger file stops at the limit."""
+    name = spec.file
+    if data is None:
+        access = FileAccess([Path(path).parent])
+        try:
+            data = access.read_bytes(Path(path), name, "table")
+        except FileRefused as err:
+            raise TableError(err.message) from None
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as err:
+        line = data.count(b"\n", 0, err.start) + 1
+        raise TableError(f"table `{name}` is not valid UTF-8 (line {line})") from None
+    reader = csv.reader(io.StringIO(text, newline=""))
+    header: Optional[list[str]] = None
+    it = iv = 0
+    times, values = [], []
+    row_no = 0  # rows with content, the header being row 1 (as a spreadsheet numbers them)
+    first_row = None
+    try:
+        for row in reader:
+            if not row or not any(c.strip() for c in row):
+                continue
+            row_no += 1
+            if header is None:
+                header = [h.strip() for h in row]
+                continue
+            if first_row is None:
+                first_row = [c.strip() for c in row]
+                missing = [c for c in (spec.time_column, spec.column) if c not in header]
+                if missing:
+                    break
+                it, iv = header.index(spec.time_column), header.index(spec.column)
+            if row_no - 1 > MAX_TABLE_ROWS:
+                raise TableError(f"table `{name}` has more than {MAX_TABLE_ROWS:,} data rows")
+            try:
+                times.append(float(row[it]))
+                values.append(float(row[iv]))
+            except (IndexError, ValueError):
+                raise TableError(f"table `{name}` row {row_no}: `{spec.time_column}` and `{spec.column}` must be "
+                                 "numbers") from None
+    except csv.Error as err:
+        raise TableError(_csv_problem(err, reader.line_num, name)) from None
+    if header is None or first_row is None:
+        raise TableError(f"table `{name}` needs a header row and at least one data row")
     for col in (spec.time_column, spec.column):
         if col not in header:
-            raise TableError(f"table `{spec.file}` has no column `{col}`; its columns: {', '.join(header)}")
-    it, iv = header.index(spec.time_column), header.index(spec.column)
-    times, values = [], []
-    for n, row in enumerate(rows[1:], start=2):
-        try:
-            t, v = float(row[it]), float(row[iv])
-        except (IndexError, ValueError):
-            raise TableError(f"table `{spec.file}` row {n}: `{spec.time_column}` and `{spec.column}` must be "
-                             "numbers") from None
-        if not (math.isfinite(t) and math.isfinite(v)):
-            raise TableError(f"table `{spec.file}` row {n}: values must be finite")
-        times.append(t)
-        values.append(v)
-    times_a = np.array(times)
+            shown = _shown_columns(header, first_row)
+            if shown is None:
+                raise TableError(f"table `{name}` has no column `{col}`; its first row is not a header of column "
+                                 "names (phc does not show the file's content)")
+            close = difflib.get_close_matches(col, shown, n=1)
+            raise TableError(f"table `{name}` has no column `{col}`; its columns: {', '.join(shown)}"
+                             + (f" (did you mean `{close[0]}`?)" if close else ""))
+    times_a, values_a = np.array(times, dtype=float), np.array(values, dtype=float)
+    bad = np.flatnonzero(~(np.isfinite(times_a) & np.isfinite(values_a)))
+    if bad.size:
+        raise TableError(f"table `{name}` row {int(bad[0]) + 2}: values must be finite")
     if np.any(np.diff(times_a) <= 0):
-        raise TableError(f"table `{spec.file}`: column `{spec.time_column}` must increase strictly")
-    return times_a, np.array(values)
+        first = int(np.flatnonzero(np.diff(times_a) <= 0)[0]) + 3
+        raise TableError(f"table `{name}` row {first}: column `{spec.time_column}` must increase strictly")
+    return times_a, values_a
+
+
+def table_breakpoints(times: np.ndarray, values: np.ndarray, kind: str) -> tuple[list[float], int]:
+    """``(breakpoints, kinks)``: the times of one table where the integrators stop and
+    restart, and for a linear table the number of its kinks (0 for a zero-order hold).
+
+    The rule, and why it is sound:
+
+    * ``previous`` (zero-order hold): every row whose value differs from the previous
+      row's is a **jump** of the input, and every jump is a breakpoint. Across a jump the
+      solution's derivative is discontinuous and algebraic variables jump; stepping over
+      it unannounced would cost many rejected steps or a failed error test, and the
+      restart's consistent initialization is what makes the jumped algebraic values right.
+      Rows that repeat the previous value are not breakpoints (nothing changes there).
+    * ``linear``: the input is continuous; only its slope changes at a **kink** (a row
+      where the slopes on both sides differ by more than 1e-9 of the table's largest slope;
+      the ends count when the slope is not zero, since the end values hold outside). The
+      solution stays continuously differentiable in its differential states, so a
+      variable-step integrator's local error estimate sees a kink and shortens its step
+      there; the error stays controlled by rtol/atol without a restart. Restarting is
+      still cheaper and more exact for a few kinks, so up to :data:`MAX_KINK_BREAKPOINTS`
+      kinks are breakpoints. Above that the table is a sampled signal (100 000 rows made
+      every row a restart: 253 s for a one-state model) and none of its kinks is a
+      breakpoint: the solver's error control resolves them, and a note says so.
+    """
+    if len(times) < 2:
+        return [], 0
+    if kind == "previous":
+        return times[1:][values[1:] != values[:-1]].tolist(), 0
+    slopes = np.diff(values) / np.diff(times)
+    outside = np.concatenate([[0.0], slopes, [0.0]])
+    scale = float(np.abs(slopes).max())
+    if scale == 0.0 or not np.isfinite(scale):
+        return [], 0
+    kinks = np.abs(np.diff(outside)) > 1e-9 * scale
+    count = int(kinks.sum())
+    if count > MAX_KINK_BREAKPOINTS:
+        return [], count
+    return times[kinks].tolist(), count
 
 
 class SignalBuilder:
@@ -117,22 +241,45 @@ class SignalBuilder:
         return sp.Piecewise(*args)
 
     def _table(self, b, ctx, spec: TableSpec, path) -> sp.Expr:
+        # Relative to the file that names the table (a scene's own entries are located in
+        # the scene), inside the top-level file's directory (phc.files).
+        span = ctx.smap.locate((*path, "file"))
+        referrer = span.file if span is not None and span.file else ctx.file
+        files = getattr(b, "files", None) or FileAccess()
         try:
-            times, values = read_table(Path(ctx.file).parent / spec.file, spec)
+            _, real = files.resolve(referrer, spec.file, "table")
+            data = files.read_bytes(real, spec.file, "table")
+        except FileRefused as err:
+            b.error("PHC-E213" if err.reason == "missing" else "PHC-E116", err.message, ctx, (*path, "file"),
+                    hint=err.hint)
+            return sp.Integer(0)
+        try:
+            times, values = read_table(real, spec, data)
         except TableError as err:
             b.error("PHC-E213", str(err), ctx, (*path, "file"))
             return sp.Integer(0)
         self.tables.append((times, values, spec.interpolation))
-        self.breakpoints.update(float(t) for t in times)
+        points, kinks = table_breakpoints(times, values, spec.interpolation)
+        self.breakpoints.update(points)
+        if kinks > MAX_KINK_BREAKPOINTS:
+            b.error("PHC-I214", f"table `{spec.file}` has {kinks:,} kinks (rows where the slope changes); "
+                    f"above {MAX_KINK_BREAKPOINTS} they are not breakpoints: the solver's error control resolves "
+                    "them instead of a restart at each", ctx, (*path, "file"), severity="info")
+        elif spec.interpolation == "previous" and len(points) > MAX_KINK_BREAKPOINTS:
+            b.error("PHC-I214", f"table `{spec.file}` (zero-order hold) jumps at {len(points):,} rows; each jump "
+                    "is a breakpoint where the integrator restarts, which takes time", ctx, (*path, "file"),
+                    severity="info", hint="use `interpolation: linear` for a sampled signal")
         return InputTable(sp.Integer(len(self.tables) - 1), T)
 
 
 def table_arrays(tables) -> list[str]:
     """Module constants for the input tables (see :class:`InputTable`)."""
+    from phc.codegen.printer import _array  # long tables as packed bytes: literals compile slowly
+
     lines = []
     for k, (times, values, kind) in enumerate(tables):
-        lines.append(f"_TABLE{k}_T = np.array({times.tolist()!r})")
-        lines.append(f"_TABLE{k}_V = np.array({values.tolist()!r})")
+        lines.append(f"_TABLE{k}_T = {_array(np.asarray(times, dtype=float).tolist(), 'float')}")
+        lines.append(f"_TABLE{k}_V = {_array(np.asarray(values, dtype=float).tolist(), 'float')}")
         lines.append(f"_TABLE{k}_KIND = {kind!r}")
     return lines
 
@@ -143,4 +290,4 @@ def breakpoints_within(points, t0: float, t1: float) -> list[float]:
 
 
 __all__ = ["InputTable", "InputTableSlope", "SignalBuilder", "read_table", "table_arrays", "breakpoints_within",
-           "TableError"]
+           "TableError", "table_breakpoints", "MAX_TABLE_ROWS", "MAX_KINK_BREAKPOINTS"]

@@ -9,27 +9,236 @@ generation; only the few boundary couplings are sympy expressions.
 
 from __future__ import annotations
 
-from pathlib import Path
+import io
+import math
+import struct
+import zipfile
+from typing import BinaryIO, Optional
 
 import numpy as np
 import scipy.sparse as sps
 import sympy as sp
 
 from phc.dae import LinearTerm, QuadraticForm
+from phc.files import SIZE_LIMIT_ENV, FileAccess, FileRefused, size_limit
 from phc.library.dirac import DiracBuilder
 from phc.library.phs import local_scope
 
 
+MAX_NPZ_MEMBERS = 4096
+"""Most arrays one matrices file may hold."""
+
+MAX_DEFLATE_RATIO = 1100
+"""Deflate cannot compress better than about 1032:1; a member claiming more is corrupt or a
+zip bomb."""
+
+MAX_MATRIX_DIMENSION = 10_000_000
+"""Largest row or column count a sparse array's `shape` may claim."""
+
+_NUMERIC_KINDS = "fiub"
+
+
+class NpzProblem(Exception):
+    """A matrices file, or an array in it, that phc will not use (`message` says why)."""
+
+
+class NpzArchive:
+    """The arrays of a ``.npz`` matrices file, checked before any of them is read.
+
+    An ``.npz`` is a zip of ``.npy`` members. On opening, the zip's central directory is
+    bounded (:data:`MAX_NPZ_MEMBERS`), members must be stored or deflated (no bzip2/lzma,
+    whose decompression phc cannot bound), not encrypted, and their declared sizes within
+    :func:`phc.files.size_limit` ("matrices") and a deflate ratio of
+    :data:`MAX_DEFLATE_RATIO`. :meth:`array` then reads one member: its ``.npy`` header is
+    parsed first (numpy's parser with its 10 000-character limit; never unpickling) and
+    the dtype (real numbers only: no object, string, complex or structured types), the
+    number of dimensions (1 or 2) and the byte count claimed by the shape are checked
+    against the budget *before* the data are read, and exactly that many bytes are read
+    (a truncated member or one longer than its header says is refused). The total of
+    bytes read is bounded by the same budget.
+    """
+
+    def __init__(self, fh: BinaryIO, label: str) -> None:
+        self.label = label
+        self.budget = size_limit("matrices")
+        self.used = 0
+        try:
+            self._zip = zipfile.ZipFile(fh)
+        except (zipfile.BadZipFile, zipfile.LargeZipFile, OSError, EOFError, ValueError, struct.error,
+                NotImplementedError, UnicodeDecodeError):
+            raise NpzProblem(f"matrices file `{label}` is not a valid .npz (zip) file") from None
+        infos = self._zip.infolist()
+        if len(infos) > MAX_NPZ_MEMBERS:
+            raise NpzProblem(f"matrices file `{label}` holds {len(infos):,} members, more than {MAX_NPZ_MEMBERS:,}")
+        self.members: dict[str, zipfile.ZipInfo] = {}
+        for info in infos:
+            if info.filename.endswith(".npy"):
+                self.members[info.filename[:-4]] = info
+
+    @property
+    def files(self) -> list[str]:
+        return sorted(self.members)
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.members
+
+    def array(self, name: str) -> np.ndarray:
+        """Array `name` (a native-order copy), or :class:`NpzProblem` naming what is wrong."""
+        info = self.members[name]
+        what = f"array `{name}` in `{self.label}`"
+        if info.flag_bits & 0x1:
+            raise NpzProblem(f"{what} is encrypted")
+        if info.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED):
+            raise NpzProblem(f"{what} uses a compression phc does not read (only stored or deflated, as "
+                             "numpy.savez and savez_compressed write)")
+        if info.file_size > self.budget - self.used:
+            raise NpzProblem(f"{what} unpacks to {info.file_size:,} bytes, above the budget of {self.budget:,} "
+                             f"bytes for matrices (set {SIZE_LIMIT_ENV['matrices']} in MiB to raise it)")
+        if info.compress_type == zipfile.ZIP_DEFLATED and info.file_size > MAX_DEFLATE_RATIO * max(info.compress_size, 1):
+            raise NpzProblem(f"{what} claims to unpack {info.file_size / max(info.compress_size, 1):,.0f} times "
+                             "its packed size, more than deflate can (a corrupt file or a zip bomb)")
+        try:
+            with self._zip.open(info) as member:
+                version = np.lib.format.read_magic(member)
+                if version == (1, 0):
+                    shape, fortran, dtype = np.lib.format.read_array_header_1_0(member)
+                elif version == (2, 0):
+                    shape, fortran, dtype = np.lib.format.read_array_header_2_0(member)
+                else:
+                    raise NpzProblem(f"{what} has .npy format version {version}, which phc does not read")
+                header_len = member.tell()
+                self._check_header(what, shape, dtype)
+                nbytes = math.prod(shape) * dtype.itemsize
+                if header_len + nbytes != info.file_size:
+                    raise NpzProblem(f"{what} is truncated or corrupt: its header promises {nbytes:,} bytes of "
+                                     f"data, the member holds {max(info.file_size - header_len, 0):,}")
+                raw = member.read(nbytes)
+                if len(raw) != nbytes:
+                    raise NpzProblem(f"{what} is truncated: {len(raw):,} of {nbytes:,} bytes")
+        except NpzProblem:
+            raise
+        except Exception:  # noqa: BLE001 - any failure to parse untrusted bytes (numpy's header parser
+            # raises ValueError, SyntaxError, tokenize.TokenError, ...; zipfile BadZipFile, zlib.error, EOFError).
+            # Their messages may quote the file's bytes: say what, not those.
+            raise NpzProblem(f"{what} is not a valid .npy array (corrupt header, data or zip member)") from None
+        self.used += nbytes
+        arr = np.frombuffer(raw, dtype=dtype).reshape(shape, order="F" if fortran else "C")
+        return arr.astype(arr.dtype.newbyteorder("="), copy=True)
+
+    def _check_header(self, what: str, shape, dtype: np.dtype) -> None:
+        if dtype.hasobject or dtype.fields is not None or dtype.subdtype is not None or \
+                dtype.kind not in _NUMERIC_KINDS:
+            kind = {"O": "Python objects", "U": "strings", "S": "bytes", "c": "complex numbers",
+                    "V": "a structured type", "M": "dates", "m": "time spans"}.get(dtype.kind, f"`{dtype}`")
+            if dtype.fields is not None or dtype.subdtype is not None:
+                kind = "a structured type"
+            raise NpzProblem(f"{what} holds {kind}; matrices must hold real numbers (float or int)")
+        if not isinstance(shape, tuple) or any(not isinstance(d, int) or d < 0 for d in shape):
+            raise NpzProblem(f"{what} has an invalid shape")
+        if len(shape) not in (1, 2):
+            raise NpzProblem(f"{what} is {len(shape)}-D; matrices are 2-D arrays (or 1-D parts of a sparse one)")
+        nbytes = math.prod(shape) * dtype.itemsize
+        if nbytes > self.budget - self.used:
+            dims = " × ".join(f"{d:,}" for d in shape)
+            raise NpzProblem(f"{what} claims {dims} entries ({nbytes:,} bytes), above the budget of "
+                             f"{self.budget:,} bytes for matrices (set {SIZE_LIMIT_ENV['matrices']} in MiB to "
+                             "raise it)")
+
+
 def _load_npz(b, ctx, spec, path):
+    """The checked archive of `spec.matrices` (:class:`NpzArchive`), ``{}`` without one, or
+    None after reporting why it cannot be used (at the `matrices` key)."""
     if spec.matrices is None:
         return {}
-    file = Path(ctx.file).parent / spec.matrices
+    files = getattr(b, "files", None) or FileAccess()
+    where = (*path, "matrices")
     try:
-        with np.load(file, allow_pickle=False) as data:  # a model's data never unpickles code
-            return {k: np.array(data[k]) for k in data.files}
-    except (OSError, ValueError) as err:
-        b.error("PHC-E130", f"cannot read matrices file `{spec.matrices}`: {err}", ctx, (*path, "matrices"))
+        _, real = files.resolve(ctx.file, spec.matrices, "matrices")
+        data = files.read_bytes(real, spec.matrices, "matrices")  # bounded; no file stays open
+    except FileRefused as err:
+        b.error("PHC-E130" if err.reason == "missing" else "PHC-E116", err.message, ctx, where, hint=err.hint)
         return None
+    try:
+        return NpzArchive(io.BytesIO(data), spec.matrices)
+    except NpzProblem as err:
+        b.error("PHC-E130", str(err), ctx, where, hint="write it with numpy.savez (arrays of numbers)")
+        return None
+
+
+def _real_array(arrays, b, ctx, name, path, role) -> Optional[np.ndarray]:
+    """Array `name` of the archive as checked by :class:`NpzArchive`, plus: non-empty (a
+    whole matrix), integers (indices), finite (values). `role` is ``dense``, ``data`` (the
+    values of a sparse matrix, possibly none) or ``index``. Problems are reported at `path`."""
+    try:
+        arr = arrays.array(name)
+    except NpzProblem as err:
+        b.error("PHC-E131", str(err), ctx, path)
+        return None
+    what = f"array `{name}` in `{arrays.label}`"
+    if arr.size == 0 and role == "dense":
+        b.error("PHC-E131", f"{what} is empty", ctx, path)
+        return None
+    if role == "index" and arr.dtype.kind not in "iu":
+        b.error("PHC-E131", f"{what} must hold integers (it holds {arr.dtype})", ctx, path)
+        return None
+    if role != "index" and arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
+        b.error("PHC-E131", f"{what} has non-finite entries (NaN or inf)", ctx, path)
+        return None
+    return arr
+
+
+def _sparse_from_npz(b, ctx, arrays, ref, path, shape, what):
+    """A CSR matrix from `ref.data`, `ref.indices`, `ref.indptr`, `ref.shape`, each part
+    checked before scipy sees them (scipy's own checks are not memory-safe on every bad
+    input: out-of-range indices crashed the process)."""
+    parts = {}
+    for part in ("data", "indices", "indptr", "shape"):
+        key = f"{ref}.{part}"
+        if key not in arrays:
+            b.error("PHC-E131", f"sparse array `{ref}` in `{arrays.label}` has no `{key}`", ctx, path,
+                    hint="store CSR parts NAME.data, NAME.indices, NAME.indptr, NAME.shape")
+            return None
+        role = "data" if part == "data" else "index"
+        arr = _real_array(arrays, b, ctx, key, path, role)
+        if arr is None:
+            return None
+        if arr.ndim != 1:
+            b.error("PHC-E131", f"array `{key}` in `{arrays.label}` must be 1-D (it is {arr.ndim}-D)", ctx, path)
+            return None
+        parts[part] = arr
+    bad = lambda msg: b.error("PHC-E131", f"sparse array `{ref}` in `{arrays.label}`: {msg}", ctx, path)  # noqa: E731
+    dims = parts["shape"]
+    if dims.size != 2 or (dims < 0).any() or (dims > MAX_MATRIX_DIMENSION).any():
+        bad(f"`{ref}.shape` must hold two sizes between 0 and {MAX_MATRIX_DIMENSION:,}")
+        return None
+    n_rows, n_cols = int(dims[0]), int(dims[1])
+    if shape is not None and (n_rows, n_cols) != shape:
+        b.error("PHC-E102", f"{what} is {n_rows} × {n_cols}, expected {shape[0]} × {shape[1]}", ctx, path)
+        return None
+    data, indices, indptr = parts["data"], parts["indices"], parts["indptr"]
+    if len(indptr) != n_rows + 1:
+        bad(f"`{ref}.indptr` has {len(indptr):,} entries, expected rows + 1 = {n_rows + 1:,}")
+        return None
+    if len(indices) != len(data):
+        bad(f"`{ref}.indices` has {len(indices):,} entries but `{ref}.data` has {len(data):,}")
+        return None
+    if indptr[0] != 0 or (np.diff(indptr.astype(np.int64, copy=False)) < 0).any() or (indptr < 0).any():
+        bad(f"`{ref}.indptr` must start at 0 and never decrease")
+        return None
+    if int(indptr[-1]) != len(data):
+        bad(f"`{ref}.indptr` ends at {int(indptr[-1]):,}, but there are {len(data):,} entries")
+        return None
+    if len(indices) and ((indices < 0).any() or (indices >= n_cols).any()):
+        bad(f"`{ref}.indices` must lie in 0 … {n_cols - 1} (the column count is {n_cols})")
+        return None
+    try:
+        m = sps.csr_matrix((data.astype(float), indices.astype(np.int64), indptr.astype(np.int64)),
+                           shape=(n_rows, n_cols))
+        m.check_format(full_check=True)
+    except (ValueError, TypeError) as err:  # pragma: no cover - the checks above come first
+        bad(f"rejected by scipy ({type(err).__name__})")
+        return None
+    return m
 
 
 def _matrix(b, ctx, ref, arrays, path, shape, what):
@@ -38,17 +247,17 @@ def _matrix(b, ctx, ref, arrays, path, shape, what):
         if arrays is None:
             return None
         if ref in arrays:
-            m = sps.csr_matrix(np.atleast_2d(np.asarray(arrays[ref], dtype=float)))
+            arr = _real_array(arrays, b, ctx, ref, path, "dense")
+            if arr is None:
+                return None
+            m = sps.csr_matrix(np.atleast_2d(arr.astype(float)))
         elif f"{ref}.data" in arrays:
-            try:
-                m = sps.csr_matrix((arrays[f"{ref}.data"], arrays[f"{ref}.indices"], arrays[f"{ref}.indptr"]),
-                                   shape=tuple(int(x) for x in arrays[f"{ref}.shape"]))
-            except (KeyError, ValueError) as err:
-                b.error("PHC-E131", f"sparse array `{ref}` in the matrices file is malformed: {err}", ctx, path)
+            m = _sparse_from_npz(b, ctx, arrays, ref, path, shape, what)
+            if m is None:
                 return None
         else:
             b.error("PHC-E131", f"no array `{ref}` in the matrices file", ctx, path,
-                    hint=f"it holds: {', '.join(sorted(arrays)) or 'nothing'}")
+                    hint=f"it holds: {', '.join(sorted(getattr(arrays, 'files', arrays))[:20]) or 'nothing'}")
             return None
     else:
         rows = [[v for v in row] if isinstance(row, list) else [row] for row in ref]
