@@ -110,7 +110,7 @@ def spatial_estimate(compiled, result, run_kwargs: dict) -> Optional[ErrorEstima
     if not meshes:
         return None
     order = min(SPATIAL_ORDER.get(kind, 2) for kind, _ in meshes.values())
-    fine_model = compile_model(compiled.dae.sources[-1], scene=refined_scene(compiled))
+    fine_model = compile_model(compiled.dae.sources[-1], scene=refined_scene(compiled), certify=False)
     kwargs = dict(run_kwargs, t_eval=result.t)
     kwargs.pop("n_out", None)
     fine = simulate(fine_model, **kwargs)

@@ -235,7 +235,8 @@ def assemble(b, ctx) -> Optional[Dae]:
     # sp.Add(*terms) is linear in the number of terms; Python's sum() re-canonicalizes
     # the growing Add at every step (quadratic, visible at a few hundred components).
     hamiltonian = sp.Add(*[final(h) for h in b.hamiltonian])
-    dissipation = sp.Add(*[final(d) for d in b.dissipation])
+    dissipation_terms = tuple((component, final(d), span) for component, d, span in b.dissipation)
+    dissipation = sp.Add(*[d for _, d, _ in dissipation_terms])
     port_power = final(sp.Add(port_power, *b.source_power))
     energy = sp.Symbol("energy.supplied", real=True)
     denergy = sp.Symbol("der(energy.supplied)", real=True)
@@ -275,6 +276,7 @@ def assemble(b, ctx) -> Optional[Dae]:
         parameters=tuple(b.parameters.values()),
         hamiltonian=hamiltonian,
         dissipation=dissipation,
+        dissipation_terms=dissipation_terms,
         port_power=port_power,
         invariants=tuple(invariants),
         velocity_invariants=velocity_invariants,

@@ -114,6 +114,8 @@ class QuadraticForm:
     coeff: sp.Expr
     matrix: sps.csr_matrix
     symbols: tuple[sp.Symbol, ...]
+    component: str = ""
+    span: Optional[SourceSpan] = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -197,6 +199,9 @@ class Dae:
     breakpoints: tuple[float, ...] = ()
     """Times where an input is not smooth: the integrators stop and restart there."""
     left_out: tuple[tuple[str, str, str], ...] = ()
+    dissipation_terms: tuple[tuple[str, sp.Expr, Optional[SourceSpan]], ...] = ()
+    """Each component's dissipated power (its terms of `dissipation`), as (component, P_diss,
+    source) — what the passivity certificate checks one by one."""
     meshes: dict = field(default_factory=dict)
     """Distributed components: full name -> (type, number of elements)."""
     """What was not compiled, as (component, what, why): effects that are off, components

@@ -163,7 +163,8 @@ def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, coupl
                 total[i0:i0 + Mrc.shape[0], j0:j0 + Mrc.shape[1]] = Mrc
             total = total.tocsr()
             b.quadratic_dissipation.append(QuadraticForm(scales.pop(), ((total + total.T) / 2).tocsr(),
-                                                         tuple(e for l in order_e for e in fields[l][0].e)))
+                                                         tuple(e for l in order_e for e in fields[l][0].e),
+                                                         component=name, span=span))
         else:
             b.error("PHC-E158", f"the entries of `D` of `{name}` must share one parameter factor (or be numbers)",
                     ctx, (*path, "D"))
@@ -177,7 +178,7 @@ def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, coupl
         k = order if kelvin_voigt else 0
         Md = assemble(fld.space, k, fld.space, k, coeff.function())
         terms[a_local].append(LinearTerm(coeff.scale(), Md, tuple(fld.e)))
-        b.quadratic_dissipation.append(QuadraticForm(coeff.scale(), Md, tuple(fld.e)))
+        b.quadratic_dissipation.append(QuadraticForm(coeff.scale(), Md, tuple(fld.e), component=name, span=span))
     rows = {local: b.add_linear_rows(name, f"{local}.dynamics", fields[local][0].space.size, terms[local], span)
             for local in fields}
     # Constitutive rows M e − M^{H} x = 0 and the energy ½ xᵀ M^{H} x.

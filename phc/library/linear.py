@@ -343,4 +343,5 @@ def lower_linear_phs(b, ctx, name, spec, path):
                "certified through im Bᵀ")
     b.quadratic_energy.append(QuadraticForm(scale["Q"] / 2, Q.tocsr(), x))
     if R.nnz:
-        b.quadratic_dissipation.append(QuadraticForm(scale["R"] * scale["Q"] ** 2, (Q.T @ R @ Q).tocsr(), x))
+        b.quadratic_dissipation.append(QuadraticForm(scale["R"] * scale["Q"] ** 2, (Q.T @ R @ Q).tocsr(), x,
+                                                     component=name, span=span))

@@ -146,7 +146,7 @@ def lower_resistance(b, ctx, name, spec, path, coeff_field: str):
         else:
             b.add_equation(sum(port.e[k] for port in ports) + d * f, name, "resistive", f"law[{k}]", span)
         diss += d * f**2
-    b.dissipation.append(diss)
+    b.dissipation.append((name, diss, span))
 
 
 def lower_source(b, ctx, name, spec, path, which: str):

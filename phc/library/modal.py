@@ -233,7 +233,7 @@ def lower_modal(b, ctx, name, spec, path, mesh, fields_a, fields_b, couplings, s
         Vf = V_A[idx(a_local)]
         dr = _sparse(Vf.T @ Md @ Vf, symmetric=True)
         terms["A"].append(LinearTerm(coeff.scale(), dr, z["A"]))
-        b.quadratic_dissipation.append(QuadraticForm(coeff.scale(), dr, z["A"]))
+        b.quadratic_dissipation.append(QuadraticForm(coeff.scale(), dr, z["A"], component=name, span=span))
     rows = {g: b.add_linear_rows(name, f"modal_{g.lower()}.dynamics", V[g].shape[1], terms[g], span)
             for g in ("A", "B") if V[g].shape[1]}
     rows.setdefault("B", [])

@@ -127,7 +127,8 @@ def _lower_jrb(b, ctx, name, spec, path, scope, xs, dxs, grad, span):
         b.add_equation(dxs[i] - rhs[i], name, "dirac", f"dynamics[{i}]", span)
         d.rel(d_rows[i])
     d.register(b, states=xs, note="lossless part (J, B); R is checked separately")
-    b.dissipation.append((grad.T * R * grad)[0, 0] if n else sp.Integer(0))
+    b.dissipation.append((name, (grad.T * R * grad)[0, 0] if n else sp.Integer(0),
+                          ctx.smap.locate((*path, "R")) if spec.R is not None else span))
     if spec.relations is None and (spec.multipliers or spec.resistive):
         b.error("PHC-E111", f"`multipliers` and `resistive` belong to the kernel form (`relations`) of `{name}`",
                 ctx, path)
@@ -232,7 +233,7 @@ def _lower_kernel(b, ctx, name, spec, path, scope, xs, dxs, grad, span):
             ex = b.expr(ctx, law, lpath, scope, equation=True)
             law_exprs[rname].append(ex)
             b.add_equation(ex, name, "resistive", f"{rname}.law[{k}]", ctx.smap.locate(lpath))
-    b.dissipation.append(diss)
+    b.dissipation.append((name, diss, span))
     d.register(b, states=xs)
     b.resistive_laws.append((name, [(scope[f"f_{r}"], scope[f"e_{r}"], law_exprs[r]) for r, _ in laws],
                              ctx, path))

@@ -138,7 +138,8 @@ def lower_rigid(b, ctx, name, spec, path):
         b.add_invariant(av[i], name, f"velocity_constraints[{i}]", cspan, velocity=True)
     del dq_minus
     b.hamiltonian.append((pv.T * vv)[0, 0] / 2 + V)
-    b.dissipation.append((vv.T * Fd)[0, 0])
+    b.dissipation.append((name, (vv.T * Fd)[0, 0],
+                          ctx.smap.locate((*path, "damping")) if spec.damping is not None else span))
 
 
 def _register_dirac(b, name, span, spec, q, p, Z, A, G, ports, Bs):

@@ -1,0 +1,342 @@
+"""The certificate of the compiled equations (:mod:`phc.checks.compiled`).
+
+It must be about what is simulated: a wrong row injected into a lowerer (a test double
+flips the sign of one term of the first row the lowerer emits) makes it fail; a
+non-passive damping force is a located error at compile time; and every shipped model is
+certified.
+
+What an energy balance cannot see: a wrong row that keeps the system port-Hamiltonian —
+the sign of a source's value (another input), or the kinematic row θ̇ = ω of an angle that
+does not enter H. Those need the rows checked against each component's own description
+(its Dirac structure); they are listed in BEYOND_THE_BALANCE and not claimed here.
+"""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.sparse as sps
+import sympy as sp
+
+import phc
+from phc.checks.compiled import certify_compiled
+from phc.dae import LinearTerm
+from phc.elaborate import Builder
+from phc.errors import ModelError
+from phc.library import LOWERERS
+
+REPO = Path(__file__).resolve().parents[2]
+MODELS = REPO / "models"
+VALID = REPO / "tests" / "models" / "valid"
+
+MODULATION = """
+format_version: 1
+parameters: {m: 1.0, k: 4.0, b: 0.7}
+components:
+  mass: {type: mass, m: m, dimension: 2}
+  spring: {type: spring, k: k, dimension: 2}
+  mod:
+    type: modulation
+    K: [[0, "b*(1 + spring.x[0])"], ["-b*(1 + spring.x[0])", 0]]
+  node: {type: junction, kind: common_flow, dimension: 2, ports: [m, s]}
+connections:
+  - [mass.port, mod.a]
+  - [mod.b, node.m]
+  - [node.s, spring.port]
+simulation:
+  t_end: 1
+  initial: {"spring.x[0]": 0.1, "spring.x[1]": 0.0}
+"""
+
+PDE1D = """
+format_version: 1
+parameters: {rho: 2.0, T: 8.0}
+components:
+  s:
+    type: pde1d
+    order: 1
+    variables: [p, eps]
+    P: [[[0, 0], [0, 0]], [[0, 1], [1, 0]]]
+    H: [["1/rho", 0], [0, T]]
+    W_f: [[0, 0, 1, 0], [1, 0, 0, 0]]
+    W_e: [[0, 0, 0, 1], [0, -1, 0, 0]]
+    ports: [left, right]
+    port_domains: [mechanical.translational, mechanical.translational]
+    length: 1.0
+    elements: 8
+  l: {type: zero_flow, domain: mechanical.translational}
+  r: {type: effort_source, domain: mechanical.translational, value: "sin(3*t)"}
+connections:
+  - [s.left, l.port]
+  - [s.right, r.port]
+"""
+
+CRANK = """
+format_version: 1
+components:
+  wheel: {type: crank_wheel, radius: 0.15, inertia: 1.0e-3}
+  spring: {type: spring, k: 100.0, dimension: 2, domain: mechanical.translational}
+  torque: {type: effort_source, domain: mechanical.rotational, value: "0.1*sin(5*t)"}
+connections:
+  - [wheel.pin, spring.port]
+  - [wheel.drive, torque.port]
+simulation:
+  t_end: 0.5
+  initial: {wheel.theta: 0.0, wheel.p_theta: 0.01}
+"""
+
+LINEAR = """
+format_version: 1
+parameters: {k: 4.0}
+components:
+  chain:
+    type: linear_phs
+    states: 4
+    matrices: chain.npz
+    J: J
+    R: R
+    Q: Q
+    scale: {Q: k}
+    ports:
+      tip: {B: [[0], [0], [0], [1]], domain: mechanical.translational}
+  push: {type: effort_source, domain: mechanical.translational, value: "cos(2*t)"}
+connections:
+  - [chain.tip, push.port]
+simulation:
+  t_end: 1
+  initial: {"chain.x[0]": 0.1}
+"""
+
+
+def _write(tmp_path, name, text):
+    path = tmp_path / name
+    path.write_text(text)
+    if name == "linear.yaml":
+        D = np.array([[1.0, 0.0], [-1.0, 1.0]])
+        J = np.block([[np.zeros((2, 2)), D], [-D.T, np.zeros((2, 2))]])
+        R = np.diag([0.0, 0.0, 0.0, 0.3])
+        np.savez(tmp_path / "chain.npz", J=J, R=R, Q=np.eye(4))
+    return path
+
+
+BEYOND_THE_BALANCE = {
+    "effort_source": "the sign of the imposed effort is another input, not a loss of energy",
+    "flow_source": "the sign of the imposed flow is another input, not a loss of energy",
+    "crank_wheel kinematics": "θ does not enter H, so θ̇ = −ω conserves energy",
+}
+"""Wrong rows the power-balance certificate cannot detect (see the module docstring)."""
+
+# One model per component type (the smallest that uses it).
+CASES = {
+    "phs": VALID / "lc_oscillator_phs.yaml",
+    "rigid": MODELS / "pendulum.yaml",
+    "mass": MODELS / "mass_spring_damper.yaml",
+    "spring": MODELS / "mass_spring_damper.yaml",
+    "damper": MODELS / "mass_spring_damper.yaml",
+    "junction": MODELS / "mass_spring_damper.yaml",
+    "inductor": MODELS / "rlc_circuit.yaml",
+    "capacitor": MODELS / "rlc_circuit.yaml",
+    "resistor": MODELS / "rlc_circuit.yaml",
+    "orthogonal_transform": VALID / "rotated_springs_split.yaml",
+    "string": MODELS / "vibrating_string.yaml",
+    "timoshenko_beam": MODELS / "timoshenko_beam.yaml",
+    "euler_bernoulli_beam": MODELS / "euler_bernoulli_beam.yaml",
+    "moving_beam": MODELS / "moving_beam.yaml",
+    "crank_wheel": "crank.yaml",
+    "modulation": "modulation.yaml",
+    "pde1d": "pde1d.yaml",
+    "linear_phs": "linear.yaml",
+}
+INLINE = {"modulation.yaml": MODULATION, "pde1d.yaml": PDE1D, "linear.yaml": LINEAR, "crank.yaml": CRANK}
+# Terminations have no row of their own to get wrong: a zero effort or flow is a
+# definition of a port variable, which the flipped-definition double below covers.
+TERMINATIONS = {"zero_effort": MODELS / "euler_bernoulli_beam.yaml", "zero_flow": MODELS / "timoshenko_beam.yaml"}
+
+
+def _flip_first_term(expr):
+    terms = sp.Add.make_args(sp.expand(expr))
+    if len(terms) < 2:
+        return None
+    return sp.Add(-terms[0], *terms[1:])
+
+
+class WrongRow:
+    """A test double around a lowerer: the first row of one kind that it emits gets one
+    term's sign flipped — an equation, a definition of a port variable, or an entry of a
+    sparse block (`mode`)."""
+
+    MODES = ("linear", "equation", "define")
+
+    def __init__(self, lowerer, mode, skip=()):
+        self.lowerer = lowerer
+        self.mode = mode
+        self.skip = skip  # row labels left alone (BEYOND_THE_BALANCE)
+        self.done = None
+
+    def __call__(self, b, *args, **kwargs):
+        original = (b.add_equation, b.define, b.add_linear_rows)
+        double = self
+
+        def add_equation(expr, *a, **k):
+            label = a[2] if len(a) > 2 else ""
+            skipped = any(s in label for s in double.skip)
+            flipped = None if double.done or double.mode != "equation" or skipped else _flip_first_term(expr)
+            if flipped is not None:
+                double.done = f"equation {a[2] if len(a) > 2 else ''}: {expr} -> {flipped}"
+                expr = flipped
+            return original[0](expr, *a, **k)
+
+        def define(sym, value, *a, **k):
+            if not double.done and double.mode == "define" and value != 0:
+                double.done = f"definition of {sym}"
+                value = -value
+            return original[1](sym, value, *a, **k)
+
+        def add_linear_rows(component, label, n_rows, terms, *a, **k):
+            couplings = [i for i, t in enumerate(terms) if not t.derivative and t.matrix.nnz]
+            if not double.done and double.mode == "linear" and couplings:
+                i = couplings[0]  # the structure operator (not a mass matrix)
+                t = terms[i]
+                m = sps.csr_matrix(t.matrix, copy=True)
+                row = m.shape[0] // 2  # an interior node: an end may be clamped
+                big = int(m.indptr[row] + np.argmax(np.abs(m.data[m.indptr[row]:m.indptr[row + 1]])))
+                m.data[big] = -m.data[big]
+                terms = [*terms[:i], LinearTerm(**{**t.__dict__, "matrix": m}), *terms[i + 1:]]
+                double.done = f"linear block {label}, entry {big} of term {i}"
+            return original[2](component, label, n_rows, terms, *a, **k)
+
+        b.add_equation, b.define, b.add_linear_rows = add_equation, define, add_linear_rows
+        try:
+            return self.lowerer(b, *args, **kwargs)
+        finally:
+            b.add_equation, b.define, b.add_linear_rows = original
+
+
+def _certificate(path, monkeypatch, kind):
+    """The first mode whose double finds a row of `kind` to flip, and the certificate."""
+    lowerer = LOWERERS[kind]
+    skip = [key.split(" ", 1)[1] for key in BEYOND_THE_BALANCE if key.startswith(kind + " ")]
+    for mode in WrongRow.MODES:
+        double = WrongRow(lowerer, mode, skip)
+        monkeypatch.setitem(LOWERERS, kind, double)
+        try:
+            compiled = phc.compile_model(path, certify=False)
+        except ModelError:
+            return double, None  # the wrong row already breaks the model's structure
+        if double.done:
+            return double, certify_compiled(compiled, n_random=2)
+    return double, None
+
+
+@pytest.mark.parametrize("kind", sorted(CASES))
+def test_a_wrong_row_in_any_lowerer_fails_the_certificate(kind, tmp_path, monkeypatch):
+    path = CASES[kind]
+    if isinstance(path, str):
+        path = _write(tmp_path, path, INLINE[path])
+    honest = certify_compiled(phc.compile_model(path, certify=False), n_random=2)
+    assert honest.certified and not honest.skipped, honest.summary()
+    double, cert = _certificate(path, monkeypatch, kind)
+    assert double.done, f"the double found no row of `{kind}` to flip"
+    assert cert is None or not cert.certified or cert.skipped, f"{double.done}: {cert.summary()}"
+
+
+@pytest.mark.parametrize("kind", sorted(TERMINATIONS))
+def test_a_wrong_termination_fails_the_certificate(kind, monkeypatch):
+    """A termination that imposes e = c or f = c with c ≠ 0 instead of 0 feeds energy."""
+    original = LOWERERS[kind]
+
+    def leaky(b, *args, **kwargs):
+        define = b.define
+
+        def shifted(sym, value, *a, **k):
+            return define(sym, value + sp.sin(sp.Symbol("t", real=True)) + 1, *a, **k)
+
+        b.define = shifted
+        try:
+            return original(b, *args, **kwargs)
+        finally:
+            b.define = define
+
+    monkeypatch.setitem(LOWERERS, kind, leaky)
+    try:
+        compiled = phc.compile_model(TERMINATIONS[kind], certify=False)
+    except ModelError:
+        return
+    cert = certify_compiled(compiled, n_random=2)
+    assert not cert.certified or cert.skipped, cert.summary()
+
+
+NON_PASSIVE = """\
+format_version: 1
+name: cubic_damper
+parameters: {m: 1.0, k: 4.0, c: 0.5, c3: 0.2}
+components:
+  body:
+    type: rigid
+    q: [x]
+    v: [vx]
+    M: [[m]]
+    V: k*x**2/2
+    damping: [DAMPING]
+simulation:
+  t_end: 1.0
+  initial: {body.x: 0.1, body.p_vx: 0.0}
+"""
+
+
+@pytest.mark.parametrize("damping, passive", [("c*vx", True), ("c*vx + c3*vx**3", True),
+                                              ("c*vx - c3*vx**3", False), ("-c*vx", False),
+                                              ("c*vx*sin(x)", False)])
+def test_a_non_passive_damping_force_is_a_located_error_at_compile(tmp_path, damping, passive):
+    path = tmp_path / "m.yaml"
+    path.write_text(NON_PASSIVE.replace("DAMPING", f'"{damping}"'))
+    run = subprocess.run([sys.executable, "-m", "phc", "compile", str(path), "-o", str(tmp_path)],
+                         capture_output=True, text=True, timeout=120)
+    if passive:
+        assert run.returncode == 0, run.stderr
+        assert "  certified (" in run.stdout
+    else:
+        assert run.returncode == 1
+        line = run.stderr.strip().splitlines()[0]
+        assert line.startswith(f"{path}:11:14: the dissipation of `body` is not passive"), line
+        assert "body.p_vx = " in line and "[PHC-E451]" in line
+        assert "Traceback" not in run.stderr
+        # --no-certify compiles it anyway (and the run then gains energy: that is the point)
+        run = subprocess.run([sys.executable, "-m", "phc", "compile", "--no-certify", str(path), "-o",
+                              str(tmp_path)], capture_output=True, text=True, timeout=120)
+        assert run.returncode == 0 and "not certified (--no-certify)" in run.stdout
+
+
+def test_a_non_psd_linear_phs_dissipation_is_refused(tmp_path):
+    path = _write(tmp_path, "linear.yaml", LINEAR)
+    D = np.array([[1.0, 0.0], [-1.0, 1.0]])
+    J = np.block([[np.zeros((2, 2)), D], [-D.T, np.zeros((2, 2))]])
+    np.savez(tmp_path / "chain.npz", J=J, R=np.diag([0.0, 0.0, 0.0, -0.3]), Q=np.eye(4))
+    with pytest.raises(ModelError) as err:
+        phc.compile_model(path)
+    text = str(err.value)
+    assert "not passive" in text or "positive semidefinite" in text, text
+
+
+@pytest.mark.parametrize("path", sorted(MODELS.glob("*.yaml")), ids=lambda p: p.stem)
+def test_shipped_models_are_certified(path):
+    compiled = phc.compile_model(path)
+    cert = compiled.certificate
+    assert cert.certified and not cert.skipped, cert.summary()
+    assert cert.samples >= 2
+    assert cert.balance_error < 1e-6
+
+
+def test_the_balance_is_checked_where_power_flows():
+    """Closed form: for the mass–spring–damper at any state, dH/dt = −c v² = −P_diss; the
+    certificate's samples are states where that is not trivially zero."""
+    compiled = phc.compile_model(MODELS / "mass_spring_damper.yaml", certify=False)
+    cert = certify_compiled(compiled, n_random=3, seed=1)
+    assert cert.samples == 4 and cert.terms_checked == 1
+    assert cert.balance_error < 1e-8
+    assert math.isfinite(cert.seconds)
