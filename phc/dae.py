@@ -199,17 +199,14 @@ class Dae:
     breakpoints: tuple[float, ...] = ()
     """Times where an input is not smooth: the integrators stop and restart there."""
     left_out: tuple[tuple[str, str, str], ...] = ()
+    """What was not compiled, as (component, what, why): effects that are off, components
+    pruned by a scene."""
     dissipation_terms: tuple[tuple[str, sp.Expr, Optional[SourceSpan]], ...] = ()
     """Each component's dissipated power (its terms of `dissipation`), as (component, P_diss,
     source) — what the passivity certificate checks one by one."""
     meshes: dict = field(default_factory=dict)
     """Distributed components: full name -> (type, number of elements)."""
-    """What was not compiled, as (component, what, why): effects that are off, components
-    pruned by a scene."""
 
     @property
     def n_states(self) -> int:
         return sum(1 for v in self.variables if v.differential)
-
-    def variable_index(self) -> dict[str, int]:
-        return {v.name: i for i, v in enumerate(self.variables)}

@@ -541,12 +541,6 @@ class Pde1dSpec(_Component):
     elements: int = Field(16, ge=1, le=200_000)
 
 
-LIBRARY_TYPES = (
-    MassSpec, InductorSpec, SpringSpec, CapacitorSpec, DamperSpec, ResistorSpec,
-    EffortSourceSpec, FlowSourceSpec, ZeroEffortSpec, ZeroFlowSpec,
-    OrthogonalTransformSpec, JunctionSpec,
-)
-
 ComponentSpec = Annotated[
     Union[
         PhsSpec, LinearPhsSpec, RigidSpec, ModelComponentSpec,

@@ -1,7 +1,6 @@
 """JSON Schemas of the model language, generated from the pydantic models.
 
-``python -m phc.spec.export`` (or ``phc schema -o schemas/model.schema.json``) writes
-them; the files in ``schemas/`` are never hand-edited, and a test fails when they are
+``python -m phc.spec.export`` (or ``phc schema --write --dir schemas``) writes them; the files in ``schemas/`` are never hand-edited, and a test fails when they are
 stale. The schemas are for editors and users' CI; phc itself validates with pydantic.
 """
 
