@@ -117,9 +117,11 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
             break
         t_now = float(np.atleast_1d(res.t)[-1])
         if monitor.enabled and (steps % monitor_every == 0):
-            warning = monitor.check(t_now, np.atleast_2d(res.y)[-1], np.atleast_2d(res.yp)[-1], h_last)
+            warning = monitor.watch(t_now, np.atleast_2d(res.y)[-1], np.atleast_2d(res.yp)[-1], h_last)
             if warning:
                 ok, message = False, warning
+                # the configuration may lie before outputs already filled in: keep none past it
+                k = max(1, min(k, int(np.searchsorted(t_out, monitor.stop_time, side="right"))))
                 break
         while k < len(t_out) and t_out[k] <= t_now + 1e-14 * max(1.0, abs(t_now)):
             r = solver.step(t_out[k], method="normal")

@@ -58,6 +58,9 @@ class SingularityMonitor:
         self.buf = np.zeros(len(self.rows))
         self.enabled = mod.N <= MAX_SIZE
         self.worst = 1.0
+        self.stop_time: Optional[float] = None
+        """Time of the configuration a warning is about (may precede the last look)."""
+        self._looks: list[tuple] = []
 
     def ratio(self, t, y, yp, h) -> tuple[float, np.ndarray]:
         n = self.mod.N
@@ -91,8 +94,75 @@ class SingularityMonitor:
         finally:
             self.threshold = saved
         self.worst = min(self.worst, ratio)
+        self._looks = [*self._looks[-2:], (t, np.array(y, dtype=float), np.array(yp, dtype=float), h, ratio)]
         if ratio >= threshold:
             return None
+        return self._message(t, ratio, u, threshold)
+
+    def watch(self, t, y, yp, h) -> Optional[str]:
+        """:meth:`check` at a step of a variable-step solver, and between its looks.
+
+        A solver whose steps stay smooth can step over a singular configuration: the
+        singular set has measure zero and the conditioning near it falls off like a power
+        of the distance, so a look lands close enough only by chance (in practice, when
+        round-off in the initial state made the solver struggle there). When the last
+        three looks bracket a local minimum of the conditioning, it is located along the
+        cubic Hermite interpolant of the looked-at states (golden-section search) and
+        checked there; the message then gives the time of the minimum (`stop_time`)."""
+        warning = self.check(t, y, yp, h)
+        if warning is not None or len(self._looks) < 3:
+            self.stop_time = t if warning is not None else None
+            return warning
+        (t0, *_, r0), (t1, *_, r1), (t2, *_, r2) = self._looks
+        if not (r1 < r0 and r1 < r2 and t0 < t1 < t2):
+            return None
+        best = self._minimize(t0, t2)
+        if best is None:
+            return None
+        tm, ratio, u = best
+        self.worst = min(self.worst, ratio)
+        self.stop_time = tm
+        return self._message(tm, ratio, u, self.threshold)
+
+    def _state_at(self, t):
+        """Cubic Hermite interpolation of (y, ẏ) between the last looks."""
+        looks = self._looks
+        i = 0 if t <= looks[1][0] else 1
+        (ta, ya, ypa, _, _), (tb, yb, ypb, hb, _) = looks[i], looks[i + 1]
+        d = tb - ta
+        s = (t - ta) / d
+        h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
+        y = h00 * ya + h10 * d * ypa + h01 * yb + h11 * d * ypb
+        dh00, dh10, dh01, dh11 = 6 * s**2 - 6 * s, 3 * s**2 - 4 * s + 1, -6 * s**2 + 6 * s, 3 * s**2 - 2 * s
+        yp = (dh00 * ya + dh01 * yb) / d + dh10 * ypa + dh11 * ypb
+        return y, yp, hb
+
+    def _minimize(self, a, b, iterations: int = 80):
+        """(t, ratio, left singular vector) where the ratio falls below the threshold on
+        [a, b], searching for its minimum; None if it stays above."""
+        def f(t):
+            y, yp, h = self._state_at(t)
+            return self.ratio(t, y, yp, h)
+        g = 0.5 * (np.sqrt(5.0) - 1.0)
+        c, d = b - g * (b - a), a + g * (b - a)
+        (fc, uc), (fd, ud) = f(c), f(d)
+        for _ in range(iterations):
+            for t, r, u in ((c, fc, uc), (d, fd, ud)):
+                if u is not None:
+                    return t, r, u
+            if b - a <= 4 * np.finfo(float).eps * max(abs(a), abs(b)):
+                break
+            if fc < fd:
+                b, d, fd, ud = d, c, fc, uc
+                c = b - g * (b - a)
+                fc, uc = f(c)
+            else:
+                a, c, fc, uc = c, d, fd, ud
+                d = a + g * (b - a)
+                fd, ud = f(d)
+        return None
+
+    def _message(self, t, ratio, u, threshold) -> str:
         culprits = [self.mod.EQUATIONS[i] for i in np.argsort(-np.abs(u))[:4] if abs(u[i]) > 0.1]
         connections = sorted({self.names[c].split(" row ")[0] for c in culprits if c in self.names})
         where = f" at {', '.join(connections)}" if connections else ""
