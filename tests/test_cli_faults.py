@@ -317,7 +317,7 @@ simulation:
 # q' = RATE: q(t) = RATE·t
 
 
-@pytest.mark.parametrize("solver", ["midpoint", "discrete_gradient"])
+@pytest.mark.parametrize("solver", ["ida", "midpoint", "discrete_gradient"])
 @pytest.mark.parametrize("hamiltonian, rate, t_star, reason", [
     ("exp(a*q)", 1000, math.log(sys.float_info.max) / 1000, "overflow"),  # exp(q) overflows at q = 709.78
     ("q**2/2 + asin(q)", 1, 1.0, ""),  # d/dq asin(q) = 1/sqrt(1 − q²): not defined from q = 1 on
@@ -404,7 +404,7 @@ def _start_and_signal(out: Path, sig, solver: str):
     return proc.returncode, stdout, "".join(before) + stderr
 
 
-@pytest.mark.parametrize("solver", ["midpoint"])
+@pytest.mark.parametrize("solver", ["midpoint", "ida"])
 def test_ctrl_c_writes_the_partial_results_and_exits_130(tmp_path, warm_crank, solver):
     out = tmp_path / "x.csv"
     code, stdout, stderr = _start_and_signal(out, signal.SIGINT, solver)

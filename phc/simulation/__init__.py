@@ -98,9 +98,16 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
     Raises
     ------
     SimulationSetupError
-        For invalid options, unknown parameters or states.
+        For invalid options (non-finite, out of range), unknown parameters or states, and
+        parameter overrides that make the model impossible to evaluate at the start.
     InconsistentInitialError
         When fixed initial values violate the equations.
+    ModelEvaluationError
+        When the model cannot be evaluated at the start (an expression outside its domain).
+        Later in the run this is data: ``success=False``, the message names the row or
+        output, its place in the model file and the time, and the results so far are kept.
+    SimulationInterrupted
+        On Ctrl-C (a ``KeyboardInterrupt``); its ``.result`` holds the run up to there.
     """
     mod = guard(compiled.module, getattr(compiled, "source", None), _locator(compiled))
     opts = dict(compiled.dae.options)
@@ -124,6 +131,12 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
             t_out = np.concatenate([[t0], t_out])
     else:
         t_out = np.linspace(t0, t1, _count("n_out", n_out if n_out is not None else opts["n_out"], *N_OUT_LIMITS))
+    from phc.budget import check_output_arrays
+
+    columns = 2 * mod.N + len(mod.OUTPUTS) + len(mod.INVARIANTS) + len(getattr(mod, "VELOCITY_INVARIANTS", ())) + 4
+    too_large = check_output_arrays(len(t_out), columns, "t_eval" if t_eval is not None else "n_out")
+    if too_large:  # the model's own n_out was checked at compile time; this catches overrides
+        raise SimulationSetupError(too_large)
     step = step if step is not None else (opts.get("step") if solver in FIXED_STEP else None)
     if step is not None:
         step = float(step)

@@ -20,6 +20,7 @@ import numpy as np
 import scipy.sparse as sps
 
 from phc.errors import SimulationSetupError
+from phc.simulation.guard import ModelEvaluationError
 from phc.simulation.monitor import SingularityMonitor, check_scales
 
 ALGEBRAIC_ATOL = 1e8
@@ -103,40 +104,47 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     monitor = SingularityMonitor(mod, p, names=names)
     monitor.h_floor = 1e-6 * float(t_out[-1] - t_out[0])
     monitor_every = 5 if n <= 60 else 20
-    while k < len(t_out):
-        res = solver.step(t_end, method="onestep", tstop=t_end)
-        t_step = float(np.atleast_1d(res.t)[-1])
-        if t_step != t_last:  # a onestep call after an interpolation may return without stepping
-            steps += 1
-            h_last, t_last = t_step - t_last, t_step
-        nfev, njev = getattr(res, "nfev", nfev), getattr(res, "njev", njev)
-        if not res.success:
-            ok = False
-            hint = _STATUS_HINTS.get(int(res.status), "try tighter tolerances or check the model")
-            message = f"IDA failed at t = {float(res.t):.6g} (status {res.status}: {res.message}); {hint}"
-            break
-        t_now = float(np.atleast_1d(res.t)[-1])
-        if monitor.enabled and (steps % monitor_every == 0):
-            warning = monitor.watch(t_now, np.atleast_2d(res.y)[-1], np.atleast_2d(res.yp)[-1], h_last)
-            if warning:
-                ok, message = False, warning
-                # the configuration may lie before outputs already filled in: keep none past it
-                k = max(1, min(k, int(np.searchsorted(t_out, monitor.stop_time, side="right"))))
+    interrupted = False
+    try:  # a model function outside its domain, or Ctrl-C: keep the outputs filled so far
+        while k < len(t_out):
+            res = solver.step(t_end, method="onestep", tstop=t_end)
+            t_step = float(np.atleast_1d(res.t)[-1])
+            if t_step != t_last:  # a onestep call after an interpolation may return without stepping
+                steps += 1
+                h_last, t_last = t_step - t_last, t_step
+            nfev, njev = getattr(res, "nfev", nfev), getattr(res, "njev", njev)
+            if not res.success:
+                ok = False
+                hint = _STATUS_HINTS.get(int(res.status), "try tighter tolerances or check the model")
+                message = f"IDA failed at t = {float(res.t):.6g} (status {res.status}: {res.message}); {hint}"
                 break
-        while k < len(t_out) and t_out[k] <= t_now + 1e-14 * max(1.0, abs(t_now)):
-            r = solver.step(t_out[k], method="normal")
-            ys[k] = np.atleast_2d(r.y)[-1]
-            yps[k] = np.atleast_2d(r.yp)[-1]
-            k += 1
-        if progress is not None:
-            progress(t_now)
-        if steps >= max_steps:
-            ok = False
-            message = (f"stopped after {steps} steps at t = {t_now:.6g} (max_steps); raise `max_steps` or "
-                       "loosen the tolerances")
-            break
-    note = scales(not ok) if not message.startswith("stopped at") else None
+            t_now = float(np.atleast_1d(res.t)[-1])
+            if monitor.enabled and (steps % monitor_every == 0):
+                warning = monitor.watch(t_now, np.atleast_2d(res.y)[-1], np.atleast_2d(res.yp)[-1], h_last)
+                if warning:
+                    ok, message = False, warning
+                    # the configuration may lie before outputs already filled in: keep none past it
+                    k = max(1, min(k, int(np.searchsorted(t_out, monitor.stop_time, side="right"))))
+                    break
+            while k < len(t_out) and t_out[k] <= t_now + 1e-14 * max(1.0, abs(t_now)):
+                r = solver.step(t_out[k], method="normal")
+                ys[k] = np.atleast_2d(r.y)[-1]
+                yps[k] = np.atleast_2d(r.yp)[-1]
+                k += 1
+            if progress is not None:
+                progress(t_now)
+            if steps >= max_steps:
+                ok = False
+                message = (f"stopped after {steps} steps at t = {t_now:.6g} (max_steps); raise `max_steps` or "
+                           "loosen the tolerances")
+                break
+    except ModelEvaluationError as err:
+        ok, message = False, f"IDA: {err}; results up to t = {t_out[k - 1]:.6g} are kept"
+    except KeyboardInterrupt:
+        ok, interrupted = False, True
+        message = f"interrupted at t = {t_out[k - 1]:.6g}"
+    note = scales(not ok) if not message.startswith(("stopped at", "interrupted")) else None
     if note:
         message = f"{message}; {note}"
     return dict(t=t_out[:k], y=ys[:k], yp=yps[:k], steps=steps, nfev=nfev, njev=njev, success=ok,
-                message=message, cpu=time.process_time() - start, conditioning=monitor.worst)
+                message=message, cpu=time.process_time() - start, conditioning=monitor.worst, interrupted=interrupted)
