@@ -39,7 +39,7 @@ def reference(compiled):
     """φ(τ) at m = 1 kg, L = 1 m, per solver (invariance is the question, not accuracy)."""
     out = {}
     for solver in ("midpoint", "ida"):
-        r, out[solver] = angle(compiled, solver, 1.0, 1.0)
+        r, out[solver] = angle(compiled, solver, 1.0, 1.0, **({"rtol": 1e-10} if solver == "ida" else {}))
         assert r.success
     return out
 
@@ -55,8 +55,12 @@ def test_midpoint_is_scale_invariant(compiled, reference, m, L):
 
 @pytest.mark.parametrize("m, L", CORNERS)
 def test_ida_is_scale_invariant_or_warns(compiled, reference, m, L):
-    r, phi = angle(compiled, "ida", m, L)
+    # rtol 1e-10 (not the model's 1e-12, which earns a warning of its own at every scale)
+    r, phi = angle(compiled, "ida", m, L, rtol=1e-10)
     ref = reference["ida"]
     accurate = r.success and len(phi) == len(ref) and np.abs(phi - ref).max() <= 1e-5
     print(f"\nm = {m:g}, L = {L:g}: IDA {'reproduces φ(τ)' if accurate else 'does not'}: {r.message}")
-    assert accurate or "conditioning warning" in r.message
+    # The warning must name a scale problem of this run (states below atol, or spread over
+    # many orders of magnitude), not only the tolerance note every tight run would get.
+    assert accurate or ("conditioning warning" in r.message
+                        and ("are below" in r.message or "the states span" in r.message)), r.message
