@@ -160,6 +160,45 @@ def _dHdt(mod, p, t, y, yp) -> tuple[float, float]:
     return d, abs(d - d2) + noise
 
 
+def _energy_direction(compiled, p, t, y, yp) -> np.ndarray:
+    """(ẏ_x, ż): the rates of the energy states and of the algebraic variables H depends on.
+
+    The generated H may involve algebraic variables (a rigid body's H = ½pᵀv + V with
+    M(q)v = p). Their rates are not in ẏ (an index-2 DAE has no use for them), so they are
+    taken from the time derivative of the algebraic rows, F_y ż = −F_x ẋ − F_t, solved in
+    the least-squares sense (min-norm for the ones H does not see)."""
+    mod, dae = compiled.module, compiled.dae
+    used = set(dae.hamiltonian.free_symbols)
+    for form in dae.quadratic_energy:
+        used |= set(form.symbols)
+    symbols = [v.symbol for v in dae.variables]
+    diff = np.asarray(mod.DIFFERENTIAL, dtype=bool)
+    alg_used = [j for j, s in enumerate(symbols) if s in used and not diff[j]]
+    d = np.where(diff, yp, 0.0)
+    if not alg_used:
+        return d
+    n, m = mod.N, len(mod.EQUATIONS)
+    rows, cols = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
+    buf = np.zeros(len(rows))
+    mod.jacobian(t, y, yp, p, 0.0, buf)
+    Jy = sps.csr_matrix((buf.copy(), (rows, cols)), shape=(m, n))
+    mod.jacobian(t, y, yp, p, 1.0, buf)
+    Jyp = sps.csr_matrix((buf, (rows, cols)), shape=(m, n)) - Jy
+    Jyp.eliminate_zeros()
+    algebraic_rows = np.flatnonzero(np.diff(Jyp.indptr) == 0)
+    alg = np.flatnonzero(~diff)
+    Ft = np.zeros(m)
+    mod.residual_t(t, y, yp, p, Ft)
+    A = Jy[algebraic_rows][:, alg]
+    rhs = -(Jy[algebraic_rows][:, np.flatnonzero(diff)] @ yp[diff]) - Ft[algebraic_rows]
+    if A.shape[0] * A.shape[1] <= 4_000_000:
+        z = np.linalg.lstsq(A.toarray(), rhs, rcond=None)[0]
+    else:
+        z = spla.lsqr(A, rhs, atol=1e-14, btol=1e-14, iter_lim=10 * A.shape[1])[0]
+    d[alg] = z
+    return d
+
+
 def _power_scale(mod, p, t, y, yp, states) -> float:
     """A power scale at (t, y, ẏ) that does not vanish when dH/dt happens to: the energy
     scale Σ|terms of H| times the rate ‖ẏ‖/‖y‖ of the energy states."""
@@ -175,7 +214,7 @@ def _balance(compiled, p, samples, cert, span) -> None:
     states = np.array([j for j in dif if mod.ROLES[j] != "energy"], dtype=int)
     rows = []
     for t, y, yp in samples:
-        dH, err = _dHdt(mod, p, t, y, yp)
+        dH, err = _dHdt(mod, p, t, y, _energy_direction(compiled, p, t, y, yp))
         ports, diss = mod.powers(t, y, yp, p)
         # The powers themselves set the scale; the energy-rate scale only keeps it from
         # vanishing where dH/dt happens to be ~0 (a pendulum at its turning point).
