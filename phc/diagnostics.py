@@ -56,6 +56,27 @@ def _one_line(text: str) -> str:
     return _ONE_LINE.sub(" ", text).strip()
 
 
+_INVISIBLE = re.compile("[\x00-\x08\x0b-\x1f\x7f-\x9f\u061c\u200b-\u200f\u2028-\u202e\u2060-\u206f\ufeff]")
+"""Control and formatting characters: a model's text may hold them (YAML escapes such as
+``"\\e[2J"``), and printed raw they would drive the terminal or reorder the line of a CI log."""
+_LONG_QUOTED = re.compile(r"`([^`]{201,})`")
+_LONG_WORD = re.compile(r"[^\s`]{201,}")
+
+
+def _shorten(text: str) -> str:
+    return f"{text[:120]}…{text[-40:]}"
+
+
+def _printable(text: str) -> str:
+    """One line of visible text: control and formatting characters escaped (``\\x1b``,
+    ``\\u202e``), and text from the model longer than 200 characters shortened."""
+    text = _one_line(text)
+    text = _LONG_QUOTED.sub(lambda m: f"`{_shorten(m.group(1))}` ({len(m.group(1))} characters)", text)
+    text = _LONG_WORD.sub(lambda m: _shorten(m.group()), text)
+    return _INVISIBLE.sub(lambda m: f"\\x{ord(m.group()):02x}" if ord(m.group()) < 0x100
+                          else f"\\u{ord(m.group()):04x}", text)
+
+
 @dataclass(frozen=True)
 class Diagnostic:
     """One problem found in the user's input.
@@ -97,13 +118,13 @@ class Diagnostic:
         if self.severity != "error":
             parts.append(f"{self.severity}: ")
         if self.path:
-            parts.append(f"{_one_line(self.path)}: ")
-        message = _one_line(self.message)
+            parts.append(f"{_printable(self.path)}: ")
+        message = _printable(self.message)
         parts.append(message)
         if self.hint:
             if message and message[-1] not in ".!?:;":
                 parts.append(".")
-            parts.append(f" hint: {_one_line(self.hint)}")
+            parts.append(f" hint: {_printable(self.hint)}")
         parts.append(f" [{self.code}]")
         return "".join(parts)
 

@@ -201,6 +201,8 @@ class Builder:
             values = [values]
         if length is not None and len(values) != length:
             self.error("PHC-E102", f"{what} has {len(values)} entries, expected {length}", ctx, path)
+            # reported: callers index `length` entries, so pad or cut (no IndexError later)
+            values = (values + [0] * length)[:length]
         return [self.expr(ctx, v, (*path, i), names) for i, v in enumerate(values)]
 
     def matrix(self, ctx, rows, path, names, shape: tuple[Optional[int], Optional[int]], what: str) -> sp.Matrix:

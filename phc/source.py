@@ -11,6 +11,7 @@ keys, unsafe tags, alias bombs, unreadable files) are returned as
 
 from __future__ import annotations
 
+import bisect
 import os
 import re
 from dataclasses import dataclass
@@ -47,7 +48,8 @@ _SEQ_TAG = _YAML_PREFIX + "seq"
 _STR_TAG = _YAML_PREFIX + "str"
 _MERGE_TAG = _YAML_PREFIX + "merge"
 _VALUE_TAG = _YAML_PREFIX + "value"
-_SAFE_TAGS = frozenset(t for t in SafeConstructor.yaml_constructors if t is not None)
+_SAFE_TAGS = frozenset(t for t in SafeConstructor.yaml_constructors
+                       if t is not None and t != _YAML_PREFIX + "binary")  # bytes are no model data
 
 
 @dataclass(frozen=True)
@@ -70,10 +72,33 @@ class SourceSpan:
         return f"{self.file}:{self.line}:{self.col}"
 
 
+_LINE_BREAK = re.compile(r"\r\n?|\n")
+"""What ends a line in a reported position: LF, CRLF or CR, as editors count lines. PyYAML
+(YAML 1.1) also breaks lines at NEL, LS and PS (U+0085, U+2028, U+2029), so its own
+``mark.line`` would point below the real line in a file that holds one of those characters."""
+_LINE_STARTS: dict[int, tuple[str, list[int]]] = {}
+
+
+def _line_col(mark: Any) -> tuple[int, int]:
+    """0-based (line, column) of a PyYAML mark, counted with :data:`_LINE_BREAK`."""
+    buffer, index = getattr(mark, "buffer", None), getattr(mark, "index", None)
+    if not isinstance(buffer, str) or not isinstance(index, int):
+        return mark.line, mark.column
+    entry = _LINE_STARTS.get(id(buffer))
+    if entry is None or entry[0] is not buffer:
+        if len(_LINE_STARTS) >= 8:
+            _LINE_STARTS.clear()
+        entry = _LINE_STARTS[id(buffer)] = (buffer, [0] + [m.end() for m in _LINE_BREAK.finditer(buffer)])
+    starts = entry[1]
+    line = bisect.bisect_right(starts, index) - 1
+    return line, index - starts[line]
+
+
 def _span(file: str, mark: Any) -> SourceSpan:
     if mark is None:
         return SourceSpan(file, 1, 1)
-    return SourceSpan(file, mark.line + 1, mark.column + 1)
+    line, col = _line_col(mark)
+    return SourceSpan(file, line + 1, col + 1)
 
 
 def _tag_text(tag: str | None) -> str:
@@ -307,19 +332,20 @@ class SourceMap:
             return span
         start, end = node.start_mark, node.end_mark
         buffer = getattr(start, "buffer", None)
-        if buffer is None or (start.line == end.line and node.style not in ("|", ">")):
+        start_line, start_col = _line_col(start)
+        if buffer is None or (start_line == _line_col(end)[0] and node.style not in ("|", ">")):
             return SourceSpan(span.file, span.line, span.col + self.value_offset(path) + offset)
         raw = buffer[start.index:end.index]
-        lines = raw.split("\n")
+        lines = _LINE_BREAK.split(raw)
         positions: list[tuple[int, int]] = []
         block = node.style in ("|", ">")
         quoted = node.style in ("'", '"')
         for k, text in enumerate(lines):
             if block and k == 0:
                 continue  # the header line `|` / `>-`
-            line_no = start.line + k
+            line_no = start_line + k
             if k == 0:
-                lead, body = start.column + (1 if quoted else 0), text[1:] if quoted else text
+                lead, body = start_col + (1 if quoted else 0), text[1:] if quoted else text
             else:
                 body = text.lstrip()
                 lead = len(text) - len(body)
@@ -406,9 +432,24 @@ def _marked_error(err: yaml.MarkedYAMLError, file: str) -> Diagnostic:
     mark = err.problem_mark or err.context_mark
     message = f"YAML syntax error: {problem}"
     if err.context and err.problem and err.context_mark is not None and mark is not None \
-            and err.context_mark.line != mark.line:
-        message += f" ({err.context} at line {err.context_mark.line + 1})"
-    return Diagnostic("PHC-E001", message, span=_span(file, mark), hint=_syntax_hint(problem))
+            and _line_col(err.context_mark)[0] != _line_col(mark)[0]:
+        message += f" ({err.context} at line {_line_col(err.context_mark)[0] + 1})"
+    hint = _syntax_hint(problem)
+    start = err.context_mark or mark
+    buffer = getattr(start, "buffer", None)
+    if isinstance(buffer, str) and mark is not None and buffer[mark.index:mark.index + 1] == ":":
+        key_start = max(buffer.rfind(c, 0, mark.index) for c in "\n{[,")
+        if mark.index - key_start - 1 > 1024:  # YAML's implicit keys end within 1024 characters
+            hint = "YAML allows keys of at most 1024 characters; shorten the key"
+    if isinstance(buffer, str) and mark is not None:
+        odd = _ODD_BREAK.search(buffer, max(0, min(start.index, mark.index) - 200), mark.index + 1)
+        if odd is not None:
+            hint = (f"the text holds U+{ord(odd.group()):04X}, which YAML reads as a line break; "
+                    "remove it or quote the value")
+    return Diagnostic("PHC-E001", message, span=_span(file, mark), hint=hint)
+
+
+_ODD_BREAK = re.compile("[\x85\u2028\u2029]")
 
 
 _FLOW_CHARS = re.compile(r"[\[\]{}'\"#\\]")
@@ -466,9 +507,8 @@ def _flow_too_deep(text: str, limit: int) -> int:
 
 def _offset_span(text: str, file: str, pos: int) -> SourceSpan:
     pos = max(0, min(pos, len(text)))
-    line = text.count("\n", 0, pos) + 1
-    col = pos - (text.rfind("\n", 0, pos) + 1) + 1
-    return SourceSpan(file, line, col)
+    starts = [0] + [m.end() for m in _LINE_BREAK.finditer(text, 0, pos)]
+    return SourceSpan(file, len(starts), pos - starts[-1] + 1)
 
 
 class _Checker:
@@ -529,7 +569,7 @@ class _Checker:
                     if previous is not None:
                         self.diags.append(Diagnostic(
                             "PHC-E002",
-                            f"duplicate key `{key.value}`; the first one is at line {previous.start_mark.line + 1}",
+                            f"duplicate key `{key.value}`; the first one is at line {_line_col(previous.start_mark)[0] + 1}",
                             span=self.span(key), hint="remove or rename one of them"))
                     else:
                         try:
@@ -563,6 +603,11 @@ class _Checker:
                     break
             else:
                 return node
+
+
+_TOO_LARGE = 2 ** 1024
+"""Integers from here on do not fit a double (the largest is about 1.8e308)."""
+_TOO_LARGE_HINT = "a model's numbers must fit a double (at most about 1.8e308); write it with an exponent, e.g. 1.0e+300"
 
 
 class _Builder:
@@ -608,12 +653,26 @@ class _Builder:
         if node.tag in (_MERGE_TAG, _VALUE_TAG):
             return node.value
         try:
-            return self.ctor.construct_object(node, deep=True)
+            value = self.ctor.construct_object(node, deep=True)
         except Exception as exc:  # noqa: BLE001 - e.g. `!!int abc` raises ValueError
             self.error(node, exc)
             return None
+        if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= _TOO_LARGE:
+            # `0xfff…` or `0b…` of any length: it cannot be a number of the model, and printing it
+            # in a message would fail (Python's int_max_str_digits)
+            self.diags.append(Diagnostic(
+                "PHC-E001", f"integer `{node.value[:20]}…` ({len(node.value)} characters) is too large",
+                span=_span(self.file, node.start_mark), hint=_TOO_LARGE_HINT))
+            return None
+        return value
 
     def error(self, node: Node, exc: Exception) -> None:
+        if node.tag == _YAML_PREFIX + "int" and isinstance(node, ScalarNode) and "digits" in str(exc):
+            digits = sum(c.isdigit() for c in node.value)
+            self.diags.append(Diagnostic(  # Python refuses to convert integers this long (int_max_str_digits)
+                "PHC-E001", f"integer with {digits} digits is too large", span=_span(self.file, node.start_mark),
+                hint=_TOO_LARGE_HINT))
+            return
         message = f"invalid `{_tag_text(node.tag)}` value"
         if isinstance(node, ScalarNode):
             text = " ".join(node.value.split())
@@ -685,7 +744,14 @@ def load_yaml(text: str, file: str, *, max_nodes: int = MAX_NODES
             "PHC-E001", f"the file contains a character YAML does not allow (U+{ord(char):04X})",
             span=_offset_span(text, file, err.position), hint="remove the control character")]
     except RecursionError:
-        return None, None, [Diagnostic("PHC-E003", "document nested too deeply", span=SourceSpan(file, 1, 1))]
+        where = SourceSpan(file, 1, 1)
+        try:  # where the parser gave up: the deepest point it reached
+            where = _span(file, loader.get_mark()) if loader is not None else where
+        except Exception:  # noqa: BLE001 - a position is a courtesy; never fail on it
+            pass
+        return None, None, [Diagnostic(
+            "PHC-E003", "document nested too deeply (block mappings or lists inside each other, hundreds "
+            "of levels)", span=where, hint="flatten the data; a model needs only a few levels")]
     except yaml.YAMLError as err:
         return None, None, [Diagnostic("PHC-E001", f"YAML error: {' '.join(str(err).split())}",
                                        span=SourceSpan(file, 1, 1))]
@@ -704,7 +770,13 @@ def load_yaml(text: str, file: str, *, max_nodes: int = MAX_NODES
         diags.append(Diagnostic("PHC-E003", "document nested too deeply", span=_span(file, root.start_mark)))
         return None, smap, diags
     diags.extend(checker.diags)
-    if size > max_nodes and not checker.recursive:
+    if size > max_nodes and not checker.recursive and len(checker.sizes) > max_nodes:
+        diags.append(Diagnostic(  # large without aliases: inline data beyond what a model file is for
+            "PHC-E003", f"document too large: more than {max_nodes} values",
+            span=_span(file, checker.blame_large(root).start_mark),
+            hint="put large matrices into an `.npz` file (`matrices:` of a `linear_phs`) and long signals "
+                 "into a CSV table"))
+    elif size > max_nodes and not checker.recursive:
         diags.append(Diagnostic(
             "PHC-E003", f"document too large (alias expansion): more than {max_nodes} nodes",
             span=_span(file, checker.blame_large(root).start_mark),

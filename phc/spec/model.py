@@ -101,8 +101,8 @@ class SimulationSpec(SpecModel):
     """Number of output points (including both ends)."""
     rtol: float = Field(1e-8, gt=0, lt=1)
     atol: float = Field(1e-10, gt=0)
-    max_steps: int = Field(1_000_000, ge=1)
-    """Maximum number of solver steps over the whole run."""
+    max_steps: int = Field(1_000_000, ge=1, le=2 ** 31 - 1)
+    """Maximum number of solver steps over the whole run (at most 2³¹ − 1: IDA keeps it in a C long)."""
     solver: SOLVERS = "ida"
     """`ida`: SUNDIALS IDA (variable-order BDF, error control by `rtol`/`atol`); `midpoint`:
     the implicit midpoint rule with fixed `step`, whose discrete energy balance is exact for
