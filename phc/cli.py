@@ -140,8 +140,13 @@ def cmd_validate(args) -> int:
     return status
 
 
+def _certificate_line(compiled) -> str:
+    cert = compiled.certificate
+    return f"  {cert.summary()}" if cert is not None else "  not certified (--no-certify)"
+
+
 def cmd_compile(args) -> int:
-    compiled = _compile_or_exit(args.file)
+    compiled = _compile_or_exit(args.file, certify=not args.no_certify)
     _print_diagnostics([d for d in compiled.diagnostics if d.severity != "error"])
     from phc.io import write_text
 
@@ -149,7 +154,8 @@ def cmd_compile(args) -> int:
     out_dir.mkdir(parents=True, exist_ok=True)
     target = write_text(out_dir / f"{compiled.name}.py", compiled.source)
     print(f"{args.file}: wrote {target} ({compiled.n_states} states, {compiled.n_equations} equations, "
-          f"{compiled.jacobian_nnz} Jacobian nonzeros, compiled in {sum(compiled.timings.values()):.2f} s)")
+          f"{compiled.jacobian_nnz} Jacobian nonzeros, compiled in {compiled.compile_time:.2f} s)")
+    print(_certificate_line(compiled))
     for line in _left_out_lines(compiled):
         print(line)
     return EXIT_OK
@@ -169,7 +175,7 @@ def _left_out_lines(compiled) -> list[str]:
 
 
 def _compiled_json(compiled) -> dict:
-    return {"compiled": {**compiled.size(), "compile_time_s": sum(compiled.timings.values())},
+    return {"compiled": {**compiled.size(), "compile_time_s": compiled.compile_time},
             "full_model": compiled.full_size(),
             "left_out": [{"component": c, "what": w, "why": y} for c, w, y in compiled.left_out],
             **({"scene": compiled.scene.name} if compiled.scene is not None else {})}
@@ -225,13 +231,14 @@ class _Exit(Exception):
         self.code = code
 
 
-def _compile_or_exit(path: str):
-    """Compile a model or scene file; print its diagnostics and exit 1 on errors."""
+def _compile_or_exit(path: str, certify: bool = True):
+    """Compile a model or scene file; print its diagnostics and exit 1 on errors (a failed
+    certificate of the compiled equations included, unless `certify` is off)."""
     from phc.errors import ModelError
     from phc.pipeline import compile_model
 
     try:
-        return compile_model(path)
+        return compile_model(path, certify=certify)
     except ModelError as err:
         _print_diagnostics(err.diagnostics)
         raise _Exit(EXIT_MODEL) from None
@@ -280,7 +287,7 @@ def cmd_simulate(args) -> int:
     from phc.simulation import SimulationInterrupted, simulate
 
     params = _parse_params(args.param)
-    compiled = _compile_or_exit(args.file)
+    compiled = _compile_or_exit(args.file, certify=not args.no_certify)
     progress = _progress_for(compiled, args.t_end, args.quiet)
     run_kwargs = dict(t_end=args.t_end, params=params, rtol=args.rtol, atol=args.atol, n_out=args.n_out,
                       solver=args.solver, step=args.step)
@@ -309,9 +316,11 @@ def cmd_simulate(args) -> int:
         _plot(result, args.plot, compiled.name)
     if args.format == "json":
         summary = result.summary()
+        summary["peak_memory_bytes"] = peak_memory()
         summary["model"] = compiled.dae.name
-        summary["compile_time_s"] = sum(compiled.timings.values())
+        summary["compile_time_s"] = compiled.compile_time
         summary.update(_compiled_json(compiled))
+        summary["certificate"] = compiled.certificate.to_dict() if compiled.certificate is not None else None
         if args.estimate_error:
             summary["error_estimates"] = [e.to_dict() for e in estimates]
         if prof is not None:
@@ -324,7 +333,9 @@ def cmd_simulate(args) -> int:
     else:
         label = f"{compiled.name} (scene of {compiled.dae.name})" if compiled.scene else compiled.name
         print(_summary_text(label, result))
-        print(f"  compiled {_size_text(compiled.size())} in {sum(compiled.timings.values()):.2f} s")
+        print(f"  memory   peak {format_bytes(peak_memory())} resident")
+        print(f"  compiled {_size_text(compiled.size())} in {compiled.compile_time:.2f} s")
+        print(_certificate_line(compiled))
         for line in _left_out_lines(compiled):
             print(line)
         for e in estimates:
@@ -367,7 +378,7 @@ def cmd_animate(args) -> int:
     from phc import viz
     from phc.simulation import SimulationInterrupted, simulate
 
-    compiled = _compile_or_exit(args.file)
+    compiled = _compile_or_exit(args.file, certify=not args.no_certify)
     progress = _progress_for(compiled, args.t_end, args.quiet)
     interrupted = False
     with _simulation_errors(args.file, progress):
@@ -420,13 +431,32 @@ def cmd_check(args) -> int:
             print(json.dumps({"model": args.file, "certified": False, "diagnostics": diags.to_json()}, indent=2))
         return EXIT_MODEL
     cert = certify(dae, n_random=args.samples)
-    cert.diagnostics.extend(d for d in list(diags) + check_balance(dae) if d not in cert.diagnostics)
+    balance = check_balance(dae)
+    cert.diagnostics.extend(d for d in list(diags) + balance if d not in cert.diagnostics)
+    compiled_cert = None
+    if cert.certified and not any(d.severity == "error" for d in balance):
+        # The equations that are simulated: power balance and passivity (more samples than
+        # the certificate every compilation runs).
+        from phc.checks.compiled import certify_compiled
+        from phc.pipeline import compile_model
+
+        compiled_cert = certify_compiled(compile_model(args.file, certify=False), n_random=args.samples + 2)
+        cert.diagnostics.extend(compiled_cert.diagnostics)
     cert.diagnostics[:] = cert.diagnostics.sorted()
+    ok = cert.certified and (compiled_cert is None or (compiled_cert.certified and not compiled_cert.skipped))
     if args.format == "json":
-        print(json.dumps(cert.to_dict(), indent=2))
+        report = cert.to_dict()
+        report["compiled"] = compiled_cert.to_dict() if compiled_cert is not None else None
+        report["certified"] = ok
+        print(json.dumps(report, indent=2))
     else:
-        print(cert.render_text())
-    return EXIT_OK if cert.certified else EXIT_MODEL
+        text = cert.render_text()
+        if compiled_cert is not None:
+            text = text.replace(f"{cert.model}: {'certified' if cert.certified else 'NOT certified'}",
+                                f"{cert.model}: {'certified' if ok else 'NOT certified'}", 1)
+            text += f"\ncompiled equations\n  {compiled_cert.summary()}"
+        print(text)
+    return EXIT_OK if ok else EXIT_MODEL
 
 
 def cmd_graph(args) -> int:
@@ -546,11 +576,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("compile", help="generate the residual module of a model")
     p.add_argument("file", metavar="FILE")
+    p.add_argument("--no-certify", action="store_true",
+                   help="skip the certificate of the compiled equations (power balance, passivity)")
     p.add_argument("-o", "--output", default=".", metavar="DIR", help="directory for the generated module")
     p.set_defaults(func=cmd_compile)
 
     p = sub.add_parser("simulate", help="compile and simulate a model or a scene")
     p.add_argument("file", metavar="FILE", help="a model file, or a scene file (models/scenes/*.yaml)")
+    p.add_argument("--no-certify", action="store_true",
+                   help="skip the certificate of the compiled equations (power balance, passivity)")
     p.add_argument("--t-end", type=float, help="end time (default: the model's simulation.t_end)")
     p.add_argument("--n-out", type=int, help="number of output points")
     p.add_argument("--solver", choices=_solver_names(), help="integrator (default: the model's)")
@@ -571,6 +605,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("animate", help="simulate and draw the planar mechanism frame by frame (GIF)")
     p.add_argument("file", metavar="FILE", help="a scene or model file")
+    p.add_argument("--no-certify", action="store_true",
+                   help="skip the certificate of the compiled equations (power balance, passivity)")
     p.add_argument("-o", "--output", metavar="OUT.gif", required=True)
     p.add_argument("--magnify", type=float, default=1.0, help="magnify the beam deflection in the picture")
     p.add_argument("--frames", type=int, default=100, help="at most this many frames")

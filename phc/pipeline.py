@@ -24,6 +24,11 @@ from phc.errors import ModelError
 from phc.scene import Scene, is_scene_file, load_scene
 
 
+FAST_SAMPLES = 1
+"""Randomly perturbed consistent states of the certificate run by every compilation
+(besides the initial state); `phc check` samples more."""
+
+
 @dataclass
 class CompiledModel:
     """A compiled model: the assembled DAE, the generated module and its source."""
@@ -37,6 +42,9 @@ class CompiledModel:
     timings: dict[str, float] = field(default_factory=dict)
     scene: Optional[Scene] = None
     """The scene this was compiled for (None for a plain model file)."""
+    certificate: Optional[object] = None
+    """The fast certificate of the compiled equations (:mod:`phc.checks.compiled`), or None
+    when compiled with ``certify=False``."""
 
     @property
     def n_states(self) -> int:
@@ -55,6 +63,11 @@ class CompiledModel:
         """What was not compiled, as (component, what, why)."""
         return self.dae.left_out
 
+    @property
+    def compile_time(self) -> float:
+        """Seconds spent compiling (the certificate's own time is `timings["certify"]`)."""
+        return sum(v for k, v in self.timings.items() if k != "certify")
+
     def size(self) -> dict[str, int]:
         return {"states": self.n_states, "equations": self.n_equations, "jacobian_nnz": self.jacobian_nnz}
 
@@ -63,7 +76,7 @@ class CompiledModel:
         pruned), for comparison; None for a plain model or when nothing was left out."""
         if self.scene is None or not self.left_out:
             return None
-        full = compile_model(self.scene.model_path)
+        full = compile_model(self.scene.model_path, certify=False)
         return full.size()
 
 
@@ -90,9 +103,13 @@ def build_dae(path: str | os.PathLike, scene: Optional[Scene] = None) -> tuple[O
     return dae, DiagnosticList(diags).sorted()
 
 
-def compile_model(path: str | os.PathLike, scene: Optional[Scene] = None) -> CompiledModel:
+def compile_model(path: str | os.PathLike, scene: Optional[Scene] = None, *, certify: bool = True) -> CompiledModel:
     """Compile a model file (or a scene file: its model as the scene asks) to a loaded
     residual module. `scene` applies an in-memory scene instead (`path` is then unused).
+
+    With `certify` (the default) the compiled equations are certified before they are
+    returned (:func:`phc.checks.compiled.certify_compiled`: the power balance at sampled
+    consistent states, passivity of every dissipative term); a failure is a ModelError.
 
     Raises
     ------
@@ -119,4 +136,13 @@ def compile_model(path: str | os.PathLike, scene: Optional[Scene] = None) -> Com
     name = scene.name if scene is not None else dae.name
     module, module_path = load_generated(source, name)
     timings["load"] = time.perf_counter() - t
-    return CompiledModel(name, dae, module, source, module_path, diags, timings, scene)
+    compiled = CompiledModel(name, dae, module, source, module_path, diags, timings, scene)
+    if certify:
+        from phc.checks.compiled import certify_compiled
+
+        t = time.perf_counter()
+        compiled.certificate = certify_compiled(compiled, n_random=FAST_SAMPLES)
+        timings["certify"] = time.perf_counter() - t
+        if compiled.certificate.diagnostics.has_errors:
+            raise ModelError(DiagnosticList(list(diags) + list(compiled.certificate.diagnostics)).sorted())
+    return compiled
