@@ -163,6 +163,7 @@ class Builder:
         self.files = FileAccess()  # referenced files stay inside the top-level file's directory
         self._specs: dict[str, tuple] = {}  # resolved path -> (spec, smap) of a nested file, read once
         self._default_values: dict = {}  # parameter symbol -> its default as Float (see default_values)
+        self.unset_parameters: set = set()  # parameters whose value had an error (their default 0 means nothing)
 
     # -- diagnostics ----------------------------------------------------------------
     def error(self, code: str, message: str, ctx: Optional[FileContext], path: Sequence = (),
@@ -304,7 +305,10 @@ class Builder:
         for name, (value, path, value_ctx) in entries.items():
             vctx = value_ctx or ctx
             scope = dict(vctx.params) if value_ctx is not None else dict(symbols)
+            n_diags = len(self.diags)
             exprs[name] = self.expr(vctx, value, path, scope)
+            if len(self.diags) > n_diags:  # reported: checks of values that use it would only echo it
+                self.unset_parameters.add(symbols[name])
         graph = nx.DiGraph()
         graph.add_nodes_from(symbols.values())
         for name, ex in exprs.items():
@@ -341,6 +345,9 @@ class Builder:
                 self.error("PHC-E104", f"parameter `{name}` does not evaluate to a finite number "
                            f"(got {ex})", entries[name][2] or ctx, path)
                 val = 0.0
+                self.unset_parameters.add(sym)
+            if ex.free_symbols & self.unset_parameters:
+                self.unset_parameters.add(sym)
             values[sym] = val
             unit, desc = units.get(name, (None, None))
             derived = ex if not ex.is_Number else None

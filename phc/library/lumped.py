@@ -49,8 +49,8 @@ def _check_coefficient(b, ctx, name, spec, path, field, strict, meaning):
     value = getattr(spec, field)
     n_errors = len(b.diags.errors)
     ex = b.expr(ctx, value, (*path, field), _scope(ctx))
-    if len(b.diags.errors) > n_errors:
-        return ex  # already reported; its placeholder value says nothing
+    if len(b.diags.errors) > n_errors or ex.free_symbols & b.unset_parameters:
+        return ex  # already reported (here or in a parameter it uses); its placeholder value says nothing
     try:
         num = float(ex.xreplace(b.default_values()).xreplace({T: sp.Float(0)}))
     except (TypeError, ValueError):

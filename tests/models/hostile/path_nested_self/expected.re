@@ -1,0 +1,1 @@
+model\.yaml:4:27: components\.me\.file: model `model\.yaml` .+ \[PHC\-E106\]
