@@ -212,11 +212,12 @@ def assemble(b, ctx) -> Optional[Dae]:
 
     equations = []
     new_index: dict[int, int] = {}
+    constants = {T} | {p.symbol for p in b.parameters.values()}  # once: per row it made assembly quadratic
     for i, eq in enumerate(rows):
         ex = final(eq.expr)
         if ex == 0 and eq.kind != "linear":
             continue
-        if (eq.kind != "linear" and not (ex.free_symbols - {T} - {p.symbol for p in b.parameters.values()})
+        if (eq.kind != "linear" and not (ex.free_symbols - constants)
                 and ex.is_number and ex != 0):
             b.diags.append(Diagnostic("PHC-E301", f"equation `{eq.label}` reduces to the contradiction "
                                       f"{ex} = 0", span=eq.span))

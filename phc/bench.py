@@ -64,6 +64,7 @@ import numpy as np
 import yaml
 
 import phc
+from phc.files import allow_paths
 from phc.errors import ModelError, SimulationSetupError
 from phc.io import atomic_write, write_text
 from phc.scene import is_scene_file, reference_name
@@ -317,9 +318,12 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
                 key += (("max_order", max_order),)
             if key not in compiled_cache:
                 try:
-                    compiled_cache[key] = phc.compile_model(  # the base scene was certified
-                        _variant_scene(scene_path, model_path, mesh, tmp, max_order=dict(key).get("max_order")),
-                        certify=False)
+                    # the variant lives in a temporary directory: its (already checked) model may
+                    # be read from there; the base scene was certified
+                    with allow_paths([model_path.parent, scene_path.resolve().parent]):
+                        compiled_cache[key] = phc.compile_model(
+                            _variant_scene(scene_path, model_path, mesh, tmp, max_order=dict(key).get("max_order")),
+                            certify=False)
                 except ModelError as err:
                     compiled_cache[key] = err
             return compiled_cache[key]

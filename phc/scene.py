@@ -200,6 +200,19 @@ def load_scene(path: str | os.PathLike) -> tuple[Optional[Scene], DiagnosticList
         diags.extend(from_pydantic(err, smap, allowed_keys=_ALLOWED_KEYS))
         return None, diags
     scene = Scene(Path(path), spec, smap)
+    from phc.files import FileAccess, FileRefused
+
+    # The scene's model is a referenced file like any other; it may lie in the scene's
+    # directory or the one above it (the layout models/scenes/x.yaml -> models/y.yaml).
+    here = Path(path).resolve().parent
+    try:
+        FileAccess([here, here.parent]).resolve(path, spec.model, "model")
+    except FileRefused as err:
+        if err.reason != "missing":
+            message = err.message.replace("nested model file", "model file", 1).replace(
+                "the directory of the top-level file", "the scene's directory and the one above it", 1)
+            diags.append(Diagnostic("PHC-E116", message, span=smap.locate(("model",)), hint=err.hint))
+            return None, diags
     if not scene.model_path.is_file():
         diags.append(Diagnostic("PHC-E107", f"model file `{spec.model}` not found (looked for `{scene.model_path}`)",
                                 span=smap.locate(("model",)), hint="the path is relative to the scene file"))

@@ -442,7 +442,9 @@ def _marked_error(err: yaml.MarkedYAMLError, file: str) -> Diagnostic:
         if mark.index - key_start - 1 > 1024:  # YAML's implicit keys end within 1024 characters
             hint = "YAML allows keys of at most 1024 characters; shorten the key"
     if isinstance(buffer, str) and mark is not None:
-        odd = _ODD_BREAK.search(buffer, max(0, min(start.index, mark.index) - 200), mark.index + 1)
+        odd = None
+        for odd in _ODD_BREAK.finditer(buffer, max(0, min(start.index, mark.index) - 200), mark.index + 1):
+            pass  # the last one before the problem
         if odd is not None:
             hint = (f"the text holds U+{ord(odd.group()):04X}, which YAML reads as a line break; "
                     "remove it or quote the value")
@@ -796,6 +798,38 @@ def load_yaml(text: str, file: str, *, max_nodes: int = MAX_NODES
     return data, smap, diags
 
 
+class _NotRegular(OSError):
+    """The named file is not a regular file of acceptable size."""
+
+
+def _read_regular(path: str | os.PathLike) -> bytes:
+    """The bytes of a regular file, opened non-blocking (a FIFO cannot hang the read) and
+    at most the model-file size limit of :mod:`phc.files`."""
+    import stat as _stat
+
+    from phc.files import size_limit
+
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_BINARY", 0)
+    fd = os.open(path, flags)
+    try:
+        st = os.fstat(fd)
+        if _stat.S_ISDIR(st.st_mode):
+            raise IsADirectoryError(21, "it is a directory")
+        if not _stat.S_ISREG(st.st_mode):
+            raise _NotRegular("it is not a regular file (a FIFO, device or socket); phc reads only regular files")
+        limit = size_limit("model")
+        if st.st_size > limit:
+            raise _NotRegular(f"it is {st.st_size / 2**20:.3g} MiB, above the limit of {limit / 2**20:.3g} MiB "
+                              "for a model or scene file")
+        with os.fdopen(fd, "rb", closefd=False) as fh:
+            data = fh.read(limit + 1)
+    finally:
+        os.close(fd)
+    if len(data) > limit:
+        raise _NotRegular(f"it is above the limit of {limit / 2**20:.3g} MiB for a model or scene file")
+    return data
+
+
 def read_yaml_file(path: str | os.PathLike) -> tuple[object | None, SourceMap | None, list[Diagnostic]]:
     """Read a UTF-8 YAML file and load it with :func:`load_yaml`.
 
@@ -813,7 +847,10 @@ def read_yaml_file(path: str | os.PathLike) -> tuple[object | None, SourceMap | 
     file = str(path)
     where = SourceSpan(file, 1, 1)
     try:
-        raw = open(path, "rb").read()
+        raw = _read_regular(path)
+    except _NotRegular as err:
+        return None, None, [Diagnostic("PHC-E004", f"cannot read `{file}`: {err}", span=where,
+                                       hint="name a regular model or scene file")]
     except FileNotFoundError:
         return None, None, [Diagnostic("PHC-E004", f"cannot read `{file}`: no such file", span=where,
                                        hint="check the path")]

@@ -16,6 +16,21 @@ import pytest  # noqa: E402
 
 
 @pytest.fixture(scope="session", autouse=True)
+def _shipped_models_may_be_referenced():
+    """Many tests write scenes into a temporary directory that name a shipped model by its
+    absolute path; phc reads a scene's model only inside the scene's tree unless allowed
+    (``PHC_ALLOW_PATH``), so the suite allows ``models/`` — as a user passes --allow-path."""
+    models = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "models")
+    previous = os.environ.get("PHC_ALLOW_PATH")
+    os.environ["PHC_ALLOW_PATH"] = os.pathsep.join(p for p in (previous, models) if p)
+    yield
+    if previous is None:
+        os.environ.pop("PHC_ALLOW_PATH", None)
+    else:
+        os.environ["PHC_ALLOW_PATH"] = previous
+
+
+@pytest.fixture(scope="session", autouse=True)
 def _isolated_phc_cache(tmp_path_factory):
     previous = os.environ.get("PHC_CACHE_DIR")
     os.environ["PHC_CACHE_DIR"] = str(tmp_path_factory.mktemp("phc-cache"))
