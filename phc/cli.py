@@ -283,6 +283,7 @@ def _simulation_errors(path: str, progress):
 
 def cmd_simulate(args) -> int:
     from phc.accuracy import estimate_errors
+    from phc.budget import format_bytes, peak_memory
     from phc.profile import profiled
     from phc.simulation import SimulationInterrupted, simulate
 
@@ -317,6 +318,7 @@ def cmd_simulate(args) -> int:
     if args.format == "json":
         summary = result.summary()
         summary["peak_memory_bytes"] = peak_memory()
+        summary["peak_memory_bytes"] = peak_memory()
         summary["model"] = compiled.dae.name
         summary["compile_time_s"] = compiled.compile_time
         summary.update(_compiled_json(compiled))
@@ -333,6 +335,7 @@ def cmd_simulate(args) -> int:
     else:
         label = f"{compiled.name} (scene of {compiled.dae.name})" if compiled.scene else compiled.name
         print(_summary_text(label, result))
+        print(f"  memory   peak {format_bytes(peak_memory())} resident")
         print(f"  memory   peak {format_bytes(peak_memory())} resident")
         print(f"  compiled {_size_text(compiled.size())} in {compiled.compile_time:.2f} s")
         print(_certificate_line(compiled))
@@ -564,6 +567,31 @@ def _allowed_paths(args):
     return allow_paths(dirs)
 
 
+def _memory_size(text: str) -> int:
+    from phc.budget import parse_size
+
+    try:
+        return parse_size(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+
+
+def _with_budget(func):
+    """Run a command under its `--max-memory` budget (see phc.budget)."""
+
+    def run(args) -> int:
+        from phc import budget
+
+        with budget.override(args.max_memory):
+            try:
+                budget.max_memory()
+            except ValueError as err:  # a malformed PHC_MAX_MEMORY
+                raise UsageError(str(err)) from None
+            return func(args)
+
+    return run
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="phc", description="Compiler for port-Hamiltonian models.")
     parser.add_argument("--version", action="version", version=f"phc {__version__}")
@@ -643,6 +671,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("file", metavar="FILE")
     p.add_argument("-o", "--output", metavar="OUT", help="out.dot or out.png (default: DOT on stdout)")
     p.set_defaults(func=cmd_graph)
+
+    for name in ("validate", "compile", "simulate", "animate", "bench", "check", "graph"):
+        p = sub.choices[name]
+        p.add_argument("--max-memory", type=_memory_size, metavar="SIZE",
+                       help="memory budget, e.g. 8G or 512M: a model whose estimated compile and output memory is "
+                       "larger is refused before the work (default 2G; env PHC_MAX_MEMORY)")
+        p.set_defaults(func=_with_budget(p.get_default("func")))
 
     p = sub.add_parser("schema", help="print, write or check the JSON Schemas of the model language")
     p.add_argument("--name", default="model.schema.json")

@@ -549,6 +549,11 @@ class Builder:
             comp = comp.model_copy(update={"elements": elements})
         if "elements" in type(comp).model_fields:
             self.meshes[full] = (comp.type, comp.elements)
+            from phc.budget import admit_mesh
+
+            if not admit_mesh(self, ctx, full, comp, path):  # estimated before any discretization
+                self.failed.add(full)
+                return
         n_errors = len(self.diags.errors)
         self.components.append((full, comp.type, ctx.smap.locate(path)))
         lowerers[comp.type](self, ctx, full, comp, path)
@@ -615,5 +620,8 @@ def elaborate(path: str | os.PathLike, scene=None) -> tuple[Optional[Dae], Diagn
         return None, DiagnosticList(dict.fromkeys(builder.diags)).sorted()
     dae = assemble(builder, ctx)
     if dae is not None:
+        from phc.budget import check_assembled
+
+        check_assembled(builder, ctx, dae)  # exact size and output arrays, before any code is generated
         dae = dataclasses.replace(dae, left_out=tuple(builder.left_out), meshes=dict(builder.meshes))
     return (None if builder.diags.has_errors else dae), builder.diags.sorted()

@@ -16,7 +16,10 @@ import numpy as np
 import scipy.sparse as sps
 import sympy as sp
 
-from phc.dae import Dae
+from phc import budget
+from phc.dae import T, Dae
+from phc.diagnostics import Diagnostic, DiagnosticList
+from phc.errors import ModelError
 
 
 @dataclass(frozen=True, eq=False)
@@ -98,6 +101,51 @@ def _ordered_parameters(dae: Dae):
     return base + order
 
 
+def _refuse(message: str, span, path=None) -> None:
+    raise ModelError(DiagnosticList([Diagnostic("PHC-E702", message, span=span, path=path,
+                                                hint=budget.symbolic_hint())]))
+
+
+def _check_derivatives(eq, syms, col_of_y, col_of_yp, sizes: budget.SizeCache) -> None:
+    """Refuse (located) a row whose derivatives — the Jacobian's, and the time derivative
+    the generated module takes of every row — would exceed the symbolic budget. The
+    bound over all symbols at once is cheap; only above the limit is each variable
+    looked at alone."""
+    if sizes.derivative_work(eq.expr) <= budget.DIFF_LIMIT:
+        return
+    for s in sorted(syms, key=str):
+        if s in col_of_y or s in col_of_yp or s == T:
+            work = budget.derivative_work(eq.expr, s)
+            if work > budget.DIFF_LIMIT:
+                _refuse(f"equation `{eq.label}` is too costly to differentiate: its derivative by `{s}` would take "
+                        f"an estimated {work:,} nodes of symbolic work, above the limit of {budget.DIFF_LIMIT:,}",
+                        eq.span)
+
+
+def _check_cse_input(dae: Dae, entries: dict, sizes: budget.SizeCache) -> None:
+    """Refuse a module whose expressions are too large in total for common-subexpression
+    elimination (superlinear in sympy), naming the largest contributor."""
+    per_row = [sizes.tree_size(eq.expr) if eq.expr.args else 1 for eq in dae.equations]
+    for (i, _), pair in entries.items():
+        per_row[i] += sum(sizes.tree_size(d) for d in pair if isinstance(d, sp.Basic) and d.args)
+    outputs = [(name, sizes.tree_size(expr)) for name, expr in dae.outputs]
+    others = sum(sizes.tree_size(e) for e in (dae.hamiltonian, dae.dissipation, dae.port_power))
+    others += sum(sizes.tree_size(inv.expr) for inv in (*dae.invariants, *dae.velocity_invariants))
+    total = sum(per_row) + sum(n for _, n in outputs) + others
+    if total <= budget.CSE_LIMIT:
+        return
+    head = (f"the generated module would hold {total:,} expression nodes, above the limit of {budget.CSE_LIMIT:,} "
+            "for common-subexpression elimination")
+    worst_row = max(range(len(per_row)), key=per_row.__getitem__) if per_row else None
+    worst_out = max(outputs, key=lambda o: o[1]) if outputs else None
+    if worst_out is not None and (worst_row is None or worst_out[1] > per_row[worst_row]):
+        _refuse(f"{head}; the largest is output `{worst_out[0]}` ({worst_out[1]:,} nodes)", None,
+                f"simulation.outputs.{worst_out[0]}")
+    eq = dae.equations[worst_row]
+    _refuse(f"{head}; the largest is equation `{eq.label}` with its Jacobian entries ({per_row[worst_row]:,} nodes)",
+            eq.span)
+
+
 def lower_residual(dae: Dae) -> ResidualIR:
     """Differentiate the residual and order everything for printing.
 
@@ -116,13 +164,15 @@ def lower_residual(dae: Dae) -> ResidualIR:
     col_of_y = {s: j for j, s in enumerate(y)}
     col_of_yp = {s: j for j, s in enumerate(yp) if s is not None}
     entries: dict[tuple[int, int], list] = {}
+    sizes = budget.SizeCache()
     for i, eq in enumerate(dae.equations):
         syms = eq.expr.free_symbols
+        _check_derivatives(eq, syms, col_of_y, col_of_yp, sizes)
         for s in syms:
             if s in col_of_y:
-                entries.setdefault((i, col_of_y[s]), [0, 0])[0] = sp.diff(eq.expr, s)
+                entries.setdefault((i, col_of_y[s]), [0, 0])[0] = budget.drop_deltas(sp.diff(eq.expr, s))
             elif s in col_of_yp:
-                entries.setdefault((i, col_of_yp[s]), [0, 0])[1] = sp.diff(eq.expr, s)
+                entries.setdefault((i, col_of_yp[s]), [0, 0])[1] = budget.drop_deltas(sp.diff(eq.expr, s))
     raw_terms = []
     for block in dae.linear_blocks:
         rows = np.asarray(block.rows, dtype=np.int64)
@@ -157,6 +207,7 @@ def lower_residual(dae: Dae) -> ResidualIR:
             out.append(QuadraticIR(f.coeff, sps.csr_matrix(f.matrix), cols, pos))
         return tuple(out)
 
+    _check_cse_input(dae, entries, sizes)
     return ResidualIR(
         name=dae.name,
         variables=tuple(v.name for v in dae.variables),

@@ -79,12 +79,39 @@ def lower_phs(b, ctx, name, spec, path):
     H, dropped = summed_terms(b, ctx, spec, "hamiltonian", path, scope)
     for term in dropped:
         b.leave_out(name, f"Hamiltonian term `{term}`", f"effect `{term}` is off")
-    grad = sp.Matrix([sp.diff(H, x) for x in xs]) if n else sp.zeros(0, 1)
+    grad = _gradient(b, ctx, name, H, xs, (*path, "hamiltonian"))
     b.hamiltonian.append(H)
     if spec.J is not None:
         _lower_jrb(b, ctx, name, spec, path, scope, xs, dxs, grad, span)
     else:
         _lower_kernel(b, ctx, name, spec, path, scope, xs, dxs, grad, span)
+
+
+def _gradient(b, ctx, name, H, xs, hpath) -> sp.Matrix:
+    """∇H within the symbolic budget (:mod:`phc.budget`).
+
+    The gradient enters the residual and the Jacobian differentiates it once more, so the
+    size of both derivatives is bounded before sympy computes them. Beyond the budget
+    the Hamiltonian is reported (located) and ∇H = 0 stands in for it."""
+    from phc import budget
+
+    if not xs:
+        return sp.zeros(0, 1)
+    cache = budget.SizeCache()
+    try:
+        grad = [budget.checked_diff(H, x, "its gradient", cache) for x in xs]
+        for g in grad:
+            if cache.derivative_work(g) > budget.DIFF_LIMIT:
+                work = max(budget.derivative_work(g, x) for x in xs)
+                if work > budget.DIFF_LIMIT:
+                    raise budget.SymbolicBudgetError(g, work, budget.DIFF_LIMIT,
+                                                     "its second derivatives (for the Jacobian)")
+    except budget.SymbolicBudgetError as err:
+        b.error("PHC-E702", f"the Hamiltonian of `{name}` is too costly to differentiate: {err.what} would take an "
+                f"estimated {err.work:,} nodes of symbolic work, above the limit of {err.limit:,}", ctx, hpath,
+                hint=budget.symbolic_hint())
+        return sp.zeros(len(xs), 1)
+    return sp.Matrix(grad)
 
 
 def _lower_jrb(b, ctx, name, spec, path, scope, xs, dxs, grad, span):

@@ -8,12 +8,15 @@ only what the scene calls for and reports what it left out.
 
 from __future__ import annotations
 
-from typing import Literal, Optional, Union
+from typing import Annotated, Literal, Optional, Union
 
 from pydantic import Field
 
 from phc.spec.base import Expr, Identifier, SpecModel
 from phc.spec.model import InitialSpec, InputSpec, SOLVERS
+
+Elements = Annotated[int, Field(ge=1, le=200_000)]
+"""An element count: the same bounds as a distributed component's own `elements`."""
 
 
 class AccuracySpec(SpecModel):
@@ -24,7 +27,7 @@ class AccuracySpec(SpecModel):
     step: Optional[float] = Field(None, gt=0)
     """Step size of the fixed-step solvers."""
     max_order: Optional[int] = Field(None, ge=1, le=5)
-    mesh: dict[str, int] = {}
+    mesh: dict[str, Elements] = {}
     """Number of elements per distributed component (`component: elements`), overriding
     the model's `elements`."""
 
@@ -38,7 +41,7 @@ class BenchSpec(SpecModel):
     """Relative tolerances of the error-controlled solvers (atol = rtol/100)."""
     steps: list[float] = []
     """Step sizes of the fixed-step solvers (default: derived from the output interval)."""
-    meshes: dict[str, list[int]] = {}
+    meshes: dict[str, list[Elements]] = {}
     """Element counts to sweep per distributed component."""
     repeats: int = Field(1, ge=1, le=20)
     """Runs per point; the CPU time reported is the minimum."""

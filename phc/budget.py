@@ -1,0 +1,425 @@
+"""Resource budget: estimate the cost of a model before doing the work, refuse above a budget.
+
+A model file is data, and a few characters of it (``elements: 200000``, ``n_out: 1e7``,
+a Hamiltonian that is a product of sixty exponentials) can ask for more memory or
+symbolic work than a laptop has. phc estimates both before spending them and refuses
+with a located error that gives the estimate and what drives it.
+
+**Memory.** Each distributed component is estimated from its type and element count
+*before* it is discretized (:func:`admit_mesh`, called by the elaborator): unknowns
+and Jacobian nonzeros per element are those of phc's own discretizations, and the
+compile peak is about :data:`BYTES_PER_UNKNOWN` per unknown plus
+:data:`BYTES_PER_NONZERO` per nonzero on top of :data:`BASE_BYTES` (measured on strings
+and beams of 1 000 to 16 000 elements: 6.9 KiB and 0.4 KiB; the constants round up).
+After assembly (:func:`check_assembled`) the count is exact and the output arrays are
+added: ``n_out × (2·variables + outputs + invariants + 4)`` doubles (values and
+derivatives of every variable, the outputs, the invariants, H and the three power
+columns). The budget is :data:`DEFAULT_MAX_MEMORY` unless ``PHC_MAX_MEMORY`` or the
+command-line option ``--max-memory SIZE`` says otherwise (:func:`override`).
+
+**Symbolic work.** Differentiation and common-subexpression elimination are the only
+symbolic steps whose cost is not linear in the input. Before sympy differentiates an
+expression, :func:`derivative_work` bounds the size of the result from the tree alone
+(the product and chain rules copy the whole node once per argument that depends on the
+variable; ``min``/``max`` of k arguments rebuild a ``max`` of k − 1 arguments for each,
+with pairwise comparisons: weighted k²); above :data:`DIFF_LIMIT` the expression is
+refused (:class:`SymbolicBudgetError`). The expressions handed to CSE are bounded in
+total by :data:`CSE_LIMIT` nodes. Both limits are two orders of magnitude above the
+largest expressions of the shipped models (a derivative bound of 652, 30 000 nodes in
+all) and keep the refused cases to a few seconds of sympy work.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import resource
+import sys
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Iterator, Optional
+
+import sympy as sp
+
+from phc.diagnostics import Diagnostic
+
+DEFAULT_MAX_MEMORY = 2 * 2**30
+"""Default budget: 2 GiB, what a laptop can give one process without swapping."""
+ENV_VAR = "PHC_MAX_MEMORY"
+
+BASE_BYTES = 160 * 2**20
+"""The interpreter with numpy, scipy, sympy and networkx loaded (135 MiB measured)."""
+BYTES_PER_UNKNOWN = 8 * 2**10
+"""Compile peak per unknown: symbols, variables, equations, printed source (6.9 KiB measured)."""
+BYTES_PER_NONZERO = 512
+"""Compile peak per Jacobian nonzero (0.4 KiB measured)."""
+
+PER_ELEMENT = {
+    "string": (4, 16),
+    "timoshenko_beam": (8, 36),
+    "euler_bernoulli_beam": (8, 54),
+    "moving_beam": (8, 62),
+}
+"""(unknowns, Jacobian nonzeros) per element of phc's discretizations (P1/P0 for strings and
+Timoshenko beams, Hermite/DP1 for Euler–Bernoulli and moving beams; states and co-energies)."""
+
+DIFF_LIMIT = 100_000
+"""Largest bound on the size of one derivative (nodes): about 3 s of sympy work."""
+CSE_LIMIT = 1_000_000
+"""Largest total size (nodes) of the expressions of one generated module."""
+MINMAX_WEIGHT = 3
+"""Extra weight of a min/max node of k arguments: MINMAX_WEIGHT · k² · its size."""
+
+_override: list[Optional[int]] = [None]
+
+
+# -- the budget ----------------------------------------------------------------------------
+
+_UNITS = {"": 1, "b": 1, "k": 2**10, "kb": 10**3, "kib": 2**10, "m": 2**20, "mb": 10**6, "mib": 2**20,
+          "g": 2**30, "gb": 10**9, "gib": 2**30, "t": 2**40, "tb": 10**12, "tib": 2**40}
+_SIZE = re.compile(r"\s*([0-9]+(?:\.[0-9]*)?|\.[0-9]+)\s*([a-zA-Z]*)\s*")
+
+
+def parse_size(text: str) -> int:
+    """Bytes in a size such as ``2G``, ``1.5GiB``, ``512M``, ``800MB`` or ``100000`` (bytes).
+
+    K, M, G, T and KiB … TiB are binary (2G = 2 GiB); KB, MB, GB, TB decimal.
+
+    Raises
+    ------
+    ValueError
+        With a message saying what is expected.
+    """
+    match = _SIZE.fullmatch(str(text))
+    unit = match.group(2).lower() if match else None
+    if match is None or unit not in _UNITS:
+        raise ValueError(f"`{text}` is not a memory size; write e.g. 2G, 1.5GiB, 512M or 800MB")
+    value = float(match.group(1)) * _UNITS[unit]
+    if not value >= 2**20:
+        raise ValueError(f"`{text}` is below 1 MiB; write e.g. 2G, 1.5GiB or 512M")
+    return int(value)
+
+
+def max_memory() -> int:
+    """The memory budget in bytes: :func:`override`, else ``PHC_MAX_MEMORY``, else 2 GiB."""
+    if _override[0] is not None:
+        return _override[0]
+    env = os.environ.get(ENV_VAR)
+    if env:
+        try:
+            return parse_size(env)
+        except ValueError as err:
+            raise ValueError(f"{ENV_VAR}: {err}") from None
+    return DEFAULT_MAX_MEMORY
+
+
+@contextmanager
+def override(size: Optional[int | str]) -> Iterator[None]:
+    """Use `size` (bytes, or a size string) as the budget inside the block (None: no change)."""
+    if size is None:
+        yield
+        return
+    previous = _override[0]
+    _override[0] = parse_size(size) if isinstance(size, str) else int(size)
+    try:
+        yield
+    finally:
+        _override[0] = previous
+
+
+def format_bytes(n: float) -> str:
+    for unit, scale in (("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
+        if n >= scale:
+            return f"{n / scale:.1f} {unit}"
+    return f"{int(n)} B"
+
+
+def peak_memory() -> int:
+    """Peak resident memory of this process so far, in bytes (``getrusage``; 0 if unknown)."""
+    try:
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    except (OSError, ValueError):  # pragma: no cover - always available on Linux and macOS
+        return 0
+    return int(peak if sys.platform == "darwin" else peak * 1024)  # bytes on macOS, KiB on Linux
+
+
+def _raise_hint(need: int) -> str:
+    return (f"or raise the budget (now {format_bytes(max_memory())}) with `--max-memory SIZE` or the environment "
+            f"variable {ENV_VAR}, e.g. `--max-memory {math.ceil(need / 2**30)}G`")
+
+
+# -- memory: estimate ----------------------------------------------------------------------
+
+@dataclass
+class Estimate:
+    """Unknowns and Jacobian nonzeros of (part of) a model, and the bytes they need."""
+
+    unknowns: int = 0
+    nonzeros: int = 0
+
+    @property
+    def compile_bytes(self) -> int:
+        return BASE_BYTES + BYTES_PER_UNKNOWN * self.unknowns + BYTES_PER_NONZERO * self.nonzeros
+
+
+def output_bytes(n_out: int, n_columns: int) -> int:
+    """Bytes of the output arrays: `n_out` times `n_columns` doubles."""
+    return 8 * int(n_out) * int(n_columns)
+
+
+def mesh_estimate(comp) -> Estimate:
+    """Unknowns and Jacobian nonzeros of a distributed component from its spec alone."""
+    n = int(comp.elements)
+    if comp.type == "pde1d":
+        per = 2 * int(comp.order) * len(comp.variables)
+        return Estimate(per * (n + 1), per * (4 if comp.order == 1 else 7) * max(1, len(comp.variables) // 2) * n)
+    per_unknown, per_nonzero = PER_ELEMENT.get(comp.type, (8, 62))
+    return Estimate(per_unknown * (n + 1), per_nonzero * n)
+
+
+@dataclass
+class _Ledger:
+    """What the distributed components admitted so far cost, and where each is written."""
+
+    total: Estimate = field(default_factory=Estimate)
+    meshes: dict = field(default_factory=dict)  # component -> (Estimate, span, elements)
+
+
+def _ledger(builder) -> _Ledger:
+    ledger = getattr(builder, "_budget_ledger", None)
+    if ledger is None:
+        ledger = _Ledger()
+        builder._budget_ledger = ledger
+    return ledger
+
+
+def _element_limit(comp) -> Optional[int]:
+    for meta in type(comp).model_fields["elements"].metadata:
+        if getattr(meta, "le", None) is not None:
+            return int(meta.le)
+    return None
+
+
+def admit_mesh(builder, ctx, full: str, comp, path) -> bool:
+    """Admit a distributed component before it is discretized, or record why not.
+
+    Checks the element count against the component's own limit (a scene's
+    ``accuracy.mesh`` must not bypass it) and the estimated compile memory of all
+    distributed components so far against the budget. The error is located at the
+    ``elements`` key (or at the scene's ``accuracy.mesh`` entry that set it).
+    """
+    override_ = builder.mesh_overrides.get(full)
+    if override_ is not None:
+        span, where = override_[1], f"accuracy.mesh.{full}"
+    else:
+        key = (*path, "elements")
+        has = getattr(ctx.smap, "has", None)
+        span = ctx.smap.locate_key(key) if has is None or has(key) else ctx.smap.locate(path)
+        where = ".".join(str(p) for p in key)
+    n = int(comp.elements)
+    limit = _element_limit(comp)
+    if limit is not None and n > limit:
+        builder.diags.append(Diagnostic(
+            "PHC-E701", f"`{full}` ({comp.type}) has {n:,} elements, above its limit of {limit:,}", span=span,
+            hint="use fewer elements", path=where))
+        return False
+    ledger = _ledger(builder)
+    est = mesh_estimate(comp)
+    total = Estimate(ledger.total.unknowns + est.unknowns, ledger.total.nonzeros + est.nonzeros)
+    budget = max_memory()
+    if total.compile_bytes > budget:
+        others = ledger.total
+        per = mesh_estimate(comp.model_copy(update={"elements": 1000}))
+        spare = budget - Estimate(others.unknowns, others.nonzeros).compile_bytes
+        cost_per_element = (BYTES_PER_UNKNOWN * per.unknowns + BYTES_PER_NONZERO * per.nonzeros) / 1000
+        fit = int(spare / cost_per_element) if spare > 0 else 0
+        together = (f" (with the {len(ledger.meshes)} distributed component(s) before it: {total.unknowns:,} "
+                    f"unknowns, {total.nonzeros:,} Jacobian nonzeros)" if ledger.meshes else "")
+        builder.diags.append(Diagnostic(
+            "PHC-E700", f"`{full}` ({comp.type}, {n:,} elements) needs an estimated {format_bytes(total.compile_bytes)} "
+            f"to compile ({est.unknowns:,} unknowns, {est.nonzeros:,} Jacobian nonzeros){together}, above the "
+            f"memory budget of {format_bytes(budget)}", span=span, path=where,
+            hint=(f"use at most about {fit:,} elements " if fit >= 1 else "use fewer elements ")
+            + _raise_hint(total.compile_bytes)))
+        return False
+    ledger.total = total
+    ledger.meshes[full] = (est, span, n)
+    return True
+
+
+def check_assembled(builder, ctx, dae) -> None:
+    """After assembly: the exact size plus the output arrays against the budget (a located
+    error on the builder when above: at `n_out` when the outputs drive it, else at the
+    component with the most unknowns)."""
+    n_var = len(dae.variables)
+    nonzeros = sum(term.matrix.nnz for block in dae.linear_blocks for term in block.terms)
+    nonzeros += sum(len(eq.expr.free_symbols) for eq in dae.equations if eq.expr != 0)
+    compile_est = Estimate(n_var, nonzeros)
+    n_out = int(dae.options.get("n_out", 0) or 0)
+    columns = 2 * n_var + len(dae.outputs) + len(dae.invariants) + len(dae.velocity_invariants) + 4
+    outputs = output_bytes(n_out, columns)
+    total = compile_est.compile_bytes + outputs
+    budget = max_memory()
+    if total <= budget:
+        return
+    what = (f"an estimated {format_bytes(total)} ({format_bytes(compile_est.compile_bytes)} to compile "
+            f"{n_var:,} unknowns with {nonzeros:,} Jacobian nonzeros, {format_bytes(outputs)} for the output "
+            f"arrays: {n_out:,} points × {columns:,} columns)")
+    if outputs >= compile_est.compile_bytes:
+        scene = builder.scene
+        if scene is not None and scene.spec.n_out is not None:
+            span, where = scene.locate("n_out"), "n_out"
+        else:
+            span, where = ctx.smap.locate(("simulation", "n_out")), "simulation.n_out"
+        fit = max(2, int((budget - compile_est.compile_bytes) / (8 * columns)))
+        builder.diags.append(Diagnostic(
+            "PHC-E700", f"the output grid needs {what}, above the memory budget of {format_bytes(budget)}",
+            span=span, path=where, hint=f"use fewer output points (at most about {fit:,}) " + _raise_hint(total)))
+        return
+    counts: dict[str, int] = {}
+    for v in dae.variables:
+        counts[v.component] = counts.get(v.component, 0) + 1
+    driver = max(counts, key=counts.get) if counts else None
+    ledger = _ledger(builder)
+    span = ledger.meshes[driver][1] if driver in ledger.meshes else next(
+        (s for name, _, s in builder.components if name == driver), None)
+    builder.diags.append(Diagnostic(
+        "PHC-E700", f"the model needs {what}, above the memory budget of {format_bytes(budget)}; "
+        f"`{driver}` has the most unknowns ({counts.get(driver, 0):,})", span=span,
+        hint="make the model smaller " + _raise_hint(total)))
+
+
+def check_output_arrays(n_out: int, n_columns: int, what: str = "n_out") -> Optional[str]:
+    """The problem with `n_out` output points of `n_columns` doubles, or None within budget."""
+    need = output_bytes(n_out, n_columns)
+    budget = max_memory()
+    if need <= budget:
+        return None
+    return (f"{what} = {n_out:,} output points × {n_columns:,} columns need {format_bytes(need)} for the output "
+            f"arrays, above the memory budget of {format_bytes(budget)}; use fewer points (at most about "
+            f"{max(2, budget // (8 * n_columns)):,}) " + _raise_hint(need))
+
+
+# -- symbolic work -------------------------------------------------------------------------
+
+class SymbolicBudgetError(Exception):
+    """An expression whose derivative (or whose CSE) would exceed the symbolic budget."""
+
+    def __init__(self, expr, work: int, limit: int, what: str) -> None:
+        self.expr, self.work, self.limit, self.what = expr, work, limit, what
+        super().__init__(f"{what}: estimated {work:,} nodes, above the limit of {limit:,}")
+
+
+class SizeCache:
+    """Tree sizes of sympy nodes (shared subtrees counted once per occurrence, as sympy's
+    own tree walks do), memoized across the expressions of one compilation."""
+
+    def __init__(self) -> None:
+        self.size: dict = {}
+        self.work: dict = {}
+
+    def tree_size(self, expr) -> int:
+        self._walk(expr)
+        return self.size[expr]
+
+    def derivative_work(self, expr) -> int:
+        """Bound on the size of d(expr)/dx for any x (every symbol may be x)."""
+        self._walk(expr)
+        return self.work[expr]
+
+    def _walk(self, expr) -> None:
+        size, work = self.size, self.work
+        stack = [(expr, False)]
+        while stack:
+            node, expanded = stack.pop()
+            if node in size:
+                continue
+            args = node.args
+            if not args:
+                size[node] = 1
+                work[node] = 1 if node.free_symbols else 0
+                continue
+            if not expanded:
+                stack.append((node, True))
+                stack.extend((a, False) for a in args if a not in size)
+                continue
+            s = 1 + sum(size[a] for a in args)
+            size[node] = s
+            work[node] = _node_work(node, s, [work[a] for a in args])
+
+
+def _node_work(node, s: int, child_work: list[int]) -> int:
+    if isinstance(node, sp.Add):
+        return 1 + sum(child_work) if any(child_work) else 0
+    dependent = [w for w in child_work if w]
+    if not dependent:
+        return 0
+    work = sum(s + 4 + w for w in dependent)  # + 4: f'(g) may be a little larger than f(g) (tan, atan)
+    if isinstance(node, (sp.Min, sp.Max)):
+        work += MINMAX_WEIGHT * len(dependent) ** 2 * s
+    return work
+
+
+def derivative_work(expr, wrt=None, cache: Optional[SizeCache] = None) -> int:
+    """Bound on the tree size of ``d expr / d wrt`` (any symbol when `wrt` is None).
+
+    Computed from the tree without differentiating (iteratively: no recursion limit):
+    a sum costs the sum of its terms' derivatives; any other node (product, power,
+    function, piecewise) costs a copy of itself plus the derivative of each argument
+    that depends on the variable; ``min``/``max`` of k dependent arguments add
+    MINMAX_WEIGHT · k² copies. The bound is 2–5 × the size sympy actually returns
+    on the shipped models; its purpose is to tell 10³ from 10⁶ before sympy starts.
+    """
+    if wrt is None:
+        return (cache or SizeCache()).derivative_work(expr)
+    size: dict = {}
+    work: dict = {}
+    stack = [(expr, False)]
+    while stack:
+        node, expanded = stack.pop()
+        if node in size:
+            continue
+        args = node.args
+        if not args:
+            size[node] = 1
+            work[node] = 1 if node == wrt else 0
+            continue
+        if not expanded:
+            stack.append((node, True))
+            stack.extend((a, False) for a in args if a not in size)
+            continue
+        s = 1 + sum(size[a] for a in args)
+        size[node] = s
+        work[node] = _node_work(node, s, [work[a] for a in args])
+    return work[expr]
+
+
+def drop_deltas(expr):
+    """Replace Dirac deltas (derivatives of sign, abs' and heaviside) by 0, their value
+    almost everywhere: a Jacobian is a Newton matrix, and generated code cannot print a
+    distribution."""
+    if not expr.has(sp.DiracDelta):
+        return expr
+    return expr.replace(lambda e: isinstance(e, sp.DiracDelta), lambda e: sp.S.Zero)
+
+
+def checked_diff(expr, x, what: str, cache: Optional[SizeCache] = None):
+    """``sp.diff(expr, x)`` after checking :func:`derivative_work` against DIFF_LIMIT.
+
+    Raises
+    ------
+    SymbolicBudgetError
+        Before differentiating, when the bound is above the limit.
+    """
+    work = (cache or SizeCache()).derivative_work(expr)
+    if work > DIFF_LIMIT:  # the cheap bound over all symbols is too large: look at x alone
+        work = derivative_work(expr, x)
+        if work > DIFF_LIMIT:
+            raise SymbolicBudgetError(expr, work, DIFF_LIMIT, what)
+    return drop_deltas(sp.diff(expr, x))
+
+
+def symbolic_hint() -> str:
+    return ("write it with fewer factors or arguments (a sum of terms differentiates term by term; a product or "
+            "a `min`/`max` of many terms does not), or split it across components")

@@ -1,0 +1,233 @@
+"""Resource budget (phc.budget): cost estimated before the work, refused above a budget with
+a located error; symbolic differentiation and CSE bounded."""
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import sympy as sp
+
+import phc
+from phc import budget
+from phc.cli import main
+from phc.errors import ModelError, SimulationSetupError
+from phc.pipeline import build_dae
+
+ROOT = Path(__file__).resolve().parents[1]
+MODELS = ROOT / "models"
+
+BEAM = """format_version: 1
+name: cantilever
+parameters:
+  EI: {{value: 68.27, unit: N*m^2}}
+  rhoA: {{value: 0.50368, unit: kg/m}}
+components:
+  clamp: {{type: zero_flow, domain: mechanical.translational}}
+  beam:
+    type: euler_bernoulli_beam
+    length: 0.3
+    elements: {n}
+    rhoA: rhoA
+    EI: EI
+  clamp_rot: {{type: zero_flow, domain: mechanical.rotational}}
+  free: {{type: zero_effort, domain: mechanical.translational}}
+  free_rot: {{type: zero_effort, domain: mechanical.rotational}}
+connections:
+  - [beam.a, clamp.port]
+  - [beam.a_rot, clamp_rot.port]
+  - [beam.b, free.port]
+  - [beam.b_rot, free_rot.port]
+"""
+
+
+def _codes(diags):
+    return [d.code for d in diags if d.severity == "error"]
+
+
+def test_parse_size():
+    assert budget.parse_size("2G") == budget.parse_size("2GiB") == 2 * 2**30
+    assert budget.parse_size("1.5g") == 3 * 2**29
+    assert budget.parse_size("800MB") == 800 * 10**6
+    assert budget.parse_size("4194304") == 4 * 2**20
+    for bad in ("", "2X", "-1G", "1e9", "10K", "nan"):
+        with pytest.raises(ValueError):
+            budget.parse_size(bad)
+
+
+def test_200000_element_beam_is_refused_in_under_a_second(tmp_path):
+    build_dae(MODELS / "euler_bernoulli_beam.yaml")  # imports and library set-up out of the timing
+    path = tmp_path / "beam.yaml"
+    path.write_text(BEAM.format(n=200000))
+    t = time.perf_counter()
+    dae, diags = build_dae(path)
+    assert time.perf_counter() - t < 1.0
+    assert dae is None and _codes(diags) == ["PHC-E700"]
+    d = diags.errors[0]
+    assert (d.span.line, d.span.col) == (11, 5)  # the `elements` key
+    assert "`beam`" in d.message and "1,600,008 unknowns" in d.message and "GiB" in d.message
+    assert "--max-memory" in d.hint
+
+
+def test_the_budget_is_configurable(tmp_path, monkeypatch):
+    path = tmp_path / "beam.yaml"
+    path.write_text(BEAM.format(n=1000))  # about 250 MiB
+    assert build_dae(path)[0] is not None
+    with budget.override("200M"):
+        assert _codes(build_dae(path)[1]) == ["PHC-E700"]
+    assert build_dae(path)[0] is not None  # restored
+    monkeypatch.setenv("PHC_MAX_MEMORY", "200M")
+    assert _codes(build_dae(path)[1]) == ["PHC-E700"]
+    with budget.override(8 * 2**30):  # the override wins over the environment
+        assert build_dae(path)[0] is not None
+
+
+def test_components_add_up_and_the_one_that_tips_it_is_named(tmp_path):
+    text = BEAM.format(n=1000).replace("  clamp_rot:", "  beam2: {type: string, length: 1, elements: 20000, rho: 1, "
+                                       "T: 1}\n  clamp_rot:")
+    text = text.replace("connections:\n", "connections:\n  - [beam2.a, beam2.b]\n")
+    path = tmp_path / "two.yaml"
+    path.write_text(text)
+    with budget.override("800M"):
+        diags = build_dae(path)[1]
+    errors = [d for d in diags if d.code == "PHC-E700"]
+    assert len(errors) == 1 and "`beam2`" in errors[0].message and "before it" in errors[0].message
+
+
+def test_scene_mesh_override_is_bounded_in_the_scene_file(tmp_path):
+    (tmp_path / "m.yaml").write_text((MODELS / "vibrating_string.yaml").read_text())
+    scene = tmp_path / "s.yaml"
+    scene.write_text("model: m.yaml\naccuracy:\n  mesh: {string: 100000000}\n")
+    dae, diags = build_dae(scene)
+    assert dae is None
+    assert [(d.span.file, d.span.line) for d in diags.errors] == [(str(scene), 3)]
+    scene.write_text("model: m.yaml\naccuracy:\n  mesh: {string: 150000}\n")  # within the limit, not the budget
+    diags = build_dae(scene)[1]
+    assert _codes(diags) == ["PHC-E700"] and diags.errors[0].span.file == str(scene)
+
+
+def test_moving_beam_limit_holds_through_a_scene(tmp_path):
+    (tmp_path / "m.yaml").write_text((MODELS / "flexible_slider_crank.yaml").read_text())
+    scene = tmp_path / "s.yaml"
+    scene.write_text("model: m.yaml\naccuracy:\n  mesh: {rod: 150000}\n")
+    diags = build_dae(scene)[1]
+    assert _codes(diags) == ["PHC-E701"]
+    assert diags.errors[0].span.file == str(scene) and "100,000" in diags.errors[0].message
+
+
+def test_n_out_is_charged_for_its_output_arrays(tmp_path):
+    text = (MODELS / "vibrating_string.yaml").read_text()
+    assert "n_out: 1001" in text
+    path = tmp_path / "m.yaml"
+    path.write_text(text.replace("n_out: 1001", "n_out: 10000000"))  # 10.7 GiB of output arrays
+    dae, diags = build_dae(path)
+    assert dae is None and _codes(diags) == ["PHC-E700"]
+    d = diags.errors[0]
+    assert d.path == "simulation.n_out" and text.splitlines()[d.span.line - 1].strip().startswith("n_out")
+    assert "output arrays" in d.message
+    scene = tmp_path / "s.yaml"
+    scene.write_text("model: m.yaml\nn_out: 10000000\n")
+    path.write_text(text)
+    diags = build_dae(scene)[1]
+    assert _codes(diags) == ["PHC-E700"] and diags.errors[0].span.file == str(scene)
+
+
+def test_simulate_refuses_an_output_grid_above_the_budget():
+    compiled = phc.compile_model(MODELS / "rlc_circuit.yaml")
+    with budget.override("200M"):
+        with pytest.raises(SimulationSetupError, match="output arrays"):
+            phc.simulate(compiled, n_out=5_000_000)
+
+
+def test_cli_max_memory_and_peak_memory(tmp_path, capsys):
+    path = tmp_path / "beam.yaml"
+    path.write_text(BEAM.format(n=1000))
+    assert main(["validate", "--max-memory", "200M", str(path)]) == 1
+    assert "PHC-E700" in capsys.readouterr().err
+    assert main(["validate", str(path)]) == 0
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exit_:
+        main(["validate", "--max-memory", "lots", str(path)])
+    assert exit_.value.code == 2
+    capsys.readouterr()
+    assert main(["simulate", "--quiet", "--format", "json", str(MODELS / "rlc_circuit.yaml")]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["peak_memory_bytes"] > 50 * 2**20
+    assert main(["simulate", "--quiet", str(MODELS / "rlc_circuit.yaml")]) == 0
+    assert "  memory   peak " in capsys.readouterr().out
+
+
+# -- symbolic work -----------------------------------------------------------------------------
+
+def test_derivative_bound_is_above_what_sympy_returns():
+    x, y = sp.symbols("x y", real=True)  # as phc's symbols
+    cache = budget.SizeCache()
+    for expr in (x**2 * sp.sin(x * y), sp.exp(x) * sp.cos(x + y) * sp.Abs(x), sp.Max(x, y**2, x * y) + x,
+                 sp.Piecewise((x**2, x < 1), (x, True)) * y, sp.tan(x) * sp.atan(x * y), sp.sqrt(x**2 + y)):
+        actual = cache.tree_size(sp.diff(expr, x))
+        assert actual <= budget.derivative_work(expr, x) <= cache.derivative_work(expr)
+    assert budget.derivative_work(x * y + y, x) < budget.derivative_work(x * y * sp.sin(x), x)
+    assert budget.derivative_work(y**2, x) == 0
+
+
+def test_deltas_are_dropped_from_derivatives():
+    x = sp.Symbol("x", real=True)
+    assert budget.drop_deltas(sp.diff(sp.sign(x) * x**2, x, 2)).has(sp.DiracDelta) is False
+
+
+LC = (ROOT / "tests" / "models" / "valid" / "lc_oscillator_phs.yaml").read_text()
+KERNEL = (ROOT / "tests" / "models" / "valid" / "kernel_phs_multiplier.yaml").read_text()
+COSTLY = {
+    "max300": ("hamiltonian", "max(" + ", ".join(f"q*{k + 1}" for k in range(300)) + ")"),
+    "exp60": ("hamiltonian", "*".join(f"exp(sin(q+{k}))" for k in range(60))),
+    "abs30": ("hamiltonian", "*".join(f"abs(q - {k})" for k in range(30))),
+    "law150": ("law", "c*f_damp*" + "*".join(f"exp(sin(f_damp+{k}))" for k in range(150))),
+}
+
+
+def _costly_model(tmp_path, case):
+    where, text = COSTLY[case]
+    if where == "hamiltonian":
+        model = LC.replace("hamiltonian: q**2/(2*C) + phi**2/(2*L)", f'hamiltonian: "{text}"')
+        line = next(i for i, s in enumerate(model.splitlines(), 1) if "hamiltonian:" in s)
+    else:
+        model = KERNEL.replace("e_damp = c*f_damp", f"e_damp = {text}")
+        line = next(i for i, s in enumerate(model.splitlines(), 1) if "law:" in s)
+    path = tmp_path / f"{case}.yaml"
+    path.write_text(model)
+    return path, line
+
+
+@pytest.mark.parametrize("command, cases", [
+    ("validate", ["abs30", "exp60", "max300"]),  # ∇H is taken while the phs is lowered
+    ("simulate", ["law150"]),                    # the Jacobian of a resistive law, in code generation
+])
+def test_costly_expressions_end_in_located_errors_within_seconds(tmp_path, command, cases):
+    """Once: `max` of 300 terms and a product of 60 exponentials ran past 120 s, a product of
+    30 `abs` ran 24 s and crashed. Each must now be one located line, in seconds."""
+    models = [_costly_model(tmp_path, case) for case in cases]
+    env = dict(os.environ, PHC_CACHE_DIR=str(tmp_path / "cache"))
+    extra = ["--quiet"] if command == "simulate" else []
+    t = time.perf_counter()
+    run = subprocess.run([sys.executable, "-m", "phc", command, *extra, *(str(p) for p, _ in models)],
+                         capture_output=True, text=True, timeout=90, env=env)
+    elapsed = time.perf_counter() - t
+    assert run.returncode == 1, run.stderr[-2000:]
+    lines = run.stderr.strip().splitlines()
+    assert len(lines) == len(models)
+    for (path, line), text in zip(models, lines):
+        assert text.startswith(f"{path}:{line}:") and text.endswith("[PHC-E702]")
+        assert "too costly to differentiate" in text
+    assert "internal error" not in run.stderr
+    assert elapsed < 10 * len(models)
+
+
+def test_cse_input_is_bounded(monkeypatch):
+    monkeypatch.setattr(budget, "CSE_LIMIT", 20)
+    with pytest.raises(ModelError) as info:
+        phc.compile_model(MODELS / "rlc_circuit.yaml")
+    (d,) = info.value.diagnostics
+    assert d.code == "PHC-E702" and "common-subexpression elimination" in d.message and "the largest is" in d.message
