@@ -23,5 +23,9 @@ __version__ = "0.1.0"
 from phc.pipeline import CompiledModel, build_dae, compile_model  # noqa: E402
 from phc.simulation import SimResult, simulate  # noqa: E402
 from phc.elaborate import load_spec as load_model  # noqa: E402
+from phc.errors import (  # noqa: E402
+    CodegenError, InconsistentInitialError, ModelError, PhcError, SimulationSetupError,
+)
 
-__all__ = ["__version__", "load_model", "build_dae", "compile_model", "simulate", "CompiledModel", "SimResult"]
+__all__ = ["__version__", "load_model", "build_dae", "compile_model", "simulate", "CompiledModel", "SimResult",
+           "PhcError", "ModelError", "InconsistentInitialError", "SimulationSetupError", "CodegenError"]

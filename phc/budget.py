@@ -42,6 +42,7 @@ from typing import Iterator, Optional
 
 import sympy as sp
 
+from phc.errors import PhcError
 from phc.diagnostics import Diagnostic
 
 DEFAULT_MAX_MEMORY = 2 * 2**30
@@ -303,7 +304,7 @@ def check_output_arrays(n_out: int, n_columns: int, what: str = "n_out") -> Opti
 
 # -- symbolic work -------------------------------------------------------------------------
 
-class SymbolicBudgetError(Exception):
+class SymbolicBudgetError(PhcError):
     """An expression whose derivative (or whose CSE) would exceed the symbolic budget."""
 
     def __init__(self, expr, work: int, limit: int, what: str) -> None:

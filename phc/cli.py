@@ -20,13 +20,14 @@ from typing import Optional, Sequence
 import numpy as np
 
 from phc import __version__
+from phc.errors import PhcError
 
 EXIT_OK, EXIT_MODEL, EXIT_USAGE = 0, 1, 2
 EXIT_INTERRUPTED = 130
 _python_showwarning = warnings.showwarning
 
 
-class UsageError(Exception):
+class UsageError(PhcError):
     """A wrong command-line argument."""
 
 
@@ -318,7 +319,6 @@ def cmd_simulate(args) -> int:
     if args.format == "json":
         summary = result.summary()
         summary["peak_memory_bytes"] = peak_memory()
-        summary["peak_memory_bytes"] = peak_memory()
         summary["model"] = compiled.dae.name
         summary["compile_time_s"] = compiled.compile_time
         summary.update(_compiled_json(compiled))
@@ -335,7 +335,6 @@ def cmd_simulate(args) -> int:
     else:
         label = f"{compiled.name} (scene of {compiled.dae.name})" if compiled.scene else compiled.name
         print(_summary_text(label, result))
-        print(f"  memory   peak {format_bytes(peak_memory())} resident")
         print(f"  memory   peak {format_bytes(peak_memory())} resident")
         print(f"  compiled {_size_text(compiled.size())} in {compiled.compile_time:.2f} s")
         print(_certificate_line(compiled))

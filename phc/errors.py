@@ -10,6 +10,19 @@
     invalid simulation options or missing optional dependency.
 ``CodegenError``
     the code generator met something it cannot print (a phc bug, never a user mistake).
+
+Defined beside the code that raises them, and all ``PhcError``:
+``phc.spec.expressions.ExpressionError`` (a malformed or forbidden expression),
+``phc.inputs.TableError`` (an input table that cannot be used),
+``phc.library.linear.NpzProblem`` (a matrices file that cannot be used),
+``phc.files.FileRefused`` (a referenced file phc will not read),
+``phc.budget.SymbolicBudgetError`` (symbolic work above the budget),
+``phc.io.OutputPathError`` (an output path that cannot be written),
+``phc.cli.UsageError`` (a wrong command-line argument),
+``phc.simulation.guard.ModelEvaluationError`` (a model expression outside its domain
+during a run), ``phc.viz.PlotUnavailable`` (a ``SimulationSetupError``: matplotlib
+missing). ``phc.simulation.result.SimulationInterrupted`` stays a ``KeyboardInterrupt``.
+These are reported to users as located diagnostics; the exceptions reach only API callers.
 """
 
 from __future__ import annotations

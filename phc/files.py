@@ -33,6 +33,8 @@ import stat
 from pathlib import Path
 from typing import BinaryIO, Iterable, Iterator, Optional
 
+from phc.errors import PhcError
+
 __all__ = ["FileAccess", "FileRefused", "allow_paths", "allowed_extra_roots", "size_limit", "SIZE_LIMITS",
            "SIZE_LIMIT_ENV", "MAX_INCLUDE_DEPTH", "MAX_MODEL_INSTANCES", "ALLOW_HINT", "KIND_NAMES"]
 
@@ -61,7 +63,7 @@ ALLOW_HINT = (f"move the file next to the model, or pass --allow-path DIR (or se
 _EXTRA_ROOTS: contextvars.ContextVar[tuple[str, ...]] = contextvars.ContextVar("phc_allow_path", default=())
 
 
-class FileRefused(Exception):
+class FileRefused(PhcError):
     """A referenced file phc will not read. `reason` is one of ``outside``, ``missing``,
     ``kind``, ``size``, ``unreadable``, ``name``; `message` and `hint` are for the user."""
 

@@ -27,6 +27,7 @@ from typing import Optional
 import numpy as np
 import sympy as sp
 
+from phc.errors import PhcError
 from phc.dae import T
 from phc.files import FileAccess, FileRefused
 from phc.spec.model import PieceSpec, TableSpec
@@ -54,7 +55,7 @@ class InputTableSlope(sp.Function):
         return sp.Integer(0)
 
 
-class TableError(Exception):
+class TableError(PhcError):
     """A table file that cannot be used; `message` says why (never quoting the file's
     content beyond a column name of a header that parsed as one)."""
 

@@ -21,6 +21,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, Iterator, Sequence, Union
 
+from phc.errors import PhcError
+
 PathLike = Union[str, os.PathLike]
 
 __all__ = ["OutputPathError", "check_output_file", "check_output_dir", "atomic_write", "write_text",
@@ -30,7 +32,7 @@ TEMP_SUFFIX = ".part"
 """Suffix of the temporary files (hidden: their names start with a dot)."""
 
 
-class OutputPathError(ValueError):
+class OutputPathError(PhcError, ValueError):
     """An output path that cannot be written (the message says why and what to do)."""
 
 

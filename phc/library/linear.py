@@ -19,6 +19,7 @@ import numpy as np
 import scipy.sparse as sps
 import sympy as sp
 
+from phc.errors import PhcError
 from phc.dae import LinearTerm, QuadraticForm
 from phc.files import SIZE_LIMIT_ENV, FileAccess, FileRefused, size_limit
 from phc.library.dirac import DiracBuilder
@@ -38,7 +39,7 @@ MAX_MATRIX_DIMENSION = 10_000_000
 _NUMERIC_KINDS = "fiub"
 
 
-class NpzProblem(Exception):
+class NpzProblem(PhcError):
     """A matrices file, or an array in it, that phc will not use (`message` says why)."""
 
 

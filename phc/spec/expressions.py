@@ -29,6 +29,8 @@ from typing import Callable, Mapping
 
 import sympy as sp
 
+from phc.errors import PhcError
+
 __all__ = ["CONSTANTS", "FUNCTIONS", "ExpressionError", "FunctionSpec",
            "parse_equation", "parse_expression", "validate_syntax"]
 
@@ -39,7 +41,7 @@ MAX_EXPONENT = 64        # |constant exponent|
 MAX_DIGITS = 30          # digits of an integer literal
 
 
-class ExpressionError(ValueError):
+class ExpressionError(PhcError, ValueError):
     """A malformed or forbidden expression.
 
     Parameters
