@@ -21,13 +21,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import networkx as nx
 import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 from scipy.optimize import least_squares
 
+from phc.analysis.matching import bipartite_matching
 from phc.errors import InconsistentInitialError
 
 CHEAP = 1e4
@@ -104,14 +104,9 @@ class _Problem:
 
     def _kept_rows(self, jyp) -> np.ndarray:
         """Rows whose time derivative carries information (not absorbed by a private ÿ)."""
-        coo = jyp.tocoo()
-        graph = nx.Graph()
-        row_nodes = [("eq", i) for i in range(self.m)]
-        graph.add_nodes_from(row_nodes)
-        graph.add_edges_from((("eq", int(i)), ("var", int(j))) for i, j, v in zip(coo.row, coo.col, coo.data)
-                             if v != 0)
-        matching = nx.bipartite.hopcroft_karp_matching(graph, top_nodes=row_nodes)
-        return np.array([i for i in range(self.m) if ("eq", i) not in matching], dtype=np.int64)
+        # scipy's matching: no recursion (a long string or beam is a long alternating
+        # chain) and no dependence on hashing.
+        return np.flatnonzero(bipartite_matching(jyp) < 0).astype(np.int64)
 
     def unpack(self, u):
         nf, nd, nz, nw = self.sizes

@@ -1,0 +1,136 @@
+"""Scale: structural passes over long chains must not recurse (issue "untrusted input",
+item "scale breaks in the middle"): a string of 2 000 elements once ended in
+`internal error: RecursionError` inside networkx's recursive Hopcroft–Karp."""
+
+import inspect
+import os
+import random
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sps
+
+import phc
+from phc.analysis.matching import bipartite_matching
+from phc.simulation.initial import consistent_initial_conditions
+
+MODELS = Path(__file__).resolve().parents[1] / "models"
+
+
+CANTILEVER = """format_version: 1
+name: cantilever
+parameters: {EI: 68.27, rhoA: 0.50368, F: 1.0}
+components:
+  beam: {type: euler_bernoulli_beam, length: 0.3, elements: 400, rhoA: rhoA, EI: EI}
+  clamp: {type: zero_flow, domain: mechanical.translational}
+  clamp_rot: {type: zero_flow, domain: mechanical.rotational}
+  load: {type: effort_source, domain: mechanical.translational, value: "F*sin(100*t)"}
+  free_rot: {type: zero_effort, domain: mechanical.rotational}
+connections:
+  - [beam.a, clamp.port]
+  - [beam.a_rot, clamp_rot.port]
+  - [beam.b, load.port]
+  - [beam.b_rot, free_rot.port]
+"""
+"""The cantilever of benchmarks/bench_beam_scale.py."""
+
+
+def _chain(n: int, reverse: bool) -> sps.csr_matrix:
+    """Row i touches columns i and i+1 (reversed: the augmenting paths run the whole chain)."""
+    rows = np.r_[np.arange(n), np.arange(n - 1)]
+    cols = np.r_[np.arange(n), np.arange(1, n)]
+    if reverse:
+        cols = n - 1 - cols
+    return sps.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
+
+
+def test_matching_of_a_20000_chain_does_not_recurse():
+    limit = sys.getrecursionlimit()
+    sys.setrecursionlimit(200)  # anything recursive in the chain length would fail at once
+    try:
+        for reverse in (False, True):
+            t = time.perf_counter()
+            match = bipartite_matching(_chain(20_000, reverse), prefer_early=True)
+            assert time.perf_counter() - t < 5
+            assert np.all(match >= 0) and len(set(match.tolist())) == 20_000
+    finally:
+        sys.setrecursionlimit(limit)
+
+
+def test_structural_check_of_a_beam_finishes(tmp_path):
+    """scipy's own maximum_bipartite_matching did not return on the structural pattern of
+    a 125-element cantilever (no dead-end marking in its depth-first phase, scipy issue
+    26147): run in a subprocess so that such a regression fails instead of hanging."""
+    path = tmp_path / "cantilever.yaml"
+    path.write_text(CANTILEVER)
+    code = ("import sys, time; from phc.pipeline import build_dae; t = time.perf_counter(); "
+            "dae, d = build_dae(sys.argv[1]); assert dae is not None, d; print(time.perf_counter() - t)")
+    run = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, timeout=120,
+                         env=dict(os.environ, PHC_CACHE_DIR=str(tmp_path / "cache")))
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert float(run.stdout) < 20
+
+
+def _greedy_basis(pattern: sps.csr_matrix) -> set[int]:
+    """Reference: the lexicographically first set of matchable rows (rows in order, each
+    kept when an augmenting path can add it) — the greedy basis of the transversal matroid."""
+    m, n = pattern.shape
+    row_of = [-1] * n
+    kept = set()
+    for u in range(m):
+        parent, queue, k, end = {u: None}, [u], 0, None
+        while k < len(queue) and end is None:
+            r = queue[k]
+            k += 1
+            for c in pattern.indices[pattern.indptr[r]:pattern.indptr[r + 1]].tolist():
+                if row_of[c] < 0:
+                    end = (r, c)
+                    break
+                if row_of[c] not in parent:
+                    parent[row_of[c]] = (r, c)
+                    queue.append(row_of[c])
+        if end is None:
+            continue
+        r, c = end
+        while True:  # flip the path back to u: each row takes the column it was reached by
+            row_of[c] = r
+            if r == u:
+                break
+            r, c = parent[r]
+        kept.add(u)
+    return kept
+
+
+def test_redundant_rows_reported_are_the_latest():
+    rng = random.Random(4)
+    for _ in range(60):
+        m, n = rng.randint(1, 9), rng.randint(1, 9)
+        dense = np.array([[rng.random() < 0.3 for _ in range(n)] for _ in range(m)], dtype=float)
+        pattern = sps.csr_matrix(dense)
+        match = bipartite_matching(pattern, prefer_early=True)
+        rows = set(np.flatnonzero(match >= 0).tolist())
+        cols = set(match[match >= 0].tolist())
+        assert all(dense[i, match[i]] for i in rows)
+        assert len(cols) == len(rows) == len(_greedy_basis(pattern))  # maximum
+        assert rows == _greedy_basis(pattern)
+        assert cols == _greedy_basis(sps.csr_matrix(dense.T))
+
+
+def test_a_3000_element_string_gets_through_consistent_initialization(tmp_path):
+    text = (MODELS / "vibrating_string.yaml").read_text().replace("elements: 16", "elements: 3000")
+    path = tmp_path / "string3000.yaml"
+    path.write_text(text)
+    kwargs = {"certify": False} if "certify" in inspect.signature(phc.compile_model).parameters else {}
+    mod = phc.compile_model(path, **kwargs).module
+    p = mod.full_parameters()
+    n = mod.N
+    dif = np.flatnonzero(np.asarray(mod.DIFFERENTIAL))
+    t = time.perf_counter()
+    init = consistent_initial_conditions(mod, p, 0.0, {int(j): 0.0 for j in dif}, set(dif.tolist()))
+    assert time.perf_counter() - t < 10
+    res = np.zeros(n)
+    mod.residual(0.0, init.y0, init.yp0, p, res)
+    assert np.abs(res).max() < 1e-8
