@@ -65,6 +65,7 @@ def green_identity_error(P: list[np.ndarray], Wf: np.ndarray, We: np.ndarray, le
 
 
 def lower_pde1d(b, ctx, name, spec, path):
+    n_errors = len(b.diags.errors)  # this component's own errors stop it, not another's
     scope = local_scope(b, ctx, name, spec, path)
     del scope
     N, d = spec.order, len(spec.variables)
@@ -91,7 +92,7 @@ def lower_pde1d(b, ctx, name, spec, path):
         b.error("PHC-E156", f"`{name}` needs {N * d} boundary port names (N·d), got {len(spec.ports)}", ctx,
                 (*path, "ports"))
     mesh = _mesh(b, ctx, name, spec, path)
-    if b.diags.has_errors or mesh is None:
+    if len(b.diags.errors) > n_errors or mesh is None:
         return
     err = green_identity_error(P, Wf, We, mesh.length)
     if err > 1e-9:

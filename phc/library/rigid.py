@@ -25,6 +25,7 @@ from phc.library.phs import local_scope, numeric_defaults
 
 
 def lower_rigid(b, ctx, name, spec, path):
+    n_errors = len(b.diags.errors)  # this component's own errors stop it, not another's
     scope = local_scope(b, ctx, name, spec, path)
     span = ctx.smap.locate(path)
     nq = len(spec.q)
@@ -67,7 +68,7 @@ def lower_rigid(b, ctx, name, spec, path):
         Fd = sp.zeros(nv, 1)
     G = (b.matrix(ctx, spec.G, (*path, "G"), scope, (nv, nv), "`G`") if spec.G is not None
          else sp.zeros(nv, nv))
-    if b.diags.has_errors:
+    if len(b.diags.errors) > n_errors:
         return
     _check_mass_matrix(b, ctx, name, path, M, q)
 
@@ -108,7 +109,7 @@ def lower_rigid(b, ctx, name, spec, path):
         for k in range(pspec.dimension):
             b.define(port.f[k], vel[k])
         force += B * sp.Matrix(port.e)
-        if position is not None and not b.diags.has_errors:
+        if position is not None and len(b.diags.errors) == n_errors:
             _check_port_position(b, ctx, name, pname, ppath, sp.Matrix(position), qv, Z, B)
 
     # Certified with the velocity form of the position constraints, c'(q)Z v = 0, next to

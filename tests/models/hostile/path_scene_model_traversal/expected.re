@@ -1,1 +1,1 @@
-scene\.yaml:2:8: model: .+ \[PHC-E1\d\d\]
+scene\.yaml:2:8: model file `\.\./\.\./\.\./\.\./\.\./\.\./\.\./\.\./\.\./\.\./etc/passwd` lies outside .+ \[PHC-E116\]
