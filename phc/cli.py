@@ -547,9 +547,9 @@ def cmd_cache(args) -> int:
 
 def _show_warning(message, category, filename, lineno, file=None, line=None):
     """phc's own warnings as one line `phc: warning: ...`; others as Python prints them."""
-    from phc.codegen.load import CacheWarning
+    from phc.errors import PhcWarning
 
-    if issubclass(category, CacheWarning):
+    if issubclass(category, PhcWarning):
         print(f"phc: warning: {message}", file=sys.stderr)
     else:
         _python_showwarning(message, category, filename, lineno, file, line)

@@ -52,5 +52,9 @@ class SimulationSetupError(PhcError, ValueError):
     """Invalid simulation options (raised before integrating)."""
 
 
+class PhcWarning(UserWarning):
+    """Base of phc's warnings (the CLI prints them as one line `phc: warning: ...`)."""
+
+
 class CodegenError(PhcError):
     """The code generator met an expression it has no printed form for."""

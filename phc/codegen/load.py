@@ -31,13 +31,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
 
+from phc.errors import PhcWarning
+
 DEFAULT_CAP_MB = 512
 """Default size cap of the cache in MiB (``$PHC_CACHE_MAX_MB`` overrides it)."""
 
 _PRIVATE_FALLBACK: Path | None = None
 
 
-class CacheWarning(UserWarning):
+class CacheWarning(PhcWarning):
     """The configured cache directory is unusable or not private; a temporary one is used."""
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from functools import partial
 from typing import Callable, Optional
 
@@ -25,14 +26,22 @@ from phc.simulation.initial import consistent_initial_conditions
 from phc.simulation.midpoint import integrate_midpoint
 from phc.simulation.midpoint4 import integrate_midpoint4
 from phc.simulation.monitor import describe_equations
+from phc.simulation.backend import Backend, BackendRun, IgnoredOptionWarning, ignored_option_message
 from phc.simulation.result import SimResult, SimulationInterrupted
 
-BACKENDS = {"ida": integrate_ida, "midpoint": integrate_midpoint, "discrete_gradient": integrate_discrete_gradient,
-            "midpoint4": integrate_midpoint4}
-"""Integrators by name: `ida` (variable-order BDF), and the fixed-step structure-preserving
-`midpoint` (energy-exact for quadratic H), `discrete_gradient` (energy-exact for any H) and
-`midpoint4` (order 4: a composition of three midpoint substeps, energy-exact for quadratic H)."""
-FIXED_STEP = ("midpoint", "discrete_gradient", "midpoint4")
+_VARIABLE = frozenset({"rtol", "atol", "max_steps", "max_order"})
+_FIXED = frozenset({"step", "max_steps"})
+BACKENDS: dict[str, Backend] = {b.name: b for b in (
+    Backend("ida", integrate_ida, _VARIABLE, False, "SUNDIALS IDA: variable-order, variable-step BDF"),
+    Backend("midpoint", integrate_midpoint, _FIXED, True, "implicit midpoint: order 2, energy-exact for quadratic H"),
+    Backend("discrete_gradient", integrate_discrete_gradient, _FIXED, True,
+            "discrete gradient: order 2, energy-exact for any H"),
+    Backend("midpoint4", integrate_midpoint4, _FIXED, True,
+            "composition of three midpoint substeps: order 4, energy-exact for quadratic H"),
+)}
+"""Integrators by name (:class:`~phc.simulation.backend.Backend`): `ida` (variable-order
+BDF), and the fixed-step structure-preserving `midpoint`, `discrete_gradient`, `midpoint4`."""
+FIXED_STEP = tuple(name for name, b in BACKENDS.items() if b.fixed_step)
 N_OUT_LIMITS = (2, 10_000_000)
 """Smallest and largest number of output points (the model language's `simulation.n_out`)."""
 MAX_STEPS_LIMIT = 2 ** 31 - 1
@@ -111,6 +120,10 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
     """
     mod = guard(compiled.module, getattr(compiled, "source", None), _locator(compiled))
     opts = dict(compiled.dae.options)
+    backend = BACKENDS.get(solver or opts["solver"])
+    ignored = backend.ignored({"rtol": rtol, "atol": atol, "step": step}) if backend is not None else []
+    if ignored:
+        warnings.warn(ignored_option_message(backend, ignored), IgnoredOptionWarning, stacklevel=2)
     t0 = float(opts["t_start"])
     t1 = float(t_end if t_end is not None else opts["t_end"])
     rtol = float(rtol if rtol is not None else opts["rtol"])
@@ -385,5 +398,6 @@ def _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol, params=None) -
     )
 
 
-__all__ = ["simulate", "SimResult", "SimulationInterrupted", "ModelEvaluationError", "BACKENDS",
+__all__ = ["simulate", "SimResult", "SimulationInterrupted", "ModelEvaluationError", "BACKENDS", "Backend", "BackendRun",
+           "IgnoredOptionWarning",
            "InconsistentInitialError", "parameter_vector"]

@@ -1,0 +1,113 @@
+"""The contract every integrator (simulation backend) implements.
+
+Input: a generated residual module, the full parameter vector, the output times and a
+consistent start ``(y₀, ẏ₀)``, plus options. Output: a :class:`BackendRun`.
+
+Like scipy's ``solve_ivp`` methods, each backend is a function with one signature::
+
+    integrate(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=None,
+              max_order=None, names=None[, step=None]) -> mapping of the BackendRun fields
+
+wrapped in a :class:`Backend` that names it, says which options it honours and turns what
+it returns into a typed :class:`BackendRun`. A backend returns what it computed up to a
+failure (``success`` False, ``message`` saying when, why and what to try) rather than
+raising. Options are validated once, in :func:`phc.simulation.simulate`; an option the
+chosen backend does not use is reported with an :class:`IgnoredOptionWarning` instead of
+being dropped in silence (a fixed-step method has no ``rtol``; IDA has no ``step``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+from typing import Callable, Iterator, Optional
+
+import numpy as np
+
+from phc.errors import PhcWarning
+
+
+class IgnoredOptionWarning(PhcWarning):
+    """A simulation option was given that the chosen solver does not use."""
+
+
+@dataclass
+class BackendRun(Mapping):
+    """What a backend returns: the outputs at the times it reached, and statistics.
+
+    It is also a read-only mapping of its fields (``run["t"]``), the form the drivers in
+    :mod:`phc.simulation` combine pieces of a run in."""
+
+    t: np.ndarray
+    """Output times reached (a prefix of the requested ones when the run stopped early)."""
+    y: np.ndarray
+    """States at `t`, shape (len(t), N)."""
+    yp: np.ndarray
+    """Derivatives at `t`, shape (len(t), N)."""
+    steps: int
+    success: bool
+    message: str
+    cpu: float = 0.0
+    nfev: int = 0
+    njev: int = 0
+    interrupted: bool = False
+    conditioning: Optional[float] = None
+    extra: dict = field(default_factory=dict)
+    """Backend-specific statistics (kept, not interpreted)."""
+
+    @classmethod
+    def from_mapping(cls, data: Mapping) -> "BackendRun":
+        names = {f.name for f in fields(cls)} - {"extra"}
+        known = {k: v for k, v in data.items() if k in names}
+        missing = {"t", "y", "yp", "steps", "success", "message"} - set(known)
+        if missing:
+            raise TypeError(f"a backend result lacks {', '.join(sorted(missing))}")
+        run = cls(**known, extra={k: v for k, v in data.items() if k not in names})
+        run.t = np.asarray(run.t, dtype=float)
+        run.y = np.atleast_2d(np.asarray(run.y, dtype=float))
+        run.yp = np.atleast_2d(np.asarray(run.yp, dtype=float))
+        run.success, run.interrupted = bool(run.success), bool(run.interrupted)
+        run.steps, run.nfev, run.njev = int(run.steps), int(run.nfev or 0), int(run.njev or 0)
+        return run
+
+    def _as_dict(self) -> dict:
+        out = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "extra"}
+        out.update(self.extra)
+        return out
+
+    def __getitem__(self, key: str):
+        return self._as_dict()[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._as_dict())
+
+    def __len__(self) -> int:
+        return len(self._as_dict())
+
+
+@dataclass(frozen=True)
+class Backend:
+    """A named integrator and the options it honours."""
+
+    name: str
+    integrate: Callable
+    honours: frozenset
+    """Options whose values change what it does (the others it is given are ignored)."""
+    fixed_step: bool
+    doc: str = ""
+
+    def __call__(self, mod, p, t_out, y0, yp0, **options) -> BackendRun:
+        return BackendRun.from_mapping(self.integrate(mod, p, t_out, y0, yp0, **options))
+
+    def ignored(self, given: Mapping[str, object]) -> list[str]:
+        """The options in `given` (explicitly set, not None) this backend does not use."""
+        return [k for k, v in given.items() if v is not None and k not in self.honours]
+
+
+def ignored_option_message(backend: Backend, names: list[str]) -> str:
+    why = ("a fixed-step method: its accuracy is set by `step`" if backend.fixed_step
+           else "a variable-step method: its steps follow `rtol` and `atol`")
+    return f"solver `{backend.name}` ignores {', '.join(f'`{n}`' for n in names)} ({why})"
+
+
+__all__ = ["Backend", "BackendRun", "IgnoredOptionWarning", "ignored_option_message"]
