@@ -5,7 +5,7 @@ An Euler–Bernoulli cantilever (the seed's slider–crank rod: EI = 68.27 N m²
 Hermite elements (4n + 4 unknowns besides the port efforts). For each n we measure
 
 * compile time of ``phc.compile_model`` (read, elaborate, assemble, check, lower, print,
-  load), wall clock, best of 3;
+  load; without the certificate of the compiled equations), wall clock, best of 3;
 * one residual plus one Jacobian evaluation of the generated module, as a ratio to one
   scipy sparse matrix–vector product with the model's matrices [dF/dy, dF/dẏ] acting on
   [y; ẏ] (the least work any residual evaluation does), and to one product with dF/dy
@@ -13,12 +13,26 @@ Hermite elements (4n + 4 unknowns besides the port efforts). For each n we measu
 
 Targets: 1000 elements compile in < 2 s; residual + Jacobian ≤ 2 matvecs.
 
-Run: ``python benchmarks/bench_beam_scale.py`` (prints a Markdown table).
+A second table takes the vibrating string (``models/vibrating_string.yaml``, P1/P0 mixed
+elements, 4n + 4 unknowns) to 10⁴ elements and beyond, each size in a fresh process: compile
+time (without the compiled-equation certificate, which is not what is measured here),
+consistent initialization at t₀, ten midpoint steps, the process's peak resident memory and
+phc's own estimate of the compile memory (:mod:`phc.budget`), which must stay above it.
+Until the structural matching was made non-recursive, 2000 string elements ended in a
+RecursionError in consistent initialization.
+
+Run: ``python benchmarks/bench_beam_scale.py [--elements 125 250 500 1000]
+[--string-elements 1000 3000 10000] [--out beam_scale.md]`` (prints the Markdown tables
+and writes them to ``--out``).
 """
 
 from __future__ import annotations
 
+import argparse
+import inspect
+import json
 import os
+import subprocess
 import sys
 import tempfile
 import time
@@ -53,13 +67,18 @@ connections:
 """
 
 
+_NO_CERTIFICATE = {"certify": False} if "certify" in inspect.signature(phc.compile_model).parameters else {}
+"""Compile times here are those of the pipeline; the certificate of the compiled equations
+(sampled consistent states) is a separate cost."""
+
+
 def measure(directory: Path, n: int):
     path = directory / f"cantilever{n}.yaml"
     path.write_text(MODEL.format(n=n))
     compile_times = []
     for _ in range(3):
         t = time.perf_counter()
-        compiled = phc.compile_model(path)
+        compiled = phc.compile_model(path, **_NO_CERTIFICATE)
         compile_times.append(time.perf_counter() - t)
     mod = compiled.module
     p = mod.full_parameters()
@@ -83,22 +102,105 @@ def measure(directory: Path, n: int):
             matvec2[0] * 1e6, res_jac[0] / matvec[0], res_jac[0] / matvec2[0], res_jac[1] / matvec2[1])
 
 
-def main(sizes=(125, 250, 500, 1000)) -> None:
+STRING_STEPS = 10
+"""Midpoint steps timed after consistent initialization."""
+
+
+def measure_string(n: int) -> dict:
+    """One string size in this process: compile, initialize, a few steps, peak memory."""
+    from phc import budget
+    from phc.simulation.initial import consistent_initial_conditions
+    from phc.spec.components import StringSpec
+
+    root = Path(__file__).resolve().parents[1]
+    text = (root / "models" / "vibrating_string.yaml").read_text().replace("elements: 16", f"elements: {n}")
+    with tempfile.TemporaryDirectory() as tmp:
+        os.environ["PHC_CACHE_DIR"] = str(Path(tmp) / "cache")
+        path = Path(tmp) / f"string{n}.yaml"
+        path.write_text(text.replace("n_out: 1001", "n_out: 11"))
+        t = time.perf_counter()
+        compiled = phc.compile_model(path, **_NO_CERTIFICATE)
+        compile_s = time.perf_counter() - t
+        mod = compiled.module
+        p = mod.full_parameters()
+        dif = [int(j) for j in range(mod.N) if mod.DIFFERENTIAL[j]]
+        t = time.perf_counter()
+        consistent_initial_conditions(mod, p, 0.0, {j: 0.0 for j in dif}, set(dif))
+        init_s = time.perf_counter() - t
+        h = 1e-7
+        t = time.perf_counter()
+        result = phc.simulate(compiled, t_end=STRING_STEPS * h, n_out=STRING_STEPS + 1, solver="midpoint", step=h)
+        run_s = time.perf_counter() - t
+    spec = StringSpec(type="string", length=1, elements=n, rho=1, T=1)
+    return dict(elements=n, unknowns=mod.N, jacobian_nnz=len(mod.JAC_ROWS), compile_s=compile_s, init_s=init_s,
+                steps=int(result.steps), steps_s=max(run_s - init_s, 0.0), success=bool(result.success),
+                peak_bytes=budget.peak_memory(), estimate_bytes=budget.mesh_estimate(spec).compile_bytes)
+
+
+def string_rows(sizes) -> list[dict]:
+    rows = []
+    for n in sizes:
+        run = subprocess.run([sys.executable, __file__, "--measure-string", str(n)], capture_output=True, text=True)
+        if run.returncode != 0:
+            tail = (run.stderr.strip().splitlines() or ["?"])[-1]
+            rows.append(dict(elements=n, error=tail))
+            continue
+        rows.append(json.loads(run.stdout.strip().splitlines()[-1]))
+    return rows
+
+
+def string_table(rows) -> list[str]:
+    mib = 2**20
+    lines = ["| string elements | unknowns | Jacobian nnz | compile [s] | consistent init [s] "
+             f"| {STRING_STEPS} midpoint steps [s] | peak memory [MiB] | phc.budget estimate [MiB] |",
+             "|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        if "error" in r:
+            lines.append(f"| {r['elements']} | failed: {r['error']} |||||||")
+            continue
+        lines.append(f"| {r['elements']} | {r['unknowns']} | {r['jacobian_nnz']} | {r['compile_s']:.2f} "
+                     f"| {r['init_s']:.2f} | {r['steps_s']:.2f}{'' if r['success'] else ' (failed)'} "
+                     f"| {r['peak_bytes'] / mib:.0f} | {r['estimate_bytes'] / mib:.0f} |")
+    return lines
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--elements", type=int, nargs="+", default=[125, 250, 500, 1000],
+                        help="element counts of the Euler–Bernoulli cantilever (compile and residual cost)")
+    parser.add_argument("--string-elements", type=int, nargs="*", default=[1000, 3000, 10000],
+                        help="element counts of the vibrating string (compile, initialization, steps, memory)")
+    parser.add_argument("--out", default="beam_scale.md", help="Markdown file the tables are written to")
+    parser.add_argument("--measure-string", type=int, help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.measure_string:
+        print(json.dumps(measure_string(args.measure_string)))
+        return
+    lines = beam_table(args.elements) if args.elements else []
+    if args.string_elements:
+        lines += ["", *string_table(string_rows(args.string_elements))]
+    text = "\n".join(lines) + "\n"
+    print(text, end="")
+    Path(args.out).write_text(text)
+    print(f"\nwrote {args.out}")
+
+
+def beam_table(sizes) -> list[str]:
     with tempfile.TemporaryDirectory() as tmp:
         os.environ["PHC_CACHE_DIR"] = str(Path(tmp) / "cache")  # keep ~/.cache/phc clean
         rows = [measure(Path(tmp), n) for n in sizes]
-    print("| elements | unknowns | dF/dy nnz | [dF/dy, dF/dẏ] nnz | compile [s] | residual+Jacobian [µs] "
-          "| dF/dy matvec [µs] | stacked matvec [µs] | ratio vs dF/dy | ratio vs stacked (min) "
-          "| ratio vs stacked (median) |")
-    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    lines = ["| elements | unknowns | dF/dy nnz | [dF/dy, dF/dẏ] nnz | compile [s] | residual+Jacobian [µs] "
+             "| dF/dy matvec [µs] | stacked matvec [µs] | ratio vs dF/dy | ratio vs stacked (min) "
+             "| ratio vs stacked (median) |",
+             "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
-        print(f"| {r[0]} | {r[1]} | {r[2]} | {r[3]} | {r[4]:.2f} | {r[5]:.1f} | {r[6]:.1f} | {r[7]:.1f} "
-              f"| {r[8]:.2f} | {r[9]:.2f} | {r[10]:.2f} |")
+        lines.append(f"| {r[0]} | {r[1]} | {r[2]} | {r[3]} | {r[4]:.2f} | {r[5]:.1f} | {r[6]:.1f} | {r[7]:.1f} "
+                     f"| {r[8]:.2f} | {r[9]:.2f} | {r[10]:.2f} |")
     n, compile_s, ratio, ratio_y = rows[-1][0], rows[-1][4], rows[-1][9], rows[-1][8]
-    print()
-    print(f"{n} elements: compile {compile_s:.2f} s (target < 2 s: {'met' if compile_s < 2 else 'NOT met'}); "
-          f"residual+Jacobian = {ratio:.2f} products with the model's matrices [dF/dy, dF/dyp] "
-          f"(target <= 2: {'met' if ratio <= 2 else 'NOT met'}); {ratio_y:.2f} products with dF/dy alone")
+    lines += ["", f"{n} elements: compile {compile_s:.2f} s (target < 2 s: {'met' if compile_s < 2 else 'NOT met'}); "
+              f"residual+Jacobian = {ratio:.2f} products with the model's matrices [dF/dy, dF/dyp] "
+              f"(target <= 2: {'met' if ratio <= 2 else 'NOT met'}); {ratio_y:.2f} products with dF/dy alone"]
+    return lines
 
 
 if __name__ == "__main__":

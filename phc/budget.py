@@ -10,7 +10,8 @@ with a located error that gives the estimate and what drives it.
 and Jacobian nonzeros per element are those of phc's own discretizations, and the
 compile peak is about :data:`BYTES_PER_UNKNOWN` per unknown plus
 :data:`BYTES_PER_NONZERO` per nonzero on top of :data:`BASE_BYTES` (measured on strings
-and beams of 1 000 to 16 000 elements: 6.9 KiB and 0.4 KiB; the constants round up).
+and beams of 1 000 to 16 000 elements: 6.9 KiB and 0.4 KiB; the constants round up, and
+``benchmarks/bench_beam_scale.py`` prints estimate and measured peak side by side).
 After assembly (:func:`check_assembled`) the count is exact and the output arrays are
 added: ``n_out × (2·variables + outputs + invariants + 4)`` doubles (values and
 derivatives of every variable, the outputs, the invariants, H and the three power
@@ -49,8 +50,10 @@ DEFAULT_MAX_MEMORY = 2 * 2**30
 """Default budget: 2 GiB, what a laptop can give one process without swapping."""
 ENV_VAR = "PHC_MAX_MEMORY"
 
-BASE_BYTES = 160 * 2**20
-"""The interpreter with numpy, scipy, sympy and networkx loaded (135 MiB measured)."""
+BASE_BYTES = 256 * 2**20
+"""The interpreter with numpy, scipy, sympy, networkx and the solvers loaded (135–150 MiB
+measured), plus the solvers' fixed working memory (a process that compiles and simulates a
+string of 1 000 or 3 000 elements peaks at 265 MiB)."""
 BYTES_PER_UNKNOWN = 8 * 2**10
 """Compile peak per unknown: symbols, variables, equations, printed source (6.9 KiB measured)."""
 BYTES_PER_NONZERO = 512
