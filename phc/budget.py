@@ -25,9 +25,9 @@ expression, :func:`derivative_work` bounds the size of the result from the tree 
 variable; ``min``/``max`` of k arguments rebuild a ``max`` of k − 1 arguments for each,
 with pairwise comparisons: weighted k²); above :data:`DIFF_LIMIT` the expression is
 refused (:class:`SymbolicBudgetError`). The expressions handed to CSE are bounded in
-total by :data:`CSE_LIMIT` nodes. Both limits are two orders of magnitude above the
-largest expressions of the shipped models (a derivative bound of 652, 30 000 nodes in
-all) and keep the refused cases to a few seconds of sympy work.
+total by :data:`CSE_LIMIT` nodes. The limits are 150 and 30 times what the shipped models
+need (a derivative bound of 652; 30 000 nodes in one module) and keep the refused cases
+to a few seconds of sympy work.
 """
 
 from __future__ import annotations
@@ -35,7 +35,6 @@ from __future__ import annotations
 import math
 import os
 import re
-import resource
 import sys
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -142,8 +141,10 @@ def format_bytes(n: float) -> str:
 def peak_memory() -> int:
     """Peak resident memory of this process so far, in bytes (``getrusage``; 0 if unknown)."""
     try:
+        import resource
+
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    except (OSError, ValueError):  # pragma: no cover - always available on Linux and macOS
+    except (ImportError, OSError, ValueError):  # pragma: no cover - no `resource` on Windows
         return 0
     return int(peak if sys.platform == "darwin" else peak * 1024)  # bytes on macOS, KiB on Linux
 
