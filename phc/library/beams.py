@@ -273,9 +273,15 @@ def prepare(b, ctx, name, spec, path, fields: tuple[str, ...]):
     mesh = _mesh(b, ctx, name, spec, path)
     if mesh is None:
         return None
+    n_errors = len(b.diags.errors)
     coeffs = {k: _Coefficient(b, ctx, getattr(spec, k), (*path, k)) for k in fields}
+    if len(b.diags.errors) > n_errors or any(c.expr.free_symbols & b.unset_parameters for c in coeffs.values()):
+        b.failed.add(name)  # its ports are missing: connections to them are not reported again
+        return None  # reported (here, or in a parameter a coefficient uses): no values to discretize with
     for k, c in coeffs.items():
         c.check_positive(name, k, mesh)
+    if len(b.diags.errors) > n_errors:
+        return None  # a coefficient that is not positive would make the discretization singular
     return mesh, ctx.smap.locate(path), coeffs
 
 

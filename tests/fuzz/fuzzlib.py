@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import io
 import math
 import os
 import re
@@ -103,12 +104,32 @@ def check_diagnostics(diags, files: set[str]) -> None:
         assert line <= _line_count(file), f"line {line} is past the end of `{file}`: {text!r}"
 
 
-def check_input(path: Path, files: set[str] | None = None, compile: bool = False) -> str:
+def check_cli(path: Path, files: set[str]) -> str:
+    """``phc validate PATH`` through the command line's `main`: exit 0 or 1, and every line it
+    prints on stderr a diagnostic (an internal error would be exit 2 and its own line)."""
+    from phc.cli import main
+
+    err = io.StringIO()
+    with time_limit(TIME_LIMIT), contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        code = main(["validate", str(path)])
+    lines = [line for line in err.getvalue().splitlines() if line.strip()]
+    assert code in (0, 1) and "internal error" not in err.getvalue(), err.getvalue()
+    for line in lines:
+        match = LOCATED.match(line)
+        assert match or UNLOCATED.match(line), f"not a diagnostic line: {line!r}"
+        assert match is None or os.path.normpath(match.group("file")) in files, line
+    return "ok (cli)" if code == 0 else "error (cli)"
+
+
+def check_input(path: Path, files: set[str] | None = None, compile: bool = False, cli: bool = False) -> str:
     """Run one input through ``phc validate`` (and ``compile`` when asked); assert the oracle.
 
-    Returns what happened: "error", "ok", "ok, compiled" or "ok, compile refused".
+    Returns what happened: "error", "ok", "ok, compiled" or "ok, compile refused" (with
+    `cli`: "ok (cli)" or "error (cli)", the command line's `main` instead of the API).
     """
     files = {os.path.normpath(f) for f in files or (str(p) for p in Path(path).parent.rglob("*") if p.is_file())}
+    if cli:
+        return check_cli(path, files)
     with time_limit(TIME_LIMIT):
         dae, diags = phc.build_dae(path)
     check_diagnostics(diags, files)

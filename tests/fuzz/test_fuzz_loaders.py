@@ -4,12 +4,18 @@ Every input must end in success or in located one-line diagnostics — never ano
 exception, never a hang (see :mod:`fuzzlib` for the oracle and the strategies). Two kinds
 of input:
 
-* random documents built from the model language's grammar (:func:`fuzzlib.documents`:
-  the keys, component types and value shapes of the spec classes, with values from
-  anywhere now and then), for model files and scene files;
-* mutations of every shipped model and scene (:func:`fuzzlib.mutations`).
+* random documents, for model files and scene files: three in four built the way a user
+  writes them (:func:`fuzzlib.models`, :func:`fuzzlib.scenes`: components of every library
+  kind with their ports and states, connections, inputs, outputs, scenes of the shipped
+  models; a per-document noise level makes values wrong), one in four shaped only by the
+  schema (:func:`fuzzlib.documents`: the keys and value types of the spec classes, values
+  from anywhere now and then);
+* mutations of every shipped model and scene (:func:`fuzzlib.mutations`: deleted keys,
+  swapped types, numbers made strings, negative or huge numbers, renamed references,
+  duplicated components, aliases, truncated or edited text).
 
-For one input in eight that validates, the model is also compiled.
+One input in eight that validates is also compiled; one in eight goes through the command
+line (`phc.cli.main(["validate", FILE])`) instead of the API.
 
 The default run is derandomized (the same examples on every CI run) and bounded:
 ``FUZZ_EXAMPLES`` examples per test (see below), about 30 s on a 2-core machine. The
@@ -57,12 +63,13 @@ def models(tmp_path_factory) -> Path:
     return fuzzlib.workspace(tmp_path_factory.mktemp("fuzz"))
 
 
-def _run(path: Path, text: str, compile_it: bool) -> None:
+def _run(path: Path, text: str, how: int) -> None:
+    """`how` (drawn 0–7): 0 validate and compile, 1 the command line's `main`, else validate."""
     path.write_text(text, encoding="utf-8")
     root = path.parent if path.parent.name == "models" else path.parent.parent
     files = {str(p) for p in root.rglob("*") if p.is_file()}
     try:
-        event(fuzzlib.check_input(path, files, compile=compile_it))  # --hypothesis-show-statistics
+        event(fuzzlib.check_input(path, files, compile=how == 0, cli=how == 1))  # --hypothesis-show-statistics
     except BaseException:
         print(f"--- failing input ({path.name}) ---\n{text}\n--- end ---")
         raise
@@ -79,7 +86,7 @@ def _documents(models: Path, data) -> None:
     else:  # anything shaped like the model schema
         doc = data.draw(DOCUMENTS, label="document")
     text = fuzzlib.dump(doc, data.draw(st.sampled_from([None, False, True]), label="flow style"))
-    _run(models / "fuzz_doc.yaml", text, data.draw(st.integers(0, 7), label="compile?") == 0)
+    _run(models / "fuzz_doc.yaml", text, data.draw(st.integers(0, 7), label="how"))
 
 
 def _scenes(models: Path, data) -> None:
@@ -90,13 +97,13 @@ def _scenes(models: Path, data) -> None:
         if data.draw(st.booleans(), label="real model?"):
             doc["model"] = data.draw(st.sampled_from([f"../{p.name}" for p in sorted(models.glob("*.yaml"))]))
     text = fuzzlib.dump(doc, data.draw(st.sampled_from([None, False]), label="flow style"))
-    _run(models / "scenes" / "fuzz_scene.yaml", text, data.draw(st.integers(0, 7), label="compile?") == 0)
+    _run(models / "scenes" / "fuzz_scene.yaml", text, data.draw(st.integers(0, 7), label="how"))
 
 
 def _mutations(models: Path, source: Path, data) -> None:
     text = data.draw(fuzzlib.mutations(source), label="mutated")
     target = models / source.relative_to(fuzzlib.MODELS).with_name("fuzz_" + source.name)
-    _run(target, text, data.draw(st.integers(0, 7), label="compile?") == 0)
+    _run(target, text, data.draw(st.integers(0, 7), label="how"))
 
 
 SOURCES = [pytest.param(p, id=str(p.relative_to(fuzzlib.MODELS))) for p in fuzzlib.SHIPPED]
