@@ -90,6 +90,107 @@ class _Problem:
                                   np.asarray(getattr(mod, "INITIAL_COLS", []), dtype=np.int64))), shape=(n_init, n))
         if not initial_relations:
             self.C = sps.csr_matrix((0, n))
+        self._prepare()
+
+    def _prepare(self):
+        """Index arrays for evaluating D and assembling the Jacobian of G, built once.
+
+        Every evaluation then works on the flat Jacobian data of the module (no sparse
+        matrices are built per call), and the finite-difference columns of dD/dy and
+        dD/dẏ are grouped: a row of D involves only the variables of its row of the
+        Jacobian pattern, so columns whose patterns share no kept row are perturbed
+        together and one evaluation of D yields them all."""
+        n, m = self.mod.N, self.m
+        rows, cols = self.rows, self.cols
+        nf, nd, nz, nw = self.sizes
+        nk = len(self.kept)
+        kpos = np.full(m, -1, dtype=np.int64)
+        kpos[self.kept] = np.arange(nk)
+
+        def position(idx):
+            out = np.full(n, -1, dtype=np.int64)
+            out[np.asarray(idx, dtype=np.int64)] = np.arange(len(idx))
+            return out
+
+        pf, pd, pz, pw = position(self.free), position(self.dif), position(self.zc), position(self.wc)
+        # D's entries in CSR order (row, then column): the sums of jy[k] @ ẏ and jyp[k] @ w
+        # are accumulated in the order of a CSR mat-vec.
+        order = np.lexsort((cols, rows))
+        d_ent = order[kpos[rows[order]] >= 0]
+        self._d_ent, self._d_row, self._d_col = d_ent, kpos[rows[d_ent]], cols[d_ent]
+        fd_yp = np.zeros(n, dtype=bool)
+        fd_yp[np.asarray(self.fd_yp, dtype=np.int64)] = True
+        # Exact blocks of J = [F; D; C] (before row scaling): (Jacobian entries, y or ẏ part,
+        # row of J, column of J). The rows of D with finite differences follow below.
+        r_d = m + kpos[rows]
+        blocks = []
+        for sel, part, jr, jc in (
+                (pf[cols] >= 0, 0, rows, pf[cols]),                           # F_y[:, free]
+                (pd[cols] >= 0, 1, rows, nf + pd[cols]),                      # F_ẏ[:, dif]
+                ((kpos[rows] >= 0) & (pd[cols] >= 0) & ~fd_yp[cols], 0,       # dD/dẏ = F_y where
+                 r_d, nf + pd[cols]),                                         # F_y does not vary
+                ((kpos[rows] >= 0) & (pz[cols] >= 0), 0, r_d, nf + nd + pz[cols]),        # dD/dz
+                ((kpos[rows] >= 0) & (pw[cols] >= 0), 1, r_d, nf + nd + nz + pw[cols])):  # dD/dw
+            e = np.flatnonzero(sel)
+            blocks.append((e, part, jr[e], jc[e]))
+        self._exact = [(e, part, self.row_scale[rows[e]]) for e, part, _, _ in blocks]
+        # Finite-difference columns (y and ẏ), each with the kept rows of its pattern, and a
+        # greedy coloring of their intersection graph.
+        kept_ent = np.flatnonzero(kpos[rows] >= 0)
+        by_col = sps.csc_matrix((np.ones(len(kept_ent)), (kpos[rows[kept_ent]], cols[kept_ent])), shape=(nk, n))
+        by_col.sum_duplicates()
+        fd_cols = [(0, j) for j in self.fd_y] + [(1, j) for j in self.fd_yp]
+        occupied: list[list[int]] = [[] for _ in range(nk)]  # groups already perturbing the row
+        members: list[list] = []
+        for kind, j in fd_cols:
+            s = by_col.indices[by_col.indptr[j]:by_col.indptr[j + 1]]
+            if not len(s):
+                continue  # D does not depend on it: a zero column
+            taken = set()
+            for r in s.tolist():
+                taken.update(occupied[r])
+            c = next(c for c in range(len(members) + 1) if c not in taken)
+            if c == len(members):
+                members.append([])
+            for r in s.tolist():
+                occupied[r].append(c)
+            members[c].append((kind, j, s))
+        self._groups = []
+        fd_rows, fd_cols_out = [], []
+        for group in members:
+            ycols = np.array([j for kind, j, _ in group if kind == 0], dtype=np.int64)
+            ypcols = np.array([j for kind, j, _ in group if kind == 1], dtype=np.int64)
+            ent_row = np.concatenate([s for _, _, s in group])
+            ent_h = np.concatenate([np.full(len(s), i) for i, (_, _, s) in enumerate(group)])
+            # position of each member's step in [h(ycols), h(ypcols)]
+            slot = np.array([i for i, (kind, _, _) in enumerate(group) if kind == 0]
+                            + [i for i, (kind, _, _) in enumerate(group) if kind == 1], dtype=np.int64)
+            inv = np.empty(len(group), dtype=np.int64)
+            inv[slot] = np.arange(len(group))
+            self._groups.append((ycols, ypcols, ent_row, inv[ent_h], self.row_scale[self.kept[ent_row]]))
+            fd_rows.append(m + ent_row)
+            fd_cols_out.append(np.array([pf[j] if kind == 0 else nf + pd[j] for kind, j, s in group
+                                         for _ in range(len(s))], dtype=np.int64))
+        C = self.C.tocoo()
+        c_sel = np.flatnonzero(pf[C.col] >= 0)
+        self._c_data = C.data[c_sel]
+        all_rows = np.concatenate([b[2] for b in blocks] + fd_rows + [m + nk + C.row[c_sel]]).astype(np.int64)
+        all_cols = np.concatenate([b[3] for b in blocks] + fd_cols_out + [pf[C.col[c_sel]]]).astype(np.int64)
+        # CSR structure of J, fixed: each evaluation only fills the data in this order.
+        self._shape = (m + nk + self.C.shape[0], nf + nd + nz + nw)
+        csr_order = np.lexsort((all_cols, all_rows))
+        self._csr_perm = csr_order
+        self._csr_indices = all_cols[csr_order]
+        self._csr_indptr = np.concatenate([[0], np.cumsum(np.bincount(all_rows, minlength=self._shape[0]))])
+        self._nnz = len(all_rows)
+
+    def _jac_data(self, y, yp):
+        """Data of (F_y, F_ẏ) in the module's CSC order."""
+        mod = self.mod
+        mod.jacobian(self.t0, y, yp, self.p, 0.0, self.buf)
+        jy = self.buf.copy()
+        mod.jacobian(self.t0, y, yp, self.p, 1.0, self.buf)
+        return jy, self.buf - jy
 
     def split(self, y, yp):
         """(F_y, F_ẏ) as sparse CSC matrices."""
@@ -126,16 +227,19 @@ class _Problem:
         return out
 
     def D(self, y, yp, z, w, jy=None, jyp=None):
+        """Kept rows of F_y ẏ + F_ẏ w + F_t (ẏ = ẏ on differential variables, z elsewhere);
+        `jy`, `jyp`: the data of `_jac_data(y, yp)` if already at hand."""
         if not len(self.kept):
             return np.zeros(0)
         if jy is None:
-            jy, jyp = self.split(y, yp)
+            jy, jyp = self._jac_data(y, yp)
         ydot = z.copy()
         ydot[self.dif] = yp[self.dif]
         ft = np.zeros(self.m)
         self.mod.residual_t(self.t0, y, yp, self.p, ft)
-        k = self.kept
-        return jy[k] @ ydot + jyp[k] @ w + ft[k]
+        e, r, c, nk = self._d_ent, self._d_row, self._d_col, len(self.kept)
+        return (np.bincount(r, jy[e] * ydot[c], minlength=nk) + np.bincount(r, jyp[e] * w[c], minlength=nk)
+                + ft[self.kept])
 
     def G(self, u):
         y, yp, z, w = self.unpack(u)
@@ -144,33 +248,27 @@ class _Problem:
 
     def jacobian(self, u):
         y, yp, z, w = self.unpack(u)
-        jy, jyp = self.split(y, yp)
-        k = self.kept
-        nk = len(k)
-        JF = sps.diags(self.row_scale) @ sps.hstack(
-            [jy[:, self.free], jyp[:, self.dif], sps.csr_matrix((self.m, len(self.zc) + len(self.wc)))])
-        JC = sps.hstack([self.C[:, self.free], sps.csr_matrix((self.C.shape[0], JF.shape[1] - len(self.free)))])
-        if not nk:
-            return sps.vstack([JF, JC]).tocsr()
-        base = self.D(y, yp, z, w, jy, jyp)
-        # D is bilinear: exact parts plus finite differences where the Jacobian varies.
-        dy = sps.lil_matrix((nk, len(self.free)))
-        free_pos = {j: i for i, j in enumerate(self.free)}
-        for j in self.fd_y:
-            h = 1e-7 * max(1.0, abs(y[j]))
-            yh = y.copy()
-            yh[j] += h
-            dy[:, free_pos[j]] = ((self.D(yh, yp, z, w) - base) / h)[:, None]
-        dyp = jy[k][:, self.dif].tolil()
-        dif_pos = {j: i for i, j in enumerate(self.dif)}
-        for j in self.fd_yp:
-            h = 1e-7 * max(1.0, abs(yp[j]))
-            yph = yp.copy()
-            yph[j] += h
-            col = (self.D(y, yph, z, w) - base) / h
-            dyp[:, dif_pos[j]] = col[:, None]  # includes the exact F_y[:, j] part
-        JD = sps.diags(self.row_scale[k]) @ sps.hstack([dy.tocsr(), dyp.tocsr(), jy[k][:, self.zc], jyp[k][:, self.wc]])
-        return sps.vstack([JF, JD, JC]).tocsr()
+        jy, jyp = self._jac_data(y, yp)
+        data = np.empty(self._nnz)
+        pos = 0
+        for e, part, scale in self._exact:
+            data[pos:pos + len(e)] = scale * (jyp if part else jy)[e]
+            pos += len(e)
+        if self._groups:
+            base = self.D(y, yp, z, w, jy, jyp)
+            # D is bilinear: exact parts plus finite differences where the Jacobian varies
+            # (a ẏ column of those includes its exact F_y part), one evaluation per group.
+            for ycols, ypcols, ent_row, ent_h, scale in self._groups:
+                hy = 1e-7 * np.maximum(1.0, np.abs(y[ycols]))
+                hyp = 1e-7 * np.maximum(1.0, np.abs(yp[ypcols]))
+                yh, yph = y.copy(), yp.copy()
+                yh[ycols] += hy
+                yph[ypcols] += hyp
+                col = (self.D(yh, yph, z, w) - base)[ent_row] / np.concatenate([hy, hyp])[ent_h]
+                data[pos:pos + len(ent_row)] = scale * col
+                pos += len(ent_row)
+        data[pos:] = self._c_data
+        return sps.csr_matrix((data[self._csr_perm], self._csr_indices, self._csr_indptr), shape=self._shape)
 
     def step(self, J, g):
         """Weighted minimum-norm solution of J Δu = −g."""
