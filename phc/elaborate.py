@@ -133,7 +133,7 @@ class Builder:
         self.ports: dict[str, Port] = {}
         self.port_aliases: dict[str, str] = {}
         self.hamiltonian: list[sp.Expr] = []
-        self.dissipation: list[sp.Expr] = []
+        self.dissipation: list[tuple[str, sp.Expr, Optional[SourceSpan]]] = []  # (component, P_diss, source)
         self.source_power: list[sp.Expr] = []
         self.linear_blocks: list = []
         self.quadratic_energy: list = []
