@@ -32,6 +32,7 @@ from pathlib import Path
 from types import ModuleType
 
 from phc.errors import PhcWarning
+from phc.io import write_bytes as write_atomic  # temporary file + rename
 
 DEFAULT_CAP_MB = 512
 """Default size cap of the cache in MiB (``$PHC_CACHE_MAX_MB`` overrides it)."""
@@ -99,21 +100,6 @@ def source_hash(source: str) -> str:
     return hashlib.sha256(source.encode()).hexdigest()[:20]
 
 
-def write_atomic(path: Path, data: bytes) -> None:
-    """Write `data` to `path` through a private temporary file and a rename."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
-
-
 def load_generated(source: str, name: str = "model") -> tuple[ModuleType, Path]:
     """Execute the generated module from `source` (in memory); returns (module, path).
 
@@ -139,7 +125,7 @@ def load_generated(source: str, name: str = "model") -> tuple[ModuleType, Path]:
     module = ModuleType(f"phc_generated_{digest}", None)
     module.__file__ = str(path)
     code = compile(source, str(path), "exec", dont_inherit=True)
-    exec(code, module.__dict__)  # noqa: S102 - phc's own printer output, verified text in memory
+    exec(code, module.__dict__)  # safe: phc's own printer output (no model text as code), from memory
     return module, path
 
 
