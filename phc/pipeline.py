@@ -27,6 +27,10 @@ from phc.scene import Scene, is_scene_file, load_scene
 FAST_SAMPLES = 1
 """Randomly perturbed consistent states of the certificate run by every compilation
 (besides the initial state); `phc check` samples more."""
+FAST_BALANCE_LIMIT = 1000
+"""Above this many unknowns the certificate of every compilation checks passivity only:
+sampling consistent states of a large model costs as much as several simulation starts
+(`phc check` has no such limit)."""
 
 
 @dataclass
@@ -141,7 +145,7 @@ def compile_model(path: str | os.PathLike, scene: Optional[Scene] = None, *, cer
         from phc.checks.compiled import certify_compiled
 
         t = time.perf_counter()
-        compiled.certificate = certify_compiled(compiled, n_random=FAST_SAMPLES)
+        compiled.certificate = certify_compiled(compiled, n_random=FAST_SAMPLES, max_unknowns=FAST_BALANCE_LIMIT)
         timings["certify"] = time.perf_counter() - t
         if compiled.certificate.diagnostics.has_errors:
             raise ModelError(DiagnosticList(list(diags) + list(compiled.certificate.diagnostics)).sorted())

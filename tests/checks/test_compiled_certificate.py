@@ -332,6 +332,20 @@ def test_shipped_models_are_certified(path):
     assert cert.balance_error < 1e-6
 
 
+def test_above_the_size_limit_the_fast_certificate_checks_passivity_only(tmp_path):
+    """The fast certificate of a compilation does not sample consistent states of a large
+    model (that costs several simulation starts); it says so and still refuses a
+    non-passive damping force."""
+    compiled = phc.compile_model(MODELS / "mass_spring_damper.yaml", certify=False)
+    cert = certify_compiled(compiled, n_random=1, max_unknowns=2)
+    assert cert.certified and cert.samples == 0 and cert.terms_checked == 1
+    assert cert.summary().startswith("passivity certified, balance not sampled (power balance not sampled")
+    path = tmp_path / "m.yaml"
+    path.write_text(NON_PASSIVE.replace("DAMPING", '"-c*vx"'))
+    bad = certify_compiled(phc.compile_model(path, certify=False), max_unknowns=1)
+    assert not bad.certified and "PHC-E451" in bad.diagnostics[0].render()
+
+
 def test_the_balance_is_checked_where_power_flows():
     """Closed form: for the mass–spring–damper at any state, dH/dt = −c v² = −P_diss; the
     certificate's samples are states where that is not trivially zero."""
