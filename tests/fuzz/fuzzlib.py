@@ -538,7 +538,7 @@ def _component(doc: _Doc, cname: str, kind: str) -> dict:
             ports = comp["ports"] = draw(st.lists(st.sampled_from(["a", "b", "c", "port"]), min_size=1, max_size=3,
                                                   unique=not doc.weird()))
         for p in ports:
-            doc.port(f"{cname}.{p}", domain, dim if isinstance(dim, int) else 1)
+            doc.port(f"{cname}.{p}", domain, dim if isinstance(dim, int) and 1 <= dim <= 4 else 1)
         if state:
             doc.states += [f"{cname}.{state}"] if dim == 1 else [f"{cname}.{state}[{k}]" for k in range(2)]
         return comp
@@ -716,7 +716,7 @@ def models(draw) -> dict:
                 sig = doc.value(positive=False, extra=("t", "sin(t)"))
                 if draw(st.integers(0, 3)) == 0:
                     sig = [{"until": 0.5, "value": sig}, {"value": 0}]
-                inputs[f"P{i}"] = {draw(st.sampled_from(["effort", "flow"])): sig if dim == 1 else [sig] * dim}
+                inputs[f"P{i}"] = {draw(st.sampled_from(["effort", "flow"])): sig if dim == 1 else [sig] * min(dim, 4)}
         if inputs:
             sim["inputs"] = inputs
     if draw(st.booleans()):
