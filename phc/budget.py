@@ -38,7 +38,7 @@ import re
 import sys
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Iterator, Optional
+from typing import Callable, Iterator, Optional
 
 import sympy as sp
 
@@ -334,24 +334,29 @@ class SizeCache:
         return self.work[expr]
 
     def _walk(self, expr) -> None:
-        size, work = self.size, self.work
-        stack = [(expr, False)]
-        while stack:
-            node, expanded = stack.pop()
-            if node in size:
-                continue
-            args = node.args
-            if not args:
-                size[node] = 1
-                work[node] = 1 if node.free_symbols else 0
-                continue
-            if not expanded:
-                stack.append((node, True))
-                stack.extend((a, False) for a in args if a not in size)
-                continue
-            s = 1 + sum(size[a] for a in args)
-            size[node] = s
-            work[node] = _node_work(node, s, [work[a] for a in args])
+        _walk(expr, self.size, self.work, lambda leaf: bool(leaf.free_symbols))
+
+
+def _walk(expr, size: dict, work: dict, depends: Callable) -> None:
+    """Fill `size` and `work` (derivative-size bound) for every node of `expr`, children
+    first, without recursion; a leaf costs 1 when ``depends(leaf)``."""
+    stack = [(expr, False)]
+    while stack:
+        node, expanded = stack.pop()
+        if node in size:
+            continue
+        args = node.args
+        if not args:
+            size[node] = 1
+            work[node] = 1 if depends(node) else 0
+            continue
+        if not expanded:
+            stack.append((node, True))
+            stack.extend((a, False) for a in args if a not in size)
+            continue
+        s = 1 + sum(size[a] for a in args)
+        size[node] = s
+        work[node] = _node_work(node, s, [work[a] for a in args])
 
 
 def _node_work(node, s: int, child_work: list[int]) -> int:
@@ -380,23 +385,7 @@ def derivative_work(expr, wrt=None, cache: Optional[SizeCache] = None) -> int:
         return (cache or SizeCache()).derivative_work(expr)
     size: dict = {}
     work: dict = {}
-    stack = [(expr, False)]
-    while stack:
-        node, expanded = stack.pop()
-        if node in size:
-            continue
-        args = node.args
-        if not args:
-            size[node] = 1
-            work[node] = 1 if node == wrt else 0
-            continue
-        if not expanded:
-            stack.append((node, True))
-            stack.extend((a, False) for a in args if a not in size)
-            continue
-        s = 1 + sum(size[a] for a in args)
-        size[node] = s
-        work[node] = _node_work(node, s, [work[a] for a in args])
+    _walk(expr, size, work, lambda leaf: leaf == wrt)
     return work[expr]
 
 

@@ -95,35 +95,22 @@ class CompiledCertificate:
 # ---------------------------------------------------------------------------------------
 
 
-def _initial_values(compiled, p) -> tuple[dict, set]:
-    mod, dae = compiled.module, compiled.dae
-    index = {name: j for j, name in enumerate(mod.VARIABLES)}
-    by_name = {par.symbol: sp.Float(float(p[mod.PARAMETERS.index(par.name)])) for par in dae.parameters}
-    values, fixed = {}, set()
-    for iv in dae.initial:
-        values[index[iv.name]] = float(iv.expr.xreplace(by_name)) if iv.expr is not None else iv.value
-        if not iv.guess:
-            fixed.add(index[iv.name])
-    energy = index["energy.supplied"]
-    values[energy] = 0.0
-    fixed.add(energy)
-    return values, fixed
-
-
 def _consistent_samples(compiled, p, n_random: int, rng) -> tuple[list, list[str]]:
     """[(t, y, ẏ)]: the initial consistent point and up to `n_random` perturbed ones."""
-    from phc.errors import InconsistentInitialError
+    from phc.errors import InconsistentInitialError, SimulationSetupError
+    from phc.simulation import initial_values
     from phc.simulation.initial import consistent_initial_conditions
 
     mod = compiled.module
     t0 = float(compiled.dae.options.get("t_start", 0.0))
     t1 = float(compiled.dae.options.get("t_end", t0 + 1.0))
-    values, fixed = _initial_values(compiled, p)
     notes = []
     out = []
     try:
+        values, fixed = initial_values(compiled, p)
         init = consistent_initial_conditions(mod, p, t0, values, fixed)
-    except (InconsistentInitialError, np.linalg.LinAlgError, ValueError, ArithmeticError) as err:
+    except (InconsistentInitialError, SimulationSetupError, np.linalg.LinAlgError, ValueError,
+            ArithmeticError) as err:
         # ArithmeticError: the equations cannot be evaluated there (1/sqrt(0) of a moving beam
         # whose ends start at one point); simulate reports that located, through its guards
         notes.append(f"no consistent initial point ({str(err)[:120]})")

@@ -157,6 +157,35 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
             raise SimulationSetupError(f"`step` must be a finite positive number no smaller than the time span "
                                        f"over 1e300, got {step}")
     p = parameter_vector(mod, params)
+    values, fixed = initial_values(compiled, p, initial)
+    cpu0 = time.process_time()
+    with quiet_floating_point():
+        try:
+            init = consistent_initial_conditions(mod, p, t0, values, fixed)
+        except ModelEvaluationError as err:
+            raise _setup_error(err, params) from None
+        if hasattr(progress, "restart"):
+            progress.restart()
+        extra = {"step": step} if solver in FIXED_STEP else {}
+        run = partial(BACKENDS[solver], mod, p, rtol=rtol, atol=atol, max_steps=max_steps, progress=progress,
+                      max_order=opts.get("max_order", 5), names=describe_equations(compiled), **extra)
+        out = _integrate_with_breakpoints(run, mod, p, t_out, init)
+        cpu = time.process_time() - cpu0
+        result = _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol, params)
+    if solver in FIXED_STEP:  # the step actually taken: no longer than `step` nor an output interval
+        intervals = np.diff(t_out)
+        h = extra["step"]
+        result.step = float(max(d / max(1, int(np.ceil(d / h - 1e-9))) if h else d for d in intervals))
+    if result.interrupted:
+        raise SimulationInterrupted(result)
+    return result
+
+
+def initial_values(compiled, p: np.ndarray, initial: Optional[dict] = None) -> tuple[dict[int, float], set[int]]:
+    """Initial values by variable index and the indices that are fixed (not guesses): the
+    model's (parameter expressions evaluated at `p`), then `initial` (by state name, a value
+    or ``(value, True)`` for a guess); the energy accumulator starts fixed at 0."""
+    mod = compiled.module
     index = {name: j for j, name in enumerate(mod.VARIABLES)}
     values, fixed = {}, set()
     by_name = {par.symbol: sp.Float(float(p[mod.PARAMETERS.index(par.name)])) for par in compiled.dae.parameters}
@@ -179,27 +208,7 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
     energy_idx = index["energy.supplied"]
     values[energy_idx] = 0.0
     fixed.add(energy_idx)
-    cpu0 = time.process_time()
-    with quiet_floating_point():
-        try:
-            init = consistent_initial_conditions(mod, p, t0, values, fixed)
-        except ModelEvaluationError as err:
-            raise _setup_error(err, params) from None
-        if hasattr(progress, "restart"):
-            progress.restart()
-        extra = {"step": step} if solver in FIXED_STEP else {}
-        run = partial(BACKENDS[solver], mod, p, rtol=rtol, atol=atol, max_steps=max_steps, progress=progress,
-                      max_order=opts.get("max_order", 5), names=describe_equations(compiled), **extra)
-        out = _integrate_with_breakpoints(run, mod, p, t_out, init)
-        cpu = time.process_time() - cpu0
-        result = _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol, params)
-    if solver in FIXED_STEP:  # the step actually taken: no longer than `step` nor an output interval
-        intervals = np.diff(t_out)
-        h = extra["step"]
-        result.step = float(max(d / max(1, int(np.ceil(d / h - 1e-9))) if h else d for d in intervals))
-    if result.interrupted:
-        raise SimulationInterrupted(result)
-    return result
+    return values, fixed
 
 
 def _count(name: str, value, low: int, high: int) -> int:
@@ -400,4 +409,4 @@ def _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol, params=None) -
 
 __all__ = ["simulate", "SimResult", "SimulationInterrupted", "ModelEvaluationError", "BACKENDS", "Backend", "BackendRun",
            "IgnoredOptionWarning",
-           "InconsistentInitialError", "parameter_vector"]
+           "InconsistentInitialError", "initial_values", "parameter_vector"]
