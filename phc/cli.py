@@ -660,7 +660,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--format", choices=("text", "json"), default="text")
     p.set_defaults(func=cmd_bench)
 
-    p = sub.add_parser("check", help="certify Dirac structures and couplings (the seed's section 2)")
+    p = sub.add_parser("check", help="certify Dirac structures and couplings and the compiled equations (Berger, Hochdahl, Reis, Seifried, \"Port-Hamiltonian modelling of coupled rigid/flexible multibody systems\", Section 2)")
     p.add_argument("file", metavar="FILE")
     p.add_argument("--format", choices=("text", "json"), default="text")
     p.add_argument("--samples", type=int, default=2, help="random states sampled besides the initial one")
