@@ -21,13 +21,11 @@ user check (halving again should divide the estimate by 2^order).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Optional
 
 import numpy as np
 
-from phc.source import SourceMap
-from phc.spec.scene import AccuracySpec, SceneSpec
+from phc.scene import scene_variant
 
 SPATIAL_ORDER = {"string": 2, "timoshenko_beam": 2, "pde1d": 2, "euler_bernoulli_beam": 4, "moving_beam": 4}
 FIXED_STEP_ORDER = {"midpoint": 2, "discrete_gradient": 2, "midpoint4": 4}
@@ -88,20 +86,6 @@ def temporal_estimate(compiled, result, run_kwargs: dict) -> ErrorEstimate:
     return ErrorEstimate("temporal", method, est, fine.cpu_time_s, fine.success, "" if fine.success else fine.message)
 
 
-def refined_scene(compiled, factor: int = 2):
-    """An in-memory scene: the compiled one (or a plain model) with every mesh × factor."""
-    from phc.scene import Scene
-
-    meshes = {name: n * factor for name, (_, n) in compiled.dae.meshes.items()}
-    if compiled.scene is not None:
-        base = compiled.scene
-        accuracy = base.spec.accuracy.model_copy(update={"mesh": {**base.spec.accuracy.mesh, **meshes}})
-        return Scene(base.path, base.spec.model_copy(update={"accuracy": accuracy}), base.smap)
-    model = Path(compiled.dae.sources[0])
-    spec = SceneSpec(model=model.name, accuracy=AccuracySpec(mesh=meshes), prune=False)
-    return Scene(model.parent / f"{model.stem}.refined.yaml", spec, SourceMap(str(model), None))
-
-
 def spatial_estimate(compiled, result, run_kwargs: dict) -> Optional[ErrorEstimate]:
     from phc.pipeline import compile_model
     from phc.simulation import simulate
@@ -110,7 +94,9 @@ def spatial_estimate(compiled, result, run_kwargs: dict) -> Optional[ErrorEstima
     if not meshes:
         return None
     order = min(SPATIAL_ORDER.get(kind, 2) for kind, _ in meshes.values())
-    fine_model = compile_model(compiled.dae.sources[-1], scene=refined_scene(compiled), certify=False)
+    fine_scene = scene_variant(compiled.scene if compiled.scene is not None else compiled.dae.sources[0],
+                               mesh={name: 2 * n for name, (_, n) in meshes.items()})
+    fine_model = compile_model(fine_scene.model_path, scene=fine_scene, certify=False)
     kwargs = dict(run_kwargs, t_eval=result.t)
     kwargs.pop("n_out", None)
     fine = simulate(fine_model, **kwargs)
@@ -132,5 +118,4 @@ def estimate_errors(compiled, result, run_kwargs: Optional[dict] = None) -> list
     return out
 
 
-__all__ = ["ErrorEstimate", "estimate_errors", "temporal_estimate", "spatial_estimate", "refined_scene",
-           "SPATIAL_ORDER"]
+__all__ = ["ErrorEstimate", "estimate_errors", "temporal_estimate", "spatial_estimate", "SPATIAL_ORDER"]

@@ -33,9 +33,10 @@ The reference of an output is
   default ``~/.cache/phc/bench``) under the SHA-256 of the scene file, the model file, the
   phc version and the reference settings, so a repeated bench does not recompute it.
 
-Mesh variants are compiled from a temporary copy of the scene whose ``model:`` is the
-absolute path of the scene's model and whose ``accuracy.mesh`` has the swept element
-counts merged in; each variant is compiled once and serves all its solver settings.
+Mesh variants are in-memory copies of the scene (of a plain model file: a scene around
+it) whose ``accuracy.mesh`` has the swept element counts merged in
+(:func:`phc.scene.scene_variant`, the same refinement as the spatial error estimate);
+nothing is written. Each variant is compiled once and serves all its solver settings.
 
 The results are written to ``out_dir`` as ``bench.csv``, ``bench.md`` (a Markdown table) and,
 when matplotlib is installed (the ``plot`` extra), ``bench.png``: the work-precision plot,
@@ -54,20 +55,17 @@ import math
 import os
 import statistics
 import sys
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional, Union
 
 import numpy as np
-import yaml
 
 import phc
-from phc.files import allow_paths
 from phc.errors import ModelError, SimulationSetupError
 from phc.io import atomic_write, write_text
-from phc.scene import is_scene_file, reference_name
+from phc.scene import reference_name, scene_variant
 from phc.simulation import BACKENDS, FIXED_STEP
 
 DEFAULT_TOLERANCES = (1e-4, 1e-6, 1e-8)
@@ -311,48 +309,45 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
     compiled_cache: dict[tuple, object] = {(): base} if not meshes else {}
     reference: dict[str, np.ndarray] = {}
 
-    with tempfile.TemporaryDirectory(prefix="phc-bench-") as tmp:
-        def compiled_for(mesh: dict, max_order: Optional[int] = None):
-            key = tuple(sorted(mesh.items()))
-            if max_order is not None and int(base.dae.options.get("max_order", 5)) != max_order:
-                key += (("max_order", max_order),)
-            if key not in compiled_cache:
-                try:
-                    # the variant lives in a temporary directory: its (already checked) model may
-                    # be read from there; the base scene was certified
-                    with allow_paths([model_path.parent, scene_path.resolve().parent]):
-                        compiled_cache[key] = phc.compile_model(
-                            _variant_scene(scene_path, model_path, mesh, tmp, max_order=dict(key).get("max_order")),
-                            certify=False)
-                except ModelError as err:
-                    compiled_cache[key] = err
-            return compiled_cache[key]
+    def compiled_for(mesh: dict, max_order: Optional[int] = None):
+        key = tuple(sorted(mesh.items()))
+        if max_order is not None and int(base.dae.options.get("max_order", 5)) != max_order:
+            key += (("max_order", max_order),)
+        if key not in compiled_cache:
+            try:
+                # an in-memory variant of the base scene (certified above); nothing is written
+                variant = scene_variant(base.scene if base.scene is not None else scene_path, mesh=mesh,
+                                        max_order=dict(key).get("max_order"))
+                compiled_cache[key] = phc.compile_model(variant.model_path, scene=variant, certify=False)
+            except ModelError as err:
+                compiled_cache[key] = err
+        return compiled_cache[key]
 
-        try:
-            # -- the reference run (closed forms ride along in every run) --------------
-            if need_run:
-                ref_mesh = {comp: max(counts) for comp, counts in meshes.items()}
-                ref_rtol = float(reference_rtol or min(REFERENCE_RTOL, min(tolerances) / 100))
-                settings = dict(solver="ida", rtol=ref_rtol, atol=ref_rtol / 100, mesh=ref_mesh,
-                                max_order=REFERENCE_MAX_ORDER, max_steps=REFERENCE_MAX_STEPS)
-                report.reference_settings = settings
-                bar.show("reference run " + _point_label(ref_mesh, "ida", ref_rtol))
-                reference, report.reference_cache_hit, report.reference_cache_path, report.reference_message = \
-                    _reference_run(scene_path, model_path, settings, t_out, need_run, reference_cache,
-                                   lambda: compiled_for(ref_mesh, REFERENCE_MAX_ORDER))
-                bar.advance()
-            # -- the sweep ----------------------------------------------------------------
-            for mesh, solver, value in points:
-                bar.show(_point_label(mesh, solver, value))
-                compiled = compiled_for(mesh)
-                row = _run_point(compiled, solver, value, mesh, t_out, repeats, outputs, closed, reference,
-                                 report.reference_message)
-                report.rows.append(row)
-                bar.advance()
-        except KeyboardInterrupt:
-            report.interrupted = True
-        finally:
-            bar.close()
+    try:
+        # -- the reference run (closed forms ride along in every run) --------------
+        if need_run:
+            ref_mesh = {comp: max(counts) for comp, counts in meshes.items()}
+            ref_rtol = float(reference_rtol or min(REFERENCE_RTOL, min(tolerances) / 100))
+            settings = dict(solver="ida", rtol=ref_rtol, atol=ref_rtol / 100, mesh=ref_mesh,
+                            max_order=REFERENCE_MAX_ORDER, max_steps=REFERENCE_MAX_STEPS)
+            report.reference_settings = settings
+            bar.show("reference run " + _point_label(ref_mesh, "ida", ref_rtol))
+            reference, report.reference_cache_hit, report.reference_cache_path, report.reference_message = \
+                _reference_run(scene_path, model_path, settings, t_out, need_run, reference_cache,
+                               lambda: compiled_for(ref_mesh, REFERENCE_MAX_ORDER))
+            bar.advance()
+        # -- the sweep ----------------------------------------------------------------
+        for mesh, solver, value in points:
+            bar.show(_point_label(mesh, solver, value))
+            compiled = compiled_for(mesh)
+            row = _run_point(compiled, solver, value, mesh, t_out, repeats, outputs, closed, reference,
+                             report.reference_message)
+            report.rows.append(row)
+            bar.advance()
+    except KeyboardInterrupt:
+        report.interrupted = True
+    finally:
+        bar.close()
 
     report.elapsed_s = time.perf_counter() - started
     _write_files(report, out_dir, plot)
@@ -393,34 +388,6 @@ def _mesh_product(meshes: dict[str, list[int]]) -> list[dict[str, int]]:
 
 def _is_reference_output(name: str, names) -> bool:
     return name.endswith("_reference") and name.removesuffix("_reference") in names
-
-
-def _variant_scene(scene_path: Path, model_path: Path, mesh: dict, tmp: str, max_order: Optional[int] = None) -> Path:
-    """A copy of the scene with `accuracy.mesh` merged (and `accuracy.max_order` set when
-    given) and `model:` absolute."""
-    key = "_".join(f"{c.replace('.', '-')}{n}" for c, n in sorted(mesh.items())) or "base"
-    if max_order is not None:
-        key += f"_order{max_order}"
-    folder = Path(tmp) / key
-    folder.mkdir(exist_ok=True)
-    if not is_scene_file(scene_path):  # a plain model file: wrap it in a scene
-        data = {"format_version": 1, "model": str(model_path), "name": _identifier(scene_path.stem)}
-    else:
-        data = yaml.safe_load(scene_path.read_text()) or {}
-        data["model"] = str(model_path)
-    accuracy = dict(data.get("accuracy") or {})
-    accuracy["mesh"] = {**(accuracy.get("mesh") or {}), **mesh}
-    if max_order is not None:
-        accuracy["max_order"] = int(max_order)
-    data["accuracy"] = accuracy
-    path = folder / scene_path.name
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    return path
-
-
-def _identifier(text: str) -> str:
-    out = "".join(ch if ch.isalnum() or ch == "_" else "_" for ch in text)
-    return out if out and out[0].isalpha() else f"m_{out}"
 
 
 def _simulate_once(compiled, solver, value, t_out, **extra):

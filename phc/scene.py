@@ -218,3 +218,45 @@ def load_scene(path: str | os.PathLike) -> tuple[Optional[Scene], DiagnosticList
                                 span=smap.locate(("model",)), hint="the path is relative to the scene file"))
         return None, diags
     return scene, diags
+
+
+def scene_variant(base: Scene | str | os.PathLike, *, mesh: Optional[dict[str, int]] = None,
+                  max_order: Optional[int] = None) -> Scene:
+    """An in-memory variant of a scene, or of a plain model file (wrapped in a scene that
+    changes nothing else and prunes nothing): `mesh` merged over its ``accuracy.mesh`` (a
+    count here wins) and, when given, ``accuracy.max_order`` set. Nothing is written; the
+    variant keeps the base's path and source map, so its model is found and read as the
+    base's is. Compile it with ``compile_model(variant.model_path, scene=variant)``.
+
+    The one way phc refines a mesh: the spatial error estimate
+    (:func:`phc.accuracy.spatial_estimate`) and the mesh sweep of ``phc bench`` both use it.
+
+    Raises
+    ------
+    ModelError
+        When an element count or the order is out of range (located at the base's
+        ``accuracy`` entry).
+    """
+    from phc.errors import ModelError
+
+    if isinstance(base, Scene):
+        path, spec, smap = base.path, base.spec, base.smap
+    else:
+        path = Path(base)
+        spec, smap = SceneSpec(model=path.name, prune=False), SourceMap(str(path), None)
+    update: dict[str, Any] = {"mesh": {**spec.accuracy.mesh, **(mesh or {})}}
+    if max_order is not None:
+        update["max_order"] = max_order
+    try:
+        accuracy = type(spec.accuracy).model_validate({**spec.accuracy.model_dump(exclude_unset=True), **update})
+    except pydantic.ValidationError as err:
+        diags = DiagnosticList()
+        for e in err.errors(include_url=False):
+            entry = ".".join(["accuracy", *map(str, e["loc"])])
+            why = e["msg"][:1].lower() + e["msg"][1:]
+            diags.append(Diagnostic(
+                "PHC-E019", f"the refined or swept value {e['input']!r} is out of range: {why}",
+                span=smap.locate(("accuracy",)), path=entry,
+                hint="ask for element counts and an order within the bounds a scene file allows"))
+        raise ModelError(diags) from None
+    return Scene(path, spec.model_copy(update={"accuracy": accuracy}), smap)

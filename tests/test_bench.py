@@ -135,6 +135,18 @@ def test_a_failed_run_is_a_row(tmp_path):
     assert "unknown solver" in csv_rows(tmp_path / "bench.csv")[1]["message"]
 
 
+def test_a_mesh_out_of_range_is_a_located_failed_row(tmp_path):
+    scene = tmp_path / "string.yaml"
+    scene.write_text(f"format_version: 1\nmodel: {STRING}\nt_end: 0.003\nn_out: 31\n"
+                     "outputs: {end_velocity: string.b.f}\n")
+    report = run_bench(scene, solvers=["midpoint"], steps=[1e-4], meshes={"string": [300_000]},
+                       out_dir=tmp_path / "out", reference_cache=False, progress=False, plot=False)
+    (row,) = report.rows
+    assert not row.success and row.message.startswith(f"compilation failed: {scene}:")
+    assert "accuracy.mesh.string" in row.message and "200000" in row.message
+    assert report.reference_message.startswith("the reference mesh does not compile")
+
+
 def test_without_matplotlib_the_png_is_skipped(tmp_path, monkeypatch):
     import sys
     monkeypatch.setitem(sys.modules, "matplotlib.figure", None)  # makes the import fail
