@@ -2,7 +2,8 @@
 
 Order matters:
 
-1. check connections (existence, compatibility, each port used once, no dangling port);
+1. check connections (:func:`phc.interconnect.check_connections`: existence,
+   compatibility, each port used once, no dangling port);
 2. merge connected port variables by a signed union–find (``f₁ = f₂``, ``e₁ = −e₂``,
    seed eq. couplcond) and substitute component-defined port values;
 3. add position invariants of connected ports with positions, and the GGL multipliers
@@ -24,6 +25,7 @@ import sympy as sp
 from phc.dae import T, Dae, Equation, InitialValue, Invariant, LinearBlock, PortInfo, Topology, Variable
 from phc.diagnostics import Diagnostic
 from phc.inputs import SignalBuilder
+from phc.interconnect import check_connections
 from phc.spec.model import InitialSpec, PieceSpec
 
 
@@ -56,79 +58,9 @@ class _SignedUnionFind:
         return ra, rb, rel
 
 
-def _check_connections(b, ctx) -> list[tuple]:
-    """Resolve, check and return (port_a, port_b, span, label) for valid connections."""
-    used: dict[str, str] = {}
-    valid = []
-    suspects = set(b.failed)  # components whose ports may be the target of a broken reference
-    for a_name, b_name, span, label in b.connections:
-        a_full, b_full = b.resolve_alias(a_name), b.resolve_alias(b_name)
-        pa, pb = b.ports.get(a_full), b.ports.get(b_full)
-        if pa is None or pb is None:
-            for p, ref in ((pa, a_full), (pb, b_full)):  # the broken end is already reported
-                if p is not None:
-                    used.setdefault(p.name, label)
-                else:
-                    suspects.add(ref.rsplit(".", 1)[0] if "." in ref else ref)
-            continue
-        ok = True
-        if a_full == b_full:
-            used[a_full] = label
-            b.diags.append(Diagnostic("PHC-E202", f"port `{a_name}` is connected to itself", span=span,
-                                      path=label))
-            continue
-        for p, shown in ((pa, a_name), (pb, b_name)):
-            if p.name in used:
-                b.diags.append(Diagnostic(
-                    "PHC-E203", f"port `{shown}` is connected twice (also in {used[p.name]})", span=span,
-                    hint="use a `junction` component to join more than two ports", path=label))
-                ok = False
-            used[p.name] = label
-        if pa.domain != pb.domain and "generic" not in (pa.domain, pb.domain):
-            b.diags.append(Diagnostic(
-                "PHC-E204", f"port `{a_name}` is {pa.domain} but port `{b_name}` it connects to is {pb.domain}",
-                span=span, hint="connect ports of the same physical domain", path=label))
-            ok = False
-        if pa.dimension != pb.dimension:
-            b.diags.append(Diagnostic(
-                "PHC-E205", f"port `{a_name}` has dimension {pa.dimension}, but port `{b_name}` it connects "
-                f"to has dimension {pb.dimension}", span=span, path=label,
-                hint="use an `orthogonal_transform` with `split` to connect parts of a vector port"))
-            ok = False
-        if pa.frame and pb.frame and pa.frame != pb.frame:
-            b.diags.append(Diagnostic(
-                "PHC-E206", f"port `{a_name}` is in frame `{pa.frame}` but port `{b_name}` is in frame "
-                f"`{pb.frame}`", span=span, path=label,
-                hint="insert an `orthogonal_transform` between the frames"))
-            ok = False
-        if ok:
-            valid.append((pa, pb, span, label))
-    exposed = set()
-    for pname, exp in ctx.spec.ports.items():
-        full = b.resolve_alias(exp.port)
-        if full in b.ports:
-            if full in used:
-                b.diags.append(Diagnostic(
-                    "PHC-E207", f"port `{exp.port}` is both exposed as `{pname}` and connected ({used[full]})",
-                    span=ctx.smap.locate(("ports", pname)), path=f"ports.{pname}",
-                    hint="a port is either connected or exposed; use a `junction` to do both"))
-            exposed.add(full)
-            b.exposed_top[pname] = (full, ctx.smap.locate(("ports", pname)))
-    nested_exposed = set(b.port_aliases.values())
-    for name, port in b.ports.items():
-        if port.component in suspects:
-            continue  # do not cascade from a broken reference or a component that failed
-        if name not in used and name not in exposed and name not in nested_exposed:
-            b.diags.append(Diagnostic(
-                "PHC-E208", f"port `{name}` is not connected", span=port.span, path=name,
-                hint="connect it, expose it under `ports:`, or terminate it with a `zero_effort` (free) or "
-                "`zero_flow` (fixed) component"))
-    return valid
-
-
 def assemble(b, ctx) -> Optional[Dae]:
     """Build the :class:`Dae` from a :class:`phc.elaborate.Builder` after lowering."""
-    connections = _check_connections(b, ctx)
+    connections = check_connections(b, ctx)
     if b.diags.has_errors:
         return None
     uf = _SignedUnionFind()

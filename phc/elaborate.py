@@ -606,7 +606,8 @@ def elaborate(path: str | os.PathLike, scene=None) -> tuple[Optional[Dae], Diagn
     `scene` (a :class:`phc.scene.Scene`) applies a scene's overrides, effects and pruning.
     Returns ``(dae, diagnostics)``; `dae` is None when any error was found.
     """
-    from phc.assemble import _check_connections, assemble
+    from phc.assemble import assemble
+    from phc.interconnect import check_connections
 
     builder = Builder()
     builder.scene = scene
@@ -616,7 +617,7 @@ def elaborate(path: str | os.PathLike, scene=None) -> tuple[Optional[Dae], Diagn
     if builder.diags.has_errors:
         # Collect, don't stop: the wiring can still be checked (components that failed
         # to lower are skipped there).
-        _check_connections(builder, ctx)
+        check_connections(builder, ctx)
         return None, DiagnosticList(dict.fromkeys(builder.diags)).sorted()
     dae = assemble(builder, ctx)
     if dae is not None:

@@ -8,10 +8,11 @@ A scene (:class:`~phc.spec.scene.SceneSpec`) changes what is compiled, not the m
 * the simulation settings — time span, initial values and inputs (merged over the
   model's), outputs (replacing the model's), tolerances, step and solver;
 * pruning: components that cannot influence the requested outputs are not lowered at
-  all. The interconnection graph (networkx) has the top-level components as nodes and an
-  edge per connection (and from a modulation to each component whose states it reads); a
-  component is kept when its connected part contains a component an output refers to.
-  Power ports couple both ways, so a part with no path to an output cannot change it.
+  all. The interconnection graph (:mod:`phc.interconnect`) has the top-level components
+  as nodes and an edge per connection (and from a modulation to each component whose
+  states it reads); a component is kept when its connected part contains a component an
+  output refers to. Power ports couple both ways, so a part with no path to an output
+  cannot change it.
   Outputs that use `H` (the total energy) keep everything.
 
 Diagnostics about what the scene wrote point into the scene file: the model's source map
@@ -26,10 +27,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional
 
-import networkx as nx
 import pydantic
 
 from phc.diagnostics import Diagnostic, DiagnosticList, allowed_keys_from_model, from_pydantic
+from phc.interconnect import connected_to
 from phc.source import SourceMap, SourceSpan, read_yaml_file
 from phc.spec.scene import SceneSpec
 
@@ -120,24 +121,16 @@ def reference_name(output: str) -> str:
 
 
 def _prune(spec, outputs: dict) -> tuple[set[str], str]:
-    """Top-level components not connected to any component the outputs refer to."""
+    """Top-level components not connected to any component the outputs refer to (in the
+    interconnection graph of :mod:`phc.interconnect`: connections, and a modulation's
+    reads of other components' states)."""
     texts = [str(v) for v in outputs.values()]
     if any("H" in _NAME.findall(t) for t in texts):
         return set(), ""
-    graph = nx.Graph()
-    graph.add_nodes_from(spec.components)
-    for conn in spec.connections:
-        a, b = (ref.split(".", 1)[0] for ref in conn.between)
-        graph.add_edge(a, b)
-    for cname, comp in spec.components.items():
-        if comp.type == "modulation":  # reads other components' states
-            for other in _REFERENCE.findall(repr(comp.model_dump())):
-                if other in spec.components:
-                    graph.add_edge(cname, other)
     wanted = {m for t in texts for m in _REFERENCE.findall(t) if m in spec.components}
     if not wanted:
         return set(), ""
-    keep = set().union(*(nx.node_connected_component(graph, c) for c in wanted))
+    keep = connected_to(spec, wanted)
     skip = set(spec.components) - keep
     reason = ("cannot influence the requested outputs (not connected to "
               + ", ".join(f"`{c}`" for c in sorted(wanted)) + ")")

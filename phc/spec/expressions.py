@@ -562,12 +562,13 @@ def parse_equation(text: str, names: Mapping[str, object]) -> sp.Expr:
     return sp.Add(lhs, sp.Mul(sp.Integer(-1), rhs))
 
 
-def validate_syntax(text: str, *, allow_relational: bool = False) -> None:
+def validate_syntax(text: str, *, allow_relational: bool = False) -> sp.Basic:
     """Check an expression against the whitelist without resolving names.
 
     Every identifier (``x``, ``a.b``, ``p[2]``) is accepted as a free symbol;
     everything else is checked as in :func:`parse_expression` (node types,
-    functions and arities, literals, limits).
+    functions and arities, literals, limits). Returns the expression, so its
+    ``free_symbols`` are the names it reads (``a.b``, ``p[2]`` one symbol each).
 
     Parameters
     ----------
@@ -576,9 +577,14 @@ def validate_syntax(text: str, *, allow_relational: bool = False) -> None:
     allow_relational : bool, optional
         Accept a top-level condition, as in :func:`parse_expression`.
 
+    Returns
+    -------
+    sympy.Basic
+        The expression, every name a free symbol.
+
     Raises
     ------
     ExpressionError
         If the text is not a valid, whitelisted expression.
     """
-    _convert(text, None, allow_relational)
+    return _convert(text, None, allow_relational)

@@ -11,9 +11,11 @@ from pathlib import Path
 import pytest
 
 import phc
-from phc.checks.graph import (build_interconnection_graph, component_graph, independent_parts,
+from phc.checks.certify import certify
+from phc.checks.graph import (build_interconnection_graph, component_graph, connected_to, independent_parts,
                               kinematic_loops, to_dot, traversal_order)
 from phc.cli import main
+from phc.interconnect import reads_of
 from phc.dae import PortInfo, Topology
 
 REPO = Path(__file__).resolve().parents[2]
@@ -307,3 +309,66 @@ def test_component_graph_has_one_edge_per_connection(ring):
     graph = component_graph(top)
     assert graph.number_of_edges() == len(top.connections)
     assert graph.number_of_nodes() == len(top.components)
+
+
+# -- one graph for pruning and the certificate -------------------------------------------
+
+MODULATED = (Path(__file__).parent / "modulated_two_parts.yaml").read_text()
+
+
+def _edges(graph):
+    return sorted((tuple(sorted((u, v))), d.get("label", d.get("kind"))) for u, v, d in graph.edges(data=True))
+
+
+def test_pruning_and_the_certificate_see_the_same_graph(tmp_path):
+    """The graph scene pruning builds from the model as written (the modulation's reads
+    from the free symbols of its parsed `K`) is the one the certificate builds from the
+    assembled topology (the reads from the states its Dirac structure depends on)."""
+    path = tmp_path / "modulated.yaml"
+    path.write_text(MODULATED)
+    spec, _, diags = phc.load_model(path)
+    assert spec is not None, diags
+    top = _topology(path)
+    written, assembled = component_graph(spec, reads=True), component_graph(top, reads=True)
+    assert sorted(written.nodes) == sorted(assembled.nodes) == sorted(spec.components)
+    assert _edges(written) == _edges(assembled)
+    assert (("gyro", "spring"), "reads") in _edges(written)
+    full_written, full_assembled = build_interconnection_graph(spec), build_interconnection_graph(top)
+    assert set(full_written.nodes) == set(full_assembled.nodes)   # every port is connected
+    assert _edges(full_written) == _edges(full_assembled)
+    # The certificate's parts are connections only: two parts, as the written model has.
+    assert independent_parts(spec) == independent_parts(top) == certify(phc.build_dae(path)[0]).parts
+    assert len(independent_parts(top)) == 2
+    # The read joins them for pruning: the wheel's angle keeps the mass–spring part.
+    assert connected_to(spec, {"wheel"}) == connected_to(top, {"wheel"}) == set(spec.components)
+    scene = tmp_path / "scene.yaml"
+    scene.write_text("model: modulated.yaml\noutputs: {theta: wheel.theta}\n")
+    dae, diags = phc.build_dae(scene)
+    assert dae is not None, diags
+    assert dae.left_out == ()
+
+
+def test_a_modulation_that_reads_nothing_lets_pruning_leave_the_other_part_out(tmp_path):
+    path = tmp_path / "modulated.yaml"
+    text = MODULATED.replace('"c*(1 + spring.x)"', "c").replace('"-c*(1 + spring.x)"', "-c")
+    assert "spring.x)" not in text
+    path.write_text(text)
+    spec, _, _ = phc.load_model(path)
+    assert not [e for e in component_graph(spec, reads=True).edges(data=True) if e[2].get("kind") == "reads"]
+    scene = tmp_path / "scene.yaml"
+    scene.write_text("model: modulated.yaml\noutputs: {theta: wheel.theta}\n")
+    dae, diags = phc.build_dae(scene)
+    assert dae is not None, diags
+    assert {comp for comp, _, _ in dae.left_out} == {"mass", "spring", "node", "wall"}
+
+
+def test_a_modulation_whose_K_does_not_parse_reads_everything(tmp_path):
+    """Pruning keeps what a broken `K` might read; the error itself is reported where the
+    modulation is lowered."""
+    path = tmp_path / "modulated.yaml"
+    path.write_text(MODULATED.replace('"c*(1 + spring.x)"', '"c*(1 + spring.x"'))
+    spec, _, _ = phc.load_model(path)
+    assert sorted(reads_of(spec)) == sorted(("gyro", c) for c in spec.components if c != "gyro")
+    dae, diags = phc.build_dae(path)
+    assert dae is None
+    assert ("PHC-E101", "components.gyro.K.0.1") in [(d.code, d.path) for d in diags.errors]

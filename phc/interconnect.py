@@ -1,0 +1,300 @@
+"""The interconnection graph (networkx): components, ports, connections — one graph for
+scene pruning, the port-compatibility check and the certificate.
+
+Input: the components and connections of a model, either as written
+(a :class:`~phc.spec.ModelSpec`, before anything is lowered: what a scene prunes) or as
+assembled (a :class:`~phc.dae.Topology`: what ``phc check`` certifies and ``phc graph``
+draws). Output: an ``nx.MultiGraph`` built by :func:`build_interconnection_graph` for
+both, and the views derived from it (:func:`component_graph`, :func:`kinematic_loops`,
+:func:`independent_parts`, :func:`traversal_order`, :func:`connected_to`, :func:`to_dot`).
+
+Nodes are typed tuples: ``("component", name)``, ``("port", full_name)`` and
+``("external", name)`` for ports exposed by the top-level model. Edges carry ``kind`` =
+``has`` (component–port), ``connection`` (port–port, seed eq. couplcond, with the
+connection's ``index`` in the order written), ``exposed``, or ``reads`` (component →
+component whose states it reads: a ``modulation``'s ``K(x)``). From a spec, port nodes are
+the ports the connections and ``ports:`` name (their owner is the top-level component);
+what they are (domain, dimension, frame) is only known once components are lowered.
+
+:func:`check_connections` is the wiring check between lowering and assembly: each port
+used once, connected ports compatible (domain, dimension, frame), no port left dangling.
+The connections it returns are the connection edges of the assembled topology.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Union
+
+import networkx as nx
+
+from phc.dae import Topology
+from phc.diagnostics import Diagnostic
+from phc.spec.expressions import ExpressionError, validate_syntax
+
+if TYPE_CHECKING:
+    from phc.spec.model import ModelSpec
+
+__all__ = ["build_interconnection_graph", "check_connections", "component_graph", "component_of",
+           "connected_to", "independent_parts", "kinematic_loops", "reads_of", "to_dot", "traversal_order"]
+
+
+# -- the one builder ----------------------------------------------------------------------
+def _owner(ref: str) -> str:
+    return ref.split(".", 1)[0]
+
+
+def reads_of(spec: ModelSpec) -> list[tuple[str, str]]:
+    """(reader, read) for each component of `spec` whose `K` reads another's states.
+
+    Read from the free symbols of the parsed entries of a ``modulation``'s ``K`` (names
+    are written in full, ``wheel.theta``). An entry that does not parse (its error is
+    reported when the component is lowered) counts as reading every component, so that
+    pruning keeps whatever the error concerns.
+    """
+    found = []
+    for cname, comp in spec.components.items():
+        if comp.type != "modulation":
+            continue
+        try:
+            names = {str(s) for row in comp.K for entry in row for s in validate_syntax(entry).free_symbols}
+            read = {_owner(n) for n in names if "." in n}
+        except ExpressionError:
+            read = set(spec.components)
+        found.extend((cname, other) for other in spec.components if other in read and other != cname)
+    return found
+
+
+def _topology_reads(top: Topology) -> list[tuple[str, str]]:
+    """(reader, read) for each Dirac structure that depends on another component's states."""
+    names = {name for name, _, _ in top.components}
+    found = {}
+    for rel in top.dirac:
+        for state in rel.states:
+            parts = str(state).split(".")
+            owners = (".".join(parts[:k]) for k in range(len(parts) - 1, 0, -1))  # longest first
+            owner = next((o for o in owners if o in names), None)
+            if owner is not None and owner != rel.component:
+                found[rel.component, owner] = None
+    return list(found)
+
+
+def _elements(source: Topology | ModelSpec) -> tuple[list, list, list, list, list]:
+    """Components, ports, connections, exposed ports and reads of a spec or a topology."""
+    if isinstance(source, Topology):
+        ports = [(p.name, p.component, {"domain": p.domain, "dimension": p.dimension, "frame": p.frame})
+                 for p in source.ports]
+        return (list(source.components), ports, list(source.connections), list(source.exposed),
+                _topology_reads(source))
+    components = [(name, comp.type, None) for name, comp in source.components.items()]
+    connections = [(*conn.between, f"connections[{i}]", None) for i, conn in enumerate(source.connections)]
+    exposed = [(pname, exp.port) for pname, exp in source.ports.items()]
+    refs = [ref for a, b, _, _ in connections for ref in (a, b)] + [full for _, full in exposed]
+    ports = [(ref, _owner(ref), {}) for ref in dict.fromkeys(refs)]
+    known = {name for name, _, _ in components}
+    components += [(owner, None, None) for owner in dict.fromkeys(o for _, o, _ in ports) if owner not in known]
+    return components, ports, connections, exposed, reads_of(source)
+
+
+def build_interconnection_graph(source: Topology | ModelSpec) -> nx.MultiGraph:
+    """Components, ports and connections of a :class:`~phc.spec.ModelSpec` or a
+    :class:`~phc.dae.Topology` as one multigraph (see the module docstring)."""
+    components, ports, connections, exposed, reads = _elements(source)
+    graph = nx.MultiGraph()
+    graph.add_nodes_from((("component", name), {"type": type_, "span": span}) for name, type_, span in components)
+    graph.add_nodes_from((("port", name), info) for name, _, info in ports)
+    graph.add_edges_from((("component", component), ("port", name), {"kind": "has"}) for name, component, _ in ports)
+    graph.add_edges_from((("port", a), ("port", b), {"kind": "connection", "label": label, "span": span, "index": i,
+                                                     "ports": (a, b)})
+                         for i, (a, b, label, span) in enumerate(connections))
+    graph.add_nodes_from(("external", pname) for pname, _ in exposed)
+    graph.add_edges_from((("port", full), ("external", pname), {"kind": "exposed"}) for pname, full in exposed)
+    graph.add_edges_from((("component", reader), ("component", read), {"kind": "reads"}) for reader, read in reads)
+    return graph
+
+
+Source = Union[Topology, "ModelSpec", nx.MultiGraph]
+"""A topology, a model spec, or a graph already built from one."""
+
+
+def _graph(source: Source) -> nx.MultiGraph:
+    return source if isinstance(source, nx.MultiGraph) else build_interconnection_graph(source)
+
+
+# -- the wiring check ---------------------------------------------------------------------
+def check_connections(b, ctx) -> list[tuple]:
+    """Resolve, check and return (port_a, port_b, span, label) for valid connections.
+
+    `b` is the :class:`phc.elaborate.Builder` after lowering, `ctx` the top-level file's
+    context. Each port is used once (PHC-E202, E203), connected ports agree in domain,
+    dimension and frame (PHC-E204 to E206), an exposed port is not also connected
+    (PHC-E207), and no port is left dangling (PHC-E208); every problem is appended to
+    ``b.diags``. Records the top-level exposed ports in ``b.exposed_top``.
+    """
+    used: dict[str, str] = {}
+    valid = []
+    suspects = set(b.failed)  # components whose ports may be the target of a broken reference
+    for a_name, b_name, span, label in b.connections:
+        a_full, b_full = b.resolve_alias(a_name), b.resolve_alias(b_name)
+        pa, pb = b.ports.get(a_full), b.ports.get(b_full)
+        if pa is None or pb is None:
+            for p, ref in ((pa, a_full), (pb, b_full)):  # the broken end is already reported
+                if p is not None:
+                    used.setdefault(p.name, label)
+                else:
+                    suspects.add(ref.rsplit(".", 1)[0] if "." in ref else ref)
+            continue
+        ok = True
+        if a_full == b_full:
+            used[a_full] = label
+            b.diags.append(Diagnostic("PHC-E202", f"port `{a_name}` is connected to itself", span=span,
+                                      path=label))
+            continue
+        for p, shown in ((pa, a_name), (pb, b_name)):
+            if p.name in used:
+                b.diags.append(Diagnostic(
+                    "PHC-E203", f"port `{shown}` is connected twice (also in {used[p.name]})", span=span,
+                    hint="use a `junction` component to join more than two ports", path=label))
+                ok = False
+            used[p.name] = label
+        if pa.domain != pb.domain and "generic" not in (pa.domain, pb.domain):
+            b.diags.append(Diagnostic(
+                "PHC-E204", f"port `{a_name}` is {pa.domain} but port `{b_name}` it connects to is {pb.domain}",
+                span=span, hint="connect ports of the same physical domain", path=label))
+            ok = False
+        if pa.dimension != pb.dimension:
+            b.diags.append(Diagnostic(
+                "PHC-E205", f"port `{a_name}` has dimension {pa.dimension}, but port `{b_name}` it connects "
+                f"to has dimension {pb.dimension}", span=span, path=label,
+                hint="use an `orthogonal_transform` with `split` to connect parts of a vector port"))
+            ok = False
+        if pa.frame and pb.frame and pa.frame != pb.frame:
+            b.diags.append(Diagnostic(
+                "PHC-E206", f"port `{a_name}` is in frame `{pa.frame}` but port `{b_name}` is in frame "
+                f"`{pb.frame}`", span=span, path=label,
+                hint="insert an `orthogonal_transform` between the frames"))
+            ok = False
+        if ok:
+            valid.append((pa, pb, span, label))
+    exposed = set()
+    for pname, exp in ctx.spec.ports.items():
+        full = b.resolve_alias(exp.port)
+        if full in b.ports:
+            if full in used:
+                b.diags.append(Diagnostic(
+                    "PHC-E207", f"port `{exp.port}` is both exposed as `{pname}` and connected ({used[full]})",
+                    span=ctx.smap.locate(("ports", pname)), path=f"ports.{pname}",
+                    hint="a port is either connected or exposed; use a `junction` to do both"))
+            exposed.add(full)
+            b.exposed_top[pname] = (full, ctx.smap.locate(("ports", pname)))
+    nested_exposed = set(b.port_aliases.values())
+    for name, port in b.ports.items():
+        if port.component in suspects:
+            continue  # do not cascade from a broken reference or a component that failed
+        if name not in used and name not in exposed and name not in nested_exposed:
+            b.diags.append(Diagnostic(
+                "PHC-E208", f"port `{name}` is not connected", span=port.span, path=name,
+                hint="connect it, expose it under `ports:`, or terminate it with a `zero_effort` (free) or "
+                "`zero_flow` (fixed) component"))
+    return valid
+
+
+# -- views ----------------------------------------------------------------------------------
+def component_of(top: Topology) -> dict[str, str]:
+    return {p.name: p.component for p in top.ports}
+
+
+def component_graph(source: Source, *, reads: bool = False) -> nx.MultiGraph:
+    """Components as nodes, one edge per connection (labelled, in the order written);
+    with `reads`, also an edge (``kind="reads"``) to each component whose states one reads."""
+    graph = _graph(source)
+    owner, connections, read = {}, [], []
+    for u, v, data in graph.edges(data=True):
+        if data["kind"] == "has":
+            (comp, port) = (u, v) if u[0] == "component" else (v, u)
+            owner[port[1]] = comp[1]
+        elif data["kind"] == "connection":
+            connections.append(data)
+        elif data["kind"] == "reads":
+            read.append((u[1], v[1]))
+    comps = nx.MultiGraph()
+    comps.add_nodes_from(name for kind, name in graph if kind == "component")
+    for data in sorted(connections, key=lambda d: d["index"]):
+        a, b = data["ports"]
+        comps.add_edge(owner[a], owner[b], label=data["label"], ports=(a, b), span=data["span"])
+    if reads:
+        for u, v in read:
+            comps.add_edge(u, v, kind="reads")
+    return comps
+
+
+def connected_to(source: Source, names) -> set[str]:
+    """Components with a path to one of `names` through connections and reads: the only
+    ones that can influence them (power ports couple both ways)."""
+    graph = component_graph(source, reads=True)
+    return set().union(*(nx.node_connected_component(graph, name) for name in names))
+
+
+def kinematic_loops(source: Source) -> list[list[str]]:
+    """A cycle basis of the component graph; parallel connections count as loops.
+
+    Loops of connections imply algebraic constraints among the components' flows
+    (information, not an error).
+    """
+    graph = component_graph(source)
+    simple = nx.Graph(graph)
+    loops = [list(c) for c in nx.cycle_basis(simple)]
+    for u, v in simple.edges():
+        if graph.number_of_edges(u, v) > 1:
+            loops.extend([[u, v]] * (graph.number_of_edges(u, v) - 1))
+    return loops
+
+
+def independent_parts(source: Source) -> list[list[str]]:
+    """Sets of components with no connection between them (sorted, largest first)."""
+    return _parts(component_graph(source))
+
+
+def _parts(graph: nx.MultiGraph) -> list[list[str]]:
+    parts = [sorted(c) for c in nx.connected_components(graph)]
+    return sorted(parts, key=lambda c: (-len(c), c))
+
+
+def traversal_order(source: Source) -> list[tuple[str, str, str]]:
+    """Connections as (port_a, port_b, label) in breadth-first order from each part's
+    first component: tree edges before the loop-closing ones (any order gives the same
+    interconnection by the seed's Remark "Associativity of interconnection")."""
+    graph = component_graph(source)
+    order, seen = [], set()
+    for part in _parts(graph):
+        root = part[0]
+        for u, v, key in nx.edge_bfs(graph, root):
+            data = graph.get_edge_data(u, v, key)
+            if data["label"] not in seen:
+                seen.add(data["label"])
+                order.append((*data["ports"], data["label"]))
+    return order
+
+
+def to_dot(top: Topology, name: str = "model") -> str:
+    """Graphviz DOT text: one cluster per component with its ports, edges for connections."""
+    def q(text):
+        return '"' + str(text).replace('"', r"\"") + '"'
+
+    lines = [f"graph {q(name)} {{", "  rankdir=LR;", "  node [fontsize=10];"]
+    by_comp: dict[str, list] = {}
+    for port in top.ports:
+        by_comp.setdefault(port.component, []).append(port)
+    for i, (comp, type_, _) in enumerate(top.components):
+        lines.append(f"  subgraph cluster_{i} {{")
+        lines.append(f"    label={q(f'{comp} ({type_})')}; style=rounded;")
+        for port in by_comp.get(comp, []):
+            lines.append(f"    {q(port.name)} [label={q(port.name.rsplit('.', 1)[-1] + f' [{port.dimension}]')}, "
+                         "shape=box];")
+        lines.append("  }")
+    for a, b, label, _ in top.connections:
+        lines.append(f"  {q(a)} -- {q(b)} [label={q(label)}];")
+    for pname, full in top.exposed:
+        lines.append(f"  {q('ext:' + pname)} [label={q(pname)}, shape=doublecircle];")
+        lines.append(f"  {q(full)} -- {q('ext:' + pname)} [style=dashed];")
+    lines.append("}")
+    return "\n".join(lines) + "\n"
