@@ -194,6 +194,7 @@ def assemble(b, ctx) -> Optional[Dae]:
         connections=tuple((pa.name, pb.name, label, span) for pa, pb, span, label in connections),
         exposed=tuple((pname, full) for pname, (full, _) in b.exposed_top.items()),
         dirac=tuple(b.dirac),
+        rows=b.component_rows(),
         rigid_constraints=tuple(b.rigid_constraints),
         resistive_laws=tuple(b.resistive_laws),
         parameter_defaults=b.default_values(),

@@ -119,14 +119,41 @@ class QuadraticForm:
 
 
 @dataclass(frozen=True, eq=False)
-class DiracRelations:
-    """The Dirac structure of one component in kernel form (for certification).
+class Storage:
+    """One storage pair of a component description bound to its state: the pair's flow
+    is the state's rate, ``f = ẋ``, and its effort the co-energy, ``e = ∂H/∂x``
+    (`gradient`, which may use the component's own algebraic variables fixed by its
+    `laws`, e.g. rigid velocities ``M(q) v = p``)."""
 
-    ``relations`` are linear in `flows`, `efforts` and `multipliers` (the seed's
-    ``F f + E e + G λ = 0``, eq. rigidDirac2 with its ∃μ); their coefficients may depend
-    on `states` (modulation) and parameters. `ports` maps each port name to the indices
-    of its flow and effort entries in `flows`/`efforts`. Storage and resistive pairs are
-    the other entries. ``passive_checks`` are extra statements the certificate tests.
+    flow: sp.Symbol
+    effort: sp.Symbol
+    state: sp.Symbol
+    rate: sp.Symbol
+    gradient: sp.Expr
+
+
+@dataclass(frozen=True, eq=False)
+class ComponentDescription:
+    """What one component is, in one immutable value: its ports, its Dirac structure in
+    kernel form, its storage bound to its states and its Hamiltonian, its resistive and
+    source laws. The equation rows compiled for the component are derived from it
+    (:func:`phc.library.dirac.emit`) or, where a lowerer writes them directly, checked
+    against it at sampled states (:mod:`phc.checks.rows`).
+
+    ``relations`` are ``F f + E e + G λ = b(t)``: linear in `flows`, `efforts` and
+    `multipliers` (the kernel representation of a Dirac structure, with its ∃λ, in
+    T. Berger, R. Hochdahl, T. Reis, R. Seifried, "Port-Hamiltonian modelling of coupled
+    rigid/flexible multibody systems", section 2); their coefficients may depend on
+    `states` (modulation) and parameters, and an affine part ``b(t)`` is a source's value
+    (the Dirac structure is the linear part). `ports` maps each port name to the indices of
+    its flow and effort entries in `flows`/`efforts`; the other entries are the storage
+    pairs (`storage`) and the resistive or environment pairs. `laws` are the remaining
+    relations ``= 0`` — resistive laws between a resistive pair's flow and effort,
+    constitutive relations of auxiliary variables — and may be nonlinear.
+
+    `complete` is False for a description that is only the projection of the structure
+    onto the ports (large discretized components): its rows are certified by the energy
+    balance of the compiled equations, not against the description.
     """
 
     component: str
@@ -139,6 +166,33 @@ class DiracRelations:
     states: tuple[sp.Symbol, ...] = ()
     span: Optional[SourceSpan] = None
     note: str = ""
+    storage: tuple[Storage, ...] = ()
+    laws: tuple[sp.Expr, ...] = ()
+    hamiltonian: Optional[sp.Expr] = None
+    resistive: tuple[tuple[sp.Symbol, sp.Symbol], ...] = ()
+    """Resistive pairs (f_R, e_R): the dissipated power is Σ f_R·e_R ≥ 0."""
+    complete: bool = False
+    order: tuple = ()
+    """How the rows are derived (:func:`phc.library.dirac.emit`): ``(relation or law,
+    index, symbol solved for or None, row kind, row label)`` in declaration order."""
+
+
+DiracRelations = ComponentDescription
+"""The former name (the certificate reads only the Dirac part)."""
+
+
+@dataclass(frozen=True, eq=False)
+class ComponentRows:
+    """The rows a lowerer emitted for one component, before assembly: residual rows
+    ``expr = 0`` as ``(label, expr)``, explicit definitions ``symbol = expr`` and the component's own variables
+    as ``(symbol, rate symbol or None, role)``. `sparse` is True when some rows have
+    sparse matrix parts (those are not compared with the description)."""
+
+    component: str
+    equations: tuple[tuple[str, sp.Expr], ...]
+    definitions: tuple[tuple[sp.Symbol, sp.Expr], ...]
+    variables: tuple[tuple[sp.Symbol, Optional[sp.Symbol], str], ...]
+    sparse: bool = False
 
 
 @dataclass(frozen=True)
@@ -159,7 +213,9 @@ class Topology:
     ports: tuple[PortInfo, ...]
     connections: tuple[tuple[str, str, str, Optional[SourceSpan]], ...]
     exposed: tuple[tuple[str, str], ...]
-    dirac: tuple[DiracRelations, ...] = ()
+    dirac: tuple[ComponentDescription, ...] = ()
+    rows: tuple[ComponentRows, ...] = ()
+    """Each component's rows as its lowerer emitted them (before assembly)."""
     rigid_constraints: tuple = ()
     resistive_laws: tuple = ()
     parameter_defaults: dict = field(default_factory=dict)

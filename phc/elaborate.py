@@ -130,6 +130,8 @@ class Builder:
         self.equations: list[Equation] = []
         self.parameters: dict[str, Parameter] = {}
         self.definitions: dict[sp.Symbol, sp.Expr] = {}
+        self.defined_by: dict[sp.Symbol, str] = {}  # definition -> the component whose lowerer wrote it
+        self.lowering: Optional[str] = None  # the component being lowered
         self.ports: dict[str, Port] = {}
         self.port_aliases: dict[str, str] = {}
         self.hamiltonian: list[sp.Expr] = []
@@ -263,6 +265,30 @@ class Builder:
     def define(self, sym: sp.Symbol, expr: sp.Expr) -> None:
         """Give a port variable an explicit value (an output of its component)."""
         self.definitions[sym] = expr
+        if self.lowering is not None:
+            self.defined_by[sym] = self.lowering
+
+    def component_rows(self) -> tuple:
+        """Each lowered component's rows as its lowerer emitted them (before assembly
+        substitutes definitions and merges ports): what :mod:`phc.checks.rows` compares
+        with the component's description."""
+        from phc.dae import ComponentRows
+
+        equations: dict[str, list] = {}
+        for eq in self.equations:
+            equations.setdefault(eq.component, []).append((eq.label, eq.expr))
+        sparse = {blk.component for blk in self.linear_blocks}
+        definitions: dict[str, list] = {}
+        for sym, expr in self.definitions.items():
+            owner = self.defined_by.get(sym)
+            if owner is not None:
+                definitions.setdefault(owner, []).append((sym, expr))
+        variables: dict[str, list] = {}
+        for v in self.variables:
+            variables.setdefault(v.component, []).append((v.symbol, v.dsymbol, v.role))
+        return tuple(ComponentRows(name, tuple(equations.get(name, ())), tuple(definitions.get(name, ())),
+                                   tuple(variables.get(name, ())), name in sparse)
+                     for name, _, _ in self.components if name not in self.failed)
 
     def add_port(self, component: str, local: str, domain: str, dimension: int, frame=None,
                  span=None, position=None) -> Port:
@@ -556,7 +582,11 @@ class Builder:
                 return
         n_errors = len(self.diags.errors)
         self.components.append((full, comp.type, ctx.smap.locate(path)))
-        lowerers[comp.type](self, ctx, full, comp, path)
+        self.lowering = full
+        try:
+            lowerers[comp.type](self, ctx, full, comp, path)
+        finally:
+            self.lowering = None
         if len(self.diags.errors) > n_errors:
             self.failed.add(full)  # its ports may be missing: do not report them again
 

@@ -90,6 +90,9 @@ class Certificate:
     parts: list[list[str]]
     diagnostics: DiagnosticList
     n_samples: int
+    rows: Optional[object] = None
+    """The comparison of each component's compiled rows with its description
+    (:class:`phc.checks.rows.RowsCertificate`)."""
 
     @property
     def certified(self) -> bool:
@@ -101,6 +104,10 @@ class Certificate:
                 "components": [c.to_dict() for c in self.components],
                 "connections": [c.to_dict() for c in self.connections],
                 "loops": self.loops, "independent_parts": self.parts,
+                "rows": None if self.rows is None else {
+                    "compared": self.rows.compared,
+                    "energy_balance_only": [{"component": c, "why": w} for c, w in self.rows.not_compared],
+                    "inconclusive": [{"component": c, "why": w} for c, w in self.rows.inconclusive]},
                 "diagnostics": self.diagnostics.to_json()}
 
     def render_text(self) -> str:
@@ -123,6 +130,13 @@ class Certificate:
                          f"(σ_min/σ_max {c.conditioning:.1e}){fail}{cond}")
         lines.append("kinematic loops: " + ("; ".join(" – ".join(loop) for loop in self.loops)
                                             if self.loops else "none"))
+        if self.rows is not None:
+            r = self.rows
+            lines.append(f"rows against descriptions: {len(r.compared)} component(s) match"
+                         + (f"; {len(r.not_compared)} described by their ports (certified by the energy balance)"
+                            if r.not_compared else "")
+                         + ("; inconclusive: " + ", ".join(f"{c} ({w})" for c, w in r.inconclusive)
+                            if r.inconclusive else ""))
         if len(self.parts) > 1:
             lines.append(f"independent parts: {len(self.parts)}: "
                          + "; ".join("{" + ", ".join(p) + "}" for p in self.parts))
@@ -248,6 +262,10 @@ def certify(dae: Dae, n_random: int = 2, seed: int = 0) -> Certificate:
     conn_certs = _couplings(top, projections, samples, diags)
     _rigid_ranks(top, samples[0], diags)
     _passivity(top, diags, seed)
+    from phc.checks.rows import check_rows
+
+    rows = check_rows(dae, samples=max(1, n_random), seed=seed)
+    diags.extend(rows.diagnostics)
     loops = kinematic_loops(top)
     parts = independent_parts(top)
     if len(parts) > 1:
@@ -256,7 +274,7 @@ def certify(dae: Dae, n_random: int = 2, seed: int = 0) -> Certificate:
                                 "between them: " + "; ".join("{" + ", ".join(p) + "}" for p in parts),
                                 span=spans.get(parts[1][0]), path=parts[1][0], severity="warning",
                                 hint="intended? each part is simulated independently"))
-    return Certificate(dae.name, comp_certs, conn_certs, loops, parts, diags.sorted(), len(samples))
+    return Certificate(dae.name, comp_certs, conn_certs, loops, parts, diags.sorted(), len(samples), rows)
 
 
 def _couplings(top, projections, samples, diags) -> list[ConnectionCertificate]:

@@ -1,20 +1,38 @@
-"""Kernel representations of component Dirac structures, for certification.
+"""Component descriptions, and the rows derived from them.
 
-Each lowerer also records its Dirac structure in the seed's kernel form
-``F f + E e + G λ = 0`` (eq. rigidDirac2 with its ∃μ), over fresh symbols for the
-storage and resistive pairs and the component's own port symbols. The DAE does not use
-these; :mod:`phc.checks.certify` does.
+A lowerer describes its component once, with a :class:`DiracBuilder`: ports, storage
+pairs bound to states (``f = ẋ``, ``e = ∂H/∂x``), resistive pairs with their laws, the
+Dirac structure in kernel form ``F f + E e + G λ = b(t)`` (T. Berger, R. Hochdahl,
+T. Reis, R. Seifried, "Port-Hamiltonian modelling of coupled rigid/flexible multibody
+systems", section 2, the kernel representation with its ∃λ) and the Hamiltonian. The
+result is one immutable :class:`~phc.dae.ComponentDescription`.
+
+:func:`emit` derives the component's equation rows from that description — the same
+relations, with every storage pair replaced by ``(ẋ, ∂H/∂x)`` and every internal pair
+eliminated — so the equations that are compiled and the structure that is certified are
+one thing. A relation may name the symbol it is solved for (``solve=``): a port variable
+solved for becomes an explicit definition (assembly substitutes it, alias elimination), an
+internal pair symbol is eliminated, anything else stays a residual row.
+
+Large components whose rows are sparse matrix blocks (discretized PDEs, matrix
+components) describe only the projection of their structure onto their ports
+(``kind="port_projection"``); their rows are certified by the energy balance of the
+compiled equations (:mod:`phc.checks.compiled`). Lowerers that write nonlinear rows
+directly (rigid bodies) bind their storage so that :mod:`phc.checks.rows` compares their
+rows with their description at sampled states.
 """
 
 from __future__ import annotations
 
+from typing import Optional
+
 import sympy as sp
 
-from phc.dae import DiracRelations
+from phc.dae import ComponentDescription, Storage
 
 
 class DiracBuilder:
-    """Collects flows, efforts, multipliers and relations of one component."""
+    """Collects one component's description (see the module docstring)."""
 
     def __init__(self, component: str, kind: str, span=None):
         self.component, self.kind, self.span = component, kind, span
@@ -22,14 +40,36 @@ class DiracBuilder:
         self.efforts: list[sp.Symbol] = []
         self.multipliers: list[sp.Symbol] = []
         self.relations: list[sp.Expr] = []
+        self.laws: list[sp.Expr] = []
         self.ports: dict[str, tuple[list[int], list[int]]] = {}
+        self.storage: list[Storage] = []
+        self.resistive: list[tuple[sp.Symbol, sp.Symbol]] = []
+        self.internal: list[sp.Symbol] = []
+        self.hamiltonian: Optional[sp.Expr] = None
+        # (relation or law, index, solved-for symbol, row kind, row label) in declaration order
+        self.order: list[tuple[str, int, Optional[sp.Symbol], str, str]] = []
 
     def pair(self, local: str) -> tuple[sp.Symbol, sp.Symbol]:
-        """A fresh internal (storage, resistive or environment) flow/effort pair."""
+        """A fresh internal flow/effort pair (not bound: the description is then not
+        complete unless it is bound by :meth:`storage` or :meth:`resistor`)."""
         f = sp.Symbol(f"cert:{self.component}.f_{local}", real=True)
         e = sp.Symbol(f"cert:{self.component}.e_{local}", real=True)
         self.flows.append(f)
         self.efforts.append(e)
+        self.internal.extend((f, e))
+        return f, e
+
+    def storage_pair(self, local: str, state: sp.Symbol, rate: sp.Symbol, gradient: sp.Expr
+                     ) -> tuple[sp.Symbol, sp.Symbol]:
+        """A storage pair bound to `state`: ``f = ẋ`` (`rate`), ``e = ∂H/∂x`` (`gradient`)."""
+        f, e = self.pair(local)
+        self.storage.append(Storage(f, e, state, rate, sp.sympify(gradient)))
+        return f, e
+
+    def resistor(self, local: str) -> tuple[sp.Symbol, sp.Symbol]:
+        """A resistive pair; its law goes in with :meth:`law` (dissipation ``f·e ≥ 0``)."""
+        f, e = self.pair(local)
+        self.resistive.append((f, e))
         return f, e
 
     def port(self, port) -> None:
@@ -44,10 +84,74 @@ class DiracBuilder:
         self.multipliers.append(lam)
         return lam
 
-    def rel(self, expr) -> None:
+    def rel(self, expr, solve: Optional[sp.Symbol] = None, kind: str = "dirac", label: str = "") -> None:
+        """A relation of the Dirac structure ``= 0`` (linear in flows, efforts, multipliers;
+        an affine part in t is a source's value)."""
+        self.order.append(("rel", len(self.relations), solve, kind, label))
         self.relations.append(expr if isinstance(expr, sp.Basic) else sp.Integer(expr))
 
-    def register(self, b, states=(), note: str = "", kind: str | None = None) -> None:
-        b.dirac.append(DiracRelations(self.component, kind or self.kind, tuple(self.flows), tuple(self.efforts),
-                                      tuple(self.multipliers), tuple(self.relations), dict(self.ports),
-                                      tuple(states), self.span, note))
+    def law(self, expr, solve: Optional[sp.Symbol] = None, kind: str = "resistive", label: str = "") -> None:
+        """A resistive or constitutive law ``= 0`` (may be nonlinear)."""
+        self.order.append(("law", len(self.laws), solve, kind, label))
+        self.laws.append(expr if isinstance(expr, sp.Basic) else sp.Integer(expr))
+
+    def energy(self, hamiltonian: sp.Expr) -> None:
+        self.hamiltonian = sp.sympify(hamiltonian)
+
+    def describe(self, states=(), note: str = "", kind: Optional[str] = None) -> ComponentDescription:
+        kind = kind or self.kind
+        bound = {s.flow for s in self.storage} | {s.effort for s in self.storage}
+        resistive = {x for pair in self.resistive for x in pair}
+        complete = kind != "port_projection" and all(s in bound or s in resistive for s in self.internal)
+        return ComponentDescription(
+            self.component, kind, tuple(self.flows), tuple(self.efforts), tuple(self.multipliers),
+            tuple(self.relations), dict(self.ports), tuple(states), self.span, note,
+            storage=tuple(self.storage), laws=tuple(self.laws), hamiltonian=self.hamiltonian,
+            resistive=tuple(self.resistive), complete=complete, order=tuple(self.order))
+
+    def register(self, b, states=(), note: str = "", kind: Optional[str] = None) -> ComponentDescription:
+        """Record the description with the builder (certification reads it) and return it."""
+        desc = self.describe(states, note, kind)
+        b.dirac.append(desc)
+        return desc
+
+
+def solve_for(expr: sp.Expr, symbol: sp.Symbol) -> sp.Expr:
+    """`expr` = 0 solved for `symbol`, which must enter linearly with a coefficient free of
+    it (every relation a lowerer marks as a definition is of this form)."""
+    coeff = sp.diff(expr, symbol)
+    if symbol in coeff.free_symbols or coeff == 0:
+        raise ValueError(f"{expr} = 0 cannot be solved for {symbol} without solving an equation")
+    return -expr.xreplace({symbol: sp.Integer(0)}) / coeff
+
+
+def emit(b, desc: ComponentDescription, dissipation_span=None) -> None:
+    """Derive the component's rows from its description and add them to the builder:
+    definitions, residual rows, the Hamiltonian and the dissipated power (located at
+    `dissipation_span`, or the component)."""
+    sigma: dict = {}
+    for s in desc.storage:
+        sigma[s.flow] = s.rate
+        sigma[s.effort] = s.gradient
+    internal = {x for x in (*desc.flows, *desc.efforts)} - {x for idx, _ in desc.ports.values()
+                                                             for x in (*(desc.flows[i] for i in idx),
+                                                                       *(desc.efforts[i] for i in idx))}
+    for which, i, solve, kind, label in desc.order:
+        expr = (desc.relations if which == "rel" else desc.laws)[i].xreplace(sigma)
+        if solve is None:
+            left = expr.free_symbols & internal - set(sigma)
+            if left:
+                raise ValueError(f"{desc.component}: row {label or i} still holds internal {sorted(map(str, left))}")
+            b.add_equation(expr, desc.component, kind, label or f"{which}[{i}]", desc.span)
+            continue
+        value = solve_for(expr, solve)
+        if solve in internal:
+            sigma[solve] = value
+            sigma = {k: v.xreplace({solve: value}) for k, v in sigma.items()}
+        else:
+            b.define(solve, value)
+    if desc.hamiltonian is not None:
+        b.hamiltonian.append(desc.hamiltonian)
+    if desc.resistive:
+        power = sum((f * e for f, e in desc.resistive), sp.Integer(0)).xreplace(sigma)
+        b.dissipation.append((desc.component, power, dissipation_span or desc.span))

@@ -1,11 +1,13 @@
 """Library one-ports, sources, terminations, junctions and the orthogonal transform.
 
-Every element is written in the generator sign convention of the seed (section 2):
+Every element is written in the generator sign convention of T. Berger, R. Hochdahl,
+T. Reis, R. Seifried, "Port-Hamiltonian modelling of coupled rigid/flexible multibody
+systems" (section 2):
 ``f·e`` is the power the element delivers through its port, and efforts are reaction
 quantities (``e = −F_acting``). A one-port with several ports sits on an implicit
 1-junction: all its ports share the element's flow and their efforts add up.
 
-Storage elements (seed Def. "Port-Hamiltonian system" with ``e_L = ∇H``):
+Storage elements (the paper's definition of a port-Hamiltonian system, ``e_L = ∇H``):
 
 =========  =================  ===========================  =====================
 element    state x            H(x)                         port relation
@@ -25,7 +27,7 @@ import numpy as np
 import sympy as sp
 
 from phc.dae import T
-from phc.library.dirac import DiracBuilder
+from phc.library.dirac import DiracBuilder, emit
 
 DEFAULT_DOMAIN = {
     "mass": "mechanical.translational", "spring": "mechanical.translational",
@@ -77,16 +79,13 @@ def lower_inertia(b, ctx, name, spec, path, coeff_field: str, state: str):
         d.port(port)
     for k in range(dim):
         x, dx = b.add_state(name, state + _suffix(dim, k), span)
+        fx, ex = d.storage_pair(state + _suffix(dim, k), x, dx, x / c)
         for port in ports:
-            b.define(port.f[k], x / c)
-        b.add_equation(dx + sum(port.e[k] for port in ports), name, "storage", f"balance[{k}]", span)
+            d.rel(port.f[k] - ex, solve=port.f[k])
+        d.rel(fx + sum(port.e[k] for port in ports), kind="storage", label=f"balance[{k}]")
         h += x**2 / (2 * c)
-        fx, ex = d.pair(state + _suffix(dim, k))
-        for port in ports:
-            d.rel(port.f[k] - ex)
-        d.rel(fx + sum(port.e[k] for port in ports))
-    b.hamiltonian.append(h)
-    d.register(b)
+    d.energy(h)
+    emit(b, d.register(b))
 
 
 def lower_compliance(b, ctx, name, spec, path, coeff_field: str, state: str, inverse: bool):
@@ -102,22 +101,16 @@ def lower_compliance(b, ctx, name, spec, path, coeff_field: str, state: str, inv
     for port in ports:
         d.port(port)
     for k in range(dim):
-        fx, ex = d.pair(state + _suffix(dim, k))
-        d.rel(fx - ports[0].f[k])
-        for port in ports[1:]:
-            d.rel(port.f[k] - ports[0].f[k])
-        d.rel(sum(port.e[k] for port in ports) + ex)
         x, dx = b.add_state(name, state + _suffix(dim, k), span)
-        b.define(ports[0].f[k], dx)
+        fx, ex = d.storage_pair(state + _suffix(dim, k), x, dx, k_eff * x)
+        d.rel(fx - ports[0].f[k], solve=ports[0].f[k])
         for port in ports[1:]:
-            b.define(port.f[k], dx)
-        if len(ports) == 1:
-            b.define(ports[0].e[k], -k_eff * x)
-        else:
-            b.add_equation(sum(port.e[k] for port in ports) + k_eff * x, name, "storage", f"force[{k}]", span)
+            d.rel(port.f[k] - ports[0].f[k], solve=port.f[k])
+        d.rel(sum(port.e[k] for port in ports) + ex, solve=ports[0].e[k] if len(ports) == 1 else None,
+              kind="storage", label=f"force[{k}]")
         h += k_eff * x**2 / 2
-    b.hamiltonian.append(h)
-    d.register(b)
+    d.energy(h)
+    emit(b, d.register(b))
 
 
 def lower_resistance(b, ctx, name, spec, path, coeff_field: str):
@@ -126,27 +119,18 @@ def lower_resistance(b, ctx, name, spec, path, coeff_field: str):
                            "a negative resistance generates energy (it must be ≥ 0)")
     ports = _one_port_ports(b, ctx, name, spec, path, spec.type)
     span = ctx.smap.locate(path)
-    diss = sp.Integer(0)
     dr = DiracBuilder(name, spec.type, span)
     for port in ports:
         dr.port(port)
     for k in range(spec.dimension):
-        fr, er = dr.pair(f"R{_suffix(spec.dimension, k)}")
-        dr.rel(fr - ports[0].f[k])
+        fr, er = dr.resistor(f"R{_suffix(spec.dimension, k)}")
+        dr.rel(fr - ports[0].f[k], solve=fr)
         for port in ports[1:]:
-            dr.rel(port.f[k] - ports[0].f[k])
-        dr.rel(sum(port.e[k] for port in ports) + er)
-    dr.register(b)
-    for k in range(spec.dimension):
-        f = ports[0].f[k]
-        for port in ports[1:]:
-            b.define(port.f[k], f)
-        if len(ports) == 1:
-            b.define(ports[0].e[k], -d * f)
-        else:
-            b.add_equation(sum(port.e[k] for port in ports) + d * f, name, "resistive", f"law[{k}]", span)
-        diss += d * f**2
-    b.dissipation.append((name, diss, span))
+            dr.rel(port.f[k] - ports[0].f[k], solve=port.f[k])
+        dr.law(er - d * fr, solve=er)
+        dr.rel(sum(port.e[k] for port in ports) + er, solve=ports[0].e[k] if len(ports) == 1 else None,
+               kind="resistive", label=f"law[{k}]")
+    emit(b, dr.register(b))
 
 
 def lower_source(b, ctx, name, spec, path, which: str):
@@ -156,32 +140,31 @@ def lower_source(b, ctx, name, spec, path, which: str):
     position = None
     if getattr(spec, "position", None) is not None:
         position = b.vector(ctx, spec.position, (*path, "position"), _scope(ctx), spec.dimension, "`position`")
-    # Certified as what it imposes: the linear part of e = u(t) (f = u(t)) is the
-    # termination e = 0 (f = 0), so a source that cannot drive its neighbour (a port
-    # whose flow map loses rank) shows up as a coupling that is not surjective.
+    # The relation e = u(t) (f = u(t)) is affine: its linear part, the termination e = 0
+    # (f = 0), is the Dirac structure the certificate checks, so a source that cannot
+    # drive its neighbour (a port whose flow map loses rank) shows up as a coupling that
+    # is not surjective; the rows carry the value.
     d = DiracBuilder(name, spec.type, ctx.smap.locate(path))
     for port in ports:
-        d.port(port)
-        for k in range(spec.dimension):
-            d.rel((port.e if which == "effort" else port.f)[k])
-    d.register(b, note=f"imposes its {which} (certified as the termination {which[0]} = 0 plus an input)")
-    for port in ports:
         port.position = position
+        d.port(port)
+        imposed = port.e if which == "effort" else port.f
         for k in range(spec.dimension):
-            b.define((port.e if which == "effort" else port.f)[k], values[k])
+            d.rel(imposed[k] - values[k], solve=imposed[k])
         # A source is the environment: the power it delivers, f·e, is supplied to the
-        # model, i.e. −f·e is delivered by the model (seed, Remark "Energy balance").
+        # model, i.e. −f·e is delivered by the model (the paper's remark on the energy balance).
         b.source_power.append(-sum(fk * ek for fk, ek in zip(port.f, port.e)))
     if len(ports) > 1:
         # Several ports of one source share the imposed variable; the other adds up to zero power.
         other = "f" if which == "effort" else "e"
         for k in range(spec.dimension):
-            b.add_equation(sum(getattr(p, other)[k] for p in ports[1:]) - getattr(ports[0], other)[k],
-                           name, "dirac", f"share[{k}]", ctx.smap.locate(path))
+            d.law(sum(getattr(p, other)[k] for p in ports[1:]) - getattr(ports[0], other)[k],
+                  kind="dirac", label=f"share[{k}]")
+    emit(b, d.register(b, note=f"imposes its {which} (certified as the termination {which[0]} = 0 plus an input)"))
 
 
 def lower_termination(b, ctx, name, spec, path, which: str):
-    """zero_effort (e = 0, seed D_pin) / zero_flow (f = 0, seed D_guide)."""
+    """zero_effort (e = 0, the paper's pinned end) / zero_flow (f = 0, its guided end)."""
     ports = _one_port_ports(b, ctx, name, spec, path, spec.type)
     position = None
     if getattr(spec, "position", None) is not None:
@@ -190,10 +173,10 @@ def lower_termination(b, ctx, name, spec, path, which: str):
     for port in ports:
         port.position = position
         d.port(port)
+        imposed = port.e if which == "effort" else port.f
         for k in range(spec.dimension):
-            b.define((port.e if which == "effort" else port.f)[k], sp.Integer(0))
-            d.rel((port.e if which == "effort" else port.f)[k])
-    d.register(b)
+            d.rel(imposed[k], solve=imposed[k])
+    emit(b, d.register(b))
 
 
 def lower_transform(b, ctx, name, spec, path):
@@ -239,11 +222,9 @@ def lower_transform(b, ctx, name, spec, path):
     for p in (outs if spec.split else [out]):
         d.port(p)
     for k in range(n):
-        b.define(fb[k], qf[k])
-        b.define(a.e[k], qte[k])
-        d.rel(fb[k] - qf[k])
-        d.rel(a.e[k] - qte[k])
-    d.register(b)
+        d.rel(fb[k] - qf[k], solve=fb[k])
+        d.rel(a.e[k] - qte[k], solve=a.e[k])
+    emit(b, d.register(b))
 
 
 def lower_junction(b, ctx, name, spec, path):
@@ -258,15 +239,13 @@ def lower_junction(b, ctx, name, spec, path):
     for k in range(spec.dimension):
         first = getattr(ports[0], shared)[k]
         for port in ports[1:]:
-            b.define(getattr(port, shared)[k], first)
-            d.rel(getattr(port, shared)[k] - first)
-        b.add_equation(sum(getattr(p, summed)[k] for p in ports), name, "dirac", f"sum[{k}]", span)
-        d.rel(sum(getattr(p, summed)[k] for p in ports))
-    d.register(b)
+            d.rel(getattr(port, shared)[k] - first, solve=getattr(port, shared)[k])
+        d.rel(sum(getattr(p, summed)[k] for p in ports), kind="dirac", label=f"sum[{k}]")
+    emit(b, d.register(b))
 
 
 def lower_modulation(b, ctx, name, spec, path):
-    """Seed section 4.2: f_b = f_a, e_b = −e_a + K(x) f_a with K(x) skew.
+    """The paper's section 4.2: f_b = f_a, e_b = −e_a + K(x) f_a with K(x) skew.
 
     Lowered after all other components, so K may use their states by full name.
     """
@@ -293,7 +272,7 @@ def lower_modulation(b, ctx, name, spec, path):
             break
         if np.abs(Kn + Kn.T).max(initial=0) > 1e-10 * max(1.0, np.abs(Kn).max(initial=0)):
             b.error("PHC-E402", f"`K` of `{name}` is not skew-symmetric (max |K + Kᵀ| = {np.abs(Kn + Kn.T).max():.3g}); "
-                    "the modulation would not preserve power (seed section 4.2)", ctx, (*path, "K"))
+                    "the modulation would not preserve power (Berger, Hochdahl, Reis, Seifried, \"Port-Hamiltonian modelling of coupled rigid/flexible multibody systems\", section 4.2)", ctx, (*path, "K"))
             return
     domain = spec.domain or "generic"
     span = ctx.smap.locate(path)
@@ -304,8 +283,6 @@ def lower_modulation(b, ctx, name, spec, path):
     d.port(a)
     d.port(out)
     for k in range(n):
-        b.define(out.f[k], a.f[k])
-        b.define(a.e[k], -out.e[k] + Kf[k])
-        d.rel(out.f[k] - a.f[k])
-        d.rel(a.e[k] + out.e[k] - Kf[k])
-    d.register(b, states=tuple(states), note="power-preserving modulation U_x of seed section 4.2")
+        d.rel(out.f[k] - a.f[k], solve=out.f[k])
+        d.rel(a.e[k] + out.e[k] - Kf[k], solve=a.e[k])
+    emit(b, d.register(b, states=tuple(states), note="the power-preserving modulation of the paper's section 4.2"))

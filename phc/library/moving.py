@@ -29,7 +29,7 @@ from phc.dae import T
 from phc.discretize.fem1d import _GAUSS_W
 from phc.discretize.fem1d import DP1, H3
 from phc.library.beams import FullFields, _inverse, _lower_fields, prepare
-from phc.library.dirac import DiracBuilder
+from phc.library.dirac import DiracBuilder, emit
 
 
 def _deflection_functional(mesh, kappa_space, xi_star: float) -> np.ndarray:
@@ -153,7 +153,7 @@ def lower_moving_beam(b, ctx, name, spec, path):
     d.rel(ports["m0"].f[0] - la)
     d.rel(ports["mf"].f[0] - lb)
     d.register(b, states=(q0x, q0y, qfx, qfy), kind="port_projection",
-               note="moving beam: rigid part ⊕ flexible part through R⁴ (seed Prop. flexbeam-interconnection)")
+               note="moving beam: rigid part ⊕ flexible part through R⁴ (the paper's section 5.1)")
 
 
 def _lower_rigid_link(b, ctx, name, spec, path):
@@ -231,7 +231,7 @@ def _lower_rigid_link(b, ctx, name, spec, path):
     d.rel(ports["m0"].f[0] - (Bm.T * lv)[0, 0])
     d.rel(ports["mf"].f[0] - (Bm.T * lv)[0, 0])
     d.register(b, states=tuple(qv), kind="port_projection",
-               note="moving beam with flexibility off: a rigid link (seed eq. mks2, chord constraint)")
+               note="moving beam with flexibility off: a rigid link (the paper's section 3, with the chord constraint)")
 
 
 def lower_crank_wheel(b, ctx, name, spec, path):
@@ -249,20 +249,16 @@ def lower_crank_wheel(b, ctx, name, spec, path):
     drive = b.add_port(name, "drive", "mechanical.rotational", 1, span=span, position=[theta])
     pin = b.add_port(name, "pin", "mechanical.translational", 2, span=span,
                      position=[center[0] + radius * a[0], center[1] + radius * a[1]])
-    b.define(drive.f[0], ep)
-    for k in range(2):
-        b.define(pin.f[k], radius * a_perp[k] * ep)
-    b.add_equation(dtheta - ep, name, "kinematics", "kinematics", span)
-    b.add_equation(dptheta + drive.e[0] + radius * a_perp.dot(sp.Matrix(pin.e)), name, "dynamics", "momentum", span)
-    b.hamiltonian.append(ptheta**2 / (2 * inertia))
     d = DiracBuilder(name, "crank_wheel", span)
-    f_th, e_th = d.pair("theta")
-    f_p, e_p = d.pair("p_theta")
+    f_th, e_th = d.storage_pair("theta", theta, dtheta, sp.Integer(0))
+    f_p, e_p = d.storage_pair("p_theta", ptheta, dptheta, ep)
     d.port(drive)
     d.port(pin)
-    d.rel(f_th - e_p)
-    d.rel(drive.f[0] - e_p)
+    d.rel(f_th - e_p, kind="kinematics", label="kinematics")
+    d.rel(drive.f[0] - e_p, solve=drive.f[0])
     for k in range(2):
-        d.rel(pin.f[k] - radius * a_perp[k] * e_p)
-    d.rel(f_p + e_th + drive.e[0] + radius * a_perp.dot(sp.Matrix(pin.e)))
-    d.register(b, states=(theta,), note="seed eq. slider-crank-wheel-dirac (five-dimensional)")
+        d.rel(pin.f[k] - radius * a_perp[k] * e_p, solve=pin.f[k])
+    d.rel(f_p + e_th + drive.e[0] + radius * a_perp.dot(sp.Matrix(pin.e)), kind="dynamics", label="momentum")
+    d.energy(ptheta**2 / (2 * inertia))
+    emit(b, d.register(b, states=(theta,), note="the five-dimensional Dirac structure of the slider–crank's "
+                       "wheel (the paper's section 5)"))

@@ -1,16 +1,18 @@
 """User-defined port-Hamiltonian components (``type: phs``).
 
-Two ways to give the Dirac structure (seed section 2.1):
+Two ways to give the Dirac structure (T. Berger, R. Hochdahl, T. Reis, R. Seifried,
+"Port-Hamiltonian modelling of coupled rigid/flexible multibody systems", section 2.1):
 
 * input-state-output form with J(x) skew, R(x) ⪰ 0 and per-port B(x)::
 
       ẋ = (J − R)∇H − Σ_{effort_in} B e + Σ_{flow_in} B f,
       f = Bᵀ∇H  (effort_in ports),      e = −Bᵀ∇H  (flow_in ports),
 
-  so that dH/dt = −∇HᵀR∇H − Σ f·e (seed, Remark "Energy balance");
+  so that dH/dt = −∇HᵀR∇H − Σ f·e (the paper's remark on the energy balance);
 * kernel form: linear relations ``F f + E e + G λ = 0`` among the flows ``f_*`` and
   efforts ``e_*`` of states, ports and resistive ports, with latent multipliers λ, as in
-  the seed's eq. (rigidDirac2) with its ∃μ. Storage flows are ``f_x = ẋ`` and storage
+  the paper's kernel representation of a rigid body's Dirac structure (section 3) with
+  its ∃μ. Storage flows are ``f_x = ẋ`` and storage
   efforts ``e_x = ∂H/∂x``; resistive ports get their own constitutive laws.
 """
 
@@ -21,7 +23,7 @@ import sympy as sp
 
 from phc.dae import T, Parameter
 from phc.effects import is_on, summed_terms, user_effect_scope
-from phc.library.dirac import DiracBuilder
+from phc.library.dirac import DiracBuilder, emit
 from phc.spec.expressions import ExpressionError, parse_equation
 
 
@@ -80,10 +82,10 @@ def lower_phs(b, ctx, name, spec, path):
     for term in dropped:
         b.leave_out(name, f"Hamiltonian term `{term}`", f"effect `{term}` is off")
     grad = _gradient(b, ctx, name, H, xs, (*path, "hamiltonian"))
-    b.hamiltonian.append(H)
     if spec.J is not None:
-        _lower_jrb(b, ctx, name, spec, path, scope, xs, dxs, grad, span)
+        _lower_jrb(b, ctx, name, spec, path, scope, xs, dxs, grad, span, H)
     else:
+        b.hamiltonian.append(H)
         _lower_kernel(b, ctx, name, spec, path, scope, xs, dxs, grad, span)
 
 
@@ -114,7 +116,7 @@ def _gradient(b, ctx, name, H, xs, hpath) -> sp.Matrix:
     return sp.Matrix(grad)
 
 
-def _lower_jrb(b, ctx, name, spec, path, scope, xs, dxs, grad, span):
+def _lower_jrb(b, ctx, name, spec, path, scope, xs, dxs, grad, span, H):
     n = len(xs)
     J = b.matrix(ctx, spec.J, (*path, "J"), scope, (n, n), "`J`")
     R = b.matrix(ctx, spec.R, (*path, "R"), scope, (n, n), "`R`") if spec.R is not None else sp.zeros(n, n)
@@ -122,11 +124,21 @@ def _lower_jrb(b, ctx, name, spec, path, scope, xs, dxs, grad, span):
         b.leave_out(name, "dissipation `R`", "effect `damping` is off")
         R = sp.zeros(n, n)
     _check_structure(b, ctx, name, path, J, R, xs)
-    rhs = (J - R) * grad
     d = DiracBuilder(name, "phs", span)
-    pairs = [d.pair(x.name.rsplit(".", 1)[-1]) for x in xs]
+    pairs = [d.storage_pair(x.name.rsplit(".", 1)[-1], x, dx, g) for x, dx, g in zip(xs, dxs, grad)]
     ex_vec = sp.Matrix([e for _, e in pairs]) if n else sp.zeros(0, 1)
     d_rows = sp.Matrix([f for f, _ in pairs]) - J * ex_vec if n else sp.zeros(0, 1)
+    if spec.R is not None and n:
+        # R as a resistive port: f_R = e_x, e_R = R f_R (dissipating e_xᵀ R e_x ≥ 0).
+        resistive = [d.resistor(f"R[{i}]") for i in range(n)]
+        f_r = sp.Matrix([f for f, _ in resistive])
+        e_r = sp.Matrix([e for _, e in resistive])
+        for i in range(n):
+            d.rel(f_r[i] - ex_vec[i], solve=f_r[i])
+        law = e_r - R * f_r
+        for i in range(n):
+            d.law(law[i], solve=e_r[i])
+        d_rows += e_r
     for pname, pspec in spec.ports.items():
         ppath = (*path, "ports", pname)
         port = b.add_port(name, pname, pspec.domain, pspec.dimension, pspec.frame, span)
@@ -135,27 +147,23 @@ def _lower_jrb(b, ctx, name, spec, path, scope, xs, dxs, grad, span):
                     ctx, ppath)
             continue
         B = b.matrix(ctx, pspec.B, (*ppath, "B"), scope, (n, pspec.dimension), "`B`")
-        out = B.T * grad
         d.port(port)
         d_out = B.T * ex_vec
         if pspec.causality == "effort_in":
-            rhs -= B * sp.Matrix(port.e)
             d_rows += B * sp.Matrix(port.e)
             for k in range(pspec.dimension):
-                b.define(port.f[k], out[k])
-                d.rel(port.f[k] - d_out[k])
+                d.rel(port.f[k] - d_out[k], solve=port.f[k])
         else:
-            rhs += B * sp.Matrix(port.f)
             d_rows -= B * sp.Matrix(port.f)
             for k in range(pspec.dimension):
-                b.define(port.e[k], -out[k])
-                d.rel(port.e[k] + d_out[k])
+                d.rel(port.e[k] + d_out[k], solve=port.e[k])
     for i in range(n):
-        b.add_equation(dxs[i] - rhs[i], name, "dirac", f"dynamics[{i}]", span)
-        d.rel(d_rows[i])
-    d.register(b, states=xs, note="lossless part (J, B); R is checked separately")
-    b.dissipation.append((name, (grad.T * R * grad)[0, 0] if n else sp.Integer(0),
-                          ctx.smap.locate((*path, "R")) if spec.R is not None else span))
+        d.rel(d_rows[i], kind="dirac", label=f"dynamics[{i}]")
+    d.energy(H)
+    emit(b, d.register(b, states=xs, note="J/R/B form: R as a resistive port"),
+         dissipation_span=ctx.smap.locate((*path, "R")) if spec.R is not None else span)
+    if spec.R is None or not n:
+        b.dissipation.append((name, sp.Integer(0), span))
     if spec.relations is None and (spec.multipliers or spec.resistive):
         b.error("PHC-E111", f"`multipliers` and `resistive` belong to the kernel form (`relations`) of `{name}`",
                 ctx, path)
@@ -230,9 +238,9 @@ def _lower_kernel(b, ctx, name, spec, path, scope, xs, dxs, grad, span):
                 hint="one relation per state, port component and resistive component, plus one per multiplier")
     d = DiracBuilder(name, "phs", span)
     cert_scope = dict(scope)
-    for x in xs:
+    for i, (x, dx) in enumerate(zip(xs, dxs)):
         local = x.name.rsplit(".", 1)[-1]
-        cert_scope[f"f_{local}"], cert_scope[f"e_{local}"] = d.pair(local)
+        cert_scope[f"f_{local}"], cert_scope[f"e_{local}"] = d.storage_pair(local, x, dx, grad[i])
     for pname in spec.ports:
         d.port(b.ports[f"{name}.{pname}"])
     for rname, rspec in laws:
@@ -260,6 +268,7 @@ def _lower_kernel(b, ctx, name, spec, path, scope, xs, dxs, grad, span):
             ex = b.expr(ctx, law, lpath, scope, equation=True)
             law_exprs[rname].append(ex)
             b.add_equation(ex, name, "resistive", f"{rname}.law[{k}]", ctx.smap.locate(lpath))
+            d.law(ex, label=f"{rname}.law[{k}]")
     b.dissipation.append((name, diss, span))
     d.register(b, states=xs)
     b.resistive_laws.append((name, [(scope[f"f_{r}"], scope[f"e_{r}"], law_exprs[r]) for r, _ in laws],

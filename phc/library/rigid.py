@@ -115,9 +115,12 @@ def lower_rigid(b, ctx, name, spec, path):
     # Certified with the velocity form of the position constraints, c'(q)Z v = 0, next to
     # A(q) v = 0: what the ports can do is restricted by both.
     A_cert = sp.Matrix.vstack(cq * Z, A) if len(c) else A
-    _register_dirac(b, name, span, spec, q, p, Z, A_cert, G, [b.ports[f"{name}.{pn}"] for pn in spec.ports],
+    grad_q = gradV - (sp.Matrix([(vv.T * sp.diff(M, qi) * vv)[0, 0] / 2 for qi in q]) if m_depends_on_q
+                      else sp.zeros(nq, 1))
+    _register_dirac(b, name, span, spec, q, dq, p, dp, v, grad_q, M, Fd, Z, A_cert, G,
+                    [b.ports[f"{name}.{pn}"] for pn in spec.ports],
                     [b.matrix(ctx, ps.B, (*path, "ports", pn, "B"), scope, (nv, ps.dimension), "`B`")
-                     for pn, ps in spec.ports.items()])
+                     for pn, ps in spec.ports.items()], (pv.T * vv)[0, 0] / 2 + V)
     b.rigid_constraints.append((name, ctx, path, q, cq, A, [f"constraints[{i}]" for i in range(len(c))],
                                 [f"velocity_constraints[{i}]" for i in range(A.rows)]))
     kin = dq_minus = sp.Matrix(dq) - Z * vv
@@ -143,17 +146,26 @@ def lower_rigid(b, ctx, name, spec, path):
                           ctx.smap.locate((*path, "damping")) if spec.damping is not None else span))
 
 
-def _register_dirac(b, name, span, spec, q, p, Z, A, G, ports, Bs):
-    """The seed's eq. (rigidDirac2): flows (v_Lf, F_Lf, v_R, v_ports), efforts
-    (F_Le, v_Le, F_R, F_ports), multiplier μ for A(q)v = 0."""
+def _register_dirac(b, name, span, spec, q, dq, p, dp, v, grad_q, M, Fd, Z, A, G, ports, Bs, H):
+    """The description of a rigid body, the paper's kernel representation of its Dirac
+    structure (section 3): flows (q̇, ṗ, v_R, port flows), efforts (∂H/∂q, v, F_R, port
+    efforts), multipliers μ for the velocity-level constraints ``A(q) v = 0`` (with the
+    position constraints in velocity form c'(q)Z v = 0 stacked into A). Storage is bound
+    to the states (``e_p = v`` with ``M(q) v = p``), the resistive pair to the damping law
+    ``F_R = F_d(q, v_R)``."""
     d = DiracBuilder(name, "rigid", span)
     nq, nv = len(q), len(p)
-    v_lf = [d.pair(f"q{i}")[0] for i in range(nq)]
-    F_le = d.efforts[-nq:] if nq else []
-    F_lf = [d.pair(f"p{i}")[0] for i in range(nv)]
-    v_le = d.efforts[-nv:]
-    v_r = [d.pair(f"R{i}")[0] for i in range(nv)]
-    F_r = d.efforts[-nv:]
+    v_lf, F_le = [], []
+    for i in range(nq):
+        f, e = d.storage_pair(f"q{i}", q[i], dq[i], grad_q[i])
+        v_lf.append(f)
+        F_le.append(e)
+    F_lf, v_le = [], []
+    for i in range(nv):
+        f, e = d.storage_pair(f"p{i}", p[i], dp[i], v[i])
+        F_lf.append(f)
+        v_le.append(e)
+    v_r, F_r = zip(*(d.resistor(f"R{i}") for i in range(nv))) if nv else ((), ())
     for port in ports:
         d.port(port)
     mu = [d.mult(f"mu[{i}]") for i in range(A.rows)]
@@ -173,6 +185,13 @@ def _register_dirac(b, name, span, spec, q, p, Z, A, G, ports, Bs):
         force += B * sp.Matrix(port.e)
     for row in force:
         d.rel(row)
+    # Laws: the velocities of the co-energy (M(q) v = p) and the damping force.
+    for row in M * sp.Matrix(v) - sp.Matrix(p):
+        d.law(row, kind="constitutive")
+    damping = Fd.xreplace(dict(zip(v, v_r)))
+    for i in range(nv):
+        d.law(F_r[i] - damping[i])
+    d.energy(H)
     d.register(b, states=tuple(q) + tuple(p))
 
 

@@ -1,14 +1,16 @@
-"""The certificate of the compiled equations (:mod:`phc.checks.compiled`).
+"""The certificate of the compiled equations (:mod:`phc.checks.compiled`) and of each
+component's rows against its description (:mod:`phc.checks.rows`).
 
 It must be about what is simulated: a wrong row injected into a lowerer (a test double
-flips the sign of one term of the first row the lowerer emits) makes it fail; a
-non-passive damping force is a located error at compile time; and every shipped model is
-certified.
+flips the sign of one term of the first row the lowerer emits) makes `phc check` fail,
+for every component type; a non-passive damping force is a located error at compile
+time; and every shipped model is certified.
 
-What an energy balance cannot see: a wrong row that keeps the system port-Hamiltonian —
-the sign of a source's value (another input), or the kinematic row θ̇ = ω of an angle that
-does not enter H. Those need the rows checked against each component's own description
-(its Dirac structure); they are listed in BEYOND_THE_BALANCE and not claimed here.
+An energy balance alone cannot see a wrong row that keeps the system port-Hamiltonian —
+the sign of a source's value (another input), or the kinematic row θ̇ = −ω of an angle
+that does not enter H. The rows check sees those: the rows no longer say what the
+component's description says (BALANCE_BLIND lists them; they are asserted to be found
+by the rows check, and to pass the energy balance).
 """
 
 from __future__ import annotations
@@ -124,12 +126,15 @@ def _write(tmp_path, name, text):
     return path
 
 
-BEYOND_THE_BALANCE = {
+BALANCE_BLIND = {
     "effort_source": "the sign of the imposed effort is another input, not a loss of energy",
     "flow_source": "the sign of the imposed flow is another input, not a loss of energy",
     "crank_wheel kinematics": "θ does not enter H, so θ̇ = −ω conserves energy",
 }
 """Wrong rows the power-balance certificate cannot detect (see the module docstring)."""
+
+from phc.checks.certify import certify  # noqa: E402
+from phc.checks.rows import check_rows  # noqa: E402
 
 # One model per component type (the smallest that uses it).
 CASES = {
@@ -148,6 +153,8 @@ CASES = {
     "euler_bernoulli_beam": MODELS / "euler_bernoulli_beam.yaml",
     "moving_beam": MODELS / "moving_beam.yaml",
     "crank_wheel": "crank.yaml",
+    "effort_source": MODELS / "rlc_circuit.yaml",
+    "flow_source": MODELS / "rigid_slider_crank.yaml",
     "modulation": "modulation.yaml",
     "pde1d": "pde1d.yaml",
     "linear_phs": "linear.yaml",
@@ -217,11 +224,28 @@ class WrongRow:
             b.add_equation, b.define, b.add_linear_rows = original
 
 
-def _certificate(path, monkeypatch, kind):
-    """The first mode whose double finds a row of `kind` to flip, and the certificate."""
+class _Check:
+    """What `phc check` concludes: the certificate of the assembled model (Dirac
+    structures, couplings, each component's rows against its description) and the
+    certificate of the compiled equations (power balance, passivity)."""
+
+    def __init__(self, compiled):
+        self.structure = certify(compiled.dae, n_random=2)
+        self.compiled = certify_compiled(compiled, n_random=2)
+        self.rows = self.structure.rows
+
+    @property
+    def certified(self) -> bool:
+        return self.structure.certified and self.compiled.certified and not self.compiled.skipped
+
+    def summary(self) -> str:
+        return "; ".join(d.render() for d in self.structure.diagnostics) + " | " + self.compiled.summary()
+
+
+def _certificate(path, monkeypatch, kind, modes=WrongRow.MODES, skip=()):
+    """The first mode whose double finds a row of `kind` to flip, and `phc check`'s verdict."""
     lowerer = LOWERERS[kind]
-    skip = [key.split(" ", 1)[1] for key in BEYOND_THE_BALANCE if key.startswith(kind + " ")]
-    for mode in WrongRow.MODES:
+    for mode in modes:
         double = WrongRow(lowerer, mode, skip)
         monkeypatch.setitem(LOWERERS, kind, double)
         try:
@@ -229,20 +253,40 @@ def _certificate(path, monkeypatch, kind):
         except ModelError:
             return double, None  # the wrong row already breaks the model's structure
         if double.done:
-            return double, certify_compiled(compiled, n_random=2)
+            return double, _Check(compiled)
     return double, None
 
 
 @pytest.mark.parametrize("kind", sorted(CASES))
-def test_a_wrong_row_in_any_lowerer_fails_the_certificate(kind, tmp_path, monkeypatch):
+def test_a_wrong_row_in_any_lowerer_fails_phc_check(kind, tmp_path, monkeypatch):
     path = CASES[kind]
     if isinstance(path, str):
         path = _write(tmp_path, path, INLINE[path])
-    honest = certify_compiled(phc.compile_model(path, certify=False), n_random=2)
-    assert honest.certified and not honest.skipped, honest.summary()
+    honest = _Check(phc.compile_model(path, certify=False))
+    assert honest.certified, honest.summary()
     double, cert = _certificate(path, monkeypatch, kind)
     assert double.done, f"the double found no row of `{kind}` to flip"
-    assert cert is None or not cert.certified or cert.skipped, f"{double.done}: {cert.summary()}"
+    assert cert is None or not cert.certified, f"{double.done}: {cert.summary()}"
+
+
+@pytest.mark.parametrize("key", sorted(BALANCE_BLIND))
+def test_rows_check_finds_what_the_energy_balance_cannot(key, tmp_path, monkeypatch):
+    """The sign of a source's value and θ̇ = −ω keep the energy balance: only the rows
+    check against the description finds them, as a located PHC-E452."""
+    kind, _, label = key.partition(" ")
+    path = CASES[kind]
+    if isinstance(path, str):
+        path = _write(tmp_path, path, INLINE[path])
+    modes = ("equation",) if label else ("define",)
+    skip = () if not label else [s for s in ("balance", "momentum", "dynamics") if s not in label]
+    double, cert = _certificate(path, monkeypatch, kind, modes, skip)
+    assert double.done and cert is not None
+    assert cert.compiled.certified, "the energy balance is expected to miss this one"
+    codes = [d.code for d in cert.rows.diagnostics]
+    assert codes == ["PHC-E452"], cert.summary()
+    diag = cert.rows.diagnostics[0]
+    assert f"({kind})" in diag.message and "do not say what its description says" in diag.message
+    assert diag.span is not None and Path(diag.span.file).name == Path(path).name and diag.span.line > 1
 
 
 @pytest.mark.parametrize("kind", sorted(TERMINATIONS))
