@@ -1,31 +1,37 @@
-"""Assemble lowered components into one flat :class:`~phc.dae.Dae` (pipeline stage 6).
+"""The assemble pass: lowered, interconnected components into one flat :class:`~phc.dae.Dae`.
+
+Input: an :class:`phc.elaborate.Elaboration` and its :class:`phc.interconnect.Interconnection`.
+Output: ``(Dae or None, diagnostics)``. The elaboration is not changed.
 
 Order matters:
 
-1. check connections (:func:`phc.interconnect.check_connections`: existence,
-   compatibility, each port used once, no dangling port);
-2. merge connected port variables by a signed union–find (``f₁ = f₂``, ``e₁ = −e₂``,
-   seed eq. couplcond) and substitute component-defined port values;
+1. (done by the interconnect pass: existence, compatibility, each port used once, no
+   dangling port);
+2. merge connected port variables by a signed union–find (``f₁ = f₂``, ``e₁ = −e₂``, the
+   coupling condition of T. Berger, R. Hochdahl, T. Reis, R. Seifried, "Port-Hamiltonian
+   modelling of coupled rigid/flexible multibody systems", section 2.2) and substitute
+   component-defined port values;
 3. add position invariants of connected ports with positions, and the GGL multipliers
    for all position invariants: the storage flow of each constrained configuration
    variable becomes ``ẋ + (∂g/∂x)ᵀη`` (Gear, Gupta & Leimkuhler 1985), which keeps
    ``g(x) = 0`` at position level with index 2;
 4. top-level exposed ports get their inputs (default: free, zero effort);
 5. the energy accumulator ``Ė = P_ports + P_diss`` so that
-   ``H(t) − H(0) + E(t)`` is the energy-balance residual (seed, Remark "Energy balance").
+   ``H(t) − H(0) + E(t)`` is the energy-balance residual (the paper's remark on the
+   energy balance).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 from typing import Optional
 
 import sympy as sp
 
 from phc.dae import T, Dae, Equation, InitialValue, Invariant, LinearBlock, PortInfo, Topology, Variable
-from phc.diagnostics import Diagnostic
+from phc.diagnostics import Diagnostic, DiagnosticList
 from phc.inputs import SignalBuilder
-from phc.interconnect import check_connections
 from phc.spec.model import InitialSpec, PieceSpec
 
 
@@ -58,11 +64,49 @@ class _SignedUnionFind:
         return ra, rb, rel
 
 
-def assemble(b, ctx) -> Optional[Dae]:
-    """Build the :class:`Dae` from a :class:`phc.elaborate.Builder` after lowering."""
-    connections = check_connections(b, ctx)
-    if b.diags.has_errors:
-        return None
+def assemble(elab, inter) -> tuple[Optional[Dae], DiagnosticList]:
+    """The assemble pass. Input: an :class:`phc.elaborate.Elaboration` and its
+    :class:`phc.interconnect.Interconnection` (without errors). Output: the flat
+    :class:`Dae` (None when assembly found errors) and the diagnostics it found (inputs,
+    outputs and initial values are parsed here: they refer to the assembled variables)."""
+    from phc.budget import check_assembled
+
+    b = _Assembly(elab)
+    dae = _assemble(b, elab.top, inter)
+    if dae is not None:
+        b.diags.extend(check_assembled(elab, dae))  # exact size and output arrays, before any code is generated
+        dae = dataclasses.replace(dae, left_out=elab.left_out, meshes=dict(elab.meshes))
+    return (None if b.diags.has_errors else dae), b.diags
+
+
+class _Assembly:
+    """Assembly's working state: read-only views of the elaboration, its own copies of
+    what it extends (invariants, port positions) and its own diagnostics."""
+
+    def __init__(self, elab) -> None:
+        from phc.elaborate import Reporter
+
+        self._reporter = Reporter(elab.files)
+        self.diags = self._reporter.diags
+        self.files = elab.files
+        self.error, self.expr = self._reporter.error, self._reporter.expr
+        self.elab = elab
+        self.ports = {name: dataclasses.replace(port) for name, port in elab.ports.items()}
+        self.invariants = list(elab.invariants)
+        for name in ("variables", "definitions", "equations", "parameters", "linear_blocks", "hamiltonian",
+                     "dissipation", "source_power", "velocity_invariants", "unavailable", "extra_outputs",
+                     "position_maps", "initial_relations", "compile_time_parameters", "components",
+                     "rigid_constraints", "resistive_laws", "rows", "quadratic_energy", "quadratic_dissipation",
+                     "sources"):
+            setattr(self, name, getattr(elab, name))
+        self.dirac = elab.descriptions
+
+    def default_values(self) -> dict:
+        return dict(self.elab.default_values)
+
+
+def _assemble(b, ctx, inter) -> Optional[Dae]:
+    connections = [(b.ports[pa.name], b.ports[pb.name], span, label) for pa, pb, span, label in inter.connections]
     uf = _SignedUnionFind()
     defs = dict(b.definitions)
     rows: list[Equation] = list(b.equations)
@@ -92,7 +136,7 @@ def assemble(b, ctx) -> Optional[Dae]:
     signals = SignalBuilder()
     port_power = sp.Integer(0)
     external = []
-    for pname, (full, span) in b.exposed_top.items():
+    for pname, (full, span) in inter.exposed.items():
         port = b.ports[full]
         external.append(pname)
         inp = sim.inputs.get(pname)
@@ -112,8 +156,8 @@ def assemble(b, ctx) -> Optional[Dae]:
                 defs[root] = sign * (val if isinstance(val, sp.Basic) else sp.Integer(val))
         port_power += sum(fk * ek for fk, ek in zip(port.f, port.e))
     for pname in sim.inputs:
-        if pname not in b.exposed_top:
-            close = difflib.get_close_matches(pname, list(b.exposed_top), n=1)
+        if pname not in inter.exposed:
+            close = difflib.get_close_matches(pname, list(inter.exposed), n=1)
             b.error("PHC-E209", f"input for `{pname}`, which is not an exposed port of the model", ctx,
                     ("simulation", "inputs", pname), key=True,
                     hint=f"did you mean `{close[0]}`?" if close else "expose the port under `ports:` first")
@@ -192,9 +236,9 @@ def assemble(b, ctx) -> Optional[Dae]:
         components=tuple(b.components),
         ports=tuple(PortInfo(p.name, p.component, p.domain, p.dimension, p.frame, p.span) for p in b.ports.values()),
         connections=tuple((pa.name, pb.name, label, span) for pa, pb, span, label in connections),
-        exposed=tuple((pname, full) for pname, (full, _) in b.exposed_top.items()),
+        exposed=tuple((pname, full) for pname, (full, _) in inter.exposed.items()),
         dirac=tuple(b.dirac),
-        rows=b.component_rows(),
+        rows=tuple(b.rows),
         rigid_constraints=tuple(b.rigid_constraints),
         resistive_laws=tuple(b.resistive_laws),
         parameter_defaults=b.default_values(),

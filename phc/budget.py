@@ -253,10 +253,15 @@ def admit_mesh(builder, ctx, full: str, comp, path) -> bool:
     return True
 
 
-def check_assembled(builder, ctx, dae) -> None:
-    """After assembly: the exact size plus the output arrays against the budget (a located
-    error on the builder when above: at `n_out` when the outputs drive it, else at the
-    component with the most unknowns)."""
+def mesh_spans(builder) -> dict:
+    """Distributed component -> where its mesh is written (recorded by :func:`admit_mesh`)."""
+    return {name: entry[1] for name, entry in _ledger(builder).meshes.items()}
+
+
+def check_assembled(elab, dae) -> list[Diagnostic]:
+    """After assembly: the exact size plus the output arrays against the budget. Returns a
+    located error when above: at `n_out` when the outputs drive it, else at the component
+    with the most unknowns. `elab` is the :class:`phc.elaborate.Elaboration` assembled."""
     n_var = len(dae.variables)
     nonzeros = sum(term.matrix.nnz for block in dae.linear_blocks for term in block.terms)
     nonzeros += sum(len(eq.expr.free_symbols) for eq in dae.equations if eq.expr != 0)
@@ -267,32 +272,30 @@ def check_assembled(builder, ctx, dae) -> None:
     total = compile_est.compile_bytes + outputs
     budget = max_memory()
     if total <= budget:
-        return
+        return []
     what = (f"an estimated {format_bytes(total)} ({format_bytes(compile_est.compile_bytes)} to compile "
             f"{n_var:,} unknowns with {nonzeros:,} Jacobian nonzeros, {format_bytes(outputs)} for the output "
             f"arrays: {n_out:,} points × {columns:,} columns)")
     if outputs >= compile_est.compile_bytes:
-        scene = builder.scene
+        scene = elab.scene
         if scene is not None and scene.spec.n_out is not None:
             span, where = scene.locate("n_out"), "n_out"
         else:
-            span, where = ctx.smap.locate(("simulation", "n_out")), "simulation.n_out"
+            span, where = elab.top.smap.locate(("simulation", "n_out")), "simulation.n_out"
         fit = max(2, int((budget - compile_est.compile_bytes) / (8 * columns)))
-        builder.diags.append(Diagnostic(
+        return [Diagnostic(
             "PHC-E700", f"the output grid needs {what}, above the memory budget of {format_bytes(budget)}",
-            span=span, path=where, hint=f"use fewer output points (at most about {fit:,}) " + _raise_hint(total)))
-        return
+            span=span, path=where, hint=f"use fewer output points (at most about {fit:,}) " + _raise_hint(total))]
     counts: dict[str, int] = {}
     for v in dae.variables:
         counts[v.component] = counts.get(v.component, 0) + 1
     driver = max(counts, key=counts.get) if counts else None
-    ledger = _ledger(builder)
-    span = ledger.meshes[driver][1] if driver in ledger.meshes else next(
-        (s for name, _, s in builder.components if name == driver), None)
-    builder.diags.append(Diagnostic(
+    span = elab.mesh_spans[driver] if driver in elab.mesh_spans else next(
+        (s for name, _, s in elab.components if name == driver), None)
+    return [Diagnostic(
         "PHC-E700", f"the model needs {what}, above the memory budget of {format_bytes(budget)}; "
         f"`{driver}` has the most unknowns ({counts.get(driver, 0):,})", span=span,
-        hint="make the model smaller " + _raise_hint(total)))
+        hint="make the model smaller " + _raise_hint(total))]
 
 
 def check_output_arrays(n_out: int, n_columns: int, what: str = "n_out") -> Optional[str]:

@@ -29,7 +29,8 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Optional, Sequence
+from types import MappingProxyType
+from typing import Any, Mapping, Optional, Sequence
 
 import networkx as nx
 import pydantic
@@ -121,51 +122,14 @@ def _spec_from_yaml(path, data, smap, problems) -> tuple[Optional[ModelSpec], Op
     return spec, smap, diags
 
 
-class Builder:
-    """Collects variables, equations and ports while components are lowered."""
+class Reporter:
+    """Collects located diagnostics and parses expressions into sympy (never evaluating
+    user text): the part of a pass's state that every pass has. `files` is the
+    :class:`~phc.files.FileAccess` that referenced files (tables) are read through."""
 
-    def __init__(self) -> None:
+    def __init__(self, files: Optional[FileAccess] = None) -> None:
         self.diags = DiagnosticList()
-        self.variables: list[Variable] = []
-        self.equations: list[Equation] = []
-        self.parameters: dict[str, Parameter] = {}
-        self.definitions: dict[sp.Symbol, sp.Expr] = {}
-        self.defined_by: dict[sp.Symbol, str] = {}  # definition -> the component whose lowerer wrote it
-        self.lowering: Optional[str] = None  # the component being lowered
-        self.ports: dict[str, Port] = {}
-        self.port_aliases: dict[str, str] = {}
-        self.hamiltonian: list[sp.Expr] = []
-        self.dissipation: list[tuple[str, sp.Expr, Optional[SourceSpan]]] = []  # (component, P_diss, source)
-        self.source_power: list[sp.Expr] = []
-        self.linear_blocks: list = []
-        self.quadratic_energy: list = []
-        self.quadratic_dissipation: list = []
-        self.invariants: list[Invariant] = []
-        self.velocity_invariants: list[Invariant] = []
-        self.connections: list[tuple[str, str, Optional[SourceSpan], str]] = []
-        self.exposed_top: dict[str, tuple[str, Optional[SourceSpan]]] = {}
-        self.sources: list[str] = []
-        self._file_stack: list[str] = []
-        self.failed: set[str] = set()
-        self.components: list[tuple[str, str, Optional[SourceSpan]]] = []
-        self.dirac: list = []
-        self.resistive_laws: list = []
-        self.rigid_constraints: list = []
-        self.extra_outputs: dict = {}
-        self.initial_relations: list = []
-        self.position_maps: list = []
-        self.compile_time_parameters: set = set()
-        self.effect_overrides: dict[str, tuple[dict, Optional[SourceSpan]]] = {}
-        self.mesh_overrides: dict[str, tuple[int, Optional[SourceSpan]]] = {}
-        self.skip: set[str] = set()  # components left out (pruned by a scene)
-        self.meshes: dict[str, tuple[str, int]] = {}  # distributed component -> (type, elements)
-        self.scene = None
-        self.left_out: list[tuple[str, str, str]] = []
-        self.unavailable: dict[str, str] = {}  # name -> why (an effect that is off)
-        self.files = FileAccess()  # referenced files stay inside the top-level file's directory
-        self._specs: dict[str, tuple] = {}  # resolved path -> (spec, smap) of a nested file, read once
-        self._default_values: dict = {}  # parameter symbol -> its default as Float (see default_values)
-        self.unset_parameters: set = set()  # parameters whose value had an error (their default 0 means nothing)
+        self.files = files if files is not None else FileAccess()
 
     # -- diagnostics ----------------------------------------------------------------
     def error(self, code: str, message: str, ctx: Optional[FileContext], path: Sequence = (),
@@ -177,10 +141,6 @@ class Builder:
         if ctx is not None and hasattr(ctx.smap, "dotted") and path:  # a scene's entries, as written there
             dotted = ctx.smap.dotted(tuple(path))
         self.diags.append(Diagnostic(code, message, span=span, hint=hint, severity=severity, path=dotted))
-
-    def leave_out(self, component: str, what: str, why: str) -> None:
-        """Record a part of a component that is not compiled (reported to the user)."""
-        self.left_out.append((component, what, why))
 
     # -- expressions ----------------------------------------------------------------
     def expr(self, ctx: FileContext, value: Any, path: Sequence, names: dict,
@@ -224,6 +184,58 @@ class Builder:
         if not out:
             return sp.zeros(0, m or 0)
         return sp.Matrix(out)
+
+
+class Builder(Reporter):
+    """The elaborate pass's working state: its lowerers, scene overrides and effects add
+    variables, rows, ports and descriptions here, and :meth:`finish` turns it into the
+    pass's output, an immutable :class:`Elaboration`. No later pass writes to it."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.variables: list[Variable] = []
+        self.equations: list[Equation] = []
+        self.parameters: dict[str, Parameter] = {}
+        self.definitions: dict[sp.Symbol, sp.Expr] = {}
+        self.defined_by: dict[sp.Symbol, str] = {}  # definition -> the component whose lowerer wrote it
+        self.lowering: Optional[str] = None  # the component being lowered
+        self.ports: dict[str, Port] = {}
+        self.port_aliases: dict[str, str] = {}
+        self.hamiltonian: list[sp.Expr] = []
+        self.dissipation: list[tuple[str, sp.Expr, Optional[SourceSpan]]] = []  # (component, P_diss, source)
+        self.source_power: list[sp.Expr] = []
+        self.linear_blocks: list = []
+        self.quadratic_energy: list = []
+        self.quadratic_dissipation: list = []
+        self.invariants: list[Invariant] = []
+        self.velocity_invariants: list[Invariant] = []
+        self.connections: list[tuple[str, str, Optional[SourceSpan], str]] = []
+        self.exposed_top: dict[str, tuple[str, Optional[SourceSpan]]] = {}
+        self.sources: list[str] = []
+        self._file_stack: list[str] = []
+        self.failed: set[str] = set()
+        self.components: list[tuple[str, str, Optional[SourceSpan]]] = []
+        self.dirac: list = []
+        self.resistive_laws: list = []
+        self.rigid_constraints: list = []
+        self.extra_outputs: dict = {}
+        self.initial_relations: list = []
+        self.position_maps: list = []
+        self.compile_time_parameters: set = set()
+        self.effect_overrides: dict[str, tuple[dict, Optional[SourceSpan]]] = {}
+        self.mesh_overrides: dict[str, tuple[int, Optional[SourceSpan]]] = {}
+        self.skip: set[str] = set()  # components left out (pruned by a scene)
+        self.meshes: dict[str, tuple[str, int]] = {}  # distributed component -> (type, elements)
+        self.scene = None
+        self.left_out: list[tuple[str, str, str]] = []
+        self.unavailable: dict[str, str] = {}  # name -> why (an effect that is off)
+        self._specs: dict[str, tuple] = {}  # resolved path -> (spec, smap) of a nested file, read once
+        self._default_values: dict = {}  # parameter symbol -> its default as Float (see default_values)
+        self.unset_parameters: set = set()  # parameters whose value had an error (their default 0 means nothing)
+
+    def leave_out(self, component: str, what: str, why: str) -> None:
+        """Record a part of a component that is not compiled (reported to the user)."""
+        self.left_out.append((component, what, why))
 
     # -- variables --------------------------------------------------------------------
     def add_state(self, component: str, local: str, span=None) -> tuple[sp.Symbol, sp.Symbol]:
@@ -630,29 +642,92 @@ class Builder:
         return name
 
 
-def elaborate(path: str | os.PathLike, scene=None) -> tuple[Optional[Dae], DiagnosticList]:
-    """Read a model file (and the files it nests) and build its flat :class:`Dae`.
+@dataclass(frozen=True, eq=False)
+class Elaboration:
+    """The output of the elaborate pass: every component lowered (its description, rows,
+    variables and ports), with parameters, connections as written and what was left out.
+    Read by :func:`phc.interconnect.interconnect` and :func:`phc.assemble.assemble`; no
+    pass changes it (mappings are read-only views, ports are copied where assembly gives
+    them positions)."""
 
-    `scene` (a :class:`phc.scene.Scene`) applies a scene's overrides, effects and pruning.
-    Returns ``(dae, diagnostics)``; `dae` is None when any error was found.
+    top: FileContext
+    """The top-level file (its spec and source map locate `simulation:` entries)."""
+    scene: Any
+    variables: tuple[Variable, ...]
+    equations: tuple[Equation, ...]
+    parameters: Mapping[str, Parameter]
+    default_values: Mapping
+    definitions: Mapping
+    ports: Mapping[str, Port]
+    port_aliases: Mapping[str, str]
+    hamiltonian: tuple
+    dissipation: tuple
+    source_power: tuple
+    linear_blocks: tuple
+    quadratic_energy: tuple
+    quadratic_dissipation: tuple
+    invariants: tuple
+    velocity_invariants: tuple
+    connections: tuple
+    """As written: (port a, port b, source span, label), before aliases are resolved."""
+    components: tuple
+    failed: frozenset
+    descriptions: tuple
+    rows: tuple
+    rigid_constraints: tuple
+    resistive_laws: tuple
+    initial_relations: tuple
+    position_maps: tuple
+    extra_outputs: Mapping
+    compile_time_parameters: frozenset
+    meshes: Mapping
+    mesh_spans: Mapping
+    """Distributed component -> the span of its mesh (for size diagnostics)."""
+    left_out: tuple
+    unavailable: Mapping
+    sources: tuple
+    files: FileAccess
+
+    def resolve_alias(self, name: str) -> str:
+        seen = set()
+        while name in self.port_aliases and name not in seen:
+            seen.add(name)
+            name = self.port_aliases[name]
+        return name
+
+
+def _finish(b: Builder, ctx: FileContext) -> Elaboration:
+    from phc.budget import mesh_spans
+
+    ro = MappingProxyType
+    return Elaboration(
+        top=ctx, scene=b.scene, variables=tuple(b.variables), equations=tuple(b.equations),
+        parameters=ro(dict(b.parameters)), default_values=ro(b.default_values()),
+        definitions=ro(dict(b.definitions)), ports=ro(dict(b.ports)), port_aliases=ro(dict(b.port_aliases)),
+        hamiltonian=tuple(b.hamiltonian), dissipation=tuple(b.dissipation), source_power=tuple(b.source_power),
+        linear_blocks=tuple(b.linear_blocks), quadratic_energy=tuple(b.quadratic_energy),
+        quadratic_dissipation=tuple(b.quadratic_dissipation), invariants=tuple(b.invariants),
+        velocity_invariants=tuple(b.velocity_invariants), connections=tuple(b.connections),
+        components=tuple(b.components), failed=frozenset(b.failed), descriptions=tuple(b.dirac),
+        rows=b.component_rows(), rigid_constraints=tuple(b.rigid_constraints),
+        resistive_laws=tuple(b.resistive_laws), initial_relations=tuple(b.initial_relations),
+        position_maps=tuple(b.position_maps), extra_outputs=ro(dict(b.extra_outputs)),
+        compile_time_parameters=frozenset(b.compile_time_parameters), meshes=ro(dict(b.meshes)),
+        mesh_spans=ro(mesh_spans(b)), left_out=tuple(b.left_out), unavailable=ro(dict(b.unavailable)),
+        sources=tuple(b.sources), files=b.files)
+
+
+def elaborate(path: str | os.PathLike, scene=None) -> tuple[Optional[Elaboration], DiagnosticList]:
+    """The elaborate pass: read a model file (and the files it nests), apply `scene` (a
+    :class:`phc.scene.Scene`: overrides, effects, pruning) and lower every component.
+
+    Returns ``(elaboration, diagnostics)``; `elaboration` is None only when the top-level
+    file could not be read. With errors it is still returned, so that the interconnect
+    pass can report wiring problems too (components that failed are skipped there).
     """
-    from phc.assemble import assemble
-    from phc.interconnect import check_connections
-
     builder = Builder()
     builder.scene = scene
     ctx = builder.load_file(Path(path), "", {}, None)
     if ctx is None:
         return None, builder.diags.sorted()
-    if builder.diags.has_errors:
-        # Collect, don't stop: the wiring can still be checked (components that failed
-        # to lower are skipped there).
-        check_connections(builder, ctx)
-        return None, DiagnosticList(dict.fromkeys(builder.diags)).sorted()
-    dae = assemble(builder, ctx)
-    if dae is not None:
-        from phc.budget import check_assembled
-
-        check_assembled(builder, ctx, dae)  # exact size and output arrays, before any code is generated
-        dae = dataclasses.replace(dae, left_out=tuple(builder.left_out), meshes=dict(builder.meshes))
-    return (None if builder.diags.has_errors else dae), builder.diags.sorted()
+    return _finish(builder, ctx), builder.diags

@@ -23,18 +23,20 @@ The connections it returns are the connection edges of the assembled topology.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Union
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import TYPE_CHECKING, Mapping, Union
 
 import networkx as nx
 
 from phc.dae import Topology
-from phc.diagnostics import Diagnostic
+from phc.diagnostics import Diagnostic, DiagnosticList
 from phc.spec.expressions import ExpressionError, validate_syntax
 
 if TYPE_CHECKING:
     from phc.spec.model import ModelSpec
 
-__all__ = ["build_interconnection_graph", "check_connections", "component_graph", "component_of",
+__all__ = ["Interconnection", "interconnect", "build_interconnection_graph", "check_connections", "component_graph", "component_of",
            "connected_to", "independent_parts", "kinematic_loops", "reads_of", "to_dot", "traversal_order"]
 
 
@@ -121,15 +123,33 @@ def _graph(source: Source) -> nx.MultiGraph:
 
 
 # -- the wiring check ---------------------------------------------------------------------
-def check_connections(b, ctx) -> list[tuple]:
-    """Resolve, check and return (port_a, port_b, span, label) for valid connections.
+@dataclass(frozen=True, eq=False)
+class Interconnection:
+    """The output of the interconnect pass: the valid connections as (port a, port b,
+    source span, label), the top-level exposed ports (name -> (full port name, span)) and
+    the wiring problems found."""
 
-    `b` is the :class:`phc.elaborate.Builder` after lowering, `ctx` the top-level file's
-    context. Each port is used once (PHC-E202, E203), connected ports agree in domain,
-    dimension and frame (PHC-E204 to E206), an exposed port is not also connected
-    (PHC-E207), and no port is left dangling (PHC-E208); every problem is appended to
-    ``b.diags``. Records the top-level exposed ports in ``b.exposed_top``.
+    connections: tuple
+    exposed: Mapping
+    diagnostics: DiagnosticList
+
+
+def interconnect(elab) -> Interconnection:
+    """The interconnect pass. Input: an :class:`phc.elaborate.Elaboration`. Output: an
+    :class:`Interconnection` (see :func:`check_connections`)."""
+    return check_connections(elab, elab.top)
+
+
+def check_connections(b, ctx) -> Interconnection:
+    """Resolve and check the connections of `b` (an :class:`phc.elaborate.Elaboration`);
+    `ctx` is the top-level file's context.
+
+    Each port is used once (PHC-E202, E203), connected ports agree in domain, dimension and
+    frame (PHC-E204 to E206), an exposed port is not also connected (PHC-E207), and no port
+    is left dangling (PHC-E208); every problem is a located diagnostic of the result.
     """
+    diags = DiagnosticList()
+    exposed_top: dict = {}
     used: dict[str, str] = {}
     valid = []
     suspects = set(b.failed)  # components whose ports may be the target of a broken reference
@@ -146,29 +166,29 @@ def check_connections(b, ctx) -> list[tuple]:
         ok = True
         if a_full == b_full:
             used[a_full] = label
-            b.diags.append(Diagnostic("PHC-E202", f"port `{a_name}` is connected to itself", span=span,
+            diags.append(Diagnostic("PHC-E202", f"port `{a_name}` is connected to itself", span=span,
                                       path=label))
             continue
         for p, shown in ((pa, a_name), (pb, b_name)):
             if p.name in used:
-                b.diags.append(Diagnostic(
+                diags.append(Diagnostic(
                     "PHC-E203", f"port `{shown}` is connected twice (also in {used[p.name]})", span=span,
                     hint="use a `junction` component to join more than two ports", path=label))
                 ok = False
             used[p.name] = label
         if pa.domain != pb.domain and "generic" not in (pa.domain, pb.domain):
-            b.diags.append(Diagnostic(
+            diags.append(Diagnostic(
                 "PHC-E204", f"port `{a_name}` is {pa.domain} but port `{b_name}` it connects to is {pb.domain}",
                 span=span, hint="connect ports of the same physical domain", path=label))
             ok = False
         if pa.dimension != pb.dimension:
-            b.diags.append(Diagnostic(
+            diags.append(Diagnostic(
                 "PHC-E205", f"port `{a_name}` has dimension {pa.dimension}, but port `{b_name}` it connects "
                 f"to has dimension {pb.dimension}", span=span, path=label,
                 hint="use an `orthogonal_transform` with `split` to connect parts of a vector port"))
             ok = False
         if pa.frame and pb.frame and pa.frame != pb.frame:
-            b.diags.append(Diagnostic(
+            diags.append(Diagnostic(
                 "PHC-E206", f"port `{a_name}` is in frame `{pa.frame}` but port `{b_name}` is in frame "
                 f"`{pb.frame}`", span=span, path=label,
                 hint="insert an `orthogonal_transform` between the frames"))
@@ -180,22 +200,22 @@ def check_connections(b, ctx) -> list[tuple]:
         full = b.resolve_alias(exp.port)
         if full in b.ports:
             if full in used:
-                b.diags.append(Diagnostic(
+                diags.append(Diagnostic(
                     "PHC-E207", f"port `{exp.port}` is both exposed as `{pname}` and connected ({used[full]})",
                     span=ctx.smap.locate(("ports", pname)), path=f"ports.{pname}",
                     hint="a port is either connected or exposed; use a `junction` to do both"))
             exposed.add(full)
-            b.exposed_top[pname] = (full, ctx.smap.locate(("ports", pname)))
+            exposed_top[pname] = (full, ctx.smap.locate(("ports", pname)))
     nested_exposed = set(b.port_aliases.values())
     for name, port in b.ports.items():
         if port.component in suspects:
             continue  # do not cascade from a broken reference or a component that failed
         if name not in used and name not in exposed and name not in nested_exposed:
-            b.diags.append(Diagnostic(
+            diags.append(Diagnostic(
                 "PHC-E208", f"port `{name}` is not connected", span=port.span, path=name,
                 hint="connect it, expose it under `ports:`, or terminate it with a `zero_effort` (free) or "
                 "`zero_flow` (fixed) component"))
-    return valid
+    return Interconnection(tuple(valid), MappingProxyType(exposed_top), diags)
 
 
 # -- views ----------------------------------------------------------------------------------

@@ -19,7 +19,9 @@ from phc.codegen.lower import lower_residual
 from phc.codegen.printer import print_module
 from phc.dae import Dae
 from phc.diagnostics import DiagnosticList
+from phc.assemble import assemble
 from phc.elaborate import elaborate
+from phc.interconnect import interconnect
 from phc.errors import ModelError
 from phc.scene import Scene, is_scene_file, load_scene
 
@@ -85,14 +87,23 @@ class CompiledModel:
 
 
 def elaborate_file(path: str | os.PathLike, scene: Optional[Scene] = None) -> tuple[Optional[Dae], DiagnosticList]:
-    """Elaborate a model file, or a scene file (its model with the scene applied)."""
+    """The passes load → elaborate → interconnect → assemble for a model file, or a scene
+    file (its model with the scene applied). Returns ``(dae, diagnostics)``; `dae` is None
+    when any error was found (wiring problems are reported even when components failed)."""
     if scene is None and is_scene_file(path):
         scene, diags = load_scene(path)
         if scene is None:
             return None, DiagnosticList(diags).sorted()
-    if scene is not None:
-        return elaborate(scene.model_path, scene)
-    return elaborate(path)
+    elab, diags = elaborate(scene.model_path if scene is not None else path, scene)
+    if elab is None:
+        return None, diags.sorted()
+    inter = interconnect(elab)
+    diags.extend(inter.diagnostics)
+    if diags.has_errors:
+        return None, DiagnosticList(dict.fromkeys(diags)).sorted()
+    dae, found = assemble(elab, inter)
+    diags.extend(found)
+    return (None if diags.has_errors else dae), diags.sorted()
 
 
 def build_dae(path: str | os.PathLike, scene: Optional[Scene] = None) -> tuple[Optional[Dae], DiagnosticList]:

@@ -30,7 +30,7 @@ from hypothesis import strategies as st
 import phc
 from phc.checks.certify import certify
 from phc.cli import main
-from phc.elaborate import elaborate
+from phc.pipeline import elaborate_file as elaborate
 
 REPO = Path(__file__).resolve().parents[2]
 MODELS = REPO / "models"
