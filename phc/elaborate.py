@@ -1,23 +1,26 @@
-"""Elaborate model files into one flat :class:`~phc.dae.Dae` (pipeline stages 1–2 and 6).
+"""The elaborate pass: model files to component descriptions.
+
+Input: the path of a model file and optionally a :class:`phc.scene.Scene`. Output: an
+immutable :class:`Elaboration` and the located diagnostics found.
 
 What happens here, in order:
 
 1. read each YAML file with positions (:mod:`phc.source`) and validate it into a
    :class:`~phc.spec.ModelSpec`; nested ``type: model`` components are read the same
    way, relative to the file that uses them (cycles are errors);
-2. create parameters (derived ones stay expressions of the others, so one compiled
+2. apply the scene: parameter overrides, effects, meshes, pruning of components that
+   cannot influence the requested outputs;
+3. create parameters (derived ones stay expressions of the others, so one compiled
    module serves a whole parameter study);
-3. lower each component to variables, equations and ports (:mod:`phc.library`);
-4. join connected ports: ``f₁ = f₂``, ``e₁ = −e₂`` (seed eq. couplcond). Port variables
-   are merged by a signed union–find instead of being kept as coupling rows (alias
-   elimination); a port variable that a component defines explicitly (a mass's velocity
-   ``p/m``) is substituted, so only genuinely implicit relations remain as rows;
-5. add position-level invariants with Gear–Gupta–Leimkuhler multipliers, the energy
-   accumulator, inputs and outputs.
+4. lower each component (:mod:`phc.library`) to its description
+   (:class:`~phc.dae.ComponentDescription`: ports, storage, Dirac structure in kernel
+   form, laws, H) and its rows — derived from the description, or checked against it
+   by :mod:`phc.checks.rows`.
 
-Every problem becomes a located :class:`~phc.diagnostics.Diagnostic`; nothing raises
-for a user mistake, and nothing is evaluated: expressions go through
-:func:`phc.spec.expressions.parse_expression`.
+Connections are checked by the interconnect pass (:mod:`phc.interconnect`) and joined by
+the assemble pass (:mod:`phc.assemble`). Every problem becomes a located
+:class:`~phc.diagnostics.Diagnostic`; nothing raises for a user mistake, and nothing is
+evaluated: expressions go through :func:`phc.spec.expressions.parse_expression`.
 """
 
 from __future__ import annotations

@@ -1,7 +1,23 @@
-"""The compiler pipeline, one readable sequence (DESIGN.md, "Pipeline").
+"""The compiler pipeline, one readable sequence of passes, each a function from one value
+to the next (the module of each pass states its input and output types at its top):
 
-parse → elaborate (library lowering, nesting) → assemble (alias elimination, GGL) →
-analyse (balance, matching) → lower (Jacobian) → print → load.
+=============  ==========================================  ===================================
+pass           input → output                              module
+=============  ==========================================  ===================================
+load           file path → Scene or model path              :mod:`phc.scene`, :mod:`phc.source`
+elaborate      path, Scene → Elaboration                    :mod:`phc.elaborate`, :mod:`phc.library`
+interconnect   Elaboration → Interconnection (one graph)    :mod:`phc.interconnect`
+assemble       Elaboration, Interconnection → Dae           :mod:`phc.assemble`
+analyse        Dae → diagnostics (balance, matching)        :mod:`phc.analysis.matching`
+lower          Dae → ResidualIR (Jacobian, sparsity)        :mod:`phc.codegen.lower`
+print          ResidualIR → Python source                   :mod:`phc.codegen.printer`
+load           source → module (cached by content hash)     :mod:`phc.codegen.load`
+certify        CompiledModel → CompiledCertificate          :mod:`phc.checks.compiled`
+=============  ==========================================  ===================================
+
+``phc check`` adds the structural certificate of the assembled model
+(:mod:`phc.checks.certify`: Dirac structures, couplings, each component's rows against
+its description).
 """
 
 from __future__ import annotations

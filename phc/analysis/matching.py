@@ -1,4 +1,7 @@
-"""Equation/variable balance and maximum matching (pipeline stage 7).
+"""The analyse pass: equation/variable balance and maximum matching.
+
+Input: a :class:`~phc.dae.Dae`. Output: located diagnostics (none when the DAE is
+structurally solvable).
 
 A DAE is structurally solvable only if its bipartite incidence graph (equations ×
 variables, a variable incident to a row when it or its derivative occurs there) has a

@@ -1,6 +1,11 @@
 """Certificates: Dirac property of every component and surjectivity of every coupling.
 
-This is the seed's section 2 done numerically, at sampled states:
+Input: an assembled :class:`~phc.dae.Dae`. Output: a :class:`Certificate` (with the
+comparison of each component's rows with its description, :mod:`phc.checks.rows`).
+
+This is section 2 of T. Berger, R. Hochdahl, T. Reis, R. Seifried, "Port-Hamiltonian
+modelling of coupled rigid/flexible multibody systems", done numerically, at sampled
+states:
 
 * **Dirac property** (Def. "Dirac structure", Remark on finite dimensions): in kernel
   form ``F f + E e + G λ = 0`` the structure is ``D = {(f, e) : ∃λ …}``; it is Dirac iff

@@ -1,4 +1,6 @@
-"""Lower a :class:`~phc.dae.Dae` to a :class:`ResidualIR` (pipeline stage 8a).
+"""The lower pass: a :class:`~phc.dae.Dae` to a :class:`ResidualIR`.
+
+Input: a :class:`~phc.dae.Dae` (assembled, analysed). Output: a :class:`ResidualIR`.
 
 The IR is everything the printer needs and nothing else: the ordered variables and
 parameters, the residual rows, the analytic Jacobian ``dF/dy + cj·dF/dẏ`` as a sparse

@@ -1,4 +1,6 @@
-"""Print a :class:`~phc.codegen.lower.ResidualIR` as a standalone Python module (stage 8b).
+"""The print pass: a :class:`~phc.codegen.lower.ResidualIR` as a standalone Python module.
+
+Input: a :class:`~phc.codegen.lower.ResidualIR`. Output: the module's source text.
 
 The module imports only ``math`` and ``numpy``, is readable (one named local per
 variable, common subexpressions as ``_c0, _c1, ...``), and exposes::
