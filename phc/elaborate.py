@@ -638,11 +638,16 @@ class Builder(Reporter):
         return None
 
     def resolve_alias(self, name: str) -> str:
-        seen = set()
-        while name in self.port_aliases and name not in seen:
-            seen.add(name)
-            name = self.port_aliases[name]
-        return name
+        return resolve_alias(self.port_aliases, name)
+
+
+def resolve_alias(aliases: Mapping[str, str], name: str) -> str:
+    """The port a (nested model's exposed) port name stands for, following `aliases`."""
+    seen = set()
+    while name in aliases and name not in seen:
+        seen.add(name)
+        name = aliases[name]
+    return name
 
 
 @dataclass(frozen=True, eq=False)
@@ -692,11 +697,7 @@ class Elaboration:
     files: FileAccess
 
     def resolve_alias(self, name: str) -> str:
-        seen = set()
-        while name in self.port_aliases and name not in seen:
-            seen.add(name)
-            name = self.port_aliases[name]
-        return name
+        return resolve_alias(self.port_aliases, name)
 
 
 def _finish(b: Builder, ctx: FileContext) -> Elaboration:
