@@ -239,6 +239,7 @@ def _assemble(b, ctx, inter) -> Optional[Dae]:
         exposed=tuple((pname, full) for pname, (full, _) in inter.exposed.items()),
         dirac=tuple(b.dirac),
         rows=tuple(b.rows),
+        specs=dict(b.elab.component_specs),
         rigid_constraints=tuple(b.rigid_constraints),
         resistive_laws=tuple(b.resistive_laws),
         parameter_defaults=b.default_values(),

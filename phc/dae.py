@@ -258,6 +258,8 @@ class Dae:
     """What was not compiled, as (component, what, why): effects that are off, components
     pruned by a scene."""
     dissipation_terms: tuple[tuple[str, sp.Expr, Optional[SourceSpan]], ...] = ()
+    specs: dict = field(default_factory=dict)
+    """Full name -> the component's spec as lowered (scene overrides and effects applied)."""
     """Each component's dissipated power (its terms of `dissipation`), as (component, P_diss,
     source) — what the passivity certificate checks one by one."""
     meshes: dict = field(default_factory=dict)

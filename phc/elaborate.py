@@ -202,6 +202,7 @@ class Builder(Reporter):
         self.definitions: dict[sp.Symbol, sp.Expr] = {}
         self.defined_by: dict[sp.Symbol, str] = {}  # definition -> the component whose lowerer wrote it
         self.lowering: Optional[str] = None  # the component being lowered
+        self.component_specs: dict[str, Any] = {}  # full name -> its spec as lowered (overrides applied)
         self.ports: dict[str, Port] = {}
         self.port_aliases: dict[str, str] = {}
         self.hamiltonian: list[sp.Expr] = []
@@ -597,6 +598,7 @@ class Builder(Reporter):
                 return
         n_errors = len(self.diags.errors)
         self.components.append((full, comp.type, ctx.smap.locate(path)))
+        self.component_specs[full] = comp
         self.lowering = full
         try:
             lowerers[comp.type](self, ctx, full, comp, path)
@@ -679,6 +681,8 @@ class Elaboration:
     connections: tuple
     """As written: (port a, port b, source span, label), before aliases are resolved."""
     components: tuple
+    component_specs: Mapping
+    """Full name -> the component's spec as lowered (scene overrides and effects applied)."""
     failed: frozenset
     descriptions: tuple
     rows: tuple
@@ -712,7 +716,7 @@ def _finish(b: Builder, ctx: FileContext) -> Elaboration:
         linear_blocks=tuple(b.linear_blocks), quadratic_energy=tuple(b.quadratic_energy),
         quadratic_dissipation=tuple(b.quadratic_dissipation), invariants=tuple(b.invariants),
         velocity_invariants=tuple(b.velocity_invariants), connections=tuple(b.connections),
-        components=tuple(b.components), failed=frozenset(b.failed), descriptions=tuple(b.dirac),
+        components=tuple(b.components), component_specs=ro(dict(b.component_specs)), failed=frozenset(b.failed), descriptions=tuple(b.dirac),
         rows=b.component_rows(), rigid_constraints=tuple(b.rigid_constraints),
         resistive_laws=tuple(b.resistive_laws), initial_relations=tuple(b.initial_relations),
         position_maps=tuple(b.position_maps), extra_outputs=ro(dict(b.extra_outputs)),

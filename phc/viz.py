@@ -232,29 +232,18 @@ class _Scope:
 
 
 def _load_component_specs(compiled) -> dict:
-    """Component full name → (type, spec, prefix); spec None when it cannot be read."""
-    from phc.elaborate import load_spec
-
+    """Component full name → (type, spec, prefix): the specs as compiled (scene overrides
+    and effects applied), kept by elaboration — no model file is read again."""
     topo = compiled.dae.topology
-    out, files = {}, {}
+    out = {}
     if topo is None:
         return out
-    for full, ctype, span in topo.components:
+    for full, ctype, _ in topo.components:
         local = full.rsplit(".", 1)[-1]
-        prefix = full[: len(full) - len(local)]
-        spec = None
-        if span is not None and span.file:
-            if span.file not in files:
-                try:
-                    files[span.file] = load_spec(span.file)[0]
-                except Exception:  # a moved or edited file: draw what the states alone allow
-                    files[span.file] = None
-            model = files[span.file]
-            if model is not None:
-                spec = model.components.get(local)
-                if spec is not None and getattr(spec, "type", None) != ctype:
-                    spec = None
-        out[full] = (ctype, spec, prefix)
+        spec = topo.specs.get(full)
+        if spec is not None and getattr(spec, "type", None) != ctype:
+            spec = None
+        out[full] = (ctype, spec, full[: len(full) - len(local)])
     return out
 
 
