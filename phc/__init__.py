@@ -20,12 +20,45 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 
 __version__ = "0.1.0"
 
-from phc.pipeline import CompiledModel, build_dae, compile_model  # noqa: E402
-from phc.simulation import SimResult, simulate  # noqa: E402
-from phc.elaborate import load_spec as load_model  # noqa: E402
-from phc.errors import (  # noqa: E402
-    CodegenError, InconsistentInitialError, ModelError, PhcError, SimulationSetupError,
-)
+# The public API, imported on first use (PEP 562): `import phc` and `phc --help` stay
+# cheap, and the command line uses exactly these names.
+_API = {
+    # compile
+    "load_model": ("phc.elaborate", "load_spec"),
+    "build_dae": ("phc.pipeline", "build_dae"),
+    "compile_model": ("phc.pipeline", "compile_model"),
+    "CompiledModel": ("phc.pipeline", "CompiledModel"),
+    # certify
+    "certify_model": ("phc.checks", "certify_model"),
+    "ModelCertificate": ("phc.checks", "ModelCertificate"),
+    # simulate
+    "simulate": ("phc.simulation", "simulate"),
+    "SimResult": ("phc.simulation", "SimResult"),
+    "estimate_errors": ("phc.accuracy", "estimate_errors"),
+    # errors and warnings
+    "PhcError": ("phc.errors", "PhcError"),
+    "PhcWarning": ("phc.errors", "PhcWarning"),
+    "ModelError": ("phc.errors", "ModelError"),
+    "InconsistentInitialError": ("phc.errors", "InconsistentInitialError"),
+    "SimulationSetupError": ("phc.errors", "SimulationSetupError"),
+    "CodegenError": ("phc.errors", "CodegenError"),
+    "ModelEvaluationError": ("phc.simulation", "ModelEvaluationError"),
+    "SimulationInterrupted": ("phc.simulation", "SimulationInterrupted"),
+}
 
-__all__ = ["__version__", "load_model", "build_dae", "compile_model", "simulate", "CompiledModel", "SimResult",
-           "PhcError", "ModelError", "InconsistentInitialError", "SimulationSetupError", "CodegenError"]
+__all__ = ["__version__", *_API]
+
+
+def __getattr__(name: str):
+    target = _API.get(name)
+    if target is None:
+        raise AttributeError(f"module 'phc' has no attribute {name!r}")
+    import importlib
+
+    value = getattr(importlib.import_module(target[0]), target[1])
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(__all__)

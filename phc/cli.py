@@ -17,10 +17,8 @@ from contextlib import contextmanager, nullcontext
 from pathlib import Path
 from typing import Optional, Sequence
 
-import numpy as np
-
 from phc import __version__
-from phc.errors import PhcError
+from phc import PhcError
 
 EXIT_OK, EXIT_MODEL, EXIT_USAGE = 0, 1, 2
 EXIT_INTERRUPTED = 130
@@ -122,7 +120,7 @@ def _check_arguments(args) -> None:
 
 
 def cmd_validate(args) -> int:
-    from phc.pipeline import build_dae
+    from phc import build_dae
 
     status = EXIT_OK
     report = []
@@ -192,6 +190,8 @@ def _write_results(result, path: str) -> None:
     columns["P_ports"] = result.port_power
     columns["P_diss"] = result.dissipation
     columns["energy_balance"] = result.H - result.H[0] + result.energy_supplied
+    import numpy as np
+
     from phc.io import atomic_write
 
     if path.endswith(".npz"):
@@ -235,8 +235,8 @@ class _Exit(Exception):
 def _compile_or_exit(path: str, certify: bool = True):
     """Compile a model or scene file; print its diagnostics and exit 1 on errors (a failed
     certificate of the compiled equations included, unless `certify` is off)."""
-    from phc.errors import ModelError
-    from phc.pipeline import compile_model
+    from phc import ModelError
+    from phc import compile_model
 
     try:
         return compile_model(path, certify=certify)
@@ -257,8 +257,8 @@ def _progress_for(compiled, t_end, quiet: bool):
 def _simulation_errors(path: str, progress):
     """Turn setup mistakes into usage errors and inconsistent initial values into located
     lines; the progress bar is closed either way."""
-    from phc.errors import InconsistentInitialError, SimulationSetupError
-    from phc.simulation import ModelEvaluationError
+    from phc import InconsistentInitialError, SimulationSetupError
+    from phc import ModelEvaluationError
 
     try:
         yield
@@ -283,10 +283,10 @@ def _simulation_errors(path: str, progress):
 
 
 def cmd_simulate(args) -> int:
-    from phc.accuracy import estimate_errors
+    from phc import estimate_errors
     from phc.budget import format_bytes, peak_memory
     from phc.profile import profiled
-    from phc.simulation import SimulationInterrupted, simulate
+    from phc import SimulationInterrupted, simulate
 
     params = _parse_params(args.param)
     compiled = _compile_or_exit(args.file, certify=not args.no_certify)
@@ -369,16 +369,14 @@ def _plot(result, path: str, title: str) -> None:
 
 
 def _solver_names() -> tuple[str, ...]:
-    from typing import get_args
+    from phc.names import SOLVER_NAMES
 
-    from phc.spec.model import SOLVERS
-
-    return get_args(SOLVERS)
+    return SOLVER_NAMES
 
 
 def cmd_animate(args) -> int:
     from phc import viz
-    from phc.simulation import SimulationInterrupted, simulate
+    from phc import SimulationInterrupted, simulate
 
     compiled = _compile_or_exit(args.file, certify=not args.no_certify)
     progress = _progress_for(compiled, args.t_end, args.quiet)
@@ -402,7 +400,7 @@ def cmd_animate(args) -> int:
 
 def cmd_bench(args) -> int:
     from phc.bench import parse_meshes, run_bench
-    from phc.errors import ModelError, SimulationSetupError
+    from phc import ModelError, SimulationSetupError
 
     try:
         report = run_bench(args.scene, solvers=args.solvers, tolerances=args.tolerances, steps=args.steps,
@@ -421,49 +419,24 @@ def cmd_bench(args) -> int:
 
 
 def cmd_check(args) -> int:
-    from phc.analysis.matching import check_balance
-    from phc.checks.certify import certify
-    from phc.pipeline import elaborate_file
+    import phc
 
-    # Certify even a structurally unbalanced model: the coupling certificate says why.
-    dae, diags = elaborate_file(args.file)
-    if dae is None:
-        _print_diagnostics(diags)
+    report = phc.certify_model(args.file, samples=args.samples)
+    if report.structure is None:
+        _print_diagnostics(report.diagnostics)
         if args.format == "json":
-            print(json.dumps({"model": args.file, "certified": False, "diagnostics": diags.to_json()}, indent=2))
+            print(json.dumps(report.to_dict(), indent=2))
         return EXIT_MODEL
-    cert = certify(dae, n_random=args.samples)
-    balance = check_balance(dae)
-    cert.diagnostics.extend(d for d in list(diags) + balance if d not in cert.diagnostics)
-    compiled_cert = None
-    if cert.certified and not any(d.severity == "error" for d in balance):
-        # The equations that are simulated: power balance and passivity (more samples than
-        # the certificate every compilation runs).
-        from phc.checks.compiled import certify_compiled
-        from phc.pipeline import compile_model
-
-        compiled_cert = certify_compiled(compile_model(args.file, certify=False), n_random=args.samples + 2)
-        cert.diagnostics.extend(compiled_cert.diagnostics)
-    cert.diagnostics[:] = cert.diagnostics.sorted()
-    ok = cert.certified and (compiled_cert is None or (compiled_cert.certified and not compiled_cert.skipped))
     if args.format == "json":
-        report = cert.to_dict()
-        report["compiled"] = compiled_cert.to_dict() if compiled_cert is not None else None
-        report["certified"] = ok
-        print(json.dumps(report, indent=2))
+        print(json.dumps(report.to_dict(), indent=2))
     else:
-        text = cert.render_text()
-        if compiled_cert is not None:
-            text = text.replace(f"{cert.model}: {'certified' if cert.certified else 'NOT certified'}",
-                                f"{cert.model}: {'certified' if ok else 'NOT certified'}", 1)
-            text += f"\ncompiled equations\n  {compiled_cert.summary()}"
-        print(text)
-    return EXIT_OK if ok else EXIT_MODEL
+        print(report.render_text())
+    return EXIT_OK if report.certified else EXIT_MODEL
 
 
 def cmd_graph(args) -> int:
     from phc.checks.graph import to_dot
-    from phc.pipeline import build_dae
+    from phc import build_dae
 
     dae, diags = build_dae(args.file)
     if dae is None:
@@ -547,7 +520,7 @@ def cmd_cache(args) -> int:
 
 def _show_warning(message, category, filename, lineno, file=None, line=None):
     """phc's own warnings as one line `phc: warning: ...`; others as Python prints them."""
-    from phc.errors import PhcWarning
+    from phc import PhcWarning
 
     if issubclass(category, PhcWarning):
         print(f"phc: warning: {message}", file=sys.stderr)

@@ -1,1 +1,80 @@
-"""Read-only checks on an assembled model: interconnection graph and certificates."""
+"""Certificates of a model: what ``phc check`` runs.
+
+Input: a model or scene file. Output: a :class:`ModelCertificate` — the structural
+certificate of the assembled model (:mod:`phc.checks.certify`: each component a Dirac
+structure, each coupling surjective, each component's rows against its description,
+:mod:`phc.checks.rows`), the structural balance of the DAE, and the certificate of the
+compiled equations (:mod:`phc.checks.compiled`: power balance and passivity at sampled
+consistent states). Compilation runs the last one with fewer samples on every compile.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from typing import Optional
+
+from phc.diagnostics import DiagnosticList
+
+
+@dataclass
+class ModelCertificate:
+    """What ``phc check`` concludes about one model."""
+
+    model: str
+    structure: object
+    """:class:`phc.checks.certify.Certificate` (None when the model has errors)."""
+    compiled: Optional[object]
+    """:class:`phc.checks.compiled.CompiledCertificate`, or None when the structure failed."""
+    diagnostics: DiagnosticList
+
+    @property
+    def certified(self) -> bool:
+        return (self.structure is not None and self.structure.certified
+                and (self.compiled is None or (self.compiled.certified and not self.compiled.skipped)))
+
+    def to_dict(self) -> dict:
+        if self.structure is None:
+            return {"model": self.model, "certified": False, "diagnostics": self.diagnostics.to_json()}
+        report = self.structure.to_dict()
+        report["compiled"] = self.compiled.to_dict() if self.compiled is not None else None
+        report["certified"] = self.certified
+        return report
+
+    def render_text(self) -> str:
+        if self.structure is None:
+            return "\n".join(d.render() for d in self.diagnostics)
+        text = self.structure.render_text()
+        if self.compiled is not None:
+            text = text.replace(f"{self.structure.model}: {'certified' if self.structure.certified else 'NOT certified'}",
+                                f"{self.structure.model}: {'certified' if self.certified else 'NOT certified'}", 1)
+            text += f"\ncompiled equations\n  {self.compiled.summary()}"
+        return text
+
+
+def certify_model(path: str | os.PathLike, samples: int = 2) -> ModelCertificate:
+    """Certify a model or scene file thoroughly (what ``phc check`` prints): `samples`
+    random states besides the initial one for the structure, two more for the compiled
+    equations. A structurally unbalanced model is still certified: the coupling
+    certificate says why."""
+    from phc.analysis.matching import check_balance
+    from phc.checks.certify import certify
+    from phc.pipeline import compile_model, elaborate_file
+
+    dae, diags = elaborate_file(path)
+    if dae is None:
+        return ModelCertificate(str(path), None, None, diags)
+    cert = certify(dae, n_random=samples)
+    balance = check_balance(dae)
+    cert.diagnostics.extend(d for d in list(diags) + balance if d not in cert.diagnostics)
+    compiled = None
+    if cert.certified and not any(d.severity == "error" for d in balance):
+        from phc.checks.compiled import certify_compiled
+
+        compiled = certify_compiled(compile_model(path, certify=False), n_random=samples + 2)
+        cert.diagnostics.extend(compiled.diagnostics)
+    cert.diagnostics[:] = cert.diagnostics.sorted()
+    return ModelCertificate(str(path), cert, compiled, cert.diagnostics)
+
+
+__all__ = ["ModelCertificate", "certify_model"]

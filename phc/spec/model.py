@@ -6,6 +6,7 @@ from typing import Literal, Optional, Union
 
 from pydantic import Field, field_validator, model_validator
 
+from phc.names import SOLVER_NAMES
 from phc.spec.base import Expr, Identifier, SpecModel, Vector
 from phc.spec.components import ComponentSpec
 
@@ -89,7 +90,7 @@ class InputSpec(SpecModel):
         return self
 
 
-SOLVERS = Literal["ida", "midpoint", "discrete_gradient", "midpoint4"]
+SOLVERS = Literal[SOLVER_NAMES]
 
 
 class SimulationSpec(SpecModel):
