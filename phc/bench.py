@@ -79,7 +79,7 @@ REFERENCE_MAX_ORDER = 5
 tolerances (BDF2 is A-stable for undamped high modes); at the reference's tight tolerance
 the high orders are far cheaper (BDF2 at rtol 1e-10 needs millions of steps)."""
 REFERENCE_MAX_STEPS = 10_000_000
-INSTALL_HINT = 'pip install "phc[plot]"'
+INSTALL_HINT = 'pip install "port-hamiltonian-compiler[plot]"'
 
 
 # ---------------------------------------------------------------------------------------

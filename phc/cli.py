@@ -465,7 +465,7 @@ def _draw_png(dae, path: str) -> None:
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
     except ImportError:
-        raise UsageError("drawing PNG needs matplotlib: pip install 'phc[plot]' (or write DOT with -o file.dot)")
+        raise UsageError("drawing PNG needs matplotlib: pip install 'port-hamiltonian-compiler[plot]' (or write DOT with -o file.dot)")
     import networkx as nx
 
     from phc.checks.graph import component_graph
@@ -595,7 +595,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", metavar="FILE", help="write results to FILE (.csv or .npz)")
     p.add_argument("--format", choices=("text", "json"), default="text")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.add_argument("--plot", metavar="OUT.png", help="draw the requested outputs over time (needs phc[plot])")
+    p.add_argument("--plot", metavar="OUT.png", help="draw the requested outputs over time (needs the `plot` extra: pip install 'port-hamiltonian-compiler[plot]')")
     p.add_argument("--estimate-error", action="store_true",
                    help="estimate the temporal (finer step/tolerance) and spatial (refined meshes) errors of the "
                    "outputs by Richardson extrapolation from reruns")

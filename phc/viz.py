@@ -48,7 +48,7 @@ import numpy as np
 from phc.errors import SimulationSetupError
 from phc.spec.expressions import ExpressionError
 
-INSTALL_HINT = 'pip install "phc[plot]"'
+INSTALL_HINT = 'pip install "port-hamiltonian-compiler[plot]"'
 
 _COLORS = {
     "link": "#1f4e79",

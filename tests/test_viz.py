@@ -168,5 +168,5 @@ def test_without_matplotlib_the_message_says_how_to_install(msd, monkeypatch, tm
         with pytest.raises(viz.PlotUnavailable) as err:
             call()
         message = str(err.value)
-        assert 'pip install "phc[plot]"' in message and "\n" not in message
+        assert 'pip install "port-hamiltonian-compiler[plot]"' in message and "\n" not in message
         assert isinstance(err.value, phc.errors.PhcError)

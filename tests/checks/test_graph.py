@@ -285,7 +285,7 @@ def test_phc_graph_png_with_matplotlib(tmp_path, capsys):
 
 
 def test_phc_graph_png_without_matplotlib(tmp_path, capsys, monkeypatch):
-    """Without the `plot` extra: exit 2, a message naming `phc[plot]`, no file."""
+    """Without the `plot` extra: exit 2, a message naming `port-hamiltonian-compiler[plot]`, no file."""
     real_import = builtins.__import__
 
     def no_matplotlib(name, *args, **kwargs):
@@ -299,7 +299,7 @@ def test_phc_graph_png_without_matplotlib(tmp_path, capsys, monkeypatch):
     target = tmp_path / "x.png"
     assert main(["graph", str(MSD), "-o", str(target)]) == 2
     captured = capsys.readouterr()
-    assert "phc[plot]" in captured.err
+    assert "pip install 'port-hamiltonian-compiler[plot]'" in captured.err
     assert "Traceback" not in captured.err and "internal error" not in captured.err
     assert not target.exists()
 
