@@ -2,7 +2,7 @@
 
 A :class:`Dae` is ``F(t, y, ẏ, p) = 0``: variables (differential states and algebraic
 variables), equations tagged with their origin, the Hamiltonian, the dissipated and
-port powers for the energy balance (seed, Remark "Energy balance"), and the position
+port powers for the energy balance (the paper's Remark 3 "Energy balance"), and the position
 invariants that the stabilized formulation keeps. It holds sympy expressions of small
 nonlinear parts only; it is frozen once built.
 """

@@ -10,7 +10,7 @@ both, and the views derived from it (:func:`component_graph`, :func:`kinematic_l
 
 Nodes are typed tuples: ``("component", name)``, ``("port", full_name)`` and
 ``("external", name)`` for ports exposed by the top-level model. Edges carry ``kind`` =
-``has`` (component–port), ``connection`` (port–port, seed eq. couplcond, with the
+``has`` (component–port), ``connection`` (port–port, the paper's eq. (2), with the
 connection's ``index`` in the order written), ``exposed``, or ``reads`` (component →
 component whose states it reads: a ``modulation``'s ``K(x)``). From a spec, port nodes are
 the ports the connections and ``ports:`` name (their owner is the top-level component);
@@ -282,7 +282,7 @@ def _parts(graph: nx.MultiGraph) -> list[list[str]]:
 def traversal_order(source: Source) -> list[tuple[str, str, str]]:
     """Connections as (port_a, port_b, label) in breadth-first order from each part's
     first component: tree edges before the loop-closing ones (any order gives the same
-    interconnection by the seed's Remark "Associativity of interconnection")."""
+    interconnection by the paper's Remark 4 "Associativity of interconnection")."""
     graph = component_graph(source)
     order, seen = [], set()
     for part in _parts(graph):

@@ -13,24 +13,24 @@ the states in the result):
 
 ``crank_wheel``
     the wheel (a circle of its radius about its center) and the crank arm from the
-    center to the crank pin ``q_O + r a(θ)`` (seed eq. slider-crank-wheel-dirac).
+    center to the crank pin ``q_O + r a(θ)`` (the paper's eq. (28)).
 ``moving_beam``
-    the physical centerline ``r(ξ,t) = q0 + ξ t + w(ξ,t) n`` (seed eq.
-    flexbeam-centerline) with the chord frame ``t = (qf − q0)/ℓ``, ``n = J t``; the
+    the physical centerline ``r(ξ,t) = q0 + ξ t + w(ξ,t) n`` (the paper's
+    eq. (20)) with the chord frame ``t = (qf − q0)/ℓ``, ``n = J t``; the
     deflection ``w`` is reconstructed from the curvature states with ``w'' = κ``,
     ``w(0) = w(L) = 0`` (the same Green's-function functional as the component's
     ``w[i]`` outputs) and may be magnified for display.
 ``rigid``
-    a link through the positions ``r(q)`` of its planar ports (seed eq. mks2); a body
+    a link through the positions ``r(q)`` of its planar ports (the paper's eq. (3)); a body
     with one planar port point and one coordinate is drawn as a crank (the point moves
     on a circle: circle and arm) or as a slider (the point moves on a line: guide and
     block); a body with coordinates ``x``, ``y`` is a point with its trail, and a
     distance constraint ``(x − a)² + (y − b)² − ℓ² = 0`` is drawn as a rod from the
     pivot ``(a, b)``.
 ``orthogonal_transform``
-    a guide: when the transform ``Q_s`` (seed eq. slider-crank-guide-transformation)
+    a guide: when the transform ``Q_s`` (the paper's eq. (29))
     sits on a planar port and some of its split outputs are terminated by
-    ``zero_flow`` (the seed's D_guide), the free rows of ``Q_s`` give the guide
+    ``zero_flow`` (the paper's D_guide), the free rows of ``Q_s`` give the guide
     direction; the guide is the line through the slider along it.
 ``zero_flow`` on a planar port with a position
     a fixed support.
@@ -347,7 +347,7 @@ def _crank_wheel(full, spec, prefix, scope, points):
 
 
 def _beam_deflection(full, spec, prefix, scope, n_kappa: int, chord0: float):
-    """ξ samples and the matrix G with w(ξ_i) = Σ_k G_ik κ_k (seed eq. flexbeam-centerline)."""
+    """ξ samples and the matrix G with w(ξ_i) = Σ_k G_ik κ_k (the paper's eq. (20))."""
     from phc.discretize.fem1d import DP1, Mesh
     from phc.library.moving import _deflection_functional
 
@@ -401,7 +401,7 @@ def _moving_beam(full, spec, prefix, scope, points, magnify):
     if kappa and len(kappa) % 2 == 0:
         xi, G = _beam_deflection(full, spec, prefix, scope, len(kappa), float(ell[0]))
         w = np.stack(kappa, axis=1) @ G.T * magnify  # (nt, nξ)
-        # r(ξ,t) = q0 + ξ t + w(ξ,t) n  (seed eq. flexbeam-centerline)
+        # r(ξ,t) = q0 + ξ t + w(ξ,t) n  (the paper's eq. (20))
         r = q0[:, None, :] + xi[None, :, None] * tv[:, None, :] + w[:, :, None] * nv[:, None, :]
         magnified = magnify != 1.0
     else:  # no curvature states (a rigid rod): the chord
@@ -532,8 +532,8 @@ def _distance_pivots(spec, prefix, scope, full):
 
 
 def _guide(full, spec, prefix, scope, points, neighbour, specs):
-    """Guide of an orthogonal transform Q_s on a planar port (seed eq.
-    slider-crank-guide-transformation): the free rows of Q_s, through the slider."""
+    """Guide of an orthogonal transform Q_s on a planar port (the
+    paper's eq. (29)): the free rows of Q_s, through the slider."""
     other = neighbour.get(f"{full}.a")
     if other not in points or len(spec.Q) != 2 or not spec.split:
         return []
@@ -671,7 +671,7 @@ def frame(compiled, result, k: int, ax, magnify: float = 1.0, *, params: Optiona
     """Draw the mechanism at output time index `k` of `result` on the matplotlib axes `ax`.
 
     Axis limits cover every output time of the run (equal aspect), so frames of one
-    run line up. The beam's centerline follows seed eq. flexbeam-centerline with the
+    run line up. The beam's centerline follows the paper's eq. (20) with the
     deflection multiplied by `magnify`. `params` are the base-parameter overrides the
     run used (geometry such as the crank radius is evaluated with them).
 
@@ -704,7 +704,7 @@ def animate(compiled, result, path, magnify: float = 1.0, fps: float = 20.0, max
     """Write a GIF of the planar mechanism over the run (matplotlib on Agg, Pillow).
 
     Draws rigid links, the beam's physical centerline ``r(ξ,t) = q0 + ξ t + w(ξ,t) n``
-    (seed eq. flexbeam-centerline; deflection × `magnify`), guides and cranks, at up to
+    (the paper's eq. (20); deflection × `magnify`), guides and cranks, at up to
     `max_frames` output times spread evenly over the run, with fixed axis limits and
     equal aspect.
 

@@ -7,12 +7,12 @@ This is section 2 of T. Berger, R. Hochdahl, T. Reis, R. Seifried, "Port-Hamilto
 modelling of coupled rigid/flexible multibody systems", done numerically, at sampled
 states:
 
-* **Dirac property** (Def. "Dirac structure", Remark on finite dimensions): in kernel
+* **Dirac property** (Definition 1 "Dirac structure", Remark 1 on finite dimensions): in kernel
   form ``F f + E e + G λ = 0`` the structure is ``D = {(f, e) : ∃λ …}``; it is Dirac iff
   ``dim D = dim Z`` and it is power-isotropic, ``⟨f₁, e₂⟩ + ⟨f₂, e₁⟩ = 0`` on a basis.
-* **Coupling map Γ** (Prop. "Interconnection through a finite-dimensional coupling
-  space"): the components are interconnected one connection at a time in breadth-first
-  order (Remark "Associativity of interconnection"); at each step
+* **Coupling map Γ** (Proposition 3 "Interconnection through a finite-dimensional
+  coupling space"): the components are interconnected one connection at a time in breadth-first
+  order (Remark 4 "Associativity of interconnection"); at each step
   ``Γ(d₁, d₂) = (f_c1 − f_c2, e_c1 + e_c2)`` must be onto ``Z_c × Z_c``. Γ only sees the
   coupling components, so each component is represented by the projection of its Dirac
   structure onto its ports — the cost grows linearly with the number of components.

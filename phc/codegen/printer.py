@@ -408,7 +408,7 @@ class ModulePrinter:
         qd, qd_t, qd_lines = quadratic(ir.quadratic_dissipation, "QD", "P_diss")
         parts.append(self._function(
             "powers(t, y, yp, p)",
-            "(power delivered through the external ports, power dissipated), seed Remark 'Energy balance'.",
+            "(power delivered through the external ports, power dissipated): the terms of the energy balance dH/dt = -P_ports - P_diss.",
             [ir.port_power, ir.dissipation] + qd, ["P_ports", "P_diss"] + qd_t,
             epilogue=qd_lines + ["return P_ports, P_diss"]))
         for fname, exprs, doc in (

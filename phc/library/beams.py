@@ -1,4 +1,4 @@
-"""Strings and beams: 1-D pH PDEs (seed eq. BH1gen, Example ex:expde) discretized by a
+"""Strings and beams: 1-D pH PDEs (the paper's eq. (7), Example 1) discretized by a
 partitioned mixed finite element method that keeps the boundary ports.
 
 The state is split into two groups coupled by the highest-order operator:
@@ -13,7 +13,7 @@ so in matrix form ``M_A ṗ = −Dᵀ e_ε − B_∂ e_∂``, ``M_B ε̇ = D e_p
 ``M_B e_B = M_B^{T} ε``. The interconnection matrix ``[[0, −Dᵀ], [D, 0]]`` is skew for any
 mesh and the energy ``H = ½ pᵀM_A^{1/ρ}p + ½ εᵀM_B^{T}ε`` obeys
 ``dH/dt = −f_∂·e_∂ − e_pᵀ M^{d} e_p`` exactly: the discrete power balance holds to
-round-off. The boundary efforts (reaction forces and moments, the seed's physical
+round-off. The boundary efforts (reaction forces and moments, the paper's physical
 choice of W_f, W_e) are the inputs and the co-located flows (end velocities and angular
 velocities) are the nodal values of the velocity co-energy: no boundary port is lost.
 
@@ -28,7 +28,7 @@ run-time parameters, coefficients that vary with ``xi`` are evaluated at compile
 Effects: `damping`; `modes: k` hands the same fields to :mod:`phc.library.modal`
 (structure-preserving modal truncation); the Timoshenko beam's `shear` and
 `rotary_inertia` drop a field's energy, which turns its rows into constraints whose
-co-energy is the multiplier (both off: the Euler–Bernoulli limit of Example ex:expde).
+co-energy is the multiplier (both off: the Euler–Bernoulli limit of Example 1 (c)).
 """
 
 from __future__ import annotations
@@ -80,10 +80,10 @@ class _Coefficient:
             return
         if strict and not np.all(values > 0):
             self.b.error("PHC-E141", f"`{what}` of `{name}` must be positive on [0, L] (min {values.min():.3g}); "
-                         "the energy density must be positive definite (H ≻ 0 in eq. BH1gen)", self.ctx, self.path)
+                         "the energy density must be positive definite (H ≻ 0 in the paper's eq. (7))", self.ctx, self.path)
         elif not strict and not np.all(values >= 0):
             self.b.error("PHC-E141", f"`{what}` of `{name}` must be non-negative on [0, L] (min {values.min():.3g}); "
-                         "a negative damping generates energy (D + Dᵀ ⪰ 0 in eq. BH1gen)", self.ctx, self.path)
+                         "a negative damping generates energy (D + Dᵀ ⪰ 0 in the paper's eq. (7))", self.ctx, self.path)
 
 
 def _mesh(b, ctx, name, spec, path) -> Mesh | None:
@@ -125,7 +125,7 @@ def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, coupl
     parts the residual rows are ``M ẋ_b − s D e_a`` and ``M ẋ_a + s Dᵀ e_b + boundary``
     with ``D_ji = ∫ ψ_j ∂^N φ_i``: the interconnection ``[[0, −sDᵀ], [sD, 0]]`` is skew;
     skew: (row_local, col_local, value) zero-order couplings (entries of P_0);
-    dissipation: (row_local, col_local, coefficient) entries of D in ``−D H x`` (eq. BH1gen);
+    dissipation: (row_local, col_local, coefficient) entries of D in ``−D H x`` (eq. (7));
     ports: (port_name, a_local, end, derivative, domain) — the flow is ``∂^derivative e_a``
     at the end; the effort enters the a-rows through the same basis function;
     kelvin_voigt: the `damping` coefficient c acts on the strain rate (``ṗ ∋ −∂^N(c ∂^N e_p)``,
@@ -303,9 +303,9 @@ def lower_timoshenko(b, ctx, name, spec, path):
     if prep is None:
         return
     mesh, span, c = prep
-    # Effects (seed Example ex:expde (c): both off → Euler–Bernoulli). `rotary_inertia`
+    # Effects (the paper's Example 1 (c): both off → Euler–Bernoulli). `rotary_inertia`
     # off: the energy ½∫M²/I_ρ is dropped, so the M rows become the algebraic moment balance
-    # 0 = ∂(EIθ) + Kγ (eq. beam_eq2 without I_ρ φ̈) and e_M = φ̇ is a multiplier. `shear`
+    # 0 = ∂(EIθ) + Kγ (eq. (17) without I_ρ φ̈) and e_M = φ̇ is a multiplier. `shear`
     # off (K → ∞): the energy ½∫Kγ² is dropped, the γ rows become the constraint
     # γ̇ = ∂e_p − e_M = 0 (tested with P0: ∂w − φ = 0 per element) and e_γ = Kγ, the shear
     # force, is its Lagrange multiplier.
@@ -322,7 +322,7 @@ def lower_timoshenko(b, ctx, name, spec, path):
         {"p": (P1(mesh), _inverse(c["rho"])), "M": (P1(mesh), inertia)},
         {"gamma": (P0(mesh), shear), "theta": (P0(mesh), c["EI"])},
         [("p", "gamma", 1), ("M", "theta", 1)],
-        [("M", "gamma", 1.0), ("gamma", "M", -1.0)],  # P0 of Example ex:expde (b)
+        [("M", "gamma", 1.0), ("gamma", "M", -1.0)],  # P0 of Example 1 (b)
         [("a", "p", "a", 0, TRANSLATIONAL), ("b", "p", "b", 0, TRANSLATIONAL),
          ("a_rot", "M", "a", 0, ROTATIONAL), ("b_rot", "M", "b", 0, ROTATIONAL)],
         order=1)

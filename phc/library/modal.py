@@ -1,7 +1,7 @@
 """Structure-preserving modal truncation of the partitioned beam discretizations
 (effect `modes: k` of `string`, `euler_bernoulli_beam`, `timoshenko_beam`, `moving_beam`).
 
-The full discretization (:func:`phc.library.beams._lower_partitioned`, seed eq. BH1gen
+The full discretization (:func:`phc.library.beams._lower_partitioned`, the paper's eq. (7)
 after N integrations by parts) reads, with the state groups A (momenta, trace-carrying)
 and B (strains), mass matrices ``M``, energy matrices ``Q = M^{H}`` and the co-energies
 ``e`` defined by ``M e = Q x``::
@@ -13,8 +13,8 @@ the P0 terms) and its symmetric part is the damping. In co-energy variables
 ``x = Q⁻¹M e`` this is ``K ė + N e + B_∂ e_∂ = 0`` with ``K = M Q⁻¹ M`` ≻ 0.
 
 **Basis (Craig–Bampton in the velocity field).** The boundary ports take efforts as
-inputs and give traces of ``e_A`` as flows (seed eqs. BNDTrace, flexDirac: the physical
-choice of W_f, W_e in Example ex:expde). Eliminating ``e_B`` gives the second-order
+inputs and give traces of ``e_A`` as flows (the paper's eqs. (9), (12): the physical
+choice of W_f, W_e in Example 1). Eliminating ``e_B`` gives the second-order
 system ``K_A ë_A + S e_A = −B_∂ ė_∂`` with the stiffness ``S = N_BAᵀ K_B⁻¹ N_BA`` ⪰ 0,
 whose null space holds the rigid motions. We use
 

@@ -1,7 +1,6 @@
-"""The moving-frame Euler–Bernoulli beam and the crank wheel (seed section 5).
+"""The moving-frame Euler–Bernoulli beam and the crank wheel (the paper's Section 5).
 
-Moving beam (eqs. flexbeam-kinematics, flexbeam-H, flexbeam-dynamics,
-flexbeam-boundary-conditions, flexbeam-endpoint-outputs), with the chord frame
+Moving beam (the paper's eqs. (19), (21), (22), (23), (24)), with the chord frame
 ``t = (q_f − q_0)/ℓ``, ``n = J t`` and ``ω = (v_nf − v_n0)/L``::
 
     q̇_r   = Z(q_r) (p_t/m, v_b(0), v_b(L))
@@ -11,11 +10,10 @@ flexbeam-boundary-conditions, flexbeam-endpoint-outputs), with the chord frame
 
 The flexible part is the Euler–Bernoulli discretization of :mod:`phc.library.beams`
 (Hermite cubics for p_b, discontinuous P1 for κ), whose natural boundary efforts are the
-normal components ``nᵀe_0``, ``nᵀe_f`` and the moment efforts: this is the seed's
-interconnection of the rigid part (eq. flexbeam-rigid-dirac) and the flexible part
-(eq. flexbeam-flexible-dirac) through the coupling space R⁴ (Prop.
-flexbeam-interconnection). The modulation terms ``ω ∫p_b`` and ``−ρωp_t/m`` (K_r, K_f,
-Prop. flexbeam-flexible-modulation) are discretized with the same functional
+normal components ``nᵀe_0``, ``nᵀe_f`` and the moment efforts: this is the paper's
+interconnection of the rigid part (eq. (25)) and the flexible part (eq. (26)) through
+the coupling space R⁴ (Proposition 12). The modulation terms ``ω ∫p_b`` and ``−ρωp_t/m`` (K_r, K_f,
+Proposition 11) are discretized with the same functional
 ``r_j = ∫ρφ_j`` on both sides, so they cancel exactly in the discrete power balance:
 ``e_t·ω rᵀe_p − Σ_j e_p,j ω e_t r_j = 0``.
 """
@@ -162,7 +160,7 @@ def _lower_rigid_link(b, ctx, name, spec, path):
 
     Endpoint coordinates q = (q0, qf) with the kinetic energy of a uniform bar,
     ``T = (m/6)(|v0|² + v0·vf + |vf|²)``, i.e. the constant mass matrix
-    ``M = (m/6)[[2I, I], [I, 2I]]`` (seed eq. mks2 with Z = I), and the chord constraint
+    ``M = (m/6)[[2I, I], [I, 2I]]`` (the paper's eq. (3) with Z = I), and the chord constraint
     ``|qf − q0|² = L²`` kept at position level (GGL, like every rigid constraint). Ports as
     the flexible beam: `p0`, `pf` (end velocities, positions q0, qf) and `m0`, `mf` (both
     carry the link's angular velocity ω = nᵀ(vf − v0)/L). States keep the flexible beam's
@@ -235,7 +233,7 @@ def _lower_rigid_link(b, ctx, name, spec, path):
 
 
 def lower_crank_wheel(b, ctx, name, spec, path):
-    """Seed eq. (slider-crank-wheel-dirac): θ̇ = e_p, 0 = ṗ_θ + e_τ + r a⊥(θ)ᵀ e_c."""
+    """The paper's eq. (28): θ̇ = e_p, 0 = ṗ_θ + e_τ + r a⊥(θ)ᵀ e_c."""
     span = ctx.smap.locate(path)
     scope = {"t": T, **ctx.params}
     radius = b.expr(ctx, spec.radius, (*path, "radius"), scope)

@@ -1,12 +1,12 @@
-"""Generic 1-D port-Hamiltonian PDEs (``type: pde1d``), seed section 4.1.
+"""Generic 1-D port-Hamiltonian PDEs (``type: pde1d``), the paper's Section 4.1.
 
 Checks (each failure is a located error naming the identity that fails):
 
-* ``P_k = (−1)^{k+1} P_kᵀ`` for every k, ``P_N`` invertible (eq. BH1gen);
+* ``P_k = (−1)^{k+1} P_kᵀ`` for every k, ``P_N`` invertible (eq. (7));
 * ``H(ξ)`` symmetric positive definite and ``D(ξ) + D(ξ)ᵀ ⪰ 0`` at the quadrature points
   (D is discretized like the co-energy couplings, its dissipated power is the quadratic
   form of its symmetric part);
-* ``W = [W_f; W_e]`` invertible and the Green identity (eq. BNDtriplet)
+* ``W = [W_f; W_e]`` invertible and the Green identity (eq. (10))
   ``⟨z, Σ P_k z^{(k)}⟩ = −(W_f γ(z))ᵀ(W_e γ(z))`` — verified on random polynomials z,
   which determine the quadratic boundary form completely.
 
@@ -42,7 +42,7 @@ def _numbers(b, ctx, rows, path, shape, what):
 
 
 def green_identity_error(P: list[np.ndarray], Wf: np.ndarray, We: np.ndarray, length: float, seed: int = 0) -> float:
-    """Largest mismatch of eq. BNDtriplet over random polynomial z (relative)."""
+    """Largest mismatch of the Green identity (eq. (10)) over random polynomial z (relative)."""
     N, d = len(P) - 1, P[0].shape[0]
     rng = np.random.default_rng(seed)
     s, w = np.polynomial.legendre.leggauss(2 * (2 * N + 2) + 2)
@@ -81,7 +81,7 @@ def lower_pde1d(b, ctx, name, spec, path):
     for k, Pk in enumerate(P):
         if np.abs(Pk - (-1) ** (k + 1) * Pk.T).max() > 1e-12:
             b.error("PHC-E151", f"`P[{k}]` of `{name}` must be {'skew-symmetric' if k % 2 == 0 else 'symmetric'} "
-                    f"(P_k = (−1)^(k+1) P_kᵀ in eq. BH1gen)", ctx, (*path, "P", k))
+                    f"(P_k = (−1)^(k+1) P_kᵀ, the paper's eq. (7))", ctx, (*path, "P", k))
     if abs(np.linalg.det(P[N])) < 1e-12:
         b.error("PHC-E152", f"`P[{N}]` of `{name}` must be invertible", ctx, (*path, "P", N))
     W = np.vstack([Wf, We])
@@ -96,7 +96,7 @@ def lower_pde1d(b, ctx, name, spec, path):
         return
     err = green_identity_error(P, Wf, We, mesh.length)
     if err > 1e-9:
-        b.error("PHC-E155", f"`W_f`, `W_e` of `{name}` violate the Green identity (eq. BNDtriplet): "
+        b.error("PHC-E155", f"`W_f`, `W_e` of `{name}` violate the Green identity (the paper's eq. (10)): "
                 f"⟨z, Σ P_k z^(k)⟩ ≠ −f_∂ᵀe_∂ (relative mismatch {err:.2g}); the boundary ports would not carry "
                 "the power that enters the domain", ctx, (*path, "W_e"),
                 hint="for a string, f_∂ = (v(a), v(b)) needs e_∂ = (Tε(a), −Tε(b))")
@@ -127,7 +127,7 @@ def lower_pde1d(b, ctx, name, spec, path):
             return
     dissipation = []
     if spec.D is not None:
-        # −D e in eq. BH1gen: rows of variable i get +∫ basis_i D_ij basis_j e_j.
+        # −D e in eq. (7): rows of variable i get +∫ basis_i D_ij basis_j e_j.
         dissipation = [(spec.variables[i], spec.variables[j], Dc[i][j]) for i in range(d) for j in range(d)
                        if np.abs(Dv[i, j]).max() > 0]
     # Partition of the variables by the pattern of P_N (a bipartite graph).

@@ -1,4 +1,4 @@
-"""Rigid multibody components (``type: rigid``), seed section 3, eq. (mks2).
+"""Rigid multibody components (``type: rigid``), the paper's Section 3, eq. (3).
 
 State ``x_r = (q, p)`` with ``p = M(q) v`` and ``H = ½ pᵀv + V(q)``. The lowered rows are::
 
@@ -11,7 +11,7 @@ and the position constraints ``c(q) = 0`` are registered as invariants; assembly
 them by Gear–Gupta–Leimkuhler stabilization (the kinematics row becomes
 ``q̇ − Zv + c'(q)ᵀη = 0``), which gives an index-2 system whose position constraints do
 not drift. The term ``−½ vᵀ∂M/∂q v`` is ``∂H/∂q`` at fixed p for configuration-dependent
-mass matrices (joint-coordinate models); it vanishes for the seed's constant M.
+mass matrices (joint-coordinate models); it vanishes for the paper's constant M.
 """
 
 from __future__ import annotations

@@ -5,9 +5,9 @@ balance only for quadratic H, because only then ``H(y_{n+1}) − H(y_n) = ∇H(y
 discrete gradient ``∇̄H(y_n, y_{n+1})`` is any vector with
 ``∇̄H·(y_{n+1} − y_n) = H(y_{n+1}) − H(y_n)`` and ``∇̄H(y, y) = ∇H(y)`` (Gonzalez 1996;
 McLachlan, Quispel & Robidoux 1999); replacing the efforts ``e = ∇H(x)`` of the storage
-relation (seed, section 2, storage port ``(x, e_L)``) by it, with the Dirac structure
-evaluated at one common point, makes the balance of the seed's Remark "Energy balance"
-(``rem:general-energy-balance``) hold exactly for any step size.
+relation (the paper's Section 2, storage port ``(x, e_L)``) by it, with the Dirac structure
+evaluated at one common point, makes the balance of the paper's Remark 3 "Energy balance"
+hold exactly for any step size.
 
 Which discrete gradient
 -----------------------
@@ -21,8 +21,8 @@ the state (and is exact only up to the quadrature error); the Gonzalez correctio
 discrete gradient** ``∇̄H = ∇H(y(s*))`` with ``y(s) = y_n + s (y_{n+1} − y_n)``: by the
 mean-value theorem there is an ``s* ∈ (0, 1)`` with ``∇H(y(s*))·Δy = H(y_{n+1}) − H(y_n)``.
 Every row of F is evaluated at the one point ``(t_n + s* h, y(s*))`` with the flows
-``Δy/h``, so power-isotropy of the Dirac structure there (Def. ``def-Dir``; modulated,
-``prop:power-preserving-modulation``, or constrained, eq. ``rigidDirac2``) gives exactly ``∇H(y(s*))·Δy = −h (P_ports + P_diss)(y(s*))`` — and the
+``Δy/h``, so power-isotropy of the Dirac structure there (the paper's Definition 1; modulated,
+Proposition 5, or constrained, eq. (4)) gives exactly ``∇H(y(s*))·Δy = −h (P_ports + P_diss)(y(s*))`` — and the
 energy accumulator ``energy.supplied`` of the DAE integrates the same power. Hence the
 step solves the n equations of F together with one scalar equation for ``s``,
 

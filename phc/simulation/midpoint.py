@@ -4,13 +4,13 @@ One step solves ``F(t_n + h/2, (y_n + y_{n+1})/2, (y_{n+1} − y_n)/h) = 0`` for
 For a quadratic Hamiltonian the discrete energy balance
 ``H(y_{n+1}) − H(y_n) + h·(P_ports + P_diss)(midpoint) = 0`` holds exactly (to the Newton
 tolerance), for any step size: ``H(y_{n+1}) − H(y_n) = ∇H(y_mid)·(y_{n+1} − y_n)`` for
-quadratic H, and power-isotropy of the Dirac structure (seed, Def. ``def-Dir``; the
-balance is Remark ``rem:general-energy-balance``) at the one point ``y_mid`` where every
+quadratic H, and power-isotropy of the Dirac structure (the paper's Definition 1; the
+balance is its Remark 3 "Energy balance") at the one point ``y_mid`` where every
 row of F is evaluated — modulations, constraints and multipliers included — does the rest.
 The energy accumulator of the DAE is integrated by the same rule, so the reported balance
 residual is the discrete one. Velocity-level constraints are imposed at the midpoints, the
-position constraints ``g(q) = 0`` of the GGL formulation (of the seed's rigid multibody
-DAE, eq. ``mks2``) at the step ends, so they do not drift (:class:`StageSolver`);
+position constraints ``g(q) = 0`` of the GGL formulation (of the paper's rigid multibody
+DAE, eq. (3)) at the step ends, so they do not drift (:class:`StageSolver`);
 invariants that are not rows of F are projected back at the step ends (:class:`Projector`).
 Non-quadratic Hamiltonians: see :mod:`phc.simulation.discrete_gradient`.
 

@@ -1,7 +1,7 @@
 """Watch the conditioning of the DAE iteration matrix during a run.
 
-Near a configuration where an interconnection loses surjectivity (the seed's
-Prop. "Interconnection through a finite-dimensional coupling space", ``prop:Dirac_comp``;
+Near a configuration where an interconnection loses surjectivity (the paper's
+Proposition 3 "Interconnection through a finite-dimensional coupling space";
 e.g. a slider–crank
 whose guide direction becomes orthogonal to the rod) the constraint Jacobian becomes
 rank deficient and so does the iteration matrix ``J = F_y + c_j F_ẏ`` for every step

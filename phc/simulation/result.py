@@ -14,7 +14,7 @@ class SimResult:
 
     A failed run (``success=False``) keeps everything computed up to the failure.
     ``energy_balance_error`` is ``max |H(t) − H(t₀) + ∫(P_ports + P_diss) dt|``, zero in
-    exact arithmetic by the seed's Remark "Energy balance"; ``energy_balance_relative``
+    exact arithmetic by the paper's Remark 3 "Energy balance"; ``energy_balance_relative``
     divides it by the largest |H| seen. ``constraint_drift`` is the largest |g| of the
     position-level invariants over the output times, ``velocity_drift`` the same for the
     velocity constraints.

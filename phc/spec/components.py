@@ -65,14 +65,14 @@ class TimoshenkoEffects(DistributedEffects):
 
 
 class MovingBeamEffects(_Effects):
-    """Effects of the `moving_beam` (seed section 5.1)."""
+    """Effects of the `moving_beam` (paper, Section 5.1)."""
 
     flexibility: bool = True
     """Elastic deformation (off: a rigid link with the same mass and rigid-body inertia —
     the flexible slider–crank becomes the rigid one)."""
     moving_frame: bool = True
-    """The modulation terms K_r, K_f of the moving frame (seed Prop.
-    flexbeam-flexible-modulation): ω∫p_b in the tangential momentum and −ρωp_t/m in the
+    """The modulation terms K_r, K_f of the moving frame (paper,
+    Proposition 11): ω∫p_b in the tangential momentum and −ρωp_t/m in the
     transverse momentum. Off drops both (they exchange power with each other only)."""
     damping: bool = True
     """Kelvin–Voigt damping of the elastic motion (the `damping` coefficient)."""
@@ -89,7 +89,7 @@ written as a mapping."""
 class PortSpec(SpecModel):
     """A power port: a flow vector f and an effort vector e of equal dimension.
 
-    Generator sign convention (seed, Remark "Sign convention"): ``f·e`` is the power the
+    Generator sign convention (paper, Remark 2 "Sign convention"): ``f·e`` is the power the
     component delivers through the port; mechanical efforts are reaction forces
     (``e = -F_acting``).
     """
@@ -108,7 +108,7 @@ class PhsPortSpec(PortSpec):
 
     ``causality: effort_in``: ``ẋ = (J−R)∇H − B e``, ``f = Bᵀ∇H``.
     ``causality: flow_in``: ``ẋ = (J−R)∇H + B f``, ``e = −Bᵀ∇H``.
-    Both give ``dH/dt = −∇HᵀR∇H − f·e`` (seed, Remark "Energy balance").
+    Both give ``dH/dt = −∇HᵀR∇H − f·e`` (paper, Remark 3 "Energy balance").
     """
 
     B: Optional[Matrix] = None
@@ -131,7 +131,7 @@ class PhsSpec(_Component):
     Either in input-state-output form (give `J`, optionally `R` and each port's `B`) or in
     kernel form (give `relations`: linear relations among the flows `f_*` and efforts `e_*`
     of states, ports and resistive ports, with optional latent `multipliers`, as in the
-    seed's eq. (rigidDirac2) with its ∃μ). States' flows are `f_x = dx/dt`, their efforts
+    paper's eq. (4) with its ∃μ). States' flows are `f_x = dx/dt`, their efforts
     `e_x = ∂H/∂x`.
     """
 
@@ -208,7 +208,7 @@ class LinearPhsSpec(_Component):
 
 
 class RigidPortSpec(PortSpec):
-    """A port of a rigid multibody component: its flow is ``Bᵀ(q) v`` (seed eq. mks2)."""
+    """A port of a rigid multibody component: its flow is ``Bᵀ(q) v`` (paper, eq. (3))."""
 
     B: Matrix
     """Port map B(q) (n_velocities × dimension)."""
@@ -219,7 +219,7 @@ class RigidPortSpec(PortSpec):
 
 
 class RigidSpec(_Component):
-    """Rigid multibody data of the seed's section 3 (eq. mks2).
+    """Rigid multibody data of the paper's Section 3 (eq. (3)).
 
     State (q, p) with p = M(q) v; H = ½ pᵀv + V(q). Position constraints c(q) = 0 are
     integrated in the stabilized index-2 (Gear–Gupta–Leimkuhler) form.
@@ -338,13 +338,13 @@ class FlowSourceSpec(_OnePort):
 
 
 class ZeroEffortSpec(_OnePort):
-    """Termination e = 0 with free flow (the seed's D_pin / D_free)."""
+    """Termination e = 0 with free flow (the paper's D_free of Section 4.2 and D_pin of Section 5.2)."""
 
     type: Literal["zero_effort"]
 
 
 class ZeroFlowSpec(_OnePort):
-    """Termination f = 0 with free effort (the seed's D_guide, a fixed support)."""
+    """Termination f = 0 with free effort (the paper's D_guide of Section 5.2, a fixed support)."""
 
     type: Literal["zero_flow"]
     position: Optional[Vector] = None
@@ -353,7 +353,7 @@ class ZeroFlowSpec(_OnePort):
 
 
 class OrthogonalTransformSpec(_Component):
-    """Power-preserving port transform (the seed's Q_s, eq. slider-crank-guide-transformation).
+    """Power-preserving port transform (the paper's Q_s, Section 5.2, eq. (29)).
 
     Port `a` (dimension n) and port `b`: ``f_b = Q f_a``, ``e_b = −Q e_a`` so that
     ``f_a·e_a + f_b·e_b = 0``. Connected to a port (f, e) of a neighbour, `b` carries
@@ -369,10 +369,10 @@ class OrthogonalTransformSpec(_Component):
 
 
 class ModulationSpec(_Component):
-    """Finite-dimensional modulation of port variables (seed section 4.2).
+    """Finite-dimensional modulation of port variables (paper, Section 4.2).
 
     Between port `a` (towards a fixed Dirac structure) and port `b` (outside):
-    ``f_b = f_a``, ``e_b = −e_a + K(x) f_a`` with K skew, i.e. the seed's
+    ``f_b = f_a``, ``e_b = −e_a + K(x) f_a`` with K skew, i.e. the paper's
     ``U_x : (f_m, e_m) ↦ (f_m, e_m + K(x) f_m)``. Power preserving for every x:
     ``f_a·e_a + f_b·e_b = f_aᵀK(x)f_a = 0``. K may depend on `t`, parameters and the
     states of other components, written by their full names (e.g. `wheel.theta`).
@@ -405,7 +405,7 @@ class JunctionSpec(_Component):
 
 
 class _Distributed(_Component):
-    """A 1-D pH PDE component (seed eq. BH1gen), discretized by a structure-preserving
+    """A 1-D pH PDE component (paper, Section 4.1, eq. (7)), discretized by a structure-preserving
     mixed finite element method that keeps the boundary ports."""
 
     length: Expr
@@ -413,13 +413,13 @@ class _Distributed(_Component):
     elements: int = Field(16, ge=1, le=200_000)
     """Number of finite elements."""
     damping: Optional[Expr] = None
-    """Viscous damping per unit length on the transverse momentum (the D term of eq. BH1gen);
+    """Viscous damping per unit length on the transverse momentum (the D term of the paper's eq. (7));
     may depend on `xi`."""
     effects: DistributedEffects = DistributedEffects()
 
 
 class StringSpec(_Distributed):
-    """Vibrating string (seed Example ex:expde (a)): state (p, ε), H = ½∫(p²/ρ + Tε²).
+    """Vibrating string (paper, Example 1 (a)): state (p, ε), H = ½∫(p²/ρ + Tε²).
 
     Ports `a`, `b`: transverse velocity and reaction force at ξ = 0 and ξ = L.
     """
@@ -432,7 +432,7 @@ class StringSpec(_Distributed):
 
 
 class TimoshenkoBeamSpec(_Distributed):
-    """Timoshenko beam (seed Example ex:expde (b)): state (γ, p, θ, M).
+    """Timoshenko beam (paper, Example 1 (b)): state (γ, p, θ, M).
 
     Ports `a`, `b` (transverse velocity / shear force) and `a_rot`, `b_rot` (angular
     velocity / moment) at the two ends.
@@ -451,7 +451,7 @@ class TimoshenkoBeamSpec(_Distributed):
 
 
 class EulerBernoulliBeamSpec(_Distributed):
-    """Euler–Bernoulli beam (seed Example ex:expde (c)): state (κ, p), N = 2.
+    """Euler–Bernoulli beam (paper, Example 1 (c)): state (κ, p), N = 2.
 
     Ports `a`, `b` (transverse velocity / shear force) and `a_rot`, `b_rot` (angular
     velocity / moment) at the two ends.
@@ -465,11 +465,11 @@ class EulerBernoulliBeamSpec(_Distributed):
 
 
 class MovingBeamSpec(_Component):
-    """Planar Euler–Bernoulli beam in a chord frame (seed section 5.1, eqs.
-    flexbeam-kinematics … flexbeam-endpoint-outputs).
+    """Planar Euler–Bernoulli beam in a chord frame (paper, Section 5.1,
+    eqs. (19)–(24)).
 
     State: endpoint positions q0, qf, tangential momentum p_t, curvature κ(ξ) and transverse
-    momentum density p_b(ξ); Hamiltonian eq. flexbeam-H. Ports: `p0`, `pf` (planar
+    momentum density p_b(ξ); Hamiltonian eq. (21). Ports: `p0`, `pf` (planar
     translational, positions q0 and qf) and `m0`, `mf` (rotational: angular velocity /
     reaction moment). The chord length |qf − q0| = L is kept as a position invariant.
     """
@@ -486,8 +486,8 @@ class MovingBeamSpec(_Component):
     rigidly (no elastic velocity); `free`: phc chooses the initial elastic velocity."""
     deflection_at: list[float] = [0.5]
     """Fractions ξ/L where the transverse deflection w(ξ) is available as output
-    `<name>.w[i]` (reconstructed from κ with w(0) = w(L) = 0, seed Remark on the relative
-    displacement)."""
+    `<name>.w[i]` (reconstructed from κ with w(0) = w(L) = 0, paper, Remark 7 "Reconstruction
+    of the relative displacement")."""
     damping: Optional[Expr] = None
     """Kelvin–Voigt damping c (N·m²·s): the bending moment gains c·κ̇, which damps the
     elastic motion and not the rigid one."""
@@ -495,7 +495,7 @@ class MovingBeamSpec(_Component):
 
 
 class CrankWheelSpec(_Component):
-    """Rigid crank wheel of the seed's section 5.2 (eq. slider-crank-wheel-dirac).
+    """Rigid crank wheel of the paper's Section 5.2 (eq. (28)).
 
     State (θ, p_θ), H = p_θ²/2I. Ports `drive` (rotational: angular velocity / reaction
     torque, position θ) and `pin` (planar: crank-pin velocity r a⊥(θ) θ̇, position
@@ -509,12 +509,12 @@ class CrankWheelSpec(_Component):
 
 
 class Pde1dSpec(_Component):
-    """A generic 1-D port-Hamiltonian PDE (seed eq. BH1gen) with boundary ports (eq. flixBnd)::
+    """A generic 1-D port-Hamiltonian PDE (paper, Section 4.1, eq. (7)) with boundary ports (eq. (8))::
 
         ∂x/∂t = −D H x + Σ_k P_k ∂^k(H x),   f_∂ = W_f γ(Hx),   e_∂ = W_e γ(Hx),
 
     with ``P_k = (−1)^{k+1} P_kᵀ``, ``P_N`` invertible, ``H ≻ 0``, ``D + Dᵀ ⪰ 0``,
-    ``[W_f; W_e]`` invertible and the Green identity (eq. BNDtriplet) — all checked.
+    ``[W_f; W_e]`` invertible and the Green identity (eq. (10)) — all checked.
     """
 
     type: Literal["pde1d"]

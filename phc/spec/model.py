@@ -22,7 +22,7 @@ class ParameterSpec(SpecModel):
 
 
 class ConnectionSpec(SpecModel):
-    """Joins two ports: ``f₁ = f₂``, ``e₁ = −e₂`` (seed eq. couplcond)."""
+    """Joins two ports: ``f₁ = f₂``, ``e₁ = −e₂`` (the paper's coupling conditions, eq. (2), Section 2.2)."""
 
     between: tuple[str, str]
     """The two ports, each as `component.port`."""
