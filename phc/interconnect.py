@@ -45,20 +45,28 @@ def _owner(ref: str) -> str:
     return ref.split(".", 1)[0]
 
 
-def reads_of(spec: ModelSpec) -> list[tuple[str, str]]:
-    """(reader, read) for each component of `spec` whose `K` reads another's states.
+MODULATED = ("modulation", "transformer", "gyrator")
+"""Component types whose matrix may read other components' states (lowered last)."""
 
-    Read from the free symbols of the parsed entries of a ``modulation``'s ``K`` (names
+
+def reads_of(spec: ModelSpec) -> list[tuple[str, str]]:
+    """(reader, read) for each component of `spec` whose matrix reads another's states.
+
+    Read from the free symbols of the parsed entries of a ``modulation``'s ``K`` or a
+    ``transformer``'s or ``gyrator``'s ``ratio`` (names
     are written in full, ``wheel.theta``). An entry that does not parse (its error is
     reported when the component is lowered) counts as reading every component, so that
     pruning keeps whatever the error concerns.
     """
     found = []
     for cname, comp in spec.components.items():
-        if comp.type != "modulation":
+        if comp.type not in MODULATED:
             continue
+        matrix = comp.K if comp.type == "modulation" else comp.ratio
+        entries = [e for row in matrix for e in (row if isinstance(row, list) else [row])] \
+            if isinstance(matrix, list) else [matrix]
         try:
-            names = {str(s) for row in comp.K for entry in row for s in validate_syntax(entry).free_symbols}
+            names = {str(s) for entry in entries for s in validate_syntax(entry).free_symbols}
             read = {_owner(n) for n in names if "." in n}
         except ExpressionError:
             read = set(spec.components)

@@ -31,6 +31,8 @@ LOWERERS = {
     "zero_effort": partial(lumped.lower_termination, which="effort"),
     "zero_flow": partial(lumped.lower_termination, which="flow"),
     "orthogonal_transform": lumped.lower_transform,
+    "transformer": lumped.lower_transformer,
+    "gyrator": lumped.lower_gyrator,
     "junction": lumped.lower_junction,
     "modulation": lumped.lower_modulation,
     "string": lower_string,

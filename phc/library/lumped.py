@@ -28,6 +28,7 @@ import sympy as sp
 
 from phc.dae import T
 from phc.library.dirac import DiracBuilder, emit
+from phc.library.timing import at_times, refuse_time, sample_times
 
 DEFAULT_DOMAIN = {
     "mass": "mechanical.translational", "spring": "mechanical.translational",
@@ -53,13 +54,17 @@ def _check_coefficient(b, ctx, name, spec, path, field, strict, meaning):
     ex = b.expr(ctx, value, (*path, field), _scope(ctx))
     if len(b.diags.errors) > n_errors or ex.free_symbols & b.unset_parameters:
         return ex  # already reported (here or in a parameter it uses); its placeholder value says nothing
-    try:
-        num = float(ex.xreplace(b.default_values()).xreplace({T: sp.Float(0)}))
-    except (TypeError, ValueError):
+    # A coefficient in `t` is checked over the simulation interval, not only at t = 0.
+    times = sample_times(ctx, 64) if T in ex.free_symbols else [0.0]
+    values = at_times(ex, times, b.default_values())
+    if values is None:
         return ex
-    if (strict and not num > 0) or (not strict and num < 0):
-        b.error("PHC-E405", f"`{field}` of `{name}` is {num:g} at the default parameters; {meaning}",
-                ctx, (*path, field))
+    for t, num in zip(times, values):
+        if (strict and not num > 0) or (not strict and num < 0):
+            when = f" at t = {t:g}" if T in ex.free_symbols else ""
+            b.error("PHC-E405", f"`{field}` of `{name}` is {num:g} at the default parameters{when}; {meaning}",
+                    ctx, (*path, field))
+            break
     return ex
 
 
@@ -67,10 +72,55 @@ def _suffix(dim, k):
     return "" if dim == 1 else f"[{k}]"
 
 
+FLOW_ACROSS = ("mechanical.translational", "mechanical.rotational")
+"""Domains whose across variable is the flow (velocity): a two-terminal element there acts
+on the relative flow ``f_a − f_b`` and passes its effort through (``e_b = −e_a``). In the
+other domains (electrical, hydraulic, thermal) the across variable is the effort."""
+
+
+class _ElementPort:
+    """The variables an element acts on, per vector component: the flow `f` and effort `e`
+    of its port — symbols of one port, or for a two-terminal element expressions of its
+    terminals — with `solvable_f`/`solvable_e` the port symbol a relation may be solved for
+    (None for a relative variable) and `links` the relations that tie the terminals
+    together (``e_b = −e_a`` or ``f_b = −f_a``)."""
+
+    def __init__(self, f, e, links=()):
+        self.f, self.e, self.links = f, e, list(links)
+        self.solvable_f = f if isinstance(f, sp.Symbol) else None
+        self.solvable_e = e if isinstance(e, sp.Symbol) else None
+
+
+def _element_ports(b, ctx, name, spec, path):
+    """The element's ports, and for a one-port or two-terminal element its
+    :class:`_ElementPort` per vector component (None for several ports sharing one flow)."""
+    span = ctx.smap.locate(path)
+    terminals = getattr(spec, "terminals", None)
+    if terminals is None:
+        ports = _one_port_ports(b, ctx, name, spec, path, spec.type)
+        if len(ports) > 1:
+            return ports, None
+        return ports, [_ElementPort(ports[0].f[k], ports[0].e[k]) for k in range(spec.dimension)]
+    domain = spec.domain or DEFAULT_DOMAIN.get(spec.type, "generic")
+    if domain == "generic":
+        b.error("PHC-E124", f"`{name}` has `terminals` but no physical domain: phc needs the domain to know "
+                "whether the flow (mechanical) or the effort (electrical, hydraulic, thermal) is the relative "
+                "variable", ctx, (*path, "terminals"), hint="set `domain:`")
+        domain = "mechanical.translational"
+    pa, pb = (b.add_port(name, t, domain, spec.dimension, span=span) for t in terminals)
+    out = []
+    for k in range(spec.dimension):
+        if domain in FLOW_ACROSS:
+            out.append(_ElementPort(pa.f[k] - pb.f[k], pa.e[k], [(pb.e[k] + pa.e[k], pb.e[k])]))
+        else:
+            out.append(_ElementPort(pa.f[k], pa.e[k] - pb.e[k], [(pb.f[k] + pa.f[k], pb.f[k])]))
+    return [pa, pb], out
+
+
 def lower_inertia(b, ctx, name, spec, path, coeff_field: str, state: str):
     """mass / inductor: H = |x|²/(2c), every port flow = x/c, ẋ = −Σ e."""
     c = _check_coefficient(b, ctx, name, spec, path, coeff_field, True, "it must be positive")
-    ports = _one_port_ports(b, ctx, name, spec, path, spec.type)
+    ports, element = _element_ports(b, ctx, name, spec, path)
     dim = spec.dimension
     span = ctx.smap.locate(path)
     h = sp.Integer(0)
@@ -80,9 +130,16 @@ def lower_inertia(b, ctx, name, spec, path, coeff_field: str, state: str):
     for k in range(dim):
         x, dx = b.add_state(name, state + _suffix(dim, k), span)
         fx, ex = d.storage_pair(state + _suffix(dim, k), x, dx, x / c)
-        for port in ports:
-            d.rel(port.f[k] - ex, solve=port.f[k])
-        d.rel(fx + sum(port.e[k] for port in ports), kind="storage", label=f"balance[{k}]")
+        if element is None:
+            for port in ports:
+                d.rel(port.f[k] - ex, solve=port.f[k])
+            d.rel(fx + sum(port.e[k] for port in ports), kind="storage", label=f"balance[{k}]")
+        else:
+            el = element[k]
+            d.rel(el.f - ex, solve=el.solvable_f, kind="storage", label=f"flow[{k}]")
+            d.rel(fx + el.e, kind="storage", label=f"balance[{k}]")
+            for link, solve in el.links:
+                d.rel(link, solve=solve)
         h += x**2 / (2 * c)
     d.energy(h)
     emit(b, d.register(b))
@@ -93,7 +150,7 @@ def lower_compliance(b, ctx, name, spec, path, coeff_field: str, state: str, inv
     c = _check_coefficient(b, ctx, name, spec, path, coeff_field, True,
                            "it must be positive for the stored energy to be bounded below")
     k_eff = 1 / c if inverse else c
-    ports = _one_port_ports(b, ctx, name, spec, path, spec.type)
+    ports, element = _element_ports(b, ctx, name, spec, path)
     dim = spec.dimension
     span = ctx.smap.locate(path)
     h = sp.Integer(0)
@@ -103,11 +160,17 @@ def lower_compliance(b, ctx, name, spec, path, coeff_field: str, state: str, inv
     for k in range(dim):
         x, dx = b.add_state(name, state + _suffix(dim, k), span)
         fx, ex = d.storage_pair(state + _suffix(dim, k), x, dx, k_eff * x)
-        d.rel(fx - ports[0].f[k], solve=ports[0].f[k])
-        for port in ports[1:]:
-            d.rel(port.f[k] - ports[0].f[k], solve=port.f[k])
-        d.rel(sum(port.e[k] for port in ports) + ex, solve=ports[0].e[k] if len(ports) == 1 else None,
-              kind="storage", label=f"force[{k}]")
+        if element is None:
+            d.rel(fx - ports[0].f[k], solve=ports[0].f[k])
+            for port in ports[1:]:
+                d.rel(port.f[k] - ports[0].f[k], solve=port.f[k])
+            d.rel(sum(port.e[k] for port in ports) + ex, kind="storage", label=f"force[{k}]")
+        else:
+            el = element[k]
+            d.rel(fx - el.f, solve=el.solvable_f, kind="storage", label=f"rate[{k}]")
+            d.rel(el.e + ex, solve=el.solvable_e, kind="storage", label=f"force[{k}]")
+            for link, solve in el.links:
+                d.rel(link, solve=solve)
         h += k_eff * x**2 / 2
     d.energy(h)
     emit(b, d.register(b))
@@ -117,19 +180,26 @@ def lower_resistance(b, ctx, name, spec, path, coeff_field: str):
     """damper / resistor: Σ e = −d f, dissipation d|f|²."""
     d = _check_coefficient(b, ctx, name, spec, path, coeff_field, False,
                            "a negative resistance generates energy (it must be ≥ 0)")
-    ports = _one_port_ports(b, ctx, name, spec, path, spec.type)
+    ports, element = _element_ports(b, ctx, name, spec, path)
     span = ctx.smap.locate(path)
     dr = DiracBuilder(name, spec.type, span)
     for port in ports:
         dr.port(port)
     for k in range(spec.dimension):
         fr, er = dr.resistor(f"R{_suffix(spec.dimension, k)}")
-        dr.rel(fr - ports[0].f[k], solve=fr)
-        for port in ports[1:]:
-            dr.rel(port.f[k] - ports[0].f[k], solve=port.f[k])
-        dr.law(er - d * fr, solve=er)
-        dr.rel(sum(port.e[k] for port in ports) + er, solve=ports[0].e[k] if len(ports) == 1 else None,
-               kind="resistive", label=f"law[{k}]")
+        if element is None:
+            dr.rel(fr - ports[0].f[k], solve=fr)
+            for port in ports[1:]:
+                dr.rel(port.f[k] - ports[0].f[k], solve=port.f[k])
+            dr.law(er - d * fr, solve=er)
+            dr.rel(sum(port.e[k] for port in ports) + er, kind="resistive", label=f"law[{k}]")
+        else:
+            el = element[k]
+            dr.rel(fr - el.f, solve=fr)
+            dr.law(er - d * fr, solve=er)
+            dr.rel(el.e + er, solve=el.solvable_e, kind="resistive", label=f"law[{k}]")
+            for link, solve in el.links:
+                dr.rel(link, solve=solve)
     emit(b, dr.register(b))
 
 
@@ -140,6 +210,7 @@ def lower_source(b, ctx, name, spec, path, which: str):
     position = None
     if getattr(spec, "position", None) is not None:
         position = b.vector(ctx, spec.position, (*path, "position"), _scope(ctx), spec.dimension, "`position`")
+        _check_source_position(b, ctx, name, path, position, values)
     # The relation e = u(t) (f = u(t)) is affine: its linear part, the termination e = 0
     # (f = 0), is the Dirac structure the certificate checks, so a source that cannot
     # drive its neighbour (a port whose flow map loses rank) shows up as a coupling that
@@ -163,12 +234,33 @@ def lower_source(b, ctx, name, spec, path, which: str):
     emit(b, d.register(b, note=f"imposes its {which} (certified as the termination {which[0]} = 0 plus an input)"))
 
 
+def _check_source_position(b, ctx, name, path, position, values) -> None:
+    """A flow source's `position` r(t) must integrate its `value` (ṙ = u): assembly keeps
+    the driven port at r(t) by GGL stabilization, whose velocity form is the imposed flow."""
+    times = sample_times(ctx, 8)
+    defaults = b.default_values()
+    for k, (r, u) in enumerate(zip(position, values)):
+        rates, flows = at_times(sp.diff(r, T), times, defaults), at_times(u, times, defaults)
+        if rates is None or flows is None:
+            continue
+        for t, rate, flow in zip(times, rates, flows):
+            if abs(rate - flow) > 1e-8 * max(1.0, abs(flow)):
+                b.error("PHC-E127", f"`position` of `{name}` does not integrate its `value`: at t = {t:g} "
+                        f"d/dt position[{k}] = {rate:.6g} but the imposed flow is {flow:.6g}", ctx,
+                        (*path, "position"), hint="give the position r(t) whose derivative is the flow value")
+                return
+
+
 def lower_termination(b, ctx, name, spec, path, which: str):
     """zero_effort (e = 0, the paper's pinned end) / zero_flow (f = 0, its guided end)."""
     ports = _one_port_ports(b, ctx, name, spec, path, spec.type)
     position = None
     if getattr(spec, "position", None) is not None:
         position = b.vector(ctx, spec.position, (*path, "position"), _scope(ctx), spec.dimension, "`position`")
+        if refuse_time(b, ctx, name, position, (*path, "position"), "the `position`",
+                       "a termination is fixed (its flow is zero); a support that moves is a `flow_source` "
+                       "with `value` ṙ(t) and `position` r(t)"):
+            position = None
     d = DiracBuilder(name, spec.type, ctx.smap.locate(path))
     for port in ports:
         port.position = position
@@ -183,15 +275,18 @@ def lower_transform(b, ctx, name, spec, path):
     """orthogonal_transform: f_b = Q f_a, e_a = −Qᵀ e_b (power preserving since QᵀQ = I)."""
     n = len(spec.Q)
     Q = b.matrix(ctx, spec.Q, (*path, "Q"), _scope(ctx), (n, n), "`Q`")
-    numeric = Q.xreplace(b.default_values()).subs(T, 0.0)
-    try:
-        qn = np.array(numeric.evalf(), dtype=float)
+    for t in (sample_times(ctx, 8) if T in Q.free_symbols else [0.0]):  # Q(t): orthogonal at every t
+        try:
+            qn = np.array(Q.xreplace(b.default_values()).subs(T, t).evalf(), dtype=float)
+        except (TypeError, ValueError):
+            break
         if not np.allclose(qn.T @ qn, np.eye(n), atol=1e-10):
-            b.error("PHC-E401", f"`Q` of `{name}` is not orthogonal at the default parameters "
+            when = f" at t = {t:g}" if T in Q.free_symbols else ""
+            b.error("PHC-E401", f"`Q` of `{name}` is not orthogonal at the default parameters{when} "
                     f"(|QᵀQ − I| = {np.abs(qn.T @ qn - np.eye(n)).max():.3g}); the transform would not "
-                    "preserve power", ctx, (*path, "Q"))
-    except (TypeError, ValueError):
-        pass
+                    "preserve power", ctx, (*path, "Q"),
+                    hint="for a gear, lever or any ratio use a `transformer` (f_b = N f_a, e_a = −Nᵀ e_b)")
+            break
     domain = spec.domain or "generic"
     span = ctx.smap.locate(path)
     a = b.add_port(name, "a", domain, n, span=span)
@@ -244,12 +339,9 @@ def lower_junction(b, ctx, name, spec, path):
     emit(b, d.register(b))
 
 
-def lower_modulation(b, ctx, name, spec, path):
-    """The paper's section 4.2: f_b = f_a, e_b = −e_a + K(x) f_a with K(x) skew.
-
-    Lowered after all other components, so K may use their states by full name.
-    """
-    n = len(spec.K)
+def _state_scope(b, ctx) -> dict:
+    """Names a modulated component may read: `t`, parameters, and the states of the
+    components lowered before it, by full name (vector states also as lists)."""
     scope = {"t": T, **ctx.params}
     vectors: dict = {}
     for v in b.variables:
@@ -261,7 +353,74 @@ def lower_modulation(b, ctx, name, spec, path):
                 scope[v.name] = v.symbol
     for base, items in vectors.items():
         scope[base] = [items[i] for i in sorted(items)]
-    K = b.matrix(ctx, spec.K, (*path, "K"), scope, (n, n), "`K`")
+    return scope
+
+
+def _ratio(b, ctx, name, spec, path) -> sp.Matrix:
+    """A transformer's or gyrator's ratio as an m × n matrix (a number is 1 × 1)."""
+    scope = _state_scope(b, ctx)
+    if isinstance(spec.ratio, list):
+        rows = spec.ratio if spec.ratio and isinstance(spec.ratio[0], list) else [spec.ratio]
+        width = max((len(r) for r in rows), default=0)
+        return b.matrix(ctx, rows, (*path, "ratio"), scope, (len(rows), width), "`ratio`")
+    return sp.Matrix([[b.expr(ctx, spec.ratio, (*path, "ratio"), scope)]])
+
+
+def _two_port(b, ctx, name, spec, path, N: sp.Matrix):
+    span = ctx.smap.locate(path)
+    domain_a = spec.domain_a or "generic"
+    pa = b.add_port(name, "a", domain_a, N.cols, span=span)
+    pb = b.add_port(name, "b", spec.domain_b or domain_a, N.rows, span=span)
+    return pa, pb, span
+
+
+def _modulating_states(b, N: sp.Matrix) -> tuple:
+    return tuple(sorted(N.free_symbols - {T} - set(b.default_values()), key=str))
+
+
+def lower_transformer(b, ctx, name, spec, path):
+    """transformer: f_b = N f_a, e_a = −Nᵀ e_b (power-conserving for every N)."""
+    N = _ratio(b, ctx, name, spec, path)
+    if N.rows == 0 or N.cols == 0:
+        return
+    pa, pb, span = _two_port(b, ctx, name, spec, path, N)
+    fb = N * sp.Matrix(pa.f)
+    ea = -N.T * sp.Matrix(pb.e)
+    d = DiracBuilder(name, spec.type, span)
+    d.port(pa)
+    d.port(pb)
+    for k in range(N.rows):
+        d.rel(pb.f[k] - fb[k], solve=pb.f[k])
+    for k in range(N.cols):
+        d.rel(pa.e[k] - ea[k], solve=pa.e[k])
+    emit(b, d.register(b, states=_modulating_states(b, N), note="ideal transformer: f_b = N f_a, e_a = −Nᵀ e_b"))
+
+
+def lower_gyrator(b, ctx, name, spec, path):
+    """gyrator: e_b = G f_a, e_a = −Gᵀ f_b (power-conserving for every G)."""
+    G = _ratio(b, ctx, name, spec, path)
+    if G.rows == 0 or G.cols == 0:
+        return
+    pa, pb, span = _two_port(b, ctx, name, spec, path, G)
+    eb = G * sp.Matrix(pa.f)
+    ea = -G.T * sp.Matrix(pb.f)
+    d = DiracBuilder(name, spec.type, span)
+    d.port(pa)
+    d.port(pb)
+    for k in range(G.rows):
+        d.rel(pb.e[k] - eb[k], solve=pb.e[k])
+    for k in range(G.cols):
+        d.rel(pa.e[k] - ea[k], solve=pa.e[k])
+    emit(b, d.register(b, states=_modulating_states(b, G), note="ideal gyrator: e_b = G f_a, e_a = −Gᵀ f_b"))
+
+
+def lower_modulation(b, ctx, name, spec, path):
+    """The paper's section 4.2: f_b = f_a, e_b = −e_a + K(x) f_a with K(x) skew.
+
+    Lowered after all other components, so K may use their states by full name.
+    """
+    n = len(spec.K)
+    K = b.matrix(ctx, spec.K, (*path, "K"), _state_scope(b, ctx), (n, n), "`K`")
     states = sorted(K.free_symbols - {T} - set(b.default_values()), key=str)
     rng = np.random.default_rng(0)
     for _ in range(3):

@@ -277,6 +277,30 @@ class _OnePort(_Component):
         return _unique(value)
 
 
+class _Element(_OnePort):
+    terminals: Optional[list[Identifier]] = None
+    """Two port names `[a, b]`: the element sits *between* two neighbours instead of at
+    the end of one port. It acts on the relative across variable of its terminals — in
+    the mechanical domains the relative velocity ``f_a − f_b`` with ``e_b = −e_a`` (a
+    spring between two masses), in the electrical, hydraulic and thermal domains the
+    relative effort ``e_a − e_b`` with ``f_b = −f_a`` (a resistor between two nodes).
+    Not together with `ports`."""
+
+    @field_validator("terminals")
+    @classmethod
+    def _two_terminals(cls, value):
+        if value is not None and len(value) != 2:
+            raise ValueError(f"`terminals` names exactly two ports, e.g. [a, b]; got {len(value)}")
+        return value if value is None else _unique(value)
+
+    @model_validator(mode="after")
+    def _terminals_or_ports(self):
+        if self.terminals is not None and "ports" in self.model_fields_set:
+            raise ValueError("give either `terminals` (an element between two ports) or `ports` (ports "
+                             "sharing one flow), not both")
+        return self
+
+
 class MassSpec(_OnePort):
     """Mass (or inertia): H = |p|²/2m, port flow p/m, ṗ = −Σ e."""
 
@@ -284,35 +308,35 @@ class MassSpec(_OnePort):
     m: Expr
 
 
-class InductorSpec(_OnePort):
+class InductorSpec(_Element):
     """Inductor: H = φ²/2L, port flow (current) φ/L, φ̇ = −Σ e."""
 
     type: Literal["inductor"]
     L: Expr
 
 
-class SpringSpec(_OnePort):
+class SpringSpec(_Element):
     """Linear spring: H = k|x|²/2, ẋ = f, e = −kx (one port: its elongation rate)."""
 
     type: Literal["spring"]
     k: Expr
 
 
-class CapacitorSpec(_OnePort):
+class CapacitorSpec(_Element):
     """Capacitor: H = q²/2C, q̇ = f (current), e = −q/C."""
 
     type: Literal["capacitor"]
     C: Expr
 
 
-class DamperSpec(_OnePort):
+class DamperSpec(_Element):
     """Linear damper: e = −d f, dissipating d|f|² ≥ 0."""
 
     type: Literal["damper"]
     d: Expr
 
 
-class ResistorSpec(_OnePort):
+class ResistorSpec(_Element):
     """Linear resistor: e = −R f (voltage drop), dissipating R f² ≥ 0."""
 
     type: Literal["resistor"]
@@ -366,6 +390,39 @@ class OrthogonalTransformSpec(_Component):
     domain: Optional[Domain] = None
     split: Optional[dict[Identifier, int]] = None
     """Output ports and their dimensions, in order (e.g. `{s: 1, n: 1}`)."""
+
+
+class TransformerSpec(_Component):
+    """Ideal transformer between port `a` (dimension n) and port `b` (dimension m): a gear,
+    lever, pulley, a piston's area, a transformer's turns ratio.
+
+    ``f_b = N f_a`` and ``e_a = −Nᵀ e_b`` with the ratio N (a number, or an m × n
+    matrix), so ``f_a·e_a + f_b·e_b = 0`` for every N: power-conserving, a Dirac
+    structure for any ratio. N may depend on `t`, parameters and the states of other
+    components written by their full names (a modulated transformer: a crank's
+    ``r·sin(wheel.theta)``)."""
+
+    type: Literal["transformer"]
+    ratio: Union[Expr, Matrix]
+    domain_a: Optional[Domain] = None
+    """Domain of port `a` (default `generic`)."""
+    domain_b: Optional[Domain] = None
+    """Domain of port `b` (default: that of `a`)."""
+
+
+class GyratorSpec(_Component):
+    """Ideal gyrator between port `a` (dimension n) and port `b` (dimension m): a DC
+    motor's electromechanical coupling (torque = Km·current, back-EMF = Km·speed), a
+    gyroscope, a Hall element.
+
+    ``e_b = G f_a`` and ``e_a = −Gᵀ f_b`` with the ratio G (a number, or an m × n
+    matrix), so ``f_a·e_a + f_b·e_b = 0`` for every G. G may depend on `t`, parameters
+    and other components' states, as for `transformer`."""
+
+    type: Literal["gyrator"]
+    ratio: Union[Expr, Matrix]
+    domain_a: Optional[Domain] = None
+    domain_b: Optional[Domain] = None
 
 
 class ModulationSpec(_Component):
@@ -546,7 +603,7 @@ ComponentSpec = Annotated[
         PhsSpec, LinearPhsSpec, RigidSpec, ModelComponentSpec,
         MassSpec, InductorSpec, SpringSpec, CapacitorSpec, DamperSpec, ResistorSpec,
         EffortSourceSpec, FlowSourceSpec, ZeroEffortSpec, ZeroFlowSpec,
-        OrthogonalTransformSpec, JunctionSpec, ModulationSpec,
+        OrthogonalTransformSpec, TransformerSpec, GyratorSpec, JunctionSpec, ModulationSpec,
         StringSpec, TimoshenkoBeamSpec, EulerBernoulliBeamSpec, Pde1dSpec, MovingBeamSpec, CrankWheelSpec,
     ],
     Field(discriminator="type"),
