@@ -41,7 +41,7 @@ import sympy as sp
 
 from phc.dae import Dae, Equation, Invariant, Parameter, Variable
 from phc.diagnostics import Diagnostic, DiagnosticList, allowed_keys_from_model, from_pydantic
-from phc.interconnect import MODULATED
+from phc.interconnect import MODULATED, state_reads
 from phc.files import MAX_INCLUDE_DEPTH, MAX_MODEL_INSTANCES, FileAccess, FileRefused
 from phc.source import SourceMap, SourceSpan, load_yaml, read_yaml_file
 from phc.spec import ModelSpec
@@ -558,7 +558,7 @@ class Builder(Reporter):
                     for pname, exposed in sub_ctx.spec.ports.items():
                         self.port_aliases[f"{full}.{pname}"] = sub_ctx.prefix + exposed.port
                 continue
-            if comp.type in MODULATED:  # may use other components' states: lower them last
+            if comp.type in MODULATED or state_reads(comp):  # reads other components' states: lower it last
                 deferred.append((cname, comp, full, path))
                 continue
             self._lower(LOWERERS, ctx, full, comp, path)

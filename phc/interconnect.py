@@ -25,7 +25,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import TYPE_CHECKING, Mapping, Union
+from typing import TYPE_CHECKING, Mapping, Optional, Union
 
 import networkx as nx
 
@@ -60,18 +60,34 @@ def reads_of(spec: ModelSpec) -> list[tuple[str, str]]:
     """
     found = []
     for cname, comp in spec.components.items():
-        if comp.type not in MODULATED:
-            continue
-        matrix = comp.K if comp.type == "modulation" else comp.ratio
-        entries = [e for row in matrix for e in (row if isinstance(row, list) else [row])] \
-            if isinstance(matrix, list) else [matrix]
-        try:
-            names = {str(s) for entry in entries for s in validate_syntax(entry).free_symbols}
-            read = {_owner(n) for n in names if "." in n}
-        except ExpressionError:
+        read = state_reads(comp)
+        if read is None:
             read = set(spec.components)
         found.extend((cname, other) for other in spec.components if other in read and other != cname)
     return found
+
+
+def state_reads(comp) -> Optional[set]:
+    """The components whose states a component's expressions read (names written in full,
+    ``wheel.theta``): a modulation's `K`, a transformer's or gyrator's `ratio`, a source's
+    `value` (feedback). None when an expression does not parse (its error is reported
+    when the component is lowered)."""
+    if comp.type == "modulation":
+        matrix = comp.K
+    elif comp.type in ("transformer", "gyrator"):
+        matrix = comp.ratio
+    elif comp.type in ("effort_source", "flow_source"):
+        matrix = comp.value
+    else:
+        return set()
+    entries = ([e for row in matrix for e in (row if isinstance(row, list) else [row])]
+               if isinstance(matrix, list) else [matrix])
+    try:
+        names = {str(s) for entry in entries if isinstance(entry, (str, int, float))
+                 for s in validate_syntax(entry).free_symbols}
+    except ExpressionError:
+        return None
+    return {_owner(n) for n in names if "." in n}
 
 
 def _topology_reads(top: Topology) -> list[tuple[str, str]]:

@@ -204,9 +204,11 @@ def lower_resistance(b, ctx, name, spec, path, coeff_field: str):
 
 
 def lower_source(b, ctx, name, spec, path, which: str):
-    """effort_source / flow_source: the named port variable is a function of t."""
+    """effort_source / flow_source: the named port variable is a function of t — or, for
+    feedback (a controller), also of other components' states by full name."""
     ports = _one_port_ports(b, ctx, name, spec, path, spec.type)
-    values = b.vector(ctx, spec.value, (*path, "value"), _scope(ctx), spec.dimension, "`value`")
+    values = b.vector(ctx, spec.value, (*path, "value"), _state_scope(b, ctx), spec.dimension, "`value`")
+    read = sorted(set().union(*(v.free_symbols for v in values)) - {T} - set(b.default_values()), key=str)
     position = None
     if getattr(spec, "position", None) is not None:
         position = b.vector(ctx, spec.position, (*path, "position"), _scope(ctx), spec.dimension, "`position`")
@@ -231,7 +233,11 @@ def lower_source(b, ctx, name, spec, path, which: str):
         for k in range(spec.dimension):
             d.law(sum(getattr(p, other)[k] for p in ports[1:]) - getattr(ports[0], other)[k],
                   kind="dirac", label=f"share[{k}]")
-    emit(b, d.register(b, note=f"imposes its {which} (certified as the termination {which[0]} = 0 plus an input)"))
+    note = f"imposes its {which} (certified as the termination {which[0]} = 0 plus an input)"
+    if read:
+        note = (f"feedback: imposes its {which} as a function of {', '.join(map(str, read))}; the plant is "
+                "certified, the controller may inject energy (its power is counted as supplied power)")
+    emit(b, d.register(b, states=tuple(read), note=note))
 
 
 def _check_source_position(b, ctx, name, path, position, values) -> None:

@@ -120,3 +120,21 @@ def test_two_terminal_and_transform_mistakes_are_located(tmp_path, snippet, mess
     text = str(err.value)
     assert message in text, text
     assert f"{path}:3:" in text, text
+
+
+def test_a_feedback_source_reading_states_controls_the_plant():
+    """A PD controller as an effort source whose value reads states by full name: the
+    closed loop m x'' = -(k + Kp) x + Kp x* - Kd x' (phc's source value is the force it
+    applies)."""
+    path = HERE / "pd_controlled_mass.yaml"
+    report = phc.certify_model(path)
+    assert report.certified, report.render_text()
+    note = next(c.note for c in report.structure.components if c.name == "controller")
+    assert note.startswith("feedback") and "spring.x" in note and "body.p" in note
+    r = phc.simulate(phc.compile_model(path))
+    m, k, Kp, Kd, target = 2.0, 8.0, 20.0, 3.0, 0.5
+    ref = solve_ivp(lambda t, y: [y[1], (-(k + Kp) * y[0] + Kp * target - Kd * y[1]) / m], (0.0, 5.0), [0.0, 0.0],
+                    t_eval=r.t, rtol=1e-11, atol=1e-13)
+    assert np.abs(r.outputs["x"] - ref.y[0]).max() < 1e-7
+    # the controller supplies energy: the balance closes with it counted as supplied power
+    assert np.abs(r.H - r.H[0] + r.energy_supplied).max() < 1e-7
