@@ -348,7 +348,9 @@ class EffortSourceSpec(_OnePort):
 
     type: Literal["effort_source"]
     value: Union[Expr, Vector]
-    """Expression(s) in `t` and parameters."""
+    """Expression(s) in `t`, parameters and — for feedback (a controller) — other
+    components' states by full name (`spring.x`). The plant stays certified; a controller
+    may inject energy, which the energy balance counts as supplied power."""
 
 
 class FlowSourceSpec(_OnePort):
