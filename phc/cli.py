@@ -501,7 +501,8 @@ def cmd_schema(args) -> int:
         for path in write_schemas(args.dir):
             print(f"wrote {path}")
         return EXIT_OK
-    sys.stdout.write(schema_text(args.name))
+    name = args.name if args.name.endswith(".schema.json") else f"{args.name}.schema.json"
+    sys.stdout.write(schema_text(name))
     return EXIT_OK
 
 
@@ -652,7 +653,8 @@ def build_parser() -> argparse.ArgumentParser:
         p.set_defaults(func=_with_budget(p.get_default("func")))
 
     p = sub.add_parser("schema", help="print, write or check the JSON Schemas of the model language")
-    p.add_argument("--name", default="model.schema.json")
+    p.add_argument("--name", default="model", choices=("model", "scene", "model.schema.json", "scene.schema.json"),
+                   help="which schema to print: the model language or scenes (default: model)")
     p.add_argument("--write", action="store_true", help="write the schemas into --dir")
     p.add_argument("--check", action="store_true", help="fail if the schemas in --dir are stale")
     p.add_argument("--dir", default="schemas")
@@ -699,3 +701,6 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
 
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())
+    except PhcError as err:  # phc's own exceptions are about the input or the run, not internal
+        print(f"phc {args.command}: error: {err}", file=sys.stderr)
+        return EXIT_MODEL
