@@ -687,6 +687,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except KeyboardInterrupt:
         print("phc: interrupted", file=sys.stderr)
         return 130
+    except PhcError as err:  # phc's own exceptions are about the input or the run, not internal
+        print(f"phc {args.command}: error: {err}", file=sys.stderr)
+        return EXIT_MODEL
     except BrokenPipeError:  # the reader went away (`phc ... | head`): not an error of ours
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())
@@ -701,6 +704,3 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
 
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())
-    except PhcError as err:  # phc's own exceptions are about the input or the run, not internal
-        print(f"phc {args.command}: error: {err}", file=sys.stderr)
-        return EXIT_MODEL

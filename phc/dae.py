@@ -216,6 +216,8 @@ class Topology:
     dirac: tuple[ComponentDescription, ...] = ()
     rows: tuple[ComponentRows, ...] = ()
     """Each component's rows as its lowerer emitted them (before assembly)."""
+    specs: dict = field(default_factory=dict)
+    """Full name -> the component's spec as lowered (scene overrides and effects applied)."""
     rigid_constraints: tuple = ()
     resistive_laws: tuple = ()
     parameter_defaults: dict = field(default_factory=dict)
@@ -258,8 +260,6 @@ class Dae:
     """What was not compiled, as (component, what, why): effects that are off, components
     pruned by a scene."""
     dissipation_terms: tuple[tuple[str, sp.Expr, Optional[SourceSpan]], ...] = ()
-    specs: dict = field(default_factory=dict)
-    """Full name -> the component's spec as lowered (scene overrides and effects applied)."""
     """Each component's dissipated power (its terms of `dissipation`), as (component, P_diss,
     source) — what the passivity certificate checks one by one."""
     meshes: dict = field(default_factory=dict)

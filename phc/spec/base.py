@@ -11,7 +11,7 @@ from __future__ import annotations
 import re
 from typing import Annotated, Union
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, StrictFloat, StrictInt
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, StrictFloat, StrictInt, WithJsonSchema
 
 from phc.spec.expressions import FUNCTIONS
 
@@ -62,3 +62,13 @@ Expr = Annotated[
 
 Vector = list[Expr]
 Matrix = list[list[Expr]]
+
+
+Switch = Annotated[bool, WithJsonSchema({
+    "anyOf": [{"type": "boolean"}, {"enum": ["on", "off", "yes", "no", "true", "false"]}],
+    "description": "on or off (YAML 1.1 reads `on`/`off` as booleans, YAML 1.2 tools as strings: both are accepted)",
+})]
+"""A switch written `on`/`off` (or `true`/`false`). phc's YAML reader turns `on`/`off` into
+booleans as YAML 1.1 does; editors and CI checkers that read YAML 1.2 see the strings, so
+the JSON Schema accepts both."""
+

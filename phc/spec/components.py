@@ -11,7 +11,7 @@ from typing import Annotated, Literal, Optional, Union
 
 from pydantic import Field, field_validator, model_validator
 
-from phc.spec.base import Expr, Identifier, Matrix, SpecModel, Vector
+from phc.spec.base import Expr, Identifier, Matrix, SpecModel, Switch, Vector
 
 Domain = Literal[
     "mechanical.translational",
@@ -47,7 +47,7 @@ class _Effects(SpecModel):
 class DistributedEffects(_Effects):
     """Effects of the library PDE components (`string`, `euler_bernoulli_beam`)."""
 
-    damping: bool = True
+    damping: Switch = True
     """Distributed viscous damping (the component's `damping` coefficient; nothing without one)."""
     modes: Optional[int] = Field(None, ge=1)
     """Keep only the k lowest modes of the discretized PDE (structure-preserving modal
@@ -58,29 +58,29 @@ class TimoshenkoEffects(DistributedEffects):
     """Effects of the `timoshenko_beam`; with `shear` and `rotary_inertia` both off it behaves
     as an Euler–Bernoulli beam."""
 
-    shear: bool = True
+    shear: Switch = True
     """Shear deformation (off: the shear strain is constrained to zero, infinite shear stiffness)."""
-    rotary_inertia: bool = True
+    rotary_inertia: Switch = True
     """Rotary inertia of the cross-sections (off: their angular momentum is neglected)."""
 
 
 class MovingBeamEffects(_Effects):
     """Effects of the `moving_beam` (paper, Section 5.1)."""
 
-    flexibility: bool = True
+    flexibility: Switch = True
     """Elastic deformation (off: a rigid link with the same mass and rigid-body inertia —
     the flexible slider–crank becomes the rigid one)."""
-    moving_frame: bool = True
+    moving_frame: Switch = True
     """The modulation terms K_r, K_f of the moving frame (paper,
     Proposition 11): ω∫p_b in the tangential momentum and −ρωp_t/m in the
     transverse momentum. Off drops both (they exchange power with each other only)."""
-    damping: bool = True
+    damping: Switch = True
     """Kelvin–Voigt damping of the elastic motion (the `damping` coefficient)."""
     modes: Optional[int] = Field(None, ge=1)
     """Keep only the k lowest modes of the elastic part (see `DistributedEffects.modes`)."""
 
 
-UserEffects = dict[Identifier, bool]
+UserEffects = dict[Identifier, Switch]
 """Effects of user-defined components: name → default. Each name can be used as a 0/1
 factor in the component's expressions, and names terms of a Hamiltonian or potential
 written as a mapping."""
@@ -211,9 +211,9 @@ class RigidPortSpec(PortSpec):
     """A port of a rigid multibody component: its flow is ``Bᵀ(q) v`` (paper, eq. (3))."""
 
     B: Matrix
-    """Port map B(q) (n_velocities × dimension)."""
+    """Port map B(q, t) (n_velocities × dimension)."""
     position: Optional[Vector] = None
-    """Position r(q) of the port (dimension entries) with ``d/dt r(q) = Bᵀv``. When two
+    """Position r(q) of the port (dimension entries, not depending on `t`) with ``d/dt r(q) = Bᵀv``. When two
     connected ports both give positions, phc keeps ``r₁ = r₂`` at position level (GGL
     stabilization) so the joint does not drift."""
 
@@ -222,7 +222,9 @@ class RigidSpec(_Component):
     """Rigid multibody data of the paper's Section 3 (eq. (3)).
 
     State (q, p) with p = M(q) v; H = ½ pᵀv + V(q). Position constraints c(q) = 0 are
-    integrated in the stabilized index-2 (Gear–Gupta–Leimkuhler) form.
+    integrated in the stabilized index-2 (Gear–Gupta–Leimkuhler) form. Each field may depend
+    on the variables named in its description, on parameters and on `t`; anything else is a
+    located error (docs/constraints.md).
     """
 
     type: Literal["rigid"]
@@ -232,21 +234,22 @@ class RigidSpec(_Component):
     v: Optional[list[Identifier]] = None
     """Generalized velocities (default: `v_<q>` for each q; requires Z square)."""
     M: Matrix = Field(min_length=1)
-    """Mass matrix, constant or configuration dependent M(q); symmetric positive definite."""
+    """Mass matrix, constant or configuration dependent M(q, t); symmetric positive definite."""
     Z: Optional[Matrix] = None
-    """Kinematics q̇ = Z(q) v (n_q × n_v). Default identity."""
+    """Kinematics q̇ = Z(q, t) v (n_q × n_v). Default identity."""
     V: Union[Expr, dict[Identifier, Expr]] = 0
-    """Potential energy V(q); or a mapping of named terms (summed), e.g.
+    """Potential energy V(q, t) (its ∂V/∂t is booked in the energy balance); or a mapping of named terms (summed), e.g.
     `{gravity: m*g*y, spring: k*x**2/2}`, where a term named after an effect is dropped when
     that effect is off."""
     constraints: list[Expr] = []
-    """Position constraints c(q) = 0."""
+    """Position constraints c(q, t) = 0; with `t` a prescribed motion (rheonomic): velocity
+    form c_q Z v + c_t = 0, and the constraint's work is booked in the energy balance."""
     velocity_constraints: Matrix = []
-    """Rows of A(q) in the velocity constraints A(q) v = 0."""
+    """Rows of A(q, t) in the velocity constraints A(q, t) v = 0 (homogeneous: ideal, no work)."""
     damping: Optional[Vector] = None
-    """Damping force F_d(q, v) with vᵀF_d ≥ 0."""
+    """Damping force F_d(q, v, t) with vᵀF_d ≥ 0."""
     G: Optional[Matrix] = None
-    """Skew gyroscopic matrix G(p)."""
+    """Skew gyroscopic matrix G(q, p, t)."""
     ports: dict[Identifier, RigidPortSpec] = {}
     effects: UserEffects = {}
     """Named effects and their defaults (built in: `gravity`, which switches the `V` term named

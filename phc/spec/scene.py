@@ -12,7 +12,7 @@ from typing import Annotated, Literal, Optional, Union
 
 from pydantic import Field
 
-from phc.spec.base import Expr, Identifier, SpecModel
+from phc.spec.base import Expr, Identifier, SpecModel, Switch
 from phc.spec.model import InitialSpec, InputSpec, SOLVERS
 
 Elements = Annotated[int, Field(ge=1, le=200_000)]
@@ -47,7 +47,7 @@ class BenchSpec(SpecModel):
     """Runs per point; the CPU time reported is the minimum."""
 
 
-EffectValue = Union[bool, int]
+EffectValue = Union[Switch, int]
 
 
 class SceneSpec(SpecModel):
