@@ -154,6 +154,8 @@ CASES = {
     "moving_beam": MODELS / "moving_beam.yaml",
     "crank_wheel": "crank.yaml",
     "effort_source": MODELS / "rlc_circuit.yaml",
+    "transformer": REPO / "tests" / "library" / "models" / "dc_motor.yaml",
+    "gyrator": REPO / "tests" / "library" / "models" / "dc_motor.yaml",
     "flow_source": MODELS / "rigid_slider_crank.yaml",
     "modulation": "modulation.yaml",
     "pde1d": "pde1d.yaml",
