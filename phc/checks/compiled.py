@@ -98,7 +98,7 @@ class CompiledCertificate:
 def _consistent_samples(compiled, p, n_random: int, rng) -> tuple[list, list[str]]:
     """[(t, y, ẏ)]: the initial consistent point and up to `n_random` perturbed ones."""
     from phc.errors import InconsistentInitialError, SimulationSetupError
-    from phc.simulation import initial_values
+    from phc.simulation import ModelEvaluationError, initial_values, start_state
     from phc.simulation.initial import consistent_initial_conditions
 
     mod = compiled.module
@@ -108,9 +108,10 @@ def _consistent_samples(compiled, p, n_random: int, rng) -> tuple[list, list[str
     out = []
     try:
         values, fixed = initial_values(compiled, p)
-        init = consistent_initial_conditions(mod, p, t0, values, fixed)
-    except (InconsistentInitialError, SimulationSetupError, np.linalg.LinAlgError, ValueError,
-            ArithmeticError) as err:
+        # the start of every run: solved as `simulate` solves it and kept for it (one solve)
+        init = start_state(compiled, p, t0, values, fixed)
+    except (InconsistentInitialError, SimulationSetupError, ModelEvaluationError, np.linalg.LinAlgError,
+            ValueError, ArithmeticError) as err:
         # ArithmeticError: the equations cannot be evaluated there (1/sqrt(0) of a moving beam
         # whose ends start at one point); simulate reports that located, through its guards
         notes.append(f"no consistent initial point ({str(err)[:120]})")
@@ -247,29 +248,99 @@ def _value(expr: sp.Expr, point: dict) -> float:
 def _passivity_at_samples(compiled, p, samples, cert) -> None:
     dae, mod = compiled.dae, compiled.module
     params = {par.symbol: sp.Float(float(p[mod.PARAMETERS.index(par.name)])) for par in dae.parameters}
+_NUMPY = {sp.sin: np.sin, sp.cos: np.cos, sp.tan: np.tan, sp.exp: np.exp, sp.log: np.log, sp.Abs: np.abs,
+          sp.sign: np.sign, sp.sinh: np.sinh, sp.cosh: np.cosh, sp.tanh: np.tanh, sp.asin: np.arcsin,
+          sp.acos: np.arccos, sp.atan: np.arctan, sp.atan2: np.arctan2}
+
+
+class _NotNumeric(Exception):
+    """A node `_numeric` does not evaluate (sympy evaluates it instead)."""
+
+
+def _numeric(expr: sp.Expr, columns: dict):
+    """`expr` evaluated in numpy on arrays of points (a tree walk: nothing is printed or
+    executed); raises _NotNumeric for a node it does not know."""
+    if expr.is_Symbol:
+        if expr not in columns:
+            raise _NotNumeric(expr)
+        return columns[expr]
+    if expr.is_Number:
+        value = complex(expr)
+        if value.imag or not math.isfinite(value.real):
+            raise _NotNumeric(expr)
+        return value.real
+    if not (expr.is_Add or expr.is_Mul or expr.is_Pow or expr.func in (sp.Max, sp.Min) or expr.func in _NUMPY):
+        raise _NotNumeric(expr.func)
+    args = [_numeric(a, columns) for a in expr.args]
+    if expr.is_Add:
+        return sum(args[1:], args[0])
+    if expr.is_Mul:
+        out = args[0]
+        for a in args[1:]:
+            out = out * a
+        return out
+    if expr.is_Pow:
+        return np.power(np.asarray(args[0], dtype=float), args[1])
+    if expr.func in (sp.Max, sp.Min):
+        reduce = np.maximum if expr.func is sp.Max else np.minimum
+        out = args[0]
+        for a in args[1:]:
+            out = reduce(out, a)
+        return out
+    return _NUMPY[expr.func](*args)
+
+
+def _term_values(term: sp.Expr, columns: dict, n: int) -> np.ndarray:
+    """`term` at n points, `columns` mapping each of its symbols to n values (or one);
+    NaN where it cannot be evaluated (outside its domain, complex, a symbol not given).
+
+    One numpy evaluation of all points; a term with a function `_numeric` does not know is
+    substituted point by point in sympy."""
+    symbols = sorted(term.free_symbols, key=lambda s: s.name)
+    if any(s not in columns for s in symbols):
+        return np.full(n, np.nan)
+    args = {s: np.broadcast_to(np.asarray(columns[s], dtype=float), (n,)) for s in symbols}
+    try:
+        with np.errstate(all="ignore"):
+            return np.array(np.broadcast_to(_numeric(term, args), (n,)), dtype=float)
+    except _NotNumeric:
+        out = np.full(n, np.nan)
+        for k in range(n):
+            try:
+                out[k] = _value(term, {s: sp.Float(float(a[k])) for s, a in args.items()})
+            except (TypeError, ValueError, ZeroDivisionError):
+                continue
+        return out
+
+
+def _first_negative(values: np.ndarray) -> Optional[int]:
+    """Index of the first value that is non-passive (below −PASSIVITY_RTOL · its scale)."""
+    with np.errstate(invalid="ignore"):
+        bad = np.isfinite(values) & (values < -PASSIVITY_RTOL * np.maximum(1.0, np.abs(values)))
+    hits = np.flatnonzero(bad)
+    return int(hits[0]) if len(hits) else None
+
+
     symbols = [v.symbol for v in dae.variables]
     for component, term, span in dae.dissipation_terms:
         if term == 0:
             continue
         used = term.free_symbols
-        for t, y, _ in samples:
-            point = dict(params)
-            point.update({s: sp.Float(float(y[j])) for j, s in enumerate(symbols) if s in used})
-            point[sp.Symbol("t", real=True)] = sp.Float(t)
-            try:
-                value = _value(term, point)
-            except (TypeError, ValueError, ZeroDivisionError):
-                continue
-            if value < -PASSIVITY_RTOL * max(1.0, abs(value)):
-                _non_passive(cert, component, span, value, point, used, set(symbols))
-                break
+        columns = dict(params)
+        columns.update({s: np.array([y[j] for _, y, _ in samples]) for j, s in enumerate(symbols) if s in used})
+        columns[sp.Symbol("t", real=True)] = np.array([t for t, _, _ in samples])
+        values = _term_values(term, columns, len(samples))
+        k = _first_negative(values)
+        if k is not None:
+            point = {s: sp.Float(float(np.broadcast_to(v, (len(samples),))[k])) for s, v in columns.items()}
+            _non_passive(cert, component, span, float(values[k]), point, used, set(symbols))
 
 
 def _passivity_random(compiled, p, samples, cert, rng, n: int) -> None:
     """Terms in states and velocities only: vᵀF_d(q, v) ≥ 0 for all (q, v), not only near
     the trajectory."""
     dae, mod = compiled.dae, compiled.module
-    params = {par.symbol: sp.Float(float(p[mod.PARAMETERS.index(par.name)])) for par in dae.parameters}
+    params = {par.symbol: float(p[mod.PARAMETERS.index(par.name)]) for par in dae.parameters}
     by_symbol = {v.symbol: (j, v) for j, v in enumerate(dae.variables)}
     y0 = samples[0][1] if samples else np.zeros(len(dae.variables))
     for component, term, span in dae.dissipation_terms:
@@ -278,25 +349,19 @@ def _passivity_random(compiled, p, samples, cert, rng, n: int) -> None:
             continue
         if any(s not in by_symbol and s not in params and s.name != "t" for s in term.free_symbols):
             continue
-        found = False
         for magnitude in (1e-2, 1.0, 1e2):
-            for _ in range(n):
-                point = dict(params)
-                point[sp.Symbol("t", real=True)] = sp.Float(0.0)
-                for s in used:
-                    j = by_symbol[s][0]
-                    point[s] = sp.Float(float(y0[j] + magnitude * rng.normal() * max(1.0, abs(y0[j]))))
-                try:
-                    value = _value(term, point)
-                except (TypeError, ValueError, ZeroDivisionError):
-                    continue
-                if not math.isfinite(value):
-                    continue
-                if value < -PASSIVITY_RTOL * max(1.0, abs(value)):
-                    _non_passive(cert, component, span, value, point, set(used), by_symbol)
-                    found = True
-                    break
-            if found:
+            # drawn sample by sample, symbol by symbol (the order of one draw per value)
+            draws = rng.normal(size=(n, len(used)))
+            columns = dict(params)
+            columns[sp.Symbol("t", real=True)] = 0.0
+            for i, s in enumerate(used):
+                j = by_symbol[s][0]
+                columns[s] = y0[j] + magnitude * draws[:, i] * max(1.0, abs(y0[j]))
+            values = _term_values(term, columns, n)
+            k = _first_negative(values)
+            if k is not None:
+                point = {s: sp.Float(float(np.broadcast_to(v, (n,))[k])) for s, v in columns.items()}
+                _non_passive(cert, component, span, float(values[k]), point, set(used), by_symbol)
                 break
 
 
@@ -313,7 +378,7 @@ def _non_passive(cert, component, span, value, point, used, variables) -> None:
 
 def _quadratic_forms(compiled, p, cert) -> None:
     dae, mod = compiled.dae, compiled.module
-    params = {par.symbol: sp.Float(float(p[mod.PARAMETERS.index(par.name)])) for par in dae.parameters}
+    params = {par.symbol: float(p[mod.PARAMETERS.index(par.name)]) for par in dae.parameters}
     for form in dae.quadratic_dissipation:
         cert.forms_checked += 1
         component = getattr(form, "component", "") or "a distributed component"

@@ -22,7 +22,7 @@ from phc.simulation.discrete_gradient import integrate_discrete_gradient
 from phc.simulation.guard import CATCH as GUARD_CATCH
 from phc.simulation.guard import ModelEvaluationError, guard, quiet_floating_point
 from phc.simulation.ida import integrate_ida
-from phc.simulation.initial import consistent_initial_conditions
+from phc.simulation.initial import InitialResult, consistent_initial_conditions
 from phc.simulation.midpoint import integrate_midpoint
 from phc.simulation.midpoint4 import integrate_midpoint4
 from phc.simulation.monitor import describe_equations
@@ -161,7 +161,7 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
     cpu0 = time.process_time()
     with quiet_floating_point():
         try:
-            init = consistent_initial_conditions(mod, p, t0, values, fixed)
+            init = start_state(compiled, p, t0, values, fixed, mod)
         except ModelEvaluationError as err:
             raise _setup_error(err, params) from None
         if hasattr(progress, "restart"):
@@ -220,6 +220,29 @@ def _count(name: str, value, low: int, high: int) -> int:
     if not math.isfinite(number) or number != int(number) or not low <= number <= high:
         raise SimulationSetupError(f"`{name}` must be a whole number from {low} to {high}, got {value}")
     return int(number)
+
+def start_state(compiled, p: np.ndarray, t0: float, values: dict[int, float], fixed: set[int],
+                mod=None) -> InitialResult:
+    """The consistent state at the start of a run (:func:`consistent_initial_conditions` with
+    the guarded module, as `simulate` runs it), kept on `compiled` for the last parameters,
+    initial values and t₀ it was asked for: the certificate of every compilation solves it
+    for the model's own values, and `simulate` with those values starts from it instead of
+    solving again (the same solve, so the same numbers). Raises what the solve raises."""
+    if mod is None:
+        mod = guard(compiled.module, getattr(compiled, "source", None), _locator(compiled))
+    # what evaluates the functions (numpy or numba: equal up to rounding) is part of the key
+    key = (getattr(mod, "BACKEND", "numpy"), float(t0), np.asarray(p, dtype=float).tobytes(),
+           np.array(sorted(values), dtype=np.int64).tobytes(),
+           np.array([values[j] for j in sorted(values)], dtype=float).tobytes(), tuple(sorted(fixed)))
+    kept = getattr(compiled, "start_state", None)
+    if kept is None or kept[0] != key:
+        with quiet_floating_point():
+            kept = (key, consistent_initial_conditions(mod, p, t0, values, fixed))
+        if hasattr(compiled, "start_state"):
+            compiled.start_state = kept
+    init = kept[1]
+    return InitialResult(init.y0.copy(), init.yp0.copy(), dict(init.chosen), init.residual, init.iterations)
+
 
 
 def _setup_error(err: ModelEvaluationError, params: Optional[dict]) -> Exception:
@@ -409,4 +432,4 @@ def _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol, params=None) -
 
 __all__ = ["simulate", "SimResult", "SimulationInterrupted", "ModelEvaluationError", "BACKENDS", "Backend", "BackendRun",
            "IgnoredOptionWarning",
-           "InconsistentInitialError", "initial_values", "parameter_vector"]
+           "InconsistentInitialError", "initial_values", "parameter_vector", "start_state"]

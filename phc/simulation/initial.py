@@ -25,10 +25,10 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sps
 import scipy.sparse.linalg as spla
-from scipy.optimize import least_squares
 
 from phc.analysis.matching import bipartite_matching
 from phc.errors import InconsistentInitialError
+from phc.simulation.guard import ModelEvaluationError
 
 CHEAP = 1e4
 """Weight of unknowns that may change freely (derivatives, algebraic variables)."""
@@ -52,7 +52,9 @@ class InitialResult:
 class _Problem:
     """``G(u) = [F; D_kept]`` over the unknowns ``u = [y_free, ẏ_diff, z, w]``."""
 
-    def __init__(self, mod, p, t0, y, fixed, initial_relations=True):
+    def __init__(self, mod, p, t0, y, fixed, initial_relations=True, like=None):
+        """`like`: a problem of another stage at the same start (t0, y): its Jacobian there,
+        row scaling and kept rows are this one's too."""
         self.mod, self.p, self.t0 = mod, p, t0
         n = mod.N
         self.m = len(mod.EQUATIONS)
@@ -63,17 +65,21 @@ class _Problem:
         self.free = np.array([j for j in range(n) if j not in fixed], dtype=np.int64)
         self.y = y.copy()
         self.yp = np.zeros(n)
-        jy, jyp = self.split(self.y, self.yp)
-        # Row equilibration: Hermite slope rows of a beam scale like h³; without it their
-        # residuals look tiny while the states they determine are still off (and IDA's
-        # first error test then sees a jump).
-        mags = np.maximum(np.asarray(abs(jy).max(axis=1).todense()).ravel(),
-                          np.asarray(abs(jyp).max(axis=1).todense()).ravel())
-        self.row_scale = np.where(mags > 0, 1.0 / np.where(mags > 0, mags, 1.0), 1.0)
-        self.kept = self._kept_rows(jyp)
-        sub_y, sub_yp = jy[self.kept], jyp[self.kept]
-        self.zc = np.flatnonzero(~diff & (np.asarray(abs(sub_y).sum(axis=0)).ravel() > 0))
-        self.wc = np.flatnonzero(diff & (np.asarray(abs(sub_yp).sum(axis=0)).ravel() > 0))
+        if like is not None:
+            self.start_jacobian, self.row_scale, self.kept = like.start_jacobian, like.row_scale, like.kept
+            self.zc, self.wc = like.zc, like.wc
+        else:
+            jy, jyp = self.start_jacobian = self.split(self.y, self.yp)
+            # Row equilibration: Hermite slope rows of a beam scale like h³; without it their
+            # residuals look tiny while the states they determine are still off (and IDA's
+            # first error test then sees a jump).
+            mags = np.maximum(np.asarray(abs(jy).max(axis=1).todense()).ravel(),
+                              np.asarray(abs(jyp).max(axis=1).todense()).ravel())
+            self.row_scale = np.where(mags > 0, 1.0 / np.where(mags > 0, mags, 1.0), 1.0)
+            self.kept = self._kept_rows(jyp)
+            sub_y, sub_yp = jy[self.kept], jyp[self.kept]
+            self.zc = np.flatnonzero(~diff & (np.asarray(abs(sub_y).sum(axis=0)).ravel() > 0))
+            self.wc = np.flatnonzero(diff & (np.asarray(abs(sub_yp).sum(axis=0)).ravel() > 0))
         self.z = np.zeros(n)
         self.w = np.zeros(n)
         depends_y = set(np.asarray(getattr(mod, "JAC_DEPENDS_ON_Y", range(n))).tolist())
@@ -90,7 +96,7 @@ class _Problem:
                                   np.asarray(getattr(mod, "INITIAL_COLS", []), dtype=np.int64))), shape=(n_init, n))
         if not initial_relations:
             self.C = sps.csr_matrix((0, n))
-        self._prepare()
+        self._prepared = False  # _prepare() on first use: a hopeless stage never needs it
 
     def _prepare(self):
         """Index arrays for evaluating D and assembling the Jacobian of G, built once.
@@ -183,6 +189,7 @@ class _Problem:
         self._csr_indices = all_cols[csr_order]
         self._csr_indptr = np.concatenate([[0], np.cumsum(np.bincount(all_rows, minlength=self._shape[0]))])
         self._nnz = len(all_rows)
+        self._prepared = True
 
     def _jac_data(self, y, yp):
         """Data of (F_y, F_ẏ) in the module's CSC order."""
@@ -209,6 +216,71 @@ class _Problem:
         # chain) and no dependence on hashing.
         return np.flatnonzero(bipartite_matching(jyp) < 0).astype(np.int64)
 
+    def hopeless(self, bound: float) -> bool:
+        """True when rows of G that are affine in the unknowns cannot all come within `bound`:
+        then no iterate of this stage passes its acceptance test (which bounds every row).
+
+        A row is taken as affine in the unknowns ``[y_free, ẏ]`` when its derivatives by
+        them are the same at the start and at a random far-away point of the unknowns (held
+        values unchanged): a derivative that varies with an unknown differs there but on a
+        set of measure zero. The initial relations C y are linear. On these rows
+        G = g₀ + A Δu (A their Jacobian at the start); if even the least-squares Δu leaves
+        ‖g₀ + A Δu‖₂ above √(rows) · bound — some row above `bound` — with a margin for
+        rounding, the stage cannot succeed. The common cases: held states that violate a
+        position constraint g(q) = 0 (a row with A = 0), and a beam's mass rows M e = p
+        whose guessed momenta do not fit the motion of its ends. When anything is in doubt
+        (a point where the model cannot be evaluated, a problem too large for a dense
+        solve) the answer is False and the stage runs as always."""
+        nf, nd = len(self.free), len(self.dif)
+        if not nf + nd:
+            return False
+        rng = np.random.default_rng(0)
+        y1, yp1 = self.y.copy(), self.yp.copy()
+        y1[self.free] += (1.0 + np.abs(y1[self.free])) * rng.uniform(0.5, 1.5, nf)
+        yp1[self.dif] += rng.uniform(0.5, 1.5, nd)
+        try:
+            f0 = self.F(self.y, self.yp)
+            jy0, jyp0 = self._jac_data(self.y, self.yp)
+            jy0 = jy0.copy()
+            jy1, jyp1 = self._jac_data(y1, yp1)
+        except (ModelEvaluationError, ArithmeticError, ValueError, TypeError):
+            return False
+        # A = [F_y[:, free] F_ẏ[:, dif]; C[:, free] 0] and g₀ = [F; C y], rows scaled as in G
+        n, m, rows, cols = self.mod.N, self.m, self.rows, self.cols
+        position = np.full(n, -1, dtype=np.int64)
+        position[self.free] = np.arange(nf)
+        dpos = np.full(n, -1, dtype=np.int64)
+        dpos[self.dif] = np.arange(nd)
+        C = self.C.tocoo()
+        ey = np.flatnonzero((position[cols] >= 0) & (jy0 != 0))
+        eyp = np.flatnonzero((dpos[cols] >= 0) & (jyp0 != 0))
+        ec = np.flatnonzero((position[C.col] >= 0) & (C.data != 0))
+        curved = np.zeros(m, dtype=bool)  # a derivative by an unknown varies
+        curved[rows[((position[cols] >= 0) & (jy0 != jy1)) | (jyp0 != jyp1)]] = True
+        keep = np.concatenate([~curved, np.ones(C.shape[0], dtype=bool)])
+        g0 = np.concatenate([self.row_scale * f0, self.C @ self.y])
+        touched = np.zeros(len(g0), dtype=bool)  # rows with an unknown
+        touched[np.concatenate([rows[ey], rows[eyp], m + C.row[ec]])] = True
+        if not np.all(np.isfinite(g0[keep])):
+            return False
+        if _norm(g0[keep & ~touched]) > bound:
+            return True  # a row of held values only that misses the bound
+        if keep.sum() * (nf + nd) > DENSE_LIMIT:
+            return False
+        at = np.where(keep, np.cumsum(keep) - 1, -1)  # row of A of each row of G
+        scale = np.concatenate([self.row_scale, np.ones(C.shape[0])])
+        A = np.zeros((int(keep.sum()), nf + nd))
+        for r, c, v in ((rows[ey], position[cols[ey]], jy0[ey]), (rows[eyp], nf + dpos[cols[eyp]], jyp0[eyp]),
+                        (m + C.row[ec], position[C.col[ec]], C.data[ec])):
+            k = at[r] >= 0
+            np.add.at(A, (at[r[k]], c[k]), scale[r[k]] * v[k])
+        g0 = g0[keep]
+        if not len(g0) or not np.all(np.isfinite(A)):
+            return False
+        du = sla.lstsq(A, -g0, lapack_driver="gelsy", cond=1e-13)[0]
+        left = float(np.linalg.norm(g0 + A @ du))
+        return left > 10 * np.sqrt(len(g0)) * bound and left > 1e-8 * float(np.linalg.norm(g0))
+
     def unpack(self, u):
         nf, nd, nz, nw = self.sizes
         y, yp, z, w = self.y.copy(), self.yp.copy(), self.z.copy(), self.w.copy()
@@ -231,6 +303,8 @@ class _Problem:
         `jy`, `jyp`: the data of `_jac_data(y, yp)` if already at hand."""
         if not len(self.kept):
             return np.zeros(0)
+        if not self._prepared:
+            self._prepare()
         if jy is None:
             jy, jyp = self._jac_data(y, yp)
         ydot = z.copy()
@@ -247,6 +321,8 @@ class _Problem:
                                self.C @ y])
 
     def jacobian(self, u):
+        if not self._prepared:
+            self._prepare()
         y, yp, z, w = self.unpack(u)
         jy, jyp = self._jac_data(y, yp)
         data = np.empty(self._nnz)
@@ -317,6 +393,8 @@ def _solve(prob: _Problem, tol: float, max_iter: int):
         elif _norm(g) < best[0]:
             best = (_norm(g), u)
     if best[0] > tol and len(u) * len(g) <= DENSE_LIMIT:
+        from scipy.optimize import least_squares  # rarely needed; its import costs 0.2 s
+
         sol = least_squares(prob.G, best[1], jac=lambda x: prob.jacobian(x).toarray(), method="trf",
                             xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200)
         if _norm(sol.fun) < best[0]:
@@ -359,8 +437,11 @@ def consistent_initial_conditions(mod, p, t0: float, values: dict[int, float], f
     dif = set(np.flatnonzero(np.asarray(mod.DIFFERENTIAL)).tolist())
     stages = [fixed | dif] if fixed >= dif else [fixed | dif, fixed]
     total = 0
-    for stage_fixed in stages:
-        prob = _Problem(mod, p, t0, y, stage_fixed, initial_relations)
+    prob = None
+    for k, stage_fixed in enumerate(stages):
+        prob = _Problem(mod, p, t0, y, stage_fixed, initial_relations, like=prob)
+        if k < len(stages) - 1 and prob.hopeless(10 * tol * scale):
+            continue  # this stage cannot succeed: the next one starts from the same values
         u, it = _solve(prob, tol * scale, max_iter)
         total += it
         y1, yp1, _, _ = prob.unpack(u)
