@@ -67,10 +67,10 @@ class CompiledModel:
     certificate: Optional[object] = None
     """The fast certificate of the compiled equations (:mod:`phc.checks.compiled`), or None
     when compiled with ``certify=False``."""
-
     start_state: Optional[tuple] = field(default=None, repr=False, compare=False)
     """The consistent state at t₀ last solved for (:func:`phc.simulation.start_state`): the
     certificate's initial sample, which `simulate` with the same values starts from."""
+
     @property
     def n_states(self) -> int:
         return self.dae.n_states - 1  # without the energy accumulator

@@ -245,9 +245,6 @@ def _value(expr: sp.Expr, point: dict) -> float:
     return float(expr.xreplace(point))
 
 
-def _passivity_at_samples(compiled, p, samples, cert) -> None:
-    dae, mod = compiled.dae, compiled.module
-    params = {par.symbol: sp.Float(float(p[mod.PARAMETERS.index(par.name)])) for par in dae.parameters}
 _NUMPY = {sp.sin: np.sin, sp.cos: np.cos, sp.tan: np.tan, sp.exp: np.exp, sp.log: np.log, sp.Abs: np.abs,
           sp.sign: np.sign, sp.sinh: np.sinh, sp.cosh: np.cosh, sp.tanh: np.tanh, sp.asin: np.arcsin,
           sp.acos: np.arccos, sp.atan: np.arctan, sp.atan2: np.arctan2}
@@ -321,6 +318,9 @@ def _first_negative(values: np.ndarray) -> Optional[int]:
     return int(hits[0]) if len(hits) else None
 
 
+def _passivity_at_samples(compiled, p, samples, cert) -> None:
+    dae, mod = compiled.dae, compiled.module
+    params = {par.symbol: float(p[mod.PARAMETERS.index(par.name)]) for par in dae.parameters}
     symbols = [v.symbol for v in dae.variables]
     for component, term, span in dae.dissipation_terms:
         if term == 0:
@@ -378,7 +378,7 @@ def _non_passive(cert, component, span, value, point, used, variables) -> None:
 
 def _quadratic_forms(compiled, p, cert) -> None:
     dae, mod = compiled.dae, compiled.module
-    params = {par.symbol: float(p[mod.PARAMETERS.index(par.name)]) for par in dae.parameters}
+    params = {par.symbol: sp.Float(float(p[mod.PARAMETERS.index(par.name)])) for par in dae.parameters}
     for form in dae.quadratic_dissipation:
         cert.forms_checked += 1
         component = getattr(form, "component", "") or "a distributed component"

@@ -211,16 +211,6 @@ def initial_values(compiled, p: np.ndarray, initial: Optional[dict] = None) -> t
     return values, fixed
 
 
-def _count(name: str, value, low: int, high: int) -> int:
-    """An integer option within [low, high]."""
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        number = math.nan
-    if not math.isfinite(number) or number != int(number) or not low <= number <= high:
-        raise SimulationSetupError(f"`{name}` must be a whole number from {low} to {high}, got {value}")
-    return int(number)
-
 def start_state(compiled, p: np.ndarray, t0: float, values: dict[int, float], fixed: set[int],
                 mod=None) -> InitialResult:
     """The consistent state at the start of a run (:func:`consistent_initial_conditions` with
@@ -243,6 +233,16 @@ def start_state(compiled, p: np.ndarray, t0: float, values: dict[int, float], fi
     init = kept[1]
     return InitialResult(init.y0.copy(), init.yp0.copy(), dict(init.chosen), init.residual, init.iterations)
 
+
+def _count(name: str, value, low: int, high: int) -> int:
+    """An integer option within [low, high]."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        number = math.nan
+    if not math.isfinite(number) or number != int(number) or not low <= number <= high:
+        raise SimulationSetupError(f"`{name}` must be a whole number from {low} to {high}, got {value}")
+    return int(number)
 
 
 def _setup_error(err: ModelEvaluationError, params: Optional[dict]) -> Exception:
