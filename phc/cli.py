@@ -1,4 +1,4 @@
-"""The `phc` command line: validate, check, graph, compile, simulate, schema.
+"""The `phc` command line: validate, check, graph, compile, simulate, sweep, schema.
 
 Exit codes: 0 success, 1 model errors (or a failed simulation), 2 usage errors.
 A user mistake never produces a traceback: it is printed as one located line per
@@ -71,6 +71,10 @@ NUMERIC_OPTIONS = {
     ("bench", "repeats"): ("--repeats", "count", 1, 1000),
     ("bench", "reference_rtol"): ("--reference-rtol", "fraction", 0, 1),
     ("check", "samples"): ("--samples", "count", 0, 1000),
+    ("sweep", "samples"): ("--samples", "count", 1, 100_000),
+    ("sweep", "workers"): ("--workers", "count", 1, 4096),
+    ("sweep", "t_end"): ("--t-end", "positive", 0, math.inf),
+    ("sweep", "n_out"): ("--n-out", "count", 2, 10_000_000),
 }
 
 # Output paths, checked before any work: (command, dest) -> accepted extensions, or None
@@ -82,6 +86,9 @@ OUTPUT_OPTIONS = {
     ("graph", "output"): ("-o", (".dot", ".png")),
     ("compile", "output"): ("-o", None),
     ("bench", "out_dir"): ("--out-dir", None),
+    ("sweep", "out"): ("--out", (".csv", ".parquet")),
+    ("sweep", "series"): ("--series", (".csv",)),
+    ("sweep", "plot"): ("--plot", (".png", ".pdf", ".svg")),
 }
 
 
@@ -290,6 +297,7 @@ def cmd_simulate(args) -> int:
 
     params = _parse_params(args.param)
     compiled = _compile_or_exit(args.file, certify=not args.no_certify)
+    compiled = _recompile_for_params(compiled, args.file, params, certify=not args.no_certify)
     progress = _progress_for(compiled, args.t_end, args.quiet)
     run_kwargs = dict(t_end=args.t_end, params=params, rtol=args.rtol, atol=args.atol, n_out=args.n_out,
                       solver=args.solver, step=args.step)
@@ -357,6 +365,58 @@ def cmd_simulate(args) -> int:
         print(f"phc simulate: interrupted at {reached}{where}", file=sys.stderr)
         return EXIT_INTERRUPTED
     return EXIT_OK if result.success else EXIT_MODEL
+
+
+def _recompile_for_params(compiled, path: str, params: dict, certify: bool = True):
+    """A `--param` of a compile-time parameter (a mesh length, a coefficient varying along
+    a distributed component): the model recompiled with it, and a note saying so."""
+    from phc.errors import ModelError, SimulationSetupError
+    from phc.sweep import recompile_for
+
+    try:
+        compiled, note = recompile_for(compiled, path, params, certify=certify)
+    except SimulationSetupError as err:
+        raise UsageError(str(err)) from None
+    except ModelError as err:
+        _print_diagnostics(err.diagnostics)
+        raise _Exit(EXIT_MODEL) from None
+    if note:
+        print(f"{path}: note: {note}", file=sys.stderr)
+    return compiled
+
+
+def cmd_sweep(args) -> int:
+    from phc.errors import ModelError, SimulationSetupError
+    from phc.sweep import plot_sweep, run_sweep
+
+    pairs = []
+    for item in args.param or []:
+        name, sep, spec = item.partition("=")
+        if not sep or not name.strip():
+            raise UsageError(f"--param expects NAME=SPEC, got `{item}`")
+        pairs.append((name.strip(), spec))
+    compiled = _compile_or_exit(args.file, certify=not args.no_certify)
+    try:
+        report = run_sweep(args.file, args.out, params=pairs, samples=args.samples, seed=args.seed,
+                           sampling=args.sampling, executor=args.executor, scheduler=args.scheduler,
+                           workers=args.workers, series=args.series, resume=args.resume, overwrite=args.overwrite,
+                           t_end=args.t_end, n_out=args.n_out, solver=args.solver, certify=not args.no_certify,
+                           progress=not args.quiet, compiled=compiled)
+        if args.plot and report.rows:
+            plot_sweep(report, args.plot, args.plot_output,
+                       [a.strip() for a in args.plot_against.split(",")] if args.plot_against else None)
+            report.paths["plot"] = Path(args.plot)
+    except ModelError as err:
+        _print_diagnostics(err.diagnostics)
+        return EXIT_MODEL
+    except SimulationSetupError as err:
+        raise UsageError(str(err)) from None
+    print(report.render_text() if args.format == "text" else json.dumps(report.summary(), indent=2))
+    if report.interrupted:
+        print(f"phc sweep: interrupted; {len(report.rows)} of {report.planned} rows are in {report.paths['csv']}: "
+              "rerun the same command with --resume to finish", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    return EXIT_OK if report.success else EXIT_MODEL
 
 
 def _plot(result, path: str, title: str) -> None:
@@ -634,6 +694,40 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--format", choices=("text", "json"), default="text")
     p.set_defaults(func=cmd_bench)
 
+    p = sub.add_parser("sweep", help="parameter study: grids, Latin-hypercube or random samples, on a local "
+                       "process pool or a Dask cluster (one compilation per sweep)")
+    p.add_argument("file", metavar="FILE", help="a model file, or a scene file (its `sweep:` section is used)")
+    p.add_argument("--param", action="append", metavar="NAME=SPEC",
+                   help="swept values (repeatable): a number, a list 1,2,5, a grid A:B:N or log:A:B:N, or a "
+                   "distribution uniform:A:B, normal:MEAN:STD, loguniform:A:B; NAME is a parameter, "
+                   "accuracy.rtol/atol/step or accuracy.mesh.COMPONENT")
+    p.add_argument("--samples", type=int, help="number of samples of the distributions")
+    p.add_argument("--seed", type=int, help="seed of the sampler (default 0)")
+    p.add_argument("--sampling", choices=("lhs", "random"), help="Latin hypercube (default) or random")
+    p.add_argument("--executor", choices=("local", "dask"), default="local",
+                   help="local process pool (default) or Dask distributed (needs phc[cluster])")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="Dask scheduler address (tcp://host:8786) or scheduler file; default: a LocalCluster")
+    p.add_argument("--workers", type=int, help="worker processes of the local pool or LocalCluster (default: "
+                   "the CPUs available)")
+    p.add_argument("--out", required=True, metavar="RESULTS",
+                   help="results, .csv (also .parquet with pyarrow) or .parquet: one row per run")
+    p.add_argument("--series", metavar="FILE.csv", help="also write every run's output time series (long format)")
+    p.add_argument("--resume", action="store_true", help="continue the results in --out, skipping finished points")
+    p.add_argument("--overwrite", action="store_true", help="replace existing results in --out")
+    p.add_argument("--t-end", type=float, help="end time of every run (default: the model's)")
+    p.add_argument("--n-out", type=int, help="output points of every run")
+    p.add_argument("--solver", choices=_solver_names(), help="integrator (default: the model's)")
+    p.add_argument("--no-certify", action="store_true",
+                   help="skip the certificate of the compiled equations (power balance, passivity)")
+    p.add_argument("--plot", metavar="OUT.png", help="draw an output against one or two parameters (needs phc[plot])")
+    p.add_argument("--plot-output", metavar="COLUMN", help="column to draw (default: the first output's max)")
+    p.add_argument("--plot-against", metavar="P1[,P2]", help="swept parameter(s) on the axes (default: the first "
+                   "one or two that vary)")
+    p.add_argument("--format", choices=("text", "json"), default="text")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_sweep)
+
     p = sub.add_parser("check", help="certify Dirac structures and couplings and the compiled equations (Berger, Hochdahl, Reis, Seifried, \"Port-Hamiltonian modelling of coupled rigid/flexible multibody systems\", Section 2)")
     p.add_argument("file", metavar="FILE")
     p.add_argument("--format", choices=("text", "json"), default="text")
@@ -645,7 +739,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", metavar="OUT", help="out.dot or out.png (default: DOT on stdout)")
     p.set_defaults(func=cmd_graph)
 
-    for name in ("validate", "compile", "simulate", "animate", "bench", "check", "graph"):
+    for name in ("validate", "compile", "simulate", "animate", "bench", "check", "graph", "sweep"):
         p = sub.choices[name]
         p.add_argument("--max-memory", type=_memory_size, metavar="SIZE",
                        help="memory budget, e.g. 8G or 512M: a model whose estimated compile and output memory is "
@@ -663,7 +757,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("cache", help="show or empty the cache of generated modules and bench references")
     p.add_argument("action", choices=("info", "clean"), nargs="?", default="info")
     p.set_defaults(func=cmd_cache)
-    for name in ("validate", "compile", "simulate", "animate", "bench", "check", "graph"):
+    for name in ("validate", "compile", "simulate", "animate", "bench", "check", "graph", "sweep"):
         sub.choices[name].add_argument(
             "--allow-path", action="append", default=[], metavar="DIR",
             help="also allow files under DIR to be referenced (nested models, tables, matrices); by default "

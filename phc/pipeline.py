@@ -104,6 +104,43 @@ class CompiledModel:
         full = compile_model(self.scene.model_path, certify=False)
         return full.size()
 
+    # -- pickling by value, between phc's own processes (the workers of `phc sweep`) ------
+    def __getstate__(self) -> dict:
+        """Everything but the module object: the generated source and the metadata. The
+        locations of the outputs are resolved here, so a worker never reads a model file.
+        A pickle is code to whoever loads it: phc sends it only to its own worker processes
+        (a local pool, or Dask workers the user runs) and never reads one from a file."""
+        from phc.simulation import _output_span
+
+        state = dict(self.__dict__)
+        state.pop("module", None)
+        state["phc_version"] = _phc_version()
+        state["module_backend"] = getattr(self.module, "BACKEND", "numpy")
+        state["output_spans"] = {name: _output_span(self, name) for name in self.module.OUTPUTS}
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        """Rebuild the module from the source text (:func:`phc.codegen.load.load_generated`:
+        executed from memory, a copy written to this machine's private cache), and a compiled
+        backend from it when the model ran on one (:func:`phc.codegen.backends.for_compiled`)."""
+        version = state.pop("phc_version", None)
+        if version != _phc_version():
+            raise RuntimeError(f"this compiled model comes from phc {version}, but phc {_phc_version()} is "
+                               "installed here; install the same phc version on every worker")
+        backend = state.pop("module_backend", "numpy")
+        self.__dict__.update(state)
+        self.module, self.module_path = load_generated(self.source, self.name)
+        if backend != "numpy":
+            from phc.codegen import backends
+
+            self.module = backends.for_compiled(self, backend)
+
+
+def _phc_version() -> str:
+    from phc import __version__
+
+    return __version__
+
 
 def elaborate_file(path: str | os.PathLike, scene: Optional[Scene] = None) -> tuple[Optional[Dae], DiagnosticList]:
     """The passes load → elaborate → interconnect → assemble for a model file, or a scene

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 
@@ -44,5 +45,61 @@ class Progress:
 
     def close(self) -> None:
         if self._drawn and getattr(self.stream, "isatty", lambda: False)():
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+class CountProgress:
+    """A bar over a number of runs (``phc sweep``): done/total, failures, rate and ETA.
+    A terminal gets a redrawn bar; a log one line every 10 s (and at the end)."""
+
+    def __init__(self, total: int, label: str = "sweep", done: int = 0, stream=None, enabled: bool = True):
+        self.total, self.done, self.failed, self.label = total, done, 0, label
+        self.first = done  # finished before this run (--resume): not part of the rate
+        self.start = time.monotonic()
+        self.stream = stream or sys.stderr
+        self.enabled = enabled and total > 0
+        self.tty = getattr(self.stream, "isatty", lambda: False)()
+        self._last = -math.inf
+        self._drawn = False
+
+    def advance(self, failed: bool = False) -> None:
+        self.done += 1
+        self.failed += bool(failed)
+        self.draw()
+
+    def rate(self) -> float:
+        """Runs per second since the start (nan before the first)."""
+        elapsed = time.monotonic() - self.start
+        ran = self.done - self.first
+        return ran / elapsed if ran and elapsed > 0 else math.nan
+
+    def eta(self) -> float:
+        rate = self.rate()
+        return (self.total - self.done) / rate if rate > 0 else math.nan
+
+    def text(self) -> str:
+        width = 30
+        frac = self.done / self.total if self.total else 1.0
+        rate, eta = self.rate(), self.eta()
+        speed = "" if math.isnan(rate) else (f"{60 * rate:.3g} runs/min" if rate < 1 else f"{rate:.3g} runs/s")
+        return (f"{self.label} [{'#' * int(frac * width):<{width}}] {100 * frac:5.1f}%  {self.done}/{self.total} runs"
+                + (f", {self.failed} failed" if self.failed else "")
+                + f"  elapsed {time.monotonic() - self.start:.1f} s"
+                + (f"  {speed}  eta {eta:.0f} s" if speed else ""))
+
+    def draw(self, force: bool = False) -> None:
+        if not self.enabled:
+            return
+        now = time.monotonic()
+        if not force and now - self._last < (0.25 if self.tty else 10.0) and self.done < self.total:
+            return
+        self._last = now
+        self.stream.write("\r" + self.text().ljust(100) if self.tty else self.text() + "\n")
+        self.stream.flush()
+        self._drawn = True
+
+    def close(self) -> None:
+        if self._drawn and self.tty:
             self.stream.write("\n")
             self.stream.flush()

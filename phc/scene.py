@@ -214,10 +214,12 @@ def load_scene(path: str | os.PathLike) -> tuple[Optional[Scene], DiagnosticList
 
 
 def scene_variant(base: Scene | str | os.PathLike, *, mesh: Optional[dict[str, int]] = None,
-                  max_order: Optional[int] = None) -> Scene:
+                  max_order: Optional[int] = None, parameters: Optional[dict[str, float]] = None) -> Scene:
     """An in-memory variant of a scene, or of a plain model file (wrapped in a scene that
     changes nothing else and prunes nothing): `mesh` merged over its ``accuracy.mesh`` (a
-    count here wins) and, when given, ``accuracy.max_order`` set. Nothing is written; the
+    count here wins), `parameters` over its parameter overrides (for the compile-time
+    parameters of ``phc sweep`` and ``phc simulate --param``) and, when given,
+    ``accuracy.max_order`` set. Nothing is written; the
     variant keeps the base's path and source map, so its model is found and read as the
     base's is. Compile it with ``compile_model(variant.model_path, scene=variant)``.
 
@@ -252,4 +254,7 @@ def scene_variant(base: Scene | str | os.PathLike, *, mesh: Optional[dict[str, i
                 span=smap.locate(("accuracy",)), path=entry,
                 hint="ask for element counts and an order within the bounds a scene file allows"))
         raise ModelError(diags) from None
-    return Scene(path, spec.model_copy(update={"accuracy": accuracy}), smap)
+    changes: dict[str, Any] = {"accuracy": accuracy}
+    if parameters:
+        changes["parameters"] = {**spec.parameters, **{k: float(v) for k, v in parameters.items()}}
+    return Scene(path, spec.model_copy(update=changes), smap)

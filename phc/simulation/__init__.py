@@ -58,7 +58,8 @@ def parameter_vector(mod, overrides: Optional[dict] = None) -> np.ndarray:
         if key in fixed and float(value) != float(base[names.index(key)]):
             raise SimulationSetupError(f"parameter `{key}` was used at compile time (a mesh length or a "
                                        "coefficient varying along a distributed component); change it in the "
-                                       "model and recompile")
+                                       "model and recompile (`phc simulate --param` and `phc sweep` recompile "
+                                       "for it)")
         if key not in names:
             if key in mod.PARAMETERS:
                 raise SimulationSetupError(f"parameter `{key}` is derived from other parameters; override those")
@@ -280,6 +281,9 @@ def _locator(compiled) -> Callable[[str, str], Optional[str]]:
 def _output_span(compiled, name: str):
     """Where output `name` is written: the scene's `outputs`/`reference`, else the model's
     `simulation.outputs`."""
+    kept = getattr(compiled, "output_spans", None)  # an unpickled model: located before pickling
+    if kept is not None:
+        return kept.get(name)
     try:
         scene = getattr(compiled, "scene", None)
         if scene is not None:

@@ -14,6 +14,7 @@ from pydantic import Field
 
 from phc.spec.base import Expr, Identifier, SpecModel, Switch
 from phc.spec.model import InitialSpec, InputSpec, SOLVERS
+from phc.spec.sweep import SweepSpec
 
 Elements = Annotated[int, Field(ge=1, le=200_000)]
 """An element count: the same bounds as a distributed component's own `elements`."""
@@ -80,6 +81,8 @@ class SceneSpec(SpecModel):
     """Closed forms of requested outputs (expressions in `t` and parameters): `phc bench` and
     `--estimate-error` measure errors against them instead of a reference run."""
     bench: BenchSpec = BenchSpec()
+    sweep: SweepSpec = SweepSpec()
+    """The parameter study of `phc sweep` (see docs/parameter-studies.md)."""
     prune: bool = True
     """Leave out the subsystems that cannot influence the requested outputs (components
     not connected to any component an output refers to)."""
