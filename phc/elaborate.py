@@ -568,7 +568,9 @@ class Builder(Reporter):
             if self._skipped(ctx, conn.between[0]):
                 continue
             a, b = (ctx.prefix + ref for ref in conn.between)
-            self.connections.append((a, b, ctx.smap.locate(("connections", i)), f"connections[{i}]"))
+            # labelled as the user finds it: `connections[0]` at the top level, `inner.connections[0]`
+            # in the file nested as `inner` (unique across the model: certificates are keyed by it)
+            self.connections.append((a, b, ctx.smap.locate(("connections", i)), f"{ctx.prefix}connections[{i}]"))
         self._check_refs(ctx)
 
     def _lower(self, lowerers, ctx, full, comp, path) -> None:

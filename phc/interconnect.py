@@ -249,7 +249,16 @@ def component_of(top: Topology) -> dict[str, str]:
 
 def component_graph(source: Source, *, reads: bool = False) -> nx.MultiGraph:
     """Components as nodes, one edge per connection (labelled, in the order written);
-    with `reads`, also an edge (``kind="reads"``) to each component whose states one reads."""
+    with `reads`, also an edge (``kind="reads"``) to each component whose states one reads.
+
+    `source` may also be a component graph made here (returned as it is): build it once
+    and pass it to :func:`kinematic_loops`, :func:`independent_parts` and
+    :func:`traversal_order`."""
+    if _is_component_graph(source):
+        if source.graph["reads"] != reads:
+            raise ValueError(f"a component graph made with reads={source.graph['reads']} was given where "
+                             f"reads={reads} is needed")
+        return source
     graph = _graph(source)
     owner, connections, read = {}, [], []
     for u, v, data in graph.edges(data=True):
@@ -260,15 +269,20 @@ def component_graph(source: Source, *, reads: bool = False) -> nx.MultiGraph:
             connections.append(data)
         elif data["kind"] == "reads":
             read.append((u[1], v[1]))
-    comps = nx.MultiGraph()
+    comps = nx.MultiGraph(view="components", reads=reads)
     comps.add_nodes_from(name for kind, name in graph if kind == "component")
     for data in sorted(connections, key=lambda d: d["index"]):
         a, b = data["ports"]
-        comps.add_edge(owner[a], owner[b], label=data["label"], ports=(a, b), span=data["span"])
+        comps.add_edge(owner[a], owner[b], label=data["label"], ports=(a, b), span=data["span"],
+                       index=data["index"])
     if reads:
         for u, v in read:
             comps.add_edge(u, v, kind="reads")
     return comps
+
+
+def _is_component_graph(source) -> bool:
+    return isinstance(source, nx.MultiGraph) and source.graph.get("view") == "components"
 
 
 def connected_to(source: Source, names) -> set[str]:
@@ -306,15 +320,16 @@ def _parts(graph: nx.MultiGraph) -> list[list[str]]:
 def traversal_order(source: Source) -> list[tuple[str, str, str]]:
     """Connections as (port_a, port_b, label) in breadth-first order from each part's
     first component: tree edges before the loop-closing ones (any order gives the same
-    interconnection by the paper's Remark 4 "Associativity of interconnection")."""
+    interconnection by the paper's Remark 4 "Associativity of interconnection"). Every
+    connection appears once, told apart by its place in the model (not by its label)."""
     graph = component_graph(source)
     order, seen = [], set()
     for part in _parts(graph):
         root = part[0]
         for u, v, key in nx.edge_bfs(graph, root):
             data = graph.get_edge_data(u, v, key)
-            if data["label"] not in seen:
-                seen.add(data["label"])
+            if data["index"] not in seen:
+                seen.add(data["index"])
                 order.append((*data["ports"], data["label"]))
     return order
 

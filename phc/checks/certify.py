@@ -35,7 +35,7 @@ import numpy as np
 import scipy.linalg as sla
 import sympy as sp
 
-from phc.checks.graph import component_of, independent_parts, kinematic_loops, traversal_order
+from phc.checks.graph import component_graph, component_of, independent_parts, kinematic_loops, traversal_order
 from phc.dae import Dae, DiracRelations
 from phc.diagnostics import Diagnostic, DiagnosticList
 
@@ -264,15 +264,16 @@ def certify(dae: Dae, n_random: int = 2, seed: int = 0) -> Certificate:
                                         span=rel.span, path=rel.component,
                                         hint="check the relations: one per flow/effort pair, power conserving"))
         comp_certs.append(cert)
-    conn_certs = _couplings(top, projections, samples, diags)
+    graph = component_graph(top)  # built once: the traversal, the loops and the parts read it
+    conn_certs = _couplings(top, projections, samples, diags, graph)
     _rigid_ranks(top, samples[0], diags)
     _passivity(top, diags, seed)
     from phc.checks.rows import check_rows
 
     rows = check_rows(dae, samples=max(1, n_random), seed=seed)
     diags.extend(rows.diagnostics)
-    loops = kinematic_loops(top)
-    parts = independent_parts(top)
+    loops = kinematic_loops(graph)
+    parts = independent_parts(graph)
     if len(parts) > 1:
         spans = {name: span for name, _, span in top.components}
         diags.append(Diagnostic("PHC-W201", f"the model has {len(parts)} independent parts with no connection "
@@ -282,10 +283,14 @@ def certify(dae: Dae, n_random: int = 2, seed: int = 0) -> Certificate:
     return Certificate(dae.name, comp_certs, conn_certs, loops, parts, diags.sorted(), len(samples), rows)
 
 
-def _couplings(top, projections, samples, diags) -> list[ConnectionCertificate]:
-    """Interconnect one coupling at a time (BFS) and test the rank of Γ at each step."""
+def _couplings(top, projections, samples, diags, graph=None) -> list[ConnectionCertificate]:
+    """Interconnect one coupling at a time (BFS) and test the rank of Γ at each step.
+
+    Every connection gets its certificate, a nested file's under its own label
+    (``inner.connections[0]``) and located in that file. `graph` is the component graph of
+    `top` when the caller has built it."""
     owner = component_of(top)
-    order = traversal_order(top)
+    order = traversal_order(top if graph is None else graph)
     spans = {label: span for _, _, label, span in top.connections}
     dims = {p.name: p.dimension for p in top.ports}
     certs = [ConnectionCertificate(label, a, b, 2 * dims[a], span=spans.get(label)) for a, b, label in order]
@@ -319,9 +324,9 @@ def _couplings(top, projections, samples, diags) -> list[ConnectionCertificate]:
             ratio = float(s[-1] / s[0]) if len(s) >= cert.needed and s[0] > 0 else 0.0
             cert.achieved = rank if cert.achieved < 0 else min(cert.achieved, rank)
             cert.conditioning = min(cert.conditioning, ratio)
-            if rank < cert.needed:
+            if rank < cert.needed:  # the states of the two components (`inner.wheel.th` of `inner.wheel`)
                 cert.failing_samples.append({str(sym): float(v) for sym, v in point.items()
-                                             if str(sym).split(".")[0] in (owner[a], owner[b])})
+                                             if str(sym).startswith((owner[a] + ".", owner[b] + "."))})
             # The interconnected structure: ker(ΓV), coupling rows removed.
             W = V @ _null(GV, V.shape[1])
             keep = [i for i in range(V.shape[0]) if i not in set(fa + ea + fb + eb)]

@@ -34,7 +34,7 @@ def describe_equations(compiled) -> dict[str, str]:
         loc = f" ({span.file}:{span.line})" if span is not None else ""
         where[label] = f"connection `{a} — {b}`{loc}"
     for eq in compiled.dae.equations:
-        head = eq.label.split(".")[0]
+        head = eq.label.rsplit(".", 1)[0]  # `inner.connections[0]` of `inner.connections[0].f[0]`
         if head in where:
             names[eq.label] = f"{where[head]} row `{eq.label}`"
     return names
