@@ -35,6 +35,9 @@ _API = {
     "simulate": ("phc.simulation", "simulate"),
     "SimResult": ("phc.simulation", "SimResult"),
     "estimate_errors": ("phc.accuracy", "estimate_errors"),
+    # linearize
+    "linearize_model": ("phc.linearize", "linearize_model"),
+    "Linearization": ("phc.linearize", "Linearization"),
     # errors and warnings
     "PhcError": ("phc.errors", "PhcError"),
     "PhcWarning": ("phc.errors", "PhcWarning"),

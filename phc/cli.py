@@ -75,6 +75,7 @@ NUMERIC_OPTIONS = {
     ("sweep", "workers"): ("--workers", "count", 1, 4096),
     ("sweep", "t_end"): ("--t-end", "positive", 0, math.inf),
     ("sweep", "n_out"): ("--n-out", "count", 2, 10_000_000),
+    ("linearize", "modes"): ("--modes", "count", 1, 1_000_000),
 }
 
 # Output paths, checked before any work: (command, dest) -> accepted extensions, or None
@@ -89,6 +90,7 @@ OUTPUT_OPTIONS = {
     ("sweep", "out"): ("--out", (".csv", ".parquet")),
     ("sweep", "series"): ("--series", (".csv",)),
     ("sweep", "plot"): ("--plot", (".png", ".pdf", ".svg")),
+    ("linearize", "output"): ("-o", (".txt", ".json", ".npz")),
 }
 
 
@@ -494,6 +496,58 @@ def cmd_check(args) -> int:
     return EXIT_OK if report.certified else EXIT_MODEL
 
 
+def _parse_assignments(items: Sequence[str], option: str) -> dict[str, float]:
+    """NAME=VALUE pairs of a repeatable option (numbers only: nothing is evaluated)."""
+    out = {}
+    for item in items or []:
+        name, sep, value = item.partition("=")
+        if not sep or not name.strip():
+            raise UsageError(f"{option} expects NAME=VALUE, got `{item}`")
+        try:
+            number = float(value)
+        except ValueError:
+            raise UsageError(f"{option} {name.strip()}: `{value}` is not a number") from None
+        if not math.isfinite(number):
+            raise UsageError(f"{option} {name.strip()}: the value must be a finite number, got {value}")
+        out[name.strip()] = number
+    return out
+
+
+def cmd_linearize(args) -> int:
+    from types import SimpleNamespace
+
+    from phc import ModelError, linearize_model
+
+    fmt = args.format or {".json": "json", ".npz": "npz"}.get(Path(args.output or "").suffix.lower(), "text")
+    if fmt == "npz" and not args.output:
+        raise UsageError("--format npz needs -o OUT.npz")
+    if args.at is not None and not math.isfinite(args.at):
+        raise UsageError(f"--at must be a finite time, got {args.at:g}")
+    mesh = {}
+    for name, count in _parse_assignments(args.mesh, "--mesh").items():
+        if count != int(count) or count < 1:
+            raise UsageError(f"--mesh {name}: the element count must be a whole number from 1 on, got {count:g}")
+        mesh[name] = int(count)
+    with _simulation_errors(args.file, SimpleNamespace(close=lambda: None)):
+        try:
+            lin = linearize_model(args.file, at=args.at, state=_parse_assignments(args.state, "--state"),
+                                  params=_parse_params(args.param), mesh=mesh, certify=not args.no_certify)
+        except ModelError as err:
+            _print_diagnostics(err.diagnostics)
+            return EXIT_MODEL
+    if fmt == "npz":
+        lin.save_npz(args.output)
+        print(f"{lin.model}: {len(lin.eigenvalues)} finite eigenvalues; wrote {args.output}")
+        return EXIT_OK
+    text = json.dumps(lin.to_dict(), indent=2) if fmt == "json" else lin.render_text(args.modes)
+    if args.output:
+        Path(args.output).write_text(text + "\n", encoding="utf-8")
+        print(f"{lin.model}: {len(lin.eigenvalues)} finite eigenvalues; wrote {args.output}")
+    else:
+        print(text)
+    return EXIT_OK
+
+
 def cmd_graph(args) -> int:
     from phc.checks.graph import to_dot
     from phc import build_dae
@@ -734,12 +788,30 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--samples", type=int, default=2, help="random states sampled besides the initial one")
     p.set_defaults(func=cmd_check)
 
+    p = sub.add_parser("linearize", help="linearize about a consistent point: the descriptor system (E, A, B, C, "
+                       "D), finite eigenvalues with natural frequencies and damping ratios, mode shapes")
+    p.add_argument("file", metavar="FILE", help="a model file, or a scene file")
+    p.add_argument("--at", type=float, metavar="T", help="linearize at time T of the simulated motion (default: at "
+                   "the start, about the initial state)")
+    p.add_argument("--state", action="append", metavar="NAME=VALUE",
+                   help="initial value of a state (repeatable); the rest by consistent initialization")
+    p.add_argument("--param", action="append", metavar="NAME=VALUE", help="override a parameter (repeatable)")
+    p.add_argument("--mesh", action="append", metavar="COMPONENT=N", help="elements of a distributed component "
+                   "(repeatable)")
+    p.add_argument("--format", choices=("text", "json", "npz"),
+                   help="report format (default: from the -o suffix, else text)")
+    p.add_argument("-o", "--output", metavar="OUT", help="write the report to OUT (.txt, .json or .npz)")
+    p.add_argument("--modes", type=int, default=20, help="modes listed in the text report (default 20)")
+    p.add_argument("--no-certify", action="store_true",
+                   help="skip the certificate of the compiled equations (power balance, passivity)")
+    p.set_defaults(func=cmd_linearize)
+
     p = sub.add_parser("graph", help="draw the interconnection graph (DOT, or PNG with matplotlib)")
     p.add_argument("file", metavar="FILE")
     p.add_argument("-o", "--output", metavar="OUT", help="out.dot or out.png (default: DOT on stdout)")
     p.set_defaults(func=cmd_graph)
 
-    for name in ("validate", "compile", "simulate", "animate", "bench", "check", "graph", "sweep"):
+    for name in ("validate", "compile", "simulate", "animate", "bench", "check", "graph", "sweep", "linearize"):
         p = sub.choices[name]
         p.add_argument("--max-memory", type=_memory_size, metavar="SIZE",
                        help="memory budget, e.g. 8G or 512M: a model whose estimated compile and output memory is "
@@ -757,7 +829,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("cache", help="show or empty the cache of generated modules and bench references")
     p.add_argument("action", choices=("info", "clean"), nargs="?", default="info")
     p.set_defaults(func=cmd_cache)
-    for name in ("validate", "compile", "simulate", "animate", "bench", "check", "graph", "sweep"):
+    for name in ("validate", "compile", "simulate", "animate", "bench", "check", "graph", "sweep", "linearize"):
         sub.choices[name].add_argument(
             "--allow-path", action="append", default=[], metavar="DIR",
             help="also allow files under DIR to be referenced (nested models, tables, matrices); by default "
