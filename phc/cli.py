@@ -230,7 +230,20 @@ def _summary_text(name: str, result) -> str:
     if s["initial_choices"]:
         chosen = ", ".join(f"{k} = {v:.6g}" for k, v in s["initial_choices"].items())
         lines.append(f"  initial  chosen by consistent initialization: {chosen}")
+    events = s.get("events") or []
+    if events:  # switches of non-smooth laws (docs/events.md)
+        shown = "; ".join(_event_text(e) for e in events[:5])
+        more = f"; … {len(events) - 5} more (--format json lists all)" if len(events) > 5 else ""
+        lines.append(f"  events   {len(events)}: {shown}{more}")
     return "\n".join(lines)
+
+
+def _event_text(e: dict) -> str:
+    what = {"stick": "sticks", "slip": "slips " + ("+" if e["direction"] > 0 else "−")}.get(e["kind"])
+    if what is None:
+        what = (("turns true" if e["direction"] > 0 else "turns false") if e.get("comparison")
+                else "rising" if e["direction"] > 0 else "falling")
+    return f"t = {e['t']:.10g} `{e['condition']}` {what}" + (" (in t)" if e["kind"] == "time" else "")
 
 
 class _Exit(Exception):

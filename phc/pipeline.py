@@ -208,6 +208,11 @@ def compile_model(path: str | os.PathLike, scene: Optional[Scene] = None, *, cer
     module, module_path = load_generated(source, name)
     timings["load"] = time.perf_counter() - t
     compiled = CompiledModel(name, dae, module, source, module_path, diags, timings, scene)
+    from phc.simulation.events import locate_switch_times  # conditions in t: their switching times exist
+
+    unlocated = locate_switch_times(compiled)
+    if unlocated:
+        raise ModelError(DiagnosticList(list(diags) + unlocated).sorted())
     if certify:
         from phc.checks.compiled import certify_compiled
 

@@ -42,6 +42,7 @@ from typing import Optional
 import numpy as np
 import sympy as sp
 
+from phc.budget import drop_deltas
 from phc.dae import T, ComponentDescription, ComponentRows, Dae
 from phc.diagnostics import Diagnostic, DiagnosticList
 
@@ -87,11 +88,14 @@ class _System:
     _f: object = None
     _j: object = None
     _values: object = None
+    _jumps: bool = False
 
     def compile(self, fixed_symbols: list) -> None:
         """Generate F and its Jacobian as functions of (u, values of `fixed_symbols`)."""
         F = sp.Matrix([sp.sympify(e) for e in self.exprs])
-        J = F.jacobian(self.unknowns) if self.unknowns else sp.zeros(len(self.exprs), 0)
+        # almost everywhere: the derivative of sign/heaviside is 0, not a Dirac delta
+        J = F.jacobian(self.unknowns).applyfunc(drop_deltas) if self.unknowns else sp.zeros(len(self.exprs), 0)
+        self._jumps = any(e.has(sp.sign, sp.Heaviside, sp.Piecewise) for e in F)
         self._f = sp.lambdify([self.unknowns, fixed_symbols], list(F), modules="numpy", cse=True)
         self._j = sp.lambdify([self.unknowns, fixed_symbols], J, modules="numpy", cse=True)
 
@@ -133,6 +137,13 @@ def _newton(system: _System, u, free: Optional[np.ndarray] = None, iterations: i
                     best = (trial, rt, Jt)
                     break
                 alpha /= 2
+            if best is None and system._jumps:
+                # a law with a jump (sign, heaviside, ifelse): the residual need not decrease on
+                # the way across it; take the full step (the iteration count still bounds this)
+                trial = u.copy()
+                trial[free] -= step
+                rt, Jt = _scaled(system, trial)
+                best = (trial, rt, Jt) if np.all(np.isfinite(rt)) else None
             if best is None:
                 break
             u, r, J = best

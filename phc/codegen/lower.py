@@ -22,6 +22,7 @@ from phc import budget
 from phc.dae import T, Dae
 from phc.diagnostics import Diagnostic, DiagnosticList
 from phc.errors import ModelError
+from phc.codegen.nonsmooth import StickInfo, SwitchInfo, plain, switching, with_origins
 
 
 @dataclass(frozen=True, eq=False)
@@ -87,6 +88,11 @@ class ResidualIR:
     compile_time_parameters: tuple = ()
     input_tables: tuple = ()
     breakpoints: tuple = ()
+    switches: tuple[SwitchInfo, ...] = ()
+    """Switching conditions of the rows (:mod:`phc.codegen.nonsmooth`); their modes are
+    the last entries of the parameter vector (derived parameters fixed at 0: free)."""
+    sticks: tuple[StickInfo, ...] = ()
+    """Set-valued ``sign`` terms and their stick modes."""
 
 
 def _ordered_parameters(dae: Dae):
@@ -167,14 +173,27 @@ def lower_residual(dae: Dae) -> ResidualIR:
     col_of_yp = {s: j for j, s in enumerate(yp) if s is not None}
     entries: dict[tuple[int, int], list] = {}
     sizes = budget.SizeCache()
+    # Non-smooth functions and conditions: Piecewise rows whose conditions are switches with
+    # modes in the parameter vector, differentiated branch by branch (phc.codegen.nonsmooth).
+    modes: list[tuple[str, sp.Symbol]] = []
+
+    def mode_symbol(kind: str, k: int) -> sp.Symbol:
+        symbol = sp.Dummy(f"{kind}{k}", real=True)
+        modes.append((f"{kind}[{k}]", symbol))
+        return symbol
+
+    switched = switching([eq.expr for eq in dae.equations], [eq.kind for eq in dae.equations],
+                         [eq.label for eq in dae.equations], y, yp, mode_symbol)
+    rows_expr = switched.rows
     for i, eq in enumerate(dae.equations):
         syms = eq.expr.free_symbols
         _check_derivatives(eq, syms, col_of_y, col_of_yp, sizes)
-        for s in syms:
+        row = rows_expr[i]
+        for s in row.free_symbols:
             if s in col_of_y:
-                entries.setdefault((i, col_of_y[s]), [0, 0])[0] = budget.drop_deltas(sp.diff(eq.expr, s))
+                entries.setdefault((i, col_of_y[s]), [0, 0])[0] = budget.drop_deltas(sp.diff(row, s))
             elif s in col_of_yp:
-                entries.setdefault((i, col_of_yp[s]), [0, 0])[1] = budget.drop_deltas(sp.diff(eq.expr, s))
+                entries.setdefault((i, col_of_yp[s]), [0, 0])[1] = budget.drop_deltas(sp.diff(row, s))
     raw_terms = []
     for block in dae.linear_blocks:
         rows = np.asarray(block.rows, dtype=np.int64)
@@ -218,24 +237,25 @@ def lower_residual(dae: Dae) -> ResidualIR:
         equation_labels=tuple(eq.label for eq in dae.equations),
         y_symbols=tuple(y),
         yp_symbols=tuple(s if s is not None else sp.Symbol(f"der({v.name})") for s, v in zip(yp, dae.variables)),
-        parameters=tuple(p.name for p in params),
+        parameters=tuple(p.name for p in params) + tuple(name for name, _ in modes),
         base_parameters=tuple(i for i, p in enumerate(params) if p.expr is None),
-        parameter_defaults=tuple(p.default for p in params),
-        p_symbols=tuple(p.symbol for p in params),
-        derived=tuple((i, p.expr) for i, p in enumerate(params) if p.expr is not None),
-        residual=tuple(eq.expr for eq in dae.equations),
+        parameter_defaults=tuple(p.default for p in params) + (0.0,) * len(modes),
+        p_symbols=tuple(p.symbol for p in params) + tuple(s for _, s in modes),
+        derived=(tuple((i, p.expr) for i, p in enumerate(params) if p.expr is not None)
+                 + tuple((len(params) + k, sp.Integer(0)) for k in range(len(modes)))),
+        residual=tuple(rows_expr),
         jac_rows=tuple(k[0] for k in keys),
         jac_cols=tuple(k[1] for k in keys),
         jac_dy=tuple(sp.Integer(0) if entries[k][0] == 0 else entries[k][0] for k in keys),
         jac_dyp=tuple(sp.Integer(0) if entries[k][1] == 0 else entries[k][1] for k in keys),
-        hamiltonian=dae.hamiltonian,
-        port_power=dae.port_power,
-        dissipation=dae.dissipation,
-        invariants=tuple(inv.expr for inv in dae.invariants),
+        hamiltonian=plain(dae.hamiltonian),
+        port_power=plain(dae.port_power),
+        dissipation=plain(dae.dissipation),
+        invariants=tuple(plain(inv.expr) for inv in dae.invariants),
         invariant_labels=tuple(inv.label for inv in dae.invariants),
-        velocity_invariants=tuple(inv.expr for inv in dae.velocity_invariants),
+        velocity_invariants=tuple(plain(inv.expr) for inv in dae.velocity_invariants),
         velocity_invariant_labels=tuple(inv.label for inv in dae.velocity_invariants),
-        outputs=dae.outputs,
+        outputs=tuple((name, plain(expr)) for name, expr in dae.outputs),
         sources=dae.sources,
         linear_terms=linear_terms,
         quadratic_energy=quadratic(dae.quadratic_energy),
@@ -248,4 +268,6 @@ def lower_residual(dae: Dae) -> ResidualIR:
         compile_time_parameters=dae.compile_time_parameters,
         input_tables=dae.input_tables,
         breakpoints=dae.breakpoints,
+        switches=with_origins(switched.switches, dae.topology.rows if dae.topology is not None else ()),
+        sticks=switched.sticks,
     )

@@ -29,6 +29,7 @@ import sympy as sp
 from sympy.printing.pycode import PythonCodePrinter
 
 from phc import __version__
+from phc.budget import drop_deltas
 from phc.codegen.lower import ResidualIR
 from phc.dae import T
 from phc.errors import CodegenError
@@ -50,11 +51,25 @@ class _Printer(PythonCodePrinter):
         except KeyError:
             raise CodegenError(f"no generated name for symbol `{expr}` (a phc bug: please report it)") from None
 
+    _print_Dummy = _print_Symbol  # the modes of switches (phc.codegen.nonsmooth)
+
     def _print_Float(self, expr):
         return repr(float(expr))
 
     def _print_Rational(self, expr):
         return f"({expr.p}/{expr.q})"
+
+    def _print_Switch(self, expr):
+        # a switching condition's boundary value: g itself while the mode is 0 (free), else
+        # the mode ±1 the event driver froze (phc.codegen.nonsmooth)
+        mode, g = (self._print(a) for a in expr.args)
+        return f"(({g}) if {mode} == 0.0 else {mode})"
+
+    def _print_Heaviside(self, expr):
+        # only inside a condition (elsewhere lower rewrote it as a Piecewise)
+        x = self._print(expr.args[0])
+        h0 = self._print(expr.args[1]) if len(expr.args) > 1 else "0.5"
+        return f"(1.0 if ({x}) > 0 else (0.0 if ({x}) < 0 else {h0}))"
 
     def _print_InputTable(self, expr):
         k = int(expr.args[0])
@@ -199,6 +214,30 @@ class ModulePrinter:
         self.printer = _Printer(self.names)
         self.accumulate: set = set()  # targets that add to a precomputed value
 
+    def _switch_constants(self) -> list[str]:
+        """Switching conditions (phc.codegen.nonsmooth, docs/events.md): labels in model names,
+        the row each occurs in first, whether it depends on t only, and the parameter
+        entries of the modes the simulation driver sets (0: evaluate directly)."""
+        ir = self.ir
+        slot = {s: j for j, s in enumerate(ir.p_symbols)}
+        return [
+            "# Switching conditions: g_k changes sign where a row switches branch (events(); a mode of 0\n"
+            "# in p evaluates the condition directly, +-1 freezes the side). STICKS: set-valued sign terms.",
+            f"SWITCHES = {_tuple([s.label for s in ir.switches])}",
+            f"SWITCH_EQUATIONS = {_tuple([s.equation for s in ir.switches])}",
+            f"SWITCH_COMPONENTS = {_tuple([s.component for s in ir.switches])}",
+            f"SWITCH_TIME_ONLY = {_array([s.time_only for s in ir.switches], 'bool')}",
+            f"SWITCH_SLOTS = {_array([slot[s.mode] for s in ir.switches], 'np.int64')}",
+            "# +1: where g_k rises, the comparison SWITCHES[k] turns true (or its function's argument rises)",
+            f"SWITCH_SENSE = {_array([float(s.sense) for s in ir.switches], 'float')}",
+            f"SWITCH_COMPARISON = {_array([s.comparison for s in ir.switches], 'bool')}",
+            f"STICKS = {_tuple([s.label for s in ir.sticks])}",
+            f"STICK_EQUATIONS = {_tuple([s.equation for s in ir.sticks])}",
+            f"STICK_SWITCH = {_array([s.switch for s in ir.sticks], 'np.int64')}",
+            f"STICK_ORIENT = {_array([float(s.orient) for s in ir.sticks], 'float')}",
+            f"STICK_SLOTS = {_array([slot[s.mode] for s in ir.sticks], 'np.int64')}",
+        ]
+
     def _linear_function(self, m: int, n: int) -> str:
         """`_linear(p)`: the fused sparse matrices of all linear blocks, computed once per
         parameter vector (their coefficients depend on parameters only)."""
@@ -303,6 +342,7 @@ class ModulePrinter:
             f"JAC_DEPENDS_ON_YP = {_array(self._jac_dependencies(ir.yp_symbols), 'np.int64')}",
             "# Times where an input is not smooth (ends of pieces, table rows): integrate up to each.",
             f"BREAKPOINTS = {tuple(float(x) for x in ir.breakpoints)!r}",
+            *self._switch_constants(),
             "",
         ]
         if ir.input_tables:
@@ -367,7 +407,7 @@ class ModulePrinter:
             parts.append(self._function(
                 "residual(t, y, yp, p, out)", "Residual F(t, y, yp, p) written into `out`.",
                 ir.residual, [f"out[{i}]" for i in range(len(ir.residual))]))
-        dt_rows = [(i, sp.diff(e, T)) for i, e in enumerate(ir.residual)]
+        dt_rows = [(i, drop_deltas(sp.diff(e, T))) for i, e in enumerate(ir.residual)]
         dt_rows = [(i, e) for i, e in dt_rows if e != 0]
         parts.append(self._function(
             "residual_t(t, y, yp, p, out)", "Explicit time derivative dF/dt (consistent initialization).",
@@ -418,6 +458,13 @@ class ModulePrinter:
             parts.append(self._function(
                 f"{fname}(t, y, p)", doc, exprs, [f"out[{i}]" for i in range(len(exprs))],
                 prologue=[f"out = np.empty({len(exprs)})"], epilogue=["return out"]))
+        n_sw = len(ir.switches)
+        parts.append(self._function(
+            "events(t, y, yp, p, out)",
+            "Switching functions: out[k] = g_k (SWITCHES[k] switches where g_k changes sign), then for each "
+            "set-valued sign STICKS[j] out[len(SWITCHES) + j] = the value s_j it takes while sticking.",
+            [s.boundary for s in ir.switches] + [s.exit for s in ir.sticks],
+            [f"out[{k}]" for k in range(n_sw + len(ir.sticks))]))
         parts.append(self._function(
             "outputs(t, y, yp, p)", "Requested outputs, in the order of OUTPUTS.",
             [e for _, e in ir.outputs], [f"out[{i}]" for i in range(len(ir.outputs))],

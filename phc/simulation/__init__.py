@@ -21,6 +21,7 @@ from phc.inputs import breakpoints_within
 from phc.simulation.discrete_gradient import integrate_discrete_gradient
 from phc.simulation.guard import CATCH as GUARD_CATCH
 from phc.simulation.guard import ModelEvaluationError, guard, quiet_floating_point
+from phc.simulation.events import has_switches, integrate_switched
 from phc.simulation.ida import integrate_ida
 from phc.simulation.initial import InitialResult, consistent_initial_conditions
 from phc.simulation.midpoint import integrate_midpoint
@@ -170,7 +171,10 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
         extra = {"step": step} if solver in FIXED_STEP else {}
         run = partial(BACKENDS[solver], mod, p, rtol=rtol, atol=atol, max_steps=max_steps, progress=progress,
                       max_order=opts.get("max_order", 5), names=describe_equations(compiled), **extra)
-        out = _integrate_with_breakpoints(run, mod, p, t_out, init)
+        if has_switches(mod):  # switching conditions: breakpoints in t, state events (docs/events.md)
+            out = integrate_switched(BACKENDS[solver], mod, p, t_out, init, fixed, run.keywords)
+        else:
+            out = _integrate_with_breakpoints(run, mod, p, t_out, init)
         cpu = time.process_time() - cpu0
         result = _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol, params)
     if solver in FIXED_STEP:  # the step actually taken: no longer than `step` nor an output interval
@@ -431,6 +435,7 @@ def _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol, params=None) -
         steps=out["steps"], n_residual_evals=out["nfev"], n_jacobian_evals=out["njev"], cpu_time_s=cpu,
         n_states=dae.n_states - 1, n_equations=len(dae.equations), solver=solver, rtol=rtol, atol=atol,
         initial_choices=init.chosen, interrupted=bool(out.get("interrupted", False)),
+        events=list(out.get("events", ())),
     )
 
 

@@ -76,7 +76,10 @@ class DiscreteGradientStep:
         y1, r = self._solve(t, h, y, guess, 0.5)
         if r is None:
             return y1, False, SINGULAR_HINT if self.stage.singular else NEWTON_HINT
-        scale = max(abs(float(mod.energy_scale(t, y, p))), abs(float(mod.energy_scale(t + h, y1, p))), 1e-300)
+        # the balance H + E (E: energy supplied so far) is kept relative to its terms; a body at
+        # rest that sticks (docs/events.md) has H ~ 1e-250: below 1e-200 the energy is zero
+        scale = max(abs(float(mod.energy_scale(t, y, p))), abs(float(mod.energy_scale(t + h, y1, p))),
+                    abs(float(y[self.e])), abs(float(y1[self.e])), 1e-200)
         tol = BALANCE_TOL * scale
         if abs(r) <= tol:
             return y1, True, ""
@@ -110,13 +113,13 @@ class DiscreteGradientStep:
 
 
 def integrate_discrete_gradient(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=None, max_order=None,
-                                step=None, names=None):
+                                step=None, names=None, events=None):
     """Fixed-step discrete-gradient integration from ``t_out[0]``; output at every ``t_out``
     (each output interval is split into equal steps no longer than `step`). Returns the same
     dict as the IDA backend."""
     del rtol, atol, max_order  # a fixed-step method: accuracy is set by `step`
     advance = DiscreteGradientStep(mod, p)
     out = integrate_fixed_step(mod, p, t_out, y0, yp0, max_steps=max_steps, progress=progress, step=step,
-                               advance=advance, name="discrete gradient", names=names)
+                               advance=advance, name="discrete gradient", names=names, events=events)
     out.update(nfev=advance.stage.nfev, njev=advance.stage.matrix.factorizations)
     return out

@@ -50,8 +50,14 @@ def _import_ida():
     return IDA
 
 
-def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=None, max_order=None, names=None):
-    """Integrate from ``t_out[0]`` and return a dict of arrays and statistics."""
+def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=None, max_order=None, names=None,
+                  events=None):
+    """Integrate from ``t_out[0]`` and return a dict of arrays and statistics.
+
+    `events` (a :class:`phc.simulation.events.Watch`, optional) are switching functions
+    w(t, y, ẏ), positive while the modes hold: IDA's root finding (scikit-sundae's
+    ``eventsfn``, direction −1, terminal) stops at the first that falls to zero; the run
+    then returns with ``event`` = dict(t, y, yp, which) and the outputs before it."""
     IDA = _import_ida()
     n = mod.N
     diff = np.asarray(mod.DIFFERENTIAL, dtype=bool)
@@ -81,6 +87,13 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     with warnings.catch_warnings():
         # scikit-sundae warns that its own sparse approximation is unused: we pass jacfn.
         warnings.filterwarnings("ignore", message="Custom sparse Jacobian approximation")
+        if events is not None and events.n:
+            def eventsfn(t, y, yp, out):
+                out[:] = events(t, y, yp)
+
+            eventsfn.direction = [-1] * events.n   # w falls through 0: the mode no longer holds
+            eventsfn.terminal = [True] * events.n
+            options.update(eventsfn=eventsfn, num_events=events.n)
         solver = IDA(resfn, **options)
     t_out = np.asarray(t_out, dtype=float)
     def scales(failed):
@@ -97,6 +110,7 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
                     message=f"IDA could not start: {init.message}" + (f"; {scales(True)}" if scales(True) else ""),
                     cpu=time.process_time() - start)
     k, steps, ok, message = 1, 0, True, "integration finished"
+    event = None
     nfev = njev = 0
     t_end = t_out[-1]
     t_last = float(t_out[0])
@@ -133,6 +147,10 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
                 k += 1
             if progress is not None:
                 progress(t_now)
+            if int(res.status) == 2 and res.i_events is not None:  # IDA_ROOT_RETURN: a switching function hit 0
+                event = dict(t=t_now, y=np.array(np.atleast_2d(res.y)[-1]), yp=np.array(np.atleast_2d(res.yp)[-1]),
+                             which=np.flatnonzero(np.asarray(res.i_events)[-1]).tolist())
+                break
             if steps >= max_steps:
                 ok = False
                 message = (f"stopped after {steps} steps at t = {t_now:.6g} (max_steps); raise `max_steps` or "
@@ -146,5 +164,6 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     note = scales(not ok) if not message.startswith(("stopped at", "interrupted")) else None
     if note:
         message = f"{message}; {note}"
-    return dict(t=t_out[:k], y=ys[:k], yp=yps[:k], steps=steps, nfev=nfev, njev=njev, success=ok,
+    extra = {"event": event} if event is not None else {}
+    return dict(t=t_out[:k], y=ys[:k], yp=yps[:k], steps=steps, nfev=nfev, njev=njev, success=ok, **extra,
                 message=message, cpu=time.process_time() - start, conditioning=monitor.worst, interrupted=interrupted)

@@ -284,7 +284,7 @@ def make_projector(mod, p, y, t=0.0):
 
 
 def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, advance, name, project=True,
-                         names=None):
+                         names=None, events=None):
     """Fixed-step driver shared by the structure-preserving backends.
 
     ``advance(t, h, y, guess) -> (y1, ok, reason)`` takes one step. Output at every
@@ -293,7 +293,13 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
     every :data:`MONITOR_EVERY` steps and at every step Newton found hard (a restart, a
     split or a failure): a run through a configuration where an interconnection loses
     surjectivity stops there instead of stepping over it. Returns the same dict as the
-    IDA backend."""
+    IDA backend.
+
+    `events` (a :class:`phc.simulation.events.Watch`, optional) are switching functions
+    w(t, y, ẏ), positive while the modes hold: a step at whose end one has fallen to zero
+    or below is shortened by regula falsi (Illinois) on its length until the crossing is
+    located to :data:`EVENT_TOL`; the run then returns with ``event`` = dict(t, y, yp,
+    which) and the outputs before it."""
     n = mod.N
     t_out = np.asarray(t_out, dtype=float)
     intervals = np.diff(t_out)
@@ -313,6 +319,8 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
     mid, mid_slope = None, np.asarray(yp0, dtype=float)
     k = 0
     interrupted = False
+    event = None
+    w_prev = events(float(t_out[0]), y, np.asarray(yp0, dtype=float)) if events is not None else None
     try:
         for k in range(1, len(t_out)):
             substeps = max(1, int(np.ceil(intervals[k - 1] / step - 1e-9))) if step else 1
@@ -325,6 +333,13 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
                 hard = not converged
                 if stage is not None and stage.ill_conditioned and steps - last_look >= 10:
                     hard = True
+                if not converged and events is not None and _crossed(events, t, h, y, y_new, w_prev):
+                    # a step across a switching surface on the old branch may fail (midpoint4's passivity
+                    # guard sees the frozen law beyond it): the crossing is before, shorten the step to it
+                    event = _locate(advance, events, projector, t, h, y, y_new, w_prev,
+                                    events(t + h, y_new, (y_new - y) / h), None)
+                    steps += 1
+                    break
                 if not converged:
                     # a step of the order of the period defeats the extrapolation: retry from y,
                     # then split the step (any step size keeps the structure-preserving property)
@@ -348,6 +363,15 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
                     else:
                         ok, message = False, f"{name}: {reason} at t = {t:.6g}; results up to this time are kept"
                     break
+                if events is not None:
+                    y_end = projector.project(t + h, y_new) if projector else y_new
+                    w_new = events(t + h, y_end, (y_end - y) / h)
+                    crossed = (w_prev > 0) & (w_new <= 0)
+                    if crossed.any():
+                        event = _locate(advance, events, projector, t, h, y, y_end, w_prev, w_new, crossed)
+                        steps += 1
+                        break
+                    w_prev = w_new
                 new_mid = 0.5 * (y + y_new)
                 if mid is not None:
                     mid_slope = (new_mid - mid) / (0.5 * (h + h_prev))
@@ -360,7 +384,7 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
                     ok, message = False, (f"stopped after {steps} steps at t = {t:.6g} (max_steps); raise `max_steps` "
                                           "or the step size")
                     break
-            if not ok:
+            if not ok or event is not None:
                 k -= 1
                 break
             ys[k] = y
@@ -377,8 +401,69 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
     if ok and split:
         message += (f"; {split} step(s) needed a restart or a split for Newton to converge (the step is long "
                     "for the dynamics)")
+    extra = {"event": event} if event is not None else {}
     return dict(t=t_out[:k + 1], y=ys[:k + 1], yp=yps[:k + 1], steps=steps, success=ok, message=message,
-                cpu=time.process_time() - start, interrupted=interrupted)
+                cpu=time.process_time() - start, interrupted=interrupted, **extra)
+
+
+EVENT_TOL = 1e-12
+"""A crossing of a switching function is located to this fraction of max(1, |t|) (or to
+1e-9 of the step, if that is longer)."""
+
+
+def _crossed(events, t, h, y, y_new, w_prev) -> bool:
+    """Whether a (failed) step's end lies beyond a switching surface."""
+    if not np.all(np.isfinite(y_new)):
+        return False
+    try:
+        w = events(t + h, y_new, (y_new - y) / h)
+    except ModelEvaluationError:
+        return False
+    return bool(np.any((w_prev > 0) & (w <= 0)))
+
+
+def _locate(advance, events, projector, t, h, y, y_full, w0, w1, crossed):
+    """The first zero of the crossed switching functions along the step (t, y) → t + h, by
+    regula falsi (Illinois) on the length θh of a shortened step from (t, y): returns
+    dict(t, y, yp, which) at the end of the shortest step found past the crossing. A
+    shortened step that fails counts as past the crossing (the old branch failed there)."""
+    if crossed is None:
+        crossed = (w0 > 0) & (w1 <= 0)
+    lo, hi = 0.0, 1.0
+    f_lo, f_hi = float(w0[crossed].min()), float(w1[crossed].min())
+    y_hi, w_hi, y_lo, w_lo, at_hi = y_full, w1, y, w0, 1.0
+    tol = max(EVENT_TOL * max(1.0, abs(t)), 1e-9 * h) / h
+    side = 0
+    guess = y_full
+    for _ in range(200):
+        if hi - lo <= tol:
+            break
+        theta = (lo * f_hi - hi * f_lo) / (f_hi - f_lo) if f_hi != f_lo else 0.5 * (lo + hi)
+        margin = 1e-3 * (hi - lo)
+        theta = min(max(theta, lo + margin), hi - margin)
+        y_th, ok, _ = advance(t, theta * h, y, y + theta * (guess - y))
+        if not ok:  # beyond the crossing on the old branch: bisect
+            hi, f_hi, side = theta, 0.5 * f_hi, 0
+            continue
+        if projector is not None:
+            y_th = projector.project(t + theta * h, y_th)
+        w = events(t + theta * h, y_th, (y_th - y) / (theta * h))
+        f = float(w[crossed].min())
+        if f > 0:
+            lo, f_lo, y_lo, w_lo = theta, f, y_th, w
+            if side == -1:
+                f_hi *= 0.5
+            side = -1
+        else:
+            hi, f_hi, y_hi, w_hi, at_hi = theta, f, y_th, w, theta
+            if side == 1:
+                f_lo *= 0.5
+            side = 1
+    if at_hi != hi and lo > 0:  # no converged step ends past the crossing this close: take the one before
+        which = np.flatnonzero(crossed & (w_lo <= w_lo[crossed].min()))
+        return dict(t=t + lo * h, y=y_lo, yp=(y_lo - y) / (lo * h), which=which.tolist())
+    which = np.flatnonzero(crossed & (w_hi <= 0))
+    return dict(t=t + at_hi * h, y=y_hi, yp=(y_hi - y) / (at_hi * h), which=which.tolist())
 
 
 MAX_SPLIT = 4
@@ -406,7 +491,7 @@ NEWTON_HINT = "Newton did not converge; reduce `step` (simulation.step)"
 
 
 def integrate_midpoint(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=None, max_order=None,
-                       step=None, names=None):
+                       step=None, names=None, events=None):
     """Fixed-step implicit midpoint from ``t_out[0]``; output at every ``t_out`` (each output
     interval is split into equal steps no longer than `step`). Returns the same dict as the
     IDA backend."""
@@ -420,6 +505,6 @@ def integrate_midpoint(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progres
     advance.stage = stage
 
     out = integrate_fixed_step(mod, p, t_out, y0, yp0, max_steps=max_steps, progress=progress, step=step,
-                               advance=advance, name="implicit midpoint", names=names)
+                               advance=advance, name="implicit midpoint", names=names, events=events)
     out.update(nfev=stage.nfev, njev=stage.matrix.factorizations)
     return out

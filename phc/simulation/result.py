@@ -53,6 +53,10 @@ class SimResult:
     initial_choices: dict[str, float] = field(default_factory=dict)
     interrupted: bool = False
     """The run was stopped by Ctrl-C (KeyboardInterrupt); the results are those computed so far."""
+    events: list = field(default_factory=list)
+    """Switches of the run in time order (:class:`phc.simulation.events.Event`: time,
+    condition as written in the model, direction, kind ``time``/``state``/``stick``/``slip``);
+    see docs/events.md."""
 
     def __getitem__(self, name: str) -> np.ndarray:
         """Time series of a variable or output by name."""
@@ -87,6 +91,7 @@ class SimResult:
             "constraint_drift": float(self.constraint_drift),
             "velocity_drift": float(self.velocity_drift),
             "initial_choices": self.initial_choices,
+            "events": [e.as_dict() for e in self.events],
         }
 
 

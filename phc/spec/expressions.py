@@ -85,6 +85,11 @@ def _one(f: Callable) -> FunctionSpec:
     return FunctionSpec(1, 1, f)
 
 
+# sign, heaviside, abs, min, max and ifelse are not smooth. Their sympy forms are kept here;
+# the lower pass (phc.codegen.nonsmooth) differentiates them almost everywhere and turns every
+# condition on t or the model's variables into a switch that a run locates (a breakpoint or a
+# state event, docs/events.md). heaviside(0) = 1; sign(0) = 0, or any value in [-1, 1] where a
+# `F*sign(v)` term can stick.
 FUNCTIONS: dict[str, FunctionSpec] = {
     "sin": _one(sp.sin), "cos": _one(sp.cos), "tan": _one(sp.tan),
     "asin": _one(sp.asin), "acos": _one(sp.acos), "atan": _one(sp.atan),

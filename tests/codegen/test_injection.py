@@ -69,6 +69,9 @@ _FIXED_NAMES = {
     "INITIAL_COLS", "INITIAL_DATA", "OUTPUTS", "JAC_ROWS", "JAC_COLS", "JAC_DEPENDS_ON_Y", "JAC_DEPENDS_ON_YP",
     "BREAKPOINTS", "full_parameters", "residual", "residual_t", "jacobian", "hamiltonian", "energy_scale",
     "powers", "invariants", "velocity_invariants", "outputs",
+    "events", "SWITCHES", "SWITCH_EQUATIONS", "SWITCH_TIME_ONLY", "SWITCH_SLOTS", "STICKS", "STICK_EQUATIONS",
+    "STICK_SWITCH", "STICK_ORIENT", "STICK_SLOTS", "SWITCH_SENSE", "SWITCH_COMPARISON",
+    "SWITCH_COMPONENTS",
 }
 
 
