@@ -133,6 +133,37 @@ class Storage:
 
 
 @dataclass(frozen=True, eq=False)
+class SparseRelations:
+    """`n` relations ``= 0`` of a description kept sparse (discretized PDEs, matrix
+    components): relation i is ``Σ_k coeff_k (A_k v_k)_i + Σ extra_i``, each term a
+    :class:`LinearTerm` over the description's symbols (flows, efforts, multipliers, port
+    variables; never `derivative`: flows are symbols of their own), `extra` sympy
+    expressions added to single relations as ``(i, expr)`` (boundary couplings,
+    modulations). `law` marks resistive or constitutive laws (like
+    :attr:`ComponentDescription.laws`); otherwise they are relations of the Dirac structure."""
+
+    label: str
+    n: int
+    terms: tuple[LinearTerm, ...]
+    extra: tuple[tuple[int, sp.Expr], ...] = ()
+    law: bool = False
+
+
+@dataclass(frozen=True, eq=False)
+class StorageVector:
+    """Storage pairs bound to states, as vectors (the sparse counterpart of
+    :class:`Storage`): ``f = ẋ`` and ``e = ∂H/∂x = Σ gradient`` — each term a
+    :class:`LinearTerm` over `states`, i.e. a quadratic energy ``H = ½ xᵀQx`` with
+    ``Q = Σ coeff·A``."""
+
+    flows: tuple[sp.Symbol, ...]
+    efforts: tuple[sp.Symbol, ...]
+    states: tuple[sp.Symbol, ...]
+    rates: tuple[sp.Symbol, ...]
+    gradient: tuple[LinearTerm, ...]
+
+
+@dataclass(frozen=True, eq=False)
 class ComponentDescription:
     """What one component is, in one immutable value: its ports, its Dirac structure in
     kernel form, its storage bound to its states and its Hamiltonian, its resistive and
@@ -152,8 +183,8 @@ class ComponentDescription:
     constitutive relations of auxiliary variables — and may be nonlinear.
 
     `complete` is False for a description that is only the projection of the structure
-    onto the ports (large discretized components): its rows are certified by the energy
-    balance of the compiled equations, not against the description.
+    onto the ports (large discretized components); such a projection carries the complete
+    description it projects as `structure`, against which the rows are compared.
     """
 
     component: str
@@ -175,6 +206,17 @@ class ComponentDescription:
     order: tuple = ()
     """How the rows are derived (:func:`phc.library.dirac.emit`): ``(relation or law,
     index, symbol solved for or None, row kind, row label)`` in declaration order."""
+    blocks: tuple[SparseRelations, ...] = ()
+    """Relations and laws kept as sparse matrices over symbol vectors (they belong to the
+    description as `relations` and `laws` do)."""
+    storage_vectors: tuple[StorageVector, ...] = ()
+    """Storage bound to states as vectors (sparse counterpart of `storage`)."""
+    structure: Optional["ComponentDescription"] = None
+    """For a port projection (``kind="port_projection"``, what the Dirac and coupling
+    certificate uses): the complete description it is the projection of — the
+    semi-discrete pH system of a discretized PDE or matrix component, kept sparse
+    (`blocks`, `storage_vectors`). :mod:`phc.checks.rows` compares the component's rows
+    with it."""
 
 
 DiracRelations = ComponentDescription

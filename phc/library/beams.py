@@ -25,6 +25,13 @@ curvature (frequency error O(h⁴)).
 All blocks stay sparse (:class:`~phc.dae.LinearTerm`); constant coefficients stay
 run-time parameters, coefficients that vary with ``xi`` are evaluated at compile time.
 
+The rows are written directly. Besides the projection onto its ports (what the Dirac
+certificate uses), each component registers its complete description (:class:`Structure`):
+the same semi-discrete system as a pH system in kernel form, storage ``f = ẋ``,
+``e = ∂H/∂x = Qx = Mλ`` over the co-energy coefficients λ, ``M f = Jλ − Rλ − B_∂ e_∂`` with J
+the skew interconnection and R the damping, ``f_∂ = B_∂ᵀλ`` — which :mod:`phc.checks.rows`
+compares with the rows at sampled states.
+
 Effects: `damping`; `modes: k` hands the same fields to :mod:`phc.library.modal`
 (structure-preserving modal truncation); the Timoshenko beam's `shear` and
 `rotary_inertia` drop a field's energy, which turns its rows into constraints whose
@@ -105,19 +112,76 @@ def _mesh(b, ctx, name, spec, path) -> Mesh | None:
 
 
 class _Field:
-    """One state variable of the PDE: its space, state and co-energy DOF symbols."""
+    """One state variable of the PDE: its space, state (and rate) and co-energy DOF symbols."""
 
     def __init__(self, b, name, local, space, span, stored: bool = True):
         self.space = space
         n = space.size
         # a field without energy (an effect off) has no state: its co-energy is a multiplier
-        self.x = [b.add_state(name, f"{local}[{i}]", span)[0] for i in range(n)] if stored else []
+        states = [b.add_state(name, f"{local}[{i}]", span) for i in range(n)] if stored else []
+        self.x = [x for x, _ in states]
+        self.dx = [dx for _, dx in states]
         self.e = [b.add_algebraic(name, f"e_{local}[{i}]", "effort", span) for i in range(n)]
+
+
+def _embed(A, row: int, col: int, shape) -> sps.csr_matrix:
+    """`A` placed at (`row`, `col`) of a zero matrix of `shape`."""
+    A = sps.coo_matrix(A)
+    return sps.csr_matrix((A.data, (A.row + row, A.col + col)), shape=shape)
+
+
+class Structure:
+    """The complete description of a discretized field, being built (a
+    :class:`~phc.library.dirac.DiracBuilder` with sparse blocks): the semi-discrete pH
+    system in kernel form over the co-energy coordinates λ (multipliers),
+
+        e_s − Eᵀ λ = 0,     E f_s − J λ + e_R + B_∂ e_∂ = 0,     f_∂ − B_∂ᵀ λ = 0,
+        f_R − λ = 0,        e_R − R f_R = 0 (law),
+
+    with storage ``f_s = ẋ``, ``e_s = ∂H/∂x = Qx``, J skew, R + Rᵀ ⪰ 0. The dynamics block
+    has one relation per coordinate (a field's or group's coordinates at their `offset`);
+    boundary couplings and modulations are added to its relations with :meth:`load`.
+    """
+
+    def __init__(self, d, lam: dict, offsets: dict, dynamics: int):
+        self.d, self.lam, self.offsets, self.dynamics = d, lam, offsets, dynamics
+
+    def load(self, key, i, expr) -> None:
+        self.d.add_to(self.dynamics, self.offsets[key] + i, expr)
+
+
+def _describe(name, kind, span, keys, sizes, lam_names, storage, J, dissipation):
+    """A :class:`Structure` over coordinate groups `keys` (sizes `sizes`, multipliers named
+    `lam_names`): `storage` maps a stored group to ``(states, rates, E terms, Q terms)``
+    (:class:`~phc.dae.LinearTerm` lists with matrices over the group's coordinates, E
+    multiplying the flows and λ, Q the states); `J` is the lossless operator over all
+    coordinates (numbers), `dissipation` a list of ``(coeff, matrix over all coordinates)``."""
+    d = DiracBuilder(name, kind, span)
+    offsets = dict(zip(keys, np.cumsum([0, *sizes[:-1]]).tolist()))
+    n = int(sum(sizes))
+    lam = {k: d.mults(nm, sz) for k, sz, nm in zip(keys, sizes, lam_names)}
+    lam_all = tuple(x for k in keys for x in lam[k])
+    dyn_terms = []
+    for k, (states, rates, E_terms, Q_terms) in storage.items():
+        size = len(states)
+        f, e = d.storage_vector(str(k), states, rates, Q_terms)
+        d.block(f"{k}.coenergy", size, [LinearTerm(sp.Integer(1), sps.identity(size, format="csr"), e)]
+                + [LinearTerm(-c, A.T.tocsr(), lam[k]) for c, A in E_terms])
+        dyn_terms += [LinearTerm(c, _embed(A, offsets[k], 0, (n, size)), f) for c, A in E_terms]
+    dyn_terms.append(LinearTerm(sp.Integer(-1), sps.csr_matrix(J), lam_all))
+    if dissipation:
+        fR, eR = d.resistor_vector("R", n)
+        eye = sps.identity(n, format="csr")
+        d.block("resistive.flow", n, [LinearTerm(sp.Integer(1), eye, fR), LinearTerm(sp.Integer(-1), eye, lam_all)])
+        d.block("resistive.law", n, [LinearTerm(sp.Integer(1), eye, eR)]
+                + [LinearTerm(-c, sps.csr_matrix(A), fR) for c, A in dissipation], law=True)
+        dyn_terms.append(LinearTerm(sp.Integer(1), eye, eR))
+    return Structure(d, lam, offsets, d.block("dynamics", n, dyn_terms))
 
 
 def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, couplings, skew, ports, order,
                        dissipation=(), kelvin_voigt=False):
-    """Assemble the partitioned mixed system.
+    """Assemble the partitioned mixed system; returns its :class:`FullFields`.
 
     fields_a / fields_b: {local: (_Field, coefficient of H)};
     couplings: (a_local, b_local, s) with ``ẋ_b ∋ s ∂^N e_a`` and hence, since
@@ -130,9 +194,20 @@ def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, coupl
     at the end; the effort enters the a-rows through the same basis function;
     kelvin_voigt: the `damping` coefficient c acts on the strain rate (``ṗ ∋ −∂^N(c ∂^N e_p)``,
     rows ``+∫ c ∂^Nφ_i ∂^Nφ_j e_j``) instead of on the velocity: rigid motion is not damped.
+
+    The rows are written directly as sparse blocks; the complete description
+    (:func:`_describe`: ``M f_s = J λ − R λ − B_∂ e_∂`` with ``e_s = M λ = Qx``) is built from
+    the same matrices, arranged as the pH system, and compared with the rows by
+    :mod:`phc.checks.rows`.
     """
     span = ctx.smap.locate(path)
     fields = {**fields_a, **fields_b}
+    keys = list(fields)
+    sizes = [fields[k][0].space.size for k in keys]
+    offsets = dict(zip(keys, np.cumsum([0, *sizes[:-1]]).tolist()))
+    n_all = int(sum(sizes))
+    lossless = sps.csr_matrix((n_all, n_all))  # J of the description, over all co-energies
+    losses = []  # (coefficient, matrix over all co-energies) of the description's R
     mass = {local: assemble(fld.space, 0, fld.space, 0) for local, (fld, _) in fields.items()}
     terms = {local: [LinearTerm(sp.Integer(1), mass[local], tuple(fld.x), derivative=True)] if coeff is not None
              else [] for local, (fld, coeff) in fields.items()}
@@ -141,26 +216,35 @@ def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, coupl
         Dm = assemble(fb.space, 0, fa.space, order)
         terms[b_local].append(LinearTerm(sp.Integer(-sign), Dm, tuple(fa.e)))
         terms[a_local].append(LinearTerm(sp.Integer(sign), Dm.T.tocsr(), tuple(fb.e)))
+        s_num = float(sign)
+        lossless = (lossless + _embed(s_num * Dm, offsets[b_local], offsets[a_local], (n_all, n_all))
+                    - _embed(s_num * Dm.T, offsets[a_local], offsets[b_local], (n_all, n_all)))
     for row_local, col_local, value in skew:
         fr, fc = fields[row_local][0], fields[col_local][0]
-        terms[row_local].append(LinearTerm(sp.Float(-value), assemble(fr.space, 0, fc.space, 0), tuple(fc.e)))
+        A = assemble(fr.space, 0, fc.space, 0)
+        terms[row_local].append(LinearTerm(sp.Float(-value), A, tuple(fc.e)))
+        lossless = lossless + _embed(float(value) * A, offsets[row_local], offsets[col_local], (n_all, n_all))
     if dissipation:
         # rows i get +∫ basis_i D_ij basis_j e_j; the dissipated power is the quadratic form
         # of the symmetric part over all co-energies (D + Dᵀ ⪰ 0 checked by the caller).
         order_e = [local for local in fields]
-        offsets = np.cumsum([0] + [fields[l][0].space.size for l in order_e])
+        offsets_e = np.cumsum([0] + [fields[l][0].space.size for l in order_e])
         blocks = {}
         for row_local, col_local, coeff in dissipation:
             fr, fc = fields[row_local][0], fields[col_local][0]
             Mrc = assemble(fr.space, 0, fc.space, 0, coeff.function())
             terms[row_local].append(LinearTerm(coeff.scale(), Mrc, tuple(fc.e)))
             blocks[(row_local, col_local)] = (coeff.scale(), Mrc)
-        scales = {sc for sc, _ in blocks.values()}
+            losses.append((coeff.scale(), _embed(Mrc, offsets[row_local], offsets[col_local], (n_all, n_all))))
+        # numeric factors go into the matrix: entries of D that are numbers, or one parameter
+        # factor times numbers, share the factor left
+        split = {key: sp.sympify(sc).as_coeff_Mul() for key, (sc, _) in blocks.items()}
+        scales = {rest for _, rest in split.values()}
         if len(scales) == 1:
-            total = sps.lil_matrix((offsets[-1], offsets[-1]))
+            total = sps.lil_matrix((offsets_e[-1], offsets_e[-1]))
             for (rl, cl), (_, Mrc) in blocks.items():
-                i0, j0 = offsets[order_e.index(rl)], offsets[order_e.index(cl)]
-                total[i0:i0 + Mrc.shape[0], j0:j0 + Mrc.shape[1]] = Mrc
+                i0, j0 = offsets_e[order_e.index(rl)], offsets_e[order_e.index(cl)]
+                total[i0:i0 + Mrc.shape[0], j0:j0 + Mrc.shape[1]] = float(split[(rl, cl)][0]) * Mrc
             total = total.tocsr()
             b.quadratic_dissipation.append(QuadraticForm(scales.pop(), ((total + total.T) / 2).tocsr(),
                                                          tuple(e for l in order_e for e in fields[l][0].e),
@@ -179,9 +263,11 @@ def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, coupl
         Md = assemble(fld.space, k, fld.space, k, coeff.function())
         terms[a_local].append(LinearTerm(coeff.scale(), Md, tuple(fld.e)))
         b.quadratic_dissipation.append(QuadraticForm(coeff.scale(), Md, tuple(fld.e), component=name, span=span))
+        losses.append((coeff.scale(), _embed(Md, offsets[a_local], offsets[a_local], (n_all, n_all))))
     rows = {local: b.add_linear_rows(name, f"{local}.dynamics", fields[local][0].space.size, terms[local], span)
             for local in fields}
     # Constitutive rows M e − M^{H} x = 0 and the energy ½ xᵀ M^{H} x.
+    storage = {}
     for local, (fld, coeff) in fields.items():
         if coeff is None:
             continue  # no energy: the rows of this field are constraints, e its multiplier
@@ -190,29 +276,48 @@ def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, coupl
                           [LinearTerm(sp.Integer(1), mass[local], tuple(fld.e)),
                            LinearTerm(-coeff.scale(), MH, tuple(fld.x))], span)
         b.quadratic_energy.append(QuadraticForm(coeff.scale() / 2, MH, tuple(fld.x)))
-    # Boundary ports: effort inputs enter the a-rows; flows are traces of e_a.
-    d = DiracBuilder(name, spec.type, span)
+        storage[local] = (fld.x, fld.dx, [(sp.Integer(1), mass[local])], [LinearTerm(coeff.scale(), MH, tuple(fld.x))])
+    structure = _describe(name, spec.type, span, keys, sizes, [f"lambda_{k}" for k in keys], storage, lossless,
+                          losses)
+    handle = FullFields(b, rows, fields, structure)
+    _boundary_ports(b, name, span, handle, ports, "discretized PDE: skew interconnection by construction; ports "
+                    "certified through their traces")
+    return handle
+
+
+def _boundary_ports(b, name, span, fields, ports, note) -> None:
+    """Boundary ports of a field (full or reduced): the flow is a trace of a co-energy, the
+    effort enters the rows through the same basis function. Registers the projection of
+    the structure onto the ports (the Dirac certificate's view: traces and efforts free)
+    with the complete `fields.structure` it projects."""
+    d = DiracBuilder(name, "port_projection", span)
+    ds = fields.structure.d
     for pname, a_local, end, derivative, domain in ports:
-        fld = fields_a[a_local][0]
         port = b.add_port(name, pname, domain, 1, span=span)
-        dof = _end_dof(fld.space, end, derivative)
-        b.define(port.f[0], fld.e[dof])
-        b.add_to_row(rows[a_local][dof], port.e[0])
+        dof = _end_dof(fields.space(a_local), end, derivative)
+        b.define(port.f[0], fields.trace(a_local, dof))
+        fields.load(a_local, dof, port.e[0])
         d.port(port)  # certification: both the trace and the boundary effort are free
         d.rel(port.f[0] - d.mult(f"trace_{pname}"))
+        ds.port(port)
+        ds.rel(port.f[0] - fields.d_trace(a_local, dof), label=f"{pname}.flow")
+        fields.d_load(a_local, dof, port.e[0])
     if ports:
-        d.register(b, kind="port_projection", note="discretized PDE: skew interconnection by construction; ports "
-                   "certified through their traces")
-    return rows
+        d.register(b, kind="port_projection", note=note, structure=ds.describe())
 
 
 class FullFields:
     """Traces, loads and functionals of the full discretization's fields (the interface
     :class:`phc.library.modal.ReducedFields` shares, so callers such as the moving beam
-    work on either)."""
+    work on either). The ``d_*`` methods say the same in the terms of the component's
+    complete description (`structure`: co-energy multipliers λ instead of the co-energy
+    variables, relations of its dynamics block instead of rows)."""
 
-    def __init__(self, b, rows, fields):
-        self.b, self.rows, self.fields = b, rows, fields
+    def __init__(self, b, rows, fields, structure: Structure):
+        self.b, self.rows, self.fields, self.structure = b, rows, fields, structure
+
+    def space(self, local):
+        return self.fields[local][0].space
 
     def trace(self, local, dof) -> sp.Expr:
         return self.fields[local][0].e[dof]
@@ -230,6 +335,20 @@ class FullFields:
 
     def state_functional(self, local, g) -> sp.Expr:
         return sum((float(gk) * xk for gk, xk in zip(g, self.fields[local][0].x) if gk), sp.Integer(0))
+
+    def d_trace(self, local, dof) -> sp.Expr:
+        return self.structure.lam[local][dof]
+
+    def d_load(self, local, dof, expr) -> None:
+        self.structure.load(local, dof, expr)
+
+    def d_load_vector(self, local, r, expr) -> None:
+        for j, rj in enumerate(r):
+            if rj:
+                self.structure.load(local, j, expr * float(rj))
+
+    def d_pair(self, local, r) -> sp.Expr:
+        return sum((float(rj) * lj for rj, lj in zip(r, self.structure.lam[local]) if rj), sp.Integer(0))
 
 
 def modes_of(spec):
@@ -253,9 +372,8 @@ def _lower_fields(b, ctx, name, spec, path, mesh, span, spaces_a, spaces_b, coup
                            boundary=boundary, kelvin_voigt=kelvin_voigt)
     fields_a = {l: (_Field(b, name, l, s, span, c is not None), c) for l, (s, c) in spaces_a.items()}
     fields_b = {l: (_Field(b, name, l, s, span, c is not None), c) for l, (s, c) in spaces_b.items()}
-    rows = _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, couplings, skew, ports, order,
+    return _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, couplings, skew, ports, order,
                               kelvin_voigt=kelvin_voigt)
-    return FullFields(b, rows, {**fields_a, **fields_b})
 
 
 def _end_dof(space, end: str, derivative: int) -> int:

@@ -14,12 +14,17 @@ one thing. A relation may name the symbol it is solved for (``solve=``): a port 
 solved for becomes an explicit definition (assembly substitutes it, alias elimination), an
 internal pair symbol is eliminated, anything else stays a residual row.
 
-Large components whose rows are sparse matrix blocks (discretized PDEs, matrix
-components) describe only the projection of their structure onto their ports
-(``kind="port_projection"``); their rows are certified by the energy balance of the
-compiled equations (:mod:`phc.checks.compiled`). Lowerers that write nonlinear rows
-directly (rigid bodies) bind their storage so that :mod:`phc.checks.rows` compares their
-rows with their description at sampled states.
+Lowerers that write nonlinear rows directly (rigid bodies) bind their storage so that
+:mod:`phc.checks.rows` compares their rows with their description at sampled states.
+
+Large components whose rows are sparse matrix blocks (discretized PDEs, modal
+truncations, matrix components, the moving beam's flexible part) register the projection
+of their structure onto their ports (``kind="port_projection"``: what the Dirac and
+coupling certificate works with) and, as its `structure`, the complete semi-discrete pH
+system, kept sparse: relations over symbol vectors (:meth:`DiracBuilder.block`, a
+:class:`~phc.dae.LinearTerm` per matrix), storage vectors ``f = ẋ``, ``e = Qx``
+(:meth:`DiracBuilder.storage_vector`) and resistive vectors with sparse laws. Their rows
+are written directly and compared with that structure by :mod:`phc.checks.rows`.
 """
 
 from __future__ import annotations
@@ -28,7 +33,7 @@ from typing import Optional
 
 import sympy as sp
 
-from phc.dae import ComponentDescription, Storage
+from phc.dae import ComponentDescription, LinearTerm, SparseRelations, Storage, StorageVector
 
 
 class DiracBuilder:
@@ -48,6 +53,9 @@ class DiracBuilder:
         self.hamiltonian: Optional[sp.Expr] = None
         # (relation or law, index, solved-for symbol, row kind, row label) in declaration order
         self.order: list[tuple[str, int, Optional[sp.Symbol], str, str]] = []
+        self.blocks: list[list] = []  # [label, n, terms, extra, law] (frozen by describe)
+        self.storage_vectors: list[StorageVector] = []
+        self._bound: set = set()  # internal symbols bound by storage or resistive vectors
 
     def pair(self, local: str) -> tuple[sp.Symbol, sp.Symbol]:
         """A fresh internal flow/effort pair (not bound: the description is then not
@@ -71,6 +79,56 @@ class DiracBuilder:
         f, e = self.pair(local)
         self.resistive.append((f, e))
         return f, e
+
+    def vector(self, local: str, n: int) -> tuple[tuple[sp.Symbol, ...], tuple[sp.Symbol, ...]]:
+        """`n` fresh internal flow/effort pairs, as two vectors (see :meth:`pair`)."""
+        f = tuple(sp.Symbol(f"cert:{self.component}.f_{local}[{i}]", real=True) for i in range(n))
+        e = tuple(sp.Symbol(f"cert:{self.component}.e_{local}[{i}]", real=True) for i in range(n))
+        self.flows.extend(f)
+        self.efforts.extend(e)
+        self.internal.extend(f)
+        self.internal.extend(e)
+        return f, e
+
+    def storage_vector(self, local: str, states, rates, gradient) -> tuple[tuple, tuple]:
+        """Storage pairs bound to `states`, as vectors: ``f = ẋ`` (`rates`) and
+        ``e = Σ gradient`` (:class:`~phc.dae.LinearTerm` over the states: ∂H/∂x of a
+        quadratic energy)."""
+        f, e = self.vector(local, len(states))
+        self.storage_vectors.append(StorageVector(f, e, tuple(states), tuple(rates), tuple(gradient)))
+        self._bound.update(f)
+        self._bound.update(e)
+        return f, e
+
+    def resistor_vector(self, local: str, n: int) -> tuple[tuple, tuple]:
+        """`n` resistive pairs; their law goes in with :meth:`block` (``law=True``)."""
+        f, e = self.vector(local, n)
+        self.resistive.extend(zip(f, e))
+        self._bound.update(f)
+        self._bound.update(e)
+        return f, e
+
+    def mults(self, local: str, n: int) -> tuple[sp.Symbol, ...]:
+        """`n` multipliers ``local[i]``."""
+        lam = tuple(sp.Symbol(f"cert:{self.component}.{local}[{i}]", real=True) for i in range(n))
+        self.multipliers.extend(lam)
+        return lam
+
+    def block(self, label: str, n: int, terms, law: bool = False) -> int:
+        """`n` relations ``Σ terms = 0`` kept sparse (each term a :class:`~phc.dae.LinearTerm`
+        over symbols of this description); returns the block's number for :meth:`add_to`."""
+        terms = [t if isinstance(t, LinearTerm) else LinearTerm(*t) for t in terms]
+        for t in terms:
+            if t.derivative or t.matrix.shape != (n, len(t.symbols)):
+                raise ValueError(f"{self.component}: block {label}: a term of shape {t.matrix.shape} over "
+                                 f"{len(t.symbols)} symbols in {n} relations")
+        self.blocks.append([label, n, terms, [], law])
+        return len(self.blocks) - 1
+
+    def add_to(self, block: int, i: int, expr) -> None:
+        """Add a sympy term to relation `i` of `block` (a boundary coupling, a modulation)."""
+        if expr != 0:
+            self.blocks[block][3].append((i, sp.sympify(expr)))
 
     def port(self, port) -> None:
         start = len(self.flows)
@@ -98,20 +156,30 @@ class DiracBuilder:
     def energy(self, hamiltonian: sp.Expr) -> None:
         self.hamiltonian = sp.sympify(hamiltonian)
 
-    def describe(self, states=(), note: str = "", kind: Optional[str] = None) -> ComponentDescription:
+    def describe(self, states=(), note: str = "", kind: Optional[str] = None,
+                 structure: Optional[ComponentDescription] = None) -> ComponentDescription:
+        """The description. With ``kind="port_projection"`` it is not complete; `structure`
+        is then the complete description it projects (see the module docstring)."""
         kind = kind or self.kind
-        bound = {s.flow for s in self.storage} | {s.effort for s in self.storage}
+        symbols = (*self.flows, *self.efforts, *self.multipliers)
+        if len(set(symbols)) != len(symbols):
+            raise ValueError(f"{self.component}: a flow, effort or multiplier of the description is declared twice")
+        bound = {s.flow for s in self.storage} | {s.effort for s in self.storage} | self._bound
         resistive = {x for pair in self.resistive for x in pair}
         complete = kind != "port_projection" and all(s in bound or s in resistive for s in self.internal)
+        blocks = tuple(SparseRelations(label, n, tuple(terms), tuple(extra), law)
+                       for label, n, terms, extra, law in self.blocks)
         return ComponentDescription(
             self.component, kind, tuple(self.flows), tuple(self.efforts), tuple(self.multipliers),
             tuple(self.relations), dict(self.ports), tuple(states), self.span, note,
             storage=tuple(self.storage), laws=tuple(self.laws), hamiltonian=self.hamiltonian,
-            resistive=tuple(self.resistive), complete=complete, order=tuple(self.order))
+            resistive=tuple(self.resistive), complete=complete, order=tuple(self.order),
+            blocks=blocks, storage_vectors=tuple(self.storage_vectors), structure=structure)
 
-    def register(self, b, states=(), note: str = "", kind: Optional[str] = None) -> ComponentDescription:
+    def register(self, b, states=(), note: str = "", kind: Optional[str] = None,
+                 structure: Optional[ComponentDescription] = None) -> ComponentDescription:
         """Record the description with the builder (certification reads it) and return it."""
-        desc = self.describe(states, note, kind)
+        desc = self.describe(states, note, kind, structure)
         b.dirac.append(desc)
         return desc
 
@@ -129,6 +197,9 @@ def emit(b, desc: ComponentDescription, dissipation_span=None) -> None:
     """Derive the component's rows from its description and add them to the builder:
     definitions, residual rows, the Hamiltonian and the dissipated power (located at
     `dissipation_span`, or the component)."""
+    if desc.blocks or desc.storage_vectors:
+        raise ValueError(f"{desc.component}: a sparse description is compared with rows written directly, "
+                         "not emitted")
     sigma: dict = {}
     for s in desc.storage:
         sigma[s.flow] = s.rate

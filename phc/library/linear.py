@@ -1,10 +1,18 @@
 """Matrix-defined linear port-Hamiltonian components (``type: linear_phs``).
 
 ``E ẋ = (J − R) Q x − Σ_{effort_in} B e + Σ_{flow_in} B f`` with outputs
-``f = Bᵀ Q x`` (effort_in) or ``e = −Bᵀ Q x`` (flow_in) and ``H = ½ xᵀ Q x``; the power
-balance ``dH/dt = −(Qx)ᵀR(Qx) − Σ f·e`` follows as in :mod:`phc.library.phs`. The
-matrices become :class:`~phc.dae.LinearTerm` blocks that stay sparse through code
-generation; only the few boundary couplings are sympy expressions.
+``f = Bᵀ Q x`` (effort_in) or ``e = −Bᵀ Q x`` (flow_in) and ``H = ½ xᵀ EᵀQ x`` (``EᵀQ``
+symmetric; ``½ xᵀQx`` for the default E = I); the power balance
+``dH/dt = (Qx)ᵀE ẋ = −(Qx)ᵀR(Qx) − Σ f·e`` follows as in :mod:`phc.library.phs` (a linear
+descriptor pH system: Beattie, Mehrmann, Xu, Zwart, "Linear port-Hamiltonian descriptor
+systems", Math. Control Signals Syst. 30, 2018). The matrices become
+:class:`~phc.dae.LinearTerm` blocks that stay sparse through code generation; only the few
+boundary couplings are sympy expressions.
+
+The complete description (compared with the rows by :mod:`phc.checks.rows`) is the same
+system in kernel form over the co-energy ``z = Qx`` (a multiplier fixed by the law
+``z = Qx``): storage ``f = ẋ``, ``e = ∂H/∂x = EᵀQx = Eᵀz``, ``E f − J z + e_R ± B u = 0``,
+resistive pairs ``f_R = z``, ``e_R = R f_R``, outputs ``Bᵀz``.
 """
 
 from __future__ import annotations
@@ -302,6 +310,11 @@ def lower_linear_phs(b, ctx, name, spec, path):
                 ctx, (*path, "J"))
     if abs(R - R.T).max() > tol or abs(Q - Q.T).max() > tol:
         b.error("PHC-E403", f"`R` and `Q` of `{name}` must be symmetric", ctx, path)
+    EQ = (E.T @ Q).tocsr()
+    if spec.E is not None and abs(EQ - EQ.T).max() > 1e-12 * max(1.0, abs(EQ).max()):
+        b.error("PHC-E403", f"`Eᵀ Q` of `{name}` must be symmetric (max |EᵀQ − QᵀE| = "
+                f"{abs(EQ - EQ.T).max():.3g}): the energy of E ẋ = (J − R) Q x is H = ½ xᵀEᵀQx", ctx,
+                (*path, "E"))
     x, dx = zip(*(b.add_state(name, nm, span) for nm in names)) if n else ((), ())
     x, dx = tuple(x), tuple(dx)
     terms = [LinearTerm(scale["E"], E, x, derivative=True),
@@ -309,6 +322,23 @@ def lower_linear_phs(b, ctx, name, spec, path):
     if R.nnz:
         terms.append(LinearTerm(scale["R"] * scale["Q"], (R @ Q).tocsr(), x))
     rows = b.add_linear_rows(name, "dynamics", n, terms, span)
+    # The complete description (compared with the rows by phc.checks.rows), kept sparse
+    # (see the module docstring): e = ∂H/∂x = s_E Eᵀz, law z = s_Q Q x,
+    # s_E E f − s_J J z + e_R + Σ B e_in − Σ B f_in = 0, f_R = z, e_R = s_R R f_R;
+    # outputs f = Bᵀz (effort_in), e = −Bᵀz (flow_in).
+    ds = DiracBuilder(name, "linear_phs", span)
+    f_x, e_x = ds.storage_vector("x", x, dx, [LinearTerm(scale["E"] * scale["Q"], EQ, x)])
+    z = ds.mults("z", n)  # the co-energy Qx
+    eye = sps.identity(n, format="csr")
+    ds.block("coenergy", n, [LinearTerm(sp.Integer(1), eye, e_x), LinearTerm(-scale["E"], E.T.tocsr(), z)])
+    ds.block("constitutive", n, [LinearTerm(sp.Integer(1), eye, z), LinearTerm(-scale["Q"], Q, x)], law=True)
+    dyn_terms = [LinearTerm(scale["E"], E, f_x), LinearTerm(-scale["J"], J, z)]
+    if R.nnz:
+        f_r, e_r = ds.resistor_vector("R", n)
+        ds.block("resistive.flow", n, [LinearTerm(sp.Integer(1), eye, f_r), LinearTerm(sp.Integer(-1), eye, z)])
+        ds.block("resistive.law", n, [LinearTerm(sp.Integer(1), eye, e_r), LinearTerm(-scale["R"], R, f_r)],
+                 law=True)
+        dyn_terms.append(LinearTerm(sp.Integer(1), eye, e_r))
     # Certification sees only the ports: with e_x = Qx free, f = Bᵀe_x ranges over im Bᵀ
     # (effort_in) and the other port variable is free; one multiplier per row of B used.
     d = DiracBuilder(name, "linear_phs", span)
@@ -322,6 +352,13 @@ def lower_linear_phs(b, ctx, name, spec, path):
         inputs = port.e if pspec.causality == "effort_in" else port.f
         sign = 1 if pspec.causality == "effort_in" else -1
         d.port(port)
+        ds.port(port)
+        Bd = B.tocsr()
+        dim = pspec.dimension
+        output, given = (port.f, port.e) if pspec.causality == "effort_in" else (port.e, port.f)
+        ds.block(f"{pname}.output", dim, [LinearTerm(sp.Integer(1), sps.identity(dim, format="csr"), tuple(output)),
+                                          LinearTerm(sp.Integer(-sign), Bd.T.tocsr(), z)])
+        dyn_terms.append(LinearTerm(sp.Integer(sign), Bd, tuple(given)))
         Bl = B.tocsc()
         for k in range(pspec.dimension):
             lo, hi = Bl.indptr[k], Bl.indptr[k + 1]
@@ -340,9 +377,10 @@ def lower_linear_phs(b, ctx, name, spec, path):
                 b.define(port.f[k], out)
             else:
                 b.define(port.e[k], -out)
+    ds.block("dynamics", n, dyn_terms)
     d.register(b, kind="port_projection", note="matrix component: J skew, R and Q symmetric checked; ports "
-               "certified through im Bᵀ")
-    b.quadratic_energy.append(QuadraticForm(scale["Q"] / 2, Q.tocsr(), x))
+               "certified through im Bᵀ", structure=ds.describe())
+    b.quadratic_energy.append(QuadraticForm(scale["E"] * scale["Q"] / 2, ((EQ + EQ.T) / 2).tocsr(), x))
     if R.nnz:
         b.quadratic_dissipation.append(QuadraticForm(scale["R"] * scale["Q"] ** 2, (Q.T @ R @ Q).tocsr(), x,
                                                      component=name, span=span))

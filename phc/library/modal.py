@@ -56,7 +56,6 @@ import sympy as sp
 
 from phc.dae import LinearTerm, QuadraticForm
 from phc.discretize.fem1d import assemble
-from phc.library.dirac import DiracBuilder
 
 
 def _sparse(A: np.ndarray, symmetric: bool = False) -> sps.csr_matrix:
@@ -91,10 +90,16 @@ class ReducedFields:
     are the boundary traces) and ``zb``; gives traces, loads and functionals of the fields
     in the same terms as :class:`phc.library.beams.FullFields`."""
 
-    def __init__(self, b, fields, V, offsets, group_of, za, zb, rows, scale, state_map, boundary_coord):
+    def __init__(self, b, fields, V, offsets, group_of, za, zb, rows, scale, state_map, boundary_coord,
+                 structure=None):
         self.b, self.fields, self.V, self.offsets = b, fields, V, offsets
         self.group_of, self.za, self.zb, self.rows = group_of, za, zb, rows
         self.scale, self.state_map, self.boundary_coord = scale, state_map, boundary_coord
+        self.structure = structure
+        """The complete description (:class:`phc.library.beams.Structure`, groups "A", "B")."""
+
+    def space(self, local):
+        return self.fields[local][0]
 
     def _basis(self, local):
         g = self.group_of[local]
@@ -128,6 +133,27 @@ class ReducedFields:
         _, z = self._basis(local)
         return _combination(self.state_map[local].T @ g, z) / self.scale[local]
 
+    # The same in the terms of the complete description (multipliers λ of each group).
+    def d_trace(self, local, dof) -> sp.Expr:
+        Vf, _ = self._basis(local)
+        return _combination(Vf[dof], self.structure.lam[self.group_of[local]])
+
+    def d_load(self, local, dof, expr) -> None:
+        Vf, _ = self._basis(local)
+        for i, v in enumerate(Vf[dof]):
+            if v:
+                self.structure.load(self.group_of[local], i, float(v) * expr if v != 1.0 else expr)
+
+    def d_load_vector(self, local, r, expr) -> None:
+        Vf, _ = self._basis(local)
+        for i, v in enumerate(Vf.T @ r):
+            if v:
+                self.structure.load(self.group_of[local], i, expr * float(v))
+
+    def d_pair(self, local, r) -> sp.Expr:
+        Vf, _ = self._basis(local)
+        return _combination(Vf.T @ r, self.structure.lam[self.group_of[local]])
+
 
 def _combination(c, z) -> sp.Expr:
     big = np.abs(c).max(initial=0.0)
@@ -139,7 +165,7 @@ def lower_modal(b, ctx, name, spec, path, mesh, fields_a, fields_b, couplings, s
     """The reduced counterpart of ``_lower_partitioned`` (same arguments, but fields are
     ``{local: (space, coefficient)}``; `boundary` lists extra trace DOFs ``(a_local, end,
     derivative)`` when the caller adds the ports itself). Returns a :class:`ReducedFields`."""
-    from phc.library.beams import _end_dof
+    from phc.library.beams import _boundary_ports, _describe, _end_dof
 
     span = ctx.smap.locate(path)
     defaults = b.default_values()
@@ -200,11 +226,13 @@ def lower_modal(b, ctx, name, spec, path, mesh, fields_a, fields_b, couplings, s
     z = {"A": tuple(s for s, _ in za), "B": tuple(s for s, _ in zb)}
     dz = {"A": tuple(d for _, d in za), "B": tuple(d for _, d in zb)}
     terms = {"A": [], "B": []}
+    energy = {"A": [], "B": []}  # (1/s, Vᵀ K̂ V) per field: E = ∂²H/∂z² of each group
     for l in fields:
         g = group_of[l]
         Vf = V[g][idx(l)]
         kr = _sparse(Vf.T @ khat[l] @ Vf, symmetric=True)
         terms[g].append(LinearTerm(1 / scale[l], kr, z[g], derivative=True))
+        energy[g].append((1 / scale[l], kr))
         # the energy ½ xᵀQx = ½ (1/s) zᵀ Vᵀ K̂ V z
         b.quadratic_energy.append(QuadraticForm(1 / (2 * scale[l]), kr, z[g]))
     Vblk = np.zeros((n_all, V_A.shape[1] + V_B.shape[1]))
@@ -218,6 +246,7 @@ def lower_modal(b, ctx, name, spec, path, mesh, fields_a, fields_b, couplings, s
     for (gr, gc), blk in blocks.items():
         if blk.size and np.abs(blk).max() > 0:
             terms[gr].append(LinearTerm(sp.Integer(1), sps.csr_matrix(blk), z[gc]))
+    losses = []
     damping = getattr(spec, "damping", None)
     if damping is not None and not spec.effects.damping:
         b.leave_out(name, "distributed damping", "effect `damping` is off")
@@ -234,22 +263,22 @@ def lower_modal(b, ctx, name, spec, path, mesh, fields_a, fields_b, couplings, s
         dr = _sparse(Vf.T @ Md @ Vf, symmetric=True)
         terms["A"].append(LinearTerm(coeff.scale(), dr, z["A"]))
         b.quadratic_dissipation.append(QuadraticForm(coeff.scale(), dr, z["A"], component=name, span=span))
+        mB = V_B.shape[1]
+        losses.append((coeff.scale(), sps.block_diag([dr, sps.csr_matrix((mB, mB))], format="csr") if mB else dr))
     rows = {g: b.add_linear_rows(name, f"modal_{g.lower()}.dynamics", V[g].shape[1], terms[g], span)
             for g in ("A", "B") if V[g].shape[1]}
     rows.setdefault("B", [])
     state_map = {l: qinv_m[l] @ V[group_of[l]][idx(l)] for l in fields}
     boundary_coord = {(a, end, der): z["A"][i] for i, (a, end, der) in enumerate(boundary)}
+    # The complete description: K f_s = −Jr λ − R λ − Vᵀ B_∂ e_∂ with e_s = K λ = ∂H/∂z (the
+    # reduced pH system in the co-energy coordinates; rows K ż + Jr z + … = 0 say λ = z).
+    groups = [g for g in ("A", "B") if V[g].shape[1]]
+    storage = {g: (z[g], dz[g], energy[g], [LinearTerm(c, A, z[g]) for c, A in energy[g]]) for g in groups}
+    structure = _describe(name, spec.type, span, groups, [V[g].shape[1] for g in groups],
+                          [f"lambda_{g.lower()}" for g in groups], storage, -sps.csr_matrix(Jr), losses)
     handle = ReducedFields(b, {l: (s,) for l, (s, _) in fields.items()}, V, offsets, group_of, z["A"], z["B"],
-                           rows, scale, state_map, boundary_coord)
-    d = DiracBuilder(name, spec.type, span)
-    for pname, a_local, end, derivative, domain in ports:
-        port = b.add_port(name, pname, domain, 1, span=span)
-        dof = _end_dof(fields[a_local][0], end, derivative)
-        b.define(port.f[0], handle.trace(a_local, dof))
-        handle.load(a_local, dof, port.e[0])
-        d.port(port)
-        d.rel(port.f[0] - d.mult(f"trace_{pname}"))
-    if ports:
-        d.register(b, kind="port_projection", note="modal truncation of the discretized PDE (Petrov–Galerkin with "
-                   "the energy matrices): skew interconnection by construction; ports certified through traces")
+                           rows, scale, state_map, boundary_coord, structure)
+    _boundary_ports(b, name, span, handle, ports, "modal truncation of the discretized PDE (Petrov–Galerkin "
+                    "with the energy matrices): skew interconnection by construction; ports certified through "
+                    "traces")
     return handle

@@ -140,6 +140,34 @@ def lower_moving_beam(b, ctx, name, spec, path):
         for i in range(n_el + 1):
             b.initial_relations.append((f"{name}.rigid_start.slope[{i}]",
                                         {p.e[2 * i + 1]: 1.0, vL: -1.0 / mesh.length, v0: 1.0 / mesh.length}))
+    # The complete description (compared with the rows above by phc.checks.rows): the
+    # rigid part (storage q with ∂H/∂q = 0, p_t with ∂H/∂p_t = p_t/m) interconnected with
+    # the flexible part's structure (co-energies λ, traces v0, vL, slopes) through R⁴,
+    # modulated by the chord frame (t, n) and by ω = (vL − v0)/L — the paper's section 5.1.
+    ds = fields.structure.d
+    f_q, e_q = zip(*(ds.storage_pair(f"q{k}", x, dx, sp.Integer(0)) for k, (x, dx) in enumerate(q)))
+    f_pt, e_pt = ds.storage_pair("p_t", pt, dpt, pt / mass)
+    for pname in ("p0", "pf", "m0", "mf"):
+        ds.port(ports[pname])
+    w0, wL = fields.d_trace("p", dof0), fields.d_trace("p", dofL)
+    omega_d = (wL - w0) / L
+    eq0, eqf = sp.Matrix(e_q[:2]), sp.Matrix(e_q[2:])
+    for k in range(2):
+        ds.rel(f_q[k] - (e_pt * tv[k] + w0 * nv[k]), label=f"kinematics[{k}]")
+        ds.rel(f_q[2 + k] - (e_pt * tv[k] + wL * nv[k]), label=f"kinematics[{2 + k}]")
+        ds.rel(ports["p0"].f[k] - (e_pt * tv[k] + w0 * nv[k]), label=f"p0.flow[{k}]")
+        ds.rel(ports["pf"].f[k] - (e_pt * tv[k] + wL * nv[k]), label=f"pf.flow[{k}]")
+    ds.rel(f_pt + tv.dot(eq0 + e0) + tv.dot(eqf + ef) - frame * omega_d * rho.expr * fields.d_pair("p", r),
+           label="tangential_momentum")
+    if frame:
+        fields.d_load_vector("p", r, omega_d * e_pt * rho.expr)
+    fields.d_load("p", dof0, nv.dot(eq0 + e0))
+    fields.d_load("p", dofL, nv.dot(eqf + ef))
+    ds.rel(ports["m0"].f[0] - fields.d_trace("p", slope0), label="m0.flow")
+    fields.d_load("p", slope0, ports["m0"].e[0])
+    ds.rel(ports["mf"].f[0] - fields.d_trace("p", slopeL), label="mf.flow")
+    fields.d_load("p", slopeL, ports["mf"].e[0])
+    structure = ds.describe(states=(q0x, q0y, qfx, qfy))
     # Certification: flows of the four ports range over (λ_t t + λ_0 n, λ_t t + λ_f n, λ_a, λ_b).
     d = DiracBuilder(name, "moving_beam", span)
     lt, l0, lf, la, lb = (d.mult(x) for x in ("lt", "l0", "lf", "la", "lb"))
@@ -151,7 +179,8 @@ def lower_moving_beam(b, ctx, name, spec, path):
     d.rel(ports["m0"].f[0] - la)
     d.rel(ports["mf"].f[0] - lb)
     d.register(b, states=(q0x, q0y, qfx, qfy), kind="port_projection",
-               note="moving beam: rigid part ⊕ flexible part through R⁴ (the paper's section 5.1)")
+               note="moving beam: rigid part ⊕ flexible part through R⁴ (the paper's section 5.1)",
+               structure=structure)
 
 
 def _lower_rigid_link(b, ctx, name, spec, path):
@@ -216,6 +245,29 @@ def _lower_rigid_link(b, ctx, name, spec, path):
     b.rigid_constraints.append((name, ctx, path, list(qv), cq, sp.zeros(0, 4), ["chord_length"], []))
     b.hamiltonian.append((pv.T * v)[0, 0] / 2)
     b.extra_outputs[f"{name}.omega"] = omega
+    # The complete description (compared with the rows above by phc.checks.rows): the
+    # paper's section 3 kernel representation with Z = I, storage q (∂H/∂q = 0) and p
+    # (∂H/∂p = v = M⁻¹p), the chord constraint in velocity form with its multiplier.
+    ds = DiracBuilder(name, "moving_beam", span)
+    f_q, e_q = zip(*(ds.storage_pair(f"q{k}", x, dx, sp.Integer(0)) for k, (x, dx) in enumerate(q)))
+    f_p, e_p = zip(*(ds.storage_pair(f"p{k}", pk, dpk, v[k]) for k, (pk, dpk) in enumerate(mom)))
+    mu = ds.mult("mu")
+    for pname in ("p0", "pf", "m0", "mf"):
+        ds.port(ports[pname])
+    vel = sp.Matrix(e_p)
+    for k in range(4):
+        ds.rel(f_q[k] - vel[k], label=f"kinematics[{k}]")
+    balance = (sp.Matrix(f_p) + sp.Matrix(e_q) + cq.T * mu + Bp0 * sp.Matrix(ports["p0"].e)
+               + Bpf * sp.Matrix(ports["pf"].e) + Bm * (ports["m0"].e[0] + ports["mf"].e[0]))
+    for k in range(4):
+        ds.rel(balance[k], label=f"momentum[{k}]")
+    ds.rel((cq * vel)[0, 0], label="chord_length.velocity")
+    for k in range(2):
+        ds.rel(ports["p0"].f[k] - vel[k], label=f"p0.flow[{k}]")
+        ds.rel(ports["pf"].f[k] - vel[2 + k], label=f"pf.flow[{k}]")
+    ds.rel(ports["m0"].f[0] - (Bm.T * vel)[0, 0], label="m0.flow")
+    ds.rel(ports["mf"].f[0] - (Bm.T * vel)[0, 0], label="mf.flow")
+    structure = ds.describe(states=tuple(qv))
     d = DiracBuilder(name, "moving_beam", span)
     l0x, l0y, lfx, lfy = (d.mult(x) for x in ("l0x", "l0y", "lfx", "lfy"))
     for pname in ("p0", "pf", "m0", "mf"):
@@ -229,7 +281,8 @@ def _lower_rigid_link(b, ctx, name, spec, path):
     d.rel(ports["m0"].f[0] - (Bm.T * lv)[0, 0])
     d.rel(ports["mf"].f[0] - (Bm.T * lv)[0, 0])
     d.register(b, states=tuple(qv), kind="port_projection",
-               note="moving beam with flexibility off: a rigid link (the paper's section 3, with the chord constraint)")
+               note="moving beam with flexibility off: a rigid link (the paper's section 3, with the chord constraint)",
+               structure=structure)
 
 
 def lower_crank_wheel(b, ctx, name, spec, path):

@@ -166,9 +166,9 @@ def lower_pde1d(b, ctx, name, spec, path):
     if N == 2 and np.abs(P[1]).max(initial=0) > 0:
         b.error("PHC-E159", f"`P[1]` of `{name}` must vanish for the N = 2 scheme", ctx, (*path, "P", 1))
         return
-    rows = _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b,
-                              [(a, bb, sp.Integer(int(s)) if float(s).is_integer() else sp.Float(s))
-                               for a, bb, s in couplings], skew, [], order=N, dissipation=dissipation)
+    handle = _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b,
+                                [(a, bb, sp.Integer(int(s)) if float(s).is_integer() else sp.Float(s))
+                                 for a, bb, s in couplings], skew, [], order=N, dissipation=dissipation)
     # Natural flows: traces of e_a (and slopes for N = 2) in the order of γ.
     nat = [(spec.variables[i], "b" if blk < N else "a", blk % N) for blk in range(2 * N) for i in range(d)]
     cols = [c for c, (var, _, _) in enumerate(nat) if var in fields_a]
@@ -187,18 +187,25 @@ def lower_pde1d(b, ctx, name, spec, path):
     from phc.library.dirac import DiracBuilder
 
     d = DiracBuilder(name, "pde1d", span)
+    ds = handle.structure.d  # the complete description: the same port relations on its co-energies λ
     for port in ports:
         d.port(port)
+        ds.port(port)
     lam = {c: d.mult(f"trace[{c}]") for c in cols}
     for k, port in enumerate(ports):
         d.rel(port.f[0] - sum((float(T[k, i]) * lam[c] for i, c in enumerate(cols) if T[k, i]), sp.Integer(0)))
-    d.register(b, kind="port_projection", note="discretized PDE: ports certified through im W_f on the traces")
+        ds.rel(port.f[0] - sum((float(T[k, i]) * handle.d_trace(nat[c][0], _end_dof(fields_a[nat[c][0]][0].space,
+                                                                                       nat[c][1], nat[c][2]))
+                                for i, c in enumerate(cols) if T[k, i]), sp.Integer(0)), label=f"{spec.ports[k]}.flow")
     # e_nat = Tᵀ e_∂ enters the row of each natural trace DOF.
     for c_idx, c in enumerate(cols):
         var, end, deriv = nat[c]
         fld = fields_a[var][0]
-        row = rows[var][_end_dof(fld.space, end, deriv)]
+        dof = _end_dof(fld.space, end, deriv)
         contribution = sum((float(T[k, c_idx]) * ports[k].e[0] for k in range(nd) if T[k, c_idx]), sp.Integer(0))
         if contribution != 0:
-            b.add_to_row(row, contribution)
+            handle.load(var, dof, contribution)
+            handle.d_load(var, dof, contribution)
+    d.register(b, kind="port_projection", note="discretized PDE: ports certified through im W_f on the traces",
+               structure=ds.describe())
 
