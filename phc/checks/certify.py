@@ -138,8 +138,8 @@ class Certificate:
         if self.rows is not None:
             r = self.rows
             lines.append(f"rows against descriptions: {len(r.compared)} component(s) match"
-                         + (f"; {len(r.not_compared)} described by their ports (certified by the energy balance)"
-                            if r.not_compared else "")
+                         + (f"; {len(r.not_compared)} not compared, certified by the energy balance ("
+                            + ", ".join(f"{c}: {w}" for c, w in r.not_compared) + ")" if r.not_compared else "")
                          + ("; inconclusive: " + ", ".join(f"{c} ({w})" for c, w in r.inconclusive)
                             if r.inconclusive else ""))
         if len(self.parts) > 1:

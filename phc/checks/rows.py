@@ -90,7 +90,7 @@ class RowsCertificate:
     def summary(self) -> str:
         text = f"rows match the description for {len(self.compared)} component(s)"
         if self.not_compared:
-            text += f"; {len(self.not_compared)} certified by the energy balance only"
+            text += f"; {len(self.not_compared)} not compared (certified by the energy balance only)"
         return text
 
 
