@@ -34,6 +34,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 import phc  # noqa: E402
+from phc.files import allow_paths  # noqa: E402
 
 MODEL = ROOT / "models" / "flexible_slider_crank.yaml"
 STEP, T_END, N_OUT = 2.0e-5, 0.1, 201
@@ -61,7 +62,8 @@ def write_scene(directory: Path, index: int, effects) -> Path:
 
 
 def run(path: Path, repeat: int = 3):
-    compiled = phc.compile_model(path)
+    with allow_paths([MODEL.parent]):  # the scenes are written to a temporary directory
+        compiled = phc.compile_model(path)
     best, result = np.inf, None
     for _ in range(repeat):
         t0 = time.process_time()

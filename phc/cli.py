@@ -772,7 +772,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, help="seed of the sampler (default 0)")
     p.add_argument("--sampling", choices=("lhs", "random"), help="Latin hypercube (default) or random")
     p.add_argument("--executor", choices=("local", "dask"), default="local",
-                   help="local process pool (default) or Dask distributed (needs phc[cluster])")
+                   help="local process pool (default) or Dask distributed (needs the `cluster` extra: pip install 'port-hamiltonian-compiler[cluster]')")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="Dask scheduler address (tcp://host:8786) or scheduler file; default: a LocalCluster")
     p.add_argument("--workers", type=int, help="worker processes of the local pool or LocalCluster (default: "
@@ -787,7 +787,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--solver", choices=_solver_names(), help="integrator (default: the model's)")
     p.add_argument("--no-certify", action="store_true",
                    help="skip the certificate of the compiled equations (power balance, passivity)")
-    p.add_argument("--plot", metavar="OUT.png", help="draw an output against one or two parameters (needs phc[plot])")
+    p.add_argument("--plot", metavar="OUT.png", help="draw an output against one or two parameters (needs the `plot` extra: pip install 'port-hamiltonian-compiler[plot]')")
     p.add_argument("--plot-output", metavar="COLUMN", help="column to draw (default: the first output's max)")
     p.add_argument("--plot-against", metavar="P1[,P2]", help="swept parameter(s) on the axes (default: the first "
                    "one or two that vary)")

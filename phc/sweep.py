@@ -18,7 +18,7 @@ How a sweep runs
   file. A pickle is code to whoever loads it, so it travels only from this process to the
   workers it starts or the Dask cluster the user names (see docs/security.md).
 * **Executors**: a local process pool (default; one BLAS thread per worker) or Dask
-  distributed (``pip install "phc[cluster]"``): a ``LocalCluster`` or a running scheduler.
+  distributed (``pip install "port-hamiltonian-compiler[cluster]"``): a ``LocalCluster`` or a running scheduler.
   The same function runs every point in both.
 * **Robustness**: a point that fails (the solver stops, the start is inconsistent, a
   parameter makes the model impossible to evaluate) is a row with ``success`` false and
@@ -70,9 +70,9 @@ RUN_COLUMNS = ("success", "message", "t_final", "steps", "n_residual_evals", "n_
                "energy_balance_error", "energy_balance_relative", "constraint_drift", "velocity_drift")
 MACHINE_COLUMNS = ("cpu_time_s", "wall_time_s", "attempts", "worker")
 """Columns that differ between two runs of the same point (timing, where it ran)."""
-INSTALL_CLUSTER = 'pip install "phc[cluster]"'
-INSTALL_PARQUET = 'pip install "phc[parquet]"'
-INSTALL_PLOT = 'pip install "phc[plot]"'
+INSTALL_CLUSTER = 'pip install "port-hamiltonian-compiler[cluster]"'
+INSTALL_PARQUET = 'pip install "port-hamiltonian-compiler[parquet]"'
+INSTALL_PLOT = 'pip install "port-hamiltonian-compiler[plot]"'
 
 
 class SweepSetupError(SimulationSetupError):
