@@ -18,7 +18,8 @@ Order matters:
 4. top-level exposed ports get their inputs (default: free, zero effort);
 5. the energy accumulator ``Ė = P_ports + P_diss`` so that
    ``H(t) − H(0) + E(t)`` is the energy-balance residual (the paper's remark on the
-   energy balance).
+   energy balance); P_ports holds the work of moving constraints (−λᵀc_t, booked by the
+   rigid lowerer) and an explicit time dependence of H (−∂H/∂t).
 """
 
 from __future__ import annotations
@@ -215,6 +216,11 @@ def _assemble(b, ctx, inter) -> Optional[Dae]:
     dissipation_terms = tuple((component, final(d), span) for component, d, span in b.dissipation)
     dissipation = sp.Add(*[d for _, d, _ in dissipation_terms])
     port_power = final(sp.Add(port_power, *b.source_power))
+    if T in hamiltonian.free_symbols:
+        # An explicit time dependence of H (a potential V(q, t), a mass matrix M(t), a
+        # coefficient k(t)) is energy exchanged with whatever varies it: dH/dt = ∇H·ẏ + ∂H/∂t,
+        # so the model delivers −∂H/∂t and H(t) − H(0) + E(t) stays the balance residual.
+        port_power = port_power - sp.diff(hamiltonian, T)
     energy = sp.Symbol("energy.supplied", real=True)
     denergy = sp.Symbol("der(energy.supplied)", real=True)
     variables.append(Variable(energy.name, energy, True, "energy", "energy", denergy, None))
@@ -308,6 +314,17 @@ def _propagate_positions(b, connections) -> None:
         for a_name, outputs, Q in b.position_maps:
             nb = neighbour.get(a_name)
             if nb is None or nb.position is None or b.ports[outputs[0][0]].position is not None:
+                continue
+            if T in Q.free_symbols:
+                # d/dt (Q(t) r) = Q ṙ + Q̇ r is not the flow Q f the transform passes on: the
+                # position-level joint would contradict the velocity level (GGL would hide it).
+                port = b.ports[a_name]
+                b.diags.append(Diagnostic(
+                    "PHC-E127", f"`Q` of `{port.component}` depends on the time `t`, and the port "
+                    f"`{nb.name}` connected to it has a position: the positions Q(t) r it would pass on "
+                    "do not move with the flows Q(t) f", span=port.span, path=port.component,
+                    hint="use a constant `Q` where positions pass through, or drop the `position` of the "
+                    "neighbouring port"))
                 continue
             r = Q * sp.Matrix(nb.position)
             for out_name, lo, hi in outputs:

@@ -36,7 +36,7 @@ import scipy.linalg as sla
 import sympy as sp
 
 from phc.checks.graph import component_graph, component_of, independent_parts, kinematic_loops, traversal_order
-from phc.dae import Dae, DiracRelations
+from phc.dae import T, Dae, DiracRelations
 from phc.diagnostics import Diagnostic, DiagnosticList
 
 RANK_RTOL = 1e-9
@@ -205,9 +205,16 @@ def _samples(dae: Dae, n_random: int, seed: int) -> list[dict]:
     rng = np.random.default_rng(seed)
     states = sorted(states, key=str)  # deterministic order (reports list states in it)
     first = {s: sp.Float(float(top.initial.get(s, 0.3))) for s in states}
+    # Time-dependent structures (a rheonomic constraint, a modulation in t) are certified at
+    # the start and at random times of the simulation interval.
+    t0 = float(dae.options.get("t_start", 0.0) or 0.0)
+    t1 = float(dae.options.get("t_end", t0 + 1.0) or t0 + 1.0)
+    first[T] = sp.Float(t0)
     samples = [first]
     for _ in range(n_random):
-        samples.append({s: sp.Float(float(x)) for s, x in zip(states, rng.uniform(-1, 1, len(states)))})
+        point = {s: sp.Float(float(x)) for s, x in zip(states, rng.uniform(-1, 1, len(states)))}
+        point[T] = sp.Float(float(t0 + (t1 - t0) * rng.uniform(0, 1)))
+        samples.append(point)
     return samples
 
 
@@ -237,7 +244,7 @@ def certify(dae: Dae, n_random: int = 2, seed: int = 0) -> Certificate:
         cert = ComponentCertificate(rel.component, rel.kind, comp.n, note=rel.note)
         order, rows = comp.port_rows()
         for k, point in enumerate(samples):
-            local = {s: v for s, v in point.items() if s in rel.states}
+            local = {s: v for s, v in point.items() if s in rel.states or s == T}
             D = comp.structure(local)
             if rel.kind != "port_projection":
                 f, e = D[:comp.n], D[comp.n:]
@@ -475,14 +482,16 @@ def _rank_drops_on(M, factor, states, rng, full_rank) -> bool:
 
 
 def _rigid_ranks(top, point, diags) -> None:
-    """c'(q) and A(q) of full row rank at the initial configuration; name dependent rows."""
+    """c_q(q, t) and A(q, t) of full row rank at the initial configuration and time; name
+    dependent rows."""
     for name, ctx, path, q, cq, A, labels_c, labels_a in top.rigid_constraints:
         for mat, labels, what in ((cq, labels_c, "position constraints c'(q)"),
                                   (A, labels_a, "velocity constraints A(q)")):
             if not mat.rows:
                 continue
-            M = np.array(mat.xreplace(top.parameter_defaults).xreplace(
-                {s: point.get(s, sp.Float(0.3)) for s in q}).evalf(), dtype=float)
+            values = {s: point.get(s, sp.Float(0.3)) for s in q}
+            values[T] = point.get(T, sp.Float(0.0))
+            M = np.array(mat.xreplace(top.parameter_defaults).xreplace(values).evalf(), dtype=float)
             dependent = []
             for i in range(M.shape[0]):
                 rows = [j for j in range(i + 1) if j not in dependent]

@@ -145,8 +145,11 @@ def _dHdt(mod, p, t, y, yp) -> tuple[float, float]:
     h = 1e-4 * ny / nyp if nyp > 0 else 1e-4
     h = min(h, 1e-3 * max(1.0, abs(t)) if nyp == 0 else h)
 
-    def H(s):  # ∇H·ẏ: an explicit time dependence of H is not part of the balance
-        return mod.hamiltonian(t, y + s * yp, p)
+    if mod.hamiltonian(t + 1e-3, y, p) != mod.hamiltonian(t, y, p):
+        h = min(h, 1e-4 * max(1.0, abs(t)))  # H depends on t: the step also moves t
+
+    def H(s):  # the total dH/dt: an explicit ∂H/∂t is in P_ports (assembly books −∂H/∂t there)
+        return mod.hamiltonian(t + s, y + s * yp, p)
 
     d1 = (H(h) - H(-h)) / (2 * h)
     d2 = (H(h / 2) - H(-h / 2)) / h

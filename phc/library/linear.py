@@ -32,6 +32,7 @@ from phc.dae import LinearTerm, QuadraticForm
 from phc.files import SIZE_LIMIT_ENV, FileAccess, FileRefused, size_limit
 from phc.library.dirac import DiracBuilder
 from phc.library.phs import local_scope
+from phc.library.timing import refuse_time
 
 
 MAX_NPZ_MEMBERS = 4096
@@ -301,6 +302,10 @@ def lower_linear_phs(b, ctx, name, spec, path):
         else:
             mats[key] = _matrix(b, ctx, ref, arrays, (*path, key), (n, n), f"`{key}`")
     scale = {key: b.expr(ctx, spec.scale.get(key, 1), (*path, "scale", key), scope) for key in ("J", "R", "Q", "E")}
+    for key in spec.scale:  # the sparse blocks' values are computed once per parameter vector
+        if refuse_time(b, ctx, name, scale[key], (*path, "scale", key), f"the scale of `{key}`",
+                       "scales are parameters: a time-varying linear system is a `phs` (or a `modulation`)"):
+            return
     if any(m is None for m in mats.values()):
         return
     J, R, Q, E = mats["J"], mats["R"], mats["Q"], mats["E"]

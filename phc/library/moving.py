@@ -28,6 +28,7 @@ from phc.discretize.fem1d import _GAUSS_W
 from phc.discretize.fem1d import DP1, H3
 from phc.library.beams import FullFields, _inverse, _lower_fields, prepare
 from phc.library.dirac import DiracBuilder, emit
+from phc.library.timing import refuse_time
 
 
 def _deflection_functional(mesh, kappa_space, xi_star: float) -> np.ndarray:
@@ -200,6 +201,11 @@ def _lower_rigid_link(b, ctx, name, spec, path):
     n_errors = len(b.diags.errors)
     rho = b.expr(ctx, spec.rhoA, (*path, "rhoA"), scope)
     length = b.expr(ctx, spec.length, (*path, "length"), scope)
+    # As with flexibility on (where `t` is refused too): a chord length in t would need the
+    # constraint's c_t, a mass in t is not a beam.
+    why = "the beam's length and mass are constant (with flexibility on or off)"
+    refuse_time(b, ctx, name, rho, (*path, "rhoA"), "`rhoA`", why)
+    refuse_time(b, ctx, name, length, (*path, "length"), "the `length`", why)
     if len(b.diags.errors) > n_errors:
         return
     b.leave_out(name, f"elastic deformation ({spec.elements} elements: curvature and transverse momentum)",
@@ -292,6 +298,11 @@ def lower_crank_wheel(b, ctx, name, spec, path):
     radius = b.expr(ctx, spec.radius, (*path, "radius"), scope)
     inertia = b.expr(ctx, spec.inertia, (*path, "inertia"), scope)
     center = b.vector(ctx, spec.center, (*path, "center"), scope, 2, "`center`")
+    # The pin's position q_O + r a(θ) must have the pin flow r a⊥ θ̇ as its rate: a radius or
+    # center moving in time would be kept at position level but not in the flows.
+    why = "the wheel's geometry is fixed; move the wheel with a `rigid` body and a constraint c(q, t) instead"
+    refuse_time(b, ctx, name, radius, (*path, "radius"), "the `radius`", why)
+    refuse_time(b, ctx, name, center, (*path, "center"), "the `center`", why)
     theta, dtheta = b.add_state(name, "theta", span)
     ptheta, dptheta = b.add_state(name, "p_theta", span)
     a = sp.Matrix([sp.cos(theta), sp.sin(theta)])

@@ -3,15 +3,26 @@
 State ``x_r = (q, p)`` with ``p = M(q) v`` and ``H = ½ pᵀv + V(q)``. The lowered rows are::
 
     q̇ − Z(q) v                                                    = 0   (kinematics)
-    ṗ + Zᵀ(∇V + c'ᵀλ − ½ vᵀ∂M/∂q v) + F_d + G(p) v + Aᵀμ + Σ B_i e_i = 0   (momentum)
-    c'(q) Z(q) v = 0,   A(q) v = 0                                      (velocity level)
+    ṗ + Zᵀ(∇V + c_qᵀλ − ½ vᵀ∂M/∂q v) + F_d + G(p) v + Aᵀμ + Σ B_i e_i = 0   (momentum)
+    c_q(q, t) Z(q) v + c_t(q, t) = 0,   A(q, t) v = 0                       (velocity level)
     f_i = B_i(q)ᵀ v                                                     (port flows)
 
-and the position constraints ``c(q) = 0`` are registered as invariants; assembly keeps
+and the position constraints ``c(q, t) = 0`` are registered as invariants; assembly keeps
 them by Gear–Gupta–Leimkuhler stabilization (the kinematics row becomes
-``q̇ − Zv + c'(q)ᵀη = 0``), which gives an index-2 system whose position constraints do
+``q̇ − Zv + c_qᵀη = 0``), which gives an index-2 system whose position constraints do
 not drift. The term ``−½ vᵀ∂M/∂q v`` is ``∂H/∂q`` at fixed p for configuration-dependent
 mass matrices (joint-coordinate models); it vanishes for the paper's constant M.
+
+Time (docs/constraints.md): a constraint c(q, t) that moves with time (rheonomic) has the
+velocity form ``c_q Z v + c_t = 0``; it does work on the body, ``dH/dt = λᵀc_t`` from its
+rows, which is booked as a port power ``−λᵀc_t`` (the model delivers it to whatever moves
+the constraint), so the energy balance ``H(t) − H(0) + E(t)`` closes. ``A(q, t) v = 0``
+stays homogeneous (an ideal constraint does no work: ``vᵀAᵀμ = 0`` for every t). ``M``,
+``V``, ``Z``, ``B``, ``damping`` and ``G`` may depend on t; an explicit time dependence of
+H (``M(t)``, ``V(q, t)``) is accounted for by assembly (``−∂H/∂t`` in the balance). Port
+positions r(q) may not depend on t, and every field is checked for the variables it may
+depend on (a velocity in ``V`` would drop ``∂V/∂p``): anything else is a located error
+(PHC-E126).
 """
 
 from __future__ import annotations
@@ -19,9 +30,11 @@ from __future__ import annotations
 import numpy as np
 import sympy as sp
 
+from phc.dae import T
 from phc.effects import is_on, summed_terms
 from phc.library.dirac import DiracBuilder
 from phc.library.phs import local_scope, numeric_defaults
+from phc.library.timing import sample_times
 
 
 def lower_rigid(b, ctx, name, spec, path):
@@ -70,7 +83,11 @@ def lower_rigid(b, ctx, name, spec, path):
          else sp.zeros(nv, nv))
     if len(b.diags.errors) > n_errors:
         return
-    _check_mass_matrix(b, ctx, name, path, M, q)
+    _check_dependencies(b, ctx, name, spec, path, q, p, v, M, Z, V, c, A, Fd, G)
+    if len(b.diags.errors) > n_errors:
+        return
+    times = sample_times(ctx, 3)
+    _check_mass_matrix(b, ctx, name, path, M, q, times)
 
     # Velocities: explicit for constant M, implicit rows otherwise.
     m_depends_on_q = bool(M.free_symbols & set(q))
@@ -93,6 +110,7 @@ def lower_rigid(b, ctx, name, spec, path):
     mu = [b.add_algebraic(name, f"mu[{i}]", "multiplier", span) for i in range(A.rows)]
     gradV = sp.Matrix([sp.diff(V, qi) for qi in q])
     cq = c.jacobian(qv) if len(c) else sp.zeros(0, nq)
+    ct = c.diff(T) if len(c) else sp.zeros(0, 1)  # a moving (rheonomic) constraint: c_q Z v + c_t = 0
     e_q = gradV + (cq.T * sp.Matrix(lam) if len(c) else sp.zeros(nq, 1))
     if m_depends_on_q:
         e_q -= sp.Matrix([(vv.T * sp.diff(M, qi) * vv)[0, 0] / 2 for qi in q])
@@ -101,23 +119,30 @@ def lower_rigid(b, ctx, name, spec, path):
     for pname, pspec in spec.ports.items():
         ppath = (*path, "ports", pname)
         B = b.matrix(ctx, pspec.B, (*ppath, "B"), scope, (nv, pspec.dimension), "`B`")
+        _refuse(b, ctx, name, B, (*ppath, "B"), "the port map `B`", set(q) | {T}, q, p, v)
         position = None
         if pspec.position is not None:
             position = b.vector(ctx, pspec.position, (*ppath, "position"), scope, pspec.dimension, "`position`")
+            _refuse(b, ctx, name, sp.Matrix(position), (*ppath, "position"), "a port `position`", set(q), q, p, v,
+                    hint="a port position r(q) moves with the body only (d/dt r = Bᵀv); prescribe a motion in "
+                    "time with a constraint c(q, t) = 0 or a `flow_source` with `position`")
         port = b.add_port(name, pname, pspec.domain, pspec.dimension, pspec.frame, span, position)
         vel = B.T * vv
         for k in range(pspec.dimension):
             b.define(port.f[k], vel[k])
         force += B * sp.Matrix(port.e)
         if position is not None and len(b.diags.errors) == n_errors:
-            _check_port_position(b, ctx, name, pname, ppath, sp.Matrix(position), qv, Z, B)
+            _check_port_position(b, ctx, name, pname, ppath, sp.Matrix(position), qv, Z, B, times)
 
-    # Certified with the velocity form of the position constraints, c'(q)Z v = 0, next to
-    # A(q) v = 0: what the ports can do is restricted by both.
+    # Certified with the velocity form of the position constraints, c_q Z v + c_t = 0, next
+    # to A(q, t) v = 0: what the ports can do is restricted by both. The Dirac structure is
+    # the linear part; c_t is an affine part of the relations (a prescribed motion, like a
+    # source's value), so the rows check compares the rows with it too.
     A_cert = sp.Matrix.vstack(cq * Z, A) if len(c) else A
+    shift = sp.Matrix.vstack(ct, sp.zeros(A.rows, 1)) if len(c) else sp.zeros(A.rows, 1)
     grad_q = gradV - (sp.Matrix([(vv.T * sp.diff(M, qi) * vv)[0, 0] / 2 for qi in q]) if m_depends_on_q
                       else sp.zeros(nq, 1))
-    _register_dirac(b, name, span, spec, q, dq, p, dp, v, grad_q, M, Fd, Z, A_cert, G,
+    _register_dirac(b, name, span, spec, q, dq, p, dp, v, grad_q, M, Fd, Z, A_cert, shift, G,
                     [b.ports[f"{name}.{pn}"] for pn in spec.ports],
                     [b.matrix(ctx, ps.B, (*path, "ports", pn, "B"), scope, (nv, ps.dimension), "`B`")
                      for pn, ps in spec.ports.items()], (pv.T * vv)[0, 0] / 2 + V)
@@ -129,7 +154,12 @@ def lower_rigid(b, ctx, name, spec, path):
     mom = sp.Matrix(dp) + force
     for i in range(nv):
         b.add_equation(mom[i], name, "dynamics", f"momentum[{i}]", span)
-    vel_c = cq * Z * vv if len(c) else sp.zeros(0, 1)
+    vel_c = cq * Z * vv + ct if len(c) else sp.zeros(0, 1)
+    if len(c) and any(x != 0 for x in ct):
+        # The moving constraint's power on the body is λᵀc_t (dH/dt from the rows above);
+        # the model delivers −λᵀc_t to whatever drives it (the paper's energy balance with
+        # the constraint as a port, see the module docstring).
+        b.source_power.append(-sum((lam[i] * ct[i] for i in range(len(c))), sp.Integer(0)))
     for i in range(len(c)):
         cspan = ctx.smap.locate((*path, "constraints", i))
         b.add_equation(vel_c[i], name, "velocity_constraint", f"constraints[{i}].velocity", cspan)
@@ -142,17 +172,22 @@ def lower_rigid(b, ctx, name, spec, path):
         b.add_invariant(av[i], name, f"velocity_constraints[{i}]", cspan, velocity=True)
     del dq_minus
     b.hamiltonian.append((pv.T * vv)[0, 0] / 2 + V)
+    if T in M.free_symbols and (m_depends_on_q or nv > 6):
+        # H = ½pᵀv + V with v an unknown of the rows M(q, t) v = p: assembly's −∂H/∂t of that
+        # expression sees V_t only; the kinetic part's ∂/∂t at fixed (q, p) is −½vᵀM_t v.
+        b.source_power.append((vv.T * M.diff(T) * vv)[0, 0] / 2)
     b.dissipation.append((name, (vv.T * Fd)[0, 0],
                           ctx.smap.locate((*path, "damping")) if spec.damping is not None else span))
 
 
-def _register_dirac(b, name, span, spec, q, dq, p, dp, v, grad_q, M, Fd, Z, A, G, ports, Bs, H):
+def _register_dirac(b, name, span, spec, q, dq, p, dp, v, grad_q, M, Fd, Z, A, shift, G, ports, Bs, H):
     """The description of a rigid body, the paper's kernel representation of its Dirac
     structure (section 3): flows (q̇, ṗ, v_R, port flows), efforts (∂H/∂q, v, F_R, port
-    efforts), multipliers μ for the velocity-level constraints ``A(q) v = 0`` (with the
-    position constraints in velocity form c'(q)Z v = 0 stacked into A). Storage is bound
-    to the states (``e_p = v`` with ``M(q) v = p``), the resistive pair to the damping law
-    ``F_R = F_d(q, v_R)``."""
+    efforts), multipliers μ for the velocity-level constraints ``A(q, t) v + shift = 0``
+    (with the position constraints in velocity form c_q Z v + c_t = 0 stacked into A; the
+    affine part `shift` = (c_t, 0) is the prescribed motion of a rheonomic constraint).
+    Storage is bound to the states (``e_p = v`` with ``M(q) v = p``), the resistive pair
+    to the damping law ``F_R = F_d(q, v_R)``."""
     d = DiracBuilder(name, "rigid", span)
     nq, nv = len(q), len(p)
     v_lf, F_le = [], []
@@ -174,7 +209,7 @@ def _register_dirac(b, name, span, spec, q, dq, p, dp, v, grad_q, M, Fd, Z, A, G
         d.rel(row)
     for i in range(nv):
         d.rel(v_r[i] - v_le[i])
-    for row in (A * vle if A.rows else []):
+    for row in (A * vle + shift if A.rows else []):
         d.rel(row)
     force = sp.Matrix(F_lf) + Z.T * sp.Matrix(F_le) + G * vle + sp.Matrix(F_r)
     if A.rows:
@@ -195,13 +230,65 @@ def _register_dirac(b, name, span, spec, q, dq, p, dp, v, grad_q, M, Fd, Z, A, G
     d.register(b, states=tuple(q) + tuple(p))
 
 
-def _sample_points(q, n=3):
+def _sample_points(q, n=3, times=(0.0,)):
     rng = np.random.default_rng(1)
-    return [{qi: float(x) for qi, x in zip(q, rng.uniform(-1.0, 1.0, len(q)))} for _ in range(n)]
+    out = []
+    for k in range(max(n, len(times))):
+        point = {qi: float(x) for qi, x in zip(q, rng.uniform(-1.0, 1.0, len(q)))}
+        point[T] = float(times[k % len(times)])
+        out.append(point)
+    return out
 
 
-def _check_mass_matrix(b, ctx, name, path, M, q):
-    for point in _sample_points(q):
+_ALLOWED = {
+    # field: (the variables it may depend on besides parameters, its name in messages, its form)
+    "M": ("qt", "the mass matrix `M`", "M(q, t)"),
+    "Z": ("qt", "the kinematics matrix `Z`", "Z(q, t)"),
+    "V": ("qt", "the potential `V`", "V(q, t)"),
+    "constraints": ("qt", "a position constraint", "c(q, t)"),
+    "velocity_constraints": ("qt", "the velocity constraint matrix `velocity_constraints`", "A(q, t)"),
+    "damping": ("qpvt", "the damping force `damping`", "F_d(q, v, t)"),
+    "G": ("qpvt", "the gyroscopic matrix `G`", "G(q, p, t)"),
+}
+
+
+def _refuse(b, ctx, name, expr, path, what, allowed, q, p, v, hint=None) -> bool:
+    """A located error (PHC-E126) when `expr` depends on a variable outside `allowed`
+    (this component's q, p, v, or t); True when it was refused."""
+    syms = getattr(expr, "free_symbols", set())
+    labels = {**{s: f"the velocity `{s.name.rsplit('.', 1)[-1]}`" for s in v},
+              **{s: f"the momentum `{s.name.rsplit('.', 1)[-1]}`" for s in p},
+              **{s: f"the configuration variable `{s.name.rsplit('.', 1)[-1]}`" for s in q},
+              T: "the time `t`"}
+    bad = sorted((s for s in syms if s in labels and s not in allowed), key=str)
+    if not bad:
+        return False
+    b.error("PHC-E126", f"{what} of `{name}` depends on {labels[bad[0]]}, which it may not: it would be "
+            "dropped from the equations, not handled", ctx, path,
+            hint=hint or "see docs/constraints.md for what each field of a `rigid` component may depend on")
+    return True
+
+
+def _check_dependencies(b, ctx, name, spec, path, q, p, v, M, Z, V, c, A, Fd, G) -> None:
+    """Every field depends only on what it may (docs/constraints.md): a term that would be
+    silently dropped is refused instead."""
+    sets = {"q": set(q), "p": set(p), "v": set(v), "t": {T}}
+    fields = {"M": M, "Z": Z, "V": V, "velocity_constraints": A, "damping": Fd, "G": G}
+    for key, expr in fields.items():
+        letters, what, form = _ALLOWED[key]
+        allowed = set().union(*(sets[x] for x in letters))
+        _refuse(b, ctx, name, expr, (*path, key), what, allowed, q, p, v,
+                hint=f"{form}: write it in those variables" + (
+                    " (a potential of the momenta is not a potential: put kinetic energy in `M`)"
+                    if key == "V" else ""))
+    for i, ci in enumerate(c):
+        _refuse(b, ctx, name, ci, (*path, "constraints", i), _ALLOWED["constraints"][1], set(q) | {T}, q, p, v,
+                hint="a position constraint c(q, t) = 0 may not use velocities or momenta; velocity-level "
+                "constraints A(q, t) v = 0 go under `velocity_constraints` (as rows of A)")
+
+
+def _check_mass_matrix(b, ctx, name, path, M, q, times=(0.0,)):
+    for point in _sample_points(q, times=times):
         try:
             Mn = np.array(numeric_defaults(b, M.xreplace(point)).evalf(), dtype=float)
         except (TypeError, ValueError):
@@ -215,10 +302,10 @@ def _check_mass_matrix(b, ctx, name, path, M, q):
             return
 
 
-def _check_port_position(b, ctx, name, pname, ppath, r, qv, Z, B):
-    """d/dt r(q) must equal the port flow Bᵀv, i.e. ∂r/∂q · Z = Bᵀ, at sampled q."""
+def _check_port_position(b, ctx, name, pname, ppath, r, qv, Z, B, times=(0.0,)):
+    """d/dt r(q) must equal the port flow Bᵀv, i.e. ∂r/∂q · Z = Bᵀ, at sampled (q, t)."""
     D = r.jacobian(qv) * Z - B.T
-    for point in _sample_points(list(qv)):
+    for point in _sample_points(list(qv), times=times):
         try:
             Dn = np.array(numeric_defaults(b, D.xreplace(point)).evalf(), dtype=float)
         except (TypeError, ValueError):

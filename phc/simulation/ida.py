@@ -21,7 +21,7 @@ import scipy.sparse as sps
 
 from phc.errors import SimulationSetupError
 from phc.simulation.guard import ModelEvaluationError
-from phc.simulation.monitor import SingularityMonitor, check_scales
+from phc.simulation.monitor import SingularityMonitor, check_scales, diagnose_failure
 
 ALGEBRAIC_ATOL = 1e8
 """Absolute tolerance on algebraic variables: effectively removes them from the error test."""
@@ -35,11 +35,9 @@ MAX_ORDER = 5
 _STATUS_HINTS = {
     -1: "the solver took too many steps; raise `max_steps` or shorten the time span",
     -2: "the tolerances are too tight for double precision; loosen `rtol`/`atol`",
-    -3: "the error test failed repeatedly; the solution may be non-smooth (a discontinuous input) "
-        "or the model near a singular configuration",
-    -4: "the Newton iteration failed repeatedly; the constraint Jacobian may be singular here "
-        "(a configuration where the interconnection loses rank)",
 }
+"""Hints for failures whose cause the status says; error-test (-3) and Newton (-4) failures
+are diagnosed at the failure point (:func:`phc.simulation.monitor.diagnose_failure`)."""
 
 
 def _import_ida():
@@ -69,11 +67,14 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
         residual(t, y, yp, p, res)
 
     sparse = n > DENSE_LIMIT
+    last_cj = [0.0]  # cj = α/h of the last Jacobian: the step IDA was trying when it failed
     if sparse:
         def jacfn(t, y, yp, res, cj, JJ):
+            last_cj[0] = cj
             jacobian(t, y, yp, p, cj, JJ)
     else:
         def jacfn(t, y, yp, res, cj, JJ):
+            last_cj[0] = cj
             jacobian(t, y, yp, p, cj, buf)
             JJ.fill(0.0)
             JJ[rows, cols] = buf
@@ -96,9 +97,8 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
             options.update(eventsfn=eventsfn, num_events=events.n)
         solver = IDA(resfn, **options)
     t_out = np.asarray(t_out, dtype=float)
-    def scales(failed):
-        return check_scales(mod, np.asarray(y0, dtype=float), np.asarray(yp0, dtype=float),
-                            float(t_out[-1] - t_out[0]), rtol, atol, failed)
+    def scales(failed, upto=1):  # the states of the run so far (a system at rest at t0 may move later)
+        return check_scales(mod, ys[:upto], yps[:upto], float(t_out[-1] - t_out[0]), rtol, atol, failed)
 
     ys = np.empty((len(t_out), n))
     yps = np.empty((len(t_out), n))
@@ -115,6 +115,10 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     t_end = t_out[-1]
     t_last = float(t_out[0])
     h_last = 0.0
+    # A failure is diagnosed at the last state reached with a normal step (h > h_ref/10, h_ref
+    # the recent largest step, decaying 0.1 % a step): the steps collapse before IDA gives up.
+    h_ref = 0.0
+    normal = (float(t_out[0]), np.asarray(y0, dtype=float), np.asarray(yp0, dtype=float))
     monitor = SingularityMonitor(mod, p, names=names)
     monitor.h_floor = 1e-6 * float(t_out[-1] - t_out[0])
     monitor_every = 5 if n <= 60 else 20
@@ -126,13 +130,20 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
             if t_step != t_last:  # a onestep call after an interpolation may return without stepping
                 steps += 1
                 h_last, t_last = t_step - t_last, t_step
+                h_ref = max(h_last, 0.999 * h_ref)
             nfev, njev = getattr(res, "nfev", nfev), getattr(res, "njev", njev)
             if not res.success:
                 ok = False
-                hint = _STATUS_HINTS.get(int(res.status), "try tighter tolerances or check the model")
+                hint = _STATUS_HINTS.get(int(res.status))
+                if hint is None:  # diagnose before blaming: is the iteration matrix singular there?
+                    hint = diagnose_failure(mod, p, *normal, status=int(res.status), h_typical=h_ref,
+                                            h_fail=(1.0 / last_cj[0]) if last_cj[0] > 0 else h_last,
+                                            max_order=int(max_order or MAX_ORDER), rtol=rtol, atol=atol, names=names)
                 message = f"IDA failed at t = {float(res.t):.6g} (status {res.status}: {res.message}); {hint}"
                 break
             t_now = float(np.atleast_1d(res.t)[-1])
+            if h_last > 0.1 * h_ref:
+                normal = (t_now, np.atleast_2d(res.y)[-1], np.atleast_2d(res.yp)[-1])
             if monitor.enabled and (steps % monitor_every == 0):
                 warning = monitor.watch(t_now, np.atleast_2d(res.y)[-1], np.atleast_2d(res.yp)[-1], h_last)
                 if warning:
@@ -161,7 +172,7 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     except KeyboardInterrupt:
         ok, interrupted = False, True
         message = f"interrupted at t = {t_out[k - 1]:.6g}"
-    note = scales(not ok) if not message.startswith(("stopped at", "interrupted")) else None
+    note = scales(not ok, k) if not message.startswith(("stopped at", "interrupted")) else None
     if note:
         message = f"{message}; {note}"
     extra = {"event": event} if event is not None else {}

@@ -188,7 +188,10 @@ SPREAD = 1e8
 def check_scales(mod, y0, yp0, span, rtol, atol, failed: bool = False) -> Optional[str]:
     """A conditioning warning when the model's states are badly scaled for the tolerances.
 
-    The size of a differential variable is ``max(|y0|, |ẏ0|·span)``. States far below
+    `y0`, `yp0` are the start, or the states computed so far (one row per output time):
+    the check runs on the whole run, so a system at rest at t₀ whose states grow later is
+    not reported as tiny. The size of a differential variable is ``max(max_t |y|, |ẏ0|·span)``
+    (the rate at the start stands in for the motion a short run has not shown). States far below
     `atol` (a mass of 1e-9 kg moving at mm/s has momenta ~1e-12) are integrated without
     relative accuracy; states spanning many orders of magnitude, or an `rtol` close to
     machine precision, make the error test fail; these two are reported only with
@@ -197,7 +200,8 @@ def check_scales(mod, y0, yp0, span, rtol, atol, failed: bool = False) -> Option
     names = list(mod.VARIABLES)
     if "energy.supplied" in names:
         diff[names.index("energy.supplied")] = False
-    size = np.maximum(np.abs(y0), np.abs(yp0) * span)[diff]
+    ys, yps = np.atleast_2d(np.asarray(y0, dtype=float)), np.atleast_2d(np.asarray(yp0, dtype=float))
+    size = np.maximum(np.abs(ys).max(axis=0), np.abs(yps[0]) * span)[diff]
     labels = [names[j] for j in np.flatnonzero(diff)]
     if not (size > 0).any():
         return None
@@ -221,3 +225,147 @@ def check_scales(mod, y0, yp0, span, rtol, atol, failed: bool = False) -> Option
         return None
     return ("conditioning warning: " + "; ".join(notes) + ". Nondimensionalize the model (choose units in "
             "which the states are of order one) or set `atol` below the smallest state and `rtol` ≥ 1e-10")
+
+
+# ---------------------------------------------------------------------------------------
+# Why a variable-step run failed: diagnosed at the failure point before anything is blamed.
+
+DIAGNOSE_MAX = 1500
+"""Largest system whose iteration matrix is analysed (dense SVD) when a run fails."""
+MODES_MAX = 600
+"""Largest system whose linearized modes are computed (dense QZ) when a run fails."""
+LIGHT_DAMPING = 0.02
+"""Modes with damping ratio |Re λ|/|λ| below this count as undamped."""
+UNRESOLVED = 0.05
+"""ω·h above which an undamped mode is not resolved by the steps (BDF of order 3–5 is then
+not stable for it: its stability region leaves out part of the imaginary axis)."""
+
+
+def undamped_modes(mod, p, t, y, yp) -> Optional[np.ndarray]:
+    """Angular frequencies of the lightly damped modes of the DAE linearized at (t, y, ẏ):
+    the finite eigenvalues λ of ``F_ẏ λ v = −F_y v`` with ``|Re λ| < LIGHT_DAMPING·|λ|``.
+    None when the system is too large (:data:`MODES_MAX`)."""
+    n = mod.N
+    if n > MODES_MAX:
+        return None
+    rows, cols = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
+    buf = np.zeros(len(rows))
+    mod.jacobian(t, y, yp, p, 0.0, buf)
+    Fy = np.zeros((n, n))
+    Fy[rows, cols] = buf
+    mod.jacobian(t, y, yp, p, 1.0, buf)
+    Fyp = -Fy.copy()
+    Fyp[rows, cols] += buf
+    try:
+        lam = sla.eigvals(-Fy, Fyp)
+    except (np.linalg.LinAlgError, ValueError):
+        return None
+    lam = lam[np.isfinite(lam)]
+    scale = np.abs(Fy).max(initial=1.0) / max(np.abs(Fyp).max(initial=0.0), 1e-300)
+    lam = lam[np.abs(lam) < 1e8 * max(scale, 1.0)]  # infinite eigenvalues computed inexactly
+    light = lam[(np.abs(lam.imag) > 0) & (np.abs(lam.real) < LIGHT_DAMPING * np.abs(lam))]
+    return np.sort(np.abs(light.imag))[::-1]
+
+
+ROUND_OFF_WRMS = 0.2
+"""Weighted RMS norm of the round-off part of a Newton correction above which the
+tolerances ask for more than double precision gives (IDA's Newton test needs the
+correction's norm well below 0.33)."""
+
+
+def roundoff_correction(mod, p, t, y, yp, h, rtol, atol, samples: int = 2):
+    """How far round-off alone moves a Newton correction of a BDF step of size `h` at
+    (t, y, ẏ), in IDA's error weights ``1/(rtol|y| + atol)`` of the differential variables:
+    ``(wrms, name, noise, tolerance)`` of the worst variable, or None when the system is
+    too large. The residual's round-off is modelled as ε times the size of each row's
+    terms (``|F_y||y| + |F_ẏ||ẏ|``) with random signs, and solved with the iteration matrix."""
+    n = mod.N
+    if n > DIAGNOSE_MAX or h <= 0:
+        return None
+    rows, cols = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
+    buf = np.zeros(len(rows))
+    mod.jacobian(t, y, yp, p, 0.0, buf)
+    Fy = np.zeros((n, n))
+    Fy[rows, cols] = buf
+    mod.jacobian(t, y, yp, p, 1.0, buf)
+    Fyp = -Fy.copy()
+    Fyp[rows, cols] += buf
+    size = np.abs(Fy) @ np.abs(y) + np.abs(Fyp) @ np.abs(yp)
+    diff = np.asarray(mod.DIFFERENTIAL, dtype=bool)
+    tol = rtol * np.abs(y) + atol
+    rng = np.random.default_rng(0)
+    try:
+        lu = sla.lu_factor(Fy + Fyp / h, check_finite=True)
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+    worst = None
+    for _ in range(samples):
+        delta = sla.lu_solve(lu, np.finfo(float).eps * size * rng.choice([-1.0, 1.0], n))
+        weighted = np.where(diff, np.abs(delta) / tol, 0.0)
+        wrms = float(np.sqrt(np.mean(weighted[diff] ** 2))) if diff.any() else 0.0
+        j = int(np.argmax(weighted))
+        if worst is None or wrms > worst[0]:
+            worst = (wrms, str(mod.VARIABLES[j]), float(abs(delta[j])), float(tol[j]))
+    return worst
+
+
+def diagnose_failure(mod, p, t, y, yp, *, status: int, h_typical: float, h_fail: float, max_order: int,
+                     rtol: float, atol: float, names: Optional[dict] = None) -> str:
+    """What to tell the user when the integrator gave up at (t, y, ẏ).
+
+    A singular configuration is named only when the equilibrated iteration matrix
+    ``F_y + F_ẏ/h`` is numerically singular at the step size the run was taking before it
+    collapsed (`h_typical`): an index-2 iteration matrix is conditioned like h², so at the
+    collapsed step (`h_fail`) every configuration looks singular. Otherwise the cause is
+    looked for in the linearized modes (undamped stiff modes at BDF order > 2), then the
+    step and the tolerances, and the remedy is named."""
+    n = mod.N
+    h = max(h_typical, h_fail)
+    regular = ""
+    if n <= DIAGNOSE_MAX and h > 0:
+        monitor = SingularityMonitor(mod, p, names=names)
+        try:
+            ratio, u = monitor.ratio(t, y, yp, h)
+        except (ArithmeticError, ValueError, np.linalg.LinAlgError):
+            ratio, u = float("nan"), None
+        if u is not None:
+            return monitor._message(t, ratio, u, monitor.threshold).replace("stopped at", "failed at", 1)
+        if np.isfinite(ratio):
+            regular = (f"the iteration matrix F_y + F_ẏ/h is regular there (σ_min/σ_max = {ratio:.1e} at the "
+                       f"step h = {h:.1e} the run was taking), so this is not a singular configuration")
+    collapse = f"IDA cut the step from h ≈ {h_typical:.1e} to h ≈ {h_fail:.0e}"
+    omegas = undamped_modes(mod, p, t, y, yp)
+    stiff = (omegas is not None and len(omegas) and omegas[0] * h_typical > UNRESOLVED and max_order > 2)
+    modes = ""
+    if stiff:
+        w = omegas[0]
+        modes = (f"the model has undamped oscillations up to ω ≈ {w:.2g} rad/s (period {2 * np.pi / w:.1e} s) that "
+                 f"steps of h ≈ {h_typical:.1e} do not resolve (ωh ≈ {w * h_typical:.2g}), and BDF of order 3–5 "
+                 f"(max_order {max_order}) is not stable for such modes near the imaginary axis")
+        modes_remedy = ("`max_order: 2` (A-stable BDF2 keeps undamped modes bounded at any step; in a scene "
+                        "`accuracy: {max_order: 2}`), or `solver: midpoint` (structure preserving), or damp or "
+                        "remove the high modes (a `damping` coefficient, a coarser mesh, `modes: k`)")
+    floor = roundoff_correction(mod, p, t, y, yp, h_typical, rtol, atol) if h_typical > 0 else None
+    if floor is not None and floor[0] > ROUND_OFF_WRMS:
+        wrms, name, noise, tol = floor
+        cause = (f"{collapse}: the tolerances ask for more than double precision gives here — round-off alone "
+                 f"moves a Newton correction of `{name}` by ~{noise:.0e}, more than its tolerance "
+                 f"rtol·|y| + atol = {tol:.0e} (weighted norm of the round-off {wrms:.2g}; Newton needs it well "
+                 f"below 0.33), and a smaller step only makes the iteration matrix worse conditioned. Remedy: "
+                 f"atol ≥ {10 * noise:.0e} (or a looser rtol), or units in which `{name}` is of order one")
+        if stiff:
+            cause += f". Besides, {modes}, which makes steps small and costly: {modes_remedy}"
+    elif stiff:
+        cause = f"{collapse}: {modes}; the step collapsed until the Newton iteration failed. Remedy: {modes_remedy}"
+    elif status == -3:
+        cause = (f"{collapse}: the error test failed repeatedly, so the solution is not smooth here (a jump "
+                 "or kink of an input or expression: make it a breakpoint) or rtol = "
+                 f"{rtol:g}, atol = {atol:g} ask for more than double precision gives; loosen them")
+    elif status == -4:
+        cause = (f"{collapse}: the Newton iteration failed repeatedly although the iteration matrix is "
+                 "regular: the residual is not smooth here (a kink or a non-smooth function), or rtol = "
+                 f"{rtol:g}, atol = {atol:g} are too tight for the conditioning of the model; loosen them "
+                 "or nondimensionalize the model")
+    else:
+        cause = f"{collapse}; try looser tolerances (rtol = {rtol:g}, atol = {atol:g}) or check the model"
+    return f"{regular}; {cause}" if regular else cause
