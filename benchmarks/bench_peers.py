@@ -66,22 +66,35 @@ def phc_solvers():
     return [s for s in BACKENDS if s == "ida" or s in fixed]
 
 
-def compile_times(path):
-    """(cold, warm) wall seconds of phc.compile_model: cold with an empty cache directory."""
-    old = os.environ.get("PHC_CACHE_DIR")
-    with tempfile.TemporaryDirectory() as tmp:
-        os.environ["PHC_CACHE_DIR"] = tmp
+BACKENDS = ["numpy"]
+"""Code backends the phc rows run on (``--backends``; numba only where it is installed)."""
+
+
+def compile_times(path, backend="numpy"):
+    """(cold, warm) wall seconds of phc.compile_model: cold with an empty cache directory
+    (and, for the compiled backend, an empty state directory: a new signing key)."""
+    old = {var: os.environ.get(var) for var in ("PHC_CACHE_DIR", "PHC_STATE_DIR")}
+    with tempfile.TemporaryDirectory() as tmp, tempfile.TemporaryDirectory() as state:
+        os.environ["PHC_CACHE_DIR"], os.environ["PHC_STATE_DIR"] = tmp, state
+        from phc.codegen import numba_backend
+        numba_backend._LOADED.clear()  # compile, do not reuse what this process compiled
         t = time.perf_counter()
-        phc.compile_model(path)
+        phc.compile_model(path, backend=backend)
         cold = time.perf_counter() - t
-    if old is None:
-        del os.environ["PHC_CACHE_DIR"]
-    else:
-        os.environ["PHC_CACHE_DIR"] = old
-    phc.compile_model(path)
+    for var, value in old.items():
+        if value is None:
+            os.environ.pop(var, None)
+        else:
+            os.environ[var] = value
+    phc.compile_model(path, backend=backend)
     t = time.perf_counter()
-    compiled = phc.compile_model(path)
+    compiled = phc.compile_model(path, backend=backend)
     return compiled, cold, time.perf_counter() - t
+
+
+def phc_label(solver, backend):
+    """A phc configuration's row label (the backend named when both are measured)."""
+    return f"phc {solver}" + (f" [{backend}]" if len(BACKENDS) > 1 else "")
 
 
 METRICS = ("max", "end")
@@ -147,7 +160,8 @@ def part_a(repeat, methods):
     ref = model.solve(te, "LSODA", 1e-9, atol=1e-11, analytic_jacobian=True)
     t_ref = time.perf_counter() - t
     xr, wr = model.slider_x(ref.y), model.midspan_deflection(ref.y)
-    compiled, cold, warm = compile_times(FLEX_MODEL)
+    by_backend = {b: compile_times(FLEX_MODEL, b) for b in BACKENDS}
+    compiled = by_backend["numpy"][0] if "numpy" in by_backend else next(iter(by_backend.values()))[0]
     # Verification: the hand-written model solves phc's equations.
     ver = {}
     for h in (2e-5, 1e-5):
@@ -170,31 +184,34 @@ def part_a(repeat, methods):
           f"{np.abs(rich_w - wr).max():.2e} |")
     print(f"| ida rtol 1e-8, atol 1e-10 ({t_ida:.0f} s) | {np.abs(ida_x - xr).max():.2e} | "
           f"{np.abs(ida_w - wr).max():.2e} |\n")
-    print(f"phc compile (not in the times below): {cold:.2f} s with an empty cache, {warm:.2f} s cached.\n")
+    for b, (_, cold, warm) in by_backend.items():
+        print(f"phc compile, {b} backend (not in the times below): {cold:.2f} s with an empty cache, "
+              f"{warm:.2f} s cached.\n")
 
     rows, chosen = [], {}
 
     def ivp(method, jac):
         return lambda rtol: model.slider_x(model.solve(te, method, rtol, analytic_jacobian=jac).y)
 
-    def phc_ida(rtol):
-        return phc.simulate(compiled, solver="ida", rtol=rtol, atol=rtol * 1e-2, n_out=201)["slider_x"]
+    def phc_ida(compiled):
+        return lambda rtol: phc.simulate(compiled, solver="ida", rtol=rtol, atol=rtol * 1e-2, n_out=201)["slider_x"]
 
-    def phc_fixed(solver):
+    def phc_fixed(compiled, solver):
         return lambda k: phc.simulate(compiled, solver=solver, step=5e-4 / k, n_out=201)["slider_x"]
 
     configs = {}
     for method in methods:
         configs[f"solve_ivp {method}, FD Jacobian"] = ("rtol", HALF_DECADES, ivp(method, False))
         configs[f"solve_ivp {method}, analytic Jacobian"] = ("rtol", HALF_DECADES, ivp(method, True))
-    for solver in phc_solvers():
-        if solver == "ida":
-            configs["phc ida"] = ("rtol", HALF_DECADES, phc_ida)
-        else:
-            # step = 5e-4/k divides the output interval; the order-4 composition needs fewer
-            ks = ([1, 2, 3, 4, 5, 6, 8, 10, 12, 16, 20] if solver == "midpoint4"
-                  else [5, 10, 20, 25, 30, 35, 40, 45, 50, 60, 80, 100])
-            configs[f"phc {solver}"] = ("steps per 5e-4 s", ks, phc_fixed(solver))
+    for backend, (compiled_b, _, _) in by_backend.items():
+        for solver in phc_solvers():
+            if solver == "ida":
+                configs[phc_label("ida", backend)] = ("rtol", HALF_DECADES, phc_ida(compiled_b))
+            else:
+                # step = 5e-4/k divides the output interval; the order-4 composition needs fewer
+                ks = ([1, 2, 3, 4, 5, 6, 8, 10, 12, 16, 20] if solver == "midpoint4"
+                      else [5, 10, 20, 25, 30, 35, 40, 45, 50, 60, 80, 100])
+                configs[phc_label(solver, backend)] = ("steps per 5e-4 s", ks, phc_fixed(compiled_b, solver))
     for label, (_, settings, run) in configs.items():
         chosen[label] = calibrate(label, settings, run, errors_of(xr), tol, rows)
     print(f"Calibration (one run per setting, loosest first, until both errors are ≤ {tol:g}):\n")
@@ -207,7 +224,7 @@ def part_a(repeat, methods):
     timings = time_chosen(configs, chosen, repeat)
     for metric in METRICS:
         report(metric, configs, chosen, timings, repeat, tol, rows)
-    return configs, chosen, timings
+    return configs, chosen, timings, {b: c for b, (c, _, _) in by_backend.items()}
 
 
 def report(metric, configs, chosen, timings, repeat, tol, rows, extra=None):
@@ -255,8 +272,10 @@ def part_b(repeat):
     except ImportError as exc:  # pragma: no cover - depends on the machine
         rigid_exudyn, exu_version = None, None
         print(f"Exudyn is not importable here ({exc}); install the `bench` extra. Only phc is measured.\n")
-    compiled, cold, warm = compile_times(RIGID_MODEL)
-    print(f"phc compile (not in the times below): {cold:.2f} s with an empty cache, {warm:.2f} s cached.")
+    by_backend = {b: compile_times(RIGID_MODEL, b) for b in BACKENDS}
+    for b, (_, cold, warm) in by_backend.items():
+        print(f"phc compile, {b} backend (not in the times below): {cold:.2f} s with an empty cache, "
+              f"{warm:.2f} s cached.")
     rows, chosen, configs, drift = [], {}, {}, {}
 
     if rigid_exudyn is not None:
@@ -273,27 +292,28 @@ def part_b(repeat):
         configs["Exudyn generalized-α"] = ("steps", [200, 300, 400, 500, 600, 700, 800, 900, 1000, 1100, 1200, 1300,
                                                       1400, 1500, 1700, 2000, 2500, 3000, 4000, 5000], exu_run)
 
-    def phc_run(solver, **kw):
-        r = phc.simulate(compiled, solver=solver, n_out=101, **kw)
-        return r
-
-    def phc_ida(rtol):
-        r = phc_run("ida", rtol=rtol, atol=rtol * 1e-2)
-        drift[("phc ida", rtol)] = float(np.abs(r.H - r.H[0]).max() / E0)
-        return r["slider_x"]
-
-    def phc_fixed(solver):
-        def run(k):
-            r = phc_run(solver, step=0.01 / k)
-            drift[(f"phc {solver}", k)] = float(np.abs(r.H - r.H[0]).max() / E0)
+    def phc_ida(compiled, name):
+        def run(rtol):
+            r = phc.simulate(compiled, solver="ida", n_out=101, rtol=rtol, atol=rtol * 1e-2)
+            drift[(name, rtol)] = float(np.abs(r.H - r.H[0]).max() / E0)
             return r["slider_x"]
         return run
 
-    for solver in phc_solvers():
-        if solver == "ida":
-            configs["phc ida"] = ("rtol", HALF_DECADES, phc_ida)
-        else:
-            configs[f"phc {solver}"] = ("steps per 0.01 s", [1, 2, 3, 4, 5, 6, 8, 10, 12, 15, 20], phc_fixed(solver))
+    def phc_fixed(compiled, solver, name):
+        def run(k):
+            r = phc.simulate(compiled, solver=solver, n_out=101, step=0.01 / k)
+            drift[(name, k)] = float(np.abs(r.H - r.H[0]).max() / E0)
+            return r["slider_x"]
+        return run
+
+    for backend, (compiled_b, _, _) in by_backend.items():
+        for solver in phc_solvers():
+            name = phc_label(solver, backend)
+            if solver == "ida":
+                configs[name] = ("rtol", HALF_DECADES, phc_ida(compiled_b, name))
+            else:
+                configs[name] = ("steps per 0.01 s", [1, 2, 3, 4, 5, 6, 8, 10, 12, 15, 20],
+                                 phc_fixed(compiled_b, solver, name))
     for label, (_, settings, run) in configs.items():
         chosen[label] = calibrate(label, settings, run, errors_of(xr), tol, rows)
     print(f"\nCalibration (one run per setting, loosest first, until both errors are ≤ {tol:g}; energy drift = "
@@ -317,18 +337,149 @@ def part_b(repeat):
     return configs, chosen, timings, drift
 
 
+# ----------------------------------------------------------------------------------------------------
+ENERGY_EXACT = ("midpoint", "midpoint4", "discrete_gradient")
+"""Fixed-step solvers whose discrete energy balance is exact (for quadratic H; the discrete
+gradient for any H)."""
+
+
+def _fastest(configs, chosen, timings, metric, pick):
+    """(label, (min, median, max)) of the fastest configuration `pick(label)` accepts."""
+    found = [(label_, timings[(label_, chosen[label_][metric])]) for label_ in configs
+             if pick(label_) and chosen[label_][metric] is not None]
+    return min(found, key=lambda item: item[1][1]) if found else (None, None)
+
+
+def _solver_of(label_):
+    return label_.split()[1] if label_.startswith("phc ") else ""
+
+
+def per_step_us(compiled, repeat):
+    """CPU µs per step of the midpoint rule on the flexible slider–crank at its model step."""
+    best = None
+    for _ in range(repeat):
+        t = time.process_time()
+        r = phc.simulate(compiled, solver="midpoint")
+        cpu = time.process_time() - t
+        best = min(best or cpu, cpu)
+    return best / max(r.steps, 1) * 1e6, r.steps
+
+
+def shell_wall(model, backend, repeat):
+    """Best wall (and its CPU) of `phc simulate MODEL` from the shell, cache warm."""
+    import resource
+    import subprocess
+
+    cmd = [sys.executable, "-m", "phc", "simulate", str(model), "--quiet", "--backend", backend]
+    subprocess.run(cmd, capture_output=True, check=True)  # warm the caches
+    best = None
+    for _ in range(repeat):
+        usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+        cpu0 = usage.ru_utime + usage.ru_stime
+        t = time.perf_counter()
+        subprocess.run(cmd, capture_output=True, check=True)
+        wall = time.perf_counter() - t
+        usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+        cpu = usage.ru_utime + usage.ru_stime - cpu0
+        if best is None or wall < best[0]:
+            best = (wall, cpu)
+    return best
+
+
+def targets(a, b, repeat):
+    """The issue's targets, each measured in this run: a table of (target, measured, goal, met)."""
+    rows = []
+
+    def add(what, value, goal, met, note=""):
+        rows.append((what, value, goal, "met" if met else "not met", note))
+
+    if a is not None:
+        configs, chosen, timings, compiled = a
+        radau = "solve_ivp Radau, analytic Jacobian"
+        if radau in chosen and chosen[radau]["max"] is not None:
+            peer = timings[(radau, chosen[radau]["max"])]
+            best, t = _fastest(configs, chosen, timings, "max", lambda c: c.startswith("phc "))
+            if best:
+                ratio = peer[1] / t[1]
+                add("(a) fastest phc solver vs Radau (analytic Jacobian), slider error ≤ 1e-6 max over t",
+                    f"{ratio:.2f}× ({best}: {t[1]:.3f} s; Radau {peer[1]:.3f} s)", "≥ 5× (moonshot 10×)", ratio >= 5)
+            exact, t = _fastest(configs, chosen, timings, "max", lambda c: _solver_of(c) in ENERGY_EXACT)
+            if exact:
+                ratio = peer[1] / t[1]
+                add("(a) energy-exact solver vs Radau (analytic Jacobian), same criterion",
+                    f"{ratio:.2f}× ({exact}: {t[1]:.3f} s)", "≥ 2×", ratio >= 2)
+        for backend, comp in compiled.items():
+            us, steps = per_step_us(comp, max(1, min(repeat, 3)))
+            add(f"(a) midpoint step on the flexible slider–crank, {backend} backend (model step, {steps} steps)",
+                f"{us:.0f} µs CPU", "≤ 20 µs", us <= 20)
+    if b is not None:
+        configs, chosen, timings, _drift = b
+        exu = "Exudyn generalized-α"
+        if exu in chosen and chosen[exu]["end"] is not None:
+            peer = timings[(exu, chosen[exu]["end"])]
+            for solver, goal in (("ida", 1.0), ("discrete_gradient", 2.0)):
+                best, t = _fastest(configs, chosen, timings, "end", lambda c, s=solver: _solver_of(c) == s)
+                if best:
+                    ratio = t[1] / peer[1]
+                    add(f"(b) phc {solver} vs Exudyn, slider error ≤ 2e-6 at 1 s",
+                        f"{ratio:.2f}× Exudyn's time ({best}: {t[1]:.3f} s; Exudyn {peer[1]:.3f} s)",
+                        f"≤ {goal:g}×", ratio <= goal)
+    pendulum = ROOT / "models" / "pendulum.yaml"
+    for backend in BACKENDS:
+        wall, cpu = shell_wall(pendulum, "auto" if backend == "numpy" else backend, max(1, min(repeat, 5)))
+        add(f"`phc simulate models/pendulum.yaml` from the shell, cached, --backend "
+            f"{'auto' if backend == 'numpy' else backend}", f"{wall:.2f} s wall ({cpu:.2f} s CPU)", "≤ 0.8 s",
+            wall <= 0.8)
+    print("\n## Targets (issue 16 item 5), measured in this run\n")
+    print("| target | measured | goal | |")
+    print("|---|---|---|---|")
+    for what, value, goal, met, _ in rows:
+        print(f"| {what} | {value} | {goal} | {met} |")
+    return rows
+
+
+class _Tee:
+    """stdout also written to a file (the Markdown the README quotes)."""
+
+    def __init__(self, path):
+        self.file, self.stdout = open(path, "w"), sys.stdout
+
+    def write(self, text):
+        self.stdout.write(text)
+        self.file.write(text)
+
+    def flush(self):
+        self.stdout.flush()
+        self.file.flush()
+
+
 def main(argv=None):
+    global BACKENDS
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--part", default="ab")
     ap.add_argument("--methods", default="Radau,LSODA", help="solve_ivp methods of (a), e.g. Radau,LSODA,BDF")
+    ap.add_argument("--backends", default="numpy,numba",
+                    help="code backends of the phc rows (numba where it is installed)")
+    ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "peers" / "peers.md",
+                    help="also write the Markdown here")
     args = ap.parse_args(argv)
-    print(f"# Peers — {datetime.date.today()}, {platform.machine()} {os.cpu_count()} cores, Python "
-          f"{platform.python_version()}, numpy {np.__version__}\n")
-    if "a" in args.part:
-        part_a(args.repeat, args.methods.split(","))
-    if "b" in args.part:
-        part_b(args.repeat)
+    from phc.codegen.numba_backend import available
+
+    BACKENDS = [b for b in args.backends.split(",") if b == "numpy" or (b == "numba" and available()[0])]
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    sys.stdout = _Tee(args.out)
+    start = time.perf_counter()
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    print(f"# Peers — {datetime.datetime.now():%Y-%m-%d %H:%M}, {platform.machine()} {os.cpu_count()} cores "
+          f"(load average {load:.1f} at the start), Python {platform.python_version()}, numpy {np.__version__}; "
+          f"backends {', '.join(BACKENDS)}\n")
+    print(f"Command: `python benchmarks/bench_peers.py {' '.join(argv if argv is not None else sys.argv[1:])}`\n")
+    a = part_a(args.repeat, args.methods.split(",")) if "a" in args.part else None
+    b = part_b(args.repeat) if "b" in args.part else None
+    targets(a, b, args.repeat)
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    print(f"\nWhole script: {time.perf_counter() - start:.0f} s; load average at the end {load:.1f}.")
 
 
 if __name__ == "__main__":

@@ -153,8 +153,15 @@ def _certificate_line(compiled) -> str:
     return f"  {cert.summary()}" if cert is not None else "  not certified (--no-certify)"
 
 
+def _backend_line(compiled, requested=None) -> str:
+    """What runs the generated functions (phc.codegen.backends)."""
+    from phc.codegen.backends import describe
+
+    return f"  backend  {describe(compiled.module, requested)}"
+
+
 def cmd_compile(args) -> int:
-    compiled = _compile_or_exit(args.file, certify=not args.no_certify)
+    compiled = _compile_or_exit(args.file, certify=not args.no_certify, backend=args.backend)
     _print_diagnostics([d for d in compiled.diagnostics if d.severity != "error"])
     from phc.io import write_text
 
@@ -164,6 +171,7 @@ def cmd_compile(args) -> int:
     print(f"{args.file}: wrote {target} ({compiled.n_states} states, {compiled.n_equations} equations, "
           f"{compiled.jacobian_nnz} Jacobian nonzeros, compiled in {compiled.compile_time:.2f} s)")
     print(_certificate_line(compiled))
+    print(_backend_line(compiled, args.backend))
     for line in _left_out_lines(compiled):
         print(line)
     return EXIT_OK
@@ -183,7 +191,7 @@ def _left_out_lines(compiled) -> list[str]:
 
 
 def _compiled_json(compiled) -> dict:
-    return {"compiled": {**compiled.size(), "compile_time_s": compiled.compile_time},
+    return {"compiled": {**compiled.size(), "compile_time_s": compiled.compile_time, "backend": compiled.backend},
             "full_model": compiled.full_size(),
             "left_out": [{"component": c, "what": w, "why": y} for c, w, y in compiled.left_out],
             **({"scene": compiled.scene.name} if compiled.scene is not None else {})}
@@ -254,14 +262,16 @@ class _Exit(Exception):
         self.code = code
 
 
-def _compile_or_exit(path: str, certify: bool = True):
+def _compile_or_exit(path: str, certify: bool = True, backend=None):
     """Compile a model or scene file; print its diagnostics and exit 1 on errors (a failed
     certificate of the compiled equations included, unless `certify` is off)."""
-    from phc import ModelError
+    from phc import ModelError, SimulationSetupError
     from phc import compile_model
 
     try:
-        return compile_model(path, certify=certify)
+        return compile_model(path, certify=certify, backend=backend)
+    except SimulationSetupError as err:  # --backend numba without numba
+        raise UsageError(str(err)) from None
     except ModelError as err:
         _print_diagnostics(err.diagnostics)
         raise _Exit(EXIT_MODEL) from None
@@ -311,7 +321,7 @@ def cmd_simulate(args) -> int:
     from phc import SimulationInterrupted, simulate
 
     params = _parse_params(args.param)
-    compiled = _compile_or_exit(args.file, certify=not args.no_certify)
+    compiled = _compile_or_exit(args.file, certify=not args.no_certify, backend=args.backend)
     compiled = _recompile_for_params(compiled, args.file, params, certify=not args.no_certify)
     progress = _progress_for(compiled, args.t_end, args.quiet)
     run_kwargs = dict(t_end=args.t_end, params=params, rtol=args.rtol, atol=args.atol, n_out=args.n_out,
@@ -361,6 +371,7 @@ def cmd_simulate(args) -> int:
         print(f"  memory   peak {format_bytes(peak_memory())} resident")
         print(f"  compiled {_size_text(compiled.size())} in {compiled.compile_time:.2f} s")
         print(_certificate_line(compiled))
+        print(_backend_line(compiled, args.backend))
         for line in _left_out_lines(compiled):
             print(line)
         for e in estimates:
@@ -707,6 +718,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-certify", action="store_true",
                    help="skip the certificate of the compiled equations (power balance, passivity)")
     p.add_argument("-o", "--output", default=".", metavar="DIR", help="directory for the generated module")
+    p.add_argument("--backend", choices=("auto", "numpy", "numba"),
+                   help="what runs the generated functions: numba (machine code, cached; pip install "
+                   "'port-hamiltonian-compiler[fast]'), numpy, or auto (numba for models of 16 unknowns or "
+                   "more when installed; the default, or $PHC_BACKEND)")
     p.set_defaults(func=cmd_compile)
 
     p = sub.add_parser("simulate", help="compile and simulate a model or a scene")
@@ -717,6 +732,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--n-out", type=int, help="number of output points")
     p.add_argument("--solver", choices=_solver_names(), help="integrator (default: the model's)")
     p.add_argument("--step", type=float, help="step size of the midpoint solver")
+    p.add_argument("--backend", choices=("auto", "numpy", "numba"),
+                   help="what runs the generated functions: numba (machine code, cached; pip install "
+                   "'port-hamiltonian-compiler[fast]'), numpy, or auto (numba for models of 16 unknowns or "
+                   "more when installed; the default, or $PHC_BACKEND)")
     p.add_argument("--rtol", type=float)
     p.add_argument("--atol", type=float)
     p.add_argument("--param", action="append", metavar="NAME=VALUE", help="override a parameter (repeatable)")

@@ -30,6 +30,7 @@ from types import ModuleType
 from typing import Optional
 
 from phc.analysis.matching import check_balance
+from phc.codegen import backends
 from phc.codegen.load import load_generated
 from phc.codegen.lower import lower_residual
 from phc.codegen.printer import print_module
@@ -89,6 +90,12 @@ class CompiledModel:
         return self.dae.left_out
 
     @property
+    def backend(self) -> str:
+        """What runs the generated functions: ``numba`` (compiled) or ``numpy`` (the reference
+        module; :mod:`phc.codegen.backends`)."""
+        return backends.name_of(self.module)
+
+    @property
     def compile_time(self) -> float:
         """Seconds spent compiling (the certificate's own time is `timings["certify"]`)."""
         return sum(v for k, v in self.timings.items() if k != "certify")
@@ -101,7 +108,7 @@ class CompiledModel:
         pruned), for comparison; None for a plain model or when nothing was left out."""
         if self.scene is None or not self.left_out:
             return None
-        full = compile_model(self.scene.model_path, certify=False)
+        full = compile_model(self.scene.model_path, certify=False, backend="numpy")
         return full.size()
 
     # -- pickling by value, between phc's own processes (the workers of `phc sweep`) ------
@@ -174,7 +181,8 @@ def build_dae(path: str | os.PathLike, scene: Optional[Scene] = None) -> tuple[O
     return dae, DiagnosticList(diags).sorted()
 
 
-def compile_model(path: str | os.PathLike, scene: Optional[Scene] = None, *, certify: bool = True) -> CompiledModel:
+def compile_model(path: str | os.PathLike, scene: Optional[Scene] = None, *, certify: bool = True,
+                  backend: Optional[str] = None) -> CompiledModel:
     """Compile a model file (or a scene file: its model as the scene asks) to a loaded
     residual module. `scene` applies an in-memory scene instead (`path` is then unused).
 
@@ -182,10 +190,17 @@ def compile_model(path: str | os.PathLike, scene: Optional[Scene] = None, *, cer
     returned (:func:`phc.checks.compiled.certify_compiled`: the power balance at sampled
     consistent states, passivity of every dissipative term); a failure is a ModelError.
 
+    `backend` chooses what runs the generated functions (:mod:`phc.codegen.backends`):
+    ``auto`` (the default, or ``$PHC_BACKEND``) the compiled ``numba`` module when numba is
+    installed and the model has at least 16 unknowns, else the ``numpy`` module;
+    ``CompiledModel.backend`` says which.
+
     Raises
     ------
     ModelError
         When the model has errors (``err.diagnostics`` lists them, located).
+    SimulationSetupError
+        When `backend` is unknown, or ``numba`` and numba cannot be imported.
     """
     timings = {}
     t = time.perf_counter()
@@ -207,6 +222,10 @@ def compile_model(path: str | os.PathLike, scene: Optional[Scene] = None, *, cer
     name = scene.name if scene is not None else dae.name
     module, module_path = load_generated(source, name)
     timings["load"] = time.perf_counter() - t
+    if backends.check_choice(backend) != "numpy":  # compiled functions (phc.codegen.backends)
+        t = time.perf_counter()
+        module, _ = backends.select(ir, module, source, backend)
+        timings["backend"] = time.perf_counter() - t
     compiled = CompiledModel(name, dae, module, source, module_path, diags, timings, scene)
     from phc.simulation.events import locate_switch_times  # conditions in t: their switching times exist
 

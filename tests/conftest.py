@@ -32,10 +32,18 @@ def _shipped_models_may_be_referenced():
 
 @pytest.fixture(scope="session", autouse=True)
 def _isolated_phc_cache(tmp_path_factory):
-    previous = os.environ.get("PHC_CACHE_DIR")
+    previous = {var: os.environ.get(var) for var in ("PHC_CACHE_DIR", "PHC_STATE_DIR")}
     os.environ["PHC_CACHE_DIR"] = str(tmp_path_factory.mktemp("phc-cache"))
+    os.environ["PHC_STATE_DIR"] = str(tmp_path_factory.mktemp("phc-state"))  # the key signing compiled code
     yield
-    if previous is None:
-        os.environ.pop("PHC_CACHE_DIR", None)
-    else:
-        os.environ["PHC_CACHE_DIR"] = previous
+    for var, value in previous.items():
+        if value is None:
+            os.environ.pop(var, None)
+        else:
+            os.environ[var] = value
+
+
+# The suite runs the NumPy module unless PHC_BACKEND says otherwise (PHC_BACKEND=numba python
+# -m pytest runs it all on compiled code); the backend tests and the solver contract ask for
+# both backends themselves (tests/codegen/test_backends.py, tests/simulation/test_backend_contract.py).
+os.environ.setdefault("PHC_BACKEND", "numpy")

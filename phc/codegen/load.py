@@ -142,9 +142,10 @@ def _cap_bytes() -> int:
 
 
 def _entries(folder: Path) -> list[tuple[float, int, Path]]:
-    """(last use, size, path) of phc's files in the cache (generated modules, bench references)."""
+    """(last use, size, path) of phc's files in the cache (generated modules, bench references,
+    the signed artefacts of the compiled backend)."""
     out = []
-    for pattern in ("phc_*.py", "bench/ref_*.npz"):
+    for pattern in ("phc_*.py", "bench/ref_*.npz", "numba/phc_numba_*"):
         for p in folder.glob(pattern):
             try:
                 st = p.lstat()
@@ -189,7 +190,7 @@ def info() -> CacheInfo:
 
 
 def clean() -> tuple[int, int]:
-    """Remove every cached module and bench reference; returns (files, bytes) removed."""
+    """Remove every cached module, bench reference and compiled artefact; returns (files, bytes) removed."""
     folder = cache_dir()
     files = size = 0
     for _, n, p in _entries(folder):

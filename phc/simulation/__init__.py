@@ -82,7 +82,7 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
              rtol: Optional[float] = None, atol: Optional[float] = None, n_out: Optional[int] = None,
              t_eval=None, initial: Optional[dict] = None, solver: Optional[str] = None,
              max_steps: Optional[int] = None, progress: Optional[Callable[[float], None]] = None,
-             step: Optional[float] = None) -> SimResult:
+             step: Optional[float] = None, backend: Optional[str] = None) -> SimResult:
     """Simulate a compiled model.
 
     Parameters
@@ -96,6 +96,9 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
     step : float, optional
         Step size of the fixed-step `midpoint`, `discrete_gradient` and `midpoint4` solvers (default:
         the model's `simulation.step`, else the output interval).
+    backend : {"auto", "numpy", "numba"}, optional
+        What runs the generated functions (default: what `compiled` was compiled with;
+        :mod:`phc.codegen.backends`).
     params : dict, optional
         Base-parameter overrides by name (one compilation serves a parameter study).
     initial : dict, optional
@@ -120,7 +123,9 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
     SimulationInterrupted
         On Ctrl-C (a ``KeyboardInterrupt``); its ``.result`` holds the run up to there.
     """
-    mod = guard(compiled.module, getattr(compiled, "source", None), _locator(compiled))
+    from phc.codegen.backends import for_compiled
+
+    mod = guard(for_compiled(compiled, backend), getattr(compiled, "source", None), _locator(compiled))
     opts = dict(compiled.dae.options)
     backend = BACKENDS.get(solver or opts["solver"])
     ignored = backend.ignored({"rtol": rtol, "atol": atol, "step": step}) if backend is not None else []

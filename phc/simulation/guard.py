@@ -227,6 +227,9 @@ class GuardedModule:
         self._locate = locate or (lambda kind, label: None)
         code = getattr(getattr(mod, "full_parameters", None), "__code__", None)
         self._filename = code.co_filename if code is not None else None
+        # a compiled module (phc.codegen.numba_backend) is diagnosed with its reference functions:
+        # the same rows, evaluated by the printed Python, which raise where the machine code returns NaN
+        self._reference = getattr(mod, "REFERENCE", None)
         for name, (out_arg, _) in GUARDED.items():
             func = getattr(mod, name, None)
             if func is not None:
@@ -277,6 +280,8 @@ class GuardedModule:
     def _fail(self, name, func, args, err) -> Optional[ModelEvaluationError]:
         out_arg, what = GUARDED[name]
         lineno = None
+        if self._reference is not None and getattr(self._reference, name, None) is not None:
+            func, err = getattr(self._reference, name), None  # evaluated again below, by the reference
         if err is None:
             # a non-finite value: evaluate again with floating-point errors raised to find
             # the operation; if nothing is raised, the non-finite row is the answer

@@ -21,9 +21,18 @@ from phc.simulation.initial import consistent_initial_conditions
 MODELS = Path(__file__).resolve().parents[2] / "models"
 
 
-@pytest.fixture(scope="module")
-def oscillator():
-    return phc.compile_model(MODELS / "mass_spring_damper.yaml", certify=False)
+@pytest.fixture(scope="module", params=["numpy", "numba"])
+def oscillator(request):
+    """The oscillator on each code backend (the generated NumPy module, and compiled)."""
+    if request.param == "numba":
+        from phc.codegen.numba_backend import available
+
+        ok, why = available()
+        if not ok:
+            pytest.skip(f"compiled backend not tested: {why}")
+    compiled = phc.compile_model(MODELS / "mass_spring_damper.yaml", certify=False, backend=request.param)
+    assert compiled.backend == request.param
+    return compiled
 
 
 def _start(compiled):

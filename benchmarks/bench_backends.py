@@ -1,0 +1,212 @@
+"""The compiled backend (numba) against the reference NumPy module: compile, call and run times.
+
+For every model (default: the shipped ``models/*.yaml``):
+
+* **compile**: ``phc.compile_model(path, certify=False, backend=...)`` in a fresh Python
+  process, first with an empty cache directory and an empty state directory (*cold*:
+  numba imported, every function compiled and written to the signed cache), then again in a
+  second fresh process (*warm*: loaded from the cache). The backend's own stage
+  (``timings["backend"]``) is reported in wall and CPU seconds, and the whole compilation.
+* **per call**: one residual and one Jacobian evaluation of each backend at a consistent
+  state, in microseconds (best of 7 repetitions of a timed loop: a loaded machine only ever
+  adds time), called from Python as the integrators call them.
+
+Then whole runs of ``phc simulate`` from the shell (a fresh process each: start-up,
+compilation, initialization, integration, post-processing) for the flexible and the rigid
+slider–crank and the pendulum, on each backend, with a cold cache and warm (best of
+``--repeat``). Wall time and the CPU time of the process are both given: on a shared
+machine the wall time includes waiting for a core.
+
+Writes ``backends.md`` (the tables) and ``backends.json`` (every figure) into ``--out-dir``
+(default ``benchmarks/backends``) and prints the Markdown.
+
+Run: ``python benchmarks/bench_backends.py [--repeat 3] [--models a.yaml b.yaml] [--skip-runs]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+import timeit
+from pathlib import Path
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import numpy as np  # noqa: E402
+
+import phc  # noqa: E402
+from phc.codegen import numba_backend  # noqa: E402
+
+RUNS = [ROOT / "models" / "flexible_slider_crank.yaml", ROOT / "models" / "rigid_slider_crank.yaml",
+        ROOT / "models" / "pendulum.yaml"]
+
+_COMPILE = r"""
+import json, sys, time
+t, c = time.perf_counter(), time.process_time()
+import phc
+compiled = phc.compile_model(sys.argv[1], certify=False, backend=sys.argv[2])
+report = getattr(compiled.module, "COMPILE_REPORT", None)
+print(json.dumps({"wall": time.perf_counter() - t, "cpu": time.process_time() - c,
+                  "backend_wall": compiled.timings.get("backend", 0.0),
+                  "backend_cpu": report.cpu_seconds if report else 0.0,
+                  "cached": report.cached if report else "", "backend": compiled.backend}))
+"""
+
+
+def _env(cache: str, state: str) -> dict:
+    env = dict(os.environ, PHC_CACHE_DIR=cache, PHC_STATE_DIR=state)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH", "")) if p)
+    return env
+
+
+def compile_in_fresh_process(path: Path, backend: str, env: dict) -> dict:
+    done = subprocess.run([sys.executable, "-c", _COMPILE, str(path), backend], capture_output=True, text=True,
+                          env=env, timeout=1800, check=True)
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def compile_times(path: Path) -> dict:
+    out = {}
+    for backend in ("numpy", "numba"):
+        with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as state:
+            env = _env(cache, state)
+            out[backend] = {"cold": compile_in_fresh_process(path, backend, env),
+                            "warm": compile_in_fresh_process(path, backend, env)}
+    return out
+
+
+def per_call(path: Path) -> dict:
+    """Residual and Jacobian µs of each backend at the model's consistent start."""
+    compiled = phc.compile_model(path, certify=False, backend="numba")
+    fast = compiled.module
+    ref = fast.REFERENCE
+    run = phc.simulate(compiled, t_end=float(compiled.dae.options["t_start"]) + 1e-9, n_out=2,
+                       solver="midpoint", step=1e-9, backend="numpy")
+    y, yp = np.ascontiguousarray(run.y[0]), np.ascontiguousarray(run.yp[0])
+    p = np.asarray(ref.full_parameters(), dtype=float)
+    out, jac = np.zeros(ref.N), np.zeros(len(ref.JAC_ROWS))
+    times = {}
+    for name, mod in (("numpy", ref), ("numba", fast)):
+        res = timeit.Timer(lambda m=mod: m.residual(0.0, y, yp, p, out))
+        jc = timeit.Timer(lambda m=mod: m.jacobian(0.0, y, yp, p, 10.0, jac))
+        number = max(1, int(0.05 / max(res.timeit(number=5) / 5, 1e-7)))
+        times[name] = {"residual_us": min(res.repeat(7, number)) / number * 1e6,
+                       "jacobian_us": min(jc.repeat(7, number)) / number * 1e6}
+    return {"N": int(ref.N), "jacobian_nnz": int(len(ref.JAC_ROWS)), **times,
+            "emitted": list(fast.COMPILE_REPORT.emitted)}
+
+
+def _child_cpu() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def simulate_run(path: Path, backend: str, env: dict) -> dict:
+    cpu = _child_cpu()
+    t = time.perf_counter()
+    done = subprocess.run([sys.executable, "-m", "phc", "simulate", str(path), "--quiet", "--no-certify",
+                           "--backend", backend, "--format", "json"], capture_output=True, text=True, env=env,
+                          timeout=3600)
+    wall = time.perf_counter() - t
+    if done.returncode != 0:
+        raise RuntimeError(f"phc simulate {path.name} --backend {backend} failed: {done.stderr[-2000:]}")
+    summary = json.loads(done.stdout)
+    return {"wall": wall, "cpu": _child_cpu() - cpu, "steps": summary.get("steps"),
+            "solver": summary.get("solver"), "run_cpu": summary.get("cpu_time_s")}
+
+
+def whole_runs(paths, repeat: int) -> dict:
+    out = {}
+    for path in paths:
+        out[path.stem] = {}
+        for backend in ("numpy", "numba"):
+            with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as state:
+                env = _env(cache, state)
+                cold = simulate_run(path, backend, env)
+                warm = [simulate_run(path, backend, env) for _ in range(repeat)]
+            best = min(warm, key=lambda r: r["wall"])
+            out[path.stem][backend] = {"cold": cold, "warm": best, "warm_cpu_min": min(r["cpu"] for r in warm),
+                                       "warm_walls": [r["wall"] for r in warm]}
+    return out
+
+
+def markdown(data: dict) -> str:
+    lines = [f"# Backends — {data['date']}, {data['machine']}\n",
+             f"numba {data['numba']}; command: `{data['command']}`\n",
+             "## Compile (fresh process each; cold: empty cache; warm: the same cache again)\n",
+             "| model | unknowns | Jacobian nnz | numpy compile [s] | numba backend stage cold: wall / CPU [s] | "
+             "numba backend stage warm: wall / CPU [s] | numba whole compile cold / warm [s] |",
+             "|---|---:|---:|---:|---:|---:|---:|"]
+    for name, row in data["models"].items():
+        c = row["compile"]
+        nb_cold, nb_warm = c["numba"]["cold"], c["numba"]["warm"]
+        lines.append(f"| {name} | {row['calls']['N']} | {row['calls']['jacobian_nnz']} | "
+                     f"{c['numpy']['warm']['wall']:.2f} | "
+                     f"{nb_cold['backend_wall']:.2f} / {nb_cold['backend_cpu']:.2f} | "
+                     f"{nb_warm['backend_wall']:.2f} / {nb_warm['backend_cpu']:.2f} | "
+                     f"{nb_cold['wall']:.2f} / {nb_warm['wall']:.2f} |")
+    lines += ["", "## Per call, from Python (µs, best of 7)\n",
+              "| model | residual numpy | residual numba | ratio | Jacobian numpy | Jacobian numba | ratio |",
+              "|---|---:|---:|---:|---:|---:|---:|"]
+    for name, row in data["models"].items():
+        a, b = row["calls"]["numpy"], row["calls"]["numba"]
+        lines.append(f"| {name} | {a['residual_us']:.2f} | {b['residual_us']:.2f} | "
+                     f"{a['residual_us'] / b['residual_us']:.1f} | {a['jacobian_us']:.2f} | {b['jacobian_us']:.2f} | "
+                     f"{a['jacobian_us'] / b['jacobian_us']:.1f} |")
+    if data.get("runs"):
+        lines += ["", "## Whole runs: `phc simulate MODEL --no-certify --backend B` (fresh process each)\n",
+                  "| model | solver, steps | backend | cold: wall / CPU [s] | warm: wall / CPU [s] | "
+                  "integration CPU (warm) [s] |",
+                  "|---|---|---|---:|---:|---:|"]
+        for name, by_backend in data["runs"].items():
+            for backend, r in by_backend.items():
+                lines.append(f"| {name} | {r['warm']['solver']}, {r['warm']['steps']} | {backend} | "
+                             f"{r['cold']['wall']:.2f} / {r['cold']['cpu']:.2f} | "
+                             f"{r['warm']['wall']:.2f} / {r['warm_cpu_min']:.2f} | {r['warm']['run_cpu']:.2f} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--models", nargs="*", type=Path, default=sorted((ROOT / "models").glob("*.yaml")))
+    ap.add_argument("--repeat", type=int, default=3, help="warm whole runs per backend (the best is kept)")
+    ap.add_argument("--skip-runs", action="store_true", help="compile and per-call figures only")
+    ap.add_argument("--out-dir", type=Path, default=ROOT / "benchmarks" / "backends")
+    args = ap.parse_args(argv)
+    ok, version = numba_backend.available()
+    if not ok:
+        sys.exit(f"bench_backends: {version}")
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    data = {"date": datetime.datetime.now().strftime("%Y-%m-%d %H:%M"),
+            "machine": f"{platform.machine()}, {os.cpu_count()} cores, load average {load:.1f} at the start",
+            "numba": version, "command": "python benchmarks/bench_backends.py " + " ".join(argv or sys.argv[1:]),
+            "models": {}, "runs": {}}
+    with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as state:
+        os.environ.update(PHC_CACHE_DIR=cache, PHC_STATE_DIR=state)
+        for path in args.models:
+            print(f"{path.name} ...", file=sys.stderr, flush=True)
+            data["models"][path.stem] = {"compile": compile_times(path), "calls": per_call(path)}
+    if not args.skip_runs:
+        data["runs"] = whole_runs(RUNS, args.repeat)
+    data["load_at_end"] = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    text = markdown(data) + f"\nLoad average at the end: {data['load_at_end']:.1f}.\n"
+    args.out_dir.mkdir(parents=True, exist_ok=True)
+    (args.out_dir / "backends.md").write_text(text)
+    (args.out_dir / "backends.json").write_text(json.dumps(data, indent=1))
+    print(text)
+
+
+if __name__ == "__main__":
+    main()

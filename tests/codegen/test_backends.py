@@ -1,0 +1,336 @@
+"""The compiled backend (:mod:`phc.codegen.numba_backend`) against the reference NumPy module.
+
+Both backends evaluate the same printed expressions; the compiled one writes them as
+machine code. They must agree to round-off on every shipped model, for every generated
+function, at random states — including ones outside the expressions' domains, where both
+must produce a non-finite value in the same entries. The emitter's rule for each function
+of the model language is checked on a model that uses them all, a table input included.
+Without numba these tests are skipped (and the NumPy module is what runs, tested below).
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import phc
+from phc.codegen import backends, numba_backend
+from phc.errors import SimulationSetupError
+
+MODELS = sorted((Path(__file__).resolve().parents[2] / "models").glob("*.yaml"))
+
+_OK, _WHY = numba_backend.available()
+needs_numba = pytest.mark.skipif(not _OK, reason=f"compiled backend not tested: {_WHY}")
+
+TOL = 1e-13
+"""Agreement required, relative to the largest entry of the vector (round-off: the
+compiled linear blocks sum in another order than scipy's sparse product)."""
+
+
+def _points(mod, rng, k=6):
+    n = mod.N
+    p0 = np.asarray(mod.full_parameters(), dtype=float)
+    for _ in range(k):
+        y = rng.uniform(-1.0, 1.0, n)
+        yp = rng.uniform(-1.0, 1.0, n)
+        yield float(rng.uniform(0.0, 2.0)), y, yp, p0, float(rng.uniform(0.1, 50.0))
+
+
+def _call(mod, name, t, y, yp, p, cj):
+    if name in ("residual", "residual_t"):
+        out = np.zeros(mod.N)
+        getattr(mod, name)(t, y, yp, p, out)
+        return out
+    if name == "jacobian":
+        out = np.zeros(len(mod.JAC_ROWS))
+        mod.jacobian(t, y, yp, p, cj, out)
+        return out
+    if name in ("hamiltonian", "energy_scale", "invariants", "velocity_invariants"):
+        return np.atleast_1d(np.asarray(getattr(mod, name)(t, y, p), dtype=float))
+    return np.atleast_1d(np.asarray(getattr(mod, name)(t, y, yp, p), dtype=float))
+
+
+def _assert_same(ref, fast, functions=numba_backend.FUNCTIONS, seed=0):
+    rng = np.random.default_rng(seed)
+    checked = 0
+    for t, y, yp, p, cj in _points(ref, rng):
+        for name in functions:
+            with np.errstate(all="ignore"):
+                try:
+                    a = _call(ref, name, t, y, yp, p, cj)
+                except (ArithmeticError, ValueError, TypeError):
+                    continue  # outside the reference's domain (Python raises; compiled code gives NaN)
+                b = _call(fast, name, t, y, yp, p, cj)
+            assert a.shape == b.shape, name
+            finite = np.isfinite(a)
+            assert np.array_equal(finite, np.isfinite(b)), f"{name}: non-finite entries differ"
+            if finite.any():
+                scale = max(1.0, float(np.abs(a[finite]).max()))
+                err = float(np.abs(a[finite] - b[finite]).max())
+                assert err <= TOL * scale, f"{name}: compiled and reference differ by {err:.3e} (scale {scale:.3e})"
+            checked += 1
+    assert checked
+
+
+@needs_numba
+@pytest.mark.parametrize("path", MODELS, ids=[p.stem for p in MODELS])
+def test_compiled_functions_equal_the_reference_on_every_shipped_model(path):
+    compiled = phc.compile_model(path, certify=False, backend="numba")
+    assert compiled.backend == "numba"
+    fast = compiled.module
+    ref = fast.REFERENCE
+    assert backends.name_of(ref) == "numpy"
+    _assert_same(ref, fast)
+
+
+FUNCTIONS_MODEL = """
+format_version: 1
+name: every_function
+parameters:
+  m: {value: 1.5, unit: kg}
+  k: {value: 4.0, unit: N/m}
+components:
+  mass: {type: mass, m: m}
+  spring: {type: spring, k: k}
+  node: {type: junction, kind: common_flow, domain: mechanical.translational, ports: [a, b, c, d]}
+connections:
+  - [node.a, mass.port]
+  - [node.b, spring.port]
+ports:
+  force: {port: node.c}
+  pulse: {port: node.d}
+simulation:
+  t_end: 1.0
+  initial: {spring.x: 0.3, mass.p: 0.0}
+  inputs:
+    force: {effort: "-0.1*sin(3*t)"}
+    pulse: {effort: "0.05*t**2"}
+  outputs:
+    trig: "sin(spring.x) + cos(mass.p) - tan(0.3*spring.x) + atan2(spring.x, mass.p - 0.2)"
+    inverse: "asin(0.5*tanh(spring.x)) + acos(0.4*tanh(mass.p)) + atan(spring.x)"
+    hyperbolic: "sinh(spring.x) * cosh(mass.p) / (1 + tanh(spring.x)**2)"
+    powers: "sqrt(1 + spring.x**2) + (2 + mass.p**2)**1.5 + 1/sqrt(3 + spring.x**2) + spring.x**3 - mass.p**(-2)"
+    logs: "exp(-spring.x**2) + log(2 + mass.p**2)"
+    switches: "abs(spring.x) + sign(mass.p) + heaviside(spring.x - 0.1) + min(spring.x, mass.p, 0.2)
+      + max(spring.x, -mass.p)"
+    choices: "ifelse(spring.x > 0, spring.x**2, -mass.p) + ifelse(mass.p <= 0.1, 1, 2)"
+    constants: "pi*spring.x + 2/3*mass.p - 7/4"
+"""
+
+
+@needs_numba
+def test_every_function_of_the_language_is_compiled_like_the_printed_python(tmp_path):
+    path = tmp_path / "every_function.yaml"
+    path.write_text(FUNCTIONS_MODEL)
+    compiled = phc.compile_model(path, certify=False, backend="numba")
+    fast = compiled.module
+    assert "outputs" in fast.COMPILE_REPORT.emitted  # written as LLVM IR, not left to numba's compiler
+    _assert_same(fast.REFERENCE, fast, functions=("outputs", "residual", "jacobian"), seed=3)
+    # at the switching points themselves too (x = 0.1 for heaviside, p = 0 for sign)
+    ref = fast.REFERENCE
+    p = np.asarray(ref.full_parameters(), dtype=float)
+    for x, v in ((0.1, 0.0), (0.0, 0.0), (-0.2, 0.1)):
+        y = np.zeros(ref.N)
+        y[list(ref.VARIABLES).index("spring.x")] = x
+        y[list(ref.VARIABLES).index("mass.p")] = v
+        with np.errstate(all="ignore"):
+            a, b = ref.outputs(0.5, y, y, p), fast.outputs(0.5, y, y, p)
+        np.testing.assert_allclose(b, a, rtol=TOL, atol=TOL)
+
+
+@needs_numba
+def test_a_table_input_is_interpolated_like_the_reference(tmp_path):
+    (tmp_path / "force.csv").write_text("t,f\n0,0\n0.25,1\n0.5,-0.5\n1,2\n")
+    (tmp_path / "pulse.csv").write_text("t,f\n0,0\n0.3,1\n0.7,0\n")
+    model = FUNCTIONS_MODEL.replace('force: {effort: "-0.1*sin(3*t)"}', "force: {effort: {file: force.csv, column: f}}")
+    model = model.replace('pulse: {effort: "0.05*t**2"}',
+                          "pulse: {effort: {file: pulse.csv, column: f, interpolation: previous}}")
+    path = tmp_path / "tabled.yaml"
+    path.write_text(model)
+    compiled = phc.compile_model(path, certify=False, backend="numba")
+    fast = compiled.module
+    ref = fast.REFERENCE
+    p = np.asarray(ref.full_parameters(), dtype=float)
+    rng = np.random.default_rng(5)
+    for t in [-0.1, 0.0, 0.1, 0.25, 0.4, 0.5, 0.9, 1.0, 1.5, *rng.uniform(0, 1, 5)]:
+        y, yp = rng.uniform(-1, 1, ref.N), rng.uniform(-1, 1, ref.N)
+        for name in ("residual", "residual_t"):
+            a, b = _call(ref, name, t, y, yp, p, 1.0), _call(fast, name, t, y, yp, p, 1.0)
+            np.testing.assert_allclose(b, a, rtol=TOL, atol=TOL, err_msg=f"{name} at t = {t}")
+
+
+def _damped_string(folder: Path) -> Path:
+    """The shipped string, 3 elements, with damping: sparse linear blocks, quadratic
+    energies and a quadratic dissipation form."""
+    text = (MODELS[0].parent / "vibrating_string.yaml").read_text()
+    assert "    elements: 16\n" in text
+    path = folder / "damped_string.yaml"
+    path.write_text(text.replace("    elements: 16\n", "    elements: 3\n    damping: 0.05\n"))
+    return path
+
+
+@needs_numba
+@pytest.mark.parametrize("emit", [True, False], ids=["emitted", "numba-front-end"])
+def test_sparse_blocks_and_quadratic_forms_on_both_compilation_paths(tmp_path, monkeypatch, emit):
+    """Expressions the emitter has no rule for go to numba's own compiler as Python text:
+    that path must compute the same (forced here for every function)."""
+    if not emit:
+        monkeypatch.setattr(numba_backend, "emittable", lambda expr, known: False)
+    compiled = phc.compile_model(_damped_string(tmp_path), certify=False, backend="numba")
+    fast = compiled.module
+    assert bool(fast.COMPILE_REPORT.emitted) == emit
+    _assert_same(fast.REFERENCE, fast, seed=11)
+
+
+def test_without_numba_auto_runs_the_numpy_module_and_numba_is_refused(monkeypatch):
+    monkeypatch.setattr(numba_backend, "_AVAILABLE",
+                        (False, 'numba is not installed (pip install "port-hamiltonian-compiler[fast]")'))
+    crank = MODELS[0].parent / "rigid_slider_crank.yaml"  # large enough for `auto` to want numba
+    compiled = phc.compile_model(crank, certify=False, backend="auto")
+    assert compiled.backend == "numpy" and not hasattr(compiled.module, "REFERENCE")
+    assert backends.describe(compiled.module, "auto") == (
+        'numpy (compiled backend unavailable: numba is not installed (pip install "port-hamiltonian-compiler[fast]"))')
+    with pytest.raises(SimulationSetupError, match=r"numba is not installed .*compiler\[fast\]"):
+        phc.compile_model(crank, certify=False, backend="numba")
+    with pytest.raises(SimulationSetupError, match="unknown backend `fortran`"):
+        backends.check_choice("fortran")
+
+
+def test_auto_leaves_small_models_to_the_numpy_module(monkeypatch):
+    """Below AUTO_MIN_UNKNOWNS numba is not even imported: a handful of float operations
+    cost less in Python than a call into compiled code."""
+    monkeypatch.setattr(numba_backend, "_AVAILABLE", None)
+    monkeypatch.setattr(numba_backend, "available", lambda: pytest.fail("numba was looked for"))
+    compiled = phc.compile_model(MODELS[0].parent / "pendulum.yaml", certify=False, backend="auto")
+    assert compiled.module.N < backends.AUTO_MIN_UNKNOWNS and compiled.backend == "numpy"
+    assert "auto: 7 unknowns" in backends.describe(compiled.module, "auto")
+
+
+def test_a_fresh_process_without_numba_simulates_with_the_numpy_module(tmp_path):
+    """`import numba` fails (as on a machine where it is not installed): phc still works."""
+    blocker = tmp_path / "blocker"
+    blocker.mkdir()
+    (blocker / "numba.py").write_text("raise ImportError('No module named numba (blocked by the test)')\n")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(blocker), os.environ.get("PYTHONPATH", "")]),
+               PHC_BACKEND="auto")
+    model = MODELS[0].parent / "rigid_slider_crank.yaml"
+    done = subprocess.run([sys.executable, "-m", "phc", "simulate", str(model), "--quiet", "--t-end", "0.01",
+                           "--no-certify"], capture_output=True, text=True, env=env, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert ('backend  numpy (compiled backend unavailable: numba is not installed (pip install '
+            '"port-hamiltonian-compiler[fast]"))') in done.stdout
+    bad = subprocess.run([sys.executable, "-m", "phc", "simulate", str(model), "--quiet", "--backend", "numba"],
+                         capture_output=True, text=True, env=env, timeout=300)
+    assert bad.returncode == 2
+    lines = bad.stderr.strip().splitlines()
+    assert len(lines) == 1 and "numba backend is not available" in lines[0] and "Traceback" not in bad.stderr
+
+
+@needs_numba
+def test_simulating_on_either_backend_gives_the_same_trajectory():
+    compiled = phc.compile_model(MODELS[0].parent / "mass_spring_damper.yaml", certify=False, backend="numpy")
+    ref = phc.simulate(compiled, t_end=2.0, solver="midpoint", step=1e-2)
+    fast = phc.simulate(compiled, t_end=2.0, solver="midpoint", step=1e-2, backend="numba")
+    np.testing.assert_allclose(fast.y, ref.y, rtol=1e-10, atol=1e-12)
+    assert compiled.backend == "numpy"  # asking a run for another backend leaves the compiled model as it was
+
+
+# ---------------------------------------------------------------------------------------
+# the signed cache of compiled artefacts
+
+def _fresh(monkeypatch):
+    """Forget what this process compiled, so the next load reads the disk cache."""
+    monkeypatch.setattr(numba_backend, "_LOADED", {})
+
+
+def _load(path):
+    from phc.codegen.lower import lower_residual
+    from phc.codegen.load import load_generated
+    from phc.codegen.printer import print_module
+    from phc.pipeline import build_dae
+
+    dae, _ = build_dae(path)
+    ir = lower_residual(dae)
+    source = print_module(ir)
+    reference, _ = load_generated(source)
+    return numba_backend.load_compiled(ir, reference, source)
+
+
+@needs_numba
+def test_compiled_artefacts_are_cached_signed_and_never_trusted_unsigned(tmp_path, monkeypatch):
+    monkeypatch.setenv("PHC_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setenv("PHC_STATE_DIR", str(tmp_path / "state"))
+    model = MODELS[0].parent / "mass_spring_damper.yaml"
+    _fresh(monkeypatch)
+    _, cold = _load(model)
+    assert cold.cached == "cold"
+    folder = tmp_path / "cache" / "numba"
+    files = sorted(folder.iterdir())
+    assert files and all(f.read_bytes().startswith(b"phc-numba-1\n") for f in files)
+    assert oct((folder.stat().st_mode) & 0o777) == oct(0o700)
+    key = tmp_path / "state" / "cache-key"
+    assert key.is_file() and key.stat().st_mode & 0o077 == 0
+    assert not (folder / "__pycache__").exists()
+
+    _fresh(monkeypatch)
+    _, warm = _load(model)
+    assert warm.cached == "warm" and warm.misses == 0
+
+    # a tampered artefact (one byte of the machine code's pickle) is not unpickled: compiled again
+    data = next(f for f in files if f.suffix == ".nbc")
+    raw = bytearray(data.read_bytes())
+    raw[-10] ^= 0xFF
+    data.write_bytes(bytes(raw))
+    _fresh(monkeypatch)
+    fast, again = _load(model)
+    assert again.misses >= 1
+    _assert_same(fast.REFERENCE, fast, functions=("residual", "jacobian"))
+
+    # a cache restored from another machine (signed with another key) costs a compilation
+    monkeypatch.setenv("PHC_STATE_DIR", str(tmp_path / "other-state"))
+    _fresh(monkeypatch)
+    _, foreign = _load(model)
+    assert foreign.cached == "cold"
+
+
+@needs_numba
+def test_a_cache_directory_others_can_write_is_not_used_for_compiled_code(tmp_path, monkeypatch):
+    monkeypatch.setenv("PHC_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setenv("PHC_STATE_DIR", str(tmp_path / "state"))
+    (tmp_path / "cache" / "numba").mkdir(parents=True, mode=0o700)
+    os.chmod(tmp_path / "cache" / "numba", 0o777)
+    _fresh(monkeypatch)
+    _, report = _load(MODELS[0].parent / "mass_spring_damper.yaml")
+    assert report.cached == "off" and "writable by other users" in report.note
+    assert list((tmp_path / "cache" / "numba").iterdir()) == []
+
+
+def test_the_compiled_backend_is_an_optional_extra():
+    """numba is in the `fast` and `test` extras, never a core dependency."""
+    import re
+
+    text = (Path(__file__).resolve().parents[2] / "pyproject.toml").read_text()
+    core, extras = text.split("[project.optional-dependencies]")
+    extras = extras.split("\n[")[0]
+    assert "numba" not in core
+
+    def extra(name):
+        return re.search(rf"^{name}\s*=\s*\[(.*?)\]\s*$", extras, re.M | re.S).group(1)
+
+    assert "numba" in extra("fast") and "numba" in extra("test")
+
+
+def test_emittable_refuses_what_it_has_no_rule_for():
+    import sympy as sp
+
+    x = sp.Symbol("x")
+    assert numba_backend.emittable(sp.sin(x) + sp.Piecewise((x, x > 0), (-x, True)), {x})
+    assert not numba_backend.emittable(sp.floor(x), {x})
+    assert not numba_backend.emittable(sp.sin(sp.Symbol("unknown")), {x})
+    assert "\n" not in textwrap.dedent(numba_backend.why_unavailable() or "")
