@@ -525,9 +525,15 @@ def update_file(path: Path, slow: bool = True) -> int:
             for command, expected, _ in console_commands(block):
                 _, output = run_command(command, page.dir)
                 actual = [line.rstrip() for line in output.rstrip("\n").split("\n")] if output.strip() else []
-                if "..." in expected:
-                    keep = expected.index("...")
-                    actual = actual[:keep] + ["..."] if len(actual) > keep else actual
+                masked = (lambda lines: [_mask(x) for x in lines]) if "numbers-vary" in block.options else list
+                if _matches(masked(expected), masked(actual)):
+                    new_body += [f"$ {command}", *expected, ""]  # still right: leave it as it is
+                    continue
+                if "..." in expected:  # keep the elision: as many lines before and after it as shown
+                    head = expected.index("...")
+                    tail = len(expected) - head - 1
+                    if len(actual) > head + tail:
+                        actual = actual[:head] + ["..."] + (actual[len(actual) - tail:] if tail else [])
                 new_body += [f"$ {command}", *actual, ""]
             while new_body and not new_body[-1]:
                 new_body.pop()
