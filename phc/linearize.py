@@ -225,7 +225,7 @@ class Linearization:
         rate, where = self.max_rate
         lines = [f"{self.model}: linearized at t = {self.t:.6g} ({self.point})"]
         if self.is_equilibrium():
-            lines.append(f"  point    an equilibrium (max |rate| of a state {rate:.3g})")
+            lines.append("  point    an equilibrium (the rates of the states vanish)")
         else:
             lines.append(f"  point    not an equilibrium: `{where}` changes at {rate:.6g}/s; the eigenvalues are "
                          "those of the system frozen at this instant")

@@ -51,14 +51,14 @@ def _check_identifier(name: str) -> str:
 Identifier = Annotated[str, AfterValidator(_check_identifier)]
 """A name: a letter followed by letters, digits or underscores."""
 
-Expr = Annotated[
-    Union[StrictInt, StrictFloat, str],
-    Field(
-        description="A number or an expression string over parameters, states and `t` "
-        "(operators + - * / **, functions sin cos tan exp log sqrt abs min max atan2 ifelse ...).",
-    ),
-]
-"""A number, or an expression string parsed by the whitelisting parser."""
+EXPR_DESCRIPTION = ("A number or an expression string over parameters, states and `t` "
+                    "(operators + - * / **, functions sin cos tan exp log sqrt abs min max atan2 ifelse ...).")
+"""What the JSON Schema says of an expression-valued key that has no description of its own
+(:func:`phc.spec.export.build_schema` adds it; a key's docstring is its description)."""
+
+Expr = Annotated[Union[StrictInt, StrictFloat, str], Field()]
+"""A number, or an expression string parsed by the whitelisting parser. (No description
+here: it would replace the docstrings of the keys that use it.)"""
 
 Vector = list[Expr]
 Matrix = list[list[Expr]]

@@ -121,6 +121,7 @@ class ResistiveSpec(SpecModel):
     """A resistive port (f_R, e_R) with a constitutive law; passive when f_R·e_R ≥ 0."""
 
     dimension: int = Field(1, ge=1, le=64)
+    """Number of components of `f_<name>` and `e_<name>`."""
     law: list[str]
     """`dimension` equations relating `f_<name>` and `e_<name>`, e.g. `e_R = r*f_R`."""
 
@@ -191,13 +192,17 @@ class LinearPhsSpec(_Component):
 
     type: Literal["linear_phs"]
     parameters: dict[Identifier, Expr] = {}
+    """Local parameters (may refer to model parameters)."""
     states: Union[int, list[Identifier]]
     """Number of states (named `x[0]`, `x[1]`, ...) or their names."""
     matrices: Optional[str] = None
     """An `.npz` file (relative to the model file) holding named arrays: dense 2-D arrays,
     or sparse ones stored as `NAME.data`, `NAME.indices`, `NAME.indptr`, `NAME.shape` (CSR)."""
     J: MatrixRef
+    """Skew-symmetric interconnection matrix (n_states × n_states), inline or the name of an
+    array in `matrices`."""
     R: Optional[MatrixRef] = None
+    """Symmetric positive semidefinite dissipation matrix (default zero)."""
     Q: Optional[MatrixRef] = None
     """Energy matrix (default identity)."""
     E: Optional[MatrixRef] = None
@@ -270,6 +275,8 @@ class _OnePort(_Component):
     domain: Optional[Domain] = None
     """Domain of the port (default depends on the type)."""
     dimension: int = Field(1, ge=1, le=64)
+    """Number of flow (and effort) components of each port: a vector element (a planar
+    mass has dimension 2, with `m` the same in every direction)."""
     ports: list[Identifier] = Field(["port"], min_length=1)
     """Port names. Several ports share the same flow (like a 1-junction): a mass with
     several attachment points."""
@@ -309,6 +316,7 @@ class MassSpec(_OnePort):
 
     type: Literal["mass"]
     m: Expr
+    """Mass (or moment of inertia in the rotational domain), positive."""
 
 
 class InductorSpec(_Element):
@@ -316,6 +324,7 @@ class InductorSpec(_Element):
 
     type: Literal["inductor"]
     L: Expr
+    """Inductance, positive."""
 
 
 class SpringSpec(_Element):
@@ -323,6 +332,7 @@ class SpringSpec(_Element):
 
     type: Literal["spring"]
     k: Expr
+    """Stiffness, positive."""
 
 
 class CapacitorSpec(_Element):
@@ -330,6 +340,7 @@ class CapacitorSpec(_Element):
 
     type: Literal["capacitor"]
     C: Expr
+    """Capacitance, positive."""
 
 
 class DamperSpec(_Element):
@@ -337,6 +348,7 @@ class DamperSpec(_Element):
 
     type: Literal["damper"]
     d: Expr
+    """Damping coefficient, non-negative."""
 
 
 class ResistorSpec(_Element):
@@ -344,6 +356,7 @@ class ResistorSpec(_Element):
 
     type: Literal["resistor"]
     R: Expr
+    """Resistance, non-negative."""
 
 
 class EffortSourceSpec(_OnePort):
@@ -361,6 +374,7 @@ class FlowSourceSpec(_OnePort):
 
     type: Literal["flow_source"]
     value: Union[Expr, Vector]
+    """Expression(s) in `t` and parameters."""
     position: Optional[Vector] = None
     """Optional position (integral of the flow) in `t`; lets phc keep the driven
     coordinate at position level."""
@@ -393,6 +407,7 @@ class OrthogonalTransformSpec(_Component):
     Q: Matrix
     """Orthogonal n × n matrix (constant or modulated by parameters/time)."""
     domain: Optional[Domain] = None
+    """Domain of both ports."""
     split: Optional[dict[Identifier, int]] = None
     """Output ports and their dimensions, in order (e.g. `{s: 1, n: 1}`)."""
 
@@ -444,6 +459,7 @@ class ModulationSpec(_Component):
     K: Matrix
     """Skew-symmetric n × n matrix K(x)."""
     domain: Optional[Domain] = None
+    """Domain of both ports."""
 
 
 class JunctionSpec(_Component):
@@ -456,14 +472,18 @@ class JunctionSpec(_Component):
 
     type: Literal["junction"]
     kind: Literal["common_flow", "common_effort"]
+    """`common_flow` (1-junction) or `common_effort` (0-junction)."""
     ports: list[Identifier] = Field(min_length=2)
+    """Names of the junction's ports (at least two)."""
 
     @field_validator("ports")
     @classmethod
     def _unique_ports(cls, value):
         return _unique(value)
     domain: Optional[Domain] = None
+    """Domain of the ports."""
     dimension: int = Field(1, ge=1, le=64)
+    """Number of flow (and effort) components of each port."""
 
 
 class _Distributed(_Component):
@@ -566,8 +586,11 @@ class CrankWheelSpec(_Component):
 
     type: Literal["crank_wheel"]
     radius: Expr
+    """Crank radius r: distance from the center to the crank pin."""
     inertia: Expr
+    """Moment of inertia I of the wheel about its center."""
     center: list[Expr] = [0, 0]
+    """Position q_O of the center (planar)."""
 
 
 class Pde1dSpec(_Component):
@@ -599,8 +622,11 @@ class Pde1dSpec(_Component):
     ports: list[Identifier]
     """Names of the Nd boundary ports: port i has flow f_∂[i] and effort e_∂[i]."""
     port_domains: Optional[list[Domain]] = None
+    """Domain of each boundary port, in the order of `ports` (default `generic`)."""
     length: Expr
+    """Length L of the domain [0, L] (evaluated at the default parameters: it fixes the mesh)."""
     elements: int = Field(16, ge=1, le=200_000)
+    """Number of finite elements."""
 
 
 ComponentSpec = Annotated[

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from phc.spec.base import EXPR_DESCRIPTION
 from phc.spec.model import ModelSpec
 from phc.spec.scene import SceneSpec
 
@@ -16,10 +17,26 @@ SCHEMA_BASE_ID = "https://phc.dev/schemas/"
 SCHEMAS = {"model.schema.json": ModelSpec, "scene.schema.json": SceneSpec}
 
 
+def _describe_expressions(node) -> None:
+    """Give expression-valued keys without a docstring the generic description."""
+    if isinstance(node, dict):
+        options = node.get("anyOf")
+        if (isinstance(options, list) and "description" not in node and "title" in node
+                and {o.get("type") for o in options} >= {"number", "string"}
+                and all(o.get("type") in ("integer", "number", "string", "null") for o in options)):
+            node["description"] = EXPR_DESCRIPTION
+        for value in node.values():
+            _describe_expressions(value)
+    elif isinstance(node, list):
+        for value in node:
+            _describe_expressions(value)
+
+
 def build_schema(name: str = "model.schema.json") -> dict:
     """The JSON Schema (draft 2020-12) for one of :data:`SCHEMAS`."""
     model = SCHEMAS[name]
     schema = model.model_json_schema(mode="validation")
+    _describe_expressions(schema)
     if name == "model.schema.json":
         # The shorthand `- [a.port, b.port]` is accepted by a mode="before" validator
         # that pydantic's schema cannot see; publish it so editors accept it too.
