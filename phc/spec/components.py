@@ -101,6 +101,7 @@ class PortSpec(SpecModel):
     frame: Optional[str] = None
     """Name of the coordinate frame of vector ports; connected ports must agree when both give one."""
     description: Optional[str] = None
+    """Free text shown in reports."""
 
 
 class PhsPortSpec(PortSpec):
@@ -149,6 +150,7 @@ class PhsSpec(_Component):
     R: Optional[Matrix] = None
     """Symmetric positive semidefinite dissipation matrix R(x)."""
     ports: dict[Identifier, PhsPortSpec] = {}
+    """Power ports by name."""
     multipliers: list[Identifier] = []
     """Latent variables of the kernel form."""
     relations: Optional[list[str]] = None
@@ -177,6 +179,7 @@ class LinearPhsPortSpec(PortSpec):
     B: MatrixRef
     """Input matrix (n_states × dimension), inline or the name of an array in `matrices`."""
     causality: Literal["effort_in", "flow_in"] = "effort_in"
+    """Which port variable is the input."""
 
 
 class LinearPhsSpec(_Component):
@@ -210,6 +213,7 @@ class LinearPhsSpec(_Component):
     scale: dict[Literal["J", "R", "Q", "E"], Expr] = {}
     """Scalar factors (expressions in parameters) multiplying the matrices."""
     ports: dict[Identifier, LinearPhsPortSpec] = {}
+    """Power ports by name."""
 
 
 class RigidPortSpec(PortSpec):
@@ -234,6 +238,7 @@ class RigidSpec(_Component):
 
     type: Literal["rigid"]
     parameters: dict[Identifier, Expr] = {}
+    """Local parameters (may refer to model parameters)."""
     q: list[Identifier] = Field(min_length=1)
     """Configuration variables."""
     v: Optional[list[Identifier]] = None
@@ -256,6 +261,7 @@ class RigidSpec(_Component):
     G: Optional[Matrix] = None
     """Skew gyroscopic matrix G(q, p, t)."""
     ports: dict[Identifier, RigidPortSpec] = {}
+    """Power ports by name; each port's flow is `Bᵀ(q) v`."""
     effects: UserEffects = {}
     """Named effects and their defaults (built in: `gravity`, which switches the `V` term named
     `gravity`, and `damping`, which switches `damping`)."""
@@ -498,6 +504,7 @@ class _Distributed(_Component):
     """Viscous damping per unit length on the transverse momentum (the D term of the paper's eq. (7));
     may depend on `xi`."""
     effects: DistributedEffects = DistributedEffects()
+    """Optional physics, each on by default (a scene overrides them)."""
 
 
 class StringSpec(_Distributed):
@@ -530,6 +537,7 @@ class TimoshenkoBeamSpec(_Distributed):
     K: Expr
     """Shear stiffness (κ G A)."""
     effects: TimoshenkoEffects = TimoshenkoEffects()
+    """Optional physics, each on by default (a scene overrides them)."""
 
 
 class EulerBernoulliBeamSpec(_Distributed):
@@ -558,11 +566,13 @@ class MovingBeamSpec(_Component):
 
     type: Literal["moving_beam"]
     length: Expr
+    """Length L of the beam (its chord length stays L)."""
     rhoA: Expr
     """Mass per unit length ρ (constant)."""
     EI: Expr
     """Bending stiffness (constant)."""
     elements: int = Field(8, ge=1, le=100_000)
+    """Number of finite elements."""
     initial_shape: Literal["straight", "free"] = "straight"
     """`straight`: at t₀ the rod is undeformed unless initial curvatures are given, and moves
     rigidly (no elastic velocity); `free`: phc chooses the initial elastic velocity."""
@@ -574,6 +584,7 @@ class MovingBeamSpec(_Component):
     """Kelvin–Voigt damping c (N·m²·s): the bending moment gains c·κ̇, which damps the
     elastic motion and not the rigid one."""
     effects: MovingBeamEffects = MovingBeamEffects()
+    """Optional physics, each on by default (a scene overrides them)."""
 
 
 class CrankWheelSpec(_Component):
@@ -604,6 +615,7 @@ class Pde1dSpec(_Component):
 
     type: Literal["pde1d"]
     parameters: dict[Identifier, Expr] = {}
+    """Local parameters (may refer to model parameters)."""
     order: Literal[1, 2]
     """N, the order of the differential operator."""
     variables: list[Identifier] = Field(min_length=1)
