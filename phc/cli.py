@@ -396,7 +396,7 @@ def cmd_simulate(args) -> int:
 def _recompile_for_params(compiled, path: str, params: dict, certify: bool = True):
     """A `--param` of a compile-time parameter (a mesh length, a coefficient varying along
     a distributed component): the model recompiled with it, and a note saying so."""
-    from phc.errors import ModelError, SimulationSetupError
+    from phc import ModelError, SimulationSetupError
     from phc.sweep import recompile_for
 
     try:
@@ -412,7 +412,7 @@ def _recompile_for_params(compiled, path: str, params: dict, certify: bool = Tru
 
 
 def cmd_sweep(args) -> int:
-    from phc.errors import ModelError, SimulationSetupError
+    from phc import ModelError, SimulationSetupError
     from phc.sweep import plot_sweep, run_sweep
 
     pairs = []
