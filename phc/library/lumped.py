@@ -386,38 +386,34 @@ def _modulating_states(b, N: sp.Matrix) -> tuple:
 
 def lower_transformer(b, ctx, name, spec, path):
     """transformer: f_b = N f_a, e_a = −Nᵀ e_b (power-conserving for every N)."""
-    N = _ratio(b, ctx, name, spec, path)
-    if N.rows == 0 or N.cols == 0:
-        return
-    pa, pb, span = _two_port(b, ctx, name, spec, path, N)
-    fb = N * sp.Matrix(pa.f)
-    ea = -N.T * sp.Matrix(pb.e)
-    d = DiracBuilder(name, spec.type, span)
-    d.port(pa)
-    d.port(pb)
-    for k in range(N.rows):
-        d.rel(pb.f[k] - fb[k], solve=pb.f[k])
-    for k in range(N.cols):
-        d.rel(pa.e[k] - ea[k], solve=pa.e[k])
-    emit(b, d.register(b, states=_modulating_states(b, N), note="ideal transformer: f_b = N f_a, e_a = −Nᵀ e_b"))
+    _lower_ratio(b, ctx, name, spec, path, gyrator=False)
 
 
 def lower_gyrator(b, ctx, name, spec, path):
     """gyrator: e_b = G f_a, e_a = −Gᵀ f_b (power-conserving for every G)."""
-    G = _ratio(b, ctx, name, spec, path)
-    if G.rows == 0 or G.cols == 0:
+    _lower_ratio(b, ctx, name, spec, path, gyrator=True)
+
+
+def _lower_ratio(b, ctx, name, spec, path, gyrator: bool):
+    """The two ideal two-ports: port b's flow (transformer) or effort (gyrator) is N f_a,
+    and e_a = −Nᵀ times b's other variable, so f_a·e_a + f_b·e_b = 0 for every N."""
+    N = _ratio(b, ctx, name, spec, path)
+    if N.rows == 0 or N.cols == 0:
         return
-    pa, pb, span = _two_port(b, ctx, name, spec, path, G)
-    eb = G * sp.Matrix(pa.f)
-    ea = -G.T * sp.Matrix(pb.f)
+    pa, pb, span = _two_port(b, ctx, name, spec, path, N)
+    driven, other = (pb.e, pb.f) if gyrator else (pb.f, pb.e)
+    out = N * sp.Matrix(pa.f)
+    back = -N.T * sp.Matrix(other)
     d = DiracBuilder(name, spec.type, span)
     d.port(pa)
     d.port(pb)
-    for k in range(G.rows):
-        d.rel(pb.e[k] - eb[k], solve=pb.e[k])
-    for k in range(G.cols):
-        d.rel(pa.e[k] - ea[k], solve=pa.e[k])
-    emit(b, d.register(b, states=_modulating_states(b, G), note="ideal gyrator: e_b = G f_a, e_a = −Gᵀ f_b"))
+    for k in range(N.rows):
+        d.rel(driven[k] - out[k], solve=driven[k])
+    for k in range(N.cols):
+        d.rel(pa.e[k] - back[k], solve=pa.e[k])
+    note = ("ideal gyrator: e_b = G f_a, e_a = −Gᵀ f_b" if gyrator else
+            "ideal transformer: f_b = N f_a, e_a = −Nᵀ e_b")
+    emit(b, d.register(b, states=_modulating_states(b, N), note=note))
 
 
 def lower_modulation(b, ctx, name, spec, path):
