@@ -24,7 +24,15 @@ time of phc (and Exudyn's model assembly) is reported separately. "÷ fastest ph
 configuration's time over that of the fastest phc solver at the same criterion (medians;
 range min/max … max/min): above 1, phc is faster by that factor. BLAS runs on one thread.
 
-Run: ``python benchmarks/bench_peers.py [--repeat 5] [--part a|b|ab]`` (prints Markdown).
+Both code backends are measured (``--backends numpy,numba``: phc rows are labelled with
+theirs), and the issue's targets (issue 16 item 5) are checked at the end in the same run:
+the fastest and the fastest energy-exact phc solver against Radau, IDA and the discrete
+gradient against Exudyn, the CPU time of a midpoint step of the flexible slider–crank, and
+the wall time of ``phc simulate models/pendulum.yaml`` from the shell. ``--clock cpu`` times
+the runs by CPU time instead of the wall clock (steadier on a shared machine).
+
+Run: ``python benchmarks/bench_peers.py [--repeat 5] [--part a|b|ab] [--clock cpu]`` (prints the
+Markdown and writes it to ``benchmarks/peers/peers.md``, or ``--out``).
 """
 
 from __future__ import annotations
@@ -65,6 +73,10 @@ def phc_solvers():
     fixed = getattr(__import__("phc.simulation", fromlist=["FIXED_STEP"]), "FIXED_STEP", ("midpoint",))
     return [s for s in BACKENDS if s == "ida" or s in fixed]
 
+
+CLOCK = time.perf_counter
+"""What the timed runs measure: wall clock, or this process's CPU time (``--clock cpu``:
+steadier on a shared machine, where the wall clock includes waiting for a core)."""
 
 BACKENDS = ["numpy"]
 """Code backends the phc rows run on (``--backends``; numba only where it is installed)."""
@@ -132,7 +144,7 @@ def time_chosen(configs, chosen, repeat, runner=None):
             fn = runner(label, s) if runner else None
             if fn is None:
                 fn = functools.partial(configs[label][2], s)
-            timings[(label, s)] = best_of(fn, repeat=repeat, number=1)
+            timings[(label, s)] = best_of(fn, repeat=repeat, number=1, clock=CLOCK)
     return timings
 
 
@@ -235,7 +247,8 @@ def report(metric, configs, chosen, timings, repeat, tol, rows, extra=None):
     sel = {label: by[metric] for label, by in chosen.items()}
     ours = [label for label in configs if label.startswith("phc") and sel[label] is not None]
     best = min(ours, key=lambda c: timings[(c, sel[c])][1]) if ours else None
-    print(f"\nTime to solution at slider error ≤ {tol:g}, {what} ({repeat} runs each, wall clock; "
+    clock = "CPU time" if CLOCK is time.process_time else "wall clock"
+    print(f"\nTime to solution at slider error ≤ {tol:g}, {what} ({repeat} runs each, {clock}; "
           f"fastest phc solver: {best}):\n")
     print("| configuration | setting | error [m] |" + (" energy drift |" if extra else "")
           + " min [s] | median [s] | max [s] | ÷ fastest phc (median) | range |")
@@ -454,18 +467,21 @@ class _Tee:
 
 
 def main(argv=None):
-    global BACKENDS
+    global BACKENDS, CLOCK
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--part", default="ab")
     ap.add_argument("--methods", default="Radau,LSODA", help="solve_ivp methods of (a), e.g. Radau,LSODA,BDF")
     ap.add_argument("--backends", default="numpy,numba",
                     help="code backends of the phc rows (numba where it is installed)")
+    ap.add_argument("--clock", choices=("wall", "cpu"), default="wall",
+                    help="time the runs by the wall clock or by this process's CPU time")
     ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "peers" / "peers.md",
                     help="also write the Markdown here")
     args = ap.parse_args(argv)
     from phc.codegen.numba_backend import available
 
+    CLOCK = time.process_time if args.clock == "cpu" else time.perf_counter
     BACKENDS = [b for b in args.backends.split(",") if b == "numpy" or (b == "numba" and available()[0])]
     args.out.parent.mkdir(parents=True, exist_ok=True)
     sys.stdout = _Tee(args.out)
@@ -473,7 +489,7 @@ def main(argv=None):
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"# Peers — {datetime.datetime.now():%Y-%m-%d %H:%M}, {platform.machine()} {os.cpu_count()} cores "
           f"(load average {load:.1f} at the start), Python {platform.python_version()}, numpy {np.__version__}; "
-          f"backends {', '.join(BACKENDS)}\n")
+          f"backends {', '.join(BACKENDS)}; times are {'CPU' if args.clock == 'cpu' else 'wall-clock'} seconds\n")
     print(f"Command: `python benchmarks/bench_peers.py {' '.join(argv if argv is not None else sys.argv[1:])}`\n")
     a = part_a(args.repeat, args.methods.split(",")) if "a" in args.part else None
     b = part_b(args.repeat) if "b" in args.part else None

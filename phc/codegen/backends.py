@@ -80,6 +80,12 @@ def select(ir, reference: ModuleType, source: str, backend: Optional[str] = None
         warnings.warn(f"{err}; running the NumPy module instead (please report this phc bug)",
                       numba_backend.CompiledBackendWarning, stacklevel=2)
         return reference, f"numpy ({err})"
+    except Exception as err:  # numba or LLVM refused the code: a phc bug, never a failed run
+        first = (str(err).strip().splitlines() or [""])[0][:200]
+        warnings.warn(f"the compiled backend could not build this model's functions ({type(err).__name__}: "
+                      f"{first}); running the NumPy module instead (please report this phc bug)",
+                      numba_backend.CompiledBackendWarning, stacklevel=2)
+        return reference, f"numpy (compilation failed: {type(err).__name__})"
     return module, ""
 
 

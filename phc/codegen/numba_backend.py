@@ -1034,15 +1034,24 @@ def _cross_check(compiled: ModuleType, reference: ModuleType) -> Optional[str]:
 
 
 _LOADED: dict[str, dict] = {}
-"""Compiled functions by digest, for this process (a model compiled again is not rebuilt)."""
+"""Compiled functions by digest, for this process (a model compiled again is not rebuilt);
+the most recently used :data:`LOADED_MAX` are kept."""
+LOADED_MAX = 16
+
+
+def _remember(digest: str, dispatchers: dict) -> None:
+    _LOADED.pop(digest, None)
+    _LOADED[digest] = dispatchers
+    while len(_LOADED) > LOADED_MAX:
+        old = next(iter(_LOADED))
+        del _LOADED[old]
+        sys.modules.pop(f"phc_numba_{old}", None)
 
 
 def _build(ir: ResidualIR, text: str, kernels: dict, trivial: set, printer, digest: str, folder: Optional[Path],
            signer: Optional[bytes], classes) -> tuple[dict, int, int]:
     """Execute the kernel text, make the intrinsics and dispatchers, compile (or load)
     each function for its one signature (:func:`_signature`); returns (dispatchers, hits, misses)."""
-    import numba
-
     modname = f"phc_numba_{digest}"
     filename = str((folder or Path("<memory>")) / f"{modname}.py")
     if folder is not None:
@@ -1054,6 +1063,16 @@ def _build(ir: ResidualIR, text: str, kernels: dict, trivial: set, printer, dige
     # numba finds a cached function's globals by importing its module's name: the module
     # must be known (it is never imported from a file).
     sys.modules[modname] = kernel_module
+    try:
+        return _compile_all(ir, kernels, trivial, printer, kernel_module, signer, classes)
+    except BaseException:
+        sys.modules.pop(modname, None)
+        raise
+
+
+def _compile_all(ir, kernels, trivial, printer, kernel_module, signer, classes):
+    import numba
+
     namespace = kernel_module.__dict__
     tables = {}
     for k in range(len(ir.input_tables)):
@@ -1130,12 +1149,13 @@ def load_compiled(ir: ResidualIR, reference: ModuleType, reference_source: str,
             signer = key
     loaded = _LOADED.get(digest)
     if loaded is not None:
+        _remember(digest, loaded)
         dispatchers, state, note = loaded, "memory", "compiled earlier in this process"
         hits = misses = 0
     else:
         dispatchers, hits, misses = _build(ir, text, kernels, kernel_printer.trivial, kernel_printer.printer,
                                            digest, folder, signer, classes)
-        _LOADED[digest] = dispatchers
+        _remember(digest, dispatchers)
         if signer is None:
             state = "off"
         else:

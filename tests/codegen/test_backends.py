@@ -14,6 +14,7 @@ import os
 import subprocess
 import sys
 import textwrap
+import types
 from pathlib import Path
 
 import numpy as np
@@ -98,10 +99,15 @@ parameters:
 components:
   mass: {type: mass, m: m}
   spring: {type: spring, k: k}
-  node: {type: junction, kind: common_flow, domain: mechanical.translational, ports: [a, b, c, d]}
+  kick:
+    type: effort_source
+    domain: mechanical.translational
+    value: "0.01*sign(t - 0.3) + 0.02*heaviside(spring.x - 0.05)"
+  node: {type: junction, kind: common_flow, domain: mechanical.translational, ports: [a, b, c, d, e]}
 connections:
   - [node.a, mass.port]
   - [node.b, spring.port]
+  - [node.e, kick.port]
 ports:
   force: {port: node.c}
   pulse: {port: node.d}
@@ -132,8 +138,22 @@ def test_every_function_of_the_language_is_compiled_like_the_printed_python(tmp_
     fast = compiled.module
     assert "outputs" in fast.COMPILE_REPORT.emitted  # written as LLVM IR, not left to numba's compiler
     _assert_same(fast.REFERENCE, fast, functions=("outputs", "residual", "jacobian"), seed=3)
-    # at the switching points themselves too (x = 0.1 for heaviside, p = 0 for sign)
+    # with the switches' modes frozen to either side (the event driver's parameters), too
     ref = fast.REFERENCE
+    modes = [j for j, name in enumerate(ref.PARAMETERS) if name.startswith("switch[")]
+    assert len(modes) == 2  # sign(t - 0.3) and heaviside(spring.x - 0.05) in the residual rows
+    for side in (-1.0, 1.0):
+        frozen = types.SimpleNamespace(**{k: getattr(ref, k) for k in ("N", "JAC_ROWS")})
+        base = np.asarray(ref.full_parameters(), dtype=float)
+        base[modes] = side
+        frozen.full_parameters = lambda base=base: base
+        for name in ("residual", "jacobian", "residual_t"):
+            setattr(frozen, name, getattr(ref, name))
+        fast_frozen = types.SimpleNamespace(**vars(frozen))
+        for name in ("residual", "jacobian", "residual_t"):
+            setattr(fast_frozen, name, getattr(fast, name))
+        _assert_same(frozen, fast_frozen, functions=("residual", "jacobian", "residual_t"), seed=4)
+    # at the switching points themselves (x = 0.1 for the heaviside output, p = 0 for sign)
     p = np.asarray(ref.full_parameters(), dtype=float)
     for x, v in ((0.1, 0.0), (0.0, 0.0), (-0.2, 0.1)):
         y = np.zeros(ref.N)
@@ -309,6 +329,21 @@ def test_a_cache_directory_others_can_write_is_not_used_for_compiled_code(tmp_pa
     _, report = _load(MODELS[0].parent / "mass_spring_damper.yaml")
     assert report.cached == "off" and "writable by other users" in report.note
     assert list((tmp_path / "cache" / "numba").iterdir()) == []
+
+
+@needs_numba
+def test_a_model_the_backend_cannot_compile_runs_on_the_numpy_module_with_a_warning(tmp_path, monkeypatch):
+    monkeypatch.setenv("PHC_CACHE_DIR", str(tmp_path / "cache"))
+    _fresh(monkeypatch)
+
+    def broken(*args):
+        raise RuntimeError("LLVM says no")
+
+    monkeypatch.setattr(numba_backend, "_emit_kernel", broken)
+    with pytest.warns(numba_backend.CompiledBackendWarning, match="could not build .*RuntimeError: LLVM says no"):
+        compiled = phc.compile_model(MODELS[0].parent / "rigid_slider_crank.yaml", certify=False, backend="numba")
+    assert compiled.backend == "numpy"
+    assert phc.simulate(compiled, t_end=0.01).success
 
 
 def test_the_compiled_backend_is_an_optional_extra():
