@@ -372,6 +372,15 @@ def test_failed_solver_writes_what_it_computed(tmp_path, capsys, solver):
 
 # -- Ctrl-C and SIGKILL ----------------------------------------------------------------------
 
+def interruptible():
+    """In the child before it starts: SIGINT at its default disposition and not blocked, as a
+    terminal delivers Ctrl-C. A child inherits both from the test process, where other
+    tests' libraries (thread pools, process pools) may have left SIGINT ignored or blocked;
+    Python then never turns it into KeyboardInterrupt."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _phc(*args):
     return [sys.executable, "-m", "phc", *args]
 
@@ -388,7 +397,7 @@ def _start_and_signal(out: Path, sig, solver: str):
     on a non-terminal 2 s into the integration, says so."""
     proc = subprocess.Popen(_phc("simulate", CRANK, *NO_CERTIFY, "--solver", solver, "--t-end", "1",
                                  "--n-out", "2001", "--out", str(out)),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=interruptible)
     before = []
     try:
         while True:

@@ -305,13 +305,20 @@ def test_append_log_writes_whole_lines(tmp_path):
     assert header == ["point", "message"] and rows == [["0", "a, \"quoted\" message"], ["1", "b"]]
 
 
+def interruptible():
+    """SIGINT at its default and unblocked in the child (see tests/test_cli_faults.py)."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_interrupt_then_resume(tmp_path):
     """Ctrl-C (SIGINT to the command) keeps the finished rows and exits 130; --resume runs
     only the rest: the kept rows are untouched (same worker process id)."""
     out = tmp_path / "r.csv"
     argv = [sys.executable, "-m", "phc", "sweep", str(MSD), "--param", "k=1:8:8", "--t-end", "20", "--workers", "1",
             "--out", str(out), "--quiet", "--no-certify"]
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
+                            preexec_fn=interruptible)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline:
         if out.exists() and len(out.read_bytes().splitlines()) >= 2:
