@@ -335,7 +335,7 @@ def _linear(n_rows: int, parts, unknowns: list, defaults: dict, vectors=()) -> O
 
 
 def _number(coeff, defaults: dict) -> float:
-    value = sp.sympify(coeff).xreplace(defaults)
+    value = sp.sympify(coeff).xreplace(defaults)  # safe: a LinearTerm's coefficient, a sympy expression or number
     if value.free_symbols:
         raise ValueError(f"the coefficient {coeff} of a sparse term depends on {sorted(map(str, value.free_symbols))}")
     return float(value)
@@ -428,7 +428,7 @@ def _short(expr, limit: int = 60) -> str:
 
 def _prepare(desc, rows, defaults, blocks):
     sys_rows, sys_desc = _systems(desc, rows, defaults, blocks)
-    foreign = (set().union(*(sp.sympify(e).free_symbols for e in sys_rows.exprs + sys_desc.exprs))
+    foreign = (set().union(*(sp.sympify(e).free_symbols for e in sys_rows.exprs + sys_desc.exprs))  # safe: sympy rows
                - set(sys_rows.unknowns) - set(sys_desc.unknowns) - set(defaults) - {T})
     foreign = sorted(foreign, key=str)
     fixed_symbols = [T, *defaults, *foreign]

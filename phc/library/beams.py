@@ -238,7 +238,7 @@ def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, coupl
             losses.append((coeff.scale(), _embed(Mrc, offsets[row_local], offsets[col_local], (n_all, n_all))))
         # numeric factors go into the matrix: entries of D that are numbers, or one parameter
         # factor times numbers, share the factor left
-        split = {key: sp.sympify(sc).as_coeff_Mul() for key, (sc, _) in blocks.items()}
+        split = {key: sp.sympify(sc).as_coeff_Mul() for key, (sc, _) in blocks.items()}  # safe: sympy scale factors
         scales = {rest for _, rest in split.values()}
         if len(scales) == 1:
             total = sps.lil_matrix((offsets_e[-1], offsets_e[-1]))

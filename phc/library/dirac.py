@@ -71,7 +71,7 @@ class DiracBuilder:
                      ) -> tuple[sp.Symbol, sp.Symbol]:
         """A storage pair bound to `state`: ``f = ẋ`` (`rate`), ``e = ∂H/∂x`` (`gradient`)."""
         f, e = self.pair(local)
-        self.storage.append(Storage(f, e, state, rate, sp.sympify(gradient)))
+        self.storage.append(Storage(f, e, state, rate, sp.sympify(gradient)))  # safe: a sympy expression or number
         return f, e
 
     def resistor(self, local: str) -> tuple[sp.Symbol, sp.Symbol]:
@@ -128,7 +128,7 @@ class DiracBuilder:
     def add_to(self, block: int, i: int, expr) -> None:
         """Add a sympy term to relation `i` of `block` (a boundary coupling, a modulation)."""
         if expr != 0:
-            self.blocks[block][3].append((i, sp.sympify(expr)))
+            self.blocks[block][3].append((i, sp.sympify(expr)))  # safe: a sympy expression or number
 
     def port(self, port) -> None:
         start = len(self.flows)
@@ -154,7 +154,7 @@ class DiracBuilder:
         self.laws.append(expr if isinstance(expr, sp.Basic) else sp.Integer(expr))
 
     def energy(self, hamiltonian: sp.Expr) -> None:
-        self.hamiltonian = sp.sympify(hamiltonian)
+        self.hamiltonian = sp.sympify(hamiltonian)  # safe: a sympy expression or number
 
     def describe(self, states=(), note: str = "", kind: Optional[str] = None,
                  structure: Optional[ComponentDescription] = None) -> ComponentDescription:
