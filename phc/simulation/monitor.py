@@ -248,14 +248,7 @@ def undamped_modes(mod, p, t, y, yp) -> Optional[np.ndarray]:
     n = mod.N
     if n > MODES_MAX:
         return None
-    rows, cols = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
-    buf = np.zeros(len(rows))
-    mod.jacobian(t, y, yp, p, 0.0, buf)
-    Fy = np.zeros((n, n))
-    Fy[rows, cols] = buf
-    mod.jacobian(t, y, yp, p, 1.0, buf)
-    Fyp = -Fy.copy()
-    Fyp[rows, cols] += buf
+    Fy, Fyp = _dense_split(mod, p, t, y, yp)
     try:
         lam = sla.eigvals(-Fy, Fyp)
     except (np.linalg.LinAlgError, ValueError):
@@ -265,6 +258,20 @@ def undamped_modes(mod, p, t, y, yp) -> Optional[np.ndarray]:
     lam = lam[np.abs(lam) < 1e8 * max(scale, 1.0)]  # infinite eigenvalues computed inexactly
     light = lam[(np.abs(lam.imag) > 0) & (np.abs(lam.real) < LIGHT_DAMPING * np.abs(lam))]
     return np.sort(np.abs(light.imag))[::-1]
+
+
+def _dense_split(mod, p, t, y, yp) -> tuple[np.ndarray, np.ndarray]:
+    """(F_y, F_ẏ) at (t, y, ẏ) as dense matrices, from two Jacobian evaluations."""
+    n = mod.N
+    rows, cols = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
+    buf = np.zeros(len(rows))
+    mod.jacobian(t, y, yp, p, 0.0, buf)
+    Fy = np.zeros((n, n))
+    Fy[rows, cols] = buf
+    mod.jacobian(t, y, yp, p, 1.0, buf)
+    Fyp = -Fy.copy()
+    Fyp[rows, cols] += buf
+    return Fy, Fyp
 
 
 ROUND_OFF_WRMS = 0.2
@@ -282,14 +289,7 @@ def roundoff_correction(mod, p, t, y, yp, h, rtol, atol, samples: int = 2):
     n = mod.N
     if n > DIAGNOSE_MAX or h <= 0:
         return None
-    rows, cols = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
-    buf = np.zeros(len(rows))
-    mod.jacobian(t, y, yp, p, 0.0, buf)
-    Fy = np.zeros((n, n))
-    Fy[rows, cols] = buf
-    mod.jacobian(t, y, yp, p, 1.0, buf)
-    Fyp = -Fy.copy()
-    Fyp[rows, cols] += buf
+    Fy, Fyp = _dense_split(mod, p, t, y, yp)
     size = np.abs(Fy) @ np.abs(y) + np.abs(Fyp) @ np.abs(yp)
     diff = np.asarray(mod.DIFFERENTIAL, dtype=bool)
     tol = rtol * np.abs(y) + atol
