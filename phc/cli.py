@@ -421,7 +421,7 @@ def cmd_sweep(args) -> int:
         if not sep or not name.strip():
             raise UsageError(f"--param expects NAME=SPEC, got `{item}`")
         pairs.append((name.strip(), spec))
-    compiled = _compile_or_exit(args.file, certify=not args.no_certify)
+    compiled = _compile_or_exit(args.file, certify=not args.no_certify, backend=args.backend)
     try:
         report = run_sweep(args.file, args.out, params=pairs, samples=args.samples, seed=args.seed,
                            sampling=args.sampling, executor=args.executor, scheduler=args.scheduler,
@@ -804,6 +804,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--t-end", type=float, help="end time of every run (default: the model's)")
     p.add_argument("--n-out", type=int, help="output points of every run")
     p.add_argument("--solver", choices=_solver_names(), help="integrator (default: the model's)")
+    p.add_argument("--backend", choices=("auto", "numpy", "numba"),
+                   help="what runs the generated functions on every worker (and in every recompiled group): "
+                   "numba, numpy, or auto (the default, or $PHC_BACKEND)")
     p.add_argument("--no-certify", action="store_true",
                    help="skip the certificate of the compiled equations (power balance, passivity)")
     p.add_argument("--plot", metavar="OUT.png", help="draw an output against one or two parameters (needs the `plot` extra: pip install 'port-hamiltonian-compiler[plot]')")

@@ -258,7 +258,8 @@ def compile_group(compiled, path, group: tuple, certify: bool = True):
     params = {name: value for name, value in group if not name.startswith(MESH_PREFIX)}
     mesh = {name[len(MESH_PREFIX):]: int(value) for name, value in group if name.startswith(MESH_PREFIX)}
     variant = scene_variant(compiled.scene if compiled.scene is not None else path, mesh=mesh, parameters=params)
-    return compile_model(variant.model_path, scene=variant, certify=certify)
+    # the group runs on what the base model runs on (numba or numpy), not on the default choice
+    return compile_model(variant.model_path, scene=variant, certify=certify, backend=compiled.backend)
 
 
 def recompile_for(compiled, path, params: dict, certify: bool = True):

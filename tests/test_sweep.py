@@ -219,6 +219,17 @@ def test_compile_time_parameter_groups_runs_by_compilation(tmp_path, crank):
         assert r["slider_x.max"] == pytest.approx(0.15 + r["L"], abs=1e-12)
 
 
+def test_a_recompiled_group_runs_on_the_base_models_backend():
+    """`--backend numpy` holds for every compilation group, not only the base model: the
+    flexible slider-crank has enough unknowns that the default choice would compile it."""
+    from phc.sweep import compile_group
+
+    base = phc.compile_model(CRANK, certify=False, backend="numpy")
+    assert base.backend == "numpy"
+    group = compile_group(base, CRANK, (("L", 0.35),), certify=False)
+    assert group is not base and group.backend == "numpy"
+
+
 def test_simulate_param_of_a_compile_time_parameter_recompiles_with_a_note(tmp_path, capsys):
     out = tmp_path / "run.csv"
     assert main(["simulate", str(CRANK), "--param", "L=0.35", "--t-end", "0.0002", "--out", str(out)]) == 0
