@@ -211,9 +211,9 @@ def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, coupl
     mass = {local: assemble(fld.space, 0, fld.space, 0) for local, (fld, _) in fields.items()}
     terms = {local: [LinearTerm(sp.Integer(1), mass[local], tuple(fld.x), derivative=True)] if coeff is not None
              else [] for local, (fld, coeff) in fields.items()}
-    for a_local, b_local, sign in couplings:
+    for a_local, b_local, sign, *own_order in couplings:  # an optional 4th entry: this coupling's order
         fa, fb = fields_a[a_local][0], fields_b[b_local][0]
-        Dm = assemble(fb.space, 0, fa.space, order)
+        Dm = assemble(fb.space, 0, fa.space, own_order[0] if own_order else order)
         terms[b_local].append(LinearTerm(sp.Integer(-sign), Dm, tuple(fa.e)))
         terms[a_local].append(LinearTerm(sp.Integer(sign), Dm.T.tocsr(), tuple(fb.e)))
         s_num = float(sign)

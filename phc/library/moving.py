@@ -25,7 +25,7 @@ import sympy as sp
 
 from phc.dae import T
 from phc.discretize.fem1d import _GAUSS_W
-from phc.discretize.fem1d import DP1, H3
+from phc.discretize.fem1d import DP1, H3, P0, P1, assemble
 from phc.library.beams import FullFields, _inverse, _lower_fields, prepare
 from phc.library.dirac import DiracBuilder, emit
 from phc.library.timing import refuse_time
@@ -47,7 +47,16 @@ def lower_moving_beam(b, ctx, name, spec, path):
     if not spec.effects.flexibility:
         _lower_rigid_link(b, ctx, name, spec, path)
         return
-    prep = prepare(b, ctx, name, spec, path, ("rhoA", "EI"))
+    axial = bool(spec.effects.axial)
+    if axial and spec.EA is None:
+        b.error("PHC-E145", f"effect `axial` of the moving beam `{name}` needs the axial stiffness `EA`; give `EA` "
+                "or turn `axial` off", ctx, path)
+        return
+    if axial and spec.effects.modes is not None:
+        b.error("PHC-E145", f"effect `axial` of the moving beam `{name}` does not work with `modes`; drop `modes` "
+                "or turn `axial` off", ctx, (*path, "effects"))
+        return
+    prep = prepare(b, ctx, name, spec, path, ("rhoA", "EI", "EA") if axial else ("rhoA", "EI"))
     if prep is None:
         return
     mesh, span, coeffs = prep
@@ -63,24 +72,40 @@ def lower_moving_beam(b, ctx, name, spec, path):
     # The four trace DOFs (v0, v0', vL, vL') carry the coupling to the rigid part; with
     # `modes` they are the static-mode coordinates of the reduced field (phc.library.modal).
     space, kappa_space = H3(mesh), DP1(mesh)
-    fields = _lower_fields(b, ctx, name, spec, path, mesh, span, {"p": (space, _inverse(rho))},
-                           {"kappa": (kappa_space, coeffs["EI"])}, [("p", "kappa", 1)], [], [], order=2,
-                           boundary=[("p", "a", 0), ("p", "a", 1), ("p", "b", 0), ("p", "b", 1)],
-                           kelvin_voigt=True)
+    if axial:
+        # Axial deformation: the tangential velocity becomes the field v_a = p_a/ρ (P1) with
+        # the strain ε = ∂u/∂ξ (P0) and N = EA ε, a string/bar of first order beside the
+        # bending pair of second order; p_t = ∫p_a is no longer a state of its own.
+        axial_space, eps_space = P1(mesh), P0(mesh)
+        fields = _lower_fields(b, ctx, name, spec, path, mesh, span,
+                               {"p": (space, _inverse(rho)), "pa": (axial_space, _inverse(rho))},
+                               {"kappa": (kappa_space, coeffs["EI"]), "eps": (eps_space, coeffs["EA"])},
+                               [("p", "kappa", 1, 2), ("pa", "eps", 1, 1)], [], [], order=2, kelvin_voigt=True)
+    else:
+        fields = _lower_fields(b, ctx, name, spec, path, mesh, span, {"p": (space, _inverse(rho))},
+                               {"kappa": (kappa_space, coeffs["EI"])}, [("p", "kappa", 1)], [], [], order=2,
+                               boundary=[("p", "a", 0), ("p", "a", 1), ("p", "b", 0), ("p", "b", 1)],
+                               kelvin_voigt=True)
     # Rigid part.
     q = [b.add_state(name, f"{pt}[{k}]", span) for pt in ("q0", "qf") for k in range(2)]
     (q0x, dq0x), (q0y, dq0y), (qfx, dqfx), (qfy, dqfy) = q
-    pt, dpt = b.add_state(name, "p_t", span)
     mass = rho.expr * L
     chord = sp.Matrix([qfx - q0x, qfy - q0y])
     ell = sp.sqrt(chord.dot(chord))
     tv = chord / ell
     nv = sp.Matrix([-tv[1], tv[0]])
-    e_t = pt / mass
     v0, vL = fields.trace("p", dof0), fields.trace("p", dofL)
-    omega = (vL - v0) / L
-    v_end0 = e_t * tv + v0 * nv
-    v_endf = e_t * tv + vL * nv
+    if axial:
+        pt = dpt = None
+        dofA = axial_space.size - 1
+        e_t0, e_tf = fields.trace("pa", 0), fields.trace("pa", dofA)
+        omega = (vL - v0) / ell  # the chord's rate of rotation; its length is L + u(L)
+    else:
+        pt, dpt = b.add_state(name, "p_t", span)
+        e_t0 = e_tf = pt / mass
+        omega = (vL - v0) / L
+    v_end0 = e_t0 * tv + v0 * nv
+    v_endf = e_tf * tv + vL * nv
     for k, (dq, v) in enumerate(((dq0x, v_end0[0]), (dq0y, v_end0[1]), (dqfx, v_endf[0]), (dqfy, v_endf[1]))):
         b.add_equation(dq - v, name, "kinematics", f"kinematics[{k}]", span)
     # r_j = ∫ ρ φ_j (H3 basis): the same functional in both modulation terms.
@@ -96,11 +121,22 @@ def lower_moving_beam(b, ctx, name, spec, path):
     e0, ef = sp.Matrix(ports["p0"].e), sp.Matrix(ports["pf"].e)
     frame = 1 if spec.effects.moving_frame else 0
     if not frame:
-        b.leave_out(name, "moving-frame terms K_r, K_f (ω∫p_b, −ρωp_t/m)", "effect `moving_frame` is off")
-    b.add_equation(dpt - frame * omega * r_expr + tv.dot(e0) + tv.dot(ef), name, "dynamics", "tangential_momentum",
-                   span)
-    if frame:
-        fields.load_vector("p", r, omega * e_t * rho.expr)
+        b.leave_out(name, "moving-frame terms K_r, K_f (ω∫p_b, −ρωp_t/m)" if not axial else
+                    "moving-frame terms (ω p_b in the axial, −ω p_a in the transverse momentum)",
+                    "effect `moving_frame` is off")
+    if axial:
+        # ṗ_a ∋ ω p_b, ṗ_b ∋ −ω p_a, tested with the same C_ij = ∫ρ φ_i^a φ_j^b on both sides:
+        # e_aᵀ(ω C e_b) − e_bᵀ(ω Cᵀ e_a) = 0 in the discrete power balance, for any ω.
+        C = assemble(axial_space, 0, space, 0).tocsr()
+        if frame:
+            _modulate(fields.load, fields.trace, C, rho.expr, omega)
+        fields.load("pa", 0, tv.dot(e0))
+        fields.load("pa", dofA, tv.dot(ef))
+    else:
+        b.add_equation(dpt - frame * omega * r_expr + tv.dot(e0) + tv.dot(ef), name, "dynamics",
+                       "tangential_momentum", span)
+        if frame:
+            fields.load_vector("p", r, omega * e_t0 * rho.expr)
     for k in range(2):
         b.define(ports["p0"].f[k], v_end0[k])
         b.define(ports["pf"].f[k], v_endf[k])
@@ -110,8 +146,14 @@ def lower_moving_beam(b, ctx, name, spec, path):
     fields.load("p", slope0, ports["m0"].e[0])
     b.define(ports["mf"].f[0], fields.trace("p", slopeL))
     fields.load("p", slopeL, ports["mf"].e[0])
-    b.hamiltonian.append(pt**2 / (2 * mass))
-    b.add_invariant(chord.dot(chord) - L**2, name, "chord_length", span)
+    if axial:
+        # The chord length is L + u(L) = L + ∫ε: ℓ̇ = tᵀ(q̇_f − q̇_0) = e_a(L) − e_a(0) = Σ_k h ε̇_k.
+        stretch = fields.state_functional("eps", np.full(eps_space.size, mesh.h))
+        b.add_invariant(ell - (L + stretch), name, "chord_length", span)
+        b.extra_outputs[f"{name}.stretch"] = stretch
+    else:
+        b.hamiltonian.append(pt**2 / (2 * mass))
+        b.add_invariant(chord.dot(chord) - L**2, name, "chord_length", span)
     for i, frac in enumerate(spec.deflection_at):
         g = _deflection_functional(mesh, kappa_space, float(frac) * mesh.length)
         b.extra_outputs[f"{name}.w[{i}]"] = fields.state_functional("kappa", g)
@@ -141,27 +183,43 @@ def lower_moving_beam(b, ctx, name, spec, path):
         for i in range(n_el + 1):
             b.initial_relations.append((f"{name}.rigid_start.slope[{i}]",
                                         {p.e[2 * i + 1]: 1.0, vL: -1.0 / mesh.length, v0: 1.0 / mesh.length}))
+        if axial:  # unstretched, and no axial velocity relative to the left end
+            pa, eps = fields.fields["pa"][0], fields.fields["eps"][0]
+            for i in range(1, n_el + 1):
+                b.initial_relations.append((f"{name}.rigid_start.axial[{i}]", {pa.e[i]: 1.0, pa.e[0]: -1.0}))
+            for k, xk in enumerate(eps.x):
+                b.initial_relations.append((f"{name}.unstretched_start[{k}]", {xk: 1.0}))
     # The complete description (compared with the rows above by phc.checks.rows): the
     # rigid part (storage q with ∂H/∂q = 0, p_t with ∂H/∂p_t = p_t/m) interconnected with
     # the flexible part's structure (co-energies λ, traces v0, vL, slopes) through R⁴,
     # modulated by the chord frame (t, n) and by ω = (vL − v0)/L — the paper's section 5.1.
     ds = fields.structure.d
     f_q, e_q = zip(*(ds.storage_pair(f"q{k}", x, dx, sp.Integer(0)) for k, (x, dx) in enumerate(q)))
-    f_pt, e_pt = ds.storage_pair("p_t", pt, dpt, pt / mass)
+    if not axial:
+        f_pt, e_pt = ds.storage_pair("p_t", pt, dpt, pt / mass)
+        w_t0 = w_tf = e_pt
+    else:
+        w_t0, w_tf = fields.d_trace("pa", 0), fields.d_trace("pa", dofA)
     for pname in ("p0", "pf", "m0", "mf"):
         ds.port(ports[pname])
     w0, wL = fields.d_trace("p", dof0), fields.d_trace("p", dofL)
-    omega_d = (wL - w0) / L
+    omega_d = (wL - w0) / (ell if axial else L)
     eq0, eqf = sp.Matrix(e_q[:2]), sp.Matrix(e_q[2:])
     for k in range(2):
-        ds.rel(f_q[k] - (e_pt * tv[k] + w0 * nv[k]), label=f"kinematics[{k}]")
-        ds.rel(f_q[2 + k] - (e_pt * tv[k] + wL * nv[k]), label=f"kinematics[{2 + k}]")
-        ds.rel(ports["p0"].f[k] - (e_pt * tv[k] + w0 * nv[k]), label=f"p0.flow[{k}]")
-        ds.rel(ports["pf"].f[k] - (e_pt * tv[k] + wL * nv[k]), label=f"pf.flow[{k}]")
-    ds.rel(f_pt + tv.dot(eq0 + e0) + tv.dot(eqf + ef) - frame * omega_d * rho.expr * fields.d_pair("p", r),
-           label="tangential_momentum")
-    if frame:
-        fields.d_load_vector("p", r, omega_d * e_pt * rho.expr)
+        ds.rel(f_q[k] - (w_t0 * tv[k] + w0 * nv[k]), label=f"kinematics[{k}]")
+        ds.rel(f_q[2 + k] - (w_tf * tv[k] + wL * nv[k]), label=f"kinematics[{2 + k}]")
+        ds.rel(ports["p0"].f[k] - (w_t0 * tv[k] + w0 * nv[k]), label=f"p0.flow[{k}]")
+        ds.rel(ports["pf"].f[k] - (w_tf * tv[k] + wL * nv[k]), label=f"pf.flow[{k}]")
+    if axial:
+        if frame:
+            _modulate(fields.d_load, fields.d_trace, C, rho.expr, omega_d)
+        fields.d_load("pa", 0, tv.dot(eq0 + e0))
+        fields.d_load("pa", dofA, tv.dot(eqf + ef))
+    else:
+        ds.rel(f_pt + tv.dot(eq0 + e0) + tv.dot(eqf + ef) - frame * omega_d * rho.expr * fields.d_pair("p", r),
+               label="tangential_momentum")
+        if frame:
+            fields.d_load_vector("p", r, omega_d * e_pt * rho.expr)
     fields.d_load("p", dof0, nv.dot(eq0 + e0))
     fields.d_load("p", dofL, nv.dot(eqf + ef))
     ds.rel(ports["m0"].f[0] - fields.d_trace("p", slope0), label="m0.flow")
@@ -172,16 +230,32 @@ def lower_moving_beam(b, ctx, name, spec, path):
     # Certification: flows of the four ports range over (λ_t t + λ_0 n, λ_t t + λ_f n, λ_a, λ_b).
     d = DiracBuilder(name, "moving_beam", span)
     lt, l0, lf, la, lb = (d.mult(x) for x in ("lt", "l0", "lf", "la", "lb"))
+    ltf = d.mult("ltf") if axial else lt  # with axial deformation the ends' tangential velocities differ
     for pname in ("p0", "pf", "m0", "mf"):
         d.port(ports[pname])
     for k in range(2):
         d.rel(ports["p0"].f[k] - (lt * tv[k] + l0 * nv[k]))
-        d.rel(ports["pf"].f[k] - (lt * tv[k] + lf * nv[k]))
+        d.rel(ports["pf"].f[k] - (ltf * tv[k] + lf * nv[k]))
     d.rel(ports["m0"].f[0] - la)
     d.rel(ports["mf"].f[0] - lb)
     d.register(b, states=(q0x, q0y, qfx, qfy), kind="port_projection",
                note="moving beam: rigid part ⊕ flexible part through R⁴ (the paper's section 5.1)",
                structure=structure)
+
+
+def _modulate(load, trace, C, rho, omega) -> None:
+    """The moving-frame modulation with axial deformation, in the rows (``load``/``trace``
+    of the fields) or the description (``d_load``/``d_trace``): ``ṗ_a ∋ ω ρ C e_b``,
+    ``ṗ_b ∋ −ω ρ Cᵀ e_a`` with ``C_ij = ∫ φ_i^a φ_j^b`` (rows are residuals, so the signs flip)."""
+    for i in range(C.shape[0]):
+        lo, hi = C.indptr[i], C.indptr[i + 1]
+        pair = sum((float(v) * trace("p", int(j)) for j, v in zip(C.indices[lo:hi], C.data[lo:hi])), sp.Integer(0))
+        load("pa", i, -omega * rho * pair)
+    CT = C.T.tocsr()
+    for j in range(CT.shape[0]):
+        lo, hi = CT.indptr[j], CT.indptr[j + 1]
+        pair = sum((float(v) * trace("pa", int(i)) for i, v in zip(CT.indices[lo:hi], CT.data[lo:hi])), sp.Integer(0))
+        load("p", j, omega * rho * pair)
 
 
 def _lower_rigid_link(b, ctx, name, spec, path):

@@ -78,6 +78,11 @@ class MovingBeamEffects(_Effects):
     """Kelvin–Voigt damping of the elastic motion (the `damping` coefficient)."""
     modes: Optional[int] = Field(None, ge=1)
     """Keep only the k lowest modes of the elastic part (see `DistributedEffects.modes`)."""
+    axial: Switch = False
+    """Axial deformation (beyond the paper; off by default, the paper's inextensible rod):
+    longitudinal displacement u(ξ) with axial stiffness `EA`, the chord length becomes
+    L + u(L) and the tangential momentum a field p_a(ξ) coupled to the frame's rotation
+    (ṗ_a ∋ ω p_b, ṗ_b ∋ −ω p_a). Needs `EA`; not with `modes`."""
 
 
 UserEffects = dict[Identifier, Switch]
@@ -571,6 +576,8 @@ class MovingBeamSpec(_Component):
     """Mass per unit length ρ (constant)."""
     EI: Expr
     """Bending stiffness (constant)."""
+    EA: Optional[Expr] = None
+    """Axial stiffness (constant); used with effect `axial` on."""
     elements: int = Field(8, ge=1, le=100_000)
     """Number of finite elements."""
     initial_shape: Literal["straight", "free"] = "straight"

@@ -120,6 +120,7 @@ MOVING_VARIANTS = {
     "moving_frame_off.yaml": ("    elements: 8\n",
                               "    elements: 6\n    damping: 0.01\n    effects: {moving_frame: false}\n"),
     "moving_rigid.yaml": ("    elements: 8\n", "    elements: 8\n    effects: {flexibility: false}\n"),
+    "moving_axial.yaml": ("    elements: 8\n", "    elements: 6\n    EA: 1.28e7\n    effects: {axial: on}\n"),
 }
 
 OWN_INLINE = {"modal.yaml": MODAL, "string_modes.yaml": STRING_MODES, "timoshenko_stiff.yaml": TIMOSHENKO_STIFF,
@@ -141,6 +142,7 @@ SPARSE = [
     ("linear_flow_in.yaml", "chain", "linear_phs"),
     ("moving_modes.yaml", "beam", "moving_beam"),
     ("moving_frame_off.yaml", "beam", "moving_beam"),
+    ("moving_axial.yaml", "beam", "moving_beam"),
 ]
 IDS = [f"{Path(str(m)).stem}-{kind}" for m, _, kind in SPARSE]
 
@@ -163,7 +165,7 @@ def _path(tmp_path, model):
         assert old in text
         # the initial momenta name full-mesh DOFs: start from rest in the variants (the
         # rigid link has neither p_t nor a deflection)
-        drop = ("beam.p[",) + (("beam.p_t", "midspan") if "rigid" in model else ())
+        drop = ("beam.p[",) + (("beam.p_t", "midspan") if "rigid" in model else ("beam.p_t",) if "axial" in model else ())
         text = "".join(line for line in text.splitlines(True) if not any(d in line for d in drop))
         return _write(tmp_path, model, text.replace(old, new, 1))
     return _write(tmp_path, model, OWN_INLINE[model])
