@@ -9,7 +9,8 @@ outputs by Richardson extrapolation from a second run:
   tolerances / 10; its error is taken as ``|y_tol − y_{tol/10}| · 10/9`` (error roughly
   proportional to the tolerance);
 * **spatial**: every distributed component is recompiled with twice the elements (same
-  solver settings) and ``|y_n − y_{2n}| · 2^q/(2^q − 1)``, with q the method's order:
+  solver settings; initial fields of ξ are projected onto the finer mesh, per-dof initial
+  values make the estimate unavailable, PHC-E214) and ``|y_n − y_{2n}| · 2^q/(2^q − 1)``, with q the method's order:
   2 for strings, Timoshenko beams and pde1d (P1/P0 mixed elements), 4 for Euler–Bernoulli
   and moving beams (Hermite cubics) — see README, "Distributed components".
 
@@ -87,6 +88,7 @@ def temporal_estimate(compiled, result, run_kwargs: dict) -> ErrorEstimate:
 
 
 def spatial_estimate(compiled, result, run_kwargs: dict) -> Optional[ErrorEstimate]:
+    from phc.errors import ModelError
     from phc.pipeline import compile_model
     from phc.simulation import simulate
 
@@ -96,13 +98,18 @@ def spatial_estimate(compiled, result, run_kwargs: dict) -> Optional[ErrorEstima
     order = min(SPATIAL_ORDER.get(kind, 2) for kind, _ in meshes.values())
     fine_scene = scene_variant(compiled.scene if compiled.scene is not None else compiled.dae.sources[0],
                                mesh={name: 2 * n for name, (_, n) in meshes.items()})
-    fine_model = compile_model(fine_scene.model_path, scene=fine_scene, certify=False)
+    sizes = ", ".join(f"{name} {n} → {2 * n}" for name, (_, n) in meshes.items())
+    try:
+        fine_model = compile_model(fine_scene.model_path, scene=fine_scene, certify=False)
+    except ModelError as err:  # e.g. initial values per dof, which belong to the coarse mesh (PHC-E214)
+        first = err.diagnostics.errors[0].render() if err.diagnostics.errors else str(err)
+        return ErrorEstimate("spatial", f"not estimated: the model does not compile with twice the elements "
+                             f"({sizes})", {}, 0.0, False, first)
     kwargs = dict(run_kwargs, t_eval=result.t)
     kwargs.pop("n_out", None)
     fine = simulate(fine_model, **kwargs)
     factor = 2**order / (2**order - 1)
     est = {k: factor * v for k, v in _difference(result, fine).items()}
-    sizes = ", ".join(f"{name} {n} → {2 * n}" for name, (_, n) in meshes.items())
     return ErrorEstimate("spatial", f"rerun with twice the elements ({sizes}), Richardson order {order}", est,
                          fine.cpu_time_s, fine.success, "" if fine.success else fine.message)
 

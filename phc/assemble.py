@@ -400,9 +400,18 @@ def _output_scope(b, subs, hamiltonian) -> dict:
 
 
 def _initial_values(b, ctx, state_names: set[str]) -> list[InitialValue]:
+    from phc.initial_fields import FieldInitializer
+
+    fields = FieldInitializer(b, ctx)  # fields of ξ of distributed components; per-dof values' mesh
+    field_entries = []
     out = []
     for name, spec in ctx.spec.simulation.initial.items():
         path = ("simulation", "initial", name)
+        if name not in state_names and fields.field_key(name) is not None:
+            field_entries.append((name, spec))
+            continue
+        if name in state_names and not fields.check_dof(name, path):
+            continue
         if name not in state_names:
             close = difflib.get_close_matches(name, sorted(state_names), n=1)
             b.error("PHC-E210", f"`{name}` is not a state of the model; initial values are given for states",
@@ -420,4 +429,4 @@ def _initial_values(b, ctx, state_names: set[str]) -> list[InitialValue]:
                     ctx, vpath)
             continue
         out.append(InitialValue(name, val, guess, ctx.smap.locate(vpath), None if ex.is_Number else ex))
-    return out
+    return fields.apply(field_entries, out)

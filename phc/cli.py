@@ -375,6 +375,9 @@ def cmd_simulate(args) -> int:
         for line in _left_out_lines(compiled):
             print(line)
         for e in estimates:
+            if not e.ok and not e.per_output:  # no rerun to compare with (e.g. per-dof initial values)
+                print(f"  error    {e.kind}: {e.method}: {e.message}")
+                continue
             worst = max(e.per_output, key=e.per_output.get) if e.per_output else "-"
             status = "" if e.ok else f" (the rerun failed: {e.message})"
             print(f"  error    {e.kind} ≈ {e.max:.3e} (largest in `{worst}`): {e.method}{status}")

@@ -291,9 +291,10 @@ class Dae:
     compile_time_parameters: tuple[str, ...] = ()
     """Parameters whose values were used at compile time (mesh length, ξ-dependent
     coefficients): overriding them at run time is refused."""
-    initial_relations: tuple[tuple[str, dict], ...] = ()
-    """Linear relations Σ c_v·v = 0 imposed only at t₀ (e.g. a beam starting straight and
-    moving rigidly), as (label, {variable symbol: coefficient})."""
+    initial_relations: tuple[tuple, ...] = ()
+    """Linear relations Σ c_v·v = r imposed only at t₀ (e.g. a beam starting straight and
+    moving rigidly), as (label, {variable symbol: coefficient}) with r = 0, or (label,
+    {variable symbol: coefficient}, r) (a moving beam's initial elastic velocity field)."""
     input_tables: tuple = ()
     """Input tables as (times, values, interpolation) (:mod:`phc.inputs`)."""
     breakpoints: tuple[float, ...] = ()

@@ -229,6 +229,9 @@ class Builder(Reporter):
         self.compile_time_parameters: set = set()
         self.effect_overrides: dict[str, tuple[dict, Optional[SourceSpan]]] = {}
         self.mesh_overrides: dict[str, tuple[int, Optional[SourceSpan]]] = {}
+        self.shape_overrides: dict[str, tuple[str, Optional[SourceSpan]]] = {}  # a scene's `initial_shape`
+        self.written_meshes: dict[str, int] = {}  # distributed component -> `elements` as in its model file
+        self.initial_fields: dict = {}  # distributed component -> phc.initial_fields.FieldSet
         self.skip: set[str] = set()  # components left out (pruned by a scene)
         self.meshes: dict[str, tuple[str, int]] = {}  # distributed component -> (type, elements)
         self.scene = None
@@ -584,6 +587,16 @@ class Builder(Reporter):
                                              path=f"effects.{full}"))
                 self.failed.add(full)
                 return
+        if "elements" in type(comp).model_fields:
+            self.written_meshes[full] = comp.elements  # what per-dof initial values were written for
+        if full in self.shape_overrides:
+            shape, span = self.shape_overrides[full]
+            if "initial_shape" not in type(comp).model_fields:
+                self.diags.append(Diagnostic("PHC-E603", f"`{full}` ({comp.type}) has no `initial_shape`; a scene's "
+                                             "`initial_shape` applies to moving beams", span=span))
+                self.failed.add(full)
+                return
+            comp = comp.model_copy(update={"initial_shape": shape})
         if full in self.mesh_overrides:
             elements, span = self.mesh_overrides[full]
             if "elements" not in type(comp).model_fields:
@@ -702,6 +715,10 @@ class Elaboration:
     unavailable: Mapping
     sources: tuple
     files: FileAccess
+    initial_fields: Mapping = field(default_factory=lambda: MappingProxyType({}))
+    """Distributed component -> its :class:`phc.initial_fields.FieldSet` (what initial fields project onto)."""
+    written_meshes: Mapping = field(default_factory=lambda: MappingProxyType({}))
+    """Distributed component -> `elements` as its model file gives it (per-dof initial values belong to it)."""
 
     def resolve_alias(self, name: str) -> str:
         return resolve_alias(self.port_aliases, name)
@@ -725,7 +742,8 @@ def _finish(b: Builder, ctx: FileContext) -> Elaboration:
         position_maps=tuple(b.position_maps), extra_outputs=ro(dict(b.extra_outputs)),
         compile_time_parameters=frozenset(b.compile_time_parameters), meshes=ro(dict(b.meshes)),
         mesh_spans=ro(mesh_spans(b)), left_out=tuple(b.left_out), unavailable=ro(dict(b.unavailable)),
-        sources=tuple(b.sources), files=b.files)
+        sources=tuple(b.sources), files=b.files, initial_fields=ro(dict(b.initial_fields)),
+        written_meshes=ro(dict(b.written_meshes)))
 
 
 def elaborate(path: str | os.PathLike, scene=None) -> tuple[Optional[Elaboration], DiagnosticList]:

@@ -53,6 +53,10 @@ class Scene:
     spec: SceneSpec
     smap: SourceMap
     left_out: list[tuple[str, str, str]] = field(default_factory=list)
+    written_mesh: Optional[dict[str, int]] = None
+    """The `accuracy.mesh` of the scene file as written (None: `spec.accuracy.mesh`); a
+    refined variant keeps it, so per-dof initial values in the scene are known to belong
+    to it (:mod:`phc.initial_fields`)."""
 
     @property
     def model_path(self) -> Path:
@@ -95,10 +99,13 @@ class Scene:
             builder.effect_overrides[comp] = (dict(effects), self.locate("effects", comp))
         for comp, elements in s.accuracy.mesh.items():
             builder.mesh_overrides[comp] = (elements, self.locate("accuracy", "mesh", comp))
-        for comp in list(s.effects) + list(s.accuracy.mesh):
+        for comp, shape in s.initial_shape.items():
+            builder.shape_overrides[comp] = (shape, self.locate("initial_shape", comp))
+        for comp in list(s.effects) + list(s.accuracy.mesh) + list(s.initial_shape):
             top = comp.split(".", 1)[0]
             if top not in spec.components:
-                where = ("effects", comp) if comp in s.effects else ("accuracy", "mesh", comp)
+                where = (("effects", comp) if comp in s.effects else ("accuracy", "mesh", comp)
+                         if comp in s.accuracy.mesh else ("initial_shape", comp))
                 builder.diags.append(Diagnostic(
                     "PHC-E602", f"the model has no component `{top}`", span=self.smap.locate_key(where),
                     hint=f"components: {', '.join(spec.components)}"))
@@ -236,9 +243,11 @@ def scene_variant(base: Scene | str | os.PathLike, *, mesh: Optional[dict[str, i
 
     if isinstance(base, Scene):
         path, spec, smap = base.path, base.spec, base.smap
+        written = dict(base.spec.accuracy.mesh if base.written_mesh is None else base.written_mesh)
     else:
         path = Path(base)
         spec, smap = SceneSpec(model=path.name, prune=False), SourceMap(str(path), None)
+        written = {}
     update: dict[str, Any] = {"mesh": {**spec.accuracy.mesh, **(mesh or {})}}
     if max_order is not None:
         update["max_order"] = max_order
@@ -257,4 +266,4 @@ def scene_variant(base: Scene | str | os.PathLike, *, mesh: Optional[dict[str, i
     changes: dict[str, Any] = {"accuracy": accuracy}
     if parameters:
         changes["parameters"] = {**spec.parameters, **{k: float(v) for k, v in parameters.items()}}
-    return Scene(path, spec.model_copy(update=changes), smap)
+    return Scene(path, spec.model_copy(update=changes), smap, written_mesh=written)

@@ -85,6 +85,7 @@ class ResidualIR:
     initial_cols: tuple = ()
     initial_data: tuple = ()
     initial_labels: tuple = ()
+    initial_rhs: tuple = ()
     compile_time_parameters: tuple = ()
     input_tables: tuple = ()
     breakpoints: tuple = ()
@@ -261,10 +262,11 @@ def lower_residual(dae: Dae) -> ResidualIR:
         quadratic_energy=quadratic(dae.quadratic_energy),
         quadratic_dissipation=quadratic(dae.quadratic_dissipation, with_pos=True),
         energy_row=energy_row,
-        initial_rows=tuple(i for i, (_, rel) in enumerate(dae.initial_relations) for _ in rel),
-        initial_cols=tuple(col_of_y[s] for _, rel in dae.initial_relations for s in rel),
-        initial_data=tuple(float(c) for _, rel in dae.initial_relations for c in rel.values()),
-        initial_labels=tuple(label for label, _ in dae.initial_relations),
+        initial_rows=tuple(i for i, (_, rel, *_) in enumerate(dae.initial_relations) for _ in rel),
+        initial_cols=tuple(col_of_y[s] for _, rel, *_ in dae.initial_relations for s in rel),
+        initial_data=tuple(float(c) for _, rel, *_ in dae.initial_relations for c in rel.values()),
+        initial_labels=tuple(label for label, *_ in dae.initial_relations),
+        initial_rhs=tuple(float(rhs[0]) if rhs else 0.0 for _, _, *rhs in dae.initial_relations),
         compile_time_parameters=dae.compile_time_parameters,
         input_tables=dae.input_tables,
         breakpoints=dae.breakpoints,

@@ -335,6 +335,8 @@ class ModulePrinter:
             f"INITIAL_ROWS = {_array(ir.initial_rows, 'np.int64')}",
             f"INITIAL_COLS = {_array(ir.initial_cols, 'np.int64')}",
             f"INITIAL_DATA = {_array(ir.initial_data, 'float')}",
+            *([f"INITIAL_RHS = {_array(ir.initial_rhs, 'float')}  # C y = INITIAL_RHS (an initial field)"]
+              if any(ir.initial_rhs) else []),
             f"OUTPUTS = {_tuple([name for name, _ in ir.outputs])}",
             f"JAC_ROWS = {_array(ir.jac_rows, 'np.int64')}",
             f"JAC_COLS = {_array(ir.jac_cols, 'np.int64')}",

@@ -280,6 +280,9 @@ def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, coupl
     structure = _describe(name, spec.type, span, keys, sizes, [f"lambda_{k}" for k in keys], storage, lossless,
                           losses)
     handle = FullFields(b, rows, fields, structure)
+    from phc.initial_fields import register  # what initial fields of ξ project onto (docs/how-to/initial-fields.md)
+
+    register(b, name, spec, mesh, fields)
     _boundary_ports(b, name, span, handle, ports, "discretized PDE: skew interconnection by construction; ports "
                     "certified through their traces")
     return handle
@@ -366,8 +369,10 @@ def _lower_fields(b, ctx, name, spec, path, mesh, span, spaces_a, spaces_b, coup
                 "`rotary_inertia` on, or drop `modes`", ctx, path)
         return None
     if k is not None:
+        from phc.initial_fields import register
         from phc.library.modal import lower_modal
 
+        register(b, name, spec, mesh, None)  # modal coordinates: initial fields are refused, per dof stays
         return lower_modal(b, ctx, name, spec, path, mesh, spaces_a, spaces_b, couplings, skew, ports, order, k,
                            boundary=boundary, kelvin_voigt=kelvin_voigt)
     fields_a = {l: (_Field(b, name, l, s, span, c is not None), c) for l, (s, c) in spaces_a.items()}

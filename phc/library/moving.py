@@ -95,6 +95,8 @@ def lower_moving_beam(b, ctx, name, spec, path):
     tv = chord / ell
     nv = sp.Matrix([-tv[1], tv[0]])
     v0, vL = fields.trace("p", dof0), fields.trace("p", dofL)
+    if getattr(b.initial_fields.get(name), "fields", None):
+        b.initial_fields[name].rigid = (v0, vL)  # the end normal velocities: the moving beam's `velocity` field
     if axial:
         pt = dpt = None
         dofA = axial_space.size - 1

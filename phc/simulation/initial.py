@@ -94,8 +94,10 @@ class _Problem:
         self.C = sps.csr_matrix((np.asarray(getattr(mod, "INITIAL_DATA", [])),
                                  (np.asarray(getattr(mod, "INITIAL_ROWS", []), dtype=np.int64),
                                   np.asarray(getattr(mod, "INITIAL_COLS", []), dtype=np.int64))), shape=(n_init, n))
+        self.c = np.asarray(getattr(mod, "INITIAL_RHS", np.zeros(n_init)), dtype=float)  # C y = c
         if not initial_relations:
             self.C = sps.csr_matrix((0, n))
+            self.c = np.zeros(0)
         self._prepared = False  # _prepare() on first use: a hopeless stage never needs it
 
     def _prepare(self):
@@ -258,7 +260,7 @@ class _Problem:
         curved = np.zeros(m, dtype=bool)  # a derivative by an unknown varies
         curved[rows[((position[cols] >= 0) & (jy0 != jy1)) | (jyp0 != jyp1)]] = True
         keep = np.concatenate([~curved, np.ones(C.shape[0], dtype=bool)])
-        g0 = np.concatenate([self.row_scale * f0, self.C @ self.y])
+        g0 = np.concatenate([self.row_scale * f0, self.C @ self.y - self.c])
         touched = np.zeros(len(g0), dtype=bool)  # rows with an unknown
         touched[np.concatenate([rows[ey], rows[eyp], m + C.row[ec]])] = True
         if not np.all(np.isfinite(g0[keep])):
@@ -318,7 +320,7 @@ class _Problem:
     def G(self, u):
         y, yp, z, w = self.unpack(u)
         return np.concatenate([self.row_scale * self.F(y, yp), self.row_scale[self.kept] * self.D(y, yp, z, w),
-                               self.C @ y])
+                               self.C @ y - self.c])
 
     def jacobian(self, u):
         if not self._prepared:

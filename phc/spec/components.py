@@ -581,8 +581,10 @@ class MovingBeamSpec(_Component):
     elements: int = Field(8, ge=1, le=100_000)
     """Number of finite elements."""
     initial_shape: Literal["straight", "free"] = "straight"
-    """`straight`: at t₀ the rod is undeformed unless initial curvatures are given, and moves
-    rigidly (no elastic velocity); `free`: phc chooses the initial elastic velocity."""
+    """`straight`: at t₀ the rod is undeformed and moves rigidly (no elastic velocity), except
+    for what initial fields give (`<name>.w` or `.kappa`: the deflection; `<name>.velocity`:
+    the elastic velocity; docs/how-to/initial-fields.md); `free`: phc chooses the initial
+    elastic velocity. A scene's `initial_shape` overrides it."""
     deflection_at: list[float] = [0.5]
     """Fractions ξ/L where the transverse deflection w(ξ) is available as output
     `<name>.w[i]` (reconstructed from κ with w(0) = w(L) = 0, paper, Remark 7 "Reconstruction

@@ -68,8 +68,13 @@ class SceneSpec(SpecModel):
     t_end: Optional[float] = Field(None, gt=0)
     n_out: Optional[int] = Field(None, ge=2, le=10_000_000)
     initial: dict[str, Union[Expr, InitialSpec]] = {}
-    """Initial values by state name, merged over the model's (a value here wins). phc
-    completes the rest by consistent initialization and reports what it chose."""
+    """Initial values by state name, merged over the model's (a value here wins), or initial
+    fields of distributed components as functions of `xi` (`rod.w: "0.001*sin(pi*xi/L)"`,
+    docs/how-to/initial-fields.md). phc completes the rest by consistent initialization and
+    reports what it chose."""
+    initial_shape: dict[str, Literal["straight", "free"]] = {}
+    """Initial shape per moving beam (`component: straight|free`), overriding the model's
+    `initial_shape`."""
     inputs: dict[str, InputSpec] = {}
     """Inputs on exposed ports, merged over the model's."""
     outputs: dict[Identifier, Expr] = {}

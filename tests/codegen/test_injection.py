@@ -66,7 +66,7 @@ _FIXED_NAMES = {
     "text", "dtype", "A", "x", "a", "z", "times", "values", "kind", "i",
     "MODEL", "SOURCES", "N", "VARIABLES", "DIFFERENTIAL", "ROLES", "EQUATIONS", "PARAMETERS", "BASE_PARAMETERS",
     "PARAMETER_DEFAULTS", "COMPILE_TIME_PARAMETERS", "INVARIANTS", "VELOCITY_INVARIANTS", "INITIAL", "INITIAL_ROWS",
-    "INITIAL_COLS", "INITIAL_DATA", "OUTPUTS", "JAC_ROWS", "JAC_COLS", "JAC_DEPENDS_ON_Y", "JAC_DEPENDS_ON_YP",
+    "INITIAL_COLS", "INITIAL_DATA", "INITIAL_RHS", "OUTPUTS", "JAC_ROWS", "JAC_COLS", "JAC_DEPENDS_ON_Y", "JAC_DEPENDS_ON_YP",
     "BREAKPOINTS", "full_parameters", "residual", "residual_t", "jacobian", "hamiltonian", "energy_scale",
     "powers", "invariants", "velocity_invariants", "outputs",
     "events", "SWITCHES", "SWITCH_EQUATIONS", "SWITCH_TIME_ONLY", "SWITCH_SLOTS", "STICKS", "STICK_EQUATIONS",
