@@ -79,6 +79,9 @@ FIELDS: dict[str, dict[str, str]] = {
         "w": "elastic deflection w(ξ) from the chord, w(0) = w(L) = 0; sets κ = ∂²w/∂ξ²",
         "velocity": "elastic transverse velocity ∂w/∂t relative to the chord's rigid motion, zero at both ends",
         "kappa": "curvature κ(ξ)",
+        "u": "axial displacement u(ξ) (effect `axial`); sets the axial strain ε = ∂u/∂ξ",
+        "axial_velocity": "axial velocity ∂u/∂t relative to the end ξ = 0 (effect `axial`), zero at ξ = 0",
+        "eps": "axial strain ε(ξ) (effect `axial`)",
     },
 }
 """Fields by component type (`pde1d` takes its `variables` by name)."""
@@ -327,6 +330,13 @@ class FieldInitializer:
                     targets.append(("w", "kappa", "state", d(ex, 2)))
                 elif f == "kappa":
                     targets.append(("kappa", "kappa", "state", ex))
+                elif f == "u":
+                    targets.append(("u", "eps", "state", d(ex)))
+                elif f == "eps":
+                    targets.append(("eps", "eps", "state", ex))
+                elif f == "axial_velocity" and "pa" not in fs.fields:
+                    raise _FieldError("PHC-E215", f"`{fs.component}` has no axial velocity field: effect `axial` "
+                                      "is off", "turn `axial` on (with `EA`), or drop the field", (f,))
         seen: dict[str, str] = {}
         values: list[InitialValue] = []
         for field, local, kind, ex in targets:
@@ -353,15 +363,24 @@ class FieldInitializer:
             if "velocity" in exprs:
                 drop += [f"{fs.component}.rigid_start.value", f"{fs.component}.rigid_start.slope"]
                 relations = self._moving_velocity(fs, exprs["velocity"])
+            if "u" in exprs or "eps" in exprs:
+                drop.append(f"{fs.component}.unstretched_start")
+            if "axial_velocity" in exprs:
+                drop.append(f"{fs.component}.rigid_start.axial")
+                relations = relations + self._axial_velocity(fs, exprs["axial_velocity"])
         return values, relations, drop
 
-    def _ends_vanish(self, fs, field, ex):
+    def _ends_vanish(self, fs, field, ex, ends_checked=(0, 1)):
         f = self._numeric(ex)
         L = fs.mesh.length
-        ends = np.asarray(f(np.array([0.0, L])), dtype=float).ravel()
-        ends = np.broadcast_to(ends, (2,))
+        ends = np.broadcast_to(np.asarray(f(np.array([0.0, L])), dtype=float).ravel(), (2,))[list(ends_checked)]
         scale = float(np.abs(np.asarray(f(fs.mesh.quadrature_points()), dtype=float)).max(initial=0.0))
         if np.abs(ends).max() > 1e-9 * max(scale, 1e-300) and np.abs(ends).max() > 1e-300:
+            if field == "axial_velocity":
+                raise _FieldError(
+                    "PHC-E215", f"`{fs.component}.axial_velocity` is the axial velocity relative to the end ξ = 0, "
+                    f"which is zero there; this field is {ends[0]:.3g} at ξ = 0",
+                    "subtract its value at ξ = 0; the mechanism decides the end's motion", (field,))
             what = "elastic deflection from the chord" if field == "w" else \
                 "elastic velocity relative to the chord's rigid motion"
             raise _FieldError(
@@ -431,6 +450,14 @@ class FieldInitializer:
                 expr = sp.Add(*[c * sp.Float(float(x[i])) for c, x in symbolic])
             out.append(InitialValue(name, float(total_num[i]), guess, span, expr))
         return out
+
+    def _axial_velocity(self, fs, ex) -> list:
+        """Relations ``e_a(ξ_i) − e_a(0) = u̇_h(ξ_i)`` (axial velocity relative to the end ξ = 0)."""
+        self._ends_vanish(fs, "axial_velocity", ex, ends_checked=(0,))
+        space, _, e, _ = fs.fields["pa"]
+        c = project(space, self._numeric(ex), keep=np.arange(1, space.size))
+        return [(f"{fs.component}.axial_velocity[{i}]", {e[i]: 1.0, e[0]: -1.0}, float(c[i]))
+                for i in range(1, space.size)]
 
     def _moving_velocity(self, fs, ex) -> list:
         """Relations ``e_p = rigid(v0, vL) + ẇ_h`` (interior node values, all node slopes)."""

@@ -346,3 +346,28 @@ def test_timoshenko_fields_and_unknown_field(tmp_path):
     with pytest.raises(ModelError, match=r"tb.yaml:18:5: .*`omega` is not an initial field of the timoshenko_beam "
                                          r"`beam`.*angular_velocity.*PHC-E215"):
         phc.compile_model(path)
+
+
+def test_moving_beam_axial_displacement_and_velocity_fields(tmp_path):
+    """Effect `axial`: `u` sets the strain ε = ∂u/∂ξ (so the stretch Σhε = u(L) − u(0) exactly,
+    on any mesh), `axial_velocity` the axial velocity relative to the end ξ = 0 (a linear one
+    lies in P1: reproduced exactly at the nodes)."""
+    text = (MOVING.replace("EI: EI, elements: 4}", "EI: EI, EA: 1.28e7, elements: 4, effects: {axial: on}}")
+            .replace("    beam.p_t: 0.0\n", "")
+            .replace("    beam.qf[0]: L\n", "    beam.qf[0]: L + 1.0e-5\n")
+            .replace('  outputs: {wmid: "beam.w[0]"}',
+                     '    beam.u: "1.0e-5*(xi/L)**2"\n    beam.axial_velocity: "-2.0e-3*xi/L"\n'
+                     '  outputs: {wmid: "beam.w[0]", stretch: beam.stretch}'))
+    path = tmp_path / "axial.yaml"
+    path.write_text(text)
+    for n in (4, 8):
+        variant = scene_variant(path, mesh={"beam": n})
+        compiled = phc.compile_model(variant.model_path, scene=variant)
+        result = phc.simulate(compiled, t_end=1e-6)
+        assert result.outputs["stretch"][0] == pytest.approx(1e-5, rel=1e-10)
+        idx = {v: i for i, v in enumerate(compiled.module.VARIABLES)}
+        ea = np.array([result.y[0, idx[f"beam.e_pa[{i}]"]] for i in range(n + 1)])
+        np.testing.assert_allclose(ea - ea[0], -2e-3 * np.linspace(0, 1, n + 1), atol=1e-12)
+    path.write_text(text.replace('"-2.0e-3*xi/L"', '"-2.0e-3*(1 + xi/L)"'))
+    with pytest.raises(ModelError, match=r"axial.yaml:\d+:\d+: .*relative to the end ξ = 0, which is zero there"):
+        phc.compile_model(path)
