@@ -68,10 +68,14 @@ RIGID_MODEL = Path(__file__).resolve().parent / "peers" / "rigid_slider_crank.ya
 HALF_DECADES = [1e-3, 3e-4, 1e-4, 3e-5, 1e-5, 3e-6, 1e-6, 3e-7, 1e-7, 3e-8, 1e-8]
 
 
+SOLVERS = None
+"""phc solvers measured (``--solvers``; all by default)."""
+
+
 def phc_solvers():
     from phc.simulation import BACKENDS
     fixed = getattr(__import__("phc.simulation", fromlist=["FIXED_STEP"]), "FIXED_STEP", ("midpoint",))
-    return [s for s in BACKENDS if s == "ida" or s in fixed]
+    return [s for s in BACKENDS if (s == "ida" or s in fixed) and (SOLVERS is None or s in SOLVERS)]
 
 
 CLOCK = time.perf_counter
@@ -467,13 +471,15 @@ class _Tee:
 
 
 def main(argv=None):
-    global BACKENDS, CLOCK
+    global BACKENDS, CLOCK, SOLVERS
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--part", default="ab")
     ap.add_argument("--methods", default="Radau,LSODA", help="solve_ivp methods of (a), e.g. Radau,LSODA,BDF")
     ap.add_argument("--backends", default="numpy,numba",
                     help="code backends of the phc rows (numba where it is installed)")
+    ap.add_argument("--solvers", default=None,
+                    help="only these phc solvers, e.g. ida (the peers run as always); default: all")
     ap.add_argument("--clock", choices=("wall", "cpu"), default="wall",
                     help="time the runs by the wall clock or by this process's CPU time")
     ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "peers" / "peers.md",
@@ -483,6 +489,7 @@ def main(argv=None):
 
     CLOCK = time.process_time if args.clock == "cpu" else time.perf_counter
     BACKENDS = [b for b in args.backends.split(",") if b == "numpy" or (b == "numba" and available()[0])]
+    SOLVERS = set(args.solvers.split(",")) if args.solvers else None
     args.out.parent.mkdir(parents=True, exist_ok=True)
     sys.stdout = _Tee(args.out)
     start = time.perf_counter()

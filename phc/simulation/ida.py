@@ -6,31 +6,54 @@ test — the effect of IDA's ``IDASetSuppressAlg``, which scikit-sundae does not
 we get it with a very large absolute tolerance on algebraic components. Accuracy is
 controlled on the differential (energy) states, which determine the algebraic ones.
 
-The solver is advanced one internal step at a time so that a failure keeps the output
-computed so far, progress can be reported, and the number of steps is known; output
-times inside the last step are filled by IDA's own interpolation.
+IDA integrates in its normal mode, in C, from one output time to the next (its own
+interpolation gives the outputs); Python runs only the residual and Jacobian callbacks
+and, between chunks, the bookkeeping. A chunk ends at the next output time or after at
+most :data:`CHUNK_STEPS` (or the singularity monitor's cadence) internal steps — IDA's
+per-call step limit, set before each call through SUNDIALS' C API
+(:class:`_IdaCounters`) — so that the monitor looks at the states every few steps,
+progress is reported, Ctrl-C is answered (between chunks: the callbacks are Python
+functions, where a pending KeyboardInterrupt is raised), `max_steps` is honoured exactly
+and a failure keeps the outputs computed before it.
 """
 
 from __future__ import annotations
 
+import ctypes
+import glob
+import math
+import os
 import time
 import warnings
+from typing import Optional
 
 import numpy as np
 import scipy.sparse as sps
 
 from phc.errors import SimulationSetupError
-from phc.simulation.guard import ModelEvaluationError
+from phc.simulation.guard import CATCH, GuardedModule, ModelEvaluationError
 from phc.simulation.monitor import SingularityMonitor, check_scales, diagnose_failure
 
 ALGEBRAIC_ATOL = 1e8
 """Absolute tolerance on algebraic variables: effectively removes them from the error test."""
 
-DENSE_LIMIT = 80
+DENSE_LIMIT = 120
+"""Systems up to this size use the dense linear solver; larger ones the sparse one
+(SuperLU_MT, one thread). Measured by ``benchmarks/bench_ida_linsolver.py`` (the flexible
+slider–crank at 27–275 unknowns, CPU time per step, ``benchmarks/results/ida_linsolver.md``):
+SUNDIALS' dense LU was faster up to 115 unknowns, the sparse solver from 147 on."""
+
+DENSE_SOLVER = "dense"
+"""scikit-sundae's name of the dense solver: SUNDIALS' own LU (``dense``) or LAPACK's."""
 
 MAX_ORDER = 5
 """Maximum BDF order (5 is IDA's default; 2 is A-stable for undamped stiff oscillations)."""
-"""Systems up to this size use the dense linear solver; larger ones the sparse one."""
+
+CHUNK_STEPS = 50
+"""Most internal steps IDA takes in C before control returns to Python (progress, Ctrl-C,
+the failure bookkeeping) when the singularity monitor does not ask for a shorter cadence."""
+
+IDA_ROOT_RETURN, IDA_TOO_MUCH_WORK = 2, -1
 
 _STATUS_HINTS = {
     -1: "the solver took too many steps; raise `max_steps` or shorten the time span",
@@ -48,6 +71,227 @@ def _import_ida():
     return IDA
 
 
+# ---------------------------------------------------------------------------------------
+# IDA's counters through SUNDIALS' C API
+
+_LIBRARY: list = []   # [ctypes.CDLL or None], found once per process
+
+
+def _ida_library():
+    """The SUNDIALS IDA shared library scikit-sundae's extension runs (already loaded in
+    this process: ``dlopen`` of its path returns the same copy), or None."""
+    if _LIBRARY:
+        return _LIBRARY[0]
+    lib = None
+    try:
+        import sksundae
+
+        paths = []
+        try:
+            with open("/proc/self/maps") as fh:
+                paths = sorted({line.split()[-1] for line in fh if "libsundials_ida" in line})
+        except OSError:
+            pass
+        if not paths:
+            root = os.path.dirname(os.path.dirname(sksundae.__file__))
+            for pattern in ("scikit_sundae.libs/libsundials_ida*", "sksundae/.dylibs/libsundials_ida*",
+                            "sksundae.libs/*sundials_ida*"):
+                paths += glob.glob(os.path.join(root, pattern))
+        for path in paths:
+            try:
+                lib = ctypes.CDLL(path)
+                lib.IDAGetNumSteps  # noqa: B018 - the symbol must be there
+                break
+            except (OSError, AttributeError):
+                lib = None
+        if lib is not None:
+            lib.IDAGetNumSteps.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_long)]
+            lib.IDAGetLastStep.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_double)]
+            lib.IDAGetNumResEvals.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_long)]
+            lib.IDASetMaxNumSteps.argtypes = [ctypes.c_void_p, ctypes.c_long]
+            lib.SUNContext_ClearErrHandlers.argtypes = [ctypes.c_void_p]
+            for name in ("IDAGetNumSteps", "IDAGetLastStep", "IDAGetNumResEvals", "IDASetMaxNumSteps",
+                         "SUNContext_ClearErrHandlers"):
+                getattr(lib, name).restype = ctypes.c_int
+    except Exception:  # noqa: BLE001 - the counters are an optimization with a fallback
+        lib = None
+    _LIBRARY.append(lib)
+    return lib
+
+
+class _IdaCounters:
+    """Number of steps, last step size and the per-call step limit of a scikit-sundae IDA
+    solver, read and set through SUNDIALS' C API (``IDAGetNumSteps``, ``IDAGetLastStep``,
+    ``IDASetMaxNumSteps``), which scikit-sundae does not expose.
+
+    The solver's IDA memory pointer is the first field of scikit-sundae's ``_cy_ida.IDA``
+    extension object; :meth:`attach` uses it only after checking the object's layout (its
+    size, the system size and its ``AuxData`` object in their fields, the memory's context
+    and unit round-off, and the number of residual evaluations against scikit-sundae's),
+    and returns None otherwise: the integrator then counts steps itself."""
+
+    _SIZE = 144  # sizeof(_cy_ida.IDA): head, vtable, mem, ctx, 7 pointers, NEQ, 5 objects
+    _MEM, _CTX, _NEQ, _AUX = 24, 32, 96, 104
+
+    def __init__(self, lib, mem):
+        self.lib, self.mem = lib, ctypes.c_void_p(mem)
+        self._long, self._double = ctypes.c_long(), ctypes.c_double()
+
+    @classmethod
+    def attach(cls, solver, n: int, nfev: int) -> Optional["_IdaCounters"]:
+        try:
+            from sksundae import _cy_ida
+
+            obj = getattr(solver, "_IDA__IDA", None)
+            if obj is None or type(obj) is not _cy_ida.IDA or type(obj).__basicsize__ != cls._SIZE:
+                return None
+            lib = _ida_library()
+            if lib is None:
+                return None
+            base = id(obj)
+            word = ctypes.c_void_p.from_address
+            if ctypes.c_int64.from_address(base + cls._NEQ).value != n:
+                return None
+            aux = word(base + cls._AUX).value
+            if not aux or word(aux + 8).value != id(_cy_ida.AuxData):  # ob_type of the AuxData object
+                return None
+            mem, ctx = word(base + cls._MEM).value, word(base + cls._CTX).value
+            if not mem or not ctx or word(mem).value != ctx:  # IDAMemRec: SUNContext, then uround
+                return None
+            if ctypes.c_double.from_address(mem + 8).value != np.finfo(float).eps:
+                return None
+            counters = cls(lib, mem)
+            if counters._get(lib.IDAGetNumResEvals, counters._long) != nfev:
+                return None
+            # SUNDIALS prints every error it returns on stderr, among them the step limit that ends
+            # each chunk; phc reports a failure itself (diagnosed), so this solver's context prints none
+            if lib.SUNContext_ClearErrHandlers(ctypes.c_void_p(ctx)) != 0:
+                return None
+            return counters
+        except Exception:  # noqa: BLE001 - an optimization with a fallback
+            return None
+
+    def _get(self, fn, box):
+        if fn(self.mem, ctypes.byref(box)) < 0:
+            raise RuntimeError(f"{fn.__name__} failed")
+        return box.value
+
+    def steps(self) -> int:
+        return int(self._get(self.lib.IDAGetNumSteps, self._long))
+
+    def last_step(self) -> float:
+        return float(self._get(self.lib.IDAGetLastStep, self._double))
+
+    def set_max_steps(self, k: int) -> None:
+        self.lib.IDASetMaxNumSteps(self.mem, int(k))
+
+
+# ---------------------------------------------------------------------------------------
+# Callbacks
+
+def _callbacks(mod, p, n: int, sparse: bool):
+    """(resfn, jacfn, state) for scikit-sundae: the raw generated functions (compiled or
+    NumPy) into preallocated buffers, checked for a finite result by one dot product; a
+    failure is evaluated again through the guard (:mod:`phc.simulation.guard`), which
+    raises the located :class:`ModelEvaluationError`. The dense Jacobian is scattered into
+    scikit-sundae's own matrix through precomputed flat indices (its zeros are written once).
+    `state` holds the last ``cj`` (α/h of the step IDA was trying)."""
+    guarded = mod if isinstance(mod, GuardedModule) else None
+    raw = mod.module if guarded is not None else mod
+    residual, jacobian = raw.residual, raw.jacobian
+    check_res = guarded.residual if guarded is not None else None
+    check_jac = guarded.jacobian if guarded is not None else None
+    rows, cols = np.asarray(mod.JAC_ROWS, dtype=np.intp), np.asarray(mod.JAC_COLS, dtype=np.intp)
+    state = {"cj": 0.0}
+    isfinite, dot = math.isfinite, np.dot
+
+    def resfn(t, y, yp, res):
+        try:
+            residual(t, y, yp, p, res)
+        except CATCH:
+            if check_res is None:
+                raise
+            check_res(t, y, yp, p, res)  # raises the located error
+            raise
+        if not isfinite(dot(res, res)) and check_res is not None:
+            check_res(t, y, yp, p, res)  # raises if a value is not finite (else an overflow of the check)
+
+    if sparse:
+        def jacfn(t, y, yp, res, cj, JJ):
+            state["cj"] = cj
+            try:
+                jacobian(t, y, yp, p, cj, JJ)
+            except CATCH:
+                if check_jac is None:
+                    raise
+                check_jac(t, y, yp, p, cj, JJ)
+                raise
+            if not isfinite(dot(JJ, JJ)) and check_jac is not None:
+                check_jac(t, y, yp, p, cj, JJ)
+    else:
+        buf = np.zeros(len(rows))
+        flat = rows * n + cols
+        target = [None, None]  # scikit-sundae's matrix (the same array every call) and its flat view
+
+        def jacfn(t, y, yp, res, cj, JJ):
+            state["cj"] = cj
+            try:
+                jacobian(t, y, yp, p, cj, buf)
+            except CATCH:
+                if check_jac is None:
+                    raise
+                check_jac(t, y, yp, p, cj, buf)
+                raise
+            if not isfinite(dot(buf, buf)) and check_jac is not None:
+                check_jac(t, y, yp, p, cj, buf)
+            if target[0] is not JJ:
+                JJ.fill(0.0)
+                target[0], target[1] = JJ, JJ.reshape(-1)
+            target[1][flat] = buf
+
+    return resfn, jacfn, state
+
+
+LOOK_STRETCH = 8
+"""Most the singularity monitor's cadence is stretched where the conditioning is flat."""
+FLAT_DECADES = 0.1
+"""Change of the conditioning ratio between two looks (decades) below which it counts as flat."""
+FAR_RATIO = 1e-6
+"""Conditioning ratio above which the monitor may look less often (its threshold is 1e-11)."""
+
+
+def _next_cadence(cadence: int, base: int, before: Optional[float], ratio: Optional[float]) -> int:
+    """Steps until the monitor's next look: 1.5× longer (up to :data:`LOOK_STRETCH`× `base`)
+    when the ratio moved less than :data:`FLAT_DECADES` since the last look and stays above
+    :data:`FAR_RATIO`, else back to `base` at once."""
+    if before is None or ratio is None or not (ratio > FAR_RATIO and before > FAR_RATIO):
+        return base
+    if abs(math.log10(ratio / before)) >= FLAT_DECADES:
+        return base
+    return min(LOOK_STRETCH * base, max(cadence + 1, int(1.5 * cadence)))
+
+
+def solver_options(mod, p, *, rtol, atol, max_order=None, sparse: Optional[bool] = None):
+    """(options of scikit-sundae's ``IDA``, callback state) for `mod` at parameters `p`: the
+    tolerances (algebraic variables out of the error test), analytic Jacobian, linear solver
+    (dense up to :data:`DENSE_LIMIT` unknowns) and maximum order of a phc run."""
+    n = mod.N
+    diff = np.asarray(mod.DIFFERENTIAL, dtype=bool)
+    sparse = n > DENSE_LIMIT if sparse is None else bool(sparse)
+    resfn, jacfn, state = _callbacks(mod, p, n, sparse)
+    atol_vec = np.where(diff, atol, ALGEBRAIC_ATOL)
+    options = dict(resfn=resfn, rtol=rtol, atol=atol_vec, jacfn=jacfn,
+                   algebraic_idx=[int(j) for j in np.flatnonzero(~diff)],
+                   max_num_steps=CHUNK_STEPS, max_order=int(max_order or MAX_ORDER))
+    if sparse:
+        rows, cols = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
+        pattern = sps.csc_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
+        options.update(linsolver="sparse", sparsity=pattern)
+    else:
+        options.update(linsolver=DENSE_SOLVER)
+    return options, state
+
+
 def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=None, max_order=None, names=None,
                   events=None):
     """Integrate from ``t_out[0]`` and return a dict of arrays and statistics.
@@ -58,33 +302,9 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     then returns with ``event`` = dict(t, y, yp, which) and the outputs before it."""
     IDA = _import_ida()
     n = mod.N
-    diff = np.asarray(mod.DIFFERENTIAL, dtype=bool)
-    rows, cols = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
-    buf = np.zeros(len(rows))
-    residual, jacobian = mod.residual, mod.jacobian
-
-    def resfn(t, y, yp, res):
-        residual(t, y, yp, p, res)
-
-    sparse = n > DENSE_LIMIT
-    last_cj = [0.0]  # cj = α/h of the last Jacobian: the step IDA was trying when it failed
-    if sparse:
-        def jacfn(t, y, yp, res, cj, JJ):
-            last_cj[0] = cj
-            jacobian(t, y, yp, p, cj, JJ)
-    else:
-        def jacfn(t, y, yp, res, cj, JJ):
-            last_cj[0] = cj
-            jacobian(t, y, yp, p, cj, buf)
-            JJ.fill(0.0)
-            JJ[rows, cols] = buf
-
-    atol_vec = np.where(diff, atol, ALGEBRAIC_ATOL)
-    options = dict(rtol=rtol, atol=atol_vec, jacfn=jacfn, algebraic_idx=[int(j) for j in np.flatnonzero(~diff)],
-                   max_num_steps=max(10, max_steps), max_order=int(max_order or MAX_ORDER))
-    if sparse:
-        pattern = sps.csc_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
-        options.update(linsolver="sparse", sparsity=pattern)
+    max_order = int(max_order or MAX_ORDER)
+    options, calls = solver_options(mod, p, rtol=rtol, atol=atol, max_order=max_order)
+    resfn = options.pop("resfn")
     with warnings.catch_warnings():
         # scikit-sundae warns that its own sparse approximation is unused: we pass jacfn.
         warnings.filterwarnings("ignore", message="Custom sparse Jacobian approximation")
@@ -97,6 +317,7 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
             options.update(eventsfn=eventsfn, num_events=events.n)
         solver = IDA(resfn, **options)
     t_out = np.asarray(t_out, dtype=float)
+
     def scales(failed, upto=1):  # the states of the run so far (a system at rest at t0 may move later)
         return check_scales(mod, ys[:upto], yps[:upto], float(t_out[-1] - t_out[0]), rtol, atol, failed)
 
@@ -109,60 +330,82 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
         return dict(t=t_out[:1], y=ys[:1], yp=yps[:1], steps=0, nfev=0, njev=0, success=False,
                     message=f"IDA could not start: {init.message}" + (f"; {scales(True)}" if scales(True) else ""),
                     cpu=time.process_time() - start)
+    counters = _IdaCounters.attach(solver, n, int(getattr(init, "nfev", 0) or 0))
+    monitor = SingularityMonitor(mod, p, names=names)
+    monitor.h_floor = 1e-6 * float(t_out[-1] - t_out[0])
+    # the monitor looks every `cadence` steps: `base`, stretched up to LOOK_STRETCH-fold while the
+    # conditioning stays flat and far above the threshold (a look is a dense SVD: for small
+    # systems it costs more than the steps between looks)
+    base = 5 if n <= 60 else 20
+    cadence = base if monitor.enabled else CHUNK_STEPS
+    last_ratio = None
     k, steps, ok, message = 1, 0, True, "integration finished"
+    since_look = 0
     event = None
     nfev = njev = 0
-    t_end = t_out[-1]
-    t_last = float(t_out[0])
-    h_last = 0.0
+    t_end = float(t_out[-1])
+    t_last, h_last = float(t_out[0]), 0.0
     # A failure is diagnosed at the last state reached with a normal step (h > h_ref/10, h_ref
     # the recent largest step, decaying 0.1 % a step): the steps collapse before IDA gives up.
     h_ref = 0.0
     normal = (float(t_out[0]), np.asarray(y0, dtype=float), np.asarray(yp0, dtype=float))
-    monitor = SingularityMonitor(mod, p, names=names)
-    monitor.h_floor = 1e-6 * float(t_out[-1] - t_out[0])
-    monitor_every = 5 if n <= 60 else 20
     interrupted = False
     try:  # a model function outside its domain, or Ctrl-C: keep the outputs filled so far
         while k < len(t_out):
-            res = solver.step(t_end, method="onestep", tstop=t_end)
-            t_step = float(np.atleast_1d(res.t)[-1])
-            if t_step != t_last:  # a onestep call after an interpolation may return without stepping
-                steps += 1
-                h_last, t_last = t_step - t_last, t_step
-                h_ref = max(h_last, 0.999 * h_ref)
+            if counters is not None:  # IDA returns after this many steps at most (status -1)
+                counters.set_max_steps(max(1, min(cadence - since_look, max_steps - steps)))
+            res = solver.step(float(t_out[k]), method="normal", tstop=t_end)
+            status = int(res.status)
+            t_now = float(res.t)
+            # without IDA's counters, residual evaluations stand in for steps (an upper bound)
+            taken = (counters.steps() if counters is not None else int(res.nfev)) - steps
+            steps += taken
+            since_look += taken
             nfev, njev = getattr(res, "nfev", nfev), getattr(res, "njev", njev)
-            if not res.success:
+            if taken:
+                if counters is not None:
+                    h_last = counters.last_step()
+                else:
+                    h_last = (t_now - t_last) / taken if t_now > t_last else h_last
+                h_ref = max(h_last, 0.999 ** taken * h_ref)
+            t_last = max(t_last, t_now)
+            chunk_end = status == IDA_TOO_MUCH_WORK  # the step limit of the call: a chunk ends
+            if not res.success and not chunk_end:
                 ok = False
-                hint = _STATUS_HINTS.get(int(res.status))
+                hint = _STATUS_HINTS.get(status)
                 if hint is None:  # diagnose before blaming: is the iteration matrix singular there?
-                    hint = diagnose_failure(mod, p, *normal, status=int(res.status), h_typical=h_ref,
-                                            h_fail=(1.0 / last_cj[0]) if last_cj[0] > 0 else h_last,
-                                            max_order=int(max_order or MAX_ORDER), rtol=rtol, atol=atol, names=names)
-                message = f"IDA failed at t = {float(res.t):.6g} (status {res.status}: {res.message}); {hint}"
+                    hint = diagnose_failure(mod, p, *normal, status=status, h_typical=h_ref,
+                                            h_fail=(1.0 / calls["cj"]) if calls["cj"] > 0 else h_last,
+                                            max_order=max_order, rtol=rtol, atol=atol, names=names)
+                message = f"IDA failed at t = {t_now:.6g} (status {status}: {res.message}); {hint}"
                 break
-            t_now = float(np.atleast_1d(res.t)[-1])
+            y_now, yp_now = res.y, res.yp
+            if status == IDA_ROOT_RETURN and res.i_events is not None:  # a switching function hit 0
+                event = dict(t=t_now, y=np.array(y_now), yp=np.array(yp_now),
+                             which=np.flatnonzero(np.asarray(res.i_events)[-1]).tolist())
+            elif not chunk_end:  # reached the output time
+                ys[k], yps[k] = y_now, yp_now
+                k += 1
             if h_last > 0.1 * h_ref:
-                normal = (t_now, np.atleast_2d(res.y)[-1], np.atleast_2d(res.yp)[-1])
-            if monitor.enabled and (steps % monitor_every == 0):
-                warning = monitor.watch(t_now, np.atleast_2d(res.y)[-1], np.atleast_2d(res.yp)[-1], h_last)
+                normal = (t_now, y_now, yp_now)
+            if since_look >= cadence and not monitor.enabled:
+                since_look = 0  # a chunk of CHUNK_STEPS ended
+            elif since_look >= cadence:
+                since_look = 0
+                warning = monitor.watch(t_now, y_now, yp_now, h_last)
                 if warning:
                     ok, message = False, warning
                     # the configuration may lie before outputs already filled in: keep none past it
                     k = max(1, min(k, int(np.searchsorted(t_out, monitor.stop_time, side="right"))))
                     break
-            while k < len(t_out) and t_out[k] <= t_now + 1e-14 * max(1.0, abs(t_now)):
-                r = solver.step(t_out[k], method="normal")
-                ys[k] = np.atleast_2d(r.y)[-1]
-                yps[k] = np.atleast_2d(r.yp)[-1]
-                k += 1
+                ratio = monitor._looks[-1][-1] if monitor._looks else None
+                cadence = _next_cadence(cadence, base, last_ratio, ratio)
+                last_ratio = ratio
             if progress is not None:
                 progress(t_now)
-            if int(res.status) == 2 and res.i_events is not None:  # IDA_ROOT_RETURN: a switching function hit 0
-                event = dict(t=t_now, y=np.array(np.atleast_2d(res.y)[-1]), yp=np.array(np.atleast_2d(res.yp)[-1]),
-                             which=np.flatnonzero(np.asarray(res.i_events)[-1]).tolist())
+            if event is not None:
                 break
-            if steps >= max_steps:
+            if steps >= max_steps and k < len(t_out):
                 ok = False
                 message = (f"stopped after {steps} steps at t = {t_now:.6g} (max_steps); raise `max_steps` or "
                            "loosen the tolerances")

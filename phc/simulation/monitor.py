@@ -116,7 +116,7 @@ class SingularityMonitor:
         (t0, *_, r0), (t1, *_, r1), (t2, *_, r2) = self._looks
         if not (r1 < r0 and r1 < r2 and t0 < t1 < t2):
             return None
-        best = self._minimize(t0, t2)
+        best = self._minimize(t0, t2, fa=r0, fb=r2)
         if best is None:
             return None
         tm, ratio, u = best
@@ -137,27 +137,38 @@ class SingularityMonitor:
         yp = (dh00 * ya + dh01 * yb) / d + dh10 * ypa + dh11 * ypb
         return y, yp, hb
 
-    def _minimize(self, a, b, iterations: int = 80):
+    def _minimize(self, a, b, iterations: int = 80, fa=None, fb=None):
         """(t, ratio, left singular vector) where the ratio falls below the threshold on
-        [a, b], searching for its minimum; None if it stays above."""
+        [a, b], searching for its minimum; None if it stays above.
+
+        The search stops early at a smooth minimum well above the threshold: near a
+        singular configuration the ratio falls to zero like a power (≥ 1) of the distance,
+        so below the two inner points it can fall by at most the bracket's width times the
+        steepest slope between the four points (`fa`, `fb`: the ratios at `a` and `b`);
+        when twice that still leaves the smaller inner value above the threshold, it does
+        not fall below it (a smooth minimum flattens as the bracket shrinks, a V does not)."""
         def f(t):
             y, yp, h = self._state_at(t)
             return self.ratio(t, y, yp, h)
         g = 0.5 * (np.sqrt(5.0) - 1.0)
         c, d = b - g * (b - a), a + g * (b - a)
         (fc, uc), (fd, ud) = f(c), f(d)
-        for _ in range(iterations):
+        for k in range(iterations):
             for t, r, u in ((c, fc, uc), (d, fd, ud)):
                 if u is not None:
                     return t, r, u
             if b - a <= 4 * np.finfo(float).eps * max(abs(a), abs(b)):
                 break
+            if k >= 4 and fa is not None and fb is not None and a < c < d < b:
+                slope = max(abs(fc - fa) / (c - a), abs(fd - fc) / (d - c), abs(fb - fd) / (b - d))
+                if min(fc, fd) - 2.0 * slope * (b - a) > self.threshold:
+                    break
             if fc < fd:
-                b, d, fd, ud = d, c, fc, uc
+                b, d, fd, ud, fb = d, c, fc, uc, fd
                 c = b - g * (b - a)
                 fc, uc = f(c)
             else:
-                a, c, fc, uc = c, d, fd, ud
+                a, c, fc, uc, fa = c, d, fd, ud, fc
                 d = a + g * (b - a)
                 fd, ud = f(d)
         return None
