@@ -137,6 +137,8 @@ def test_string_mode_shape_field_on_any_mesh(tmp_path, elements):
     omega_h = math.pi / 2 / _quarter_period(result.t, w)
     # P1/P0 mixed elements: frequency error ≈ (πh/L)²/24 (here 0.64 % on 8, 0.16 % on 16 elements)
     expected = (math.pi / elements) ** 2 / 24
+    print(f"string, {elements} elements: w(L/2, 0) = {w[0]:.6g}, ω_h/ω − 1 = {(omega_h - OMEGA) / OMEGA:.3e} "
+          f"(π²/(24n²) = {expected:.3e}), H(0) = {result.H[0]:.6e}")
     assert (omega_h - OMEGA) / OMEGA == pytest.approx(expected, rel=0.15)
     energy = TENSION * A**2 * math.pi**2 / (4 * L)  # ½∫T w_ξ² of the mode
     assert result.H[0] == pytest.approx(energy, rel=2 * expected)
@@ -182,6 +184,8 @@ def test_euler_bernoulli_mode_shape_converges(tmp_path):
         errors.append(abs(math.pi / t_half - omega) / omega)
         energies.append(result.H[0])
     energy = EI * W**2 * (math.pi / Lb) ** 4 * Lb / 4
+    print(f"pinned beam: ω_h/ω − 1 = {errors[0]:.3e} (2 elements), {errors[1]:.3e} (4 elements); "
+          f"H(0) = {energies[0]:.6e}, {energies[1]:.6e} (closed form {EI * W**2 * (math.pi / Lb) ** 4 * Lb / 4:.6e})")
     # measured: 4.2e-3 on 2, 2.5e-4 on 4 elements (ratio 16.9)
     assert errors[1] < 5e-4 and errors[0] / errors[1] > 12  # O(h⁴): ≈ 16 per halving
     assert energies[0] == pytest.approx(energy, rel=1e-2) and energies[1] == pytest.approx(energy, rel=1e-3)
@@ -235,6 +239,8 @@ def test_estimate_error_on_a_field_model_is_meaningful(tmp_path):
     force = result.outputs["force"]
     true = min(np.abs(force - exact).max(), np.abs(force + exact).max())  # port sign convention aside
     temporal, spatial = estimate_errors(compiled, result, {})
+    print(f"support force: true error {true:.3e}, spatial estimate {spatial.per_output['force']:.3e}, "
+          f"temporal estimate {temporal.per_output['force']:.3e}")
     assert spatial.ok and "s 8 → 16" in spatial.method
     assert true / 3 < spatial.per_output["force"] < 3 * true
     assert temporal.per_output["force"] < 1e-2 * true
@@ -371,3 +377,29 @@ def test_moving_beam_axial_displacement_and_velocity_fields(tmp_path):
     path.write_text(text.replace('"-2.0e-3*xi/L"', '"-2.0e-3*(1 + xi/L)"'))
     with pytest.raises(ModelError, match=r"axial.yaml:\d+:\d+: .*relative to the end ξ = 0, which is zero there"):
         phc.compile_model(path)
+
+
+def test_bench_mesh_sweep_projects_the_fields(tmp_path):
+    """`phc bench --mesh s=4,8,16` against the closed form of the support force: with the
+    field every mesh starts from the same standing wave, so the error falls as h² (P1/P0)."""
+    from phc.bench import run_bench
+
+    _string(tmp_path, "s.w: A*sin(pi*xi/L)\ns.velocity: 0\n", elements=8)
+    scene = tmp_path / "bench.yaml"
+    scene.write_text("model: string.yaml\nn_out: 81\n"
+                     "reference: {force: '-T*A*pi/L*cos(pi*sqrt(T/rho)/L*t)'}\n")
+    report = run_bench(scene, solvers=["midpoint"], steps=[1e-5], meshes={"s": [4, 8, 16]},
+                       out_dir=tmp_path / "out", reference_cache=False, progress=False, plot=False)
+    assert report.success, report.render_text()
+    errors = [row.errors["force"] for row in report.rows]
+    assert [row.mesh["s"] for row in report.rows] == [4, 8, 16]
+    print("bench errors (4, 8, 16 elements):", errors)
+    assert errors[0] / errors[1] > 3 and errors[1] / errors[2] > 3, errors  # O(h²): ≈ 4 per halving
+    # the same sweep with per-dof values: every refined mesh is a located failed row
+    model = _per_dof_8(tmp_path)
+    scene.write_text(f"model: {model}\nn_out: 81\nreference: {{force: '-T*A*pi/L*cos(pi*sqrt(T/rho)/L*t)'}}\n")
+    report = run_bench(scene, solvers=["midpoint"], steps=[1e-5], meshes={"s": [8, 16]},
+                       out_dir=tmp_path / "out2", reference_cache=False, progress=False, plot=False)
+    ok, refined = report.rows
+    assert ok.success and not refined.success
+    assert re.search(r"string.yaml:17:5: .*per degree of freedom for the 8-element mesh", refined.message)
