@@ -128,24 +128,78 @@ def _check_arguments(args) -> None:
             raise UsageError(str(err)) from None
 
 
-def cmd_validate(args) -> int:
-    from phc import build_dae
+class _Files:
+    """Several files of one command: each file's diagnostics, printed as they come in the
+    text and GitHub formats (one located line, or one annotation, per problem) or at the
+    end as one SARIF log or JSON list, and a summary line when there are several files."""
 
-    status = EXIT_OK
+    def __init__(self, args, command: str) -> None:
+        self.fmt, self.command = args.format, command
+        self.diagnostics: dict[str, list] = {}
+        self.failed: list[str] = []
+        self.n = len(args.files)
+
+    def report(self, path: str, diags, ok: bool) -> None:
+        from phc.report_formats import github_annotations
+
+        diags = list(diags)
+        self.diagnostics.setdefault(path, []).extend(diags)
+        if not ok:
+            self.failed.append(path)
+        if self.fmt == "text":
+            _print_diagnostics(diags)
+        elif self.fmt == "github":
+            for line in github_annotations(diags, path):
+                print(line)
+
+    def status(self, line: str) -> None:
+        """A file's own line (`x.yaml: ok (...)`): stdout, except beside a SARIF log."""
+        if self.fmt in ("text", "github"):
+            print(line)
+        elif self.fmt == "sarif":
+            print(line, file=sys.stderr)
+
+    def finish(self) -> int:
+        if self.fmt == "sarif":
+            from phc.report_formats import sarif_log
+
+            print(json.dumps(sarif_log(self.diagnostics, __version__, self.command), indent=2))
+        if self.n > 1 and self.fmt != "json":
+            counts = [sum(d.severity == s for ds in self.diagnostics.values() for d in ds)
+                      for s in ("error", "warning")]
+            text = (f"phc {self.command}: {self.n} files, {self.n - len(self.failed)} ok, {len(self.failed)} "
+                    f"failed; {counts[0]} error(s), {counts[1]} warning(s)")
+            if self.failed:
+                text += " in " + ", ".join(self.failed[:5]) + (", …" if len(self.failed) > 5 else "")
+            print(text, file=sys.stderr)  # stdout keeps one line per file (or the log alone)
+        return EXIT_MODEL if self.failed else EXIT_OK
+
+
+def _part_line(path: str, dae) -> str:
+    names = ", ".join(dae.external_ports)
+    n_components = len(dae.topology.components) if dae.topology is not None else 0
+    return (f"{path}: part ok ({n_components} component(s); exposes {names}; its balance is checked in the "
+            "model that uses it)")
+
+
+def cmd_validate(args) -> int:
+    from phc.pipeline import validate_file
+
+    files = _Files(args, "validate")
     report = []
     for path in args.files:
-        dae, diags = build_dae(path)
-        _print_diagnostics(diags, args.format)
+        dae, diags, kind = validate_file(path)
         ok = dae is not None and not diags.has_errors
-        report.append({"file": path, "valid": ok, "diagnostics": diags.to_json()})
-        if not ok:
-            status = EXIT_MODEL
-        elif args.format == "text":
-            print(f"{path}: ok ({dae.n_states - 1} states, {len(dae.equations)} equations, "
-                  f"{len(dae.variables)} unknowns)")
+        files.report(path, diags, ok)
+        report.append({"file": path, "valid": ok, "kind": kind, "diagnostics": diags.to_json()})
+        if ok and kind == "part":
+            files.status(_part_line(path, dae))
+        elif ok:
+            files.status(f"{path}: ok ({dae.n_states - 1} states, {len(dae.equations)} equations, "
+                         f"{len(dae.variables)} unknowns)")
     if args.format == "json":
         print(json.dumps(report, indent=2))
-    return status
+    return files.finish()
 
 
 def _certificate_line(compiled) -> str:
@@ -161,20 +215,28 @@ def _backend_line(compiled, requested=None) -> str:
 
 
 def cmd_compile(args) -> int:
-    compiled = _compile_or_exit(args.file, certify=not args.no_certify, backend=args.backend)
-    _print_diagnostics([d for d in compiled.diagnostics if d.severity != "error"])
+    from phc import ModelError, SimulationSetupError, compile_model
     from phc.io import write_text
 
+    files = _Files(args, "compile")
     out_dir = Path(args.output)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    target = write_text(out_dir / f"{compiled.name}.py", compiled.source)
-    print(f"{args.file}: wrote {target} ({compiled.n_states} states, {compiled.n_equations} equations, "
-          f"{compiled.jacobian_nnz} Jacobian nonzeros, compiled in {compiled.compile_time:.2f} s)")
-    print(_certificate_line(compiled))
-    print(_backend_line(compiled, args.backend))
-    for line in _left_out_lines(compiled):
-        print(line)
-    return EXIT_OK
+    for path in args.files:
+        try:
+            compiled = compile_model(path, certify=not args.no_certify, backend=args.backend)
+        except SimulationSetupError as err:  # --backend numba without numba
+            raise UsageError(str(err)) from None
+        except ModelError as err:
+            files.report(path, err.diagnostics, False)
+            continue
+        files.report(path, [d for d in compiled.diagnostics if d.severity != "error"], True)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        target = write_text(out_dir / f"{compiled.name}.py", compiled.source)
+        files.status(f"{path}: wrote {target} ({compiled.n_states} states, {compiled.n_equations} equations, "
+                     f"{compiled.jacobian_nnz} Jacobian nonzeros, compiled in {compiled.compile_time:.2f} s)")
+        for line in [_certificate_line(compiled), _backend_line(compiled, args.backend),
+                     *_left_out_lines(compiled)]:
+            files.status(line)
+    return files.finish()
 
 
 def _size_text(size: dict) -> str:
@@ -509,18 +571,37 @@ def cmd_bench(args) -> int:
 
 def cmd_check(args) -> int:
     import phc
+    from phc.pipeline import validate_file
 
-    report = phc.certify_model(args.file, samples=args.samples)
-    if report.structure is None:
-        _print_diagnostics(report.diagnostics)
-        if args.format == "json":
-            print(json.dumps(report.to_dict(), indent=2))
-        return EXIT_MODEL
+    files = _Files(args, "check")
+    reports = []
+    for path in args.files:
+        report = phc.certify_model(path, samples=args.samples)
+        if report.structure is None and any(d.code == "PHC-E216" for d in report.diagnostics):
+            # a part (`kind: part`): validated as a part, certified in the model that uses it
+            dae, diags, _ = validate_file(path)
+            ok = dae is not None and not diags.has_errors
+            files.report(path, diags, ok)
+            reports.append({"model": path, "kind": "part", "valid": ok, "certified": None,
+                            "diagnostics": diags.to_json()})
+            if ok:
+                files.status(_part_line(path, dae) + "; certified there too")
+            continue
+        reports.append(report.to_dict())
+        if report.structure is None:
+            files.report(path, report.diagnostics, False)
+            continue
+        if args.format == "text":
+            print(report.render_text())  # the certificate, its diagnostics at the end
+            files.diagnostics[path] = list(report.diagnostics)
+            if not report.certified:
+                files.failed.append(path)
+        else:
+            files.report(path, report.diagnostics, report.certified)
+            files.status(f"{path}: {'certified' if report.certified else 'NOT certified'}")
     if args.format == "json":
-        print(json.dumps(report.to_dict(), indent=2))
-    else:
-        print(report.render_text())
-    return EXIT_OK if report.certified else EXIT_MODEL
+        print(json.dumps(reports[0] if len(reports) == 1 else reports, indent=2))
+    return files.finish()
 
 
 def _parse_assignments(items: Sequence[str], option: str) -> dict[str, float]:
@@ -706,18 +787,25 @@ def _with_budget(func):
     return run
 
 
+FORMAT_HELP = ("text: one located line per problem; json; github: GitHub Actions annotations "
+               "(::error file=...,line=...,col=...::message); sarif: one SARIF 2.1.0 log on stdout for code "
+               "scanning (github/codeql-action/upload-sarif)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="phc", description="Compiler for port-Hamiltonian models.")
     parser.add_argument("--version", action="version", version=f"phc {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p = sub.add_parser("validate", help="check model files (schema, names, expressions, structure)")
+    p = sub.add_parser("validate", help="check model files (schema, names, expressions, structure); a part "
+                       "(`kind: part`) without closing its exposed ports")
     p.add_argument("files", nargs="+", metavar="FILE")
-    p.add_argument("--format", choices=("text", "json"), default="text")
+    p.add_argument("--format", choices=("text", "json", "github", "sarif"), default="text", help=FORMAT_HELP)
     p.set_defaults(func=cmd_validate)
 
-    p = sub.add_parser("compile", help="generate the residual module of a model")
-    p.add_argument("file", metavar="FILE")
+    p = sub.add_parser("compile", help="generate the residual module of each model")
+    p.add_argument("files", nargs="+", metavar="FILE")
+    p.add_argument("--format", choices=("text", "github", "sarif"), default="text", help=FORMAT_HELP)
     p.add_argument("--no-certify", action="store_true",
                    help="skip the certificate of the compiled equations (power balance, passivity)")
     p.add_argument("-o", "--output", default=".", metavar="DIR", help="directory for the generated module")
@@ -821,8 +909,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_sweep)
 
     p = sub.add_parser("check", help="certify Dirac structures and couplings and the compiled equations (Berger, Hochdahl, Reis, Seifried, \"Port-Hamiltonian modelling of coupled rigid/flexible multibody systems\", Section 2)")
-    p.add_argument("file", metavar="FILE")
-    p.add_argument("--format", choices=("text", "json"), default="text")
+    p.add_argument("files", nargs="+", metavar="FILE")
+    p.add_argument("--format", choices=("text", "json", "github", "sarif"), default="text", help=FORMAT_HELP)
     p.add_argument("--samples", type=int, default=2, help="random states sampled besides the initial one")
     p.set_defaults(func=cmd_check)
 

@@ -79,6 +79,8 @@ FIELDS: dict[str, dict[str, str]] = {
         "w": "elastic deflection w(ξ) from the chord, w(0) = w(L) = 0; sets κ = ∂²w/∂ξ²",
         "velocity": "elastic transverse velocity ∂w/∂t relative to the chord's rigid motion, zero at both ends",
         "kappa": "curvature κ(ξ)",
+        "p": "transverse momentum density p_b(ξ) in the chord frame, rigid motion included (its end values "
+             "set the ends' normal velocities)",
         "u": "axial displacement u(ξ) (effect `axial`); sets the axial strain ε = ∂u/∂ξ",
         "axial_velocity": "axial velocity ∂u/∂t relative to the end ξ = 0 (effect `axial`), zero at ξ = 0",
         "eps": "axial strain ε(ξ) (effect `axial`)",
@@ -214,7 +216,8 @@ class FieldInitializer:
         more = f" (and {len(others)} more)" if others else ""
         fs = self.sets[comp]
         names = list(field_names(fs))
-        example = _SUGGEST.get(local, local) if _SUGGEST.get(local, local) in names else (names[0] if names else local)
+        suggest = local if fs.type == "moving_beam" else _SUGGEST.get(local, local)  # its `velocity` is elastic only
+        example = suggest if suggest in names else (names[0] if names else local)
         self.b.error(
             "PHC-E214",
             f"`{name}`{more} is given per degree of freedom for the {written}-element mesh of `{comp}` in {where}, "
@@ -330,6 +333,12 @@ class FieldInitializer:
                     targets.append(("w", "kappa", "state", d(ex, 2)))
                 elif f == "kappa":
                     targets.append(("kappa", "kappa", "state", ex))
+                elif f == "p":
+                    if "velocity" in exprs:
+                        raise _FieldError("PHC-E215", f"the fields `p` and `velocity` both set `{fs.component}.p`",
+                                          "give one of them: `p` the whole momentum, `velocity` the elastic part",
+                                          ("velocity",))
+                    targets.append(("p", "p", "state", ex))
                 elif f == "u":
                     targets.append(("u", "eps", "state", d(ex)))
                 elif f == "eps":
@@ -360,8 +369,9 @@ class FieldInitializer:
         if t == "moving_beam":
             if "w" in exprs or "kappa" in exprs:
                 drop.append(f"{fs.component}.straight_start")
-            if "velocity" in exprs:
+            if "velocity" in exprs or "p" in exprs:
                 drop += [f"{fs.component}.rigid_start.value", f"{fs.component}.rigid_start.slope"]
+            if "velocity" in exprs:
                 relations = self._moving_velocity(fs, exprs["velocity"])
             if "u" in exprs or "eps" in exprs:
                 drop.append(f"{fs.component}.unstretched_start")

@@ -152,21 +152,36 @@ def _phc_version() -> str:
 def elaborate_file(path: str | os.PathLike, scene: Optional[Scene] = None) -> tuple[Optional[Dae], DiagnosticList]:
     """The passes load → elaborate → interconnect → assemble for a model file, or a scene
     file (its model with the scene applied). Returns ``(dae, diagnostics)``; `dae` is None
-    when any error was found (wiring problems are reported even when components failed)."""
+    when any error was found (wiring problems are reported even when components failed).
+    A part (`kind: part`, :mod:`phc.parts`) is refused: it is not a complete model."""
+    dae, diags, _ = _elaborate_file(path, scene)
+    return dae, diags
+
+
+def _elaborate_file(path, scene=None, allow_part: bool = False) -> tuple[Optional[Dae], DiagnosticList, str]:
+    """:func:`elaborate_file`, also returning the file's kind (``model``, ``part``, or
+    ``scene``); with `allow_part` a part is elaborated with its exposed ports free."""
+    from phc.parts import part_diagnostics
+
+    kind = "model"
     if scene is None and is_scene_file(path):
+        kind = "scene"
         scene, diags = load_scene(path)
         if scene is None:
-            return None, DiagnosticList(diags).sorted()
+            return None, DiagnosticList(diags).sorted(), kind
     elab, diags = elaborate(scene.model_path if scene is not None else path, scene)
     if elab is None:
-        return None, diags.sorted()
+        return None, diags.sorted(), kind
+    if elab.top.spec is not None and elab.top.spec.kind == "part":
+        kind = "part" if kind == "model" else kind
+        diags.extend(part_diagnostics(elab.top, allowed=allow_part and kind == "part"))
     inter = interconnect(elab)
     diags.extend(inter.diagnostics)
     if diags.has_errors:
-        return None, DiagnosticList(dict.fromkeys(diags)).sorted()
+        return None, DiagnosticList(dict.fromkeys(diags)).sorted(), kind
     dae, found = assemble(elab, inter)
     diags.extend(found)
-    return (None if diags.has_errors else dae), diags.sorted()
+    return (None if diags.has_errors else dae), diags.sorted(), kind
 
 
 def build_dae(path: str | os.PathLike, scene: Optional[Scene] = None) -> tuple[Optional[Dae], DiagnosticList]:
@@ -179,6 +194,19 @@ def build_dae(path: str | os.PathLike, scene: Optional[Scene] = None) -> tuple[O
         if diags.has_errors:
             dae = None
     return dae, DiagnosticList(diags).sorted()
+
+
+def validate_file(path: str | os.PathLike) -> tuple[Optional[Dae], DiagnosticList, str]:
+    """What ``phc validate`` checks of one file: a model or scene as :func:`build_dae` does,
+    a part (`kind: part`) without its structural balance, which depends on what the model
+    using it connects to its exposed ports. Returns ``(dae, diagnostics, kind)`` with
+    `kind` one of ``model``, ``part``, ``scene``."""
+    dae, diags, kind = _elaborate_file(path, allow_part=True)
+    if dae is not None and kind != "part":
+        diags.extend(check_balance(dae))
+        if diags.has_errors:
+            dae = None
+    return dae, DiagnosticList(diags).sorted(), kind
 
 
 def compile_model(path: str | os.PathLike, scene: Optional[Scene] = None, *, certify: bool = True,

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import re
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -403,3 +404,26 @@ def test_bench_mesh_sweep_projects_the_fields(tmp_path):
     ok, refined = report.rows
     assert ok.success and not refined.success
     assert re.search(r"string.yaml:17:5: .*per degree of freedom for the 8-element mesh", refined.message)
+
+
+def test_shipped_moving_beam_starts_in_the_same_state_on_any_mesh(tmp_path):
+    """models/moving_beam.yaml gives its spin as a momentum field: on 16 elements the same
+    state as on 8 (the per-dof values it had, `beam.p[0]`, `beam.p[16]`, made the right end's
+    value a mid-span one there: twice the spin rate, 5.5 times the energy, silently)."""
+    models = Path(__file__).resolve().parents[1] / "models"
+    states = []
+    for n in (8, 16):
+        variant = scene_variant(models / "moving_beam.yaml", mesh={"beam": n})
+        compiled = phc.compile_model(variant.model_path, scene=variant, certify=False)
+        result = phc.simulate(compiled, t_end=1e-4, n_out=2)
+        states.append((result.outputs["omega"][0], result.H[0]))
+    v0, L = 2.0, 0.3
+    assert states[0][0] == pytest.approx(-2 * v0 / L, rel=1e-9) and states[1][0] == pytest.approx(-2 * v0 / L, rel=1e-9)
+    assert states[0][1] == pytest.approx(states[1][1], rel=1e-9)
+    text = (models / "moving_beam.yaml").read_text().replace(
+        "    beam.p: rhoA*v0*(1 - 2*xi/L)", "    beam.p[0]: rhoA*v0\n    beam.p[16]: -rhoA*v0\n    #")
+    (tmp_path / "old.yaml").write_text(text)
+    (tmp_path / "old16.yaml").write_text("model: old.yaml\naccuracy: {mesh: {beam: 16}}\n")
+    with pytest.raises(ModelError, match=r"old.yaml:\d+:5: .*`beam.p\[0\]` \(and 1 more\).*8-element mesh.*"
+                                         r"16 elements.*`beam.p: .*PHC-E214"):
+        phc.compile_model(tmp_path / "old16.yaml")

@@ -65,6 +65,9 @@ def certify_model(path: str | os.PathLike, samples: int = 2) -> ModelCertificate
     if dae is None:
         return ModelCertificate(str(path), None, None, diags)
     cert = certify(dae, n_random=samples)
+    from phc.checks.signs import sign_hints  # connections that turn the sign of a voltage
+
+    cert.diagnostics.extend(sign_hints(dae.topology))
     balance = check_balance(dae)
     cert.diagnostics.extend(d for d in list(diags) + balance if d not in cert.diagnostics)
     compiled = None

@@ -119,18 +119,20 @@ class Certificate:
         lines = [f"{self.model}: {'certified' if self.certified else 'NOT certified'} "
                  f"({self.n_samples} sampled states)", "components"]
         width = max([len(c.name) for c in self.components] + [4])
+        kind_width = max([len(c.kind) for c in self.components] + [20])
         for c in self.components:
             if c.dirac is None:
                 status = f"ports only: {c.note}"
             else:
                 status = (f"Dirac {'ok' if c.dirac else 'FAILED'}: dim D {c.dim_d} / dim Z {c.dim_z}, "
                           f"isotropy {c.isotropy:.1e}")
-            lines.append(f"  {c.name:<{width}}  {c.kind:<20} {status}")
+            lines.append(f"  {c.name:<{width}}  {c.kind:<{kind_width}} {status}")
         lines.append("connections (breadth-first; rank of Γ achieved / needed)")
+        label_width = max([len(c.label) for c in self.connections] + [16])  # nested labels are longer
         for c in self.connections:
             fail = f", fails at {len(c.failing_samples)} sample(s)" if c.failing_samples else ""
             cond = f"; loses rank where {c.condition}" if c.condition else ""
-            lines.append(f"  {c.label:<16} {c.port_a} — {c.port_b}: rank {c.achieved}/{c.needed}"
+            lines.append(f"  {c.label:<{label_width}} {c.port_a} — {c.port_b}: rank {c.achieved}/{c.needed}"
                          f"{' surjective' if c.surjective else ' NOT surjective'} "
                          f"(σ_min/σ_max {c.conditioning:.1e}){fail}{cond}")
         lines.append("kinematic loops: " + ("; ".join(" – ".join(loop) for loop in self.loops)

@@ -16,6 +16,15 @@ the coupling space R⁴ (Proposition 12). The modulation terms ``ω ∫p_b`` and
 Proposition 11) are discretized with the same functional
 ``r_j = ∫ρφ_j`` on both sides, so they cancel exactly in the discrete power balance:
 ``e_t·ω rᵀe_p − Σ_j e_p,j ω e_t r_j = 0``.
+
+Effect `axial` (beyond the paper; docs/crank-test-problem.md): the centerline
+``q_0 + (ξ + u) t + w n`` gains the longitudinal displacement u with ``ε = ∂u/∂ξ`` and
+``N = EA ε``; the tangential velocity becomes the field ``v_a = p_a/ρ`` (``p_t = ∫p_a``),
+``ṗ_a = ∂(EAε) + ω p_b``, ``ε̇ = ∂(p_a/ρ)``, ``ṗ_b ∋ −ω p_a``, ω = (v_nf − v_n0)/ℓ with
+the current chord length ``ℓ = L + ∫ε`` (a position invariant). P1/P0 for (p_a, ε) as
+for the string; the modulation is tested with one matrix ``C_ij = ∫ρ φ_i^a φ_j^b`` on
+both sides, so it cancels exactly in the discrete power balance. Only the bending is
+Kelvin–Voigt damped.
 """
 
 from __future__ import annotations
@@ -45,6 +54,8 @@ def _deflection_functional(mesh, kappa_space, xi_star: float) -> np.ndarray:
 
 def lower_moving_beam(b, ctx, name, spec, path):
     if not spec.effects.flexibility:
+        if spec.effects.axial:
+            b.leave_out(name, "axial deformation (effect `axial`)", "effect `flexibility` is off: a rigid link")
         _lower_rigid_link(b, ctx, name, spec, path)
         return
     axial = bool(spec.effects.axial)

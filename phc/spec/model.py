@@ -135,6 +135,12 @@ class ModelSpec(SpecModel):
     )
     name: Optional[Identifier] = None
     description: Optional[str] = None
+    kind: Literal["model", "part"] = "model"
+    """`model` (the default): a complete model, compiled and simulated on its own. `part`: a
+    reusable piece that other models nest (`type: model`, `file: ...`); `phc validate`
+    checks it without closing its exposed ports (their terminations come from the model
+    that uses it), and `phc compile`/`simulate` refuse it. A part exposes at least one port
+    and has no `simulation` section."""
     parameters: dict[Identifier, Union[ParameterSpec, Expr]] = {}
     """Parameters, either `name: value` or `name: {value, unit, description}`."""
     components: dict[Identifier, ComponentSpec] = Field(min_length=1)

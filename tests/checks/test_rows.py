@@ -163,9 +163,9 @@ def _path(tmp_path, model):
         old, new = MOVING_VARIANTS[model]
         text = (MODELS / "moving_beam.yaml").read_text()
         assert old in text
-        # the initial momenta name full-mesh DOFs: start from rest in the variants (the
-        # rigid link has neither p_t nor a deflection)
-        drop = ("beam.p[",) + (("beam.p_t", "midspan") if "rigid" in model else ("beam.p_t",) if "axial" in model else ())
+        # the initial momentum field is the full discretization's: start from rest in the
+        # variants (the rigid link has neither p_t nor a deflection)
+        drop = ("beam.p[", "beam.p:") + (("beam.p_t", "midspan") if "rigid" in model else ("beam.p_t",) if "axial" in model else ())
         text = "".join(line for line in text.splitlines(True) if not any(d in line for d in drop))
         return _write(tmp_path, model, text.replace(old, new, 1))
     return _write(tmp_path, model, OWN_INLINE[model])
