@@ -109,3 +109,25 @@ def test_axial_without_EA_or_with_modes_is_a_located_error(tmp_path):
     path = _axial_crank(tmp_path, extra="    effects: {axial: on, modes: 2}\n")
     dae, diags = phc.build_dae(path)
     assert dae is None and any(d.code == "PHC-E145" and "`modes`" in d.message for d in diags)
+
+
+def test_a_flipped_sign_of_the_axial_modulation_in_the_rows_is_found(tmp_path, monkeypatch):
+    """The rows check compares the compiled rows with the complete description: the
+    modulation ṗ_a ∋ ω p_b, ṗ_b ∋ −ω p_a written with the wrong sign in the rows only (the
+    description keeps the right one) is PHC-E452, located at the rod."""
+    from phc.checks.rows import check_rows
+    from phc.library import moving
+
+    path = _axial_crank(tmp_path)
+    cert = check_rows(phc.build_dae(path)[0])
+    assert "rod" in cert.compared and not cert.diagnostics
+    honest = moving._modulate
+
+    def flipped(load, trace, C, rho, omega):
+        sign = -1 if getattr(load, "__name__", "") == "load" else 1  # rows: FullFields.load
+        honest(load, trace, C, sign * rho, omega)
+
+    monkeypatch.setattr(moving, "_modulate", flipped)
+    cert = check_rows(phc.build_dae(path)[0])
+    assert [d.code for d in cert.diagnostics] == ["PHC-E452"]
+    assert "`rod` (moving_beam)" in cert.diagnostics[0].message
