@@ -118,6 +118,14 @@ def integrate_discrete_gradient(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps
     (each output interval is split into equal steps no longer than `step`). Returns the same
     dict as the IDA backend."""
     del rtol, atol, max_order  # a fixed-step method: accuracy is set by `step`
+    if events is None:  # the whole step loop compiled, when the model runs on the numba backend
+        from phc.simulation import compiled_steps
+
+        out = compiled_steps.integrate("discrete_gradient", mod, p, t_out, y0, yp0, max_steps=max_steps,
+                                       progress=progress, step=step, name="discrete gradient", names=names,
+                                       python_advance=lambda: DiscreteGradientStep(mod, p))
+        if out is not None:
+            return out
     advance = DiscreteGradientStep(mod, p)
     out = integrate_fixed_step(mod, p, t_out, y0, yp0, max_steps=max_steps, progress=progress, step=step,
                                advance=advance, name="discrete gradient", names=names, events=events)

@@ -496,14 +496,26 @@ def integrate_midpoint(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progres
     interval is split into equal steps no longer than `step`). Returns the same dict as the
     IDA backend."""
     del rtol, atol, max_order  # a fixed-step method: accuracy is set by `step`
-    stage = StageSolver(mod, p)
 
-    def advance(t, h, y, guess):
-        y1, ok = stage.solve(t, h, y, guess, 0.5)
-        return y1, ok, (SINGULAR_HINT if stage.singular else NEWTON_HINT)
+    def make_advance():
+        stage = StageSolver(mod, p)
 
-    advance.stage = stage
+        def advance(t, h, y, guess):
+            y1, ok = stage.solve(t, h, y, guess, 0.5)
+            return y1, ok, (SINGULAR_HINT if stage.singular else NEWTON_HINT)
 
+        advance.stage = stage
+        return advance
+
+    if events is None:  # the whole step loop compiled, when the model runs on the numba backend
+        from phc.simulation import compiled_steps
+
+        out = compiled_steps.integrate("midpoint", mod, p, t_out, y0, yp0, max_steps=max_steps, progress=progress,
+                                       step=step, name="implicit midpoint", names=names, python_advance=make_advance)
+        if out is not None:
+            return out
+    advance = make_advance()
+    stage = advance.stage
     out = integrate_fixed_step(mod, p, t_out, y0, yp0, max_steps=max_steps, progress=progress, step=step,
                                advance=advance, name="implicit midpoint", names=names, events=events)
     out.update(nfev=stage.nfev, njev=stage.matrix.factorizations)

@@ -1,0 +1,221 @@
+"""The compiled fixed-step loop (:mod:`phc.simulation.compiled_steps`) against the Python loop.
+
+The same model on the numba backend is run twice, once with the whole step loop compiled and
+once with ``PHC_COMPILED_LOOP=0`` (the Python loop calling the same compiled functions):
+the trajectories agree to the Newton tolerance (the LU differs: dense LAPACK against
+SuperLU), the discrete energy balance holds to round-off, and failures, ``max_steps`` and
+Ctrl-C keep the results so far with the Python loop's messages."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import phc
+from phc.codegen.numba_backend import available
+
+OK, WHY = available()
+pytestmark = pytest.mark.skipif(not OK, reason=f"the compiled loop needs numba: {WHY}")
+
+MODELS = Path(__file__).resolve().parents[2] / "models"
+
+
+@pytest.fixture(scope="module")
+def compiled():
+    cache = {}
+
+    def get(name):
+        if name not in cache:
+            cache[name] = phc.compile_model(MODELS / name, certify=False, backend="numba")
+            assert cache[name].backend == "numba"
+        return cache[name]
+
+    return get
+
+
+@pytest.fixture
+def used(monkeypatch):
+    """Records whether each run went through the compiled loop."""
+    from phc.simulation import compiled_steps
+
+    calls = []
+    original = compiled_steps.integrate
+
+    def spy(*args, **kwargs):
+        out = original(*args, **kwargs)
+        calls.append(out is not None)
+        return out
+
+    monkeypatch.setattr(compiled_steps, "integrate", spy)
+    return calls
+
+
+def _both(monkeypatch, model, **options):
+    """(compiled loop, Python loop) results of one simulation."""
+    monkeypatch.setenv("PHC_COMPILED_LOOP", "1")
+    fast = phc.simulate(model, **options)
+    monkeypatch.setenv("PHC_COMPILED_LOOP", "0")
+    slow = phc.simulate(model, **options)
+    monkeypatch.setenv("PHC_COMPILED_LOOP", "1")
+    return fast, slow
+
+
+def _assert_same_trajectory(fast, slow, h):
+    assert fast.success and slow.success, (fast.message, slow.message)
+    assert fast.message == slow.message
+    assert np.array_equal(fast.t, slow.t) and fast.steps == slow.steps
+    diff = fast.differential & (np.array(fast.variables) != "energy.supplied")
+    size = 1.0 + np.abs(slow.y).max(axis=0)
+    err = np.abs(fast.y - slow.y) / size
+    # differential variables: the Newton tolerance, accumulated over the steps
+    assert err[:, diff].max() <= 1e-9, err[:, diff].max()
+    # algebraic ones (multipliers at the step ends) are differences of them over h
+    assert err[:, ~diff].max(initial=0.0) <= 1e-9 / h, err[:, ~diff].max(initial=0.0)
+
+
+@pytest.mark.parametrize("name, solver, t_end, step", [
+    ("flexible_slider_crank.yaml", "midpoint", 0.01, None),
+    ("flexible_slider_crank.yaml", "midpoint4", 0.01, 1e-4),
+    ("rigid_slider_crank.yaml", "discrete_gradient", 0.1, 1e-3),
+    ("rigid_slider_crank.yaml", "midpoint4", 0.1, 5e-3),
+    ("pendulum.yaml", "midpoint", 2.0, 1e-2),
+    ("pendulum.yaml", "discrete_gradient", 2.0, 1e-2),
+    ("vibrating_string.yaml", "midpoint", 0.01, 1e-4),
+])
+def test_compiled_loop_follows_the_python_loop(compiled, monkeypatch, used, name, solver, t_end, step):
+    model = compiled(name)
+    fast, slow = _both(monkeypatch, model, solver=solver, t_end=t_end, step=step, n_out=51)
+    half = len(used) // 2  # one call per piece between input breakpoints
+    assert used == [True] * half + [False] * half
+    _assert_same_trajectory(fast, slow, step or model.dae.options["step"])
+    assert fast.constraint_drift <= max(10 * slow.constraint_drift, 1e-13)
+
+
+def test_midpoint_energy_balance_is_exact_for_quadratic_h(compiled, monkeypatch, used):
+    # the Cartesian pendulum: H = |p|²/2m + m g y is quadratic; a coarse step changes nothing
+    r = phc.simulate(compiled("pendulum.yaml"), solver="midpoint", t_end=5.0, step=0.05, n_out=101)
+    assert used == [True] and r.success
+    assert r.energy_balance_relative <= 1e-12
+    assert r.constraint_drift <= 1e-12
+
+
+def test_discrete_gradient_energy_balance_is_exact_for_non_quadratic_h(compiled, monkeypatch, used):
+    # H = k1 x²/2 + k s²/2 + k3 s⁴/4 + kinetic: the midpoint rule misses the balance at this step,
+    # the discrete gradient keeps it to round-off
+    model = compiled("two_mass_cubic_spring.yaml")
+    options = dict(t_end=5.0, step=0.05, n_out=101, initial={"coupling.s": 0.8})
+    dg = phc.simulate(model, solver="discrete_gradient", **options)
+    mp = phc.simulate(model, solver="midpoint", **options)
+    assert used == [True, True] and dg.success and mp.success
+    assert dg.energy_balance_relative <= 1e-12
+    assert mp.energy_balance_relative >= 1e-6  # the test can fail: H is not quadratic
+
+
+def test_max_steps_keeps_the_results_so_far(compiled, monkeypatch, used):
+    fast, slow = _both(monkeypatch, compiled("flexible_slider_crank.yaml"), solver="midpoint", t_end=0.01,
+                       n_out=101, max_steps=333)
+    assert used == [True, False]
+    for r in (fast, slow):
+        assert not r.success and "max_steps" in r.message and r.steps == 333
+    assert fast.message == slow.message
+    assert np.array_equal(fast.t, slow.t) and 1 < len(fast.t) < 101
+
+
+STATE_MODEL = """\
+format_version: 1
+name: state_model
+components:
+  s:
+    type: phs
+    states: [q]
+    hamiltonian: q**2/2 + asin(q)
+    J: [[0]]
+    R: [[0]]
+    ports:
+      u:
+        domain: electrical
+        causality: effort_in
+        B: [[1]]
+  src: {type: effort_source, domain: electrical, value: 1}
+connections:
+  - [s.u, src.port]
+simulation:
+  t_end: 2.0
+  n_out: 201
+  initial:
+    s.q: 0.0
+"""
+# q' = 1: q(t) = t, and d/dq asin(q) = 1/sqrt(1 − q²) is not defined from t = 1 on
+
+
+@pytest.mark.parametrize("solver", ["midpoint", "discrete_gradient", "midpoint4"])
+def test_model_evaluation_failure_keeps_the_results_so_far(tmp_path, monkeypatch, used, solver):
+    path = tmp_path / "state_model.yaml"
+    path.write_text(STATE_MODEL)
+    model = phc.compile_model(path, certify=False, backend="numba")
+    fast, slow = _both(monkeypatch, model, solver=solver, step=0.01)
+    assert used == [True, False]
+    for r in (fast, slow):
+        assert not r.success and "cannot be evaluated" in r.message, r.message
+        assert 0.9 <= r.t[-1] <= 1.0 and np.all(np.isfinite(r.y))
+    assert fast.message == slow.message and np.array_equal(fast.t, slow.t)
+
+
+def test_ctrl_c_between_chunks_keeps_the_results_so_far(compiled, monkeypatch, used):
+    from phc.simulation import compiled_steps
+    from phc.simulation.result import SimulationInterrupted
+
+    monkeypatch.setattr(compiled_steps, "CHUNK_SECONDS", 1e-4)  # many chunks, many progress reports
+    seen = []
+
+    def progress(t):
+        seen.append(t)
+        if len(seen) == 3:
+            raise KeyboardInterrupt
+
+    with pytest.raises(SimulationInterrupted) as info:
+        phc.simulate(compiled("flexible_slider_crank.yaml"), solver="midpoint", t_end=0.01, n_out=101,
+                     progress=progress)
+    r = info.value.result
+    assert used == [True]
+    assert r.interrupted and not r.success and r.message.startswith("interrupted at t = ")
+    assert 0 < r.t[-1] < 0.01 and r.t[-1] == pytest.approx(seen[-1])
+    assert math.isclose(float(r.message.split("t = ")[1]), r.t[-1], rel_tol=1e-5)
+    assert np.all(np.isfinite(r.y)) and np.all(np.diff(r.t) > 0)
+
+
+def test_large_systems_and_the_numpy_backend_keep_the_python_loop(compiled, monkeypatch):
+    from phc.simulation import compiled_steps
+
+    model = compiled("pendulum.yaml")
+    assert compiled_steps.enabled(model.module)
+    monkeypatch.setattr(compiled_steps, "MAX_UNKNOWNS", model.module.N - 1)
+    assert not compiled_steps.enabled(model.module)
+    numpy_model = phc.compile_model(MODELS / "pendulum.yaml", certify=False, backend="numpy")
+    monkeypatch.setattr(compiled_steps, "MAX_UNKNOWNS", 400)
+    assert not compiled_steps.enabled(numpy_model.module)
+
+
+def test_newton_weights_give_the_same_steps(compiled):
+    """A weight vector 1/(1 + max|y|) in every entry reproduces the default stopping rule's scale
+    (|y| changes little over the run): the same trajectory to the tolerance."""
+    from phc.simulation import compiled_steps, parameter_vector, start_state, initial_values
+
+    model = compiled("rigid_slider_crank.yaml")
+    mod = model.module
+    p = parameter_vector(mod)
+    values, fixed = initial_values(model, p)
+    init = start_state(model, p, 0.0, values, fixed)
+    t_out = np.linspace(0.0, 0.1, 11)
+    common = dict(max_steps=10_000, progress=None, step=1e-3, name="implicit midpoint",
+                  python_advance=None)
+    plain = compiled_steps.integrate("midpoint", mod, p, t_out, init.y0, init.yp0, **common)
+    w = np.full(mod.N, 1.0 / (1.0 + np.abs(plain["y"]).max()))
+    weighted = compiled_steps.integrate("midpoint", mod, p, t_out, init.y0, init.yp0, weights=w, **common)
+    assert plain["success"] and weighted["success"]
+    assert np.abs(plain["y"] - weighted["y"]).max() <= 1e-9 * (1.0 + np.abs(plain["y"]).max())
+    with pytest.raises(ValueError, match="weights"):
+        compiled_steps.integrate("midpoint", mod, p, t_out, init.y0, init.yp0, weights=np.ones(3), **common)
