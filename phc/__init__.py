@@ -26,6 +26,7 @@ _API = {
     # compile
     "load_model": ("phc.elaborate", "load_spec"),
     "build_dae": ("phc.pipeline", "build_dae"),
+    "validate_file": ("phc.pipeline", "validate_file"),
     "compile_model": ("phc.pipeline", "compile_model"),
     "CompiledModel": ("phc.pipeline", "CompiledModel"),
     # certify

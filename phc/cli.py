@@ -183,7 +183,7 @@ def _part_line(path: str, dae) -> str:
 
 
 def cmd_validate(args) -> int:
-    from phc.pipeline import validate_file
+    from phc import validate_file
 
     files = _Files(args, "validate")
     report = []
@@ -571,7 +571,7 @@ def cmd_bench(args) -> int:
 
 def cmd_check(args) -> int:
     import phc
-    from phc.pipeline import validate_file
+    from phc import validate_file
 
     files = _Files(args, "check")
     reports = []

@@ -198,9 +198,18 @@ def build_dae(path: str | os.PathLike, scene: Optional[Scene] = None) -> tuple[O
 
 def validate_file(path: str | os.PathLike) -> tuple[Optional[Dae], DiagnosticList, str]:
     """What ``phc validate`` checks of one file: a model or scene as :func:`build_dae` does,
-    a part (`kind: part`) without its structural balance, which depends on what the model
-    using it connects to its exposed ports. Returns ``(dae, diagnostics, kind)`` with
-    `kind` one of ``model``, ``part``, ``scene``."""
+    a part (`kind: part`, see :mod:`phc.parts`) without its structural balance, which
+    depends on what the model using it connects to its exposed ports.
+
+    Returns
+    -------
+    dae : Dae or None
+        The assembled system (of a part: with its exposed ports free), None on errors.
+    diagnostics : DiagnosticList
+        Located problems and warnings, sorted.
+    kind : str
+        ``"model"``, ``"part"`` or ``"scene"``.
+    """
     dae, diags, kind = _elaborate_file(path, allow_part=True)
     if dae is not None and kind != "part":
         diags.extend(check_balance(dae))

@@ -163,6 +163,16 @@ def test_a_part_is_refused_where_a_complete_model_is_needed(tmp_path, capsys, co
     assert len(lines) == 1 and lines[0].startswith(f"{part}:3:7: kind: ") and lines[0].endswith("[PHC-E216]")
 
 
+def test_a_scene_of_a_part_is_refused(tmp_path, capsys):
+    part = write(tmp_path, "gear.yaml", GEAR_PART)
+    scene = write(tmp_path, "scene.yaml", "format_version: 1\nmodel: gear.yaml\nt_end: 1.0\n"
+                  "inputs:\n  input: {flow: 1.0}\n  output: {effort: 0.0}\n")
+    for command in ("validate", "simulate"):
+        assert main([command, str(scene)]) == 1
+        lines = located(capsys.readouterr().err)
+        assert [line.split(": ")[0] for line in lines] == [f"{part}:3:7"] and "[PHC-E216]" in lines[0]
+
+
 def test_a_part_needs_ports_and_has_no_simulation_section(tmp_path, capsys):
     bad = write(tmp_path, "p.yaml", "format_version: 1\nkind: part\ncomponents:\n  m: {type: mass, m: 1.0}\n"
                 "connections: []\nsimulation:\n  t_end: 1.0\n")
