@@ -199,9 +199,12 @@ def initial_values(compiled, p: np.ndarray, initial: Optional[dict] = None) -> t
     index = {name: j for j, name in enumerate(mod.VARIABLES)}
     values, fixed = {}, set()
     by_name = {par.symbol: sp.Float(float(p[mod.PARAMETERS.index(par.name)])) for par in compiled.dae.parameters}
+    from phc.initial_fields import evaluate
+
+    memo: dict = {}  # the parameter factors of initial fields, evaluated once (phc.initial_fields)
     for iv in compiled.dae.initial:
         # initial values written as parameter expressions follow parameter overrides
-        values[index[iv.name]] = float(iv.expr.xreplace(by_name)) if iv.expr is not None else iv.value
+        values[index[iv.name]] = evaluate(iv.expr, by_name, memo) if iv.expr is not None else iv.value
         if not iv.guess:
             fixed.add(index[iv.name])
     for name, spec in (initial or {}).items():
