@@ -119,8 +119,10 @@ class SimulationSpec(SpecModel):
     """Maximum BDF order of IDA. 2 (A-stable) suits undamped stiff oscillations such as
     fine beam meshes: orders 3–5 must resolve the highest modes to stay stable."""
     initial: dict[str, Union[Expr, InitialSpec]] = {}
-    """Initial values by variable name (`component.state`). Unlisted states start as a
-    guess of 0 and are solved for by consistent initialization."""
+    """Initial values by variable name (`component.state`), or initial fields of strings and
+    beams as functions of `xi` (`rod.w: "0.001*sin(pi*xi/L)"`), projected onto whatever mesh
+    is compiled (docs/how-to/initial-fields.md). Unlisted states start as a guess of 0 and
+    are solved for by consistent initialization."""
     inputs: dict[str, InputSpec] = {}
     """Inputs on exposed ports. An exposed port without input is free (zero effort)."""
     outputs: dict[Identifier, Expr] = {}
