@@ -33,7 +33,8 @@ import sympy as sp
 from phc.dae import T, Dae, Equation, InitialValue, Invariant, LinearBlock, PortInfo, Topology, Variable
 from phc.diagnostics import Diagnostic, DiagnosticList
 from phc.inputs import SignalBuilder
-from phc.spec.model import InitialSpec, PieceSpec
+from phc.spec.model import InitialSpec, OutputSpec, PieceSpec
+from phc.units import ResultUnits
 
 
 class _SignedUnionFind:
@@ -228,16 +229,20 @@ def _assemble(b, ctx, inter) -> Optional[Dae]:
 
     scope = _output_scope(b, subs, hamiltonian)
     outputs = []
-    for oname, oexpr in sim.outputs.items():
+    result_units = ResultUnits(b._reporter, b.elab, variables, hamiltonian)
+    for oname, ospec in sim.outputs.items():
+        opath = ("simulation", "outputs", oname)
+        oexpr, vpath = (ospec.value, (*opath, "value")) if isinstance(ospec, OutputSpec) else (ospec, opath)
         missing = [name for name in b.unavailable if isinstance(oexpr, str) and name in oexpr]
         if missing:
             b.error("PHC-E604", f"output `{oname}` uses `{missing[0]}`, but {b.unavailable[missing[0]]}", ctx,
-                    ("simulation", "outputs", oname), hint="turn the effect on, or drop the output")
+                    opath, hint="turn the effect on, or drop the output")
             continue
-        outputs.append((oname, final(b.expr(ctx, oexpr, ("simulation", "outputs", oname), scope))))
+        outputs.append((oname, final(b.expr(ctx, oexpr, vpath, scope, check_units=False))))
+        result_units.output(ctx, oname, oexpr, vpath, getattr(ospec, "unit", None), (*opath, "unit"))
     velocity_invariants = tuple(Invariant(v.label, final(v.expr), v.component, v.span)
                                 for v in b.velocity_invariants)
-    initial = _initial_values(b, ctx, {v.name for v in variables if v.differential})
+    initial = _initial_values(b, ctx, {v.name for v in variables if v.differential}, result_units)
     topology = Topology(
         components=tuple(b.components),
         ports=tuple(PortInfo(p.name, p.component, p.domain, p.dimension, p.frame, p.span) for p in b.ports.values()),
@@ -277,6 +282,7 @@ def _assemble(b, ctx, inter) -> Optional[Dae]:
         options={"t_start": sim.t_start, "t_end": sim.t_end, "n_out": sim.n_out, "rtol": sim.rtol,
                  "atol": sim.atol, "max_steps": sim.max_steps, "solver": sim.solver,
                  "max_order": sim.max_order, "step": sim.step},
+        units=dict(result_units.labels),
     )
 
 
@@ -399,7 +405,7 @@ def _output_scope(b, subs, hamiltonian) -> dict:
     return scope
 
 
-def _initial_values(b, ctx, state_names: set[str]) -> list[InitialValue]:
+def _initial_values(b, ctx, state_names: set[str], result_units=None) -> list[InitialValue]:
     from phc.initial_fields import FieldInitializer
 
     fields = FieldInitializer(b, ctx)  # fields of ξ of distributed components; per-dof values' mesh
@@ -421,6 +427,8 @@ def _initial_values(b, ctx, state_names: set[str]) -> list[InitialValue]:
         value, guess = (spec.value, spec.guess) if isinstance(spec, InitialSpec) else (spec, False)
         vpath = (*path, "value") if isinstance(spec, InitialSpec) else path
         ex = b.expr(ctx, value, vpath, dict(ctx.params))
+        if result_units is not None:
+            result_units.initial(ctx, name, vpath)
         num = ex.xreplace(b.default_values())
         try:
             val = float(num)

@@ -259,6 +259,22 @@ def _compiled_json(compiled) -> dict:
             **({"scene": compiled.scene.name} if compiled.scene is not None else {})}
 
 
+def _csv_header(result, columns) -> list[str]:
+    """Column names with their units where known: `t [s]`, `output.x [m]` (docs/units.md)."""
+    units = dict(getattr(result, "units", None) or {})
+    if units:
+        units.setdefault("t", "s")
+        if "H" in units:
+            units.setdefault("P_ports", "W" if units["H"] == "J" else None)
+            units.setdefault("P_diss", units["P_ports"])
+            units.setdefault("energy_balance", units["H"])
+    header = []
+    for name in columns:
+        unit = units.get(name.removeprefix("output.") if name.startswith("output.") else name)
+        header.append(f"{name} [{unit}]" if unit else name)
+    return header
+
+
 def _write_results(result, path: str) -> None:
     columns = {"t": result.t}
     for j, name in enumerate(result.variables):
@@ -279,7 +295,8 @@ def _write_results(result, path: str) -> None:
     elif path.endswith(".csv"):
         data = np.column_stack(list(columns.values())) if len(result.t) else np.zeros((0, len(columns)))
         with atomic_write(path) as fh:
-            np.savetxt(fh, data, delimiter=",", header=",".join(columns), comments="", fmt="%.17g")
+            np.savetxt(fh, data, delimiter=",", header=",".join(_csv_header(result, columns)), comments="",
+                       fmt="%.17g")
     else:
         raise UsageError(f"--out must end in .csv or .npz, got `{path}`")
 

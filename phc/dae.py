@@ -307,6 +307,9 @@ class Dae:
     source) — what the passivity certificate checks one by one."""
     meshes: dict = field(default_factory=dict)
     """Distributed components: full name -> (type, number of elements)."""
+    units: dict = field(default_factory=dict)
+    """Unit labels of variables, outputs and `H` where known (`output.x` is keyed `x`), for
+    result headers, JSON and plot axes (:mod:`phc.units`, docs/units.md)."""
 
     @property
     def n_states(self) -> int:

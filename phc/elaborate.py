@@ -134,6 +134,12 @@ class Reporter:
     def __init__(self, files: Optional[FileAccess] = None) -> None:
         self.diags = DiagnosticList()
         self.files = files if files is not None else FileAccess()
+        self.units: dict = {}  # symbol -> its unit (a pint quantity in SI base units), see phc.units
+        self.unit_text: dict = {}  # symbol -> its unit as the model wrote it (for messages)
+        self.expr_dims: dict = {}  # (source map id, path) -> dimension of the expression parsed there
+        self.field_dims: dict = {}  # (source map id, path[:3]) -> [(path, dimension)]: by component field
+        self.units_declared = False  # some parameter has a unit (pint installed)
+        self.units_si = True  # every declared unit is a coherent SI unit (no mm, MPa, ...)
 
     # -- diagnostics ----------------------------------------------------------------
     def error(self, code: str, message: str, ctx: Optional[FileContext], path: Sequence = (),
@@ -148,12 +154,13 @@ class Reporter:
 
     # -- expressions ----------------------------------------------------------------
     def expr(self, ctx: FileContext, value: Any, path: Sequence, names: dict,
-             equation: bool = False) -> sp.Expr:
+             equation: bool = False, check_units: bool = True) -> sp.Expr:
         """Parse a number or expression string at `path`; on error record it and return 0."""
         try:
             if equation:
-                return parse_equation(value, names)
-            return parse_expression(value, names)
+                result = parse_equation(value, names)
+            else:
+                result = parse_expression(value, names)
         except ExpressionError as err:
             span = (ctx.smap.locate_in_value(tuple(path), err.col) if isinstance(value, str)
                     else ctx.smap.locate(tuple(path)))
@@ -162,6 +169,24 @@ class Reporter:
             self.diags.append(Diagnostic("PHC-E101", f"in expression `{value}`: {err.message}", span=span,
                                          hint=err.hint, path=dotted))
             return sp.Integer(0)
+        if self.units and check_units and not (result.free_symbols & getattr(self, "unset_parameters", set())):
+            dim = self.dimension(ctx, value, path, result)
+            self.expr_dims[(id(ctx.smap), tuple(path))] = dim
+            self.field_dims.setdefault((id(ctx.smap), tuple(path[:3])), []).append((tuple(path), dim))
+        return result
+
+    def dimension(self, ctx: FileContext, value: Any, path: Sequence, expr: sp.Basic):
+        """The dimension of `expr` (parsed from `value` at `path`): a pint quantity,
+        :data:`phc.units.NUMBER` or None (unknown); an inconsistency is reported (PHC-E171)."""
+        from phc.units import DimensionError, dimension
+
+        try:
+            return dimension(expr, self.units, self.unit_text)
+        except DimensionError as err:
+            self.error("PHC-E171", f"in expression `{value}`: {err}", ctx, path,
+                       hint="every term of a sum (and both sides of a comparison) needs the same unit; "
+                       "check the units of the parameters it uses")
+            return None
 
     def vector(self, ctx, values, path, names, length: Optional[int] = None, what: str = "vector") -> list[sp.Expr]:
         if not isinstance(values, list):
@@ -347,12 +372,13 @@ class Builder(Reporter):
         """Create parameters `ctx.prefix + name`; values may use each other (acyclic)."""
         symbols = {name: sp.Symbol(ctx.prefix + name, real=True) for name in entries}
         ctx.params.update(symbols)
+        declared = self._declare_units(ctx, entries, units, symbols)
         exprs: dict[str, sp.Expr] = {}
         for name, (value, path, value_ctx) in entries.items():
             vctx = value_ctx or ctx
             scope = dict(vctx.params) if value_ctx is not None else dict(symbols)
             n_diags = len(self.diags)
-            exprs[name] = self.expr(vctx, value, path, scope)
+            exprs[name] = self.expr(vctx, value, path, scope, check_units=False)  # checked in order below
             if len(self.diags) > n_diags:  # reported: checks of values that use it would only echo it
                 self.unset_parameters.add(symbols[name])
         graph = nx.DiGraph()
@@ -395,10 +421,69 @@ class Builder(Reporter):
             if ex.free_symbols & self.unset_parameters:
                 self.unset_parameters.add(sym)
             values[sym] = val
+            if self.units and sym not in self.unset_parameters:
+                self._parameter_dimension(entries[name][2] or ctx, name, sym, entries[name], ex, declared)
             unit, desc = units.get(name, (None, None))
             derived = ex if not ex.is_Number else None
             self.parameters[sym.name] = Parameter(sym.name, sym, val, derived, unit, desc,
                                                   (entries[name][2] or ctx).smap.locate(tuple(path)))
+
+    def _declare_units(self, ctx: FileContext, entries: dict, units: dict, symbols: dict) -> dict:
+        """Parse the `unit:` of this file's parameters (PHC-E170, W172) and warn when
+        some plain-number parameters have a unit and others not (PHC-W170). Returns
+        name -> the declared unit (a pint quantity, or None without pint)."""
+        from phc.units import UnitError, have_pint, is_coherent, parse_unit
+
+        declared = {}
+        for name, (unit, _) in units.items():
+            if unit is None:
+                continue
+            path = ("parameters", name, "unit")
+            try:
+                quantity = parse_unit(unit)
+            except UnitError as err:
+                self.error("PHC-E170", f"parameter `{name}`: {err.message}", ctx, path, hint=err.hint)
+                continue
+            declared[name] = quantity
+            if quantity is None:
+                continue
+            self.units_declared = True
+            self.units_si = self.units_si and is_coherent(quantity)
+            self.units[symbols[name]] = quantity
+            self.unit_text[symbols[name]] = unit
+        if not any(unit is not None for unit, _ in units.values()):
+            return declared
+        if declared and not have_pint():
+            first = next(iter(declared))
+            self.error("PHC-W172", "units are not checked: pint is not installed, so phc only checks their "
+                       "spelling", ctx, ("parameters", first, "unit"), severity="warning",
+                       hint="`pip install pint` (or the extra `port-hamiltonian-compiler[units]`) to check dimensions")
+        without = [name for name in entries if name not in declared and units.get(name, (None,))[0] is None
+                   and isinstance(entries[name][0], (int, float)) and entries[name][2] is None]
+        if declared and without:
+            shown = ", ".join(f"`{n}`" for n in without[:6]) + (f" and {len(without) - 6} more" if len(without) > 6 else "")
+            path = ("parameters", without[0])
+            self.error("PHC-W170", f"parameter{'s' if len(without) > 1 else ''} {shown} "
+                       f"ha{'ve' if len(without) > 1 else 's'} no unit while others have one: expressions "
+                       "that use them are not checked for dimensions", ctx, path, severity="warning",
+                       hint="give every parameter a `unit:` (`1` for a dimensionless one), or none at all", key=True)
+        return declared
+
+    def _parameter_dimension(self, ctx: FileContext, name: str, sym: sp.Symbol, entry: tuple, ex: sp.Expr,
+                             declared: dict) -> None:
+        """Check a parameter's value against its declared unit (PHC-E172); a derived parameter
+        without a unit gets the dimension of its value."""
+        from phc.units import NUMBER, describe
+
+        value, path, _ = entry
+        dim = self.dimension(ctx, value, path, ex)
+        unit = declared.get(name)
+        if unit is not None and dim is not None and dim is not NUMBER and unit.dimensionality != dim.dimensionality:
+            self.error("PHC-E172", f"parameter `{name}` is declared in {describe(unit, self.unit_text.get(sym))} "
+                       f"but its value `{value}` is in {describe(dim)}", ctx, path,
+                       hint="correct the value's expression or the parameter's `unit:`")
+        elif name not in declared and dim is not None and dim is not NUMBER:
+            self.units[sym] = dim
 
     # -- files ------------------------------------------------------------------------
     def load_file(self, path: Path, prefix: str, overrides: dict, parent: Optional[FileContext],
@@ -622,6 +707,29 @@ class Builder(Reporter):
             self.lowering = None
         if len(self.diags.errors) > n_errors:
             self.failed.add(full)  # its ports may be missing: do not report them again
+        elif self.units:
+            self._check_field_units(ctx, full, comp, path)
+
+    def _check_field_units(self, ctx: FileContext, full: str, comp, path) -> None:
+        """Fields whose dimension the component knows from its domain (a spring's `k` is
+        effort per displacement) must have it when their expression's dimension is known
+        (PHC-E172)."""
+        from phc.units import NUMBER, describe, expected_fields
+
+        domains = {name[len(full) + 1:]: port.domain for name, port in self.ports.items()
+                   if port.component == full}
+        for field_name, want, meaning in expected_fields(comp, domains):
+            prefix = (*path, field_name)
+            for where, dim in self.field_dims.get((id(ctx.smap), prefix[:3]), ()):
+                if where[:len(prefix)] != prefix or dim is None or dim is NUMBER:
+                    continue
+                if want.dimensionality != dim.dimensionality:  # the scale is the model's choice (MPa, cm³)
+                    value = getattr(comp, field_name, None)
+                    shown = value if not isinstance(value, list) else "…"
+                    self.error("PHC-E172", f"`{field_name}` of `{full}` ({comp.type}) must be {meaning}, but "
+                               f"`{shown}` is in {describe(dim)}", ctx, where,
+                               hint="check the units of the parameters it uses (or the component's `domain`)")
+                    break
 
     def _skipped(self, ctx: FileContext, ref: str) -> bool:
         return ctx.prefix + ref.split(".", 1)[0] in self.skip
@@ -719,6 +827,13 @@ class Elaboration:
     """Distributed component -> its :class:`phc.initial_fields.FieldSet` (what initial fields project onto)."""
     written_meshes: Mapping = field(default_factory=lambda: MappingProxyType({}))
     """Distributed component -> `elements` as its model file gives it (per-dof initial values belong to it)."""
+    units: Mapping = field(default_factory=lambda: MappingProxyType({}))
+    """Parameter symbol -> its unit (a pint quantity in SI base units; :mod:`phc.units`)."""
+    unit_text: Mapping = field(default_factory=lambda: MappingProxyType({}))
+    """Parameter symbol -> its unit as written."""
+    units_si: bool = False
+    """Some parameters have units and all of them are coherent SI units: port variables and
+    storage states then carry their domain's SI units (docs/units.md)."""
 
     def resolve_alias(self, name: str) -> str:
         return resolve_alias(self.port_aliases, name)
@@ -743,7 +858,8 @@ def _finish(b: Builder, ctx: FileContext) -> Elaboration:
         compile_time_parameters=frozenset(b.compile_time_parameters), meshes=ro(dict(b.meshes)),
         mesh_spans=ro(mesh_spans(b)), left_out=tuple(b.left_out), unavailable=ro(dict(b.unavailable)),
         sources=tuple(b.sources), files=b.files, initial_fields=ro(dict(b.initial_fields)),
-        written_meshes=ro(dict(b.written_meshes)))
+        written_meshes=ro(dict(b.written_meshes)), units=ro(dict(b.units)), unit_text=ro(dict(b.unit_text)),
+        units_si=b.units_declared and b.units_si)
 
 
 def elaborate(path: str | os.PathLike, scene=None) -> tuple[Optional[Elaboration], DiagnosticList]:

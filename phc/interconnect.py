@@ -164,6 +164,14 @@ def interconnect(elab) -> Interconnection:
     return check_connections(elab, elab.top)
 
 
+def _domain_text(domain: str) -> str:
+    """`electrical (effort V, flow A)`: a domain with its units (:data:`phc.units.DOMAIN_UNITS`)."""
+    from phc.units import DOMAIN_UNITS
+
+    units = DOMAIN_UNITS.get(domain)
+    return f"{domain} (effort {units[0]}, flow {units[1]})" if units else domain
+
+
 def check_connections(b, ctx) -> Interconnection:
     """Resolve and check the connections of `b` (an :class:`phc.elaborate.Elaboration`);
     `ctx` is the top-level file's context.
@@ -202,8 +210,9 @@ def check_connections(b, ctx) -> Interconnection:
             used[p.name] = label
         if pa.domain != pb.domain and "generic" not in (pa.domain, pb.domain):
             diags.append(Diagnostic(
-                "PHC-E204", f"port `{a_name}` is {pa.domain} but port `{b_name}` it connects to is {pb.domain}",
-                span=span, hint="connect ports of the same physical domain", path=label))
+                "PHC-E204", f"port `{a_name}` is {_domain_text(pa.domain)} but port `{b_name}` it connects to is "
+                f"{_domain_text(pb.domain)}", span=span, path=label,
+                hint="connect ports of the same physical domain; a `transformer` or `gyrator` couples two domains"))
             ok = False
         if pa.dimension != pb.dimension:
             diags.append(Diagnostic(

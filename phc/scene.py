@@ -131,7 +131,7 @@ def _prune(spec, outputs: dict) -> tuple[set[str], str]:
     """Top-level components not connected to any component the outputs refer to (in the
     interconnection graph of :mod:`phc.interconnect`: connections, and a modulation's
     reads of other components' states)."""
-    texts = [str(v) for v in outputs.values()]
+    texts = [str(getattr(v, "value", v)) for v in outputs.values()]
     if any("H" in _NAME.findall(t) for t in texts):
         return set(), ""
     wanted = {m for t in texts for m in _REFERENCE.findall(t) if m in spec.components}

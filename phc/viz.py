@@ -159,7 +159,8 @@ def outputs_figure(result, names: Optional[Sequence[str]] = None, title: Optiona
     for ax, name, y in zip(axes, names, series):
         m = min(len(t), len(y))
         ax.plot(t[:m], y[:m], lw=1.3, color=_COLORS["link"])
-        ax.set_ylabel(name)
+        unit = (getattr(result, "units", None) or {}).get(name)
+        ax.set_ylabel(f"{name} [{unit}]" if unit else name)
         ax.grid(True, alpha=0.3)
         if not result.success and stop is not None:
             ax.axvline(stop, color="#c0392b", ls="--", lw=1.2, label="stopped")

@@ -118,7 +118,7 @@ def read_csv(path: Path) -> dict[str, np.ndarray]:
         rows = list(csv.reader(handle))
     header, body = rows[0], np.array(rows[1:], dtype=float)
     assert len(set(header)) == len(header)
-    return {name: body[:, j] for j, name in enumerate(header)}
+    return {name.split(" [")[0]: body[:, j] for j, name in enumerate(header)}  # `spring.x [m]`: docs/units.md
 
 
 def read_npz(path: Path) -> dict[str, np.ndarray]:

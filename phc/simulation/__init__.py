@@ -443,7 +443,7 @@ def _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol, params=None) -
         steps=out["steps"], n_residual_evals=out["nfev"], n_jacobian_evals=out["njev"], cpu_time_s=cpu,
         n_states=dae.n_states - 1, n_equations=len(dae.equations), solver=solver, rtol=rtol, atol=atol,
         initial_choices=init.chosen, interrupted=bool(out.get("interrupted", False)),
-        events=list(out.get("events", ())),
+        events=list(out.get("events", ())), units=dict(getattr(dae, "units", None) or {}),
     )
 
 

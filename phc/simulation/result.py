@@ -57,6 +57,13 @@ class SimResult:
     """Switches of the run in time order (:class:`phc.simulation.events.Event`: time,
     condition as written in the model, direction, kind ``time``/``state``/``stick``/``slip``);
     see docs/events.md."""
+    units: dict = field(default_factory=dict)
+    """Unit labels of outputs, variables and `H` where the model's units give them
+    (`{"x": "m", "spring.x": "m", "H": "J"}`; docs/units.md). Empty for a model without units."""
+
+    def unit(self, name: str) -> Optional[str]:
+        """The unit label of an output, variable or `H`, or None when it is not known."""
+        return self.units.get(name)
 
     def __getitem__(self, name: str) -> np.ndarray:
         """Time series of a variable or output by name."""
@@ -92,6 +99,7 @@ class SimResult:
             "velocity_drift": float(self.velocity_drift),
             "initial_choices": self.initial_choices,
             "events": [e.as_dict() for e in self.events],
+            "units": dict(self.units),
         }
 
 

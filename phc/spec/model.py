@@ -21,6 +21,16 @@ class ParameterSpec(SpecModel):
     description: Optional[str] = None
 
 
+class OutputSpec(SpecModel):
+    """An output with its unit: `{value: slider.x, unit: m}`. The unit labels the results
+    (CSV header `output.x [m]`, JSON, plot axes) and is checked against the dimension of
+    `value` where that is known (docs/units.md)."""
+
+    value: Expr
+    unit: Optional[str] = None
+    description: Optional[str] = None
+
+
 class ConnectionSpec(SpecModel):
     """Joins two ports: ``f₁ = f₂``, ``e₁ = −e₂`` (the paper's coupling conditions, eq. (2), Section 2.2)."""
 
@@ -125,8 +135,9 @@ class SimulationSpec(SpecModel):
     are solved for by consistent initialization."""
     inputs: dict[str, InputSpec] = {}
     """Inputs on exposed ports. An exposed port without input is free (zero effort)."""
-    outputs: dict[Identifier, Expr] = {}
-    """Named output expressions over variables (`component.x`), `t` and `H`."""
+    outputs: dict[Identifier, Union[Expr, OutputSpec]] = {}
+    """Named output expressions over variables (`component.x`), `t` and `H`; either
+    `name: expression` or `name: {value, unit, description}`."""
 
 
 class ModelSpec(SpecModel):

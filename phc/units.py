@@ -1,0 +1,577 @@
+"""Physical units: parsing with pint, dimensions of expressions, units of port domains.
+
+A model may give its parameters units (``k: {value: 40, unit: N/m}``) and its outputs
+units (``x: {value: slider.x, unit: m}``). phc then checks, before anything is compiled,
+that every expression is dimensionally consistent where the names it uses carry units:
+the terms of a sum, both sides of a comparison, the branches of ``ifelse`` and the
+arguments of ``min``/``max``/``atan2`` share one dimension, the arguments of ``sin``,
+``exp``, ``log``, ... and exponents are dimensionless, and a component field whose
+dimension the component knows from its port domain (a spring's ``k`` is effort per
+displacement: N/m in ``mechanical.translational``) has that dimension. Results carry the
+units that follow: CSV headers (``output.x [m]``), the JSON summary and plot axes.
+
+Units are parsed by `pint <https://pint.readthedocs.io>`_ (the optional extra
+``units`` of port-hamiltonian-compiler), a maintained library with the SI and its prefixes, instead of a
+hand-written table of units and dimension algebra. Unit text is data: it is first
+checked against a short whitelist of characters (names, numbers, ``* / ^ **``,
+parentheses, ``·``, superscripts) and a length and exponent limit, and only then handed
+to pint's parser (which never calls ``eval``). Without pint a unit is checked only for
+that syntax, dimensions are not checked, and one warning (PHC-W172) says so.
+
+phc does not convert units: values are used as written, in whatever consistent system of
+units the model chooses (SI, or MPa and cm³ for a hydraulic model). Two terms of one
+dimension but different scales (``mm`` plus ``m``) are therefore an error, while a
+component field is checked for its dimension only. The rules are explained in
+docs/units.md.
+
+Numbers in expressions are scale factors in products and take the dimension of the other
+terms in sums (``x - 0.1`` is a length when ``x`` is), as in Modelica. A name without a
+unit has an unknown dimension: terms using it are not checked (a sum of known terms
+still is).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import re
+from typing import Mapping, Optional
+
+import sympy as sp
+
+from phc.errors import PhcError
+
+__all__ = ["DOMAIN_UNITS", "NUMBER", "DimensionError", "UnitError", "describe", "dimension",
+           "domain_units", "have_pint", "parse_unit", "same_dimension", "unit_label"]
+
+MAX_UNIT_LENGTH = 64
+MAX_UNIT_EXPONENT = 12
+_UNIT_CHARS = re.compile(r"[A-Za-z0-9_ .*/^()\-·⋅²³¹⁰⁴⁵⁶⁷⁸⁹⁻µμΩ°%]*")
+_EXPONENTS = re.compile(r"(?:\^|\*\*)\s*\(?\s*(-?\d+(?:\.\d+)?)")
+_SUPERSCRIPTS = str.maketrans("⁰¹²³⁴⁵⁶⁷⁸⁹⁻", "0123456789-")
+
+DOMAIN_UNITS: dict[str, tuple[str, str]] = {
+    "mechanical.translational": ("N", "m/s"),
+    "mechanical.rotational": ("N*m", "rad/s"),
+    "electrical": ("V", "A"),
+    "hydraulic": ("Pa", "m^3/s"),
+    "thermal": ("K", "W"),
+}
+"""Effort and flow unit of each physical domain (``generic`` has none). The thermal domain
+is the pseudo-bond-graph one that engineers use (temperature and heat flow; their product
+is not a power), so a thermal capacitance is J/K and a thermal resistance K/W."""
+
+
+class UnitError(PhcError, ValueError):
+    """A unit text that is malformed or names no known unit (`message` and `hint`)."""
+
+    def __init__(self, message: str, hint: Optional[str] = None):
+        super().__init__(message)
+        self.message, self.hint = message, hint
+
+
+class DimensionError(PhcError, ValueError):
+    """An expression whose parts have incompatible dimensions."""
+
+
+class _Number:
+    """The dimension of a plain number: a factor in a product, any dimension in a sum."""
+
+    def __repr__(self) -> str:
+        return "NUMBER"
+
+
+NUMBER = _Number()
+
+
+@functools.lru_cache(maxsize=1)
+def _registry():
+    try:
+        import pint
+    except ImportError:
+        return None
+    ureg = pint.UnitRegistry()
+    ureg.define("Ohm = ohm")  # as written in many data sheets (pint knows `ohm` and `Ω`)
+    return ureg
+
+
+def have_pint() -> bool:
+    """True when pint is installed (units are checked), False otherwise (syntax only)."""
+    return _registry() is not None
+
+
+def check_syntax(text: str) -> None:
+    """Raise :class:`UnitError` unless `text` looks like a unit expression (no pint needed)."""
+    if not isinstance(text, str) or not text.strip():
+        raise UnitError("empty unit", "write a unit such as `N/m`, or `1` for a dimensionless quantity")
+    if len(text) > MAX_UNIT_LENGTH:
+        raise UnitError(f"unit is too long ({len(text)} characters, at most {MAX_UNIT_LENGTH})")
+    if not _UNIT_CHARS.fullmatch(text):
+        bad = next(ch for ch in text if not _UNIT_CHARS.fullmatch(ch))
+        raise UnitError(f"unit `{text}` holds `{bad}`, which no unit has",
+                        "a unit is made of unit names, numbers, `*`, `/`, `^` (or `**`) and parentheses, "
+                        "e.g. `N*m/rad` or `kg*m^2`")
+    for match in _EXPONENTS.finditer(text.translate(_SUPERSCRIPTS)):
+        if abs(float(match.group(1))) > MAX_UNIT_EXPONENT:
+            raise UnitError(f"exponent {match.group(1)} in unit `{text}` is too large (at most {MAX_UNIT_EXPONENT})")
+
+
+@functools.lru_cache(maxsize=4096)
+def parse_unit(text: str):
+    """The unit `text` as a pint Quantity of magnitude 1 in `text`'s unit, converted to SI
+    base units (its magnitude is the unit's scale: 0.001 for `mm`); None without pint.
+
+    Raises
+    ------
+    UnitError
+        The text is malformed (checked with or without pint), names an unknown unit, or is a
+        unit with an offset (`degC`).
+    """
+    check_syntax(text)
+    ureg = _registry()
+    if ureg is None:
+        return None
+    import pint
+
+    try:
+        unit = ureg.parse_units(text.replace("µ", "u").replace("μ", "u"))
+    except pint.errors.UndefinedUnitError as err:
+        names = getattr(err, "unit_names", None) or ()
+        name = names[0] if isinstance(names, (tuple, list)) and names else str(names or text)
+        raise UnitError(f"unknown unit `{name}`" + (f" in `{text}`" if name != text else ""),
+                        _unit_hint(name)) from None
+    except (pint.errors.PintError, AttributeError, TypeError, ValueError, SyntaxError,
+            ZeroDivisionError, OverflowError, RecursionError, KeyError, IndexError) as err:
+        raise UnitError(f"cannot read unit `{text}` ({type(err).__name__})",
+                        "write e.g. `N*m/rad`, `kg*m^2` or `m/s^2`") from None
+    quantity = ureg.Quantity(1, unit)
+    if not quantity._is_multiplicative:
+        raise UnitError(f"`{text}` is a unit with an offset; phc does not convert units",
+                        "give temperatures in `K` (a temperature difference may be `delta_degC`)")
+    try:
+        return quantity.to_base_units()
+    except Exception as err:  # noqa: BLE001 — any pint failure on odd input is the user's unit
+        raise UnitError(f"cannot read unit `{text}` ({type(err).__name__})") from None
+
+
+_COMMON = ("m", "s", "kg", "N", "J", "W", "Pa", "V", "A", "Ohm", "F", "H", "K", "rad", "Hz", "N*m", "m/s",
+           "rad/s", "N/m", "N*s/m", "kg*m^2", "m^3/s")
+
+
+def _unit_hint(name: str) -> str:
+    import difflib
+
+    close = [c for c in _COMMON if c.lower() == name.lower()] or difflib.get_close_matches(name, _COMMON, n=1,
+                                                                                          cutoff=0.6)
+    if close:
+        return f"did you mean `{close[0]}`? (units are SI names and symbols read by pint: N/m, kg*m^2, ...)"
+    return ("use an SI unit name or symbol such as `N/m`, `kg*m^2`, `rad/s` or `1` for a dimensionless "
+            "quantity (units are read by pint)")
+
+
+def is_coherent(quantity) -> bool:
+    """True for a coherent SI unit: its scale to the base units is 1 (`N/m` yes, `mm` no)."""
+    return quantity is None or math.isclose(float(quantity.magnitude), 1.0, rel_tol=1e-12)
+
+
+@functools.lru_cache(maxsize=None)
+def domain_units(domain: str):
+    """``(effort, flow)`` of `domain` as base-unit quantities, or None (`generic`, no pint)."""
+    if domain not in DOMAIN_UNITS or not have_pint():
+        return None
+    effort, flow = DOMAIN_UNITS[domain]
+    return parse_unit(effort), parse_unit(flow)
+
+
+def same_dimension(a, b) -> bool:
+    """Both quantities have one dimension and one scale."""
+    return (a.dimensionality == b.dimensionality
+            and math.isclose(float(a.magnitude), float(b.magnitude), rel_tol=1e-9))
+
+
+_SUPER = str.maketrans("0123456789-.", "⁰¹²³⁴⁵⁶⁷⁸⁹⁻·")
+
+
+def _dims_text(quantity) -> str:
+    items = sorted(quantity.dimensionality.items(), key=lambda kv: (kv[1] < 0, kv[0]))
+    if not items:
+        return "dimensionless"
+    parts = []
+    for name, power in items:
+        p = f"{power:g}"
+        parts.append(name if p == "1" else name + p.translate(_SUPER))
+    return "·".join(parts)
+
+
+_NAMED = ("N", "N/m", "N*s/m", "N*m", "N*m/rad", "N*m*s/rad", "kg", "kg*m^2", "kg*m^2/rad", "m", "m/s",
+          "m/s^2", "rad", "rad/s", "rad/s^2", "V", "A", "Ohm", "H", "F", "C", "Wb", "Pa", "m^3/s", "m^3",
+          "Pa*s/m^3", "m^3/Pa", "kg/m^4", "K", "W", "J/K", "K/W", "J", "s", "Hz", "kg/m", "N*m^2", "N*s/m^2",
+          "N*m^2*s", "kg*m", "N*m/A", "N/A", "1/s", "1")
+"""Units shown by name when a derived unit equals one of them (`N/m` rather than `kg/s²`)."""
+
+
+@functools.lru_cache(maxsize=None)
+def _named() -> tuple:
+    return tuple((text, parse_unit(text)) for text in _NAMED)
+
+
+def unit_label(quantity) -> str:
+    """Short ASCII unit text of a base-unit quantity for headers and axes: `N/m`,
+    `kg*m^2/s^3`, `1`."""
+    for text, named in _named():
+        if named.units == quantity.units and math.isclose(float(named.magnitude), float(quantity.magnitude),
+                                                          rel_tol=1e-9):
+            return text
+    text = f"{quantity.units:~C}".replace("**", "^")
+    if not text:
+        text = "1"
+    mag = float(quantity.magnitude)
+    if not math.isclose(mag, 1.0, rel_tol=1e-12):
+        text = f"{mag:g} {text}" if text != "1" else f"{mag:g}"
+    return text
+
+
+def describe(quantity, written: Optional[str] = None) -> str:
+    """`N/m ([mass]·[time]⁻²)`: the unit (as written when known) and its dimension."""
+    shown = written or unit_label(quantity)
+    return f"{shown} ({_dims_text(quantity)})"
+
+
+_DIMENSIONLESS_FUNCTIONS = (sp.sin, sp.cos, sp.tan, sp.asin, sp.acos, sp.atan, sp.sinh, sp.cosh, sp.tanh,
+                            sp.exp, sp.log)
+
+
+class _Walker:
+    """Dimension of a sympy expression given base-unit quantities of its symbols."""
+
+    def __init__(self, units: Mapping, written: Mapping):
+        self.units, self.written = units, written
+        self._one = None
+
+    def one(self):
+        if self._one is None:
+            self._one = _registry().Quantity(1, "")
+        return self._one
+
+    def show(self, term, q) -> str:
+        return f"`{term}` is {describe(q, self.written.get(term))}"
+
+    def common(self, args, what: str):
+        """The shared dimension of `args` (a sum's terms, min/max arguments, branches)."""
+        known = []
+        unknown = False
+        for a in args:
+            d = self.dim(a)
+            if d is None:
+                unknown = True
+            elif d is not NUMBER:
+                known.append((a, d))
+        for a, d in known[1:]:
+            if not same_dimension(known[0][1], d):
+                first = known[0]
+                if first[1].dimensionality == d.dimensionality:
+                    raise DimensionError(f"{what} of one dimension but different scales: "
+                                         f"{self.show(*first)} and {self.show(a, d)}; phc does not convert units")
+                raise DimensionError(f"{what} of different dimensions: {self.show(*first)} but {self.show(a, d)}")
+        if known:
+            return known[0][1]
+        return None if unknown else NUMBER
+
+    def dimensionless(self, arg, what: str) -> None:
+        d = self.dim(arg)
+        if d is None or d is NUMBER:
+            return
+        if d.dimensionality:
+            raise DimensionError(f"{what} must be dimensionless, but {self.show(arg, d)}")
+
+    def dim(self, expr):
+        if isinstance(expr, sp.Symbol):
+            return self.units.get(expr)
+        if isinstance(expr, (sp.Number, sp.NumberSymbol)) or expr in (sp.E, sp.pi):
+            return NUMBER
+        if isinstance(expr, sp.Add):
+            return self.common(expr.args, "adds terms")
+        if isinstance(expr, sp.Mul):
+            dims = [self.dim(a) for a in expr.args]
+            if any(d is None for d in dims):
+                return None
+            known = [d for d in dims if d is not NUMBER]
+            if not known:
+                return NUMBER
+            out = known[0]
+            for d in known[1:]:
+                out = out * d
+            return out
+        if isinstance(expr, sp.Pow):
+            base, exp = expr.args
+            self.dimensionless(exp, f"the exponent `{exp}`")
+            db = self.dim(base)
+            if db is None:
+                return None
+            if db is NUMBER:
+                return NUMBER if self.dim(exp) is NUMBER else self.one()
+            if not db.dimensionality:
+                return db ** float(exp) if exp.is_Number else None
+            if exp.is_Number:
+                return db ** float(exp)
+            return None
+        if isinstance(expr, sp.Piecewise):
+            for _, cond in expr.args:
+                self.dim(cond)
+            return self.common([branch for branch, _ in expr.args], "`ifelse` has branches")
+        if isinstance(expr, sp.core.relational.Relational):
+            self.common(expr.args, "compares sides")
+            return None
+        if isinstance(expr, (sp.And, sp.Or, sp.Not)):
+            for a in expr.args:
+                self.dim(a)
+            return None
+        if isinstance(expr, (sp.Min, sp.Max)):
+            return self.common(expr.args, f"`{type(expr).__name__.lower()}` has arguments")
+        if isinstance(expr, sp.atan2):
+            self.common(expr.args, "`atan2` has arguments")
+            return self.one()
+        if isinstance(expr, sp.Abs):
+            return self.dim(expr.args[0])
+        if isinstance(expr, (sp.sign, sp.Heaviside)):
+            self.dim(expr.args[0])
+            return self.one()
+        if isinstance(expr, _DIMENSIONLESS_FUNCTIONS):
+            self.dimensionless(expr.args[0], f"the argument of `{type(expr).__name__}`")
+            return self.one()
+        for a in getattr(expr, "args", ()):  # anything else: its parts are still checked
+            if isinstance(a, sp.Basic):
+                self.dim(a)
+        return None
+
+
+def dimension(expr: sp.Basic, units: Mapping, written: Optional[Mapping] = None):
+    """The dimension of `expr`: a base-unit pint Quantity, :data:`NUMBER` (a plain number) or
+    None (unknown: it uses a name without a unit).
+
+    Parameters
+    ----------
+    expr : sympy expression
+    units : mapping Symbol -> Quantity
+        The base-unit quantities of the symbols that have a unit.
+    written : mapping Symbol -> str, optional
+        The units as the model wrote them (shown in messages).
+
+    Raises
+    ------
+    DimensionError
+        Parts of `expr` have incompatible dimensions (the message names both).
+    """
+    if not units or _registry() is None or not isinstance(expr, sp.Basic):
+        return None
+    if not (expr.free_symbols & units.keys()):
+        return None if expr.free_symbols else NUMBER
+    return _Walker(units, written or {}).dim(expr)
+
+
+_MECHANICAL_FIELDS: dict[str, dict[str, tuple[str, str]]] = {
+    "string": {"rho": ("kg/m", "a mass per length"), "T": ("N", "a force (the tension)"),
+               "length": ("m", "a length"), "damping": ("N*s/m^2", "a damping per length")},
+    "euler_bernoulli_beam": {"rhoA": ("kg/m", "a mass per length"), "EI": ("N*m^2", "a bending stiffness"),
+                             "length": ("m", "a length"), "damping": ("N*s/m^2", "a damping per length")},
+    "timoshenko_beam": {"rho": ("kg/m", "a mass per length"), "I_rho": ("kg*m", "a rotary inertia per length"),
+                        "EI": ("N*m^2", "a bending stiffness"), "K": ("N", "a shear stiffness (κGA)"),
+                        "length": ("m", "a length"), "damping": ("N*s/m^2", "a damping per length")},
+    "moving_beam": {"length": ("m", "a length"), "rhoA": ("kg/m", "a mass per length"),
+                    "EI": ("N*m^2", "a bending stiffness"), "damping": ("N*m^2*s", "a Kelvin–Voigt damping")},
+    "crank_wheel": {"radius": ("m", "a length"), "inertia": ("kg*m^2", "a moment of inertia"),
+                    "center": ("m", "a position")},
+}
+"""Fields of the mechanical library components and their SI units."""
+
+_ELEMENT_FIELDS = {
+    # type: (field, numerator, denominator, meaning); e, f = the port's effort and flow, s = second
+    "mass": ("m", "e*s", "f", "effort·time/flow (a mass, or a moment of inertia)"),
+    "inductor": ("L", "e*s", "f", "effort·time/flow (an inductance)"),
+    "spring": ("k", "e", "f*s", "effort/displacement (a stiffness)"),
+    "capacitor": ("C", "f*s", "e", "displacement/effort (a capacitance)"),
+    "damper": ("d", "e", "f", "effort/flow (a damping coefficient)"),
+    "resistor": ("R", "e", "f", "effort/flow (a resistance)"),
+    "effort_source": ("value", "e", "1", "the effort of its domain"),
+    "flow_source": ("value", "f", "1", "the flow of its domain"),
+    "modulation": ("K", "e", "f", "effort/flow"),
+}
+
+
+def expected_fields(comp, domains: Mapping[str, str]) -> list[tuple[str, object, str]]:
+    """The fields of component `comp` whose dimension its type and port domains fix:
+    ``(field, quantity in SI base units, what it is)``. `domains` maps the component's
+    local port names to their domains. Empty without pint or where nothing is known."""
+    if not have_pint():
+        return []
+    out = []
+    if comp.type in _MECHANICAL_FIELDS:
+        for name, (unit, meaning) in _MECHANICAL_FIELDS[comp.type].items():
+            out.append((name, parse_unit(unit), f"{meaning}, {unit}"))
+        return out
+    second = parse_unit("s")
+    if comp.type in _ELEMENT_FIELDS:
+        field, num, den, meaning = _ELEMENT_FIELDS[comp.type]
+        doms = set(domains.values())
+        if len(doms) != 1:
+            return out
+        units = domain_units(next(iter(doms)))
+        if units is None:
+            return out
+        e, f = units
+        vals = {"e": e, "f": f, "s": second, "1": parse_unit("1")}
+
+        def product(text):
+            q = vals["1"]
+            for part in text.split("*"):
+                q = q * vals[part]
+            return q
+
+        quantity = product(num) / product(den)
+        out.append((field, quantity, f"{meaning}: {unit_label(quantity)} in {next(iter(doms))}"))
+        if comp.type in ("flow_source", "zero_flow") and getattr(comp, "position", None) is not None:
+            out.append(("position", f * second, f"a displacement: {unit_label(f * second)} in {next(iter(doms))}"))
+        return out
+    if comp.type in ("transformer", "gyrator") and {"a", "b"} <= domains.keys():
+        ua, ub = domain_units(domains["a"]), domain_units(domains["b"])
+        if ua is None or ub is None:
+            return out
+        if comp.type == "transformer":
+            quantity, what = ub[1] / ua[1], "flow of port b / flow of port a"
+        else:
+            quantity, what = ub[0] / ua[1], "effort of port b / flow of port a"
+        out.append(("ratio", quantity, f"{what}: {unit_label(quantity)}"))
+    return out
+
+
+_STORAGE_STATES = {"mass": ("e", "s"), "inductor": ("e", "s"), "spring": ("f", "s"), "capacitor": ("f", "s")}
+"""Lumped storage elements: their state is effort·time (a momentum, a flux linkage) or
+flow·time (a displacement, a charge)."""
+
+
+def variable_units(elab) -> dict:
+    """Symbol -> unit of the port variables (by their domain) and of the lumped storage
+    states of an elaboration whose declared units are all coherent SI units
+    (``elab.units_si``); empty otherwise: a model in scaled units (MPa, cm³) keeps its
+    variables without units, since its port variables are not in the domain's SI units."""
+    if not getattr(elab, "units_si", False) or not have_pint():
+        return {}
+    out = {}
+    domain_of = {}
+    for port in elab.ports.values():
+        units = domain_units(port.domain)
+        if units is None:
+            continue
+        domain_of.setdefault(port.component, set()).add(port.domain)
+        for sym in port.e:
+            out[sym] = units[0]
+        for sym in port.f:
+            out[sym] = units[1]
+    second = parse_unit("s")
+    specs = elab.component_specs
+    for v in elab.variables:
+        if v.role != "state" or v.component not in specs:
+            continue
+        kind = _STORAGE_STATES.get(getattr(specs[v.component], "type", None))
+        domains = domain_of.get(v.component, set())
+        if kind is None or len(domains) != 1:
+            continue
+        e, f = domain_units(next(iter(domains)))
+        out[v.symbol] = (e if kind[0] == "e" else f) * second
+    return out
+
+
+class ResultUnits:
+    """Units of an assembled model's results: each output's unit, declared (`{value, unit}`)
+    or derived from the dimension of its expression, and the units of its variables and of
+    `H`. Checks outputs and initial values through `reporter` (its `units` are set here)."""
+
+    def __init__(self, reporter, elab, variables, hamiltonian):
+        self.reporter = reporter
+        self.active = bool(elab.units) and have_pint()
+        self.labels: dict[str, str] = {}
+        if not self.active:
+            return
+        units = dict(elab.units)
+        units.update(variable_units(elab))
+        self.h_symbol = sp.Symbol("H", real=True)
+        try:
+            h = dimension(hamiltonian, units)
+        except DimensionError:
+            h = None
+        if h is not None and h is not NUMBER:
+            units[self.h_symbol] = h
+            joule = parse_unit("J")
+            self.labels["H"] = "J" if same_dimension(h, joule) and h.units == joule.units else unit_label(h)
+            self.labels["energy.supplied"] = self.labels["H"]
+        reporter.units = units
+        reporter.unit_text = dict(elab.unit_text)
+        for v in variables:
+            q = units.get(v.symbol)
+            if q is not None:
+                self.labels[v.name] = unit_label(q)
+        scope: dict = {"H": self.h_symbol}
+        vectors: dict = {}
+        for v in elab.variables:
+            if v.name.endswith("]"):
+                base, idx = v.name[:-1].rsplit("[", 1)
+                vectors.setdefault(base, {})[int(idx)] = v.symbol
+            else:
+                scope[v.name] = v.symbol
+        for base, items in vectors.items():
+            scope[base] = [items[i] for i in sorted(items)]
+        for p in elab.parameters.values():
+            scope[p.name] = p.symbol
+        for name in elab.extra_outputs:
+            base = name[:-1].rsplit("[", 1)[0] if name.endswith("]") else name
+            if base not in scope:
+                n = sum(1 for other in elab.extra_outputs if other.startswith(base + "["))
+                scope[base] = [sp.Dummy() for _ in range(n)] if n else sp.Dummy()
+        from phc.dae import T
+
+        scope["t"] = T
+        self.scope = scope
+
+    def output(self, ctx, name: str, value, path, unit: Optional[str], unit_path) -> None:
+        """Check output `name` (its `value` at `path`, its declared `unit` at `unit_path`)
+        and record its unit."""
+        declared = None
+        if unit is not None:
+            try:
+                declared = parse_unit(unit)
+            except UnitError as err:
+                self.reporter.error("PHC-E170", f"output `{name}`: {err.message}", ctx, unit_path, hint=err.hint)
+                return
+        if not self.active:
+            if unit is not None and declared is not None:
+                self.labels[name] = unit
+            elif unit is not None:
+                self.labels[name] = unit  # without pint: the unit as written (spelling checked)
+            return
+        from phc.spec.expressions import ExpressionError, parse_expression
+
+        try:
+            expr = parse_expression(value, self.scope)
+        except ExpressionError:
+            dim = None  # reported where the output was parsed
+        else:
+            dim = self.reporter.dimension(ctx, value, path, expr)
+        if declared is not None:
+            if dim is not None and dim is not NUMBER and dim.dimensionality != declared.dimensionality:
+                self.reporter.error("PHC-E172", f"output `{name}` is declared in {describe(declared, unit)} but "
+                                    f"its value `{value}` is in {describe(dim)}", ctx, path,
+                                    hint="correct the expression or the output's `unit:`")
+            self.labels[name] = unit
+        elif dim is not None and dim is not NUMBER:
+            self.labels[name] = unit_label(dim)
+
+    def initial(self, ctx, name: str, path) -> None:
+        """Check an initial value (parsed at `path`) against its state's unit."""
+        if not self.active:
+            return
+        want = self.reporter.units.get(sp.Symbol(name, real=True))
+        dim = self.reporter.expr_dims.get((id(ctx.smap), tuple(path)))
+        if want is None or dim is None or dim is NUMBER or want.dimensionality == dim.dimensionality:
+            return
+        self.reporter.error("PHC-E172", f"initial value of `{name}` is in {describe(dim)}, but `{name}` is in "
+                            f"{describe(want)}", ctx, path, hint="check the units of the parameters it uses")
