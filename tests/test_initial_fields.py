@@ -427,3 +427,22 @@ def test_shipped_moving_beam_starts_in_the_same_state_on_any_mesh(tmp_path):
     with pytest.raises(ModelError, match=r"old.yaml:\d+:5: .*`beam.p\[0\]` \(and 1 more\).*8-element mesh.*"
                                          r"16 elements.*`beam.p: .*PHC-E214"):
         phc.compile_model(tmp_path / "old16.yaml")
+
+
+def test_pde1d_fields_are_its_variables(tmp_path):
+    """A generic `pde1d` (the string written as eq. (7)) takes each of its `variables` as a
+    field: p = 3 + 2ξ lies in its P1 space (exact nodal values), ε = 0.01 in P0."""
+    from tests.library.test_pde1d import GOOD, STRING
+
+    text = STRING.format(**GOOD).replace("elements: 16", "elements: 4")
+    text += "simulation:\n  initial: {s.p: 3 + 2*xi, s.eps: 0.01}\n"
+    path = tmp_path / "pde.yaml"
+    path.write_text(text)
+    compiled = phc.compile_model(path)
+    iv = {v.name: v.value for v in compiled.dae.initial}
+    np.testing.assert_allclose([iv[f"s.p[{i}]"] for i in range(5)], 3 + 2 * np.linspace(0, 1, 5), rtol=1e-12)
+    np.testing.assert_allclose([iv[f"s.eps[{i}]"] for i in range(4)], 0.01, rtol=1e-12)
+    path.write_text(text.replace("s.eps: 0.01", "s.w: 0.01"))
+    with pytest.raises(ModelError, match=r"`w` is not an initial field of the pde1d `s`.*fields of a pde1d: `p`, "
+                                         r"`eps`.*PHC-E215"):
+        phc.compile_model(path)
