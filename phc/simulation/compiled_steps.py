@@ -18,7 +18,8 @@ invariants, H and powers directly (numba first-class functions: no Python in bet
 * the driver of :func:`~phc.simulation.midpoint.integrate_fixed_step`: the output grid and
   its equal substeps, the predictor of the step midpoints, the singularity monitor's routine
   look every :data:`~phc.simulation.midpoint.MONITOR_EVERY` steps (the equilibrated
-  iteration matrix's singular values by LAPACK ``dgesdd``), ``max_steps``.
+  iteration matrix's singular values by LAPACK ``dgesdd``, unless the condition estimate
+  ``dgecon`` puts it far from singular: :data:`_RCOND_MARGIN`), ``max_steps``.
 
 The compiled function runs chunks of steps (about :data:`CHUNK_SECONDS` each) and returns
 to Python between them: progress is reported and Ctrl-C is seen there. Whatever is not
@@ -69,6 +70,10 @@ _NF = 4
 # constants
 (_TOL, _RATE, _FLOOR, _MAX_AGE, _MAX_NEWTON, _BAL_TOL, _MAX_SECANT, _S_MIN, _S_MAX, _THRESHOLD, _EVERY,
  _G1, _G2, _M0, _M1, _M2) = range(16)
+
+_RCOND_MARGIN = 1e3
+"""The routine look of the singularity monitor computes singular values only when LAPACK's
+1-norm condition estimate is within this factor (times N) of the monitor's threshold."""
 
 _READY = None
 """(kernel, dummy invariants) once built; () when the compiled loop cannot be built here."""
@@ -150,7 +155,7 @@ def why_not() -> str:
     return _WHY
 
 
-_SYMBOLS = {"dgetrf": ("cython_lapack", 6), "dlaswp": ("cython_lapack", 7), "dgesdd": ("cython_lapack", 14),
+_SYMBOLS = {"dgetrf": ("cython_lapack", 6), "dgecon": ("cython_lapack", 9), "dlaswp": ("cython_lapack", 7), "dgesdd": ("cython_lapack", 14),
             "dtrsv": ("cython_blas", 8)}
 
 
@@ -552,7 +557,7 @@ def _advance(res, jac, inv, ham, escale, powers, t, h, y, guess, p, A, ipiv, mat
                       nend, weights, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags, hist_t, hist_v)
 
 
-def _monitor_ratio(jac, t, y, yp, h, p, jrows, jcols, jbuf, M, colscale):
+def _monitor_ratio(jac, t, y, yp, h, p, jrows, jcols, jbuf, M, colscale, threshold):
     """σ_min/σ_max of the equilibrated iteration matrix (SingularityMonitor.ratio); -1 when it
     cannot be computed here (the Python monitor then looks itself)."""
     n = y.shape[0]
@@ -583,7 +588,30 @@ def _monitor_ratio(jac, t, y, yp, h, p, jrows, jcols, jbuf, M, colscale):
                     M[j, i] /= big
     ints = np.zeros(4, np.int32)
     ints[0] = n
+    # a cheap look first: the 1-norm condition estimate of LAPACK (dgecon, on an LU) bounds
+    # σ_max/σ_min ≤ n·κ₁; an estimate (a lower bound of κ₁, within a small factor in practice)
+    # RCOND_MARGIN·n times above the threshold leaves the SVD out
+    lu = M.copy()
+    anorm = np.zeros(1)
+    for j in range(n):
+        col = 0.0
+        for i in range(n):
+            col += abs(M[j, i])
+        anorm[0] = max(anorm[0], col)
+    ipiv = np.zeros(n, np.int32)
+    _dgetrf(ints[0:].ctypes, ints[0:].ctypes, lu.ctypes, ints[0:].ctypes, ipiv.ctypes, ints[2:].ctypes)
+    if ints[2] == 0:
+        one_norm = np.zeros(1, np.uint8)
+        one_norm[0] = 49  # '1'
+        rcond = np.zeros(1)
+        cwork = np.zeros(4 * n)
+        ciwork = np.zeros(n, np.int32)
+        _dgecon(one_norm.ctypes, ints[0:].ctypes, lu.ctypes, ints[0:].ctypes, anorm.ctypes, rcond.ctypes,
+                cwork.ctypes, ciwork.ctypes, ints[2:].ctypes)
+        if ints[2] == 0 and np.isfinite(rcond[0]) and rcond[0] >= threshold * n * _RCOND_MARGIN:
+            return rcond[0] / n  # about a lower bound of σ_min/σ_max, far above the threshold
     ints[1] = -1
+    ints[2] = 0
     chars = np.zeros(1, np.uint8)
     chars[0] = 78  # 'N'
     s = np.zeros(n)
@@ -665,7 +693,7 @@ def _chunk(res, jac, inv, ham, escale, powers, p, t_out, ys, yps, y, mid, mid_sl
             ist[_LAST_LOOK] = steps
             for i in range(n):
                 yp[i] = (y_new[i] - y[i]) / h
-            ratio = _monitor_ratio(jac, t, y, yp, 0.5 * h, p, jrows, jcols, jbuf, M, colscale)
+            ratio = _monitor_ratio(jac, t, y, yp, 0.5 * h, p, jrows, jcols, jbuf, M, colscale, c[_THRESHOLD])
             if ratio < c[_THRESHOLD]:
                 ist[_STATUS] = _LOOK
                 return

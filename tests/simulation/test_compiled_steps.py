@@ -219,3 +219,18 @@ def test_newton_weights_give_the_same_steps(compiled):
     assert np.abs(plain["y"] - weighted["y"]).max() <= 1e-9 * (1.0 + np.abs(plain["y"]).max())
     with pytest.raises(ValueError, match="weights"):
         compiled_steps.integrate("midpoint", mod, p, t_out, init.y0, init.yp0, weights=np.ones(3), **common)
+
+
+@pytest.mark.parametrize("solver", ["midpoint", "discrete_gradient"])
+def test_singular_configuration_stops_the_compiled_loop(compiled, monkeypatch, used, solver):
+    """The folded slider–crank (rod as long as the crank) reaches crank angles θ = π/2 + kπ where
+    the joint constraints become dependent: the run stops at the first one with the monitor's
+    message and keeps the results before it. (At this step the Python loop with SuperLU
+    converges through it without a hard step and so never looks there.)"""
+    r = phc.simulate(compiled("rigid_slider_crank.yaml"), solver=solver, params={"L": 0.15}, step=2e-5)
+    assert used == [True]
+    assert not r.success and "singular configuration" in r.message and "become dependent" in r.message, r.message
+    t_stop = float(r.message.split("stopped at t = ")[1].split()[0])
+    assert abs(math.cos(150.0 * t_stop)) < 0.05 and t_stop < 0.02  # the first singular angle, π/2
+    assert r.t[-1] <= t_stop and len(r.t) > 1 and np.all(np.isfinite(r.y))
+    assert r.constraint_drift < 1e-9
