@@ -75,7 +75,7 @@ def run(compiled, linsolver: str, t_end: float, rtol: float, repeat: int, monito
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--elements", type=int, nargs="+", default=[1, 2, 4, 6, 8, 12, 16, 24, 32])
+    ap.add_argument("--elements", type=int, nargs="+", default=[1, 2, 4, 6, 8, 10, 12, 14, 16, 24, 32])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--t-end", type=float, default=0.05)
     ap.add_argument("--rtol", type=float, default=1e-5)
@@ -113,7 +113,7 @@ def main(argv=None):
              f"{platform.machine()} {os.cpu_count()} cores (load average {load:.1f}), Python "
              f"{platform.python_version()}, numpy {np.__version__}",
              "",
-             f"Command: `python benchmarks/bench_ida_linsolver.py {' '.join(argv if argv is not None else sys.argv[1:])}`",
+             f"Command: `python benchmarks/bench_ida_linsolver.py {' '.join(sys.argv[1:] if argv is None else argv)}`",
              "",
              f"Flexible slider–crank with 1–{max(args.elements)} rod elements, IDA to t = {args.t_end:g} s at rtol "
              f"{args.rtol:g} (atol = rtol/100), code backend `{rows[0]['backend']}`; CPU seconds of the whole "

@@ -41,7 +41,7 @@ DENSE_LIMIT = 120
 """Systems up to this size use the dense linear solver; larger ones the sparse one
 (SuperLU_MT, one thread). Measured by ``benchmarks/bench_ida_linsolver.py`` (the flexible
 slider–crank at 27–275 unknowns, CPU time per step, ``benchmarks/results/ida_linsolver.md``):
-SUNDIALS' dense LU was faster up to 115 unknowns, the sparse solver from 147 on."""
+SUNDIALS' dense LU as fast or faster up to 115 unknowns, the sparse solver faster from 131 on."""
 
 DENSE_SOLVER = "dense"
 """scikit-sundae's name of the dense solver: SUNDIALS' own LU (``dense``) or LAPACK's."""
