@@ -21,7 +21,15 @@ measures, per point:
 
 The reference of an output is
 
-* its **closed form** when the scene gives one under ``reference:`` — the compiled scene
+* its **reference values** when the scene gives them (``reference_values:``, a CSV file or
+  inline; :mod:`phc.reference_values`) or ``reference=FILE.csv`` does (``phc bench
+  --reference``, replacing the scene's): published values at given times. The error is then
+  ``max_i |y(t_i) − y_ref,i|`` over that output's reference times, and the relative error
+  that divided by ``max_i |y_ref,i|``. The reference times are added to every run's output
+  times (exact output, no interpolation; a fixed-step solver shortens the steps of an
+  output interval to land on them, see :func:`phc.simulation.midpoint.integrate_fixed_step`);
+  the reported kind is ``published reference (FILE, N points)``;
+* else its **closed form** when the scene gives one under ``reference:`` — the compiled scene
   then carries it as the extra output ``<output>_reference`` (:func:`phc.scene.reference_name`)
   and every run evaluates it on its own grid;
 * otherwise a **reference run**: IDA at a tight tolerance (``min(1e-10, tightest swept
@@ -63,6 +71,8 @@ from typing import Optional, Union
 import numpy as np
 
 import phc
+from phc import reference_values as refs
+from phc.diagnostics import DiagnosticList
 from phc.errors import ModelError, SimulationSetupError
 from phc.io import atomic_write, write_text
 from phc.scene import reference_name, scene_variant
@@ -161,7 +171,9 @@ class BenchReport:
     planned: int = 0
     """Number of sweep points asked for (rows ≤ planned when interrupted)."""
     reference: dict[str, str] = field(default_factory=dict)
-    """Per output: `closed form` or `reference run`."""
+    """Per output: `closed form`, `reference run` or `published reference (FILE, N points)`."""
+    reference_source: str = ""
+    """Where the published reference values come from (their `source`), if given."""
     reference_settings: dict = field(default_factory=dict)
     """Solver, tolerances and mesh of the reference run (empty when only closed forms)."""
     reference_cache_hit: bool = False
@@ -195,6 +207,8 @@ class BenchReport:
                          f"{_fmt(s.get('cpu_time_s', math.nan), '.3g')} s CPU"
                          + ("; cached" if self.reference_cache_hit else "") + ")")
             lines.append(f"  reference  {what}: {', '.join(outs)}")
+        if self.reference_source:
+            lines.append(f"  source     {self.reference_source}")
         if self.reference_message:
             lines.append(f"  reference  FAILED: {self.reference_message}")
         failed = [r for r in self.rows if not r.success]
@@ -217,6 +231,7 @@ class BenchReport:
         return {
             "scene": str(self.scene), "name": self.name, "outputs": self.outputs, "planned": self.planned,
             "interrupted": self.interrupted, "reference": self.reference,
+            "reference_source": self.reference_source,
             "reference_settings": {k: (mesh_label(v) if k == "mesh" else v) for k, v in self.reference_settings.items()},
             "reference_cache_hit": self.reference_cache_hit, "reference_message": self.reference_message,
             "rows": [_jsonable(r.as_dict(self.outputs)) for r in self.rows],
@@ -232,7 +247,7 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
               repeats: Optional[int] = None, out_dir: Union[str, os.PathLike] = ".",
               reference_cache: Union[None, bool, str, os.PathLike] = None, progress: bool = True,
               plot: bool = True, outputs=None, reference_rtol: Optional[float] = None,
-              stream=None) -> BenchReport:
+              stream=None, reference: Union[None, str, os.PathLike] = None) -> BenchReport:
     """Run the work-precision study of a scene and write ``bench.csv``, ``bench.md`` and
     ``bench.png`` into `out_dir`.
 
@@ -260,6 +275,9 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
     reference_rtol
         Relative tolerance of the reference run (default ``min(1e-10, tightest swept
         tolerance / 100)``; ``atol = rtol / 100``).
+    reference
+        A CSV file of reference values (a `t` column and one column per output; see
+        :mod:`phc.reference_values`), replacing the scene's ``reference_values``.
 
     Returns
     -------
@@ -269,9 +287,13 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
     Raises
     ------
     ModelError
-        When the scene itself does not compile (a mesh variant that fails is a failed row).
+        When the scene itself does not compile (a mesh variant that fails is a failed row),
+        or the reference values are not usable (PHC-E607, located in the file).
+    SimulationSetupError
+        When the `reference` file cannot be read, or an output asked for is unknown.
     """
     started = time.perf_counter()
+    reference_file, reference = reference, None  # `reference` below: the reference run's outputs
     scene_path = Path(scene_path)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -300,11 +322,19 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
     if unknown:
         raise SimulationSetupError(f"unknown output(s) {', '.join(unknown)}; "
                                    f"the scene has {', '.join(all_outputs) or 'none'}")
-    closed = [o for o in outputs if reference_name(o) in base.module.OUTPUTS]
+    published = _published(reference_file, base, all_outputs, t0, t1)
+    pub = [o for o in outputs if published is not None and o in published.series]
+    closed = [o for o in outputs if o not in pub and reference_name(o) in base.module.OUTPUTS]
     report = BenchReport(scene_path, base.scene.name if base.scene is not None else base.name, outputs,
                          planned=len(points),
-                         reference={o: ("closed form" if o in closed else "reference run") for o in outputs})
-    need_run = [o for o in outputs if o not in closed]
+                         reference={o: (published.kind(o) if o in pub else "closed form" if o in closed
+                                        else "reference run") for o in outputs},
+                         reference_source=published.source if pub else "")
+    need_run = [o for o in outputs if o not in closed and o not in pub]
+    # the run's output times: the grid, and the published reference times (exact output)
+    t_run = _merge_times(t_out, published.times) if pub else t_out
+    grid = _nearest(t_run, t_out)
+    at_ref = {o: (_nearest(t_run, published.series[o][0]), published.series[o][1]) for o in pub}
     bar = _SweepBar(len(points) + (1 if need_run else 0), enabled=progress, stream=stream)
     compiled_cache: dict[tuple, object] = {(): base} if not meshes else {}
     reference: dict[str, np.ndarray] = {}
@@ -340,8 +370,8 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
         for mesh, solver, value in points:
             bar.show(_point_label(mesh, solver, value))
             compiled = compiled_for(mesh)
-            row = _run_point(compiled, solver, value, mesh, t_out, repeats, outputs, closed, reference,
-                             report.reference_message)
+            row = _run_point(compiled, solver, value, mesh, t_run, repeats, outputs, closed, reference,
+                             report.reference_message, grid, at_ref)
             report.rows.append(row)
             bar.advance()
     except KeyboardInterrupt:
@@ -403,7 +433,39 @@ def _simulate_once(compiled, solver, value, t_out, **extra):
         return None, f"{type(err).__name__}: {err}"
 
 
-def _run_point(compiled, solver, value, mesh, t_out, repeats, outputs, closed, reference, ref_message) -> BenchRow:
+def _published(reference, base, all_outputs, t0: float, t1: float):
+    """The reference values: the `reference` file (command line) or the scene's."""
+    if reference is None:
+        return base.scene.reference_values if base.scene is not None else None
+    try:
+        published = refs.from_file(reference)
+        refs.check(published, all_outputs, t0, t1)
+    except refs.ReferenceValuesError as err:
+        if err.span is None:
+            raise SimulationSetupError(f"--reference: {err.message}") from None
+        raise ModelError(DiagnosticList([refs.diagnostic(err)])) from None
+    return published
+
+
+def _merge_times(t_out: np.ndarray, extra: np.ndarray) -> np.ndarray:
+    """The output grid with the times of `extra` added (a time within 1e-9 of the span of a
+    grid point is that point: no sliver of an output interval)."""
+    tol = 1e-9 * max(float(t_out[-1] - t_out[0]), abs(float(t_out[-1])))
+    extra = np.clip(np.asarray(extra, dtype=float), t_out[0], t_out[-1])
+    add = [t for t in extra if np.min(np.abs(t_out - t)) > tol]
+    return np.unique(np.concatenate([t_out, add])) if add else t_out
+
+
+def _nearest(t_run: np.ndarray, times) -> np.ndarray:
+    """Indices of the points of `t_run` nearest to `times`."""
+    times = np.asarray(times, dtype=float)
+    i = np.clip(np.searchsorted(t_run, times), 1, max(len(t_run) - 1, 1))
+    left = np.abs(times - t_run[i - 1]) <= np.abs(t_run[np.minimum(i, len(t_run) - 1)] - times)
+    return np.where(left, i - 1, i)
+
+
+def _run_point(compiled, solver, value, mesh, t_out, repeats, outputs, closed, reference, ref_message,
+               grid=None, at_ref=None) -> BenchRow:
     row = BenchRow(solver, dict(mesh))
     if solver in FIXED_STEP:
         row.step = value
@@ -429,22 +491,34 @@ def _run_point(compiled, solver, value, mesh, t_out, repeats, outputs, closed, r
     row.constraint_drift = float(result.constraint_drift)
     complete = result.success and len(result.t) == len(t_out) and np.allclose(result.t, t_out, rtol=0, atol=1e-12 * (
         1 + abs(t_out[-1])))
+    grid = slice(None) if grid is None else grid
+    at_ref = at_ref or {}
     for name in outputs:
-        if name in closed:
-            ref = result.outputs[reference_name(name)]
-        else:
-            ref = reference.get(name)
-        if not complete or ref is None:
+        if not complete:
             row.errors[name] = row.relative_errors[name] = math.nan
             continue
-        err = float(np.max(np.abs(result.outputs[name] - ref)))
+        if name in at_ref:  # published values at their times: relative to their magnitude
+            idx, ref = at_ref[name]
+            err = float(np.max(np.abs(result.outputs[name][idx] - ref)))
+            scale = float(np.max(np.abs(ref)))
+            row.errors[name] = err
+            row.relative_errors[name] = err / scale if scale > 0 else math.nan
+            continue
+        if name in closed:
+            ref = result.outputs[reference_name(name)][grid]
+        else:
+            ref = reference.get(name)
+        if ref is None:
+            row.errors[name] = row.relative_errors[name] = math.nan
+            continue
+        err = float(np.max(np.abs(result.outputs[name][grid] - ref)))
         span = float(np.max(ref) - np.min(ref))
         scale = span if span > 0 else float(np.max(np.abs(ref)))
         row.errors[name] = err
         row.relative_errors[name] = err / scale if scale > 0 else math.nan
     if not result.success:
         row.message = result.message
-    elif ref_message and any(name not in closed for name in outputs):
+    elif ref_message and any(name not in closed and name not in at_ref for name in outputs):
         row.message = "no reference: " + ref_message
     return row
 
@@ -550,14 +624,22 @@ def _write_files(report: BenchReport, out_dir: Path, plot: bool) -> None:
 
 def _markdown(report: BenchReport) -> str:
     lines = [f"# Work-precision: {report.name}", ""]
-    refs = []
+    refs_ = []
     for out, kind in report.reference.items():
         if kind == "reference run" and report.reference_settings:
             s = report.reference_settings
             kind = f"reference run ({s['solver']}, rtol {s['rtol']:.1e}, mesh {mesh_label(s['mesh'])})"
-        refs.append(f"`{out}`: {kind}")
-    lines.append("Error: max over the output grid of |output − reference|, the largest over the outputs "
-                 "(relative: divided by the reference's range). Reference — " + "; ".join(refs) + ".")
+        refs_.append(f"`{out}`: {kind}")
+    published = [kind.startswith("published reference") for kind in report.reference.values()]
+    what = []
+    if not all(published):
+        what.append("max over the output grid of |output − reference| (relative: divided by the reference's range)")
+    if any(published):
+        what.append("against a published reference, max over its reference times of |output − reference value| "
+                    "(relative: divided by the largest |reference value|)")
+    lines.append("Error: " + "; ".join(what) + "; the row's error is the largest over the outputs. Reference — "
+                 + "; ".join(refs_) + "." + (f" Source: {report.reference_source}." if report.reference_source
+                                             else ""))
     if report.reference_message:
         lines.append(f"\n**The reference run failed**: {report.reference_message}")
     if report.interrupted:
@@ -570,6 +652,13 @@ def _markdown(report: BenchReport) -> str:
                      f"{_fmt(r.cpu_time_s, '.3g')} | {r.steps} | {_fmt(r.error)} | {_fmt(r.error_relative)} | "
                      f"{_fmt(r.energy_balance_relative)} | {_fmt(r.constraint_drift)} | "
                      f"{_short(r.message).replace('|', '/')} |")
+    if len(report.outputs) > 1:  # the error of each output (relative), beside the largest
+        lines += ["", "Relative error per output:", "",
+                  "| solver | mesh | rtol / step | " + " | ".join(f"`{o}`" for o in report.outputs) + " |",
+                  "|---|---|---|" + "---:|" * len(report.outputs)]
+        for r in report.rows:
+            lines.append(f"| {r.solver} | {r.mesh_label} | {r.setting} | "
+                         + " | ".join(_fmt(r.relative_errors.get(o, math.nan)) for o in report.outputs) + " |")
     return "\n".join(lines) + "\n"
 
 

@@ -574,7 +574,8 @@ def cmd_bench(args) -> int:
         report = run_bench(args.scene, solvers=args.solvers, tolerances=args.tolerances, steps=args.steps,
                            meshes=parse_meshes(args.mesh), repeats=args.repeats, out_dir=args.out_dir,
                            reference_cache=False if args.no_cache else None, progress=not args.quiet,
-                           plot=not args.no_plot, outputs=args.outputs, reference_rtol=args.reference_rtol)
+                           plot=not args.no_plot, outputs=args.outputs, reference_rtol=args.reference_rtol,
+                           reference=args.reference)
     except ModelError as err:
         _print_diagnostics(err.diagnostics)
         return EXIT_MODEL
@@ -880,6 +881,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mesh", action="append", metavar="COMP=N1,N2,...", help="element counts to sweep (repeatable)")
     p.add_argument("--repeats", type=int, help="runs per point; the minimum CPU time is reported")
     p.add_argument("--output", action="append", dest="outputs", help="outputs whose error is measured (repeatable)")
+    p.add_argument("--reference", metavar="FILE.csv",
+                   help="reference values (a `t` column and one column per output, e.g. a published reference "
+                   "solution): errors of those outputs at those times; replaces the scene's reference_values")
     p.add_argument("--reference-rtol", type=float, help="rtol of the reference run (no closed form)")
     p.add_argument("--out-dir", default=".", help="where bench.csv, bench.md and bench.png go")
     p.add_argument("--no-cache", action="store_true", help="recompute the reference run")

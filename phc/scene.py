@@ -57,6 +57,9 @@ class Scene:
     """The `accuracy.mesh` of the scene file as written (None: `spec.accuracy.mesh`); a
     refined variant keeps it, so per-dof initial values in the scene are known to belong
     to it (:mod:`phc.initial_fields`)."""
+    reference_values: Optional[Any] = None
+    """The scene's `reference_values`, read and checked when the scene is applied
+    (:class:`phc.reference_values.ReferenceValues`)."""
 
     @property
     def model_path(self) -> Path:
@@ -95,6 +98,8 @@ class Scene:
                     span=self.smap.locate_key(("reference", name)),
                     hint=f"outputs: {', '.join(requested) or 'none'}"))
         update["outputs"] = outputs
+        if s.reference_values is not None:
+            self._reference_values(builder, sim, update, requested)
         for comp, effects in s.effects.items():
             builder.effect_overrides[comp] = (dict(effects), self.locate("effects", comp))
         for comp, elements in s.accuracy.mesh.items():
@@ -120,6 +125,27 @@ class Scene:
             spec = spec.model_copy(update={"ports": {k: v for k, v in spec.ports.items() if k not in exposed}})
         new_sim = type(sim).model_validate({**sim.model_dump(exclude_unset=True), **update})
         return spec.model_copy(update={"simulation": new_sim}), _Overlay(smap, self.smap, s)
+
+
+    def _reference_values(self, builder, sim, update, requested) -> None:
+        """Read and check `reference_values` (PHC-E607 at the file's row or the entry)."""
+        from phc import reference_values as refs
+
+        t0 = float(update.get("t_start", sim.t_start))
+        t1 = float(update.get("t_end", sim.t_end))
+        try:
+            rv = refs.for_scene(self, builder.files, requested, t0, t1)
+        except refs.ReferenceValuesError as err:
+            builder.diags.append(refs.diagnostic(err) if err.span is not None else Diagnostic(
+                refs.CODE, err.message, span=self.smap.locate(("reference_values",)), hint=err.hint))
+            return
+        both = [name for name in rv.series if name in self.spec.reference]
+        if both:
+            builder.diags.append(Diagnostic(
+                refs.CODE, f"`{both[0]}` has both a closed form (`reference`) and reference values",
+                span=rv.locations.get(both[0]), hint="give one reference per output"))
+            return
+        self.reference_values = rv
 
 
 def reference_name(output: str) -> str:

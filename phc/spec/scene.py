@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal, Optional, Union
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from phc.spec.base import Expr, Identifier, SpecModel, Switch
 from phc.spec.model import InitialSpec, InputSpec, SOLVERS
@@ -46,6 +46,35 @@ class BenchSpec(SpecModel):
     """Element counts to sweep per distributed component."""
     repeats: int = Field(1, ge=1, le=20)
     """Runs per point; the CPU time reported is the minimum."""
+
+
+class ReferenceValuesSpec(SpecModel):
+    """Reference values of requested outputs at given times (a published reference
+    solution, measurements): `phc bench` measures the errors of those outputs at these
+    times. Give either a CSV `file` or the values inline (`t` and `values`)."""
+
+    file: Optional[str] = None
+    """CSV file, relative to the scene file (inside the scene's tree, like a table): a header
+    row with the time column and one column per output, one row per time; lines starting
+    with `#` are comments (cite the source there); an empty cell is no value."""
+    time_column: str = "t"
+    """Name of the time column of `file`."""
+    t: Optional[list[float]] = None
+    """Inline: the times (increasing, within the run)."""
+    values: dict[Identifier, list[Optional[float]]] = {}
+    """Inline: per output, one value per time in `t` (`null`: no value at that time)."""
+    source: Optional[str] = None
+    """Where the values come from (shown in `phc bench`'s report)."""
+
+    @model_validator(mode="after")
+    def _file_or_inline(self):
+        if (self.file is None) == (self.t is None):
+            raise ValueError("give either `file` (a CSV file) or the values inline (`t` and `values`)")
+        if self.file is not None and self.values:
+            raise ValueError("`values` belong to inline reference values (with `t`), not to a `file`")
+        if self.t is not None and not self.values:
+            raise ValueError("inline reference values need `values`: per output, one value per time in `t`")
+        return self
 
 
 EffectValue = Union[Switch, int]
@@ -85,6 +114,10 @@ class SceneSpec(SpecModel):
     reference: dict[Identifier, Expr] = {}
     """Closed forms of requested outputs (expressions in `t` and parameters): `phc bench` and
     `--estimate-error` measure errors against them instead of a reference run."""
+    reference_values: Optional[ReferenceValuesSpec] = None
+    """Reference values of requested outputs at given times (e.g. a published reference
+    solution), from a CSV file or inline: `phc bench` measures those outputs' errors at
+    these times (docs/how-to/accuracy.md)."""
     bench: BenchSpec = BenchSpec()
     sweep: SweepSpec = SweepSpec()
     """The parameter study of `phc sweep` (see docs/parameter-studies.md)."""
