@@ -205,7 +205,7 @@ def _dims_text(quantity) -> str:
 
 _NAMED = ("N", "N/m", "N*s/m", "N*m", "N*m/rad", "N*m*s/rad", "kg", "kg*m^2", "kg*m^2/rad", "m", "m/s",
           "m/s^2", "rad", "rad/s", "rad/s^2", "V", "A", "Ohm", "H", "F", "C", "Wb", "Pa", "m^3/s", "m^3",
-          "Pa*s/m^3", "m^3/Pa", "kg/m^4", "K", "W", "J/K", "K/W", "J", "s", "Hz", "kg/m", "N*m^2", "N*s/m^2",
+          "Pa*s/m^3", "m^3/Pa", "kg/m^4", "K", "W", "J/K", "K/W", "J", "s", "kg/m", "N*m^2", "N*s/m^2",
           "N*m^2*s", "kg*m", "N*m/A", "N/A", "1/s", "1")
 """Units shown by name when a derived unit equals one of them (`N/m` rather than `kg/s²`)."""
 
@@ -502,7 +502,8 @@ class ResultUnits:
         if h is not None and h is not NUMBER:
             units[self.h_symbol] = h
             joule = parse_unit("J")
-            self.labels["H"] = "J" if same_dimension(h, joule) and h.units == joule.units else unit_label(h)
+            # radians are dimensionless: k·x²/2 of a torsion spring is N·m/rad · rad² = J
+            self.labels["H"] = "J" if same_dimension(h, joule) else unit_label(h)
             self.labels["energy.supplied"] = self.labels["H"]
         reporter.units = units
         reporter.unit_text = dict(elab.unit_text)

@@ -251,3 +251,23 @@ def test_without_pint_units_are_only_spelled_and_a_warning_says_so(tmp_path, mon
     finally:
         units.parse_unit.cache_clear()
         units.domain_units.cache_clear()
+
+
+@pytest.mark.parametrize("model, expected", [
+    ("rlc_circuit", {"charge": "C", "current": "A", "capacitor_voltage": "V", "H": "J"}),
+    ("thermal_ladder", {"T1": "K", "T2": "K", "T3": "K"}),
+    # a torsion spring stores N·m/rad · rad² = J (radians are dimensionless)
+    ("dc_motor_gear", {"current": "A", "shaft_torque": "N*m", "H": "J"}),
+    ("rigid_slider_crank", {"slider_x": "m", "slider_x_exact": "m", "drive_torque": "N*m"}),
+    ("pendulum", {"angle": "rad", "rod_length_error": "m"}),
+])
+def test_shipped_models_label_their_results(model, expected):
+    dae, diags = build_dae(Path("models") / f"{model}.yaml")
+    assert not diags
+    assert {name: dae.units.get(name) for name in expected} == expected
+
+
+def test_a_model_in_scaled_units_labels_only_what_it_declares():
+    """MPa and cm³: the port variables are not in the hydraulic domain's SI units."""
+    dae, _ = build_dae(Path("models/hydraulic_cylinder.yaml"))
+    assert dae.units == {}
