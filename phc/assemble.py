@@ -228,6 +228,9 @@ def _assemble(b, ctx, inter) -> Optional[Dae]:
     equations.append(Equation(denergy - port_power - dissipation, "energy.balance", "energy", "energy", None))
 
     scope = _output_scope(b, subs, hamiltonian)
+    if b.quadratic_energy and any(_mentions_energy(o.value if isinstance(o, OutputSpec) else o)
+                                  for o in sim.outputs.values()):
+        scope["H"] = _total_energy(hamiltonian, b.quadratic_energy)  # distributed components' H too
     outputs = []
     result_units = ResultUnits(b._reporter, b.elab, variables, hamiltonian)
     for oname, ospec in sim.outputs.items():
@@ -376,6 +379,33 @@ def _resolve_definitions(uf, defs, rows, b) -> dict:
         return sign * resolve_root(root)
 
     return {s: value(s) for s in all_syms}
+
+
+def _mentions_energy(text) -> bool:
+    """Whether an output expression's text names `H` (the total stored energy)."""
+    import re
+
+    return isinstance(text, str) and re.search(r"(?<![\w.\[])H(?![\w\[(])", text) is not None
+
+
+def _total_energy(hamiltonian: sp.Expr, forms) -> sp.Expr:
+    """H as an expression, with the quadratic energies of the distributed components
+    (``coeff · xᵀ A x`` kept sparse in the DAE) written out: what an output `H` means."""
+    terms = [hamiltonian]
+    for form in forms:
+        upper = _upper_coo(form.matrix)
+        x = form.symbols
+        quad = sp.Add(*[sp.Float(float(v) * (1 if i == j else 2)) * x[i] * x[j]
+                        for i, j, v in zip(upper.row, upper.col, upper.data) if v != 0])
+        terms.append(form.coeff * quad)
+    return sp.Add(*terms)
+
+
+def _upper_coo(matrix):
+    """The upper triangle (diagonal included) of a sparse symmetric matrix, as COO."""
+    import scipy.sparse as sps
+
+    return sps.triu(sps.coo_matrix(matrix)).tocoo()
 
 
 def _output_scope(b, subs, hamiltonian) -> dict:
