@@ -284,7 +284,8 @@ def _assemble(b, ctx, inter) -> Optional[Dae]:
         breakpoints=tuple(sorted(signals.breakpoints)),
         options={"t_start": sim.t_start, "t_end": sim.t_end, "n_out": sim.n_out, "rtol": sim.rtol,
                  "atol": sim.atol, "max_steps": sim.max_steps, "solver": sim.solver,
-                 "max_order": sim.max_order, "step": sim.step},
+                 "max_order": sim.max_order, "step": sim.step,
+                 "nominal": _nominal_scales(b, ctx, {v.name for v in variables if v.differential})},
         units=dict(result_units.labels),
     )
 
@@ -433,6 +434,20 @@ def _output_scope(b, subs, hamiltonian) -> dict:
     for base, items in vectors_extra.items():
         scope[base] = [items[i] for i in sorted(items)]
     return scope
+
+
+def _nominal_scales(b, ctx, state_names: set[str]) -> dict[str, float]:
+    """`simulation.nominal`: the user's nominal scales by state (docs/tolerances.md)."""
+    out = {}
+    for name, value in ctx.spec.simulation.nominal.items():
+        if name not in state_names or name == "energy.supplied":
+            close = difflib.get_close_matches(name, sorted(state_names), n=1)
+            b.error("PHC-E210", f"`{name}` is not a state of the model; nominal scales are given for states",
+                    ctx, ("simulation", "nominal", name), key=True, hint=f"did you mean `{close[0]}`?" if close
+                    else f"states: {', '.join(sorted(state_names - {'energy.supplied'})[:10])}")
+            continue
+        out[name] = float(value)
+    return out
 
 
 def _initial_values(b, ctx, state_names: set[str], result_units=None) -> list[InitialValue]:

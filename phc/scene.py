@@ -86,6 +86,7 @@ class Scene:
             if getattr(s.accuracy, key) is not None:
                 update[key] = getattr(s.accuracy, key)
         update["initial"] = {**sim.initial, **s.initial}
+        update["nominal"] = {**sim.nominal, **s.nominal}
         update["inputs"] = {**sim.inputs, **s.inputs}
         outputs = dict(s.outputs or sim.outputs)
         requested = list(outputs)

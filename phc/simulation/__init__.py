@@ -29,6 +29,7 @@ from phc.simulation.midpoint4 import integrate_midpoint4
 from phc.simulation.monitor import describe_equations
 from phc.simulation.backend import Backend, BackendRun, IgnoredOptionWarning, ignored_option_message
 from phc.simulation.result import SimResult, SimulationInterrupted
+from phc.simulation.scaling import nominal_indices, nominal_scales
 
 _VARIABLE = frozenset({"rtol", "atol", "max_steps", "max_order"})
 _FIXED = frozenset({"step", "max_steps"})
@@ -82,7 +83,8 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
              rtol: Optional[float] = None, atol: Optional[float] = None, n_out: Optional[int] = None,
              t_eval=None, initial: Optional[dict] = None, solver: Optional[str] = None,
              max_steps: Optional[int] = None, progress: Optional[Callable[[float], None]] = None,
-             step: Optional[float] = None, backend: Optional[str] = None) -> SimResult:
+             step: Optional[float] = None, backend: Optional[str] = None,
+             nominal: Optional[dict] = None) -> SimResult:
     """Simulate a compiled model.
 
     Parameters
@@ -103,6 +105,10 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
         Base-parameter overrides by name (one compilation serves a parameter study).
     initial : dict, optional
         Initial values by state name; a value may be ``(value, True)`` to mark a guess.
+    nominal : dict, optional
+        Nominal scales by state name, over the model's `simulation.nominal`: the size
+        `atol` and the Newton tests measure each state against (phc finds one for
+        every state; :mod:`phc.simulation.scaling`).
 
     Returns
     -------
@@ -165,6 +171,7 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
                                        f"over 1e300, got {step}")
     p = parameter_vector(mod, params)
     values, fixed = initial_values(compiled, p, initial)
+    user_nominal = nominal_indices(mod, {**opts.get("nominal", {}), **(nominal or {})})
     cpu0 = time.process_time()
     with quiet_floating_point():
         try:
@@ -174,8 +181,12 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
         if hasattr(progress, "restart"):
             progress.restart()
         extra = {"step": step} if solver in FIXED_STEP else {}
+        # every tolerance measures the variables against their nominal scales (docs/tolerances.md)
+        scales = nominal_scales(mod, p, init.y0, init.yp0, user_nominal, t0=t0, span=float(t_out[-1] - t0),
+                                t_out=t_out)
         run = partial(BACKENDS[solver], mod, p, rtol=rtol, atol=atol, max_steps=max_steps, progress=progress,
-                      max_order=opts.get("max_order", 5), names=describe_equations(compiled), **extra)
+                      max_order=opts.get("max_order", 5), names=describe_equations(compiled), nominal=scales,
+                      **extra)
         if has_switches(mod):  # switching conditions: breakpoints in t, state events (docs/events.md)
             out = integrate_switched(BACKENDS[solver], mod, p, t_out, init, fixed, run.keywords)
         else:

@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from phc.simulation.midpoint import NEWTON_HINT, SINGULAR_HINT, StageSolver, integrate_fixed_step
+from phc.simulation.midpoint import NEWTON_HINT, SINGULAR_HINT, StageSolver, integrate_fixed_step, newton_weights_of
 
 BALANCE_TOL = 2e-15
 """The step's energy residual |r| is driven below this times the energy scale."""
@@ -55,9 +55,9 @@ S_MIN, S_MAX = 0.02, 0.98
 class DiscreteGradientStep:
     """One step: the stage equations F at ``y(s)`` plus the energy balance ``r(s) = 0``."""
 
-    def __init__(self, mod, p):
+    def __init__(self, mod, p, scales=None):
         self.mod, self.p = mod, p
-        self.stage = StageSolver(mod, p)
+        self.stage = StageSolver(mod, p, weights=newton_weights_of(scales, mod))
         self.e = list(mod.VARIABLES).index("energy.supplied")
         self.secant_iterations = 0
 
@@ -113,7 +113,7 @@ class DiscreteGradientStep:
 
 
 def integrate_discrete_gradient(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=None, max_order=None,
-                                step=None, names=None, events=None):
+                                step=None, names=None, events=None, nominal=None):
     """Fixed-step discrete-gradient integration from ``t_out[0]``; output at every ``t_out``
     (each output interval is split into equal steps no longer than `step`). Returns the same
     dict as the IDA backend."""
@@ -126,8 +126,9 @@ def integrate_discrete_gradient(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps
                                        python_advance=lambda: DiscreteGradientStep(mod, p))
         if out is not None:
             return out
-    advance = DiscreteGradientStep(mod, p)
+    advance = DiscreteGradientStep(mod, p, nominal)
     out = integrate_fixed_step(mod, p, t_out, y0, yp0, max_steps=max_steps, progress=progress, step=step,
-                               advance=advance, name="discrete gradient", names=names, events=events)
+                               advance=advance, name="discrete gradient", names=names, events=events,
+                               scales=nominal)
     out.update(nfev=advance.stage.nfev, njev=advance.stage.matrix.factorizations)
     return out

@@ -293,7 +293,7 @@ def solver_options(mod, p, *, rtol, atol, max_order=None, sparse: Optional[bool]
 
 
 def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=None, max_order=None, names=None,
-                  events=None):
+                  events=None, nominal=None):
     """Integrate from ``t_out[0]`` and return a dict of arrays and statistics.
 
     `events` (a :class:`phc.simulation.events.Watch`, optional) are switching functions
@@ -303,7 +303,9 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     IDA = _import_ida()
     n = mod.N
     max_order = int(max_order or MAX_ORDER)
-    options, calls = solver_options(mod, p, rtol=rtol, atol=atol, max_order=max_order)
+    # `nominal`: the variables' nominal scales (phc.simulation.scaling); atol is relative to them
+    atol_j = atol if nominal is None else atol * np.asarray(nominal, dtype=float)
+    options, calls = solver_options(mod, p, rtol=rtol, atol=atol_j, max_order=max_order)
     resfn = options.pop("resfn")
     with warnings.catch_warnings():
         # scikit-sundae warns that its own sparse approximation is unused: we pass jacfn.
@@ -319,7 +321,8 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     t_out = np.asarray(t_out, dtype=float)
 
     def scales(failed, upto=1):  # the states of the run so far (a system at rest at t0 may move later)
-        return check_scales(mod, ys[:upto], yps[:upto], float(t_out[-1] - t_out[0]), rtol, atol, failed)
+        return check_scales(mod, ys[:upto], yps[:upto], float(t_out[-1] - t_out[0]), rtol, atol, failed,
+                            scales=nominal)
 
     ys = np.empty((len(t_out), n))
     yps = np.empty((len(t_out), n))
@@ -331,7 +334,7 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
                     message=f"IDA could not start: {init.message}" + (f"; {scales(True)}" if scales(True) else ""),
                     cpu=time.process_time() - start)
     counters = _IdaCounters.attach(solver, n, int(getattr(init, "nfev", 0) or 0))
-    monitor = SingularityMonitor(mod, p, names=names)
+    monitor = SingularityMonitor(mod, p, names=names, scales=nominal)
     monitor.h_floor = 1e-6 * float(t_out[-1] - t_out[0])
     # the monitor looks every `cadence` steps: `base`, stretched up to LOOK_STRETCH-fold while the
     # conditioning stays flat and far above the threshold (a look is a dense SVD: for small
@@ -376,7 +379,8 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
                 if hint is None:  # diagnose before blaming: is the iteration matrix singular there?
                     hint = diagnose_failure(mod, p, *normal, status=status, h_typical=h_ref,
                                             h_fail=(1.0 / calls["cj"]) if calls["cj"] > 0 else h_last,
-                                            max_order=max_order, rtol=rtol, atol=atol, names=names)
+                                            max_order=max_order, rtol=rtol, atol=atol, names=names,
+                                            scales=nominal)
                 message = f"IDA failed at t = {t_now:.6g} (status {status}: {res.message}); {hint}"
                 break
             y_now, yp_now = res.y, res.yp

@@ -36,6 +36,13 @@ CHEAP = 1e4
 DENSE_LIMIT = 4_000_000
 """Problems with at most this many Jacobian entries use dense least squares."""
 
+SCALED_CHECK = True
+"""Check a start found in the model's units in the scaled variables, and solve again scaled
+if it fails there (:func:`consistent_initial_conditions`)."""
+SCALED_MISS = 1e-6
+"""A row missed by more than this fraction of its largest term (scaled variables) is an
+inconsistent start however small it looks in the model's units."""
+
 POLISH_STEPS = 3
 """Gauss–Newton steps after convergence that refine the solution to round-off."""
 
@@ -52,11 +59,17 @@ class InitialResult:
 class _Problem:
     """``G(u) = [F; D_kept]`` over the unknowns ``u = [y_free, ẏ_diff, z, w]``."""
 
-    def __init__(self, mod, p, t0, y, fixed, initial_relations=True, like=None):
+    def __init__(self, mod, p, t0, y, fixed, initial_relations=True, like=None, scales=None):
         """`like`: a problem of another stage at the same start (t0, y): its Jacobian there,
-        row scaling and kept rows are this one's too."""
+        row scaling and kept rows are this one's too. `scales`: nominal scales of the
+        variables (:mod:`phc.simulation.scaling`): the rows are equilibrated in the scaled
+        variables (D_r J D_c), and the weights of the minimum-norm steps and the
+        finite-difference steps are relative to them (without them, to 1: the rows are
+        equilibrated in the model's units)."""
+        self.scaled = scales is not None
         self.mod, self.p, self.t0 = mod, p, t0
         n = mod.N
+        self.s = np.ones(n) if scales is None else np.asarray(scales, dtype=float)
         self.m = len(mod.EQUATIONS)
         self.rows, self.cols = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
         self.buf = np.zeros(len(self.rows))
@@ -73,8 +86,8 @@ class _Problem:
             # Row equilibration: Hermite slope rows of a beam scale like h³; without it their
             # residuals look tiny while the states they determine are still off (and IDA's
             # first error test then sees a jump).
-            mags = np.maximum(np.asarray(abs(jy).max(axis=1).todense()).ravel(),
-                              np.asarray(abs(jyp).max(axis=1).todense()).ravel())
+            mags = np.maximum(np.asarray(abs(jy).multiply(self.s[None, :]).max(axis=1).todense()).ravel(),
+                              np.asarray(abs(jyp).multiply(self.s[None, :]).max(axis=1).todense()).ravel())
             self.row_scale = np.where(mags > 0, 1.0 / np.where(mags > 0, mags, 1.0), 1.0)
             self.kept = self._kept_rows(jyp)
             sub_y, sub_yp = jy[self.kept], jyp[self.kept]
@@ -86,8 +99,9 @@ class _Problem:
         depends_yp = set(np.asarray(getattr(mod, "JAC_DEPENDS_ON_YP", range(n))).tolist())
         self.fd_y = [j for j in self.free if j in depends_y] if len(self.kept) else []
         self.fd_yp = [j for j in self.dif if j in depends_yp] if len(self.kept) else []
-        weights = np.concatenate([np.where(diff[self.free], 1.0, CHEAP), np.full(len(self.dif), CHEAP),
-                                  np.full(len(self.zc) + len(self.wc), CHEAP)])
+        s = self.s  # a step of one nominal scale costs the same in every variable
+        weights = np.concatenate([np.where(diff[self.free], 1.0, CHEAP) * s[self.free], CHEAP * s[self.dif],
+                                  CHEAP * s[self.zc], CHEAP * s[self.wc]])
         self.weights = weights
         self.sizes = (len(self.free), len(self.dif), len(self.zc), len(self.wc))
         n_init = len(getattr(mod, "INITIAL", ()))
@@ -238,8 +252,8 @@ class _Problem:
             return False
         rng = np.random.default_rng(0)
         y1, yp1 = self.y.copy(), self.yp.copy()
-        y1[self.free] += (1.0 + np.abs(y1[self.free])) * rng.uniform(0.5, 1.5, nf)
-        yp1[self.dif] += rng.uniform(0.5, 1.5, nd)
+        y1[self.free] += (self.s[self.free] + np.abs(y1[self.free])) * rng.uniform(0.5, 1.5, nf)
+        yp1[self.dif] += self.s[self.dif] * rng.uniform(0.5, 1.5, nd)
         try:
             f0 = self.F(self.y, self.yp)
             jy0, jyp0 = self._jac_data(self.y, self.yp)
@@ -337,8 +351,8 @@ class _Problem:
             # D is bilinear: exact parts plus finite differences where the Jacobian varies
             # (a ẏ column of those includes its exact F_y part), one evaluation per group.
             for ycols, ypcols, ent_row, ent_h, scale in self._groups:
-                hy = 1e-7 * np.maximum(1.0, np.abs(y[ycols]))
-                hyp = 1e-7 * np.maximum(1.0, np.abs(yp[ypcols]))
+                hy = 1e-7 * np.maximum(self.s[ycols], np.abs(y[ycols]))
+                hyp = 1e-7 * np.maximum(self.s[ypcols], np.abs(yp[ypcols]))
                 yh, yph = y.copy(), yp.copy()
                 yh[ycols] += hy
                 yph[ypcols] += hyp
@@ -435,13 +449,66 @@ def consistent_initial_conditions(mod, p, t0: float, values: dict[int, float], f
     y = np.zeros(n)
     for j, v in values.items():
         y[j] = v
-    scale = max(1.0, float(np.abs(y).max(initial=0)))
+    # Solved in the model's units first (rows equilibrated, tolerance relative to the largest
+    # value). That start is then checked in the scaled variables (nominal scales from the
+    # given values and the rows, phc.simulation.scaling): each row against its largest term.
+    # A mechanism whose momenta are 1e-11 kg·m/s in SI passes the first test with all momenta
+    # 0 and a GGL multiplier absorbing the velocity constraint; it fails the second and is
+    # solved again in the scaled variables (kept if that succeeds).
+    from phc.simulation.scaling import nominal_scales
+
+    s = nominal_scales(mod, p, y, np.zeros(n), t0=t0, probe=False, residual=True)
+    try:
+        result = _consistent(mod, p, t0, y, values, fixed, tol, max_iter, initial_relations, None)
+    except InconsistentInitialError as err:
+        try:
+            return _consistent(mod, p, t0, y, values, fixed, tol, max_iter, initial_relations, s)
+        except (InconsistentInitialError, ModelEvaluationError):
+            raise err from None
+    # (at the start of a run only: a restart at a breakpoint or an event continues a run whose
+    # states were computed in the model's units)
+    if not SCALED_CHECK or not initial_relations or _scaled_residual(mod, p, t0, result, s) <= SCALED_MISS:
+        return result
+    try:
+        return _consistent(mod, p, t0, y, values, fixed, tol, max_iter, initial_relations, s)
+    except (InconsistentInitialError, ModelEvaluationError):
+        return result
+
+
+def _scaled_residual(mod, p, t0, result: InitialResult, s) -> float:
+    """max_i |F_i| / r_i at the start found, r_i the largest term of row i in the scaled
+    variables (``max_k |∂F_i/∂y_k| s_k`` and the same for ẏ)."""
+    rows, cols = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
+    m = len(mod.EQUATIONS)
+    f = np.zeros(m)
+    buf = np.zeros(len(rows))
+    try:
+        mod.residual(t0, result.y0, result.yp0, p, f)
+        mod.jacobian(t0, result.y0, result.yp0, p, 0.0, buf)
+        jy = buf.copy()
+        mod.jacobian(t0, result.y0, result.yp0, p, 1.0, buf)
+    except ModelEvaluationError:
+        return 0.0
+    r = np.zeros(m)
+    np.maximum.at(r, rows, np.abs(jy) * s[cols])
+    np.maximum.at(r, rows, np.abs(buf - jy) * s[cols])
+    ok = r > 0
+    if not ok.any() or not np.all(np.isfinite(f)):
+        return 0.0
+    return float(np.max(np.abs(f[ok]) / r[ok]))
+
+
+def _consistent(mod, p, t0, y, values, fixed, tol, max_iter, initial_relations, s) -> InitialResult:
+    """One consistent initialization, in the model's units (`s` None) or in the variables
+    scaled by `s`."""
+    n = mod.N
+    scale = max(1.0, float(np.abs(y).max(initial=0))) if s is None else 1.0
     dif = set(np.flatnonzero(np.asarray(mod.DIFFERENTIAL)).tolist())
     stages = [fixed | dif] if fixed >= dif else [fixed | dif, fixed]
     total = 0
     prob = None
     for k, stage_fixed in enumerate(stages):
-        prob = _Problem(mod, p, t0, y, stage_fixed, initial_relations, like=prob)
+        prob = _Problem(mod, p, t0, y, stage_fixed, initial_relations, like=prob, scales=s)
         if k < len(stages) - 1 and prob.hopeless(10 * tol * scale):
             continue  # this stage cannot succeed: the next one starts from the same values
         u, it = _solve(prob, tol * scale, max_iter)
@@ -452,13 +519,17 @@ def consistent_initial_conditions(mod, p, t0: float, values: dict[int, float], f
         # see the remaining mismatch as a jump of the states.
         if _norm(g) <= 10 * tol * scale:
             chosen = {mod.VARIABLES[j]: float(y1[j]) for j in sorted(dif) if j not in fixed
-                      and mod.ROLES[j] != "energy" and abs(y1[j] - values.get(j, 0.0)) > 1e-12 * scale}
+                      and mod.ROLES[j] != "energy" and abs(y1[j] - values.get(j, 0.0)) > 1e-12 * (scale if s is None else s[j])}
             return InitialResult(y1, yp1, chosen, _norm(g), total)
     f_final = g[:prob.m] / prob.row_scale
     d_final = np.zeros(prob.m)
     d_final[prob.kept] = g[prob.m:prob.m + len(prob.kept)] / prob.row_scale[prob.kept]
-    bad = np.flatnonzero(np.abs(f_final) > 10 * tol * scale)
-    bad_d = np.flatnonzero(np.abs(d_final) > 1e-6 * scale)
+    if s is None:
+        bad = np.flatnonzero(np.abs(f_final) > 10 * tol * scale)
+        bad_d = np.flatnonzero(np.abs(d_final) > 1e-6 * scale)
+    else:  # judged in the scaled rows, reported in the model's units
+        bad = np.flatnonzero(np.abs(g[:prob.m]) > 10 * tol)
+        bad_d = np.flatnonzero(np.abs(d_final * prob.row_scale) > 1e-6)
     raise InconsistentInitialError(_explain(mod, f_final, d_final, bad, bad_d, fixed))
 
 

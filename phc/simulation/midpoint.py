@@ -38,14 +38,15 @@ from phc.simulation.guard import ModelEvaluationError
 from phc.simulation.monitor import SingularityMonitor
 
 NEWTON_TOL = 1e-14
-"""Newton stops when the estimated error ``θ/(1−θ)·|Δ|`` of the iterate is below this
-(relative to ``|y| + 1``); stagnation at round-off level is accepted as well."""
+"""Newton stops when the estimated error ``θ/(1−θ)·|Δ|`` of the iterate is below this, in
+the scaled variables ``y_j / s_j`` (:mod:`phc.simulation.scaling`; without scales,
+relative to ``|y| + 1``); stagnation at round-off level is accepted as well."""
 MAX_NEWTON = 30
 """Iterations of one step (refactorizations included) before the step is declared failed."""
 REFACTOR_RATE = 0.25
 """Contraction rate θ = |Δ_k|/|Δ_{k−1}| above which the Newton matrix is refreshed."""
 ROUNDOFF_FLOOR = 1e-9
-"""A correction this small (relative to |y| + 1) that a freshly factorized matrix cannot
+"""A correction this small (in the scaled variables) that a freshly factorized matrix cannot
 reduce is round-off amplified by the matrix's conditioning: the iterate is accepted."""
 MAX_AGE = 200
 """Steps after which the Newton matrix is refreshed regardless (state-dependent Jacobians)."""
@@ -98,6 +99,17 @@ class NewtonMatrix:
         return self.lu.solve(rhs)
 
 
+def newton_weights_of(scales, mod=None):
+    """Weights of the Newton test from nominal scales `s` (:mod:`phc.simulation.scaling`), or
+    None without them: ``1/s`` on differential variables, 0 on algebraic ones (:func:`phc.
+    simulation.scaling.newton_weights`)."""
+    if scales is None:
+        return None
+    from phc.simulation.scaling import weights_from_scales
+
+    return weights_from_scales(scales, None if mod is None else mod.DIFFERENTIAL)
+
+
 def constraint_rows(mod) -> np.ndarray:
     """Rows of F that are position invariants g(y) = 0 (GGL formulation), in INVARIANTS order."""
     eqs = list(mod.EQUATIONS)
@@ -119,8 +131,14 @@ class StageSolver:
     it does no work and the midpoint energy balance stays exact.
     """
 
-    def __init__(self, mod, p, end_constraints=True):
+    def __init__(self, mod, p, end_constraints=True, weights=None):
         self.mod, self.p = mod, p
+        self.weights = None if weights is None else np.asarray(weights, dtype=float)
+        # algebraic variables tested as before (relative to |y| + 1), except the GGL multipliers:
+        # zero on exact solutions, their values and corrections are round-off amplified like 1/h
+        self.algebraic = np.array([j for j, (d, name) in enumerate(zip(mod.DIFFERENTIAL, mod.VARIABLES))
+                                   if not d and not str(name).startswith("ggl.")], dtype=np.int64)
+        """``1/s``: the Newton test runs on the scaled variables (:mod:`phc.simulation.scaling`)."""
         self.end_rows = constraint_rows(mod) if end_constraints else np.array([], dtype=int)
         self.matrix = NewtonMatrix(mod, p, self.end_rows)
         self.res = np.zeros(mod.N)
@@ -166,8 +184,11 @@ class StageSolver:
         last = None
         for _ in range(MAX_NEWTON):
             delta = matrix.solve(-self.residual(t, h, y, y1, s))
-            size = float(np.abs(delta).max())
-            scale = 1.0 + float(np.abs(y1).max())
+            if self.weights is None:
+                size, scale = float(np.abs(delta).max()), 1.0 + float(np.abs(y1).max())
+            else:  # differential variables scaled; algebraic ones (weight 0) as before, relative to |y| + 1
+                algebraic = float(np.abs(delta[self.algebraic]).max(initial=0.0)) / (1.0 + float(np.abs(y1).max()))
+                size, scale = max(float(np.abs(delta * self.weights).max()), algebraic), 1.0
             if not np.isfinite(size):
                 if since == 0:
                     return y1, False
@@ -225,19 +246,31 @@ class Projector:
 
     TOL = 1e-14
 
-    def __init__(self, mod, p, y, t=0.0):
+    def __init__(self, mod, p, y, t=0.0, scales=None):
         self.mod, self.p = mod, p
+        # sizes of the variables (the nominal scales, else 1): finite-difference steps and the
+        # convergence test are relative to them
+        self.scales = None if scales is None else np.asarray(scales, dtype=float)
+        size = np.ones(mod.N) if scales is None else self.scales
+        self._fd = size
         diff = np.flatnonzero(np.asarray(mod.DIFFERENTIAL))
         g0 = mod.invariants(t, y, p)
         cols = []
         for j in diff:  # the variables the invariants depend on (probe once)
             yh = y.copy()
-            yh[j] += 1e-6 * max(1.0, abs(y[j]))
+            yh[j] += 1e-6 * max(size[j], abs(y[j]))
             if np.abs(mod.invariants(t, yh, p) - g0).max() > 0:
                 cols.append(j)
         self.cols = np.array(cols, dtype=int)
         self.pinv = None
         self.updates = 0
+
+    def _size(self, y) -> float:
+        """What the invariants' residual is measured against: with nominal scales, the size of
+        their terms ``|G| (|y| + s)`` (known once G is), else ``1 + |y|``."""
+        if getattr(self, "_g_size", None) is None:
+            return 1.0 + float(np.abs(y[self.cols]).max())
+        return self._g_size
 
     def _constraints(self, t, y):
         return self.mod.invariants(t, y, self.p)
@@ -245,14 +278,18 @@ class Projector:
     def _jacobian(self, t, y, g):
         G = np.empty((len(g), len(self.cols)))
         for c, j in enumerate(self.cols):
-            h = 1e-7 * max(1.0, abs(y[j]))
+            h = 1e-7 * max(self._fd[j], abs(y[j]))
             yh = y.copy()
             yh[j] += h
             G[:, c] = (self._constraints(t, yh) - g) / h
         return G
 
     def _refresh(self, t, y, g):
-        self.pinv = np.linalg.pinv(self._jacobian(t, y, g), rcond=1e-12)
+        G = self._jacobian(t, y, g)
+        self.pinv = np.linalg.pinv(G, rcond=1e-12)
+        if self.scales is not None:
+            size = np.abs(G) @ (np.abs(y[self.cols]) + self.scales[self.cols])
+            self._g_size = float(size.max()) if size.size and size.max() > 0 else None
         self.updates += 1
 
     def project(self, t, y):
@@ -264,7 +301,7 @@ class Projector:
         for _ in range(8):
             g = self._constraints(t, y)
             size = float(np.abs(g).max())
-            if size <= self.TOL * (1.0 + float(np.abs(y[self.cols]).max())):
+            if size <= self.TOL * self._size(y):
                 break
             if self.pinv is None or (size > 0.1 * last and not fresh):
                 self._refresh(t, y, g)
@@ -276,15 +313,15 @@ class Projector:
         return y
 
 
-def make_projector(mod, p, y, t=0.0):
+def make_projector(mod, p, y, t=0.0, scales=None):
     """The projector for invariants the stage solver does not impose at the step ends, or None."""
     if not len(getattr(mod, "INVARIANTS", ())) or len(constraint_rows(mod)):
         return None
-    return Projector(mod, p, y, t)
+    return Projector(mod, p, y, t, scales)
 
 
 def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, advance, name, project=True,
-                         names=None, events=None):
+                         names=None, events=None, scales=None):
     """Fixed-step driver shared by the structure-preserving backends.
 
     ``advance(t, h, y, guess) -> (y1, ok, reason)`` takes one step. Output at every
@@ -309,9 +346,9 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
     y = np.array(y0, dtype=float)
     steps = split = 0
     ok, message = True, "integration finished"
-    monitor = SingularityMonitor(mod, p, names=names)
+    monitor = SingularityMonitor(mod, p, names=names, scales=scales)
     last_look = -MONITOR_EVERY
-    projector = make_projector(mod, p, y, float(t_out[0])) if project else None
+    projector = make_projector(mod, p, y, float(t_out[0]), scales) if project else None
     y_prev, h_prev = None, 1.0
     # Predictor: extrapolate the step midpoints m = (y_n + y_{n+1})/2, not the step ends —
     # algebraic variables (multipliers) of a midpoint rule oscillate about their midpoint
@@ -491,14 +528,14 @@ NEWTON_HINT = "Newton did not converge; reduce `step` (simulation.step)"
 
 
 def integrate_midpoint(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=None, max_order=None,
-                       step=None, names=None, events=None):
+                       step=None, names=None, events=None, nominal=None):
     """Fixed-step implicit midpoint from ``t_out[0]``; output at every ``t_out`` (each output
     interval is split into equal steps no longer than `step`). Returns the same dict as the
     IDA backend."""
     del rtol, atol, max_order  # a fixed-step method: accuracy is set by `step`
 
     def make_advance():
-        stage = StageSolver(mod, p)
+        stage = StageSolver(mod, p, weights=newton_weights_of(nominal, mod))
 
         def advance(t, h, y, guess):
             y1, ok = stage.solve(t, h, y, guess, 0.5)
@@ -517,6 +554,7 @@ def integrate_midpoint(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progres
     advance = make_advance()
     stage = advance.stage
     out = integrate_fixed_step(mod, p, t_out, y0, yp0, max_steps=max_steps, progress=progress, step=step,
-                               advance=advance, name="implicit midpoint", names=names, events=events)
+                               advance=advance, name="implicit midpoint", names=names, events=events,
+                               scales=nominal)
     out.update(nfev=stage.nfev, njev=stage.matrix.factorizations)
     return out

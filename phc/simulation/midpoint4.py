@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from phc.simulation.midpoint import NEWTON_HINT, SINGULAR_HINT, StageSolver, integrate_fixed_step
+from phc.simulation.midpoint import NEWTON_HINT, SINGULAR_HINT, StageSolver, integrate_fixed_step, newton_weights_of
 
 PASSIVITY_HINT = ("the step added energy through dissipation (the backward substep of the composition "
                   "outweighed the forward ones: a damped mode with h·|λ| near 1.17); change `step` by about "
@@ -57,9 +57,10 @@ class Midpoint4Step:
     from the same substep of the last two steps; the substep's end is guessed as
     ``2·m − y_start``. Without history, from the driver's guess of the step end."""
 
-    def __init__(self, mod, p):
+    def __init__(self, mod, p, scales=None):
         self.mod, self.p = mod, p
-        self.stages = (StageSolver(mod, p), StageSolver(mod, p))  # γ₁h and γ₂h
+        w = newton_weights_of(scales, mod)
+        self.stages = (StageSolver(mod, p, weights=w), StageSolver(mod, p, weights=w))  # γ₁h and γ₂h
         self.stage = self  # for the driver's look at `ill_conditioned`
         self.ill_conditioned = False
         self.singular = False
@@ -153,7 +154,7 @@ def unstable_modes(mod, p, t0, y0, yp0, steps) -> list[tuple[float, complex]]:
 
 
 def integrate_midpoint4(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=None, max_order=None,
-                        step=None, names=None, events=None):
+                        step=None, names=None, events=None, nominal=None):
     """Fixed-step fourth-order composition of the implicit midpoint rule from ``t_out[0]``;
     output at every ``t_out`` (each output interval is split into equal steps no longer than
     `step`). Returns the same dict as the IDA backend. A step that puts a damped mode of the
@@ -178,8 +179,9 @@ def integrate_midpoint4(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progre
                                        python_advance=lambda: Midpoint4Step(mod, p))
         if out is not None:
             return out
-    advance = Midpoint4Step(mod, p)
+    advance = Midpoint4Step(mod, p, nominal)
     out = integrate_fixed_step(mod, p, t_out, y0, yp0, max_steps=max_steps, progress=progress, step=step,
-                               advance=advance, name="midpoint composition (order 4)", names=names, events=events)
+                               advance=advance, name="midpoint composition (order 4)", names=names, events=events,
+                               scales=nominal)
     out.update(nfev=advance.nfev, njev=advance.factorizations)
     return out

@@ -63,8 +63,13 @@ class SingularityMonitor:
     become dependent (with the connections they belong to, from ``names``) and the
     condition that fails."""
 
-    def __init__(self, mod, p, threshold: float = THRESHOLD, names: Optional[dict] = None):
+    def __init__(self, mod, p, threshold: float = THRESHOLD, names: Optional[dict] = None, scales=None):
         self.mod, self.p, self.threshold = mod, p, threshold
+        self.scales = None if scales is None else np.asarray(scales, dtype=float)
+        """Nominal scales of the variables (:mod:`phc.simulation.scaling`), kept for the
+        failure diagnosis. The rank test itself equilibrates rows and columns (D_r J D_c with
+        D_c found from J, not from the scales: a state at rest has only its unit as a scale,
+        and prescaling its column by it made a straight beam at rest look singular)."""
         self.names = dict(names or {})
         self.h_floor = 0.0
         """Steps shorter than this are looked at as if they were this long: an index-2
@@ -208,7 +213,7 @@ SPREAD = 1e8
 """States spanning more orders of magnitude than this strain a scalar `rtol`."""
 
 
-def check_scales(mod, y0, yp0, span, rtol, atol, failed: bool = False) -> Optional[str]:
+def check_scales(mod, y0, yp0, span, rtol, atol, failed: bool = False, scales=None) -> Optional[str]:
     """A conditioning warning when the model's states are badly scaled for the tolerances.
 
     `y0`, `yp0` are the start, or the states computed so far (one row per output time):
@@ -218,7 +223,12 @@ def check_scales(mod, y0, yp0, span, rtol, atol, failed: bool = False) -> Option
     `atol` (a mass of 1e-9 kg moving at mm/s has momenta ~1e-12) are integrated without
     relative accuracy; states spanning many orders of magnitude, or an `rtol` close to
     machine precision, make the error test fail; these two are reported only with
-    ``failed`` (a successful run was accurate despite them). None when nothing is found."""
+    ``failed`` (a successful run was accurate despite them). None when nothing is found.
+
+    With nominal `scales` (:mod:`phc.simulation.scaling`) the absolute tolerance of state j
+    is ``atol·s_j``: a state is small only against its own scale (a nominal set far above
+    what the state reaches), and states of different sizes no longer strain the error test,
+    so the spread is not reported."""
     diff = np.asarray(mod.DIFFERENTIAL, dtype=bool).copy()
     names = list(mod.VARIABLES)
     if "energy.supplied" in names:
@@ -232,13 +242,21 @@ def check_scales(mod, y0, yp0, span, rtol, atol, failed: bool = False) -> Option
     # starting straight has curvatures ~1e-12), not small states
     nonzero = size > ROUND_OFF * size.max()
     notes = []
-    small = [(labels[i], size[i]) for i in np.flatnonzero(nonzero) if size[i] < SMALL_STATE * atol]
-    if small:
-        listed = ", ".join(f"`{n}` (~{s:.0e})" for n, s in small[:3])
-        notes.append(f"states {listed} are below {SMALL_STATE:g}×atol = {SMALL_STATE * atol:.0e}, so they are "
-                     "integrated without relative accuracy")
+    if scales is not None:
+        tol = atol * np.asarray(scales, dtype=float)[diff]
+        small = [(labels[i], size[i], tol[i]) for i in np.flatnonzero(nonzero) if size[i] < SMALL_STATE * tol[i]]
+        if small:
+            listed = ", ".join(f"`{n}` (~{s:.0e}, nominal scale {t / atol:.0e})" for n, s, t in small[:3])
+            notes.append(f"states {listed} stay below {SMALL_STATE:g}×atol times their nominal scale, so they are "
+                         "integrated without relative accuracy")
+    else:
+        small = [(labels[i], size[i]) for i in np.flatnonzero(nonzero) if size[i] < SMALL_STATE * atol]
+        if small:
+            listed = ", ".join(f"`{n}` (~{s:.0e})" for n, s in small[:3])
+            notes.append(f"states {listed} are below {SMALL_STATE:g}×atol = {SMALL_STATE * atol:.0e}, so they are "
+                         "integrated without relative accuracy")
     big, tiny = size[nonzero].max(), size[nonzero].min()
-    if failed and big > SPREAD * tiny:
+    if failed and scales is None and big > SPREAD * tiny:
         i_big, i_tiny = int(np.argmax(np.where(nonzero, size, -1))), int(np.argmin(np.where(nonzero, size, np.inf)))
         notes.append(f"the states span {big / tiny:.0e} in size (`{labels[i_big]}` ~{big:.0e}, "
                      f"`{labels[i_tiny]}` ~{tiny:.0e})")
@@ -246,6 +264,9 @@ def check_scales(mod, y0, yp0, span, rtol, atol, failed: bool = False) -> Option
         notes.append(f"rtol = {rtol:g} is close to machine precision")
     if not notes:
         return None
+    if scales is not None:
+        return ("conditioning warning: " + "; ".join(notes) + ". Set `simulation.nominal` of these states to "
+                "their typical size (or lower `atol`, which is relative to the nominal scales), and `rtol` ≥ 1e-10")
     return ("conditioning warning: " + "; ".join(notes) + ". Nondimensionalize the model (choose units in "
             "which the states are of order one) or set `atol` below the smallest state and `rtol` ≥ 1e-10")
 
@@ -303,7 +324,7 @@ tolerances ask for more than double precision gives (IDA's Newton test needs the
 correction's norm well below 0.33)."""
 
 
-def roundoff_correction(mod, p, t, y, yp, h, rtol, atol, samples: int = 2):
+def roundoff_correction(mod, p, t, y, yp, h, rtol, atol, samples: int = 2, scales=None):
     """How far round-off alone moves a Newton correction of a BDF step of size `h` at
     (t, y, ẏ), in IDA's error weights ``1/(rtol|y| + atol)`` of the differential variables:
     ``(wrms, name, noise, tolerance)`` of the worst variable, or None when the system is
@@ -315,7 +336,7 @@ def roundoff_correction(mod, p, t, y, yp, h, rtol, atol, samples: int = 2):
     Fy, Fyp = _dense_split(mod, p, t, y, yp)
     size = np.abs(Fy) @ np.abs(y) + np.abs(Fyp) @ np.abs(yp)
     diff = np.asarray(mod.DIFFERENTIAL, dtype=bool)
-    tol = rtol * np.abs(y) + atol
+    tol = rtol * np.abs(y) + atol * (1.0 if scales is None else np.asarray(scales, dtype=float))
     rng = np.random.default_rng(0)
     try:
         lu = sla.lu_factor(Fy + Fyp / h, check_finite=True)
@@ -333,7 +354,7 @@ def roundoff_correction(mod, p, t, y, yp, h, rtol, atol, samples: int = 2):
 
 
 def diagnose_failure(mod, p, t, y, yp, *, status: int, h_typical: float, h_fail: float, max_order: int,
-                     rtol: float, atol: float, names: Optional[dict] = None) -> str:
+                     rtol: float, atol: float, names: Optional[dict] = None, scales=None) -> str:
     """What to tell the user when the integrator gave up at (t, y, ẏ).
 
     A singular configuration is named only when the equilibrated iteration matrix
@@ -346,7 +367,7 @@ def diagnose_failure(mod, p, t, y, yp, *, status: int, h_typical: float, h_fail:
     h = max(h_typical, h_fail)
     regular = ""
     if n <= DIAGNOSE_MAX and h > 0:
-        monitor = SingularityMonitor(mod, p, names=names)
+        monitor = SingularityMonitor(mod, p, names=names, scales=scales)
         try:
             ratio, u = monitor.ratio(t, y, yp, h)
         except (ArithmeticError, ValueError, np.linalg.LinAlgError):
@@ -368,14 +389,18 @@ def diagnose_failure(mod, p, t, y, yp, *, status: int, h_typical: float, h_fail:
         modes_remedy = ("`max_order: 2` (A-stable BDF2 keeps undamped modes bounded at any step; in a scene "
                         "`accuracy: {max_order: 2}`), or `solver: midpoint` (structure preserving), or damp or "
                         "remove the high modes (a `damping` coefficient, a coarser mesh, `modes: k`)")
-    floor = roundoff_correction(mod, p, t, y, yp, h_typical, rtol, atol) if h_typical > 0 else None
+    floor = roundoff_correction(mod, p, t, y, yp, h_typical, rtol, atol, scales=scales) if h_typical > 0 else None
     if floor is not None and floor[0] > ROUND_OFF_WRMS:
         wrms, name, noise, tol = floor
+        s_name = 1.0 if scales is None else float(scales[list(mod.VARIABLES).index(name)])
         cause = (f"{collapse}: the tolerances ask for more than double precision gives here — round-off alone "
                  f"moves a Newton correction of `{name}` by ~{noise:.0e}, more than its tolerance "
                  f"rtol·|y| + atol = {tol:.0e} (weighted norm of the round-off {wrms:.2g}; Newton needs it well "
                  f"below 0.33), and a smaller step only makes the iteration matrix worse conditioned. Remedy: "
-                 f"atol ≥ {10 * noise:.0e} (or a looser rtol), or units in which `{name}` is of order one")
+                 + (f"atol ≥ {10 * noise:.0e} (or a looser rtol), or units in which `{name}` is of order one"
+                    if scales is None else
+                    f"atol ≥ {10 * noise / s_name:.0e} (relative to the nominal scale {s_name:.1e} of `{name}`), "
+                    "or a looser rtol"))
         if stiff:
             cause += f". Besides, {modes}, which makes steps small and costly: {modes_remedy}"
     elif stiff:

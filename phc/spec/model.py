@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Literal, Optional, Union
+from typing import Annotated, Literal, Optional, Union
 
 from pydantic import Field, field_validator, model_validator
 
@@ -133,6 +133,12 @@ class SimulationSpec(SpecModel):
     beams as functions of `xi` (`rod.w: "0.001*sin(pi*xi/L)"`), projected onto whatever mesh
     is compiled (docs/how-to/initial-fields.md). Unlisted states start as a guess of 0 and
     are solved for by consistent initialization."""
+    nominal: dict[str, Annotated[float, Field(gt=0, allow_inf_nan=False)]] = {}
+    """Nominal scales by state name (`component.state: typical size`, in the state's unit):
+    the size against which `atol` and the Newton tests measure this state. phc
+    finds one for every state (from the start, a short probe and the equations,
+    docs/tolerances.md); set it where you know better, e.g. for a state that starts at 0 and
+    grows far beyond what the first instants show."""
     inputs: dict[str, InputSpec] = {}
     """Inputs on exposed ports. An exposed port without input is free (zero effort)."""
     outputs: dict[Identifier, Union[Expr, OutputSpec]] = {}

@@ -101,6 +101,9 @@ class SceneSpec(SpecModel):
     fields of distributed components as functions of `xi` (`rod.w: "0.001*sin(pi*xi/L)"`,
     docs/how-to/initial-fields.md). phc completes the rest by consistent initialization and
     reports what it chose."""
+    nominal: dict[str, Annotated[float, Field(gt=0, allow_inf_nan=False)]] = {}
+    """Nominal scales by state name, merged over the model's `simulation.nominal` (a value
+    here wins): the size `atol` and the Newton tests measure the state against."""
     initial_shape: dict[str, Literal["straight", "free"]] = {}
     """Initial shape per moving beam (`component: straight|free`), overriding the model's
     `initial_shape`."""

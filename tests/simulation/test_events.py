@@ -224,7 +224,9 @@ def _coulomb_closed_form(t):
                     np.where(t <= math.pi, -0.25 + 0.35 * np.cos(2 * t), 0.1))
 
 
-@pytest.mark.parametrize("solver, h, tol_t, tol_x", [("ida", None, 5e-8, 5e-7), ("midpoint", 1e-3, 2e-6, 2e-6),
+# IDA at rtol 1e-8: event times to ~1e-7 (the stick time moves between 1e-8 and 2.2e-7 with the
+# nominal scales of the states, docs/tolerances.md: the step sequence before it decides)
+@pytest.mark.parametrize("solver, h, tol_t, tol_x", [("ida", None, 3e-7, 5e-7), ("midpoint", 1e-3, 2e-6, 2e-6),
                                                      ("discrete_gradient", 1e-3, 2e-6, 2e-6),
                                                      ("midpoint4", 2e-3, 1e-9, 1e-9)])
 def test_coulomb_block_slips_reverses_and_sticks(tmp_path, solver, h, tol_t, tol_x):

@@ -118,7 +118,9 @@ simulation:
 
 def test_scale_warning_looks_at_the_whole_run(tmp_path):
     """At rest at t₀ with x = 1e-9 < 100·atol, then pushed to x ~ 0.25: no warning (the
-    check used to look at t₀ only). Left alone, x stays ~1e-9: the warning stays."""
+    check used to look at t₀ only). Left alone, x stays ~1e-9: that is its nominal scale,
+    atol is relative to it (docs/tolerances.md), so it is integrated to rtol and there is
+    no warning either — unless the user sets a nominal scale far above what x reaches."""
     moved = tmp_path / "moved.yaml"
     moved.write_text(REST % "ifelse(t < 0.5, 0, -1)")
     result = phc.simulate(phc.compile_model(moved, certify=False))
@@ -126,7 +128,10 @@ def test_scale_warning_looks_at_the_whole_run(tmp_path):
     assert "conditioning warning" not in result.message
     still = tmp_path / "still.yaml"
     still.write_text(REST % "0")
-    result = phc.simulate(phc.compile_model(still, certify=False))
+    compiled = phc.compile_model(still, certify=False)
+    result = phc.simulate(compiled)
+    assert result.success and "conditioning warning" not in result.message
+    result = phc.simulate(compiled, nominal={"spring.x": 1.0})
     assert result.success and "conditioning warning" in result.message and "spring.x" in result.message
 
 

@@ -193,3 +193,19 @@ def test_progress_is_reported_per_chunk_in_time_order(oscillator, monitored, mon
     if not monitored:
         assert len(seen) <= result.steps // ida_module.CHUNK_STEPS + 5
     assert seen == sorted(seen) and seen[-1] == pytest.approx(2.0)
+
+
+def test_without_idas_counters_the_run_is_the_same(oscillator, monkeypatch):
+    """Where scikit-sundae's layout is not the expected one the counters do not attach: IDA
+    then stops after CHUNK_STEPS steps a call by its constructor's limit, and residual
+    evaluations bound the step count (max_steps stops no later than asked)."""
+    mod, p, init = _start(oscillator)
+    t_out = np.linspace(0.0, 3.0, 61)
+    fast = integrate_ida(mod, p, t_out, init.y0, init.yp0, rtol=1e-9, atol=1e-11, max_steps=100_000)
+    monkeypatch.setattr(_IdaCounters, "attach", classmethod(lambda cls, *args: None))
+    slow = integrate_ida(mod, p, t_out, init.y0, init.yp0, rtol=1e-9, atol=1e-11, max_steps=100_000)
+    assert slow["success"], slow["message"]
+    assert np.abs(slow["y"] - fast["y"]).max() <= 1e-12 * np.abs(fast["y"]).max()
+    assert slow["steps"] >= fast["steps"]
+    stopped = integrate_ida(mod, p, t_out, init.y0, init.yp0, rtol=1e-9, atol=1e-11, max_steps=200)
+    assert not stopped["success"] and "max_steps" in stopped["message"] and 1 < len(stopped["t"]) < 61

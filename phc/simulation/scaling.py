@@ -1,0 +1,365 @@
+"""Nominal scales of the variables: what makes tolerances mean the same in every unit system.
+
+A tolerance is only meaningful relative to the size of what it measures. A small mechanism
+in SI units has momenta of ~1e-5 kg·m/s; an absolute tolerance of 1e-6 is then 10 % of
+them, while the same model in grams and centimetres has momenta of ~1 and the same
+tolerance is 1e-6 of them. phc therefore gives every variable ``y_j`` a *nominal scale*
+``s_j > 0`` (in the variable's own unit) and measures every tolerance in the scaled
+variables ``y_j / s_j``:
+
+* IDA's absolute tolerance of a differential variable is ``atol · s_j`` (``atol`` is
+  relative to the nominal scale; ``rtol`` stays relative to the current value);
+* the Newton tests of the fixed-step solvers are ``max_j |Δy_j| / s_j ≤ tol`` on the
+  states (:func:`weights_from_scales`);
+* consistent initialization checks its start in the scaled variables
+  (:func:`phc.simulation.initial.consistent_initial_conditions`).
+
+Scaling the units of a model scales every ``s_j`` the same way (all rules below are
+homogeneous of degree one in the variable's unit), so the scaled problem, and with it the
+steps, the Newton iterations and the relative errors, do not depend on the units.
+
+How ``s`` is found, in this order (docs/tolerances.md):
+
+1. the size at the start, ``|y_j(t₀)|``, and the rate at the start over the probe's time
+   scale τ, ``|ẏ_j(t₀)| τ``;
+2. a short probe: :data:`PROBE_STEPS` implicit-midpoint steps over τ (2 % of the run,
+   at most :data:`PROBE_OUTPUTS` output intervals); the largest ``|y_j|`` seen, and for
+   the energy accumulator the largest energy scale (sum of |terms| of H), also with every
+   state at its scale;
+3. values below :data:`NOISE` times the largest of their block (states, algebraic
+   variables) are round-off (1e-47 where a mechanism at rest has 0) and count as zero;
+4. algebraic variables that are zero (a multiplier at rest), and before consistent
+   initialization (``residual=True``) the states too, get a size from the rows they appear
+   in: the iteration matrix ``J = F_y + F_ẏ/τ`` at the start, whose row ``i`` has the
+   size ``r_i = max_k |J_ik| s_k`` over the variables with a scale; ``y_j`` then has the
+   size ``min_i r_i / |J_ij|`` that makes its term as large as the row's others;
+5. a floor from the energy: at least :data:`ENERGY_FLOOR` times ``sqrt(2E/∂²H/∂y_j²)``,
+   the size the state would have if it held the energy scale E alone — a beam that starts
+   straight has curvatures of round-off size, not zero;
+6. a floor from the variables of the same kind (the same name up to the index, e.g. the
+   dofs ``rod.p[k]`` of one beam): at least :data:`KIND_FLOOR` times the largest of them;
+7. a value the user set (``simulation.nominal: {state: value}``, or a scene's
+   ``nominal``) replaces all of this for its variable;
+8. a variable nothing gives a size to (a state at rest that the probe does not see move)
+   keeps 1, its own unit: ``atol`` then means for it what it always meant.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Mapping, Optional
+
+import numpy as np
+
+PROBE_STEPS = 20
+"""Implicit-midpoint steps of the probe."""
+PROBE_FRACTION = 0.02
+"""The probe covers this fraction of the run ..."""
+PROBE_OUTPUTS = 20
+"""... but at most this many output intervals (the user's time resolution)."""
+KIND_FLOOR = 1e-3
+"""A variable's scale is at least this times the largest scale of its kind."""
+NOISE = 1e-16
+"""Values below this times the largest |y| of the states (or of the algebraic variables) are
+zeros computed inexactly (1e-47 where 0 was meant, at rest): they say nothing about a
+variable's size."""
+NOISE_COEFFICIENT = 1e-20
+"""Jacobian entries below this times the largest of their row are zeros computed inexactly."""
+ENERGY_FLOOR = 1e-3
+"""A state's scale is at least this times its size if it held the energy scale alone
+(:func:`energy_sizes`): a curvature of a beam that starts straight (1e-19) gets the size
+its bending would reach, not its round-off."""
+
+
+def _drop_noise(s, diff) -> np.ndarray:
+    """`s` with the values below :data:`NOISE` times the largest of their block (states,
+    algebraic variables) set to 0."""
+    s = s.copy()
+    for block in (diff, ~diff):
+        top = s[block].max(initial=0.0)
+        s[block & (s < NOISE * top)] = 0.0
+    return s
+
+
+def kind_of(name: str) -> str:
+    """The kind of a variable: its name without indices (`rod.p[3]` → `rod.p`)."""
+    return re.sub(r"\[\d+\]", "", name)
+
+
+def _jacobian_entries(mod, p, t, y, yp, cj):
+    rows, cols = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
+    buf = np.zeros(len(rows))
+    mod.jacobian(t, y, yp, p, cj, buf)
+    return rows, cols, buf
+
+
+def row_sizes(rows, cols, vals, s, m: int) -> np.ndarray:
+    """``r_i = max_k |J_ik| s_k``: the size of each row's largest term (0 for an empty row)."""
+    r = np.zeros(m)
+    np.maximum.at(r, rows, np.abs(vals) * s[cols])
+    return r
+
+
+def _fill_from_rows(rows, cols, vals, s, n, m, passes: int = 3, r0=None) -> np.ndarray:
+    """The size each variable's rows give it (step 3): ``min_i r_i / |J_ij|`` with ``r_i``
+    the row's largest term over the variables with a size; 0 where no row says anything.
+    The smallest over the rows: a larger size would make the variable's term dominate a
+    row whose other terms balance.
+    Variables without a size get theirs in passes (one found may size the next)."""
+    a = np.abs(vals)
+    ok = np.isfinite(a) & (a > 0)
+    rows, cols, a = rows[ok], cols[ok], a[ok]
+    # coefficients at round-off level of their row (B'(θ)·ω with ω = 1e-49 at rest) are zeros
+    biggest = np.zeros(m)
+    np.maximum.at(biggest, rows, a)
+    ok = a >= NOISE_COEFFICIENT * biggest[rows]
+    rows, cols, a = rows[ok], cols[ok], a[ok]
+    known = s > 0
+    natural = np.zeros(n)
+    for _ in range(passes + 1):
+        cur = np.where(known, s, natural)
+        r = np.zeros(m) if r0 is None else r0.copy()
+        have = cur[cols] > 0
+        np.maximum.at(r, rows[have], a[have] * cur[cols[have]])
+        cand = np.full(n, np.inf)
+        use = r[rows] > 0
+        np.minimum.at(cand, cols[use], r[rows[use]] / a[use])
+        cand[~np.isfinite(cand)] = 0.0
+        if np.array_equal(cand, natural):
+            break
+        natural = cand
+    return natural
+
+
+def energy_sizes(mod, p, t0, y0, s, energy: float) -> np.ndarray:
+    """``sqrt(2E / ∂²H/∂y_j²)`` for each differential variable j: its size if it held the
+    energy scale E alone (0 where H is not curved in y_j or E is 0). Central differences
+    with a step that grows until the second difference stands above H's round-off."""
+    from phc.simulation.guard import CATCH, ModelEvaluationError
+
+    n = mod.N
+    out = np.zeros(n)
+    if not energy > 0:
+        return out
+    diff = np.flatnonzero(np.asarray(mod.DIFFERENTIAL, dtype=bool))
+    names = list(mod.VARIABLES)
+    skip = names.index("energy.supplied") if "energy.supplied" in names else -1
+    H = mod.hamiltonian
+    try:
+        h0 = float(H(t0, y0, p))
+        noise = 1e-12 * max(energy, abs(h0))
+        for j in diff:
+            if j == skip:
+                continue
+            delta = max(s[j], abs(y0[j]))
+            delta = delta if delta > 0 else 1.0
+            for _ in range(8):
+                yp_, ym_ = y0.copy(), y0.copy()
+                yp_[j] += delta
+                ym_[j] -= delta
+                d2 = float(H(t0, yp_, p)) - 2.0 * h0 + float(H(t0, ym_, p))
+                if not np.isfinite(d2):
+                    break
+                if abs(d2) > noise:
+                    k = d2 / delta ** 2
+                    if k > 0:
+                        out[j] = np.sqrt(2.0 * energy / k)
+                    break
+                delta *= 1e3
+    except (ModelEvaluationError, *CATCH):
+        return np.zeros(n)
+    return np.where(np.isfinite(out), out, 0.0)
+
+
+def probe_time(span: Optional[float], t_out=None) -> float:
+    """The probe's time scale τ: 2 % of the run, at most 20 output intervals."""
+    tau = PROBE_FRACTION * float(span) if span else 1.0
+    if t_out is not None and len(t_out) > 1:
+        tau = min(tau, PROBE_OUTPUTS * float(np.max(np.diff(np.asarray(t_out, dtype=float)))))
+    return tau if tau > 0 and np.isfinite(tau) else 1.0
+
+
+def _probe(mod, p, t0, y0, yp0, tau, weights) -> tuple[np.ndarray, float]:
+    """Largest |y| and energy scale over a few implicit-midpoint steps (best effort: the probe
+    stops at the first step Newton cannot do)."""
+    from phc.simulation.guard import CATCH, ModelEvaluationError
+    from phc.simulation.midpoint import StageSolver
+
+    big = np.abs(y0).copy()
+    energy = 0.0
+    try:
+        energy = abs(float(mod.energy_scale(t0, y0, p)))
+    except (ModelEvaluationError, *CATCH):
+        pass
+    try:
+        # the Newton test of the probe is relative to |y| + 1, not to the scales it is there to
+        # find: a start at rest where everything is round-off (a source sin(ωt) at t = 0) has
+        # scales of 1e-20 that no Newton iteration meets
+        del weights
+        stage = StageSolver(mod, p)
+        h = tau / PROBE_STEPS
+        y = np.array(y0, dtype=float)
+        slope = np.asarray(yp0, dtype=float)
+        t = t0
+        for _ in range(PROBE_STEPS):
+            y1, ok = stage.solve(t, h, y, y + h * slope, 0.5)
+            if not ok or not np.all(np.isfinite(y1)):
+                break
+            slope = (y1 - y) / h
+            y, t = y1, t + h
+            np.maximum(big, np.abs(y), out=big)
+            energy = max(energy, abs(float(mod.energy_scale(t, y, p))))
+    except (ModelEvaluationError, *CATCH):
+        pass
+    return big, energy if np.isfinite(energy) else 0.0
+
+
+def nominal_scales(mod, p, y0, yp0, nominal: Optional[Mapping[int, float]] = None, *, t0: float = 0.0,
+                   span: Optional[float] = None, t_out=None, probe: bool = True,
+                   residual: bool = False) -> np.ndarray:
+    """The nominal scale ``s_j > 0`` of every variable (module docstring: how it is found).
+
+    Parameters
+    ----------
+    mod : module
+        A generated residual module (guarded or not).
+    p : ndarray
+        Full parameter vector.
+    y0, yp0 : ndarray
+        A consistent start.
+    nominal : mapping, optional
+        User-set scales by variable index (they win).
+    t0, span, t_out : optional
+        Start time, length of the run and output times (they set the probe's time scale).
+    probe : bool
+        Run the short probe (step 2); without it only the start and the rows are used.
+    residual : bool
+        Count the residual ``|F_i|`` at (y0, yp0) among the terms of row i (step 3): before
+        consistent initialization a driven row (a flow source imposing ω) says how large the
+        variables it drives will be.
+    """
+    n = mod.N
+    y0 = np.asarray(y0, dtype=float)
+    yp0 = np.asarray(yp0, dtype=float)
+    diff = np.asarray(mod.DIFFERENTIAL, dtype=bool)
+    names = list(mod.VARIABLES)
+    m = len(mod.EQUATIONS)
+    tau = probe_time(span, t_out)
+    s = np.where(np.isfinite(y0), np.abs(y0), 0.0)
+    s = _drop_noise(s, diff)
+    rate = np.where(diff & np.isfinite(yp0), np.abs(yp0) * tau, 0.0)
+    s = np.maximum(s, rate)
+    s = _drop_noise(s, diff)
+    from phc.simulation.guard import CATCH, ModelEvaluationError
+
+    try:
+        rows, cols, vals = _jacobian_entries(mod, p, t0, y0, yp0, 1.0 / tau)
+    except (ModelEvaluationError, *CATCH):
+        rows = cols = np.zeros(0, dtype=int)
+        vals = np.zeros(0)
+    r0 = None
+    if residual:
+        try:
+            r0 = np.zeros(m)
+            mod.residual(t0, y0, yp0, p, r0)
+            r0 = np.where(np.isfinite(r0), np.abs(r0), 0.0)
+            r0[r0 < NOISE * r0.max(initial=0.0)] = 0.0
+        except (ModelEvaluationError, *CATCH):
+            r0 = None
+    user = {int(j): abs(float(v)) for j, v in (nominal or {}).items() if np.isfinite(v) and float(v) != 0}
+
+    def nominal_energy(s) -> float:
+        """The energy scale with every state at its nominal size (the energy supplied is
+        measured against what the states can hold, not against H at a start at rest)."""
+        y = np.where(diff, np.where(y0 < 0, -1.0, 1.0) * np.maximum(np.abs(y0), s), y0)
+        try:
+            e = abs(float(mod.energy_scale(t0, y, p)))
+        except (ModelEvaluationError, *CATCH):
+            return 0.0
+        return e if np.isfinite(e) else 0.0
+
+    def complete(s, energy=None):
+        s = s.copy()
+        s = _drop_noise(s, diff)  # round-off of a start (or a probe) at rest
+        if energy:
+            s = np.maximum(s, ENERGY_FLOOR * energy_sizes(mod, p, t0, y0, s, energy))
+        natural = _fill_from_rows(rows, cols, vals, s, n, m, r0=r0)
+        # the rows size what has no size of its own: algebraic variables (a multiplier at rest)
+        # and, before consistent initialization (`residual`), states the equations drive; a
+        # state at rest that nothing moves keeps its own unit (below), as `atol` always meant
+        fill = ~diff | residual
+        if energy_index is not None:
+            fill[energy_index] = True
+        natural = np.where(fill, natural, 0.0)
+        s = np.where(s > 0, s, natural)
+        s = _drop_noise(s, diff)
+        kinds: dict[str, list[int]] = {}
+        for j, name in enumerate(names):
+            kinds.setdefault(kind_of(name), []).append(j)
+        for members in kinds.values():
+            if len(members) > 1:
+                idx = np.array(members)
+                s[idx] = np.maximum(s[idx], KIND_FLOOR * s[idx].max())
+        for j, v in user.items():
+            s[j] = v
+        s = np.where((s > 0) & np.isfinite(s), s, 1.0)
+        if energy_index is not None and energy_index not in user:
+            s[energy_index] = max(s[energy_index], nominal_energy(s))
+        return s
+
+    energy_index = names.index("energy.supplied") if "energy.supplied" in names else None
+    if energy_index is not None:  # the energy supplied is measured against the energy stored
+        try:
+            e0 = abs(float(mod.energy_scale(t0, y0, p)))
+        except (ModelEvaluationError, *CATCH):
+            e0 = 0.0
+        if np.isfinite(e0):
+            s[energy_index] = max(s[energy_index], e0)
+    s_start = complete(s, s[energy_index] if energy_index is not None else None)
+    if not probe:
+        return s_start
+    big, energy = _probe(mod, p, t0, y0, yp0, tau, 1.0 / s_start)
+    s = np.maximum(s, np.where(np.isfinite(big), big, 0.0))
+    if energy_index is not None:
+        s[energy_index] = max(s[energy_index], energy)
+    return complete(s, s[energy_index] if energy_index is not None else None)
+
+
+def weights_from_scales(scales, differential=None) -> np.ndarray:
+    """Newton-test weights of nominal scales: ``1/s_j`` on differential variables, 0 on
+    algebraic ones (multipliers and efforts follow from the differential variables; like
+    IDA, which leaves them out of its error and Newton tests: the GGL multiplier of an exact
+    solution is 0 and its corrections are round-off amplified like 1/h)."""
+    w = 1.0 / np.asarray(scales, dtype=float)
+    if differential is not None:
+        w = np.where(np.asarray(differential, dtype=bool), w, 0.0)
+    return w
+
+
+def newton_weights(mod, p, y0, yp0, nominal: Optional[Mapping[int, float]] = None, *, t0: float = 0.0,
+                   span: Optional[float] = None, t_out=None) -> np.ndarray:
+    """Weights of a Newton test on scaled variables (:func:`weights_from_scales` of
+    :func:`nominal_scales`): an iteration has converged when ``max_j |Δy_j| w_j`` is below
+    its tolerance."""
+    s = nominal_scales(mod, p, y0, yp0, nominal, t0=t0, span=span, t_out=t_out)
+    return weights_from_scales(s, mod.DIFFERENTIAL)
+
+
+def nominal_indices(mod, nominal: Optional[Mapping[str, float]]) -> dict[int, float]:
+    """User-set nominal scales by variable name → by index; a name that is not a state
+    raises :class:`~phc.errors.SimulationSetupError`."""
+    from phc.errors import SimulationSetupError
+
+    index = {name: j for j, name in enumerate(mod.VARIABLES)}
+    out = {}
+    for name, value in (nominal or {}).items():
+        if name not in index or not mod.DIFFERENTIAL[index[name]]:
+            raise SimulationSetupError(f"nominal scale: `{name}` is not a state of the model")
+        value = float(value)
+        if not np.isfinite(value) or value <= 0:
+            raise SimulationSetupError(f"nominal scale of `{name}` must be a finite positive number, got {value}")
+        out[index[name]] = value
+    return out
+
+
+__all__ = ["nominal_scales", "newton_weights", "weights_from_scales", "nominal_indices", "row_sizes", "kind_of", "probe_time"]

@@ -1,0 +1,210 @@
+"""Tolerances that mean the same in every unit system (issue 14 item 3).
+
+Every variable gets a nominal scale (phc.simulation.scaling); IDA's absolute tolerance is
+``atol`` times it, and the Newton, consistency and rank tests run on the scaled variables.
+The same model written in SI and in grams and centimetres (mass ×1e3, length ×1e2, time ×1)
+must then give the same relative errors, and a small mechanism whose momenta are ~1e-5 in
+SI must be integrated as accurately as the same mechanism in grams.
+
+References are independent of phc: the pendulum's angle equation φ'' = −(g/L) sin φ solved
+by scipy's DOP853 at 1e-12, the slider–crank's closed-form kinematics and the damped
+oscillator's closed form.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+import phc
+from phc.errors import ModelError
+from phc.simulation.scaling import nominal_scales
+
+MODELS = Path(__file__).resolve().parents[2] / "models"
+
+PENDULUM = """\
+format_version: 1
+name: small_pendulum
+parameters:
+  m: 1.0e-4     # 0.1 g
+  L: 1.0e-3     # 1 mm
+  g: 9.81
+components:
+  bob:
+    type: rigid
+    q: [x, y]
+    v: [vx, vy]
+    M: [[m, 0], [0, m]]
+    V: m*g*y
+    constraints:
+      - x**2 + y**2 - L**2
+simulation:
+  t_end: 0.15
+  n_out: 151
+  initial: {bob.x: L, bob.y: 0.0, bob.p_vx: 0.0, bob.p_vy: 0.0}
+  outputs:
+    x: bob.x
+"""
+
+SI = dict(m=1e-4, L=1e-3, g=9.81)
+GRAMS_CM = dict(m=1e-4 * 1e3, L=1e-3 * 1e2, g=9.81 * 1e2)  # g, cm, s
+
+
+@pytest.fixture(scope="module")
+def pendulum(tmp_path_factory):
+    path = tmp_path_factory.mktemp("scaling") / "small_pendulum.yaml"
+    path.write_text(PENDULUM)
+    return phc.compile_model(path, certify=False, backend="numpy")
+
+
+def _angle_reference(t, g, L):
+    sol = solve_ivp(lambda _, u: [u[1], -g / L * math.sin(u[0])], (t[0], t[-1]), [math.pi / 2, 0.0],
+                    method="DOP853", rtol=1e-12, atol=1e-12, t_eval=t)
+    return sol.y[0]
+
+
+def _pendulum_error(compiled, params, **options) -> float:
+    """Largest error of x/L against the reference (relative to the rod length)."""
+    r = phc.simulate(compiled, params=params, **options)
+    assert r.success, r.message
+    phi = _angle_reference(r.t, params["g"], params["L"])
+    return float(np.abs(r["x"] / params["L"] - np.sin(phi)).max())
+
+
+@pytest.mark.parametrize("tol", [1e-4, 1e-6, 1e-8])
+def test_ida_relative_error_is_the_same_in_si_and_in_grams(pendulum, tol):
+    # momenta ~1e-5 kg·m/s in SI: with an absolute atol = rtol they had no accuracy at all
+    # (errors 1.0, 0.13, 0.044 where grams–centimetres gave 0.06, 3.5e-4, 7.6e-6)
+    e_si = _pendulum_error(pendulum, SI, rtol=tol, atol=tol)
+    e_cgs = _pendulum_error(pendulum, GRAMS_CM, rtol=tol, atol=tol)
+    print(f"\nrtol = atol = {tol:g}: relative error SI {e_si:.2e}, g-cm {e_cgs:.2e}, "
+          f"factor {max(e_si, e_cgs) / min(e_si, e_cgs):.2f}")
+    assert max(e_si, e_cgs) <= 3 * min(e_si, e_cgs)
+    assert e_si <= 400 * tol  # BDF over two periods of a 90° swing; SI used to give 1e4 × tol
+
+
+def test_tight_tolerances_are_accurate_in_si(pendulum):
+    # at rtol = atol = 1e-10 the SI run used to finish with an error of 1.5e-4 and no warning
+    assert _pendulum_error(pendulum, SI, rtol=1e-10, atol=1e-10) <= 1e-6
+
+
+@pytest.mark.parametrize("solver", ["midpoint", "discrete_gradient", "midpoint4"])
+def test_fixed_step_solvers_are_unit_invariant(pendulum, solver):
+    # the same steps in both unit systems: the same scaled problem, the same relative error
+    step = 2e-4 if solver != "midpoint4" else 1e-3
+    e_si = _pendulum_error(pendulum, SI, solver=solver, step=step, t_end=0.08)
+    e_cgs = _pendulum_error(pendulum, GRAMS_CM, solver=solver, step=step, t_end=0.08)
+    assert max(e_si, e_cgs) <= 1.05 * min(e_si, e_cgs), (e_si, e_cgs)
+    assert e_si < 1e-2
+
+
+def test_scales_follow_the_units(pendulum):
+    """Every nominal scale changes with its variable's unit, and nothing else does."""
+    scales = []
+    for params in (SI, GRAMS_CM):
+        r = phc.simulate(pendulum, params=params, t_end=0.01, n_out=3)
+        mod = pendulum.module
+        p = phc.simulation.parameter_vector(mod, params)
+        scales.append(nominal_scales(mod, p, r.y[0], r.yp[0], t0=0.0, span=0.15, t_out=np.linspace(0, 0.15, 151)))
+    ratio = dict(zip(pendulum.module.VARIABLES, scales[1] / scales[0]))
+    expected = {"bob.x": 1e2, "bob.y": 1e2, "bob.p_vx": 1e5, "bob.p_vy": 1e5, "energy.supplied": 1e7}
+    for name, factor in expected.items():
+        assert ratio[name] == pytest.approx(factor, rel=1e-9), name
+
+
+# ---------------------------------------------------------------------------------------
+# A small slider–crank in SI: millimetre links, milligram masses, momenta ~1e-8 … 1e-11
+
+SMALL = dict(r=1.5e-3, L=3e-3, Jc=1e-13, mr=1.5e-7, ms=2e-7, omega=150.0)
+
+
+@pytest.fixture(scope="module")
+def slider_crank():
+    return phc.compile_model(MODELS / "rigid_slider_crank.yaml", certify=False, backend="numpy")
+
+
+def test_small_mechanism_starts_consistently_in_si(slider_crank):
+    # the consistency solve used to stop at a residual of 1e-11 with every momentum 0 and a
+    # GGL multiplier of 0.056 (tolerances absolute; the crank's momentum is Jc·ω = 1.5e-11)
+    r = phc.simulate(slider_crank, params=SMALL, t_end=1e-3, n_out=3)
+    y0 = dict(zip(r.variables, r.y[0]))
+    assert y0["crank.p_w"] == pytest.approx(SMALL["Jc"] * SMALL["omega"], rel=1e-9)
+
+
+def test_midpoint_runs_the_small_mechanism_without_a_false_singularity(slider_crank):
+    # used to stop "near a singular configuration" (σ_min/σ_max 5e-10 < 1e-6) at r/L = 0.5,
+    # which is nowhere singular
+    r = phc.simulate(slider_crank, params=SMALL, solver="midpoint", step=1e-5, t_end=0.02, n_out=41)
+    assert r.success, r.message
+    theta = SMALL["omega"] * r.t
+    rr, L = SMALL["r"], SMALL["L"]
+    closed = rr * np.cos(theta) + np.sqrt(L**2 - rr**2 * np.sin(theta) ** 2)
+    s = r.y[:, r.variables.index("slider.s")]
+    assert np.abs(s - closed).max() <= 1e-4 * L
+
+
+def test_ida_runs_the_small_mechanism_to_its_tolerance(slider_crank):
+    r = phc.simulate(slider_crank, params=SMALL, rtol=1e-6, atol=1e-6, t_end=0.05, n_out=51)
+    assert r.success, r.message
+    theta = SMALL["omega"] * r.t
+    rr, L = SMALL["r"], SMALL["L"]
+    closed = rr * np.cos(theta) + np.sqrt(L**2 - rr**2 * np.sin(theta) ** 2)
+    s = r.y[:, r.variables.index("slider.s")]
+    assert np.abs(s - closed).max() <= 1e-4 * L
+
+
+# ---------------------------------------------------------------------------------------
+# What rtol = 1e-6 gives on shipped models
+
+
+def test_mass_spring_damper_at_rtol_1e6_against_its_closed_form():
+    compiled = phc.compile_model(MODELS / "mass_spring_damper.yaml", certify=False, backend="numpy")
+    r = phc.simulate(compiled, rtol=1e-6, atol=1e-6)
+    assert r.success, r.message
+    m, k, c, x0 = 1.0, 4.0, 0.4, 0.5
+    w = math.sqrt(k / m)
+    zeta = c / (2 * math.sqrt(k * m))
+    wd = w * math.sqrt(1 - zeta**2)
+    closed = np.exp(-zeta * w * r.t) * (x0 * np.cos(wd * r.t) + zeta * w * x0 / wd * np.sin(wd * r.t))
+    assert np.abs(r["x"] - closed).max() <= 1e-4 * x0
+
+
+# ---------------------------------------------------------------------------------------
+# The user's nominal scales
+
+
+def test_nominal_in_the_model_sets_the_scale(tmp_path):
+    path = tmp_path / "m.yaml"
+    path.write_text(PENDULUM.replace("  initial:", "  nominal: {bob.p_vx: 2.0e-5}\n  initial:"))
+    compiled = phc.compile_model(path, certify=False, backend="numpy")
+    assert compiled.dae.options["nominal"] == {"bob.p_vx": 2e-5}
+    mod = compiled.module
+    r = phc.simulate(compiled, t_end=0.01, n_out=3, nominal={"bob.p_vy": 3e-5})
+    assert r.success, r.message
+    from phc.simulation import parameter_vector
+    from phc.simulation.scaling import nominal_indices
+
+    user = nominal_indices(mod, {**compiled.dae.options["nominal"], "bob.p_vy": 3e-5})
+    s = nominal_scales(mod, parameter_vector(mod), r.y[0], r.yp[0], user, span=0.15)
+    assert s[mod.VARIABLES.index("bob.p_vx")] == 2e-5 and s[mod.VARIABLES.index("bob.p_vy")] == 3e-5
+
+
+def test_nominal_of_something_that_is_not_a_state_is_a_located_error(tmp_path):
+    path = tmp_path / "m.yaml"
+    path.write_text(PENDULUM.replace("  initial:", "  nominal: {bob.pvx: 2.0e-5}\n  initial:"))
+    with pytest.raises(ModelError) as err:
+        phc.compile_model(path, certify=False)
+    text = str(err.value)
+    assert "m.yaml:" in text and "bob.pvx" in text and "PHC-E210" in text and "bob.p_vx" in text
+
+
+def test_nominal_must_be_positive(tmp_path):
+    path = tmp_path / "m.yaml"
+    path.write_text(PENDULUM.replace("  initial:", "  nominal: {bob.p_vx: -1}\n  initial:"))
+    with pytest.raises(ModelError) as err:
+        phc.compile_model(path, certify=False)
+    assert "m.yaml:" in str(err.value) and "nominal" in str(err.value)
