@@ -45,6 +45,12 @@ MSD = str(MODELS / "mass_spring_damper.yaml")
 CRANK = str(MODELS / "flexible_slider_crank.yaml")
 
 
+def _rows(path):
+    """The CSV's rows by column name without its unit (`t [s]` is `t`: docs/units.md)."""
+    with open(path, newline="") as fh:
+        return [{key.split(" [")[0]: value for key, value in row.items()} for row in csv.DictReader(fh)]
+
+
 def one_error_line(err: str) -> str:
     lines = [line for line in err.splitlines() if line.strip()]
     assert len(lines) == 1, err
@@ -333,7 +339,7 @@ def test_state_expression_outside_its_domain_keeps_the_results_so_far(tmp_path, 
     first = captured.out.splitlines()[0]
     assert first.startswith("state_model: FAILED — ") and "cannot be evaluated at t = " in first, first
     assert reason in first and "s.q = " in first
-    rows = list(csv.DictReader(out.open()))
+    rows = _rows(out)
     reached = float(rows[-1]["t"])
     assert len(rows) > 1 and reached <= t_star + 1e-12  # up to the time the model leaves its domain
     assert reached >= t_star - 0.03  # ... and not far before it (output interval 0.01, steps ≤ 0.01)
@@ -365,7 +371,7 @@ def test_failed_solver_writes_what_it_computed(tmp_path, capsys, solver):
     first = capsys.readouterr().out.splitlines()[0]
     reached = float(re.search(r"at t = ([0-9.e+-]+)", first).group(1))
     assert "FAILED" in first and "max_steps" in first and "raise `max_steps`" in first, first
-    rows = list(csv.DictReader(out.open()))
+    rows = _rows(out)
     assert 1 < len(rows) < 501 and float(rows[-1]["t"]) <= reached + 1e-12
     assert all(math.isfinite(float(v)) for v in rows[-1].values())
 
@@ -423,8 +429,7 @@ def test_ctrl_c_writes_the_partial_results_and_exits_130(tmp_path, warm_crank, s
     assert message and str(out) in message[0], stderr
     reached = float(re.search(r"at t = ([0-9.e+-]+)", message[0]).group(1))
     assert "INTERRUPTED" in stdout.splitlines()[0]
-    with out.open() as fh:
-        rows = list(csv.DictReader(fh))
+    rows = _rows(out)
     times = [float(r["t"]) for r in rows]
     assert 0 < reached < 1 and len(rows) >= 2
     assert times[0] == 0.0 and times[-1] == pytest.approx(reached, rel=1e-5)
