@@ -123,7 +123,8 @@ def integrate_discrete_gradient(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps
 
         out = compiled_steps.integrate("discrete_gradient", mod, p, t_out, y0, yp0, max_steps=max_steps,
                                        progress=progress, step=step, name="discrete gradient", names=names,
-                                       python_advance=lambda: DiscreteGradientStep(mod, p))
+                                       python_advance=lambda: DiscreteGradientStep(mod, p, nominal),
+                                       weights=newton_weights_of(nominal, mod), scales=nominal)
         if out is not None:
             return out
     advance = DiscreteGradientStep(mod, p, nominal)

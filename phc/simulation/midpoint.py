@@ -548,7 +548,8 @@ def integrate_midpoint(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progres
         from phc.simulation import compiled_steps
 
         out = compiled_steps.integrate("midpoint", mod, p, t_out, y0, yp0, max_steps=max_steps, progress=progress,
-                                       step=step, name="implicit midpoint", names=names, python_advance=make_advance)
+                                       step=step, name="implicit midpoint", names=names, python_advance=make_advance,
+                                       weights=newton_weights_of(nominal, mod), scales=nominal)
         if out is not None:
             return out
     advance = make_advance()

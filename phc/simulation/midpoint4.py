@@ -176,7 +176,8 @@ def integrate_midpoint4(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progre
 
         out = compiled_steps.integrate("midpoint4", mod, p, t_out, y0, yp0, max_steps=max_steps, progress=progress,
                                        step=step, name="midpoint composition (order 4)", names=names,
-                                       python_advance=lambda: Midpoint4Step(mod, p))
+                                       python_advance=lambda: Midpoint4Step(mod, p, nominal),
+                                       weights=newton_weights_of(nominal, mod), scales=nominal)
         if out is not None:
             return out
     advance = Midpoint4Step(mod, p, nominal)
