@@ -188,7 +188,9 @@ class StageSolver:
                 size, scale = float(np.abs(delta).max()), 1.0 + float(np.abs(y1).max())
             else:  # differential variables scaled; algebraic ones (weight 0) as before, relative to |y| + 1
                 algebraic = float(np.abs(delta[self.algebraic]).max(initial=0.0)) / (1.0 + float(np.abs(y1).max()))
-                size, scale = max(float(np.abs(delta * self.weights).max()), algebraic), 1.0
+                # a state is measured against its scale or its size, whichever is larger
+                w = self.weights / (1.0 + np.abs(y1) * self.weights)
+                size, scale = max(float(np.abs(delta * w).max()), algebraic), 1.0
             if not np.isfinite(size):
                 if since == 0:
                     return y1, False
