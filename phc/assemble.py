@@ -228,14 +228,21 @@ def _assemble(b, ctx, inter) -> Optional[Dae]:
     equations.append(Equation(denergy - port_power - dissipation, "energy.balance", "energy", "energy", None))
 
     scope = _output_scope(b, subs, hamiltonian)
-    if b.quadratic_energy and any(_mentions_energy(o.value if isinstance(o, OutputSpec) else o)
-                                  for o in sim.outputs.values()):
+    energy_terms = sum(int(_upper_coo(f.matrix).nnz) for f in b.quadratic_energy)
+    if b.quadratic_energy and energy_terms <= MAX_OUTPUT_ENERGY_TERMS and any(
+            _mentions_energy(o.value if isinstance(o, OutputSpec) else o) for o in sim.outputs.values()):
         scope["H"] = _total_energy(hamiltonian, b.quadratic_energy)  # distributed components' H too
     outputs = []
     result_units = ResultUnits(b._reporter, b.elab, variables, hamiltonian)
     for oname, ospec in sim.outputs.items():
         opath = ("simulation", "outputs", oname)
         oexpr, vpath = (ospec.value, (*opath, "value")) if isinstance(ospec, OutputSpec) else (ospec, opath)
+        if energy_terms > MAX_OUTPUT_ENERGY_TERMS and _mentions_energy(oexpr):
+            b.error("PHC-E604", f"output `{oname}` uses `H`, but the stored energy of the distributed components "
+                    f"has {energy_terms} terms (more than {MAX_OUTPUT_ENERGY_TERMS}), too many to write into an "
+                    "output", ctx, opath, hint="read H from the results (the `H` column, SimResult.H), or use a "
+                    "coarser mesh")
+            continue
         missing = [name for name in b.unavailable if isinstance(oexpr, str) and name in oexpr]
         if missing:
             b.error("PHC-E604", f"output `{oname}` uses `{missing[0]}`, but {b.unavailable[missing[0]]}", ctx,
@@ -380,6 +387,11 @@ def _resolve_definitions(uf, defs, rows, b) -> dict:
         return sign * resolve_root(root)
 
     return {s: value(s) for s in all_syms}
+
+
+MAX_OUTPUT_ENERGY_TERMS = 2000
+"""Largest number of terms of the distributed components' quadratic energies written out into
+an output that names `H` (a longer sum makes generated code Python cannot compile)."""
 
 
 def _mentions_energy(text) -> bool:

@@ -120,7 +120,9 @@ def test_redundant_rows_reported_are_the_latest():
 
 
 def test_a_3000_element_string_gets_through_consistent_initialization(tmp_path):
+    # an output `H` would write out the 9000-term stored energy: refused (PHC-E604, tests/codegen/test_output_energy.py)
     text = (MODELS / "vibrating_string.yaml").read_text().replace("elements: 16", "elements: 3000")
+    text = "\n".join(line for line in text.splitlines() if not line.strip().startswith("energy: H"))
     path = tmp_path / "string3000.yaml"
     path.write_text(text)
     kwargs = {"certify": False} if "certify" in inspect.signature(phc.compile_model).parameters else {}

@@ -94,8 +94,8 @@ FUNCTIONS_MODEL = """
 format_version: 1
 name: every_function
 parameters:
-  m: {value: 1.5, unit: kg}
-  k: {value: 4.0, unit: N/m}
+  m: 1.5       # no units: the outputs mix a length and a momentum in every function on purpose
+  k: 4.0
 components:
   mass: {type: mass, m: m}
   spring: {type: spring, k: k}

@@ -135,9 +135,15 @@ def test_descriptions_and_units_do_not_reach_the_code(tmp_path, monkeypatch):
     canary = tmp_path / "OWNED"
     text = _quoted(payload(canary) + "\n" + payload(canary, quote="'"))
     model = tmp_path / "m.yaml"
-    model.write_text(OSCILLATOR.format(description=text, unit=text))
     monkeypatch.setenv("PHC_CACHE_DIR", str(tmp_path / "cache"))
     monkeypatch.chdir(tmp_path)
+    # a unit is read (docs/units.md): code in it is refused, located, before anything reads it
+    model.write_text(OSCILLATOR.format(description=text, unit=text))
+    with pytest.raises(phc.ModelError, match=r"m.yaml:\d+:\d+: .*unit.*PHC-E170"):
+        phc.compile_model(model)
+    assert not canary.exists()
+    # a description is text that never reaches the code
+    model.write_text(OSCILLATOR.format(description=text, unit="N/m"))
     compiled = phc.compile_model(model)
     phc.simulate(compiled)
     assert not canary.exists()
