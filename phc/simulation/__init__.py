@@ -183,7 +183,7 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
         extra = {"step": step} if solver in FIXED_STEP else {}
         # every tolerance measures the variables against their nominal scales (docs/tolerances.md)
         scales = nominal_scales(mod, p, init.y0, init.yp0, user_nominal, t0=t0, span=float(t_out[-1] - t0),
-                                t_out=t_out)
+                                t_out=t_out, atol=atol)
         run = partial(BACKENDS[solver], mod, p, rtol=rtol, atol=atol, max_steps=max_steps, progress=progress,
                       max_order=opts.get("max_order", 5), names=describe_equations(compiled), nominal=scales,
                       **extra)

@@ -400,7 +400,7 @@ def diagnose_failure(mod, p, t, y, yp, *, status: int, h_typical: float, h_fail:
                  + (f"atol ≥ {10 * noise:.0e} (or a looser rtol), or units in which `{name}` is of order one"
                     if scales is None else
                     f"atol ≥ {10 * noise / s_name:.0e} (relative to the nominal scale {s_name:.1e} of `{name}`), "
-                    "or a looser rtol"))
+                    f"a nominal scale of `{name}` ≥ {10 * noise / atol:.0e} if you set one, or a looser rtol"))
         if stiff:
             cause += f". Besides, {modes}, which makes steps small and costly: {modes_remedy}"
     elif stiff:

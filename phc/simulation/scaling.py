@@ -41,7 +41,12 @@ How ``s`` is found, in this order (docs/tolerances.md):
 7. a value the user set (``simulation.nominal: {state: value}``, or a scene's
    ``nominal``) replaces all of this for its variable;
 8. a variable nothing gives a size to (a state at rest that the probe does not see move)
-   keeps 1, its own unit: ``atol`` then means for it what it always meant.
+   keeps 1, its own unit: ``atol`` then means for it what it always meant;
+9. a floor from round-off (when the absolute tolerance is known): ``atol · s_j`` must stay
+   :data:`ROUNDOFF_ULPS` times above the round-off with which the equations determine
+   ``y_j`` (:func:`roundoff_sizes`). The end of a free beam that drifts by 5e-10 m while
+   the other end sits at 0.3 m is fixed by a constraint whose terms are 0.3 m: it is known
+   to ~1e-16 m, and an absolute tolerance of 1e-10 · 5e-10 m is one no step can meet.
 """
 
 from __future__ import annotations
@@ -64,6 +69,8 @@ zeros computed inexactly (1e-47 where 0 was meant, at rest): they say nothing ab
 variable's size."""
 NOISE_COEFFICIENT = 1e-20
 """Jacobian entries below this times the largest of their row are zeros computed inexactly."""
+ROUNDOFF_ULPS = 100.0
+"""``atol · s_j`` stays at least this many times the round-off of ``y_j`` (step 9)."""
 ENERGY_FLOOR = 1e-3
 """A state's scale is at least this times its size if it held the energy scale alone
 (:func:`energy_sizes`): a curvature of a beam that starts straight (1e-19) gets the size
@@ -128,6 +135,44 @@ def _fill_from_rows(rows, cols, vals, s, n, m, passes: int = 3, r0=None) -> np.n
             break
         natural = cand
     return natural
+
+
+def roundoff_sizes(rows, cols, vals, y, s, n: int, m: int, samples: int = 3) -> np.ndarray:
+    """How precisely the equations determine each variable: the solution ``δ`` of
+    ``J δ = ρ`` for the round-off ``ρ_i = ε Σ_k |J_ik| max(|y_k|, s_k)`` of each row
+    (the size of its terms times the unit round-off) times normal random numbers (random signs
+    alone can cancel exactly: round-offs are multiples of ε), the largest
+    ``|δ_j|`` over a few samples. ``J`` is the iteration matrix at the start (its
+    differential rows carry ``c_j F_ẏ``, so a state's own round-off ``ε |y_j|`` is
+    counted). Zeros where the matrix cannot be factorized (a singular start is
+    diagnosed elsewhere)."""
+    import scipy.sparse as sps
+    from scipy.sparse.linalg import splu
+
+    ok = np.isfinite(vals)
+    rows, cols, vals = rows[ok], cols[ok], vals[ok]
+    size = np.maximum(np.abs(np.where(np.isfinite(y), y, 0.0)), s)
+    rho = np.zeros(m)
+    np.add.at(rho, rows, np.abs(vals) * size[cols])
+    rho *= np.finfo(float).eps
+    if m != n or not len(rows) or not rho.any():
+        return np.zeros(n)
+    try:
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            lu = splu(sps.csc_matrix((vals, (rows, cols)), shape=(m, n)))
+            rng = np.random.default_rng(0)
+            out = np.zeros(n)
+            for _ in range(samples):
+                d = lu.solve(rho * rng.standard_normal(m))
+                if not np.all(np.isfinite(d)):
+                    return np.zeros(n)
+                np.maximum(out, np.abs(d), out=out)
+    except (RuntimeError, ValueError):
+        return np.zeros(n)
+    return out
 
 
 def energy_sizes(mod, p, t0, y0, s, energy: float) -> np.ndarray:
@@ -214,7 +259,7 @@ def _probe(mod, p, t0, y0, yp0, tau, weights) -> tuple[np.ndarray, float]:
 
 def nominal_scales(mod, p, y0, yp0, nominal: Optional[Mapping[int, float]] = None, *, t0: float = 0.0,
                    span: Optional[float] = None, t_out=None, probe: bool = True,
-                   residual: bool = False) -> np.ndarray:
+                   residual: bool = False, atol: Optional[float] = None) -> np.ndarray:
     """The nominal scale ``s_j > 0`` of every variable (module docstring: how it is found).
 
     Parameters
@@ -235,6 +280,9 @@ def nominal_scales(mod, p, y0, yp0, nominal: Optional[Mapping[int, float]] = Non
         Count the residual ``|F_i|`` at (y0, yp0) among the terms of row i (step 3): before
         consistent initialization a driven row (a flow source imposing ω) says how large the
         variables it drives will be.
+    atol : float, optional
+        The absolute tolerance the scales will multiply: with it, no ``atol · s_j`` is
+        below :data:`ROUNDOFF_ULPS` times the round-off of ``y_j`` (step 9).
     """
     n = mod.N
     y0 = np.asarray(y0, dtype=float)
@@ -314,13 +362,21 @@ def nominal_scales(mod, p, y0, yp0, nominal: Optional[Mapping[int, float]] = Non
         if np.isfinite(e0):
             s[energy_index] = max(s[energy_index], e0)
     s_start = complete(s, s[energy_index] if energy_index is not None else None)
+    def floor(s):
+        """Step 9: no absolute tolerance below the round-off of its variable."""
+        if not atol or not len(rows):
+            return s
+        attainable = ROUNDOFF_ULPS * roundoff_sizes(rows, cols, vals, y0, s, n, m) / atol
+        attainable[list(user)] = 0.0
+        return np.maximum(s, np.where(np.isfinite(attainable), attainable, 0.0))
+
     if not probe:
-        return s_start
+        return floor(s_start)
     big, energy = _probe(mod, p, t0, y0, yp0, tau, 1.0 / s_start)
     s = np.maximum(s, np.where(np.isfinite(big), big, 0.0))
     if energy_index is not None:
         s[energy_index] = max(s[energy_index], energy)
-    return complete(s, s[energy_index] if energy_index is not None else None)
+    return floor(complete(s, s[energy_index] if energy_index is not None else None))
 
 
 def weights_from_scales(scales, differential=None) -> np.ndarray:
