@@ -91,3 +91,25 @@ def test_a_step_newton_cannot_do_is_split_and_reported():
     assert result.success
     assert "split" in result.message or result.message == "integration finished"
     assert result.energy_balance_relative < 1e-13
+
+
+def test_the_midpoint_predictor_is_the_lagrange_extrapolation():
+    """predict_midpoint: a parabola through three midpoints at unequal times is reproduced at a
+    new time (to round-off); the prediction error of a smooth function falls like h^(p+1)
+    with the degree p (the compiled loop's _predict does the same arithmetic)."""
+    from phc.simulation.midpoint import predict_midpoint
+
+    times = [0.1, 0.25, 0.32]
+    mids = [np.array([1.0 + 2.0 * t - 3.0 * t * t, t * t]) for t in times]
+    got = predict_midpoint(times, mids, 0.4, order=2)
+    assert np.allclose(got, [1.0 + 0.8 - 0.48, 0.16], rtol=0, atol=1e-14)
+    # degree 1 uses the last two midpoints only
+    line = predict_midpoint(times, mids, 0.4, order=1)
+    slope = (mids[2] - mids[1]) / (times[2] - times[1])
+    assert np.allclose(line, mids[2] + 0.08 * slope, rtol=0, atol=1e-14)
+    for order in (1, 2, 3):
+        errors = []
+        for h in (1e-2, 5e-3):
+            ts = [0.3 + h * (k + 0.5) for k in range(order + 1)]
+            errors.append(abs(predict_midpoint(ts, [np.sin(t) for t in ts], ts[-1] + h, order) - np.sin(ts[-1] + h)))
+        assert abs(np.log2(errors[0] / errors[1]) - (order + 1)) < 0.2, (order, errors)
