@@ -38,12 +38,26 @@ import re
 import sys
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Callable, Iterator, Optional
-
-import sympy as sp
+from typing import TYPE_CHECKING, Callable, Iterator, Optional
 
 from phc.errors import PhcError
-from phc.diagnostics import Diagnostic
+
+if TYPE_CHECKING:
+    from phc.diagnostics import Diagnostic
+
+
+class _Sympy:
+    """sympy, imported on first use: `phc simulate` reads the memory figures of this module
+    without ever building an expression (a cached front end, :mod:`phc.fastpath`)."""
+
+    def __getattr__(self, name: str):
+        import sympy
+
+        globals()["sp"] = sympy  # later uses go straight to the module
+        return getattr(sympy, name)
+
+
+sp = _Sympy()
 
 DEFAULT_MAX_MEMORY = 2 * 2**30
 """Default budget: 2 GiB, what a laptop can give one process without swapping."""
@@ -214,6 +228,8 @@ def admit_mesh(builder, ctx, full: str, comp, path) -> bool:
     distributed components so far against the budget. The error is located at the
     ``elements`` key (or at the scene's ``accuracy.mesh`` entry that set it).
     """
+    from phc.diagnostics import Diagnostic
+
     override_ = builder.mesh_overrides.get(full)
     if override_ is not None:
         span, where = override_[1], f"accuracy.mesh.{full}"
@@ -262,6 +278,8 @@ def check_assembled(elab, dae) -> list[Diagnostic]:
     """After assembly: the exact size plus the output arrays against the budget. Returns a
     located error when above: at `n_out` when the outputs drive it, else at the component
     with the most unknowns. `elab` is the :class:`phc.elaborate.Elaboration` assembled."""
+    from phc.diagnostics import Diagnostic
+
     n_var = len(dae.variables)
     nonzeros = sum(term.matrix.nnz for block in dae.linear_blocks for term in block.terms)
     nonzeros += sum(len(eq.expr.free_symbols) for eq in dae.equations if eq.expr != 0)

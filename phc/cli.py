@@ -209,6 +209,9 @@ def _certificate_line(compiled) -> str:
 
 def _backend_line(compiled, requested=None) -> str:
     """What runs the generated functions (phc.codegen.backends)."""
+    kept = getattr(compiled, "backend_line", None)  # a cached front end (phc.fastpath): the line as printed
+    if kept is not None:
+        return kept
     from phc.codegen.backends import describe
 
     return f"  backend  {describe(compiled.module, requested)}"
@@ -394,14 +397,20 @@ def _simulation_errors(path: str, progress):
 
 
 def cmd_simulate(args) -> int:
-    from phc import estimate_errors
+    from phc import fastpath
     from phc.budget import format_bytes, peak_memory
     from phc.profile import profiled
     from phc import SimulationInterrupted, simulate
 
     params = _parse_params(args.param)
-    compiled = _compile_or_exit(args.file, certify=not args.no_certify, backend=args.backend)
-    compiled = _recompile_for_params(compiled, args.file, params, certify=not args.no_certify)
+    compiled = fastpath.lookup(args, params)  # an unchanged model: its cached front end (phc.fastpath)
+    if compiled is None:
+        with fastpath.recording(args) as recorder:
+            compiled = _compile_or_exit(args.file, certify=not args.no_certify, backend=args.backend)
+            first = compiled
+            compiled = _recompile_for_params(compiled, args.file, params, certify=not args.no_certify)
+        if compiled is first:
+            recorder.store(compiled)
     progress = _progress_for(compiled, args.t_end, args.quiet)
     run_kwargs = dict(t_end=args.t_end, params=params, rtol=args.rtol, atol=args.atol, n_out=args.n_out,
                       solver=args.solver, step=args.step)
@@ -419,6 +428,8 @@ def cmd_simulate(args) -> int:
             if not args.quiet:
                 print(f"{args.file}: estimating errors (a rerun with a finer step or tolerance, and one on "
                       "refined meshes)...", file=sys.stderr)
+            from phc import estimate_errors
+
             try:
                 estimates = estimate_errors(compiled, result, run_kwargs)
             except KeyboardInterrupt:

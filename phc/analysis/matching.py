@@ -12,13 +12,15 @@ ModelingToolkit's structural checks.
 from __future__ import annotations
 
 import heapq
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse as sps
 from scipy.sparse.csgraph import maximum_flow
 
-from phc.dae import Dae
-from phc.diagnostics import Diagnostic
+if TYPE_CHECKING:  # the types only: bipartite_matching runs in simulations without sympy or pydantic
+    from phc.dae import Dae
+    from phc.diagnostics import Diagnostic
 
 PREFER_EARLY_WORK = 50_000_000
 """Above (unmatched rows + columns) × nonzeros, the matching is not rearranged to leave the
@@ -168,6 +170,8 @@ def check_balance(dae: Dae) -> list[Diagnostic]:
     matched_vars = set(match.values())
     free_vars = [v for j, v in enumerate(dae.variables) if j not in matched_vars]
     extra_eqs = [eq for i, eq in enumerate(dae.equations) if i not in match]
+    from phc.diagnostics import Diagnostic
+
     out = []
     head = (f"the model is {'unbalanced' if n_eq != n_var else 'structurally singular'}: "
             f"{n_eq} equations, {n_var} unknowns")

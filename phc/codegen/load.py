@@ -143,9 +143,9 @@ def _cap_bytes() -> int:
 
 def _entries(folder: Path) -> list[tuple[float, int, Path]]:
     """(last use, size, path) of phc's files in the cache (generated modules, bench references,
-    the signed artefacts of the compiled backend)."""
+    the signed artefacts of the compiled backend, the records of the cached front end)."""
     out = []
-    for pattern in ("phc_*.py", "bench/ref_*.npz", "numba/phc_numba_*"):
+    for pattern in ("phc_*.py", "bench/ref_*.npz", "numba/phc_numba_*", "front/*.json"):
         for p in folder.glob(pattern):
             try:
                 st = p.lstat()
@@ -190,7 +190,8 @@ def info() -> CacheInfo:
 
 
 def clean() -> tuple[int, int]:
-    """Remove every cached module, bench reference and compiled artefact; returns (files, bytes) removed."""
+    """Remove every cached module, bench reference, compiled artefact and front-end record
+    (:mod:`phc.fastpath`); returns (files, bytes) removed."""
     folder = cache_dir()
     files = size = 0
     for _, n, p in _entries(folder):

@@ -14,10 +14,8 @@ from functools import partial
 from typing import Callable, Optional
 
 import numpy as np
-import sympy as sp
 
 from phc.errors import InconsistentInitialError, SimulationSetupError
-from phc.inputs import breakpoints_within
 from phc.simulation.discrete_gradient import integrate_discrete_gradient
 from phc.simulation.guard import CATCH as GUARD_CATCH
 from phc.simulation.guard import ModelEvaluationError, guard, quiet_floating_point
@@ -209,13 +207,20 @@ def initial_values(compiled, p: np.ndarray, initial: Optional[dict] = None) -> t
     mod = compiled.module
     index = {name: j for j, name in enumerate(mod.VARIABLES)}
     values, fixed = {}, set()
-    by_name = {par.symbol: sp.Float(float(p[mod.PARAMETERS.index(par.name)])) for par in compiled.dae.parameters}
-    from phc.initial_fields import evaluate
-
+    by_name: Optional[dict] = None  # sympy only for initial values written as parameter expressions
     memo: dict = {}  # the parameter factors of initial fields, evaluated once (phc.initial_fields)
     for iv in compiled.dae.initial:
-        # initial values written as parameter expressions follow parameter overrides
-        values[index[iv.name]] = evaluate(iv.expr, by_name, memo) if iv.expr is not None else iv.value
+        if iv.expr is None:
+            values[index[iv.name]] = iv.value
+        else:  # initial values written as parameter expressions follow parameter overrides
+            if by_name is None:
+                import sympy as sp
+
+                from phc.initial_fields import evaluate
+
+                by_name = {par.symbol: sp.Float(float(p[mod.PARAMETERS.index(par.name)]))
+                           for par in compiled.dae.parameters}
+            values[index[iv.name]] = evaluate(iv.expr, by_name, memo)
         if not iv.guess:
             fixed.add(index[iv.name])
     for name, spec in (initial or {}).items():
@@ -335,7 +340,7 @@ def _integrate_with_breakpoints(run, mod, p, t_out, init) -> dict:
     variables are continuous, the algebraic ones and ẏ may jump. A step input is thus
     located exactly rather than found by step rejections."""
     t0, t1 = float(t_out[0]), float(t_out[-1])
-    breaks = breakpoints_within(getattr(mod, "BREAKPOINTS", ()), t0, t1)
+    breaks = sorted(b for b in getattr(mod, "BREAKPOINTS", ()) if t0 < b < t1)  # phc.inputs.breakpoints_within
     if not breaks:
         return _run_safely(run, t_out, init.y0, init.yp0)
     ends = [*breaks, t1]

@@ -35,10 +35,8 @@ from dataclasses import asdict, dataclass
 from typing import Callable, Optional
 
 import numpy as np
-from scipy.optimize import brentq
 
 from phc.errors import InconsistentInitialError
-from phc.inputs import breakpoints_within
 from phc.simulation.guard import CATCH, ModelEvaluationError
 from phc.simulation.initial import consistent_initial_conditions
 
@@ -262,6 +260,8 @@ def switch_times(mod, p, t0: float, t1: float, y, yp) -> list[tuple[float, int, 
             c = brackets[-1][0]
             raise SwitchTimeError(int(idx[c]), f"it switches more than {MAX_SWITCH_TIMES} times, and each switch is "
                                   "a restart of the integrator")
+    from scipy.optimize import brentq  # only here: scipy.optimize costs 0.2 s to import
+
     found = []
     for c, a, b, fa, fb in brackets:
         root = float(brentq(lambda t, c=c: g(t)[c], a, b, xtol=1e-300, rtol=4 * np.finfo(float).eps, maxiter=200))
@@ -346,7 +346,8 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, optio
         return _stopped(t_out, y, yp, stats, events,
                         f"cannot locate the switching times of `{mod.SWITCHES[err.k]}` (equation "
                         f"`{mod.SWITCH_EQUATIONS[err.k]}`) on [{t0:g}, {t1:g}]: {err.message}")
-    breaks = _merge([t for t, _, _ in timed] + breakpoints_within(getattr(mod, "BREAKPOINTS", ()), t0, t1), t0, t1)
+    inputs = sorted(b for b in getattr(mod, "BREAKPOINTS", ()) if t0 < b < t1)  # phc.inputs.breakpoints_within
+    breaks = _merge([t for t, _, _ in timed] + inputs, t0, t1)
     ends = breaks + [t1]
     _time_modes(watch, t0, ends[0], y, yp)
     try:

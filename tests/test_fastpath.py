@@ -1,0 +1,185 @@
+"""The cached front end of `phc simulate` (phc.fastpath): a hit runs the same simulation
+as the full path, and anything that could make it stale is a miss."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from phc import fastpath
+from phc.cli import build_parser, main
+
+REPO = Path(__file__).resolve().parents[1]
+
+PENDULUM = (REPO / "models" / "pendulum.yaml").read_text(encoding="utf-8")
+
+GEAR_PART = """\
+format_version: 1
+name: gear_stage
+kind: part
+parameters:
+  N: 3.0
+components:
+  g: {type: transformer, ratio: N, domain_a: mechanical.rotational}
+ports:
+  input: {port: g.a}
+  output: {port: g.b}
+"""
+
+USES_GEAR = """\
+format_version: 1
+name: geared_load
+parameters:
+  tau: 2.0
+  J: 0.5
+components:
+  motor: {type: effort_source, domain: mechanical.rotational, value: tau}
+  stage: {type: model, file: gear.yaml}
+  load: {type: mass, m: J, domain: mechanical.rotational}
+connections:
+  - [motor.port, stage.input]
+  - [stage.output, load.port]
+simulation:
+  t_end: 1.0
+  n_out: 11
+  initial: {load.p: 0.0}
+  outputs: {p: load.p}
+"""
+
+RUN = ["--t-end", "0.5", "--n-out", "11", "--quiet"]
+
+
+@pytest.fixture()
+def cache(tmp_path, monkeypatch):
+    """A private cache and key of this test's own (nothing from other tests can hit)."""
+    monkeypatch.setenv("PHC_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setenv("PHC_STATE_DIR", str(tmp_path / "state"))
+    monkeypatch.delenv(fastpath.ENV_SWITCH, raising=False)
+    return tmp_path / "cache" / fastpath.FOLDER
+
+
+def simulate(model: Path, out: Path, *extra: str) -> int:
+    return main(["simulate", str(model), "--out", str(out), *RUN, *extra])
+
+
+def hit(model: Path, *extra: str) -> bool:
+    """Whether `phc simulate model ...` would run from its cached front end."""
+    args = build_parser().parse_args(["simulate", str(model), "--out", "x.csv", *RUN, *extra])
+    params = dict(item.split("=", 1) for item in args.param or [])
+    return fastpath.lookup(args, {k: float(v) for k, v in params.items()}) is not None
+
+
+def test_a_hit_writes_the_same_csv_as_the_full_path(tmp_path, cache, capsys):
+    model = tmp_path / "pendulum.yaml"
+    model.write_text(PENDULUM, encoding="utf-8")
+    assert not hit(model)
+    assert simulate(model, tmp_path / "full.csv") == 0
+    assert len(list(cache.glob("*.json"))) == 1
+    assert hit(model)
+    full_out = capsys.readouterr().out
+    assert simulate(model, tmp_path / "hit.csv") == 0
+    hit_out = capsys.readouterr().out
+    assert (tmp_path / "full.csv").read_bytes() == (tmp_path / "hit.csv").read_bytes()
+
+    def steady(text):  # timings, memory and the file name differ from run to run
+        return [line for line in text.splitlines() if not line.lstrip().startswith(("work", "memory", "compiled",
+                                                                                      "wrote"))]
+    assert steady(hit_out) == steady(full_out)
+    assert "certified" in hit_out
+
+
+def test_a_hit_imports_neither_sympy_nor_pint(tmp_path, cache):
+    model = tmp_path / "pendulum.yaml"
+    model.write_text(PENDULUM, encoding="utf-8")
+    assert simulate(model, tmp_path / "a.csv") == 0
+    code = ("import sys\nfrom phc.cli import main\n"
+            f"code = main(['simulate', {str(model)!r}, '--out', {str(tmp_path / 'b.csv')!r}, *{RUN!r}])\n"
+            "print(code, sorted(m for m in ('sympy', 'pint', 'pydantic', 'phc.dae', 'phc.elaborate') "
+            "if m in sys.modules))\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=dict(os.environ),
+                          timeout=120)
+    assert done.stdout.strip().splitlines()[-1] == "0 []", done.stdout + done.stderr
+    assert (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()
+
+
+def test_editing_the_model_is_a_miss(tmp_path, cache):
+    model = tmp_path / "pendulum.yaml"
+    model.write_text(PENDULUM, encoding="utf-8")
+    assert simulate(model, tmp_path / "a.csv") == 0
+    assert hit(model)
+    model.write_text(PENDULUM.replace("L: {value: 1.0", "L: {value: 2.0"), encoding="utf-8")
+    assert not hit(model)
+    assert simulate(model, tmp_path / "b.csv") == 0
+    x0 = np.genfromtxt(tmp_path / "b.csv", delimiter=",", names=True)["pendulumx"][0]
+    assert x0 == 2.0  # the initial value `pendulum.x: L` of the edited model
+
+
+def test_editing_a_referenced_file_is_a_miss(tmp_path, cache):
+    (tmp_path / "gear.yaml").write_text(GEAR_PART, encoding="utf-8")
+    model = tmp_path / "geared.yaml"
+    model.write_text(USES_GEAR, encoding="utf-8")
+    assert simulate(model, tmp_path / "a.csv") == 0
+    assert hit(model)
+    (tmp_path / "gear.yaml").write_text(GEAR_PART.replace("N: 3.0", "N: 5.0"), encoding="utf-8")
+    assert not hit(model)
+    assert simulate(model, tmp_path / "b.csv") == 0
+    a = np.genfromtxt(tmp_path / "a.csv", delimiter=",", names=True)
+    b = np.genfromtxt(tmp_path / "b.csv", delimiter=",", names=True)
+    # a constant torque through the gear: p(t) = N·tau·t / (1 + 0) at the load (ideal transformer)
+    ratio = b["outputp"][-1] / a["outputp"][-1]
+    assert ratio == pytest.approx(5.0 / 3.0, rel=1e-6) or ratio == pytest.approx(3.0 / 5.0, rel=1e-6)
+
+
+def test_a_param_an_initial_value_is_written_in_takes_the_full_path(tmp_path, cache):
+    model = tmp_path / "pendulum.yaml"
+    model.write_text(PENDULUM, encoding="utf-8")
+    assert simulate(model, tmp_path / "a.csv") == 0
+    assert not hit(model, "--param", "L=2")  # `pendulum.x: L`
+    assert simulate(model, tmp_path / "b.csv", "--param", "L=2") == 0
+    b = np.genfromtxt(tmp_path / "b.csv", delimiter=",", names=True)
+    assert b["pendulumx"][0] == 2.0
+    # a parameter no initial value uses: the cached front end, the same numbers as the full path
+    assert hit(model, "--param", "g=5")
+    assert simulate(model, tmp_path / "c.csv", "--param", "g=5") == 0
+    os.environ[fastpath.ENV_SWITCH] = "0"
+    try:
+        assert not hit(model, "--param", "g=5")
+        assert simulate(model, tmp_path / "d.csv", "--param", "g=5") == 0
+    finally:
+        del os.environ[fastpath.ENV_SWITCH]
+    assert (tmp_path / "c.csv").read_bytes() == (tmp_path / "d.csv").read_bytes()
+
+
+@pytest.mark.parametrize("damage", ["garbage", "truncated", "resigned"])
+def test_a_damaged_record_falls_back_silently(tmp_path, cache, capsys, damage):
+    model = tmp_path / "pendulum.yaml"
+    model.write_text(PENDULUM, encoding="utf-8")
+    assert simulate(model, tmp_path / "a.csv") == 0
+    (record,) = cache.glob("*.json")
+    data = record.read_bytes()
+    if damage == "garbage":
+        record.write_bytes(b"\x00not a record")
+    elif damage == "truncated":
+        record.write_bytes(data[: len(data) // 2])
+    else:  # valid JSON, edited without the key: the signature no longer matches
+        record.write_bytes(data.replace(b'"guess', b'"guesS', 1) if b'"guess' in data else data[:-1] + b" ")
+    capsys.readouterr()
+    assert not hit(model)
+    assert simulate(model, tmp_path / "b.csv") == 0
+    captured = capsys.readouterr()
+    assert "Traceback" not in captured.err and "error" not in captured.err
+    assert (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()
+    assert hit(model)  # the full path wrote a good record again
+
+
+def test_options_that_need_the_model_take_the_full_path(tmp_path, cache):
+    model = tmp_path / "pendulum.yaml"
+    model.write_text(PENDULUM, encoding="utf-8")
+    assert simulate(model, tmp_path / "a.csv") == 0
+    assert not hit(model, "--estimate-error")
+    assert not hit(model, "--no-certify")  # a different compilation: its own record
