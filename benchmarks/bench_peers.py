@@ -35,7 +35,8 @@ Run: ``python benchmarks/bench_peers.py [--repeat 5] [--part a|b|ab] [--clock cp
 Markdown and writes it to ``benchmarks/peers/peers.md``, or ``--out``). ``--part s`` measures
 only the midpoint step of the flexible slider–crank (the per-step target: CPU µs a step, best
 of ``--repeat`` runs, with the residual evaluations and factorizations a step), for every
-backend and, on numba, also with the Python step loop.
+backend and, on numba, also with the Python step loop; ``--baseline REV`` adds the compiled
+loop of phc at git revision REV, run alternately with this one.
 """
 
 from __future__ import annotations
@@ -397,22 +398,64 @@ def per_step_us(compiled, repeat, compiled_loop=True, counts=None):
     return best / max(r.steps, 1) * 1e6, r.steps
 
 
-def part_step(repeat):
-    """(s) The midpoint step of the flexible slider–crank alone (the per-step target)."""
+def part_step(repeat, baseline=None):
+    """(s) The midpoint step of the flexible slider–crank alone (the per-step target); with
+    `baseline` (a git revision), the same measurement of that revision's phc in a separate
+    process, the two alternating run by run (a shared machine's load hits both alike)."""
     print("## (s) Midpoint step of the flexible slider–crank (models/flexible_slider_crank.yaml, 83 unknowns, "
           f"h = 1e-5 s, 10 000 steps): CPU time a step, best of {repeat} runs\n")
-    print("| backend, step loop | µs CPU a step | residual evaluations a step | factorizations a step | goal |")
-    print("|---|---:|---:|---:|---|")
+    rows = []
     for backend in BACKENDS:
         compiled = phc.compile_model(FLEX_MODEL, backend=backend)
-        loops = [True, False] if backend == "numba" else [False]
-        for loop in loops:
-            counts = {}
-            us, steps = per_step_us(compiled, repeat, compiled_loop=loop, counts=counts)
+        for loop in ([True, False] if backend == "numba" else [False]):
             which = "compiled step loop" if loop else "Python step loop" + (" (PHC_COMPILED_LOOP=0)" if backend == "numba"
                                                                              else "")
-            print(f"| {backend}, {which} | {us:.1f} | {counts['fev']:.2f} | {counts['fact']:.4f} | "
-                  f"≤ 20 µs: {'met' if us <= 20 else 'not met'} |")
+            os.environ["PHC_COMPILED_LOOP"] = "1" if loop else "0"
+            phc.simulate(compiled, solver="midpoint", t_end=1e-3)  # load the compiled loop before timing
+            os.environ.pop("PHC_COMPILED_LOOP")
+            rows.append((f"{backend}, {which}", functools.partial(per_step_us, compiled, 1, compiled_loop=loop)))
+            if baseline and backend == "numba" and loop:
+                rows.append((f"{backend}, {which}, phc at {baseline}", functools.partial(_baseline_step, baseline)))
+    best = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        if baseline:
+            import subprocess
+
+            archive = subprocess.run(["git", "-C", str(ROOT), "archive", baseline, "phc"], capture_output=True,
+                                     check=True).stdout
+            subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
+        for _ in range(repeat):
+            for label_, run in rows:
+                counts = {}
+                us = run(tmp, counts) if label_.endswith(f"phc at {baseline}") else run(counts=counts)[0]
+                if label_ not in best or us < best[label_][0]:
+                    best[label_] = (us, counts)
+    print("| backend, step loop | µs CPU a step | residual evaluations a step | factorizations a step | goal |")
+    print("|---|---:|---:|---:|---|")
+    for label_, _ in rows:
+        us, counts = best[label_]
+        print(f"| {label_} | {us:.1f} | {counts['fev']:.2f} | {counts['fact']:.4f} | "
+              f"≤ 20 µs: {'met' if us <= 20 else 'not met'} |")
+    return best
+
+
+def _baseline_step(revision, folder, counts):
+    """One measurement of per_step_us with the phc of `revision` (extracted to `folder`), in a fresh process."""
+    import json
+    import subprocess
+
+    code = ("import json, sys, time; sys.path.insert(0, sys.argv[1]); import phc; "
+            "c = phc.compile_model(sys.argv[2], backend='numba'); phc.simulate(c, solver='midpoint', t_end=1e-3); "
+            "t = time.process_time(); r = phc.simulate(c, solver='midpoint'); cpu = time.process_time() - t; "
+            "print(json.dumps([phc.__file__, cpu / r.steps * 1e6, r.n_residual_evals / r.steps, "
+            "r.n_jacobian_evals / r.steps]))")
+    env = dict(os.environ, PHC_COMPILED_LOOP="1")
+    out = subprocess.run([sys.executable, "-c", code, folder, str(FLEX_MODEL)], capture_output=True, text=True,
+                         env=env, check=True)
+    where, us, fev, fact = json.loads(out.stdout.strip().splitlines()[-1])
+    assert where.startswith(folder), where  # the baseline's phc, not this one
+    counts.update(fev=fev, fact=fact)
+    return us
 
 
 def loop_compile_times():
@@ -541,6 +584,8 @@ def main(argv=None):
                     help="code backends of the phc rows (numba where it is installed)")
     ap.add_argument("--solvers", default=None,
                     help="only these phc solvers, e.g. ida (the peers run as always); default: all")
+    ap.add_argument("--baseline", default=None,
+                    help="with --part s: also measure the midpoint step with phc at this git revision, alternating")
     ap.add_argument("--clock", choices=("wall", "cpu"), default="wall",
                     help="time the runs by the wall clock or by this process's CPU time")
     ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "peers" / "peers.md",
@@ -562,7 +607,7 @@ def main(argv=None):
     a = part_a(args.repeat, args.methods.split(",")) if "a" in args.part else None
     b = part_b(args.repeat) if "b" in args.part else None
     if "s" in args.part:
-        part_step(args.repeat)
+        part_step(args.repeat, args.baseline)
     if a is not None or b is not None:
         targets(a, b, args.repeat)
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")

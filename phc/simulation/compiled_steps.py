@@ -600,14 +600,18 @@ def _monitor_ratio(jac, t, y, yp, h, p, jrows, jcols, jbuf, M, colscale, thresho
         for j in range(n):
             for i in range(n):
                 M[j, i] *= colscale[j]
+    rowmax = np.empty(n)
     for _ in range(2):
-        for i in range(n):  # rows of J
-            big = 0.0
-            for j in range(n):
-                big = max(big, abs(M[j, i]))
-            if big > 0.0:
-                for j in range(n):
-                    M[j, i] /= big
+        # rows of J (M[j, i] is J[i, j]: the loops run along M's rows, contiguous)
+        for i in range(n):
+            rowmax[i] = 0.0
+        for j in range(n):
+            for i in range(n):
+                rowmax[i] = max(rowmax[i], abs(M[j, i]))
+        for j in range(n):
+            for i in range(n):
+                if rowmax[i] > 0.0:
+                    M[j, i] /= rowmax[i]
         for j in range(n):  # columns of J
             big = 0.0
             for i in range(n):
