@@ -183,3 +183,13 @@ def test_options_that_need_the_model_take_the_full_path(tmp_path, cache):
     assert simulate(model, tmp_path / "a.csv") == 0
     assert not hit(model, "--estimate-error")
     assert not hit(model, "--no-certify")  # a different compilation: its own record
+
+
+def test_cache_clean_removes_the_records(tmp_path, cache, capsys):
+    model = tmp_path / "pendulum.yaml"
+    model.write_text(PENDULUM, encoding="utf-8")
+    assert simulate(model, tmp_path / "a.csv") == 0
+    assert list(cache.glob("*.json"))
+    assert main(["cache", "clean"]) == 0
+    assert not list(cache.glob("*.json"))
+    assert not hit(model)
