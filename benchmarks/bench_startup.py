@@ -10,7 +10,9 @@ the figure to compare between runs.
 
 Measured:
 
-* `phc --version`, `phc --help`, `phc validate models/pendulum.yaml`;
+* `phc --version`, `phc --help`;
+* `phc validate models/pendulum.yaml` with its result cached (a second run of the
+  unchanged file) and without (``PHC_FRONT_END_CACHE=0``);
 * `phc simulate models/pendulum.yaml` with the cached front end (:mod:`phc.fastpath`, a
   second run of the unchanged model) and with it off (``PHC_FRONT_END_CACHE=0``: reading,
   elaboration, symbolic passes and certificate every time; the generated module and
@@ -75,7 +77,8 @@ def main() -> None:
              [py, "-c", "import numpy, scipy.sparse, scipy.sparse.linalg, scipy.linalg, sksundae.ida"], env, None),
             ("`phc --version`", [*phc, "--version"], env, 0.2),
             ("`phc --help`", [*phc, "--help"], env, 0.2),
-            (f"`phc validate {PENDULUM}`", [*phc, "validate", PENDULUM], env, 0.5),
+            (f"`phc validate {PENDULUM}`, cached", [*phc, "validate", PENDULUM], env, 0.5),
+            (f"`phc validate {PENDULUM}`, PHC_FRONT_END_CACHE=0", [*phc, "validate", PENDULUM], off, 0.5),
             (f"`phc simulate {PENDULUM} --t-end 0.01`, front end cached",
              [*phc, "simulate", PENDULUM, "--t-end", "0.01", "--out", out], env, None),
             (f"`phc simulate {PENDULUM} --t-end 0.01`, PHC_FRONT_END_CACHE=0",

@@ -140,8 +140,6 @@ class _Files:
         self.n = len(args.files)
 
     def report(self, path: str, diags, ok: bool) -> None:
-        from phc.report_formats import github_annotations
-
         diags = list(diags)
         self.diagnostics.setdefault(path, []).extend(diags)
         if not ok:
@@ -149,6 +147,8 @@ class _Files:
         if self.fmt == "text":
             _print_diagnostics(diags)
         elif self.fmt == "github":
+            from phc.report_formats import github_annotations
+
             for line in github_annotations(diags, path):
                 print(line)
 
@@ -183,20 +183,35 @@ def _part_line(path: str, dae) -> str:
 
 
 def cmd_validate(args) -> int:
-    from phc import validate_file
+    from phc import fastpath
 
     files = _Files(args, "validate")
     report = []
     for path in args.files:
-        dae, diags, kind = validate_file(path)
+        kept = fastpath.lookup_validate(args, path) if args.format in ("text", "json") else None
+        if kept is not None:  # an unchanged file: its result as stored (phc.fastpath)
+            files.report(path, [fastpath.StoredDiagnostic(*d) for d in kept["diagnostics"]], kept["valid"])
+            report.append({"file": path, "valid": kept["valid"], "kind": kept["kind"], "diagnostics": kept["json"]})
+            if kept["status"] is not None:
+                files.status(kept["status"])
+            continue
+        from phc import validate_file
+
+        with fastpath.recording(args, path, "validate") as recorder:
+            dae, diags, kind = validate_file(path)
         ok = dae is not None and not diags.has_errors
         files.report(path, diags, ok)
         report.append({"file": path, "valid": ok, "kind": kind, "diagnostics": diags.to_json()})
+        status = None
         if ok and kind == "part":
-            files.status(_part_line(path, dae))
+            status = _part_line(path, dae)
         elif ok:
-            files.status(f"{path}: ok ({dae.n_states - 1} states, {len(dae.equations)} equations, "
-                         f"{len(dae.variables)} unknowns)")
+            status = (f"{path}: ok ({dae.n_states - 1} states, {len(dae.equations)} equations, "
+                      f"{len(dae.variables)} unknowns)")
+        if status is not None:
+            files.status(status)
+        recorder.store_validate({"valid": ok, "kind": kind, "json": report[-1]["diagnostics"], "status": status,
+                                 "diagnostics": [[d.severity, d.render()] for d in diags]})
     if args.format == "json":
         print(json.dumps(report, indent=2))
     return files.finish()

@@ -1,5 +1,5 @@
-"""The cached front end of ``phc simulate``: a second run of an unchanged model skips
-reading, elaboration, the symbolic passes and the certificate.
+"""The cached front end of ``phc simulate`` (and ``phc validate``): a second run of an
+unchanged model skips reading, elaboration, the symbolic passes and the certificate.
 
 Input: the command-line arguments of ``phc simulate``. Output: on a hit, a
 :class:`CachedModel` that :func:`phc.simulation.simulate` and the command line use like a
@@ -30,6 +30,10 @@ The fast path is not taken (the full path runs) for ``--estimate-error`` and ``-
 (they need the model itself), for a ``--param`` of a compile-time parameter or of one an
 initial value is written in, when the compilation warned, and for models running on the
 compiled (numba) backend. ``PHC_FRONT_END_CACHE=0`` turns it off.
+
+``phc validate`` keeps each file's result (its diagnostics as printed and as JSON, and
+its status line) under the same kind of key (:func:`lookup_validate`); the text and JSON
+formats use it.
 """
 
 from __future__ import annotations
@@ -217,13 +221,13 @@ def _libraries() -> dict:
     return out
 
 
-def _key(args, data: bytes) -> str:
+def _key(args, path: str, data: bytes, command: str) -> str:
     from phc import __version__
 
     parts = {
         "format": FORMAT, "phc": __version__, "phc_source": phc_source_hash(), "python": sys.version,
-        "executable": sys.executable, "libraries": _libraries(), "file": str(args.file),
-        "real": os.path.realpath(args.file), "cwd": os.getcwd(), "bytes": hashlib.sha256(data).hexdigest(),
+        "executable": sys.executable, "libraries": _libraries(), "command": command, "file": str(path),
+        "real": os.path.realpath(path), "cwd": os.getcwd(), "bytes": hashlib.sha256(data).hexdigest(),
         "no_certify": bool(getattr(args, "no_certify", False)), "backend": getattr(args, "backend", None),
         "allow_path": [[d, os.path.realpath(d)] for d in (getattr(args, "allow_path", None) or [])],
         "max_memory": getattr(args, "max_memory", None),
@@ -311,19 +315,19 @@ def lookup(args, params: dict) -> Optional[CachedModel]:
         return None
 
 
-def _lookup(args, params: dict) -> Optional[CachedModel]:
+def _load(args, path: str, command: str) -> Optional[dict]:
+    """The verified record of `command` on `path` whose inputs are unchanged, or None."""
     if not enabled(args):
         return None
-    start = time.perf_counter()
-    data = _read_regular(args.file, 16 * 2**20)
+    data = _read_regular(path, 16 * 2**20)
     if data is None:
         return None
-    key = _key(args, data)
-    path = _record_path(key)
+    key = _key(args, path, data, command)
+    where = _record_path(key)
     secret = _read_key()
-    if path is None or secret is None:
+    if where is None or secret is None:
         return None
-    raw = _read_regular(path, _MAX_RECORD)
+    raw = _read_regular(where, _MAX_RECORD)
     head = len(_MAGIC) + 32
     if raw is None or len(raw) < head or not raw.startswith(_MAGIC):
         return None
@@ -331,12 +335,20 @@ def _lookup(args, params: dict) -> Optional[CachedModel]:
     if not hmac.compare_digest(tag, hmac.new(secret, payload, hashlib.sha256).digest()):
         return None
     record = json.loads(payload)
-    if record.get("format") != FORMAT or record.get("key") != key:
+    if record.get("format") != FORMAT or record.get("key") != key or record.get("command") != command:
         return None
     for name, digest in record["inputs"]:  # the files the compilation read, unchanged
         content = _read_regular(name, 2**40)
         if content is None or hashlib.sha256(content).hexdigest() != digest:
             return None
+    return record
+
+
+def _lookup(args, params: dict) -> Optional[CachedModel]:
+    start = time.perf_counter()
+    record = _load(args, args.file, "simulate")
+    if record is None:
+        return None
     depends = record["initial_depends"]
     if params and (depends is None or any(k in depends for k in params)):
         return None  # an initial value written in an overridden parameter: evaluated by the full path
@@ -350,6 +362,28 @@ def _lookup(args, params: dict) -> Optional[CachedModel]:
     return CachedModel(record, module, module_path, time.perf_counter() - start)
 
 
+@dataclass(frozen=True)
+class StoredDiagnostic:
+    """A diagnostic as `phc validate` printed it (its line and its severity)."""
+
+    severity: str
+    line: str
+
+    def render(self) -> str:
+        return self.line
+
+
+def lookup_validate(args, path: str) -> Optional[dict]:
+    """The stored `phc validate` result of `path` (``valid``, ``kind``, ``json``: the
+    diagnostics as JSON, ``diagnostics``: [severity, line], ``status``: the file's own line
+    or None), or None. Never raises."""
+    try:
+        record = _load(args, path, "validate")
+        return record["validate"] if record is not None else None
+    except Exception:  # noqa: BLE001
+        return None
+
+
 # ---------------------------------------------------------------------------------------
 # writing a record after the full path
 
@@ -357,8 +391,8 @@ def _lookup(args, params: dict) -> Optional[CachedModel]:
 class Recorder:
     """Watches one compilation: the files it reads and whether it warns."""
 
-    def __init__(self, args) -> None:
-        self.args = args
+    def __init__(self, args, path: str, command: str) -> None:
+        self.args, self.path, self.command = args, path, command
         self.data: Optional[bytes] = None
         self.files: dict[str, tuple] = {}
         self.warned = False
@@ -374,13 +408,23 @@ class Recorder:
     def _store(self, compiled) -> None:
         from phc.codegen.backends import name_of
 
-        if self.data is None or self.warned or name_of(compiled.module) != "numpy":
+        if name_of(compiled.module) != "numpy":
             return
-        if _read_regular(self.args.file, 16 * 2**20) != self.data:
-            return  # changed while it was compiled
-        record = _record(compiled, getattr(self.args, "backend", None))
-        if record is None:
+        self._write(_record(compiled, getattr(self.args, "backend", None)))
+
+    def store_validate(self, entry: dict) -> None:
+        """Write the record of one file's `phc validate` result (never raises)."""
+        try:
+            self._write({"validate": entry})
+        except Exception:  # noqa: BLE001 — the cache is an optimisation
+            if os.environ.get("PHC_DEBUG"):
+                raise
+
+    def _write(self, record: Optional[dict]) -> None:
+        if record is None or self.data is None or self.warned:
             return
+        if _read_regular(self.path, 16 * 2**20) != self.data:
+            return  # changed while it was read
         inputs = []
         for name, (size, mtime) in sorted(self.files.items()):
             content = _read_regular(name, 2**40)
@@ -390,14 +434,17 @@ class Recorder:
             if (st.st_size, st.st_mtime_ns) != (size, mtime):
                 return  # changed while it was compiled
             inputs.append([name, hashlib.sha256(content).hexdigest()])
-        key = _key(self.args, self.data)
-        record.update(format=FORMAT, key=key, inputs=inputs)
+        key = _key(self.args, self.path, self.data, self.command)
+        record.update(format=FORMAT, key=key, command=self.command, inputs=inputs)
         payload = json.dumps(record, allow_nan=True).encode()
-        if json.loads(payload)["dae"]["options"] != record["dae"]["options"]:
-            return  # options JSON cannot carry exactly (tuples, ...)
+        if json.loads(payload) != record:
+            return  # something JSON cannot carry exactly (tuples, ...)
         from phc.codegen.numba_backend import cache_key
 
         secret, _ = cache_key()  # created when missing
+        from phc.codegen.load import configured_cache_dir
+
+        configured_cache_dir().mkdir(mode=0o700, parents=True, exist_ok=True)  # checked by _record_path
         path = _record_path(key)
         if secret is None or path is None:
             return
@@ -410,13 +457,15 @@ class Recorder:
 
 
 @contextmanager
-def recording(args) -> Iterator[Recorder]:
-    """Record the files a compilation opens for reading and whether it shows a warning."""
-    rec = Recorder(args)
+def recording(args, path: Optional[str] = None, command: str = "simulate") -> Iterator[Recorder]:
+    """Record the files `command` on `path` (default ``args.file``) opens for reading and
+    whether it shows a warning."""
+    path = args.file if path is None else path
+    rec = Recorder(args, path, command)
     if not enabled(args):
         yield rec
         return
-    rec.data = _read_regular(args.file, 16 * 2**20)
+    rec.data = _read_regular(path, 16 * 2**20)
     skip = [str(p) for p in (_state_dir(), _folder_root()) if p is not None]
     real_open, real_show = os.open, warnings.showwarning
 

@@ -193,3 +193,35 @@ def test_cache_clean_removes_the_records(tmp_path, cache, capsys):
     assert main(["cache", "clean"]) == 0
     assert not list(cache.glob("*.json"))
     assert not hit(model)
+
+
+def test_validate_from_the_cache_prints_what_the_full_path_printed(tmp_path, cache, capsys):
+    good = tmp_path / "pendulum.yaml"
+    good.write_text(PENDULUM, encoding="utf-8")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(PENDULUM.replace("    V: m*g*y", "    V: m*g*y\n    mass: 3"), encoding="utf-8")
+    for fmt in ("text", "json"):
+        argv = ["validate", "--format", fmt, str(good), str(bad)]
+        assert main(argv) == 1
+        full = capsys.readouterr()
+        assert all(fastpath.lookup_validate(build_parser().parse_args(argv), str(p)) is not None for p in (good, bad))
+        assert main(argv) == 1
+        cached = capsys.readouterr()
+        assert (cached.out, cached.err) == (full.out, full.err)
+    assert "mass" in full.out  # the unknown key is reported, located
+    good.write_text(PENDULUM.replace("L: {value: 1.0", "L: {value: 2.0"), encoding="utf-8")
+    assert fastpath.lookup_validate(build_parser().parse_args(["validate", str(good)]), str(good)) is None
+
+
+def test_validate_from_the_cache_imports_no_sympy(tmp_path, cache):
+    model = tmp_path / "pendulum.yaml"
+    model.write_text(PENDULUM, encoding="utf-8")
+    assert main(["validate", str(model)]) == 0
+    code = ("import sys\nfrom phc.cli import main\n"
+            f"code = main(['validate', {str(model)!r}])\n"
+            "print(code, sorted(m for m in ('sympy', 'pint', 'pydantic', 'scipy', 'phc.dae') if m in sys.modules))\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=dict(os.environ),
+                          timeout=120)
+    lines = done.stdout.strip().splitlines()
+    assert lines[-1] == "0 []", done.stdout + done.stderr
+    assert lines[0].endswith("ok (4 states, 7 equations, 7 unknowns)")
