@@ -225,3 +225,21 @@ def test_validate_from_the_cache_imports_no_sympy(tmp_path, cache):
     lines = done.stdout.strip().splitlines()
     assert lines[-1] == "0 []", done.stdout + done.stderr
     assert lines[0].endswith("ok (4 states, 7 equations, 7 unknowns)")
+
+
+def test_a_hit_prints_the_same_json_summary(tmp_path, cache, capsys):
+    import json
+
+    model = tmp_path / "pendulum.yaml"
+    model.write_text(PENDULUM, encoding="utf-8")
+    runs = []
+    for _ in range(2):
+        assert main(["simulate", str(model), *RUN, "--format", "json"]) == 0
+        runs.append(json.loads(capsys.readouterr().out))
+    timed = {"cpu_time_s", "peak_memory_bytes", "compile_time_s"}
+    full, cached = runs
+    assert set(full) == set(cached)
+    assert {k: v for k, v in full.items() if k not in timed | {"compiled"}} == \
+        {k: v for k, v in cached.items() if k not in timed | {"compiled"}}
+    assert {k: v for k, v in full["compiled"].items() if k not in timed} == \
+        {k: v for k, v in cached["compiled"].items() if k not in timed}
