@@ -341,6 +341,10 @@ def _load(args, path: str, command: str) -> Optional[dict]:
         content = _read_regular(name, 2**40)
         if content is None or hashlib.sha256(content).hexdigest() != digest:
             return None
+    try:
+        os.utime(where)  # most recently used: the cache's size cap evicts the oldest first
+    except OSError:
+        pass
     return record
 
 
