@@ -354,7 +354,8 @@ def roundoff_correction(mod, p, t, y, yp, h, rtol, atol, samples: int = 2, scale
 
 
 def diagnose_failure(mod, p, t, y, yp, *, status: int, h_typical: float, h_fail: float, max_order: int,
-                     rtol: float, atol: float, names: Optional[dict] = None, scales=None) -> str:
+                     rtol: float, atol: float, names: Optional[dict] = None, scales=None,
+                     local: float = 1.0) -> str:
     """What to tell the user when the integrator gave up at (t, y, ẏ).
 
     A singular configuration is named only when the equilibrated iteration matrix
@@ -362,7 +363,9 @@ def diagnose_failure(mod, p, t, y, yp, *, status: int, h_typical: float, h_fail:
     collapsed (`h_typical`): an index-2 iteration matrix is conditioned like h², so at the
     collapsed step (`h_fail`) every configuration looks singular. Otherwise the cause is
     looked for in the linearized modes (undamped stiff modes at BDF order > 2), then the
-    step and the tolerances, and the remedy is named."""
+    step and the tolerances, and the remedy is named. `local`: the factor between the
+    tolerances asked for and those IDA's error test uses (:data:`phc.simulation.ida.
+    LOCAL_TOLERANCE`); remedies are stated in the former."""
     n = mod.N
     h = max(h_typical, h_fail)
     regular = ""
@@ -389,18 +392,21 @@ def diagnose_failure(mod, p, t, y, yp, *, status: int, h_typical: float, h_fail:
         modes_remedy = ("`max_order: 2` (A-stable BDF2 keeps undamped modes bounded at any step; in a scene "
                         "`accuracy: {max_order: 2}`), or `solver: midpoint` (structure preserving), or damp or "
                         "remove the high modes (a `damping` coefficient, a coarser mesh, `modes: k`)")
-    floor = roundoff_correction(mod, p, t, y, yp, h_typical, rtol, atol, scales=scales) if h_typical > 0 else None
+    floor = (roundoff_correction(mod, p, t, y, yp, h_typical, rtol * local, atol * local, scales=scales)
+             if h_typical > 0 else None)
     if floor is not None and floor[0] > ROUND_OFF_WRMS:
         wrms, name, noise, tol = floor
         s_name = 1.0 if scales is None else float(scales[list(mod.VARIABLES).index(name)])
         cause = (f"{collapse}: the tolerances ask for more than double precision gives here — round-off alone "
                  f"moves a Newton correction of `{name}` by ~{noise:.0e}, more than its tolerance "
-                 f"rtol·|y| + atol = {tol:.0e} (weighted norm of the round-off {wrms:.2g}; Newton needs it well "
+                 + ("" if local == 1.0 else f"in IDA's error test, {local:g}·") +
+                 f"(rtol·|y| + atol) = {tol:.0e} (weighted norm of the round-off {wrms:.2g}; Newton needs it well "
                  f"below 0.33), and a smaller step only makes the iteration matrix worse conditioned. Remedy: "
-                 + (f"atol ≥ {10 * noise:.0e} (or a looser rtol), or units in which `{name}` is of order one"
+                 + (f"atol ≥ {10 * noise / local:.0e} (or a looser rtol), or units in which `{name}` is of order one"
                     if scales is None else
-                    f"atol ≥ {10 * noise / s_name:.0e} (relative to the nominal scale {s_name:.1e} of `{name}`), "
-                    f"a nominal scale of `{name}` ≥ {10 * noise / atol:.0e} if you set one, or a looser rtol"))
+                    f"atol ≥ {10 * noise / (s_name * local):.0e} (relative to the nominal scale {s_name:.1e} of "
+                    f"`{name}`), a nominal scale of `{name}` ≥ {10 * noise / (atol * local):.0e} if you set one, "
+                    "or a looser rtol"))
         if stiff:
             cause += f". Besides, {modes}, which makes steps small and costly: {modes_remedy}"
     elif stiff:

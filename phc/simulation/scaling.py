@@ -71,6 +71,8 @@ NOISE_COEFFICIENT = 1e-20
 """Jacobian entries below this times the largest of their row are zeros computed inexactly."""
 ROUNDOFF_ULPS = 100.0
 """``atol · s_j`` stays at least this many times the round-off of ``y_j`` (step 9)."""
+DENSE_ROUNDOFF = 400
+"""Up to this many unknowns the round-off floor uses the dense inverse (step 9)."""
 ENERGY_FLOOR = 1e-3
 """A state's scale is at least this times its size if it held the energy scale alone
 (:func:`energy_sizes`): a curvature of a beam that starts straight (1e-19) gets the size
@@ -137,17 +139,16 @@ def _fill_from_rows(rows, cols, vals, s, n, m, passes: int = 3, r0=None) -> np.n
     return natural
 
 
-def roundoff_sizes(rows, cols, vals, y, s, n: int, m: int, samples: int = 3) -> np.ndarray:
-    """How precisely the equations determine each variable: the solution ``δ`` of
-    ``J δ = ρ`` for the round-off ``ρ_i = ε Σ_k |J_ik| max(|y_k|, s_k)`` of each row
-    (the size of its terms times the unit round-off) times normal random numbers (random signs
-    alone can cancel exactly: round-offs are multiples of ε), the largest
-    ``|δ_j|`` over a few samples. ``J`` is the iteration matrix at the start (its
-    differential rows carry ``c_j F_ẏ``, so a state's own round-off ``ε |y_j|`` is
-    counted). Zeros where the matrix cannot be factorized (a singular start is
-    diagnosed elsewhere)."""
-    import scipy.sparse as sps
-    from scipy.sparse.linalg import splu
+def roundoff_sizes(rows, cols, vals, y, s, n: int, m: int, samples: int = 4) -> np.ndarray:
+    """How precisely the equations determine each variable: ``δ = |J⁻¹| ρ`` for the
+    round-off ``ρ_i = ε Σ_k |J_ik| max(|y_k|, s_k)`` of each row (the size of its terms
+    times the unit round-off; `s` here: the largest values seen, not the nominal scales). ``J`` is the iteration matrix at the start (its differential
+    rows carry ``c_j F_ẏ``, so a state's own round-off ``ε |y_j|`` is counted). Up to
+    :data:`DENSE_ROUNDOFF` unknowns with the dense inverse (the componentwise bound); above,
+    the largest ``|J⁻¹ (ρ ∘ g)|`` over a few normal random vectors ``g`` (random signs alone
+    can cancel exactly: round-offs are multiples of ε). Zeros where the matrix cannot be
+    factorized (a singular start is diagnosed elsewhere)."""
+    import warnings
 
     ok = np.isfinite(vals)
     rows, cols, vals = rows[ok], cols[ok], vals[ok]
@@ -157,22 +158,25 @@ def roundoff_sizes(rows, cols, vals, y, s, n: int, m: int, samples: int = 3) -> 
     rho *= np.finfo(float).eps
     if m != n or not len(rows) or not rho.any():
         return np.zeros(n)
-    try:
-        import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            if n <= DENSE_ROUNDOFF:
+                J = np.zeros((n, n))
+                np.add.at(J, (rows, cols), vals)
+                out = np.abs(np.linalg.inv(J)) @ rho
+            else:
+                import scipy.sparse as sps
+                from scipy.sparse.linalg import splu
 
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            lu = splu(sps.csc_matrix((vals, (rows, cols)), shape=(m, n)))
-            rng = np.random.default_rng(0)
-            out = np.zeros(n)
-            for _ in range(samples):
-                d = lu.solve(rho * rng.standard_normal(m))
-                if not np.all(np.isfinite(d)):
-                    return np.zeros(n)
-                np.maximum(out, np.abs(d), out=out)
-    except (RuntimeError, ValueError):
-        return np.zeros(n)
-    return out
+                lu = splu(sps.csc_matrix((vals, (rows, cols)), shape=(m, n)))
+                rng = np.random.default_rng(0)
+                out = np.zeros(n)
+                for _ in range(samples):
+                    np.maximum(out, np.abs(lu.solve(rho * rng.standard_normal(m))), out=out)
+        except (RuntimeError, ValueError, np.linalg.LinAlgError):
+            return np.zeros(n)
+    return out if np.all(np.isfinite(out)) else np.zeros(n)
 
 
 def energy_sizes(mod, p, t0, y0, s, energy: float) -> np.ndarray:
@@ -366,13 +370,17 @@ def nominal_scales(mod, p, y0, yp0, nominal: Optional[Mapping[int, float]] = Non
         """Step 9: no absolute tolerance below the round-off of its variable."""
         if not atol or not len(rows):
             return s
-        attainable = ROUNDOFF_ULPS * roundoff_sizes(rows, cols, vals, y0, s, n, m) / atol
+        # round-off comes from the values the variables take (the start and the probe), not
+        # from scales, which may be generous (an energy floor, a fill from the rows)
+        attainable = ROUNDOFF_ULPS * roundoff_sizes(rows, cols, vals, y0, seen, n, m) / atol
         attainable[list(user)] = 0.0
         return np.maximum(s, np.where(np.isfinite(attainable), attainable, 0.0))
 
+    seen = np.where(np.isfinite(y0), np.abs(y0), 0.0)
     if not probe:
         return floor(s_start)
     big, energy = _probe(mod, p, t0, y0, yp0, tau, 1.0 / s_start)
+    seen = np.maximum(seen, np.where(np.isfinite(big), big, 0.0))
     s = np.maximum(s, np.where(np.isfinite(big), big, 0.0))
     if energy_index is not None:
         s[energy_index] = max(s[energy_index], energy)

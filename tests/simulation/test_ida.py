@@ -47,10 +47,17 @@ def _closed_form(t, m=1.0, k=4.0, c=0.4, x0=0.5):
 
 
 def _onestep_reference(mod, p, t_out, y0, yp0, rtol, atol):
-    """phc's former loop: one internal step per call, outputs interpolated inside it."""
+    """phc's former loop: one internal step per call, outputs interpolated inside it (with the
+    options `integrate_ida` sets: local tolerances, index-1 algebraic variables tested, their
+    rates at the start)."""
     from sksundae.ida import IDA
 
-    options, _ = solver_options(mod, p, rtol=rtol, atol=atol)
+    from phc.simulation.ida import LOCAL_TOLERANCE, algebraic_rates, determined_algebraic
+
+    determined = determined_algebraic(mod, p, t_out[0], y0, yp0)
+    yp0 = algebraic_rates(mod, p, t_out[0], y0, yp0, determined)
+    options, _ = solver_options(mod, p, rtol=rtol * LOCAL_TOLERANCE, atol=atol * LOCAL_TOLERANCE,
+                                determined=determined)
     with warnings.catch_warnings():  # scikit-sundae's note that our Jacobian replaces its approximation
         warnings.simplefilter("ignore", UserWarning)
         solver = IDA(options.pop("resfn"), **options)
