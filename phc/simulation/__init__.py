@@ -189,10 +189,11 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
             out = integrate_switched(BACKENDS[solver], mod, p, t_out, init, fixed, run.keywords)
         else:
             out = _integrate_with_breakpoints(run, mod, p, t_out, init)
-        if solver == "ida":  # IDA leaves the algebraic variables out of its error test (simulation/polish.py)
-            from phc.simulation.polish import polish_outputs
+        # the algebraic variables at the output times, from the states (simulation/polish.py): IDA
+        # leaves the index-2 ones out of its error test, the fixed-step solvers extrapolate them
+        from phc.simulation.polish import polish_outputs
 
-            out = polish_outputs(mod, p, out, scales)
+        out = polish_outputs(mod, p, out, scales)
         cpu = time.process_time() - cpu0
         result = _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol, params)
     if solver in FIXED_STEP:  # the step actually taken: no longer than `step` nor an output interval

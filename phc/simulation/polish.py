@@ -33,16 +33,16 @@ from phc.simulation.guard import CATCH, ModelEvaluationError
 
 DENSE_ENTRIES = 400_000
 """Largest (rows × unknowns) of the system solved densely; larger models keep IDA's values."""
-PINV_RTOL = 1e-10
+PINV_RTOL = 1e-13
 """Singular values below this fraction of the largest are dropped from the pseudo-inverse
 (a stiff beam's scaled Jacobian is ill-conditioned: what is smaller is round-off amplified)."""
 CHORD_STEPS = 12
 """Most chord steps at one output time."""
-FRESH = 0.1
-"""A first step that contracts the residual at least this much shows a pseudo-inverse that fits."""
-STALLED = 0.9
-"""A step that shrinks the residual by less than this has reached the least-squares residual
-the held states leave (their own constraint residuals, at the tolerance)."""
+ROUND_OFF = 1e-13
+"""Residual (of the equilibrated rows, per row) at which the system counts as solved."""
+CONTRACTION = 0.5
+"""A step that shrinks the residual by less than this factor refreshes the pseudo-inverse
+(once per output time)."""
 
 
 def depends_on_algebraic(mod, p, t, y, yp, scales) -> bool:
@@ -78,6 +78,7 @@ class AlgebraicPolish:
         rows, cols = self.base._shape
         self.usable = rows * cols <= DENSE_ENTRIES and cols > 0
         self.pinv = None
+        self.active = None
         self.refreshes = 0
         self.improved = 0
 
@@ -85,7 +86,12 @@ class AlgebraicPolish:
         J = prob.jacobian(u).toarray() * prob.weights[None, :]
         if not np.all(np.isfinite(J)):
             return False
-        self.pinv = sla.pinv(J, atol=0.0, rtol=PINV_RTOL)
+        if self.active is None:
+            # rows without unknowns (a position constraint of the held states) keep the
+            # residual the states leave: left out, the system is consistent and its residual
+            # goes to round-off
+            self.active = np.flatnonzero(np.abs(J).max(axis=1) > 0)
+        self.pinv = sla.pinv(J[self.active], atol=0.0, rtol=PINV_RTOL)
         self.refreshes += 1
         return True
 
@@ -99,33 +105,27 @@ class AlgebraicPolish:
         prob.z, prob.w = np.zeros(len(y)), np.zeros(len(y))
         try:
             u = prob.pack()
-            g = prob.G(u)
+            if self.pinv is None and not self._refresh(prob, u):
+                return y, yp, False
+            g = prob.G(u)[self.active]
             if not np.all(np.isfinite(g)):
                 return y, yp, False
             start = size = float(np.linalg.norm(g))
-            first = None  # the first step's contraction
-            refreshed = self.pinv is None
-            if refreshed and not self._refresh(prob, u):
-                return y, yp, False
+            refreshed = False
             for _ in range(CHORD_STEPS):
-                if size == 0.0:
-                    break
+                if size <= ROUND_OFF * np.sqrt(len(g)):
+                    break  # solved (the rows are equilibrated: this is round-off)
                 u1 = u - prob.weights * (self.pinv @ g)
-                g1 = prob.G(u1)
+                g1 = prob.G(u1)[self.active]
                 size1 = float(np.linalg.norm(g1)) if np.all(np.isfinite(g1)) else np.inf
                 if size1 < size:
                     u, g, ratio, size = u1, g1, size1 / size, size1
-                    first = ratio if first is None else first
-                    if ratio > STALLED:
-                        # at the least-squares floor — or slowed by a stale pseudo-inverse, when
-                        # even the first step contracted little: then look once with a fresh one
-                        if refreshed or first <= FRESH or not self._refresh(prob, u):
-                            break
-                        refreshed = True
+                    if ratio > CONTRACTION and not refreshed:
+                        refreshed = self._refresh(prob, u)  # slow: a stale pseudo-inverse
                     continue
-                if size1 <= size / STALLED or refreshed or not self._refresh(prob, u):
-                    break  # at the floor already (the step changes nothing), or no better matrix
-                refreshed = True  # the step made things worse: a stale pseudo-inverse, once more fresh
+                if refreshed or not self._refresh(prob, u):
+                    break
+                refreshed = True  # no progress: a stale pseudo-inverse, once more with a fresh one
         except (ModelEvaluationError, *CATCH, np.linalg.LinAlgError):
             return y, yp, False
         if not size < start:
