@@ -205,10 +205,13 @@ def energy_sizes(mod, p, t0, y0, s, energy: float) -> np.ndarray:
                 yp_, ym_ = y0.copy(), y0.copy()
                 yp_[j] += delta
                 ym_[j] -= delta
-                d2 = float(H(t0, yp_, p)) - 2.0 * h0 + float(H(t0, ym_, p))
+                hp, hm = float(H(t0, yp_, p)), float(H(t0, ym_, p))
+                d2 = hp - 2.0 * h0 + hm
                 if not np.isfinite(d2):
                     break
-                if abs(d2) > noise:
+                # above the round-off of the values differenced: an H linear in y_j (a
+                # potential m·g·y) has no curvature, whatever its round-off at a huge step says
+                if abs(d2) > max(noise, 1e-12 * max(abs(hp), abs(hm))):
                     k = d2 / delta ** 2
                     if k > 0:
                         out[j] = np.sqrt(2.0 * energy / k)
