@@ -375,7 +375,20 @@ def nominal_scales(mod, p, y0, yp0, nominal: Optional[Mapping[int, float]] = Non
             return s
         # round-off comes from the values the variables take (the start and the probe), not
         # from scales, which may be generous (an energy floor, a fill from the rows)
-        attainable = ROUNDOFF_ULPS * roundoff_sizes(rows, cols, vals, y0, seen, n, m) / atol
+        # without the energy accumulator and its row: it feeds nothing back, and its values (as
+        # large as the energy gets: exp(q) near overflow) would only add the inverse's round-off
+        # to everything else
+        keep_r, keep_c = np.ones(m, dtype=bool), np.ones(n, dtype=bool)
+        if energy_index is not None:
+            keep_c[energy_index] = False
+            keep_r[np.unique(rows[cols == energy_index])] = False
+        attainable = np.zeros(n)
+        if keep_r.sum() == keep_c.sum():
+            rpos, cpos = np.cumsum(keep_r) - 1, np.cumsum(keep_c) - 1
+            sel = keep_r[rows] & keep_c[cols]
+            nk = int(keep_c.sum())
+            attainable[keep_c] = ROUNDOFF_ULPS * roundoff_sizes(rpos[rows[sel]], cpos[cols[sel]], vals[sel],
+                                                                y0[keep_c], seen[keep_c], nk, nk) / atol
         attainable[list(user)] = 0.0
         return np.maximum(s, np.where(np.isfinite(attainable), attainable, 0.0))
 
