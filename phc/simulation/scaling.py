@@ -79,6 +79,17 @@ ENERGY_FLOOR = 1e-3
 its bending would reach, not its round-off."""
 
 
+class Scales(np.ndarray):
+    """Nominal scales, with ``floored``: the variables whose scale the round-off floor set
+    (step 9). They cannot be integrated more accurately than that, whatever the user sets,
+    so the conditioning warning leaves them out."""
+
+    floored = None
+
+    def __array_finalize__(self, obj):
+        self.floored = None  # a computed array is not the scales any more
+
+
 def _drop_noise(s, diff) -> np.ndarray:
     """`s` with the values below :data:`NOISE` times the largest of their block (states,
     algebraic variables) set to 0."""
@@ -390,7 +401,10 @@ def nominal_scales(mod, p, y0, yp0, nominal: Optional[Mapping[int, float]] = Non
             attainable[keep_c] = ROUNDOFF_ULPS * roundoff_sizes(rpos[rows[sel]], cpos[cols[sel]], vals[sel],
                                                                 y0[keep_c], seen[keep_c], nk, nk) / atol
         attainable[list(user)] = 0.0
-        return np.maximum(s, np.where(np.isfinite(attainable), attainable, 0.0))
+        attainable = np.where(np.isfinite(attainable), attainable, 0.0)
+        out = np.maximum(s, attainable).view(Scales)
+        out.floored = attainable > s
+        return out
 
     seen = np.where(np.isfinite(y0), np.abs(y0), 0.0)
     if not probe:
