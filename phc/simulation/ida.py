@@ -37,10 +37,9 @@ from phc.simulation.monitor import SingularityMonitor, check_scales, diagnose_fa
 LOCAL_TOLERANCE = 0.1
 """IDA runs at ``rtol · LOCAL_TOLERANCE`` and ``atol · LOCAL_TOLERANCE``: its error test bounds
 the error made in one step, and what a user reads is the error of the outputs, which
-accumulates over the run (a phase error in undamped oscillations above all). Measured on the
-shipped models at ``rtol = atol = 1e-6`` against runs at 1e-11 (docs/tolerances.md): the
-largest relative output error went from 1.1e-4 … 3.6e-3 to 2e-5 … 2.7e-4 for 1.1–1.6× the
-steps (3.5× on the flexible slider–crank, whose high bending modes the tighter test resolves)."""
+accumulates over the run (a phase error in undamped oscillations above all). What it gives
+on the shipped models, against IDA as it ran before, in steps and in errors:
+``benchmarks/bench_accuracy.py`` (``benchmarks/results/accuracy.md``, docs/tolerances.md)."""
 
 ALGEBRAIC_ATOL = 1e8
 """Absolute tolerance on algebraic variables: effectively removes them from the error test."""
