@@ -59,7 +59,6 @@ ENV_SWITCH = "PHC_FRONT_END_CACHE"
 FOLDER = "front"
 """Subdirectory of the cache directory holding the records."""
 _MAGIC = b"phc-front-1\n"
-_KEY_BYTES = 32
 _IGNORED_ENV = frozenset({"PHC_DEBUG", ENV_SWITCH})
 _LIBRARIES = ("sympy", "pint", "numpy", "scipy", "pydantic", "yaml", "sksundae", "numba")
 """Libraries whose installed copy is part of the key (a changed one is a miss)."""
@@ -260,30 +259,11 @@ def _read_regular(path, limit: int) -> Optional[bytes]:
     return data if len(data) <= min(limit, st.st_size) else None
 
 
-def _state_dir() -> Path:  # as phc.codegen.numba_backend._state_dir (that module imports sympy)
-    root = os.environ.get("PHC_STATE_DIR")
-    if root:
-        return Path(root)
-    xdg = os.environ.get("XDG_STATE_HOME")
-    return (Path(xdg) if xdg else Path.home() / ".local" / "state") / "phc"
-
-
 def _read_key() -> Optional[bytes]:
-    """The per-user signing key when it exists and is private (as numba_backend reads it)."""
-    path = _state_dir() / "cache-key"
-    try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
-    except OSError:
-        return None
-    try:
-        st = os.fstat(fd)
-        if (not stat.S_ISREG(st.st_mode) or st.st_mode & 0o077
-                or (hasattr(os, "getuid") and st.st_uid != os.getuid())):
-            return None
-        data = os.read(fd, _KEY_BYTES + 1)
-    finally:
-        os.close(fd)
-    return data if len(data) == _KEY_BYTES else None
+    """The per-user signing key when it exists and is private."""
+    from phc.codegen.load import read_key, state_dir
+
+    return read_key(state_dir() / "cache-key")
 
 
 def _folder() -> Optional[Path]:
@@ -470,7 +450,9 @@ def recording(args, path: Optional[str] = None, command: str = "simulate") -> It
         yield rec
         return
     rec.data = _read_regular(path, 16 * 2**20)
-    skip = [str(p) for p in (_state_dir(), _folder_root()) if p is not None]
+    from phc.codegen.load import state_dir
+
+    skip = [str(p) for p in (state_dir(), _folder_root()) if p is not None]
     real_open, real_show = os.open, warnings.showwarning
 
     def open_(path, flags, *a, **k):

@@ -30,6 +30,7 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
+from typing import Optional
 
 from phc.errors import PhcWarning
 from phc.io import write_bytes as write_atomic  # temporary file + rename
@@ -214,3 +215,33 @@ def clean() -> tuple[int, int]:
 __all__ = ["CacheInfo", "CacheWarning", "cache_dir", "clean", "configured_cache_dir", "enforce_cap", "info",
            "load_generated", "source_hash", "write_atomic"]
 
+
+def state_dir() -> Path:
+    """phc's per-user state directory (`PHC_STATE_DIR`, else `$XDG_STATE_HOME/phc`, else
+    `~/.local/state/phc`): where the key signing cached artefacts lives."""
+    root = os.environ.get("PHC_STATE_DIR")
+    if root:
+        return Path(root)
+    xdg = os.environ.get("XDG_STATE_HOME")
+    return (Path(xdg) if xdg else Path.home() / ".local" / "state") / "phc"
+
+
+KEY_BYTES = 32
+
+
+def read_key(path: Path) -> Optional[bytes]:
+    """The signing key at `path` when it is a private regular file of :data:`KEY_BYTES` bytes
+    owned by this user; None otherwise."""
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
+    except OSError:
+        return None
+    try:
+        st = os.fstat(fd)
+        if (not stat.S_ISREG(st.st_mode) or st.st_mode & 0o077
+                or (hasattr(os, "getuid") and st.st_uid != os.getuid())):
+            return None
+        data = os.read(fd, KEY_BYTES + 1)
+    finally:
+        os.close(fd)
+    return data if len(data) == KEY_BYTES else None

@@ -62,6 +62,8 @@ import numpy as np
 import sympy as sp
 
 from phc import __version__
+from phc.codegen.load import KEY_BYTES, state_dir as _state_dir
+from phc.codegen.load import read_key as _read_key
 from phc.codegen.lower import ResidualIR
 from phc.codegen.printer import ModulePrinter, _array
 from phc.dae import T
@@ -752,14 +754,6 @@ def _make_intrinsic(name: str, kernel: Kernel, ir_: ResidualIR, tables: dict, pr
 # ---------------------------------------------------------------------------------------
 # the signed on-disk cache
 
-def _state_dir() -> Path:
-    root = os.environ.get("PHC_STATE_DIR")
-    if root:
-        return Path(root)
-    xdg = os.environ.get("XDG_STATE_HOME")
-    return (Path(xdg) if xdg else Path.home() / ".local" / "state") / "phc"
-
-
 def _private_dir(path: Path) -> Optional[str]:
     """Create `path` (0700) if missing; None when it is a private directory, else why not."""
     from phc.codegen.load import _problem
@@ -769,25 +763,6 @@ def _private_dir(path: Path) -> Optional[str]:
     except OSError as err:
         return f"cannot be created ({err.strerror})"
     return _problem(path)
-
-
-KEY_BYTES = 32
-
-
-def _read_key(path: Path) -> Optional[bytes]:
-    try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
-    except OSError:
-        return None
-    try:
-        st = os.fstat(fd)
-        if (not stat.S_ISREG(st.st_mode) or st.st_mode & 0o077
-                or (hasattr(os, "getuid") and st.st_uid != os.getuid())):
-            return None
-        data = os.read(fd, KEY_BYTES + 1)
-    finally:
-        os.close(fd)
-    return data if len(data) == KEY_BYTES else None
 
 
 def cache_key() -> tuple[Optional[bytes], str]:
