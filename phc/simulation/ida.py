@@ -60,7 +60,7 @@ CHUNK_STEPS = 50
 """Most internal steps IDA takes in C before control returns to Python (progress, Ctrl-C,
 the failure bookkeeping) when the singularity monitor does not ask for a shorter cadence."""
 
-IDA_ROOT_RETURN, IDA_TOO_MUCH_WORK = 2, -1
+IDA_ROOT_RETURN, IDA_TOO_MUCH_WORK, IDA_NORMAL = 2, -1, 1
 
 _STATUS_HINTS = {
     -1: "the solver took too many steps; raise `max_steps` or shorten the time span",
@@ -150,18 +150,54 @@ def _ida_library():
             except (OSError, AttributeError):
                 lib = None
         if lib is not None:
+            _declare_solve(lib, path)
             lib.IDAGetNumSteps.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_long)]
             lib.IDAGetLastStep.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_double)]
             lib.IDAGetNumResEvals.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_long)]
+            lib.IDAGetNumJacEvals.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_long)]
             lib.IDASetMaxNumSteps.argtypes = [ctypes.c_void_p, ctypes.c_long]
+            lib.IDASetStopTime.argtypes = [ctypes.c_void_p, ctypes.c_double]
             lib.SUNContext_ClearErrHandlers.argtypes = [ctypes.c_void_p]
-            for name in ("IDAGetNumSteps", "IDAGetLastStep", "IDAGetNumResEvals", "IDASetMaxNumSteps",
-                         "SUNContext_ClearErrHandlers"):
+            for name in ("IDAGetNumSteps", "IDAGetLastStep", "IDAGetNumResEvals", "IDAGetNumJacEvals",
+                         "IDASetMaxNumSteps", "IDASetStopTime", "SUNContext_ClearErrHandlers"):
                 getattr(lib, name).restype = ctypes.c_int
     except Exception:  # noqa: BLE001 - the counters are an optimization with a fallback
         lib = None
     _LIBRARY.append(lib)
     return lib
+
+
+def _declare_solve(lib, path) -> None:
+    """``lib.solve``: ``IDASolve`` called with the GIL held (``ctypes.PyDLL``: the residual
+    and Jacobian callbacks are Python functions, and an exception they leave set is raised
+    when the call returns), and ``lib.array``: ``N_VGetArrayPointer`` from SUNDIALS' core
+    library, or None where either cannot be had (the solver is then driven through
+    scikit-SUNDAE's ``step``)."""
+    lib.solve = lib.array = None
+    try:
+        solve = ctypes.PyDLL(path).IDASolve
+        solve.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.POINTER(ctypes.c_double),
+                          ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int]
+        solve.restype = ctypes.c_int
+        core = None
+        with open("/proc/self/maps") as fh:
+            cores = sorted({line.split()[-1] for line in fh if "libsundials_core" in line})
+        for candidate in cores or [path]:  # the core's symbols may also be reachable through IDA's
+            try:
+                core = ctypes.CDLL(candidate)
+                core.N_VGetArrayPointer  # noqa: B018 - the symbol must be there
+                break
+            except (OSError, AttributeError):
+                core = None
+        if core is None:
+            return
+        core.N_VGetArrayPointer.argtypes = [ctypes.c_void_p]
+        core.N_VGetArrayPointer.restype = ctypes.c_void_p
+        core.N_VGetLength.argtypes = [ctypes.c_void_p]
+        core.N_VGetLength.restype = ctypes.c_int64
+        lib.solve, lib.array = solve, core
+    except Exception:  # noqa: BLE001 - an optimization with a fallback
+        lib.solve = lib.array = None
 
 
 class _IdaCounters:
@@ -176,11 +212,16 @@ class _IdaCounters:
     and returns None otherwise: the integrator then counts steps itself."""
 
     _SIZE = 144  # sizeof(_cy_ida.IDA): head, vtable, mem, ctx, 7 pointers, NEQ, 5 objects
-    _MEM, _CTX, _NEQ, _AUX = 24, 32, 96, 104
+    _MEM, _CTX, _YY, _YP, _NEQ, _AUX = 24, 32, 64, 72, 96, 104
 
     def __init__(self, lib, mem):
         self.lib, self.mem = lib, ctypes.c_void_p(mem)
         self._long, self._double = ctypes.c_long(), ctypes.c_double()
+        self._tret = ctypes.c_double()
+        self.y = self.yp = None
+        """Views of the solver's own output vectors (``yy``, ``yp``), when :meth:`advance`
+        may be used."""
+        self._vectors = (None, None)
 
     @classmethod
     def attach(cls, solver, n: int, nfev: int) -> Optional["_IdaCounters"]:
@@ -212,6 +253,7 @@ class _IdaCounters:
             # each chunk; phc reports a failure itself (diagnosed), so this solver's context prints none
             if lib.SUNContext_ClearErrHandlers(ctypes.c_void_p(ctx)) != 0:
                 return None
+            counters._attach_vectors(word(base + cls._YY).value, word(base + cls._YP).value, n, solver)
             return counters
         except Exception:  # noqa: BLE001 - an optimization with a fallback
             return None
@@ -229,6 +271,46 @@ class _IdaCounters:
 
     def set_max_steps(self, k: int) -> None:
         self.lib.IDASetMaxNumSteps(self.mem, int(k))
+
+    def jacobian_evaluations(self) -> int:
+        return int(self._get(self.lib.IDAGetNumJacEvals, self._long))
+
+    def residual_evaluations(self) -> int:
+        return int(self._get(self.lib.IDAGetNumResEvals, self._long))
+
+    def _attach_vectors(self, yy: int, yp: int, n: int, solver) -> None:
+        """Views of scikit-SUNDAE's ``yy``/``yp`` N_Vectors, for :meth:`advance`: used only
+        when both are serial vectors of length `n` holding the state `init_step` left."""
+        lib, core = self.lib, getattr(self.lib, "array", None)
+        if getattr(lib, "solve", None) is None or core is None or not yy or not yp:
+            return
+        views = []
+        for vec in (yy, yp):
+            if core.N_VGetLength(ctypes.c_void_p(vec)) != n:
+                return
+            data = core.N_VGetArrayPointer(ctypes.c_void_p(vec))
+            if not data:
+                return
+            views.append(np.ctypeslib.as_array((ctypes.c_double * n).from_address(data)))
+        self._vectors = (ctypes.c_void_p(yy), ctypes.c_void_p(yp))
+        self.y, self.yp = views
+
+    @property
+    def can_advance(self) -> bool:
+        return self.y is not None
+
+    def set_stop_time(self, t: float) -> None:
+        if self.lib.IDASetStopTime(self.mem, float(t)) < 0:
+            raise RuntimeError("IDASetStopTime failed")
+
+    def advance(self, t: float) -> tuple[int, float]:
+        """``IDASolve`` in normal mode to `t` (status, time reached); the state is then in
+        :attr:`y`/:attr:`yp`. What scikit-SUNDAE's ``step`` does without building a result
+        object and copying the state each call (about 25 µs an output time). An exception a
+        callback raised is raised here."""
+        status = self.lib.solve(self.mem, t, ctypes.byref(self._tret), self._vectors[0], self._vectors[1],
+                                IDA_NORMAL)
+        return int(status), float(self._tret.value)
 
 
 # ---------------------------------------------------------------------------------------
@@ -250,16 +332,18 @@ def _callbacks(mod, p, n: int, sparse: bool):
     state = {"cj": 0.0}
     isfinite, dot = math.isfinite, np.dot
 
-    def resfn(t, y, yp, res):
-        try:
+    if check_res is None:
+        def resfn(t, y, yp, res):
             residual(t, y, yp, p, res)
-        except CATCH:
-            if check_res is None:
+    else:
+        def resfn(t, y, yp, res):
+            try:
+                residual(t, y, yp, p, res)
+            except CATCH:
+                check_res(t, y, yp, p, res)  # raises the located error
                 raise
-            check_res(t, y, yp, p, res)  # raises the located error
-            raise
-        if not isfinite(dot(res, res)) and check_res is not None:
-            check_res(t, y, yp, p, res)  # raises if a value is not finite (else an overflow of the check)
+            if not isfinite(res.dot(res)):  # (the method: a third of np.dot's call overhead)
+                check_res(t, y, yp, p, res)  # raises if a value is not finite (else an overflow of the check)
 
     if sparse:
         def jacfn(t, y, yp, res, cj, JJ):
@@ -297,12 +381,24 @@ def _callbacks(mod, p, n: int, sparse: bool):
     return resfn, jacfn, state
 
 
-LOOK_STRETCH = 8
+LOOK_STRETCH = 32
 """Most the singularity monitor's cadence is stretched where the conditioning is flat."""
 FLAT_DECADES = 0.1
 """Change of the conditioning ratio between two looks (decades) below which it counts as flat."""
 FAR_RATIO = 1e-6
 """Conditioning ratio above which the monitor may look less often (its threshold is 1e-11)."""
+
+
+def _status_text(res, status: int) -> str:
+    """scikit-SUNDAE's text for an IDA return flag."""
+    if res is not None:
+        return str(res.message)
+    try:
+        from sksundae._cy_ida import IDAMESSAGES
+
+        return str(IDAMESSAGES.get(status, f"IDA flag {status}"))
+    except Exception:  # noqa: BLE001 - only the wording of a message
+        return f"IDA flag {status}"
 
 
 def _next_cadence(cadence: int, base: int, before: Optional[float], ratio: Optional[float]) -> int:
@@ -499,6 +595,12 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
                     message=f"IDA could not start: {init.message}" + (f"; {scales(True)}" if scales(True) else ""),
                     cpu=time.process_time() - start)
     counters = _IdaCounters.attach(solver, n, int(getattr(init, "nfev", 0) or 0))
+    # IDASolve called directly (no result object a call): not with switching functions, whose
+    # roots scikit-SUNDAE collects after its own call
+    direct = (counters is not None and counters.can_advance and not (events is not None and events.n)
+              and np.array_equal(counters.y, init.y) and np.array_equal(counters.yp, init.yp))
+    if direct:
+        counters.set_stop_time(float(t_out[-1]))
     monitor = SingularityMonitor(mod, p, names=names, scales=nominal)
     monitor.h_floor = 1e-6 * float(t_out[-1] - t_out[0])
     # the monitor looks every `cadence` steps: `base`, stretched up to LOOK_STRETCH-fold while the
@@ -522,14 +624,17 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
         while k < len(t_out):
             if counters is not None:  # IDA returns after this many steps at most (status -1)
                 counters.set_max_steps(max(1, min(cadence - since_look, max_steps - steps)))
-            res = solver.step(float(t_out[k]), method="normal", tstop=t_end)
-            status = int(res.status)
-            t_now = float(res.t)
+            if direct:
+                status, t_now = counters.advance(float(t_out[k]))
+                res = None
+            else:
+                res = solver.step(float(t_out[k]), method="normal", tstop=t_end)
+                status, t_now = int(res.status), float(res.t)
+                nfev, njev = getattr(res, "nfev", nfev), getattr(res, "njev", njev)
             # without IDA's counters, residual evaluations stand in for steps (an upper bound)
             taken = (counters.steps() if counters is not None else int(res.nfev)) - steps
             steps += taken
             since_look += taken
-            nfev, njev = getattr(res, "nfev", nfev), getattr(res, "njev", njev)
             if taken:
                 if counters is not None:
                     h_last = counters.last_step()
@@ -538,7 +643,7 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
                 h_ref = max(h_last, 0.999 ** taken * h_ref)
             t_last = max(t_last, t_now)
             chunk_end = status == IDA_TOO_MUCH_WORK  # the step limit of the call: a chunk ends
-            if not res.success and not chunk_end:
+            if status < 0 and not chunk_end:
                 ok = False
                 hint = _STATUS_HINTS.get(status)
                 if hint is None:  # diagnose before blaming: is the iteration matrix singular there?
@@ -546,9 +651,9 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
                                             h_fail=(1.0 / calls["cj"]) if calls["cj"] > 0 else h_last,
                                             max_order=max_order, rtol=rtol, atol=atol, names=names,
                                             scales=nominal, local=LOCAL_TOLERANCE)
-                message = f"IDA failed at t = {t_now:.6g} (status {status}: {res.message}); {hint}"
+                message = f"IDA failed at t = {t_now:.6g} (status {status}: {_status_text(res, status)}); {hint}"
                 break
-            y_now, yp_now = res.y, res.yp
+            y_now, yp_now = (counters.y.copy(), counters.yp.copy()) if direct else (res.y, res.yp)
             if status == IDA_ROOT_RETURN and res.i_events is not None:  # a switching function hit 0
                 event = dict(t=t_now, y=np.array(y_now), yp=np.array(yp_now),
                              which=np.flatnonzero(np.asarray(res.i_events)[-1]).tolist())
@@ -584,6 +689,8 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     except KeyboardInterrupt:
         ok, interrupted = False, True
         message = f"interrupted at t = {t_out[k - 1]:.6g}"
+    if direct:
+        nfev, njev = counters.residual_evaluations(), counters.jacobian_evaluations()
     note = scales(not ok, k) if not message.startswith(("stopped at", "interrupted")) else None
     if note:
         message = f"{message}; {note}"

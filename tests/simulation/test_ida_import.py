@@ -42,3 +42,34 @@ def test_ida_loads_normally_when_scipy_optimize_is_already_imported():
         print(_cy_ida.group_columns is group_columns)
     """)
     assert out == "True"
+
+
+def test_direct_ida_calls_give_what_scikit_sundae_step_gives(monkeypatch):
+    """IDASolve called through ctypes (phc.simulation.ida._IdaCounters.advance) integrates
+    exactly as scikit-SUNDAE's own ``step``: same states, steps and evaluations."""
+    from pathlib import Path
+
+    import numpy as np
+
+    import phc
+    from phc.simulation import ida
+
+    model = Path(__file__).resolve().parents[2] / "models" / "pendulum.yaml"
+    compiled = phc.compile_model(model, certify=False, backend="numpy")
+    used = []
+    advance = ida._IdaCounters.advance
+
+    def spy(self, t):
+        used.append(t)
+        return advance(self, t)
+
+    monkeypatch.setattr(ida._IdaCounters, "advance", spy)
+    direct = phc.simulate(compiled, t_end=2.0, n_out=41, rtol=1e-8, atol=1e-8)
+    assert direct.success and len(used) >= 40
+    monkeypatch.setattr(ida._IdaCounters, "can_advance", property(lambda self: False))
+    used.clear()
+    stepped = phc.simulate(compiled, t_end=2.0, n_out=41, rtol=1e-8, atol=1e-8)
+    assert stepped.success and not used
+    assert np.array_equal(direct.y, stepped.y)
+    assert (direct.steps, direct.n_residual_evals, direct.n_jacobian_evals) == \
+        (stepped.steps, stepped.n_residual_evals, stepped.n_jacobian_evals)
