@@ -20,7 +20,8 @@ Measured:
 * the same with ``--t-end 0.01``: start-up and set-up without the 20 s of simulated time
   (35 000 IDA steps at rtol 1e-12);
 * the floor of the interpreter: ``python -c pass``, and the imports any IDA run needs
-  (numpy, scipy.sparse, SUNDIALS' Python binding, which imports scipy.optimize itself).
+  (numpy, scipy.sparse, SUNDIALS' Python binding), as scikit-SUNDAE imports itself (with
+  scipy.optimize) and as phc imports it (without).
 
 The caches live in a temporary directory of this run (``PHC_CACHE_DIR``, ``PHC_STATE_DIR``).
 """
@@ -73,8 +74,11 @@ def main() -> None:
         out = str(Path(tmp) / "p.csv")
         rows = [
             ("`python -c pass` (the interpreter)", [py, "-c", "pass"], env, None),
-            ("`python -c 'import numpy, scipy.sparse, sksundae.ida'` (what an IDA run imports)",
+            ("`python -c 'import numpy, scipy.sparse, sksundae.ida'` (scikit-SUNDAE's own import)",
              [py, "-c", "import numpy, scipy.sparse, scipy.sparse.linalg, scipy.linalg, sksundae.ida"], env, None),
+            ("the same through phc (`phc.simulation.ida._import_ida`: without scipy.optimize)",
+             [py, "-c", "import numpy, scipy.sparse, scipy.sparse.linalg, scipy.linalg; "
+                        "from phc.simulation.ida import _import_ida; _import_ida()"], env, None),
             ("`phc --version`", [*phc, "--version"], env, 0.2),
             ("`phc --help`", [*phc, "--help"], env, 0.2),
             (f"`phc validate {PENDULUM}`, cached", [*phc, "validate", PENDULUM], env, 0.5),
