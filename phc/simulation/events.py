@@ -39,6 +39,7 @@ import numpy as np
 from phc.errors import InconsistentInitialError
 from phc.simulation.guard import CATCH, ModelEvaluationError
 from phc.simulation.initial import consistent_initial_conditions
+from phc.simulation.scaling import mode_floor
 
 SAMPLES = 256
 """Equal intervals of [t₀, t₁] on which the switching functions in t are first sampled."""
@@ -364,8 +365,13 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, optio
             if end - t > 1e-12 * max(1.0, abs(t)):
                 grid = np.concatenate([[t], t_out[(t_out > t) & (t_out < end)], [end]])
                 active = watch if watch.mask.any() or watch.stuck.any() else None
+                seg_options = options
+                if options.get("nominal") is not None and options.get("atol"):
+                    # the round-off floor of the scales in this segment's mode (scaling.mode_floor)
+                    seg_options = dict(options, nominal=mode_floor(mod, watch.p, options["nominal"], y, yp, t0=t,
+                                                                   span=t1 - t, atol=options["atol"]))
                 try:
-                    out = dict(backend(mod, watch.p.copy(), grid, y, yp, **options, events=active))
+                    out = dict(backend(mod, watch.p.copy(), grid, y, yp, **seg_options, events=active))
                 except (ModelEvaluationError, KeyboardInterrupt) as err:
                     interrupted = isinstance(err, KeyboardInterrupt)
                     out = dict(t=grid[:1], y=y[None, :], yp=yp[None, :], steps=0, nfev=0, njev=0, success=False,

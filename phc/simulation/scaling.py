@@ -47,6 +47,11 @@ How ``s`` is found, in this order (docs/tolerances.md):
    ``y_j`` (:func:`roundoff_sizes`). The end of a free beam that drifts by 5e-10 m while
    the other end sits at 0.3 m is fixed by a constraint whose terms are 0.3 m: it is known
    to ~1e-16 m, and an absolute tolerance of 1e-10 · 5e-10 m is one no step can meet.
+   A row that depends on time explicitly also carries the round-off of ``t`` itself,
+   ``ε |t| |∂F_i/∂t|`` at the latest time of the run: a source ``V0 sin(ω t)`` of 10 V at
+   314 rad/s, 0.045 s into a run, is known to ~2e-14 V whatever the states, and a diode's
+   current that follows it through 1 Ω cannot be held to 5e-14 A (IDA then failed its
+   error test on every step near the diode's switching, 15 000 steps for one half-period).
 """
 
 from __future__ import annotations
@@ -82,12 +87,88 @@ its bending would reach, not its round-off."""
 class Scales(np.ndarray):
     """Nominal scales, with ``floored``: the variables whose scale the round-off floor set
     (step 9). They cannot be integrated more accurately than that, whatever the user sets,
-    so the conditioning warning leaves them out."""
+    so the conditioning warning leaves them out. ``user``: the indices the user set (never
+    raised, :func:`mode_floor` included)."""
 
     floored = None
+    user: tuple = ()
 
     def __array_finalize__(self, obj):
         self.floored = None  # a computed array is not the scales any more
+        self.user = ()
+
+
+def _floored(mod, p, rows, cols, vals, s, y0, yp0, seen, *, t0, span, t_out, atol, user) -> Scales:
+    """`s` raised to the round-off floor of step 9 (the iteration matrix's entries `rows`,
+    `cols`, `vals` at (t0, y0, ẏ0); `seen`: the largest values the variables took)."""
+    n, m = mod.N, len(mod.EQUATIONS)
+    names = list(mod.VARIABLES)
+    energy_index = names.index("energy.supplied") if "energy.supplied" in names else None
+    # round-off comes from the values the variables take (the start and the probe), not
+    # from scales, which may be generous (an energy floor, a fill from the rows)
+    # without the energy accumulator and its row: it feeds nothing back, and its values (as
+    # large as the energy gets: exp(q) near overflow) would only add the inverse's round-off
+    # to everything else
+    keep_r, keep_c = np.ones(m, dtype=bool), np.ones(n, dtype=bool)
+    if energy_index is not None:
+        keep_c[energy_index] = False
+        keep_r[np.unique(rows[cols == energy_index])] = False
+    attainable = np.zeros(n)
+    rho_time = time_roundoff(mod, p, t0, y0, yp0, span, t_out, m)
+    if keep_r.sum() == keep_c.sum():
+        rpos, cpos = np.cumsum(keep_r) - 1, np.cumsum(keep_c) - 1
+        sel = keep_r[rows] & keep_c[cols]
+        nk = int(keep_c.sum())
+        # at the probe's step, and with the states held (the short steps of a restart or of
+        # a switching: c_j F_ẏ dominates, and a row's round-off goes to its algebraic variables)
+        cj = 1.0 / probe_time(span, t_out)
+        held = vals
+        try:
+            buf = np.zeros(len(vals))
+            mod.jacobian(t0, y0, yp0, p, HELD_CJ * cj, buf)
+            if np.all(np.isfinite(buf)):
+                held = buf
+        except Exception:  # noqa: BLE001 - the probe's step alone then
+            pass
+        for entries in (vals, held):
+            size = ROUNDOFF_ULPS * roundoff_sizes(rpos[rows[sel]], cpos[cols[sel]], entries[sel],
+                                                  y0[keep_c], seen[keep_c], nk, nk,
+                                                  rho_time=rho_time[keep_r]) / atol
+            attainable[keep_c] = np.maximum(attainable[keep_c], size)
+    user = sorted(int(j) for j in user)
+    attainable[user] = 0.0
+    attainable = np.where(np.isfinite(attainable), attainable, 0.0)
+    out = np.maximum(s, attainable).view(Scales)
+    out.floored = attainable > s
+    out.user = tuple(user)
+    return out
+
+
+def mode_floor(mod, p, scales, y, yp, *, t0: float, span: float, t_out=None, atol: Optional[float]) -> np.ndarray:
+    """The run's `scales` raised, where needed, to the round-off floor (step 9) of the
+    equations in the mode they are in at (t0, y, ẏ) (`p` holds the modes of the switching
+    conditions, :mod:`phc.simulation.events`). A mode changes the iteration matrix: a diode
+    that conducts ties its current to a source voltage it ignored while blocking. Never
+    lowers a scale; variables floored before stay marked; the user's scales stay as set."""
+    from phc.simulation.guard import CATCH, ModelEvaluationError
+
+    if not atol or scales is None:
+        return scales
+    base = np.asarray(scales, dtype=float)
+    y, yp = np.asarray(y, dtype=float), np.asarray(yp, dtype=float)
+    try:
+        rows, cols, vals = _jacobian_entries(mod, p, t0, y, yp, 1.0 / probe_time(span, t_out))
+    except (ModelEvaluationError, *CATCH):
+        return scales
+    if not len(rows):
+        return scales
+    seen = np.where(np.isfinite(y), np.abs(y), 0.0)
+    out = _floored(mod, p, rows, cols, vals, base, y, yp, seen, t0=t0, span=span, t_out=t_out, atol=atol,
+                   user=getattr(scales, "user", ()))
+    before = getattr(scales, "floored", None)
+    if before is not None:
+        out.floored = out.floored | np.asarray(before, dtype=bool)
+    return out
 
 
 def _drop_noise(s, diff) -> np.ndarray:
@@ -150,10 +231,13 @@ def _fill_from_rows(rows, cols, vals, s, n, m, passes: int = 3, r0=None) -> np.n
     return natural
 
 
-def roundoff_sizes(rows, cols, vals, y, s, n: int, m: int, samples: int = 4) -> np.ndarray:
+def roundoff_sizes(rows, cols, vals, y, s, n: int, m: int, samples: int = 4,
+                   rho_time: Optional[np.ndarray] = None) -> np.ndarray:
     """How precisely the equations determine each variable: ``δ = |J⁻¹| ρ`` for the
     round-off ``ρ_i = ε Σ_k |J_ik| max(|y_k|, s_k)`` of each row (the size of its terms
-    times the unit round-off; `s` here: the largest values seen, not the nominal scales). ``J`` is the iteration matrix at the start (its differential
+    times the unit round-off; `s` here: the largest values seen, not the nominal scales),
+    plus `rho_time` (the round-off the time argument brings into each row, already
+    absolute). ``J`` is the iteration matrix at the start (its differential
     rows carry ``c_j F_ẏ``, so a state's own round-off ``ε |y_j|`` is counted). Up to
     :data:`DENSE_ROUNDOFF` unknowns with the dense inverse (the componentwise bound); above,
     the largest ``|J⁻¹ (ρ ∘ g)|`` over a few normal random vectors ``g`` (random signs alone
@@ -167,6 +251,8 @@ def roundoff_sizes(rows, cols, vals, y, s, n: int, m: int, samples: int = 4) -> 
     rho = np.zeros(m)
     np.add.at(rho, rows, np.abs(vals) * size[cols])
     rho *= np.finfo(float).eps
+    if rho_time is not None:
+        rho += np.where(np.isfinite(rho_time), np.abs(rho_time), 0.0)
     if m != n or not len(rows) or not rho.any():
         return np.zeros(n)
     with warnings.catch_warnings():
@@ -188,6 +274,40 @@ def roundoff_sizes(rows, cols, vals, y, s, n: int, m: int, samples: int = 4) -> 
         except (RuntimeError, ValueError, np.linalg.LinAlgError):
             return np.zeros(n)
     return out if np.all(np.isfinite(out)) else np.zeros(n)
+
+
+HELD_CJ = 1e6
+"""Step 9 also takes the iteration matrix at this many times the probe's ``c_j``: the
+states held, as in the short steps of a restart."""
+TIME_SAMPLES = 9
+"""Times in the run at which :func:`time_roundoff` evaluates ``∂F/∂t``."""
+
+
+def time_roundoff(mod, p, t0, y0, yp0, span, t_out, m: int) -> np.ndarray:
+    """``ε · T · max_k |∂F_i/∂t (t_k)|`` for each row: the round-off the time argument
+    brings into it, with ``T`` the latest time of the run (IDA's ``t`` is known to an ulp
+    of it) and ``t_k`` :data:`TIME_SAMPLES` times spread over the run, at the start's
+    (y, ẏ) (a size, not a solution). Zeros for a model without explicit time."""
+    from phc.simulation.guard import CATCH, ModelEvaluationError
+
+    out = np.zeros(m)
+    times = [float(t0)]
+    if span and np.isfinite(span) and span > 0:
+        times = list(float(t0) + float(span) * np.linspace(0.0, 1.0, TIME_SAMPLES))
+    if t_out is not None and len(t_out):
+        times.append(float(np.max(np.abs(t_out))))
+    last = max(abs(t) for t in times)
+    if not last > 0:
+        return out
+    buf = np.zeros(m)
+    for t in times:
+        try:
+            buf[:] = 0.0
+            mod.residual_t(t, y0, yp0, p, buf)
+        except (ModelEvaluationError, *CATCH):
+            continue
+        np.maximum(out, np.where(np.isfinite(buf), np.abs(buf), 0.0), out=out)
+    return np.finfo(float).eps * last * out
 
 
 def energy_sizes(mod, p, t0, y0, s, energy: float) -> np.ndarray:
@@ -384,27 +504,8 @@ def nominal_scales(mod, p, y0, yp0, nominal: Optional[Mapping[int, float]] = Non
         """Step 9: no absolute tolerance below the round-off of its variable."""
         if not atol or not len(rows):
             return s
-        # round-off comes from the values the variables take (the start and the probe), not
-        # from scales, which may be generous (an energy floor, a fill from the rows)
-        # without the energy accumulator and its row: it feeds nothing back, and its values (as
-        # large as the energy gets: exp(q) near overflow) would only add the inverse's round-off
-        # to everything else
-        keep_r, keep_c = np.ones(m, dtype=bool), np.ones(n, dtype=bool)
-        if energy_index is not None:
-            keep_c[energy_index] = False
-            keep_r[np.unique(rows[cols == energy_index])] = False
-        attainable = np.zeros(n)
-        if keep_r.sum() == keep_c.sum():
-            rpos, cpos = np.cumsum(keep_r) - 1, np.cumsum(keep_c) - 1
-            sel = keep_r[rows] & keep_c[cols]
-            nk = int(keep_c.sum())
-            attainable[keep_c] = ROUNDOFF_ULPS * roundoff_sizes(rpos[rows[sel]], cpos[cols[sel]], vals[sel],
-                                                                y0[keep_c], seen[keep_c], nk, nk) / atol
-        attainable[list(user)] = 0.0
-        attainable = np.where(np.isfinite(attainable), attainable, 0.0)
-        out = np.maximum(s, attainable).view(Scales)
-        out.floored = attainable > s
-        return out
+        return _floored(mod, p, rows, cols, vals, s, y0, yp0, seen, t0=t0, span=span, t_out=t_out, atol=atol,
+                        user=user)
 
     seen = np.where(np.isfinite(y0), np.abs(y0), 0.0)
     if not probe:

@@ -317,6 +317,39 @@ def test_half_wave_rectifier_matches_an_independent_solution(tmp_path, solver, h
     assert np.abs(r["vC"] - reference).max() < tol_v
 
 
+def test_rectifier_half_periods_cost_alike(tmp_path):
+    """The diode's current follows the source through Ron = 1 Ω, and the source
+    V0 sin(ω t) is known only to ε·t·V0·ω (~2e-14 V at t = 0.045 s): its absolute tolerance
+    may not go below that (the round-off floor of the nominal scales, in the mode of each
+    segment, with the time argument's round-off). It went to 5e-14 A, and IDA failed its
+    error test on every step of the conducting half-period 0.0431–0.0452 s: 15 000 steps,
+    where the same half-period one cycle earlier took 500. Five events, six segments of a
+    few hundred steps each."""
+    compiled = _compile(tmp_path, RECTIFIER)
+    r = phc.simulate(compiled)
+    assert r.success, r.message
+    assert len(r.events) == 5
+    assert r.steps < 6 * 1000
+
+
+def test_time_roundoff_of_a_source_row(tmp_path):
+    """ε · T · |∂F_i/∂t| for the row the source V0 sin(ω t) enters, zero for every other."""
+    import math
+
+    import numpy as np
+
+    from phc.simulation.scaling import time_roundoff
+
+    compiled = _compile(tmp_path, RECTIFIER)
+    mod, p = compiled.module, compiled.module.full_parameters()
+    n = mod.N
+    rho = time_roundoff(mod, p, 0.0, np.zeros(n), np.zeros(n), 0.06, None, len(mod.EQUATIONS))
+    bound = np.finfo(float).eps * 0.06 * 10.0 * 314.1592653589793
+    assert np.count_nonzero(rho) == 1
+    # nine samples over 0.06 s (almost two periods) find |cos ω t| ≥ cos(π/8) at one at least
+    assert math.cos(math.pi / 8) * bound <= rho.max() <= bound * (1 + 1e-12)
+
+
 def test_events_are_in_the_summary(tmp_path):
     compiled = _compile(tmp_path, PUSHED.format(force="c*t"), certify=False)
     summary = phc.simulate(compiled).summary()
