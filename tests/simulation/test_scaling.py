@@ -349,35 +349,7 @@ def test_index1_algebraic_variables_are_in_the_error_test():
     assert mask.sum() == int((~np.asarray(mod.DIFFERENTIAL, dtype=bool)).sum())  # all index 1 here
 
 
-WHEEL = """\
-format_version: 1
-name: wheel_on_moving_axle
-parameters: {m: 2.0, J: 0.05, e: 0.1, g: 9.81, c: 0.02, ax: 0.2, ay: 0.1, w: 3.0, th0: 0.3, om0: 1.0}
-components:
-  wheel:
-    type: rigid
-    description: an unbalanced wheel (centre of mass e off the axle) on an axle carried by a moving support
-    q: [x, y, theta]
-    v: [vx, vy, om]
-    M: [[m, 0, 0], [0, m, 0], [0, 0, J]]
-    V: m*g*y
-    damping: [0, 0, c*om]      # bearing friction between wheel and axle
-    constraints:
-      - x - e*cos(theta) - ax*sin(w*t)
-      - y - e*sin(theta) - ay*sin(2*w*t)
-simulation:
-  t_end: 4.0
-  n_out: 401
-  rtol: 1.0e-10
-  atol: 1.0e-10
-  initial:
-    wheel.x: e*cos(th0)
-    wheel.y: e*sin(th0)
-    wheel.theta: th0
-    wheel.p_vx: m*(ax*w - e*om0*sin(th0))
-    wheel.p_vy: m*(2*ay*w + e*om0*cos(th0))
-    wheel.p_om: J*om0
-"""  # tests/library/test_rheonomic.py's wheel
+from model_texts import WHEEL  # noqa: E402 - tests/library/test_rheonomic.py's wheel
 
 
 def test_a_linear_potential_gives_no_energy_floor(tmp_path):
