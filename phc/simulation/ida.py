@@ -122,6 +122,16 @@ def _import_ida():
 _LIBRARY: list = []   # [ctypes.CDLL or None], found once per process
 
 
+def _mapped(fragment: str) -> list[str]:
+    """Paths of the shared libraries loaded in this process whose name contains `fragment`
+    (Linux's ``/proc/self/maps``; empty elsewhere)."""
+    try:
+        with open("/proc/self/maps") as fh:
+            return sorted({line.split()[-1] for line in fh if fragment in line})
+    except OSError:
+        return []
+
+
 def _ida_library():
     """The SUNDIALS IDA shared library scikit-sundae's extension runs (already loaded in
     this process: ``dlopen`` of its path returns the same copy), or None."""
@@ -131,12 +141,7 @@ def _ida_library():
     try:
         import sksundae
 
-        paths = []
-        try:
-            with open("/proc/self/maps") as fh:
-                paths = sorted({line.split()[-1] for line in fh if "libsundials_ida" in line})
-        except OSError:
-            pass
+        paths = _mapped("libsundials_ida")
         if not paths:
             root = os.path.dirname(os.path.dirname(sksundae.__file__))
             for pattern in ("scikit_sundae.libs/libsundials_ida*", "sksundae/.dylibs/libsundials_ida*",
@@ -180,9 +185,7 @@ def _declare_solve(lib, path) -> None:
                           ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int]
         solve.restype = ctypes.c_int
         core = None
-        with open("/proc/self/maps") as fh:
-            cores = sorted({line.split()[-1] for line in fh if "libsundials_core" in line})
-        for candidate in cores or [path]:  # the core's symbols may also be reachable through IDA's
+        for candidate in _mapped("libsundials_core") or [path]:  # or reachable through IDA's own
             try:
                 core = ctypes.CDLL(candidate)
                 core.N_VGetArrayPointer  # noqa: B018 - the symbol must be there
@@ -253,7 +256,7 @@ class _IdaCounters:
             # each chunk; phc reports a failure itself (diagnosed), so this solver's context prints none
             if lib.SUNContext_ClearErrHandlers(ctypes.c_void_p(ctx)) != 0:
                 return None
-            counters._attach_vectors(word(base + cls._YY).value, word(base + cls._YP).value, n, solver)
+            counters._attach_vectors(word(base + cls._YY).value, word(base + cls._YP).value, n)
             return counters
         except Exception:  # noqa: BLE001 - an optimization with a fallback
             return None
@@ -278,7 +281,7 @@ class _IdaCounters:
     def residual_evaluations(self) -> int:
         return int(self._get(self.lib.IDAGetNumResEvals, self._long))
 
-    def _attach_vectors(self, yy: int, yp: int, n: int, solver) -> None:
+    def _attach_vectors(self, yy: int, yp: int, n: int) -> None:
         """Views of scikit-SUNDAE's ``yy``/``yp`` N_Vectors, for :meth:`advance`: used only
         when both are serial vectors of length `n` holding the state `init_step` left."""
         lib, core = self.lib, getattr(self.lib, "array", None)

@@ -121,14 +121,14 @@ def _floored(mod, p, rows, cols, vals, s, y0, yp0, seen, *, t0, span, t_out, ato
         nk = int(keep_c.sum())
         # at the probe's step, and with the states held (the short steps of a restart or of
         # a switching: c_j F_ẏ dominates, and a row's round-off goes to its algebraic variables)
-        cj = 1.0 / probe_time(span, t_out)
+        from phc.simulation.guard import CATCH, ModelEvaluationError
+
         held = vals
         try:
-            buf = np.zeros(len(vals))
-            mod.jacobian(t0, y0, yp0, p, HELD_CJ * cj, buf)
+            _, _, buf = _jacobian_entries(mod, p, t0, y0, yp0, HELD_CJ / probe_time(span, t_out))
             if np.all(np.isfinite(buf)):
                 held = buf
-        except Exception:  # noqa: BLE001 - the probe's step alone then
+        except (ModelEvaluationError, *CATCH):  # the probe's step alone then
             pass
         for entries in (vals, held):
             size = ROUNDOFF_ULPS * roundoff_sizes(rpos[rows[sel]], cpos[cols[sel]], entries[sel],
