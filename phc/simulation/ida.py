@@ -607,9 +607,11 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     monitor = SingularityMonitor(mod, p, names=names, scales=nominal)
     monitor.h_floor = 1e-6 * float(t_out[-1] - t_out[0])
     # the monitor looks every `cadence` steps: `base`, stretched up to LOOK_STRETCH-fold while the
-    # conditioning stays flat and far above the threshold (a look is a dense SVD: for small
-    # systems it costs more than the steps between looks)
-    base = 5 if n <= 60 else 20
+    # conditioning stays flat and far above the threshold (a look is a dense SVD, ~30 µs at 19
+    # unknowns, about what one IDA step of such a system costs: every 5 steps, as before, it
+    # was a third of the run; a minimum of the conditioning between looks is still located by
+    # the monitor's golden-section search)
+    base = 10 if n <= 60 else 20
     cadence = base if monitor.enabled else CHUNK_STEPS
     last_ratio = None
     k, steps, ok, message = 1, 0, True, "integration finished"
