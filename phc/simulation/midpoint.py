@@ -205,8 +205,6 @@ class StageSolver:
         self.algebraic = np.array([j for j, (d, name) in enumerate(zip(mod.DIFFERENTIAL, mod.VARIABLES))
                                    if not d and not str(name).startswith("ggl.")], dtype=np.int64)
         """``1/s``: the Newton test runs on the scaled variables (:mod:`phc.simulation.scaling`)."""
-        self.tol = NEWTON_TOL
-        """Newton tolerance of :meth:`solve` (relative; looser for a probe that only wants sizes)."""
         self.end_rows = constraint_rows(mod) if end_constraints else np.array([], dtype=int)
         self.matrix = NewtonMatrix(mod, p, self.end_rows)
         self.res = np.zeros(mod.N)
@@ -237,7 +235,7 @@ class StageSolver:
             return y1, False
 
     def _solve(self, t, h, y, y1, s):
-        matrix, tol = self.matrix, self.tol
+        matrix = self.matrix
         self.singular = False
         start = y1.copy()
         y1 = y1.copy()
@@ -270,7 +268,7 @@ class StageSolver:
                 continue
             theta = size / last if last else None
             if (theta is not None and (theta >= 0.5 or theta >= STAGNATION_JUMP * rate)
-                    and size <= ROUNDOFF_ZONE * tol * scale):
+                    and size <= ROUNDOFF_ZONE * NEWTON_TOL * scale):
                 return y1 + delta, True  # stagnating at round-off level: accept
             if self.refreshed and theta is not None and theta >= 0.5 and size <= ROUNDOFF_FLOOR * scale:
                 # no progress with a fresh matrix: round-off amplified by its conditioning
@@ -278,7 +276,7 @@ class StageSolver:
                 # driver is told (the conditioning may come from a singular configuration)
                 self.ill_conditioned = True
                 return y1 + delta, True
-            if theta is not None and theta >= 1.0 and since > 0 and size > 1e3 * tol * scale:
+            if theta is not None and theta >= 1.0 and since > 0 and size > 1e3 * NEWTON_TOL * scale:
                 # the old matrix no longer contracts: refresh it here and retry
                 if not self._refactor(t, h, y, y1, s):
                     return y1, False
@@ -286,10 +284,10 @@ class StageSolver:
                 continue
             y1 += delta
             since += 1
-            if size <= 1e-2 * tol * scale:
+            if size <= 1e-2 * NEWTON_TOL * scale:
                 return y1, True
             if theta is not None:
-                if theta < 1.0 and theta / (1.0 - theta) * size <= tol * scale:
+                if theta < 1.0 and theta / (1.0 - theta) * size <= NEWTON_TOL * scale:
                     return y1, True
                 rate = min(rate, theta)
                 if theta > REFACTOR_RATE:

@@ -63,8 +63,6 @@ import numpy as np
 
 PROBE_STEPS = 20
 """Implicit-midpoint steps of the probe."""
-PROBE_NEWTON_TOL = 1e-10
-"""Relative Newton tolerance of the probe's steps."""
 PROBE_FRACTION = 0.2
 """The probe covers this fraction of the run (a beam loaded from rest must show a good part of
 its deflection: its scales set IDA's absolute tolerances)."""
@@ -380,7 +378,6 @@ def _probe(mod, p, t0, y0, yp0, tau, weights) -> tuple[np.ndarray, float]:
         # scales of 1e-20 that no Newton iteration meets
         del weights
         stage = StageSolver(getattr(mod, "module", mod), p)  # unguarded: a failure ends the probe anyway
-        stage.tol = PROBE_NEWTON_TOL  # sizes, not a solution: no need to iterate to round-off
         h = tau / PROBE_STEPS
         y = np.array(y0, dtype=float)
         slope = np.asarray(yp0, dtype=float)
