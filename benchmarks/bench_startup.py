@@ -24,6 +24,8 @@ Measured:
   scipy.optimize) and as phc imports it (without).
 
 The caches live in a temporary directory of this run (``PHC_CACHE_DIR``, ``PHC_STATE_DIR``).
+Python's bytecode cache is on for the children (``PYTHONDONTWRITEBYTECODE`` removed from
+their environment), as in a user's installation; the warm-up run writes it.
 """
 
 from __future__ import annotations
@@ -69,6 +71,10 @@ def main() -> None:
     phc = [py, "-m", "phc"]
     with tempfile.TemporaryDirectory() as tmp:
         env = dict(os.environ, PHC_CACHE_DIR=str(Path(tmp) / "cache"), PHC_STATE_DIR=str(Path(tmp) / "state"))
+        # as installed for a user: Python's bytecode cache on (pip writes it at install time,
+        # an editable install on first import); a machine with PYTHONDONTWRITEBYTECODE set
+        # would otherwise compile phc's sources in every run
+        env.pop("PYTHONDONTWRITEBYTECODE", None)
         env.pop("PHC_FRONT_END_CACHE", None)
         off = dict(env, PHC_FRONT_END_CACHE="0")
         out = str(Path(tmp) / "p.csv")
