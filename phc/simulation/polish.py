@@ -40,6 +40,13 @@ CHORD_STEPS = 12
 """Most chord steps at one output time."""
 ROUND_OFF = 1e-13
 """Residual (of the equilibrated rows, per row) at which the system counts as solved."""
+STEP_ROUND_OFF = 1e-12
+"""A chord correction below this fraction of the unknowns' scales (or sizes) is round-off:
+the iteration stops there, without refreshing the pseudo-inverse for a step that cannot
+reduce a residual already at round-off."""
+SAME_MATRIX = 1e-14
+"""A refresh whose scaled Jacobian differs from the last one by less than this fraction of
+its largest entry keeps the pseudo-inverse (no SVD)."""
 CONTRACTION = 0.5
 """A step that shrinks the residual by less than this factor refreshes the pseudo-inverse
 (once per output time)."""
@@ -78,6 +85,7 @@ class AlgebraicPolish:
         rows, cols = self.base._shape
         self.usable = rows * cols <= DENSE_ENTRIES and cols > 0
         self.pinv = None
+        self._J = None  # the matrix of the pseudo-inverse
         self.active = None
         self.refreshes = 0
         self.improved = 0
@@ -91,7 +99,12 @@ class AlgebraicPolish:
             # residual the states leave: left out, the system is consistent and its residual
             # goes to round-off
             self.active = np.flatnonzero(np.abs(J).max(axis=1) > 0)
-        self.pinv = sla.pinv(J[self.active], atol=0.0, rtol=PINV_RTOL)
+        J = J[self.active]
+        if self._J is not None and self._J.shape == J.shape and \
+                float(np.abs(J - self._J).max()) <= SAME_MATRIX * float(np.abs(self._J).max()):
+            return True  # the same matrix (a linear model's is constant): its pseudo-inverse stands
+        self.pinv = sla.pinv(J, atol=0.0, rtol=PINV_RTOL)
+        self._J = J
         self.refreshes += 1
         return True
 
@@ -115,7 +128,10 @@ class AlgebraicPolish:
             for _ in range(CHORD_STEPS):
                 if size <= ROUND_OFF * np.sqrt(len(g)):
                     break  # solved (the rows are equilibrated: this is round-off)
-                u1 = u - prob.weights * (self.pinv @ g)
+                step = self.pinv @ g  # in units of the unknowns' scales
+                if float(np.abs(step).max()) <= STEP_ROUND_OFF * max(1.0, float(np.abs(u / prob.weights).max())):
+                    break  # the correction is round-off of the unknowns: as solved as it gets
+                u1 = u - prob.weights * step
                 g1 = prob.G(u1)[self.active]
                 size1 = float(np.linalg.norm(g1)) if np.all(np.isfinite(g1)) else np.inf
                 if size1 < size:
