@@ -31,24 +31,13 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import phc  # noqa: E402
+from phc.accuracy import relative_output_errors  # noqa: E402
 
-ROUNDOFF = 1e-10
 
 
 def _worst(run, ref) -> tuple[str, float]:
-    worst = ("—", 0.0)
-    for name, values in run.outputs.items():
-        a, b = np.asarray(values, dtype=float), np.asarray(ref.outputs[name], dtype=float)
-        k = min(len(a), len(b))
-        if a.ndim != 1 or k == 0:
-            continue
-        scale = float(np.abs(b[:k]).max())
-        if scale < ROUNDOFF:
-            continue
-        err = float(np.abs(a[:k] - b[:k]).max()) / scale
-        if err > worst[1]:
-            worst = (name, err)
-    return worst
+    errors = relative_output_errors(run, ref)
+    return max(errors.items(), key=lambda kv: kv[1], default=("—", 0.0))
 
 
 def _as_is(compiled, **kw):

@@ -87,3 +87,17 @@ def test_temporal_estimate_brackets_the_small_angle_pendulum(tmp_path, kwargs):
     assert true > 1e-8  # the integration error dominates the O(θ0³) model error
     (temporal,) = estimate_errors(compiled, result, kwargs)
     assert true / 3 < temporal.per_output["x"] < 3 * true
+
+
+def test_relative_output_errors_against_a_reference():
+    from types import SimpleNamespace
+
+    from phc.accuracy import relative_output_errors
+
+    ref = SimpleNamespace(outputs={"x": np.array([0.0, 2.0, -4.0]), "tiny": np.array([1e-17, -2e-17, 0.0]),
+                                   "field": np.zeros((3, 2))})
+    run = SimpleNamespace(outputs={"x": np.array([0.0, 2.1]),  # stopped early: compared where both are
+                                   "tiny": np.array([1e-16, 0.0, 0.0]), "field": np.ones((3, 2))})
+    errors = relative_output_errors(run, ref)
+    # x over the two times both reached (scale 2); `tiny` is round-off, `field` not scalar
+    assert set(errors) == {"x"} and abs(errors["x"] - 0.1 / 2.0) < 1e-15
