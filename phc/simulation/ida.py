@@ -90,14 +90,17 @@ def _import_ida():
     sparse Jacobian, which phc never asks for (it passes the generated Jacobian). So the
     first import is served a stand-in module whose ``group_columns`` imports scipy's on its
     first call; the stand-in is removed from ``sys.modules`` right after, so a later
-    ``import scipy.optimize`` loads scipy's own. If the stand-in import fails in any way, the
-    plain import runs instead."""
+    ``import scipy.optimize`` loads scipy's own. Python's global import lock is held
+    meanwhile, so that another thread importing ``scipy.optimize`` waits instead of finding
+    the stand-in. If the stand-in import fails in any way, the plain import runs instead."""
+    import _imp
     import sys
     import types
 
     if "sksundae.ida" not in sys.modules and _NUMDIFF not in sys.modules:
         stand_in = types.ModuleType(_NUMDIFF)
         stand_in.group_columns = _group_columns
+        _imp.acquire_lock()
         sys.modules[_NUMDIFF] = stand_in
         try:
             from sksundae.ida import IDA
@@ -109,6 +112,7 @@ def _import_ida():
         finally:
             if sys.modules.get(_NUMDIFF) is stand_in:
                 del sys.modules[_NUMDIFF]
+            _imp.release_lock()
     try:
         from sksundae.ida import IDA
     except ImportError as err:  # pragma: no cover - dependency is required
