@@ -358,6 +358,7 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, optio
                         + "; ".join(err.problems))
     pieces = [(t_out[:1], y[None, :], yp[None, :])]
     t, seg = t0, 0
+    floors: dict = {}  # the scales' round-off floor per mode (parameter vector with the modes)
     out: dict = dict(success=True, message="integration finished")
     while True:
         end = ends[seg]
@@ -367,9 +368,13 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, optio
                 active = watch if watch.mask.any() or watch.stuck.any() else None
                 seg_options = options
                 if options.get("nominal") is not None and options.get("atol"):
-                    # the round-off floor of the scales in this segment's mode (scaling.mode_floor)
-                    seg_options = dict(options, nominal=mode_floor(mod, watch.p, options["nominal"], y, yp, t0=t,
-                                                                   span=t1 - t, atol=options["atol"]))
+                    # the round-off floor of the scales in this segment's mode (scaling.mode_floor),
+                    # once per mode: a stick-slip run returns to the same few modes many times
+                    mode = watch.p.tobytes()
+                    if mode not in floors:
+                        floors[mode] = mode_floor(mod, watch.p, options["nominal"], y, yp, t0=t, span=t1 - t,
+                                                  atol=options["atol"])
+                    seg_options = dict(options, nominal=floors[mode])
                 try:
                     out = dict(backend(mod, watch.p.copy(), grid, y, yp, **seg_options, events=active))
                 except (ModelEvaluationError, KeyboardInterrupt) as err:
