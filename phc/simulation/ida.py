@@ -70,54 +70,15 @@ _STATUS_HINTS = {
 are diagnosed at the failure point (:func:`phc.simulation.monitor.diagnose_failure`)."""
 
 
-_NUMDIFF = "scipy.optimize._numdiff"
-
-
-def _group_columns(*args, **kwargs):
-    """scipy's ``group_columns``, imported when first called (see :func:`_import_ida`)."""
-    from importlib import import_module
-
-    return import_module(_NUMDIFF).group_columns(*args, **kwargs)
-
-
 def _import_ida():
-    """scikit-sundae's IDA class.
+    """scikit-SUNDAE's IDA class, loaded without ``scipy.optimize`` and NumPy's unused
+    submodules (:func:`phc.simulation._lean.import_ida`)."""
+    from phc.simulation._lean import import_ida
 
-    scikit-sundae's extension imports ``group_columns`` from ``scipy.optimize._numdiff`` when
-    it loads, and with it all of ``scipy.optimize`` (``scipy.fft``, ``scipy.special``,
-    ``scipy.linalg``'s interpolative decompositions): about 0.35 s, more than half of a small
-    model's cached ``phc simulate``. The function is only called for a finite-difference
-    sparse Jacobian, which phc never asks for (it passes the generated Jacobian). So the
-    first import is served a stand-in module whose ``group_columns`` imports scipy's on its
-    first call; the stand-in is removed from ``sys.modules`` right after, so a later
-    ``import scipy.optimize`` loads scipy's own. Python's global import lock is held
-    meanwhile, so that another thread importing ``scipy.optimize`` waits instead of finding
-    the stand-in. If the stand-in import fails in any way, the plain import runs instead."""
-    import _imp
-    import sys
-    import types
-
-    if "sksundae.ida" not in sys.modules and _NUMDIFF not in sys.modules:
-        stand_in = types.ModuleType(_NUMDIFF)
-        stand_in.group_columns = _group_columns
-        _imp.acquire_lock()
-        sys.modules[_NUMDIFF] = stand_in
-        try:
-            from sksundae.ida import IDA
-
-            return IDA
-        except Exception:  # noqa: BLE001 - fall back to the plain import below
-            for name in [m for m in sys.modules if m == "sksundae" or m.startswith("sksundae.")]:
-                del sys.modules[name]
-        finally:
-            if sys.modules.get(_NUMDIFF) is stand_in:
-                del sys.modules[_NUMDIFF]
-            _imp.release_lock()
     try:
-        from sksundae.ida import IDA
+        return import_ida()
     except ImportError as err:  # pragma: no cover - dependency is required
         raise SimulationSetupError("the IDA backend needs scikit-sundae: pip install scikit-sundae") from err
-    return IDA
 
 
 # ---------------------------------------------------------------------------------------

@@ -73,3 +73,39 @@ def test_direct_ida_calls_give_what_scikit_sundae_step_gives(monkeypatch):
     assert np.array_equal(direct.y, stepped.y)
     assert (direct.steps, direct.n_residual_evals, direct.n_jacobian_evals) == \
         (stepped.steps, stepped.n_residual_evals, stepped.n_jacobian_evals)
+
+
+def test_scipy_sparse_loads_without_numpys_unused_submodules_and_numpy_is_left_as_it_was():
+    """phc.simulation loads scipy.sparse with NumPy's star-import narrowed to its loaded names
+    (phc/simulation/_lean.py): scipy's copy of the NumPy namespace then skips f2py, testing,
+    ma, … — and still hands them out, loaded on first use; NumPy itself is restored."""
+    out = _run("""
+        import sys
+        import numpy
+        all_before, dir_before = list(numpy.__all__), sorted(dir(numpy))
+        import phc.simulation  # noqa: F401
+        print("lean" if "numpy.f2py" not in sys.modules and "numpy.testing" not in sys.modules else "full")
+        print(numpy.__all__ == all_before and sorted(dir(numpy)) == dir_before)
+        from scipy._lib.array_api_compat import numpy as xp
+        print(xp.testing is numpy.testing and xp.ma is numpy.ma)  # forwarded, loaded now
+        try:
+            xp.no_such_name
+        except AttributeError as err:
+            print("AttributeError", "no_such_name" in str(err))
+        import scipy.sparse, scipy.linalg
+        A = scipy.sparse.random(6, 6, density=0.5, random_state=1) + scipy.sparse.eye(6)
+        print(abs(scipy.linalg.pinv(A.toarray()) @ A.toarray() - numpy.eye(6)).max() < 1e-12)
+    """)
+    assert out.splitlines() == ["lean", "True", "True", "AttributeError True", "True"]
+
+
+def test_scipy_already_imported_is_left_alone():
+    out = _run("""
+        import sys
+        import scipy.sparse
+        had = "numpy.f2py" in sys.modules
+        import phc.simulation  # noqa: F401
+        from scipy._lib.array_api_compat import numpy as xp
+        print(had, "__getattr__" in vars(xp))
+    """)
+    assert out == "True False"
