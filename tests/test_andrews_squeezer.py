@@ -23,9 +23,13 @@ Bases of comparison:
 
 Measured (numpy backend; max over the seven angles of |phc − ref| / |ref|): IDA rtol 1e-8
 (the model's setting) 6.8e-8, rtol 1e-10 2.6e-10; midpoint h = 2e-5 / 1e-5: 7.8e-6 / 1.9e-6;
-midpoint4 h = 4e-5 / 2e-5: 8.1e-8 / 5.3e-9. The discrete-gradient solver stops at
+midpoint4 h = 4e-5 / 2e-5: 8.1e-8 / 5.3e-9. The discrete-gradient solver used to stop at
 t ≈ 0.0145 ("no point along the step balances the energy") for every step from 1e-5 to
-2e-6 — the xfail below.
+2e-6: the GGL projection onto the loop constraints does work on the step (the links turn
+at 10³ rad/s), and at a few steps no evaluation point balances the energy. Those steps
+are now split, and sub-steps that still cannot balance it are implicit-midpoint steps,
+counted in the run's message (phc/simulation/discrete_gradient.py); the energy balance
+stays orders of magnitude tighter than the midpoint rule's. Its accuracy converges irregularly here (see the test).
 """
 
 from __future__ import annotations
@@ -215,8 +219,18 @@ def test_fixed_step_solvers_converge_with_their_order(model, independent, solver
     assert fine < {2: 1e-5, 4: 1e-8}[order]
 
 
-@pytest.mark.xfail(strict=True, reason="discrete_gradient stops at t ≈ 0.0145: the energy residual "
-                                       "r(s) has no root on the step for every step tried (1e-5 … 2e-6)")
-def test_discrete_gradient_integrates_the_squeezer(model, independent):
-    q, r = _angles(model, solver="discrete_gradient", step=1e-5)
-    assert _rel(q, independent) < 1e-5
+def test_discrete_gradient_integrates_the_squeezer_and_says_where_the_energy_did_not_balance(model, independent):
+    # (no convergence-order check: where r(s) is nearly flat, the balancing point s* can lie far
+    # from 1/2, and such a step is only first order; the errors at h = 4e-5 … 5e-6 were
+    # 7.6e-6, 2.6e-6, 1.4e-7, 1.0e-7)
+    q_fine, r_fine = _angles(model, solver="discrete_gradient", step=1e-5)
+    assert _rel(q_fine, independent) < 1e-5
+    # where no point balanced the energy the run says so, and how many steps
+    assert "found no point that balances the energy exactly" in r_fine.message
+    split = int(r_fine.message.split("; ")[1].split(" step(s) needed")[0])
+    assert 0 < split < r_fine.steps // 100  # a few steps are split ...
+    unbalanced = int(r_fine.message.split("; ")[2].split(" of the split")[0])
+    assert 0 < unbalanced <= 16 * split  # ... and some of their sub-steps (at most 2⁴ each) unbalanced
+    # the other steps balance it exactly: far below the midpoint rule's error at the same step
+    _, mid = _angles(model, solver="midpoint", step=1e-5)
+    assert r_fine.energy_balance_relative < 1e-2 * mid.energy_balance_relative

@@ -284,6 +284,8 @@ def test_output_outside_its_domain_stops_with_its_name_line_and_time(tmp_path, s
     assert result.t[-1] <= math.pi / 4 < failed_at == pytest.approx(result.t[-1] + 0.02)
     assert np.all(result["r"] == result["r"])  # the kept values are numbers
     assert f"results up to t = {result.t[-1]:.6g} are kept" in result.message
+    # and how many output times that is: a coarse output grid may keep only the start
+    assert f"({len(result.t)} output time(s) kept, the last at t = {result.t[-1]:.6g})" in result.message
 
 
 def test_output_failing_at_the_start_is_a_model_error(tmp_path, capsys):

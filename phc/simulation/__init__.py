@@ -448,6 +448,9 @@ def _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol, params=None) -
         else:  # the solver stopped where the model cannot be evaluated: its last point goes too
             message = f"{out['message']} (cut to t = {t[-1]:.6g}: the {failure.function} fail at t = {failure.t:.6g})"
         success = False
+    if not success and len(out["t"]) and not out.get("interrupted"):
+        # "results up to t_fail": the rows kept are the output times before it
+        message = f"{message} ({n} output time(s) kept, the last at t = {t[-1]:.6g})"
     H = np.array(rows["H"], dtype=float)
     powers = np.array(rows["powers"], dtype=float).reshape(-1, 2)
     energy = y[:, mod.VARIABLES.index("energy.supplied")]

@@ -498,6 +498,8 @@ def _dg(res, jac, inv, ham, escale, t, h, y, guess, p, A, ipiv, matf, jrows, jco
     _copy(y_best, out)
     if best <= 1e3 * tol:
         return _OK
+    # no point balances the energy: the step is split in Python, and where even the shortest
+    # split step cannot balance it, its midpoint step is taken (phc.simulation.discrete_gradient)
     return _FAIL
 
 
@@ -975,12 +977,13 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
         ok, interrupted = False, True
         message = f"interrupted at t = {t_out[max(int(ist[_K]) - 1, 0)]:.6g}"
     if ok and split:
-        message += (f"; {split} step(s) needed a restart or a split for Newton to converge (the step is long "
+        message += (f"; {split} step(s) needed a restart or a split to be solved (the step is long "
                     "for the dynamics)")
     last = int(ist[_K]) - 1 if not ok else nout - 1
     return dict(t=t_out[:last + 1], y=ys[:last + 1], yp=yps[:last + 1], steps=int(ist[_STEPS]), success=ok,
                 message=message, cpu=time.process_time() - start, interrupted=interrupted,
-                nfev=int(ist[_NFEV]) + python_nfev, njev=int(ist[_NFACT]) + python_njev, compiled_loop=True)
+                nfev=int(ist[_NFEV]) + python_nfev, njev=int(ist[_NFACT]) + python_njev, compiled_loop=True,
+                unbalanced=int(getattr(python, "unbalanced", 0) or 0))
 
 
 def _counts(python) -> tuple[int, int]:

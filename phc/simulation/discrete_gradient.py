@@ -34,9 +34,20 @@ secant iteration on ``s`` around the inner (simplified Newton) solve of F, start
 Otherwise ``s* = 1/2 + O(h)`` and ``y(s*) = y_mid + O(h²)``; choosing the root nearest
 ``1/2`` makes the method symmetric, so it is of order 2 like the midpoint rule.
 
-Position constraints are imposed at the step ends as in the midpoint rule. The root exists
-for every step size when the energy changes along the segment (``φ(s) = H(y(s))`` not
-affine); when φ is affine the balance holds at any s and ``r ≡ 0``.
+Position constraints are imposed at the step ends as in the midpoint rule, by the
+stabilizing multipliers η of the GGL formulation (``q̇ = … + G(q)ᵀη``). Without them the
+root exists for every step size when the energy changes along the segment (``φ(s) =
+H(y(s))`` not affine); when φ is affine the balance holds at any s and ``r ≡ 0``. The
+projection onto the constraints does work, though, ``h ∂H/∂q · G(q)ᵀη`` at the point y(s),
+which is not a port power: zero on exact solutions, where η = 0, but not on the step. Where
+it is as large as the variation of the mean-value mismatch along the segment (fast motion
+along strongly curved constraints: Andrews' squeezing mechanism, whose links turn at
+10³ rad/s), no s balances the energy: r(s) stays on one side of 0. Such a step is split like a step
+whose Newton iteration fails (the work shrinks faster than the mismatch's variation on
+shorter steps); where even the shortest split step has no balancing point, that step is
+taken as the implicit-midpoint step (s = 1/2, second order and symmetric), counted, and
+reported with the run (``unbalanced``); the run's energy-balance error shows what those
+steps cost.
 """
 
 from __future__ import annotations
@@ -60,6 +71,9 @@ class DiscreteGradientStep:
         self.stage = StageSolver(mod, p, weights=newton_weights_of(scales, mod))
         self.e = list(mod.VARIABLES).index("energy.supplied")
         self.secant_iterations = 0
+        self.unbalanced = 0
+        """Steps where no s balanced the energy: taken as implicit-midpoint steps (module docstring)."""
+        self._midpoint = None
 
     def balance(self, t, h, y, y1) -> float:
         H = self.mod.hamiltonian
@@ -73,6 +87,7 @@ class DiscreteGradientStep:
 
     def __call__(self, t, h, y, guess):
         mod, p = self.mod, self.p
+        self._midpoint = None
         y1, r = self._solve(t, h, y, guess, 0.5)
         if r is None:
             return y1, False, SINGULAR_HINT if self.stage.singular else NEWTON_HINT
@@ -88,6 +103,7 @@ class DiscreteGradientStep:
         d = y1 - y
         curv = 4.0 * (H(t, y, p) - 2.0 * H(t + 0.5 * h, y + 0.5 * d, p) + H(t + h, y1, p))
         s_prev, r_prev, y_prev = 0.5, r, y1
+        y_half = y1
         slope = -curv if curv != 0.0 else -abs(r) * 10.0
         best = (abs(r), y1)
         s = 0.5
@@ -108,8 +124,21 @@ class DiscreteGradientStep:
             s_prev, r_prev, y_prev, s = s_new, r_new, y_new, s_new
         if best[0] <= 1e3 * tol:  # round-off floor of H's evaluation: accept
             return best[1], True, ""
+        # no point balances the energy (the constraint projection's work, module docstring): the
+        # driver splits the step; where the shortest split step fails too, `fallback` takes its
+        # implicit-midpoint step
+        self._midpoint = y_half
         return best[1], False, (f"no point along the step balances the energy (|r| = {best[0]:.1e}, "
-                                f"energy scale {scale:.1e}); reduce `step`")
+                                f"energy scale {scale:.1e})")
+
+    def fallback(self):
+        """The implicit-midpoint step of the last call if it failed only to balance the energy
+        (counted in ``unbalanced``), else None."""
+        y_half, self._midpoint = self._midpoint, None
+        if y_half is None:
+            return None
+        self.unbalanced += 1
+        return y_half
 
 
 def integrate_discrete_gradient(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=None, max_order=None,
@@ -126,10 +155,21 @@ def integrate_discrete_gradient(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps
                                        python_advance=lambda: DiscreteGradientStep(mod, p, nominal),
                                        weights=newton_weights_of(nominal, mod), scales=nominal)
         if out is not None:
-            return out
+            return _report_unbalanced(out)
     advance = DiscreteGradientStep(mod, p, nominal)
     out = integrate_fixed_step(mod, p, t_out, y0, yp0, max_steps=max_steps, progress=progress, step=step,
                                advance=advance, name="discrete gradient", names=names, events=events,
                                scales=nominal)
-    out.update(nfev=advance.stage.nfev, njev=advance.stage.matrix.factorizations)
+    out.update(nfev=advance.stage.nfev, njev=advance.stage.matrix.factorizations, unbalanced=advance.unbalanced)
+    return _report_unbalanced(out)
+
+
+def _report_unbalanced(out: dict) -> dict:
+    """The run's message says how many steps found no balancing point (module docstring)."""
+    k = int(out.get("unbalanced", 0))
+    if k:
+        out["message"] = (f"{out['message']}; {k} of the split steps' sub-steps found no point that balances "
+                          "the energy exactly (the constraint projection of the GGL formulation did work there: "
+                          "fast motion along curved constraints) and were taken as implicit-midpoint steps: the "
+                          "energy balance holds to the error reported, not to round-off")
     return out

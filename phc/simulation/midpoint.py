@@ -511,7 +511,7 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
         ok, interrupted = False, True
         message = f"interrupted at t = {t_out[k]:.6g}"
     if ok and split:
-        message += (f"; {split} step(s) needed a restart or a split for Newton to converge (the step is long "
+        message += (f"; {split} step(s) needed a restart or a split to be solved (the step is long "
                     "for the dynamics)")
     extra = {"event": event} if event is not None else {}
     return dict(t=t_out[:k + 1], y=ys[:k + 1], yp=yps[:k + 1], steps=steps, success=ok, message=message,
@@ -589,6 +589,12 @@ HARD_STEP_THRESHOLD = 1e-6
 
 def _subdivide(advance, t, h, y, depth):
     y1, ok, reason = advance(t, h, y, y.copy())
+    if not ok and depth == 0 and hasattr(advance, "fallback"):
+        # the discrete gradient's shortest split step: its midpoint step where only the energy
+        # balance failed (phc.simulation.discrete_gradient)
+        y_mid = advance.fallback()
+        if y_mid is not None:
+            return y_mid, True, ""
     if ok or depth == 0:
         return y1, ok, reason
     y_half, ok, reason = _subdivide(advance, t, 0.5 * h, y, depth - 1)
