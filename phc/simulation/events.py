@@ -468,16 +468,20 @@ def _start(watch: Watch, t0, y, yp, fixed, events, span) -> tuple[np.ndarray, np
     free[watch.stick_slots] = 0.0
     v = watch.values(t0, y, yp, free)
     state = np.flatnonzero(~watch.time_only)
-    ties = [k for k in state if _zero(v[k], y)]
     ahead = v
-    if ties:
+    if len(state):
+        # the value a little later, at a consistent state: a condition whose value at the start
+        # is no larger than its change over that instant is on its boundary as far as the start
+        # can tell (a diode at a source's zero crossing starts at -1.4e-9 V of solver round-off,
+        # a millionth of the 2e-5 V it rises by), whatever the units
         delta = 1e-7 * span
         try:
             r = consistent_initial_conditions(mod, free, t0 + delta, dict(enumerate(y + delta * yp)), set(fixed),
                                               initial_relations=False)
             ahead = watch.values(t0 + delta, r.y0, r.yp0, free)
-        except InconsistentInitialError:
+        except (InconsistentInitialError, ModelEvaluationError, *CATCH):
             pass
+    ties = [k for k in state if _zero(v[k], y) or abs(v[k]) <= abs(ahead[k] - v[k])]
     for k in state:
         side = ahead[k] if k in ties else v[k]
         watch.p[watch.slots[k]] = 1.0 if side >= 0 else -1.0
