@@ -335,6 +335,10 @@ def _summary_text(name: str, result) -> str:
     if s["initial_choices"]:
         chosen = ", ".join(f"{k} = {v:.6g}" for k, v in s["initial_choices"].items())
         lines.append(f"  initial  chosen by consistent initialization: {chosen}")
+    if s.get("reference_errors"):  # against the scene's closed forms (`reference:`)
+        shown = ", ".join(f"{k} {v['max']:.3e} (relative {v['relative']:.3e})"
+                          for k, v in s["reference_errors"].items())
+        lines.append(f"  reference max |y − y_ref| over the output times: {shown}")
     events = s.get("events") or []
     if events:  # switches of non-smooth laws (docs/events.md)
         shown = "; ".join(_event_text(e) for e in events[:5])
@@ -382,10 +386,73 @@ def _progress_for(compiled, t_end, quiet: bool):
     return Progress(opts["t_start"], end, label=compiled.name, enabled=not quiet)
 
 
+_INCONSISTENT_HINT = "change the fixed initial values or mark one as a guess (`name: {value: ..., guess: true}`)"
+
+
+def _initial_spans(compiled) -> dict:
+    """Initial value name -> where the model (or scene) file gives it, in file order."""
+    out = {}
+    for item in getattr(getattr(compiled, "dae", None), "initial", ()) or ():
+        span = getattr(item, "span", None)
+        if span is not None and getattr(item, "name", None):
+            out[item.name] = span
+    return dict(sorted(out.items(), key=lambda kv: (str(kv[1].file), kv[1].line, kv[1].col)))
+
+
+def _initial_spans_from_files(path: str) -> dict:
+    """:func:`_initial_spans` read from the files themselves (a cached front end keeps no
+    spans): the scene's `initial:` entries, then its model's."""
+    from phc.elaborate import load_spec
+    from phc.scene import is_scene_file, load_scene
+
+    out = {}
+    model = path
+    try:
+        if is_scene_file(path):
+            scene, _ = load_scene(path)
+            if scene is None:
+                return {}
+            for name in scene.spec.initial:
+                out[name] = scene.locate("initial", name)
+            model = scene.model_path
+        spec, smap, _ = load_spec(model)
+        if spec is not None:
+            for name in spec.simulation.initial:
+                out.setdefault(name, smap.locate(("simulation", "initial", name)))
+    except (OSError, ValueError, AttributeError):
+        return out
+    return out
+
+
+def _inconsistent_lines(path: str, problems: Sequence[str], compiled=None) -> list[str]:
+    """One located line per violated equation (PHC-E218): at the first fixed initial value it
+    involves, in the file's order, or at the file when none is located."""
+    import re
+
+    from phc.diagnostics import Diagnostic
+
+    spans = _initial_spans(compiled) or _initial_spans_from_files(path)
+    lines = []
+    for k, problem in enumerate(problems):
+        named = set(re.findall(r"`([^`]+)`", problem.split("fixed values involved:", 1)[-1])) \
+            if "fixed values involved:" in problem else set()
+        where = next((name for name in spans if name in named), None)
+        hint = _INCONSISTENT_HINT if k == len(problems) - 1 else None
+        if where is None:
+            lines.append(f"{path}: inconsistent initial values: {problem}" + (f". hint: {hint}" if hint else "")
+                         + " [PHC-E218]")
+            continue
+        d = Diagnostic("PHC-E218", f"inconsistent initial values: {problem}", span=spans[where], hint=hint,
+                       path=f"simulation.initial.{where}")
+        lines.append(d.render())
+    return lines
+
+
 @contextmanager
-def _simulation_errors(path: str, progress):
+def _simulation_errors(path: str, progress, compiled=None):
     """Turn setup mistakes into usage errors and inconsistent initial values into located
-    lines; the progress bar is closed either way."""
+    lines (PHC-E218, at the fixed initial value involved); the progress bar is closed
+    either way."""
     from phc import InconsistentInitialError, SimulationSetupError
     from phc import ModelEvaluationError
 
@@ -393,10 +460,8 @@ def _simulation_errors(path: str, progress):
         yield
     except InconsistentInitialError as err:
         progress.close()
-        for line in err.problems:
-            print(f"{path}: inconsistent initial values: {line}", file=sys.stderr)
-        print(f"{path}: hint: change the fixed initial values or mark one as a guess "
-              "(`name: {value: ..., guess: true}`)", file=sys.stderr)
+        for line in _inconsistent_lines(path, err.problems, compiled):
+            print(line, file=sys.stderr)
         raise _Exit(EXIT_MODEL) from None
     except SimulationSetupError as err:
         progress.close()
@@ -430,8 +495,11 @@ def cmd_simulate(args) -> int:
     run_kwargs = dict(t_end=args.t_end, params=params, rtol=args.rtol, atol=args.atol, n_out=args.n_out,
                       solver=args.solver, step=args.step)
     estimates, prof, interrupted = [], None, False
-    with _simulation_errors(args.file, progress):
+    with _simulation_errors(args.file, progress, compiled):
         try:  # Ctrl-C: keep what was computed (written below), exit 130
+            from phc.simulation import check_parameters
+
+            check_parameters(compiled, params, label=lambda name, value: f"--param {name}={value:g}", path=args.file)
             with (profiled(compiled) if args.profile else nullcontext()) as prof:
                 result = simulate(compiled, progress=progress, **run_kwargs)
         except SimulationInterrupted as stop:
@@ -575,7 +643,7 @@ def cmd_animate(args) -> int:
     compiled = _compile_or_exit(args.file, certify=not args.no_certify)
     progress = _progress_for(compiled, args.t_end, args.quiet)
     interrupted = False
-    with _simulation_errors(args.file, progress):
+    with _simulation_errors(args.file, progress, compiled):
         try:
             result = simulate(compiled, t_end=args.t_end, progress=progress)
         except SimulationInterrupted as stop:  # Ctrl-C: animate what was computed, exit 130

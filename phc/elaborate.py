@@ -140,11 +140,17 @@ class Reporter:
         self.field_dims: dict = {}  # (source map id, path[:3]) -> [(path, dimension)]: by component field
         self.units_declared = False  # some parameter has a unit (pint installed)
         self.units_si = True  # every declared unit is a coherent SI unit (no mm, MPa, ...)
+        self.fields_si = True  # every component field of known dimension is in coherent SI units
+        self.fields_checked = False  # some component field's dimension was known
+        self.param_overrides: dict[str, float] = {}  # top-level parameters set from outside the files
+        self.override_note = ""  # the scene's parameter overrides, named in refusals of their values
 
     # -- diagnostics ----------------------------------------------------------------
     def error(self, code: str, message: str, ctx: Optional[FileContext], path: Sequence = (),
               hint: Optional[str] = None, severity: str = "error", key: bool = False) -> None:
         span = None
+        if self.override_note and " at the default parameters" in message:  # a value the scene set
+            message = message.replace(" at the default parameters", f" with {self.override_note}")
         if ctx is not None:
             span = ctx.smap.locate_key(tuple(path)) if key else ctx.smap.locate(tuple(path))
         dotted = ".".join(str(p) for p in path) or None
@@ -511,6 +517,15 @@ class Builder(Reporter):
             sctx = FileContext(str(self.scene.path), self.scene.smap, "", None)
             overrides = {k: (v, ("parameters", k), sctx) for k, v in self.scene.spec.parameters.items()}
             self.sources.append(str(self.scene.path))
+        if parent is None and overrides and self.scene is not None:
+            self.override_note = ", ".join(
+                f"the scene's `{k}` = {v} ({_where(octx.smap.locate(tuple(opath)))})"
+                for k, (v, opath, octx) in overrides.items() if k not in self.param_overrides)
+        if parent is None and self.param_overrides:
+            # values from outside the files (`--param`, `simulate(params=...)`, a sweep's point):
+            # checked like values written in the file (phc.simulation.check_parameters)
+            overrides = {**overrides, **{k: (float(v), ("parameters", k), None)
+                                         for k, v in self.param_overrides.items()}}
         self.sources.append(str(path))
         ctx = FileContext(str(path), smap, prefix, spec)
         if parent is None and not self._check_expansion(ctx, key):
@@ -714,7 +729,7 @@ class Builder(Reporter):
         """Fields whose dimension the component knows from its domain (a spring's `k` is
         effort per displacement) must have it when their expression's dimension is known
         (PHC-E172)."""
-        from phc.units import NUMBER, describe, expected_fields
+        from phc.units import NUMBER, describe, expected_fields, same_dimension
 
         domains = {name[len(full) + 1:]: port.domain for name, port in self.ports.items()
                    if port.component == full}
@@ -723,6 +738,9 @@ class Builder(Reporter):
             for where, dim in self.field_dims.get((id(ctx.smap), prefix[:3]), ()):
                 if where[:len(prefix)] != prefix or dim is None or dim is NUMBER:
                     continue
+                self.fields_checked = True
+                if not same_dimension(want, dim):
+                    self.fields_si = False  # e.g. N/mm, MPa: the states are not in the domain's SI units
                 if want.dimensionality != dim.dimensionality:  # the scale is the model's choice (MPa, cm³)
                     value = getattr(comp, field_name, None)
                     shown = value if not isinstance(value, list) else "…"
@@ -834,6 +852,10 @@ class Elaboration:
     units_si: bool = False
     """Some parameters have units and all of them are coherent SI units: port variables and
     storage states then carry their domain's SI units (docs/units.md)."""
+    fields_si: bool = False
+    """Some component fields have a known dimension and all of them are in coherent SI units
+    (a spring's `k` in N/m, not N/mm): the lumped storage states are then in their domain's
+    SI units, and an initial value in another scale (mm) is refused (docs/units.md)."""
 
     def resolve_alias(self, name: str) -> str:
         return resolve_alias(self.port_aliases, name)
@@ -859,12 +881,20 @@ def _finish(b: Builder, ctx: FileContext) -> Elaboration:
         mesh_spans=ro(mesh_spans(b)), left_out=tuple(b.left_out), unavailable=ro(dict(b.unavailable)),
         sources=tuple(b.sources), files=b.files, initial_fields=ro(dict(b.initial_fields)),
         written_meshes=ro(dict(b.written_meshes)), units=ro(dict(b.units)), unit_text=ro(dict(b.unit_text)),
-        units_si=b.units_declared and b.units_si)
+        units_si=b.units_declared and b.units_si,
+        fields_si=b.units_declared and b.fields_checked and b.fields_si)
 
 
-def elaborate(path: str | os.PathLike, scene=None) -> tuple[Optional[Elaboration], DiagnosticList]:
+def _where(span) -> str:
+    return f"{span.file}:{span.line}:{span.col}" if span is not None else "the scene"
+
+
+def elaborate(path: str | os.PathLike, scene=None, params: Optional[Mapping[str, float]] = None
+              ) -> tuple[Optional[Elaboration], DiagnosticList]:
     """The elaborate pass: read a model file (and the files it nests), apply `scene` (a
     :class:`phc.scene.Scene`: overrides, effects, pruning) and lower every component.
+    `params` overrides top-level parameters by name (over the scene's), as values from
+    outside the files: the checks of values written in the file apply to them too.
 
     Returns ``(elaboration, diagnostics)``; `elaboration` is None only when the top-level
     file could not be read. With errors it is still returned, so that the interconnect
@@ -872,6 +902,7 @@ def elaborate(path: str | os.PathLike, scene=None) -> tuple[Optional[Elaboration
     """
     builder = Builder()
     builder.scene = scene
+    builder.param_overrides = dict(params or {})
     ctx = builder.load_file(Path(path), "", {}, None)
     if ctx is None:
         return None, builder.diags.sorted()

@@ -449,12 +449,13 @@ _STORAGE_STATES = {"mass": ("e", "s"), "inductor": ("e", "s"), "spring": ("f", "
 flow·time (a displacement, a charge)."""
 
 
-def variable_units(elab) -> dict:
+def variable_units(elab, si: Optional[bool] = None) -> dict:
     """Symbol -> unit of the port variables (by their domain) and of the lumped storage
     states of an elaboration whose declared units are all coherent SI units
-    (``elab.units_si``); empty otherwise: a model in scaled units (MPa, cm³) keeps its
-    variables without units, since its port variables are not in the domain's SI units."""
-    if not getattr(elab, "units_si", False) or not have_pint():
+    (``elab.units_si``, or `si` when given); empty otherwise: a model in scaled units (MPa,
+    cm³) keeps its variables without units, since its port variables are not in the
+    domain's SI units."""
+    if not (getattr(elab, "units_si", False) if si is None else si) or not have_pint():
         return {}
     out = {}
     domain_of = {}
@@ -507,6 +508,11 @@ class ResultUnits:
             self.labels["energy.supplied"] = self.labels["H"]
         reporter.units = units
         reporter.unit_text = dict(elab.unit_text)
+        # the states' units where the components are in SI (a spring's `k` in N/m) even when
+        # some parameter elsewhere is not (an initial value in mm): initial values are checked
+        # against them, scale included, since phc does not convert units
+        self.state_units = (variable_units(elab, si=True) if getattr(elab, "fields_si", False)
+                            and not elab.units_si else {})
         for v in variables:
             q = units.get(v.symbol)
             if q is not None:
@@ -570,9 +576,36 @@ class ResultUnits:
         """Check an initial value (parsed at `path`) against its state's unit."""
         if not self.active:
             return
-        want = self.reporter.units.get(sp.Symbol(name, real=True))
+        symbol = sp.Symbol(name, real=True)
+        want = self.reporter.units.get(symbol) or self.state_units.get(symbol)
         dim = self.reporter.expr_dims.get((id(ctx.smap), tuple(path)))
-        if want is None or dim is None or dim is NUMBER or want.dimensionality == dim.dimensionality:
+        if want is None or dim is None or dim is NUMBER or same_dimension(want, dim):
             return
-        self.reporter.error("PHC-E172", f"initial value of `{name}` is in {describe(dim)}, but `{name}` is in "
-                            f"{describe(want)}", ctx, path, hint="check the units of the parameters it uses")
+        written = _written_unit(ctx, path, self.reporter.unit_text)
+        if want.dimensionality == dim.dimensionality:  # mm for a state in m: a factor 1000, silently
+            factor = float(dim.magnitude) / float(want.magnitude)
+            self.reporter.error(
+                "PHC-E172", f"initial value of `{name}` is in {describe(dim, written)}, but `{name}` is in "
+                f"{describe(want)}: the same dimension in another scale, and phc does not convert units "
+                f"(1 {written or unit_label(dim)} = {factor:g} {unit_label(want)})", ctx, path,
+                hint=f"give the initial value in {unit_label(want)}: multiply the number by {factor:g}, or "
+                "declare the parameter it uses in that unit")
+            return
+        self.reporter.error("PHC-E172", f"initial value of `{name}` is in {describe(dim, written)}, but `{name}` "
+                            f"is in {describe(want)}", ctx, path, hint="check the units of the parameters it uses")
+
+
+def _written_unit(ctx, path, unit_text: Mapping) -> Optional[str]:
+    """The unit as written of an initial value that is one parameter (`x0` in `mm`), else None."""
+    try:
+        spec = ctx.spec.simulation.initial
+        value = spec.get(path[2]) if len(path) > 2 else None
+    except AttributeError:
+        return None
+    value = getattr(value, "value", value)
+    if not isinstance(value, str):
+        return None
+    for symbol, text in unit_text.items():
+        if symbol.name == (ctx.prefix or "") + value.strip():
+            return text
+    return None

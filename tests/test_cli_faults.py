@@ -115,7 +115,8 @@ def test_parameter_that_makes_the_model_singular_is_named_without_warnings(capsy
         assert main(["simulate", MSD, *NO_CERTIFY, "--quiet", "--param", "m=0"]) == 2
     captured = capsys.readouterr()
     line = one_error_line(captured.err)
-    assert "parameter `m` = 0" in line and "division by zero" in line and "`1/m`" in line, line
+    # refused as the model file refuses `m: 0` (before, the run failed on `1/m`)
+    assert "--param m=0: `m` of `mass` is 0; it must be positive" in line and "[PHC-E405]" in line, line
     assert "RuntimeWarning" not in captured.err
     assert not [w for w in caught if issubclass(w.category, RuntimeWarning)], [str(w.message) for w in caught]
 

@@ -190,8 +190,9 @@ def test_stiffness_sweep_matches_the_closed_form(tmp_path, msd):
 
 
 def test_local_pool_and_dask_localcluster_give_identical_rows_and_a_failing_point_is_a_row(tmp_path, crank):
-    """The flexible slider–crank over rod stiffness, EI = -68.27 folds the rod: that point
-    fails, is recorded, and the sweep completes on both executors."""
+    """The flexible slider–crank over rod stiffness, EI = -68.27 is refused as the model
+    file would refuse it (PHC-E141): that point fails, is recorded, and the sweep completes
+    on both executors."""
     pytest.importorskip("distributed")
     common = dict(params=[("EI", "6.827,68.27,-68.27,682.7")], t_end=0.001, workers=2, progress=False, compiled=crank)
     for executor in ("local", "dask"):
@@ -200,7 +201,8 @@ def test_local_pool_and_dask_localcluster_give_identical_rows_and_a_failing_poin
     local, dask = read_results(tmp_path / "local.csv"), read_results(tmp_path / "dask.csv")
     assert [r["point"] for r in local] == [0, 1, 2, 3] == [r["point"] for r in dask]
     assert [r["success"] for r in local] == [True, True, False, True]
-    assert "singular configuration" in local[2]["message"]
+    assert "parameter `EI` = -68.27: `EI` of `rod` must be positive" in local[2]["message"]
+    assert "[PHC-E141]" in local[2]["message"]
     assert all(same(a, b) for a, b in zip(local, dask))
     assert all(r["worker"].startswith("tcp://") for r in dask)
     # each row is what phc.simulate gives in this process, without pickling

@@ -8,6 +8,7 @@ exception; invalid options raise :class:`~phc.errors.SimulationSetupError` at on
 from __future__ import annotations
 
 import math
+import os
 import time
 import warnings
 from functools import partial
@@ -81,6 +82,86 @@ def parameter_vector(mod, overrides: Optional[dict] = None) -> np.ndarray:
     return full
 
 
+def check_parameters(compiled, params: Optional[dict], label: Optional[Callable[[str, float], str]] = None,
+                     path: Optional[str] = None) -> None:
+    """Check parameter overrides the way values written in the model file are checked: the
+    model is elaborated again with them (a few milliseconds, no code generated), and what it
+    refuses there — a storage coefficient that is not positive (PHC-E405), a mass matrix
+    that is not positive definite (PHC-E122), ... — is refused here.
+
+    `label(name, value)` names where an override comes from in messages (``--param m=-2``);
+    by default ``parameter `m` = -2``. `path` is the model or scene file, for a compiled
+    model that does not name it (the command line's cached front end). Results are
+    remembered per compiled model.
+
+    Raises
+    ------
+    SimulationSetupError
+        An override the model file would refuse: the message names the override, what is
+        wrong (with the code) and where in the model file the value is used.
+    """
+    if not params:
+        return
+    mod = compiled.module
+    defaults = dict(zip(mod.PARAMETERS, np.asarray(mod.PARAMETER_DEFAULTS, dtype=float)))
+    changed = {}
+    for key, value in params.items():
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            raise SimulationSetupError(f"parameter `{key}` must be a number, got {value!r}") from None
+        if "." not in key and key in defaults and number != float(defaults[key]):
+            changed[key] = number
+    if not changed:
+        return
+    cache = compiled.__dict__.setdefault("_parameter_checks", {})
+    key = tuple(sorted(changed.items()))
+    if key not in cache:
+        cache[key] = _parameter_problems(compiled, changed, path)
+    problems = cache[key]
+    if problems:
+        label = label or (lambda name, value: f"parameter `{name}` = {value:g}")
+        given = ", ".join(label(k, v) for k, v in changed.items())
+        raise SimulationSetupError(f"{given}: " + "; ".join(problems)
+                                   + " (a value the model file would refuse; choose another)")
+
+
+def _parameter_problems(compiled, changed: dict, path: Optional[str] = None) -> list[str]:
+    """The errors of elaborating `compiled`'s model with `changed` over its parameters."""
+    from phc.elaborate import elaborate
+    from phc.scene import is_scene_file, load_scene
+
+    scene = getattr(compiled, "scene", None)
+    sources = getattr(compiled.dae, "sources", ())
+    try:
+        if scene is not None and hasattr(scene, "model_path"):
+            model = scene.model_path
+        elif sources:
+            model = sources[0]
+        elif path is not None and is_scene_file(path):
+            scene, _ = load_scene(path)
+            if scene is None:
+                return []
+            model = scene.model_path
+        else:
+            model = path
+        if model is None:
+            return []
+        _, diags = elaborate(model, scene, params=changed)
+    except (OSError, ValueError):  # the file went away or changed: nothing to compare with
+        return []
+    out = []
+    for d in diags:
+        if getattr(d, "severity", "error") != "error":
+            continue
+        where = ""
+        if d.span is not None:
+            where = f" ({d.span.file}:{d.span.line}:{d.span.col})" if hasattr(d.span, "line") else ""
+        message = d.message.replace(" at the default parameters", "")
+        out.append(f"{message}{where} [{d.code}]")
+    return out
+
+
 def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] = None,
              rtol: Optional[float] = None, atol: Optional[float] = None, n_out: Optional[int] = None,
              t_eval=None, initial: Optional[dict] = None, solver: Optional[str] = None,
@@ -91,8 +172,9 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
 
     Parameters
     ----------
-    compiled : CompiledModel
-        From :func:`phc.compile_model`.
+    compiled : CompiledModel or path
+        From :func:`phc.compile_model`; a model or scene file's path is compiled first
+        (``phc.compile_model(path)``: compile once and pass the result to run it often).
     t_end, rtol, atol, n_out, solver, max_steps : optional
         Override the model's `simulation` defaults.
     t_eval : array_like, optional
@@ -133,6 +215,13 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
     """
     from phc.codegen.backends import for_compiled
 
+    if isinstance(compiled, (str, os.PathLike)):
+        from phc.pipeline import compile_model
+
+        compiled = compile_model(compiled)
+    elif not hasattr(compiled, "module") or not hasattr(compiled, "dae"):
+        raise TypeError(f"simulate() expects a compiled model (phc.compile_model(path)) or a model file's path, "
+                        f"got {type(compiled).__name__}")
     mod = guard(for_compiled(compiled, backend), getattr(compiled, "source", None), _locator(compiled))
     opts = dict(compiled.dae.options)
     backend = BACKENDS.get(solver or opts["solver"])
@@ -172,6 +261,7 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
             raise SimulationSetupError(f"`step` must be a finite positive number no smaller than the time span "
                                        f"over 1e300, got {step}")
     p = parameter_vector(mod, params)
+    check_parameters(compiled, params)  # the checks of values in the file (PHC-E405, E122, ...)
     values, fixed = initial_values(compiled, p, initial)
     user_nominal = nominal_indices(mod, {**opts.get("nominal", {}), **(nominal or {})})
     cpu0 = time.process_time()
