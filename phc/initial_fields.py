@@ -24,6 +24,14 @@ Which fields each component type takes (:data:`FIELDS`), and how they become dof
   projected state is the closest the mesh has to the field's energy;
 * a velocity (a co-energy ``e = c x``) is turned into its momentum by the same projection:
   ``∫ c p_h φ = ∫ v φ``;
+* on the continuous spaces (P1, Hermite H3) the projection keeps the field's *end traces*:
+  the discrete co-energy ``e_h`` (``M e_h = M_c x_h``, what the boundary ports see: an
+  end's velocity, and on Hermite elements its slope, the end's angular velocity) takes the
+  field's co-energy and its slope at ξ = 0 and ξ = L exactly, and the other rows are the
+  projection above (:func:`project_traces`). The accuracy is the projection's, and what the
+  mechanism demands of the ends is met exactly when the field meets it: a velocity field
+  that vanishes at a pinned end gives momenta whose end velocity is 0, not O(h²), so the
+  consistent initialization accepts them as given instead of calling them inconsistent;
 * the moving beam's ``velocity`` is its *elastic* transverse velocity relative to the
   chord's rigid motion, whose end velocities the rest of the mechanism decides at
   consistent initialization: it is projected onto the Hermite space with zero end values
@@ -88,6 +96,17 @@ FIELDS: dict[str, dict[str, str]] = {
 }
 """Fields by component type (`pde1d` takes its `variables` by name)."""
 
+_VALUE = [("a", "a", 0), ("b", "b", 0)]
+_PIN_TRACES = {
+    "string": {"velocity": _VALUE, "p": _VALUE},
+    "timoshenko_beam": {"velocity": _VALUE, "p": _VALUE, "angular_velocity": [("a_rot", "a", 0), ("b_rot", "b", 0)],
+                        "M": [("a_rot", "a", 0), ("b_rot", "b", 0)]},
+    "euler_bernoulli_beam": {"velocity": _VALUE + [("a_rot", "a", 1), ("b_rot", "b", 1)], "p": _VALUE},
+}
+"""The end traces a pin (`zero_flow` on the port) sets to zero, by component type and field:
+(port, end, derivative) — a port's flow is the trace of the field's co-energy
+(phc.library.beams: the ports of `_lower_partitioned`)."""
+
 _SUGGEST = {"eps": "w", "kappa": "w", "gamma": "w", "theta": "w", "p": "velocity", "M": "angular_velocity"}
 """The field to suggest instead of per-dof values of a state."""
 
@@ -151,6 +170,36 @@ def project(space, g, weight=None, keep: Optional[np.ndarray] = None) -> np.ndar
     x = np.zeros(space.size)
     idx = np.arange(space.size) if keep is None else keep
     x[idx] = spla.splu(M[idx][:, idx].tocsc()).solve(rhs[idx])
+    return x
+
+
+def trace_dofs(space) -> list[tuple[int, float, int]]:
+    """The dofs that are the traces of a continuous space at the ends: (dof, ξ, derivative);
+    none for the discontinuous spaces (P0, DP1), whose values are not what a port sees."""
+    L, n = space.mesh.length, space.mesh.elements
+    if isinstance(space, H3):
+        return [(0, 0.0, 0), (1, 0.0, 1), (2 * n, L, 0), (2 * n + 1, L, 1)]
+    if type(space).__name__ == "P1":
+        return [(0, 0.0, 0), (n, L, 0)]
+    return []
+
+
+def project_traces(space, g, traces: dict) -> np.ndarray:
+    """The L2 projection of ``g`` onto `space` whose end traces are given: the coefficients
+    x with ``x_k = traces[k]`` for the trace dofs k and ``∫ x_h φ_i = ∫ g φ_i`` for all other
+    basis functions φ_i. Like :func:`project` it reproduces every function of the space
+    (its traces are its end dofs), with the same order of accuracy."""
+    xq = space.mesh.quadrature_points()
+    values = np.broadcast_to(np.asarray(g(xq), dtype=float), xq.shape)
+    rhs = _load(space, values)
+    M = assemble(space, 0, space, 0).tocsc()
+    x = np.zeros(space.size)
+    fixed = np.array(sorted(traces), dtype=np.int64)
+    x[fixed] = [traces[k] for k in fixed]
+    keep = np.setdiff1d(np.arange(space.size), fixed)
+    if len(keep):
+        rhs = rhs - M @ x
+        x[keep] = spla.splu(M[keep][:, keep].tocsc()).solve(rhs[keep])
     return x
 
 
@@ -298,6 +347,9 @@ class FieldInitializer:
             if ex is None:
                 raise _Silent()
             exprs[field], guesses[field], spans[field] = ex, guess, self.ctx.smap.locate(vpath)
+        for field, ex in exprs.items():
+            if not guesses[field]:
+                self._check_pins(fs, field, ex)
         d = lambda ex, k=1: sp.diff(ex, XI, k)  # noqa: E731
         targets = []  # (field it comes from, local, kind "state"|"coenergy", expression)
         t = fs.type
@@ -380,6 +432,62 @@ class FieldInitializer:
                 relations = relations + self._axial_velocity(fs, exprs["axial_velocity"])
         return values, relations, drop
 
+    def _check_pins(self, fs, field, ex) -> None:
+        """A fixed velocity field must vanish where the component's end is pinned: a port of
+        the component connected directly to a `zero_flow` source (its flow, the end's velocity
+        or angular velocity, is zero). The field's end traces are kept exactly by the
+        projection (:meth:`_project_with_traces`), so a field that meets the pin gives dofs
+        that meet it; one that does not is this located error instead of rows the
+        consistent initialization reports as violated. (Other ways of holding an end still
+        reach the consistent initialization, which names the violated rows.)"""
+        checks = _PIN_TRACES.get(fs.type, {}).get(field)
+        if not checks:
+            return
+        pinned = self._pins(fs.component)
+        if not pinned:
+            return
+        L = fs.mesh.length
+        try:
+            f = self._numeric(ex)
+            scale = float(np.abs(f(fs.mesh.quadrature_points())).max(initial=0.0))
+            df = self._numeric(sp.diff(ex, XI)) if any(der for _, _, der in checks) else None
+        except (_FieldError, NameError, TypeError, ValueError, KeyError):
+            return  # reported (or not checkable) elsewhere
+        for port, end, der in checks:
+            if port not in pinned:
+                continue
+            at = np.array([0.0 if end == "a" else L])
+            try:
+                value = float((f if der == 0 else df)(at)[0])
+            except (_FieldError, TypeError, ValueError):
+                continue
+            ref = scale if der == 0 else scale / L
+            if abs(value) > 1e-9 * max(ref, 1e-300) and abs(value) > 1e-300:
+                where = "ξ = 0" if end == "a" else "ξ = L"
+                what = "its slope" if der else "it"
+                flow = "angular velocity" if der or field in ("angular_velocity", "M") else "velocity"
+                raise _FieldError(
+                    "PHC-E215", f"the initial field `{fs.component}.{field}` does not meet the pin at the end "
+                    f"`{fs.component}.{port}`: {what} is {value:.3g} at {where}, but `{pinned[port]}` (a zero_flow "
+                    f"source) holds the {flow} of that end at 0",
+                    f"give a field {'whose slope vanishes' if der else 'that vanishes'} at {where}, or mark it a guess "
+                    f"(`{fs.component}.{field}: {{value: ..., guess: true}}`): phc then changes it only where the "
+                    "pin demands", (field,))
+
+    def _pins(self, comp: str) -> dict:
+        """Ports of `comp` connected directly to a `zero_flow` source: port → source."""
+        spec = self.ctx.spec
+        types = {name: getattr(c, "type", None) for name, c in (getattr(spec, "components", {}) or {}).items()}
+        out = {}
+        for conn in getattr(spec, "connections", []) or []:
+            ends = [tuple(x.rsplit(".", 1)) for x in conn.between if "." in x]
+            if len(ends) != 2:
+                continue
+            for (c1, p1), (c2, _) in (ends, ends[::-1]):
+                if c1 == comp and types.get(c2) == "zero_flow":
+                    out[p1] = c2
+        return out
+
     def _ends_vanish(self, fs, field, ex, ends_checked=(0, 1)):
         f = self._numeric(ex)
         L = fs.mesh.length
@@ -438,9 +546,12 @@ class FieldInitializer:
         defaults = dict(self.b.default_values())
         total_num = np.zeros(space.size)
         symbolic: list = []
+        ends = trace_dofs(space)
         for a, g in terms:
             f = self._numeric(g)
-            if kind == "coenergy" and varies:
+            if ends:
+                x = self._project_with_traces(space, ends, g, f, kind, coeff if varies else None)
+            elif kind == "coenergy" and varies:
                 x = _project_coenergy(space, f, weight)
             else:
                 x = project(space, f, weight=weight)
@@ -461,6 +572,54 @@ class FieldInitializer:
                 expr = parts[0] if len(parts) == 1 else sp.Add(*parts, evaluate=False)
             out.append(InitialValue(name, float(total_num[i]), guess, span, expr))
         return out
+
+    def _project_with_traces(self, space, ends, g, f, kind, coeff) -> np.ndarray:
+        """The coefficients x of the field term `g` (numeric `f`) on a continuous space whose
+        discrete co-energy ``e_h`` has the field's end traces (:func:`project_traces`).
+
+        The co-energy density of the term is ``q = g`` for a velocity (`kind` "coenergy") and
+        ``q = c g`` for a state (c the energy coefficient; 1 when it is constant: its factor
+        is applied by the caller); ``e_h`` is the trace-keeping projection of q, and
+        ``x = M_c⁻¹ M e_h`` (x = e_h when c is constant). Without varying c this is
+        ``∫ c x_h φ = ∫ q φ`` on the interior test functions, as :func:`project`."""
+        weight = None if coeff is None else coeff.function()
+        dg = None
+        if any(d for _, _, d in ends):
+            try:
+                dg = self._numeric(sp.diff(g, XI))
+            except (_FieldError, NameError, TypeError, ValueError, KeyError):
+                dg = None  # a slope that is not finite at some ξ: keep the plain projection there
+        dw = None
+        if weight is not None and kind == "state" and any(d for _, _, d in ends):
+            dw_ex = sp.diff(coeff.expr.xreplace(dict(self.b.default_values())), XI)
+            dw_fn = sp.lambdify(XI, dw_ex, modules="numpy")  # safe: a derivative of a parsed coefficient
+            dw = lambda x: np.broadcast_to(np.asarray(dw_fn(x), dtype=float), np.shape(x))  # noqa: E731
+
+        def q(x):
+            v = f(x)
+            return v if weight is None or kind == "coenergy" else weight(np.asarray(x, dtype=float)) * v
+
+        traces = {}
+        for dof, at, der in ends:
+            pt = np.array([at])
+            try:
+                if der == 0:
+                    value = float(q(pt)[0])
+                elif dg is None:
+                    continue
+                elif weight is None or kind == "coenergy":
+                    value = float(dg(pt)[0])
+                else:
+                    value = float(dw(pt)[0] * f(pt)[0] + weight(pt)[0] * dg(pt)[0])
+            except (_FieldError, NameError, TypeError, ValueError, ZeroDivisionError):
+                continue
+            if np.isfinite(value):
+                traces[dof] = value
+        e = project_traces(space, q, traces)
+        if weight is None:
+            return e
+        M = assemble(space, 0, space, 0).tocsc()
+        return spla.splu(assemble(space, 0, space, 0, weight).tocsc()).solve(M @ e)
 
     def _axial_velocity(self, fs, ex) -> list:
         """Relations ``e_a(ξ_i) − e_a(0) = u̇_h(ξ_i)`` (axial velocity relative to the end ξ = 0)."""
@@ -522,4 +681,5 @@ def _project_coenergy(space, v, weight):
     return spla.splu(M).solve(rhs)
 
 
-__all__ = ["FIELDS", "FieldSet", "FieldInitializer", "evaluate", "project", "register"]
+__all__ = ["FIELDS", "FieldSet", "FieldInitializer", "evaluate", "project", "project_traces", "register",
+           "trace_dofs"]

@@ -9,10 +9,13 @@ Pantelides step. Rows whose derivative can always be satisfied by a nuisance unk
 their own (found by a maximum matching of rows to ÿ on the pattern of F_ẏ) are dropped
 with that unknown, so an ODE-like block adds nothing.
 
-The system ``[F; D] = 0`` is solved by Gauss–Newton with weighted minimum-norm steps:
-moving a guessed state is expensive, everything else cheap, so guesses change only as
-much as the constraints demand. Stage 1 holds all states at their values; stage 2 (only
-if stage 1 fails) lets the guessed states move. Fixed values are never moved: if the
+The system ``[F; D] = 0`` is solved by Gauss–Newton with weighted minimum-norm steps.
+Stage 1 holds all states at their values; stage 2 (only if stage 1 fails) lets the guessed
+states move, and its steps minimize the change of the guesses alone — in the energy norm
+when the guesses store energy (:meth:`_Problem.energy_metric`), else relative to their
+nominal scales — with the nuisance unknowns (rates, algebraic variables) free
+(:func:`_nested_min_norm`): guesses change only as much as the constraints demand, the
+same in every unit system. Fixed values are never moved: if the
 equations cannot hold with them, the rows that fail are reported with the variables
 they involve — never a silent snap onto the constraint manifold.
 """
@@ -42,6 +45,10 @@ if it fails there (:func:`consistent_initial_conditions`)."""
 SCALED_MISS = 1e-6
 """A row missed by more than this fraction of its largest term (scaled variables) is an
 inconsistent start however small it looks in the model's units."""
+
+ENERGY_METRIC_LIMIT = 300
+"""Up to this many guessed states their change is measured in the energy norm (its Hessian
+costs n²/2 evaluations of H); beyond, in their nominal scales."""
 
 POLISH_STEPS = 3
 """Gauss–Newton steps after convergence that refine the solution to round-off."""
@@ -104,6 +111,8 @@ class _Problem:
                                   CHEAP * s[self.zc], CHEAP * s[self.wc]])
         self.weights = weights
         self.sizes = (len(self.free), len(self.dif), len(self.zc), len(self.wc))
+        self.guess_columns = np.flatnonzero(diff[self.free])  # guessed states (stage 2)
+        self._metric = False  # energy_metric(), computed on first use
         n_init = len(getattr(mod, "INITIAL", ()))
         self.C = sps.csr_matrix((np.asarray(getattr(mod, "INITIAL_DATA", [])),
                                  (np.asarray(getattr(mod, "INITIAL_ROWS", []), dtype=np.int64),
@@ -297,6 +306,67 @@ class _Problem:
         left = float(np.linalg.norm(g0 + A @ du))
         return left > 10 * np.sqrt(len(g0)) * bound and left > 1e-8 * float(np.linalg.norm(g0))
 
+    def energy_metric(self):
+        """``T`` with ``Tᵀ K T = I``, K the Hessian of the stored energy H by the guessed
+        states at the start, when K is positive definite (momenta and strains: a field's
+        mass and stiffness matrices, a body's inverse inertia): the guesses then change as
+        little as possible in the energy norm ``ΔyᵀKΔy`` — what the change does to the
+        physics, the same in every unit system and on every mesh. None (the nominal scales
+        are the metric) when some guessed state stores no energy (a position under gravity,
+        a multiplier), when H cannot be evaluated, or beyond :data:`ENERGY_METRIC_LIMIT`
+        guesses. K comes from second differences of ``hamiltonian`` (exact for the
+        quadratic energies of fields up to rounding)."""
+        if self._metric is not False:
+            return self._metric
+        self._metric = None
+        cols = self.free[self.guess_columns]
+        n = len(cols)
+        hamiltonian = getattr(self.mod, "hamiltonian", None)
+        if hamiltonian is None or not n or n > ENERGY_METRIC_LIMIT:
+            return None
+        y0 = self.y.copy()
+        d = np.maximum(np.abs(y0[cols]), self.s[cols])
+        d = np.where(d > 0, d, 1.0)
+        try:
+            def H(delta):
+                y = y0.copy()
+                y[cols] += delta
+                return float(hamiltonian(self.t0, y, self.p))
+
+            h0 = H(np.zeros(n))
+            hp, hm = np.zeros(n), np.zeros(n)
+            for i in range(n):
+                # large enough steps that the change of H stands out of the rounding of H
+                # (a pendulum in mm and g: H ~ 6e9 of potential, ½p²/m ~ 1e-3 for p = 1)
+                for _ in range(16):
+                    e = np.zeros(n)
+                    e[i] = d[i]
+                    hp[i], hm[i] = H(e), H(-e)
+                    if abs(hp[i] + hm[i] - 2 * h0) > 1e-7 * (abs(h0) + abs(hp[i]) + abs(hm[i])):
+                        break
+                    d[i] *= 10.0
+            eye = np.diag(d)
+            K = np.diag((hp + hm - 2 * h0) / d**2)
+            for i in range(n):
+                for j in range(i + 1, n):
+                    K[i, j] = K[j, i] = (H(eye[i] + eye[j]) - hp[i] - hp[j] + h0) / (d[i] * d[j])
+        except (ModelEvaluationError, ArithmeticError, ValueError, TypeError):
+            return None
+        if not np.all(np.isfinite(K)) or not np.all(np.diag(K) > 0):
+            return None
+        D = np.sqrt(np.diag(K))
+        Kn = K / np.outer(D, D)  # unit diagonal: what is left of an exact zero is rounding
+        Kn[np.abs(Kn) < 1e-9] = 0.0
+        try:
+            Lc = np.linalg.cholesky(Kn)
+        except np.linalg.LinAlgError:
+            return None
+        if np.diag(Lc).min() < 1e-6:
+            return None  # (nearly) singular: some direction stores no energy
+        # Δy = D⁻¹ L⁻ᵀ v: ‖v‖² = Δyᵀ K Δy
+        self._metric = sla.solve_triangular(Lc.T, np.eye(n), lower=False) / D[:, None]
+        return self._metric
+
     def unpack(self, u):
         nf, nd, nz, nw = self.sizes
         y, yp, z, w = self.y.copy(), self.yp.copy(), self.z.copy(), self.w.copy()
@@ -363,14 +433,69 @@ class _Problem:
         return sps.csr_matrix((data[self._csr_perm], self._csr_indices, self._csr_indptr), shape=self._shape)
 
     def step(self, J, g):
-        """Weighted minimum-norm solution of J Δu = −g."""
+        """Weighted minimum-norm solution of J Δu = −g.
+
+        When guessed states are among the unknowns, their change is what is minimized, and
+        the nuisance unknowns (ẏ, algebraic variables, the derivatives of the hidden
+        constraints) are free: the step is the minimum-norm change ``Δy_g`` (relative to the
+        guesses' scales) among those the other unknowns can complete, then the minimum-norm
+        completion. A finite price on the nuisance unknowns would trade a guess against
+        them, and they are not of the guess's size: the rates of a wave (ė = T ∂v/∂ξ, 50 m/s
+        wave speed) are large where the momenta are 1e-3 kg/(m·s) in SI, so the cheapest
+        step shrank a pinned string's whole momentum field by 38 % instead of moving the
+        two end values the pins demand (and the answer depended on the units)."""
         JW = J @ sps.diags(self.weights)
+        guess = self.guess_columns
+        if len(guess) and JW.shape[0] * JW.shape[1] <= DENSE_LIMIT:
+            A = JW.toarray()
+            T = self.energy_metric()
+            if T is None:
+                return self.weights * _nested_min_norm(A, -g, guess)
+            A[:, guess] = J[:, guess].toarray() @ T
+            v = _nested_min_norm(A, -g, guess)
+            du = self.weights * v
+            du[guess] = T @ v[guess]
+            return du
         if JW.shape[0] * JW.shape[1] <= DENSE_LIMIT:
             # QR with column pivoting (LAPACK gelsy): minimum-norm, much cheaper than SVD
             v = sla.lstsq(JW.toarray(), -g, lapack_driver="gelsy", cond=1e-13)[0]
         else:
             v = spla.lsmr(JW, -g, atol=1e-15, btol=1e-15, maxiter=20 * max(JW.shape))[0]
         return self.weights * v
+
+
+RANGE_TOL = 1e-12
+"""Directions of the nuisance columns weaker than this, relative to the strongest, are not
+taken as their range (rounding)."""
+
+
+def _nested_min_norm(A, b, first) -> np.ndarray:
+    """A solution v of ``A v = b`` (least squares if there is none) whose part ``v[first]``
+    has the least norm among all such solutions, and whose other part then has the least
+    norm: the nuisance columns N absorb what they can for free (``b`` and the columns of
+    `first` are projected onto the complement of N's range), the `first` part is the
+    minimum-norm solution of what is left, and N completes it."""
+    n = A.shape[1]
+    rest = np.setdiff1d(np.arange(n), first)
+    G, N = A[:, first], A[:, rest]
+    v = np.zeros(n)
+    if N.shape[1]:
+        Q, R, _ = sla.qr(N, mode="economic", pivoting=True)
+        d = np.abs(np.diag(R))
+        rank = int(np.sum(d > RANGE_TOL * d[0])) if len(d) and d[0] > 0 else 0
+        Q = Q[:, :rank]
+        Gp, bp = G - Q @ (Q.T @ G), b - Q @ (Q.T @ b)
+    else:
+        Gp, bp = G, b
+    v[first] = sla.lstsq(Gp, bp, lapack_driver="gelsy", cond=1e-13)[0]
+    if N.shape[1]:
+        v[rest] = sla.lstsq(N, b - G @ v[first], lapack_driver="gelsy", cond=1e-13)[0]
+    # Where N is ill-conditioned (the stiff slope rows of a Hermite beam driven at its ends)
+    # the split can leave more of b unsolved than the plain weighted minimum-norm solution:
+    # then that one is the step (the guesses then move as the weights say, as before).
+    plain = sla.lstsq(A, b, lapack_driver="gelsy", cond=1e-13)[0]
+    miss, miss_plain = np.linalg.norm(A @ v - b), np.linalg.norm(A @ plain - b)
+    return v if miss <= 2 * miss_plain + 1e-14 * np.linalg.norm(b) else plain
 
 
 def _norm(g) -> float:

@@ -360,14 +360,27 @@ def probe_time(span: Optional[float], t_out=None) -> float:
     return tau if tau > 0 and np.isfinite(tau) else 1.0
 
 
-def _probe(mod, p, t0, y0, yp0, tau, weights) -> tuple[np.ndarray, float]:
-    """Largest |y| and energy scale over a few implicit-midpoint steps (best effort: the probe
-    stops at the first step Newton cannot do)."""
+def _throughput(mod, p, t, y, yp) -> float:
+    """``|P_ports| + |P_diss|`` at (t, y, ẏ): the power passing through, whether or not it
+    is stored (0 where it cannot be evaluated)."""
+    from phc.simulation.guard import CATCH, ModelEvaluationError
+
+    try:
+        value = float(np.abs(np.asarray(mod.powers(t, y, yp, p), dtype=float)).sum())
+    except (ModelEvaluationError, *CATCH):
+        return 0.0
+    return value if np.isfinite(value) else 0.0
+
+
+def _probe(mod, p, t0, y0, yp0, tau, weights) -> tuple[np.ndarray, float, float]:
+    """Largest |y|, energy scale and power throughput (:func:`_throughput`) over a few
+    implicit-midpoint steps (best effort: the probe stops at the first step Newton cannot do)."""
     from phc.simulation.guard import CATCH, ModelEvaluationError
     from phc.simulation.midpoint import StageSolver
 
     big = np.abs(y0).copy()
     energy = 0.0
+    power = _throughput(mod, p, t0, y0, yp0)
     try:
         energy = abs(float(mod.energy_scale(t0, y0, p)))
     except (ModelEvaluationError, *CATCH):
@@ -387,12 +400,13 @@ def _probe(mod, p, t0, y0, yp0, tau, weights) -> tuple[np.ndarray, float]:
             if not ok or not np.all(np.isfinite(y1)):
                 break
             slope = (y1 - y) / h
+            power = max(power, _throughput(mod, p, t + 0.5 * h, 0.5 * (y + y1), slope))
             y, t = y1, t + h
             np.maximum(big, np.abs(y), out=big)
             energy = max(energy, abs(float(mod.energy_scale(t, y, p))))
     except (ModelEvaluationError, *CATCH):
         pass
-    return big, energy if np.isfinite(energy) else 0.0
+    return big, energy if np.isfinite(energy) else 0.0, power
 
 
 def nominal_scales(mod, p, y0, yp0, nominal: Optional[Mapping[int, float]] = None, *, t0: float = 0.0,
@@ -510,11 +524,14 @@ def nominal_scales(mod, p, y0, yp0, nominal: Optional[Mapping[int, float]] = Non
     seen = np.where(np.isfinite(y0), np.abs(y0), 0.0)
     if not probe:
         return floor(s_start)
-    big, energy = _probe(mod, p, t0, y0, yp0, tau, 1.0 / s_start)
+    big, energy, power = _probe(mod, p, t0, y0, yp0, tau, 1.0 / s_start)
     seen = np.maximum(seen, np.where(np.isfinite(big), big, 0.0))
     s = np.maximum(s, np.where(np.isfinite(big), big, 0.0))
     if energy_index is not None:
-        s[energy_index] = max(s[energy_index], energy)
+        # the energy supplied is a sum of port and dissipated energies that may cancel (a source
+        # feeding resistors: 0 stored, 0 supplied in total): its size is the energy that passes
+        # through over the probe, whose round-off it carries
+        s[energy_index] = max(s[energy_index], energy, tau * power)
     return floor(complete(s, s[energy_index] if energy_index is not None else None))
 
 
