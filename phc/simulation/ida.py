@@ -452,11 +452,19 @@ SENSITIVITY_DENSE = 400
 what the states' tolerances allow them (:func:`determined_scales`); larger models keep theirs."""
 
 
+CANCELLATION = 10.0
+"""An index-1 variable below 1/CANCELLATION of the terms the states put into it is a
+difference of those terms (:func:`determined_scales`)."""
+
+
 def determined_scales(mod, p, t, y, yp, determined, scales, rtol: float = 1.0, atol: float = 1.0
                       ) -> Optional[np.ndarray]:
-    """The nominal `scales` with each index-1 algebraic variable z_j (`determined`) raised to
-    ``(1 + rtol/atol) Σ_k |∂z_j/∂x_k| s_k``: the error its states' own tolerances
-    (``rtol·|x_k| + atol·s_k``, with |x_k| up to s_k) put into it, over atol.
+    """The nominal `scales` with each index-1 algebraic variable z_j (`determined`) that is a
+    small difference of the terms the states put into it — ``T_j = Σ_k |∂z_j/∂x_k| s_k``
+    above ``CANCELLATION · s_j`` — raised to ``(1 + rtol/atol) T_j``: the error the states'
+    own tolerances (``rtol·|x_k| + atol·s_k``, |x_k| up to s_k) put into it, over atol.
+    Other index-1 variables keep their scales: a friction element's flow, a diode's voltage
+    are what events are located on, and they need their own tolerance.
 
     The algebraic rows determine z from the states x (and t); to first order
     ``∂z/∂x = −(F_z)⁺ F_x`` on those rows. IDA tests z like a state, at
@@ -505,7 +513,11 @@ def determined_scales(mod, p, t, y, yp, determined, scales, rtol: float = 1.0, a
         return None
     s = np.asarray(scales, dtype=float)
     ratio = rtol / atol if atol > 0 and np.isfinite(rtol / atol) else 1.0
-    need = (1.0 + ratio) * (np.abs(dz_dx) @ s[x_cols])
+    terms = np.abs(dz_dx) @ s[x_cols]
+    # where z is a small difference of the states' terms, its own rtol·|z| is far tighter than
+    # the states' rtol·|x| puts into it: that part goes into the scale too
+    cancels = terms > CANCELLATION * s[z_cols]
+    need = np.where(cancels, (1.0 + ratio) * terms, 0.0)
     out = s.copy()
     user = set(getattr(scales, "user", ()) or ())
     for j, v in zip(z_cols, need):

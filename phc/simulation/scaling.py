@@ -528,10 +528,14 @@ def nominal_scales(mod, p, y0, yp0, nominal: Optional[Mapping[int, float]] = Non
     seen = np.maximum(seen, np.where(np.isfinite(big), big, 0.0))
     s = np.maximum(s, np.where(np.isfinite(big), big, 0.0))
     if energy_index is not None:
-        # the energy supplied is a sum of port and dissipated energies that may cancel (a source
-        # feeding resistors: 0 stored, 0 supplied in total): its size is the energy that passes
-        # through over the probe, whose round-off it carries
-        s[energy_index] = max(s[energy_index], energy, tau * power)
+        s[energy_index] = max(s[energy_index], energy)
+        if atol:
+            # the energy supplied is a sum of port and dissipated energies that may cancel (a
+            # source feeding resistors: nothing stored, 0 supplied in total): it carries the
+            # round-off of the energy that passes through, and its absolute tolerance stays
+            # above that (step 10)
+            eps = np.finfo(float).eps
+            s[energy_index] = max(s[energy_index], ROUNDOFF_ULPS * eps * tau * power / atol)
     return floor(complete(s, s[energy_index] if energy_index is not None else None))
 
 
