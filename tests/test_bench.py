@@ -196,3 +196,27 @@ def test_cli_bench_runs_a_tiny_sweep(tmp_path, capsys):
     assert len(csv_rows(out / "bench.csv")) == 2
     assert main(args + ["--format", "json"]) == 0
     assert '"interrupted": false' in capsys.readouterr().out.replace("False", "false")
+
+
+def test_simulate_reports_the_error_against_a_scenes_closed_form(tmp_path, capsys):
+    """`phc simulate` of a scene with `reference:` prints max |y − y_ref| per output (and the
+    JSON summary carries it): the mass–spring–damper's x against its closed form."""
+    import json
+
+    import numpy as np
+
+    from phc.cli import main
+
+    scene = msd_scene(tmp_path)
+    assert main(["simulate", str(scene), "--quiet", "--format", "json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    err = summary["reference_errors"]["x"]
+    run = phc.simulate(phc.compile_model(scene))
+    w = math.sqrt(3.96)
+    exact = 0.5 * np.exp(-0.2 * run.t) * (np.cos(w * run.t) + 0.2 / w * np.sin(w * run.t))
+    assert err["max"] == pytest.approx(np.abs(run["x"] - exact).max(), rel=1e-6, abs=1e-15)
+    assert err["relative"] == pytest.approx(err["max"] / np.abs(exact).max(), rel=1e-6)
+    assert 0 < err["max"] < 1e-4
+    assert main(["simulate", str(scene), "--quiet"]) == 0
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if ln.strip().startswith("reference"))
+    assert f"x {err['max']:.3e} (relative {err['relative']:.3e})" in line

@@ -76,6 +76,23 @@ class SimResult:
         except ValueError:
             raise KeyError(f"no variable or output named `{name}`") from None
 
+    def reference_errors(self) -> dict:
+        """``{output: {"max": max_t |y − y_ref|, "relative": that over max_t |y_ref|}}`` for
+        every output a scene gives a closed form of (``reference:``, its ``<name>_reference``
+        output), over the output times of the run."""
+        out = {}
+        for name, ref in self.outputs.items():
+            if not name.endswith("_reference") or name[: -len("_reference")] not in self.outputs:
+                continue
+            y = np.asarray(self.outputs[name[: -len("_reference")]], dtype=float)
+            r = np.asarray(ref, dtype=float)
+            if y.shape != r.shape or not y.size:
+                continue
+            err = float(np.abs(y - r).max())
+            size = float(np.abs(r).max())
+            out[name[: -len("_reference")]] = {"max": err, "relative": err / size if size > 0 else float("nan")}
+        return out
+
     def summary(self) -> dict:
         """The JSON summary printed by `phc simulate --format json`."""
         return {
@@ -98,6 +115,7 @@ class SimResult:
             "constraint_drift": float(self.constraint_drift),
             "velocity_drift": float(self.velocity_drift),
             "initial_choices": self.initial_choices,
+            "reference_errors": self.reference_errors(),
             "events": [e.as_dict() for e in self.events],
             "units": dict(self.units),
         }
