@@ -120,6 +120,8 @@ class Scene:
             for comp in sorted(skip):
                 builder.skip.add(comp)
                 builder.leave_out(comp, "the whole component", reason)
+            self._unused(builder, skip)
+            update["nominal"] = {k: v for k, v in update["nominal"].items() if k.split(".", 1)[0] not in skip}
             exposed = {pname for pname, exp in spec.ports.items() if exp.port.split(".", 1)[0] in skip}
             update["inputs"] = {k: v for k, v in update["inputs"].items() if k not in exposed}
             update["initial"] = {k: v for k, v in update["initial"].items() if k.split(".", 1)[0] not in skip}
@@ -127,6 +129,22 @@ class Scene:
         new_sim = type(sim).model_validate({**sim.model_dump(exclude_unset=True), **update})
         return spec.model_copy(update={"simulation": new_sim}), _Overlay(smap, self.smap, s)
 
+
+    def _unused(self, builder, skip: set) -> None:
+        """A warning at each entry of this scene about a component it leaves out (PHC-W608):
+        the entry is not used, and a typo in it could not be found."""
+        s = self.spec
+        entries = [(("initial", k), k) for k in s.initial] + [(("nominal", k), k) for k in s.nominal]
+        entries += [(("effects", k), k) for k in s.effects] + [(("accuracy", "mesh", k), k) for k in s.accuracy.mesh]
+        entries += [(("initial_shape", k), k) for k in s.initial_shape]
+        for where, name in entries:
+            top = name.split(".", 1)[0]
+            if top in skip:
+                builder.diags.append(Diagnostic(
+                    "PHC-W608", f"`{'.'.join(where[:-1])}` of `{name}` is not used: this scene leaves out `{top}`, "
+                    "which cannot influence the requested outputs (nor is the entry checked)",
+                    span=self.smap.locate_key(where), severity="warning",
+                    hint=f"remove the entry, request an output that depends on `{top}`, or set `prune: false`"))
 
     def _reference_values(self, builder, sim, update, requested) -> None:
         """Read and check `reference_values` (PHC-E607 at the file's row or the entry)."""
@@ -174,7 +192,7 @@ def _prune(spec, outputs: dict) -> tuple[set[str], str]:
 class _Overlay:
     """The model's source map, with the scene's entries located in the scene file."""
 
-    _MOVED = {"initial": ("initial",), "inputs": ("inputs",), "outputs": ("outputs",)}
+    _MOVED = {"initial": ("initial",), "nominal": ("nominal",), "inputs": ("inputs",), "outputs": ("outputs",)}
 
     def __init__(self, model: SourceMap, scene: SourceMap, spec: SceneSpec) -> None:
         self.model, self.scene, self.spec = model, scene, spec

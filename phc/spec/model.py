@@ -108,6 +108,7 @@ class SimulationSpec(SpecModel):
 
     t_end: float = Field(1.0, gt=0)
     t_start: float = 0.0
+    """Start time of the run (before `t_end`)."""
     n_out: int = Field(201, ge=2, le=10_000_000)
     """Number of output points (including both ends)."""
     rtol: float = Field(1e-8, gt=0, lt=1)
@@ -144,6 +145,15 @@ class SimulationSpec(SpecModel):
     outputs: dict[Identifier, Union[Expr, OutputSpec]] = {}
     """Named output expressions over variables (`component.x`), `t` and `H`; either
     `name: expression` or `name: {value, unit, description}`."""
+
+    @field_validator("t_start")
+    @classmethod
+    def _start_before_end(cls, value, info):
+        end = info.data.get("t_end")
+        if end is not None and not value < end:
+            raise ValueError(f"`t_start` ({value}) must be before `t_end` ({end}); set t_end to the time the "
+                             "run should reach")
+        return value
 
 
 class ModelSpec(SpecModel):
