@@ -332,7 +332,10 @@ def _convert(err: dict[str, Any], allowed_keys: Optional[AllowedKeys]) -> tuple[
         return "PHC-E012", "number must be finite (no .inf/.nan)", None, ""
     if etype in _EXPECTED or etype.endswith("_type") or etype.endswith("_parsing"):
         expected = _EXPECTED.get(etype) or etype.rsplit("_", 1)[0].replace("_", " ")
-        return "PHC-E013", f"expected {expected}, got {_found(value)}", None, expected
+        hint = None
+        if len(loc) == 2 and loc[0] == "ports" and isinstance(value, str) and "mapping" in expected:
+            hint = f"an exposed port names its inner port: write `{loc[1]}: {{port: {value}}}`"
+        return "PHC-E013", f"expected {expected}, got {_found(value)}", hint, expected
     if etype in ("union_tag_invalid", "union_tag_not_found"):
         disc = _quoted_list(str(ctx.get("discriminator", "'type'")))
         disc_name = disc[0] if disc else "type"
