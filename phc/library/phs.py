@@ -27,6 +27,21 @@ from phc.library.dirac import DiracBuilder, emit
 from phc.spec.expressions import ExpressionError, parse_equation
 
 
+def _nonlinear_term(expr, variables: set):
+    """A term of `expr` that is not linear in `variables` (a product of two of them, a power,
+    a function of one), or None."""
+    for term in sp.Add.make_args(sp.expand(expr)):
+        used = term.free_symbols & variables
+        if not used:
+            continue
+        if len(used) > 1:
+            return term
+        (v,) = used
+        if (sp.diff(term, v).free_symbols & variables):
+            return term
+    return None
+
+
 def local_scope(b, ctx, name, spec, path) -> dict:
     """Scope with the model's parameters, `t` and the component's own `parameters`."""
     scope = {"t": T, **ctx.params}
@@ -250,13 +265,25 @@ def _lower_kernel(b, ctx, name, spec, path, scope, xs, dxs, grad, span):
             d.efforts.append(ek)
     for mname in spec.multipliers:
         d.multipliers.append(scope[mname])
+    port_symbols = set(d.flows) | set(d.efforts) | set(d.multipliers)
     for i, rel in enumerate(relations):
         ex = b.expr(ctx, rel, (*path, "relations", i), scope, equation=True)
         b.add_equation(ex, name, "dirac", f"relations[{i}]", ctx.smap.locate((*path, "relations", i)))
         try:
-            d.rel(parse_equation(rel, cert_scope))
+            rel_ex = parse_equation(rel, cert_scope)
         except ExpressionError:
-            pass  # reported above
+            continue  # reported above
+        product = _nonlinear_term(rel_ex, port_symbols)
+        if product is not None:
+            product = product.xreplace({v: sp.Symbol(v.name.rsplit(".", 1)[-1])
+                                        for v in product.free_symbols & port_symbols})
+            b.error("PHC-E118", f"relation `{rel}` of `{name}` is not linear in the flows, efforts and multipliers "
+                    f"(`{product}`): a Dirac structure is a linear subspace of them; its coefficients may depend "
+                    "on the states (a modulated structure), not on flows or efforts", ctx, (*path, "relations", i),
+                    hint="put the nonlinearity into the Hamiltonian or a resistive law, or write the coefficient "
+                    "with the state (`x`) instead of its effort (`e_x`)")
+            continue
+        d.rel(rel_ex)
     law_exprs: dict[str, list] = {}
     for rname, rspec in laws:
         law_exprs[rname] = []
