@@ -120,6 +120,23 @@ def test_unknown_key_fails_both_jsonschema_and_pydantic(where):
         ModelSpec.model_validate(data)
 
 
+@pytest.mark.parametrize("where, name", [("parameters", "2x"), ("parameters", "pi"), ("components", "my-mass"),
+                                         ("outputs", "t"), ("parameters", "sin")])
+def test_a_name_phc_refuses_fails_the_json_schema_too(where, name):
+    """Names are a letter followed by letters, digits or `_`, and not reserved: the schema
+    said only `object`, so a user's CI accepted `my-mass` or `pi` that phc refuses."""
+    data = copy.deepcopy(load_yaml(REPO / "models" / "pendulum.yaml"))
+    if where == "parameters":
+        data["parameters"][name] = 1.0
+    elif where == "components":
+        data["components"][name] = {"type": "mass", "m": 1.0}
+    else:
+        data["simulation"]["outputs"][name] = "pendulum.x"
+    assert list(validator().iter_errors(data)) != []
+    with pytest.raises(pydantic.ValidationError):
+        ModelSpec.model_validate(data)
+
+
 def test_wrong_type_fails_both_jsonschema_and_pydantic():
     data = copy.deepcopy(load_yaml(REPO / "models" / "pendulum.yaml"))
     data["simulation"]["n_out"] = "many"

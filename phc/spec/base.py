@@ -48,7 +48,12 @@ def _check_identifier(name: str) -> str:
     return name
 
 
-Identifier = Annotated[str, AfterValidator(_check_identifier)]
+IDENTIFIER_PATTERN = "^[A-Za-z][A-Za-z0-9_]*$"
+""":data:`IDENTIFIER_RE` as the JSON Schema states it (with the reserved names excluded,
+:func:`phc.spec.export.build_schema`)."""
+
+Identifier = Annotated[str, AfterValidator(_check_identifier),
+                       WithJsonSchema({"type": "string", "pattern": IDENTIFIER_PATTERN})]
 """A name: a letter followed by letters, digits or underscores."""
 
 EXPR_DESCRIPTION = ("A number or an expression string over parameters, states and `t` "

@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from phc.spec.base import EXPR_DESCRIPTION
+from phc.spec.base import EXPR_DESCRIPTION, IDENTIFIER_PATTERN, RESERVED
 from phc.spec.model import ModelSpec
 from phc.spec.scene import SceneSpec
 
@@ -32,11 +32,38 @@ def _describe_expressions(node) -> None:
             _describe_expressions(value)
 
 
+def _names(node) -> None:
+    """Names (parameters, components, ports, outputs, ...) as phc accepts them: a mapping
+    keyed by names gets ``propertyNames`` (pydantic writes ``patternProperties``, which
+    would let any other key through), and every name excludes the reserved ones."""
+    if isinstance(node, dict):
+        pattern_props = node.get("patternProperties")
+        if isinstance(pattern_props, dict) and set(pattern_props) == {IDENTIFIER_PATTERN}:
+            node.pop("patternProperties")
+            node["additionalProperties"] = pattern_props[IDENTIFIER_PATTERN]
+            node["propertyNames"] = {"$ref": "#/$defs/Name"}
+        elif node.get("type") == "string" and node.get("pattern") == IDENTIFIER_PATTERN:
+            del node["type"], node["pattern"]
+            node["$ref"] = "#/$defs/Name"
+        for value in node.values():
+            _names(value)
+    elif isinstance(node, list):
+        for value in node:
+            _names(value)
+
+
+NAME_SCHEMA = {"type": "string", "pattern": IDENTIFIER_PATTERN, "not": {"enum": sorted(RESERVED)},
+               "description": "A name: a letter followed by letters, digits or `_`, not one phc reserves "
+                              "(`t`, `pi`, function names, ...)."}
+
+
 def build_schema(name: str = "model.schema.json") -> dict:
     """The JSON Schema (draft 2020-12) for one of :data:`SCHEMAS`."""
     model = SCHEMAS[name]
     schema = model.model_json_schema(mode="validation")
     _describe_expressions(schema)
+    _names(schema)
+    schema.setdefault("$defs", {})["Name"] = NAME_SCHEMA
     if name == "model.schema.json":
         # The shorthand `- [a.port, b.port]` is accepted by a mode="before" validator
         # that pydantic's schema cannot see; publish it so editors accept it too.
