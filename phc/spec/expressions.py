@@ -20,6 +20,8 @@ appear inside a condition (sympy would solve inequalities to simplify it).
 from __future__ import annotations
 
 import ast
+import re
+import keyword
 import cmath
 import difflib
 import math
@@ -73,6 +75,30 @@ class FunctionSpec:
     min_args: int
     max_args: int | None      # None: no upper bound
     build: Callable[..., sp.Basic]
+
+
+_WORD = re.compile(r"(?<![A-Za-z0-9_.])[A-Za-z_][A-Za-z0-9_]*(?:\.[A-Za-z_][A-Za-z0-9_]*)*")
+
+
+def _keyword_as_name(body: str):
+    """``(keyword, column)`` of a Python keyword used as (part of) a name in `body` —
+    ``lambda*2``, ``osc.in.f`` — or None. Expressions are read with Python's grammar, where
+    such a name is a syntax error; the message should say why. (Operators and constructs
+    that are keywords, `and`, `if … else`, `lambda x: …`, have messages of their own.)"""
+    constructs = {"and", "or", "not", "if", "else", "in", "is"}
+    for match in _WORD.finditer(body):
+        parts = match.group(0).split(".")
+        for k, part in enumerate(parts):
+            if not keyword.iskeyword(part):
+                continue
+            if len(parts) == 1:
+                rest = body[match.end():].lstrip()
+                if part in constructs or (part == "lambda" and (rest[:1] == ":" or rest[:1].isalpha()
+                                                                or rest[:1] == "_")):
+                    continue
+            return part, match.start() + sum(len(q) + 1 for q in parts[:k])
+    return None
+    return None
 
 
 def _minmax(f: Callable, args: tuple) -> sp.Expr:
@@ -448,6 +474,10 @@ def _parse_tree(text: str) -> tuple[ast.Expression, str, int]:
         col = offset + min(max((exc.offset or 1) - 1, 0), len(body))
         if "too many nested parentheses" in str(exc.msg):
             raise ExpressionError("expression is nested too deeply", col) from None
+        named = _keyword_as_name(body)
+        if named is not None:
+            raise ExpressionError(f"`{named[0]}` is a keyword of the expression syntax and cannot be used as a "
+                                  "name in an expression; rename what is called so", offset + named[1]) from None
         detail = "" if exc.msg == "invalid syntax" else f": {exc.msg}"
         raise ExpressionError(f"invalid syntax{detail}", col) from None
     except (RecursionError, MemoryError):

@@ -366,3 +366,14 @@ TOKENS = ["x", "y", "e", "p", "a.b", "p[0]", "p[-3]", "pi", "0", "1", "2", "9", 
 @given(st.lists(st.sampled_from(TOKENS), max_size=25).map("".join))
 def test_fuzz_token_soup(text):
     _never_crashes(text)
+
+
+@pytest.mark.parametrize("text, word, col", [("Tru*class", "class", 4), ("osc.in.f*2", "in", 4),
+                                             ("lambda*2", "lambda", 0), ("2 + def.x", "def", 4)])
+def test_a_keyword_used_as_a_name_is_named_in_the_error(text, word, col):
+    """A parameter, component or port named like a keyword of the syntax (`lambda`, `in`)
+    cannot appear in an expression: the error says so instead of 'invalid syntax'."""
+    with pytest.raises(ExpressionError) as info:
+        parse_expression(text, {})
+    assert f"`{word}` is a keyword of the expression syntax" in str(info.value)
+    assert info.value.col == col
