@@ -229,9 +229,17 @@ def check_connections(b, ctx) -> Interconnection:
         if ok:
             valid.append((pa, pb, span, label))
     exposed = set()
+    exposed_as: dict[str, str] = {}
     for pname, exp in ctx.spec.ports.items():
         full = b.resolve_alias(exp.port)
         if full in b.ports:
+            if full in exposed_as:
+                diags.append(Diagnostic(
+                    "PHC-E207", f"port `{exp.port}` is exposed twice, as `{exposed_as[full]}` and as `{pname}`",
+                    span=ctx.smap.locate(("ports", pname)), path=f"ports.{pname}",
+                    hint="expose a port once; to give it two connections outside, expose a `junction`'s port"))
+                continue
+            exposed_as[full] = pname
             if full in used:
                 diags.append(Diagnostic(
                     "PHC-E207", f"port `{exp.port}` is both exposed as `{pname}` and connected ({used[full]})",
