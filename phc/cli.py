@@ -232,6 +232,11 @@ def _backend_line(compiled, requested=None) -> str:
     return f"  backend  {describe(compiled.module, requested)}"
 
 
+MAX_FILE_STEM = 120
+"""`phc compile` names the module after the model, shortened beyond this many characters
+(with a hash of its source, so that two long names stay apart): file systems allow 255 bytes."""
+
+
 def cmd_compile(args) -> int:
     from phc import ModelError, SimulationSetupError, compile_model
     from phc.io import write_text
@@ -248,7 +253,12 @@ def cmd_compile(args) -> int:
             continue
         files.report(path, [d for d in compiled.diagnostics if d.severity != "error"], True)
         out_dir.mkdir(parents=True, exist_ok=True)
-        target = write_text(out_dir / f"{compiled.name}.py", compiled.source)
+        name = compiled.name
+        if len(name) > MAX_FILE_STEM:
+            import hashlib
+
+            name = f"{name[:MAX_FILE_STEM - 17]}_{hashlib.sha256(name.encode()).hexdigest()[:16]}"
+        target = write_text(out_dir / f"{name}.py", compiled.source)
         files.status(f"{path}: wrote {target} ({compiled.n_states} states, {compiled.n_equations} equations, "
                      f"{compiled.jacobian_nnz} Jacobian nonzeros, compiled in {compiled.compile_time:.2f} s)")
         for line in [_certificate_line(compiled), _backend_line(compiled, args.backend),

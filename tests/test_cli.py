@@ -86,6 +86,19 @@ def test_compile_writes_the_generated_module(tmp_path, capsys):
     assert str(target) in capsys.readouterr().out
 
 
+def test_compile_of_a_model_with_a_very_long_name_writes_a_shortened_file_name(tmp_path, capsys):
+    """A 300-letter model name (a valid name) ended in an internal error: a file name is at
+    most 255 bytes. The module's name is shortened, with a hash of the full name."""
+    text = Path(MSD).read_text().replace("name: mass_spring_damper", "name: " + "a" * 300)
+    assert "a" * 300 in text
+    model = tmp_path / "long.yaml"
+    model.write_text(text)
+    assert main(["compile", str(model), "-o", str(tmp_path / "out")]) == 0
+    (written,) = (tmp_path / "out").iterdir()
+    assert written.name.startswith("a" * 100) and len(written.name) <= 125 and written.suffix == ".py"
+    assert written.read_text() == phc.compile_model(model).source
+
+
 # -- simulate ----------------------------------------------------------------------
 
 SUMMARY_KEYS = {"success", "message", "n_states", "n_equations", "steps", "cpu_time_s", "energy_balance_error",
