@@ -501,6 +501,8 @@ def cmd_simulate(args) -> int:
             compiled = _recompile_for_params(compiled, args.file, params, certify=not args.no_certify)
         if compiled is first:
             recorder.store(compiled)
+    if args.format != "json":  # the model's warnings, as `phc validate` prints them (also from the cache)
+        _print_diagnostics([d for d in compiled.diagnostics if d.severity == "warning"])
     progress = _progress_for(compiled, args.t_end, args.quiet)
     run_kwargs = dict(t_end=args.t_end, params=params, rtol=args.rtol, atol=args.atol, n_out=args.n_out,
                       solver=args.solver, step=args.step)

@@ -115,7 +115,7 @@ class CachedModel:
         self.name = record["name"]
         self.module, self.module_path, self.source = module, module_path, record["source"]
         self.timings = {"load": seconds}
-        self.diagnostics = ()
+        self.diagnostics = tuple(StoredDiagnostic(sev, line) for sev, line in record.get("warnings", ()))
         self.start_state = None
         self.dae = SimpleNamespace(
             name=d["name"], n_states=d["n_states"], options=d["options"], units=d["units"], parameters=(),
@@ -536,6 +536,7 @@ def _record(compiled, backend: Optional[str]) -> Optional[dict]:
         "full_size": compiled.full_size(),
         "output_spans": {name: _span_of(_output_span(compiled, name)) for name in mod.OUTPUTS},
         "backend_line": _backend_line(compiled, backend),
+        "warnings": [[d.severity, d.render()] for d in compiled.diagnostics if d.severity == "warning"],
     }
 
 

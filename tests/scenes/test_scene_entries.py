@@ -75,3 +75,14 @@ def test_t_start_after_t_end_is_refused_where_it_is_written(tmp_path, capsys):
     assert main(["validate", str(path)]) == 1
     line = capsys.readouterr().err.strip().splitlines()[0]
     assert line.startswith(f"{path}:18:12: simulation.t_start: `t_start` (2.0) must be before `t_end` (1.0)"), line
+
+
+def test_simulate_prints_the_models_warnings_also_from_its_cache(tmp_path, capsys, monkeypatch):
+    """`phc simulate` printed no warning where `phc validate` did; a second run, from the
+    cached front end, prints the same."""
+    monkeypatch.setenv("PHC_CACHE_DIR", str(tmp_path / "cache"))
+    path = _files(tmp_path, "initial: {osc.x: 0.3}\n")
+    for _ in range(2):
+        assert main(["simulate", str(path), "--quiet"]) == 0
+        err = capsys.readouterr().err
+        assert f"{path}:3:11: warning: `initial` of `osc.x` is not used" in err, err
