@@ -485,6 +485,9 @@ def _run_point(compiled, solver, value, mesh, t_out, repeats, outputs, closed, r
         if not res.success:
             break
     row.success, row.message = bool(result.success), result.message
+    if solver in FIXED_STEP and getattr(result, "step", None):
+        # the step taken: no longer than asked nor an output interval (d / ceil(d / h))
+        row.step = float(result.step)
     row.cpu_time_s, row.cpu_time_median_s, row.repeats = min(times), statistics.median(times), len(times)
     row.steps, row.n_residual_evals, row.n_jacobian_evals = result.steps, result.n_residual_evals, result.n_jacobian_evals
     row.energy_balance_relative = float(result.energy_balance_relative)

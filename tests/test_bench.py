@@ -220,3 +220,14 @@ def test_simulate_reports_the_error_against_a_scenes_closed_form(tmp_path, capsy
     assert main(["simulate", str(scene), "--quiet"]) == 0
     line = next(ln for ln in capsys.readouterr().out.splitlines() if ln.strip().startswith("reference"))
     assert f"x {err['max']:.3e} (relative {err['relative']:.3e})" in line
+
+
+def test_a_fixed_step_row_reports_the_step_taken(tmp_path):
+    """The output interval (0.1 s) is split into equal steps no longer than asked: 0.04 gives
+    three steps of 1/30 s. The row said 0.04, and the work-precision table then showed a
+    wrong order."""
+    report = run_bench(msd_scene(tmp_path), solvers=["midpoint"], steps=[0.04], out_dir=tmp_path / "out",
+                       progress=False)
+    (row,) = report.rows
+    assert row.step == pytest.approx(0.1 / 3)
+    assert float(csv_rows(tmp_path / "out" / "bench.csv")[0]["step"]) == pytest.approx(0.1 / 3)
