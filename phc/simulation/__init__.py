@@ -525,6 +525,10 @@ def _evaluate_along(mod, out) -> tuple[dict, Optional[ModelEvaluationError]]:
     return rows, failure
 
 
+MANY_STEPS = 100_000
+"""A successful IDA run with more steps than this says what may cost them (`_finish`)."""
+
+
 def _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol, params=None) -> SimResult:
     rows, failure = _evaluate_along(mod, dict(out, p=p))
     n = len(rows["H"])
@@ -532,6 +536,12 @@ def _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol, params=None) -
         raise _setup_error(failure, params)
     t, y, yp = out["t"][:n], out["y"][:n], out["yp"][:n]
     success, message = out["success"], out["message"]
+    steps = int(out.get("steps", 0) or 0)
+    if solver == "ida" and success and steps > MANY_STEPS and len(out["t"]) > 1:
+        span = float(out["t"][-1] - out["t"][0])
+        message = (f"{message}; IDA needed {steps} steps (mean step {span / steps:.2g}): where stiff undamped "
+                   "modes (a beam's high modes, a stiff spring) limit BDF at orders 3–5, a fixed-step solver "
+                   "(`--solver midpoint --step …`) steps over them (docs/how-to/solvers.md)")
     if failure is not None:
         if out["success"]:
             message = f"{failure}; results up to t = {t[-1]:.6g} are kept"

@@ -216,3 +216,18 @@ def test_without_idas_counters_the_run_is_the_same(oscillator, monkeypatch):
     assert slow["steps"] >= fast["steps"]
     stopped = integrate_ida(mod, p, t_out, init.y0, init.yp0, rtol=1e-9, atol=1e-11, max_steps=200)
     assert not stopped["success"] and "max_steps" in stopped["message"] and 1 < len(stopped["t"]) < 61
+
+
+def test_a_successful_run_with_very_many_steps_says_what_may_cost_them(monkeypatch):
+    """A free beam spun up took 840 000 IDA steps with `success` and no word; beyond
+    MANY_STEPS the message names the likely cause and the remedy."""
+    import phc
+    import phc.simulation as sim
+
+    compiled = phc.compile_model(MODELS / "mass_spring_damper.yaml", certify=False)
+    quiet = phc.simulate(compiled)
+    assert quiet.success and quiet.message == "integration finished"
+    monkeypatch.setattr(sim, "MANY_STEPS", quiet.steps - 1)
+    loud = phc.simulate(compiled)
+    assert loud.success and f"IDA needed {quiet.steps} steps" in loud.message
+    assert "--solver midpoint" in loud.message
