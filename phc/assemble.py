@@ -148,6 +148,7 @@ def _assemble(b, ctx, inter) -> Optional[Dae]:
         else:
             which = "effort" if inp.effort is not None else "flow"
             targets = port.e if which == "effort" else port.f
+            signals.expect, signals.scales = (port.domain, which, pname), dict(getattr(b.elab, "scales", {}) or {})
             values = _signals(b, ctx, signals, getattr(inp, which), (*path, which), port.dimension,
                               f"input {which} of `{pname}`")
         for k, (sym, val) in enumerate(zip(targets, values)):

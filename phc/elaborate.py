@@ -142,6 +142,7 @@ class Reporter:
         self.units_si = True  # every declared unit is a coherent SI unit (no mm, MPa, ...)
         self.fields_si = True  # every component field of known dimension is in coherent SI units
         self.fields_checked = False  # some component field's dimension was known
+        self.scale_system = None  # phc.units.ScaleSystem: the model's unit system, from its fields' units
         self.param_overrides: dict[str, float] = {}  # top-level parameters set from outside the files
         self.override_note = ""  # the scene's parameter overrides, named in refusals of their values
 
@@ -729,10 +730,11 @@ class Builder(Reporter):
         """Fields whose dimension the component knows from its domain (a spring's `k` is
         effort per displacement) must have it when their expression's dimension is known
         (PHC-E172)."""
-        from phc.units import NUMBER, describe, expected_fields, same_dimension
+        from phc.units import NUMBER, ScaleSystem, describe, expected_fields, same_dimension, scale_terms
 
         domains = {name[len(full) + 1:]: port.domain for name, port in self.ports.items()
                    if port.component == full}
+        terms = scale_terms(comp, domains)
         for field_name, want, meaning in expected_fields(comp, domains):
             prefix = (*path, field_name)
             for where, dim in self.field_dims.get((id(ctx.smap), prefix[:3]), ()):
@@ -748,6 +750,42 @@ class Builder(Reporter):
                                f"`{shown}` is in {describe(dim)}", ctx, where,
                                hint="check the units of the parameters it uses (or the component's `domain`)")
                     break
+                if field_name in terms:
+                    if self.scale_system is None:
+                        self.scale_system = ScaleSystem()
+                    self._check_scale(ctx, full, comp, field_name, where, want, dim, terms[field_name])
+
+    def _check_scale(self, ctx: FileContext, full: str, comp, field_name: str, where, want, dim, coeffs) -> None:
+        """A field's scale must fit the model's one system of units (phc.units.ScaleSystem):
+        `k` in N/mm beside a mass in kg, or a speed in rpm, is refused with the factor
+        (PHC-E172), since phc does not convert units."""
+        from phc.units import scale_factor, scaled_label
+
+        factor = scale_factor(dim, want)
+        scale = math.log10(factor) if factor > 0 else float("nan")
+        if not math.isfinite(scale):
+            return
+        expected = self.scale_system.add(coeffs, scale)
+        if expected is None:
+            return
+        need = want * (10.0 ** expected)
+        need_text = scaled_label(need)
+        ratio = factor / 10.0 ** expected
+        value = getattr(comp, field_name, None)
+        sym = ctx.params.get(value.strip()) if isinstance(value, str) else None
+        written = self.unit_text.get(sym) if isinstance(sym, sp.Symbol) else None
+        shown = written or scaled_label(dim)
+        param = self.parameters.get(sym.name) if isinstance(sym, sp.Symbol) else None
+        if param is not None and written:
+            hint = (f"give {value.strip()} in {need_text}: {param.default:g} {written} = {param.default * ratio:.4g} "
+                    f"{need_text}")
+        else:
+            hint = f"give it in {need_text}: multiply the number by {ratio:.4g}"
+        others = "in the units of the other fields of this model" if self.scale_system.rows else "in SI units"
+        self.error("PHC-E172", f"`{field_name}` of `{full}` ({comp.type}) is in {shown}, but {others} it must be "
+                   f"in {need_text}: the same dimension in another scale, and phc does not convert units "
+                   f"(1 {shown} = {ratio:.4g} {need_text})", ctx, where,
+                   hint=hint + " (docs/units.md: one system of units per model)")
 
     def _skipped(self, ctx: FileContext, ref: str) -> bool:
         return ctx.prefix + ref.split(".", 1)[0] in self.skip
@@ -856,6 +894,10 @@ class Elaboration:
     """Some component fields have a known dimension and all of them are in coherent SI units
     (a spring's `k` in N/m, not N/mm): the lumped storage states are then in their domain's
     SI units, and an initial value in another scale (mm) is refused (docs/units.md)."""
+    scales: Mapping = field(default_factory=lambda: MappingProxyType({}))
+    """The model's system of units solved from its fields' units (phc.units.ScaleSystem):
+    log10 of its time unit in s (`"T"`) and of each domain's effort and flow unit in SI
+    (`("E", domain)`, `("F", domain)`); what no field fixes is SI."""
 
     def resolve_alias(self, name: str) -> str:
         return resolve_alias(self.port_aliases, name)
@@ -882,7 +924,8 @@ def _finish(b: Builder, ctx: FileContext) -> Elaboration:
         sources=tuple(b.sources), files=b.files, initial_fields=ro(dict(b.initial_fields)),
         written_meshes=ro(dict(b.written_meshes)), units=ro(dict(b.units)), unit_text=ro(dict(b.unit_text)),
         units_si=b.units_declared and b.units_si,
-        fields_si=b.units_declared and b.fields_checked and b.fields_si)
+        fields_si=b.units_declared and b.fields_checked and b.fields_si,
+        scales=ro(b.scale_system.solution() if b.scale_system is not None else {}))
 
 
 def _where(span) -> str:

@@ -99,8 +99,35 @@ def _csv_problem(err: csv.Error, line: int, name: str) -> str:
     return f"table `{name}` line {line}: not valid CSV (unbalanced quotes or a stray line break)"
 
 
-def read_table(path: Path, spec: TableSpec, data: Optional[bytes] = None) -> tuple[np.ndarray, np.ndarray]:
+_HEADER_UNIT = re.compile(r"^(.*?)\s*\[([^\[\]]*)\]$")
+"""A header cell with a trailing unit, as phc writes its own results: `P [Pa]`, `t [s]`."""
+
+
+def split_header(cell: str) -> tuple[str, Optional[str]]:
+    """``("P", "Pa")`` for the header cell `P [Pa]`; ``(cell, None)`` without a unit."""
+    match = _HEADER_UNIT.match(cell)
+    if match is None or not match.group(1).strip():
+        return cell, None
+    return match.group(1).strip(), match.group(2).strip()
+
+
+def _find_column(header: list[str], name: str) -> Optional[int]:
+    """The index of column `name`: the header cell written so (`P [bar]`), or the one cell
+    whose name without its `[unit]` is `name` (`P` for `P [Pa]`: phc's own CSV output)."""
+    if name in header:
+        return header.index(name)
+    bare = [i for i, h in enumerate(header) if split_header(h)[0] == name]
+    return bare[0] if len(bare) == 1 else None
+
+
+def read_table(path: Path, spec: TableSpec, data: Optional[bytes] = None,
+               units: Optional[dict] = None) -> tuple[np.ndarray, np.ndarray]:
     """Times and values of a CSV table (header row, numeric columns).
+
+    A column is named as its header cell is written, or by its name without a trailing
+    `[unit]` (`column: P` for the header `P [Pa]`). When `units` is a dict, it receives the
+    header cells and units of the two columns: ``{"time": ("t [ms]", "ms"), "value":
+    ("P [bar]", "bar")}`` (the unit None where the header gives none).
 
     `data` is the file's content when the caller has read it (through
     :class:`phc.files.FileAccess`, as elaboration does); otherwise `path` is opened the
@@ -134,10 +161,10 @@ def read_table(path: Path, spec: TableSpec, data: Optional[bytes] = None) -> tup
                 continue
             if first_row is None:
                 first_row = [c.strip() for c in row]
-                missing = [c for c in (spec.time_column, spec.column) if c not in header]
-                if missing:
+                found = [_find_column(header, c) for c in (spec.time_column, spec.column)]
+                if None in found:
                     break
-                it, iv = header.index(spec.time_column), header.index(spec.column)
+                it, iv = found
             if row_no - 1 > MAX_TABLE_ROWS:
                 raise TableError(f"table `{name}` has more than {MAX_TABLE_ROWS:,} data rows")
             try:
@@ -151,7 +178,7 @@ def read_table(path: Path, spec: TableSpec, data: Optional[bytes] = None) -> tup
     if header is None or first_row is None:
         raise TableError(f"table `{name}` needs a header row and at least one data row")
     for col in (spec.time_column, spec.column):
-        if col not in header:
+        if _find_column(header, col) is None:
             shown = _shown_columns(header, first_row)
             if shown is None:
                 raise TableError(f"table `{name}` has no column `{col}`; its first row is not a header of column "
@@ -159,6 +186,9 @@ def read_table(path: Path, spec: TableSpec, data: Optional[bytes] = None) -> tup
             close = difflib.get_close_matches(col, shown, n=1)
             raise TableError(f"table `{name}` has no column `{col}`; its columns: {', '.join(shown)}"
                              + (f" (did you mean `{close[0]}`?)" if close else ""))
+    if units is not None:
+        units["time"] = (header[it], split_header(header[it])[1])
+        units["value"] = (header[iv], split_header(header[iv])[1])
     times_a, values_a = np.array(times, dtype=float), np.array(values, dtype=float)
     bad = np.flatnonzero(~(np.isfinite(times_a) & np.isfinite(values_a)))
     if bad.size:
@@ -214,18 +244,68 @@ class SignalBuilder:
     def __init__(self) -> None:
         self.tables: list[tuple[np.ndarray, np.ndarray, str]] = []  # (times, values, interpolation)
         self.breakpoints: set[float] = set()
+        self.expect: Optional[tuple[str, str, str]] = None  # (domain, "effort"|"flow", port) of the signal
+        self.scales: dict = {}  # the model's system of units (Elaboration.scales)
 
     def signal(self, b, ctx, value, path, scope) -> sp.Expr:
         if isinstance(value, TableSpec):
             return self._table(b, ctx, value, path)
         if isinstance(value, list) and value and all(isinstance(p, PieceSpec) for p in value):
             return self._pieces(b, ctx, value, path, scope)
-        return b.expr(ctx, value, path, scope)
+        return self._checked(b, ctx, value, path, b.expr(ctx, value, path, scope))
+
+    def _want(self):
+        """The unit of the port variable the signal sets, in the model's system of units, with
+        a description of it; None where unknown (generic domain, no pint)."""
+        from phc.units import DOMAIN_UNITS, domain_scale, domain_units, have_pint
+
+        if not have_pint() or self.expect is None or self.expect[0] not in DOMAIN_UNITS:
+            return None
+        domain, which, port = self.expect
+        want = domain_units(domain)[0 if which == "effort" else 1]
+        want = want * 10.0 ** domain_scale(self.scales, domain, "E" if which == "effort" else "F")
+        return want, f"the input {which} of port `{port}` ({domain})"
+
+    def _checked(self, b, ctx, value, path, expr):
+        """An input given as an expression must be in the unit of the port variable it sets
+        (its domain's effort or flow, in the model's system of units): PHC-E172 otherwise."""
+        from phc.units import NUMBER, DimensionError, describe, dimension, scale_factor, scaled_label
+
+        expected = self._want()
+        elab = getattr(b, "elab", None)
+        if expected is None or elab is None or not getattr(elab, "units", None):
+            return expr
+        want, what = expected
+        try:
+            dim = dimension(expr, elab.units, elab.unit_text)
+        except DimensionError:
+            return expr  # reported where the expression's parameters are checked
+        if dim is None or dim is NUMBER:
+            return expr
+        need = scaled_label(want)
+        name = value.strip() if isinstance(value, str) else None
+        sym = next((s for s in elab.units if s.name == (ctx.prefix or "") + (name or "")), None)
+        written = elab.unit_text.get(sym) if sym is not None else None
+        if dim.dimensionality != want.dimensionality:
+            b.error("PHC-E172", f"{what} is in {describe(want)}, but `{value}` is in {describe(dim, written)}", ctx,
+                    path, hint="check the units of the parameters it uses (or the port's domain)")
+            return expr
+        ratio = scale_factor(dim, want)
+        if abs(ratio - 1.0) <= 1e-9:
+            return expr
+        shown = written or scaled_label(dim)
+        param = elab.parameters.get(sym.name) if sym is not None else None
+        hint = (f"give {name} in {need}: {param.default:g} {shown} = {param.default * ratio:.4g} {need}"
+                if param is not None and written else f"give it in {need}: multiply the number by {ratio:.4g}")
+        b.error("PHC-E172", f"{what} is in {need}, but `{value}` is in {shown}: the same dimension in another "
+                f"scale, and phc does not convert units (1 {shown} = {ratio:.4g} {need})", ctx, path, hint=hint)
+        return expr
 
     def _pieces(self, b, ctx, pieces, path, scope) -> sp.Expr:
         args, last = [], None
         for i, piece in enumerate(pieces):
-            expr = b.expr(ctx, piece.value, (*path, i, "value"), scope)
+            expr = self._checked(b, ctx, piece.value, (*path, i, "value"),
+                                 b.expr(ctx, piece.value, (*path, i, "value"), scope))
             if piece.until is None:
                 if i != len(pieces) - 1:
                     b.error("PHC-E212", "only the last piece may omit `until`", ctx, (*path, i))
@@ -254,10 +334,13 @@ class SignalBuilder:
             b.error("PHC-E213" if err.reason == "missing" else "PHC-E116", err.message, ctx, (*path, "file"),
                     hint=err.hint)
             return sp.Integer(0)
+        units: dict = {}
         try:
-            times, values = read_table(real, spec, data)
+            times, values = read_table(real, spec, data, units)
         except TableError as err:
             b.error("PHC-E213", str(err), ctx, (*path, "file"))
+            return sp.Integer(0)
+        if not self._check_units(b, ctx, spec, path, units):
             return sp.Integer(0)
         self.tables.append((times, values, spec.interpolation))
         points, kinks = table_breakpoints(times, values, spec.interpolation)
@@ -271,6 +354,53 @@ class SignalBuilder:
                     "is a breakpoint where the integrator restarts, which takes time", ctx, (*path, "file"),
                     severity="info", hint="use `interpolation: linear` for a sampled signal")
         return InputTable(sp.Integer(len(self.tables) - 1), T)
+
+
+    def _check_units(self, b, ctx, spec: TableSpec, path, units: dict) -> bool:
+        """The `[unit]` of a header must be the unit the model's numbers are in (phc does not
+        convert units): the time column the model's time unit (s), the value column the
+        effort or flow unit of the port's domain (Pa for a hydraulic effort). Refused at the
+        `column:` (or `time_column:`) entry with PHC-E170/E172; False when refused."""
+        from phc.units import UnitError, describe, have_pint, parse_unit, scale_factor, scaled_label, time_scale
+
+        if not have_pint():
+            return True
+        ok = True
+        for key, entry in (("time", "time_column"), ("value", "column")):
+            header, text = units.get(key, (None, None))
+            if text is None:
+                continue
+            where = (*path, entry) if entry in spec.model_fields_set else (*path, "file")
+            try:
+                got = parse_unit(text)
+            except UnitError as err:
+                b.error("PHC-E170", f"table `{spec.file}`, column `{header}`: {err.message}", ctx, where,
+                        hint=err.hint)
+                ok = False
+                continue
+            if key == "time":
+                want, what = parse_unit("s") * 10.0 ** time_scale(self.scales), "the model's time"
+            else:
+                expected = self._want()
+                if expected is None:
+                    continue
+                want, what = expected
+            need = scaled_label(want)
+            if got.dimensionality != want.dimensionality:
+                b.error("PHC-E172", f"table `{spec.file}`, column `{header}` is in {describe(got, text)}, but "
+                        f"{what} is in {describe(want)}", ctx, where,
+                        hint=f"use the column that holds {what}, or correct the unit in the file's header")
+                ok = False
+            elif abs(scale_factor(got, want) - 1.0) > 1e-9:
+                ratio = scale_factor(got, want)
+                name = split_header(header)[0]
+                b.error("PHC-E172", f"table `{spec.file}`, column `{header}` is in {text}, but {what} is in "
+                        f"{need}: the same dimension in another scale, and phc does not convert units "
+                        f"(1 {text} = {ratio:.4g} {need})", ctx, where,
+                        hint=f"give the column in {need}: multiply its numbers by {ratio:.4g} and write "
+                        f"`{name} [{need}]` in the header")
+                ok = False
+        return ok
 
 
 def table_arrays(tables) -> list[str]:

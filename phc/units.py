@@ -20,8 +20,9 @@ that syntax, dimensions are not checked, and one warning (PHC-W172) says so.
 
 phc does not convert units: values are used as written, in whatever consistent system of
 units the model chooses (SI, or MPa and cm³ for a hydraulic model). Two terms of one
-dimension but different scales (``mm`` plus ``m``) are therefore an error, while a
-component field is checked for its dimension only. The rules are explained in
+dimension but different scales (``mm`` plus ``m``) are therefore an error, and the
+component fields' units must form one system of units (:class:`ScaleSystem`: N/mm beside
+a mass in kg, or rpm, is refused with the factor). The rules are explained in
 docs/units.md.
 
 Numbers in expressions are scale factors in products and take the dimension of the other
@@ -228,6 +229,36 @@ def unit_label(quantity) -> str:
     mag = float(quantity.magnitude)
     if not math.isclose(mag, 1.0, rel_tol=1e-12):
         text = f"{mag:g} {text}" if text != "1" else f"{mag:g}"
+    return text
+
+
+_PREFIXES = {-9: "n", -6: "u", -3: "m", -2: "c", 3: "k", 6: "M", 9: "G"}
+
+
+def scaled_label(quantity) -> str:
+    """:func:`unit_label`, with an SI prefix for a scaled unit where one fits: `mm` rather
+    than `0.001 m`, `ms`, `kN/m`, `MPa`, `g`."""
+    text = unit_label(quantity)
+    mag = float(quantity.magnitude)
+    if math.isclose(mag, 1.0, rel_tol=1e-12) or mag <= 0:
+        return text
+    for name, named in _named():
+        if name == "1" or named.units != quantity.units:
+            continue
+        power = math.log10(mag / float(named.magnitude))
+        if name.startswith("kg"):  # the gram takes the prefix: kg·1e-3 = g
+            power, name = power + 3, name[1:]
+            if abs(power) < 1e-9:
+                return name
+        prefix = _PREFIXES.get(round(power)) if abs(power - round(power)) < 1e-9 else None
+        if prefix is None:
+            continue
+        candidate = prefix + name
+        try:
+            if same_dimension(parse_unit(candidate), quantity):
+                return candidate
+        except UnitError:
+            continue
     return text
 
 
@@ -449,18 +480,26 @@ _STORAGE_STATES = {"mass": ("e", "s"), "inductor": ("e", "s"), "spring": ("f", "
 flow·time (a displacement, a charge)."""
 
 
-def variable_units(elab, si: Optional[bool] = None) -> dict:
+def variable_units(elab, si: Optional[bool] = None, scales: Optional[Mapping] = None) -> dict:
     """Symbol -> unit of the port variables (by their domain) and of the lumped storage
     states of an elaboration whose declared units are all coherent SI units
     (``elab.units_si``, or `si` when given); empty otherwise: a model in scaled units (MPa,
     cm³) keeps its variables without units, since its port variables are not in the
-    domain's SI units."""
+    domain's SI units. With `scales` (``Elaboration.scales``), the units are those of the
+    model's own system of units (mm and ms for a mass–spring in g, N/mm and mm)."""
     if not (getattr(elab, "units_si", False) if si is None else si) or not have_pint():
         return {}
     out = {}
     domain_of = {}
+    def scaled(domain):
+        units = domain_units(domain)
+        if units is None or not scales:
+            return units
+        return (units[0] * 10.0 ** domain_scale(scales, domain, "E"),
+                units[1] * 10.0 ** domain_scale(scales, domain, "F"))
+
     for port in elab.ports.values():
-        units = domain_units(port.domain)
+        units = scaled(port.domain)
         if units is None:
             continue
         domain_of.setdefault(port.component, set()).add(port.domain)
@@ -468,7 +507,7 @@ def variable_units(elab, si: Optional[bool] = None) -> dict:
             out[sym] = units[0]
         for sym in port.f:
             out[sym] = units[1]
-    second = parse_unit("s")
+    second = parse_unit("s") * 10.0 ** time_scale(scales)
     specs = elab.component_specs
     for v in elab.variables:
         if v.role != "state" or v.component not in specs:
@@ -477,7 +516,7 @@ def variable_units(elab, si: Optional[bool] = None) -> dict:
         domains = domain_of.get(v.component, set())
         if kind is None or len(domains) != 1:
             continue
-        e, f = domain_units(next(iter(domains)))
+        e, f = scaled(next(iter(domains)))
         out[v.symbol] = (e if kind[0] == "e" else f) * second
     return out
 
@@ -510,9 +549,11 @@ class ResultUnits:
         reporter.unit_text = dict(elab.unit_text)
         # the states' units where the components are in SI (a spring's `k` in N/m) even when
         # some parameter elsewhere is not (an initial value in mm): initial values are checked
-        # against them, scale included, since phc does not convert units
-        self.state_units = (variable_units(elab, si=True) if getattr(elab, "fields_si", False)
-                            and not elab.units_si else {})
+        # against them, scale included, since phc does not convert units; in the model's own
+        # system of units (ScaleSystem) where its fields are scaled (mm for g, N/mm and ms)
+        scales = getattr(elab, "scales", None)
+        self.state_units = (variable_units(elab, si=True, scales=scales) if (scales or getattr(
+            elab, "fields_si", False)) and not elab.units_si else {})
         for v in variables:
             q = units.get(v.symbol)
             if q is not None:
@@ -584,11 +625,12 @@ class ResultUnits:
         written = _written_unit(ctx, path, self.reporter.unit_text)
         if want.dimensionality == dim.dimensionality:  # mm for a state in m: a factor 1000, silently
             factor = float(dim.magnitude) / float(want.magnitude)
+            need = scaled_label(want)
             self.reporter.error(
                 "PHC-E172", f"initial value of `{name}` is in {describe(dim, written)}, but `{name}` is in "
-                f"{describe(want)}: the same dimension in another scale, and phc does not convert units "
-                f"(1 {written or unit_label(dim)} = {factor:g} {unit_label(want)})", ctx, path,
-                hint=f"give the initial value in {unit_label(want)}: multiply the number by {factor:g}, or "
+                f"{describe(want, need)}: the same dimension in another scale, and phc does not convert units "
+                f"(1 {written or scaled_label(dim)} = {factor:g} {need})", ctx, path,
+                hint=f"give the initial value in {need}: multiply the number by {factor:g}, or "
                 "declare the parameter it uses in that unit")
             return
         self.reporter.error("PHC-E172", f"initial value of `{name}` is in {describe(dim, written)}, but `{name}` "
@@ -609,3 +651,150 @@ def _written_unit(ctx, path, unit_text: Mapping) -> Optional[str]:
         if symbol.name == (ctx.prefix or "") + value.strip():
             return text
     return None
+
+
+# -- scales: one system of units per model ------------------------------------------------
+#
+# phc does not convert units, so the numbers of a model must all be in one system of units.
+# The system has a time unit and, for each port domain, an effort and a flow unit; each is
+# its SI unit times a power of ten (s or ms; N or kN; m/s or mm/ms; Pa or MPa; ...). A
+# component field whose dimension the component knows is a product of these (a spring's
+# `k` is effort/(flow·time)), so its declared unit fixes a relation between their scales:
+# `k` in N/mm says log10(effort) - log10(flow) - log10(time) = 3. The relations of all
+# fields must have one solution in whole powers of ten; a field whose unit contradicts the
+# others (N/mm beside kg: k·x in kN against ṗ in N) or is not a power of ten of its SI unit
+# (rpm: 0.1047 rad/s) is refused (PHC-E172), with the factor. docs/units.md explains it.
+
+_TIME = "T"
+_TIME_CANDIDATES = (0, -3, 3, -6, 6, -9, 9, -12, 12, -1, 1, -2, 2, -4, 4, -5, 5, -7, 7, -8, 8, -10, 10, -11, 11)
+"""Time scales tried (log10 of the model's time unit in s), the second first."""
+
+
+def scale_terms(comp, domains: Mapping[str, str]) -> dict[str, dict]:
+    """For each field of `comp` whose scale follows from the model's unit system:
+    ``{field: {variable: exponent}}`` where a variable is ``"T"`` (the time unit) or
+    ``("E"|"F", domain)`` (a domain's effort or flow unit). Empty without pint or where a
+    field's unit is not a product of these (the beams' SI fields, the generic domain)."""
+    if not have_pint():
+        return {}
+    out: dict[str, dict] = {}
+    if comp.type in _ELEMENT_FIELDS:
+        field, num, den, _ = _ELEMENT_FIELDS[comp.type]
+        doms = set(domains.values())
+        if len(doms) != 1 or domain_units(next(iter(doms))) is None:
+            return out
+        dom = next(iter(doms))
+        names = {"e": ("E", dom), "f": ("F", dom), "s": _TIME}
+        terms: dict = {}
+        for text, sign in ((num, 1), (den, -1)):
+            for part in text.split("*"):
+                if part in names:
+                    terms[names[part]] = terms.get(names[part], 0) + sign
+        out[field] = {k: v for k, v in terms.items() if v}
+        if comp.type in ("flow_source", "zero_flow") and getattr(comp, "position", None) is not None:
+            out["position"] = {("F", dom): 1, _TIME: 1}
+        return out
+    if comp.type in ("transformer", "gyrator") and {"a", "b"} <= domains.keys():
+        if domain_units(domains["a"]) is None or domain_units(domains["b"]) is None:
+            return out
+        top = ("F" if comp.type == "transformer" else "E", domains["b"])
+        bottom = ("F", domains["a"])
+        out["ratio"] = {} if top == bottom else {top: 1, bottom: -1}
+    return out
+
+
+def scale_factor(dim, want) -> float:
+    """The factor between a quantity and the SI quantity of the same dimension: 1000 for
+    N/mm against N/m."""
+    return float(dim.magnitude) / float(want.magnitude)
+
+
+class ScaleSystem:
+    """The model's unit system, solved from the scales of its fields (see above).
+
+    :meth:`add` takes one relation (``{variable: exponent}`` and the field's log10 scale)
+    and returns None when it agrees with the relations added so far, else the log10 scale
+    the field must have with them (the relation is then left out)."""
+
+    def __init__(self) -> None:
+        self.rows: list[tuple[dict, float]] = []
+        self._solution: Optional[dict] = {}
+        self._seen: set = set()
+
+    def variables(self, rows=None) -> list:
+        seen: dict = {}
+        for coeffs, _ in (self.rows if rows is None else rows):
+            for var in coeffs:
+                if var != _TIME:
+                    seen.setdefault(var, None)
+        return sorted(seen, key=str)
+
+    @staticmethod
+    def _solve(rows, variables, time: int):
+        """A solution with the time scale `time`, or None."""
+        import numpy as np
+
+        if not rows:
+            return {}
+        if not variables:
+            ok = all(abs(b - c.get(_TIME, 0) * time) < 1e-6 for c, b in rows)
+            return {} if ok else None
+        a = np.array([[c.get(v, 0) for v in variables] for c, _ in rows], dtype=float)
+        rhs = np.array([b - c.get(_TIME, 0) * time for c, b in rows], dtype=float)
+        x, *_ = np.linalg.lstsq(a, rhs, rcond=None)
+        if np.max(np.abs(a @ x - rhs)) > 1e-6:
+            return None
+        return dict(zip(variables, x))
+
+    def _feasible(self, rows):
+        """The SI-nearest solution in whole powers of ten: the first time scale that works
+        (the second first), then every other scale 0 where the relations leave it free."""
+        variables = self.variables(rows)
+        for time in _TIME_CANDIDATES:
+            if self._solve(rows, variables, time) is None:
+                continue
+            fixed = list(rows)
+            for var in variables:
+                trial = fixed + [({var: 1}, 0.0)]
+                if self._solve(trial, variables, time) is not None:
+                    fixed = trial
+            solution = self._solve(fixed, variables, time)
+            solution = {k: float(round(v)) for k, v in solution.items()}
+            solution[_TIME] = float(time)
+            return solution
+        return None
+
+    def predicted(self, coeffs: dict) -> float:
+        """log10 of the scale a field with these exponents has in the system solved so far."""
+        sol = self._solution or {}
+        return sum(e * sol.get(v, 0.0) for v, e in coeffs.items())
+
+    def add(self, coeffs: dict, scale: float) -> Optional[float]:
+        if abs(scale - round(scale)) > 1e-9:  # not a power of ten of its SI unit (rpm, inch, min)
+            return self.predicted(coeffs)
+        scale = float(round(scale))
+        key = (tuple(sorted(coeffs.items(), key=str)), scale)
+        if key in self._seen:  # a relation already in the system (a chain of equal masses)
+            return None
+        trial = self.rows + [(coeffs, scale)]
+        solution = self._feasible(trial)
+        if solution is None:
+            return self.predicted(coeffs)
+        self.rows, self._solution = trial, solution
+        self._seen.add(key)
+        return None
+
+    def solution(self) -> dict:
+        """log10 of each unit of the solved system: ``"T"`` and ``("E"|"F", domain)``;
+        what no field fixes is SI (0)."""
+        return dict(self._solution or {})
+
+
+def domain_scale(scales: Optional[Mapping], domain: str, which: str) -> float:
+    """log10 of the model's unit of a domain's effort (`which` "E") or flow ("F")."""
+    return float((scales or {}).get((which, domain), 0.0))
+
+
+def time_scale(scales: Optional[Mapping]) -> float:
+    """log10 of the model's time unit in seconds (0: s, -3: ms)."""
+    return float((scales or {}).get(_TIME, 0.0))

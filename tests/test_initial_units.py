@@ -14,11 +14,11 @@ from phc.cli import main
 pytest.importorskip("pint")
 
 
-def _model(x0_unit: str, k_unit: str = "N/m", x0: float = 10.0) -> str:
+def _model(x0_unit: str, k_unit: str = "N/m", x0: float = 10.0, m_unit: str = "kilogram") -> str:
     return textwrap.dedent(f"""\
         format_version: 1
         parameters:
-          m: {{value: 1.0, unit: kilogram}}
+          m: {{value: 1.0, unit: {m_unit}}}
           k: {{value: 4.0, unit: "{k_unit}"}}
           x0: {{value: {x0}, unit: {x0_unit}}}
         components:
@@ -53,9 +53,10 @@ def test_initial_value_in_m_runs_with_the_closed_form_energy(tmp_path):
 
 
 def test_a_consistent_scaled_system_is_not_refused(tmp_path, capsys):
-    # stiffness in N/mm and the displacement in mm: not SI, phc uses the values as written
+    # mm, g and ms throughout (the force comes out in N, the stiffness in N/mm): not SI,
+    # phc uses the values as written (N/mm beside kg would be refused: tests/test_unit_scales.py)
     path = tmp_path / "scaled.yaml"
-    path.write_text(_model("mm", k_unit="N/mm"))
+    path.write_text(_model("mm", k_unit="N/mm", m_unit="g"))
     assert main(["validate", str(path)]) == 0
 
 
