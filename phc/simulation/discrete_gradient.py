@@ -47,7 +47,8 @@ whose Newton iteration fails (the work shrinks faster than the mismatch's variat
 shorter steps); where even the shortest split step has no balancing point, that step is
 taken as the implicit-midpoint step (s = 1/2, second order and symmetric), counted, and
 reported with the run (``unbalanced``); the run's energy-balance error shows what those
-steps cost.
+steps cost. A model without constraints has no such work: there a step without a
+balancing point (after the splits) ends the run with a message, as before.
 """
 
 from __future__ import annotations
@@ -74,6 +75,8 @@ class DiscreteGradientStep:
         self.unbalanced = 0
         """Steps where no s balanced the energy: taken as implicit-midpoint steps (module docstring)."""
         self._midpoint = None
+        self.projects = any(str(v).startswith("ggl.") for v in mod.VARIABLES)
+        """The model has GGL multipliers, whose projection may do work (module docstring)."""
 
     def balance(self, t, h, y, y1) -> float:
         H = self.mod.hamiltonian
@@ -129,13 +132,15 @@ class DiscreteGradientStep:
         # implicit-midpoint step
         self._midpoint = y_half
         return best[1], False, (f"no point along the step balances the energy (|r| = {best[0]:.1e}, "
-                                f"energy scale {scale:.1e})")
+                                f"energy scale {scale:.1e}): the mean-value discrete gradient has no solution "
+                                "on this step; a shorter `step` brings the point towards the step's middle, or "
+                                "use `midpoint4`/`midpoint` (energy exact for quadratic H) or `ida`")
 
     def fallback(self):
         """The implicit-midpoint step of the last call if it failed only to balance the energy
         (counted in ``unbalanced``), else None."""
         y_half, self._midpoint = self._midpoint, None
-        if y_half is None:
+        if y_half is None or not self.projects:  # without constraints, no work explains it: a failure
             return None
         self.unbalanced += 1
         return y_half
