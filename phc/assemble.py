@@ -249,8 +249,9 @@ def _assemble(b, ctx, inter) -> Optional[Dae]:
             b.error("PHC-E604", f"output `{oname}` uses `{missing[0]}`, but {b.unavailable[missing[0]]}", ctx,
                     opath, hint="turn the effect on, or drop the output")
             continue
-        outputs.append((oname, final(b.expr(ctx, oexpr, vpath, scope, check_units=False))))
-        result_units.output(ctx, oname, oexpr, vpath, getattr(ospec, "unit", None), (*opath, "unit"))
+        oval = final(b.expr(ctx, oexpr, vpath, scope, check_units=False))
+        factor = result_units.output(ctx, oname, oexpr, vpath, getattr(ospec, "unit", None), (*opath, "unit"))
+        outputs.append((oname, oval if factor is None else oval * sp.Float(factor)))  # into its declared unit
     velocity_invariants = tuple(Invariant(v.label, final(v.expr), v.component, v.span)
                                 for v in b.velocity_invariants)
     initial = _initial_values(b, ctx, {v.name for v in variables if v.differential}, result_units)

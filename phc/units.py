@@ -285,7 +285,8 @@ class _Walker:
         return self._one
 
     def show(self, term, q) -> str:
-        return f"`{term}` is {describe(q, self.written.get(term))}"
+        written = self.written.get(term) or self.written.get(-term)  # `-b`: b's unit as written
+        return f"`{term}` is {describe(q, written or scaled_label(q))}"
 
     def common(self, args, what: str):
         """The shared dimension of `args` (a sum's terms, min/max arguments, branches)."""
@@ -580,9 +581,12 @@ class ResultUnits:
         scope["t"] = T
         self.scope = scope
 
-    def output(self, ctx, name: str, value, path, unit: Optional[str], unit_path) -> None:
+    def output(self, ctx, name: str, value, path, unit: Optional[str], unit_path) -> Optional[float]:
         """Check output `name` (its `value` at `path`, its declared `unit` at `unit_path`)
-        and record its unit."""
+        and record its unit. Returns the factor that converts the value from the model's
+        units into the declared unit (1000 for a length in m declared in mm), or None when
+        there is none to apply."""
+        factor = None
         declared = None
         if unit is not None:
             try:
@@ -601,17 +605,41 @@ class ResultUnits:
         try:
             expr = parse_expression(value, self.scope)
         except ExpressionError:
-            dim = None  # reported where the output was parsed
+            dim = scaled = None  # reported where the output was parsed
         else:
-            dim = self.reporter.dimension(ctx, value, path, expr)
+            n_errors = len(self.reporter.diags.errors)
+            dim = scaled = self.reporter.dimension(ctx, value, path, expr)
+            if self.state_units and len(self.reporter.diags.errors) == n_errors:
+                scaled = self._in_model_units(ctx, value, path, expr)
         if declared is not None:
             if dim is not None and dim is not NUMBER and dim.dimensionality != declared.dimensionality:
                 self.reporter.error("PHC-E172", f"output `{name}` is declared in {describe(declared, unit)} but "
                                     f"its value `{value}` is in {describe(dim)}", ctx, path,
                                     hint="correct the expression or the output's `unit:`")
+            elif (scaled is not None and scaled is not NUMBER and scaled.dimensionality == declared.dimensionality
+                  and not same_dimension(scaled, declared)):
+                # the value is in the model's units (m) and declared in another scale (mm): the
+                # output is converted, so that its numbers are what its label says (docs/units.md)
+                factor = scale_factor(scaled, declared)
             self.labels[name] = unit
         elif dim is not None and dim is not NUMBER:
             self.labels[name] = unit_label(dim)
+        return factor
+
+    def _in_model_units(self, ctx, value, path, expr):
+        """The dimension of an output's expression with the states and port variables in the
+        model's system of units (:attr:`state_units`), where its parameters' units alone leave
+        them without one: `spring.x - b` with `b` in mm for a spring in m is refused (PHC-E171)."""
+        units = dict(self.state_units)
+        units.update(self.reporter.units)
+        try:
+            return dimension(expr, units, self.reporter.unit_text)
+        except DimensionError as err:
+            self.reporter.error("PHC-E171", f"in expression `{value}`: {err}", ctx, path,
+                                hint="every term of a sum (and both sides of a comparison) needs the same unit; "
+                                "the states and port variables are in the model's system of units (docs/units.md: "
+                                "one system of units per model), so give the parameter in theirs")
+            return None
 
     def initial(self, ctx, name: str, path) -> None:
         """Check an initial value (parsed at `path`) against its state's unit."""
