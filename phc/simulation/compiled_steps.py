@@ -382,6 +382,7 @@ def _stage(res, jac, inv, t, h, y, y1in, s, p, m, A, ipiv, matf, jrows, jcols, e
                 a = a * (weights[i] / (1.0 + abs(out[i]) * weights[i]))
             if a > size:
                 size = a
+        states = size  # the states' part alone (ROUNDOFF_FLOOR, midpoint.StageSolver)
         if weighted:
             # algebraic variables (weight 0) as without scales, relative to |y| + 1; not the GGL multipliers
             size = max(size, alg / scale)
@@ -406,7 +407,7 @@ def _stage(res, jac, inv, t, h, y, y1in, s, p, m, A, ipiv, matf, jrows, jcols, e
             for i in range(n):
                 out[i] += r[i]
             return _OK
-        if refreshed and has_theta and theta >= 0.5 and size <= c[_FLOOR] * scale:
+        if refreshed and has_theta and theta >= 0.5 and states <= c[_FLOOR] * scale:
             flags[0] = 1
             for i in range(n):
                 out[i] += r[i]

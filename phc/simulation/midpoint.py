@@ -46,8 +46,12 @@ MAX_NEWTON = 30
 REFACTOR_RATE = 0.25
 """Contraction rate θ = |Δ_k|/|Δ_{k−1}| above which the Newton matrix is refreshed."""
 ROUNDOFF_FLOOR = 1e-9
-"""A correction this small (in the scaled variables) that a freshly factorized matrix cannot
-reduce is round-off amplified by the matrix's conditioning: the iterate is accepted."""
+"""A correction of the states this small (in the scaled variables) that a freshly factorized
+matrix cannot reduce is round-off amplified by the matrix's conditioning: the iterate is
+accepted, and the driver asks the singularity monitor. Only the states count here: near a
+singular configuration the constraint forces are determined far worse than the motion (a
+four-bar near its change point: the coupler's angle to 4e-11, its pin forces to much less),
+and they are recomputed at the output times anyway."""
 MAX_AGE = 200
 """Steps after which the Newton matrix is refreshed regardless (state-dependent Jacobians)."""
 ROUNDOFF_ZONE = 1e3
@@ -253,11 +257,13 @@ class StageSolver:
             delta = matrix.solve(-self.residual(t, h, y, y1, s))
             if self.weights is None:
                 size, scale = float(np.abs(delta).max()), 1.0 + float(np.abs(y1).max())
+                states = size
             else:  # differential variables scaled; algebraic ones (weight 0) as before, relative to |y| + 1
                 algebraic = float(np.abs(delta[self.algebraic]).max(initial=0.0)) / (1.0 + float(np.abs(y1).max()))
                 # a state is measured against its scale or its size, whichever is larger
                 w = self.weights / (1.0 + np.abs(y1) * self.weights)
-                size, scale = max(float(np.abs(delta * w).max()), algebraic), 1.0
+                states = float(np.abs(delta * w).max())
+                size, scale = max(states, algebraic), 1.0
             if not np.isfinite(size):
                 if since == 0:
                     return y1, False
@@ -270,7 +276,7 @@ class StageSolver:
             if (theta is not None and (theta >= 0.5 or theta >= STAGNATION_JUMP * rate)
                     and size <= ROUNDOFF_ZONE * NEWTON_TOL * scale):
                 return y1 + delta, True  # stagnating at round-off level: accept
-            if self.refreshed and theta is not None and theta >= 0.5 and size <= ROUNDOFF_FLOOR * scale:
+            if self.refreshed and theta is not None and theta >= 0.5 and states <= ROUNDOFF_FLOOR * scale:
                 # no progress with a fresh matrix: round-off amplified by its conditioning
                 # (a multiplier at rest, say) — the iterate is as good as it gets, but the
                 # driver is told (the conditioning may come from a singular configuration)
