@@ -553,6 +553,8 @@ class ResultUnits:
         # against them, scale included, since phc does not convert units; in the model's own
         # system of units (ScaleSystem) where its fields are scaled (mm for g, N/mm and ms)
         scales = getattr(elab, "scales", None)
+        if time_scale(scales):  # the time column is in the model's time unit (ms in mm, g, ms)
+            self.labels["t"] = scaled_label(parse_unit("s") * 10.0 ** time_scale(scales))
         self.state_units = (variable_units(elab, si=True, scales=scales) if (scales or getattr(
             elab, "fields_si", False)) and not elab.units_si else {})
         for v in variables:

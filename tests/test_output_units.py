@@ -95,6 +95,7 @@ def test_mm_g_ms_model_with_outputs_in_mm_runs_and_in_m_is_converted(tmp_path):
         """, k="{value: 4.0, unit: N/mm}", m="{value: 1000.0, unit: g}", x0="{value: 100.0, unit: mm}",
         t_end=1.0))
     w = math.sqrt(4000.0) / 1000.0  # per ms
+    assert result.units.get("t") == "ms"  # the time is in ms: the CSV header said `t [s]`
     for ti, x, xm, v in zip(result.t, result["x"], result["x_m"], result["v"]):
         assert x == pytest.approx(100.0 * math.cos(w * ti), abs=1e-5)
         assert xm == pytest.approx(0.1 * math.cos(w * ti), abs=1e-8)
