@@ -268,6 +268,8 @@ class KernelPrinter(ModulePrinter):
     ``_X_<name>`` the text calls (absent when an expression of the function has no
     emitter rule: then the function is printed as Python for numba's own compiler)."""
 
+    bulk_unpack = False  # numba compiles ``y[j]``, not ``y.tolist()``
+
     def __init__(self, ir: ResidualIR):
         super().__init__(ir)
         self.kernels: dict[str, Kernel] = {}

@@ -194,7 +194,23 @@ def _tuple(values: Sequence[str]) -> str:
     return "(\n" + "".join(f"    {v!r},\n" for v in values) + ")"
 
 
+BULK_SHARE = 4
+"""A function reads y (yp, p) through one ``tolist()`` when it uses at least 1/BULK_SHARE of
+its entries (a long vector of which a few entries are used is indexed instead)."""
+
+
+def _complex_prone(expr) -> bool:
+    """Whether `expr` has a power that is complex for a negative Python float (``x**(1/3)``:
+    NumPy scalars give nan, which the guard reports; a complex value could be made real
+    again by ``abs``). Square roots are printed as ``math.sqrt``, which refuses."""
+    half = sp.Rational(1, 2)
+    return any(not (a.exp.is_integer or a.exp in (half, -half)) for a in expr.atoms(sp.Pow))
+
+
 class ModulePrinter:
+    bulk_unpack = True
+    """Whether the per-step functions (residual, Jacobian) unpack their arguments in bulk."""
+
     def __init__(self, ir: ResidualIR):
         self.ir = ir
         taken: set = set()
@@ -213,6 +229,8 @@ class ModulePrinter:
             self.unpack_p[s] = f"{ident} = p[{j}]"
         self.printer = _Printer(self.names)
         self.accumulate: set = set()  # targets that add to a precomputed value
+        self.bulk = False
+        """Unpack y, yp and p with one ``tolist()`` (the functions called in every step)."""
 
     def _switch_constants(self) -> list[str]:
         """Switching conditions (phc.codegen.nonsmooth, docs/events.md): labels in model names,
@@ -283,8 +301,14 @@ class ModulePrinter:
         for sym, _ in replacements:
             self.names[sym] = sym.name  # _c0, _c1, ...: generated here
         lines = []
-        for table in (self.unpack_y, self.unpack_yp, self.unpack_p):
-            lines += [line for s, line in table.items() if s in used]
+        bulk = self.bulk and not any(_complex_prone(e) for e in list(reduced) + [r for _, r in replacements])
+        for name, table in (("y", self.unpack_y), ("yp", self.unpack_yp), ("p", self.unpack_p)):
+            taken = [line for s, line in table.items() if s in used]
+            if bulk and taken and BULK_SHARE * len(taken) >= len(table):
+                # the values as Python floats: arithmetic on them costs a third of NumPy scalars'
+                lines.append(f"_{name} = {name}.tolist()")
+                taken = [line.replace(f" = {name}[", f" = _{name}[", 1) for line in taken]
+            lines += taken
         for sym, rhs in replacements:
             lines.append(f"{sym} = {self.printer.doprint(rhs)}")
         for target, e in zip(targets, reduced):
@@ -397,6 +421,7 @@ class ModulePrinter:
         qd_res = [f"out[{ir.energy_row}] -= _qQD{k} * (y[_QD{k}_COLS] @ (_QD{k} @ y[_QD{k}_COLS]))"
                   for k in range(len(qd_coeffs))]
         qd_jac = [f"out[_QD{k}_POS] -= 2.0 * _qQD{k} * (_QD{k} @ y[_QD{k}_COLS])" for k in range(len(qd_coeffs))]
+        self.bulk = self.bulk_unpack
         if lin or qd_coeffs:
             rows = [(i, e) for i, e in enumerate(ir.residual) if e != 0]
             lin_lines = (["_A, _JY, _JYP = _linear(p)", "_YYP[:N] = y", "_YYP[N:] = yp",
@@ -429,6 +454,7 @@ class ModulePrinter:
         else:
             parts.append(self._function("jacobian(t, y, yp, p, cj, out)", jdoc, jac,
                                         [f"out[{k}]" for k in range(len(jac))]))
+        self.bulk = False
 
         def quadratic(forms, prefix, target, absolute=False):
             lines = []

@@ -7,6 +7,7 @@ exception; invalid options raise :class:`~phc.errors.SimulationSetupError` at on
 
 from __future__ import annotations
 
+import importlib
 import math
 import os
 import time
@@ -21,19 +22,31 @@ from phc.simulation._lean import import_scipy_sparse
 import_scipy_sparse()  # before any submodule loads scipy: without NumPy's unused submodules (_lean.py)
 
 from phc.errors import InconsistentInitialError, SimulationSetupError
-from phc.simulation.discrete_gradient import integrate_discrete_gradient
 from phc.simulation.guard import CATCH as GUARD_CATCH
 from phc.simulation.guard import ModelEvaluationError, guard, quiet_floating_point
 from phc.simulation.events import has_switches, integrate_switched
 from phc.simulation.ida import integrate_ida
 from phc.simulation.initial import InitialResult, consistent_initial_conditions
-from phc.simulation.midpoint import integrate_midpoint
-from phc.simulation.midpoint4 import integrate_midpoint4
 from phc.simulation.monitor import describe_equations
 from phc.simulation.backend import Backend, BackendRun, IgnoredOptionWarning, ignored_option_message
 from phc.simulation.result import SimResult, SimulationInterrupted
 from phc.simulation.scaling import nominal_indices, nominal_scales
 
+
+
+def _deferred(module: str, name: str) -> Callable:
+    """``module.name``, imported at its first call: a run with IDA does not load the
+    fixed-step solvers (and the sparse LU and scipy.linalg they bring, ~0.1 s of start-up)."""
+    def integrate(*args, **kwargs):
+        return getattr(importlib.import_module(module), name)(*args, **kwargs)
+    integrate.__name__ = integrate.__qualname__ = name
+    integrate.__doc__ = f"``{module}.{name}``, imported at its first call."
+    return integrate
+
+
+integrate_midpoint = _deferred("phc.simulation.midpoint", "integrate_midpoint")
+integrate_discrete_gradient = _deferred("phc.simulation.discrete_gradient", "integrate_discrete_gradient")
+integrate_midpoint4 = _deferred("phc.simulation.midpoint4", "integrate_midpoint4")
 _VARIABLE = frozenset({"rtol", "atol", "max_steps", "max_order"})
 _FIXED = frozenset({"step", "max_steps"})
 BACKENDS: dict[str, Backend] = {b.name: b for b in (

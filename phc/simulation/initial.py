@@ -54,6 +54,13 @@ POLISH_STEPS = 3
 """Gauss–Newton steps after convergence that refine the solution to round-off."""
 
 
+def _diagonal(w: np.ndarray):
+    """The diagonal matrix of `w`, in CSR (``sps.diags`` checks its offsets with
+    ``np.unique``, which loads ``numpy.ma``: 10 ms of start-up)."""
+    n = len(w)
+    return sps.csr_matrix((np.asarray(w, dtype=float), np.arange(n), np.arange(n + 1)), shape=(n, n))
+
+
 @dataclass
 class InitialResult:
     y0: np.ndarray
@@ -444,7 +451,7 @@ class _Problem:
         wave speed) are large where the momenta are 1e-3 kg/(m·s) in SI, so the cheapest
         step shrank a pinned string's whole momentum field by 38 % instead of moving the
         two end values the pins demand (and the answer depended on the units)."""
-        JW = J @ sps.diags(self.weights)
+        JW = J @ _diagonal(self.weights)
         guess = self.guess_columns
         if len(guess) and JW.shape[0] * JW.shape[1] <= DENSE_LIMIT:
             A = JW.toarray()
