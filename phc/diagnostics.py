@@ -511,6 +511,16 @@ def _member_matches(member: Any, head: Any) -> bool:
         return False
 
 
+def _tag_of(tp: Any) -> Any:
+    """The `Tag` of a tagged union member (``Annotated[X, Tag("x")]``), else None."""
+    while typing.get_origin(tp) is typing.Annotated:
+        tag = next((m.tag for m in tp.__metadata__ if isinstance(m, pydantic.Tag)), None)
+        if tag is not None:
+            return tag
+        tp = typing.get_args(tp)[0]
+    return None
+
+
 def _names_at(tp: Any, loc: tuple, depth: int = 0) -> set[str]:
     if depth > 64:
         return set()
@@ -520,6 +530,8 @@ def _names_at(tp: Any, loc: tuple, depth: int = 0) -> set[str]:
         members = [m for m in typing.get_args(tp) if m is not type(None)]
         if loc:
             for m in members:
+                if _tag_of(m) == loc[0]:  # a member of a union with a callable discriminator
+                    return _names_at(m, loc[1:], depth + 1)
                 if _member_matches(_strip_annotated(m), loc[0]):
                     return _names_at(m, loc[1:], depth + 1)
         found: set[str] = set()

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal, Optional, Union
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import Discriminator, Field, Tag, field_validator, model_validator
 
 from phc.names import SOLVER_NAMES
 from phc.spec.base import Expr, Identifier, SpecModel, Vector
@@ -82,16 +82,48 @@ class TableSpec(SpecModel):
     the table the first or last value holds."""
 
 
-Signal = Union[Expr, list[PieceSpec], TableSpec]
+_TABLE_KEYS = frozenset(TableSpec.model_fields)
+"""Keys that make a mapping a table (`file`, `column`, ...), not a piece."""
+
+
+def _signal_kind(value) -> str:
+    """Which kind of signal `value` is, by its shape: a mapping is a table, a list the
+    pieces, anything else an expression (so a typo in a piece is reported as an unknown
+    key of the piece, not as the keys a table would miss)."""
+    if isinstance(value, dict):
+        return "table"
+    if isinstance(value, list):
+        return "pieces"
+    return "expression"
+
+
+def _is_pieces(value) -> bool:
+    """A list of mappings none of which has a table's key: the pieces of one signal."""
+    return (isinstance(value, list) and bool(value)
+            and all(isinstance(v, dict) and not _TABLE_KEYS & set(v) for v in value))
+
+
+Signal = Annotated[Union[Annotated[Expr, Tag("expression")], Annotated[list[PieceSpec], Tag("pieces")],
+                         Annotated[TableSpec, Tag("table")]], Discriminator(_signal_kind)]
 """An input signal: an expression in `t`, a list of pieces `{until, value}`, or a table."""
+
+
+def _signals_kind(value) -> str:
+    """One signal, or one signal per component of a vector port (a list of signals); a list
+    of mappings without a table's keys is the pieces of one signal."""
+    return "vector" if isinstance(value, list) and not _is_pieces(value) else "signal"
+
+
+Signals = Annotated[Union[Annotated[Signal, Tag("signal")], Annotated[list[Signal], Tag("vector")]],
+                    Discriminator(_signals_kind)]
 
 
 class InputSpec(SpecModel):
     """Drives an exposed port: give its effort or its flow as a function of `t` (an
     expression, a piecewise definition or a CSV table; one per component of a vector port)."""
 
-    effort: Optional[Union[Signal, list[Signal]]] = None
-    flow: Optional[Union[Signal, list[Signal]]] = None
+    effort: Optional[Signals] = None
+    flow: Optional[Signals] = None
 
     @model_validator(mode="after")
     def _exactly_one(self):
