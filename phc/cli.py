@@ -434,6 +434,62 @@ def _initial_spans_from_files(path: str) -> dict:
     return out
 
 
+_ACCURACY_KEYS = ("rtol", "atol", "step", "max_order")
+"""Settings of a model's `simulation:` (a scene's `accuracy:`) that only some solvers use."""
+
+
+def _written_options(path: str) -> dict[str, list[str]]:
+    """The accuracy settings the model (or scene) file writes: name -> [where its key is,
+    its entry], the scene's `accuracy:` over its model's `simulation:` (defaults the user
+    did not write are not listed)."""
+    from phc.elaborate import load_spec
+    from phc.scene import is_scene_file, load_scene
+
+    out: dict[str, list[str]] = {}
+    model = path
+    try:
+        if is_scene_file(path):
+            scene, _ = load_scene(path)
+            if scene is None:
+                return {}
+            for key in _ACCURACY_KEYS:
+                if getattr(scene.spec.accuracy, key) is not None:
+                    out[key] = [str(scene.smap.locate_key(("accuracy", key))), f"accuracy.{key}"]
+            model = scene.model_path
+        spec, smap, _ = load_spec(model)
+        if spec is not None:
+            for key in _ACCURACY_KEYS:
+                if key in spec.simulation.model_fields_set and getattr(spec.simulation, key) is not None:
+                    out.setdefault(key, [str(smap.locate_key(("simulation", key))), f"simulation.{key}"])
+    except (OSError, ValueError, AttributeError):
+        return out
+    return out
+
+
+def _ignored_in_file_lines(compiled, written: dict, args) -> list[str]:
+    """A located warning (PHC-W250) at each accuracy setting of the file that the solver of
+    this run ignores (:func:`phc.simulation.backend.ignored_in_file`)."""
+    from phc.simulation import BACKENDS
+    from phc.simulation.backend import ignored_in_file, ignored_option_message
+
+    backend = BACKENDS.get(args.solver or compiled.dae.options.get("solver"))
+    if backend is None or not written:
+        return []
+    given = {"rtol": args.rtol, "atol": args.atol, "step": args.step}
+    lines = []
+    for name in ignored_in_file(backend, written, given):
+        where, entry = written[name]
+        if backend.fixed_step:
+            hint = (f"remove `{name}`, or write `step:` beside it (default: the output interval) to keep "
+                    f"`{name}` for `--solver ida`")
+        else:
+            hint = ("`step` is for the fixed-step solvers: remove it, or write `rtol:` beside it to keep "
+                    "`step` for `--solver midpoint`")
+        lines.append(f"{where}: warning: {entry}: {ignored_option_message(backend, [name])}. hint: {hint} "
+                     "[PHC-W250]")
+    return lines
+
+
 def _inconsistent_lines(path: str, problems: Sequence[str], compiled=None) -> list[str]:
     """One located line per violated equation (PHC-E218): at the first fixed initial value it
     involves, in the file's order, or at the file when none is located."""
@@ -500,9 +556,14 @@ def cmd_simulate(args) -> int:
             first = compiled
             compiled = _recompile_for_params(compiled, args.file, params, certify=not args.no_certify)
         if compiled is first:
+            compiled.written_options = _written_options(args.file)  # kept in the cached front end
             recorder.store(compiled)
     if args.format != "json":  # the model's warnings, as `phc validate` prints them (also from the cache)
         _print_diagnostics([d for d in compiled.diagnostics if d.severity == "warning"])
+    written = getattr(compiled, "written_options", None)
+    for line in _ignored_in_file_lines(compiled, written if written is not None else _written_options(args.file),
+                                       args):
+        print(line, file=sys.stderr)  # settings of the file this run's solver ignores (PHC-W250)
     progress = _progress_for(compiled, args.t_end, args.quiet)
     run_kwargs = dict(t_end=args.t_end, params=params, rtol=args.rtol, atol=args.atol, n_out=args.n_out,
                       solver=args.solver, step=args.step)

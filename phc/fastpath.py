@@ -116,6 +116,8 @@ class CachedModel:
         self.module, self.module_path, self.source = module, module_path, record["source"]
         self.timings = {"load": seconds}
         self.diagnostics = tuple(StoredDiagnostic(sev, line) for sev, line in record.get("warnings", ()))
+        self.written_options = record.get("written_options")
+        """The accuracy settings the file writes, where (the solver of a run may ignore them)."""
         self.start_state = None
         self.dae = SimpleNamespace(
             name=d["name"], n_states=d["n_states"], options=d["options"], units=d["units"], parameters=(),
@@ -537,6 +539,7 @@ def _record(compiled, backend: Optional[str]) -> Optional[dict]:
         "output_spans": {name: _span_of(_output_span(compiled, name)) for name in mod.OUTPUTS},
         "backend_line": _backend_line(compiled, backend),
         "warnings": [[d.severity, d.render()] for d in compiled.diagnostics if d.severity == "warning"],
+        "written_options": getattr(compiled, "written_options", None),
     }
 
 

@@ -110,4 +110,17 @@ def ignored_option_message(backend: Backend, names: list[str]) -> str:
     return f"solver `{backend.name}` ignores {', '.join(f'`{n}`' for n in names)} ({why})"
 
 
-__all__ = ["Backend", "BackendRun", "IgnoredOptionWarning", "ignored_option_message"]
+def ignored_in_file(backend: Backend, written: Mapping[str, object], given: Mapping[str, object]) -> list[str]:
+    """The accuracy settings a model (or scene) file writes (`written`, by name) that
+    `backend` does not use, in the file's order: those a command-line value replaces
+    (`given`, None where not given) are left out (the option itself is reported), and so
+    are all of them when the file or the command line also sets what `backend` does use
+    for its accuracy (`step`; `rtol`/`atol`) — the file then holds settings for both
+    kinds of solver (`rtol` for `--solver ida` beside `solver: midpoint` and its `step`)."""
+    own = ("step",) if backend.fixed_step else ("rtol", "atol")
+    if any(name in written or given.get(name) is not None for name in own):
+        return []
+    return [name for name in written if name not in backend.honours and given.get(name) is None]
+
+
+__all__ = ["Backend", "BackendRun", "IgnoredOptionWarning", "ignored_in_file", "ignored_option_message"]
