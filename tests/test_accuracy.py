@@ -68,10 +68,10 @@ def test_cli_estimate_error_and_profile(capsys):
     assert all(v["seconds"] >= 0 for v in prof.values())
 
 
-# IDA at rtol = atol = 1e-5: atol is relative to the nominal scales and IDA runs at a tenth of
-# both (docs/tolerances.md), so 1e-6 is now accurate to 4e-9, below the 1e-8 the integration
+# IDA at rtol = atol = 1e-4: atol is relative to the nominal scales and IDA runs at a hundredth
+# of both (docs/tolerances.md), so 1e-5 is now accurate to 4e-9, below the 1e-8 the integration
 # error must stay above for the model error not to matter
-@pytest.mark.parametrize("kwargs", [dict(solver="midpoint", step=0.01), dict(rtol=1e-5, atol=1e-5)])
+@pytest.mark.parametrize("kwargs", [dict(solver="midpoint", step=0.01), dict(rtol=1e-4, atol=1e-4)])
 def test_temporal_estimate_brackets_the_small_angle_pendulum(tmp_path, kwargs):
     """Small-angle limit: θ = θ0 cos(√(g/L) t); for θ0 = 1e-3 the model error (O(θ0²)
     frequency shift, ~1e-9 in x here) is far below the integration error measured."""

@@ -306,7 +306,7 @@ class ModulePrinter:
             taken = [line for s, line in table.items() if s in used]
             if bulk and taken and BULK_SHARE * len(taken) >= len(table):
                 # the values as Python floats: arithmetic on them costs a third of NumPy scalars'
-                lines.append(f"_{name} = {name}.tolist()")
+                lines.append(f"_{name} = _read({name})")
                 taken = [line.replace(f" = {name}[", f" = _{name}[", 1) for line in taken]
             lines += taken
         for sym, rhs in replacements:
@@ -317,10 +317,23 @@ class ModulePrinter:
         return lines
 
     def _function(self, signature: str, doc: str, exprs, targets, prologue=(), epilogue=()) -> str:
-        lines = [f"def {signature}:", f'    """{doc}"""']
         body = list(prologue) + self._body(exprs, targets) + list(epilogue)
-        lines += ["    " + line for line in body] or ["    pass"]
-        return "\n".join(lines) + "\n"
+        if not any(line.startswith("_") and " = _read(" in line for line in body):
+            lines = [f"def {signature}:", f'    """{doc}"""']
+            lines += ["    " + line for line in body] or ["    pass"]
+            return "\n".join(lines) + "\n"
+        # The arguments read as Python floats (a third of the cost of NumPy scalars), which
+        # raise where IEEE arithmetic gives inf or nan (1/0, an overflowing power); such a call
+        # is evaluated again on NumPy scalars, so every value is what NumPy gives.
+        name, args = signature.split("(", 1)
+        args = args.rstrip(")")
+        inner = [f"def _{name}({args}, _read):",
+                 f'    """`{name}` on the arguments read by `_read`: as Python floats, or NumPy scalars (`list`)."""']
+        inner += ["    " + line for line in body]
+        outer = [f"def {signature}:", f'    """{doc}"""', "    try:", f"        return _{name}({args}, _floats)",
+                 "    except ArithmeticError:  # as NumPy computes it (inf, nan), for the checks to judge",
+                 f"        return _{name}({args}, list)"]
+        return "\n".join(inner) + "\n\n\n" + "\n".join(outer) + "\n"
 
     def print(self) -> str:
         ir = self.ir
@@ -339,7 +352,8 @@ class ModulePrinter:
             "import base64\nimport math\n\nimport numpy as np\n\n\n"
             "def _unpack(text, dtype):\n"
             "    \"\"\"A long constant array stored as base64 of its little-endian bytes.\"\"\"\n"
-            "    return np.frombuffer(base64.b64decode(text), dtype=dtype).copy()\n",
+            "    return np.frombuffer(base64.b64decode(text), dtype=dtype).copy()\n\n\n"
+            "_floats = np.ndarray.tolist  # an array's entries as Python floats\n",
             f"MODEL = {str(ir.name)!r}",
             f"SOURCES = {_tuple([os.path.basename(s) for s in ir.sources])}",
             f"N = {n}",

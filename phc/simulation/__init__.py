@@ -30,7 +30,7 @@ from phc.simulation.initial import InitialResult, consistent_initial_conditions
 from phc.simulation.monitor import describe_equations
 from phc.simulation.backend import Backend, BackendRun, IgnoredOptionWarning, ignored_option_message
 from phc.simulation.result import SimResult, SimulationInterrupted
-from phc.simulation.scaling import nominal_indices, nominal_scales
+from phc.simulation.scaling import nominal_indices, nominal_scales, tested_fraction
 
 
 
@@ -288,7 +288,7 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
         extra = {"step": step} if solver in FIXED_STEP else {}
         # every tolerance measures the variables against their nominal scales (docs/tolerances.md)
         scales = nominal_scales(mod, p, init.y0, init.yp0, user_nominal, t0=t0, span=float(t_out[-1] - t0),
-                                t_out=t_out, atol=atol)
+                                t_out=t_out, atol=atol * tested_fraction(solver, rtol))
         run = partial(BACKENDS[solver], mod, p, rtol=rtol, atol=atol, max_steps=max_steps, progress=progress,
                       max_order=opts.get("max_order", 5), names=describe_equations(compiled), nominal=scales,
                       **extra)

@@ -39,7 +39,7 @@ import numpy as np
 from phc.errors import InconsistentInitialError
 from phc.simulation.guard import CATCH, ModelEvaluationError
 from phc.simulation.initial import consistent_initial_conditions
-from phc.simulation.scaling import mode_floor
+from phc.simulation.scaling import mode_floor, tested_fraction
 
 SAMPLES = 256
 """Equal intervals of [t₀, t₁] on which the switching functions in t are first sampled."""
@@ -372,8 +372,10 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, optio
                     # once per mode: a stick-slip run returns to the same few modes many times
                     mode = watch.p.tobytes()
                     if mode not in floors:
+                        tested = options["atol"] * tested_fraction(getattr(backend, "name", "ida"),
+                                                                   options.get("rtol", 0.0))
                         floors[mode] = mode_floor(mod, watch.p, options["nominal"], y, yp, t0=t, span=t1 - t,
-                                                  atol=options["atol"])
+                                                  atol=tested)
                     seg_options = dict(options, nominal=floors[mode])
                 try:
                     out = dict(backend(mod, watch.p.copy(), grid, y, yp, **seg_options, events=active))

@@ -115,7 +115,7 @@ def _reason(err: Optional[BaseException]) -> str:
 class _Source:
     """The generated source, split into functions, for mapping a failing line to its row."""
 
-    ASSIGN = re.compile(r"^\s+(\w+) = (y|yp|p)\[(\d+)\]\s*$")
+    ASSIGN = re.compile(r"^\s+(\w+) = _?(y|yp|p)\[(\d+)\]\s*$")  # `x = y[3]`, or `x = _y[3]` after `_y = y.tolist()`
     OUT = re.compile(r"^\s+out\[(\d+)\] = (.*)$")
     LOCAL = re.compile(r"^\s+(\w+) = (.*)$")
     NAME = re.compile(r"\b[A-Za-z_]\w*\b")
@@ -281,17 +281,22 @@ class GuardedModule:
     def _fail(self, name, func, args, err) -> Optional[ModelEvaluationError]:
         out_arg, what = GUARDED[name]
         lineno = None
+        owner = self._mod
         if self._reference is not None and getattr(self._reference, name, None) is not None:
-            func, err = getattr(self._reference, name), None  # evaluated again below, by the reference
+            func, err, owner = getattr(self._reference, name), None, self._reference  # evaluated again below
         if err is None:
             # a non-finite value: evaluate again with floating-point errors raised to find
             # the operation; if nothing is raised, the non-finite row is the answer
             trial = list(args)
             if out_arg is not None:
                 trial[out_arg] = np.array(args[out_arg], dtype=float, copy=True)
+            # on NumPy scalars: the per-step functions read their arguments as Python floats
+            # (`_residual(..., _read)`, phc.codegen.printer), whose `*` overflows to inf
+            # without a word, where np.errstate raises
+            inner = getattr(owner, "_" + name, None)
             try:
                 with np.errstate(over="raise", divide="raise", invalid="raise"):
-                    value = func(*trial)
+                    value = inner(*trial, list) if inner is not None else func(*trial)
             except CATCH as again:
                 err = again
             else:
@@ -310,7 +315,7 @@ class GuardedModule:
         tb, line = err.__traceback__, None
         while tb is not None:
             if self._filename is not None and tb.tb_frame.f_code.co_filename == self._filename \
-                    and tb.tb_frame.f_code.co_name in GUARDED:
+                    and tb.tb_frame.f_code.co_name.lstrip("_") in GUARDED:
                 line = tb.tb_lineno
             tb = tb.tb_next
         return line

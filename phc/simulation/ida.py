@@ -34,12 +34,33 @@ from phc.errors import SimulationSetupError
 from phc.simulation.guard import CATCH, GuardedModule, ModelEvaluationError
 from phc.simulation.monitor import SingularityMonitor, check_scales, diagnose_failure
 
-LOCAL_TOLERANCE = 0.1
-"""IDA runs at ``rtol · LOCAL_TOLERANCE`` and ``atol · LOCAL_TOLERANCE``: its error test bounds
-the error made in one step, and what a user reads is the error of the outputs, which
-accumulates over the run (a phase error in undamped oscillations above all). What it gives
-on the shipped models, against IDA as it ran before, in steps and in errors:
-``benchmarks/bench_accuracy.py`` (``benchmarks/results/accuracy.md``, docs/tolerances.md)."""
+LOCAL_TOLERANCE = 0.01
+"""IDA runs at ``rtol · LOCAL_TOLERANCE`` and ``atol · LOCAL_TOLERANCE`` (but see
+:data:`TIGHTEST_LOCAL`): its error test bounds the error made in one step, and what a user
+reads is the error of the outputs, which accumulates over the run — most of all as a phase
+error in undamped oscillations (a pendulum over 8 periods, the high modes of a beam). At a
+tenth, ``rtol = 1e-6`` gave 2.7e-4 on the shipped pendulum and 3.4e-4 on the Timoshenko
+beam; at a hundredth every shipped model is within 1e-4. What it gives on the shipped
+models, in steps and in errors: ``benchmarks/bench_accuracy.py``
+(``benchmarks/results/accuracy.md``, docs/tolerances.md)."""
+
+TIGHTEST_LOCAL = 1e-13
+"""IDA's local relative tolerance is not set below this (the factor :func:`local_fraction`
+gives then rises above :data:`LOCAL_TOLERANCE`): a step's residual is evaluated to a few ε
+times its largest terms, BDF's error estimate is a difference of predicted and corrected
+values, and over the 10⁴–10⁵ steps of such a run the round-off that accumulates is of
+order 1e-14; a local tolerance below ~1e-13 buys steps, not accuracy."""
+
+
+def local_fraction(rtol: float) -> float:
+    """The factor between the tolerances asked for and those IDA's error test applies:
+    :data:`LOCAL_TOLERANCE`, raised so that ``rtol`` times it is no tighter than
+    :data:`TIGHTEST_LOCAL` (and never above 1)."""
+    rtol = float(rtol)
+    if not rtol > 0:
+        return LOCAL_TOLERANCE
+    return min(1.0, max(LOCAL_TOLERANCE, TIGHTEST_LOCAL / rtol))
+
 
 ALGEBRAIC_ATOL = 1e8
 """Absolute tolerance on algebraic variables: effectively removes them from the error test."""
@@ -357,6 +378,48 @@ FAR_RATIO = 1e-6
 """Conditioning ratio above which the monitor may look less often (its threshold is 1e-11)."""
 
 
+APPROACH_FALL = 10.0
+"""A run whose conditioning fell by at least this factor over the monitor's last looks, and
+further to the failure point, failed approaching a singular configuration."""
+
+
+def _approaching_singularity(monitor, h) -> Optional[str]:
+    """The singular configuration a run failed on its way to, or None.
+
+    Close to a singular configuration the iteration matrix is conditioned like the distance
+    to it, and IDA's Newton iteration fails (round-off outgrows the tolerances) before the
+    conditioning reaches the monitor's threshold — the tighter the tolerances, the earlier:
+    the folded slider–crank failed 0.35° before its rod stood perpendicular to the guide.
+    The conditioning at the monitor's last looks (``monitor.history``) is compared at one
+    step size `h` (the ratio depends on it); when it fell steadily, by :data:`APPROACH_FALL`
+    or more, to below :data:`FAR_RATIO`, the monitor's message is given for the last look
+    (the dependent equations, their connections, the condition)."""
+    if not monitor.enabled or h <= 0:
+        return None
+    h = max(h, monitor.h_floor)
+    looks = []  # a tenth of a step apart (while IDA cut its step, its looks repeat the failure point)
+    for look in monitor.history:
+        if not looks or look[0] > looks[-1][0] + 0.1 * h:
+            looks.append(look)
+    if len(looks) < 3:
+        return None
+    picks = sorted({0, len(looks) // 3, 2 * len(looks) // 3, len(looks) - 1})
+    try:
+        ratios = [monitor.ratio(*looks[i][:3], h)[0] for i in picks]
+    except (ModelEvaluationError, *CATCH, np.linalg.LinAlgError):
+        return None
+    if any(b >= a for a, b in zip(ratios, ratios[1:])) or ratios[0] < APPROACH_FALL * ratios[-1] \
+            or ratios[-1] > FAR_RATIO:
+        return None
+    t_last, y_last, yp_last = looks[-1][:3]
+    warning = monitor.check(t_last, y_last, yp_last, h, threshold=2.0 * ratios[-1])
+    if warning is None:
+        return None
+    return (f"the conditioning of the iteration matrix fell from {ratios[0]:.1e} at t = {looks[0][0]:.6g} to "
+            f"{ratios[-1]:.1e} at t = {t_last:.6g}: the run was approaching a singular configuration, and "
+            f"Newton's iteration failed before reaching it; {warning}")
+
+
 def _status_text(res, status: int) -> str:
     """scikit-SUNDAE's text for an IDA return flag."""
     if res is not None:
@@ -607,7 +670,7 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     n = mod.N
     max_order = int(max_order or MAX_ORDER)
     # `nominal`: the variables' nominal scales (phc.simulation.scaling); atol is relative to them.
-    # IDA's local tolerances are a tenth of what the outputs should meet (LOCAL_TOLERANCE).
+    # IDA's local tolerances are a hundredth of what the outputs should meet (local_fraction).
     determined = determined_algebraic(mod, p, float(t_out[0]), np.asarray(y0, dtype=float),
                                       np.asarray(yp0, dtype=float))
     # an index-1 variable is tested no tighter than its states' tolerances determine it
@@ -615,9 +678,10 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
                                       np.asarray(yp0, dtype=float), determined, nominal, rtol, atol)
     if tested_scales is None:
         tested_scales = nominal
-    atol_j = (atol if tested_scales is None else atol * np.asarray(tested_scales, dtype=float)) * LOCAL_TOLERANCE
+    local = local_fraction(rtol)
+    atol_j = (atol if tested_scales is None else atol * np.asarray(tested_scales, dtype=float)) * local
     yp0 = algebraic_rates(mod, p, float(t_out[0]), np.asarray(y0, dtype=float), yp0, determined)
-    options, calls = solver_options(mod, p, rtol=rtol * LOCAL_TOLERANCE, atol=atol_j, max_order=max_order,
+    options, calls = solver_options(mod, p, rtol=rtol * local, atol=atol_j, max_order=max_order,
                                     determined=determined)
     resfn = options.pop("resfn")
     with warnings.catch_warnings():
@@ -677,7 +741,7 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     try:  # a model function outside its domain, or Ctrl-C: keep the outputs filled so far
         while k < len(t_out):
             if counters is not None:  # IDA returns after this many steps at most (status -1)
-                counters.set_max_steps(max(1, min(cadence - since_look, max_steps - steps)))
+                counters.set_max_steps(max(1, min(cadence - since_look, CHUNK_STEPS, max_steps - steps)))
             if direct:
                 status, t_now = counters.advance(float(t_out[k]))
                 res = None
@@ -700,11 +764,14 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
             if status < 0 and not chunk_end:
                 ok = False
                 hint = _STATUS_HINTS.get(status)
-                if hint is None:  # diagnose before blaming: is the iteration matrix singular there?
+                approach = _approaching_singularity(monitor, h_ref) if hint is None else None
+                if approach is not None:
+                    hint = approach
+                elif hint is None:  # diagnose before blaming: is the iteration matrix singular there?
                     hint = diagnose_failure(mod, p, *normal, status=status, h_typical=h_ref,
                                             h_fail=(1.0 / calls["cj"]) if calls["cj"] > 0 else h_last,
                                             max_order=max_order, rtol=rtol, atol=atol, names=names,
-                                            scales=nominal, local=LOCAL_TOLERANCE)
+                                            scales=nominal, local=local)
                 message = f"IDA failed at t = {t_now:.6g} (status {status}: {_status_text(res, status)}); {hint}"
                 break
             y_now, yp_now = (counters.y.copy(), counters.yp.copy()) if direct else (res.y, res.yp)

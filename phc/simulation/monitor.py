@@ -13,11 +13,14 @@ message naming the time and the equations that become dependent.
 
 from __future__ import annotations
 
+from collections import deque
 from typing import Optional
 
 import numpy as np
 import scipy.linalg as sla
 
+HISTORY = 16
+"""Looks the monitor keeps for a failure's diagnosis."""
 THRESHOLD = 1e-11
 """σ_min/σ_max of the equilibrated iteration matrix below which a run stops."""
 MAX_SIZE = 120
@@ -82,6 +85,9 @@ class SingularityMonitor:
         self.stop_time: Optional[float] = None
         """Time of the configuration a warning is about (may precede the last look)."""
         self._looks: list[tuple] = []
+        self.history: deque = deque(maxlen=HISTORY)
+        """(t, y, ẏ) of the last :data:`HISTORY` looks (a failure's diagnosis: is the
+        conditioning falling toward a singular configuration?)."""
 
     def ratio(self, t, y, yp, h) -> tuple[float, np.ndarray]:
         n = self.mod.N
@@ -112,6 +118,7 @@ class SingularityMonitor:
             self.threshold = saved
         self.worst = min(self.worst, ratio)
         self._looks = [*self._looks[-2:], (t, np.array(y, dtype=float), np.array(yp, dtype=float), h, ratio)]
+        self.history.append(self._looks[-1][:3])
         if ratio >= threshold:
             return None
         return self._message(t, ratio, u, threshold)

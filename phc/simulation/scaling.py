@@ -74,7 +74,7 @@ zeros computed inexactly (1e-47 where 0 was meant, at rest): they say nothing ab
 variable's size."""
 NOISE_COEFFICIENT = 1e-20
 """Jacobian entries below this times the largest of their row are zeros computed inexactly."""
-ROUNDOFF_ULPS = 100.0
+ROUNDOFF_ULPS = 10.0
 """``atol · s_j`` stays at least this many times the round-off of ``y_j`` (step 9)."""
 DENSE_ROUNDOFF = 400
 """Up to this many unknowns the round-off floor uses the dense inverse (step 9)."""
@@ -142,6 +142,22 @@ def _floored(mod, p, rows, cols, vals, s, y0, yp0, seen, *, t0, span, t_out, ato
     out.floored = attainable > s
     out.user = tuple(user)
     return out
+
+
+FIXED_STEP_FRACTION = 0.1
+"""The fraction of `atol` step 9 measures against for the fixed-step solvers (their Newton
+test does not use `atol`): where IDA's local tolerance was when this floor was set."""
+
+
+def tested_fraction(solver: str, rtol: float) -> float:
+    """The fraction of `atol` (times the nominal scales) the solver's error test applies, which
+    step 9 keeps above round-off: IDA's :func:`~phc.simulation.ida.local_fraction` of it; the
+    fixed-step solvers' :data:`FIXED_STEP_FRACTION`."""
+    if solver == "ida":
+        from phc.simulation.ida import local_fraction
+
+        return local_fraction(rtol)
+    return FIXED_STEP_FRACTION
 
 
 def mode_floor(mod, p, scales, y, yp, *, t0: float, span: float, t_out=None, atol: Optional[float]) -> np.ndarray:
