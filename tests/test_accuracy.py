@@ -68,7 +68,7 @@ def test_cli_estimate_error_and_profile(capsys):
     assert all(v["seconds"] >= 0 for v in prof.values())
 
 
-# IDA at rtol = atol = 1e-4: atol is relative to the nominal scales and IDA runs at a hundredth
+# IDA at rtol = atol = 1e-4: atol is relative to the nominal scales and IDA runs at 1/200
 # of both (docs/tolerances.md), so 1e-5 is now accurate to 4e-9, below the 1e-8 the integration
 # error must stay above for the model error not to matter
 @pytest.mark.parametrize("kwargs", [dict(solver="midpoint", step=0.01), dict(rtol=1e-4, atol=1e-4)])

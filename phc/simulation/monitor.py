@@ -19,7 +19,7 @@ from typing import Optional
 import numpy as np
 import scipy.linalg as sla
 
-HISTORY = 16
+HISTORY = 64
 """Looks the monitor keeps for a failure's diagnosis."""
 THRESHOLD = 1e-11
 """σ_min/σ_max of the equilibrated iteration matrix below which a run stops."""

@@ -1,6 +1,6 @@
 """IDA's local tolerances against the `rtol` a user asks for (docs/tolerances.md).
 
-IDA runs at ``local_fraction(rtol)`` of the tolerances asked for: a hundredth, never below
+IDA runs at ``local_fraction(rtol)`` of the tolerances asked for: 1/200, never below
 a local rtol of 1e-13. The round-off floor of the nominal scales (step 9 of
 :mod:`phc.simulation.scaling`) is measured against the absolute tolerance IDA applies.
 """
@@ -22,7 +22,7 @@ MODELS = Path(__file__).resolve().parents[2] / "models"
 
 
 @pytest.mark.parametrize("rtol", [1e-3, 1e-6, 1e-8, 1e-11, 1e-12, 1e-14])
-def test_local_fraction_is_a_hundredth_but_not_below_the_tightest_local_tolerance(rtol):
+def test_local_fraction_is_1_200_but_not_below_the_tightest_local_tolerance(rtol):
     f = local_fraction(rtol)
     assert 0 < f <= 1
     assert rtol * f >= min(rtol, TIGHTEST_LOCAL) * (1 - 1e-12)
@@ -39,7 +39,7 @@ def test_the_round_off_floor_follows_the_solver():
         assert scaling.tested_fraction(solver, 1e-6) == scaling.FIXED_STEP_FRACTION
 
 
-def test_a_hundredth_keeps_the_shipped_pendulum_within_100_rtol():
+def test_the_local_fraction_keeps_the_shipped_pendulum_within_100_rtol():
     """The shipped pendulum, released from 90°, over its 20 s (8.5 periods) at rtol 1e-6,
     against the solution of the same motion in the angle written here (θ'' = −(g/L) sin θ,
     scipy DOP853 at 1e-13): within 100 · rtol. With IDA at a tenth of rtol it was 2.7e-4

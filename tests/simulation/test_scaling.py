@@ -80,18 +80,20 @@ def test_ida_relative_error_is_the_same_in_si_and_in_grams(pendulum, tol):
     # momenta ~1e-5 kg·m/s in SI: with an absolute atol = rtol they had no accuracy at all
     # (errors 1.0, 0.13, 0.044 where grams–centimetres gave 0.06, 3.5e-4, 7.6e-6)
     # The error of an adaptive run is the error of one step sequence, and not a smooth function
-    # of the tolerance: rounding, which the change of units alters, picks another sequence as
-    # a change of the tolerance by 2 does (at rtol 1e-8 the SI run was off by 9.5e-9, at 5e-9
-    # and 2e-8 by 5.0e-8 and 1.1e-7). So each unit system gives its worst error over the
-    # bracket rtol·{1/2, 1, 2}.
-    def worst(params):
-        return max(_pendulum_error(pendulum, params, rtol=f * tol, atol=f * tol) for f in (0.5, 1.0, 2.0))
+    # of the tolerance: rounding, which the change of units alters (the scaled problems are the
+    # same: test_scales_follow_the_units), picks another sequence as a small change of the
+    # tolerance does. At rtol 1e-8 the SI errors over rtol·{1/2, 1/√2, 1, √2, 2} were 1.0e-8,
+    # 1.4e-8, 5.0e-8, 6.3e-8 and 9.5e-9: a factor 6 within one unit system. So the two unit
+    # systems' errors are compared as distributions: the median over that bracket.
+    def typical(params):
+        return float(np.median([_pendulum_error(pendulum, params, rtol=f * tol, atol=f * tol)
+                                for f in (0.5, 2 ** -0.5, 1.0, 2 ** 0.5, 2.0)]))
 
-    e_si, e_cgs = worst(SI), worst(GRAMS_CM)
-    print(f"\nrtol = atol = {tol:g} (·1/2, ·2): relative error SI {e_si:.2e}, g-cm {e_cgs:.2e}, "
+    e_si, e_cgs = typical(SI), typical(GRAMS_CM)
+    print(f"\nrtol = atol = {tol:g} (median over ·1/2 … ·2): relative error SI {e_si:.2e}, g-cm {e_cgs:.2e}, "
           f"factor {max(e_si, e_cgs) / min(e_si, e_cgs):.2f}")
     assert max(e_si, e_cgs) <= 3 * min(e_si, e_cgs)
-    assert e_si <= 2 * 400 * tol  # BDF over two periods of a 90° swing; SI used to give 1e4 × tol
+    assert e_si <= 400 * tol  # BDF over two periods of a 90° swing; SI used to give 1e4 × tol
 
 
 def test_tight_tolerances_are_accurate_in_si(pendulum):
