@@ -292,16 +292,71 @@ class ModulePrinter:
             used |= e.free_symbols
         return [j for j, s in enumerate(symbols) if s in used]
 
+    def _statements(self, exprs, targets, symbols, printed: list, top: bool) -> list[str]:
+        """Common subexpressions, then one assignment per target. A Piecewise (``ifelse``, a
+        switch) becomes an ``if``/``elif``/``else`` block assigning a local of its own, each
+        branch with its own common subexpressions: a branch its condition discards is never
+        evaluated. (Common subexpressions across all rows would hoist a ``1/x`` or ``sqrt(x)``
+        out of ``ifelse(x > 0, ...)``: a division by zero or a domain error where the model
+        is well defined.) `printed` collects every expression printed."""
+        pieces: dict = {}
+
+        def outermost(e):
+            if isinstance(e, sp.Piecewise):
+                if e not in pieces:
+                    pieces[e] = next(symbols)
+                return
+            for a in e.args:
+                if isinstance(a, sp.Basic) and a.has(sp.Piecewise):
+                    outermost(a)
+
+        for e in exprs:
+            if isinstance(e, sp.Basic) and e.has(sp.Piecewise):
+                outermost(e)
+        groups: dict = {}  # Piecewises with the same conditions: one block, shared subexpressions
+        for pw, sym in pieces.items():
+            self.names[sym] = sym.name
+            groups.setdefault(tuple(c for _, c in pw.args), []).append((pw, sym))
+        lines = []
+        for conditions, group in groups.items():
+            for k, c in enumerate(conditions):
+                branch = self._statements([pw.args[k].expr for pw, _ in group], [sym.name for _, sym in group],
+                                          symbols, printed, False)
+                if c == sp.true and k == 0:
+                    lines += branch
+                    break
+                if c == sp.true:
+                    lines.append("else:")
+                else:
+                    printed.append(c)
+                    lines.append(f"{'elif' if k else 'if'} {self.printer.doprint(c)}:")
+                lines += ["    " + line for line in branch]
+                if c == sp.true:
+                    break
+            else:
+                lines += ["else:"] + [f"    {sym.name} = math.nan" for _, sym in group]
+        exprs = [e.xreplace(pieces) if isinstance(e, sp.Basic) and pieces else e for e in exprs]
+        replacements, reduced = sp.cse(list(exprs), symbols=symbols, order="none")
+        for sym, rhs in replacements:
+            self.names[sym] = sym.name  # _c0, _c1, ...: generated here
+            printed.append(rhs)
+            lines.append(f"{sym} = {self.printer.doprint(rhs)}")
+        for target, e in zip(targets, reduced):
+            printed.append(e)
+            op = "+=" if top and target in self.accumulate else "="
+            lines.append(f"{target} {op} {self.printer.doprint(e)}")
+        return lines
+
     def _body(self, exprs: Sequence[sp.Expr], targets: Sequence[str]) -> list[str]:
         """Unpack used symbols, common subexpressions, then one assignment per target."""
-        replacements, reduced = sp.cse(list(exprs), symbols=sp.numbered_symbols("_c"), order="none")
+        printed: list = []
+        statements = self._statements(list(exprs), list(targets), sp.numbered_symbols("_c"), printed, True)
         used = set()
-        for e in list(reduced) + [r for _, r in replacements]:
-            used |= e.free_symbols
-        for sym, _ in replacements:
-            self.names[sym] = sym.name  # _c0, _c1, ...: generated here
+        for e in printed:
+            if isinstance(e, sp.Basic):
+                used |= e.free_symbols
         lines = []
-        bulk = self.bulk and not any(_complex_prone(e) for e in list(reduced) + [r for _, r in replacements])
+        bulk = self.bulk and not any(_complex_prone(e) for e in printed if isinstance(e, sp.Basic))
         for name, table in (("y", self.unpack_y), ("yp", self.unpack_yp), ("p", self.unpack_p)):
             taken = [line for s, line in table.items() if s in used]
             if bulk and taken and BULK_SHARE * len(taken) >= len(table):
@@ -309,12 +364,7 @@ class ModulePrinter:
                 lines.append(f"_{name} = _read({name})")
                 taken = [line.replace(f" = {name}[", f" = _{name}[", 1) for line in taken]
             lines += taken
-        for sym, rhs in replacements:
-            lines.append(f"{sym} = {self.printer.doprint(rhs)}")
-        for target, e in zip(targets, reduced):
-            op = "+=" if target in self.accumulate else "="
-            lines.append(f"{target} {op} {self.printer.doprint(e)}")
-        return lines
+        return lines + statements
 
     def _function(self, signature: str, doc: str, exprs, targets, prologue=(), epilogue=()) -> str:
         body = list(prologue) + self._body(exprs, targets) + list(epilogue)

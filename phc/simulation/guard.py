@@ -247,13 +247,16 @@ class GuardedModule:
     def _wrap(self, name, func, out_arg):
         fail = self._fail
         isfinite = math.isfinite
+        recover = self._as_written
         if out_arg is not None:
             def guarded(*args):
                 try:
                     func(*args)
                 except CATCH as err:
-                    raise fail(name, func, args, err) from None
-                if not isfinite(args[out_arg].sum()):
+                    if recover(name, func, args) is None:
+                        raise fail(name, func, args, err) from None
+                    return
+                if not isfinite(args[out_arg].sum()) and recover(name, func, args) is None:
                     fail_ = fail(name, func, args, None)
                     if fail_ is not None:
                         raise fail_
@@ -261,14 +264,17 @@ class GuardedModule:
             def guarded(*args):
                 try:
                     value = func(*args)
-                except CATCH as err:
-                    raise fail(name, func, args, err) from None
-                try:
                     # (an array's own sum: np.sum's dispatch costs more than the sum itself)
                     total = float(value.sum() if isinstance(value, np.ndarray) else np.sum(value))
                 except CATCH as err:
-                    raise fail(name, func, args, err) from None
+                    value = recover(name, func, args)
+                    if value is None:
+                        raise fail(name, func, args, err) from None
+                    return value
                 if not isfinite(total):
+                    again = recover(name, func, args)
+                    if again is not None:
+                        return again
                     fail_ = fail(name, func, args, None)
                     if fail_ is not None:
                         raise fail_
@@ -278,6 +284,40 @@ class GuardedModule:
         return guarded
 
     # -- diagnosis (slow path: only when a call failed) ----------------------------------
+    def _as_written(self, name, func, args):
+        """The failed call again with every switching condition evaluated as written (its mode
+        0, phc.codegen.nonsmooth), or None. The event driver freezes a condition's side, so a
+        row evaluates its branch a little beyond where the condition holds (at the start, a
+        condition on its boundary takes the side the motion goes to): there a branch the
+        condition discards may be inf or NaN (``ifelse(abs(x) > 1e-9, sin(x)/x, 1)`` at x = 0).
+        Its value as written is the model's value; a failure that remains is reported."""
+        slots = getattr(self._mod, "SWITCH_SLOTS", None)
+        out_arg = GUARDED[name][0]
+        at = 2 if name in ("hamiltonian", "energy_scale", "invariants", "velocity_invariants") else 3
+        if slots is None or not len(slots) or len(args) <= at:
+            return None
+        p = np.array(args[at], dtype=float, copy=True)
+        slots = np.asarray(slots, dtype=np.int64)
+        if not p[slots].any():
+            return None  # already as written
+        p[slots] = 0.0
+        trial = list(args)
+        trial[at] = p
+        if out_arg is not None:
+            trial[out_arg] = np.array(args[out_arg], dtype=float, copy=True)
+        try:
+            with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+                value = func(*trial)
+                value = trial[out_arg] if out_arg is not None else value
+                finite = bool(np.all(np.isfinite(np.asarray(value, dtype=float))))
+        except CATCH:
+            return None
+        if not finite:
+            return None
+        if out_arg is not None:
+            args[out_arg][...] = value
+        return value
+
     def _fail(self, name, func, args, err) -> Optional[ModelEvaluationError]:
         out_arg, what = GUARDED[name]
         lineno = None
