@@ -345,7 +345,13 @@ def test_state_expression_outside_its_domain_keeps_the_results_so_far(tmp_path, 
     rows = _rows(out)
     reached = float(rows[-1]["t"])
     assert len(rows) > 1 and reached <= t_star + 1e-12  # up to the time the model leaves its domain
-    assert reached >= t_star - 0.03  # ... and not far before it (output interval 0.01, steps ≤ 0.01)
+    failed_at = float(re.search(r"cannot be evaluated at t = ([0-9.eE+-]+)", first).group(1))
+    assert reached <= failed_at <= t_star + 1e-9  # the failure is where the model leaves its domain
+    if solver != "ida":
+        assert reached >= t_star - 0.03  # ... and not far before it (output interval 0.01, steps ≤ 0.01)
+    # IDA keeps what its last accepted step reached: q' = 1000 is integrated exactly by BDF
+    # of any order, and the energy e^q is far below its absolute tolerance until late, so
+    # its steps may be long (the last one before the failure started at t = 0.35)
 
 
 def test_failing_row_is_found_through_common_subexpressions():

@@ -56,19 +56,42 @@ def test_residual_and_jacobian_read_python_floats(compiled):
     assert mod.residual.__doc__ and mod._residual.__doc__
 
 
-def test_a_division_by_zero_a_condition_discards_gives_numpys_values(compiled):
+def test_a_division_by_zero_a_condition_discards_is_not_evaluated(compiled):
+    """The terms with 1/c sit in branches c = 0 switches off: each branch is its own block
+    (phc.codegen.printer), so neither reading meets 1/c, and both give the same values."""
     mod = compiled.module
     p = mod.full_parameters()
     n = mod.N
     rng = np.random.default_rng(3)
     y, yp = rng.normal(size=n), rng.normal(size=n)
-    fast, ieee = np.zeros(n), np.zeros(n)
-    with pytest.raises(ZeroDivisionError):  # the Python-float evaluation meets 1/c with c = 0
-        mod._residual(0.0, y, yp, p, fast, mod._floats)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        mod.residual(0.0, y, yp, p, fast)
+    fast, ieee, called = np.zeros(n), np.zeros(n), np.zeros(n)
+    with np.errstate(divide="raise", invalid="raise"):
+        mod._residual(0.0, y, yp, p, fast, mod._floats)  # Python floats: 1/0 would raise
+        mod._residual(0.0, y, yp, p, ieee, list)  # NumPy scalars under errstate: 1/0 would raise
+        mod.residual(0.0, y, yp, p, called)
+    assert np.all(np.isfinite(fast)) and np.array_equal(fast, ieee) and np.array_equal(fast, called)
+
+
+def test_python_float_errors_fall_back_to_numpy_scalars():
+    """Where Python floats raise and NumPy gives inf (a square of 1e200 in the pendulum's
+    constraint row), the call is evaluated again on NumPy scalars: the values are NumPy's,
+    for the checks (phc.simulation.guard) to judge."""
+    from pathlib import Path
+
+    compiled = phc.compile_model(Path(__file__).resolve().parents[2] / "models" / "pendulum.yaml",
+                                 certify=False, backend="numpy")
+    mod = compiled.module
+    p = mod.full_parameters()
+    y, yp = np.zeros(mod.N), np.zeros(mod.N)
+    y[list(mod.VARIABLES).index("pendulum.x")] = 1e200
+    with pytest.raises(OverflowError):
+        mod._residual(0.0, y, yp, p, np.zeros(mod.N), mod._floats)
+    called, ieee = np.zeros(mod.N), np.zeros(mod.N)
+    with np.errstate(over="ignore", invalid="ignore"):
+        mod.residual(0.0, y, yp, p, called)
         mod._residual(0.0, y, yp, p, ieee, list)
-    assert np.all(np.isfinite(fast)) and np.array_equal(fast, ieee)
+    assert np.isinf(called).any()
+    assert np.array_equal(called, ieee, equal_nan=True)
 
 
 def test_the_model_runs_as_the_plain_spring(compiled):
