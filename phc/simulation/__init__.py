@@ -33,10 +33,10 @@ from phc.simulation.result import SimResult, SimulationInterrupted
 from phc.simulation.scaling import nominal_indices, nominal_scales, tested_fraction
 
 
-
 def _deferred(module: str, name: str) -> Callable:
     """``module.name``, imported at its first call: a run with IDA does not load the
-    fixed-step solvers (and the sparse LU and scipy.linalg they bring, ~0.1 s of start-up)."""
+    fixed-step integrators' drivers (the midpoint rule's stage solver, which the nominal
+    scales' probe uses, is loaded by that probe)."""
     def integrate(*args, **kwargs):
         return getattr(importlib.import_module(module), name)(*args, **kwargs)
     integrate.__name__ = integrate.__qualname__ = name
