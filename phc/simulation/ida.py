@@ -392,7 +392,7 @@ def _approaching_singularity(monitor, h) -> Optional[str]:
     Close to a singular configuration the iteration matrix is conditioned like the distance
     to it, and IDA's Newton iteration fails (round-off outgrows the tolerances) before the
     conditioning reaches the monitor's threshold — the tighter the tolerances, the earlier:
-    the folded slider–crank failed 0.35° before its rod stood perpendicular to the guide.
+    the folded slider–crank failed half a degree before its rod stood perpendicular to the guide.
     The conditioning at the monitor's last looks (``monitor.history``) is compared at one
     step size `h` (the ratio depends on it); when it fell steadily, by :data:`APPROACH_FALL`
     or more, to below :data:`FAR_RATIO`, the monitor's message is given for the last look
