@@ -32,3 +32,31 @@ simulation:
 """A wheel whose axle moves on a prescribed support (time in a rigid constraint):
 tests/library/test_rheonomic.py solves it independently, tests/simulation/test_scaling.py
 checks its potential gives no energy floor."""
+
+# A spring whose two softening terms a parameter c = 0 switches off through ifelse(c > 0, .../c, 0):
+# tests/test_guarded_terms.py, tests/codegen/test_float_arguments.py
+GUARDED_DIVISION = """\
+format_version: 1
+name: guarded_division
+parameters:
+  m: {value: 1.0, unit: kg}
+  k: {value: 4.0, unit: N/m}
+  c: {value: 0.0, unit: m^2, description: "softening length squared; 0 turns the term off"}
+components:
+  body:
+    type: rigid
+    q: [x]
+    v: [vx]
+    M: [[m]]
+    V: "k*x**2/2 + ifelse(c > 0, k*x**4/(4*c), 0) + ifelse(c > 0, k*x**2/c, 0)"
+simulation:
+  t_end: 1.0
+  n_out: 11
+  rtol: 1.0e-8
+  atol: 1.0e-10
+  initial:
+    body.x: 0.1
+    body.p_vx: 0.0
+  outputs:
+    x: body.x
+"""

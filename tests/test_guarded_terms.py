@@ -24,35 +24,12 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import phc
+from model_texts import GUARDED_DIVISION  # shared with tests/codegen/test_float_arguments.py
 from phc.simulation import ModelEvaluationError
 
 REPO = Path(__file__).resolve().parents[1]
 
-CPAR = """\
-format_version: 1
-name: guarded_division
-parameters:
-  m: {value: 1.0, unit: kg}
-  k: {value: 4.0, unit: N/m}
-  c: {value: 0.0, unit: m^2, description: "softening length squared; 0 turns the term off"}
-components:
-  body:
-    type: rigid
-    q: [x]
-    v: [vx]
-    M: [[m]]
-    V: "k*x**2/2 + ifelse(c > 0, k*x**4/(4*c), 0) + ifelse(c > 0, k*x**2/c, 0)"
-simulation:
-  t_end: 1.0
-  n_out: 11
-  rtol: 1.0e-8
-  atol: 1.0e-10
-  initial:
-    body.x: 0.1
-    body.p_vx: 0.0
-  outputs:
-    x: body.x
-"""
+CPAR = GUARDED_DIVISION
 
 # exp(-1/e) with e = 0 is exp(-inf) = 0 as NumPy computes it (Python's 1/0 raises: the generated
 # functions evaluate such a call again on NumPy scalars): the quartic term is off

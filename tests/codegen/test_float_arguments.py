@@ -14,32 +14,9 @@ import numpy as np
 import pytest
 
 import phc
+from model_texts import GUARDED_DIVISION  # shared with tests/test_guarded_terms.py
 
-MODEL = """\
-format_version: 1
-name: guarded_division
-parameters:
-  m: {value: 1.0, unit: kg}
-  k: {value: 4.0, unit: N/m}
-  c: {value: 0.0, unit: m^2, description: "softening; 0 turns the two terms off"}
-components:
-  body:
-    type: rigid
-    q: [x]
-    v: [vx]
-    M: [[m]]
-    V: "k*x**2/2 + ifelse(c > 0, k*x**4/(4*c), 0) + ifelse(c > 0, k*x**2/c, 0)"
-simulation:
-  t_end: 1.0
-  n_out: 11
-  rtol: 1.0e-8
-  atol: 1.0e-10
-  initial:
-    body.x: 0.1
-    body.p_vx: 0.0
-  outputs:
-    x: body.x
-"""
+MODEL = GUARDED_DIVISION
 
 
 @pytest.fixture(scope="module")
