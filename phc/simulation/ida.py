@@ -214,6 +214,11 @@ class _IdaCounters:
         """Views of the solver's own output vectors (``yy``, ``yp``), when :meth:`advance`
         may be used."""
         self._vectors = (None, None)
+        self._aux = None
+        self._residual = None   # (ctypes callback, the function it replaced, its fields, its views)
+        self._unverified = False
+        self.pending: list = []
+        """An exception the installed residual callback caught (raised by :meth:`advance`)."""
 
     @classmethod
     def attach(cls, solver, n: int, nfev: int) -> Optional["_IdaCounters"]:
@@ -246,6 +251,7 @@ class _IdaCounters:
             if lib.SUNContext_ClearErrHandlers(ctypes.c_void_p(ctx)) != 0:
                 return None
             counters._attach_vectors(word(base + cls._YY).value, word(base + cls._YP).value, n)
+            counters._aux = aux
             return counters
         except Exception:  # noqa: BLE001 - an optimization with a fallback
             return None
@@ -300,9 +306,122 @@ class _IdaCounters:
         :attr:`y`/:attr:`yp`. What scikit-SUNDAE's ``step`` does without building a result
         object and copying the state each call (about 25 µs an output time). An exception a
         callback raised is raised here."""
-        status = self.lib.solve(self.mem, t, ctypes.byref(self._tret), self._vectors[0], self._vectors[1],
-                                IDA_NORMAL)
+        if self._unverified:
+            before = self.residual_evaluations()
+            status = self.lib.solve(self.mem, t, ctypes.byref(self._tret), self._vectors[0], self._vectors[1],
+                                    IDA_NORMAL)
+            self._verify_residual(before)
+        else:
+            status = self.lib.solve(self.mem, t, ctypes.byref(self._tret), self._vectors[0], self._vectors[1],
+                                    IDA_NORMAL)
+        if self.pending:
+            err = self.pending[0]
+            self.pending.clear()
+            raise err
         return int(status), float(self._tret.value)
+
+    # IDA's memory (SUNDIALS' ``IDAMemRec``) begins with its context, the unit round-off, the
+    # residual function and its user data (checked by :meth:`attach` and :meth:`install_residual`);
+    # further on, after the nonlinear solver object and its ownership flag, the copy of the
+    # residual function the nonlinear solver calls (``nls_res``)
+    _RES, _USER, _SCAN = 16, 24, 1536
+
+    def install_residual(self, resfn, n: int) -> bool:
+        """Let IDA call `resfn(t, y, ẏ, r)` through a ctypes callback of phc's instead of
+        scikit-SUNDAE's wrapper, which makes three NumPy arrays of the N_Vectors every call
+        (about 4 µs, more than the pendulum's whole residual): IDA evaluates its residual on
+        a handful of vectors it allocates once (``IDAInit``), so each gets one NumPy view, kept
+        by its address. An exception `resfn` raises (a located model error, Ctrl-C) is kept
+        in :attr:`pending`, the callback returns −1 (IDA stops: the unrecoverable failure
+        scikit-SUNDAE's wrapper reports too) and :meth:`advance` raises it.
+
+        SUNDIALS has no call that replaces the residual after ``IDAInit``; its memory holds
+        the function twice, as ``ida_res`` (right before the user data, here scikit-SUNDAE's
+        ``AuxData`` object) and as ``nls_res``, the copy the nonlinear solver calls, two
+        words after the nonlinear solver object (whose context is the memory's). Both fields
+        are found and checked that way; where either check fails nothing is changed and
+        False is returned (the run then goes through scikit-SUNDAE's wrapper, as before).
+        :meth:`advance` checks on its first call that the callback is the one IDA calls,
+        and :meth:`restore_residual` puts the wrapper back."""
+        core = getattr(self.lib, "array", None)
+        if self.y is None or core is None or self._aux is None or self._residual is not None:
+            return False
+        mem = self.mem.value
+        word = ctypes.c_void_p.from_address
+        original, ctx = word(mem + self._RES).value, word(mem).value
+        if word(mem + self._USER).value != self._aux or not original or not ctx:
+            return False
+        fields = [self._RES]
+        for off in range(self._USER + 8, self._SCAN, 8):  # the first other copy: nls_res
+            if word(mem + off).value == original:
+                nls = word(mem + off - 16).value
+                # SUNNonlinearSolver: content, ops, context (SUNDIALS ≥ 7.4: content, a pointer
+                # of its Python interface, ops, context)
+                if not nls or ctx not in (word(nls + 16).value, word(nls + 24).value):
+                    return False
+                fields.append(off)
+                break
+        else:
+            return False
+        pending, views, seen = self.pending, {}, [0]
+        as_array, vector = np.ctypeslib.as_array, ctypes.c_double * n
+        get_data, get_length = core.N_VGetArrayPointer, core.N_VGetLength
+
+        def view(ptr):
+            data = get_data(ptr) if ptr else None
+            if not data or get_length(ptr) != n:
+                raise SimulationSetupError("IDA passed the residual a vector phc cannot read; "
+                                           "this scikit-SUNDAE build is not supported by phc's direct callback")
+            views[ptr] = arr = as_array(vector.from_address(data))
+            return arr
+
+        def callback(t, yy, yp, rr, _data):
+            seen[0] += 1
+            try:
+                try:
+                    resfn(t, views[yy], views[yp], views[rr])
+                except KeyError:  # a vector seen for the first time
+                    resfn(t, views[yy] if yy in views else view(yy), views[yp] if yp in views else view(yp),
+                          views[rr] if rr in views else view(rr))
+                return 0
+            except BaseException as err:  # noqa: BLE001 - raised again by advance()
+                pending.append(err)
+                return -1
+
+        c_callback = _RESIDUAL_FN(callback)
+        address = ctypes.cast(c_callback, ctypes.c_void_p).value
+        for off in fields:
+            word(mem + off).value = address
+        self._residual = (c_callback, original, fields, seen)
+        self._unverified = True
+        return True
+
+    def _verify_residual(self, evaluations_before: int) -> None:
+        """After the first :meth:`advance` with the callback installed: the callback must
+        have been called at least as often as IDA counts residual evaluations (its nonlinear
+        solver's; difference quotients of the Jacobian, which phc does not use, would add
+        calls); else the fields were not the ones IDA calls, and scikit-SUNDAE's wrapper is
+        put back."""
+        self._unverified = False
+        if self._residual is not None and self._residual[3][0] < self.residual_evaluations() - evaluations_before:
+            self.restore_residual()
+
+    def restore_residual(self) -> None:
+        """Give IDA scikit-SUNDAE's residual wrapper back (the solver object may outlive the run)."""
+        if self._residual is not None:
+            for off in self._residual[2]:
+                ctypes.c_void_p.from_address(self.mem.value + off).value = self._residual[1]
+            self._residual = None
+
+    @property
+    def direct_residual(self) -> bool:
+        """Whether IDA calls the residual through :meth:`install_residual`'s callback."""
+        return self._residual is not None
+
+
+_RESIDUAL_FN = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_double, ctypes.c_void_p, ctypes.c_void_p,
+                                ctypes.c_void_p, ctypes.c_void_p)
+"""SUNDIALS' ``IDAResFn``: ``int (sunrealtype t, N_Vector yy, N_Vector yp, N_Vector rr, void *user_data)``."""
 
 
 # ---------------------------------------------------------------------------------------
@@ -720,6 +839,7 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
               and np.array_equal(counters.y, init.y) and np.array_equal(counters.yp, init.yp))
     if direct:
         counters.set_stop_time(float(t_out[-1]))
+        counters.install_residual(resfn, n)
     monitor = SingularityMonitor(mod, p, names=names, scales=nominal)
     monitor.h_floor = 1e-6 * float(t_out[-1] - t_out[0])
     # the monitor looks every `cadence` steps: `base`, stretched up to LOOK_STRETCH-fold while the
@@ -813,6 +933,9 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     except KeyboardInterrupt:
         ok, interrupted = False, True
         message = f"interrupted at t = {t_out[k - 1]:.6g}"
+    finally:
+        if direct:
+            counters.restore_residual()
     if direct:
         nfev, njev = counters.residual_evaluations(), counters.jacobian_evaluations()
     note = scales(not ok, k) if not message.startswith(("stopped at", "interrupted")) else None

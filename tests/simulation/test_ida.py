@@ -231,3 +231,112 @@ def test_a_successful_run_with_very_many_steps_says_what_may_cost_them(monkeypat
     loud = phc.simulate(compiled)
     assert loud.success and f"IDA needed {quiet.steps} steps" in loud.message
     assert "--solver midpoint" in loud.message
+
+
+# ---------------------------------------------------------------------------------------
+# IDA calls the residual through phc's ctypes callback (_IdaCounters.install_residual)
+
+def _tiny_solver(calls):
+    """A scikit-SUNDAE IDA solver of y' = −y (two components), started, and its counters."""
+    from sksundae.ida import IDA
+
+    def resfn(t, y, yp, r):
+        calls.append("wrapper")
+        r[:] = yp + y
+
+    def jacfn(t, y, yp, r, cj, J):  # (IDA's difference quotients would call the residual too)
+        J[:] = (cj + 1.0) * np.eye(2)
+
+    solver = IDA(resfn, rtol=1e-8, atol=1e-10, linsolver="dense", jacfn=jacfn)
+    start = solver.init_step(0.0, np.ones(2), -np.ones(2))
+    counters = _IdaCounters.attach(solver, 2, int(start.nfev))
+    assert counters is not None and counters.can_advance
+    return solver, counters
+
+
+def _residual_fields(counters):
+    import ctypes
+
+    word = ctypes.c_void_p.from_address
+    return [word(counters.mem.value + off).value for off in counters._residual[2]]
+
+
+def test_ida_calls_the_residual_through_phcs_callback_and_gets_its_own_back():
+    calls = []
+    solver, counters = _tiny_solver(calls)
+
+    def direct(t, y, yp, r):
+        calls.append("direct")
+        r[:] = yp + y
+
+    assert counters.install_residual(direct, 2)
+    replaced = counters._residual[1]
+    fields = _residual_fields(counters)
+    assert len(fields) == 2 and replaced not in fields  # ida_res and the nonlinear solver's nls_res
+    status, t = counters.advance(1.0)
+    assert status >= 0 and t == 1.0
+    assert set(calls) == {"direct"} and len(calls) == counters.residual_evaluations()
+    assert counters.direct_residual
+    assert np.allclose(counters.y, np.exp(-1.0), rtol=1e-6)
+    offsets = counters._residual[2]
+    counters.restore_residual()
+    import ctypes
+
+    assert [ctypes.c_void_p.from_address(counters.mem.value + off).value for off in offsets] == [replaced] * 2
+    calls.clear()
+    solver.step(1.5, method="normal")  # scikit-SUNDAE's own wrapper again
+    assert calls and set(calls) == {"wrapper"}
+
+
+def test_a_callback_ida_does_not_call_is_taken_back_after_the_first_chunk():
+    """If the field taken for the nonlinear solver's copy were not the one IDA calls, the
+    first chunk's residual evaluations would bypass the callback: it is then removed."""
+    import ctypes
+
+    calls = []
+    _solver, counters = _tiny_solver(calls)
+    def direct(t, y, yp, r):
+        calls.append("direct")
+        r[:] = yp + y
+
+    assert counters.install_residual(direct, 2)
+    callback, replaced, offsets, _seen = counters._residual
+    ctypes.c_void_p.from_address(counters.mem.value + offsets[1]).value = replaced  # as if the wrong field
+    status, _t = counters.advance(0.5)
+    assert status >= 0 and not counters.direct_residual
+    assert "direct" not in calls and np.allclose(counters.y, np.exp(-0.5), rtol=1e-6)
+
+
+def test_the_callback_is_not_installed_where_the_layout_is_not_recognised(monkeypatch):
+    calls = []
+    _solver, counters = _tiny_solver(calls)
+    monkeypatch.setattr(_IdaCounters, "_SCAN", _IdaCounters._USER + 8)  # the nonlinear solver's copy not found
+    assert not counters.install_residual(lambda *args: None, 2)
+    assert not counters.direct_residual
+    counters._aux = 1  # a user-data word that is not scikit-SUNDAE's AuxData object
+    monkeypatch.undo()
+    assert not counters.install_residual(lambda *args: None, 2)
+    status, _t = counters.advance(0.5)
+    assert status >= 0 and set(calls) == {"wrapper"}
+
+
+def test_the_direct_callback_integrates_exactly_as_scikit_sundaes_wrapper(monkeypatch):
+    """Same residual on the same vectors: the same steps and the same numbers, bit for bit
+    (the shipped pendulum, an index-2 system with its constraint)."""
+    compiled = phc.compile_model(MODELS / "pendulum.yaml", certify=False, backend="numpy")
+    installed = []
+    install = _IdaCounters.install_residual
+
+    def spy(self, resfn, n):
+        installed.append(install(self, resfn, n))
+        return installed[-1]
+
+    monkeypatch.setattr(_IdaCounters, "install_residual", spy)
+    direct = phc.simulate(compiled, t_end=2.0, n_out=41, rtol=1e-8, atol=1e-8)
+    assert direct.success and installed == [True]
+    monkeypatch.setattr(_IdaCounters, "install_residual", lambda self, resfn, n: False)
+    wrapped = phc.simulate(compiled, t_end=2.0, n_out=41, rtol=1e-8, atol=1e-8)
+    assert wrapped.success
+    assert np.array_equal(direct.y, wrapped.y)
+    assert (direct.steps, direct.n_residual_evals, direct.n_jacobian_evals) == \
+        (wrapped.steps, wrapped.n_residual_evals, wrapped.n_jacobian_evals)
