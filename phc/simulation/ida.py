@@ -376,8 +376,8 @@ class _IdaCounters:
             return arr
 
         def callback(t, yy, yp, rr, _data):
-            seen[0] += 1
             try:
+                seen[0] += 1
                 try:
                     resfn(t, views[yy], views[yp], views[rr])
                 except KeyError:  # a vector seen for the first time
@@ -417,6 +417,43 @@ class _IdaCounters:
     def direct_residual(self) -> bool:
         """Whether IDA calls the residual through :meth:`install_residual`'s callback."""
         return self._residual is not None
+
+
+class _DeferredInterrupt:
+    """Ctrl-C taken between IDA's chunks while IDA calls phc's ``ctypes`` residual callback.
+
+    Python raises KeyboardInterrupt at the next instruction it runs, and while IDA steps that
+    is in the callback; raised at the callback's first instruction, before its ``try``, the
+    exception would leave the callback, which ctypes cannot pass on to IDA: it prints it
+    ("Exception ignored on calling ctypes callback function"), IDA carries on with a
+    residual never written, and the interrupt is lost. So, in the main thread and where
+    SIGINT has Python's default handler, a handler that only notes the signal is installed
+    for the run, and :meth:`check` (between chunks: at most ``CHUNK_STEPS`` steps apart)
+    raises KeyboardInterrupt there; :meth:`close` puts the default handler back."""
+
+    def __init__(self, active: bool):
+        import signal
+        import threading
+
+        self.hit, self._previous = False, None
+        if active and threading.current_thread() is threading.main_thread() \
+                and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            self._previous = signal.signal(signal.SIGINT, self._note)
+
+    def _note(self, signum, frame) -> None:
+        self.hit = True
+
+    def check(self) -> None:
+        if self.hit:
+            self.hit = False
+            raise KeyboardInterrupt
+
+    def close(self) -> None:
+        if self._previous is not None:
+            import signal
+
+            signal.signal(signal.SIGINT, self._previous)
+            self._previous = None
 
 
 _RESIDUAL_FN = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_double, ctypes.c_void_p, ctypes.c_void_p,
@@ -861,8 +898,10 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     h_ref = 0.0
     normal = (float(t_out[0]), np.asarray(y0, dtype=float), np.asarray(yp0, dtype=float))
     interrupted = False
+    interrupt = _DeferredInterrupt(direct and counters.direct_residual)
     try:  # a model function outside its domain, or Ctrl-C: keep the outputs filled so far
         while k < len(t_out):
+            interrupt.check()
             if counters is not None:  # IDA returns after this many steps at most (status -1)
                 counters.set_max_steps(max(1, min(cadence - since_look, CHUNK_STEPS, max_steps - steps)))
             if direct:
@@ -928,12 +967,14 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
                 message = (f"stopped after {steps} steps at t = {t_now:.6g} (max_steps); raise `max_steps` or "
                            "loosen the tolerances")
                 break
+        interrupt.check()
     except ModelEvaluationError as err:
         ok, message = False, f"IDA: {err}; results up to t = {t_out[k - 1]:.6g} are kept"
     except KeyboardInterrupt:
         ok, interrupted = False, True
         message = f"interrupted at t = {t_out[k - 1]:.6g}"
     finally:
+        interrupt.close()
         if direct:
             counters.restore_residual()
     if direct:

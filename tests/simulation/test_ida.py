@@ -340,3 +340,29 @@ def test_the_direct_callback_integrates_exactly_as_scikit_sundaes_wrapper(monkey
     assert np.array_equal(direct.y, wrapped.y)
     assert (direct.steps, direct.n_residual_evals, direct.n_jacobian_evals) == \
         (wrapped.steps, wrapped.n_residual_evals, wrapped.n_jacobian_evals)
+
+
+def test_a_sigint_while_ida_steps_is_taken_between_chunks_without_a_traceback(oscillator, monkeypatch, capfd):
+    """SIGINT delivered while IDA is inside phc's residual callback: noted by the run's own
+    handler, raised between chunks as an interrupt (outputs kept, checked against the
+    closed form), nothing printed by ctypes, and Python's default handler back afterwards."""
+    import signal
+
+    calls = {"n": 0}
+    residual = oscillator.module.residual
+
+    def signalling(*args):
+        calls["n"] += 1
+        if calls["n"] == 400:
+            signal.raise_signal(signal.SIGINT)  # the handler runs here, inside the callback
+        return residual(*args)
+
+    monkeypatch.setattr(oscillator.module, "residual", signalling)
+    with pytest.raises(SimulationInterrupted) as info:
+        phc.simulate(oscillator, solver="ida")
+    result = info.value.result
+    assert result.interrupted and result.message.startswith("interrupted at t = ")
+    assert calls["n"] > 400  # the callback finished its evaluation and IDA its chunk
+    assert 0 < result.t[-1] < 10 and np.abs(result["x"] - _closed_form(result.t)).max() < 1e-6
+    assert "Exception ignored" not in capfd.readouterr().err
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
