@@ -219,6 +219,12 @@ class _IdaCounters:
         self._unverified = False
         self.pending: list = []
         """An exception the installed residual callback caught (raised by :meth:`advance`)."""
+        self.recovered: list = []
+        """The model error of the callback's last evaluation, when it failed (IDA was told
+        the error is recoverable: it retries with a shorter step; raised by :meth:`advance`
+        when IDA then fails)."""
+        self.failures: list = [0, None, 0.0]
+        """Recoverable failures of the callback so far, the last one's error and its time."""
 
     @classmethod
     def attach(cls, solver, n: int, nfev: int) -> Optional["_IdaCounters"]:
@@ -318,6 +324,10 @@ class _IdaCounters:
             err = self.pending[0]
             self.pending.clear()
             raise err
+        if self.recovered:
+            err = self.recovered.pop()
+            if status < 0 and status != IDA_TOO_MUCH_WORK:  # IDA gave up where the model cannot be evaluated
+                raise err
         return int(status), float(self._tret.value)
 
     # IDA's memory (SUNDIALS' ``IDAMemRec``) begins with its context, the unit round-off, the
@@ -331,9 +341,14 @@ class _IdaCounters:
         scikit-SUNDAE's wrapper, which makes three NumPy arrays of the N_Vectors every call
         (about 4 µs, more than the pendulum's whole residual): IDA evaluates its residual on
         a handful of vectors it allocates once (``IDAInit``), so each gets one NumPy view, kept
-        by its address. An exception `resfn` raises (a located model error, Ctrl-C) is kept
-        in :attr:`pending`, the callback returns −1 (IDA stops: the unrecoverable failure
-        scikit-SUNDAE's wrapper reports too) and :meth:`advance` raises it.
+        by its address. A model that cannot be evaluated at a trial point (a
+        :class:`ModelEvaluationError` from `resfn`: outside its domain, an overflow) is a
+        recoverable failure for IDA (the callback returns 1): IDA retries the step shorter,
+        as Newton's method does after a failed iteration, and only when it gives up there
+        does :meth:`advance` raise the error, located. (scikit-SUNDAE's wrapper can only
+        report every exception as unrecoverable: a long trial step that overflowed ended the
+        run at its start.) Any other exception (Ctrl-C) is kept in :attr:`pending`, the
+        callback returns −1 (IDA stops) and :meth:`advance` raises it.
 
         SUNDIALS has no call that replaces the residual after ``IDAInit``; its memory holds
         the function twice, as ``ida_res`` (right before the user data, here scikit-SUNDAE's
@@ -363,7 +378,7 @@ class _IdaCounters:
                 break
         else:
             return False
-        pending, views, seen = self.pending, {}, [0]
+        pending, recovered, failures, views, seen = self.pending, self.recovered, self.failures, {}, [0]
         as_array, vector = np.ctypeslib.as_array, ctypes.c_double * n
         get_data, get_length = core.N_VGetArrayPointer, core.N_VGetLength
 
@@ -383,7 +398,14 @@ class _IdaCounters:
                 except KeyError:  # a vector seen for the first time
                     resfn(t, views[yy] if yy in views else view(yy), views[yp] if yp in views else view(yp),
                           views[rr] if rr in views else view(rr))
+                if recovered:
+                    recovered.clear()
                 return 0
+            except ModelEvaluationError as err:  # a trial point outside the model's domain
+                recovered[:] = [err]
+                failures[0] += 1
+                failures[1], failures[2] = err, t
+                return 1
             except BaseException as err:  # noqa: BLE001 - raised again by advance()
                 pending.append(err)
                 return -1
@@ -535,6 +557,17 @@ FLAT_DECADES = 0.1
 """Change of the conditioning ratio between two looks (decades) below which it counts as flat."""
 FAR_RATIO = 1e-6
 """Conditioning ratio above which the monitor may look less often (its threshold is 1e-11)."""
+
+
+EDGE_SHRINK = 1e-6
+"""A model that cannot be evaluated at IDA's trial point is a recoverable failure: IDA
+retries the step shorter (:meth:`_IdaCounters.install_residual`). After a long trial step's
+overshoot the run passes the failed trial point within a few steps. Where the solution
+itself runs into the edge of the model's domain it never does: the steps creep up to the
+edge, shorter and shorter (10⁶ steps without reaching it, where the first failure ended
+the run before). Once the steps have shrunk by this factor below the step size before the
+first failure, without passing the failed trial point, the run stops with the last
+failure's located error."""
 
 
 APPROACH_FALL = 10.0
@@ -899,6 +932,8 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     normal = (float(t_out[0]), np.asarray(y0, dtype=float), np.asarray(yp0, dtype=float))
     interrupted = False
     interrupt = _DeferredInterrupt(direct and counters.direct_residual)
+    # recoverable model errors seen; (the earliest failed trial time not passed yet, the step size before it)
+    failures_seen, edge = 0, None
     try:  # a model function outside its domain, or Ctrl-C: keep the outputs filled so far
         while k < len(t_out):
             interrupt.check()
@@ -922,6 +957,15 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
                     h_last = (t_now - t_last) / taken if t_now > t_last else h_last
                 h_ref = max(h_last, 0.999 ** taken * h_ref)
             t_last = max(t_last, t_now)
+            if direct and counters.failures[0] != failures_seen:  # a trial point the model could not be evaluated at
+                failures_seen = counters.failures[0]
+                if edge is None or counters.failures[2] < edge[0]:
+                    edge = (counters.failures[2], h_ref)
+            if edge is not None:
+                if t_now > edge[0]:
+                    edge = None  # passed: it was a trial step's overshoot
+                elif taken and h_last < EDGE_SHRINK * edge[1]:
+                    raise counters.failures[1]  # creeping up to the edge of the model's domain
             chunk_end = status == IDA_TOO_MUCH_WORK  # the step limit of the call: a chunk ends
             if status < 0 and not chunk_end:
                 ok = False

@@ -366,3 +366,28 @@ def test_a_sigint_while_ida_steps_is_taken_between_chunks_without_a_traceback(os
     assert 0 < result.t[-1] < 10 and np.abs(result["x"] - _closed_form(result.t)).max() < 1e-6
     assert "Exception ignored" not in capfd.readouterr().err
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_a_trial_point_the_model_cannot_be_evaluated_at_is_retried_with_a_shorter_step():
+    """A model error at IDA's trial point is a recoverable failure (the callback returns 1):
+    IDA retries shorter and the run goes on. Here y' = −y refuses, once, to be evaluated
+    beyond t = 0.3 — as a long trial step overshooting into a region the solution never
+    reaches would; the run still meets the closed form. (A solution that runs into the edge
+    of the domain: tests/test_cli_faults.py.)"""
+    from phc.simulation.guard import ModelEvaluationError
+
+    calls = []
+    _solver, counters = _tiny_solver(calls)
+    refused = []
+
+    def once(t, y, yp, r):
+        if t > 0.3 and not refused:
+            refused.append(t)
+            raise ModelEvaluationError(f"cannot be evaluated at t = {t}", function="residual", t=t)
+        r[:] = yp + y
+
+    assert counters.install_residual(once, 2)
+    status, t = counters.advance(1.0)
+    assert refused and status >= 0 and t == 1.0
+    assert counters.failures[0] == 1 and np.allclose(counters.y, np.exp(-1.0), rtol=1e-6)
+
