@@ -215,16 +215,14 @@ class _IdaCounters:
         may be used."""
         self._vectors = (None, None)
         self._aux = None
-        self._residual = None   # (ctypes callback, the function it replaced, its fields, its views)
+        self._residual = None   # (ctypes callback, the function it replaced, its fields, [its calls])
         self._unverified = False
         self.pending: list = []
         """An exception the installed residual callback caught (raised by :meth:`advance`)."""
-        self.recovered: list = []
-        """The model error of the callback's last evaluation, when it failed (IDA was told
-        the error is recoverable: it retries with a shorter step; raised by :meth:`advance`
-        when IDA then fails)."""
-        self.failures: list = [0, None, 0.0]
-        """Recoverable failures of the callback so far, the last one's error and its time."""
+        self.failures: list = [0, None, 0.0, False]
+        """The callback's recoverable failures (model errors at a trial point): how many so
+        far, the last one's error and time, and whether the latest evaluation was one (IDA
+        retries shorter; :meth:`advance` raises the error when IDA then gives up)."""
 
     @classmethod
     def attach(cls, solver, n: int, nfev: int) -> Optional["_IdaCounters"]:
@@ -312,22 +310,19 @@ class _IdaCounters:
         :attr:`y`/:attr:`yp`. What scikit-SUNDAE's ``step`` does without building a result
         object and copying the state each call (about 25 µs an output time). An exception a
         callback raised is raised here."""
-        if self._unverified:
-            before = self.residual_evaluations()
-            status = self.lib.solve(self.mem, t, ctypes.byref(self._tret), self._vectors[0], self._vectors[1],
-                                    IDA_NORMAL)
+        before = self.residual_evaluations() if self._unverified else None
+        status = self.lib.solve(self.mem, t, ctypes.byref(self._tret), self._vectors[0], self._vectors[1],
+                                IDA_NORMAL)
+        if before is not None:
             self._verify_residual(before)
-        else:
-            status = self.lib.solve(self.mem, t, ctypes.byref(self._tret), self._vectors[0], self._vectors[1],
-                                    IDA_NORMAL)
         if self.pending:
             err = self.pending[0]
             self.pending.clear()
             raise err
-        if self.recovered:
-            err = self.recovered.pop()
+        if self.failures[3]:
+            self.failures[3] = False
             if status < 0 and status != IDA_TOO_MUCH_WORK:  # IDA gave up where the model cannot be evaluated
-                raise err
+                raise self.failures[1]
         return int(status), float(self._tret.value)
 
     # IDA's memory (SUNDIALS' ``IDAMemRec``) begins with its context, the unit round-off, the
@@ -378,7 +373,7 @@ class _IdaCounters:
                 break
         else:
             return False
-        pending, recovered, failures, views, seen = self.pending, self.recovered, self.failures, {}, [0]
+        pending, failures, views, seen = self.pending, self.failures, {}, [0]
         as_array, vector = np.ctypeslib.as_array, ctypes.c_double * n
         get_data, get_length = core.N_VGetArrayPointer, core.N_VGetLength
 
@@ -398,13 +393,12 @@ class _IdaCounters:
                 except KeyError:  # a vector seen for the first time
                     resfn(t, views[yy] if yy in views else view(yy), views[yp] if yp in views else view(yp),
                           views[rr] if rr in views else view(rr))
-                if recovered:
-                    recovered.clear()
+                if failures[3]:
+                    failures[3] = False
                 return 0
             except ModelEvaluationError as err:  # a trial point outside the model's domain
-                recovered[:] = [err]
                 failures[0] += 1
-                failures[1], failures[2] = err, t
+                failures[1], failures[2], failures[3] = err, t, True
                 return 1
             except BaseException as err:  # noqa: BLE001 - raised again by advance()
                 pending.append(err)
