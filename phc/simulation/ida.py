@@ -152,6 +152,11 @@ def _ida_library():
             lib.IDASetMaxNumSteps.argtypes = [ctypes.c_void_p, ctypes.c_long]
             lib.IDASetStopTime.argtypes = [ctypes.c_void_p, ctypes.c_double]
             lib.SUNContext_ClearErrHandlers.argtypes = [ctypes.c_void_p]
+            try:
+                lib.IDASetJacFn.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
+                lib.IDASetJacFn.restype = ctypes.c_int
+            except AttributeError:  # the compiled callbacks are then not used
+                pass
             for name in ("IDAGetNumSteps", "IDAGetLastStep", "IDAGetNumResEvals", "IDAGetNumJacEvals",
                          "IDASetMaxNumSteps", "IDASetStopTime", "SUNContext_ClearErrHandlers"):
                 getattr(lib, name).restype = ctypes.c_int
@@ -215,6 +220,10 @@ class _IdaCounters:
         may be used."""
         self._vectors = (None, None)
         self._aux = None
+        self._base = 0          # scikit-SUNDAE's solver object (its address)
+        self.native = None      # the compiled callbacks in use (phc.simulation.ida_native.Native)
+        self._native = None     # (residual function and fields they replaced)
+        self._guarded = None    # (guarded module, p): the located error of a compiled callback's failure
         self._residual = None   # (ctypes callback, the function it replaced, its fields, [its calls])
         self._unverified = False
         self.pending: list = []
@@ -255,7 +264,7 @@ class _IdaCounters:
             if lib.SUNContext_ClearErrHandlers(ctypes.c_void_p(ctx)) != 0:
                 return None
             counters._attach_vectors(word(base + cls._YY).value, word(base + cls._YP).value, n)
-            counters._aux = aux
+            counters._aux, counters._base = aux, base
             return counters
         except Exception:  # noqa: BLE001 - an optimization with a fallback
             return None
@@ -323,7 +332,71 @@ class _IdaCounters:
             self.failures[3] = False
             if status < 0 and status != IDA_TOO_MUCH_WORK:  # IDA gave up where the model cannot be evaluated
                 raise self.failures[1]
+        if self.native is not None and self.native.failed_last:
+            self.native.clear_last()
+            if status < 0 and status != IDA_TOO_MUCH_WORK:
+                raise self.native.error(*self._guarded)
         return int(status), float(self._tret.value)
+
+    def failure_count(self) -> int:
+        """Recoverable failures of the callbacks so far (Python's and the compiled ones')."""
+        return self.failures[0] + (self.native.count if self.native is not None else 0)
+
+    def last_failure_time(self) -> float:
+        """The time of the latest recoverable failure."""
+        if self.native is not None and self.native.count:
+            return self.native.time
+        return self.failures[2]
+
+    def last_failure_error(self):
+        """The located error of the latest recoverable failure."""
+        if self.native is not None and self.native.count:
+            return self.native.error(*self._guarded)
+        return self.failures[1]
+
+    def last_cj(self, python_cj: float) -> float:
+        """α/h of the step IDA last formed its matrix for."""
+        return self.native.cj if self.native is not None and self.native.cj > 0 else python_cj
+
+    def install_native(self, native, guarded, p) -> bool:
+        """Let IDA call the compiled callbacks of `native` (:mod:`phc.simulation.ida_native`)
+        for its residual and Jacobian, with its context array as the user data; the
+        residual's two fields are found as by :meth:`install_residual` (whose Python
+        callback, if installed, is removed first), the Jacobian is set through SUNDIALS'
+        ``IDASetJacFn``. Returns whether it was installed (False: nothing changed)."""
+        if self._native is not None:
+            return False
+        self.restore_residual()
+        found = self._residual_fields()
+        set_jac = getattr(self.lib, "IDASetJacFn", None)
+        if found is None or set_jac is None:
+            return False
+        original, fields = found
+        word = ctypes.c_void_p.from_address
+        mem = self.mem.value
+        word(mem + self._USER).value = native.context.ctypes.data
+        if set_jac(self.mem, ctypes.c_void_p(native.jacobian.address)) != 0:
+            word(mem + self._USER).value = self._aux
+            return False
+        for off in fields:
+            word(mem + off).value = native.residual.address
+        self._native, self.native, self._guarded = (original, fields), native, (guarded, p)
+        return True
+
+    def restore_native(self) -> None:
+        """scikit-SUNDAE's residual wrapper and user data back; the Jacobian becomes IDA's
+        difference quotients (scikit-SUNDAE's wrapper cannot be set again from here): the
+        solver object stays usable."""
+        if self._native is None:
+            return
+        original, fields = self._native
+        word = ctypes.c_void_p.from_address
+        mem = self.mem.value
+        for off in fields:
+            word(mem + off).value = original
+        word(mem + self._USER).value = self._aux
+        self.lib.IDASetJacFn(self.mem, None)
+        self._native = None
 
     # IDA's memory (SUNDIALS' ``IDAMemRec``) begins with its context, the unit round-off, the
     # residual function and its user data (checked by :meth:`attach` and :meth:`install_residual`);
@@ -354,25 +427,14 @@ class _IdaCounters:
         :meth:`advance` checks on its first call that the callback is the one IDA calls,
         and :meth:`restore_residual` puts the wrapper back."""
         core = getattr(self.lib, "array", None)
-        if self.y is None or core is None or self._aux is None or self._residual is not None:
+        if self.y is None or core is None or self._residual is not None or self._native is not None:
             return False
+        found = self._residual_fields()
+        if found is None:
+            return False
+        original, fields = found
         mem = self.mem.value
         word = ctypes.c_void_p.from_address
-        original, ctx = word(mem + self._RES).value, word(mem).value
-        if word(mem + self._USER).value != self._aux or not original or not ctx:
-            return False
-        fields = [self._RES]
-        for off in range(self._USER + 8, self._SCAN, 8):  # the first other copy: nls_res
-            if word(mem + off).value == original:
-                nls = word(mem + off - 16).value
-                # SUNNonlinearSolver: content, ops, context (SUNDIALS ≥ 7.4: content, a pointer
-                # of its Python interface, ops, context)
-                if not nls or ctx not in (word(nls + 16).value, word(nls + 24).value):
-                    return False
-                fields.append(off)
-                break
-        else:
-            return False
         pending, failures, views, seen = self.pending, self.failures, {}, [0]
         as_array, vector = np.ctypeslib.as_array, ctypes.c_double * n
         get_data, get_length = core.N_VGetArrayPointer, core.N_VGetLength
@@ -411,6 +473,26 @@ class _IdaCounters:
         self._residual = (c_callback, original, fields, seen)
         self._unverified = True
         return True
+
+    def _residual_fields(self):
+        """(the residual function, the offsets of ``ida_res`` and ``nls_res`` in IDA's
+        memory), or None where the layout is not the one described in :meth:`install_residual`."""
+        if self._aux is None:
+            return None
+        mem = self.mem.value
+        word = ctypes.c_void_p.from_address
+        original, ctx = word(mem + self._RES).value, word(mem).value
+        if word(mem + self._USER).value != self._aux or not original or not ctx:
+            return None
+        for off in range(self._USER + 8, self._SCAN, 8):  # the first other copy: nls_res
+            if word(mem + off).value == original:
+                nls = word(mem + off - 16).value
+                # SUNNonlinearSolver: content, ops, context (SUNDIALS ≥ 7.4: content, a pointer
+                # of its Python interface, ops, context)
+                if not nls or ctx not in (word(nls + 16).value, word(nls + 24).value):
+                    return None
+                return original, [self._RES, off]
+        return None
 
     def _verify_residual(self, evaluations_before: int) -> None:
         """After the first :meth:`advance` with the callback installed: the callback must
@@ -551,6 +633,38 @@ FLAT_DECADES = 0.1
 """Change of the conditioning ratio between two looks (decades) below which it counts as flat."""
 FAR_RATIO = 1e-6
 """Conditioning ratio above which the monitor may look less often (its threshold is 1e-11)."""
+
+
+def _native_candidate(mod, python_callback: bool, n: int, sparse: bool):
+    """The raw numba module whose compiled callbacks a long run may change to, or None."""
+    from phc.simulation import ida_native
+
+    raw = mod.module if isinstance(mod, GuardedModule) else mod
+    if not python_callback or sparse or getattr(raw, "BACKEND", "numpy") != "numba" or not ida_native.enabled():
+        return None
+    return raw
+
+
+def _switch_to_native(counters, raw, mod, p):
+    """Build (once per model and process) and install the compiled callbacks; None
+    afterwards either way (a failure to build them keeps the Python callback)."""
+    from phc.simulation import ida_native
+
+    at = ida_native.data_offset(counters.lib, counters._base, counters._vectors[0].value, int(raw.N))
+    if at is None:
+        return None
+    try:
+        native = ida_native.Native(raw, p, raw.JAC_ROWS, raw.JAC_COLS, at)
+    except Exception:  # noqa: BLE001 - numba could not build them: the Python callback stays
+        return None
+    counters.install_native(native, mod if isinstance(mod, GuardedModule) else None, p)
+    return None
+
+
+SWITCH_EVALUATIONS = 100_000
+"""Residual evaluations through the Python callback after which a run on the numba backend
+changes to compiled callbacks (:mod:`phc.simulation.ida_native`): about 0.2 s of Python
+calls, about what building the callbacks costs."""
 
 
 EDGE_SHRINK = 1e-6
@@ -928,6 +1042,7 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     interrupt = _DeferredInterrupt(direct and counters.direct_residual)
     # recoverable model errors seen; (the earliest failed trial time not passed yet, the step size before it)
     failures_seen, edge = 0, None
+    native = _native_candidate(mod, direct and counters.direct_residual, n, n > DENSE_LIMIT)
     try:  # a model function outside its domain, or Ctrl-C: keep the outputs filled so far
         while k < len(t_out):
             interrupt.check()
@@ -951,15 +1066,19 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
                     h_last = (t_now - t_last) / taken if t_now > t_last else h_last
                 h_ref = max(h_last, 0.999 ** taken * h_ref)
             t_last = max(t_last, t_now)
-            if direct and counters.failures[0] != failures_seen:  # a trial point the model could not be evaluated at
-                failures_seen = counters.failures[0]
-                if edge is None or counters.failures[2] < edge[0]:
-                    edge = (counters.failures[2], h_ref)
+            if direct and counters.failure_count() != failures_seen:  # a trial point the model could not be evaluated at
+                failures_seen = counters.failure_count()
+                t_fail = counters.last_failure_time()
+                if edge is None or t_fail < edge[0]:
+                    edge = (t_fail, h_ref)
             if edge is not None:
                 if t_now > edge[0]:
                     edge = None  # passed: it was a trial step's overshoot
                 elif taken and h_last < EDGE_SHRINK * edge[1]:
-                    raise counters.failures[1]  # creeping up to the edge of the model's domain
+                    raise counters.last_failure_error()  # creeping up to the edge of the model's domain
+            if native is not None and counters.native is None and counters.direct_residual \
+                    and counters._residual[3][0] >= SWITCH_EVALUATIONS and status >= IDA_TOO_MUCH_WORK:
+                native = _switch_to_native(counters, native, mod, p)
             chunk_end = status == IDA_TOO_MUCH_WORK  # the step limit of the call: a chunk ends
             if status < 0 and not chunk_end:
                 ok = False
@@ -968,8 +1087,9 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
                 if approach is not None:
                     hint = approach
                 elif hint is None:  # diagnose before blaming: is the iteration matrix singular there?
+                    cj = counters.last_cj(calls["cj"]) if counters is not None else calls["cj"]
                     hint = diagnose_failure(mod, p, *normal, status=status, h_typical=h_ref,
-                                            h_fail=(1.0 / calls["cj"]) if calls["cj"] > 0 else h_last,
+                                            h_fail=(1.0 / cj) if cj > 0 else h_last,
                                             max_order=max_order, rtol=rtol, atol=atol, names=names,
                                             scales=nominal, local=local)
                 message = f"IDA failed at t = {t_now:.6g} (status {status}: {_status_text(res, status)}); {hint}"
@@ -1015,6 +1135,7 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
         interrupt.close()
         if direct:
             counters.restore_residual()
+            counters.restore_native()
     if direct:
         nfev, njev = counters.residual_evaluations(), counters.jacobian_evaluations()
     note = scales(not ok, k) if not message.startswith(("stopped at", "interrupted")) else None
