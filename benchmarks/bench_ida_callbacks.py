@@ -45,16 +45,19 @@ MODELS = [("pendulum.yaml", "numpy"), ("double_pendulum.yaml", "numpy"), ("euler
 
 
 def _run(compiled, config: str):
-    install = ida._IdaCounters.install_residual
+    """(CPU seconds, result, whether the compiled callbacks were installed)."""
+    install, install_native = ida._IdaCounters.install_residual, ida._IdaCounters.install_native
     os.environ["PHC_IDA_NATIVE"] = "1" if config == "compiled callbacks" else "0"
     if config == "scikit-SUNDAE's wrapper":
         ida._IdaCounters.install_residual = lambda self, resfn, n: False
+    native = []
+    ida._IdaCounters.install_native = lambda self, *a: native.append(install_native(self, *a)) or native[-1]
     try:
         t = time.process_time()
         r = phc.simulate(compiled, solver="ida")
-        return time.process_time() - t, r
+        return time.process_time() - t, r, any(native)
     finally:
-        ida._IdaCounters.install_residual = install
+        ida._IdaCounters.install_residual, ida._IdaCounters.install_native = install, install_native
         os.environ.pop("PHC_IDA_NATIVE", None)
 
 
@@ -80,11 +83,13 @@ def main(argv=None) -> int:
             configs.append("compiled callbacks")
         times = {c: [] for c in configs}
         runs = {}
+        switched = False
         for _ in range(args.repeat):
             for config in configs:
-                cpu, r = _run(compiled, config)
+                cpu, r, native = _run(compiled, config)
                 times[config].append(cpu)
                 runs[config] = r
+                switched = switched or native
         reference = runs[configs[0]]
         for config in configs:
             r = runs[config]
@@ -92,7 +97,12 @@ def main(argv=None) -> int:
                 print(f"{name}: {config} differs from scikit-SUNDAE's wrapper", file=sys.stderr)
                 return 1
             best = min(times[config])
-            print(f"| {name.removesuffix('.yaml')} ({backend}) | {config} | {r.steps} | {r.n_residual_evals} | "
+            label = config
+            if config == "compiled callbacks" and not switched:
+                label += f" (not reached: fewer than {ida.SWITCH_EVALUATIONS} evaluations)"
+            elif config == "compiled callbacks":
+                label += f" (from evaluation {ida.SWITCH_EVALUATIONS} on)"
+            print(f"| {name.removesuffix('.yaml')} ({backend}) | {label} | {r.steps} | {r.n_residual_evals} | "
                   f"{best:.3f} | {statistics.median(times[config]):.3f} | {min(times[configs[0]]) / best:.2f}× |")
     print("\nEvery configuration gave the wrapper's states bit for bit (checked by the script).")
     return 0
