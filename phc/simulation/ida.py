@@ -121,6 +121,18 @@ def _mapped(fragment: str) -> list[str]:
         return []
 
 
+def _first_library(paths, symbol: str):
+    """(``ctypes.CDLL``, path) of the first of `paths` that loads and has `symbol`, or (None, None)."""
+    for path in paths:
+        try:
+            lib = ctypes.CDLL(path)
+            getattr(lib, symbol)
+            return lib, path
+        except (OSError, AttributeError):
+            continue
+    return None, None
+
+
 def _ida_library():
     """The SUNDIALS IDA shared library scikit-sundae's extension runs (already loaded in
     this process: ``dlopen`` of its path returns the same copy), or None."""
@@ -136,13 +148,7 @@ def _ida_library():
             for pattern in ("scikit_sundae.libs/libsundials_ida*", "sksundae/.dylibs/libsundials_ida*",
                             "sksundae.libs/*sundials_ida*"):
                 paths += glob.glob(os.path.join(root, pattern))
-        for path in paths:
-            try:
-                lib = ctypes.CDLL(path)
-                lib.IDAGetNumSteps  # noqa: B018 - the symbol must be there
-                break
-            except (OSError, AttributeError):
-                lib = None
+        lib, path = _first_library(paths, "IDAGetNumSteps")
         if lib is not None:
             _declare_solve(lib, path)
             lib.IDAGetNumSteps.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_long)]
@@ -178,14 +184,8 @@ def _declare_solve(lib, path) -> None:
         solve.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.POINTER(ctypes.c_double),
                           ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int]
         solve.restype = ctypes.c_int
-        core = None
-        for candidate in _mapped("libsundials_core") or [path]:  # or reachable through IDA's own
-            try:
-                core = ctypes.CDLL(candidate)
-                core.N_VGetArrayPointer  # noqa: B018 - the symbol must be there
-                break
-            except (OSError, AttributeError):
-                core = None
+        # SUNDIALS' core library, or reachable through IDA's own
+        core, _ = _first_library(_mapped("libsundials_core") or [path], "N_VGetArrayPointer")
         if core is None:
             return
         core.N_VGetArrayPointer.argtypes = [ctypes.c_void_p]

@@ -207,7 +207,7 @@ def data_offset(lib, solver_object_address: int, yy: int, n: int) -> Optional[in
     SUNDIALS' index size), checked against SUNDIALS' own accessors — or None where the
     layouts are not these (then the compiled callbacks are not used)."""
     core = getattr(lib, "array", None)
-    dense = _dense_library()
+    dense = _dense_library(core) if core is not None else None
     if core is None or dense is None or not yy or not solver_object_address:
         return None
     word = ctypes.c_void_p.from_address
@@ -229,39 +229,23 @@ def data_offset(lib, solver_object_address: int, yy: int, n: int) -> Optional[in
 _DENSE: list = []
 
 
-def _dense_library():
-    """SUNDIALS' dense-matrix library (and ``SUNMatGetID`` from its core) as loaded in this process, or None."""
+def _dense_library(core):
+    """SUNDIALS' dense-matrix library as loaded in this process, with ``SUNMatGetID`` of its
+    core library `core` (``lib.array`` of :func:`phc.simulation.ida._ida_library`), or None."""
     if _DENSE:
         return _DENSE[0]
     lib = None
     try:
-        from phc.simulation.ida import _mapped
+        from phc.simulation.ida import _first_library, _mapped
 
-        for path in _mapped("libsundials_sunmatrixdense"):
-            try:
-                lib = ctypes.CDLL(path)
-                lib.SUNDenseMatrix_Data  # noqa: B018 - the symbol must be there
-                break
-            except (OSError, AttributeError):
-                lib = None
+        lib, _ = _first_library(_mapped("libsundials_sunmatrixdense"), "SUNDenseMatrix_Data")
         if lib is not None:
-            core = None
-            for path in _mapped("libsundials_core"):
-                try:
-                    core = ctypes.CDLL(path)
-                    core.SUNMatGetID  # noqa: B018
-                    break
-                except (OSError, AttributeError):
-                    core = None
-            if core is None:
-                lib = None
-            else:
-                lib.SUNMatGetID = core.SUNMatGetID
-                lib.SUNMatGetID.argtypes, lib.SUNMatGetID.restype = [ctypes.c_void_p], ctypes.c_int
-                for name, rt in (("SUNDenseMatrix_Data", ctypes.c_void_p), ("SUNDenseMatrix_Rows", ctypes.c_int64),
-                                 ("SUNDenseMatrix_Columns", ctypes.c_int64), ("SUNDenseMatrix_LData", ctypes.c_int64)):
-                    fn = getattr(lib, name)
-                    fn.argtypes, fn.restype = [ctypes.c_void_p], rt
+            lib.SUNMatGetID = core.SUNMatGetID
+            lib.SUNMatGetID.argtypes, lib.SUNMatGetID.restype = [ctypes.c_void_p], ctypes.c_int
+            for name, rt in (("SUNDenseMatrix_Data", ctypes.c_void_p), ("SUNDenseMatrix_Rows", ctypes.c_int64),
+                             ("SUNDenseMatrix_Columns", ctypes.c_int64), ("SUNDenseMatrix_LData", ctypes.c_int64)):
+                fn = getattr(lib, name)
+                fn.argtypes, fn.restype = [ctypes.c_void_p], rt
     except Exception:  # noqa: BLE001 - an optimization with a fallback
         lib = None
     _DENSE.append(lib)
