@@ -47,6 +47,7 @@ import math
 import os
 import time
 import warnings
+import weakref
 from pathlib import Path
 from typing import Optional
 
@@ -65,15 +66,24 @@ _BUDGET, _DONE, _HARD, _LOOK, _MAXSTEPS = 0, 1, 2, 3, 4
 _OK, _FAIL, _SINGULAR, _EVAL = 0, 1, 2, 3
 # integer state
 (_K, _J, _SUBSTEPS, _STEPS, _LAST_LOOK, _HAS_MID, _MAX_STEPS, _STATUS, _NFEV, _NFACT, _HIST, _MONITOR, _METHOD,
- _CODE, _ILL, _E, _NEND, _NMID) = range(18)
-_NI = 18
+ _CODE, _ILL, _E, _NEND, _NMID, _LOWP, _STRIKES) = range(20)
+_NI = 20
 # float state
 _T, _H, _H_PREV, _STEP = range(4)
 _NF = 4
 # constants
 (_TOL, _RATE, _FLOOR, _MAX_AGE, _MAX_NEWTON, _BAL_TOL, _MAX_SECANT, _S_MIN, _S_MAX, _THRESHOLD, _EVERY,
- _G1, _G2, _M0, _M1, _M2, _ORDER, _ZONE, _STAGNATION, _ONE, _ZERO, _ORDER_ALG) = range(22)
-_NC = 22
+ _G1, _G2, _M0, _M1, _M2, _ORDER, _ZONE, _STAGNATION, _ONE, _ZERO, _ORDER_ALG, _STRIKES_C) = range(23)
+_NC = 23
+
+MIXED_PRECISION_MIN = 32
+"""Smallest system whose Newton corrections use a single-precision copy of the inverse Newton
+matrix (:func:`_lowprec`); ``PHC_MIXED_PRECISION=0`` keeps double precision throughout. Below
+this size a double-precision product costs no more (``dgemv`` against ``sgemv``, measured on
+2-core x86-64: equal at 16 unknowns, 0.45–0.66× from 32 to 400)."""
+LOW_PRECISION_STRIKES = 3
+"""Corrections redone in double precision (a freshly factorized matrix whose single-precision
+copy contracted worse than ``REFACTOR_RATE``) after which a run keeps double precision."""
 
 _RCOND_MARGIN = 1e3
 """The routine look of the singularity monitor computes singular values only when LAPACK's
@@ -100,14 +110,64 @@ def enabled(mod) -> bool:
     return _functions(raw) is not None
 
 
+_ADDRESSES = weakref.WeakKeyDictionary()
+"""Per generated module: its functions as :func:`_address` objects (looked up once per process)."""
+
+
 def _functions(raw):
-    """The compiled functions the loop calls, in its argument order, or None."""
+    """The compiled functions the loop calls, in its argument order (each with its machine-code
+    address looked up once: :func:`_address`), or None."""
     ready = _build()
     if not ready:
         return None
+    try:
+        cached = _ADDRESSES.get(raw)
+    except TypeError:  # not weakly referable: look the functions up every time
+        cached = None
+    if cached is not None:
+        return cached
+    found = _lookup(raw, ready)
+    if found is not None:
+        found = tuple(_address(f, ready[2][name]) for f, name in zip(found, _FUNCTION_NAMES))
+        try:
+            _ADDRESSES[raw] = found
+        except TypeError:
+            pass
+    return found
+
+
+_FUNCTION_NAMES = ("residual", "jacobian", "invariants", "hamiltonian", "energy_scale", "powers")
+
+
+def _address(func, sig):
+    """`func` (a numba dispatcher compiled for `sig`) as an object of numba's wrapper-address
+    protocol holding its address: numba looks the address of a dispatcher passed as a
+    first-class function up on every call of the kernel (about 0.1 ms each, six functions a
+    chunk), this object hands it over. It keeps `func` alive, and with it the machine code."""
+    from numba.core import types
+    from numba.experimental.function_type import _get_wrapper_address
+
+    class _Compiled(types.WrapperAddressProtocol):
+        __slots__ = ("func", "_sig", "_addr")
+
+        def __init__(self):
+            self.func, self._sig, self._addr = func, sig, _get_wrapper_address(func, sig)
+
+        def __wrapper_address__(self):
+            return self._addr
+
+        def signature(self):
+            return self._sig
+
+    return _Compiled()
+
+
+def _lookup(raw, ready):
+    """The module's compiled functions in :data:`_FUNCTION_NAMES` (the dummy for absent invariants), or
+    None when one is missing or compiled for another signature."""
     _, dummy, sigs = ready
     found = []
-    for name in ("residual", "jacobian", "invariants", "hamiltonian", "energy_scale", "powers"):
+    for name in _FUNCTION_NAMES:
         func = getattr(raw, name, None)
         sigs_of = getattr(func, "nopython_signatures", None)
         if sigs_of is None:
@@ -119,6 +179,16 @@ def _functions(raw):
             return None
         found.append(func)
     return tuple(found)
+
+
+def mixed_precision(n: int) -> bool:
+    """Whether the compiled loop's Newton corrections of a system of `n` unknowns start with the
+    single-precision copy of the inverse: from :data:`MIXED_PRECISION_MIN` unknowns on;
+    ``PHC_MIXED_PRECISION=0`` never, ``=always`` at every size (for testing)."""
+    flag = os.environ.get("PHC_MIXED_PRECISION", "1").strip().lower()
+    if flag in ("0", "no", "false", "off"):
+        return False
+    return flag == "always" or n >= MIXED_PRECISION_MIN
 
 
 def _signatures():
@@ -160,7 +230,8 @@ def why_not() -> str:
 
 
 _SYMBOLS = {"dgetrf": ("cython_lapack", 6), "dgetri": ("cython_lapack", 7), "dgecon": ("cython_lapack", 9),
-            "dgesdd": ("cython_lapack", 14), "dgemv": ("cython_blas", 11)}
+            "dgesdd": ("cython_lapack", 14), "dgemv": ("cython_blas", 11),
+            "sgemv": ("cython_blas", 11)}
 
 
 def _compile():
@@ -177,7 +248,7 @@ def _compile():
     fn = {name: types.FunctionType(sig) for name, sig in sigs.items()}
     namespace = _kernel_namespace(externals)
     jit = numba.njit(error_model="numpy")
-    for name in ("_copy", "_factor", "_invert", "_solve", "_fill", "_stage_residual", "_refactor", "_all_finite",
+    for name in ("_copy", "_factor", "_invert", "_solve", "_lowprec", "_solve32", "_fill", "_stage_residual", "_refactor", "_all_finite",
                  "_stage", "_midpoint4", "_dg", "_advance", "_monitor_ratio", "_weights", "_predict"):
         namespace[name] = jit(namespace[name])
     chunk = numba.njit(error_model="numpy")(namespace["_chunk"])
@@ -187,8 +258,9 @@ def _compile():
     I1 = types.Array(types.int64, 1, "C")
     I2 = types.Array(types.int32, 2, "C")
     B1 = types.Array(types.int8, 1, "C")
+    LP = types.Tuple((types.Array(types.float32, 3, "C"), C3, types.Array(types.float32, 1, "C")))
     signature = types.void(fn["residual"], fn["jacobian"], fn["invariants"], fn["hamiltonian"], fn["energy_scale"],
-                           fn["powers"], C1, C1, C2, C2, C1, C1, C1, C1, C1, I1, C1, C3, I2, C2, I1, I1, I1,
+                           fn["powers"], C1, C1, C2, C2, C1, C1, C1, C1, C1, I1, C1, C3, LP, I2, C2, I1, I1, I1,
                            B1, C1, B1, C2, C3, C1, C1, C1, C2, C1, C1, C2, types.int64)
     _attach_cache(chunk, namespace["_chunk"])
     dummy = numba.njit(error_model="numpy")(_no_invariants)
@@ -284,6 +356,59 @@ def _solve(A, ints, chars, c, x, tmp):
            tmp.ctypes, ints[1:].ctypes, c[_ZERO:].ctypes, x.ctypes, ints[1:].ctypes)
 
 
+def _lowprec(Am, lp, m):
+    """The single-precision copy of the inverse Newton matrix in Am (column-major) into lp:
+    equilibrated by powers of two (M = R·M̃·C with the row scales R and then the column scales
+    C: every row and column of M̃ has its largest entry in [1, 2)), so that no entry is out of
+    single precision's range whatever the units; the scales are exact and kept in double
+    (lp[1][m]: R, C, 1/R)."""
+    A32, eq = lp[0], lp[1]
+    n = Am.shape[0]
+    for i in range(n):
+        eq[m, 0, i] = 0.0
+    for j in range(n):  # Am[j, :] is column j of M: the rows' largest entries, in one pass
+        for i in range(n):
+            a = abs(Am[j, i])
+            if a > eq[m, 0, i]:
+                eq[m, 0, i] = a
+    for i in range(n):
+        big = eq[m, 0, i]
+        eq[m, 0, i] = math.ldexp(1.0, math.frexp(big)[1] - 1) if big > 0.0 else 1.0
+        eq[m, 2, i] = 1.0 / eq[m, 0, i]  # exact: a power of two
+    for j in range(n):
+        big = 0.0
+        for i in range(n):
+            big = max(big, abs(Am[j, i]) * eq[m, 2, i])
+        cj = math.ldexp(1.0, math.frexp(big)[1] - 1) if big > 0.0 else 1.0
+        eq[m, 1, j] = cj
+        cinv = 1.0 / cj
+        for i in range(n):
+            A32[m, j, i] = Am[j, i] * eq[m, 2, i] * cinv
+
+
+def _solve32(lp, m, ints, chars, x):
+    """x ← M x with the single-precision copy of :func:`_lowprec` (``sgemv``): the vector C x is
+    brought to a largest entry of 1 by a power of two before it is rounded to single precision,
+    the product scaled back by R in double. The iteration converges to the solution of F = 0 all
+    the same (the residual is in double): only its rate can suffer, which :func:`_stage` watches."""
+    A32, eq, v = lp[0], lp[1], lp[2]
+    n = x.shape[0]
+    big = 0.0
+    for j in range(n):
+        big = max(big, abs(eq[m, 1, j] * x[j]))
+    if big == 0.0:
+        return
+    k = math.ldexp(1.0, math.frexp(big)[1])
+    kinv = 1.0 / k  # exact: a power of two
+    for j in range(n):
+        v[j] = (eq[m, 1, j] * x[j]) * kinv
+    # v[n:2n] the product; v[2n], v[2n + 1]: 1.0, 0.0
+    _sgemv(chars[1:].ctypes, ints[0:].ctypes, ints[0:].ctypes, v[2 * n:].ctypes, A32[m].ctypes, ints[0:].ctypes,
+           v.ctypes, ints[1:].ctypes, v[2 * n + 1:].ctypes, v[n:].ctypes, ints[1:].ctypes)
+    for i in range(n):
+        x[i] = eq[m, 0, i] * (k * np.float64(v[n + i]))
+
+
 def _fill(A, jbuf, ebuf, jrows, jcols, emask, s, nend):
     """The Newton matrix s·(F_y + c_j F_ẏ) with the end-constraint rows from `ebuf`, column-major in A."""
     A[:, :] = 0.0
@@ -304,7 +429,7 @@ def _stage_residual(res, inv, t, h, y, y1, s, p, out, end_rows, nend, xs, d):
     return _all_finite(out)
 
 
-def _refactor(jac, t, h, y, y1, s, p, A, ipiv, matf, m, jrows, jcols, emask, nend, jbuf, ebuf, xs, d, ints, ist):
+def _refactor(jac, t, h, y, y1, s, p, A, lp, ipiv, matf, m, jrows, jcols, emask, nend, jbuf, ebuf, xs, d, ints, ist):
     """Factorize the Newton matrix m for the iterate y1; the outcome (_OK, _SINGULAR, _EVAL)."""
     ist[_NFACT] += 1
     n = y.shape[0]
@@ -325,6 +450,8 @@ def _refactor(jac, t, h, y, y1, s, p, A, ipiv, matf, m, jrows, jcols, emask, nen
         return _SINGULAR
     if _invert(A[m], ipiv[m], ints) != 0:
         return _SINGULAR
+    if ist[_LOWP] != 0:
+        _lowprec(A[m], lp, m)
     matf[m, 0] = h
     matf[m, 1] = s
     matf[m, 2] = 1.0
@@ -335,13 +462,15 @@ def _refactor(jac, t, h, y, y1, s, p, A, ipiv, matf, m, jrows, jcols, emask, nen
 _AGE0 = _NI  # the ages of the two Newton matrices follow the integer state
 
 
-def _stage(res, jac, inv, t, h, y, y1in, s, p, m, A, ipiv, matf, jrows, jcols, emask, end_rows, nend, weights,
+def _stage(res, jac, inv, t, h, y, y1in, s, p, m, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend, weights,
            algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags):
     """StageSolver.solve: y1 with F(t + s h, y + s(y1 − y), (y1 − y)/h) = 0 (end rows: g(t + h, y1) = 0)
     into `out`; returns _OK, _FAIL, _SINGULAR or _EVAL; flags[0] ← ill-conditioned."""
     n = y.shape[0]
     flags[0] = 0
     refreshed = False
+    if ist[_LOWP] < 0:  # double precision was for the last solve only
+        ist[_LOWP] = 1
     for i in range(n):
         out[i] = y1in[i]
     ist[_AGE0 + m] += 1
@@ -350,13 +479,14 @@ def _stage(res, jac, inv, t, h, y, y1in, s, p, m, A, ipiv, matf, jrows, jcols, e
     if (matf[m, 2] == 0.0 or abs(h - matf[m, 0]) > 1e-3 * abs(h) or abs(s - matf[m, 1]) > 0.2
             or ist[_AGE0 + m] >= c[_MAX_AGE]):
         refreshed = True
-        code = _refactor(jac, t, h, y, out, s, p, A, ipiv, matf, m, jrows, jcols, emask, nend, jbuf, ebuf, xs, d,
+        code = _refactor(jac, t, h, y, out, s, p, A, lp, ipiv, matf, m, jrows, jcols, emask, nend, jbuf, ebuf, xs, d,
                          ints, ist)
         if code != _OK:
             return code
         since = 0
     last = -1.0
     rate = np.inf  # the smallest θ of this solve with this matrix
+    suspect = 0.0  # > 0: the rate of the single-precision copy, being compared with double precision
     weighted = weights.shape[0] == n
     for _ in range(int(c[_MAX_NEWTON])):
         ist[_NFEV] += 1
@@ -364,7 +494,11 @@ def _stage(res, jac, inv, t, h, y, y1in, s, p, m, A, ipiv, matf, jrows, jcols, e
             return _EVAL
         for i in range(n):
             r[i] = -r[i]
-        _solve(A[m], ints, chars, c, r, xs)
+        lowp = ist[_LOWP] > 0
+        if lowp:
+            _solve32(lp, m, ints, chars, r)
+        else:
+            _solve(A[m], ints, chars, c, r, xs)
         size = 0.0
         scale = 1.0
         alg = 0.0
@@ -393,16 +527,34 @@ def _stage(res, jac, inv, t, h, y, y1in, s, p, m, A, ipiv, matf, jrows, jcols, e
             for i in range(n):
                 out[i] = y1in[i]
             refreshed = True
-            code = _refactor(jac, t, h, y, out, s, p, A, ipiv, matf, m, jrows, jcols, emask, nend, jbuf, ebuf, xs,
+            code = _refactor(jac, t, h, y, out, s, p, A, lp, ipiv, matf, m, jrows, jcols, emask, nend, jbuf, ebuf, xs,
                              d, ints, ist)
             if code != _OK:
                 return code
             since = 0
             last = -1.0
             rate = np.inf
+            suspect = 0.0
             continue
         has_theta = last > 0.0
         theta = size / last if has_theta else 0.0
+        if lowp and refreshed and has_theta and theta > c[_RATE]:
+            # a matrix factorized in this solve contracts poorly: its single-precision copy may be
+            # to blame (conditioning), or the iteration is far from linear. Redo the correction in
+            # double and compare the rates
+            ist[_LOWP] = -1
+            suspect = theta
+            last = -1.0
+            rate = np.inf
+            continue
+        if suspect > 0.0 and has_theta:
+            # double precision with the same matrix: a strike if it contracts where single did not;
+            # after LOW_PRECISION_STRIKES strikes the run keeps double precision
+            if theta <= c[_RATE] and since > 0:
+                ist[_STRIKES] += 1
+                if ist[_STRIKES] >= c[_STRIKES_C]:
+                    ist[_LOWP] = 0
+            suspect = 0.0
         if has_theta and (theta >= 0.5 or theta >= c[_STAGNATION] * rate) and size <= c[_ZONE] * tol * scale:
             for i in range(n):
                 out[i] += r[i]
@@ -414,13 +566,14 @@ def _stage(res, jac, inv, t, h, y, y1in, s, p, m, A, ipiv, matf, jrows, jcols, e
             return _OK
         if has_theta and theta >= 1.0 and since > 0 and size > 1e3 * tol * scale:
             refreshed = True
-            code = _refactor(jac, t, h, y, out, s, p, A, ipiv, matf, m, jrows, jcols, emask, nend, jbuf, ebuf, xs,
+            code = _refactor(jac, t, h, y, out, s, p, A, lp, ipiv, matf, m, jrows, jcols, emask, nend, jbuf, ebuf, xs,
                              d, ints, ist)
             if code != _OK:
                 return code
             since = 0
             last = -1.0
             rate = np.inf
+            suspect = 0.0
             continue
         for i in range(n):
             out[i] += r[i]
@@ -433,23 +586,24 @@ def _stage(res, jac, inv, t, h, y, y1in, s, p, m, A, ipiv, matf, jrows, jcols, e
             rate = min(rate, theta)
             if theta > c[_RATE]:
                 refreshed = True
-                code = _refactor(jac, t, h, y, out, s, p, A, ipiv, matf, m, jrows, jcols, emask, nend, jbuf, ebuf,
+                code = _refactor(jac, t, h, y, out, s, p, A, lp, ipiv, matf, m, jrows, jcols, emask, nend, jbuf, ebuf,
                                  xs, d, ints, ist)
                 if code != _OK:
                     return code
                 since = 0
                 size = -1.0
                 rate = np.inf
+                suspect = 0.0
         last = size
     return _FAIL
 
 
-def _dg(res, jac, inv, ham, escale, t, h, y, guess, p, A, ipiv, matf, jrows, jcols, emask, end_rows, nend, weights,
+def _dg(res, jac, inv, ham, escale, t, h, y, guess, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend, weights,
         algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags):
     """DiscreteGradientStep: the stage equations at y(s) and the energy balance r(s) = 0."""
     n = y.shape[0]
     e = ist[_E]
-    code = _stage(res, jac, inv, t, h, y, guess, 0.5, p, 0, A, ipiv, matf, jrows, jcols, emask, end_rows, nend,
+    code = _stage(res, jac, inv, t, h, y, guess, 0.5, p, 0, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend,
                   weights, algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags)
     if code != _OK:
         return code
@@ -479,7 +633,7 @@ def _dg(res, jac, inv, ham, escale, t, h, y, guess, p, A, ipiv, matf, jrows, jco
             s_new = 0.5
         if s_new == s_prev:
             break
-        code = _stage(res, jac, inv, t, h, y, y_prev, s_new, p, 0, A, ipiv, matf, jrows, jcols, emask, end_rows,
+        code = _stage(res, jac, inv, t, h, y, y_prev, s_new, p, 0, A, lp, ipiv, matf, jrows, jcols, emask, end_rows,
                       nend, weights, algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags)
         if code != _OK:
             break
@@ -504,7 +658,7 @@ def _dg(res, jac, inv, ham, escale, t, h, y, guess, p, A, ipiv, matf, jrows, jco
     return _FAIL
 
 
-def _midpoint4(res, jac, inv, escale, powers, t, h, y, guess, p, A, ipiv, matf, jrows, jcols, emask, end_rows, nend,
+def _midpoint4(res, jac, inv, escale, powers, t, h, y, guess, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend,
                weights, algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags, hist_t, hist_v):
     """Midpoint4Step: three midpoint substeps γ₁h, γ₂h, γ₁h, the predictor from the substep
     midpoints of the last two steps, the passivity guard."""
@@ -534,7 +688,7 @@ def _midpoint4(res, jac, inv, escale, powers, t, h, y, guess, p, A, ipiv, matf, 
         hs = fr[i] * h
         for j in range(n):
             g[j] = 2.0 * mids[i, j] - start[j]
-        code = _stage(res, jac, inv, tau, hs, start, g, 0.5, p, m, A, ipiv, matf, jrows, jcols, emask, end_rows, nend,
+        code = _stage(res, jac, inv, tau, hs, start, g, 0.5, p, m, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend,
                       weights, algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags)
         ill = ill | flags[0]
         if code != _OK:
@@ -576,16 +730,16 @@ def _midpoint4(res, jac, inv, escale, powers, t, h, y, guess, p, A, ipiv, matf, 
     return _OK
 
 
-def _advance(res, jac, inv, ham, escale, powers, t, h, y, guess, p, A, ipiv, matf, jrows, jcols, emask, end_rows,
+def _advance(res, jac, inv, ham, escale, powers, t, h, y, guess, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows,
              nend, weights, algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags, hist_t, hist_v):
     method = ist[_METHOD]
     if method == 0:
-        return _stage(res, jac, inv, t, h, y, guess, 0.5, p, 0, A, ipiv, matf, jrows, jcols, emask, end_rows, nend,
+        return _stage(res, jac, inv, t, h, y, guess, 0.5, p, 0, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend,
                       weights, algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags)
     if method == 1:
-        return _dg(res, jac, inv, ham, escale, t, h, y, guess, p, A, ipiv, matf, jrows, jcols, emask, end_rows, nend,
+        return _dg(res, jac, inv, ham, escale, t, h, y, guess, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend,
                    weights, algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags)
-    return _midpoint4(res, jac, inv, escale, powers, t, h, y, guess, p, A, ipiv, matf, jrows, jcols, emask, end_rows,
+    return _midpoint4(res, jac, inv, escale, powers, t, h, y, guess, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows,
                       nend, weights, algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags, hist_t, hist_v)
 
 
@@ -713,8 +867,8 @@ def _predict(y, mid, mid_slope, pt, pm, ist, c, t, h, h_prev, algmask, guess):
         guess[i] = 2.0 * mg - y[i]
 
 
-def _chunk(res, jac, inv, ham, escale, powers, p, t_out, ys, yps, y, mid, mid_slope, y_prev, fst, ist, c, A, ipiv,
-           matf, jrows, jcols, end_rows, emask, weights, algmask, hist_t, hist_v, y_new, jbuf, ebuf, M, colscale, pt,
+def _chunk(res, jac, inv, ham, escale, powers, p, t_out, ys, yps, y, mid, mid_slope, y_prev, fst, ist, c, A, lp,
+           ipiv, matf, jrows, jcols, end_rows, emask, weights, algmask, hist_t, hist_v, y_new, jbuf, ebuf, M, colscale, pt,
            pm, budget):
     """Steps of integrate_fixed_step until `budget` steps are done, the run ends, or a step needs
     the Python code (see the module docstring); the state is in the arrays, the status in ist."""
@@ -758,7 +912,7 @@ def _chunk(res, jac, inv, ham, escale, powers, p, t_out, ys, yps, y, mid, mid_sl
         h = fst[_H]
         h_prev = fst[_H_PREV]
         _predict(y, mid, mid_slope, pt, pm, ist, c, t, h, h_prev, algmask, guess)
-        code = _advance(res, jac, inv, ham, escale, powers, t, h, y, guess, p, A, ipiv, matf, jrows, jcols, emask,
+        code = _advance(res, jac, inv, ham, escale, powers, t, h, y, guess, p, A, lp, ipiv, matf, jrows, jcols, emask,
                         end_rows, nend, weights, algmask, c, jbuf, ebuf, xs, d, r, y_new, ints, chars, ist, flags,
                         hist_t, hist_v)
         steps = ist[_STEPS]
@@ -864,6 +1018,12 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
     c[_ORDER_ALG] = min(max(int(mp.PREDICTOR_ORDER_ALGEBRAIC), 0), mp.MAX_PREDICTOR_ORDER)
     pt, pm = np.zeros(mp.MAX_PREDICTOR_ORDER + 1), np.zeros((mp.MAX_PREDICTOR_ORDER + 1, n))
     A = np.zeros((2, n, n))
+    low = mixed_precision(n)
+    # the single-precision copies of the two inverses, their scales, and the vectors of sgemv
+    lp = ((np.zeros((2, n, n), np.float32), np.ones((2, 3, n)), np.array([0.0] * (2 * n) + [1.0, 0.0], np.float32))
+          if low else (np.zeros((2, 1, 1), np.float32), np.ones((2, 3, 1)), np.zeros(2, np.float32)))
+    ist[_LOWP] = int(low)
+    c[_STRIKES_C] = LOW_PRECISION_STRIKES
     ipiv = np.zeros((2, n), dtype=np.int32)
     matf = np.zeros((2, 3))
     w = np.zeros(0) if weights is None else np.ascontiguousarray(weights, dtype=float)
@@ -952,7 +1112,7 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
         while True:
             t0 = time.perf_counter()
             before = int(ist[_STEPS])
-            chunk(*funcs, pv, t_out, ys, yps, y, mid, mid_slope, y_prev, fst, ist, c, A, ipiv, matf, jrows, jcols,
+            chunk(*funcs, pv, t_out, ys, yps, y, mid, mid_slope, y_prev, fst, ist, c, A, lp, ipiv, matf, jrows, jcols,
                   end_rows, emask, w, algmask, hist_t, hist_v, y_new, jbuf, ebuf, M, colscale, pt, pm, budget)
             took = time.perf_counter() - t0
             status = int(ist[_STATUS])
@@ -984,6 +1144,7 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
     return dict(t=t_out[:last + 1], y=ys[:last + 1], yp=yps[:last + 1], steps=int(ist[_STEPS]), success=ok,
                 message=message, cpu=time.process_time() - start, interrupted=interrupted,
                 nfev=int(ist[_NFEV]) + python_nfev, njev=int(ist[_NFACT]) + python_njev, compiled_loop=True,
+                mixed_precision=bool(low), low_precision_strikes=int(ist[_STRIKES]),
                 unbalanced=int(getattr(python, "unbalanced", 0) or 0))
 
 

@@ -294,3 +294,96 @@ def test_both_loops_run_the_same_newton_test(compiled, monkeypatch, used):
     assert used == [True, False]
     assert fast.n_residual_evals == pytest.approx(slow.n_residual_evals, rel=0.02)
     assert fast.n_jacobian_evals == pytest.approx(slow.n_jacobian_evals, rel=0.1, abs=3)
+
+
+# ---------------------------------------------------------------------------------------------------
+# mixed precision: the Newton corrections with a single-precision copy of the inverse
+
+
+@pytest.fixture
+def loop_runs(monkeypatch):
+    """What the compiled loop returned for each run (its dict), None for a run it did not take."""
+    from phc.simulation import compiled_steps
+
+    outs = []
+    original = compiled_steps.integrate
+
+    def spy(*args, **kwargs):
+        out = original(*args, **kwargs)
+        outs.append(out)
+        return out
+
+    monkeypatch.setattr(compiled_steps, "integrate", spy)
+    return outs
+
+
+def test_single_precision_copy_keeps_an_si_scaled_inverse_in_range():
+    """M = D₁ Q D₂ with D₁, D₂ spanning 10^±60 (units that differ by far more than single
+    precision's range, 10^±38) and Q orthogonal; x spanning 10^±40. The product through the
+    equilibrated single-precision copy matches the double one to single precision's round-off,
+    entry by entry, where a plain cast to float32 loses entries to overflow and underflow."""
+    from phc.simulation import compiled_steps as cs
+
+    assert cs._build()
+    rng = np.random.default_rng(7)
+    n = 40
+    q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    d1, d2 = np.logspace(-60, 60, n), rng.permutation(np.logspace(60, -60, n))
+    M = d1[:, None] * q * d2[None, :]
+    x = rng.permutation(np.logspace(-40, 40, n)) * rng.choice([-1.0, 1.0], n)
+    with np.errstate(over="ignore"):
+        plain = M.astype(np.float32)
+    assert np.isinf(plain).any() and ((plain == 0) & (M != 0)).any()  # the test can fail without scaling
+    lp = (np.zeros((2, n, n), np.float32), np.ones((2, 3, n)), np.array([0.0] * (2 * n) + [1.0, 0.0], np.float32))
+    Am = np.ascontiguousarray(M.T)  # the kernel keeps matrices column-major
+    cs._lowprec(Am, lp, 1)
+    R, C = lp[1][1, 0], lp[1][1, 1]
+    assert np.all(np.log2(R) == np.round(np.log2(R))) and np.all(np.log2(C) == np.round(np.log2(C)))
+    assert np.abs(lp[0][1]).max() < 2.0 and np.all(np.abs(lp[0][1]).max(axis=1) >= 1.0)
+    ints = np.array([n, 1, 0, 0], np.int32)
+    chars = np.frombuffer(b"LNU", np.uint8).copy()
+    y = x.copy()
+    cs._solve32(lp, 1, ints, chars, y)
+    exact = M @ x
+    bound = np.abs(M) @ np.abs(x)
+    assert np.all(np.isfinite(y))
+    assert np.all(np.abs(y - exact) <= 4 * n * np.finfo(np.float32).eps * bound)
+
+
+def test_mixed_precision_reaches_the_double_precision_solution(compiled, monkeypatch, loop_runs):
+    """The flexible slider–crank (83 unknowns: mixed precision by default) with the single-
+    precision copy and without: the trajectories agree to the Newton tolerance, the discrete
+    energy balance and the constraints hold to round-off, and the iteration needs no more
+    residual evaluations (the copy's round-off is below what the old matrix costs anyway)."""
+    from phc.simulation import compiled_steps as cs
+
+    model = compiled("flexible_slider_crank.yaml")
+    assert model.module.N >= cs.MIXED_PRECISION_MIN
+    options = dict(solver="midpoint", t_end=0.01, n_out=51)
+    monkeypatch.setenv("PHC_MIXED_PRECISION", "1")
+    mixed = phc.simulate(model, **options)
+    monkeypatch.setenv("PHC_MIXED_PRECISION", "0")
+    double = phc.simulate(model, **options)
+    assert [out["mixed_precision"] for out in loop_runs] == [True, False]
+    assert loop_runs[0]["low_precision_strikes"] < cs.LOW_PRECISION_STRIKES  # it stayed on
+    _assert_same_trajectory(mixed, double, model.dae.options["step"])
+    assert mixed.energy_balance_relative <= 1e-12 and mixed.constraint_drift <= 1e-12
+    assert mixed.n_residual_evals <= 1.02 * double.n_residual_evals
+
+
+def test_near_a_singular_configuration_the_corrections_go_back_to_double(compiled, monkeypatch, loop_runs):
+    """The folded slider–crank (see the singular-configuration test) with the single-precision
+    copy at every size: near the singular angles the Newton matrix's conditioning spoils the
+    copy's contraction, the corrections are redone in double precision (strikes), and the run
+    ends as a double-precision run may: finished, or stopped near a singular angle with the
+    monitor's message."""
+    monkeypatch.setenv("PHC_MIXED_PRECISION", "always")
+    r = phc.simulate(compiled("rigid_slider_crank.yaml"), solver="midpoint", params={"L": 0.15}, step=1e-4)
+    (out,) = loop_runs
+    assert out["mixed_precision"] and out["low_precision_strikes"] >= 1
+    if not r.success:
+        assert "singular configuration" in r.message, r.message
+        t_stop = float(r.message.split("stopped at t = ")[1].split()[0])
+        angle = 150.0 * t_stop - math.pi / 2
+        assert abs(angle - math.pi * round(angle / math.pi)) < 0.1, t_stop
+    assert r.constraint_drift < 1e-9 and np.all(np.isfinite(r.y))
