@@ -387,3 +387,19 @@ def test_near_a_singular_configuration_the_corrections_go_back_to_double(compile
         angle = 150.0 * t_stop - math.pi / 2
         assert abs(angle - math.pi * round(angle / math.pi)) < 0.1, t_stop
     assert r.constraint_drift < 1e-9 and np.all(np.isfinite(r.y))
+
+
+def test_the_model_functions_are_looked_up_once_per_module(compiled):
+    """The compiled functions reach the kernel as numba wrapper-address objects made once per
+    module: the same objects on every run, with the addresses numba itself would look up."""
+    from numba.experimental.function_type import _get_wrapper_address
+
+    from phc.simulation import compiled_steps as cs
+
+    raw = compiled("pendulum.yaml").module
+    first = cs._functions(raw)
+    assert first is not None and cs._functions(raw) is first
+    sigs = cs._build()[2]
+    for obj, name in zip(first, cs._FUNCTION_NAMES):
+        assert obj.signature() == sigs[name]
+        assert obj.__wrapper_address__() == _get_wrapper_address(obj.func, sigs[name])
