@@ -385,14 +385,17 @@ STEP_RUNS = 10
 whole ``phc.simulate`` of 10 000 steps, set-up included."""
 
 
-def per_step_us(compiled, repeat, compiled_loop=True, counts=None):
+def per_step_us(compiled, repeat, compiled_loop=True, counts=None, mixed=True):
     """CPU µs per step of the midpoint rule on the flexible slider–crank at its model step
-    (`compiled_loop` False: ``PHC_COMPILED_LOOP=0``, the Python step loop calling the same functions);
+    (`compiled_loop` False: ``PHC_COMPILED_LOOP=0``, the Python step loop calling the same functions;
+    `mixed` False: ``PHC_MIXED_PRECISION=0``, the compiled loop's corrections in double precision);
     `counts` (a dict, optional) gets the residual evaluations and factorizations a step."""
     best = None
     runs = []
     old = os.environ.get("PHC_COMPILED_LOOP")
+    old_mixed = os.environ.get("PHC_MIXED_PRECISION")
     os.environ["PHC_COMPILED_LOOP"] = "1" if compiled_loop else "0"
+    os.environ["PHC_MIXED_PRECISION"] = "1" if mixed else "0"
     try:
         for _ in range(repeat):
             t = time.process_time()
@@ -401,10 +404,11 @@ def per_step_us(compiled, repeat, compiled_loop=True, counts=None):
             best = min(best or cpu, cpu)
             runs.append(cpu)
     finally:
-        if old is None:
-            os.environ.pop("PHC_COMPILED_LOOP", None)
-        else:
-            os.environ["PHC_COMPILED_LOOP"] = old
+        for name, value in (("PHC_COMPILED_LOOP", old), ("PHC_MIXED_PRECISION", old_mixed)):
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
     if counts is not None:
         counts.update(fev=r.n_residual_evals / max(r.steps, 1), fact=r.n_jacobian_evals / max(r.steps, 1),
                       median=float(np.median(runs)) / max(r.steps, 1) * 1e6, runs=len(runs))
@@ -427,6 +431,9 @@ def part_step(repeat, baseline=None):
             phc.simulate(compiled, solver="midpoint", t_end=1e-3)  # load the compiled loop before timing
             os.environ.pop("PHC_COMPILED_LOOP")
             rows.append((f"{backend}, {which}", functools.partial(per_step_us, compiled, 1, compiled_loop=loop)))
+            if backend == "numba" and loop:  # what the single-precision copy of the inverse gains
+                rows.append((f"{backend}, {which}, double precision (PHC_MIXED_PRECISION=0)",
+                             functools.partial(per_step_us, compiled, 1, compiled_loop=loop, mixed=False)))
             if baseline and backend == "numba" and loop:
                 rows.append((f"{backend}, {which}, phc at {baseline}", functools.partial(_baseline_step, baseline)))
     best, every = {}, {}
