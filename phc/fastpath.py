@@ -28,8 +28,11 @@ fresh record.
 
 The fast path is not taken (the full path runs) for ``--estimate-error`` and ``--profile``
 (they need the model itself), for a ``--param`` of a compile-time parameter or of one an
-initial value is written in, when the compilation warned, and for models running on the
-compiled (numba) backend. ``PHC_FRONT_END_CACHE=0`` turns it off.
+initial value is written in, and when the compilation warned. ``PHC_FRONT_END_CACHE=0``
+turns it off. On the compiled (numba) backend the record also keeps the kernel text of the
+model's compiled functions, which a hit loads from their signed disk cache
+(:func:`phc.codegen.numba_cache.load_cached`, without sympy); functions missing from that
+cache make it a miss.
 
 ``phc validate`` keeps each file's result (its diagnostics as printed and as JSON, and
 its status line) under the same kind of key (:func:`lookup_validate`); the text and JSON
@@ -133,7 +136,9 @@ class CachedModel:
         self.scene = (SimpleNamespace(name=scene["name"], spec=SimpleNamespace(model=scene["model"]))
                       if scene is not None else None)
         self.output_spans = {k: _span(s) for k, s in record["output_spans"].items()}
-        self.backend_line = record["backend_line"]
+        # the line the full path printed; on the compiled backend it says how the functions
+        # were loaded this time (phc.codegen.backends.describe)
+        self.backend_line = record["backend_line"] if record.get("numba") is None else None
         self._full_size = record["full_size"]
 
     @property
@@ -341,6 +346,12 @@ def _lookup(args, params: dict) -> Optional[CachedModel]:
     from phc.codegen.load import load_generated
 
     module, module_path = load_generated(record["source"], record["name"])
+    if record.get("numba") is not None:  # the compiled backend: its functions from the disk cache, or a miss
+        from phc.codegen.numba_cache import load_cached
+
+        module = load_cached(record["numba"], module, record["source"])
+        if module is None:
+            return None
     fixed = set(getattr(module, "COMPILE_TIME_PARAMETERS", ()))
     for k, v in params.items():
         if k in fixed and float(v) != float(module.PARAMETER_DEFAULTS[module.PARAMETERS.index(k)]):
@@ -394,7 +405,8 @@ class Recorder:
     def _store(self, compiled) -> None:
         from phc.codegen.backends import name_of
 
-        if name_of(compiled.module) != "numpy":
+        backend = name_of(compiled.module)
+        if backend not in ("numpy", "numba") or (backend == "numba" and not hasattr(compiled.module, "KERNEL")):
             return
         self._write(_record(compiled, getattr(self.args, "backend", None)))
 
@@ -425,7 +437,7 @@ class Recorder:
         payload = json.dumps(record, allow_nan=True).encode()
         if json.loads(payload) != record:
             return  # something JSON cannot carry exactly (tuples, ...)
-        from phc.codegen.numba_backend import cache_key
+        from phc.codegen.numba_cache import cache_key
 
         secret, _ = cache_key()  # created when missing
         from phc.codegen.load import configured_cache_dir
@@ -538,6 +550,8 @@ def _record(compiled, backend: Optional[str]) -> Optional[dict]:
         "full_size": compiled.full_size(),
         "output_spans": {name: _span_of(_output_span(compiled, name)) for name in mod.OUTPUTS},
         "backend_line": _backend_line(compiled, backend),
+        # the compiled functions' kernel text (phc.codegen.numba_cache.load_cached): loaded from the cache
+        "numba": getattr(mod, "KERNEL", None) if getattr(mod, "BACKEND", "numpy") == "numba" else None,
         "warnings": [[d.severity, d.render()] for d in compiled.diagnostics if d.severity == "warning"],
         "written_options": getattr(compiled, "written_options", None),
     }

@@ -243,3 +243,51 @@ def test_a_hit_prints_the_same_json_summary(tmp_path, cache, capsys):
         {k: v for k, v in cached.items() if k not in timed | {"compiled"}}
     assert {k: v for k, v in full["compiled"].items() if k not in timed} == \
         {k: v for k, v in cached["compiled"].items() if k not in timed}
+
+
+def test_a_numba_hit_loads_the_compiled_functions_without_sympy(tmp_path, cache, capsys, monkeypatch):
+    """On the compiled backend the record keeps the kernel text: a hit loads the model's
+    compiled functions from their signed disk cache, imports neither sympy nor the model
+    language nor the code that builds compiled functions, and writes the full path's CSV."""
+    pytest.importorskip("numba")
+    from phc.codegen import numba_cache
+
+    monkeypatch.setattr(numba_cache, "_LOADED", {})  # compiled by an earlier test: not in this test's cache
+    model = tmp_path / "pendulum.yaml"
+    model.write_text(PENDULUM, encoding="utf-8")
+    assert simulate(model, tmp_path / "full.csv", "--backend", "numba") == 0
+    assert "backend  numba: compiled functions (compiled and cached" in capsys.readouterr().out
+    assert hit(model, "--backend", "numba") and not hit(model)  # the backend is part of the key
+    code = ("import sys\nfrom phc.cli import main\n"
+            f"code = main(['simulate', {str(model)!r}, '--out', {str(tmp_path / 'hit.csv')!r}, '--backend', 'numba', "
+            f"*{RUN!r}])\n"
+            "print(code, sorted(m for m in ('sympy', 'pint', 'pydantic', 'phc.dae', 'phc.elaborate', "
+            "'phc.codegen.numba_backend') if m in sys.modules), 'numba' in sys.modules)\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=dict(os.environ),
+                          timeout=300)
+    lines = done.stdout.strip().splitlines()
+    assert lines[-1] == "0 [] True", done.stdout + done.stderr
+    assert any("numba: compiled functions (loaded from the cache" in line for line in lines), done.stdout
+    assert (tmp_path / "full.csv").read_bytes() == (tmp_path / "hit.csv").read_bytes()
+
+
+def test_a_numba_record_whose_compiled_functions_are_gone_is_a_miss(tmp_path, cache, monkeypatch):
+    """The compiled functions are evicted from their cache (or signed under another key):
+    the record cannot compile them without the model's intermediate representation, so the
+    lookup is a miss and the full path runs, with the same result."""
+    pytest.importorskip("numba")
+    import shutil
+
+    from phc.codegen import numba_cache
+
+    monkeypatch.setattr(numba_cache, "_LOADED", {})  # compiled by an earlier test: not in this test's cache
+    model = tmp_path / "pendulum.yaml"
+    model.write_text(PENDULUM, encoding="utf-8")
+    assert simulate(model, tmp_path / "full.csv", "--backend", "numba") == 0
+    assert hit(model, "--backend", "numba")
+    shutil.rmtree(cache.parent / "numba")
+    numba_cache._LOADED.clear()  # what this process compiled
+    assert not hit(model, "--backend", "numba")
+    assert simulate(model, tmp_path / "again.csv", "--backend", "numba") == 0
+    assert (tmp_path / "full.csv").read_bytes() == (tmp_path / "again.csv").read_bytes()
+    assert hit(model, "--backend", "numba")  # the full path wrote the record and the functions again

@@ -62,13 +62,13 @@ def select(ir, reference: ModuleType, source: str, backend: Optional[str] = None
     """The module to run for `backend` and a note on the choice (empty when it is what was
     asked for). Raises :class:`~phc.errors.SimulationSetupError` when ``numba`` is asked
     for explicitly and cannot be imported."""
-    from phc.codegen import numba_backend
-
     choice = check_choice(backend)
     if choice == "numpy":
         return reference, ""
     if choice == "auto" and reference.N < AUTO_MIN_UNKNOWNS:
         return reference, auto_note(reference)
+    from phc.codegen import numba_backend
+
     ok, why = numba_backend.available()
     if not ok:
         if choice == "numba":
@@ -104,7 +104,7 @@ def describe(module, requested: Optional[str] = None) -> str:
         return "numpy"
     if getattr(module, "N", AUTO_MIN_UNKNOWNS) < AUTO_MIN_UNKNOWNS:
         return f"numpy ({auto_note(module)})"
-    from phc.codegen.numba_backend import why_unavailable
+    from phc.codegen.numba_cache import why_unavailable
 
     why = why_unavailable()
     return f"numpy (compiled backend unavailable: {why})" if why else "numpy"

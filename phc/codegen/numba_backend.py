@@ -39,21 +39,22 @@ with an HMAC-SHA256 tag under a per-user secret key kept *outside* the cache dir
 it is compiled again and overwritten. A cache directory restored from elsewhere (the CI
 cache of another build) therefore costs a compilation, never the execution of someone
 else's machine code. Set ``PHC_COMPILED_CACHE=0`` to compile in memory every time.
+
+What a run needs once the functions are built (whether numba is usable, the signed cache,
+the module assembled over the reference) is in :mod:`phc.codegen.numba_cache`, which
+imports neither sympy nor the model language: the cached front end of ``phc simulate``
+loads a model's compiled functions from the cache through it, from the kernel text this
+module keeps as the compiled module's ``KERNEL``.
 """
 
 from __future__ import annotations
 
-import hashlib
-import hmac
 import math
 import os
-import pickle
-import secrets
-import stat
 import sys
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
 from typing import Optional
@@ -61,69 +62,18 @@ from typing import Optional
 import numpy as np
 import sympy as sp
 
-from phc import __version__
-from phc.codegen.load import KEY_BYTES, state_dir as _state_dir
-from phc.codegen.load import read_key as _read_key
+from phc.codegen import numba_cache
 from phc.codegen.lower import ResidualIR
+from phc.codegen.numba_cache import (EMITTER_VERSION, FUNCTIONS, HELPER_NAMES, NUMBA_MIN,  # noqa: F401 — the API
+                                     BackendMismatch, BackendUnavailable, CompiledBackendWarning, CompileReport,
+                                     _cache_classes, _cross_check, _private_dir, _read_private, _REGISTRY,
+                                     _remember, _signature, _signed, _verified, assemble, available, cache_key,
+                                     compiled_cache_dir, kernel_digest, kernel_module, why_unavailable)
 from phc.codegen.printer import ModulePrinter, _array
 from phc.dae import T
-from phc.errors import PhcError, PhcWarning
 from phc.inputs import InputTable, InputTableSlope
 
-NUMBA_MIN = (0, 59)
-"""Oldest numba version this backend supports."""
-
-EMITTER_VERSION = "1"
-"""Changes whenever the code the emitter writes changes (part of the cache key)."""
-
-FUNCTIONS = ("residual", "residual_t", "jacobian", "hamiltonian", "energy_scale", "powers", "invariants",
-             "velocity_invariants", "outputs")
-"""The generated functions the compiled module replaces (the rest is the reference module's)."""
-
 _KIND = {"linear": 0, "previous": 1}
-
-
-class BackendUnavailable(PhcError):
-    """The compiled backend cannot be used here (numba missing or too old); says why."""
-
-
-class BackendMismatch(PhcError):
-    """The compiled functions disagree with the reference module at the check point."""
-
-
-class CompiledBackendWarning(PhcWarning):
-    """The compiled backend was asked for (or chosen) but the NumPy module is used instead."""
-
-
-_AVAILABLE: Optional[tuple[bool, str]] = None
-
-
-def why_unavailable() -> Optional[str]:
-    """Why numba could not be used, if that was found out already (never imports it)."""
-    return _AVAILABLE[1] if _AVAILABLE is not None and not _AVAILABLE[0] else None
-
-
-def available() -> tuple[bool, str]:
-    """(True, numba version) when numba can be used, else (False, why not). Imports numba
-    (~0.3 s) the first time."""
-    global _AVAILABLE
-    if _AVAILABLE is None:
-        try:
-            import numba
-        except ImportError:
-            _AVAILABLE = (False, "numba is not installed (pip install \"port-hamiltonian-compiler[fast]\")")
-        except Exception as err:  # a broken installation (llvmlite mismatch, ...)
-            _AVAILABLE = (False, f"numba cannot be imported ({type(err).__name__}: {err})")
-        else:
-            try:
-                version = tuple(int(x) for x in numba.__version__.split(".")[:2])
-            except ValueError:
-                version = NUMBA_MIN
-            if version < NUMBA_MIN:
-                _AVAILABLE = (False, f"numba {numba.__version__} is too old (need ≥ {NUMBA_MIN[0]}.{NUMBA_MIN[1]})")
-            else:
-                _AVAILABLE = (True, numba.__version__)
-    return _AVAILABLE
 
 
 # ---------------------------------------------------------------------------------------
@@ -180,7 +130,6 @@ def _table_slope(times, values, kind, t):
     return float((values[i + 1] - values[i]) / (times[i + 1] - times[i]))
 '''
 
-HELPER_NAMES = ("_csr_add", "_scatter_add", "_csr_quad", "_csr_grad_add", "_table", "_table_slope")
 
 _SIMPLE = {sp.sin: "sin", sp.cos: "cos", sp.tan: "tan", sp.asin: "asin", sp.acos: "acos", sp.atan: "atan",
            sp.sinh: "sinh", sp.cosh: "cosh", sp.tanh: "tanh", sp.asinh: "asinh", sp.acosh: "acosh",
@@ -754,296 +703,17 @@ def _make_intrinsic(name: str, kernel: Kernel, ir_: ResidualIR, tables: dict, pr
 
 
 # ---------------------------------------------------------------------------------------
-# the signed on-disk cache
-
-def _private_dir(path: Path) -> Optional[str]:
-    """Create `path` (0700) if missing; None when it is a private directory, else why not."""
-    from phc.codegen.load import _problem
-
-    try:
-        path.mkdir(mode=0o700, parents=True, exist_ok=True)
-    except OSError as err:
-        return f"cannot be created ({err.strerror})"
-    return _problem(path)
-
-
-def cache_key() -> tuple[Optional[bytes], str]:
-    """(the per-user key signing compiled artefacts, "") or (None, why there is none)."""
-    folder = _state_dir()
-    problem = _private_dir(folder)
-    if problem:
-        return None, f"state directory {folder} {problem}"
-    path = folder / "cache-key"
-    key = _read_key(path)
-    if key is not None:
-        return key, ""
-    if path.exists() or path.is_symlink():
-        return None, f"{path} is not a private {KEY_BYTES}-byte key file (remove it to make a new one)"
-    tmp = folder / f".cache-key.{os.getpid()}.{secrets.token_hex(4)}"
-    try:
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o600)
-        try:
-            os.write(fd, secrets.token_bytes(KEY_BYTES))
-        finally:
-            os.close(fd)
-        try:
-            os.link(tmp, path)  # never replaces a key another process made meanwhile
-        except FileExistsError:
-            pass
-        finally:
-            os.unlink(tmp)
-    except OSError as err:
-        return None, f"cannot write {path} ({err.strerror})"
-    key = _read_key(path)
-    return (key, "") if key is not None else (None, f"{path} could not be read back")
-
-
-_MAGIC = b"phc-numba-1\n"
-
-
-def _signed(key: bytes, payload: bytes) -> bytes:
-    return _MAGIC + hmac.new(key, payload, hashlib.sha256).digest() + payload
-
-
-def _verified(key: bytes, data: bytes) -> Optional[bytes]:
-    head = len(_MAGIC) + 32
-    if len(data) < head or not data.startswith(_MAGIC):
-        return None
-    tag, payload = data[len(_MAGIC):head], data[head:]
-    return payload if hmac.compare_digest(tag, hmac.new(key, payload, hashlib.sha256).digest()) else None
-
-
-def _read_private(path: str) -> Optional[bytes]:
-    """The bytes of a regular file of ours (not a link), else None."""
-    try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
-    except OSError:
-        return None
-    try:
-        st = os.fstat(fd)
-        if not stat.S_ISREG(st.st_mode) or (hasattr(os, "getuid") and st.st_uid != os.getuid()):
-            return None
-        with os.fdopen(os.dup(fd), "rb") as f:
-            data = f.read()
-    finally:
-        os.close(fd)
-    try:
-        os.utime(path)  # most recently used, for the cache's size cap
-    except OSError:
-        pass
-    return data
-
-
-_REGISTRY: dict[str, tuple[str, str]] = {}
-"""Pseudo file name of a kernel text -> (cache directory, source stamp), for the locator."""
-
-_CACHE_CLASSES = None
-
-
-def _cache_classes():
-    """The numba cache classes phc uses (built once; None when this numba's internals differ)."""
-    global _CACHE_CLASSES
-    if _CACHE_CLASSES is not None:
-        return _CACHE_CLASSES or None
-    try:
-        from numba.core import config
-        from numba.core.caching import (CompileResultCacheImpl, FunctionCache, IndexDataCacheFile,
-                                        _CacheLocator)
-        from numba.core.serialize import dumps
-    except ImportError:
-        _CACHE_CLASSES = ()
-        return None
-
-    class PhcLocator(_CacheLocator):
-        def __init__(self, path: str, stamp: str):
-            self._path, self._stamp = path, stamp
-
-        def ensure_cache_path(self):
-            problem = _private_dir(Path(self._path))
-            if problem:
-                raise OSError(problem)
-
-        def get_cache_path(self):
-            return self._path
-
-        def get_source_stamp(self):
-            return self._stamp
-
-        def get_disambiguator(self):
-            return self._stamp[:12]
-
-        @classmethod
-        def from_function(cls, py_func, py_file):
-            entry = _REGISTRY.get(py_file)
-            return cls(*entry) if entry else None
-
-    class PhcImpl(CompileResultCacheImpl):
-        _locator_classes = [PhcLocator]
-
-    class SignedFile(IndexDataCacheFile):
-        """numba's index and data files, each signed; unverified files are never unpickled."""
-
-        def __init__(self, cache_path, filename_base, source_stamp, key):
-            super().__init__(cache_path, filename_base, source_stamp)
-            self._key = key
-
-        def _load_index(self):
-            data = _read_private(self._index_path)
-            payload = _verified(self._key, data) if data is not None else None
-            if payload is None:
-                return {}
-            version, stamp, overloads = pickle.loads(payload)
-            if version != self._version or stamp != self._source_stamp:
-                return {}
-            return overloads
-
-        def _save_index(self, overloads):
-            payload = pickle.dumps((self._version, self._source_stamp, overloads), protocol=-1)
-            with self._open_for_write(self._index_path) as f:
-                f.write(_signed(self._key, payload))
-
-        def _load_data(self, name):
-            data = _read_private(self._data_path(name))
-            payload = _verified(self._key, data) if data is not None else None
-            if payload is None:
-                raise OSError("missing or unsigned artefact")  # numba: treated as a miss
-            return pickle.loads(payload)
-
-        def _save_data(self, name, data):
-            payload = dumps(data)
-            with self._open_for_write(self._data_path(name)) as f:
-                f.write(_signed(self._key, payload))
-
-    class PhcCache(FunctionCache):
-        _impl_class = PhcImpl
-
-        def __init__(self, py_func, key):
-            super().__init__(py_func)
-            self._cache_file = SignedFile(self._cache_path, self._impl.filename_base,
-                                          self._impl.locator.get_source_stamp(), key)
-
-    if config.CACHE_LOCATOR_CLASSES:  # a user override would bypass phc's locator
-        _CACHE_CLASSES = ()
-        return None
-    _CACHE_CLASSES = (PhcCache,)
-    return _CACHE_CLASSES
-
-
-def compiled_cache_dir() -> Path:
-    from phc.codegen.load import cache_dir
-
-    return cache_dir() / "numba"
-
-
-# ---------------------------------------------------------------------------------------
 # loading
-
-@dataclass
-class CompileReport:
-    """How the compiled module was obtained."""
-
-    seconds: float
-    """Wall time to build (or load) the compiled functions."""
-    cpu_seconds: float
-    """CPU time of this process for the same (robust to a loaded machine)."""
-    cached: str
-    """``"warm"`` (every function loaded from the cache), ``"cold"`` (compiled and saved),
-    ``"partial"`` or ``"off"`` (no disk cache; `note` says why)."""
-    digest: str
-    emitted: tuple[str, ...] = ()
-    """Functions whose expressions were written as LLVM IR (the others went through numba's compiler)."""
-    note: str = ""
-    hits: int = 0
-    misses: int = 0
-
-    def describe(self) -> str:
-        """One phrase: how long it took and whether the cache was used."""
-        what = {"warm": "loaded from the cache", "cold": "compiled and cached", "partial": "partly from the cache",
-                "off": "compiled, not cached", "memory": "compiled earlier in this process"}.get(self.cached,
-                                                                                               self.cached)
-        note = f"; {self.note}" if self.note and self.cached == "off" else ""
-        return f"{what} in {self.seconds:.2f} s{note}"
-
-
-def _signature(name: str):
-    """The one signature each function is compiled for: float64 scalars, read-only arrays of
-    any layout in, a writable array out. Every 1-D float64 array converts to it (numba's
-    dispatcher resolves the conversion once per argument types, in C), so no call compiles
-    a second specialization in the middle of a run (IDA passes read-only arrays)."""
-    from numba.core import types
-
-    given = types.Array(types.float64, 1, "A", readonly=True)
-    out = types.Array(types.float64, 1, "A")
-    f64 = types.float64
-    if name in ("residual", "residual_t"):
-        return (f64, given, given, given, out)
-    if name == "jacobian":
-        return (f64, given, given, given, f64, out)
-    if name in ("hamiltonian", "energy_scale", "invariants", "velocity_invariants"):
-        return (f64, given, given)
-    return (f64, given, given, given)
-
-
-def _cross_check(compiled: ModuleType, reference: ModuleType) -> Optional[str]:
-    """Compare residual and Jacobian at one fixed sample point; None when they agree."""
-    n, njac = reference.N, len(reference.JAC_ROWS)
-    rng = np.random.default_rng(20240611)
-    y, yp = rng.uniform(0.2, 0.8, n), rng.uniform(-0.5, 0.5, n)
-    p = np.asarray(reference.full_parameters(), dtype=float)
-    t = 0.125
-    with np.errstate(all="ignore"):
-        try:
-            ref_r, ref_j = np.zeros(n), np.zeros(njac)
-            reference.residual(t, y, yp, p, ref_r)
-            reference.jacobian(t, y, yp, p, 2.5, ref_j)
-        except (ArithmeticError, ValueError, TypeError):
-            return None  # the reference cannot be evaluated there: nothing to compare
-        out_r, out_j = np.zeros(n), np.zeros(njac)
-        compiled.residual(t, y, yp, p, out_r)
-        compiled.jacobian(t, y, yp, p, 2.5, out_j)
-    for what, a, b in (("residual", ref_r, out_r), ("Jacobian", ref_j, out_j)):
-        bad = ~np.isclose(a, b, rtol=1e-9, atol=1e-12 * max(1.0, float(np.nanmax(np.abs(a), initial=0.0))),
-                          equal_nan=True)
-        if bad.any():
-            k = int(np.flatnonzero(bad)[0])
-            return f"{what} entry {k}: compiled {b[k]!r}, reference {a[k]!r}"
-    return None
-
-
-_LOADED: dict[str, dict] = {}
-"""Compiled functions by digest, for this process (a model compiled again is not rebuilt);
-the most recently used :data:`LOADED_MAX` are kept."""
-LOADED_MAX = 16
-
-
-def _remember(digest: str, dispatchers: dict) -> None:
-    _LOADED.pop(digest, None)
-    _LOADED[digest] = dispatchers
-    while len(_LOADED) > LOADED_MAX:
-        old = next(iter(_LOADED))
-        del _LOADED[old]
-        sys.modules.pop(f"phc_numba_{old}", None)
-
 
 def _build(ir: ResidualIR, text: str, kernels: dict, trivial: set, printer, digest: str, folder: Optional[Path],
            signer: Optional[bytes], classes) -> tuple[dict, int, int]:
     """Execute the kernel text, make the intrinsics and dispatchers, compile (or load)
     each function for its one signature (:func:`_signature`); returns (dispatchers, hits, misses)."""
-    modname = f"phc_numba_{digest}"
-    filename = str((folder or Path("<memory>")) / f"{modname}.py")
-    if folder is not None:
-        _REGISTRY[filename] = (str(folder), digest)
-    kernel_module = ModuleType(modname, "Compiled-backend functions of a generated residual module.")
-    kernel_module.__file__ = filename
-    code = compile(text, filename, "exec", dont_inherit=True)
-    exec(code, kernel_module.__dict__)  # safe: phc's own printer output (no model text as code), from memory
-    # numba finds a cached function's globals by importing its module's name: the module
-    # must be known (it is never imported from a file).
-    sys.modules[modname] = kernel_module
+    module = kernel_module(text, digest, folder)
     try:
-        return _compile_all(ir, kernels, trivial, printer, kernel_module, signer, classes)
+        return _compile_all(ir, kernels, trivial, printer, module, signer, classes)
     except BaseException:
-        sys.modules.pop(modname, None)
+        sys.modules.pop(module.__name__, None)
         raise
 
 
@@ -1096,14 +766,10 @@ def load_compiled(ir: ResidualIR, reference: ModuleType, reference_source: str,
     ok, why = available()
     if not ok:
         raise BackendUnavailable(why)
-    import numba
-
     start, cpu = time.perf_counter(), time.process_time()
     kernel_printer = KernelPrinter(ir)
     text, kernels = kernel_printer.print(), kernel_printer.kernels
-    key_material = "\0".join((text, reference_source, __version__, EMITTER_VERSION, numba.__version__,
-                              sys.version))
-    digest = hashlib.sha256(key_material.encode()).hexdigest()[:24]
+    digest = kernel_digest(text, reference_source)
     if cache is None:
         cache = os.environ.get("PHC_COMPILED_CACHE", "1").strip().lower() not in ("0", "no", "false", "off")
     note = ""
@@ -1124,7 +790,7 @@ def load_compiled(ir: ResidualIR, reference: ModuleType, reference_source: str,
             note, folder = why_not, None
         else:
             signer = key
-    loaded = _LOADED.get(digest)
+    loaded = numba_cache._LOADED.get(digest)
     if loaded is not None:
         _remember(digest, loaded)
         dispatchers, state, note = loaded, "memory", "compiled earlier in this process"
@@ -1142,15 +808,11 @@ def load_compiled(ir: ResidualIR, reference: ModuleType, reference_source: str,
                 enforce_cap()
             except OSError:
                 pass
-    module = ModuleType(f"phc_numba_{digest}", reference.__doc__)
-    module.__dict__.update({k: v for k, v in reference.__dict__.items() if not k.startswith("__")})
-    module.__dict__.update(dispatchers)
-    module.__file__ = getattr(reference, "__file__", None)
-    module.BACKEND = "numba"
-    module.REFERENCE = reference
     report = CompileReport(time.perf_counter() - start, time.process_time() - cpu, state, digest,
                            tuple(sorted(kernels)), note, hits, misses)
-    module.COMPILE_REPORT = report
+    module = assemble(reference, dispatchers, report)
+    # what the cached front end needs to load these functions again without the IR (phc.fastpath)
+    module.KERNEL = {"text": text, "emitted": sorted(kernels), "trivial": sorted(kernel_printer.trivial)}
     mismatch = _cross_check(module, reference)
     if mismatch:
         raise BackendMismatch(f"the compiled functions disagree with the reference module ({mismatch})")

@@ -224,7 +224,7 @@ def _build():
     if _READY is not None:
         return _READY
     try:
-        from phc.codegen.numba_backend import available
+        from phc.codegen.numba_cache import available
 
         ok, why = available()
         if not ok:
@@ -299,7 +299,7 @@ def _attach_cache(dispatcher, py_func) -> None:
         import sys
 
         from phc import __version__
-        from phc.codegen import numba_backend as nb
+        from phc.codegen import numba_cache as nb
 
         classes = nb._cache_classes()
         folder = nb.compiled_cache_dir()

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 import phc
-from phc.codegen import backends, numba_backend
+from phc.codegen import backends, numba_backend, numba_cache
 from phc.errors import SimulationSetupError
 
 MODELS = sorted((Path(__file__).resolve().parents[2] / "models").glob("*.yaml"))
@@ -209,7 +209,7 @@ def test_sparse_blocks_and_quadratic_forms_on_both_compilation_paths(tmp_path, m
 
 
 def test_without_numba_auto_runs_the_numpy_module_and_numba_is_refused(monkeypatch):
-    monkeypatch.setattr(numba_backend, "_AVAILABLE",
+    monkeypatch.setattr(numba_cache, "_AVAILABLE",
                         (False, 'numba is not installed (pip install "port-hamiltonian-compiler[fast]")'))
     crank = MODELS[0].parent / "rigid_slider_crank.yaml"  # large enough for `auto` to want numba
     compiled = phc.compile_model(crank, certify=False, backend="auto")
@@ -225,8 +225,9 @@ def test_without_numba_auto_runs_the_numpy_module_and_numba_is_refused(monkeypat
 def test_auto_leaves_small_models_to_the_numpy_module(monkeypatch):
     """Below AUTO_MIN_UNKNOWNS numba is not even imported: a handful of float operations
     cost less in Python than a call into compiled code."""
-    monkeypatch.setattr(numba_backend, "_AVAILABLE", None)
-    monkeypatch.setattr(numba_backend, "available", lambda: pytest.fail("numba was looked for"))
+    monkeypatch.setattr(numba_cache, "_AVAILABLE", None)
+    for module in (numba_cache, numba_backend):
+        monkeypatch.setattr(module, "available", lambda: pytest.fail("numba was looked for"))
     compiled = phc.compile_model(MODELS[0].parent / "pendulum.yaml", certify=False, backend="auto")
     assert compiled.module.N < backends.AUTO_MIN_UNKNOWNS and compiled.backend == "numpy"
     assert "auto: 7 unknowns" in backends.describe(compiled.module, "auto")
@@ -266,7 +267,7 @@ def test_simulating_on_either_backend_gives_the_same_trajectory():
 
 def _fresh(monkeypatch):
     """Forget what this process compiled, so the next load reads the disk cache."""
-    monkeypatch.setattr(numba_backend, "_LOADED", {})
+    monkeypatch.setattr(numba_cache, "_LOADED", {})
 
 
 def _load(path):
