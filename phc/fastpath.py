@@ -346,16 +346,16 @@ def _lookup(args, params: dict) -> Optional[CachedModel]:
     from phc.codegen.load import load_generated
 
     module, module_path = load_generated(record["source"], record["name"])
+    fixed = set(getattr(module, "COMPILE_TIME_PARAMETERS", ()))
+    for k, v in params.items():
+        if k in fixed and float(v) != float(module.PARAMETER_DEFAULTS[module.PARAMETERS.index(k)]):
+            return None  # recompiled by the full path
     if record.get("numba") is not None:  # the compiled backend: its functions from the disk cache, or a miss
         from phc.codegen.numba_cache import load_cached
 
         module = load_cached(record["numba"], module, record["source"])
         if module is None:
             return None
-    fixed = set(getattr(module, "COMPILE_TIME_PARAMETERS", ()))
-    for k, v in params.items():
-        if k in fixed and float(v) != float(module.PARAMETER_DEFAULTS[module.PARAMETERS.index(k)]):
-            return None  # recompiled by the full path
     return CachedModel(record, module, module_path, time.perf_counter() - start)
 
 
