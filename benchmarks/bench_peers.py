@@ -99,8 +99,8 @@ def compile_times(path, backend="numpy"):
     old = {var: os.environ.get(var) for var in ("PHC_CACHE_DIR", "PHC_STATE_DIR")}
     with tempfile.TemporaryDirectory() as tmp, tempfile.TemporaryDirectory() as state:
         os.environ["PHC_CACHE_DIR"], os.environ["PHC_STATE_DIR"] = tmp, state
-        from phc.codegen import numba_backend
-        numba_backend._LOADED.clear()  # compile, do not reuse what this process compiled
+        from phc.codegen import numba_cache
+        numba_cache._LOADED.clear()  # compile, do not reuse what this process compiled
         t = time.perf_counter()
         phc.compile_model(path, backend=backend)
         cold = time.perf_counter() - t
