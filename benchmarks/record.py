@@ -70,10 +70,10 @@ def _git_commit() -> str:
         return ""
 
 
-def header(command: list[str], started: _dt.datetime, wall_s: float, load: str) -> str:
-    """The lines above a recorded table: date, machine, software, command, wall time."""
+def header(command: list[str], started: _dt.datetime, wall_s: float, load: str, commit: str) -> str:
+    """The lines above a recorded table: date, machine, software, the commit (and whether the
+    tree had uncommitted changes) when the command started, command, wall time."""
     cores = os.cpu_count() or 0
-    commit = _git_commit()
     lines = [
         f"<!-- Written by benchmarks/record.py; rerun the command below to update. Do not edit by hand. -->",
         "",
@@ -102,6 +102,7 @@ def main(argv=None) -> int:
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         env.setdefault(var, "1")
     started = _dt.datetime.now(_dt.timezone.utc)
+    commit = _git_commit()  # before the command: the files it writes itself are not uncommitted changes
     try:
         load = "{:.1f}, {:.1f}, {:.1f}".format(*os.getloadavg())
     except OSError:
@@ -120,7 +121,7 @@ def main(argv=None) -> int:
         body = "\n".join(line for line in proc.stdout.splitlines() if not line.startswith("wrote "))
     RESULTS.mkdir(parents=True, exist_ok=True)
     out = RESULTS / f"{args.name}.md"
-    out.write_text(header(command, started, wall, load) + body.rstrip() + "\n", encoding="utf-8")
+    out.write_text(header(command, started, wall, load, commit) + body.rstrip() + "\n", encoding="utf-8")
     print(f"wrote {out.relative_to(ROOT)}")
     return 0
 

@@ -53,7 +53,6 @@ import math
 import os
 import sys
 import time
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
@@ -68,7 +67,8 @@ from phc.codegen.numba_cache import (EMITTER_VERSION, FUNCTIONS, HELPER_NAMES, N
                                      BackendMismatch, BackendUnavailable, CompiledBackendWarning, CompileReport,
                                      _cache_classes, _cross_check, _private_dir, _read_private, _REGISTRY,
                                      _remember, _signature, _signed, _verified, assemble, available, cache_key,
-                                     compiled_cache_dir, kernel_digest, kernel_module, why_unavailable)
+                                     compile_functions, compiled_cache_dir, kernel_digest, kernel_module,
+                                     why_unavailable)
 from phc.codegen.printer import ModulePrinter, _array
 from phc.dae import T
 from phc.inputs import InputTable, InputTableSlope
@@ -718,8 +718,6 @@ def _build(ir: ResidualIR, text: str, kernels: dict, trivial: set, printer, dige
 
 
 def _compile_all(ir, kernels, trivial, printer, kernel_module, signer, classes):
-    import numba
-
     namespace = kernel_module.__dict__
     tables = {}
     for k in range(len(ir.input_tables)):
@@ -727,28 +725,7 @@ def _compile_all(ir, kernels, trivial, printer, kernel_module, signer, classes):
         tables[(k, True)] = namespace[f"_table{k}_slope_at"]
     for name, kernel in kernels.items():
         namespace[f"_X_{name}"] = _make_intrinsic(name, kernel, ir, tables, printer)
-    jit = numba.njit(error_model="numpy")
-    for name in HELPER_NAMES:
-        namespace[name] = jit(namespace[name])
-    dispatchers = {}
-    for name in FUNCTIONS:
-        if name in trivial:
-            continue
-        disp = numba.njit(error_model="numpy")(namespace[name])
-        if signer is not None:
-            try:
-                disp._cache = classes[0](namespace[name], signer)
-            except Exception:  # numba internals differ: compile without the disk cache
-                pass
-        namespace[name] = dispatchers[name] = disp
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # numba's NumbaWarning about uncachable functions (large constants)
-        for name, disp in dispatchers.items():
-            disp.compile(_signature(name))
-            disp.disable_compile()
-    hits = sum(sum(d._cache_hits.values()) for d in dispatchers.values())
-    misses = sum(sum(d._cache_misses.values()) for d in dispatchers.values())
-    return dispatchers, hits, misses
+    return compile_functions(namespace, trivial, signer, classes)
 
 
 def load_compiled(ir: ResidualIR, reference: ModuleType, reference_source: str,

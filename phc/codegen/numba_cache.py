@@ -395,11 +395,42 @@ def kernel_module(text: str, digest: str, folder: Optional[Path]) -> ModuleType:
         _REGISTRY[filename] = (str(folder), digest)
     module = ModuleType(modname, "Compiled-backend functions of a generated residual module.")
     module.__file__ = filename
-    exec(compile(text, filename, "exec", dont_inherit=True), module.__dict__)
+    exec(compile(text, filename, "exec", dont_inherit=True), module.__dict__)  # safe: phc's printer output, signed
     # numba finds a cached function's globals by importing its module's name: the module
     # must be known (it is never imported from a file)
     sys.modules[modname] = module
     return module
+
+
+def compile_functions(namespace: dict, trivial, signer: Optional[bytes], classes) -> tuple[dict, int, int]:
+    """Jit the kernel text's helpers and compile (or load from the signed cache, with `signer`)
+    each function of :data:`FUNCTIONS` but the `trivial` ones for its one signature
+    (:func:`_signature`), in the executed kernel module's `namespace`; returns (dispatchers,
+    cache hits, cache misses)."""
+    import numba
+
+    jit = numba.njit(error_model="numpy")
+    for name in HELPER_NAMES:
+        namespace[name] = jit(namespace[name])
+    dispatchers = {}
+    for name in FUNCTIONS:
+        if name in trivial:
+            continue
+        disp = numba.njit(error_model="numpy")(namespace[name])
+        if signer is not None:
+            try:
+                disp._cache = classes[0](namespace[name], signer)
+            except Exception:  # numba internals differ: compile without the disk cache
+                pass
+        namespace[name] = dispatchers[name] = disp
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # numba's NumbaWarning about uncachable functions (large constants)
+        for name, disp in dispatchers.items():
+            disp.compile(_signature(name))
+            disp.disable_compile()
+    hits = sum(sum(d._cache_hits.values()) for d in dispatchers.values())
+    misses = sum(sum(d._cache_misses.values()) for d in dispatchers.values())
+    return dispatchers, hits, misses
 
 
 class NotInCache(Exception):
@@ -431,8 +462,6 @@ def load_cached(kernel: dict, reference: ModuleType, reference_source: str) -> O
     signer, _ = cache_key()
     if _private_dir(folder) or signer is None:
         return None
-    import numba
-
     start, cpu = time.perf_counter(), time.process_time()
     text, emitted, trivial = str(kernel["text"]), tuple(kernel["emitted"]), set(kernel["trivial"])
     digest = kernel_digest(text, reference_source)
@@ -444,25 +473,10 @@ def load_cached(kernel: dict, reference: ModuleType, reference_source: str) -> O
         try:
             for name in emitted:
                 namespace[f"_X_{name}"] = _needs_ir
-            jit = numba.njit(error_model="numpy")
-            for name in HELPER_NAMES:
-                namespace[name] = jit(namespace[name])
-            dispatchers = {}
-            for name in FUNCTIONS:
-                if name in trivial:
-                    continue
-                disp = numba.njit(error_model="numpy")(namespace[name])
-                disp._cache = classes[0](namespace[name], signer)
-                namespace[name] = dispatchers[name] = disp
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                for name, disp in dispatchers.items():
-                    disp.compile(_signature(name))
-                    disp.disable_compile()
+            dispatchers, hits, _ = compile_functions(namespace, trivial, signer, classes)
         except Exception:  # noqa: BLE001 — not in the cache (or numba's internals differ): the full path
             sys.modules.pop(module.__name__, None)
             return None
-        hits = sum(sum(d._cache_hits.values()) for d in dispatchers.values())
         state = "warm"
     _remember(digest, dispatchers)
     report = CompileReport(time.perf_counter() - start, time.process_time() - cpu, state, digest, emitted,

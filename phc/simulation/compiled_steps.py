@@ -371,9 +371,9 @@ def _solve(A, ints, chars, c, x, tmp):
 def _lowprec(Am, lp, m):
     """The single-precision copy of the inverse Newton matrix in Am (column-major) into lp:
     equilibrated by powers of two (M = R·M̃·C with the row scales R and then the column scales
-    C: every row and column of M̃ has its largest entry in [1, 2)), so that no entry is out of
-    single precision's range whatever the units; the scales are exact and kept in double
-    (lp[1][m]: R, C, 1/R)."""
+    C: every column of M̃ has its largest entry in [1, 2), no entry is larger), so that no entry
+    that matters is out of single precision's range whatever the units; the scales are exact
+    and kept in double (lp[1][m]: R, C, 1/R)."""
     A32, eq = lp[0], lp[1]
     n = Am.shape[0]
     for i in range(n):
