@@ -80,3 +80,53 @@ def test_default_slider_crank_runs_to_the_end(compiled):
     assert result.t[-1] == pytest.approx(t_end)
     # the closed form of the shipped model's outputs: x = r cos θ + sqrt(L² − r² sin² θ)
     assert np.abs(result["slider_x"] - result["slider_x_exact"]).max() < 1e-6
+
+
+def test_the_cheap_look_leaves_the_svd_out_only_far_from_singular():
+    """A look first estimates the 1-norm condition (LAPACK dgecon on an LU) and skips the
+    singular values only when that estimate is RCOND_MARGIN·N times above the threshold.
+    Matrices U·diag(s)·Vᵀ with σ_min/σ_max from 1e-2 down to 1e-13: wherever the look skips
+    the SVD, the true ratio is above the threshold by a wide margin, and every matrix within
+    RCOND_MARGIN of the threshold goes to the SVD."""
+    from phc.simulation.monitor import RCOND_MARGIN, THRESHOLD, _far_from_singular
+
+    rng = np.random.default_rng(3)
+    skipped = 0
+    for n in (6, 40, 120):
+        for exponent in np.linspace(-2, -13, 23):
+            u, _ = np.linalg.qr(rng.standard_normal((n, n)))
+            v, _ = np.linalg.qr(rng.standard_normal((n, n)))
+            s = np.logspace(0, exponent, n)
+            J = (u * s) @ v.T
+            ratio = s[-1] / s[0]
+            rough = _far_from_singular(J, THRESHOLD)
+            if rough is None:
+                continue
+            skipped += 1
+            assert ratio >= 100 * THRESHOLD, (n, ratio, rough)
+            assert rough <= ratio  # the estimate's bound is below the ratio it stands for
+        # near the threshold the singular values decide
+        u, _ = np.linalg.qr(rng.standard_normal((n, n)))
+        J = (u * np.logspace(0, math.log10(RCOND_MARGIN * THRESHOLD), n)) @ u.T
+        assert _far_from_singular(J, THRESHOLD) is None
+    assert skipped > 20  # the cheap look does take over far from singular (the test can fail)
+
+
+def test_the_history_keeps_its_reach_while_a_solver_crawls():
+    """64 looks a millisecond apart, then 1000 a nanosecond apart (IDA cutting its step before
+    a failure): the window still reaches back to the approach, ends at the newest look, and
+    keeps its looks in time order — what the failure's diagnosis compares."""
+    from collections import deque
+
+    from phc.simulation.monitor import HISTORY, SingularityMonitor
+
+    monitor = SingularityMonitor.__new__(SingularityMonitor)
+    monitor.history = deque(maxlen=HISTORY)
+    for k in range(HISTORY):
+        monitor._remember((1e-3 * k, None, None))
+    for k in range(1000):
+        monitor._remember((1e-3 * (HISTORY - 1) + 1e-9 * (k + 1), None, None))
+    times = [look[0] for look in monitor.history]
+    assert len(times) == HISTORY and times == sorted(times)
+    assert times[-1] == 1e-3 * (HISTORY - 1) + 1e-9 * 1000
+    assert times[0] <= 0.5 * times[-1]  # the approach is still in the window
