@@ -18,6 +18,8 @@ This printer only builds strings; all analysis happened in :mod:`phc.codegen.low
 
 from __future__ import annotations
 
+import math
+
 import base64
 import keyword
 import os
@@ -54,7 +56,10 @@ class _Printer(PythonCodePrinter):
     _print_Dummy = _print_Symbol  # the modes of switches (phc.codegen.nonsmooth)
 
     def _print_Float(self, expr):
-        return repr(float(expr))
+        value = float(expr)  # a sympy Float beyond double range (1/m of m = 5e-324) is ±inf here
+        if math.isfinite(value):
+            return repr(value)
+        return "math.nan" if math.isnan(value) else ("math.inf" if value > 0 else "-math.inf")
 
     def _print_Rational(self, expr):
         return f"({expr.p}/{expr.q})"
