@@ -63,11 +63,11 @@ import sympy as sp
 
 from phc.codegen import numba_cache
 from phc.codegen.lower import ResidualIR
-from phc.codegen.numba_cache import (EMITTER_VERSION, FUNCTIONS, HELPER_NAMES, NUMBA_MIN,  # noqa: F401 — the API
+# the public names of the compiled backend's light half, re-exported: callers and tests import them from here
+from phc.codegen.numba_cache import (EMITTER_VERSION, FUNCTIONS, NUMBA_MIN,  # noqa: F401 — the API
                                      BackendMismatch, BackendUnavailable, CompiledBackendWarning, CompileReport,
-                                     _cache_classes, _cross_check, _private_dir, _read_private, _REGISTRY,
-                                     _remember, _signature, _signed, _verified, assemble, available, cache_key,
-                                     compile_functions, compiled_cache_dir, kernel_digest, kernel_module,
+                                     _cache_classes, _cross_check, _private_dir, _remember, assemble, available,
+                                     cache_key, compile_functions, compiled_cache_dir, kernel_digest, kernel_module,
                                      why_unavailable)
 from phc.codegen.printer import ModulePrinter, _array
 from phc.dae import T
@@ -707,8 +707,9 @@ def _make_intrinsic(name: str, kernel: Kernel, ir_: ResidualIR, tables: dict, pr
 
 def _build(ir: ResidualIR, text: str, kernels: dict, trivial: set, printer, digest: str, folder: Optional[Path],
            signer: Optional[bytes], classes) -> tuple[dict, int, int]:
-    """Execute the kernel text, make the intrinsics and dispatchers, compile (or load)
-    each function for its one signature (:func:`_signature`); returns (dispatchers, hits, misses)."""
+    """Execute the kernel text, make the intrinsics, and compile (or load) each function for
+    its one signature (:func:`~phc.codegen.numba_cache.compile_functions`); returns
+    (dispatchers, hits, misses)."""
     module = kernel_module(text, digest, folder)
     try:
         return _compile_all(ir, kernels, trivial, printer, module, signer, classes)
