@@ -129,8 +129,10 @@ class NewtonMatrix:
     ``c_j = 1/(s h)``; the position-constraint rows ``end_rows``, imposed at the step end,
     contribute ``g_y(y_{n+1})``."""
 
-    def __init__(self, mod, p, end_rows=()):
+    def __init__(self, mod, p, end_rows=(), nominal=None):
         self.mod, self.p, self.n = mod, p, mod.N
+        self.nominal = None if nominal is None else np.asarray(nominal, dtype=float)
+        """Scales of the unknowns in which the Newton test measures corrections (0: none)."""
         rows, cols = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
         # JAC_ROWS/JAC_COLS are in CSC order: build the structure once
         self.indices = rows.astype(np.int32)
@@ -153,8 +155,10 @@ class NewtonMatrix:
             data[self.end_mask] = self.end_buf[self.end_mask]
         J = sps.csc_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
         self.factorizations += 1
+        self.row_scale, self.col_scale = equilibration(J, self.nominal)
+        J = sps.diags(self.row_scale) @ J @ sps.diags(self.col_scale)
         try:
-            self.lu = spla.splu(J)
+            self.lu = spla.splu(sps.csc_matrix(J))
         except RuntimeError:
             self.lu = None
             return False
@@ -166,7 +170,42 @@ class NewtonMatrix:
                 or self.age >= MAX_AGE)
 
     def solve(self, rhs):
-        return self.lu.solve(rhs)
+        """``J⁻¹ rhs`` through the LU of the equilibrated ``D_r J D_c``: ``D_c (D_r J D_c)⁻¹ D_r rhs``."""
+        return self.col_scale * self.lu.solve(self.row_scale * rhs)
+
+
+def _power_of_two_below(big: np.ndarray) -> np.ndarray:
+    """1/2^e with 2^e ≤ big < 2^(e+1) (1 where big is 0): an exact scaling to [1, 2)."""
+    exponent = np.frexp(np.where(big > 0.0, big, 1.0))[1] - 1
+    return np.ldexp(1.0, -exponent)
+
+
+def equilibration(J: sps.spmatrix, nominal=None) -> tuple[np.ndarray, np.ndarray]:
+    """Column scales ``D_c`` and row scales ``D_r`` (powers of two, so scaling is exact) for the
+    LU of ``D_r J D_c``.
+
+    The columns are the unknowns in the units the Newton test measures them in: ``D_c`` is the
+    nominal scale ``s_j`` of unknown j where ``nominal[j] > 0``; the other columns are brought
+    to a largest entry in [1, 2) (as LAPACK's ``dgeequ`` does). Then every row's largest entry
+    is brought into [1, 2).
+
+    Why: LU with partial pivoting is normwise backward stable, so the error of a correction is
+    small relative to the largest correction *in the columns' units*. On the unscaled matrix
+    that unit is the model's: a state with an exponential energy puts entries of 1e24 in the
+    energy accumulator's row, that row takes the pivot of every column it touches, and the
+    correction of a state is a difference of two numbers of the accumulator's size — it came
+    out exactly 0 with one BLAS kernel and not with another, and Newton, which measures the
+    state in its own scale, saw no correction and accepted a step that was off by 15. Measured
+    in the Newton test's units, the pivots compare like with like."""
+    J = sps.csc_matrix(J)
+    cols = _power_of_two_below(np.asarray(abs(J).max(axis=0).todense()).ravel())
+    if nominal is not None:
+        nominal = np.asarray(nominal, dtype=float)
+        given = (nominal > 0) & np.isfinite(nominal)
+        cols[given] = 1.0 / _power_of_two_below(nominal[given])
+    scaled = J @ sps.diags(cols)
+    rows = _power_of_two_below(np.asarray(abs(scaled).max(axis=1).todense()).ravel())
+    return rows, cols
 
 
 def newton_weights_of(scales, mod=None):
@@ -210,7 +249,10 @@ class StageSolver:
                                    if not d and not str(name).startswith("ggl.")], dtype=np.int64)
         """``1/s``: the Newton test runs on the scaled variables (:mod:`phc.simulation.scaling`)."""
         self.end_rows = constraint_rows(mod) if end_constraints else np.array([], dtype=int)
-        self.matrix = NewtonMatrix(mod, p, self.end_rows)
+        nominal = None
+        if self.weights is not None:
+            nominal = np.where(self.weights > 0, 1.0 / np.where(self.weights > 0, self.weights, 1.0), 0.0)
+        self.matrix = NewtonMatrix(mod, p, self.end_rows, nominal)
         self.res = np.zeros(mod.N)
         self.nfev = 0
         self.singular = False
