@@ -84,6 +84,60 @@ def test_doc_block(path, index, request):
     done.add(index)
 
 
+def test_console_blocks_declare_their_tolerance_in_the_known_syntax():
+    """`numbers=` parses on every console block and nowhere else; the old `numbers-vary`
+    (every number masked, so a page could show figures of an older phc) is gone."""
+    for path in doc_examples.doc_files():
+        for block in doc_examples.parse_blocks(path):
+            assert "numbers-vary" not in block.options, f"{block.where}: `numbers-vary` is gone, declare `numbers=`"
+            if "numbers" in block.options:
+                assert block.lang == "console", f"{block.where}: `numbers=` is for console blocks"
+                doc_examples.block_tolerance(block)  # raises on an unknown item
+
+
+def test_durations_are_masked_and_other_figures_compared():
+    exact = doc_examples.Tolerance()
+    solver = doc_examples.Tolerance.parse("solver")
+    shown = "  work     535 steps, 655 residual and 29 Jacobian evaluations, 0.026 s CPU, t_final 10"
+    assert doc_examples.same_line(shown, shown.replace("0.026 s CPU", "1.5 s CPU"), exact)
+    assert doc_examples.same_line("certified (...; 0.08 s)", "certified (...; 12.3 s)", exact)
+    assert not doc_examples.same_line(shown, shown.replace("535", "536"), exact)
+    assert doc_examples.same_line(shown, shown.replace("535", "700"), solver)  # an adaptive count moved
+    assert not doc_examples.same_line(shown, shown.replace("535", "1397"), solver)  # a stale page
+    assert not doc_examples.same_line(shown, shown.replace("steps", "stops"), solver)  # text is exact
+    balance = "  energy   balance error 6.985e-07 (relative 1.397e-06)"
+    assert doc_examples.same_line(balance, "  energy   balance error 2.1e-06 (relative 4.2e-06)", solver)
+    assert not doc_examples.same_line(balance, "  energy   balance error 2.405e-09 (relative 4.810e-09)", solver)
+    assert not doc_examples.same_line(balance, "  energy   balance error -6.985e-07 (relative 1.397e-06)", solver)
+    roundoff = doc_examples.Tolerance.parse("roundoff")
+    assert doc_examples.same_line("isotropy 5.6e-16", "isotropy 0.0e+00", roundoff)
+    # digits inside words are text, not figures: a changed code is a changed line
+    assert not doc_examples.same_line("[PHC-E406]", "[PHC-E407]", doc_examples.Tolerance(rel=1.0))
+    digits = doc_examples.Tolerance.parse("digits")
+    assert doc_examples.same_line("1  0 ± 3.13209i", "1  0 ± 3.13210i", digits)
+    assert not doc_examples.same_line("1  0 ± 3.13209i", "1  0 ± 3.2i", digits)
+    with pytest.raises(doc_examples.ExampleFailure):
+        doc_examples.Tolerance.parse("rel:0.1,abs:3")
+
+
+def test_update_rewrites_outputs_still_within_the_tolerance(tmp_path):
+    """`--update` writes the fresh output even where the shown one still passes, keeping
+    the elisions; the test then passes with the new figures."""
+    page = tmp_path / "page.md"
+    command = "python -c \"print('start'); print('noise'); print('work 120 steps, 0.5 s CPU'); print('end 3')\""
+    page.write_text("# page\n\n<!-- test: numbers=rel:0.5 -->\n```console\n"
+                    f"$ {command}\nstart\n...\nwork 100 steps, 9.9 s CPU\nend 3\n```\n", encoding="utf-8")
+    block = doc_examples.parse_blocks(page)[0]
+    checker = doc_examples.Page(page)
+    try:
+        doc_examples.run_block(block, checker)  # 100 against 120: within rel 0.5
+    finally:
+        checker.close()
+    assert doc_examples.update_file(page) == 1
+    text = page.read_text(encoding="utf-8")
+    assert "start\n...\nwork 120 steps, 0.5 s CPU\nend 3\n```" in text
+
+
 # ---------------------------------------------------------------------------------------
 # diagnostics reference
 

@@ -2,7 +2,8 @@
 
 ``tests/test_docs.py`` collects one test per block; ``python tools/doc_examples.py
 --update [FILE ...]`` reruns the commands of the ``console`` blocks and writes their
-real output into the Markdown, so no output in the docs is typed by hand.
+real output into the Markdown -- always, also where the output shown is still within the
+block's tolerance -- so no output in the docs is typed by hand or left from an older phc.
 
 What each block must do, by its language:
 
@@ -15,8 +16,9 @@ What each block must do, by its language:
     Executed. The blocks of one page share one namespace, in order.
 ``console``
     Lines ``$ COMMAND`` are run; the lines after each, up to the next ``$``, are its
-    expected output (stdout and stderr), compared exactly. A line ``...`` matches any
-    number of lines.
+    expected output (stdout and stderr), compared line by line: the text exactly, the
+    numbers as the block's ``numbers=`` declares (below; exactly by default), durations
+    never. A line ``...`` matches any number of lines.
 ``sh``, ``bash``
     Command lines (no output shown), checked, not run: a ``phc`` line must parse with
     phc's own argument parser and the model and scene files it names must validate;
@@ -36,8 +38,8 @@ A block may be preceded (on the line right above its fence) by a directive
     The YAML must fail validation with exactly these codes (diagnostics pages).
 ``exit=N``
     Console: the expected exit status of the commands (default 0).
-``numbers-vary``
-    Console: compare with every number masked (CPU times, step counts).
+``numbers=SPEC``
+    Console: how far the numbers shown may move from a fresh run (see *Numbers* below).
 ``slow``
     Run only with ``-m slow``.
 ``parse-only``
@@ -47,6 +49,63 @@ A block may be preceded (on the line right above its fence) by a directive
 ``placeholders``
     sh: the block names files of the reader's own project (``models/my_model.yaml``);
     files that do not exist here are not checked.
+
+Numbers
+-------
+``--update`` always rewrites a console block from a fresh run, so the figures shown are
+what the current code prints. The test compares them with the tolerance the block
+declares; it fails when a shown number differs from a fresh run by more.
+
+*Durations are never compared*: a number of seconds (``s``, ``ms`` or ``µs``) followed by
+`` CPU``, `` wall``, ``)`` or ``;`` -- phc's ``0.026 s CPU``, the certificate's ``; 0.08
+s)``, a compilation's ``(10.44 s)``, a sweep's ``in 265.1 s;`` -- is masked before the
+comparison, in every block.
+
+*Every other number* is a figure: a decimal or e-notation number standing alone (not
+part of a word: the ``406`` of ``PHC-E406``, the ``1`` of ``q1`` are text; an imaginary
+unit ``i`` may follow it). Without ``numbers=`` a figure must be shown exactly as phc
+prints it. ``numbers=SPEC`` loosens that; SPEC is a comma-separated list of items, later
+ones overriding earlier ones:
+
+``rel:R``
+    a figure may differ from the fresh one by R relative to the larger of the two
+    (``rel:0.5``: 600 matches 300 ... 1200);
+``sci:F``
+    a figure written in e-notation (``2.405e-09``: phc's error, balance, drift and
+    residual figures) may be up to a factor F off, with the same sign (without ``sci:``,
+    ``rel:`` or exactness applies to them too);
+``floor:A``
+    two figures both at most A in magnitude match (round-off: ``0.0e+00`` against
+    ``4.4e-16``);
+a preset name
+    one of ``PRESETS``, each a tolerance with its reason:
+
+    ``solver`` = ``rel:0.5,sci:20,floor:1e-13``
+        The work and error figures of a simulation: an adaptive solver's steps and
+        residual and Jacobian evaluations, a fixed-step solver's Newton iterations (they
+        stop at a 1e-14 tolerance, i.e. on round-off), the energy balance, drift and error
+        estimates -- counts within a factor 2, error figures within a factor 20. Round-off
+        differs between x86-64 CPUs (the kernels OpenBLAS picks, NumPy's SIMD paths, the
+        machine code numba emits), and IDA's step-size controller turns a last-bit
+        difference into another step sequence. Measured by running every page with the
+        CPU features switched down (``NPY_DISABLE_CPU_FEATURES``, ``OPENBLAS_CORETYPE``
+        Haswell and Nehalem, ``NUMBA_CPU_NAME``): steps moved by up to 22 % (685 -> 882,
+        docs/how-to/initial-values.md), Jacobian evaluations by 34 % (57 -> 86,
+        docs/tutorials/electrical.md), error figures by up to a factor 5 (the pendulum's
+        balance error). The window is about twice that and still catches a stale page
+        (the counts that went stale here were off by 2-3x, the error figures by 10-300x).
+    ``roundoff`` = ``sci:100,floor:1e-13``
+        ``phc check``: the isotropy and power-balance figures are round-off (1e-16 ...
+        1e-10; with the CPU features switched down they moved by up to a factor 2.4, and
+        another CPU can give 0); the rest (dimensions, ranks, sampled values printed to
+        three digits) exactly.
+    ``digits`` = ``rel:1e-5,floor:1e-12``
+        Results printed to six significant digits (eigenvalues): the last digit may flip
+        on another CPU; a zero may come out as round-off.
+
+Choose the tightest preset that covers what varies, and say why in a comment beside the
+block when none fits. Structural numbers (states, equations, file positions) need no
+``numbers=`` at all.
 
 Every page runs in its own temporary working directory that holds a copy of the
 repository's ``models`` and links to its ``schemas``, ``benchmarks``, ``tests`` and
@@ -79,7 +138,17 @@ LINKED = ("schemas", "benchmarks", "tests", "docs")
 FENCE = re.compile(r"^(?P<indent> {0,4})(?P<fence>```+|~~~+)\s*(?P<lang>[\w+-]*)(?P<rest>[^\n]*)$")
 DIRECTIVE = re.compile(r"^\s*<!--\s*test:\s*(?P<body>.*?)\s*-->\s*$")
 SNIPPET = re.compile(r'^\s*--8<--\s+"(?P<path>[^"]+)"\s*$')
-NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
+FIGURE = re.compile(r"(?<![\w.])((?>[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?))(?!(?!i\b)\w)")
+"""A number standing alone (not inside a word; an imaginary unit `i` may follow): compared
+with the block's tolerance. Capturing, so that ``FIGURE.split`` alternates text and figures."""
+DURATION = re.compile(r"(?<![\w.])\d+(?:\.\d+)?(?= ?(?:s|ms|µs)(?: CPU| wall|\)|;))")
+"""A number of seconds followed by ` CPU`, ` wall`, `)` or `;`: a duration, never compared."""
+PRESETS = {
+    "solver": "rel:0.5,sci:20,floor:1e-13",
+    "roundoff": "sci:100,floor:1e-13",
+    "digits": "rel:1e-5,floor:1e-12",
+}
+"""Named tolerances of ``numbers=`` (their reasons: the module docstring)."""
 PROGRESS = re.compile(r"^\S.* \[[# ]+\] +\d+(\.\d+)?%")
 """A progress-bar line (shown when a run takes more than a few seconds): not compared."""
 NOT_CODE = {"text", "", "dot", "mermaid"}
@@ -104,7 +173,8 @@ class Block:
 
     @property
     def where(self) -> str:
-        return f"{self.path.relative_to(ROOT)}:{self.line}"
+        path = self.path.relative_to(ROOT) if self.path.is_relative_to(ROOT) else self.path
+        return f"{path}:{self.line}"
 
     @property
     def snippet_source(self) -> str | None:
@@ -337,17 +407,105 @@ def _run_python(block: Block, page: Page) -> None:
         os.chdir(old)
 
 
-def _mask(text: str) -> str:
-    return NUMBER.sub("#", text)
+@dataclass(frozen=True)
+class Tolerance:
+    """How far a console block's figures may move (``numbers=``; the module docstring)."""
+
+    rel: float | None = None  # relative, for every figure; None: exactly as shown
+    sci: float | None = None  # a factor, for figures in e-notation; None: as `rel`
+    floor: float = 0.0  # figures both at most this in magnitude match
+
+    @classmethod
+    def parse(cls, spec: str | None, where: str = "") -> "Tolerance":
+        values: dict[str, float] = {}
+        for item in (spec or "").split(","):
+            item = item.strip()
+            if not item:
+                continue
+            if item in PRESETS:
+                values.update(cls.parse(PRESETS[item], where).__dict__)
+                continue
+            key, sep, value = item.partition(":")
+            if key not in ("rel", "sci", "floor") or not sep:
+                raise ExampleFailure(f"{where}: `numbers={spec}`: unknown item `{item}` (rel:R, sci:F, floor:A or "
+                                     f"one of {sorted(PRESETS)})")
+            try:
+                values[key] = float(value)
+            except ValueError:
+                raise ExampleFailure(f"{where}: `numbers={spec}`: `{item}` needs a number") from None
+            if values[key] < 0 or (key == "sci" and values[key] < 1):
+                raise ExampleFailure(f"{where}: `numbers={spec}`: `{item}` out of range")
+        return cls(**values)
+
+    def close(self, shown: str, fresh: str) -> bool:
+        """Whether the figure `shown` in the docs is close enough to the `fresh` one."""
+        if shown == fresh:
+            return True
+        x, y = float(shown), float(fresh)
+        if max(abs(x), abs(y)) <= self.floor:
+            return True
+        if self.sci is not None and ("e" in shown.lower() or "e" in fresh.lower()):
+            return x * y > 0 and max(abs(x), abs(y)) <= self.sci * min(abs(x), abs(y))
+        if self.rel is not None:
+            return abs(x - y) <= self.rel * max(abs(x), abs(y))
+        return False
+
+    def __str__(self) -> str:
+        items = [f"{k}:{v:g}" for k, v in (("rel", self.rel), ("sci", self.sci), ("floor", self.floor)) if v]
+        return ",".join(items) or "exact"
 
 
-def _matches(expected: list[str], actual: list[str]) -> bool:
+def block_tolerance(block: "Block") -> Tolerance:
+    if "numbers-vary" in block.options:
+        raise ExampleFailure(f"{block.where}: `numbers-vary` masked every number and is gone: declare how far "
+                             f"the numbers may move, `numbers=SPEC` (tools/doc_examples.py)")
+    return Tolerance.parse(block.options.get("numbers"), block.where)
+
+
+def _split(line: str) -> list[str]:
+    """Text and figures of a line, alternating (text first), durations masked."""
+    return FIGURE.split(DURATION.sub("#", line))
+
+
+def same_line(shown: str, fresh: str, tolerance: Tolerance) -> bool:
+    """One line of the docs against one line of a fresh run: the same text, the figures
+    within the tolerance, durations not compared."""
+    if shown == fresh:
+        return True
+    a, b = _split(shown), _split(fresh)
+    if len(a) != len(b) or a[0::2] != b[0::2]:
+        return False
+    return all(tolerance.close(x, y) for x, y in zip(a[1::2], b[1::2]))
+
+
+def moved_figures(shown: str, fresh: str, tolerance: Tolerance) -> list[tuple[str, str]]:
+    """The figures of a line that moved beyond the tolerance (the text being the same)."""
+    a, b = _split(shown), _split(fresh)
+    if len(a) != len(b) or a[0::2] != b[0::2]:
+        return []
+    return [(x, y) for x, y in zip(a[1::2], b[1::2]) if not tolerance.close(x, y)]
+
+
+def _matches(expected: list[str], actual: list[str], tolerance: Tolerance | None = None) -> bool:
     """Line match where a line `...` stands for any number of lines."""
+    tolerance = tolerance or Tolerance()
     if not expected:
         return not actual
     if expected[0] == "...":
-        return any(_matches(expected[1:], actual[k:]) for k in range(len(actual) + 1))
-    return bool(actual) and expected[0] == actual[0] and _matches(expected[1:], actual[1:])
+        return any(_matches(expected[1:], actual[k:], tolerance) for k in range(len(actual) + 1))
+    return bool(actual) and same_line(expected[0], actual[0], tolerance) and _matches(expected[1:], actual[1:],
+                                                                                      tolerance)
+
+
+def _moved(expected: list[str], actual: list[str], tolerance: Tolerance) -> list[str]:
+    """Notes on figures beyond the tolerance, line by line (where the lines line up)."""
+    notes = []
+    for shown, fresh in zip(expected, actual):
+        if shown == "...":
+            break
+        for x, y in moved_figures(shown, fresh, tolerance):
+            notes.append(f"{x} -> {y}")
+    return notes
 
 
 def console_commands(block: Block) -> list[tuple[str, list[str], int]]:
@@ -368,17 +526,17 @@ def console_commands(block: Block) -> list[tuple[str, list[str], int]]:
 
 def _run_console(block: Block, page: Page) -> None:
     want_exit = int(block.options.get("exit", "0"))
+    tolerance = block_tolerance(block)
     for command, expected, _ in console_commands(block):
         status, output = run_command(command, page.dir)
         actual = [line.rstrip() for line in output.rstrip("\n").split("\n")] if output.strip() else []
         if status != want_exit:
             raise ExampleFailure(f"{block.where}: `{command}` exited with {status}, expected {want_exit}:\n{output}")
-        exp, act = expected, actual
-        if "numbers-vary" in block.options:
-            exp, act = [_mask(x) for x in expected], [_mask(x) for x in actual]
-        if not _matches(exp, act):
-            raise ExampleFailure(f"{block.where}: the output of `{command}` differs from the docs "
-                                 f"(rerun `python tools/doc_examples.py --update {block.path.relative_to(ROOT)}`):\n"
+        if not _matches(expected, actual, tolerance):
+            moved = _moved(expected, actual, tolerance)
+            note = (f"; figures beyond the block's tolerance ({tolerance}): {', '.join(moved)}" if moved else "")
+            raise ExampleFailure(f"{block.where}: the output of `{command}` differs from the docs{note} "
+                                 f"(rerun `python tools/doc_examples.py --update {block.where.rsplit(':', 1)[0]}`):\n"
                                  + "\n".join(["--- docs", *expected, "--- phc", *actual]))
 
 
@@ -503,6 +661,47 @@ def run_block(block: Block, page: Page) -> None:
 # --update: write the real outputs into the console blocks
 
 
+def _skeleton(line: str) -> list[str]:
+    """The text of a line without its figures and durations."""
+    return _split(line)[0::2]
+
+
+def _elide(expected: list[str], actual: list[str], where: str = "") -> list[str]:
+    """The fresh output `actual` with the elisions (`...`) of the block kept: the lines
+    shown before the first `...` and after the last are the first and last lines of the
+    output, a run of lines between two `...` is found again by its text (its figures may
+    have changed)."""
+    if "..." not in expected:
+        return actual
+    segments, current = [], []
+    for line in expected:
+        if line == "...":
+            segments.append(current)
+            current = []
+        else:
+            current.append(line)
+    segments.append(current)
+    head, *middle, tail = segments
+    out, pos = list(actual[:len(head)]), len(head)
+    end = max(pos, len(actual) - len(tail))
+    for segment in middle:
+        if out[-1:] != ["..."]:
+            out.append("...")
+        found = next((k for k in range(pos, end - len(segment) + 1)
+                      if all(_skeleton(a) == _skeleton(b) for a, b in zip(segment, actual[k:k + len(segment)]))),
+                     None)
+        if found is None:
+            if segment:
+                print(f"warning: {where}: the lines {segment[:1]}... shown between two `...` are no longer in "
+                      f"the output; left out", file=sys.stderr)
+            continue
+        out += actual[found:found + len(segment)]
+        pos = found + len(segment)
+    if out[-1:] != ["..."]:
+        out.append("...")
+    return out + actual[max(pos, len(actual) - len(tail)):]
+
+
 def update_file(path: Path, slow: bool = True) -> int:
     """Rerun the console blocks of one file and write their outputs; returns the count
     of blocks changed."""
@@ -522,19 +721,21 @@ def update_file(path: Path, slow: bool = True) -> int:
                     print(f"warning: {err}", file=sys.stderr)
                 continue
             new_body = []
+            tolerance = block_tolerance(block)
+            want_exit = int(block.options.get("exit", "0"))
             for command, expected, _ in console_commands(block):
-                _, output = run_command(command, page.dir)
+                status, output = run_command(command, page.dir)
                 actual = [line.rstrip() for line in output.rstrip("\n").split("\n")] if output.strip() else []
-                masked = (lambda lines: [_mask(x) for x in lines]) if "numbers-vary" in block.options else list
-                if _matches(masked(expected), masked(actual)):
-                    new_body += [f"$ {command}", *expected, ""]  # still right: leave it as it is
-                    continue
-                if "..." in expected:  # keep the elision: as many lines before and after it as shown
-                    head = expected.index("...")
-                    tail = len(expected) - head - 1
-                    if len(actual) > head + tail:
-                        actual = actual[:head] + ["..."] + (actual[len(actual) - tail:] if tail else [])
-                new_body += [f"$ {command}", *actual, ""]
+                if status != want_exit:
+                    print(f"warning: {block.where}: `{command}` exited with {status}, expected {want_exit}",
+                          file=sys.stderr)
+                if not _matches(expected, actual, tolerance):
+                    moved = _moved(expected, actual, tolerance)
+                    print(f"note: {block.where}: `{command}`: the output changed"
+                          + (f"; beyond the block's tolerance ({tolerance}): {', '.join(moved)}" if moved else ""),
+                          file=sys.stderr)
+                # always the fresh output: the figures shown are what the current code prints
+                new_body += [f"$ {command}", *_elide(expected, actual, block.where), ""]
             while new_body and not new_body[-1]:
                 new_body.pop()
             if new_body != [line.rstrip() for line in block.raw_lines]:
