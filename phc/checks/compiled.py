@@ -47,7 +47,15 @@ from phc.diagnostics import Diagnostic, DiagnosticList
 from phc.source import SourceSpan
 
 BALANCE_RTOL = 1e-6
-"""Allowed |dH/dt + P_ports + P_diss| relative to the sum of the three magnitudes."""
+"""Allowed |dH/dt + P_ports + P_diss| relative to the magnitudes of the terms it sums
+(|dH/dt| and every term f·e of P_ports and P_diss)."""
+CONSISTENCY_RTOL = 1e-11
+"""The samples are consistent to this fraction of their rows' sizes (the tolerance of
+consistent initialization, :func:`phc.simulation.initial.consistent_initial_conditions`),
+so the balance at a sample holds only to this fraction of the power passing through the
+model: at rest, a velocity of round-off size times an O(1) force is a power that no
+relative test can judge. Residuals below this fraction of the largest power seen over all
+samples are round-off, whatever the sample's own powers."""
 PASSIVITY_RTOL = 1e-9
 """A dissipation term below −PASSIVITY_RTOL · (its scale) is non-passive."""
 DENSE_EIG_LIMIT = 1500
@@ -207,29 +215,52 @@ def _power_scale(mod, p, t, y, yp, states) -> float:
     return float(mod.energy_scale(t, y, p)) * float(np.linalg.norm(yp[states])) / ny
 
 
+def _term_magnitudes(compiled, p, samples) -> np.ndarray:
+    """Σ|terms| of P_ports and P_diss at each sample: the magnitudes the balance sums, so that
+    its round-off is judged against them and not against their (possibly cancelling) sum.
+    A term that cannot be evaluated numerically counts 0 (the totals bound it from below)."""
+    dae, mod = compiled.dae, compiled.module
+    n = len(samples)
+    params = {par.symbol: float(p[mod.PARAMETERS.index(par.name)]) for par in dae.parameters}
+    columns = dict(params)
+    columns.update({v.symbol: np.array([y[j] for _, y, _ in samples]) for j, v in enumerate(dae.variables)})
+    columns[sp.Symbol("t", real=True)] = np.array([t for t, _, _ in samples])
+    total = np.zeros(n)
+    for expr in (dae.port_power, dae.dissipation):
+        for term in sp.Add.make_args(sp.sympify(expr)):
+            if term == 0:
+                continue
+            values = np.abs(_term_values(term, columns, n))
+            total += np.where(np.isfinite(values), values, 0.0)
+    return total
+
+
 def _balance(compiled, p, samples, cert, span) -> None:
     mod = compiled.module
     dif = np.flatnonzero(np.asarray(mod.DIFFERENTIAL))
     states = np.array([j for j in dif if mod.ROLES[j] != "energy"], dtype=int)
+    terms = _term_magnitudes(compiled, p, samples)
     rows = []
-    for t, y, yp in samples:
+    for (t, y, yp), magnitude in zip(samples, terms):
         dH, err = _dHdt(mod, p, t, y, _energy_direction(compiled, p, t, y, yp))
         ports, diss = mod.powers(t, y, yp, p)
-        # The powers themselves set the scale; the energy-rate scale only keeps it from
-        # vanishing where dH/dt happens to be ~0 (a pendulum at its turning point).
-        scale = max(abs(dH) + abs(ports) + abs(diss), 1e-6 * _power_scale(mod, p, t, y, yp, states))
+        # The magnitudes of the terms set the scale; the energy-rate scale only keeps it from
+        # vanishing where every term happens to be ~0 (a pendulum at its turning point).
+        scale = max(abs(dH) + max(float(magnitude), abs(ports) + abs(diss)),
+                    1e-6 * _power_scale(mod, p, t, y, yp, states))
         rows.append((t, dH, err, ports, diss, scale))
-    # A sample near rest (powers at the round-off of consistent initialization) is judged
-    # against the largest power scale over all samples.
-    floor = 1e-8 * max((r[-1] for r in rows), default=0.0)
+    # Absolute round-off: the samples are consistent only to CONSISTENCY_RTOL of the power
+    # that passes through the model (a sample at rest: round-off velocities times forces).
+    floor = CONSISTENCY_RTOL * max((r[-1] for r in rows), default=0.0)
     worst = 0.0
     for t, dH, err, ports, diss, scale in rows:
         residual = dH + ports + diss
-        # Powers below the finite-difference noise of dH/dt cannot be judged more finely.
-        scale = max(scale, floor, 10 * err / BALANCE_RTOL)
-        if scale == 0.0:
+        # allowed: BALANCE_RTOL of the terms, the absolute round-off, and the finite-difference
+        # noise of dH/dt (which powers below it cannot be judged more finely than)
+        allowed = BALANCE_RTOL * scale + floor + 10 * err
+        if allowed == 0.0:
             continue  # at rest: nothing to balance
-        rel = abs(residual) / scale
+        rel = BALANCE_RTOL * abs(residual) / allowed  # ≤ BALANCE_RTOL when within what is allowed
         worst = max(worst, rel)
         if rel > BALANCE_RTOL:
             cert.diagnostics.append(Diagnostic(
