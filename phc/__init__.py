@@ -42,6 +42,7 @@ _API = {
     # errors and warnings
     "PhcError": ("phc.errors", "PhcError"),
     "PhcWarning": ("phc.errors", "PhcWarning"),
+    "IgnoredOptionWarning": ("phc.errors", "IgnoredOptionWarning"),
     "ModelError": ("phc.errors", "ModelError"),
     "InconsistentInitialError": ("phc.errors", "InconsistentInitialError"),
     "SimulationSetupError": ("phc.errors", "SimulationSetupError"),

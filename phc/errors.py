@@ -10,6 +10,9 @@
     invalid simulation options or missing optional dependency.
 ``CodegenError``
     the code generator met something it cannot print (a phc bug, never a user mistake).
+``PhcWarning``
+    base of phc's warnings; ``IgnoredOptionWarning``: :func:`phc.simulate` was given an
+    accuracy option the chosen solver does not use.
 
 Defined beside the code that raises them, and all ``PhcError``:
 ``phc.spec.expressions.ExpressionError`` (a malformed or forbidden expression),
@@ -54,6 +57,13 @@ class SimulationSetupError(PhcError, ValueError):
 
 class PhcWarning(UserWarning):
     """Base of phc's warnings (the CLI prints them as one line `phc: warning: ...`)."""
+
+
+class IgnoredOptionWarning(PhcWarning):
+    """A simulation option was given that the chosen solver does not use (``rtol``/``atol``
+    to a fixed-step solver, ``step`` to IDA): the run is not the one the option asks for.
+    ``warnings.simplefilter("error", phc.IgnoredOptionWarning)`` makes it an error (phc's
+    own test suite does, in ``pyproject.toml``)."""
 
 
 class CodegenError(PhcError):

@@ -24,11 +24,7 @@ from typing import Callable, Iterator, Optional
 
 import numpy as np
 
-from phc.errors import PhcWarning
-
-
-class IgnoredOptionWarning(PhcWarning):
-    """A simulation option was given that the chosen solver does not use."""
+from phc.errors import IgnoredOptionWarning  # defined with phc's other warnings, light to import
 
 
 @dataclass

@@ -28,9 +28,15 @@ PERIOD_OSC = 2 * math.pi / math.sqrt(4.0 / 1.0)  # mass_spring_damper: k = 4, m 
 PERIOD_STRING = 2 * 0.64 / 80.0  # vibrating_string: 2L/c, the fundamental
 
 
-def _oscillator(periods, solver, steps_per_period=1, **kw):
+def _step(period, steps_per_period):
+    """The midpoint rule's step; None for IDA, whose steps follow its tolerances."""
+    return period / steps_per_period if steps_per_period is not None else None
+
+
+def _oscillator(periods, solver, steps_per_period=None, **kw):
     return phc.simulate(compiled("mass_spring_damper.yaml"), params={"c": 0.0}, solver=solver,
-                        t_end=periods * PERIOD_OSC, n_out=periods + 1, step=PERIOD_OSC / steps_per_period, **kw)
+                        t_end=periods * PERIOD_OSC, n_out=periods + 1, step=_step(PERIOD_OSC, steps_per_period),
+                        **kw)
 
 
 # The free string released from a smooth strain profile (the shipped model's force pulse
@@ -38,9 +44,9 @@ def _oscillator(periods, solver, steps_per_period=1, **kw):
 STRING_INITIAL = {f"string.eps[{i}]": 1e-3 * math.sin(math.pi * (i + 0.5) / 16) for i in range(16)}
 
 
-def _string(periods, solver, steps_per_period=1, **kw):
+def _string(periods, solver, steps_per_period=None, **kw):
     return phc.simulate(compiled("vibrating_string.yaml"), solver=solver, t_end=periods * PERIOD_STRING,
-                        n_out=periods + 1, step=PERIOD_STRING / steps_per_period, params={"F0": 0.0},
+                        n_out=periods + 1, step=_step(PERIOD_STRING, steps_per_period), params={"F0": 0.0},
                         initial=STRING_INITIAL, **kw)
 
 
