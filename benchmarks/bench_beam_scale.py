@@ -117,7 +117,9 @@ def measure_string(n: int) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         os.environ["PHC_CACHE_DIR"] = str(Path(tmp) / "cache")
         path = Path(tmp) / f"string{n}.yaml"
-        path.write_text(text.replace("n_out: 1001", "n_out: 11"))
+        # without the `energy: H` output: phc refuses to write the stored energy of more
+        # than 2000 terms into an output, and the outputs are not what is measured here
+        path.write_text(text.replace("n_out: 1001", "n_out: 11").replace("    energy: H\n", ""))
         t = time.perf_counter()
         compiled = phc.compile_model(path, **_NO_CERTIFICATE)
         compile_s = time.perf_counter() - t
