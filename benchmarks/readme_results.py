@@ -9,7 +9,8 @@ uses (docs/benchmarks.md), so the README carries copies, between markers:
   file of benchmarks/depends.toml — when, on which machine and at which commit it was
   measured, read from the header benchmarks/record.py wrote;
 * ``<!-- results:NAME begin -->`` ... ``<!-- results:NAME end -->``: the whole of
-  ``benchmarks/results/NAME.md`` (its headings moved below the README's section level).
+  ``benchmarks/results/NAME.md`` (its headings three levels down, below the README's
+  subsections; its relative links as seen from the README).
 
 Run it after benchmarks/record.py; tests/test_benchmark_freshness.py fails while the
 README differs from what this writes. Nothing between the markers is typed by hand.
@@ -61,9 +62,9 @@ def _rebase(target: str, source: Path, outputs: dict[str, Path]) -> str:
 
 
 def _body(path: Path) -> str:
-    """A result file for the README: without record.py's comment line, headings two
-    levels down (a result's `##` becomes `####` inside a README section), relative links
-    as seen from the README."""
+    """A result file for the README: without record.py's comment line, headings three
+    levels down (a result's `#` becomes `####`, below a README subsection), relative
+    links as seen from the README."""
     outputs = _outputs()
     lines, fence = [], False
     for line in path.read_text(encoding="utf-8").rstrip("\n").split("\n"):
@@ -71,8 +72,9 @@ def _body(path: Path) -> str:
             continue
         if line.startswith(("```", "~~~")):
             fence = not fence
-        if not fence and re.match(r"#{1,4} ", line):
-            line = "##" + line
+        heading = re.match(r"(#{1,6}) ", line) if not fence else None
+        if heading:
+            line = "#" * min(6, len(heading.group(1)) + 3) + line[len(heading.group(1)):]
         if not fence:
             line = LINK.sub(lambda m: m.group(1) + _rebase(m.group(2), path, outputs) + m.group(3), line)
         lines.append(line)
