@@ -334,6 +334,8 @@ def test_interrupt_then_resume(tmp_path):
             "--out", str(out), "--quiet", "--no-certify"]
     proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
                             preexec_fn=interruptible)
+    # waits for an external event (the first finished row, or the child's exit); the deadline only
+    # bounds the wait, generously for a loaded machine, and nothing asserts on the elapsed time
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline:
         if out.exists() and len(out.read_bytes().splitlines()) >= 2:

@@ -13,7 +13,6 @@ import signal
 import struct
 import subprocess
 import sys
-import time
 import zipfile
 import zlib
 from pathlib import Path
@@ -227,16 +226,16 @@ def test_a_scene_may_use_files_of_its_model_and_its_own_directory(tmp_path, caps
 
 # -- only regular files, read without blocking ----------------------------------------
 
-def test_fifos_are_refused_quickly(tmp_path):
+def test_fifos_are_refused_without_blocking(tmp_path):
     os.mkfifo(tmp_path / "pipe.csv")
     os.mkfifo(tmp_path / "pipe.npz")
     os.mkfifo(tmp_path / "pipe.yaml")
     models = [table_model(tmp_path, "pipe.csv", name="t.yaml"), npz_model(tmp_path, "pipe.npz", "n.yaml"),
               nested_model(tmp_path, "pipe.yaml", name="m.yaml")]
-    start = time.monotonic()
-    proc = run_cli(["validate", *models], timeout=90)
+    # reading a FIFO without a writer blocks forever: the timeout only turns such a hang into a
+    # failure (TimeoutExpired); nothing is timed, so it is generous for a loaded machine
+    proc = run_cli(["validate", *models], timeout=600)
     assert proc.returncode == 1, proc.stderr
-    assert time.monotonic() - start < 60
     lines = proc.stderr.splitlines()
     for model, key in zip(models, ("simulation.inputs.force.effort.file", "components.lin.matrices",
                                    "components.sub.file")):
@@ -351,28 +350,28 @@ def test_linear_breakpoints_are_its_kinks_up_to_a_cap():
     assert inputs.table_breakpoints(ramp, 3 * ramp, "linear")[1] == 2  # rounding is not a kink
 
 
-def test_a_100000_row_table_runs_in_seconds_with_the_right_answer(tmp_path):
+def test_a_100000_row_table_takes_few_steps_with_the_right_answer(tmp_path):
     """ṗ = −F(t) for the mass's exposed port: p(t) is minus the integral of the linear
     interpolant, the trapezoidal sums of the table (exact for a piecewise-linear F). Every
-    row was a breakpoint before (253 s); now none is and IDA's error control follows F."""
+    row was a breakpoint before (253 s: a restart and at least one step per row); now none
+    is and IDA's error control follows F (counted in steps and evaluations, not timed)."""
     n = 100_000
     t = np.linspace(0.0, 10.0, n)
     force = np.sin(3 * t) + 0.5 * np.cos(0.7 * t)
     np.savetxt(tmp_path / "force.csv", np.c_[t, force], delimiter=",", header="t,F", comments="", fmt="%.17g")
     model = table_model(tmp_path, "force.csv", t_end=10.0)
-    start = time.perf_counter()
     compiled = phc.compile_model(model)
     info = [d for d in compiled.diagnostics if d.code == "PHC-I214"]
     assert len(info) == 1 and "100,000 kinks" in info[0].message
     assert compiled.module.BREAKPOINTS == ()
     result = phc.simulate(compiled)
-    elapsed = time.perf_counter() - start
     assert result.success
+    # far fewer steps than rows (measured: about 4900 steps, 5800 residuals, 100 Jacobians)
+    assert result.steps < n // 5 and result.n_residual_evals < n // 2, (result.steps, result.n_residual_evals)
     integral = np.concatenate([[0.0], np.cumsum(np.diff(t) * (force[1:] + force[:-1]) / 2)])
     exact = -np.interp(result.t, t, integral)
     # rtol 1e-8, atol 1e-10 over ~1000 steps of an O(1) solution
     assert np.abs(result.outputs["p"] - exact).max() < 1e-6
-    assert elapsed < 30, f"{elapsed:.1f} s"
 
 
 def test_a_few_rows_are_still_breakpoints(tmp_path):
@@ -418,16 +417,27 @@ def test_each_nested_file_is_read_once(tmp_path, monkeypatch):
     assert sorted(reads) == sorted(str(tmp_path / f"l{i}.yaml") for i in range(6))
 
 
-def test_a_diamond_of_18_levels_is_refused_in_seconds(tmp_path, capsys):
+def test_a_diamond_of_18_levels_is_refused_before_expanding(tmp_path, capsys, monkeypatch):
+    """2**19 - 1 copies, counted without making them: each of the 19 files is read once, each
+    of the 37 references is followed once (the count is memoized per file), and no file is
+    elaborated (counted, not timed)."""
+    import phc.elaborate as elab
+
+    reads, refs, elaborated = [], [], []
+    load_spec_bytes, nested_ref = elab.load_spec_bytes, Builder._nested_ref
+    monkeypatch.setattr(elab, "load_spec_bytes",
+                        lambda raw, path: reads.append(str(path)) or load_spec_bytes(raw, path))
+    monkeypatch.setattr(Builder, "_nested_ref", lambda self, *a, **k: refs.append(a[1]) or nested_ref(self, *a, **k))
+    monkeypatch.setattr(Builder, "_elaborate_file", lambda self, ctx, overrides: elaborated.append(ctx.file))
     model = diamond(tmp_path, 18)
-    start = time.perf_counter()
     code, text = validate(capsys, model)
-    elapsed = time.perf_counter() - start
     assert code == 1
     assert (f"{model}:4:28: components.sub.file: nested models expand to {2 ** 19 - 1:,} copies of model files, "
             f"above the limit of {phc_files.MAX_MODEL_INSTANCES:,}") in text
     assert "[PHC-E117]" in text
-    assert elapsed < 10, f"{elapsed:.1f} s"
+    assert sorted(reads) == sorted(str(tmp_path / f"l{i}.yaml") for i in range(19))
+    assert len(refs) == 1 + 2 * 18, len(refs)
+    assert elaborated == []
 
 
 def test_nesting_depth_is_limited(tmp_path, capsys):
