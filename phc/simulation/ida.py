@@ -678,12 +678,17 @@ first failure, without passing the failed trial point, the run stops with the la
 failure's located error."""
 
 
+CRAWL_CHECK_STEPS = 2000
+"""Steps between two diagnoses of a crawling run (one whose step size cannot reach the end
+of the run within ``max_steps``): each costs a few looks of the monitor."""
+
+
 APPROACH_FALL = 10.0
 """A run whose conditioning fell by at least this factor over the monitor's last looks, and
 further to the failure point, failed approaching a singular configuration."""
 
 
-def _approaching_singularity(monitor, h) -> Optional[str]:
+def _approaching_singularity(monitor, h, how: str = "Newton's iteration failed before reaching it") -> Optional[str]:
     """The singular configuration a run failed on its way to, or None.
 
     Close to a singular configuration the iteration matrix is conditioned like the distance
@@ -717,7 +722,7 @@ def _approaching_singularity(monitor, h) -> Optional[str]:
         return None
     return (f"the conditioning of the iteration matrix fell from {ratios[0]:.1e} at t = {looks[0][0]:.6g} to "
             f"{ratios[-1]:.1e} at t = {t_last:.6g}: the run was approaching a singular configuration, and "
-            f"Newton's iteration failed before reaching it; {warning}")
+            f"{how}; {warning}")
 
 
 def _status_text(res, status: int) -> str:
@@ -1030,6 +1035,7 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     last_ratio = None
     k, steps, ok, message = 1, 0, True, "integration finished"
     since_look = 0
+    next_crawl_check = 0
     event = None
     nfev = njev = 0
     t_end = float(t_out[-1])
@@ -1108,6 +1114,18 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
             elif since_look >= cadence:
                 since_look = 0
                 warning = monitor.watch(t_now, y_now, yp_now, h_last)
+                if warning is None and taken and steps >= next_crawl_check \
+                        and h_last * (max_steps - steps) < t_end - t_now:
+                    # crawling: at this step size the run cannot reach its end within max_steps.
+                    # Close to a singular configuration IDA may crawl instead of failing (which
+                    # of the two depends on round-off: the BLAS kernels of the CPU); ask the
+                    # same question as after a failure, at most every CRAWL_CHECK_STEPS steps
+                    next_crawl_check = steps + CRAWL_CHECK_STEPS
+                    approach = _approaching_singularity(
+                        monitor, h_ref, f"IDA's steps shrank to {h_last:.1e} s before reaching it")
+                    if approach is not None:
+                        warning = approach
+                        monitor.stop_time = t_now
                 if warning:
                     ok, message = False, warning
                     # the configuration may lie before outputs already filled in: keep none past it
