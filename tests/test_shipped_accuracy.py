@@ -37,6 +37,7 @@ CASES += [pytest.param(p, id=f"tests-{p.stem}") for p in TEST_MODELS]
 
 
 @pytest.mark.slow
+@pytest.mark.validation
 @pytest.mark.parametrize("model", CASES)
 def test_rtol_1e6_gives_outputs_within_1e4(model):
     compiled = phc.compile_model(model, certify=False)
