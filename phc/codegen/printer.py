@@ -147,13 +147,13 @@ try:  # scipy's compiled CSR kernel: out += A @ x without temporaries (private; 
     from scipy.sparse._sparsetools import csr_matvec as _csr_matvec
 except ImportError:  # pragma: no cover
     _csr_matvec = None
-_YYP = np.zeros(2 * N)  # [y; yp] for the stacked linear blocks
 
 
 def _matvec_add(A, x, out):
-    """out += A @ x for a CSR matrix A (float64 data, contiguous x and out)."""
+    """out += A @ x for a CSR matrix A (float64 data; out contiguous)."""
     if _csr_matvec is not None and out.flags.c_contiguous and out.dtype == np.float64:
-        _csr_matvec(A.shape[0], A.shape[1], A.indptr, A.indices, A.data, x, out)
+        _csr_matvec(A.shape[0], A.shape[1], A.indptr, A.indices, A.data, np.ascontiguousarray(x, dtype=np.float64),
+                    out)
     else:
         out += A @ x
 
@@ -272,23 +272,24 @@ class ModulePrinter:
                 targets.append(f"_c{wrt}{k}")
                 lines.append(f"np.add.at(_d{wrt}, _L{wrt}{k}_POS, _c{wrt}{k} * _L{wrt}{k}_DATA)")
             lines.append(f"_A{wrt} = _sps.csr_matrix((_d{wrt}, _L{wrt}_INDICES, _L{wrt}_INDPTR), shape=({m}, {n}))")
-        # One stacked matrix [A_y, A_ẏ] acting on [y; ẏ], and the linear part of the Jacobian
-        # data as two full-length arrays: the hot path is one mat-vec and one axpy.
-        parts = []
+        # The matrices A_y and A_ẏ (each applied by one mat-vec), and the linear part of the
+        # Jacobian data as two full-length arrays (one copy and one axpy).
         for wrt in ("Y", "YP"):
             lines.append(f"_J{wrt} = np.zeros(len(JAC_ROWS))")
             if wrt in self.fused:
                 lines.append(f"_J{wrt}[_L{wrt}_JAC] = _d{wrt}")
-                parts.append(f"_A{wrt}")
             else:
-                parts.append(f"_sps.csr_matrix(({m}, {n}))")
-        lines += [f"_A = _sps.hstack([{', '.join(parts)}]).tocsr()",
-                  "_A.sum_duplicates()",
-                  "_LINEAR_CACHE.clear()", "_LINEAR_CACHE[key] = (_A, _JY, _JYP)", "return _LINEAR_CACHE[key]"]
-        body = self._function("_linear(p)", "Fused sparse linear blocks (A_y, A_ẏ and their data), cached per p.",
-                              exprs, targets, prologue=["key = p.tobytes()", "if key in _LINEAR_CACHE:",
-                                                        "    return _LINEAR_CACHE[key]"], epilogue=lines)
-        return "_LINEAR_CACHE = {}\n\n\n" + body
+                lines.append(f"_A{wrt} = None")
+        # A memo of one entry for the last parameter vector: an immutable tuple, replaced as a
+        # whole (one reference assignment), so threads calling with different p at once each
+        # get matrices of their own p — the module keeps no scratch state between calls.
+        lines += ["_value = (_AY, _AYP, _JY, _JYP)", "_LINEAR_LAST = (key, _value)",
+                  "return _value"]
+        body = self._function("_linear(p)", "Fused sparse linear blocks (A_y, A_ẏ and their Jacobian data), "
+                              "memoized for the last p.", exprs, targets,
+                              prologue=["global _LINEAR_LAST", "key = p.tobytes()", "_last = _LINEAR_LAST", "if _last[0] == key:",
+                                        "    return _last[1]"], epilogue=lines)
+        return "_LINEAR_LAST = (None, None)\n\n\n" + body
 
     def _jac_dependencies(self, symbols) -> list[int]:
         """Indices of the variables (or derivatives) the Jacobian entries depend on."""
@@ -493,8 +494,9 @@ class ModulePrinter:
         self.bulk = self.bulk_unpack
         if lin or qd_coeffs:
             rows = [(i, e) for i, e in enumerate(ir.residual) if e != 0]
-            lin_lines = (["_A, _JY, _JYP = _linear(p)", "_YYP[:N] = y", "_YYP[N:] = yp",
-                          "_matvec_add(_A, _YYP, out)"] if lin else [])
+            lin_lines = (["_AY, _AYP, _JY, _JYP = _linear(p)",
+                          "if _AY is not None:", "    _matvec_add(_AY, y, out)",
+                          "if _AYP is not None:", "    _matvec_add(_AYP, yp, out)"] if lin else [])
             parts.append(self._function(
                 "residual(t, y, yp, p, out)", "Residual F(t, y, yp, p) written into `out`.",
                 [e for _, e in rows] + qd_coeffs, [f"out[{i}]" for i, _ in rows] + qd_targets,
@@ -513,7 +515,7 @@ class ModulePrinter:
         jdoc = "Data of dF/dy + cj*dF/dyp in CSC order of (JAC_ROWS, JAC_COLS), written into `out`."
         if lin or qd_coeffs:
             nz = [(k, e) for k, e in enumerate(jac) if e != 0]
-            prologue = (["_A, _JY, _JYP = _linear(p)", "out[:] = _JY", "_axpy(cj, _JYP, out)"] if lin
+            prologue = (["_AY, _AYP, _JY, _JYP = _linear(p)", "out[:] = _JY", "_axpy(cj, _JYP, out)"] if lin
                         else ["out[:] = 0.0"])
             self.accumulate = {f"out[{k}]" for k, _ in nz}
             parts.append(self._function(

@@ -76,8 +76,8 @@ def test_linear_chain_damped_energy_balance(tmp_path):
 def test_linear_blocks_stay_sparse_in_generated_code(tmp_path):
     path, _ = chain_model(tmp_path, 200)
     compiled = phc.compile_model(path)
-    assert "_matvec_add(_A, _YYP, out)" in compiled.source
-    # one matrix-vector product, not one line per state
+    assert "_matvec_add(_AY, y, out)" in compiled.source
+    # a matrix-vector product, not one line per state
     assert compiled.source.count("\n    out[") < 50
     assert compiled.jacobian_nnz < 4 * 400
 
