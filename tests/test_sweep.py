@@ -439,3 +439,35 @@ def test_shipped_stiffness_study_and_json_summary(tmp_path, msd, capsys):
                  "--format", "json", "--out", str(tmp_path / "r.csv")]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert (summary["planned"], summary["succeeded"], summary["failed"], summary["n_compilations"]) == (2, 2, 0, 1)
+
+
+def test_a_dask_worker_with_two_threads_gives_the_rows_of_the_local_pool(tmp_path):
+    """`dask worker` runs two points at once on threads of one process by default: the
+    generated module they share must be re-entrant (tests/codegen/test_reentrant.py). A linear
+    chain whose sparse matrices depend on the swept `k` (memoized per parameter vector)."""
+    distributed = pytest.importorskip("distributed")
+    import logging
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent / "library"))
+    try:
+        from test_linear_phs import chain_model
+    finally:
+        sys.path.pop(0)
+    path, _ = chain_model(tmp_path, 30, t_end=0.5)
+    compiled = phc.compile_model(path, certify=False)
+    assert "= _linear(p)" in compiled.source
+    common = dict(params=[("k", "1,2,3,4,5,6,7,8")], progress=False, compiled=compiled, solver="midpoint")
+    run_sweep(path, tmp_path / "local.csv", executor=LocalExecutor(1), **common)
+    cluster = distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=True, dashboard_address=None,
+                                       silence_logs=logging.ERROR)
+    client = distributed.Client(cluster)
+    try:
+        assert list(client.nthreads().values()) == [2]
+        report = run_sweep(path, tmp_path / "dask.csv", executor=DaskExecutor(client=client), **common)
+    finally:
+        client.close()
+        cluster.close()
+    assert report.complete and not report.failed
+    local, dask = read_results(tmp_path / "local.csv"), read_results(tmp_path / "dask.csv")
+    assert [r["point"] for r in local] == list(range(8)) == [r["point"] for r in dask]
+    assert all(same(a, b) for a, b in zip(local, dask))
