@@ -828,11 +828,23 @@ difference of those terms (:func:`determined_scales`)."""
 def determined_scales(mod, p, t, y, yp, determined, scales, rtol: float = 1.0, atol: float = 1.0
                       ) -> Optional[np.ndarray]:
     """The nominal `scales` with each index-1 algebraic variable z_j (`determined`) that is a
-    small difference of the terms the states put into it — ``T_j = Σ_k |∂z_j/∂x_k| s_k``
-    above ``CANCELLATION · s_j`` — raised to ``(1 + rtol/atol) T_j``: the error the states'
-    own tolerances (``rtol·|x_k| + atol·s_k``, |x_k| up to s_k) put into it, over atol.
-    Other index-1 variables keep their scales: a friction element's flow, a diode's voltage
-    are what events are located on, and they need their own tolerance.
+    small difference of the terms the states put into it raised to ``(1 + rtol/atol) T_j``,
+    ``T_j = Σ_k |∂z_j/∂x_k| s_k``: the error the states' own tolerances (``rtol·|x_k| +
+    atol·s_k``, |x_k| up to s_k) put into it, over atol. A small difference is one of
+
+    * over the run: ``Σ_k |∂z_j/∂x_k| n_k`` above ``CANCELLATION · n_j``, with ``n`` the sizes
+      the variables take (:attr:`phc.simulation.scaling.Scales.sizes`, the scales before
+      the round-off floor; a floor that raised z's scale says how finely z can be resolved,
+      not how large it is);
+    * at the start of this piece (`y`, in the modes of `p`): the error the states'
+      tolerances put into z, ``Σ_k |∂z_j/∂x_k| (rtol·|x_k| + atol·s_k)``, above
+      ``CANCELLATION`` times z's own ``rtol·|z_j| + atol·s_j``. A switched law makes z
+      small in one mode only — a diode's voltage is Ron·i, 0.1 V out of the source's and
+      the capacitor's 7 V, while it conducts, and 13 V while it blocks — and a piece that
+      begins at an event begins with z on the boundary.
+
+    Other index-1 variables keep their scales (one that is a state times a factor, a
+    friction element's flow p/m, is tested as tightly as the state determines it).
 
     The algebraic rows determine z from the states x (and t); to first order
     ``∂z/∂x = −(F_z)⁺ F_x`` on those rows. IDA tests z like a state, at
@@ -844,9 +856,20 @@ def determined_scales(mod, p, t, y, yp, determined, scales, rtol: float = 1.0, a
     raising the scale of that voltage to the size of the terms it is the difference of
     takes a few hundred: IDA at order 5 fell into runs of error-test and Newton failures,
     every step, while the same model with the voltage left out of the test, or at order 3,
-    ran smoothly. The user's own scales are kept. Returns None where nothing changes
-    (no determined variable, a model above :data:`SENSITIVITY_DENSE` unknowns, or a
-    Jacobian that cannot be evaluated)."""
+    ran smoothly. At order 1 it does not get out again: z's error estimate is then the
+    change of the states' truncation error times ∂z/∂x — ``(h² − h_old²)/2 · v_C''/Ron`` for
+    a diode's current behind a capacitor — so a step that doubles fails the test and the
+    retry passes at the old size; with a failure every other step BDF never raises its
+    order. The rectifier of tests/simulation/test_events.py crawled that way, with steps of
+    2.5e-9 s, to 10⁶ steps: its diode's voltage and current had local tolerances of
+    1.5e-12 V and 2.1e-12 A while the capacitor's (3.6e-11 V at 7 V) put 3.6e-11 V and
+    7e-11 A into them (the round-off floor had raised their scales to 180 V and 167 A,
+    hiding the cancellation; the current takes 0.54 A, the voltage 13 V only while the
+    diode blocks). Where it fell into the trap depended on round-off: the BLAS kernel
+    (Zen, Haswell; SkylakeX passed) or the end time (t_end = 0.0623 s crawled on SkylakeX);
+    now about 3 000 steps on each. The user's own scales are kept. Returns None where
+    nothing changes (no determined variable, a model above :data:`SENSITIVITY_DENSE`
+    unknowns, or a Jacobian that cannot be evaluated)."""
     n, m = mod.N, len(mod.EQUATIONS)
     diff = np.asarray(mod.DIFFERENTIAL, dtype=bool)
     z_cols = np.flatnonzero(np.asarray(determined, dtype=bool) & ~diff)
@@ -883,8 +906,19 @@ def determined_scales(mod, p, t, y, yp, determined, scales, rtol: float = 1.0, a
     ratio = rtol / atol if atol > 0 and np.isfinite(rtol / atol) else 1.0
     terms = np.abs(dz_dx) @ s[x_cols]
     # where z is a small difference of the states' terms, its own rtol·|z| is far tighter than
-    # the states' rtol·|x| puts into it: that part goes into the scale too
-    cancels = terms > CANCELLATION * s[z_cols]
+    # the states' rtol·|x| puts into it: that part goes into the scale too. Judged on the sizes
+    # the variables take, before the round-off floor (scaling.Scales.sizes: a floor that raised
+    # z's scale above its size says how finely z can be resolved, not how large it is) ...
+    size = getattr(scales, "sizes", None)
+    size = s if size is None or np.shape(size) != s.shape else np.asarray(size, dtype=float)
+    cancels = np.abs(dz_dx) @ size[x_cols] > CANCELLATION * size[z_cols]
+    # ... and at the values of the start: in this piece's mode z may be a small difference where
+    # its size over the run is not (a diode's voltage: Ron·i, 0.1 V out of the capacitor's 7 V,
+    # while it conducts; 13 V blocking), and a piece that starts at an event starts with z on
+    # the boundary. There the error the states' tolerances put into z is compared with z's own
+    x = np.where(np.isfinite(y), np.abs(np.asarray(y, dtype=float)), 0.0)
+    put = np.abs(dz_dx) @ (ratio * x[x_cols] + s[x_cols])
+    cancels |= put > CANCELLATION * (ratio * x[z_cols] + s[z_cols])
     need = np.where(cancels, (1.0 + ratio) * terms, 0.0)
     out = s.copy()
     user = set(getattr(scales, "user", ()) or ())

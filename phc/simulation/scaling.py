@@ -88,19 +88,25 @@ class Scales(np.ndarray):
     """Nominal scales, with ``floored``: the variables whose scale the round-off floor set
     (step 9). They cannot be integrated more accurately than that, whatever the user sets,
     so the conditioning warning leaves them out. ``user``: the indices the user set (never
-    raised, :func:`mode_floor` included)."""
+    raised, :func:`mode_floor` included). ``sizes``: the scales before the round-off floor
+    (steps 1–8), the sizes the variables take: a floor says how finely a variable can be
+    resolved, not how large it is (:func:`phc.simulation.ida.determined_scales` judges by
+    them whether a variable is a small difference of larger terms)."""
 
     floored = None
     user: tuple = ()
+    sizes = None
 
     def __array_finalize__(self, obj):
         self.floored = None  # a computed array is not the scales any more
         self.user = ()
+        self.sizes = None
 
 
-def _floored(mod, p, rows, cols, vals, s, y0, yp0, seen, *, t0, span, t_out, atol, user) -> Scales:
+def _floored(mod, p, rows, cols, vals, s, y0, yp0, seen, *, t0, span, t_out, atol, user, sizes=None) -> Scales:
     """`s` raised to the round-off floor of step 9 (the iteration matrix's entries `rows`,
-    `cols`, `vals` at (t0, y0, ẏ0); `seen`: the largest values the variables took)."""
+    `cols`, `vals` at (t0, y0, ẏ0); `seen`: the largest values the variables took;
+    `sizes`: the scales before any floor, `s` itself when None)."""
     n, m = mod.N, len(mod.EQUATIONS)
     names = list(mod.VARIABLES)
     energy_index = names.index("energy.supplied") if "energy.supplied" in names else None
@@ -141,6 +147,7 @@ def _floored(mod, p, rows, cols, vals, s, y0, yp0, seen, *, t0, span, t_out, ato
     out = np.maximum(s, attainable).view(Scales)
     out.floored = attainable > s
     out.user = tuple(user)
+    out.sizes = np.array(s if sizes is None else sizes, dtype=float)
     return out
 
 
@@ -180,7 +187,7 @@ def mode_floor(mod, p, scales, y, yp, *, t0: float, span: float, t_out=None, ato
         return scales
     seen = np.where(np.isfinite(y), np.abs(y), 0.0)
     out = _floored(mod, p, rows, cols, vals, base, y, yp, seen, t0=t0, span=span, t_out=t_out, atol=atol,
-                   user=getattr(scales, "user", ()))
+                   user=getattr(scales, "user", ()), sizes=getattr(scales, "sizes", None))
     before = getattr(scales, "floored", None)
     if before is not None:
         out.floored = out.floored | np.asarray(before, dtype=bool)
