@@ -8,16 +8,6 @@ Public API::
     result["pendulum.x"], result.H, result.energy_balance_error
 """
 
-import os as _os
-
-# phc's dense matrices are small (initialization, certification) and its sparse ones are
-# factorized by single-threaded SuperLU: a multi-threaded BLAS only adds thread start-up
-# and, on a loaded machine, spin-waiting (measured: consistent initialization 10× slower,
-# IDA runs burning 2× the CPU). Default to one thread unless the user chose otherwise;
-# this takes effect when phc is imported before numpy (the `phc` command).
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    _os.environ.setdefault(_var, "1")
-
 __version__ = "0.1.0"
 
 # The public API, imported on first use (PEP 562): `import phc` and `phc --help` stay

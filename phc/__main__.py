@@ -2,6 +2,6 @@
 
 import sys
 
-from phc.cli import main
+from phc._entry import main
 
 sys.exit(main())

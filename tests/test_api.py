@@ -5,11 +5,15 @@ from __future__ import annotations
 
 import ast
 import importlib.util
+import json
+import os
 import subprocess
 import sys
 from pathlib import Path
 
 import phc
+
+REPO = Path(__file__).resolve().parents[1]
 
 CLI = Path(phc.__file__).with_name("cli.py")
 HEAVY = ("sympy", "scipy", "numpy", "pydantic", "networkx", "matplotlib")
@@ -55,3 +59,34 @@ def test_the_command_line_imports_phc_names_only_from_the_public_api():
                                                                 "phc.accuracy", "phc.checks"):
             names = [a.name for a in node.names]
             assert all(n not in phc.__all__ for n in names), f"{node.module}: {names} are public: use `from phc`"
+
+
+def test_importing_and_using_phc_changes_no_environment_variable(tmp_path):
+    """`import phc` (and compiling and simulating) leaves the user's process environment as
+    it was: no BLAS thread count, no PHC_* variable. Only the `phc` command sets the thread
+    variables for its own process (phc/_entry.py)."""
+    code = ("import os, json; before = dict(os.environ); import phc; after_import = dict(os.environ); "
+            "r = phc.simulate(phc.compile_model('models/mass_spring_damper.yaml'), t_end=0.1); "
+            "print(json.dumps([after_import == before, dict(os.environ) == before, r.success]))")
+    env = {k: v for k, v in os.environ.items() if not k.endswith("_NUM_THREADS") and not k.startswith("PHC_")}
+    env["PHC_CACHE_DIR"] = str(tmp_path / "cache")
+    env["PHC_STATE_DIR"] = str(tmp_path / "state")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=REPO,
+                         timeout=600)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert json.loads(run.stdout.splitlines()[-1]) == [True, True, True]
+
+
+def test_the_phc_command_runs_with_one_blas_thread_unless_told_otherwise():
+    from phc import _entry
+
+    assert _entry.THREAD_VARIABLES == ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+    code = "import os\nfrom phc._entry import main\ntry:\n    main(['--version'])\nexcept SystemExit:\n    pass\n"
+    for preset, expected in ((None, "1"), ("3", "3")):
+        env = {k: v for k, v in os.environ.items() if not k.endswith("_NUM_THREADS")}
+        if preset:
+            env["OPENBLAS_NUM_THREADS"] = preset
+        run = subprocess.run([sys.executable, "-c", code + "print(os.environ['OPENBLAS_NUM_THREADS'])"],
+                             capture_output=True, text=True, env=env, timeout=120)
+        assert run.returncode == 0, run.stderr[-2000:]
+        assert run.stdout.splitlines()[-1] == expected
