@@ -495,3 +495,32 @@ def test_simulation_interrupted_carries_the_partial_result(monkeypatch):
     assert isinstance(info.value, KeyboardInterrupt)
     assert result.interrupted and not result.success and result.message.startswith("interrupted at t = ")
     assert 0 < result.t[-1] < 10 and len(result.t) == len(result.H) == len(result["x"])
+
+
+def test_a_bug_in_generated_code_is_an_internal_error_not_a_domain_error():
+    """The guard reports a model leaving an expression's domain as a located error; a
+    TypeError of anything else (here: a generated function called with a wrong argument, as
+    a code-generation bug would) is phc's own failure and must not be dressed up as the
+    model's (issue 31: "a code-generation bug is reported as 'this expression leaves its
+    domain'")."""
+    from phc.simulation.guard import GuardedModule, ModelEvaluationError, is_domain_error
+
+    import types
+
+    compiled = phc.compile_model(MSD, **NO_CERT)
+    mod = compiled.module
+
+    def buggy_residual(t, y, yp, p, out):  # what a printer bug could generate
+        out[:] = None + y[0]
+
+    fake = types.SimpleNamespace(**{k: getattr(mod, k) for k in dir(mod) if not k.startswith("__")})
+    fake.residual = buggy_residual
+    guarded = GuardedModule(fake, compiled.source)
+    y, p = np.zeros(mod.N), np.asarray(mod.PARAMETER_DEFAULTS, dtype=float)
+    with pytest.raises(TypeError, match="NoneType") as info:
+        guarded.residual(0.0, y, y, p, np.zeros(len(mod.EQUATIONS)))
+    assert not isinstance(info.value, ModelEvaluationError)
+    assert is_domain_error(OverflowError("math range error")) and is_domain_error(ValueError("math domain error"))
+    assert is_domain_error(TypeError("can't convert complex to float"))
+    assert not is_domain_error(TypeError("residual() missing 1 required positional argument: 'out'"))
+    assert not is_domain_error(ValueError("operands could not be broadcast together with shapes (3,) (4,)"))

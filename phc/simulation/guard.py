@@ -52,6 +52,19 @@ CATCH = (ArithmeticError, ValueError, TypeError)
 (math domain error), ``OverflowError``/``ZeroDivisionError``/``FloatingPointError``
 (``ArithmeticError``), ``TypeError`` (a complex power of a negative number)."""
 
+def is_domain_error(err: BaseException) -> bool:
+    """Whether `err`, raised inside a generated function, is the model leaving an expression's
+    domain — ``ArithmeticError``, ``math domain error``, a complex result — rather than a bug
+    in phc (a ``TypeError`` or ``ValueError`` of anything else: wrong shapes, arguments,
+    names), which must reach the user as an internal error that says so."""
+    if isinstance(err, ArithmeticError):
+        return True
+    text = str(err)
+    if isinstance(err, ValueError) and "math domain error" in text:
+        return True
+    return isinstance(err, (TypeError, ValueError)) and "complex" in text
+
+
 REMEDY = "check the expression's domain along the motion and the parameter and initial values"
 MAX_EXPR = 160
 """Longest expression quoted in a message (characters)."""
@@ -253,6 +266,8 @@ class GuardedModule:
                 try:
                     func(*args)
                 except CATCH as err:
+                    if not is_domain_error(err):
+                        raise  # a bug in phc, not the model: reported as an internal error
                     if recover(name, func, args) is None:
                         raise fail(name, func, args, err) from None
                     return
@@ -267,6 +282,8 @@ class GuardedModule:
                     # (an array's own sum: np.sum's dispatch costs more than the sum itself)
                     total = float(value.sum() if isinstance(value, np.ndarray) else np.sum(value))
                 except CATCH as err:
+                    if not is_domain_error(err):
+                        raise  # a bug in phc, not the model: reported as an internal error
                     value = recover(name, func, args)
                     if value is None:
                         raise fail(name, func, args, err) from None
