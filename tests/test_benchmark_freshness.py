@@ -9,7 +9,8 @@ measured at (the header benchmarks/record.py writes). Here, with git:
   dependencies fails, naming the file, the commits since and the command to rerun;
 * a result file without a commit fails; so does a declared dependency that matches no
   tracked file (a misspelt path would make every result look fresh);
-* every benchmark script is declared, and every data file under benchmarks/ is a result,
+* every benchmark script is declared, every module of phc is some benchmark's
+  dependency or declared unmeasured, and every data file under benchmarks/ is a result,
   an output of a benchmark's run, or history (measured once for a comparison);
 * the generated parts of benchmarks/README.md (the index of the current figures and the
   tables of the result files) are what the result files say now.
@@ -92,6 +93,18 @@ def test_every_benchmark_script_is_declared():
     scripts = {p.relative_to(ROOT).as_posix() for p in BENCHMARKS.glob("bench_*.py")}
     missing = sorted(scripts - declared)
     assert not missing, f"benchmark scripts missing from {MANIFEST.relative_to(ROOT)}: {missing}"
+
+
+def test_every_phc_module_is_measured_or_declared_unmeasured():
+    """A new module of phc lands in some benchmark's dependencies (or in [unmeasured])."""
+    manifest = _manifest()
+    covered = {dep.rstrip("/") for name in manifest["benchmarks"] for dep in _depends(name, manifest)}
+    covered |= set(manifest["unmeasured"]["files"])
+    modules = [p.relative_to(ROOT).as_posix() for p in sorted((ROOT / "phc").rglob("*.py"))]
+    left_out = [m for m in modules if not any(m == c or m.startswith(c + "/") for c in covered)]
+    assert not left_out, (f"phc modules that no benchmark in {MANIFEST.relative_to(ROOT)} depends on: {left_out}; "
+                          "add them to the `depends` (or a group) of the benchmarks that run them, or to "
+                          "[unmeasured]")
 
 
 def test_every_data_file_under_benchmarks_is_declared():
