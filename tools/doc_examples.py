@@ -157,6 +157,13 @@ DATA = {"csv"}
 KNOWN = {"yaml", "python", "console", "sh", "bash", "toml", "json"} | NOT_CODE | DATA
 
 
+
+def _pytest_markers() -> set[str]:
+    """The markers pyproject.toml registers for pytest."""
+    text = (ROOT / "pyproject.toml").read_text(encoding="utf-8")
+    block = re.search(r"^markers = \[(.*?)^\]", text, re.M | re.S)
+    return set(re.findall(r'"(\w+):', block.group(1))) if block else set()
+
 def doc_files() -> list[Path]:
     """README.md and every Markdown page of docs/."""
     return [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
@@ -617,9 +624,14 @@ def _run_shell(block: Block, page: Page) -> None:
             elif program == "pip":
                 _check_pip(block, words[1:])
             elif program in ("python", "python3") and words[1:3] == ["-m", "pytest"] or program == "pytest":
-                for arg in words[3 if program != "pytest" else 1:]:
-                    if not arg.startswith("-") and not (ROOT / arg.split("::")[0]).exists() and "=" not in arg \
-                            and arg not in ("slow", "not slow"):
+                args = words[3 if program != "pytest" else 1:]
+                for before, arg in zip([None] + args, args):
+                    if before == "-m":  # a marker expression: its markers must be registered
+                        unknown = set(re.findall(r"\w+", arg)) - {"not", "and", "or"} - _pytest_markers()
+                        if unknown:
+                            raise ExampleFailure(f"{block.where}: `{command}`: no marker `{sorted(unknown)[0]}` "
+                                                 "in pyproject.toml")
+                    elif not arg.startswith("-") and not (ROOT / arg.split("::")[0]).exists() and "=" not in arg:
                         raise ExampleFailure(f"{block.where}: `{command}`: no such test path `{arg}`")
             elif program == "mkdocs":
                 if not (ROOT / "mkdocs.yml").is_file():

@@ -348,6 +348,21 @@ def test_a_sigint_while_ida_steps_is_taken_between_chunks_without_a_traceback(os
     closed form), nothing printed by ctypes, and Python's default handler back afterwards."""
     import signal
 
+    # The run installs its handler only where SIGINT has Python's default handler and is
+    # delivered: set that up, as a user's process has it (libraries that earlier tests ran —
+    # thread and process pools — may leave SIGINT blocked or handled otherwise in this process).
+    blocked = signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        _interrupt_during_ida(oscillator, monkeypatch, capfd)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+
+
+def _interrupt_during_ida(oscillator, monkeypatch, capfd):
+    import signal
+
     calls = {"n": 0}
     residual = oscillator.module.residual
 
