@@ -302,7 +302,7 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
     model_path = (base.scene.model_path if base.scene is not None else scene_path).resolve()
 
     # -- what to sweep -----------------------------------------------------------------
-    opts = dict(base.dae.options)
+    opts = dict(base.options)
     t0, t1, n_out = float(opts["t_start"]), float(opts["t_end"]), int(opts["n_out"])
     t_out = np.linspace(t0, t1, n_out)
     solvers = list(solvers or (bench_spec.solvers if bench_spec and bench_spec.solvers else BACKENDS))
@@ -341,7 +341,7 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
 
     def compiled_for(mesh: dict, max_order: Optional[int] = None):
         key = tuple(sorted(mesh.items()))
-        if max_order is not None and int(base.dae.options.get("max_order", 5)) != max_order:
+        if max_order is not None and int(base.options.get("max_order", 5)) != max_order:
             key += (("max_order", max_order),)
         if key not in compiled_cache:
             try:

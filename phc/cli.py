@@ -218,13 +218,13 @@ def cmd_validate(args) -> int:
 
 
 def _certificate_line(compiled) -> str:
-    cert = compiled.certificate
-    return f"  {cert.summary()}" if cert is not None else "  not certified (--no-certify)"
+    cert = compiled.description.certificate  # the verdict (phc.description.Verdict)
+    return f"  {cert.summary}" if cert is not None else "  not certified (--no-certify)"
 
 
-def _backend_line(compiled, requested=None) -> str:
-    """What runs the generated functions (phc.codegen.backends)."""
-    kept = getattr(compiled, "backend_line", None)  # a cached front end (phc.fastpath): the line as printed
+def _backend_line(compiled, requested=None, kept: Optional[str] = None) -> str:
+    """What runs the generated functions (phc.codegen.backends); `kept` is the line a
+    cached front end printed before (phc.fastpath)."""
     if kept is not None:
         return kept
     from phc.codegen.backends import describe
@@ -276,7 +276,7 @@ def _left_out_lines(compiled) -> list[str]:
     lines = [f"  left out {comp}: {what} — {why}" for comp, what, why in compiled.left_out]
     full = compiled.full_size()
     if full is not None:
-        lines.append(f"  full     model {compiled.scene.spec.model}: {_size_text(full)}")
+        lines.append(f"  full     model {compiled.description.scene.model}: {_size_text(full)}")
     return lines
 
 
@@ -284,7 +284,7 @@ def _compiled_json(compiled) -> dict:
     return {"compiled": {**compiled.size(), "compile_time_s": compiled.compile_time, "backend": compiled.backend},
             "full_model": compiled.full_size(),
             "left_out": [{"component": c, "what": w, "why": y} for c, w, y in compiled.left_out],
-            **({"scene": compiled.scene.name} if compiled.scene is not None else {})}
+            **({"scene": compiled.description.scene.name} if compiled.description.scene is not None else {})}
 
 
 def _csv_header(result, columns) -> list[str]:
@@ -391,7 +391,7 @@ def _compile_or_exit(path: str, certify: bool = True, backend=None):
 def _progress_for(compiled, t_end, quiet: bool):
     from phc.progress import Progress
 
-    opts = compiled.dae.options
+    opts = compiled.options
     end = t_end if t_end is not None else opts["t_end"]
     return Progress(opts["t_start"], end, label=compiled.name, enabled=not quiet)
 
@@ -402,16 +402,15 @@ _INCONSISTENT_HINT = "change the fixed initial values or mark one as a guess (`n
 def _initial_spans(compiled) -> dict:
     """Initial value name -> where the model (or scene) file gives it, in file order."""
     out = {}
-    for item in getattr(getattr(compiled, "dae", None), "initial", ()) or ():
-        span = getattr(item, "span", None)
-        if span is not None and getattr(item, "name", None):
-            out[item.name] = span
+    for item in compiled.description.initial if compiled is not None else ():
+        if item.span is not None:
+            out[item.name] = item.span
     return dict(sorted(out.items(), key=lambda kv: (str(kv[1].file), kv[1].line, kv[1].col)))
 
 
 def _initial_spans_from_files(path: str) -> dict:
-    """:func:`_initial_spans` read from the files themselves (a cached front end keeps no
-    spans): the scene's `initial:` entries, then its model's."""
+    """:func:`_initial_spans` read from the files themselves (when no compiled model is at
+    hand): the scene's `initial:` entries, then its model's."""
     from phc.elaborate import load_spec
     from phc.scene import is_scene_file, load_scene
 
@@ -472,7 +471,7 @@ def _ignored_in_file_lines(compiled, written: dict, args) -> list[str]:
     from phc.simulation import BACKENDS
     from phc.simulation.backend import ignored_in_file, ignored_option_message
 
-    backend = BACKENDS.get(args.solver or compiled.dae.options.get("solver"))
+    backend = BACKENDS.get(args.solver or compiled.options.get("solver"))
     if backend is None or not written:
         return []
     given = {"rtol": args.rtol, "atol": args.atol, "step": args.step}
@@ -549,20 +548,21 @@ def cmd_simulate(args) -> int:
     from phc import SimulationInterrupted, simulate
 
     params = _parse_params(args.param)
-    compiled = fastpath.lookup(args, params)  # an unchanged model: its cached front end (phc.fastpath)
-    if compiled is None:
+    hit = fastpath.lookup(args, params)  # an unchanged model: its cached front end (phc.fastpath)
+    if hit is not None:
+        compiled, written, backend_line = hit.compiled, hit.written_options, hit.backend_line
+    else:
+        backend_line = None
         with fastpath.recording(args) as recorder:
             compiled = _compile_or_exit(args.file, certify=not args.no_certify, backend=args.backend)
             first = compiled
             compiled = _recompile_for_params(compiled, args.file, params, certify=not args.no_certify)
+        written = _written_options(args.file)
         if compiled is first:
-            compiled.written_options = _written_options(args.file)  # kept in the cached front end
-            recorder.store(compiled)
+            recorder.store(compiled, written)  # kept in the cached front end
     if args.format != "json":  # the model's warnings, as `phc validate` prints them (also from the cache)
         _print_diagnostics([d for d in compiled.diagnostics if d.severity == "warning"])
-    written = getattr(compiled, "written_options", None)
-    for line in _ignored_in_file_lines(compiled, written if written is not None else _written_options(args.file),
-                                       args):
+    for line in _ignored_in_file_lines(compiled, written, args):
         print(line, file=sys.stderr)  # settings of the file this run's solver ignores (PHC-W250)
     progress = _progress_for(compiled, args.t_end, args.quiet)
     run_kwargs = dict(t_end=args.t_end, params=params, rtol=args.rtol, atol=args.atol, n_out=args.n_out,
@@ -598,10 +598,11 @@ def cmd_simulate(args) -> int:
     if args.format == "json":
         summary = result.summary()
         summary["peak_memory_bytes"] = peak_memory()
-        summary["model"] = compiled.dae.name
+        summary["model"] = compiled.description.model
         summary["compile_time_s"] = compiled.compile_time
         summary.update(_compiled_json(compiled))
-        summary["certificate"] = compiled.certificate.to_dict() if compiled.certificate is not None else None
+        verdict = compiled.description.certificate
+        summary["certificate"] = verdict.to_dict() if verdict is not None else None
         if args.estimate_error:
             summary["error_estimates"] = [e.to_dict() for e in estimates]
         if prof is not None:
@@ -612,12 +613,13 @@ def cmd_simulate(args) -> int:
             summary["plot_file"] = args.plot
         print(json.dumps(summary, indent=2))
     else:
-        label = f"{compiled.name} (scene of {compiled.dae.name})" if compiled.scene else compiled.name
+        label = (f"{compiled.name} (scene of {compiled.description.model})" if compiled.description.scene
+                 else compiled.name)
         print(_summary_text(label, result))
         print(f"  memory   peak {format_bytes(peak_memory())} resident")
         print(f"  compiled {_size_text(compiled.size())} in {compiled.compile_time:.2f} s")
         print(_certificate_line(compiled))
-        print(_backend_line(compiled, args.backend))
+        print(_backend_line(compiled, args.backend, backend_line))
         for line in _left_out_lines(compiled):
             print(line)
         for e in estimates:

@@ -1,13 +1,16 @@
 """The cached front end of ``phc simulate`` (and ``phc validate``): a second run of an
 unchanged model skips reading, elaboration, the symbolic passes and the certificate.
 
-Input: the command-line arguments of ``phc simulate``. Output: on a hit, a
-:class:`CachedModel` that :func:`phc.simulation.simulate` and the command line use like a
-:class:`~phc.pipeline.CompiledModel` — the generated module (executed from the source
-text kept in the record, as :func:`phc.codegen.load.load_generated` does) and a small
-record of what a run needs after compilation: the simulation options, initial values,
-equation labels and their places in the model file (for messages), units, outputs, the
-certificate's verdict and the lines the full path prints. Neither sympy nor pint nor the
+Input: the command-line arguments of ``phc simulate``. Output: on a hit, a :class:`Hit`
+holding a :class:`~phc.compiled.CompiledModel` — the one compiled-model type — built from
+the record: the model's description exactly as compiling it made it
+(:class:`~phc.description.ModelDescription`, stored as :meth:`~phc.description.ModelDescription.to_dict`:
+options, initial values, equation labels and their places in the model file, units,
+outputs, the certificate's verdict) and the generated module (executed from the source
+text kept in the record, as :func:`phc.codegen.load.load_generated` does); beside them
+the lines the full path printed (the model's warnings, the backend line, the accuracy
+settings the file writes) and the size of a scene's full model. Such a model has no
+assembled system (``compiled.dae`` is None). Neither sympy nor pint nor the
 model-language classes are imported on a hit.
 
 The record is JSON (never a pickle), signed with HMAC-SHA256 under the per-user key the
@@ -52,10 +55,12 @@ import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from types import SimpleNamespace
-from typing import Iterator, Optional
+from typing import Iterator, NamedTuple, Optional
 
-FORMAT = 1
+from phc.compiled import CompiledModel, RunCache
+from phc.description import ModelDescription
+
+FORMAT = 2
 """Version of the record layout (part of the key)."""
 ENV_SWITCH = "PHC_FRONT_END_CACHE"
 """``0`` turns the cached front end off."""
@@ -69,115 +74,19 @@ _MAX_RECORD = 256 * 2**20
 
 
 # ---------------------------------------------------------------------------------------
-# what a run needs, without sympy
+# a hit
 
 
-@dataclass(frozen=True)
-class _Span:
-    file: str
-    line: int
+class Hit(NamedTuple):
+    """What a hit gives the command line: the compiled model (its stored description and
+    the generated module) and what the full path printed about it."""
 
-    def __str__(self) -> str:
-        return f"{self.file}:{self.line}"
-
-
-@dataclass(frozen=True)
-class _Labelled:
-    label: str
-    span: Optional[_Span]
-
-
-@dataclass(frozen=True)
-class _Initial:
-    name: str
-    value: float
-    guess: bool
-    expr: None = None
-
-
-class _Certificate:
-    """The certificate's verdict as the full path printed it."""
-
-    def __init__(self, summary: str, as_dict: dict) -> None:
-        self._summary, self._dict = summary, as_dict
-
-    def summary(self) -> str:
-        return self._summary
-
-    def to_dict(self) -> dict:
-        return json.loads(json.dumps(self._dict))  # a copy
-
-
-class CachedModel:
-    """What `simulate` and the command line read of a compiled model, from a record."""
-
-    cached = True
-
-    def __init__(self, record: dict, module, module_path: Path, seconds: float) -> None:
-        d = record["dae"]
-        self.name = record["name"]
-        self.module, self.module_path, self.source = module, module_path, record["source"]
-        self.timings = {"load": seconds}
-        self.diagnostics = tuple(StoredDiagnostic(sev, line) for sev, line in record.get("warnings", ()))
-        self.written_options = record.get("written_options")
-        """The accuracy settings the file writes, where (the solver of a run may ignore them)."""
-        self.start_state = None
-        self.dae = SimpleNamespace(
-            name=d["name"], n_states=d["n_states"], options=d["options"], units=d["units"], parameters=(),
-            equations=tuple(_Labelled(lab, _span(s)) for lab, s in d["equations"]),
-            invariants=tuple(_Labelled(lab, _span(s)) for lab, s in d["invariants"]),
-            velocity_invariants=tuple(_Labelled(lab, _span(s)) for lab, s in d["velocity_invariants"]),
-            initial=tuple(_Initial(n, float(v), bool(g)) for n, v, g in d["initial"]),
-            topology=SimpleNamespace(connections=tuple((a, b, lab, _span(s)) for a, b, lab, s in d["connections"])),
-            left_out=tuple(tuple(x) for x in d["left_out"]))
-        cert = record["certificate"]
-        self.certificate = _Certificate(cert["summary"], cert["dict"]) if cert is not None else None
-        scene = record["scene"]
-        self.scene = (SimpleNamespace(name=scene["name"], spec=SimpleNamespace(model=scene["model"]))
-                      if scene is not None else None)
-        self.output_spans = {k: _span(s) for k, s in record["output_spans"].items()}
-        # the line the full path printed; on the compiled backend it says how the functions
-        # were loaded this time (phc.codegen.backends.describe)
-        self.backend_line = record["backend_line"] if record.get("numba") is None else None
-        self._full_size = record["full_size"]
-
-    @property
-    def n_states(self) -> int:
-        return self.dae.n_states - 1
-
-    @property
-    def n_equations(self) -> int:
-        return len(self.dae.equations)
-
-    @property
-    def jacobian_nnz(self) -> int:
-        return len(self.module.JAC_ROWS)
-
-    @property
-    def left_out(self) -> tuple:
-        return self.dae.left_out
-
-    @property
-    def backend(self) -> str:
-        return getattr(self.module, "BACKEND", "numpy")
-
-    @property
-    def compile_time(self) -> float:
-        return sum(self.timings.values())
-
-    def size(self) -> dict[str, int]:
-        return {"states": self.n_states, "equations": self.n_equations, "jacobian_nnz": self.jacobian_nnz}
-
-    def full_size(self) -> Optional[dict[str, int]]:
-        return dict(self._full_size) if self._full_size is not None else None
-
-
-def _span(s) -> Optional[_Span]:
-    return _Span(str(s[0]), int(s[1])) if s else None
-
-
-def _span_of(span) -> Optional[list]:
-    return [str(span.file), int(span.line)] if span is not None else None
+    compiled: CompiledModel
+    written_options: dict
+    """The accuracy settings the file writes, where (:func:`phc.cli._written_options`)."""
+    backend_line: Optional[str]
+    """The backend line the full path printed; None on the compiled backend, whose line
+    says how its functions were loaded this time (:func:`phc.codegen.backends.describe`)."""
 
 
 # ---------------------------------------------------------------------------------------
@@ -293,7 +202,7 @@ def _record_path(key: str) -> Optional[Path]:
 # a hit
 
 
-def lookup(args, params: dict) -> Optional[CachedModel]:
+def lookup(args, params: dict) -> Optional[Hit]:
     """The cached front end of this `phc simulate`, or None (a miss, or not applicable).
     Never raises: anything unexpected is a miss."""
     try:
@@ -335,17 +244,18 @@ def _load(args, path: str, command: str) -> Optional[dict]:
     return record
 
 
-def _lookup(args, params: dict) -> Optional[CachedModel]:
+def _lookup(args, params: dict) -> Optional[Hit]:
     start = time.perf_counter()
     record = _load(args, args.file, "simulate")
     if record is None:
         return None
-    depends = record["initial_depends"]
-    if params and (depends is None or any(k in depends for k in params)):
-        return None  # an initial value written in an overridden parameter: evaluated by the full path
+    description = ModelDescription.from_dict(record["description"])
+    for iv in description.initial:
+        if params and (iv.depends is None or any(k in iv.depends for k in params)):
+            return None  # an initial value written in an overridden parameter: evaluated by the full path
     from phc.codegen.load import load_generated
 
-    module, module_path = load_generated(record["source"], record["name"])
+    module, module_path = load_generated(record["source"], description.name)
     fixed = set(getattr(module, "COMPILE_TIME_PARAMETERS", ()))
     for k, v in params.items():
         if k in fixed and float(v) != float(module.PARAMETER_DEFAULTS[module.PARAMETERS.index(k)]):
@@ -356,7 +266,11 @@ def _lookup(args, params: dict) -> Optional[CachedModel]:
         module = load_cached(record["numba"], module, record["source"])
         if module is None:
             return None
-    return CachedModel(record, module, module_path, time.perf_counter() - start)
+    cache = RunCache(full_size=(record["full_size"],), timings={"load": time.perf_counter() - start})
+    warned = tuple(StoredDiagnostic(sev, line) for sev, line in record.get("warnings", ()))
+    compiled = CompiledModel.from_description(description, record["source"], module, module_path, warned, cache)
+    backend_line = record["backend_line"] if record.get("numba") is None else None
+    return Hit(compiled, record.get("written_options") or {}, backend_line)
 
 
 @dataclass(frozen=True)
@@ -394,21 +308,22 @@ class Recorder:
         self.files: dict[str, tuple] = {}
         self.warned = False
 
-    def store(self, compiled) -> None:
-        """Write the record of `compiled` (never raises; skipped when anything is unusual)."""
+    def store(self, compiled: CompiledModel, written_options: Optional[dict] = None) -> None:
+        """Write the record of `compiled` and the accuracy settings its file writes (never
+        raises; skipped when anything is unusual)."""
         try:
-            self._store(compiled)
+            self._store(compiled, written_options)
         except Exception:  # noqa: BLE001 — the cache is an optimisation
             if os.environ.get("PHC_DEBUG"):
                 raise
 
-    def _store(self, compiled) -> None:
+    def _store(self, compiled: CompiledModel, written_options: Optional[dict]) -> None:
         from phc.codegen.backends import name_of
 
         backend = name_of(compiled.module)
         if backend not in ("numpy", "numba") or (backend == "numba" and not hasattr(compiled.module, "KERNEL")):
             return
-        self._write(_record(compiled, getattr(self.args, "backend", None)))
+        self._write(_record(compiled, getattr(self.args, "backend", None), written_options))
 
     def store_validate(self, entry: dict) -> None:
         """Write the record of one file's `phc validate` result (never raises)."""
@@ -500,62 +415,21 @@ def _folder_root() -> Optional[Path]:
     return Path(os.path.realpath(configured_cache_dir()))
 
 
-def _record(compiled, backend: Optional[str]) -> Optional[dict]:
-    """The record of a compiled model (sympy is loaded here: the full path ran)."""
-    from phc.simulation import _output_span, initial_values, parameter_vector
-
-    dae, mod = compiled.dae, compiled.module
-    values, _ = initial_values(compiled, parameter_vector(mod))
-    index = {name: j for j, name in enumerate(mod.VARIABLES)}
-    symbols = {par.symbol: par for par in dae.parameters}
-    depends: Optional[set] = set()
-    for iv in dae.initial:
-        if iv.expr is None:
-            continue
-        if not hasattr(iv.expr, "free_symbols"):
-            depends = None  # not an expression in parameters: any --param takes the full path
-            break
-        todo = list(iv.expr.free_symbols)
-        while todo and depends is not None:
-            sym = todo.pop()
-            par = symbols.get(sym)
-            if par is None:
-                depends = None
-            elif par.name not in depends:
-                depends.add(par.name)
-                if par.expr is not None:
-                    todo.extend(par.expr.free_symbols)
-        if depends is None:
-            break
+def _record(compiled: CompiledModel, backend: Optional[str], written_options: Optional[dict]) -> dict:
+    """The record of a compiled model: its description (:mod:`phc.description`), the
+    generated source, and what the command line printed about it."""
     from phc.cli import _backend_line  # the line the full path prints
 
-    scene = compiled.scene
-    topology = getattr(dae, "topology", None)
+    mod = compiled.module
     return {
-        "name": compiled.name, "source": compiled.source,
-        "dae": {
-            "name": dae.name, "n_states": dae.n_states, "options": dict(dae.options),
-            "units": dict(getattr(dae, "units", None) or {}),
-            "equations": [[eq.label, _span_of(eq.span)] for eq in dae.equations],
-            "invariants": [[x.label, _span_of(x.span)] for x in dae.invariants],
-            "velocity_invariants": [[x.label, _span_of(x.span)] for x in dae.velocity_invariants],
-            "initial": [[iv.name, float(values[index[iv.name]]), bool(iv.guess)] for iv in dae.initial],
-            "connections": [[a, b, lab, _span_of(s)] for a, b, lab, s in getattr(topology, "connections", ()) or ()],
-            "left_out": [list(x) for x in dae.left_out],
-        },
-        "initial_depends": sorted(depends) if depends is not None else None,
-        "certificate": ({"summary": compiled.certificate.summary(), "dict": compiled.certificate.to_dict()}
-                        if compiled.certificate is not None else None),
-        "scene": {"name": scene.name, "model": str(scene.spec.model)} if scene is not None else None,
+        "description": compiled.description.to_dict(), "source": compiled.source,
         "full_size": compiled.full_size(),
-        "output_spans": {name: _span_of(_output_span(compiled, name)) for name in mod.OUTPUTS},
         "backend_line": _backend_line(compiled, backend),
         # the compiled functions' kernel text (phc.codegen.numba_cache.load_cached): loaded from the cache
         "numba": getattr(mod, "KERNEL", None) if getattr(mod, "BACKEND", "numpy") == "numba" else None,
         "warnings": [[d.severity, d.render()] for d in compiled.diagnostics if d.severity == "warning"],
-        "written_options": getattr(compiled, "written_options", None),
+        "written_options": written_options,
     }
 
 
-__all__ = ["CachedModel", "ENV_SWITCH", "FOLDER", "Recorder", "enabled", "lookup", "phc_source_hash",
-           "recording"]
+__all__ = ["ENV_SWITCH", "FOLDER", "Hit", "Recorder", "enabled", "lookup", "phc_source_hash", "recording"]

@@ -436,7 +436,7 @@ def linearize_model(path: str | os.PathLike, *, at: Optional[float] = None, stat
         raise SimulationSetupError(f"the model has {n - 1} variables; `phc linearize` solves a dense eigenvalue "
                                    f"problem and stops at {DENSE_LIMIT} (use a coarser mesh or `modes:`)")
     p = parameter_vector(mod)
-    t0 = float(compiled.dae.options["t_start"])
+    t0 = float(compiled.options["t_start"])
     values, fixed = initial_values(compiled, p, state)
     given = "" if not state else " with " + ", ".join(f"{k} = {float(v):g}" for k, v in state.items())
     with quiet_floating_point():
@@ -476,7 +476,7 @@ def linearize_model(path: str | os.PathLike, *, at: Optional[float] = None, stat
     differential = np.asarray(mod.DIFFERENTIAL, dtype=bool)[cols]
     lam, vectors, n_inf, singular = finite_eigenvalues(A, E)
     modes = _modes(lam, vectors, names, differential, compiled.dae.meshes)
-    lin = Linearization(compiled.dae.name, t, point, names, differential, tuple(inputs), tuple(mod.OUTPUTS),
+    lin = Linearization(compiled.description.model, t, point, names, differential, tuple(inputs), tuple(mod.OUTPUTS),
                         E, A, B, C, D, y[cols], yp[cols], lam, modes, n_inf, C_rate, singular)
     if singular:
         lin.notes.append("the pencil (A, E) is singular: the linearized equations leave a direction undetermined")

@@ -12,8 +12,14 @@ analyse        Dae → diagnostics (balance, matching)        :mod:`phc.analysis
 lower          Dae → ResidualIR (Jacobian, sparsity)        :mod:`phc.codegen.lower`
 print          ResidualIR → Python source                   :mod:`phc.codegen.printer`
 load           source → module (cached by content hash)     :mod:`phc.codegen.load`
+describe       Dae, module → ModelDescription               :mod:`phc.description`
 certify        CompiledModel → CompiledCertificate          :mod:`phc.checks.compiled`
 =============  ==========================================  ===================================
+
+The result is a :class:`~phc.compiled.CompiledModel`: the frozen, JSON-serializable
+:class:`~phc.description.ModelDescription` (what a run needs: names, labels and their
+places, options, units, initial values, outputs, the certificate's verdict) beside the
+generated module, and the :class:`~phc.compiled.RunCache` of what its runs remember.
 
 ``phc check`` adds the structural certificate of the assembled model
 (:mod:`phc.checks.certify`: Dirac structures, couplings, each component's rows against
@@ -24,8 +30,7 @@ from __future__ import annotations
 
 import os
 import time
-from dataclasses import dataclass, field
-from pathlib import Path
+from dataclasses import replace
 from types import ModuleType
 from typing import Optional
 
@@ -34,7 +39,9 @@ from phc.codegen import backends
 from phc.codegen.load import load_generated
 from phc.codegen.lower import lower_residual
 from phc.codegen.printer import print_module
+from phc.compiled import CompiledModel, RunCache
 from phc.dae import Dae
+from phc.description import Connection, Initial, Labelled, ModelDescription, Place, SceneRef, Verdict
 from phc.diagnostics import DiagnosticList
 from phc.assemble import assemble
 from phc.elaborate import elaborate
@@ -50,103 +57,6 @@ FAST_BALANCE_LIMIT = 1000
 """Above this many unknowns the certificate of every compilation checks passivity only:
 sampling consistent states of a large model costs as much as several simulation starts
 (`phc check` has no such limit)."""
-
-
-@dataclass
-class CompiledModel:
-    """A compiled model: the assembled DAE, the generated module and its source."""
-
-    name: str
-    dae: Dae
-    module: ModuleType
-    source: str
-    module_path: Path
-    diagnostics: DiagnosticList
-    timings: dict[str, float] = field(default_factory=dict)
-    scene: Optional[Scene] = None
-    """The scene this was compiled for (None for a plain model file)."""
-    certificate: Optional[object] = None
-    """The fast certificate of the compiled equations (:mod:`phc.checks.compiled`), or None
-    when compiled with ``certify=False``."""
-    start_state: Optional[tuple] = field(default=None, repr=False, compare=False)
-    """The consistent state at t₀ last solved for (:func:`phc.simulation.start_state`): the
-    certificate's initial sample, which `simulate` with the same values starts from."""
-
-    @property
-    def n_states(self) -> int:
-        return self.dae.n_states - 1  # without the energy accumulator
-
-    @property
-    def n_equations(self) -> int:
-        return len(self.dae.equations)
-
-    @property
-    def jacobian_nnz(self) -> int:
-        return len(self.module.JAC_ROWS)
-
-    @property
-    def left_out(self) -> tuple[tuple[str, str, str], ...]:
-        """What was not compiled, as (component, what, why)."""
-        return self.dae.left_out
-
-    @property
-    def backend(self) -> str:
-        """What runs the generated functions: ``numba`` (compiled) or ``numpy`` (the reference
-        module; :mod:`phc.codegen.backends`)."""
-        return backends.name_of(self.module)
-
-    @property
-    def compile_time(self) -> float:
-        """Seconds spent compiling (the certificate's own time is `timings["certify"]`)."""
-        return sum(v for k, v in self.timings.items() if k != "certify")
-
-    def size(self) -> dict[str, int]:
-        return {"states": self.n_states, "equations": self.n_equations, "jacobian_nnz": self.jacobian_nnz}
-
-    def full_size(self) -> Optional[dict[str, int]]:
-        """Size of the scene's model compiled with its own settings (everything on, nothing
-        pruned), for comparison; None for a plain model or when nothing was left out."""
-        if self.scene is None or not self.left_out:
-            return None
-        full = compile_model(self.scene.model_path, certify=False, backend="numpy")
-        return full.size()
-
-    # -- pickling by value, between phc's own processes (the workers of `phc sweep`) ------
-    def __getstate__(self) -> dict:
-        """Everything but the module object: the generated source and the metadata. The
-        locations of the outputs are resolved here, so a worker never reads a model file.
-        A pickle is code to whoever loads it: phc sends it only to its own worker processes
-        (a local pool, or Dask workers the user runs) and never reads one from a file."""
-        from phc.simulation import _output_span
-
-        state = dict(self.__dict__)
-        state.pop("module", None)
-        state["phc_version"] = _phc_version()
-        state["module_backend"] = getattr(self.module, "BACKEND", "numpy")
-        state["output_spans"] = {name: _output_span(self, name) for name in self.module.OUTPUTS}
-        return state
-
-    def __setstate__(self, state: dict) -> None:
-        """Rebuild the module from the source text (:func:`phc.codegen.load.load_generated`:
-        executed from memory, a copy written to this machine's private cache), and a compiled
-        backend from it when the model ran on one (:func:`phc.codegen.backends.for_compiled`)."""
-        version = state.pop("phc_version", None)
-        if version != _phc_version():
-            raise RuntimeError(f"this compiled model comes from phc {version}, but phc {_phc_version()} is "
-                               "installed here; install the same phc version on every worker")
-        backend = state.pop("module_backend", "numpy")
-        self.__dict__.update(state)
-        self.module, self.module_path = load_generated(self.source, self.name)
-        if backend != "numpy":
-            from phc.codegen import backends
-
-            self.module = backends.for_compiled(self, backend)
-
-
-def _phc_version() -> str:
-    from phc import __version__
-
-    return __version__
 
 
 def elaborate_file(path: str | os.PathLike, scene: Optional[Scene] = None) -> tuple[Optional[Dae], DiagnosticList]:
@@ -263,7 +173,11 @@ def compile_model(path: str | os.PathLike, scene: Optional[Scene] = None, *, cer
         t = time.perf_counter()
         module, _ = backends.select(ir, module, source, backend)
         timings["backend"] = time.perf_counter() - t
-    compiled = CompiledModel(name, dae, module, source, module_path, diags, timings, scene)
+    t = time.perf_counter()
+    description = describe(name, dae, module, scene)
+    timings["describe"] = time.perf_counter() - t
+    compiled = CompiledModel(description, module, source, module_path, diags, dae, scene,
+                             cache=RunCache(timings=timings))
     from phc.simulation.events import locate_switch_times  # conditions in t: their switching times exist
 
     unlocated = locate_switch_times(compiled)
@@ -273,8 +187,101 @@ def compile_model(path: str | os.PathLike, scene: Optional[Scene] = None, *, cer
         from phc.checks.compiled import certify_compiled
 
         t = time.perf_counter()
-        compiled.certificate = certify_compiled(compiled, n_random=FAST_SAMPLES, max_unknowns=FAST_BALANCE_LIMIT)
+        certificate = certify_compiled(compiled, n_random=FAST_SAMPLES, max_unknowns=FAST_BALANCE_LIMIT)
         timings["certify"] = time.perf_counter() - t
-        if compiled.certificate.diagnostics.has_errors:
-            raise ModelError(DiagnosticList(list(diags) + list(compiled.certificate.diagnostics)).sorted())
+        if certificate.diagnostics.has_errors:
+            raise ModelError(DiagnosticList(list(diags) + list(certificate.diagnostics)).sorted())
+        verdict = Verdict(certificate.summary(), certificate.to_dict())
+        compiled = replace(compiled, certificate=certificate, description=replace(description, certificate=verdict))
     return compiled
+
+
+def describe(name: str, dae: Dae, module: ModuleType, scene: Optional[Scene] = None) -> ModelDescription:
+    """The description of a compiled model (:mod:`phc.description`): what a run needs of
+    `dae` besides the generated `module`. Initial values written in parameters are
+    evaluated at the default parameters (as :func:`phc.simulation.initial_values` does), and
+    the places of the outputs are read from the scene or model file."""
+    from phc.simulation import parameter_vector
+
+    initial = []
+    symbols = {par.symbol: par for par in dae.parameters}
+    by_name: Optional[dict] = None
+    memo: dict = {}
+    for iv in dae.initial:
+        if iv.expr is None:
+            initial.append(Initial(iv.name, float(iv.value), bool(iv.guess), Place.of(iv.span), ()))
+            continue
+        if by_name is None:
+            import sympy as sp
+
+            p = parameter_vector(module)
+            by_name = {par.symbol: sp.Float(float(p[module.PARAMETERS.index(par.name)])) for par in dae.parameters}
+        from phc.initial_fields import evaluate
+
+        try:
+            value = float(evaluate(iv.expr, by_name, memo))
+        except (TypeError, ValueError, ArithmeticError):  # not a number there: refused at the start of a run
+            value = float("nan")
+        initial.append(Initial(iv.name, value, bool(iv.guess), Place.of(iv.span), _parameters_in(iv.expr, symbols)))
+    topology = dae.topology
+    outputs = tuple(module.OUTPUTS)
+    return ModelDescription(
+        name=name, model=dae.name, n_states=dae.n_states - 1, options=dae.options, units=dict(dae.units or {}),
+        equations=tuple(Labelled(eq.label, eq.component, Place.of(eq.span)) for eq in dae.equations),
+        invariants=tuple(Labelled(x.label, x.component, Place.of(x.span)) for x in dae.invariants),
+        velocity_invariants=tuple(Labelled(x.label, x.component, Place.of(x.span)) for x in dae.velocity_invariants),
+        initial=tuple(initial), outputs=outputs, output_spans=_output_spans(scene, dae, outputs),
+        connections=tuple(Connection(a, b, lab, Place.of(s))
+                          for a, b, lab, s in (topology.connections if topology is not None else ())),
+        left_out=dae.left_out, sources=tuple(str(s) for s in dae.sources),
+        scene=SceneRef(scene.name, str(scene.spec.model)) if scene is not None else None)
+
+
+def _parameters_in(expr, symbols: dict) -> Optional[tuple[str, ...]]:
+    """The parameters `expr` is written in, through derived ones; None when it holds a
+    symbol that is not a parameter (or is not an expression)."""
+    if not hasattr(expr, "free_symbols"):
+        return None
+    found: set = set()
+    todo = list(expr.free_symbols)
+    while todo:
+        par = symbols.get(todo.pop())
+        if par is None:
+            return None
+        if par.name not in found:
+            found.add(par.name)
+            if par.expr is not None:
+                todo.extend(par.expr.free_symbols)
+    return tuple(sorted(found))
+
+
+def _output_spans(scene: Optional[Scene], dae: Dae, outputs: tuple[str, ...]) -> dict:
+    """Output name -> where it is written: the scene's `outputs`/`reference`, else the
+    model's `simulation.outputs` (None where not found)."""
+    spans: dict = {}
+    try:
+        rest = list(outputs)
+        if scene is not None:
+            spec, rest = scene.spec, []
+            for name in outputs:
+                base = name.removesuffix("_reference")
+                if name in (spec.outputs or {}):
+                    spans[name] = scene.smap.locate_key(("outputs", name))
+                elif base != name and base in (spec.reference or {}):
+                    spans[name] = scene.smap.locate_key(("reference", base))
+                else:
+                    rest.append(name)
+            path = scene.model_path
+        else:
+            path = dae.sources[-1] if dae.sources else None
+        if rest and path is not None:
+            from phc.source import read_yaml_file
+
+            data, smap, _ = read_yaml_file(path)
+            written = ((data or {}).get("simulation") or {}).get("outputs", {}) if isinstance(data, dict) else {}
+            for name in rest:
+                if smap is not None and name in written:
+                    spans[name] = smap.locate_key(("simulation", "outputs", name))
+    except Exception:  # noqa: BLE001 — a location is a courtesy, never a new failure
+        pass
+    return {name: Place.of(spans.get(name)) for name in outputs}

@@ -1,7 +1,7 @@
 """Where the time goes: ``phc simulate --profile``.
 
 CPU time of one run, split into the compile stages (read/elaborate/assemble/check, lower,
-print, load — from :attr:`phc.pipeline.CompiledModel.timings`), the generated module's
+print, load, describe — from :attr:`phc.compiled.CompiledModel.timings`), the generated module's
 residual and Jacobian evaluations (timed by wrapping the module's functions during the
 run), the rest of the integration (the solver's own work: step control, Newton updates,
 sparse LU factorizations and solves), and post-processing (energy figures, outputs).
@@ -34,7 +34,8 @@ class Profile:
     def rows(self) -> list[tuple[str, float, str]]:
         """(part, seconds, note) in the order they happen."""
         stages = {"elaborate": "read, elaborate, assemble, structural check", "lower": "Jacobian (symbolic)",
-                  "print": "code generation", "load": "import of the generated module"}
+                  "print": "code generation", "load": "import of the generated module",
+                  "describe": "model description (initial values, places of the outputs)"}
         out = [(f"compile: {k}", v, stages.get(k, "")) for k, v in self.compile.items()]
         res, jac = self.counters.get("residual", _Counter()), self.counters.get("jacobian", _Counter())
         out.append(("residual evaluations", res.seconds, f"{res.calls} calls, "

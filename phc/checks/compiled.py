@@ -110,8 +110,8 @@ def _consistent_samples(compiled, p, n_random: int, rng) -> tuple[list, list[str
     from phc.simulation.initial import consistent_initial_conditions
 
     mod = compiled.module
-    t0 = float(compiled.dae.options.get("t_start", 0.0))
-    t1 = float(compiled.dae.options.get("t_end", t0 + 1.0))
+    t0 = float(compiled.options.get("t_start", 0.0))
+    t1 = float(compiled.options.get("t_end", t0 + 1.0))
     notes = []
     out = []
     try:

@@ -121,11 +121,15 @@ def for_compiled(compiled, backend: Optional[str]) -> ModuleType:
     reference = reference_of(compiled.module)
     if choice == "numpy" or choice == current or (choice == "auto" and current == "numba"):
         return reference if choice == "numpy" else compiled.module
+    if compiled.dae is None:
+        raise SimulationSetupError(f"backend `{backend}`: this model was loaded from its description (phc.fastpath), "
+                                   f"which runs on `{current}` only; compile it (phc.compile_model) for another")
     from phc.codegen.lower import lower_residual
 
     start = time.perf_counter()
     module, _ = select(lower_residual(compiled.dae), reference, compiled.source, choice)
-    compiled.timings["backend"] = compiled.timings.get("backend", 0.0) + time.perf_counter() - start
+    timings = compiled.cache.timings  # phc.compiled.RunCache
+    timings["backend"] = timings.get("backend", 0.0) + time.perf_counter() - start
     return module
 
 

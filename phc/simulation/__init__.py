@@ -21,6 +21,7 @@ from phc.simulation._lean import import_scipy_sparse
 
 import_scipy_sparse()  # before any submodule loads scipy: without NumPy's unused submodules (_lean.py)
 
+from phc.compiled import CompiledModel
 from phc.errors import InconsistentInitialError, SimulationSetupError
 from phc.simulation.guard import CATCH as GUARD_CATCH
 from phc.simulation.guard import ModelEvaluationError, guard, quiet_floating_point
@@ -127,7 +128,7 @@ def check_parameters(compiled, params: Optional[dict], label: Optional[Callable[
             changed[key] = number
     if not changed:
         return
-    cache = compiled.__dict__.setdefault("_parameter_checks", {})
+    cache = compiled.cache.parameter_checks
     key = tuple(sorted(changed.items()))
     if key not in cache:
         cache[key] = _parameter_problems(compiled, changed, path)
@@ -144,12 +145,12 @@ def _parameter_problems(compiled, changed: dict, path: Optional[str] = None) -> 
     from phc.elaborate import elaborate
     from phc.scene import is_scene_file, load_scene
 
-    scene = getattr(compiled, "scene", None)
-    sources = getattr(compiled.dae, "sources", ())
+    scene = compiled.scene
+    sources = compiled.description.sources
     try:
-        if scene is not None and hasattr(scene, "model_path"):
+        if scene is not None:
             model = scene.model_path
-        elif sources:
+        elif compiled.description.scene is None and sources:
             model = sources[0]
         elif path is not None and is_scene_file(path):
             scene, _ = load_scene(path)
@@ -232,11 +233,11 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
         from phc.pipeline import compile_model
 
         compiled = compile_model(compiled)
-    elif not hasattr(compiled, "module") or not hasattr(compiled, "dae"):
+    elif not isinstance(compiled, CompiledModel):
         raise TypeError(f"simulate() expects a compiled model (phc.compile_model(path)) or a model file's path, "
                         f"got {type(compiled).__name__}")
-    mod = guard(for_compiled(compiled, backend), getattr(compiled, "source", None), _locator(compiled))
-    opts = dict(compiled.dae.options)
+    mod = guard(for_compiled(compiled, backend), compiled.source, _locator(compiled))
+    opts = compiled.description.options  # read-only (phc.description)
     backend = BACKENDS.get(solver or opts["solver"])
     ignored = backend.ignored({"rtol": rtol, "atol": atol, "step": step}) if backend is not None else []
     if ignored:
@@ -314,25 +315,41 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
 
 def initial_values(compiled, p: np.ndarray, initial: Optional[dict] = None) -> tuple[dict[int, float], set[int]]:
     """Initial values by variable index and the indices that are fixed (not guesses): the
-    model's (parameter expressions evaluated at `p`), then `initial` (by state name, a value
-    or ``(value, True)`` for a guess); the energy accumulator starts fixed at 0."""
+    model's (:attr:`ModelDescription.initial <phc.description.ModelDescription.initial>`:
+    a value written in parameters that `p` changes is evaluated again from the assembled
+    system), then `initial` (by state name, a value or ``(value, True)`` for a guess); the
+    energy accumulator starts fixed at 0.
+
+    Raises
+    ------
+    SimulationSetupError
+        For an unknown state or a value that is not finite, and when `p` changes a
+        parameter an initial value is written in and `compiled` has no assembled system to
+        evaluate it again (a model loaded from its description).
+    """
     mod = compiled.module
     index = {name: j for j, name in enumerate(mod.VARIABLES)}
     values, fixed = {}, set()
-    by_name: Optional[dict] = None  # sympy only for initial values written as parameter expressions
+    changed = _changed_parameters(mod, p)
+    by_name: Optional[dict] = None  # sympy only for initial values written in overridden parameters
     memo: dict = {}  # the parameter factors of initial fields, evaluated once (phc.initial_fields)
-    for iv in compiled.dae.initial:
-        if iv.expr is None:
-            values[index[iv.name]] = iv.value
-        else:  # initial values written as parameter expressions follow parameter overrides
+    for k, iv in enumerate(compiled.description.initial):
+        affected = changed if iv.depends is None else changed.intersection(iv.depends)
+        if not affected:
+            values[index[iv.name]] = iv.value  # a number, or evaluated at these parameters when compiled
+        elif compiled.dae is None:
+            raise SimulationSetupError(f"the initial value of `{iv.name}` is written in parameters this run changes "
+                                       f"({', '.join(sorted(affected))}); a model loaded from its description "
+                                       "cannot evaluate it again: compile the model (phc.compile_model)")
+        else:
             if by_name is None:
                 import sympy as sp
 
-                from phc.initial_fields import evaluate
-
                 by_name = {par.symbol: sp.Float(float(p[mod.PARAMETERS.index(par.name)]))
                            for par in compiled.dae.parameters}
-            values[index[iv.name]] = evaluate(iv.expr, by_name, memo)
+            from phc.initial_fields import evaluate
+
+            values[index[iv.name]] = evaluate(compiled.dae.initial[k].expr, by_name, memo)
         if not iv.guess:
             fixed.add(index[iv.name])
     for name, spec in (initial or {}).items():
@@ -352,25 +369,37 @@ def initial_values(compiled, p: np.ndarray, initial: Optional[dict] = None) -> t
     return values, fixed
 
 
+def _changed_parameters(mod, p: np.ndarray) -> set[str]:
+    """The parameters (base and derived) whose values in `p` differ from the defaults'."""
+    try:
+        default = np.asarray(parameter_vector(mod), dtype=float)
+    except SimulationSetupError:  # the defaults' derived parameters are not finite: everything differs
+        return set(mod.PARAMETERS)
+    given = np.asarray(p, dtype=float)
+    if given.shape != default.shape:
+        return set(mod.PARAMETERS)
+    return {mod.PARAMETERS[i] for i in np.flatnonzero(given != default)}
+
+
 def start_state(compiled, p: np.ndarray, t0: float, values: dict[int, float], fixed: set[int],
                 mod=None) -> InitialResult:
     """The consistent state at the start of a run (:func:`consistent_initial_conditions` with
-    the guarded module, as `simulate` runs it), kept on `compiled` for the last parameters,
+    the guarded module, as `simulate` runs it), kept in ``compiled.cache`` (a
+    :class:`~phc.compiled.RunCache`) for the last parameters,
     initial values and t₀ it was asked for: the certificate of every compilation solves it
     for the model's own values, and `simulate` with those values starts from it instead of
     solving again (the same solve, so the same numbers). Raises what the solve raises."""
     if mod is None:
-        mod = guard(compiled.module, getattr(compiled, "source", None), _locator(compiled))
+        mod = guard(compiled.module, compiled.source, _locator(compiled))
     # what evaluates the functions (numpy or numba: equal up to rounding) is part of the key
     key = (getattr(mod, "BACKEND", "numpy"), float(t0), np.asarray(p, dtype=float).tobytes(),
            np.array(sorted(values), dtype=np.int64).tobytes(),
            np.array([values[j] for j in sorted(values)], dtype=float).tobytes(), tuple(sorted(fixed)))
-    kept = getattr(compiled, "start_state", None)
+    kept = compiled.cache.start_state
     if kept is None or kept[0] != key:
         with quiet_floating_point():
             kept = (key, consistent_initial_conditions(mod, p, t0, values, fixed))
-        if hasattr(compiled, "start_state"):
-            compiled.start_state = kept
+        compiled.cache.start_state = kept
     init = kept[1]
     return InitialResult(init.y0.copy(), init.yp0.copy(), dict(init.chosen), init.residual, init.iterations)
 
@@ -400,50 +429,19 @@ def _setup_error(err: ModelEvaluationError, params: Optional[dict]) -> Exception
 
 def _locator(compiled) -> Callable[[str, str], Optional[str]]:
     """``locate(kind, label) -> "file:line"`` for equations, invariants and outputs (best effort)."""
-    dae = compiled.dae
-    spans = {}
-    for eq in dae.equations:
-        if eq.span is not None:
-            spans[("equation", eq.label)] = eq.span
-    for inv in tuple(dae.invariants) + tuple(dae.velocity_invariants):
+    desc = compiled.description
+    spans = {("equation", eq.label): eq.span for eq in desc.equations if eq.span is not None}
+    for inv in desc.invariants + desc.velocity_invariants:
         if inv.span is not None:
             spans[("invariant", inv.label)] = inv.span
 
     def locate(kind: str, label: str) -> Optional[str]:
         span = spans.get((kind, label))
         if span is None and kind == "output":
-            span = _output_span(compiled, label)
+            span = desc.output_spans.get(label)
         return f"{span.file}:{span.line}" if span is not None else None
 
     return locate
-
-
-def _output_span(compiled, name: str):
-    """Where output `name` is written: the scene's `outputs`/`reference`, else the model's
-    `simulation.outputs`."""
-    kept = getattr(compiled, "output_spans", None)  # an unpickled model: located before pickling
-    if kept is not None:
-        return kept.get(name)
-    try:
-        scene = getattr(compiled, "scene", None)
-        if scene is not None:
-            spec = scene.spec
-            if name in (spec.outputs or {}):
-                return scene.smap.locate_key(("outputs", name))
-            base = name.removesuffix("_reference")
-            if base != name and base in (spec.reference or {}):
-                return scene.smap.locate_key(("reference", base))
-            path = scene.model_path
-        else:
-            path = compiled.dae.sources[-1]
-        from phc.source import read_yaml_file
-
-        data, smap, _ = read_yaml_file(path)
-        if smap is None or name not in ((data or {}).get("simulation") or {}).get("outputs", {}):
-            return None
-        return smap.locate_key(("simulation", "outputs", name))
-    except Exception:  # noqa: BLE001 — a location is a courtesy, never a new failure
-        return None
 
 
 def _integrate_with_breakpoints(run, mod, p, t_out, init) -> dict:
@@ -572,7 +570,7 @@ def _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol, params=None) -
     inv = np.array(rows["inv"], dtype=float).reshape(n, -1)
     vinv = np.array(rows["vinv"], dtype=float).reshape(n, -1)
     outs = np.array(rows["outs"], dtype=float).reshape(n, len(mod.OUTPUTS))
-    dae = compiled.dae
+    desc = compiled.description
     return SimResult(
         success=success, message=message, t=t, y=y, yp=yp, variables=tuple(mod.VARIABLES),
         differential=np.asarray(mod.DIFFERENTIAL), H=H, port_power=powers[:, 0], dissipation=powers[:, 1],
@@ -582,9 +580,9 @@ def _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol, params=None) -
         energy_balance_relative=float(np.abs(balance).max(initial=0.0) / scale) if scale > 0 else 0.0,
         constraint_drift=float(np.abs(inv).max(initial=0.0)), velocity_drift=float(np.abs(vinv).max(initial=0.0)),
         steps=out["steps"], n_residual_evals=out["nfev"], n_jacobian_evals=out["njev"], cpu_time_s=cpu,
-        n_states=dae.n_states - 1, n_equations=len(dae.equations), solver=solver, rtol=rtol, atol=atol,
+        n_states=desc.n_states, n_equations=len(desc.equations), solver=solver, rtol=rtol, atol=atol,
         initial_choices=init.chosen, interrupted=bool(out.get("interrupted", False)),
-        events=list(out.get("events", ())), units=dict(getattr(dae, "units", None) or {}),
+        events=list(out.get("events", ())), units=dict(desc.units),
     )
 
 

@@ -283,7 +283,7 @@ def locate_switch_times(compiled) -> list:
     mod = getattr(compiled.module, "REFERENCE", compiled.module)
     if not np.asarray(getattr(mod, "SWITCH_TIME_ONLY", ()), dtype=bool).any():
         return []
-    opts = compiled.dae.options
+    opts = compiled.options
     t0, t1 = float(opts.get("t_start", 0.0)), float(opts["t_end"])
     y = np.zeros(mod.N)
     try:

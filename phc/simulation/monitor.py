@@ -36,12 +36,11 @@ def describe_equations(compiled) -> dict[str, str]:
     """Readable names of the equations a monitor message may cite: a coupling row
     ``connections[k]…`` becomes the connection `a — b` with its place in the model file."""
     names = {}
-    topology = getattr(compiled.dae, "topology", None)
     where = {}
-    for a, b, label, span in getattr(topology, "connections", ()) or ():
-        loc = f" ({span.file}:{span.line})" if span is not None else ""
-        where[label] = f"connection `{a} — {b}`{loc}"
-    for eq in compiled.dae.equations:
+    for c in compiled.description.connections:
+        loc = f" ({c.span.file}:{c.span.line})" if c.span is not None else ""
+        where[c.label] = f"connection `{c.a} — {c.b}`{loc}"
+    for eq in compiled.description.equations:
         head = eq.label.rsplit(".", 1)[0]  # `inner.connections[0]` of `inner.connections[0].f[0]`
         if head in where:
             names[eq.label] = f"{where[head]} row `{eq.label}`"
