@@ -155,7 +155,7 @@ def test_compiled_model_pickles_as_source_and_metadata(crank):
     # outputs are located without reading the model file on the worker
     line = next(i for i, text in enumerate(CRANK.read_text(encoding="utf-8").splitlines(), 1)
                 if text.strip().startswith("slider_x:"))
-    assert twin.output_spans["slider_x"].line == line
+    assert twin.description.output_spans["slider_x"].line == line
     a = phc.simulate(crank, t_end=0.001, params={"EI": 20.0})
     b = phc.simulate(twin, t_end=0.001, params={"EI": 20.0})
     assert np.array_equal(a.y, b.y)

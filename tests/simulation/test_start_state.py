@@ -65,7 +65,7 @@ def test_a_first_stage_that_can_succeed_runs(monkeypatch):
 @pytest.mark.parametrize("model", ["pendulum", "rlc_circuit"])
 def test_simulate_starts_from_the_certificate_state(model, monkeypatch):
     certified = phc.compile_model(MODELS / f"{model}.yaml")
-    assert certified.certificate.certified and certified.start_state is not None
+    assert certified.certificate.certified and certified.cache.start_state is not None
     plain = phc.compile_model(MODELS / f"{model}.yaml", certify=False)
     expected = phc.simulate(plain, t_end=0.05, solver="midpoint", n_out=11)
 
