@@ -18,7 +18,7 @@ _API = {
     "build_dae": ("phc.pipeline", "build_dae"),
     "validate_file": ("phc.pipeline", "validate_file"),
     "compile_model": ("phc.pipeline", "compile_model"),
-    "CompiledModel": ("phc.pipeline", "CompiledModel"),
+    "CompiledModel": ("phc.compiled", "CompiledModel"),
     # certify
     "certify_model": ("phc.checks", "certify_model"),
     "ModelCertificate": ("phc.checks", "ModelCertificate"),

@@ -179,8 +179,10 @@ class ModelDescription:
 
     Examples
     --------
+    >>> import phc
+    >>> from phc.description import ModelDescription
     >>> d = phc.compile_model("models/pendulum.yaml").description
-    >>> phc.description.ModelDescription.from_json(d.to_json()) == d
+    >>> ModelDescription.from_json(d.to_json()) == d
     True
     >>> d.options["rtol"] = 0.5
     Traceback (most recent call last):
