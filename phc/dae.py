@@ -284,6 +284,9 @@ class Dae:
     external_ports: tuple[str, ...] = ()
     sources: tuple[str, ...] = ()
     options: dict = field(default_factory=dict)
+    """The simulation options as the model (and scene) write them. Runs of a compiled model
+    read the read-only copy in its description (:attr:`phc.compiled.CompiledModel.options`),
+    never this dict."""
     linear_blocks: tuple[LinearBlock, ...] = ()
     quadratic_energy: tuple[QuadraticForm, ...] = ()
     quadratic_dissipation: tuple[QuadraticForm, ...] = ()
