@@ -133,3 +133,19 @@ def test_the_fast_path_loads_exactly_the_stored_description(tmp_path, monkeypatc
     assert hit.compiled.description == full.description
     assert hit.compiled.source == full.source
     _same_run(phc.simulate(full, t_end=0.5, n_out=51), phc.simulate(hit.compiled, t_end=0.5, n_out=51))
+
+
+def test_simulate_takes_only_a_compiled_model(pendulum):
+    from types import SimpleNamespace
+
+    imitation = SimpleNamespace(module=pendulum.module, dae=pendulum.dae, source=pendulum.source)
+    with pytest.raises(TypeError, match="expects a compiled model"):
+        phc.simulate(imitation, t_end=0.01)
+
+
+def test_a_pickled_model_keeps_its_description_and_cache(pendulum):
+    twin = pickle.loads(pickle.dumps(pendulum))
+    assert type(twin) is CompiledModel and twin.module is not pendulum.module
+    assert twin.description == pendulum.description
+    assert twin.cache.timings == pendulum.cache.timings
+    _same_run(phc.simulate(pendulum, t_end=0.1, n_out=11), phc.simulate(twin, t_end=0.1, n_out=11))
