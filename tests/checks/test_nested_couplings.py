@@ -117,16 +117,14 @@ def test_phc_check_json_lists_both_connections(nested, capsys):
 def test_run_monitor_names_the_nested_connection_of_a_coupling_row(nested):
     # a coupling row is labelled `<connection label>.f[k]`: the monitor that stops a run near
     # a singular configuration names the connection it belongs to, in its own file
-    from types import SimpleNamespace
-
     from phc.simulation.monitor import describe_equations
 
-    dae, diags = phc.build_dae(nested)
-    assert dae is not None, "\n".join(d.render() for d in diags)
-    rows = [eq.label for eq in dae.equations if ".connections[" in eq.label or eq.label.startswith("connections[")]
+    compiled = phc.compile_model(nested, certify=False)  # the monitor reads its description
+    rows = [eq.label for eq in compiled.description.equations
+            if ".connections[" in eq.label or eq.label.startswith("connections[")]
     # the flow source's row stays (it is not a substitution): it belongs to the nested file
     assert any(label.startswith("inner.connections[0].") for label in rows), rows
-    names = describe_equations(SimpleNamespace(dae=dae))
+    names = describe_equations(compiled)
     for label in rows:
         where = "inner.yaml:14" if label.startswith("inner.") else "outer.yaml:7"
         ports = ("`inner.motor.port — inner.wheel.drive`" if label.startswith("inner.")
