@@ -55,7 +55,7 @@ from typing import Any, Iterator, Optional, Sequence, Union
 import numpy as np
 
 from phc.diagnostics import Diagnostic, DiagnosticList
-from phc.errors import ModelError, SimulationSetupError
+from phc.errors import ModelError, SimulationSetupError, SweepSetupError
 from phc.io import atomic_write
 from phc.spec.sweep import Axis, SpecError, parse_spec
 
@@ -73,11 +73,6 @@ MACHINE_COLUMNS = ("cpu_time_s", "wall_time_s", "attempts", "worker")
 INSTALL_CLUSTER = 'pip install "port-hamiltonian-compiler[cluster]"'
 INSTALL_PARQUET = 'pip install "port-hamiltonian-compiler[parquet]"'
 INSTALL_PLOT = 'pip install "port-hamiltonian-compiler[plot]"'
-
-
-class SweepSetupError(SimulationSetupError):
-    """A sweep that cannot start (a wrong name or SPEC, results that do not match on resume);
-    the command line reports it as a usage error."""
 
 
 # ---------------------------------------------------------------------------------------
