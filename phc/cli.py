@@ -18,7 +18,8 @@ from pathlib import Path
 from typing import Optional, Sequence
 
 from phc import __version__
-from phc.errors import PhcError, UsageError
+from phc import PhcError
+from phc.errors import UsageError
 
 EXIT_OK, EXIT_MODEL, EXIT_USAGE = 0, 1, 2
 EXIT_INTERRUPTED = 130
