@@ -61,7 +61,8 @@ Private control flow, defined where it is used
     ``phc.initial_fields._FieldError`` and its ``_Silent`` (a field problem turned into a
     diagnostic by the pass), ``phc.codegen.numba_cache.NotInCache`` (the full compile path
     has to run), ``phc.source._NotRegular`` (an ``OSError``: a model path that is not a
-    regular file). ``tests/test_errors.py`` walks phc's modules and holds this list.
+    regular file). :data:`PRIVATE_CONTROL_FLOW` names them; ``tests/test_errors.py`` walks
+    phc's modules and fails on any other exception defined outside this module.
 """
 
 from __future__ import annotations
