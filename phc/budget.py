@@ -40,7 +40,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Callable, Iterator, Optional
 
-from phc.errors import PhcError
+from phc.errors import SymbolicBudgetError
 
 if TYPE_CHECKING:
     from phc.diagnostics import Diagnostic
@@ -328,14 +328,6 @@ def check_output_arrays(n_out: int, n_columns: int, what: str = "n_out") -> Opti
 
 
 # -- symbolic work -------------------------------------------------------------------------
-
-class SymbolicBudgetError(PhcError):
-    """An expression whose derivative (or whose CSE) would exceed the symbolic budget."""
-
-    def __init__(self, expr, work: int, limit: int, what: str) -> None:
-        self.expr, self.work, self.limit, self.what = expr, work, limit, what
-        super().__init__(f"{what}: estimated {work:,} nodes, above the limit of {limit:,}")
-
 
 class SizeCache:
     """Tree sizes of sympy nodes (shared subtrees counted once per occurrence, as sympy's

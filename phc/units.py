@@ -40,7 +40,7 @@ from typing import Mapping, Optional
 
 import sympy as sp
 
-from phc.errors import PhcError
+from phc.errors import DimensionError, UnitError
 
 __all__ = ["DOMAIN_UNITS", "NUMBER", "DimensionError", "UnitError", "describe", "dimension",
            "domain_units", "have_pint", "parse_unit", "same_dimension", "unit_label"]
@@ -61,18 +61,6 @@ DOMAIN_UNITS: dict[str, tuple[str, str]] = {
 """Effort and flow unit of each physical domain (``generic`` has none). The thermal domain
 is the pseudo-bond-graph one that engineers use (temperature and heat flow; their product
 is not a power), so a thermal capacitance is J/K and a thermal resistance K/W."""
-
-
-class UnitError(PhcError, ValueError):
-    """A unit text that is malformed or names no known unit (`message` and `hint`)."""
-
-    def __init__(self, message: str, hint: Optional[str] = None):
-        super().__init__(message)
-        self.message, self.hint = message, hint
-
-
-class DimensionError(PhcError, ValueError):
-    """An expression whose parts have incompatible dimensions."""
 
 
 class _Number:

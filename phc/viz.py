@@ -45,7 +45,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from phc.errors import SimulationSetupError
+from phc.errors import NothingToAnimate, PlotUnavailable, SimulationSetupError
 from phc.spec.expressions import ExpressionError
 
 INSTALL_HINT = 'pip install "port-hamiltonian-compiler[plot]"'
@@ -62,17 +62,6 @@ _COLORS = {
     "trail": "#7f8c8d",
 }
 _LINK_COLORS = ("#1f4e79", "#2e86c1", "#117a65", "#6c3483", "#a04000")
-
-
-class PlotUnavailable(SimulationSetupError):
-    """Drawing was asked for but matplotlib is not installed."""
-
-    def __init__(self, what: str = "drawing"):
-        super().__init__(f"{what} needs matplotlib, which is not installed; install it with: {INSTALL_HINT}")
-
-
-class NothingToAnimate(SimulationSetupError):
-    """The model has no planar mechanism that :func:`animate` knows how to draw."""
 
 
 def _require_matplotlib(what: str = "drawing"):

@@ -267,7 +267,7 @@ class StageSolver:
         self.refreshed = False
         self.ill_conditioned = False
         self.evaluation_error = None
-        """The :class:`~phc.simulation.guard.ModelEvaluationError` that stopped the last solve, if any."""
+        """The :class:`~phc.errors.ModelEvaluationError` that stopped the last solve, if any."""
 
     def residual(self, t, h, y, y1, s):
         d = y1 - y
