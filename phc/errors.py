@@ -61,7 +61,8 @@ Private control flow, defined where it is used
     ``phc.initial_fields._FieldError`` and its ``_Silent`` (a field problem turned into a
     diagnostic by the pass), ``phc.codegen.numba_cache.NotInCache`` (the full compile path
     has to run), ``phc.source._NotRegular`` (an ``OSError``: a model path that is not a
-    regular file). :data:`PRIVATE_CONTROL_FLOW` names them; ``tests/test_errors.py`` walks
+    regular file), ``phc.simulation.ida._Stop`` (phc's step hook ends an IDA run from inside
+    IDA's loop; the run returns its message). :data:`PRIVATE_CONTROL_FLOW` names them; ``tests/test_errors.py`` walks
     phc's modules and fails on any other exception defined outside this module.
 """
 
@@ -289,7 +290,7 @@ class CacheWarning(PhcWarning):
 
 PRIVATE_CONTROL_FLOW = ("phc.cli._Exit", "phc.checks.compiled._NotNumeric", "phc.initial_fields._FieldError",
                         "phc.initial_fields._Silent", "phc.codegen.numba_cache.NotInCache",
-                        "phc.source._NotRegular")
+                        "phc.source._NotRegular", "phc.simulation.ida._Stop")
 """Exceptions that never leave the code that raises them, defined there (qualified names)."""
 
 __all__ = ["BackendMismatch", "BackendUnavailable", "CacheWarning", "CodegenError", "CompiledBackendWarning",
