@@ -333,13 +333,18 @@ def names() -> list[str]:
     return list(COMPONENT_TYPES)
 
 
-def _spec_union_members() -> tuple:
+def _members(annotation) -> tuple:
+    """The specs of ``dict[Identifier, Annotated[Union[...], ...]]``."""
     import typing
 
+    value = typing.get_args(annotation)[1]
+    return typing.get_args(typing.get_args(value)[0])
+
+
+def _spec_union_members() -> tuple:
     from phc.spec.model import ModelSpec
 
-    value = typing.get_args(ModelSpec.model_fields["components"].annotation)[1]
-    return typing.get_args(typing.get_args(value)[0])
+    return _members(ModelSpec.model_fields["components"].annotation)
 
 
 def _sync_spec_union() -> None:
@@ -353,14 +358,22 @@ def _sync_spec_union() -> None:
     from phc.spec.components import ModelComponentSpec
     from phc.spec.model import ModelSpec
 
+    field = ModelSpec.model_fields["components"]
+    original = _original.setdefault("components", field.annotation)
     current = _spec_union_members()
     wanted = tuple(c for c in current if c is ModelComponentSpec or any(e.spec is c for e in COMPONENT_TYPES.values()))
     wanted += tuple(e.spec for e in COMPONENT_TYPES.values() if e.spec not in wanted)
     if wanted == current:
         return
-    union = Annotated[Union[wanted], Field(discriminator="type")]
-    ModelSpec.model_fields["components"].annotation = dict[Identifier, union]
+    if wanted == _members(original):  # back to the union as written: the very annotation
+        field.annotation = original
+    else:
+        field.annotation = dict[Identifier, Annotated[Union[wanted], Field(discriminator="type")]]
     ModelSpec.model_rebuild(force=True)
+
+
+_original: dict = {}
+"""The annotation of ModelSpec.components before the registry first changed it."""
 
 
 def check_builtin_union() -> None:

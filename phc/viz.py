@@ -289,11 +289,9 @@ def _evaluator(texts, scope: _Scope, constants: dict, states: dict):
 
 @dataclass
 class DrawContext:
-    """What the drawing of one component sees (a registry entry's
-    :class:`~phc.registry.Drawing` is called as ``draw(ctx, full, spec, prefix)``): the run
-    (`scope`), the planar points placed so far by port name, each port's neighbour, every
-    component's (type, spec, prefix), the magnification of deflections; a drawing sets
-    `magnified` when it magnified one and counts the rigid bodies drawn (their colours)."""
+    """What a registry entry's :class:`~phc.registry.Drawing` sees, ``draw(ctx, full, spec,
+    prefix)``: the run, the planar points placed so far by port, each port's neighbour, every
+    component's (type, spec, prefix); it sets `magnified` and counts rigid bodies (colours)."""
 
     scope: _Scope
     points: dict
@@ -351,9 +349,7 @@ def draw_rigid(ctx: DrawContext, full, spec, prefix) -> list:
 
 def draw_guide(ctx: DrawContext, full, spec, prefix) -> list:
     """An orthogonal transform on a planar port: its guide and slider, or a support."""
-    if spec is None:
-        return []
-    return _guide(full, spec, prefix, ctx.scope, ctx.points, ctx.neighbour, ctx.specs)
+    return [] if spec is None else _guide(full, spec, prefix, ctx.scope, ctx.points, ctx.neighbour, ctx.specs)
 
 
 def draw_support(ctx: DrawContext, full, spec, prefix) -> list:
