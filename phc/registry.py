@@ -26,9 +26,12 @@ modules import (``LOWERERS``, ``DEFAULT_DOMAIN``, ``SPATIAL_ORDER``, ``FIELDS``,
 type registered later (a test's own type, :func:`registered`) is seen by every pass.
 
 Adding a type: write its spec model and its lowerer, and register one entry
-(:mod:`phc.library.builtin` holds the built-in ones). Registering a type whose spec is
-not in :data:`phc.spec.components.ComponentSpec` extends the union the model files are
-validated with (:class:`~phc.spec.ModelSpec` is rebuilt); :func:`unregister` undoes it.
+(:mod:`phc.library.builtin` holds the built-in ones). The built-in specs are also the
+union :data:`phc.spec.components.ComponentSpec` as written (the input layer defines
+``ModelSpec`` before any lowerer can be imported); loading the built-ins checks that the
+union and the entries name the same specs (:func:`check_builtin_union`), an error
+otherwise. Registering a type whose spec is not in the union extends it
+(:class:`~phc.spec.ModelSpec` is rebuilt); :func:`unregister` restores it.
 
 The built-in entries are loaded on first use: importing this module imports neither
 sympy nor pydantic (the cached front end reads :mod:`phc.budget` without them).
@@ -193,7 +196,7 @@ class Drawing:
     stage: str = "body"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ComponentType:
     """One component type: see the module docstring for what each field is used by."""
 
@@ -286,7 +289,7 @@ def register(entry: ComponentType) -> ComponentType:
     if not isinstance(entry, ComponentType):
         raise RegistryError(f"register takes a ComponentType, not {type(entry).__name__}")
     problems = entry.problems()
-    if entry.name in COMPONENT_TYPES:
+    if entry.name in COMPONENT_TYPES or entry.name == "model":  # `type: model` is a nested model file
         problems.append("a type of that name is registered already")
     if problems:
         raise RegistryError(f"component type `{entry.name}`: " + "; ".join(problems))

@@ -198,11 +198,14 @@ def test_every_type_has_its_parts_and_a_minimal_model_compiles_and_certifies(kin
         assert entry.cost is ASSEMBLED and entry.cost(specs.get(of_kind[0])) is None
 
 
-def test_the_built_in_types_are_the_spec_union():
+def test_the_built_in_types_are_the_spec_union(monkeypatch):
     """Every spec of phc.spec.components' union has an entry, and every entry is in it."""
     registry.check_builtin_union()
     union = set(_schema_mapping(build_schema())) - {"model"}
     assert union == set(registry.names())
+    monkeypatch.delitem(registry.COMPONENT_TYPES, "spring")
+    with pytest.raises(RegistryError, match="no registry entry for SpringSpec"):
+        registry.check_builtin_union()
 
 
 def test_the_per_type_tables_are_the_registrys():
