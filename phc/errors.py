@@ -20,6 +20,8 @@ Everything phc raises on purpose
         to draw) and ``SweepSetupError`` (a sweep that cannot start) are ones.
     ``CodegenError``
         the code generator met something it cannot print (a phc bug, never a user mistake).
+    ``RegistryError``
+        a component type :mod:`phc.registry` refuses (a field missing or wrong, a name taken).
 
 What the user wrote
     ``ExpressionError`` (a malformed or forbidden expression), ``SpecError`` (a sweep
@@ -288,6 +290,11 @@ class CacheWarning(PhcWarning):
     """The configured cache directory is unusable or not private; a temporary one is used."""
 
 
+class RegistryError(PhcError):
+    """A component type that cannot be registered (:mod:`phc.registry`: a field missing or
+    wrong, a name taken)."""
+
+
 PRIVATE_CONTROL_FLOW = ("phc.cli._Exit", "phc.checks.compiled._NotNumeric", "phc.initial_fields._FieldError",
                         "phc.initial_fields._Silent", "phc.codegen.numba_cache.NotInCache",
                         "phc.source._NotRegular", "phc.simulation.ida._Stop")
@@ -296,6 +303,7 @@ PRIVATE_CONTROL_FLOW = ("phc.cli._Exit", "phc.checks.compiled._NotNumeric", "phc
 __all__ = ["BackendMismatch", "BackendUnavailable", "CacheWarning", "CodegenError", "CompiledBackendWarning",
            "DimensionError", "ExpressionError", "FileRefused", "IgnoredOptionWarning", "InconsistentInitialError",
            "ModelError", "ModelEvaluationError", "NothingToAnimate", "NpzProblem", "OutputPathError",
-           "PhcError", "PhcWarning", "PlotUnavailable", "ReferenceValuesError", "SimulationInterrupted",
+           "PhcError", "PhcWarning", "PlotUnavailable", "ReferenceValuesError", "RegistryError",
+           "SimulationInterrupted",
            "SimulationSetupError", "SpecError", "SweepSetupError", "SwitchTimeError", "SymbolicBudgetError",
            "TableError", "UnitError", "UsageError"]

@@ -44,7 +44,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from typing import Any, Optional
 
-from phc.errors import PhcError
+from phc.errors import RegistryError
 
 __all__ = ["ASSEMBLED", "COMPONENT_TYPES", "ComponentType", "Drawing", "ElementUnit", "FieldView", "InitialFields",
            "NO_FIELDS", "NO_STATE_READS", "PerElement", "RegistryError", "SIGN_ROLES", "StateReads", "Units",
@@ -57,10 +57,6 @@ in (``load``), a source that delivers it (``source``), a two-port passing it thr
 series group). None: the type takes no part in the hints."""
 
 DOMAINS = ("mechanical.translational", "mechanical.rotational", "electrical", "hydraulic", "thermal", "generic")
-
-
-class RegistryError(PhcError):
-    """A component type that cannot be registered (a field missing or wrong, a name taken)."""
 
 
 # -- the parts of an entry -----------------------------------------------------------------
@@ -270,7 +266,10 @@ def _load_builtins() -> None:
         return
     _state["loading"] = True
     try:
-        import phc.library.builtin  # noqa: F401  (registers the built-in types)
+        from phc.library.builtin import BUILTINS
+
+        for entry in BUILTINS:
+            register(entry)
     finally:
         _state["loading"] = False
     _state["loaded"] = True

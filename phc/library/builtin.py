@@ -21,7 +21,7 @@ from phc.library.pde1d import lower_pde1d
 from phc.library.phs import lower_phs
 from phc.library.rigid import lower_rigid
 from phc.registry import (ASSEMBLED, NO_FIELDS, NO_STATE_READS, ComponentType, Drawing, ElementUnit, InitialFields,
-                          PerElement, StateReads, Units, register)
+                          PerElement, StateReads, Units)
 from phc.spec import components as c
 
 TRANSLATIONAL, ELECTRICAL, GENERIC = "mechanical.translational", "electrical", "generic"
@@ -50,7 +50,7 @@ def pde1d_cost(spec) -> tuple[int, int]:
 _LENGTH, _DAMPING = ("m", "a length"), ("N*s/m^2", "a damping per length")
 _VALUE = (("a", "a", 0), ("b", "b", 0))
 
-for entry in (
+BUILTINS = (
     ComponentType(name="phs", spec=c.PhsSpec, lower=lower_phs, default_domain=None,
                   units=Units.absent(_MATRICES), cost=ASSEMBLED, spatial_order=None, initial_fields=NO_FIELDS,
                   sign_role=None, state_reads=NO_STATE_READS, drawing=None),
@@ -162,5 +162,5 @@ for entry in (
                            "center": ("m", "a position")}),
         cost=ASSEMBLED, spatial_order=None, initial_fields=NO_FIELDS, sign_role=None,
         state_reads=NO_STATE_READS, drawing=Drawing(viz.draw_crank_wheel)),
-):
-    register(entry)
+)
+"""The built-in entries, registered by :func:`phc.registry._load_builtins` on first use."""
