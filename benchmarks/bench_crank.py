@@ -71,8 +71,8 @@ def main(argv=None) -> int:
     t0 = time.process_time()
     model = phc.compile_model(args.model)
     compile_cpu = time.process_time() - t0
-    # one short run of each solver first: what a process builds once (the compiled step loop, IDA's
-    # compiled callbacks after SWITCH_EVALUATIONS residual evaluations) is not the cost of a setting
+    # one short run of each solver first: what a process builds once (the compiled step loop) is
+    # not the cost of a setting
     for solver, setting in dict(reversed(SWEEP)).items():  # the loosest setting of each
         warm = dict(rtol=setting, atol=setting / 100, t_end=0.02) if solver == "ida" else dict(step=setting, t_end=1e-3)
         phc.simulate(model, solver=solver, **warm)

@@ -1,31 +1,28 @@
-"""What IDA's callbacks cost (issue 16 item 3): scikit-SUNDAE's wrapper, phc's Python callback, compiled callbacks.
+"""What IDA costs around the model's own functions, driven through scikit-sundae's public interface.
 
     python benchmarks/record.py ida_callbacks -- python benchmarks/bench_ida_callbacks.py [--repeat N]
 
 writes ``benchmarks/results/ida_callbacks.md``. Each shipped model below is integrated by
-IDA over its own time span and tolerances (``phc.simulate(compiled, solver="ida")``), in
-one process, the configurations alternating run by run (a shared machine's load hits
-them alike); the table gives the best and the median CPU time of `--repeat` runs and the
-ratio of the best to the wrapper's:
+IDA over its own time span and tolerances (``phc.simulate(compiled, solver="ida")``); the
+table gives the best CPU time of `--repeat` runs, IDA's counts, and — measured in the same
+process — the CPU time of the generated residual and Jacobian alone, called as often as the
+run called them (at the run's final state, into preallocated arrays). The rest, per step,
+is what one IDA step costs beside the model: SUNDIALS' own work (BDF, the LU of the
+iteration matrix, its error test), scikit-sundae's wrappers (NumPy arrays made of IDA's
+vectors at each residual, Jacobian and root-function call, a result object per output
+time) and phc's step hook (``phc.simulation.ida._StepHook``: the step count, the
+singularity monitor's looks, the domain-edge check).
 
-* **scikit-SUNDAE's wrapper**: IDA calls scikit-SUNDAE's Cython residual wrapper, which
-  makes three NumPy arrays of IDA's vectors each call (phc's callback not installed);
-* **phc's Python callback**: IDA calls phc's ``ctypes`` callback, which reads the vectors
-  through NumPy views made once (``PHC_IDA_NATIVE=0``: it stays for the whole run);
-* **compiled callbacks** (numba backend only): the run changes from the Python callback
-  to numba C callbacks after ``phc.simulation.ida.SWITCH_EVALUATIONS`` residual evaluations
-  (``phc/simulation/ida_native.py``); the first run of a process builds them (its time
-  includes that; the best of the runs does not).
-
-Every run of a model must give the same states as the wrapper's, bit for bit; the script
-fails otherwise.
+Since phc reaches IDA only through what scikit-sundae documents, this is the figure a C
+back end calling SUNDIALS directly would reduce; ``benchmarks/results/ida_callbacks.md`` at
+commit 80caebb (``git show 80caebb:benchmarks/results/ida_callbacks.md``) has the run times
+of the earlier direct ``ctypes`` path for comparison.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
-import statistics
 import sys
 import time
 import warnings
@@ -37,28 +34,30 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import phc  # noqa: E402
-from phc.simulation import ida  # noqa: E402
+from phc.simulation import parameter_vector  # noqa: E402
 
 MODELS = [("pendulum.yaml", "numpy"), ("double_pendulum.yaml", "numpy"), ("euler_bernoulli_beam.yaml", "numpy"),
           ("timoshenko_beam.yaml", "numba"), ("controlled_beam.yaml", "numba"),
           ("flexible_slider_crank.yaml", "numba")]
 
 
-def _run(compiled, config: str):
-    """(CPU seconds, result, whether the compiled callbacks were installed)."""
-    install, install_native = ida._IdaCounters.install_residual, ida._IdaCounters.install_native
-    os.environ["PHC_IDA_NATIVE"] = "1" if config == "compiled callbacks" else "0"
-    if config == "scikit-SUNDAE's wrapper":
-        ida._IdaCounters.install_residual = lambda self, resfn, n: False
-    native = []
-    ida._IdaCounters.install_native = lambda self, *a: native.append(install_native(self, *a)) or native[-1]
-    try:
-        t = time.process_time()
-        r = phc.simulate(compiled, solver="ida")
-        return time.process_time() - t, r, any(native)
-    finally:
-        ida._IdaCounters.install_residual, ida._IdaCounters.install_native = install, install_native
-        os.environ.pop("PHC_IDA_NATIVE", None)
+def _functions_cpu(compiled, result) -> float:
+    """CPU seconds of the raw generated residual and Jacobian, called as often as `result`'s run did."""
+    mod = compiled.module
+    raw = getattr(mod, "module", mod)
+    p = parameter_vector(mod)
+    y, yp = np.array(result.y[-1]), np.array(result.yp[-1]) if getattr(result, "yp", None) is not None \
+        else np.zeros(mod.N)
+    res = np.empty(len(mod.EQUATIONS))
+    jac = np.empty(len(mod.JAC_ROWS))
+    t = float(result.t[-1])
+    residual, jacobian = raw.residual, raw.jacobian
+    start = time.process_time()
+    for _ in range(int(result.n_residual_evals)):
+        residual(t, y, yp, p, res)
+    for _ in range(int(result.n_jacobian_evals)):
+        jacobian(t, y, yp, p, 1.0, jac)
+    return time.process_time() - start
 
 
 def main(argv=None) -> int:
@@ -69,42 +68,30 @@ def main(argv=None) -> int:
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     warnings.simplefilter("ignore")
     chosen = [(m, b) for m, b in MODELS if args.models is None or m in args.models]
-    print("# IDA's callbacks: scikit-SUNDAE's wrapper, phc's Python callback, compiled callbacks\n")
+    print("# IDA through scikit-sundae: the cost of a step beside the model's functions\n")
     print(f"Command: `python benchmarks/bench_ida_callbacks.py --repeat {args.repeat}`; CPU seconds of "
-          "`phc.simulate(compiled, solver=\"ida\")` over each model's own time span and tolerances; best and median "
-          f"of {args.repeat} runs, alternating.\n")
-    print("| model (backend) | configuration | steps | residual evaluations | best [s] | median [s] | "
-          "wrapper's best ÷ this best |")
-    print("|---|---|---:|---:|---:|---:|---:|")
+          "`phc.simulate(compiled, solver=\"ida\")` over each model's own time span and tolerances (best of "
+          f"{args.repeat}); the generated functions alone, called as often as the run called them; the rest per "
+          "step.\n")
+    print("| model (backend) | unknowns | steps | residual evaluations | Jacobian evaluations | run [s] | "
+          "functions [s] | rest per step [µs] |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|")
     for name, backend in chosen:
         compiled = phc.compile_model(ROOT / "models" / name, backend=backend)
-        configs = ["scikit-SUNDAE's wrapper", "phc's Python callback"]
-        if getattr(compiled.module, "BACKEND", "numpy") == "numba":
-            configs.append("compiled callbacks")
-        times = {c: [] for c in configs}
-        runs = {}
-        switched = False
+        best, result = None, None
         for _ in range(args.repeat):
-            for config in configs:
-                cpu, r, native = _run(compiled, config)
-                times[config].append(cpu)
-                runs[config] = r
-                switched = switched or native
-        reference = runs[configs[0]]
-        for config in configs:
-            r = runs[config]
-            if not (r.steps == reference.steps and np.array_equal(r.y, reference.y)):
-                print(f"{name}: {config} differs from scikit-SUNDAE's wrapper", file=sys.stderr)
+            start = time.process_time()
+            r = phc.simulate(compiled, solver="ida")
+            cpu = time.process_time() - start
+            if not r.success:
+                print(f"{name}: the IDA run failed: {r.message}", file=sys.stderr)
                 return 1
-            best = min(times[config])
-            label = config
-            if config == "compiled callbacks" and not switched:
-                label += f" (not reached: fewer than {ida.SWITCH_EVALUATIONS} evaluations)"
-            elif config == "compiled callbacks":
-                label += f" (from evaluation {ida.SWITCH_EVALUATIONS} on)"
-            print(f"| {name.removesuffix('.yaml')} ({backend}) | {label} | {r.steps} | {r.n_residual_evals} | "
-                  f"{best:.3f} | {statistics.median(times[config]):.3f} | {min(times[configs[0]]) / best:.2f}× |")
-    print("\nEvery configuration gave the wrapper's states bit for bit (checked by the script).")
+            if best is None or cpu < best:
+                best, result = cpu, r
+        functions = min(_functions_cpu(compiled, result) for _ in range(args.repeat))
+        rest = (best - functions) / max(result.steps, 1) * 1e6
+        print(f"| {name.removesuffix('.yaml')} ({backend}) | {compiled.module.N} | {result.steps} | "
+              f"{result.n_residual_evals} | {result.n_jacobian_evals} | {best:.3f} | {functions:.3f} | {rest:.1f} |")
     return 0
 
 

@@ -82,9 +82,6 @@ def main() -> None:
             ("`python -c pass` (the interpreter)", [py, "-c", "pass"], env, None),
             ("`python -c 'import numpy, scipy.sparse, sksundae.ida'` (scikit-SUNDAE's own import)",
              [py, "-c", "import numpy, scipy.sparse, scipy.sparse.linalg, scipy.linalg, sksundae.ida"], env, None),
-            ("the same through phc (`phc.simulation.ida._import_ida`: without scipy.optimize)",
-             [py, "-c", "import numpy, scipy.sparse, scipy.sparse.linalg, scipy.linalg; "
-                        "from phc.simulation.ida import _import_ida; _import_ida()"], env, None),
             ("`phc --version`", [*phc, "--version"], env, 0.2),
             ("`phc --help`", [*phc, "--help"], env, 0.2),
             (f"`phc validate {PENDULUM}`, cached", [*phc, "validate", PENDULUM], env, 0.5),

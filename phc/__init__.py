@@ -37,8 +37,8 @@ _API = {
     "InconsistentInitialError": ("phc.errors", "InconsistentInitialError"),
     "SimulationSetupError": ("phc.errors", "SimulationSetupError"),
     "CodegenError": ("phc.errors", "CodegenError"),
-    "ModelEvaluationError": ("phc.simulation", "ModelEvaluationError"),
-    "SimulationInterrupted": ("phc.simulation", "SimulationInterrupted"),
+    "ModelEvaluationError": ("phc.errors", "ModelEvaluationError"),
+    "SimulationInterrupted": ("phc.errors", "SimulationInterrupted"),
 }
 
 __all__ = ["__version__", *_API]

@@ -26,9 +26,11 @@ from typing import Optional
 
 import numpy as np
 
+from phc.registry import FieldView
 from phc.scene import scene_variant
 
-SPATIAL_ORDER = {"string": 2, "timoshenko_beam": 2, "pde1d": 2, "euler_bernoulli_beam": 4, "moving_beam": 4}
+SPATIAL_ORDER = FieldView("spatial_order")
+"""Type -> convergence order of its discretization in the element size (:mod:`phc.registry`)."""
 FIXED_STEP_ORDER = {"midpoint": 2, "discrete_gradient": 2, "midpoint4": 4}
 """Order of each fixed-step solver (the Richardson factor of the half-step rerun)."""
 IDA_TOL_FACTOR = 10.0

@@ -7,7 +7,8 @@ with a located error that gives the estimate and what drives it.
 
 **Memory.** Each distributed component is estimated from its type and element count
 *before* it is discretized (:func:`admit_mesh`, called by the elaborator): unknowns
-and Jacobian nonzeros per element are those of phc's own discretizations, and the
+and Jacobian nonzeros per element are those of phc's own discretizations (the ``cost``
+of each type's entry in :mod:`phc.registry`), and the
 compile peak is about :data:`BYTES_PER_UNKNOWN` per unknown plus
 :data:`BYTES_PER_NONZERO` per nonzero on top of :data:`BASE_BYTES` (measured on strings
 and beams of 1 000 to 16 000 elements: 6.9 KiB and 0.4 KiB; the constants round up, and
@@ -40,7 +41,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Callable, Iterator, Optional
 
-from phc.errors import PhcError
+from phc.errors import SymbolicBudgetError
 
 if TYPE_CHECKING:
     from phc.diagnostics import Diagnostic
@@ -71,15 +72,6 @@ BYTES_PER_UNKNOWN = 8 * 2**10
 """Compile peak per unknown: symbols, variables, equations, printed source (6.9 KiB measured)."""
 BYTES_PER_NONZERO = 512
 """Compile peak per Jacobian nonzero (0.4 KiB measured)."""
-
-PER_ELEMENT = {
-    "string": (4, 16),
-    "timoshenko_beam": (8, 36),
-    "euler_bernoulli_beam": (8, 54),
-    "moving_beam": (8, 62),
-}
-"""(unknowns, Jacobian nonzeros) per element of phc's discretizations (P1/P0 for strings and
-Timoshenko beams, Hermite/DP1 for Euler–Bernoulli and moving beams; states and co-energies)."""
 
 DIFF_LIMIT = 100_000
 """Largest bound on the size of one derivative (nodes): about 3 s of sympy work."""
@@ -188,13 +180,16 @@ def output_bytes(n_out: int, n_columns: int) -> int:
 
 
 def mesh_estimate(comp) -> Estimate:
-    """Unknowns and Jacobian nonzeros of a distributed component from its spec alone."""
-    n = int(comp.elements)
-    if comp.type == "pde1d":
-        per = 2 * int(comp.order) * len(comp.variables)
-        return Estimate(per * (n + 1), per * (4 if comp.order == 1 else 7) * max(1, len(comp.variables) // 2) * n)
-    per_unknown, per_nonzero = PER_ELEMENT.get(comp.type, (8, 62))
-    return Estimate(per_unknown * (n + 1), per_nonzero * n)
+    """Unknowns and Jacobian nonzeros of a distributed component from its spec alone: the
+    ``cost`` of its type's registry entry (:mod:`phc.registry`; per element of phc's
+    discretizations, P1/P0 for strings and Timoshenko beams, Hermite/DP1 for
+    Euler–Bernoulli and moving beams, states and co-energies)."""
+    from phc.registry import get
+
+    cost = get(comp.type).cost(comp)
+    if cost is None:
+        raise ValueError(f"`{comp.type}` has no mesh to estimate; its variables are counted after assembly")
+    return Estimate(*cost)
 
 
 @dataclass
@@ -328,14 +323,6 @@ def check_output_arrays(n_out: int, n_columns: int, what: str = "n_out") -> Opti
 
 
 # -- symbolic work -------------------------------------------------------------------------
-
-class SymbolicBudgetError(PhcError):
-    """An expression whose derivative (or whose CSE) would exceed the symbolic budget."""
-
-    def __init__(self, expr, work: int, limit: int, what: str) -> None:
-        self.expr, self.work, self.limit, self.what = expr, work, limit, what
-        super().__init__(f"{what}: estimated {work:,} nodes, above the limit of {limit:,}")
-
 
 class SizeCache:
     """Tree sizes of sympy nodes (shared subtrees counted once per occurrence, as sympy's

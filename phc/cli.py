@@ -19,14 +19,11 @@ from typing import Optional, Sequence
 
 from phc import __version__
 from phc import PhcError
+from phc.errors import UsageError
 
 EXIT_OK, EXIT_MODEL, EXIT_USAGE = 0, 1, 2
 EXIT_INTERRUPTED = 130
 _python_showwarning = warnings.showwarning
-
-
-class UsageError(PhcError):
-    """A wrong command-line argument."""
 
 
 def _print_diagnostics(diags, fmt: str = "text", stream=None) -> None:

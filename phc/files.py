@@ -33,7 +33,7 @@ import stat
 from pathlib import Path
 from typing import BinaryIO, Iterable, Iterator, Optional
 
-from phc.errors import PhcError
+from phc.errors import FileRefused
 
 __all__ = ["FileAccess", "FileRefused", "allow_paths", "allowed_extra_roots", "size_limit", "SIZE_LIMITS",
            "SIZE_LIMIT_ENV", "MAX_INCLUDE_DEPTH", "MAX_MODEL_INSTANCES", "ALLOW_HINT", "KIND_NAMES"]
@@ -61,17 +61,6 @@ ALLOW_HINT = (f"move the file next to the model, or pass --allow-path DIR (or se
               "files under DIR")
 
 _EXTRA_ROOTS: contextvars.ContextVar[tuple[str, ...]] = contextvars.ContextVar("phc_allow_path", default=())
-
-
-class FileRefused(PhcError):
-    """A referenced file phc will not read. `reason` is one of ``outside``, ``missing``,
-    ``kind``, ``size``, ``unreadable``, ``name``; `message` and `hint` are for the user."""
-
-    def __init__(self, reason: str, message: str, hint: Optional[str] = None) -> None:
-        super().__init__(message)
-        self.reason = reason
-        self.message = message
-        self.hint = hint
 
 
 @contextlib.contextmanager

@@ -57,52 +57,16 @@ import sympy as sp
 
 from phc.dae import InitialValue
 from phc.discretize.fem1d import _GAUSS_W, H3, Mesh, assemble
+from phc.registry import FieldView, find
 from phc.spec.model import InitialSpec
 
 XI = sp.Symbol("xi", real=True)  # the same symbol as phc.library.beams.XI
 
-FIELDS: dict[str, dict[str, str]] = {
-    "string": {
-        "w": "transverse deflection w(ξ); sets the strain ε = ∂w/∂ξ",
-        "velocity": "transverse velocity v(ξ); sets the momentum density p = ρv",
-        "p": "momentum density p(ξ)",
-        "eps": "strain ε(ξ) = ∂w/∂ξ",
-    },
-    "euler_bernoulli_beam": {
-        "w": "transverse deflection w(ξ); sets the curvature κ = ∂²w/∂ξ²",
-        "velocity": "transverse velocity v(ξ); sets the momentum density p = ρA v",
-        "p": "momentum density p(ξ)",
-        "kappa": "curvature κ(ξ)",
-    },
-    "timoshenko_beam": {
-        "w": "transverse deflection w(ξ); with `phi` sets γ = ∂w/∂ξ − φ and θ = ∂φ/∂ξ (without `phi`: "
-             "φ = ∂w/∂ξ, no shear)",
-        "phi": "rotation φ(ξ) of the cross-sections (with `w`)",
-        "velocity": "transverse velocity ∂w/∂t; sets p = ρ v",
-        "angular_velocity": "angular velocity ∂φ/∂t of the cross-sections; sets M = I_ρ ∂φ/∂t",
-        "p": "transverse momentum density", "M": "angular momentum density",
-        "gamma": "shear strain γ = ∂w/∂ξ − φ", "theta": "bending strain θ = ∂φ/∂ξ",
-    },
-    "moving_beam": {
-        "w": "elastic deflection w(ξ) from the chord, w(0) = w(L) = 0; sets κ = ∂²w/∂ξ²",
-        "velocity": "elastic transverse velocity ∂w/∂t relative to the chord's rigid motion, zero at both ends",
-        "kappa": "curvature κ(ξ)",
-        "p": "transverse momentum density p_b(ξ) in the chord frame, rigid motion included (its end values "
-             "set the ends' normal velocities)",
-        "u": "axial displacement u(ξ) (effect `axial`); sets the axial strain ε = ∂u/∂ξ",
-        "axial_velocity": "axial velocity ∂u/∂t relative to the end ξ = 0 (effect `axial`), zero at ξ = 0",
-        "eps": "axial strain ε(ξ) (effect `axial`)",
-    },
-}
-"""Fields by component type (`pde1d` takes its `variables` by name)."""
+FIELDS = FieldView("initial_fields", lambda entry: dict(entry.initial_fields.names) or None)
+"""Fields by component type: the ``initial_fields`` of its registry entry
+(:mod:`phc.registry`; `pde1d` takes its `variables` by name)."""
 
-_VALUE = [("a", "a", 0), ("b", "b", 0)]
-_PIN_TRACES = {
-    "string": {"velocity": _VALUE, "p": _VALUE},
-    "timoshenko_beam": {"velocity": _VALUE, "p": _VALUE, "angular_velocity": [("a_rot", "a", 0), ("b_rot", "b", 0)],
-                        "M": [("a_rot", "a", 0), ("b_rot", "b", 0)]},
-    "euler_bernoulli_beam": {"velocity": _VALUE + [("a_rot", "a", 1), ("b_rot", "b", 1)], "p": _VALUE},
-}
+_PIN_TRACES = FieldView("initial_fields", lambda entry: dict(entry.initial_fields.pin_traces) or None)
 """The end traces a pin (`zero_flow` on the port) sets to zero, by component type and field:
 (port, end, derivative) — a port's flow is the trace of the field's co-energy
 (phc.library.beams: the ports of `_lower_partitioned`)."""
@@ -141,7 +105,8 @@ def register(b, name: str, spec, mesh: Mesh, fields: Optional[dict], rigid=None)
 
 
 def field_names(fs: FieldSet) -> dict[str, str]:
-    if fs.type == "pde1d":
+    entry = find(fs.type)
+    if entry is not None and entry.initial_fields.from_variables:
         return {v: f"energy variable `{v}`" for v in fs.variables}
     return FIELDS.get(fs.type, {})
 

@@ -27,7 +27,7 @@ from typing import Optional
 import numpy as np
 import sympy as sp
 
-from phc.errors import PhcError
+from phc.errors import TableError
 from phc.dae import T
 from phc.files import FileAccess, FileRefused
 from phc.spec.model import PieceSpec, TableSpec
@@ -53,11 +53,6 @@ class InputTableSlope(sp.Function):
 
     def fdiff(self, argindex=2):
         return sp.Integer(0)
-
-
-class TableError(PhcError):
-    """A table file that cannot be used; `message` says why (never quoting the file's
-    content beyond a column name of a header that parsed as one)."""
 
 
 MAX_KINK_BREAKPOINTS = 256

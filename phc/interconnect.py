@@ -31,6 +31,7 @@ import networkx as nx
 
 from phc.dae import Topology
 from phc.diagnostics import Diagnostic, DiagnosticList
+from phc.registry import FieldView, find
 from phc.spec.expressions import ExpressionError, validate_syntax
 
 if TYPE_CHECKING:
@@ -45,8 +46,9 @@ def _owner(ref: str) -> str:
     return ref.split(".", 1)[0]
 
 
-MODULATED = ("modulation", "transformer", "gyrator")
-"""Component types whose matrix may read other components' states (lowered last)."""
+MODULATED = FieldView("state_reads", lambda entry: True if entry.state_reads.modulated else None)
+"""Component types whose matrix may read other components' states (lowered last): the
+registry's ``state_reads.modulated`` (:mod:`phc.registry`)."""
 
 
 def reads_of(spec: ModelSpec) -> list[tuple[str, str]]:
@@ -70,16 +72,19 @@ def reads_of(spec: ModelSpec) -> list[tuple[str, str]]:
 def state_reads(comp) -> Optional[set]:
     """The components whose states a component's expressions read (names written in full,
     ``wheel.theta``): a modulation's `K`, a transformer's or gyrator's `ratio`, a source's
-    `value` (feedback). None when an expression does not parse (its error is reported
-    when the component is lowered)."""
-    if comp.type == "modulation":
-        matrix = comp.K
-    elif comp.type in ("transformer", "gyrator"):
-        matrix = comp.ratio
-    elif comp.type in ("effort_source", "flow_source"):
-        matrix = comp.value
-    else:
-        return set()
+    `value` (feedback): the fields the type's registry entry names in ``state_reads``. None
+    when an expression does not parse (its error is reported when the component is lowered)."""
+    entry = find(getattr(comp, "type", None))
+    read: set = set()
+    for name in entry.state_reads.fields if entry is not None else ():
+        found = _reads_of_value(getattr(comp, name)) if getattr(comp, name) is not None else set()
+        if found is None:
+            return None
+        read |= found
+    return read
+
+
+def _reads_of_value(matrix) -> Optional[set]:
     entries = ([e for row in matrix for e in (row if isinstance(row, list) else [row])]
                if isinstance(matrix, list) else [matrix])
     try:

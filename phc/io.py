@@ -21,7 +21,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, Iterator, Sequence, Union
 
-from phc.errors import PhcError
+from phc.errors import OutputPathError
 
 PathLike = Union[str, os.PathLike]
 
@@ -30,10 +30,6 @@ __all__ = ["OutputPathError", "check_output_file", "check_output_dir", "atomic_w
 
 TEMP_SUFFIX = ".part"
 """Suffix of the temporary files (hidden: their names start with a dot)."""
-
-
-class OutputPathError(PhcError, ValueError):
-    """An output path that cannot be written (the message says why and what to do)."""
 
 
 def _probe_directory(folder: Path, option: str, shown: str) -> None:

@@ -30,20 +30,12 @@ from typing import Optional
 import numpy as np
 
 from phc.diagnostics import Diagnostic
+from phc.errors import ReferenceValuesError
 from phc.source import SourceSpan
 
 CODE = "PHC-E607"
 MAX_ROWS = 1_000_000
 """Most data rows of a reference-values file."""
-
-
-class ReferenceValuesError(Exception):
-    """A problem with reference values: `message`, and where (`span`, `path` of a scene entry)."""
-
-    def __init__(self, message: str, span: Optional[SourceSpan] = None, hint: Optional[str] = None,
-                 path: Optional[tuple] = None) -> None:
-        super().__init__(message)
-        self.message, self.span, self.hint, self.path = message, span, hint, path
 
 
 @dataclass

@@ -40,7 +40,7 @@ from typing import Mapping, Optional
 
 import sympy as sp
 
-from phc.errors import PhcError
+from phc.errors import DimensionError, UnitError
 
 __all__ = ["DOMAIN_UNITS", "NUMBER", "DimensionError", "UnitError", "describe", "dimension",
            "domain_units", "have_pint", "parse_unit", "same_dimension", "unit_label"]
@@ -61,18 +61,6 @@ DOMAIN_UNITS: dict[str, tuple[str, str]] = {
 """Effort and flow unit of each physical domain (``generic`` has none). The thermal domain
 is the pseudo-bond-graph one that engineers use (temperature and heat flow; their product
 is not a power), so a thermal capacitance is J/K and a thermal resistance K/W."""
-
-
-class UnitError(PhcError, ValueError):
-    """A unit text that is malformed or names no known unit (`message` and `hint`)."""
-
-    def __init__(self, message: str, hint: Optional[str] = None):
-        super().__init__(message)
-        self.message, self.hint = message, hint
-
-
-class DimensionError(PhcError, ValueError):
-    """An expression whose parts have incompatible dimensions."""
 
 
 class _Number:
@@ -401,56 +389,44 @@ def dimension(expr: sp.Basic, units: Mapping, written: Optional[Mapping] = None)
     return _Walker(units, written or {}).dim(expr)
 
 
-_MECHANICAL_FIELDS: dict[str, dict[str, tuple[str, str]]] = {
-    "string": {"rho": ("kg/m", "a mass per length"), "T": ("N", "a force (the tension)"),
-               "length": ("m", "a length"), "damping": ("N*s/m^2", "a damping per length")},
-    "euler_bernoulli_beam": {"rhoA": ("kg/m", "a mass per length"), "EI": ("N*m^2", "a bending stiffness"),
-                             "length": ("m", "a length"), "damping": ("N*s/m^2", "a damping per length")},
-    "timoshenko_beam": {"rho": ("kg/m", "a mass per length"), "I_rho": ("kg*m", "a rotary inertia per length"),
-                        "EI": ("N*m^2", "a bending stiffness"), "K": ("N", "a shear stiffness (κGA)"),
-                        "length": ("m", "a length"), "damping": ("N*s/m^2", "a damping per length")},
-    "moving_beam": {"length": ("m", "a length"), "rhoA": ("kg/m", "a mass per length"),
-                    "EI": ("N*m^2", "a bending stiffness"), "damping": ("N*m^2*s", "a Kelvin–Voigt damping")},
-    "crank_wheel": {"radius": ("m", "a length"), "inertia": ("kg*m^2", "a moment of inertia"),
-                    "center": ("m", "a position")},
-}
-"""Fields of the mechanical library components and their SI units."""
+def _type_units(comp):
+    """The unit information of `comp`'s type: the ``units`` of its registry entry
+    (:mod:`phc.registry`), None for a type without one (a nested model)."""
+    from phc.registry import find
 
-_ELEMENT_FIELDS = {
-    # type: (field, numerator, denominator, meaning); e, f = the port's effort and flow, s = second
-    "mass": ("m", "e*s", "f", "effort·time/flow (a mass, or a moment of inertia)"),
-    "inductor": ("L", "e*s", "f", "effort·time/flow (an inductance)"),
-    "spring": ("k", "e", "f*s", "effort/displacement (a stiffness)"),
-    "capacitor": ("C", "f*s", "e", "displacement/effort (a capacitance)"),
-    "damper": ("d", "e", "f", "effort/flow (a damping coefficient)"),
-    "resistor": ("R", "e", "f", "effort/flow (a resistance)"),
-    "effort_source": ("value", "e", "1", "the effort of its domain"),
-    "flow_source": ("value", "f", "1", "the flow of its domain"),
-    "modulation": ("K", "e", "f", "effort/flow"),
-}
+    entry = find(getattr(comp, "type", None))
+    return None if entry is None else entry.units
+
+
+def _element_fields(comp, units):
+    """(field, numerator, denominator, meaning) of the fields `comp` gives whose dimension
+    follows from its port domain."""
+    return [(eu.field, eu.numerator, eu.denominator, eu.meaning) for eu in units.element
+            if getattr(comp, eu.field, None) is not None]
 
 
 def expected_fields(comp, domains: Mapping[str, str]) -> list[tuple[str, object, str]]:
     """The fields of component `comp` whose dimension its type and port domains fix:
     ``(field, quantity in SI base units, what it is)``. `domains` maps the component's
-    local port names to their domains. Empty without pint or where nothing is known."""
-    if not have_pint():
+    local port names to their domains. Empty without pint or where nothing is known
+    (the type's ``units`` in :mod:`phc.registry`)."""
+    units = _type_units(comp)
+    if not have_pint() or units is None:
         return []
     out = []
-    if comp.type in _MECHANICAL_FIELDS:
-        for name, (unit, meaning) in _MECHANICAL_FIELDS[comp.type].items():
+    if units.si:
+        for name, (unit, meaning) in units.si.items():
             out.append((name, parse_unit(unit), f"{meaning}, {unit}"))
         return out
     second = parse_unit("s")
-    if comp.type in _ELEMENT_FIELDS:
-        field, num, den, meaning = _ELEMENT_FIELDS[comp.type]
+    if units.element:
         doms = set(domains.values())
         if len(doms) != 1:
             return out
-        units = domain_units(next(iter(doms)))
-        if units is None:
+        domain_u = domain_units(next(iter(doms)))
+        if domain_u is None:
             return out
-        e, f = units
+        e, f = domain_u
         vals = {"e": e, "f": f, "s": second, "1": parse_unit("1")}
 
         def product(text):
@@ -459,26 +435,22 @@ def expected_fields(comp, domains: Mapping[str, str]) -> list[tuple[str, object,
                 q = q * vals[part]
             return q
 
-        quantity = product(num) / product(den)
-        out.append((field, quantity, f"{meaning}: {unit_label(quantity)} in {next(iter(doms))}"))
-        if comp.type in ("flow_source", "zero_flow") and getattr(comp, "position", None) is not None:
-            out.append(("position", f * second, f"a displacement: {unit_label(f * second)} in {next(iter(doms))}"))
+        for field, num, den, meaning in _element_fields(comp, units):
+            quantity = product(num) / product(den)
+            out.append((field, quantity, f"{meaning}: {unit_label(quantity)} in {next(iter(doms))}"))
         return out
-    if comp.type in ("transformer", "gyrator") and {"a", "b"} <= domains.keys():
+    if units.ratio is not None and {"a", "b"} <= domains.keys():
         ua, ub = domain_units(domains["a"]), domain_units(domains["b"])
         if ua is None or ub is None:
             return out
-        if comp.type == "transformer":
-            quantity, what = ub[1] / ua[1], "flow of port b / flow of port a"
-        else:
-            quantity, what = ub[0] / ua[1], "effort of port b / flow of port a"
+        top, bottom = units.ratio
+        quantity = ub[top == "f"] / ua[bottom == "f"]
+        what = f"{_QUANTITY[top]} of port b / {_QUANTITY[bottom]} of port a"
         out.append(("ratio", quantity, f"{what}: {unit_label(quantity)}"))
     return out
 
 
-_STORAGE_STATES = {"mass": ("e", "s"), "inductor": ("e", "s"), "spring": ("f", "s"), "capacitor": ("f", "s")}
-"""Lumped storage elements: their state is effort·time (a momentum, a flux linkage) or
-flow·time (a displacement, a charge)."""
+_QUANTITY = {"e": "effort", "f": "flow"}
 
 
 def variable_units(elab, si: Optional[bool] = None, scales: Optional[Mapping] = None) -> dict:
@@ -513,12 +485,12 @@ def variable_units(elab, si: Optional[bool] = None, scales: Optional[Mapping] = 
     for v in elab.variables:
         if v.role != "state" or v.component not in specs:
             continue
-        kind = _STORAGE_STATES.get(getattr(specs[v.component], "type", None))
+        units = _type_units(specs[v.component])
         domains = domain_of.get(v.component, set())
-        if kind is None or len(domains) != 1:
+        if units is None or units.storage is None or len(domains) != 1:
             continue
         e, f = scaled(next(iter(domains)))
-        out[v.symbol] = (e if kind[0] == "e" else f) * second
+        out[v.symbol] = (e if units.storage == "e" else f) * second
     return out
 
 
@@ -708,27 +680,28 @@ def scale_terms(comp, domains: Mapping[str, str]) -> dict[str, dict]:
     if not have_pint():
         return {}
     out: dict[str, dict] = {}
-    if comp.type in _ELEMENT_FIELDS:
-        field, num, den, _ = _ELEMENT_FIELDS[comp.type]
+    units = _type_units(comp)
+    if units is None:
+        return out
+    if units.element:
         doms = set(domains.values())
         if len(doms) != 1 or domain_units(next(iter(doms))) is None:
             return out
         dom = next(iter(doms))
         names = {"e": ("E", dom), "f": ("F", dom), "s": _TIME}
-        terms: dict = {}
-        for text, sign in ((num, 1), (den, -1)):
-            for part in text.split("*"):
-                if part in names:
-                    terms[names[part]] = terms.get(names[part], 0) + sign
-        out[field] = {k: v for k, v in terms.items() if v}
-        if comp.type in ("flow_source", "zero_flow") and getattr(comp, "position", None) is not None:
-            out["position"] = {("F", dom): 1, _TIME: 1}
+        for field, num, den, _ in _element_fields(comp, units):
+            terms: dict = {}
+            for text, sign in ((num, 1), (den, -1)):
+                for part in text.split("*"):
+                    if part in names:
+                        terms[names[part]] = terms.get(names[part], 0) + sign
+            out[field] = {k: v for k, v in terms.items() if v}
         return out
-    if comp.type in ("transformer", "gyrator") and {"a", "b"} <= domains.keys():
+    if units.ratio is not None and {"a", "b"} <= domains.keys():
         if domain_units(domains["a"]) is None or domain_units(domains["b"]) is None:
             return out
-        top = ("F" if comp.type == "transformer" else "E", domains["b"])
-        bottom = ("F", domains["a"])
+        top = (units.ratio[0].upper(), domains["b"])
+        bottom = (units.ratio[1].upper(), domains["a"])
         out["ratio"] = {} if top == bottom else {top: 1, bottom: -1}
     return out
 

@@ -45,7 +45,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from phc.errors import SimulationSetupError
+from phc.errors import NothingToAnimate, PlotUnavailable, SimulationSetupError
 from phc.spec.expressions import ExpressionError
 
 INSTALL_HINT = 'pip install "port-hamiltonian-compiler[plot]"'
@@ -62,17 +62,6 @@ _COLORS = {
     "trail": "#7f8c8d",
 }
 _LINK_COLORS = ("#1f4e79", "#2e86c1", "#117a65", "#6c3483", "#a04000")
-
-
-class PlotUnavailable(SimulationSetupError):
-    """Drawing was asked for but matplotlib is not installed."""
-
-    def __init__(self, what: str = "drawing"):
-        super().__init__(f"{what} needs matplotlib, which is not installed; install it with: {INSTALL_HINT}")
-
-
-class NothingToAnimate(SimulationSetupError):
-    """The model has no planar mechanism that :func:`animate` knows how to draw."""
 
 
 def _require_matplotlib(what: str = "drawing"):
@@ -287,7 +276,24 @@ def _evaluator(texts, scope: _Scope, constants: dict, states: dict):
     return [np.broadcast_to(np.asarray(o, dtype=float), (scope.nt,)).copy() for o in out]
 
 
+@dataclass
+class DrawContext:
+    """What a registry entry's :class:`~phc.registry.Drawing` sees, ``draw(ctx, full, spec,
+    prefix)``: the run, the planar points placed so far by port, each port's neighbour, every
+    component's (type, spec, prefix); it sets `magnified` and counts rigid bodies (colours)."""
+
+    scope: _Scope
+    points: dict
+    neighbour: dict
+    specs: dict
+    magnify: float = 1.0
+    magnified: bool = False
+    n_rigid: int = 0
+
+
 def _build(compiled, result, magnify: float = 1.0, params: Optional[dict] = None) -> _Mechanism:
+    from phc.registry import find
+
     scope = _Scope(compiled, result, params)
     specs = _load_component_specs(compiled)
     topo = compiled.dae.topology
@@ -295,34 +301,53 @@ def _build(compiled, result, magnify: float = 1.0, params: Optional[dict] = None
     if topo is not None:
         for a, b, *_ in topo.connections:
             neighbour[a], neighbour[b] = b, a
+    ctx = DrawContext(scope, {}, neighbour, specs, magnify)
     parts: list[_Part] = []
-    points: dict[str, np.ndarray] = {}  # planar port → (nt, 2)
-    magnified = False
-    n_rigid = 0
-    for full, (ctype, spec, prefix) in specs.items():
-        try:
-            if ctype == "crank_wheel":
-                parts.extend(_crank_wheel(full, spec, prefix, scope, points))
-            elif ctype == "moving_beam":
-                new, mag = _moving_beam(full, spec, prefix, scope, points, magnify)
-                parts.extend(new)
-                magnified |= mag
-            elif ctype == "rigid" and spec is not None:
-                color = _LINK_COLORS[n_rigid % len(_LINK_COLORS)]
-                n_rigid += 1
-                parts.extend(_rigid(full, spec, prefix, scope, points, color))
-        except ExpressionError:  # the model file changed since it was compiled: skip the part
-            continue
-    for full, (ctype, spec, prefix) in specs.items():
-        if ctype == "orthogonal_transform" and spec is not None:
-            parts.extend(_guide(full, spec, prefix, scope, points, neighbour, specs))
-        elif ctype == "zero_flow":
-            other = neighbour.get(f"{full}.port")
-            if other in points:
-                parts.append(_Part("point", points[other], dict(marker="^", ms=11, color=_COLORS["ground"]), z=1,
-                                   label=f"{full}: support"))
+    # bodies first: they place the planar points that guides and supports are drawn at
+    for stage in ("body", "attachment"):
+        for full, (ctype, spec, prefix) in specs.items():
+            entry = find(ctype)
+            drawing = entry.drawing if entry is not None else None
+            if drawing is None or drawing.stage != stage:
+                continue
+            try:
+                parts.extend(drawing.draw(ctx, full, spec, prefix))
+            except ExpressionError:  # the model file changed since it was compiled: skip the part
+                continue
     limits = _limits(parts)
-    return _Mechanism(parts, scope.t, limits, magnified)
+    return _Mechanism(parts, scope.t, limits, ctx.magnified)
+
+
+def draw_crank_wheel(ctx: DrawContext, full, spec, prefix) -> list:
+    return _crank_wheel(full, spec, prefix, ctx.scope, ctx.points)
+
+
+def draw_moving_beam(ctx: DrawContext, full, spec, prefix) -> list:
+    parts, magnified = _moving_beam(full, spec, prefix, ctx.scope, ctx.points, ctx.magnify)
+    ctx.magnified |= magnified
+    return parts
+
+
+def draw_rigid(ctx: DrawContext, full, spec, prefix) -> list:
+    if spec is None:
+        return []
+    color = _LINK_COLORS[ctx.n_rigid % len(_LINK_COLORS)]
+    ctx.n_rigid += 1
+    return _rigid(full, spec, prefix, ctx.scope, ctx.points, color)
+
+
+def draw_guide(ctx: DrawContext, full, spec, prefix) -> list:
+    """An orthogonal transform on a planar port: its guide and slider, or a support."""
+    return [] if spec is None else _guide(full, spec, prefix, ctx.scope, ctx.points, ctx.neighbour, ctx.specs)
+
+
+def draw_support(ctx: DrawContext, full, spec, prefix) -> list:
+    """A zero flow on a planar point: a support."""
+    other = ctx.neighbour.get(f"{full}.port")
+    if other not in ctx.points:
+        return []
+    return [_Part("point", ctx.points[other], dict(marker="^", ms=11, color=_COLORS["ground"]), z=1,
+                  label=f"{full}: support")]
 
 
 def _crank_wheel(full, spec, prefix, scope, points):

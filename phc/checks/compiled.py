@@ -227,7 +227,8 @@ def _term_magnitudes(compiled, p, samples) -> np.ndarray:
     columns[sp.Symbol("t", real=True)] = np.array([t for t, _, _ in samples])
     total = np.zeros(n)
     for expr in (dae.port_power, dae.dissipation):
-        for term in sp.Add.make_args(sp.sympify(expr)):
+        # (a sympy expression the assembly built, or the integer 0 where there is no such term)
+        for term in sp.Add.make_args(expr) if isinstance(expr, sp.Basic) else ():
             if term == 0:
                 continue
             values = np.abs(_term_values(term, columns, n))

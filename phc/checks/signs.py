@@ -56,12 +56,13 @@ is not reported though it turns one loop against the other.
 from __future__ import annotations
 
 from phc.diagnostics import Diagnostic
+from phc.registry import FieldView
 
 EFFORT_ACROSS = {"electrical": ("voltage", "current"), "hydraulic": ("pressure", "volume flow"),
                  "thermal": ("temperature", "heat flow")}
-ELEMENTS = ("capacitor", "inductor", "resistor", "spring", "mass", "damper")
-SOURCES = ("effort_source", "flow_source")
-TWO_PORTS = ("transformer", "gyrator")
+ROLES = FieldView("sign_role")
+"""Type -> its role in the hints (``load``, ``source``, ``series``, ``junction``): the
+registry's ``sign_role`` (:mod:`phc.registry`); types without one take no part."""
 IN, OUT = -1, 1
 
 
@@ -85,17 +86,18 @@ def _classes(top):
         terminals = getattr(spec, "terminals", None)
         if len(ports) != n_ports[comp]:
             continue  # a port outside the effort-across domains (a motor's shaft, a piston's rod)
-        if kind in ELEMENTS and (len(ports) == 1 or terminals):
+        kind_role = ROLES.get(kind)
+        if kind_role == "load" and (len(ports) == 1 or terminals):
             orientation, role = IN, ("a terminal of two-terminal" if terminals else "the port of") + f" `{comp}`"
             role_of[comp] = "load"
-        elif kind in SOURCES and len(ports) == 1:
+        elif kind_role == "source" and len(ports) == 1:
             orientation, role = OUT, f"the source `{comp}`"
             role_of[comp] = "source"
-        elif kind == "junction" and getattr(spec, "kind", None) == "common_effort":
+        elif kind_role == "junction" and getattr(spec, "kind", None) == "common_effort":
             orientation, role = None, f"the common-effort junction `{comp}`"
             role_of[comp] = "node"
-        elif (kind == "junction" and getattr(spec, "kind", None) == "common_flow") or \
-                (kind in TWO_PORTS and len(ports) == 2):
+        elif (kind_role == "junction" and getattr(spec, "kind", None) == "common_flow") or \
+                (kind_role == "series" and len(ports) == 2):
             series[comp] = ports
             role_of[comp] = "series"
             continue

@@ -32,17 +32,13 @@ from pathlib import Path
 from types import ModuleType
 from typing import Optional
 
-from phc.errors import PhcWarning
+from phc.errors import CacheWarning
 from phc.io import write_bytes as write_atomic  # temporary file + rename
 
 DEFAULT_CAP_MB = 512
 """Default size cap of the cache in MiB (``$PHC_CACHE_MAX_MB`` overrides it)."""
 
 _PRIVATE_FALLBACK: Path | None = None
-
-
-class CacheWarning(PhcWarning):
-    """The configured cache directory is unusable or not private; a temporary one is used."""
 
 
 def configured_cache_dir() -> Path:

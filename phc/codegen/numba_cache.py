@@ -32,7 +32,7 @@ import numpy as np
 from phc import __version__
 from phc.codegen.load import KEY_BYTES, state_dir as _state_dir
 from phc.codegen.load import read_key as _read_key
-from phc.errors import PhcError, PhcWarning
+from phc.errors import BackendMismatch, BackendUnavailable, CompiledBackendWarning
 
 NUMBA_MIN = (0, 59)
 """Oldest numba version this backend supports."""
@@ -43,18 +43,6 @@ EMITTER_VERSION = "1"
 FUNCTIONS = ("residual", "residual_t", "jacobian", "hamiltonian", "energy_scale", "powers", "invariants",
              "velocity_invariants", "outputs")
 """The generated functions the compiled module replaces (the rest is the reference module's)."""
-
-class BackendUnavailable(PhcError):
-    """The compiled backend cannot be used here (numba missing or too old); says why."""
-
-
-class BackendMismatch(PhcError):
-    """The compiled functions disagree with the reference module at the check point."""
-
-
-class CompiledBackendWarning(PhcWarning):
-    """The compiled backend was asked for (or chosen) but the NumPy module is used instead."""
-
 
 _AVAILABLE: Optional[tuple[bool, str]] = None
 

@@ -143,19 +143,9 @@ def _fuse(terms, m: int, n: int) -> dict:
 
 
 _MATVEC_HELPERS = '''
-try:  # scipy's compiled CSR kernel: out += A @ x without temporaries (private; fall back if moved)
-    from scipy.sparse._sparsetools import csr_matvec as _csr_matvec
-except ImportError:  # pragma: no cover
-    _csr_matvec = None
-
-
 def _matvec_add(A, x, out):
-    """out += A @ x for a CSR matrix A (float64 data; out contiguous)."""
-    if _csr_matvec is not None and out.flags.c_contiguous and out.dtype == np.float64:
-        _csr_matvec(A.shape[0], A.shape[1], A.indptr, A.indices, A.data, np.ascontiguousarray(x, dtype=np.float64),
-                    out)
-    else:
-        out += A @ x
+    """out += A @ x for a CSR matrix A (scipy's public product: one temporary of len(out))."""
+    out += A @ x
 
 
 def _axpy(a, x, out):

@@ -27,7 +27,7 @@ import numpy as np
 import scipy.sparse as sps
 import sympy as sp
 
-from phc.errors import PhcError
+from phc.errors import NpzProblem
 from phc.dae import LinearTerm, QuadraticForm
 from phc.files import SIZE_LIMIT_ENV, FileAccess, FileRefused, size_limit
 from phc.library.dirac import DiracBuilder
@@ -46,10 +46,6 @@ MAX_MATRIX_DIMENSION = 10_000_000
 """Largest row or column count a sparse array's `shape` may claim."""
 
 _NUMERIC_KINDS = "fiub"
-
-
-class NpzProblem(PhcError):
-    """A matrices file, or an array in it, that phc will not use (`message` says why)."""
 
 
 class NpzArchive:

@@ -29,12 +29,10 @@ import sympy as sp
 from phc.dae import T
 from phc.library.dirac import DiracBuilder, emit
 from phc.library.timing import at_times, refuse_time, sample_times
+from phc.registry import FieldView
 
-DEFAULT_DOMAIN = {
-    "mass": "mechanical.translational", "spring": "mechanical.translational",
-    "damper": "mechanical.translational", "inductor": "electrical", "capacitor": "electrical",
-    "resistor": "electrical",
-}
+DEFAULT_DOMAIN = FieldView("default_domain")
+"""Type -> the domain of its ports when the entry gives none (:mod:`phc.registry`)."""
 
 
 def _scope(ctx):

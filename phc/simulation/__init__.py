@@ -17,10 +17,6 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from phc.simulation._lean import import_scipy_sparse
-
-import_scipy_sparse()  # before any submodule loads scipy: without NumPy's unused submodules (_lean.py)
-
 from phc.compiled import CompiledModel
 from phc.errors import InconsistentInitialError, SimulationSetupError
 from phc.simulation.guard import CATCH as GUARD_CATCH

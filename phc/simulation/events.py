@@ -36,7 +36,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from phc.errors import InconsistentInitialError
+from phc.errors import InconsistentInitialError, SwitchTimeError
 from phc.simulation.guard import CATCH, ModelEvaluationError
 from phc.simulation.initial import consistent_initial_conditions
 from phc.simulation.scaling import mode_floor, tested_fraction
@@ -82,14 +82,6 @@ class Event:
 
     def as_dict(self) -> dict:
         return asdict(self)
-
-
-class SwitchTimeError(Exception):
-    """The switching times of a condition in t cannot be located."""
-
-    def __init__(self, k: int, message: str):
-        super().__init__(message)
-        self.k, self.message = k, message
 
 
 def has_switches(mod) -> bool:

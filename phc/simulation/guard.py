@@ -31,7 +31,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from phc.errors import PhcError
+from phc.errors import ModelEvaluationError
 
 # Functions of a generated module: name -> (index of the `out` argument or None when the
 # value is returned, what the message calls it)
@@ -68,34 +68,6 @@ def is_domain_error(err: BaseException) -> bool:
 REMEDY = "check the expression's domain along the motion and the parameter and initial values"
 MAX_EXPR = 160
 """Longest expression quoted in a message (characters)."""
-
-
-class ModelEvaluationError(PhcError):
-    """A generated function could not be evaluated (a domain error, an overflow, a
-    non-finite value). ``str(err)`` is the one-line message; the attributes carry the parts.
-
-    Attributes
-    ----------
-    function : str
-        ``residual``, ``jacobian``, ``outputs``, ...
-    label : str or None
-        The residual row, output or invariant label, when identified.
-    t : float
-        The time of the evaluation.
-    parameters : dict
-        Parameters the failing expression uses, with their values.
-    """
-
-    def __init__(self, message: str, *, function: str, t: float, label: Optional[str] = None,
-                 parameters: Optional[dict] = None, variables: Optional[dict] = None, subject: str = "",
-                 reason: str = "", expression: str = ""):
-        super().__init__(message)
-        self.message = message
-        self.function, self.t, self.label = function, float(t), label
-        self.parameters = dict(parameters or {})
-        self.variables = dict(variables or {})
-        self.subject, self.reason, self.expression = subject or function, reason, expression
-        """What failed (with its place in the model file), why, and the expression in model names."""
 
 
 @contextmanager

@@ -7,6 +7,8 @@ from typing import Optional
 
 import numpy as np
 
+from phc.errors import SimulationInterrupted  # noqa: F401  (its old home)
+
 
 @dataclass
 class SimResult:
@@ -120,12 +122,3 @@ class SimResult:
             "units": dict(self.units),
         }
 
-
-class SimulationInterrupted(KeyboardInterrupt):
-    """Ctrl-C during :func:`phc.simulate`: a ``KeyboardInterrupt`` that carries the partial
-    result (``.result``, ``success`` False, ``interrupted`` True) so that a caller can keep
-    what was computed; a caller that does not look at it stops as on any Ctrl-C."""
-
-    def __init__(self, result: SimResult):
-        super().__init__(result.message)
-        self.result = result

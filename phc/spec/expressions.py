@@ -31,7 +31,7 @@ from typing import Callable, Mapping
 
 import sympy as sp
 
-from phc.errors import PhcError
+from phc.errors import ExpressionError
 
 __all__ = ["CONSTANTS", "FUNCTIONS", "ExpressionError", "FunctionSpec",
            "parse_equation", "parse_expression", "validate_syntax"]
@@ -41,31 +41,6 @@ MAX_NODES = 2_000        # AST nodes
 MAX_DEPTH = 100          # nesting levels (a flat chain of + or * counts as one)
 MAX_EXPONENT = 64        # |constant exponent|
 MAX_DIGITS = 30          # digits of an integer literal
-
-
-class ExpressionError(PhcError, ValueError):
-    """A malformed or forbidden expression.
-
-    Parameters
-    ----------
-    message : str
-        What is wrong, naming the offending construct.
-    col : int
-        0-based character offset in the expression text where the problem starts.
-    hint : str or None
-        Optional fix suggestion, e.g. ``"did you mean `theta`?"``.
-    """
-
-    def __init__(self, message: str, col: int = 0, hint: str | None = None):
-        super().__init__(message)
-        self.message, self.col, self.hint = message, col, hint
-
-    def __str__(self) -> str:
-        return self.message if self.hint is None else f"{self.message} ({self.hint})"
-
-    def shifted(self, offset: int) -> "ExpressionError":
-        """Return a copy whose column is moved right by `offset` characters."""
-        return ExpressionError(self.message, self.col + offset, self.hint)
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,7 @@ from typing import Annotated, Literal, Optional, Union
 
 from pydantic import AfterValidator, Field, StrictFloat, StrictInt
 
+from phc.errors import SpecError
 from phc.spec.base import SpecModel
 
 MAX_VALUES = 100_000
@@ -65,10 +66,6 @@ class Axis:
             return f"{self.values[0]:g}"
         spread = f"{len(self.values)} values {min(self.values):g} … {max(self.values):g}"
         return spread + (" (log)" if self.log else "")
-
-
-class SpecError(ValueError):
-    """A SPEC that cannot be read (the message says how to write it)."""
 
 
 _FORMS = ("write a number, a list `1,2,5`, a grid `A:B:N` or `log:A:B:N`, or a distribution "

@@ -1,0 +1,399 @@
+"""Running the points of a sweep: one point (:func:`run_point`, the same function on
+every executor), a local process pool (:class:`LocalExecutor`) and Dask distributed
+(:class:`DaskExecutor`).
+
+Workers get the compiled model by value (phc's own pickle, made by this process for the
+workers it starts or the Dask cluster the user names); a point that fails is a row with
+``success`` false and its message; a worker lost mid-run is run again elsewhere.
+"""
+
+from __future__ import annotations
+
+import math
+import multiprocessing
+import os
+import signal
+import socket
+import sys
+import time
+import uuid
+import warnings
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, Iterator, Optional, Sequence
+
+import numpy as np
+
+from phc.errors import SimulationSetupError, SweepSetupError
+from phc.sweep.results import RUN_COLUMNS, STATS
+
+MAX_ATTEMPTS = 3
+"""Runs of one point on a local pool whose worker process died before it is recorded as failed
+(Dask: the scheduler's ``distributed.scheduler.allowed-failures``)."""
+INSTALL_CLUSTER = 'pip install "port-hamiltonian-compiler[cluster]"'
+
+
+# ---------------------------------------------------------------------------------------
+# one run (executed on the workers)
+
+
+def run_point(compiled, task: dict) -> dict:
+    """Run one point: ``{"index", "row", "series"}``. Never raises for a failing point:
+    any error becomes ``success`` false with its message."""
+    from phc.errors import InconsistentInitialError
+    from phc.simulation import SimulationInterrupted, simulate
+
+    outputs = list(compiled.module.OUTPUTS)
+    row: dict[str, Any] = {"success": False, "message": "", "t_final": math.nan, "steps": 0, "n_residual_evals": 0,
+                           "n_jacobian_evals": 0, **{c: math.nan for c in RUN_COLUMNS[6:]}}
+    for name in outputs:
+        row.update({f"{name}.{s}": math.nan for s in STATS})
+    series = None
+    wall = time.perf_counter()
+    cpu = math.nan
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            result = simulate(compiled, params=task["params"], **task["options"], **task["run"])
+        except SimulationInterrupted:
+            raise
+        except InconsistentInitialError as err:
+            row["message"] = "inconsistent initial values: " + "; ".join(err.problems)
+            result = None
+        except Exception as err:  # noqa: BLE001 — a failing point is a row, not an exception
+            row["message"] = f"{'' if isinstance(err, SimulationSetupError) else type(err).__name__ + ': '}{err}"
+            result = None
+    if result is not None:
+        cpu = float(result.cpu_time_s)
+        row.update(success=bool(result.success), message=result.message,
+                   t_final=float(result.t[-1]) if len(result.t) else math.nan, steps=int(result.steps),
+                   n_residual_evals=int(result.n_residual_evals), n_jacobian_evals=int(result.n_jacobian_evals),
+                   energy_balance_error=float(result.energy_balance_error),
+                   energy_balance_relative=float(result.energy_balance_relative),
+                   constraint_drift=float(result.constraint_drift), velocity_drift=float(result.velocity_drift))
+        for name in outputs:
+            v = np.asarray(result.outputs[name], dtype=float)
+            if len(v):
+                row.update({f"{name}.final": float(v[-1]), f"{name}.min": float(v.min()),
+                            f"{name}.max": float(v.max()), f"{name}.rms": float(np.sqrt(np.mean(v * v)))})
+        if task.get("series"):
+            series = (np.asarray(result.t, dtype=float), {n: np.asarray(result.outputs[n], dtype=float)
+                                                          for n in outputs})
+    notes = sorted({str(w.message) for w in caught})
+    if notes:
+        row["message"] = row["message"] + "".join(f" (warning: {n})" for n in notes)
+    row["message"] = " ".join(str(row["message"]).split())  # one line per row
+    row.update(cpu_time_s=cpu, wall_time_s=time.perf_counter() - wall, attempts=int(task.get("attempt", 1)),
+               worker=task.get("worker") or f"{socket.gethostname()}:{os.getpid()}")
+    return {"index": task["index"], "row": row, "series": series}
+
+
+_MODELS: dict = {}
+_INIT_ERROR: list = []
+
+
+def _init_pool_worker(blob: bytes) -> None:
+    """Initializer of a local pool process: Ctrl-C is the parent's business (it stops the
+    pool), one BLAS thread, and the compiled models unpickled once (phc's own pickle, made
+    by the parent process for its workers; never read from a file)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(1)
+    except Exception:  # noqa: BLE001 — optional; the environment set by the parent holds
+        pass
+    try:
+        import pickle
+
+        _MODELS.update(pickle.loads(blob))
+    except Exception as err:  # noqa: BLE001 — reported on every row instead of a broken pool
+        _INIT_ERROR.append(f"{type(err).__name__}: {err}")
+
+
+def _pool_task(task: dict) -> dict:
+    if _INIT_ERROR:
+        return _failed(task, f"the worker could not load the compiled model: {_INIT_ERROR[0]}")
+    return run_point(_MODELS[task["group"]], task)
+
+
+def _unpickle_model(blob: bytes):
+    """The compiled model on a Dask worker (phc's own pickle, sent by the sweep's client)."""
+    import pickle
+
+    return pickle.loads(blob)
+
+
+def _dask_task(compiled, task: dict, topic: str) -> dict:
+    """A point on a Dask worker; its start is logged as an event, so that a run repeated
+    after a lost worker is seen by the client."""
+    try:
+        from distributed import get_worker
+
+        worker = get_worker()
+        task = dict(task, worker=worker.address)
+        worker.log_event(topic, {"point": task["index"], "worker": worker.address})
+    except Exception:  # noqa: BLE001 — outside a worker (tests): no event
+        pass
+    return run_point(compiled, task)
+
+
+def _failed(task: dict, message: str, outputs: Sequence[str] = ()) -> dict:
+    row: dict[str, Any] = {"success": False, "message": " ".join(message.split()), "t_final": math.nan, "steps": 0,
+                           "n_residual_evals": 0, "n_jacobian_evals": 0, **{c: math.nan for c in RUN_COLUMNS[6:]},
+                           "cpu_time_s": math.nan, "wall_time_s": math.nan, "attempts": int(task.get("attempt", 1)),
+                           "worker": ""}
+    for name in outputs:
+        row.update({f"{name}.{s}": math.nan for s in STATS})
+    return {"index": task["index"], "row": row, "series": None}
+
+
+# ---------------------------------------------------------------------------------------
+# executors
+
+
+@contextmanager
+def _one_blas_thread():
+    """Worker processes started inside get one BLAS/OpenMP thread each (set before their
+    numpy is imported); this process's own setting is restored after."""
+    names = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+    saved = {k: os.environ.get(k) for k in names}
+    os.environ.update({k: "1" for k in names})
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def default_workers() -> int:
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:
+        return max(1, os.cpu_count() or 1)
+
+
+def start_method() -> str:
+    """How the local pool starts its processes: `fork` on Linux when this process runs no
+    other thread (the workers start at once, with phc already imported; they still rebuild
+    the compiled model from its pickle), else `forkserver` (POSIX) or `spawn`. The
+    environment variable ``PHC_SWEEP_START_METHOD`` overrides it."""
+    import threading
+
+    methods = multiprocessing.get_all_start_methods()
+    chosen = os.environ.get("PHC_SWEEP_START_METHOD", "")
+    if chosen in methods:
+        return chosen
+    if sys.platform.startswith("linux") and "fork" in methods and threading.active_count() == 1:
+        return "fork"
+    return "forkserver" if "forkserver" in methods else "spawn"
+
+
+class LocalExecutor:
+    """A pool of `workers` processes on this machine (forkserver where available, else
+    spawn: no state of this process leaks into them but the compiled models)."""
+
+    name = "local"
+
+    def __init__(self, workers: Optional[int] = None) -> None:
+        self.workers = workers or default_workers()
+        self.startup_s = math.nan
+
+    def describe(self) -> str:
+        return f"local process pool, {self.workers} worker{'s' if self.workers != 1 else ''}"
+
+    def _pool(self, models: dict) -> ProcessPoolExecutor:
+        ctx = multiprocessing.get_context(start_method())
+        if ctx.get_start_method() == "forkserver":
+            ctx.set_forkserver_preload(["phc.sweep", "phc.pipeline", "phc.simulation"])
+        import pickle
+
+        return ProcessPoolExecutor(max_workers=self.workers, mp_context=ctx, initializer=_init_pool_worker,
+                                   initargs=(pickle.dumps(models, protocol=pickle.HIGHEST_PROTOCOL),))
+
+    def run(self, models: dict, tasks: list[dict], outputs: Sequence[str]) -> Iterator[dict]:
+        attempts = {t["index"]: 1 for t in tasks}
+        pending = list(tasks)
+        started = time.perf_counter()
+        with _one_blas_thread():
+            while pending:
+                pool = self._pool(models)
+                futures = {}
+                finished = False
+                try:
+                    futures = {pool.submit(_pool_task, dict(t, attempt=attempts[t["index"]])): t for t in pending}
+                    broken = []
+                    for fut in as_completed(futures):
+                        task = futures[fut]
+                        if math.isnan(self.startup_s):
+                            self.startup_s = time.perf_counter() - started
+                        try:
+                            out = fut.result()
+                        except BrokenProcessPool:
+                            broken.append(task)
+                            continue
+                        except Exception as err:  # noqa: BLE001 — e.g. a result that cannot be sent back
+                            out = _failed(dict(task, attempt=attempts[task["index"]]),
+                                          f"the worker failed: {type(err).__name__}: {err}", outputs)
+                        yield out
+                    finished = True
+                finally:
+                    if finished:
+                        pool.shutdown(wait=True)
+                    else:  # Ctrl-C or the consumer stopped: stop the workers now
+                        _stop_pool(pool)
+                pending = []
+                for task in broken:
+                    attempts[task["index"]] += 1
+                    if attempts[task["index"]] > MAX_ATTEMPTS:
+                        yield _failed(dict(task, attempt=MAX_ATTEMPTS),
+                                      f"the worker process died {MAX_ATTEMPTS} times while this point was running or "
+                                      "queued (out of memory? a crash in a native library?)", outputs)
+                    else:
+                        pending.append(task)
+
+
+def _stop_pool(pool: ProcessPoolExecutor) -> None:
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in procs:
+        try:
+            p.terminate()
+        except Exception:  # noqa: BLE001
+            pass
+    for p in procs:
+        p.join(timeout=5)
+
+
+class DaskExecutor:
+    """Dask distributed: a running scheduler (`address`: ``tcp://host:8786``, or a scheduler
+    file written by ``dask scheduler --scheduler-file``), else a ``LocalCluster`` of
+    `workers` processes with one thread each. `client` uses an existing Client."""
+
+    name = "dask"
+
+    def __init__(self, address: Optional[str] = None, workers: Optional[int] = None, client=None) -> None:
+        try:
+            import distributed  # noqa: F401
+        except ImportError:
+            raise SweepSetupError(f"the dask executor needs dask.distributed: {INSTALL_CLUSTER}") from None
+        self.address, self.workers, self.client = address, workers, client
+        self.startup_s = math.nan
+        self._where = ""
+
+    def describe(self) -> str:
+        return f"dask, {self._where}" if self._where else "dask"
+
+    @contextmanager
+    def _client(self):
+        from distributed import Client, LocalCluster
+
+        if self.client is not None:
+            self._where = f"client of {self.client.scheduler.address}"
+            yield self.client
+            return
+        if self.address:
+            path = Path(self.address)
+            kwargs = {"scheduler_file": str(path)} if path.suffix == ".json" and path.is_file() else \
+                {"address": self.address}
+            client = Client(**kwargs, timeout=30)
+            self._where = f"scheduler {client.scheduler.address}, {len(client.scheduler_info()['workers'])} workers"
+            try:
+                yield client
+            finally:
+                client.close()
+            return
+        import logging
+
+        n = self.workers or default_workers()
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                               silence_logs=logging.ERROR)
+        client = Client(cluster)
+        self._where = f"LocalCluster, {n} worker{'s' if n != 1 else ''}"
+        try:
+            yield client
+        finally:
+            client.close()
+            cluster.close()
+
+    def run(self, models: dict, tasks: list[dict], outputs: Sequence[str]) -> Iterator[dict]:
+        from distributed import as_completed as dask_completed
+
+        started = time.perf_counter()
+        with self._client() as client:
+            topic = f"phc-sweep-{uuid.uuid4().hex[:12]}"
+            starts: dict[int, set] = {}
+
+            def seen(event) -> None:
+                _, msg = event
+                starts.setdefault(int(msg["point"]), set()).add(str(msg["worker"]))
+
+            client.subscribe_topic(topic, seen)
+            futures, loaded = {}, {}
+            try:
+                # The compiled models as tasks that unpickle them (not scattered data): a worker
+                # lost with its copy is recomputed from the task, not lost with it.
+                import pickle
+
+                loaded = {key: client.submit(_unpickle_model, pickle.dumps(model, protocol=pickle.HIGHEST_PROTOCOL),
+                                             pure=False, key=f"{topic}-model-{i}")
+                          for i, (key, model) in enumerate(models.items())}
+                futures = {client.submit(_dask_task, loaded[t["group"]], t, topic, pure=False,
+                                         key=f"{topic}-{t['index']}"): t for t in tasks}
+                for fut in dask_completed(list(futures)):
+                    task = futures[fut]
+                    if math.isnan(self.startup_s):
+                        self.startup_s = time.perf_counter() - started
+                    try:
+                        out = fut.result()
+                    except Exception as err:  # noqa: BLE001 — KilledWorker, a worker without phc, ...
+                        runs = max(len(starts.get(task["index"], ())), 1)
+                        out = _failed(dict(task, attempt=runs), _dask_failure(err), outputs)
+                    else:
+                        workers = set(starts.get(task["index"], ())) | {out["row"]["worker"]}
+                        out["row"]["attempts"] = len(workers)
+                        if len(workers) > 1:
+                            lost = ", ".join(sorted(workers - {out["row"]["worker"]}))
+                            out["row"]["message"] += f" (run again after its worker was lost: {lost})"
+                    fut.release()
+                    yield out
+            finally:
+                for fut in [*futures, *loaded.values()]:
+                    if not fut.done():
+                        fut.cancel()
+                    fut.release()
+                try:
+                    client.unsubscribe_topic(topic)
+                except Exception:  # noqa: BLE001
+                    pass
+
+
+def _dask_failure(err: BaseException) -> str:
+    kind = type(err).__name__
+    if kind == "KilledWorker":
+        return ("its worker was lost every time it ran this point (KilledWorker: out of memory? a crash in a "
+                f"native library?): {err}")
+    if isinstance(err, (ImportError, ModuleNotFoundError)):
+        return f"the worker cannot import phc ({err}); install phc on every worker"
+    return f"the worker failed: {kind}: {err}"
+
+
+def _executor(executor, scheduler, workers):
+    if not isinstance(executor, str):
+        return executor
+    if executor == "local":
+        if scheduler:
+            raise SweepSetupError("--scheduler needs --executor dask")
+        return LocalExecutor(workers)
+    if executor == "dask":
+        return DaskExecutor(scheduler, workers)
+    raise SweepSetupError(f"unknown executor `{executor}`; choose local or dask")
+
+
+__all__ = ["DaskExecutor", "INSTALL_CLUSTER", "LocalExecutor", "MAX_ATTEMPTS", "default_workers", "run_point",
+           "start_method"]

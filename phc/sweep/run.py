@@ -1,0 +1,255 @@
+"""The sweep itself (:func:`run_sweep`): compile each group once, open the results files
+(new or resumed), run the points on an executor and record their rows as they arrive."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any, Optional, Sequence, Union
+
+from phc.errors import ModelError, SweepSetupError
+from phc.io import atomic_write
+from phc.sweep.design import MESH_PREFIX, Design, compile_group, group_label, make_design, sweep_axes
+from phc.sweep.executors import _executor, _failed
+from phc.sweep.results import (INSTALL_PARQUET, MACHINE_COLUMNS, RUN_COLUMNS, STATS, AppendLog, SweepReport,
+                               _kinds, _parse, parquet_available, results_paths, write_parquet)
+
+
+def run_sweep(path: Union[str, os.PathLike], out: Union[str, os.PathLike], *,
+              params: Sequence[tuple[str, str]] = (), samples: Optional[int] = None, seed: Optional[int] = None,
+              sampling: Optional[str] = None, executor: Union[str, Any] = "local", scheduler: Optional[str] = None,
+              workers: Optional[int] = None, series: Union[None, str, os.PathLike] = None, resume: bool = False,
+              overwrite: bool = False, t_end: Optional[float] = None, n_out: Optional[int] = None,
+              solver: Optional[str] = None, certify: bool = True, progress: bool = True, stream=None,
+              compiled=None) -> SweepReport:
+    """Run a parameter study of a model or scene file; see the module docstring.
+
+    Parameters
+    ----------
+    path
+        Model or scene file (a scene's ``sweep:`` section gives the swept values).
+    out
+        Results file, ``.csv`` (also ``.parquet`` when pyarrow is installed) or
+        ``.parquet`` (needs pyarrow; the CSV file is written too, as the append log).
+    params
+        ``(NAME, SPEC)`` pairs (:func:`phc.spec.sweep.parse_spec`), over the scene's.
+    samples, seed, sampling
+        Number of samples of the distributions, the sampler's seed (default 0) and
+        ``"lhs"`` (default) or ``"random"``; over the scene's.
+    executor
+        ``"local"`` (a process pool of `workers`), ``"dask"`` (the scheduler at
+        `scheduler`, else a LocalCluster of `workers`), or an executor object.
+    series
+        A CSV file for the time series of every run (long format: point, t, outputs).
+    resume, overwrite
+        Continue the results in `out` (skip its points), or replace them. Without either,
+        an existing results file is an error.
+    t_end, n_out, solver
+        Run options of every point (default: the model's or scene's).
+    compiled
+        The compiled model of `path` when the caller has it (it is compiled otherwise).
+
+    Raises
+    ------
+    ModelError
+        The model does not compile, or a located problem in the scene's sweep section.
+    SweepSetupError
+        A wrong name, SPEC or option; results that do not belong to this sweep.
+    """
+    from phc.codegen.load import source_hash
+    from phc.pipeline import compile_model
+
+    started = time.perf_counter()
+    stream = stream or sys.stderr
+    paths = results_paths(out)
+    want_parquet = Path(out).suffix.lower() == ".parquet"
+    if want_parquet and not parquet_available():
+        raise SweepSetupError(f"writing Parquet needs pyarrow: {INSTALL_PARQUET} (or give a .csv file)")
+    if compiled is None:
+        compiled = compile_model(path, certify=certify)
+    axes, spec, locate = sweep_axes(compiled, params)
+    if samples is None and spec is not None and any(a.sampled for a in axes):
+        samples = spec.samples  # the scene's, when a distribution is left to sample
+    design = make_design(compiled, axes, samples,
+                         seed if seed is not None else (spec.seed if spec else 0),
+                         sampling or (spec.sampling if spec else "lhs"), locate)
+    run = {k: v for k, v in (("t_end", t_end), ("n_out", n_out), ("solver", solver)) if v is not None}
+    outputs = list(compiled.module.OUTPUTS)
+    names = [a.name for a in design.axes]
+    columns = ["point", *names, *RUN_COLUMNS, *(f"{o}.{s}" for o in outputs for s in STATS), *MACHINE_COLUMNS]
+    units = _units(compiled, design, outputs)
+    report = SweepReport(compiled.name, str(path), design, columns, units)
+    series_path = Path(series) if series else None
+
+    # -- compile each group once ----------------------------------------------------------
+    models, failed_groups = {}, {}
+    for group in design.groups:
+        t = time.perf_counter()
+        entry = {"label": group_label(group), "points": sum(p.group == group for p in design.points),
+                 "compile_time_s": compiled.compile_time if not group else math.nan, "error": ""}
+        try:
+            models[group] = compile_group(compiled, path, group, certify)
+            if models[group] is not compiled:
+                entry["compile_time_s"] = time.perf_counter() - t
+                report.n_compilations += 1
+            else:
+                entry["compile_time_s"] = compiled.compile_time
+        except ModelError as err:
+            report.n_compilations += 1
+            first = next((d.render() for d in err.diagnostics if d.severity == "error"), str(err))
+            failed_groups[group] = entry["error"] = f"compilation failed: {first}"
+        report.compilations.append(entry)
+    fingerprint = _fingerprint(design, run, series_path, outputs)
+    hashes = {group_label(g): source_hash(m.source) for g, m in models.items()}
+
+    # -- the results files: new, or resumed --------------------------------------------------
+    log = AppendLog(paths["csv"], columns)
+    series_log = AppendLog(series_path, ["point", "t", *outputs]) if series_path else None
+    meta = {"phc_version": _version(), "file": str(path), "fingerprint": fingerprint, "models": hashes,
+            "points": len(design.points), "axes": [{"name": a.name, "spec": a.text} for a in design.axes],
+            "samples": design.samples, "seed": design.seed, "sampling": design.sampling, "run": run,
+            "series": str(series_path) if series_path else None,
+            "columns": {c: {"unit": units[c]} if c in units else {} for c in columns}}
+    existing = paths["csv"].exists()
+    if existing and not (resume or overwrite):
+        raise SweepSetupError(f"`{paths['csv']}` exists; pass --resume to continue it (finished points are "
+                              "skipped) or --overwrite to start over")
+    if existing and resume:
+        report.rows = _resume(log, paths["meta"], meta, series_log)
+        report.resumed = len(report.rows)
+    else:
+        log.create()
+        if series_log is not None:
+            series_log.create()
+    with atomic_write(paths["meta"], "w") as fh:
+        json.dump(meta, fh, indent=1)
+    report.paths.update(csv=paths["csv"], meta=paths["meta"])
+    if series_log is not None:
+        report.paths["series"] = series_path
+
+    # -- run ----------------------------------------------------------------------------
+    todo = [p for p in design.points if p.index not in report.rows]
+    bar = None
+    if progress:
+        from phc.progress import CountProgress
+
+        bar = CountProgress(len(design.points), label=compiled.name, done=len(report.rows), stream=stream)
+
+    def record(out_: dict) -> None:
+        point = design.points[out_["index"]]
+        row = {"point": point.index, **point.values, **out_["row"]}
+        if series_log is not None and out_["series"] is not None:
+            t, outs = out_["series"]
+            series_log.append([[point.index, float(ti), *(float(outs[o][k]) for o in outputs)]
+                               for k, ti in enumerate(t)])
+        log.append([[row.get(c, "") for c in columns]])  # the row last: a row means its series is complete
+        report.rows[point.index] = row
+        if bar is not None:
+            bar.advance(failed=not row["success"])
+
+    tasks = []
+    for p in todo:
+        task = {"index": p.index, "group": p.group, "params": p.params, "options": p.options, "run": run,
+                "series": series_log is not None}
+        if p.group in failed_groups:
+            record(_failed(task, failed_groups[p.group], outputs))
+        else:
+            tasks.append(task)
+    runner = _executor(executor, scheduler, workers)
+    t_run = time.perf_counter()
+    try:
+        if tasks:
+            if bar is not None:
+                bar.draw(force=True)
+            results = runner.run({g: models[g] for g in {t["group"] for t in tasks}}, tasks, outputs)
+            try:
+                for result in results:
+                    record(result)
+            finally:
+                results.close()  # stops the workers when interrupted
+    except KeyboardInterrupt:
+        report.interrupted = True
+    finally:
+        if bar is not None:
+            bar.close()
+    report.run_elapsed_s = time.perf_counter() - t_run
+    report.workers_startup_s = runner.startup_s
+    report.executor = runner.describe()
+    if report.complete:
+        log.rewrite([[r.get(c, "") for c in columns] for r in report.ordered()])
+    if parquet_available():
+        write_parquet(report, paths["parquet"])
+        report.paths["parquet"] = paths["parquet"]
+    else:
+        report.parquet_skipped = f"pyarrow is not installed ({INSTALL_PARQUET})"
+    report.elapsed_s = time.perf_counter() - started
+    return report
+
+
+def _version() -> str:
+    from phc import __version__
+
+    return __version__
+
+
+def _fingerprint(design: Design, run: dict, series: Optional[Path], outputs) -> str:
+    h = hashlib.sha256()
+    h.update(json.dumps({"points": [[p.index, sorted(p.values.items())] for p in design.points], "run": run,
+                         "series": series is not None, "outputs": outputs}, sort_keys=True).encode())
+    return h.hexdigest()[:32]
+
+
+def _resume(log: AppendLog, meta_path: Path, meta: dict, series_log: Optional[AppendLog]) -> dict[int, dict]:
+    """The rows already in the results file, after checking they belong to this sweep."""
+    try:
+        old = json.loads(meta_path.read_text())
+    except (OSError, ValueError):
+        raise SweepSetupError(f"cannot resume `{log.path}`: its description `{meta_path}` is missing or damaged; "
+                              "pass --overwrite to start over") from None
+    if old.get("fingerprint") != meta["fingerprint"]:
+        raise SweepSetupError(f"cannot resume `{log.path}`: it holds a different sweep (other parameters, values, "
+                              "samples, run options or outputs); use another --out, or --overwrite")
+    changed = [label for label, digest in meta["models"].items() if old.get("models", {}).get(label) not in
+               (None, digest)]
+    if changed:
+        raise SweepSetupError(f"cannot resume `{log.path}`: the model changed since its rows were computed (the "
+                              f"generated code of {', '.join(changed)} differs); use another --out, or --overwrite")
+    header, lines = log.read()
+    if header != log.columns:
+        raise SweepSetupError(f"cannot resume `{log.path}`: its columns are not this sweep's; use --overwrite")
+    kinds = _kinds(log.columns)
+    rows = {}
+    for line in lines:
+        try:
+            row = {c: _parse(v, kinds[c]) for c, v in zip(header, line)}
+        except ValueError:
+            continue
+        if 0 <= row["point"] < meta["points"]:
+            rows[row["point"]] = row
+    log.rewrite([[r.get(c, "") for c in log.columns] for r in rows.values()])  # drops a torn line
+    if series_log is not None:
+        if series_log.path.exists():
+            _, kept = series_log.read()
+            series_log.rewrite([s for s in kept if s and s[0].isdigit() and int(s[0]) in rows])
+        else:
+            series_log.create()
+    return rows
+
+
+def _units(compiled, design: Design, outputs) -> dict[str, str]:
+    units = {"t_final": "s", "cpu_time_s": "s", "wall_time_s": "s", "accuracy.step": "s", "accuracy.rtol": "1"}
+    for par in compiled.dae.parameters:
+        if par.unit:
+            units[par.name] = par.unit
+    for name in design.kinds:
+        if name.startswith(MESH_PREFIX):
+            units[name] = "elements"
+    return {k: v for k, v in units.items() if k in {a.name for a in design.axes} or k in RUN_COLUMNS + MACHINE_COLUMNS}
+
+
+__all__ = ["run_sweep"]

@@ -1,0 +1,354 @@
+"""Tests for the component registry (:mod:`phc.registry`, built-ins in :mod:`phc.library.builtin`).
+
+Every registered type has a schema entry, unit information (or a reason it has none), a
+cost model, and a minimal model that compiles and certifies; the per-type tables other
+modules import are the registry's; an entry that forgets a field or gets one wrong is
+refused when it is registered. A new lumped type — a hardening (cubic) spring — is added
+from this file with one registration and simulated against the Duffing oscillator's
+period computed independently by quadrature.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import re
+from pathlib import Path
+from typing import Literal, Optional
+
+import numpy as np
+import pytest
+import scipy.integrate
+
+import phc
+from phc import registry
+from phc.dae import T
+from phc.library import LOWERERS
+from phc.library.dirac import DiracBuilder, emit
+from phc.registry import (ASSEMBLED, NO_FIELDS, NO_STATE_READS, ComponentType, ElementUnit, RegistryError, Units)
+from phc.spec.export import build_schema, schema_text
+from phc.spec.base import Expr, SpecModel
+from phc.spec.components import Domain
+
+REPO = Path(__file__).resolve().parents[1]
+MODELS = REPO / "models"
+VALID = REPO / "tests" / "models" / "valid"
+SCHEMA_FILE = REPO / "schemas" / "model.schema.json"
+
+LINEAR = """
+format_version: 1
+parameters: {k: 4.0}
+components:
+  chain:
+    type: linear_phs
+    states: 4
+    matrices: chain.npz
+    J: J
+    R: R
+    Q: Q
+    scale: {Q: k}
+    ports:
+      tip: {B: [[0], [0], [0], [1]], domain: mechanical.translational}
+  push: {type: effort_source, domain: mechanical.translational, value: "cos(2*t)"}
+connections:
+  - [chain.tip, push.port]
+simulation:
+  t_end: 1
+  initial: {"chain.x[0]": 0.1}
+"""
+
+MODULATION = """
+format_version: 1
+parameters: {m: 1.0, k: 4.0, b: 0.7}
+components:
+  mass: {type: mass, m: m, dimension: 2}
+  spring: {type: spring, k: k, dimension: 2}
+  mod:
+    type: modulation
+    K: [[0, "b*(1 + spring.x[0])"], ["-b*(1 + spring.x[0])", 0]]
+  node: {type: junction, kind: common_flow, dimension: 2, ports: [m, s]}
+connections:
+  - [mass.port, mod.a]
+  - [mod.b, node.m]
+  - [node.s, spring.port]
+simulation:
+  t_end: 1
+  initial: {"spring.x[0]": 0.1, "spring.x[1]": 0.0}
+"""
+
+PDE1D = """
+format_version: 1
+parameters: {rho: 2.0, T: 8.0}
+components:
+  s:
+    type: pde1d
+    order: 1
+    variables: [p, eps]
+    P: [[[0, 0], [0, 0]], [[0, 1], [1, 0]]]
+    H: [["1/rho", 0], [0, T]]
+    W_f: [[0, 0, 1, 0], [1, 0, 0, 0]]
+    W_e: [[0, 0, 0, 1], [0, -1, 0, 0]]
+    ports: [left, right]
+    port_domains: [mechanical.translational, mechanical.translational]
+    length: 1.0
+    elements: 8
+  l: {type: zero_flow, domain: mechanical.translational}
+  r: {type: effort_source, domain: mechanical.translational, value: "sin(3*t)"}
+connections:
+  - [s.left, l.port]
+  - [s.right, r.port]
+"""
+
+CRANK = """
+format_version: 1
+components:
+  wheel: {type: crank_wheel, radius: 0.15, inertia: 1.0e-3}
+  spring: {type: spring, k: 100.0, dimension: 2, domain: mechanical.translational}
+  torque: {type: effort_source, domain: mechanical.rotational, value: "0.1*sin(5*t)"}
+connections:
+  - [wheel.pin, spring.port]
+  - [wheel.drive, torque.port]
+simulation:
+  t_end: 0.5
+  initial: {wheel.theta: 0.0, wheel.p_theta: 0.01}
+"""
+
+EXAMPLES = {
+    "phs": VALID / "lc_oscillator_phs.yaml",
+    "linear_phs": LINEAR,
+    "rigid": MODELS / "pendulum.yaml",
+    "mass": MODELS / "mass_spring_damper.yaml",
+    "spring": MODELS / "mass_spring_damper.yaml",
+    "damper": MODELS / "mass_spring_damper.yaml",
+    "junction": MODELS / "mass_spring_damper.yaml",
+    "inductor": MODELS / "rlc_circuit.yaml",
+    "capacitor": MODELS / "rlc_circuit.yaml",
+    "resistor": MODELS / "rlc_circuit.yaml",
+    "effort_source": MODELS / "rlc_circuit.yaml",
+    "flow_source": MODELS / "rigid_slider_crank.yaml",
+    "zero_effort": MODELS / "euler_bernoulli_beam.yaml",
+    "zero_flow": MODELS / "timoshenko_beam.yaml",
+    "orthogonal_transform": VALID / "rotated_springs_split.yaml",
+    "transformer": REPO / "tests" / "library" / "models" / "dc_motor.yaml",
+    "gyrator": REPO / "tests" / "library" / "models" / "dc_motor.yaml",
+    "modulation": MODULATION,
+    "string": MODELS / "vibrating_string.yaml",
+    "timoshenko_beam": MODELS / "timoshenko_beam.yaml",
+    "euler_bernoulli_beam": MODELS / "euler_bernoulli_beam.yaml",
+    "pde1d": PDE1D,
+    "moving_beam": MODELS / "moving_beam.yaml",
+    "crank_wheel": CRANK,
+}
+"""A small model that uses each type (a file, or the text of one)."""
+
+
+def _model_path(kind: str, tmp_path: Path) -> Path:
+    example = EXAMPLES[kind]
+    if isinstance(example, Path):
+        return example
+    path = tmp_path / f"{kind}.yaml"
+    path.write_text(example)
+    if kind == "linear_phs":
+        D = np.array([[1.0, 0.0], [-1.0, 1.0]])
+        J = np.block([[np.zeros((2, 2)), D], [-D.T, np.zeros((2, 2))]])
+        np.savez(tmp_path / "chain.npz", J=J, R=np.diag([0.0, 0.0, 0.0, 0.3]), Q=np.eye(4))
+    return path
+
+
+def _schema_mapping(schema: dict) -> dict:
+    return schema["properties"]["components"]["additionalProperties"]["discriminator"]["mapping"]
+
+
+# -- every registered type ---------------------------------------------------------------
+
+@pytest.mark.parametrize("kind", registry.names())
+def test_every_type_has_its_parts_and_a_minimal_model_compiles_and_certifies(kind, tmp_path):
+    entry = registry.get(kind)
+    assert entry.problems() == []
+
+    # a schema entry: the published schema (kept up to date by tests/test_schema.py) and
+    # the live one both map `type: <kind>` to the entry's spec
+    for schema in (json.loads(SCHEMA_FILE.read_text()), build_schema()):
+        assert _schema_mapping(schema)[kind] == f"#/$defs/{entry.spec.__name__}"
+
+    # unit information, or the reason there is none
+    units = entry.units
+    assert isinstance(units, Units) and units.problems() == []
+    if units.none:
+        assert not (units.si or units.element or units.ratio)
+    else:
+        assert units.si or units.element or units.ratio
+
+    # a cost model; the minimal model compiles and certifies
+    assert kind in EXAMPLES, f"add a minimal model using `{kind}` to EXAMPLES"
+    compiled = phc.compile_model(_model_path(kind, tmp_path))
+    assert compiled.certificate is not None and not compiled.certificate.diagnostics.has_errors
+    of_kind = [name for name, ctype, _ in compiled.dae.topology.components if ctype == kind]
+    assert of_kind, f"the example of `{kind}` has no component of that type"
+    specs = compiled.dae.topology.specs
+    if "elements" in entry.spec.model_fields:
+        # the estimate is of phc's own discretization: within 10 % of the unknowns compiled
+        # (the per-element counts are rounded to whole unknowns; the ends add a few)
+        name = of_kind[0]
+        unknowns, nonzeros = entry.cost(specs[name])
+        actual = sum(1 for v in compiled.dae.variables if v.component == name)
+        assert nonzeros > 0 and abs(unknowns - actual) <= 0.1 * actual + 8, (unknowns, actual)
+    else:
+        assert entry.cost is ASSEMBLED and entry.cost(specs.get(of_kind[0])) is None
+
+
+def test_the_built_in_types_are_the_spec_union(monkeypatch):
+    """Every spec of phc.spec.components' union has an entry, and every entry is in it."""
+    registry.check_builtin_union()
+    union = set(_schema_mapping(build_schema())) - {"model"}
+    assert union == set(registry.names())
+    monkeypatch.delitem(registry.COMPONENT_TYPES, "spring")
+    with pytest.raises(RegistryError, match="no registry entry for SpringSpec"):
+        registry.check_builtin_union()
+
+
+def test_the_per_type_tables_are_the_registrys():
+    from phc.accuracy import SPATIAL_ORDER
+    from phc.initial_fields import FIELDS
+    from phc.interconnect import MODULATED
+    from phc.library.lumped import DEFAULT_DOMAIN
+
+    assert list(LOWERERS) == registry.names()
+    assert LOWERERS["spring"] is registry.get("spring").lower
+    assert DEFAULT_DOMAIN["capacitor"] == "electrical" and "string" not in DEFAULT_DOMAIN
+    assert dict(SPATIAL_ORDER) == {"string": 2, "timoshenko_beam": 2, "euler_bernoulli_beam": 4, "pde1d": 2,
+                                   "moving_beam": 4}
+    assert set(FIELDS) == {"string", "timoshenko_beam", "euler_bernoulli_beam", "moving_beam"}
+    assert set(MODULATED) == {"modulation", "transformer", "gyrator"}
+
+
+def test_a_forgotten_or_wrong_field_is_refused_at_registration():
+    spring = registry.get("spring")
+    values = {f.name: getattr(spring, f.name) for f in dataclasses.fields(ComponentType)}
+    for missing in values:
+        with pytest.raises(TypeError, match=missing):
+            ComponentType(**{k: v for k, v in values.items() if k != missing})
+    wrong = {
+        "name": ("soft_spring", "must have the field `type: Literal['soft_spring']`"),
+        "units": (Units(), "give exactly one of"),
+        "sign_role": ("sink", "`sign_role` 'sink' is not one of"),
+        "default_domain": ("magnetic", "`default_domain` 'magnetic'"),
+        "cost": (None, "`cost` is not callable"),
+        "spatial_order": (0, "`spatial_order` is a positive integer"),
+    }
+    for field, (value, message) in wrong.items():
+        with pytest.raises(RegistryError, match=re.escape(message)):
+            registry.register(dataclasses.replace(spring, **{field: value}))
+    with pytest.raises(RegistryError, match="registered already"):
+        registry.register(spring)
+    beam = registry.get("string")
+    with pytest.raises(RegistryError, match="estimates the mesh"):
+        registry.register(dataclasses.replace(beam, cost=ASSEMBLED))
+    assert registry.get("spring") is spring and registry.get("string") is beam
+
+
+# -- a new type from this file: the cubic spring --------------------------------------------
+
+class CubicSpringSpec(SpecModel):
+    """Hardening spring: H = k x²/2 + k3 x⁴/4, ẋ = f, e = −(k x + k3 x³)."""
+
+    type: Literal["cubic_spring"]
+    k: Expr
+    """Linear stiffness, positive."""
+    k3: Expr
+    """Cubic stiffness, non-negative."""
+    domain: Optional[Domain] = None
+
+
+def lower_cubic_spring(b, ctx, name, spec, path):
+    scope = {"t": T, **ctx.params}
+    k = b.expr(ctx, spec.k, (*path, "k"), scope)
+    k3 = b.expr(ctx, spec.k3, (*path, "k3"), scope)
+    span = ctx.smap.locate(path)
+    port = b.add_port(name, "port", spec.domain or registry.get("cubic_spring").default_domain, 1, span=span)
+    x, dx = b.add_state(name, "x", span)
+    d = DiracBuilder(name, spec.type, span)
+    d.port(port)
+    fx, ex = d.storage_pair("x", x, dx, k * x + k3 * x**3)
+    d.rel(fx - port.f[0], solve=port.f[0])
+    d.rel(port.e[0] + ex, kind="storage", label="force[0]")
+    d.energy(k * x**2 / 2 + k3 * x**4 / 4)
+    emit(b, d.register(b))
+
+
+CUBIC_SPRING = ComponentType(
+    name="cubic_spring", spec=CubicSpringSpec, lower=lower_cubic_spring, default_domain="mechanical.translational",
+    units=Units.of_port(ElementUnit("k", "e", "f*s", "a stiffness"),
+                        ElementUnit("k3", "e", "f*s*f*s*f*s", "a cubic stiffness"), storage="f"), cost=ASSEMBLED,
+    spatial_order=None, initial_fields=NO_FIELDS, sign_role="load", state_reads=NO_STATE_READS, drawing=None)
+
+DUFFING = """
+format_version: 1
+parameters: {m: 1.0, k: 4.0, k3: 10.0, A: 0.8}
+components:
+  mass: {type: mass, m: m}
+  spring: {type: cubic_spring, k: k, k3: k3}
+connections:
+  - [mass.port, spring.port]
+simulation:
+  t_end: 6.0
+  initial: {spring.x: A, mass.p: 0.0}
+"""
+
+
+def duffing_period(m: float, k: float, k3: float, amplitude: float) -> float:
+    """Period of m ẍ = −k x − k3 x³ released at rest from x = A: with x = A sin θ the
+    energy integral 4∫₀ᴬ dx / v(x) becomes 4∫₀^{π/2} √m dθ / √(k + k3 A² (1 + sin²θ)/2),
+    a smooth integrand."""
+    integrand = lambda th: math.sqrt(m) / math.sqrt(k + k3 * amplitude**2 * (1 + math.sin(th) ** 2) / 2)  # noqa: E731
+    value, error = scipy.integrate.quad(integrand, 0.0, math.pi / 2, epsabs=1e-14, epsrel=1e-13)
+    assert error < 1e-12
+    return 4 * value
+
+
+def _upward_crossings(t: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Times where x crosses 0 upwards, by linear interpolation between output points."""
+    i = np.nonzero((x[:-1] < 0) & (x[1:] >= 0))[0]
+    return t[i] - x[i] * (t[i + 1] - t[i]) / (x[i + 1] - x[i])
+
+
+def test_a_cubic_spring_registered_here_simulates_the_duffing_oscillator(tmp_path):
+    path = tmp_path / "duffing.yaml"
+    path.write_text(DUFFING)
+    m, k, k3, amplitude = 1.0, 4.0, 10.0, 0.8
+    period = duffing_period(m, k, k3, amplitude)
+    h0 = k * amplitude**2 / 2 + k3 * amplitude**4 / 4
+    errors = {}
+    published = schema_text()
+    with registry.registered(CUBIC_SPRING):
+        assert "cubic_spring" in _schema_mapping(build_schema())
+        compiled = phc.compile_model(path)
+        assert compiled.certificate is not None and not compiled.certificate.diagnostics.has_errors
+        for h in (1e-3, 5e-4):
+            result = phc.simulate(compiled, solver="discrete_gradient", step=h, n_out=round(6.0 / h) + 1)
+            assert result.success
+            t, x = np.asarray(result.t), np.asarray(result["spring.x"])
+            # the energy: the discrete gradient keeps H exactly, up to the Newton tolerance
+            assert abs(result.H[0] - h0) < 1e-12 * h0
+            assert np.max(np.abs(result.H - h0)) < 1e-9 * h0
+            # the period, from successive upward zero crossings (x'' = 0 there, so linear
+            # interpolation between output points is third-order accurate: ~1e-9 s)
+            crossings = _upward_crossings(t, x)
+            assert len(crossings) >= 2
+            errors[h] = np.max(np.abs(np.diff(crossings) - period))
+    # The discrete gradient method is second order: its relative period error on a linear
+    # oscillator of frequency ω is (ω h)²/12; here the local frequency √((k + 3 k3 x²)/m)
+    # is at most ω_max ≈ 4.8 (at x = A), so (ω_max h)²/12 bounds it (4.1e-6 s at h = 1e-3;
+    # measured 2.7e-6). Halving h divides the error by 4.
+    omega_max = math.sqrt((k + 3 * k3 * amplitude**2) / m)
+    assert errors[1e-3] < (omega_max * 1e-3) ** 2 / 12 * period
+    assert 3.0 < errors[1e-3] / errors[5e-4] < 5.0
+    # ... and the period is not the linear spring's 2π√(m/k) it would be without k3
+    assert abs(period - 2 * math.pi * math.sqrt(m / k)) > 0.1
+
+    # the registration is undone: the type is gone from the registry and from the schema
+    assert "cubic_spring" not in registry.names() and "cubic_spring" not in LOWERERS
+    assert schema_text() == published
+    with pytest.raises(phc.errors.ModelError):
+        phc.compile_model(path)
