@@ -27,8 +27,10 @@ from yaml.events import StreamEndEvent
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
 from phc.diagnostics import Diagnostic
-from phc.source_map import (_LINE_BREAK, _MAP_TAG, _MERGE_TAG, _SEQ_TAG, _VALUE_TAG, _YAML_PREFIX, PathElem,
-                            SourceMap, SourceSpan, _key_value, _line_col, _span)
+# the positions (phc.source_map), every name of theirs importable from here as before
+from phc.source_map import (_LINE_BREAK, _LINE_STARTS, _MAP_TAG, _MERGE_TAG, _SEQ_TAG, _STR_TAG,  # noqa: F401
+                            _VALUE_TAG, _YAML_PREFIX, PathElem, SourceMap, SourceSpan, _Entry, _key_value, _line_col,
+                            _span)
 
 __all__ = [
     "MAX_FLOW_DEPTH",
