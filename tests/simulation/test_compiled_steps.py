@@ -403,3 +403,22 @@ def test_the_model_functions_are_looked_up_once_per_module(compiled):
     for obj, name in zip(first, cs._FUNCTION_NAMES):
         assert obj.signature() == sigs[name]
         assert obj.__wrapper_address__() == _get_wrapper_address(obj.func, sigs[name])
+
+
+def test_the_cache_stamp_covers_every_file_the_loop_is_compiled_from():
+    """The compiled loop is kept in phc's cache under a stamp of its source text: the stamp covers
+    the file of every function the loop is compiled from (the kernel module) and the module that
+    compiles it (signatures, LAPACK/BLAS symbols), so that a change to either recompiles it."""
+    from phc.simulation import compiled_steps as cs
+    from phc.simulation import compiled_steps_kernel as kernel
+
+    ready = cs._build()
+    assert ready
+    chunk, dummy, _ = ready
+    files = {Path(cs.__file__), Path(chunk.py_func.__code__.co_filename), Path(dummy.py_func.__code__.co_filename)}
+    files |= {Path(f.py_func.__code__.co_filename) for f in vars(kernel).values() if hasattr(f, "py_func")}
+    assert Path(kernel.__file__) in files
+    source = cs._kernel_source()
+    for path in files:
+        assert path.read_text(encoding="utf-8") in source, path
+    assert cs._lowprec is kernel._lowprec and hasattr(cs._lowprec, "py_func")  # the jitted one, by either name

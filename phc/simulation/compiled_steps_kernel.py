@@ -1,0 +1,694 @@
+"""The kernel of the compiled fixed-step loop: numba nopython code, plain Python until
+:func:`phc.simulation.compiled_steps._compile` jits it.
+
+:mod:`phc.simulation.compiled_steps` says what the compiled loop does and holds its Python
+side (whether a run uses it, building and caching it, the driver between chunks); this module
+holds only the code numba compiles — the chunk of steps (:func:`_chunk`) and everything it
+calls: the stage solve, the discrete-gradient and midpoint4 steps, the predictor, the
+singularity monitor's routine look, the dense LU / inverse / mixed-precision products — and
+the layout of the state arrays both sides share.
+
+The LAPACK/BLAS entry points the kernel calls (``_dgetrf``, ``_dgetri``, ``_dgecon``,
+``_dgesdd``, ``_dgemv``, ``_sgemv``) are not defined here: :func:`~phc.simulation.compiled_steps._kernel_namespace`
+binds them into this module's globals, the namespace the kernel is jitted in, before it is
+compiled; :func:`~phc.simulation.compiled_steps._compile` then replaces each function here by its
+jitted version. The text of this module is part of the stamp of the compiled loop in phc's
+signed cache (:func:`~phc.simulation.compiled_steps._kernel_source`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+# the state arrays shared with the driver (phc.simulation.compiled_steps.integrate)
+# status of a chunk
+_BUDGET, _DONE, _HARD, _LOOK, _MAXSTEPS = 0, 1, 2, 3, 4
+# outcome of a stage solve / a step
+_OK, _FAIL, _SINGULAR, _EVAL = 0, 1, 2, 3
+# integer state
+(_K, _J, _SUBSTEPS, _STEPS, _LAST_LOOK, _HAS_MID, _MAX_STEPS, _STATUS, _NFEV, _NFACT, _HIST, _MONITOR, _METHOD,
+ _CODE, _ILL, _E, _NEND, _NMID, _LOWP, _STRIKES) = range(20)
+_NI = 20
+# float state
+_T, _H, _H_PREV, _STEP = range(4)
+_NF = 4
+# constants
+(_TOL, _RATE, _FLOOR, _MAX_AGE, _MAX_NEWTON, _BAL_TOL, _MAX_SECANT, _S_MIN, _S_MAX, _THRESHOLD, _EVERY,
+ _G1, _G2, _M0, _M1, _M2, _ORDER, _ZONE, _STAGNATION, _ONE, _ZERO, _ORDER_ALG, _STRIKES_C) = range(23)
+_NC = 23
+
+_RCOND_MARGIN = 1e3
+"""The routine look of the singularity monitor computes singular values only when LAPACK's
+1-norm condition estimate is within this factor (times N) of the monitor's threshold."""
+
+
+def _no_invariants(t, y, p):
+    return np.zeros(0)
+
+
+def _copy(a, b):
+    """b ← a (a loop: a slice assignment compiles numba's shape-mismatch message, seconds of compile time)."""
+    for i in range(a.shape[0]):
+        b[i] = a[i]
+
+
+def _all_finite(v):
+    for i in range(v.shape[0]):
+        if not np.isfinite(v[i]):
+            return False
+    return True
+
+
+def _factor(A, ipiv, ints):
+    """LU of the column-major matrix in A (C array holding Aᵀ row by row); the LAPACK info."""
+    _dgetrf(ints[0:].ctypes, ints[0:].ctypes, A.ctypes, ints[0:].ctypes, ipiv.ctypes, ints[2:].ctypes)
+    return ints[2]
+
+
+def _invert(A, ipiv, ints):
+    """A ← A⁻¹ from the LU of :func:`_factor` (LAPACK ``dgetri``); the LAPACK info. A simplified
+    Newton iteration solves with one matrix many times: a product with the inverse (``dgemv``)
+    costs half the two triangular solves (``dtrsv`` runs its n² operations in sequence)."""
+    n = A.shape[0]
+    lwork = np.empty(1, np.int32)
+    lwork[0] = 64 * n
+    work = np.empty(64 * n)
+    _dgetri(ints[0:].ctypes, A.ctypes, ints[0:].ctypes, ipiv.ctypes, work.ctypes, lwork.ctypes, ints[2:].ctypes)
+    return ints[2]
+
+
+def _solve(A, ints, chars, c, x, tmp):
+    """x ← A⁻¹x with the inverse of :func:`_invert` in A (column-major); `tmp` is scratch."""
+    # ints: n, 1 (incx), info, -; chars: 'L', 'N', 'U'; c[_ONE], c[_ZERO]: 1.0, 0.0
+    for i in range(x.shape[0]):
+        tmp[i] = x[i]
+    _dgemv(chars[1:].ctypes, ints[0:].ctypes, ints[0:].ctypes, c[_ONE:].ctypes, A.ctypes, ints[0:].ctypes,
+           tmp.ctypes, ints[1:].ctypes, c[_ZERO:].ctypes, x.ctypes, ints[1:].ctypes)
+
+
+def _lowprec(Am, lp, m):
+    """The single-precision copy of the inverse Newton matrix in Am (column-major) into lp:
+    equilibrated by powers of two (M = R·M̃·C with the row scales R and then the column scales
+    C: every column of M̃ has its largest entry in [1, 2), no entry is larger), so that no entry
+    that matters is out of single precision's range whatever the units; the scales are exact
+    and kept in double (lp[1][m]: R, C, 1/R)."""
+    A32, eq = lp[0], lp[1]
+    n = Am.shape[0]
+    for i in range(n):
+        eq[m, 0, i] = 0.0
+    for j in range(n):  # Am[j, :] is column j of M: the rows' largest entries, in one pass
+        for i in range(n):
+            a = abs(Am[j, i])
+            if a > eq[m, 0, i]:
+                eq[m, 0, i] = a
+    for i in range(n):
+        big = eq[m, 0, i]
+        eq[m, 0, i] = math.ldexp(1.0, math.frexp(big)[1] - 1) if big > 0.0 else 1.0
+        eq[m, 2, i] = 1.0 / eq[m, 0, i]  # exact: a power of two
+    for j in range(n):
+        big = 0.0
+        for i in range(n):
+            big = max(big, abs(Am[j, i]) * eq[m, 2, i])
+        cj = math.ldexp(1.0, math.frexp(big)[1] - 1) if big > 0.0 else 1.0
+        eq[m, 1, j] = cj
+        cinv = 1.0 / cj
+        for i in range(n):
+            A32[m, j, i] = Am[j, i] * eq[m, 2, i] * cinv
+
+
+def _solve32(lp, m, ints, chars, x):
+    """x ← M x with the single-precision copy of :func:`_lowprec` (``sgemv``): the vector C x is
+    brought to a largest entry of 1 by a power of two before it is rounded to single precision,
+    the product scaled back by R in double. The iteration converges to the solution of F = 0 all
+    the same (the residual is in double): only its rate can suffer, which :func:`_stage` watches."""
+    A32, eq, v = lp[0], lp[1], lp[2]
+    n = x.shape[0]
+    big = 0.0
+    for j in range(n):
+        big = max(big, abs(eq[m, 1, j] * x[j]))
+    if big == 0.0:
+        return
+    k = math.ldexp(1.0, math.frexp(big)[1])
+    kinv = 1.0 / k  # exact: a power of two
+    for j in range(n):
+        v[j] = (eq[m, 1, j] * x[j]) * kinv
+    # v[n:2n] the product; v[2n], v[2n + 1]: 1.0, 0.0
+    _sgemv(chars[1:].ctypes, ints[0:].ctypes, ints[0:].ctypes, v[2 * n:].ctypes, A32[m].ctypes, ints[0:].ctypes,
+           v.ctypes, ints[1:].ctypes, v[2 * n + 1:].ctypes, v[n:].ctypes, ints[1:].ctypes)
+    for i in range(n):
+        x[i] = eq[m, 0, i] * (k * np.float64(v[n + i]))
+
+
+def _fill(A, jbuf, ebuf, jrows, jcols, emask, s, nend):
+    """The Newton matrix s·(F_y + c_j F_ẏ) with the end-constraint rows from `ebuf`, column-major in A."""
+    A[:, :] = 0.0
+    for k in range(jrows.shape[0]):
+        v = ebuf[k] if (nend > 0 and emask[k] != 0) else s * jbuf[k]
+        A[jcols[k], jrows[k]] += v
+
+
+def _stage_residual(res, inv, t, h, y, y1, s, p, out, end_rows, nend, xs, d):
+    for i in range(y.shape[0]):
+        d[i] = (y1[i] - y[i]) / h
+        xs[i] = y[i] + s * (y1[i] - y[i])
+    res(t + s * h, xs, d, p, out)
+    if nend > 0:
+        g = inv(t + h, y1, p)
+        for i in range(nend):
+            out[end_rows[i]] = g[i]
+    return _all_finite(out)
+
+
+def _refactor(jac, t, h, y, y1, s, p, A, lp, ipiv, matf, m, jrows, jcols, emask, nend, jbuf, ebuf, xs, d, ints, ist):
+    """Factorize the Newton matrix m for the iterate y1; the outcome (_OK, _SINGULAR, _EVAL)."""
+    ist[_NFACT] += 1
+    n = y.shape[0]
+    for i in range(n):
+        d[i] = y1[i] - y[i]
+        xs[i] = y[i] + s * d[i]
+        d[i] = d[i] / h
+    cj = 1.0 / (s * h)
+    jac(t + s * h, xs, d, p, cj, jbuf)
+    if nend > 0:
+        jac(t + h, y1, d, p, cj, ebuf)
+    matf[m, 2] = 0.0
+    if not _all_finite(jbuf) or (nend > 0 and not _all_finite(ebuf)):
+        return _EVAL
+    _fill(A[m], jbuf, ebuf, jrows, jcols, emask, s, nend)
+    info = _factor(A[m], ipiv[m], ints)
+    if info != 0:
+        return _SINGULAR
+    if _invert(A[m], ipiv[m], ints) != 0:
+        return _SINGULAR
+    if ist[_LOWP] != 0:
+        _lowprec(A[m], lp, m)
+    matf[m, 0] = h
+    matf[m, 1] = s
+    matf[m, 2] = 1.0
+    ist[_AGE0 + m] = 0
+    return _OK
+
+
+_AGE0 = _NI  # the ages of the two Newton matrices follow the integer state
+
+
+def _stage(res, jac, inv, t, h, y, y1in, s, p, m, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend, weights,
+           algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags):
+    """StageSolver.solve: y1 with F(t + s h, y + s(y1 − y), (y1 − y)/h) = 0 (end rows: g(t + h, y1) = 0)
+    into `out`; returns _OK, _FAIL, _SINGULAR or _EVAL; flags[0] ← ill-conditioned."""
+    n = y.shape[0]
+    flags[0] = 0
+    refreshed = False
+    if ist[_LOWP] < 0:  # double precision was for the last solve only
+        ist[_LOWP] = 1
+    for i in range(n):
+        out[i] = y1in[i]
+    ist[_AGE0 + m] += 1
+    since = 1
+    tol = c[_TOL]
+    if (matf[m, 2] == 0.0 or abs(h - matf[m, 0]) > 1e-3 * abs(h) or abs(s - matf[m, 1]) > 0.2
+            or ist[_AGE0 + m] >= c[_MAX_AGE]):
+        refreshed = True
+        code = _refactor(jac, t, h, y, out, s, p, A, lp, ipiv, matf, m, jrows, jcols, emask, nend, jbuf, ebuf, xs, d,
+                         ints, ist)
+        if code != _OK:
+            return code
+        since = 0
+    last = -1.0
+    rate = np.inf  # the smallest θ of this solve with this matrix
+    suspect = 0.0  # > 0: the rate of the single-precision copy, being compared with double precision
+    weighted = weights.shape[0] == n
+    for _ in range(int(c[_MAX_NEWTON])):
+        ist[_NFEV] += 1
+        if not _stage_residual(res, inv, t, h, y, out, s, p, r, end_rows, nend, xs, d):
+            return _EVAL
+        for i in range(n):
+            r[i] = -r[i]
+        lowp = ist[_LOWP] > 0
+        if lowp:
+            _solve32(lp, m, ints, chars, r)
+        else:
+            _solve(A[m], ints, chars, c, r, xs)
+        size = 0.0
+        scale = 1.0
+        alg = 0.0
+        finite = True
+        for i in range(n):
+            a = abs(r[i])
+            if not np.isfinite(a):
+                finite = False
+            if abs(out[i]) + 1.0 > scale:
+                scale = abs(out[i]) + 1.0
+            if weighted:
+                if algmask[i] == 1 and a > alg:
+                    alg = a
+                # a state is measured against its scale or its size, whichever is larger
+                a = a * (weights[i] / (1.0 + abs(out[i]) * weights[i]))
+            if a > size:
+                size = a
+        states = size  # the states' part alone (ROUNDOFF_FLOOR, midpoint.StageSolver)
+        if weighted:
+            # algebraic variables (weight 0) as without scales, relative to |y| + 1; not the GGL multipliers
+            size = max(size, alg / scale)
+            scale = 1.0
+        if not finite:
+            if since == 0:
+                return _FAIL
+            for i in range(n):
+                out[i] = y1in[i]
+            refreshed = True
+            code = _refactor(jac, t, h, y, out, s, p, A, lp, ipiv, matf, m, jrows, jcols, emask, nend, jbuf, ebuf, xs,
+                             d, ints, ist)
+            if code != _OK:
+                return code
+            since = 0
+            last = -1.0
+            rate = np.inf
+            suspect = 0.0
+            continue
+        has_theta = last > 0.0
+        theta = size / last if has_theta else 0.0
+        if lowp and refreshed and has_theta and theta > c[_RATE]:
+            # a matrix factorized in this solve contracts poorly: its single-precision copy may be
+            # to blame (conditioning), or the iteration is far from linear. Redo the correction in
+            # double and compare the rates
+            ist[_LOWP] = -1
+            suspect = theta
+            last = -1.0
+            rate = np.inf
+            continue
+        if suspect > 0.0 and has_theta:
+            # double precision with the same matrix: a strike if it contracts where single did not;
+            # after LOW_PRECISION_STRIKES strikes the run keeps double precision
+            if theta <= c[_RATE] and since > 0:
+                ist[_STRIKES] += 1
+                if ist[_STRIKES] >= c[_STRIKES_C]:
+                    ist[_LOWP] = 0
+            suspect = 0.0
+        if has_theta and (theta >= 0.5 or theta >= c[_STAGNATION] * rate) and size <= c[_ZONE] * tol * scale:
+            for i in range(n):
+                out[i] += r[i]
+            return _OK
+        if refreshed and has_theta and theta >= 0.5 and states <= c[_FLOOR] * scale:
+            flags[0] = 1
+            for i in range(n):
+                out[i] += r[i]
+            return _OK
+        if has_theta and theta >= 1.0 and since > 0 and size > 1e3 * tol * scale:
+            refreshed = True
+            code = _refactor(jac, t, h, y, out, s, p, A, lp, ipiv, matf, m, jrows, jcols, emask, nend, jbuf, ebuf, xs,
+                             d, ints, ist)
+            if code != _OK:
+                return code
+            since = 0
+            last = -1.0
+            rate = np.inf
+            suspect = 0.0
+            continue
+        for i in range(n):
+            out[i] += r[i]
+        since += 1
+        if size <= 1e-2 * tol * scale:
+            return _OK
+        if has_theta:
+            if theta < 1.0 and theta / (1.0 - theta) * size <= tol * scale:
+                return _OK
+            rate = min(rate, theta)
+            if theta > c[_RATE]:
+                refreshed = True
+                code = _refactor(jac, t, h, y, out, s, p, A, lp, ipiv, matf, m, jrows, jcols, emask, nend, jbuf, ebuf,
+                                 xs, d, ints, ist)
+                if code != _OK:
+                    return code
+                since = 0
+                size = -1.0
+                rate = np.inf
+                suspect = 0.0
+        last = size
+    return _FAIL
+
+
+def _dg(res, jac, inv, ham, escale, t, h, y, guess, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend, weights,
+        algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags):
+    """DiscreteGradientStep: the stage equations at y(s) and the energy balance r(s) = 0."""
+    n = y.shape[0]
+    e = ist[_E]
+    code = _stage(res, jac, inv, t, h, y, guess, 0.5, p, 0, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend,
+                  weights, algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags)
+    if code != _OK:
+        return code
+    H0 = ham(t, y, p)
+    bal = ham(t + h, out, p) - H0 + out[e] - y[e]
+    scale = max(abs(escale(t, y, p)), abs(escale(t + h, out, p)), abs(y[e]), abs(out[e]), 1e-200)
+    if not (np.isfinite(bal) and np.isfinite(scale)):
+        return _EVAL
+    tol = c[_BAL_TOL] * scale
+    if abs(bal) <= tol:
+        return _OK
+    for i in range(n):
+        xs[i] = y[i] + 0.5 * (out[i] - y[i])
+    curv = 4.0 * (H0 - 2.0 * ham(t + 0.5 * h, xs.copy(), p) + ham(t + h, out, p))
+    if not np.isfinite(curv):
+        return _EVAL
+    s_prev = 0.5
+    r_prev = bal
+    y_prev = out.copy()
+    slope = -curv if curv != 0.0 else -abs(bal) * 10.0
+    best = abs(bal)
+    y_best = out.copy()
+    for _ in range(int(c[_MAX_SECANT])):
+        if slope != 0.0:
+            s_new = min(max(s_prev - r_prev / slope, c[_S_MIN]), c[_S_MAX])
+        else:
+            s_new = 0.5
+        if s_new == s_prev:
+            break
+        code = _stage(res, jac, inv, t, h, y, y_prev, s_new, p, 0, A, lp, ipiv, matf, jrows, jcols, emask, end_rows,
+                      nend, weights, algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags)
+        if code != _OK:
+            break
+        r_new = ham(t + h, out, p) - H0 + out[e] - y[e]
+        if not np.isfinite(r_new):
+            return _EVAL
+        if abs(r_new) < best:
+            best = abs(r_new)
+            _copy(out, y_best)
+        if abs(r_new) <= tol:
+            return _OK
+        if r_new != r_prev:
+            slope = (r_new - r_prev) / (s_new - s_prev)
+        s_prev = s_new
+        r_prev = r_new
+        _copy(out, y_prev)
+    _copy(y_best, out)
+    if best <= 1e3 * tol:
+        return _OK
+    # no point balances the energy: the step is split in Python, and where even the shortest
+    # split step cannot balance it, its midpoint step is taken (phc.simulation.discrete_gradient)
+    return _FAIL
+
+
+def _midpoint4(res, jac, inv, escale, powers, t, h, y, guess, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend,
+               weights, algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags, hist_t, hist_v):
+    """Midpoint4Step: three midpoint substeps γ₁h, γ₂h, γ₁h, the predictor from the substep
+    midpoints of the last two steps, the passivity guard."""
+    n = y.shape[0]
+    fr = (c[_G1], c[_G2], c[_G1])
+    mt = (c[_M0], c[_M1], c[_M2])
+    mids = np.empty((3, n))
+    if ist[_HIST] == 2:
+        for i in range(3):
+            ti = t + mt[i] * h
+            for j in range(n):
+                mids[i, j] = hist_v[1, i, j] + (ti - hist_t[1, i]) * (hist_v[1, i, j] - hist_v[0, i, j]) / (
+                    hist_t[1, i] - hist_t[0, i])
+    else:
+        for i in range(3):
+            for j in range(n):
+                mids[i, j] = y[j] + mt[i] * h * ((guess[j] - y[j]) / h)
+    ill = 0
+    start = y.copy()
+    tau = t
+    dissipated = 0.0
+    scale = 0.0
+    values = np.empty((3, n))
+    g = np.empty(n)
+    for i in range(3):
+        m = 0 if i != 1 else 1
+        hs = fr[i] * h
+        for j in range(n):
+            g[j] = 2.0 * mids[i, j] - start[j]
+        code = _stage(res, jac, inv, tau, hs, start, g, 0.5, p, m, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend,
+                      weights, algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags)
+        ill = ill | flags[0]
+        if code != _OK:
+            flags[0] = ill
+            ist[_HIST] = 0
+            return code
+        for j in range(n):
+            values[i, j] = 0.5 * (start[j] + out[j])
+            d[j] = (out[j] - start[j]) / hs
+        pw = powers(tau + 0.5 * hs, values[i], d, p)
+        diss = hs * pw[1]
+        if not np.isfinite(diss):
+            flags[0] = ill
+            ist[_HIST] = 0
+            return _EVAL
+        dissipated += diss
+        scale += abs(diss)
+        _copy(out, start)
+        tau = tau + hs
+    flags[0] = ill
+    floor = 1e-13 * abs(escale(t, y, p)) + 1e-300
+    if dissipated < -1e-9 * scale - floor:
+        ist[_HIST] = 0
+        return _FAIL
+    if ist[_HIST] == 2:
+        for i in range(3):
+            hist_t[0, i] = hist_t[1, i]
+            for j in range(n):
+                hist_v[0, i, j] = hist_v[1, i, j]
+        k = 1
+    else:
+        k = ist[_HIST]
+        ist[_HIST] += 1
+    for i in range(3):
+        hist_t[k, i] = t + mt[i] * h
+    for i in range(3):
+        for j in range(n):
+            hist_v[k, i, j] = values[i, j]
+    return _OK
+
+
+def _advance(res, jac, inv, ham, escale, powers, t, h, y, guess, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows,
+             nend, weights, algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags, hist_t, hist_v):
+    method = ist[_METHOD]
+    if method == 0:
+        return _stage(res, jac, inv, t, h, y, guess, 0.5, p, 0, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend,
+                      weights, algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags)
+    if method == 1:
+        return _dg(res, jac, inv, ham, escale, t, h, y, guess, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend,
+                   weights, algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags)
+    return _midpoint4(res, jac, inv, escale, powers, t, h, y, guess, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows,
+                      nend, weights, algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags, hist_t, hist_v)
+
+
+def _monitor_ratio(jac, t, y, yp, h, p, jrows, jcols, jbuf, M, colscale, threshold):
+    """σ_min/σ_max of the equilibrated iteration matrix (SingularityMonitor.ratio); -1 when it
+    cannot be computed here (the Python monitor then looks itself)."""
+    n = y.shape[0]
+    jac(t, y, yp, p, 1.0 / max(h, 1e-300), jbuf)
+    if not _all_finite(jbuf):
+        return -1.0
+    M[:, :] = 0.0
+    for k in range(jrows.shape[0]):
+        M[jcols[k], jrows[k]] = jbuf[k]  # column-major: M[col, row]
+    if colscale.shape[0] == n:  # scaled variables y/s: columns times s
+        for j in range(n):
+            for i in range(n):
+                M[j, i] *= colscale[j]
+    rowmax = np.empty(n)
+    for _ in range(2):
+        # rows of J (M[j, i] is J[i, j]: the loops run along M's rows, contiguous)
+        for i in range(n):
+            rowmax[i] = 0.0
+        for j in range(n):
+            for i in range(n):
+                rowmax[i] = max(rowmax[i], abs(M[j, i]))
+        for j in range(n):
+            for i in range(n):
+                if rowmax[i] > 0.0:
+                    M[j, i] /= rowmax[i]
+        for j in range(n):  # columns of J
+            big = 0.0
+            for i in range(n):
+                big = max(big, abs(M[j, i]))
+            if big > 0.0:
+                for i in range(n):
+                    M[j, i] /= big
+    ints = np.zeros(4, np.int32)
+    ints[0] = n
+    # a cheap look first: the 1-norm condition estimate of LAPACK (dgecon, on an LU) bounds
+    # σ_max/σ_min ≤ n·κ₁; an estimate (a lower bound of κ₁, within a small factor in practice)
+    # RCOND_MARGIN·n times above the threshold leaves the SVD out
+    lu = M.copy()
+    anorm = np.zeros(1)
+    for j in range(n):
+        col = 0.0
+        for i in range(n):
+            col += abs(M[j, i])
+        anorm[0] = max(anorm[0], col)
+    ipiv = np.zeros(n, np.int32)
+    _dgetrf(ints[0:].ctypes, ints[0:].ctypes, lu.ctypes, ints[0:].ctypes, ipiv.ctypes, ints[2:].ctypes)
+    if ints[2] == 0:
+        one_norm = np.zeros(1, np.uint8)
+        one_norm[0] = 49  # '1'
+        rcond = np.zeros(1)
+        cwork = np.zeros(4 * n)
+        ciwork = np.zeros(n, np.int32)
+        _dgecon(one_norm.ctypes, ints[0:].ctypes, lu.ctypes, ints[0:].ctypes, anorm.ctypes, rcond.ctypes,
+                cwork.ctypes, ciwork.ctypes, ints[2:].ctypes)
+        if ints[2] == 0 and np.isfinite(rcond[0]) and rcond[0] >= threshold * n * _RCOND_MARGIN:
+            return rcond[0] / n  # about a lower bound of σ_min/σ_max, far above the threshold
+    ints[1] = -1
+    ints[2] = 0
+    chars = np.zeros(1, np.uint8)
+    chars[0] = 78  # 'N'
+    s = np.zeros(n)
+    dummy = np.zeros(1)
+    iwork = np.zeros(8 * n, np.int32)
+    query = np.zeros(1)
+    one = np.ones(1, np.int32)
+    _dgesdd(chars.ctypes, ints[0:].ctypes, ints[0:].ctypes, M.ctypes, ints[0:].ctypes, s.ctypes, dummy.ctypes,
+            one.ctypes, dummy.ctypes, one.ctypes, query.ctypes, ints[1:].ctypes, iwork.ctypes, ints[2:].ctypes)
+    lwork = max(int(query[0]), 1)
+    work = np.zeros(lwork)
+    ints[1] = lwork
+    _dgesdd(chars.ctypes, ints[0:].ctypes, ints[0:].ctypes, M.ctypes, ints[0:].ctypes, s.ctypes, dummy.ctypes,
+            one.ctypes, dummy.ctypes, one.ctypes, work.ctypes, ints[1:].ctypes, iwork.ctypes, ints[2:].ctypes)
+    if ints[2] != 0 or not _all_finite(s):
+        return -1.0
+    return s[n - 1] / s[0] if s[0] > 0 else 0.0
+
+
+def _weights(pt, k, tn, w):
+    """Lagrange weights at tn of the nodes pt[0:k] (midpoint.predict_midpoint's arithmetic)."""
+    for a in range(k):
+        wa = 1.0
+        for b in range(k):
+            if b != a:
+                wa *= (tn - pt[b]) / (pt[a] - pt[b])
+        w[a] = wa
+
+
+def _predict(y, mid, mid_slope, pt, pm, ist, c, t, h, h_prev, algmask, guess):
+    """The start of Newton, ``2 m − y`` with the predicted midpoint m: y + h/2·ẏ₀ at the start,
+    else per variable (differential ones: degree ``c[_ORDER]``, algebraic ones ``c[_ORDER_ALG]``)
+    the last midpoint (degree 0), the linear extrapolation of the last two (degree 1, or while
+    fewer midpoints are known), or the Lagrange polynomial through the last ones
+    (midpoint.predict_midpoint, the same arithmetic)."""
+    n = y.shape[0]
+    if ist[_HAS_MID] == 0:
+        for i in range(n):
+            guess[i] = 2.0 * (y[i] + 0.5 * h * mid_slope[i]) - y[i]
+        return
+    tn = t + 0.5 * h
+    nmid = ist[_NMID]
+    od = int(c[_ORDER])
+    oa = int(c[_ORDER_ALG])
+    kd = min(od + 1, nmid)
+    ka = min(oa + 1, nmid)
+    wd = np.empty(pm.shape[0])
+    wa = np.empty(pm.shape[0])
+    _weights(pt, kd, tn, wd)
+    _weights(pt, ka, tn, wa)
+    for i in range(n):
+        o = oa if algmask[i] != 0 else od
+        k = ka if algmask[i] != 0 else kd
+        if o == 0:
+            mg = mid[i]
+        elif k < 3:
+            mg = mid[i] + 0.5 * (h + h_prev) * mid_slope[i]
+        else:
+            w = wa if algmask[i] != 0 else wd
+            mg = w[0] * pm[0, i]
+            for a in range(1, k):
+                mg = mg + w[a] * pm[a, i]
+        guess[i] = 2.0 * mg - y[i]
+
+
+def _chunk(res, jac, inv, ham, escale, powers, p, t_out, ys, yps, y, mid, mid_slope, y_prev, fst, ist, c, A, lp,
+           ipiv, matf, jrows, jcols, end_rows, emask, weights, algmask, hist_t, hist_v, y_new, jbuf, ebuf, M, colscale, pt,
+           pm, budget):
+    """Steps of integrate_fixed_step until `budget` steps are done, the run ends, or a step needs
+    the Python code (see the module docstring); the state is in the arrays, the status in ist."""
+    n = y.shape[0]
+    nend = ist[_NEND]
+    ints = np.zeros(4, np.int32)
+    ints[0] = n
+    ints[1] = 1
+    chars = np.zeros(3, np.uint8)
+    chars[0] = 76  # 'L'
+    chars[1] = 78  # 'N'
+    chars[2] = 85  # 'U'
+    xs = np.empty(n)
+    d = np.empty(n)
+    r = np.empty(n)
+    guess = np.empty(n)
+    yp = np.empty(n)
+    flags = np.zeros(1, np.int64)
+    every = int(c[_EVERY])
+    nout = t_out.shape[0]
+    done = 0
+    while True:
+        k = ist[_K]
+        if k >= nout:
+            ist[_STATUS] = _DONE
+            return
+        if done >= budget:
+            ist[_STATUS] = _BUDGET
+            return
+        if ist[_J] == 0:
+            interval = t_out[k] - t_out[k - 1]
+            step = fst[_STEP]
+            if step > 0.0:
+                sub = max(1, int(math.ceil(interval / step - 1e-9)))
+            else:
+                sub = 1
+            ist[_SUBSTEPS] = sub
+            fst[_H] = interval / sub
+            fst[_T] = t_out[k - 1]
+        t = fst[_T]
+        h = fst[_H]
+        h_prev = fst[_H_PREV]
+        _predict(y, mid, mid_slope, pt, pm, ist, c, t, h, h_prev, algmask, guess)
+        code = _advance(res, jac, inv, ham, escale, powers, t, h, y, guess, p, A, lp, ipiv, matf, jrows, jcols, emask,
+                        end_rows, nend, weights, algmask, c, jbuf, ebuf, xs, d, r, y_new, ints, chars, ist, flags,
+                        hist_t, hist_v)
+        steps = ist[_STEPS]
+        ist[_CODE] = code
+        ist[_ILL] = flags[0]
+        if code != _OK or (ist[_MONITOR] != 0 and flags[0] != 0 and steps - ist[_LAST_LOOK] >= 10):
+            ist[_STATUS] = _HARD
+            return
+        if ist[_MONITOR] != 0 and steps % every == 0:
+            ist[_LAST_LOOK] = steps
+            for i in range(n):
+                yp[i] = (y_new[i] - y[i]) / h
+            ratio = _monitor_ratio(jac, t, y, yp, 0.5 * h, p, jrows, jcols, jbuf, M, colscale, c[_THRESHOLD])
+            if ratio < c[_THRESHOLD]:
+                ist[_STATUS] = _LOOK
+                return
+        # accept the step
+        kp = pm.shape[0]
+        for j in range(kp - 1, 0, -1):
+            pt[j] = pt[j - 1]
+        pt[0] = t + 0.5 * h
+        for i in range(n):
+            nm = 0.5 * (y[i] + y_new[i])
+            if ist[_HAS_MID] != 0:
+                mid_slope[i] = (nm - mid[i]) / (0.5 * (h + h_prev))
+            mid[i] = nm
+            for j in range(kp - 1, 0, -1):
+                pm[j, i] = pm[j - 1, i]
+            pm[0, i] = nm
+            y_prev[i] = y[i]
+            y[i] = y_new[i]
+        ist[_HAS_MID] = 1
+        ist[_NMID] = min(ist[_NMID] + 1, kp)
+        fst[_H_PREV] = h
+        fst[_T] = t + h
+        ist[_STEPS] = steps + 1
+        done += 1
+        if steps + 1 >= ist[_MAX_STEPS]:
+            ist[_STATUS] = _MAXSTEPS
+            return
+        ist[_J] += 1
+        if ist[_J] >= ist[_SUBSTEPS]:
+            for i in range(n):
+                ys[k, i] = y[i]
+                yps[k, i] = (y[i] - y_prev[i]) / h
+            ist[_K] = k + 1
+            ist[_J] = 0
