@@ -39,6 +39,7 @@ sympy nor pydantic (the cached front end reads :mod:`phc.budget` without them).
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable, Iterator, Mapping, MutableMapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
@@ -257,23 +258,29 @@ class ComponentType:
 COMPONENT_TYPES: dict[str, ComponentType] = {}
 """name -> entry. Read it through :func:`get` and :func:`names` (they load the built-ins)."""
 _state = {"loaded": False, "loading": False}
+_LOADING = threading.RLock()
 
 
 def _load_builtins() -> None:
     """Register the built-in types (once): their specs are the union written in
     :mod:`phc.spec.components`, which :func:`check_builtin_union` compares with them."""
-    if _state["loaded"] or _state["loading"]:
+    if _state["loaded"]:
         return
-    _state["loading"] = True
-    try:
-        from phc.library.builtin import BUILTINS
+    # another thread (a Dask worker's) waits until the built-ins are in; the loading thread
+    # itself re-enters through register() and passes
+    with _LOADING:
+        if _state["loaded"] or _state["loading"]:
+            return
+        _state["loading"] = True
+        try:
+            from phc.library.builtin import BUILTINS
 
-        for entry in BUILTINS:
-            register(entry)
-    finally:
-        _state["loading"] = False
-    _state["loaded"] = True
-    check_builtin_union()
+            for entry in BUILTINS:
+                register(entry)
+        finally:
+            _state["loading"] = False
+        check_builtin_union()
+        _state["loaded"] = True
 
 
 def register(entry: ComponentType) -> ComponentType:

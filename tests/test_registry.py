@@ -352,3 +352,31 @@ def test_a_cubic_spring_registered_here_simulates_the_duffing_oscillator(tmp_pat
     assert schema_text() == published
     with pytest.raises(phc.errors.ModelError):
         phc.compile_model(path)
+
+
+def test_the_first_use_from_several_threads_at_once_sees_every_built_in_type():
+    """A Dask worker runs sweep points on threads: the first lookups of a fresh process come
+    from several threads at once, and each must find the built-in types (one thread loading
+    them while another read the half-filled registry gave KeyError: 'linear_phs')."""
+    import subprocess
+    import sys
+    import textwrap
+
+    code = textwrap.dedent("""
+        import threading
+        from phc import registry
+        from phc.library import LOWERERS
+        barrier = threading.Barrier(8)
+        found = []
+        def look():
+            barrier.wait()
+            found.append("linear_phs" in LOWERERS and registry.find("linear_phs") is not None)
+        threads = [threading.Thread(target=look) for _ in range(8)]
+        [t.start() for t in threads]
+        [t.join() for t in threads]
+        print(found.count(True), len(registry.names()))
+    """)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    hits, count = map(int, out.stdout.split())
+    assert hits == 8 and count >= 24

@@ -577,12 +577,13 @@ class _StepHook:
     exactly (by raising :class:`_Stop`, which scikit-sundae passes on; the outputs before
     it are kept).
 
-    Not every evaluation is a step's end: root finding evaluates inside the step (before
-    its end: skipped); where a call returns at an output time inside the step just taken,
-    the evaluation is at that output time (the step is counted there, its size not taken),
-    and the next calls begin, before any residual evaluation, with one at the next output
-    time inside the same step or at the step's real end (which only moves the hook's
-    clock: a step always evaluates the residual)."""
+    Not every evaluation is a step's end; a step always evaluates the residual, and an
+    evaluation with none since the hook's last one is not a step: root finding inside the
+    step, or a call's start. Where a call returns at an output time inside the step just
+    taken, the evaluation is at that output time (the step is counted there, its size not
+    taken), and the next calls begin with one at the next output time inside the same step
+    or at the step's real end, which only moves the hook's clock. Steps are not told apart by
+    time: IDA crawling into a singular configuration takes steps that leave t unchanged."""
 
     def __init__(self, t0, y0, yp0, *, t_end, max_steps, monitor, calls, progress, base):
         self.t_last, self.t_end, self.max_steps = float(t0), float(t_end), int(max_steps)
@@ -604,29 +605,31 @@ class _StepHook:
         # recoverable model errors seen; (the earliest failed trial time not passed yet, the step size before it)
         self.failures_seen, self.edge = 0, None
         self.target = float(t0)      # the output time of IDA's current call
-        self.call_start = 0          # residual evaluations when it began
+        self.evaluations_seen = calls.evaluations  # residual evaluations at the hook's last call
 
     def start_call(self, target: float) -> None:
-        self.target, self.call_start = float(target), self.calls.evaluations
+        self.target = float(target)
 
     def __call__(self, t, y, yp) -> None:
-        if t <= self.t_last:
+        evaluations = self.calls.evaluations
+        if evaluations == self.evaluations_seen:
+            # no residual evaluation since the hook's last call, so no step: root finding inside
+            # the step, or a call's start (the end of the step counted at the last output time,
+            # or another output time inside it), which moves the hook's clock
+            self.t_last = max(self.t_last, t)
             return
-        if self.calls.evaluations == self.call_start:
-            # a call's start, before any residual evaluation: no new step, but the end of the
-            # one counted at the last output time (or another output time inside it)
-            self.t_last = t
-            return
+        self.evaluations_seen = evaluations
+        self.steps += 1
         if t == self.target:  # the output time inside the step (or the step's own end)
-            self.t_last = t
-            self.steps += 1
+            self.t_last = max(self.t_last, t)
             if self.steps >= self.max_steps and t < self.t_end:
                 raise _Stop(f"stopped after {self.steps} steps at t = {t:.6g} (max_steps); raise `max_steps` "
                             "or loosen the tolerances")
             return
-        h = self.h_last = t - self.t_last
+        # a step below the resolution of t (IDA crawling into a singular configuration takes
+        # steps of 1e-18 s at t = 0.01, which leave t unchanged): its size is at most t's spacing
+        h = self.h_last = max(t - self.t_last, math.ulp(t))
         self.t_last = t
-        self.steps += 1
         self.h_ref = max(h, 0.999 * self.h_ref)
         calls = self.calls
         if calls.failures != self.failures_seen:  # a trial point the model could not be evaluated at
@@ -740,6 +743,7 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
         return dict(t=t_out[:1], y=ys[:1], yp=yps[:1], steps=0, nfev=0, njev=0, success=False,
                     message=f"IDA could not start: {init.message}" + (f"; {scales(True)}" if scales(True) else ""),
                     cpu=time.process_time() - start)
+    hook.evaluations_seen = calls.evaluations  # (any the start made are not a step's)
     k, ok, message = 1, True, "integration finished"
     event = None
     nfev = int(getattr(init, "nfev", 0) or 0)
