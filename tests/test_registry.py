@@ -281,7 +281,8 @@ CUBIC_SPRING = ComponentType(
     name="cubic_spring", spec=CubicSpringSpec, lower=lower_cubic_spring, default_domain="mechanical.translational",
     units=Units.of_port(ElementUnit("k", "e", "f*s", "a stiffness"),
                         ElementUnit("k3", "e", "f*s*f*s*f*s", "a cubic stiffness"), storage="f"), cost=ASSEMBLED,
-    spatial_order=None, initial_fields=NO_FIELDS, sign_role="load", state_reads=NO_STATE_READS, drawing=None)
+    spatial_order=None, initial_fields=NO_FIELDS, sign_role="load", state_reads=NO_STATE_READS, drawing=None,
+    rows="derived")
 
 DUFFING = """
 format_version: 1
