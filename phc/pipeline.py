@@ -220,6 +220,32 @@ def validate_file(path: str | os.PathLike) -> tuple[Optional[Dae], DiagnosticLis
     return dae, DiagnosticList(diags).sorted(), kind
 
 
+def _coarse_dae(path, scene: Optional[Scene], mesh: dict[str, int]) -> Optional[Dae]:
+    """The model assembled again with `mesh` overriding element counts (the coarse mesh on
+    which :func:`phc.checks.rows.check_hand_written` compares a large component), or None
+    when that variant does not assemble."""
+    from phc.scene import scene_variant
+
+    try:
+        variant = scene_variant(scene if scene is not None else path, mesh=mesh)
+    except ModelError:
+        return None
+    dae, _ = build_dae(variant.model_path, variant)
+    return dae
+
+
+def _rows_not_compared(dae: Dae, rows) -> list:
+    """A warning (PHC-W452) for each component with hand-written rows that the rows check
+    of this compilation could not compare with its description, saying why."""
+    from phc.diagnostics import Diagnostic
+
+    spans = {name: span for name, _, span in dae.topology.components} if dae.topology is not None else {}
+    return [Diagnostic("PHC-W452", f"the equations compiled for `{name}` were not compared with its description "
+                       f"when compiling: {why}", span=spans.get(name), path=name, severity="warning",
+                       hint="the compiled energy balance is still certified; `phc check` lists what it compares")
+            for name, why in [*rows.not_compared, *rows.inconclusive]]
+
+
 def compile_model(path: str | os.PathLike, scene: Optional[Scene] = None, *, certify: bool = True,
                   backend: Optional[str] = None) -> CompiledModel:
     """Compile a model file (or a scene file: its model as the scene asks) to a loaded
@@ -258,10 +284,11 @@ def compile_model(path: str | os.PathLike, scene: Optional[Scene] = None, *, cer
         from phc.checks.rows import check_hand_written
 
         t = time.perf_counter()
-        rows = check_hand_written(dae)
+        rows = check_hand_written(dae, rebuild=lambda mesh: _coarse_dae(path, scene, mesh))
         timings["certify_rows"] = time.perf_counter() - t
         if rows.diagnostics.has_errors:
             raise ModelError(DiagnosticList(list(diags) + list(rows.diagnostics)).sorted())
+        diags = DiagnosticList(list(diags) + _rows_not_compared(dae, rows)).sorted()
     t = time.perf_counter()
     ir = lower_residual(dae)
     timings["lower"] = time.perf_counter() - t
