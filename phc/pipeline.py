@@ -241,7 +241,7 @@ def _rows_not_compared(dae: Dae, rows) -> list:
 
     spans = {name: span for name, _, span in dae.topology.components} if dae.topology is not None else {}
     return [Diagnostic("PHC-W452", f"the equations compiled for `{name}` were not compared with its description "
-                       f"when compiling: {why}", span=spans.get(name), path=name, severity="warning",
+                       f"when compiling: {why}", span=spans.get(name), severity="warning",
                        hint="the compiled energy balance is still certified; `phc check` lists what it compares")
             for name, why in [*rows.not_compared, *rows.inconclusive]]
 

@@ -50,9 +50,9 @@ from typing import Any, Optional
 
 from phc.errors import RegistryError
 
-__all__ = ["ASSEMBLED", "COMPONENT_TYPES", "ROWS", "ComponentType", "Drawing", "ElementUnit", "FieldView", "InitialFields",
-           "NO_FIELDS", "NO_STATE_READS", "PerElement", "RegistryError", "SIGN_ROLES", "StateReads", "Units",
-           "find", "get", "names", "register", "registered", "unregister"]
+__all__ = ["ASSEMBLED", "COMPONENT_TYPES", "ROWS", "ComponentType", "Drawing", "ElementUnit", "FieldView",
+           "InitialFields", "NO_FIELDS", "NO_STATE_READS", "PerElement", "RegistryError", "SIGN_ROLES", "StateReads",
+           "Units", "find", "get", "names", "register", "registered", "unregister"]
 
 ROWS = ("derived", "hand-written")
 """Where a type's rows come from: ``derived`` — :func:`phc.library.dirac.emit` derives every

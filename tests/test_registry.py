@@ -239,6 +239,7 @@ def test_a_forgotten_or_wrong_field_is_refused_at_registration():
         "default_domain": ("magnetic", "`default_domain` 'magnetic'"),
         "cost": (None, "`cost` is not callable"),
         "spatial_order": (0, "`spatial_order` is a positive integer"),
+        "rows": ("by hand", "`rows` 'by hand' is one of derived, hand-written"),
     }
     for field, (value, message) in wrong.items():
         with pytest.raises(RegistryError, match=re.escape(message)):

@@ -731,5 +731,5 @@ def check_hand_written(dae: Dae, seed: int = 0, rebuild=None) -> RowsCertificate
     return cert
 
 
-__all__ = ["RowsCertificate", "check_hand_written", "check_rows", "compare", "hand_written", "MAX_UNKNOWNS", "COMPILE_MAX_UNKNOWNS",
-           "MAX_SPARSE_UNKNOWNS"]
+__all__ = ["RowsCertificate", "check_hand_written", "check_rows", "compare", "hand_written", "COARSE_ELEMENTS",
+           "COMPILE_MAX_UNKNOWNS", "MAX_UNKNOWNS", "MAX_SPARSE_UNKNOWNS"]
