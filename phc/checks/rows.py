@@ -667,7 +667,8 @@ def hand_written(dae: Dae) -> list[str]:
 COMPILE_MAX_UNKNOWNS = 160
 """In every compilation, a meshed component with nonlinear rows (the moving beam) and more
 unknowns than this is compared on a coarse mesh (:data:`COARSE_ELEMENTS`): the dense test
-costs about 0.5 s of CPU at 8 elements (124 unknowns) and 7 s at 16 (220)."""
+of a moving beam cost about 0.5 s of CPU at 8 elements (124 unknowns) and 7 s at 16 (220
+unknowns) on a shared 2-core machine, and is refused above :data:`MAX_UNKNOWNS`."""
 COARSE_ELEMENTS = 4
 """Elements of the coarse mesh on which a large meshed component's rows are compared."""
 
@@ -715,7 +716,7 @@ def check_hand_written(dae: Dae, seed: int = 0, rebuild=None) -> RowsCertificate
     cert.diagnostics.extend(part.diagnostics)
     for name, why in part.not_compared:
         coarse = None
-        if name in rows and _size(rows[name]) > 0 and rebuild is not None:
+        if name in rows and _size(rows[name]) > COMPILE_MAX_UNKNOWNS and rebuild is not None:  # too large
             coarse = rebuild({name: COARSE_ELEMENTS})
         if coarse is None:
             cert.not_compared.append((name, why + (" and no coarse mesh to compare on" if rebuild else "")))
