@@ -228,13 +228,17 @@ class ComponentRows:
     """The rows a lowerer emitted for one component, before assembly: residual rows
     ``expr = 0`` as ``(label, expr)``, explicit definitions ``symbol = expr`` and the component's own variables
     as ``(symbol, rate symbol or None, role)``. `sparse` is True when some rows have
-    sparse matrix parts (those are not compared with the description)."""
+    sparse matrix parts (:class:`LinearBlock`). `derived` is True when every row was
+    derived from the component's description (:func:`phc.library.dirac.emit`); rows a
+    lowerer wrote itself are compared with the description when compiling
+    (:mod:`phc.checks.rows`)."""
 
     component: str
     equations: tuple[tuple[str, sp.Expr], ...]
     definitions: tuple[tuple[sp.Symbol, sp.Expr], ...]
     variables: tuple[tuple[sp.Symbol, Optional[sp.Symbol], str], ...]
     sparse: bool = False
+    derived: bool = False
 
 
 @dataclass(frozen=True)

@@ -235,6 +235,7 @@ class Builder(Reporter):
         self.definitions: dict[sp.Symbol, sp.Expr] = {}
         self.defined_by: dict[sp.Symbol, str] = {}  # definition -> the component whose lowerer wrote it
         self.lowering: Optional[str] = None  # the component being lowered
+        self.hand_written: set[str] = set()  # components with a row not derived from their description (emit)
         self.component_specs: dict[str, Any] = {}  # full name -> its spec as lowered (overrides applied)
         self.ports: dict[str, Port] = {}
         self.port_aliases: dict[str, str] = {}
@@ -291,7 +292,13 @@ class Builder(Reporter):
         self.variables.append(Variable(name, sym, False, role, component, None, span))
         return sym
 
-    def add_equation(self, expr: sp.Expr, component: str, kind: str, label: str, span=None) -> None:
+    def add_equation(self, expr: sp.Expr, component: str, kind: str, label: str, span=None, *,
+                     derived: bool = False) -> None:
+        """A residual row ``expr = 0`` of `component`. `derived`: :func:`phc.library.dirac.emit`
+        derived it from the component's description; any other row makes the component's
+        rows hand-written (compared with its description when compiling, :mod:`phc.checks.rows`)."""
+        if not derived:
+            self.hand_written.add(component)
         expr = expr if isinstance(expr, sp.Basic) else sp.Integer(expr)
         self.equations.append(Equation(expr, f"{component}.{label}", kind, component, span))
 
@@ -303,6 +310,7 @@ class Builder(Reporter):
         """
         from phc.dae import LinearBlock
 
+        self.hand_written.add(component)  # sparse blocks are written directly (emit derives no blocks)
         start = len(self.equations)
         for i in range(n_rows):
             self.equations.append(Equation(sp.Integer(0), f"{component}.{label}[{i}]", "linear", component, span))
@@ -312,13 +320,17 @@ class Builder(Reporter):
 
     def add_to_row(self, row: int, expr: sp.Expr) -> None:
         eq = self.equations[row]
+        self.hand_written.add(eq.component)
         self.equations[row] = Equation(eq.expr + expr, eq.label, eq.kind, eq.component, eq.span)
 
-    def define(self, sym: sp.Symbol, expr: sp.Expr) -> None:
-        """Give a port variable an explicit value (an output of its component)."""
+    def define(self, sym: sp.Symbol, expr: sp.Expr, *, derived: bool = False) -> None:
+        """Give a port variable an explicit value (an output of its component). `derived`:
+        as for :meth:`add_equation`."""
         self.definitions[sym] = expr
         if self.lowering is not None:
             self.defined_by[sym] = self.lowering
+            if not derived:
+                self.hand_written.add(self.lowering)
 
     def component_rows(self) -> tuple:
         """Each lowered component's rows as its lowerer emitted them (before assembly
@@ -339,7 +351,8 @@ class Builder(Reporter):
         for v in self.variables:
             variables.setdefault(v.component, []).append((v.symbol, v.dsymbol, v.role))
         return tuple(ComponentRows(name, tuple(equations.get(name, ())), tuple(definitions.get(name, ())),
-                                   tuple(variables.get(name, ())), name in sparse)
+                                   tuple(variables.get(name, ())), name in sparse,
+                                   derived=name not in self.hand_written)
                      for name, _, _ in self.components if name not in self.failed)
 
     def add_port(self, component: str, local: str, domain: str, dimension: int, frame=None,

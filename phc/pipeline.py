@@ -9,6 +9,7 @@ elaborate      path, Scene → Elaboration                    :mod:`phc.elaborat
 interconnect   Elaboration → Interconnection (one graph)    :mod:`phc.interconnect`
 assemble       Elaboration, Interconnection → Dae           :mod:`phc.assemble`
 analyse        Dae → diagnostics (balance, matching)        :mod:`phc.analysis.matching`
+check rows     Dae → diagnostics (hand-written rows)        :mod:`phc.checks.rows`
 lower          Dae → ResidualIR (Jacobian, sparsity)        :mod:`phc.codegen.lower`
 print          ResidualIR → Python source                   :mod:`phc.codegen.printer`
 load           source → module (cached by content hash)     :mod:`phc.codegen.load`
@@ -128,14 +129,43 @@ def validate_file(path: str | os.PathLike) -> tuple[Optional[Dae], DiagnosticLis
     return dae, DiagnosticList(diags).sorted(), kind
 
 
+def _coarse_dae(path, scene: Optional[Scene], mesh: dict[str, int]) -> Optional[Dae]:
+    """The model assembled again with `mesh` overriding element counts (the coarse mesh on
+    which :func:`phc.checks.rows.check_hand_written` compares a large component), or None
+    when that variant does not assemble."""
+    from phc.scene import scene_variant
+
+    try:
+        variant = scene_variant(scene if scene is not None else path, mesh=mesh)
+    except ModelError:
+        return None
+    dae, _ = build_dae(variant.model_path, variant)
+    return dae
+
+
+def _rows_not_compared(dae: Dae, rows) -> list:
+    """A warning (PHC-W452) for each component with hand-written rows that the rows check
+    of this compilation could not compare with its description, saying why."""
+    from phc.diagnostics import Diagnostic
+
+    spans = {name: span for name, _, span in dae.topology.components} if dae.topology is not None else {}
+    return [Diagnostic("PHC-W452", f"the equations compiled for `{name}` were not compared with its description "
+                       f"when compiling: {why}", span=spans.get(name), severity="warning",
+                       hint="the compiled energy balance is still certified; `phc check` lists what it compares")
+            for name, why in [*rows.not_compared, *rows.inconclusive]]
+
+
 def compile_model(path: str | os.PathLike, scene: Optional[Scene] = None, *, certify: bool = True,
                   backend: Optional[str] = None) -> CompiledModel:
     """Compile a model file (or a scene file: its model as the scene asks) to a loaded
     residual module. `scene` applies an in-memory scene instead (`path` is then unused).
 
-    With `certify` (the default) the compiled equations are certified before they are
-    returned (:func:`phc.checks.compiled.certify_compiled`: the power balance at sampled
-    consistent states, passivity of every dissipative term); a failure is a ModelError.
+    With `certify` (the default) the rows that lowerers write themselves (rather than
+    derive from the component's description; see :data:`phc.registry.ROWS`) are compared
+    with the description (:func:`phc.checks.rows.check_hand_written`; a mismatch is a fault
+    in phc, ``PHC-E452`` at the component), and the compiled equations are certified before
+    they are returned (:func:`phc.checks.compiled.certify_compiled`: the power balance at
+    sampled consistent states, passivity of every dissipative term); a failure is a ModelError.
 
     `backend` chooses what runs the generated functions (:mod:`phc.codegen.backends`):
     ``auto`` (the default, or ``$PHC_BACKEND``) the compiled ``numba`` module when numba is
@@ -159,6 +189,15 @@ def compile_model(path: str | os.PathLike, scene: Optional[Scene] = None, *, cer
     timings["elaborate"] = time.perf_counter() - t
     if dae is None:
         raise ModelError(diags)
+    if certify:
+        from phc.checks.rows import check_hand_written
+
+        t = time.perf_counter()
+        rows = check_hand_written(dae, rebuild=lambda mesh: _coarse_dae(path, scene, mesh))
+        timings["certify_rows"] = time.perf_counter() - t
+        if rows.diagnostics.has_errors:
+            raise ModelError(DiagnosticList(list(diags) + list(rows.diagnostics)).sorted())
+        diags = DiagnosticList(list(diags) + _rows_not_compared(dae, rows)).sorted()
     t = time.perf_counter()
     ir = lower_residual(dae)
     timings["lower"] = time.perf_counter() - t

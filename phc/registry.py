@@ -15,6 +15,10 @@ initial_fields     mesh-independent initial data (:data:`phc.initial_fields.FIEL
 sign_role          the sign hints of ``phc check`` (:mod:`phc.checks.signs`)
 state_reads        which fields may name other components' states (:mod:`phc.interconnect`)
 drawing            how ``phc animate`` draws it (:mod:`phc.viz`), or None
+rows               where its rows come from (:data:`ROWS`): ``"derived"`` from its
+                   description, or ``"hand-written"`` by its lowerer and then compared
+                   with the description by every compilation (:mod:`phc.checks.rows`);
+                   a function of the spec when the form decides (``phs``)
 =================  ======================================================================
 
 Every field is a required keyword: an entry that forgets one is a ``TypeError`` when it
@@ -47,9 +51,18 @@ from typing import Any, Optional
 
 from phc.errors import RegistryError
 
-__all__ = ["ASSEMBLED", "COMPONENT_TYPES", "ComponentType", "Drawing", "ElementUnit", "FieldView", "InitialFields",
-           "NO_FIELDS", "NO_STATE_READS", "PerElement", "RegistryError", "SIGN_ROLES", "StateReads", "Units",
-           "find", "get", "names", "register", "registered", "unregister"]
+__all__ = ["ASSEMBLED", "COMPONENT_TYPES", "ROWS", "ComponentType", "Drawing", "ElementUnit", "FieldView",
+           "InitialFields", "NO_FIELDS", "NO_STATE_READS", "PerElement", "RegistryError", "SIGN_ROLES", "StateReads",
+           "Units", "find", "get", "names", "register", "registered", "unregister"]
+
+ROWS = ("derived", "hand-written")
+"""Where a type's rows come from: ``derived`` — :func:`phc.library.dirac.emit` derives every
+row from the component's description, so the compiled rows and the certified structure are
+one thing; ``hand-written`` — the lowerer writes (some of) its rows itself (sparse blocks,
+a rigid body's constraint rows), and :func:`phc.compile_model` compares them with the
+description (:func:`phc.checks.rows.check_hand_written`). The elaborate pass also records
+what each lowerer actually did (:attr:`phc.dae.ComponentRows.derived`); a component whose
+lowerer wrote a row itself is compared whatever its entry declares."""
 
 SIGN_ROLES = ("load", "source", "series", "junction")
 """Roles in the sign hints of :mod:`phc.checks.signs`: a one-port element that takes power
@@ -211,6 +224,12 @@ class ComponentType:
     sign_role: Optional[str]
     state_reads: StateReads
     drawing: Optional[Drawing]
+    rows: Any
+    """One of :data:`ROWS`, or ``spec -> one of ROWS`` when the form of the entry decides."""
+
+    def rows_of(self, spec) -> str:
+        """Where the rows of a component with this `spec` come from (one of :data:`ROWS`)."""
+        return self.rows(spec) if callable(self.rows) else self.rows
 
     def problems(self) -> list[str]:
         """What is wrong with the entry (empty when it can be registered)."""
@@ -250,6 +269,8 @@ class ComponentType:
         if self.drawing is not None and not (isinstance(self.drawing, Drawing) and callable(self.drawing.draw)
                                              and self.drawing.stage in ("body", "attachment")):
             out.append("`drawing` is a Drawing(draw, stage='body'|'attachment') or None")
+        if not (callable(self.rows) or self.rows in ROWS):
+            out.append(f"`rows` {self.rows!r} is one of {', '.join(ROWS)} (or a function of the spec to one)")
         return out
 
 

@@ -20,10 +20,13 @@ from typing import Literal, Optional
 import numpy as np
 import pytest
 import scipy.integrate
+import scipy.sparse as sps
+import sympy as sp
 
 import phc
 from phc import registry
 from phc.dae import T
+from phc.errors import ModelError
 from phc.library import LOWERERS
 from phc.library.dirac import DiracBuilder, emit
 from phc.registry import (ASSEMBLED, NO_FIELDS, NO_STATE_READS, ComponentType, ElementUnit, RegistryError, Units)
@@ -236,6 +239,7 @@ def test_a_forgotten_or_wrong_field_is_refused_at_registration():
         "default_domain": ("magnetic", "`default_domain` 'magnetic'"),
         "cost": (None, "`cost` is not callable"),
         "spatial_order": (0, "`spatial_order` is a positive integer"),
+        "rows": ("by hand", "`rows` 'by hand' is one of derived, hand-written"),
     }
     for field, (value, message) in wrong.items():
         with pytest.raises(RegistryError, match=re.escape(message)):
@@ -281,7 +285,8 @@ CUBIC_SPRING = ComponentType(
     name="cubic_spring", spec=CubicSpringSpec, lower=lower_cubic_spring, default_domain="mechanical.translational",
     units=Units.of_port(ElementUnit("k", "e", "f*s", "a stiffness"),
                         ElementUnit("k3", "e", "f*s*f*s*f*s", "a cubic stiffness"), storage="f"), cost=ASSEMBLED,
-    spatial_order=None, initial_fields=NO_FIELDS, sign_role="load", state_reads=NO_STATE_READS, drawing=None)
+    spatial_order=None, initial_fields=NO_FIELDS, sign_role="load", state_reads=NO_STATE_READS, drawing=None,
+    rows="derived")
 
 DUFFING = """
 format_version: 1
@@ -380,3 +385,154 @@ def test_the_first_use_from_several_threads_at_once_sees_every_built_in_type():
     assert out.returncode == 0, out.stderr
     hits, count = map(int, out.stdout.split())
     assert hits == 8 and count >= 24
+
+
+# -- where every type's rows come from ------------------------------------------------------
+
+STRING_MODES = """
+format_version: 1
+components:
+  s: {type: string, length: 1.0, rho: 2.0, T: 8.0, elements: 12, effects: {modes: 4}}
+  l: {type: zero_flow, domain: mechanical.translational}
+  r: {type: effort_source, domain: mechanical.translational, value: "sin(3*t)"}
+connections:
+  - [s.a, l.port]
+  - [s.b, r.port]
+"""
+
+ROW_CASES = {
+    **{kind: (kind, EXAMPLES[kind]) for kind in EXAMPLES},
+    "phs (kernel form)": ("phs", MODELS / "quarter_car.yaml"),
+    "string (modal truncation)": ("string", STRING_MODES),
+}
+"""Each registry entry's example, and the forms whose rows come from elsewhere: a kernel-form
+``phs`` (J/R/B in EXAMPLES) and a modal truncation."""
+
+
+def _flip_first_term(expr):
+    terms = sp.Add.make_args(sp.expand(expr))
+    return sp.Add(-terms[0], *terms[1:]) if len(terms) > 1 else None
+
+
+class FlipOneRow:
+    """A test double around a lowerer: in each call (each assembly of the model, the coarse
+    one of :func:`phc.checks.rows.check_hand_written` included), the first row of one kind
+    that the lowerer writes itself gets one sign flipped — a residual row's first term
+    (`equation`), a definition of a port variable (`define`) or the largest entry of an
+    interior row of a sparse block's structure operator (`linear`). Rows derived by
+    :func:`phc.library.dirac.emit` are left alone."""
+
+    MODES = ("linear", "equation", "define")
+
+    def __init__(self, lowerer, mode):
+        self.lowerer, self.mode, self.flipped = lowerer, mode, []
+
+    def __call__(self, b, *args, **kwargs):
+        original = (b.add_equation, b.define, b.add_linear_rows)
+        done = []
+
+        def add_equation(expr, component, kind, label, span=None, *, derived=False):
+            flipped = None if done or derived or self.mode != "equation" else _flip_first_term(expr)
+            if flipped is not None:
+                done.append(f"equation {label}")
+                expr = flipped
+            return original[0](expr, component, kind, label, span, derived=derived)
+
+        def define(sym, value, *, derived=False):
+            if not done and not derived and self.mode == "define" and value != 0:
+                done.append(f"definition of {sym}")
+                value = -value
+            return original[1](sym, value, derived=derived)
+
+        def add_linear_rows(component, label, n_rows, terms, span=None):
+            couplings = [i for i, t in enumerate(terms) if not t.derivative and t.matrix.nnz]
+            if not done and self.mode == "linear" and couplings:
+                t = terms[couplings[0]]
+                m = sps.csr_matrix(t.matrix, copy=True)
+                row = m.shape[0] // 2  # an interior node: an end may be clamped
+                big = int(m.indptr[row] + np.argmax(np.abs(m.data[m.indptr[row]:m.indptr[row + 1]])))
+                m.data[big] = -m.data[big]
+                terms = [*terms[:couplings[0]], dataclasses.replace(t, matrix=m), *terms[couplings[0] + 1:]]
+                done.append(f"block {label}, entry {big}")
+            return original[2](component, label, n_rows, terms, span)
+
+        b.add_equation, b.define, b.add_linear_rows = add_equation, define, add_linear_rows
+        try:
+            return self.lowerer(b, *args, **kwargs)
+        finally:
+            b.add_equation, b.define, b.add_linear_rows = original
+            self.flipped += done
+
+
+def _located_e452(err: ModelError, name: str, kind: str, path: Path):
+    found = [d for d in err.diagnostics if d.code == "PHC-E452"]
+    assert found, "; ".join(d.render() for d in err.diagnostics)
+    diag = found[0]
+    assert f"`{name}`" in diag.message and "do not say what its description says" in diag.message
+    assert "fault in phc" in diag.hint and "not in the model" in diag.hint
+    assert diag.span is not None and Path(diag.span.file).name == path.name and diag.span.line > 1
+    return diag
+
+
+@pytest.mark.parametrize("case", sorted(ROW_CASES))
+def test_every_types_rows_are_derived_from_its_description_or_compared_with_it_when_compiling(
+        case, tmp_path, monkeypatch):
+    """Issue 31's "every component type's rows come from its description", as far as it holds
+    today: each entry declares where its rows come from (`rows`), the elaborate pass records
+    what its lowerer did and the two agree; rows derived from the description are the
+    description, and for hand-written ones compile_model runs the rows check — a row
+    flipped in the lowerer makes compile_model refuse the model with a located PHC-E452."""
+    kind, example = ROW_CASES[case]
+    entry = registry.get(kind)
+    path = _model_path(kind, tmp_path) if example is EXAMPLES.get(kind) else example
+    if isinstance(path, str):
+        path = tmp_path / "model.yaml"
+        path.write_text(example)
+    compiled = phc.compile_model(path, backend="numpy")
+    top = compiled.dae.topology
+    names = [name for name, ctype, _ in top.components if ctype == kind]
+    assert names
+    rows = {r.component: r for r in top.rows}
+    declared = {entry.rows_of(top.specs[name]) for name in names}
+    assert len(declared) == 1, declared
+    declared = declared.pop()
+    assert declared in registry.ROWS
+    assert all(rows[name].derived == (declared == "derived") for name in names), \
+        f"`{kind}` declares its rows {declared}, its lowerer did otherwise"
+    if declared == "derived":
+        assert "certify_rows" in compiled.timings  # nothing of this type was compared: nothing to compare
+        return
+    assert "certify_rows" in compiled.timings
+    for mode in FlipOneRow.MODES:
+        double = FlipOneRow(entry.lower, mode)
+        monkeypatch.setitem(LOWERERS, kind, double)
+        try:
+            phc.compile_model(path, certify=False, backend="numpy")
+        except ModelError:
+            continue  # this flip breaks the model's structure before any check: try another row
+        if double.flipped:
+            break
+    else:
+        pytest.fail(f"no row of `{kind}` could be flipped")
+    with pytest.raises(ModelError) as err:
+        phc.compile_model(path, backend="numpy")
+    _located_e452(err.value, names[0], kind, path)
+
+
+def test_a_large_moving_beam_is_compared_on_a_coarse_mesh(tmp_path, monkeypatch):
+    """Above COMPILE_MAX_UNKNOWNS the moving beam's rows (dense test) are compared on the same
+    component with COARSE_ELEMENTS elements: a flipped row is still refused, and the
+    message says where it was compared."""
+    from phc.checks.rows import COARSE_ELEMENTS
+
+    text = (MODELS / "moving_beam.yaml").read_text()
+    assert "    elements: 8\n" in text
+    path = tmp_path / "moving_beam.yaml"
+    path.write_text(text.replace("    elements: 8\n", "    elements: 24\n"))
+    honest = phc.compile_model(path, backend="numpy")
+    assert not [d for d in honest.diagnostics if d.code == "PHC-W452"]
+    monkeypatch.setitem(LOWERERS, "moving_beam", FlipOneRow(registry.get("moving_beam").lower, "equation"))
+    with pytest.raises(ModelError) as err:
+        phc.compile_model(path, backend="numpy")
+    diag = _located_e452(err.value, "beam", "moving_beam", path)
+    assert f"with {COARSE_ELEMENTS} elements" in diag.message

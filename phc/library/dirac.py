@@ -213,14 +213,14 @@ def emit(b, desc: ComponentDescription, dissipation_span=None) -> None:
             left = expr.free_symbols & internal - set(sigma)
             if left:
                 raise ValueError(f"{desc.component}: row {label or i} still holds internal {sorted(map(str, left))}")
-            b.add_equation(expr, desc.component, kind, label or f"{which}[{i}]", desc.span)
+            b.add_equation(expr, desc.component, kind, label or f"{which}[{i}]", desc.span, derived=True)
             continue
         value = solve_for(expr, solve)
         if solve in internal:
             sigma[solve] = value
             sigma = {k: v.xreplace({solve: value}) for k, v in sigma.items()}
         else:
-            b.define(solve, value)
+            b.define(solve, value, derived=True)
     if desc.hamiltonian is not None:
         b.hamiltonian.append(desc.hamiltonian)
     if desc.resistive:
