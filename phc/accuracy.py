@@ -96,7 +96,7 @@ def temporal_estimate(compiled, result, run_kwargs: dict) -> ErrorEstimate:
     kwargs = dict(run_kwargs, t_eval=result.t)
     kwargs.pop("n_out", None)
     if result.solver in FIXED_STEP:
-        opts = compiled.dae.options
+        opts = compiled.options
         h = kwargs.get("step") or opts.get("step") or float(np.diff(result.t).min())
         fine = simulate(compiled, **dict(kwargs, step=h / 2))
         q = FIXED_STEP_ORDER.get(result.solver, 2)
