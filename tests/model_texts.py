@@ -60,3 +60,89 @@ simulation:
   outputs:
     x: body.x
 """
+
+
+# minimal models of the modulation, pde1d, crank_wheel and linear_phs types: the compiled
+# certificate's cases (tests/checks/test_compiled_certificate.py) and the registry's
+# (tests/test_registry.py)
+
+LINEAR = """
+format_version: 1
+parameters: {k: 4.0}
+components:
+  chain:
+    type: linear_phs
+    states: 4
+    matrices: chain.npz
+    J: J
+    R: R
+    Q: Q
+    scale: {Q: k}
+    ports:
+      tip: {B: [[0], [0], [0], [1]], domain: mechanical.translational}
+  push: {type: effort_source, domain: mechanical.translational, value: "cos(2*t)"}
+connections:
+  - [chain.tip, push.port]
+simulation:
+  t_end: 1
+  initial: {"chain.x[0]": 0.1}
+"""
+
+
+MODULATION = """
+format_version: 1
+parameters: {m: 1.0, k: 4.0, b: 0.7}
+components:
+  mass: {type: mass, m: m, dimension: 2}
+  spring: {type: spring, k: k, dimension: 2}
+  mod:
+    type: modulation
+    K: [[0, "b*(1 + spring.x[0])"], ["-b*(1 + spring.x[0])", 0]]
+  node: {type: junction, kind: common_flow, dimension: 2, ports: [m, s]}
+connections:
+  - [mass.port, mod.a]
+  - [mod.b, node.m]
+  - [node.s, spring.port]
+simulation:
+  t_end: 1
+  initial: {"spring.x[0]": 0.1, "spring.x[1]": 0.0}
+"""
+
+
+PDE1D = """
+format_version: 1
+parameters: {rho: 2.0, T: 8.0}
+components:
+  s:
+    type: pde1d
+    order: 1
+    variables: [p, eps]
+    P: [[[0, 0], [0, 0]], [[0, 1], [1, 0]]]
+    H: [["1/rho", 0], [0, T]]
+    W_f: [[0, 0, 1, 0], [1, 0, 0, 0]]
+    W_e: [[0, 0, 0, 1], [0, -1, 0, 0]]
+    ports: [left, right]
+    port_domains: [mechanical.translational, mechanical.translational]
+    length: 1.0
+    elements: 8
+  l: {type: zero_flow, domain: mechanical.translational}
+  r: {type: effort_source, domain: mechanical.translational, value: "sin(3*t)"}
+connections:
+  - [s.left, l.port]
+  - [s.right, r.port]
+"""
+
+
+CRANK = """
+format_version: 1
+components:
+  wheel: {type: crank_wheel, radius: 0.15, inertia: 1.0e-3}
+  spring: {type: spring, k: 100.0, dimension: 2, domain: mechanical.translational}
+  torque: {type: effort_source, domain: mechanical.rotational, value: "0.1*sin(5*t)"}
+connections:
+  - [wheel.pin, spring.port]
+  - [wheel.drive, torque.port]
+simulation:
+  t_end: 0.5
+  initial: {wheel.theta: 0.0, wheel.p_theta: 0.01}
+"""
