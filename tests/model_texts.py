@@ -146,3 +146,16 @@ simulation:
   t_end: 0.5
   initial: {wheel.theta: 0.0, wheel.p_theta: 0.01}
 """
+
+
+# a string reduced to 4 modes (tests/checks/test_rows.py, tests/test_registry.py)
+STRING_MODES = """
+format_version: 1
+components:
+  s: {type: string, length: 1.0, rho: 2.0, T: 8.0, elements: 12, effects: {modes: 4}}
+  l: {type: zero_flow, domain: mechanical.translational}
+  r: {type: effort_source, domain: mechanical.translational, value: "sin(3*t)"}
+connections:
+  - [s.a, l.port]
+  - [s.b, r.port]
+"""

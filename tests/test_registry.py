@@ -33,7 +33,7 @@ from phc.registry import (ASSEMBLED, NO_FIELDS, NO_STATE_READS, ComponentType, E
 from phc.spec.export import build_schema, schema_text
 from phc.spec.base import Expr, SpecModel
 from phc.spec.components import Domain
-from model_texts import CRANK, LINEAR, MODULATION, PDE1D  # shared with tests/checks/test_compiled_certificate.py
+from model_texts import CRANK, LINEAR, MODULATION, PDE1D, STRING_MODES  # shared with tests/checks/
 
 REPO = Path(__file__).resolve().parents[1]
 MODELS = REPO / "models"
@@ -312,16 +312,6 @@ def test_the_first_use_from_several_threads_at_once_sees_every_built_in_type():
 
 # -- where every type's rows come from ------------------------------------------------------
 
-STRING_MODES = """
-format_version: 1
-components:
-  s: {type: string, length: 1.0, rho: 2.0, T: 8.0, elements: 12, effects: {modes: 4}}
-  l: {type: zero_flow, domain: mechanical.translational}
-  r: {type: effort_source, domain: mechanical.translational, value: "sin(3*t)"}
-connections:
-  - [s.a, l.port]
-  - [s.b, r.port]
-"""
 
 ROW_CASES = {
     **{kind: (kind, EXAMPLES[kind]) for kind in EXAMPLES},

@@ -29,6 +29,7 @@ import phc
 import phc.checks.rows as rows_module
 from phc.checks.rows import _compare_affine, _compare_dense, _prepare, check_rows
 from phc.library import LOWERERS
+from model_texts import STRING_MODES  # shared with tests/test_registry.py
 from test_compiled_certificate import INLINE, PDE1D, WrongRow, _write
 
 REPO = Path(__file__).resolve().parents[2]
@@ -57,16 +58,6 @@ connections:
   - [beam.b_rot, free_rot.port]
 """
 
-STRING_MODES = """
-format_version: 1
-components:
-  s: {type: string, length: 1.0, rho: 2.0, T: 8.0, elements: 12, effects: {modes: 4}}
-  l: {type: zero_flow, domain: mechanical.translational}
-  r: {type: effort_source, domain: mechanical.translational, value: "sin(3*t)"}
-connections:
-  - [s.a, l.port]
-  - [s.b, r.port]
-"""
 
 TIMOSHENKO_STIFF = """
 format_version: 1
