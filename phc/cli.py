@@ -20,6 +20,7 @@ from typing import Optional, Sequence
 from phc import __version__
 from phc import PhcError
 from phc.errors import UsageError
+from phc.names import RUN_LIMITS, option_problem
 
 EXIT_OK, EXIT_MODEL, EXIT_USAGE = 0, 1, 2
 EXIT_INTERRUPTED = 130
@@ -51,27 +52,27 @@ def _parse_params(items: Sequence[str]) -> dict[str, float]:
 
 # Numeric options, checked in one place before any work: (command, dest) -> (option, kind,
 # low, high). Kinds: "positive" (finite, > 0, <= high), "fraction" (0 < x < 1), "count"
-# (a whole number in [low, high]). Limits follow the model language's `simulation` section
-# (n_out 2 ... 10 000 000; rtol in (0, 1); t_end, step, atol finite and positive).
+# (a whole number in [low, high]) (phc.names.option_problem). The run options' ranges are
+# the model language's (phc.names.RUN_LIMITS, which phc.options.RunOptions checks too).
 NUMERIC_OPTIONS = {
-    ("simulate", "t_end"): ("--t-end", "positive", 0, math.inf),
-    ("simulate", "n_out"): ("--n-out", "count", 2, 10_000_000),
-    ("simulate", "step"): ("--step", "positive", 0, math.inf),
-    ("simulate", "rtol"): ("--rtol", "fraction", 0, 1),
-    ("simulate", "atol"): ("--atol", "positive", 0, math.inf),
-    ("animate", "t_end"): ("--t-end", "positive", 0, math.inf),
+    ("simulate", "t_end"): ("--t-end", *RUN_LIMITS["t_end"]),
+    ("simulate", "n_out"): ("--n-out", *RUN_LIMITS["n_out"]),
+    ("simulate", "step"): ("--step", *RUN_LIMITS["step"]),
+    ("simulate", "rtol"): ("--rtol", *RUN_LIMITS["rtol"]),
+    ("simulate", "atol"): ("--atol", *RUN_LIMITS["atol"]),
+    ("animate", "t_end"): ("--t-end", *RUN_LIMITS["t_end"]),
     ("animate", "magnify"): ("--magnify", "positive", 0, 1e6),
     ("animate", "frames"): ("--frames", "count", 1, 10_000),
     ("animate", "fps"): ("--fps", "count", 1, 100),
-    ("bench", "tolerances"): ("--tol", "fraction", 0, 1),
-    ("bench", "steps"): ("--step", "positive", 0, math.inf),
+    ("bench", "tolerances"): ("--tol", *RUN_LIMITS["rtol"]),
+    ("bench", "steps"): ("--step", *RUN_LIMITS["step"]),
     ("bench", "repeats"): ("--repeats", "count", 1, 1000),
-    ("bench", "reference_rtol"): ("--reference-rtol", "fraction", 0, 1),
+    ("bench", "reference_rtol"): ("--reference-rtol", *RUN_LIMITS["rtol"]),
     ("check", "samples"): ("--samples", "count", 0, 1000),
     ("sweep", "samples"): ("--samples", "count", 1, 100_000),
     ("sweep", "workers"): ("--workers", "count", 1, 4096),
-    ("sweep", "t_end"): ("--t-end", "positive", 0, math.inf),
-    ("sweep", "n_out"): ("--n-out", "count", 2, 10_000_000),
+    ("sweep", "t_end"): ("--t-end", *RUN_LIMITS["t_end"]),
+    ("sweep", "n_out"): ("--n-out", *RUN_LIMITS["n_out"]),
     ("linearize", "modes"): ("--modes", "count", 1, 1_000_000),
 }
 
@@ -92,16 +93,9 @@ OUTPUT_OPTIONS = {
 
 
 def _check_number(option: str, kind: str, low: float, high: float, value) -> None:
-    shown = f"{value:g}" if isinstance(value, float) else str(value)
-    if kind == "count":
-        if not low <= value <= high:
-            raise UsageError(f"{option} must be a whole number from {low} to {high}, got {shown}")
-    elif kind == "fraction":
-        if not low < value < high:
-            raise UsageError(f"{option} must be a number between {low} and {high} (exclusive), got {shown}")
-    elif not (low < value <= high and math.isfinite(value)):
-        upper = "" if high == math.inf else f" up to {high:g}"
-        raise UsageError(f"{option} must be a finite positive number{upper}, got {shown}")
+    problem = option_problem(kind, low, high, value)
+    if problem:
+        raise UsageError(f"{option} {problem}")
 
 
 def _check_arguments(args) -> None:

@@ -34,6 +34,7 @@ import numpy as np
 import scipy.sparse as sps
 
 from phc.errors import SimulationSetupError
+from phc.simulation.backend import BackendRun
 from phc.simulation.guard import CATCH, GuardedModule, ModelEvaluationError
 from phc.simulation.monitor import SingularityMonitor, check_scales, diagnose_failure
 
@@ -677,9 +678,11 @@ class _StepHook:
         self.last_ratio = ratio
 
 
-def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=None, max_order=None, names=None,
-                  events=None, nominal=None):
-    """Integrate from ``t_out[0]`` and return a dict of arrays and statistics.
+def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None, events=None,
+                  nominal=None) -> BackendRun:
+    """Integrate from ``t_out[0]`` with the `rtol`, `atol`, `max_order` and `max_steps` of
+    `options` (a :class:`~phc.options.RunOptions`); the outputs and statistics as a
+    :class:`~phc.simulation.backend.BackendRun`.
 
     IDA runs in its normal mode from one output time to the next (its own interpolation
     gives the outputs), with the run's end as its stop time; :class:`_StepHook` sees every
@@ -689,7 +692,8 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     then returns with ``event`` = dict(t, y, yp, which) and the outputs before it."""
     IDA = _import_ida()
     n = mod.N
-    max_order = int(max_order or MAX_ORDER)
+    rtol, atol, max_steps = float(options.rtol), float(options.atol), int(options.max_steps)
+    max_order = int(options.max_order or MAX_ORDER)
     t_out = np.asarray(t_out, dtype=float)
     t0, t_end = float(t_out[0]), float(t_out[-1])
     y0 = np.asarray(y0, dtype=float)
@@ -740,9 +744,10 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     start = time.process_time()
     init = solver.init_step(t0, y0, yp0)
     if not init.success:
-        return dict(t=t_out[:1], y=ys[:1], yp=yps[:1], steps=0, nfev=0, njev=0, success=False,
-                    message=f"IDA could not start: {init.message}" + (f"; {scales(True)}" if scales(True) else ""),
-                    cpu=time.process_time() - start)
+        return BackendRun.from_mapping(dict(
+            t=t_out[:1], y=ys[:1], yp=yps[:1], steps=0, nfev=0, njev=0, success=False,
+            message=f"IDA could not start: {init.message}" + (f"; {scales(True)}" if scales(True) else ""),
+            cpu=time.process_time() - start))
     hook.evaluations_seen = calls.evaluations  # (any the start made are not a step's)
     k, ok, message = 1, True, "integration finished"
     event = None
@@ -792,6 +797,6 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     note = scales(not ok, k) if not message.startswith(("stopped ", "interrupted")) else None
     if note:
         message = f"{message}; {note}"
-    extra = {"event": event} if event is not None else {}
-    return dict(t=t_out[:k], y=ys[:k], yp=yps[:k], steps=hook.steps, nfev=nfev, njev=njev, success=ok, **extra,
-                message=message, cpu=time.process_time() - start, conditioning=monitor.worst, interrupted=interrupted)
+    return BackendRun.from_mapping(dict(
+        t=t_out[:k], y=ys[:k], yp=yps[:k], steps=hook.steps, nfev=nfev, njev=njev, success=ok, event=event,
+        message=message, cpu=time.process_time() - start, conditioning=monitor.worst, interrupted=interrupted))

@@ -15,6 +15,7 @@ import pytest
 import phc
 from phc.simulation import SimulationInterrupted, parameter_vector
 from phc.simulation import ida as ida_module
+from phc.options import RunOptions
 from phc.simulation.ida import integrate_ida, solver_options
 from phc.simulation.initial import consistent_initial_conditions
 
@@ -70,7 +71,7 @@ def test_the_step_loop_equals_idas_own_loop_and_the_closed_form(oscillator, spar
     mod, p, init = _start(oscillator)
     t_out = np.linspace(0.0, 3.0, 61)
     rtol, atol = 1e-9, 1e-11
-    run = integrate_ida(mod, p, t_out, init.y0, init.yp0, rtol=rtol, atol=atol, max_steps=100_000)
+    run = integrate_ida(mod, p, t_out, init.y0, init.yp0, RunOptions(rtol=rtol, atol=atol, max_steps=100_000))
     ref = _solve_reference(mod, p, t_out, init.y0, init.yp0, rtol, atol)
     assert run["success"], run["message"]
     assert run["y"].shape == ref.shape
@@ -115,7 +116,7 @@ def test_the_step_count_is_idas_whatever_the_output_times(oscillator, n_out):
     the step's end in the next call)."""
     mod, p, init = _start(oscillator)
     t_out = np.linspace(0.0, 3.0, n_out)
-    run = integrate_ida(mod, p, t_out, init.y0, init.yp0, rtol=1e-9, atol=1e-11, max_steps=100_000)
+    run = integrate_ida(mod, p, t_out, init.y0, init.yp0, RunOptions(rtol=1e-9, atol=1e-11, max_steps=100_000))
     assert run["success"], run["message"]
     assert run["steps"] == _onestep_count(mod, p, t_out, init.y0, init.yp0, 1e-9, 1e-11)
 
@@ -123,8 +124,8 @@ def test_the_step_count_is_idas_whatever_the_output_times(oscillator, n_out):
 def test_max_steps_is_honoured_exactly_and_the_outputs_before_are_kept(oscillator):
     mod, p, init = _start(oscillator)
     t_out = np.linspace(0.0, 3.0, 61)
-    full = integrate_ida(mod, p, t_out, init.y0, init.yp0, rtol=1e-9, atol=1e-11, max_steps=100_000)
-    run = integrate_ida(mod, p, t_out, init.y0, init.yp0, rtol=1e-9, atol=1e-11, max_steps=123)
+    full = integrate_ida(mod, p, t_out, init.y0, init.yp0, RunOptions(rtol=1e-9, atol=1e-11, max_steps=100_000))
+    run = integrate_ida(mod, p, t_out, init.y0, init.yp0, RunOptions(rtol=1e-9, atol=1e-11, max_steps=123))
     assert not run["success"] and "max_steps" in run["message"]
     assert run["steps"] == 123
     kept = len(run["t"])

@@ -1,0 +1,104 @@
+"""One options object (issue 31 item 3): the model file's `simulation` section, a scene,
+the command line and `phc.simulate` accept and refuse the same run options, with one
+wording, because they all check :class:`phc.options.RunOptions` (ranges in
+:data:`phc.names.RUN_LIMITS`)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pydantic
+import pytest
+
+import phc
+from phc.errors import SimulationSetupError
+from phc.names import RUN_LIMITS, option_problem
+from phc.options import OPTIONAL, RunOptions
+from phc.spec.model import SimulationSpec
+from phc.spec.scene import AccuracySpec, SceneSpec
+
+MODELS = Path(__file__).resolve().parents[1] / "models"
+
+# for every numeric option: values on both sides of each end of its range
+CASES = {
+    "t_end": ([1e-9, 1e300], [0.0, -1.0, math.inf, math.nan]),
+    "n_out": ([2, 10_000_000], [1, 10_000_001, 0]),
+    "rtol": ([1e-12, 0.5], [0.0, 1.0, -1e-3, math.nan]),
+    "atol": ([1e-300, 1e3], [0.0, -1.0, math.inf]),
+    "step": ([1e-9, 10.0], [0.0, -1e-3, math.inf, math.nan]),
+    "max_steps": ([1, 2 ** 31 - 1], [0, 2 ** 31]),
+    "max_order": ([1, 5], [0, 6]),
+}
+
+
+def test_every_numeric_option_has_cases():
+    assert set(CASES) == set(RUN_LIMITS) == set(OPTIONAL)
+
+
+def _spec_accepts(model, name, value) -> bool:
+    try:
+        model.model_validate({name: value})
+    except pydantic.ValidationError:
+        return False
+    return True
+
+
+def _scene_accepts(name, value) -> bool:
+    if name in AccuracySpec.model_fields:
+        return _spec_accepts(AccuracySpec, name, value)
+    if name in SceneSpec.model_fields:
+        try:
+            SceneSpec.model_validate({"model": "m.yaml", name: value})
+        except pydantic.ValidationError:
+            return False
+        return True
+    return None  # not a scene option (max_steps)
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_every_layer_draws_the_same_line(name):
+    good, bad = CASES[name]
+    base = RunOptions(t_end=1e300) if name != "t_end" else RunOptions()
+    for value in good:
+        assert _spec_accepts(RunOptions, name, value), (name, value)
+        assert _spec_accepts(SimulationSpec, name, value), (name, value)
+        assert _scene_accepts(name, value) in (True, None), (name, value)
+        assert option_problem(*RUN_LIMITS[name], value) is None, (name, value)
+        assert getattr(base.with_overrides(**{name: value}), name) == value
+    for value in bad:
+        assert not _spec_accepts(RunOptions, name, value), (name, value)
+        assert not _spec_accepts(SimulationSpec, name, value), (name, value)
+        assert _scene_accepts(name, value) in (False, None), (name, value)
+        problem = option_problem(*RUN_LIMITS[name], value)
+        assert problem is not None and problem.startswith("must be ")
+        with pytest.raises(SimulationSetupError) as err:
+            base.with_overrides(**{name: value})
+        assert str(err.value) == f"`{name}` {problem}"  # the command line's words, named as in Python
+
+
+def test_the_model_section_is_the_options_object():
+    assert issubclass(SimulationSpec, RunOptions)
+    assert set(RunOptions.model_fields) <= set(SimulationSpec.model_fields)
+    with pytest.raises(pydantic.ValidationError, match="must be before `t_end`"):
+        RunOptions(t_start=2.0, t_end=1.0)
+    with pytest.raises(SimulationSetupError, match="must be a finite time greater than the start time"):
+        RunOptions(t_start=0.5).with_overrides(t_end=0.25)
+    with pytest.raises(SimulationSetupError, match="unknown solver `rk4`"):
+        RunOptions().with_overrides(solver="rk4")
+    with pytest.raises(TypeError, match="unknown run option"):
+        RunOptions().with_overrides(tolerance=1e-3)
+    options = RunOptions()
+    with pytest.raises(pydantic.ValidationError):
+        options.rtol = 0.5  # frozen
+
+
+def test_simulate_refuses_what_the_file_refuses():
+    compiled = phc.compile_model(MODELS / "mass_spring_damper.yaml", certify=False)
+    for name, (_, bad) in CASES.items():
+        if name == "max_order":
+            continue  # not a keyword of simulate (set in the file or the scene)
+        with pytest.raises(SimulationSetupError, match=f"^`{name}` must be"):
+            phc.simulate(compiled, **{name: bad[0]})
+    run = phc.simulate(compiled, t_end=0.1, n_out=3, rtol=1e-6)
+    assert run.success and run.rtol == 1e-6 and run.atol == compiled.options["atol"]
