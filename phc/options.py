@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 from typing import Annotated, Any, Literal, Mapping, Optional
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from phc.names import RUN_LIMITS, SOLVER_NAMES, option_problem
 
@@ -48,7 +48,7 @@ class RunOptions(BaseModel):
     """The options of a run (the defaults of `phc simulate` on a model)."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, frozen=True, use_attribute_docstrings=True,
-                              populate_by_name=True)
+                              populate_by_name=True, defer_build=True)
 
     t_end: TEnd = 1.0
     t_start: float = 0.0
@@ -86,40 +86,42 @@ class RunOptions(BaseModel):
     @classmethod
     def of(cls, options: Mapping[str, Any]) -> "RunOptions":
         """The run options among `options` (a compiled model's, which hold more keys),
-        checked."""
-        return cls.model_validate({k: v for k, v in options.items() if k in cls.model_fields})
+        checked as :meth:`with_overrides` checks them."""
+        return cls.model_construct().with_overrides(**{k: v for k, v in options.items() if k in cls.model_fields})
 
     def with_overrides(self, **given) -> "RunOptions":
         """These options with the values in `given` that are not None, checked as the model
-        file's are.
+        file's are: the same ranges (:data:`phc.names.RUN_LIMITS`), without building
+        pydantic's validator (a cached `phc simulate` does not pay for it).
 
         Raises
         ------
         phc.errors.SimulationSetupError
-            One message per wrong value (``\\`rtol\\` must be a number between 0 and 1
-            (exclusive), got 2``), in the words the command line uses for its options.
+            One message per wrong value ("`rtol` must be a number between 0 and 1
+            (exclusive), got 2"), in the words the command line uses for its options.
         """
         from phc.errors import SimulationSetupError
 
         update = {k: v for k, v in given.items() if v is not None}
-        unknown = sorted(set(update) - set(type(self).model_fields))
+        unknown = sorted(set(update) - set(RunOptions.model_fields))
         if unknown:
             raise TypeError(f"unknown run option(s): {', '.join(unknown)}")
         problems = [f"`{name}` {problem}" for name, value in update.items() if name in RUN_LIMITS
                     for problem in [option_problem(*RUN_LIMITS[name], value)] if problem]
         if "solver" in update and update["solver"] not in SOLVER_NAMES:
             problems.append(f"unknown solver `{update['solver']}`; choose one of {', '.join(SOLVER_NAMES)}")
+        if "t_start" in update and option_problem("fraction", -math.inf, math.inf, update["t_start"]):
+            problems.append(f"`t_start` must be a finite number, got {update['t_start']}")
         if problems:
             raise SimulationSetupError("; ".join(problems))
-        values = {**self.model_dump(), **update}
+        values = {name: getattr(self, name) for name in RunOptions.model_fields}
+        for name, value in update.items():
+            kind = RUN_LIMITS.get(name, ("",))[0]
+            values[name] = int(value) if kind == "count" else float(value) if name != "solver" else value
         if not (math.isfinite(values["t_end"] - values["t_start"]) and values["t_end"] > values["t_start"]):
             raise SimulationSetupError(f"`t_end` ({values['t_end']}) must be a finite time greater than the start "
                                        f"time ({values['t_start']})")
-        try:
-            return type(self).model_validate(values)
-        except ValidationError as err:  # what the ranges above do not cover (a type)
-            raise SimulationSetupError("; ".join(f"`{'.'.join(map(str, e['loc']))}`: {e['msg']}"
-                                                 for e in err.errors())) from None
+        return RunOptions.model_construct(**values)
 
 
 __all__ = ["RunOptions", "SOLVERS", "OPTIONAL", "TEnd", "NOut", "Rtol", "Atol", "Step", "MaxSteps", "MaxOrder"]
