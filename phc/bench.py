@@ -339,15 +339,12 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
     compiled_cache: dict[tuple, object] = {(): base} if not meshes else {}
     reference: dict[str, np.ndarray] = {}
 
-    def compiled_for(mesh: dict, max_order: Optional[int] = None):
+    def compiled_for(mesh: dict):
         key = tuple(sorted(mesh.items()))
-        if max_order is not None and int(base.options.get("max_order", 5)) != max_order:
-            key += (("max_order", max_order),)
         if key not in compiled_cache:
             try:
                 # an in-memory variant of the base scene (certified above); nothing is written
-                variant = scene_variant(base.scene if base.scene is not None else scene_path, mesh=mesh,
-                                        max_order=dict(key).get("max_order"))
+                variant = scene_variant(base.scene if base.scene is not None else scene_path, mesh=mesh)
                 compiled_cache[key] = phc.compile_model(variant.model_path, scene=variant, certify=False)
             except ModelError as err:
                 compiled_cache[key] = err
@@ -364,7 +361,7 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
             bar.show("reference run " + _point_label(ref_mesh, "ida", ref_rtol))
             reference, report.reference_cache_hit, report.reference_cache_path, report.reference_message = \
                 _reference_run(scene_path, model_path, settings, t_out, need_run, reference_cache,
-                               lambda: compiled_for(ref_mesh, REFERENCE_MAX_ORDER))
+                               lambda: compiled_for(ref_mesh))
             bar.advance()
         # -- the sweep ----------------------------------------------------------------
         for mesh, solver, value in points:
@@ -577,7 +574,7 @@ def _reference_run(scene_path, model_path, settings, t_out, outputs, reference_c
     if isinstance(compiled, Exception):
         return {}, False, path, f"the reference mesh does not compile: {_short(str(compiled), 300)}"
     res, problem = _simulate_once(compiled, settings["solver"], settings["rtol"], t_out,
-                                  max_steps=settings["max_steps"])
+                                  max_steps=settings["max_steps"], max_order=settings["max_order"])
     if res is None:
         return {}, False, path, problem
     if not res.success or len(res.t) != len(t_out):

@@ -96,9 +96,19 @@ def test_the_model_section_is_the_options_object():
 def test_simulate_refuses_what_the_file_refuses():
     compiled = phc.compile_model(MODELS / "mass_spring_damper.yaml", certify=False)
     for name, (_, bad) in CASES.items():
-        if name == "max_order":
-            continue  # not a keyword of simulate (set in the file or the scene)
         with pytest.raises(SimulationSetupError, match=f"^`{name}` must be"):
             phc.simulate(compiled, **{name: bad[0]})
-    run = phc.simulate(compiled, t_end=0.1, n_out=3, rtol=1e-6)
+    run = phc.simulate(compiled, t_end=0.1, n_out=3, rtol=1e-6, max_order=2)
     assert run.success and run.rtol == 1e-6 and run.atol == compiled.options["atol"]
+    with pytest.warns(phc.simulation.IgnoredOptionWarning, match="ignores `max_order`"):
+        phc.simulate(compiled, t_end=0.1, n_out=3, solver="midpoint", max_order=2)
+
+
+def test_max_order_reaches_ida():
+    """BDF of order 1 needs far more steps than orders up to 5 for the same tolerance
+    (error per step O(h²) against O(h⁶)): the option is not dropped on its way."""
+    compiled = phc.compile_model(MODELS / "mass_spring_damper.yaml", certify=False)
+    low = phc.simulate(compiled, t_end=1.0, rtol=1e-7, atol=1e-9, max_order=1)
+    high = phc.simulate(compiled, t_end=1.0, rtol=1e-7, atol=1e-9, max_order=5)
+    assert low.success and high.success
+    assert low.steps > 5 * high.steps

@@ -179,7 +179,7 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
              t_eval=None, initial: Optional[dict] = None, solver: Optional[str] = None,
              max_steps: Optional[int] = None, progress: Optional[Callable[[float], None]] = None,
              step: Optional[float] = None, backend: Optional[str] = None,
-             nominal: Optional[dict] = None) -> SimResult:
+             nominal: Optional[dict] = None, max_order: Optional[int] = None) -> SimResult:
     """Simulate a compiled model.
 
     Parameters
@@ -187,8 +187,9 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
     compiled : CompiledModel or path
         From :func:`phc.compile_model`; a model or scene file's path is compiled first
         (``phc.compile_model(path)``: compile once and pass the result to run it often).
-    t_end, rtol, atol, n_out, solver, max_steps : optional
-        Override the model's `simulation` defaults.
+    t_end, rtol, atol, n_out, solver, max_steps, max_order : optional
+        Override the model's `simulation` defaults (checked as the model file's are:
+        :class:`phc.options.RunOptions`).
     t_eval : array_like, optional
         Output times (overrides `n_out`).
     step : float, optional
@@ -238,9 +239,9 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
     opts = compiled.description.options  # read-only (phc.description)
     # the one options object: the model's (or scene's) run options with this call's overrides
     options = RunOptions.of(opts).with_overrides(t_end=t_end, rtol=rtol, atol=atol, n_out=n_out, solver=solver,
-                                                 max_steps=max_steps, step=step)
+                                                 max_steps=max_steps, step=step, max_order=max_order)
     backend = BACKENDS[options.solver]
-    ignored = backend.ignored({"rtol": rtol, "atol": atol, "step": step})
+    ignored = backend.ignored({"rtol": rtol, "atol": atol, "step": step, "max_order": max_order})
     if ignored:
         warnings.warn(ignored_option_message(backend, ignored), IgnoredOptionWarning, stacklevel=2)
     t0 = options.t_start
