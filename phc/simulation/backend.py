@@ -35,8 +35,8 @@ from phc.errors import IgnoredOptionWarning  # defined with phc's other warnings
 class BackendRun(Mapping):
     """What a backend returns: the outputs at the times it reached, and statistics.
 
-    It is also a read-only mapping of its fields (``run["t"]``), the form the drivers in
-    :mod:`phc.simulation` combine pieces of a run in."""
+    It is also a read-only mapping of its fields (``run["t"]``); :meth:`replace` makes the
+    changed copies the drivers in :mod:`phc.simulation` combine pieces of a run with."""
 
     t: np.ndarray
     """Output times reached (a prefix of the requested ones when the run stopped early)."""

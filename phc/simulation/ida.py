@@ -744,10 +744,8 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
     start = time.process_time()
     init = solver.init_step(t0, y0, yp0)
     if not init.success:
-        return BackendRun.from_mapping(dict(
-            t=t_out[:1], y=ys[:1], yp=yps[:1], steps=0, nfev=0, njev=0, success=False,
-            message=f"IDA could not start: {init.message}" + (f"; {scales(True)}" if scales(True) else ""),
-            cpu=time.process_time() - start))
+        return BackendRun(t_out[:1], ys[:1], yps[:1], steps=0, success=False, cpu=time.process_time() - start,
+                          message=f"IDA could not start: {init.message}" + (f"; {scales(True)}" if scales(True) else ""))
     hook.evaluations_seen = calls.evaluations  # (any the start made are not a step's)
     k, ok, message = 1, True, "integration finished"
     event = None
@@ -797,6 +795,6 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
     note = scales(not ok, k) if not message.startswith(("stopped ", "interrupted")) else None
     if note:
         message = f"{message}; {note}"
-    return BackendRun.from_mapping(dict(
-        t=t_out[:k], y=ys[:k], yp=yps[:k], steps=hook.steps, nfev=nfev, njev=njev, success=ok, event=event,
-        message=message, cpu=time.process_time() - start, conditioning=monitor.worst, interrupted=interrupted))
+    return BackendRun(t_out[:k], ys[:k], yps[:k], steps=hook.steps, nfev=nfev, njev=njev, success=ok, event=event,
+                      message=message, cpu=time.process_time() - start, conditioning=monitor.worst,
+                      interrupted=interrupted)
