@@ -1,7 +1,7 @@
 """One options object (issue 31 item 3): the model file's `simulation` section, a scene,
 the command line and `phc.simulate` accept and refuse the same run options, with one
-wording, because they all check :class:`phc.options.RunOptions` (ranges in
-:data:`phc.names.RUN_LIMITS`)."""
+wording: the names and defaults are :class:`phc.options.RunOptions`'s, the ranges
+:data:`phc.names.RUN_LIMITS` (the spec's pydantic types are built from them)."""
 
 from __future__ import annotations
 
@@ -14,8 +14,11 @@ import pytest
 import phc
 from phc.errors import SimulationSetupError
 from phc.names import RUN_LIMITS, option_problem
-from phc.options import OPTIONAL, RunOptions
+import dataclasses
+
+from phc.options import DEFAULTS, RunOptions
 from phc.spec.model import SimulationSpec
+from phc.spec.run import TYPES
 from phc.spec.scene import AccuracySpec, SceneSpec
 
 MODELS = Path(__file__).resolve().parents[1] / "models"
@@ -33,7 +36,7 @@ CASES = {
 
 
 def test_every_numeric_option_has_cases():
-    assert set(CASES) == set(RUN_LIMITS) == set(OPTIONAL)
+    assert set(CASES) == set(RUN_LIMITS) == set(TYPES)
 
 
 def _spec_accepts(model, name, value) -> bool:
@@ -61,13 +64,11 @@ def test_every_layer_draws_the_same_line(name):
     good, bad = CASES[name]
     base = RunOptions(t_end=1e300) if name != "t_end" else RunOptions()
     for value in good:
-        assert _spec_accepts(RunOptions, name, value), (name, value)
         assert _spec_accepts(SimulationSpec, name, value), (name, value)
         assert _scene_accepts(name, value) in (True, None), (name, value)
         assert option_problem(*RUN_LIMITS[name], value) is None, (name, value)
         assert getattr(base.with_overrides(**{name: value}), name) == value
     for value in bad:
-        assert not _spec_accepts(RunOptions, name, value), (name, value)
         assert not _spec_accepts(SimulationSpec, name, value), (name, value)
         assert _scene_accepts(name, value) in (False, None), (name, value)
         problem = option_problem(*RUN_LIMITS[name], value)
@@ -77,20 +78,36 @@ def test_every_layer_draws_the_same_line(name):
         assert str(err.value) == f"`{name}` {problem}"  # the command line's words, named as in Python
 
 
-def test_the_model_section_is_the_options_object():
-    assert issubclass(SimulationSpec, RunOptions)
-    assert set(RunOptions.model_fields) <= set(SimulationSpec.model_fields)
+def test_the_model_section_gives_the_options_object():
+    fields = set(RunOptions.names())
+    assert fields <= set(SimulationSpec.model_fields)
+    section = SimulationSpec()
+    assert section.run_options() == DEFAULTS  # the defaults are RunOptions'
+    assert {name: SimulationSpec.model_fields[name].default for name in fields} == dataclasses.asdict(DEFAULTS)
+    written = SimulationSpec.model_validate({"t_end": 3.0, "rtol": 1e-6, "solver": "midpoint", "step": 0.01})
+    assert written.run_options() == RunOptions(t_end=3.0, rtol=1e-6, solver="midpoint", step=0.01)
     with pytest.raises(pydantic.ValidationError, match="must be before `t_end`"):
-        RunOptions(t_start=2.0, t_end=1.0)
+        SimulationSpec(t_start=2.0, t_end=1.0)
     with pytest.raises(SimulationSetupError, match="must be a finite time greater than the start time"):
         RunOptions(t_start=0.5).with_overrides(t_end=0.25)
     with pytest.raises(SimulationSetupError, match="unknown solver `rk4`"):
         RunOptions().with_overrides(solver="rk4")
     with pytest.raises(TypeError, match="unknown run option"):
         RunOptions().with_overrides(tolerance=1e-3)
-    options = RunOptions()
-    with pytest.raises(pydantic.ValidationError):
-        options.rtol = 0.5  # frozen
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        DEFAULTS.rtol = 0.5  # frozen
+    assert isinstance(RunOptions().with_overrides(n_out=5.0).n_out, int)
+
+
+def test_the_options_object_loads_without_pydantic():
+    """What a cached `phc simulate` imports: the options, not the model language."""
+    import subprocess
+    import sys
+
+    code = "import sys, phc.options; print('pydantic' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                         cwd=Path(__file__).resolve().parents[1])
+    assert out.stdout.strip() == "False", out.stdout + out.stderr
 
 
 def test_simulate_refuses_what_the_file_refuses():

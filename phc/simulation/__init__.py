@@ -260,7 +260,7 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
     if too_large:  # the model's own n_out was checked at compile time; this catches overrides
         raise SimulationSetupError(too_large)
     if not backend.fixed_step:
-        options = options.model_copy(update={"step": None})  # IDA has none (a file's `step` is for --solver midpoint)
+        options = options.replace(step=None)  # IDA has none (a file's `step` is for --solver midpoint)
     elif options.step is not None and not math.isfinite((t_out[-1] - t0) / options.step):
         raise SimulationSetupError(f"`step` must be a finite positive number no smaller than the time span "
                                    f"over 1e300, got {options.step}")

@@ -6,7 +6,8 @@ from typing import Annotated, Literal, Optional, Union
 
 from pydantic import Discriminator, Field, Tag, field_validator, model_validator
 
-from phc.options import SOLVERS, RunOptions
+from phc.options import DEFAULTS, RunOptions
+from phc.spec.run import SOLVERS, Atol, MaxOrder, MaxSteps, NOut, Rtol, Step, TEnd
 from phc.spec.base import Expr, Identifier, SpecModel, Vector
 from phc.spec.components import ComponentSpec
 
@@ -132,12 +133,33 @@ class InputSpec(SpecModel):
         return self
 
 
-class SimulationSpec(RunOptions):
+class SimulationSpec(SpecModel):
     """Defaults for `phc simulate` on this model: time span, output grid, solver and
     tolerances, initial values, inputs and outputs."""
 
-    model_config = SpecModel.model_config
-
+    t_end: TEnd = DEFAULTS.t_end
+    t_start: float = DEFAULTS.t_start
+    """Start time of the run (before `t_end`)."""
+    n_out: NOut = DEFAULTS.n_out
+    """Number of output points (including both ends)."""
+    rtol: Rtol = DEFAULTS.rtol
+    atol: Atol = DEFAULTS.atol
+    max_steps: MaxSteps = DEFAULTS.max_steps
+    """Maximum number of solver steps over the whole run (at most 2³¹ − 1: IDA keeps it in a C long)."""
+    solver: SOLVERS = DEFAULTS.solver
+    """`ida`: SUNDIALS IDA (variable-order BDF, error control by `rtol`/`atol`); `midpoint`:
+    the implicit midpoint rule with fixed `step`, whose discrete energy balance is exact for
+    quadratic Hamiltonians; `discrete_gradient`: a discrete-gradient step with fixed `step`,
+    exact for any Hamiltonian (the midpoint rule when H is quadratic); `midpoint4`: three
+    midpoint substeps composed to order 4 (Yoshida/Suzuki triple jump) with fixed `step`,
+    energy balance exact for quadratic Hamiltonians like the midpoint rule (its middle substep
+    runs backwards, so dissipation is not monotone step by step)."""
+    step: Optional[Step] = DEFAULTS.step
+    """Step size of the fixed-step solvers `midpoint`, `discrete_gradient` and `midpoint4`
+    (default: the output interval)."""
+    max_order: MaxOrder = DEFAULTS.max_order
+    """Maximum BDF order of IDA. 2 (A-stable) suits undamped stiff oscillations such as
+    fine beam meshes: orders 3–5 must resolve the highest modes to stay stable."""
     initial: dict[str, Union[Expr, InitialSpec]] = {}
     """Initial values by variable name (`component.state`), or initial fields of strings and
     beams as functions of `xi` (`rod.w: "0.001*sin(pi*xi/L)"`), projected onto whatever mesh
@@ -154,6 +176,19 @@ class SimulationSpec(RunOptions):
     outputs: dict[Identifier, Union[Expr, OutputSpec]] = {}
     """Named output expressions over variables (`component.x`), `t` and `H`; either
     `name: expression` or `name: {value, unit, description}`."""
+
+    @field_validator("t_start")
+    @classmethod
+    def _start_before_end(cls, value, info):
+        end = info.data.get("t_end")
+        if end is not None and not value < end:
+            raise ValueError(f"`t_start` ({value}) must be before `t_end` ({end}); set t_end to the time the "
+                             "run should reach")
+        return value
+
+    def run_options(self) -> RunOptions:
+        """The run options this section sets (:class:`phc.options.RunOptions`)."""
+        return RunOptions.of({name: getattr(self, name) for name in RunOptions.names()})
 
 
 class ModelSpec(SpecModel):

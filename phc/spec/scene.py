@@ -13,7 +13,7 @@ from typing import Annotated, Literal, Optional, Union
 from pydantic import Field, model_validator
 
 from phc.spec.base import Expr, Identifier, SpecModel, Switch
-from phc.options import SOLVERS, Atol, MaxOrder, NOut, Rtol, Step, TEnd
+from phc.spec.run import SOLVERS, Atol, MaxOrder, NOut, Rtol, Step, TEnd
 from phc.spec.model import InitialSpec, InputSpec
 from phc.spec.sweep import SweepSpec
 

@@ -49,7 +49,7 @@ def _start(compiled):
 def _options(name, **over):
     """The backend's keywords: the run options (one RunOptions object) and no progress."""
     options = RunOptions(solver=name, rtol=1e-9, atol=1e-11, max_steps=100_000,
-                         step=1e-3 if BACKENDS[name].fixed_step else None).model_copy(update=over)
+                         step=1e-3 if BACKENDS[name].fixed_step else None).replace(**over)
     return dict(options=options, progress=None, names=None)
 
 
