@@ -428,18 +428,21 @@ def warm_crank():
                    check=True, capture_output=True, timeout=300)
 
 
-def _start_and_signal(out: Path, sig, solver: str):
-    """Start a long run and send `sig` once it is integrating: the progress line, printed
-    on a non-terminal 2 s into the integration, says so."""
+def _start_and_signal(out: Path, sig, solver: str, n_out: int = 2001):
+    """Start a long run and send `sig` once it is integrating past its second output time:
+    the progress line (printed on a non-terminal 2 s into the integration, then every 10 s)
+    says how far it got. On a loaded machine the first line can come before the first
+    output time is reached: then the next one is awaited."""
     proc = subprocess.Popen(_phc("simulate", CRANK, *NO_CERTIFY, "--solver", solver, "--t-end", "1",
-                                 "--n-out", "2001", "--out", str(out)),
+                                 "--n-out", str(n_out), "--out", str(out)),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=interruptible)
     before = []
     try:
         while True:
             line = proc.stderr.readline()
             before.append(line)
-            if not line or "elapsed" in line:
+            reached = re.search(r" t = ([0-9.e+-]+) ", line)
+            if not line or ("elapsed" in line and reached and float(reached.group(1)) >= 2.0 / (n_out - 1)):
                 break
         assert line, f"the run ended before integrating: {''.join(before)}"
         proc.send_signal(sig)
