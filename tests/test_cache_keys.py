@@ -142,14 +142,19 @@ def test_a_fixed_file_does_not_keep_its_old_error(tmp_path, cache, capsys, befor
     scene = _msd_scene(tmp_path)
     ref = tmp_path / "ref.csv"
     _make(ref, before)
+
+    def printed() -> str:
+        out = capsys.readouterr()
+        return out.out + out.err
+
     first = main(["validate", str(scene)])
-    old = capsys.readouterr().out
-    assert first == 1 and "[PHC-E607]" in old
+    old = printed()
+    assert first == 1 and "[PHC-E607]" in old, old
     assert main(["validate", str(scene)]) == 1  # the same result (from the cache)
-    assert capsys.readouterr().out == old
+    assert printed() == old
     _make(ref, after)
     code = main(["validate", str(scene)])
-    new = capsys.readouterr().out
+    new = printed()
     if after == "valid":
         assert code == 0 and "ok (" in new, new
     else:
