@@ -33,7 +33,8 @@ the SHA-256 of a regular file, or that it is absent, unreadable or of another ki
 FIFO, a directory, ...). A hit computes each state again: a repointed link, a file
 created where one was missing, a FIFO replaced by a file are all misses. Whatever does
 not match, cannot be read or does not verify is a miss: the full path runs and writes a
-fresh record.
+fresh record. A record at the key's name that does not verify (damaged, renamed, signed
+under another key) is reported with one :class:`~phc.errors.CacheWarning`.
 
 The fast path is not taken (the full path runs) for ``--estimate-error`` and ``--profile``
 (they need the model itself), for a ``--param`` of a compile-time parameter or of one an
@@ -301,15 +302,21 @@ def _load(args, path: str, command: str) -> Optional[dict]:
     if where is None or secret is None:
         return None
     raw = _read_regular(where, _MAX_RECORD)
+    if raw is None:
+        return None  # none yet (or not a private regular file: never opened for a blocking read)
     head = len(_MAGIC) + 32
-    if raw is None or len(raw) < head or not raw.startswith(_MAGIC):
-        return None
+    if len(raw) < head or not raw.startswith(_MAGIC):
+        return _damaged(where)
     tag, payload = raw[len(_MAGIC):head], raw[head:]
     if not hmac.compare_digest(tag, hmac.new(secret, payload, hashlib.sha256).digest()):
-        return None
-    record = json.loads(payload)
-    if record.get("format") != FORMAT or record.get("key") != key or record.get("command") != command:
-        return None
+        return _damaged(where)
+    try:
+        record = json.loads(payload)
+    except ValueError:
+        return _damaged(where)
+    if (not isinstance(record, dict) or record.get("format") != FORMAT or record.get("key") != key
+            or record.get("command") != command):
+        return _damaged(where)  # a record copied or renamed over this key's name
     for name, state in record["inputs"]:  # the files the compilation read or looked for, as they were
         if file_state(name) != state:
             return None
@@ -318,6 +325,16 @@ def _load(args, path: str, command: str) -> Optional[dict]:
     except OSError:
         pass
     return record
+
+
+def _damaged(where: Path) -> None:
+    """A record at this key's name that does not verify: a miss, with one warning (the model
+    is compiled again and the record written afresh)."""
+    from phc.errors import CacheWarning
+
+    warnings.warn(f"cached front-end record {where} does not verify (damaged, renamed or signed under another "
+                  "key); ignored, the model is compiled again", CacheWarning, stacklevel=3)
+    return None
 
 
 def _lookup(args, params: dict) -> Optional[Hit]:
