@@ -228,11 +228,14 @@ def _numba_ready():
     return numba_cache
 
 
-@pytest.mark.parametrize("source, target", [("energy_scale", "hamiltonian"), ("powers", "outputs")])
-def test_a_signed_file_copied_over_another_name_is_a_miss(tmp_path, cache, monkeypatch, source, target):
-    """`energy_scale`'s signed index copied over `hamiltonian`'s loaded the wrong function;
-    the energy certificate then blamed the model. Now it is a miss with one warning, the
-    function is compiled again and the model certifies."""
+@pytest.mark.parametrize("source, target, suffixes", [("energy_scale", "hamiltonian", (".nbi", ".1.nbc")),
+                                                       ("powers", "outputs", (".1.nbc",))],
+                         ids=["index-and-data", "data"])
+def test_a_signed_file_copied_over_another_name_is_a_miss(tmp_path, cache, monkeypatch, source, target, suffixes):
+    """`energy_scale`'s signed files copied over `hamiltonian`'s loaded the wrong function
+    (the energy certificate then blamed the model); `powers`' data file over `outputs`'
+    was loaded as `outputs` (an internal reshape error). Now each is a miss with one
+    warning, the function is compiled again and the model certifies."""
     numba_cache = _numba_ready()
     import phc
     from phc.errors import CacheWarning
@@ -242,7 +245,7 @@ def test_a_signed_file_copied_over_another_name_is_a_miss(tmp_path, cache, monke
     model.write_text(PENDULUM, encoding="utf-8")
     phc.compile_model(model, certify=False, backend="numba")
     folder = cache / "numba"
-    for suffix in (".nbi", ".1.nbc"):
+    for suffix in suffixes:
         (src,) = folder.glob(f"*.{source}-*{suffix}")
         (dst,) = folder.glob(f"*.{target}-*{suffix}")
         shutil.copyfile(src, dst)
