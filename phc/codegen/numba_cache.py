@@ -151,20 +151,21 @@ def _verified(key: bytes, data: bytes, name: str) -> Optional[bytes]:
 _WARNED: set[str] = set()
 
 
-def _damaged(path: str, data: bytes) -> None:
-    """One warning per file of this process: a cache file that does not verify is a miss
-    (compiled again), and says so; never blamed on the model. Files of an older layout
-    (another magic line) are a silent miss."""
+def _damaged(path: str, data: bytes, stamp: str) -> None:
+    """A cache file that does not verify is a miss (compiled again) and says so, once per
+    model (`stamp`) and cache directory in this process; never blamed on the model. Files
+    of an older layout (another magic line) are a silent miss."""
     if not data.startswith(_MAGIC) and data.startswith(b"phc-numba-"):
         return
-    if path in _WARNED:
+    group = f"{os.path.dirname(path)}\0{stamp}"
+    if group in _WARNED:
         return
-    _WARNED.add(path)
+    _WARNED.add(group)
     from phc.errors import CacheWarning
 
     warnings.warn(f"compiled-function cache file {path} does not verify (damaged, renamed or copied from another "
-                  "name, or signed under another key); ignored, the function is compiled again (`phc cache clean` "
-                  "empties the cache)", CacheWarning, stacklevel=2)
+                  "name, or signed under another key); ignored, the model's functions that do not verify are "
+                  "compiled again (`phc cache clean` empties the cache)", CacheWarning, stacklevel=2)
 
 
 def _read_private(path: str) -> Optional[bytes]:
@@ -251,7 +252,7 @@ def _cache_classes():
                 return {}
             payload = _verified(self._key, data, self._index_path)
             if payload is None:
-                _damaged(self._index_path, data)
+                _damaged(self._index_path, data, self._source_stamp)
                 return {}
             version, stamp, overloads = pickle.loads(payload)
             if version != self._version or stamp != self._source_stamp:
@@ -269,7 +270,7 @@ def _cache_classes():
             payload = _verified(self._key, data, path) if data is not None else None
             if payload is None:
                 if data is not None:
-                    _damaged(path, data)
+                    _damaged(path, data, self._source_stamp)
                 raise OSError("missing or unsigned artefact")  # numba: treated as a miss
             return pickle.loads(payload)
 
