@@ -205,25 +205,34 @@ def _links(path) -> list:
     return out
 
 
-def file_state(path) -> list:
+def file_state(path, memo: Optional[dict] = None) -> list:
     """What `path` is now: ``[links, resolved path, content]`` where content is
     ``sha256:…`` for a regular file phc can read, else ``absent``, ``unreadable`` or
     ``mode …`` (a FIFO, a directory, a device, ...). Never opens anything but a regular
-    file, and that non-blocking."""
+    file, and that non-blocking. `memo` (resolved path -> content) hashes a file named by
+    several paths once."""
     links = _links(path)
     real = os.path.realpath(_absolute(path))
+    if memo is not None:
+        if real not in memo:
+            memo[real] = _content(real)
+        return [links, real, memo[real]]
+    return [links, real, _content(real)]
+
+
+def _content(real: str) -> str:
     try:
         st = os.stat(real)
     except FileNotFoundError:
-        return [links, real, "absent"]
+        return "absent"
     except OSError as err:
-        return [links, real, f"unreadable {err.errno}"]
+        return f"unreadable {err.errno}"
     if not stat.S_ISREG(st.st_mode):
-        return [links, real, f"mode {stat.S_IFMT(st.st_mode):o}"]
+        return f"mode {stat.S_IFMT(st.st_mode):o}"
     content = _read_regular(real, 2**40)
     if content is None:
-        return [links, real, "unreadable"]
-    return [links, real, "sha256:" + hashlib.sha256(content).hexdigest()]
+        return "unreadable"
+    return "sha256:" + hashlib.sha256(content).hexdigest()
 
 
 # ---------------------------------------------------------------------------------------
@@ -317,8 +326,9 @@ def _load(args, path: str, command: str) -> Optional[dict]:
     if (not isinstance(record, dict) or record.get("format") != FORMAT or record.get("key") != key
             or record.get("command") != command):
         return _damaged(where)  # a record copied or renamed over this key's name
+    memo: dict = {}
     for name, state in record["inputs"]:  # the files the compilation read or looked for, as they were
-        if file_state(name) != state:
+        if file_state(name, memo) != state:
             return None
     try:
         os.utime(where)  # most recently used: the cache's size cap evicts the oldest first
@@ -438,9 +448,9 @@ class Recorder:
             return
         if _read_regular(self.path, 16 * 2**20) != self.data:
             return  # changed while it was read
-        inputs = []
+        inputs, memo = [], {}
         for name, opened in sorted(self.files.items()):
-            state = file_state(name)
+            state = file_state(name, memo)
             if opened is not None:
                 real, size, mtime = opened
                 try:
