@@ -190,6 +190,24 @@ def test_a_fifo_named_cache_key_does_not_hang(tmp_path, command):
     assert "Traceback" not in done.stderr
 
 
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs FIFOs")
+def test_fifos_in_the_cache_are_refused_without_blocking(tmp_path):
+    """A FIFO where a signing key, a compiled-function file or a front-end record belongs:
+    every reader of phc's state and cache returns nothing at once."""
+    fifo = tmp_path / "cache-key"
+    os.mkfifo(fifo, 0o600)
+    code = ("import sys\nfrom phc.codegen.load import read_key\nfrom phc.codegen.numba_cache import _read_private\n"
+            "from phc.fastpath import _read_regular\n"
+            "print(read_key(sys.argv[1]), _read_private(sys.argv[1]), _read_regular(sys.argv[1], 100))\n")
+    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    try:
+        done = subprocess.run([sys.executable, "-c", code, str(fifo)], capture_output=True, text=True, env=env,
+                              timeout=120)
+    except subprocess.TimeoutExpired:
+        pytest.fail("a reader of phc's cache blocked on a FIFO")
+    assert done.stdout.strip() == "None None None", done.stdout + done.stderr
+
+
 def test_a_cache_under_a_directory_others_may_write_is_refused(tmp_path, monkeypatch):
     """Only the last path component used to be checked: a cache directory inside a directory
     anyone may write (and rename entries of) could be swapped for a link between the check
