@@ -311,3 +311,33 @@ def test_functions_from_the_cache_that_disagree_are_a_cache_problem_not_a_phc_bu
     assert compiled.backend == "numba", messages  # compiled again, not the NumPy fallback
     assert not any("phc bug" in m for m in messages), messages
     assert sum(issubclass(w.category, CacheWarning) for w in caught) == 1, messages
+
+
+def test_a_cache_directory_that_turns_unsafe_meanwhile_costs_the_saved_copy_not_the_backend(tmp_path, cache,
+                                                                                            monkeypatch):
+    """The cache directory passes phc's check, then is found unsafe when numba saves a
+    function (a race: someone loosened it meanwhile). The functions are still compiled
+    and run; one warning names the cache; nothing says "phc bug"."""
+    numba_cache = _numba_ready()
+    import phc
+    from phc.errors import CacheWarning
+
+    monkeypatch.setattr(numba_cache, "_LOADED", {})
+    monkeypatch.setattr(numba_cache, "_WARNED", set(), raising=False)
+    model = tmp_path / "pendulum.yaml"
+    model.write_text(PENDULUM, encoding="utf-8")
+    # phc's check before compiling passes; numba's cache locator checks the directory again at
+    # each save and now finds it unsafe
+    (locator,) = numba_cache._cache_classes()[0]._impl_class._locator_classes
+
+    def unsafe(self):
+        raise OSError("is writable by other users (mode 777)")
+
+    monkeypatch.setattr(locator, "ensure_cache_path", unsafe)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        compiled = phc.compile_model(model, certify=False, backend="numba")
+    messages = [str(w.message) for w in caught]
+    assert compiled.backend == "numba", messages
+    assert not any("phc bug" in m for m in messages), messages
+    assert sum(issubclass(w.category, CacheWarning) for w in caught) == 1, messages
