@@ -23,7 +23,7 @@ It is found by a key over everything that decides the compilation: the model (or
 file's bytes, its path as given, resolved, and the symbolic links on the way (each link's
 target text), the working directory (messages cite it), the options that change
 compilation (``--no-certify``, ``--backend``, ``--allow-path``, ``--max-memory``), every
-``PHC_*`` environment variable, phc's version and a hash of phc's own source files, the
+``PHC_*`` and ``NUMBA_*`` environment variable, phc's version and a hash of phc's own source files, the
 Python version and the installed versions of the libraries the compiler uses. The record
 then lists every further file the compilation read *or tried to read* (nested models,
 tables, matrices, reference values; every reference :class:`phc.files.FileAccess` looked
@@ -154,7 +154,8 @@ def _key(args, path: str, data: bytes, command: str) -> str:
         "no_certify": bool(getattr(args, "no_certify", False)), "backend": getattr(args, "backend", None),
         "allow_path": [[d, os.path.realpath(d)] for d in (getattr(args, "allow_path", None) or [])],
         "max_memory": getattr(args, "max_memory", None),
-        "env": sorted((k, v) for k, v in os.environ.items() if k.startswith("PHC_") and k not in _IGNORED_ENV),
+        "env": sorted((k, v) for k, v in os.environ.items()
+                      if k.startswith(("PHC_", "NUMBA_")) and k not in _IGNORED_ENV),
     }
     return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()
 

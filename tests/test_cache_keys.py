@@ -341,3 +341,23 @@ def test_a_cache_directory_that_turns_unsafe_meanwhile_costs_the_saved_copy_not_
     assert compiled.backend == "numba", messages
     assert not any("phc bug" in m for m in messages), messages
     assert sum(issubclass(w.category, CacheWarning) for w in caught) == 1, messages
+
+
+def test_environment_that_changes_compilation_is_part_of_the_key(tmp_path, cache, monkeypatch):
+    """`PHC_*` and numba's own `NUMBA_*` settings: a changed one is a miss."""
+    from phc.cli import build_parser
+
+    model = tmp_path / "pendulum.yaml"
+    model.write_text(PENDULUM, encoding="utf-8")
+    argv = ["simulate", str(model), "--out", str(tmp_path / "a.csv"), *RUN]
+    monkeypatch.delenv("NUMBA_OPT", raising=False)
+    assert main(argv) == 0
+
+    def hit() -> bool:
+        return fastpath.lookup(build_parser().parse_args(argv), {}) is not None
+
+    assert hit()
+    monkeypatch.setenv("NUMBA_OPT", "0")
+    assert not hit()
+    monkeypatch.delenv("NUMBA_OPT")
+    assert hit()
