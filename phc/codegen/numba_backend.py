@@ -29,16 +29,21 @@ Caching
 -------
 Compiled functions are cached in ``<phc cache>/numba/`` (the private directory of
 :mod:`phc.codegen.load`: created 0700, refused when another user owns it or others may
-write it), under names derived from the SHA-256 of everything that determines the code
+write it, it or a directory on the way to it), under names derived from the SHA-256 of everything that determines the code
 (the kernel text, the reference module's text, the phc, numba and Python versions); numba
 adds the CPU to its key. Numba's own ``cache=True`` is not used: it writes next to the
 source file and unpickles whatever its index points to. Here every artefact is written
-with an HMAC-SHA256 tag under a per-user secret key kept *outside* the cache directory
-(``$PHC_STATE_DIR``, else ``$XDG_STATE_HOME/phc``, else ``~/.local/state/phc``; file
-``cache-key``, mode 0600), and an artefact whose tag does not verify is never unpickled —
-it is compiled again and overwritten. A cache directory restored from elsewhere (the CI
-cache of another build) therefore costs a compilation, never the execution of someone
-else's machine code. Set ``PHC_COMPILED_CACHE=0`` to compile in memory every time.
+with an HMAC-SHA256 tag over its file name and content under a per-user secret key kept
+*outside* the cache directory (``$PHC_STATE_DIR``, else ``$XDG_STATE_HOME/phc``, else
+``~/.local/state/phc``; file ``cache-key``, mode 0600), and an artefact whose tag does not
+verify (damaged, or a signed file copied or renamed over another function's name) is
+never unpickled — it is compiled again and overwritten, with one
+:class:`~phc.errors.CacheWarning`. Functions from the cache that still disagree with the
+reference module at the sample point (two writers racing) are compiled again without the
+cache, with one warning too: a cache problem, not a phc bug. A cache directory restored
+from elsewhere (the CI cache of another build) therefore costs a compilation, never the
+execution of someone else's machine code. Set ``PHC_COMPILED_CACHE=0`` to compile in
+memory every time.
 
 What a run needs once the functions are built (whether numba is usable, the signed cache,
 the module assembled over the reference) is in :mod:`phc.codegen.numba_cache`, which
