@@ -287,7 +287,9 @@ class CompiledBackendWarning(PhcWarning):
 
 
 class CacheWarning(PhcWarning):
-    """The configured cache directory is unusable or not private; a temporary one is used."""
+    """A cache problem, never the model's: the configured cache directory is unusable or not
+    private (a temporary one is used), or a cache entry does not verify or disagrees with
+    the model (a miss: compiled again)."""
 
 
 class RegistryError(PhcError):

@@ -12,7 +12,9 @@ prefer; and phc never writes bytecode for generated modules.
 
 The cache lives in ``$PHC_CACHE_DIR``, else ``$XDG_CACHE_HOME/phc``, else ``~/.cache/phc``.
 It is created private (mode 0700) and refused when another user owns it or others may
-write it; phc then uses a private temporary directory for the run and says so (there is no
+write it, or when a directory on the way to it (as written or resolved) is owned by
+another user or writable by others without the sticky bit (they could swap it for a
+link); phc then uses a private temporary directory for the run and says so (there is no
 shared ``/tmp`` fallback). Files are named by the SHA-256 of their content; the cache is
 capped (``$PHC_CACHE_MAX_MB``, default 512 MiB) by evicting the least recently used files.
 ``phc cache info`` and ``phc cache clean`` show and empty it.
@@ -66,6 +68,33 @@ def _problem(path: Path) -> str | None:
         return f"is writable by other users (mode {stat.S_IMODE(st.st_mode):o}); run `chmod go-w {path}`"
     if not os.access(path, os.W_OK | os.X_OK):
         return "is not writable"
+    return _unsafe_parent(path)
+
+
+def _unsafe_parent(path: Path) -> str | None:
+    """Why a directory on the way to `path` (as written or resolved) lets another user
+    rename or replace `path` — owned by another user (not root), or writable by others
+    without the sticky bit (``/tmp`` has it) — or None. Checking only `path` itself left a
+    race: its parent's other writers could swap it for a link between check and use."""
+    seen: set[str] = set()
+    for candidate in (os.path.abspath(path), os.path.realpath(path)):
+        for parent in Path(candidate).parents:
+            key = str(parent)
+            if key in seen:
+                continue
+            seen.add(key)
+            try:
+                st = os.stat(parent)
+            except OSError as err:
+                return f"cannot be used ({parent}: {err.strerror})"
+            if hasattr(os, "getuid") and st.st_uid not in (0, os.getuid()):
+                return f"lies inside {parent}, which another user owns (uid {st.st_uid})"
+            sticky = st.st_mode & stat.S_ISVTX
+            others = st.st_mode & stat.S_IWOTH or (
+                st.st_mode & stat.S_IWGRP and hasattr(os, "getgid") and st.st_gid != os.getgid())
+            if others and not sticky:
+                return (f"lies inside {parent}, which is writable by other users (mode {stat.S_IMODE(st.st_mode):o}) "
+                        "who could replace it; use a directory inside a private one")
     return None
 
 
@@ -227,9 +256,13 @@ KEY_BYTES = 32
 
 def read_key(path: Path) -> Optional[bytes]:
     """The signing key at `path` when it is a private regular file of :data:`KEY_BYTES` bytes
-    owned by this user; None otherwise."""
+    owned by this user; None otherwise (a special file is refused without blocking:
+    checked with ``lstat`` first, opened non-blocking)."""
     try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
+        if not stat.S_ISREG(os.lstat(path).st_mode):
+            return None  # a FIFO, device or socket is never opened (a FIFO would block)
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0)
+                     | getattr(os, "O_CLOEXEC", 0))
     except OSError:
         return None
     try:
