@@ -74,6 +74,7 @@ import phc
 from phc import reference_values as refs
 from phc.diagnostics import DiagnosticList
 from phc.errors import ModelError, SimulationSetupError
+from phc.inert import inert
 from phc.io import atomic_write, write_text
 from phc.scene import reference_name, scene_variant
 from phc.simulation import BACKENDS, FIXED_STEP
@@ -224,7 +225,7 @@ class BenchReport:
                 lines.append(f"  wrote      {self.paths[key]}")
         if self.plot_skipped:
             lines.append(f"  plot       skipped: {self.plot_skipped}")
-        return "\n".join(lines)
+        return "\n".join(inert(line) for line in lines)  # names, messages and paths (phc.inert)
 
     def summary(self) -> dict:
         """JSON-ready form (for `--format json`)."""

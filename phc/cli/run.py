@@ -14,7 +14,9 @@ from contextlib import contextmanager
 from typing import Sequence
 
 from phc.cli.report import EXIT_MODEL, _Exit, _print_diagnostics
+from phc.diagnostics import _printable
 from phc.errors import UsageError
+from phc.inert import inert
 
 
 def _compile_or_exit(path: str, certify: bool = True, backend=None):
@@ -170,14 +172,14 @@ def _simulation_errors(path: str, progress, compiled=None):
     except InconsistentInitialError as err:
         progress.close()
         for line in _inconsistent_lines(path, err.problems, compiled):
-            print(line, file=sys.stderr)
+            print(inert(line), file=sys.stderr)
         raise _Exit(EXIT_MODEL) from None
     except SimulationSetupError as err:
         progress.close()
         raise UsageError(str(err)) from err
     except ModelEvaluationError as err:  # the model cannot be evaluated at the start
         progress.close()
-        print(f"{path}: {err}", file=sys.stderr)
+        print(_printable(f"{path}: {err}"), file=sys.stderr)
         raise _Exit(EXIT_MODEL) from None
     except KeyboardInterrupt:
         progress.close()
@@ -199,5 +201,5 @@ def _recompile_for_params(compiled, path: str, params: dict, certify: bool = Tru
         _print_diagnostics(err.diagnostics)
         raise _Exit(EXIT_MODEL) from None
     if note:
-        print(f"{path}: note: {note}", file=sys.stderr)
+        print(_printable(f"{path}: note: {note}"), file=sys.stderr)
     return compiled

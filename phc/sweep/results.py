@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Sequence, Union
 
 import numpy as np
 
+from phc.inert import inert
 from phc.io import atomic_write
 
 if TYPE_CHECKING:
@@ -189,7 +190,7 @@ class SweepReport:
                 lines.append(f"  wrote     {self.paths[key]}")
         if self.parquet_skipped:
             lines.append(f"  parquet   skipped: {self.parquet_skipped}")
-        return "\n".join(lines)
+        return "\n".join(inert(line) for line in lines)  # names, messages and paths (phc.inert)
 
     def summary(self) -> dict:
         return {"model": self.name, "file": self.file, "planned": self.planned, "rows": len(self.rows),
