@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Sequence, Union
 import numpy as np
 
 from phc.inert import inert
-from phc.io import atomic_write
+from phc.io import atomic_write, csv_rows
 
 if TYPE_CHECKING:
     from phc.sweep.design import Design
@@ -91,7 +91,7 @@ class AppendLog:
         data = self.path.read_bytes()
         if not data.endswith(b"\n"):
             data = data[: data.rfind(b"\n") + 1]
-        lines = list(csv.reader(io.StringIO(data.decode("utf-8", errors="replace"))))
+        lines = csv_rows(io.StringIO(data.decode("utf-8", errors="replace")))  # messages of any length
         if not lines:
             return [], []
         header = lines[0]
