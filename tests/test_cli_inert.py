@@ -135,10 +135,11 @@ def test_json_and_sarif_escape_as_json_does(hostile, fmt, capsys):
         assert uris == hostile  # percent-encoded URIs
 
 
-def test_a_sweeps_failed_rows_and_resumed_messages_are_inert(tmp_path, capsys):
-    """A resumed results file whose message cell holds ESC, a line break, a workflow command
-    and more characters than the csv module reads by default; its series file a first cell
-    `²` (a digit to str.isdigit, not to int)."""
+@pytest.mark.parametrize("long", [False, True])
+def test_a_sweeps_failed_rows_and_resumed_messages_are_inert(long, tmp_path, capsys):
+    """A resumed results file whose message cell holds ESC, BEL, a line break and a
+    workflow command; `long`: also more characters than the csv module reads by default,
+    and a series file whose first cell is `²` (a digit to str.isdigit, not to int)."""
     out = tmp_path / "r.csv"
     argv = ["sweep", str(MSD), "--param", "k=1,2", "--t-end", "0.05", "--quiet", "--workers", "1",
             "--out", str(out), "--series", str(tmp_path / "s.csv")]
@@ -148,25 +149,44 @@ def test_a_sweeps_failed_rows_and_resumed_messages_are_inert(tmp_path, capsys):
     with open(out, newline="") as fh:
         rows = list(csv.reader(fh))
     header = rows[0]
-    message = "\x1b[2J\x07boom\n::error file=x::injected " + "y" * (limit + 10)
+    message = "\x1b[2J\x07boom\n::error file=x::injected " + ("y" * (limit + 10) if long else "y")
     rows[1][header.index("success")] = "false"
     rows[1][header.index("message")] = message
     with open(out, "w", newline="") as fh:
         csv.writer(fh, lineterminator="\n").writerows(rows[:2])  # point 1 is run again
-    series = (tmp_path / "s.csv").read_text().splitlines()
-    (tmp_path / "s.csv").write_text("\n".join(series[:2] + ["²" + series[1][1:]]) + "\n")
+    if long:
+        series = (tmp_path / "s.csv").read_text().splitlines()
+        (tmp_path / "s.csv").write_text("\n".join(series[:2] + ["²" + series[1][1:]]) + "\n")
     assert main([*argv, "--resume"]) == 1  # the failed row
     captured = capsys.readouterr()
     _no_control(captured.out + captured.err)
     failed = [line for line in captured.out.splitlines() if "FAILED    point 0" in line]
-    assert len(failed) == 1 and "\\x1b[2J\\x07boom ::error file=x::injected yyy" in failed[0]
+    assert len(failed) == 1 and "\\x1b[2J\\x07boom ::error file=x::injected y" in failed[0]
     assert not [line for line in captured.out.splitlines() if line.lstrip().startswith("::")]
     assert csv.field_size_limit() == limit  # the process keeps its csv limit
 
+
+def test_a_resume_description_that_is_not_an_object_is_one_line(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "r.csv").write_text("point\n")
     (tmp_path / "r.sweep.json").write_text("[]")
-    assert main([*argv, "--resume"]) == 2
+    assert main(["sweep", str(MSD), "--param", "k=1,2", "--quiet", "--out", "r.csv", "--resume"]) == 2
     line = one_error_line(capsys.readouterr().err)
-    assert line.startswith("phc sweep: error: cannot resume") and "r.sweep.json" in line
+    assert line.startswith("phc sweep: error: cannot resume `r.csv`: its description `r.sweep.json` is not"), line
+
+
+def test_a_scenes_hostile_name_is_inert_in_the_summary_and_the_progress_line(tmp_path, monkeypatch, capsys):
+    """A scene without `name:` is named after its file: here ESC, BEL and a workflow command."""
+    monkeypatch.chdir(tmp_path)
+    shutil.copy(MSD, tmp_path / "m.yaml")
+    scene = tmp_path / "::error file=a::b\x1b]0;title\x07.yaml"
+    scene.write_text("format_version: 1\nmodel: m.yaml\nt_end: 0.05\nn_out: 3\noutputs: {x: spring.x}\n")
+    assert main(["simulate", scene.name]) == 0
+    captured = capsys.readouterr()
+    _no_control(captured.out + captured.err)
+    first = captured.out.splitlines()[0]
+    assert first.startswith("\\x3a:error file=a::b\\x1b]0;title\\x07 (scene of "), first
+    assert not [line for line in (captured.out + captured.err).splitlines() if line.lstrip().startswith("::")]
 
 
 # -- errors -------------------------------------------------------------------------------
