@@ -66,12 +66,14 @@ def _shorten(text: str) -> str:
     return f"{text[:120]}…{text[-40:]}"
 
 
-def _printable(text: str) -> str:
+def _printable(text: str, quoted: bool = True) -> str:
     """One line of visible text: line breaks as blanks, text from the model longer than
-    200 characters shortened, control and formatting characters escaped (``\\x1b``,
-    ``\\u202e``) and no workflow command at its start (:func:`phc.inert.inert`)."""
+    200 characters shortened (a word; with `quoted`, also a `quoted` span), control and
+    formatting characters escaped (``\\x1b``, ``\\u202e``) and no workflow command at its
+    start (:func:`phc.inert.inert`)."""
     text = _one_line(str(text))
-    text = _LONG_QUOTED.sub(lambda m: f"`{_shorten(m.group(1))}` ({len(m.group(1))} characters)", text)
+    if quoted:
+        text = _LONG_QUOTED.sub(lambda m: f"`{_shorten(m.group(1))}` ({len(m.group(1))} characters)", text)
     text = _LONG_WORD.sub(lambda m: _shorten(m.group()), text)
     return inert(text)
 

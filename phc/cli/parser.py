@@ -111,7 +111,7 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
     from phc.diagnostics import _printable
 
     if issubclass(category, PhcWarning):
-        print(f"phc: warning: {_printable(str(message))}", file=sys.stderr)
+        print(f"phc: warning: {_printable(str(message), quoted=False)}", file=sys.stderr)
     else:
         _python_showwarning(message, category, filename, lineno, file, line)
 

@@ -72,7 +72,8 @@ class _Files:
             text = (f"phc {self.command}: {self.n} files, {self.n - len(self.failed)} ok, {len(self.failed)} "
                     f"failed; {counts[0]} error(s), {counts[1]} warning(s)")
             if self.failed:
-                text += " in " + ", ".join(inert(f) for f in self.failed[:5]) + (", …" if len(self.failed) > 5 else "")
+                shown = ", ".join(inert(f) for f in self.failed[:5])
+                text += " in " + shown + (", …" if len(self.failed) > 5 else "")
             print(text, file=sys.stderr)  # stdout keeps one line per file (or the log alone)
         return EXIT_MODEL if self.failed else EXIT_OK
 

@@ -179,7 +179,7 @@ def _simulation_errors(path: str, progress, compiled=None):
         raise UsageError(str(err)) from err
     except ModelEvaluationError as err:  # the model cannot be evaluated at the start
         progress.close()
-        print(_printable(f"{path}: {err}"), file=sys.stderr)
+        print(_printable(f"{path}: {err}", quoted=False), file=sys.stderr)
         raise _Exit(EXIT_MODEL) from None
     except KeyboardInterrupt:
         progress.close()
@@ -201,5 +201,5 @@ def _recompile_for_params(compiled, path: str, params: dict, certify: bool = Tru
         _print_diagnostics(err.diagnostics)
         raise _Exit(EXIT_MODEL) from None
     if note:
-        print(_printable(f"{path}: note: {note}"), file=sys.stderr)
+        print(_printable(f"{path}: note: {note}", quoted=False), file=sys.stderr)
     return compiled
