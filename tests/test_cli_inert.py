@@ -189,6 +189,26 @@ def test_a_scenes_hostile_name_is_inert_in_the_summary_and_the_progress_line(tmp
     assert not [line for line in (captured.out + captured.err).splitlines() if line.lstrip().startswith("::")]
 
 
+def test_argparse_errors_quote_arguments_inert(capsys):
+    with pytest.raises(SystemExit) as done:
+        main(["simulate", str(MSD), "\n::error file=x::injected\x1b[2J"])
+    assert done.value.code == 2
+    err = capsys.readouterr().err
+    _no_control(err)
+    assert not [line for line in err.splitlines() if line.lstrip().startswith("::")]
+    assert "unrecognized arguments: \\x0a::error file=x::injected\\x1b[2J" in err
+
+
+def test_graph_names_a_hostile_model_in_one_dot_line(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    text = "".join(line for line in MSD.read_text().splitlines(keepends=True) if not line.startswith("name:"))
+    (tmp_path / "g\n}\x1b[31m.yaml").write_text(text)  # a model without `name:` is named after its file
+    assert main(["graph", "g\n}\x1b[31m.yaml"]) == 0
+    out = capsys.readouterr().out
+    _no_control(out)
+    assert out.splitlines()[0] == 'graph "g\\x0a}\\x1b[31m" {'
+
+
 # -- errors -------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("argv, env, start", [

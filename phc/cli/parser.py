@@ -180,8 +180,18 @@ FORMAT_HELP = ("text: one located line per problem; json; github: GitHub Actions
                "scanning (github/codeql-action/upload-sarif)")
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser whose error line quotes the user's arguments inert (phc.inert): an
+    unrecognized argument may hold ESC or a line break and `::error ...`."""
+
+    def error(self, message):
+        from phc.inert import inert
+
+        super().error(inert(message))
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="phc", description="Compiler for port-Hamiltonian models.")
+    parser = _Parser(prog="phc", description="Compiler for port-Hamiltonian models.")
     parser.add_argument("--version", action="version", version=f"phc {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 

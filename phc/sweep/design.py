@@ -142,7 +142,7 @@ def make_design(compiled, axes: Sequence[Axis], samples: Optional[int] = None, s
         problems.append(("", "--samples is given but no parameter is a distribution",
                          "write e.g. NAME=uniform:A:B, NAME=normal:MEAN:STD or NAME=loguniform:A:B"))
     if not (isinstance(seed, int) and 0 <= seed <= MAX_SEED):
-        problems.append(("", f"the seed must be a whole number from 0 to {MAX_SEED}, got {seed}",
+        problems.append(("", f"the sampler's seed must be a whole number from 0 to {MAX_SEED}, got {seed}",
                          "--seed N, or `seed:` in the scene's sweep section"))
     if sampling not in ("lhs", "random"):
         problems.append(("", f"unknown sampling `{sampling}`", "choose lhs or random"))
