@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any, Callable, Literal, Optional, Sequence
 
 import pydantic
 
-from phc.inert import inert
+from phc.inert import _one_line, printable
 
 if TYPE_CHECKING:  # runtime import would be circular (phc.source imports this module)
     from phc.source import SourceMap, SourceSpan
@@ -51,31 +51,7 @@ ERROR_CODES: dict[str, str] = {
 }
 """Code -> one-line description (documentation table)."""
 
-_ONE_LINE = re.compile(r"\s*[\r\n]+\s*")
-
-
-def _one_line(text: str) -> str:
-    return _ONE_LINE.sub(" ", text).strip()
-
-
-_LONG_QUOTED = re.compile(r"`([^`]{201,})`")
-_LONG_WORD = re.compile(r"[^\s`]{201,}")
-
-
-def _shorten(text: str) -> str:
-    return f"{text[:120]}…{text[-40:]}"
-
-
-def _printable(text: str, quoted: bool = True) -> str:
-    """One line of visible text: line breaks as blanks, text from the model longer than
-    200 characters shortened (a word; with `quoted`, also a `quoted` span), control and
-    formatting characters escaped (``\\x1b``, ``\\u202e``) and no workflow command at its
-    start (:func:`phc.inert.inert`)."""
-    text = _one_line(str(text))
-    if quoted:
-        text = _LONG_QUOTED.sub(lambda m: f"`{_shorten(m.group(1))}` ({len(m.group(1))} characters)", text)
-    text = _LONG_WORD.sub(lambda m: _shorten(m.group()), text)
-    return inert(text)
+_printable = printable  # the one-line, inert text of a message (phc.inert)
 
 
 @dataclass(frozen=True)

@@ -108,10 +108,10 @@ def _solver_names() -> tuple[str, ...]:
 def _show_warning(message, category, filename, lineno, file=None, line=None):
     """phc's own warnings as one line `phc: warning: ...`; others as Python prints them."""
     from phc import PhcWarning
-    from phc.diagnostics import _printable
+    from phc.inert import printable
 
     if issubclass(category, PhcWarning):
-        print(f"phc: warning: {_printable(str(message), quoted=False)}", file=sys.stderr)
+        print(f"phc: warning: {printable(str(message), quoted=False)}", file=sys.stderr)
     else:
         _python_showwarning(message, category, filename, lineno, file, line)
 

@@ -14,9 +14,8 @@ from contextlib import contextmanager
 from typing import Sequence
 
 from phc.cli.report import EXIT_MODEL, _Exit, _print_diagnostics
-from phc.diagnostics import _printable
 from phc.errors import UsageError
-from phc.inert import inert
+from phc.inert import inert, printable
 
 
 def _compile_or_exit(path: str, certify: bool = True, backend=None):
@@ -179,7 +178,7 @@ def _simulation_errors(path: str, progress, compiled=None):
         raise UsageError(str(err)) from err
     except ModelEvaluationError as err:  # the model cannot be evaluated at the start
         progress.close()
-        print(_printable(f"{path}: {err}", quoted=False), file=sys.stderr)
+        print(printable(f"{path}: {err}", quoted=False), file=sys.stderr)
         raise _Exit(EXIT_MODEL) from None
     except KeyboardInterrupt:
         progress.close()
@@ -201,5 +200,5 @@ def _recompile_for_params(compiled, path: str, params: dict, certify: bool = Tru
         _print_diagnostics(err.diagnostics)
         raise _Exit(EXIT_MODEL) from None
     if note:
-        print(_printable(f"{path}: note: {note}", quoted=False), file=sys.stderr)
+        print(printable(f"{path}: note: {note}", quoted=False), file=sys.stderr)
     return compiled

@@ -399,7 +399,7 @@ def _check_scheduler(address: str) -> None:
             return
     except OSError:  # a name too long for a file: an address, checked below
         pass
-    scheme, _, rest = address.rpartition("://")
+    scheme = address.rpartition("://")[0]
     if scheme not in ("", "tcp", "tls", "ws", "wss"):
         return  # another transport of distributed: its own connection says what is wrong
     from distributed.comm.addressing import get_address_host_port
