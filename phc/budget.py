@@ -80,6 +80,9 @@ CSE_LIMIT = 1_000_000
 MINMAX_WEIGHT = 3
 """Extra weight of a min/max node of k arguments: MINMAX_WEIGHT · k² · its size."""
 
+MAX_SIZE = 2**60
+"""The largest memory size :func:`parse_size` accepts (1 EiB)."""
+
 _override: list[Optional[int]] = [None]
 
 
@@ -93,7 +96,8 @@ _SIZE = re.compile(r"\s*([0-9]+(?:\.[0-9]*)?|\.[0-9]+)\s*([a-zA-Z]*)\s*")
 def parse_size(text: str) -> int:
     """Bytes in a size such as ``2G``, ``1.5GiB``, ``512M``, ``800MB`` or ``100000`` (bytes).
 
-    K, M, G, T and KiB … TiB are binary (2G = 2 GiB); KB, MB, GB, TB decimal.
+    K, M, G, T and KiB … TiB are binary (2G = 2 GiB); KB, MB, GB, TB decimal. From 1 MiB
+    to 1 EiB (:data:`MAX_SIZE`).
 
     Raises
     ------
@@ -104,9 +108,11 @@ def parse_size(text: str) -> int:
     unit = match.group(2).lower() if match else None
     if match is None or unit not in _UNITS:
         raise ValueError(f"`{text}` is not a memory size; write e.g. 2G, 1.5GiB, 512M or 800MB")
-    value = float(match.group(1)) * _UNITS[unit]
+    value = float(match.group(1)) * _UNITS[unit]  # inf for a number of 309 digits or more
     if not value >= 2**20:
         raise ValueError(f"`{text}` is below 1 MiB; write e.g. 2G, 1.5GiB or 512M")
+    if not value <= MAX_SIZE:
+        raise ValueError(f"`{text}` is above 1 EiB; write e.g. 2G, 64G or 1T")
     return int(value)
 
 

@@ -59,6 +59,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from phc.errors import ModelError, SimulationSetupError
+from phc.inert import inert
 from phc.scene import Scene, is_scene_file, load_scene, scene_variant
 
 ENERGY = "energy.supplied"
@@ -256,7 +257,7 @@ class Linearization:
                              "or npz has all)")
         for note in self.notes:
             lines.append(f"  note     {note}")
-        return "\n".join(lines)
+        return "\n".join(inert(line) for line in lines)  # the model's and its parts' names (phc.inert)
 
 
 # -- inputs: a scene that adds a perturbation parameter to each source and exposed port ---

@@ -23,6 +23,7 @@ import warnings
 from typing import Optional, Sequence
 
 from phc import PhcError
+from phc.inert import printable
 from phc.cli.commands import (  # noqa: F401 (importable from phc.cli)
     MAX_FILE_STEM, _draw_png, _parse_assignments, _parse_params, cmd_animate, cmd_bench, cmd_cache, cmd_check,
     cmd_compile, cmd_graph, cmd_linearize, cmd_schema, cmd_simulate, cmd_sweep, cmd_validate)
@@ -51,13 +52,13 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except _Exit as done:
         return done.code
     except UsageError as err:
-        print(f"phc {args.command}: error: {err}", file=sys.stderr)
+        print(f"phc {args.command}: error: {printable(str(err), quoted=False)}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
         print("phc: interrupted", file=sys.stderr)
         return 130
     except PhcError as err:  # phc's own exceptions are about the input or the run, not internal
-        print(f"phc {args.command}: error: {err}", file=sys.stderr)
+        print(f"phc {args.command}: error: {printable(str(err), quoted=False)}", file=sys.stderr)
         return EXIT_MODEL
     except BrokenPipeError:  # the reader went away (`phc ... | head`): not an error of ours
         devnull = os.open(os.devnull, os.O_WRONLY)
@@ -66,6 +67,6 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except Exception as err:  # an internal error, not a user mistake
         if os.environ.get("PHC_DEBUG"):
             raise
-        print(f"phc {args.command}: internal error: {type(err).__name__}: {err} "
+        print(f"phc {args.command}: internal error: {type(err).__name__}: {printable(str(err), quoted=False)} "
               "(please report it; rerun with PHC_DEBUG=1 for a traceback)", file=sys.stderr)
         return EXIT_USAGE

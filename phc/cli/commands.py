@@ -21,6 +21,7 @@ from phc.cli.report import (EXIT_INTERRUPTED, EXIT_MODEL, EXIT_OK, _backend_line
 from phc.cli.run import (_compile_or_exit, _ignored_in_file_lines, _progress_for, _recompile_for_params,
                          _simulation_errors, _written_options)
 from phc.errors import UsageError
+from phc.inert import inert
 
 
 def _parse_params(items: Sequence[str]) -> dict[str, float]:
@@ -130,7 +131,7 @@ def cmd_simulate(args) -> int:
     if args.format != "json":  # the model's warnings, as `phc validate` prints them (also from the cache)
         _print_diagnostics([d for d in compiled.diagnostics if d.severity == "warning"])
     for line in _ignored_in_file_lines(compiled, written, args):
-        print(line, file=sys.stderr)  # settings of the file this run's solver ignores (PHC-W250)
+        print(inert(line), file=sys.stderr)  # settings of the file this run's solver ignores (PHC-W250)
     progress = _progress_for(compiled, args.t_end, args.quiet)
     run_kwargs = dict(t_end=args.t_end, params=params, rtol=args.rtol, atol=args.atol, n_out=args.n_out,
                       solver=args.solver, step=args.step)
@@ -149,15 +150,15 @@ def cmd_simulate(args) -> int:
         if args.estimate_error and not interrupted:
             progress.close()
             if not args.quiet:
-                print(f"{args.file}: estimating errors (a rerun with a finer step or tolerance, and one on "
-                      "refined meshes)...", file=sys.stderr)
+                print(inert(f"{args.file}: estimating errors (a rerun with a finer step or tolerance, and one on "
+                            "refined meshes)..."), file=sys.stderr)
             from phc import estimate_errors
 
             try:
                 estimates = estimate_errors(compiled, result, run_kwargs)
             except KeyboardInterrupt:
                 interrupted = True
-                print(f"{args.file}: error estimation interrupted; the run itself is complete", file=sys.stderr)
+                print(inert(f"{args.file}: error estimation interrupted; the run itself is complete"), file=sys.stderr)
     if args.out:
         _write_results(result, args.out)
     if args.plot:
@@ -191,22 +192,22 @@ def cmd_simulate(args) -> int:
             print(line)
         for e in estimates:
             if not e.ok and not e.per_output:  # no rerun to compare with (e.g. per-dof initial values)
-                print(f"  error    {e.kind}: {e.method}: {e.message}")
+                print(inert(f"  error    {e.kind}: {e.method}: {e.message}"))
                 continue
             worst = max(e.per_output, key=e.per_output.get) if e.per_output else "-"
             status = "" if e.ok else f" (the rerun failed: {e.message})"
-            print(f"  error    {e.kind} ≈ {e.max:.3e} (largest in `{worst}`): {e.method}{status}")
+            print(inert(f"  error    {e.kind} ≈ {e.max:.3e} (largest in `{worst}`): {e.method}{status}"))
         if prof is not None:
             print(prof.render_text())
         if args.out:
-            print(f"  wrote    {args.out}")
+            print(inert(f"  wrote    {args.out}"))
         if args.plot:
-            print(f"  plotted  {args.plot}")
+            print(inert(f"  plotted  {args.plot}"))
     if interrupted:
         kept = [f for f in (args.out, args.plot) if f]
         where = f"; the results so far are in {' and '.join(kept)}" if kept else " (no --out given: nothing written)"
         reached = f"t = {result.t[-1]:.6g}" if len(result.t) else "the start"
-        print(f"phc simulate: interrupted at {reached}{where}", file=sys.stderr)
+        print(inert(f"phc simulate: interrupted at {reached}{where}"), file=sys.stderr)
         return EXIT_INTERRUPTED
     return EXIT_OK if result.success else EXIT_MODEL
 
@@ -239,8 +240,8 @@ def cmd_sweep(args) -> int:
         raise UsageError(str(err)) from None
     print(report.render_text() if args.format == "text" else json.dumps(report.summary(), indent=2))
     if report.interrupted:
-        print(f"phc sweep: interrupted; {len(report.rows)} of {report.planned} rows are in {report.paths['csv']}: "
-              "rerun the same command with --resume to finish", file=sys.stderr)
+        print(inert(f"phc sweep: interrupted; {len(report.rows)} of {report.planned} rows are in "
+                    f"{report.paths['csv']}: rerun the same command with --resume to finish"), file=sys.stderr)
         return EXIT_INTERRUPTED
     return EXIT_OK if report.success else EXIT_MODEL
 
@@ -258,12 +259,13 @@ def cmd_animate(args) -> int:
         except SimulationInterrupted as stop:  # Ctrl-C: animate what was computed, exit 130
             result, interrupted = stop.result, True
     if not result.success:
-        print(f"{args.file}: simulation stopped: {result.message}; animating the results so far", file=sys.stderr)
+        print(inert(f"{args.file}: simulation stopped: {result.message}; animating the results so far"),
+              file=sys.stderr)
     try:
         viz.animate(compiled, result, args.output, magnify=args.magnify, fps=args.fps, max_frames=args.frames)
     except viz.PlotUnavailable as err:
         raise UsageError(str(err)) from err
-    print(f"{args.file}: wrote {args.output}")
+    print(inert(f"{args.file}: wrote {args.output}"))
     if interrupted:
         return EXIT_INTERRUPTED
     return EXIT_OK if result.success else EXIT_MODEL
@@ -366,12 +368,12 @@ def cmd_linearize(args) -> int:
             return EXIT_MODEL
     if fmt == "npz":
         lin.save_npz(args.output)
-        print(f"{lin.model}: {len(lin.eigenvalues)} finite eigenvalues; wrote {args.output}")
+        print(inert(f"{lin.model}: {len(lin.eigenvalues)} finite eigenvalues; wrote {args.output}"))
         return EXIT_OK
     text = json.dumps(lin.to_dict(), indent=2) if fmt == "json" else lin.render_text(args.modes)
     if args.output:
         Path(args.output).write_text(text + "\n", encoding="utf-8")
-        print(f"{lin.model}: {len(lin.eigenvalues)} finite eigenvalues; wrote {args.output}")
+        print(inert(f"{lin.model}: {len(lin.eigenvalues)} finite eigenvalues; wrote {args.output}"))
     else:
         print(text)
     return EXIT_OK
@@ -397,7 +399,7 @@ def cmd_graph(args) -> int:
         _draw_png(dae, args.output)
     else:
         raise UsageError(f"-o must end in .dot or .png, got `{args.output}`")
-    print(f"{args.file}: wrote {args.output}")
+    print(inert(f"{args.file}: wrote {args.output}"))
     return EXIT_OK
 
 
@@ -435,14 +437,14 @@ def cmd_schema(args) -> int:
         stale = stale_schemas(args.dir)
         if stale:
             for path in stale:
-                print(f"{path}: stale or missing; regenerate with `phc schema --write --dir {args.dir}`",
+                print(inert(f"{path}: stale or missing; regenerate with `phc schema --write --dir {args.dir}`"),
                       file=sys.stderr)
             return EXIT_MODEL
-        print(f"{args.dir}: schemas up to date ({', '.join(SCHEMAS)})")
+        print(inert(f"{args.dir}: schemas up to date ({', '.join(SCHEMAS)})"))
         return EXIT_OK
     if args.write:
         for path in write_schemas(args.dir):
-            print(f"wrote {path}")
+            print(inert(f"wrote {path}"))
         return EXIT_OK
     name = args.name if args.name.endswith(".schema.json") else f"{args.name}.schema.json"
     sys.stdout.write(schema_text(name))
@@ -454,9 +456,9 @@ def cmd_cache(args) -> int:
 
     if args.action == "clean":
         files, size = load.clean()
-        print(f"{load.cache_dir()}: removed {files} files ({size / 2**20:.1f} MiB)")
+        print(inert(f"{load.cache_dir()}: removed {files} files ({size / 2**20:.1f} MiB)"))
         return EXIT_OK
     info = load.info()
-    print(f"{info.path}: {info.files} files, {info.bytes / 2**20:.1f} MiB "
-          f"(cap {info.cap_bytes / 2**20:.0f} MiB, PHC_CACHE_MAX_MB; least recently used evicted first)")
+    print(inert(f"{info.path}: {info.files} files, {info.bytes / 2**20:.1f} MiB "
+                f"(cap {info.cap_bytes / 2**20:.0f} MiB, PHC_CACHE_MAX_MB; least recently used evicted first)"))
     return EXIT_OK

@@ -44,6 +44,7 @@ NUMERIC_OPTIONS = {
     ("check", "samples"): ("--samples", "count", 0, 1000),
     ("sweep", "samples"): ("--samples", "count", 1, 100_000),
     ("sweep", "workers"): ("--workers", "count", 1, 4096),
+    ("sweep", "seed"): ("--seed", "count", 0, 2**32 - 1),  # phc.sweep.design.MAX_SEED
     ("sweep", "t_end"): ("--t-end", *RUN_LIMITS["t_end"]),
     ("sweep", "n_out"): ("--n-out", *RUN_LIMITS["n_out"]),
     ("linearize", "modes"): ("--modes", "count", 1, 1_000_000),
@@ -72,15 +73,21 @@ def _check_number(option: str, kind: str, low: float, high: float, value) -> Non
 
 
 def _check_arguments(args) -> None:
-    """Numeric options and output paths of the command, before any work (usage errors)."""
+    """Numeric options, memory sizes, output paths and the environment variables read as
+    numbers, before any work (usage errors)."""
     from phc.io import OutputPathError, check_output_dir, check_output_file
 
+    if getattr(args, "max_memory", None) is not None and not isinstance(args.max_memory, int):
+        args.max_memory = _memory_size(args.max_memory)  # bytes from here on (phc.fastpath, _with_budget)
+    _check_environment(budget=hasattr(args, "max_memory"))
     for (command, dest), (option, kind, low, high) in NUMERIC_OPTIONS.items():
         value = getattr(args, dest, None) if args.command == command else None
         for item in (value if isinstance(value, list) else [value] if value is not None else []):
             _check_number(option, kind, low, high, item)
     for (command, dest), (option, suffixes) in OUTPUT_OPTIONS.items():
         path = getattr(args, dest, None) if args.command == command else None
+        if path == "":
+            raise UsageError(f"{option} is empty; give a {'folder' if suffixes is None else 'file name'}")
         if not path or path == "-" and command == "graph":
             continue
         try:
@@ -101,9 +108,10 @@ def _solver_names() -> tuple[str, ...]:
 def _show_warning(message, category, filename, lineno, file=None, line=None):
     """phc's own warnings as one line `phc: warning: ...`; others as Python prints them."""
     from phc import PhcWarning
+    from phc.inert import printable
 
     if issubclass(category, PhcWarning):
-        print(f"phc: warning: {message}", file=sys.stderr)
+        print(f"phc: warning: {printable(str(message), quoted=False)}", file=sys.stderr)
     else:
         _python_showwarning(message, category, filename, lineno, file, line)
 
@@ -114,18 +122,41 @@ def _allowed_paths(args):
 
     dirs = getattr(args, "allow_path", None) or []
     for d in dirs:
-        if not Path(d).is_dir():
+        try:
+            is_dir = Path(d).is_dir()
+        except OSError as err:  # a name too long, a loop of symbolic links
+            raise UsageError(f"--allow-path `{d}` cannot be used ({(err.strerror or type(err).__name__).lower()})"
+                             ) from None
+        if not is_dir:
             raise UsageError(f"--allow-path `{d}` is not a directory")
     return allow_paths(dirs)
 
 
 def _memory_size(text: str) -> int:
+    """Bytes of `--max-memory SIZE`, parsed here (not by argparse) with its bounds: a one-line
+    usage error, also for a number too large for a float."""
     from phc.budget import parse_size
 
     try:
         return parse_size(text)
     except ValueError as err:
-        raise argparse.ArgumentTypeError(str(err)) from None
+        raise UsageError(f"--max-memory {err}") from None
+
+
+def _check_environment(budget: bool = True) -> None:
+    """The environment variables phc reads as numbers: PHC_MAX_MEMORY (for the commands
+    with a memory budget) and PHC_CACHE_MAX_MB."""
+    from phc.budget import max_memory
+    from phc.codegen.load import cap_problem
+
+    try:
+        if budget:
+            max_memory()
+    except ValueError as err:
+        raise UsageError(str(err)) from None
+    problem = cap_problem()
+    if problem:
+        raise UsageError(problem)
 
 
 def _with_budget(func):
@@ -149,8 +180,18 @@ FORMAT_HELP = ("text: one located line per problem; json; github: GitHub Actions
                "scanning (github/codeql-action/upload-sarif)")
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser whose error line quotes the user's arguments inert (phc.inert): an
+    unrecognized argument may hold ESC or a line break and `::error ...`."""
+
+    def error(self, message):
+        from phc.inert import inert
+
+        super().error(inert(message))
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="phc", description="Compiler for port-Hamiltonian models.")
+    parser = _Parser(prog="phc", description="Compiler for port-Hamiltonian models.")
     parser.add_argument("--version", action="version", version=f"phc {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -299,7 +340,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     for name in ("validate", "compile", "simulate", "animate", "bench", "check", "graph", "sweep", "linearize"):
         p = sub.choices[name]
-        p.add_argument("--max-memory", type=_memory_size, metavar="SIZE",
+        p.add_argument("--max-memory", metavar="SIZE",
                        help="memory budget, e.g. 8G or 512M: a model whose estimated compile and output memory is "
                        "larger is refused before the work (default 2G; env PHC_MAX_MEMORY)")
         p.set_defaults(func=_with_budget(p.get_default("func")))

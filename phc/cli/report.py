@@ -15,6 +15,7 @@ from typing import Optional
 
 from phc import __version__
 from phc.errors import UsageError
+from phc.inert import inert
 
 EXIT_OK, EXIT_MODEL, EXIT_USAGE = 0, 1, 2
 EXIT_INTERRUPTED = 130
@@ -54,6 +55,7 @@ class _Files:
 
     def status(self, line: str) -> None:
         """A file's own line (`x.yaml: ok (...)`): stdout, except beside a SARIF log."""
+        line = inert(line)  # it starts with the file name (phc.inert)
         if self.fmt in ("text", "github"):
             print(line)
         elif self.fmt == "sarif":
@@ -70,7 +72,8 @@ class _Files:
             text = (f"phc {self.command}: {self.n} files, {self.n - len(self.failed)} ok, {len(self.failed)} "
                     f"failed; {counts[0]} error(s), {counts[1]} warning(s)")
             if self.failed:
-                text += " in " + ", ".join(self.failed[:5]) + (", …" if len(self.failed) > 5 else "")
+                shown = ", ".join(inert(f) for f in self.failed[:5])
+                text += " in " + shown + (", …" if len(self.failed) > 5 else "")
             print(text, file=sys.stderr)  # stdout keeps one line per file (or the log alone)
         return EXIT_MODEL if self.failed else EXIT_OK
 
@@ -184,7 +187,7 @@ def _summary_text(name: str, result) -> str:
         shown = "; ".join(_event_text(e) for e in events[:5])
         more = f"; … {len(events) - 5} more (--format json lists all)" if len(events) > 5 else ""
         lines.append(f"  events   {len(events)}: {shown}{more}")
-    return "\n".join(lines)
+    return "\n".join(inert(line) for line in lines)  # the model's name and the message (phc.inert)
 
 
 def _event_text(e: dict) -> str:

@@ -15,6 +15,7 @@ from typing import Sequence
 
 from phc.cli.report import EXIT_MODEL, _Exit, _print_diagnostics
 from phc.errors import UsageError
+from phc.inert import inert, printable
 
 
 def _compile_or_exit(path: str, certify: bool = True, backend=None):
@@ -170,14 +171,14 @@ def _simulation_errors(path: str, progress, compiled=None):
     except InconsistentInitialError as err:
         progress.close()
         for line in _inconsistent_lines(path, err.problems, compiled):
-            print(line, file=sys.stderr)
+            print(inert(line), file=sys.stderr)
         raise _Exit(EXIT_MODEL) from None
     except SimulationSetupError as err:
         progress.close()
         raise UsageError(str(err)) from err
     except ModelEvaluationError as err:  # the model cannot be evaluated at the start
         progress.close()
-        print(f"{path}: {err}", file=sys.stderr)
+        print(printable(f"{path}: {err}", quoted=False), file=sys.stderr)
         raise _Exit(EXIT_MODEL) from None
     except KeyboardInterrupt:
         progress.close()
@@ -199,5 +200,5 @@ def _recompile_for_params(compiled, path: str, params: dict, certify: bool = Tru
         _print_diagnostics(err.diagnostics)
         raise _Exit(EXIT_MODEL) from None
     if note:
-        print(f"{path}: note: {note}", file=sys.stderr)
+        print(printable(f"{path}: note: {note}", quoted=False), file=sys.stderr)
     return compiled

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import atexit
 import hashlib
+import math
 import os
 import shutil
 import stat
@@ -159,12 +160,36 @@ def load_generated(source: str, name: str = "model") -> tuple[ModuleType, Path]:
 # size cap, info and clean
 
 
-def _cap_bytes() -> int:
+CAP_ENV = "PHC_CACHE_MAX_MB"
+MAX_CAP_MB = 2**40
+"""The largest size cap of the cache in MiB (1 EiB)."""
+
+
+def cap_problem() -> Optional[str]:
+    """What is wrong with ``$PHC_CACHE_MAX_MB`` (the command line refuses it, in one line),
+    or None when it is unset or a number of MiB from 0 to :data:`MAX_CAP_MB`."""
+    text = os.environ.get(CAP_ENV)
+    if text is None or not text.strip():
+        return None
     try:
-        mb = float(os.environ.get("PHC_CACHE_MAX_MB", DEFAULT_CAP_MB))
+        mb = float(text)
+    except ValueError:
+        return f"{CAP_ENV}: `{text}` is not a number of MiB; write e.g. 512"
+    if not 0 <= mb <= MAX_CAP_MB:
+        return f"{CAP_ENV} must be a number of MiB from 0 to {MAX_CAP_MB}, got `{text}`"
+    return None
+
+
+def _cap_bytes() -> int:
+    """The size cap in bytes; from Python, a malformed ``$PHC_CACHE_MAX_MB`` is the default
+    and one out of range the nearest bound (the command line refuses both)."""
+    try:
+        mb = float(os.environ.get(CAP_ENV, DEFAULT_CAP_MB))
     except ValueError:
         mb = DEFAULT_CAP_MB
-    return int(max(mb, 0) * 2**20)
+    if math.isnan(mb):
+        mb = DEFAULT_CAP_MB
+    return int(min(max(mb, 0), MAX_CAP_MB) * 2**20)
 
 
 def _entries(folder: Path) -> list[tuple[float, int, Path]]:
