@@ -234,7 +234,6 @@ class Builder(Reporter):
         self.parameters: dict[str, Parameter] = {}
         self.definitions: dict[sp.Symbol, sp.Expr] = {}
         self.defined_by: dict[sp.Symbol, str] = {}  # definition -> the component whose lowerer wrote it
-        self.lowering: Optional[str] = None  # the component being lowered
         self.hand_written: set[str] = set()  # components with a row not derived from their description (emit)
         self.component_specs: dict[str, Any] = {}  # full name -> its spec as lowered (overrides applied)
         self.ports: dict[str, Port] = {}
@@ -278,60 +277,6 @@ class Builder(Reporter):
         """Record a part of a component that is not compiled (reported to the user)."""
         self.left_out.append((component, what, why))
 
-    # -- variables --------------------------------------------------------------------
-    def add_state(self, component: str, local: str, span=None) -> tuple[sp.Symbol, sp.Symbol]:
-        name = f"{component}.{local}"
-        sym = sp.Symbol(name, real=True)
-        dsym = sp.Symbol(f"der({name})", real=True)
-        self.variables.append(Variable(name, sym, True, "state", component, dsym, span))
-        return sym, dsym
-
-    def add_algebraic(self, component: str, local: str, role: str, span=None) -> sp.Symbol:
-        name = f"{component}.{local}"
-        sym = sp.Symbol(name, real=True)
-        self.variables.append(Variable(name, sym, False, role, component, None, span))
-        return sym
-
-    def add_equation(self, expr: sp.Expr, component: str, kind: str, label: str, span=None, *,
-                     derived: bool = False) -> None:
-        """A residual row ``expr = 0`` of `component`. `derived`: :func:`phc.library.dirac.emit`
-        derived it from the component's description; any other row makes the component's
-        rows hand-written (compared with its description when compiling, :mod:`phc.checks.rows`)."""
-        if not derived:
-            self.hand_written.add(component)
-        expr = expr if isinstance(expr, sp.Basic) else sp.Integer(expr)
-        self.equations.append(Equation(expr, f"{component}.{label}", kind, component, span))
-
-    def add_linear_rows(self, component: str, label: str, n_rows: int, terms, span=None) -> list[int]:
-        """Append `n_rows` rows whose residual is ``Σ terms`` (sparse) plus a sympy part (0 for now).
-
-        Returns the row indices so that the caller can add sympy couplings with
-        :meth:`add_to_row` (boundary ports of a discretized PDE).
-        """
-        from phc.dae import LinearBlock
-
-        self.hand_written.add(component)  # sparse blocks are written directly (emit derives no blocks)
-        start = len(self.equations)
-        for i in range(n_rows):
-            self.equations.append(Equation(sp.Integer(0), f"{component}.{label}[{i}]", "linear", component, span))
-        rows = tuple(range(start, start + n_rows))
-        self.linear_blocks.append(LinearBlock(f"{component}.{label}", component, rows, tuple(terms), span))
-        return list(rows)
-
-    def add_to_row(self, row: int, expr: sp.Expr) -> None:
-        eq = self.equations[row]
-        self.hand_written.add(eq.component)
-        self.equations[row] = Equation(eq.expr + expr, eq.label, eq.kind, eq.component, eq.span)
-
-    def define(self, sym: sp.Symbol, expr: sp.Expr, *, derived: bool = False) -> None:
-        """Give a port variable an explicit value (an output of its component). `derived`:
-        as for :meth:`add_equation`."""
-        self.definitions[sym] = expr
-        if self.lowering is not None:
-            self.defined_by[sym] = self.lowering
-            if not derived:
-                self.hand_written.add(self.lowering)
-
     def component_rows(self) -> tuple:
         """Each lowered component's rows as its lowerer emitted them (before assembly
         substitutes definitions and merges ports): what :mod:`phc.checks.rows` compares
@@ -354,26 +299,6 @@ class Builder(Reporter):
                                    tuple(variables.get(name, ())), name in sparse,
                                    derived=name not in self.hand_written)
                      for name, _, _ in self.components if name not in self.failed)
-
-    def add_port(self, component: str, local: str, domain: str, dimension: int, frame=None,
-                 span=None, position=None) -> Port:
-        full = f"{component}.{local}"
-        if full in self.ports:
-            self.diags.append(Diagnostic("PHC-E207", f"component `{component}` declares port `{local}` twice",
-                                         span=span, hint="give each port its own name", path=full))
-        if dimension == 1:
-            f = [self.add_algebraic(component, f"{local}.f", "flow", span)]
-            e = [self.add_algebraic(component, f"{local}.e", "effort", span)]
-        else:
-            f = [self.add_algebraic(component, f"{local}.f[{k}]", "flow", span) for k in range(dimension)]
-            e = [self.add_algebraic(component, f"{local}.e[{k}]", "effort", span) for k in range(dimension)]
-        port = Port(full, component, domain, dimension, frame, f, e, position, span)
-        self.ports[full] = port
-        return port
-
-    def add_invariant(self, expr: sp.Expr, component: str, label: str, span=None, velocity=False) -> None:
-        inv = Invariant(f"{component}.{label}", expr, component, span)
-        (self.velocity_invariants if velocity else self.invariants).append(inv)
 
     # -- parameters -------------------------------------------------------------------
     def default_values(self) -> dict:
@@ -691,6 +616,8 @@ class Builder(Reporter):
         self._check_refs(ctx)
 
     def _lower(self, lowerers, ctx, full, comp, path) -> None:
+        from phc.lowering import lower
+
         if full in self.effect_overrides:
             from phc.effects import apply_overrides
 
@@ -726,18 +653,64 @@ class Builder(Reporter):
             if not admit_mesh(self, ctx, full, comp, path):  # estimated before any discretization
                 self.failed.add(full)
                 return
-        n_errors = len(self.diags.errors)
         self.components.append((full, comp.type, ctx.smap.locate(path)))
         self.component_specs[full] = comp
-        self.lowering = full
-        try:
-            lowerers[comp.type](self, ctx, full, comp, path)
-        finally:
-            self.lowering = None
-        if len(self.diags.errors) > n_errors:
+        lowering = lower(lowerers[comp.type], self._lowering_context(), ctx, full, comp, path)
+        self._fold(lowering)
+        if lowering.errors:
             self.failed.add(full)  # its ports may be missing: do not report them again
         elif self.units:
             self._check_field_units(ctx, full, comp, path)
+
+    def _lowering_context(self):
+        """What the next lowerer may read of the model so far: read-only views, no copies
+        (nothing changes them while it runs)."""
+        from phc.lowering import LoweringContext, ReadOnlySequence
+
+        self.default_values()  # brings the defaults of parameters added since up to date
+        ro = MappingProxyType
+        return LoweringContext(default_values=ro(self._default_values), variables=ReadOnlySequence(self.variables),
+                               ports=ro(self.ports), unset_parameters=frozenset(self.unset_parameters),
+                               units=ro(self.units), unit_text=ro(self.unit_text), override_note=self.override_note,
+                               files=self.files)
+
+    def _fold(self, lowering) -> None:
+        """Append one component's :class:`~phc.lowering.ComponentLowering` to the model:
+        its rows after the rows so far (its sparse blocks' row indices shifted with them),
+        its definitions, ports, terms and diagnostics."""
+        self.diags.extend(lowering.diagnostics)
+        self.expr_dims.update(lowering.expr_dims)
+        for key, entries in lowering.field_dims:
+            self.field_dims.setdefault(key, []).extend(entries)
+        start = len(self.equations)
+        self.variables.extend(lowering.variables)
+        self.equations.extend(lowering.equations)
+        self.linear_blocks.extend(dataclasses.replace(block, rows=tuple(start + r for r in block.rows))
+                                  for block in lowering.linear_blocks)
+        for sym, expr in lowering.definitions:
+            self.definitions[sym] = expr
+            self.defined_by[sym] = lowering.component
+        self.hand_written |= lowering.hand_written
+        self.ports.update((port.name, port) for port in lowering.ports)
+        self.parameters.update((p.name, p) for p in lowering.parameters)
+        self.dirac.extend(lowering.descriptions)
+        self.hamiltonian.extend(lowering.hamiltonian)
+        self.dissipation.extend(lowering.dissipation)
+        self.source_power.extend(lowering.source_power)
+        self.quadratic_energy.extend(lowering.quadratic_energy)
+        self.quadratic_dissipation.extend(lowering.quadratic_dissipation)
+        self.invariants.extend(lowering.invariants)
+        self.velocity_invariants.extend(lowering.velocity_invariants)
+        self.resistive_laws.extend(lowering.resistive_laws)
+        self.rigid_constraints.extend(lowering.rigid_constraints)
+        self.extra_outputs.update(lowering.extra_outputs)
+        self.initial_relations.extend(lowering.initial_relations)
+        self.position_maps.extend(lowering.position_maps)
+        self.compile_time_parameters |= lowering.compile_time_parameters
+        self.initial_fields.update(lowering.initial_fields)
+        self.unavailable.update(lowering.unavailable)
+        self.left_out.extend(lowering.left_out)
+        self.failed |= lowering.failed
 
     def _check_field_units(self, ctx: FileContext, full: str, comp, path) -> None:
         """Fields whose dimension the component knows from its domain (a spring's `k` is
