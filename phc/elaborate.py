@@ -39,9 +39,11 @@ import networkx as nx
 import pydantic
 import sympy as sp
 
+from phc.budget import MeshLedger
 from phc.dae import Dae, Equation, Invariant, Parameter, Variable
 from phc.diagnostics import Diagnostic, DiagnosticList, allowed_keys_from_model, from_pydantic
 from phc.interconnect import MODULATED, state_reads
+from phc.scene import SceneApplication
 from phc.files import MAX_INCLUDE_DEPTH, MAX_MODEL_INSTANCES, FileAccess, FileRefused
 from phc.source import SourceMap, SourceSpan, load_yaml, read_yaml_file
 from phc.spec import ModelSpec
@@ -222,10 +224,13 @@ class Reporter:
         return sp.Matrix(out)
 
 
-class Builder(Reporter):
-    """The elaborate pass's working state: its lowerers, scene overrides and effects add
-    variables, rows, ports and descriptions here, and :meth:`finish` turns it into the
-    pass's output, an immutable :class:`Elaboration`. No later pass writes to it."""
+class _Elaborator(Reporter):
+    """The elaborate pass's working state, private to this module: the files read, the
+    parameters created, the scene applied, and the lowerings of the components folded in
+    order (:meth:`_fold` of each :class:`phc.lowering.ComponentLowering`). :func:`_finish`
+    turns it into the pass's output, an immutable :class:`Elaboration`. Lowerers never see
+    it: each writes its own :class:`phc.lowering.Recorder` and reads a read-only
+    :class:`phc.lowering.LoweringContext`."""
 
     def __init__(self) -> None:
         super().__init__()
@@ -259,12 +264,10 @@ class Builder(Reporter):
         self.initial_relations: list = []
         self.position_maps: list = []
         self.compile_time_parameters: set = set()
-        self.effect_overrides: dict[str, tuple[dict, Optional[SourceSpan]]] = {}
-        self.mesh_overrides: dict[str, tuple[int, Optional[SourceSpan]]] = {}
-        self.shape_overrides: dict[str, tuple[str, Optional[SourceSpan]]] = {}  # a scene's `initial_shape`
+        self.mesh_ledger = MeshLedger()  # the distributed components admitted so far (phc.budget)
+        self.applied = SceneApplication(None, None)  # the scene's overrides and pruning (none without a scene)
         self.written_meshes: dict[str, int] = {}  # distributed component -> `elements` as in its model file
         self.initial_fields: dict = {}  # distributed component -> phc.initial_fields.FieldSet
-        self.skip: set[str] = set()  # components left out (pruned by a scene)
         self.meshes: dict[str, tuple[str, int]] = {}  # distributed component -> (type, elements)
         self.scene = None
         self.left_out: list[tuple[str, str, str]] = []
@@ -272,10 +275,6 @@ class Builder(Reporter):
         self._specs: dict[str, tuple] = {}  # resolved path -> (spec, smap) of a nested file, read once
         self._default_values: dict = {}  # parameter symbol -> its default as Float (see default_values)
         self.unset_parameters: set = set()  # parameters whose value had an error (their default 0 means nothing)
-
-    def leave_out(self, component: str, what: str, why: str) -> None:
-        """Record a part of a component that is not compiled (reported to the user)."""
-        self.left_out.append((component, what, why))
 
     def component_rows(self) -> tuple:
         """Each lowered component's rows as its lowerer emitted them (before assembly
@@ -452,7 +451,10 @@ class Builder(Reporter):
             if self.scene is not None:
                 self.files.add_root(Path(os.path.realpath(self.scene.path)).parent)
         if parent is None and self.scene is not None:
-            spec, smap = self.scene.apply(self, spec, smap)
+            self.applied = self.scene.apply(self.files, spec, smap)
+            spec, smap = self.applied.spec, self.applied.smap
+            self.diags.extend(self.applied.diagnostics)
+            self.left_out.extend(self.applied.left_out)
             sctx = FileContext(str(self.scene.path), self.scene.smap, "", None)
             overrides = {k: (v, ("parameters", k), sctx) for k, v in self.scene.spec.parameters.items()}
             self.sources.append(str(self.scene.path))
@@ -547,7 +549,7 @@ class Builder(Reporter):
 
         per_entry = {}
         for cname, comp in ctx.spec.components.items():
-            if isinstance(comp, ModelComponentSpec) and cname not in self.skip:
+            if isinstance(comp, ModelComponentSpec) and cname not in self.applied.skip:
                 per_entry[cname] = child(ctx, cname, comp, {key}, 1)
         total = sum(per_entry.values())
         if total <= MAX_MODEL_INSTANCES:
@@ -584,7 +586,7 @@ class Builder(Reporter):
         for cname, comp in spec.components.items():
             full = ctx.prefix + cname
             path = ("components", cname)
-            if full in self.skip:
+            if full in self.applied.skip:
                 continue
             if isinstance(comp, ModelComponentSpec):
                 found = self._nested_ref(ctx, comp.file, (*path, "file"))
@@ -618,10 +620,10 @@ class Builder(Reporter):
     def _lower(self, lowerers, ctx, full, comp, path) -> None:
         from phc.lowering import lower
 
-        if full in self.effect_overrides:
+        if full in self.applied.effects:
             from phc.effects import apply_overrides
 
-            overrides, span = self.effect_overrides[full]
+            overrides, span = self.applied.effects[full]
             comp, problem = apply_overrides(comp, overrides)
             if problem:
                 self.diags.append(Diagnostic("PHC-E601", f"effects of `{full}`: {problem}", span=span,
@@ -630,16 +632,16 @@ class Builder(Reporter):
                 return
         if "elements" in type(comp).model_fields:
             self.written_meshes[full] = comp.elements  # what per-dof initial values were written for
-        if full in self.shape_overrides:
-            shape, span = self.shape_overrides[full]
+        if full in self.applied.shapes:
+            shape, span = self.applied.shapes[full]
             if "initial_shape" not in type(comp).model_fields:
                 self.diags.append(Diagnostic("PHC-E603", f"`{full}` ({comp.type}) has no `initial_shape`; a scene's "
                                              "`initial_shape` applies to moving beams", span=span))
                 self.failed.add(full)
                 return
             comp = comp.model_copy(update={"initial_shape": shape})
-        if full in self.mesh_overrides:
-            elements, span = self.mesh_overrides[full]
+        if full in self.applied.meshes:
+            elements, span = self.applied.meshes[full]
             if "elements" not in type(comp).model_fields:
                 self.diags.append(Diagnostic("PHC-E603", f"`{full}` ({comp.type}) has no mesh; `accuracy.mesh` "
                                              "applies to distributed components", span=span))
@@ -650,7 +652,11 @@ class Builder(Reporter):
             self.meshes[full] = (comp.type, comp.elements)
             from phc.budget import admit_mesh
 
-            if not admit_mesh(self, ctx, full, comp, path):  # estimated before any discretization
+            # estimated before any discretization
+            self.mesh_ledger, refused = admit_mesh(self.mesh_ledger, ctx, full, comp, path,
+                                                   self.applied.meshes.get(full))
+            if refused is not None:
+                self.diags.append(refused)
                 self.failed.add(full)
                 return
         self.components.append((full, comp.type, ctx.smap.locate(path)))
@@ -774,7 +780,7 @@ class Builder(Reporter):
                    hint=hint + " (docs/units.md: one system of units per model)")
 
     def _skipped(self, ctx: FileContext, ref: str) -> bool:
-        return ctx.prefix + ref.split(".", 1)[0] in self.skip
+        return ctx.prefix + ref.split(".", 1)[0] in self.applied.skip
 
     def _check_refs(self, ctx: FileContext) -> None:
         """Check that connections and exposed ports of this file name existing ports."""
@@ -889,9 +895,7 @@ class Elaboration:
         return resolve_alias(self.port_aliases, name)
 
 
-def _finish(b: Builder, ctx: FileContext) -> Elaboration:
-    from phc.budget import mesh_spans
-
+def _finish(b: _Elaborator, ctx: FileContext) -> Elaboration:
     ro = MappingProxyType
     return Elaboration(
         top=ctx, scene=b.scene, variables=tuple(b.variables), equations=tuple(b.equations),
@@ -906,7 +910,7 @@ def _finish(b: Builder, ctx: FileContext) -> Elaboration:
         resistive_laws=tuple(b.resistive_laws), initial_relations=tuple(b.initial_relations),
         position_maps=tuple(b.position_maps), extra_outputs=ro(dict(b.extra_outputs)),
         compile_time_parameters=frozenset(b.compile_time_parameters), meshes=ro(dict(b.meshes)),
-        mesh_spans=ro(mesh_spans(b)), left_out=tuple(b.left_out), unavailable=ro(dict(b.unavailable)),
+        mesh_spans=ro(b.mesh_ledger.spans), left_out=tuple(b.left_out), unavailable=ro(dict(b.unavailable)),
         sources=tuple(b.sources), files=b.files, initial_fields=ro(dict(b.initial_fields)),
         written_meshes=ro(dict(b.written_meshes)), units=ro(dict(b.units)), unit_text=ro(dict(b.unit_text)),
         units_si=b.units_declared and b.units_si,
@@ -929,7 +933,7 @@ def elaborate(path: str | os.PathLike, scene=None, params: Optional[Mapping[str,
     file could not be read. With errors it is still returned, so that the interconnect
     pass can report wiring problems too (components that failed are skipped there).
     """
-    builder = Builder()
+    builder = _Elaborator()
     builder.scene = scene
     builder.param_overrides = dict(params or {})
     ctx = builder.load_file(Path(path), "", {}, None)
