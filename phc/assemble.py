@@ -74,7 +74,7 @@ def assemble(elab, inter) -> tuple[Optional[Dae], DiagnosticList]:
     The elaboration is only read; what assembly extends (port positions, invariants,
     initial relations) are its own copies."""
     from phc.budget import check_assembled
-    from phc.elaborate import Reporter
+    from phc.reporter import Reporter
 
     reporter = Reporter(elab.files)
     dae = _assemble(elab, reporter, elab.top, inter)

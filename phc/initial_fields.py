@@ -183,7 +183,7 @@ class FieldInitializer:
 
     def __init__(self, elab, reporter, ctx):
         """`elab`: the :class:`phc.elaborate.Elaboration` assembled (only read); problems go
-        to `reporter` (a :class:`phc.elaborate.Reporter`)."""
+        to `reporter` (a :class:`phc.reporter.Reporter`)."""
         self.reporter, self.ctx = reporter, ctx
         self.defaults = dict(elab.default_values)
         self.sets: dict[str, FieldSet] = dict(getattr(elab, "initial_fields", {}) or {})

@@ -11,7 +11,7 @@ lowerer does reaches another component except through that fold.
 
 A lowerer is called as ``lower_x(b, ctx, name, spec, path)``: `b` is a fresh
 :class:`Recorder` of this component only (it writes its variables, rows, ports, ... there,
-and parses expressions through it), `ctx` the :class:`~phc.elaborate.FileContext` of the
+and parses expressions through it), `ctx` the :class:`~phc.reporter.FileContext` of the
 file the component is written in (its source map and parameter symbols). What the
 lowerer may read of the rest of the model — the parameters' default values, the
 variables of the components lowered before it, the ports declared so far, the units of
@@ -30,7 +30,7 @@ import sympy as sp
 
 from phc.dae import Equation, Invariant, LinearBlock, Parameter, Variable
 from phc.diagnostics import Diagnostic
-from phc.elaborate import Port, Reporter
+from phc.reporter import Port, Reporter
 from phc.files import FileAccess
 
 
@@ -117,7 +117,7 @@ class ComponentLowering:
     """Components the lowerer itself marked as failed (besides any with an error)."""
     diagnostics: tuple[Diagnostic, ...]
     expr_dims: tuple
-    """((source map id, path), dimension) of the expressions parsed (:class:`~phc.elaborate.Reporter`)."""
+    """((source map id, path), dimension) of the expressions parsed (:class:`~phc.reporter.Reporter`)."""
     field_dims: tuple
     """((source map id, field path), [(path, dimension)]) of the expressions parsed."""
 
@@ -129,7 +129,7 @@ class ComponentLowering:
 
 class Recorder(Reporter):
     """Where one component's lowerer writes: its own variables, rows, ports and terms, and
-    its own diagnostics (the expression helpers of :class:`~phc.elaborate.Reporter` report
+    its own diagnostics (the expression helpers of :class:`~phc.reporter.Reporter` report
     here). :meth:`freeze` turns it into the :class:`ComponentLowering`. Nothing here is
     shared with another component; the model so far is read through :attr:`context`."""
 
@@ -286,7 +286,7 @@ def lower(lowerer: Callable, context: LoweringContext, ctx, name: str, spec: Any
           ) -> ComponentLowering:
     """Lower one component: run `lowerer` (``lower_x(b, ctx, name, spec, path)``) on a fresh
     :class:`Recorder` and return what it recorded. `ctx` is the
-    :class:`~phc.elaborate.FileContext` the component is written in, `path` its entry there."""
+    :class:`~phc.reporter.FileContext` the component is written in, `path` its entry there."""
     recorder = Recorder(name, context)
     lowerer(recorder, ctx, name, spec, path)
     return recorder.freeze()
