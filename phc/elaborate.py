@@ -813,10 +813,10 @@ def elaborate(path: str | os.PathLike, scene=None, params: Optional[Mapping[str,
     file could not be read. With errors it is still returned, so that the interconnect
     pass can report wiring problems too (components that failed are skipped there).
     """
-    builder = _Elaborator()
-    builder.scene = scene
-    builder.param_overrides = dict(params or {})
-    ctx = builder.load_file(Path(path), "", {}, None)
+    state = _Elaborator()
+    state.scene = scene
+    state.param_overrides = dict(params or {})
+    ctx = state.load_file(Path(path), "", {}, None)
     if ctx is None:
-        return None, builder.diags.sorted()
-    return _finish(builder, ctx), builder.diags
+        return None, state.diags.sorted()
+    return _finish(state, ctx), state.diags
