@@ -111,7 +111,7 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
         if pa.position is not None and pb.position is not None:
             for k in range(pa.dimension):
                 position_invariants.append(Invariant(f"{label}.position[{k}]", pa.position[k] - pb.position[k],
-                                              "", span))
+                                                     "", span))
 
     # Top-level exposed ports: inputs or free.
     sim = ctx.spec.simulation
@@ -142,8 +142,8 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
         if pname not in inter.exposed:
             close = difflib.get_close_matches(pname, list(inter.exposed), n=1)
             rep.error("PHC-E209", f"input for `{pname}`, which is not an exposed port of the model", ctx,
-                    ("simulation", "inputs", pname), key=True,
-                    hint=f"did you mean `{close[0]}`?" if close else "expose the port under `ports:` first")
+                      ("simulation", "inputs", pname), key=True,
+                      hint=f"did you mean `{close[0]}`?" if close else "expose the port under `ports:` first")
 
     subs = _resolve_definitions(uf, defs, rows)
 
@@ -179,7 +179,7 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
         if (eq.kind != "linear" and not (ex.free_symbols - constants)
                 and ex.is_number and ex != 0):
             rep.diags.append(Diagnostic("PHC-E301", f"equation `{eq.label}` reduces to the contradiction "
-                                      f"{ex} = 0", span=eq.span))
+                                        f"{ex} = 0", span=eq.span))
             continue
         new_index[i] = len(equations)
         equations.append(Equation(ex, eq.label, eq.kind, eq.component, eq.span))
@@ -220,21 +220,22 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
         oexpr, vpath = (ospec.value, (*opath, "value")) if isinstance(ospec, OutputSpec) else (ospec, opath)
         if energy_terms > MAX_OUTPUT_ENERGY_TERMS and _mentions_energy(oexpr):
             rep.error("PHC-E604", f"output `{oname}` uses `H`, but the stored energy of the distributed components "
-                    f"has {energy_terms} terms (more than {MAX_OUTPUT_ENERGY_TERMS}), too many to write into an "
-                    "output", ctx, opath, hint="read H from the results (the `H` column, SimResult.H), or use a "
-                    "coarser mesh")
+                      f"has {energy_terms} terms (more than {MAX_OUTPUT_ENERGY_TERMS}), too many to write into an "
+                      "output", ctx, opath, hint="read H from the results (the `H` column, SimResult.H), or use a "
+                      "coarser mesh")
             continue
         missing = [name for name in elab.unavailable if isinstance(oexpr, str) and name in oexpr]
         if missing:
             rep.error("PHC-E604", f"output `{oname}` uses `{missing[0]}`, but {elab.unavailable[missing[0]]}", ctx,
-                    opath, hint="turn the effect on, or drop the output")
+                      opath, hint="turn the effect on, or drop the output")
             continue
         oval = final(rep.expr(ctx, oexpr, vpath, scope, check_units=False))
         factor = result_units.output(ctx, oname, oexpr, vpath, getattr(ospec, "unit", None), (*opath, "unit"))
         outputs.append((oname, oval if factor is None else oval * sp.Float(factor)))  # into its declared unit
     velocity_invariants = tuple(Invariant(v.label, final(v.expr), v.component, v.span)
                                 for v in elab.velocity_invariants)
-    initial, initial_relations, compile_time = _initial_values(elab, rep, ctx, {v.name for v in variables if v.differential}, result_units)
+    states_named = {v.name for v in variables if v.differential}
+    initial, initial_relations, compile_time = _initial_values(elab, rep, ctx, states_named, result_units)
     topology = Topology(
         components=tuple(elab.components),
         ports=tuple(PortInfo(p.name, p.component, p.domain, p.dimension, p.frame, p.span) for p in ports.values()),
@@ -438,8 +439,8 @@ def _nominal_scales(rep, ctx, state_names: set[str]) -> dict[str, float]:
         if name not in state_names or name == "energy.supplied":
             close = difflib.get_close_matches(name, sorted(state_names), n=1)
             rep.error("PHC-E210", f"`{name}` is not a state of the model; nominal scales are given for states",
-                    ctx, ("simulation", "nominal", name), key=True, hint=f"did you mean `{close[0]}`?" if close
-                    else f"states: {', '.join(sorted(state_names - {'energy.supplied'})[:10])}")
+                      ctx, ("simulation", "nominal", name), key=True, hint=f"did you mean `{close[0]}`?" if close
+                      else f"states: {', '.join(sorted(state_names - {'energy.supplied'})[:10])}")
             continue
         out[name] = float(value)
     return out
@@ -464,8 +465,8 @@ def _initial_values(elab, rep, ctx, state_names: set[str], result_units=None
         if name not in state_names:
             close = difflib.get_close_matches(name, sorted(state_names), n=1)
             rep.error("PHC-E210", f"`{name}` is not a state of the model; initial values are given for states",
-                    ctx, path, key=True, hint=f"did you mean `{close[0]}`?" if close else
-                    f"states: {', '.join(sorted(state_names - {'energy.supplied'})[:10])}")
+                      ctx, path, key=True, hint=f"did you mean `{close[0]}`?" if close else
+                      f"states: {', '.join(sorted(state_names - {'energy.supplied'})[:10])}")
             continue
         value, guess = (spec.value, spec.guess) if isinstance(spec, InitialSpec) else (spec, False)
         vpath = (*path, "value") if isinstance(spec, InitialSpec) else path
@@ -477,7 +478,7 @@ def _initial_values(elab, rep, ctx, state_names: set[str], result_units=None
             val = float(num)
         except TypeError:
             rep.error("PHC-E211", f"initial value of `{name}` must be a number or an expression of parameters",
-                    ctx, vpath)
+                      ctx, vpath)
             continue
         out.append(InitialValue(name, val, guess, ctx.smap.locate(vpath), None if ex.is_Number else ex))
     values = fields.apply(field_entries, out)
