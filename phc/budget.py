@@ -198,20 +198,19 @@ def mesh_estimate(comp) -> Estimate:
     return Estimate(*cost)
 
 
-@dataclass
-class _Ledger:
-    """What the distributed components admitted so far cost, and where each is written."""
+@dataclass(frozen=True)
+class MeshLedger:
+    """What the distributed components admitted so far cost, and where each is written:
+    :func:`admit_mesh` returns the ledger with one more component."""
 
     total: Estimate = field(default_factory=Estimate)
-    meshes: dict = field(default_factory=dict)  # component -> (Estimate, span, elements)
+    meshes: tuple = ()
+    """(component, Estimate, span, elements) in the order admitted."""
 
-
-def _ledger(builder) -> _Ledger:
-    ledger = getattr(builder, "_budget_ledger", None)
-    if ledger is None:
-        ledger = _Ledger()
-        builder._budget_ledger = ledger
-    return ledger
+    @property
+    def spans(self) -> dict:
+        """Distributed component -> where its mesh is written."""
+        return {name: span for name, _, span, _ in self.meshes}
 
 
 def _element_limit(comp) -> Optional[int]:
@@ -221,17 +220,19 @@ def _element_limit(comp) -> Optional[int]:
     return None
 
 
-def admit_mesh(builder, ctx, full: str, comp, path) -> bool:
-    """Admit a distributed component before it is discretized, or record why not.
+def admit_mesh(ledger: MeshLedger, ctx, full: str, comp, path, override_=None
+               ) -> tuple[MeshLedger, Optional[Diagnostic]]:
+    """Admit a distributed component before it is discretized: ``(ledger, None)`` with the
+    component added to `ledger`, or ``(ledger, error)`` saying why not.
 
     Checks the element count against the component's own limit (a scene's
     ``accuracy.mesh`` must not bypass it) and the estimated compile memory of all
     distributed components so far against the budget. The error is located at the
-    ``elements`` key (or at the scene's ``accuracy.mesh`` entry that set it).
+    ``elements`` key (or at the scene's ``accuracy.mesh`` entry that set it, `override_`:
+    ``(elements, span)``).
     """
     from phc.diagnostics import Diagnostic
 
-    override_ = builder.mesh_overrides.get(full)
     if override_ is not None:
         span, where = override_[1], f"accuracy.mesh.{full}"
     else:
@@ -242,11 +243,9 @@ def admit_mesh(builder, ctx, full: str, comp, path) -> bool:
     n = int(comp.elements)
     limit = _element_limit(comp)
     if limit is not None and n > limit:
-        builder.diags.append(Diagnostic(
+        return ledger, Diagnostic(
             "PHC-E701", f"`{full}` ({comp.type}) has {n:,} elements, above its limit of {limit:,}", span=span,
-            hint="use fewer elements", path=where))
-        return False
-    ledger = _ledger(builder)
+            hint="use fewer elements", path=where)
     est = mesh_estimate(comp)
     total = Estimate(ledger.total.unknowns + est.unknowns, ledger.total.nonzeros + est.nonzeros)
     budget = max_memory()
@@ -258,21 +257,13 @@ def admit_mesh(builder, ctx, full: str, comp, path) -> bool:
         fit = int(spare / cost_per_element) if spare > 0 else 0
         together = (f" (with the {len(ledger.meshes)} distributed component(s) before it: {total.unknowns:,} "
                     f"unknowns, {total.nonzeros:,} Jacobian nonzeros)" if ledger.meshes else "")
-        builder.diags.append(Diagnostic(
+        return ledger, Diagnostic(
             "PHC-E700", f"`{full}` ({comp.type}, {n:,} elements) needs an estimated {format_bytes(total.compile_bytes)} "
             f"to compile ({est.unknowns:,} unknowns, {est.nonzeros:,} Jacobian nonzeros){together}, above the "
             f"memory budget of {format_bytes(budget)}", span=span, path=where,
             hint=(f"use at most about {fit:,} elements " if fit >= 1 else "use fewer elements ")
-            + _raise_hint(total.compile_bytes)))
-        return False
-    ledger.total = total
-    ledger.meshes[full] = (est, span, n)
-    return True
-
-
-def mesh_spans(builder) -> dict:
-    """Distributed component -> where its mesh is written (recorded by :func:`admit_mesh`)."""
-    return {name: entry[1] for name, entry in _ledger(builder).meshes.items()}
+            + _raise_hint(total.compile_bytes))
+    return MeshLedger(total, (*ledger.meshes, (full, est, span, n))), None
 
 
 def check_assembled(elab, dae) -> list[Diagnostic]:

@@ -5,8 +5,9 @@ in :mod:`phc.spec.components`); user-defined components (``phs``, ``rigid``) dec
 theirs as ``effects: {name: default}``, and may use each name as a 0/1 factor in their
 expressions or name a term of their Hamiltonian / potential after it. A scene overrides
 effects per component; lowering reads the resulting values, so an effect that is off is
-never generated. What lowering leaves out is recorded in ``builder.left_out`` and reported
-by ``phc simulate`` and ``phc compile``.
+never generated. What lowering leaves out is recorded in its
+:class:`~phc.lowering.ComponentLowering` (``left_out``) and reported by ``phc simulate``
+and ``phc compile``.
 """
 
 from __future__ import annotations

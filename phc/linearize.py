@@ -48,6 +48,7 @@ Each eigenvalue λ gives the natural frequency ``ω_n = |λ|``, the damping rati
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import re
@@ -270,8 +271,9 @@ class _InputScene(Scene):
     port_dimensions: dict = field(default_factory=dict)
     inputs: list = field(default_factory=list)
 
-    def apply(self, builder, spec, smap):
-        spec, smap = super().apply(builder, spec, smap)
+    def apply(self, files, spec, smap):
+        applied = super().apply(files, spec, smap)
+        spec = applied.spec
         taken = set(spec.parameters) | set(spec.components)
         self.inputs = []
 
@@ -289,7 +291,7 @@ class _InputScene(Scene):
         components = dict(spec.components)
         for cname, comp in spec.components.items():
             kind = {"effort_source": "effort", "flow_source": "flow"}.get(comp.type)
-            if kind is None or cname in builder.skip:
+            if kind is None or cname in applied.skip:
                 continue
             if kind == "flow" and getattr(comp, "position", None) is not None:
                 continue  # a prescribed motion (its position integrates the value)
@@ -334,7 +336,7 @@ class _InputScene(Scene):
             parameters[u.parameter] = 0.0
         new_sim = sim.model_copy(update={"inputs": inputs})
         spec = spec.model_copy(update={"components": components, "parameters": parameters, "simulation": new_sim})
-        return spec, smap
+        return dataclasses.replace(applied, spec=spec)
 
 
 def _input_spec():
