@@ -384,8 +384,35 @@ CANCELLATION = 10.0
 difference of those terms (:func:`determined_scales`)."""
 
 
-def determined_scales(mod, p, t, y, yp, determined, scales, rtol: float = 1.0, atol: float = 1.0
-                      ) -> Optional[np.ndarray]:
+TERM_FRACTION = 1e-6
+"""A term of an index-1 variable below this fraction of its largest term does not count
+(:func:`source_terms`, :func:`determined_scales`): it cannot cancel the largest to a small
+difference, and the coefficients a solve for ``∂z/∂x`` gives where they vanish are round-off,
+~1e-16 of the others."""
+
+
+def source_terms(mod, p, t, y, yp, Fz, alg_rows, dz_dx, x_cols, z_cols, span: float) -> np.ndarray:
+    """The size of the part of each index-1 variable z that does not come from the states —
+    a source —, to first order at (t, y): z minus ``∂z/∂x · x`` (a constant voltage), or the
+    change ``|∂z/∂t|·span`` over the run, ``∂z/∂t = −F_z⁺ F_t`` on the algebraic rows (a sine),
+    where the model gives ``F_t``."""
+    y = np.asarray(y, dtype=float)
+    x = np.where(np.isfinite(y[x_cols]), y[x_cols], 0.0)
+    z = np.where(np.isfinite(y[z_cols]), y[z_cols], 0.0)
+    size = np.abs(z - dz_dx @ x)
+    try:
+        ft = np.zeros(len(mod.EQUATIONS))
+        mod.residual_t(t, y, np.asarray(yp, dtype=float), p, ft)
+        ft = ft[alg_rows]
+        if np.all(np.isfinite(ft)) and np.any(ft != 0):
+            size = np.maximum(size, np.abs(np.linalg.lstsq(Fz, ft, rcond=None)[0]) * abs(span))
+    except (ModelEvaluationError, *CATCH, AttributeError, np.linalg.LinAlgError):
+        pass
+    return size
+
+
+def determined_scales(mod, p, t, y, yp, determined, scales, rtol: float = 1.0, atol: float = 1.0,
+                      span: float = 0.0) -> Optional[np.ndarray]:
     """The nominal `scales` with each index-1 algebraic variable z_j (`determined`) that is a
     small difference of the terms the states put into it raised to ``(1 + rtol/atol) T_j``,
     ``T_j = Σ_k |∂z_j/∂x_k| s_k``: the error the states' own tolerances (``rtol·|x_k| +
@@ -400,7 +427,19 @@ def determined_scales(mod, p, t, y, yp, determined, scales, rtol: float = 1.0, a
       ``CANCELLATION`` times z's own ``rtol·|z_j| + atol·s_j``. A switched law makes z
       small in one mode only — a diode's voltage is Ron·i, 0.1 V out of the source's and
       the capacitor's 7 V, while it conducts, and 13 V while it blocks — and a piece that
-      begins at an event begins with z on the boundary.
+      begins at an event begins with z on the boundary;
+    * at any time of the run: z is a sum of two or more terms — two
+      states, or a state and a source (a part of z that does not vanish with the states, or
+      that depends on t) — so it passes through 0 wherever its terms cancel, and the start
+      and the sizes cannot say whether they will. A loudspeaker's coil voltage
+      ``V(t) − R φ/L − Bl p/m`` is 2.83 V at most and 0 at the start, but crosses 0 twice
+      a period of its drive while its terms do not; there its test, ``atol·s_z``, was
+      ``rtol/atol`` times tighter than what the states' ``rtol·|x|`` put into it (10⁴ at
+      rtol 1e-6, atol 1e-10; 100 at rtol 1e-8): IDA, on large steps at a high order,
+      collapsed to steps of 3e-8 s at order 1 there and stayed (the trap below), so that
+      rtol 1e-6 took 118 784 steps for 0.1 s of a 200 Hz tone and rtol 1e-8 10 983.
+      A variable of one term, ``|z| = |∂z/∂x_k| |x_k|`` (a friction element's flow p/m),
+      cannot be a small difference and keeps its scale.
 
     Other index-1 variables keep their scales (one that is a state times a factor, a
     friction element's flow p/m, is tested as tightly as the state determines it).
@@ -463,7 +502,7 @@ def determined_scales(mod, p, t, y, yp, determined, scales, rtol: float = 1.0, a
         return None
     s = np.asarray(scales, dtype=float)
     ratio = rtol / atol if atol > 0 and np.isfinite(rtol / atol) else 1.0
-    terms = np.abs(dz_dx) @ s[x_cols]
+    total = np.abs(dz_dx) @ s[x_cols]
     # where z is a small difference of the states' terms, its own rtol·|z| is far tighter than
     # the states' rtol·|x| puts into it: that part goes into the scale too. Judged on the sizes
     # the variables take, before the round-off floor (scaling.Scales.sizes: a floor that raised
@@ -478,7 +517,12 @@ def determined_scales(mod, p, t, y, yp, determined, scales, rtol: float = 1.0, a
     x = np.where(np.isfinite(y), np.abs(np.asarray(y, dtype=float)), 0.0)
     put = np.abs(dz_dx) @ (ratio * x[x_cols] + s[x_cols])
     cancels |= put > CANCELLATION * (ratio * x[z_cols] + s[z_cols])
-    need = np.where(cancels, (1.0 + ratio) * terms, 0.0)
+    # ... and wherever in the run its terms may cancel: a sum of two terms or more
+    terms = np.column_stack([np.abs(dz_dx) * s[x_cols],
+                             source_terms(mod, p, t, y, yp, Fz, alg_rows, dz_dx, x_cols, z_cols, span)])
+    largest = terms.max(axis=1, initial=0.0)
+    cancels |= np.sum(terms > TERM_FRACTION * largest[:, None], axis=1) * (largest > 0) >= 2
+    need = np.where(cancels, (1.0 + ratio) * total, 0.0)
     out = s.copy()
     user = set(getattr(scales, "user", ()) or ())
     for j, v in zip(z_cols, need):
@@ -701,7 +745,8 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
     # IDA's local tolerances are 1/200 of what the outputs should meet (local_fraction).
     determined = determined_algebraic(mod, p, t0, y0, np.asarray(yp0, dtype=float))
     # an index-1 variable is tested no tighter than its states' tolerances determine it
-    tested_scales = determined_scales(mod, p, t0, y0, np.asarray(yp0, dtype=float), determined, nominal, rtol, atol)
+    tested_scales = determined_scales(mod, p, t0, y0, np.asarray(yp0, dtype=float), determined, nominal, rtol, atol,
+                                      t_end - t0)
     if tested_scales is None:
         tested_scales = nominal
     local = local_fraction(rtol)
