@@ -137,3 +137,41 @@ def test_many_steps_name_undamped_modes_only_where_there_are_some(loudspeaker, m
     monkeypatch.setattr(sim, "MANY_STEPS", run.steps // 2)
     run = phc.simulate(beam, solver="ida", rtol=1e-6, t_end=2e-3, max_order=5)
     assert "undamped oscillations up to" in run.message and "max_order: 2" in run.message
+
+
+def test_the_absolute_part_is_never_finer_than_rtol_over_100():
+    """``applied_atol``: a user's atol finer than rtol/100 is raised to it (the depth of the dip
+    of the tolerance where a variable crosses 0 is rtol/atol); the default tolerances (1e-8,
+    1e-10) and ratios up to 100 keep the user's atol exactly."""
+    from phc.simulation.ida import applied_atol
+
+    assert applied_atol(1e-8, 1e-10) == 1e-10 and applied_atol(1e-9, 1e-11) == 1e-11
+    assert applied_atol(1e-6, 1e-6) == 1e-6
+    assert applied_atol(1e-6, 1e-10) == pytest.approx(1e-8) and applied_atol(1e-4, 1e-12) == pytest.approx(1e-6)
+
+
+# Shipped models at a fifth of their run or less (the rtol sweep runs each seven times), rtol
+# swept with the file's own atol, as `phc simulate --rtol` does.
+SHORT = {"dc_motor_gear": 0.2, "double_pendulum": 1.0, "hydraulic_cylinder": 0.06, "mass_spring_damper": 2.0,
+         "pendulum": 4.0, "rigid_slider_crank": 0.02, "rlc_circuit": 0.4, "rlc_filter": 0.4,
+         "thermal_ladder": 1200.0, "two_mass_cubic_spring": 2.0, "quarter_car": 0.3}
+# Longer to sweep (tens of seconds to minutes each). rtol 1e-10 at the string's and the
+# Euler–Bernoulli beam's atol 1e-12 asks IDA for 5e-13 locally, which round-off does not give
+# (IDA fails, Newton with h → 1e-25), so they stop at 1e-9.
+LONG = {"vibrating_string": (0.01, RTOLS[:-1]), "euler_bernoulli_beam": (0.003, RTOLS[:-1]),
+        "controlled_beam": (0.04, RTOLS), "moving_beam": (0.001, RTOLS), "timoshenko_beam": (0.0024, RTOLS[:-1]),
+        "flexible_slider_crank": (0.002, RTOLS[:4])}
+
+
+@pytest.mark.parametrize("name", sorted(SHORT))
+def test_loosening_rtol_never_costs_a_shipped_model_more_steps(name):
+    compiled = phc.compile_model(MODELS / f"{name}.yaml", certify=False)
+    assert_budget(steps_over(compiled, t_end=SHORT[name], max_steps=300_000))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(LONG))
+def test_loosening_rtol_never_costs_a_larger_shipped_model_more_steps(name):
+    t_end, rtols = LONG[name]
+    compiled = phc.compile_model(MODELS / f"{name}.yaml", certify=False)
+    assert_budget(steps_over(compiled, rtols, t_end=t_end, max_steps=1_000_000), rtols)
