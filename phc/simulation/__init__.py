@@ -22,7 +22,7 @@ from phc.errors import InconsistentInitialError, SimulationSetupError
 from phc.simulation.guard import CATCH as GUARD_CATCH
 from phc.simulation.guard import ModelEvaluationError, guard, quiet_floating_point
 from phc.simulation.events import has_switches, integrate_switched
-from phc.simulation.ida import MAX_ORDER, integrate_ida
+from phc.simulation.ida import MAX_ORDER, applied_atol, integrate_ida
 from phc.simulation.initial import InitialResult, consistent_initial_conditions
 from phc.simulation.monitor import describe_equations, many_steps_hint
 from phc.names import RUN_LIMITS
@@ -529,7 +529,7 @@ def _finish(compiled, mod, p, out: BackendRun, init, cpu, options: RunOptions, p
         ends = [0, len(out.t) - 1]  # the modes at the start and at the end
         hint = many_steps_hint(mod, p, out.t[ends], out.y[ends], out.yp[ends], steps=steps,
                                span=float(out.t[-1] - out.t[0]), max_order=int(options.max_order or MAX_ORDER),
-                               rtol=options.rtol, atol=options.atol)
+                               rtol=options.rtol, atol=applied_atol(options.rtol, options.atol))
         message = f"{message}; {hint}"
     if failure is not None:
         if out.success:

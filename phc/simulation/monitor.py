@@ -375,9 +375,13 @@ def many_steps_hint(mod, p, t, y, yp, *, steps: int, span: float, max_order: int
         return (f"{head}: the model has undamped oscillations up to ω ≈ {w:.2g} rad/s that steps of this size "
                 f"do not resolve (ωh ≈ {w * h:.2g}), and BDF of order 3–5 is not stable for them; `max_order: 2` "
                 "or a fixed-step solver (`--solver midpoint --step …`) steps over them (docs/how-to/solvers.md)")
-    return (f"{head}: no undamped mode is left unresolved by such steps "
-            + (f"(the fastest, ω ≈ {w:.2g} rad/s, has ωh ≈ {w * h:.2g}) " if w > 0 else "")
-            + f"at max_order {max_order}, so they are what the error test asks for at rtol = {rtol:g}, atol = "
+    if w * h > UNRESOLVED:  # at max_order 2: A-stable, the modes are damped numerically, not a limit
+        modes = (f"the undamped oscillations up to ω ≈ {w:.2g} rad/s (ωh ≈ {w * h:.2g}) are not resolved, but BDF "
+                 f"at max_order {max_order} is stable for them")
+    else:
+        modes = ("no undamped mode is left unresolved by such steps"
+                 + (f" (the fastest, ω ≈ {w:.2g} rad/s, has ωh ≈ {w * h:.2g})" if w > 0 else ""))
+    return (f"{head}: {modes}, so the steps are what the error test asks for at rtol = {rtol:g}, atol = "
             f"{atol:g} (atol relative to each variable's nominal scale, docs/tolerances.md): looser tolerances, or "
             "a larger `nominal` for a variable you need less precisely, cost fewer")
 
