@@ -77,7 +77,8 @@ def applied_atol(rtol: float, atol: float) -> float:
     part finer than a hundredth of the relative part at the variable's nominal size buys no
     accuracy — the errors the run makes elsewhere, at ``rtol·|y|``, reach the variable
     through the dynamics — and 100 is the ratio of phc's default tolerances (1e-8, 1e-10)
-    and of the shipped models' own, which therefore run as before."""
+    and of the shipped models' own but three (the Euler–Bernoulli and Timoshenko beams,
+    the RLC filter: 1e3–1e4)."""
     # (the ratio itself keeps the user's atol: 1e-9 / 100 rounds above 1e-11)
     return atol if rtol <= ABSOLUTE_DEPTH * atol * (1 + 1e-12) else rtol / ABSOLUTE_DEPTH
 
