@@ -7,7 +7,7 @@ Bl p/m``, an index-1 variable in IDA's error test, crosses 0 twice a period whil
 terms do not; there its tolerance ``atol·s_e`` was ``rtol/atol`` times tighter than the
 error the states' ``rtol·|x|`` put into it (10⁴ at rtol 1e-6, atol 1e-10), and IDA
 collapsed from large steps at a high order to steps of 3e-8 s at order 1, two Jacobians
-a step, and stayed there. ``phc.simulation.ida.determined_scales`` now raises the scale of
+a step, and stayed there. ``phc.simulation.tested.determined_scales`` now raises the scale of
 every index-1 variable that is a sum of two terms or more, not only of those that are a
 small difference at the start.
 
@@ -26,7 +26,7 @@ import scipy.linalg as sla
 
 import phc
 import phc.simulation as sim
-from phc.simulation.ida import determined_algebraic, determined_scales
+from phc.simulation.tested import determined_algebraic, determined_scales
 
 ROOT = Path(__file__).resolve().parents[2]
 MODELS = ROOT / "models"
