@@ -22,9 +22,9 @@ from phc.errors import InconsistentInitialError, SimulationSetupError
 from phc.simulation.guard import CATCH as GUARD_CATCH
 from phc.simulation.guard import ModelEvaluationError, guard, quiet_floating_point
 from phc.simulation.events import has_switches, integrate_switched
-from phc.simulation.ida import integrate_ida
+from phc.simulation.ida import MAX_ORDER, applied_atol, integrate_ida
 from phc.simulation.initial import InitialResult, consistent_initial_conditions
-from phc.simulation.monitor import describe_equations
+from phc.simulation.monitor import describe_equations, many_steps_hint
 from phc.names import RUN_LIMITS
 from phc.options import RunOptions
 from phc.simulation.backend import Backend, BackendRun, IgnoredOptionWarning, ignored_option_message
@@ -526,10 +526,11 @@ def _finish(compiled, mod, p, out: BackendRun, init, cpu, options: RunOptions, p
     success, message = out.success, out.message
     steps = out.steps
     if options.solver == "ida" and success and steps > MANY_STEPS and len(out.t) > 1:
-        span = float(out.t[-1] - out.t[0])
-        message = (f"{message}; IDA needed {steps} steps (mean step {span / steps:.2g}): where stiff undamped "
-                   "modes (a beam's high modes, a stiff spring) limit BDF at orders 3–5, a fixed-step solver "
-                   "(`--solver midpoint --step …`) steps over them (docs/how-to/solvers.md)")
+        ends = [0, len(out.t) - 1]  # the modes at the start and at the end
+        hint = many_steps_hint(mod, p, out.t[ends], out.y[ends], out.yp[ends], steps=steps,
+                               span=float(out.t[-1] - out.t[0]), max_order=int(options.max_order or MAX_ORDER),
+                               rtol=options.rtol, atol=applied_atol(options.rtol, options.atol))
+        message = f"{message}; {hint}"
     if failure is not None:
         if out.success:
             message = f"{failure}; results up to t = {t[-1]:.6g} are kept"
