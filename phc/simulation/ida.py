@@ -512,9 +512,9 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
     local = local_fraction(rtol)
     atol_j = (atol if tested_scales is None else atol * np.asarray(tested_scales, dtype=float)) * local
     yp0 = algebraic_rates(mod, p, t0, y0, yp0, determined)
-    options, calls = solver_options(mod, p, rtol=rtol * local, atol=atol_j, max_order=max_order,
-                                    determined=determined)
-    resfn = options.pop("resfn")
+    settings, calls = solver_options(mod, p, rtol=rtol * local, atol=atol_j, max_order=max_order,
+                                     determined=determined)  # scikit-sundae's keywords
+    resfn = settings.pop("resfn")
     monitor = SingularityMonitor(mod, p, names=names, scales=nominal)
     monitor.h_floor = 1e-6 * (t_end - t0)
     hook = _StepHook(t0, y0, yp0, t_end=t_end, max_steps=max_steps, monitor=monitor, calls=calls, progress=progress,
@@ -534,11 +534,11 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
     eventsfn.direction = [-1] * n_switch + [0]   # w falls through 0: the mode no longer holds
     eventsfn.terminal = [True] * n_switch + [False]
     # IDA's per-call step limit: never reached (the hook stops the run at max_steps)
-    options.update(eventsfn=eventsfn, num_events=n_switch + 1, max_num_steps=int(max_steps) + 1)
+    settings.update(eventsfn=eventsfn, num_events=n_switch + 1, max_num_steps=int(max_steps) + 1)
     with warnings.catch_warnings():
         # scikit-sundae warns that its own sparse approximation is unused: we pass jacfn.
         warnings.filterwarnings("ignore", message="Custom sparse Jacobian approximation")
-        solver = IDA(resfn, **options)
+        solver = IDA(resfn, **settings)
 
     def scales(failed, upto=1):  # the states of the run so far (a system at rest at t0 may move later)
         return check_scales(mod, ys[:upto], yps[:upto], t_end - t0, rtol, atol, failed, scales=nominal)
