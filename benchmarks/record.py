@@ -58,14 +58,32 @@ def _versions() -> str:
     return ", ".join(parts)
 
 
+def _recorded_files() -> set[str]:
+    """The files benchmarks write (`results` and `outputs` in benchmarks/depends.toml): a
+    change to one is an earlier benchmark's result, not a change to the code measured."""
+    import tomllib
+
+    try:
+        table = tomllib.loads((ROOT / "benchmarks" / "depends.toml").read_text(encoding="utf-8"))
+    except (OSError, tomllib.TOMLDecodeError):
+        return set()
+    return {path for entry in table.get("benchmarks", {}).values()
+            for path in [*entry.get("results", ()), *entry.get("outputs", ())]}
+
+
 def _git_commit() -> str:
+    """The commit checked out, with "(with uncommitted changes)" when a tracked file other
+    than a benchmark's result or output differs from it."""
     try:
         out = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
                              text=True, timeout=10)
-        dirty = subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, timeout=30)
+        status = subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain", "--untracked-files=no"],
+                                capture_output=True, text=True, timeout=30)
+        recorded = _recorded_files()
+        changed = [line[3:].split(" -> ")[-1].strip('"') for line in status.stdout.splitlines() if line.strip()]
+        dirty = [path for path in changed if path not in recorded]
         commit = out.stdout.strip()
-        return f"{commit} (with uncommitted changes)" if commit and dirty.stdout.strip() else commit
+        return f"{commit} (with uncommitted changes)" if commit and dirty else commit
     except (OSError, subprocess.SubprocessError):
         return ""
 

@@ -70,48 +70,28 @@ def assemble(elab, inter) -> tuple[Optional[Dae], DiagnosticList]:
     """The assemble pass. Input: an :class:`phc.elaborate.Elaboration` and its
     :class:`phc.interconnect.Interconnection` (without errors). Output: the flat
     :class:`Dae` (None when assembly found errors) and the diagnostics it found (inputs,
-    outputs and initial values are parsed here: they refer to the assembled variables)."""
+    outputs and initial values are parsed here: they refer to the assembled variables).
+    The elaboration is only read; what assembly extends (port positions, invariants,
+    initial relations) are its own copies."""
     from phc.budget import check_assembled
+    from phc.reporter import Reporter
 
-    b = _Assembly(elab)
-    dae = _assemble(b, elab.top, inter)
+    reporter = Reporter(elab.files)
+    dae = _assemble(elab, reporter, elab.top, inter)
     if dae is not None:
-        b.diags.extend(check_assembled(elab, dae))  # exact size and output arrays, before any code is generated
+        reporter.diags.extend(check_assembled(elab, dae))  # exact size and output arrays, before any code is generated
         dae = dataclasses.replace(dae, left_out=elab.left_out, meshes=dict(elab.meshes))
-    return (None if b.diags.has_errors else dae), b.diags
+    return (None if reporter.diags.has_errors else dae), reporter.diags
 
 
-class _Assembly:
-    """Assembly's working state: read-only views of the elaboration, its own copies of
-    what it extends (invariants, port positions) and its own diagnostics."""
-
-    def __init__(self, elab) -> None:
-        from phc.elaborate import Reporter
-
-        self._reporter = Reporter(elab.files)
-        self.diags = self._reporter.diags
-        self.files = elab.files
-        self.error, self.expr = self._reporter.error, self._reporter.expr
-        self.elab = elab
-        self.ports = {name: dataclasses.replace(port) for name, port in elab.ports.items()}
-        self.invariants = list(elab.invariants)
-        for name in ("variables", "definitions", "equations", "parameters", "linear_blocks", "hamiltonian",
-                     "dissipation", "source_power", "velocity_invariants", "unavailable", "extra_outputs",
-                     "position_maps", "initial_relations", "compile_time_parameters", "components",
-                     "rigid_constraints", "resistive_laws", "rows", "quadratic_energy", "quadratic_dissipation",
-                     "sources"):
-            setattr(self, name, getattr(elab, name))
-        self.dirac = elab.descriptions
-
-    def default_values(self) -> dict:
-        return dict(self.elab.default_values)
-
-
-def _assemble(b, ctx, inter) -> Optional[Dae]:
-    connections = [(b.ports[pa.name], b.ports[pb.name], span, label) for pa, pb, span, label in inter.connections]
+def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
+    """The assembled :class:`Dae` of `elab`; problems go to the reporter `rep`."""
+    ports = {name: dataclasses.replace(port) for name, port in elab.ports.items()}  # positions are given below
+    position_invariants = list(elab.invariants)  # and those of connected ports with positions
+    connections = [(ports[pa.name], ports[pb.name], span, label) for pa, pb, span, label in inter.connections]
     uf = _SignedUnionFind()
-    defs = dict(b.definitions)
-    rows: list[Equation] = list(b.equations)
+    defs = dict(elab.definitions)
+    rows: list[Equation] = list(elab.equations)
 
     def merge(x, y, sign, label, span):
         ra, rb, rel = uf.union(x, y, sign)
@@ -123,23 +103,23 @@ def _assemble(b, ctx, inter) -> Optional[Dae]:
         elif da is not None:
             defs[rb] = rel * da
 
-    _propagate_positions(b, connections)
+    _propagate_positions(ports, elab.position_maps, connections, rep)
     for pa, pb, span, label in connections:
         for k in range(pa.dimension):
             merge(pa.f[k], pb.f[k], 1, f"{label}.f[{k}]", span)
             merge(pa.e[k], pb.e[k], -1, f"{label}.e[{k}]", span)
         if pa.position is not None and pb.position is not None:
             for k in range(pa.dimension):
-                b.invariants.append(Invariant(f"{label}.position[{k}]", pa.position[k] - pb.position[k],
-                                              "", span))
+                position_invariants.append(Invariant(f"{label}.position[{k}]", pa.position[k] - pb.position[k],
+                                                     "", span))
 
     # Top-level exposed ports: inputs or free.
     sim = ctx.spec.simulation
-    signals = SignalBuilder()
+    signals = SignalBuilder(elab)
     port_power = sp.Integer(0)
     external = []
     for pname, (full, span) in inter.exposed.items():
-        port = b.ports[full]
+        port = ports[full]
         external.append(pname)
         inp = sim.inputs.get(pname)
         path = ("simulation", "inputs", pname)
@@ -148,8 +128,8 @@ def _assemble(b, ctx, inter) -> Optional[Dae]:
         else:
             which = "effort" if inp.effort is not None else "flow"
             targets = port.e if which == "effort" else port.f
-            signals.expect, signals.scales = (port.domain, which, pname), dict(getattr(b.elab, "scales", {}) or {})
-            values = _signals(b, ctx, signals, getattr(inp, which), (*path, which), port.dimension,
+            signals.expect, signals.scales = (port.domain, which, pname), dict(getattr(elab, "scales", {}) or {})
+            values = _signals(rep, ctx, signals, getattr(inp, which), (*path, which), port.dimension,
                               f"input {which} of `{pname}`")
         for k, (sym, val) in enumerate(zip(targets, values)):
             root, sign = uf.find(sym)
@@ -161,19 +141,19 @@ def _assemble(b, ctx, inter) -> Optional[Dae]:
     for pname in sim.inputs:
         if pname not in inter.exposed:
             close = difflib.get_close_matches(pname, list(inter.exposed), n=1)
-            b.error("PHC-E209", f"input for `{pname}`, which is not an exposed port of the model", ctx,
-                    ("simulation", "inputs", pname), key=True,
-                    hint=f"did you mean `{close[0]}`?" if close else "expose the port under `ports:` first")
+            rep.error("PHC-E209", f"input for `{pname}`, which is not an exposed port of the model", ctx,
+                      ("simulation", "inputs", pname), key=True,
+                      hint=f"did you mean `{close[0]}`?" if close else "expose the port under `ports:` first")
 
-    subs = _resolve_definitions(uf, defs, rows, b)
+    subs = _resolve_definitions(uf, defs, rows)
 
     # GGL stabilization of position invariants.
-    states = {v.symbol: v for v in b.variables if v.differential}
-    variables = [v for v in b.variables if v.differential or (uf.find(v.symbol)[0] == v.symbol
+    states = {v.symbol: v for v in elab.variables if v.differential}
+    variables = [v for v in elab.variables if v.differential or (uf.find(v.symbol)[0] == v.symbol
                                                                 and v.symbol not in defs)]
     corrections: dict[sp.Symbol, sp.Expr] = {}
     invariants = []
-    for i, inv in enumerate(b.invariants):
+    for i, inv in enumerate(position_invariants):
         g = inv.expr.xreplace(subs)
         xs = sorted(g.free_symbols & set(states), key=lambda s: s.name)
         if not xs:
@@ -191,20 +171,20 @@ def _assemble(b, ctx, inter) -> Optional[Dae]:
 
     equations = []
     new_index: dict[int, int] = {}
-    constants = {T} | {p.symbol for p in b.parameters.values()}  # once: per row it made assembly quadratic
+    constants = {T} | {p.symbol for p in elab.parameters.values()}  # once: per row it made assembly quadratic
     for i, eq in enumerate(rows):
         ex = final(eq.expr)
         if ex == 0 and eq.kind != "linear":
             continue
         if (eq.kind != "linear" and not (ex.free_symbols - constants)
                 and ex.is_number and ex != 0):
-            b.diags.append(Diagnostic("PHC-E301", f"equation `{eq.label}` reduces to the contradiction "
-                                      f"{ex} = 0", span=eq.span))
+            rep.diags.append(Diagnostic("PHC-E301", f"equation `{eq.label}` reduces to the contradiction "
+                                        f"{ex} = 0", span=eq.span))
             continue
         new_index[i] = len(equations)
         equations.append(Equation(ex, eq.label, eq.kind, eq.component, eq.span))
     linear_blocks = []
-    for block in b.linear_blocks:
+    for block in elab.linear_blocks:
         for term in block.terms:
             for sym in term.symbols:  # sparse blocks refer to internal variables only
                 if subs.get(sym, sym) != sym:
@@ -214,10 +194,10 @@ def _assemble(b, ctx, inter) -> Optional[Dae]:
 
     # sp.Add(*terms) is linear in the number of terms; Python's sum() re-canonicalizes
     # the growing Add at every step (quadratic, visible at a few hundred components).
-    hamiltonian = sp.Add(*[final(h) for h in b.hamiltonian])
-    dissipation_terms = tuple((component, final(d), span) for component, d, span in b.dissipation)
+    hamiltonian = sp.Add(*[final(h) for h in elab.hamiltonian])
+    dissipation_terms = tuple((component, final(d), span) for component, d, span in elab.dissipation)
     dissipation = sp.Add(*[d for _, d, _ in dissipation_terms])
-    port_power = final(sp.Add(port_power, *b.source_power))
+    port_power = final(sp.Add(port_power, *elab.source_power))
     if T in hamiltonian.free_symbols:
         # An explicit time dependence of H (a potential V(q, t), a mass matrix M(t), a
         # coefficient k(t)) is energy exchanged with whatever varies it: dH/dt = ∇H·ẏ + ∂H/∂t,
@@ -228,54 +208,55 @@ def _assemble(b, ctx, inter) -> Optional[Dae]:
     variables.append(Variable(energy.name, energy, True, "energy", "energy", denergy, None))
     equations.append(Equation(denergy - port_power - dissipation, "energy.balance", "energy", "energy", None))
 
-    scope = _output_scope(b, subs, hamiltonian)
-    energy_terms = sum(int(_upper_coo(f.matrix).nnz) for f in b.quadratic_energy)
-    if b.quadratic_energy and energy_terms <= MAX_OUTPUT_ENERGY_TERMS and any(
+    scope = _output_scope(elab, subs, hamiltonian)
+    energy_terms = sum(int(_upper_coo(f.matrix).nnz) for f in elab.quadratic_energy)
+    if elab.quadratic_energy and energy_terms <= MAX_OUTPUT_ENERGY_TERMS and any(
             _mentions_energy(o.value if isinstance(o, OutputSpec) else o) for o in sim.outputs.values()):
-        scope["H"] = _total_energy(hamiltonian, b.quadratic_energy)  # distributed components' H too
+        scope["H"] = _total_energy(hamiltonian, elab.quadratic_energy)  # distributed components' H too
     outputs = []
-    result_units = ResultUnits(b._reporter, b.elab, variables, hamiltonian)
+    result_units = ResultUnits(rep, elab, variables, hamiltonian)
     for oname, ospec in sim.outputs.items():
         opath = ("simulation", "outputs", oname)
         oexpr, vpath = (ospec.value, (*opath, "value")) if isinstance(ospec, OutputSpec) else (ospec, opath)
         if energy_terms > MAX_OUTPUT_ENERGY_TERMS and _mentions_energy(oexpr):
-            b.error("PHC-E604", f"output `{oname}` uses `H`, but the stored energy of the distributed components "
-                    f"has {energy_terms} terms (more than {MAX_OUTPUT_ENERGY_TERMS}), too many to write into an "
-                    "output", ctx, opath, hint="read H from the results (the `H` column, SimResult.H), or use a "
-                    "coarser mesh")
+            rep.error("PHC-E604", f"output `{oname}` uses `H`, but the stored energy of the distributed components "
+                      f"has {energy_terms} terms (more than {MAX_OUTPUT_ENERGY_TERMS}), too many to write into an "
+                      "output", ctx, opath, hint="read H from the results (the `H` column, SimResult.H), or use a "
+                      "coarser mesh")
             continue
-        missing = [name for name in b.unavailable if isinstance(oexpr, str) and name in oexpr]
+        missing = [name for name in elab.unavailable if isinstance(oexpr, str) and name in oexpr]
         if missing:
-            b.error("PHC-E604", f"output `{oname}` uses `{missing[0]}`, but {b.unavailable[missing[0]]}", ctx,
-                    opath, hint="turn the effect on, or drop the output")
+            rep.error("PHC-E604", f"output `{oname}` uses `{missing[0]}`, but {elab.unavailable[missing[0]]}", ctx,
+                      opath, hint="turn the effect on, or drop the output")
             continue
-        oval = final(b.expr(ctx, oexpr, vpath, scope, check_units=False))
+        oval = final(rep.expr(ctx, oexpr, vpath, scope, check_units=False))
         factor = result_units.output(ctx, oname, oexpr, vpath, getattr(ospec, "unit", None), (*opath, "unit"))
         outputs.append((oname, oval if factor is None else oval * sp.Float(factor)))  # into its declared unit
     velocity_invariants = tuple(Invariant(v.label, final(v.expr), v.component, v.span)
-                                for v in b.velocity_invariants)
-    initial = _initial_values(b, ctx, {v.name for v in variables if v.differential}, result_units)
+                                for v in elab.velocity_invariants)
+    states_named = {v.name for v in variables if v.differential}
+    initial, initial_relations, compile_time = _initial_values(elab, rep, ctx, states_named, result_units)
     topology = Topology(
-        components=tuple(b.components),
-        ports=tuple(PortInfo(p.name, p.component, p.domain, p.dimension, p.frame, p.span) for p in b.ports.values()),
+        components=tuple(elab.components),
+        ports=tuple(PortInfo(p.name, p.component, p.domain, p.dimension, p.frame, p.span) for p in ports.values()),
         connections=tuple((pa.name, pb.name, label, span) for pa, pb, span, label in connections),
         exposed=tuple((pname, full) for pname, (full, _) in inter.exposed.items()),
-        dirac=tuple(b.dirac),
-        rows=tuple(b.rows),
-        specs=dict(b.elab.component_specs),
-        rigid_constraints=tuple(b.rigid_constraints),
-        resistive_laws=tuple(b.resistive_laws),
-        parameter_defaults=b.default_values(),
+        dirac=tuple(elab.descriptions),
+        rows=tuple(elab.rows),
+        specs=dict(elab.component_specs),
+        rigid_constraints=tuple(elab.rigid_constraints),
+        resistive_laws=tuple(elab.resistive_laws),
+        parameter_defaults=dict(elab.default_values),
         initial={sp.Symbol(iv.name, real=True): iv.value for iv in initial},
     )
     return Dae(
         topology=topology,
-        initial_relations=tuple(b.initial_relations),
-        compile_time_parameters=tuple(sorted(_base_parameters(b, b.compile_time_parameters))),
+        initial_relations=tuple(initial_relations),
+        compile_time_parameters=tuple(sorted(_base_parameters(elab.parameters, compile_time))),
         name=ctx.spec.name or ctx.file.rsplit("/", 1)[-1].rsplit(".", 1)[0],
         variables=tuple(variables),
         equations=tuple(equations),
-        parameters=tuple(b.parameters.values()),
+        parameters=tuple(elab.parameters.values()),
         hamiltonian=hamiltonian,
         dissipation=dissipation,
         dissipation_terms=dissipation_terms,
@@ -285,34 +266,34 @@ def _assemble(b, ctx, inter) -> Optional[Dae]:
         outputs=tuple(outputs),
         initial=tuple(initial),
         external_ports=tuple(external),
-        sources=tuple(b.sources),
+        sources=tuple(elab.sources),
         linear_blocks=tuple(linear_blocks),
-        quadratic_energy=tuple(b.quadratic_energy),
-        quadratic_dissipation=tuple(b.quadratic_dissipation),
+        quadratic_energy=tuple(elab.quadratic_energy),
+        quadratic_dissipation=tuple(elab.quadratic_dissipation),
         input_tables=tuple(signals.tables),
         breakpoints=tuple(sorted(signals.breakpoints)),
         options={"t_start": sim.t_start, "t_end": sim.t_end, "n_out": sim.n_out, "rtol": sim.rtol,
                  "atol": sim.atol, "max_steps": sim.max_steps, "solver": sim.solver,
                  "max_order": sim.max_order, "step": sim.step,
-                 "nominal": _nominal_scales(b, ctx, {v.name for v in variables if v.differential})},
+                 "nominal": _nominal_scales(rep, ctx, {v.name for v in variables if v.differential})},
         units=dict(result_units.labels),
     )
 
 
-def _signals(b, ctx, signals, value, path, dimension, what) -> list:
+def _signals(rep, ctx, signals, value, path, dimension, what) -> list:
     """The input signal(s) of a port: one per component (a scalar port takes one signal)."""
     scope = {"t": T, **ctx.params}
     is_vector = isinstance(value, list) and not (value and isinstance(value[0], PieceSpec))
     items = value if is_vector else [value]
     if len(items) != dimension:
-        b.error("PHC-E102", f"{what} has {len(items)} entries, expected {dimension}", ctx, path)
+        rep.error("PHC-E102", f"{what} has {len(items)} entries, expected {dimension}", ctx, path)
         return [sp.Integer(0)] * dimension
-    return [signals.signal(b, ctx, v, (*path, i) if is_vector else path, scope) for i, v in enumerate(items)]
+    return [signals.signal(rep, ctx, v, (*path, i) if is_vector else path, scope) for i, v in enumerate(items)]
 
 
-def _base_parameters(b, symbols) -> set[str]:
-    """Names of the base parameters the given parameter symbols depend on."""
-    by_symbol = {p.symbol: p for p in b.parameters.values()}
+def _base_parameters(parameters, symbols) -> set[str]:
+    """Names of the base parameters (of `parameters`, by name) the given parameter symbols depend on."""
+    by_symbol = {p.symbol: p for p in parameters.values()}
     out, todo = set(), [s for s in symbols if s in by_symbol]
     while todo:
         par = by_symbol[todo.pop()]
@@ -323,22 +304,23 @@ def _base_parameters(b, symbols) -> set[str]:
     return out
 
 
-def _propagate_positions(b, connections) -> None:
-    """Positions through orthogonal transforms: output ports get Q·r of the input's neighbour."""
+def _propagate_positions(ports, position_maps, connections, rep) -> None:
+    """Positions through orthogonal transforms: output ports (of `ports`, assembly's copies)
+    get Q·r of the input's neighbour."""
     neighbour = {}
     for pa, pb, _, _ in connections:
         neighbour[pa.name], neighbour[pb.name] = pb, pa
-    for _ in range(len(b.position_maps)):  # chains of transforms
+    for _ in range(len(position_maps)):  # chains of transforms
         changed = False
-        for a_name, outputs, Q in b.position_maps:
+        for a_name, outputs, Q in position_maps:
             nb = neighbour.get(a_name)
-            if nb is None or nb.position is None or b.ports[outputs[0][0]].position is not None:
+            if nb is None or nb.position is None or ports[outputs[0][0]].position is not None:
                 continue
             if T in Q.free_symbols:
                 # d/dt (Q(t) r) = Q ṙ + Q̇ r is not the flow Q f the transform passes on: the
                 # position-level joint would contradict the velocity level (GGL would hide it).
-                port = b.ports[a_name]
-                b.diags.append(Diagnostic(
+                port = ports[a_name]
+                rep.diags.append(Diagnostic(
                     "PHC-E127", f"`Q` of `{port.component}` depends on the time `t`, and the port "
                     f"`{nb.name}` connected to it has a position: the positions Q(t) r it would pass on "
                     "do not move with the flows Q(t) f", span=port.span, path=port.component,
@@ -347,13 +329,13 @@ def _propagate_positions(b, connections) -> None:
                 continue
             r = Q * sp.Matrix(nb.position)
             for out_name, lo, hi in outputs:
-                b.ports[out_name].position = [r[k] for k in range(lo, hi)]
+                ports[out_name].position = [r[k] for k in range(lo, hi)]
             changed = True
         if not changed:
             break
 
 
-def _resolve_definitions(uf, defs, rows, b) -> dict:
+def _resolve_definitions(uf, defs, rows) -> dict:
     """Substitution symbol → expression for every aliased or defined port variable.
 
     A definition may refer to other defined symbols; they are resolved recursively.
@@ -423,10 +405,10 @@ def _upper_coo(matrix):
     return sps.triu(sps.coo_matrix(matrix)).tocoo()
 
 
-def _output_scope(b, subs, hamiltonian) -> dict:
+def _output_scope(elab, subs, hamiltonian) -> dict:
     scope: dict = {"t": T, "H": hamiltonian}
     vectors: dict[str, dict[int, sp.Expr]] = {}
-    for v in b.variables:
+    for v in elab.variables:
         val = subs.get(v.symbol, v.symbol)
         if v.name.endswith("]"):
             base, idx = v.name[:-1].rsplit("[", 1)
@@ -435,10 +417,10 @@ def _output_scope(b, subs, hamiltonian) -> dict:
             scope[v.name] = val
     for base, items in vectors.items():
         scope[base] = [items[i] for i in sorted(items)]
-    for p in b.parameters.values():
+    for p in elab.parameters.values():
         scope[p.name] = p.symbol
     vectors_extra: dict[str, dict[int, sp.Expr]] = {}
-    for name, expr in b.extra_outputs.items():  # component outputs such as a beam's w(ξ)
+    for name, expr in elab.extra_outputs.items():  # component outputs such as a beam's w(ξ)
         value = expr.xreplace(subs)
         if name.endswith("]"):
             base, idx = name[:-1].rsplit("[", 1)
@@ -450,24 +432,27 @@ def _output_scope(b, subs, hamiltonian) -> dict:
     return scope
 
 
-def _nominal_scales(b, ctx, state_names: set[str]) -> dict[str, float]:
+def _nominal_scales(rep, ctx, state_names: set[str]) -> dict[str, float]:
     """`simulation.nominal`: the user's nominal scales by state (docs/tolerances.md)."""
     out = {}
     for name, value in ctx.spec.simulation.nominal.items():
         if name not in state_names or name == "energy.supplied":
             close = difflib.get_close_matches(name, sorted(state_names), n=1)
-            b.error("PHC-E210", f"`{name}` is not a state of the model; nominal scales are given for states",
-                    ctx, ("simulation", "nominal", name), key=True, hint=f"did you mean `{close[0]}`?" if close
-                    else f"states: {', '.join(sorted(state_names - {'energy.supplied'})[:10])}")
+            rep.error("PHC-E210", f"`{name}` is not a state of the model; nominal scales are given for states",
+                      ctx, ("simulation", "nominal", name), key=True, hint=f"did you mean `{close[0]}`?" if close
+                      else f"states: {', '.join(sorted(state_names - {'energy.supplied'})[:10])}")
             continue
         out[name] = float(value)
     return out
 
 
-def _initial_values(b, ctx, state_names: set[str], result_units=None) -> list[InitialValue]:
+def _initial_values(elab, rep, ctx, state_names: set[str], result_units=None
+                    ) -> tuple[list[InitialValue], tuple, frozenset]:
+    """`simulation.initial`: the initial values, with the elaboration's initial relations
+    and compile-time parameters as the initial fields change them."""
     from phc.initial_fields import FieldInitializer
 
-    fields = FieldInitializer(b, ctx)  # fields of ξ of distributed components; per-dof values' mesh
+    fields = FieldInitializer(elab, rep, ctx)  # fields of ξ of distributed components; per-dof values' mesh
     field_entries = []
     out = []
     for name, spec in ctx.spec.simulation.initial.items():
@@ -479,21 +464,22 @@ def _initial_values(b, ctx, state_names: set[str], result_units=None) -> list[In
             continue
         if name not in state_names:
             close = difflib.get_close_matches(name, sorted(state_names), n=1)
-            b.error("PHC-E210", f"`{name}` is not a state of the model; initial values are given for states",
-                    ctx, path, key=True, hint=f"did you mean `{close[0]}`?" if close else
-                    f"states: {', '.join(sorted(state_names - {'energy.supplied'})[:10])}")
+            rep.error("PHC-E210", f"`{name}` is not a state of the model; initial values are given for states",
+                      ctx, path, key=True, hint=f"did you mean `{close[0]}`?" if close else
+                      f"states: {', '.join(sorted(state_names - {'energy.supplied'})[:10])}")
             continue
         value, guess = (spec.value, spec.guess) if isinstance(spec, InitialSpec) else (spec, False)
         vpath = (*path, "value") if isinstance(spec, InitialSpec) else path
-        ex = b.expr(ctx, value, vpath, dict(ctx.params))
+        ex = rep.expr(ctx, value, vpath, dict(ctx.params))
         if result_units is not None:
             result_units.initial(ctx, name, vpath)
-        num = ex.xreplace(b.default_values())
+        num = ex.xreplace(dict(elab.default_values))
         try:
             val = float(num)
         except TypeError:
-            b.error("PHC-E211", f"initial value of `{name}` must be a number or an expression of parameters",
-                    ctx, vpath)
+            rep.error("PHC-E211", f"initial value of `{name}` must be a number or an expression of parameters",
+                      ctx, vpath)
             continue
         out.append(InitialValue(name, val, guess, ctx.smap.locate(vpath), None if ex.is_Number else ex))
-    return fields.apply(field_entries, out)
+    values = fields.apply(field_entries, out)
+    return values, fields.initial_relations, fields.compile_time_parameters

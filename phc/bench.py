@@ -74,6 +74,7 @@ import phc
 from phc import reference_values as refs
 from phc.diagnostics import DiagnosticList
 from phc.errors import ModelError, SimulationSetupError
+from phc.inert import inert
 from phc.io import atomic_write, write_text
 from phc.scene import reference_name, scene_variant
 from phc.simulation import BACKENDS, FIXED_STEP
@@ -224,7 +225,7 @@ class BenchReport:
                 lines.append(f"  wrote      {self.paths[key]}")
         if self.plot_skipped:
             lines.append(f"  plot       skipped: {self.plot_skipped}")
-        return "\n".join(lines)
+        return "\n".join(inert(line) for line in lines)  # names, messages and paths (phc.inert)
 
     def summary(self) -> dict:
         """JSON-ready form (for `--format json`)."""
@@ -297,7 +298,8 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
     scene_path = Path(scene_path)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    base = phc.compile_model(scene_path)
+    scene = _without_reference_values(scene_path, reference_file)
+    base = phc.compile_model(scene.model_path if scene else scene_path, scene=scene)
     bench_spec = base.scene.spec.bench if base.scene is not None else None
     model_path = (base.scene.model_path if base.scene is not None else scene_path).resolve()
 
@@ -339,15 +341,12 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
     compiled_cache: dict[tuple, object] = {(): base} if not meshes else {}
     reference: dict[str, np.ndarray] = {}
 
-    def compiled_for(mesh: dict, max_order: Optional[int] = None):
+    def compiled_for(mesh: dict):
         key = tuple(sorted(mesh.items()))
-        if max_order is not None and int(base.options.get("max_order", 5)) != max_order:
-            key += (("max_order", max_order),)
         if key not in compiled_cache:
             try:
                 # an in-memory variant of the base scene (certified above); nothing is written
-                variant = scene_variant(base.scene if base.scene is not None else scene_path, mesh=mesh,
-                                        max_order=dict(key).get("max_order"))
+                variant = scene_variant(base.scene if base.scene is not None else scene_path, mesh=mesh)
                 compiled_cache[key] = phc.compile_model(variant.model_path, scene=variant, certify=False)
             except ModelError as err:
                 compiled_cache[key] = err
@@ -364,7 +363,7 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
             bar.show("reference run " + _point_label(ref_mesh, "ida", ref_rtol))
             reference, report.reference_cache_hit, report.reference_cache_path, report.reference_message = \
                 _reference_run(scene_path, model_path, settings, t_out, need_run, reference_cache,
-                               lambda: compiled_for(ref_mesh, REFERENCE_MAX_ORDER))
+                               lambda: compiled_for(ref_mesh))
             bar.advance()
         # -- the sweep ----------------------------------------------------------------
         for mesh, solver, value in points:
@@ -431,6 +430,18 @@ def _simulate_once(compiled, solver, value, t_out, **extra):
         return phc.simulate(compiled, **kwargs), ""
     except Exception as err:  # noqa: BLE001 — a failed point is a row, not an exception
         return None, f"{type(err).__name__}: {err}"
+
+
+def _without_reference_values(scene_path: Path, reference):
+    """The scene without the `reference_values` that `reference` (``--reference``) replaces
+    (their file, maybe missing, is not read); None: compile the file (and report its mistakes)."""
+    from phc.scene import is_scene_file, load_scene
+
+    scene = load_scene(scene_path)[0] if reference is not None and is_scene_file(scene_path) else None
+    if scene is None or scene.spec.reference_values is None:
+        return None
+    scene.spec = scene.spec.model_copy(update={"reference_values": None})
+    return scene
 
 
 def _published(reference, base, all_outputs, t0: float, t1: float):
@@ -577,7 +588,7 @@ def _reference_run(scene_path, model_path, settings, t_out, outputs, reference_c
     if isinstance(compiled, Exception):
         return {}, False, path, f"the reference mesh does not compile: {_short(str(compiled), 300)}"
     res, problem = _simulate_once(compiled, settings["solver"], settings["rtol"], t_out,
-                                  max_steps=settings["max_steps"])
+                                  max_steps=settings["max_steps"], max_order=settings["max_order"])
     if res is None:
         return {}, False, path, problem
     if not res.success or len(res.t) != len(t_out):

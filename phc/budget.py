@@ -80,6 +80,9 @@ CSE_LIMIT = 1_000_000
 MINMAX_WEIGHT = 3
 """Extra weight of a min/max node of k arguments: MINMAX_WEIGHT · k² · its size."""
 
+MAX_SIZE = 2**60
+"""The largest memory size :func:`parse_size` accepts (1 EiB)."""
+
 _override: list[Optional[int]] = [None]
 
 
@@ -93,7 +96,8 @@ _SIZE = re.compile(r"\s*([0-9]+(?:\.[0-9]*)?|\.[0-9]+)\s*([a-zA-Z]*)\s*")
 def parse_size(text: str) -> int:
     """Bytes in a size such as ``2G``, ``1.5GiB``, ``512M``, ``800MB`` or ``100000`` (bytes).
 
-    K, M, G, T and KiB … TiB are binary (2G = 2 GiB); KB, MB, GB, TB decimal.
+    K, M, G, T and KiB … TiB are binary (2G = 2 GiB); KB, MB, GB, TB decimal. From 1 MiB
+    to 1 EiB (:data:`MAX_SIZE`).
 
     Raises
     ------
@@ -104,9 +108,11 @@ def parse_size(text: str) -> int:
     unit = match.group(2).lower() if match else None
     if match is None or unit not in _UNITS:
         raise ValueError(f"`{text}` is not a memory size; write e.g. 2G, 1.5GiB, 512M or 800MB")
-    value = float(match.group(1)) * _UNITS[unit]
+    value = float(match.group(1)) * _UNITS[unit]  # inf for a number of 309 digits or more
     if not value >= 2**20:
         raise ValueError(f"`{text}` is below 1 MiB; write e.g. 2G, 1.5GiB or 512M")
+    if not value <= MAX_SIZE:
+        raise ValueError(f"`{text}` is above 1 EiB; write e.g. 2G, 64G or 1T")
     return int(value)
 
 
@@ -192,20 +198,19 @@ def mesh_estimate(comp) -> Estimate:
     return Estimate(*cost)
 
 
-@dataclass
-class _Ledger:
-    """What the distributed components admitted so far cost, and where each is written."""
+@dataclass(frozen=True)
+class MeshLedger:
+    """What the distributed components admitted so far cost, and where each is written:
+    :func:`admit_mesh` returns the ledger with one more component."""
 
     total: Estimate = field(default_factory=Estimate)
-    meshes: dict = field(default_factory=dict)  # component -> (Estimate, span, elements)
+    meshes: tuple = ()
+    """(component, Estimate, span, elements) in the order admitted."""
 
-
-def _ledger(builder) -> _Ledger:
-    ledger = getattr(builder, "_budget_ledger", None)
-    if ledger is None:
-        ledger = _Ledger()
-        builder._budget_ledger = ledger
-    return ledger
+    @property
+    def spans(self) -> dict:
+        """Distributed component -> where its mesh is written."""
+        return {name: span for name, _, span, _ in self.meshes}
 
 
 def _element_limit(comp) -> Optional[int]:
@@ -215,17 +220,19 @@ def _element_limit(comp) -> Optional[int]:
     return None
 
 
-def admit_mesh(builder, ctx, full: str, comp, path) -> bool:
-    """Admit a distributed component before it is discretized, or record why not.
+def admit_mesh(ledger: MeshLedger, ctx, full: str, comp, path, override_=None
+               ) -> tuple[MeshLedger, Optional[Diagnostic]]:
+    """Admit a distributed component before it is discretized: ``(ledger, None)`` with the
+    component added to `ledger`, or ``(ledger, error)`` saying why not.
 
     Checks the element count against the component's own limit (a scene's
     ``accuracy.mesh`` must not bypass it) and the estimated compile memory of all
     distributed components so far against the budget. The error is located at the
-    ``elements`` key (or at the scene's ``accuracy.mesh`` entry that set it).
+    ``elements`` key (or at the scene's ``accuracy.mesh`` entry that set it, `override_`:
+    ``(elements, span)``).
     """
     from phc.diagnostics import Diagnostic
 
-    override_ = builder.mesh_overrides.get(full)
     if override_ is not None:
         span, where = override_[1], f"accuracy.mesh.{full}"
     else:
@@ -236,11 +243,9 @@ def admit_mesh(builder, ctx, full: str, comp, path) -> bool:
     n = int(comp.elements)
     limit = _element_limit(comp)
     if limit is not None and n > limit:
-        builder.diags.append(Diagnostic(
+        return ledger, Diagnostic(
             "PHC-E701", f"`{full}` ({comp.type}) has {n:,} elements, above its limit of {limit:,}", span=span,
-            hint="use fewer elements", path=where))
-        return False
-    ledger = _ledger(builder)
+            hint="use fewer elements", path=where)
     est = mesh_estimate(comp)
     total = Estimate(ledger.total.unknowns + est.unknowns, ledger.total.nonzeros + est.nonzeros)
     budget = max_memory()
@@ -252,21 +257,13 @@ def admit_mesh(builder, ctx, full: str, comp, path) -> bool:
         fit = int(spare / cost_per_element) if spare > 0 else 0
         together = (f" (with the {len(ledger.meshes)} distributed component(s) before it: {total.unknowns:,} "
                     f"unknowns, {total.nonzeros:,} Jacobian nonzeros)" if ledger.meshes else "")
-        builder.diags.append(Diagnostic(
+        return ledger, Diagnostic(
             "PHC-E700", f"`{full}` ({comp.type}, {n:,} elements) needs an estimated {format_bytes(total.compile_bytes)} "
             f"to compile ({est.unknowns:,} unknowns, {est.nonzeros:,} Jacobian nonzeros){together}, above the "
             f"memory budget of {format_bytes(budget)}", span=span, path=where,
             hint=(f"use at most about {fit:,} elements " if fit >= 1 else "use fewer elements ")
-            + _raise_hint(total.compile_bytes)))
-        return False
-    ledger.total = total
-    ledger.meshes[full] = (est, span, n)
-    return True
-
-
-def mesh_spans(builder) -> dict:
-    """Distributed component -> where its mesh is written (recorded by :func:`admit_mesh`)."""
-    return {name: entry[1] for name, entry in _ledger(builder).meshes.items()}
+            + _raise_hint(total.compile_bytes))
+    return MeshLedger(total, (*ledger.meshes, (full, est, span, n))), None
 
 
 def check_assembled(elab, dae) -> list[Diagnostic]:

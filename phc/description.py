@@ -60,7 +60,9 @@ class Place:
     col: int = 1
 
     def __str__(self) -> str:
-        return f"{self.file}:{self.line}:{self.col}"
+        from phc.inert import inert
+
+        return inert(f"{self.file}:{self.line}:{self.col}")
 
     @classmethod
     def of(cls, span) -> Optional["Place"]:

@@ -18,6 +18,8 @@ from typing import TYPE_CHECKING, Any, Callable, Literal, Optional, Sequence
 
 import pydantic
 
+from phc.inert import _one_line, printable
+
 if TYPE_CHECKING:  # runtime import would be circular (phc.source imports this module)
     from phc.source import SourceMap, SourceSpan
 
@@ -49,32 +51,7 @@ ERROR_CODES: dict[str, str] = {
 }
 """Code -> one-line description (documentation table)."""
 
-_ONE_LINE = re.compile(r"\s*[\r\n]+\s*")
-
-
-def _one_line(text: str) -> str:
-    return _ONE_LINE.sub(" ", text).strip()
-
-
-_INVISIBLE = re.compile("[\x00-\x08\x0b-\x1f\x7f-\x9f\u061c\u200b-\u200f\u2028-\u202e\u2060-\u206f\ufeff]")
-"""Control and formatting characters: a model's text may hold them (YAML escapes such as
-``"\\e[2J"``), and printed raw they would drive the terminal or reorder the line of a CI log."""
-_LONG_QUOTED = re.compile(r"`([^`]{201,})`")
-_LONG_WORD = re.compile(r"[^\s`]{201,}")
-
-
-def _shorten(text: str) -> str:
-    return f"{text[:120]}…{text[-40:]}"
-
-
-def _printable(text: str) -> str:
-    """One line of visible text: control and formatting characters escaped (``\\x1b``,
-    ``\\u202e``), and text from the model longer than 200 characters shortened."""
-    text = _one_line(text)
-    text = _LONG_QUOTED.sub(lambda m: f"`{_shorten(m.group(1))}` ({len(m.group(1))} characters)", text)
-    text = _LONG_WORD.sub(lambda m: _shorten(m.group()), text)
-    return _INVISIBLE.sub(lambda m: f"\\x{ord(m.group()):02x}" if ord(m.group()) < 0x100
-                          else f"\\u{ord(m.group()):04x}", text)
+_printable = printable  # the one-line, inert text of a message (phc.inert)
 
 
 @dataclass(frozen=True)

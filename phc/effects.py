@@ -5,8 +5,9 @@ in :mod:`phc.spec.components`); user-defined components (``phs``, ``rigid``) dec
 theirs as ``effects: {name: default}``, and may use each name as a 0/1 factor in their
 expressions or name a term of their Hamiltonian / potential after it. A scene overrides
 effects per component; lowering reads the resulting values, so an effect that is off is
-never generated. What lowering leaves out is recorded in ``builder.left_out`` and reported
-by ``phc simulate`` and ``phc compile``.
+never generated. What lowering leaves out is recorded in its
+:class:`~phc.lowering.ComponentLowering` (``left_out``) and reported by ``phc simulate``
+and ``phc compile``.
 """
 
 from __future__ import annotations
@@ -37,6 +38,14 @@ def effect_names(spec) -> dict[str, Any]:
     return values
 
 
+def _types_with_effects() -> str:
+    """The registered component types whose entries have an `effects` field, as a list."""
+    from phc import registry
+
+    found = [name for name in registry.names() if "effects" in registry.get(name).spec.model_fields]
+    return ", ".join(found[:-1]) + (" and " if len(found) > 1 else "") + found[-1] if found else "no type"
+
+
 def is_on(spec, name: str) -> bool:
     """Whether effect `name` of a component is on (unknown names count as on)."""
     return bool(effect_names(spec).get(name, True))
@@ -48,7 +57,7 @@ def apply_overrides(spec, overrides: dict[str, Any]) -> tuple[Any, Optional[str]
     current = effect_names(spec)
     if not current and getattr(spec, "effects", None) is None:
         return spec, (f"`{spec.type}` components have no optional effects; effects exist for "
-                      "moving_beam, string, euler_bernoulli_beam, timoshenko_beam, rigid and phs")
+                      f"{_types_with_effects()}")
     unknown = [k for k in overrides if k not in current]
     if unknown:
         return spec, (f"`{spec.type}` component has no effect `{unknown[0]}`; its effects: "

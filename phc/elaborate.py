@@ -15,7 +15,9 @@ What happens here, in order:
 4. lower each component (:mod:`phc.library`) to its description
    (:class:`~phc.dae.ComponentDescription`: ports, storage, Dirac structure in kernel
    form, laws, H) and its rows — derived from the description, or checked against it
-   by :mod:`phc.checks.rows`.
+   by :mod:`phc.checks.rows`. Lowering is a function of the component's spec and a
+   read-only context (:func:`phc.lowering.lower`); its frozen result is folded into this
+   pass's state in the order the components are written.
 
 Connections are checked by the interconnect pass (:mod:`phc.interconnect`) and joined by
 the assemble pass (:mod:`phc.assemble`). Every problem becomes a located
@@ -39,41 +41,17 @@ import networkx as nx
 import pydantic
 import sympy as sp
 
-from phc.dae import Dae, Equation, Invariant, Parameter, Variable
+from phc.budget import MeshLedger
+from phc.dae import Equation, Invariant, Parameter, Variable
 from phc.diagnostics import Diagnostic, DiagnosticList, allowed_keys_from_model, from_pydantic
 from phc.interconnect import MODULATED, state_reads
 from phc.files import MAX_INCLUDE_DEPTH, MAX_MODEL_INSTANCES, FileAccess, FileRefused
+from phc.reporter import FileContext, Port, Reporter
+from phc.scene import SceneApplication
 from phc.source import SourceMap, SourceSpan, load_yaml, read_yaml_file
 from phc.spec import ModelSpec
 from phc.spec.components import ModelComponentSpec
-from phc.spec.expressions import ExpressionError, parse_equation, parse_expression
 from phc.spec.model import ParameterSpec
-
-
-@dataclass
-class Port:
-    """A power port after lowering: flow and effort symbols of one component."""
-
-    name: str
-    component: str
-    domain: str
-    dimension: int
-    frame: Optional[str]
-    f: list[sp.Symbol]
-    e: list[sp.Symbol]
-    position: Optional[list[sp.Expr]] = None
-    span: Optional[SourceSpan] = None
-
-
-@dataclass
-class FileContext:
-    """Where a (possibly nested) model file sits: its source map and name prefix."""
-
-    file: str
-    smap: SourceMap
-    prefix: str
-    spec: ModelSpec
-    params: dict[str, Any] = field(default_factory=dict)
 
 
 _ALLOWED_KEYS = allowed_keys_from_model(ModelSpec)
@@ -126,106 +104,13 @@ def _spec_from_yaml(path, data, smap, problems) -> tuple[Optional[ModelSpec], Op
     return spec, smap, diags
 
 
-class Reporter:
-    """Collects located diagnostics and parses expressions into sympy (never evaluating
-    user text): the part of a pass's state that every pass has. `files` is the
-    :class:`~phc.files.FileAccess` that referenced files (tables) are read through."""
-
-    def __init__(self, files: Optional[FileAccess] = None) -> None:
-        self.diags = DiagnosticList()
-        self.files = files if files is not None else FileAccess()
-        self.units: dict = {}  # symbol -> its unit (a pint quantity in SI base units), see phc.units
-        self.unit_text: dict = {}  # symbol -> its unit as the model wrote it (for messages)
-        self.expr_dims: dict = {}  # (source map id, path) -> dimension of the expression parsed there
-        self.field_dims: dict = {}  # (source map id, path[:3]) -> [(path, dimension)]: by component field
-        self.units_declared = False  # some parameter has a unit (pint installed)
-        self.units_si = True  # every declared unit is a coherent SI unit (no mm, MPa, ...)
-        self.fields_si = True  # every component field of known dimension is in coherent SI units
-        self.fields_checked = False  # some component field's dimension was known
-        self.scale_system = None  # phc.units.ScaleSystem: the model's unit system, from its fields' units
-        self.param_overrides: dict[str, float] = {}  # top-level parameters set from outside the files
-        self.override_note = ""  # the scene's parameter overrides, named in refusals of their values
-
-    # -- diagnostics ----------------------------------------------------------------
-    def error(self, code: str, message: str, ctx: Optional[FileContext], path: Sequence = (),
-              hint: Optional[str] = None, severity: str = "error", key: bool = False) -> None:
-        span = None
-        if self.override_note and " at the default parameters" in message:  # a value the scene set
-            message = message.replace(" at the default parameters", f" with {self.override_note}")
-        if ctx is not None:
-            span = ctx.smap.locate_key(tuple(path)) if key else ctx.smap.locate(tuple(path))
-        dotted = ".".join(str(p) for p in path) or None
-        if ctx is not None and hasattr(ctx.smap, "dotted") and path:  # a scene's entries, as written there
-            dotted = ctx.smap.dotted(tuple(path))
-        self.diags.append(Diagnostic(code, message, span=span, hint=hint, severity=severity, path=dotted))
-
-    # -- expressions ----------------------------------------------------------------
-    def expr(self, ctx: FileContext, value: Any, path: Sequence, names: dict,
-             equation: bool = False, check_units: bool = True) -> sp.Expr:
-        """Parse a number or expression string at `path`; on error record it and return 0."""
-        try:
-            if equation:
-                result = parse_equation(value, names)
-            else:
-                result = parse_expression(value, names)
-        except ExpressionError as err:
-            span = (ctx.smap.locate_in_value(tuple(path), err.col) if isinstance(value, str)
-                    else ctx.smap.locate(tuple(path)))
-            dotted = (ctx.smap.dotted(tuple(path)) if hasattr(ctx.smap, "dotted")
-                      else ".".join(str(p) for p in path))
-            self.diags.append(Diagnostic("PHC-E101", f"in expression `{value}`: {err.message}", span=span,
-                                         hint=err.hint, path=dotted))
-            return sp.Integer(0)
-        if self.units and check_units and not (result.free_symbols & getattr(self, "unset_parameters", set())):
-            dim = self.dimension(ctx, value, path, result)
-            self.expr_dims[(id(ctx.smap), tuple(path))] = dim
-            self.field_dims.setdefault((id(ctx.smap), tuple(path[:3])), []).append((tuple(path), dim))
-        return result
-
-    def dimension(self, ctx: FileContext, value: Any, path: Sequence, expr: sp.Basic):
-        """The dimension of `expr` (parsed from `value` at `path`): a pint quantity,
-        :data:`phc.units.NUMBER` or None (unknown); an inconsistency is reported (PHC-E171)."""
-        from phc.units import DimensionError, dimension
-
-        try:
-            return dimension(expr, self.units, self.unit_text)
-        except DimensionError as err:
-            self.error("PHC-E171", f"in expression `{value}`: {err}", ctx, path,
-                       hint="every term of a sum (and both sides of a comparison) needs the same unit; "
-                       "check the units of the parameters it uses")
-            return None
-
-    def vector(self, ctx, values, path, names, length: Optional[int] = None, what: str = "vector") -> list[sp.Expr]:
-        if not isinstance(values, list):
-            values = [values]
-        if length is not None and len(values) != length:
-            self.error("PHC-E102", f"{what} has {len(values)} entries, expected {length}", ctx, path)
-            # reported: callers index `length` entries, so pad or cut (no IndexError later)
-            values = (values + [0] * length)[:length]
-        return [self.expr(ctx, v, (*path, i), names) for i, v in enumerate(values)]
-
-    def matrix(self, ctx, rows, path, names, shape: tuple[Optional[int], Optional[int]], what: str) -> sp.Matrix:
-        n, m = shape
-        if n is not None and len(rows) != n:
-            self.error("PHC-E102", f"{what} has {len(rows)} rows, expected {n}", ctx, path)
-        out = []
-        for i, row in enumerate(rows):
-            if not isinstance(row, list):
-                row = [row]
-            if m is not None and len(row) != m:
-                self.error("PHC-E102", f"row {i} of {what} has {len(row)} entries, expected {m}", ctx, (*path, i))
-            out.append([self.expr(ctx, v, (*path, i, j), names) for j, v in enumerate(row)])
-        if n is not None and m is not None and (len(out) != n or any(len(r) != m for r in out)):
-            return sp.zeros(n, m)
-        if not out:
-            return sp.zeros(0, m or 0)
-        return sp.Matrix(out)
-
-
-class Builder(Reporter):
-    """The elaborate pass's working state: its lowerers, scene overrides and effects add
-    variables, rows, ports and descriptions here, and :meth:`finish` turns it into the
-    pass's output, an immutable :class:`Elaboration`. No later pass writes to it."""
+class _Elaborator(Reporter):
+    """The elaborate pass's working state, private to this module: the files read, the
+    parameters created, the scene applied, and the lowerings of the components folded in
+    order (:meth:`_fold` of each :class:`phc.lowering.ComponentLowering`). :func:`_finish`
+    turns it into the pass's output, an immutable :class:`Elaboration`. Lowerers never see
+    it: each writes its own :class:`phc.lowering.Recorder` and reads a read-only
+    :class:`phc.lowering.LoweringContext`."""
 
     def __init__(self) -> None:
         super().__init__()
@@ -234,7 +119,6 @@ class Builder(Reporter):
         self.parameters: dict[str, Parameter] = {}
         self.definitions: dict[sp.Symbol, sp.Expr] = {}
         self.defined_by: dict[sp.Symbol, str] = {}  # definition -> the component whose lowerer wrote it
-        self.lowering: Optional[str] = None  # the component being lowered
         self.hand_written: set[str] = set()  # components with a row not derived from their description (emit)
         self.component_specs: dict[str, Any] = {}  # full name -> its spec as lowered (overrides applied)
         self.ports: dict[str, Port] = {}
@@ -260,12 +144,10 @@ class Builder(Reporter):
         self.initial_relations: list = []
         self.position_maps: list = []
         self.compile_time_parameters: set = set()
-        self.effect_overrides: dict[str, tuple[dict, Optional[SourceSpan]]] = {}
-        self.mesh_overrides: dict[str, tuple[int, Optional[SourceSpan]]] = {}
-        self.shape_overrides: dict[str, tuple[str, Optional[SourceSpan]]] = {}  # a scene's `initial_shape`
+        self.mesh_ledger = MeshLedger()  # the distributed components admitted so far (phc.budget)
+        self.applied = SceneApplication(None, None)  # the scene's overrides and pruning (none without a scene)
         self.written_meshes: dict[str, int] = {}  # distributed component -> `elements` as in its model file
         self.initial_fields: dict = {}  # distributed component -> phc.initial_fields.FieldSet
-        self.skip: set[str] = set()  # components left out (pruned by a scene)
         self.meshes: dict[str, tuple[str, int]] = {}  # distributed component -> (type, elements)
         self.scene = None
         self.left_out: list[tuple[str, str, str]] = []
@@ -273,64 +155,6 @@ class Builder(Reporter):
         self._specs: dict[str, tuple] = {}  # resolved path -> (spec, smap) of a nested file, read once
         self._default_values: dict = {}  # parameter symbol -> its default as Float (see default_values)
         self.unset_parameters: set = set()  # parameters whose value had an error (their default 0 means nothing)
-
-    def leave_out(self, component: str, what: str, why: str) -> None:
-        """Record a part of a component that is not compiled (reported to the user)."""
-        self.left_out.append((component, what, why))
-
-    # -- variables --------------------------------------------------------------------
-    def add_state(self, component: str, local: str, span=None) -> tuple[sp.Symbol, sp.Symbol]:
-        name = f"{component}.{local}"
-        sym = sp.Symbol(name, real=True)
-        dsym = sp.Symbol(f"der({name})", real=True)
-        self.variables.append(Variable(name, sym, True, "state", component, dsym, span))
-        return sym, dsym
-
-    def add_algebraic(self, component: str, local: str, role: str, span=None) -> sp.Symbol:
-        name = f"{component}.{local}"
-        sym = sp.Symbol(name, real=True)
-        self.variables.append(Variable(name, sym, False, role, component, None, span))
-        return sym
-
-    def add_equation(self, expr: sp.Expr, component: str, kind: str, label: str, span=None, *,
-                     derived: bool = False) -> None:
-        """A residual row ``expr = 0`` of `component`. `derived`: :func:`phc.library.dirac.emit`
-        derived it from the component's description; any other row makes the component's
-        rows hand-written (compared with its description when compiling, :mod:`phc.checks.rows`)."""
-        if not derived:
-            self.hand_written.add(component)
-        expr = expr if isinstance(expr, sp.Basic) else sp.Integer(expr)
-        self.equations.append(Equation(expr, f"{component}.{label}", kind, component, span))
-
-    def add_linear_rows(self, component: str, label: str, n_rows: int, terms, span=None) -> list[int]:
-        """Append `n_rows` rows whose residual is ``Σ terms`` (sparse) plus a sympy part (0 for now).
-
-        Returns the row indices so that the caller can add sympy couplings with
-        :meth:`add_to_row` (boundary ports of a discretized PDE).
-        """
-        from phc.dae import LinearBlock
-
-        self.hand_written.add(component)  # sparse blocks are written directly (emit derives no blocks)
-        start = len(self.equations)
-        for i in range(n_rows):
-            self.equations.append(Equation(sp.Integer(0), f"{component}.{label}[{i}]", "linear", component, span))
-        rows = tuple(range(start, start + n_rows))
-        self.linear_blocks.append(LinearBlock(f"{component}.{label}", component, rows, tuple(terms), span))
-        return list(rows)
-
-    def add_to_row(self, row: int, expr: sp.Expr) -> None:
-        eq = self.equations[row]
-        self.hand_written.add(eq.component)
-        self.equations[row] = Equation(eq.expr + expr, eq.label, eq.kind, eq.component, eq.span)
-
-    def define(self, sym: sp.Symbol, expr: sp.Expr, *, derived: bool = False) -> None:
-        """Give a port variable an explicit value (an output of its component). `derived`:
-        as for :meth:`add_equation`."""
-        self.definitions[sym] = expr
-        if self.lowering is not None:
-            self.defined_by[sym] = self.lowering
-            if not derived:
-                self.hand_written.add(self.lowering)
 
     def component_rows(self) -> tuple:
         """Each lowered component's rows as its lowerer emitted them (before assembly
@@ -354,26 +178,6 @@ class Builder(Reporter):
                                    tuple(variables.get(name, ())), name in sparse,
                                    derived=name not in self.hand_written)
                      for name, _, _ in self.components if name not in self.failed)
-
-    def add_port(self, component: str, local: str, domain: str, dimension: int, frame=None,
-                 span=None, position=None) -> Port:
-        full = f"{component}.{local}"
-        if full in self.ports:
-            self.diags.append(Diagnostic("PHC-E207", f"component `{component}` declares port `{local}` twice",
-                                         span=span, hint="give each port its own name", path=full))
-        if dimension == 1:
-            f = [self.add_algebraic(component, f"{local}.f", "flow", span)]
-            e = [self.add_algebraic(component, f"{local}.e", "effort", span)]
-        else:
-            f = [self.add_algebraic(component, f"{local}.f[{k}]", "flow", span) for k in range(dimension)]
-            e = [self.add_algebraic(component, f"{local}.e[{k}]", "effort", span) for k in range(dimension)]
-        port = Port(full, component, domain, dimension, frame, f, e, position, span)
-        self.ports[full] = port
-        return port
-
-    def add_invariant(self, expr: sp.Expr, component: str, label: str, span=None, velocity=False) -> None:
-        inv = Invariant(f"{component}.{label}", expr, component, span)
-        (self.velocity_invariants if velocity else self.invariants).append(inv)
 
     # -- parameters -------------------------------------------------------------------
     def default_values(self) -> dict:
@@ -527,7 +331,10 @@ class Builder(Reporter):
             if self.scene is not None:
                 self.files.add_root(Path(os.path.realpath(self.scene.path)).parent)
         if parent is None and self.scene is not None:
-            spec, smap = self.scene.apply(self, spec, smap)
+            self.applied = self.scene.apply(self.files, spec, smap)
+            spec, smap = self.applied.spec, self.applied.smap
+            self.diags.extend(self.applied.diagnostics)
+            self.left_out.extend(self.applied.left_out)
             sctx = FileContext(str(self.scene.path), self.scene.smap, "", None)
             overrides = {k: (v, ("parameters", k), sctx) for k, v in self.scene.spec.parameters.items()}
             self.sources.append(str(self.scene.path))
@@ -622,7 +429,7 @@ class Builder(Reporter):
 
         per_entry = {}
         for cname, comp in ctx.spec.components.items():
-            if isinstance(comp, ModelComponentSpec) and cname not in self.skip:
+            if isinstance(comp, ModelComponentSpec) and cname not in self.applied.skip:
                 per_entry[cname] = child(ctx, cname, comp, {key}, 1)
         total = sum(per_entry.values())
         if total <= MAX_MODEL_INSTANCES:
@@ -659,7 +466,7 @@ class Builder(Reporter):
         for cname, comp in spec.components.items():
             full = ctx.prefix + cname
             path = ("components", cname)
-            if full in self.skip:
+            if full in self.applied.skip:
                 continue
             if isinstance(comp, ModelComponentSpec):
                 found = self._nested_ref(ctx, comp.file, (*path, "file"))
@@ -691,10 +498,12 @@ class Builder(Reporter):
         self._check_refs(ctx)
 
     def _lower(self, lowerers, ctx, full, comp, path) -> None:
-        if full in self.effect_overrides:
+        from phc.lowering import lower
+
+        if full in self.applied.effects:
             from phc.effects import apply_overrides
 
-            overrides, span = self.effect_overrides[full]
+            overrides, span = self.applied.effects[full]
             comp, problem = apply_overrides(comp, overrides)
             if problem:
                 self.diags.append(Diagnostic("PHC-E601", f"effects of `{full}`: {problem}", span=span,
@@ -703,16 +512,16 @@ class Builder(Reporter):
                 return
         if "elements" in type(comp).model_fields:
             self.written_meshes[full] = comp.elements  # what per-dof initial values were written for
-        if full in self.shape_overrides:
-            shape, span = self.shape_overrides[full]
+        if full in self.applied.shapes:
+            shape, span = self.applied.shapes[full]
             if "initial_shape" not in type(comp).model_fields:
                 self.diags.append(Diagnostic("PHC-E603", f"`{full}` ({comp.type}) has no `initial_shape`; a scene's "
                                              "`initial_shape` applies to moving beams", span=span))
                 self.failed.add(full)
                 return
             comp = comp.model_copy(update={"initial_shape": shape})
-        if full in self.mesh_overrides:
-            elements, span = self.mesh_overrides[full]
+        if full in self.applied.meshes:
+            elements, span = self.applied.meshes[full]
             if "elements" not in type(comp).model_fields:
                 self.diags.append(Diagnostic("PHC-E603", f"`{full}` ({comp.type}) has no mesh; `accuracy.mesh` "
                                              "applies to distributed components", span=span))
@@ -723,21 +532,71 @@ class Builder(Reporter):
             self.meshes[full] = (comp.type, comp.elements)
             from phc.budget import admit_mesh
 
-            if not admit_mesh(self, ctx, full, comp, path):  # estimated before any discretization
+            # estimated before any discretization
+            self.mesh_ledger, refused = admit_mesh(self.mesh_ledger, ctx, full, comp, path,
+                                                   self.applied.meshes.get(full))
+            if refused is not None:
+                self.diags.append(refused)
                 self.failed.add(full)
                 return
-        n_errors = len(self.diags.errors)
         self.components.append((full, comp.type, ctx.smap.locate(path)))
         self.component_specs[full] = comp
-        self.lowering = full
-        try:
-            lowerers[comp.type](self, ctx, full, comp, path)
-        finally:
-            self.lowering = None
-        if len(self.diags.errors) > n_errors:
+        lowering = lower(lowerers[comp.type], self._lowering_context(), ctx, full, comp, path)
+        self._fold(lowering)
+        if lowering.errors:
             self.failed.add(full)  # its ports may be missing: do not report them again
         elif self.units:
             self._check_field_units(ctx, full, comp, path)
+
+    def _lowering_context(self):
+        """What the next lowerer may read of the model so far: read-only views, no copies
+        (nothing changes them while it runs)."""
+        from phc.lowering import LoweringContext, ReadOnlySequence
+
+        self.default_values()  # brings the defaults of parameters added since up to date
+        ro = MappingProxyType
+        return LoweringContext(default_values=ro(self._default_values), variables=ReadOnlySequence(self.variables),
+                               ports=ro(self.ports), unset_parameters=frozenset(self.unset_parameters),
+                               units=ro(self.units), unit_text=ro(self.unit_text), override_note=self.override_note,
+                               files=self.files)
+
+    def _fold(self, lowering) -> None:
+        """Append one component's :class:`~phc.lowering.ComponentLowering` to the model:
+        its rows after the rows so far (its sparse blocks' row indices shifted with them),
+        its definitions, ports, terms and diagnostics."""
+        self.diags.extend(lowering.diagnostics)
+        self.expr_dims.update(lowering.expr_dims)
+        for key, entries in lowering.field_dims:
+            self.field_dims.setdefault(key, []).extend(entries)
+        start = len(self.equations)
+        self.variables.extend(lowering.variables)
+        self.equations.extend(lowering.equations)
+        self.linear_blocks.extend(dataclasses.replace(block, rows=tuple(start + r for r in block.rows))
+                                  for block in lowering.linear_blocks)
+        for sym, expr in lowering.definitions:
+            self.definitions[sym] = expr
+            self.defined_by[sym] = lowering.component
+        self.hand_written |= lowering.hand_written
+        self.ports.update((port.name, port) for port in lowering.ports)
+        self.parameters.update((p.name, p) for p in lowering.parameters)
+        self.dirac.extend(lowering.descriptions)
+        self.hamiltonian.extend(lowering.hamiltonian)
+        self.dissipation.extend(lowering.dissipation)
+        self.source_power.extend(lowering.source_power)
+        self.quadratic_energy.extend(lowering.quadratic_energy)
+        self.quadratic_dissipation.extend(lowering.quadratic_dissipation)
+        self.invariants.extend(lowering.invariants)
+        self.velocity_invariants.extend(lowering.velocity_invariants)
+        self.resistive_laws.extend(lowering.resistive_laws)
+        self.rigid_constraints.extend(lowering.rigid_constraints)
+        self.extra_outputs.update(lowering.extra_outputs)
+        self.initial_relations.extend(lowering.initial_relations)
+        self.position_maps.extend(lowering.position_maps)
+        self.compile_time_parameters |= lowering.compile_time_parameters
+        self.initial_fields.update(lowering.initial_fields)
+        self.unavailable.update(lowering.unavailable)
+        self.left_out.extend(lowering.left_out)
+        self.failed |= lowering.failed
 
     def _check_field_units(self, ctx: FileContext, full: str, comp, path) -> None:
         """Fields whose dimension the component knows from its domain (a spring's `k` is
@@ -801,7 +660,7 @@ class Builder(Reporter):
                    hint=hint + " (docs/units.md: one system of units per model)")
 
     def _skipped(self, ctx: FileContext, ref: str) -> bool:
-        return ctx.prefix + ref.split(".", 1)[0] in self.skip
+        return ctx.prefix + ref.split(".", 1)[0] in self.applied.skip
 
     def _check_refs(self, ctx: FileContext) -> None:
         """Check that connections and exposed ports of this file name existing ports."""
@@ -916,9 +775,7 @@ class Elaboration:
         return resolve_alias(self.port_aliases, name)
 
 
-def _finish(b: Builder, ctx: FileContext) -> Elaboration:
-    from phc.budget import mesh_spans
-
+def _finish(b: _Elaborator, ctx: FileContext) -> Elaboration:
     ro = MappingProxyType
     return Elaboration(
         top=ctx, scene=b.scene, variables=tuple(b.variables), equations=tuple(b.equations),
@@ -933,7 +790,7 @@ def _finish(b: Builder, ctx: FileContext) -> Elaboration:
         resistive_laws=tuple(b.resistive_laws), initial_relations=tuple(b.initial_relations),
         position_maps=tuple(b.position_maps), extra_outputs=ro(dict(b.extra_outputs)),
         compile_time_parameters=frozenset(b.compile_time_parameters), meshes=ro(dict(b.meshes)),
-        mesh_spans=ro(mesh_spans(b)), left_out=tuple(b.left_out), unavailable=ro(dict(b.unavailable)),
+        mesh_spans=ro(b.mesh_ledger.spans), left_out=tuple(b.left_out), unavailable=ro(dict(b.unavailable)),
         sources=tuple(b.sources), files=b.files, initial_fields=ro(dict(b.initial_fields)),
         written_meshes=ro(dict(b.written_meshes)), units=ro(dict(b.units)), unit_text=ro(dict(b.unit_text)),
         units_si=b.units_declared and b.units_si,
@@ -956,10 +813,10 @@ def elaborate(path: str | os.PathLike, scene=None, params: Optional[Mapping[str,
     file could not be read. With errors it is still returned, so that the interconnect
     pass can report wiring problems too (components that failed are skipped there).
     """
-    builder = Builder()
-    builder.scene = scene
-    builder.param_overrides = dict(params or {})
-    ctx = builder.load_file(Path(path), "", {}, None)
+    state = _Elaborator()
+    state.scene = scene
+    state.param_overrides = dict(params or {})
+    ctx = state.load_file(Path(path), "", {}, None)
     if ctx is None:
-        return None, builder.diags.sorted()
-    return _finish(builder, ctx), builder.diags
+        return None, state.diags.sorted()
+    return _finish(state, ctx), state.diags

@@ -58,7 +58,7 @@ Warnings
 
 Private control flow, defined where it is used
     These never leave the module (or the pass) that raises them, so they are not
-    ``PhcError``: ``phc.cli._Exit`` (leave a command with an exit code),
+    ``PhcError``: ``phc.cli.report._Exit`` (leave a command with an exit code),
     ``phc.checks.compiled._NotNumeric`` (a node the numpy tree walk leaves to sympy),
     ``phc.initial_fields._FieldError`` and its ``_Silent`` (a field problem turned into a
     diagnostic by the pass), ``phc.codegen.numba_cache.NotInCache`` (the full compile path
@@ -287,7 +287,9 @@ class CompiledBackendWarning(PhcWarning):
 
 
 class CacheWarning(PhcWarning):
-    """The configured cache directory is unusable or not private; a temporary one is used."""
+    """A cache problem, never the model's: the configured cache directory is unusable or not
+    private (a temporary one is used), or a cache entry does not verify or disagrees with
+    the model (a miss: compiled again)."""
 
 
 class RegistryError(PhcError):
@@ -295,7 +297,7 @@ class RegistryError(PhcError):
     wrong, a name taken)."""
 
 
-PRIVATE_CONTROL_FLOW = ("phc.cli._Exit", "phc.checks.compiled._NotNumeric", "phc.initial_fields._FieldError",
+PRIVATE_CONTROL_FLOW = ("phc.cli.report._Exit", "phc.checks.compiled._NotNumeric", "phc.initial_fields._FieldError",
                         "phc.initial_fields._Silent", "phc.codegen.numba_cache.NotInCache",
                         "phc.source._NotRegular", "phc.simulation.ida._Stop")
 """Exceptions that never leave the code that raises them, defined there (qualified names)."""

@@ -20,14 +20,21 @@ the private cache directory of the generated modules (:mod:`phc.codegen.load`), 
 ``front/``; ``phc cache clean`` removes it, and the cache's size cap counts it.
 
 It is found by a key over everything that decides the compilation: the model (or scene)
-file's bytes, its path as given and the working directory (messages cite it), the
-options that change compilation (``--no-certify``, ``--backend``, ``--allow-path``,
-``--max-memory``), every ``PHC_*`` environment variable, phc's version and a hash of phc's
-own source files, the Python version and the installed versions of the libraries the
-compiler uses. The record then lists every further file the compilation read (nested
-models, tables, matrices) with its SHA-256; a hit re-hashes them. Whatever does not match,
-cannot be read or does not verify is a miss: the full path runs, silently, and writes a
-fresh record.
+file's bytes, its path as given, resolved, and the symbolic links on the way (each link's
+target text), the working directory (messages cite it), the options that change
+compilation (``--no-certify``, ``--backend``, ``--allow-path``, ``--max-memory``), every
+``PHC_*`` and ``NUMBA_*`` environment variable, phc's version and a hash of phc's own source files, the
+Python version and the installed versions of the libraries the compiler uses. The record
+then lists every further file the compilation read *or tried to read* (nested models,
+tables, matrices, reference values; every reference :class:`phc.files.FileAccess` looked
+up and every file opened for reading), each by its path as written with what that path
+is now (:func:`file_state`): the symbolic links met resolving it, the resolved path, and
+the SHA-256 of a regular file, or that it is absent, unreadable or of another kind (a
+FIFO, a directory, ...). A hit computes each state again: a repointed link, a file
+created where one was missing, a FIFO replaced by a file are all misses. Whatever does
+not match, cannot be read or does not verify is a miss: the full path runs and writes a
+fresh record. A record at the key's name that does not verify (damaged, renamed, signed
+under another key) is reported with one :class:`~phc.errors.CacheWarning`.
 
 The fast path is not taken (the full path runs) for ``--estimate-error`` and ``--profile``
 (they need the model itself), for a ``--param`` of a compile-time parameter or of one an
@@ -60,7 +67,7 @@ from typing import Iterator, NamedTuple, Optional
 from phc.compiled import CompiledModel, RunCache
 from phc.description import ModelDescription
 
-FORMAT = 2
+FORMAT = 3
 """Version of the record layout (part of the key)."""
 ENV_SWITCH = "PHC_FRONT_END_CACHE"
 """``0`` turns the cached front end off."""
@@ -142,13 +149,91 @@ def _key(args, path: str, data: bytes, command: str) -> str:
     parts = {
         "format": FORMAT, "phc": __version__, "phc_source": phc_source_hash(), "python": sys.version,
         "executable": sys.executable, "libraries": _libraries(), "command": command, "file": str(path),
-        "real": os.path.realpath(path), "cwd": os.getcwd(), "bytes": hashlib.sha256(data).hexdigest(),
+        "real": os.path.realpath(path), "links": _links(path), "cwd": os.getcwd(),
+        "bytes": hashlib.sha256(data).hexdigest(),
         "no_certify": bool(getattr(args, "no_certify", False)), "backend": getattr(args, "backend", None),
         "allow_path": [[d, os.path.realpath(d)] for d in (getattr(args, "allow_path", None) or [])],
         "max_memory": getattr(args, "max_memory", None),
-        "env": sorted((k, v) for k, v in os.environ.items() if k.startswith("PHC_") and k not in _IGNORED_ENV),
+        "env": sorted((k, v) for k, v in os.environ.items()
+                      if k.startswith(("PHC_", "NUMBA_")) and k not in _IGNORED_ENV),
     }
     return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()
+
+
+# ---------------------------------------------------------------------------------------
+# what a path is now: the links on the way, where it leads, what is there
+
+_MAX_LINKS = 40
+
+
+def _absolute(path) -> str:
+    """`path` joined to the working directory, nothing resolved (``..`` after a link is the
+    link target's parent, as the operating system reads it)."""
+    path = os.fsdecode(path)
+    return path if os.path.isabs(path) else os.path.join(os.getcwd(), path)
+
+
+def _links(path) -> list:
+    """``[link, target text]`` of each symbolic link met resolving `path`, in order (a
+    directory link on the way included); a loop ends the list with ``[link, None]``."""
+    out: list = []
+    pending = list(reversed(_absolute(path).split(os.sep)))
+    resolved = os.sep
+    while pending:
+        part = pending.pop()
+        if part in ("", "."):
+            continue
+        if part == "..":
+            resolved = os.path.dirname(resolved)
+            continue
+        candidate = os.path.join(resolved, part)
+        try:
+            st = os.lstat(candidate)
+        except OSError:
+            resolved = candidate  # absent (or not searchable): the rest as written
+            continue
+        if not stat.S_ISLNK(st.st_mode):
+            resolved = candidate
+            continue
+        if len(out) >= _MAX_LINKS:
+            out.append([candidate, None])
+            break
+        target = os.readlink(candidate)
+        out.append([candidate, target])
+        if os.path.isabs(target):
+            resolved = os.sep
+        pending.extend(reversed(target.split(os.sep)))
+    return out
+
+
+def file_state(path, memo: Optional[dict] = None) -> list:
+    """What `path` is now: ``[links, resolved path, content]`` where content is
+    ``sha256:…`` for a regular file phc can read, else ``absent``, ``unreadable`` or
+    ``mode …`` (a FIFO, a directory, a device, ...). Never opens anything but a regular
+    file, and that non-blocking. `memo` (resolved path -> content) hashes a file named by
+    several paths once."""
+    links = _links(path)
+    real = os.path.realpath(_absolute(path))
+    if memo is not None:
+        if real not in memo:
+            memo[real] = _content(real)
+        return [links, real, memo[real]]
+    return [links, real, _content(real)]
+
+
+def _content(real: str) -> str:
+    try:
+        st = os.stat(real)
+    except FileNotFoundError:
+        return "absent"
+    except OSError as err:
+        return f"unreadable {err.errno}"
+    if not stat.S_ISREG(st.st_mode):
+        return f"mode {stat.S_IFMT(st.st_mode):o}"
+    content = _read_regular(real, 2**40)
+    if content is None:
+        return "unreadable"
+    return "sha256:" + hashlib.sha256(content).hexdigest()
 
 
 # ---------------------------------------------------------------------------------------
@@ -177,9 +262,12 @@ def _read_regular(path, limit: int) -> Optional[bytes]:
 
 def _read_key() -> Optional[bytes]:
     """The per-user signing key when it exists and is private."""
-    from phc.codegen.load import read_key, state_dir
+    from phc.codegen.load import _problem, read_key, state_dir
 
-    return read_key(state_dir() / "cache-key")
+    folder = state_dir()
+    if _problem(folder) is not None:  # as phc.codegen.numba_cache.cache_key checks it
+        return None
+    return read_key(folder / "cache-key")
 
 
 def _folder() -> Optional[Path]:
@@ -224,24 +312,40 @@ def _load(args, path: str, command: str) -> Optional[dict]:
     if where is None or secret is None:
         return None
     raw = _read_regular(where, _MAX_RECORD)
+    if raw is None:
+        return None  # none yet (or not a private regular file: never opened for a blocking read)
     head = len(_MAGIC) + 32
-    if raw is None or len(raw) < head or not raw.startswith(_MAGIC):
-        return None
+    if len(raw) < head or not raw.startswith(_MAGIC):
+        return _damaged(where)
     tag, payload = raw[len(_MAGIC):head], raw[head:]
     if not hmac.compare_digest(tag, hmac.new(secret, payload, hashlib.sha256).digest()):
-        return None
-    record = json.loads(payload)
-    if record.get("format") != FORMAT or record.get("key") != key or record.get("command") != command:
-        return None
-    for name, digest in record["inputs"]:  # the files the compilation read, unchanged
-        content = _read_regular(name, 2**40)
-        if content is None or hashlib.sha256(content).hexdigest() != digest:
+        return _damaged(where)
+    try:
+        record = json.loads(payload)
+    except ValueError:
+        return _damaged(where)
+    if (not isinstance(record, dict) or record.get("format") != FORMAT or record.get("key") != key
+            or record.get("command") != command):
+        return _damaged(where)  # a record copied or renamed over this key's name
+    memo: dict = {}
+    for name, state in record["inputs"]:  # the files the compilation read or looked for, as they were
+        if file_state(name, memo) != state:
             return None
     try:
         os.utime(where)  # most recently used: the cache's size cap evicts the oldest first
     except OSError:
         pass
     return record
+
+
+def _damaged(where: Path) -> None:
+    """A record at this key's name that does not verify: a miss, with one warning (the model
+    is compiled again and the record written afresh)."""
+    from phc.errors import CacheWarning
+
+    warnings.warn(f"cached front-end record {where} does not verify (damaged, renamed or signed under another "
+                  "key); ignored, the model is compiled again", CacheWarning, stacklevel=3)
+    return None
 
 
 def _lookup(args, params: dict) -> Optional[Hit]:
@@ -305,8 +409,15 @@ class Recorder:
     def __init__(self, args, path: str, command: str) -> None:
         self.args, self.path, self.command = args, path, command
         self.data: Optional[bytes] = None
-        self.files: dict[str, tuple] = {}
+        self.files: dict[str, Optional[tuple]] = {}
+        """Each path read or looked for (as written, made absolute) -> (resolved path, size,
+        time) of the file opened, or None (looked up, absent, refused)."""
         self.warned = False
+
+    def note(self, path, opened: Optional[tuple] = None) -> None:
+        name = _absolute(path)
+        if opened is not None or name not in self.files:
+            self.files[name] = opened
 
     def store(self, compiled: CompiledModel, written_options: Optional[dict] = None) -> None:
         """Write the record of `compiled` and the accuracy settings its file writes (never
@@ -338,15 +449,18 @@ class Recorder:
             return
         if _read_regular(self.path, 16 * 2**20) != self.data:
             return  # changed while it was read
-        inputs = []
-        for name, (size, mtime) in sorted(self.files.items()):
-            content = _read_regular(name, 2**40)
-            if content is None:
-                return
-            st = os.stat(name)
-            if (st.st_size, st.st_mtime_ns) != (size, mtime):
-                return  # changed while it was compiled
-            inputs.append([name, hashlib.sha256(content).hexdigest()])
+        inputs, memo = [], {}
+        for name, opened in sorted(self.files.items()):
+            state = file_state(name, memo)
+            if opened is not None:
+                real, size, mtime = opened
+                try:
+                    st = os.stat(real)
+                except OSError:
+                    return
+                if state[1] != real or (st.st_size, st.st_mtime_ns) != (size, mtime):
+                    return  # changed while it was compiled
+            inputs.append([name, state])
         key = _key(self.args, self.path, self.data, self.command)
         record.update(format=FORMAT, key=key, command=self.command, inputs=inputs)
         payload = json.dumps(record, allow_nan=True).encode()
@@ -381,17 +495,36 @@ def recording(args, path: Optional[str] = None, command: str = "simulate") -> It
     rec.data = _read_regular(path, 16 * 2**20)
     from phc.codegen.load import state_dir
 
-    skip = [str(p) for p in (state_dir(), _folder_root()) if p is not None]
+    skip = [os.path.realpath(p) for p in (state_dir(), _folder_root()) if p is not None]
+
+    def ours(path) -> bool:  # phc's own state and cache: not inputs
+        name = os.path.realpath(_absolute(path))
+        return any(name == s or name.startswith(s + os.sep) for s in skip)
+
+    def looked_up(path) -> None:  # phc.files.FileAccess: every reference, found or not
+        try:
+            if not ours(path):
+                rec.note(path)
+        except Exception:  # noqa: BLE001
+            rec.data = None  # cannot tell what was looked for: no record
+
     real_open, real_show = os.open, warnings.showwarning
 
     def open_(path, flags, *a, **k):
-        fd = real_open(path, flags, *a, **k)
+        reading = flags & os.O_ACCMODE == os.O_RDONLY and not k.get("dir_fd") and not a[1:]
         try:
-            if flags & os.O_ACCMODE == os.O_RDONLY and not k.get("dir_fd") and not a[1:]:
+            fd = real_open(path, flags, *a, **k)
+        except OSError:
+            if reading:
+                looked_up(path)  # absent or refused: its state is part of the result
+            raise
+        try:
+            if reading and not ours(path):
                 st = os.fstat(fd)
-                name = os.path.realpath(os.fsdecode(path))
-                if stat.S_ISREG(st.st_mode) and not any(name.startswith(s + os.sep) for s in skip):
-                    rec.files[name] = (st.st_size, st.st_mtime_ns)
+                if stat.S_ISREG(st.st_mode):
+                    rec.note(path, (os.path.realpath(_absolute(path)), st.st_size, st.st_mtime_ns))
+                else:
+                    rec.note(path)
         except Exception:  # noqa: BLE001
             rec.data = None  # cannot tell what was read: no record
         return fd
@@ -400,9 +533,12 @@ def recording(args, path: Optional[str] = None, command: str = "simulate") -> It
         rec.warned = True
         return real_show(*a, **k)
 
+    from phc.files import observe
+
     os.open, warnings.showwarning = open_, show
     try:
-        yield rec
+        with observe(looked_up):
+            yield rec
     finally:
         os.open = real_open
         if warnings.showwarning is show:
@@ -432,4 +568,5 @@ def _record(compiled: CompiledModel, backend: Optional[str], written_options: Op
     }
 
 
-__all__ = ["ENV_SWITCH", "FOLDER", "Hit", "Recorder", "enabled", "lookup", "phc_source_hash", "recording"]
+__all__ = ["ENV_SWITCH", "FOLDER", "Hit", "Recorder", "enabled", "file_state", "lookup", "phc_source_hash",
+           "recording"]

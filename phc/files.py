@@ -22,6 +22,11 @@ matrices of a ``linear_phs`` — are untrusted references. :class:`FileAccess` e
 
 Refusals raise :class:`FileRefused`; the caller turns it into a located diagnostic at
 the referencing ``file:`` key. No message quotes a referenced file's content.
+
+Every reference looked up and every file opened is reported to the callbacks of
+:func:`observe` (the path as written, before anything is checked), so a cache of the
+result (:mod:`phc.fastpath`) can key on the files that were read *and* on those that
+were absent or refused.
 """
 
 from __future__ import annotations
@@ -31,11 +36,11 @@ import contextvars
 import os
 import stat
 from pathlib import Path
-from typing import BinaryIO, Iterable, Iterator, Optional
+from typing import BinaryIO, Callable, Iterable, Iterator, Optional
 
 from phc.errors import FileRefused
 
-__all__ = ["FileAccess", "FileRefused", "allow_paths", "allowed_extra_roots", "size_limit", "SIZE_LIMITS",
+__all__ = ["FileAccess", "FileRefused", "allow_paths", "observe", "allowed_extra_roots", "size_limit", "SIZE_LIMITS",
            "SIZE_LIMIT_ENV", "MAX_INCLUDE_DEPTH", "MAX_MODEL_INSTANCES", "ALLOW_HINT", "KIND_NAMES"]
 
 MiB = 2 ** 20
@@ -61,6 +66,24 @@ ALLOW_HINT = (f"move the file next to the model, or pass --allow-path DIR (or se
               "files under DIR")
 
 _EXTRA_ROOTS: contextvars.ContextVar[tuple[str, ...]] = contextvars.ContextVar("phc_allow_path", default=())
+_OBSERVERS: contextvars.ContextVar[tuple[Callable[[str], None], ...]] = contextvars.ContextVar(
+    "phc_file_observers", default=())
+
+
+@contextlib.contextmanager
+def observe(callback: Callable[[str], None]) -> Iterator[None]:
+    """Within the ``with`` block, `callback` is called with the path of every file a
+    :class:`FileAccess` looks up or opens, whether it exists, is refused or is read."""
+    token = _OBSERVERS.set(_OBSERVERS.get() + (callback,))
+    try:
+        yield
+    finally:
+        _OBSERVERS.reset(token)
+
+
+def _note(path: str | os.PathLike) -> None:
+    for callback in _OBSERVERS.get():
+        callback(os.fspath(path))
 
 
 @contextlib.contextmanager
@@ -165,6 +188,7 @@ class FileAccess:
             raise FileRefused("name", f"{what} name contains a NUL character")
         referrer = Path(referrer)
         shown = referrer.parent / ref
+        _note(shown)  # looked for: what becomes of it (read, absent, refused) is part of the result
         real = Path(os.path.realpath(shown))
         roots = self._roots_for(referrer)
         if not any(_within(real, root) for root in roots):
@@ -196,6 +220,7 @@ class FileAccess:
         """Open a resolved path for reading: non-blocking, not following a final symlink,
         and refused unless the opened descriptor is a regular file within the size limit."""
         what = KIND_NAMES[kind]
+        _note(real)
         flags = (os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOFOLLOW", 0)
                  | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_NOCTTY", 0) | getattr(os, "O_BINARY", 0))
         try:

@@ -181,12 +181,19 @@ class FieldInitializer:
     they were written for and turns fields into per-dof initial values (and, for the moving
     beam's velocity, initial relations with a right-hand side)."""
 
-    def __init__(self, b, ctx):
-        self.b, self.ctx = b, ctx
-        self.sets: dict[str, FieldSet] = dict(getattr(b.elab, "initial_fields", {}) or {})
-        self.written: dict = dict(getattr(b.elab, "written_meshes", {}) or {})
-        self.meshes = dict(b.elab.meshes)
-        self.scene = b.elab.scene
+    def __init__(self, elab, reporter, ctx):
+        """`elab`: the :class:`phc.elaborate.Elaboration` assembled (only read); problems go
+        to `reporter` (a :class:`phc.reporter.Reporter`)."""
+        self.reporter, self.ctx = reporter, ctx
+        self.defaults = dict(elab.default_values)
+        self.sets: dict[str, FieldSet] = dict(getattr(elab, "initial_fields", {}) or {})
+        self.written: dict = dict(getattr(elab, "written_meshes", {}) or {})
+        self.meshes = dict(elab.meshes)
+        self.scene = elab.scene
+        self.initial_relations: tuple = tuple(elab.initial_relations)
+        """The elaboration's initial relations, as the fields applied change them."""
+        self.compile_time_parameters: frozenset = frozenset(elab.compile_time_parameters)
+        """The elaboration's compile-time parameters, with those the fields applied use."""
         self.extra_compile_time: set = set()
         self._reported: set = set()
 
@@ -232,7 +239,7 @@ class FieldInitializer:
         names = list(field_names(fs))
         suggest = local if fs.type == "moving_beam" else _SUGGEST.get(local, local)  # its `velocity` is elastic only
         example = suggest if suggest in names else (names[0] if names else local)
-        self.b.error(
+        self.reporter.error(
             "PHC-E214",
             f"`{name}`{more} is given per degree of freedom for the {written}-element mesh of `{comp}` in {where}, "
             f"but this run compiles `{comp}` with {compiled} elements (a scene's `accuracy.mesh`, `--mesh`, or the "
@@ -253,21 +260,21 @@ class FieldInitializer:
 
     def apply(self, entries: list, out: list[InitialValue]) -> list[InitialValue]:
         """`entries`: (name, spec) of the field keys; `out`: the per-dof values found.
-        Returns all initial values; updates the assembly's initial relations and
-        compile-time parameters."""
+        Returns all initial values; updates :attr:`initial_relations` and
+        :attr:`compile_time_parameters`."""
         by_comp: dict[str, dict] = {}
         for name, spec in entries:
             fs, field = self.field_key(name)
             path = ("simulation", "initial", name)
             known = field_names(fs)
             if field not in known:
-                self.b.error("PHC-E215", f"`{field}` is not an initial field of the {fs.type} `{fs.component}`",
+                self.reporter.error("PHC-E215", f"`{field}` is not an initial field of the {fs.type} `{fs.component}`",
                              self.ctx, path, key=True,
                              hint=f"fields of a {fs.type}: " + ", ".join(f"`{k}`" for k in known)
                              + " (docs/how-to/initial-fields.md)")
                 continue
             if fs.fields is None:
-                self.b.error("PHC-E215", f"initial fields of `{fs.component}` need its full discretization, but "
+                self.reporter.error("PHC-E215", f"initial fields of `{fs.component}` need its full discretization, but "
                              "effect `modes` reduces it to modal coordinates", self.ctx, path, key=True,
                              hint="drop `modes` for this run, or give the modal states per dof")
                 continue
@@ -281,26 +288,26 @@ class FieldInitializer:
                 if not err.code:
                     continue  # reported where the expression is
                 name, _, path = next(iter(given.values())) if not err.path_suffix else given[err.path_suffix[0]]
-                self.b.error(err.code, err.message, self.ctx, path, hint=err.hint)
+                self.reporter.error(err.code, err.message, self.ctx, path, hint=err.hint)
                 continue
             for iv in values:
                 if iv.name in dof_names:
-                    self.b.error("PHC-E215", f"`{iv.name}` is given per dof and by an initial field of `{comp}`",
+                    self.reporter.error("PHC-E215", f"`{iv.name}` is given per dof and by an initial field of `{comp}`",
                                  self.ctx, ("simulation", "initial", iv.name), key=True,
                                  hint="give either the field or the values per dof")
                     continue
                 out.append(iv)
             if drop or relations:
-                kept = [r for r in self.b.initial_relations if not any(r[0].startswith(d) for d in drop)]
-                self.b.initial_relations = tuple(kept) + tuple(relations)
+                kept = [r for r in self.initial_relations if not any(r[0].startswith(d) for d in drop)]
+                self.initial_relations = tuple(kept) + tuple(relations)
         if self.extra_compile_time:
-            self.b.compile_time_parameters = frozenset(self.b.compile_time_parameters) | self.extra_compile_time
+            self.compile_time_parameters = self.compile_time_parameters | self.extra_compile_time
         return out
 
     def _expr(self, value, path) -> Optional[sp.Expr]:
-        n = len(self.b.diags.errors)
-        ex = self.b.expr(self.ctx, value, path, {"xi": XI, **self.ctx.params})
-        return None if len(self.b.diags.errors) > n else ex
+        n = len(self.reporter.diags.errors)
+        ex = self.reporter.expr(self.ctx, value, path, {"xi": XI, **self.ctx.params})
+        return None if len(self.reporter.diags.errors) > n else ex
 
     def _component(self, fs: FieldSet, given: dict):
         """Per-dof values, relations and relation-label prefixes to drop for one component."""
@@ -477,7 +484,7 @@ class FieldInitializer:
         compile-time parameters)."""
         params = ex.free_symbols - {XI}
         self.extra_compile_time |= params
-        numeric = ex.xreplace(dict(self.b.default_values()))
+        numeric = ex.xreplace(dict(self.defaults))
         if numeric.free_symbols - {XI}:
             raise _FieldError("PHC-E215", "an initial field may depend on `xi` and parameters only",
                               "remove the other names")
@@ -508,7 +515,7 @@ class FieldInitializer:
         scale = sp.Integer(1)
         if kind == "coenergy" and not varies:
             scale = 1 / coeff.scale()  # ∫ c p φ = ∫ v φ with c constant: p = M⁻¹∫vφ / c
-        defaults = dict(self.b.default_values())
+        defaults = dict(self.defaults)
         total_num = np.zeros(space.size)
         symbolic: list = []
         ends = trace_dofs(space)
@@ -556,7 +563,7 @@ class FieldInitializer:
                 dg = None  # a slope that is not finite at some ξ: keep the plain projection there
         dw = None
         if weight is not None and kind == "state" and any(d for _, _, d in ends):
-            dw_ex = sp.diff(coeff.expr.xreplace(dict(self.b.default_values())), XI)
+            dw_ex = sp.diff(coeff.expr.xreplace(dict(self.defaults)), XI)
             dw_fn = sp.lambdify(XI, dw_ex, modules="numpy")  # safe: a derivative of a parsed coefficient
             dw = lambda x: np.broadcast_to(np.asarray(dw_fn(x), dtype=float), np.shape(x))  # noqa: E731
 

@@ -236,7 +236,8 @@ def table_breakpoints(times: np.ndarray, values: np.ndarray, kind: str) -> tuple
 class SignalBuilder:
     """Turns input signals into expressions; collects tables and breakpoints."""
 
-    def __init__(self) -> None:
+    def __init__(self, elab=None) -> None:
+        self.elab = elab  # the phc.elaborate.Elaboration whose inputs these are (its units check them)
         self.tables: list[tuple[np.ndarray, np.ndarray, str]] = []  # (times, values, interpolation)
         self.breakpoints: set[float] = set()
         self.expect: Optional[tuple[str, str, str]] = None  # (domain, "effort"|"flow", port) of the signal
@@ -267,7 +268,7 @@ class SignalBuilder:
         from phc.units import NUMBER, DimensionError, describe, dimension, scale_factor, scaled_label
 
         expected = self._want()
-        elab = getattr(b, "elab", None)
+        elab = self.elab
         if expected is None or elab is None or not getattr(elab, "units", None):
             return expr
         want, what = expected

@@ -358,8 +358,10 @@ def traversal_order(source: Source) -> list[tuple[str, str, str]]:
 
 def to_dot(top: Topology, name: str = "model") -> str:
     """Graphviz DOT text: one cluster per component with its ports, edges for connections."""
-    def q(text):
-        return '"' + str(text).replace('"', r"\"") + '"'
+    from phc.inert import inert
+
+    def q(text):  # a quoted DOT string of one line, without control characters (phc.inert)
+        return '"' + inert(text).replace('"', r"\"") + '"'
 
     lines = [f"graph {q(name)} {{", "  rankdir=LR;", "  node [fontsize=10];"]
     by_comp: dict[str, list] = {}

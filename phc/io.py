@@ -15,21 +15,42 @@ simulation.
 
 from __future__ import annotations
 
+import csv
 import os
 import tempfile
+import threading
 from contextlib import contextmanager
 from pathlib import Path
-from typing import IO, Iterator, Sequence, Union
+from typing import IO, Iterable, Iterator, Sequence, Union
 
 from phc.errors import OutputPathError
 
 PathLike = Union[str, os.PathLike]
 
 __all__ = ["OutputPathError", "check_output_file", "check_output_dir", "atomic_write", "write_text",
-           "write_bytes", "TEMP_SUFFIX"]
+           "write_bytes", "TEMP_SUFFIX", "csv_rows"]
 
 TEMP_SUFFIX = ".part"
 """Suffix of the temporary files (hidden: their names start with a dot)."""
+
+_CSV_FIELD_LIMIT = 2**31 - 1  # a C long everywhere (the csv module refuses more on Windows)
+_CSV_LOCK = threading.Lock()
+
+
+def csv_rows(lines: Iterable[str]) -> list[list[str]]:
+    """The rows of CSV text (``csv.reader(lines)``), fields of any length.
+
+    The csv module refuses a field longer than ``csv.field_size_limit()`` (131 072
+    characters by default) with ``csv.Error``; phc's own files (a sweep's messages) may
+    hold longer ones. The limit is raised for this read only and then restored: the
+    process keeps its own setting. Raises ``csv.Error`` for other malformed CSV."""
+    with _CSV_LOCK:
+        previous = csv.field_size_limit()
+        csv.field_size_limit(max(previous, _CSV_FIELD_LIMIT))
+        try:
+            return list(csv.reader(lines))
+        finally:
+            csv.field_size_limit(previous)
 
 
 def _probe_directory(folder: Path, option: str, shown: str) -> None:
@@ -46,6 +67,17 @@ def _probe_directory(folder: Path, option: str, shown: str) -> None:
                               "choose another place") from None
     os.close(fd)
     os.unlink(probe)
+
+
+@contextmanager
+def _path_errors(option: str, shown: str) -> Iterator[None]:
+    """An error of the file system about the path itself (a name too long, a loop of
+    symbolic links) as an OutputPathError."""
+    try:
+        yield
+    except OSError as err:
+        reason = (err.strerror or type(err).__name__).lower()
+        raise OutputPathError(f"{option} `{shown}` cannot be used ({reason}); choose another name") from None
 
 
 def check_output_file(path: PathLike, option: str, suffixes: Sequence[str]) -> Path:
@@ -75,12 +107,13 @@ def check_output_file(path: PathLike, option: str, suffixes: Sequence[str]) -> P
     target = Path(path)
     if target.suffix.lower() not in tuple(s.lower() for s in suffixes):
         raise OutputPathError(f"{option} must end in {' or '.join(suffixes)}, got `{shown}`")
-    if target.is_dir():
-        raise OutputPathError(f"{option} `{shown}` is a folder; give a file name such as "
-                              f"`{target / ('results' + suffixes[0])}`")
-    if target.exists() and not target.is_file():
-        raise OutputPathError(f"{option} `{shown}` exists and is not a regular file; choose another name")
-    _probe_directory(target.parent, option, shown)
+    with _path_errors(option, shown):
+        if target.is_dir():
+            raise OutputPathError(f"{option} `{shown}` is a folder; give a file name such as "
+                                  f"`{target / ('results' + suffixes[0])}`")
+        if target.exists() and not target.is_file():
+            raise OutputPathError(f"{option} `{shown}` exists and is not a regular file; choose another name")
+        _probe_directory(target.parent, option, shown)
     return target
 
 
@@ -94,7 +127,11 @@ def check_output_dir(path: PathLike, option: str) -> Path:
         `path` exists and is not a folder, or nothing can be created where it would go.
     """
     shown = os.fspath(path)
-    folder = Path(path)
+    with _path_errors(option, shown):
+        return _check_output_dir(Path(path), option, shown)
+
+
+def _check_output_dir(folder: Path, option: str, shown: str) -> Path:
     if folder.exists():
         if not folder.is_dir():
             raise OutputPathError(f"{option} `{shown}` is a file, not a folder; give a folder (it is created "

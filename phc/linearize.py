@@ -48,6 +48,7 @@ Each eigenvalue λ gives the natural frequency ``ω_n = |λ|``, the damping rati
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import re
@@ -59,6 +60,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from phc.errors import ModelError, SimulationSetupError
+from phc.inert import inert
 from phc.scene import Scene, is_scene_file, load_scene, scene_variant
 
 ENERGY = "energy.supplied"
@@ -256,7 +258,7 @@ class Linearization:
                              "or npz has all)")
         for note in self.notes:
             lines.append(f"  note     {note}")
-        return "\n".join(lines)
+        return "\n".join(inert(line) for line in lines)  # the model's and its parts' names (phc.inert)
 
 
 # -- inputs: a scene that adds a perturbation parameter to each source and exposed port ---
@@ -269,8 +271,9 @@ class _InputScene(Scene):
     port_dimensions: dict = field(default_factory=dict)
     inputs: list = field(default_factory=list)
 
-    def apply(self, builder, spec, smap):
-        spec, smap = super().apply(builder, spec, smap)
+    def apply(self, files, spec, smap):
+        applied = super().apply(files, spec, smap)
+        spec = applied.spec
         taken = set(spec.parameters) | set(spec.components)
         self.inputs = []
 
@@ -288,7 +291,7 @@ class _InputScene(Scene):
         components = dict(spec.components)
         for cname, comp in spec.components.items():
             kind = {"effort_source": "effort", "flow_source": "flow"}.get(comp.type)
-            if kind is None or cname in builder.skip:
+            if kind is None or cname in applied.skip:
                 continue
             if kind == "flow" and getattr(comp, "position", None) is not None:
                 continue  # a prescribed motion (its position integrates the value)
@@ -333,7 +336,7 @@ class _InputScene(Scene):
             parameters[u.parameter] = 0.0
         new_sim = sim.model_copy(update={"inputs": inputs})
         spec = spec.model_copy(update={"components": components, "parameters": parameters, "simulation": new_sim})
-        return spec, smap
+        return dataclasses.replace(applied, spec=spec)
 
 
 def _input_spec():

@@ -6,13 +6,15 @@ import math
 import sys
 import time
 
+from phc.inert import inert
+
 
 class Progress:
     """Call with the current time; draws once the run has taken `delay` seconds."""
 
     def __init__(self, t0: float, t1: float, label: str = "simulate", delay: float = 2.0, stream=None,
                  enabled: bool = True):
-        self.t0, self.t1, self.label = t0, t1, label
+        self.t0, self.t1, self.label = t0, t1, inert(label)  # the model's name (phc.inert)
         self.start = time.monotonic()
         self.delay = delay
         self.stream = stream or sys.stderr
@@ -54,7 +56,7 @@ class CountProgress:
     A terminal gets a redrawn bar; a log one line every 10 s (and at the end)."""
 
     def __init__(self, total: int, label: str = "sweep", done: int = 0, stream=None, enabled: bool = True):
-        self.total, self.done, self.failed, self.label = total, done, 0, label
+        self.total, self.done, self.failed, self.label = total, done, 0, inert(label)
         self.first = done  # finished before this run (--resume): not part of the rate
         self.start = time.monotonic()
         self.stream = stream or sys.stderr

@@ -31,6 +31,7 @@ import numpy as np
 
 from phc.diagnostics import Diagnostic
 from phc.errors import ReferenceValuesError
+from phc.io import csv_rows
 from phc.source import SourceSpan
 
 CODE = "PHC-E607"
@@ -77,7 +78,10 @@ def parse_csv(data: bytes, name: str, shown: str, time_column: str = "t") -> Ref
         stripped = raw.strip()
         if not stripped or stripped.startswith("#"):
             continue
-        cells, offsets = _split(raw)
+        try:
+            cells, offsets = _split(raw)
+        except csv.Error as err:  # a NUL byte, for one
+            raise ReferenceValuesError(f"this line is not valid CSV ({err})", SourceSpan(shown, lineno, 1)) from None
         if header is None:
             header = [c.strip().strip('"').strip() for c in cells]
             header_line = lineno
@@ -225,7 +229,7 @@ def diagnostic(err: ReferenceValuesError) -> Diagnostic:
 
 def _split(line: str) -> tuple[list[str], list[int]]:
     """Cells of a CSV line and their offsets (a quoted cell may hold a comma)."""
-    cells = next(csv.reader([line]))
+    cells = csv_rows([line])[0]  # cells of any length: a long one is "not a number", located
     offsets, pos = [], 0
     for cell in cells:
         offsets.append(pos)

@@ -8,6 +8,10 @@ Static Analysis Results Interchange Format) that ``github/codeql-action/upload-s
 uploads to code scanning: one run of the tool ``phc``, one rule per diagnostic code, one
 result per diagnostic with its file, line and column.
 
+File names and messages are inert (:func:`phc.inert.inert`: control characters as
+visible escapes such as ``\\x1b``), then escaped as GitHub documents for workflow
+commands: ``%``, CR and LF in the message, and ``:`` and ``,`` too in properties.
+
 File paths are written relative to the current directory when they lie under it (CI
 runs from the repository root, and both formats resolve paths from there), with ``/``
 as separator.
@@ -20,6 +24,7 @@ from urllib.parse import quote
 from typing import Iterable, Optional
 
 from phc.diagnostics import ERROR_CODES, Diagnostic, _printable
+from phc.inert import inert
 
 __all__ = ["SARIF_SCHEMA", "SARIF_VERSION", "github_annotations", "relative_uri", "sarif_log"]
 
@@ -50,10 +55,14 @@ def _message(d: Diagnostic) -> str:
 
 
 def _escape_data(text: str) -> str:
+    """A workflow command's message, escaped as GitHub documents (``%``, CR, LF); the text
+    is inert already (no ESC or other control character, :func:`phc.inert.inert`)."""
     return text.replace("%", "%25").replace("\r", "%0D").replace("\n", "%0A")
 
 
 def _escape_property(text: str) -> str:
+    """A workflow command's property, escaped as GitHub documents (``%``, CR, LF, ``:``
+    and ``,``)."""
     return _escape_data(text).replace(":", "%3A").replace(",", "%2C")
 
 
@@ -66,7 +75,7 @@ def github_annotations(diags: Iterable[Diagnostic], default_file: Optional[str] 
         props = []
         file = d.span.file if d.span is not None else default_file
         if file:
-            props.append(f"file={_escape_property(relative_uri(file))}")
+            props.append(f"file={inert(_escape_property(relative_uri(file)))}")
         if d.span is not None:
             props += [f"line={d.span.line}", f"col={d.span.col}"]
         props.append(f"title={_escape_property(d.code)}")

@@ -3,8 +3,8 @@
 A scene (:class:`~phc.spec.scene.SceneSpec`) changes what is compiled, not the model file:
 
 * parameter overrides of the model's top-level parameters;
-* effects per component and mesh sizes (applied when each component is lowered, see
-  :meth:`phc.elaborate.Builder._lower`);
+* effects per component and mesh sizes (applied when each component is lowered by the
+  elaborate pass, :mod:`phc.elaborate`);
 * the simulation settings — time span, initial values and inputs (merged over the
   model's), outputs (replacing the model's), tolerances, step and solver;
 * pruning: components that cannot influence the requested outputs are not lowered at
@@ -25,7 +25,8 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Optional
+from types import MappingProxyType
+from typing import Any, Mapping, Optional
 
 import pydantic
 
@@ -43,6 +44,27 @@ def is_scene_file(path: str | os.PathLike) -> bool:
     """True when the YAML file is a scene (it names a `model` and has no `components`)."""
     data, _, problems = read_yaml_file(path)
     return not problems and isinstance(data, dict) and "model" in data and "components" not in data
+
+
+@dataclass(frozen=True)
+class SceneApplication:
+    """What applying a scene to its model gives the elaborate pass (:meth:`Scene.apply`)."""
+
+    spec: Any
+    """The model's spec with the scene's simulation settings (and pruned exposed ports)."""
+    smap: Any
+    """The model's source map overlaid by the scene's for the entries the scene provides."""
+    effects: Mapping[str, tuple[dict, Optional[SourceSpan]]] = field(default_factory=dict)
+    """Component -> (its effects as the scene sets them, where)."""
+    meshes: Mapping[str, tuple[int, Optional[SourceSpan]]] = field(default_factory=dict)
+    """Distributed component -> (`elements` from the scene's `accuracy.mesh`, where)."""
+    shapes: Mapping[str, tuple[str, Optional[SourceSpan]]] = field(default_factory=dict)
+    """Moving beam -> (the scene's `initial_shape`, where)."""
+    skip: frozenset = frozenset()
+    """Top-level components pruned (not lowered)."""
+    left_out: tuple[tuple[str, str, str], ...] = ()
+    """(component, what, why) of what is pruned."""
+    diagnostics: tuple[Diagnostic, ...] = ()
 
 
 @dataclass
@@ -73,10 +95,14 @@ class Scene:
         return self.smap.locate(tuple(path))
 
     # -- application --------------------------------------------------------------------
-    def apply(self, builder, spec, smap):
-        """The model spec and source map the builder elaborates for this scene; registers
-        effect and mesh overrides and the components to leave out."""
+    def apply(self, files, spec, smap) -> "SceneApplication":
+        """What the elaborate pass elaborates for this scene: the model spec and source map
+        with the scene's settings, the effect, mesh and shape overrides, the components
+        to leave out and the problems found (:class:`SceneApplication`). `files` is the
+        :class:`~phc.files.FileAccess` that the scene's reference values are read through."""
         s = self.spec
+        diags: list[Diagnostic] = []
+        left_out: list[tuple[str, str, str]] = []
         sim = spec.simulation
         update: dict[str, Any] = {}
         for key in ("t_start", "t_end", "n_out", "solver"):
@@ -94,45 +120,45 @@ class Scene:
             if name in requested:
                 outputs[reference_name(name)] = expr
             else:
-                builder.diags.append(Diagnostic(
+                diags.append(Diagnostic(
                     "PHC-E605", f"reference for `{name}`, which is not a requested output",
                     span=self.smap.locate_key(("reference", name)),
                     hint=f"outputs: {', '.join(requested) or 'none'}"))
         update["outputs"] = outputs
         if s.reference_values is not None:
-            self._reference_values(builder, sim, update, requested)
-        for comp, effects in s.effects.items():
-            builder.effect_overrides[comp] = (dict(effects), self.locate("effects", comp))
-        for comp, elements in s.accuracy.mesh.items():
-            builder.mesh_overrides[comp] = (elements, self.locate("accuracy", "mesh", comp))
-        for comp, shape in s.initial_shape.items():
-            builder.shape_overrides[comp] = (shape, self.locate("initial_shape", comp))
+            diags.extend(self._reference_values(files, sim, update, requested))
+        effects = {comp: (dict(given), self.locate("effects", comp)) for comp, given in s.effects.items()}
+        meshes = {comp: (elements, self.locate("accuracy", "mesh", comp)) for comp, elements in s.accuracy.mesh.items()}
+        shapes = {comp: (shape, self.locate("initial_shape", comp)) for comp, shape in s.initial_shape.items()}
         for comp in list(s.effects) + list(s.accuracy.mesh) + list(s.initial_shape):
             top = comp.split(".", 1)[0]
             if top not in spec.components:
                 where = (("effects", comp) if comp in s.effects else ("accuracy", "mesh", comp)
                          if comp in s.accuracy.mesh else ("initial_shape", comp))
-                builder.diags.append(Diagnostic(
+                diags.append(Diagnostic(
                     "PHC-E602", f"the model has no component `{top}`", span=self.smap.locate_key(where),
                     hint=f"components: {', '.join(spec.components)}"))
+        skip: set[str] = set()
         if s.prune and outputs:
             skip, reason = _prune(spec, outputs)
-            for comp in sorted(skip):
-                builder.skip.add(comp)
-                builder.leave_out(comp, "the whole component", reason)
-            self._unused(builder, skip)
+            left_out.extend((comp, "the whole component", reason) for comp in sorted(skip))
+            diags.extend(self._unused(skip))
             update["nominal"] = {k: v for k, v in update["nominal"].items() if k.split(".", 1)[0] not in skip}
             exposed = {pname for pname, exp in spec.ports.items() if exp.port.split(".", 1)[0] in skip}
             update["inputs"] = {k: v for k, v in update["inputs"].items() if k not in exposed}
             update["initial"] = {k: v for k, v in update["initial"].items() if k.split(".", 1)[0] not in skip}
             spec = spec.model_copy(update={"ports": {k: v for k, v in spec.ports.items() if k not in exposed}})
         new_sim = type(sim).model_validate({**sim.model_dump(exclude_unset=True), **update})
-        return spec.model_copy(update={"simulation": new_sim}), _Overlay(smap, self.smap, s)
+        return SceneApplication(spec.model_copy(update={"simulation": new_sim}), _Overlay(smap, self.smap, s),
+                                effects=MappingProxyType(effects), meshes=MappingProxyType(meshes),
+                                shapes=MappingProxyType(shapes), skip=frozenset(skip), left_out=tuple(left_out),
+                                diagnostics=tuple(diags))
 
 
-    def _unused(self, builder, skip: set) -> None:
+    def _unused(self, skip: set) -> list[Diagnostic]:
         """A warning at each entry of this scene about a component it leaves out (PHC-W608):
         the entry is not used, and a typo in it could not be found."""
+        found = []
         s = self.spec
         entries = [(("initial", k), k) for k in s.initial] + [(("nominal", k), k) for k in s.nominal]
         entries += [(("effects", k), k) for k in s.effects] + [(("accuracy", "mesh", k), k) for k in s.accuracy.mesh]
@@ -140,31 +166,31 @@ class Scene:
         for where, name in entries:
             top = name.split(".", 1)[0]
             if top in skip:
-                builder.diags.append(Diagnostic(
+                found.append(Diagnostic(
                     "PHC-W608", f"`{'.'.join(where[:-1])}` of `{name}` is not used: this scene leaves out `{top}`, "
                     "which cannot influence the requested outputs (nor is the entry checked)",
                     span=self.smap.locate_key(where), severity="warning",
                     hint=f"remove the entry, request an output that depends on `{top}`, or set `prune: false`"))
+        return found
 
-    def _reference_values(self, builder, sim, update, requested) -> None:
-        """Read and check `reference_values` (PHC-E607 at the file's row or the entry)."""
+    def _reference_values(self, files, sim, update, requested) -> list[Diagnostic]:
+        """Read and check `reference_values` (PHC-E607 at the file's row or the entry);
+        returns the problems found."""
         from phc import reference_values as refs
 
         t0 = float(update.get("t_start", sim.t_start))
         t1 = float(update.get("t_end", sim.t_end))
         try:
-            rv = refs.for_scene(self, builder.files, requested, t0, t1)
+            rv = refs.for_scene(self, files, requested, t0, t1)
         except refs.ReferenceValuesError as err:
-            builder.diags.append(refs.diagnostic(err) if err.span is not None else Diagnostic(
-                refs.CODE, err.message, span=self.smap.locate(("reference_values",)), hint=err.hint))
-            return
+            return [refs.diagnostic(err) if err.span is not None else Diagnostic(
+                refs.CODE, err.message, span=self.smap.locate(("reference_values",)), hint=err.hint)]
         both = [name for name in rv.series if name in self.spec.reference]
         if both:
-            builder.diags.append(Diagnostic(
-                refs.CODE, f"`{both[0]}` has both a closed form (`reference`) and reference values",
-                span=rv.locations.get(both[0]), hint="give one reference per output"))
-            return
+            return [Diagnostic(refs.CODE, f"`{both[0]}` has both a closed form (`reference`) and reference values",
+                               span=rv.locations.get(both[0]), hint="give one reference per output")]
         self.reference_values = rv
+        return []
 
 
 def reference_name(output: str) -> str:

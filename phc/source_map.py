@@ -20,6 +20,8 @@ from typing import Any, Sequence, Union
 from yaml.constructor import SafeConstructor
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
+from phc.inert import inert
+
 __all__ = ["PathElem", "SourceMap", "SourceSpan"]
 
 PathElem = Union[str, int]
@@ -49,7 +51,9 @@ class SourceSpan:
     col: int
 
     def __str__(self) -> str:
-        return f"{self.file}:{self.line}:{self.col}"
+        """``file:line:col``, the file name made inert (:func:`phc.inert.inert`: no control
+        characters, no workflow command at the start of a line)."""
+        return inert(f"{self.file}:{self.line}:{self.col}")
 
 
 _LINE_BREAK = re.compile(r"\r\n?|\n")

@@ -13,6 +13,7 @@ import pytest
 
 from phc import fastpath
 from phc.cli import build_parser, main
+from phc.errors import CacheWarning
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -156,7 +157,7 @@ def test_a_param_an_initial_value_is_written_in_takes_the_full_path(tmp_path, ca
 
 
 @pytest.mark.parametrize("damage", ["garbage", "truncated", "resigned"])
-def test_a_damaged_record_falls_back_silently(tmp_path, cache, capsys, damage):
+def test_a_damaged_record_is_a_miss_with_one_warning(tmp_path, cache, capsys, damage):
     model = tmp_path / "pendulum.yaml"
     model.write_text(PENDULUM, encoding="utf-8")
     assert simulate(model, tmp_path / "a.csv") == 0
@@ -169,10 +170,13 @@ def test_a_damaged_record_falls_back_silently(tmp_path, cache, capsys, damage):
     else:  # valid JSON, edited without the key: the signature no longer matches
         record.write_bytes(data.replace(b'"guess', b'"guesS', 1) if b'"guess' in data else data[:-1] + b" ")
     capsys.readouterr()
-    assert not hit(model)
+    with pytest.warns(CacheWarning, match="does not verify"):
+        assert not hit(model)
     assert simulate(model, tmp_path / "b.csv") == 0
     captured = capsys.readouterr()
     assert "Traceback" not in captured.err and "error" not in captured.err
+    (line,) = [line for line in captured.err.splitlines() if "warning" in line]  # one warning, naming the cache
+    assert line.startswith("phc: warning: cached front-end record ") and "phc bug" not in line
     assert (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()
     assert hit(model)  # the full path wrote a good record again
 

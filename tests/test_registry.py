@@ -149,6 +149,19 @@ def test_the_per_type_tables_are_the_registrys():
     assert set(MODULATED) == {"modulation", "transformer", "gyrator"}
 
 
+def test_the_effects_message_names_the_registrys_types_with_effects():
+    """A scene that switches an effect of a type without effects is told which types have
+    them: read from the registry (a type registered later is named too), not a list."""
+    from phc.effects import apply_overrides
+
+    spring = registry.get("spring").spec.model_validate({"type": "spring", "k": 1.0})
+    _, message = apply_overrides(spring, {"damping": False})
+    with_effects = [n for n in registry.names() if "effects" in registry.get(n).spec.model_fields]
+    assert {"rigid", "phs", "string", "moving_beam"} <= set(with_effects)
+    assert all(f"{name}" in message for name in with_effects)
+    assert "no optional effects" in message and "spring" not in message.split("exist for", 1)[1]
+
+
 def test_a_forgotten_or_wrong_field_is_refused_at_registration():
     spring = registry.get("spring")
     values = {f.name: getattr(spring, f.name) for f in dataclasses.fields(ComponentType)}

@@ -133,7 +133,7 @@ def _hit(path: Path, *extra: str) -> bool:
 
 
 def test_tolerances_in_the_file_with_a_fixed_step_solver_warn_where_written(tmp_path, capsys, cache, monkeypatch):
-    import phc.cli
+    import phc.cli.commands
 
     path = _write(tmp_path, "m.yaml", OSCILLATOR.format(
         settings="  solver: midpoint\n  rtol: 1.0e-6\n  atol: 1.0e-9"))
@@ -141,7 +141,7 @@ def test_tolerances_in_the_file_with_a_fixed_step_solver_warn_where_written(tmp_
         assert _hit(path) == (run == 1)
         with monkeypatch.context() as patch:
             if run == 1:  # from the record, without reading the file again
-                patch.setattr(phc.cli, "_written_options", lambda path: pytest.fail("file read again"))
+                patch.setattr(phc.cli.commands, "_written_options", lambda path: pytest.fail("file read again"))
             lines = _simulate(capsys, path)
         assert len(lines) == 2, lines
         for line, key in zip(lines, ("rtol", "atol")):

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from typing import Optional
 
 from phc.diagnostics import DiagnosticList
+from phc.inert import inert
 
 
 @dataclass
@@ -46,9 +47,10 @@ class ModelCertificate:
             return "\n".join(d.render() for d in self.diagnostics)
         text = self.structure.render_text()
         if self.compiled is not None:
-            text = text.replace(f"{self.structure.model}: {'certified' if self.structure.certified else 'NOT certified'}",
-                                f"{self.structure.model}: {'certified' if self.certified else 'NOT certified'}", 1)
-            text += f"\ncompiled equations\n  {self.compiled.summary()}"
+            model = inert(self.structure.model)  # as the structure's text shows it
+            text = text.replace(f"{model}: {'certified' if self.structure.certified else 'NOT certified'}",
+                                f"{model}: {'certified' if self.certified else 'NOT certified'}", 1)
+            text += f"\ncompiled equations\n  {inert(self.compiled.summary())}"
         return text
 
 

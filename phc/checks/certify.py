@@ -38,6 +38,7 @@ import sympy as sp
 from phc.checks.graph import component_graph, component_of, independent_parts, kinematic_loops, traversal_order
 from phc.dae import T, Dae, DiracRelations
 from phc.diagnostics import Diagnostic, DiagnosticList
+from phc.inert import inert
 
 RANK_RTOL = 1e-9
 """Relative singular-value threshold for numerical rank."""
@@ -149,7 +150,7 @@ class Certificate:
                          + "; ".join("{" + ", ".join(p) + "}" for p in self.parts))
         for d in self.diagnostics:
             lines.append(d.render())
-        return "\n".join(lines)
+        return "\n".join(inert(line) for line in lines)  # model and component names (phc.inert)
 
 
 def _rank(s: np.ndarray) -> int:

@@ -12,7 +12,9 @@ prefer; and phc never writes bytecode for generated modules.
 
 The cache lives in ``$PHC_CACHE_DIR``, else ``$XDG_CACHE_HOME/phc``, else ``~/.cache/phc``.
 It is created private (mode 0700) and refused when another user owns it or others may
-write it; phc then uses a private temporary directory for the run and says so (there is no
+write it, or when a directory on the way to it (as written or resolved) is owned by
+another user or writable by others without the sticky bit (they could swap it for a
+link); phc then uses a private temporary directory for the run and says so (there is no
 shared ``/tmp`` fallback). Files are named by the SHA-256 of their content; the cache is
 capped (``$PHC_CACHE_MAX_MB``, default 512 MiB) by evicting the least recently used files.
 ``phc cache info`` and ``phc cache clean`` show and empty it.
@@ -22,6 +24,7 @@ from __future__ import annotations
 
 import atexit
 import hashlib
+import math
 import os
 import shutil
 import stat
@@ -66,6 +69,33 @@ def _problem(path: Path) -> str | None:
         return f"is writable by other users (mode {stat.S_IMODE(st.st_mode):o}); run `chmod go-w {path}`"
     if not os.access(path, os.W_OK | os.X_OK):
         return "is not writable"
+    return _unsafe_parent(path)
+
+
+def _unsafe_parent(path: Path) -> str | None:
+    """Why a directory on the way to `path` (as written or resolved) lets another user
+    rename or replace `path` — owned by another user (not root), or writable by others
+    without the sticky bit (``/tmp`` has it) — or None. Checking only `path` itself left a
+    race: its parent's other writers could swap it for a link between check and use."""
+    seen: set[str] = set()
+    for candidate in (os.path.abspath(path), os.path.realpath(path)):
+        for parent in Path(candidate).parents:
+            key = str(parent)
+            if key in seen:
+                continue
+            seen.add(key)
+            try:
+                st = os.stat(parent)
+            except OSError as err:
+                return f"cannot be used ({parent}: {err.strerror})"
+            if hasattr(os, "getuid") and st.st_uid not in (0, os.getuid()):
+                return f"lies inside {parent}, which another user owns (uid {st.st_uid})"
+            sticky = st.st_mode & stat.S_ISVTX
+            others = st.st_mode & stat.S_IWOTH or (
+                st.st_mode & stat.S_IWGRP and hasattr(os, "getgid") and st.st_gid != os.getgid())
+            if others and not sticky:
+                return (f"lies inside {parent}, which is writable by other users (mode {stat.S_IMODE(st.st_mode):o}) "
+                        "who could replace it; use a directory inside a private one")
     return None
 
 
@@ -130,12 +160,36 @@ def load_generated(source: str, name: str = "model") -> tuple[ModuleType, Path]:
 # size cap, info and clean
 
 
-def _cap_bytes() -> int:
+CAP_ENV = "PHC_CACHE_MAX_MB"
+MAX_CAP_MB = 2**40
+"""The largest size cap of the cache in MiB (1 EiB)."""
+
+
+def cap_problem() -> Optional[str]:
+    """What is wrong with ``$PHC_CACHE_MAX_MB`` (the command line refuses it, in one line),
+    or None when it is unset or a number of MiB from 0 to :data:`MAX_CAP_MB`."""
+    text = os.environ.get(CAP_ENV)
+    if text is None or not text.strip():
+        return None
     try:
-        mb = float(os.environ.get("PHC_CACHE_MAX_MB", DEFAULT_CAP_MB))
+        mb = float(text)
+    except ValueError:
+        return f"{CAP_ENV}: `{text}` is not a number of MiB; write e.g. 512"
+    if not 0 <= mb <= MAX_CAP_MB:
+        return f"{CAP_ENV} must be a number of MiB from 0 to {MAX_CAP_MB}, got `{text}`"
+    return None
+
+
+def _cap_bytes() -> int:
+    """The size cap in bytes; from Python, a malformed ``$PHC_CACHE_MAX_MB`` is the default
+    and one out of range the nearest bound (the command line refuses both)."""
+    try:
+        mb = float(os.environ.get(CAP_ENV, DEFAULT_CAP_MB))
     except ValueError:
         mb = DEFAULT_CAP_MB
-    return int(max(mb, 0) * 2**20)
+    if math.isnan(mb):
+        mb = DEFAULT_CAP_MB
+    return int(min(max(mb, 0), MAX_CAP_MB) * 2**20)
 
 
 def _entries(folder: Path) -> list[tuple[float, int, Path]]:
@@ -227,9 +281,13 @@ KEY_BYTES = 32
 
 def read_key(path: Path) -> Optional[bytes]:
     """The signing key at `path` when it is a private regular file of :data:`KEY_BYTES` bytes
-    owned by this user; None otherwise."""
+    owned by this user; None otherwise (a special file is refused without blocking:
+    checked with ``lstat`` first, opened non-blocking)."""
     try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
+        if not stat.S_ISREG(os.lstat(path).st_mode):
+            return None  # a FIFO, device or socket is never opened (a FIFO would block)
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0)
+                     | getattr(os, "O_CLOEXEC", 0))
     except OSError:
         return None
     try:

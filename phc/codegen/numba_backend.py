@@ -29,16 +29,21 @@ Caching
 -------
 Compiled functions are cached in ``<phc cache>/numba/`` (the private directory of
 :mod:`phc.codegen.load`: created 0700, refused when another user owns it or others may
-write it), under names derived from the SHA-256 of everything that determines the code
+write it, it or a directory on the way to it), under names derived from the SHA-256 of everything that determines the code
 (the kernel text, the reference module's text, the phc, numba and Python versions); numba
 adds the CPU to its key. Numba's own ``cache=True`` is not used: it writes next to the
 source file and unpickles whatever its index points to. Here every artefact is written
-with an HMAC-SHA256 tag under a per-user secret key kept *outside* the cache directory
-(``$PHC_STATE_DIR``, else ``$XDG_STATE_HOME/phc``, else ``~/.local/state/phc``; file
-``cache-key``, mode 0600), and an artefact whose tag does not verify is never unpickled —
-it is compiled again and overwritten. A cache directory restored from elsewhere (the CI
-cache of another build) therefore costs a compilation, never the execution of someone
-else's machine code. Set ``PHC_COMPILED_CACHE=0`` to compile in memory every time.
+with an HMAC-SHA256 tag over its file name and content under a per-user secret key kept
+*outside* the cache directory (``$PHC_STATE_DIR``, else ``$XDG_STATE_HOME/phc``, else
+``~/.local/state/phc``; file ``cache-key``, mode 0600), and an artefact whose tag does not
+verify (damaged, or a signed file copied or renamed over another function's name) is
+never unpickled — it is compiled again and overwritten, with one
+:class:`~phc.errors.CacheWarning`. Functions from the cache that still disagree with the
+reference module at the sample point (two writers racing) are compiled again without the
+cache, with one warning too: a cache problem, not a phc bug. A cache directory restored
+from elsewhere (the CI cache of another build) therefore costs a compilation, never the
+execution of someone else's machine code. Set ``PHC_COMPILED_CACHE=0`` to compile in
+memory every time.
 
 What a run needs once the functions are built (whether numba is usable, the signed cache,
 the module assembled over the reference) is in :mod:`phc.codegen.numba_cache`, which
@@ -61,6 +66,7 @@ from __future__ import annotations
 import os
 import sys
 import time
+import warnings
 from pathlib import Path
 from types import ModuleType
 from typing import Optional
@@ -420,6 +426,23 @@ def load_compiled(ir: ResidualIR, reference: ModuleType, reference_source: str,
     # what the cached front end needs to load these functions again without the IR (phc.fastpath)
     module.KERNEL = {"text": text, "emitted": sorted(kernels), "trivial": sorted(kernel_printer.trivial)}
     mismatch = _cross_check(module, reference)
+    if mismatch and (hits or state == "memory"):
+        # functions from the cache (a race between writers, a restored or tampered cache):
+        # a cache problem, not the model's and not phc's; compiled again without the cache
+        numba_cache._LOADED.pop(digest, None)
+        from phc.errors import CacheWarning
+
+        warnings.warn(f"compiled functions loaded from the cache disagree with this model ({mismatch}); "
+                      "compiled them again without the cache (`phc cache clean` empties it)", CacheWarning,
+                      stacklevel=2)
+        dispatchers, hits, misses = _build(ir, text, kernels, kernel_printer.trivial, kernel_printer.printer,
+                                           digest, None, None, None)
+        _remember(digest, dispatchers)
+        report = CompileReport(time.perf_counter() - start, time.process_time() - cpu, "off", digest,
+                               tuple(sorted(kernels)), "the cached copy disagreed with the model", 0, misses)
+        module = assemble(reference, dispatchers, report)
+        module.KERNEL = {"text": text, "emitted": sorted(kernels), "trivial": sorted(kernel_printer.trivial)}
+        mismatch = _cross_check(module, reference)
     if mismatch:
         raise BackendMismatch(f"the compiled functions disagree with the reference module ({mismatch})")
     return module, report

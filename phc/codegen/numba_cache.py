@@ -124,25 +124,56 @@ def cache_key() -> tuple[Optional[bytes], str]:
     return (key, "") if key is not None else (None, f"{path} could not be read back")
 
 
-_MAGIC = b"phc-numba-1\n"
+_MAGIC = b"phc-numba-2\n"
+"""Each file is signed over its own name and its content: a signed file copied or renamed
+over another function's name does not verify (``phc-numba-1`` files signed the content only)."""
 
 
-def _signed(key: bytes, payload: bytes) -> bytes:
-    return _MAGIC + hmac.new(key, payload, hashlib.sha256).digest() + payload
+def _tag(key: bytes, name: str, payload: bytes) -> bytes:
+    return hmac.new(key, name.encode("utf-8", "surrogateescape") + b"\0" + payload, hashlib.sha256).digest()
 
 
-def _verified(key: bytes, data: bytes) -> Optional[bytes]:
+def _signed(key: bytes, payload: bytes, name: str) -> bytes:
+    """`payload` signed for the file named `name` (its last path component)."""
+    return _MAGIC + _tag(key, os.path.basename(name), payload) + payload
+
+
+def _verified(key: bytes, data: bytes, name: str) -> Optional[bytes]:
+    """The payload of `data` read from the file named `name` when its signature is for that
+    name and content under `key`; else None."""
     head = len(_MAGIC) + 32
     if len(data) < head or not data.startswith(_MAGIC):
         return None
     tag, payload = data[len(_MAGIC):head], data[head:]
-    return payload if hmac.compare_digest(tag, hmac.new(key, payload, hashlib.sha256).digest()) else None
+    return payload if hmac.compare_digest(tag, _tag(key, os.path.basename(name), payload)) else None
+
+
+_WARNED: set[str] = set()
+
+
+def _damaged(path: str, data: bytes, stamp: str) -> None:
+    """A cache file that does not verify is a miss (compiled again) and says so, once per
+    model (`stamp`) and cache directory in this process; never blamed on the model. Files
+    of an older layout (another magic line) are a silent miss."""
+    if not data.startswith(_MAGIC) and data.startswith(b"phc-numba-"):
+        return
+    group = f"{os.path.dirname(path)}\0{stamp}"
+    if group in _WARNED:
+        return
+    _WARNED.add(group)
+    from phc.errors import CacheWarning
+
+    warnings.warn(f"compiled-function cache file {path} does not verify (damaged, renamed or copied from another "
+                  "name, or signed under another key); ignored, the model's functions that do not verify are "
+                  "compiled again (`phc cache clean` empties the cache)", CacheWarning, stacklevel=2)
 
 
 def _read_private(path: str) -> Optional[bytes]:
-    """The bytes of a regular file of ours (not a link), else None."""
+    """The bytes of a regular file of ours (not a link; a special file is never opened for
+    a blocking read), else None."""
     try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0)
+                     | getattr(os, "O_CLOEXEC", 0))
     except OSError:
         return None
     try:
@@ -151,6 +182,8 @@ def _read_private(path: str) -> Optional[bytes]:
             return None
         with os.fdopen(os.dup(fd), "rb") as f:
             data = f.read()
+    except OSError:
+        return None
     finally:
         os.close(fd)
     try:
@@ -215,8 +248,11 @@ def _cache_classes():
 
         def _load_index(self):
             data = _read_private(self._index_path)
-            payload = _verified(self._key, data) if data is not None else None
+            if data is None:
+                return {}
+            payload = _verified(self._key, data, self._index_path)
             if payload is None:
+                _damaged(self._index_path, data, self._source_stamp)
                 return {}
             version, stamp, overloads = pickle.loads(payload)
             if version != self._version or stamp != self._source_stamp:
@@ -226,19 +262,23 @@ def _cache_classes():
         def _save_index(self, overloads):
             payload = pickle.dumps((self._version, self._source_stamp, overloads), protocol=-1)
             with self._open_for_write(self._index_path) as f:
-                f.write(_signed(self._key, payload))
+                f.write(_signed(self._key, payload, self._index_path))
 
         def _load_data(self, name):
-            data = _read_private(self._data_path(name))
-            payload = _verified(self._key, data) if data is not None else None
+            path = self._data_path(name)
+            data = _read_private(path)
+            payload = _verified(self._key, data, path) if data is not None else None
             if payload is None:
+                if data is not None:
+                    _damaged(path, data, self._source_stamp)
                 raise OSError("missing or unsigned artefact")  # numba: treated as a miss
             return pickle.loads(payload)
 
         def _save_data(self, name, data):
             payload = dumps(data)
-            with self._open_for_write(self._data_path(name)) as f:
-                f.write(_signed(self._key, payload))
+            path = self._data_path(name)
+            with self._open_for_write(path) as f:
+                f.write(_signed(self._key, payload, path))
 
     class PhcCache(FunctionCache):
         _impl_class = PhcImpl
@@ -247,6 +287,20 @@ def _cache_classes():
             super().__init__(py_func)
             self._cache_file = SignedFile(self._cache_path, self._impl.filename_base,
                                           self._impl.locator.get_source_stamp(), key)
+
+        def save_overload(self, sig, data):
+            """A cache that cannot be written (a directory found unsafe or full meanwhile)
+            costs the saved copy, with one warning; never the compilation."""
+            try:
+                super().save_overload(sig, data)
+            except OSError as err:
+                where = self._cache_path
+                if where not in _WARNED:
+                    _WARNED.add(where)
+                    from phc.errors import CacheWarning
+
+                    warnings.warn(f"compiled functions not saved to the cache {where}: "
+                                  f"{err.strerror or err}", CacheWarning, stacklevel=2)
 
     if config.CACHE_LOCATOR_CLASSES:  # a user override would bypass phc's locator
         _CACHE_CLASSES = ()
@@ -411,8 +465,12 @@ def compile_functions(namespace: dict, trivial, signer: Optional[bytes], classes
             except Exception:  # numba internals differ: compile without the disk cache
                 pass
         namespace[name] = dispatchers[name] = disp
+    from numba.core.errors import NumbaWarning
+
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # numba's NumbaWarning about uncachable functions (large constants)
+        # numba's NumbaWarning about uncachable functions (large constants); phc's own
+        # CacheWarning about a damaged cache file is shown
+        warnings.simplefilter("ignore", NumbaWarning)
         for name, disp in dispatchers.items():
             disp.compile(_signature(name))
             disp.disable_compile()

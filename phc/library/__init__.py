@@ -1,7 +1,10 @@
 """Lowering of each component ``type`` to variables, equations and ports.
 
-``LOWERERS[type](builder, ctx, full_name, spec, path)`` adds the component's variables,
-equations, Hamiltonian, dissipation and ports to the :class:`phc.elaborate.Builder`.
+``LOWERERS[type](b, ctx, full_name, spec, path)`` writes the component's variables,
+equations, Hamiltonian, dissipation and ports into `b`, a :class:`phc.lowering.Recorder`
+of this component only, and reads the rest of the model through its read-only
+``b.context``; :func:`phc.lowering.lower` runs it and returns the frozen
+:class:`phc.lowering.ComponentLowering` the elaborate pass folds into the model.
 ``LOWERERS`` is the ``lower`` field of the component registry (:mod:`phc.registry`; the
 built-in entries are in :mod:`phc.library.builtin`), read when used.
 """

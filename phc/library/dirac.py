@@ -178,7 +178,7 @@ class DiracBuilder:
 
     def register(self, b, states=(), note: str = "", kind: Optional[str] = None,
                  structure: Optional[ComponentDescription] = None) -> ComponentDescription:
-        """Record the description with the builder (certification reads it) and return it."""
+        """Record the description with the lowering recorder `b` (certification reads it) and return it."""
         desc = self.describe(states, note, kind, structure)
         b.dirac.append(desc)
         return desc
@@ -194,9 +194,9 @@ def solve_for(expr: sp.Expr, symbol: sp.Symbol) -> sp.Expr:
 
 
 def emit(b, desc: ComponentDescription, dissipation_span=None) -> None:
-    """Derive the component's rows from its description and add them to the builder:
-    definitions, residual rows, the Hamiltonian and the dissipated power (located at
-    `dissipation_span`, or the component)."""
+    """Derive the component's rows from its description and add them to the lowering
+    recorder `b` (:class:`phc.lowering.Recorder`): definitions, residual rows, the
+    Hamiltonian and the dissipated power (located at `dissipation_span`, or the component)."""
     if desc.blocks or desc.storage_vectors:
         raise ValueError(f"{desc.component}: a sparse description is compared with rows written directly, "
                          "not emitted")

@@ -348,7 +348,7 @@ def _state_scope(b, ctx) -> dict:
     components lowered before it, by full name (vector states also as lists)."""
     scope = {"t": T, **ctx.params}
     vectors: dict = {}
-    for v in b.variables:
+    for v in b.known_variables():
         if v.differential:
             if v.name.endswith("]"):
                 base, idx = v.name[:-1].rsplit("[", 1)

@@ -22,9 +22,11 @@ from phc.errors import InconsistentInitialError, SimulationSetupError
 from phc.simulation.guard import CATCH as GUARD_CATCH
 from phc.simulation.guard import ModelEvaluationError, guard, quiet_floating_point
 from phc.simulation.events import has_switches, integrate_switched
-from phc.simulation.ida import integrate_ida
+from phc.simulation.ida import MAX_ORDER, applied_atol, integrate_ida
 from phc.simulation.initial import InitialResult, consistent_initial_conditions
-from phc.simulation.monitor import describe_equations
+from phc.simulation.monitor import describe_equations, many_steps_hint
+from phc.names import RUN_LIMITS
+from phc.options import RunOptions
 from phc.simulation.backend import Backend, BackendRun, IgnoredOptionWarning, ignored_option_message
 from phc.simulation.result import SimResult, SimulationInterrupted
 from phc.simulation.scaling import nominal_indices, nominal_scales, tested_fraction
@@ -57,9 +59,9 @@ BACKENDS: dict[str, Backend] = {b.name: b for b in (
 """Integrators by name (:class:`~phc.simulation.backend.Backend`): `ida` (variable-order
 BDF), and the fixed-step structure-preserving `midpoint`, `discrete_gradient`, `midpoint4`."""
 FIXED_STEP = tuple(name for name, b in BACKENDS.items() if b.fixed_step)
-N_OUT_LIMITS = (2, 10_000_000)
+N_OUT_LIMITS = tuple(RUN_LIMITS["n_out"][1:])
 """Smallest and largest number of output points (the model language's `simulation.n_out`)."""
-MAX_STEPS_LIMIT = 2 ** 31 - 1
+MAX_STEPS_LIMIT = RUN_LIMITS["max_steps"][2]
 """Largest `max_steps`: IDA stores it in a C long (32 bits on some platforms)."""
 
 
@@ -177,7 +179,7 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
              t_eval=None, initial: Optional[dict] = None, solver: Optional[str] = None,
              max_steps: Optional[int] = None, progress: Optional[Callable[[float], None]] = None,
              step: Optional[float] = None, backend: Optional[str] = None,
-             nominal: Optional[dict] = None) -> SimResult:
+             nominal: Optional[dict] = None, max_order: Optional[int] = None) -> SimResult:
     """Simulate a compiled model.
 
     Parameters
@@ -185,8 +187,9 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
     compiled : CompiledModel or path
         From :func:`phc.compile_model`; a model or scene file's path is compiled first
         (``phc.compile_model(path)``: compile once and pass the result to run it often).
-    t_end, rtol, atol, n_out, solver, max_steps : optional
-        Override the model's `simulation` defaults.
+    t_end, rtol, atol, n_out, solver, max_steps, max_order : optional
+        Override the model's `simulation` defaults (checked as the model file's are:
+        :class:`phc.options.RunOptions`).
     t_eval : array_like, optional
         Output times (overrides `n_out`).
     step : float, optional
@@ -234,22 +237,14 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
                         f"got {type(compiled).__name__}")
     mod = guard(for_compiled(compiled, backend), compiled.source, _locator(compiled))
     opts = compiled.description.options  # read-only (phc.description)
-    backend = BACKENDS.get(solver or opts["solver"])
-    ignored = backend.ignored({"rtol": rtol, "atol": atol, "step": step}) if backend is not None else []
+    # the one options object: the model's (or scene's) run options with this call's overrides
+    options = RunOptions.of(opts).with_overrides(t_end=t_end, rtol=rtol, atol=atol, n_out=n_out, solver=solver,
+                                                 max_steps=max_steps, step=step, max_order=max_order)
+    backend = BACKENDS[options.solver]
+    ignored = backend.ignored({"rtol": rtol, "atol": atol, "step": step, "max_order": max_order})
     if ignored:
         warnings.warn(ignored_option_message(backend, ignored), IgnoredOptionWarning, stacklevel=2)
-    t0 = float(opts["t_start"])
-    t1 = float(t_end if t_end is not None else opts["t_end"])
-    rtol = float(rtol if rtol is not None else opts["rtol"])
-    atol = float(atol if atol is not None else opts["atol"])
-    max_steps = _count("max_steps", max_steps if max_steps is not None else opts["max_steps"], 1, MAX_STEPS_LIMIT)
-    solver = solver or opts["solver"]
-    if solver not in BACKENDS:
-        raise SimulationSetupError(f"unknown solver `{solver}`; choose one of {', '.join(BACKENDS)}")
-    if not math.isfinite(t1) or not math.isfinite(t1 - t0) or not t1 > t0:
-        raise SimulationSetupError(f"`t_end` ({t1}) must be a finite time greater than the start time ({t0})")
-    if not (0 < rtol < 1) or not (0 < atol < math.inf):
-        raise SimulationSetupError("`rtol` must be in (0, 1) and `atol` a finite positive number")
+    t0 = options.t_start
     if t_eval is not None:
         t_out = np.asarray(t_eval, dtype=float).ravel()
         if not len(t_out) or not np.isfinite(t_out).all() or np.any(np.diff(t_out) <= 0) or t_out[0] < t0:
@@ -257,19 +252,18 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
         if t_out[0] != t0:
             t_out = np.concatenate([[t0], t_out])
     else:
-        t_out = np.linspace(t0, t1, _count("n_out", n_out if n_out is not None else opts["n_out"], *N_OUT_LIMITS))
+        t_out = np.linspace(t0, options.t_end, options.n_out)
     from phc.budget import check_output_arrays
 
     columns = 2 * mod.N + len(mod.OUTPUTS) + len(mod.INVARIANTS) + len(getattr(mod, "VELOCITY_INVARIANTS", ())) + 4
     too_large = check_output_arrays(len(t_out), columns, "t_eval" if t_eval is not None else "n_out")
     if too_large:  # the model's own n_out was checked at compile time; this catches overrides
         raise SimulationSetupError(too_large)
-    step = step if step is not None else (opts.get("step") if solver in FIXED_STEP else None)
-    if step is not None:
-        step = float(step)
-        if not (0 < step < math.inf) or not math.isfinite((t_out[-1] - t0) / step):
-            raise SimulationSetupError(f"`step` must be a finite positive number no smaller than the time span "
-                                       f"over 1e300, got {step}")
+    if not backend.fixed_step:
+        options = options.replace(step=None)  # IDA has none (a file's `step` is for --solver midpoint)
+    elif options.step is not None and not math.isfinite((t_out[-1] - t0) / options.step):
+        raise SimulationSetupError(f"`step` must be a finite positive number no smaller than the time span "
+                                   f"over 1e300, got {options.step}")
     p = parameter_vector(mod, params)
     check_parameters(compiled, params)  # the checks of values in the file (PHC-E405, E122, ...)
     values, fixed = initial_values(compiled, p, initial)
@@ -282,15 +276,13 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
             raise _setup_error(err, params) from None
         if hasattr(progress, "restart"):
             progress.restart()
-        extra = {"step": step} if solver in FIXED_STEP else {}
         # every tolerance measures the variables against their nominal scales (docs/tolerances.md)
         scales = nominal_scales(mod, p, init.y0, init.yp0, user_nominal, t0=t0, span=float(t_out[-1] - t0),
-                                t_out=t_out, atol=atol * tested_fraction(solver, rtol))
-        run = partial(BACKENDS[solver], mod, p, rtol=rtol, atol=atol, max_steps=max_steps, progress=progress,
-                      max_order=opts.get("max_order", 5), names=describe_equations(compiled), nominal=scales,
-                      **extra)
+                                t_out=t_out, atol=options.atol * tested_fraction(options.solver, options.rtol))
+        run = partial(backend, mod, p, options=options, progress=progress, names=describe_equations(compiled),
+                      nominal=scales)
         if has_switches(mod):  # switching conditions: breakpoints in t, state events (docs/events.md)
-            out = integrate_switched(BACKENDS[solver], mod, p, t_out, init, fixed, run.keywords)
+            out = integrate_switched(backend, mod, p, t_out, init, fixed, run.keywords)
         else:
             out = _integrate_with_breakpoints(run, mod, p, t_out, init)
         # the algebraic variables at the output times, from the states (simulation/polish.py): IDA
@@ -299,10 +291,10 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
 
         out = polish_outputs(mod, p, out, scales)
         cpu = time.process_time() - cpu0
-        result = _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol, params)
-    if solver in FIXED_STEP:  # the step actually taken: no longer than `step` nor an output interval
+        result = _finish(compiled, mod, p, out, init, cpu, options, params)
+    if backend.fixed_step:  # the step actually taken: no longer than `step` nor an output interval
         intervals = np.diff(t_out)
-        h = extra["step"]
+        h = options.step
         result.step = float(max(d / max(1, int(np.ceil(d / h - 1e-9))) if h else d for d in intervals))
     if result.interrupted:
         raise SimulationInterrupted(result)
@@ -400,17 +392,6 @@ def start_state(compiled, p: np.ndarray, t0: float, values: dict[int, float], fi
     return InitialResult(init.y0.copy(), init.yp0.copy(), dict(init.chosen), init.residual, init.iterations)
 
 
-def _count(name: str, value, low: int, high: int) -> int:
-    """An integer option within [low, high]."""
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        number = math.nan
-    if not math.isfinite(number) or number != int(number) or not low <= number <= high:
-        raise SimulationSetupError(f"`{name}` must be a whole number from {low} to {high}, got {value}")
-    return int(number)
-
-
 def _setup_error(err: ModelEvaluationError, params: Optional[dict]) -> Exception:
     """A model that cannot be evaluated at the start: blamed on an overridden parameter it
     uses (a setup mistake), else returned as it is (a model error)."""
@@ -440,7 +421,7 @@ def _locator(compiled) -> Callable[[str, str], Optional[str]]:
     return locate
 
 
-def _integrate_with_breakpoints(run, mod, p, t_out, init) -> dict:
+def _integrate_with_breakpoints(run, mod, p, t_out, init) -> BackendRun:
     """Integrate over `t_out`, stopping at each input breakpoint (module BREAKPOINTS: ends of
     pieces, table rows) and restarting there from a consistent state: the differential
     variables are continuous, the algebraic ones and ẏ may jump. A step input is thus
@@ -458,35 +439,35 @@ def _integrate_with_breakpoints(run, mod, p, t_out, init) -> dict:
         grid = np.concatenate([[start], inner, [end]])
         out = _run_safely(run, grid, y0, yp0)
         for key in total:
-            total[key] += out[key]
-        keep = np.isin(out["t"], t_out)
-        pieces.append({k: out[k][keep] for k in ("t", "y", "yp")})
-        if not out["success"] or end == t1:
+            total[key] += getattr(out, key)
+        keep = np.isin(out.t, t_out)
+        pieces.append({"t": out.t[keep], "y": out.y[keep], "yp": out.yp[keep]})
+        if not out.success or end == t1:
             break
-        y_end = out["y"][-1]
+        y_end = out.y[-1]
         dif = set(np.flatnonzero(np.asarray(mod.DIFFERENTIAL)).tolist())
         try:
             restart = consistent_initial_conditions(mod, p, end, dict(enumerate(y_end)), dif,
                                                     initial_relations=False)
         except InconsistentInitialError as err:
-            out = dict(out, success=False, message=f"cannot restart after the input breakpoint at t = {end:.6g}: "
-                       + "; ".join(err.problems))
+            out = out.replace(success=False, message=f"cannot restart after the input breakpoint at t = {end:.6g}: "
+                              + "; ".join(err.problems))
             break
         except ModelEvaluationError as err:
-            out = dict(out, success=False, message=f"cannot restart after the input breakpoint at t = {end:.6g}: "
-                       f"{err}")
+            out = out.replace(success=False, message=f"cannot restart after the input breakpoint at t = {end:.6g}: "
+                              f"{err}")
             break
         except KeyboardInterrupt:
-            out = dict(out, success=False, interrupted=True, message=f"interrupted at t = {end:.6g}")
+            out = out.replace(success=False, interrupted=True, message=f"interrupted at t = {end:.6g}")
             break
         y0, yp0, start = restart.y0, restart.yp0, end
     merged = {k: np.concatenate([pc[k] for pc in pieces]) for k in ("t", "y", "yp")}
     _, first = np.unique(merged["t"], return_index=True)  # a breakpoint on the grid appears twice
     merged = {k: v[np.sort(first)] for k, v in merged.items()}
-    return dict(out, **merged, **total)
+    return out.replace(**merged, **total)
 
 
-def _run_safely(run, t_out, y0, yp0) -> dict:
+def _run_safely(run, t_out, y0, yp0) -> BackendRun:
     """Run a backend; if it raises on a model evaluation or Ctrl-C before it could return its
     partial results, keep the start point."""
     try:
@@ -495,16 +476,16 @@ def _run_safely(run, t_out, y0, yp0) -> dict:
         t0 = float(t_out[0])
         interrupted = isinstance(err, KeyboardInterrupt)
         message = f"interrupted at t = {t0:.6g}" if interrupted else f"{err}; only the start point is kept"
-        return dict(t=np.asarray(t_out[:1], dtype=float), y=np.atleast_2d(np.asarray(y0, dtype=float)),
-                    yp=np.atleast_2d(np.asarray(yp0, dtype=float)), steps=0, nfev=0, njev=0, success=False,
-                    message=message, interrupted=interrupted, cpu=0.0)
+        return BackendRun(t=np.asarray(t_out[:1], dtype=float), y=np.atleast_2d(np.asarray(y0, dtype=float)),
+                          yp=np.atleast_2d(np.asarray(yp0, dtype=float)), steps=0, success=False, message=message,
+                          interrupted=interrupted)
 
 
-def _evaluate_along(mod, out) -> tuple[dict, Optional[ModelEvaluationError]]:
+def _evaluate_along(mod, p, out: BackendRun) -> tuple[dict, Optional[ModelEvaluationError]]:
     """H, powers, invariants and outputs at the output times; stops at the first time where
     one cannot be evaluated (the results are cut there). Evaluated unguarded first (fast);
     only when that fails is the run repeated point by point through the guards."""
-    t, y, yp, p = out["t"], out["y"], out["yp"], out["p"]
+    t, y, yp = out.t, out.y, out.yp
     raw = getattr(mod, "module", mod)
     try:
         rows = {"H": [raw.hamiltonian(ti, yi, p) for ti, yi in zip(t, y)],
@@ -536,26 +517,27 @@ MANY_STEPS = 100_000
 """A successful IDA run with more steps than this says what may cost them (`_finish`)."""
 
 
-def _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol, params=None) -> SimResult:
-    rows, failure = _evaluate_along(mod, dict(out, p=p))
+def _finish(compiled, mod, p, out: BackendRun, init, cpu, options: RunOptions, params=None) -> SimResult:
+    rows, failure = _evaluate_along(mod, p, out)
     n = len(rows["H"])
     if n == 0:  # not even the start point can be evaluated: nothing to keep
         raise _setup_error(failure, params)
-    t, y, yp = out["t"][:n], out["y"][:n], out["yp"][:n]
-    success, message = out["success"], out["message"]
-    steps = int(out.get("steps", 0) or 0)
-    if solver == "ida" and success and steps > MANY_STEPS and len(out["t"]) > 1:
-        span = float(out["t"][-1] - out["t"][0])
-        message = (f"{message}; IDA needed {steps} steps (mean step {span / steps:.2g}): where stiff undamped "
-                   "modes (a beam's high modes, a stiff spring) limit BDF at orders 3–5, a fixed-step solver "
-                   "(`--solver midpoint --step …`) steps over them (docs/how-to/solvers.md)")
+    t, y, yp = out.t[:n], out.y[:n], out.yp[:n]
+    success, message = out.success, out.message
+    steps = out.steps
+    if options.solver == "ida" and success and steps > MANY_STEPS and len(out.t) > 1:
+        ends = [0, len(out.t) - 1]  # the modes at the start and at the end
+        hint = many_steps_hint(mod, p, out.t[ends], out.y[ends], out.yp[ends], steps=steps,
+                               span=float(out.t[-1] - out.t[0]), max_order=int(options.max_order or MAX_ORDER),
+                               rtol=options.rtol, atol=applied_atol(options.rtol, options.atol))
+        message = f"{message}; {hint}"
     if failure is not None:
-        if out["success"]:
+        if out.success:
             message = f"{failure}; results up to t = {t[-1]:.6g} are kept"
         else:  # the solver stopped where the model cannot be evaluated: its last point goes too
-            message = f"{out['message']} (cut to t = {t[-1]:.6g}: the {failure.function} fail at t = {failure.t:.6g})"
+            message = f"{out.message} (cut to t = {t[-1]:.6g}: the {failure.function} fail at t = {failure.t:.6g})"
         success = False
-    if not success and len(out["t"]) and not out.get("interrupted"):
+    if not success and len(out.t) and not out.interrupted:
         # "results up to t_fail": the rows kept are the output times before it
         message = f"{message} ({n} output time(s) kept, the last at t = {t[-1]:.6g})"
     H = np.array(rows["H"], dtype=float)
@@ -575,10 +557,10 @@ def _finish(compiled, mod, p, out, init, cpu, solver, rtol, atol, params=None) -
         energy_balance_error=float(np.abs(balance).max(initial=0.0)),
         energy_balance_relative=float(np.abs(balance).max(initial=0.0) / scale) if scale > 0 else 0.0,
         constraint_drift=float(np.abs(inv).max(initial=0.0)), velocity_drift=float(np.abs(vinv).max(initial=0.0)),
-        steps=out["steps"], n_residual_evals=out["nfev"], n_jacobian_evals=out["njev"], cpu_time_s=cpu,
-        n_states=desc.n_states, n_equations=len(desc.equations), solver=solver, rtol=rtol, atol=atol,
-        initial_choices=init.chosen, interrupted=bool(out.get("interrupted", False)),
-        events=list(out.get("events", ())), units=dict(desc.units),
+        steps=out.steps, n_residual_evals=out.nfev, n_jacobian_evals=out.njev, cpu_time_s=cpu,
+        n_states=desc.n_states, n_equations=len(desc.equations), solver=options.solver, rtol=options.rtol,
+        atol=options.atol,
+        initial_choices=init.chosen, interrupted=out.interrupted, events=list(out.events), units=dict(desc.units),
     )
 
 

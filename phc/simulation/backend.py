@@ -5,20 +5,24 @@ consistent start ``(y₀, ẏ₀)``, plus options. Output: a :class:`BackendRun`
 
 Like scipy's ``solve_ivp`` methods, each backend is a function with one signature::
 
-    integrate(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=None,
-              max_order=None, names=None[, step=None]) -> mapping of the BackendRun fields
+    integrate(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
+              nominal=None, events=None) -> BackendRun
 
-wrapped in a :class:`Backend` that names it, says which options it honours and turns what
-it returns into a typed :class:`BackendRun`. A backend returns what it computed up to a
-failure (``success`` False, ``message`` saying when, why and what to try) rather than
-raising. Options are validated once, in :func:`phc.simulation.simulate`; an option the
-chosen backend does not use is reported with an :class:`IgnoredOptionWarning` instead of
-being dropped in silence (a fixed-step method has no ``rtol``; IDA has no ``step``).
+where `options` is the run's :class:`~phc.options.RunOptions` (the one options object of
+the model file, the scene, the command line and :func:`phc.simulate`; a backend reads the
+fields it honours: `rtol`, `atol`, `max_order` for IDA, `step` for the fixed-step methods,
+`max_steps` for all), wrapped in a :class:`Backend` that names it and says which options it
+honours. A backend returns what it computed up to a failure (``success`` False,
+``message`` saying when, why and what to try) rather than raising. Options are validated
+once, when the :class:`~phc.options.RunOptions` is made; an option the chosen backend does
+not use is reported with an :class:`IgnoredOptionWarning` instead of being dropped in
+silence (a fixed-step method has no ``rtol``; IDA has no ``step``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
+import dataclasses
 from dataclasses import dataclass, field, fields
 from typing import Callable, Iterator, Optional
 
@@ -31,8 +35,8 @@ from phc.errors import IgnoredOptionWarning  # defined with phc's other warnings
 class BackendRun(Mapping):
     """What a backend returns: the outputs at the times it reached, and statistics.
 
-    It is also a read-only mapping of its fields (``run["t"]``), the form the drivers in
-    :mod:`phc.simulation` combine pieces of a run in."""
+    It is also a read-only mapping of its fields (``run["t"]``); :meth:`replace` makes the
+    changed copies the drivers in :mod:`phc.simulation` combine pieces of a run with."""
 
     t: np.ndarray
     """Output times reached (a prefix of the requested ones when the run stopped early)."""
@@ -48,6 +52,11 @@ class BackendRun(Mapping):
     njev: int = 0
     interrupted: bool = False
     conditioning: Optional[float] = None
+    event: Optional[dict] = None
+    """The switching function that stopped the run (``t``, ``y``, ``yp``, ``which``), when
+    the backend watched switching functions (:mod:`phc.simulation.events`)."""
+    events: list = field(default_factory=list)
+    """The switches of a run with switching conditions, in order."""
     extra: dict = field(default_factory=dict)
     """Backend-specific statistics (kept, not interpreted)."""
 
@@ -65,6 +74,12 @@ class BackendRun(Mapping):
         run.success, run.interrupted = bool(run.success), bool(run.interrupted)
         run.steps, run.nfev, run.njev = int(run.steps), int(run.nfev or 0), int(run.njev or 0)
         return run
+
+    def replace(self, **changes) -> "BackendRun":
+        """A copy with `changes` (a name that is not a field goes to :attr:`extra`)."""
+        names = {f.name for f in fields(self)} - {"extra"}
+        extra = {**self.extra, **{k: v for k, v in changes.items() if k not in names}}
+        return dataclasses.replace(self, **{k: v for k, v in changes.items() if k in names}, extra=extra)
 
     def _as_dict(self) -> dict:
         out = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "extra"}
@@ -92,8 +107,11 @@ class Backend:
     fixed_step: bool
     doc: str = ""
 
-    def __call__(self, mod, p, t_out, y0, yp0, **options) -> BackendRun:
-        return BackendRun.from_mapping(self.integrate(mod, p, t_out, y0, yp0, **options))
+    def __call__(self, mod, p, t_out, y0, yp0, options, **keywords) -> BackendRun:
+        run = self.integrate(mod, p, t_out, y0, yp0, options, **keywords)
+        if not isinstance(run, BackendRun):
+            raise TypeError(f"backend `{self.name}` returned {type(run).__name__}, not a BackendRun")
+        return run
 
     def ignored(self, given: Mapping[str, object]) -> list[str]:
         """The options in `given` (explicitly set, not None) this backend does not use."""

@@ -74,6 +74,7 @@ from typing import Optional
 import numpy as np
 
 from phc.simulation import compiled_steps_kernel as _kernel
+from phc.simulation.backend import BackendRun
 from phc.simulation.compiled_steps_kernel import (  # the layout of the state arrays the kernel shares
     _BAL_TOL, _BUDGET, _CODE, _DONE, _E, _EVERY, _FLOOR, _G1, _G2, _H, _H_PREV, _HARD, _HAS_MID, _HIST, _ILL, _J, _K,
     _LAST_LOOK, _LOOK, _LOWP, _M0, _M1, _M2, _MAX_AGE, _MAX_NEWTON, _MAX_SECANT, _MAX_STEPS, _MAXSTEPS, _METHOD,
@@ -503,11 +504,11 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
         message += (f"; {split} step(s) needed a restart or a split to be solved (the step is long "
                     "for the dynamics)")
     last = int(ist[_K]) - 1 if not ok else nout - 1
-    return dict(t=t_out[:last + 1], y=ys[:last + 1], yp=yps[:last + 1], steps=int(ist[_STEPS]), success=ok,
-                message=message, cpu=time.process_time() - start, interrupted=interrupted,
-                nfev=int(ist[_NFEV]) + python_nfev, njev=int(ist[_NFACT]) + python_njev, compiled_loop=True,
-                mixed_precision=bool(low), low_precision_strikes=int(ist[_STRIKES]),
-                unbalanced=int(getattr(python, "unbalanced", 0) or 0))
+    return BackendRun.from_mapping(dict(
+        t=t_out[:last + 1], y=ys[:last + 1], yp=yps[:last + 1], steps=int(ist[_STEPS]), success=ok, message=message,
+        cpu=time.process_time() - start, interrupted=interrupted, nfev=int(ist[_NFEV]) + python_nfev,
+        njev=int(ist[_NFACT]) + python_njev, compiled_loop=True, mixed_precision=bool(low),
+        low_precision_strikes=int(ist[_STRIKES]), unbalanced=int(getattr(python, "unbalanced", 0) or 0)))
 
 
 def _counts(python) -> tuple[int, int]:

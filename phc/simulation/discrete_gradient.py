@@ -55,6 +55,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from phc.simulation.backend import BackendRun
 from phc.simulation.midpoint import NEWTON_HINT, SINGULAR_HINT, StageSolver, integrate_fixed_step, newton_weights_of
 
 BALANCE_TOL = 2e-15
@@ -146,12 +147,12 @@ class DiscreteGradientStep:
         return y_half
 
 
-def integrate_discrete_gradient(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=None, max_order=None,
-                                step=None, names=None, events=None, nominal=None):
+def integrate_discrete_gradient(mod, p, t_out, y0, yp0, options, *, progress=None, names=None, events=None,
+                                nominal=None) -> BackendRun:
     """Fixed-step discrete-gradient integration from ``t_out[0]``; output at every ``t_out``
-    (each output interval is split into equal steps no longer than `step`). Returns the same
-    dict as the IDA backend."""
-    del rtol, atol, max_order  # a fixed-step method: accuracy is set by `step`
+    (each output interval is split into equal steps no longer than ``options.step``; a
+    fixed-step method's accuracy is set by `step` alone)."""
+    step, max_steps = options.step, options.max_steps
     if events is None:  # the whole step loop compiled, when the model runs on the numba backend
         from phc.simulation import compiled_steps
 
@@ -165,16 +166,17 @@ def integrate_discrete_gradient(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps
     out = integrate_fixed_step(mod, p, t_out, y0, yp0, max_steps=max_steps, progress=progress, step=step,
                                advance=advance, name="discrete gradient", names=names, events=events,
                                scales=nominal)
-    out.update(nfev=advance.stage.nfev, njev=advance.stage.matrix.factorizations, unbalanced=advance.unbalanced)
+    out = out.replace(nfev=advance.stage.nfev, njev=advance.stage.matrix.factorizations,
+                      unbalanced=advance.unbalanced)
     return _report_unbalanced(out)
 
 
-def _report_unbalanced(out: dict) -> dict:
+def _report_unbalanced(out: BackendRun) -> BackendRun:
     """The run's message says how many steps found no balancing point (module docstring)."""
-    k = int(out.get("unbalanced", 0))
-    if k:
-        out["message"] = (f"{out['message']}; {k} of the split steps' sub-steps found no point that balances "
-                          "the energy exactly (the constraint projection of the GGL formulation did work there: "
-                          "fast motion along curved constraints) and were taken as implicit-midpoint steps: the "
-                          "energy balance holds to the error reported, not to round-off")
-    return out
+    k = int(out.extra.get("unbalanced", 0))
+    if not k:
+        return out
+    return out.replace(message=(f"{out.message}; {k} of the split steps' sub-steps found no point that balances "
+                                "the energy exactly (the constraint projection of the GGL formulation did work "
+                                "there: fast motion along curved constraints) and were taken as implicit-midpoint "
+                                "steps: the energy balance holds to the error reported, not to round-off"))

@@ -37,6 +37,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from phc.errors import InconsistentInitialError, SwitchTimeError
+from phc.simulation.backend import BackendRun
 from phc.simulation.guard import CATCH, ModelEvaluationError
 from phc.simulation.initial import consistent_initial_conditions
 from phc.simulation.scaling import mode_floor, tested_fraction
@@ -311,15 +312,16 @@ def _merge(times, t0, t1) -> list[float]:
 
 
 # -- the driver --------------------------------------------------------------------------
-def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, options: dict,
-                       progress=None) -> dict:
+def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, keywords: dict,
+                       progress=None) -> BackendRun:
     """Integrate a model with switches (see the module docstring).
 
     Parameters
     ----------
     backend : callable
-        ``backend(mod, p, t_out, y0, yp0, **options, events=watch)`` (a
-        :class:`~phc.simulation.backend.Backend`).
+        ``backend(mod, p, t_out, y0, yp0, **keywords, events=watch)`` (a
+        :class:`~phc.simulation.backend.Backend`; `keywords` hold the run's ``options``,
+        a :class:`~phc.options.RunOptions`, and the backend's other keywords).
     init : InitialResult
         The consistent start with every condition evaluated directly.
     fixed : set of int
@@ -351,50 +353,51 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, optio
     pieces = [(t_out[:1], y[None, :], yp[None, :])]
     t, seg = t0, 0
     floors: dict = {}  # the scales' round-off floor per mode (parameter vector with the modes)
-    out: dict = dict(success=True, message="integration finished")
+    out: Optional[BackendRun] = None
+    stop: dict = {}  # success, message, interrupted of a stop between the backend's runs
     while True:
         end = ends[seg]
         try:
             if end - t > 1e-12 * max(1.0, abs(t)):
                 grid = np.concatenate([[t], t_out[(t_out > t) & (t_out < end)], [end]])
                 active = watch if watch.mask.any() or watch.stuck.any() else None
-                seg_options = options
-                if options.get("nominal") is not None and options.get("atol"):
+                seg_keywords = keywords
+                options = keywords["options"]
+                if keywords.get("nominal") is not None:
                     # the round-off floor of the scales in this segment's mode (scaling.mode_floor),
                     # once per mode: a stick-slip run returns to the same few modes many times
                     mode = watch.p.tobytes()
                     if mode not in floors:
-                        tested = options["atol"] * tested_fraction(getattr(backend, "name", "ida"),
-                                                                   options.get("rtol", 0.0))
-                        floors[mode] = mode_floor(mod, watch.p, options["nominal"], y, yp, t0=t, span=t1 - t,
+                        tested = options.atol * tested_fraction(options.solver, options.rtol)
+                        floors[mode] = mode_floor(mod, watch.p, keywords["nominal"], y, yp, t0=t, span=t1 - t,
                                                   atol=tested)
-                    seg_options = dict(options, nominal=floors[mode])
+                    seg_keywords = dict(keywords, nominal=floors[mode])
                 try:
-                    out = dict(backend(mod, watch.p.copy(), grid, y, yp, **seg_options, events=active))
+                    out = backend(mod, watch.p.copy(), grid, y, yp, **seg_keywords, events=active)
                 except (ModelEvaluationError, KeyboardInterrupt) as err:
                     interrupted = isinstance(err, KeyboardInterrupt)
-                    out = dict(t=grid[:1], y=y[None, :], yp=yp[None, :], steps=0, nfev=0, njev=0, success=False,
-                               interrupted=interrupted,
-                               message=f"interrupted at t = {t:.6g}" if interrupted else str(err))
+                    out = BackendRun(t=grid[:1], y=y[None, :], yp=yp[None, :], steps=0, success=False,
+                                     interrupted=interrupted,
+                                     message=f"interrupted at t = {t:.6g}" if interrupted else str(err))
                 for key in stats:
-                    stats[key] += int(out.get(key, 0) or 0)
+                    stats[key] += int(getattr(out, key) or 0)
                 # an output time equal to a restart time keeps its first value (np.unique below)
-                keep = np.isin(out["t"], t_out)
-                pieces.append((out["t"][keep], np.atleast_2d(out["y"])[keep], np.atleast_2d(out["yp"])[keep]))
-                if not out["success"]:
+                keep = np.isin(out.t, t_out)
+                pieces.append((out.t[keep], np.atleast_2d(out.y)[keep], np.atleast_2d(out.yp)[keep]))
+                if not out.success:
                     break
-                event = out.pop("event", None)
+                event, out = out.event, out.replace(event=None)
                 if event is not None:
                     t = float(event["t"])
                     y, yp = _handle(watch, t, np.asarray(event["y"], dtype=float),
                                     np.asarray(event["yp"], dtype=float), event["which"], events, dif, energy)
                     chatter = _chatter(watch.handled, t1 - t0)
                     if chatter or len(watch.handled) > MAX_EVENTS:
-                        out = dict(out, success=False, message=chatter or f"more than {MAX_EVENTS} events; stopped "
-                                   f"at t = {t:.6g}")
+                        stop = dict(success=False, message=chatter or f"more than {MAX_EVENTS} events; stopped "
+                                    f"at t = {t:.6g}")
                         break
                     continue
-                y, yp = np.atleast_2d(out["y"])[-1], np.atleast_2d(out["yp"])[-1]
+                y, yp = np.atleast_2d(out.y)[-1], np.atleast_2d(out.yp)[-1]
             if seg == len(ends) - 1:
                 break
             # a breakpoint: the switches in t that change here, the modes of the next piece, a restart
@@ -412,25 +415,27 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, optio
                 y, yp = _restart(watch, t, y, dif | set(energy))
             y, yp = _settle(watch, t, y, yp, events, dif, energy)
         except InconsistentInitialError as err:
-            out = dict(out, success=False, message=f"cannot restart after the switch at t = {t:.6g}: "
-                       + "; ".join(err.problems))
+            stop = dict(success=False, message=f"cannot restart after the switch at t = {t:.6g}: "
+                        + "; ".join(err.problems))
             break
         except ModelEvaluationError as err:
-            out = dict(out, success=False, message=f"cannot restart after the switch at t = {t:.6g}: {err}")
+            stop = dict(success=False, message=f"cannot restart after the switch at t = {t:.6g}: {err}")
             break
         except KeyboardInterrupt:
-            out = dict(out, success=False, interrupted=True, message=f"interrupted at t = {t:.6g}")
+            stop = dict(success=False, interrupted=True, message=f"interrupted at t = {t:.6g}")
             break
     merged = {k: np.concatenate([pc[i] for pc in pieces]) for i, k in enumerate(("t", "y", "yp"))}
     _, first = np.unique(merged["t"], return_index=True)
     merged = {k: v[np.sort(first)] for k, v in merged.items()}
-    result = {k: v for k, v in out.items() if k not in ("event", "t", "y", "yp", *stats)}
-    return dict(result, **merged, **stats, events=events)
+    if out is None:  # no piece ran (the run ended at a breakpoint at its start)
+        out = BackendRun(t=merged["t"], y=merged["y"], yp=merged["yp"], steps=0, success=True,
+                         message="integration finished")
+    return out.replace(**merged, **stats, **stop, event=None, events=events)
 
 
-def _stopped(t_out, y, yp, stats, events, message) -> dict:
-    return dict(t=t_out[:1], y=y[None, :], yp=yp[None, :], success=False, message=message, events=events,
-                cpu=0.0, **stats)
+def _stopped(t_out, y, yp, stats, events, message) -> BackendRun:
+    return BackendRun(t=t_out[:1], y=y[None, :], yp=yp[None, :], success=False, message=message, events=events,
+                      **stats)
 
 
 def _time_modes(watch: Watch, a: float, b: float, y, yp) -> None:

@@ -34,8 +34,12 @@ import numpy as np
 import scipy.sparse as sps
 
 from phc.errors import SimulationSetupError
+from phc.simulation.backend import BackendRun
 from phc.simulation.guard import CATCH, GuardedModule, ModelEvaluationError
 from phc.simulation.monitor import SingularityMonitor, check_scales, diagnose_failure
+from phc.simulation.tested import (  # noqa: F401  (names of phc.simulation.ida before the split)
+    CANCELLATION, SENSITIVITY_DENSE, TERM_FRACTION, algebraic_rates, determined_algebraic, determined_scales,
+    source_terms)
 
 LOCAL_TOLERANCE = 0.005
 """IDA runs at ``rtol · LOCAL_TOLERANCE`` and ``atol · LOCAL_TOLERANCE`` (but see
@@ -56,6 +60,30 @@ gives then rises above :data:`LOCAL_TOLERANCE`): a step's residual is evaluated 
 times its largest terms, BDF's error estimate is a difference of predicted and corrected
 values, and over the 10⁴–10⁵ steps of such a run the round-off that accumulates is of
 order 1e-14; a local tolerance below ~1e-13 buys steps, not accuracy."""
+
+
+ABSOLUTE_DEPTH = 100.0
+"""IDA's absolute tolerance is at least ``rtol / ABSOLUTE_DEPTH`` (:func:`applied_atol`)."""
+
+
+def applied_atol(rtol: float, atol: float) -> float:
+    """The `atol` IDA applies (relative to the nominal scales, before :func:`local_fraction`):
+    the user's, but no finer than ``rtol / ABSOLUTE_DEPTH``.
+
+    A variable's tolerance ``rtol·|y| + atol·s`` dips from ``rtol·s`` to ``atol·s`` where y
+    crosses 0, by the factor ``rtol/atol``; loosening rtol alone deepens the dip. IDA comes
+    to it on the long steps and high order a loose rtol allows, cuts its step by as much,
+    and climbs back one order and a doubling at a time: the rigid slider–crank (atol 1e-12
+    in the file) took 691 steps for 20 ms at rtol 1e-6 and 432 at 1e-7, each time its rod's
+    angular momentum crossed 0 (the step fell from 3e-5 s to 6e-8 s). Where the variable is
+    an index-1 one IDA does not climb back at all (:func:`determined_scales`). An absolute
+    part finer than a hundredth of the relative part at the variable's nominal size buys no
+    accuracy — the errors the run makes elsewhere, at ``rtol·|y|``, reach the variable
+    through the dynamics — and 100 is the ratio of phc's default tolerances (1e-8, 1e-10)
+    and of the shipped models' own but three (the Euler–Bernoulli and Timoshenko beams,
+    the RLC filter: 1e3–1e4)."""
+    # (the ratio itself keeps the user's atol: 1e-9 / 100 rounds above 1e-11)
+    return atol if rtol <= ABSOLUTE_DEPTH * atol * (1 + 1e-12) else rtol / ABSOLUTE_DEPTH
 
 
 def local_fraction(rtol: float) -> float:
@@ -306,230 +334,6 @@ def _next_cadence(cadence: int, base: int, before: Optional[float], ratio: Optio
     return min(LOOK_STRETCH * base, max(cadence + 1, int(1.5 * cadence)))
 
 
-def determined_algebraic(mod, p, t, y, yp) -> np.ndarray:
-    """Mask of the algebraic variables the algebraic rows determine from the states (index 1:
-    a junction effort, a resistor's flow), as opposed to those only the derivative of a
-    constraint determines (index 2: multipliers, the torque a flow source applies).
-
-    The algebraic rows are those without ẏ (``F_ẏ`` row zero at (t, y, ẏ)); on their pattern
-    in the algebraic variables, a maximum matching and the Dulmage–Mendelsohn
-    decomposition: a variable an alternating path reaches from an unmatched variable is
-    not determined (the rows leave a choice), every other matched variable is. Index-1
-    variables go into IDA's Newton and error tests like the states; index-2 ones cannot
-    (BDF then cuts its step without end) and are recomputed at the output times instead
-    (:mod:`phc.simulation.polish`)."""
-    from phc.analysis.matching import bipartite_matching
-
-    n, m = mod.N, len(mod.EQUATIONS)
-    diff = np.asarray(mod.DIFFERENTIAL, dtype=bool)
-    out = np.zeros(n, dtype=bool)
-    rows, cols = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
-    if not len(rows) or m != n:
-        return out
-    # the entries that are nonzero here or at a nearby point: the modes of switches are
-    # parameters (a sticking friction law replaces its row), a coefficient may vanish by chance
-    rng = np.random.default_rng(0)
-    size = np.abs(y) + np.abs(yp) + 1e-3
-    nonzero_y = np.zeros(len(rows), dtype=bool)
-    nonzero_yp = np.zeros(len(rows), dtype=bool)
-    for y_, yp_ in ((y, yp), (y + 1e-3 * size * rng.uniform(0.5, 1.5, n), yp + 1e-3 * size * rng.uniform(0.5, 1.5, n))):
-        a, b = np.zeros(len(rows)), np.zeros(len(rows))
-        try:
-            mod.jacobian(t, y_, yp_, p, 0.0, a)
-            mod.jacobian(t, y_, yp_, p, 1.0, b)
-        except (ModelEvaluationError, *CATCH):
-            return out
-        nonzero_y |= (a != 0) | ~np.isfinite(a)
-        nonzero_yp |= (b - a != 0) | ~np.isfinite(b)
-    dynamic = np.zeros(m, dtype=bool)
-    dynamic[rows[nonzero_yp]] = True
-    alg_rows = np.flatnonzero(~dynamic)
-    alg_cols = np.flatnonzero(~diff & np.array([not str(v).startswith("ggl.") for v in mod.VARIABLES]))
-    if not len(alg_rows) or not len(alg_cols):
-        return out
-    rpos = np.full(m, -1)
-    rpos[alg_rows] = np.arange(len(alg_rows))
-    cpos = np.full(n, -1)
-    cpos[alg_cols] = np.arange(len(alg_cols))
-    sel = (rpos[rows] >= 0) & (cpos[cols] >= 0) & nonzero_y
-    pattern = sps.csr_matrix((np.ones(int(sel.sum())), (rpos[rows[sel]], cpos[cols[sel]])),
-                             shape=(len(alg_rows), len(alg_cols)))
-    match = bipartite_matching(pattern)
-    row_of = np.full(len(alg_cols), -1)
-    matched = np.flatnonzero(match >= 0)
-    row_of[match[matched]] = matched
-    by_col = pattern.tocsc()
-    seen = np.zeros(len(alg_cols), dtype=bool)
-    stack = list(np.flatnonzero(row_of < 0))
-    seen[stack] = True
-    while stack:  # alternating paths: unmatched column → its rows → their matched columns
-        c = stack.pop()
-        for r in by_col.indices[by_col.indptr[c]:by_col.indptr[c + 1]]:
-            c2 = match[r]
-            if c2 >= 0 and not seen[c2]:
-                seen[c2] = True
-                stack.append(c2)
-    out[alg_cols[~seen]] = True
-    return out
-
-
-SENSITIVITY_DENSE = 400
-"""Up to this many unknowns the scales of the determined algebraic variables are raised to
-what the states' tolerances allow them (:func:`determined_scales`); larger models keep theirs."""
-
-
-CANCELLATION = 10.0
-"""An index-1 variable below 1/CANCELLATION of the terms the states put into it is a
-difference of those terms (:func:`determined_scales`)."""
-
-
-def determined_scales(mod, p, t, y, yp, determined, scales, rtol: float = 1.0, atol: float = 1.0
-                      ) -> Optional[np.ndarray]:
-    """The nominal `scales` with each index-1 algebraic variable z_j (`determined`) that is a
-    small difference of the terms the states put into it raised to ``(1 + rtol/atol) T_j``,
-    ``T_j = Σ_k |∂z_j/∂x_k| s_k``: the error the states' own tolerances (``rtol·|x_k| +
-    atol·s_k``, |x_k| up to s_k) put into it, over atol. A small difference is one of
-
-    * over the run: ``Σ_k |∂z_j/∂x_k| n_k`` above ``CANCELLATION · n_j``, with ``n`` the sizes
-      the variables take (:attr:`phc.simulation.scaling.Scales.sizes`, the scales before
-      the round-off floor; a floor that raised z's scale says how finely z can be resolved,
-      not how large it is);
-    * at the start of this piece (`y`, in the modes of `p`): the error the states'
-      tolerances put into z, ``Σ_k |∂z_j/∂x_k| (rtol·|x_k| + atol·s_k)``, above
-      ``CANCELLATION`` times z's own ``rtol·|z_j| + atol·s_j``. A switched law makes z
-      small in one mode only — a diode's voltage is Ron·i, 0.1 V out of the source's and
-      the capacitor's 7 V, while it conducts, and 13 V while it blocks — and a piece that
-      begins at an event begins with z on the boundary.
-
-    Other index-1 variables keep their scales (one that is a state times a factor, a
-    friction element's flow p/m, is tested as tightly as the state determines it).
-
-    The algebraic rows determine z from the states x (and t); to first order
-    ``∂z/∂x = −(F_z)⁺ F_x`` on those rows. IDA tests z like a state, at
-    ``rtol·|z| + atol·s_z``; where z is the small difference of large terms driven by the
-    states — an inductor's voltage ``V(t) − R φ/L`` behind a resistor, 0.04 V out of 10 V,
-    with ``∂z/∂φ = −R/L = −25 000`` — an error of the states within their own tolerance
-    moves z by far more than z's, and IDA cuts its step to resolve the states far beyond
-    what was asked: 556 000 steps for 0.1 s of an RL circuit driven at 100 rad/s, where
-    raising the scale of that voltage to the size of the terms it is the difference of
-    takes a few hundred: IDA at order 5 fell into runs of error-test and Newton failures,
-    every step, while the same model with the voltage left out of the test, or at order 3,
-    ran smoothly. At order 1 it does not get out again: z's error estimate is then the
-    change of the states' truncation error times ∂z/∂x — ``(h² − h_old²)/2 · v_C''/Ron`` for
-    a diode's current behind a capacitor — so a step that doubles fails the test and the
-    retry passes at the old size; with a failure every other step BDF never raises its
-    order. The rectifier of tests/simulation/test_events.py crawled that way, with steps of
-    2.5e-9 s, to 10⁶ steps: its diode's voltage and current had local tolerances of
-    1.5e-12 V and 2.1e-12 A while the capacitor's (3.6e-11 V at 7 V) put 3.6e-11 V and
-    7e-11 A into them (the round-off floor had raised their scales to 180 V and 167 A,
-    hiding the cancellation; the current takes 0.54 A, the voltage 13 V only while the
-    diode blocks). Where it fell into the trap depended on round-off: the BLAS kernel
-    (Zen, Haswell; SkylakeX passed) or the end time (t_end = 0.0623 s crawled on SkylakeX);
-    now about 3 000 steps on each. The user's own scales are kept. Returns None where
-    nothing changes (no determined variable, a model above :data:`SENSITIVITY_DENSE`
-    unknowns, or a Jacobian that cannot be evaluated)."""
-    n, m = mod.N, len(mod.EQUATIONS)
-    diff = np.asarray(mod.DIFFERENTIAL, dtype=bool)
-    z_cols = np.flatnonzero(np.asarray(determined, dtype=bool) & ~diff)
-    names = list(mod.VARIABLES)
-    x_mask = diff.copy()
-    if "energy.supplied" in names:  # it feeds nothing back
-        x_mask[names.index("energy.supplied")] = False
-    x_cols = np.flatnonzero(x_mask)
-    if scales is None or not len(z_cols) or not len(x_cols) or n > SENSITIVITY_DENSE or m != n:
-        return None
-    rows, cols = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
-    a, b = np.zeros(len(rows)), np.zeros(len(rows))
-    try:
-        mod.jacobian(t, y, yp, p, 0.0, a)
-        mod.jacobian(t, y, yp, p, 1.0, b)
-    except (ModelEvaluationError, *CATCH):
-        return None
-    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
-        return None
-    Fy = np.zeros((m, n))
-    Fyp = np.zeros((m, n))
-    np.add.at(Fy, (rows, cols), a)
-    np.add.at(Fyp, (rows, cols), b - a)
-    alg_rows = np.flatnonzero(~np.any(Fyp != 0, axis=1))
-    if not len(alg_rows):
-        return None
-    Fz = Fy[np.ix_(alg_rows, z_cols)]
-    Fx = Fy[np.ix_(alg_rows, x_cols)]
-    try:
-        dz_dx = -np.linalg.lstsq(Fz, Fx, rcond=None)[0]
-    except np.linalg.LinAlgError:
-        return None
-    s = np.asarray(scales, dtype=float)
-    ratio = rtol / atol if atol > 0 and np.isfinite(rtol / atol) else 1.0
-    terms = np.abs(dz_dx) @ s[x_cols]
-    # where z is a small difference of the states' terms, its own rtol·|z| is far tighter than
-    # the states' rtol·|x| puts into it: that part goes into the scale too. Judged on the sizes
-    # the variables take, before the round-off floor (scaling.Scales.sizes: a floor that raised
-    # z's scale above its size says how finely z can be resolved, not how large it is) ...
-    size = getattr(scales, "sizes", None)
-    size = s if size is None or np.shape(size) != s.shape else np.asarray(size, dtype=float)
-    cancels = np.abs(dz_dx) @ size[x_cols] > CANCELLATION * size[z_cols]
-    # ... and at the values of the start: in this piece's mode z may be a small difference where
-    # its size over the run is not (a diode's voltage: Ron·i, 0.1 V out of the capacitor's 7 V,
-    # while it conducts; 13 V blocking), and a piece that starts at an event starts with z on
-    # the boundary. There the error the states' tolerances put into z is compared with z's own
-    x = np.where(np.isfinite(y), np.abs(np.asarray(y, dtype=float)), 0.0)
-    put = np.abs(dz_dx) @ (ratio * x[x_cols] + s[x_cols])
-    cancels |= put > CANCELLATION * (ratio * x[z_cols] + s[z_cols])
-    need = np.where(cancels, (1.0 + ratio) * terms, 0.0)
-    out = s.copy()
-    user = set(getattr(scales, "user", ()) or ())
-    for j, v in zip(z_cols, need):
-        if int(j) not in user and np.isfinite(v) and v > out[j]:
-            out[j] = v
-    return out if np.any(out != s) else None
-
-
-def algebraic_rates(mod, p, t, y, yp, determined) -> np.ndarray:
-    """ẏ with the rates of the `determined` (index-1) algebraic variables filled in: the
-    time derivative of their algebraic rows, ``F_y[R, A] ż_A = −(F_y[R, states] ẏ + F_t[R])``
-    (least squares). A consistent start leaves them 0, and IDA's first predictor then
-    misses by ż·h: a diode voltage that follows V₀ sin(ωt) from 0 at 3 kV/s failed the error
-    test at every step size down to 1e-13 s."""
-    yp = np.array(yp, dtype=float)
-    A = np.flatnonzero(determined)
-    if not len(A):
-        return yp
-    n, m = mod.N, len(mod.EQUATIONS)
-    rows, cols = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
-    a, b = np.zeros(len(rows)), np.zeros(len(rows))
-    ft = np.zeros(m)
-    try:
-        mod.jacobian(t, y, yp, p, 0.0, a)
-        mod.jacobian(t, y, yp, p, 1.0, b)
-        mod.residual_t(t, y, yp, p, ft)
-    except (ModelEvaluationError, *CATCH, AttributeError):
-        return yp
-    algebraic_row = np.ones(m, dtype=bool)
-    algebraic_row[rows[b - a != 0]] = False
-    R = np.flatnonzero(algebraic_row)
-    Fy = sps.csr_matrix((a, (rows, cols)), shape=(m, n))[R]
-    known = yp.copy()
-    known[~np.asarray(mod.DIFFERENTIAL, dtype=bool)] = 0.0
-    rhs = -(Fy @ known + ft[R])
-    M = Fy[:, A]
-    try:
-        if M.shape[0] * M.shape[1] <= 250_000:
-            import scipy.linalg as sla
-
-            z = sla.lstsq(M.toarray(), rhs, lapack_driver="gelsy", cond=1e-13)[0]
-        else:
-            from scipy.sparse.linalg import lsqr
-
-            z = lsqr(M, rhs, atol=1e-14, btol=1e-14)[0]
-    except (ValueError, np.linalg.LinAlgError):
-        return yp
-    if np.all(np.isfinite(z)):
-        yp[A] = z
-    return yp
-
-
 def solver_options(mod, p, *, rtol, atol, max_order=None, sparse: Optional[bool] = None, determined=None):
     """(options of scikit-sundae's ``IDA``, callback state) for `mod` at parameters `p`: the
     tolerances (algebraic variables out of the error test), analytic Jacobian, linear solver
@@ -677,9 +481,11 @@ class _StepHook:
         self.last_ratio = ratio
 
 
-def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=None, max_order=None, names=None,
-                  events=None, nominal=None):
-    """Integrate from ``t_out[0]`` and return a dict of arrays and statistics.
+def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None, events=None,
+                  nominal=None) -> BackendRun:
+    """Integrate from ``t_out[0]`` with the `rtol`, `atol`, `max_order` and `max_steps` of
+    `options` (a :class:`~phc.options.RunOptions`); the outputs and statistics as a
+    :class:`~phc.simulation.backend.BackendRun`.
 
     IDA runs in its normal mode from one output time to the next (its own interpolation
     gives the outputs), with the run's end as its stop time; :class:`_StepHook` sees every
@@ -689,7 +495,9 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     then returns with ``event`` = dict(t, y, yp, which) and the outputs before it."""
     IDA = _import_ida()
     n = mod.N
-    max_order = int(max_order or MAX_ORDER)
+    rtol, max_steps = float(options.rtol), int(options.max_steps)
+    atol = applied_atol(rtol, float(options.atol))
+    max_order = int(options.max_order or MAX_ORDER)
     t_out = np.asarray(t_out, dtype=float)
     t0, t_end = float(t_out[0]), float(t_out[-1])
     y0 = np.asarray(y0, dtype=float)
@@ -697,15 +505,16 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     # IDA's local tolerances are 1/200 of what the outputs should meet (local_fraction).
     determined = determined_algebraic(mod, p, t0, y0, np.asarray(yp0, dtype=float))
     # an index-1 variable is tested no tighter than its states' tolerances determine it
-    tested_scales = determined_scales(mod, p, t0, y0, np.asarray(yp0, dtype=float), determined, nominal, rtol, atol)
+    tested_scales = determined_scales(mod, p, t0, y0, np.asarray(yp0, dtype=float), determined, nominal, rtol, atol,
+                                      t_end - t0)
     if tested_scales is None:
         tested_scales = nominal
     local = local_fraction(rtol)
     atol_j = (atol if tested_scales is None else atol * np.asarray(tested_scales, dtype=float)) * local
     yp0 = algebraic_rates(mod, p, t0, y0, yp0, determined)
-    options, calls = solver_options(mod, p, rtol=rtol * local, atol=atol_j, max_order=max_order,
-                                    determined=determined)
-    resfn = options.pop("resfn")
+    settings, calls = solver_options(mod, p, rtol=rtol * local, atol=atol_j, max_order=max_order,
+                                     determined=determined)  # scikit-sundae's keywords
+    resfn = settings.pop("resfn")
     monitor = SingularityMonitor(mod, p, names=names, scales=nominal)
     monitor.h_floor = 1e-6 * (t_end - t0)
     hook = _StepHook(t0, y0, yp0, t_end=t_end, max_steps=max_steps, monitor=monitor, calls=calls, progress=progress,
@@ -725,11 +534,11 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     eventsfn.direction = [-1] * n_switch + [0]   # w falls through 0: the mode no longer holds
     eventsfn.terminal = [True] * n_switch + [False]
     # IDA's per-call step limit: never reached (the hook stops the run at max_steps)
-    options.update(eventsfn=eventsfn, num_events=n_switch + 1, max_num_steps=int(max_steps) + 1)
+    settings.update(eventsfn=eventsfn, num_events=n_switch + 1, max_num_steps=int(max_steps) + 1)
     with warnings.catch_warnings():
         # scikit-sundae warns that its own sparse approximation is unused: we pass jacfn.
         warnings.filterwarnings("ignore", message="Custom sparse Jacobian approximation")
-        solver = IDA(resfn, **options)
+        solver = IDA(resfn, **settings)
 
     def scales(failed, upto=1):  # the states of the run so far (a system at rest at t0 may move later)
         return check_scales(mod, ys[:upto], yps[:upto], t_end - t0, rtol, atol, failed, scales=nominal)
@@ -740,9 +549,8 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     start = time.process_time()
     init = solver.init_step(t0, y0, yp0)
     if not init.success:
-        return dict(t=t_out[:1], y=ys[:1], yp=yps[:1], steps=0, nfev=0, njev=0, success=False,
-                    message=f"IDA could not start: {init.message}" + (f"; {scales(True)}" if scales(True) else ""),
-                    cpu=time.process_time() - start)
+        return BackendRun(t_out[:1], ys[:1], yps[:1], steps=0, success=False, cpu=time.process_time() - start,
+                          message=f"IDA could not start: {init.message}" + (f"; {scales(True)}" if scales(True) else ""))
     hook.evaluations_seen = calls.evaluations  # (any the start made are not a step's)
     k, ok, message = 1, True, "integration finished"
     event = None
@@ -792,6 +600,6 @@ def integrate_ida(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=Non
     note = scales(not ok, k) if not message.startswith(("stopped ", "interrupted")) else None
     if note:
         message = f"{message}; {note}"
-    extra = {"event": event} if event is not None else {}
-    return dict(t=t_out[:k], y=ys[:k], yp=yps[:k], steps=hook.steps, nfev=nfev, njev=njev, success=ok, **extra,
-                message=message, cpu=time.process_time() - start, conditioning=monitor.worst, interrupted=interrupted)
+    return BackendRun(t_out[:k], ys[:k], yps[:k], steps=hook.steps, nfev=nfev, njev=njev, success=ok, event=event,
+                      message=message, cpu=time.process_time() - start, conditioning=monitor.worst,
+                      interrupted=interrupted)

@@ -34,6 +34,7 @@ import numpy as np
 import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 
+from phc.simulation.backend import BackendRun
 from phc.simulation.guard import ModelEvaluationError
 from phc.simulation.monitor import SingularityMonitor
 
@@ -454,8 +455,8 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
     The :class:`~phc.simulation.monitor.SingularityMonitor` looks at the iteration matrix
     every :data:`MONITOR_EVERY` steps and at every step Newton found hard (a restart, a
     split or a failure): a run through a configuration where an interconnection loses
-    surjectivity stops there instead of stepping over it. Returns the same dict as the
-    IDA backend.
+    surjectivity stops there instead of stepping over it. Returns a
+    :class:`~phc.simulation.backend.BackendRun`, as the IDA backend.
 
     `events` (a :class:`phc.simulation.events.Watch`, optional) are switching functions
     w(t, y, ẏ), positive while the modes hold: a step at whose end one has fallen to zero
@@ -569,9 +570,9 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
     if ok and split:
         message += (f"; {split} step(s) needed a restart or a split to be solved (the step is long "
                     "for the dynamics)")
-    extra = {"event": event} if event is not None else {}
-    return dict(t=t_out[:k + 1], y=ys[:k + 1], yp=yps[:k + 1], steps=steps, success=ok, message=message,
-                cpu=time.process_time() - start, interrupted=interrupted, **extra)
+    return BackendRun.from_mapping(dict(t=t_out[:k + 1], y=ys[:k + 1], yp=yps[:k + 1], steps=steps, success=ok,
+                                        message=message, cpu=time.process_time() - start, interrupted=interrupted,
+                                        event=event))
 
 
 EVENT_TOL = 1e-12
@@ -664,12 +665,12 @@ SINGULAR_HINT = ("singular Newton matrix; the model may be at a singular configu
 NEWTON_HINT = "Newton did not converge; reduce `step` (simulation.step)"
 
 
-def integrate_midpoint(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=None, max_order=None,
-                       step=None, names=None, events=None, nominal=None):
+def integrate_midpoint(mod, p, t_out, y0, yp0, options, *, progress=None, names=None, events=None,
+                       nominal=None) -> BackendRun:
     """Fixed-step implicit midpoint from ``t_out[0]``; output at every ``t_out`` (each output
-    interval is split into equal steps no longer than `step`). Returns the same dict as the
-    IDA backend."""
-    del rtol, atol, max_order  # a fixed-step method: accuracy is set by `step`
+    interval is split into equal steps no longer than ``options.step``, a
+    :class:`~phc.options.RunOptions`: a fixed-step method's accuracy is set by `step` alone)."""
+    step, max_steps = options.step, options.max_steps
 
     def make_advance():
         stage = StageSolver(mod, p, weights=newton_weights_of(nominal, mod))
@@ -694,5 +695,4 @@ def integrate_midpoint(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progres
     out = integrate_fixed_step(mod, p, t_out, y0, yp0, max_steps=max_steps, progress=progress, step=step,
                                advance=advance, name="implicit midpoint", names=names, events=events,
                                scales=nominal)
-    out.update(nfev=stage.nfev, njev=stage.matrix.factorizations)
-    return out
+    return out.replace(nfev=stage.nfev, njev=stage.matrix.factorizations)

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from phc.simulation.backend import BackendRun
 from phc.simulation.midpoint import NEWTON_HINT, SINGULAR_HINT, StageSolver, integrate_fixed_step, newton_weights_of
 
 PASSIVITY_HINT = ("the step added energy through dissipation (the backward substep of the composition "
@@ -153,24 +154,26 @@ def unstable_modes(mod, p, t0, y0, yp0, steps) -> list[tuple[float, complex]]:
     return hits
 
 
-def integrate_midpoint4(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progress=None, max_order=None,
-                        step=None, names=None, events=None, nominal=None):
+def integrate_midpoint4(mod, p, t_out, y0, yp0, options, *, progress=None, names=None, events=None,
+                        nominal=None) -> BackendRun:
     """Fixed-step fourth-order composition of the implicit midpoint rule from ``t_out[0]``;
     output at every ``t_out`` (each output interval is split into equal steps no longer than
-    `step`). Returns the same dict as the IDA backend. A step that puts a damped mode of the
-    linearization at the start into the method's unstable band is refused before the run."""
-    del rtol, atol, max_order  # a fixed-step method: accuracy is set by `step`
+    ``options.step``; a fixed-step method's accuracy is set by `step` alone). A step that puts
+    a damped mode of the linearization at the start into the method's unstable band is
+    refused before the run."""
+    step, max_steps = options.step, options.max_steps
     intervals = np.diff(np.asarray(t_out, dtype=float))
     steps = sorted({float(d / max(1, int(np.ceil(d / step - 1e-9)))) if step else float(d) for d in intervals})
     hits = unstable_modes(mod, p, float(t_out[0]), y0, yp0, steps)
     if hits:
         h, mu = hits[0]
-        return dict(t=np.asarray(t_out[:1], dtype=float), y=np.atleast_2d(y0), yp=np.atleast_2d(yp0), steps=0,
+        return BackendRun.from_mapping(dict(
+                    t=np.asarray(t_out[:1], dtype=float), y=np.atleast_2d(y0), yp=np.atleast_2d(yp0), steps=0,
                     nfev=0, njev=0, success=False, cpu=0.0,
                     message=(f"midpoint4: step h = {h:.4g} puts a damped mode (λ = {mu.real:.4g}"
                              f"{mu.imag:+.2g}j) at h·|λ| = {h * abs(mu):.3f}, inside the composition's unstable band "
                              f"{UNSTABLE_BAND[0]}–{UNSTABLE_BAND[1]}: its backward substep would amplify it; change "
-                             "`step` (e.g. by 20 %) or use `midpoint`"))
+                             "`step` (e.g. by 20 %) or use `midpoint`")))
     if events is None:  # the whole step loop compiled, when the model runs on the numba backend
         from phc.simulation import compiled_steps
 
@@ -184,5 +187,4 @@ def integrate_midpoint4(mod, p, t_out, y0, yp0, *, rtol, atol, max_steps, progre
     out = integrate_fixed_step(mod, p, t_out, y0, yp0, max_steps=max_steps, progress=progress, step=step,
                                advance=advance, name="midpoint composition (order 4)", names=names, events=events,
                                scales=nominal)
-    out.update(nfev=advance.nfev, njev=advance.factorizations)
-    return out
+    return out.replace(nfev=advance.nfev, njev=advance.factorizations)

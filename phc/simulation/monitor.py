@@ -19,6 +19,8 @@ from typing import Optional
 import numpy as np
 import scipy.linalg as sla
 
+from phc.errors import ModelEvaluationError
+
 HISTORY = 64
 """Looks the monitor keeps for a failure's diagnosis."""
 THRESHOLD = 1e-11
@@ -349,6 +351,39 @@ def undamped_modes(mod, p, t, y, yp) -> Optional[np.ndarray]:
     lam = lam[np.abs(lam) < 1e8 * max(scale, 1.0)]  # infinite eigenvalues computed inexactly
     light = lam[(np.abs(lam.imag) > 0) & (np.abs(lam.real) < LIGHT_DAMPING * np.abs(lam))]
     return np.sort(np.abs(light.imag))[::-1]
+
+
+def many_steps_hint(mod, p, t, y, yp, *, steps: int, span: float, max_order: int, rtol: float, atol: float) -> str:
+    """What a successful IDA run of very many `steps` over `span` may have cost them, said only
+    where it holds: lightly damped modes (:func:`undamped_modes`, at each state of `t`, `y`,
+    `ẏ`) that the mean step leaves unresolved (ω·h above :data:`UNRESOLVED`) at a BDF order
+    above 2, which is not stable for them — otherwise the error test at the tolerances. A
+    loudspeaker with modes of damping ratio 0.78 and 1 was told of "stiff undamped modes"
+    it does not have, when an index-1 variable's tolerance was the cause (issue 33)."""
+    h = span / max(steps, 1)
+    head = f"IDA needed {steps} steps (mean step {h:.2g})"
+    omegas = []
+    for ti, yi, ypi in zip(t, y, yp):
+        try:
+            w = undamped_modes(mod, p, ti, yi, ypi)
+        except (ArithmeticError, ValueError, TypeError, np.linalg.LinAlgError, ModelEvaluationError):
+            w = None
+        if w is not None and len(w):
+            omegas.append(float(w[0]))
+    w = max(omegas, default=0.0)
+    if w * h > UNRESOLVED and max_order > 2:
+        return (f"{head}: the model has undamped oscillations up to ω ≈ {w:.2g} rad/s that steps of this size "
+                f"do not resolve (ωh ≈ {w * h:.2g}), and BDF of order 3–5 is not stable for them; `max_order: 2` "
+                "or a fixed-step solver (`--solver midpoint --step …`) steps over them (docs/how-to/solvers.md)")
+    if w * h > UNRESOLVED:  # at max_order 2: A-stable, the modes are damped numerically, not a limit
+        modes = (f"the undamped oscillations up to ω ≈ {w:.2g} rad/s (ωh ≈ {w * h:.2g}) are not resolved, but BDF "
+                 f"at max_order {max_order} is stable for them")
+    else:
+        modes = ("no undamped mode is left unresolved by such steps"
+                 + (f" (the fastest, ω ≈ {w:.2g} rad/s, has ωh ≈ {w * h:.2g})" if w > 0 else ""))
+    return (f"{head}: {modes}, so the steps are what the error test asks for at rtol = {rtol:g}, atol = "
+            f"{atol:g} (atol relative to each variable's nominal scale, docs/tolerances.md): looser tolerances, or "
+            "a larger `nominal` for a variable you need less precisely, cost fewer")
 
 
 def _dense_split(mod, p, t, y, yp) -> tuple[np.ndarray, np.ndarray]:

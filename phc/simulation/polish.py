@@ -29,6 +29,7 @@ from typing import Optional
 import numpy as np
 import scipy.linalg as sla
 
+from phc.simulation.backend import BackendRun
 from phc.simulation.guard import CATCH, ModelEvaluationError
 
 DENSE_ENTRIES = 400_000
@@ -151,11 +152,11 @@ class AlgebraicPolish:
         return y1, yp1, True
 
 
-def polish_outputs(mod, p, out: dict, scales, t_from: Optional[float] = None) -> dict:
+def polish_outputs(mod, p, out: BackendRun, scales, t_from: Optional[float] = None) -> BackendRun:
     """`out` (an integrator's arrays) with the algebraic variables and ẏ recomputed at every
     output time, when an output depends on them; unchanged otherwise or when the model is
     too large for the dense solve (:data:`DENSE_ENTRIES`)."""
-    t, y, yp = out["t"], out["y"], out["yp"]
+    t, y, yp = out.t, out.y, out.yp
     if not len(t) or np.all(np.asarray(mod.DIFFERENTIAL, dtype=bool)):
         return out
     if not depends_on_algebraic(mod, p, t[0], y[0], yp[0], np.asarray(scales, dtype=float)):
@@ -172,7 +173,7 @@ def polish_outputs(mod, p, out: dict, scales, t_from: Optional[float] = None) ->
             continue
         if np.all(np.isfinite(y[k])) and np.all(np.isfinite(yp[k])):
             y[k], yp[k], _ = polish(t[k], y[k], yp[k])
-    return dict(out, y=y, yp=yp, polished=polish.improved)
+    return out.replace(y=y, yp=yp, polished=polish.improved)
 
 
 __all__ = ["AlgebraicPolish", "polish_outputs", "depends_on_algebraic"]

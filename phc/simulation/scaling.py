@@ -90,7 +90,7 @@ class Scales(np.ndarray):
     so the conditioning warning leaves them out. ``user``: the indices the user set (never
     raised, :func:`mode_floor` included). ``sizes``: the scales before the round-off floor
     (steps 1–8), the sizes the variables take: a floor says how finely a variable can be
-    resolved, not how large it is (:func:`phc.simulation.ida.determined_scales` judges by
+    resolved, not how large it is (:func:`phc.simulation.tested.determined_scales` judges by
     them whether a variable is a small difference of larger terms)."""
 
     floored = None

@@ -6,7 +6,8 @@ from typing import Annotated, Literal, Optional, Union
 
 from pydantic import Discriminator, Field, Tag, field_validator, model_validator
 
-from phc.names import SOLVER_NAMES
+from phc.options import DEFAULTS, RunOptions
+from phc.spec.run import SOLVERS, Atol, MaxOrder, MaxSteps, NOut, Rtol, Step, TEnd
 from phc.spec.base import Expr, Identifier, SpecModel, Vector
 from phc.spec.components import ComponentSpec
 
@@ -132,22 +133,20 @@ class InputSpec(SpecModel):
         return self
 
 
-SOLVERS = Literal[SOLVER_NAMES]
-
-
 class SimulationSpec(SpecModel):
-    """Defaults for `phc simulate` on this model."""
+    """Defaults for `phc simulate` on this model: time span, output grid, solver and
+    tolerances, initial values, inputs and outputs."""
 
-    t_end: float = Field(1.0, gt=0)
-    t_start: float = 0.0
+    t_end: TEnd = DEFAULTS.t_end
+    t_start: float = DEFAULTS.t_start
     """Start time of the run (before `t_end`)."""
-    n_out: int = Field(201, ge=2, le=10_000_000)
+    n_out: NOut = DEFAULTS.n_out
     """Number of output points (including both ends)."""
-    rtol: float = Field(1e-8, gt=0, lt=1)
-    atol: float = Field(1e-10, gt=0)
-    max_steps: int = Field(1_000_000, ge=1, le=2 ** 31 - 1)
+    rtol: Rtol = DEFAULTS.rtol
+    atol: Atol = DEFAULTS.atol
+    max_steps: MaxSteps = DEFAULTS.max_steps
     """Maximum number of solver steps over the whole run (at most 2³¹ − 1: IDA keeps it in a C long)."""
-    solver: SOLVERS = "ida"
+    solver: SOLVERS = DEFAULTS.solver
     """`ida`: SUNDIALS IDA (variable-order BDF, error control by `rtol`/`atol`); `midpoint`:
     the implicit midpoint rule with fixed `step`, whose discrete energy balance is exact for
     quadratic Hamiltonians; `discrete_gradient`: a discrete-gradient step with fixed `step`,
@@ -155,10 +154,10 @@ class SimulationSpec(SpecModel):
     midpoint substeps composed to order 4 (Yoshida/Suzuki triple jump) with fixed `step`,
     energy balance exact for quadratic Hamiltonians like the midpoint rule (its middle substep
     runs backwards, so dissipation is not monotone step by step)."""
-    step: Optional[float] = Field(None, gt=0)
+    step: Optional[Step] = DEFAULTS.step
     """Step size of the fixed-step solvers `midpoint`, `discrete_gradient` and `midpoint4`
     (default: the output interval)."""
-    max_order: int = Field(5, ge=1, le=5)
+    max_order: MaxOrder = DEFAULTS.max_order
     """Maximum BDF order of IDA. 2 (A-stable) suits undamped stiff oscillations such as
     fine beam meshes: orders 3–5 must resolve the highest modes to stay stable."""
     initial: dict[str, Union[Expr, InitialSpec]] = {}
@@ -186,6 +185,10 @@ class SimulationSpec(SpecModel):
             raise ValueError(f"`t_start` ({value}) must be before `t_end` ({end}); set t_end to the time the "
                              "run should reach")
         return value
+
+    def run_options(self) -> RunOptions:
+        """The run options this section sets (:class:`phc.options.RunOptions`)."""
+        return RunOptions.of({name: getattr(self, name) for name in RunOptions.names()})
 
 
 class ModelSpec(SpecModel):

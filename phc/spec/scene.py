@@ -13,7 +13,8 @@ from typing import Annotated, Literal, Optional, Union
 from pydantic import Field, model_validator
 
 from phc.spec.base import Expr, Identifier, SpecModel, Switch
-from phc.spec.model import InitialSpec, InputSpec, SOLVERS
+from phc.spec.run import SOLVERS, Atol, MaxOrder, NOut, Rtol, Step, TEnd
+from phc.spec.model import InitialSpec, InputSpec
 from phc.spec.sweep import SweepSpec
 
 Elements = Annotated[int, Field(ge=1, le=200_000)]
@@ -23,11 +24,11 @@ Elements = Annotated[int, Field(ge=1, le=200_000)]
 class AccuracySpec(SpecModel):
     """Accuracy target: solver tolerances, step, and mesh sizes."""
 
-    rtol: Optional[float] = Field(None, gt=0, lt=1)
-    atol: Optional[float] = Field(None, gt=0)
-    step: Optional[float] = Field(None, gt=0)
+    rtol: Optional[Rtol] = None
+    atol: Optional[Atol] = None
+    step: Optional[Step] = None
     """Step size of the fixed-step solvers."""
-    max_order: Optional[int] = Field(None, ge=1, le=5)
+    max_order: Optional[MaxOrder] = None
     mesh: dict[str, Elements] = {}
     """Number of elements per distributed component (`component: elements`), overriding
     the model's `elements`."""
@@ -38,9 +39,9 @@ class BenchSpec(SpecModel):
 
     solvers: Optional[list[SOLVERS]] = None
     """Solvers to compare (default: all of phc's)."""
-    tolerances: list[float] = Field([1e-4, 1e-6, 1e-8], min_length=1)
+    tolerances: list[Rtol] = Field([1e-4, 1e-6, 1e-8], min_length=1)
     """Relative tolerances of the error-controlled solvers (atol = rtol/100)."""
-    steps: list[float] = []
+    steps: list[Step] = []
     """Step sizes of the fixed-step solvers (default: derived from the output interval)."""
     meshes: dict[str, list[Elements]] = {}
     """Element counts to sweep per distributed component."""
@@ -94,8 +95,8 @@ class SceneSpec(SpecModel):
     """Effects per component (`component: {effect: on|off|k}`; nested components by dotted
     name). Effects left out keep the model's values."""
     t_start: Optional[float] = None
-    t_end: Optional[float] = Field(None, gt=0)
-    n_out: Optional[int] = Field(None, ge=2, le=10_000_000)
+    t_end: Optional[TEnd] = None
+    n_out: Optional[NOut] = None
     initial: dict[str, Union[Expr, InitialSpec]] = {}
     """Initial values by state name, merged over the model's (a value here wins), or initial
     fields of distributed components as functions of `xi` (`rod.w: "0.001*sin(pi*xi/L)"`,

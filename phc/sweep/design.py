@@ -24,6 +24,8 @@ from phc.spec.sweep import Axis, SpecError, parse_spec
 ACCURACY_OPTIONS = {"accuracy.rtol": "rtol", "accuracy.atol": "atol", "accuracy.step": "step"}
 MESH_PREFIX = "accuracy.mesh."
 MAX_POINTS = 1_000_000
+MAX_SEED = 2**32 - 1
+"""The largest seed of the sampler (`--seed`, a scene's `sweep: seed:`)."""
 
 
 # ---------------------------------------------------------------------------------------
@@ -139,6 +141,9 @@ def make_design(compiled, axes: Sequence[Axis], samples: Optional[int] = None, s
     if samples and not sampled:
         problems.append(("", "--samples is given but no parameter is a distribution",
                          "write e.g. NAME=uniform:A:B, NAME=normal:MEAN:STD or NAME=loguniform:A:B"))
+    if not (isinstance(seed, int) and 0 <= seed <= MAX_SEED):
+        problems.append(("", f"the sampler's seed must be a whole number from 0 to {MAX_SEED}, got {seed}",
+                         "--seed N, or `seed:` in the scene's sweep section"))
     if sampling not in ("lhs", "random"):
         problems.append(("", f"unknown sampling `{sampling}`", "choose lhs or random"))
     grid = [a for a in axes if not a.sampled]
@@ -259,5 +264,5 @@ def sweep_axes(compiled, cli: Sequence[tuple[str, str]]) -> tuple[list[Axis], An
     return list(axes.values()), spec, locate
 
 
-__all__ = ["ACCURACY_OPTIONS", "Design", "MAX_POINTS", "MESH_PREFIX", "Point", "compile_group", "group_label",
-           "make_design", "recompile_for", "sample_unit", "sweep_axes", "transform"]
+__all__ = ["ACCURACY_OPTIONS", "Design", "MAX_POINTS", "MAX_SEED", "MESH_PREFIX", "Point", "compile_group",
+           "group_label", "make_design", "recompile_for", "sample_unit", "sweep_axes", "transform"]

@@ -282,6 +282,8 @@ class DaskExecutor:
             import distributed  # noqa: F401
         except ImportError:
             raise SweepSetupError(f"the dask executor needs dask.distributed: {INSTALL_CLUSTER}") from None
+        if address:
+            _check_scheduler(address)
         self.address, self.workers, self.client = address, workers, client
         self.startup_s = math.nan
         self._where = ""
@@ -301,7 +303,11 @@ class DaskExecutor:
             path = Path(self.address)
             kwargs = {"scheduler_file": str(path)} if path.suffix == ".json" and path.is_file() else \
                 {"address": self.address}
-            client = Client(**kwargs, timeout=30)
+            try:
+                client = Client(**kwargs, timeout=30)
+            except (OSError, ValueError, TypeError, KeyError) as err:  # unreachable, refused, a bad file
+                raise SweepSetupError(f"--scheduler `{self.address}`: cannot connect to the Dask scheduler "
+                                      f"({type(err).__name__}: {err})") from None
             self._where = f"scheduler {client.scheduler.address}, {len(client.scheduler_info()['workers'])} workers"
             try:
                 yield client
@@ -381,6 +387,31 @@ def _dask_failure(err: BaseException) -> str:
     if isinstance(err, (ImportError, ModuleNotFoundError)):
         return f"the worker cannot import phc ({err}); install phc on every worker"
     return f"the worker failed: {kind}: {err}"
+
+
+def _check_scheduler(address: str) -> None:
+    """Refuse, before any work, a `--scheduler` that is neither a scheduler file (an existing
+    ``.json`` file) nor a network address with a port (``tcp://HOST:PORT``, ``HOST:PORT``;
+    also tls, ws, wss)."""
+    path = Path(address)
+    try:
+        if path.suffix == ".json" and path.is_file():
+            return
+    except OSError:  # a name too long for a file: an address, checked below
+        pass
+    scheme = address.rpartition("://")[0]
+    if scheme not in ("", "tcp", "tls", "ws", "wss"):
+        return  # another transport of distributed: its own connection says what is wrong
+    from distributed.comm.addressing import get_address_host_port
+
+    try:
+        host, port = get_address_host_port(address)
+        ok = bool(host) and 0 < int(port) < 65536
+    except (ValueError, TypeError):
+        ok = False
+    if not ok:
+        raise SweepSetupError(f"--scheduler `{address}` is neither a scheduler address (tcp://HOST:PORT) nor a "
+                              "scheduler file (the .json file of `dask scheduler --scheduler-file`)")
 
 
 def _executor(executor, scheduler, workers):

@@ -19,7 +19,8 @@ from typing import TYPE_CHECKING, Sequence, Union
 
 import numpy as np
 
-from phc.io import atomic_write
+from phc.inert import inert
+from phc.io import atomic_write, csv_rows
 
 if TYPE_CHECKING:
     from phc.sweep.design import Design
@@ -90,7 +91,7 @@ class AppendLog:
         data = self.path.read_bytes()
         if not data.endswith(b"\n"):
             data = data[: data.rfind(b"\n") + 1]
-        lines = list(csv.reader(io.StringIO(data.decode("utf-8", errors="replace"))))
+        lines = csv_rows(io.StringIO(data.decode("utf-8", errors="replace")))  # messages of any length
         if not lines:
             return [], []
         header = lines[0]
@@ -189,7 +190,7 @@ class SweepReport:
                 lines.append(f"  wrote     {self.paths[key]}")
         if self.parquet_skipped:
             lines.append(f"  parquet   skipped: {self.parquet_skipped}")
-        return "\n".join(lines)
+        return "\n".join(inert(line) for line in lines)  # names, messages and paths (phc.inert)
 
     def summary(self) -> dict:
         return {"model": self.name, "file": self.file, "planned": self.planned, "rows": len(self.rows),

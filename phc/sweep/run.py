@@ -84,6 +84,7 @@ def run_sweep(path: Union[str, os.PathLike], out: Union[str, os.PathLike], *,
     columns = ["point", *names, *RUN_COLUMNS, *(f"{o}.{s}" for o in outputs for s in STATS), *MACHINE_COLUMNS]
     units = _units(compiled, design, outputs)
     report = SweepReport(compiled.name, str(path), design, columns, units)
+    runner = _executor(executor, scheduler, workers)  # a wrong --scheduler before any work
     series_path = Path(series) if series else None
 
     # -- compile each group once ----------------------------------------------------------
@@ -160,7 +161,6 @@ def run_sweep(path: Union[str, os.PathLike], out: Union[str, os.PathLike], *,
             record(_failed(task, failed_groups[p.group], outputs))
         else:
             tasks.append(task)
-    runner = _executor(executor, scheduler, workers)
     t_run = time.perf_counter()
     try:
         if tasks:
@@ -211,6 +211,9 @@ def _resume(log: AppendLog, meta_path: Path, meta: dict, series_log: Optional[Ap
     except (OSError, ValueError):
         raise SweepSetupError(f"cannot resume `{log.path}`: its description `{meta_path}` is missing or damaged; "
                               "pass --overwrite to start over") from None
+    if not isinstance(old, dict) or not isinstance(old.get("models", {}), dict):
+        raise SweepSetupError(f"cannot resume `{log.path}`: its description `{meta_path}` is not the description "
+                              "of a sweep (a JSON object written by phc sweep); pass --overwrite to start over")
     if old.get("fingerprint") != meta["fingerprint"]:
         raise SweepSetupError(f"cannot resume `{log.path}`: it holds a different sweep (other parameters, values, "
                               "samples, run options or outputs); use another --out, or --overwrite")
@@ -235,7 +238,7 @@ def _resume(log: AppendLog, meta_path: Path, meta: dict, series_log: Optional[Ap
     if series_log is not None:
         if series_log.path.exists():
             _, kept = series_log.read()
-            series_log.rewrite([s for s in kept if s and s[0].isdigit() and int(s[0]) in rows])
+            series_log.rewrite([s for s in kept if s and s[0].isascii() and s[0].isdigit() and int(s[0]) in rows])
         else:
             series_log.create()
     return rows

@@ -28,7 +28,6 @@ import sympy as sp
 import phc
 from phc.checks.compiled import certify_compiled
 from phc.dae import LinearTerm
-from phc.elaborate import Builder
 from phc.errors import ModelError
 from phc.library import LOWERERS
 from model_texts import CRANK, LINEAR, MODULATION, PDE1D  # shared with tests/test_registry.py

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 import phc
+from phc.options import RunOptions
 from phc.simulation.ida import integrate_ida
 from phc.simulation.midpoint import integrate_midpoint
 
@@ -76,10 +77,10 @@ def test_drift_grows_without_stabilization(compiled, t_end):
     assert ggl.success, ggl.message
     mod = compiled.module
     p = mod.full_parameters()
-    out = integrate_ida(WithoutPositionConstraints(mod), p, ggl.t, ggl.y[0], ggl.yp[0], rtol=rtol,
-                        atol=1e-2 * rtol, max_steps=10**8)
-    assert out["success"], out["message"]
-    drift = _drift(mod, p, out["y"])
+    out = integrate_ida(WithoutPositionConstraints(mod), p, ggl.t, ggl.y[0], ggl.yp[0],
+                        RunOptions(rtol=rtol, atol=1e-2 * rtol, max_steps=10**8))
+    assert out.success, out.message
+    drift = _drift(mod, p, out.y)
     half = len(drift) // 2
     print(f"\nIDA over {t_end:g} s, rtol {rtol:g}: constraint drift with GGL {ggl.constraint_drift:.1e}, "
           f"without position constraints {drift.max():.1e}")
@@ -95,7 +96,7 @@ def test_midpoint_alone_keeps_quadratic_constraints(compiled):
     mod = compiled.module
     p = mod.full_parameters()
     r = phc.simulate(compiled, solver="midpoint", step=0.05, t_end=50.0, n_out=51)
-    out = integrate_midpoint(WithoutPositionConstraints(mod), p, r.t, r.y[0], r.yp[0], rtol=0, atol=0,
-                             max_steps=10**9, step=0.05)
-    assert out["success"], out["message"]
-    assert _drift(mod, p, out["y"]).max() <= 1e-12
+    out = integrate_midpoint(WithoutPositionConstraints(mod), p, r.t, r.y[0], r.yp[0],
+                             RunOptions(solver="midpoint", max_steps=10**9, step=0.05))
+    assert out.success, out.message
+    assert _drift(mod, p, out.y).max() <= 1e-12

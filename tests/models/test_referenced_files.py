@@ -25,7 +25,7 @@ from phc import files as phc_files
 from phc import inputs
 from phc.cli import main
 from phc.errors import ModelError
-from phc.elaborate import Builder
+from phc.elaborate import Reporter
 
 SECRET = "hunter2-s3cr3t-value"
 
@@ -424,11 +424,11 @@ def test_a_diamond_of_18_levels_is_refused_before_expanding(tmp_path, capsys, mo
     import phc.elaborate as elab
 
     reads, refs, elaborated = [], [], []
-    load_spec_bytes, nested_ref = elab.load_spec_bytes, Builder._nested_ref
+    load_spec_bytes, nested_ref = elab.load_spec_bytes, elab._Elaborator._nested_ref
     monkeypatch.setattr(elab, "load_spec_bytes",
                         lambda raw, path: reads.append(str(path)) or load_spec_bytes(raw, path))
-    monkeypatch.setattr(Builder, "_nested_ref", lambda self, *a, **k: refs.append(a[1]) or nested_ref(self, *a, **k))
-    monkeypatch.setattr(Builder, "_elaborate_file", lambda self, ctx, overrides: elaborated.append(ctx.file))
+    monkeypatch.setattr(elab._Elaborator, "_nested_ref", lambda self, *a, **k: refs.append(a[1]) or nested_ref(self, *a, **k))
+    monkeypatch.setattr(elab._Elaborator, "_elaborate_file", lambda self, ctx, overrides: elaborated.append(ctx.file))
     model = diamond(tmp_path, 18)
     code, text = validate(capsys, model)
     assert code == 1
@@ -463,8 +463,8 @@ def test_nested_file_must_be_valid_utf8(tmp_path, capsys):
     assert code == 1 and "leaf.yaml:1:1: the file is not valid UTF-8 (byte 0xff on line 2)" in text
 
 
-def test_builder_without_roots_confines_to_the_referring_directory(tmp_path):
-    b = Builder()
+def test_a_reporter_without_roots_confines_to_the_referring_directory(tmp_path):
+    b = Reporter()
     (tmp_path / "sub").mkdir()
     with pytest.raises(phc_files.FileRefused) as err:
         b.files.resolve(tmp_path / "sub" / "m.yaml", "../x.csv", "table")

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 import phc
+from phc.options import RunOptions
 from phc.simulation import BACKENDS, FIXED_STEP, parameter_vector
 from phc.simulation.backend import Backend, BackendRun, IgnoredOptionWarning
 from phc.simulation.initial import consistent_initial_conditions
@@ -46,11 +47,10 @@ def _start(compiled):
 
 
 def _options(name, **over):
-    opts = dict(rtol=1e-9, atol=1e-11, max_steps=100_000, progress=None, max_order=None, names=None)
-    if BACKENDS[name].fixed_step:
-        opts["step"] = 1e-3
-    opts.update(over)
-    return opts
+    """The backend's keywords: the run options (one RunOptions object) and no progress."""
+    options = RunOptions(solver=name, rtol=1e-9, atol=1e-11, max_steps=100_000,
+                         step=1e-3 if BACKENDS[name].fixed_step else None).replace(**over)
+    return dict(options=options, progress=None, names=None)
 
 
 def _closed_form(t, m=1.0, k=4.0, c=0.4, x0=0.5):

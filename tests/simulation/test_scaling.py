@@ -22,6 +22,7 @@ from scipy.integrate import solve_ivp
 
 import phc
 from phc.errors import ModelError
+from phc.simulation.backend import BackendRun
 from phc.simulation.scaling import nominal_scales
 
 MODELS = Path(__file__).resolve().parents[2] / "models"
@@ -333,14 +334,14 @@ def test_polishing_only_moves_algebraic_variables_and_rates():
     compiled = phc.compile_model(MODELS / "rigid_slider_crank.yaml", certify=False)
     mod = compiled.module
     r = phc.simulate(compiled, solver="ida", rtol=1e-6, atol=1e-6, t_end=0.02, n_out=21)
-    out = dict(t=r.t, y=r.y.copy(), yp=r.yp.copy())
-    out["y"][:, ~r.differential] *= 1.1  # spoil them: the polish must restore them
+    out = BackendRun(t=r.t, y=r.y.copy(), yp=r.yp.copy(), steps=r.steps, success=True, message="")
+    out.y[:, ~r.differential] *= 1.1  # spoil them: the polish must restore them
     p = phc.simulation.parameter_vector(mod)
     scales = nominal_scales(mod, p, r.y[0], r.yp[0], span=0.02, atol=1e-6)
     done = polish_outputs(mod, p, out, scales)
-    assert np.array_equal(done["y"][:, r.differential], r.y[:, r.differential])  # the states stay
+    assert np.array_equal(done.y[:, r.differential], r.y[:, r.differential])  # the states stay
     alg = [j for j in np.flatnonzero(~r.differential) if not mod.VARIABLES[j].startswith("ggl.")]
-    assert np.abs(done["y"][:, alg] - r.y[:, alg]).max() <= 1e-6 * np.abs(r.y[:, alg]).max()
+    assert np.abs(done.y[:, alg] - r.y[:, alg]).max() <= 1e-6 * np.abs(r.y[:, alg]).max()
 
 
 def test_polishing_a_linear_model_rarely_refactors():

@@ -1,0 +1,295 @@
+"""Lowering one component: a pure function of its spec and a read-only context.
+
+:func:`lower` runs a component type's lowerer (the ``lower`` field of its registry entry,
+:mod:`phc.registry`) and returns what it produced as a frozen :class:`ComponentLowering`:
+the component's variables, rows (residual rows, definitions of port variables, sparse
+linear blocks with rows counted from the component's first row), ports, description,
+energy and dissipation terms, invariants, initial relations, outputs, compile-time
+parameters and diagnostics. The elaborate pass (:mod:`phc.elaborate`) folds the lowerings
+of all components, in order, into its :class:`~phc.elaborate.Elaboration`; nothing a
+lowerer does reaches another component except through that fold.
+
+A lowerer is called as ``lower_x(b, ctx, name, spec, path)``: `b` is a fresh
+:class:`Recorder` of this component only (it writes its variables, rows, ports, ... there,
+and parses expressions through it), `ctx` the :class:`~phc.reporter.FileContext` of the
+file the component is written in (its source map and parameter symbols). What the
+lowerer may read of the rest of the model — the parameters' default values, the
+variables of the components lowered before it, the ports declared so far, the units of
+parameters — is the read-only :class:`LoweringContext` ``b.context``.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence as SequenceABC
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any, Callable, Mapping, Optional, Sequence
+
+import sympy as sp
+
+from phc.dae import Equation, Invariant, LinearBlock, Parameter, Variable
+from phc.diagnostics import Diagnostic
+from phc.reporter import Port, Reporter
+from phc.files import FileAccess
+
+
+class ReadOnlySequence(SequenceABC):
+    """A read-only view of a list (no copy): what a lowerer sees of a list the elaborate
+    pass extends between lowerings."""
+
+    __slots__ = ("_items",)
+
+    def __init__(self, items: Sequence) -> None:
+        self._items = items
+
+    def __getitem__(self, index):
+        return self._items[index]
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def __iter__(self):
+        return iter(self._items)
+
+
+@dataclass(frozen=True)
+class LoweringContext:
+    """What a lowerer may read of the model beyond its own spec: read-only views of the
+    elaborate pass's state at the time the component is lowered."""
+
+    default_values: Mapping
+    """Parameter symbol -> its default as a sympy Float (the parameters known so far)."""
+    variables: Sequence[Variable]
+    """The variables of the components lowered before this one (a modulation reads their states)."""
+    ports: Mapping[str, Port]
+    """The ports declared before this one, by full name."""
+    unset_parameters: frozenset
+    """Parameters whose value had an error (their default 0 means nothing)."""
+    units: Mapping = field(default_factory=lambda: MappingProxyType({}))
+    """Parameter symbol -> its unit (:mod:`phc.units`)."""
+    unit_text: Mapping = field(default_factory=lambda: MappingProxyType({}))
+    """Parameter symbol -> its unit as written."""
+    override_note: str = ""
+    """The scene's parameter overrides, named in refusals of their values."""
+    files: Optional[FileAccess] = None
+    """What referenced files (tables, matrices) are read through."""
+
+
+@dataclass(frozen=True, eq=False)
+class ComponentLowering:
+    """What lowering one component produced (:func:`lower`); every collection is a tuple.
+
+    Row indices of `linear_blocks` count from the component's first row in `equations`;
+    the elaborate pass shifts them when it appends the rows to the model's."""
+
+    component: str
+    variables: tuple[Variable, ...]
+    equations: tuple[Equation, ...]
+    linear_blocks: tuple[LinearBlock, ...]
+    definitions: tuple[tuple[sp.Symbol, sp.Expr], ...]
+    """Port variables given an explicit value, in the order defined (a later one replaces an earlier)."""
+    hand_written: frozenset
+    """Components with a row not derived from their description (:func:`phc.library.dirac.emit`)."""
+    ports: tuple[Port, ...]
+    parameters: tuple[Parameter, ...]
+    """Parameters the component declares itself (a ``phs`` entry's local `parameters`)."""
+    descriptions: tuple
+    hamiltonian: tuple
+    dissipation: tuple
+    source_power: tuple
+    quadratic_energy: tuple
+    quadratic_dissipation: tuple
+    invariants: tuple[Invariant, ...]
+    velocity_invariants: tuple[Invariant, ...]
+    resistive_laws: tuple
+    rigid_constraints: tuple
+    extra_outputs: tuple[tuple[str, sp.Expr], ...]
+    initial_relations: tuple
+    position_maps: tuple
+    compile_time_parameters: frozenset
+    initial_fields: tuple
+    """(component, :class:`phc.initial_fields.FieldSet`) pairs."""
+    unavailable: tuple[tuple[str, str], ...]
+    """(name, why): outputs an effect that is off leaves out."""
+    left_out: tuple[tuple[str, str, str], ...]
+    failed: frozenset
+    """Components the lowerer itself marked as failed (besides any with an error)."""
+    diagnostics: tuple[Diagnostic, ...]
+    expr_dims: tuple
+    """((source map id, path), dimension) of the expressions parsed (:class:`~phc.reporter.Reporter`)."""
+    field_dims: tuple
+    """((source map id, field path), [(path, dimension)]) of the expressions parsed."""
+
+    @property
+    def errors(self) -> int:
+        """How many errors lowering found."""
+        return sum(1 for d in self.diagnostics if d.severity == "error")
+
+
+class Recorder(Reporter):
+    """Where one component's lowerer writes: its own variables, rows, ports and terms, and
+    its own diagnostics (the expression helpers of :class:`~phc.reporter.Reporter` report
+    here). :meth:`freeze` turns it into the :class:`ComponentLowering`. Nothing here is
+    shared with another component; the model so far is read through :attr:`context`."""
+
+    def __init__(self, component: str, context: LoweringContext) -> None:
+        super().__init__(context.files)
+        self.component = component
+        self.context = context
+        self.units = context.units
+        self.unit_text = context.unit_text
+        self.override_note = context.override_note
+        self.unset_parameters = context.unset_parameters
+        self.variables: list[Variable] = []
+        self.equations: list[Equation] = []
+        self.linear_blocks: list[LinearBlock] = []
+        self.definitions: dict[sp.Symbol, sp.Expr] = {}
+        self.hand_written: set[str] = set()
+        self.ports: dict[str, Port] = {}
+        self.parameters: dict[str, Parameter] = {}
+        self.dirac: list = []
+        self.hamiltonian: list[sp.Expr] = []
+        self.dissipation: list = []  # (component, P_diss, source span)
+        self.source_power: list[sp.Expr] = []
+        self.quadratic_energy: list = []
+        self.quadratic_dissipation: list = []
+        self.invariants: list[Invariant] = []
+        self.velocity_invariants: list[Invariant] = []
+        self.resistive_laws: list = []
+        self.rigid_constraints: list = []
+        self.extra_outputs: dict[str, sp.Expr] = {}
+        self.initial_relations: list = []
+        self.position_maps: list = []
+        self.compile_time_parameters: set = set()
+        self.initial_fields: dict = {}  # component -> phc.initial_fields.FieldSet
+        self.unavailable: dict[str, str] = {}
+        self.left_out: list[tuple[str, str, str]] = []
+        self.failed: set[str] = set()
+
+    def leave_out(self, component: str, what: str, why: str) -> None:
+        """Record a part of a component that is not compiled (reported to the user)."""
+        self.left_out.append((component, what, why))
+
+    # -- reading the model so far ------------------------------------------------------
+    def default_values(self) -> dict:
+        """Parameter symbol → its default as a sympy Float (xreplace-safe): the model's
+        parameters and those this component declared so far."""
+        values = dict(self.context.default_values)
+        for p in self.parameters.values():
+            values[p.symbol] = sp.Float(p.default)
+        return values
+
+    def known_variables(self):
+        """The variables of the components lowered before this one, then this one's."""
+        return itertools.chain(self.context.variables, self.variables)
+
+    # -- variables ---------------------------------------------------------------------
+    def add_state(self, component: str, local: str, span=None) -> tuple[sp.Symbol, sp.Symbol]:
+        """A state ``component.local`` and its rate ``der(component.local)``."""
+        name = f"{component}.{local}"
+        sym = sp.Symbol(name, real=True)
+        dsym = sp.Symbol(f"der({name})", real=True)
+        self.variables.append(Variable(name, sym, True, "state", component, dsym, span))
+        return sym, dsym
+
+    def add_algebraic(self, component: str, local: str, role: str, span=None) -> sp.Symbol:
+        """An algebraic variable ``component.local`` of `role` (flow, effort, multiplier, ...)."""
+        name = f"{component}.{local}"
+        sym = sp.Symbol(name, real=True)
+        self.variables.append(Variable(name, sym, False, role, component, None, span))
+        return sym
+
+    # -- rows --------------------------------------------------------------------------
+    def add_equation(self, expr: sp.Expr, component: str, kind: str, label: str, span=None, *,
+                     derived: bool = False) -> None:
+        """A residual row ``expr = 0`` of `component`. `derived`: :func:`phc.library.dirac.emit`
+        derived it from the component's description; any other row makes the component's
+        rows hand-written (compared with its description when compiling, :mod:`phc.checks.rows`)."""
+        if not derived:
+            self.hand_written.add(component)
+        expr = expr if isinstance(expr, sp.Basic) else sp.Integer(expr)
+        self.equations.append(Equation(expr, f"{component}.{label}", kind, component, span))
+
+    def add_linear_rows(self, component: str, label: str, n_rows: int, terms, span=None) -> list[int]:
+        """Append `n_rows` rows whose residual is ``Σ terms`` (sparse) plus a sympy part (0 for now).
+
+        Returns the row indices (within this component's rows) so that the caller can add
+        sympy couplings with :meth:`add_to_row` (boundary ports of a discretized PDE).
+        """
+        self.hand_written.add(component)  # sparse blocks are written directly (emit derives no blocks)
+        start = len(self.equations)
+        for i in range(n_rows):
+            self.equations.append(Equation(sp.Integer(0), f"{component}.{label}[{i}]", "linear", component, span))
+        rows = tuple(range(start, start + n_rows))
+        self.linear_blocks.append(LinearBlock(f"{component}.{label}", component, rows, tuple(terms), span))
+        return list(rows)
+
+    def add_to_row(self, row: int, expr: sp.Expr) -> None:
+        """Add `expr` to the residual of this component's row `row` (from :meth:`add_linear_rows`)."""
+        eq = self.equations[row]
+        self.hand_written.add(eq.component)
+        self.equations[row] = Equation(eq.expr + expr, eq.label, eq.kind, eq.component, eq.span)
+
+    def define(self, sym: sp.Symbol, expr: sp.Expr, *, derived: bool = False) -> None:
+        """Give a port variable an explicit value (an output of its component). `derived`:
+        as for :meth:`add_equation`."""
+        self.definitions[sym] = expr
+        if not derived:
+            self.hand_written.add(self.component)
+
+    # -- ports and invariants ----------------------------------------------------------
+    def add_port(self, component: str, local: str, domain: str, dimension: int, frame=None,
+                 span=None, position=None) -> Port:
+        """A power port ``component.local`` with its flow and effort variables."""
+        full = f"{component}.{local}"
+        if full in self.ports or full in self.context.ports:
+            self.diags.append(Diagnostic("PHC-E207", f"component `{component}` declares port `{local}` twice",
+                                         span=span, hint="give each port its own name", path=full))
+        if dimension == 1:
+            f = [self.add_algebraic(component, f"{local}.f", "flow", span)]
+            e = [self.add_algebraic(component, f"{local}.e", "effort", span)]
+        else:
+            f = [self.add_algebraic(component, f"{local}.f[{k}]", "flow", span) for k in range(dimension)]
+            e = [self.add_algebraic(component, f"{local}.e[{k}]", "effort", span) for k in range(dimension)]
+        port = Port(full, component, domain, dimension, frame, f, e, position, span)
+        self.ports[full] = port
+        return port
+
+    def add_invariant(self, expr: sp.Expr, component: str, label: str, span=None, velocity=False) -> None:
+        """A position (or, with `velocity`, velocity) invariant ``expr = 0`` of `component`."""
+        inv = Invariant(f"{component}.{label}", expr, component, span)
+        (self.velocity_invariants if velocity else self.invariants).append(inv)
+
+    # -- the result --------------------------------------------------------------------
+    def freeze(self) -> ComponentLowering:
+        """What was recorded, as an immutable :class:`ComponentLowering`."""
+        return ComponentLowering(
+            component=self.component, variables=tuple(self.variables), equations=tuple(self.equations),
+            linear_blocks=tuple(self.linear_blocks), definitions=tuple(self.definitions.items()),
+            hand_written=frozenset(self.hand_written), ports=tuple(self.ports.values()),
+            parameters=tuple(self.parameters.values()), descriptions=tuple(self.dirac),
+            hamiltonian=tuple(self.hamiltonian), dissipation=tuple(self.dissipation),
+            source_power=tuple(self.source_power), quadratic_energy=tuple(self.quadratic_energy),
+            quadratic_dissipation=tuple(self.quadratic_dissipation), invariants=tuple(self.invariants),
+            velocity_invariants=tuple(self.velocity_invariants), resistive_laws=tuple(self.resistive_laws),
+            rigid_constraints=tuple(self.rigid_constraints), extra_outputs=tuple(self.extra_outputs.items()),
+            initial_relations=tuple(self.initial_relations), position_maps=tuple(self.position_maps),
+            compile_time_parameters=frozenset(self.compile_time_parameters),
+            initial_fields=tuple(self.initial_fields.items()), unavailable=tuple(self.unavailable.items()),
+            left_out=tuple(self.left_out), failed=frozenset(self.failed), diagnostics=tuple(self.diags),
+            expr_dims=tuple(self.expr_dims.items()),
+            field_dims=tuple((key, tuple(entries)) for key, entries in self.field_dims.items()))
+
+
+def lower(lowerer: Callable, context: LoweringContext, ctx, name: str, spec: Any, path: Sequence
+          ) -> ComponentLowering:
+    """Lower one component: run `lowerer` (``lower_x(b, ctx, name, spec, path)``) on a fresh
+    :class:`Recorder` and return what it recorded. `ctx` is the
+    :class:`~phc.reporter.FileContext` the component is written in, `path` its entry there."""
+    recorder = Recorder(name, context)
+    lowerer(recorder, ctx, name, spec, path)
+    return recorder.freeze()
+
+
+__all__ = ["ComponentLowering", "LoweringContext", "ReadOnlySequence", "Recorder", "lower"]
