@@ -15,13 +15,15 @@ initial_fields     mesh-independent initial data (:data:`phc.initial_fields.FIEL
 sign_role          the sign hints of ``phc check`` (:mod:`phc.checks.signs`)
 state_reads        which fields may name other components' states (:mod:`phc.interconnect`)
 drawing            how ``phc animate`` draws it (:mod:`phc.viz`), or None
+implicit_effects   effects a user-defined entry of the type has without declaring them
+                   (:mod:`phc.effects`; ``rigid`` has ``gravity`` and ``damping``)
 rows               where its rows come from (:data:`ROWS`): ``"derived"`` from its
                    description, or ``"hand-written"`` by its lowerer and then compared
                    with the description by every compilation (:mod:`phc.checks.rows`);
                    a function of the spec when the form decides (``phs``)
 =================  ======================================================================
 
-Every field is a required keyword: an entry that forgets one is a ``TypeError`` when it
+Every field but `implicit_effects` (empty unless given) is a required keyword: an entry that forgets one is a ``TypeError`` when it
 is made, and :func:`register` checks the values (a spec whose ``type`` is not the
 entry's name, an unknown sign role, unit information that is neither given nor declared
 absent with a reason) before the type exists for any pass. The per-type tables other
@@ -226,6 +228,10 @@ class ComponentType:
     drawing: Optional[Drawing]
     rows: Any
     """One of :data:`ROWS`, or ``spec -> one of ROWS`` when the form of the entry decides."""
+    implicit_effects: Mapping[str, bool] = field(default_factory=dict)
+    """Effects (name -> default) that an entry of a type with a free-form ``effects`` field
+    has without declaring them, e.g. ``damping`` of a ``phs``: its lowerer reads them with
+    :func:`phc.effects.is_on`, and a scene may switch them."""
 
     def rows_of(self, spec) -> str:
         """Where the rows of a component with this `spec` come from (one of :data:`ROWS`)."""
@@ -269,6 +275,12 @@ class ComponentType:
         if self.drawing is not None and not (isinstance(self.drawing, Drawing) and callable(self.drawing.draw)
                                              and self.drawing.stage in ("body", "attachment")):
             out.append("`drawing` is a Drawing(draw, stage='body'|'attachment') or None")
+        if self.implicit_effects:
+            effects_field = getattr(self.spec, "model_fields", {}).get("effects")
+            if effects_field is None:
+                out.append("`implicit_effects` needs a spec with an `effects` field")
+            out.extend(f"`implicit_effects`: the default of `{k}` is a bool" for k, v in self.implicit_effects.items()
+                       if not isinstance(v, bool))
         if not (callable(self.rows) or self.rows in ROWS):
             out.append(f"`rows` {self.rows!r} is one of {', '.join(ROWS)} (or a function of the spec to one)")
         return out

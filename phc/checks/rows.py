@@ -601,7 +601,7 @@ def check_rows(dae: Dae, samples: int = 2, seed: int = 0, max_unknowns: int = MA
     for blk in dae.linear_blocks:
         blocks.setdefault(blk.component, []).append(blk)
     defaults = {p.symbol: sp.Float(p.default) for p in dae.parameters}
-    t_end = float(dae.options.get("t_end", 1.0) or 1.0) if isinstance(dae.options, dict) else 1.0
+    t_end = float(dae.options.get("t_end", 1.0) or 1.0)
     rng = np.random.default_rng(seed)
     for desc in top.dirac:
         r = rows.get(desc.component)
