@@ -21,7 +21,7 @@ from phc.compiled import CompiledModel
 from phc.errors import InconsistentInitialError, SimulationSetupError
 from phc.simulation.guard import CATCH as GUARD_CATCH
 from phc.simulation.guard import ModelEvaluationError, guard, quiet_floating_point
-from phc.simulation.events import has_switches, integrate_switched
+from phc.simulation.events import breakpoints_within, has_switches, integrate_switched
 from phc.simulation.ida import MAX_ORDER, applied_atol, integrate_ida
 from phc.simulation.initial import InitialResult, consistent_initial_conditions
 from phc.simulation.monitor import describe_equations, many_steps_hint
@@ -427,7 +427,7 @@ def _integrate_with_breakpoints(run, mod, p, t_out, init) -> BackendRun:
     variables are continuous, the algebraic ones and ẏ may jump. A step input is thus
     located exactly rather than found by step rejections."""
     t0, t1 = float(t_out[0]), float(t_out[-1])
-    breaks = sorted(b for b in getattr(mod, "BREAKPOINTS", ()) if t0 < b < t1)  # phc.inputs.breakpoints_within
+    breaks = breakpoints_within(getattr(mod, "BREAKPOINTS", ()), t0, t1)
     if not breaks:
         return _run_safely(run, t_out, init.y0, init.yp0)
     ends = [*breaks, t1]

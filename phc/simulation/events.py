@@ -298,16 +298,20 @@ def locate_switch_times(compiled) -> list:
     return []
 
 
-def _merge(times, t0, t1) -> list[float]:
-    """Sorted times strictly inside (t0, t1), those closer than round-off taken as one."""
-    out = []
-    for t in sorted(times):
-        tol = 1e-12 * max(1.0, abs(t))
-        if t - t0 <= tol or t1 - t <= tol:
+ROUNDOFF = 1e-12
+"""Times closer than this (relative to ``max(1, |t|)``) are one time: a breakpoint at 0.3 and
+``t_end = 0.1 + 0.2`` (0.30000000000000004) leave no piece of length 5e-17 to integrate."""
+
+
+def breakpoints_within(points, t0: float, t1: float) -> list[float]:
+    """Sorted times strictly inside (t0, t1), those within round-off of an end or of each
+    other taken as one (:data:`ROUNDOFF`)."""
+    out: list[float] = []
+    for t in sorted(float(p) for p in points):
+        tol = ROUNDOFF * max(1.0, abs(t))
+        if t - t0 <= tol or t1 - t <= tol or (out and t - out[-1] <= tol):
             continue
-        if out and t - out[-1] <= tol:
-            continue
-        out.append(float(t))
+        out.append(t)
     return out
 
 
@@ -341,8 +345,7 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, keywo
         return _stopped(t_out, y, yp, stats, events,
                         f"cannot locate the switching times of `{mod.SWITCHES[err.k]}` (equation "
                         f"`{mod.SWITCH_EQUATIONS[err.k]}`) on [{t0:g}, {t1:g}]: {err.message}")
-    inputs = sorted(b for b in getattr(mod, "BREAKPOINTS", ()) if t0 < b < t1)  # phc.inputs.breakpoints_within
-    breaks = _merge([t for t, _, _ in timed] + inputs, t0, t1)
+    breaks = breakpoints_within([t for t, _, _ in timed] + list(getattr(mod, "BREAKPOINTS", ())), t0, t1)
     ends = breaks + [t1]
     _time_modes(watch, t0, ends[0], y, yp)
     try:
@@ -358,7 +361,7 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, keywo
     while True:
         end = ends[seg]
         try:
-            if end - t > 1e-12 * max(1.0, abs(t)):
+            if end - t > ROUNDOFF * max(1.0, abs(t)):
                 grid = np.concatenate([[t], t_out[(t_out > t) & (t_out < end)], [end]])
                 active = watch if watch.mask.any() or watch.stuck.any() else None
                 seg_keywords = keywords
@@ -403,7 +406,7 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, keywo
             # a breakpoint: the switches in t that change here, the modes of the next piece, a restart
             t = end
             for tb, k, direction in timed:
-                if abs(tb - t) <= 1e-12 * max(1.0, abs(t)):
+                if abs(tb - t) <= ROUNDOFF * max(1.0, abs(t)):
                     events.append(watch.event(t, k, direction, "time"))
             seg += 1
             before = _residual(watch, t, y, yp)
