@@ -315,6 +315,34 @@ def breakpoints_within(points, t0: float, t1: float) -> list[float]:
     return out
 
 
+def piece_grid(t_out: np.ndarray, start: float, end: float) -> np.ndarray:
+    """The times a piece ``[start, end]`` between breakpoints is integrated to: its ends and
+    the output times strictly inside that are farther than round-off from both (IDA refuses
+    an output 5e-17 after its start; :func:`piece_outputs` gives such times the end's value)."""
+    tol = ROUNDOFF * max(1.0, abs(start), abs(end))
+    inside = t_out[(t_out > start + tol) & (t_out < end - tol)]
+    return np.concatenate([[start], inside, [end]])
+
+
+def piece_outputs(out: BackendRun, t_out: np.ndarray, start: float, end: float):
+    """``(t, y, yp)`` of a piece's run (on :func:`piece_grid`) at the output times it covers:
+    those it reached, an output time within round-off of the piece's start or (reached) end
+    taking that end's value. An output time equal to a breakpoint belongs to both pieces
+    around it; the caller keeps the first (the value before the restart)."""
+    t = np.asarray(out.t, dtype=float)
+    y, yp = np.atleast_2d(out.y), np.atleast_2d(out.yp)
+    last = t[-1]
+    tol = ROUNDOFF * max(1.0, abs(start), abs(end))
+    want = t_out[(t_out >= start) & (t_out <= last)]
+    pos = np.minimum(np.searchsorted(t, want), len(t) - 1)
+    exact = t[pos] == want
+    near_start = ~exact & (want - start <= tol)
+    near_end = ~exact & ~near_start & (last - want <= tol) & (last == end)
+    take = exact | near_start | near_end
+    index = np.where(exact, pos, np.where(near_start, 0, len(t) - 1))[take]
+    return want[take], y[index], yp[index]
+
+
 # -- the driver --------------------------------------------------------------------------
 def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, keywords: dict,
                        progress=None) -> BackendRun:
@@ -362,7 +390,7 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, keywo
         end = ends[seg]
         try:
             if end - t > ROUNDOFF * max(1.0, abs(t)):
-                grid = np.concatenate([[t], t_out[(t_out > t) & (t_out < end)], [end]])
+                grid = piece_grid(t_out, t, end)
                 active = watch if watch.mask.any() or watch.stuck.any() else None
                 seg_keywords = keywords
                 options = keywords["options"]
@@ -385,8 +413,7 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, keywo
                 for key in stats:
                     stats[key] += int(getattr(out, key) or 0)
                 # an output time equal to a restart time keeps its first value (np.unique below)
-                keep = np.isin(out.t, t_out)
-                pieces.append((out.t[keep], np.atleast_2d(out.y)[keep], np.atleast_2d(out.yp)[keep]))
+                pieces.append(piece_outputs(out, t_out, t, end))
                 if not out.success:
                     break
                 event, out = out.event, out.replace(event=None)
