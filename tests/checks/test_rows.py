@@ -329,41 +329,51 @@ def test_sparse_descriptions_carry_no_emitted_rows():
 
 # -- steep laws: a failed solve is no verdict ------------------------------------------------
 
-DIODE = """
+TRANSISTOR = """
 format_version: 1
 parameters:
   Is: {value: 1.0e-14}
-  Vt: {value: 0.02585}
-  R: {value: 1000.0}
+  Vt: {value: 0.002}
+  bf: {value: 100.0}
+  br: {value: 1.0}
 components:
-  source: {type: effort_source, domain: electrical, value: "0.8*sin(2*pi*t)"}
-  resistor: {type: resistor, R: R}
-  diode:
+  B1:
     type: phs
     states: []
-    ports: {p: {domain: electrical}}
+    ports: {b: {domain: electrical}, c: {domain: electrical}, e: {domain: electrical}}
     resistive:
-      d: {law: ["f_d = Is*(exp(e_d/Vt) - 1)"]}
+      be: {law: ["f_be = Is/bf*(exp(e_be/Vt) - 1)"]}
+      bc: {law: ["f_bc = Is/br*(exp(e_bc/Vt) - 1)"]}
     relations:
-      - e_d = e_p
-      - f_p = f_d
-  loop: {type: junction, kind: common_flow, domain: electrical, ports: [s, r, d]}
+      - e_be = e_b - e_e
+      - e_bc = e_b - e_c
+      - f_b = f_be + f_bc
+      - f_c = bf*f_be - (1 + br)*f_bc
+      - f_e = -(1 + bf)*f_be + br*f_bc
+  vb: {type: effort_source, domain: electrical, value: "0.6 + 0.1*sin(2*pi*t)"}
+  vc: {type: effort_source, domain: electrical, value: "5.0"}
+  ve: {type: zero_effort, domain: electrical}
 connections:
-  - [loop.s, source.port]
-  - [loop.r, resistor.port]
-  - [loop.d, diode.p]
+  - [B1.b, vb.port]
+  - [B1.c, vc.port]
+  - [B1.e, ve.port]
 """
 
 
-def test_a_diode_law_is_never_reported_as_a_fault_in_phc(tmp_path):
-    """A Shockley law (exp(e/V_t), V_t = 26 mV) from random starts: the solve for the
-    hidden port variables can fail, which is "inconclusive at this sample", never PHC-E452
-    (Bari's transistor amplifier in SI units was reported as a lowering fault)."""
-    dae = _dae(_write(tmp_path, "diode.yaml", DIODE))
+def test_a_steep_transistor_law_is_never_reported_as_a_fault_in_phc(tmp_path):
+    """An Ebers–Moll transistor whose exponentials are steep on the scale of the random
+    samples (V_t = 2 mV against port voltages ~ N(0, 1)): the solves for points and hidden
+    port variables can fail or overflow, which is "inconclusive at this sample", never
+    PHC-E452 (before, seeds 0 and 7 reported "`B1.be.law[0]` is off by -inf … a fault in
+    phc's lowering", as Bari's transistor amplifier in SI units did)."""
+    dae = _dae(_write(tmp_path, "transistor.yaml", TRANSISTOR))
+    decided = 0
     for seed in range(8):
-        cert = check_rows(dae, seed=seed, components=["diode"])
+        cert = check_rows(dae, seed=seed, components=["B1"])
         assert not cert.diagnostics, [d.message for d in cert.diagnostics]
-        assert cert.compared == ["diode"] or [c for c, _ in cert.inconclusive] == ["diode"]
+        assert cert.compared == ["B1"] or [c for c, _ in cert.inconclusive] == ["B1"]
+        decided += cert.compared == ["B1"]
+    assert decided >= 1  # the law is compared where the solves succeed
 
 
 def test_a_residual_at_a_true_minimum_is_a_mismatch_and_a_stalled_solve_is_not():
