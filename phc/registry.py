@@ -103,6 +103,13 @@ class Units:
     storage: Optional[str] = None
     """With `element`, for a lumped storage element: its state is effort·time (``"e"``: a
     momentum, a flux linkage) or flow·time (``"f"``: a displacement, a charge)."""
+    states: Mapping[str, str] = field(default_factory=dict)
+    """With `storage`: states (by name, without the index) of the other kind, e.g. a mass's
+    position ``x`` (``"f"``) beside its momentum."""
+
+    def storage_of(self, state: str) -> Optional[str]:
+        """``"e"`` or ``"f"`` for the state `state` (``x`` or ``x[1]``), None without `storage`."""
+        return self.states.get(state.split("[", 1)[0], self.storage) if self.storage else None
     ratio: Optional[tuple[str, str]] = None
     """(quantity of port b, quantity of port a), each ``"e"`` or ``"f"``: a transformer's
     ratio is ``("f", "f")``, a gyrator's ``("e", "f")``."""
@@ -115,8 +122,9 @@ class Units:
         return cls(si=dict(si))
 
     @classmethod
-    def of_port(cls, *element: ElementUnit, storage: Optional[str] = None) -> "Units":
-        return cls(element=tuple(element), storage=storage)
+    def of_port(cls, *element: ElementUnit, storage: Optional[str] = None,
+                states: Optional[Mapping[str, str]] = None) -> "Units":
+        return cls(element=tuple(element), storage=storage, states=dict(states or {}))
 
     @classmethod
     def two_port(cls, b: str, a: str) -> "Units":
@@ -134,6 +142,8 @@ class Units:
                        "(Units.fixed / of_port / two_port / absent)")
         if self.storage not in (None, "e", "f") or (self.storage and not self.element):
             out.append("`storage` is 'e' or 'f', and only with `element`")
+        if self.states and (not self.storage or any(k not in ("e", "f") for k in self.states.values())):
+            out.append("`states` maps state names to 'e' or 'f', and only with `storage`")
         for eu in self.element:
             for text in (eu.numerator, eu.denominator):
                 if any(part not in ("e", "f", "s", "1") for part in text.split("*")):

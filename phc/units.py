@@ -495,7 +495,7 @@ def variable_units(elab, si: Optional[bool] = None, scales: Optional[Mapping] = 
         if units is None or units.storage is None or len(domains) != 1:
             continue
         e, f = scaled(next(iter(domains)))
-        out[v.symbol] = (e if units.storage == "e" else f) * second
+        out[v.symbol] = (e if units.storage_of(v.name[len(v.component) + 1:]) == "e" else f) * second
     return out
 
 
