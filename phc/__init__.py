@@ -14,7 +14,7 @@ __version__ = "0.1.0"
 # cheap, and the command line uses exactly these names.
 _API = {
     # compile
-    "load_model": ("phc.elaborate", "load_spec"),
+    "load_model": ("phc.spec.load", "load_spec"),
     "build_dae": ("phc.pipeline", "build_dae"),
     "validate_file": ("phc.pipeline", "validate_file"),
     "compile_model": ("phc.pipeline", "compile_model"),

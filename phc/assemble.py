@@ -33,6 +33,7 @@ import sympy as sp
 from phc.dae import T, Dae, Equation, InitialValue, Invariant, LinearBlock, PortInfo, Topology, Variable
 from phc.diagnostics import Diagnostic, DiagnosticList
 from phc.inputs import SignalBuilder
+from phc.spec.expressions import named_scope
 from phc.spec.model import InitialSpec, OutputSpec, PieceSpec
 from phc.units import ResultUnits
 
@@ -209,6 +210,7 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
     equations.append(Equation(denergy - port_power - dissipation, "energy.balance", "energy", "energy", None))
 
     scope = _output_scope(elab, subs, hamiltonian)
+    rates = _rate_scope(elab, subs)
     energy_terms = sum(int(_upper_coo(f.matrix).nnz) for f in elab.quadratic_energy)
     if elab.quadratic_energy and energy_terms <= MAX_OUTPUT_ENERGY_TERMS and any(
             _mentions_energy(o.value if isinstance(o, OutputSpec) else o) for o in sim.outputs.values()):
@@ -229,7 +231,7 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
             rep.error("PHC-E604", f"output `{oname}` uses `{missing[0]}`, but {elab.unavailable[missing[0]]}", ctx,
                       opath, hint="turn the effect on, or drop the output")
             continue
-        oval = final(rep.expr(ctx, oexpr, vpath, scope, check_units=False))
+        oval = final(rep.expr(ctx, oexpr, vpath, scope, check_units=False, rates=rates))
         factor = result_units.output(ctx, oname, oexpr, vpath, getattr(ospec, "unit", None), (*opath, "unit"))
         outputs.append((oname, oval if factor is None else oval * sp.Float(factor)))  # into its declared unit
     velocity_invariants = tuple(Invariant(v.label, final(v.expr), v.component, v.span)
@@ -405,18 +407,15 @@ def _upper_coo(matrix):
     return sps.triu(sps.coo_matrix(matrix)).tocoo()
 
 
+def _rate_scope(elab, subs) -> dict:
+    """The states' rates by name, for ``der(x)`` in outputs: ẋ is part of the solution."""
+    return named_scope((v.name, subs.get(v.dsymbol, v.dsymbol)) for v in elab.variables
+                       if v.differential and v.dsymbol is not None)
+
+
 def _output_scope(elab, subs, hamiltonian) -> dict:
     scope: dict = {"t": T, "H": hamiltonian}
-    vectors: dict[str, dict[int, sp.Expr]] = {}
-    for v in elab.variables:
-        val = subs.get(v.symbol, v.symbol)
-        if v.name.endswith("]"):
-            base, idx = v.name[:-1].rsplit("[", 1)
-            vectors.setdefault(base, {})[int(idx)] = val
-        else:
-            scope[v.name] = val
-    for base, items in vectors.items():
-        scope[base] = [items[i] for i in sorted(items)]
+    scope.update(named_scope((v.name, subs.get(v.symbol, v.symbol)) for v in elab.variables))
     for p in elab.parameters.values():
         scope[p.name] = p.symbol
     vectors_extra: dict[str, dict[int, sp.Expr]] = {}

@@ -10,11 +10,13 @@ nonlinear parts only; it is frozen once built.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Optional
+from collections.abc import Mapping
+from typing import Any, Optional
 
 import scipy.sparse as sps
 import sympy as sp
 
+from phc.description import freeze, thaw
 from phc.source import SourceSpan
 
 T = sp.Symbol("t", real=True)
@@ -287,10 +289,11 @@ class Dae:
     initial: tuple[InitialValue, ...] = ()
     external_ports: tuple[str, ...] = ()
     sources: tuple[str, ...] = ()
-    options: dict = field(default_factory=dict)
-    """The simulation options as the model (and scene) write them. Runs of a compiled model
-    read the read-only copy in its description (:attr:`phc.compiled.CompiledModel.options`),
-    never this dict."""
+    options: Mapping[str, Any] = field(default_factory=dict)
+    """The simulation options as the model (and scene) write them, read-only (a
+    ``MappingProxyType``; ``dae.options["rtol"] = 0.5`` raises ``TypeError``). Runs of a
+    compiled model read the copy in its description
+    (:attr:`phc.compiled.CompiledModel.options`)."""
     linear_blocks: tuple[LinearBlock, ...] = ()
     quadratic_energy: tuple[QuadraticForm, ...] = ()
     quadratic_dissipation: tuple[QuadraticForm, ...] = ()
@@ -298,6 +301,20 @@ class Dae:
     compile_time_parameters: tuple[str, ...] = ()
     """Parameters whose values were used at compile time (mesh length, ξ-dependent
     coefficients): overriding them at run time is refused."""
+
+    def __post_init__(self):
+        object.__setattr__(self, "options", freeze(self.options))
+
+    # a MappingProxyType does not pickle: the state carries a plain copy (Dask, the caches)
+    def __getstate__(self):
+        state = dict(self.__dict__)
+        state["options"] = thaw(self.options)
+        return state
+
+    def __setstate__(self, state):
+        for name, value in state.items():
+            object.__setattr__(self, name, value)
+        object.__setattr__(self, "options", freeze(self.options))
     initial_relations: tuple[tuple, ...] = ()
     """Linear relations Σ c_v·v = r imposed only at t₀ (e.g. a beam starting straight and
     moving rigidly), as (label, {variable symbol: coefficient}) with r = 0, or (label,

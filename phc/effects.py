@@ -17,10 +17,6 @@ from typing import Any, Optional
 import pydantic
 import sympy as sp
 
-BUILTIN_USER_EFFECTS = {"phs": {"damping": True}, "rigid": {"gravity": True, "damping": True}}
-"""Effects that user-defined component types have without declaring them."""
-
-
 def effect_names(spec) -> dict[str, Any]:
     """The effects of a component spec with their current values ({} when it has none)."""
     effects = getattr(spec, "effects", None)
@@ -28,7 +24,10 @@ def effect_names(spec) -> dict[str, Any]:
         return {}
     if isinstance(effects, pydantic.BaseModel):
         return effects.model_dump()
-    values = dict(BUILTIN_USER_EFFECTS.get(spec.type, {}))
+    from phc import registry
+
+    entry = registry.find(spec.type)
+    values = dict(entry.implicit_effects) if entry is not None else {}
     for term_owner in ("hamiltonian", "V"):
         terms = getattr(spec, term_owner, None)
         if isinstance(terms, dict):

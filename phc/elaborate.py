@@ -5,7 +5,7 @@ immutable :class:`Elaboration` and the located diagnostics found.
 
 What happens here, in order:
 
-1. read each YAML file with positions (:mod:`phc.source`) and validate it into a
+1. read each YAML file with positions and validate it (:mod:`phc.spec.load`) into a
    :class:`~phc.spec.ModelSpec`; nested ``type: model`` components are read the same
    way, relative to the file that uses them (cycles are errors);
 2. apply the scene: parameter overrides, effects, meshes, pruning of components that
@@ -38,70 +38,20 @@ from types import MappingProxyType
 from typing import Any, Mapping, Optional, Sequence
 
 import networkx as nx
-import pydantic
 import sympy as sp
 
 from phc.budget import MeshLedger
 from phc.dae import Equation, Invariant, Parameter, Variable
-from phc.diagnostics import Diagnostic, DiagnosticList, allowed_keys_from_model, from_pydantic
+from phc.diagnostics import Diagnostic, DiagnosticList
 from phc.interconnect import MODULATED, state_reads
 from phc.files import MAX_INCLUDE_DEPTH, MAX_MODEL_INSTANCES, FileAccess, FileRefused
 from phc.reporter import FileContext, Port, Reporter
 from phc.scene import SceneApplication
-from phc.source import SourceMap, SourceSpan, load_yaml, read_yaml_file
+from phc.source import SourceSpan
 from phc.spec import ModelSpec
 from phc.spec.components import ModelComponentSpec
+from phc.spec.load import load_spec, load_spec_bytes  # noqa: F401  (load_spec: the public reader)
 from phc.spec.model import ParameterSpec
-
-
-_ALLOWED_KEYS = allowed_keys_from_model(ModelSpec)
-
-
-def load_spec(path: str | os.PathLike) -> tuple[Optional[ModelSpec], Optional[SourceMap], DiagnosticList]:
-    """Read and validate one model file (no elaboration).
-
-    Returns
-    -------
-    spec, smap, diagnostics
-        `spec` is None when the file has errors.
-    """
-    data, smap, problems = read_yaml_file(path)
-    return _spec_from_yaml(path, data, smap, problems)
-
-
-def load_spec_bytes(raw: bytes, path: str | os.PathLike) -> tuple[Optional[ModelSpec], Optional[SourceMap],
-                                                                  DiagnosticList]:
-    """:func:`load_spec` of a file's content already read (`path` names it in diagnostics)."""
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as err:
-        line = raw.count(b"\n", 0, err.start) + 1
-        return None, None, DiagnosticList([Diagnostic(
-            "PHC-E004", f"the file is not valid UTF-8 (byte {raw[err.start]:#04x} on line {line})",
-            span=SourceSpan(str(path), 1, 1), hint="save the file with UTF-8 encoding")])
-    data, smap, problems = load_yaml(text, str(path))
-    return _spec_from_yaml(path, data, smap, problems)
-
-
-def _spec_from_yaml(path, data, smap, problems) -> tuple[Optional[ModelSpec], Optional[SourceMap], DiagnosticList]:
-    diags = DiagnosticList()
-    diags.extend(problems)
-    if diags.has_errors or smap is None:
-        return None, smap, diags
-    if data is None:
-        diags.append(Diagnostic("PHC-E005", "the model file is empty; it needs at least `components`",
-                                span=SourceSpan(str(path), 1, 1)))
-        return None, smap, diags
-    if not isinstance(data, dict):
-        diags.append(Diagnostic("PHC-E013", "a model file must be a mapping with `components`, "
-                                "`connections`, ...", span=smap.locate(())))
-        return None, smap, diags
-    try:
-        spec = ModelSpec.model_validate(data)
-    except pydantic.ValidationError as err:
-        diags.extend(from_pydantic(err, smap, allowed_keys=_ALLOWED_KEYS))
-        return None, smap, diags
-    return spec, smap, diags
 
 
 class _Elaborator(Reporter):

@@ -411,10 +411,5 @@ def table_arrays(tables) -> list[str]:
     return lines
 
 
-def breakpoints_within(points, t0: float, t1: float) -> list[float]:
-    """Sorted breakpoints strictly inside (t0, t1)."""
-    return sorted(p for p in points if t0 < p < t1)
-
-
-__all__ = ["InputTable", "InputTableSlope", "SignalBuilder", "read_table", "table_arrays", "breakpoints_within",
+__all__ = ["InputTable", "InputTableSlope", "SignalBuilder", "read_table", "table_arrays",
            "TableError", "table_breakpoints", "MAX_TABLE_ROWS", "MAX_KINK_BREAKPOINTS"]

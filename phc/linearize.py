@@ -349,7 +349,8 @@ def _exposed_dimensions(scene: Scene) -> dict[str, int]:
     """Dimensions of the top-level model's exposed ports without an input (from the
     elaborate and interconnect passes; empty when the model has errors, which the
     compilation then reports)."""
-    from phc.elaborate import elaborate, load_spec
+    from phc.elaborate import elaborate
+    from phc.spec.load import load_spec
 
     spec, _, _ = load_spec(scene.model_path)
     if spec is None:

@@ -15,13 +15,15 @@ initial_fields     mesh-independent initial data (:data:`phc.initial_fields.FIEL
 sign_role          the sign hints of ``phc check`` (:mod:`phc.checks.signs`)
 state_reads        which fields may name other components' states (:mod:`phc.interconnect`)
 drawing            how ``phc animate`` draws it (:mod:`phc.viz`), or None
+implicit_effects   effects a user-defined entry of the type has without declaring them
+                   (:mod:`phc.effects`; ``rigid`` has ``gravity`` and ``damping``)
 rows               where its rows come from (:data:`ROWS`): ``"derived"`` from its
                    description, or ``"hand-written"`` by its lowerer and then compared
                    with the description by every compilation (:mod:`phc.checks.rows`);
                    a function of the spec when the form decides (``phs``)
 =================  ======================================================================
 
-Every field is a required keyword: an entry that forgets one is a ``TypeError`` when it
+Every field but `implicit_effects` (empty unless given) is a required keyword: an entry that forgets one is a ``TypeError`` when it
 is made, and :func:`register` checks the values (a spec whose ``type`` is not the
 entry's name, an unknown sign role, unit information that is neither given nor declared
 absent with a reason) before the type exists for any pass. The per-type tables other
@@ -101,6 +103,13 @@ class Units:
     storage: Optional[str] = None
     """With `element`, for a lumped storage element: its state is effort·time (``"e"``: a
     momentum, a flux linkage) or flow·time (``"f"``: a displacement, a charge)."""
+    states: Mapping[str, str] = field(default_factory=dict)
+    """With `storage`: states (by name, without the index) of the other kind, e.g. a mass's
+    position ``x`` (``"f"``) beside its momentum."""
+
+    def storage_of(self, state: str) -> Optional[str]:
+        """``"e"`` or ``"f"`` for the state `state` (``x`` or ``x[1]``), None without `storage`."""
+        return self.states.get(state.split("[", 1)[0], self.storage) if self.storage else None
     ratio: Optional[tuple[str, str]] = None
     """(quantity of port b, quantity of port a), each ``"e"`` or ``"f"``: a transformer's
     ratio is ``("f", "f")``, a gyrator's ``("e", "f")``."""
@@ -113,8 +122,9 @@ class Units:
         return cls(si=dict(si))
 
     @classmethod
-    def of_port(cls, *element: ElementUnit, storage: Optional[str] = None) -> "Units":
-        return cls(element=tuple(element), storage=storage)
+    def of_port(cls, *element: ElementUnit, storage: Optional[str] = None,
+                states: Optional[Mapping[str, str]] = None) -> "Units":
+        return cls(element=tuple(element), storage=storage, states=dict(states or {}))
 
     @classmethod
     def two_port(cls, b: str, a: str) -> "Units":
@@ -132,6 +142,8 @@ class Units:
                        "(Units.fixed / of_port / two_port / absent)")
         if self.storage not in (None, "e", "f") or (self.storage and not self.element):
             out.append("`storage` is 'e' or 'f', and only with `element`")
+        if self.states and (not self.storage or any(k not in ("e", "f") for k in self.states.values())):
+            out.append("`states` maps state names to 'e' or 'f', and only with `storage`")
         for eu in self.element:
             for text in (eu.numerator, eu.denominator):
                 if any(part not in ("e", "f", "s", "1") for part in text.split("*")):
@@ -226,6 +238,10 @@ class ComponentType:
     drawing: Optional[Drawing]
     rows: Any
     """One of :data:`ROWS`, or ``spec -> one of ROWS`` when the form of the entry decides."""
+    implicit_effects: Mapping[str, bool] = field(default_factory=dict)
+    """Effects (name -> default) that an entry of a type with a free-form ``effects`` field
+    has without declaring them, e.g. ``damping`` of a ``phs``: its lowerer reads them with
+    :func:`phc.effects.is_on`, and a scene may switch them."""
 
     def rows_of(self, spec) -> str:
         """Where the rows of a component with this `spec` come from (one of :data:`ROWS`)."""
@@ -269,6 +285,12 @@ class ComponentType:
         if self.drawing is not None and not (isinstance(self.drawing, Drawing) and callable(self.drawing.draw)
                                              and self.drawing.stage in ("body", "attachment")):
             out.append("`drawing` is a Drawing(draw, stage='body'|'attachment') or None")
+        if self.implicit_effects:
+            effects_field = getattr(self.spec, "model_fields", {}).get("effects")
+            if effects_field is None:
+                out.append("`implicit_effects` needs a spec with an `effects` field")
+            out.extend(f"`implicit_effects`: the default of `{k}` is a bool" for k, v in self.implicit_effects.items()
+                       if not isinstance(v, bool))
         if not (callable(self.rows) or self.rows in ROWS):
             out.append(f"`rows` {self.rows!r} is one of {', '.join(ROWS)} (or a function of the spec to one)")
         return out

@@ -78,13 +78,14 @@ class Reporter:
 
     # -- expressions ----------------------------------------------------------------
     def expr(self, ctx: FileContext, value: Any, path: Sequence, names: dict,
-             equation: bool = False, check_units: bool = True) -> sp.Expr:
-        """Parse a number or expression string at `path`; on error record it and return 0."""
+             equation: bool = False, check_units: bool = True, rates: Optional[dict] = None) -> sp.Expr:
+        """Parse a number or expression string at `path`; on error record it and return 0.
+        `rates`: the states' rates for ``der(x)`` (outputs)."""
         try:
             if equation:
                 result = parse_equation(value, names)
             else:
-                result = parse_expression(value, names)
+                result = parse_expression(value, names, rates=rates)
         except ExpressionError as err:
             span = (ctx.smap.locate_in_value(tuple(path), err.col) if isinstance(value, str)
                     else ctx.smap.locate(tuple(path)))

@@ -495,7 +495,7 @@ def variable_units(elab, si: Optional[bool] = None, scales: Optional[Mapping] = 
         if units is None or units.storage is None or len(domains) != 1:
             continue
         e, f = scaled(next(iter(domains)))
-        out[v.symbol] = (e if units.storage == "e" else f) * second
+        out[v.symbol] = (e if units.storage_of(v.name[len(v.component) + 1:]) == "e" else f) * second
     return out
 
 
@@ -559,6 +559,17 @@ class ResultUnits:
 
         scope["t"] = T
         self.scope = scope
+        # der(x) in outputs: a state's unit per unit of time (the model's time unit)
+        from phc.spec.expressions import named_scope
+
+        second = parse_unit("s") * 10.0 ** (time_scale(scales) or 0)
+        self.rates = {}
+        for v in elab.variables:
+            if v.differential and v.dsymbol is not None:
+                self.rates[v.name] = v.dsymbol
+                if v.symbol in units:
+                    units[v.dsymbol] = units[v.symbol] / second
+        self.rates = named_scope(self.rates.items())
 
     def output(self, ctx, name: str, value, path, unit: Optional[str], unit_path) -> Optional[float]:
         """Check output `name` (its `value` at `path`, its declared `unit` at `unit_path`)
@@ -582,7 +593,7 @@ class ResultUnits:
         from phc.spec.expressions import ExpressionError, parse_expression
 
         try:
-            expr = parse_expression(value, self.scope)
+            expr = parse_expression(value, self.scope, rates=self.rates)
         except ExpressionError:
             dim = scaled = None  # reported where the output was parsed
         else:

@@ -162,10 +162,26 @@ def test_the_effects_message_names_the_registrys_types_with_effects():
     assert "no optional effects" in message and "spring" not in message.split("exist for", 1)[1]
 
 
+def test_implicit_effects_come_from_the_registry():
+    """`damping` of a `phs` and `gravity` of a `rigid` exist without being declared: the
+    registry entry says so (no table beside it in phc.effects)."""
+    from phc.effects import effect_names
+
+    assert registry.get("rigid").implicit_effects == {"gravity": True, "damping": True}
+    assert registry.get("phs").implicit_effects == {"damping": True}
+    assert registry.get("spring").implicit_effects == {}
+    phs = registry.get("phs").spec.model_validate(
+        {"type": "phs", "states": ["x"], "hamiltonian": "x**2/2", "J": [[0]], "effects": {"wind": False}})
+    assert effect_names(phs) == {"damping": True, "wind": False}
+
+
 def test_a_forgotten_or_wrong_field_is_refused_at_registration():
     spring = registry.get("spring")
     values = {f.name: getattr(spring, f.name) for f in dataclasses.fields(ComponentType)}
-    for missing in values:
+    optional = {f.name for f in dataclasses.fields(ComponentType) if f.default_factory is not dataclasses.MISSING
+                or f.default is not dataclasses.MISSING}
+    assert optional == {"implicit_effects"}  # a type without effects of its own needs none
+    for missing in set(values) - optional:
         with pytest.raises(TypeError, match=missing):
             ComponentType(**{k: v for k, v in values.items() if k != missing})
     wrong = {
@@ -180,6 +196,11 @@ def test_a_forgotten_or_wrong_field_is_refused_at_registration():
     for field, (value, message) in wrong.items():
         with pytest.raises(RegistryError, match=re.escape(message)):
             registry.register(dataclasses.replace(spring, **{field: value}))
+    with pytest.raises(RegistryError, match="needs a spec with an `effects` field"):
+        registry.register(dataclasses.replace(spring, name="spring", implicit_effects={"damping": True}))
+    rigid = registry.get("rigid")
+    with pytest.raises(RegistryError, match="the default of `gravity` is a bool"):
+        registry.register(dataclasses.replace(rigid, implicit_effects={"gravity": "on"}))
     with pytest.raises(RegistryError, match="registered already"):
         registry.register(spring)
     beam = registry.get("string")

@@ -42,8 +42,9 @@ def phs_rows(spec) -> str:
     return DERIVED if spec.J is not None else HAND_WRITTEN
 
 
-def _element(name, spec, lower, domain, field, num, den, meaning, storage=None):
-    return _lumped(name, spec, lower, domain, Units.of_port(ElementUnit(field, num, den, meaning), storage=storage),
+def _element(name, spec, lower, domain, field, num, den, meaning, storage=None, states=None):
+    return _lumped(name, spec, lower, domain, Units.of_port(ElementUnit(field, num, den, meaning), storage=storage,
+                                                            states=states),
                    sign_role="load")
 
 
@@ -60,15 +61,17 @@ _VALUE = (("a", "a", 0), ("b", "b", 0))
 BUILTINS = (
     ComponentType(name="phs", spec=c.PhsSpec, lower=lower_phs, default_domain=None,
                   units=Units.absent(_MATRICES), cost=ASSEMBLED, spatial_order=None, initial_fields=NO_FIELDS,
-                  sign_role=None, state_reads=NO_STATE_READS, drawing=None, rows=phs_rows),
+                  sign_role=None, state_reads=NO_STATE_READS, drawing=None, rows=phs_rows,
+                  implicit_effects={"damping": True}),
     ComponentType(name="linear_phs", spec=c.LinearPhsSpec, lower=lower_linear_phs, default_domain=None,
                   units=Units.absent(_MATRICES), cost=ASSEMBLED, spatial_order=None, initial_fields=NO_FIELDS,
                   sign_role=None, state_reads=NO_STATE_READS, drawing=None, rows=HAND_WRITTEN),
     ComponentType(name="rigid", spec=c.RigidSpec, lower=lower_rigid, default_domain=None,
                   units=Units.absent(_MATRICES), cost=ASSEMBLED, spatial_order=None, initial_fields=NO_FIELDS,
-                  sign_role=None, state_reads=NO_STATE_READS, drawing=Drawing(viz.draw_rigid), rows=HAND_WRITTEN),
+                  sign_role=None, state_reads=NO_STATE_READS, drawing=Drawing(viz.draw_rigid), rows=HAND_WRITTEN,
+                  implicit_effects={"gravity": True, "damping": True}),
     _element("mass", c.MassSpec, partial(lumped.lower_inertia, coeff_field="m", state="p"), TRANSLATIONAL,
-             "m", "e*s", "f", "effort·time/flow (a mass, or a moment of inertia)", storage="e"),
+             "m", "e*s", "f", "effort·time/flow (a mass, or a moment of inertia)", storage="e", states={"x": "f"}),
     _element("inductor", c.InductorSpec, partial(lumped.lower_inertia, coeff_field="L", state="phi"), ELECTRICAL,
              "L", "e*s", "f", "effort·time/flow (an inductance)", storage="e"),
     _element("spring", c.SpringSpec, partial(lumped.lower_compliance, coeff_field="k", state="x", inverse=False),

@@ -128,14 +128,22 @@ def lower_inertia(b, ctx, name, spec, path, coeff_field: str, state: str):
     for k in range(dim):
         x, dx = b.add_state(name, state + _suffix(dim, k), span)
         fx, ex = d.storage_pair(state + _suffix(dim, k), x, dx, x / c)
+        # the position (`position: true`): q̇ = p/m, and −∂H/∂q (zero: H does not depend on q)
+        # in the momentum balance, the canonical pair, so the structure stays a Dirac structure
+        moved = sp.Integer(0)
+        if getattr(spec, "position", False):
+            q, dq = b.add_state(name, "x" + _suffix(dim, k), span)
+            fq, eq = d.storage_pair("x" + _suffix(dim, k), q, dq, 0)
+            d.rel(fq - ex, kind="storage", label=f"position[{k}]")
+            moved = eq
         if element is None:
             for port in ports:
                 d.rel(port.f[k] - ex, solve=port.f[k])
-            d.rel(fx + sum(port.e[k] for port in ports), kind="storage", label=f"balance[{k}]")
+            d.rel(fx + moved + sum(port.e[k] for port in ports), kind="storage", label=f"balance[{k}]")
         else:
             el = element[k]
             d.rel(el.f - ex, solve=el.solvable_f, kind="storage", label=f"flow[{k}]")
-            d.rel(fx + el.e, kind="storage", label=f"balance[{k}]")
+            d.rel(fx + moved + el.e, kind="storage", label=f"balance[{k}]")
             for link, solve in el.links:
                 d.rel(link, solve=solve)
         h += x**2 / (2 * c)

@@ -21,7 +21,7 @@ from phc.compiled import CompiledModel
 from phc.errors import InconsistentInitialError, SimulationSetupError
 from phc.simulation.guard import CATCH as GUARD_CATCH
 from phc.simulation.guard import ModelEvaluationError, guard, quiet_floating_point
-from phc.simulation.events import has_switches, integrate_switched
+from phc.simulation.events import breakpoints_within, has_switches, integrate_switched, piece_grid, piece_outputs
 from phc.simulation.ida import MAX_ORDER, applied_atol, integrate_ida
 from phc.simulation.initial import InitialResult, consistent_initial_conditions
 from phc.simulation.monitor import describe_equations, many_steps_hint
@@ -427,7 +427,7 @@ def _integrate_with_breakpoints(run, mod, p, t_out, init) -> BackendRun:
     variables are continuous, the algebraic ones and ẏ may jump. A step input is thus
     located exactly rather than found by step rejections."""
     t0, t1 = float(t_out[0]), float(t_out[-1])
-    breaks = sorted(b for b in getattr(mod, "BREAKPOINTS", ()) if t0 < b < t1)  # phc.inputs.breakpoints_within
+    breaks = breakpoints_within(getattr(mod, "BREAKPOINTS", ()), t0, t1)
     if not breaks:
         return _run_safely(run, t_out, init.y0, init.yp0)
     ends = [*breaks, t1]
@@ -435,13 +435,10 @@ def _integrate_with_breakpoints(run, mod, p, t_out, init) -> BackendRun:
     pieces, total = [], dict(steps=0, nfev=0, njev=0)
     out = None
     for end in ends:
-        inner = t_out[(t_out > start) & (t_out < end)]
-        grid = np.concatenate([[start], inner, [end]])
-        out = _run_safely(run, grid, y0, yp0)
+        out = _run_safely(run, piece_grid(t_out, start, end), y0, yp0)
         for key in total:
             total[key] += getattr(out, key)
-        keep = np.isin(out.t, t_out)
-        pieces.append({"t": out.t[keep], "y": out.y[keep], "yp": out.yp[keep]})
+        pieces.append(dict(zip(("t", "y", "yp"), piece_outputs(out, t_out, start, end))))
         if not out.success or end == t1:
             break
         y_end = out.y[-1]

@@ -298,17 +298,49 @@ def locate_switch_times(compiled) -> list:
     return []
 
 
-def _merge(times, t0, t1) -> list[float]:
-    """Sorted times strictly inside (t0, t1), those closer than round-off taken as one."""
-    out = []
-    for t in sorted(times):
-        tol = 1e-12 * max(1.0, abs(t))
-        if t - t0 <= tol or t1 - t <= tol:
+ROUNDOFF = 1e-12
+"""Times closer than this (relative to ``max(1, |t|)``) are one time: a breakpoint at 0.3 and
+``t_end = 0.1 + 0.2`` (0.30000000000000004) leave no piece of length 5e-17 to integrate."""
+
+
+def breakpoints_within(points, t0: float, t1: float) -> list[float]:
+    """Sorted times strictly inside (t0, t1), those within round-off of an end or of each
+    other taken as one (:data:`ROUNDOFF`)."""
+    out: list[float] = []
+    for t in sorted(float(p) for p in points):
+        tol = ROUNDOFF * max(1.0, abs(t))
+        if t - t0 <= tol or t1 - t <= tol or (out and t - out[-1] <= tol):
             continue
-        if out and t - out[-1] <= tol:
-            continue
-        out.append(float(t))
+        out.append(t)
     return out
+
+
+def piece_grid(t_out: np.ndarray, start: float, end: float) -> np.ndarray:
+    """The times a piece ``[start, end]`` between breakpoints is integrated to: its ends and
+    the output times strictly inside that are farther than round-off from both (IDA refuses
+    an output 5e-17 after its start; :func:`piece_outputs` gives such times the end's value)."""
+    tol = ROUNDOFF * max(1.0, abs(start), abs(end))
+    inside = t_out[(t_out > start + tol) & (t_out < end - tol)]
+    return np.concatenate([[start], inside, [end]])
+
+
+def piece_outputs(out: BackendRun, t_out: np.ndarray, start: float, end: float):
+    """``(t, y, yp)`` of a piece's run (on :func:`piece_grid`) at the output times it covers:
+    those it reached, an output time within round-off of the piece's start or (reached) end
+    taking that end's value. An output time equal to a breakpoint belongs to both pieces
+    around it; the caller keeps the first (the value before the restart)."""
+    t = np.asarray(out.t, dtype=float)
+    y, yp = np.atleast_2d(out.y), np.atleast_2d(out.yp)
+    last = t[-1]
+    tol = ROUNDOFF * max(1.0, abs(start), abs(end))
+    want = t_out[(t_out >= start) & (t_out <= last)]
+    pos = np.minimum(np.searchsorted(t, want), len(t) - 1)
+    exact = t[pos] == want
+    near_start = ~exact & (want - start <= tol)
+    near_end = ~exact & ~near_start & (last - want <= tol) & (last == end)
+    take = exact | near_start | near_end
+    index = np.where(exact, pos, np.where(near_start, 0, len(t) - 1))[take]
+    return want[take], y[index], yp[index]
 
 
 # -- the driver --------------------------------------------------------------------------
@@ -341,8 +373,7 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, keywo
         return _stopped(t_out, y, yp, stats, events,
                         f"cannot locate the switching times of `{mod.SWITCHES[err.k]}` (equation "
                         f"`{mod.SWITCH_EQUATIONS[err.k]}`) on [{t0:g}, {t1:g}]: {err.message}")
-    inputs = sorted(b for b in getattr(mod, "BREAKPOINTS", ()) if t0 < b < t1)  # phc.inputs.breakpoints_within
-    breaks = _merge([t for t, _, _ in timed] + inputs, t0, t1)
+    breaks = breakpoints_within([t for t, _, _ in timed] + list(getattr(mod, "BREAKPOINTS", ())), t0, t1)
     ends = breaks + [t1]
     _time_modes(watch, t0, ends[0], y, yp)
     try:
@@ -358,8 +389,8 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, keywo
     while True:
         end = ends[seg]
         try:
-            if end - t > 1e-12 * max(1.0, abs(t)):
-                grid = np.concatenate([[t], t_out[(t_out > t) & (t_out < end)], [end]])
+            if end - t > ROUNDOFF * max(1.0, abs(t)):
+                grid = piece_grid(t_out, t, end)
                 active = watch if watch.mask.any() or watch.stuck.any() else None
                 seg_keywords = keywords
                 options = keywords["options"]
@@ -382,8 +413,7 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, keywo
                 for key in stats:
                     stats[key] += int(getattr(out, key) or 0)
                 # an output time equal to a restart time keeps its first value (np.unique below)
-                keep = np.isin(out.t, t_out)
-                pieces.append((out.t[keep], np.atleast_2d(out.y)[keep], np.atleast_2d(out.yp)[keep]))
+                pieces.append(piece_outputs(out, t_out, t, end))
                 if not out.success:
                     break
                 event, out = out.event, out.replace(event=None)
@@ -403,7 +433,7 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, keywo
             # a breakpoint: the switches in t that change here, the modes of the next piece, a restart
             t = end
             for tb, k, direction in timed:
-                if abs(tb - t) <= 1e-12 * max(1.0, abs(t)):
+                if abs(tb - t) <= ROUNDOFF * max(1.0, abs(t)):
                     events.append(watch.event(t, k, direction, "time"))
             seg += 1
             before = _residual(watch, t, y, yp)

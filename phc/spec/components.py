@@ -328,6 +328,10 @@ class MassSpec(_OnePort):
     type: Literal["mass"]
     m: Expr
     """Mass (or moment of inertia in the rotational domain), positive."""
+    position: bool = False
+    """Also integrate its position `x` (an angle in the rotational domain): ẋ = p/m, the
+    canonical partner of the momentum, with no energy of its own, so that where the mass
+    is can be an output or an initial value (`body.x`)."""
 
 
 class InductorSpec(_Element):

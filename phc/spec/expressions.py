@@ -33,7 +33,7 @@ import sympy as sp
 
 from phc.errors import ExpressionError
 
-__all__ = ["CONSTANTS", "FUNCTIONS", "ExpressionError", "FunctionSpec",
+__all__ = ["CONSTANTS", "FUNCTIONS", "RATE", "ExpressionError", "FunctionSpec", "named_scope",
            "parse_equation", "parse_expression", "validate_syntax"]
 
 MAX_LENGTH = 10_000      # characters of expression text
@@ -104,6 +104,8 @@ FUNCTIONS: dict[str, FunctionSpec] = {
     "ifelse": FunctionSpec(3, 3, lambda c, a, b: sp.Piecewise((a, c), (b, True))),
 }
 CONSTANTS: dict[str, sp.Expr] = {"pi": sp.pi}
+RATE = "der"
+"""``der(x)``: the rate of the state ``x`` (outputs only: :func:`parse_expression` with `rates`)."""
 
 _ARITH = {ast.Add: "+", ast.Sub: "-", ast.Mult: "*", ast.Div: "/", ast.Pow: "**"}
 _FORBIDDEN_OPS = {ast.FloorDiv: "//", ast.Mod: "%", ast.MatMult: "@", ast.LShift: "<<",
@@ -172,8 +174,8 @@ class _Converter:
     `names` is None in syntax-only mode: every name then becomes a fresh Symbol.
     """
 
-    def __init__(self, text: str, names: Mapping[str, object] | None):
-        self.text, self.names = text, names
+    def __init__(self, text: str, names: Mapping[str, object] | None, rates: Mapping[str, object] | None = None):
+        self.text, self.names, self.rates = text, names, rates
         self._bytes = None if text.isascii() else text.encode("utf-8")
         self._approx: dict[sp.Basic, complex | None] = {}
 
@@ -388,6 +390,8 @@ class _Converter:
                 self.fail(f"unknown function `{name}`", func, _suggest(name, FUNCTIONS, "functions"))
             self.visit(func.value if isinstance(func, ast.Attribute) else func)
             self.fail("only the built-in functions can be called, by name", func)
+        if func.id == RATE and func.id not in FUNCTIONS:
+            return self.rate(node)
         spec = FUNCTIONS.get(func.id)
         if spec is None:
             self.fail(f"unknown function `{func.id}`", func, _suggest(func.id, FUNCTIONS, "functions"))
@@ -406,6 +410,29 @@ class _Converter:
         else:
             args = [self.visit(arg) for arg in node.args]
         return self.build(node, spec.build, *args)
+
+    def rate(self, node: ast.Call) -> sp.Expr:
+        """``der(x)``: the rate ẋ of a state, where the caller allows rates (outputs)."""
+        if self.rates is None:
+            self.fail(f"`{RATE}(...)`, the rate of a state, can be used in outputs only", node.func)
+        if len(node.args) != 1 or node.keywords:
+            self.fail(f"`{RATE}` takes one state, like `{RATE}(mass.p)`", node)
+        arg = node.args[0]
+        if not isinstance(arg, (ast.Name, ast.Attribute, ast.Subscript)):
+            self.fail(f"`{RATE}` takes the name of a state, like `{RATE}(mass.p)`; write the rate of an expression "
+                      "as a sum of rates", arg)
+        inner = _Converter(self.text, self.rates)
+        inner._bytes = self._bytes
+        try:
+            return inner.visit(arg)
+        except ExpressionError as err:
+            if not err.message.startswith("unknown name"):
+                raise
+        name = self.dotted(arg.value if isinstance(arg, ast.Subscript) else arg) or ""
+        known = self.names is not None and (name in self.names or name in CONSTANTS)
+        what = "is not a state" if known else "is not a known name"
+        self.fail(f"`{RATE}({name})`: `{name}` {what}; `{RATE}` takes a state, whose rate is part of the solution",
+                  arg, _suggest(name, self.rates, "states"))
 
     def condition(self, node: ast.AST) -> sp.Basic:
         """A comparison (chains allowed) possibly combined with and/or/not."""
@@ -465,14 +492,15 @@ def _parse_tree(text: str) -> tuple[ast.Expression, str, int]:
     return tree, body, offset
 
 
-def _convert(text: object, names: Mapping[str, object] | None, allow_relational: bool) -> sp.Basic:
+def _convert(text: object, names: Mapping[str, object] | None, allow_relational: bool,
+             rates: Mapping[str, object] | None = None) -> sp.Basic:
     if isinstance(text, (int, float)) and not isinstance(text, bool):
         return _literal(text, 0)
     if not isinstance(text, str):
         raise ExpressionError(f"expected an expression (text or number), got {type(text).__name__}")
     tree, body, offset = _parse_tree(text)
     try:
-        converter = _Converter(body, names)
+        converter = _Converter(body, names, rates)
         converter.check_depth(tree)
         if allow_relational and _is_cond(tree.body):
             result = converter.condition(tree.body)
@@ -487,8 +515,24 @@ def _convert(text: object, names: Mapping[str, object] | None, allow_relational:
     return result
 
 
+def named_scope(pairs) -> dict:
+    """A scope of an expression from ``(name, value)`` pairs: ``rod.w[3]`` entries become one
+    vector ``rod.w`` (a list in index order), other names stay as they are."""
+    scope: dict = {}
+    vectors: dict[str, dict[int, sp.Expr]] = {}
+    for name, value in pairs:
+        if name.endswith("]"):
+            base, idx = name[:-1].rsplit("[", 1)
+            vectors.setdefault(base, {})[int(idx)] = value
+        else:
+            scope[name] = value
+    for base, items in vectors.items():
+        scope[base] = [items[i] for i in sorted(items)]
+    return scope
+
+
 def parse_expression(text: str | int | float, names: Mapping[str, object], *,
-                     allow_relational: bool = False) -> sp.Expr:
+                     allow_relational: bool = False, rates: Mapping[str, object] | None = None) -> sp.Expr:
     """Parse an expression string (or a plain number) into a sympy expression.
 
     Parameters
@@ -504,6 +548,9 @@ def parse_expression(text: str | int | float, names: Mapping[str, object], *,
     allow_relational : bool, optional
         Also accept a top-level condition (comparison, ``and``/``or``/``not``).
         Otherwise conditions are only allowed as the first argument of ``ifelse``.
+    rates : Mapping[str, object], optional
+        The states' rates by state name (as in `names`): ``der(x)`` is then ``rates["x"]``
+        (outputs). Without it, ``der`` is refused with a located error.
 
     Returns
     -------
@@ -516,7 +563,7 @@ def parse_expression(text: str | int | float, names: Mapping[str, object], *,
         For syntax errors, constructs outside the whitelist, unknown names or
         functions, wrong arities, and values or sizes beyond the limits.
     """
-    return _convert(text, names, allow_relational)
+    return _convert(text, names, allow_relational, rates)
 
 
 def _split_equation(text: str) -> int | None:

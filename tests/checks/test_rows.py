@@ -28,6 +28,7 @@ import sympy as sp
 import phc
 import phc.checks.rows as rows_module
 from phc.checks.rows import _compare_affine, _compare_dense, _prepare, check_rows
+from phc.dae import T as T_SYMBOL
 from phc.library import LOWERERS
 from model_texts import STRING_MODES  # shared with tests/test_registry.py
 from test_compiled_certificate import INLINE, PDE1D, WrongRow, _write
@@ -324,3 +325,70 @@ def test_sparse_descriptions_carry_no_emitted_rows():
     d.block("rel", 2, [(sp.Integer(1), sps.identity(2, format="csr"), f)])
     with pytest.raises(ValueError, match="not emitted"):
         emit(None, d.describe())
+
+
+# -- steep laws: a failed solve is no verdict ------------------------------------------------
+
+TRANSISTOR = """
+format_version: 1
+parameters:
+  Is: {value: 1.0e-14}
+  Vt: {value: 0.002}
+  bf: {value: 100.0}
+  br: {value: 1.0}
+components:
+  B1:
+    type: phs
+    states: []
+    ports: {b: {domain: electrical}, c: {domain: electrical}, e: {domain: electrical}}
+    resistive:
+      be: {law: ["f_be = Is/bf*(exp(e_be/Vt) - 1)"]}
+      bc: {law: ["f_bc = Is/br*(exp(e_bc/Vt) - 1)"]}
+    relations:
+      - e_be = e_b - e_e
+      - e_bc = e_b - e_c
+      - f_b = f_be + f_bc
+      - f_c = bf*f_be - (1 + br)*f_bc
+      - f_e = -(1 + bf)*f_be + br*f_bc
+  vb: {type: effort_source, domain: electrical, value: "0.6 + 0.1*sin(2*pi*t)"}
+  vc: {type: effort_source, domain: electrical, value: "5.0"}
+  ve: {type: zero_effort, domain: electrical}
+connections:
+  - [B1.b, vb.port]
+  - [B1.c, vc.port]
+  - [B1.e, ve.port]
+"""
+
+
+def test_a_steep_transistor_law_is_never_reported_as_a_fault_in_phc(tmp_path):
+    """An Ebers–Moll transistor whose exponentials are steep on the scale of the random
+    samples (V_t = 2 mV against port voltages ~ N(0, 1)): the solves for points and hidden
+    port variables can fail or overflow, which is "inconclusive at this sample", never
+    PHC-E452 (before, seeds 0 and 7 reported "`B1.be.law[0]` is off by -inf … a fault in
+    phc's lowering", as Bari's transistor amplifier in SI units did)."""
+    dae = _dae(_write(tmp_path, "transistor.yaml", TRANSISTOR))
+    decided = 0
+    for seed in range(8):
+        cert = check_rows(dae, seed=seed, components=["B1"])
+        assert not cert.diagnostics, [d.message for d in cert.diagnostics]
+        assert cert.compared == ["B1"] or [c for c, _ in cert.inconclusive] == ["B1"]
+        decided += cert.compared == ["B1"]
+    assert decided >= 1  # the law is compared where the solves succeed
+
+
+def test_a_residual_at_a_true_minimum_is_a_mismatch_and_a_stalled_solve_is_not():
+    """The verdict rests on stationarity: ``x = 1, x = −1`` (no x satisfies both) settles at
+    x = 0 with residual 1 — a mismatch; a start where the exponential overflows is not."""
+    x, w = sp.symbols("x w")
+    contradiction = rows_module._System(["a", "b"], [x - 1, x + 1], [w, x], 1)
+    contradiction.compile([T_SYMBOL])
+    contradiction.fix(np.array([0.0]))
+    point, err, settled = rows_module._member(contradiction, np.array([0.3]), np.random.default_rng(0))
+    assert err > rows_module.MEMBERSHIP_TOL and settled
+    assert abs(point[1]) < 1e-9  # the least-squares point of x = ±1
+    steep = rows_module._System(["law"], [sp.exp(x / 0.001) - w], [w, x], 1)
+    steep.compile([T_SYMBOL])
+    steep.fix(np.array([0.0]))
+    # w = 1e6: x = 0.001·ln(1e6) ≈ 0.0138; from starts x ~ N(0, 1) exp(x/0.001) overflows
+    point, err, settled = rows_module._member(steep, np.array([1.0e6]), np.random.default_rng(1))
+    assert err <= rows_module.MEMBERSHIP_TOL or not settled
