@@ -3,8 +3,9 @@ every executor), a local process pool (:class:`LocalExecutor`) and Dask distribu
 (:class:`DaskExecutor`).
 
 Workers get the compiled model by value (phc's own pickle, made by this process for the
-workers it starts or the Dask cluster the user names); a point that fails is a row with
-``success`` false and its message; a worker lost mid-run is run again elsewhere.
+workers it starts or the Dask cluster the user names) and never read the model's files; a
+point that fails is a row with ``success`` false and its message; a point whose worker died
+while running it is run again elsewhere, and only its own runs count against it.
 """
 
 from __future__ import annotations
@@ -28,8 +29,9 @@ from phc.errors import SimulationSetupError, SweepSetupError
 from phc.sweep.results import RUN_COLUMNS, STATS
 
 MAX_ATTEMPTS = 3
-"""Runs of one point on a local pool whose worker process died before it is recorded as failed
-(Dask: the scheduler's ``distributed.scheduler.allowed-failures``)."""
+"""Runs of one point whose worker process died each time before it is recorded as failed (on
+a local pool; on Dask, a point the scheduler gives up on after ``allowed-failures`` lost
+workers is submitted again while it started on fewer than this many)."""
 INSTALL_CLUSTER = 'pip install "port-hamiltonian-compiler[cluster]"'
 
 
@@ -463,15 +465,29 @@ class DaskExecutor:
                           for i, (key, model) in enumerate(models.items())}
                 futures = {client.submit(_dask_task, loaded[t["group"]], t, topic, pure=False,
                                          key=f"{topic}-{t['index']}"): t for t in tasks}
-                for fut in dask_completed(list(futures)):
-                    task = futures[fut]
+                again: dict[int, int] = {}
+                done = dask_completed(list(futures))
+                for fut in done:
+                    task = futures.pop(fut)
                     if math.isnan(self.startup_s):
                         self.startup_s = time.perf_counter() - started
                     try:
                         out = fut.result()
                     except Exception as err:  # noqa: BLE001 — KilledWorker, a worker without phc, ...
-                        runs = max(len(starts.get(task["index"], ())), 1)
-                        out = _failed(dict(task, attempt=runs), _dask_failure(err), outputs)
+                        index = task["index"]
+                        runs = len(starts.get(index, ()))
+                        if type(err).__name__ == "KilledWorker" and runs < MAX_ATTEMPTS and \
+                                again.get(index, 0) < MAX_ATTEMPTS:
+                            # the scheduler also counts the workers that died while the point waited
+                            # in their queues: not its own runs, so it is submitted again
+                            again[index] = again.get(index, 0) + 1
+                            fut.release()
+                            new = client.submit(_dask_task, loaded[task["group"]], task, topic, pure=False,
+                                                key=f"{topic}-{index}-again{again[index]}")
+                            futures[new] = task
+                            done.add(new)
+                            continue
+                        out = _failed(dict(task, attempt=max(runs, 1)), _dask_failure(err), outputs)
                     else:
                         workers = set(starts.get(task["index"], ())) | {out["row"]["worker"]}
                         out["row"]["attempts"] = len(workers)
