@@ -118,10 +118,12 @@ def _init_pool_worker(blob: bytes, parent: int = 0) -> None:
 
 def _end_with_parent(parent: int) -> None:
     """Linux: SIGTERM to this worker when the process that started it ends, however it ends
-    (``prctl(PR_SET_PDEATHSIG)``); a parent already gone ends it now. Elsewhere the parent's
-    own clean-up (:meth:`LocalExecutor.run`) stops it."""
-    if not sys.platform.startswith("linux") or not parent:
+    (``prctl(PR_SET_PDEATHSIG)``; a fork server's workers end with the fork server, which
+    ends with the sweep); a parent already gone (`parent`, 0 for a fork server) ends it now.
+    Elsewhere the parent's own clean-up (:meth:`LocalExecutor.run`) stops it."""
+    if not sys.platform.startswith("linux"):
         return
+    parent = parent or os.getppid()
     try:
         import ctypes
 
@@ -268,7 +270,8 @@ class LocalExecutor:
         started = time.perf_counter()
         try:
             with _one_blas_thread():
-                workers = [_Worker(ctx, blob) for _ in range(min(self.workers, len(tasks)))]
+                for _ in range(min(self.workers, len(tasks))):
+                    workers.append(_Worker(ctx, blob))
             while True:
                 for i, w in enumerate(workers):
                     if w.task is None and pending:
@@ -321,7 +324,8 @@ class _Worker:
 
     def __init__(self, ctx, blob: bytes) -> None:
         self.conn, child = ctx.Pipe(duplex=True)
-        self.process = ctx.Process(target=_pool_worker, args=(child, blob, os.getpid()), daemon=True,
+        parent = os.getpid() if ctx.get_start_method() != "forkserver" else 0  # a fork server starts it
+        self.process = ctx.Process(target=_pool_worker, args=(child, blob, parent), daemon=True,
                                    name="phc-sweep-worker")
         self.process.start()
         child.close()  # the worker holds the other end alone: its death is an end of file here

@@ -214,7 +214,8 @@ class SweepReport:
 
     def summary(self) -> dict:
         return {"model": self.name, "file": self.file, "planned": self.planned, "rows": len(self.rows),
-                "resumed": self.resumed, "retried": self.retried, "succeeded": sum(1 for r in self.rows.values() if r["success"]),
+                "resumed": self.resumed, "retried": self.retried,
+                "succeeded": sum(1 for r in self.rows.values() if r["success"]),
                 "failed": len(self.failed), "interrupted": self.interrupted, "executor": self.executor,
                 "elapsed_s": self.elapsed_s, "run_elapsed_s": self.run_elapsed_s,
                 "compilations": [{k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in c.items()}

@@ -24,9 +24,9 @@ def run_sweep(path: Union[str, os.PathLike], out: Union[str, os.PathLike], *,
               params: Sequence[tuple[str, str]] = (), samples: Optional[int] = None, seed: Optional[int] = None,
               sampling: Optional[str] = None, executor: Union[str, Any] = "local", scheduler: Optional[str] = None,
               workers: Optional[int] = None, series: Union[None, str, os.PathLike] = None, resume: bool = False,
-              retry_failed: bool = False, overwrite: bool = False, t_end: Optional[float] = None, n_out: Optional[int] = None,
-              solver: Optional[str] = None, certify: bool = True, progress: bool = True, stream=None,
-              compiled=None) -> SweepReport:
+              retry_failed: bool = False, overwrite: bool = False, t_end: Optional[float] = None,
+              n_out: Optional[int] = None, solver: Optional[str] = None, certify: bool = True,
+              progress: bool = True, stream=None, compiled=None) -> SweepReport:
     """Run a parameter study of a model or scene file; see the module docstring.
 
     Parameters
@@ -121,7 +121,8 @@ def run_sweep(path: Union[str, os.PathLike], out: Union[str, os.PathLike], *,
     # -- the results files: new, or resumed --------------------------------------------------
     log = AppendLog(paths["csv"], columns)
     series_log = AppendLog(series_path, ["point", "t", *outputs]) if series_path else None
-    meta = {"phc_version": _version(), "model": compiled.name, "file": str(path), "fingerprint": fingerprint, "models": hashes,
+    meta = {"phc_version": _version(), "model": compiled.name, "file": str(path), "fingerprint": fingerprint,
+            "models": hashes,
             "points": len(design.points), "axes": [{"name": a.name, "spec": a.text} for a in design.axes],
             "samples": design.samples, "seed": design.seed, "sampling": design.sampling, "run": run,
             "series": str(series_path) if series_path else None,
