@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import os
 import re
 import signal
@@ -29,11 +30,22 @@ from phc.sweep import executors
 REPO = Path(__file__).resolve().parents[1]
 MSD = REPO / "models" / "mass_spring_damper.yaml"
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-try:
-    from test_sweep import interruptible, msd_x  # the closed form; SIGINT at its default in a child
-finally:
-    sys.path.pop(0)
+
+def msd_x(k: float, t: float, m: float = 1.0, c: float = 0.4, x0: float = 0.5) -> float:
+    """Closed form of the free damped oscillator m x'' + c x' + k x = 0, x(0) = x0, x'(0) = 0
+    (underdamped)."""
+    w0 = math.sqrt(k / m)
+    zeta = c / (2 * math.sqrt(k * m))
+    wd = w0 * math.sqrt(1 - zeta ** 2)
+    return math.exp(-zeta * w0 * t) * (x0 * math.cos(wd * t) + zeta * w0 * x0 / wd * math.sin(wd * t))
+
+
+def interruptible():
+    """SIGINT and SIGTERM at their defaults and unblocked in the child (see
+    tests/test_cli_faults.py)."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 @pytest.fixture(scope="module")
@@ -247,7 +259,7 @@ def test_stopping_a_sweep_leaves_no_worker_behind(signum, code, tmp_path):
     processes are gone."""
     out = tmp_path / "r.csv"
     argv = [sys.executable, "-m", "phc", "sweep", str(MSD), "--param", "k=1:8:8", "--t-end", "1e7", "--workers", "2",
-            "--out", str(out), "--quiet", "--no-certify"]
+            "--out", str(out), "--quiet", "--no-certify", "--backend", "numpy"]
     proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
                             preexec_fn=interruptible)
     # waits for the two workers (or the child's exit); the deadline only bounds the wait
