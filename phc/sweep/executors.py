@@ -151,15 +151,18 @@ def _pool_worker(conn, blob: bytes, parent: int) -> None:
             return
         if task is None:
             return
-        out = _pool_task(task)
+        model = _MODELS.get(task["group"])
+        outputs = list(model.module.OUTPUTS) if model is not None else []
+        try:
+            out = _pool_task(task)
+        except Exception as err:  # noqa: BLE001 — the point's failure, not the process's
+            out = _failed(task, f"the worker failed: {type(err).__name__}: {err}", outputs)
         try:
             conn.send(out)
         except (EOFError, OSError):
             return
         except Exception as err:  # noqa: BLE001 — a row that cannot be pickled back
-            model = _MODELS.get(task["group"])
-            conn.send(_failed(task, f"the worker failed: {type(err).__name__}: {err}",
-                              list(model.module.OUTPUTS) if model is not None else ()))
+            conn.send(_failed(task, f"the worker failed: {type(err).__name__}: {err}", outputs))
 
 
 def _unpickle_model(blob: bytes):
