@@ -205,7 +205,7 @@ def test_dask_workers_started_in_another_directory_run_a_relative_model_path(tmp
     client = distributed.Client(cluster)
     try:
         monkeypatch.chdir(REPO)
-        assert list(client.run(os.getcwd).values()) == [str(elsewhere)]
+        assert [os.path.realpath(d) for d in client.run(os.getcwd).values()] == [os.path.realpath(elsewhere)]
         relative = "models/mass_spring_damper.yaml"
         report = run_sweep(relative, tmp_path / "r.csv", params=[("k", "1,4"), ("c", "0.3,-1")], t_end=1.0,
                            executor=DaskExecutor(client=client), progress=False, compiled=phc.compile_model(relative))
