@@ -207,7 +207,8 @@ def test_local_pool_and_dask_localcluster_give_identical_rows_and_a_failing_poin
     assert "parameter `EI` = -68.27: `EI` of `rod` must be positive" in local[2]["message"]
     assert "[PHC-E141]" in local[2]["message"]
     assert all(same(a, b) for a, b in zip(local, dask))
-    assert all(r["worker"].startswith("tcp://") for r in dask)
+    assert all(r["worker"].startswith("tcp://") for r in dask if r["success"])
+    assert local[2]["worker"] == dask[2]["worker"] == ""  # refused by this process, never sent to a worker
     # each row is what phc.simulate gives in this process, without pickling
     for r in (local[0], local[3]):
         res = phc.simulate(crank, t_end=0.001, params={"EI": r["EI"]})
