@@ -163,6 +163,19 @@ def test_resume_runs_missing_points_and_failed_ones_on_request(tmp_path, msd):
         run_sweep(MSD, out, retry_failed=True, overwrite=True, **common)
 
 
+def test_retry_failed_on_the_command_line(tmp_path, capsys):
+    out = str(tmp_path / "r.csv")
+    argv = ["sweep", str(MSD), "--param", "k=1,2", "--t-end", "0.2", "--workers", "1", "--quiet", "--out", out]
+    assert main([*argv, "--retry-failed"]) == 2
+    assert one_line(capsys.readouterr().err) == ("phc sweep: error: --retry-failed needs --resume (it runs the "
+                                                 "failed points of existing results again)")
+    assert main(argv) == 0
+    capsys.readouterr()
+    assert main([*argv, "--resume", "--retry-failed", "--format", "json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert (summary["resumed"], summary["retried"], summary["succeeded"]) == (2, 0, 2)
+
+
 def test_resume_needs_results_of_the_same_model_values_and_phc_version(tmp_path, msd):
     out = tmp_path / "r.csv"
     common = dict(t_end=0.5, executor=LocalExecutor(1), progress=False)
