@@ -49,6 +49,10 @@ class RunCache:
     timings: dict = field(default_factory=dict)
     """Seconds spent per compilation pass (``elaborate``, ``lower``, ``print``, ``load``,
     ``backend``, ``certify``); a backend built later for a run adds to ``backend``."""
+    rebuilt: bool = False
+    """True for a model rebuilt from its pickle (a worker of ``phc sweep``): it never reads
+    the model's files, which may not exist where it runs (the parameter values it runs
+    were checked where it was compiled: `parameter_checks`)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -191,6 +195,7 @@ class CompiledModel:
         backend = state.pop("module_backend", "numpy")
         for key, value in state.items():
             object.__setattr__(self, key, value)
+        self.cache.rebuilt = True  # the files it was compiled from are not read here
         module, module_path = load_generated(self.source, self.description.name)
         object.__setattr__(self, "module", module)
         object.__setattr__(self, "module_path", module_path)

@@ -149,6 +149,7 @@ def test_design_mistakes_are_one_message(msd, axes, samples, words):
 def test_compiled_model_pickles_as_source_and_metadata(crank):
     state = crank.__getstate__()
     assert "module" not in state and state["source"] == crank.source  # the module is rebuilt from the source
+    a = phc.simulate(crank, t_end=0.001, params={"EI": 20.0})  # checks EI = 20 against the model file
     twin = pickle.loads(pickle.dumps(crank))
     assert twin.module is not crank.module and twin.module.VARIABLES == crank.module.VARIABLES
     assert twin.module.__file__ == str(twin.module_path)
@@ -156,9 +157,11 @@ def test_compiled_model_pickles_as_source_and_metadata(crank):
     line = next(i for i, text in enumerate(CRANK.read_text(encoding="utf-8").splitlines(), 1)
                 if text.strip().startswith("slider_x:"))
     assert twin.description.output_spans["slider_x"].line == line
-    a = phc.simulate(crank, t_end=0.001, params={"EI": 20.0})
     b = phc.simulate(twin, t_end=0.001, params={"EI": 20.0})
     assert np.array_equal(a.y, b.y)
+    # the twin never reads the model's files: a value not checked where it was compiled is refused
+    with pytest.raises(phc.SimulationSetupError, match="rebuilt from its pickle"):
+        phc.simulate(twin, t_end=0.001, params={"EI": 21.0})
 
 
 def test_a_pickle_from_another_phc_version_is_refused(msd, monkeypatch):
@@ -204,7 +207,8 @@ def test_local_pool_and_dask_localcluster_give_identical_rows_and_a_failing_poin
     assert "parameter `EI` = -68.27: `EI` of `rod` must be positive" in local[2]["message"]
     assert "[PHC-E141]" in local[2]["message"]
     assert all(same(a, b) for a, b in zip(local, dask))
-    assert all(r["worker"].startswith("tcp://") for r in dask)
+    assert all(r["worker"].startswith("tcp://") for r in dask if r["success"])
+    assert local[2]["worker"] == dask[2]["worker"] == ""  # refused by this process, never sent to a worker
     # each row is what phc.simulate gives in this process, without pickling
     for r in (local[0], local[3]):
         res = phc.simulate(crank, t_end=0.001, params={"EI": r["EI"]})

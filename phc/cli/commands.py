@@ -19,7 +19,7 @@ from phc.cli.report import (EXIT_INTERRUPTED, EXIT_MODEL, EXIT_OK, _backend_line
                             _Files, _left_out_lines, _part_line, _plot, _print_diagnostics, _size_text, _summary_text,
                             _write_results)
 from phc.cli.run import (_compile_or_exit, _ignored_in_file_lines, _progress_for, _recompile_for_params,
-                         _simulation_errors, _written_options)
+                         _simulation_errors, _terminate_as_interrupt, _written_options)
 from phc.errors import UsageError
 from phc.inert import inert
 
@@ -215,6 +215,7 @@ def cmd_simulate(args) -> int:
 def cmd_sweep(args) -> int:
     from phc import ModelError, SimulationSetupError
     from phc.sweep import plot_sweep, run_sweep
+    from phc.sweep.results import check_series_path
 
     pairs = []
     for item in args.param or []:
@@ -222,27 +223,36 @@ def cmd_sweep(args) -> int:
         if not sep or not name.strip():
             raise UsageError(f"--param expects NAME=SPEC, got `{item}`")
         pairs.append((name.strip(), spec))
-    compiled = _compile_or_exit(args.file, certify=not args.no_certify, backend=args.backend)
+    if args.retry_failed and not args.resume:
+        raise UsageError("--retry-failed needs --resume (it runs the failed points of existing results again)")
     try:
-        report = run_sweep(args.file, args.out, params=pairs, samples=args.samples, seed=args.seed,
-                           sampling=args.sampling, executor=args.executor, scheduler=args.scheduler,
-                           workers=args.workers, series=args.series, resume=args.resume, overwrite=args.overwrite,
-                           t_end=args.t_end, n_out=args.n_out, solver=args.solver, certify=not args.no_certify,
-                           progress=not args.quiet, compiled=compiled)
-        if args.plot and report.rows:
-            plot_sweep(report, args.plot, args.plot_output,
-                       [a.strip() for a in args.plot_against.split(",")] if args.plot_against else None)
-            report.paths["plot"] = Path(args.plot)
-    except ModelError as err:
-        _print_diagnostics(err.diagnostics)
-        return EXIT_MODEL
+        check_series_path(args.out, args.series)  # before the compilation
     except SimulationSetupError as err:
         raise UsageError(str(err)) from None
+    compiled = _compile_or_exit(args.file, certify=not args.no_certify, backend=args.backend)
+    with _terminate_as_interrupt() as signals:
+        try:
+            report = run_sweep(args.file, args.out, params=pairs, samples=args.samples, seed=args.seed,
+                               sampling=args.sampling, executor=args.executor, scheduler=args.scheduler,
+                               workers=args.workers, series=args.series, resume=args.resume,
+                               retry_failed=args.retry_failed, overwrite=args.overwrite, t_end=args.t_end,
+                               n_out=args.n_out, solver=args.solver, certify=not args.no_certify,
+                               progress=not args.quiet, compiled=compiled)
+            if args.plot and report.rows:
+                plot_sweep(report, args.plot, args.plot_output,
+                           [a.strip() for a in args.plot_against.split(",")] if args.plot_against else None)
+                report.paths["plot"] = Path(args.plot)
+        except ModelError as err:
+            _print_diagnostics(err.diagnostics)
+            return EXIT_MODEL
+        except SimulationSetupError as err:
+            raise UsageError(str(err)) from None
     print(report.render_text() if args.format == "text" else json.dumps(report.summary(), indent=2))
     if report.interrupted:
-        print(inert(f"phc sweep: interrupted; {len(report.rows)} of {report.planned} rows are in "
+        why = "stopped (SIGTERM)" if signals else "interrupted"
+        print(inert(f"phc sweep: {why}; {len(report.rows)} of {report.planned} rows are in "
                     f"{report.paths['csv']}: rerun the same command with --resume to finish"), file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return 128 + int(signals[0]) if signals else EXIT_INTERRUPTED
     return EXIT_OK if report.success else EXIT_MODEL
 
 

@@ -291,7 +291,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, metavar="RESULTS",
                    help="results, .csv (also .parquet with pyarrow) or .parquet: one row per run")
     p.add_argument("--series", metavar="FILE.csv", help="also write every run's output time series (long format)")
-    p.add_argument("--resume", action="store_true", help="continue the results in --out, skipping finished points")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the results in --out (same model, values, run options and phc version): its rows "
+                   "are kept, points without a row run")
+    p.add_argument("--retry-failed", action="store_true",
+                   help="with --resume: run the points of failed rows again too")
     p.add_argument("--overwrite", action="store_true", help="replace existing results in --out")
     p.add_argument("--t-end", type=float, help="end time of every run (default: the model's)")
     p.add_argument("--n-out", type=int, help="output points of every run")

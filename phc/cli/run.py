@@ -202,3 +202,29 @@ def _recompile_for_params(compiled, path: str, params: dict, certify: bool = Tru
     if note:
         print(printable(f"{path}: note: {note}", quoted=False), file=sys.stderr)
     return compiled
+
+
+@contextmanager
+def _terminate_as_interrupt():
+    """Within the block, SIGTERM (`kill`, a batch system's stop) ends the command as Ctrl-C
+    does: the sweep's workers are stopped and the finished rows kept. Yields a list that
+    holds the signal's number once it came. A second SIGTERM during the clean-up is ignored
+    (SIGKILL still ends the process; the workers end with it on Linux)."""
+    import signal
+    import threading
+
+    got: list = []
+    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "SIGTERM"):
+        yield got
+        return
+
+    def handler(signum, frame):
+        got.append(signum)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield got
+    finally:
+        signal.signal(signal.SIGTERM, previous)

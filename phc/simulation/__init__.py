@@ -104,7 +104,9 @@ def check_parameters(compiled, params: Optional[dict], label: Optional[Callable[
     `label(name, value)` names where an override comes from in messages (``--param m=-2``);
     by default ``parameter `m` = -2``. `path` is the model or scene file, for a compiled
     model that does not name it (the command line's cached front end). Results are
-    remembered per compiled model.
+    remembered per compiled model (``compiled.cache.parameter_checks``) and travel with its
+    pickle: a model rebuilt from one (a sweep's worker) never reads the model's files, and
+    refuses values that were not checked where it was compiled.
 
     Raises
     ------
@@ -128,12 +130,16 @@ def check_parameters(compiled, params: Optional[dict], label: Optional[Callable[
         return
     cache = compiled.cache.parameter_checks
     key = tuple(sorted(changed.items()))
+    label = label or (lambda name, value: f"parameter `{name}` = {value:g}")
+    given = ", ".join(label(k, v) for k, v in changed.items())
     if key not in cache:
+        if compiled.cache.rebuilt:
+            raise SimulationSetupError(f"{given}: this compiled model was rebuilt from its pickle and does not read "
+                                       "the model's files; check parameter values where it was compiled "
+                                       "(phc.simulation.check_parameters) before sending it")
         cache[key] = _parameter_problems(compiled, changed, path)
     problems = cache[key]
     if problems:
-        label = label or (lambda name, value: f"parameter `{name}` = {value:g}")
-        given = ", ".join(label(k, v) for k, v in changed.items())
         raise SimulationSetupError(f"{given}: " + "; ".join(problems)
                                    + " (a value the model file would refuse; choose another)")
 

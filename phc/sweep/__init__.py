@@ -15,7 +15,9 @@ How a sweep runs
 * **Workers get the compiled model by value**: a :class:`~phc.pipeline.CompiledModel`
   pickles as its generated source plus metadata and is rebuilt on the worker from the
   text in memory (:func:`phc.codegen.load.load_generated`); workers never read a model
-  file. A pickle is code to whoever loads it, so it travels only from this process to the
+  file (each point's parameter values are checked against the model file here, before it
+  is sent: :func:`phc.simulation.check_parameters`, whose answers travel with the model).
+  A pickle is code to whoever loads it, so it travels only from this process to the
   workers it starts or the Dask cluster the user names (see docs/security.md).
 * **Executors**: a local process pool (default; one BLAS thread per worker) or Dask
   distributed (``pip install "port-hamiltonian-compiler[cluster]"``): a ``LocalCluster`` or a running scheduler.
@@ -24,9 +26,14 @@ How a sweep runs
   parameter makes the model impossible to evaluate) is a row with ``success`` false and
   its message. Rows are appended to the CSV file as they arrive, each by one ``write`` of
   one complete line to a file opened for appending, then flushed to disk; ``resume``
-  skips the points already there (a torn last line is dropped). A worker lost mid-run is
-  run again elsewhere (a local pool is restarted; Dask reschedules it) and the row's
-  ``attempts`` says so. When the sweep completes the CSV file is rewritten in point order.
+  skips the points already there (a torn last line is dropped; ``retry_failed`` runs the
+  failed ones again) and accepts only results of the same model, values and phc version.
+  A point whose worker died while running it is run again elsewhere (the local pool
+  replaces that process alone; Dask reschedules it) and the row's ``attempts`` says so; a
+  point is charged only for its own runs. When the sweep completes the CSV file is
+  rewritten in point order.
+* **Swept names are columns**: a name that is also a result column (``steps``,
+  ``worker``, ``x.max`` of an output ``x``) is refused where it is written.
 
 The package, in the order a sweep runs:
 

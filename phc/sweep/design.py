@@ -131,6 +131,7 @@ def make_design(compiled, axes: Sequence[Axis], samples: Optional[int] = None, s
                              f"did you mean `{close[0]}`?" if close else
                              f"the model's parameters are {', '.join(base_names) or 'none'}; also "
                              "accuracy.rtol, accuracy.atol, accuracy.step, accuracy.mesh.COMPONENT"))
+    problems.extend(_column_clashes(compiled, [a for a in axes if a.name in kinds]))
     if len({a.name for a in axes}) != len(axes):
         dup = next(a.name for a in axes if sum(b.name == a.name for b in axes) > 1)
         problems.append((dup, f"`{dup}` is swept twice", "give each name once"))
@@ -179,12 +180,41 @@ def make_design(compiled, axes: Sequence[Axis], samples: Optional[int] = None, s
     return Design(list(axes), samples if sampled else None, seed, sampling, points, kinds)
 
 
+def _column_clashes(compiled, axes: Sequence[Axis]) -> list[tuple]:
+    """A swept name that is also a column of every row (``steps``, ``worker``; ``x.max`` of
+    an output ``x``): refused, located at the model's parameter when the model says where it
+    is (a scene's sweep entry is located by the caller)."""
+    from phc.sweep.results import result_columns
+
+    outputs = list(compiled.module.OUTPUTS)
+    columns = result_columns(outputs)
+    spans = {p.name: p.span for p in (compiled.dae.parameters if compiled.dae is not None else ())}
+    out = []
+    for axis in axes:
+        what = columns.get(axis.name)
+        if what is None:
+            continue
+        output = axis.name.rpartition(".")[0] in outputs
+        out.append((axis.name, f"swept parameter `{axis.name}` has the name of a result column ({what}); a row "
+                    "cannot have two columns of one name",
+                    "rename the output in the scene's or the model's `outputs`" if output else
+                    "rename the parameter in the model file: the result columns of `phc sweep` are fixed",
+                    spans.get(axis.name)))
+    return out
+
+
 def _raise(problems, locate) -> None:
-    if locate is not None and all(name and locate(name) is not None for name, _, _ in problems):
-        diags = DiagnosticList(Diagnostic("PHC-E606", message, span=locate(name), hint=hint or None,
-                                          path=f"sweep.parameters.{name}") for name, message, hint in problems)
+    problems = [(p[0], p[1], p[2], p[3] if len(p) > 3 else None) for p in problems]
+    where = []
+    for name, _, _, span in problems:
+        scene = locate(name) if locate is not None and name else None
+        where.append((scene, f"sweep.parameters.{name}") if scene is not None else
+                     (span, f"parameters.{name}") if span is not None else None)
+    if all(w is not None for w in where):
+        diags = DiagnosticList(Diagnostic("PHC-E606", message, span=span, hint=hint or None, path=path)
+                               for (_, message, hint, _), (span, path) in zip(problems, where))
         raise ModelError(diags.sorted())
-    name, message, hint = problems[0]
+    name, message, hint, _ = problems[0]
     text = f"--param {name}: {message}" if name and not message.startswith("--") else message
     raise SweepSetupError(text + (f"; {hint}" if hint else ""))
 

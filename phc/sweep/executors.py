@@ -3,8 +3,9 @@ every executor), a local process pool (:class:`LocalExecutor`) and Dask distribu
 (:class:`DaskExecutor`).
 
 Workers get the compiled model by value (phc's own pickle, made by this process for the
-workers it starts or the Dask cluster the user names); a point that fails is a row with
-``success`` false and its message; a worker lost mid-run is run again elsewhere.
+workers it starts or the Dask cluster the user names) and never read the model's files; a
+point that fails is a row with ``success`` false and its message; a point whose worker died
+while running it is run again elsewhere, and only its own runs count against it.
 """
 
 from __future__ import annotations
@@ -18,8 +19,6 @@ import sys
 import time
 import uuid
 import warnings
-from concurrent.futures import ProcessPoolExecutor, as_completed
-from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator, Optional, Sequence
@@ -30,8 +29,9 @@ from phc.errors import SimulationSetupError, SweepSetupError
 from phc.sweep.results import RUN_COLUMNS, STATS
 
 MAX_ATTEMPTS = 3
-"""Runs of one point on a local pool whose worker process died before it is recorded as failed
-(Dask: the scheduler's ``distributed.scheduler.allowed-failures``)."""
+"""Runs of one point whose worker process died each time before it is recorded as failed (on
+a local pool; on Dask, a point the scheduler gives up on after ``allowed-failures`` lost
+workers is submitted again while it started on fewer than this many)."""
 INSTALL_CLUSTER = 'pip install "port-hamiltonian-compiler[cluster]"'
 
 
@@ -94,11 +94,14 @@ _MODELS: dict = {}
 _INIT_ERROR: list = []
 
 
-def _init_pool_worker(blob: bytes) -> None:
-    """Initializer of a local pool process: Ctrl-C is the parent's business (it stops the
-    pool), one BLAS thread, and the compiled models unpickled once (phc's own pickle, made
-    by the parent process for its workers; never read from a file)."""
+def _init_pool_worker(blob: bytes, parent: int = 0) -> None:
+    """Start of a local pool process: Ctrl-C is the parent's business (it stops the
+    pool), the process ends with its parent (Linux), one BLAS thread, and the compiled models
+    unpickled once (phc's own pickle, made by the parent process for its workers; never read
+    from a file)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # not a handler of the parent's (fork)
+    _end_with_parent(parent)
     try:
         from threadpoolctl import threadpool_limits
 
@@ -113,10 +116,53 @@ def _init_pool_worker(blob: bytes) -> None:
         _INIT_ERROR.append(f"{type(err).__name__}: {err}")
 
 
+def _end_with_parent(parent: int) -> None:
+    """Linux: SIGTERM to this worker when the process that started it ends, however it ends
+    (``prctl(PR_SET_PDEATHSIG)``; a fork server's workers end with the fork server, which
+    ends with the sweep); a parent already gone (`parent`, 0 for a fork server) ends it now.
+    Elsewhere the parent's own clean-up (:meth:`LocalExecutor.run`) stops it."""
+    if not sys.platform.startswith("linux"):
+        return
+    parent = parent or os.getppid()
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM), 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != parent:  # the parent ended before prctl: nobody will read our rows
+        os._exit(0)
+
+
 def _pool_task(task: dict) -> dict:
     if _INIT_ERROR:
         return _failed(task, f"the worker could not load the compiled model: {_INIT_ERROR[0]}")
     return run_point(_MODELS[task["group"]], task)
+
+
+def _pool_worker(conn, blob: bytes, parent: int) -> None:
+    """A process of the local pool: the compiled models unpickled once, then one point at a
+    time from `conn` and its row sent back, until None (or the pipe closes)."""
+    _init_pool_worker(blob, parent)
+    while True:
+        try:
+            task = conn.recv()
+        except (EOFError, OSError):
+            return
+        if task is None:
+            return
+        model = _MODELS.get(task["group"])
+        outputs = list(model.module.OUTPUTS) if model is not None else []
+        try:
+            out = _pool_task(task)
+        except Exception as err:  # noqa: BLE001 — the point's failure, not the process's
+            out = _failed(task, f"the worker failed: {type(err).__name__}: {err}", outputs)
+        try:
+            conn.send(out)
+        except (EOFError, OSError):
+            return
+        except Exception as err:  # noqa: BLE001 — a row that cannot be pickled back
+            conn.send(_failed(task, f"the worker failed: {type(err).__name__}: {err}", outputs))
 
 
 def _unpickle_model(blob: bytes):
@@ -195,8 +241,12 @@ def start_method() -> str:
 
 
 class LocalExecutor:
-    """A pool of `workers` processes on this machine (forkserver where available, else
-    spawn: no state of this process leaks into them but the compiled models)."""
+    """A pool of `workers` processes on this machine, each running one point at a time.
+
+    Every point's run is known to its worker process: when a process dies (killed by the
+    out-of-memory killer, a crash in a native library) only the point it was running is
+    charged an attempt and queued again, and only that process is replaced; the others
+    keep running. Ctrl-C, the end of the sweep or an error stops every worker."""
 
     name = "local"
 
@@ -207,67 +257,138 @@ class LocalExecutor:
     def describe(self) -> str:
         return f"local process pool, {self.workers} worker{'s' if self.workers != 1 else ''}"
 
-    def _pool(self, models: dict) -> ProcessPoolExecutor:
+    def run(self, models: dict, tasks: list[dict], outputs: Sequence[str]) -> Iterator[dict]:
+        import pickle
+        from collections import deque
+        from multiprocessing.connection import wait
+
         ctx = multiprocessing.get_context(start_method())
         if ctx.get_start_method() == "forkserver":
             ctx.set_forkserver_preload(["phc.sweep", "phc.pipeline", "phc.simulation"])
-        import pickle
-
-        return ProcessPoolExecutor(max_workers=self.workers, mp_context=ctx, initializer=_init_pool_worker,
-                                   initargs=(pickle.dumps(models, protocol=pickle.HIGHEST_PROTOCOL),))
-
-    def run(self, models: dict, tasks: list[dict], outputs: Sequence[str]) -> Iterator[dict]:
+        blob = pickle.dumps(models, protocol=pickle.HIGHEST_PROTOCOL)
         attempts = {t["index"]: 1 for t in tasks}
-        pending = list(tasks)
+        deaths: dict[int, list[str]] = {}
+        pending = deque(tasks)
+        workers: list[_Worker] = []
         started = time.perf_counter()
-        with _one_blas_thread():
-            while pending:
-                pool = self._pool(models)
-                futures = {}
-                finished = False
-                try:
-                    futures = {pool.submit(_pool_task, dict(t, attempt=attempts[t["index"]])): t for t in pending}
-                    broken = []
-                    for fut in as_completed(futures):
-                        task = futures[fut]
+        try:
+            with _one_blas_thread():
+                for _ in range(min(self.workers, len(tasks))):
+                    workers.append(_Worker(ctx, blob))
+            while True:
+                for i, w in enumerate(workers):
+                    if w.task is None and pending:
+                        if not w.process.is_alive():  # it died between points: replaced, nobody charged
+                            w.death()
+                            with _one_blas_thread():
+                                w = workers[i] = _Worker(ctx, blob)
+                        w.give(pending.popleft(), attempts)
+                busy = [w for w in workers if w.task is not None]
+                if not busy:
+                    break
+                ready = set(wait([w.conn for w in busy] + [w.process.sentinel for w in busy]))
+                for w in busy:
+                    if w.conn not in ready and w.process.sentinel not in ready:
+                        continue
+                    out = w.receive()
+                    if out is not None:
                         if math.isnan(self.startup_s):
                             self.startup_s = time.perf_counter() - started
-                        try:
-                            out = fut.result()
-                        except BrokenProcessPool:
-                            broken.append(task)
-                            continue
-                        except Exception as err:  # noqa: BLE001 — e.g. a result that cannot be sent back
-                            out = _failed(dict(task, attempt=attempts[task["index"]]),
-                                          f"the worker failed: {type(err).__name__}: {err}", outputs)
+                        if not w.process.is_alive():  # it died after sending: replaced, nobody charged
+                            w.death()
+                            with _one_blas_thread():
+                                workers[workers.index(w)] = _Worker(ctx, blob)
+                        index = out["index"]
+                        if deaths.get(index):
+                            out["row"]["message"] += (" (run again after its worker process died: "
+                                                      f"{', '.join(deaths[index])})")
                         yield out
-                    finished = True
-                finally:
-                    if finished:
-                        pool.shutdown(wait=True)
-                    else:  # Ctrl-C or the consumer stopped: stop the workers now
-                        _stop_pool(pool)
-                pending = []
-                for task in broken:
-                    attempts[task["index"]] += 1
-                    if attempts[task["index"]] > MAX_ATTEMPTS:
+                        continue
+                    # the process died running w.task: that point alone is charged the attempt
+                    task, why = w.task, w.death()
+                    index = task["index"]
+                    deaths.setdefault(index, []).append(why)
+                    attempts[index] += 1
+                    with _one_blas_thread():
+                        workers[workers.index(w)] = _Worker(ctx, blob)
+                    if attempts[index] > MAX_ATTEMPTS:
                         yield _failed(dict(task, attempt=MAX_ATTEMPTS),
-                                      f"the worker process died {MAX_ATTEMPTS} times while this point was running or "
-                                      "queued (out of memory? a crash in a native library?)", outputs)
+                                      f"its worker process died each of the {MAX_ATTEMPTS} times it ran this point "
+                                      f"({'; '.join(deaths[index])}; out of memory? a crash in a native library?)",
+                                      outputs)
                     else:
-                        pending.append(task)
+                        pending.appendleft(task)
+        finally:  # done, Ctrl-C, or the consumer stopped: no worker outlives the sweep
+            _stop_workers(workers)
 
 
-def _stop_pool(pool: ProcessPoolExecutor) -> None:
-    procs = list((getattr(pool, "_processes", None) or {}).values())
-    pool.shutdown(wait=False, cancel_futures=True)
-    for p in procs:
+class _Worker:
+    """One process of :class:`LocalExecutor` and its pipe; `task` is the point it runs."""
+
+    def __init__(self, ctx, blob: bytes) -> None:
+        self.conn, child = ctx.Pipe(duplex=True)
+        parent = os.getpid() if ctx.get_start_method() != "forkserver" else 0  # a fork server starts it
+        self.process = ctx.Process(target=_pool_worker, args=(child, blob, parent), daemon=True,
+                                   name="phc-sweep-worker")
+        self.process.start()
+        child.close()  # the worker holds the other end alone: its death is an end of file here
+        self.task: Optional[dict] = None
+
+    def give(self, task: dict, attempts: dict) -> None:
+        self.task = task
         try:
-            p.terminate()
-        except Exception:  # noqa: BLE001
+            self.conn.send(dict(task, attempt=attempts[task["index"]]))
+        except OSError:  # the process is gone: its sentinel says so next
             pass
-    for p in procs:
-        p.join(timeout=5)
+
+    def receive(self) -> Optional[dict]:
+        """The row of the point it ran, or None when the process died before sending it."""
+        try:
+            if self.conn.poll():
+                out = self.conn.recv()
+                self.task = None
+                return out
+        except (EOFError, OSError):  # the process died (mid-send, at worst)
+            pass
+        return None
+
+    def death(self) -> str:
+        """How the process ended ("killed by SIGKILL", "exit code 3")."""
+        self.process.join(timeout=5)
+        if self.process.is_alive():
+            self.process.kill()
+            self.process.join(timeout=5)
+        code = self.process.exitcode
+        self.conn.close()
+        if code is not None and code < 0:
+            try:
+                return f"killed by {signal.Signals(-code).name}"
+            except ValueError:
+                return f"killed by signal {-code}"
+        return f"exit code {code}"
+
+
+def _stop_workers(workers: list) -> None:
+    """Stop the pool's processes: a worker between points ends on None; the others (and any
+    that do not end at once) are terminated, then killed."""
+    for w in workers:
+        if w.task is None and w.process.is_alive():
+            try:
+                w.conn.send(None)
+            except OSError:
+                pass
+        else:
+            w.process.terminate()
+    deadline = time.monotonic() + 5
+    for w in workers:
+        w.process.join(timeout=max(0.0, deadline - time.monotonic()))
+        if w.process.is_alive():
+            w.process.kill()
+            w.process.join(timeout=5)
+        try:
+            w.conn.close()
+        except OSError:
+            pass
 
 
 class DaskExecutor:
@@ -351,15 +472,29 @@ class DaskExecutor:
                           for i, (key, model) in enumerate(models.items())}
                 futures = {client.submit(_dask_task, loaded[t["group"]], t, topic, pure=False,
                                          key=f"{topic}-{t['index']}"): t for t in tasks}
-                for fut in dask_completed(list(futures)):
-                    task = futures[fut]
+                again: dict[int, int] = {}
+                done = dask_completed(list(futures))
+                for fut in done:
+                    task = futures.pop(fut)
                     if math.isnan(self.startup_s):
                         self.startup_s = time.perf_counter() - started
                     try:
                         out = fut.result()
                     except Exception as err:  # noqa: BLE001 — KilledWorker, a worker without phc, ...
-                        runs = max(len(starts.get(task["index"], ())), 1)
-                        out = _failed(dict(task, attempt=runs), _dask_failure(err), outputs)
+                        index = task["index"]
+                        runs = len(starts.get(index, ()))
+                        if type(err).__name__ == "KilledWorker" and runs < MAX_ATTEMPTS and \
+                                again.get(index, 0) < MAX_ATTEMPTS:
+                            # the scheduler also counts the workers that died while the point waited
+                            # in their queues: not its own runs, so it is submitted again
+                            again[index] = again.get(index, 0) + 1
+                            fut.release()
+                            new = client.submit(_dask_task, loaded[task["group"]], task, topic, pure=False,
+                                                key=f"{topic}-{index}-again{again[index]}")
+                            futures[new] = task
+                            done.add(new)
+                            continue
+                        out = _failed(dict(task, attempt=max(runs, 1)), _dask_failure(err), outputs)
                     else:
                         workers = set(starts.get(task["index"], ())) | {out["row"]["worker"]}
                         out["row"]["attempts"] = len(workers)

@@ -31,6 +31,22 @@ RUN_COLUMNS = ("success", "message", "t_final", "steps", "n_residual_evals", "n_
 MACHINE_COLUMNS = ("cpu_time_s", "wall_time_s", "attempts", "worker")
 """Columns that differ between two runs of the same point (timing, where it ran)."""
 INSTALL_PARQUET = 'pip install "port-hamiltonian-compiler[parquet]"'
+_MEANING = {"point": "the index of the point", "success": "whether the run succeeded", "message": "the run's message",
+            "t_final": "the time the run reached", "steps": "the solver's step count",
+            "n_residual_evals": "the residual evaluations", "n_jacobian_evals": "the Jacobian evaluations",
+            "energy_balance_error": "the energy-balance residual",
+            "energy_balance_relative": "the relative energy-balance residual",
+            "constraint_drift": "the position-constraint drift", "velocity_drift": "the velocity-constraint drift",
+            "cpu_time_s": "the run's CPU time", "wall_time_s": "the run's wall time",
+            "attempts": "the runs of the point", "worker": "where it ran"}
+
+
+def result_columns(outputs: Sequence[str]) -> dict[str, str]:
+    """Every column of a row besides the swept names -> what it holds (a swept name must be
+    none of them: :func:`phc.sweep.design.make_design` refuses it)."""
+    columns = {c: _MEANING[c] for c in ("point", *RUN_COLUMNS, *MACHINE_COLUMNS)}
+    columns.update({f"{o}.{s}": f"the {s} of output `{o}`" for o in outputs for s in STATS})
+    return columns
 
 
 # ---------------------------------------------------------------------------------------
@@ -128,6 +144,9 @@ class SweepReport:
     """Point index -> row (typed values), the earlier rows of a resumed sweep included."""
     resumed: int = 0
     """Rows found in the results file and skipped."""
+    retried: int = 0
+    """Failed rows found in the results file and dropped to run their points again
+    (``--retry-failed``)."""
     executor: str = ""
     workers_startup_s: float = math.nan
     compilations: list[dict] = field(default_factory=list)
@@ -176,6 +195,7 @@ class SweepReport:
         cpu = [r["cpu_time_s"] for r in self.rows.values() if not math.isnan(r["cpu_time_s"])]
         lines.append(f"  ran       {ran} run{'s' if ran != 1 else ''} on {self.executor} in {self.run_elapsed_s:.1f} s"
                      + (f" ({self.resumed} earlier rows kept)" if self.resumed else "")
+                     + (f" ({self.retried} failed rows run again)" if self.retried else "")
                      + (f"; median {np.median(cpu):.3g} s CPU per run" if cpu else ""))
         ok = sum(1 for r in self.rows.values() if r["success"])
         lines.append(f"  results   {ok} succeeded, {len(self.rows) - ok} failed"
@@ -194,7 +214,8 @@ class SweepReport:
 
     def summary(self) -> dict:
         return {"model": self.name, "file": self.file, "planned": self.planned, "rows": len(self.rows),
-                "resumed": self.resumed, "succeeded": sum(1 for r in self.rows.values() if r["success"]),
+                "resumed": self.resumed, "retried": self.retried,
+                "succeeded": sum(1 for r in self.rows.values() if r["success"]),
                 "failed": len(self.failed), "interrupted": self.interrupted, "executor": self.executor,
                 "elapsed_s": self.elapsed_s, "run_elapsed_s": self.run_elapsed_s,
                 "compilations": [{k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in c.items()}
@@ -211,6 +232,36 @@ def results_paths(out: Union[str, os.PathLike]) -> dict[str, Path]:
     stem = out.with_suffix("")
     return {"csv": stem.with_suffix(".csv"), "parquet": stem.with_suffix(".parquet"),
             "meta": stem.with_name(stem.name + ".sweep.json")}
+
+
+def check_series_path(out: Union[str, os.PathLike], series: Union[None, str, os.PathLike]) -> None:
+    """Refuse a time-series file that is one of the results' files (``--series r.csv`` with
+    ``--out r.csv``, or with ``--out r.parquet``, whose CSV copy is ``r.csv``): one would
+    overwrite the other."""
+    from phc.errors import SweepSetupError
+
+    if series is None or str(series) == "":
+        return
+    what = {"csv": "the results file", "parquet": "the Parquet copy of the results",
+            "meta": "the description of the results"}
+    for key, path in results_paths(out).items():
+        if _same_file(Path(series), path):
+            if key == "csv" and Path(out).suffix.lower() == ".parquet":
+                where = f"`{path}`, the CSV copy of the results that --out `{out}` writes"
+            else:
+                where = f"{what[key]} (--out `{out}`)" if Path(out) == path else f"`{path}`, {what[key]}"
+            raise SweepSetupError(f"--series `{series}` is {where}; give the time series a file of its own")
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    """The same file: the same path once resolved (symbolic links, `..`), or, when both
+    exist, the same inode (a hard link)."""
+    if os.path.normcase(os.path.realpath(a)) == os.path.normcase(os.path.realpath(b)):
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
 
 
 def parquet_available() -> bool:
@@ -256,4 +307,5 @@ def _short(text: str, n: int = 140) -> str:
 
 
 __all__ = ["AppendLog", "INSTALL_PARQUET", "MACHINE_COLUMNS", "RUN_COLUMNS", "STATS", "SweepReport",
-           "parquet_available", "read_results", "results_paths", "write_parquet"]
+           "check_series_path", "parquet_available", "read_results", "result_columns", "results_paths",
+           "write_parquet"]

@@ -17,16 +17,16 @@ from phc.io import atomic_write
 from phc.sweep.design import MESH_PREFIX, Design, compile_group, group_label, make_design, sweep_axes
 from phc.sweep.executors import _executor, _failed
 from phc.sweep.results import (INSTALL_PARQUET, MACHINE_COLUMNS, RUN_COLUMNS, STATS, AppendLog, SweepReport,
-                               _kinds, _parse, parquet_available, results_paths, write_parquet)
+                               _kinds, _parse, check_series_path, parquet_available, results_paths, write_parquet)
 
 
 def run_sweep(path: Union[str, os.PathLike], out: Union[str, os.PathLike], *,
               params: Sequence[tuple[str, str]] = (), samples: Optional[int] = None, seed: Optional[int] = None,
               sampling: Optional[str] = None, executor: Union[str, Any] = "local", scheduler: Optional[str] = None,
               workers: Optional[int] = None, series: Union[None, str, os.PathLike] = None, resume: bool = False,
-              overwrite: bool = False, t_end: Optional[float] = None, n_out: Optional[int] = None,
-              solver: Optional[str] = None, certify: bool = True, progress: bool = True, stream=None,
-              compiled=None) -> SweepReport:
+              retry_failed: bool = False, overwrite: bool = False, t_end: Optional[float] = None,
+              n_out: Optional[int] = None, solver: Optional[str] = None, certify: bool = True,
+              progress: bool = True, stream=None, compiled=None) -> SweepReport:
     """Run a parameter study of a model or scene file; see the module docstring.
 
     Parameters
@@ -47,8 +47,12 @@ def run_sweep(path: Union[str, os.PathLike], out: Union[str, os.PathLike], *,
     series
         A CSV file for the time series of every run (long format: point, t, outputs).
     resume, overwrite
-        Continue the results in `out` (skip its points), or replace them. Without either,
-        an existing results file is an error.
+        Continue the results in `out` (its rows are kept and their points skipped; points
+        without a row run), or replace them. Without either, an existing results file is an
+        error. Resuming needs results of the same model (its generated code), swept values,
+        run options and phc version (their description ``RESULTS.sweep.json`` says).
+    retry_failed
+        With `resume`: the failed rows are dropped and their points run again.
     t_end, n_out, solver
         Run options of every point (default: the model's or scene's).
     compiled
@@ -67,6 +71,9 @@ def run_sweep(path: Union[str, os.PathLike], out: Union[str, os.PathLike], *,
     started = time.perf_counter()
     stream = stream or sys.stderr
     paths = results_paths(out)
+    check_series_path(out, series)
+    if retry_failed and not resume:
+        raise SweepSetupError("--retry-failed needs --resume (it runs the failed points of existing results again)")
     want_parquet = Path(out).suffix.lower() == ".parquet"
     if want_parquet and not parquet_available():
         raise SweepSetupError(f"writing Parquet needs pyarrow: {INSTALL_PARQUET} (or give a .csv file)")
@@ -82,6 +89,9 @@ def run_sweep(path: Union[str, os.PathLike], out: Union[str, os.PathLike], *,
     outputs = list(compiled.module.OUTPUTS)
     names = [a.name for a in design.axes]
     columns = ["point", *names, *RUN_COLUMNS, *(f"{o}.{s}" for o in outputs for s in STATS), *MACHINE_COLUMNS]
+    twice = sorted({c for c in columns if columns.count(c) > 1})
+    if twice:  # make_design refuses a swept name that is a result column; outputs are unique
+        raise SweepSetupError(f"the results would have two columns named `{twice[0]}`; rename the output or parameter")
     units = _units(compiled, design, outputs)
     report = SweepReport(compiled.name, str(path), design, columns, units)
     runner = _executor(executor, scheduler, workers)  # a wrong --scheduler before any work
@@ -111,7 +121,8 @@ def run_sweep(path: Union[str, os.PathLike], out: Union[str, os.PathLike], *,
     # -- the results files: new, or resumed --------------------------------------------------
     log = AppendLog(paths["csv"], columns)
     series_log = AppendLog(series_path, ["point", "t", *outputs]) if series_path else None
-    meta = {"phc_version": _version(), "file": str(path), "fingerprint": fingerprint, "models": hashes,
+    meta = {"phc_version": _version(), "model": compiled.name, "file": str(path), "fingerprint": fingerprint,
+            "models": hashes,
             "points": len(design.points), "axes": [{"name": a.name, "spec": a.text} for a in design.axes],
             "samples": design.samples, "seed": design.seed, "sampling": design.sampling, "run": run,
             "series": str(series_path) if series_path else None,
@@ -121,7 +132,7 @@ def run_sweep(path: Union[str, os.PathLike], out: Union[str, os.PathLike], *,
         raise SweepSetupError(f"`{paths['csv']}` exists; pass --resume to continue it (finished points are "
                               "skipped) or --overwrite to start over")
     if existing and resume:
-        report.rows = _resume(log, paths["meta"], meta, series_log)
+        report.rows, report.retried = _resume(log, paths["meta"], meta, series_log, retry_failed)
         report.resumed = len(report.rows)
     else:
         log.create()
@@ -157,8 +168,9 @@ def run_sweep(path: Union[str, os.PathLike], out: Union[str, os.PathLike], *,
     for p in todo:
         task = {"index": p.index, "group": p.group, "params": p.params, "options": p.options, "run": run,
                 "series": series_log is not None}
-        if p.group in failed_groups:
-            record(_failed(task, failed_groups[p.group], outputs))
+        refused = failed_groups.get(p.group) or _refused(models[p.group], p.params)
+        if refused:
+            record(_failed(task, refused, outputs))
         else:
             tasks.append(task)
     t_run = time.perf_counter()
@@ -191,6 +203,22 @@ def run_sweep(path: Union[str, os.PathLike], out: Union[str, os.PathLike], *,
     return report
 
 
+def _refused(compiled, params: dict) -> str:
+    """Why the model file refuses a point's parameter values ("" when it does not): checked
+    here, where the model's files are, by elaborating the model with them
+    (:func:`phc.simulation.check_parameters`). The answer is remembered in the compiled
+    model's run cache, which travels with it: workers never read the model's files, so they
+    may run anywhere (another directory, another machine)."""
+    from phc.errors import SimulationSetupError
+    from phc.simulation import check_parameters
+
+    try:
+        check_parameters(compiled, params)
+    except SimulationSetupError as err:
+        return str(err)
+    return ""
+
+
 def _version() -> str:
     from phc import __version__
 
@@ -204,8 +232,11 @@ def _fingerprint(design: Design, run: dict, series: Optional[Path], outputs) -> 
     return h.hexdigest()[:32]
 
 
-def _resume(log: AppendLog, meta_path: Path, meta: dict, series_log: Optional[AppendLog]) -> dict[int, dict]:
-    """The rows already in the results file, after checking they belong to this sweep."""
+def _resume(log: AppendLog, meta_path: Path, meta: dict, series_log: Optional[AppendLog],
+            retry_failed: bool = False) -> tuple[dict[int, dict], int]:
+    """The rows already in the results file, after checking they belong to this sweep (its
+    description records the same model, swept values, run options and phc version), and
+    how many failed rows were dropped to run again (`retry_failed`)."""
     try:
         old = json.loads(meta_path.read_text())
     except (OSError, ValueError):
@@ -214,14 +245,9 @@ def _resume(log: AppendLog, meta_path: Path, meta: dict, series_log: Optional[Ap
     if not isinstance(old, dict) or not isinstance(old.get("models", {}), dict):
         raise SweepSetupError(f"cannot resume `{log.path}`: its description `{meta_path}` is not the description "
                               "of a sweep (a JSON object written by phc sweep); pass --overwrite to start over")
-    if old.get("fingerprint") != meta["fingerprint"]:
-        raise SweepSetupError(f"cannot resume `{log.path}`: it holds a different sweep (other parameters, values, "
-                              "samples, run options or outputs); use another --out, or --overwrite")
-    changed = [label for label, digest in meta["models"].items() if old.get("models", {}).get(label) not in
-               (None, digest)]
-    if changed:
-        raise SweepSetupError(f"cannot resume `{log.path}`: the model changed since its rows were computed (the "
-                              f"generated code of {', '.join(changed)} differs); use another --out, or --overwrite")
+    why = _mismatch(old, meta)
+    if why:
+        raise SweepSetupError(f"cannot resume `{log.path}`: {why}; use another --out, or --overwrite to start over")
     header, lines = log.read()
     if header != log.columns:
         raise SweepSetupError(f"cannot resume `{log.path}`: its columns are not this sweep's; use --overwrite")
@@ -234,6 +260,12 @@ def _resume(log: AppendLog, meta_path: Path, meta: dict, series_log: Optional[Ap
             continue
         if 0 <= row["point"] < meta["points"]:
             rows[row["point"]] = row
+    retried = 0
+    if retry_failed:
+        failed = [i for i, r in rows.items() if not r["success"]]
+        for i in failed:
+            del rows[i]
+        retried = len(failed)
     log.rewrite([[r.get(c, "") for c in log.columns] for r in rows.values()])  # drops a torn line
     if series_log is not None:
         if series_log.path.exists():
@@ -241,7 +273,38 @@ def _resume(log: AppendLog, meta_path: Path, meta: dict, series_log: Optional[Ap
             series_log.rewrite([s for s in kept if s and s[0].isascii() and s[0].isdigit() and int(s[0]) in rows])
         else:
             series_log.create()
-    return rows
+    return rows, retried
+
+
+def _mismatch(old: dict, new: dict) -> str:
+    """Why results described by `old` are not those of the sweep described by `new` ("" when
+    they are): another phc version, model, generated code, swept values, run options."""
+    def spec(axes) -> str:
+        if not isinstance(axes, list) or not all(isinstance(a, dict) for a in axes):
+            return "?"
+        return ", ".join(f"{a.get('name')} = `{a.get('spec')}`" for a in axes) or "no parameter"
+
+    if old.get("phc_version") != new["phc_version"]:
+        return (f"its rows were computed by phc {old.get('phc_version') or '(unknown version)'}, this is phc "
+                f"{new['phc_version']}")
+    if "model" not in old:
+        return "its description does not record the model (an older phc wrote it)"
+    if old.get("model") != new["model"]:
+        return f"it holds a sweep of model `{old.get('model')}`, not `{new['model']}`"
+    if spec(old.get("axes")) != spec(new["axes"]):
+        return f"it holds a different sweep (over {spec(old.get('axes'))}; this one: {spec(new['axes'])})"
+    for key, what in (("samples", "number of samples"), ("seed", "seed"), ("sampling", "sampling"),
+                      ("run", "run options")):
+        if old.get(key) != new[key]:
+            return f"it holds a different sweep (its {what}: {old.get(key)}; this one's: {new[key]})"
+    if old.get("fingerprint") != new["fingerprint"]:
+        return "it holds a different sweep (other points, outputs, or time series)"
+    changed = sorted(set(old.get("models", {})) | set(new["models"]))
+    changed = [label for label in changed if old.get("models", {}).get(label) != new["models"].get(label)]
+    if changed:
+        return (f"the model changed since its rows were computed (the generated code of {', '.join(changed)} "
+                "differs)")
+    return ""
 
 
 def _units(compiled, design: Design, outputs) -> dict[str, str]:
