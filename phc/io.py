@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import csv
 import os
+import signal
 import tempfile
 import threading
 from contextlib import contextmanager
@@ -155,6 +156,26 @@ def _file_mode(target: Path) -> int:
         mask = os.umask(0)
         os.umask(mask)
         return 0o666 & ~mask
+
+
+@contextmanager
+def finish_before_interrupt() -> Iterator[list]:
+    """Hold Ctrl-C (SIGINT) until the block ends, then raise ``KeyboardInterrupt``: a results
+    file being written is finished, not lost (the block's list holds the signal if one came,
+    for the caller's message). Outside the main thread, or under a handler that is not
+    Python's default one (a caller's own), the block runs as it is."""
+    held: list = []
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler):
+        yield held
+        return
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum))
+    try:
+        yield held
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if held:
+        raise KeyboardInterrupt
 
 
 @contextmanager

@@ -527,3 +527,39 @@ def test_a_bug_in_generated_code_is_an_internal_error_not_a_domain_error():
     assert is_domain_error(TypeError("can't convert complex to float"))
     assert not is_domain_error(TypeError("residual() missing 1 required positional argument: 'out'"))
     assert not is_domain_error(ValueError("operands could not be broadcast together with shapes (3,) (4,)"))
+
+
+def test_ctrl_c_while_the_results_are_written_finishes_the_file(tmp_path, monkeypatch, capsys):
+    """SIGINT arrives in the middle of writing `--out` (issue 32 item 3): the file is
+    finished and complete, the message says where it is, and the exit code is 130."""
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    original = np.savetxt
+
+    def interrupted_savetxt(fh, data, **kwargs):
+        half = len(data) // 2
+        original(fh, data[:half], **kwargs)
+        os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C half way through the file
+        original(fh, data[half:], **{k: v for k, v in kwargs.items() if k != "header"})
+
+    monkeypatch.setattr(np, "savetxt", interrupted_savetxt)
+    out = tmp_path / "r.csv"
+    code = main(["simulate", str(MSD), "--n-out", "41", "--out", str(out), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 130
+    assert "interrupted while writing the results" in err and str(out) in err
+    rows = list(csv.reader(out.read_text().splitlines()))
+    assert len(rows) == 1 + 41 and all(len(r) == len(rows[0]) for r in rows)
+    assert float(rows[-1][0]) == pytest.approx(10.0)  # the run's end, MSD's t_end
+
+
+def test_finish_before_interrupt_holds_the_signal_until_the_block_ends():
+    from phc.io import finish_before_interrupt
+
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    done = []
+    with pytest.raises(KeyboardInterrupt):
+        with finish_before_interrupt() as held:
+            os.kill(os.getpid(), signal.SIGINT)
+            done.append("after the signal")
+    assert done == ["after the signal"] and held == [signal.SIGINT]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler

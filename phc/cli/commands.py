@@ -22,6 +22,7 @@ from phc.cli.run import (_compile_or_exit, _ignored_in_file_lines, _progress_for
                          _simulation_errors, _terminate_as_interrupt, _written_options)
 from phc.errors import UsageError
 from phc.inert import inert
+from phc.io import finish_before_interrupt
 
 
 def _parse_params(items: Sequence[str]) -> dict[str, float]:
@@ -159,10 +160,17 @@ def cmd_simulate(args) -> int:
             except KeyboardInterrupt:
                 interrupted = True
                 print(inert(f"{args.file}: error estimation interrupted; the run itself is complete"), file=sys.stderr)
-    if args.out:
-        _write_results(result, args.out)
-    if args.plot:
-        _plot(result, args.plot, compiled.name)
+    # Ctrl-C while the files are written: they are finished first (phc.io.finish_before_interrupt)
+    written_anyway = False
+    for target, write in ((args.out, lambda: _write_results(result, args.out)),
+                          (args.plot, lambda: _plot(result, args.plot, compiled.name))):
+        if not target:
+            continue
+        try:
+            with finish_before_interrupt():
+                write()
+        except KeyboardInterrupt:
+            interrupted = written_anyway = True
     if args.format == "json":
         summary = result.summary()
         summary["peak_memory_bytes"] = peak_memory()
@@ -207,6 +215,10 @@ def cmd_simulate(args) -> int:
         kept = [f for f in (args.out, args.plot) if f]
         where = f"; the results so far are in {' and '.join(kept)}" if kept else " (no --out given: nothing written)"
         reached = f"t = {result.t[-1]:.6g}" if len(result.t) else "the start"
+        if written_anyway:
+            print(inert(f"phc simulate: interrupted while writing the results (run reached {reached}); the files "
+                        f"were finished first: {' and '.join(kept)}"), file=sys.stderr)
+            return EXIT_INTERRUPTED
         print(inert(f"phc simulate: interrupted at {reached}{where}"), file=sys.stderr)
         return EXIT_INTERRUPTED
     return EXIT_OK if result.success else EXIT_MODEL
