@@ -377,7 +377,7 @@ def _systems(desc: ComponentDescription, rows: ComponentRows, defaults: Optional
         vector_symbols.update(sv.flows)
         vector_symbols.update(sv.efforts)
     d_exprs = [e.xreplace(sigma) for e in (*desc.relations, *desc.laws)]
-    labels = {(which, i): label for which, i, _, _, label in desc.order if label}
+    labels = {(which, i): label for which, i, _, _, label, *_ in desc.order if label}
     d_labels = ([labels.get(("rel", i)) or f"relation {i} ({_short(e)})" for i, e in enumerate(desc.relations)]
                 + [labels.get(("law", i)) or f"law {i} ({_short(e)})" for i, e in enumerate(desc.laws)])
     d_parts = []
