@@ -449,9 +449,6 @@ STILL_HAND_WRITTEN = {
     "moving_beam": "the moving beam's rows mix the chord frame's nonlinear rows (kinematics, ṗ_t, the "
                    "modulation ω∫p_b) with its fields' sparse blocks, and its description binds the frame's "
                    "storage as scalar pairs: they are written directly and compared when compiling",
-    "string (modal truncation)": "a modal truncation's rows are over the modal states z, its description over "
-                                 "co-energy multipliers λ = z that no relation solves for: written directly "
-                                 "and compared when compiling",
 }
 """The cases (ROW_CASES) whose rows are not derived yet (issue 31 item 1), and why; so
 are those of a ``pde1d`` whose `D` couples two variables (:func:`phc.library.pde1d.pde1d_rows`)."""

@@ -31,9 +31,10 @@ a pH system in kernel form, storage ``f = ẋ``, ``e = ∂H/∂x = Qx = Mλ`` ov
 coefficients λ, ``M f = Jλ − Rλ − B_∂ e_∂`` with J the skew interconnection and R the
 damping (as resistive pairs), ``f_∂ = B_∂ᵀλ``. Strings, beams and ``pde1d`` write it
 field by field with λ their co-energy variables (:func:`_describe_fields`), and their
-rows are derived from it (:func:`phc.library.dirac.emit_sparse`); the moving beam and
-modal truncations write their rows directly, and :mod:`phc.checks.rows` compares them
-with the description whenever they are compiled.
+rows are derived from it (:func:`phc.library.dirac.emit_sparse`), as are those of their
+modal truncations (:func:`phc.library.modal._describe_reduced`); the moving beam writes its
+rows directly, and :mod:`phc.checks.rows` compares them with the description whenever it
+is compiled.
 
 Effects: `damping`; `modes: k` hands the same fields to :mod:`phc.library.modal`
 (structure-preserving modal truncation); the Timoshenko beam's `shear` and
@@ -435,8 +436,8 @@ def _lower_fields(b, ctx, name, spec, path, mesh, span, spaces_a, spaces_b, coup
                   boundary=None, kelvin_voigt=False, derive=False):
     """Full or modally truncated (effect `modes`) lowering of fields ``{local: (space, coefficient)}``;
     returns a :class:`FullFields` or :class:`~phc.library.modal.ReducedFields`. `derive`:
-    the full discretization's rows are derived from its description (a modal truncation
-    writes its rows)."""
+    the rows are derived from the description once the ports are added (the moving beam,
+    which adds more to its fields, writes its rows)."""
     k = modes_of(spec)
     if k is not None and any(c is None for _, c in (*spaces_a.values(), *spaces_b.values())):
         b.error("PHC-E144", f"effect `modes` of `{name}` needs every field to store energy; turn `shear` and "
@@ -448,7 +449,7 @@ def _lower_fields(b, ctx, name, spec, path, mesh, span, spaces_a, spaces_b, coup
 
         register(b, name, spec, mesh, None)  # modal coordinates: initial fields are refused, per dof stays
         return lower_modal(b, ctx, name, spec, path, mesh, spaces_a, spaces_b, couplings, skew, ports, order, k,
-                           boundary=boundary, kelvin_voigt=kelvin_voigt)
+                           boundary=boundary, kelvin_voigt=kelvin_voigt, derive=derive)
     fields_a = {l: (_Field(b, name, l, s, span, c is not None), c) for l, (s, c) in spaces_a.items()}
     fields_b = {l: (_Field(b, name, l, s, span, c is not None), c) for l, (s, c) in spaces_b.items()}
     return _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, couplings, skew, ports, order,

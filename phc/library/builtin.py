@@ -14,7 +14,7 @@ from functools import partial
 
 from phc import viz
 from phc.library import lumped
-from phc.library.beams import lower_euler_bernoulli, lower_string, lower_timoshenko, modes_of
+from phc.library.beams import lower_euler_bernoulli, lower_string, lower_timoshenko
 from phc.library.linear import lower_linear_phs
 from phc.library.moving import lower_crank_wheel, lower_moving_beam
 from phc.library.pde1d import lower_pde1d, pde1d_rows
@@ -34,12 +34,6 @@ def _lumped(name, spec, lower, domain, units, sign_role=None, state_reads=NO_STA
     return ComponentType(name=name, spec=spec, lower=lower, default_domain=domain, units=units, cost=ASSEMBLED,
                          spatial_order=None, initial_fields=NO_FIELDS, sign_role=sign_role,
                          state_reads=state_reads, drawing=drawing, rows=DERIVED)
-
-
-def field_rows(spec) -> str:
-    """A string or beam has its rows derived from its description; a modal truncation
-    (effect `modes`) writes them (compared with its description when compiling)."""
-    return HAND_WRITTEN if modes_of(spec) is not None else DERIVED
 
 
 def _element(name, spec, lower, domain, field, num, den, meaning, storage=None):
@@ -113,7 +107,7 @@ BUILTINS = (
             "p": "momentum density p(ξ)",
             "eps": "strain ε(ξ) = ∂w/∂ξ",
         }, pin_traces={"velocity": _VALUE, "p": _VALUE}),
-        sign_role=None, state_reads=NO_STATE_READS, drawing=None, rows=field_rows),
+        sign_role=None, state_reads=NO_STATE_READS, drawing=None, rows=DERIVED),
     ComponentType(
         name="timoshenko_beam", spec=c.TimoshenkoBeamSpec, lower=lower_timoshenko, default_domain=None,
         units=Units.fixed({"rho": ("kg/m", "a mass per length"), "I_rho": ("kg*m", "a rotary inertia per length"),
@@ -130,7 +124,7 @@ BUILTINS = (
             "gamma": "shear strain γ = ∂w/∂ξ − φ", "theta": "bending strain θ = ∂φ/∂ξ",
         }, pin_traces={"velocity": _VALUE, "p": _VALUE, "angular_velocity": (("a_rot", "a", 0), ("b_rot", "b", 0)),
                        "M": (("a_rot", "a", 0), ("b_rot", "b", 0))}),
-        sign_role=None, state_reads=NO_STATE_READS, drawing=None, rows=field_rows),
+        sign_role=None, state_reads=NO_STATE_READS, drawing=None, rows=DERIVED),
     ComponentType(
         name="euler_bernoulli_beam", spec=c.EulerBernoulliBeamSpec, lower=lower_euler_bernoulli, default_domain=None,
         units=Units.fixed({"rhoA": ("kg/m", "a mass per length"), "EI": ("N*m^2", "a bending stiffness"),
@@ -142,7 +136,7 @@ BUILTINS = (
             "p": "momentum density p(ξ)",
             "kappa": "curvature κ(ξ)",
         }, pin_traces={"velocity": _VALUE + (("a_rot", "a", 1), ("b_rot", "b", 1)), "p": _VALUE}),
-        sign_role=None, state_reads=NO_STATE_READS, drawing=None, rows=field_rows),
+        sign_role=None, state_reads=NO_STATE_READS, drawing=None, rows=DERIVED),
     ComponentType(
         name="pde1d", spec=c.Pde1dSpec, lower=lower_pde1d, default_domain=None, units=Units.absent(_MATRICES),
         cost=pde1d_cost, spatial_order=2, initial_fields=InitialFields(from_variables=True),

@@ -27,10 +27,10 @@ system, kept sparse: relations over symbol vectors (:meth:`DiracBuilder.block`, 
 :class:`~phc.dae.LinearTerm` per matrix), storage vectors ``f = ẋ``, ``e = Qx``
 (:meth:`DiracBuilder.storage_vector`) and resistive vectors with sparse laws. A block
 may be solved for a vector (``solve=``): :func:`emit_sparse` derives sparse rows from such
-a structure by composing the matrices of the vectors it eliminates (``linear_phs``). The
-discretized fields (strings, beams, ``pde1d``, the moving beam, modal truncations) still
-write their rows directly; :mod:`phc.checks.rows` compares them with their structure
-whenever they are compiled.
+a structure by composing the matrices of the vectors it eliminates (``linear_phs``,
+strings, beams, ``pde1d``, modal truncations). The moving beam (and a ``pde1d`` whose
+damping couples two variables) still writes its rows directly; :mod:`phc.checks.rows`
+compares them with its structure whenever it is compiled.
 """
 
 from __future__ import annotations
@@ -403,6 +403,7 @@ def emit_sparse(b, desc: ComponentDescription) -> None:
     eliminated = {x for vector in values for x in vector} | set(desc.internal)
     for which, i, solve, kind, label, *rest in desc.order:
         expr = (desc.relations if which == "rel" else desc.laws)[i]
+        expr = expr.xreplace(_scalar_values(values, expr.free_symbols))
         if expr.free_symbols & eliminated or solve in eliminated:
             raise ValueError(f"{desc.component}: relation {label or i} of a sparse description uses an "
                              "eliminated symbol")
@@ -411,6 +412,28 @@ def emit_sparse(b, desc: ComponentDescription) -> None:
                            or desc.span, derived=True)
         else:
             b.define(solve, solve_for(expr, solve), derived=True)
+
+
+def _scalar_values(values: dict, symbols: set) -> dict:
+    """The eliminated `symbols` as sympy expressions of what remains: a storage vector's
+    flows their rates, a vector solved as a plain copy of another (``λ = z``) that one's
+    symbols, any other its row of the composed terms."""
+    out = {}
+    for vector, (terms, extras, rename) in values.items():
+        hit = [k for k, s in enumerate(vector) if s in symbols]
+        if not hit:
+            continue
+        if rename is not None:
+            out.update({vector[k]: rename[k] for k in hit})
+            continue
+        terms, extras = _substitute(terms, extras, values)
+        if (len(terms) == 1 and not extras and terms[0].coeff is sp.S.One and not terms[0].derivative
+                and _is_identity(terms[0].matrix)):
+            out.update({vector[k]: terms[0].symbols[k] for k in hit})
+            continue
+        for k in hit:
+            out[vector[k]] = _row_expr(terms, k) + sum((e for i, e in extras if i == k), sp.Integer(0))
+    return out
 
 
 def _variables(b):

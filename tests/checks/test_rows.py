@@ -6,7 +6,7 @@ projection of its structure onto its ports (what the Dirac certificate works wit
 complete description — the semi-discrete pH system in kernel form, kept sparse — and
 the rows check compares the two at sampled states, whether the rows were derived from
 the description (:func:`phc.library.dirac.emit_sparse`: strings, beams, `pde1d`,
-`linear_phs`) or written directly (modal truncations, the moving beam):
+modal truncations, `linear_phs`) or written directly (the moving beam):
 
 * honest rows match, for every such component type and variant (effects off, damping,
   modal truncation, flow-in ports, the moving frame), in the shipped models and inline
