@@ -59,7 +59,8 @@ ROWS = ("derived", "hand-written")
 """Where a type's rows come from: ``derived`` — :func:`phc.library.dirac.emit` derives every
 row from the component's description, so the compiled rows and the certified structure are
 one thing (sparse rows too, :func:`phc.library.dirac.emit_sparse`); ``hand-written`` — the
-lowerer writes (some of) its rows itself (the moving beam), and :func:`phc.compile_model`
+lowerer writes (some of) its rows itself (a ``pde1d`` whose damping couples two
+variables, a type registered with its own rows), and :func:`phc.compile_model`
 compares them with the
 description (:func:`phc.checks.rows.check_hand_written`). The elaborate pass also records
 what each lowerer actually did (:attr:`phc.dae.ComponentRows.derived`); a component whose

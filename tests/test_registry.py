@@ -350,15 +350,17 @@ class FlipOneRow:
 
     MODES = ("linear", "equation", "define")
 
-    def __init__(self, lowerer, mode):
+    def __init__(self, lowerer, mode, derived_too=False):
         self.lowerer, self.mode, self.flipped = lowerer, mode, []
+        self.derived_too = derived_too  # flip a derived row too (a type declared hand-written)
 
     def __call__(self, b, *args, **kwargs):
         original = (b.add_equation, b.define, b.add_linear_rows)
         done = []
 
         def add_equation(expr, component, kind, label, span=None, *, derived=False):
-            flipped = None if done or derived or self.mode != "equation" else _flip_first_term(expr)
+            flipped = (None if done or (derived and not self.derived_too) or self.mode != "equation"
+                       else _flip_first_term(expr))
             if flipped is not None:
                 done.append(f"equation {label}")
                 expr = flipped
@@ -445,13 +447,10 @@ def test_every_types_rows_are_derived_from_its_description_or_compared_with_it_w
     _located_e452(err.value, names[0], kind, path)
 
 
-STILL_HAND_WRITTEN = {
-    "moving_beam": "the moving beam's rows mix the chord frame's nonlinear rows (kinematics, ṗ_t, the "
-                   "modulation ω∫p_b) with its fields' sparse blocks, and its description binds the frame's "
-                   "storage as scalar pairs: they are written directly and compared when compiling",
-}
-"""The cases (ROW_CASES) whose rows are not derived yet (issue 31 item 1), and why; so
-are those of a ``pde1d`` whose `D` couples two variables (:func:`phc.library.pde1d.pde1d_rows`)."""
+STILL_HAND_WRITTEN: dict[str, str] = {}
+"""The cases (ROW_CASES) whose rows are not derived yet (issue 31 item 1), with why: none.
+A ``pde1d`` whose `D` couples two variables writes its rows
+(:func:`phc.library.pde1d.pde1d_rows`; tested below)."""
 
 
 @pytest.mark.parametrize("case", sorted(ROW_CASES))
@@ -491,7 +490,7 @@ def test_every_registry_entry_has_a_rows_case():
     assert set(STILL_HAND_WRITTEN) <= set(ROW_CASES)
 
 
-def test_a_pde1d_whose_damping_couples_two_variables_writes_its_rows(tmp_path):
+def test_a_pde1d_whose_damping_couples_two_variables_writes_its_rows(tmp_path, monkeypatch):
     """An off-diagonal entry of `D` is a dissipation between two variables, not a resistive
     pair of one field: such a ``pde1d`` writes its rows, its entry says so, and
     compile_model compares them with its description."""
@@ -507,6 +506,13 @@ def test_a_pde1d_whose_damping_couples_two_variables_writes_its_rows(tmp_path):
     assert registry.get("pde1d").rows_of(top.specs[name]) == "hand-written"
     assert not next(r for r in top.rows if r.component == name).derived
     assert name in hand_written(compiled.dae)
+    for mode in ("linear", "define"):  # a flipped row is refused when compiling, located at the component
+        double = FlipOneRow(registry.get("pde1d").lower, mode)
+        monkeypatch.setitem(LOWERERS, "pde1d", double)
+        with pytest.raises(ModelError) as err:
+            phc.compile_model(path, backend="numpy")
+        assert double.flipped
+        _located_e452(err.value, name, "pde1d", path)
 
 
 def test_a_large_moving_beam_is_compared_on_a_coarse_mesh(tmp_path, monkeypatch):
@@ -521,7 +527,11 @@ def test_a_large_moving_beam_is_compared_on_a_coarse_mesh(tmp_path, monkeypatch)
     path.write_text(text.replace("    elements: 8\n", "    elements: 24\n"))
     honest = phc.compile_model(path, backend="numpy")
     assert not [d for d in honest.diagnostics if d.code == "PHC-W452"]
-    monkeypatch.setitem(LOWERERS, "moving_beam", FlipOneRow(registry.get("moving_beam").lower, "equation"))
+    # the moving beam derives its rows: as a type that writes them (declared so, one row
+    # flipped as a faulty lowerer would), it is compared when compiling
+    entry = registry.get("moving_beam")
+    monkeypatch.setitem(registry.COMPONENT_TYPES, "moving_beam", dataclasses.replace(
+        entry, rows="hand-written", lower=FlipOneRow(entry.lower, "equation", derived_too=True)))
     with pytest.raises(ModelError) as err:
         phc.compile_model(path, backend="numpy")
     diag = _located_e452(err.value, "beam", "moving_beam", path)

@@ -32,9 +32,8 @@ coefficients λ, ``M f = Jλ − Rλ − B_∂ e_∂`` with J the skew interconn
 damping (as resistive pairs), ``f_∂ = B_∂ᵀλ``. Strings, beams and ``pde1d`` write it
 field by field with λ their co-energy variables (:func:`_describe_fields`), and their
 rows are derived from it (:func:`phc.library.dirac.emit_sparse`), as are those of their
-modal truncations (:func:`phc.library.modal._describe_reduced`); the moving beam writes its
-rows directly, and :mod:`phc.checks.rows` compares them with the description whenever it
-is compiled.
+modal truncations (:func:`phc.library.modal._describe_reduced`) and of the moving beam,
+which adds its chord frame to the same description (:mod:`phc.library.moving`).
 
 Effects: `damping`; `modes: k` hands the same fields to :mod:`phc.library.modal`
 (structure-preserving modal truncation); the Timoshenko beam's `shear` and
@@ -242,9 +241,10 @@ def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, coupl
     rows ``+∫ c ∂^Nφ_i ∂^Nφ_j e_j``) instead of on the velocity: rigid motion is not damped.
 
     derive: the rows are derived from the complete description written field by field
-    (:func:`_describe_fields`), once the caller has added every boundary coupling to it
-    (:meth:`FullFields.emit`; :func:`_boundary_ports` does it for the ports it adds);
-    otherwise (the moving beam) they are written directly as sparse blocks, and the
+    (:func:`_describe_fields`), once every boundary coupling is added to it
+    (:func:`_boundary_ports` emits them for the ports it adds; a caller that adds its own
+    ports, ``pde1d`` and the moving beam, emits them itself); otherwise (a ``pde1d`` whose
+    damping couples two variables) they are written directly as sparse blocks, and the
     complete description (:func:`_describe`: ``M f_s = J λ − R λ − B_∂ e_∂`` with
     ``e_s = M λ = Qx``) is built from the same matrices, arranged as the pH system, and
     compared with the rows by :mod:`phc.checks.rows`. ``derive`` needs every dissipative
@@ -436,8 +436,7 @@ def _lower_fields(b, ctx, name, spec, path, mesh, span, spaces_a, spaces_b, coup
                   boundary=None, kelvin_voigt=False, derive=False):
     """Full or modally truncated (effect `modes`) lowering of fields ``{local: (space, coefficient)}``;
     returns a :class:`FullFields` or :class:`~phc.library.modal.ReducedFields`. `derive`:
-    the rows are derived from the description once the ports are added (the moving beam,
-    which adds more to its fields, writes its rows)."""
+    the rows are derived from the description (see :func:`_lower_partitioned`)."""
     k = modes_of(spec)
     if k is not None and any(c is None for _, c in (*spaces_a.values(), *spaces_b.values())):
         b.error("PHC-E144", f"effect `modes` of `{name}` needs every field to store energy; turn `shear` and "

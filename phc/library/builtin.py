@@ -156,7 +156,7 @@ BUILTINS = (
             "axial_velocity": "axial velocity ∂u/∂t relative to the end ξ = 0 (effect `axial`), zero at ξ = 0",
             "eps": "axial strain ε(ξ) (effect `axial`)",
         }),
-        sign_role=None, state_reads=NO_STATE_READS, drawing=Drawing(viz.draw_moving_beam), rows=HAND_WRITTEN),
+        sign_role=None, state_reads=NO_STATE_READS, drawing=Drawing(viz.draw_moving_beam), rows=DERIVED),
     ComponentType(
         name="crank_wheel", spec=c.CrankWheelSpec, lower=lower_crank_wheel, default_domain=None,
         units=Units.fixed({"radius": _LENGTH, "inertia": ("kg*m^2", "a moment of inertia"),

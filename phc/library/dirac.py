@@ -28,9 +28,11 @@ system, kept sparse: relations over symbol vectors (:meth:`DiracBuilder.block`, 
 (:meth:`DiracBuilder.storage_vector`) and resistive vectors with sparse laws. A block
 may be solved for a vector (``solve=``): :func:`emit_sparse` derives sparse rows from such
 a structure by composing the matrices of the vectors it eliminates (``linear_phs``,
-strings, beams, ``pde1d``, modal truncations). The moving beam (and a ``pde1d`` whose
-damping couples two variables) still writes its rows directly; :mod:`phc.checks.rows`
-compares them with its structure whenever it is compiled.
+strings, beams, ``pde1d``, modal truncations, the moving beam, whose scalar storage and
+relations — the chord frame's — are emitted as the scalar ones are). Only a ``pde1d``
+whose damping couples two variables writes its rows directly
+(:func:`phc.library.pde1d.pde1d_rows`); :mod:`phc.checks.rows` compares them with its
+structure whenever it is compiled.
 """
 
 from __future__ import annotations
@@ -347,9 +349,9 @@ def emit_sparse(b, desc: ComponentDescription) -> None:
     port variables, which assembly may substitute, and its sympy parts (boundary
     couplings) added to the rows as sympy expressions — unless it vanishes identically
     (:func:`_vanishes`). Scalar relations (over the model's own variables and the ports)
-    come last: a definition where solved for a symbol, a row otherwise."""
-    if desc.storage:
-        raise ValueError(f"{desc.component}: scalar storage in a sparse description is not emitted")
+    come last: a definition where solved for a symbol, a row otherwise; scalar storage pairs
+    (a moving frame's) are replaced by ``(ẋ, ∂H/∂x)`` wherever they appear."""
+    sigma = {**{st.flow: st.rate for st in desc.storage}, **{st.effort: st.gradient for st in desc.storage}}
     ports = {x for idx, _ in desc.ports.values() for i in idx for x in (desc.flows[i], desc.efforts[i])}
     values: dict = {}
     for sv in desc.storage_vectors:
@@ -375,11 +377,17 @@ def emit_sparse(b, desc: ComponentDescription) -> None:
             raise ValueError(f"{desc.component}: block {blk.label} solves for variables of the model")
         else:
             values[tuple(blk.solve)] = (terms, extras, None)
+    def scalar(expr):
+        """A sympy part with scalar storage pairs and eliminated vectors replaced."""
+        expr = expr.xreplace(sigma) if sigma else expr
+        known = _scalar_values(values, expr.free_symbols)
+        return expr.xreplace(known) if known else expr
+
     for blk in residual:
         terms, extras = _substitute(blk.terms, blk.extra, values)
         if _vanishes(terms, extras):
             continue
-        sparse, coupling = [], list(extras)
+        sparse, coupling = [], [(i, scalar(e)) for i, e in extras]
         for t in terms:
             if not set(t.symbols) & ports:
                 sparse.append(t)
@@ -397,13 +405,13 @@ def emit_sparse(b, desc: ComponentDescription) -> None:
         if any(set(t.symbols) & ports for t in terms):
             raise ValueError(f"{desc.component}: a port variable defined through another port variable")
         for k, sym in enumerate(vector):
-            b.define(sym, _row_expr(terms, k) + sum((e for i, e in extras if i == k), sp.Integer(0)),
+            b.define(sym, _row_expr(terms, k) + sum((scalar(e) for i, e in extras if i == k), sp.Integer(0)),
                      derived=True)
-    # scalar relations and laws (a boundary port's flow, a trace of the co-energies)
+    # scalar relations and laws (a boundary port's flow, a trace of the co-energies, a
+    # moving frame's kinematics), with scalar storage pairs replaced by (ẋ, ∂H/∂x)
     eliminated = {x for vector in values for x in vector} | set(desc.internal)
     for which, i, solve, kind, label, *rest in desc.order:
-        expr = (desc.relations if which == "rel" else desc.laws)[i]
-        expr = expr.xreplace(_scalar_values(values, expr.free_symbols))
+        expr = scalar((desc.relations if which == "rel" else desc.laws)[i])
         if expr.free_symbols & eliminated or solve in eliminated:
             raise ValueError(f"{desc.component}: relation {label or i} of a sparse description uses an "
                              "eliminated symbol")

@@ -46,10 +46,8 @@ parameters (``K = (1/s) M Q̂⁻¹ M``); the basis itself is computed at the def
 parameter values — at other values the projection is still structure-preserving, only no
 longer exactly modal.
 
-The rows of a string or beam's truncation are derived from its description
-(:func:`_describe_reduced`, :func:`phc.library.dirac.emit_sparse`); the moving beam's,
-which it extends with the chord frame's rows, are written directly and compared with
-the description when compiling.
+The rows of a truncation are derived from its description (:func:`_describe_reduced`,
+:func:`phc.library.dirac.emit_sparse`).
 """
 
 from __future__ import annotations
@@ -175,7 +173,8 @@ def lower_modal(b, ctx, name, spec, path, mesh, fields_a, fields_b, couplings, s
     ``{local: (space, coefficient)}``; `boundary` lists extra trace DOFs ``(a_local, end,
     derivative)`` when the caller adds the ports itself). Returns a :class:`ReducedFields`.
     `derive`: the rows are derived from the description (:func:`_describe_reduced`) once
-    the ports are added (the moving beam, which adds more, writes its rows)."""
+    the ports are added (by :func:`~phc.library.beams._boundary_ports`, or by a caller that
+    adds its own)."""
     from phc.library.beams import _boundary_ports, _describe, _end_dof
     from phc.library.dirac import emit
 

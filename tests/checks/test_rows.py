@@ -5,8 +5,8 @@ that are sparse matrix blocks plus sympy couplings. Each registers, besides the
 projection of its structure onto its ports (what the Dirac certificate works with), its
 complete description — the semi-discrete pH system in kernel form, kept sparse — and
 the rows check compares the two at sampled states, whether the rows were derived from
-the description (:func:`phc.library.dirac.emit_sparse`: strings, beams, `pde1d`,
-modal truncations, `linear_phs`) or written directly (the moving beam):
+the description (:func:`phc.library.dirac.emit_sparse`: every built-in type) or written
+directly (a `pde1d` whose damping couples two variables):
 
 * honest rows match, for every such component type and variant (effects off, damping,
   modal truncation, flow-in ports, the moving frame), in the shipped models and inline
