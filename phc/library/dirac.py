@@ -268,17 +268,14 @@ def _times(a, b):
     return a * b
 
 
-def _product(A, B) -> sps.csr_matrix:
-    """A @ B as scipy computes it (no stored zeros); an identity factor is skipped, which
-    gives the same entries (each a single product with 1.0)."""
+def _product(A, B):
+    """A @ B; an identity factor (a vector the description names twice, ``f_R = λ``) is
+    skipped: the other matrix itself, as the rows would use it."""
     if _is_identity(B):
-        out = sps.csr_matrix(A, copy=True)
-    elif _is_identity(A):
-        out = sps.csr_matrix(B, copy=True)
-    else:
-        return (A @ B).tocsr()
-    out.eliminate_zeros()
-    return out
+        return A
+    if _is_identity(A):
+        return B
+    return (A @ B).tocsr()
 
 
 def _substitute(terms, extras, values: dict, depth: int = 0):
@@ -357,6 +354,7 @@ def emit_sparse(b, desc: ComponentDescription) -> None:
     for sv in desc.storage_vectors:
         values[tuple(sv.flows)] = ((), (), tuple(sv.states))
         values[tuple(sv.efforts)] = (tuple(sv.gradient), (), None)
+        sigma.update(zip(sv.flows, sv.rates))  # in sympy parts: the rates themselves
     residual, definitions = [], []
     for blk in desc.blocks:
         if blk.solve is None:
@@ -377,6 +375,7 @@ def emit_sparse(b, desc: ComponentDescription) -> None:
             raise ValueError(f"{desc.component}: block {blk.label} solves for variables of the model")
         else:
             values[tuple(blk.solve)] = (terms, extras, None)
+
     def scalar(expr):
         """A sympy part with scalar storage pairs and eliminated vectors replaced."""
         expr = expr.xreplace(sigma) if sigma else expr
@@ -423,17 +422,16 @@ def emit_sparse(b, desc: ComponentDescription) -> None:
 
 
 def _scalar_values(values: dict, symbols: set) -> dict:
-    """The eliminated `symbols` as sympy expressions of what remains: a storage vector's
-    flows their rates, a vector solved as a plain copy of another (``λ = z``) that one's
-    symbols, any other its row of the composed terms."""
+    """The eliminated `symbols` as sympy expressions of what remains: a vector solved as a
+    plain copy of another (``λ = z``) that one's symbols, any other its row of the composed
+    terms (a storage vector's flows are left to the caller: their rates)."""
     out = {}
     for vector, (terms, extras, rename) in values.items():
         hit = [k for k, s in enumerate(vector) if s in symbols]
         if not hit:
             continue
         if rename is not None:
-            out.update({vector[k]: rename[k] for k in hit})
-            continue
+            continue  # a storage vector's flows: their rates (emit_sparse's sigma)
         terms, extras = _substitute(terms, extras, values)
         if (len(terms) == 1 and not extras and terms[0].coeff is sp.S.One and not terms[0].derivative
                 and _is_identity(terms[0].matrix)):
