@@ -372,13 +372,14 @@ def _linear_description(E, J, R, Q, B):
     return d.describe(), x, dx, u, y
 
 
-def _residual(recorded, values):
-    """The emitted rows at `values` (symbol -> number)."""
+def _residual(recorded, values, rates=None):
+    """The emitted rows at `values` (symbol -> number); a term over rates reads the rate
+    of each state (`rates`: state -> its rate symbol)."""
     out = np.zeros(sum(n for _, n, _ in recorded.blocks))
     start = 0
     for _, n, terms in recorded.blocks:
         for t in terms:
-            v = np.array([values[s] for s in t.symbols])
+            v = np.array([values[rates[s] if t.derivative else s] for s in t.symbols])
             out[start:start + n] += float(t.coeff) * (t.matrix @ v)
         start += n
     for row, expr in recorded.extra:
@@ -407,7 +408,7 @@ def test_sparse_rows_are_derived_from_the_description():
         xv, dxv, uv = rng.normal(size=n), rng.normal(size=n), float(rng.normal())
         values = {**dict(zip(x, xv)), **dict(zip(dx, dxv)), u: uv}
         expected = E @ dxv - (J - R) @ Q @ xv + B[:, 0] * uv
-        assert np.allclose(_residual(recorded, values), expected, rtol=1e-13, atol=1e-13)
+        assert np.allclose(_residual(recorded, values, dict(zip(x, dx))), expected, rtol=1e-13, atol=1e-13)
         assert float(recorded.definitions[y].xreplace(values)) == pytest.approx(float(B[:, 0] @ Q @ xv), rel=1e-13)
 
 
