@@ -149,6 +149,10 @@ class SparseRelations:
     terms: tuple[LinearTerm, ...]
     extra: tuple[tuple[int, sp.Expr], ...] = ()
     law: bool = False
+    solve: Optional[tuple[sp.Symbol, ...]] = None
+    """The vector of symbols these relations are solved for (it enters as the identity,
+    once): :func:`phc.library.dirac.emit` eliminates it (an internal vector) or defines it
+    (port variables); None: the relations are residual rows."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -207,7 +211,12 @@ class ComponentDescription:
     complete: bool = False
     order: tuple = ()
     """How the rows are derived (:func:`phc.library.dirac.emit`): ``(relation or law,
-    index, symbol solved for or None, row kind, row label)`` in declaration order."""
+    index, symbol solved for or None, row kind, row label, row span or None)`` in
+    declaration order."""
+    internal: tuple[sp.Symbol, ...] = ()
+    """The flows and efforts of the internal pairs (storage, resistive, auxiliary ones that
+    :func:`phc.library.dirac.emit` eliminates); the others are port variables or variables
+    of the model (a kernel-form ``phs``'s resistive ports)."""
     blocks: tuple[SparseRelations, ...] = ()
     """Relations and laws kept as sparse matrices over symbol vectors (they belong to the
     description as `relations` and `laws` do)."""

@@ -211,13 +211,16 @@ class Recorder(Reporter):
         expr = expr if isinstance(expr, sp.Basic) else sp.Integer(expr)
         self.equations.append(Equation(expr, f"{component}.{label}", kind, component, span))
 
-    def add_linear_rows(self, component: str, label: str, n_rows: int, terms, span=None) -> list[int]:
+    def add_linear_rows(self, component: str, label: str, n_rows: int, terms, span=None, *,
+                        derived: bool = False) -> list[int]:
         """Append `n_rows` rows whose residual is ``Σ terms`` (sparse) plus a sympy part (0 for now).
 
         Returns the row indices (within this component's rows) so that the caller can add
         sympy couplings with :meth:`add_to_row` (boundary ports of a discretized PDE).
+        `derived`: as for :meth:`add_equation` (:func:`phc.library.dirac.emit_sparse`).
         """
-        self.hand_written.add(component)  # sparse blocks are written directly (emit derives no blocks)
+        if not derived:
+            self.hand_written.add(component)
         start = len(self.equations)
         for i in range(n_rows):
             self.equations.append(Equation(sp.Integer(0), f"{component}.{label}[{i}]", "linear", component, span))
@@ -225,10 +228,11 @@ class Recorder(Reporter):
         self.linear_blocks.append(LinearBlock(f"{component}.{label}", component, rows, tuple(terms), span))
         return list(rows)
 
-    def add_to_row(self, row: int, expr: sp.Expr) -> None:
+    def add_to_row(self, row: int, expr: sp.Expr, *, derived: bool = False) -> None:
         """Add `expr` to the residual of this component's row `row` (from :meth:`add_linear_rows`)."""
         eq = self.equations[row]
-        self.hand_written.add(eq.component)
+        if not derived:
+            self.hand_written.add(eq.component)
         self.equations[row] = Equation(eq.expr + expr, eq.label, eq.kind, eq.component, eq.span)
 
     def define(self, sym: sp.Symbol, expr: sp.Expr, *, derived: bool = False) -> None:

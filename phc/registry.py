@@ -20,7 +20,7 @@ implicit_effects   effects a user-defined entry of the type has without declarin
 rows               where its rows come from (:data:`ROWS`): ``"derived"`` from its
                    description, or ``"hand-written"`` by its lowerer and then compared
                    with the description by every compilation (:mod:`phc.checks.rows`);
-                   a function of the spec when the form decides (``phs``)
+                   a function of the spec when the form decides
 =================  ======================================================================
 
 Every field but `implicit_effects` (empty unless given) is a required keyword: an entry that forgets one is a ``TypeError`` when it
@@ -60,8 +60,10 @@ __all__ = ["ASSEMBLED", "COMPONENT_TYPES", "ROWS", "ComponentType", "Drawing", "
 ROWS = ("derived", "hand-written")
 """Where a type's rows come from: ``derived`` — :func:`phc.library.dirac.emit` derives every
 row from the component's description, so the compiled rows and the certified structure are
-one thing; ``hand-written`` — the lowerer writes (some of) its rows itself (sparse blocks,
-a rigid body's constraint rows), and :func:`phc.compile_model` compares them with the
+one thing (sparse rows too, :func:`phc.library.dirac.emit_sparse`); ``hand-written`` — the
+lowerer writes (some of) its rows itself (a ``pde1d`` whose damping couples two
+variables, a type registered with its own rows), and :func:`phc.compile_model`
+compares them with the
 description (:func:`phc.checks.rows.check_hand_written`). The elaborate pass also records
 what each lowerer actually did (:attr:`phc.dae.ComponentRows.derived`); a component whose
 lowerer wrote a row itself is compared whatever its entry declares."""

@@ -462,7 +462,7 @@ def _systems(desc: ComponentDescription, rows: ComponentRows, defaults: Optional
         vector_symbols.update(sv.flows)
         vector_symbols.update(sv.efforts)
     d_exprs = [e.xreplace(sigma) for e in (*desc.relations, *desc.laws)]
-    labels = {(which, i): label for which, i, _, _, label in desc.order if label}
+    labels = {(which, i): label for which, i, _, _, label, *_ in desc.order if label}
     d_labels = ([labels.get(("rel", i)) or f"relation {i} ({_short(e)})" for i, e in enumerate(desc.relations)]
                 + [labels.get(("law", i)) or f"law {i} ({_short(e)})" for i, e in enumerate(desc.laws)])
     d_parts = []
@@ -755,7 +755,8 @@ def hand_written(dae: Dae) -> list[str]:
 
 
 COMPILE_MAX_UNKNOWNS = 160
-"""In every compilation, a meshed component with nonlinear rows (the moving beam) and more
+"""In every compilation, a meshed component with hand-written nonlinear rows (no built-in
+type has them since the moving beam derives its rows; a registered type may) and more
 unknowns than this is compared on a coarse mesh (:data:`COARSE_ELEMENTS`): the dense test
 of a moving beam cost about 0.5 s of CPU at 8 elements (124 unknowns) and 7 s at 16 (220
 unknowns) on a shared 2-core machine, and is refused above :data:`MAX_UNKNOWNS`."""

@@ -25,12 +25,15 @@ curvature (frequency error O(h⁴)).
 All blocks stay sparse (:class:`~phc.dae.LinearTerm`); constant coefficients stay
 run-time parameters, coefficients that vary with ``xi`` are evaluated at compile time.
 
-The rows are written directly. Besides the projection onto its ports (what the Dirac
-certificate uses), each component registers its complete description (:class:`Structure`):
-the same semi-discrete system as a pH system in kernel form, storage ``f = ẋ``,
-``e = ∂H/∂x = Qx = Mλ`` over the co-energy coefficients λ, ``M f = Jλ − Rλ − B_∂ e_∂`` with J
-the skew interconnection and R the damping, ``f_∂ = B_∂ᵀλ`` — which :mod:`phc.checks.rows`
-compares with the rows at sampled states.
+Besides the projection onto its ports (what the Dirac certificate uses), each component
+registers its complete description (:class:`Structure`): the same semi-discrete system as
+a pH system in kernel form, storage ``f = ẋ``, ``e = ∂H/∂x = Qx = Mλ`` over the co-energy
+coefficients λ, ``M f = Jλ − Rλ − B_∂ e_∂`` with J the skew interconnection and R the
+damping (as resistive pairs), ``f_∂ = B_∂ᵀλ``. Strings, beams and ``pde1d`` write it
+field by field with λ their co-energy variables (:func:`_describe_fields`), and their
+rows are derived from it (:func:`phc.library.dirac.emit_sparse`), as are those of their
+modal truncations (:func:`phc.library.modal._describe_reduced`) and of the moving beam,
+which adds its chord frame to the same description (:mod:`phc.library.moving`).
 
 Effects: `damping`; `modes: k` hands the same fields to :mod:`phc.library.modal`
 (structure-preserving modal truncation); the Timoshenko beam's `shear` and
@@ -46,7 +49,7 @@ import sympy as sp
 
 from phc.dae import T, LinearTerm, QuadraticForm
 from phc.discretize.fem1d import DP1, H3, P0, P1, Mesh, assemble
-from phc.library.dirac import DiracBuilder
+from phc.library.dirac import DiracBuilder, emit
 
 XI = sp.Symbol("xi", real=True)
 
@@ -143,11 +146,13 @@ class Structure:
     boundary couplings and modulations are added to its relations with :meth:`load`.
     """
 
-    def __init__(self, d, lam: dict, offsets: dict, dynamics: int):
+    def __init__(self, d, lam: dict, offsets: dict, dynamics):
+        # `dynamics`: the number of the dynamics block, or (_describe_fields) of each field's own
         self.d, self.lam, self.offsets, self.dynamics = d, lam, offsets, dynamics
 
     def load(self, key, i, expr) -> None:
-        self.d.add_to(self.dynamics, self.offsets[key] + i, expr)
+        block = self.dynamics[key] if isinstance(self.dynamics, dict) else self.dynamics
+        self.d.add_to(block, self.offsets[key] + i, expr)
 
 
 def _describe(name, kind, span, keys, sizes, lam_names, storage, J, dissipation):
@@ -179,8 +184,48 @@ def _describe(name, kind, span, keys, sizes, lam_names, storage, J, dissipation)
     return Structure(d, lam, offsets, d.block("dynamics", n, dyn_terms))
 
 
+def _describe_fields(name, kind, span, fields, terms, lossy, stored):
+    """The complete description of the full discretization written field by field, from
+    which its rows are derived (:func:`phc.library.dirac.emit_sparse`): the co-energy
+    coordinates λ are the fields' co-energy variables ``e``; each stored field has storage
+    ``f_s = ẋ``, ``e_s = ∂H/∂x = Q x`` (`stored`: local -> (states, rates, mass, Q term))
+    and the relation ``M λ − e_s = 0``; each field's dynamics ``M f_s − J λ + e_R + B_∂ e_∂
+    = 0`` holds the terms of `terms` (the mass term over the rates becomes one over
+    ``f_s``), each dissipative one of `lossy` (ids of terms ``c A λ`` with A square, the
+    field's own damping) through a resistive pair ``f_R = λ``, ``e_R = c A f_R``."""
+    d = DiracBuilder(name, kind, span)
+    lam = {local: tuple(fld.e) for local, (fld, _) in fields.items()}
+    for local in fields:
+        d.multipliers.extend(lam[local])
+    storage = {local: d.storage_vector(local, x, dx, [q_term]) for local, (x, dx, _, q_term) in stored.items()}
+    dynamics = {}
+    for local, (fld, _) in fields.items():
+        n = fld.space.size
+        eye = sps.identity(n, format="csr")
+        dyn = []
+        for t in terms[local]:
+            if t.derivative:
+                dyn.append(LinearTerm(t.coeff, t.matrix, storage[local][0]))
+            elif id(t) in lossy:
+                k = len(d.resistive)
+                f_r, e_r = d.resistor_vector(f"R{k}", n)
+                d.block(f"{local}.resistive[{k}].flow", n, [LinearTerm(sp.Integer(1), eye, f_r),
+                                                             LinearTerm(sp.Integer(-1), eye, t.symbols)], solve=f_r)
+                d.block(f"{local}.resistive[{k}].law", n, [LinearTerm(sp.Integer(1), eye, e_r),
+                                                            LinearTerm(-t.coeff, t.matrix, f_r)], law=True, solve=e_r)
+                dyn.append(LinearTerm(sp.Integer(1), eye, e_r))
+            else:
+                dyn.append(t)
+        dynamics[local] = d.block(f"{local}.dynamics", n, dyn)
+    for local, (x, _, mass, _) in stored.items():
+        n = len(x)
+        d.block(f"{local}.coenergy", n, [LinearTerm(sp.Integer(1), mass, lam[local]),
+                                         LinearTerm(sp.Integer(-1), sps.identity(n, format="csr"), storage[local][1])])
+    return Structure(d, lam, {local: 0 for local in fields}, dynamics)
+
+
 def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, couplings, skew, ports, order,
-                       dissipation=(), kelvin_voigt=False):
+                       dissipation=(), kelvin_voigt=False, derive=False):
     """Assemble the partitioned mixed system; returns its :class:`FullFields`.
 
     fields_a / fields_b: {local: (_Field, coefficient of H)};
@@ -195,10 +240,15 @@ def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, coupl
     kelvin_voigt: the `damping` coefficient c acts on the strain rate (``ṗ ∋ −∂^N(c ∂^N e_p)``,
     rows ``+∫ c ∂^Nφ_i ∂^Nφ_j e_j``) instead of on the velocity: rigid motion is not damped.
 
-    The rows are written directly as sparse blocks; the complete description
-    (:func:`_describe`: ``M f_s = J λ − R λ − B_∂ e_∂`` with ``e_s = M λ = Qx``) is built from
-    the same matrices, arranged as the pH system, and compared with the rows by
-    :mod:`phc.checks.rows`.
+    derive: the rows are derived from the complete description written field by field
+    (:func:`_describe_fields`), once every boundary coupling is added to it
+    (:func:`_boundary_ports` emits them for the ports it adds; a caller that adds its own
+    ports, ``pde1d`` and the moving beam, emits them itself); otherwise (a ``pde1d`` whose
+    damping couples two variables) they are written directly as sparse blocks, and the
+    complete description (:func:`_describe`: ``M f_s = J λ − R λ − B_∂ e_∂`` with
+    ``e_s = M λ = Qx``) is built from the same matrices, arranged as the pH system, and
+    compared with the rows by :mod:`phc.checks.rows`. ``derive`` needs every dissipative
+    term to act on the co-energy of the field whose rows it enters (a square block).
     """
     span = ctx.smap.locate(path)
     fields = {**fields_a, **fields_b}
@@ -219,6 +269,7 @@ def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, coupl
         s_num = float(sign)
         lossless = (lossless + _embed(s_num * Dm, offsets[b_local], offsets[a_local], (n_all, n_all))
                     - _embed(s_num * Dm.T, offsets[a_local], offsets[b_local], (n_all, n_all)))
+    lossy = set()  # ids of the dissipative terms (resistive pairs of the derived description)
     for row_local, col_local, value in skew:
         fr, fc = fields[row_local][0], fields[col_local][0]
         A = assemble(fr.space, 0, fc.space, 0)
@@ -234,6 +285,9 @@ def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, coupl
             fr, fc = fields[row_local][0], fields[col_local][0]
             Mrc = assemble(fr.space, 0, fc.space, 0, coeff.function())
             terms[row_local].append(LinearTerm(coeff.scale(), Mrc, tuple(fc.e)))
+            if row_local != col_local and derive:
+                raise ValueError(f"{name}: an off-diagonal dissipation entry cannot be derived as a resistive pair")
+            lossy.add(id(terms[row_local][-1]))
             blocks[(row_local, col_local)] = (coeff.scale(), Mrc)
             losses.append((coeff.scale(), _embed(Mrc, offsets[row_local], offsets[col_local], (n_all, n_all))))
         # numeric factors go into the matrix: entries of D that are numbers, or one parameter
@@ -262,51 +316,65 @@ def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, coupl
         k = order if kelvin_voigt else 0
         Md = assemble(fld.space, k, fld.space, k, coeff.function())
         terms[a_local].append(LinearTerm(coeff.scale(), Md, tuple(fld.e)))
+        lossy.add(id(terms[a_local][-1]))
         b.quadratic_dissipation.append(QuadraticForm(coeff.scale(), Md, tuple(fld.e), component=name, span=span))
         losses.append((coeff.scale(), _embed(Md, offsets[a_local], offsets[a_local], (n_all, n_all))))
-    rows = {local: b.add_linear_rows(name, f"{local}.dynamics", fields[local][0].space.size, terms[local], span)
-            for local in fields}
+    rows = None if derive else {
+        local: b.add_linear_rows(name, f"{local}.dynamics", fields[local][0].space.size, terms[local], span)
+        for local in fields}
     # Constitutive rows M e − M^{H} x = 0 and the energy ½ xᵀ M^{H} x.
-    storage = {}
+    storage, stored = {}, {}
     for local, (fld, coeff) in fields.items():
         if coeff is None:
             continue  # no energy: the rows of this field are constraints, e its multiplier
         MH = assemble(fld.space, 0, fld.space, 0, coeff.function())
-        b.add_linear_rows(name, f"{local}.coenergy", fld.space.size,
-                          [LinearTerm(sp.Integer(1), mass[local], tuple(fld.e)),
-                           LinearTerm(-coeff.scale(), MH, tuple(fld.x))], span)
+        if not derive:
+            b.add_linear_rows(name, f"{local}.coenergy", fld.space.size,
+                              [LinearTerm(sp.Integer(1), mass[local], tuple(fld.e)),
+                               LinearTerm(-coeff.scale(), MH, tuple(fld.x))], span)
         b.quadratic_energy.append(QuadraticForm(coeff.scale() / 2, MH, tuple(fld.x)))
         storage[local] = (fld.x, fld.dx, [(sp.Integer(1), mass[local])], [LinearTerm(coeff.scale(), MH, tuple(fld.x))])
-    structure = _describe(name, spec.type, span, keys, sizes, [f"lambda_{k}" for k in keys], storage, lossless,
-                          losses)
+        stored[local] = (tuple(fld.x), tuple(fld.dx), mass[local], LinearTerm(coeff.scale(), MH, tuple(fld.x)))
+    if derive:
+        structure = _describe_fields(name, spec.type, span, fields, terms, lossy, stored)
+    else:
+        structure = _describe(name, spec.type, span, keys, sizes, [f"lambda_{k}" for k in keys], storage, lossless,
+                              losses)
     handle = FullFields(b, rows, fields, structure)
     from phc.initial_fields import register  # what initial fields of ξ project onto (docs/how-to/initial-fields.md)
 
     register(b, name, spec, mesh, fields)
-    _boundary_ports(b, name, span, handle, ports, "discretized PDE: skew interconnection by construction; ports "
-                    "certified through their traces")
+    described = _boundary_ports(b, name, span, handle, ports, "discretized PDE: skew interconnection by "
+                                "construction; ports certified through their traces")
+    if derive and described is not None:
+        emit(b, described)
     return handle
 
 
-def _boundary_ports(b, name, span, fields, ports, note) -> None:
+def _boundary_ports(b, name, span, fields, ports, note):
     """Boundary ports of a field (full or reduced): the flow is a trace of a co-energy, the
     effort enters the rows through the same basis function. Registers the projection of
     the structure onto the ports (the Dirac certificate's view: traces and efforts free)
-    with the complete `fields.structure` it projects."""
+    with the complete `fields.structure` it projects, and returns that complete
+    description (None without ports)."""
     d = DiracBuilder(name, "port_projection", span)
     ds = fields.structure.d
     for pname, a_local, end, derivative, domain in ports:
         port = b.add_port(name, pname, domain, 1, span=span)
         dof = _end_dof(fields.space(a_local), end, derivative)
-        b.define(port.f[0], fields.trace(a_local, dof))
+        if fields.rows is not None:  # rows written directly (otherwise derived from the description)
+            b.define(port.f[0], fields.trace(a_local, dof))
         fields.load(a_local, dof, port.e[0])
         d.port(port)  # certification: both the trace and the boundary effort are free
         d.rel(port.f[0] - d.mult(f"trace_{pname}"))
         ds.port(port)
-        ds.rel(port.f[0] - fields.d_trace(a_local, dof), label=f"{pname}.flow")
+        ds.rel(port.f[0] - fields.d_trace(a_local, dof), solve=port.f[0], label=f"{pname}.flow")
         fields.d_load(a_local, dof, port.e[0])
-    if ports:
-        d.register(b, kind="port_projection", note=note, structure=ds.describe())
+    if not ports:
+        return None
+    described = ds.describe()
+    d.register(b, kind="port_projection", note=note, structure=described)
+    return described
 
 
 class FullFields:
@@ -317,6 +385,8 @@ class FullFields:
     variables, relations of its dynamics block instead of rows)."""
 
     def __init__(self, b, rows, fields, structure: Structure):
+        # `rows`: the rows of each field, or None when they are derived from `structure` (then
+        # load and load_vector leave the rows to the description)
         self.b, self.rows, self.fields, self.structure = b, rows, fields, structure
 
     def space(self, local):
@@ -326,9 +396,12 @@ class FullFields:
         return self.fields[local][0].e[dof]
 
     def load(self, local, dof, expr) -> None:
-        self.b.add_to_row(self.rows[local][dof], expr)
+        if self.rows is not None:
+            self.b.add_to_row(self.rows[local][dof], expr)
 
     def load_vector(self, local, r, expr) -> None:
+        if self.rows is None:
+            return
         for j, rj in enumerate(r):
             if rj:
                 self.b.add_to_row(self.rows[local][j], expr * float(rj))
@@ -360,9 +433,10 @@ def modes_of(spec):
 
 
 def _lower_fields(b, ctx, name, spec, path, mesh, span, spaces_a, spaces_b, couplings, skew, ports, order,
-                  boundary=None, kelvin_voigt=False):
+                  boundary=None, kelvin_voigt=False, derive=False):
     """Full or modally truncated (effect `modes`) lowering of fields ``{local: (space, coefficient)}``;
-    returns a :class:`FullFields` or :class:`~phc.library.modal.ReducedFields`."""
+    returns a :class:`FullFields` or :class:`~phc.library.modal.ReducedFields`. `derive`:
+    the rows are derived from the description (see :func:`_lower_partitioned`)."""
     k = modes_of(spec)
     if k is not None and any(c is None for _, c in (*spaces_a.values(), *spaces_b.values())):
         b.error("PHC-E144", f"effect `modes` of `{name}` needs every field to store energy; turn `shear` and "
@@ -374,11 +448,11 @@ def _lower_fields(b, ctx, name, spec, path, mesh, span, spaces_a, spaces_b, coup
 
         register(b, name, spec, mesh, None)  # modal coordinates: initial fields are refused, per dof stays
         return lower_modal(b, ctx, name, spec, path, mesh, spaces_a, spaces_b, couplings, skew, ports, order, k,
-                           boundary=boundary, kelvin_voigt=kelvin_voigt)
+                           boundary=boundary, kelvin_voigt=kelvin_voigt, derive=derive)
     fields_a = {l: (_Field(b, name, l, s, span, c is not None), c) for l, (s, c) in spaces_a.items()}
     fields_b = {l: (_Field(b, name, l, s, span, c is not None), c) for l, (s, c) in spaces_b.items()}
     return _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, couplings, skew, ports, order,
-                              kelvin_voigt=kelvin_voigt)
+                              kelvin_voigt=kelvin_voigt, derive=derive)
 
 
 def _end_dof(space, end: str, derivative: int) -> int:
@@ -418,7 +492,7 @@ def lower_string(b, ctx, name, spec, path):
     mesh, span, c = prep
     _lower_fields(b, ctx, name, spec, path, mesh, span, {"p": (P1(mesh), _inverse(c["rho"]))},
                   {"eps": (P0(mesh), c["T"])}, [("p", "eps", 1)], [],
-                  [("a", "p", "a", 0, TRANSLATIONAL), ("b", "p", "b", 0, TRANSLATIONAL)], order=1)
+                  [("a", "p", "a", 0, TRANSLATIONAL), ("b", "p", "b", 0, TRANSLATIONAL)], order=1, derive=True)
 
 
 def lower_timoshenko(b, ctx, name, spec, path):
@@ -448,7 +522,7 @@ def lower_timoshenko(b, ctx, name, spec, path):
         [("M", "gamma", 1.0), ("gamma", "M", -1.0)],  # P0 of Example 1 (b)
         [("a", "p", "a", 0, TRANSLATIONAL), ("b", "p", "b", 0, TRANSLATIONAL),
          ("a_rot", "M", "a", 0, ROTATIONAL), ("b_rot", "M", "b", 0, ROTATIONAL)],
-        order=1)
+        order=1, derive=True)
 
 
 def lower_euler_bernoulli(b, ctx, name, spec, path):
@@ -462,7 +536,7 @@ def lower_euler_bernoulli(b, ctx, name, spec, path):
         {"kappa": (DP1(mesh), c["EI"])}, [("p", "kappa", 1)], [],
         [("a", "p", "a", 0, TRANSLATIONAL), ("b", "p", "b", 0, TRANSLATIONAL),
          ("a_rot", "p", "a", 1, ROTATIONAL), ("b_rot", "p", "b", 1, ROTATIONAL)],
-        order=2)
+        order=2, derive=True)
 
 
 def _inverse(coeff):

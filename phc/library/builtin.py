@@ -17,7 +17,7 @@ from phc.library import lumped
 from phc.library.beams import lower_euler_bernoulli, lower_string, lower_timoshenko
 from phc.library.linear import lower_linear_phs
 from phc.library.moving import lower_crank_wheel, lower_moving_beam
-from phc.library.pde1d import lower_pde1d
+from phc.library.pde1d import lower_pde1d, pde1d_rows
 from phc.library.phs import lower_phs
 from phc.library.rigid import lower_rigid
 from phc.registry import (ASSEMBLED, NO_FIELDS, NO_STATE_READS, ComponentType, Drawing, ElementUnit, InitialFields,
@@ -34,12 +34,6 @@ def _lumped(name, spec, lower, domain, units, sign_role=None, state_reads=NO_STA
     return ComponentType(name=name, spec=spec, lower=lower, default_domain=domain, units=units, cost=ASSEMBLED,
                          spatial_order=None, initial_fields=NO_FIELDS, sign_role=sign_role,
                          state_reads=state_reads, drawing=drawing, rows=DERIVED)
-
-
-def phs_rows(spec) -> str:
-    """A ``phs`` in J/R/B form has its rows derived from its description; in kernel form
-    (`relations`, `multipliers`, `resistive`) its lowerer writes them."""
-    return DERIVED if spec.J is not None else HAND_WRITTEN
 
 
 def _element(name, spec, lower, domain, field, num, den, meaning, storage=None, states=None):
@@ -61,14 +55,14 @@ _VALUE = (("a", "a", 0), ("b", "b", 0))
 BUILTINS = (
     ComponentType(name="phs", spec=c.PhsSpec, lower=lower_phs, default_domain=None,
                   units=Units.absent(_MATRICES), cost=ASSEMBLED, spatial_order=None, initial_fields=NO_FIELDS,
-                  sign_role=None, state_reads=NO_STATE_READS, drawing=None, rows=phs_rows,
+                  sign_role=None, state_reads=NO_STATE_READS, drawing=None, rows=DERIVED,
                   implicit_effects={"damping": True}),
     ComponentType(name="linear_phs", spec=c.LinearPhsSpec, lower=lower_linear_phs, default_domain=None,
                   units=Units.absent(_MATRICES), cost=ASSEMBLED, spatial_order=None, initial_fields=NO_FIELDS,
-                  sign_role=None, state_reads=NO_STATE_READS, drawing=None, rows=HAND_WRITTEN),
+                  sign_role=None, state_reads=NO_STATE_READS, drawing=None, rows=DERIVED),
     ComponentType(name="rigid", spec=c.RigidSpec, lower=lower_rigid, default_domain=None,
                   units=Units.absent(_MATRICES), cost=ASSEMBLED, spatial_order=None, initial_fields=NO_FIELDS,
-                  sign_role=None, state_reads=NO_STATE_READS, drawing=Drawing(viz.draw_rigid), rows=HAND_WRITTEN,
+                  sign_role=None, state_reads=NO_STATE_READS, drawing=Drawing(viz.draw_rigid), rows=DERIVED,
                   implicit_effects={"gravity": True, "damping": True}),
     _element("mass", c.MassSpec, partial(lumped.lower_inertia, coeff_field="m", state="p"), TRANSLATIONAL,
              "m", "e*s", "f", "effort·time/flow (a mass, or a moment of inertia)", storage="e", states={"x": "f"}),
@@ -116,7 +110,7 @@ BUILTINS = (
             "p": "momentum density p(ξ)",
             "eps": "strain ε(ξ) = ∂w/∂ξ",
         }, pin_traces={"velocity": _VALUE, "p": _VALUE}),
-        sign_role=None, state_reads=NO_STATE_READS, drawing=None, rows=HAND_WRITTEN),
+        sign_role=None, state_reads=NO_STATE_READS, drawing=None, rows=DERIVED),
     ComponentType(
         name="timoshenko_beam", spec=c.TimoshenkoBeamSpec, lower=lower_timoshenko, default_domain=None,
         units=Units.fixed({"rho": ("kg/m", "a mass per length"), "I_rho": ("kg*m", "a rotary inertia per length"),
@@ -133,7 +127,7 @@ BUILTINS = (
             "gamma": "shear strain γ = ∂w/∂ξ − φ", "theta": "bending strain θ = ∂φ/∂ξ",
         }, pin_traces={"velocity": _VALUE, "p": _VALUE, "angular_velocity": (("a_rot", "a", 0), ("b_rot", "b", 0)),
                        "M": (("a_rot", "a", 0), ("b_rot", "b", 0))}),
-        sign_role=None, state_reads=NO_STATE_READS, drawing=None, rows=HAND_WRITTEN),
+        sign_role=None, state_reads=NO_STATE_READS, drawing=None, rows=DERIVED),
     ComponentType(
         name="euler_bernoulli_beam", spec=c.EulerBernoulliBeamSpec, lower=lower_euler_bernoulli, default_domain=None,
         units=Units.fixed({"rhoA": ("kg/m", "a mass per length"), "EI": ("N*m^2", "a bending stiffness"),
@@ -145,11 +139,11 @@ BUILTINS = (
             "p": "momentum density p(ξ)",
             "kappa": "curvature κ(ξ)",
         }, pin_traces={"velocity": _VALUE + (("a_rot", "a", 1), ("b_rot", "b", 1)), "p": _VALUE}),
-        sign_role=None, state_reads=NO_STATE_READS, drawing=None, rows=HAND_WRITTEN),
+        sign_role=None, state_reads=NO_STATE_READS, drawing=None, rows=DERIVED),
     ComponentType(
         name="pde1d", spec=c.Pde1dSpec, lower=lower_pde1d, default_domain=None, units=Units.absent(_MATRICES),
         cost=pde1d_cost, spatial_order=2, initial_fields=InitialFields(from_variables=True),
-        sign_role=None, state_reads=NO_STATE_READS, drawing=None, rows=HAND_WRITTEN),
+        sign_role=None, state_reads=NO_STATE_READS, drawing=None, rows=pde1d_rows),
     ComponentType(
         name="moving_beam", spec=c.MovingBeamSpec, lower=lower_moving_beam, default_domain=None,
         units=Units.fixed({"length": _LENGTH, "rhoA": ("kg/m", "a mass per length"),
@@ -165,7 +159,7 @@ BUILTINS = (
             "axial_velocity": "axial velocity ∂u/∂t relative to the end ξ = 0 (effect `axial`), zero at ξ = 0",
             "eps": "axial strain ε(ξ) (effect `axial`)",
         }),
-        sign_role=None, state_reads=NO_STATE_READS, drawing=Drawing(viz.draw_moving_beam), rows=HAND_WRITTEN),
+        sign_role=None, state_reads=NO_STATE_READS, drawing=Drawing(viz.draw_moving_beam), rows=DERIVED),
     ComponentType(
         name="crank_wheel", spec=c.CrankWheelSpec, lower=lower_crank_wheel, default_domain=None,
         units=Units.fixed({"radius": _LENGTH, "inertia": ("kg*m^2", "a moment of inertia"),

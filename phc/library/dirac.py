@@ -14,8 +14,10 @@ one thing. A relation may name the symbol it is solved for (``solve=``): a port 
 solved for becomes an explicit definition (assembly substitutes it, alias elimination), an
 internal pair symbol is eliminated, anything else stays a residual row.
 
-Lowerers that write nonlinear rows directly (rigid bodies) bind their storage so that
-:mod:`phc.checks.rows` compares their rows with their description at sampled states.
+Rigid bodies and kernel-form ``phs`` components use the model's own multipliers (λ, μ of
+a rigid body, a ``phs``'s `multipliers`) and resistive variables in their descriptions; a
+relation carries the kind, label and place of the row derived from it (``rel(...,
+kind=, label=, span=)``).
 
 Large components whose rows are sparse matrix blocks (discretized PDEs, modal
 truncations, matrix components, the moving beam's flexible part) register the projection
@@ -23,14 +25,22 @@ of their structure onto their ports (``kind="port_projection"``: what the Dirac 
 coupling certificate works with) and, as its `structure`, the complete semi-discrete pH
 system, kept sparse: relations over symbol vectors (:meth:`DiracBuilder.block`, a
 :class:`~phc.dae.LinearTerm` per matrix), storage vectors ``f = ẋ``, ``e = Qx``
-(:meth:`DiracBuilder.storage_vector`) and resistive vectors with sparse laws. Their rows
-are written directly and compared with that structure by :mod:`phc.checks.rows`.
+(:meth:`DiracBuilder.storage_vector`) and resistive vectors with sparse laws. A block
+may be solved for a vector (``solve=``): :func:`emit_sparse` derives sparse rows from such
+a structure by composing the matrices of the vectors it eliminates (``linear_phs``,
+strings, beams, ``pde1d``, modal truncations, the moving beam, whose scalar storage and
+relations — the chord frame's — are emitted as the scalar ones are). Only a ``pde1d``
+whose damping couples two variables writes its rows directly
+(:func:`phc.library.pde1d.pde1d_rows`); :mod:`phc.checks.rows` compares them with its
+structure whenever it is compiled.
 """
 
 from __future__ import annotations
 
 from typing import Optional
 
+import numpy as np
+import scipy.sparse as sps
 import sympy as sp
 
 from phc.dae import ComponentDescription, LinearTerm, SparseRelations, Storage, StorageVector
@@ -114,15 +124,17 @@ class DiracBuilder:
         self.multipliers.extend(lam)
         return lam
 
-    def block(self, label: str, n: int, terms, law: bool = False) -> int:
+    def block(self, label: str, n: int, terms, law: bool = False, solve=None) -> int:
         """`n` relations ``Σ terms = 0`` kept sparse (each term a :class:`~phc.dae.LinearTerm`
-        over symbols of this description); returns the block's number for :meth:`add_to`."""
+        over symbols of this description); returns the block's number for :meth:`add_to`.
+        `solve`: the vector they are solved for (its term is the identity): :func:`emit`
+        eliminates it, or defines it when it is a port's flows or efforts."""
         terms = [t if isinstance(t, LinearTerm) else LinearTerm(*t) for t in terms]
         for t in terms:
             if t.derivative or t.matrix.shape != (n, len(t.symbols)):
                 raise ValueError(f"{self.component}: block {label}: a term of shape {t.matrix.shape} over "
                                  f"{len(t.symbols)} symbols in {n} relations")
-        self.blocks.append([label, n, terms, [], law])
+        self.blocks.append([label, n, terms, [], law, tuple(solve) if solve is not None else None])
         return len(self.blocks) - 1
 
     def add_to(self, block: int, i: int, expr) -> None:
@@ -142,15 +154,18 @@ class DiracBuilder:
         self.multipliers.append(lam)
         return lam
 
-    def rel(self, expr, solve: Optional[sp.Symbol] = None, kind: str = "dirac", label: str = "") -> None:
+    def rel(self, expr, solve: Optional[sp.Symbol] = None, kind: str = "dirac", label: str = "",
+            span=None) -> None:
         """A relation of the Dirac structure ``= 0`` (linear in flows, efforts, multipliers;
-        an affine part in t is a source's value)."""
-        self.order.append(("rel", len(self.relations), solve, kind, label))
+        an affine part in t is a source's value). `kind`, `label` and `span` are those of
+        the row :func:`emit` derives from it (the component's span by default)."""
+        self.order.append(("rel", len(self.relations), solve, kind, label, span))
         self.relations.append(expr if isinstance(expr, sp.Basic) else sp.Integer(expr))
 
-    def law(self, expr, solve: Optional[sp.Symbol] = None, kind: str = "resistive", label: str = "") -> None:
+    def law(self, expr, solve: Optional[sp.Symbol] = None, kind: str = "resistive", label: str = "",
+            span=None) -> None:
         """A resistive or constitutive law ``= 0`` (may be nonlinear)."""
-        self.order.append(("law", len(self.laws), solve, kind, label))
+        self.order.append(("law", len(self.laws), solve, kind, label, span))
         self.laws.append(expr if isinstance(expr, sp.Basic) else sp.Integer(expr))
 
     def energy(self, hamiltonian: sp.Expr) -> None:
@@ -167,14 +182,15 @@ class DiracBuilder:
         bound = {s.flow for s in self.storage} | {s.effort for s in self.storage} | self._bound
         resistive = {x for pair in self.resistive for x in pair}
         complete = kind != "port_projection" and all(s in bound or s in resistive for s in self.internal)
-        blocks = tuple(SparseRelations(label, n, tuple(terms), tuple(extra), law)
-                       for label, n, terms, extra, law in self.blocks)
+        blocks = tuple(SparseRelations(label, n, tuple(terms), tuple(extra), law, solve)
+                       for label, n, terms, extra, law, solve in self.blocks)
         return ComponentDescription(
             self.component, kind, tuple(self.flows), tuple(self.efforts), tuple(self.multipliers),
             tuple(self.relations), dict(self.ports), tuple(states), self.span, note,
             storage=tuple(self.storage), laws=tuple(self.laws), hamiltonian=self.hamiltonian,
             resistive=tuple(self.resistive), complete=complete, order=tuple(self.order),
-            blocks=blocks, storage_vectors=tuple(self.storage_vectors), structure=structure)
+            blocks=blocks, storage_vectors=tuple(self.storage_vectors), structure=structure,
+            internal=tuple(self.internal))
 
     def register(self, b, states=(), note: str = "", kind: Optional[str] = None,
                  structure: Optional[ComponentDescription] = None) -> ComponentDescription:
@@ -196,24 +212,29 @@ def solve_for(expr: sp.Expr, symbol: sp.Symbol) -> sp.Expr:
 def emit(b, desc: ComponentDescription, dissipation_span=None) -> None:
     """Derive the component's rows from its description and add them to the lowering
     recorder `b` (:class:`phc.lowering.Recorder`): definitions, residual rows, the
-    Hamiltonian and the dissipated power (located at `dissipation_span`, or the component)."""
+    Hamiltonian and the dissipated power (located at `dissipation_span`, or the component).
+    A sparse description (blocks, storage vectors) gives sparse rows (:func:`emit_sparse`)."""
     if desc.blocks or desc.storage_vectors:
-        raise ValueError(f"{desc.component}: a sparse description is compared with rows written directly, "
-                         "not emitted")
+        emit_sparse(b, desc)
+        return
     sigma: dict = {}
     for s in desc.storage:
         sigma[s.flow] = s.rate
         sigma[s.effort] = s.gradient
-    internal = {x for x in (*desc.flows, *desc.efforts)} - {x for idx, _ in desc.ports.values()
-                                                             for x in (*(desc.flows[i] for i in idx),
-                                                                       *(desc.efforts[i] for i in idx))}
-    for which, i, solve, kind, label in desc.order:
+    if desc.internal:
+        internal = set(desc.internal)
+    else:  # a description made without a DiracBuilder: every pair that is not a port's
+        internal = {x for x in (*desc.flows, *desc.efforts)} - {x for idx, _ in desc.ports.values()
+                                                                 for x in (*(desc.flows[i] for i in idx),
+                                                                           *(desc.efforts[i] for i in idx))}
+    for which, i, solve, kind, label, *rest in desc.order:
+        span = (rest[0] if rest else None) or desc.span
         expr = (desc.relations if which == "rel" else desc.laws)[i].xreplace(sigma)
         if solve is None:
             left = expr.free_symbols & internal - set(sigma)
             if left:
                 raise ValueError(f"{desc.component}: row {label or i} still holds internal {sorted(map(str, left))}")
-            b.add_equation(expr, desc.component, kind, label or f"{which}[{i}]", desc.span, derived=True)
+            b.add_equation(expr, desc.component, kind, label or f"{which}[{i}]", span, derived=True)
             continue
         value = solve_for(expr, solve)
         if solve in internal:
@@ -226,3 +247,200 @@ def emit(b, desc: ComponentDescription, dissipation_span=None) -> None:
     if desc.resistive:
         power = sum((f * e for f, e in desc.resistive), sp.Integer(0)).xreplace(sigma)
         b.dissipation.append((desc.component, power, dissipation_span or desc.span))
+
+
+# -- sparse descriptions --------------------------------------------------------------------
+
+def _is_identity(m) -> bool:
+    n = m.shape[0]
+    if m.shape != (n, n) or m.nnz != n:
+        return False
+    c = sps.coo_matrix(m)
+    return bool(np.all(c.row == c.col) and np.all(c.data == 1.0))
+
+
+def _times(a, b):
+    """The coefficient a·b (sympy), without a factor 1."""
+    if a is sp.S.One:
+        return b
+    if b is sp.S.One:
+        return a
+    return a * b
+
+
+def _product(A, B):
+    """A @ B; an identity factor (a vector the description names twice, ``f_R = λ``) is
+    skipped: the other matrix itself, as the rows would use it."""
+    if _is_identity(B):
+        return A
+    if _is_identity(A):
+        return B
+    return (A @ B).tocsr()
+
+
+def _substitute(terms, extras, values: dict, depth: int = 0):
+    """`terms` (:class:`~phc.dae.LinearTerm`) and `extras` (``(row, expr)``) with every term
+    over a vector of `values` (``vector -> (terms, extras, rename)``) replaced by its value."""
+    if depth > 64:
+        raise ValueError("the sparse description's solved vectors refer to each other in a cycle")
+    out_terms, out_extras = [], list(extras)
+    for t in terms:
+        if t.symbols not in values:
+            out_terms.append(t)
+            continue
+        inner, inner_extras, rename = values[t.symbols]
+        if t.derivative:
+            raise ValueError(f"the derivative of an eliminated vector ({t.symbols[0]}, ...)")
+        if rename is not None:  # a storage vector's flows: the rates of its states
+            out_terms.append(LinearTerm(t.coeff, t.matrix, rename, derivative=True))
+            continue
+        composed = [LinearTerm(_times(t.coeff, it.coeff), _product(t.matrix, it.matrix), it.symbols,
+                               it.derivative) for it in inner]
+        A = sps.csc_matrix(t.matrix)
+        spread = []
+        for col, expr in inner_extras:
+            lo, hi = A.indptr[col], A.indptr[col + 1]
+            spread += [(int(r), _times(t.coeff, float(v)) * expr) for r, v in zip(A.indices[lo:hi], A.data[lo:hi])]
+        more_terms, more_extras = _substitute(composed, spread, values, depth + 1)
+        out_terms += more_terms
+        out_extras += more_extras
+    return out_terms, out_extras
+
+
+def _row_expr(terms, k: int) -> sp.Expr:
+    """Row `k` of Σ terms as a sympy expression."""
+    out = sp.Integer(0)
+    for t in terms:
+        if t.derivative:
+            raise ValueError("a port variable defined through a rate")
+        row = sps.csr_matrix(t.matrix)[k]
+        out += t.coeff * sum((float(v) * t.symbols[j] for j, v in zip(row.indices, row.data)), sp.Integer(0))
+    return out
+
+
+def _vanishes(terms, extras) -> bool:
+    """Whether Σ terms + extras is identically zero: for each symbol vector, the matrices of
+    the terms whose coefficients differ by a rational factor cancel to round-off (a
+    relation that the storage and the laws already imply, e.g. ``e = Eᵀz`` with
+    ``z = Qx``, ``e = EᵀQx``)."""
+    if any(e != 0 for _, e in extras):
+        return False
+    groups: dict = {}
+    for t in terms:
+        r, rest = sp.sympify(t.coeff).as_coeff_Mul()  # safe: a LinearTerm's coefficient, a sympy expression
+        groups.setdefault((t.symbols, t.derivative, rest), []).append((float(r), sps.csr_matrix(t.matrix)))
+    for parts in groups.values():
+        total = sum((r * A for r, A in parts), sps.csr_matrix(parts[0][1].shape))
+        scale = max(abs(r) * (abs(A).max() if A.nnz else 0.0) for r, A in parts)
+        if total.nnz and abs(total).max() > 1e-12 * max(scale, 1e-300):
+            return False
+    return True
+
+
+def emit_sparse(b, desc: ComponentDescription) -> None:
+    """The rows of a sparse description: storage vectors' flows become the rates of their
+    states, their efforts the gradient ``Σ coeff·A x``; each block solved for a vector
+    (``solve``) gives that vector's value, substituted wherever it is used (composed
+    matrices), or, for a port's flows or efforts, their definitions; every other block
+    becomes sparse rows (:meth:`~phc.lowering.Recorder.add_linear_rows`) — its terms over
+    port variables, which assembly may substitute, and its sympy parts (boundary
+    couplings) added to the rows as sympy expressions — unless it vanishes identically
+    (:func:`_vanishes`). Scalar relations (over the model's own variables and the ports)
+    come last: a definition where solved for a symbol, a row otherwise; scalar storage pairs
+    (a moving frame's) are replaced by ``(ẋ, ∂H/∂x)`` wherever they appear."""
+    sigma = {**{st.flow: st.rate for st in desc.storage}, **{st.effort: st.gradient for st in desc.storage}}
+    ports = {x for idx, _ in desc.ports.values() for i in idx for x in (desc.flows[i], desc.efforts[i])}
+    values: dict = {}
+    for sv in desc.storage_vectors:
+        values[tuple(sv.flows)] = ((), (), tuple(sv.states))
+        values[tuple(sv.efforts)] = (tuple(sv.gradient), (), None)
+        sigma.update(zip(sv.flows, sv.rates))  # in sympy parts: the rates themselves
+    residual, definitions = [], []
+    for blk in desc.blocks:
+        if blk.solve is None:
+            residual.append(blk)
+            continue
+        own = [t for t in blk.terms if t.symbols == blk.solve]
+        if len(own) != 1 or not _is_identity(own[0].matrix) or own[0].coeff == 0:
+            raise ValueError(f"{desc.component}: block {blk.label} is not solved for its vector (one identity term)")
+        c0 = own[0].coeff
+        scale = ((lambda c: -c) if c0 is sp.S.One else (lambda c: c) if c0 is sp.S.NegativeOne
+                 else (lambda c: -c / c0))
+        terms = tuple(LinearTerm(scale(t.coeff), t.matrix, t.symbols, t.derivative)
+                      for t in blk.terms if t is not own[0])
+        extras = tuple((i, scale(e)) for i, e in blk.extra)
+        if set(blk.solve) <= ports:
+            definitions.append((blk.solve, terms, extras))
+        elif set(blk.solve) & (ports | {s for s, _, _ in _variables(b)}):
+            raise ValueError(f"{desc.component}: block {blk.label} solves for variables of the model")
+        else:
+            values[tuple(blk.solve)] = (terms, extras, None)
+
+    def scalar(expr):
+        """A sympy part with scalar storage pairs and eliminated vectors replaced."""
+        expr = expr.xreplace(sigma) if sigma else expr
+        known = _scalar_values(values, expr.free_symbols)
+        return expr.xreplace(known) if known else expr
+
+    for blk in residual:
+        terms, extras = _substitute(blk.terms, blk.extra, values)
+        if _vanishes(terms, extras):
+            continue
+        sparse, coupling = [], [(i, scalar(e)) for i, e in extras]
+        for t in terms:
+            if not set(t.symbols) & ports:
+                sparse.append(t)
+                continue
+            if t.derivative:
+                raise ValueError(f"{desc.component}: block {blk.label} holds the rate of a port variable")
+            coo = sps.coo_matrix(t.matrix)
+            coupling += [(int(i), _times(t.coeff, float(v)) * t.symbols[k])
+                         for i, k, v in zip(coo.row, coo.col, coo.data)]
+        rows = b.add_linear_rows(desc.component, blk.label, blk.n, sparse, desc.span, derived=True)
+        for i, expr in coupling:
+            b.add_to_row(rows[i], expr, derived=True)
+    for vector, terms, extras in definitions:
+        terms, extras = _substitute(terms, extras, values)
+        if any(set(t.symbols) & ports for t in terms):
+            raise ValueError(f"{desc.component}: a port variable defined through another port variable")
+        for k, sym in enumerate(vector):
+            b.define(sym, _row_expr(terms, k) + sum((scalar(e) for i, e in extras if i == k), sp.Integer(0)),
+                     derived=True)
+    # scalar relations and laws (a boundary port's flow, a trace of the co-energies, a
+    # moving frame's kinematics), with scalar storage pairs replaced by (ẋ, ∂H/∂x)
+    eliminated = {x for vector in values for x in vector} | set(desc.internal)
+    for which, i, solve, kind, label, *rest in desc.order:
+        expr = scalar((desc.relations if which == "rel" else desc.laws)[i])
+        if expr.free_symbols & eliminated or solve in eliminated:
+            raise ValueError(f"{desc.component}: relation {label or i} of a sparse description uses an "
+                             "eliminated symbol")
+        if solve is None:
+            b.add_equation(expr, desc.component, kind, label or f"{which}[{i}]", (rest[0] if rest else None)
+                           or desc.span, derived=True)
+        else:
+            b.define(solve, solve_for(expr, solve), derived=True)
+
+
+def _scalar_values(values: dict, symbols: set) -> dict:
+    """The eliminated `symbols` as sympy expressions of what remains: a vector solved as a
+    plain copy of another (``λ = z``) that one's symbols, any other its row of the composed
+    terms (a storage vector's flows are left to the caller: their rates)."""
+    out = {}
+    for vector, (terms, extras, rename) in values.items():
+        hit = [k for k, s in enumerate(vector) if s in symbols]
+        if not hit:
+            continue
+        if rename is not None:
+            continue  # a storage vector's flows: their rates (emit_sparse's sigma)
+        terms, extras = _substitute(terms, extras, values)
+        if (len(terms) == 1 and not extras and terms[0].coeff is sp.S.One and not terms[0].derivative
+                and _is_identity(terms[0].matrix)):
+            out.update({vector[k]: terms[0].symbols[k] for k in hit})
+            continue
+        for k in hit:
+            out[vector[k]] = _row_expr(terms, k) + sum((e for i, e in extras if i == k), sp.Integer(0))
+    return out
+
+
+def _variables(b):
+    return ((v.symbol, v.dsymbol, v.role) for v in getattr(b, "variables", ()))

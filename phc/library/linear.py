@@ -9,10 +9,12 @@ systems", Math. Control Signals Syst. 30, 2018). The matrices become
 :class:`~phc.dae.LinearTerm` blocks that stay sparse through code generation; only the few
 boundary couplings are sympy expressions.
 
-The complete description (compared with the rows by :mod:`phc.checks.rows`) is the same
-system in kernel form over the co-energy ``z = Qx`` (a multiplier fixed by the law
-``z = Qx``): storage ``f = ẋ``, ``e = ∂H/∂x = EᵀQx = Eᵀz``, ``E f − J z + e_R ± B u = 0``,
-resistive pairs ``f_R = z``, ``e_R = R f_R``, outputs ``Bᵀz``.
+The rows are derived from the complete description (:func:`phc.library.dirac.emit_sparse`),
+the same system in kernel form over the co-energy ``z = Qx`` (a multiplier fixed by the
+law ``z = Qx``): storage ``f = ẋ``, ``e = ∂H/∂x = EᵀQx = Eᵀz``, ``E f − J z + e_R ± B u = 0``,
+resistive pairs ``f_R = z``, ``e_R = R f_R``, outputs ``Bᵀz``. Eliminating z, f_R and e_R
+composes the matrices (``J Q``, ``R Q``, ``Bᵀ Q``); ``e = Eᵀz`` then holds identically and
+gives no row.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ import sympy as sp
 from phc.errors import NpzProblem
 from phc.dae import LinearTerm, QuadraticForm
 from phc.files import SIZE_LIMIT_ENV, FileAccess, FileRefused, size_limit
-from phc.library.dirac import DiracBuilder
+from phc.library.dirac import DiracBuilder, emit
 from phc.library.phs import local_scope
 from phc.library.timing import refuse_time
 
@@ -318,13 +320,8 @@ def lower_linear_phs(b, ctx, name, spec, path):
                 (*path, "E"))
     x, dx = zip(*(b.add_state(name, nm, span) for nm in names)) if n else ((), ())
     x, dx = tuple(x), tuple(dx)
-    terms = [LinearTerm(scale["E"], E, x, derivative=True),
-             LinearTerm(-scale["J"] * scale["Q"], (J @ Q).tocsr(), x)]
-    if R.nnz:
-        terms.append(LinearTerm(scale["R"] * scale["Q"], (R @ Q).tocsr(), x))
-    rows = b.add_linear_rows(name, "dynamics", n, terms, span)
-    # The complete description (compared with the rows by phc.checks.rows), kept sparse
-    # (see the module docstring): e = ∂H/∂x = s_E Eᵀz, law z = s_Q Q x,
+    # The complete description, kept sparse (see the module docstring); the rows are derived
+    # from it (phc.library.dirac.emit): e = ∂H/∂x = s_E Eᵀz, law z = s_Q Q x,
     # s_E E f − s_J J z + e_R + Σ B e_in − Σ B f_in = 0, f_R = z, e_R = s_R R f_R;
     # outputs f = Bᵀz (effort_in), e = −Bᵀz (flow_in).
     ds = DiracBuilder(name, "linear_phs", span)
@@ -332,13 +329,15 @@ def lower_linear_phs(b, ctx, name, spec, path):
     z = ds.mults("z", n)  # the co-energy Qx
     eye = sps.identity(n, format="csr")
     ds.block("coenergy", n, [LinearTerm(sp.Integer(1), eye, e_x), LinearTerm(-scale["E"], E.T.tocsr(), z)])
-    ds.block("constitutive", n, [LinearTerm(sp.Integer(1), eye, z), LinearTerm(-scale["Q"], Q, x)], law=True)
+    ds.block("constitutive", n, [LinearTerm(sp.Integer(1), eye, z), LinearTerm(-scale["Q"], Q, x)], law=True,
+             solve=z)
     dyn_terms = [LinearTerm(scale["E"], E, f_x), LinearTerm(-scale["J"], J, z)]
     if R.nnz:
         f_r, e_r = ds.resistor_vector("R", n)
-        ds.block("resistive.flow", n, [LinearTerm(sp.Integer(1), eye, f_r), LinearTerm(sp.Integer(-1), eye, z)])
+        ds.block("resistive.flow", n, [LinearTerm(sp.Integer(1), eye, f_r), LinearTerm(sp.Integer(-1), eye, z)],
+                 solve=f_r)
         ds.block("resistive.law", n, [LinearTerm(sp.Integer(1), eye, e_r), LinearTerm(-scale["R"], R, f_r)],
-                 law=True)
+                 law=True, solve=e_r)
         dyn_terms.append(LinearTerm(sp.Integer(1), eye, e_r))
     # Certification sees only the ports: with e_x = Qx free, f = Bᵀe_x ranges over im Bᵀ
     # (effort_in) and the other port variable is free; one multiplier per row of B used.
@@ -350,37 +349,25 @@ def lower_linear_phs(b, ctx, name, spec, path):
         B = _matrix(b, ctx, pspec.B, arrays, (*ppath, "B"), (n, pspec.dimension), "`B`")
         if B is None:
             continue
-        inputs = port.e if pspec.causality == "effort_in" else port.f
         sign = 1 if pspec.causality == "effort_in" else -1
         d.port(port)
         ds.port(port)
-        Bd = B.tocsr()
         dim = pspec.dimension
         output, given = (port.f, port.e) if pspec.causality == "effort_in" else (port.e, port.f)
         ds.block(f"{pname}.output", dim, [LinearTerm(sp.Integer(1), sps.identity(dim, format="csr"), tuple(output)),
-                                          LinearTerm(sp.Integer(-sign), Bd.T.tocsr(), z)])
-        dyn_terms.append(LinearTerm(sp.Integer(sign), Bd, tuple(given)))
+                                          LinearTerm(sp.Integer(-sign), B.T, z)], solve=tuple(output))
+        dyn_terms.append(LinearTerm(sp.Integer(sign), B.tocsr(), tuple(given)))
         Bl = B.tocsc()
         for k in range(pspec.dimension):
             lo, hi = Bl.indptr[k], Bl.indptr[k + 1]
             proj = sum((float(v) * lam.setdefault(int(i), d.mult(f"ex[{int(i)}]"))
                         for i, v in zip(Bl.indices[lo:hi], Bl.data[lo:hi])), sp.Integer(0))
             d.rel(port.f[k] - proj if pspec.causality == "effort_in" else port.e[k] + proj)
-        Bc = B.tocoo()
-        for i, k, v in zip(Bc.row, Bc.col, Bc.data):
-            b.add_to_row(rows[i], sign * float(v) * inputs[k])
-        BtQ = (B.T @ Q).tocsr()
-        for k in range(pspec.dimension):
-            lo, hi = BtQ.indptr[k], BtQ.indptr[k + 1]
-            out = scale["Q"] * sum((float(v) * x[j] for j, v in zip(BtQ.indices[lo:hi], BtQ.data[lo:hi])),
-                                   sp.Integer(0))
-            if pspec.causality == "effort_in":
-                b.define(port.f[k], out)
-            else:
-                b.define(port.e[k], -out)
     ds.block("dynamics", n, dyn_terms)
+    structure = ds.describe()
     d.register(b, kind="port_projection", note="matrix component: J skew, R and Q symmetric checked; ports "
-               "certified through im Bᵀ", structure=ds.describe())
+               "certified through im Bᵀ", structure=structure)
+    emit(b, structure)
     b.quadratic_energy.append(QuadraticForm(scale["E"] * scale["Q"] / 2, ((EQ + EQ.T) / 2).tocsr(), x))
     if R.nnz:
         b.quadratic_dissipation.append(QuadraticForm(scale["R"] * scale["Q"] ** 2, (Q.T @ R @ Q).tocsr(), x,

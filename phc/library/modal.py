@@ -45,6 +45,9 @@ holds to round-off, like the full discretization's. Constant coefficients stay r
 parameters (``K = (1/s) M Q̂⁻¹ M``); the basis itself is computed at the default
 parameter values — at other values the projection is still structure-preserving, only no
 longer exactly modal.
+
+The rows of a truncation are derived from its description (:func:`_describe_reduced`,
+:func:`phc.library.dirac.emit_sparse`).
 """
 
 from __future__ import annotations
@@ -111,6 +114,8 @@ class ReducedFields:
         return _combination(Vf[dof], z)
 
     def load(self, local, dof, expr) -> None:
+        if self.rows is None:  # derived from the description (d_load)
+            return
         Vf, _ = self._basis(local)
         rows = self.rows[self.group_of[local]]
         for i, v in enumerate(Vf[dof]):
@@ -118,6 +123,8 @@ class ReducedFields:
                 self.b.add_to_row(rows[i], float(v) * expr if v != 1.0 else expr)
 
     def load_vector(self, local, r, expr) -> None:
+        if self.rows is None:
+            return
         Vf, _ = self._basis(local)
         rows = self.rows[self.group_of[local]]
         for i, v in enumerate(Vf.T @ r):
@@ -161,11 +168,15 @@ def _combination(c, z) -> sp.Expr:
 
 
 def lower_modal(b, ctx, name, spec, path, mesh, fields_a, fields_b, couplings, skew, ports, order, k,
-                boundary=None, kelvin_voigt=False):
+                boundary=None, kelvin_voigt=False, derive=False):
     """The reduced counterpart of ``_lower_partitioned`` (same arguments, but fields are
     ``{local: (space, coefficient)}``; `boundary` lists extra trace DOFs ``(a_local, end,
-    derivative)`` when the caller adds the ports itself). Returns a :class:`ReducedFields`."""
+    derivative)`` when the caller adds the ports itself). Returns a :class:`ReducedFields`.
+    `derive`: the rows are derived from the description (:func:`_describe_reduced`) once
+    the ports are added (by :func:`~phc.library.beams._boundary_ports`, or by a caller that
+    adds its own)."""
     from phc.library.beams import _boundary_ports, _describe, _end_dof
+    from phc.library.dirac import emit
 
     span = ctx.smap.locate(path)
     defaults = b.default_values()
@@ -246,7 +257,7 @@ def lower_modal(b, ctx, name, spec, path, mesh, fields_a, fields_b, couplings, s
     for (gr, gc), blk in blocks.items():
         if blk.size and np.abs(blk).max() > 0:
             terms[gr].append(LinearTerm(sp.Integer(1), sps.csr_matrix(blk), z[gc]))
-    losses = []
+    losses, lossy = [], None
     damping = getattr(spec, "damping", None)
     if damping is not None and not spec.effects.damping:
         b.leave_out(name, "distributed damping", "effect `damping` is off")
@@ -262,23 +273,73 @@ def lower_modal(b, ctx, name, spec, path, mesh, fields_a, fields_b, couplings, s
         Vf = V_A[idx(a_local)]
         dr = _sparse(Vf.T @ Md @ Vf, symmetric=True)
         terms["A"].append(LinearTerm(coeff.scale(), dr, z["A"]))
+        lossy = id(terms["A"][-1])
         b.quadratic_dissipation.append(QuadraticForm(coeff.scale(), dr, z["A"], component=name, span=span))
         mB = V_B.shape[1]
         losses.append((coeff.scale(), sps.block_diag([dr, sps.csr_matrix((mB, mB))], format="csr") if mB else dr))
-    rows = {g: b.add_linear_rows(name, f"modal_{g.lower()}.dynamics", V[g].shape[1], terms[g], span)
-            for g in ("A", "B") if V[g].shape[1]}
-    rows.setdefault("B", [])
+    rows = None
+    if not derive:
+        rows = {g: b.add_linear_rows(name, f"modal_{g.lower()}.dynamics", V[g].shape[1], terms[g], span)
+                for g in ("A", "B") if V[g].shape[1]}
+        rows.setdefault("B", [])
     state_map = {l: qinv_m[l] @ V[group_of[l]][idx(l)] for l in fields}
     boundary_coord = {(a, end, der): z["A"][i] for i, (a, end, der) in enumerate(boundary)}
     # The complete description: K f_s = −Jr λ − R λ − Vᵀ B_∂ e_∂ with e_s = K λ = ∂H/∂z (the
     # reduced pH system in the co-energy coordinates; rows K ż + Jr z + … = 0 say λ = z).
     groups = [g for g in ("A", "B") if V[g].shape[1]]
     storage = {g: (z[g], dz[g], energy[g], [LinearTerm(c, A, z[g]) for c, A in energy[g]]) for g in groups}
-    structure = _describe(name, spec.type, span, groups, [V[g].shape[1] for g in groups],
-                          [f"lambda_{g.lower()}" for g in groups], storage, -sps.csr_matrix(Jr), losses)
+    if derive:
+        structure = _describe_reduced(name, spec.type, span, groups, z, dz, terms, energy, lossy)
+    else:
+        structure = _describe(name, spec.type, span, groups, [V[g].shape[1] for g in groups],
+                              [f"lambda_{g.lower()}" for g in groups], storage, -sps.csr_matrix(Jr), losses)
     handle = ReducedFields(b, {l: (s,) for l, (s, _) in fields.items()}, V, offsets, group_of, z["A"], z["B"],
                            rows, scale, state_map, boundary_coord, structure)
-    _boundary_ports(b, name, span, handle, ports, "modal truncation of the discretized PDE (Petrov–Galerkin "
-                    "with the energy matrices): skew interconnection by construction; ports certified through "
-                    "traces")
+    described = _boundary_ports(b, name, span, handle, ports, "modal truncation of the discretized PDE "
+                                "(Petrov–Galerkin with the energy matrices): skew interconnection by construction; "
+                                "ports certified through traces")
+    if derive and described is not None:
+        emit(b, described)
     return handle
+
+
+def _describe_reduced(name, kind, span, groups, z, dz, terms, energy, lossy):
+    """The complete description of the reduced system written group by group, from which
+    its rows are derived (:func:`phc.library.dirac.emit_sparse`): storage ``f_s = ż``,
+    ``e_s = ∂H/∂z = K z`` (K = Σ (1/s) Vᵀ K̂ V of the group's fields), the co-energy
+    coordinates λ with ``e_s = Kᵀλ`` and the law ``λ = z`` (K ≻ 0: the two say the same),
+    each group's dynamics ``K f_s + Jr λ + e_R + Vᵀ B_∂ e_∂ = 0`` with the terms of the
+    rows (`terms`, over λ instead of z) and the damping (the term `lossy`) through a
+    resistive pair ``f_R = λ_A``, ``e_R = c Vᵀ M_d V f_R``."""
+    from phc.library.beams import Structure
+    from phc.library.dirac import DiracBuilder
+
+    d = DiracBuilder(name, kind, span)
+    one = sp.Integer(1)
+    lam = {g: d.mults(f"lambda_{g.lower()}", len(z[g])) for g in groups}
+    coordinate = {z[g]: lam[g] for g in groups}
+    storage = {g: d.storage_vector(g, z[g], dz[g], [LinearTerm(c, A, z[g]) for c, A in energy[g]]) for g in groups}
+    dynamics = {}
+    for g in groups:
+        n = len(z[g])
+        eye = sps.identity(n, format="csr")
+        d.block(f"modal_{g.lower()}.coordinates", n, [LinearTerm(one, eye, lam[g]), LinearTerm(-one, eye, z[g])],
+                law=True, solve=lam[g])
+        dyn = []
+        for t in terms[g]:
+            if t.derivative:
+                dyn.append(LinearTerm(t.coeff, t.matrix, storage[g][0]))
+            elif id(t) == lossy:
+                f_r, e_r = d.resistor_vector("R", n)
+                d.block("resistive.flow", n, [LinearTerm(one, eye, f_r), LinearTerm(-one, eye, lam[g])], solve=f_r)
+                d.block("resistive.law", n, [LinearTerm(one, eye, e_r), LinearTerm(-t.coeff, t.matrix, f_r)],
+                        law=True, solve=e_r)
+                dyn.append(LinearTerm(one, eye, e_r))
+            else:
+                dyn.append(LinearTerm(t.coeff, t.matrix, coordinate[t.symbols]))
+        dynamics[g] = d.block(f"modal_{g.lower()}.dynamics", n, dyn)
+    for g in groups:
+        d.block(f"modal_{g.lower()}.coenergy", len(z[g]), [LinearTerm(one, sps.identity(len(z[g]), format="csr"),
+                                                                       storage[g][1])]
+                + [LinearTerm(-c, A.T.tocsr(), lam[g]) for c, A in energy[g]])
+    return Structure(d, lam, {g: 0 for g in groups}, dynamics)

@@ -91,12 +91,13 @@ def lower_moving_beam(b, ctx, name, spec, path):
         fields = _lower_fields(b, ctx, name, spec, path, mesh, span,
                                {"p": (space, _inverse(rho)), "pa": (axial_space, _inverse(rho))},
                                {"kappa": (kappa_space, coeffs["EI"]), "eps": (eps_space, coeffs["EA"])},
-                               [("p", "kappa", 1, 2), ("pa", "eps", 1, 1)], [], [], order=2, kelvin_voigt=True)
+                               [("p", "kappa", 1, 2), ("pa", "eps", 1, 1)], [], [], order=2, kelvin_voigt=True,
+                               derive=True)
     else:
         fields = _lower_fields(b, ctx, name, spec, path, mesh, span, {"p": (space, _inverse(rho))},
                                {"kappa": (kappa_space, coeffs["EI"])}, [("p", "kappa", 1)], [], [], order=2,
                                boundary=[("p", "a", 0), ("p", "a", 1), ("p", "b", 0), ("p", "b", 1)],
-                               kelvin_voigt=True)
+                               kelvin_voigt=True, derive=True)
     # Rigid part.
     q = [b.add_state(name, f"{pt}[{k}]", span) for pt in ("q0", "qf") for k in range(2)]
     (q0x, dq0x), (q0y, dq0y), (qfx, dqfx), (qfy, dqfy) = q
@@ -111,21 +112,14 @@ def lower_moving_beam(b, ctx, name, spec, path):
     if axial:
         pt = dpt = None
         dofA = axial_space.size - 1
-        e_t0, e_tf = fields.trace("pa", 0), fields.trace("pa", dofA)
         omega = (vL - v0) / ell  # the chord's rate of rotation; its length is L + u(L)
     else:
         pt, dpt = b.add_state(name, "p_t", span)
-        e_t0 = e_tf = pt / mass
         omega = (vL - v0) / L
-    v_end0 = e_t0 * tv + v0 * nv
-    v_endf = e_tf * tv + vL * nv
-    for k, (dq, v) in enumerate(((dq0x, v_end0[0]), (dq0y, v_end0[1]), (dqfx, v_endf[0]), (dqfy, v_endf[1]))):
-        b.add_equation(dq - v, name, "kinematics", f"kinematics[{k}]", span)
     # r_j = ∫ ρ φ_j (H3 basis): the same functional in both modulation terms.
     local = np.einsum("ag,g->a", space.values(0), mesh.h * _GAUSS_W)
     r = np.zeros(space.size)
     np.add.at(r, space.dofs().ravel(), np.broadcast_to(local, (n_el, len(local))).ravel())
-    r_expr = rho.expr * fields.pair("p", r)
     ports = {}
     for pname, pos in (("p0", [q0x, q0y]), ("pf", [qfx, qfy])):
         ports[pname] = b.add_port(name, pname, "mechanical.translational", 2, span=span, position=pos)
@@ -141,24 +135,6 @@ def lower_moving_beam(b, ctx, name, spec, path):
         # ṗ_a ∋ ω p_b, ṗ_b ∋ −ω p_a, tested with the same C_ij = ∫ρ φ_i^a φ_j^b on both sides:
         # e_aᵀ(ω C e_b) − e_bᵀ(ω Cᵀ e_a) = 0 in the discrete power balance, for any ω.
         C = assemble(axial_space, 0, space, 0).tocsr()
-        if frame:
-            _modulate(fields.load, fields.trace, C, rho.expr, omega)
-        fields.load("pa", 0, tv.dot(e0))
-        fields.load("pa", dofA, tv.dot(ef))
-    else:
-        b.add_equation(dpt - frame * omega * r_expr + tv.dot(e0) + tv.dot(ef), name, "dynamics",
-                       "tangential_momentum", span)
-        if frame:
-            fields.load_vector("p", r, omega * e_t0 * rho.expr)
-    for k in range(2):
-        b.define(ports["p0"].f[k], v_end0[k])
-        b.define(ports["pf"].f[k], v_endf[k])
-    fields.load("p", dof0, nv.dot(e0))
-    fields.load("p", dofL, nv.dot(ef))
-    b.define(ports["m0"].f[0], fields.trace("p", slope0))
-    fields.load("p", slope0, ports["m0"].e[0])
-    b.define(ports["mf"].f[0], fields.trace("p", slopeL))
-    fields.load("p", slopeL, ports["mf"].e[0])
     if axial:
         # The chord length is L + u(L) = L + ∫ε: ℓ̇ = tᵀ(q̇_f − q̇_0) = e_a(L) − e_a(0) = Σ_k h ε̇_k.
         stretch = fields.state_functional("eps", np.full(eps_space.size, mesh.h))
@@ -202,10 +178,12 @@ def lower_moving_beam(b, ctx, name, spec, path):
                 b.initial_relations.append((f"{name}.rigid_start.axial[{i}]", {pa.e[i]: 1.0, pa.e[0]: -1.0}))
             for k, xk in enumerate(eps.x):
                 b.initial_relations.append((f"{name}.unstretched_start[{k}]", {xk: 1.0}))
-    # The complete description (compared with the rows above by phc.checks.rows): the
+    # The complete description, from which the rows are derived (phc.library.dirac.emit): the
     # rigid part (storage q with ∂H/∂q = 0, p_t with ∂H/∂p_t = p_t/m) interconnected with
     # the flexible part's structure (co-energies λ, traces v0, vL, slopes) through R⁴,
     # modulated by the chord frame (t, n) and by ω = (vL − v0)/L — the paper's section 5.1.
+    # Its relations are written in the order of the rows: the kinematics of both ends, the
+    # port flows, the tangential momentum.
     ds = fields.structure.d
     f_q, e_q = zip(*(ds.storage_pair(f"q{k}", x, dx, sp.Integer(0)) for k, (x, dx) in enumerate(q)))
     if not axial:
@@ -219,10 +197,12 @@ def lower_moving_beam(b, ctx, name, spec, path):
     omega_d = (wL - w0) / (ell if axial else L)
     eq0, eqf = sp.Matrix(e_q[:2]), sp.Matrix(e_q[2:])
     for k in range(2):
-        ds.rel(f_q[k] - (w_t0 * tv[k] + w0 * nv[k]), label=f"kinematics[{k}]")
-        ds.rel(f_q[2 + k] - (w_tf * tv[k] + wL * nv[k]), label=f"kinematics[{2 + k}]")
-        ds.rel(ports["p0"].f[k] - (w_t0 * tv[k] + w0 * nv[k]), label=f"p0.flow[{k}]")
-        ds.rel(ports["pf"].f[k] - (w_tf * tv[k] + wL * nv[k]), label=f"pf.flow[{k}]")
+        ds.rel(f_q[k] - (w_t0 * tv[k] + w0 * nv[k]), kind="kinematics", label=f"kinematics[{k}]")
+    for k in range(2):
+        ds.rel(f_q[2 + k] - (w_tf * tv[k] + wL * nv[k]), kind="kinematics", label=f"kinematics[{2 + k}]")
+    for k in range(2):
+        ds.rel(ports["p0"].f[k] - (w_t0 * tv[k] + w0 * nv[k]), solve=ports["p0"].f[k], label=f"p0.flow[{k}]")
+        ds.rel(ports["pf"].f[k] - (w_tf * tv[k] + wL * nv[k]), solve=ports["pf"].f[k], label=f"pf.flow[{k}]")
     if axial:
         if frame:
             _modulate(fields.d_load, fields.d_trace, C, rho.expr, omega_d)
@@ -230,14 +210,14 @@ def lower_moving_beam(b, ctx, name, spec, path):
         fields.d_load("pa", dofA, tv.dot(eqf + ef))
     else:
         ds.rel(f_pt + tv.dot(eq0 + e0) + tv.dot(eqf + ef) - frame * omega_d * rho.expr * fields.d_pair("p", r),
-               label="tangential_momentum")
+               kind="dynamics", label="tangential_momentum")
         if frame:
             fields.d_load_vector("p", r, omega_d * e_pt * rho.expr)
     fields.d_load("p", dof0, nv.dot(eq0 + e0))
     fields.d_load("p", dofL, nv.dot(eqf + ef))
-    ds.rel(ports["m0"].f[0] - fields.d_trace("p", slope0), label="m0.flow")
+    ds.rel(ports["m0"].f[0] - fields.d_trace("p", slope0), solve=ports["m0"].f[0], label="m0.flow")
     fields.d_load("p", slope0, ports["m0"].e[0])
-    ds.rel(ports["mf"].f[0] - fields.d_trace("p", slopeL), label="mf.flow")
+    ds.rel(ports["mf"].f[0] - fields.d_trace("p", slopeL), solve=ports["mf"].f[0], label="mf.flow")
     fields.d_load("p", slopeL, ports["mf"].e[0])
     structure = ds.describe(states=(q0x, q0y, qfx, qfy))
     # Certification: flows of the four ports range over (λ_t t + λ_0 n, λ_t t + λ_f n, λ_a, λ_b).
@@ -254,6 +234,7 @@ def lower_moving_beam(b, ctx, name, spec, path):
     d.register(b, states=(q0x, q0y, qfx, qfy), kind="port_projection",
                note="moving beam: rigid part ⊕ flexible part through R⁴ (the paper's section 5.1)",
                structure=structure)
+    emit(b, structure)
 
 
 def _modulate(load, trace, C, rho, omega) -> None:
@@ -320,46 +301,34 @@ def _lower_rigid_link(b, ctx, name, spec, path):
         ports[pname] = b.add_port(name, pname, "mechanical.rotational", 1, span=span)
     Bp0 = sp.Matrix([[1, 0], [0, 1], [0, 0], [0, 0]])
     Bpf = sp.Matrix([[0, 0], [0, 0], [1, 0], [0, 1]])
-    force = cq.T * lam + Bp0 * sp.Matrix(ports["p0"].e) + Bpf * sp.Matrix(ports["pf"].e)
-    force += Bm * (ports["m0"].e[0] + ports["mf"].e[0])
-    for k in range(2):
-        b.define(ports["p0"].f[k], v[k])
-        b.define(ports["pf"].f[k], v[2 + k])
     omega = (Bm.T * v)[0, 0]
-    b.define(ports["m0"].f[0], omega)
-    b.define(ports["mf"].f[0], omega)
-    for k in range(4):
-        b.add_equation(q[k][1] - v[k], name, "kinematics", f"kinematics[{k}]", span)
-        b.add_equation(mom[k][1] + force[k], name, "dynamics", f"momentum[{k}]", span)
     vel_c = (cq * v)[0, 0]
-    b.add_equation(vel_c, name, "velocity_constraint", "chord_length.velocity", span)
     b.add_invariant(c, name, "chord_length", span)
     b.add_invariant(vel_c, name, "chord_length.velocity", span, velocity=True)
     b.rigid_constraints.append((name, ctx, path, list(qv), cq, sp.zeros(0, 4), ["chord_length"], []))
     b.hamiltonian.append((pv.T * v)[0, 0] / 2)
     b.extra_outputs[f"{name}.omega"] = omega
-    # The complete description (compared with the rows above by phc.checks.rows): the
-    # paper's section 3 kernel representation with Z = I, storage q (∂H/∂q = 0) and p
-    # (∂H/∂p = v = M⁻¹p), the chord constraint in velocity form with its multiplier.
+    # The complete description, from which the rows are derived (phc.library.dirac.emit):
+    # the paper's section 3 kernel representation with Z = I, storage q (∂H/∂q = 0) and p
+    # (∂H/∂p = v = M⁻¹p), the chord constraint in velocity form with its multiplier λ.
     ds = DiracBuilder(name, "moving_beam", span)
     f_q, e_q = zip(*(ds.storage_pair(f"q{k}", x, dx, sp.Integer(0)) for k, (x, dx) in enumerate(q)))
     f_p, e_p = zip(*(ds.storage_pair(f"p{k}", pk, dpk, v[k]) for k, (pk, dpk) in enumerate(mom)))
-    mu = ds.mult("mu")
+    ds.multipliers.append(lam)
     for pname in ("p0", "pf", "m0", "mf"):
         ds.port(ports[pname])
     vel = sp.Matrix(e_p)
-    for k in range(4):
-        ds.rel(f_q[k] - vel[k], label=f"kinematics[{k}]")
-    balance = (sp.Matrix(f_p) + sp.Matrix(e_q) + cq.T * mu + Bp0 * sp.Matrix(ports["p0"].e)
+    balance = (sp.Matrix(f_p) + sp.Matrix(e_q) + cq.T * lam + Bp0 * sp.Matrix(ports["p0"].e)
                + Bpf * sp.Matrix(ports["pf"].e) + Bm * (ports["m0"].e[0] + ports["mf"].e[0]))
     for k in range(4):
-        ds.rel(balance[k], label=f"momentum[{k}]")
-    ds.rel((cq * vel)[0, 0], label="chord_length.velocity")
+        ds.rel(f_q[k] - vel[k], kind="kinematics", label=f"kinematics[{k}]")
+        ds.rel(balance[k], kind="dynamics", label=f"momentum[{k}]")
+    ds.rel((cq * vel)[0, 0], kind="velocity_constraint", label="chord_length.velocity")
     for k in range(2):
-        ds.rel(ports["p0"].f[k] - vel[k], label=f"p0.flow[{k}]")
-        ds.rel(ports["pf"].f[k] - vel[2 + k], label=f"pf.flow[{k}]")
-    ds.rel(ports["m0"].f[0] - (Bm.T * vel)[0, 0], label="m0.flow")
-    ds.rel(ports["mf"].f[0] - (Bm.T * vel)[0, 0], label="mf.flow")
+        ds.rel(ports["p0"].f[k] - vel[k], solve=ports["p0"].f[k], label=f"p0.flow[{k}]")
+        ds.rel(ports["pf"].f[k] - vel[2 + k], solve=ports["pf"].f[k], label=f"pf.flow[{k}]")
+    ds.rel(ports["m0"].f[0] - (Bm.T * vel)[0, 0], solve=ports["m0"].f[0], label="m0.flow")
+    ds.rel(ports["mf"].f[0] - (Bm.T * vel)[0, 0], solve=ports["mf"].f[0], label="mf.flow")
     structure = ds.describe(states=tuple(qv))
     d = DiracBuilder(name, "moving_beam", span)
     l0x, l0y, lfx, lfy = (d.mult(x) for x in ("l0x", "l0y", "lfx", "lfy"))
@@ -376,6 +345,7 @@ def _lower_rigid_link(b, ctx, name, spec, path):
     d.register(b, states=tuple(qv), kind="port_projection",
                note="moving beam with flexibility off: a rigid link (the paper's section 3, with the chord constraint)",
                structure=structure)
+    emit(b, structure)
 
 
 def lower_crank_wheel(b, ctx, name, spec, path):

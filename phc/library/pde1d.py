@@ -64,6 +64,15 @@ def green_identity_error(P: list[np.ndarray], Wf: np.ndarray, We: np.ndarray, le
     return worst / scale
 
 
+def pde1d_rows(spec) -> str:
+    """Where the rows of a ``pde1d`` come from: ``derived`` from its description, unless
+    `D` has an off-diagonal entry written other than 0 (a dissipation coupling two
+    variables: the rows are then written directly and compared with the description)."""
+    D = spec.D or []
+    off = any(value not in (0, 0.0) for i, row in enumerate(D) for j, value in enumerate(row) if i != j)
+    return "hand-written" if off else "derived"
+
+
 def lower_pde1d(b, ctx, name, spec, path):
     n_errors = len(b.diags.errors)  # this component's own errors stop it, not another's
     scope = local_scope(b, ctx, name, spec, path)
@@ -166,9 +175,11 @@ def lower_pde1d(b, ctx, name, spec, path):
     if N == 2 and np.abs(P[1]).max(initial=0) > 0:
         b.error("PHC-E159", f"`P[1]` of `{name}` must vanish for the N = 2 scheme", ctx, (*path, "P", 1))
         return
+    derive = pde1d_rows(spec) == "derived"
     handle = _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b,
                                 [(a, bb, sp.Integer(int(s)) if float(s).is_integer() else sp.Float(s))
-                                 for a, bb, s in couplings], skew, [], order=N, dissipation=dissipation)
+                                 for a, bb, s in couplings], skew, [], order=N, dissipation=dissipation,
+                                derive=derive)
     # Natural flows: traces of e_a (and slopes for N = 2) in the order of γ.
     nat = [(spec.variables[i], "b" if blk < N else "a", blk % N) for blk in range(2 * N) for i in range(d)]
     cols = [c for c, (var, _, _) in enumerate(nat) if var in fields_a]
@@ -176,7 +187,7 @@ def lower_pde1d(b, ctx, name, spec, path):
     domains = spec.port_domains or ["generic"] * nd
     ports = [b.add_port(name, pname, domains[k] if k < len(domains) else "generic", 1, span=span)
              for k, pname in enumerate(spec.ports)]
-    for k, port in enumerate(ports):
+    for k, port in enumerate(ports if not derive else ()):  # derived: from the description's port relations
         flow = sp.Integer(0)
         for c_idx, c in enumerate(cols):
             var, end, deriv = nat[c]
@@ -184,7 +195,7 @@ def lower_pde1d(b, ctx, name, spec, path):
             if T[k, c_idx]:
                 flow += float(T[k, c_idx]) * fld.e[_end_dof(fld.space, end, deriv)]
         b.define(port.f[0], flow)
-    from phc.library.dirac import DiracBuilder
+    from phc.library.dirac import DiracBuilder, emit
 
     d = DiracBuilder(name, "pde1d", span)
     ds = handle.structure.d  # the complete description: the same port relations on its co-energies λ
@@ -196,7 +207,8 @@ def lower_pde1d(b, ctx, name, spec, path):
         d.rel(port.f[0] - sum((float(T[k, i]) * lam[c] for i, c in enumerate(cols) if T[k, i]), sp.Integer(0)))
         ds.rel(port.f[0] - sum((float(T[k, i]) * handle.d_trace(nat[c][0], _end_dof(fields_a[nat[c][0]][0].space,
                                                                                        nat[c][1], nat[c][2]))
-                                for i, c in enumerate(cols) if T[k, i]), sp.Integer(0)), label=f"{spec.ports[k]}.flow")
+                                for i, c in enumerate(cols) if T[k, i]), sp.Integer(0)), solve=port.f[0],
+               label=f"{spec.ports[k]}.flow")
     # e_nat = Tᵀ e_∂ enters the row of each natural trace DOF.
     for c_idx, c in enumerate(cols):
         var, end, deriv = nat[c]
@@ -206,6 +218,9 @@ def lower_pde1d(b, ctx, name, spec, path):
         if contribution != 0:
             handle.load(var, dof, contribution)
             handle.d_load(var, dof, contribution)
+    structure = ds.describe()
     d.register(b, kind="port_projection", note="discretized PDE: ports certified through im W_f on the traces",
-               structure=ds.describe())
+               structure=structure)
+    if derive:
+        emit(b, structure)
 

@@ -267,8 +267,7 @@ def _lower_kernel(b, ctx, name, spec, path, scope, xs, dxs, grad, span):
         d.multipliers.append(scope[mname])
     port_symbols = set(d.flows) | set(d.efforts) | set(d.multipliers)
     for i, rel in enumerate(relations):
-        ex = b.expr(ctx, rel, (*path, "relations", i), scope, equation=True)
-        b.add_equation(ex, name, "dirac", f"relations[{i}]", ctx.smap.locate((*path, "relations", i)))
+        b.expr(ctx, rel, (*path, "relations", i), scope, equation=True)  # reports what is wrong, located
         try:
             rel_ex = parse_equation(rel, cert_scope)
         except ExpressionError:
@@ -283,7 +282,7 @@ def _lower_kernel(b, ctx, name, spec, path, scope, xs, dxs, grad, span):
                     hint="put the nonlinearity into the Hamiltonian or a resistive law, or write the coefficient "
                     "with the state (`x`) instead of its effort (`e_x`)")
             continue
-        d.rel(rel_ex)
+        d.rel(rel_ex, kind="dirac", label=f"relations[{i}]", span=ctx.smap.locate((*path, "relations", i)))
     law_exprs: dict[str, list] = {}
     for rname, rspec in laws:
         law_exprs[rname] = []
@@ -294,9 +293,8 @@ def _lower_kernel(b, ctx, name, spec, path, scope, xs, dxs, grad, span):
             lpath = (*path, "resistive", rname, "law", k)
             ex = b.expr(ctx, law, lpath, scope, equation=True)
             law_exprs[rname].append(ex)
-            b.add_equation(ex, name, "resistive", f"{rname}.law[{k}]", ctx.smap.locate(lpath))
-            d.law(ex, label=f"{rname}.law[{k}]")
+            d.law(ex, kind="resistive", label=f"{rname}.law[{k}]", span=ctx.smap.locate(lpath))
     b.dissipation.append((name, diss, span))
-    d.register(b, states=xs)
+    emit(b, d.register(b, states=xs))
     b.resistive_laws.append((name, [(scope[f"f_{r}"], scope[f"e_{r}"], law_exprs[r]) for r, _ in laws],
                              ctx, path))

@@ -1,6 +1,7 @@
 """Rigid multibody components (``type: rigid``), the paper's Section 3, eq. (3).
 
-State ``x_r = (q, p)`` with ``p = M(q) v`` and ``H = ½ pᵀv + V(q)``. The lowered rows are::
+State ``x_r = (q, p)`` with ``p = M(q) v`` and ``H = ½ pᵀv + V(q)``. The rows, derived from the
+body's description (the paper's kernel representation, :func:`_describe`), are::
 
     q̇ − Z(q) v                                                    = 0   (kinematics)
     ṗ + Zᵀ(∇V + c_qᵀλ − ½ vᵀ∂M/∂q v) + F_d + G(p) v + Aᵀμ + Σ B_i e_i = 0   (momentum)
@@ -32,7 +33,7 @@ import sympy as sp
 
 from phc.dae import T
 from phc.effects import is_on, summed_terms
-from phc.library.dirac import DiracBuilder
+from phc.library.dirac import DiracBuilder, emit
 from phc.library.phs import local_scope, numeric_defaults
 from phc.library.timing import sample_times
 
@@ -89,33 +90,21 @@ def lower_rigid(b, ctx, name, spec, path):
     times = sample_times(ctx, 3)
     _check_mass_matrix(b, ctx, name, path, M, q, times)
 
-    # Velocities: explicit for constant M, implicit rows otherwise.
+    # Velocities: explicit for constant M (the law M v = p solved, v = M⁻¹p), implicit rows
+    # M(q, t) v = p otherwise.
     m_depends_on_q = bool(M.free_symbols & set(q))
-    if not m_depends_on_q:
-        Minv = M.inv() if nv <= 6 else None
-        if Minv is not None:
-            vdef = Minv * pv
-            for k in range(nv):
-                b.define(v[k], sp.simplify(vdef[k]))
-        else:
-            rows = M * vv - pv
-            for k in range(nv):
-                b.add_equation(rows[k], name, "storage", f"momentum_definition[{k}]", span)
-    else:
-        rows = M * vv - pv
-        for k in range(nv):
-            b.add_equation(rows[k], name, "storage", f"momentum_definition[{k}]", span)
+    Minv = M.inv() if not m_depends_on_q and nv <= 6 else None
 
     lam = [b.add_algebraic(name, f"lambda[{i}]", "multiplier", span) for i in range(len(c))]
     mu = [b.add_algebraic(name, f"mu[{i}]", "multiplier", span) for i in range(A.rows)]
     gradV = sp.Matrix([sp.diff(V, qi) for qi in q])
     cq = c.jacobian(qv) if len(c) else sp.zeros(0, nq)
     ct = c.diff(T) if len(c) else sp.zeros(0, 1)  # a moving (rheonomic) constraint: c_q Z v + c_t = 0
-    e_q = gradV + (cq.T * sp.Matrix(lam) if len(c) else sp.zeros(nq, 1))
-    if m_depends_on_q:
-        e_q -= sp.Matrix([(vv.T * sp.diff(M, qi) * vv)[0, 0] / 2 for qi in q])
-    force = Z.T * e_q + Fd + G * vv + (A.T * sp.Matrix(mu) if A.rows else sp.zeros(nv, 1))
+    # ∂H/∂q at fixed p: ∇V − ½ vᵀ∂M/∂q v (the second term for configuration-dependent M)
+    grad_q = gradV - (sp.Matrix([(vv.T * sp.diff(M, qi) * vv)[0, 0] / 2 for qi in q]) if m_depends_on_q
+                      else sp.zeros(nq, 1))
 
+    ports, Bs = [], []
     for pname, pspec in spec.ports.items():
         ppath = (*path, "ports", pname)
         B = b.matrix(ctx, pspec.B, (*ppath, "B"), scope, (nv, pspec.dimension), "`B`")
@@ -126,34 +115,21 @@ def lower_rigid(b, ctx, name, spec, path):
             _refuse(b, ctx, name, sp.Matrix(position), (*ppath, "position"), "a port `position`", set(q), q, p, v,
                     hint="a port position r(q) moves with the body only (d/dt r = Bᵀv); prescribe a motion in "
                     "time with a constraint c(q, t) = 0 or a `flow_source` with `position`")
-        port = b.add_port(name, pname, pspec.domain, pspec.dimension, pspec.frame, span, position)
-        vel = B.T * vv
-        for k in range(pspec.dimension):
-            b.define(port.f[k], vel[k])
-        force += B * sp.Matrix(port.e)
+        ports.append(b.add_port(name, pname, pspec.domain, pspec.dimension, pspec.frame, span, position))
+        Bs.append(B)
         if position is not None and len(b.diags.errors) == n_errors:
             _check_port_position(b, ctx, name, pname, ppath, sp.Matrix(position), qv, Z, B, times)
 
-    # Certified with the velocity form of the position constraints, c_q Z v + c_t = 0, next
-    # to A(q, t) v = 0: what the ports can do is restricted by both. The Dirac structure is
-    # the linear part; c_t is an affine part of the relations (a prescribed motion, like a
-    # source's value), so the rows check compares the rows with it too.
-    A_cert = sp.Matrix.vstack(cq * Z, A) if len(c) else A
-    shift = sp.Matrix.vstack(ct, sp.zeros(A.rows, 1)) if len(c) else sp.zeros(A.rows, 1)
-    grad_q = gradV - (sp.Matrix([(vv.T * sp.diff(M, qi) * vv)[0, 0] / 2 for qi in q]) if m_depends_on_q
-                      else sp.zeros(nq, 1))
-    _register_dirac(b, name, span, spec, q, dq, p, dp, v, grad_q, M, Fd, Z, A_cert, shift, G,
-                    [b.ports[f"{name}.{pn}"] for pn in spec.ports],
-                    [b.matrix(ctx, ps.B, (*path, "ports", pn, "B"), scope, (nv, ps.dimension), "`B`")
-                     for pn, ps in spec.ports.items()], (pv.T * vv)[0, 0] / 2 + V)
+    spans = {"constraints": [ctx.smap.locate((*path, "constraints", i)) for i in range(len(c))],
+             "velocity_constraints": [ctx.smap.locate((*path, "velocity_constraints", i)) for i in range(A.rows)]}
+    # The rows are derived from the description (phc.library.dirac.emit).
+    emit(b, _describe(b, name, span, q, dq, p, dp, v, grad_q, M, Minv, Fd, Z, cq, ct, A, G, lam, mu, ports, Bs,
+                      (pv.T * vv)[0, 0] / 2 + V, spans),
+         dissipation_span=ctx.smap.locate((*path, "damping")) if spec.damping is not None else span)
+    if not nv:
+        b.dissipation.append((name, sp.Integer(0), span))
     b.rigid_constraints.append((name, ctx, path, q, cq, A, [f"constraints[{i}]" for i in range(len(c))],
                                 [f"velocity_constraints[{i}]" for i in range(A.rows)]))
-    kin = dq_minus = sp.Matrix(dq) - Z * vv
-    for i in range(nq):
-        b.add_equation(kin[i], name, "kinematics", f"kinematics[{i}]", span)
-    mom = sp.Matrix(dp) + force
-    for i in range(nv):
-        b.add_equation(mom[i], name, "dynamics", f"momentum[{i}]", span)
     vel_c = cq * Z * vv + ct if len(c) else sp.zeros(0, 1)
     if len(c) and any(x != 0 for x in ct):
         # The moving constraint's power on the body is λᵀc_t (dH/dt from the rows above);
@@ -161,33 +137,28 @@ def lower_rigid(b, ctx, name, spec, path):
         # the constraint as a port, see the module docstring).
         b.source_power.append(-sum((lam[i] * ct[i] for i in range(len(c))), sp.Integer(0)))
     for i in range(len(c)):
-        cspan = ctx.smap.locate((*path, "constraints", i))
-        b.add_equation(vel_c[i], name, "velocity_constraint", f"constraints[{i}].velocity", cspan)
+        cspan = spans["constraints"][i]
         b.add_invariant(c[i], name, f"constraints[{i}]", cspan)
         b.add_invariant(vel_c[i], name, f"constraints[{i}].velocity", cspan, velocity=True)
     av = A * vv if A.rows else sp.zeros(0, 1)
     for i in range(A.rows):
-        cspan = ctx.smap.locate((*path, "velocity_constraints", i))
-        b.add_equation(av[i], name, "velocity_constraint", f"velocity_constraints[{i}]", cspan)
-        b.add_invariant(av[i], name, f"velocity_constraints[{i}]", cspan, velocity=True)
-    del dq_minus
-    b.hamiltonian.append((pv.T * vv)[0, 0] / 2 + V)
-    if T in M.free_symbols and (m_depends_on_q or nv > 6):
+        b.add_invariant(av[i], name, f"velocity_constraints[{i}]", spans["velocity_constraints"][i], velocity=True)
+    if T in M.free_symbols and Minv is None:
         # H = ½pᵀv + V with v an unknown of the rows M(q, t) v = p: assembly's −∂H/∂t of that
         # expression sees V_t only; the kinetic part's ∂/∂t at fixed (q, p) is −½vᵀM_t v.
         b.source_power.append((vv.T * M.diff(T) * vv)[0, 0] / 2)
-    b.dissipation.append((name, (vv.T * Fd)[0, 0],
-                          ctx.smap.locate((*path, "damping")) if spec.damping is not None else span))
 
 
-def _register_dirac(b, name, span, spec, q, dq, p, dp, v, grad_q, M, Fd, Z, A, shift, G, ports, Bs, H):
+def _describe(b, name, span, q, dq, p, dp, v, grad_q, M, Minv, Fd, Z, cq, ct, A, G, lam, mu, ports, Bs, H, spans):
     """The description of a rigid body, the paper's kernel representation of its Dirac
-    structure (section 3): flows (q̇, ṗ, v_R, port flows), efforts (∂H/∂q, v, F_R, port
-    efforts), multipliers μ for the velocity-level constraints ``A(q, t) v + shift = 0``
-    (with the position constraints in velocity form c_q Z v + c_t = 0 stacked into A; the
-    affine part `shift` = (c_t, 0) is the prescribed motion of a rheonomic constraint).
-    Storage is bound to the states (``e_p = v`` with ``M(q) v = p``), the resistive pair
-    to the damping law ``F_R = F_d(q, v_R)``."""
+    structure (section 3), from which its rows are derived: flows (q̇, ṗ, v_R, port flows),
+    efforts (∂H/∂q, v, F_R, port efforts), the multipliers λ of the position constraints
+    (in velocity form, c_q Z v + c_t = 0; the affine part c_t is the prescribed motion of a
+    rheonomic constraint) and μ of the velocity constraints A(q, t) v = 0. Storage is bound
+    to the states (``e_p = v`` with the law ``M(q) v = p``, solved for v when M is constant),
+    the resistive pair to the damping law ``F_R = F_d(q, v_R)``. The relations are written in
+    the order of the rows: the momentum definitions (or v = M⁻¹p), the port flows
+    f = Bᵀv, the kinematics q̇ = Z v, the momentum balance, the velocity constraints."""
     d = DiracBuilder(name, "rigid", span)
     nq, nv = len(q), len(p)
     v_lf, F_le = [], []
@@ -203,31 +174,38 @@ def _register_dirac(b, name, span, spec, q, dq, p, dp, v, grad_q, M, Fd, Z, A, s
     v_r, F_r = zip(*(d.resistor(f"R{i}") for i in range(nv))) if nv else ((), ())
     for port in ports:
         d.port(port)
-    mu = [d.mult(f"mu[{i}]") for i in range(A.rows)]
+    d.multipliers.extend((*lam, *mu))
     vle = sp.Matrix(v_le)
-    for i, row in enumerate(sp.Matrix(v_lf) - Z * vle):
-        d.rel(row)
-    for i in range(nv):
-        d.rel(v_r[i] - v_le[i])
-    for row in (A * vle + shift if A.rows else []):
-        d.rel(row)
-    force = sp.Matrix(F_lf) + Z.T * sp.Matrix(F_le) + G * vle + sp.Matrix(F_r)
-    if A.rows:
-        force += A.T * sp.Matrix(mu)
+    if Minv is not None:
+        vdef = Minv * sp.Matrix(p)
+        for k in range(nv):
+            d.law(v[k] - sp.simplify(vdef[k]), solve=v[k], kind="constitutive")
+    else:
+        for k, row in enumerate(M * sp.Matrix(v) - sp.Matrix(p)):
+            d.law(row, kind="storage", label=f"momentum_definition[{k}]")
     for port, B in zip(ports, Bs):
         for k, row in enumerate(sp.Matrix(port.f) - B.T * vle):
-            d.rel(row)
-        force += B * sp.Matrix(port.e)
-    for row in force:
-        d.rel(row)
-    # Laws: the velocities of the co-energy (M(q) v = p) and the damping force.
-    for row in M * sp.Matrix(v) - sp.Matrix(p):
-        d.law(row, kind="constitutive")
+            d.rel(row, solve=port.f[k])
+    for i, row in enumerate(sp.Matrix(v_lf) - Z * vle):
+        d.rel(row, kind="kinematics", label=f"kinematics[{i}]")
+    for i in range(nv):
+        d.rel(v_r[i] - v_le[i], solve=v_r[i])
     damping = Fd.xreplace(dict(zip(v, v_r)))
     for i in range(nv):
-        d.law(F_r[i] - damping[i])
+        d.law(F_r[i] - damping[i], solve=F_r[i])
+    e_q = sp.Matrix(F_le) + (cq.T * sp.Matrix(lam) if len(lam) else sp.zeros(nq, 1))
+    force = Z.T * e_q + sp.Matrix(F_r) + G * vle + (A.T * sp.Matrix(mu) if A.rows else sp.zeros(nv, 1))
+    for port in ports:
+        force += Bs[ports.index(port)] * sp.Matrix(port.e)
+    for i, row in enumerate(sp.Matrix(F_lf) + force):
+        d.rel(row, kind="dynamics", label=f"momentum[{i}]")
+    for i, row in enumerate(cq * Z * vle + ct if len(lam) else []):
+        d.rel(row, kind="velocity_constraint", label=f"constraints[{i}].velocity", span=spans["constraints"][i])
+    for i, row in enumerate(A * vle if A.rows else []):
+        d.rel(row, kind="velocity_constraint", label=f"velocity_constraints[{i}]",
+              span=spans["velocity_constraints"][i])
     d.energy(H)
-    d.register(b, states=tuple(q) + tuple(p))
+    return d.register(b, states=tuple(q) + tuple(p))
 
 
 def _sample_points(q, n=3, times=(0.0,)):

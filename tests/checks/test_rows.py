@@ -1,10 +1,12 @@
 """The rows check (:mod:`phc.checks.rows`) for components whose rows are sparse blocks.
 
-Strings, beams, `pde1d`, modal truncations, `linear_phs` and the moving beam write their
-rows directly (sparse matrix blocks plus sympy couplings). Each registers, besides the
+Strings, beams, `pde1d`, modal truncations, `linear_phs` and the moving beam have rows
+that are sparse matrix blocks plus sympy couplings. Each registers, besides the
 projection of its structure onto its ports (what the Dirac certificate works with), its
 complete description — the semi-discrete pH system in kernel form, kept sparse — and
-the rows check compares the two at sampled states:
+the rows check compares the two at sampled states, whether the rows were derived from
+the description (:func:`phc.library.dirac.emit_sparse`: every built-in type) or written
+directly (a `pde1d` whose damping couples two variables):
 
 * honest rows match, for every such component type and variant (effects off, damping,
   modal truncation, flow-in ports, the moving frame), in the shipped models and inline
@@ -13,7 +15,9 @@ the rows check compares the two at sampled states:
   located PHC-E452 naming the component, for every type;
 * the complete description is itself a Dirac structure (checked on its kernel form,
   independently of the rows);
-* a mesh of thousands of unknowns is compared (sparse, affine test) in about a second.
+* a mesh of thousands of unknowns is compared (sparse, affine test) in about a second;
+* rows derived from a sparse description are its relations with the solved vectors
+  eliminated (written out independently for a matrix system).
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ import sympy as sp
 import phc
 import phc.checks.rows as rows_module
 from phc.checks.rows import _compare_affine, _compare_dense, _prepare, check_rows
+from phc.dae import LinearTerm
 from phc.dae import T as T_SYMBOL
 from phc.library import LOWERERS
 from model_texts import STRING_MODES  # shared with tests/test_registry.py
@@ -315,16 +320,125 @@ def test_a_fine_mesh_is_compared_sparsely(tmp_path, monkeypatch):
     assert [d.code for d in cert.diagnostics] == ["PHC-E452"]
 
 
-def test_sparse_descriptions_carry_no_emitted_rows():
-    """A sparse description is compared with rows written directly; deriving rows from it
-    is refused (emit handles scalar descriptions only)."""
-    from phc.library.dirac import DiracBuilder, emit
+class _Recorded:
+    """What :func:`phc.library.dirac.emit_sparse` writes: sparse rows, sympy parts, definitions."""
+
+    def __init__(self):
+        self.blocks, self.extra, self.definitions, self.variables = [], [], {}, []
+
+    def add_linear_rows(self, component, label, n_rows, terms, span=None, *, derived=False):
+        assert derived
+        start = sum(n for _, n, _ in self.blocks)
+        self.blocks.append((label, n_rows, list(terms)))
+        return list(range(start, start + n_rows))
+
+    def add_to_row(self, row, expr, *, derived=False):
+        assert derived
+        self.extra.append((row, expr))
+
+    def define(self, sym, expr, *, derived=False):
+        assert derived
+        self.definitions[sym] = expr
+
+
+def _linear_description(E, J, R, Q, B):
+    """``E ẋ = (J − R) Q x − B u``, ``y = Bᵀ Q x`` as linear_phs describes it (co-energy z
+    eliminated by its law, resistive pairs by theirs); returns the description and its
+    symbols (states, rates, the port's input and output)."""
+    from phc.library.dirac import DiracBuilder
+
+    n = E.shape[0]
+    x = tuple(sp.Symbol(f"x{i}", real=True) for i in range(n))
+    dx = tuple(sp.Symbol(f"dx{i}", real=True) for i in range(n))
+    u, y = sp.Symbol("u", real=True), sp.Symbol("y", real=True)
+    csr, eye = sps.csr_matrix, sps.identity(n, format="csr")
+    one = sp.Integer(1)
+    d = DiracBuilder("c", "linear_phs")
+    f_x, e_x = d.storage_vector("x", x, dx, [LinearTerm(one, csr(E.T @ Q), x)])
+    z = d.mults("z", n)
+    d.block("coenergy", n, [LinearTerm(one, eye, e_x), LinearTerm(-one, csr(E.T), z)])
+    d.block("law", n, [LinearTerm(one, eye, z), LinearTerm(-one, csr(Q), x)], law=True, solve=z)
+    f_r, e_r = d.resistor_vector("R", n)
+    d.block("r.flow", n, [LinearTerm(one, eye, f_r), LinearTerm(-one, eye, z)], solve=f_r)
+    d.block("r.law", n, [LinearTerm(one, eye, e_r), LinearTerm(-one, csr(R), f_r)], law=True, solve=e_r)
+
+    class Port:
+        name, dimension, f, e = "c.tip", 1, [y], [u]
+
+    d.port(Port)
+    d.block("output", 1, [LinearTerm(one, sps.identity(1, format="csr"), (y,)), LinearTerm(-one, csr(B.T), z)],
+            solve=(y,))
+    d.block("dynamics", n, [LinearTerm(one, csr(E), f_x), LinearTerm(-one, csr(J), z),
+                            LinearTerm(one, eye, e_r), LinearTerm(one, csr(B), (u,))])
+    return d.describe(), x, dx, u, y
+
+
+def _residual(recorded, values, rates=None):
+    """The emitted rows at `values` (symbol -> number); a term over rates reads the rate
+    of each state (`rates`: state -> its rate symbol)."""
+    out = np.zeros(sum(n for _, n, _ in recorded.blocks))
+    start = 0
+    for _, n, terms in recorded.blocks:
+        for t in terms:
+            v = np.array([values[rates[s] if t.derivative else s] for s in t.symbols])
+            out[start:start + n] += float(t.coeff) * (t.matrix @ v)
+        start += n
+    for row, expr in recorded.extra:
+        out[row] += float(expr.xreplace(values))
+    return out
+
+
+def test_sparse_rows_are_derived_from_the_description():
+    """emit_sparse eliminates the solved vectors by composing their matrices: the rows are
+    E ẋ − (J − R) Q x + B u, written out here with numpy, the output Bᵀ Q x a definition,
+    and ``e = Eᵀz``, which the storage and the law imply, gives no row."""
+    from phc.library.dirac import emit_sparse
+
+    rng = np.random.default_rng(5)
+    n = 3
+    E = np.diag([1.0, 2.0, 1.0])
+    S = rng.normal(size=(n, n))
+    J, R, Q = S - S.T, np.diag([0.3, 0.0, 0.1]), np.diag([2.0, 1.0, 3.0])
+    B = np.array([[0.0], [1.0], [0.5]])
+    desc, x, dx, u, y = _linear_description(E, J, R, Q, B)
+    recorded = _Recorded()
+    emit_sparse(recorded, desc)
+    assert [label for label, _, _ in recorded.blocks] == ["dynamics"]
+    assert [t.derivative for t in recorded.blocks[0][2]] == [True, False, False]  # E ẋ, −JQx, RQx
+    for _ in range(3):
+        xv, dxv, uv = rng.normal(size=n), rng.normal(size=n), float(rng.normal())
+        values = {**dict(zip(x, xv)), **dict(zip(dx, dxv)), u: uv}
+        expected = E @ dxv - (J - R) @ Q @ xv + B[:, 0] * uv
+        assert np.allclose(_residual(recorded, values, dict(zip(x, dx))), expected, rtol=1e-13, atol=1e-13)
+        assert float(recorded.definitions[y].xreplace(values)) == pytest.approx(float(B[:, 0] @ Q @ xv), rel=1e-13)
+
+
+def test_a_relation_the_storage_does_not_imply_is_a_row():
+    """With a co-energy relation e = Eᵀz that contradicts the storage (Q ≠ Eᵀ-compatible:
+    the storage says e = 2·EᵀQx), it does not vanish and stays a row; a block solved for a
+    vector that is not its identity term is refused."""
+    from phc.library.dirac import DiracBuilder, emit_sparse
+
+    n = 2
+    x = tuple(sp.Symbol(f"x{i}", real=True) for i in range(n))
+    dx = tuple(sp.Symbol(f"dx{i}", real=True) for i in range(n))
+    eye = sps.identity(n, format="csr")
+    d = DiracBuilder("c", "test")
+    _, e_x = d.storage_vector("x", x, dx, [LinearTerm(sp.Integer(2), eye, x)])
+    z = d.mults("z", n)
+    d.block("law", n, [LinearTerm(sp.Integer(1), eye, z), LinearTerm(sp.Integer(-1), eye, x)], law=True, solve=z)
+    d.block("coenergy", n, [LinearTerm(sp.Integer(1), eye, e_x), LinearTerm(sp.Integer(-1), eye, z)])
+    recorded = _Recorded()
+    emit_sparse(recorded, d.describe())
+    assert [label for label, _, _ in recorded.blocks] == ["coenergy"]
+    values = {**dict(zip(x, [1.0, -2.0])), **dict(zip(dx, [0.0, 0.0]))}
+    assert np.allclose(_residual(recorded, values), [1.0, -2.0])  # 2x − x
 
     d = DiracBuilder("c", "test")
-    f, e = d.vector("x", 2)
-    d.block("rel", 2, [(sp.Integer(1), sps.identity(2, format="csr"), f)])
-    with pytest.raises(ValueError, match="not emitted"):
-        emit(None, d.describe())
+    f, _ = d.vector("x", n)
+    d.block("rel", n, [LinearTerm(sp.Integer(1), 2 * eye, f)], solve=f)
+    with pytest.raises(ValueError, match="not solved for its vector"):
+        emit_sparse(_Recorded(), d.describe())
 
 
 # -- steep laws: a failed solve is no verdict ------------------------------------------------

@@ -111,22 +111,45 @@ def test_phc_check_certifies_the_moving_pendulum(tmp_path):
     assert cert.rows is not None and cert.rows.ok and "bob" in cert.rows.compared
 
 
-def test_rows_check_sees_a_dropped_constraint_rate(tmp_path, monkeypatch):
-    """The description carries c_t as an affine part: rows without it (the old velocity
-    row c_q Z v = 0) no longer match."""
-    from phc.checks.rows import check_rows
+def _velocity_row(path):
+    dae, diags = phc.build_dae(path)
+    assert dae is not None, diags
+    rows = next(r for r in dae.topology.rows if r.component == "bob")
+    assert rows.derived  # the rigid body's rows are derived from its description
+    return dict(rows.equations)["bob.constraints[0].velocity"]
+
+
+def _at(row, x, y, vx, vy, t):
+    values = {"bob.x": x, "bob.y": y, "bob.vx": vx, "bob.vy": vy, "t": t, "ax": 0.2, "ay": 0.1, "w": 3.0,
+              "L": 0.8, "m": 0.7, "g": 9.81}
+    return float(row.xreplace({s: values[str(s)] for s in row.free_symbols}))
+
+
+def test_the_velocity_row_carries_the_constraints_rate(tmp_path, monkeypatch):
+    """The velocity-level row is d/dt c(q(t), t) with q̇ = v — c_q v + c_t, the rate of the
+    moving suspension included — written out here from the constraint of PENDULUM; and it
+    is derived from the description: a description without the rate c_t (the old row
+    c_q Z v = 0) gives rows without it."""
     import phc.library.rigid as rigid
 
     path = tmp_path / "moving_pendulum.yaml"
     path.write_text(PENDULUM)
-    real = rigid._register_dirac
+    row = _velocity_row(path)
+    real = rigid._describe
 
-    def without_rate(b, name, span, spec, q, dq, p, dp, v, grad_q, M, Fd, Z, A, shift, *rest):
-        return real(b, name, span, spec, q, dq, p, dp, v, grad_q, M, Fd, Z, A, 0 * shift, *rest)
+    def without_rate(b, name, span, q, dq, p, dp, v, grad_q, M, Minv, Fd, Z, cq, ct, *rest):
+        return real(b, name, span, q, dq, p, dp, v, grad_q, M, Minv, Fd, Z, cq, 0 * ct, *rest)
 
-    monkeypatch.setattr(rigid, "_register_dirac", without_rate)
-    dae, _ = phc.build_dae(path)
-    assert not check_rows(dae).ok
+    monkeypatch.setattr(rigid, "_describe", without_rate)
+    no_rate = _velocity_row(path)
+    rng = np.random.default_rng(3)
+    for _ in range(3):
+        x, y, vx, vy, t = rng.normal(size=5)
+        dx, dy = x - 0.2 * np.sin(3 * t), y - 0.1 * np.sin(6 * t)  # from the suspension point
+        c_q_v = 2 * dx * vx + 2 * dy * vy
+        c_t = 2 * dx * (-0.6 * np.cos(3 * t)) + 2 * dy * (-0.6 * np.cos(6 * t))
+        assert _at(row, x, y, vx, vy, t) == pytest.approx(c_q_v + c_t, rel=1e-12, abs=1e-12)
+        assert _at(no_rate, x, y, vx, vy, t) == pytest.approx(c_q_v, rel=1e-12, abs=1e-12)
 
 
 from model_texts import WHEEL  # noqa: E402 - shared with tests/simulation/test_scaling.py
