@@ -6,7 +6,7 @@ their steps in one compiled function that calls the model's compiled residual, J
 invariants, H and powers directly (numba first-class functions: no Python in between):
 
 * the simplified Newton iteration of :class:`~phc.simulation.midpoint.StageSolver` — the same
-  code, :func:`phc.simulation.steps.newton`, jitted: the same stopping rules, the same refresh
+  code, :func:`phc.simulation.step_logic.newton`, jitted: the same stopping rules, the same refresh
   of the Newton matrix on poor contraction, step-size change, a moved evaluation point or age,
   the GGL position constraints imposed at the step ends — with the Newton matrix as a dense
   LU (LAPACK ``dgetrf``) turned into
@@ -30,7 +30,7 @@ invariants, H and powers directly (numba first-class functions: no Python in bet
 * the discrete-gradient step's secant iteration on the mean-value point
   (:mod:`phc.simulation.discrete_gradient`) and midpoint4's composition with its
   predictor and passivity guard (:mod:`phc.simulation.midpoint4`), again the code the Python
-  loop runs (:mod:`phc.simulation.steps`);
+  loop runs (:mod:`phc.simulation.step_logic`);
 * the driver of :func:`~phc.simulation.midpoint.integrate_fixed_step`: the output grid and
   its equal substeps, the predictor of the step midpoints (the polynomial of degree
   :data:`~phc.simulation.midpoint.PREDICTOR_ORDER` through the last ones), the singularity
@@ -76,7 +76,7 @@ from typing import Optional
 import numpy as np
 
 from phc.simulation import compiled_steps_kernel as _kernel
-from phc.simulation import steps as _steps
+from phc.simulation import step_logic as _step_logic
 from phc.simulation.backend import BackendRun
 from phc.simulation.compiled_steps_kernel import (  # the layout of the state arrays the kernel shares
     _BUDGET, _CODE, _DONE, _E, _EVERY, _H, _H_PREV, _HARD, _HAS_MID, _HIST, _ILL, _J, _K, _LAST_LOOK, _LOOK, _LOWP,
@@ -105,9 +105,9 @@ _READY = None
 _WHY = ""
 
 
-_SOURCE_FILES = (Path(_kernel.__file__), Path(_steps.__file__), Path(__file__))
+_SOURCE_FILES = (Path(_kernel.__file__), Path(_step_logic.__file__), Path(__file__))
 """The files the compiled loop's code comes from: the kernel's functions, the step logic it
-shares with the Python loop (:mod:`phc.simulation.steps`), and this module (the signatures,
+shares with the Python loop (:mod:`phc.simulation.step_logic`), and this module (the signatures,
 the LAPACK/BLAS symbols and the namespace they are compiled with). The stamp of the loop in
 phc's cache (:func:`_attach_cache`) covers their text."""
 
@@ -269,7 +269,7 @@ def _compile():
     for name in ("_copy", "_factor", "_invert", "_solve", "_lowprec", "_solve32", "_fill", "_stage_residual",
                  "_refactor_matrix", "_all_finite", "_begin", "_refactor", "_correct", "_add", "_precision", "_newton",
                  "_stage", "_discrete_gradient", "_midpoint4_step", "_advance", "_monitor_ratio", "_lagrange_weights",
-                 "_predict"):
+                 "_predictor_nodes", "_predict"):
         namespace[name] = jit(namespace[name])
     chunk = numba.njit(error_model="numpy")(namespace["_chunk"])
     C1 = types.Array(types.float64, 1, "C")
@@ -374,7 +374,7 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
     fst = np.zeros(_NF)
     fst[_STEP] = float(step) if step else 0.0
     fst[_H_PREV] = 1.0
-    # the numbers of the step logic (phc.simulation.steps), from the methods' modules as in the Python loop
+    # the numbers of the step logic (phc.simulation.step_logic): the methods' constants, as in the Python loop
     c = m4.composition_constants(dg.secant_constants(mp.newton_constants()))
     c[_THRESHOLD], c[_EVERY] = THRESHOLD, mp.MONITOR_EVERY
     c[_ONE], c[_ZERO] = 1.0, 0.0

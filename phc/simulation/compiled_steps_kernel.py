@@ -8,7 +8,7 @@ calls: the predictor, the singularity monitor's routine look, the dense LU / inv
 mixed-precision products — and the layout of the state arrays both sides share.
 
 The step logic itself — the stage's Newton iteration, the discrete-gradient and midpoint4
-steps — is not written here: it is :mod:`phc.simulation.steps`, the code the Python loop runs
+steps — is not written here: it is :mod:`phc.simulation.step_logic`, the code the Python loop runs
 as well. This module gives it the compiled loop's operations on its arrays (:func:`_begin`,
 :func:`_refactor`, :func:`_correct`, :func:`_add`, :func:`_copy`, :func:`_precision`, on the
 workspace tuple ``ws`` that :func:`_chunk` builds), and :func:`_compile` jits those functions
@@ -18,7 +18,7 @@ The LAPACK/BLAS entry points the kernel calls (``_dgetrf``, ``_dgetri``, ``_dgec
 ``_dgesdd``, ``_dgemv``, ``_sgemv``) are not defined here: :func:`~phc.simulation.compiled_steps._kernel_namespace`
 binds them into this module's globals, the namespace the kernel is jitted in, before it is
 compiled; :func:`~phc.simulation.compiled_steps._compile` then replaces each function here by its
-jitted version. The text of this module and of :mod:`phc.simulation.steps` is part of the
+jitted version. The text of this module and of :mod:`phc.simulation.step_logic` is part of the
 stamp of the compiled loop in phc's signed cache (:func:`~phc.simulation.compiled_steps._kernel_source`).
 """
 
@@ -29,12 +29,13 @@ import math
 import numpy as np
 
 # the step logic both loops run, its outcome codes and the layout of its constants vector c
-from phc.simulation.steps import (  # noqa: F401 — those the driver reads are importable from here
+from phc.simulation.step_logic import (  # noqa: F401 — those the driver reads are importable from here
     _EVAL, _EVERY, _OK, _ONE, _ORDER, _ORDER_ALG, _SINGULAR, _STRIKES_C, _THRESHOLD, _ZERO, DOUBLE_NEXT)
-from phc.simulation.steps import discrete_gradient as _discrete_gradient
-from phc.simulation.steps import lagrange_weights as _lagrange_weights
-from phc.simulation.steps import midpoint4 as _midpoint4_step
-from phc.simulation.steps import newton as _newton
+from phc.simulation.step_logic import discrete_gradient as _discrete_gradient
+from phc.simulation.step_logic import lagrange_weights as _lagrange_weights
+from phc.simulation.step_logic import midpoint4 as _midpoint4_step
+from phc.simulation.step_logic import newton as _newton
+from phc.simulation.step_logic import predictor_nodes as _predictor_nodes
 
 # the state arrays shared with the driver (phc.simulation.compiled_steps.integrate)
 # status of a chunk
@@ -203,7 +204,7 @@ def _refactor_matrix(jac, t, h, y, y1, s, p, A, lp, ipiv, matf, m, jrows, jcols,
 _AGE0 = _NI  # the ages of the two Newton matrices follow the integer state
 
 
-# The operations of phc.simulation.steps on the compiled loop's workspace: the tuple
+# The operations of phc.simulation.step_logic on the compiled loop's workspace: the tuple
 # ws = (res, jac, inv, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend, weights, algmask, c, jbuf, ebuf,
 #       xs, d, r, ints, chars, ist) that _chunk builds.
 
@@ -280,7 +281,7 @@ def _precision(ws, event):
 
 
 def _stage(ws, m, t, h, y, y1in, s, out):
-    """One stage solve (phc.simulation.steps.newton) with the compiled loop's operations."""
+    """One stage solve (phc.simulation.step_logic.newton) with the compiled loop's operations."""
     return _newton(ws, m, ws[15], _begin, _refactor, _correct, _add, _copy, _precision, t, h, y, y1in, s, out)
 
 
@@ -383,8 +384,8 @@ def _monitor_ratio(jac, t, y, yp, h, p, jrows, jcols, jbuf, M, colscale, thresho
 def _predict(y, mid, mid_slope, pt, pm, ist, c, t, h, h_prev, algmask, guess):
     """The start of Newton, ``2 m − y`` with the predicted midpoint m: y + h/2·ẏ₀ at the start,
     else per variable (differential ones: degree ``c[_ORDER]``, algebraic ones ``c[_ORDER_ALG]``)
-    the last midpoint (degree 0), the linear extrapolation of the last two (degree 1, or while
-    fewer midpoints are known), or the Lagrange polynomial through the last ones
+    as :func:`phc.simulation.step_logic.predictor_nodes` says: the last midpoint, the linear
+    extrapolation of the last two, or the Lagrange polynomial through the last ones
     (midpoint.predict_midpoint, the same arithmetic)."""
     n = y.shape[0]
     if ist[_HAS_MID] == 0:
@@ -395,18 +396,17 @@ def _predict(y, mid, mid_slope, pt, pm, ist, c, t, h, h_prev, algmask, guess):
     nmid = ist[_NMID]
     od = int(c[_ORDER])
     oa = int(c[_ORDER_ALG])
-    kd = min(od + 1, nmid)
-    ka = min(oa + 1, nmid)
+    kd = _predictor_nodes(od, nmid)
+    ka = _predictor_nodes(oa, nmid)
     wd = np.empty(pm.shape[0])
     wa = np.empty(pm.shape[0])
     _lagrange_weights(pt, kd, tn, wd)
     _lagrange_weights(pt, ka, tn, wa)
     for i in range(n):
-        o = oa if algmask[i] != 0 else od
         k = ka if algmask[i] != 0 else kd
-        if o == 0:
+        if k == 0:
             mg = mid[i]
-        elif k < 3:
+        elif k == 1:
             mg = mid[i] + 0.5 * (h + h_prev) * mid_slope[i]
         else:
             w = wa if algmask[i] != 0 else wd

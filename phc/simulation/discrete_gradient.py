@@ -55,7 +55,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from phc.simulation import steps
+from phc.simulation import step_logic
 from phc.simulation.backend import BackendRun
 from phc.simulation.midpoint import (NEWTON_HINT, SINGULAR_HINT, StageSolver, integrate_fixed_step, newton_weights_of,
                                      stage_of)
@@ -68,8 +68,9 @@ S_MIN, S_MAX = 0.02, 0.98
 
 
 def secant_constants(c):
-    """`c`, the constants vector of :mod:`phc.simulation.steps`, with the secant iteration's numbers."""
-    c[steps._BAL_TOL], c[steps._MAX_SECANT], c[steps._S_MIN], c[steps._S_MAX] = BALANCE_TOL, MAX_SECANT, S_MIN, S_MAX
+    """`c`, the constants vector of :mod:`phc.simulation.step_logic`, with the secant iteration's numbers."""
+    c[step_logic._BAL_TOL], c[step_logic._MAX_SECANT] = BALANCE_TOL, MAX_SECANT
+    c[step_logic._S_MIN], c[step_logic._S_MAX] = S_MIN, S_MAX
     return c
 
 
@@ -89,18 +90,18 @@ class DiscreteGradientStep:
         self.constants = secant_constants(self.stage.constants.copy())
 
     def __call__(self, t, h, y, guess):
-        """One step (:func:`phc.simulation.steps.discrete_gradient`, the code the compiled loop
+        """One step (:func:`phc.simulation.step_logic.discrete_gradient`, the code the compiled loop
         runs as well): ``(y1, ok, reason)``."""
         self._midpoint = None
         out = np.array(guess, dtype=float)
-        code, _, y1, best, scale, y_half, secants = steps.discrete_gradient(
+        code, _, y1, best, scale, y_half, secants = step_logic.discrete_gradient(
             stage_of, self.mod.hamiltonian, self.mod.energy_scale, (self.stage,), self.constants, self.e, t, h, y,
             guess, self.p, out)
         self.secant_iterations += secants
-        if code == steps._OK:
+        if code == step_logic._OK:
             return y1, True, ""
         if not secants:  # the implicit-midpoint stage itself failed
-            if code == steps._EVAL and self.stage.evaluation_error is None:
+            if code == step_logic._EVAL and self.stage.evaluation_error is None:
                 return y1, False, "the energy could not be evaluated at the step's end"
             return y1, False, SINGULAR_HINT if self.stage.singular else NEWTON_HINT
         # no point balances the energy (the constraint projection's work, module docstring): the

@@ -34,7 +34,7 @@ import numpy as np
 import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 
-from phc.simulation import steps
+from phc.simulation import step_logic
 from phc.simulation.backend import BackendRun
 from phc.simulation.guard import ModelEvaluationError
 from phc.simulation.monitor import SingularityMonitor
@@ -89,13 +89,13 @@ MAX_PREDICTOR_ORDER = 4
 def predict_midpoint(times, mids, t_new, order=None):
     """The polynomial of degree ``min(order, len(times) − 1)`` through the last midpoints
     ``mids`` (newest last) at the times ``times``, evaluated at ``t_new`` (Lagrange form:
-    :func:`phc.simulation.steps.lagrange_weights`, the compiled loop's predictor's weights)."""
+    :func:`phc.simulation.step_logic.lagrange_weights`, the compiled loop's predictor's weights)."""
     order = PREDICTOR_ORDER if order is None else order
     k = min(int(order) + 1, len(times))
     ts = np.array([float(x) for x in times[len(times) - k:]][::-1])  # newest first
     ms = list(mids[len(mids) - k:])[::-1]
     w = np.empty(k)
-    steps.lagrange_weights(ts, k, t_new, w)
+    step_logic.lagrange_weights(ts, k, t_new, w)
     out = w[0] * ms[0]
     for i in range(1, k):
         out = out + w[i] * ms[i]
@@ -104,17 +104,18 @@ def predict_midpoint(times, mids, t_new, order=None):
 
 def _mid_guess(mod, y, h, h_prev, mid, mid_slope, mid_times, mids, t_new):
     """The predicted midpoint of the next step (the compiled loop's ``_predict``): per variable
-    (differential: :data:`PREDICTOR_ORDER`, algebraic: :data:`PREDICTOR_ORDER_ALGEBRAIC`) the
-    last midpoint (degree 0), the linear extrapolation (degree 1, or while fewer midpoints are
-    known) or the polynomial through the last midpoints."""
+    (differential: :data:`PREDICTOR_ORDER`, algebraic: :data:`PREDICTOR_ORDER_ALGEBRAIC`) as
+    :func:`phc.simulation.step_logic.predictor_nodes` says: the last midpoint, the linear
+    extrapolation or the polynomial through the last midpoints."""
     if mid is None:
         return y + 0.5 * h * mid_slope
     linear = mid + 0.5 * (h + h_prev) * mid_slope
 
     def of(order):
-        if order == 0:
+        nodes = step_logic.predictor_nodes(order, len(mids))
+        if nodes == 0:
             return mid
-        if min(order + 1, len(mids)) < 3:
+        if nodes == 1:
             return linear
         return predict_midpoint(mid_times, mids, t_new, order)
 
@@ -243,7 +244,7 @@ class StageSolver:
     ``g(q_{n+1}) − g(q_n) = G(q_mid)(q_{n+1} − q_n)`` makes the GGL multiplier η vanish, so
     it does no work and the midpoint energy balance stays exact.
 
-    The iteration is :func:`phc.simulation.steps.newton`, the code the compiled loop runs as
+    The iteration is :func:`phc.simulation.step_logic.newton`, the code the compiled loop runs as
     well; this class gives it its operations on the sparse LU of :class:`NewtonMatrix`.
     """
 
@@ -282,24 +283,24 @@ class StageSolver:
         ``self.evaluation_error`` a model function that could not be evaluated at an iterate
         (outside its domain: a shorter step may stay inside)."""
         out = np.array(y1, dtype=float)
-        return out, self.solve_into(t, h, y, y1, s, out) == steps._OK
+        return out, self.solve_into(t, h, y, y1, s, out) == step_logic._OK
 
     def solve_into(self, t, h, y, y1, s, out) -> int:
         """The solve of :meth:`solve` into `out` (the start `y1` where a model function could not
-        be evaluated): the outcome code of :func:`phc.simulation.steps.newton`."""
+        be evaluated): the outcome code of :func:`phc.simulation.step_logic.newton`."""
         self.evaluation_error = None
         self.singular = self.refreshed = self.ill_conditioned = False
         try:
-            code, self.ill_conditioned = steps.newton(
+            code, self.ill_conditioned = step_logic.newton(
                 self, 0, self.constants, StageSolver._begin, StageSolver._refactor, StageSolver._correct, add_to,
                 copy_to, _precision, t, h, y, y1, s, out)
         except ModelEvaluationError as err:
             self.evaluation_error = err
             out[...] = y1
-            return steps._EVAL
+            return step_logic._EVAL
         return code
 
-    # the operations of phc.simulation.steps.newton on this solver (its only Newton matrix: m = 0)
+    # the operations of phc.simulation.step_logic.newton on this solver (its only Newton matrix: m = 0)
 
     def _begin(self, m):
         matrix = self.matrix
@@ -310,7 +311,7 @@ class StageSolver:
         self.refreshed = True  # set when the matrix is factorized in this step
         ok = self.matrix.factor(t, h, y, y1, s)
         self.singular = not ok
-        return steps._OK if ok else steps._SINGULAR
+        return step_logic._OK if ok else step_logic._SINGULAR
 
     def _correct(self, m, t, h, y, y1, s):
         """The correction and its size: without weights, max |Δ| against 1 + max |y|; with
@@ -325,10 +326,10 @@ class StageSolver:
             w = self.weights / (1.0 + np.abs(y1) * self.weights)
             states = float(np.abs(delta * w).max())
             size, scale = max(states, algebraic), 1.0
-        return steps._OK, delta, size, states, scale, bool(np.isfinite(size)), False
+        return step_logic._OK, delta, size, states, scale, bool(np.isfinite(size)), False
 
 
-# the vector operations of phc.simulation.steps in the Python loop
+# the vector operations of phc.simulation.step_logic in the Python loop
 
 def add_to(y1, delta):
     """y1 ← y1 + delta."""
@@ -345,19 +346,19 @@ def _precision(ws, event):
 
 
 def stage_of(ws, m, t, h, y, y1in, s, out):
-    """The stage operation of :mod:`phc.simulation.steps` on a sequence of :class:`StageSolver`
+    """The stage operation of :mod:`phc.simulation.step_logic` on a sequence of :class:`StageSolver`
     (one per Newton matrix m): ``(code, ill_conditioned)``."""
     stage = ws[m]
     return stage.solve_into(t, h, y, y1in, s, out), stage.ill_conditioned
 
 
 def newton_constants(c=None) -> np.ndarray:
-    """The constants vector of :mod:`phc.simulation.steps` (a new one, or `c` filled in) with
+    """The constants vector of :mod:`phc.simulation.step_logic` (a new one, or `c` filled in) with
     the Newton iteration's numbers, this module's constants as they are at the call."""
-    c = np.zeros(steps._NC) if c is None else c
-    c[steps._TOL], c[steps._RATE], c[steps._FLOOR] = NEWTON_TOL, REFACTOR_RATE, ROUNDOFF_FLOOR
-    c[steps._MAX_AGE], c[steps._MAX_NEWTON] = MAX_AGE, MAX_NEWTON
-    c[steps._ZONE], c[steps._STAGNATION] = ROUNDOFF_ZONE, STAGNATION_JUMP
+    c = np.zeros(step_logic._NC) if c is None else c
+    c[step_logic._TOL], c[step_logic._RATE], c[step_logic._FLOOR] = NEWTON_TOL, REFACTOR_RATE, ROUNDOFF_FLOOR
+    c[step_logic._MAX_AGE], c[step_logic._MAX_NEWTON] = MAX_AGE, MAX_NEWTON
+    c[step_logic._ZONE], c[step_logic._STAGNATION] = ROUNDOFF_ZONE, STAGNATION_JUMP
     return c
 
 

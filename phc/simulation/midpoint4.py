@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from phc.simulation import steps
+from phc.simulation import step_logic
 from phc.simulation.backend import BackendRun
 from phc.simulation.midpoint import (NEWTON_HINT, SINGULAR_HINT, StageSolver, copy_to, integrate_fixed_step,
                                      newton_weights_of, stage_of)
@@ -53,15 +53,15 @@ MID_TIMES = (0.5 * GAMMA1, GAMMA1 + 0.5 * GAMMA2, 1.0 - 0.5 * GAMMA1)
 
 
 def composition_constants(c):
-    """`c`, the constants vector of :mod:`phc.simulation.steps`, with the composition's numbers."""
-    c[steps._G1], c[steps._G2] = GAMMA1, GAMMA2
-    c[steps._M0], c[steps._M1], c[steps._M2] = MID_TIMES
+    """`c`, the constants vector of :mod:`phc.simulation.step_logic`, with the composition's numbers."""
+    c[step_logic._G1], c[step_logic._G2] = GAMMA1, GAMMA2
+    c[step_logic._M0], c[step_logic._M1], c[step_logic._M2] = MID_TIMES
     return c
 
 
 class Midpoint4Step:
     """One composite step ``advance(t, h, y, guess) -> (y1, ok, reason)``:
-    :func:`phc.simulation.steps.midpoint4`, the code the compiled loop runs as well.
+    :func:`phc.simulation.step_logic.midpoint4`, the code the compiled loop runs as well.
 
     Predictor: the midpoint value of each substep (where the algebraic variables of a
     midpoint rule are accurate; their end values oscillate) is extrapolated linearly in time
@@ -96,13 +96,13 @@ class Midpoint4Step:
 
     def __call__(self, t, h, y, guess):
         out = np.array(guess, dtype=float)
-        code, self.ill_conditioned, self.nhist = steps.midpoint4(
+        code, self.ill_conditioned, self.nhist = step_logic.midpoint4(
             stage_of, self.mod.powers, self.mod.energy_scale, copy_to, self.stages, self.constants, t, h, y, guess,
             self.p, out, self.hist_t, self.hist_v, self.nhist)
-        self.singular = code == steps._SINGULAR
-        if code == steps._OK:
+        self.singular = code == step_logic._SINGULAR
+        if code == step_logic._OK:
             return out, True, ""
-        if code == steps._PASSIVITY:
+        if code == step_logic._PASSIVITY:
             # passivity violated over the composite step: a damped mode in the band where the
             # backward substep's anti-dissipation wins (see the module docstring)
             return out, False, PASSIVITY_HINT

@@ -427,27 +427,28 @@ def test_the_cache_stamp_covers_every_file_the_loop_is_compiled_from():
 @pytest.mark.parametrize("solver, entry", [("midpoint", "newton"), ("discrete_gradient", "discrete_gradient"),
                                            ("midpoint4", "midpoint4")])
 def test_both_loops_run_the_step_logic_written_once(compiled, monkeypatch, used, solver, entry):
-    """Each method's step logic exists once (phc.simulation.steps): the compiled loop jits those
+    """Each method's step logic exists once (phc.simulation.step_logic): the compiled loop jits those
     very functions, and the Python loop calls them — a run with the compiled loop off goes
     through the entry point of its method and the Newton iteration, and agrees with the
     compiled run to the Newton tolerance."""
     from phc.simulation import compiled_steps as cs
     from phc.simulation import compiled_steps_kernel as kernel
-    from phc.simulation import steps
+    from phc.simulation import step_logic
 
     assert cs._build()
-    for name, func in (("_newton", steps.newton), ("_discrete_gradient", steps.discrete_gradient),
-                       ("_midpoint4_step", steps.midpoint4), ("_lagrange_weights", steps.lagrange_weights)):
+    for name, func in (("_newton", step_logic.newton), ("_discrete_gradient", step_logic.discrete_gradient),
+                       ("_midpoint4_step", step_logic.midpoint4), ("_lagrange_weights", step_logic.lagrange_weights),
+                       ("_predictor_nodes", step_logic.predictor_nodes)):
         assert getattr(kernel, name).py_func is func, name
     calls = {}
     for name in {entry, "newton"}:
-        original = getattr(steps, name)
+        original = getattr(step_logic, name)
 
         def counted(*args, _name=name, _original=original):
             calls[_name] = calls.get(_name, 0) + 1
             return _original(*args)
 
-        monkeypatch.setattr(steps, name, counted)
+        monkeypatch.setattr(step_logic, name, counted)
     model = compiled("pendulum.yaml")
     fast, slow = _both(monkeypatch, model, solver=solver, t_end=0.5, step=1e-2, n_out=11)
     assert used == [True, False]

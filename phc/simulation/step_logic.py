@@ -16,8 +16,14 @@ a step *does* is written here, once, as plain Python that numba can compile:
   modelling of coupled rigid/flexible multibody systems");
 * :func:`midpoint4` — the triple-jump composition of three midpoint substeps with its
   predictor and its passivity guard;
-* :func:`lagrange_weights` — the weights of the predictor polynomial through the last step
-  midpoints.
+* :func:`predictor_nodes` and :func:`lagrange_weights` — how the start of Newton is
+  extrapolated from the last step midpoints (the last one, the line through two, or the
+  polynomial through more) and that polynomial's weights.
+
+The drivers around the steps are still each loop's own: the Python loop's
+:func:`~phc.simulation.midpoint.integrate_fixed_step` (events, projection, splitting, the
+singularity monitor's messages) and the compiled loop's chunk of routine steps
+(:func:`phc.simulation.compiled_steps_kernel._chunk`), which hands every other step back.
 
 Neither loop's data structures appear here. A function takes the operations that touch
 them as arguments — ``ws`` is the loop's workspace (the Python loop: its
@@ -45,7 +51,9 @@ loops. The operations (what the functions call, and what they return):
     One stage solve (:func:`newton` with the loop's operations) into ``out``.
 
 The numbers the logic uses come in the vector ``c`` (its layout: ``_TOL`` … ``_STRIKES_C``),
-filled from the constants of the methods' modules (:func:`phc.simulation.midpoint.newton_constants`).
+filled from the constants of the methods' modules (:func:`phc.simulation.midpoint.newton_constants`,
+:func:`phc.simulation.discrete_gradient.secant_constants`,
+:func:`phc.simulation.midpoint4.composition_constants`).
 """
 
 from __future__ import annotations
@@ -78,26 +86,17 @@ def newton(ws, m, c, begin, refactor, correct, add, copy, precision, t, h, y, y1
     ``ill_conditioned``: the driver asks the singularity monitor)."""
     copy(y1in, out)
     factorized, h0, s0, age = begin(ws, m)
-    refreshed = False
+    # a fresh matrix before the next correction (set where the iteration asks for one)
+    pending = not factorized or abs(h - h0) > 1e-3 * abs(h) or abs(s - s0) > 0.2 or age >= c[_MAX_AGE]
+    refreshed = False  # a matrix was factorized in this solve
     since = 1  # iterations since the last factorization (1: not factorized in this solve)
     tol = c[_TOL]
-    if not factorized or abs(h - h0) > 1e-3 * abs(h) or abs(s - s0) > 0.2 or age >= c[_MAX_AGE]:
-        refreshed = True
-        code = refactor(ws, m, t, h, y, out, s)
-        if code != _OK:
-            return code, False
-        since = 0
     last = -1.0
     rate = np.inf  # the smallest θ of this solve with this matrix
     suspect = 0.0  # > 0: the rate of the single-precision copy, being compared with double precision
     for _ in range(int(c[_MAX_NEWTON])):
-        code, delta, size, states, scale, finite, low = correct(ws, m, t, h, y, out, s)
-        if code != _OK:
-            return code, False
-        if not finite:
-            if since == 0:
-                return _FAIL, False
-            copy(y1in, out)
+        if pending:
+            pending = False
             refreshed = True
             code = refactor(ws, m, t, h, y, out, s)
             if code != _OK:
@@ -106,6 +105,14 @@ def newton(ws, m, c, begin, refactor, correct, add, copy, precision, t, h, y, y1
             last = -1.0
             rate = np.inf
             suspect = 0.0
+        code, delta, size, states, scale, finite, low = correct(ws, m, t, h, y, out, s)
+        if code != _OK:
+            return code, False
+        if not finite:
+            if since == 0:
+                return _FAIL, False
+            copy(y1in, out)  # restart from the start with a fresh matrix
+            pending = True
             continue
         has_theta = last > 0.0
         theta = size / last if has_theta else 0.0
@@ -133,15 +140,7 @@ def newton(ws, m, c, begin, refactor, correct, add, copy, precision, t, h, y, y1
             add(out, delta)
             return _OK, True
         if has_theta and theta >= 1.0 and since > 0 and size > 1e3 * tol * scale:
-            # the old matrix no longer contracts: refresh it here and retry
-            refreshed = True
-            code = refactor(ws, m, t, h, y, out, s)
-            if code != _OK:
-                return code, False
-            since = 0
-            last = -1.0
-            rate = np.inf
-            suspect = 0.0
+            pending = True  # the old matrix no longer contracts: refresh it here and retry
             continue
         add(out, delta)
         since += 1
@@ -151,16 +150,12 @@ def newton(ws, m, c, begin, refactor, correct, add, copy, precision, t, h, y, y1
             if theta < 1.0 and theta / (1.0 - theta) * size <= tol * scale:
                 return _OK, False
             rate = min(rate, theta)
-            if theta > c[_RATE]:
-                refreshed = True
-                code = refactor(ws, m, t, h, y, out, s)
-                if code != _OK:
-                    return code, False
-                since = 0
-                size = -1.0
-                rate = np.inf
-                suspect = 0.0
+            pending = theta > c[_RATE]
         last = size
+    if pending:  # asked for in the last iteration: the next solve (a retry, a split) starts with it
+        code = refactor(ws, m, t, h, y, out, s)
+        if code != _OK:
+            return code, False
     return _FAIL, False
 
 
@@ -290,3 +285,14 @@ def lagrange_weights(pt, k, tn, w):
             if b != a:
                 wa *= (tn - pt[b]) / (pt[a] - pt[b])
         w[a] = wa
+
+
+def predictor_nodes(order, known):
+    """How the predictor extrapolates a variable whose polynomial degree is ``order`` when
+    ``known`` step midpoints are known: 0, the last midpoint (degree 0); 1, the line through
+    the last midpoint along the last slope (degree 1, or while fewer than three midpoints are
+    known); k ≥ 3, the polynomial through the last k midpoints (:func:`lagrange_weights`)."""
+    if order == 0:
+        return 0
+    k = min(order + 1, known)
+    return 1 if k < 3 else k
