@@ -79,9 +79,9 @@ from phc.simulation import compiled_steps_kernel as _kernel
 from phc.simulation import step_logic as _step_logic
 from phc.simulation.backend import BackendRun
 from phc.simulation.compiled_steps_kernel import (  # the layout of the state arrays the kernel shares
-    _BUDGET, _CODE, _DONE, _E, _EVERY, _H, _H_PREV, _HARD, _HAS_MID, _HIST, _ILL, _J, _K, _LAST_LOOK, _LOOK, _LOWP,
-    _MAX_STEPS, _MAXSTEPS, _METHOD, _MONITOR, _NEND, _NF, _NFACT, _NFEV, _NI, _NMID, _OK, _ONE, _ORDER, _ORDER_ALG,
-    _STATUS, _STEP, _STEPS, _STRIKES, _STRIKES_C, _SUBSTEPS, _T, _THRESHOLD, _ZERO)
+    _BUDGET, _CODE, _DONE, _E, _EVERY, _H, _H_PREV, _HARD, _HIST, _ILL, _K, _LAST_LOOK, _LOOK, _LOWP, _MAX_STEPS,
+    _MAXSTEPS, _METHOD, _MONITOR, _NEND, _NF, _NFACT, _NFEV, _NI, _OK, _ONE, _ORDER, _ORDER_ALG, _STATUS, _STEP,
+    _STEPS, _STRIKES, _STRIKES_C, _T, _THRESHOLD, _ZERO)
 
 MAX_UNKNOWNS = 400
 """Largest system whose step loop is compiled (dense LU); larger ones keep the sparse Python loop."""
@@ -266,7 +266,7 @@ def _compile():
     fn = {name: types.FunctionType(sig) for name, sig in sigs.items()}
     namespace = _kernel_namespace(externals)
     jit = numba.njit(error_model="numpy")
-    for name in ("_copy", "_factor", "_invert", "_solve", "_lowprec", "_solve32", "_fill", "_stage_residual",
+    for name in ("_accept", "_copy", "_factor", "_invert", "_solve", "_lowprec", "_solve32", "_fill", "_stage_residual",
                  "_refactor_matrix", "_all_finite", "_begin", "_refactor", "_correct", "_add", "_precision", "_newton",
                  "_stage", "_discrete_gradient", "_midpoint4_step", "_advance", "_monitor_ratio", "_lagrange_weights",
                  "_predictor_nodes", "_predict"):
@@ -447,30 +447,10 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
             else:
                 ok, message = False, f"{name}: {reason} at t = {t:.6g}; results up to this time are kept"
             return
-        new_mid = 0.5 * (y + new)
-        if ist[_HAS_MID]:
-            mid_slope[:] = (new_mid - mid) / (0.5 * (h + fst[_H_PREV]))
-        mid[:] = new_mid
-        pt[1:], pm[1:] = pt[:-1].copy(), pm[:-1].copy()
-        pt[0], pm[0] = t + 0.5 * h, new_mid
-        ist[_NMID] = min(int(ist[_NMID]) + 1, len(pt))
-        y_prev[:] = y
-        y[:] = new
-        ist[_HAS_MID] = 1
-        ist[_HIST] = 0
-        fst[_H_PREV] = h
-        fst[_T] = t + h
-        ist[_STEPS] = steps + 1
-        if steps + 1 >= max_steps:
-            ok, message = False, (f"stopped after {steps + 1} steps at t = {t + h:.6g} (max_steps); raise "
-                                  "`max_steps` or the step size")
-            return
-        ist[_J] += 1
-        if ist[_J] >= ist[_SUBSTEPS]:
-            k = int(ist[_K])
-            ys[k], yps[k] = y, (y - y_prev) / h
-            ist[_K] = k + 1
-            ist[_J] = 0
+        ist[_HIST] = 0  # midpoint4's predictor starts again: the Python step kept its own history
+        accept = getattr(_kernel._accept, "py_func", _kernel._accept)  # unjitted: element loops over N ≤ 400
+        if accept(t, h, y, new, y_prev, mid, mid_slope, pt, pm, ys, yps, fst, ist):
+            ok, message = False, _max_steps_message(ist, fst)
 
     try:
         while True:
@@ -488,8 +468,7 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
                 if python is not None:
                     python_nfev, python_njev = _counts(python)
             elif status == _MAXSTEPS:
-                ok, message = False, (f"stopped after {int(ist[_STEPS])} steps at t = {fst[_T]:.6g} (max_steps); "
-                                      "raise `max_steps` or the step size")
+                ok, message = False, _max_steps_message(ist, fst)
             if progress is not None and ist[_K] > reported:
                 reported = int(ist[_K])
                 progress(float(t_out[reported - 1]))
@@ -510,6 +489,11 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
         cpu=time.process_time() - start, interrupted=interrupted, nfev=int(ist[_NFEV]) + python_nfev,
         njev=int(ist[_NFACT]) + python_njev, compiled_loop=True, mixed_precision=bool(low),
         low_precision_strikes=int(ist[_STRIKES]), unbalanced=int(getattr(python, "unbalanced", 0) or 0)))
+
+
+def _max_steps_message(ist, fst) -> str:
+    return (f"stopped after {int(ist[_STEPS])} steps at t = {fst[_T]:.6g} (max_steps); raise `max_steps` or the "
+            "step size")
 
 
 def _counts(python) -> tuple[int, int]:

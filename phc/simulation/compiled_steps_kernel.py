@@ -416,6 +416,45 @@ def _predict(y, mid, mid_slope, pt, pm, ist, c, t, h, h_prev, algmask, guess):
         guess[i] = 2.0 * mg - y[i]
 
 
+def _accept(t, h, y, y_new, y_prev, mid, mid_slope, pt, pm, ys, yps, fst, ist):
+    """Take the step (t, h, y) → y_new: the midpoints' history of the predictor, the step
+    counter, the output at the end of an output interval; True when ``max_steps`` is reached.
+    Plain element loops that call nothing: the driver runs the same function, unjitted, for a
+    step the Python code did (:func:`phc.simulation.compiled_steps.integrate`)."""
+    n = y.shape[0]
+    h_prev = fst[_H_PREV]
+    kp = pm.shape[0]
+    for j in range(kp - 1, 0, -1):
+        pt[j] = pt[j - 1]
+    pt[0] = t + 0.5 * h
+    for i in range(n):
+        nm = 0.5 * (y[i] + y_new[i])
+        if ist[_HAS_MID] != 0:
+            mid_slope[i] = (nm - mid[i]) / (0.5 * (h + h_prev))
+        mid[i] = nm
+        for j in range(kp - 1, 0, -1):
+            pm[j, i] = pm[j - 1, i]
+        pm[0, i] = nm
+        y_prev[i] = y[i]
+        y[i] = y_new[i]
+    ist[_HAS_MID] = 1
+    ist[_NMID] = min(ist[_NMID] + 1, kp)
+    fst[_H_PREV] = h
+    fst[_T] = t + h
+    ist[_STEPS] += 1
+    if ist[_STEPS] >= ist[_MAX_STEPS]:
+        return True
+    ist[_J] += 1
+    if ist[_J] >= ist[_SUBSTEPS]:
+        k = ist[_K]
+        for i in range(n):
+            ys[k, i] = y[i]
+            yps[k, i] = (y[i] - y_prev[i]) / h
+        ist[_K] = k + 1
+        ist[_J] = 0
+    return False
+
+
 def _chunk(res, jac, inv, ham, escale, powers, p, t_out, ys, yps, y, mid, mid_slope, y_prev, fst, ist, c, A, lp,
            ipiv, matf, jrows, jcols, end_rows, emask, weights, algmask, hist_t, hist_v, y_new, jbuf, ebuf, M, colscale, pt,
            pm, budget):
@@ -478,34 +517,7 @@ def _chunk(res, jac, inv, ham, escale, powers, p, t_out, ys, yps, y, mid, mid_sl
             if ratio < c[_THRESHOLD]:
                 ist[_STATUS] = _LOOK
                 return
-        # accept the step
-        kp = pm.shape[0]
-        for j in range(kp - 1, 0, -1):
-            pt[j] = pt[j - 1]
-        pt[0] = t + 0.5 * h
-        for i in range(n):
-            nm = 0.5 * (y[i] + y_new[i])
-            if ist[_HAS_MID] != 0:
-                mid_slope[i] = (nm - mid[i]) / (0.5 * (h + h_prev))
-            mid[i] = nm
-            for j in range(kp - 1, 0, -1):
-                pm[j, i] = pm[j - 1, i]
-            pm[0, i] = nm
-            y_prev[i] = y[i]
-            y[i] = y_new[i]
-        ist[_HAS_MID] = 1
-        ist[_NMID] = min(ist[_NMID] + 1, kp)
-        fst[_H_PREV] = h
-        fst[_T] = t + h
-        ist[_STEPS] = steps + 1
         done += 1
-        if steps + 1 >= ist[_MAX_STEPS]:
+        if _accept(t, h, y, y_new, y_prev, mid, mid_slope, pt, pm, ys, yps, fst, ist):
             ist[_STATUS] = _MAXSTEPS
             return
-        ist[_J] += 1
-        if ist[_J] >= ist[_SUBSTEPS]:
-            for i in range(n):
-                ys[k, i] = y[i]
-                yps[k, i] = (y[i] - y_prev[i]) / h
-            ist[_K] = k + 1
-            ist[_J] = 0
