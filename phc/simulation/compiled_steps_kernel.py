@@ -293,8 +293,9 @@ def _advance(ws, ham, escale, powers, t, h, y, guess, out, flags, hist_t, hist_v
     if method == 0:
         code, ill = _stage(ws, 0, t, h, y, guess, 0.5, out)
     elif method == 1:
-        code, ill, y1, _, _, _, _ = _discrete_gradient(_stage, ham, escale, ws, c, ist[_E], t, h, y, guess, p, out)
-        _copy(y1, out)
+        code, ill, y1, best, scale, y_half, secants = _discrete_gradient(_stage, ham, escale, ws, c, ist[_E], t, h, y,
+                                                                        guess, p, out)
+        _copy(y1, out)  # the Python code takes a step no point balances (split, midpoint fallback)
     else:
         code, ill, nhist = _midpoint4_step(_stage, powers, escale, _copy, ws, c, t, h, y, guess, p, out, hist_t,
                                            hist_v, ist[_HIST])
