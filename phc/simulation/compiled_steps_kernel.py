@@ -8,11 +8,12 @@ calls: the predictor, the singularity monitor's routine look, the dense LU / inv
 mixed-precision products — and the layout of the state arrays both sides share.
 
 The step logic itself — the stage's Newton iteration, the discrete-gradient and midpoint4
-steps — is not written here: it is :mod:`phc.simulation.step_logic`, the code the Python loop runs
-as well. This module gives it the compiled loop's operations on its arrays (:func:`_begin`,
-:func:`_refactor`, :func:`_correct`, :func:`_add`, :func:`_copy`, :func:`_precision`, on the
-workspace tuple ``ws`` that :func:`_chunk` builds), and :func:`_compile` jits those functions
-with the rest, under the names this module imports them by.
+steps, the predictor's choice of nodes and weights — is not written here: it is
+:mod:`phc.simulation.step_logic`, the code the Python loop runs as well. Its functions are
+rebound to this module's globals (:func:`_here`), where the operations they call by name are
+the compiled loop's, on the workspace tuple ``ws`` that :func:`_chunk` builds (:func:`_begin`,
+:func:`_refactor`, :func:`_correct`, :func:`_add`, :func:`_copy`, :func:`_precision`,
+:func:`_stage`); :func:`~phc.simulation.compiled_steps._compile` jits them with the rest.
 
 The LAPACK/BLAS entry points the kernel calls (``_dgetrf``, ``_dgetri``, ``_dgecon``,
 ``_dgesdd``, ``_dgemv``, ``_sgemv``) are not defined here: :func:`~phc.simulation.compiled_steps._kernel_namespace`
@@ -25,17 +26,17 @@ stamp of the compiled loop in phc's signed cache (:func:`~phc.simulation.compile
 from __future__ import annotations
 
 import math
+import types
 
 import numpy as np
 
-# the step logic both loops run, its outcome codes and the layout of its constants vector c
-from phc.simulation.step_logic import (  # noqa: F401 — those the driver reads are importable from here
-    _EVAL, _EVERY, _OK, _ONE, _ORDER, _ORDER_ALG, _SINGULAR, _STRIKES_C, _THRESHOLD, _ZERO, DOUBLE_NEXT)
-from phc.simulation.step_logic import discrete_gradient as _discrete_gradient
-from phc.simulation.step_logic import lagrange_weights as _lagrange_weights
-from phc.simulation.step_logic import midpoint4 as _midpoint4_step
-from phc.simulation.step_logic import newton as _newton
-from phc.simulation.step_logic import predictor_nodes as _predictor_nodes
+# the step logic both loops run (its functions are rebound to this module's globals below), its
+# outcome codes and the layout of its constants vector c
+from phc.simulation import step_logic
+from phc.simulation.step_logic import (  # noqa: F401 — the rebound step logic reads them here
+    _BAL_TOL, _EVAL, _EVERY, _FAIL, _FLOOR, _G1, _G2, _M0, _M1, _M2, _MAX_AGE, _MAX_NEWTON, _MAX_SECANT, _OK, _ONE,
+    _ORDER, _ORDER_ALG, _PASSIVITY, _RATE, _S_MAX, _S_MIN, _SINGULAR, _STAGNATION, _STRIKES_C, _THRESHOLD, _TOL,
+    _ZERO, _ZONE, DOUBLE_NEXT, STRIKE)
 
 # the state arrays shared with the driver (phc.simulation.compiled_steps.integrate)
 # status of a chunk
@@ -204,7 +205,7 @@ def _refactor_matrix(jac, t, h, y, y1, s, p, A, lp, ipiv, matf, m, jrows, jcols,
 _AGE0 = _NI  # the ages of the two Newton matrices follow the integer state
 
 
-# The operations of phc.simulation.step_logic on the compiled loop's workspace: the tuple
+# The operations of phc.simulation.step_logic (by their names there) on the compiled loop's workspace: the tuple
 # ws = (res, jac, inv, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend, weights, algmask, c, jbuf, ebuf,
 #       xs, d, r, ints, chars, ist) that _chunk builds.
 
@@ -282,7 +283,7 @@ def _precision(ws, event):
 
 def _stage(ws, m, t, h, y, y1in, s, out):
     """One stage solve (phc.simulation.step_logic.newton) with the compiled loop's operations."""
-    return _newton(ws, m, ws[15], _begin, _refactor, _correct, _add, _copy, _precision, t, h, y, y1in, s, out)
+    return _newton(ws, m, ws[15], t, h, y, y1in, s, out)
 
 
 def _advance(ws, ham, escale, powers, t, h, y, guess, out, flags, hist_t, hist_v):
@@ -293,15 +294,29 @@ def _advance(ws, ham, escale, powers, t, h, y, guess, out, flags, hist_t, hist_v
     if method == 0:
         code, ill = _stage(ws, 0, t, h, y, guess, 0.5, out)
     elif method == 1:
-        code, ill, y1, best, scale, y_half, secants = _discrete_gradient(_stage, ham, escale, ws, c, ist[_E], t, h, y,
-                                                                        guess, p, out)
+        code, ill, y1, best, scale, y_half, secants = _discrete_gradient(ham, escale, ws, c, ist[_E], t, h, y, guess, p,
+                                                                        out)
         _copy(y1, out)  # the Python code takes a step no point balances (split, midpoint fallback)
     else:
-        code, ill, nhist = _midpoint4_step(_stage, powers, escale, _copy, ws, c, t, h, y, guess, p, out, hist_t,
-                                           hist_v, ist[_HIST])
+        code, ill, nhist = _midpoint4_step(powers, escale, ws, c, t, h, y, guess, p, out, hist_t, hist_v, ist[_HIST])
         ist[_HIST] = nhist
     flags[0] = 1 if ill else 0
     return code
+
+
+def _here(func):
+    """`func` of :mod:`phc.simulation.step_logic` with this module's globals: the operations it
+    calls by name (``_begin``, ``_refactor``, ``_correct``, ``_add``, ``_copy``, ``_precision``,
+    ``_stage``) are then the compiled loop's, defined above, and numba compiles it with them
+    (:func:`phc.simulation.compiled_steps._compile`). The code is the Python loop's, unchanged."""
+    return types.FunctionType(func.__code__, globals(), func.__name__, func.__defaults__, func.__closure__)
+
+
+_newton = _here(step_logic.newton)
+_discrete_gradient = _here(step_logic.discrete_gradient)
+_midpoint4_step = _here(step_logic.midpoint4)
+_lagrange_weights = _here(step_logic.lagrange_weights)
+_predictor_nodes = _here(step_logic.predictor_nodes)
 
 
 def _monitor_ratio(jac, t, y, yp, h, p, jrows, jcols, jbuf, M, colscale, threshold):

@@ -57,8 +57,8 @@ import numpy as np
 
 from phc.simulation import step_logic
 from phc.simulation.backend import BackendRun
-from phc.simulation.midpoint import (NEWTON_HINT, SINGULAR_HINT, StageSolver, integrate_fixed_step, newton_weights_of,
-                                     stage_of)
+from phc.simulation.midpoint import (NEWTON_HINT, SINGULAR_HINT, StageSolver, Stages, integrate_fixed_step,
+                                     newton_weights_of)
 
 BALANCE_TOL = 2e-15
 """The step's energy residual |r| is driven below this times the energy scale."""
@@ -88,6 +88,7 @@ class DiscreteGradientStep:
         self.projects = any(str(v).startswith("ggl.") for v in mod.VARIABLES)
         """The model has GGL multipliers, whose projection may do work (module docstring)."""
         self.constants = secant_constants(self.stage.constants.copy())
+        self.stages = Stages(self.stage)
 
     def __call__(self, t, h, y, guess):
         """One step (:func:`phc.simulation.step_logic.discrete_gradient`, the code the compiled loop
@@ -95,8 +96,8 @@ class DiscreteGradientStep:
         self._midpoint = None
         out = np.array(guess, dtype=float)
         code, _, y1, best, scale, y_half, secants = step_logic.discrete_gradient(
-            stage_of, self.mod.hamiltonian, self.mod.energy_scale, (self.stage,), self.constants, self.e, t, h, y,
-            guess, self.p, out)
+            self.mod.hamiltonian, self.mod.energy_scale, self.stages, self.constants, self.e, t, h, y, guess, self.p,
+            out)
         self.secant_iterations += secants
         if code == step_logic._OK:
             return y1, True, ""

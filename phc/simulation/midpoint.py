@@ -291,9 +291,7 @@ class StageSolver:
         self.evaluation_error = None
         self.singular = self.refreshed = self.ill_conditioned = False
         try:
-            code, self.ill_conditioned = step_logic.newton(
-                self, 0, self.constants, StageSolver._begin, StageSolver._refactor, StageSolver._correct, add_to,
-                copy_to, _precision, t, h, y, y1, s, out)
+            code, self.ill_conditioned = step_logic.newton(self, 0, self.constants, t, h, y, y1, s, out)
         except ModelEvaluationError as err:
             self.evaluation_error = err
             out[...] = y1
@@ -302,18 +300,18 @@ class StageSolver:
 
     # the operations of phc.simulation.step_logic.newton on this solver (its only Newton matrix: m = 0)
 
-    def _begin(self, m):
+    def begin(self, m):
         matrix = self.matrix
         matrix.age += 1
         return matrix.lu is not None, matrix.h, matrix.s, matrix.age
 
-    def _refactor(self, m, t, h, y, y1, s) -> int:
+    def refactor(self, m, t, h, y, y1, s) -> int:
         self.refreshed = True  # set when the matrix is factorized in this step
         ok = self.matrix.factor(t, h, y, y1, s)
         self.singular = not ok
         return step_logic._OK if ok else step_logic._SINGULAR
 
-    def _correct(self, m, t, h, y, y1, s):
+    def correct(self, m, t, h, y, y1, s):
         """The correction and its size: without weights, max |Δ| against 1 + max |y|; with
         them, the differential variables scaled (a state against its scale or its size,
         whichever is larger) and the algebraic ones as before, relative to |y| + 1."""
@@ -329,27 +327,18 @@ class StageSolver:
         return step_logic._OK, delta, size, states, scale, bool(np.isfinite(size)), False
 
 
-# the vector operations of phc.simulation.step_logic in the Python loop
+class Stages:
+    """The workspace of :func:`phc.simulation.step_logic.discrete_gradient` and
+    :func:`~phc.simulation.step_logic.midpoint4` in the Python loop: one :class:`StageSolver`
+    per Newton matrix m."""
 
-def add_to(y1, delta):
-    """y1 ← y1 + delta."""
-    y1 += delta
+    def __init__(self, *solvers):
+        self.solvers = solvers
 
-
-def copy_to(src, dst):
-    """dst ← src."""
-    dst[...] = src
-
-
-def _precision(ws, event):
-    """The Python loop solves in double precision only: nothing to switch."""
-
-
-def stage_of(ws, m, t, h, y, y1in, s, out):
-    """The stage operation of :mod:`phc.simulation.step_logic` on a sequence of :class:`StageSolver`
-    (one per Newton matrix m): ``(code, ill_conditioned)``."""
-    stage = ws[m]
-    return stage.solve_into(t, h, y, y1in, s, out), stage.ill_conditioned
+    def solve_stage(self, m, t, h, y, y1in, s, out):
+        """The stage solve with matrix m into `out`: ``(code, ill_conditioned)``."""
+        stage = self.solvers[m]
+        return stage.solve_into(t, h, y, y1in, s, out), stage.ill_conditioned
 
 
 def newton_constants(c=None) -> np.ndarray:

@@ -38,8 +38,8 @@ import numpy as np
 
 from phc.simulation import step_logic
 from phc.simulation.backend import BackendRun
-from phc.simulation.midpoint import (NEWTON_HINT, SINGULAR_HINT, StageSolver, copy_to, integrate_fixed_step,
-                                     newton_weights_of, stage_of)
+from phc.simulation.midpoint import (NEWTON_HINT, SINGULAR_HINT, StageSolver, Stages, integrate_fixed_step,
+                                     newton_weights_of)
 
 PASSIVITY_HINT = ("the step added energy through dissipation (the backward substep of the composition "
                   "outweighed the forward ones: a damped mode with h·|λ| near 1.17); change `step` by about "
@@ -72,6 +72,7 @@ class Midpoint4Step:
         self.mod, self.p = mod, p
         w = newton_weights_of(scales, mod)
         self.stages = (StageSolver(mod, p, weights=w), StageSolver(mod, p, weights=w))  # γ₁h and γ₂h
+        self.workspace = Stages(*self.stages)
         self.stage = self  # for the driver's look at `ill_conditioned`
         self.ill_conditioned = False
         self.singular = False
@@ -97,8 +98,8 @@ class Midpoint4Step:
     def __call__(self, t, h, y, guess):
         out = np.array(guess, dtype=float)
         code, self.ill_conditioned, self.nhist = step_logic.midpoint4(
-            stage_of, self.mod.powers, self.mod.energy_scale, copy_to, self.stages, self.constants, t, h, y, guess,
-            self.p, out, self.hist_t, self.hist_v, self.nhist)
+            self.mod.powers, self.mod.energy_scale, self.workspace, self.constants, t, h, y, guess, self.p, out,
+            self.hist_t, self.hist_v, self.nhist)
         self.singular = code == step_logic._SINGULAR
         if code == step_logic._OK:
             return out, True, ""

@@ -25,30 +25,32 @@ The drivers around the steps are still each loop's own: the Python loop's
 singularity monitor's messages) and the compiled loop's chunk of routine steps
 (:func:`phc.simulation.compiled_steps_kernel._chunk`), which hands every other step back.
 
-Neither loop's data structures appear here. A function takes the operations that touch
-them as arguments — ``ws`` is the loop's workspace (the Python loop: its
-:class:`~phc.simulation.midpoint.StageSolver` objects; the compiled loop: a tuple of its
-arrays), passed through to those operations untouched — and the loop passes its own: the
-Python loop its sparse LU and NumPy vector operations, the compiled loop (which jits these
-functions: :func:`phc.simulation.compiled_steps._compile`) its LAPACK/BLAS calls and element
-loops. The operations (what the functions call, and what they return):
+Neither loop's data structures appear here. What touches them are a few operations, called
+by name: ``ws`` is the loop's workspace, passed through to them untouched. The Python loop's
+operations are defined at the end of this module: they call the methods of its workspace
+object (a :class:`~phc.simulation.midpoint.StageSolver`, whose operations are its sparse LU
+and NumPy vector arithmetic, or :class:`~phc.simulation.midpoint.Stages`). The compiled loop
+runs copies of these functions whose globals are its kernel module
+(:func:`phc.simulation.compiled_steps_kernel._here`), where the same names are its own
+operations on a tuple of arrays (LAPACK/BLAS calls and element loops), and numba compiles
+them with the rest of the kernel. The operations (what they do and return):
 
-``begin(ws, m) -> (factorized, h, s, age)``
+``_begin(ws, m) -> (factorized, h, s, age)``
     Start a solve with Newton matrix ``m``: its age counts up by one; returns whether it is
     factorized and the step size and evaluation point it was factorized for.
-``refactor(ws, m, t, h, y, y1, s) -> code``
+``_refactor(ws, m, t, h, y, y1, s) -> code``
     Factorize matrix ``m`` for the iterate ``y1`` (:data:`_OK`, :data:`_SINGULAR`, :data:`_EVAL`).
-``correct(ws, m, t, h, y, y1, s) -> (code, delta, size, states, scale, finite, low)``
+``_correct(ws, m, t, h, y, y1, s) -> (code, delta, size, states, scale, finite, low)``
     The correction ``Δ = −J⁻¹F`` at ``y1`` and its size in the Newton test's units (``size``:
     all unknowns, ``states``: the states alone, both measured against ``scale``), whether it
     is finite, and whether it was computed with the single-precision copy of the matrix.
-``add(y1, delta)``, ``copy(src, dst)``
+``_add(y1, delta)``, ``_copy(src, dst)``
     ``y1 += delta``, ``dst[:] = src``.
-``precision(ws, event)``
+``_precision(ws, event)``
     :data:`DOUBLE_NEXT`: the rest of this solve in double precision; :data:`STRIKE`: double
     precision contracted where single did not (the Python loop has no single precision).
-``stage(ws, m, t, h, y, y1in, s, out) -> (code, ill_conditioned)``
-    One stage solve (:func:`newton` with the loop's operations) into ``out``.
+``_stage(ws, m, t, h, y, y1in, s, out) -> (code, ill_conditioned)``
+    One stage solve (:func:`newton` with matrix ``m``) into ``out``.
 
 The numbers the logic uses come in the vector ``c`` (its layout: ``_TOL`` … ``_STRIKES_C``),
 filled from the constants of the methods' modules (:func:`phc.simulation.midpoint.newton_constants`,
@@ -70,7 +72,7 @@ DOUBLE_NEXT, STRIKE = 0, 1
 _NC = 23
 
 
-def newton(ws, m, c, begin, refactor, correct, add, copy, precision, t, h, y, y1in, s, out):
+def newton(ws, m, c, t, h, y, y1in, s, out):
     """Solve ``F(t + s h, y + s (y1 − y), (y1 − y)/h) = 0`` (the position-constraint rows at the
     step end) for ``y1`` by simplified Newton from ``y1in``, into ``out``; returns
     ``(code, ill_conditioned)``.
@@ -84,8 +86,8 @@ def newton(ws, m, c, begin, refactor, correct, add, copy, precision, t, h, y, y1
     the smallest rate with this matrix) whose correction is below ``c[_ZONE]·c[_TOL]``; a fresh
     matrix that cannot reduce a states' correction below ``c[_FLOOR]`` (then
     ``ill_conditioned``: the driver asks the singularity monitor)."""
-    copy(y1in, out)
-    factorized, h0, s0, age = begin(ws, m)
+    _copy(y1in, out)
+    factorized, h0, s0, age = _begin(ws, m)
     # a fresh matrix before the next correction (set where the iteration asks for one)
     pending = not factorized or abs(h - h0) > 1e-3 * abs(h) or abs(s - s0) > 0.2 or age >= c[_MAX_AGE]
     refreshed = False  # a matrix was factorized in this solve
@@ -98,20 +100,20 @@ def newton(ws, m, c, begin, refactor, correct, add, copy, precision, t, h, y, y1
         if pending:
             pending = False
             refreshed = True
-            code = refactor(ws, m, t, h, y, out, s)
+            code = _refactor(ws, m, t, h, y, out, s)
             if code != _OK:
                 return code, False
             since = 0
             last = -1.0
             rate = np.inf
             suspect = 0.0
-        code, delta, size, states, scale, finite, low = correct(ws, m, t, h, y, out, s)
+        code, delta, size, states, scale, finite, low = _correct(ws, m, t, h, y, out, s)
         if code != _OK:
             return code, False
         if not finite:
             if since == 0:
                 return _FAIL, False
-            copy(y1in, out)  # restart from the start with a fresh matrix
+            _copy(y1in, out)  # restart from the start with a fresh matrix
             pending = True
             continue
         has_theta = last > 0.0
@@ -120,7 +122,7 @@ def newton(ws, m, c, begin, refactor, correct, add, copy, precision, t, h, y, y1
             # a matrix factorized in this solve contracts poorly: its single-precision copy may be
             # to blame (conditioning), or the iteration is far from linear. Redo the correction in
             # double and compare the rates
-            precision(ws, DOUBLE_NEXT)
+            _precision(ws, DOUBLE_NEXT)
             suspect = theta
             last = -1.0
             rate = np.inf
@@ -128,21 +130,21 @@ def newton(ws, m, c, begin, refactor, correct, add, copy, precision, t, h, y, y1
         if suspect > 0.0 and has_theta:
             # double precision with the same matrix: a strike if it contracts where single did not
             if theta <= c[_RATE] and since > 0:
-                precision(ws, STRIKE)
+                _precision(ws, STRIKE)
             suspect = 0.0
         if has_theta and (theta >= 0.5 or theta >= c[_STAGNATION] * rate) and size <= c[_ZONE] * tol * scale:
-            add(out, delta)  # stagnating at round-off level: accept
+            _add(out, delta)  # stagnating at round-off level: accept
             return _OK, False
         if refreshed and has_theta and theta >= 0.5 and states <= c[_FLOOR] * scale:
             # no progress with a fresh matrix: round-off amplified by its conditioning (a
             # multiplier at rest, say) — the iterate is as good as it gets, but the driver is
             # told (the conditioning may come from a singular configuration)
-            add(out, delta)
+            _add(out, delta)
             return _OK, True
         if has_theta and theta >= 1.0 and since > 0 and size > 1e3 * tol * scale:
             pending = True  # the old matrix no longer contracts: refresh it here and retry
             continue
-        add(out, delta)
+        _add(out, delta)
         since += 1
         if size <= 1e-2 * tol * scale:
             return _OK, False
@@ -153,13 +155,13 @@ def newton(ws, m, c, begin, refactor, correct, add, copy, precision, t, h, y, y1
             pending = theta > c[_RATE]
         last = size
     if pending:  # asked for in the last iteration: the next solve (a retry, a split) starts with it
-        code = refactor(ws, m, t, h, y, out, s)
+        code = _refactor(ws, m, t, h, y, out, s)
         if code != _OK:
             return code, False
     return _FAIL, False
 
 
-def discrete_gradient(stage, ham, escale, ws, c, e, t, h, y, guess, p, out):
+def discrete_gradient(ham, escale, ws, c, e, t, h, y, guess, p, out):
     """One discrete-gradient step (:mod:`phc.simulation.discrete_gradient`): the stage equations
     at ``y(s)`` and the energy balance ``r(s) = H(y₁) − H(y) + E₁ − E = 0`` (E: the energy
     accumulator, unknown ``e``), by a safeguarded secant iteration on ``s`` from ``s = 1/2``.
@@ -168,7 +170,7 @@ def discrete_gradient(stage, ham, escale, ws, c, e, t, h, y, guess, p, out):
     (``out`` or the best secant iterate), ``best`` its ``|r|`` and ``scale`` the energy scale
     the tolerance ``c[_BAL_TOL]`` is relative to, ``y_half`` the implicit-midpoint step
     (``s = 1/2``) for the caller's fallback where no point balances the energy."""
-    code, ill = stage(ws, 0, t, h, y, guess, 0.5, out)
+    code, ill = _stage(ws, 0, t, h, y, guess, 0.5, out)
     if code != _OK:
         return code, ill, out, 0.0, 0.0, out, 0
     H0 = ham(t, y, p)
@@ -198,7 +200,7 @@ def discrete_gradient(stage, ham, escale, ws, c, e, t, h, y, guess, p, out):
         s_new = min(max(s_prev - r_prev / slope, c[_S_MIN]), c[_S_MAX]) if slope != 0.0 else 0.5
         if s_new == s_prev:
             break
-        code, ill = stage(ws, 0, t, h, y, y_prev, s_new, out)
+        code, ill = _stage(ws, 0, t, h, y, y_prev, s_new, out)
         if code != _OK:
             break
         r_new = ham(t + h, out, p) - H0 + out[e] - y[e]
@@ -219,7 +221,7 @@ def discrete_gradient(stage, ham, escale, ws, c, e, t, h, y, guess, p, out):
     return (_OK if best <= 1e3 * tol else _FAIL), ill, y_best, best, scale, y_half, secants
 
 
-def midpoint4(stage, powers, escale, copy, ws, c, t, h, y, guess, p, out, hist_t, hist_v, nhist):
+def midpoint4(powers, escale, ws, c, t, h, y, guess, p, out, hist_t, hist_v, nhist):
     """One step of the fourth-order composition (:mod:`phc.simulation.midpoint4`): midpoint
     substeps of ``c[_G1]·h, c[_G2]·h, c[_G1]·h`` (matrix 0 for the outer ones, 1 for the middle
     one), each started from its predicted midpoint, then the passivity guard. Returns
@@ -246,17 +248,17 @@ def midpoint4(stage, powers, escale, copy, ws, c, t, h, y, guess, p, out, hist_t
             mid = hist_v[1, i] + (ti - hist_t[1, i]) * (hist_v[1, i] - hist_v[0, i]) / (hist_t[1, i] - hist_t[0, i])
         else:
             mid = y + mt[i] * h * ((guess - y) / h)
-        code, ill_i = stage(ws, m, tau, hs, start, 2.0 * mid - start, 0.5, out)
+        code, ill_i = _stage(ws, m, tau, hs, start, 2.0 * mid - start, 0.5, out)
         ill = ill or ill_i
         if code != _OK:
             return code, ill, 0
-        copy(0.5 * (start + out), values[i])
+        _copy(0.5 * (start + out), values[i])
         diss = hs * powers(tau + 0.5 * hs, values[i], (out - start) / hs, p)[1]
         if not np.isfinite(diss):
             return _EVAL, ill, 0
         dissipated += diss
         scale += abs(diss)
-        copy(out, start)
+        _copy(out, start)
         tau = tau + hs
     # round-off of a dissipation that is zero (a body that sticks, docs/events.md) is no violation
     floor = 1e-13 * abs(escale(t, y, p)) + 1e-300
@@ -265,14 +267,14 @@ def midpoint4(stage, powers, escale, copy, ws, c, t, h, y, guess, p, out, hist_t
     if nhist == 2:
         for i in range(3):
             hist_t[0, i] = hist_t[1, i]
-            copy(hist_v[1, i], hist_v[0, i])
+            _copy(hist_v[1, i], hist_v[0, i])
         k = 1
     else:
         k = nhist
         nhist += 1
     for i in range(3):
         hist_t[k, i] = t + mt[i] * h
-        copy(values[i], hist_v[k, i])
+        _copy(values[i], hist_v[k, i])
     return _OK, ill, nhist
 
 
@@ -296,3 +298,33 @@ def predictor_nodes(order, known):
         return 0
     k = min(order + 1, known)
     return 1 if k < 3 else k
+
+
+# The operations in the Python loop: the workspace object's methods, NumPy arithmetic.
+
+def _begin(ws, m):
+    return ws.begin(m)
+
+
+def _refactor(ws, m, t, h, y, y1, s):
+    return ws.refactor(m, t, h, y, y1, s)
+
+
+def _correct(ws, m, t, h, y, y1, s):
+    return ws.correct(m, t, h, y, y1, s)
+
+
+def _add(y1, delta):
+    y1 += delta
+
+
+def _copy(src, dst):
+    dst[...] = src
+
+
+def _precision(ws, event):
+    """The Python loop solves in double precision only: nothing to switch."""
+
+
+def _stage(ws, m, t, h, y, y1in, s, out):
+    return ws.solve_stage(m, t, h, y, y1in, s, out)
