@@ -88,7 +88,7 @@ class DiscreteGradientStep:
         self.projects = any(str(v).startswith("ggl.") for v in mod.VARIABLES)
         """The model has GGL multipliers, whose projection may do work (module docstring)."""
         self.constants = secant_constants(self.stage.constants.copy())
-        self.stages = Stages(self.stage)
+        self.workspace = Stages(self.stage)
 
     def __call__(self, t, h, y, guess):
         """One step (:func:`phc.simulation.step_logic.discrete_gradient`, the code the compiled loop
@@ -96,7 +96,7 @@ class DiscreteGradientStep:
         self._midpoint = None
         out = np.array(guess, dtype=float)
         code, _, y1, best, scale, y_half, secants = step_logic.discrete_gradient(
-            self.mod.hamiltonian, self.mod.energy_scale, self.stages, self.constants, self.e, t, h, y, guess, self.p,
+            self.mod.hamiltonian, self.mod.energy_scale, self.workspace, self.constants, self.e, t, h, y, guess, self.p,
             out)
         self.secant_iterations += secants
         if code == step_logic._OK:
