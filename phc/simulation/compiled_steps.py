@@ -5,10 +5,11 @@ most :data:`MAX_UNKNOWNS` unknowns, `midpoint`, `discrete_gradient` and `midpoin
 their steps in one compiled function that calls the model's compiled residual, Jacobian,
 invariants, H and powers directly (numba first-class functions: no Python in between):
 
-* the simplified Newton iteration of :class:`~phc.simulation.midpoint.StageSolver`, step for
-  step — the same stopping rules, the same refresh of the Newton matrix on poor contraction,
-  step-size change, a moved evaluation point or age, the GGL position constraints imposed
-  at the step ends — with the Newton matrix as a dense LU (LAPACK ``dgetrf``) turned into
+* the simplified Newton iteration of :class:`~phc.simulation.midpoint.StageSolver` — the same
+  code, :func:`phc.simulation.step_logic.newton`, jitted: the same stopping rules, the same refresh
+  of the Newton matrix on poor contraction, step-size change, a moved evaluation point or age,
+  the GGL position constraints imposed at the step ends — with the Newton matrix as a dense
+  LU (LAPACK ``dgetrf``) turned into
   its inverse (``dgetri``) once per factorization, so that each of the many corrections
   with one matrix is a matrix–vector product (BLAS ``dgemv``: half the time of the two
   triangular solves ``dtrsv`` it replaced at 83 unknowns; all through
@@ -28,7 +29,8 @@ invariants, H and powers directly (numba first-class functions: no Python in bet
   precision. ``PHC_MIXED_PRECISION=0`` switches it off;
 * the discrete-gradient step's secant iteration on the mean-value point
   (:mod:`phc.simulation.discrete_gradient`) and midpoint4's composition with its
-  predictor and passivity guard (:mod:`phc.simulation.midpoint4`);
+  predictor and passivity guard (:mod:`phc.simulation.midpoint4`), again the code the Python
+  loop runs (:mod:`phc.simulation.step_logic`);
 * the driver of :func:`~phc.simulation.midpoint.integrate_fixed_step`: the output grid and
   its equal substeps, the predictor of the step midpoints (the polynomial of degree
   :data:`~phc.simulation.midpoint.PREDICTOR_ORDER` through the last ones), the singularity
@@ -74,12 +76,12 @@ from typing import Optional
 import numpy as np
 
 from phc.simulation import compiled_steps_kernel as _kernel
+from phc.simulation import step_logic as _step_logic
 from phc.simulation.backend import BackendRun
 from phc.simulation.compiled_steps_kernel import (  # the layout of the state arrays the kernel shares
-    _BAL_TOL, _BUDGET, _CODE, _DONE, _E, _EVERY, _FLOOR, _G1, _G2, _H, _H_PREV, _HARD, _HAS_MID, _HIST, _ILL, _J, _K,
-    _LAST_LOOK, _LOOK, _LOWP, _M0, _M1, _M2, _MAX_AGE, _MAX_NEWTON, _MAX_SECANT, _MAX_STEPS, _MAXSTEPS, _METHOD,
-    _MONITOR, _NC, _NEND, _NF, _NFACT, _NFEV, _NI, _NMID, _OK, _ONE, _ORDER, _ORDER_ALG, _RATE, _S_MAX, _S_MIN,
-    _STAGNATION, _STATUS, _STEP, _STEPS, _STRIKES, _STRIKES_C, _SUBSTEPS, _T, _THRESHOLD, _TOL, _ZERO, _ZONE)
+    _BUDGET, _CODE, _DONE, _E, _EVERY, _H, _H_PREV, _HARD, _HIST, _ILL, _K, _LAST_LOOK, _LOOK, _LOWP, _MAX_STEPS,
+    _MAXSTEPS, _METHOD, _MONITOR, _NEND, _NF, _NFACT, _NFEV, _NI, _OK, _ONE, _ORDER, _ORDER_ALG, _STATUS, _STEP,
+    _STEPS, _STRIKES, _STRIKES_C, _T, _THRESHOLD, _ZERO)
 
 MAX_UNKNOWNS = 400
 """Largest system whose step loop is compiled (dense LU); larger ones keep the sparse Python loop."""
@@ -103,10 +105,11 @@ _READY = None
 _WHY = ""
 
 
-_SOURCE_FILES = (Path(_kernel.__file__), Path(__file__))
-"""The files the compiled loop's code comes from: the kernel's functions, and this module (the
-signatures, the LAPACK/BLAS symbols and the namespace they are compiled with). The stamp of
-the loop in phc's cache (:func:`_attach_cache`) covers their text."""
+_SOURCE_FILES = (Path(_kernel.__file__), Path(_step_logic.__file__), Path(__file__))
+"""The files the compiled loop's code comes from: the kernel's functions, the step logic it
+shares with the Python loop (:mod:`phc.simulation.step_logic`), and this module (the signatures,
+the LAPACK/BLAS symbols and the namespace they are compiled with). The stamp of the loop in
+phc's cache (:func:`_attach_cache`) covers their text."""
 
 
 def _kernel_source() -> str:
@@ -263,8 +266,10 @@ def _compile():
     fn = {name: types.FunctionType(sig) for name, sig in sigs.items()}
     namespace = _kernel_namespace(externals)
     jit = numba.njit(error_model="numpy")
-    for name in ("_copy", "_factor", "_invert", "_solve", "_lowprec", "_solve32", "_fill", "_stage_residual", "_refactor", "_all_finite",
-                 "_stage", "_midpoint4", "_dg", "_advance", "_monitor_ratio", "_weights", "_predict"):
+    for name in ("_accept", "_copy", "_factor", "_invert", "_solve", "_lowprec", "_solve32", "_fill", "_stage_residual",
+                 "_refactor_matrix", "_all_finite", "_begin", "_refactor", "_correct", "_add", "_precision", "_newton",
+                 "_stage", "_discrete_gradient", "_midpoint4_step", "_advance", "_monitor_ratio", "_lagrange_weights",
+                 "_predictor_nodes", "_predict"):
         namespace[name] = jit(namespace[name])
     chunk = numba.njit(error_model="numpy")(namespace["_chunk"])
     C1 = types.Array(types.float64, 1, "C")
@@ -369,13 +374,9 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
     fst = np.zeros(_NF)
     fst[_STEP] = float(step) if step else 0.0
     fst[_H_PREV] = 1.0
-    c = np.zeros(_NC)
-    c[_TOL], c[_RATE], c[_FLOOR], c[_MAX_AGE] = mp.NEWTON_TOL, mp.REFACTOR_RATE, mp.ROUNDOFF_FLOOR, mp.MAX_AGE
-    c[_MAX_NEWTON], c[_BAL_TOL], c[_MAX_SECANT] = mp.MAX_NEWTON, dg.BALANCE_TOL, dg.MAX_SECANT
-    c[_S_MIN], c[_S_MAX], c[_THRESHOLD], c[_EVERY] = dg.S_MIN, dg.S_MAX, THRESHOLD, mp.MONITOR_EVERY
-    c[_G1], c[_G2] = m4.GAMMA1, m4.GAMMA2
-    c[_M0], c[_M1], c[_M2] = m4.MID_TIMES
-    c[_ZONE], c[_STAGNATION] = mp.ROUNDOFF_ZONE, mp.STAGNATION_JUMP
+    # the numbers of the step logic (phc.simulation.step_logic): the methods' constants, as in the Python loop
+    c = m4.composition_constants(dg.secant_constants(mp.newton_constants()))
+    c[_THRESHOLD], c[_EVERY] = THRESHOLD, mp.MONITOR_EVERY
     c[_ONE], c[_ZERO] = 1.0, 0.0
     c[_ORDER] = min(max(int(mp.PREDICTOR_ORDER), 0), mp.MAX_PREDICTOR_ORDER)
     c[_ORDER_ALG] = min(max(int(mp.PREDICTOR_ORDER_ALGEBRAIC), 0), mp.MAX_PREDICTOR_ORDER)
@@ -424,8 +425,8 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
         if python is None:
             python = python_advance()
         stage = getattr(python, "stage", None)
-        if hasattr(python, "history"):
-            python.history = []
+        if hasattr(python, "nhist"):  # midpoint4's predictor: the history is the kernel's
+            python.nhist = 0
         reason = ""
         if not converged:
             new, converged, reason = mp._subdivide(python, t, h, y.copy(), mp.MAX_SPLIT)
@@ -446,30 +447,10 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
             else:
                 ok, message = False, f"{name}: {reason} at t = {t:.6g}; results up to this time are kept"
             return
-        new_mid = 0.5 * (y + new)
-        if ist[_HAS_MID]:
-            mid_slope[:] = (new_mid - mid) / (0.5 * (h + fst[_H_PREV]))
-        mid[:] = new_mid
-        pt[1:], pm[1:] = pt[:-1].copy(), pm[:-1].copy()
-        pt[0], pm[0] = t + 0.5 * h, new_mid
-        ist[_NMID] = min(int(ist[_NMID]) + 1, len(pt))
-        y_prev[:] = y
-        y[:] = new
-        ist[_HAS_MID] = 1
-        ist[_HIST] = 0
-        fst[_H_PREV] = h
-        fst[_T] = t + h
-        ist[_STEPS] = steps + 1
-        if steps + 1 >= max_steps:
-            ok, message = False, (f"stopped after {steps + 1} steps at t = {t + h:.6g} (max_steps); raise "
-                                  "`max_steps` or the step size")
-            return
-        ist[_J] += 1
-        if ist[_J] >= ist[_SUBSTEPS]:
-            k = int(ist[_K])
-            ys[k], yps[k] = y, (y - y_prev) / h
-            ist[_K] = k + 1
-            ist[_J] = 0
+        ist[_HIST] = 0  # midpoint4's predictor starts again: the Python step kept its own history
+        accept = getattr(_kernel._accept, "py_func", _kernel._accept)  # unjitted: element loops over N ≤ 400
+        if accept(t, h, y, new, y_prev, mid, mid_slope, pt, pm, ys, yps, fst, ist):
+            ok, message = False, _max_steps_message(ist, fst)
 
     try:
         while True:
@@ -487,8 +468,7 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
                 if python is not None:
                     python_nfev, python_njev = _counts(python)
             elif status == _MAXSTEPS:
-                ok, message = False, (f"stopped after {int(ist[_STEPS])} steps at t = {fst[_T]:.6g} (max_steps); "
-                                      "raise `max_steps` or the step size")
+                ok, message = False, _max_steps_message(ist, fst)
             if progress is not None and ist[_K] > reported:
                 reported = int(ist[_K])
                 progress(float(t_out[reported - 1]))
@@ -509,6 +489,11 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
         cpu=time.process_time() - start, interrupted=interrupted, nfev=int(ist[_NFEV]) + python_nfev,
         njev=int(ist[_NFACT]) + python_njev, compiled_loop=True, mixed_precision=bool(low),
         low_precision_strikes=int(ist[_STRIKES]), unbalanced=int(getattr(python, "unbalanced", 0) or 0)))
+
+
+def _max_steps_message(ist, fst) -> str:
+    return (f"stopped after {int(ist[_STEPS])} steps at t = {fst[_T]:.6g} (max_steps); raise `max_steps` or the "
+            "step size")
 
 
 def _counts(python) -> tuple[int, int]:

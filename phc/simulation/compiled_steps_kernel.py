@@ -4,29 +4,43 @@
 :mod:`phc.simulation.compiled_steps` says what the compiled loop does and holds its Python
 side (whether a run uses it, building and caching it, the driver between chunks); this module
 holds only the code numba compiles — the chunk of steps (:func:`_chunk`) and everything it
-calls: the stage solve, the discrete-gradient and midpoint4 steps, the predictor, the
-singularity monitor's routine look, the dense LU / inverse / mixed-precision products — and
-the layout of the state arrays both sides share.
+calls: the predictor, the singularity monitor's routine look, the dense LU / inverse /
+mixed-precision products — and the layout of the state arrays both sides share.
+
+The step logic itself — the stage's Newton iteration, the discrete-gradient and midpoint4
+steps, the predictor's choice of nodes and weights — is not written here: it is
+:mod:`phc.simulation.step_logic`, the code the Python loop runs as well. Its functions are
+rebound to this module's globals (:func:`_here`), where the operations they call by name are
+the compiled loop's, on the workspace tuple ``ws`` that :func:`_chunk` builds (:func:`_begin`,
+:func:`_refactor`, :func:`_correct`, :func:`_add`, :func:`_copy`, :func:`_precision`,
+:func:`_stage`); :func:`~phc.simulation.compiled_steps._compile` jits them with the rest.
 
 The LAPACK/BLAS entry points the kernel calls (``_dgetrf``, ``_dgetri``, ``_dgecon``,
 ``_dgesdd``, ``_dgemv``, ``_sgemv``) are not defined here: :func:`~phc.simulation.compiled_steps._kernel_namespace`
 binds them into this module's globals, the namespace the kernel is jitted in, before it is
 compiled; :func:`~phc.simulation.compiled_steps._compile` then replaces each function here by its
-jitted version. The text of this module is part of the stamp of the compiled loop in phc's
-signed cache (:func:`~phc.simulation.compiled_steps._kernel_source`).
+jitted version. The text of this module and of :mod:`phc.simulation.step_logic` is part of the
+stamp of the compiled loop in phc's signed cache (:func:`~phc.simulation.compiled_steps._kernel_source`).
 """
 
 from __future__ import annotations
 
 import math
+import types
 
 import numpy as np
+
+# the step logic both loops run (its functions are rebound to this module's globals below), its
+# outcome codes and the layout of its constants vector c
+from phc.simulation import step_logic
+from phc.simulation.step_logic import (  # noqa: F401 — the rebound step logic reads them here
+    _BAL_TOL, _EVAL, _EVERY, _FAIL, _FLOOR, _G1, _G2, _M0, _M1, _M2, _MAX_AGE, _MAX_NEWTON, _MAX_SECANT, _OK, _ONE,
+    _ORDER, _ORDER_ALG, _PASSIVITY, _RATE, _S_MAX, _S_MIN, _SINGULAR, _STAGNATION, _STRIKES_C, _THRESHOLD, _TOL,
+    _ZERO, _ZONE, DOUBLE_NEXT, STRIKE)
 
 # the state arrays shared with the driver (phc.simulation.compiled_steps.integrate)
 # status of a chunk
 _BUDGET, _DONE, _HARD, _LOOK, _MAXSTEPS = 0, 1, 2, 3, 4
-# outcome of a stage solve / a step
-_OK, _FAIL, _SINGULAR, _EVAL = 0, 1, 2, 3
 # integer state
 (_K, _J, _SUBSTEPS, _STEPS, _LAST_LOOK, _HAS_MID, _MAX_STEPS, _STATUS, _NFEV, _NFACT, _HIST, _MONITOR, _METHOD,
  _CODE, _ILL, _E, _NEND, _NMID, _LOWP, _STRIKES) = range(20)
@@ -34,10 +48,6 @@ _NI = 20
 # float state
 _T, _H, _H_PREV, _STEP = range(4)
 _NF = 4
-# constants
-(_TOL, _RATE, _FLOOR, _MAX_AGE, _MAX_NEWTON, _BAL_TOL, _MAX_SECANT, _S_MIN, _S_MAX, _THRESHOLD, _EVERY,
- _G1, _G2, _M0, _M1, _M2, _ORDER, _ZONE, _STAGNATION, _ONE, _ZERO, _ORDER_ALG, _STRIKES_C) = range(23)
-_NC = 23
 
 _RCOND_MARGIN = 1e3
 """The routine look of the singularity monitor computes singular values only when LAPACK's
@@ -161,7 +171,8 @@ def _stage_residual(res, inv, t, h, y, y1, s, p, out, end_rows, nend, xs, d):
     return _all_finite(out)
 
 
-def _refactor(jac, t, h, y, y1, s, p, A, lp, ipiv, matf, m, jrows, jcols, emask, nend, jbuf, ebuf, xs, d, ints, ist):
+def _refactor_matrix(jac, t, h, y, y1, s, p, A, lp, ipiv, matf, m, jrows, jcols, emask, nend, jbuf, ebuf, xs, d, ints,
+                     ist):
     """Factorize the Newton matrix m for the iterate y1; the outcome (_OK, _SINGULAR, _EVAL)."""
     ist[_NFACT] += 1
     n = y.shape[0]
@@ -194,285 +205,118 @@ def _refactor(jac, t, h, y, y1, s, p, A, lp, ipiv, matf, m, jrows, jcols, emask,
 _AGE0 = _NI  # the ages of the two Newton matrices follow the integer state
 
 
-def _stage(res, jac, inv, t, h, y, y1in, s, p, m, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend, weights,
-           algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags):
-    """StageSolver.solve: y1 with F(t + s h, y + s(y1 − y), (y1 − y)/h) = 0 (end rows: g(t + h, y1) = 0)
-    into `out`; returns _OK, _FAIL, _SINGULAR or _EVAL; flags[0] ← ill-conditioned."""
-    n = y.shape[0]
-    flags[0] = 0
-    refreshed = False
+# The operations of phc.simulation.step_logic (by their names there) on the compiled loop's workspace: the tuple
+# ws = (res, jac, inv, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend, weights, algmask, c, jbuf, ebuf,
+#       xs, d, r, ints, chars, ist) that _chunk builds.
+
+def _begin(ws, m):
+    matf, ist = ws[7], ws[23]
     if ist[_LOWP] < 0:  # double precision was for the last solve only
         ist[_LOWP] = 1
-    for i in range(n):
-        out[i] = y1in[i]
     ist[_AGE0 + m] += 1
-    since = 1
-    tol = c[_TOL]
-    if (matf[m, 2] == 0.0 or abs(h - matf[m, 0]) > 1e-3 * abs(h) or abs(s - matf[m, 1]) > 0.2
-            or ist[_AGE0 + m] >= c[_MAX_AGE]):
-        refreshed = True
-        code = _refactor(jac, t, h, y, out, s, p, A, lp, ipiv, matf, m, jrows, jcols, emask, nend, jbuf, ebuf, xs, d,
-                         ints, ist)
-        if code != _OK:
-            return code
-        since = 0
-    last = -1.0
-    rate = np.inf  # the smallest θ of this solve with this matrix
-    suspect = 0.0  # > 0: the rate of the single-precision copy, being compared with double precision
-    weighted = weights.shape[0] == n
-    for _ in range(int(c[_MAX_NEWTON])):
-        ist[_NFEV] += 1
-        if not _stage_residual(res, inv, t, h, y, out, s, p, r, end_rows, nend, xs, d):
-            return _EVAL
-        for i in range(n):
-            r[i] = -r[i]
-        lowp = ist[_LOWP] > 0
-        if lowp:
-            _solve32(lp, m, ints, chars, r)
-        else:
-            _solve(A[m], ints, chars, c, r, xs)
-        size = 0.0
-        scale = 1.0
-        alg = 0.0
-        finite = True
-        for i in range(n):
-            a = abs(r[i])
-            if not np.isfinite(a):
-                finite = False
-            if abs(out[i]) + 1.0 > scale:
-                scale = abs(out[i]) + 1.0
-            if weighted:
-                if algmask[i] == 1 and a > alg:
-                    alg = a
-                # a state is measured against its scale or its size, whichever is larger
-                a = a * (weights[i] / (1.0 + abs(out[i]) * weights[i]))
-            if a > size:
-                size = a
-        states = size  # the states' part alone (ROUNDOFF_FLOOR, midpoint.StageSolver)
-        if weighted:
-            # algebraic variables (weight 0) as without scales, relative to |y| + 1; not the GGL multipliers
-            size = max(size, alg / scale)
-            scale = 1.0
-        if not finite:
-            if since == 0:
-                return _FAIL
-            for i in range(n):
-                out[i] = y1in[i]
-            refreshed = True
-            code = _refactor(jac, t, h, y, out, s, p, A, lp, ipiv, matf, m, jrows, jcols, emask, nend, jbuf, ebuf, xs,
-                             d, ints, ist)
-            if code != _OK:
-                return code
-            since = 0
-            last = -1.0
-            rate = np.inf
-            suspect = 0.0
-            continue
-        has_theta = last > 0.0
-        theta = size / last if has_theta else 0.0
-        if lowp and refreshed and has_theta and theta > c[_RATE]:
-            # a matrix factorized in this solve contracts poorly: its single-precision copy may be
-            # to blame (conditioning), or the iteration is far from linear. Redo the correction in
-            # double and compare the rates
-            ist[_LOWP] = -1
-            suspect = theta
-            last = -1.0
-            rate = np.inf
-            continue
-        if suspect > 0.0 and has_theta:
-            # double precision with the same matrix: a strike if it contracts where single did not;
-            # after LOW_PRECISION_STRIKES strikes the run keeps double precision
-            if theta <= c[_RATE] and since > 0:
-                ist[_STRIKES] += 1
-                if ist[_STRIKES] >= c[_STRIKES_C]:
-                    ist[_LOWP] = 0
-            suspect = 0.0
-        if has_theta and (theta >= 0.5 or theta >= c[_STAGNATION] * rate) and size <= c[_ZONE] * tol * scale:
-            for i in range(n):
-                out[i] += r[i]
-            return _OK
-        if refreshed and has_theta and theta >= 0.5 and states <= c[_FLOOR] * scale:
-            flags[0] = 1
-            for i in range(n):
-                out[i] += r[i]
-            return _OK
-        if has_theta and theta >= 1.0 and since > 0 and size > 1e3 * tol * scale:
-            refreshed = True
-            code = _refactor(jac, t, h, y, out, s, p, A, lp, ipiv, matf, m, jrows, jcols, emask, nend, jbuf, ebuf, xs,
-                             d, ints, ist)
-            if code != _OK:
-                return code
-            since = 0
-            last = -1.0
-            rate = np.inf
-            suspect = 0.0
-            continue
-        for i in range(n):
-            out[i] += r[i]
-        since += 1
-        if size <= 1e-2 * tol * scale:
-            return _OK
-        if has_theta:
-            if theta < 1.0 and theta / (1.0 - theta) * size <= tol * scale:
-                return _OK
-            rate = min(rate, theta)
-            if theta > c[_RATE]:
-                refreshed = True
-                code = _refactor(jac, t, h, y, out, s, p, A, lp, ipiv, matf, m, jrows, jcols, emask, nend, jbuf, ebuf,
-                                 xs, d, ints, ist)
-                if code != _OK:
-                    return code
-                since = 0
-                size = -1.0
-                rate = np.inf
-                suspect = 0.0
-        last = size
-    return _FAIL
+    return matf[m, 2] != 0.0, matf[m, 0], matf[m, 1], ist[_AGE0 + m]
 
 
-def _dg(res, jac, inv, ham, escale, t, h, y, guess, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend, weights,
-        algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags):
-    """DiscreteGradientStep: the stage equations at y(s) and the energy balance r(s) = 0."""
+def _refactor(ws, m, t, h, y, y1, s):
+    (res, jac, inv, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend, weights, algmask, c, jbuf, ebuf, xs, d,
+     r, ints, chars, ist) = ws
+    return _refactor_matrix(jac, t, h, y, y1, s, p, A, lp, ipiv, matf, m, jrows, jcols, emask, nend, jbuf, ebuf, xs, d,
+                            ints, ist)
+
+
+def _correct(ws, m, t, h, y, y1, s):
+    """The correction Δ = −J⁻¹F at y1 (into r) and its size in the Newton test's units: with
+    weights, a state against its scale or its size, whichever is larger, and the algebraic
+    variables but the GGL multipliers (algmask 1) relative to |y| + 1; else all relative to
+    |y| + 1 (:meth:`phc.simulation.midpoint.StageSolver._correct`, on arrays)."""
+    (res, jac, inv, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend, weights, algmask, c, jbuf, ebuf, xs, d,
+     r, ints, chars, ist) = ws
     n = y.shape[0]
-    e = ist[_E]
-    code = _stage(res, jac, inv, t, h, y, guess, 0.5, p, 0, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend,
-                  weights, algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags)
-    if code != _OK:
-        return code
-    H0 = ham(t, y, p)
-    bal = ham(t + h, out, p) - H0 + out[e] - y[e]
-    scale = max(abs(escale(t, y, p)), abs(escale(t + h, out, p)), abs(y[e]), abs(out[e]), 1e-200)
-    if not (np.isfinite(bal) and np.isfinite(scale)):
-        return _EVAL
-    tol = c[_BAL_TOL] * scale
-    if abs(bal) <= tol:
-        return _OK
+    ist[_NFEV] += 1
+    if not _stage_residual(res, inv, t, h, y, y1, s, p, r, end_rows, nend, xs, d):
+        return _EVAL, r, 0.0, 0.0, 1.0, True, False
     for i in range(n):
-        xs[i] = y[i] + 0.5 * (out[i] - y[i])
-    curv = 4.0 * (H0 - 2.0 * ham(t + 0.5 * h, xs.copy(), p) + ham(t + h, out, p))
-    if not np.isfinite(curv):
-        return _EVAL
-    s_prev = 0.5
-    r_prev = bal
-    y_prev = out.copy()
-    slope = -curv if curv != 0.0 else -abs(bal) * 10.0
-    best = abs(bal)
-    y_best = out.copy()
-    for _ in range(int(c[_MAX_SECANT])):
-        if slope != 0.0:
-            s_new = min(max(s_prev - r_prev / slope, c[_S_MIN]), c[_S_MAX])
-        else:
-            s_new = 0.5
-        if s_new == s_prev:
-            break
-        code = _stage(res, jac, inv, t, h, y, y_prev, s_new, p, 0, A, lp, ipiv, matf, jrows, jcols, emask, end_rows,
-                      nend, weights, algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags)
-        if code != _OK:
-            break
-        r_new = ham(t + h, out, p) - H0 + out[e] - y[e]
-        if not np.isfinite(r_new):
-            return _EVAL
-        if abs(r_new) < best:
-            best = abs(r_new)
-            _copy(out, y_best)
-        if abs(r_new) <= tol:
-            return _OK
-        if r_new != r_prev:
-            slope = (r_new - r_prev) / (s_new - s_prev)
-        s_prev = s_new
-        r_prev = r_new
-        _copy(out, y_prev)
-    _copy(y_best, out)
-    if best <= 1e3 * tol:
-        return _OK
-    # no point balances the energy: the step is split in Python, and where even the shortest
-    # split step cannot balance it, its midpoint step is taken (phc.simulation.discrete_gradient)
-    return _FAIL
-
-
-def _midpoint4(res, jac, inv, escale, powers, t, h, y, guess, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend,
-               weights, algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags, hist_t, hist_v):
-    """Midpoint4Step: three midpoint substeps γ₁h, γ₂h, γ₁h, the predictor from the substep
-    midpoints of the last two steps, the passivity guard."""
-    n = y.shape[0]
-    fr = (c[_G1], c[_G2], c[_G1])
-    mt = (c[_M0], c[_M1], c[_M2])
-    mids = np.empty((3, n))
-    if ist[_HIST] == 2:
-        for i in range(3):
-            ti = t + mt[i] * h
-            for j in range(n):
-                mids[i, j] = hist_v[1, i, j] + (ti - hist_t[1, i]) * (hist_v[1, i, j] - hist_v[0, i, j]) / (
-                    hist_t[1, i] - hist_t[0, i])
+        r[i] = -r[i]
+    low = ist[_LOWP] > 0
+    if low:
+        _solve32(lp, m, ints, chars, r)
     else:
-        for i in range(3):
-            for j in range(n):
-                mids[i, j] = y[j] + mt[i] * h * ((guess[j] - y[j]) / h)
-    ill = 0
-    start = y.copy()
-    tau = t
-    dissipated = 0.0
-    scale = 0.0
-    values = np.empty((3, n))
-    g = np.empty(n)
-    for i in range(3):
-        m = 0 if i != 1 else 1
-        hs = fr[i] * h
-        for j in range(n):
-            g[j] = 2.0 * mids[i, j] - start[j]
-        code = _stage(res, jac, inv, tau, hs, start, g, 0.5, p, m, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend,
-                      weights, algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags)
-        ill = ill | flags[0]
-        if code != _OK:
-            flags[0] = ill
-            ist[_HIST] = 0
-            return code
-        for j in range(n):
-            values[i, j] = 0.5 * (start[j] + out[j])
-            d[j] = (out[j] - start[j]) / hs
-        pw = powers(tau + 0.5 * hs, values[i], d, p)
-        diss = hs * pw[1]
-        if not np.isfinite(diss):
-            flags[0] = ill
-            ist[_HIST] = 0
-            return _EVAL
-        dissipated += diss
-        scale += abs(diss)
-        _copy(out, start)
-        tau = tau + hs
-    flags[0] = ill
-    floor = 1e-13 * abs(escale(t, y, p)) + 1e-300
-    if dissipated < -1e-9 * scale - floor:
-        ist[_HIST] = 0
-        return _FAIL
-    if ist[_HIST] == 2:
-        for i in range(3):
-            hist_t[0, i] = hist_t[1, i]
-            for j in range(n):
-                hist_v[0, i, j] = hist_v[1, i, j]
-        k = 1
-    else:
-        k = ist[_HIST]
-        ist[_HIST] += 1
-    for i in range(3):
-        hist_t[k, i] = t + mt[i] * h
-    for i in range(3):
-        for j in range(n):
-            hist_v[k, i, j] = values[i, j]
-    return _OK
+        _solve(A[m], ints, chars, c, r, xs)
+    size = 0.0
+    scale = 1.0
+    alg = 0.0
+    finite = True
+    weighted = weights.shape[0] == n
+    for i in range(n):
+        a = abs(r[i])
+        if not np.isfinite(a):
+            finite = False
+        if abs(y1[i]) + 1.0 > scale:
+            scale = abs(y1[i]) + 1.0
+        if weighted:
+            if algmask[i] == 1 and a > alg:
+                alg = a
+            a = a * (weights[i] / (1.0 + abs(y1[i]) * weights[i]))
+        if a > size:
+            size = a
+    states = size
+    if weighted:
+        size = max(size, alg / scale)
+        scale = 1.0
+    return _OK, r, size, states, scale, finite, low
 
 
-def _advance(res, jac, inv, ham, escale, powers, t, h, y, guess, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows,
-             nend, weights, algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags, hist_t, hist_v):
+def _add(y1, delta):
+    for i in range(y1.shape[0]):
+        y1[i] += delta[i]
+
+
+def _precision(ws, event):
+    ist, c = ws[23], ws[15]
+    if event == DOUBLE_NEXT:
+        ist[_LOWP] = -1
+    else:  # a strike; after LOW_PRECISION_STRIKES of them the run keeps double precision
+        ist[_STRIKES] += 1
+        if ist[_STRIKES] >= c[_STRIKES_C]:
+            ist[_LOWP] = 0
+
+
+def _stage(ws, m, t, h, y, y1in, s, out):
+    """One stage solve (phc.simulation.step_logic.newton) with the compiled loop's operations."""
+    return _newton(ws, m, ws[15], t, h, y, y1in, s, out)
+
+
+def _advance(ws, ham, escale, powers, t, h, y, guess, out, flags, hist_t, hist_v):
+    """One step of the method ist[_METHOD] (0 midpoint, 1 discrete gradient, 2 midpoint4) into
+    out; the outcome, flags[0] ← ill-conditioned."""
+    ist, c, p = ws[23], ws[15], ws[3]
     method = ist[_METHOD]
     if method == 0:
-        return _stage(res, jac, inv, t, h, y, guess, 0.5, p, 0, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend,
-                      weights, algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags)
-    if method == 1:
-        return _dg(res, jac, inv, ham, escale, t, h, y, guess, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend,
-                   weights, algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags)
-    return _midpoint4(res, jac, inv, escale, powers, t, h, y, guess, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows,
-                      nend, weights, algmask, c, jbuf, ebuf, xs, d, r, out, ints, chars, ist, flags, hist_t, hist_v)
+        code, ill = _stage(ws, 0, t, h, y, guess, 0.5, out)
+    elif method == 1:
+        code, ill, y1, best, scale, y_half, secants = _discrete_gradient(ham, escale, ws, c, ist[_E], t, h, y, guess, p,
+                                                                        out)
+        _copy(y1, out)  # the Python code takes a step no point balances (split, midpoint fallback)
+    else:
+        code, ill, nhist = _midpoint4_step(powers, escale, ws, c, t, h, y, guess, p, out, hist_t, hist_v, ist[_HIST])
+        ist[_HIST] = nhist
+    flags[0] = 1 if ill else 0
+    return code
+
+
+def _here(func):
+    """`func` of :mod:`phc.simulation.step_logic` with this module's globals: the operations it
+    calls by name (``_begin``, ``_refactor``, ``_correct``, ``_add``, ``_copy``, ``_precision``,
+    ``_stage``) are then the compiled loop's, defined above, and numba compiles it with them
+    (:func:`phc.simulation.compiled_steps._compile`). The code is the Python loop's, unchanged."""
+    return types.FunctionType(func.__code__, globals(), func.__name__, func.__defaults__, func.__closure__)
+
+
+_newton = _here(step_logic.newton)
+_discrete_gradient = _here(step_logic.discrete_gradient)
+_midpoint4_step = _here(step_logic.midpoint4)
+_lagrange_weights = _here(step_logic.lagrange_weights)
+_predictor_nodes = _here(step_logic.predictor_nodes)
 
 
 def _monitor_ratio(jac, t, y, yp, h, p, jrows, jcols, jbuf, M, colscale, threshold):
@@ -553,21 +397,11 @@ def _monitor_ratio(jac, t, y, yp, h, p, jrows, jcols, jbuf, M, colscale, thresho
     return s[n - 1] / s[0] if s[0] > 0 else 0.0
 
 
-def _weights(pt, k, tn, w):
-    """Lagrange weights at tn of the nodes pt[0:k] (midpoint.predict_midpoint's arithmetic)."""
-    for a in range(k):
-        wa = 1.0
-        for b in range(k):
-            if b != a:
-                wa *= (tn - pt[b]) / (pt[a] - pt[b])
-        w[a] = wa
-
-
 def _predict(y, mid, mid_slope, pt, pm, ist, c, t, h, h_prev, algmask, guess):
     """The start of Newton, ``2 m − y`` with the predicted midpoint m: y + h/2·ẏ₀ at the start,
     else per variable (differential ones: degree ``c[_ORDER]``, algebraic ones ``c[_ORDER_ALG]``)
-    the last midpoint (degree 0), the linear extrapolation of the last two (degree 1, or while
-    fewer midpoints are known), or the Lagrange polynomial through the last ones
+    as :func:`phc.simulation.step_logic.predictor_nodes` says: the last midpoint, the linear
+    extrapolation of the last two, or the Lagrange polynomial through the last ones
     (midpoint.predict_midpoint, the same arithmetic)."""
     n = y.shape[0]
     if ist[_HAS_MID] == 0:
@@ -578,18 +412,17 @@ def _predict(y, mid, mid_slope, pt, pm, ist, c, t, h, h_prev, algmask, guess):
     nmid = ist[_NMID]
     od = int(c[_ORDER])
     oa = int(c[_ORDER_ALG])
-    kd = min(od + 1, nmid)
-    ka = min(oa + 1, nmid)
+    kd = _predictor_nodes(od, nmid)
+    ka = _predictor_nodes(oa, nmid)
     wd = np.empty(pm.shape[0])
     wa = np.empty(pm.shape[0])
-    _weights(pt, kd, tn, wd)
-    _weights(pt, ka, tn, wa)
+    _lagrange_weights(pt, kd, tn, wd)
+    _lagrange_weights(pt, ka, tn, wa)
     for i in range(n):
-        o = oa if algmask[i] != 0 else od
         k = ka if algmask[i] != 0 else kd
-        if o == 0:
+        if k == 0:
             mg = mid[i]
-        elif k < 3:
+        elif k == 1:
             mg = mid[i] + 0.5 * (h + h_prev) * mid_slope[i]
         else:
             w = wa if algmask[i] != 0 else wd
@@ -597,6 +430,45 @@ def _predict(y, mid, mid_slope, pt, pm, ist, c, t, h, h_prev, algmask, guess):
             for a in range(1, k):
                 mg = mg + w[a] * pm[a, i]
         guess[i] = 2.0 * mg - y[i]
+
+
+def _accept(t, h, y, y_new, y_prev, mid, mid_slope, pt, pm, ys, yps, fst, ist):
+    """Take the step (t, h, y) → y_new: the midpoints' history of the predictor, the step
+    counter, the output at the end of an output interval; True when ``max_steps`` is reached.
+    Plain element loops that call nothing: the driver runs the same function, unjitted, for a
+    step the Python code did (:func:`phc.simulation.compiled_steps.integrate`)."""
+    n = y.shape[0]
+    h_prev = fst[_H_PREV]
+    kp = pm.shape[0]
+    for j in range(kp - 1, 0, -1):
+        pt[j] = pt[j - 1]
+    pt[0] = t + 0.5 * h
+    for i in range(n):
+        nm = 0.5 * (y[i] + y_new[i])
+        if ist[_HAS_MID] != 0:
+            mid_slope[i] = (nm - mid[i]) / (0.5 * (h + h_prev))
+        mid[i] = nm
+        for j in range(kp - 1, 0, -1):
+            pm[j, i] = pm[j - 1, i]
+        pm[0, i] = nm
+        y_prev[i] = y[i]
+        y[i] = y_new[i]
+    ist[_HAS_MID] = 1
+    ist[_NMID] = min(ist[_NMID] + 1, kp)
+    fst[_H_PREV] = h
+    fst[_T] = t + h
+    ist[_STEPS] += 1
+    if ist[_STEPS] >= ist[_MAX_STEPS]:
+        return True
+    ist[_J] += 1
+    if ist[_J] >= ist[_SUBSTEPS]:
+        k = ist[_K]
+        for i in range(n):
+            ys[k, i] = y[i]
+            yps[k, i] = (y[i] - y_prev[i]) / h
+        ist[_K] = k + 1
+        ist[_J] = 0
+    return False
 
 
 def _chunk(res, jac, inv, ham, escale, powers, p, t_out, ys, yps, y, mid, mid_slope, y_prev, fst, ist, c, A, lp,
@@ -619,6 +491,8 @@ def _chunk(res, jac, inv, ham, escale, powers, p, t_out, ys, yps, y, mid, mid_sl
     guess = np.empty(n)
     yp = np.empty(n)
     flags = np.zeros(1, np.int64)
+    ws = (res, jac, inv, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend, weights, algmask, c, jbuf, ebuf, xs,
+          d, r, ints, chars, ist)
     every = int(c[_EVERY])
     nout = t_out.shape[0]
     done = 0
@@ -644,9 +518,7 @@ def _chunk(res, jac, inv, ham, escale, powers, p, t_out, ys, yps, y, mid, mid_sl
         h = fst[_H]
         h_prev = fst[_H_PREV]
         _predict(y, mid, mid_slope, pt, pm, ist, c, t, h, h_prev, algmask, guess)
-        code = _advance(res, jac, inv, ham, escale, powers, t, h, y, guess, p, A, lp, ipiv, matf, jrows, jcols, emask,
-                        end_rows, nend, weights, algmask, c, jbuf, ebuf, xs, d, r, y_new, ints, chars, ist, flags,
-                        hist_t, hist_v)
+        code = _advance(ws, ham, escale, powers, t, h, y, guess, y_new, flags, hist_t, hist_v)
         steps = ist[_STEPS]
         ist[_CODE] = code
         ist[_ILL] = flags[0]
@@ -661,34 +533,7 @@ def _chunk(res, jac, inv, ham, escale, powers, p, t_out, ys, yps, y, mid, mid_sl
             if ratio < c[_THRESHOLD]:
                 ist[_STATUS] = _LOOK
                 return
-        # accept the step
-        kp = pm.shape[0]
-        for j in range(kp - 1, 0, -1):
-            pt[j] = pt[j - 1]
-        pt[0] = t + 0.5 * h
-        for i in range(n):
-            nm = 0.5 * (y[i] + y_new[i])
-            if ist[_HAS_MID] != 0:
-                mid_slope[i] = (nm - mid[i]) / (0.5 * (h + h_prev))
-            mid[i] = nm
-            for j in range(kp - 1, 0, -1):
-                pm[j, i] = pm[j - 1, i]
-            pm[0, i] = nm
-            y_prev[i] = y[i]
-            y[i] = y_new[i]
-        ist[_HAS_MID] = 1
-        ist[_NMID] = min(ist[_NMID] + 1, kp)
-        fst[_H_PREV] = h
-        fst[_T] = t + h
-        ist[_STEPS] = steps + 1
         done += 1
-        if steps + 1 >= ist[_MAX_STEPS]:
+        if _accept(t, h, y, y_new, y_prev, mid, mid_slope, pt, pm, ys, yps, fst, ist):
             ist[_STATUS] = _MAXSTEPS
             return
-        ist[_J] += 1
-        if ist[_J] >= ist[_SUBSTEPS]:
-            for i in range(n):
-                ys[k, i] = y[i]
-                yps[k, i] = (y[i] - y_prev[i]) / h
-            ist[_K] = k + 1
-            ist[_J] = 0

@@ -55,14 +55,23 @@ from __future__ import annotations
 
 import numpy as np
 
+from phc.simulation import step_logic
 from phc.simulation.backend import BackendRun
-from phc.simulation.midpoint import NEWTON_HINT, SINGULAR_HINT, StageSolver, integrate_fixed_step, newton_weights_of
+from phc.simulation.midpoint import (NEWTON_HINT, SINGULAR_HINT, StageSolver, Stages, integrate_fixed_step,
+                                     newton_weights_of)
 
 BALANCE_TOL = 2e-15
 """The step's energy residual |r| is driven below this times the energy scale."""
 MAX_SECANT = 12
 S_MIN, S_MAX = 0.02, 0.98
 """The evaluation point s stays inside the segment."""
+
+
+def secant_constants(c):
+    """`c`, the constants vector of :mod:`phc.simulation.step_logic`, with the secant iteration's numbers."""
+    c[step_logic._BAL_TOL], c[step_logic._MAX_SECANT] = BALANCE_TOL, MAX_SECANT
+    c[step_logic._S_MIN], c[step_logic._S_MAX] = S_MIN, S_MAX
+    return c
 
 
 class DiscreteGradientStep:
@@ -78,64 +87,32 @@ class DiscreteGradientStep:
         self._midpoint = None
         self.projects = any(str(v).startswith("ggl.") for v in mod.VARIABLES)
         """The model has GGL multipliers, whose projection may do work (module docstring)."""
-
-    def balance(self, t, h, y, y1) -> float:
-        H = self.mod.hamiltonian
-        return float(H(t + h, y1, self.p) - H(t, y, self.p) + y1[self.e] - y[self.e])
-
-    def _solve(self, t, h, y, guess, s):
-        y1, ok = self.stage.solve(t, h, y, guess, s)
-        if not ok:
-            return y1, None
-        return y1, self.balance(t, h, y, y1)
+        self.constants = secant_constants(self.stage.constants.copy())
+        self.workspace = Stages(self.stage)
 
     def __call__(self, t, h, y, guess):
-        mod, p = self.mod, self.p
+        """One step (:func:`phc.simulation.step_logic.discrete_gradient`, the code the compiled loop
+        runs as well): ``(y1, ok, reason)``."""
         self._midpoint = None
-        y1, r = self._solve(t, h, y, guess, 0.5)
-        if r is None:
-            return y1, False, SINGULAR_HINT if self.stage.singular else NEWTON_HINT
-        # the balance H + E (E: energy supplied so far) is kept relative to its terms; a body at
-        # rest that sticks (docs/events.md) has H ~ 1e-250: below 1e-200 the energy is zero
-        scale = max(abs(float(mod.energy_scale(t, y, p))), abs(float(mod.energy_scale(t + h, y1, p))),
-                    abs(float(y[self.e])), abs(float(y1[self.e])), 1e-200)
-        tol = BALANCE_TOL * scale
-        if abs(r) <= tol:
+        out = np.array(guess, dtype=float)
+        code, _, y1, best, scale, y_half, secants = step_logic.discrete_gradient(
+            self.mod.hamiltonian, self.mod.energy_scale, self.workspace, self.constants, self.e, t, h, y, guess, self.p,
+            out)
+        self.secant_iterations += secants
+        if code == step_logic._OK:
             return y1, True, ""
-        # first slope from the curvature of φ(σ) = H(y(σ)): r'(s) ≈ −φ''(s)
-        H = mod.hamiltonian
-        d = y1 - y
-        curv = 4.0 * (H(t, y, p) - 2.0 * H(t + 0.5 * h, y + 0.5 * d, p) + H(t + h, y1, p))
-        s_prev, r_prev, y_prev = 0.5, r, y1
-        y_half = y1
-        slope = -curv if curv != 0.0 else -abs(r) * 10.0
-        best = (abs(r), y1)
-        s = 0.5
-        for _ in range(MAX_SECANT):
-            self.secant_iterations += 1
-            s_new = float(np.clip(s_prev - r_prev / slope, S_MIN, S_MAX)) if slope != 0.0 else 0.5
-            if s_new == s_prev:
-                break
-            y_new, r_new = self._solve(t, h, y, y_prev, s_new)
-            if r_new is None:
-                break
-            if abs(r_new) < best[0]:
-                best = (abs(r_new), y_new)
-            if abs(r_new) <= tol:
-                return y_new, True, ""
-            if r_new != r_prev:
-                slope = (r_new - r_prev) / (s_new - s_prev)
-            s_prev, r_prev, y_prev, s = s_new, r_new, y_new, s_new
-        if best[0] <= 1e3 * tol:  # round-off floor of H's evaluation: accept
-            return best[1], True, ""
+        if not secants:  # the implicit-midpoint stage itself failed
+            if code == step_logic._EVAL and self.stage.evaluation_error is None:
+                return y1, False, "the energy could not be evaluated at the step's end"
+            return y1, False, SINGULAR_HINT if self.stage.singular else NEWTON_HINT
         # no point balances the energy (the constraint projection's work, module docstring): the
         # driver splits the step; where the shortest split step fails too, `fallback` takes its
         # implicit-midpoint step
         self._midpoint = y_half
-        return best[1], False, (f"no point along the step balances the energy (|r| = {best[0]:.1e}, "
-                                f"energy scale {scale:.1e}): the mean-value discrete gradient has no solution "
-                                "on this step; a shorter `step` brings the point towards the step's middle, or "
-                                "use `midpoint4`/`midpoint` (energy exact for quadratic H) or `ida`")
+        return y1, False, (f"no point along the step balances the energy (|r| = {best:.1e}, "
+                           f"energy scale {scale:.1e}): the mean-value discrete gradient has no solution "
+                           "on this step; a shorter `step` brings the point towards the step's middle, or "
+                           "use `midpoint4`/`midpoint` (energy exact for quadratic H) or `ida`")
 
     def fallback(self):
         """The implicit-midpoint step of the last call if it failed only to balance the energy

@@ -34,6 +34,7 @@ import numpy as np
 import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 
+from phc.simulation import step_logic
 from phc.simulation.backend import BackendRun
 from phc.simulation.guard import ModelEvaluationError
 from phc.simulation.monitor import SingularityMonitor
@@ -87,35 +88,34 @@ MAX_PREDICTOR_ORDER = 4
 
 def predict_midpoint(times, mids, t_new, order=None):
     """The polynomial of degree ``min(order, len(times) − 1)`` through the last midpoints
-    ``mids`` (newest last) at the times ``times``, evaluated at ``t_new`` (Lagrange form; the
-    same arithmetic as the compiled loop's predictor)."""
+    ``mids`` (newest last) at the times ``times``, evaluated at ``t_new`` (Lagrange form:
+    :func:`phc.simulation.step_logic.lagrange_weights`, the compiled loop's predictor's weights)."""
     order = PREDICTOR_ORDER if order is None else order
     k = min(int(order) + 1, len(times))
-    ts = [float(x) for x in times[len(times) - k:]][::-1]  # newest first
+    ts = np.array([float(x) for x in times[len(times) - k:]][::-1])  # newest first
     ms = list(mids[len(mids) - k:])[::-1]
-    out = None
-    for i in range(k):
-        w = 1.0
-        for j in range(k):
-            if j != i:
-                w *= (t_new - ts[j]) / (ts[i] - ts[j])
-        out = w * ms[i] if out is None else out + w * ms[i]
+    w = np.empty(k)
+    step_logic.lagrange_weights(ts, k, t_new, w)
+    out = w[0] * ms[0]
+    for i in range(1, k):
+        out = out + w[i] * ms[i]
     return out
 
 
 def _mid_guess(mod, y, h, h_prev, mid, mid_slope, mid_times, mids, t_new):
     """The predicted midpoint of the next step (the compiled loop's ``_predict``): per variable
-    (differential: :data:`PREDICTOR_ORDER`, algebraic: :data:`PREDICTOR_ORDER_ALGEBRAIC`) the
-    last midpoint (degree 0), the linear extrapolation (degree 1, or while fewer midpoints are
-    known) or the polynomial through the last midpoints."""
+    (differential: :data:`PREDICTOR_ORDER`, algebraic: :data:`PREDICTOR_ORDER_ALGEBRAIC`) as
+    :func:`phc.simulation.step_logic.predictor_nodes` says: the last midpoint, the linear
+    extrapolation or the polynomial through the last midpoints."""
     if mid is None:
         return y + 0.5 * h * mid_slope
     linear = mid + 0.5 * (h + h_prev) * mid_slope
 
     def of(order):
-        if order == 0:
+        nodes = step_logic.predictor_nodes(order, len(mids))
+        if nodes == 0:
             return mid
-        if min(order + 1, len(mids)) < 3:
+        if nodes == 1:
             return linear
         return predict_midpoint(mid_times, mids, t_new, order)
 
@@ -165,10 +165,6 @@ class NewtonMatrix:
             return False
         self.h, self.s, self.age = h, s, 0
         return True
-
-    def stale(self, h, s) -> bool:
-        return (self.lu is None or abs(h - self.h) > 1e-3 * abs(h) or abs(s - self.s) > 0.2
-                or self.age >= MAX_AGE)
 
     def solve(self, rhs):
         """``J⁻¹ rhs`` through the LU of the equilibrated ``D_r J D_c``: ``D_c (D_r J D_c)⁻¹ D_r rhs``."""
@@ -247,6 +243,9 @@ class StageSolver:
     constraints quadratic in the positions (a Cartesian pendulum, a chord length)
     ``g(q_{n+1}) − g(q_n) = G(q_mid)(q_{n+1} − q_n)`` makes the GGL multiplier η vanish, so
     it does no work and the midpoint energy balance stays exact.
+
+    The iteration is :func:`phc.simulation.step_logic.newton`, the code the compiled loop runs as
+    well; this class gives it its operations on the sparse LU of :class:`NewtonMatrix`.
     """
 
     def __init__(self, mod, p, end_constraints=True, weights=None):
@@ -269,6 +268,7 @@ class StageSolver:
         self.ill_conditioned = False
         self.evaluation_error = None
         """The :class:`~phc.errors.ModelEvaluationError` that stopped the last solve, if any."""
+        self.constants = newton_constants()
 
     def residual(self, t, h, y, y1, s):
         d = y1 - y
@@ -282,83 +282,73 @@ class StageSolver:
         """Return ``(y1, converged)``; ``self.singular`` tells a singular Newton matrix,
         ``self.evaluation_error`` a model function that could not be evaluated at an iterate
         (outside its domain: a shorter step may stay inside)."""
+        out = np.array(y1, dtype=float)
+        return out, self.solve_into(t, h, y, y1, s, out) == step_logic._OK
+
+    def solve_into(self, t, h, y, y1, s, out) -> int:
+        """The solve of :meth:`solve` into `out` (the start `y1` where a model function could not
+        be evaluated): the outcome code of :func:`phc.simulation.step_logic.newton`."""
         self.evaluation_error = None
+        self.singular = self.refreshed = self.ill_conditioned = False
         try:
-            return self._solve(t, h, y, y1, s)
+            code, self.ill_conditioned = step_logic.newton(self, 0, self.constants, t, h, y, y1, s, out)
         except ModelEvaluationError as err:
             self.evaluation_error = err
-            return y1, False
+            out[...] = y1
+            return step_logic._EVAL
+        return code
 
-    def _solve(self, t, h, y, y1, s):
+    # the operations of phc.simulation.step_logic.newton on this solver (its only Newton matrix: m = 0)
+
+    def begin(self, m):
         matrix = self.matrix
-        self.singular = False
-        start = y1.copy()
-        y1 = y1.copy()
         matrix.age += 1
-        self.refreshed = False  # set when the matrix is factorized in this step
-        self.ill_conditioned = False
-        since = 1  # iterations since the last factorization (1: not factorized in this solve)
-        if matrix.stale(h, s):
-            if not self._refactor(t, h, y, y1, s):
-                return y1, False
-            since = 0
-        last = None
-        rate = np.inf  # the smallest θ of this solve with this matrix
-        for _ in range(MAX_NEWTON):
-            delta = matrix.solve(-self.residual(t, h, y, y1, s))
-            if self.weights is None:
-                size, scale = float(np.abs(delta).max()), 1.0 + float(np.abs(y1).max())
-                states = size
-            else:  # differential variables scaled; algebraic ones (weight 0) as before, relative to |y| + 1
-                algebraic = float(np.abs(delta[self.algebraic]).max(initial=0.0)) / (1.0 + float(np.abs(y1).max()))
-                # a state is measured against its scale or its size, whichever is larger
-                w = self.weights / (1.0 + np.abs(y1) * self.weights)
-                states = float(np.abs(delta * w).max())
-                size, scale = max(states, algebraic), 1.0
-            if not np.isfinite(size):
-                if since == 0:
-                    return y1, False
-                y1 = start.copy()
-                if not self._refactor(t, h, y, y1, s):
-                    return y1, False
-                since, last, rate = 0, None, np.inf
-                continue
-            theta = size / last if last else None
-            if (theta is not None and (theta >= 0.5 or theta >= STAGNATION_JUMP * rate)
-                    and size <= ROUNDOFF_ZONE * NEWTON_TOL * scale):
-                return y1 + delta, True  # stagnating at round-off level: accept
-            if self.refreshed and theta is not None and theta >= 0.5 and states <= ROUNDOFF_FLOOR * scale:
-                # no progress with a fresh matrix: round-off amplified by its conditioning
-                # (a multiplier at rest, say) — the iterate is as good as it gets, but the
-                # driver is told (the conditioning may come from a singular configuration)
-                self.ill_conditioned = True
-                return y1 + delta, True
-            if theta is not None and theta >= 1.0 and since > 0 and size > 1e3 * NEWTON_TOL * scale:
-                # the old matrix no longer contracts: refresh it here and retry
-                if not self._refactor(t, h, y, y1, s):
-                    return y1, False
-                since, last, rate = 0, None, np.inf
-                continue
-            y1 += delta
-            since += 1
-            if size <= 1e-2 * NEWTON_TOL * scale:
-                return y1, True
-            if theta is not None:
-                if theta < 1.0 and theta / (1.0 - theta) * size <= NEWTON_TOL * scale:
-                    return y1, True
-                rate = min(rate, theta)
-                if theta > REFACTOR_RATE:
-                    if not self._refactor(t, h, y, y1, s):
-                        return y1, False
-                    since, size, rate = 0, None, np.inf
-            last = size
-        return y1, False
+        return matrix.lu is not None, matrix.h, matrix.s, matrix.age
 
-    def _refactor(self, t, h, y, y1, s) -> bool:
-        self.refreshed = True
+    def refactor(self, m, t, h, y, y1, s) -> int:
+        self.refreshed = True  # set when the matrix is factorized in this step
         ok = self.matrix.factor(t, h, y, y1, s)
         self.singular = not ok
-        return ok
+        return step_logic._OK if ok else step_logic._SINGULAR
+
+    def correct(self, m, t, h, y, y1, s):
+        """The correction and its size: without weights, max |Δ| against 1 + max |y|; with
+        them, the differential variables scaled (a state against its scale or its size,
+        whichever is larger) and the algebraic ones as before, relative to |y| + 1."""
+        delta = self.matrix.solve(-self.residual(t, h, y, y1, s))
+        if self.weights is None:
+            size, scale = float(np.abs(delta).max()), 1.0 + float(np.abs(y1).max())
+            states = size
+        else:
+            algebraic = float(np.abs(delta[self.algebraic]).max(initial=0.0)) / (1.0 + float(np.abs(y1).max()))
+            w = self.weights / (1.0 + np.abs(y1) * self.weights)
+            states = float(np.abs(delta * w).max())
+            size, scale = max(states, algebraic), 1.0
+        return step_logic._OK, delta, size, states, scale, bool(np.isfinite(size)), False
+
+
+class Stages:
+    """The workspace of :func:`phc.simulation.step_logic.discrete_gradient` and
+    :func:`~phc.simulation.step_logic.midpoint4` in the Python loop: one :class:`StageSolver`
+    per Newton matrix m."""
+
+    def __init__(self, *solvers):
+        self.solvers = solvers
+
+    def solve_stage(self, m, t, h, y, y1in, s, out):
+        """The stage solve with matrix m into `out`: ``(code, ill_conditioned)``."""
+        stage = self.solvers[m]
+        return stage.solve_into(t, h, y, y1in, s, out), stage.ill_conditioned
+
+
+def newton_constants(c=None) -> np.ndarray:
+    """The constants vector of :mod:`phc.simulation.step_logic` (a new one, or `c` filled in) with
+    the Newton iteration's numbers, this module's constants as they are at the call."""
+    c = np.zeros(step_logic._NC) if c is None else c
+    c[step_logic._TOL], c[step_logic._RATE], c[step_logic._FLOOR] = NEWTON_TOL, REFACTOR_RATE, ROUNDOFF_FLOOR
+    c[step_logic._MAX_AGE], c[step_logic._MAX_NEWTON] = MAX_AGE, MAX_NEWTON
+    c[step_logic._ZONE], c[step_logic._STAGNATION] = ROUNDOFF_ZONE, STAGNATION_JUMP
+    return c
 
 
 class Projector:

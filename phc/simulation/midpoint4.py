@@ -36,8 +36,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from phc.simulation import step_logic
 from phc.simulation.backend import BackendRun
-from phc.simulation.midpoint import NEWTON_HINT, SINGULAR_HINT, StageSolver, integrate_fixed_step, newton_weights_of
+from phc.simulation.midpoint import (NEWTON_HINT, SINGULAR_HINT, StageSolver, Stages, integrate_fixed_step,
+                                     newton_weights_of)
 
 PASSIVITY_HINT = ("the step added energy through dissipation (the backward substep of the composition "
                   "outweighed the forward ones: a damped mode with h·|λ| near 1.17); change `step` by about "
@@ -50,8 +52,16 @@ MID_TIMES = (0.5 * GAMMA1, GAMMA1 + 0.5 * GAMMA2, 1.0 - 0.5 * GAMMA1)
 """Midpoints of the substeps as fractions of the step (0.676, 0.5, 0.324: inside the step)."""
 
 
+def composition_constants(c):
+    """`c`, the constants vector of :mod:`phc.simulation.step_logic`, with the composition's numbers."""
+    c[step_logic._G1], c[step_logic._G2] = GAMMA1, GAMMA2
+    c[step_logic._M0], c[step_logic._M1], c[step_logic._M2] = MID_TIMES
+    return c
+
+
 class Midpoint4Step:
-    """One composite step ``advance(t, h, y, guess) -> (y1, ok, reason)``.
+    """One composite step ``advance(t, h, y, guess) -> (y1, ok, reason)``:
+    :func:`phc.simulation.step_logic.midpoint4`, the code the compiled loop runs as well.
 
     Predictor: the midpoint value of each substep (where the algebraic variables of a
     midpoint rule are accurate; their end values oscillate) is extrapolated linearly in time
@@ -62,10 +72,15 @@ class Midpoint4Step:
         self.mod, self.p = mod, p
         w = newton_weights_of(scales, mod)
         self.stages = (StageSolver(mod, p, weights=w), StageSolver(mod, p, weights=w))  # γ₁h and γ₂h
+        self.workspace = Stages(*self.stages)
         self.stage = self  # for the driver's look at `ill_conditioned`
         self.ill_conditioned = False
         self.singular = False
-        self.history = []  # [(times of the substep midpoints, their values)], at most two
+        self.constants = composition_constants(self.stages[0].constants.copy())
+        self.hist_t, self.hist_v = np.zeros((2, 3)), np.zeros((2, 3, mod.N))
+        self.nhist = 0
+        """The substep midpoints (times ``hist_t[k]``, values ``hist_v[k]``) of the last ``nhist``
+        steps (at most two)."""
 
     @property
     def evaluation_error(self):
@@ -80,44 +95,19 @@ class Midpoint4Step:
     def factorizations(self):
         return sum(s.matrix.factorizations for s in self.stages)
 
-    def _predict(self, t, h, y, guess):
-        times = [t + c * h for c in MID_TIMES]
-        if len(self.history) == 2:
-            (t0, m0), (t1, m1) = self.history
-            return [m1[i] + (times[i] - t1[i]) * (m1[i] - m0[i]) / (t1[i] - t0[i]) for i in range(3)]
-        slope = (guess - y) / h
-        return [y + c * h * slope for c in MID_TIMES]
-
     def __call__(self, t, h, y, guess):
-        mids = self._predict(t, h, y, guess)
-        self.ill_conditioned = self.singular = False
-        start, tau = y, t
-        values = []
-        dissipated = scale = 0.0
-        for i, fraction in enumerate(FRACTIONS):
-            stage = self.stages[0 if i != 1 else 1]
-            hs = fraction * h
-            y1, ok = stage.solve(tau, hs, start, 2.0 * mids[i] - start, 0.5)
-            self.ill_conditioned |= stage.ill_conditioned
-            if not ok:
-                self.singular = stage.singular
-                self.history.clear()
-                return y1, False, (SINGULAR_HINT if stage.singular else NEWTON_HINT)
-            mid = 0.5 * (start + y1)
-            diss = hs * float(self.mod.powers(tau + 0.5 * hs, mid, (y1 - start) / hs, self.p)[1])
-            dissipated += diss
-            scale += abs(diss)
-            values.append(mid)
-            start, tau = y1, tau + hs
-        # round-off of a dissipation that is zero (a body that sticks, docs/events.md) is no violation
-        floor = 1e-13 * abs(float(self.mod.energy_scale(t, y, self.p))) + 1e-300
-        if dissipated < -1e-9 * scale - floor:
+        out = np.array(guess, dtype=float)
+        code, self.ill_conditioned, self.nhist = step_logic.midpoint4(
+            self.mod.powers, self.mod.energy_scale, self.workspace, self.constants, t, h, y, guess, self.p, out,
+            self.hist_t, self.hist_v, self.nhist)
+        self.singular = code == step_logic._SINGULAR
+        if code == step_logic._OK:
+            return out, True, ""
+        if code == step_logic._PASSIVITY:
             # passivity violated over the composite step: a damped mode in the band where the
             # backward substep's anti-dissipation wins (see the module docstring)
-            self.history.clear()
-            return start, False, PASSIVITY_HINT
-        self.history = (self.history + [([t + c * h for c in MID_TIMES], values)])[-2:]
-        return start, True, ""
+            return out, False, PASSIVITY_HINT
+        return out, False, (SINGULAR_HINT if self.singular else NEWTON_HINT)
 
 
 UNSTABLE_BAND = (1.10, 1.23)

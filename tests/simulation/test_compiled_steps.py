@@ -422,3 +422,36 @@ def test_the_cache_stamp_covers_every_file_the_loop_is_compiled_from():
     for path in files:
         assert path.read_text(encoding="utf-8") in source, path
     assert cs._lowprec is kernel._lowprec and hasattr(cs._lowprec, "py_func")  # the jitted one, by either name
+
+
+@pytest.mark.parametrize("solver, entry", [("midpoint", "newton"), ("discrete_gradient", "discrete_gradient"),
+                                           ("midpoint4", "midpoint4")])
+def test_both_loops_run_the_step_logic_written_once(compiled, monkeypatch, used, solver, entry):
+    """Each method's step logic exists once (phc.simulation.step_logic): the compiled loop jits the
+    code of those very functions, and the Python loop calls them — a run with the compiled loop off goes
+    through the entry point of its method and the Newton iteration, and agrees with the
+    compiled run to the Newton tolerance."""
+    from phc.simulation import compiled_steps as cs
+    from phc.simulation import compiled_steps_kernel as kernel
+    from phc.simulation import step_logic
+
+    assert cs._build()
+    for name, func in (("_newton", step_logic.newton), ("_discrete_gradient", step_logic.discrete_gradient),
+                       ("_midpoint4_step", step_logic.midpoint4), ("_lagrange_weights", step_logic.lagrange_weights),
+                       ("_predictor_nodes", step_logic.predictor_nodes)):
+        jitted = getattr(kernel, name)
+        assert jitted.py_func.__code__ is func.__code__ and hasattr(jitted, "py_func"), name
+    calls = {}
+    for name in {entry, "newton"}:
+        original = getattr(step_logic, name)
+
+        def counted(*args, _name=name, _original=original):
+            calls[_name] = calls.get(_name, 0) + 1
+            return _original(*args)
+
+        monkeypatch.setattr(step_logic, name, counted)
+    model = compiled("pendulum.yaml")
+    fast, slow = _both(monkeypatch, model, solver=solver, t_end=0.5, step=1e-2, n_out=11)
+    assert used == [True, False]
+    assert calls[entry] >= 50 and calls["newton"] >= calls[entry]  # 50 steps, each at least one stage
+    _assert_same_trajectory(fast, slow, 1e-2)

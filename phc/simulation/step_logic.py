@@ -1,0 +1,330 @@
+"""The fixed-step methods' step logic, written once for the Python loop and the compiled loop.
+
+The implicit midpoint rule (:mod:`phc.simulation.midpoint`), the discrete-gradient step
+(:mod:`phc.simulation.discrete_gradient`) and the fourth-order composition
+(:mod:`phc.simulation.midpoint4`) run in two loops: the Python loop
+(:func:`~phc.simulation.midpoint.integrate_fixed_step`: sparse LU, events, any size) and the
+compiled loop (:mod:`phc.simulation.compiled_steps`: numba, dense inverse, small systems). What
+a step *does* is written here, once, as plain Python that numba can compile:
+
+* :func:`newton` — the simplified Newton iteration of one stage (its stopping rules, the
+  refresh of the Newton matrix on poor contraction, a changed step size or evaluation point,
+  or age; the round-off acceptance; the mixed-precision watch of the compiled loop);
+* :func:`discrete_gradient` — the secant iteration on the mean-value point ``s`` that makes
+  the discrete energy balance of the paper's Remark 3 "Energy balance" hold for a
+  non-quadratic Hamiltonian (T. Berger, R. Hochdahl, T. Reis, R. Seifried, "Port-Hamiltonian
+  modelling of coupled rigid/flexible multibody systems");
+* :func:`midpoint4` — the triple-jump composition of three midpoint substeps with its
+  predictor and its passivity guard;
+* :func:`predictor_nodes` and :func:`lagrange_weights` — how the start of Newton is
+  extrapolated from the last step midpoints (the last one, the line through two, or the
+  polynomial through more) and that polynomial's weights.
+
+The drivers around the steps are still each loop's own: the Python loop's
+:func:`~phc.simulation.midpoint.integrate_fixed_step` (events, projection, splitting, the
+singularity monitor's messages) and the compiled loop's chunk of routine steps
+(:func:`phc.simulation.compiled_steps_kernel._chunk`), which hands every other step back.
+
+Neither loop's data structures appear here. What touches them are a few operations, called
+by name: ``ws`` is the loop's workspace, passed through to them untouched. The Python loop's
+operations are defined at the end of this module: they call the methods of its workspace
+object (a :class:`~phc.simulation.midpoint.StageSolver`, whose operations are its sparse LU
+and NumPy vector arithmetic, or :class:`~phc.simulation.midpoint.Stages`). The compiled loop
+runs copies of these functions whose globals are its kernel module
+(:func:`phc.simulation.compiled_steps_kernel._here`), where the same names are its own
+operations on a tuple of arrays (LAPACK/BLAS calls and element loops), and numba compiles
+them with the rest of the kernel. The operations (what they do and return):
+
+``_begin(ws, m) -> (factorized, h, s, age)``
+    Start a solve with Newton matrix ``m``: its age counts up by one; returns whether it is
+    factorized and the step size and evaluation point it was factorized for.
+``_refactor(ws, m, t, h, y, y1, s) -> code``
+    Factorize matrix ``m`` for the iterate ``y1`` (:data:`_OK`, :data:`_SINGULAR`, :data:`_EVAL`).
+``_correct(ws, m, t, h, y, y1, s) -> (code, delta, size, states, scale, finite, low)``
+    The correction ``Δ = −J⁻¹F`` at ``y1`` and its size in the Newton test's units (``size``:
+    all unknowns, ``states``: the states alone, both measured against ``scale``), whether it
+    is finite, and whether it was computed with the single-precision copy of the matrix.
+``_add(y1, delta)``, ``_copy(src, dst)``
+    ``y1 += delta``, ``dst[:] = src``.
+``_precision(ws, event)``
+    :data:`DOUBLE_NEXT`: the rest of this solve in double precision; :data:`STRIKE`: double
+    precision contracted where single did not (the Python loop has no single precision).
+``_stage(ws, m, t, h, y, y1in, s, out) -> (code, ill_conditioned)``
+    One stage solve (:func:`newton` with matrix ``m``) into ``out``.
+
+The numbers the logic uses come in the vector ``c`` (its layout: ``_TOL`` … ``_STRIKES_C``),
+filled from the constants of the methods' modules (:func:`phc.simulation.midpoint.newton_constants`,
+:func:`phc.simulation.discrete_gradient.secant_constants`,
+:func:`phc.simulation.midpoint4.composition_constants`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+# outcome of a stage solve / a step
+_OK, _FAIL, _SINGULAR, _EVAL, _PASSIVITY = 0, 1, 2, 3, 4
+# events of `precision`
+DOUBLE_NEXT, STRIKE = 0, 1
+# the constants vector c
+(_TOL, _RATE, _FLOOR, _MAX_AGE, _MAX_NEWTON, _BAL_TOL, _MAX_SECANT, _S_MIN, _S_MAX, _THRESHOLD, _EVERY,
+ _G1, _G2, _M0, _M1, _M2, _ORDER, _ZONE, _STAGNATION, _ONE, _ZERO, _ORDER_ALG, _STRIKES_C) = range(23)
+_NC = 23
+
+
+def newton(ws, m, c, t, h, y, y1in, s, out):
+    """Solve ``F(t + s h, y + s (y1 − y), (y1 − y)/h) = 0`` (the position-constraint rows at the
+    step end) for ``y1`` by simplified Newton from ``y1in``, into ``out``; returns
+    ``(code, ill_conditioned)``.
+
+    The matrix ``m`` is refreshed before the first correction when it is not factorized, was
+    factorized for another step size (by more than 1e-3 relative) or evaluation point (by more
+    than 0.2), or is ``c[_MAX_AGE]`` solves old; during the iteration when the contraction rate
+    θ = |Δ_k|/|Δ_{k−1}| exceeds ``c[_RATE]`` or the old matrix diverges. Converged: the
+    estimated error ``θ/(1−θ)·|Δ|`` or the correction itself (1e-2 of it) below ``c[_TOL]``.
+    Accepted at round-off level: a stagnating iteration (θ ≥ 0.5, or ``c[_STAGNATION]`` times
+    the smallest rate with this matrix) whose correction is below ``c[_ZONE]·c[_TOL]``; a fresh
+    matrix that cannot reduce a states' correction below ``c[_FLOOR]`` (then
+    ``ill_conditioned``: the driver asks the singularity monitor)."""
+    _copy(y1in, out)
+    factorized, h0, s0, age = _begin(ws, m)
+    # a fresh matrix before the next correction (set where the iteration asks for one)
+    pending = not factorized or abs(h - h0) > 1e-3 * abs(h) or abs(s - s0) > 0.2 or age >= c[_MAX_AGE]
+    refreshed = False  # a matrix was factorized in this solve
+    since = 1  # iterations since the last factorization (1: not factorized in this solve)
+    tol = c[_TOL]
+    last = -1.0
+    rate = np.inf  # the smallest θ of this solve with this matrix
+    suspect = 0.0  # > 0: the rate of the single-precision copy, being compared with double precision
+    for _ in range(int(c[_MAX_NEWTON])):
+        if pending:
+            pending = False
+            refreshed = True
+            code = _refactor(ws, m, t, h, y, out, s)
+            if code != _OK:
+                return code, False
+            since = 0
+            last = -1.0
+            rate = np.inf
+            suspect = 0.0
+        code, delta, size, states, scale, finite, low = _correct(ws, m, t, h, y, out, s)
+        if code != _OK:
+            return code, False
+        if not finite:
+            if since == 0:
+                return _FAIL, False
+            _copy(y1in, out)  # restart from the start with a fresh matrix
+            pending = True
+            continue
+        has_theta = last > 0.0
+        theta = size / last if has_theta else 0.0
+        if low and refreshed and has_theta and theta > c[_RATE]:
+            # a matrix factorized in this solve contracts poorly: its single-precision copy may be
+            # to blame (conditioning), or the iteration is far from linear. Redo the correction in
+            # double and compare the rates
+            _precision(ws, DOUBLE_NEXT)
+            suspect = theta
+            last = -1.0
+            rate = np.inf
+            continue
+        if suspect > 0.0 and has_theta:
+            # double precision with the same matrix: a strike if it contracts where single did not
+            if theta <= c[_RATE] and since > 0:
+                _precision(ws, STRIKE)
+            suspect = 0.0
+        if has_theta and (theta >= 0.5 or theta >= c[_STAGNATION] * rate) and size <= c[_ZONE] * tol * scale:
+            _add(out, delta)  # stagnating at round-off level: accept
+            return _OK, False
+        if refreshed and has_theta and theta >= 0.5 and states <= c[_FLOOR] * scale:
+            # no progress with a fresh matrix: round-off amplified by its conditioning (a
+            # multiplier at rest, say) — the iterate is as good as it gets, but the driver is
+            # told (the conditioning may come from a singular configuration)
+            _add(out, delta)
+            return _OK, True
+        if has_theta and theta >= 1.0 and since > 0 and size > 1e3 * tol * scale:
+            pending = True  # the old matrix no longer contracts: refresh it here and retry
+            continue
+        _add(out, delta)
+        since += 1
+        if size <= 1e-2 * tol * scale:
+            return _OK, False
+        if has_theta:
+            if theta < 1.0 and theta / (1.0 - theta) * size <= tol * scale:
+                return _OK, False
+            rate = min(rate, theta)
+            pending = theta > c[_RATE]
+        last = size
+    if pending:  # asked for in the last iteration: the next solve (a retry, a split) starts with it
+        code = _refactor(ws, m, t, h, y, out, s)
+        if code != _OK:
+            return code, False
+    return _FAIL, False
+
+
+def discrete_gradient(ham, escale, ws, c, e, t, h, y, guess, p, out):
+    """One discrete-gradient step (:mod:`phc.simulation.discrete_gradient`): the stage equations
+    at ``y(s)`` and the energy balance ``r(s) = H(y₁) − H(y) + E₁ − E = 0`` (E: the energy
+    accumulator, unknown ``e``), by a safeguarded secant iteration on ``s`` from ``s = 1/2``.
+
+    Returns ``(code, ill_conditioned, y1, best, scale, y_half, secants)``: ``y1`` the step
+    (``out`` or the best secant iterate), ``best`` its ``|r|`` and ``scale`` the energy scale
+    the tolerance ``c[_BAL_TOL]`` is relative to, ``y_half`` the implicit-midpoint step
+    (``s = 1/2``) for the caller's fallback where no point balances the energy."""
+    code, ill = _stage(ws, 0, t, h, y, guess, 0.5, out)
+    if code != _OK:
+        return code, ill, out, 0.0, 0.0, out, 0
+    H0 = ham(t, y, p)
+    bal = ham(t + h, out, p) - H0 + out[e] - y[e]
+    # the balance H + E is kept relative to its terms; a body at rest that sticks (docs/events.md)
+    # has H ~ 1e-250: below 1e-200 the energy is zero
+    scale = max(abs(escale(t, y, p)), abs(escale(t + h, out, p)), abs(y[e]), abs(out[e]), 1e-200)
+    if not (np.isfinite(bal) and np.isfinite(scale)):
+        return _EVAL, ill, out, 0.0, 0.0, out, 0
+    tol = c[_BAL_TOL] * scale
+    if abs(bal) <= tol:
+        return _OK, ill, out, abs(bal), scale, out, 0
+    # first slope from the curvature of φ(σ) = H(y(σ)): r'(s) ≈ −φ''(s)
+    curv = 4.0 * (H0 - 2.0 * ham(t + 0.5 * h, y + 0.5 * (out - y), p) + ham(t + h, out, p))
+    if not np.isfinite(curv):
+        return _EVAL, ill, out, 0.0, 0.0, out, 0
+    y_half = out.copy()
+    s_prev = 0.5
+    r_prev = bal
+    y_prev = y_half
+    slope = -curv if curv != 0.0 else -abs(bal) * 10.0
+    best = abs(bal)
+    y_best = y_half
+    secants = 0
+    for _ in range(int(c[_MAX_SECANT])):
+        secants += 1
+        s_new = min(max(s_prev - r_prev / slope, c[_S_MIN]), c[_S_MAX]) if slope != 0.0 else 0.5
+        if s_new == s_prev:
+            break
+        code, ill = _stage(ws, 0, t, h, y, y_prev, s_new, out)
+        if code != _OK:
+            break
+        r_new = ham(t + h, out, p) - H0 + out[e] - y[e]
+        if not np.isfinite(r_new):
+            return _EVAL, ill, out, 0.0, 0.0, y_half, secants
+        if abs(r_new) < best:
+            best = abs(r_new)
+            y_best = out.copy()
+        if abs(r_new) <= tol:
+            return _OK, ill, out, abs(r_new), scale, y_half, secants
+        if r_new != r_prev:
+            slope = (r_new - r_prev) / (s_new - s_prev)
+        s_prev = s_new
+        r_prev = r_new
+        y_prev = out.copy()
+    # within the round-off floor of H's evaluation: accept; else no point balances the energy
+    # (the constraint projection's work, phc.simulation.discrete_gradient): the step fails
+    return (_OK if best <= 1e3 * tol else _FAIL), ill, y_best, best, scale, y_half, secants
+
+
+def midpoint4(powers, escale, ws, c, t, h, y, guess, p, out, hist_t, hist_v, nhist):
+    """One step of the fourth-order composition (:mod:`phc.simulation.midpoint4`): midpoint
+    substeps of ``c[_G1]·h, c[_G2]·h, c[_G1]·h`` (matrix 0 for the outer ones, 1 for the middle
+    one), each started from its predicted midpoint, then the passivity guard. Returns
+    ``(code, ill_conditioned, nhist)``; the step's end is in ``out``.
+
+    Predictor: the midpoint of substep i (at ``t + c[_M0 + i]·h``) extrapolated linearly from
+    the same substep of the last two steps (``hist_t[k, i]``, ``hist_v[k, i]``, ``nhist`` of them
+    known), else along the slope from ``y`` to the driver's ``guess``. The history is updated
+    on success and forgotten (``nhist = 0``) on failure. A composite step whose net dissipated
+    energy ``Σ γᵢh·P_diss(midpointᵢ)`` is negative violates passivity: :data:`_PASSIVITY`."""
+    fr = (c[_G1], c[_G2], c[_G1])
+    mt = (c[_M0], c[_M1], c[_M2])
+    ill = False
+    start = y.copy()
+    tau = t
+    dissipated = 0.0
+    scale = 0.0
+    values = np.empty((3, y.shape[0]))
+    for i in range(3):
+        m = 0 if i != 1 else 1
+        hs = fr[i] * h
+        ti = t + mt[i] * h
+        if nhist == 2:
+            mid = hist_v[1, i] + (ti - hist_t[1, i]) * (hist_v[1, i] - hist_v[0, i]) / (hist_t[1, i] - hist_t[0, i])
+        else:
+            mid = y + mt[i] * h * ((guess - y) / h)
+        code, ill_i = _stage(ws, m, tau, hs, start, 2.0 * mid - start, 0.5, out)
+        ill = ill or ill_i
+        if code != _OK:
+            return code, ill, 0
+        _copy(0.5 * (start + out), values[i])
+        diss = hs * powers(tau + 0.5 * hs, values[i], (out - start) / hs, p)[1]
+        if not np.isfinite(diss):
+            return _EVAL, ill, 0
+        dissipated += diss
+        scale += abs(diss)
+        _copy(out, start)
+        tau = tau + hs
+    # round-off of a dissipation that is zero (a body that sticks, docs/events.md) is no violation
+    floor = 1e-13 * abs(escale(t, y, p)) + 1e-300
+    if dissipated < -1e-9 * scale - floor:
+        return _PASSIVITY, ill, 0
+    if nhist == 2:
+        for i in range(3):
+            hist_t[0, i] = hist_t[1, i]
+            _copy(hist_v[1, i], hist_v[0, i])
+        k = 1
+    else:
+        k = nhist
+        nhist += 1
+    for i in range(3):
+        hist_t[k, i] = t + mt[i] * h
+        _copy(values[i], hist_v[k, i])
+    return _OK, ill, nhist
+
+
+def lagrange_weights(pt, k, tn, w):
+    """w[0:k] ← the Lagrange weights at ``tn`` of the nodes ``pt[0:k]``: the predictor's
+    polynomial through the last step midpoints is ``Σ w[a]·m_a``."""
+    for a in range(k):
+        wa = 1.0
+        for b in range(k):
+            if b != a:
+                wa *= (tn - pt[b]) / (pt[a] - pt[b])
+        w[a] = wa
+
+
+def predictor_nodes(order, known):
+    """How the predictor extrapolates a variable whose polynomial degree is ``order`` when
+    ``known`` step midpoints are known: 0, the last midpoint (degree 0); 1, the line through
+    the last midpoint along the last slope (degree 1, or while fewer than three midpoints are
+    known); k ≥ 3, the polynomial through the last k midpoints (:func:`lagrange_weights`)."""
+    if order == 0:
+        return 0
+    k = min(order + 1, known)
+    return 1 if k < 3 else k
+
+
+# The operations in the Python loop: the workspace object's methods, NumPy arithmetic.
+
+def _begin(ws, m):
+    return ws.begin(m)
+
+
+def _refactor(ws, m, t, h, y, y1, s):
+    return ws.refactor(m, t, h, y, y1, s)
+
+
+def _correct(ws, m, t, h, y, y1, s):
+    return ws.correct(m, t, h, y, y1, s)
+
+
+def _add(y1, delta):
+    y1 += delta
+
+
+def _copy(src, dst):
+    dst[...] = src
+
+
+def _precision(ws, event):
+    """The Python loop solves in double precision only: nothing to switch."""
+
+
+def _stage(ws, m, t, h, y, y1in, s, out):
+    return ws.solve_stage(m, t, h, y, y1in, s, out)
