@@ -47,9 +47,9 @@ import numpy as np
 import sympy as sp
 
 from phc import __version__
+from phc.codegen.kernels import CJ, Kernel, _canonical, function_kernels
 from phc.codegen.lower import ResidualIR
-from phc.budget import drop_deltas
-from phc.codegen.numba_emit import _NODES, _RELATIONS, _SIMPLE, Kernel, _canonical, _is_switch
+from phc.codegen.numba_emit import _NODES, _RELATIONS, _SIMPLE, _is_switch
 from phc.codegen.printer import _identifier, _Printer
 from phc.dae import T
 from phc.errors import BackendUnsupported, CodegenError
@@ -324,7 +324,7 @@ class CPrinter:
     def __init__(self, ir: ResidualIR):
         self.ir = ir
         taken: set = set()
-        self.names: dict = {T: "t", sp.Symbol("cj"): "cj"}
+        self.names: dict = {T: "t", CJ: "cj"}
         self.loads: dict = {}  # symbol -> (declaration, model name)
         for vec, symbols, prefix in (("y", ir.y_symbols, "y_"), ("yp", ir.yp_symbols, "yp_"),
                                      ("p", ir.p_symbols, "p_")):
@@ -335,7 +335,7 @@ class CPrinter:
                 what = f"der({label})" if vec == "yp" else label
                 self.loads[s] = (f"const double {ident} = {vec}[{j}];", what)
         self.order = _Printer(self.names)
-        self.known = set(ir.y_symbols) | set(ir.yp_symbols) | set(ir.p_symbols) | {T, sp.Symbol("cj")}
+        self.known = set(ir.y_symbols) | set(ir.yp_symbols) | set(ir.p_symbols) | {T, CJ}
         self.constants: list[str] = []
         self._constant_names: dict = {}
 
@@ -434,70 +434,38 @@ class CPrinter:
                 f"phc_gradient_add({n}, {indptr}, {indices}, {data}, {k}, y, {c}, {pos_name}, out);"]
 
     # -- the file -------------------------------------------------------------------------
+    _HEADS = {"yyp": "double t, const double *y, const double *yp, const double *p",
+              "yyp_cj": "double t, const double *y, const double *yp, const double *p, double cj",
+              "y": "double t, const double *y, const double *p"}
+    _DOCS = {
+        "residual": "Residual F(t, y, yp, p), one entry per equation.",
+        "residual_t": "Explicit time derivative dF/dt (consistent initialization).",
+        "jacobian": "Data of dF/dy + cj*dF/dyp in compressed-sparse-column order of the pattern (JAC_ROWS, "
+                    "JAC_COLS of the NumPy module).",
+        "hamiltonian": "Total stored energy H.",
+        "energy_scale": "Sum of |terms| of H: the scale of relative energy errors.",
+        "powers": "out[0]: power delivered through the external ports, out[1]: power dissipated "
+                  "(dH/dt = -out[0] - out[1]).",
+        "invariants": "Position-level invariants g(t, y).",
+        "velocity_invariants": "Velocity-level constraints.",
+        "outputs": "Requested outputs, in the order of OUTPUTS.",
+    }
+
     def print(self) -> str:
         ir = self.ir
-        n, m, njac = len(ir.variables), len(ir.residual), len(ir.jac_rows)
-        npar, nout = len(ir.p_symbols), len(ir.outputs)
-        lin, qd, qe = ir.linear_terms, ir.quadratic_dissipation, ir.quadratic_energy
-        sums = bool(lin or qd)
-        args_yyp = "double t, const double *y, const double *yp, const double *p"
-        args_yp = "double t, const double *y, const double *p"
-        eq = dict(enumerate(ir.equation_labels))
         parts = []
-
-        res_sums = tuple(("matvec", t.matrix, t.rows, t.cols, "yp" if t.derivative else "y", t.coeff) for t in lin)
-        res_sums += tuple(("quad", f.matrix, f.cols, -f.coeff, ir.energy_row, False) for f in qd)
-        rows = [(i, e) for i, e in enumerate(ir.residual) if e != 0] if sums else list(enumerate(ir.residual))
-        parts.append(self.function(
-            "residual", f"void phc_residual({args_yyp}, double *out)", "Residual F(t, y, yp, p), one entry per "
-            "equation.", Kernel(tuple((i, e, False) for i, e in rows), res_sums), eq, zero=m if sums else 0))
-        dt_rows = [(i, drop_deltas(sp.diff(e, T))) for i, e in enumerate(ir.residual)]
-        parts.append(self.function(
-            "residual_t", f"void phc_residual_t({args_yyp}, double *out)",
-            "Explicit time derivative dF/dt (consistent initialization).",
-            Kernel(tuple((i, e, False) for i, e in dt_rows if e != 0)), eq, zero=m))
-        jac = [dy + sp.Symbol("cj") * dyp if dyp != 0 else dy for dy, dyp in zip(ir.jac_dy, ir.jac_dyp)]
-        jac_labels = {k: f"d({ir.equation_labels[i]})/d({ir.variables[j]})"
-                      for k, (i, j) in enumerate(zip(ir.jac_rows, ir.jac_cols))}
-        if sums:
-            jac_sums = tuple(("scatter", t.pos, _canonical(t.matrix).data, t.coeff, t.derivative) for t in lin)
-            jac_sums += tuple(("grad", f.matrix, f.cols, f.pos, -2 * f.coeff) for f in qd)
-            kernel = Kernel(tuple((k, e, True) for k, e in enumerate(jac) if e != 0), jac_sums)
-        else:
-            kernel = Kernel(tuple((k, e, False) for k, e in enumerate(jac)))
-        parts.append(self.function(
-            "jacobian", f"void phc_jacobian({args_yyp}, double cj, double *out)",
-            "Data of dF/dy + cj*dF/dyp in compressed-sparse-column order of the pattern (JAC_ROWS, JAC_COLS of "
-            "the NumPy module).", kernel, jac_labels, zero=njac if sums else 0))
-        parts.append(self.function(
-            "hamiltonian", f"double phc_hamiltonian({args_yp})", "Total stored energy H.",
-            Kernel(((0, ir.hamiltonian, False),), tuple(("quad", f.matrix, f.cols, f.coeff, 0, False) for f in qe)),
-            {}, local_out=1, tail=["return out[0];"]))
-        scale = sum((sp.Abs(term) for term in sp.Add.make_args(ir.hamiltonian)), sp.Integer(0))
-        parts.append(self.function(
-            "energy_scale", f"double phc_energy_scale({args_yp})",
-            "Sum of |terms| of H: the scale of relative energy errors.",
-            Kernel(((0, scale, False),), tuple(("quad", f.matrix, f.cols, f.coeff, 0, True) for f in qe)),
-            {}, local_out=1, tail=["return out[0];"]))
-        parts.append(self.function(
-            "powers", f"void phc_powers({args_yyp}, double *out)",
-            "out[0]: power delivered through the external ports, out[1]: power dissipated "
-            "(dH/dt = -out[0] - out[1]).",
-            Kernel(((0, ir.port_power, False), (1, ir.dissipation, False)),
-                   tuple(("quad", f.matrix, f.cols, f.coeff, 1, False) for f in qd)),
-            {0: "P_ports", 1: "P_diss"}))
-        for fname, exprs, labels, doc in (
-                ("invariants", ir.invariants, ir.invariant_labels, "Position-level invariants g(t, y)."),
-                ("velocity_invariants", ir.velocity_invariants, ir.velocity_invariant_labels,
-                 "Velocity-level constraints.")):
-            parts.append(self.function(fname, f"void phc_{fname}({args_yp}, double *out)", doc,
-                                       Kernel(tuple((i, e, False) for i, e in enumerate(exprs))),
-                                       dict(enumerate(labels))))
-        parts.append(self.function(
-            "outputs", f"void phc_outputs({args_yyp}, double *out)", "Requested outputs, in the order of OUTPUTS.",
-            Kernel(tuple((i, e, False) for i, (_, e) in enumerate(ir.outputs))),
-            {i: name for i, (name, _) in enumerate(ir.outputs)}))
-        sizes = [ABI, n, m, njac, npar, len(ir.invariants), len(ir.velocity_invariants), nout]
+        for f in function_kernels(ir):  # what each function computes (phc.codegen.kernels)
+            args = self._HEADS[f.args]
+            labels = dict(enumerate(f.labels))
+            if f.returns == "scalar":  # the value returned, computed in a local vector of one entry
+                parts.append(self.function(f.name, f"double phc_{f.name}({args})", self._DOCS[f.name], f.kernel,
+                                           labels, local_out=1, tail=["return out[0];"]))
+            else:  # written into the caller's out (a new vector or a pair in the Python wrapper)
+                parts.append(self.function(f.name, f"void phc_{f.name}({args}, double *out)", self._DOCS[f.name],
+                                           f.kernel, labels, zero=f.size if f.zero else 0))
+        n, npar = len(ir.variables), len(ir.p_symbols)
+        sizes = [ABI, n, len(ir.residual), len(ir.jac_rows), npar, len(ir.invariants), len(ir.velocity_invariants),
+                 len(ir.outputs)]
         parts.append("void phc_sizes(long long *out)\n{\n    /* " + comment(", ".join(SIZES)) + " */\n"
                      + "".join(f"    out[{k}] = {v};\n" for k, v in enumerate(sizes)) + "}\n")
         return self._header(n, npar) + "\n" + "\n\n".join(self.constants) + "\n\n" + "\n".join(parts)
