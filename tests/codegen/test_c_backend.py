@@ -195,16 +195,41 @@ def test_arrays_of_any_layout_and_short_arrays(tmp_path):
 
 
 @needs_cc
-@pytest.mark.parametrize("model, step", [("pendulum", 1e-2), ("rigid_slider_crank", 1e-3)])
+@pytest.mark.parametrize("model, step", [("mass_spring_damper", 1e-2), ("pendulum", 1e-2),
+                                         ("rigid_slider_crank", 1e-3)])
 def test_a_midpoint_run_on_c_equals_the_numpy_run(model, step):
-    """Same step equations to round-off, solved to the same Newton tolerance: the trajectories
-    agree far below the method's own error (rtol 1e-10, the numba back end's bound)."""
+    """The states (what the midpoint rule integrates) agree to 1e-10: each step's equations
+    are the same to round-off and solved to the Newton tolerance 1e-14 (relative), and at most
+    a few hundred steps accumulate that. The algebraic variables (constraint forces) are not
+    integrated: they are recomputed from the states at each output time
+    (:mod:`phc.simulation.polish`), a least-squares solve that amplifies round-off by the
+    conditioning of the constraints (a multiplier moves by 1e-9 of its size between two runs
+    whose residuals differ in the last bit). For them the test asks what that solve
+    guarantees: the C run's values satisfy the model's equations as well as the NumPy run's."""
     compiled = phc.compile_model(ROOT / "models" / f"{model}.yaml", certify=False, backend="numpy")
     ref = phc.simulate(compiled, t_end=0.5, solver="midpoint", step=step)
     fast = phc.simulate(compiled, t_end=0.5, solver="midpoint", step=step, backend="c")
     assert ref.success and fast.success
-    np.testing.assert_allclose(fast.y, ref.y, rtol=1e-10, atol=1e-12 * float(np.abs(ref.y).max()))
     assert compiled.backend == "numpy"  # a run on another backend leaves the compiled model as it was
+    states = np.asarray(ref.differential, dtype=bool)
+    scale = np.maximum(np.abs(ref.y).max(axis=0), 1e-300)
+    np.testing.assert_allclose(fast.y[:, states] / scale[states], ref.y[:, states] / scale[states], rtol=0,
+                               atol=1e-10)
+    mod = compiled.module
+    p = np.asarray(mod.full_parameters(), dtype=float)
+    # H may be ~0 (a pendulum's kinetic and potential energy cancel): measured against the sum of |terms|
+    energy_scale = max(mod.energy_scale(float(t), y, p) for t, y in zip(ref.t, ref.y))
+    np.testing.assert_allclose(fast.H, ref.H, rtol=0, atol=1e-10 * energy_scale)
+
+    def worst_residual(run):
+        worst, out = 0.0, np.zeros(mod.N)
+        for k, t in enumerate(run.t):
+            mod.residual(float(t), run.y[k], run.yp[k], p, out)
+            worst = max(worst, float(np.abs(out).max()))
+        return worst
+
+    floor = 1e-12 * float(np.abs(ref.y).max())
+    assert worst_residual(fast) <= 10.0 * worst_residual(ref) + floor
 
 
 # ---------------------------------------------------------------------------------------
