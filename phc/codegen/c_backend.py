@@ -332,29 +332,38 @@ def load_compiled(ir: ResidualIR, reference: ModuleType, reference_source: Optio
 # the module: ctypes wrappers with the NumPy module's signatures
 
 _F64 = np.dtype(np.float64)
+_D = ctypes.c_double
+_PTR = ctypes.POINTER(ctypes.c_double)
 
 
-def _given(a, n: int, what: str) -> np.ndarray:
-    """`a` as a contiguous float64 vector of at least `n` entries (copied only if need be)."""
+def _given(a, n: int, what: str):
+    """A pointer to the entries of `a` as a contiguous float64 vector of at least `n` entries
+    (``ctypes.c_double.from_buffer``: it keeps the array alive; a read-only, strided or
+    non-float64 array is copied first), or None (NULL) for an empty one."""
     a = np.ascontiguousarray(a, dtype=_F64)
     if a.ndim != 1 or a.shape[0] < n:
         raise ValueError(f"`{what}` has shape {a.shape}; the model's C functions need a vector of {n} entries")
-    return a
+    if not a.shape[0]:
+        return None
+    if not a.flags.writeable:
+        a = a.copy()  # from_buffer wants a writable buffer; the C code only reads it
+    return _D.from_buffer(a)
 
 
-def _target(out, n: int, what: str) -> Optional[np.ndarray]:
-    """`out` when the C function can write into it directly, else None (a copy is written back)."""
+def _target(out, n: int, what: str):
+    """A pointer into `out` when the C function can write into it directly, else None (a
+    vector is written and copied back)."""
     if (type(out) is np.ndarray and out.dtype == _F64 and out.ndim == 1 and out.flags.c_contiguous
             and out.flags.writeable):
         if out.shape[0] < n:
             raise ValueError(f"`{what}` has {out.shape[0]} entries; the model's C functions write {n}")
-        return out
+        return _D.from_buffer(out) if n else None
     return None
 
 
 def _wrappers(lib: ctypes.CDLL, n: int, m: int, njac: int, npar: int, ninv: int, nvinv: int,
               nout: int) -> dict:
-    D, P = ctypes.c_double, ctypes.c_void_p
+    P = _PTR
 
     def c_function(name, argtypes, restype=None):
         f = getattr(lib, f"phc_{name}")
@@ -362,46 +371,46 @@ def _wrappers(lib: ctypes.CDLL, n: int, m: int, njac: int, npar: int, ninv: int,
         return f
 
     def into(name: str, size: int, with_cj: bool):
-        f = c_function(name, [D, P, P, P, D, P] if with_cj else [D, P, P, P, P])
+        f = c_function(name, [_D, P, P, P, _D, P] if with_cj else [_D, P, P, P, P])
 
         def call(t, y, yp, p, *rest):
             y_, yp_, p_ = _given(y, n, "y"), _given(yp, n, "yp"), _given(p, npar, "p")
             out = rest[-1]
             target = _target(out, size, "out")
-            buf = target if target is not None else np.empty(size)
+            buf = None if target is not None or not size else np.empty(size)
+            dest = target if buf is None else _D.from_buffer(buf)
             if with_cj:
-                f(t, y_.ctypes.data, yp_.ctypes.data, p_.ctypes.data, rest[0], buf.ctypes.data)
+                f(t, y_, yp_, p_, rest[0], dest)
             else:
-                f(t, y_.ctypes.data, yp_.ctypes.data, p_.ctypes.data, buf.ctypes.data)
-            if target is None:
+                f(t, y_, yp_, p_, dest)
+            if buf is not None:
                 out[...] = buf
 
         call.__name__ = call.__qualname__ = name
         return call
 
     def returned(name: str, size: int, with_yp: bool):
-        f = c_function(name, [D, P, P, P, P] if with_yp else [D, P, P, P])
+        f = c_function(name, [_D, P, P, P, P] if with_yp else [_D, P, P, P])
 
         if with_yp:
             def call(t, y, yp, p):
                 out = np.empty(size)
-                f(t, _given(y, n, "y").ctypes.data, _given(yp, n, "yp").ctypes.data,
-                  _given(p, npar, "p").ctypes.data, out.ctypes.data)
+                f(t, _given(y, n, "y"), _given(yp, n, "yp"), _given(p, npar, "p"),
+                  _D.from_buffer(out) if size else None)
                 return out
         else:
             def call(t, y, p):
                 out = np.empty(size)
-                f(t, _given(y, n, "y").ctypes.data, _given(p, npar, "p").ctypes.data, out.ctypes.data)
+                f(t, _given(y, n, "y"), _given(p, npar, "p"), _D.from_buffer(out) if size else None)
                 return out
         call.__name__ = call.__qualname__ = name
         return call
 
     def scalar(name: str):
-        f = c_function(name, [D, P, P], D)
+        f = c_function(name, [_D, P, P], _D)
 
         def call(t, y, p):
-            y_, p_ = _given(y, n, "y"), _given(p, npar, "p")
-            return f(t, y_.ctypes.data, p_.ctypes.data)
+            return f(t, _given(y, n, "y"), _given(p, npar, "p"))
 
         call.__name__ = call.__qualname__ = name
         return call
