@@ -135,7 +135,7 @@ class CReport:
         what = {"warm": "loaded from the cache", "cold": "compiled and cached", "off": "compiled, not cached",
                 "memory": "loaded earlier in this process"}.get(self.cached, self.cached)
         note = f"; {self.note}" if self.note and self.cached == "off" else ""
-        return f"{what} in {self.seconds:.2f} s ({self.compiler}{note})"
+        return f"{what} in {self.seconds:.2f} s with {self.compiler}{note}"
 
 
 def library_digest(text: str, argv: list[str], identity: str) -> str:
