@@ -232,6 +232,17 @@ def test_a_midpoint_run_on_c_equals_the_numpy_run(model, step):
     assert worst_residual(fast) <= 10.0 * worst_residual(ref) + floor
 
 
+@needs_cc
+def test_a_model_sent_to_a_worker_runs_on_the_c_backend_again():
+    """`phc sweep` pickles the compiled model to its workers: the C module is rebuilt there."""
+    import pickle
+
+    compiled = phc.compile_model(ROOT / "models" / "rlc_circuit.yaml", certify=False, backend="c")
+    again = pickle.loads(pickle.dumps(compiled))
+    assert again.backend == "c" and again.module is not compiled.module
+    _assert_same(again.module.REFERENCE, again.module, points=2)
+
+
 # ---------------------------------------------------------------------------------------
 # the signed cache
 
@@ -298,6 +309,12 @@ def test_libraries_are_cached_signed_and_a_tampered_one_is_rebuilt(tmp_path, mon
     with pytest.warns(CacheWarning, match="does not verify"):
         _, foreign = _load(model)
     assert foreign.cached == "cold" and len(compilations) == 3
+
+    # `phc cache clean` removes the libraries, their tags and C texts with the rest
+    from phc.codegen.load import clean
+
+    clean()
+    assert list(folder.iterdir()) == []
 
 
 @needs_cc
