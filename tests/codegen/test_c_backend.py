@@ -386,3 +386,31 @@ def test_the_command_line_runs_and_writes_the_c_file(tmp_path):
     sizes = (ctypes.c_longlong * 8)()
     lib.phc_sizes(sizes)
     assert list(sizes) == c_backend.sizes_of(compiled.module)
+
+
+# ---------------------------------------------------------------------------------------
+# model text is data in the C file too
+
+def test_model_names_in_comments_cannot_end_the_comment():
+    from phc.codegen.c_printer import comment, number
+
+    text = comment("a */ int evil; /* b\nc\x00")
+    assert "*/" not in text and "/*" not in text and "\n" not in text and "\x00" not in text
+    assert [number(x) for x in (0.1, -2.5, 1e-300, float("inf"), float("-inf"))] == [
+        "0.1", "(-2.5)", "1e-300", "INFINITY", "(-INFINITY)"]
+    assert number(float("nan")) == "NAN"
+
+
+@needs_cc
+def test_descriptions_and_units_do_not_reach_the_c_file(tmp_path):
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    try:
+        from test_injection import OSCILLATOR, _quoted
+    finally:
+        sys.path.pop(0)
+    payload = "*/ #error injected /*"
+    model = tmp_path / "osc.yaml"
+    model.write_text(OSCILLATOR.format(description=_quoted(payload), unit="N/m"))
+    fast = phc.compile_model(model, certify=False, backend="c").module
+    assert "injected" not in fast.C_SOURCE
+    _assert_same(fast.REFERENCE, fast, points=2)
