@@ -137,8 +137,8 @@ class CompiledModel:
 
     @property
     def backend(self) -> str:
-        """What runs the generated functions: ``numba`` (compiled) or ``numpy`` (the reference
-        module; :mod:`phc.codegen.backends`)."""
+        """What runs the generated functions: ``numba`` or ``c`` (compiled) or ``numpy`` (the
+        reference module; :mod:`phc.codegen.backends`)."""
         return getattr(self.module, "BACKEND", "numpy")
 
     @property

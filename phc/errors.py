@@ -38,7 +38,9 @@ Files
 
 Compiling and running
     ``SymbolicBudgetError`` (symbolic work above the budget), ``BackendUnavailable`` (the
-    compiled backend cannot be used here), ``BackendMismatch`` (compiled functions
+    compiled backend cannot be used here: numba or a C compiler missing),
+    ``BackendUnsupported`` (a ``CodegenError``: the model uses something the chosen back end
+    does not print yet), ``BackendMismatch`` (compiled functions
     disagree with the reference module), ``ModelEvaluationError`` (a model expression
     outside its domain during a run: :mod:`phc.simulation.guard` raises it only for a
     domain error, ``ArithmeticError`` or a non-finite result; any other exception of the
@@ -200,11 +202,16 @@ class SymbolicBudgetError(PhcError):
 
 
 class BackendUnavailable(PhcError):
-    """The compiled backend cannot be used here (numba missing or too old); says why."""
+    """The compiled backend cannot be used here (numba missing or too old, no C compiler); says why."""
 
 
 class BackendMismatch(PhcError):
     """The compiled functions disagree with the reference module at the check point."""
+
+
+class BackendUnsupported(CodegenError):
+    """The model uses something a back end cannot print yet (the C back end: an input
+    table); the message names it and where it is used."""
 
 
 class SweepSetupError(SimulationSetupError):
@@ -302,7 +309,7 @@ PRIVATE_CONTROL_FLOW = ("phc.cli.report._Exit", "phc.checks.compiled._NotNumeric
                         "phc.source._NotRegular", "phc.simulation.ida._Stop")
 """Exceptions that never leave the code that raises them, defined there (qualified names)."""
 
-__all__ = ["BackendMismatch", "BackendUnavailable", "CacheWarning", "CodegenError", "CompiledBackendWarning",
+__all__ = ["BackendMismatch", "BackendUnavailable", "BackendUnsupported", "CacheWarning", "CodegenError", "CompiledBackendWarning",
            "DimensionError", "ExpressionError", "FileRefused", "IgnoredOptionWarning", "InconsistentInitialError",
            "ModelError", "ModelEvaluationError", "NothingToAnimate", "NpzProblem", "OutputPathError",
            "PhcError", "PhcWarning", "PlotUnavailable", "ReferenceValuesError", "RegistryError",

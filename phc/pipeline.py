@@ -169,7 +169,8 @@ def compile_model(path: str | os.PathLike, scene: Optional[Scene] = None, *, cer
 
     `backend` chooses what runs the generated functions (:mod:`phc.codegen.backends`):
     ``auto`` (the default, or ``$PHC_BACKEND``) the compiled ``numba`` module when numba is
-    installed and the model has at least 16 unknowns, else the ``numpy`` module;
+    installed and the model has at least 16 unknowns, else the ``numpy`` module; ``c`` the
+    functions compiled by the system C compiler (:mod:`phc.codegen.c_backend`);
     ``CompiledModel.backend`` says which.
 
     Raises
@@ -177,7 +178,8 @@ def compile_model(path: str | os.PathLike, scene: Optional[Scene] = None, *, cer
     ModelError
         When the model has errors (``err.diagnostics`` lists them, located).
     SimulationSetupError
-        When `backend` is unknown, or ``numba`` and numba cannot be imported.
+        When `backend` is unknown, ``numba`` and numba cannot be imported, or ``c`` and
+        no C compiler is found or the model uses something the C back end does not print.
     """
     timings = {}
     t = time.perf_counter()

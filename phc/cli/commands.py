@@ -102,6 +102,9 @@ def cmd_compile(args) -> int:
 
             name = f"{name[:MAX_FILE_STEM - 17]}_{hashlib.sha256(name.encode()).hexdigest()[:16]}"
         target = write_text(out_dir / f"{name}.py", compiled.source)
+        c_text = getattr(compiled.module, "C_SOURCE", None)  # --backend c: its C99 text too
+        if c_text is not None:
+            write_text(out_dir / f"{name}.c", c_text)
         files.status(f"{path}: wrote {target} ({compiled.n_states} states, {compiled.n_equations} equations, "
                      f"{compiled.jacobian_nnz} Jacobian nonzeros, compiled in {compiled.compile_time:.2f} s)")
         for line in [_certificate_line(compiled), _backend_line(compiled, args.backend),

@@ -207,10 +207,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-certify", action="store_true",
                    help="skip the certificate of the compiled equations (power balance, passivity)")
     p.add_argument("-o", "--output", default=".", metavar="DIR", help="directory for the generated module")
-    p.add_argument("--backend", choices=("auto", "numpy", "numba"),
+    p.add_argument("--backend", choices=("auto", "numpy", "numba", "c"),
                    help="what runs the generated functions: numba (machine code, cached; pip install "
-                   "'port-hamiltonian-compiler[fast]'), numpy, or auto (numba for models of 16 unknowns or "
-                   "more when installed; the default, or $PHC_BACKEND)")
+                   "'port-hamiltonian-compiler[fast]'), c (C compiled by the system C compiler, cached), numpy, "
+                   "or auto (numba for models of 16 unknowns or more when installed; the default, or $PHC_BACKEND)")
     p.set_defaults(func=cmd_compile)
 
     p = sub.add_parser("simulate", help="compile and simulate a model or a scene")
@@ -221,10 +221,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--n-out", type=int, help="number of output points")
     p.add_argument("--solver", choices=_solver_names(), help="integrator (default: the model's)")
     p.add_argument("--step", type=float, help="step size of the midpoint solver")
-    p.add_argument("--backend", choices=("auto", "numpy", "numba"),
+    p.add_argument("--backend", choices=("auto", "numpy", "numba", "c"),
                    help="what runs the generated functions: numba (machine code, cached; pip install "
-                   "'port-hamiltonian-compiler[fast]'), numpy, or auto (numba for models of 16 unknowns or "
-                   "more when installed; the default, or $PHC_BACKEND)")
+                   "'port-hamiltonian-compiler[fast]'), c (C compiled by the system C compiler, cached), numpy, "
+                   "or auto (numba for models of 16 unknowns or more when installed; the default, or $PHC_BACKEND)")
     p.add_argument("--rtol", type=float)
     p.add_argument("--atol", type=float)
     p.add_argument("--param", action="append", metavar="NAME=VALUE", help="override a parameter (repeatable)")
@@ -300,9 +300,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--t-end", type=float, help="end time of every run (default: the model's)")
     p.add_argument("--n-out", type=int, help="output points of every run")
     p.add_argument("--solver", choices=_solver_names(), help="integrator (default: the model's)")
-    p.add_argument("--backend", choices=("auto", "numpy", "numba"),
+    p.add_argument("--backend", choices=("auto", "numpy", "numba", "c"),
                    help="what runs the generated functions on every worker (and in every recompiled group): "
-                   "numba, numpy, or auto (the default, or $PHC_BACKEND)")
+                   "numba, c, numpy, or auto (the default, or $PHC_BACKEND)")
     p.add_argument("--no-certify", action="store_true",
                    help="skip the certificate of the compiled equations (power balance, passivity)")
     p.add_argument("--plot", metavar="OUT.png", help="draw an output against one or two parameters (needs the `plot` extra: pip install 'port-hamiltonian-compiler[plot]')")

@@ -194,9 +194,9 @@ def _cap_bytes() -> int:
 
 def _entries(folder: Path) -> list[tuple[float, int, Path]]:
     """(last use, size, path) of phc's files in the cache (generated modules, bench references,
-    the signed artefacts of the compiled backend, the records of the cached front end)."""
+    the signed artefacts of the compiled backends, the records of the cached front end)."""
     out = []
-    for pattern in ("phc_*.py", "bench/ref_*.npz", "numba/phc_numba_*", "front/*.json"):
+    for pattern in ("phc_*.py", "bench/ref_*.npz", "numba/phc_numba_*", "c/phc_c_*", "front/*.json"):
         for p in folder.glob(pattern):
             try:
                 st = p.lstat()

@@ -3,7 +3,8 @@ intrinsics, written without numba's Python-level compiler.
 
 :mod:`phc.codegen.numba_backend` prints the generated functions as numba-compilable Python
 (:class:`~phc.codegen.numba_backend.KernelPrinter`) and builds and loads them; what each of
-its intrinsics ``_X_<name>(t, y, yp, p, cj, out)`` computes is a :class:`Kernel` (target
+its intrinsics ``_X_<name>(t, y, yp, p, cj, out)`` computes is a
+:class:`~phc.codegen.kernels.Kernel` (target
 expressions and sparse sums), and this module writes the body: :func:`emittable` says
 whether every node of an expression has a rule here, :class:`_Emitter` writes the LLVM IR
 of the expressions (after the same common-subexpression elimination and in the evaluation
@@ -16,11 +17,12 @@ loops over constant CSR arrays. The names here are importable from
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import sympy as sp
 
+# what each function computes (shared with the C back end), importable from here as before
+from phc.codegen.kernels import _COEFFICIENT, Kernel, _canonical, _coefficient  # noqa: F401
 from phc.codegen.lower import ResidualIR
 from phc.dae import T
 from phc.inputs import InputTable, InputTableSlope
@@ -79,43 +81,6 @@ def emittable(expr: sp.Basic, known: set) -> bool:
             continue
         return False
     return True
-
-
-@dataclass(frozen=True)
-class Kernel:
-    """What the intrinsic ``_X_<name>(t, y, yp, p, cj, out)`` computes: `targets` are
-    ``(index, expression, accumulate)`` written (or added) into ``out``, then `sums` are
-    added: ``("matvec", A, rows, cols, "y"|"yp", coeff)`` adds ``coeff·A v[cols]`` to
-    ``out[rows]``; ``("scatter", pos, data, coeff, times_cj)`` adds ``coeff·data`` (times
-    cj) to ``out[pos]``; ``("quad", A, cols, coeff, index, absolute)`` adds ``coeff·xᵀAx``
-    (its absolute value) to ``out[index]``; ``("grad", A, cols, pos, coeff)`` adds
-    ``coeff·A x`` to ``out[pos]`` (x = y[cols], A a CSR matrix)."""
-
-    targets: tuple
-    sums: tuple = ()
-
-    def expressions(self) -> list:
-        """The target expressions, then the coefficient of each sum."""
-        return [e for _, e, _ in self.targets] + [_coefficient(op) for op in self.sums]
-
-
-_COEFFICIENT = {"matvec": 5, "scatter": 3, "quad": 3, "grad": 4}
-
-
-def _coefficient(op):
-    """The coefficient expression of a :class:`Kernel` sum."""
-    return op[_COEFFICIENT[op[0]]]
-
-
-def _canonical(matrix):
-    """`matrix` as a CSR matrix with sorted indices and no duplicates (its entry order is
-    the one :class:`~phc.codegen.lower.LinearTermIR` positions refer to)."""
-    import scipy.sparse as sps
-
-    m = sps.csr_matrix(matrix)
-    m.sum_duplicates()
-    m.sort_indices()
-    return m
 
 
 # ---------------------------------------------------------------------------------------

@@ -201,7 +201,7 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
     step : float, optional
         Step size of the fixed-step `midpoint`, `discrete_gradient` and `midpoint4` solvers (default:
         the model's `simulation.step`, else the output interval).
-    backend : {"auto", "numpy", "numba"}, optional
+    backend : {"auto", "numpy", "numba", "c"}, optional
         What runs the generated functions (default: what `compiled` was compiled with;
         :mod:`phc.codegen.backends`).
     params : dict, optional

@@ -2,7 +2,8 @@
 (a Dask worker runs sweep points on threads) may call one module at once with different
 states and parameters. Before, a module-level [y; ẏ] buffer and a parameter cache that was
 cleared and refilled gave 24 and 33 wrong residual vectors out of 20 000 calls from two
-threads. Each call here is compared bit for bit with the same call made serially."""
+threads. Each call here is compared bit for bit with the same call made serially, on each
+back end (the C back end's library is called with the GIL released: the threads run at once)."""
 
 from __future__ import annotations
 
@@ -40,6 +41,16 @@ NUMBA = pytest.param("numba", marks=pytest.mark.skipif(not __import__("importlib
                                                       reason="numba not installed"))
 
 
+def _c_compiler() -> str:
+    from phc.codegen.c_backend import available
+
+    ok, why = available()
+    return "" if ok else why
+
+
+C = pytest.param("c", marks=pytest.mark.skipif(bool(_c_compiler()), reason=f"C backend not tested: {_c_compiler()}"))
+
+
 def _chain(tmp_path) -> Path:
     """A linear_phs chain: its rows are sparse linear blocks applied by mat-vecs (the
     parameter `k` scales them, so three parameter vectors give three sets of matrices)."""
@@ -52,7 +63,7 @@ def _chain(tmp_path) -> Path:
     return path
 
 
-@pytest.mark.parametrize("backend", ["numpy", NUMBA])
+@pytest.mark.parametrize("backend", ["numpy", NUMBA, C])
 @pytest.mark.parametrize("model", ["linear_chain", "rigid_slider_crank"])  # sparse linear blocks; nonlinear rows
 def test_four_threads_give_the_serial_results_bit_for_bit(model, backend, tmp_path):
     path = _chain(tmp_path) if model == "linear_chain" else MODELS / f"{model}.yaml"

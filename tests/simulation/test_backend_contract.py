@@ -22,15 +22,22 @@ from phc.simulation.initial import consistent_initial_conditions
 MODELS = Path(__file__).resolve().parents[2] / "models"
 
 
-@pytest.fixture(scope="module", params=["numpy", "numba"])
+@pytest.fixture(scope="module", params=["numpy", "numba", "c"])
 def oscillator(request):
-    """The oscillator on each code backend (the generated NumPy module, and compiled)."""
+    """The oscillator on each code backend (the generated NumPy module, and compiled: numba,
+    and C through the system C compiler)."""
     if request.param == "numba":
         from phc.codegen.numba_backend import available
 
         ok, why = available()
         if not ok:
             pytest.skip(f"compiled backend not tested: {why}")
+    if request.param == "c":
+        from phc.codegen.c_backend import available
+
+        ok, why = available()
+        if not ok:
+            pytest.skip(f"C backend not tested: {why}")
     compiled = phc.compile_model(MODELS / "mass_spring_damper.yaml", certify=False, backend=request.param)
     assert compiled.backend == request.param
     return compiled

@@ -1,0 +1,465 @@
+"""The C back end: the generated functions compiled by the system C compiler, called through ctypes.
+
+Input: a :class:`~phc.codegen.lower.ResidualIR` and the NumPy module printed from it (the
+reference back end). Output: a module with the reference module's constants and
+``full_parameters`` (and ``events``), and ``residual``, ``residual_t``, ``jacobian``,
+``hamiltonian``, ``energy_scale``, ``powers``, ``invariants``, ``velocity_invariants`` and
+``outputs`` of the same signatures, each a thin Python wrapper around a function of a shared
+library (``BACKEND`` is ``"c"``, ``REFERENCE`` the NumPy module, ``C_SOURCE`` the C text,
+``C_REPORT`` how the library was obtained). Every solver runs on it as on the NumPy module.
+
+The C text is :func:`phc.codegen.c_printer.c_source`; it is compiled with the system C
+compiler (``$CC``, else ``cc``, ``gcc`` or ``clang`` on the PATH) with :data:`FLAGS`:
+``-O2`` without ``-ffast-math`` and with ``-ffp-contract=off`` (no fused multiply-adds), so
+each operation is the IEEE operation the NumPy module performs. The wrappers check the
+arrays' lengths (the C code does not), pass them as pointers (a non-contiguous or non-float64
+array is copied first) and release the GIL during the call (ctypes does): the library keeps
+no state, so threads may call one module at once.
+
+Caching
+-------
+Libraries are cached in ``<phc cache>/c/`` — the private directory of
+:mod:`phc.codegen.load`, checked as the numba back end's is (created 0700; refused when
+another user owns it or others may write it, it or a directory on the way to it) — as
+``phc_c_<digest>.so`` next to the C text it was compiled from, ``<digest>`` the SHA-256 of
+everything that determines the machine code (the C text, the compiler and its version, the
+flags, phc's version, the platform). Beside each library, ``phc_c_<digest>.sig`` holds an
+HMAC-SHA256 tag over the library's file name and bytes under the per-user key that signs
+numba's artefacts (kept outside the cache: :func:`phc.codegen.numba_cache.cache_key`). A
+library is loaded only from bytes whose tag verifies — read once, checked, and handed to the
+dynamic loader from memory (a ``memfd`` on Linux), so the file cannot change between the
+check and the load. A library that does not verify is compiled again and replaced, with one
+:class:`~phc.errors.CacheWarning`; one missing its tag is a silent miss. Without a usable
+cache directory or key (or with ``PHC_COMPILED_CACHE=0``) the library is compiled in a
+private temporary directory and not kept. Every library is checked against the NumPy module
+at a sample point when loaded (:func:`phc.codegen.numba_cache._cross_check`).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import hmac
+import os
+import platform
+import shlex
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from types import ModuleType
+from typing import Optional
+
+import numpy as np
+
+from phc import __version__
+from phc.codegen.c_printer import ABI, CUnsupported, c_source  # noqa: F401 — CUnsupported: the API
+from phc.codegen.lower import ResidualIR
+from phc.codegen.numba_cache import FUNCTIONS, _cross_check, _private_dir, _read_private, _tag, cache_key
+from phc.errors import BackendMismatch, BackendUnavailable, CacheWarning, CodegenError
+
+FLAGS = ("-std=c99", "-O2", "-fPIC", "-shared", "-ffp-contract=off")
+"""Compiler flags: optimized, position-independent, no fused multiply-adds, no ``-ffast-math``."""
+
+LIBS = ("-lm",)
+
+COMPILE_TIMEOUT = 900.0
+"""Seconds a compilation may take before it is abandoned (a phc bug or a broken compiler)."""
+
+MAGIC = b"phc-c-1\n"
+"""First bytes of a library's tag file."""
+
+_COMPILERS: dict = {}
+"""($CC, $PATH) -> (argv, identity) of the compiler found, or (None, why none)."""
+
+
+def find_compiler() -> tuple[Optional[list[str]], str]:
+    """(the compiler's argv, its identity: the first line of ``--version``) or (None, why
+    there is none). ``$CC`` when set (split like a shell word list), else the first of
+    ``cc``, ``gcc``, ``clang`` on the PATH that answers ``--version``."""
+    env = os.environ.get("CC", "").strip()
+    key = (env, os.environ.get("PATH", ""))
+    found = _COMPILERS.get(key)
+    if found is None:
+        found = _COMPILERS[key] = _find(env)
+    return found
+
+
+def _find(env: str) -> tuple[Optional[list[str]], str]:
+    try:
+        candidates = [shlex.split(env)] if env else [["cc"], ["gcc"], ["clang"]]
+    except ValueError:
+        candidates = []
+    for argv in candidates:
+        exe = shutil.which(argv[0]) if argv else None
+        if exe is None:
+            continue
+        try:
+            done = subprocess.run([exe, *argv[1:], "--version"], capture_output=True, text=True, timeout=60,
+                                  stdin=subprocess.DEVNULL)
+        except (OSError, subprocess.SubprocessError):
+            continue
+        if done.returncode == 0:
+            return [exe, *argv[1:]], (done.stdout.strip().splitlines() or [exe])[0].strip()
+    where = f"$CC is `{env}`, which does not run" if env else "no `cc`, `gcc` or `clang` on the PATH"
+    return None, (f"no C compiler found ({where}); install one (e.g. `apt install gcc`) or set $CC, "
+                  "or run with --backend numpy")
+
+
+def available() -> tuple[bool, str]:
+    """(True, the compiler's identity) when a C compiler was found, else (False, why not)."""
+    argv, text = find_compiler()
+    return argv is not None, text
+
+
+@dataclass
+class CReport:
+    """How the C library of a model was obtained."""
+
+    seconds: float
+    """Wall time to print, compile (or load) the library."""
+    cpu_seconds: float
+    """CPU time of this process and of the compiler it ran."""
+    cached: str
+    """``"warm"`` (loaded from the cache), ``"cold"`` (compiled and cached), ``"off"``
+    (compiled, not cached: `note` says why) or ``"memory"`` (loaded earlier in this process)."""
+    digest: str
+    compiler: str
+    note: str = ""
+
+    def describe(self) -> str:
+        what = {"warm": "loaded from the cache", "cold": "compiled and cached", "off": "compiled, not cached",
+                "memory": "loaded earlier in this process"}.get(self.cached, self.cached)
+        note = f"; {self.note}" if self.note and self.cached == "off" else ""
+        return f"{what} in {self.seconds:.2f} s with {self.compiler}{note}"
+
+
+def library_digest(text: str, argv: list[str], identity: str) -> str:
+    """The name of a library in the cache: the SHA-256 of everything that determines it."""
+    material = "\0".join((text, " ".join(argv), identity, " ".join(FLAGS + LIBS), __version__, str(ABI),
+                          platform.machine(), sys.platform))
+    return hashlib.sha256(material.encode()).hexdigest()[:24]
+
+
+def c_cache_dir() -> Path:
+    from phc.codegen.load import cache_dir
+
+    return cache_dir() / "c"
+
+
+def _cpu() -> float:
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
+# ---------------------------------------------------------------------------------------
+# compiling, the signed cache, loading
+
+def _compile(text: str, argv: list[str], digest: str, parent: Optional[Path]) -> bytes:
+    """The bytes of the shared library compiled from `text` (in a private temporary directory,
+    inside `parent` when given)."""
+    work = Path(tempfile.mkdtemp(prefix="phc-c-build-", dir=parent))  # mode 0700
+    try:
+        src, lib = work / f"phc_c_{digest}.c", work / f"phc_c_{digest}.so"
+        src.write_text(text, encoding="utf-8")
+        try:
+            done = subprocess.run([*argv, *FLAGS, "-o", str(lib), str(src), *LIBS], capture_output=True, text=True,
+                                  timeout=COMPILE_TIMEOUT, cwd=work, stdin=subprocess.DEVNULL)
+        except subprocess.TimeoutExpired:
+            raise CodegenError(f"the C compiler ({argv[0]}) took more than {COMPILE_TIMEOUT:.0f} s") from None
+        except OSError as err:
+            raise CodegenError(f"the C compiler ({argv[0]}) could not be run: {err.strerror or err}") from None
+        if done.returncode != 0:
+            lines = [line for line in done.stderr.splitlines() if line.strip()]
+            first = next((line for line in lines if "error" in line), lines[0] if lines else "")
+            raise CodegenError(f"the C compiler ({argv[0]}) failed on the generated code (exit "
+                               f"{done.returncode}): {first.strip()[:300]}")
+        return lib.read_bytes()
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def _paths(folder: Path, digest: str) -> tuple[Path, Path, Path]:
+    stem = f"phc_c_{digest}"
+    return folder / f"{stem}.so", folder / f"{stem}.sig", folder / f"{stem}.c"
+
+
+def _cached(folder: Path, digest: str, key: bytes) -> tuple[Optional[bytes], Optional[str]]:
+    """(the library's bytes when its tag verifies, None) or (None, why it was refused); a
+    library or tag that is missing is (None, None): a plain miss."""
+    lib, sig, _ = _paths(folder, digest)
+    if not os.path.lexists(lib):
+        return None, None
+    data = _read_private(str(lib))
+    if data is None:
+        return None, "is not a regular file of this user"
+    tag = _read_private(str(sig))
+    if tag is None:
+        return None, None
+    if not (tag.startswith(MAGIC) and hmac.compare_digest(tag[len(MAGIC):], _tag(key, lib.name, data))):
+        return None, "does not verify (damaged, or not written by phc under this user's key)"
+    return data, None
+
+
+def _store(folder: Path, digest: str, key: bytes, data: bytes, text: str) -> None:
+    """Write the library, its tag and its C text (for readers) into the cache."""
+    from phc.codegen.load import enforce_cap, write_atomic
+
+    lib, sig, src = _paths(folder, digest)
+    try:
+        for path in (lib, sig):
+            if path.is_symlink():
+                path.unlink()
+        write_atomic(src, text.encode("utf-8"))
+        write_atomic(lib, data)
+        write_atomic(sig, MAGIC + _tag(key, lib.name, data))
+        enforce_cap()
+    except OSError as err:  # a full or read-only disk costs the cached copy, not the run
+        warnings.warn(f"could not write the C library to {folder}: {err.strerror or err}", CacheWarning,
+                      stacklevel=3)
+
+
+_OPEN_FDS: list[int] = []
+"""Memory files holding loaded libraries, kept open for the life of the process (the dynamic
+loader knows each library by its /proc path, which must not name another file later)."""
+
+
+def _dlopen(data: bytes, digest: str, fallback: Optional[Path]) -> ctypes.CDLL:
+    """The library of `data` loaded from memory (Linux: a memfd), else from
+    `fallback`, the verified file."""
+    if hasattr(os, "memfd_create") and os.path.isdir("/proc/self/fd"):
+        fd = os.memfd_create(f"phc_c_{digest}", getattr(os, "MFD_CLOEXEC", 0))
+        try:
+            view = memoryview(data)
+            while view:
+                view = view[os.write(fd, view):]
+            lib = ctypes.CDLL(f"/proc/self/fd/{fd}")
+        except OSError:
+            os.close(fd)  # memfds not executable here (vm.memfd_noexec): the verified file
+        else:
+            _OPEN_FDS.append(fd)
+            return lib
+    if fallback is None:
+        raise CodegenError("the C library cannot be loaded from memory here, and no cache directory holds it")
+    return ctypes.CDLL(str(fallback))
+
+
+_LOADED: dict[str, ctypes.CDLL] = {}
+"""Libraries loaded in this process, by digest (a model compiled again is not reloaded)."""
+
+
+def _obtain(text: str, argv: list[str], digest: str, cache: bool) -> tuple[ctypes.CDLL, str, str]:
+    """(library, state, note) for `text`: from this process, the signed cache, or the compiler."""
+    lib = _LOADED.get(digest)
+    if lib is not None:
+        return lib, "memory", ""
+    folder, key, note = None, None, ""
+    if not cache:
+        note = "disk cache off (PHC_COMPILED_CACHE=0)"
+    else:
+        folder = c_cache_dir()
+        problem = _private_dir(folder)
+        key, why = cache_key()
+        if problem:
+            note, folder = f"cache directory {folder} {problem}", None
+        elif key is None:
+            note, folder = why, None
+    data = None
+    if folder is not None:
+        data, refused = _cached(folder, digest, key)
+        if refused:
+            warnings.warn(f"C library cache file {_paths(folder, digest)[0]} {refused}; compiled it again "
+                          "(`phc cache clean` empties the cache)", CacheWarning, stacklevel=4)
+    if data is not None:
+        state = "warm"
+    else:
+        data = _compile(text, argv, digest, folder)
+        state = "cold" if folder is not None else "off"
+        if folder is not None:
+            _store(folder, digest, key, data, text)
+    lib = _dlopen(data, digest, _paths(folder, digest)[0] if folder is not None else None)
+    _LOADED[digest] = lib
+    return lib, state, note
+
+
+def load_compiled(ir: ResidualIR, reference: ModuleType, reference_source: Optional[str] = None,
+                  cache: Optional[bool] = None) -> tuple[ModuleType, CReport]:
+    """The C module for `ir` (see the module docstring) and how its library was obtained.
+
+    Raises
+    ------
+    BackendUnavailable
+        No C compiler was found.
+    BackendUnsupported
+        The model uses something the C back end does not print yet (an input table).
+    CodegenError
+        The compiler failed on the generated code (a phc bug).
+    BackendMismatch
+        The library disagrees with the reference module at a sample point (a phc bug).
+    """
+    argv, identity = find_compiler()
+    if argv is None:
+        raise BackendUnavailable(identity)
+    start, cpu = time.perf_counter(), _cpu()
+    text = c_source(ir)
+    digest = library_digest(text, argv, identity)
+    if cache is None:
+        cache = os.environ.get("PHC_COMPILED_CACHE", "1").strip().lower() not in ("0", "no", "false", "off")
+    lib, state, note = _obtain(text, argv, digest, cache)
+    report = CReport(time.perf_counter() - start, _cpu() - cpu, state, digest, identity, note)
+    module = assemble(reference, lib, report, text)
+    mismatch = _cross_check(module, reference)
+    if mismatch and state in ("warm", "memory"):  # a cache problem, not the model's: compiled again
+        warnings.warn(f"the cached C library disagrees with this model ({mismatch}); compiled it again without "
+                      "the cache (`phc cache clean` empties it)", CacheWarning, stacklevel=2)
+        _LOADED.pop(digest, None)
+        lib, state, note = _obtain(text, argv, digest, False)
+        report = CReport(time.perf_counter() - start, _cpu() - cpu, "off", digest, identity,
+                         "the cached copy disagreed with the model")
+        module = assemble(reference, lib, report, text)
+        mismatch = _cross_check(module, reference)
+    if mismatch:
+        _LOADED.pop(digest, None)
+        raise BackendMismatch(f"the C functions disagree with the reference module ({mismatch})")
+    return module, report
+
+
+# ---------------------------------------------------------------------------------------
+# the module: ctypes wrappers with the NumPy module's signatures
+
+_F64 = np.dtype(np.float64)
+_D = ctypes.c_double
+_PTR = ctypes.POINTER(ctypes.c_double)
+
+
+def _given(a, n: int, what: str):
+    """A pointer to the entries of `a` as a contiguous float64 vector of at least `n` entries
+    (``ctypes.c_double.from_buffer``: it keeps the array alive; a read-only, strided or
+    non-float64 array is copied first), or None (NULL) for an empty one."""
+    a = np.ascontiguousarray(a, dtype=_F64)
+    if a.ndim != 1 or a.shape[0] < n:
+        raise ValueError(f"`{what}` has shape {a.shape}; the model's C functions need a vector of {n} entries")
+    if not a.shape[0]:
+        return None
+    if not a.flags.writeable:
+        a = a.copy()  # from_buffer wants a writable buffer; the C code only reads it
+    return _D.from_buffer(a)
+
+
+def _target(out, n: int, what: str):
+    """A pointer into `out` when the C function can write into it directly, else None (a
+    vector is written and copied back)."""
+    if (type(out) is np.ndarray and out.dtype == _F64 and out.ndim == 1 and out.flags.c_contiguous
+            and out.flags.writeable):
+        if out.shape[0] < n:
+            raise ValueError(f"`{what}` has {out.shape[0]} entries; the model's C functions write {n}")
+        return _D.from_buffer(out) if n else None
+    return None
+
+
+def _wrappers(lib: ctypes.CDLL, n: int, m: int, njac: int, npar: int, ninv: int, nvinv: int,
+              nout: int) -> dict:
+    P = _PTR
+
+    def c_function(name, argtypes, restype=None):
+        f = getattr(lib, f"phc_{name}")
+        f.argtypes, f.restype = argtypes, restype
+        return f
+
+    def into(name: str, size: int, with_cj: bool):
+        f = c_function(name, [_D, P, P, P, _D, P] if with_cj else [_D, P, P, P, P])
+
+        def call(t, y, yp, p, *rest):
+            y_, yp_, p_ = _given(y, n, "y"), _given(yp, n, "yp"), _given(p, npar, "p")
+            out = rest[-1]
+            target = _target(out, size, "out")
+            buf = None if target is not None or not size else np.empty(size)
+            dest = target if buf is None else _D.from_buffer(buf)
+            if with_cj:
+                f(t, y_, yp_, p_, rest[0], dest)
+            else:
+                f(t, y_, yp_, p_, dest)
+            if buf is not None:
+                out[...] = buf
+
+        call.__name__ = call.__qualname__ = name
+        return call
+
+    def returned(name: str, size: int, with_yp: bool):
+        f = c_function(name, [_D, P, P, P, P] if with_yp else [_D, P, P, P])
+
+        if with_yp:
+            def call(t, y, yp, p):
+                out = np.empty(size)
+                f(t, _given(y, n, "y"), _given(yp, n, "yp"), _given(p, npar, "p"),
+                  _D.from_buffer(out) if size else None)
+                return out
+        else:
+            def call(t, y, p):
+                out = np.empty(size)
+                f(t, _given(y, n, "y"), _given(p, npar, "p"), _D.from_buffer(out) if size else None)
+                return out
+        call.__name__ = call.__qualname__ = name
+        return call
+
+    def scalar(name: str):
+        f = c_function(name, [_D, P, P], _D)
+
+        def call(t, y, p):
+            return f(t, _given(y, n, "y"), _given(p, npar, "p"))
+
+        call.__name__ = call.__qualname__ = name
+        return call
+
+    power_array = returned("powers", 2, True)
+
+    def powers(t, y, yp, p):
+        out = power_array(t, y, yp, p)
+        return float(out[0]), float(out[1])
+
+    functions = {
+        "residual": into("residual", m, False), "residual_t": into("residual_t", m, False),
+        "jacobian": into("jacobian", njac, True), "hamiltonian": scalar("hamiltonian"),
+        "energy_scale": scalar("energy_scale"), "powers": powers,
+        "invariants": returned("invariants", ninv, False),
+        "velocity_invariants": returned("velocity_invariants", nvinv, False),
+        "outputs": returned("outputs", nout, True),
+    }
+    assert set(functions) == set(FUNCTIONS)
+    return functions
+
+
+def sizes_of(reference: ModuleType) -> list[int]:
+    """What ``phc_sizes`` of a library printed for `reference`'s model writes."""
+    return [ABI, int(reference.N), len(reference.EQUATIONS), len(reference.JAC_ROWS),
+            len(reference.PARAMETER_DEFAULTS), len(reference.INVARIANTS),
+            len(getattr(reference, "VELOCITY_INVARIANTS", ())), len(reference.OUTPUTS)]
+
+
+def assemble(reference: ModuleType, lib: ctypes.CDLL, report: CReport, text: str) -> ModuleType:
+    """The C module: the reference module's constants and functions, the library's functions
+    over them, ``BACKEND``, ``REFERENCE``, ``C_REPORT``, ``C_SOURCE`` and ``C_LIBRARY``."""
+    sizes = (ctypes.c_longlong * 8)()
+    lib.phc_sizes.argtypes, lib.phc_sizes.restype = [ctypes.c_void_p], None
+    lib.phc_sizes(ctypes.addressof(sizes))
+    expected = sizes_of(reference)
+    if list(sizes) != expected:
+        raise BackendMismatch(f"the C library was generated for sizes {list(sizes)}, the model has {expected}")
+    module = ModuleType(f"phc_c_{report.digest}", reference.__doc__)
+    module.__dict__.update({k: v for k, v in reference.__dict__.items() if not k.startswith("__")})
+    module.__dict__.update(_wrappers(lib, *expected[1:]))
+    module.__file__ = getattr(reference, "__file__", None)
+    module.BACKEND = "c"
+    module.REFERENCE = reference
+    module.C_REPORT = report
+    module.C_SOURCE = text
+    module.C_LIBRARY = lib
+    return module
+
+
+__all__ = ["CReport", "CUnsupported", "FLAGS", "assemble", "available", "c_cache_dir", "find_compiler",
+           "library_digest", "load_compiled", "sizes_of"]

@@ -1,0 +1,128 @@
+"""What each generated function computes, for the compiled back ends.
+
+Input: a :class:`~phc.codegen.lower.ResidualIR`. Output: one :class:`FunctionKernel` per
+function the compiled back ends replace (:func:`function_kernels`): the scalar expressions it
+writes into its output vector and the sparse sums (linear blocks, quadratic forms) it adds.
+The numba back end (:mod:`phc.codegen.numba_backend`, :mod:`phc.codegen.numba_emit`) and the
+C back end (:mod:`phc.codegen.c_printer`) print the same kernels, each in its own language;
+the NumPy module (:mod:`phc.codegen.printer`, the reference) computes the same values with
+NumPy idioms (one fused sparse matrix per derivative, scipy's products).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import scipy.sparse as sps
+import sympy as sp
+
+from phc.budget import drop_deltas
+from phc.codegen.lower import ResidualIR
+from phc.dae import T
+
+CJ = sp.Symbol("cj")
+"""The Jacobian's factor of dF/dẏ (an argument of ``jacobian``)."""
+
+
+@dataclass(frozen=True)
+class Kernel:
+    """What a function computes into its output vector ``out``: `targets` are ``(index,
+    expression, accumulate)`` written (or added) into ``out``, then `sums` are added:
+    ``("matvec", A, rows, cols, "y"|"yp", coeff)`` adds ``coeff·A v[cols]`` to ``out[rows]``;
+    ``("scatter", pos, data, coeff, times_cj)`` adds ``coeff·data`` (times cj) to ``out[pos]``;
+    ``("quad", A, cols, coeff, index, absolute)`` adds ``coeff·xᵀAx`` (its absolute value) to
+    ``out[index]``; ``("grad", A, cols, pos, coeff)`` adds ``coeff·A x`` to ``out[pos]``
+    (x = y[cols], A a CSR matrix)."""
+
+    targets: tuple
+    sums: tuple = ()
+
+    def expressions(self) -> list:
+        """The target expressions, then the coefficient of each sum."""
+        return [e for _, e, _ in self.targets] + [_coefficient(op) for op in self.sums]
+
+
+_COEFFICIENT = {"matvec": 5, "scatter": 3, "quad": 3, "grad": 4}
+
+
+def _coefficient(op):
+    """The coefficient expression of a :class:`Kernel` sum."""
+    return op[_COEFFICIENT[op[0]]]
+
+
+def _canonical(matrix):
+    """`matrix` as a CSR matrix with sorted indices and no duplicates (its entry order is
+    the one :class:`~phc.codegen.lower.LinearTermIR` positions refer to)."""
+    m = sps.csr_matrix(matrix)
+    m.sum_duplicates()
+    m.sort_indices()
+    return m
+
+
+@dataclass(frozen=True)
+class FunctionKernel:
+    """One generated function: its name, what it computes, and its output vector."""
+
+    name: str
+    kernel: Kernel
+    size: int
+    """Entries of the output vector."""
+    zero: bool
+    """Whether the output is zeroed before the targets are written (some are accumulated,
+    or not every entry is a target)."""
+    args: str
+    """``"yyp"`` (t, y, yp, p), ``"yyp_cj"`` (t, y, yp, p, cj) or ``"y"`` (t, y, p)."""
+    returns: str
+    """``"out"`` (written into the caller's ``out``), ``"array"`` (a new vector),
+    ``"scalar"`` (its one entry) or ``"pair"`` (its two entries)."""
+    labels: tuple = ()
+    """A name for each entry (the equation, Jacobian entry, output...), for comments."""
+
+
+def function_kernels(ir: ResidualIR) -> list[FunctionKernel]:
+    """The kernels of ``residual``, ``residual_t``, ``jacobian``, ``hamiltonian``,
+    ``energy_scale``, ``powers``, ``invariants``, ``velocity_invariants`` and ``outputs``."""
+    lin, qd, qe = ir.linear_terms, ir.quadratic_dissipation, ir.quadratic_energy
+    sums = bool(lin or qd)
+    m, njac = len(ir.residual), len(ir.jac_rows)
+    out = []
+    res_sums = tuple(("matvec", t.matrix, t.rows, t.cols, "yp" if t.derivative else "y", t.coeff) for t in lin)
+    res_sums += tuple(("quad", f.matrix, f.cols, -f.coeff, ir.energy_row, False) for f in qd)
+    rows = [(i, e) for i, e in enumerate(ir.residual) if e != 0] if sums else list(enumerate(ir.residual))
+    out.append(FunctionKernel("residual", Kernel(tuple((i, e, False) for i, e in rows), res_sums), m, sums,
+                              "yyp", "out", ir.equation_labels))
+    dt_rows = [(i, drop_deltas(sp.diff(e, T))) for i, e in enumerate(ir.residual)]
+    out.append(FunctionKernel("residual_t", Kernel(tuple((i, e, False) for i, e in dt_rows if e != 0)), m, True,
+                              "yyp", "out", ir.equation_labels))
+    jac = [dy + CJ * dyp if dyp != 0 else dy for dy, dyp in zip(ir.jac_dy, ir.jac_dyp)]
+    if sums:
+        jac_sums = tuple(("scatter", t.pos, _canonical(t.matrix).data, t.coeff, t.derivative) for t in lin)
+        jac_sums += tuple(("grad", f.matrix, f.cols, f.pos, -2 * f.coeff) for f in qd)
+        kernel = Kernel(tuple((k, e, True) for k, e in enumerate(jac) if e != 0), jac_sums)
+    else:
+        kernel = Kernel(tuple((k, e, False) for k, e in enumerate(jac)))
+    jac_labels = tuple(f"d({ir.equation_labels[i]})/d({ir.variables[j]})" for i, j in zip(ir.jac_rows, ir.jac_cols))
+    out.append(FunctionKernel("jacobian", kernel, njac, sums, "yyp_cj", "out", jac_labels))
+    out.append(FunctionKernel(
+        "hamiltonian",
+        Kernel(((0, ir.hamiltonian, False),), tuple(("quad", f.matrix, f.cols, f.coeff, 0, False) for f in qe)),
+        1, False, "y", "scalar", ("H",)))
+    scale = sum((sp.Abs(term) for term in sp.Add.make_args(ir.hamiltonian)), sp.Integer(0))
+    out.append(FunctionKernel(
+        "energy_scale",
+        Kernel(((0, scale, False),), tuple(("quad", f.matrix, f.cols, f.coeff, 0, True) for f in qe)),
+        1, False, "y", "scalar", ("sum of |terms| of H",)))
+    out.append(FunctionKernel(
+        "powers", Kernel(((0, ir.port_power, False), (1, ir.dissipation, False)),
+                         tuple(("quad", f.matrix, f.cols, f.coeff, 1, False) for f in qd)),
+        2, False, "yyp", "pair", ("P_ports", "P_diss")))
+    for name, exprs, labels in (("invariants", ir.invariants, ir.invariant_labels),
+                                ("velocity_invariants", ir.velocity_invariants, ir.velocity_invariant_labels)):
+        out.append(FunctionKernel(name, Kernel(tuple((i, e, False) for i, e in enumerate(exprs))), len(exprs), False,
+                                  "y", "array", tuple(labels)))
+    out.append(FunctionKernel("outputs", Kernel(tuple((i, e, False) for i, (_, e) in enumerate(ir.outputs))),
+                              len(ir.outputs), False, "yyp", "array", tuple(name for name, _ in ir.outputs)))
+    return out
+
+
+__all__ = ["CJ", "FunctionKernel", "Kernel", "function_kernels"]
