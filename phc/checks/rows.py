@@ -51,10 +51,11 @@ from typing import Optional
 import numpy as np
 import scipy.sparse as sps
 import scipy.sparse.linalg as spla
-from scipy import optimize
 import sympy as sp
 
 from phc.budget import drop_deltas
+from phc.checks.rows_dense import (MEMBERSHIP_TOL, RESIDUAL_TOL, RESTARTS, SETTLED_FRACTION,  # noqa: F401
+                                      _member, _newton, _scaled, _visible_tangent, _worst)
 from phc.dae import T, ComponentDescription, ComponentRows, Dae
 from phc.diagnostics import Diagnostic, DiagnosticList
 
@@ -63,14 +64,6 @@ MAX_UNKNOWNS = 400
 linear algebra)."""
 MAX_SPARSE_UNKNOWNS = 200_000
 """Components with affine rows and more unknowns than this are not compared (sparse LU)."""
-RESIDUAL_TOL = 1e-9
-"""A point satisfies a system when every row's residual is below this, relative to the
-row's largest Jacobian entry times the size of the point."""
-MEMBERSHIP_TOL = 1e-6
-"""A point of one system lies in the other when the other's residual, scaled likewise, is
-below this (the hidden unknowns are solved for, which costs accuracy)."""
-RESTARTS = 5
-"""Random starts tried before a system is reported as having no point found."""
 ANGLE_TOL = 1e-6
 """Largest allowed distance between orthonormal bases of the two tangent spaces."""
 
@@ -221,159 +214,6 @@ def _affine_in(expr, unknowns: set) -> bool:
         if dependent != s:
             return False
     return True
-
-
-def _scaled(system: _System, u):
-    F, J = system.F(u), system.J(u)
-    scale = np.maximum(np.abs(J).max(axis=1, initial=0.0), 1e-300) * max(1.0, float(np.abs(u).max(initial=0.0)))
-    return F / scale, J / scale[:, None]
-
-
-def _newton(system: _System, u, free: Optional[np.ndarray] = None, iterations: int = 60):
-    """A zero of the system near `u`, moving only the unknowns in `free` (minimum-norm
-    damped Gauss–Newton). Returns (point, largest scaled residual)."""
-    u = np.array(u, dtype=float)
-    free = np.arange(len(u)) if free is None else free
-    history: list[float] = []
-    with np.errstate(all="ignore"):
-        r, J = _scaled(system, u)
-        for _ in range(iterations):
-            err = float(np.abs(r).max(initial=0.0))
-            if not np.isfinite(err) or err <= RESIDUAL_TOL * 1e-2:
-                break
-            history.append(err)
-            if len(history) > 8 and err > 0.5 * history[-9]:
-                break  # stalled (a local minimum of the residual): the caller restarts elsewhere
-            step = np.linalg.lstsq(J[:, free], r, rcond=None)[0]
-            alpha, best = 1.0, None
-            while alpha > 1e-4:
-                trial = u.copy()
-                trial[free] -= alpha * step
-                rt, Jt = _scaled(system, trial)
-                et = float(np.abs(rt).max(initial=0.0))
-                if np.isfinite(et) and et < err:
-                    best = (trial, rt, Jt)
-                    break
-                alpha /= 2
-            if best is None and not system._complex:
-                # a law with a jump (sign, heaviside, ifelse): the residual need not decrease on
-                # the way across it; take the full step (the iteration count still bounds this)
-                trial = u.copy()
-                trial[free] -= step
-                rt, Jt = _scaled(system, trial)
-                best = (trial, rt, Jt) if np.all(np.isfinite(rt)) else None
-            if best is None:
-                break
-            u, r, J = best
-        return u, float(np.abs(r).max(initial=0.0))
-
-
-SETTLED_FRACTION = 0.1
-"""A least-squares point of a system where a linear step of the unknowns that may move could
-remove at most this fraction of the residual (``‖P r‖ ≤ 0.1 ‖r‖``, P the projection onto
-the range of their Jacobian) is settled: the residual left there is outside what those
-unknowns can change, so it is a mismatch. A true minimum has ``P r = 0``; an iteration that
-stopped on its way (a steep law from a bad start, an overflow) still has most of its
-residual in that range, and then nothing is decided."""
-
-
-def _member(b: _System, w: np.ndarray, rng) -> tuple[np.ndarray, float, bool]:
-    """Whether the visible point `w` lies in `b`: b's hidden unknowns solved for from up to
-    :data:`RESTARTS` random starts. Returns ``(point, residual, settled)``: the best point
-    found, its largest scaled residual, and whether that point is a stationary point of the
-    residual (:func:`_stationary`), i.e. whether a residual above the tolerance says
-    that `w` is not in `b` rather than that the iteration failed."""
-    n_vis = len(w)
-    hidden = np.arange(n_vis, len(b.unknowns))
-    best = None
-    for _ in range(RESTARTS):
-        start = np.concatenate([w, rng.normal(size=len(hidden))])
-        point, err = _newton(b, start, free=hidden)
-        if err <= MEMBERSHIP_TOL:
-            return point, err, True
-        if best is None or not err >= best[1]:  # NaN never wins
-            best = (point, err)
-        if not len(hidden):
-            break  # nothing to move: one evaluation decides
-    point, err = _least_squares(b, best[0], hidden)
-    if err <= MEMBERSHIP_TOL:
-        return point, err, True
-    return point, err, _stationary(b, point, hidden)
-
-
-def _least_squares(system: _System, u: np.ndarray, free: np.ndarray) -> tuple[np.ndarray, float]:
-    """The point of least residual near `u` over the unknowns `free` (a trust-region
-    least-squares solve, rows scaled as at `u`): where the Gauss–Newton iteration of
-    :func:`_newton` stalls on a residual that cannot vanish, this one still converges to the
-    minimum, whose residual :func:`_stationary` then judges. Returns (point, largest scaled
-    residual)."""
-    if not len(free):
-        return u, float(np.abs(_scaled(system, u)[0]).max(initial=0.0))
-    with np.errstate(all="ignore"):
-        r, J = _scaled(system, u)
-        if not (np.all(np.isfinite(r)) and np.all(np.isfinite(J))):
-            return u, float("inf")
-        scale = np.maximum(np.abs(system.J(u)).max(axis=1, initial=0.0), 1e-300) * max(1.0, float(np.abs(u).max()))
-
-        def at(x):
-            v = u.copy()
-            v[free] = x
-            return v
-
-        def fun(x):
-            value = system.F(at(x)) / scale
-            return np.where(np.isfinite(value), value, 1e300)
-
-        def jac(x):
-            value = system.J(at(x))[:, free] / scale[:, None]
-            return np.where(np.isfinite(value), value, 0.0)
-
-        try:
-            fit = optimize.least_squares(fun, u[free], jac=jac, method="trf", xtol=1e-15, ftol=1e-15, gtol=1e-14,
-                                         max_nfev=100 * (len(free) + 1))
-        except (ValueError, np.linalg.LinAlgError):
-            return u, float(np.abs(r).max(initial=0.0))
-        point = at(fit.x)
-        err = float(np.abs(_scaled(system, point)[0]).max(initial=0.0))
-        return point, err if np.isfinite(err) else float("inf")
-
-
-def _stationary(system: _System, u: np.ndarray, free: np.ndarray) -> bool:
-    """Whether `u` is a settled least-squares point of the scaled residual over the unknowns
-    `free` (:data:`SETTLED_FRACTION`)."""
-    with np.errstate(all="ignore"):
-        r, J = _scaled(system, u)
-        if not (np.all(np.isfinite(r)) and np.all(np.isfinite(J))):
-            return False
-        if not len(free):
-            return True
-        Jf = J[:, free]
-        reach = Jf @ np.linalg.lstsq(Jf, r, rcond=None)[0]
-        return float(np.linalg.norm(reach)) <= SETTLED_FRACTION * float(np.linalg.norm(r))
-
-
-def _visible_tangent(system: _System, u) -> np.ndarray:
-    """Orthonormal basis (columns) of the solution set's tangent space at u, projected onto
-    the visible unknowns."""
-    _, J = _scaled(system, u)
-    n = len(u)
-    if J.size:
-        _, s, vt = np.linalg.svd(J)
-        rank = int(np.sum(s > 1e-9 * max(s.max(initial=0.0), 1e-300)))
-        null = vt[rank:].T
-    else:
-        null = np.eye(n)
-    proj = null[:system.n_visible]
-    if proj.size == 0:
-        return np.zeros((system.n_visible, 0))
-    U, s, _ = np.linalg.svd(proj, full_matrices=False)
-    return U[:, s > 1e-8 * max(s.max(initial=0.0), 1.0)]
-
-
-def _worst(system: _System, u) -> tuple[str, float]:
-    r, _ = _scaled(system, u)
-    i = int(np.argmax(np.abs(r)))
-    return system.labels[i], float(system.F(u)[i])
 
 
 def _linear(n_rows: int, parts, unknowns: list, defaults: dict, vectors=()) -> Optional[sps.csr_matrix]:
