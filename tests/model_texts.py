@@ -159,3 +159,45 @@ connections:
   - [s.a, l.port]
   - [s.b, r.port]
 """
+
+
+# Every function and condition of the model language in one model: the back ends must print
+# each like the Python module (tests/codegen/test_backends.py, tests/codegen/test_c_backend.py).
+EVERY_FUNCTION = """
+format_version: 1
+name: every_function
+parameters:
+  m: 1.5       # no units: the outputs mix a length and a momentum in every function on purpose
+  k: 4.0
+components:
+  mass: {type: mass, m: m}
+  spring: {type: spring, k: k}
+  kick:
+    type: effort_source
+    domain: mechanical.translational
+    value: "0.01*sign(t - 0.3) + 0.02*heaviside(spring.x - 0.05)"
+  node: {type: junction, kind: common_flow, domain: mechanical.translational, ports: [a, b, c, d, e]}
+connections:
+  - [node.a, mass.port]
+  - [node.b, spring.port]
+  - [node.e, kick.port]
+ports:
+  force: {port: node.c}
+  pulse: {port: node.d}
+simulation:
+  t_end: 1.0
+  initial: {spring.x: 0.3, mass.p: 0.0}
+  inputs:
+    force: {effort: "-0.1*sin(3*t)"}
+    pulse: {effort: "0.05*t**2"}
+  outputs:
+    trig: "sin(spring.x) + cos(mass.p) - tan(0.3*spring.x) + atan2(spring.x, mass.p - 0.2)"
+    inverse: "asin(0.5*tanh(spring.x)) + acos(0.4*tanh(mass.p)) + atan(spring.x)"
+    hyperbolic: "sinh(spring.x) * cosh(mass.p) / (1 + tanh(spring.x)**2)"
+    powers: "sqrt(1 + spring.x**2) + (2 + mass.p**2)**1.5 + 1/sqrt(3 + spring.x**2) + spring.x**3 - mass.p**(-2)"
+    logs: "exp(-spring.x**2) + log(2 + mass.p**2)"
+    switches: "abs(spring.x) + sign(mass.p) + heaviside(spring.x - 0.1) + min(spring.x, mass.p, 0.2)
+      + max(spring.x, -mass.p)"
+    choices: "ifelse(spring.x > 0, spring.x**2, -mass.p) + ifelse(mass.p <= 0.1 and spring.x < 2, 1, 2)"
+    constants: "pi*spring.x + 2/3*mass.p - 7/4 + 1e-300*spring.x"
+"""

@@ -27,6 +27,7 @@ from phc.cli import main
 from phc.spec.sweep import SpecError, parse_spec
 from phc.sweep import (MACHINE_COLUMNS, AppendLog, DaskExecutor, LocalExecutor, SweepSetupError, make_design,
                        read_results, run_sweep, sample_unit)
+from closed_forms import msd_x  # the free damped oscillator of models/mass_spring_damper.yaml
 
 REPO = Path(__file__).resolve().parents[1]
 MODELS = REPO / "models"
@@ -51,14 +52,6 @@ def same(a: dict, b: dict) -> bool:
         return False
     return all(a[k] == b[k] or (isinstance(a[k], float) and math.isnan(a[k]) and math.isnan(b[k])) for k in keys)
 
-
-def msd_x(k: float, t: float, m: float = 1.0, c: float = 0.4, x0: float = 0.5) -> float:
-    """Closed form of the free damped oscillator m x'' + c x' + k x = 0, x(0) = x0, x'(0) = 0
-    (underdamped)."""
-    w0 = math.sqrt(k / m)
-    zeta = c / (2 * math.sqrt(k * m))
-    wd = w0 * math.sqrt(1 - zeta ** 2)
-    return math.exp(-zeta * w0 * t) * (x0 * math.cos(wd * t) + zeta * w0 * x0 / wd * math.sin(wd * t))
 
 
 # -- the SPEC syntax -------------------------------------------------------------------

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import csv
 import json
-import math
 import os
 import re
 import signal
@@ -26,18 +25,11 @@ import phc
 from phc.cli import main
 from phc.sweep import DaskExecutor, LocalExecutor, SweepSetupError, read_results, run_sweep
 from phc.sweep import executors
+from closed_forms import msd_x  # the free damped oscillator of models/mass_spring_damper.yaml
 
 REPO = Path(__file__).resolve().parents[1]
 MSD = REPO / "models" / "mass_spring_damper.yaml"
 
-
-def msd_x(k: float, t: float, m: float = 1.0, c: float = 0.4, x0: float = 0.5) -> float:
-    """Closed form of the free damped oscillator m x'' + c x' + k x = 0, x(0) = x0, x'(0) = 0
-    (underdamped)."""
-    w0 = math.sqrt(k / m)
-    zeta = c / (2 * math.sqrt(k * m))
-    wd = w0 * math.sqrt(1 - zeta ** 2)
-    return math.exp(-zeta * w0 * t) * (x0 * math.cos(wd * t) + zeta * w0 * x0 / wd * math.sin(wd * t))
 
 
 def interruptible():

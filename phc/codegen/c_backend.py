@@ -59,7 +59,7 @@ import numpy as np
 from phc import __version__
 from phc.codegen.c_printer import ABI, CUnsupported, c_source  # noqa: F401 — CUnsupported: the API
 from phc.codegen.lower import ResidualIR
-from phc.codegen.numba_cache import FUNCTIONS, _cross_check, _private_dir, _read_private, _tag, cache_key
+from phc.codegen.numba_cache import FUNCTIONS, _cross_check, _read_private, _tag, signed_cache_dir
 from phc.errors import BackendMismatch, BackendUnavailable, CacheWarning, CodegenError
 
 FLAGS = ("-std=c99", "-O2", "-fPIC", "-shared", "-ffp-contract=off")
@@ -261,13 +261,7 @@ def _obtain(text: str, argv: list[str], digest: str, cache: bool) -> tuple[ctype
     if not cache:
         note = "disk cache off (PHC_COMPILED_CACHE=0)"
     else:
-        folder = c_cache_dir()
-        problem = _private_dir(folder)
-        key, why = cache_key()
-        if problem:
-            note, folder = f"cache directory {folder} {problem}", None
-        elif key is None:
-            note, folder = why, None
+        folder, key, note = signed_cache_dir(c_cache_dir())
     data = None
     if folder is not None:
         data, refused = _cached(folder, digest, key)

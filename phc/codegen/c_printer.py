@@ -47,7 +47,7 @@ import numpy as np
 import sympy as sp
 
 from phc import __version__
-from phc.codegen.kernels import CJ, Kernel, _canonical, function_kernels
+from phc.codegen.kernels import CJ, Kernel, _canonical, function_kernels, product_parts
 from phc.codegen.lower import ResidualIR
 from phc.codegen.numba_emit import _NODES, _RELATIONS, _SIMPLE, _is_switch
 from phc.codegen.printer import _identifier, _Printer
@@ -242,22 +242,8 @@ class _Expressions:
 
     def _mul(self, e) -> tuple[str, int]:
         """``-a*b/(c*d)`` as the reference printer writes it (sympy's code printer)."""
-        from sympy.core.mul import _keep_coeff
-
-        c, rest = e.as_coeff_Mul()
-        sign = ""
-        if c < 0:
-            e = _keep_coeff(-c, rest)
-            sign = "-"
-        args = e.as_ordered_factors() if self.order.order not in ("old", "none") else sp.Mul.make_args(e)
-        num, den = [], []
-        for item in args:
-            if item.is_commutative and item.is_Pow and item.exp.is_Rational and item.exp.is_negative:
-                den.append(sp.Pow(item.base, -item.exp, evaluate=False) if item.exp != -1
-                           else sp.Pow(item.base, -item.exp))
-            else:
-                num.append(item)
-        num = num or [sp.S.One]
+        negative, num, den = product_parts(e, self.order.order)
+        sign = "-" if negative else ""
         text = sign + "*".join(self._wrapped(x, _ATOM if sign and k == 0 else _MUL) for k, x in enumerate(num))
         if len(den) == 1:
             text += "/" + self._wrapped(den[0], _ATOM)

@@ -126,3 +126,25 @@ def function_kernels(ir: ResidualIR) -> list[FunctionKernel]:
 
 
 __all__ = ["CJ", "FunctionKernel", "Kernel", "function_kernels"]
+
+
+def product_parts(e: sp.Mul, order: str) -> tuple[bool, list, list]:
+    """``(negative, numerator, denominator)`` of a product, split as sympy's code printer
+    splits it (the NumPy module's order of operations): a negative coefficient taken out,
+    factors with a negative rational exponent in the denominator. `order` is the printer's
+    ``order`` setting. The compiled back ends evaluate a product in this order so that their
+    values match the reference module's to the last bit where the operations are the same."""
+    from sympy.core.mul import _keep_coeff
+
+    c, rest = e.as_coeff_Mul()
+    negative = bool(c < 0)
+    if negative:
+        e = _keep_coeff(-c, rest)
+    args = e.as_ordered_factors() if order not in ("old", "none") else sp.Mul.make_args(e)
+    num, den = [], []
+    for item in args:
+        if item.is_commutative and item.is_Pow and item.exp.is_Rational and item.exp.is_negative:
+            den.append(sp.Pow(item.base, -item.exp, evaluate=False) if item.exp != -1 else sp.Pow(item.base, -item.exp))
+        else:
+            num.append(item)
+    return negative, num or [sp.S.One], den

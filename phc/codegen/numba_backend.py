@@ -80,6 +80,7 @@ from phc.codegen.numba_cache import (EMITTER_VERSION, FUNCTIONS, NUMBA_MIN,  # n
                                      BackendMismatch, BackendUnavailable, CompiledBackendWarning, CompileReport,
                                      _cache_classes, _cross_check, _private_dir, _remember, assemble, available,
                                      cache_key, compile_functions, compiled_cache_dir, kernel_digest, kernel_module,
+                                     signed_cache_dir,
                                      why_unavailable)
 # the LLVM IR emitter (phc.codegen.numba_emit), its names importable from here as before
 from phc.codegen.kernels import function_kernels
@@ -361,15 +362,7 @@ def load_compiled(ir: ResidualIR, reference: ModuleType, reference_source: str,
     elif classes is None:
         note = "disk cache unavailable with this numba version"
     else:
-        folder = compiled_cache_dir()
-        problem = _private_dir(folder)
-        key, why_not = cache_key()
-        if problem:
-            note, folder = f"cache directory {folder} {problem}", None
-        elif key is None:
-            note, folder = why_not, None
-        else:
-            signer = key
+        folder, signer, note = signed_cache_dir(compiled_cache_dir())
     loaded = numba_cache._LOADED.get(digest)
     if loaded is not None:
         _remember(digest, loaded)

@@ -309,6 +309,20 @@ def _cache_classes():
     return _CACHE_CLASSES
 
 
+def signed_cache_dir(folder: Path) -> tuple[Optional[Path], Optional[bytes], str]:
+    """``(folder, key, note)`` for a cache of signed artefacts in `folder` (the numba and the
+    C back end's): the folder and this user's signing key when both are usable, else
+    ``(None, None, why)`` with why the cache is not used (a directory others can write, no
+    key)."""
+    problem = _private_dir(folder)
+    key, why = cache_key()
+    if problem:
+        return None, None, f"cache directory {folder} {problem}"
+    if key is None:
+        return None, None, why
+    return folder, key, ""
+
+
 def compiled_cache_dir() -> Path:
     from phc.codegen.load import cache_dir
 

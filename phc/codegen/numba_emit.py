@@ -22,7 +22,7 @@ import numpy as np
 import sympy as sp
 
 # what each function computes (shared with the C back end), importable from here as before
-from phc.codegen.kernels import _COEFFICIENT, Kernel, _canonical, _coefficient  # noqa: F401
+from phc.codegen.kernels import _COEFFICIENT, Kernel, _canonical, _coefficient, product_parts  # noqa: F401
 from phc.codegen.lower import ResidualIR
 from phc.dae import T
 from phc.inputs import InputTable, InputTableSlope
@@ -199,22 +199,8 @@ class _Emitter:
         raise NotImplementedError(f"no rule for {type(e).__name__}")  # emittable() said otherwise: a phc bug
 
     def _mul(self, e):
-        from sympy.core.mul import _keep_coeff
-
         b = self.b
-        c, rest = e.as_coeff_Mul()
-        negative = c < 0
-        if negative:
-            e = _keep_coeff(-c, rest)
-        args = e.as_ordered_factors() if self.printer.order not in ("old", "none") else sp.Mul.make_args(e)
-        num, den = [], []
-        for item in args:
-            if item.is_commutative and item.is_Pow and item.exp.is_Rational and item.exp.is_negative:
-                den.append(sp.Pow(item.base, -item.exp, evaluate=False) if item.exp != -1
-                           else sp.Pow(item.base, -item.exp))
-            else:
-                num.append(item)
-        num = num or [sp.S.One]
+        negative, num, den = product_parts(e, self.printer.order)
         acc = self.value(num[0])
         for item in num[1:]:
             acc = b.fmul(acc, self.value(item))

@@ -23,6 +23,7 @@ import pytest
 import phc
 from phc.codegen import backends, numba_backend, numba_cache
 from phc.errors import CacheWarning, SimulationSetupError
+from model_texts import EVERY_FUNCTION  # shared with tests/codegen/test_c_backend.py
 
 MODELS = sorted((Path(__file__).resolve().parents[2] / "models").glob("*.yaml"))
 
@@ -90,50 +91,10 @@ def test_compiled_functions_equal_the_reference_on_every_shipped_model(path):
     _assert_same(ref, fast)
 
 
-FUNCTIONS_MODEL = """
-format_version: 1
-name: every_function
-parameters:
-  m: 1.5       # no units: the outputs mix a length and a momentum in every function on purpose
-  k: 4.0
-components:
-  mass: {type: mass, m: m}
-  spring: {type: spring, k: k}
-  kick:
-    type: effort_source
-    domain: mechanical.translational
-    value: "0.01*sign(t - 0.3) + 0.02*heaviside(spring.x - 0.05)"
-  node: {type: junction, kind: common_flow, domain: mechanical.translational, ports: [a, b, c, d, e]}
-connections:
-  - [node.a, mass.port]
-  - [node.b, spring.port]
-  - [node.e, kick.port]
-ports:
-  force: {port: node.c}
-  pulse: {port: node.d}
-simulation:
-  t_end: 1.0
-  initial: {spring.x: 0.3, mass.p: 0.0}
-  inputs:
-    force: {effort: "-0.1*sin(3*t)"}
-    pulse: {effort: "0.05*t**2"}
-  outputs:
-    trig: "sin(spring.x) + cos(mass.p) - tan(0.3*spring.x) + atan2(spring.x, mass.p - 0.2)"
-    inverse: "asin(0.5*tanh(spring.x)) + acos(0.4*tanh(mass.p)) + atan(spring.x)"
-    hyperbolic: "sinh(spring.x) * cosh(mass.p) / (1 + tanh(spring.x)**2)"
-    powers: "sqrt(1 + spring.x**2) + (2 + mass.p**2)**1.5 + 1/sqrt(3 + spring.x**2) + spring.x**3 - mass.p**(-2)"
-    logs: "exp(-spring.x**2) + log(2 + mass.p**2)"
-    switches: "abs(spring.x) + sign(mass.p) + heaviside(spring.x - 0.1) + min(spring.x, mass.p, 0.2)
-      + max(spring.x, -mass.p)"
-    choices: "ifelse(spring.x > 0, spring.x**2, -mass.p) + ifelse(mass.p <= 0.1, 1, 2)"
-    constants: "pi*spring.x + 2/3*mass.p - 7/4"
-"""
-
-
 @needs_numba
 def test_every_function_of_the_language_is_compiled_like_the_printed_python(tmp_path):
     path = tmp_path / "every_function.yaml"
-    path.write_text(FUNCTIONS_MODEL)
+    path.write_text(EVERY_FUNCTION)
     compiled = phc.compile_model(path, certify=False, backend="numba")
     fast = compiled.module
     assert "outputs" in fast.COMPILE_REPORT.emitted  # written as LLVM IR, not left to numba's compiler
@@ -168,7 +129,7 @@ def test_every_function_of_the_language_is_compiled_like_the_printed_python(tmp_
 def test_a_table_input_is_interpolated_like_the_reference(tmp_path):
     (tmp_path / "force.csv").write_text("t,f\n0,0\n0.25,1\n0.5,-0.5\n1,2\n")
     (tmp_path / "pulse.csv").write_text("t,f\n0,0\n0.3,1\n0.7,0\n")
-    model = FUNCTIONS_MODEL.replace('force: {effort: "-0.1*sin(3*t)"}', "force: {effort: {file: force.csv, column: f}}")
+    model = EVERY_FUNCTION.replace('force: {effort: "-0.1*sin(3*t)"}', "force: {effort: {file: force.csv, column: f}}")
     model = model.replace('pulse: {effort: "0.05*t**2"}',
                           "pulse: {effort: {file: pulse.csv, column: f, interpolation: previous}}")
     path = tmp_path / "tabled.yaml"
