@@ -439,8 +439,8 @@ def _nominal_scales(rep, ctx, state_names: set[str], elab) -> dict[str, float]:
     for name, value in ctx.spec.simulation.nominal.items():
         if name not in state_names or name == "energy.supplied":
             extra, hint = unknown_state(name, elab, state_names)
-            rep.error("PHC-E210", f"`{name}` is not a state of the model{extra}; nominal scales are given for "
-                      "states", ctx, ("simulation", "nominal", name), key=True, hint=hint)
+            rep.error("PHC-E210", f"`{name}` is not a state of the model (nominal scales are given for states)"
+                      f"{extra}", ctx, ("simulation", "nominal", name), key=True, hint=hint)
             continue
         out[name] = float(value)
     return out
@@ -464,8 +464,8 @@ def _initial_values(elab, rep, ctx, state_names: set[str], result_units=None
             continue
         if name not in state_names:
             extra, hint = unknown_state(name, elab, state_names)
-            rep.error("PHC-E210", f"`{name}` is not a state of the model{extra}; initial values are given for "
-                      "states", ctx, path, key=True, hint=hint)
+            rep.error("PHC-E210", f"`{name}` is not a state of the model (initial values are given for states)"
+                      f"{extra}", ctx, path, key=True, hint=hint)
             continue
         value, guess = (spec.value, spec.guess) if isinstance(spec, InitialSpec) else (spec, False)
         vpath = (*path, "value") if isinstance(spec, InitialSpec) else path

@@ -74,8 +74,9 @@ class _States:
 
 def unknown_state(name: str, elab, names) -> tuple[str, str]:
     """``(addition to the message, hint)`` for `name`, which is not among the states `names`
-    of the elaboration `elab`: the addition says what the named component has instead (``"";``
-    when the component does not exist), the hint names states of the kind `name` asks for."""
+    of the elaboration `elab`: the addition says what the named component has instead
+    (``": `body` (a mass) has no position state, only its momentum `body.p`"``; empty when
+    that is not the trouble), the hint names states of the kind `name` asks for."""
     states = _States(elab, names)
     comp, _, local = name.rpartition(".")
     want = word_kind(local)
@@ -95,8 +96,7 @@ def unknown_state(name: str, elab, names) -> tuple[str, str]:
     if own and want is not None and not any(states.kind[s] == want for s in own):
         kind_type = states.type.get(comp) or "component"
         has = ", ".join(f"its {states.what[s]} `{s}`" for s in own[:4]) + (" ..." if len(own) > 4 else "")
-        extra = (f"; `{comp}` (a {kind_type}) has no {want} state: its state{'s are' if len(own) > 1 else ' is'} "
-                 f"{has}")
+        extra = f": `{comp}` (a {kind_type}) has no {want} state, only {has}"
         momenta = [s for s in own if states.kind[s] == MOMENTUM]
         if want == VELOCITY and momenta:  # a mass moving at v: its momentum m·v
             return extra, f"give its momentum {shown(momenta[:1])} (mass × velocity) instead"

@@ -86,7 +86,7 @@ QUARTER_CAR = """\
 def test_a_position_of_a_mass_is_offered_positions_not_its_momentum(tmp_path, capsys, section):
     (m,) = _errors(tmp_path, capsys, QUARTER_CAR.format(section=section, name="body.x"), "PHC-E210")
     assert m["path"] == f"simulation.{section}.body.x"
-    assert "`body` (a mass) has no position state: its state is its momentum `body.p`" in m["rest"]
+    assert "`body` (a mass) has no position state, only its momentum `body.p`" in m["rest"]
     assert "hint: position states in this model: `susp.x`, `tire.x`" in m["rest"]
     assert "did you mean `body.p`" not in m["rest"]
 
