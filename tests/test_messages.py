@@ -139,3 +139,33 @@ def test_paths_index_lists_in_brackets_and_name_only_keys_the_user_wrote(tmp_pat
 def test_schema_errors_use_the_same_path_style(tmp_path, capsys):
     (m,) = _errors(tmp_path, capsys, WIRED.format(connection="- [spring.port, mass.port, osc.x]"), "PHC-E016")
     assert m["path"] == "connections[1]"
+
+
+# -- PHC-W230 where the user is ---------------------------------------------------------
+
+RC_SERIES = """\
+    format_version: 1
+    parameters: {V: 12.0, R: 2.0, C: 0.25}
+    components:
+      src: {type: effort_source, domain: electrical, value: V}
+      r: {type: resistor, R: R, terminals: [a, b]}
+      cap: {type: capacitor, C: C}
+    connections:
+      - [src.port, r.a]
+      - [r.b, cap.port]
+    simulation:
+      t_end: 1.0
+      outputs: {q: cap.q}
+    """
+
+
+@pytest.mark.parametrize("command", [["validate"], ["simulate", "--quiet"]])
+def test_the_sign_hint_is_printed_by_validate_and_simulate(tmp_path, capsys, command):
+    """Before, only `phc check` warned that joining the resistor's terminal to the capacitor
+    directly negates the capacitor's charge (docs/signs.md)."""
+    path = tmp_path / "rc.yaml"
+    path.write_text(textwrap.dedent(RC_SERIES), encoding="utf-8")
+    assert main([*command, str(path)]) == 0
+    hints = [line for line in capsys.readouterr().err.splitlines() if "[PHC-W230]" in line]
+    assert len(hints) == 1 and hints[0].startswith(f"{path}:9:") and ": warning: connections[1]: " in hints[0]
+    assert "`r.b` and `cap.port` both read the voltage power-in" in hints[0]
