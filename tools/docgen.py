@@ -79,6 +79,10 @@ class _SchemaDoc:
                     o.get("type") in ("integer", "number", "string") for o in options):
                 return "expression", nullable
             texts = []
+            scalar = [o for o in options if o.get("type") in ("integer", "number", "string") and len(o) == 1]
+            if {o["type"] for o in scalar} == {"integer", "number", "string"}:  # an expression, or else
+                texts.append("expression")
+                options = [o for o in options if o not in scalar]
             for o in options:
                 text, _ = self.type_text(o)
                 if text not in texts:
