@@ -35,6 +35,7 @@ from phc.diagnostics import Diagnostic, DiagnosticList
 from phc.inputs import SignalBuilder
 from phc.spec.expressions import named_scope
 from phc.spec.model import InitialSpec, OutputSpec, PieceSpec
+from phc.state_hints import unknown_state
 from phc.units import ResultUnits
 
 
@@ -277,7 +278,7 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
         options={"t_start": sim.t_start, "t_end": sim.t_end, "n_out": sim.n_out, "rtol": sim.rtol,
                  "atol": sim.atol, "max_steps": sim.max_steps, "solver": sim.solver,
                  "max_order": sim.max_order, "step": sim.step,
-                 "nominal": _nominal_scales(rep, ctx, {v.name for v in variables if v.differential})},
+                 "nominal": _nominal_scales(rep, ctx, {v.name for v in variables if v.differential}, elab)},
         units=dict(result_units.labels),
     )
 
@@ -431,15 +432,14 @@ def _output_scope(elab, subs, hamiltonian) -> dict:
     return scope
 
 
-def _nominal_scales(rep, ctx, state_names: set[str]) -> dict[str, float]:
+def _nominal_scales(rep, ctx, state_names: set[str], elab) -> dict[str, float]:
     """`simulation.nominal`: the user's nominal scales by state (docs/tolerances.md)."""
     out = {}
     for name, value in ctx.spec.simulation.nominal.items():
         if name not in state_names or name == "energy.supplied":
-            close = difflib.get_close_matches(name, sorted(state_names), n=1)
-            rep.error("PHC-E210", f"`{name}` is not a state of the model; nominal scales are given for states",
-                      ctx, ("simulation", "nominal", name), key=True, hint=f"did you mean `{close[0]}`?" if close
-                      else f"states: {', '.join(sorted(state_names - {'energy.supplied'})[:10])}")
+            extra, hint = unknown_state(name, elab, state_names)
+            rep.error("PHC-E210", f"`{name}` is not a state of the model (nominal scales are given for states)"
+                      f"{extra}", ctx, ("simulation", "nominal", name), key=True, hint=hint)
             continue
         out[name] = float(value)
     return out
@@ -462,10 +462,9 @@ def _initial_values(elab, rep, ctx, state_names: set[str], result_units=None
         if name in state_names and not fields.check_dof(name, path):
             continue
         if name not in state_names:
-            close = difflib.get_close_matches(name, sorted(state_names), n=1)
-            rep.error("PHC-E210", f"`{name}` is not a state of the model; initial values are given for states",
-                      ctx, path, key=True, hint=f"did you mean `{close[0]}`?" if close else
-                      f"states: {', '.join(sorted(state_names - {'energy.supplied'})[:10])}")
+            extra, hint = unknown_state(name, elab, state_names)
+            rep.error("PHC-E210", f"`{name}` is not a state of the model (initial values are given for states)"
+                      f"{extra}", ctx, path, key=True, hint=hint)
             continue
         value, guess = (spec.value, spec.guess) if isinstance(spec, InitialSpec) else (spec, False)
         vpath = (*path, "value") if isinstance(spec, InitialSpec) else path

@@ -232,6 +232,7 @@ def admit_mesh(ledger: MeshLedger, ctx, full: str, comp, path, override_=None
     ``(elements, span)``).
     """
     from phc.diagnostics import Diagnostic
+    from phc.source_map import path_text
 
     if override_ is not None:
         span, where = override_[1], f"accuracy.mesh.{full}"
@@ -239,7 +240,7 @@ def admit_mesh(ledger: MeshLedger, ctx, full: str, comp, path, override_=None
         key = (*path, "elements")
         has = getattr(ctx.smap, "has", None)
         span = ctx.smap.locate_key(key) if has is None or has(key) else ctx.smap.locate(path)
-        where = ".".join(str(p) for p in key)
+        where = path_text(key)
     n = int(comp.elements)
     limit = _element_limit(comp)
     if limit is not None and n > limit:

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any, Callable, Literal, Optional, Sequence
 import pydantic
 
 from phc.inert import _one_line, printable
+from phc.source_map import path_text
 
 if TYPE_CHECKING:  # runtime import would be circular (phc.source imports this module)
     from phc.source import SourceMap, SourceSpan
@@ -433,7 +434,7 @@ def from_pydantic(err: pydantic.ValidationError, smap: SourceMap, *, root_path: 
             continue
         index[key] = len(out)
         expected_seen[len(out)] = [rec["expected"]] if rec["expected"] else []
-        dotted = ".".join(str(p) for p in rec["resolved"]) or None
+        dotted = path_text(rec["resolved"])
         out.append(Diagnostic(code, rec["message"], span=span, hint=rec["hint"], path=dotted))
     return out
 

@@ -17,6 +17,9 @@ from typing import Any, Optional
 import pydantic
 import sympy as sp
 
+from phc.source_map import path_text
+
+
 def effect_names(spec) -> dict[str, Any]:
     """The effects of a component spec with their current values ({} when it has none)."""
     effects = getattr(spec, "effects", None)
@@ -67,7 +70,7 @@ def apply_overrides(spec, overrides: dict[str, Any]) -> tuple[Any, Optional[str]
             new = type(effects).model_validate({**effects.model_dump(exclude_unset=True), **overrides})
         except pydantic.ValidationError as err:
             first = err.errors()[0]
-            where = ".".join(str(x) for x in first["loc"])
+            where = path_text(first["loc"])
             return spec, f"effect `{where}`: {first['msg']}"
     else:
         bad = [k for k, v in overrides.items() if not isinstance(v, bool)]

@@ -231,7 +231,8 @@ class _Elaborator(Reporter):
             first = next(iter(declared))
             self.error("PHC-W172", "units are not checked: pint is not installed, so phc only checks their "
                        "spelling", ctx, ("parameters", first, "unit"), severity="warning",
-                       hint="`pip install pint` (or the extra `port-hamiltonian-compiler[units]`) to check dimensions")
+                       hint="pint is a dependency of phc that this installation lacks (installed with --no-deps?); "
+                       "`pip install pint` to check dimensions")
         without = [name for name in entries if name not in declared and units.get(name, (None,))[0] is None
                    and isinstance(entries[name][0], (int, float)) and entries[name][2] is None]
         if declared and without:

@@ -92,6 +92,10 @@ def _elaborate_file(path, scene=None, allow_part: bool = False) -> tuple[Optiona
         return None, DiagnosticList(dict.fromkeys(diags)).sorted(), kind
     dae, found = assemble(elab, inter)
     diags.extend(found)
+    if not diags.has_errors:
+        from phc.checks.signs import sign_hints  # cheap: where the user is (validate, simulate, check)
+
+        diags.extend(sign_hints(dae.topology))  # connections that turn the sign of a voltage (PHC-W230)
     return (None if diags.has_errors else dae), diags.sorted(), kind
 
 

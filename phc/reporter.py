@@ -13,6 +13,7 @@ import sympy as sp
 from phc.diagnostics import Diagnostic, DiagnosticList
 from phc.files import FileAccess
 from phc.source import SourceMap, SourceSpan
+from phc.source_map import path_text
 from phc.spec import ModelSpec
 from phc.spec.expressions import ExpressionError, parse_equation, parse_expression
 
@@ -71,8 +72,8 @@ class Reporter:
             message = message.replace(" at the default parameters", f" with {self.override_note}")
         if ctx is not None:
             span = ctx.smap.locate_key(tuple(path)) if key else ctx.smap.locate(tuple(path))
-        dotted = ".".join(str(p) for p in path) or None
-        if ctx is not None and hasattr(ctx.smap, "dotted") and path:  # a scene's entries, as written there
+        dotted = path_text(path)
+        if ctx is not None and hasattr(ctx.smap, "dotted") and path:  # as written there (scene entries too)
             dotted = ctx.smap.dotted(tuple(path))
         self.diags.append(Diagnostic(code, message, span=span, hint=hint, severity=severity, path=dotted))
 
@@ -89,8 +90,7 @@ class Reporter:
         except ExpressionError as err:
             span = (ctx.smap.locate_in_value(tuple(path), err.col) if isinstance(value, str)
                     else ctx.smap.locate(tuple(path)))
-            dotted = (ctx.smap.dotted(tuple(path)) if hasattr(ctx.smap, "dotted")
-                      else ".".join(str(p) for p in path))
+            dotted = ctx.smap.dotted(tuple(path)) if hasattr(ctx.smap, "dotted") else path_text(path)
             self.diags.append(Diagnostic("PHC-E101", f"in expression `{value}`: {err.message}", span=span,
                                          hint=err.hint, path=dotted))
             return sp.Integer(0)

@@ -33,6 +33,7 @@ import pydantic
 from phc.diagnostics import Diagnostic, DiagnosticList, allowed_keys_from_model, from_pydantic
 from phc.interconnect import connected_to
 from phc.source import SourceMap, SourceSpan, read_yaml_file
+from phc.source_map import path_text
 from phc.spec.scene import SceneSpec
 
 _ALLOWED_KEYS = allowed_keys_from_model(SceneSpec)
@@ -243,7 +244,8 @@ class _Overlay:
 
     def dotted(self, path) -> str:
         """The path as the user wrote it (scene entries without the `simulation.` prefix)."""
-        return ".".join(str(p) for p in self._route(path)[1])
+        smap, routed = self._route(path)
+        return smap.dotted(routed)
 
     def locate_key(self, path):
         smap, path = self._route(path)
@@ -327,7 +329,7 @@ def scene_variant(base: Scene | str | os.PathLike, *, mesh: Optional[dict[str, i
     except pydantic.ValidationError as err:
         diags = DiagnosticList()
         for e in err.errors(include_url=False):
-            entry = ".".join(["accuracy", *map(str, e["loc"])])
+            entry = path_text(["accuracy", *e["loc"]])
             why = e["msg"][:1].lower() + e["msg"][1:]
             diags.append(Diagnostic(
                 "PHC-E019", f"the refined or swept value {e['input']!r} is out of range: {why}",

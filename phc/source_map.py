@@ -22,9 +22,21 @@ from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
 from phc.inert import inert
 
-__all__ = ["PathElem", "SourceMap", "SourceSpan"]
+__all__ = ["PathElem", "SourceMap", "SourceSpan", "path_text"]
 
 PathElem = Union[str, int]
+
+
+def path_text(path: Sequence[PathElem]) -> str | None:
+    """A YAML path as every message shows it: keys joined by dots, list positions in
+    brackets (``connections[7][1]``, ``components.gyro.K[0][1]``); None for the root."""
+    out = ""
+    for elem in path:
+        if isinstance(elem, int) and not isinstance(elem, bool):
+            out += f"[{elem}]"
+        else:
+            out += ("." if out else "") + str(elem)
+    return out or None
 
 _YAML_PREFIX = "tag:yaml.org,2002:"
 _MAP_TAG = _YAML_PREFIX + "map"
@@ -373,6 +385,20 @@ class SourceMap:
         """
         norm = self._norm(path)
         return tuple(norm[i] for i, _ in self._resolve(norm))
+
+    def dotted(self, path: Sequence[PathElem] | str) -> str | None:
+        """`path` as the user wrote it, in the style of :func:`path_text`: an element the
+        file does not have is left out where later ones resolve (``between`` of a connection
+        written ``- [a.p, b.q]``: ``connections[7][1]``); the elements after the last one
+        that resolves are kept (a key the file lacks), unless that one is a scalar (the
+        entry ``[0]`` of a vector written as one number)."""
+        norm = self._norm(path)
+        steps = self._resolve(norm)
+        if not steps:
+            return path_text(norm)
+        resolved = {i for i, _ in steps}
+        last = steps[-1][0] if not isinstance(steps[-1][1].value, ScalarNode) else len(norm)
+        return path_text([elem for i, elem in enumerate(norm) if i in resolved or i > last])
 
     def __repr__(self) -> str:
         return f"SourceMap({self.file!r})"

@@ -513,6 +513,7 @@ class ResultUnits:
         units = dict(elab.units)
         units.update(variable_units(elab))
         self.h_symbol = sp.Symbol("H", real=True)
+        self.rotational = any(getattr(p, "domain", None) == "mechanical.rotational" for p in elab.ports.values())
         try:
             h = dimension(hamiltonian, units)
         except DimensionError:
@@ -613,8 +614,17 @@ class ResultUnits:
                 factor = scale_factor(scaled, declared)
             self.labels[name] = unit
         elif dim is not None and dim is not NUMBER:
-            self.labels[name] = unit_label(dim)
+            self.labels[name] = self._label(dim, expr)
         return factor
+
+    def _label(self, dim, expr) -> str:
+        """The label of an output of dimension `dim` (its value `expr`): an energy is `J` where
+        it is one — an expression of `H`, or any energy of a model without rotational ports —
+        and `N*m` (a torque) otherwise; the two share one dimension, radians being
+        dimensionless (docs/units.md)."""
+        if same_dimension(dim, parse_unit("J")) and (self.h_symbol in expr.free_symbols or not self.rotational):
+            return "J"
+        return unit_label(dim)
 
     def _in_model_units(self, ctx, value, path, expr):
         """The dimension of an output's expression with the states and port variables in the

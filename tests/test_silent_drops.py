@@ -57,7 +57,7 @@ def test_typo_in_an_input_piece_is_an_unknown_key_of_the_piece(tmp_path, capsys,
     assert main(["validate", str(path)]) == 1
     lines = capsys.readouterr().err.strip().splitlines()
     line, col = _line_of(path, typo)
-    assert f"{path}:{line}:{col}: simulation.inputs.drive.effort.0.{typo}: unknown key `{typo}`. " \
+    assert f"{path}:{line}:{col}: simulation.inputs.drive.effort[0].{typo}: unknown key `{typo}`. " \
            f"hint: did you mean `{meant}`? [PHC-E010]" in lines
     # nothing about the keys of a table (`file`, `column`), nor the correct keys called unknown
     assert not [x for x in lines if "`file`" in x or "`column`" in x], lines

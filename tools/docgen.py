@@ -30,9 +30,18 @@ def _anchor(name: str) -> str:
     return name.lower()
 
 
+_REST_LITERAL = re.compile(r"``(?!`)(.+?)(?<!`)``(?!`)", re.S)
+"""A reST inline literal ``x`` (docstrings), not a Markdown fence."""
+
+
+def _inline(text: str) -> str:
+    """reST inline literals as Markdown code spans: ``x`` → `x`."""
+    return _REST_LITERAL.sub(lambda m: f"`{m.group(1)}`", text)
+
+
 def _esc(text: str) -> str:
-    """Text for one table cell: one line, pipes escaped."""
-    return " ".join(str(text).split()).replace("|", "\\|")
+    """Text for one table cell: one line, pipes escaped, reST literals as code spans."""
+    return _inline(" ".join(str(text).split())).replace("|", "\\|")
 
 
 class _SchemaDoc:
@@ -70,6 +79,10 @@ class _SchemaDoc:
                     o.get("type") in ("integer", "number", "string") for o in options):
                 return "expression", nullable
             texts = []
+            scalar = [o for o in options if o.get("type") in ("integer", "number", "string") and len(o) == 1]
+            if {o["type"] for o in scalar} == {"integer", "number", "string"}:  # an expression, or else
+                texts.append("expression")
+                options = [o for o in options if o not in scalar]
             for o in options:
                 text, _ = self.type_text(o)
                 if text not in texts:
@@ -168,30 +181,44 @@ class _SchemaDoc:
 
 
 def _dedent_description(text: str) -> str:
-    """A class docstring as Markdown: reST ``literal`` → `literal`, ``::`` blocks fenced."""
+    """A class docstring as Markdown: reST ``literal`` → `literal` (outside the code
+    blocks), ``::`` blocks fenced."""
     lines = text.splitlines()
     out, in_block = [], False
+    prose: list[str] = []  # the lines since the last code block, converted together
+
+    def flush() -> None:
+        out.append(_inline("\n".join(prose)))
+        prose.clear()
+
     for line in lines:
         if in_block:
             if line.strip() and not line.startswith("    "):
+                while out and not out[-1].strip():
+                    out.pop()
                 out.append("```")
+                out.append("")
                 in_block = False
-            else:
+            elif line.strip() or out[-1] != "```text":  # no blank first line in the block
                 out.append(line[4:] if line.startswith("    ") else line)
                 continue
+            else:
+                continue
         if line.rstrip().endswith("::"):
-            out.append(line.rstrip()[:-1] if not line.rstrip().endswith(" ::") else line.rstrip()[:-3])
+            prose.append(line.rstrip()[:-1] if not line.rstrip().endswith(" ::") else line.rstrip()[:-3])
+            flush()
             out.append("")
             out.append("```text")
             in_block = True
             continue
-        out.append(line)
+        prose.append(line)
     if in_block:
         while out and not out[-1].strip():
             out.pop()
         out.append("```")
-    text = "\n".join(out)
-    return re.sub(r"``([^`]+)``", r"`\1`", text)
+    elif prose:
+        flush()
+    return "\n".join(out)
 
 
 def _schema(name: str) -> dict:

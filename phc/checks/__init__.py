@@ -66,10 +66,7 @@ def certify_model(path: str | os.PathLike, samples: int = 2) -> ModelCertificate
     dae, diags = elaborate_file(path)
     if dae is None:
         return ModelCertificate(str(path), None, None, diags)
-    cert = certify(dae, n_random=samples)
-    from phc.checks.signs import sign_hints  # connections that turn the sign of a voltage
-
-    cert.diagnostics.extend(sign_hints(dae.topology))
+    cert = certify(dae, n_random=samples)  # the sign hints (PHC-W230) are among `diags`
     balance = check_balance(dae)
     cert.diagnostics.extend(d for d in list(diags) + balance if d not in cert.diagnostics)
     compiled = None

@@ -127,6 +127,8 @@ class Certificate:
             else:
                 status = (f"Dirac {'ok' if c.dirac else 'FAILED'}: dim D {c.dim_d} / dim Z {c.dim_z}, "
                           f"isotropy {c.isotropy:.1e}")
+                if c.note.startswith("feedback"):  # a controller: what the certificate does not cover
+                    status += f"; {c.note}"
             lines.append(f"  {c.name:<{width}}  {c.kind:<{kind_width}} {status}")
         lines.append("connections (breadth-first; rank of Γ achieved / needed)")
         label_width = max([len(c.label) for c in self.connections] + [16])  # nested labels are longer

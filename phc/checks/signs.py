@@ -1,4 +1,6 @@
-"""The sign hint of ``phc check``: connections that turn the sign of a voltage (PHC-W230).
+"""The sign hint: connections that turn the sign of a voltage (PHC-W230). It is cheap, so
+every command that reads a model prints it (``phc validate``, ``simulate``, ``check``:
+:func:`phc.pipeline.elaborate_file`).
 
 In the electrical, hydraulic and thermal domains the *effort* is the across variable (the
 voltage, pressure, temperature of a node), and a connection writes ``e_x = −e_y``

@@ -11,7 +11,9 @@ from __future__ import annotations
 import re
 from typing import Annotated, Union
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, StrictFloat, StrictInt, WithJsonSchema
+from pydantic import (AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, StrictFloat, StrictInt,
+                      WithJsonSchema)
+from pydantic_core import PydanticCustomError
 
 from phc.spec.expressions import FUNCTIONS
 
@@ -65,9 +67,26 @@ Expr = Annotated[Union[StrictInt, StrictFloat, str], Field()]
 """A number, or an expression string parsed by the whitelisting parser. (No description
 here: it would replace the docstrings of the keys that use it.)"""
 
+
+def _unit_text(value):
+    """`unit: 1` (a YAML number) is the dimensionless unit, as `unit: "1"` is; any other
+    number is refused with that hint (a unit is text: `N/m`)."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        if value == 1:
+            return "1"
+        raise PydanticCustomError(
+            "PHC-E013", f"expected a unit (text such as `N/m`), got the number `{value:g}` hint: the only number "
+            "that is a unit is `1` (dimensionless)")
+    return value
+
+Unit = Annotated[str, BeforeValidator(_unit_text), WithJsonSchema({
+    "anyOf": [{"type": "string"}, {"const": 1}],
+})]
+"""A unit: text read by pint (`N/m`, `kg*m^2`, `rad/s`), or `1` (also as a YAML number) for a
+dimensionless quantity (docs/units.md)."""
+
 Vector = list[Expr]
 Matrix = list[list[Expr]]
-
 
 Switch = Annotated[bool, WithJsonSchema({
     "anyOf": [{"type": "boolean"}, {"enum": ["on", "off", "yes", "no", "true", "false"]}],

@@ -439,6 +439,9 @@ class TransformerSpec(_Component):
 
     type: Literal["transformer"]
     ratio: Union[Expr, Matrix]
+    """The ratio N from port `a` to port `b`: flow at `b` = N × flow at `a` (`f_b = N f_a`), effort
+    at `a` = −Nᵀ × effort at `b` (`e_a = −Nᵀ e_b`). A gear with `a` on the motor and `b` on the
+    load has N = ω_load/ω_motor (1/n for a reduction n : 1). Signs: docs/signs.md."""
     domain_a: Optional[Domain] = None
     """Domain of port `a` (default `generic`)."""
     domain_b: Optional[Domain] = None
@@ -456,8 +459,13 @@ class GyratorSpec(_Component):
 
     type: Literal["gyrator"]
     ratio: Union[Expr, Matrix]
+    """The ratio G from port `a` to port `b`: effort at `b` = G × flow at `a` (`e_b = G f_a`),
+    effort at `a` = −Gᵀ × flow at `b` (`e_a = −Gᵀ f_b`). A DC motor with `a` electrical and `b`
+    the shaft has G = Km: torque Km·i, back-EMF Km·ω. Signs: docs/signs.md."""
     domain_a: Optional[Domain] = None
+    """Domain of port `a` (default `generic`; `electrical` for a motor's coil)."""
     domain_b: Optional[Domain] = None
+    """Domain of port `b` (default: that of `a`; `mechanical.rotational` for a motor's shaft)."""
 
 
 class ModulationSpec(_Component):

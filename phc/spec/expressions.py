@@ -140,6 +140,39 @@ def _suggest(word: str, candidates, what: str = "known names") -> str | None:
     return f"{what}: " + ", ".join(f"`{c}`" for c in candidates[:8]) + more
 
 
+_PHC_NAMES = frozenset({"t", "H", *CONSTANTS, *FUNCTIONS})
+"""Names phc defines (time, the energy, π, the functions): never offered for a name the
+user forgot to define."""
+
+
+def _listed(names: list[str], limit: int = 8) -> str:
+    more = f" (and {len(names) - limit} more)" if len(names) > limit else ""
+    return ", ".join(f"`{n}`" for n in names[:limit]) + more
+
+
+def _unknown_name_hint(word: str, names) -> str:
+    """The hint of an unknown name: every close name the model defines (not phc's `t`, `pi`,
+    ...; for `body.x` none of another kind such as the momentum `body.p`,
+    :mod:`phc.state_hints`), and for a plain name where a new one is defined (`parameters:`)."""
+    from phc.state_hints import word_kind
+
+    candidates = sorted({n for n in names if n not in _PHC_NAMES})
+    if "." in word:
+        want = word_kind(word.rpartition(".")[2])
+        candidates = [c for c in candidates if want is None or word_kind(c.rpartition(".")[2]) in (want, None)]
+    close = [c for c in candidates if c.lower() == word.lower()]
+    close = close or difflib.get_close_matches(word, candidates, n=5, cutoff=0.6)
+    mean = ""
+    if close:
+        quoted = [f"`{c}`" for c in close]
+        mean = f"did you mean {quoted[0] if len(quoted) == 1 else ', '.join(quoted[:-1]) + ' or ' + quoted[-1]}?"
+    if "." not in word:
+        if mean:
+            return f"{mean} Or add it under `parameters:`"
+        return "add it under `parameters:`" + (f"; defined here: {_listed(candidates)}" if candidates else "")
+    return mean or (f"known names: {_listed(candidates)}" if candidates else "nothing of that name is defined")
+
+
 def _to_complex(value: sp.Basic) -> complex:
     """`complex(value)`, with overflow mapped to infinity."""
     try:
@@ -297,7 +330,7 @@ class _Converter:
             return CONSTANTS[name]
         if name in FUNCTIONS:
             self.fail(f"`{name}` is a function; call it like `{name}(x)`", node)
-        self.fail(f"unknown name `{name}`", node, _suggest(name, [*self.names, *CONSTANTS]))
+        self.fail(f"unknown name `{name}`", node, _unknown_name_hint(name, self.names))
 
     def visit_Name(self, node: ast.AST) -> sp.Expr:
         name = self.dotted(node)

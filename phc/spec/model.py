@@ -8,7 +8,7 @@ from pydantic import Discriminator, Field, Tag, field_validator, model_validator
 
 from phc.options import DEFAULTS, RunOptions
 from phc.spec.run import SOLVERS, Atol, MaxOrder, MaxSteps, NOut, Rtol, Step, TEnd
-from phc.spec.base import Expr, Identifier, SpecModel, Vector
+from phc.spec.base import Expr, Identifier, SpecModel, Unit, Vector
 from phc.spec.components import ComponentSpec
 
 FORMAT_VERSION = 1
@@ -18,8 +18,11 @@ class ParameterSpec(SpecModel):
     """A named parameter. Its value is a number or an expression of other parameters."""
 
     value: Expr
-    unit: Optional[str] = None
+    unit: Optional[Unit] = None
+    """Its unit (`N/m`, `kg*m^2`; `1` for a dimensionless number such as a gear ratio), checked
+    against the fields that use it (docs/units.md)."""
     description: Optional[str] = None
+    """What it is, for readers of the model (not used by phc)."""
 
 
 class OutputSpec(SpecModel):
@@ -28,8 +31,11 @@ class OutputSpec(SpecModel):
     `value` where that is known (docs/units.md)."""
 
     value: Expr
-    unit: Optional[str] = None
+    unit: Optional[Unit] = None
+    """The unit of the results (`m`, `mm`, `1`): the value is converted to it from the model's
+    units where both are known (a length in m declared in mm is multiplied by 1000)."""
     description: Optional[str] = None
+    """What it is, for readers of the model (not used by phc)."""
 
 
 class ConnectionSpec(SpecModel):

@@ -90,7 +90,7 @@ def plot_sweep(report: SweepReport, path: Union[str, os.PathLike], column: Optio
         if bad:
             ax.plot([r[x] for r in bad], [r[y] for r in bad], "rx", label="failed", markersize=8)
             ax.legend(fontsize=8)
-        fig.colorbar(mesh, ax=ax, label=column)
+        fig.colorbar(mesh, ax=ax, label=column + (f" [{report.units[column]}]" if column in report.units else ""))
         ax.set_ylabel(y + (f" [{report.units[y]}]" if y in report.units else ""))
         if log_axis[y]:
             ax.set_yscale("log")

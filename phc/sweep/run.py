@@ -315,7 +315,12 @@ def _units(compiled, design: Design, outputs) -> dict[str, str]:
     for name in design.kinds:
         if name.startswith(MESH_PREFIX):
             units[name] = "elements"
-    return {k: v for k, v in units.items() if k in {a.name for a in design.axes} or k in RUN_COLUMNS + MACHINE_COLUMNS}
+    kept = {k: v for k, v in units.items() if k in {a.name for a in design.axes} or k in RUN_COLUMNS + MACHINE_COLUMNS}
+    labels = getattr(compiled.dae, "units", None) or {}
+    for name in outputs:  # an output's statistics are in its unit (the plot's axes, Parquet metadata)
+        if labels.get(name):
+            kept.update({f"{name}.{stat}": labels[name] for stat in STATS})
+    return kept
 
 
 __all__ = ["run_sweep"]

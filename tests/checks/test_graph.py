@@ -371,4 +371,4 @@ def test_a_modulation_whose_K_does_not_parse_reads_everything(tmp_path):
     assert sorted(reads_of(spec)) == sorted(("gyro", c) for c in spec.components if c != "gyro")
     dae, diags = phc.build_dae(path)
     assert dae is None
-    assert ("PHC-E101", "components.gyro.K.0.1") in [(d.code, d.path) for d in diags.errors]
+    assert ("PHC-E101", "components.gyro.K[0][1]") in [(d.code, d.path) for d in diags.errors]

@@ -80,8 +80,8 @@ connections:
 
 @pytest.mark.parametrize("changes, code, where", [
     (dict(W_e="[[0, 0, 0, 1], [0, 1, 0, 0]]"), "PHC-E155", "W_e"),           # wrong sign: Green identity fails
-    (dict(P="[[[0, 1], [0, 0]], [[0, 1], [1, 0]]]"), "PHC-E151", "P.0"),     # P_0 not skew
-    (dict(P="[[[0, 0], [0, 0]], [[0, 1], [2, 0]]]"), "PHC-E151", "P.1"),     # P_1 not symmetric
+    (dict(P="[[[0, 1], [0, 0]], [[0, 1], [1, 0]]]"), "PHC-E151", "P[0]"),     # P_0 not skew
+    (dict(P="[[[0, 0], [0, 0]], [[0, 1], [2, 0]]]"), "PHC-E151", "P[1]"),     # P_1 not symmetric
     (dict(W_f="[[0, 0, 1, 0], [0, 0, 1, 0]]"), "PHC-E154", "W_f"),           # W singular
     (dict(H='[["-1/rho", 0], [0, T]]'), "PHC-E152", "H"),                    # H not positive definite
 ])

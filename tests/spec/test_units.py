@@ -263,7 +263,9 @@ def test_without_pint_units_are_only_spelled_and_a_warning_says_so(tmp_path, mon
 ])
 def test_shipped_models_label_their_results(model, expected):
     dae, diags = build_dae(Path("models") / f"{model}.yaml")
-    assert not diags
+    # thermal_ladder's heater is wired against the drawn sign on purpose (its value is −P):
+    # the sign hint says so (PHC-W230, docs/signs.md); no other diagnostic
+    assert [d.code for d in diags] == (["PHC-W230"] if model == "thermal_ladder" else [])
     assert {name: dae.units.get(name) for name in expected} == expected
 
 
