@@ -213,10 +213,12 @@ class ComponentDescription:
     """How the rows are derived (:func:`phc.library.dirac.emit`): ``(relation or law,
     index, symbol solved for or None, row kind, row label, row span or None)`` in
     declaration order."""
-    internal: tuple[sp.Symbol, ...] = ()
+    internal: Optional[tuple[sp.Symbol, ...]] = None
     """The flows and efforts of the internal pairs (storage, resistive, auxiliary ones that
     :func:`phc.library.dirac.emit` eliminates); the others are port variables or variables
-    of the model (a kernel-form ``phs``'s resistive ports)."""
+    of the model (a kernel-form ``phs``'s resistive ports). A :class:`DiracBuilder` always
+    gives them, maybe none (a ``phs`` without states); None: a description made otherwise,
+    whose every pair that is not a port's counts as internal."""
     blocks: tuple[SparseRelations, ...] = ()
     """Relations and laws kept as sparse matrices over symbol vectors (they belong to the
     description as `relations` and `laws` do)."""

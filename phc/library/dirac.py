@@ -221,7 +221,7 @@ def emit(b, desc: ComponentDescription, dissipation_span=None) -> None:
     for s in desc.storage:
         sigma[s.flow] = s.rate
         sigma[s.effort] = s.gradient
-    if desc.internal:
+    if desc.internal is not None:  # a DiracBuilder's: its internal pairs, maybe none (a phs without states)
         internal = set(desc.internal)
     else:  # a description made without a DiracBuilder: every pair that is not a port's
         internal = {x for x in (*desc.flows, *desc.efforts)} - {x for idx, _ in desc.ports.values()
@@ -408,7 +408,7 @@ def emit_sparse(b, desc: ComponentDescription) -> None:
                      derived=True)
     # scalar relations and laws (a boundary port's flow, a trace of the co-energies, a
     # moving frame's kinematics), with scalar storage pairs replaced by (ẋ, ∂H/∂x)
-    eliminated = {x for vector in values for x in vector} | set(desc.internal)
+    eliminated = {x for vector in values for x in vector} | set(desc.internal or ())
     for which, i, solve, kind, label, *rest in desc.order:
         expr = scalar((desc.relations if which == "rel" else desc.laws)[i])
         if expr.free_symbols & eliminated or solve in eliminated:
