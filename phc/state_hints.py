@@ -6,8 +6,9 @@ A state's kind follows from its component type where the registry knows it (a lu
 storage element stores effort·time, a momentum, or flow·time, a displacement:
 ``Units.storage`` in :mod:`phc.registry`), else from its name (`x`, `theta`: positions;
 `p`: momenta). The kind a user wants follows from the name written (`body.x` asks for a
-position). A `mass` has only its momentum `p`: asked for `body.x`, the message says so and
-names the positions the model has.
+position). A `mass` has only its momentum `p` unless it has `position: true`: asked for
+`body.x`, the message says so, how to add the position, and names the positions the model
+has.
 """
 
 from __future__ import annotations
@@ -63,7 +64,8 @@ class _States:
         for name in self.names:
             comp = self.component.get(name, name.rpartition(".")[0])
             entry = find(self.type.get(comp))
-            storage = getattr(getattr(entry, "units", None), "storage", None)
+            units = getattr(entry, "units", None)
+            storage = units.storage_of(name[len(comp) + 1:]) if units is not None and units.storage else None
             kind = {"e": MOMENTUM, "f": POSITION}.get(storage) if storage else word_kind(name.rpartition(".")[2])
             self.kind[name] = kind
             self.what[name] = _STORED.get((storage, self.domain.get(comp)), kind or "state")
@@ -77,6 +79,8 @@ def unknown_state(name: str, elab, names) -> tuple[str, str]:
     of the elaboration `elab`: the addition says what the named component has instead
     (``": `body` (a mass) has no position state, only its momentum `body.p`"``; empty when
     that is not the trouble), the hint names states of the kind `name` asks for."""
+    from phc.registry import find
+
     states = _States(elab, names)
     comp, _, local = name.rpartition(".")
     want = word_kind(local)
@@ -103,6 +107,9 @@ def unknown_state(name: str, elab, names) -> tuple[str, str]:
         same = alike(exclude=comp)
         hint = (f"{want} states in this model: {shown(same)}" if same
                 else f"give the value of {shown(own[:1])} instead")
+        if want == POSITION and "position" in getattr(getattr(find(states.type.get(comp)), "spec", None),
+                                                      "model_fields", {}):
+            hint = f"`position: true` on `{comp}` adds its position `{comp}.x`; or: " + hint
         return extra, hint
     pool = [s for s in states.names if want is None or states.kind[s] in (want, None)]
     if own:

@@ -87,7 +87,8 @@ def test_a_position_of_a_mass_is_offered_positions_not_its_momentum(tmp_path, ca
     (m,) = _errors(tmp_path, capsys, QUARTER_CAR.format(section=section, name="body.x"), "PHC-E210")
     assert m["path"] == f"simulation.{section}.body.x"
     assert "`body` (a mass) has no position state, only its momentum `body.p`" in m["rest"]
-    assert "hint: position states in this model: `susp.x`, `tire.x`" in m["rest"]
+    assert "hint: `position: true` on `body` adds its position `body.x`; or: position states in this model: " \
+        "`susp.x`, `tire.x`" in m["rest"]
     assert "did you mean `body.p`" not in m["rest"]
 
 
