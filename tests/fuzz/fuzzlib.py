@@ -28,7 +28,6 @@ import math
 import os
 import re
 import shutil
-import signal
 import types
 import typing
 from pathlib import Path
@@ -39,6 +38,7 @@ import yaml
 from hypothesis import strategies as st
 
 import phc
+from time_limits import Hang, time_limit  # noqa: F401 (the fuzz tests' names)
 from phc.errors import ModelError
 from phc.spec import ModelSpec
 from phc.spec.scene import SceneSpec
@@ -49,35 +49,14 @@ SHIPPED = sorted(MODELS.glob("*.yaml")) + sorted((MODELS / "scenes").glob("*.yam
 """Every shipped model and scene; mutations start from these."""
 
 TIME_LIMIT = 5
-"""Seconds one input may take to validate (load + elaborate + structural checks)."""
+"""CPU seconds one input may take to validate (load + elaborate + structural checks)."""
 COMPILE_TIME_LIMIT = 30
-"""Seconds one input may take to compile (the flexible slider–crank takes 1–3 s)."""
-
+"""CPU seconds one input may take to compile (the flexible slider–crank takes 1–3 s)."""
 LOCATED = re.compile(r"^(?P<file>.+?):(?P<line>\d+):(?P<col>\d+): .*\S \[PHC-[EWI]\d{3}\]$")
 UNLOCATED = re.compile(r"^<model>: .*\S \[PHC-[EWI]\d{3}\]$")
 
 
 # -- the oracle ---------------------------------------------------------------------
-
-class Hang(BaseException):
-    """An input ran past its time limit (a BaseException: phc's own `except Exception` must
-    not swallow it)."""
-
-
-@contextlib.contextmanager
-def time_limit(seconds: float):
-    """Raise :class:`Hang` in the test process when the block runs longer than `seconds`."""
-    def expired(signum, frame):
-        raise Hang(f"no result after {seconds} s")
-
-    previous = signal.signal(signal.SIGALRM, expired)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, previous)
-
 
 def _line_count(file: str) -> int:
     """Lines as an editor counts them (LF, CRLF or CR ends a line)."""

@@ -44,7 +44,7 @@ FUZZ_EXAMPLES = {"documents": 150, "scenes": 60, "mutations": 25}
 """Examples per test in the default run (mutations: per shipped file)."""
 SLOW_FACTOR = 20
 
-_COMMON = dict(deadline=None,  # the per-input limit is fuzzlib.TIME_LIMIT (SIGALRM), robust to a loaded machine
+_COMMON = dict(deadline=None,  # the per-input limit is fuzzlib.TIME_LIMIT of CPU time (time_limits.py), robust to a loaded machine
                database=None,
                suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,
                                       HealthCheck.function_scoped_fixture, HealthCheck.filter_too_much])

@@ -35,11 +35,9 @@ To add a case: make the folder, write the model, write ``expected.txt`` (or ``.r
 from __future__ import annotations
 
 import ast
-import contextlib
 import os
 import re
 import shutil
-import signal
 from pathlib import Path
 
 import numpy as np
@@ -47,6 +45,7 @@ import pytest
 
 import phc
 from phc.cli import main
+from time_limits import time_limit
 
 HERE = Path(__file__).parent
 HOSTILE = HERE / "hostile"
@@ -55,29 +54,11 @@ CANARY = Path("/tmp/phc_hostile_canary")
 """The file every payload of the corpus would create (an absolute path: whatever the working
 directory of a payload)."""
 TIME_LIMIT = 20
-"""Seconds a case may take (a hang is a failure, not a stuck CI job)."""
+"""CPU seconds a case may take (:func:`time_limits.time_limit`: a hang is a failure, not a stuck CI job)."""
 LINE_RE = re.compile(r"^(?P<file>[\w.-]+\.(?:yaml|csv|npz)):\d+:\d+: .+ \[PHC-E\d{3}\]$")
 SECRETS = ("root:", "/bin/", "AWS_SECRET", "hunter2", "PATH=")
 """Text from system or secret files that no message may quote."""
 KINDS = ("expected.txt", "expected.re", "accept.txt")
-
-
-class Hang(BaseException):
-    """A case ran past its time limit (a BaseException: phc's `except Exception` must not swallow it)."""
-
-
-@contextlib.contextmanager
-def time_limit(seconds: float):
-    def expired(signum, frame):
-        raise Hang(f"no result after {seconds} s")
-
-    previous = signal.signal(signal.SIGALRM, expired)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, previous)
 
 
 @pytest.fixture(autouse=True)
