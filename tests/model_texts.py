@@ -159,3 +159,39 @@ connections:
   - [s.a, l.port]
   - [s.b, r.port]
 """
+
+
+# A nested part (a gear stage) and a model that uses it from `gear.yaml` beside it
+# (tests/test_fastpath.py, tests/test_cache_keys.py, tests/test_cli_multi.py).
+GEAR_PART = """\
+format_version: 1
+name: gear_stage
+kind: part
+parameters:
+  N: 3.0
+components:
+  g: {type: transformer, ratio: N, domain_a: mechanical.rotational}
+ports:
+  input: {port: g.a}
+  output: {port: g.b}
+"""
+
+USES_GEAR = """\
+format_version: 1
+name: geared_load
+parameters:
+  tau: 2.0
+  J: 0.5
+components:
+  motor: {type: effort_source, domain: mechanical.rotational, value: tau}
+  stage: {type: model, file: gear.yaml}
+  load: {type: mass, m: J, domain: mechanical.rotational}
+connections:
+  - [motor.port, stage.input]
+  - [stage.output, load.port]
+simulation:
+  t_end: 1.0
+  n_out: 11
+  initial: {load.p: 0.0}
+  outputs: {p: load.p}
+"""

@@ -14,43 +14,12 @@ import pytest
 from phc import fastpath
 from phc.cli import build_parser, main
 from phc.errors import CacheWarning
+from model_texts import GEAR_PART, USES_GEAR  # a nested gear stage and a model that uses it
 
 REPO = Path(__file__).resolve().parents[1]
 
 PENDULUM = (REPO / "models" / "pendulum.yaml").read_text(encoding="utf-8")
 
-GEAR_PART = """\
-format_version: 1
-name: gear_stage
-kind: part
-parameters:
-  N: 3.0
-components:
-  g: {type: transformer, ratio: N, domain_a: mechanical.rotational}
-ports:
-  input: {port: g.a}
-  output: {port: g.b}
-"""
-
-USES_GEAR = """\
-format_version: 1
-name: geared_load
-parameters:
-  tau: 2.0
-  J: 0.5
-components:
-  motor: {type: effort_source, domain: mechanical.rotational, value: tau}
-  stage: {type: model, file: gear.yaml}
-  load: {type: mass, m: J, domain: mechanical.rotational}
-connections:
-  - [motor.port, stage.input]
-  - [stage.output, load.port]
-simulation:
-  t_end: 1.0
-  n_out: 11
-  initial: {load.p: 0.0}
-  outputs: {p: load.p}
-"""
 
 RUN = ["--t-end", "0.5", "--n-out", "11", "--quiet"]
 
