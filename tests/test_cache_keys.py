@@ -22,6 +22,7 @@ import pytest
 from phc import fastpath
 from phc.cli import main
 from model_texts import GEAR_PART, USES_GEAR  # a nested gear stage and a model that uses it
+from time_limits import SUBPROCESS_TIMEOUT
 
 REPO = Path(__file__).resolve().parents[1]
 PENDULUM = (REPO / "models" / "pendulum.yaml").read_text(encoding="utf-8")
@@ -173,7 +174,7 @@ def test_fifos_in_the_cache_are_refused_without_blocking(tmp_path):
     env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     try:
         done = subprocess.run([sys.executable, "-c", code, str(fifo)], capture_output=True, text=True, env=env,
-                              timeout=120)
+                              timeout=SUBPROCESS_TIMEOUT)
     except subprocess.TimeoutExpired:
         pytest.fail("a reader of phc's cache blocked on a FIFO")
     assert done.stdout.strip() == "None None None", done.stdout + done.stderr

@@ -15,6 +15,7 @@ from phc import fastpath
 from phc.cli import build_parser, main
 from phc.errors import CacheWarning
 from model_texts import GEAR_PART, USES_GEAR  # a nested gear stage and a model that uses it
+from time_limits import SUBPROCESS_TIMEOUT
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -72,7 +73,7 @@ def test_a_hit_imports_neither_sympy_nor_pint(tmp_path, cache):
             "print(code, sorted(m for m in ('sympy', 'pint', 'pydantic', 'phc.dae', 'phc.elaborate') "
             "if m in sys.modules))\n")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=dict(os.environ),
-                          timeout=120)
+                          timeout=SUBPROCESS_TIMEOUT)
     assert done.stdout.strip().splitlines()[-1] == "0 []", done.stdout + done.stderr
     assert (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()
 
@@ -194,7 +195,7 @@ def test_validate_from_the_cache_imports_no_sympy(tmp_path, cache):
             f"code = main(['validate', {str(model)!r}])\n"
             "print(code, sorted(m for m in ('sympy', 'pint', 'pydantic', 'scipy', 'phc.dae') if m in sys.modules))\n")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=dict(os.environ),
-                          timeout=120)
+                          timeout=SUBPROCESS_TIMEOUT)
     lines = done.stdout.strip().splitlines()
     assert lines[-1] == "0 []", done.stdout + done.stderr
     assert lines[0].endswith("ok (4 states, 7 equations, 7 unknowns)")
