@@ -201,3 +201,39 @@ simulation:
     choices: "ifelse(spring.x > 0, spring.x**2, -mass.p) + ifelse(mass.p <= 0.1 and spring.x < 2, 1, 2)"
     constants: "pi*spring.x + 2/3*mass.p - 7/4 + 1e-300*spring.x"
 """
+
+
+# A nested part (a gear stage) and a model that uses it from `gear.yaml` beside it
+# (tests/test_fastpath.py, tests/test_cache_keys.py, tests/test_cli_multi.py).
+GEAR_PART = """\
+format_version: 1
+name: gear_stage
+kind: part
+parameters:
+  N: 3.0
+components:
+  g: {type: transformer, ratio: N, domain_a: mechanical.rotational}
+ports:
+  input: {port: g.a}
+  output: {port: g.b}
+"""
+
+USES_GEAR = """\
+format_version: 1
+name: geared_load
+parameters:
+  tau: 2.0
+  J: 0.5
+components:
+  motor: {type: effort_source, domain: mechanical.rotational, value: tau}
+  stage: {type: model, file: gear.yaml}
+  load: {type: mass, m: J, domain: mechanical.rotational}
+connections:
+  - [motor.port, stage.input]
+  - [stage.output, load.port]
+simulation:
+  t_end: 1.0
+  n_out: 11
+  initial: {load.p: 0.0}
+  outputs: {p: load.p}
+"""

@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 import phc
+from time_limits import SUBPROCESS_TIMEOUT
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -43,7 +44,7 @@ def test_import_and_help_do_not_load_the_numerical_stack():
             "    except SystemExit:\n"
             "        pass\n"
             f"print(sorted(m for m in {HEAVY!r} if m in sys.modules))")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=SUBPROCESS_TIMEOUT)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[]", out.stdout
 
@@ -88,6 +89,6 @@ def test_the_phc_command_runs_with_one_blas_thread_unless_told_otherwise():
         if preset:
             env["OPENBLAS_NUM_THREADS"] = preset
         run = subprocess.run([sys.executable, "-c", code + "print(os.environ['OPENBLAS_NUM_THREADS'])"],
-                             capture_output=True, text=True, env=env, timeout=120)
+                             capture_output=True, text=True, env=env, timeout=SUBPROCESS_TIMEOUT)
         assert run.returncode == 0, run.stderr[-2000:]
         assert run.stdout.splitlines()[-1] == expected

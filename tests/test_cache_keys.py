@@ -21,44 +21,16 @@ import pytest
 
 from phc import fastpath
 from phc.cli import main
+from model_texts import GEAR_PART, USES_GEAR  # a nested gear stage and a model that uses it
+from time_limits import SUBPROCESS_TIMEOUT
 
 REPO = Path(__file__).resolve().parents[1]
 PENDULUM = (REPO / "models" / "pendulum.yaml").read_text(encoding="utf-8")
 MSD = (REPO / "models" / "mass_spring_damper.yaml").read_text(encoding="utf-8")
 RUN = ["--t-end", "0.5", "--n-out", "11", "--quiet"]
 
-GEAR_PART = """\
-format_version: 1
-name: gear_stage
-kind: part
-parameters:
-  N: 3.0
-components:
-  g: {type: transformer, ratio: N, domain_a: mechanical.rotational}
-ports:
-  input: {port: g.a}
-  output: {port: g.b}
-"""
 
-USES_GEAR = """\
-format_version: 1
-name: geared_load
-parameters:
-  tau: 2.0
-  J: 0.5
-components:
-  motor: {type: effort_source, domain: mechanical.rotational, value: tau}
-  stage: {type: model, file: parts/gear.yaml}
-  load: {type: mass, m: J, domain: mechanical.rotational}
-connections:
-  - [motor.port, stage.input]
-  - [stage.output, load.port]
-simulation:
-  t_end: 1.0
-  n_out: 11
-  initial: {load.p: 0.0}
-  outputs: {p: load.p}
-"""
+USES_PARTS_GEAR = USES_GEAR.replace("file: gear.yaml", "file: parts/gear.yaml")
 
 
 @pytest.fixture()
@@ -96,7 +68,7 @@ def test_a_repointed_symbolic_link_runs_the_new_model(tmp_path, cache, monkeypat
                                                           encoding="utf-8")
         (tmp_path / "parts").symlink_to("parts_v1")
     model = tmp_path / "geared.yaml"
-    model.write_text(USES_GEAR, encoding="utf-8")
+    model.write_text(USES_PARTS_GEAR, encoding="utf-8")
     assert main(["simulate", str(model), "--out", str(tmp_path / "a.csv"), *RUN]) == 0
     assert main(["simulate", str(model), "--out", str(tmp_path / "a2.csv"), *RUN]) == 0  # from the cache
 
@@ -202,7 +174,7 @@ def test_fifos_in_the_cache_are_refused_without_blocking(tmp_path):
     env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     try:
         done = subprocess.run([sys.executable, "-c", code, str(fifo)], capture_output=True, text=True, env=env,
-                              timeout=120)
+                              timeout=SUBPROCESS_TIMEOUT)
     except subprocess.TimeoutExpired:
         pytest.fail("a reader of phc's cache blocked on a FIFO")
     assert done.stdout.strip() == "None None None", done.stdout + done.stderr

@@ -22,6 +22,7 @@ import yaml
 
 import phc
 from phc.cli import main
+from time_limits import SUBPROCESS_TIMEOUT
 
 REPO = Path(__file__).resolve().parents[1]
 MODELS = REPO / "models"
@@ -200,7 +201,8 @@ def test_simulate_param_overrides_the_parameter(tmp_path, capsys):
 
 
 def test_python_m_phc_version():
-    proc = subprocess.run([sys.executable, "-m", "phc", "--version"], capture_output=True, text=True, timeout=60)
+    proc = subprocess.run([sys.executable, "-m", "phc", "--version"], capture_output=True, text=True,
+                          timeout=SUBPROCESS_TIMEOUT)
     assert proc.returncode == 0
     assert proc.stdout.strip() == f"phc {phc.__version__}"
 

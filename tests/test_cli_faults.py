@@ -34,6 +34,7 @@ from phc.cli import main
 from phc.errors import SimulationSetupError
 from phc.io import TEMP_SUFFIX, atomic_write, check_output_dir, check_output_file, write_text, OutputPathError
 from phc.simulation import ModelEvaluationError, N_OUT_LIMITS, SimulationInterrupted
+from time_limits import SUBPROCESS_TIMEOUT
 
 # Runs here skip the compile-time certificate where phc has one (it is not what is tested).
 NO_CERT = {"certify": False} if "certify" in inspect.signature(phc.compile_model).parameters else {}
@@ -446,7 +447,7 @@ def _start_and_signal(out: Path, sig, solver: str, n_out: int = 2001):
                 break
         assert line, f"the run ended before integrating: {''.join(before)}"
         proc.send_signal(sig)
-        stdout, stderr = proc.communicate(timeout=120)
+        stdout, stderr = proc.communicate(timeout=SUBPROCESS_TIMEOUT)
     finally:
         proc.kill()
     return proc.returncode, stdout, "".join(before) + stderr

@@ -24,41 +24,13 @@ import pytest
 import phc
 from phc.cli import main
 from phc.report_formats import github_annotations
+from model_texts import GEAR_PART, USES_GEAR  # a nested gear stage and a model that uses it
 
 REPO = Path(__file__).resolve().parents[1]
 MSD = REPO / "models" / "mass_spring_damper.yaml"
 
-GEAR_PART = """\
-format_version: 1
-name: gear_stage
-kind: part
-parameters:
-  N: 3.0
-components:
-  g: {type: transformer, ratio: N, domain_a: mechanical.rotational}
-ports:
-  input: {port: g.a}
-  output: {port: g.b}
-"""
 
-USES_GEAR = """\
-format_version: 1
-name: geared_load
-parameters:
-  tau: 2.0
-  J: 0.5
-components:
-  motor: {type: effort_source, domain: mechanical.rotational, value: tau}
-  stage: {type: model, file: gear.yaml, parameters: {N: 4.0}}
-  load: {type: mass, m: J, domain: mechanical.rotational}
-connections:
-  - [motor.port, stage.input]
-  - [stage.output, load.port]
-simulation:
-  t_end: 1.0
-  initial: {load.p: 0.0}
-  outputs: {p: load.p}
-"""
+USES_GEAR_N4 = USES_GEAR.replace("file: gear.yaml}", "file: gear.yaml, parameters: {N: 4.0}}").replace("  n_out: 11\n", "")
 
 DANGLING = """\
 format_version: 1
@@ -87,7 +59,7 @@ def test_validate_several_files_one_line_per_problem_and_a_summary(tmp_path, cap
     monkeypatch.chdir(tmp_path)
     write(tmp_path, "gear.yaml", GEAR_PART)
     write(tmp_path, "bad.yaml", DANGLING)
-    write(tmp_path, "uses.yaml", USES_GEAR)
+    write(tmp_path, "uses.yaml", USES_GEAR_N4)
     status = main(["validate", "gear.yaml", "bad.yaml", "uses.yaml"])
     out, err = capsys.readouterr()
     assert status == 1
@@ -146,7 +118,7 @@ def test_a_part_validates_where_the_same_file_as_a_model_is_unbalanced(tmp_path,
 
 def test_a_model_nesting_a_part_runs_with_the_gear_ratio(tmp_path):
     write(tmp_path, "gear.yaml", GEAR_PART)
-    model = write(tmp_path, "uses.yaml", USES_GEAR)
+    model = write(tmp_path, "uses.yaml", USES_GEAR_N4)
     compiled = phc.compile_model(model)
     result = phc.simulate(compiled, n_out=11)
     # a torque tau on the input shaft of a gear f_b = N f_a is tau/N on the output, so the

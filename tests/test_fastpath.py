@@ -14,43 +14,13 @@ import pytest
 from phc import fastpath
 from phc.cli import build_parser, main
 from phc.errors import CacheWarning
+from model_texts import GEAR_PART, USES_GEAR  # a nested gear stage and a model that uses it
+from time_limits import SUBPROCESS_TIMEOUT
 
 REPO = Path(__file__).resolve().parents[1]
 
 PENDULUM = (REPO / "models" / "pendulum.yaml").read_text(encoding="utf-8")
 
-GEAR_PART = """\
-format_version: 1
-name: gear_stage
-kind: part
-parameters:
-  N: 3.0
-components:
-  g: {type: transformer, ratio: N, domain_a: mechanical.rotational}
-ports:
-  input: {port: g.a}
-  output: {port: g.b}
-"""
-
-USES_GEAR = """\
-format_version: 1
-name: geared_load
-parameters:
-  tau: 2.0
-  J: 0.5
-components:
-  motor: {type: effort_source, domain: mechanical.rotational, value: tau}
-  stage: {type: model, file: gear.yaml}
-  load: {type: mass, m: J, domain: mechanical.rotational}
-connections:
-  - [motor.port, stage.input]
-  - [stage.output, load.port]
-simulation:
-  t_end: 1.0
-  n_out: 11
-  initial: {load.p: 0.0}
-  outputs: {p: load.p}
-"""
 
 RUN = ["--t-end", "0.5", "--n-out", "11", "--quiet"]
 
@@ -103,7 +73,7 @@ def test_a_hit_imports_neither_sympy_nor_pint(tmp_path, cache):
             "print(code, sorted(m for m in ('sympy', 'pint', 'pydantic', 'phc.dae', 'phc.elaborate') "
             "if m in sys.modules))\n")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=dict(os.environ),
-                          timeout=120)
+                          timeout=SUBPROCESS_TIMEOUT)
     assert done.stdout.strip().splitlines()[-1] == "0 []", done.stdout + done.stderr
     assert (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()
 
@@ -225,7 +195,7 @@ def test_validate_from_the_cache_imports_no_sympy(tmp_path, cache):
             f"code = main(['validate', {str(model)!r}])\n"
             "print(code, sorted(m for m in ('sympy', 'pint', 'pydantic', 'scipy', 'phc.dae') if m in sys.modules))\n")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=dict(os.environ),
-                          timeout=120)
+                          timeout=SUBPROCESS_TIMEOUT)
     lines = done.stdout.strip().splitlines()
     assert lines[-1] == "0 []", done.stdout + done.stderr
     assert lines[0].endswith("ok (4 states, 7 equations, 7 unknowns)")

@@ -26,6 +26,7 @@ from scipy.integrate import solve_ivp
 import phc
 from model_texts import GUARDED_DIVISION  # shared with tests/codegen/test_float_arguments.py
 from phc.simulation import ModelEvaluationError
+from time_limits import SUBPROCESS_TIMEOUT
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -104,7 +105,7 @@ def test_a_term_switched_off_by_a_parameter_prints_no_warning(tmp_path, command,
     path = tmp_path / "model.yaml"
     path.write_text(model)
     run = subprocess.run([sys.executable, "-m", "phc", *command, str(path)], cwd=REPO, capture_output=True,
-                         text=True, timeout=120)
+                         text=True, timeout=SUBPROCESS_TIMEOUT)
     assert run.returncode == 0, run.stderr
     assert "Warning" not in run.stderr and "Traceback" not in run.stderr, run.stderr
     assert "divide by zero" not in run.stdout + run.stderr

@@ -20,6 +20,7 @@ from phc.options import DEFAULTS, RunOptions
 from phc.spec.model import SimulationSpec
 from phc.spec.run import TYPES
 from phc.spec.scene import AccuracySpec, SceneSpec
+from time_limits import SUBPROCESS_TIMEOUT
 
 MODELS = Path(__file__).resolve().parents[1] / "models"
 
@@ -105,7 +106,7 @@ def test_the_options_object_loads_without_pydantic():
     import sys
 
     code = "import sys, phc.options; print('pydantic' in sys.modules)"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=SUBPROCESS_TIMEOUT,
                          cwd=Path(__file__).resolve().parents[1])
     assert out.stdout.strip() == "False", out.stdout + out.stderr
 

@@ -34,6 +34,7 @@ from phc.spec.export import build_schema, schema_text
 from phc.spec.base import Expr, SpecModel
 from phc.spec.components import Domain
 from model_texts import CRANK, LINEAR, MODULATION, PDE1D, STRING_MODES  # shared with tests/checks/
+from time_limits import SUBPROCESS_TIMEOUT
 
 REPO = Path(__file__).resolve().parents[1]
 MODELS = REPO / "models"
@@ -338,7 +339,7 @@ def test_the_first_use_from_several_threads_at_once_sees_every_built_in_type():
         [t.join() for t in threads]
         print(found.count(True), len(registry.names()))
     """)
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=SUBPROCESS_TIMEOUT)
     assert out.returncode == 0, out.stderr
     hits, count = map(int, out.stdout.split())
     assert hits == 8 and count >= 24

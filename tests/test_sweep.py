@@ -28,6 +28,7 @@ from phc.spec.sweep import SpecError, parse_spec
 from phc.sweep import (MACHINE_COLUMNS, AppendLog, DaskExecutor, LocalExecutor, SweepSetupError, make_design,
                        read_results, run_sweep, sample_unit)
 from closed_forms import msd_x  # the free damped oscillator of models/mass_spring_damper.yaml
+from time_limits import SUBPROCESS_TIMEOUT
 
 REPO = Path(__file__).resolve().parents[1]
 MODELS = REPO / "models"
@@ -341,12 +342,12 @@ def test_interrupt_then_resume(tmp_path):
             break
         time.sleep(0.02)
     proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=60)
+    _, err = proc.communicate(timeout=SUBPROCESS_TIMEOUT)
     assert proc.returncode == 130, err
     assert "--resume" in err and "Traceback" not in err
     kept = read_results(out)
     assert 1 <= len(kept) < 8
-    done = subprocess.run(argv + ["--resume"], capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    done = subprocess.run(argv + ["--resume"], capture_output=True, text=True, cwd=tmp_path, timeout=SUBPROCESS_TIMEOUT)
     assert done.returncode == 0, done.stderr
     rows = read_results(out)
     assert [r["point"] for r in rows] == list(range(8))

@@ -16,6 +16,10 @@ WALL_FACTOR = 20
 stretches wall time (the first input also imports networkx' flow algorithms: 5 s of wall
 time at a load of 6 on 2 cores), not the work an input costs."""
 
+SUBPROCESS_TIMEOUT = 600
+"""Seconds a test waits for a phc subprocess: a guard against a hang, not a measure of
+speed (a compile of every shipped model took over 120 s at a load of 7 on 2 cores)."""
+
 
 class Hang(BaseException):
     """An input ran past its time limit (a BaseException: phc's own `except Exception` must

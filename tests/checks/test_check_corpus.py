@@ -38,6 +38,7 @@ import pytest
 from golden import matches, resolved, shift_seeds
 
 from phc.cli import main
+from time_limits import SUBPROCESS_TIMEOUT
 
 HERE = Path(__file__).parent
 INVALID = HERE / "invalid"
@@ -228,7 +229,7 @@ def test_check_output_does_not_depend_on_hash_seed(tmp_path):
                                       text=True))
     outputs = []
     for proc in procs:
-        out, err = proc.communicate(timeout=120)
+        out, err = proc.communicate(timeout=SUBPROCESS_TIMEOUT)
         assert proc.returncode == 1, err
         outputs.append(out + err)
     assert "[PHC-E421]" in outputs[0]

@@ -56,6 +56,7 @@ BALANCE_BLIND = {
 
 from phc.checks.certify import certify  # noqa: E402
 from phc.checks.rows import check_rows  # noqa: E402
+from time_limits import SUBPROCESS_TIMEOUT
 
 # One model per component type (the smallest that uses it).
 CASES = {
@@ -263,7 +264,7 @@ def test_a_non_passive_damping_force_is_a_located_error_at_compile(tmp_path, dam
     path = tmp_path / "m.yaml"
     path.write_text(NON_PASSIVE.replace("DAMPING", f'"{damping}"'))
     run = subprocess.run([sys.executable, "-m", "phc", "compile", str(path), "-o", str(tmp_path)],
-                         capture_output=True, text=True, timeout=120)
+                         capture_output=True, text=True, timeout=SUBPROCESS_TIMEOUT)
     if passive:
         assert run.returncode == 0, run.stderr
         assert "  certified (" in run.stdout
@@ -275,7 +276,7 @@ def test_a_non_passive_damping_force_is_a_located_error_at_compile(tmp_path, dam
         assert "Traceback" not in run.stderr
         # --no-certify compiles it anyway (and the run then gains energy: that is the point)
         run = subprocess.run([sys.executable, "-m", "phc", "compile", "--no-certify", str(path), "-o",
-                              str(tmp_path)], capture_output=True, text=True, timeout=120)
+                              str(tmp_path)], capture_output=True, text=True, timeout=SUBPROCESS_TIMEOUT)
         assert run.returncode == 0 and "not certified (--no-certify)" in run.stdout
 
 

@@ -23,6 +23,7 @@ import pytest
 import phc
 from phc.errors import SimulationSetupError
 from phc.simulation import parameter_vector
+from time_limits import SUBPROCESS_TIMEOUT
 
 REPO = Path(__file__).resolve().parents[2]
 MODEL_FILES = sorted((REPO / "models").glob("*.yaml"))
@@ -125,7 +126,7 @@ def test_generated_module_imports_and_runs_without_phc(path, tmp_path):
     module_file.write_text(compiled.source)
     env = {key: value for key, value in os.environ.items() if key != "PYTHONPATH"}
     proc = subprocess.run([sys.executable, "-c", STANDALONE_SCRIPT, str(module_file)], cwd=tmp_path,
-                          capture_output=True, text=True, timeout=60, env=env)
+                          capture_output=True, text=True, timeout=SUBPROCESS_TIMEOUT, env=env)
     assert proc.returncode == 0, proc.stderr
     report = json.loads(proc.stdout)
     assert report == {"model": compiled.name, "phc_imported": False, "residual_finite": True,
@@ -264,6 +265,6 @@ def test_generated_source_does_not_depend_on_the_hash_seed():
                               stderr=subprocess.PIPE, text=True, env=dict(os.environ, PYTHONHASHSEED=seed))
              for seed in ("1", "12345")]
     for proc in procs:
-        stdout, stderr = proc.communicate(timeout=120)
+        stdout, stderr = proc.communicate(timeout=SUBPROCESS_TIMEOUT)
         assert proc.returncode == 0, stderr
         assert json.loads(stdout) == expected

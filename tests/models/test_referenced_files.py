@@ -26,6 +26,7 @@ from phc import inputs
 from phc.cli import main
 from phc.errors import ModelError
 from phc.elaborate import Reporter
+from time_limits import SUBPROCESS_TIMEOUT
 
 SECRET = "hunter2-s3cr3t-value"
 
@@ -578,7 +579,7 @@ def _write_bad_npz_cases(folder: Path) -> dict[str, tuple[str, str]]:
 def test_malformed_npz_files_end_in_located_errors_never_a_crash(tmp_path):
     cases = _write_bad_npz_cases(tmp_path)
     models = [tmp_path / f"bad_{case}.yaml" for case in cases]
-    proc = run_cli(["validate", *models], timeout=120, env={"PHC_MAX_MATRICES_MB": "8"})
+    proc = run_cli(["validate", *models], timeout=SUBPROCESS_TIMEOUT, env={"PHC_MAX_MATRICES_MB": "8"})
     assert proc.returncode >= 0, f"killed by signal {-proc.returncode}"
     assert proc.returncode == 1, proc.stderr
     assert "Traceback" not in proc.stderr and "internal error" not in proc.stderr, proc.stderr

@@ -10,12 +10,13 @@ import sys
 from pathlib import Path
 
 import pytest
+from time_limits import SUBPROCESS_TIMEOUT
 
 REPO = Path(__file__).resolve().parents[2]
 MSD = (REPO / "models" / "mass_spring_damper.yaml").read_text()
 
 
-def phc(*args, env=None, timeout=60):
+def phc(*args, env=None, timeout=SUBPROCESS_TIMEOUT):
     full_env = {k: v for k, v in os.environ.items() if k != "PHC_ALLOW_PATH"}
     full_env.update(env or {})
     return subprocess.run([sys.executable, "-m", "phc", *map(str, args)], capture_output=True, text=True,
@@ -26,7 +27,7 @@ def phc(*args, env=None, timeout=60):
 def test_a_fifo_named_on_the_command_line_is_refused_at_once(tmp_path):
     fifo = tmp_path / "model.yaml"
     os.mkfifo(fifo)
-    run = phc("validate", fifo, timeout=30)  # a blocking read would hang until the timeout fails the test
+    run = phc("validate", fifo)  # a blocking read would hang until the timeout fails the test
     assert run.returncode == 1
     assert run.stderr.startswith(f"{fifo}:1:1: cannot read") and "not a regular file" in run.stderr
 
