@@ -26,6 +26,7 @@ from phc.cli import main
 from phc.sweep import DaskExecutor, LocalExecutor, SweepSetupError, read_results, run_sweep
 from phc.sweep import executors
 from closed_forms import msd_x  # the free damped oscillator of models/mass_spring_damper.yaml
+from time_limits import SUBPROCESS_TIMEOUT
 
 REPO = Path(__file__).resolve().parents[1]
 MSD = REPO / "models" / "mass_spring_damper.yaml"
@@ -275,9 +276,9 @@ def test_stopping_a_sweep_leaves_no_worker_behind(signum, code, tmp_path):
         if len(kids) >= 2:
             break
         time.sleep(0.05)
-    assert len(kids) >= 2, proc.communicate(timeout=60)
+    assert len(kids) >= 2, proc.communicate(timeout=SUBPROCESS_TIMEOUT)
     proc.send_signal(signum)
-    _, err = proc.communicate(timeout=60)
+    _, err = proc.communicate(timeout=SUBPROCESS_TIMEOUT)
     assert proc.returncode == code, err
     assert "--resume" in err and "Traceback" not in err
     # a process the sweep did not wait for (a fork server) may end a moment after it; a worker
