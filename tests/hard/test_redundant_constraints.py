@@ -16,6 +16,7 @@ import pytest
 import phc
 from phc.cli import main
 from phc.errors import ModelError
+from time_limits import SUBPROCESS_TIMEOUT
 
 HERE = Path(__file__).resolve().parent / "models"
 
@@ -58,7 +59,7 @@ def test_the_diagnosis_does_not_depend_on_the_hash_seed():
     for seed in ("1", "3", "5"):
         env = dict(os.environ, PYTHONHASHSEED=seed)
         run = subprocess.run([sys.executable, "-m", "phc", "compile", str(HERE / "four_bar_doubled_joint.yaml")],
-                             capture_output=True, text=True, env=env, timeout=120)
+                             capture_output=True, text=True, env=env, timeout=SUBPROCESS_TIMEOUT)
         assert run.returncode == 1
         outputs.add(run.stderr)
     assert len(outputs) == 1

@@ -7,13 +7,14 @@ import subprocess
 import sys
 import textwrap
 from pathlib import Path
+from time_limits import SUBPROCESS_TIMEOUT
 
 SIMULATION = Path(__file__).resolve().parents[2] / "phc" / "simulation"
 
 
 def _run(code: str) -> str:
     out = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True,
-                         timeout=120)
+                         timeout=SUBPROCESS_TIMEOUT)
     assert out.returncode == 0, out.stderr
     return out.stdout.strip()
 
