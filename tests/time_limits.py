@@ -9,7 +9,6 @@ from __future__ import annotations
 import contextlib
 import signal
 
-
 WALL_FACTOR = 20
 """A limit in wall-clock time as well, this many times the CPU limit: an input that blocks
 (a FIFO opened for reading) uses no CPU. Limits are CPU time first because a loaded machine

@@ -38,10 +38,10 @@ import yaml
 from hypothesis import strategies as st
 
 import phc
-from time_limits import Hang, time_limit  # noqa: F401 (the fuzz tests' names)
 from phc.errors import ModelError
 from phc.spec import ModelSpec
 from phc.spec.scene import SceneSpec
+from time_limits import Hang, time_limit  # noqa: F401 (the fuzz tests' names)
 
 REPO = Path(__file__).resolve().parents[2]
 MODELS = REPO / "models"
@@ -52,6 +52,7 @@ TIME_LIMIT = 5
 """CPU seconds one input may take to validate (load + elaborate + structural checks)."""
 COMPILE_TIME_LIMIT = 30
 """CPU seconds one input may take to compile (the flexible slider–crank takes 1–3 s)."""
+
 LOCATED = re.compile(r"^(?P<file>.+?):(?P<line>\d+):(?P<col>\d+): .*\S \[PHC-[EWI]\d{3}\]$")
 UNLOCATED = re.compile(r"^<model>: .*\S \[PHC-[EWI]\d{3}\]$")
 
