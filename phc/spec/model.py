@@ -96,8 +96,9 @@ _TABLE_KEYS = frozenset(TableSpec.model_fields)
 def _signal_kind(value) -> str:
     """Which kind of signal `value` is, by its shape: a mapping is a table, a list the
     pieces, anything else an expression (so a typo in a piece is reported as an unknown
-    key of the piece, not as the keys a table would miss)."""
-    if isinstance(value, dict):
+    key of the piece, not as the keys a table would miss). A validated value (when a spec
+    is serialized) is classified by its type the same way."""
+    if isinstance(value, (dict, TableSpec)):
         return "table"
     if isinstance(value, list):
         return "pieces"
@@ -107,7 +108,7 @@ def _signal_kind(value) -> str:
 def _is_pieces(value) -> bool:
     """A list of mappings none of which has a table's key: the pieces of one signal."""
     return (isinstance(value, list) and bool(value)
-            and all(isinstance(v, dict) and not _TABLE_KEYS & set(v) for v in value))
+            and all(isinstance(v, PieceSpec) or (isinstance(v, dict) and not _TABLE_KEYS & set(v)) for v in value))
 
 
 Signal = Annotated[Union[Annotated[Expr, Tag("expression")], Annotated[list[PieceSpec], Tag("pieces")],
