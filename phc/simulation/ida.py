@@ -147,13 +147,18 @@ class CallbackState:
     failed iteration — a long trial step that overshoots into an overflow does not end the
     run. ``failures`` counts them, ``error`` and ``t_failed`` are the latest one's located
     error and time, and ``failed_last`` says whether the latest evaluation was one: when IDA
-    then gives up, the run reports that error (:func:`integrate_ida`)."""
+    then gives up, the run reports that error (:func:`integrate_ida`).
 
-    __slots__ = ("cj", "failures", "error", "t_failed", "failed_last", "evaluations")
+    ``evaluations`` and ``jacobians`` count the residual and Jacobian evaluations IDA asked
+    for: the run's statistics, also of a run stopped inside an IDA call (the step hook's
+    ``max_steps``, a model error, Ctrl-C), whose counts scikit-sundae does not return."""
+
+    __slots__ = ("cj", "failures", "error", "t_failed", "failed_last", "evaluations", "jacobians")
 
     def __init__(self):
         self.cj = 0.0
         self.evaluations = 0  # residual evaluations (to tell :class:`_StepHook` a step from a call's start)
+        self.jacobians = 0
         self.failures = 0
         self.error: Optional[ModelEvaluationError] = None
         self.t_failed = 0.0
@@ -209,6 +214,7 @@ def _callbacks(mod, p, n: int, sparse: bool):
 
     def evaluate_jacobian(t, y, yp, cj, out):
         state.cj = cj
+        state.jacobians += 1
         try:
             try:
                 jacobian(t, y, yp, p, cj, out)
@@ -554,15 +560,12 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
     hook.evaluations_seen = calls.evaluations  # (any the start made are not a step's)
     k, ok, message = 1, True, "integration finished"
     event = None
-    nfev = int(getattr(init, "nfev", 0) or 0)
-    njev = int(getattr(init, "njev", 0) or 0)
     interrupted = False
     try:  # a model function outside its domain, a stop, Ctrl-C: keep the outputs filled so far
         while k < len(t_out):
             hook.start_call(t_out[k])
             res = solver.step(float(t_out[k]), method="normal", tstop=t_end)
             status, t_now = int(res.status), float(res.t)
-            nfev, njev = int(res.nfev), int(res.njev)
             if status < 0:
                 if calls.failed_last:  # IDA gave up where the model cannot be evaluated
                     raise calls.error
@@ -600,6 +603,8 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
     note = scales(not ok, k) if not message.startswith(("stopped ", "interrupted")) else None
     if note:
         message = f"{message}; {note}"
-    return BackendRun(t_out[:k], ys[:k], yps[:k], steps=hook.steps, nfev=nfev, njev=njev, success=ok, event=event,
+    # the callbacks' counts: scikit-sundae's (res.nfev, res.njev) are lost with a call that raises
+    return BackendRun(t_out[:k], ys[:k], yps[:k], steps=hook.steps, nfev=calls.evaluations, njev=calls.jacobians,
+                      success=ok, event=event,
                       message=message, cpu=time.process_time() - start, conditioning=monitor.worst,
                       interrupted=interrupted)
