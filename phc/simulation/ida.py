@@ -369,9 +369,10 @@ class _Stop(Exception):
     """Raised by :class:`_StepHook` inside IDA's step loop to end a run for a reason phc
     gives (`message`): the monitor's singular configuration, ``max_steps``."""
 
-    def __init__(self, message: str):
+    def __init__(self, message: str, max_steps: bool = False):
         super().__init__(message)
         self.message = message
+        self.max_steps = max_steps  # the run used up `max_steps`
 
 
 class _StepHook:
@@ -434,7 +435,7 @@ class _StepHook:
             self.t_last = max(self.t_last, t)
             if self.steps >= self.max_steps and t < self.t_end:
                 raise _Stop(f"stopped after {self.steps} steps at t = {t:.6g} (max_steps); raise `max_steps` "
-                            "or loosen the tolerances")
+                            "or loosen the tolerances", max_steps=True)
             return
         # a step below the resolution of t (IDA crawling into a singular configuration takes
         # steps of 1e-18 s at t = 0.01, which leave t unchanged): its size is at most t's spacing
@@ -462,7 +463,7 @@ class _StepHook:
             self.progress(t)
         if self.steps >= self.max_steps and t < self.t_end:
             raise _Stop(f"stopped after {self.steps} steps at t = {t:.6g} (max_steps); raise `max_steps` or "
-                        "loosen the tolerances")
+                        "loosen the tolerances", max_steps=True)
 
     def _look(self, t, y, yp, h) -> None:
         monitor = self.monitor
@@ -560,7 +561,7 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
     hook.evaluations_seen = calls.evaluations  # (any the start made are not a step's)
     k, ok, message = 1, True, "integration finished"
     event = None
-    interrupted = False
+    interrupted = used_up = False
     try:  # a model function outside its domain, a stop, Ctrl-C: keep the outputs filled so far
         while k < len(t_out):
             hook.start_call(t_out[k])
@@ -591,7 +592,7 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
         if progress is not None and k > 1:
             progress(float(t_out[k - 1]))
     except _Stop as stop:
-        ok, message = False, stop.message
+        ok, message, used_up = False, stop.message, stop.max_steps
         if monitor.stop_time is not None:
             # the configuration may lie before outputs already filled in: keep none past it
             k = max(1, min(k, int(np.searchsorted(t_out, monitor.stop_time, side="right"))))
@@ -607,4 +608,4 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
     return BackendRun(t_out[:k], ys[:k], yps[:k], steps=hook.steps, nfev=calls.evaluations, njev=calls.jacobians,
                       success=ok, event=event,
                       message=message, cpu=time.process_time() - start, conditioning=monitor.worst,
-                      interrupted=interrupted)
+                      interrupted=interrupted, extra=dict(max_steps_reached=used_up, t_reached=hook.t_last))
