@@ -460,7 +460,7 @@ def many_steps_hint(mod, p, t, y, yp, *, steps: int, span: float, max_order: int
         modes = "the linearized modes could not be computed"
     elif searched:
         modes = (f"no lightly damped mode was found near ω = 1/h ≈ {1 / h:.2g} rad/s (a sparse search of the "
-                 f"{mod.N} unknowns)")
+                 f"{mod.N} unknowns" + (f"; the nearest, ω ≈ {w:.2g} rad/s, has ωh ≈ {w * h:.2g})" if w > 0 else ")"))
     else:
         modes = ("no undamped mode is left unresolved by such steps"
                  + (f" (the fastest, ω ≈ {w:.2g} rad/s, has ωh ≈ {w * h:.2g})" if w > 0 else ""))
