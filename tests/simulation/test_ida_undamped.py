@@ -1,13 +1,13 @@
 """IDA on stiff, undamped distributed models (issue 38 item 2).
 
-An Euler–Bernoulli beam of 1 000 elements took ~10⁴ IDA steps per microsecond. Measured
-(the numbers are in docs/how-to/solvers.md): the iteration matrix is reused as SUNDIALS intends — Newton converges in about one iteration a
-step and a new matrix comes only with a change of IDA's ``cj = α/h`` beyond the band
-``[0.6, 5/3]`` of the last one — and the cost is the step size itself: at BDF orders 3–5,
-which are not stable along part of the imaginary axis, IDA holds its step where ``ω_max·h``
-is about 0.6 (BDF5 is stable there below 0.71), whatever the tolerances. What phc owes the
-user is to say so, also for models too large for a dense eigenvalue computation, and to
-count the work of a run that stopped.
+An Euler–Bernoulli beam of 1 000 elements took ~10⁴ IDA steps per microsecond. Measured (the
+numbers are in docs/how-to/solvers.md): the iteration matrix is reused as SUNDIALS intends —
+Newton converges in about one iteration a step and a new matrix comes only with a change of
+IDA's ``cj = α/h`` beyond the band ``[0.6, 5/3]`` of the last one — and the cost is the step
+size itself: at BDF orders 3–5, which are not stable along part of the imaginary axis, IDA
+holds its step where ``ω_max·h`` is about 0.6 (BDF5 is stable there below 0.71), whatever
+the tolerances. What phc owes the user is to say so, also for models too large for a dense
+eigenvalue computation, and to count the work of a run that stopped.
 
 References: the Jacobian's consistency with the residual is checked through IDA's own
 behaviour on a linear model (no refactorization that only a Newton failure explains); the
