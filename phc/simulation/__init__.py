@@ -517,7 +517,8 @@ def _evaluate_along(mod, p, out: BackendRun) -> tuple[dict, Optional[ModelEvalua
 
 
 MANY_STEPS = 100_000
-"""A successful IDA run with more steps than this says what may cost them (`_finish`)."""
+"""A successful IDA run with more steps than this says what may cost them (`_finish`), and so
+does an IDA run that used up `max_steps`."""
 
 
 def _finish(compiled, mod, p, out: BackendRun, init, cpu, options: RunOptions, params=None) -> SimResult:
@@ -528,12 +529,17 @@ def _finish(compiled, mod, p, out: BackendRun, init, cpu, options: RunOptions, p
     t, y, yp = out.t[:n], out.y[:n], out.yp[:n]
     success, message = out.success, out.message
     steps = out.steps
-    if options.solver == "ida" and success and steps > MANY_STEPS and len(out.t) > 1:
-        ends = [0, len(out.t) - 1]  # the modes at the start and at the end
-        hint = many_steps_hint(mod, p, out.t[ends], out.y[ends], out.yp[ends], steps=steps,
-                               span=float(out.t[-1] - out.t[0]), max_order=int(options.max_order or MAX_ORDER),
-                               rtol=options.rtol, atol=applied_atol(options.rtol, options.atol))
-        message = f"{message}; {hint}"
+    # where the steps went: a successful IDA run of very many steps, or one that used up max_steps
+    # (at the time IDA reached, which may lie beyond the last output time kept)
+    used_up = bool(out.extra.get("max_steps_reached")) and steps > 0
+    if options.solver == "ida" and (success and steps > MANY_STEPS and len(out.t) > 1 or used_up):
+        ends = sorted({0, len(out.t) - 1})  # the modes at the start and at the end
+        reached = float(out.extra.get("t_reached", out.t[-1])) if used_up else float(out.t[-1])
+        if reached > out.t[0]:
+            hint = many_steps_hint(mod, p, out.t[ends], out.y[ends], out.yp[ends], steps=steps,
+                                   span=reached - float(out.t[0]), max_order=int(options.max_order or MAX_ORDER),
+                                   rtol=options.rtol, atol=applied_atol(options.rtol, options.atol), stopped=used_up)
+            message = f"{message}; {hint}"
     if failure is not None:
         if out.success:
             message = f"{failure}; results up to t = {t[-1]:.6g} are kept"

@@ -147,13 +147,18 @@ class CallbackState:
     failed iteration — a long trial step that overshoots into an overflow does not end the
     run. ``failures`` counts them, ``error`` and ``t_failed`` are the latest one's located
     error and time, and ``failed_last`` says whether the latest evaluation was one: when IDA
-    then gives up, the run reports that error (:func:`integrate_ida`)."""
+    then gives up, the run reports that error (:func:`integrate_ida`).
 
-    __slots__ = ("cj", "failures", "error", "t_failed", "failed_last", "evaluations")
+    ``evaluations`` and ``jacobians`` count the residual and Jacobian evaluations IDA asked
+    for: the run's statistics, also of a run stopped inside an IDA call (the step hook's
+    ``max_steps``, a model error, Ctrl-C), whose counts scikit-sundae does not return."""
+
+    __slots__ = ("cj", "failures", "error", "t_failed", "failed_last", "evaluations", "jacobians")
 
     def __init__(self):
         self.cj = 0.0
         self.evaluations = 0  # residual evaluations (to tell :class:`_StepHook` a step from a call's start)
+        self.jacobians = 0
         self.failures = 0
         self.error: Optional[ModelEvaluationError] = None
         self.t_failed = 0.0
@@ -209,6 +214,7 @@ def _callbacks(mod, p, n: int, sparse: bool):
 
     def evaluate_jacobian(t, y, yp, cj, out):
         state.cj = cj
+        state.jacobians += 1
         try:
             try:
                 jacobian(t, y, yp, p, cj, out)
@@ -363,9 +369,10 @@ class _Stop(Exception):
     """Raised by :class:`_StepHook` inside IDA's step loop to end a run for a reason phc
     gives (`message`): the monitor's singular configuration, ``max_steps``."""
 
-    def __init__(self, message: str):
+    def __init__(self, message: str, max_steps: bool = False):
         super().__init__(message)
         self.message = message
+        self.max_steps = max_steps  # the run used up `max_steps`
 
 
 class _StepHook:
@@ -428,7 +435,7 @@ class _StepHook:
             self.t_last = max(self.t_last, t)
             if self.steps >= self.max_steps and t < self.t_end:
                 raise _Stop(f"stopped after {self.steps} steps at t = {t:.6g} (max_steps); raise `max_steps` "
-                            "or loosen the tolerances")
+                            "or loosen the tolerances", max_steps=True)
             return
         # a step below the resolution of t (IDA crawling into a singular configuration takes
         # steps of 1e-18 s at t = 0.01, which leave t unchanged): its size is at most t's spacing
@@ -456,7 +463,7 @@ class _StepHook:
             self.progress(t)
         if self.steps >= self.max_steps and t < self.t_end:
             raise _Stop(f"stopped after {self.steps} steps at t = {t:.6g} (max_steps); raise `max_steps` or "
-                        "loosen the tolerances")
+                        "loosen the tolerances", max_steps=True)
 
     def _look(self, t, y, yp, h) -> None:
         monitor = self.monitor
@@ -554,15 +561,12 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
     hook.evaluations_seen = calls.evaluations  # (any the start made are not a step's)
     k, ok, message = 1, True, "integration finished"
     event = None
-    nfev = int(getattr(init, "nfev", 0) or 0)
-    njev = int(getattr(init, "njev", 0) or 0)
-    interrupted = False
+    interrupted = used_up = False
     try:  # a model function outside its domain, a stop, Ctrl-C: keep the outputs filled so far
         while k < len(t_out):
             hook.start_call(t_out[k])
             res = solver.step(float(t_out[k]), method="normal", tstop=t_end)
             status, t_now = int(res.status), float(res.t)
-            nfev, njev = int(res.nfev), int(res.njev)
             if status < 0:
                 if calls.failed_last:  # IDA gave up where the model cannot be evaluated
                     raise calls.error
@@ -588,7 +592,7 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
         if progress is not None and k > 1:
             progress(float(t_out[k - 1]))
     except _Stop as stop:
-        ok, message = False, stop.message
+        ok, message, used_up = False, stop.message, stop.max_steps
         if monitor.stop_time is not None:
             # the configuration may lie before outputs already filled in: keep none past it
             k = max(1, min(k, int(np.searchsorted(t_out, monitor.stop_time, side="right"))))
@@ -600,6 +604,8 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
     note = scales(not ok, k) if not message.startswith(("stopped ", "interrupted")) else None
     if note:
         message = f"{message}; {note}"
-    return BackendRun(t_out[:k], ys[:k], yps[:k], steps=hook.steps, nfev=nfev, njev=njev, success=ok, event=event,
+    # the callbacks' counts: scikit-sundae's (res.nfev, res.njev) are lost with a call that raises
+    return BackendRun(t_out[:k], ys[:k], yps[:k], steps=hook.steps, nfev=calls.evaluations, njev=calls.jacobians,
+                      success=ok, event=event,
                       message=message, cpu=time.process_time() - start, conditioning=monitor.worst,
-                      interrupted=interrupted)
+                      interrupted=interrupted, extra=dict(max_steps_reached=used_up, t_reached=hook.t_last))
