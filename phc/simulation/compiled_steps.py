@@ -400,7 +400,7 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
     c[_ORDER] = min(max(int(mp.PREDICTOR_ORDER), 0), mp.MAX_PREDICTOR_ORDER)
     c[_ORDER_ALG] = min(max(int(mp.PREDICTOR_ORDER_ALGEBRAIC), 0), mp.MAX_PREDICTOR_ORDER)
     pt, pm = np.zeros(mp.MAX_PREDICTOR_ORDER + 1), np.zeros((mp.MAX_PREDICTOR_ORDER + 1, n))
-    A = np.zeros((2, n, n))
+    A = np.zeros((2, n, n) if not on_c else (2, 1, 1))  # the numba loop's matrices (the C loop has its own)
     low = mixed_precision(n) and not on_c  # the C loop corrects in double precision only
     # the single-precision copies of the two inverses, their scales, and the vectors of sgemv
     lp = ((np.zeros((2, n, n), np.float32), np.ones((2, 3, n)), np.array([0.0] * (2 * n) + [1.0, 0.0], np.float32))
@@ -424,7 +424,7 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
     hist_t, hist_v = np.zeros((2, 3)), np.zeros((2, 3, n))
     y_new = np.zeros(n)
     jbuf, ebuf = np.zeros(len(jrows)), np.zeros(len(jrows))
-    M = np.zeros((n, n))
+    M = np.zeros((n, n) if not on_c else (1, 1))
     pv = np.ascontiguousarray(p, dtype=float)
     split = 0
     ok, message, interrupted = True, "integration finished", False

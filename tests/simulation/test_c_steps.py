@@ -102,9 +102,11 @@ def test_the_c_loop_follows_the_python_loop(compiled, monkeypatch, loops, name, 
     assert loops == ["c"] * half + [None] * half and half >= 1
     _assert_same_trajectory(fast, slow, step or model.dae.options["step"])
     assert fast.constraint_drift <= max(10 * slow.constraint_drift, 1e-13)
-    # the same Newton test and refresh rules: the same work, up to an iteration decided at the noise level
+    # the same Newton test and refresh rules: the same work, up to the iterations decided at the noise
+    # level; a refresh decided there changes the later ones (the flexible slider–crank takes 26 to 30
+    # factorizations in 500 steps in either loop as round-off in its start state changes)
     assert fast.n_residual_evals == pytest.approx(slow.n_residual_evals, rel=0.02, abs=5)
-    assert fast.n_jacobian_evals == pytest.approx(slow.n_jacobian_evals, rel=0.1, abs=3)
+    assert fast.n_jacobian_evals == pytest.approx(slow.n_jacobian_evals, rel=0.2, abs=3)
 
 
 def test_midpoint_energy_balance_is_exact_for_quadratic_h(compiled, loops):
@@ -124,7 +126,7 @@ def test_two_threads_integrate_at_once(compiled, loops):
     each got alone."""
     model = compiled("rigid_slider_crank.yaml")
     options = [dict(solver="midpoint", t_end=0.2, step=2e-4, n_out=21, params=params)
-               for params in ({}, {"L": 0.4})]
+               for params in ({}, {"omega": 100.0})]
     alone = [phc.simulate(model, **o) for o in options]
     together = [None, None]
     barrier = threading.Barrier(2)
