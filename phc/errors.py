@@ -55,7 +55,8 @@ Not a ``PhcError``
 Warnings
     ``PhcWarning`` is the base of phc's warnings: ``IgnoredOptionWarning`` (an accuracy
     option the chosen solver does not use), ``CompiledBackendWarning`` (the NumPy module
-    runs instead of the compiled backend), ``CacheWarning`` (the configured cache
+    runs instead of the compiled backend), ``CompiledLoopWarning`` (the C back end's compiled
+    step loop cannot run a simulation: the Python loop does), ``CacheWarning`` (the configured cache
     directory is unusable; a temporary one is used).
 
 Private control flow, defined where it is used
@@ -293,6 +294,12 @@ class CompiledBackendWarning(PhcWarning):
     """The compiled backend was asked for (or chosen) but the NumPy module is used instead."""
 
 
+class CompiledLoopWarning(PhcWarning):
+    """A compiled step loop the run's backend offers (the C back end's implicit midpoint loop)
+    cannot run this simulation: the Python step loop runs it instead — the same steps, more time
+    per step. Said once per process and reason."""
+
+
 class CacheWarning(PhcWarning):
     """A cache problem, never the model's: the configured cache directory is unusable or not
     private (a temporary one is used), or a cache entry does not verify or disagrees with
@@ -309,7 +316,8 @@ PRIVATE_CONTROL_FLOW = ("phc.cli.report._Exit", "phc.checks.compiled._NotNumeric
                         "phc.source._NotRegular", "phc.simulation.ida._Stop")
 """Exceptions that never leave the code that raises them, defined there (qualified names)."""
 
-__all__ = ["BackendMismatch", "BackendUnavailable", "BackendUnsupported", "CacheWarning", "CodegenError", "CompiledBackendWarning",
+__all__ = ["BackendMismatch", "BackendUnavailable", "BackendUnsupported", "CacheWarning", "CodegenError",
+           "CompiledBackendWarning", "CompiledLoopWarning",
            "DimensionError", "ExpressionError", "FileRefused", "IgnoredOptionWarning", "InconsistentInitialError",
            "ModelError", "ModelEvaluationError", "NothingToAnimate", "NpzProblem", "OutputPathError",
            "PhcError", "PhcWarning", "PlotUnavailable", "ReferenceValuesError", "RegistryError",

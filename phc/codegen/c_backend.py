@@ -138,9 +138,9 @@ class CReport:
         return f"{what} in {self.seconds:.2f} s with {self.compiler}{note}"
 
 
-def library_digest(text: str, argv: list[str], identity: str) -> str:
+def library_digest(text: str, argv: list[str], identity: str, flags: tuple = FLAGS) -> str:
     """The name of a library in the cache: the SHA-256 of everything that determines it."""
-    material = "\0".join((text, " ".join(argv), identity, " ".join(FLAGS + LIBS), __version__, str(ABI),
+    material = "\0".join((text, " ".join(argv), identity, " ".join(tuple(flags) + LIBS), __version__, str(ABI),
                           platform.machine(), sys.platform))
     return hashlib.sha256(material.encode()).hexdigest()[:24]
 
@@ -159,15 +159,15 @@ def _cpu() -> float:
 # ---------------------------------------------------------------------------------------
 # compiling, the signed cache, loading
 
-def _compile(text: str, argv: list[str], digest: str, parent: Optional[Path]) -> bytes:
-    """The bytes of the shared library compiled from `text` (in a private temporary directory,
-    inside `parent` when given)."""
+def _compile(text: str, argv: list[str], digest: str, parent: Optional[Path], flags: tuple = FLAGS) -> bytes:
+    """The bytes of the shared library compiled from `text` with `flags` (in a private temporary
+    directory, inside `parent` when given)."""
     work = Path(tempfile.mkdtemp(prefix="phc-c-build-", dir=parent))  # mode 0700
     try:
         src, lib = work / f"phc_c_{digest}.c", work / f"phc_c_{digest}.so"
         src.write_text(text, encoding="utf-8")
         try:
-            done = subprocess.run([*argv, *FLAGS, "-o", str(lib), str(src), *LIBS], capture_output=True, text=True,
+            done = subprocess.run([*argv, *flags, "-o", str(lib), str(src), *LIBS], capture_output=True, text=True,
                                   timeout=COMPILE_TIMEOUT, cwd=work, stdin=subprocess.DEVNULL)
         except subprocess.TimeoutExpired:
             raise CodegenError(f"the C compiler ({argv[0]}) took more than {COMPILE_TIMEOUT:.0f} s") from None
@@ -252,8 +252,10 @@ _LOADED: dict[str, ctypes.CDLL] = {}
 """Libraries loaded in this process, by digest (a model compiled again is not reloaded)."""
 
 
-def _obtain(text: str, argv: list[str], digest: str, cache: bool) -> tuple[ctypes.CDLL, str, str]:
-    """(library, state, note) for `text`: from this process, the signed cache, or the compiler."""
+def _obtain(text: str, argv: list[str], digest: str, cache: bool,
+            flags: tuple = FLAGS) -> tuple[ctypes.CDLL, str, str]:
+    """(library, state, note) for `text` (compiled with `flags`, which `digest` covers): from this
+    process, the signed cache, or the compiler."""
     lib = _LOADED.get(digest)
     if lib is not None:
         return lib, "memory", ""
@@ -271,7 +273,7 @@ def _obtain(text: str, argv: list[str], digest: str, cache: bool) -> tuple[ctype
     if data is not None:
         state = "warm"
     else:
-        data = _compile(text, argv, digest, folder)
+        data = _compile(text, argv, digest, folder, flags)
         state = "cold" if folder is not None else "off"
         if folder is not None:
             _store(folder, digest, key, data, text)

@@ -54,6 +54,11 @@ and kept in phc's signed cache of compiled code (``<phc cache>/numba/``, see
 :mod:`phc.codegen.numba_backend`); :func:`enabled` says whether a run uses it, and
 ``PHC_COMPILED_LOOP=0`` switches it off.
 
+On the C back end (:mod:`phc.codegen.c_backend`), :func:`integrate` runs the implicit midpoint
+rule's chunks in C instead (``phc/codegen/c_runtime/steps.c``, built and bound by
+:mod:`phc.simulation.c_steps`): a port of the same step logic on the same state arrays, so that
+everything between chunks — progress, Ctrl-C, the steps handed back — is this driver's, shared.
+
 Where what lives: this module is the Python side — whether a run uses the loop
 (:func:`enabled`), building it once per process and keeping it in the cache (:func:`_build`,
 :func:`_compile`, :func:`_attach_cache`), the model's functions handed to it
@@ -346,10 +351,24 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
     from phc.simulation.monitor import SingularityMonitor
 
     raw = getattr(mod, "module", mod)
-    if not enabled(raw) or mp.make_projector(raw, p, np.asarray(y0, dtype=float), float(t_out[0])) is not None:
+    on_c = getattr(raw, "BACKEND", "numpy") == "c"  # the C back end's loop (phc.simulation.c_steps)
+    if on_c:
+        from phc.simulation import c_steps
+
+        use, why = c_steps.usable(method, raw)
+        if not use:
+            c_steps.say_unused(why)
+            return None
+    elif not enabled(raw):
         return None
-    funcs = _functions(raw)
-    chunk = _READY[0]
+    if mp.make_projector(raw, p, np.asarray(y0, dtype=float), float(t_out[0])) is not None:
+        if on_c:
+            c_steps.say_unused("the model's invariants are not rows of its equations (the Python loop projects them "
+                               "at the step ends)")
+        return None
+    if not on_c:
+        funcs = _functions(raw)
+        chunk = _READY[0]
     from phc.simulation import discrete_gradient as dg
     from phc.simulation import midpoint4 as m4
     from phc.simulation.monitor import THRESHOLD
@@ -381,8 +400,8 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
     c[_ORDER] = min(max(int(mp.PREDICTOR_ORDER), 0), mp.MAX_PREDICTOR_ORDER)
     c[_ORDER_ALG] = min(max(int(mp.PREDICTOR_ORDER_ALGEBRAIC), 0), mp.MAX_PREDICTOR_ORDER)
     pt, pm = np.zeros(mp.MAX_PREDICTOR_ORDER + 1), np.zeros((mp.MAX_PREDICTOR_ORDER + 1, n))
-    A = np.zeros((2, n, n))
-    low = mixed_precision(n)
+    A = np.zeros((2, n, n) if not on_c else (2, 1, 1))  # the numba loop's matrices (the C loop has its own)
+    low = mixed_precision(n) and not on_c  # the C loop corrects in double precision only
     # the single-precision copies of the two inverses, their scales, and the vectors of sgemv
     lp = ((np.zeros((2, n, n), np.float32), np.ones((2, 3, n)), np.array([0.0] * (2 * n) + [1.0, 0.0], np.float32))
           if low else (np.zeros((2, 1, 1), np.float32), np.ones((2, 3, 1)), np.zeros(2, np.float32)))
@@ -405,7 +424,7 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
     hist_t, hist_v = np.zeros((2, 3)), np.zeros((2, 3, n))
     y_new = np.zeros(n)
     jbuf, ebuf = np.zeros(len(jrows)), np.zeros(len(jrows))
-    M = np.zeros((n, n))
+    M = np.zeros((n, n) if not on_c else (1, 1))
     pv = np.ascontiguousarray(p, dtype=float)
     split = 0
     ok, message, interrupted = True, "integration finished", False
@@ -413,6 +432,9 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
     python_nfev = python_njev = 0
     budget = 16
     reported = 1
+    if on_c:
+        run_c = c_steps.bind(raw, pv, t_out, ys, yps, y, mid, mid_slope, y_prev, y_new, pt, pm, fst, ist, c, jrows,
+                             jcols, end_rows, emask, w, algmask, colscale)
 
     def step_in_python():
         """The rest of the Python loop's body for the step at (t, h, y) the chunk handed back."""
@@ -456,8 +478,11 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
         while True:
             t0 = time.perf_counter()
             before = int(ist[_STEPS])
-            chunk(*funcs, pv, t_out, ys, yps, y, mid, mid_slope, y_prev, fst, ist, c, A, lp, ipiv, matf, jrows, jcols,
-                  end_rows, emask, w, algmask, hist_t, hist_v, y_new, jbuf, ebuf, M, colscale, pt, pm, budget)
+            if on_c:
+                run_c(budget)
+            else:
+                chunk(*funcs, pv, t_out, ys, yps, y, mid, mid_slope, y_prev, fst, ist, c, A, lp, ipiv, matf, jrows,
+                      jcols, end_rows, emask, w, algmask, hist_t, hist_v, y_new, jbuf, ebuf, M, colscale, pt, pm, budget)
             took = time.perf_counter() - t0
             status = int(ist[_STATUS])
             if status == _BUDGET:
@@ -487,7 +512,8 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
     return BackendRun.from_mapping(dict(
         t=t_out[:last + 1], y=ys[:last + 1], yp=yps[:last + 1], steps=int(ist[_STEPS]), success=ok, message=message,
         cpu=time.process_time() - start, interrupted=interrupted, nfev=int(ist[_NFEV]) + python_nfev,
-        njev=int(ist[_NFACT]) + python_njev, compiled_loop=True, mixed_precision=bool(low),
+        njev=int(ist[_NFACT]) + python_njev, compiled_loop=True, step_loop="c" if on_c else "numba",
+        mixed_precision=bool(low),
         low_precision_strikes=int(ist[_STRIKES]), unbalanced=int(getattr(python, "unbalanced", 0) or 0)))
 
 

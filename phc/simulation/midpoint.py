@@ -672,7 +672,11 @@ def integrate_midpoint(mod, p, t_out, y0, yp0, options, *, progress=None, names=
         advance.stage = stage
         return advance
 
-    if events is None:  # the whole step loop compiled, when the model runs on the numba backend
+    if events is not None and getattr(getattr(mod, "module", mod), "BACKEND", "") == "c":
+        from phc.simulation import c_steps
+
+        c_steps.note_events(getattr(mod, "module", mod))
+    if events is None:  # the whole step loop compiled, when the model runs on the numba or the C backend
         from phc.simulation import compiled_steps
 
         out = compiled_steps.integrate("midpoint", mod, p, t_out, y0, yp0, max_steps=max_steps, progress=progress,

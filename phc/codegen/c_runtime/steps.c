@@ -1,0 +1,774 @@
+/* The implicit midpoint rule's step loop in C, for phc's C back end.
+ *
+ * Part of phc (a compiler for port-Hamiltonian models); compiled once per machine and phc
+ * version into its own shared library (phc/simulation/c_steps.py) and kept in phc's signed
+ * cache beside the models' libraries. It does not depend on the model: the model's compiled
+ * residual, Jacobian and position invariants (the functions of the library phc prints for the
+ * model, phc/codegen/c_printer.py) are handed to it as function pointers and called directly.
+ *
+ * One call, phc_steps_chunk(run, budget), takes up to `budget` steps of the implicit midpoint
+ * rule
+ *
+ *     F(t + h/2, (y + y1)/2, (y1 - y)/h) = 0,  the position-constraint rows g(t + h, y1) = 0
+ *
+ * (the GGL formulation of T. Berger, R. Hochdahl, T. Reis, R. Seifried, "Port-Hamiltonian
+ * modelling of coupled rigid/flexible multibody systems", the rigid multibody DAE, eq. (3):
+ * velocity constraints at the midpoint, position constraints at the step end), on the output
+ * grid of phc.simulation.midpoint.integrate_fixed_step, and returns. Between chunks the Python
+ * driver (phc.simulation.compiled_steps.integrate, shared with the numba loop) reports progress
+ * and sees Ctrl-C. A step that is not routine is handed back to it, which then does exactly what
+ * the Python loop does: a Newton iteration that fails or cannot evaluate the model (status
+ * HARD: the retry from the constant predictor, the split, the message naming the row), a step
+ * Newton found ill-conditioned (HARD), a routine look of the singularity monitor that is not
+ * clearly far from singular (LOOK: Python's monitor looks with its SVD and decides).
+ *
+ * What each step does is a line-by-line port of phc/simulation/step_logic.py (`newton`: the
+ * stopping rules, the refresh of the Newton matrix, the round-off acceptance) and of the numba
+ * kernel's driver (phc/simulation/compiled_steps_kernel.py: `_predict`, `_accept`, `_chunk`),
+ * on the same state arrays with the same layout (checked when the library is loaded:
+ * phc_steps_layout). Not ported: the mixed-precision corrections of the numba loop (every
+ * correction here is in double precision, so step_logic's precision events never occur).
+ *
+ * Linear algebra: the Newton matrix s*(F_y + cj*F_yp) (the end-constraint rows from g_y) is
+ * equilibrated by powers of two as the Python loop's sparse LU is (phc.simulation.midpoint.
+ * equilibration: columns by the nominal scales, else to a largest entry in [1, 2), then rows),
+ * factorized by a dense LU with partial pivoting written below, and each correction is two
+ * triangular solves. Not LAPACK: a portable link to it needs a LAPACK library on the machine
+ * or SciPy's private one, and at the sizes this loop serves (at most 400 unknowns, a few
+ * factorizations per hundred steps) the plain loops cost little; they are column oriented, so
+ * that the compiler vectorizes their inner loops without reordering any sum.
+ *
+ * Re-entrant: no static mutable state. Every array is the caller's (struct phc_steps).
+ */
+
+#include <math.h>
+#include <stdint.h>
+#include <string.h>
+
+#define PHC_STEPS_ABI 1
+
+typedef void (*phc_residual_fn)(double t, const double *y, const double *yp, const double *p, double *out);
+typedef void (*phc_jacobian_fn)(double t, const double *y, const double *yp, const double *p, double cj,
+                                double *out);
+typedef void (*phc_invariants_fn)(double t, const double *y, const double *p, double *out);
+
+/* outcome of a stage solve (phc.simulation.step_logic: _OK, _FAIL, _SINGULAR, _EVAL) */
+enum { OK = 0, FAIL = 1, SINGULAR = 2, EVAL = 3 };
+
+/* the constants vector c (phc.simulation.step_logic: _TOL ... _STRIKES_C) */
+enum { C_TOL, C_RATE, C_FLOOR, C_MAX_AGE, C_MAX_NEWTON, C_BAL_TOL, C_MAX_SECANT, C_S_MIN, C_S_MAX, C_THRESHOLD,
+       C_EVERY, C_G1, C_G2, C_M0, C_M1, C_M2, C_ORDER, C_ZONE, C_STAGNATION, C_ONE, C_ZERO, C_ORDER_ALG,
+       C_STRIKES, C_NC };
+
+/* status of a chunk (phc.simulation.compiled_steps_kernel: _BUDGET ... _MAXSTEPS) */
+enum { ST_BUDGET, ST_DONE, ST_HARD, ST_LOOK, ST_MAXSTEPS };
+
+/* the integer state ist[] (compiled_steps_kernel: _K ... _STRIKES), then the ages of the matrices */
+enum { I_K, I_J, I_SUBSTEPS, I_STEPS, I_LAST_LOOK, I_HAS_MID, I_MAX_STEPS, I_STATUS, I_NFEV, I_NFACT, I_HIST,
+       I_MONITOR, I_METHOD, I_CODE, I_ILL, I_E, I_NEND, I_NMID, I_LOWP, I_STRIKES, I_NI };
+#define I_AGE0 I_NI
+
+/* the float state fst[] (compiled_steps_kernel: _T, _H, _H_PREV, _STEP) */
+enum { F_T, F_H, F_H_PREV, F_STEP, F_NF };
+
+/* The routine look of the singularity monitor is left to Python unless the 1-norm condition
+ * estimate is this factor (times n) above the monitor's threshold (compiled_steps_kernel._RCOND_MARGIN). */
+#define RCOND_MARGIN 1e3
+
+/* Most midpoints the predictor keeps (phc.simulation.midpoint.MAX_PREDICTOR_ORDER + 1, checked by the caller). */
+#define MAX_NODES 16
+
+/* Everything one run uses: the model and the grid (read only), the run's state (kept between
+ * chunks: the driver reads and writes it too), scratch. The Python side (phc/simulation/c_steps.py)
+ * allocates every array and mirrors this struct field by field. */
+struct phc_steps {
+    /* sizes: unknowns, Jacobian entries, position-constraint rows, output times, predictor nodes */
+    int64_t n, njac, nend, nout, npred;
+    /* the model's compiled functions and parameters */
+    phc_residual_fn residual;
+    phc_jacobian_fn jacobian;
+    phc_invariants_fn invariants;
+    const double *p;
+    const int64_t *jrows, *jcols;   /* njac: the Jacobian's pattern (JAC_ROWS, JAC_COLS) */
+    const int64_t *end_rows;        /* nend: the rows replaced by g(t + h, y1) */
+    const int8_t *emask;            /* njac: 1 where the entry is in such a row */
+    const int8_t *algmask;          /* n: 0 differential, 1 algebraic, 2 a GGL multiplier */
+    const double *weights;          /* n Newton weights, or NULL (relative to |y| + 1) */
+    const double *colscale;         /* n nominal scales the monitor scales columns by, or NULL */
+    const double *c;                /* the constants vector */
+    const double *t_out;            /* nout output times */
+    /* the run's state */
+    double *ys, *yps;               /* nout x n outputs */
+    double *y, *mid, *mid_slope, *y_prev, *y_new;   /* n each */
+    double *pt, *pm;                /* npred midpoint times, npred x n midpoints (newest first) */
+    double *fst;                    /* F_NF */
+    int64_t *ist;                   /* I_NI + 2 */
+    /* the Newton matrices (two, as the numba loop keeps; the midpoint rule uses matrix 0) */
+    double *lu;                     /* 2 x n x n: LU of the equilibrated matrix, column-major */
+    int64_t *piv;                   /* 2 x n: row interchanges */
+    double *eq;                     /* 2 x 2n: row scales, then column scales */
+    double *matf;                   /* 2 x 3: step size, evaluation point, factorized (1) */
+    /* scratch */
+    double *xs, *d, *r, *guess, *yp, *g;   /* n each (g: nend) */
+    double *jbuf, *ebuf;            /* njac each */
+    double *mon;                    /* n x n: the monitor's matrix */
+    int64_t *monpiv;                /* n */
+    double *monv;                   /* 3n */
+};
+
+/* ---- vectors ------------------------------------------------------------------------------ */
+
+static int all_finite(int64_t n, const double *v)
+{
+    for (int64_t i = 0; i < n; ++i)
+        if (!isfinite(v[i]))
+            return 0;
+    return 1;
+}
+
+static void copy(int64_t n, const double *src, double *dst)
+{
+    memmove(dst, src, (size_t)n * sizeof(double));
+}
+
+/* 1/2^e with 2^e <= big < 2^(e+1), 1 where big is not positive: an exact scaling of big to [1, 2)
+ * (phc.simulation.midpoint._power_of_two_below) */
+static double power_of_two_below(double big)
+{
+    int e;
+    if (!(big > 0.0))
+        return 1.0;
+    frexp(big, &e);
+    return ldexp(1.0, -(e - 1));
+}
+
+/* ---- dense LU with partial pivoting, column-major (a[j*n + i] is row i, column j) -------- */
+
+/* LU = P A in place (L unit lower, U upper), piv[k] the row swapped with row k at step k;
+ * 0, or k + 1 when the pivot of column k is exactly zero (LAPACK's info; scipy's splu refuses
+ * such a matrix as singular). */
+static int64_t lu_factor(int64_t n, double *a, int64_t *piv)
+{
+    for (int64_t k = 0; k < n; ++k) {
+        double *ck = a + k * n;
+        int64_t p = k;
+        double big = fabs(ck[k]);
+        for (int64_t i = k + 1; i < n; ++i)
+            if (fabs(ck[i]) > big) {
+                big = fabs(ck[i]);
+                p = i;
+            }
+        piv[k] = p;
+        if (big == 0.0)
+            return k + 1;
+        if (p != k)
+            for (int64_t j = 0; j < n; ++j) {
+                double tmp = a[j * n + k];
+                a[j * n + k] = a[j * n + p];
+                a[j * n + p] = tmp;
+            }
+        const double pivot = ck[k];
+        for (int64_t i = k + 1; i < n; ++i)
+            ck[i] /= pivot;
+        for (int64_t j = k + 1; j < n; ++j) {   /* the rank-one update, column by column */
+            double *cj = a + j * n;
+            const double f = cj[k];
+            if (f != 0.0)
+                for (int64_t i = k + 1; i < n; ++i)
+                    cj[i] -= ck[i] * f;
+        }
+    }
+    return 0;
+}
+
+/* x <- A^-1 x from the LU of lu_factor. Two columns at a time: each entry of x takes the same
+ * operations in the same order as column by column, with half the passes over x and half the
+ * waits for the entry the next column needs (about 0.8x the time at 83 unknowns). */
+static void lu_solve(int64_t n, const double *a, const int64_t *piv, double *x)
+{
+    for (int64_t k = 0; k < n; ++k)
+        if (piv[k] != k) {
+            double tmp = x[k];
+            x[k] = x[piv[k]];
+            x[piv[k]] = tmp;
+        }
+    int64_t j = 0;
+    for (; j + 1 < n; j += 2) {  /* L z = P x: columns j and j + 1 */
+        const double *c0 = a + j * n, *c1 = c0 + n;
+        const double x0 = x[j];
+        x[j + 1] -= c0[j + 1] * x0;
+        const double x1 = x[j + 1];
+        for (int64_t i = j + 2; i < n; ++i)
+            x[i] = (x[i] - c0[i] * x0) - c1[i] * x1;
+    }
+    for (j = n - 1; j >= 1; j -= 2) {  /* U x = z: columns j and j - 1 */
+        const double *c0 = a + j * n, *c1 = c0 - n;
+        x[j] /= c0[j];
+        const double x0 = x[j];
+        x[j - 1] -= c0[j - 1] * x0;
+        x[j - 1] /= c1[j - 1];
+        const double x1 = x[j - 1];
+        for (int64_t i = 0; i < j - 1; ++i)
+            x[i] = (x[i] - c0[i] * x0) - c1[i] * x1;
+    }
+    if (j == 0)  /* n odd: the first column is left */
+        x[0] /= a[0];
+}
+
+/* x <- A^-T x from the LU of lu_factor (A^T = U^T L^T P) */
+static void lu_solve_transposed(int64_t n, const double *a, const int64_t *piv, double *x)
+{
+    for (int64_t j = 0; j < n; ++j) {       /* U^T z = x */
+        const double *cj = a + j * n;
+        double acc = x[j];
+        for (int64_t i = 0; i < j; ++i)
+            acc -= cj[i] * x[i];
+        x[j] = acc / cj[j];
+    }
+    for (int64_t j = n - 1; j >= 0; --j) {  /* L^T w = z */
+        const double *cj = a + j * n;
+        double acc = x[j];
+        for (int64_t i = j + 1; i < n; ++i)
+            acc -= cj[i] * x[i];
+        x[j] = acc;
+    }
+    for (int64_t k = n - 1; k >= 0; --k)    /* x = P^T w */
+        if (piv[k] != k) {
+            double tmp = x[k];
+            x[k] = x[piv[k]];
+            x[piv[k]] = tmp;
+        }
+}
+
+static double norm1(int64_t n, const double *x)
+{
+    double s = 0.0;
+    for (int64_t i = 0; i < n; ++i)
+        s += fabs(x[i]);
+    return s;
+}
+
+static int64_t argmax_abs(int64_t n, const double *x)
+{
+    int64_t j = 0;
+    for (int64_t i = 1; i < n; ++i)
+        if (fabs(x[i]) > fabs(x[j]))
+            j = i;
+    return j;
+}
+
+/* An estimate of ||A^-1||_1 from the LU of A, a lower bound within a small factor in practice:
+ * Hager's method with Higham's refinements, as LAPACK's dlacn2 (under dgecon) runs it
+ * (N. J. Higham, "FORTRAN codes for estimating the one-norm of a real or complex matrix",
+ * ACM TOMS 14, 1988). x and sgn: n entries of scratch each. */
+static double inverse_norm1(int64_t n, const double *a, const int64_t *piv, double *x, double *sgn)
+{
+    for (int64_t i = 0; i < n; ++i)
+        x[i] = 1.0 / (double)n;
+    lu_solve(n, a, piv, x);
+    double est = norm1(n, x);
+    if (n == 1)
+        return est;
+    for (int64_t i = 0; i < n; ++i) {
+        sgn[i] = x[i] >= 0.0 ? 1.0 : -1.0;
+        x[i] = sgn[i];
+    }
+    lu_solve_transposed(n, a, piv, x);
+    int64_t j = argmax_abs(n, x);
+    for (int iter = 2; iter <= 5; ++iter) {
+        for (int64_t i = 0; i < n; ++i)
+            x[i] = 0.0;
+        x[j] = 1.0;
+        lu_solve(n, a, piv, x);
+        const double old = est;
+        est = norm1(n, x);
+        int same = 1;
+        for (int64_t i = 0; i < n; ++i)
+            if ((x[i] >= 0.0 ? 1.0 : -1.0) != sgn[i])
+                same = 0;
+        if (same || est <= old) {
+            if (est < old)
+                est = old;
+            break;
+        }
+        for (int64_t i = 0; i < n; ++i) {
+            sgn[i] = x[i] >= 0.0 ? 1.0 : -1.0;
+            x[i] = sgn[i];
+        }
+        lu_solve_transposed(n, a, piv, x);
+        const int64_t last = j;
+        j = argmax_abs(n, x);
+        if (fabs(x[last]) == fabs(x[j]))
+            break;
+    }
+    for (int64_t i = 0; i < n; ++i)  /* an alternating-sign vector catches what the iteration misses */
+        x[i] = (i % 2 ? -1.0 : 1.0) * (1.0 + (double)i / (double)(n - 1));
+    lu_solve(n, a, piv, x);
+    const double alt = 2.0 * norm1(n, x) / (3.0 * (double)n);
+    return alt > est ? alt : est;
+}
+
+/* ---- the operations of phc.simulation.step_logic.newton ---------------------------------- */
+
+/* F at the stage point of the iterate y1, the end-constraint rows replaced by g(t + h, y1), into
+ * out; whether every entry is finite (compiled_steps_kernel._stage_residual) */
+static int stage_residual(const struct phc_steps *w, double t, double h, const double *y, const double *y1, double s,
+                          double *out)
+{
+    const int64_t n = w->n;
+    for (int64_t i = 0; i < n; ++i) {
+        w->d[i] = (y1[i] - y[i]) / h;
+        w->xs[i] = y[i] + s * (y1[i] - y[i]);
+    }
+    w->residual(t + s * h, w->xs, w->d, w->p, out);
+    if (w->nend > 0) {
+        w->invariants(t + h, y1, w->p, w->g);
+        for (int64_t i = 0; i < w->nend; ++i)
+            out[w->end_rows[i]] = w->g[i];
+    }
+    return all_finite(n, out);
+}
+
+/* Factorize Newton matrix m for the iterate y1: OK, SINGULAR or EVAL (step_logic's _refactor;
+ * compiled_steps_kernel._refactor_matrix with the Python loop's equilibration) */
+static int refactor(const struct phc_steps *w, int m, double t, double h, const double *y, const double *y1, double s)
+{
+    const int64_t n = w->n;
+    double *a = w->lu + (int64_t)m * n * n;
+    double *rs = w->eq + (int64_t)m * 2 * n, *cs = rs + n;
+    double *matf = w->matf + 3 * m;
+    w->ist[I_NFACT] += 1;
+    for (int64_t i = 0; i < n; ++i) {
+        w->d[i] = y1[i] - y[i];
+        w->xs[i] = y[i] + s * w->d[i];
+        w->d[i] = w->d[i] / h;
+    }
+    const double cj = 1.0 / (s * h);
+    w->jacobian(t + s * h, w->xs, w->d, w->p, cj, w->jbuf);
+    if (w->nend > 0)
+        w->jacobian(t + h, y1, w->d, w->p, cj, w->ebuf);
+    matf[2] = 0.0;
+    if (!all_finite(w->njac, w->jbuf) || (w->nend > 0 && !all_finite(w->njac, w->ebuf)))
+        return EVAL;
+    memset(a, 0, (size_t)(n * n) * sizeof(double));
+    for (int64_t k = 0; k < w->njac; ++k)
+        a[w->jcols[k] * n + w->jrows[k]] += (w->nend > 0 && w->emask[k]) ? w->ebuf[k] : s * w->jbuf[k];
+    /* columns: the nominal scale where the Newton test has one, else the largest entry to [1, 2);
+     * then rows (phc.simulation.midpoint.equilibration) */
+    for (int64_t j = 0; j < n; ++j) {
+        double big = 0.0;
+        for (int64_t i = 0; i < n; ++i)
+            if (fabs(a[j * n + i]) > big)
+                big = fabs(a[j * n + i]);
+        cs[j] = power_of_two_below(big);
+        if (w->weights != NULL && w->weights[j] > 0.0) {
+            const double nominal = 1.0 / w->weights[j];
+            if (nominal > 0.0 && isfinite(nominal))
+                cs[j] = 1.0 / power_of_two_below(nominal);
+        }
+    }
+    for (int64_t i = 0; i < n; ++i)
+        rs[i] = 0.0;
+    for (int64_t j = 0; j < n; ++j)
+        for (int64_t i = 0; i < n; ++i)
+            if (fabs(a[j * n + i]) * cs[j] > rs[i])
+                rs[i] = fabs(a[j * n + i]) * cs[j];
+    for (int64_t i = 0; i < n; ++i)
+        rs[i] = power_of_two_below(rs[i]);
+    for (int64_t j = 0; j < n; ++j)
+        for (int64_t i = 0; i < n; ++i)
+            a[j * n + i] *= rs[i] * cs[j];
+    if (lu_factor(n, a, w->piv + (int64_t)m * n) != 0)
+        return SINGULAR;
+    matf[0] = h;
+    matf[1] = s;
+    matf[2] = 1.0;
+    w->ist[I_AGE0 + m] = 0;
+    return OK;
+}
+
+/* The correction delta = -J^-1 F at y1 (into w->r) and its size in the Newton test's units: with
+ * weights, a state against its scale or its size, whichever is larger, and the algebraic variables
+ * but the GGL multipliers (algmask 1) relative to |y| + 1; else all relative to |y| + 1
+ * (step_logic's _correct; compiled_steps_kernel._correct; midpoint.StageSolver.correct) */
+static int correct(const struct phc_steps *w, int m, double t, double h, const double *y, const double *y1, double s,
+                   double *size_out, double *states_out, double *scale_out, int *finite_out)
+{
+    const int64_t n = w->n;
+    const double *rs = w->eq + (int64_t)m * 2 * n, *cs = rs + n;
+    double *r = w->r;
+    w->ist[I_NFEV] += 1;
+    *size_out = 0.0;
+    *states_out = 0.0;
+    *scale_out = 1.0;
+    *finite_out = 1;
+    if (!stage_residual(w, t, h, y, y1, s, r))
+        return EVAL;
+    for (int64_t i = 0; i < n; ++i)
+        r[i] = -r[i] * rs[i];
+    lu_solve(n, w->lu + (int64_t)m * n * n, w->piv + (int64_t)m * n, r);
+    for (int64_t i = 0; i < n; ++i)
+        r[i] *= cs[i];
+    double size = 0.0, scale = 1.0, alg = 0.0;
+    int finite = 1;
+    const int weighted = w->weights != NULL;
+    for (int64_t i = 0; i < n; ++i) {
+        double a = fabs(r[i]);
+        if (!isfinite(a))
+            finite = 0;
+        if (fabs(y1[i]) + 1.0 > scale)
+            scale = fabs(y1[i]) + 1.0;
+        if (weighted) {
+            if (w->algmask[i] == 1 && a > alg)
+                alg = a;
+            a = a * (w->weights[i] / (1.0 + fabs(y1[i]) * w->weights[i]));
+        }
+        if (a > size)
+            size = a;
+    }
+    const double states = size;
+    if (weighted) {
+        if (alg / scale > size)
+            size = alg / scale;
+        scale = 1.0;
+    }
+    *size_out = size;
+    *states_out = states;
+    *scale_out = scale;
+    *finite_out = finite;
+    return OK;
+}
+
+static void add(int64_t n, double *y1, const double *delta)
+{
+    for (int64_t i = 0; i < n; ++i)
+        y1[i] += delta[i];
+}
+
+/* ---- the Newton iteration: phc.simulation.step_logic.newton, line by line ----------------- */
+
+/* Solve F(t + s h, y + s (y1 - y), (y1 - y)/h) = 0 (the position-constraint rows at the step end)
+ * for y1 by simplified Newton from y1in, into out; returns the outcome, *ill <- whether a fresh
+ * matrix could not reduce a states' correction below c[C_FLOOR] (the driver then asks the
+ * singularity monitor). The rules, as step_logic.newton states them: the matrix is refreshed
+ * before the first correction when it is not factorized, was factorized for another step size
+ * (by more than 1e-3 relative) or evaluation point (by more than 0.2), or is c[C_MAX_AGE] solves
+ * old; during the iteration when the contraction rate theta = |D_k|/|D_k-1| exceeds c[C_RATE] or
+ * the old matrix diverges. Converged: the estimated error theta/(1 - theta)|D| or the correction
+ * itself (1e-2 of it) below c[C_TOL]. Accepted at round-off level: a stagnating iteration whose
+ * correction is below c[C_ZONE] c[C_TOL]. (step_logic's single-precision branches are left out:
+ * the corrections here are in double precision, so its `low` is always false.) */
+static int newton(const struct phc_steps *w, int m, double t, double h, const double *y, const double *y1in,
+                  double s, double *out, int *ill)
+{
+    const int64_t n = w->n;
+    const double *c = w->c;
+    const double *matf = w->matf + 3 * m;
+    *ill = 0;
+    copy(n, y1in, out);
+    /* begin: the matrix's age counts up; was it factorized, for which h and s */
+    w->ist[I_AGE0 + m] += 1;
+    const int factorized = matf[2] != 0.0;
+    const double h0 = matf[0], s0 = matf[1];
+    const int64_t age = w->ist[I_AGE0 + m];
+    /* a fresh matrix before the next correction (set where the iteration asks for one) */
+    int pending = !factorized || fabs(h - h0) > 1e-3 * fabs(h) || fabs(s - s0) > 0.2 || (double)age >= c[C_MAX_AGE];
+    int refreshed = 0;  /* a matrix was factorized in this solve */
+    int64_t since = 1;  /* iterations since the last factorization (1: not factorized in this solve) */
+    const double tol = c[C_TOL];
+    double last = -1.0;
+    double rate = INFINITY;  /* the smallest theta of this solve with this matrix */
+    const int64_t iterations = (int64_t)c[C_MAX_NEWTON];
+    for (int64_t it = 0; it < iterations; ++it) {
+        int code;
+        if (pending) {
+            pending = 0;
+            refreshed = 1;
+            code = refactor(w, m, t, h, y, out, s);
+            if (code != OK)
+                return code;
+            since = 0;
+            last = -1.0;
+            rate = INFINITY;
+        }
+        double size, states, scale;
+        int finite;
+        code = correct(w, m, t, h, y, out, s, &size, &states, &scale, &finite);
+        if (code != OK)
+            return code;
+        if (!finite) {
+            if (since == 0)
+                return FAIL;
+            copy(n, y1in, out);  /* restart from the start with a fresh matrix */
+            pending = 1;
+            continue;
+        }
+        const int has_theta = last > 0.0;
+        const double theta = has_theta ? size / last : 0.0;
+        if (has_theta && (theta >= 0.5 || theta >= c[C_STAGNATION] * rate) && size <= c[C_ZONE] * tol * scale) {
+            add(n, out, w->r);  /* stagnating at round-off level: accept */
+            return OK;
+        }
+        if (refreshed && has_theta && theta >= 0.5 && states <= c[C_FLOOR] * scale) {
+            /* no progress with a fresh matrix: round-off amplified by its conditioning — the iterate is
+             * as good as it gets, but the driver is told */
+            add(n, out, w->r);
+            *ill = 1;
+            return OK;
+        }
+        if (has_theta && theta >= 1.0 && since > 0 && size > 1e3 * tol * scale) {
+            pending = 1;  /* the old matrix no longer contracts: refresh it here and retry */
+            continue;
+        }
+        add(n, out, w->r);
+        since += 1;
+        if (size <= 1e-2 * tol * scale)
+            return OK;
+        if (has_theta) {
+            if (theta < 1.0 && theta / (1.0 - theta) * size <= tol * scale)
+                return OK;
+            if (theta < rate)
+                rate = theta;
+            pending = theta > c[C_RATE];
+        }
+        last = size;
+    }
+    if (pending) {  /* asked for in the last iteration: the next solve (a retry, a split) starts with it */
+        const int code = refactor(w, m, t, h, y, out, s);
+        if (code != OK)
+            return code;
+    }
+    return FAIL;
+}
+
+/* ---- the predictor (phc.simulation.step_logic.predictor_nodes, lagrange_weights;
+ *      compiled_steps_kernel._predict) ------------------------------------------------------- */
+
+static int64_t predictor_nodes(int64_t order, int64_t known)
+{
+    if (order == 0)
+        return 0;
+    const int64_t k = order + 1 < known ? order + 1 : known;
+    return k < 3 ? 1 : k;
+}
+
+static void lagrange_weights(const double *pt, int64_t k, double tn, double *wts)
+{
+    for (int64_t a = 0; a < k; ++a) {
+        double wa = 1.0;
+        for (int64_t b = 0; b < k; ++b)
+            if (b != a)
+                wa *= (tn - pt[b]) / (pt[a] - pt[b]);
+        wts[a] = wa;
+    }
+}
+
+/* The start of Newton, 2 m - y with the predicted midpoint m: y + h/2 ydot0 at the start, else
+ * per variable (differential: degree c[C_ORDER], algebraic: c[C_ORDER_ALG]) the last midpoint,
+ * the linear extrapolation of the last two, or the Lagrange polynomial through the last ones */
+static void predict(const struct phc_steps *w, double t, double h, double h_prev, double *guess)
+{
+    const int64_t n = w->n;
+    const double *y = w->y, *mid = w->mid, *slope = w->mid_slope;
+    if (w->ist[I_HAS_MID] == 0) {
+        for (int64_t i = 0; i < n; ++i)
+            guess[i] = 2.0 * (y[i] + 0.5 * h * slope[i]) - y[i];
+        return;
+    }
+    const double tn = t + 0.5 * h;
+    const int64_t nmid = w->ist[I_NMID];
+    const int64_t kd = predictor_nodes((int64_t)w->c[C_ORDER], nmid);
+    const int64_t ka = predictor_nodes((int64_t)w->c[C_ORDER_ALG], nmid);
+    double wd[MAX_NODES], wa[MAX_NODES];
+    lagrange_weights(w->pt, kd, tn, wd);
+    lagrange_weights(w->pt, ka, tn, wa);
+    for (int64_t i = 0; i < n; ++i) {
+        const int alg = w->algmask[i] != 0;
+        const int64_t k = alg ? ka : kd;
+        double mg;
+        if (k == 0) {
+            mg = mid[i];
+        } else if (k == 1) {
+            mg = mid[i] + 0.5 * (h + h_prev) * slope[i];
+        } else {
+            const double *wt = alg ? wa : wd;
+            mg = wt[0] * w->pm[i];
+            for (int64_t a = 1; a < k; ++a)
+                mg = mg + wt[a] * w->pm[a * n + i];
+        }
+        guess[i] = 2.0 * mg - y[i];
+    }
+}
+
+/* ---- the driver (compiled_steps_kernel._accept, _monitor_ratio, _chunk) ------------------- */
+
+/* Take the step (t, h, y) -> y_new: the midpoints' history, the step counter, the output at the
+ * end of an output interval; 1 when max_steps is reached */
+static int accept(const struct phc_steps *w, double t, double h)
+{
+    const int64_t n = w->n, kp = w->npred;
+    double *fst = w->fst;
+    int64_t *ist = w->ist;
+    const double h_prev = fst[F_H_PREV];
+    for (int64_t j = kp - 1; j > 0; --j)
+        w->pt[j] = w->pt[j - 1];
+    w->pt[0] = t + 0.5 * h;
+    for (int64_t i = 0; i < n; ++i) {
+        const double nm = 0.5 * (w->y[i] + w->y_new[i]);
+        if (ist[I_HAS_MID] != 0)
+            w->mid_slope[i] = (nm - w->mid[i]) / (0.5 * (h + h_prev));
+        w->mid[i] = nm;
+        for (int64_t j = kp - 1; j > 0; --j)
+            w->pm[j * n + i] = w->pm[(j - 1) * n + i];
+        w->pm[i] = nm;
+        w->y_prev[i] = w->y[i];
+        w->y[i] = w->y_new[i];
+    }
+    ist[I_HAS_MID] = 1;
+    ist[I_NMID] = ist[I_NMID] + 1 < kp ? ist[I_NMID] + 1 : kp;
+    fst[F_H_PREV] = h;
+    fst[F_T] = t + h;
+    ist[I_STEPS] += 1;
+    if (ist[I_STEPS] >= ist[I_MAX_STEPS])
+        return 1;
+    ist[I_J] += 1;
+    if (ist[I_J] >= ist[I_SUBSTEPS]) {
+        const int64_t k = ist[I_K];
+        for (int64_t i = 0; i < n; ++i) {
+            w->ys[k * n + i] = w->y[i];
+            w->yps[k * n + i] = (w->y[i] - w->y_prev[i]) / h;
+        }
+        ist[I_K] = k + 1;
+        ist[I_J] = 0;
+    }
+    return 0;
+}
+
+/* The routine look of the singularity monitor: 1 when the equilibrated iteration matrix at
+ * (t, y, yp) (SingularityMonitor.ratio: cj = 1/hm) is clearly far from singular — LAPACK-style
+ * 1-norm condition estimate RCOND_MARGIN n times above the threshold — else 0: Python's monitor
+ * looks (its SVD decides; the numba loop computes that SVD itself). */
+static int far_from_singular(const struct phc_steps *w, double t, const double *y, const double *yp, double hm)
+{
+    const int64_t n = w->n;
+    double *a = w->mon, *rowmax = w->monv, *x = w->monv + n, *sgn = w->monv + 2 * n;
+    w->jacobian(t, y, yp, w->p, 1.0 / (hm > 1e-300 ? hm : 1e-300), w->jbuf);
+    if (!all_finite(w->njac, w->jbuf))
+        return 0;
+    memset(a, 0, (size_t)(n * n) * sizeof(double));
+    for (int64_t k = 0; k < w->njac; ++k)
+        a[w->jcols[k] * n + w->jrows[k]] = w->jbuf[k];
+    if (w->colscale != NULL)  /* scaled variables y/s: columns times s */
+        for (int64_t j = 0; j < n; ++j)
+            for (int64_t i = 0; i < n; ++i)
+                a[j * n + i] *= w->colscale[j];
+    for (int sweep = 0; sweep < 2; ++sweep) {
+        for (int64_t i = 0; i < n; ++i)
+            rowmax[i] = 0.0;
+        for (int64_t j = 0; j < n; ++j)
+            for (int64_t i = 0; i < n; ++i)
+                if (fabs(a[j * n + i]) > rowmax[i])
+                    rowmax[i] = fabs(a[j * n + i]);
+        for (int64_t j = 0; j < n; ++j)
+            for (int64_t i = 0; i < n; ++i)
+                if (rowmax[i] > 0.0)
+                    a[j * n + i] /= rowmax[i];
+        for (int64_t j = 0; j < n; ++j) {
+            double big = 0.0;
+            for (int64_t i = 0; i < n; ++i)
+                if (fabs(a[j * n + i]) > big)
+                    big = fabs(a[j * n + i]);
+            if (big > 0.0)
+                for (int64_t i = 0; i < n; ++i)
+                    a[j * n + i] /= big;
+        }
+    }
+    double anorm = 0.0;
+    for (int64_t j = 0; j < n; ++j) {
+        const double col = norm1(n, a + j * n);
+        if (col > anorm)
+            anorm = col;
+    }
+    if (lu_factor(n, a, w->monpiv) != 0)
+        return 0;
+    const double rcond = 1.0 / (anorm * inverse_norm1(n, a, w->monpiv, x, sgn));
+    return isfinite(rcond) && rcond >= w->c[C_THRESHOLD] * (double)n * RCOND_MARGIN;
+}
+
+/* Steps of integrate_fixed_step until `budget` steps are done, the run ends, or a step needs the
+ * Python code; the state is in the arrays, the status in ist[I_STATUS] (compiled_steps_kernel._chunk
+ * for the implicit midpoint rule, ist[I_METHOD] == 0: the caller runs other methods elsewhere). */
+void phc_steps_chunk(const struct phc_steps *w, int64_t budget)
+{
+    const int64_t n = w->n, nout = w->nout;
+    int64_t *ist = w->ist;
+    double *fst = w->fst;
+    const int64_t every = (int64_t)w->c[C_EVERY];
+    int64_t done = 0;
+    for (;;) {
+        const int64_t k = ist[I_K];
+        if (k >= nout) {
+            ist[I_STATUS] = ST_DONE;
+            return;
+        }
+        if (done >= budget) {
+            ist[I_STATUS] = ST_BUDGET;
+            return;
+        }
+        if (ist[I_J] == 0) {  /* a new output interval: its equal substeps */
+            const double interval = w->t_out[k] - w->t_out[k - 1];
+            const double step = fst[F_STEP];
+            int64_t sub = 1;
+            if (step > 0.0) {
+                const double q = ceil(interval / step - 1e-9);
+                sub = q > 1.0 ? (int64_t)q : 1;
+            }
+            ist[I_SUBSTEPS] = sub;
+            fst[F_H] = interval / (double)sub;
+            fst[F_T] = w->t_out[k - 1];
+        }
+        const double t = fst[F_T], h = fst[F_H], h_prev = fst[F_H_PREV];
+        predict(w, t, h, h_prev, w->guess);
+        int ill;
+        const int code = newton(w, 0, t, h, w->y, w->guess, 0.5, w->y_new, &ill);
+        const int64_t steps = ist[I_STEPS];
+        ist[I_CODE] = code;
+        ist[I_ILL] = ill;
+        if (code != OK || (ist[I_MONITOR] != 0 && ill && steps - ist[I_LAST_LOOK] >= 10)) {
+            ist[I_STATUS] = ST_HARD;
+            return;
+        }
+        if (ist[I_MONITOR] != 0 && every > 0 && steps % every == 0) {
+            ist[I_LAST_LOOK] = steps;
+            for (int64_t i = 0; i < n; ++i)
+                w->yp[i] = (w->y_new[i] - w->y[i]) / h;
+            if (!far_from_singular(w, t, w->y, w->yp, 0.5 * h)) {
+                ist[I_STATUS] = ST_LOOK;
+                return;
+            }
+        }
+        done += 1;
+        if (accept(w, t, h)) {
+            ist[I_STATUS] = ST_MAXSTEPS;
+            return;
+        }
+    }
+}
+
+/* The layout this file was written for, for the caller to check before the first chunk:
+ * the ABI, the sizes of the state vectors, the indices the driver shares, sizeof(struct phc_steps). */
+void phc_steps_layout(int64_t *out)
+{
+    const int64_t layout[] = {
+        PHC_STEPS_ABI, I_NI, F_NF, C_NC,
+        I_K, I_J, I_SUBSTEPS, I_STEPS, I_LAST_LOOK, I_HAS_MID, I_MAX_STEPS, I_STATUS, I_NFEV, I_NFACT, I_HIST,
+        I_MONITOR, I_METHOD, I_CODE, I_ILL, I_E, I_NEND, I_NMID, I_LOWP, I_STRIKES,
+        F_T, F_H, F_H_PREV, F_STEP,
+        C_TOL, C_RATE, C_FLOOR, C_MAX_AGE, C_MAX_NEWTON, C_THRESHOLD, C_EVERY, C_ORDER, C_ZONE, C_STAGNATION,
+        C_ORDER_ALG,
+        ST_BUDGET, ST_DONE, ST_HARD, ST_LOOK, ST_MAXSTEPS, OK, FAIL, SINGULAR, EVAL,
+        MAX_NODES, (int64_t)sizeof(struct phc_steps),
+    };
+    for (size_t i = 0; i < sizeof(layout) / sizeof(layout[0]); ++i)
+        out[i] = layout[i];
+}

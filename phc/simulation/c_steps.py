@@ -1,0 +1,216 @@
+"""The implicit midpoint rule's step loop in C, for models on the C back end.
+
+When a model runs on the ``c`` backend (:mod:`phc.codegen.c_backend`), has at most
+:data:`~phc.simulation.compiled_steps.MAX_UNKNOWNS` unknowns and is integrated by the
+implicit midpoint rule without switching conditions, its steps run in one hand-written C
+function, ``phc_steps_chunk`` of ``phc/codegen/c_runtime/steps.c``, that calls the model's
+compiled residual, Jacobian and position invariants through function pointers (no Python in
+between). That file is a port of :func:`phc.simulation.step_logic.newton` (the same stopping
+rules, refresh of the Newton matrix, round-off acceptance), of the numba kernel's predictor and
+output grid (:mod:`phc.simulation.compiled_steps_kernel`), with a dense LU with partial
+pivoting of the Newton matrix equilibrated as the Python loop's sparse LU is
+(:func:`phc.simulation.midpoint.equilibration`); its header says what is not ported (the
+numba loop's mixed-precision corrections: here every correction is in double precision) and
+why LAPACK is not used.
+
+The Python side is the numba loop's: :func:`phc.simulation.compiled_steps.integrate` runs
+the chunks, reports progress and sees Ctrl-C between them, and does whatever the chunk hands
+back (a failed or ill-conditioned step, a look of the singularity monitor) exactly as the
+Python loop does. This module only builds the library (once per machine and phc version, in
+phc's signed cache of compiled code, beside the models' libraries: :func:`library`), says
+whether a run can use it (:func:`usable`) — once per reason, with a
+:class:`~phc.errors.CompiledLoopWarning`, when it cannot — and binds a run's arrays to it
+(:func:`bind`). The library keeps no state; every array is the run's, so threads may
+integrate at once (ctypes releases the GIL during a chunk).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import threading
+import warnings
+from pathlib import Path
+from typing import Callable, Optional
+
+import numpy as np
+
+from phc.simulation import compiled_steps_kernel as _k
+from phc.simulation import step_logic as _sl
+
+SOURCE = Path(__file__).resolve().parents[1] / "codegen" / "c_runtime" / "steps.c"
+"""The C text of the step loop (shipped in the package)."""
+
+FLAGS = ("-std=c99", "-O3", "-fPIC", "-shared", "-ffp-contract=off")
+"""The model libraries' flags (:data:`phc.codegen.c_backend.FLAGS`) with ``-O3``: the
+compiler vectorizes the LU's column loops, which reorders no sum; no fused multiply-adds, no
+``-ffast-math``, no ``-march`` (the cached library must run on any x86-64 CPU)."""
+
+METHODS = ("midpoint",)
+"""The fixed-step methods whose step loop is written in C (the others run the Python loop)."""
+
+MAX_NODES = 16
+"""Predictor nodes the C file has room for (its ``MAX_NODES``)."""
+
+_LOCK = threading.Lock()
+_LIBRARY = None
+"""The loaded library once built; False when it cannot be built here (:data:`_WHY` says why)."""
+_WHY = ""
+_SAID: set = set()
+
+
+def _layout() -> list[int]:
+    """What ``phc_steps_layout`` must write: the indices the Python driver uses (without the
+    struct size, which :func:`library` compares with :class:`_Steps`)."""
+    return [1, _k._NI, _k._NF, _sl._NC,
+            _k._K, _k._J, _k._SUBSTEPS, _k._STEPS, _k._LAST_LOOK, _k._HAS_MID, _k._MAX_STEPS, _k._STATUS, _k._NFEV,
+            _k._NFACT, _k._HIST, _k._MONITOR, _k._METHOD, _k._CODE, _k._ILL, _k._E, _k._NEND, _k._NMID, _k._LOWP,
+            _k._STRIKES,
+            _k._T, _k._H, _k._H_PREV, _k._STEP,
+            _sl._TOL, _sl._RATE, _sl._FLOOR, _sl._MAX_AGE, _sl._MAX_NEWTON, _sl._THRESHOLD, _sl._EVERY, _sl._ORDER,
+            _sl._ZONE, _sl._STAGNATION, _sl._ORDER_ALG,
+            _k._BUDGET, _k._DONE, _k._HARD, _k._LOOK, _k._MAXSTEPS, _sl._OK, _sl._FAIL, _sl._SINGULAR, _sl._EVAL,
+            MAX_NODES]
+
+
+_P = ctypes.c_void_p
+_I = ctypes.c_int64
+
+
+class _Steps(ctypes.Structure):
+    """``struct phc_steps`` of steps.c, field by field (pointers as addresses)."""
+
+    _fields_ = [(name, _I) for name in ("n", "njac", "nend", "nout", "npred")] + [
+        (name, _P) for name in (
+            "residual", "jacobian", "invariants", "p", "jrows", "jcols", "end_rows", "emask", "algmask", "weights",
+            "colscale", "c", "t_out",
+            "ys", "yps", "y", "mid", "mid_slope", "y_prev", "y_new", "pt", "pm", "fst", "ist",
+            "lu", "piv", "eq", "matf",
+            "xs", "d", "r", "guess", "yp", "g", "jbuf", "ebuf", "mon", "monpiv", "monv")]
+
+
+def library():
+    """The step loop's library (compiled, or loaded from phc's signed cache, once per process),
+    or None when it cannot be built here (:func:`why_not`)."""
+    global _LIBRARY, _WHY
+    with _LOCK:
+        if _LIBRARY is None:
+            try:
+                _LIBRARY = _build()
+            except Exception as err:  # noqa: BLE001 — the Python loop runs instead, and says why once
+                _LIBRARY, _WHY = False, f"{type(err).__name__}: {err}"
+        return _LIBRARY or None
+
+
+def _build():
+    global _WHY
+    from phc.codegen import c_backend
+
+    argv, identity = c_backend.find_compiler()
+    if argv is None:
+        _WHY = identity
+        return False
+    text = SOURCE.read_text(encoding="utf-8")
+    digest = c_backend.library_digest(text, argv, identity, FLAGS)
+    cache = os.environ.get("PHC_COMPILED_CACHE", "1").strip().lower() not in ("0", "no", "false", "off")
+    lib, _, _ = c_backend._obtain(text, argv, digest, cache, FLAGS)
+    expected = _layout()
+    out = (ctypes.c_int64 * (len(expected) + 1))()
+    lib.phc_steps_layout.argtypes, lib.phc_steps_layout.restype = [ctypes.c_void_p], None
+    lib.phc_steps_layout(ctypes.addressof(out))
+    found = list(out)
+    if found[:-1] != expected or found[-1] != ctypes.sizeof(_Steps):
+        _WHY = "steps.c was written for another layout of the step loop's state (a phc bug: please report it)"
+        return False
+    lib.phc_steps_chunk.argtypes, lib.phc_steps_chunk.restype = [ctypes.POINTER(_Steps), ctypes.c_int64], None
+    return lib
+
+
+def why_not() -> str:
+    """Why the library could not be built in this process ("" when it was, or was not tried)."""
+    return _WHY
+
+
+def usable(method: str, raw) -> tuple[bool, str]:
+    """Whether a fixed-step run of `method` on the C module `raw` uses the C step loop, and if
+    not, why (an empty reason: switched off by ``PHC_COMPILED_LOOP=0``, nothing to say)."""
+    from phc.simulation.compiled_steps import MAX_UNKNOWNS
+
+    if os.environ.get("PHC_COMPILED_LOOP", "1").strip().lower() in ("0", "no", "false", "off"):
+        return False, ""
+    if method not in METHODS:
+        return False, (f"the `{method}` solver's step loop is not written in C yet (only the implicit midpoint "
+                       "rule's is)")
+    if raw.N > MAX_UNKNOWNS:
+        return False, f"the model has {raw.N} unknowns, more than the {MAX_UNKNOWNS} its dense LU is meant for"
+    if getattr(raw, "C_LIBRARY", None) is None:
+        return False, "the model's C library is not loaded"
+    if library() is None:
+        return False, f"its library could not be built ({_WHY})"
+    return True, ""
+
+
+def say_unused(why: str) -> None:
+    """Say once per process and reason that the C step loop does not run a simulation."""
+    from phc.errors import CompiledLoopWarning
+
+    if not why or why in _SAID:
+        return
+    _SAID.add(why)
+    warnings.warn(f"the C step loop does not run this simulation: {why}; the Python step loop runs it (the same "
+                  "steps, more time per step)", CompiledLoopWarning, stacklevel=4)
+
+
+def _address(a: Optional[np.ndarray]) -> Optional[int]:
+    return None if a is None or not a.size else a.ctypes.data
+
+
+def bind(raw, p, t_out, ys, yps, y, mid, mid_slope, y_prev, y_new, pt, pm, fst, ist, c, jrows, jcols, end_rows,
+         emask, weights, algmask, colscale) -> Callable[[int], None]:
+    """``chunk(budget)``: a chunk of steps of the C loop on the driver's arrays (all C-contiguous,
+    float64 but the int64 index arrays and int8 masks; kept alive by the closure) with scratch
+    arrays of its own."""
+    lib = library()
+    n, njac, nend = int(raw.N), len(jrows), len(end_rows)
+    if pm.shape[0] > MAX_NODES:
+        raise ValueError(f"the C step loop keeps at most {MAX_NODES} predictor nodes, got {pm.shape[0]}")
+    arrays = dict(
+        p=p, jrows=jrows, jcols=jcols, end_rows=end_rows, emask=emask, algmask=algmask,
+        weights=weights if weights.shape == (n,) else None, colscale=colscale if colscale.shape == (n,) else None,
+        c=c, t_out=t_out, ys=ys, yps=yps, y=y, mid=mid, mid_slope=mid_slope, y_prev=y_prev, y_new=y_new, pt=pt,
+        pm=pm, fst=fst, ist=ist,
+        lu=np.zeros((2, n, n)), piv=np.zeros((2, n), np.int64), eq=np.ones((2, 2 * n)), matf=np.zeros((2, 3)),
+        xs=np.zeros(n), d=np.zeros(n), r=np.zeros(n), guess=np.zeros(n), yp=np.zeros(n), g=np.zeros(max(nend, 1)),
+        jbuf=np.zeros(njac), ebuf=np.zeros(njac), mon=np.zeros((n, n)), monpiv=np.zeros(n, np.int64),
+        monv=np.zeros(3 * n))
+    kinds = {"jrows": np.int64, "jcols": np.int64, "end_rows": np.int64, "piv": np.int64, "monpiv": np.int64,
+             "ist": np.int64, "emask": np.int8, "algmask": np.int8}
+    for name, a in arrays.items():
+        if a is None:
+            continue
+        if a.dtype != kinds.get(name, np.float64) or not a.flags.c_contiguous:
+            raise ValueError(f"`{name}` must be a C-contiguous {np.dtype(kinds.get(name, np.float64))} array")
+    lib_model = raw.C_LIBRARY
+    run = _Steps(n=n, njac=njac, nend=nend, nout=len(t_out), npred=pm.shape[0],
+                 residual=ctypes.cast(lib_model.phc_residual, _P).value,
+                 jacobian=ctypes.cast(lib_model.phc_jacobian, _P).value,
+                 invariants=ctypes.cast(lib_model.phc_invariants, _P).value,
+                 **{name: _address(a) for name, a in arrays.items()})
+    pointer = ctypes.byref(run)
+    chunk_c = lib.phc_steps_chunk
+
+    def chunk(budget: int) -> None:
+        chunk_c(pointer, int(budget))
+
+    chunk.keep = (arrays, run, lib_model)  # the arrays and the model's library live as long as the run
+    return chunk
+
+
+def note_events(raw) -> None:
+    """Say once that a run with switching conditions does not use the C step loop (the Python
+    loop locates the switches)."""
+    if getattr(raw, "BACKEND", "") == "c" and usable("midpoint", raw)[0]:
+        say_unused("runs with switching conditions (events) need the Python loop, which locates the switches")
+
+
+__all__ = ["FLAGS", "METHODS", "SOURCE", "bind", "library", "note_events", "say_unused", "usable", "why_not"]

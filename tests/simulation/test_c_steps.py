@@ -1,0 +1,335 @@
+"""The C back end's implicit-midpoint step loop (:mod:`phc.simulation.c_steps`,
+``phc/codegen/c_runtime/steps.c``) against the Python loop.
+
+The same model on the C backend is run twice, once with the step loop in C and once with
+``PHC_COMPILED_LOOP=0`` (the Python loop calling the same compiled C functions through
+ctypes). Each step solves the same equations to the Newton tolerance (1e-14 relative): the
+loops differ only in the linear algebra (a dense LU against SuperLU, both of the same
+equilibrated matrix), which changes the corrections by round-off, so the trajectories agree to
+the tolerance accumulated over the steps. The discrete energy balance of the midpoint rule
+holds to round-off on a lossless model with a quadratic Hamiltonian; two threads integrating
+at once get what each gets alone, bit for bit (the library keeps no state); and every step the
+C loop does not take itself — a model that cannot be evaluated, ``max_steps``, Ctrl-C, a
+method or a model it does not serve — ends as the Python loop ends it.
+
+Without a C compiler these tests are skipped (there is no C loop to test).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import phc
+from phc.codegen.c_backend import available
+from phc.errors import CompiledLoopWarning
+
+OK, WHY = available()
+pytestmark = pytest.mark.skipif(not OK, reason=f"the C step loop needs a C compiler: {WHY}")
+
+MODELS = Path(__file__).resolve().parents[2] / "models"
+
+
+@pytest.fixture(scope="module")
+def compiled():
+    cache = {}
+
+    def get(name):
+        if name not in cache:
+            cache[name] = phc.compile_model(MODELS / name, certify=False, backend="c")
+            assert cache[name].backend == "c"
+        return cache[name]
+
+    return get
+
+
+@pytest.fixture
+def loops(monkeypatch):
+    """Which loop ran each piece of each run: "c", or None for the Python loop."""
+    from phc.simulation import compiled_steps
+
+    seen = []
+    original = compiled_steps.integrate
+
+    def spy(*args, **kwargs):
+        out = original(*args, **kwargs)
+        seen.append(None if out is None else out["step_loop"])
+        return out
+
+    monkeypatch.setattr(compiled_steps, "integrate", spy)
+    return seen
+
+
+def _both(monkeypatch, model, **options):
+    """(C loop, Python loop) results of one simulation."""
+    monkeypatch.setenv("PHC_COMPILED_LOOP", "1")
+    fast = phc.simulate(model, **options)
+    monkeypatch.setenv("PHC_COMPILED_LOOP", "0")
+    slow = phc.simulate(model, **options)
+    monkeypatch.setenv("PHC_COMPILED_LOOP", "1")
+    return fast, slow
+
+
+def _assert_same_trajectory(fast, slow, h):
+    assert fast.success and slow.success, (fast.message, slow.message)
+    assert fast.message == slow.message
+    assert np.array_equal(fast.t, slow.t) and fast.steps == slow.steps
+    diff = fast.differential & (np.array(fast.variables) != "energy.supplied")
+    size = 1.0 + np.abs(slow.y).max(axis=0)
+    err = np.abs(fast.y - slow.y) / size
+    # differential variables: the Newton tolerance (1e-14), accumulated over at most 1000 steps
+    # with margin for the growth of a perturbation along the motion
+    assert err[:, diff].max() <= 1e-9, err[:, diff].max()
+    # algebraic ones (multipliers at the step ends) are differences of them over h
+    assert err[:, ~diff].max(initial=0.0) <= 1e-9 / h, err[:, ~diff].max(initial=0.0)
+
+
+@pytest.mark.parametrize("name, t_end, step", [
+    ("pendulum.yaml", 2.0, 1e-2),
+    ("rlc_circuit.yaml", 2.0, 1e-2),
+    ("rigid_slider_crank.yaml", 0.1, 1e-3),
+    ("flexible_slider_crank.yaml", 0.005, None),
+])
+def test_the_c_loop_follows_the_python_loop(compiled, monkeypatch, loops, name, t_end, step):
+    model = compiled(name)
+    fast, slow = _both(monkeypatch, model, solver="midpoint", t_end=t_end, step=step, n_out=51)
+    half = len(loops) // 2  # one call per piece between input breakpoints
+    assert loops == ["c"] * half + [None] * half and half >= 1
+    _assert_same_trajectory(fast, slow, step or model.dae.options["step"])
+    assert fast.constraint_drift <= max(10 * slow.constraint_drift, 1e-13)
+    # the same Newton test and refresh rules: the same work, up to the iterations decided at the noise
+    # level; a refresh decided there changes the later ones (the flexible slider–crank takes 26 to 30
+    # factorizations in 500 steps in either loop as round-off in its start state changes)
+    assert fast.n_residual_evals == pytest.approx(slow.n_residual_evals, rel=0.02, abs=5)
+    assert fast.n_jacobian_evals == pytest.approx(slow.n_jacobian_evals, rel=0.2, abs=3)
+
+
+def test_midpoint_energy_balance_is_exact_for_quadratic_h(compiled, loops):
+    """The Cartesian pendulum (lossless; H = |p|²/2m + m g y is quadratic, the pin constraint
+    quadratic in the positions): the discrete balance H(y₁) − H(y₀) = ∇H(midpoint)·(y₁ − y₀)
+    holds exactly, so at a coarse step the balance is kept to the Newton tolerance, and the
+    position constraint imposed at the step ends does not drift."""
+    r = phc.simulate(compiled("pendulum.yaml"), solver="midpoint", t_end=5.0, step=0.05, n_out=101)
+    assert loops == ["c"] and r.success
+    assert r.energy_balance_relative <= 1e-12
+    assert r.constraint_drift <= 1e-12
+
+
+def test_two_threads_integrate_at_once(compiled, loops):
+    """The library keeps no state and ctypes releases the GIL during a chunk: two threads,
+    each with its own parameters, integrate the same model at once and get bit for bit what
+    each got alone."""
+    model = compiled("rigid_slider_crank.yaml")
+    options = [dict(solver="midpoint", t_end=0.2, step=2e-4, n_out=21, params=params)
+               for params in ({}, {"omega": 100.0})]
+    alone = [phc.simulate(model, **o) for o in options]
+    together = [None, None]
+    barrier = threading.Barrier(2)
+    failures = []
+
+    def run(k):
+        try:
+            barrier.wait()
+            together[k] = phc.simulate(model, **options[k])
+        except BaseException as err:  # noqa: BLE001 — reported by the main thread
+            failures.append(err)
+
+    threads = [threading.Thread(target=run, args=(k,)) for k in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=300)
+    assert not failures and not any(t.is_alive() for t in threads)
+    assert loops == ["c"] * 4
+    assert not np.array_equal(alone[0].y, alone[1].y)  # different runs (else the test tests little)
+    for a, b in zip(alone, together):
+        assert a.success and b.success
+        assert np.array_equal(a.t, b.t) and np.array_equal(a.y, b.y) and a.steps == b.steps
+
+
+STATE_MODEL = """\
+format_version: 1
+name: state_model
+components:
+  s:
+    type: phs
+    states: [q]
+    hamiltonian: q**2/2 + asin(q)
+    J: [[0]]
+    R: [[0]]
+    ports:
+      u:
+        domain: electrical
+        causality: effort_in
+        B: [[1]]
+  src: {type: effort_source, domain: electrical, value: 1}
+connections:
+  - [s.u, src.port]
+simulation:
+  t_end: 2.0
+  n_out: 201
+  initial:
+    s.q: 0.0
+"""
+# q' = 1: q(t) = t, and d/dq asin(q) = 1/sqrt(1 − q²) is not defined from t = 1 on
+
+
+def test_a_model_that_cannot_be_evaluated_is_handed_back(tmp_path, monkeypatch, loops):
+    """The C loop sees non-finite values (C returns NaN where Python raises) and hands the
+    step back: the Python code retries, splits, and words the message naming the row."""
+    path = tmp_path / "state_model.yaml"
+    path.write_text(STATE_MODEL)
+    model = phc.compile_model(path, certify=False, backend="c")
+    fast, slow = _both(monkeypatch, model, solver="midpoint", step=0.01)
+    assert loops == ["c", None]
+    for r in (fast, slow):
+        assert not r.success and "cannot be evaluated" in r.message, r.message
+        assert 0.9 <= r.t[-1] <= 1.0 and np.all(np.isfinite(r.y))
+    assert fast.message == slow.message and np.array_equal(fast.t, slow.t)
+
+
+def test_max_steps_keeps_the_results_so_far(compiled, monkeypatch, loops):
+    fast, slow = _both(monkeypatch, compiled("flexible_slider_crank.yaml"), solver="midpoint", t_end=0.01,
+                       n_out=101, max_steps=333)
+    assert loops == ["c", None]
+    for r in (fast, slow):
+        assert not r.success and "max_steps" in r.message and r.steps == 333
+    assert fast.message == slow.message
+    assert np.array_equal(fast.t, slow.t) and 1 < len(fast.t) < 101
+
+
+def test_ctrl_c_between_chunks_keeps_the_results_so_far(compiled, monkeypatch, loops):
+    from phc.simulation import compiled_steps
+    from phc.simulation.result import SimulationInterrupted
+
+    monkeypatch.setattr(compiled_steps, "CHUNK_SECONDS", 1e-4)  # many chunks, many progress reports
+    seen = []
+
+    def progress(t):
+        seen.append(t)
+        if len(seen) == 3:
+            raise KeyboardInterrupt
+
+    with pytest.raises(SimulationInterrupted) as info:
+        phc.simulate(compiled("flexible_slider_crank.yaml"), solver="midpoint", t_end=0.01, n_out=101,
+                     progress=progress)
+    r = info.value.result
+    assert loops == ["c"]
+    assert r.interrupted and not r.success and r.message.startswith("interrupted at t = ")
+    assert 0 < r.t[-1] < 0.01 and r.t[-1] == pytest.approx(seen[-1])
+    assert math.isclose(float(r.message.split("t = ")[1]), r.t[-1], rel_tol=1e-5)
+    assert np.all(np.isfinite(r.y)) and np.all(np.diff(r.t) > 0)
+
+
+def test_singular_configuration_is_handed_to_the_python_monitor(compiled, monkeypatch, loops):
+    """The folded slider–crank (rod as long as the crank) passes crank angles θ = π/2 + kπ where
+    the joint constraints become dependent. Near them the C loop's condition estimate is not
+    conclusive or Newton struggles, and the step goes back to Python, whose monitor decides: a
+    run stops near such an angle with the monitor's message, as the Python loop's does, or
+    finishes (a fixed step passes the singular set at a distance ~h)."""
+    model = compiled("rigid_slider_crank.yaml")
+    stops = 0
+    for step in (1e-4, 2e-5):
+        fast, slow = _both(monkeypatch, model, solver="midpoint", params={"L": 0.15}, step=step)
+        for r in (fast, slow):
+            if r.success:
+                continue
+            stops += 1
+            assert "singular configuration" in r.message and "become dependent" in r.message, r.message
+            t_stop = float(r.message.split("stopped at t = ")[1].split()[0])
+            angle = 150.0 * t_stop - math.pi / 2
+            assert abs(angle - math.pi * round(angle / math.pi)) < 0.1, (step, t_stop)
+            assert r.t[-1] <= t_stop and len(r.t) > 1 and np.all(np.isfinite(r.y))
+            assert r.constraint_drift < 1e-9
+    assert loops == ["c", None] * 2
+    assert stops >= 1  # the singular set is met by some run (else the test tests nothing)
+
+
+def test_what_the_c_loop_does_not_run_is_said_once(compiled, monkeypatch, loops):
+    """A method without a C loop (the discrete gradient) and a model too large for the dense LU
+    run the Python loop, and a CompiledLoopWarning says so once per reason; switched off by
+    PHC_COMPILED_LOOP=0, nothing is said."""
+    from phc.simulation import c_steps, compiled_steps
+
+    monkeypatch.setattr(c_steps, "_SAID", set())
+    model = compiled("pendulum.yaml")
+    options = dict(t_end=0.2, step=1e-2, n_out=11)
+    with pytest.warns(CompiledLoopWarning, match="`discrete_gradient` solver's step loop is not written in C"):
+        first = phc.simulate(model, solver="discrete_gradient", **options)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", CompiledLoopWarning)
+        again = phc.simulate(model, solver="discrete_gradient", **options)
+        monkeypatch.setenv("PHC_COMPILED_LOOP", "0")
+        phc.simulate(model, solver="midpoint", **options)
+        monkeypatch.setenv("PHC_COMPILED_LOOP", "1")
+    assert first.success and np.array_equal(first.y, again.y)
+    monkeypatch.setattr(compiled_steps, "MAX_UNKNOWNS", model.module.N - 1)
+    with pytest.warns(CompiledLoopWarning, match="more than the"):
+        big = phc.simulate(model, solver="midpoint", **options)
+    monkeypatch.setattr(compiled_steps, "MAX_UNKNOWNS", 400)
+    small = phc.simulate(model, solver="midpoint", **options)
+    assert loops == [None, None, None, None, "c"]
+    _assert_same_trajectory(small, big, 1e-2)
+
+
+def test_the_library_is_built_once_from_the_shipped_source(compiled):
+    """The C text ships in the package, the library is built (or loaded from the signed cache)
+    once per process and checked against the driver's layout of the state arrays."""
+    from phc.simulation import c_steps
+
+    assert c_steps.SOURCE.is_file() and "phc_steps_chunk" in c_steps.SOURCE.read_text(encoding="utf-8")
+    lib = c_steps.library()
+    assert lib is not None and c_steps.library() is lib and c_steps.why_not() == ""
+    # re-entrant: every `static` is a function at file scope, none is data
+    lines = c_steps.SOURCE.read_text(encoding="utf-8").splitlines()
+    statics = [line for line in lines if line.strip().startswith("static ") and (line[0].isspace() or "(" not in line)]
+    assert statics == []
+    assert sum(line.startswith("static ") for line in lines) >= 10
+
+
+COULOMB = """\
+format_version: 1
+name: coulomb_block
+parameters:
+  m: 1.0
+  k: 4.0
+  Fc: 1.0
+components:
+  block:
+    type: phs
+    states: [p, x]
+    hamiltonian: p**2/(2*m) + k*x**2/2
+    resistive:
+      fr: {law: ["e_fr = Fc*sign(f_fr)"]}
+    relations:
+      - f_x = e_p
+      - f_p = -e_x - e_fr
+      - f_fr = e_p
+simulation:
+  t_end: 2.0
+  n_out: 41
+  initial: {block.x: 1.1, block.p: 0.0}
+"""
+
+
+def test_a_run_with_switching_conditions_says_it_runs_the_python_loop(tmp_path, monkeypatch, loops):
+    """Coulomb friction (a sign law: switching conditions, docs/events.md): the Python loop
+    locates the switches, and says once that the C loop is not used; the run is the Python
+    loop's on the same C functions."""
+    from phc.simulation import c_steps
+
+    monkeypatch.setattr(c_steps, "_SAID", set())
+    path = tmp_path / "coulomb.yaml"
+    path.write_text(COULOMB)
+    model = phc.compile_model(path, certify=False, backend="c")
+    with pytest.warns(CompiledLoopWarning, match="switching conditions"):
+        fast = phc.simulate(model, solver="midpoint", step=1e-3)
+    monkeypatch.setenv("PHC_COMPILED_LOOP", "0")
+    slow = phc.simulate(model, solver="midpoint", step=1e-3)
+    assert fast.success and fast.events and "c" not in loops
+    assert np.array_equal(fast.y, slow.y)
