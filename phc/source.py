@@ -17,8 +17,11 @@ loader's messages — are :mod:`phc.source_map`; they are importable from here a
 
 from __future__ import annotations
 
+import copy
+import hashlib
 import os
 import re
+import threading
 from typing import Any, Iterator
 
 import yaml
@@ -488,8 +491,19 @@ def _read_regular(path: str | os.PathLike) -> bytes:
     return data
 
 
+PARSED_KEPT = 4
+"""How many parsed files :func:`read_yaml_file` keeps (the most recently read)."""
+_PARSED: dict[bytes, tuple[str, tuple]] = {}
+_PARSED_LOCK = threading.Lock()
+
+
 def read_yaml_file(path: str | os.PathLike) -> tuple[object | None, SourceMap | None, list[Diagnostic]]:
     """Read a UTF-8 YAML file and load it with :func:`load_yaml`.
+
+    A run reads its model file several times (is it a scene? the model itself, where its
+    outputs are written); the file is parsed once: the last :data:`PARSED_KEPT` files parsed
+    are kept by their content (a changed file is parsed again), and each caller gets
+    its own copy of the data (the source map, read-only, is shared).
 
     Parameters
     ----------
@@ -502,6 +516,15 @@ def read_yaml_file(path: str | os.PathLike) -> tuple[object | None, SourceMap | 
         As :func:`load_yaml`.  A missing/unreadable file or invalid UTF-8 gives
         a single ``PHC-E004`` diagnostic at line 1, column 1 and ``(None, None, ...)``.
     """
+    data, smap, diags = _read_parsed(path)
+    if data is not None and not isinstance(data, (str, int, float, bool)):
+        data = copy.deepcopy(data)
+    return data, smap, list(diags)
+
+
+def _read_parsed(path: str | os.PathLike) -> tuple[object | None, SourceMap | None, list[Diagnostic]]:
+    """:func:`read_yaml_file` without the copy: the data is shared with other callers and
+    must not be changed (for phc's own read-only looks, e.g. whether a file is a scene)."""
     file = str(path)
     where = SourceSpan(file, 1, 1)
     try:
@@ -524,4 +547,25 @@ def read_yaml_file(path: str | os.PathLike) -> tuple[object | None, SourceMap | 
         return None, None, [Diagnostic(
             "PHC-E004", f"the file is not valid UTF-8 (byte {raw[err.start]:#04x} on line {line})", span=where,
             hint="save the file with UTF-8 encoding")]
-    return load_yaml(text, file)
+    key = hashlib.sha256(raw).digest()
+    with _PARSED_LOCK:
+        kept = _PARSED.pop(key, None)
+    if kept is None:
+        kept = (file, load_yaml(text, file))
+    with _PARSED_LOCK:
+        _PARSED.pop(key, None)
+        while len(_PARSED) >= PARSED_KEPT:
+            _PARSED.pop(next(iter(_PARSED)))
+        _PARSED[key] = kept  # the most recent last
+    return kept[1] if kept[0] == file else _named(kept[1], kept[0], file)
+
+
+def _named(parsed: tuple, old: str, file: str) -> tuple:
+    """A parse of the same text under another file name (``./m.yaml`` and ``m.yaml``): the
+    positions it reports name `file`."""
+    import dataclasses
+
+    data, smap, diags = parsed
+    diags = [dataclasses.replace(d, span=dataclasses.replace(d.span, file=file))
+             if d.span is not None and d.span.file == old else d for d in diags]
+    return data, (SourceMap(file, smap.root) if smap is not None else None), diags

@@ -532,7 +532,7 @@ class ModulePrinter:
         parts.append(self._function(
             "energy_scale(t, y, p)",
             "Sum of |terms| of H: the scale for relative energy errors (H itself may be ~0).",
-            [sum((sp.Abs(term) for term in terms), sp.Integer(0))] + qe, ["S"] + qe_t,
+            [sp.Add(*[sp.Abs(term) for term in terms])] + qe, ["S"] + qe_t,
             epilogue=qe_lines + ["return S"]))
         qd, qd_t, qd_lines = quadratic(ir.quadratic_dissipation, "QD", "P_diss")
         parts.append(self._function(
