@@ -118,7 +118,7 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
     # Top-level exposed ports: inputs or free.
     sim = ctx.spec.simulation
     signals = SignalBuilder(elab)
-    port_power = sp.Integer(0)
+    exposed_power = []  # f·e of each exposed port, summed once below (+= per port was quadratic)
     external = []
     for pname, (full, span) in inter.exposed.items():
         port = ports[full]
@@ -139,7 +139,7 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
                 rows.append(Equation(sign * defs[root] - val, f"inputs.{pname}[{k}]", "input", "", span))
             else:
                 defs[root] = sign * (val if isinstance(val, sp.Basic) else sp.Integer(val))
-        port_power += sum(fk * ek for fk, ek in zip(port.f, port.e))
+        exposed_power.extend(fk * ek for fk, ek in zip(port.f, port.e))
     for pname in sim.inputs:
         if pname not in inter.exposed:
             close = difflib.get_close_matches(pname, list(inter.exposed), n=1)
@@ -199,7 +199,7 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
     hamiltonian = sp.Add(*[final(h) for h in elab.hamiltonian])
     dissipation_terms = tuple((component, final(d), span) for component, d, span in elab.dissipation)
     dissipation = sp.Add(*[d for _, d, _ in dissipation_terms])
-    port_power = final(sp.Add(port_power, *elab.source_power))
+    port_power = final(sp.Add(*exposed_power, *elab.source_power))
     if T in hamiltonian.free_symbols:
         # An explicit time dependence of H (a potential V(q, t), a mass matrix M(t), a
         # coefficient k(t)) is energy exchanged with whatever varies it: dH/dt = ∇H·ẏ + ∂H/∂t,
@@ -454,6 +454,7 @@ def _initial_values(elab, rep, ctx, state_names: set[str], result_units=None
     fields = FieldInitializer(elab, rep, ctx)  # fields of ξ of distributed components; per-dof values' mesh
     field_entries = []
     out = []
+    scope, defaults = dict(ctx.params), dict(elab.default_values)  # once, not per initial value
     for name, spec in ctx.spec.simulation.initial.items():
         path = ("simulation", "initial", name)
         if name not in state_names and fields.field_key(name) is not None:
@@ -468,10 +469,10 @@ def _initial_values(elab, rep, ctx, state_names: set[str], result_units=None
             continue
         value, guess = (spec.value, spec.guess) if isinstance(spec, InitialSpec) else (spec, False)
         vpath = (*path, "value") if isinstance(spec, InitialSpec) else path
-        ex = rep.expr(ctx, value, vpath, dict(ctx.params))
+        ex = rep.expr(ctx, value, vpath, scope)
         if result_units is not None:
             result_units.initial(ctx, name, vpath)
-        num = ex.xreplace(dict(elab.default_values))
+        num = ex.xreplace(defaults)
         try:
             val = float(num)
         except TypeError:

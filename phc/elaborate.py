@@ -72,6 +72,7 @@ class _Elaborator(Reporter):
         self.hand_written: set[str] = set()  # components with a row not derived from their description (emit)
         self.component_specs: dict[str, Any] = {}  # full name -> its spec as lowered (overrides applied)
         self.ports: dict[str, Port] = {}
+        self.ports_of: dict[str, list[Port]] = {}  # component -> the ports its lowering declared
         self.port_aliases: dict[str, str] = {}
         self.hamiltonian: list[sp.Expr] = []
         self.dissipation: list[tuple[str, sp.Expr, Optional[SourceSpan]]] = []  # (component, P_diss, source)
@@ -131,15 +132,18 @@ class _Elaborator(Reporter):
 
     # -- parameters -------------------------------------------------------------------
     def default_values(self) -> dict:
-        """Parameter symbol → its default as a sympy Float (xreplace-safe).
+        """Parameter symbol → its default as a sympy Float (xreplace-safe), a copy."""
+        self._sync_defaults()
+        return dict(self._default_values)
 
-        Called by every lowerer: parameters are only ever added, so the Floats of those
-        seen before are kept and only new ones are converted (linear in the model's size)."""
+    def _sync_defaults(self) -> None:
+        """Bring :attr:`_default_values` up to date. Before every lowering: parameters are
+        only ever added, so the Floats of those seen before are kept and only new ones are
+        converted (linear in the model's size)."""
         if len(self._default_values) != len(self.parameters):
             start = len(self._default_values)
             for p in itertools.islice(list(self.parameters.values()), start, None):
                 self._default_values[p.symbol] = sp.Float(p.default)
-        return dict(self._default_values)
 
     def add_parameters(self, ctx: FileContext, entries: dict[str, tuple[Any, Sequence, Optional[FileContext]]],
                        units: dict[str, tuple]) -> None:
@@ -504,7 +508,7 @@ class _Elaborator(Reporter):
         (nothing changes them while it runs)."""
         from phc.lowering import LoweringContext, ReadOnlySequence
 
-        self.default_values()  # brings the defaults of parameters added since up to date
+        self._sync_defaults()  # the defaults of parameters added since
         ro = MappingProxyType
         return LoweringContext(default_values=ro(self._default_values), variables=ReadOnlySequence(self.variables),
                                ports=ro(self.ports), unset_parameters=frozenset(self.unset_parameters),
@@ -529,6 +533,8 @@ class _Elaborator(Reporter):
             self.defined_by[sym] = lowering.component
         self.hand_written |= lowering.hand_written
         self.ports.update((port.name, port) for port in lowering.ports)
+        for port in lowering.ports:
+            self.ports_of.setdefault(port.component, []).append(port)
         self.parameters.update((p.name, p) for p in lowering.parameters)
         self.dirac.extend(lowering.descriptions)
         self.hamiltonian.extend(lowering.hamiltonian)
@@ -555,8 +561,8 @@ class _Elaborator(Reporter):
         (PHC-E172)."""
         from phc.units import NUMBER, ScaleSystem, describe, expected_fields, same_dimension, scale_terms
 
-        domains = {name[len(full) + 1:]: port.domain for name, port in self.ports.items()
-                   if port.component == full}
+        domains = {port.name[len(full) + 1:]: port.domain for port in self.ports_of.get(full, ())
+                   if self.ports.get(port.name) is port}  # its own ports, not a scan of all
         terms = scale_terms(comp, domains)
         for field_name, want, meaning in expected_fields(comp, domains):
             prefix = (*path, field_name)

@@ -61,11 +61,14 @@ def reads_of(spec: ModelSpec) -> list[tuple[str, str]]:
     pruning keeps whatever the error concerns.
     """
     found = []
+    order: Optional[dict] = None  # component -> its place in the file, made when first needed
     for cname, comp in spec.components.items():
         read = state_reads(comp)
         if read is None:
-            read = set(spec.components)
-        found.extend((cname, other) for other in spec.components if other in read and other != cname)
+            found.extend((cname, other) for other in spec.components if other != cname)
+        elif read:  # in the order written (scanning all components for each one was quadratic)
+            order = order if order is not None else {name: i for i, name in enumerate(spec.components)}
+            found.extend((cname, other) for other in sorted(read & order.keys(), key=order.get) if other != cname)
     return found
 
 

@@ -172,9 +172,13 @@ class Recorder(Reporter):
         self.left_out.append((component, what, why))
 
     # -- reading the model so far ------------------------------------------------------
-    def default_values(self) -> dict:
+    def default_values(self) -> Mapping:
         """Parameter symbol → its default as a sympy Float (xreplace-safe): the model's
-        parameters and those this component declared so far."""
+        parameters and those this component declared so far. Read-only; without parameters
+        of its own the model's mapping itself (a copy per call, for every component, was
+        quadratic in the number of parameters)."""
+        if not self.parameters:
+            return self.context.default_values
         values = dict(self.context.default_values)
         for p in self.parameters.values():
             values[p.symbol] = sp.Float(p.default)

@@ -65,13 +65,15 @@ def elaborate_file(path: str | os.PathLike, scene: Optional[Scene] = None) -> tu
     file (its model with the scene applied). Returns ``(dae, diagnostics)``; `dae` is None
     when any error was found (wiring problems are reported even when components failed).
     A part (`kind: part`, :mod:`phc.parts`) is refused: it is not a complete model."""
-    dae, diags, _ = _elaborate_file(path, scene)
+    dae, diags, _, _ = _elaborate_file(path, scene)
     return dae, diags
 
 
-def _elaborate_file(path, scene=None, allow_part: bool = False) -> tuple[Optional[Dae], DiagnosticList, str]:
+def _elaborate_file(path, scene=None, allow_part: bool = False
+                    ) -> tuple[Optional[Dae], DiagnosticList, str, Optional[Scene]]:
     """:func:`elaborate_file`, also returning the file's kind (``model``, ``part``, or
-    ``scene``); with `allow_part` a part is elaborated with its exposed ports free."""
+    ``scene``) and the scene applied (None for a model); with `allow_part` a part is
+    elaborated with its exposed ports free."""
     from phc.parts import part_diagnostics
 
     kind = "model"
@@ -79,24 +81,24 @@ def _elaborate_file(path, scene=None, allow_part: bool = False) -> tuple[Optiona
         kind = "scene"
         scene, diags = load_scene(path)
         if scene is None:
-            return None, DiagnosticList(diags).sorted(), kind
+            return None, DiagnosticList(diags).sorted(), kind, None
     elab, diags = elaborate(scene.model_path if scene is not None else path, scene)
     if elab is None:
-        return None, diags.sorted(), kind
+        return None, diags.sorted(), kind, scene
     if elab.top.spec is not None and elab.top.spec.kind == "part":
         kind = "part" if kind == "model" else kind
         diags.extend(part_diagnostics(elab.top, allowed=allow_part and kind == "part"))
     inter = interconnect(elab)
     diags.extend(inter.diagnostics)
     if diags.has_errors:
-        return None, DiagnosticList(dict.fromkeys(diags)).sorted(), kind
+        return None, DiagnosticList(dict.fromkeys(diags)).sorted(), kind, scene
     dae, found = assemble(elab, inter)
     diags.extend(found)
     if not diags.has_errors:
         from phc.checks.signs import sign_hints  # cheap: where the user is (validate, simulate, check)
 
         diags.extend(sign_hints(dae.topology))  # connections that turn the sign of a voltage (PHC-W230)
-    return (None if diags.has_errors else dae), diags.sorted(), kind
+    return (None if diags.has_errors else dae), diags.sorted(), kind, scene
 
 
 def build_dae(path: str | os.PathLike, scene: Optional[Scene] = None) -> tuple[Optional[Dae], DiagnosticList]:
@@ -125,7 +127,7 @@ def validate_file(path: str | os.PathLike) -> tuple[Optional[Dae], DiagnosticLis
     kind : str
         ``"model"``, ``"part"`` or ``"scene"``.
     """
-    dae, diags, kind = _elaborate_file(path, allow_part=True)
+    dae, diags, kind, _ = _elaborate_file(path, allow_part=True)
     if dae is not None and kind != "part":
         diags.extend(check_balance(dae))
         if diags.has_errors:
@@ -195,6 +197,15 @@ def compile_model(path: str | os.PathLike, scene: Optional[Scene] = None, *, cer
     timings["elaborate"] = time.perf_counter() - t
     if dae is None:
         raise ModelError(diags)
+    return _compile_assembled(path, scene, dae, diags, certify=certify, backend=backend, timings=timings)
+
+
+def _compile_assembled(path, scene: Optional[Scene], dae: Dae, diags: DiagnosticList, *, certify: bool = True,
+                       backend: Optional[str] = None, timings: Optional[dict] = None) -> CompiledModel:
+    """:func:`compile_model` from the model already assembled and checked (`dae` with its
+    `diags`, from `path` and `scene`): ``phc check`` compiles what it has certified
+    without reading and assembling the model again."""
+    timings = {} if timings is None else timings
     if certify:
         from phc.checks.rows import check_hand_written
 
@@ -260,7 +271,8 @@ def describe(name: str, dae: Dae, module: ModuleType, scene: Optional[Scene] = N
             import sympy as sp
 
             p = parameter_vector(module)
-            by_name = {par.symbol: sp.Float(float(p[module.PARAMETERS.index(par.name)])) for par in dae.parameters}
+            slot = {pname: i for i, pname in enumerate(module.PARAMETERS)}  # not .index per parameter
+            by_name = {par.symbol: sp.Float(float(p[slot[par.name]])) for par in dae.parameters}
         from phc.initial_fields import evaluate
 
         try:
@@ -320,9 +332,9 @@ def _output_spans(scene: Optional[Scene], dae: Dae, outputs: tuple[str, ...]) ->
         else:
             path = dae.sources[-1] if dae.sources else None
         if rest and path is not None:
-            from phc.source import read_yaml_file
+            from phc.source import _read_parsed
 
-            data, smap, _ = read_yaml_file(path)
+            data, smap, _ = _read_parsed(path)  # read only (parsed when the model was read)
             written = ((data or {}).get("simulation") or {}).get("outputs", {}) if isinstance(data, dict) else {}
             for name in rest:
                 if smap is not None and name in written:

@@ -32,7 +32,7 @@ import pydantic
 
 from phc.diagnostics import Diagnostic, DiagnosticList, allowed_keys_from_model, from_pydantic
 from phc.interconnect import connected_to
-from phc.source import SourceMap, SourceSpan, read_yaml_file
+from phc.source import SourceMap, SourceSpan, _read_parsed, read_yaml_file
 from phc.source_map import path_text
 from phc.spec.scene import SceneSpec
 
@@ -43,7 +43,7 @@ _NAME = re.compile(r"(?<![\w.])([A-Za-z][A-Za-z0-9_]*)(?![\w.(])")
 
 def is_scene_file(path: str | os.PathLike) -> bool:
     """True when the YAML file is a scene (it names a `model` and has no `components`)."""
-    data, _, problems = read_yaml_file(path)
+    data, _, problems = _read_parsed(path)  # read only: shared with the run's other reads of the file
     return not problems and isinstance(data, dict) and "model" in data and "components" not in data
 
 

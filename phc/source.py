@@ -17,8 +17,11 @@ loader's messages — are :mod:`phc.source_map`; they are importable from here a
 
 from __future__ import annotations
 
+import copy
+import hashlib
 import os
 import re
+import threading
 from typing import Any, Iterator
 
 import yaml
@@ -35,6 +38,7 @@ from phc.source_map import (_LINE_BREAK, _LINE_STARTS, _MAP_TAG, _MERGE_TAG, _SE
 __all__ = [
     "MAX_FLOW_DEPTH",
     "MAX_NODES",
+    "MAX_VALUES",
     "PathElem",
     "SourceMap",
     "SourceSpan",
@@ -43,7 +47,11 @@ __all__ = [
 ]
 
 MAX_NODES = 100_000
-"""Largest number of nodes (after expanding aliases) a document may construct."""
+"""Most nodes that aliases may add to a document by expansion (its "billion laughs" guard)."""
+
+MAX_VALUES = 500_000
+"""Most nodes a document may hold as written (a model of about 3·10⁴ lumped components;
+large matrices and signals belong in `.npz` and CSV files)."""
 
 MAX_FLOW_DEPTH = 200
 """Deepest nesting of flow collections (``[...]``, ``{...}``) accepted."""
@@ -174,9 +182,10 @@ def _offset_span(text: str, file: str, pos: int) -> SourceSpan:
 class _Checker:
     """One pass over the composed tree: tags, keys, duplicates, expanded size."""
 
-    def __init__(self, file: str, max_nodes: int) -> None:
+    def __init__(self, file: str, max_nodes: int, max_values: int) -> None:
         self.file = file
         self.max_nodes = max_nodes
+        self.cap = max_nodes + max_values + 1  # sizes saturate here (aliases could make them astronomic)
         self.diags: list[Diagnostic] = []
         self.sizes: dict[int, int] = {}
         self.active: set[int] = set()
@@ -204,7 +213,7 @@ class _Checker:
                 self.diags.append(Diagnostic(
                     "PHC-E003", "document too large (alias expansion): an anchor contains an alias to itself",
                     span=self.span(node), hint="remove the recursive alias"))
-            return self.max_nodes + 1
+            return self.cap
         self.active.add(nid)
         self.check_tag(node)
         total = 1
@@ -241,7 +250,7 @@ class _Checker:
             for item in node.value:
                 total += self.visit(item)
         self.active.discard(nid)
-        total = min(total, self.max_nodes + 1)
+        total = min(total, self.cap)
         self.sizes[nid] = total
         return total
 
@@ -253,12 +262,12 @@ class _Checker:
                 "PHC-E001", "the merge key `<<` needs a mapping or a list of mappings (usually an alias `*name`)",
                 span=self.span(value)))
 
-    def blame_large(self, root: Node) -> Node:
-        """The deepest node whose expansion alone exceeds the limit."""
+    def blame_large(self, root: Node, limit: int) -> Node:
+        """The deepest node whose expansion alone exceeds `limit`."""
         node = root
         while True:
             for child in _children(node):
-                if self.sizes.get(id(child), 0) > self.max_nodes:
+                if self.sizes.get(id(child), 0) > limit:
                     node = child
                     break
             else:
@@ -344,7 +353,7 @@ class _Builder:
             "PHC-E001", message, span=_span(self.file, node.start_mark), hint="remove the tag or fix the value"))
 
 
-def load_yaml(text: str, file: str, *, max_nodes: int = MAX_NODES
+def load_yaml(text: str, file: str, *, max_nodes: int = MAX_NODES, max_values: int = MAX_VALUES
               ) -> tuple[object | None, SourceMap | None, list[Diagnostic]]:
     """Parse one YAML document safely and record node positions.
 
@@ -355,8 +364,10 @@ def load_yaml(text: str, file: str, *, max_nodes: int = MAX_NODES
     file : str
         File name used in spans and diagnostics.
     max_nodes : int, optional
-        Largest number of nodes the constructed data may have, counting every
-        alias expansion (default :data:`MAX_NODES`, guards against "billion laughs").
+        Most nodes that alias expansion may add to the document (default
+        :data:`MAX_NODES`, guards against "billion laughs").
+    max_values : int, optional
+        Most nodes the document may hold as written (default :data:`MAX_VALUES`).
 
     Returns
     -------
@@ -423,23 +434,24 @@ def load_yaml(text: str, file: str, *, max_nodes: int = MAX_NODES
     if root is None:
         return None, smap, diags
 
-    checker = _Checker(file, max_nodes)
+    checker = _Checker(file, max_nodes, max_values)
     try:
         size = checker.visit(root)
     except RecursionError:
         diags.append(Diagnostic("PHC-E003", "document nested too deeply", span=_span(file, root.start_mark)))
         return None, smap, diags
     diags.extend(checker.diags)
-    if size > max_nodes and not checker.recursive and len(checker.sizes) > max_nodes:
+    written = len(checker.sizes)  # the distinct nodes; `size` counts each alias's expansion again
+    if written > max_values and not checker.recursive:
         diags.append(Diagnostic(  # large without aliases: inline data beyond what a model file is for
-            "PHC-E003", f"document too large: more than {max_nodes} values",
-            span=_span(file, checker.blame_large(root).start_mark),
+            "PHC-E003", f"document too large: more than {max_values} values",
+            span=_span(file, checker.blame_large(root, max_values).start_mark),
             hint="put large matrices into an `.npz` file (`matrices:` of a `linear_phs`) and long signals "
                  "into a CSV table"))
-    elif size > max_nodes and not checker.recursive:
+    elif size - written > max_nodes and not checker.recursive:
         diags.append(Diagnostic(
             "PHC-E003", f"document too large (alias expansion): more than {max_nodes} nodes",
-            span=_span(file, checker.blame_large(root).start_mark),
+            span=_span(file, checker.blame_large(root, max_nodes).start_mark),
             hint="aliases (`*name`) that repeat large anchors multiply the size; write the data out instead"))
     if any(d.code != "PHC-E002" for d in diags):
         return None, smap, diags
@@ -488,8 +500,19 @@ def _read_regular(path: str | os.PathLike) -> bytes:
     return data
 
 
+PARSED_KEPT = 4
+"""How many parsed files :func:`read_yaml_file` keeps (the most recently read)."""
+_PARSED: dict[bytes, tuple[str, tuple]] = {}
+_PARSED_LOCK = threading.Lock()
+
+
 def read_yaml_file(path: str | os.PathLike) -> tuple[object | None, SourceMap | None, list[Diagnostic]]:
     """Read a UTF-8 YAML file and load it with :func:`load_yaml`.
+
+    A run reads its model file several times (is it a scene? the model itself, where its
+    outputs are written); the file is parsed once: the last :data:`PARSED_KEPT` files parsed
+    are kept by their content (a changed file is parsed again), and each caller gets
+    its own copy of the data (the source map, read-only, is shared).
 
     Parameters
     ----------
@@ -502,6 +525,15 @@ def read_yaml_file(path: str | os.PathLike) -> tuple[object | None, SourceMap | 
         As :func:`load_yaml`.  A missing/unreadable file or invalid UTF-8 gives
         a single ``PHC-E004`` diagnostic at line 1, column 1 and ``(None, None, ...)``.
     """
+    data, smap, diags = _read_parsed(path)
+    if data is not None and not isinstance(data, (str, int, float, bool)):
+        data = copy.deepcopy(data)
+    return data, smap, list(diags)
+
+
+def _read_parsed(path: str | os.PathLike) -> tuple[object | None, SourceMap | None, list[Diagnostic]]:
+    """:func:`read_yaml_file` without the copy: the data is shared with other callers and
+    must not be changed (for phc's own read-only looks, e.g. whether a file is a scene)."""
     file = str(path)
     where = SourceSpan(file, 1, 1)
     try:
@@ -524,4 +556,25 @@ def read_yaml_file(path: str | os.PathLike) -> tuple[object | None, SourceMap | 
         return None, None, [Diagnostic(
             "PHC-E004", f"the file is not valid UTF-8 (byte {raw[err.start]:#04x} on line {line})", span=where,
             hint="save the file with UTF-8 encoding")]
-    return load_yaml(text, file)
+    key = hashlib.sha256(raw).digest()
+    with _PARSED_LOCK:
+        kept = _PARSED.pop(key, None)
+    if kept is None:
+        kept = (file, load_yaml(text, file))
+    with _PARSED_LOCK:
+        _PARSED.pop(key, None)
+        while len(_PARSED) >= PARSED_KEPT:
+            _PARSED.pop(next(iter(_PARSED)))
+        _PARSED[key] = kept  # the most recent last
+    return kept[1] if kept[0] == file else _named(kept[1], kept[0], file)
+
+
+def _named(parsed: tuple, old: str, file: str) -> tuple:
+    """A parse of the same text under another file name (``./m.yaml`` and ``m.yaml``): the
+    positions it reports name `file`."""
+    import dataclasses
+
+    data, smap, diags = parsed
+    diags = [dataclasses.replace(d, span=dataclasses.replace(d.span, file=file))
+             if d.span is not None and d.span.file == old else d for d in diags]
+    return data, (SourceMap(file, smap.root) if smap is not None else None), diags

@@ -61,19 +61,22 @@ def certify_model(path: str | os.PathLike, samples: int = 2) -> ModelCertificate
     certificate says why."""
     from phc.analysis.matching import check_balance
     from phc.checks.certify import certify
-    from phc.pipeline import compile_model, elaborate_file
+    from phc.diagnostics import DiagnosticList
+    from phc.pipeline import _compile_assembled, _elaborate_file
 
-    dae, diags = elaborate_file(path)
+    dae, diags, _, scene = _elaborate_file(path)  # read and assembled once: certified, then compiled
     if dae is None:
         return ModelCertificate(str(path), None, None, diags)
     cert = certify(dae, n_random=samples)  # the sign hints (PHC-W230) are among `diags`
     balance = check_balance(dae)
-    cert.diagnostics.extend(d for d in list(diags) + balance if d not in cert.diagnostics)
+    seen = set(cert.diagnostics)
+    cert.diagnostics.extend(d for d in dict.fromkeys(list(diags) + balance) if d not in seen)
     compiled = None
     if cert.certified and not any(d.severity == "error" for d in balance):
         from phc.checks.compiled import certify_compiled
 
-        compiled = certify_compiled(compile_model(path, certify=False), n_random=samples + 2)
+        built = _compile_assembled(path, scene, dae, DiagnosticList(list(diags) + balance).sorted(), certify=False)
+        compiled = certify_compiled(built, n_random=samples + 2)
         cert.diagnostics.extend(compiled.diagnostics)
     cert.diagnostics[:] = cert.diagnostics.sorted()
     return ModelCertificate(str(path), cert, compiled, cert.diagnostics)

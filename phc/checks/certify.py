@@ -249,7 +249,8 @@ def certify(dae: Dae, n_random: int = 2, seed: int = 0) -> Certificate:
         cert = ComponentCertificate(rel.component, rel.kind, comp.n, note=rel.note)
         order, rows = comp.port_rows()
         for k, point in enumerate(samples):
-            local = {s: v for s, v in point.items() if s in rel.states or s == T}
+            # its own states only (a scan of every state of the model per component was quadratic)
+            local = {s: point[s] for s in (*rel.states, T) if s in point}
             D = comp.structure(local)
             if rel.kind != "port_projection":
                 f, e = D[:comp.n], D[comp.n:]
@@ -341,18 +342,14 @@ def _couplings(top, projections, samples, diags, graph=None) -> list[ConnectionC
                                              if str(sym).startswith((owner[a] + ".", owner[b] + "."))})
             # The interconnected structure: ker(ΓV), coupling rows removed.
             W = V @ _null(GV, V.shape[1])
-            keep = [i for i in range(V.shape[0]) if i not in set(fa + ea + fb + eb)]
+            coupled = set(fa + ea + fb + eb)
+            keep = [i for i in range(V.shape[0]) if i not in coupled]
             new_rows, pos = {}, {i: n for n, i in enumerate(keep)}
             for p, (f, e) in rmap.items():
                 if p not in (a, b):
                     new_rows[p] = ([pos[i] for i in f], [pos[i] for i in e])
             merged = (_orth(W[keep]) if keep else np.zeros((0, 0)), new_rows)
-            clusters[ca] = merged
-            if cb != ca:  # relabel only the smaller side's members: linear overall
-                for name in members[cb]:
-                    cluster_of[name] = ca
-                members[ca].extend(members.pop(cb))
-                del clusters[cb]
+            clusters[_merge(ca, cb, cluster_of, members, clusters)] = merged
     for cert, condition in zip(certs, _symbolic_conditions(top, order, owner, certs)):
         cert.condition = condition
     for cert in certs:
@@ -396,6 +393,8 @@ def _symbolic_conditions(top, order, owner, certs) -> list[Optional[str]]:
     exact = {sym: sp.Rational(repr(float(v))) for sym, v in top.parameter_defaults.items()}
     cluster_of = {c: c for c in rels}
     members = {c: [c] for c in rels}
+    # a cluster's relations and variables as a tree of lists (`_joined`): joining two clusters
+    # is O(1), copying the growing lists at every connection was quadratic along a chain
     rows = {c: list(rels[c].relations) for c in rels}
     cols = {c: list(rels[c].flows) + list(rels[c].efforts) + list(rels[c].multipliers) for c in rels}
     ports = {}
@@ -409,24 +408,49 @@ def _symbolic_conditions(top, order, owner, certs) -> list[Optional[str]]:
         if ca is None or cb is None or a not in ports or b not in ports:
             out.append(None)
             continue
-        K_rows = rows[ca] + ([] if ca == cb else rows[cb])
-        K_cols = cols[ca] + ([] if ca == cb else cols[cb])
+        K_rows = rows[ca] if ca == cb else (rows[ca], rows[cb])
+        K_cols = cols[ca] if ca == cb else (cols[ca], cols[cb])
         (fa, ea), (fb, eb) = ports[a], ports[b]
         S = [x - y for x, y in zip(fa, fb)] + [x + y for x, y in zip(ea, eb)]
         condition = None
         if not cert.surjective:  # only where the numeric certificate found a failure
             try:
-                condition = _condition(K_rows, S, K_cols, exact, rng, SYMBOLIC_MAX_ROWS)
+                condition = _condition(_joined(K_rows), S, _joined(K_cols), exact, rng, SYMBOLIC_MAX_ROWS)
             except (ValueError, TypeError, NotImplementedError, ZeroDivisionError, sp.PolynomialError):
                 condition = None
         out.append(condition)
-        rows[ca] = K_rows + S
-        cols[ca] = K_cols
-        if cb != ca:
-            for name in members[cb]:
-                cluster_of[name] = ca
-            members[ca].extend(members.pop(cb))
-            del rows[cb], cols[cb]
+        for data in (rows, cols):
+            data.pop(cb)
+            data.pop(ca, None)
+        kept = _merge(ca, cb, cluster_of, members)
+        rows[kept], cols[kept] = (K_rows, S), K_cols
+    return out
+
+
+def _merge(ca, cb, cluster_of: dict, members: dict, data: Optional[dict] = None):
+    """Join clusters `ca` and `cb` (union by size: the smaller one's members are relabelled,
+    linear overall whichever side a connection names first); returns the label kept. The
+    entry of the other label in `data` is dropped (the caller stores the joined value)."""
+    if ca == cb:
+        return ca
+    keep, gone = (ca, cb) if len(members[ca]) >= len(members[cb]) else (cb, ca)
+    for name in members[gone]:
+        cluster_of[name] = keep
+    members[keep].extend(members.pop(gone))
+    if data is not None:
+        data.pop(gone, None)
+    return keep
+
+
+def _joined(tree) -> list:
+    """The items of a tree of lists (a list, or a pair of trees: left before right), in order."""
+    out, stack = [], [tree]
+    while stack:
+        node = stack.pop()
+        if isinstance(node, list):
+            out.extend(node)
+        else:
+            stack.extend(reversed(node))
     return out
 
 

@@ -215,13 +215,20 @@ def _power_scale(mod, p, t, y, yp, states) -> float:
     return float(mod.energy_scale(t, y, p)) * float(np.linalg.norm(yp[states])) / ny
 
 
+def _parameter_values(dae, mod, p) -> dict:
+    """Parameter symbol -> its value in the parameter vector `p` of the module (one index of
+    the module's names: `PARAMETERS.index` per parameter was quadratic in their number)."""
+    slot = {name: i for i, name in enumerate(mod.PARAMETERS)}
+    return {par.symbol: float(p[slot[par.name]]) for par in dae.parameters}
+
+
 def _term_magnitudes(compiled, p, samples) -> np.ndarray:
     """Σ|terms| of P_ports and P_diss at each sample: the magnitudes the balance sums, so that
     its round-off is judged against them and not against their (possibly cancelling) sum.
     A term that cannot be evaluated numerically counts 0 (the totals bound it from below)."""
     dae, mod = compiled.dae, compiled.module
     n = len(samples)
-    params = {par.symbol: float(p[mod.PARAMETERS.index(par.name)]) for par in dae.parameters}
+    params = _parameter_values(dae, mod, p)
     columns = dict(params)
     columns.update({v.symbol: np.array([y[j] for _, y, _ in samples]) for j, v in enumerate(dae.variables)})
     columns[sp.Symbol("t", real=True)] = np.array([t for t, _, _ in samples])
@@ -355,15 +362,19 @@ def _first_negative(values: np.ndarray) -> Optional[int]:
 
 def _passivity_at_samples(compiled, p, samples, cert) -> None:
     dae, mod = compiled.dae, compiled.module
-    params = {par.symbol: float(p[mod.PARAMETERS.index(par.name)]) for par in dae.parameters}
+    params = _parameter_values(dae, mod, p)
     symbols = [v.symbol for v in dae.variables]
+    column_of = {s: j for j, s in enumerate(symbols)}
+    ys = np.array([y for _, y, _ in samples])  # samples × unknowns
+    times = np.array([t for t, _, _ in samples])
     for component, term, span in dae.dissipation_terms:
         if term == 0:
             continue
         used = term.free_symbols
-        columns = dict(params)
-        columns.update({s: np.array([y[j] for _, y, _ in samples]) for j, s in enumerate(symbols) if s in used})
-        columns[sp.Symbol("t", real=True)] = np.array([t for t, _, _ in samples])
+        # the term's own symbols only (all unknowns and parameters per term was quadratic)
+        columns = {s: params[s] for s in used if s in params}
+        columns.update({s: ys[:, column_of[s]] for s in used if s in column_of})
+        columns[sp.Symbol("t", real=True)] = times
         values = _term_values(term, columns, len(samples))
         k = _first_negative(values)
         if k is not None:
@@ -375,7 +386,7 @@ def _passivity_random(compiled, p, samples, cert, rng, n: int) -> None:
     """Terms in states and velocities only: vᵀF_d(q, v) ≥ 0 for all (q, v), not only near
     the trajectory."""
     dae, mod = compiled.dae, compiled.module
-    params = {par.symbol: float(p[mod.PARAMETERS.index(par.name)]) for par in dae.parameters}
+    params = _parameter_values(dae, mod, p)
     by_symbol = {v.symbol: (j, v) for j, v in enumerate(dae.variables)}
     y0 = samples[0][1] if samples else np.zeros(len(dae.variables))
     for component, term, span in dae.dissipation_terms:
@@ -384,10 +395,11 @@ def _passivity_random(compiled, p, samples, cert, rng, n: int) -> None:
             continue
         if any(s not in by_symbol and s not in params and s.name != "t" for s in term.free_symbols):
             continue
+        own = {s: params[s] for s in term.free_symbols if s in params}  # not all parameters per term
         for magnitude in (1e-2, 1.0, 1e2):
             # drawn sample by sample, symbol by symbol (the order of one draw per value)
             draws = rng.normal(size=(n, len(used)))
-            columns = dict(params)
+            columns = dict(own)
             columns[sp.Symbol("t", real=True)] = 0.0
             for i, s in enumerate(used):
                 j = by_symbol[s][0]
@@ -413,7 +425,7 @@ def _non_passive(cert, component, span, value, point, used, variables) -> None:
 
 def _quadratic_forms(compiled, p, cert) -> None:
     dae, mod = compiled.dae, compiled.module
-    params = {par.symbol: sp.Float(float(p[mod.PARAMETERS.index(par.name)])) for par in dae.parameters}
+    params = {s: sp.Float(v) for s, v in _parameter_values(dae, mod, p).items()}
     for form in dae.quadratic_dissipation:
         cert.forms_checked += 1
         component = getattr(form, "component", "") or "a distributed component"

@@ -241,15 +241,21 @@ def sign_hints(top) -> list[Diagnostic]:
     # (ties: that of a node feeding elements, so a source on the node is what reads
     # reversed; that of a loop reading power-out toward its loads), round by round outwards
     # from the elements and sources.
+    # Only the neighbours of the classes oriented in a round can vote in the next (any other
+    # would have voted before): a look at every open class per round was quadratic along a
+    # ladder of nodes.
+    open_classes = set(fixed) - set(orientation)
     while True:
         votes = {}
-        for c in sorted(set(fixed) - set(orientation), key=str):
+        for c in sorted(open_classes, key=str):
             asked = [-sign.get(x, 1) * reads(y) for x, y, _, _ in edges.get(c, []) if cls[y] in orientation]
             if asked:
                 votes[c] = OUT if sum(asked) >= 0 else IN
         if not votes:
             break
         orientation.update(votes)
+        open_classes = {cls[y] for c in votes for _, y, _, _ in edges.get(c, [])
+                        if cls[y] in fixed and cls[y] not in orientation}
     out, seen = [], set()
     n_ports: dict = {}
     for p, c in cls.items():

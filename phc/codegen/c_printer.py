@@ -50,7 +50,7 @@ from phc import __version__
 from phc.codegen.kernels import CJ, Kernel, _canonical, function_kernels, product_parts
 from phc.codegen.lower import ResidualIR
 from phc.codegen.numba_emit import _NODES, _RELATIONS, _SIMPLE, _is_switch
-from phc.codegen.printer import _identifier, _Printer
+from phc.codegen.printer import _cse, _identifier, _Printer
 from phc.dae import T
 from phc.errors import BackendUnsupported, CodegenError
 from phc.inputs import InputTable, InputTableSlope
@@ -365,7 +365,7 @@ class CPrinter:
             if what:
                 raise CUnsupported(f"the C backend does not support {what} yet (in {name}, a linear block)")
         exprs = [e for _, e, _ in targets] + Kernel((), kernel.sums).expressions()
-        replacements, reduced = sp.cse(exprs, symbols=sp.numbered_symbols("c"), order="none")
+        replacements, reduced = _cse(exprs, sp.numbered_symbols("c"))
         printer = _Expressions(self.names, self.order)
         used = set()
         for e in [rhs for _, rhs in replacements] + list(reduced):

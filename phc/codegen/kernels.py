@@ -107,7 +107,8 @@ def function_kernels(ir: ResidualIR) -> list[FunctionKernel]:
         "hamiltonian",
         Kernel(((0, ir.hamiltonian, False),), tuple(("quad", f.matrix, f.cols, f.coeff, 0, False) for f in qe)),
         1, False, "y", "scalar", ("H",)))
-    scale = sum((sp.Abs(term) for term in sp.Add.make_args(ir.hamiltonian)), sp.Integer(0))
+    # sp.Add(*terms): one canonicalization (Python's sum re-flattens a growing Add per term)
+    scale = sp.Add(*[sp.Abs(term) for term in sp.Add.make_args(ir.hamiltonian)])
     out.append(FunctionKernel(
         "energy_scale",
         Kernel(((0, scale, False),), tuple(("quad", f.matrix, f.cols, f.coeff, 0, True) for f in qe)),

@@ -155,6 +155,26 @@ def _check_cse_input(dae: Dae, entries: dict, sizes: budget.SizeCache) -> None:
             eq.span)
 
 
+WIDE_SUM = 16
+"""Rows that are sums of more terms than this are differentiated term by term (see
+:func:`_differentiator`)."""
+
+
+def _differentiator(row: sp.Expr):
+    """``s -> d row / d s`` for the symbols of `row`. A sum of many terms (the energy
+    balance Ė − P_ports − P_diss, a junction of many ports) is differentiated term by term,
+    only the terms that hold `s`: sympy's ``diff`` of a sum visits every term for every
+    symbol, quadratic in the terms of the row. The result is the same expression (an
+    ``Add`` of the same nonzero derivatives, canonically ordered)."""
+    if not (row.is_Add and len(row.args) > WIDE_SUM):
+        return lambda s: sp.diff(row, s)
+    holding: dict = {}
+    for term in row.args:
+        for s in term.free_symbols:
+            holding.setdefault(s, []).append(term)
+    return lambda s: sp.Add(*[sp.diff(term, s) for term in holding.get(s, ())])
+
+
 def lower_residual(dae: Dae) -> ResidualIR:
     """Differentiate the residual and order everything for printing.
 
@@ -190,11 +210,12 @@ def lower_residual(dae: Dae) -> ResidualIR:
         syms = eq.expr.free_symbols
         _check_derivatives(eq, syms, col_of_y, col_of_yp, sizes)
         row = rows_expr[i]
+        derivative = _differentiator(row)
         for s in row.free_symbols:
             if s in col_of_y:
-                entries.setdefault((i, col_of_y[s]), [0, 0])[0] = budget.drop_deltas(sp.diff(row, s))
+                entries.setdefault((i, col_of_y[s]), [0, 0])[0] = budget.drop_deltas(derivative(s))
             elif s in col_of_yp:
-                entries.setdefault((i, col_of_yp[s]), [0, 0])[1] = budget.drop_deltas(sp.diff(row, s))
+                entries.setdefault((i, col_of_yp[s]), [0, 0])[1] = budget.drop_deltas(derivative(s))
     raw_terms = []
     for block in dae.linear_blocks:
         rows = np.asarray(block.rows, dtype=np.int64)

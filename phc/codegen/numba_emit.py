@@ -24,6 +24,7 @@ import sympy as sp
 # what each function computes (shared with the C back end), importable from here as before
 from phc.codegen.kernels import _COEFFICIENT, Kernel, _canonical, _coefficient, product_parts  # noqa: F401
 from phc.codegen.lower import ResidualIR
+from phc.codegen.printer import _cse
 from phc.dae import T
 from phc.inputs import InputTable, InputTableSlope
 
@@ -285,7 +286,7 @@ def _emit_kernel(context, builder, signature, args, kernel: Kernel, ir_: Residua
         for j, s in enumerate(symbols):
             loaders[s] = (lambda at_, j_: lambda: builder.load(at_(j_)))(at[vec], j)
     emitter = _Emitter(context, builder, loaders, tables, printer)
-    replacements, reduced = sp.cse(kernel.expressions(), symbols=sp.numbered_symbols("_c"), order="none")
+    replacements, reduced = _cse(kernel.expressions(), sp.numbered_symbols("_c"))
     for sym, rhs in replacements:
         emitter.values[sym] = emitter.value(rhs)
     n_targets = len(kernel.targets)

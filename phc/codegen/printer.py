@@ -194,6 +194,26 @@ BULK_SHARE = 4
 its entries (a long vector of which a few entries are used is indexed instead)."""
 
 
+CSE_BLOCK = 2000
+"""The expressions of one function are searched for common subexpressions in blocks of this
+many. sympy's search pairs up the sums and products that share arguments (a parameter, a
+sign), quadratic in their number: the residual of 10⁴ springs ``-k·x_i`` was one such
+search. A function of fewer expressions is searched as a whole, as before."""
+
+
+def _cse(exprs: list, symbols) -> tuple[list, list]:
+    """``sympy.cse`` of `exprs` (numbered by the iterator `symbols`), block by block
+    (:data:`CSE_BLOCK`): the replacements of all blocks, then the reduced expressions."""
+    if len(exprs) <= CSE_BLOCK:
+        return sp.cse(exprs, symbols=symbols, order="none")
+    replacements, reduced = [], []
+    for start in range(0, len(exprs), CSE_BLOCK):
+        found, rest = sp.cse(exprs[start:start + CSE_BLOCK], symbols=symbols, order="none")
+        replacements += found
+        reduced += rest
+    return replacements, reduced
+
+
 def _complex_prone(expr) -> bool:
     """Whether `expr` has a power that is complex for a negative Python float (``x**(1/3)``:
     NumPy scalars give nan, which the guard reports; a complex value could be made real
@@ -332,7 +352,7 @@ class ModulePrinter:
             else:
                 lines += ["else:"] + [f"    {sym.name} = math.nan" for _, sym in group]
         exprs = [e.xreplace(pieces) if isinstance(e, sp.Basic) and pieces else e for e in exprs]
-        replacements, reduced = sp.cse(list(exprs), symbols=symbols, order="none")
+        replacements, reduced = _cse(list(exprs), symbols)
         for sym, rhs in replacements:
             self.names[sym] = sym.name  # _c0, _c1, ...: generated here
             printed.append(rhs)
@@ -532,7 +552,7 @@ class ModulePrinter:
         parts.append(self._function(
             "energy_scale(t, y, p)",
             "Sum of |terms| of H: the scale for relative energy errors (H itself may be ~0).",
-            [sum((sp.Abs(term) for term in terms), sp.Integer(0))] + qe, ["S"] + qe_t,
+            [sp.Add(*[sp.Abs(term) for term in terms])] + qe, ["S"] + qe_t,
             epilogue=qe_lines + ["return S"]))
         qd, qd_t, qd_lines = quadratic(ir.quadratic_dissipation, "QD", "P_diss")
         parts.append(self._function(

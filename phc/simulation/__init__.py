@@ -339,8 +339,8 @@ def initial_values(compiled, p: np.ndarray, initial: Optional[dict] = None) -> t
             if by_name is None:
                 import sympy as sp
 
-                by_name = {par.symbol: sp.Float(float(p[mod.PARAMETERS.index(par.name)]))
-                           for par in compiled.dae.parameters}
+                slot = {pname: i for i, pname in enumerate(mod.PARAMETERS)}  # not .index per parameter
+                by_name = {par.symbol: sp.Float(float(p[slot[par.name]])) for par in compiled.dae.parameters}
             from phc.initial_fields import evaluate
 
             values[index[iv.name]] = evaluate(compiled.dae.initial[k].expr, by_name, memo)

@@ -312,14 +312,15 @@ def test_generated_hostile_case(case, tmp_path, capsys, monkeypatch):
 
 
 def test_inline_data_too_large_is_not_called_alias_expansion():
-    """A document over the node limit without any alias (an inline matrix) is "too large",
-    with a hint to move the data to a file; "alias expansion" is for aliases (billion laughs).
+    """A document over the limit of values written without any alias (an inline matrix) is
+    "too large", with a hint to move the data to a file; "alias expansion" is for aliases
+    (billion laughs), whose limit counts the nodes they add.
     (A small limit: PyYAML composes some 15 000 nodes a second, too slow for 100 000 here.)"""
     from phc.source import load_yaml
 
     row = "[" + ", ".join(["0"] * 40) + "]"
     inline = "J:\n" + "".join(f"  - {row}\n" for _ in range(40))
-    _, _, diags = load_yaml(inline, "m.yaml", max_nodes=1000)
+    _, _, diags = load_yaml(inline, "m.yaml", max_nodes=1000, max_values=1000)
     assert [d.render() for d in diags] == [
         "m.yaml:2:3: document too large: more than 1000 values. hint: put large matrices into an `.npz` file "
         "(`matrices:` of a `linear_phs`) and long signals into a CSV table [PHC-E003]"]
