@@ -268,8 +268,8 @@ def test_stopping_a_sweep_leaves_no_worker_behind(signum, code, tmp_path):
             "--out", str(out), "--quiet", "--no-certify", "--backend", "numpy"]
     proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
                             preexec_fn=interruptible)
-    # waits for the two workers (or the child's exit); the deadline only bounds the wait
-    deadline = time.monotonic() + 120
+    # waits for the two workers (or the child's exit); the deadline is a hang guard, not a speed limit
+    deadline = time.monotonic() + SUBPROCESS_TIMEOUT
     kids: set[int] = set()
     while time.monotonic() < deadline and proc.poll() is None:
         kids = _descendants(proc.pid)
@@ -282,8 +282,8 @@ def test_stopping_a_sweep_leaves_no_worker_behind(signum, code, tmp_path):
     assert proc.returncode == code, err
     assert "--resume" in err and "Traceback" not in err
     # a process the sweep did not wait for (a fork server) may end a moment after it; a worker
-    # left running a point of 1e7 s would still be there at the deadline
-    deadline = time.monotonic() + 20
+    # left running a point of 1e7 s would still be there at the deadline (a hang guard again)
+    deadline = time.monotonic() + SUBPROCESS_TIMEOUT
     while time.monotonic() < deadline and any(_running(pid) for pid in kids):
         time.sleep(0.05)
     assert not [pid for pid in kids if _running(pid)]
