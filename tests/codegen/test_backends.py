@@ -23,6 +23,7 @@ import pytest
 import phc
 from phc.codegen import backends, numba_backend, numba_cache
 from phc.errors import CacheWarning, SimulationSetupError
+from compiled_loading import load_with  # the disk-cache tests, shared with tests/codegen/test_c_backend.py
 from model_texts import EVERY_FUNCTION  # shared with tests/codegen/test_c_backend.py
 
 MODELS = sorted((Path(__file__).resolve().parents[2] / "models").glob("*.yaml"))
@@ -231,26 +232,13 @@ def _fresh(monkeypatch):
     monkeypatch.setattr(numba_cache, "_LOADED", {})
 
 
-def _load(path):
-    from phc.codegen.lower import lower_residual
-    from phc.codegen.load import load_generated
-    from phc.codegen.printer import print_module
-    from phc.pipeline import build_dae
-
-    dae, _ = build_dae(path)
-    ir = lower_residual(dae)
-    source = print_module(ir)
-    reference, _ = load_generated(source)
-    return numba_backend.load_compiled(ir, reference, source)
-
-
 @needs_numba
 def test_compiled_artefacts_are_cached_signed_and_never_trusted_unsigned(tmp_path, monkeypatch):
     monkeypatch.setenv("PHC_CACHE_DIR", str(tmp_path / "cache"))
     monkeypatch.setenv("PHC_STATE_DIR", str(tmp_path / "state"))
     model = MODELS[0].parent / "mass_spring_damper.yaml"
     _fresh(monkeypatch)
-    _, cold = _load(model)
+    _, cold = load_with(numba_backend, model)
     assert cold.cached == "cold"
     folder = tmp_path / "cache" / "numba"
     files = sorted(folder.iterdir())
@@ -261,7 +249,7 @@ def test_compiled_artefacts_are_cached_signed_and_never_trusted_unsigned(tmp_pat
     assert not (folder / "__pycache__").exists()
 
     _fresh(monkeypatch)
-    _, warm = _load(model)
+    _, warm = load_with(numba_backend, model)
     assert warm.cached == "warm" and warm.misses == 0
 
     # a tampered artefact (one byte of the machine code's pickle) is not unpickled: compiled again
@@ -271,14 +259,14 @@ def test_compiled_artefacts_are_cached_signed_and_never_trusted_unsigned(tmp_pat
     data.write_bytes(bytes(raw))
     _fresh(monkeypatch)
     with pytest.warns(CacheWarning, match="does not verify"):  # one warning naming the file, not the model
-        fast, again = _load(model)
+        fast, again = load_with(numba_backend, model)
     assert again.misses >= 1
     _assert_same(fast.REFERENCE, fast, functions=("residual", "jacobian"))
 
     # a cache restored from another machine (signed with another key) costs a compilation
     monkeypatch.setenv("PHC_STATE_DIR", str(tmp_path / "other-state"))
     _fresh(monkeypatch)
-    _, foreign = _load(model)
+    _, foreign = load_with(numba_backend, model)
     assert foreign.cached == "cold"
 
 
@@ -289,7 +277,7 @@ def test_a_cache_directory_others_can_write_is_not_used_for_compiled_code(tmp_pa
     (tmp_path / "cache" / "numba").mkdir(parents=True, mode=0o700)
     os.chmod(tmp_path / "cache" / "numba", 0o777)
     _fresh(monkeypatch)
-    _, report = _load(MODELS[0].parent / "mass_spring_damper.yaml")
+    _, report = load_with(numba_backend, MODELS[0].parent / "mass_spring_damper.yaml")
     assert report.cached == "off" and "writable by other users" in report.note
     assert list((tmp_path / "cache" / "numba").iterdir()) == []
 

@@ -31,6 +31,7 @@ import pytest
 import phc
 from phc.codegen import backends, c_backend
 from phc.errors import CacheWarning, SimulationSetupError
+from compiled_loading import load_with  # the disk-cache tests, shared with tests/codegen/test_backends.py
 from model_texts import EVERY_FUNCTION  # shared with tests/codegen/test_backends.py
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -207,18 +208,6 @@ def test_a_model_sent_to_a_worker_runs_on_the_c_backend_again():
 # ---------------------------------------------------------------------------------------
 # the signed cache
 
-def _load(path):
-    from phc.codegen.load import load_generated
-    from phc.codegen.lower import lower_residual
-    from phc.codegen.printer import print_module
-    from phc.pipeline import build_dae
-
-    dae, _ = build_dae(path)
-    ir = lower_residual(dae)
-    source = print_module(ir)
-    reference, _ = load_generated(source)
-    return c_backend.load_compiled(ir, reference, source)
-
 
 @needs_cc
 def test_libraries_are_cached_signed_and_a_tampered_one_is_rebuilt(tmp_path, monkeypatch):
@@ -234,7 +223,7 @@ def test_libraries_are_cached_signed_and_a_tampered_one_is_rebuilt(tmp_path, mon
 
     monkeypatch.setattr(c_backend, "_compile", counting)
     model = ROOT / "models" / "mass_spring_damper.yaml"
-    fast, cold = _load(model)
+    fast, cold = load_with(c_backend, model)
     assert cold.cached == "cold" and len(compilations) == 1
     folder = tmp_path / "cache" / "c"
     assert oct(folder.stat().st_mode & 0o777) == oct(0o700)
@@ -245,7 +234,7 @@ def test_libraries_are_cached_signed_and_a_tampered_one_is_rebuilt(tmp_path, mon
 
     # a second load (a new process: nothing in memory) takes the library from the cache
     monkeypatch.setattr(c_backend, "_LOADED", {})
-    again, warm = _load(model)
+    again, warm = load_with(c_backend, model)
     assert warm.cached == "warm" and len(compilations) == 1
     _assert_same(again.REFERENCE, again)
 
@@ -257,7 +246,7 @@ def test_libraries_are_cached_signed_and_a_tampered_one_is_rebuilt(tmp_path, mon
     monkeypatch.setattr(c_backend, "_LOADED", {})
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        rebuilt, report = _load(model)
+        rebuilt, report = load_with(c_backend, model)
     cache_warnings = [w for w in caught if issubclass(w.category, CacheWarning)]
     assert len(cache_warnings) == 1 and "does not verify" in str(cache_warnings[0].message)
     assert report.cached == "cold" and len(compilations) == 2
@@ -268,7 +257,7 @@ def test_libraries_are_cached_signed_and_a_tampered_one_is_rebuilt(tmp_path, mon
     monkeypatch.setenv("PHC_STATE_DIR", str(tmp_path / "other-state"))
     monkeypatch.setattr(c_backend, "_LOADED", {})
     with pytest.warns(CacheWarning, match="does not verify"):
-        _, foreign = _load(model)
+        _, foreign = load_with(c_backend, model)
     assert foreign.cached == "cold" and len(compilations) == 3
 
     # `phc cache clean` removes the libraries, their tags and C texts with the rest
@@ -285,7 +274,7 @@ def test_a_cache_directory_others_can_write_is_not_used(tmp_path, monkeypatch):
     monkeypatch.setattr(c_backend, "_LOADED", {})
     (tmp_path / "cache" / "c").mkdir(parents=True, mode=0o700)
     os.chmod(tmp_path / "cache" / "c", 0o777)
-    fast, report = _load(ROOT / "models" / "mass_spring_damper.yaml")
+    fast, report = load_with(c_backend, ROOT / "models" / "mass_spring_damper.yaml")
     assert report.cached == "off" and "writable by other users" in report.note
     assert list((tmp_path / "cache" / "c").iterdir()) == []
     _assert_same(fast.REFERENCE, fast, functions=("residual", "jacobian"))
