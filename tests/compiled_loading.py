@@ -1,6 +1,7 @@
-"""A model compiled by one compiled back end straight from its file, past phc's per-process
-and front-end caches: the disk-cache tests of the numba and C back ends
-(tests/codegen/test_backends.py, tests/codegen/test_c_backend.py) load through it."""
+"""The numba and C back ends checked the same way (tests/codegen/test_backends.py,
+tests/codegen/test_c_backend.py): a model compiled straight from its file past phc's
+per-process and front-end caches (the disk-cache tests), one generated function called at a
+point, and a compiled value compared with the NumPy reference's."""
 
 from __future__ import annotations
 
@@ -19,3 +20,36 @@ def load_with(backend, path):
     source = print_module(ir)
     reference, _ = load_generated(source)
     return backend.load_compiled(ir, reference, source)
+
+
+def call(mod, name, t, y, yp, p, cj):
+    """One of a generated module's functions (`name` in its FUNCTIONS) at one point, as an
+    array: the output-argument functions fill a fresh one."""
+    import numpy as np
+
+    if name in ("residual", "residual_t"):
+        out = np.zeros(mod.N)
+        getattr(mod, name)(t, y, yp, p, out)
+        return out
+    if name == "jacobian":
+        out = np.zeros(len(mod.JAC_ROWS))
+        mod.jacobian(t, y, yp, p, cj, out)
+        return out
+    if name in ("hamiltonian", "energy_scale", "invariants", "velocity_invariants"):
+        return np.atleast_1d(np.asarray(getattr(mod, name)(t, y, p), dtype=float))
+    return np.atleast_1d(np.asarray(getattr(mod, name)(t, y, yp, p), dtype=float))
+
+
+def assert_close(name, a, b, tol, floor=0.0):
+    """`b` (a compiled back end's value of function `name`) equals `a` (the NumPy
+    reference's): the same shape, non-finite where `a` is, and the finite entries within
+    `tol` of the largest of them (at least `floor`)."""
+    import numpy as np
+
+    assert a.shape == b.shape, name
+    finite = np.isfinite(a)
+    assert np.array_equal(finite, np.isfinite(b)), f"{name}: non-finite entries differ"
+    if finite.any():
+        scale = max(floor, float(np.abs(a[finite]).max()))
+        err = float(np.abs(a[finite] - b[finite]).max())
+        assert err <= tol * scale, f"{name}: compiled and reference differ by {err:.3e} (scale {scale:.3e})"

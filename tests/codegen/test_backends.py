@@ -23,7 +23,7 @@ import pytest
 import phc
 from phc.codegen import backends, numba_backend, numba_cache
 from phc.errors import CacheWarning, SimulationSetupError
-from compiled_loading import load_with  # the disk-cache tests, shared with tests/codegen/test_c_backend.py
+from compiled_loading import assert_close, call, load_with  # shared with tests/codegen/test_c_backend.py
 from model_texts import EVERY_FUNCTION  # shared with tests/codegen/test_c_backend.py
 
 MODELS = sorted((Path(__file__).resolve().parents[2] / "models").glob("*.yaml"))
@@ -45,20 +45,6 @@ def _points(mod, rng, k=6):
         yield float(rng.uniform(0.0, 2.0)), y, yp, p0, float(rng.uniform(0.1, 50.0))
 
 
-def _call(mod, name, t, y, yp, p, cj):
-    if name in ("residual", "residual_t"):
-        out = np.zeros(mod.N)
-        getattr(mod, name)(t, y, yp, p, out)
-        return out
-    if name == "jacobian":
-        out = np.zeros(len(mod.JAC_ROWS))
-        mod.jacobian(t, y, yp, p, cj, out)
-        return out
-    if name in ("hamiltonian", "energy_scale", "invariants", "velocity_invariants"):
-        return np.atleast_1d(np.asarray(getattr(mod, name)(t, y, p), dtype=float))
-    return np.atleast_1d(np.asarray(getattr(mod, name)(t, y, yp, p), dtype=float))
-
-
 def _assert_same(ref, fast, functions=numba_backend.FUNCTIONS, seed=0):
     rng = np.random.default_rng(seed)
     checked = 0
@@ -66,17 +52,11 @@ def _assert_same(ref, fast, functions=numba_backend.FUNCTIONS, seed=0):
         for name in functions:
             with np.errstate(all="ignore"):
                 try:
-                    a = _call(ref, name, t, y, yp, p, cj)
+                    a = call(ref, name, t, y, yp, p, cj)
                 except (ArithmeticError, ValueError, TypeError):
                     continue  # outside the reference's domain (Python raises; compiled code gives NaN)
-                b = _call(fast, name, t, y, yp, p, cj)
-            assert a.shape == b.shape, name
-            finite = np.isfinite(a)
-            assert np.array_equal(finite, np.isfinite(b)), f"{name}: non-finite entries differ"
-            if finite.any():
-                scale = max(1.0, float(np.abs(a[finite]).max()))
-                err = float(np.abs(a[finite] - b[finite]).max())
-                assert err <= TOL * scale, f"{name}: compiled and reference differ by {err:.3e} (scale {scale:.3e})"
+                b = call(fast, name, t, y, yp, p, cj)
+            assert_close(name, a, b, TOL, floor=1.0)
             checked += 1
     assert checked
 
@@ -143,7 +123,7 @@ def test_a_table_input_is_interpolated_like_the_reference(tmp_path):
     for t in [-0.1, 0.0, 0.1, 0.25, 0.4, 0.5, 0.9, 1.0, 1.5, *rng.uniform(0, 1, 5)]:
         y, yp = rng.uniform(-1, 1, ref.N), rng.uniform(-1, 1, ref.N)
         for name in ("residual", "residual_t"):
-            a, b = _call(ref, name, t, y, yp, p, 1.0), _call(fast, name, t, y, yp, p, 1.0)
+            a, b = call(ref, name, t, y, yp, p, 1.0), call(fast, name, t, y, yp, p, 1.0)
             np.testing.assert_allclose(b, a, rtol=TOL, atol=TOL, err_msg=f"{name} at t = {t}")
 
 

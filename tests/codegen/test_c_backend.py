@@ -31,7 +31,7 @@ import pytest
 import phc
 from phc.codegen import backends, c_backend
 from phc.errors import CacheWarning, SimulationSetupError
-from compiled_loading import load_with  # the disk-cache tests, shared with tests/codegen/test_backends.py
+from compiled_loading import assert_close, call, load_with  # shared with tests/codegen/test_backends.py
 from model_texts import EVERY_FUNCTION  # shared with tests/codegen/test_backends.py
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -44,20 +44,6 @@ TOL = 1e-12
 """Agreement required, relative to the largest entry of the vector (see the module docstring)."""
 
 
-def _call(mod, name, t, y, yp, p, cj):
-    if name in ("residual", "residual_t"):
-        out = np.zeros(mod.N)
-        getattr(mod, name)(t, y, yp, p, out)
-        return out
-    if name == "jacobian":
-        out = np.zeros(len(mod.JAC_ROWS))
-        mod.jacobian(t, y, yp, p, cj, out)
-        return out
-    if name in ("hamiltonian", "energy_scale", "invariants", "velocity_invariants"):
-        return np.atleast_1d(np.asarray(getattr(mod, name)(t, y, p), dtype=float))
-    return np.atleast_1d(np.asarray(getattr(mod, name)(t, y, yp, p), dtype=float))
-
-
 def _assert_same(ref, fast, functions=c_backend.FUNCTIONS, seed=0, points=6, p=None):
     rng = np.random.default_rng(seed)
     p = np.asarray(ref.full_parameters() if p is None else p, dtype=float)
@@ -68,17 +54,11 @@ def _assert_same(ref, fast, functions=c_backend.FUNCTIONS, seed=0, points=6, p=N
         for name in functions:
             with np.errstate(all="ignore"):
                 try:
-                    a = _call(ref, name, t, y, yp, p, cj)
+                    a = call(ref, name, t, y, yp, p, cj)
                 except (ArithmeticError, ValueError, TypeError):
                     continue  # outside the reference's domain (Python raises; C gives NaN)
-                b = _call(fast, name, t, y, yp, p, cj)
-            assert a.shape == b.shape, name
-            finite = np.isfinite(a)
-            assert np.array_equal(finite, np.isfinite(b)), f"{name}: non-finite entries differ"
-            if finite.any():
-                scale = float(np.abs(a[finite]).max())
-                err = float(np.abs(a[finite] - b[finite]).max())
-                assert err <= TOL * scale, f"{name}: C and reference differ by {err:.3e} (scale {scale:.3e})"
+                b = call(fast, name, t, y, yp, p, cj)
+            assert_close(name, a, b, TOL)
             checked += 1
     assert checked
 
