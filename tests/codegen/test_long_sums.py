@@ -41,7 +41,7 @@ def _longest_sum(source: str) -> int:
 @pytest.fixture(scope="module")
 def chain_ir(tmp_path_factory):
     path = tmp_path_factory.mktemp("chain") / "chain.yaml"
-    path.write_text(damped_chain(40))
+    path.write_text(damped_chain(12))
     dae, diags = phc.build_dae(path)
     assert dae is not None, [d.render() for d in diags]
     return lower_residual(dae)
@@ -51,7 +51,7 @@ def test_a_long_sum_becomes_short_statements_with_the_same_values(chain_ir, monk
     whole = print_module(chain_ir)
     monkeypatch.setattr(printer, "LONG_SUM", SHORT)
     split = print_module(chain_ir)
-    assert _longest_sum(whole) > 3 * SHORT  # the energy: about 80 terms on one line
+    assert _longest_sum(whole) > 2 * SHORT  # the energy: about 24 terms on one line
     # at most SHORT terms, plus the local the statement adds them to
     assert _longest_sum(split) <= SHORT + 1
     a, _ = load_generated(whole, "whole")
@@ -77,7 +77,7 @@ def test_a_long_sum_becomes_short_statements_with_the_same_values(chain_ir, monk
 
 def test_a_short_sum_is_printed_as_before(chain_ir):
     source = print_module(chain_ir)
-    assert printer.LONG_SUM > 80 and "_c0 = _c0 +" not in source
+    assert printer.LONG_SUM > 24 and "_c0 = _c0 +" not in source
 
 
 @pytest.mark.slow
