@@ -201,6 +201,14 @@ sign), quadratic in their number: the residual of 10⁴ springs ``-k·x_i`` was 
 search. A function of fewer expressions is searched as a whole, as before."""
 
 
+LONG_SUM = 256
+"""A sum of more terms is printed as several statements of at most this many terms each,
+``_cN = t1 + … + tK`` then ``_cN = _cN + tK+1 + …``: Python compiles ``a + b + c + …`` into
+a tree as deep as the sum is long, and its compiler refuses a tree a few thousand levels
+deep (the energy of a chain of 3000 springs and masses). The statements add the terms in
+the order the one-line sum would (left to right), so every value is the same to the bit."""
+
+
 def _cse(exprs: list, symbols) -> tuple[list, list]:
     """``sympy.cse`` of `exprs` (numbered by the iterator `symbols`), block by block
     (:data:`CSE_BLOCK`): the replacements of all blocks, then the reduced expressions."""
@@ -355,13 +363,36 @@ class ModulePrinter:
         replacements, reduced = _cse(list(exprs), symbols)
         for sym, rhs in replacements:
             self.names[sym] = sym.name  # _c0, _c1, ...: generated here
+            rhs = self._short_sums(rhs, symbols, printed, lines)
             printed.append(rhs)
             lines.append(f"{sym} = {self.printer.doprint(rhs)}")
         for target, e in zip(targets, reduced):
+            e = self._short_sums(e, symbols, printed, lines)
             printed.append(e)
             op = "+=" if top and target in self.accumulate else "="
             lines.append(f"{target} {op} {self.printer.doprint(e)}")
         return lines
+
+    def _short_sums(self, e, symbols, printed: list, lines: list):
+        """`e` with every sum of more than :data:`LONG_SUM` terms replaced by a local that
+        statements appended to `lines` compute, :data:`LONG_SUM` terms at a time, in the
+        printed order of the terms (innermost sums first)."""
+        if not isinstance(e, sp.Basic) or e.is_Atom:
+            return e
+        if not any(isinstance(a, sp.Add) and len(a.args) > LONG_SUM for a in sp.preorder_traversal(e)):
+            return e
+        args = [self._short_sums(a, symbols, printed, lines) for a in e.args]
+        if not (isinstance(e, sp.Add) and len(args) > LONG_SUM):
+            return e.func(*args)
+        terms = sp.Add(*args).as_ordered_terms()  # the order the printer writes a sum in
+        sym = next(symbols)
+        self.names[sym] = sym.name
+        for k in range(0, len(terms), LONG_SUM):
+            chunk = sp.Add(*terms[k:k + LONG_SUM])
+            printed.append(chunk)
+            text = self.printer.doprint(chunk)
+            lines.append(f"{sym} = {text}" if k == 0 else f"{sym} = {sym} + {text}")
+        return sym
 
     def _body(self, exprs: Sequence[sp.Expr], targets: Sequence[str]) -> list[str]:
         """Unpack used symbols, common subexpressions, then one assignment per target."""
