@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
+from collections import deque
 from typing import Optional
 
 import numpy as np
@@ -37,7 +38,7 @@ from phc.errors import SimulationSetupError
 from phc.simulation.backend import BackendRun
 from phc.simulation.guard import CATCH, GuardedModule, ModelEvaluationError
 from phc.simulation.monitor import SingularityMonitor, check_scales, diagnose_failure
-from phc.simulation.order import OrderChoice, Switch, after_step
+from phc.simulation.order import RECENT_STEPS, OrderChoice, Switch, after_step
 from phc.simulation.tested import (  # noqa: F401  (names of phc.simulation.ida before the split)
     CANCELLATION, SENSITIVITY_DENSE, TERM_FRACTION, algebraic_rates, determined_algebraic, determined_scales,
     source_terms)
@@ -400,8 +401,10 @@ class _StepHook:
 
     def __init__(self, t0, y0, yp0, *, t_end, max_steps, monitor, calls, progress, base, order_look=None):
         self.t_last, self.t_end, self.max_steps = float(t0), float(t_end), int(max_steps)
-        # phc's choice of the maximum order (phc.simulation.order.after_step; None: the user's)
+        # phc's choice of the maximum order (phc.simulation.order.after_step; None: the user's),
+        # from the sizes of the last steps
         self.order_look = order_look
+        self.recent = deque(maxlen=RECENT_STEPS)
         self.monitor, self.calls, self.progress = monitor, calls, progress
         self.steps = 0
         self.h_last = 0.0
@@ -421,6 +424,15 @@ class _StepHook:
         self.failures_seen, self.edge = 0, None
         self.target = float(t0)      # the output time of IDA's current call
         self.evaluations_seen = calls.evaluations  # residual evaluations at the hook's last call
+
+    def rewind(self, t0, y0, yp0) -> None:
+        """The run starts again at (t0, y0, ẏ0) (another maximum order, phc.simulation.order);
+        the steps already taken stay counted."""
+        self.t_last, self.h_last, self.h_ref = float(t0), 0.0, 0.0
+        self.normal = (float(t0), np.asarray(y0, dtype=float), np.asarray(yp0, dtype=float))
+        self.edge = None
+        self.recent.clear()
+        self.monitor.forget()
 
     def start_call(self, target: float) -> None:
         self.target = float(target)
@@ -462,7 +474,8 @@ class _StepHook:
         if self.since_look >= self.cadence and self.monitor.enabled:
             self._look(t, y, yp, h)
         if self.order_look is not None:
-            self.order_look(t, y, yp, self.steps, self.h_ref)  # may raise order.Switch
+            self.recent.append(h)
+            self.order_look(t, y, yp, self.steps, self.recent)  # may raise order.Switch
         self.since_progress += 1
         if self.progress is not None and self.since_progress >= PROGRESS_STEPS:
             self.since_progress = 0
@@ -535,8 +548,8 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
     hook = _StepHook(t0, y0, yp0, t_end=t_end, max_steps=max_steps, monitor=monitor, calls=calls, progress=progress,
                      base=10 if n <= 60 else 20,
                      order_look=None if choice.final else (
-                         lambda t, y, yp, steps, h: after_step(choice, mod, p, t, y, yp, steps=steps, h=h,
-                                                               t_end=t_end)))
+                         lambda t, y, yp, steps, recent: after_step(choice, mod, p, t, y, yp, steps=steps,
+                                                                    recent=recent, t_end=t_end)))
     n_switch = events.n if events is not None else 0
 
     if n_switch:
@@ -559,11 +572,16 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
         solver = IDA(resfn, **settings)
 
     def restart(switch: Switch):
-        """IDA from the step's end `switch` at the order `choice` holds now (a new solver:
-        scikit-sundae sets the order when it is made), starting with the step it was taking."""
+        """A new IDA (scikit-sundae sets the order when it is made) at the order `choice`
+        holds now: from the run's start, or from the step's end `switch` with the step it
+        was taking."""
+        first = {} if switch.rewind else {"first_step": switch.h}
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message="Custom sparse Jacobian approximation")
-            new = IDA(resfn, **{**settings, "max_order": choice.order, "first_step": switch.h})
+            new = IDA(resfn, **{**settings, "max_order": choice.order, **first})
+        if switch.rewind:
+            hook.rewind(t0, y0, yp0)
+            return new, new.init_step(t0, y0, yp0)
         return new, new.init_step(switch.t, switch.y, switch.yp)
 
     def scales(failed, upto=1):  # the states of the run so far (a system at rest at t0 may move later)
@@ -586,9 +604,10 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
             hook.start_call(t_out[k])
             try:
                 res = solver.step(float(t_out[k]), method="normal", tstop=t_end)
-            except Switch as switch:  # phc's choice of the maximum order changed: go on from the step's end
+            except Switch as switch:  # phc's choice of the maximum order changed (simulation/order.py)
                 solver, init = restart(switch)
                 max_order = choice.order
+                k = 1 if switch.rewind else k
                 hook.evaluations_seen = calls.evaluations
                 if not init.success:
                     ok, message = False, f"IDA could not go on at max_order {choice.order} at t = {switch.t:.6g}: " \

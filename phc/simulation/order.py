@@ -17,12 +17,11 @@ So when the user has not set `max_order`, the run starts at IDA's default (5); e
 its step count doubles from :data:`CHECK_STEPS` on, while at least as many steps remain at
 the current step size, phc looks at the modes of the linearization at the current state
 (:func:`held_by_stability`). When the fastest lightly damped one has ``2·h·ω > 0.7109``,
-IDA goes on from that state at max_order 2 (a new IDA from the last step's end, scikit-sundae's
-public interface); whether that pays — BDF2's steps are then limited by its own accuracy,
+the run starts again at max_order 2 (a new IDA, scikit-sundae's public interface; why from
+the start: :func:`after_step`); whether that pays — BDF2's steps are then limited by its own accuracy,
 which may be shorter than the held BDF5 step on a coarse model at tight tolerances — is
-measured, not assumed: after :data:`CHECK_STEPS` steps at order 2 the mean step of the
-second half is compared with the held step, and the run returns to order 5 for good when it
-is not longer. What was chosen is said once in the run's message (:func:`switch_note`).
+measured, not assumed: after :data:`CHECK_STEPS` steps at order 2 the step it is taking is
+compared with the held one, and the run returns to order 5 for good when it is not longer. What was chosen is said once in the run's message (:func:`switch_note`).
 """
 
 from __future__ import annotations
@@ -93,10 +92,8 @@ class OrderChoice:
     omega: float = math.nan
     """The fastest undamped mode's angular frequency there."""
     steps_at_switch: int = 0
-    trial_half: Optional[tuple] = None
-    """(steps, t) half-way through the trial at order 2."""
     h_trial: float = math.nan
-    """Mean step of the trial's second half."""
+    """The step order 2 was taking at the end of its trial."""
     t_back: float = math.nan
     """Time of the return to order 5 (when order 2 did not pay)."""
     next_look: int = CHECK_STEPS
@@ -119,28 +116,45 @@ class OrderChoice:
                f"bounded only for ωh < {BDF5_IMAGINARY:g}, and IDA raises a step only by doubling it; BDF of order "
                "1–2 is stable for any ωh)")
         if not math.isnan(self.t_back):
-            return (f"{why}; phc tried max_order 2 from t = {self.t:.3g} s, but its steps were shorter (mean "
-                    f"{self.h_trial:.2g} s), so the run went back to max_order 5 at t = {self.t_back:.3g} s; set "
+            return (f"{why} (at t = {self.t:.3g} s); phc tried max_order 2, but its steps were not longer "
+                    f"({self.h_trial:.2g} s), so the run went on at max_order 5 from t = {self.t_back:.3g} s; set "
                     "`max_order` to choose yourself (docs/how-to/solvers.md)")
-        return (f"{why}, so phc continued at max_order 2 from t = {self.t:.3g} s"
-                + (f" (mean step {self.h_trial:.2g} s)" if not math.isnan(self.h_trial) else "")
+        return (f"{why} (at t = {self.t:.3g} s), so phc ran it at max_order 2"
+                + (f" (steps of {self.h_trial:.2g} s)" if not math.isnan(self.h_trial) else "")
                 + "; set `max_order` to choose yourself (docs/how-to/solvers.md)")
 
 
 class Switch(Exception):
-    """Raised by the step hook to continue the run from (t, y, ẏ) at another maximum order."""
+    """Raised by the step hook to change the maximum order: from the run's start again
+    (`rewind`), or on from (t, y, ẏ) with a first step `h`."""
 
-    def __init__(self, t: float, y, yp, h: float):
+    def __init__(self, t: float, y, yp, h: float, rewind: bool = False):
         super().__init__("order switch")
         self.t, self.y, self.yp, self.h = float(t), np.array(y, dtype=float), np.array(yp, dtype=float), float(h)
+        self.rewind = rewind
 
 
-def after_step(choice: OrderChoice, mod, p, t, y, yp, *, steps: int, h: float, t_end: float) -> None:
-    """At the end of IDA's step number `steps` (size `h`, the recent largest): look at the
-    modes when it is time, or judge the trial at order 2; raises :class:`Switch` to change
-    the order (`choice` records why)."""
+RECENT_STEPS = 16
+"""Steps whose largest is the step IDA is taking (it cuts a step now and then, by 0.5–0.9)."""
+
+
+def after_step(choice: OrderChoice, mod, p, t, y, yp, *, steps: int, recent, t_end: float) -> None:
+    """At the end of IDA's step number `steps` (`recent`: the sizes of the last
+    :data:`RECENT_STEPS` steps): look at the modes when it is time, or judge the trial at
+    order 2; raises :class:`Switch` to change the order (`choice` records why).
+
+    Order 2 starts the run again from its start: held at the edge of its stability, order 5
+    leaves the fastest modes as large as its error test allows, and BDF2's error estimate of
+    them at that step is 10–50 times larger, so it must resolve them (ωh ~ 0.1) where it
+    damps them by 10⁻⁴ a step: on the 1 000-element beam, going on from the held state at
+    order 2 kept the held step for 10⁴ steps, where order 2 from the start took steps 100
+    times longer. (The steps order 5 took are wasted: at most half the run's so far, at
+    most the run's :data:`CHECK_STEPS` at the first look.) After :data:`CHECK_STEPS` steps
+    at order 2, the step it is taking is compared with the held one; where it is not longer,
+    the run goes on from there at order 5."""
     if choice.final or steps < choice.next_look:
         return
+    h = max(recent, default=0.0)
     if choice.order == DEFAULT_ORDER:
         remaining = (t_end - t) / h if h > 0 else 0.0
         choice.next_look = 2 * steps
@@ -151,15 +165,9 @@ def after_step(choice: OrderChoice, mod, p, t, y, yp, *, steps: int, h: float, t
             return
         choice.order, choice.t, choice.h_held, choice.omega = A_STABLE_ORDER, float(t), float(h), omega
         choice.steps_at_switch = steps
-        choice.next_look = steps + CHECK_STEPS // 2
-        raise Switch(t, y, yp, h)
-    # the trial at order 2: its first half lets IDA climb from order 1; the second half is measured
-    if choice.trial_half is None:
-        choice.trial_half = (steps, float(t))
-        choice.next_look = steps + CHECK_STEPS // 2
-        return
-    n0, t0 = choice.trial_half
-    choice.h_trial = (float(t) - t0) / max(steps - n0, 1)
+        choice.next_look = steps + CHECK_STEPS
+        raise Switch(t, y, yp, h, rewind=True)
+    choice.h_trial = h
     choice.final = True
     if choice.h_trial <= choice.h_held:
         choice.order, choice.t_back = DEFAULT_ORDER, float(t)
