@@ -3,25 +3,27 @@
 Orders 3–5 of BDF are not stable on the whole imaginary axis (the roots ζ of
 ``Σ_{j≤k} (1 − 1/ζ)^j / j = z`` leave the unit disc for z = iωh): BDF3 and BDF4 amplify an
 undamped mode at every ωh > 0 (slowly while ωh is small), BDF5 for ωh between
-:data:`BDF5_IMAGINARY` (0.7109) and 9.39. BDF1 and BDF2 are A-stable. IDA changes its step
+:data:`BDF5_IMAGINARY` (0.7108) and 9.39. BDF1 and BDF2 are A-stable. IDA changes its step
 only by doubling it, keeping it, or cutting it (SUNDIALS' ``IDACompleteStep``), and raises its
 order to 5 on smooth solutions; on a model with undamped oscillations up to ω_max it then
-cannot double a step h with ``2·h·ω_max > 0.7109`` without the fastest mode growing until
+cannot double a step h with ``2·h·ω_max > 0.7108`` without the fastest mode growing until
 the error test cuts the step again: the step is held by stability, not by the tolerances.
 Measured on the Euler–Bernoulli beam (issue 38): ω_max·h = 0.56, 0.50, 0.58 with 30, 100 and
 1 000 elements, whatever the tolerances (6.2e-11 s at rtol 1e-5, 7.5e-11 s at 1e-8 on
 1 000 elements); 0.14 on the shipped 6 elements, where the steps are the tolerances' and
 order 5 takes 5.4 times fewer steps than order 2.
 
-So when the user has not set `max_order`, the run starts at IDA's default (5); every time
-its step count doubles from :data:`CHECK_STEPS` on, while at least as many steps remain at
-the current step size, phc looks at the modes of the linearization at the current state
-(:func:`held_by_stability`). When the fastest lightly damped one has ``2·h·ω > 0.7109``,
-the run starts again at max_order 2 (a new IDA, scikit-sundae's public interface; why from
-the start: :func:`after_step`); whether that pays — BDF2's steps are then limited by its own accuracy,
-which may be shorter than the held BDF5 step on a coarse model at tight tolerances — is
-measured, not assumed: after :data:`CHECK_STEPS` steps at order 2 the step it is taking is
-compared with the held one, and the run returns to order 5 for good when it is not longer. What was chosen is said once in the run's message (:func:`switch_note`).
+So when the user has not set `max_order`, the run starts at IDA's default (5); at
+:data:`CHECK_STEPS` steps and each time its step count doubles, while at least
+:data:`CHECK_STEPS` steps remain at the current step size, phc looks at the modes of the
+linearization at the current state (:func:`held_by_stability`). When the fastest lightly
+damped one has ``2·h·ω > 0.7108``, the run starts again at max_order 2 (a new IDA through
+scikit-sundae's public interface; why from the start: :func:`after_step`). Whether that
+pays — BDF2's steps are limited by its own accuracy, which may ask for shorter steps than
+the held BDF5 step on a coarse model at tight tolerances — is measured, not assumed: after
+:data:`CHECK_STEPS` steps at order 2 the step it is taking is compared with the held one,
+and the run goes on at order 5 for good when it is not longer. What was chosen is said
+once in the run's message (:meth:`OrderChoice.note`).
 """
 
 from __future__ import annotations
@@ -34,9 +36,9 @@ import numpy as np
 
 from phc.simulation.monitor import undamped_modes, undamped_modes_near
 
-BDF5_IMAGINARY = 0.7109
+BDF5_IMAGINARY = 0.7108
 """ωh up to which BDF5 keeps an undamped mode (y' = iωy) bounded: the largest root of its
-characteristic polynomial reaches modulus 1 at z = 0.7109i (tests/simulation/
+characteristic polynomial reaches modulus 1 at z = 0.7108i (tests/simulation/
 test_ida_order.py computes it from the polynomial)."""
 STEP_RAISE = 2.0
 """The factor by which IDA raises a step (it only doubles)."""
@@ -144,14 +146,15 @@ def after_step(choice: OrderChoice, mod, p, t, y, yp, *, steps: int, recent, t_e
     order 2; raises :class:`Switch` to change the order (`choice` records why).
 
     Order 2 starts the run again from its start: held at the edge of its stability, order 5
-    leaves the fastest modes as large as its error test allows, and BDF2's error estimate of
-    them at that step is 10–50 times larger, so it must resolve them (ωh ~ 0.1) where it
-    damps them by 10⁻⁴ a step: on the 1 000-element beam, going on from the held state at
-    order 2 kept the held step for 10⁴ steps, where order 2 from the start took steps 100
-    times longer. (The steps order 5 took are wasted: at most half the run's so far, at
-    most the run's :data:`CHECK_STEPS` at the first look.) After :data:`CHECK_STEPS` steps
-    at order 2, the step it is taking is compared with the held one; where it is not longer,
-    the run goes on from there at order 5."""
+    leaves the fastest modes as large as its error test allows; at that step (ωh ≈ 0.58)
+    BDF2's error estimate of them is 10 times larger (error constants 1/3 and 1/6 times
+    (ωh)³ and (ωh)⁶), so BDF2 must resolve them, at ωh ≈ 0.2–0.3 where it damps them by
+    0.04–0.17 % a step: on the 1 000-element beam, going on from the held state at order 2
+    kept the held step for 10⁴ steps, where order 2 from the start takes steps 100 times
+    longer. The steps order 5 took are wasted: :data:`CHECK_STEPS` at the first look, and as
+    the looks come at doublings of the step count, never more than the run's work so far.
+    After :data:`CHECK_STEPS` steps at order 2, the step it is taking is compared with the
+    held one; where it is not longer, the run goes on from there at order 5."""
     if choice.final or steps < choice.next_look:
         return
     h = max(recent, default=0.0)
