@@ -518,7 +518,13 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
     step. `events` (a :class:`phc.simulation.events.Watch`, optional) are switching
     functions w(t, y, ẏ), positive while the modes hold: IDA's root finding (scikit-sundae's
     ``eventsfn``, direction −1, terminal) stops at the first that falls to zero; the run
-    then returns with ``event`` = dict(t, y, yp, which) and the outputs before it."""
+    then returns with ``event`` = dict(t, y, yp, which) and the outputs before it.
+
+    Without a `max_order` in `options`, phc chooses it (:mod:`phc.simulation.order`): the
+    step hook looks at the modes now and then and may start the run again at order 2 (and
+    go on at order 5 if that does not pay); ``extra`` then holds the note that says so
+    (``order_note``), the order IDA ended with (``max_order``) and, once the trial settled
+    it, the order later pieces of the run keep (``max_order_chosen``)."""
     IDA = _import_ida()
     n = mod.N
     rtol, max_steps = float(options.rtol), int(options.max_steps)

@@ -34,6 +34,7 @@ from typing import Optional
 
 import numpy as np
 
+from phc.errors import ModelEvaluationError
 from phc.simulation.monitor import undamped_modes, undamped_modes_near
 
 BDF5_IMAGINARY = 0.7108
@@ -71,8 +72,8 @@ def held_by_stability(mod, p, t, y, yp, h: float) -> Optional[float]:
             omegas = undamped_modes(mod, p, t, y, yp)
         else:
             omegas = undamped_modes_near(mod, p, t, y, yp, BDF5_IMAGINARY / h)
-    except (ArithmeticError, ValueError, TypeError, np.linalg.LinAlgError):
-        return None
+    except (ArithmeticError, ValueError, TypeError, np.linalg.LinAlgError, ModelEvaluationError):
+        return None  # no modes to judge by: the order stays
     if omegas is None or not len(omegas):
         return None
     w = float(omegas[0])
