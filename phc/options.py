@@ -46,8 +46,9 @@ class RunOptions:
     """One of :data:`phc.names.SOLVER_NAMES`."""
     step: Optional[float] = None
     """Step size of the fixed-step solvers (None: the output interval)."""
-    max_order: int = 5
-    """Maximum BDF order of IDA."""
+    max_order: Optional[int] = None
+    """Maximum BDF order of IDA; None: phc chooses (5, or 2 where undamped oscillations hold
+    the steps of orders 3–5, :mod:`phc.simulation.order`)."""
 
     @classmethod
     def names(cls) -> tuple[str, ...]:

@@ -25,6 +25,7 @@ from phc.simulation.events import breakpoints_within, has_switches, integrate_sw
 from phc.simulation.ida import MAX_ORDER, applied_atol, integrate_ida
 from phc.simulation.initial import InitialResult, consistent_initial_conditions
 from phc.simulation.monitor import describe_equations, many_steps_hint
+from phc.simulation.order import carry as carry_order
 from phc.names import RUN_LIMITS
 from phc.options import RunOptions
 from phc.simulation.backend import Backend, BackendRun, IgnoredOptionWarning, ignored_option_message
@@ -439,11 +440,13 @@ def _integrate_with_breakpoints(run, mod, p, t_out, init) -> BackendRun:
     ends = [*breaks, t1]
     y0, yp0, start = init.y0, init.yp0, t0
     pieces, total = [], dict(steps=0, nfev=0, njev=0)
-    out = None
+    out, note = None, None
     for end in ends:
         out = _run_safely(run, piece_grid(t_out, start, end), y0, yp0)
         for key in total:
             total[key] += getattr(out, key)
+        note = out.extra.get("order_note") or note  # IDA's maximum order phc chose (simulation/order.py)
+        run = partial(run.func, *run.args, **carry_order(run.keywords, out))
         pieces.append(dict(zip(("t", "y", "yp"), piece_outputs(out, t_out, start, end))))
         if not out.success or end == t1:
             break
@@ -467,7 +470,7 @@ def _integrate_with_breakpoints(run, mod, p, t_out, init) -> BackendRun:
     merged = {k: np.concatenate([pc[k] for pc in pieces]) for k in ("t", "y", "yp")}
     _, first = np.unique(merged["t"], return_index=True)  # a breakpoint on the grid appears twice
     merged = {k: v[np.sort(first)] for k, v in merged.items()}
-    return out.replace(**merged, **total)
+    return out.replace(**merged, **total, order_note=note)
 
 
 def _run_safely(run, t_out, y0, yp0) -> BackendRun:
@@ -537,9 +540,12 @@ def _finish(compiled, mod, p, out: BackendRun, init, cpu, options: RunOptions, p
         reached = float(out.extra.get("t_reached", out.t[-1])) if used_up else float(out.t[-1])
         if reached > out.t[0]:
             hint = many_steps_hint(mod, p, out.t[ends], out.y[ends], out.yp[ends], steps=steps,
-                                   span=reached - float(out.t[0]), max_order=int(options.max_order or MAX_ORDER),
+                                   span=reached - float(out.t[0]),
+                                   max_order=int(out.extra.get("max_order") or options.max_order or MAX_ORDER),
                                    rtol=options.rtol, atol=applied_atol(options.rtol, options.atol), stopped=used_up)
             message = f"{message}; {hint}"
+    if out.extra.get("order_note"):  # the maximum order phc chose for IDA, and why (simulation/order.py)
+        message = f"{message}; {out.extra['order_note']}"
     if failure is not None:
         if out.success:
             message = f"{failure}; results up to t = {t[-1]:.6g} are kept"

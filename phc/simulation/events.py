@@ -40,6 +40,7 @@ from phc.errors import InconsistentInitialError, SwitchTimeError
 from phc.simulation.backend import BackendRun
 from phc.simulation.guard import CATCH, ModelEvaluationError
 from phc.simulation.initial import consistent_initial_conditions
+from phc.simulation.order import carry as carry_order
 from phc.simulation.scaling import mode_floor, tested_fraction
 
 SAMPLES = 256
@@ -386,6 +387,7 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, keywo
     floors: dict = {}  # the scales' round-off floor per mode (parameter vector with the modes)
     out: Optional[BackendRun] = None
     stop: dict = {}  # success, message, interrupted of a stop between the backend's runs
+    note = None
     while True:
         end = ends[seg]
         try:
@@ -412,6 +414,8 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, keywo
                                      message=f"interrupted at t = {t:.6g}" if interrupted else str(err))
                 for key in stats:
                     stats[key] += int(getattr(out, key) or 0)
+                note = out.extra.get("order_note") or note  # IDA's maximum order phc chose (simulation/order.py)
+                keywords = carry_order(keywords, out)
                 # an output time equal to a restart time keeps its first value (np.unique below)
                 pieces.append(piece_outputs(out, t_out, t, end))
                 if not out.success:
@@ -460,7 +464,7 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, keywo
     if out is None:  # no piece ran (the run ended at a breakpoint at its start)
         out = BackendRun(t=merged["t"], y=merged["y"], yp=merged["yp"], steps=0, success=True,
                          message="integration finished")
-    return out.replace(**merged, **stats, **stop, event=None, events=events)
+    return out.replace(**merged, **stats, **stop, event=None, events=events, order_note=note)
 
 
 def _stopped(t_out, y, yp, stats, events, message) -> BackendRun:

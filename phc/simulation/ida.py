@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
+from collections import deque
 from typing import Optional
 
 import numpy as np
@@ -37,6 +38,7 @@ from phc.errors import SimulationSetupError
 from phc.simulation.backend import BackendRun
 from phc.simulation.guard import CATCH, GuardedModule, ModelEvaluationError
 from phc.simulation.monitor import SingularityMonitor, check_scales, diagnose_failure
+from phc.simulation.order import RECENT_STEPS, OrderChoice, Switch, after_step
 from phc.simulation.tested import (  # noqa: F401  (names of phc.simulation.ida before the split)
     CANCELLATION, SENSITIVITY_DENSE, TERM_FRACTION, algebraic_rates, determined_algebraic, determined_scales,
     source_terms)
@@ -109,7 +111,8 @@ DENSE_SOLVER = "dense"
 """scikit-sundae's name of the dense solver: SUNDIALS' own LU (``dense``) or LAPACK's."""
 
 MAX_ORDER = 5
-"""Maximum BDF order (5 is IDA's default; 2 is A-stable for undamped stiff oscillations)."""
+"""Maximum BDF order (5 is IDA's default; 2 is A-stable for undamped stiff oscillations). Where
+the user sets none, phc starts with it and may go on at 2 (:mod:`phc.simulation.order`)."""
 
 PROGRESS_STEPS = 50
 """Steps between two progress reports of a run."""
@@ -396,8 +399,12 @@ class _StepHook:
     or at the step's real end, which only moves the hook's clock. Steps are not told apart by
     time: IDA crawling into a singular configuration takes steps that leave t unchanged."""
 
-    def __init__(self, t0, y0, yp0, *, t_end, max_steps, monitor, calls, progress, base):
+    def __init__(self, t0, y0, yp0, *, t_end, max_steps, monitor, calls, progress, base, order_look=None):
         self.t_last, self.t_end, self.max_steps = float(t0), float(t_end), int(max_steps)
+        # phc's choice of the maximum order (phc.simulation.order.after_step; None: the user's),
+        # from the sizes of the last steps
+        self.order_look = order_look
+        self.recent = deque(maxlen=RECENT_STEPS)
         self.monitor, self.calls, self.progress = monitor, calls, progress
         self.steps = 0
         self.h_last = 0.0
@@ -417,6 +424,15 @@ class _StepHook:
         self.failures_seen, self.edge = 0, None
         self.target = float(t0)      # the output time of IDA's current call
         self.evaluations_seen = calls.evaluations  # residual evaluations at the hook's last call
+
+    def rewind(self, t0, y0, yp0) -> None:
+        """The run starts again at (t0, y0, ẏ0) (another maximum order, phc.simulation.order);
+        the steps already taken stay counted."""
+        self.t_last, self.h_last, self.h_ref = float(t0), 0.0, 0.0
+        self.normal = (float(t0), np.asarray(y0, dtype=float), np.asarray(yp0, dtype=float))
+        self.edge = None
+        self.recent.clear()
+        self.monitor.forget()
 
     def start_call(self, target: float) -> None:
         self.target = float(target)
@@ -457,6 +473,9 @@ class _StepHook:
         self.since_look += 1
         if self.since_look >= self.cadence and self.monitor.enabled:
             self._look(t, y, yp, h)
+        if self.order_look is not None:
+            self.recent.append(h)
+            self.order_look(t, y, yp, self.steps, self.recent)  # may raise order.Switch
         self.since_progress += 1
         if self.progress is not None and self.since_progress >= PROGRESS_STEPS:
             self.since_progress = 0
@@ -499,12 +518,20 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
     step. `events` (a :class:`phc.simulation.events.Watch`, optional) are switching
     functions w(t, y, ẏ), positive while the modes hold: IDA's root finding (scikit-sundae's
     ``eventsfn``, direction −1, terminal) stops at the first that falls to zero; the run
-    then returns with ``event`` = dict(t, y, yp, which) and the outputs before it."""
+    then returns with ``event`` = dict(t, y, yp, which) and the outputs before it.
+
+    Without a `max_order` in `options`, phc chooses it (:mod:`phc.simulation.order`): the
+    step hook looks at the modes now and then and may start the run again at order 2 (and
+    go on at order 5 if that does not pay); ``extra`` then holds the note that says so
+    (``order_note``), the order IDA ended with (``max_order``) and, once the trial settled
+    it, the order later pieces of the run keep (``max_order_chosen``)."""
     IDA = _import_ida()
     n = mod.N
     rtol, max_steps = float(options.rtol), int(options.max_steps)
     atol = applied_atol(rtol, float(options.atol))
-    max_order = int(options.max_order or MAX_ORDER)
+    # the user's max_order, else phc's choice: IDA's default, and 2 where undamped modes hold its steps
+    choice = OrderChoice.fixed(options.max_order) if options.max_order else OrderChoice(order=MAX_ORDER)
+    max_order = choice.order
     t_out = np.asarray(t_out, dtype=float)
     t0, t_end = float(t_out[0]), float(t_out[-1])
     y0 = np.asarray(y0, dtype=float)
@@ -525,7 +552,10 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
     monitor = SingularityMonitor(mod, p, names=names, scales=nominal)
     monitor.h_floor = 1e-6 * (t_end - t0)
     hook = _StepHook(t0, y0, yp0, t_end=t_end, max_steps=max_steps, monitor=monitor, calls=calls, progress=progress,
-                     base=10 if n <= 60 else 20)
+                     base=10 if n <= 60 else 20,
+                     order_look=None if choice.final else (
+                         lambda t, y, yp, steps, recent: after_step(choice, mod, p, t, y, yp, steps=steps,
+                                                                    recent=recent, t_end=t_end)))
     n_switch = events.n if events is not None else 0
 
     if n_switch:
@@ -547,6 +577,19 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
         warnings.filterwarnings("ignore", message="Custom sparse Jacobian approximation")
         solver = IDA(resfn, **settings)
 
+    def restart(switch: Switch):
+        """A new IDA (scikit-sundae sets the order when it is made) at the order `choice`
+        holds now: from the run's start, or from the step's end `switch` with the step it
+        was taking."""
+        first = {} if switch.rewind else {"first_step": switch.h}
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="Custom sparse Jacobian approximation")
+            new = IDA(resfn, **{**settings, "max_order": choice.order, **first})
+        if switch.rewind:
+            hook.rewind(t0, y0, yp0)
+            return new, new.init_step(t0, y0, yp0)
+        return new, new.init_step(switch.t, switch.y, switch.yp)
+
     def scales(failed, upto=1):  # the states of the run so far (a system at rest at t0 may move later)
         return check_scales(mod, ys[:upto], yps[:upto], t_end - t0, rtol, atol, failed, scales=nominal)
 
@@ -565,7 +608,18 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
     try:  # a model function outside its domain, a stop, Ctrl-C: keep the outputs filled so far
         while k < len(t_out):
             hook.start_call(t_out[k])
-            res = solver.step(float(t_out[k]), method="normal", tstop=t_end)
+            try:
+                res = solver.step(float(t_out[k]), method="normal", tstop=t_end)
+            except Switch as switch:  # phc's choice of the maximum order changed (simulation/order.py)
+                solver, init = restart(switch)
+                max_order = choice.order
+                k = 1 if switch.rewind else k
+                hook.evaluations_seen = calls.evaluations
+                if not init.success:
+                    ok, message = False, f"IDA could not go on at max_order {choice.order} at t = {switch.t:.6g}: " \
+                        f"{init.message}"
+                    break
+                continue
             status, t_now = int(res.status), float(res.t)
             if status < 0:
                 if calls.failed_last:  # IDA gave up where the model cannot be evaluated
@@ -608,4 +662,6 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
     return BackendRun(t_out[:k], ys[:k], yps[:k], steps=hook.steps, nfev=calls.evaluations, njev=calls.jacobians,
                       success=ok, event=event,
                       message=message, cpu=time.process_time() - start, conditioning=monitor.worst,
-                      interrupted=interrupted, extra=dict(max_steps_reached=used_up, t_reached=hook.t_last))
+                      interrupted=interrupted, extra=dict(max_steps_reached=used_up, t_reached=hook.t_last,
+                                                          max_order=choice.order, order_note=choice.note(),
+                                                          max_order_chosen=choice.order if choice.decided else None))

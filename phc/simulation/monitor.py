@@ -110,6 +110,12 @@ class SingularityMonitor:
         """(t, y, ẏ) of the last :data:`HISTORY` looks (a failure's diagnosis: is the
         conditioning falling toward a singular configuration?)."""
 
+    def forget(self) -> None:
+        """Drop the looks (the run starts again from its start)."""
+        self._looks = []
+        self.history.clear()
+        self.stop_time = None
+
     def ratio(self, t, y, yp, h) -> tuple[float, np.ndarray]:
         n = self.mod.N
         self.mod.jacobian(t, y, yp, self.p, 1.0 / max(h, 1e-300), self.buf)

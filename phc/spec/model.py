@@ -164,9 +164,11 @@ class SimulationSpec(SpecModel):
     step: Optional[Step] = DEFAULTS.step
     """Step size of the fixed-step solvers `midpoint`, `discrete_gradient` and `midpoint4`
     (default: the output interval)."""
-    max_order: MaxOrder = DEFAULTS.max_order
-    """Maximum BDF order of IDA. 2 (A-stable) suits undamped stiff oscillations such as
-    fine beam meshes: orders 3–5 must resolve the highest modes to stay stable."""
+    max_order: Optional[MaxOrder] = DEFAULTS.max_order
+    """Maximum BDF order of IDA (1–5). Unset, phc chooses: IDA's default 5, or 2 (A-stable)
+    from where undamped oscillations, such as the high modes of a fine beam mesh, hold the
+    steps of orders 3–5 (which are stable for them only at steps that resolve them) and
+    order 2 makes longer steps; the run's message says so (docs/how-to/solvers.md)."""
     initial: dict[str, Union[Expr, InitialSpec]] = {}
     """Initial values by variable name (`component.state`), or initial fields of strings and
     beams as functions of `xi` (`rod.w: "0.001*sin(pi*xi/L)"`), projected onto whatever mesh
