@@ -1,0 +1,837 @@
+"""The C text of an FMU's FMI 2.0 co-simulation interface (``fmu.c``).
+
+Input: an :class:`FmuData` — everything about the model the interface needs (sizes, the
+start state, the parameters, the step loop's constants, the variables by value reference),
+computed by :mod:`phc.export.fmu`. Output: the text of ``fmu.c`` (:func:`fmu_source`), one
+translation unit that, compiled together with the model's ``model.c`` (the C back end's
+file, :mod:`phc.codegen.c_printer`), is the FMU's binary. It includes ``steps.c``
+(``phc/codegen/c_runtime/steps.c``, shipped beside it), the implicit midpoint rule's step loop
+that ``phc simulate --backend c`` runs: an ``fmi2DoStep`` is one call of its
+``phc_steps_chunk`` over the communication interval, so the FMU takes exactly the steps
+``phc simulate`` takes on the same grid.
+
+The FMI 2.0 types are declared in the file itself, as the standard's headers
+(``fmi2TypesPlatform.h``, ``fmi2FunctionTypes.h``, "default" platform) define them. Each
+instance owns its memory (allocated through the importer's ``allocateMemory``); the file has
+no mutable static data, so instances may run in parallel threads.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional, Sequence
+
+import numpy as np
+
+from phc import __version__
+from phc.codegen.c_printer import ABI, comment, number
+
+KINDS = ("VARIABLE", "PARAMETER", "CONSTANT", "INPUT", "OUTPUT", "ENERGY", "BALANCE")
+"""What a value reference reads (the C file's ``K_*``): a model variable y[i], a base
+parameter p[i] (set before the run), a parameter fixed at compile time, an input (a parameter
+the importer sets between steps), a model output, the stored energy H, the energy-balance
+error H(t) - H(t0) + E(t)."""
+
+
+@dataclass(frozen=True)
+class FmuVariable:
+    """One FMI scalar variable (value reference = its position in :attr:`FmuData.variables`)."""
+
+    name: str
+    kind: str
+    """One of :data:`KINDS`."""
+    index: int
+    """Index into y, p or the outputs (0 for ENERGY and BALANCE)."""
+    causality: str
+    variability: str
+    initial: Optional[str]
+    start: Optional[float]
+    unit: Optional[str]
+    description: str
+    fixes_start: bool = False
+    """A parameter whose value the consistent initial state depends on."""
+
+
+@dataclass(frozen=True)
+class FmuData:
+    """What ``fmu.c`` embeds (see the module docstring)."""
+
+    model: str
+    guid: str
+    n: int
+    njac: int
+    nend: int
+    nout: int
+    ninv: int
+    nrows: int
+    npred: int
+    t0: float
+    step: float
+    """Longest step (0: one step per communication interval)."""
+    energy_index: int
+    p: np.ndarray
+    """Full parameter vector at the exported values."""
+    base: tuple[int, ...]
+    """Indices of the base parameters in p (inputs included)."""
+    derived: tuple[str, ...]
+    """C statements computing the derived parameters from p, in dependency order."""
+    y0: np.ndarray
+    yp0: np.ndarray
+    weights: Optional[np.ndarray]
+    colscale: Optional[np.ndarray]
+    constants: np.ndarray
+    jrows: np.ndarray
+    jcols: np.ndarray
+    end_rows: np.ndarray
+    emask: np.ndarray
+    algmask: np.ndarray
+    variables: tuple[FmuVariable, ...]
+
+
+def _c_string(text: str) -> str:
+    """A C string literal of printable ASCII (anything else as a question mark)."""
+    out = []
+    for ch in str(text):
+        if ch in "\\\"":
+            out.append("\\" + ch)
+        elif " " <= ch <= "~" and ch != "%":  # no % (a logger may format the message)
+            out.append(ch)
+        else:
+            out.append("?")
+    return '"' + "".join(out) + '"'
+
+
+def _doubles(name: str, values, comment_text: str = "") -> str:
+    values = np.asarray(values, dtype=float).ravel()
+    items = [number(float(v)) for v in values] or ["0.0"]
+    body = ",\n".join("    " + ", ".join(items[i:i + 6]) for i in range(0, len(items), 6))
+    note = f"/* {comment(comment_text)} */\n" if comment_text else ""
+    return f"{note}static const double {name}[{len(items)}] = {{\n{body}\n}};\n"
+
+
+def _ints(name: str, values, ctype: str, comment_text: str = "") -> str:
+    values = [int(v) for v in np.asarray(values).ravel()] or [0]
+    body = ",\n".join("    " + ", ".join(str(v) for v in values[i:i + 16]) for i in range(0, len(values), 16))
+    note = f"/* {comment(comment_text)} */\n" if comment_text else ""
+    return f"{note}static const {ctype} {name}[{len(values)}] = {{\n{body}\n}};\n"
+
+
+def _variable_table(variables: Sequence[FmuVariable]) -> str:
+    rows = [f"    {{K_{v.kind}, {v.index}, {int(v.fixes_start)}, {_c_string(v.name)}}},  /* vr {k} */"
+            for k, v in enumerate(variables)]
+    return ("/* the variables by value reference: what each reads, its index, whether the start state depends on it\n"
+            " * (a parameter), its name (modelDescription.xml lists the same, in the same order) */\n"
+            "static const struct fmu_variable VARIABLES[NVR] = {\n" + "\n".join(rows) + "\n};\n")
+
+
+def fmu_source(d: FmuData) -> str:
+    """The text of ``fmu.c`` for `d` (see the module docstring)."""
+    kinds = ", ".join(f"K_{k}" for k in KINDS)
+    derived = "\n".join(f"    {line}" for line in d.derived) or "    (void)p;  /* none */"
+    data = "\n".join([
+        f"#define N {d.n}              /* unknowns y */",
+        f"#define NJAC {d.njac}         /* Jacobian entries */",
+        f"#define NEND {d.nend}         /* position-constraint rows imposed at the step end */",
+        f"#define NP {len(d.p)}           /* parameters p (base, derived) */",
+        f"#define NOUT {d.nout}         /* model outputs */",
+        f"#define NPRED {d.npred}        /* midpoints the predictor keeps */",
+        f"#define NVR {len(d.variables)}          /* value references */",
+        f"#define ENERGY_INDEX {d.energy_index}  /* y[ENERGY_INDEX]: energy.supplied, E(t) */",
+        f"#define HAS_WEIGHTS {int(d.weights is not None)}",
+        f"#define HAS_COLSCALE {int(d.colscale is not None)}",
+        "",
+        f"static const char GUID[] = {_c_string(d.guid)};",
+        f"static const char MODEL[] = {_c_string(d.model)};",
+        f"static const double T0 = {number(d.t0)};  /* the start time the initial state is consistent at */",
+        f"static const double STEP = {number(d.step)};  /* longest step; 0: one step per communication interval */",
+        f"static const long long SIZES[8] = {{{ABI}, {d.n}, {d.nrows}, {d.njac}, {len(d.p)}, {d.ninv}, -1, {d.nout}}};",
+        "",
+        _doubles("P_EXPORTED", d.p, "the parameters p at the values exported (full_parameters of the NumPy module)"),
+        _ints("BASE", d.base, "int", "the base parameters' indices in p (the inputs among them)"),
+        _doubles("Y0", d.y0, "the consistent initial state at the exported parameters (phc's initialization)"),
+        _doubles("YP0", d.yp0, "its rates"),
+        _doubles("WEIGHTS", d.weights if d.weights is not None else [0.0],
+                 "Newton weights (1/nominal scale of the differential variables, 0 elsewhere)"),
+        _doubles("COLSCALE", d.colscale if d.colscale is not None else [0.0], "nominal scales"),
+        _doubles("CONSTANTS", d.constants, "the step logic's constants (phc.simulation.step_logic)"),
+        _ints("JROWS", d.jrows, "int64_t", "the Jacobian's pattern: rows"),
+        _ints("JCOLS", d.jcols, "int64_t", "columns"),
+        _ints("END_ROWS", d.end_rows, "int64_t", "rows replaced by the position constraints at the step end"),
+        _ints("EMASK", d.emask, "int8_t", "1 where a Jacobian entry lies in such a row"),
+        _ints("ALGMASK", d.algmask, "int8_t", "0 differential, 1 algebraic, 2 a GGL multiplier"),
+        _variable_table(d.variables),
+    ])
+    head = _HEAD.replace("@MODEL@", comment(d.model)).replace("@VERSION@", comment(__version__))
+    return (head + _TYPES + "\n/* ---- the model (the constants phc computed when it exported it) " + "-" * 29 + " */\n\n"
+            + f"enum {{ {kinds} }};\n\n" + _STRUCT_VARIABLE + "\n" + data + "\n"
+            + "/* the derived parameters from the base ones, in dependency order (full_parameters) */\n"
+            + "static void derived_parameters(double *p)\n{\n" + derived + "\n}\n" + _BODY)
+
+
+_HEAD = r"""/* FMI 2.0 co-simulation interface of the port-Hamiltonian model `@MODEL@`,
+ * generated by phc @VERSION@. Do not edit: export again with `phc export MODEL --fmu OUT.fmu`.
+ *
+ * The model's DAE F(t, y, yp, p) = 0 (model.c, the C back end's functions) is integrated by the
+ * implicit midpoint rule with the position constraints imposed at the step ends (the GGL
+ * formulation of T. Berger, R. Hochdahl, T. Reis, R. Seifried, "Port-Hamiltonian modelling of
+ * coupled rigid/flexible multibody systems", the rigid multibody DAE, eq. (3)): the step loop of
+ * steps.c, which `phc simulate --backend c --solver midpoint` runs too. fmi2DoStep(t, H) splits
+ * [t, t + H] into ceil(H / STEP) equal steps (one when STEP is 0) and takes them; the energy
+ * balance H(t) - H(t0) + E(t) = 0 (E: the energy supplied through the ports and dissipated)
+ * then holds per step to the Newton tolerance, as the midpoint rule keeps it for a
+ * port-Hamiltonian system.
+ *
+ * What the importer may set: the parameters before fmi2ExitInitializationMode (the start state
+ * was computed by phc at the exported values: a parameter it depends on is refused with a logged
+ * error, export again with the value), the inputs at any time (held constant over a communication
+ * interval; each is added to the value the model gives the source or port, 0 for a free port).
+ * Not offered: fmi2GetFMUstate and its kin, directional derivatives, input derivatives.
+ *
+ * Re-entrant: no mutable static data; every instance owns its memory.
+ */
+
+#include <math.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "steps.c" /* the implicit midpoint rule's step loop (phc_steps_chunk) */
+"""
+
+_TYPES = r"""
+/* ---- FMI 2.0 types, as the standard's fmi2TypesPlatform.h and fmi2FunctionTypes.h define them -- */
+
+typedef void *fmi2Component;
+typedef void *fmi2ComponentEnvironment;
+typedef void *fmi2FMUstate;
+typedef unsigned int fmi2ValueReference;
+typedef double fmi2Real;
+typedef int fmi2Integer;
+typedef int fmi2Boolean;
+typedef char fmi2Char;
+typedef const fmi2Char *fmi2String;
+typedef char fmi2Byte;
+#define fmi2True 1
+#define fmi2False 0
+
+typedef enum { fmi2OK, fmi2Warning, fmi2Discard, fmi2Error, fmi2Fatal, fmi2Pending } fmi2Status;
+typedef enum { fmi2ModelExchange, fmi2CoSimulation } fmi2Type;
+typedef enum { fmi2DoStepStatus, fmi2PendingStatus, fmi2LastSuccessfulTime, fmi2Terminated } fmi2StatusKind;
+
+typedef void (*fmi2CallbackLogger)(fmi2ComponentEnvironment, fmi2String, fmi2Status, fmi2String, fmi2String, ...);
+typedef void *(*fmi2CallbackAllocateMemory)(size_t, size_t);
+typedef void (*fmi2CallbackFreeMemory)(void *);
+typedef void (*fmi2StepFinished)(fmi2ComponentEnvironment, fmi2Status);
+
+typedef struct {
+    fmi2CallbackLogger logger;
+    fmi2CallbackAllocateMemory allocateMemory;
+    fmi2CallbackFreeMemory freeMemory;
+    fmi2StepFinished stepFinished;
+    fmi2ComponentEnvironment componentEnvironment;
+} fmi2CallbackFunctions;
+
+#define FMI2_EXPORT __attribute__((visibility("default")))
+
+/* ---- the model's functions (model.c) ------------------------------------------------------- */
+
+void phc_residual(double t, const double *y, const double *yp, const double *p, double *out);
+void phc_jacobian(double t, const double *y, const double *yp, const double *p, double cj, double *out);
+void phc_invariants(double t, const double *y, const double *p, double *out);
+double phc_hamiltonian(double t, const double *y, const double *p);
+void phc_outputs(double t, const double *y, const double *yp, const double *p, double *out);
+void phc_sizes(long long *out);
+"""
+
+_STRUCT_VARIABLE = r"""struct fmu_variable {
+    int kind;         /* K_* */
+    int index;        /* into y, p or the outputs */
+    int fixes_start;  /* a parameter the consistent initial state depends on */
+    const char *name;
+};
+"""
+
+_BODY = r"""
+/* ---- an instance ------------------------------------------------------------------------------ */
+
+#define MAX1(k) ((k) > 0 ? (k) : 1)
+
+enum phase { INSTANTIATED, INITIALIZATION, STEPPING, TERMINATED, BROKEN };
+
+typedef struct {
+    fmi2CallbackFunctions cb;
+    char *name;
+    int phase, logging, fresh;     /* fresh: outs[] is up to date */
+    double t, h0;                  /* time; the energy H at the start */
+    double p[MAX1(NP)];            /* parameters (the inputs are parameters too) */
+    double outs[MAX1(NOUT)];
+    double yp[N];                  /* the rates at t: the last step's difference quotient */
+    /* the step loop's state and scratch (struct phc_steps of steps.c) */
+    double t_out[2], ys[2 * N], yps[2 * N];
+    double y[N], mid[N], mid_slope[N], y_prev[N], y_new[N];
+    double pt[NPRED], pm[NPRED * N];
+    double fst[F_NF];
+    int64_t ist[I_NI + 2];
+    double lu[2 * N * N];
+    int64_t piv[2 * N];
+    double eq[4 * N], matf[6];
+    double xs[N], d[N], r[N], guess[N], yp_scratch[N], g[MAX1(NEND)];
+    double jbuf[NJAC], ebuf[NJAC];
+    double mon[N * N], monv[3 * N];
+    int64_t monpiv[N];
+    struct phc_steps run;
+} Instance;
+
+/* A message to the importer's logger (errors always, the rest when logging is on). The text is
+ * formatted here; it holds no `%`, so a logger that formats it again prints it unchanged. */
+static void say(const Instance *inst, const fmi2CallbackFunctions *cb, const char *name, fmi2Status status,
+                const char *fmt, ...)
+{
+    char text[600];
+    va_list args;
+    if (cb == NULL || cb->logger == NULL)
+        return;
+    if (status < fmi2Error && inst != NULL && !inst->logging)
+        return;
+    va_start(args, fmt);
+    vsnprintf(text, sizeof text, fmt, args);
+    va_end(args);
+    for (char *c = text; *c; ++c)
+        if (*c == '%')
+            *c = '?';
+    cb->logger(cb->componentEnvironment, name ? name : MODEL, status,
+               status >= fmi2Error ? "logStatusError" : "logStatusWarning", text);
+}
+
+#define FMU_ERROR(inst, ...) (say((inst), &(inst)->cb, (inst)->name, fmi2Error, __VA_ARGS__), fmi2Error)
+
+/* The step loop's struct over the instance's arrays (steps.c reads and writes only these). */
+static void bind(Instance *inst)
+{
+    struct phc_steps *w = &inst->run;
+    w->n = N;
+    w->njac = NJAC;
+    w->nend = NEND;
+    w->nout = 2;
+    w->npred = NPRED;
+    w->residual = phc_residual;
+    w->jacobian = phc_jacobian;
+    w->invariants = phc_invariants;
+    w->p = inst->p;
+    w->jrows = JROWS;
+    w->jcols = JCOLS;
+    w->end_rows = END_ROWS;
+    w->emask = EMASK;
+    w->algmask = ALGMASK;
+    w->weights = HAS_WEIGHTS ? WEIGHTS : NULL;
+    w->colscale = HAS_COLSCALE ? COLSCALE : NULL;
+    w->c = CONSTANTS;
+    w->t_out = inst->t_out;
+    w->ys = inst->ys;
+    w->yps = inst->yps;
+    w->y = inst->y;
+    w->mid = inst->mid;
+    w->mid_slope = inst->mid_slope;
+    w->y_prev = inst->y_prev;
+    w->y_new = inst->y_new;
+    w->pt = inst->pt;
+    w->pm = inst->pm;
+    w->fst = inst->fst;
+    w->ist = inst->ist;
+    w->lu = inst->lu;
+    w->piv = inst->piv;
+    w->eq = inst->eq;
+    w->matf = inst->matf;
+    w->xs = inst->xs;
+    w->d = inst->d;
+    w->r = inst->r;
+    w->guess = inst->guess;
+    w->yp = inst->yp_scratch;
+    w->g = inst->g;
+    w->jbuf = inst->jbuf;
+    w->ebuf = inst->ebuf;
+    w->mon = inst->mon;
+    w->monpiv = inst->monpiv;
+    w->monv = inst->monv;
+}
+
+/* The start of a run: the exported consistent state and the step loop's state as
+ * phc.simulation.compiled_steps.integrate sets it up (no midpoints yet, no Newton matrix). The
+ * singularity monitor is off: phc's monitor is Python; a step whose Newton iteration fails is an
+ * error of fmi2DoStep. */
+static void start(Instance *inst)
+{
+    memcpy(inst->y, Y0, sizeof inst->y);
+    memcpy(inst->mid_slope, YP0, sizeof inst->mid_slope);
+    memcpy(inst->yp, YP0, sizeof inst->yp);
+    memset(inst->mid, 0, sizeof inst->mid);
+    memset(inst->y_prev, 0, sizeof inst->y_prev);
+    memset(inst->y_new, 0, sizeof inst->y_new);
+    memset(inst->pt, 0, sizeof inst->pt);
+    memset(inst->pm, 0, sizeof inst->pm);
+    memset(inst->fst, 0, sizeof inst->fst);
+    memset(inst->ist, 0, sizeof inst->ist);
+    memset(inst->lu, 0, sizeof inst->lu);
+    memset(inst->piv, 0, sizeof inst->piv);
+    memset(inst->matf, 0, sizeof inst->matf);
+    for (int i = 0; i < 4 * N; ++i)
+        inst->eq[i] = 1.0;
+    inst->ist[I_K] = 1;
+    inst->ist[I_LAST_LOOK] = -(int64_t)CONSTANTS[C_EVERY];
+    inst->ist[I_MAX_STEPS] = INT64_MAX;
+    inst->ist[I_MONITOR] = 0;
+    inst->ist[I_METHOD] = 0; /* the implicit midpoint rule */
+    inst->ist[I_NEND] = NEND;
+    inst->ist[I_E] = ENERGY_INDEX;
+    inst->fst[F_STEP] = STEP;
+    inst->fst[F_H_PREV] = 1.0;
+    inst->t = T0;
+    inst->fresh = 0;
+    bind(inst);
+}
+
+static void refresh(Instance *inst)
+{
+    if (!inst->fresh) {
+        if (NOUT > 0)
+            phc_outputs(inst->t, inst->y, inst->yp, inst->p, inst->outs);
+        inst->fresh = 1;
+    }
+}
+
+static double value_of(Instance *inst, const struct fmu_variable *v)
+{
+    switch (v->kind) {
+    case K_VARIABLE:
+        return inst->y[v->index];
+    case K_OUTPUT:
+        refresh(inst);
+        return inst->outs[v->index];
+    case K_ENERGY:
+        return phc_hamiltonian(inst->t, inst->y, inst->p);
+    case K_BALANCE:
+        return phc_hamiltonian(inst->t, inst->y, inst->p) - inst->h0 + inst->y[ENERGY_INDEX];
+    default: /* K_PARAMETER, K_CONSTANT, K_INPUT */
+        return inst->p[v->index];
+    }
+}
+
+/* ---- the FMI 2.0 functions ------------------------------------------------------------------- */
+
+FMI2_EXPORT const char *fmi2GetTypesPlatform(void) { return "default"; }
+FMI2_EXPORT const char *fmi2GetVersion(void) { return "2.0"; }
+
+FMI2_EXPORT fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t nCategories,
+                                           const fmi2String categories[])
+{
+    (void)nCategories;
+    (void)categories;
+    if (c == NULL)
+        return fmi2Error;
+    ((Instance *)c)->logging = loggingOn != fmi2False;
+    return fmi2OK;
+}
+
+FMI2_EXPORT fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
+                                          fmi2String fmuResourceLocation, const fmi2CallbackFunctions *functions,
+                                          fmi2Boolean visible, fmi2Boolean loggingOn)
+{
+    (void)fmuResourceLocation;
+    (void)visible;
+    if (functions == NULL || functions->allocateMemory == NULL || functions->freeMemory == NULL)
+        return NULL;
+    if (fmuType != fmi2CoSimulation) {
+        say(NULL, functions, instanceName, fmi2Error, "%s is a co-simulation FMU: model exchange is not offered "
+            "(a port-Hamiltonian DAE with constraints is not an ODE the importer could integrate)", MODEL);
+        return NULL;
+    }
+    if (fmuGUID == NULL || strcmp(fmuGUID, GUID) != 0) {
+        say(NULL, functions, instanceName, fmi2Error, "the GUID given does not match this binary's (%s): "
+            "the modelDescription.xml is from another export", GUID);
+        return NULL;
+    }
+    long long sizes[8];
+    phc_sizes(sizes);
+    for (int k = 0; k < 8; ++k)
+        if (SIZES[k] >= 0 && sizes[k] != SIZES[k]) {
+            say(NULL, functions, instanceName, fmi2Error, "model.c was generated for another model (size "
+                "entry %d is %lld, expected %lld): export again", k, sizes[k], SIZES[k]);
+            return NULL;
+        }
+    Instance *inst = (Instance *)functions->allocateMemory(1, sizeof(Instance));
+    if (inst == NULL)
+        return NULL;
+    memset(inst, 0, sizeof(Instance));
+    inst->cb = *functions;
+    const char *name = instanceName ? instanceName : MODEL;
+    inst->name = (char *)functions->allocateMemory(strlen(name) + 1, 1);
+    if (inst->name == NULL) {
+        functions->freeMemory(inst);
+        return NULL;
+    }
+    memcpy(inst->name, name, strlen(name) + 1);
+    inst->logging = loggingOn != fmi2False;
+    memcpy(inst->p, P_EXPORTED, sizeof(double) * NP);
+    start(inst);
+    inst->h0 = phc_hamiltonian(inst->t, inst->y, inst->p);
+    inst->phase = INSTANTIATED;
+    return inst;
+}
+
+FMI2_EXPORT void fmi2FreeInstance(fmi2Component c)
+{
+    Instance *inst = (Instance *)c;
+    if (inst == NULL)
+        return;
+    fmi2CallbackFreeMemory release = inst->cb.freeMemory;
+    release(inst->name);
+    release(inst);
+}
+
+FMI2_EXPORT fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fmi2Real tolerance,
+                                           fmi2Real startTime, fmi2Boolean stopTimeDefined, fmi2Real stopTime)
+{
+    Instance *inst = (Instance *)c;
+    (void)toleranceDefined; /* a fixed-step method: its accuracy is set by the step (STEP) */
+    (void)tolerance;
+    (void)stopTimeDefined;
+    (void)stopTime;
+    if (inst == NULL)
+        return fmi2Error;
+    if (inst->phase != INSTANTIATED)
+        return FMU_ERROR(inst, "fmi2SetupExperiment is allowed only after fmi2Instantiate");
+    if (startTime != T0)
+        return FMU_ERROR(inst, "this FMU starts at t = %.17g, where phc computed its consistent initial state (the "
+                    "model's simulation start), not at t = %.17g", T0, startTime);
+    return fmi2OK;
+}
+
+FMI2_EXPORT fmi2Status fmi2EnterInitializationMode(fmi2Component c)
+{
+    Instance *inst = (Instance *)c;
+    if (inst == NULL)
+        return fmi2Error;
+    if (inst->phase != INSTANTIATED)
+        return FMU_ERROR(inst, "fmi2EnterInitializationMode is allowed only after fmi2Instantiate");
+    inst->phase = INITIALIZATION;
+    return fmi2OK;
+}
+
+FMI2_EXPORT fmi2Status fmi2ExitInitializationMode(fmi2Component c)
+{
+    Instance *inst = (Instance *)c;
+    if (inst == NULL)
+        return fmi2Error;
+    if (inst->phase != INITIALIZATION)
+        return FMU_ERROR(inst, "fmi2ExitInitializationMode is allowed only in initialization mode");
+    int changed = 0;
+    for (int k = 0; k < NVR; ++k) {
+        const struct fmu_variable *v = &VARIABLES[k];
+        if (v->kind != K_PARAMETER || inst->p[v->index] == P_EXPORTED[v->index])
+            continue;
+        changed = 1;
+        if (v->fixes_start) {
+            inst->phase = BROKEN;
+            return FMU_ERROR(inst, "parameter `%s` = %.17g: the consistent initial state depends on it and phc computed "
+                        "it at export, with %s = %.17g; export the FMU again with the value (phc export MODEL "
+                        "--fmu OUT.fmu --param %s=%.17g)", v->name, inst->p[v->index], v->name,
+                        P_EXPORTED[v->index], v->name, inst->p[v->index]);
+        }
+    }
+    if (changed)
+        derived_parameters(inst->p);
+    for (int i = 0; i < NP; ++i)
+        if (!isfinite(inst->p[i])) {
+            inst->phase = BROKEN;
+            return FMU_ERROR(inst, "parameter %d is not finite with the values set", i);
+        }
+    start(inst);
+    inst->h0 = phc_hamiltonian(inst->t, inst->y, inst->p);
+    inst->phase = STEPPING;
+    return fmi2OK;
+}
+
+FMI2_EXPORT fmi2Status fmi2Terminate(fmi2Component c)
+{
+    Instance *inst = (Instance *)c;
+    if (inst == NULL)
+        return fmi2Error;
+    inst->phase = TERMINATED;
+    return fmi2OK;
+}
+
+FMI2_EXPORT fmi2Status fmi2Reset(fmi2Component c)
+{
+    Instance *inst = (Instance *)c;
+    if (inst == NULL)
+        return fmi2Error;
+    memcpy(inst->p, P_EXPORTED, sizeof(double) * NP);
+    start(inst);
+    inst->h0 = phc_hamiltonian(inst->t, inst->y, inst->p);
+    inst->phase = INSTANTIATED;
+    return fmi2OK;
+}
+
+FMI2_EXPORT fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[])
+{
+    Instance *inst = (Instance *)c;
+    if (inst == NULL)
+        return fmi2Error;
+    for (size_t k = 0; k < nvr; ++k) {
+        if (vr[k] >= NVR)
+            return FMU_ERROR(inst, "no variable has the value reference %u", vr[k]);
+        value[k] = value_of(inst, &VARIABLES[vr[k]]);
+    }
+    return fmi2OK;
+}
+
+FMI2_EXPORT fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[])
+{
+    Instance *inst = (Instance *)c;
+    if (inst == NULL)
+        return fmi2Error;
+    for (size_t k = 0; k < nvr; ++k) {
+        if (vr[k] >= NVR)
+            return FMU_ERROR(inst, "no variable has the value reference %u", vr[k]);
+        const struct fmu_variable *v = &VARIABLES[vr[k]];
+        if (!isfinite(value[k]))
+            return FMU_ERROR(inst, "`%s` must be set to a finite number", v->name);
+        if (v->kind == K_PARAMETER && inst->phase != INSTANTIATED && inst->phase != INITIALIZATION)
+            return FMU_ERROR(inst, "parameter `%s` is fixed during the run: set it before fmi2ExitInitializationMode",
+                        v->name);
+        if (v->kind != K_PARAMETER && v->kind != K_INPUT)
+            return FMU_ERROR(inst, "`%s` cannot be set (it is computed by the model)", v->name);
+        if (inst->phase == TERMINATED || inst->phase == BROKEN)
+            return FMU_ERROR(inst, "`%s` cannot be set after the run ended", v->name);
+        inst->p[v->index] = value[k];
+        inst->fresh = 0;
+    }
+    return fmi2OK;
+}
+
+FMI2_EXPORT fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint,
+                                  fmi2Real communicationStepSize, fmi2Boolean noSetFMUStatePriorToCurrentPoint)
+{
+    Instance *inst = (Instance *)c;
+    (void)noSetFMUStatePriorToCurrentPoint;
+    if (inst == NULL)
+        return fmi2Error;
+    if (inst->phase != STEPPING)
+        return FMU_ERROR(inst, "fmi2DoStep is allowed only after fmi2ExitInitializationMode (and before an error)");
+    const double t = currentCommunicationPoint, H = communicationStepSize;
+    if (!(H > 0.0) || !isfinite(t + H))
+        return FMU_ERROR(inst, "the communication step must be a positive finite number, got %.17g", H);
+    if (fabs(t - inst->t) > 1e-9 * (fabs(inst->t) + H))
+        return FMU_ERROR(inst, "the communication point t = %.17g is not the FMU's time %.17g (no rollback: "
+                    "canGetAndSetFMUstate is false)", t, inst->t);
+    inst->t_out[0] = t;
+    inst->t_out[1] = t + H;
+    inst->ist[I_K] = 1;
+    inst->ist[I_J] = 0;
+    phc_steps_chunk(&inst->run, INT64_MAX);
+    if (inst->ist[I_STATUS] != ST_DONE) {
+        const double ts = inst->fst[F_T], h = inst->fst[F_H];
+        const int64_t code = inst->ist[I_CODE];
+        inst->phase = BROKEN;
+        inst->t = ts;
+        inst->fresh = 0;
+        if (code == SINGULAR)
+            return FMU_ERROR(inst, "singular Newton matrix in the step from t = %.17g (h = %.6g): the model may be at a "
+                        "singular configuration", ts, h);
+        if (code == EVAL)
+            return FMU_ERROR(inst, "the model cannot be evaluated in the step from t = %.17g (h = %.6g): a value "
+                        "outside an expression's domain", ts, h);
+        return FMU_ERROR(inst, "Newton did not converge in the step from t = %.17g (h = %.6g); export with a smaller "
+                    "step (phc export --step)", ts, h);
+    }
+    memcpy(inst->yp, inst->yps + N, sizeof inst->yp);
+    inst->t = t + H;
+    inst->fresh = 0;
+    return fmi2OK;
+}
+
+FMI2_EXPORT fmi2Status fmi2CancelStep(fmi2Component c)
+{
+    return c == NULL ? fmi2Error : FMU_ERROR((Instance *)c, "fmi2CancelStep: fmi2DoStep is synchronous here");
+}
+
+/* ---- what this FMU does not offer ------------------------------------------------------------ */
+
+static fmi2Status none(fmi2Component c, size_t nvr, const char *what)
+{
+    if (c == NULL)
+        return fmi2Error;
+    return nvr == 0 ? fmi2OK : FMU_ERROR((Instance *)c, "this FMU has no %s variables", what);
+}
+
+FMI2_EXPORT fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Integer value[])
+{
+    (void)vr;
+    (void)value;
+    return none(c, nvr, "Integer");
+}
+
+FMI2_EXPORT fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Boolean value[])
+{
+    (void)vr;
+    (void)value;
+    return none(c, nvr, "Boolean");
+}
+
+FMI2_EXPORT fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2String value[])
+{
+    (void)vr;
+    (void)value;
+    return none(c, nvr, "String");
+}
+
+FMI2_EXPORT fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                                      const fmi2Integer value[])
+{
+    (void)vr;
+    (void)value;
+    return none(c, nvr, "Integer");
+}
+
+FMI2_EXPORT fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                                      const fmi2Boolean value[])
+{
+    (void)vr;
+    (void)value;
+    return none(c, nvr, "Boolean");
+}
+
+FMI2_EXPORT fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                                     const fmi2String value[])
+{
+    (void)vr;
+    (void)value;
+    return none(c, nvr, "String");
+}
+
+static fmi2Status not_offered(fmi2Component c, const char *what)
+{
+    return c == NULL ? fmi2Error : FMU_ERROR((Instance *)c, "%s is not offered by this FMU", what);
+}
+
+FMI2_EXPORT fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *state)
+{
+    (void)state;
+    return not_offered(c, "fmi2GetFMUstate");
+}
+
+FMI2_EXPORT fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate state)
+{
+    (void)state;
+    return not_offered(c, "fmi2SetFMUstate");
+}
+
+FMI2_EXPORT fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *state)
+{
+    (void)state;
+    return not_offered(c, "fmi2FreeFMUstate");
+}
+
+FMI2_EXPORT fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate state, size_t *size)
+{
+    (void)state;
+    (void)size;
+    return not_offered(c, "fmi2SerializedFMUstateSize");
+}
+
+FMI2_EXPORT fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate state, fmi2Byte bytes[], size_t size)
+{
+    (void)state;
+    (void)bytes;
+    (void)size;
+    return not_offered(c, "fmi2SerializeFMUstate");
+}
+
+FMI2_EXPORT fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte bytes[], size_t size,
+                                               fmi2FMUstate *state)
+{
+    (void)bytes;
+    (void)size;
+    (void)state;
+    return not_offered(c, "fmi2DeSerializeFMUstate");
+}
+
+FMI2_EXPORT fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference vUnknown[],
+                                                    size_t nUnknown, const fmi2ValueReference vKnown[],
+                                                    size_t nKnown, const fmi2Real dvKnown[], fmi2Real dvUnknown[])
+{
+    (void)vUnknown;
+    (void)nUnknown;
+    (void)vKnown;
+    (void)nKnown;
+    (void)dvKnown;
+    (void)dvUnknown;
+    return not_offered(c, "fmi2GetDirectionalDerivative");
+}
+
+FMI2_EXPORT fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                                                   const fmi2Integer order[], const fmi2Real value[])
+{
+    (void)vr;
+    (void)nvr;
+    (void)order;
+    (void)value;
+    return not_offered(c, "fmi2SetRealInputDerivatives (the inputs are held over a step)");
+}
+
+FMI2_EXPORT fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                                                    const fmi2Integer order[], fmi2Real value[])
+{
+    (void)vr;
+    (void)nvr;
+    (void)order;
+    (void)value;
+    return not_offered(c, "fmi2GetRealOutputDerivatives");
+}
+
+FMI2_EXPORT fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *value)
+{
+    (void)s;
+    (void)value;
+    return c == NULL ? fmi2Error : fmi2Discard;
+}
+
+FMI2_EXPORT fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value)
+{
+    if (c == NULL)
+        return fmi2Error;
+    if (s != fmi2LastSuccessfulTime)
+        return fmi2Discard;
+    *value = ((Instance *)c)->t;
+    return fmi2OK;
+}
+
+FMI2_EXPORT fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value)
+{
+    (void)s;
+    (void)value;
+    return c == NULL ? fmi2Error : fmi2Discard;
+}
+
+FMI2_EXPORT fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value)
+{
+    if (c == NULL)
+        return fmi2Error;
+    if (s != fmi2Terminated)
+        return fmi2Discard;
+    *value = fmi2False;
+    return fmi2OK;
+}
+
+FMI2_EXPORT fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value)
+{
+    (void)s;
+    (void)value;
+    return c == NULL ? fmi2Error : fmi2Discard;
+}
+"""
+
+
+__all__ = ["FmuData", "FmuVariable", "KINDS", "fmu_source"]
