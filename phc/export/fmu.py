@@ -280,7 +280,7 @@ def _export(path, out, step, solver, fmi, params, certify, started) -> FmuReport
                           f"{sys.platform} on {platform.machine()}")
     argv, identity = c_backend.find_compiler()
     if argv is None:
-        raise ExportError(f"cannot build the FMU's binary: {identity.split('; or run with')[0]}")
+        raise ExportError(f"cannot build the FMU's binary: {identity.split(', or run with')[0]}")
     if not str(out).endswith(".fmu"):
         raise ExportError(f"the FMU's file name must end in .fmu, got `{out}`")
 
