@@ -90,9 +90,13 @@ class FmuReport:
 
     def describe(self) -> str:
         step = f"steps of at most {self.step:g}" if self.step else "one step per communication interval"
-        return (f"{self.path}: FMI 2.0 co-simulation FMU of `{self.model}` (implicit midpoint rule, {step}; "
-                f"{len(self.parameters)} parameter(s), {len(self.inputs)} input(s), {len(self.outputs)} output(s)); "
-                f"built with {self.compiler} in {self.seconds:.1f} s")
+
+        def count(k: int, what: str) -> str:
+            return f"{k} {what}{'' if k == 1 else 's'}"
+
+        return (f"{self.path}: FMI 2.0 co-simulation FMU of `{self.model}` for linux64 (implicit midpoint rule, "
+                f"{step}; {count(len(self.parameters), 'parameter')}, {count(len(self.inputs), 'input')}, "
+                f"{count(len(self.outputs), 'output')}; written in {self.seconds:.1f} s wall)")
 
 
 def _identifier(name: str) -> str:
@@ -182,8 +186,8 @@ def _variables(compiled, raw, inputs, p, fixes_start) -> tuple:
                            "the stored energy H (the Hamiltonian)"))
     out.append(FmuVariable("energy.balance_error", "BALANCE", 0, "output", "continuous", "calculated", None,
                            energy_unit, "H(t) - H(t0) + E(t), E the energy supplied through the ports and "
-                           "dissipated: zero per step up to the Newton tolerance (the implicit midpoint rule's "
-                           "discrete energy balance)"))
+                           "dissipated: zero per step up to the Newton tolerance for a quadratic H (the implicit "
+                           "midpoint rule's discrete energy balance)"))
     for j, name in enumerate(raw.VARIABLES):
         what = ("a state (differential variable)" if raw.DIFFERENTIAL[j] else
                 "an algebraic variable: the midpoint rule's value at the step end (the step solves for its midpoint)")

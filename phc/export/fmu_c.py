@@ -178,8 +178,8 @@ _HEAD = r"""/* FMI 2.0 co-simulation interface of the port-Hamiltonian model `@M
  * steps.c, which `phc simulate --backend c --solver midpoint` runs too. fmi2DoStep(t, H) splits
  * [t, t + H] into ceil(H / STEP) equal steps (one when STEP is 0) and takes them; the energy
  * balance H(t) - H(t0) + E(t) = 0 (E: the energy supplied through the ports and dissipated)
- * then holds per step to the Newton tolerance, as the midpoint rule keeps it for a
- * port-Hamiltonian system.
+ * then holds per step to the Newton tolerance when H is quadratic, as the midpoint rule keeps
+ * the power balance of a port-Hamiltonian system (the paper's Remark 3).
  *
  * What the importer may set: the parameters before fmi2ExitInitializationMode (the start state
  * was computed by phc at the exported values: a parameter it depends on is refused with a logged
