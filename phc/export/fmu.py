@@ -54,7 +54,7 @@ from typing import Optional
 
 import numpy as np
 
-from phc.errors import PhcError
+from phc.errors import ExportError, PhcError
 
 RELATIVE_CHANGE = 1e-3
 """How much each parameter is moved to see whether the initial state depends on it (when phc
@@ -62,10 +62,6 @@ chose some initial values: guesses)."""
 
 START_TOLERANCE = 1e-10
 """A differential start value moved by more than this (relative to its nominal scale) depends on the parameter."""
-
-
-class ExportError(PhcError):
-    """The model or the options cannot be exported (the message names the file)."""
 
 
 @dataclass
@@ -339,7 +335,7 @@ def _export(path, out, step, solver, fmi, params, certify, started) -> FmuReport
         model=str(raw.MODEL), n=int(raw.N), njac=len(jrows), nend=len(end_rows), nout=len(raw.OUTPUTS),
         ninv=len(raw.INVARIANTS), nrows=len(raw.EQUATIONS), npred=mp.MAX_PREDICTOR_ORDER + 1, t0=t0,
         step=float(options.step or 0.0), energy_index=list(raw.VARIABLES).index("energy.supplied"),
-        p=np.asarray(p, dtype=float), base=tuple(int(i) for i in raw.BASE_PARAMETERS), derived=derived, y0=y0,
+        p=np.asarray(p, dtype=float), derived=derived, y0=y0,
         yp0=yp0, weights=None if weights is None else np.asarray(weights, dtype=float),
         colscale=np.asarray(scales, dtype=float), constants=step_constants(), jrows=jrows,
         jcols=np.asarray(raw.JAC_COLS, dtype=np.int64), end_rows=end_rows,

@@ -71,8 +71,6 @@ class FmuData:
     energy_index: int
     p: np.ndarray
     """Full parameter vector at the exported values."""
-    base: tuple[int, ...]
-    """Indices of the base parameters in p (inputs included)."""
     derived: tuple[str, ...]
     """C statements computing the derived parameters from p, in dependency order."""
     y0: np.ndarray
@@ -147,7 +145,6 @@ def fmu_source(d: FmuData) -> str:
         f"static const long long SIZES[8] = {{{ABI}, {d.n}, {d.nrows}, {d.njac}, {len(d.p)}, {d.ninv}, -1, {d.nout}}};",
         "",
         _doubles("P_EXPORTED", d.p, "the parameters p at the values exported (full_parameters of the NumPy module)"),
-        _ints("BASE", d.base, "int", "the base parameters' indices in p (the inputs among them)"),
         _doubles("Y0", d.y0, "the consistent initial state at the exported parameters (phc's initialization)"),
         _doubles("YP0", d.yp0, "its rates"),
         _doubles("WEIGHTS", d.weights if d.weights is not None else [0.0],
@@ -162,7 +159,8 @@ def fmu_source(d: FmuData) -> str:
         _variable_table(d.variables),
     ])
     head = _HEAD.replace("@MODEL@", comment(d.model)).replace("@VERSION@", comment(__version__))
-    return (head + _TYPES + "\n/* ---- the model (the constants phc computed when it exported it) " + "-" * 29 + " */\n\n"
+    rule = "\n/* ---- the model (the constants phc computed when it exported it) " + "-" * 29 + " */\n\n"
+    return (head + _TYPES + rule
             + f"enum {{ {kinds} }};\n\n" + _STRUCT_VARIABLE + "\n" + data + "\n"
             + "/* the derived parameters from the base ones, in dependency order (full_parameters) */\n"
             + "static void derived_parameters(double *p)\n{\n" + derived + "\n}\n" + _BODY)
@@ -534,8 +532,8 @@ FMI2_EXPORT fmi2Status fmi2ExitInitializationMode(fmi2Component c)
         changed = 1;
         if (v->fixes_start) {
             inst->phase = BROKEN;
-            return FMU_ERROR(inst, "parameter `%s` = %.17g: the consistent initial state depends on it and phc computed "
-                        "it at export, with %s = %.17g; export the FMU again with the value (phc export MODEL "
+            return FMU_ERROR(inst, "parameter `%s` = %.17g: the consistent initial state depends on it and phc "
+                        "computed it at export, with %s = %.17g; export the FMU again with the value (phc export MODEL "
                         "--fmu OUT.fmu --param %s=%.17g)", v->name, inst->p[v->index], v->name,
                         P_EXPORTED[v->index], v->name, inst->p[v->index]);
         }
@@ -638,8 +636,8 @@ FMI2_EXPORT fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunication
         inst->t = ts;
         inst->fresh = 0;
         if (code == SINGULAR)
-            return FMU_ERROR(inst, "singular Newton matrix in the step from t = %.17g (h = %.6g): the model may be at a "
-                        "singular configuration", ts, h);
+            return FMU_ERROR(inst, "singular Newton matrix in the step from t = %.17g (h = %.6g): the model may be "
+                        "at a singular configuration", ts, h);
         if (code == EVAL)
             return FMU_ERROR(inst, "the model cannot be evaluated in the step from t = %.17g (h = %.6g): a value "
                         "outside an expression's domain", ts, h);

@@ -255,6 +255,30 @@ def test_two_instances_in_one_process_do_not_share_state(fmus, tmp_path):
         np.testing.assert_allclose(angles[name], alone["angle"][1:], rtol=1e-13, atol=1e-15)
 
 
+def test_fmu_c_compiles_cleanly_and_exports_only_fmi_functions(fmus, tmp_path):
+    """fmu.c (with steps.c) under -Wall -Wextra -pedantic -Werror; the binary's dynamic symbols
+    are the FMI functions alone (the model's and the step loop's stay hidden)."""
+    import zipfile
+
+    path, report = fmus("pendulum", MODELS / "pendulum.yaml")
+    with zipfile.ZipFile(path) as zf:
+        zf.extractall(tmp_path)
+        names = zf.namelist()
+    assert {"modelDescription.xml", "sources/model.c", "sources/fmu.c", "sources/steps.c",
+            f"binaries/linux64/{report.identifier}.so"} <= set(names)
+    argv, _ = c_backend.find_compiler()
+    done = subprocess.run([*argv, "-std=c99", "-Wall", "-Wextra", "-pedantic", "-Werror", "-c", "-o", "fmu.o", "fmu.c"],
+                          cwd=tmp_path / "sources", capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    import ctypes
+
+    lib = ctypes.CDLL(str(tmp_path / "binaries" / "linux64" / f"{report.identifier}.so"))
+    assert lib.fmi2DoStep and lib.fmi2Instantiate
+    for hidden in ("phc_residual", "phc_steps_chunk", "derived_parameters"):
+        with pytest.raises(AttributeError):
+            getattr(lib, hidden)
+
+
 def _cli(*args, env=None):
     return subprocess.run([sys.executable, "-m", "phc", "export", *map(str, args)], capture_output=True, text=True,
                           cwd=ROOT, env={**os.environ, **(env or {})}, timeout=600)
