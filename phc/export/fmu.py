@@ -3,8 +3,9 @@
 Input: a model or scene file (and the export's options). Output: an ``.fmu`` (a zip) with
 
 * ``modelDescription.xml`` (:mod:`phc.export.fmu_xml`): the base parameters (causality
-  ``parameter``, variability ``fixed``: set before the run, taken by the compiled code at run
-  time; parameters fixed at compile time — a mesh length — are ``local`` constants), the
+  ``parameter``, taken by the compiled code at run time: ``tunable`` — settable between steps —
+  unless the initial state depends on them, then ``fixed``; parameters fixed at compile time — a
+  mesh length — are ``local`` constants), the
   inputs (an additive input on every top-level effort or flow source and exposed port, as
   ``phc linearize`` defines them: :func:`phc.linearize.compile_with_inputs`), the model's
   outputs, the stored energy ``energy.H`` and the energy-balance error
@@ -168,8 +169,9 @@ def _variables(compiled, raw, inputs, p, fixes_start) -> tuple:
                                    (text + "; " if text else "") + "fixed when the model was compiled (a mesh "
                                    "length or a coefficient along a distributed component)"))
         else:
-            out.append(FmuVariable(name, "PARAMETER", int(i), "parameter", "fixed", "exact", float(p[i]), unit,
-                                   text, fixes_start=name in fixes_start))
+            fixes = name in fixes_start  # tunable between steps unless the start state depends on it
+            out.append(FmuVariable(name, "PARAMETER", int(i), "parameter", "fixed" if fixes else "tunable", "exact",
+                                   float(p[i]), unit, text, fixes_start=fixes))
     for inp in inputs:
         out.append(FmuVariable(inp.name, "INPUT", list(raw.PARAMETERS).index(inp.parameter), "input", "continuous",
                                None, 0.0, None, f"added to the {inp.kind} of {inp.origin} (the model's value; 0 "

@@ -181,8 +181,9 @@ _HEAD = r"""/* FMI 2.0 co-simulation interface of the port-Hamiltonian model `@M
  *
  * What the importer may set: the parameters before fmi2ExitInitializationMode (the start state
  * was computed by phc at the exported values: a parameter it depends on is refused with a logged
- * error, export again with the value), the inputs at any time (held constant over a communication
- * interval; each is added to the value the model gives the source or port, 0 for a free port).
+ * error, export again with the value), the other parameters between steps too (tunable), the
+ * inputs at any time (held constant over a communication interval; each is added to the value the
+ * model gives the source or port, 0 for a free port).
  * Not offered: fmi2GetFMUstate and its kin, directional derivatives, input derivatives.
  *
  * Re-entrant: no mutable static data; every instance owns its memory.
@@ -416,6 +417,20 @@ static double value_of(Instance *inst, const struct fmu_variable *v)
     }
 }
 
+/* A tunable parameter changed between steps: the derived parameters follow; the stored energy
+ * jumps with the parameter (not with the state), and that jump is booked into the start energy,
+ * so that energy.balance_error measures the method alone; the Newton matrix is factorized anew
+ * at the next step. */
+static void tune(Instance *inst, int index, double value)
+{
+    const double before = phc_hamiltonian(inst->t, inst->y, inst->p);
+    inst->p[index] = value;
+    derived_parameters(inst->p);
+    inst->h0 += phc_hamiltonian(inst->t, inst->y, inst->p) - before;
+    inst->matf[2] = 0.0;
+    inst->matf[5] = 0.0;
+}
+
 /* ---- the FMI 2.0 functions ------------------------------------------------------------------- */
 
 FMI2_EXPORT const char *fmi2GetTypesPlatform(void) { return "default"; }
@@ -596,14 +611,18 @@ FMI2_EXPORT fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[
         const struct fmu_variable *v = &VARIABLES[vr[k]];
         if (!isfinite(value[k]))
             return FMU_ERROR(inst, "`%s` must be set to a finite number", v->name);
-        if (v->kind == K_PARAMETER && inst->phase != INSTANTIATED && inst->phase != INITIALIZATION)
-            return FMU_ERROR(inst, "parameter `%s` is fixed during the run: set it before fmi2ExitInitializationMode",
-                        v->name);
         if (v->kind != K_PARAMETER && v->kind != K_INPUT)
             return FMU_ERROR(inst, "`%s` cannot be set (it is computed by the model)", v->name);
         if (inst->phase == TERMINATED || inst->phase == BROKEN)
             return FMU_ERROR(inst, "`%s` cannot be set after the run ended", v->name);
-        inst->p[v->index] = value[k];
+        if (v->kind == K_PARAMETER && inst->phase == STEPPING) {
+            if (v->fixes_start)
+                return FMU_ERROR(inst, "parameter `%s` is fixed during the run (the consistent state depends on "
+                                 "it): set it before fmi2ExitInitializationMode", v->name);
+            tune(inst, v->index, value[k]);
+        } else {
+            inst->p[v->index] = value[k];
+        }
         inst->fresh = 0;
     }
     return fmi2OK;
