@@ -151,6 +151,8 @@ def fmu_source(d: FmuData) -> str:
                  "Newton weights (1/nominal scale of the differential variables, 0 elsewhere)"),
         _doubles("COLSCALE", d.colscale if d.colscale is not None else [0.0], "nominal scales"),
         _doubles("CONSTANTS", d.constants, "the step logic's constants (phc.simulation.step_logic)"),
+        "/* steps.c reads C_NC of them: a compile error if phc and steps.c disagree */\n"
+        "typedef char constants_match_steps_c[sizeof CONSTANTS / sizeof CONSTANTS[0] == C_NC ? 1 : -1];\n",
         _ints("JROWS", d.jrows, "int64_t", "the Jacobian's pattern: rows"),
         _ints("JCOLS", d.jcols, "int64_t", "columns"),
         _ints("END_ROWS", d.end_rows, "int64_t", "rows replaced by the position constraints at the step end"),

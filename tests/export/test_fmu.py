@@ -177,6 +177,18 @@ def test_parameter_the_start_depends_on_is_refused_with_a_logged_error(fmus):
     assert len(errors) == 1 and "`L`" in errors[0] and "--param L=2" in errors[0]
 
 
+def test_exported_with_param_starts_where_phc_starts(tmp_path):
+    """The remedy the refusal names: `phc export --param L=2` makes an FMU whose start (x = L) and
+    run are phc's with L = 2."""
+    out = tmp_path / "long.fmu"
+    done = _cli(MODELS / "pendulum.yaml", "--fmu", out, "--param", "L=2", "--no-certify")
+    assert done.returncode == 0 and done.stdout.startswith(f"{out}: FMI 2.0 co-simulation FMU"), done.stderr
+    got = fmpy.simulate_fmu(str(out), stop_time=1.0, output_interval=0.01, output=["angle", "pendulum.x"])
+    ref = _phc(MODELS / "pendulum.yaml", 1.0, 0.01, params={"L": 2.0})
+    assert got["pendulum.x"][0] == 2.0
+    assert _relative(got["angle"], ref.outputs["angle"]) < SAME_CODE
+
+
 def _held_input_solution(t_grid, u, m, k, c, x0=0.0, v0=0.0):
     """x(t) of m x'' + c x' + k x = u_j on [t_j, t_j+1) (the input held over each communication
     step), by scipy at tolerances far below the midpoint rule's error."""
@@ -222,7 +234,7 @@ def test_two_instances_in_one_process_do_not_share_state(fmus, tmp_path):
     from fmpy.fmi2 import FMU2Slave
 
     path, _ = fmus("pendulum", MODELS / "pendulum.yaml")
-    unzipped = extract(path, unzipdir=str(tmp_path / "unzipped"))
+    unzipped = extract(path, unzipdir=str(tmp_path / "unzipped"))  # one copy: both run in one loaded library
     md = read_model_description(unzipped)
     vr = {v.name: v.valueReference for v in md.modelVariables}
 
