@@ -381,9 +381,9 @@ def _description(compiled) -> str:
 def _zip(root: Path, files: list[Path], out: Path) -> None:
     """The FMU: `files` (paths under `root`) in a zip written next to `out`, then moved onto it."""
     out = out.resolve()
-    out.parent.mkdir(parents=True, exist_ok=True)
     partial = out.with_name(out.name + f".{os.getpid()}.part")
     try:
+        out.parent.mkdir(parents=True, exist_ok=True)
         with zipfile.ZipFile(partial, "w", zipfile.ZIP_DEFLATED) as zf:
             for f in files:
                 info = zipfile.ZipInfo(f.relative_to(root).as_posix(), date_time=(1980, 1, 1, 0, 0, 0))
@@ -392,7 +392,10 @@ def _zip(root: Path, files: list[Path], out: Path) -> None:
                 zf.writestr(info, f.read_bytes())
         os.replace(partial, out)
     except OSError as err:
-        partial.unlink(missing_ok=True)
+        try:
+            partial.unlink(missing_ok=True)
+        except OSError:
+            pass
         raise ExportError(f"cannot write `{out}`: {err.strerror or err}") from None
 
 
