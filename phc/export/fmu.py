@@ -12,9 +12,9 @@ Input: a model or scene file (and the export's options). Output: an ``.fmu`` (a 
   ``energy.balance_error`` (outputs), every DAE variable (``local``), with units and
   descriptions;
 * ``sources/model.c`` (the C back end's functions, :func:`phc.codegen.c_printer.c_source`),
-  ``sources/fmu.c`` (the FMI functions and the constants below,
-  :mod:`phc.export.fmu_c`) and ``sources/steps.c`` (the implicit midpoint rule's step loop that
-  ``phc simulate`` runs on the C back end, included by ``fmu.c``);
+  ``sources/fmu.c`` (the constants below, :mod:`phc.export.fmu_c`), which includes
+  ``sources/steps.c`` (the implicit midpoint rule's step loop that ``phc simulate`` runs on the
+  C back end) and ``sources/fmi2_cs.c`` (the FMI functions, the same for every FMU);
 * ``binaries/linux64/<model>.so``, those sources compiled by the system C compiler with the
   flags of the C step loop (no fused multiply-adds, no ``-ffast-math``) and only the FMI
   functions visible.
@@ -258,7 +258,7 @@ def _export(path, out, step, solver, fmi, params, certify, started) -> FmuReport
     from phc.codegen.c_printer import c_source
     from phc.codegen.lower import lower_residual
     from phc.errors import BackendUnsupported, InconsistentInitialError, ModelEvaluationError, SimulationSetupError
-    from phc.export.fmu_c import FmuData, fmu_source
+    from phc.export.fmu_c import FMI2_CS, FmuData, fmu_source
     from phc.export.fmu_xml import model_description
     from phc.linearize import compile_with_inputs
     from phc.options import RunOptions
@@ -357,10 +357,11 @@ def _export(path, out, step, solver, fmi, params, certify, started) -> FmuReport
         (sources / "model.c").write_text(model_c, encoding="utf-8")
         (sources / "fmu.c").write_text(fmu_source(d), encoding="utf-8")
         shutil.copyfile(SOURCE, sources / "steps.c")
+        shutil.copyfile(FMI2_CS, sources / "fmi2_cs.c")
         (work / "modelDescription.xml").write_text(xml, encoding="utf-8")
         binary = _build(work, identifier, argv)
         _zip(work, [work / "modelDescription.xml", binary, sources / "model.c", sources / "fmu.c",
-                    sources / "steps.c"], Path(out))
+                    sources / "steps.c", sources / "fmi2_cs.c"], Path(out))
     finally:
         shutil.rmtree(work, ignore_errors=True)
     return FmuReport(path=str(out), model=str(raw.MODEL), identifier=identifier, guid=guid, unknowns=int(raw.N),
