@@ -331,13 +331,14 @@ def test_tuning_a_parameter_in_the_energy_books_the_jump(fmus, tmp_path):
         slave.setReal([vr["L"]], [2.0])
     slave.terminate()
     slave.freeInstance()
-    assert abs(after[0, 0] - before[-1, 0]) > 1.0  # H did jump (the energy is about -m g L/2 here)
+    # H did jump: 0 before; the kinetic part halved, the potential doubled
+    assert abs(after[0, 0] - before[-1, 0]) > 1.0
     assert np.abs(np.concatenate([before[:, 1], after[:, 1]])).max() < 1e-11 * 9.81
 
 
 def test_fmu_c_compiles_cleanly_and_exports_only_fmi_functions(fmus, tmp_path):
-    """fmu.c (with steps.c and fmi2_cs.c) under -Wall -Wextra -pedantic -Werror; the binary's dynamic symbols
-    are the FMI functions alone (the model's and the step loop's stay hidden)."""
+    """fmu.c (with steps.c and fmi2_cs.c) under -Wall -Wextra -pedantic -Werror; the binary's
+    dynamic symbols are the FMI functions alone (the model's and the step loop's stay hidden)."""
     import zipfile
 
     path, report = fmus("pendulum", MODELS / "pendulum.yaml")
