@@ -45,7 +45,8 @@ Compiling and running
     outside its domain during a run: :mod:`phc.simulation.guard` raises it only for a
     domain error, ``ArithmeticError`` or a non-finite result; any other exception of the
     generated code is a bug of phc and reaches the user as an internal error),
-    ``SwitchTimeError`` (the switching times of a condition in t cannot be located).
+    ``SwitchTimeError`` (the switching times of a condition in t cannot be located),
+    ``ExportError`` (a model or options ``phc export`` cannot write as an FMU).
 
 Not a ``PhcError``
     ``SimulationInterrupted`` is Ctrl-C during :func:`phc.simulate`: a
@@ -215,6 +216,11 @@ class BackendUnsupported(CodegenError):
     table); the message names it and where it is used."""
 
 
+class ExportError(PhcError):
+    """A model or options that cannot be exported as an FMU (:mod:`phc.export.fmu`): one line
+    naming the file, what cannot be exported and what to do."""
+
+
 class SweepSetupError(SimulationSetupError):
     """A sweep that cannot start (a wrong name or SPEC, results that do not match on resume);
     the command line reports it as a usage error."""
@@ -318,7 +324,8 @@ PRIVATE_CONTROL_FLOW = ("phc.cli.report._Exit", "phc.checks.compiled._NotNumeric
 
 __all__ = ["BackendMismatch", "BackendUnavailable", "BackendUnsupported", "CacheWarning", "CodegenError",
            "CompiledBackendWarning", "CompiledLoopWarning",
-           "DimensionError", "ExpressionError", "FileRefused", "IgnoredOptionWarning", "InconsistentInitialError",
+           "DimensionError", "ExportError", "ExpressionError", "FileRefused", "IgnoredOptionWarning",
+           "InconsistentInitialError",
            "ModelError", "ModelEvaluationError", "NothingToAnimate", "NpzProblem", "OutputPathError",
            "PhcError", "PhcWarning", "PlotUnavailable", "ReferenceValuesError", "RegistryError",
            "SimulationInterrupted",

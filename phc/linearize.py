@@ -369,8 +369,13 @@ def _exposed_dimensions(scene: Scene) -> dict[str, int]:
     return out
 
 
-def _compile_with_inputs(path, params: Optional[dict], mesh: Optional[dict], certify: bool,
-                         backend: Optional[str]):
+def compile_with_inputs(path, params: Optional[dict], mesh: Optional[dict], certify: bool,
+                        backend: Optional[str]):
+    """The model or scene file compiled with an input parameter (default 0) added to every
+    top-level source's value and exposed port's effort or flow (:class:`_InputScene`), and
+    those inputs (:class:`Input`, in parameter order): the inputs of the linearization and of an
+    exported FMU (:mod:`phc.export.fmu`). Raises :class:`~phc.errors.ModelError` with the model's
+    own diagnostics, located as written."""
     from phc.pipeline import compile_model
 
     if is_scene_file(path):
@@ -433,7 +438,7 @@ def linearize_model(path: str | os.PathLike, *, at: Optional[float] = None, stat
     from phc.simulation.guard import guard, quiet_floating_point
     from phc.simulation.initial import consistent_initial_conditions
 
-    compiled, inputs = _compile_with_inputs(path, params, mesh, certify, backend)
+    compiled, inputs = compile_with_inputs(path, params, mesh, certify, backend)
     mod = guard(compiled.module, compiled.source)
     n = mod.N
     if n - 1 > DENSE_LIMIT:

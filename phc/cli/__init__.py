@@ -1,4 +1,4 @@
-"""The `phc` command line: validate, check, graph, compile, simulate, sweep, schema.
+"""The `phc` command line: validate, check, graph, compile, simulate, sweep, export, schema.
 
 Exit codes: 0 success, 1 model errors (or a failed simulation), 2 usage errors.
 A user mistake never produces a traceback: it is printed as one located line per
@@ -26,7 +26,7 @@ from phc import PhcError
 from phc.inert import printable
 from phc.cli.commands import (  # noqa: F401 (importable from phc.cli)
     MAX_FILE_STEM, _draw_png, _parse_assignments, _parse_params, cmd_animate, cmd_bench, cmd_cache, cmd_check,
-    cmd_compile, cmd_graph, cmd_linearize, cmd_schema, cmd_simulate, cmd_sweep, cmd_validate)
+    cmd_compile, cmd_export, cmd_graph, cmd_linearize, cmd_schema, cmd_simulate, cmd_sweep, cmd_validate)
 from phc.cli.parser import (  # noqa: F401 (importable from phc.cli)
     FORMAT_HELP, NUMERIC_OPTIONS, OUTPUT_OPTIONS, _allowed_paths, _check_arguments, _check_number, _memory_size,
     _python_showwarning, _show_warning, _solver_names, _with_budget, build_parser)

@@ -1,7 +1,7 @@
 """The `phc` subcommands: one ``cmd_NAME(args) -> exit code`` each.
 
-validate, compile, simulate, sweep, animate, bench, check, linearize, graph, schema and
-cache, with the parsing of their ``NAME=VALUE`` options. What they print and write comes
+validate, compile, simulate, sweep, animate, bench, check, linearize, export, graph, schema
+and cache, with the parsing of their ``NAME=VALUE`` options. What they print and write comes
 from :mod:`phc.cli.report`, the set-up of a run from :mod:`phc.cli.run`. Part of
 :mod:`phc.cli`.
 """
@@ -401,6 +401,23 @@ def cmd_linearize(args) -> int:
         print(inert(f"{lin.model}: {len(lin.eigenvalues)} finite eigenvalues; wrote {args.output}"))
     else:
         print(text)
+    return EXIT_OK
+
+
+def cmd_export(args) -> int:
+    from phc import ModelError
+    from phc.export import ExportError, export_fmu
+
+    try:
+        report = export_fmu(args.file, args.fmu, step=args.step, solver=args.solver, fmi=args.fmi,
+                            params=_parse_params(args.param), certify=not args.no_certify)
+    except ModelError as err:
+        _print_diagnostics(err.diagnostics)
+        return EXIT_MODEL
+    except ExportError as err:  # one line naming the file: what cannot be exported, and what to do
+        print(inert(str(err)), file=sys.stderr)
+        return EXIT_MODEL
+    print(inert(report.describe()))
     return EXIT_OK
 
 

@@ -15,8 +15,8 @@ import warnings
 from pathlib import Path
 
 from phc import __version__
-from phc.cli.commands import (cmd_animate, cmd_bench, cmd_cache, cmd_check, cmd_compile, cmd_graph, cmd_linearize,
-                              cmd_schema, cmd_simulate, cmd_sweep, cmd_validate)
+from phc.cli.commands import (cmd_animate, cmd_bench, cmd_cache, cmd_check, cmd_compile, cmd_export, cmd_graph,
+                              cmd_linearize, cmd_schema, cmd_simulate, cmd_sweep, cmd_validate)
 from phc.errors import UsageError
 from phc.names import RUN_LIMITS, option_problem
 
@@ -48,6 +48,7 @@ NUMERIC_OPTIONS = {
     ("sweep", "t_end"): ("--t-end", *RUN_LIMITS["t_end"]),
     ("sweep", "n_out"): ("--n-out", *RUN_LIMITS["n_out"]),
     ("linearize", "modes"): ("--modes", "count", 1, 1_000_000),
+    ("export", "step"): ("--step", *RUN_LIMITS["step"]),
 }
 
 # Output paths, checked before any work: (command, dest) -> accepted extensions, or None
@@ -63,6 +64,7 @@ OUTPUT_OPTIONS = {
     ("sweep", "series"): ("--series", (".csv",)),
     ("sweep", "plot"): ("--plot", (".png", ".pdf", ".svg")),
     ("linearize", "output"): ("-o", (".txt", ".json", ".npz")),
+    ("export", "fmu"): ("--fmu", (".fmu",)),
 }
 
 
@@ -337,12 +339,28 @@ def build_parser() -> argparse.ArgumentParser:
                    help="skip the certificate of the compiled equations (power balance, passivity)")
     p.set_defaults(func=cmd_linearize)
 
+    p = sub.add_parser("export", help="write the model as an FMI 2.0 co-simulation FMU (the implicit midpoint rule "
+                       "in C, a linux64 binary built with the system C compiler) for other simulation tools")
+    p.add_argument("file", metavar="FILE", help="a model file, or a scene file")
+    p.add_argument("--fmu", required=True, metavar="OUT.fmu", help="the FMU to write")
+    p.add_argument("--fmi", choices=("2", "3"), default="2", help="FMI version (2: FMI 2.0; 3 is not offered yet)")
+    p.add_argument("--solver", choices=_solver_names(), help="the integrator the FMU embeds: midpoint (the only one "
+                   "it offers, and the default)")
+    p.add_argument("--step", type=float, help="longest step (default: the model's simulation.step, else one step per "
+                   "communication interval)")
+    p.add_argument("--param", action="append", metavar="NAME=VALUE", help="export with this parameter value (the "
+                   "FMU's default; repeatable)")
+    p.add_argument("--no-certify", action="store_true",
+                   help="skip the certificate of the compiled equations (power balance, passivity)")
+    p.set_defaults(func=cmd_export)
+
     p = sub.add_parser("graph", help="draw the interconnection graph (DOT, or PNG with matplotlib)")
     p.add_argument("file", metavar="FILE")
     p.add_argument("-o", "--output", metavar="OUT", help="out.dot or out.png (default: DOT on stdout)")
     p.set_defaults(func=cmd_graph)
 
-    for name in ("validate", "compile", "simulate", "animate", "bench", "check", "graph", "sweep", "linearize"):
+    for name in ("validate", "compile", "simulate", "animate", "bench", "check", "graph", "sweep", "linearize",
+                 "export"):
         p = sub.choices[name]
         p.add_argument("--max-memory", metavar="SIZE",
                        help="memory budget, e.g. 8G or 512M: a model whose estimated compile and output memory is "
@@ -360,7 +378,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("cache", help="show or empty the cache of generated modules and bench references")
     p.add_argument("action", choices=("info", "clean"), nargs="?", default="info")
     p.set_defaults(func=cmd_cache)
-    for name in ("validate", "compile", "simulate", "animate", "bench", "check", "graph", "sweep", "linearize"):
+    for name in ("validate", "compile", "simulate", "animate", "bench", "check", "graph", "sweep", "linearize",
+                 "export"):
         sub.choices[name].add_argument(
             "--allow-path", action="append", default=[], metavar="DIR",
             help="also allow files under DIR to be referenced (nested models, tables, matrices); by default "

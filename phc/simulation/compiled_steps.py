@@ -338,6 +338,32 @@ def _kernel_namespace(externals) -> dict:
 # ---------------------------------------------------------------------------------------------------
 # the Python driver
 
+def step_constants() -> np.ndarray:
+    """The constants vector of the step logic (:mod:`phc.simulation.step_logic`: the methods'
+    tolerances, limits, the predictor's orders, the monitor's threshold and period), as the
+    Python loop uses them: what the compiled loops and an exported FMU (:mod:`phc.export.fmu`)
+    are handed."""
+    from phc.simulation import discrete_gradient as dg
+    from phc.simulation import midpoint as mp
+    from phc.simulation import midpoint4 as m4
+    from phc.simulation.monitor import THRESHOLD
+
+    c = m4.composition_constants(dg.secant_constants(mp.newton_constants()))
+    c[_THRESHOLD], c[_EVERY] = THRESHOLD, mp.MONITOR_EVERY
+    c[_ONE], c[_ZERO] = 1.0, 0.0
+    c[_ORDER] = min(max(int(mp.PREDICTOR_ORDER), 0), mp.MAX_PREDICTOR_ORDER)
+    c[_ORDER_ALG] = min(max(int(mp.PREDICTOR_ORDER_ALGEBRAIC), 0), mp.MAX_PREDICTOR_ORDER)
+    c[_STRIKES_C] = LOW_PRECISION_STRIKES
+    return c
+
+
+def algebraic_mask(raw) -> np.ndarray:
+    """Per variable: 0 differential; 1 algebraic, tested relative to |y| + 1 with Newton weights
+    (StageSolver.algebraic); 2 a GGL multiplier (not tested)."""
+    return np.array([0 if d else (2 if str(v).startswith("ggl.") else 1)
+                     for d, v in zip(raw.DIFFERENTIAL, raw.VARIABLES)], dtype=np.int8)
+
+
 def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step, name, names=None,
               python_advance=None, weights=None, scales=None) -> Optional[dict]:
     """Run a fixed-step solver with the compiled loop; None when it does not apply (the caller
@@ -369,9 +395,6 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
     if not on_c:
         funcs = _functions(raw)
         chunk = _READY[0]
-    from phc.simulation import discrete_gradient as dg
-    from phc.simulation import midpoint4 as m4
-    from phc.simulation.monitor import THRESHOLD
 
     n = raw.N
     t_out = np.ascontiguousarray(t_out, dtype=float)
@@ -393,12 +416,7 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
     fst = np.zeros(_NF)
     fst[_STEP] = float(step) if step else 0.0
     fst[_H_PREV] = 1.0
-    # the numbers of the step logic (phc.simulation.step_logic): the methods' constants, as in the Python loop
-    c = m4.composition_constants(dg.secant_constants(mp.newton_constants()))
-    c[_THRESHOLD], c[_EVERY] = THRESHOLD, mp.MONITOR_EVERY
-    c[_ONE], c[_ZERO] = 1.0, 0.0
-    c[_ORDER] = min(max(int(mp.PREDICTOR_ORDER), 0), mp.MAX_PREDICTOR_ORDER)
-    c[_ORDER_ALG] = min(max(int(mp.PREDICTOR_ORDER_ALGEBRAIC), 0), mp.MAX_PREDICTOR_ORDER)
+    c = step_constants()
     pt, pm = np.zeros(mp.MAX_PREDICTOR_ORDER + 1), np.zeros((mp.MAX_PREDICTOR_ORDER + 1, n))
     A = np.zeros((2, n, n) if not on_c else (2, 1, 1))  # the numba loop's matrices (the C loop has its own)
     low = mixed_precision(n) and not on_c  # the C loop corrects in double precision only
@@ -406,18 +424,12 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
     lp = ((np.zeros((2, n, n), np.float32), np.ones((2, 3, n)), np.array([0.0] * (2 * n) + [1.0, 0.0], np.float32))
           if low else (np.zeros((2, 1, 1), np.float32), np.ones((2, 3, 1)), np.zeros(2, np.float32)))
     ist[_LOWP] = int(low)
-    c[_STRIKES_C] = LOW_PRECISION_STRIKES
     ipiv = np.zeros((2, n), dtype=np.int32)
     matf = np.zeros((2, 3))
     w = np.zeros(0) if weights is None else np.ascontiguousarray(weights, dtype=float)
     if w.shape != (0,) and w.shape != (n,):
         raise ValueError(f"Newton weights: expected shape ({n},), got {w.shape}")
-    # with weights, the algebraic variables but the GGL multipliers are tested relative to |y| + 1
-    # (StageSolver.algebraic)
-    # algebraic variables: 1, tested relative to |y| + 1 with weights (StageSolver.algebraic); 2, the GGL
-    # multipliers (not tested); 0, differential
-    algmask = np.array([0 if d else (2 if str(v).startswith("ggl.") else 1)
-                        for d, v in zip(raw.DIFFERENTIAL, raw.VARIABLES)], dtype=np.int8)
+    algmask = algebraic_mask(raw)
     colscale = np.zeros(0) if scales is None else np.ascontiguousarray(scales, dtype=float)
     if colscale.shape != (0,) and colscale.shape != (n,):
         raise ValueError(f"nominal scales: expected shape ({n},), got {colscale.shape}")
@@ -540,4 +552,4 @@ def __getattr__(name: str):
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
 
 
-__all__ = ["MAX_UNKNOWNS", "enabled", "integrate", "why_not"]
+__all__ = ["MAX_UNKNOWNS", "algebraic_mask", "enabled", "integrate", "step_constants", "why_not"]
