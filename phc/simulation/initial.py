@@ -311,11 +311,18 @@ class _Problem:
         g0 = g0[keep]
         if not len(g0) or not np.all(np.isfinite(A.data)):
             return False
+        def hopeless_after(du):
+            left = float(np.linalg.norm(g0 + A @ du))
+            return left > 10 * np.sqrt(len(g0)) * bound and left > 1e-8 * float(np.linalg.norm(g0))
+
+        # Any Δu bounds the least residual from above, so an iterative (LSMR) answer that
+        # is not hopeless is final; "hopeless" is decided only by an exact solve.
+        if not hopeless_after(min_norm_solve(A, -g0)):
+            return False
         du = min_norm_solve(A, -g0, dense_limit=DENSE_LIMIT, iterative=False)
         if du is None:
             return False  # rank-deficient and too large for a dense solve: in doubt
-        left = float(np.linalg.norm(g0 + A @ du))
-        return left > 10 * np.sqrt(len(g0)) * bound and left > 1e-8 * float(np.linalg.norm(g0))
+        return hopeless_after(du)
 
     def energy_metric(self):
         """``T`` with ``Tᵀ K T = I``, K the Hessian of the stored energy H by the guessed
@@ -468,8 +475,8 @@ class _Problem:
             du[guess] = T @ v[guess]
             return du
         # dense QR with column pivoting (gelsy) when small, else a sparse LU of the regular
-        # system, else gelsy or LSMR (phc.simulation.minnorm)
-        return self.weights * min_norm_solve(JW, -g, dense_limit=DENSE_LIMIT)
+        # system, else LSMR (phc.simulation.minnorm)
+        return self.weights * min_norm_solve(JW, -g)
 
 
 RANGE_TOL = 1e-12

@@ -26,8 +26,10 @@ its rank threshold. Three ways, by size and rank:
   dropped rows hold there to round-off (:data:`CONSISTENT`) — then it solves the whole
   consistent system with least norm, which is what gelsy gives. A sparse QR would do
   the same for rank-deficient A, but scipy has none.
-* Larger A that is numerically rank-deficient (a redundant constraint, a zero row): dense
-  ``gelsy`` while A has at most `dense_limit` entries, else LSMR from v = 0, whose
+* Larger A that is numerically rank-deficient (a redundant constraint, a zero row, a
+  dependency the pattern does not show — the 100-element beam's Newton matrix has one):
+  LSMR from v = 0 (or dense ``gelsy`` up to `dense_limit` entries for a caller that
+  needs the exact solution, see :func:`min_norm_solve`), whose
   iterates stay in the row space of A, so it converges to the least-norm least-squares
   solution; its stopping tolerances are the relative round-off of the data
   (atol = btol = 1e-15), and it may stop earlier on an ill-conditioned A.
@@ -112,9 +114,10 @@ def _regular_lu(A, b, cond):
 
 def min_norm_solve(A, b, *, cond: float = COND, dense_limit: int = 4_000_000, iterative: bool = True):
     """The least-norm least-squares solution of ``A v = b`` (`A` sparse or dense); see the
-    module docstring for the method chosen. `dense_limit`: the largest rank-deficient
-    system solved dense; beyond, LSMR, or None when not `iterative` (a caller that needs
-    the exact solution to decide something)."""
+    module docstring for the method chosen. A large rank-deficient system is solved by
+    LSMR when `iterative` (a Newton step: what it leaves is the next step's work), else
+    — a caller that needs the exact solution to decide something — dense up to
+    `dense_limit` entries, beyond that None."""
     m, n = A.shape
     b = np.asarray(b, dtype=float)
     if m * n <= DENSE_SOLVE_LIMIT or not m or not n:
@@ -122,8 +125,11 @@ def min_norm_solve(A, b, *, cond: float = COND, dense_limit: int = 4_000_000, it
     v = _regular_lu(A, b, cond)
     if v is not None:
         return v
+    if iterative:
+        v, istop = spla.lsmr(sps.csr_matrix(A), b, atol=1e-15, btol=1e-15, maxiter=20 * max(m, n))[:2]
+        if istop in (0, 1, 2) or m * n > dense_limit:
+            return v  # converged (or nothing better affordable)
+        # stopped on its condition estimate or iteration limit: the dense solve decides
     if m * n <= dense_limit:
         return dense_min_norm(A, b, cond)
-    if not iterative:
-        return None
-    return spla.lsmr(sps.csr_matrix(A), b, atol=1e-15, btol=1e-15, maxiter=20 * max(m, n))[0]
+    return None
