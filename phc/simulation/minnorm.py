@@ -10,13 +10,11 @@ its rank threshold. Three ways, by size and rank:
 * Larger A whose regular part is all of it: one sparse LU (SuperLU, ``splu``) of A itself
   when it is square, else of the augmented system of the minimum-norm problem,
   ``[γI Aᵀ; A 0] [v; λ] = [0; b]`` (A of full row rank; v = −Aᵀλ/γ lies in the row space
-  of A, so it is the least-norm solution) or of the least-squares problem,
-  ``[γI A; Aᵀ 0] [r; v] = [b; 0]`` (A of full column rank; the residual r is orthogonal
-  to the columns of A). γ = max|A| balances the blocks and does not change v. The rank
-  decision is made before the solution is trusted: the matrix factored must be
-  structurally regular (a maximum matching covers it: phc's matching, as scipy's
-  ``structural_rank`` takes exponential time on a beam's pattern) and
-  numerically regular — SuperLU succeeds and the 1-norm condition estimate
+  of A, so it is the least-norm solution). γ = max|A| balances the blocks and does not
+  change v. The rank decision is made before the solution is trusted: the matrix
+  factored must be structurally regular (a maximum matching of A's rows to its columns
+  covers the rows: phc's matching, as scipy's ``structural_rank`` takes exponential
+  time on a beam's pattern) and numerically regular — SuperLU succeeds and the 1-norm condition estimate
   (``onenormest`` of the inverse through the factors, times ‖K‖₁) stays below
   ``1/cond``. Then the regular system has one solution and gelsy, which truncates no
   direction of such a matrix, computes the same one: the two agree to the round-off of
@@ -32,7 +30,9 @@ its rank threshold. Three ways, by size and rank:
   needs the exact solution, see :func:`min_norm_solve`), whose
   iterates stay in the row space of A, so it converges to the least-norm least-squares
   solution; its stopping tolerances are the relative round-off of the data
-  (atol = btol = 1e-15), and it may stop earlier on an ill-conditioned A.
+  (atol = btol = 1e-15). If it stops on its condition estimate or iteration limit
+  instead, dense ``gelsy`` decides while A has at most `dense_limit` entries (the
+  flexible slider–crank's Newton matrix, forced onto this path, needs it).
 
 The same routine serves the Newton steps and the affine pre-check of
 :mod:`phc.simulation.initial`, so dense and sparse paths differ only where the rank
@@ -87,14 +87,10 @@ def _regular_lu(A, b, cond):
         return None
     if m == n:
         K, rhs = A, b
-    elif m < n:
+    else:  # m < n: every row is matched, so m > n cannot reach here
         K = sps.bmat([[gamma * sps.identity(n), A.T], [A, None]], format="csc")
         rhs = np.concatenate([np.zeros(n), b])
-    else:
-        K = sps.bmat([[gamma * sps.identity(m), A], [A.T, None]], format="csc")
-        rhs = np.concatenate([b, np.zeros(n)])
-    if np.any(bipartite_matching(K) < 0):  # structurally singular
-        return None
+    # (structurally regular: A's rows are matched to distinct columns, and so is K)
     try:
         lu = spla.splu(K)
     except RuntimeError:  # "Factor is exactly singular"
@@ -109,7 +105,7 @@ def _regular_lu(A, b, cond):
         x = x + lu.solve(rhs - K @ x)  # one step of iterative refinement
     if not np.all(np.isfinite(x)):
         return None
-    return x if m == n else (x[:n] if m < n else x[m:])
+    return x[:n]
 
 
 def min_norm_solve(A, b, *, cond: float = COND, dense_limit: int = 4_000_000, iterative: bool = True):
