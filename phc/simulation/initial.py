@@ -31,7 +31,8 @@ import scipy.sparse as sps
 from phc.analysis.matching import bipartite_matching
 from phc.errors import InconsistentInitialError
 from phc.simulation.guard import ModelEvaluationError
-from phc.simulation.minnorm import dense_min_norm, min_norm_solve
+from phc.simulation.minnorm import (DENSE_SOLVE_LIMIT, LeastNorm, dense_min_norm, lsmr_min_norm, min_norm_solve,
+                                    one_blas_thread)
 
 CHEAP = 1e4
 """Weight of unknowns that may change freely (derivatives, algebraic variables)."""
@@ -129,6 +130,7 @@ class _Problem:
             self.C = sps.csr_matrix((0, n))
             self.c = np.zeros(0)
         self._prepared = False  # _prepare() on first use: a hopeless stage never needs it
+        self.solver = LeastNorm()  # the Newton steps' least-norm solves (one rank decision)
 
     def _prepare(self):
         """Index arrays for evaluating D and assembling the Jacobian of G, built once.
@@ -315,9 +317,10 @@ class _Problem:
             left = float(np.linalg.norm(g0 + A @ du))
             return left > 10 * np.sqrt(len(g0)) * bound and left > 1e-8 * float(np.linalg.norm(g0))
 
-        # Any Δu bounds the least residual from above, so an iterative (LSMR) answer that
-        # is not hopeless is final; "hopeless" is decided only by an exact solve.
-        if not hopeless_after(min_norm_solve(A, -g0)):
+        # Any Δu bounds the least residual from above, so an LSMR answer that is not hopeless
+        # is final (no factorization; in exact arithmetic LSMR ends within min(m, n) steps);
+        # "hopeless" is decided only by an exact solve.
+        if A.shape[0] * A.shape[1] > DENSE_SOLVE_LIMIT and not hopeless_after(lsmr_min_norm(A, -g0, min(A.shape))[0]):
             return False
         du = min_norm_solve(A, -g0, dense_limit=DENSE_LIMIT, iterative=False)
         if du is None:
@@ -476,7 +479,7 @@ class _Problem:
             return du
         # dense QR with column pivoting (gelsy) when small, else a sparse LU of the regular
         # system, else LSMR (phc.simulation.minnorm)
-        return self.weights * min_norm_solve(JW, -g)
+        return self.weights * self.solver.solve(JW, -g)
 
 
 RANGE_TOL = 1e-12
@@ -585,6 +588,12 @@ def consistent_initial_conditions(mod, p, t0: float, values: dict[int, float], f
     InconsistentInitialError
         When the fixed values violate an equation; the message names the equation(s).
     """
+    # its dense solves with one BLAS thread (phc.simulation.minnorm.one_blas_thread)
+    with one_blas_thread():
+        return _initial_conditions(mod, p, t0, values, fixed, tol, max_iter, initial_relations)
+
+
+def _initial_conditions(mod, p, t0, values, fixed, tol, max_iter, initial_relations) -> InitialResult:
     n = mod.N
     y = np.zeros(n)
     for j, v in values.items():
