@@ -42,8 +42,8 @@ A :class:`LeastNorm` serves a sequence of systems of one structure — the Newto
 one problem — and does not try the sparse LU again once it found one of them singular:
 the later matrices differ from it by the move of the iterate, not in the dependency
 that made it singular, and each rejected attempt costs a matching, a factorization and
-a condition estimate (on a 300-element beam, whose Newton matrices are all singular,
-those attempts cost 6 times the whole initialization by LSMR). The answer does not
+a condition estimate (a 300-element beam's Newton matrices are all singular: trying the
+LU at every step cost five times the rest of its initialization). The answer does not
 depend on it: LSMR and the LU solve the same least-norm problem.
 
 Dense solves run with one BLAS thread (:func:`one_blas_thread`).
@@ -84,9 +84,9 @@ def one_blas_thread():
     """While the block runs, BLAS (OpenBLAS, MKL, BLIS) uses one thread; the previous
     limits are restored after it. phc's dense systems are small (a few thousand unknowns
     at most): on a 2-core machine with other work running, OpenBLAS's threads waiting for
-    each other made a 1211 × 1209 gelsy 20 times slower in CPU and wall time than one
-    thread (a 100-element beam's initialization: 281 s instead of 1.7 s), and even idle
-    the gain of a second thread on them is small. Scoped, not set at import: phc changes
+    each other made gelsy of 200 × 200 to 1211 × 1209 matrices 3 to 20 times slower in CPU
+    and wall time than one thread (a 100-element beam's dense initialization took 281 s
+    instead of 1.7 s), and even idle the gain of a second thread on them is small. Scoped, not set at import: phc changes
     nothing in the user's process outside its own calls (the limit is process-wide while
     the block runs). Needs ``threadpoolctl``; without it the block runs as it is. Nested
     blocks cost nothing."""
