@@ -86,7 +86,8 @@ def one_blas_thread():
     at most): on a 2-core machine with other work running, OpenBLAS's threads waiting for
     each other made gelsy of 200 × 200 to 1211 × 1209 matrices 3 to 20 times slower in CPU
     and wall time than one thread (a 100-element beam's dense initialization took 281 s
-    instead of 1.7 s), and even idle the gain of a second thread on them is small. Scoped, not set at import: phc changes
+    instead of 1.7 s); on an idle machine more threads can only shorten these solves, a
+    small part of a run. Scoped, not set at import: phc changes
     nothing in the user's process outside its own calls (the limit is process-wide while
     the block runs). Needs ``threadpoolctl``; without it the block runs as it is. Nested
     blocks cost nothing."""
