@@ -263,8 +263,8 @@ class _Problem:
         rounding, the stage cannot succeed. The common cases: held states that violate a
         position constraint g(q) = 0 (a row with A = 0), and a beam's mass rows M e = p
         whose guessed momenta do not fit the motion of its ends. When anything is in doubt
-        (a point where the model cannot be evaluated, a rank-deficient problem too large for a dense
-        solve) the answer is False and the stage runs as always."""
+        (a point where the model cannot be evaluated, a rank-deficient problem too large for
+        a dense solve) the answer is False and the stage runs as always."""
         nf, nd = len(self.free), len(self.dif)
         if not nf + nd:
             return False
@@ -313,6 +313,7 @@ class _Problem:
         g0 = g0[keep]
         if not len(g0) or not np.all(np.isfinite(A.data)):
             return False
+
         def hopeless_after(du):
             left = float(np.linalg.norm(g0 + A @ du))
             return left > 10 * np.sqrt(len(g0)) * bound and left > 1e-8 * float(np.linalg.norm(g0))
@@ -320,8 +321,9 @@ class _Problem:
         # Any Δu bounds the least residual from above, so an LSMR answer that is not hopeless
         # is final (no factorization; in exact arithmetic LSMR ends within min(m, n) steps);
         # "hopeless" is decided only by an exact solve.
-        if A.shape[0] * A.shape[1] > DENSE_SOLVE_LIMIT and not hopeless_after(lsmr_min_norm(A, -g0, min(A.shape))[0]):
-            return False
+        if A.shape[0] * A.shape[1] > DENSE_SOLVE_LIMIT:
+            if not hopeless_after(lsmr_min_norm(A, -g0, maxiter=min(A.shape))[0]):
+                return False
         du = min_norm_solve(A, -g0, dense_limit=DENSE_LIMIT, iterative=False)
         if du is None:
             return False  # rank-deficient and too large for a dense solve: in doubt
