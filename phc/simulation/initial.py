@@ -314,15 +314,23 @@ class _Problem:
         if not len(g0) or not np.all(np.isfinite(A.data)):
             return False
 
+        # a residual ‖g₀ + A Δu‖₂ above `enough` is hopeless (some row above the bound, with a
+        # margin for rounding)
+        norm_g0 = float(np.linalg.norm(g0))
+        enough = max(10 * np.sqrt(len(g0)) * bound, 1e-8 * norm_g0)
+        if norm_g0 <= enough:
+            return False
+
         def hopeless_after(du):
-            left = float(np.linalg.norm(g0 + A @ du))
-            return left > 10 * np.sqrt(len(g0)) * bound and left > 1e-8 * float(np.linalg.norm(g0))
+            return float(np.linalg.norm(g0 + A @ du)) > enough
 
         # Any Δu bounds the least residual from above, so an LSMR answer that is not hopeless
-        # is final (no factorization; in exact arithmetic LSMR ends within min(m, n) steps);
-        # "hopeless" is decided only by an exact solve.
+        # is final: no factorization, and LSMR stops as soon as its residual (decreasing at
+        # each step) is below `enough` (btol), or after min(m, n) steps, where it ends in exact
+        # arithmetic. "Hopeless" is decided only by an exact solve.
         if A.shape[0] * A.shape[1] > DENSE_SOLVE_LIMIT:
-            if not hopeless_after(lsmr_min_norm(A, -g0, maxiter=min(A.shape))[0]):
+            du = lsmr_min_norm(A, -g0, maxiter=min(A.shape), btol=enough / norm_g0)[0]
+            if not hopeless_after(du):
                 return False
         du = min_norm_solve(A, -g0, dense_limit=DENSE_LIMIT, iterative=False)
         if du is None:

@@ -123,11 +123,11 @@ def dense_min_norm(A, b, cond: float = COND) -> np.ndarray:
         return sla.lstsq(A, b, lapack_driver="gelsy", cond=cond)[0]
 
 
-def lsmr_min_norm(A, b, maxiter: int | None = None):
+def lsmr_min_norm(A, b, maxiter: int | None = None, btol: float = 1e-15):
     """LSMR from v = 0 at the round-off of the data: ``(v, converged)``; `maxiter` defaults
-    to 20 × max(m, n)."""
+    to 20 × max(m, n). A caller content with any residual below ``btol ‖b‖`` may say so."""
     m, n = A.shape
-    v, istop = spla.lsmr(sps.csr_matrix(A), b, atol=1e-15, btol=1e-15,
+    v, istop = spla.lsmr(sps.csr_matrix(A), b, atol=1e-15, btol=btol,
                          maxiter=20 * max(m, n) if maxiter is None else maxiter)[:2]
     return v, istop in (0, 1, 2)
 
