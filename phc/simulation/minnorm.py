@@ -43,7 +43,7 @@ one problem — and does not try the sparse LU again once it found one of them s
 the later matrices differ from it by the move of the iterate, not in the dependency
 that made it singular, and each rejected attempt costs a matching, a factorization and
 a condition estimate (a 300-element beam's Newton matrices are all singular: trying the
-LU at every step cost five times the rest of its initialization). The answer does not
+LU at every step cost four times the rest of its initialization). The answer does not
 depend on it: LSMR and the LU solve the same least-norm problem.
 
 Dense solves run with one BLAS thread (:func:`one_blas_thread`).
