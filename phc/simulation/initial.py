@@ -27,11 +27,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sps
-import scipy.sparse.linalg as spla
 
 from phc.analysis.matching import bipartite_matching
 from phc.errors import InconsistentInitialError
 from phc.simulation.guard import ModelEvaluationError
+from phc.simulation.minnorm import (DENSE_SOLVE_LIMIT, LeastNorm, dense_min_norm, lsmr_min_norm, min_norm_solve,
+                                    one_blas_thread)
 
 CHEAP = 1e4
 """Weight of unknowns that may change freely (derivatives, algebraic variables)."""
@@ -129,6 +130,7 @@ class _Problem:
             self.C = sps.csr_matrix((0, n))
             self.c = np.zeros(0)
         self._prepared = False  # _prepare() on first use: a hopeless stage never needs it
+        self.solver = LeastNorm()  # the Newton steps' least-norm solves (one rank decision)
 
     def _prepare(self):
         """Index arrays for evaluating D and assembling the Jacobian of G, built once.
@@ -261,8 +263,8 @@ class _Problem:
         rounding, the stage cannot succeed. The common cases: held states that violate a
         position constraint g(q) = 0 (a row with A = 0), and a beam's mass rows M e = p
         whose guessed momenta do not fit the motion of its ends. When anything is in doubt
-        (a point where the model cannot be evaluated, a problem too large for a dense
-        solve) the answer is False and the stage runs as always."""
+        (a point where the model cannot be evaluated, a rank-deficient problem too large for
+        a dense solve) the answer is False and the stage runs as always."""
         nf, nd = len(self.free), len(self.dif)
         if not nf + nd:
             return False
@@ -297,21 +299,43 @@ class _Problem:
             return False
         if _norm(g0[keep & ~touched]) > bound:
             return True  # a row of held values only that misses the bound
-        if keep.sum() * (nf + nd) > DENSE_LIMIT:
-            return False
         at = np.where(keep, np.cumsum(keep) - 1, -1)  # row of A of each row of G
         scale = np.concatenate([self.row_scale, np.ones(C.shape[0])])
-        A = np.zeros((int(keep.sum()), nf + nd))
+        ar, ac, av = [], [], []
         for r, c, v in ((rows[ey], position[cols[ey]], jy0[ey]), (rows[eyp], nf + dpos[cols[eyp]], jyp0[eyp]),
                         (m + C.row[ec], position[C.col[ec]], C.data[ec])):
             k = at[r] >= 0
-            np.add.at(A, (at[r[k]], c[k]), scale[r[k]] * v[k])
+            ar.append(at[r[k]])
+            ac.append(c[k])
+            av.append(scale[r[k]] * v[k])
+        A = sps.csr_matrix((np.concatenate(av), (np.concatenate(ar), np.concatenate(ac))),
+                           shape=(int(keep.sum()), nf + nd))  # duplicates are summed
         g0 = g0[keep]
-        if not len(g0) or not np.all(np.isfinite(A)):
+        if not len(g0) or not np.all(np.isfinite(A.data)):
             return False
-        du = sla.lstsq(A, -g0, lapack_driver="gelsy", cond=1e-13)[0]
-        left = float(np.linalg.norm(g0 + A @ du))
-        return left > 10 * np.sqrt(len(g0)) * bound and left > 1e-8 * float(np.linalg.norm(g0))
+
+        # a residual ‖g₀ + A Δu‖₂ above `enough` is hopeless (some row above the bound, with a
+        # margin for rounding)
+        norm_g0 = float(np.linalg.norm(g0))
+        enough = max(10 * np.sqrt(len(g0)) * bound, 1e-8 * norm_g0)
+        if norm_g0 <= enough:
+            return False
+
+        def hopeless_after(du):
+            return float(np.linalg.norm(g0 + A @ du)) > enough
+
+        # Any Δu bounds the least residual from above, so an LSMR answer that is not hopeless
+        # is final: no factorization, and LSMR stops as soon as its residual (decreasing at
+        # each step) is below `enough` (btol), or after min(m, n) steps, where it ends in exact
+        # arithmetic. "Hopeless" is decided only by an exact solve.
+        if A.shape[0] * A.shape[1] > DENSE_SOLVE_LIMIT:
+            du = lsmr_min_norm(A, -g0, maxiter=min(A.shape), btol=enough / norm_g0)[0]
+            if not hopeless_after(du):
+                return False
+        du = min_norm_solve(A, -g0, dense_limit=DENSE_LIMIT, iterative=False)
+        if du is None:
+            return False  # rank-deficient and too large for a dense solve: in doubt
+        return hopeless_after(du)
 
     def energy_metric(self):
         """``T`` with ``Tᵀ K T = I``, K the Hessian of the stored energy H by the guessed
@@ -463,12 +487,9 @@ class _Problem:
             du = self.weights * v
             du[guess] = T @ v[guess]
             return du
-        if JW.shape[0] * JW.shape[1] <= DENSE_LIMIT:
-            # QR with column pivoting (LAPACK gelsy): minimum-norm, much cheaper than SVD
-            v = sla.lstsq(JW.toarray(), -g, lapack_driver="gelsy", cond=1e-13)[0]
-        else:
-            v = spla.lsmr(JW, -g, atol=1e-15, btol=1e-15, maxiter=20 * max(JW.shape))[0]
-        return self.weights * v
+        # dense QR with column pivoting (gelsy) when small, else a sparse LU of the regular
+        # system, else LSMR (phc.simulation.minnorm)
+        return self.weights * self.solver.solve(JW, -g)
 
 
 RANGE_TOL = 1e-12
@@ -494,13 +515,13 @@ def _nested_min_norm(A, b, first) -> np.ndarray:
         Gp, bp = G - Q @ (Q.T @ G), b - Q @ (Q.T @ b)
     else:
         Gp, bp = G, b
-    v[first] = sla.lstsq(Gp, bp, lapack_driver="gelsy", cond=1e-13)[0]
+    v[first] = dense_min_norm(Gp, bp)
     if N.shape[1]:
-        v[rest] = sla.lstsq(N, b - G @ v[first], lapack_driver="gelsy", cond=1e-13)[0]
+        v[rest] = dense_min_norm(N, b - G @ v[first])
     # Where N is ill-conditioned (the stiff slope rows of a Hermite beam driven at its ends)
     # the split can leave more of b unsolved than the plain weighted minimum-norm solution:
     # then that one is the step (the guesses then move as the weights say, as before).
-    plain = sla.lstsq(A, b, lapack_driver="gelsy", cond=1e-13)[0]
+    plain = dense_min_norm(A, b)
     miss, miss_plain = np.linalg.norm(A @ v - b), np.linalg.norm(A @ plain - b)
     return v if miss <= 2 * miss_plain + 1e-14 * np.linalg.norm(b) else plain
 
@@ -577,6 +598,12 @@ def consistent_initial_conditions(mod, p, t0: float, values: dict[int, float], f
     InconsistentInitialError
         When the fixed values violate an equation; the message names the equation(s).
     """
+    # its dense solves with one BLAS thread (phc.simulation.minnorm.one_blas_thread)
+    with one_blas_thread():
+        return _initial_conditions(mod, p, t0, values, fixed, tol, max_iter, initial_relations)
+
+
+def _initial_conditions(mod, p, t0, values, fixed, tol, max_iter, initial_relations) -> InitialResult:
     n = mod.N
     y = np.zeros(n)
     for j, v in values.items():

@@ -16,6 +16,7 @@ import numpy as np
 import scipy.sparse as sps
 
 from phc.simulation.guard import CATCH, ModelEvaluationError
+from phc.simulation.minnorm import dense_min_norm, min_norm_solve
 
 
 def determined_algebraic(mod, p, t, y, yp) -> np.ndarray:
@@ -116,8 +117,8 @@ def source_terms(mod, p, t, y, yp, Fz, alg_rows, dz_dx, x_cols, z_cols, span: fl
         mod.residual_t(t, y, np.asarray(yp, dtype=float), p, ft)
         ft = ft[alg_rows]
         if np.all(np.isfinite(ft)) and np.any(ft != 0):
-            size = np.maximum(size, np.abs(np.linalg.lstsq(Fz, ft, rcond=None)[0]) * abs(span))
-    except (ModelEvaluationError, *CATCH, AttributeError, np.linalg.LinAlgError):
+            size = np.maximum(size, np.abs(dense_min_norm(Fz, ft)) * abs(span))
+    except (ModelEvaluationError, *CATCH, AttributeError, ValueError, np.linalg.LinAlgError):
         pass
     return size
 
@@ -208,8 +209,8 @@ def determined_scales(mod, p, t, y, yp, determined, scales, rtol: float = 1.0, a
     Fz = Fy[np.ix_(alg_rows, z_cols)]
     Fx = Fy[np.ix_(alg_rows, x_cols)]
     try:
-        dz_dx = -np.linalg.lstsq(Fz, Fx, rcond=None)[0]
-    except np.linalg.LinAlgError:
+        dz_dx = -dense_min_norm(Fz, Fx)  # least norm (phc.simulation.minnorm), all columns at once
+    except (ValueError, np.linalg.LinAlgError):
         return None
     s = np.asarray(scales, dtype=float)
     ratio = rtol / atol if atol > 0 and np.isfinite(rtol / atol) else 1.0
@@ -271,14 +272,7 @@ def algebraic_rates(mod, p, t, y, yp, determined) -> np.ndarray:
     rhs = -(Fy @ known + ft[R])
     M = Fy[:, A]
     try:
-        if M.shape[0] * M.shape[1] <= 250_000:
-            import scipy.linalg as sla
-
-            z = sla.lstsq(M.toarray(), rhs, lapack_driver="gelsy", cond=1e-13)[0]
-        else:
-            from scipy.sparse.linalg import lsqr
-
-            z = lsqr(M, rhs, atol=1e-14, btol=1e-14)[0]
+        z = min_norm_solve(M, rhs)  # dense, sparse LU or LSMR by size and rank (phc.simulation.minnorm)
     except (ValueError, np.linalg.LinAlgError):
         return yp
     if np.all(np.isfinite(z)):

@@ -1,0 +1,177 @@
+"""Consistent initialization through sparse least-norm solves (phc/simulation/minnorm.py):
+the dense and sparse paths give the same start, and a large beam never calls dense
+least squares."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.linalg as sla
+
+import phc
+import phc.simulation.initial as initial
+import phc.simulation.minnorm as minnorm
+from phc.simulation import initial_values, parameter_vector
+
+MODELS = Path(__file__).resolve().parent.parent / "models"
+
+
+def _start(compiled):
+    mod = compiled.module
+    p = parameter_vector(mod, None)
+    values, fixed = initial_values(compiled, p)
+    return initial.consistent_initial_conditions(mod, p, float(compiled.options.get("t_start", 0.0)), values, fixed)
+
+
+def _start_and_stage(compiled, monkeypatch):
+    """The start, and the problem of the stage that found it with its unknowns there and
+    the tolerance it was solved to (``_solve``'s `tol`: the initialization's 1e-11 times
+    its scale)."""
+    solves = []
+    solve = initial._solve
+
+    def recording(prob, tol, max_iter):
+        u, it = solve(prob, tol, max_iter)
+        solves.append((prob, u, tol))
+        return u, it
+
+    monkeypatch.setattr(initial, "_solve", recording)
+    start = _start(compiled)
+    monkeypatch.setattr(initial, "_solve", solve)
+    for prob, u, tol in reversed(solves):
+        y, yp, _, _ = prob.unpack(u)
+        if np.array_equal(y, start.y0) and np.array_equal(yp, start.yp0):
+            return start, prob, u, tol
+    raise AssertionError("no stage solved to the start returned")
+
+
+@pytest.mark.parametrize("name", ["pendulum", "double_pendulum", "rigid_slider_crank", "vibrating_string",
+                                  "flexible_slider_crank"])
+def test_dense_and_sparse_paths_agree(name, monkeypatch):
+    compiled = phc.compile_model(str(MODELS / f"{name}.yaml"), certify=False, backend="numpy")
+    dense, prob, u, tol = _start_and_stage(compiled, monkeypatch)
+    # every solve through the sparse paths: LU of the regular part, else LSMR
+    with monkeypatch.context() as m:
+        m.setattr(minnorm, "DENSE_SOLVE_LIMIT", 0)
+        m.setattr(initial, "DENSE_LIMIT", 0)
+        sparse, prob_s, u_s, tol_s = _start_and_stage(compiled, monkeypatch)
+    # The bound the Newton tolerance puts on the difference. Both starts pass the same
+    # acceptance test: every row of the equilibrated system G within e = 10 tol of 0. At
+    # these starts the Newton matrix J of the stage has full column rank (checked), so the
+    # solution is locally unique whatever least-norm rule the steps followed, and to first
+    # order u_s - u_d = J⁺ (G(u_s) - G(u_d)): |u_s - u_d| <= |J⁺| (2e), entry by entry. A
+    # factor 2 covers the second-order remainder and J being taken at one end. (The
+    # condition of J makes this loose where J⁺ has large entries: up to 2e-3 of the scale
+    # on the flexible slider-crank, where the two starts differ by 3e-15 of it.) Held
+    # values are not unknowns: they must agree exactly.
+    assert prob_s.free.tolist() == prob.free.tolist() and tol_s == tol, "the starts come from different stages"
+    e = 10 * tol
+    assert max(np.abs(prob.G(u)).max(), np.abs(prob_s.G(u_s)).max()) <= e
+    J = prob.jacobian(u).toarray()
+    assert np.linalg.matrix_rank(J) == J.shape[1]
+    bound_u = 2 * np.abs(np.linalg.pinv(J)) @ np.full(J.shape[0], 2 * e)
+    nf, nd = len(prob.free), len(prob.dif)
+    bound_y, bound_yp = np.zeros(len(dense.y0)), np.zeros(len(dense.yp0))
+    bound_y[prob.free] = bound_u[:nf]
+    bound_yp[prob.dif] = bound_u[nf:nf + nd]
+    assert np.all(np.abs(sparse.y0 - dense.y0) <= bound_y)
+    assert np.all(np.abs(sparse.yp0 - dense.yp0) <= bound_yp)
+
+
+def test_large_beam_initialization_calls_no_dense_lstsq(monkeypatch, tmp_path):
+    src = (MODELS / "euler_bernoulli_beam.yaml").read_text()
+    assert "elements: 6" in src
+    path = tmp_path / "beam.yaml"
+    path.write_text(src.replace("elements: 6", "elements: 100"))
+    compiled = phc.compile_model(str(path), certify=False, backend="numpy")
+    calls = []
+    lstsq = sla.lstsq
+
+    def counting(*args, **kwargs):
+        calls.append(np.shape(args[0]))
+        return lstsq(*args, **kwargs)
+
+    monkeypatch.setattr(sla, "lstsq", counting)
+    init = _start(compiled)
+    assert not calls, f"dense least squares on {calls}"
+    assert init.residual <= 1e-10
+
+
+def _singular_system(n):
+    """A consistent system of n unknowns above the dense limit that is rank-deficient in a
+    way its pattern does not show: first differences v_{i+1} - v_i = 1 (rows 0..n-2), their
+    sum v_{n-1} - v_0 = n - 1 written as one more row over the end values, and a row of
+    the same unknowns as row 0 whose value is twice row 0's."""
+    import scipy.sparse as sps
+
+    rows, cols, vals = [], [], []
+    for i in range(n - 1):
+        rows += [i, i]
+        cols += [i + 1, i]
+        vals += [1.0, -1.0]
+    rows += [n - 1, n - 1, n, n]
+    cols += [n - 1, 0, 1, 0]
+    vals += [1.0, -1.0, 2.0, -2.0]
+    A = sps.csr_matrix((vals, (rows, cols)), shape=(n + 1, n))
+    b = np.concatenate([np.ones(n - 1), [n - 1.0, 2.0]])
+    return A, b
+
+
+def test_a_large_singular_system_gets_its_least_norm_solution_and_one_lu_attempt(monkeypatch):
+    n = 300
+    A, b = _singular_system(n)
+    assert A.shape[0] * A.shape[1] > minnorm.DENSE_SOLVE_LIMIT
+    # closed form: v = c + i, and the least norm puts the mean of v at 0: c = -(n - 1)/2
+    exact = np.arange(n) - (n - 1) / 2.0
+    attempts = []
+    regular_lu = minnorm._regular_lu
+
+    def counting(*args):
+        attempts.append(1)
+        return regular_lu(*args)
+
+    monkeypatch.setattr(minnorm, "_regular_lu", counting)
+    # LSMR stops at the relative round-off of the data (1e-15); the error of a least-norm
+    # solution is that times the condition of A on its row space (σ₁/σ_r, of the order of
+    # (2n/π)² for differences), with 10 for the accumulated rounding of its recurrences
+    sigma = np.linalg.svd(A.toarray(), compute_uv=False)
+    kappa = sigma[0] / sigma[sigma > 1e-12 * sigma[0]][-1]
+    solver = minnorm.LeastNorm()
+    for _ in range(3):  # the Newton steps of one problem: the LU is tried once
+        v = solver.solve(A, b)
+        assert np.max(np.abs(v - exact)) <= 10 * kappa * 1e-15 * np.max(np.abs(exact))
+    assert len(attempts) == 1 and solver.singular
+
+
+def test_a_regular_large_system_is_solved_by_lu_every_time(monkeypatch):
+    import scipy.sparse as sps
+
+    n = 300
+    A = sps.diags([np.full(n - 1, -1.0), np.full(n, 3.0), np.full(n - 1, -1.0)], [-1, 0, 1], format="csr")
+    x = np.linspace(-1.0, 1.0, n)
+    solver = minnorm.LeastNorm()
+    for _ in range(2):
+        v = solver.solve(A, A @ x)
+        # diagonally dominant, κ₁ <= 5: LU with a step of refinement leaves round-off
+        assert np.max(np.abs(v - x)) <= 5 * 10 * np.finfo(float).eps
+    assert not solver.singular
+
+
+def test_one_blas_thread_is_scoped_and_nests():
+    threadpoolctl = pytest.importorskip("threadpoolctl")
+
+    def blas_threads():
+        return [i["num_threads"] for i in threadpoolctl.threadpool_info() if i["user_api"] == "blas"]
+
+    # the suite runs with one thread (conftest.py, as the `phc` command): two, as a user may
+    with threadpoolctl.threadpool_limits(limits=2, user_api="blas"):
+        before = blas_threads()
+        with minnorm.one_blas_thread():
+            inside = blas_threads()
+            with minnorm.one_blas_thread():
+                nested = blas_threads()
+            after_nested = blas_threads()
+        assert inside == nested == after_nested == [1] * len(before)
+        assert blas_threads() == before
