@@ -425,6 +425,10 @@ def _fast_compose(text: str) -> tuple[bool, Node | None]:
         loader.dispose()
 
 
+_FAST_MAX_DEPTH = 100
+"""Deeper collections are left to the pure-Python parser (a model needs a few levels)."""
+
+
 def _compose_events(loader, text: str) -> tuple[bool, Node | None]:
     get_event, check_event, resolve = loader.get_event, loader.check_event, loader.resolve
     if loader.yaml_path_resolvers:  # someone added path resolvers to PyYAML: its composer, not this one
@@ -481,6 +485,8 @@ def _compose_events(loader, text: str) -> tuple[bool, Node | None]:
         else:
             return False, None
         if kind is SequenceStartEvent or kind is MappingStartEvent:
+            if len(stack) >= _FAST_MAX_DEPTH:
+                return False, None  # nested very deeply: the pure-Python parser says where it gave up
             stack.append([node, None])
         elif stack:
             _attach(stack[-1], node)
