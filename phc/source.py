@@ -430,8 +430,10 @@ _FAST_MAX_DEPTH = 100
 
 
 def _compose_events(loader, text: str) -> tuple[bool, Node | None]:
-    get_event, check_event, resolve = loader.get_event, loader.check_event, loader.resolve
-    if loader.yaml_path_resolvers:  # someone added path resolvers to PyYAML: its composer, not this one
+    get_event, check_event = loader.get_event, loader.check_event
+    reference = yaml.SafeLoader("")  # its resolver: the very tags the pure-Python parser gives
+    resolve = reference.resolve
+    if reference.yaml_path_resolvers:  # someone added path resolvers to PyYAML: its composer, not this one
         return False, None
     get_event()  # StreamStartEvent
     if check_event(StreamEndEvent):

@@ -102,8 +102,6 @@ class _System:
     unknowns: list[sp.Symbol]
     n_visible: int
     linear: Optional[sps.csr_matrix] = None
-    affine: bool = False
-    """Set by :meth:`compile`: F is affine in u (its Jacobian depends on fixed values only)."""
     _values: object = None
 
     def compile(self, fixed_symbols: list) -> None:
@@ -142,18 +140,28 @@ class _System:
         self._args = (args_u, args_p)
         self._gdg = None  # made on the first evaluation (see `_function`)
         self._cache = (None, None)
-        self.affine = (all(_affine_in(e, unknown) for e in exprs) if self._complex
-                       else all(not (d.free_symbols & unknown) for d in derivatives))
+        self._affine_of = (exprs, derivatives, unknown)
+        self._affine = None
         self._dense = None
         linear = None if self.linear is None else sps.csr_matrix(self.linear)
         if linear is not None:
             linear.sort_indices()
         self.key = (len(self.exprs), len(self.unknowns), self.n_visible, tuple(rows), tuple(self._used.tolist()),
-                    tuple(pattern), self._complex, self.affine, self._plain,
+                    tuple(pattern), self._complex, self._plain,
                     None if linear is None else (linear.shape, linear.indptr.tobytes(), linear.indices.tobytes(),
                                                  linear.data.tobytes()))
         """The system up to the names of its unknowns and fixed symbols: equal keys, equal systems
         once the k-th unknown of one is the k-th of the other (and likewise the fixed values)."""
+
+    @property
+    def affine(self) -> bool:
+        """F is affine in u (its Jacobian depends on fixed values only); found when first asked
+        (only sparse components are tested as affine systems)."""
+        if self._affine is None:
+            exprs, derivatives, unknown = self._affine_of
+            self._affine = (all(_affine_in(e, unknown) for e in exprs) if self._complex
+                            else all(not (d.free_symbols & unknown) for d in derivatives))
+        return self._affine
 
     def _function(self):
         """g and its Jacobian entries as one function of (u, fixed values), made once per
@@ -335,8 +343,8 @@ def _systems(desc: ComponentDescription, rows: ComponentRows, defaults: Optional
         vector_symbols.update(sv.efforts)
     d_exprs = [e.xreplace(sigma) for e in (*desc.relations, *desc.laws)]
     labels = {(which, i): label for which, i, _, _, label, *_ in desc.order if label}
-    d_labels = ([labels.get(("rel", i)) or f"relation {i} ({_short(e)})" for i, e in enumerate(desc.relations)]
-                + [labels.get(("law", i)) or f"law {i} ({_short(e)})" for i, e in enumerate(desc.laws)])
+    d_labels = ([labels.get(("rel", i)) or _Label(f"relation {i}", e) for i, e in enumerate(desc.relations)]
+                + [labels.get(("law", i)) or _Label(f"law {i}", e) for i, e in enumerate(desc.laws)])
     d_parts = []
     for blk in desc.blocks:
         start = len(d_exprs)
@@ -376,6 +384,19 @@ def _vector_substitution(desc: ComponentDescription, symbols: set, defaults: dic
                 expr += term.coeff * sp.Add(*[float(v) * term.symbols[j] for j, v in zip(row.col, row.data)])
             out[sv.efforts[k]] = expr
     return out
+
+
+class _Label:
+    """An unlabelled relation's label, ``relation 3 (its expression)``, printed only when a
+    message names it (printing every relation of every component cost a tenth of the check)."""
+
+    __slots__ = ("head", "expr")
+
+    def __init__(self, head: str, expr) -> None:
+        self.head, self.expr = head, expr
+
+    def __str__(self) -> str:
+        return f"{self.head} ({_short(self.expr)})"
 
 
 def _short(expr, limit: int = 60) -> str:
