@@ -209,9 +209,28 @@ def _named() -> tuple:
     return tuple((text, parse_unit(text)) for text in _NAMED)
 
 
+_LABELS: dict = {}
+"""unit_label by (unit, magnitude): one per kind of variable, not one per variable."""
+
+
 def unit_label(quantity) -> str:
     """Short ASCII unit text of a base-unit quantity for headers and axes: `N/m`,
     `kg*m^2/s^3`, `1`."""
+    try:
+        key = (quantity.units, float(quantity.magnitude))
+        text = _LABELS.get(key)
+    except (TypeError, ValueError):
+        key = text = None
+    if text is None:
+        text = _unit_label(quantity)
+        if key is not None:
+            if len(_LABELS) >= 4096:
+                _LABELS.clear()
+            _LABELS[key] = text
+    return text
+
+
+def _unit_label(quantity) -> str:
     for text, named in _named():
         if named.units == quantity.units and math.isclose(float(named.magnitude), float(quantity.magnitude),
                                                           rel_tol=1e-9):
