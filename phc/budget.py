@@ -404,6 +404,30 @@ def drop_deltas(expr):
     return expr.replace(lambda e: isinstance(e, sp.DiracDelta), lambda e: sp.S.Zero)
 
 
+def derivative(expr, x):
+    """``sp.diff(expr, x)``: the very same expression, with the common terms taken directly.
+    A sum is differentiated term by term (as sympy does); a term free of `x` gives 0, `x`
+    itself 1, a product with `x` as one plain factor the product of the other factors
+    (sympy's product rule gives the same canonical product); any other term goes to
+    ``sp.diff``. sympy's derivative machinery costs about a millisecond per call: a tenth of
+    a lumped component's lowering and of the Jacobian of its rows."""
+    if expr.is_Add:
+        return sp.Add(*[_term_derivative(term, x) for term in expr.args])
+    return _term_derivative(expr, x)
+
+
+def _term_derivative(term, x):
+    if not term.has(x):
+        return sp.S.Zero
+    if term == x:
+        return sp.S.One
+    if term.is_Mul:
+        rest = [a for a in term.args if a != x]
+        if len(rest) == len(term.args) - 1 and not any(a.has(x) for a in rest):
+            return sp.Mul(*rest)
+    return sp.diff(term, x)
+
+
 def checked_diff(expr, x, what: str, cache: Optional[SizeCache] = None):
     """``sp.diff(expr, x)`` after checking :func:`derivative_work` against DIFF_LIMIT.
 
@@ -417,7 +441,7 @@ def checked_diff(expr, x, what: str, cache: Optional[SizeCache] = None):
         work = derivative_work(expr, x)
         if work > DIFF_LIMIT:
             raise SymbolicBudgetError(expr, work, DIFF_LIMIT, what)
-    return drop_deltas(sp.diff(expr, x))
+    return drop_deltas(derivative(expr, x))
 
 
 def symbolic_hint() -> str:

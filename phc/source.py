@@ -26,7 +26,8 @@ from typing import Any, Iterator
 
 import yaml
 from yaml.constructor import SafeConstructor
-from yaml.events import StreamEndEvent
+from yaml.events import (AliasEvent, MappingEndEvent, MappingStartEvent, ScalarEvent, SequenceEndEvent,
+                         SequenceStartEvent, StreamEndEvent)
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
 from phc.diagnostics import Diagnostic
@@ -36,6 +37,7 @@ from phc.source_map import (_LINE_BREAK, _LINE_STARTS, _MAP_TAG, _MERGE_TAG, _SE
                             _span)
 
 __all__ = [
+    "FAST_MIN_CHARS",
     "MAX_FLOW_DEPTH",
     "MAX_NODES",
     "MAX_VALUES",
@@ -55,6 +57,12 @@ large matrices and signals belong in `.npz` and CSV files)."""
 
 MAX_FLOW_DEPTH = 200
 """Deepest nesting of flow collections (``[...]``, ``{...}``) accepted."""
+
+FAST_MIN_CHARS = 1 << 16
+"""Documents of at least this many characters are parsed by libyaml (PyYAML's C parser,
+about 10× faster than its pure-Python one: a model of 10⁴ lumped components is about
+130 000 nodes) when PyYAML was built with it; smaller ones, and any document libyaml
+refuses, by the pure-Python parser (see :func:`_fast_compose`)."""
 
 _SAFE_TAGS = frozenset(t for t in SafeConstructor.yaml_constructors
                        if t is not None and t != _YAML_PREFIX + "binary")  # bytes are no model data
@@ -319,7 +327,7 @@ class _Builder:
         return value
 
     def scalar(self, node: ScalarNode) -> Any:
-        if node.tag in (_MERGE_TAG, _VALUE_TAG):
+        if node.tag in (_MERGE_TAG, _VALUE_TAG, _STR_TAG):  # a string as written (SafeConstructor's `str`)
             return node.value
         try:
             value = self.ctor.construct_object(node, deep=True)
@@ -351,6 +359,159 @@ class _Builder:
             message += ": " + " ".join(str(problem).split())
         self.diags.append(Diagnostic(
             "PHC-E001", message, span=_span(self.file, node.start_mark), hint="remove the tag or fix the value"))
+
+
+_LIBYAML = bool(getattr(yaml, "__with_libyaml__", False)) and hasattr(yaml, "CSafeLoader")
+
+
+class _TextMark:
+    """A position in the text for a node composed from libyaml's events: its character
+    offset (libyaml counts characters, as Python's `str` does) and the text, from which
+    :func:`phc.source_map._line_col` counts lines (LF, CR, CRLF) as for PyYAML's marks."""
+
+    __slots__ = ("index", "buffer")
+    name = "<unicode string>"
+
+    def __init__(self, index: int, buffer: str) -> None:
+        self.index = index
+        self.buffer = buffer
+
+    @property
+    def pointer(self) -> int:
+        return self.index
+
+    @property
+    def line(self) -> int:
+        return _line_col(self)[0]
+
+    @property
+    def column(self) -> int:
+        return _line_col(self)[1]
+
+
+_SLOW_SAID = False
+
+
+def _fast_compose(text: str) -> tuple[bool, Node | None]:
+    """``(True, root)`` of the one document in `text` composed from libyaml's events (root
+    None for an empty document); ``(False, None)`` when libyaml is not available or the
+    text is anything but one well-formed document without a duplicate or undefined anchor:
+    the pure-Python parser then parses it again, so every error message and position is
+    the same whichever parser ran first.
+
+    libyaml scans and parses (in C, with explicit stacks); the nodes are composed here,
+    without recursion, with PyYAML's resolver (the tags of plain scalars, remembered per
+    text), as PyYAML's composer makes them: the same nodes, tags, styles and aliases
+    (libyaml's own composer recurses in C, so a document nested thousands of levels
+    deep could overflow the C stack)."""
+    global _SLOW_SAID
+    if not _LIBYAML:
+        if not _SLOW_SAID:
+            _SLOW_SAID = True
+            import warnings
+
+            from phc.errors import PhcWarning
+
+            warnings.warn(f"PyYAML was built without libyaml: large model files ({len(text):,} characters here) are "
+                          "parsed by its pure-Python parser, several times slower; install PyYAML with libyaml "
+                          "(e.g. the wheel from PyPI) for faster loading", PhcWarning, stacklevel=3)
+        return False, None
+    loader = yaml.CSafeLoader(text)
+    try:
+        return _compose_events(loader, text)
+    except (yaml.YAMLError, ValueError, TypeError, AttributeError, IndexError):
+        return False, None
+    finally:
+        loader.dispose()
+
+
+_FAST_MAX_DEPTH = 100
+"""Deeper collections are left to the pure-Python parser (a model needs a few levels)."""
+
+
+def _compose_events(loader, text: str) -> tuple[bool, Node | None]:
+    get_event, check_event = loader.get_event, loader.check_event
+    reference = yaml.SafeLoader("")  # its resolver: the very tags the pure-Python parser gives
+    resolve = reference.resolve
+    if reference.yaml_path_resolvers:  # someone added path resolvers to PyYAML: its composer, not this one
+        return False, None
+    get_event()  # StreamStartEvent
+    if check_event(StreamEndEvent):
+        return True, None
+    get_event()  # DocumentStartEvent
+    plain: dict[str, str] = {}  # a plain scalar's text -> its resolved tag
+    anchors: dict[str, Node] = {}
+    stack: list[list] = []  # [collection node, mapping key waiting for its value]
+    root: Node | None = None
+    while True:
+        event = get_event()
+        kind = type(event)
+        if kind is ScalarEvent or kind is SequenceStartEvent or kind is MappingStartEvent:
+            tag, anchor = event.tag, event.anchor
+            if anchor is not None and anchor in anchors:
+                return False, None  # duplicate anchor: PyYAML's composer reports it
+            start = _TextMark(event.start_mark.index, text)
+            if kind is ScalarEvent:
+                value = event.value
+                if tag is None or tag == "!":
+                    if event.implicit[0]:
+                        tag = plain.get(value)
+                        if tag is None:
+                            tag = plain[value] = resolve(ScalarNode, value, event.implicit)
+                    else:
+                        tag = resolve(ScalarNode, value, event.implicit)
+                node: Node = ScalarNode(tag, value, start, _TextMark(event.end_mark.index, text),
+                                        style=event.style or None)
+            elif kind is SequenceStartEvent:
+                if tag is None or tag == "!":
+                    tag = resolve(SequenceNode, None, event.implicit)
+                node = SequenceNode(tag, [], start, None, flow_style=event.flow_style)
+            else:
+                if tag is None or tag == "!":
+                    tag = resolve(MappingNode, None, event.implicit)
+                node = MappingNode(tag, [], start, None, flow_style=event.flow_style)
+            if anchor is not None:
+                anchors[anchor] = node
+        elif kind is AliasEvent:
+            node = anchors.get(event.anchor)
+            if node is None:
+                return False, None  # undefined alias: PyYAML's composer reports it
+        elif kind is SequenceEndEvent or kind is MappingEndEvent:
+            node = stack.pop()[0]
+            node.end_mark = _TextMark(event.end_mark.index, text)
+            if not stack:
+                root = node
+                break
+            _attach(stack[-1], node)
+            continue
+        else:
+            return False, None
+        if kind is SequenceStartEvent or kind is MappingStartEvent:
+            if len(stack) >= _FAST_MAX_DEPTH:
+                return False, None  # nested very deeply: the pure-Python parser says where it gave up
+            stack.append([node, None])
+        elif stack:
+            _attach(stack[-1], node)
+        else:
+            root = node
+        if not stack:
+            break
+    get_event()  # DocumentEndEvent
+    if not check_event(StreamEndEvent):
+        return False, None  # more than one document: reported by the pure-Python parser
+    return True, root
+
+
+def _attach(top: list, node: Node) -> None:
+    """Add `node` to the collection being composed (a mapping takes key, then value)."""
+    parent = top[0]
+    if isinstance(parent, SequenceNode):
+        parent.value.append(node)
+    elif top[1] is None:
+        top[1] = node
+    else:
+        parent.value.append((top[1], node))
+        top[1] = None
 
 
 def load_yaml(text: str, file: str, *, max_nodes: int = MAX_NODES, max_values: int = MAX_VALUES
@@ -386,7 +547,9 @@ def load_yaml(text: str, file: str, *, max_nodes: int = MAX_NODES, max_values: i
     Notes
     -----
     Only ``yaml.SafeLoader`` composition and ``SafeConstructor`` scalar
-    constructors are used, so loading never executes code.
+    constructors are used, so loading never executes code. A document of at least
+    :data:`FAST_MIN_CHARS` characters is scanned and parsed by libyaml when PyYAML has
+    it (the same events, composed by PyYAML's composer; see :func:`_fast_compose`).
     """
     diags: list[Diagnostic] = []
     deep = _flow_too_deep(text, MAX_FLOW_DEPTH)
@@ -394,6 +557,23 @@ def load_yaml(text: str, file: str, *, max_nodes: int = MAX_NODES, max_values: i
         return None, None, [Diagnostic(
             "PHC-E003", f"document nested too deeply (more than {MAX_FLOW_DEPTH} levels of `[` / `{{`)",
             span=_offset_span(text, file, deep))]
+    fast, root = _fast_compose(text) if len(text) >= FAST_MIN_CHARS else (False, None)
+    if not fast:
+        root, diags = _compose(text, file)
+        if root is _FAILED:
+            return None, None, diags
+        if diags:
+            return None, SourceMap(file, root), diags
+    return _checked(root, file, diags, max_nodes, max_values)
+
+
+_FAILED = object()
+
+
+def _compose(text: str, file: str) -> tuple[Any, list[Diagnostic]]:
+    """The one document in `text` composed by PyYAML's pure-Python parser: ``(root, [])``,
+    ``(root, [more than one document])`` or ``(_FAILED, [the error])``."""
+    diags: list[Diagnostic] = []
     loader: yaml.SafeLoader | None = None
     try:
         loader = yaml.SafeLoader(text)
@@ -406,12 +586,12 @@ def load_yaml(text: str, file: str, *, max_nodes: int = MAX_NODES, max_values: i
             diags.append(Diagnostic(
                 "PHC-E001", "the file contains more than one YAML document", span=_span(file, event.start_mark),
                 hint="remove the `---` separator; a model file holds exactly one document"))
-            return None, SourceMap(file, root), diags
+            return root, diags
     except yaml.MarkedYAMLError as err:
-        return None, None, [_marked_error(err, file)]
+        return _FAILED, [_marked_error(err, file)]
     except yaml.reader.ReaderError as err:
         char = err.character if isinstance(err.character, str) else chr(err.character)
-        return None, None, [Diagnostic(
+        return _FAILED, [Diagnostic(
             "PHC-E001", f"the file contains a character YAML does not allow (U+{ord(char):04X})",
             span=_offset_span(text, file, err.position), hint="remove the control character")]
     except RecursionError:
@@ -420,16 +600,21 @@ def load_yaml(text: str, file: str, *, max_nodes: int = MAX_NODES, max_values: i
             where = _span(file, loader.get_mark()) if loader is not None else where
         except Exception:  # noqa: BLE001 - a position is a courtesy; never fail on it
             pass
-        return None, None, [Diagnostic(
+        return _FAILED, [Diagnostic(
             "PHC-E003", "document nested too deeply (block mappings or lists inside each other, hundreds "
             "of levels)", span=where, hint="flatten the data; a model needs only a few levels")]
     except yaml.YAMLError as err:
-        return None, None, [Diagnostic("PHC-E001", f"YAML error: {' '.join(str(err).split())}",
-                                       span=SourceSpan(file, 1, 1))]
+        return _FAILED, [Diagnostic("PHC-E001", f"YAML error: {' '.join(str(err).split())}",
+                                    span=SourceSpan(file, 1, 1))]
     finally:
         if loader is not None:
             loader.dispose()
+    return root, diags
 
+
+def _checked(root: Node | None, file: str, diags: list[Diagnostic], max_nodes: int, max_values: int
+             ) -> tuple[object | None, SourceMap | None, list[Diagnostic]]:
+    """The data of a composed document, after the checks of tags, keys, duplicates and sizes."""
     smap = SourceMap(file, root)
     if root is None:
         return None, smap, diags

@@ -209,9 +209,28 @@ def _named() -> tuple:
     return tuple((text, parse_unit(text)) for text in _NAMED)
 
 
+_LABELS: dict = {}
+"""unit_label by (unit, magnitude): one per kind of variable, not one per variable."""
+
+
 def unit_label(quantity) -> str:
     """Short ASCII unit text of a base-unit quantity for headers and axes: `N/m`,
     `kg*m^2/s^3`, `1`."""
+    try:
+        key = (quantity.units, float(quantity.magnitude))
+        text = _LABELS.get(key)
+    except (TypeError, ValueError):
+        key = text = None
+    if text is None:
+        text = _unit_label(quantity)
+        if key is not None:
+            if len(_LABELS) >= 4096:
+                _LABELS.clear()
+            _LABELS[key] = text
+    return text
+
+
+def _unit_label(quantity) -> str:
     for text, named in _named():
         if named.units == quantity.units and math.isclose(float(named.magnitude), float(quantity.magnitude),
                                                           rel_tol=1e-9):
@@ -410,6 +429,11 @@ def _element_fields(comp, units):
             if getattr(comp, eu.field, None) is not None]
 
 
+_EXPECTED: dict = {}
+"""expected_fields by (type, port domains, which of its element fields are given): the
+same for every spring of a chain."""
+
+
 def expected_fields(comp, domains: Mapping[str, str]) -> list[tuple[str, object, str]]:
     """The fields of component `comp` whose dimension its type and port domains fix:
     ``(field, quantity in SI base units, what it is)``. `domains` maps the component's
@@ -418,6 +442,17 @@ def expected_fields(comp, domains: Mapping[str, str]) -> list[tuple[str, object,
     units = _type_units(comp)
     if not have_pint() or units is None:
         return []
+    key = (getattr(comp, "type", None), id(units), frozenset(domains.items()),
+           tuple(getattr(comp, eu.field, None) is not None for eu in units.element or ()))
+    found = _EXPECTED.get(key)
+    if found is None:
+        if len(_EXPECTED) >= 1024:
+            _EXPECTED.clear()
+        found = _EXPECTED[key] = (units, _expected_fields(comp, domains, units))
+    return list(found[1])
+
+
+def _expected_fields(comp, domains: Mapping[str, str], units) -> list[tuple[str, object, str]]:
     out = []
     if units.si:
         for name, (unit, meaning) in units.si.items():

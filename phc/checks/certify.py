@@ -176,25 +176,53 @@ def _null(matrix: np.ndarray, n_cols: int) -> np.ndarray:
 
 
 class _Component:
-    """Numeric evaluation of one component's kernel representation."""
+    """Numeric evaluation of one component's kernel representation.
 
-    def __init__(self, rel: DiracRelations, defaults: dict):
+    Components whose relations are the same up to the names of their variables and states
+    (the masses of a chain) share the work through `shared`: the Jacobian is taken once and
+    renamed, and a constant one (no state, no time) is evaluated, and its structure found,
+    once."""
+
+    def __init__(self, rel: DiracRelations, defaults: dict, shared: Optional[dict] = None):
         self.rel = rel
         variables = list(rel.flows) + list(rel.efforts) + list(rel.multipliers)
-        relations = sp.Matrix(list(rel.relations)) if rel.relations else sp.zeros(0, len(variables))
-        K = relations.jacobian(variables) if rel.relations else sp.zeros(0, len(variables))
-        self.K = K.xreplace(defaults)
         self.n = len(rel.flows)
+        self._constant: Optional[list] = None
+        if shared is None or not rel.relations:
+            self.K = self._jacobian(list(rel.relations), variables, defaults)
+            return
+        # by position, with the same assumptions (a derivative of |x| depends on them); a space
+        # keeps these names apart from every name a model can have
+        canon = {v: sp.Symbol(f"phc variable {k}", **v.assumptions0)
+                 for k, v in enumerate(dict.fromkeys((*variables, *rel.states)))}
+        key = (len(rel.flows), len(rel.efforts), len(rel.multipliers), len(rel.states),
+               tuple(r.xreplace(canon) for r in rel.relations))
+        entry = shared.get(key)
+        if entry is None:
+            K = self._jacobian([r.xreplace(canon) for r in rel.relations], [canon[v] for v in variables], defaults)
+            entry = shared[key] = (K, None if K.free_symbols else [None])
+        K, self._constant = entry
+        self.K = K.xreplace({c: v for v, c in canon.items()}) if self._constant is None else K
+
+    @staticmethod
+    def _jacobian(relations: list, variables: list, defaults: dict):
+        K = sp.Matrix(relations).jacobian(variables) if relations else sp.zeros(0, len(variables))
+        return K.xreplace(defaults)
 
     def matrix(self, point: dict) -> np.ndarray:
-        K = self.K.xreplace(point) if point else self.K
+        K = self.K.xreplace(point) if point and self._constant is None else self.K
         return np.array(K.evalf(), dtype=float).reshape(self.K.shape)
 
     def structure(self, point):
         """Orthonormal basis of D (rows: flows then efforts)."""
+        if self._constant is not None and self._constant[0] is not None:
+            return self._constant[0]
         K = self.matrix(point)
         N = _null(K, K.shape[1])
-        return _orth(N[:2 * self.n])
+        D = _orth(N[:2 * self.n])
+        if self._constant is not None:
+            self._constant[0] = D
+        return D
 
     def port_rows(self) -> tuple[list[str], dict]:
         rows, order = {}, []
@@ -241,7 +269,8 @@ def certify(dae: Dae, n_random: int = 2, seed: int = 0) -> Certificate:
     top = dae.topology
     diags = DiagnosticList()
     samples = _samples(dae, n_random, seed)
-    comps = {rel.component: _Component(rel, top.parameter_defaults) for rel in top.dirac}
+    shared: dict = {}
+    comps = {rel.component: _Component(rel, top.parameter_defaults, shared) for rel in top.dirac}
     comp_certs = []
     projections: list[dict] = [{} for _ in samples]
     for rel in top.dirac:

@@ -76,6 +76,9 @@ class RowsCertificate:
     inconclusive: list[tuple[str, str]] = field(default_factory=list)
     diagnostics: DiagnosticList = field(default_factory=DiagnosticList)
     samples: int = 0
+    shared: int = 0
+    """How many of `compared` were the same systems (up to names) as a component compared
+    before them, and share its verdict (see :func:`check_rows`)."""
 
     @property
     def ok(self) -> bool:
@@ -99,8 +102,6 @@ class _System:
     unknowns: list[sp.Symbol]
     n_visible: int
     linear: Optional[sps.csr_matrix] = None
-    affine: bool = False
-    """Set by :meth:`compile`: F is affine in u (its Jacobian depends on fixed values only)."""
     _values: object = None
 
     def compile(self, fixed_symbols: list) -> None:
@@ -118,7 +119,9 @@ class _System:
         exprs = [self.exprs[i] for i in rows]
         used = sorted(set().union(*(e.free_symbols for e in exprs)) & unknown, key=lambda s: index[s])
         local = {s: k for k, s in enumerate(used)}
-        pattern = [(n, local[s]) for n, e in enumerate(exprs) for s in sorted(e.free_symbols & unknown, key=str)]
+        # in the order of the unknowns, not of their names: two components that differ only in
+        # their names get the same pattern (see `key`)
+        pattern = [(n, local[s]) for n, e in enumerate(exprs) for s in sorted(e.free_symbols & unknown, key=local.get)]
         self._rows = np.array(rows, dtype=int)
         self._used = np.array([index[s] for s in used], dtype=int)
         self._ji = np.array([rows[n] for n, _ in pattern], dtype=int)
@@ -133,13 +136,46 @@ class _System:
         args_u = [sp.Symbol(f"_u{k}", real=True) for k in range(len(used))]
         args_p = [sp.Symbol(f"_p{k}", real=True) for k in range(len(fixed_symbols))]
         plain = {**dict(zip(used, args_u)), **dict(zip(fixed_symbols, args_p))}
-        # safe: lambdify prints sympy trees built by phc's whitelisting parser and its lowerers
-        self._gdg = (sp.lambdify([args_u, args_p], [e.xreplace(plain) for e in (*exprs, *derivatives)],
-                                 modules="numpy", cse=True, dummify=False) if rows else None)
+        self._plain = tuple(e.xreplace(plain) for e in (*exprs, *derivatives))
+        self._args = (args_u, args_p)
+        self._gdg = None  # made on the first evaluation (see `_function`)
         self._cache = (None, None)
-        self.affine = (all(_affine_in(e, unknown) for e in exprs) if self._complex
-                       else all(not (d.free_symbols & unknown) for d in derivatives))
+        self._affine_of = (exprs, derivatives, unknown)
+        self._affine = None
         self._dense = None
+        linear = None if self.linear is None else sps.csr_matrix(self.linear)
+        if linear is not None:
+            linear.sort_indices()
+        self.key = (len(self.exprs), len(self.unknowns), self.n_visible, tuple(rows), tuple(self._used.tolist()),
+                    tuple(pattern), self._complex, self._plain,
+                    None if linear is None else (linear.shape, linear.indptr.tobytes(), linear.indices.tobytes(),
+                                                 linear.data.tobytes()))
+        """The system up to the names of its unknowns and fixed symbols: equal keys, equal systems
+        once the k-th unknown of one is the k-th of the other (and likewise the fixed values)."""
+
+    @property
+    def affine(self) -> bool:
+        """F is affine in u (its Jacobian depends on fixed values only); found when first asked
+        (only sparse components are tested as affine systems)."""
+        if self._affine is None:
+            exprs, derivatives, unknown = self._affine_of
+            self._affine = (all(_affine_in(e, unknown) for e in exprs) if self._complex
+                            else all(not (d.free_symbols & unknown) for d in derivatives))
+        return self._affine
+
+    def _function(self):
+        """g and its Jacobian entries as one function of (u, fixed values), made once per
+        distinct system (:data:`_FUNCTIONS`: components of the same type and spec share it)."""
+        if self._gdg is None and len(self._rows):
+            key = (self._plain, len(self._args[0]), len(self._args[1]))
+            self._gdg = _FUNCTIONS.get(key)
+            if self._gdg is None:
+                # safe: lambdify prints sympy trees built by phc's whitelisting parser and its lowerers
+                self._gdg = sp.lambdify(list(self._args), list(self._plain), modules="numpy", cse=True, dummify=False)
+                if len(_FUNCTIONS) >= _FUNCTIONS_KEPT:
+                    _FUNCTIONS.pop(next(iter(_FUNCTIONS)))
+                _FUNCTIONS[key] = self._gdg
+        return self._gdg
 
     def fix(self, values) -> None:
         self._values = values
@@ -147,22 +183,23 @@ class _System:
 
     def _evaluate(self, u) -> np.ndarray:
         """g at its rows, then the Jacobian entries (cached for the last u)."""
-        if self._gdg is None:
+        gdg = self._function()
+        if gdg is None:
             return np.zeros(0)
         args = np.asarray(u, dtype=float)[self._used]
         key, value = self._cache
         if key is not None and np.array_equal(key, args):
             return value
         if not self._complex:
-            value = np.asarray([float(v) for v in self._gdg(args, self._values)])
+            value = np.asarray([float(v) for v in gdg(args, self._values)])
         else:
             m = len(args)
             with np.errstate(all="ignore"):
-                g = np.asarray([float(v) for v in self._gdg(args, self._values)])
+                g = np.asarray([float(v) for v in gdg(args, self._values)])
                 U = np.repeat(args[:, None], max(m, 1), axis=1).astype(complex)
                 U[np.arange(m), np.arange(m)] += 1j * _STEP
                 G = np.empty((self._n_g, max(m, 1)), dtype=complex)
-                for k, v in enumerate(self._gdg(list(U), self._values)[:self._n_g]):
+                for k, v in enumerate(gdg(list(U), self._values)[:self._n_g]):
                     G[k] = v  # a constant row broadcasts
             value = np.concatenate([g, G.imag[self._pattern] / _STEP])
         self._cache = (args, value)
@@ -171,12 +208,12 @@ class _System:
     def F(self, u):
         u = np.asarray(u, dtype=float)
         out = self.linear @ u if self.linear is not None else np.zeros(len(self.exprs))
-        if self._gdg is not None:
+        if len(self._rows):
             out = out + np.bincount(self._rows, self._evaluate(u)[:self._n_g], minlength=len(self.exprs))
         return out
 
     def _jacobian_values(self, u):
-        return self._evaluate(u)[self._n_g:] if self._gdg is not None else np.zeros(0)
+        return self._evaluate(u)[self._n_g:] if len(self._rows) else np.zeros(0)
 
     def J(self, u):
         """The dense Jacobian at u."""
@@ -196,6 +233,9 @@ class _System:
 
 _STEP = 1e-30
 """The complex step of :meth:`_System.compile`."""
+_FUNCTIONS: dict = {}
+"""Lambdified systems by their expressions in plain names (:meth:`_System._function`)."""
+_FUNCTIONS_KEPT = 256
 _NON_ANALYTIC = (sp.Abs, sp.sign, sp.Piecewise, sp.Heaviside, sp.Max, sp.Min, sp.floor, sp.ceiling, sp.re, sp.im,
                  sp.arg, sp.conjugate, sp.atan2, sp.Mod, sp.DiracDelta)
 
@@ -303,8 +343,8 @@ def _systems(desc: ComponentDescription, rows: ComponentRows, defaults: Optional
         vector_symbols.update(sv.efforts)
     d_exprs = [e.xreplace(sigma) for e in (*desc.relations, *desc.laws)]
     labels = {(which, i): label for which, i, _, _, label, *_ in desc.order if label}
-    d_labels = ([labels.get(("rel", i)) or f"relation {i} ({_short(e)})" for i, e in enumerate(desc.relations)]
-                + [labels.get(("law", i)) or f"law {i} ({_short(e)})" for i, e in enumerate(desc.laws)])
+    d_labels = ([labels.get(("rel", i)) or _Label(f"relation {i}", e) for i, e in enumerate(desc.relations)]
+                + [labels.get(("law", i)) or _Label(f"law {i}", e) for i, e in enumerate(desc.laws)])
     d_parts = []
     for blk in desc.blocks:
         start = len(d_exprs)
@@ -344,6 +384,19 @@ def _vector_substitution(desc: ComponentDescription, symbols: set, defaults: dic
                 expr += term.coeff * sp.Add(*[float(v) * term.symbols[j] for j, v in zip(row.col, row.data)])
             out[sv.efforts[k]] = expr
     return out
+
+
+class _Label:
+    """An unlabelled relation's label, ``relation 3 (its expression)``, printed only when a
+    message names it (printing every relation of every component cost a tenth of the check)."""
+
+    __slots__ = ("head", "expr")
+
+    def __init__(self, head: str, expr) -> None:
+        self.head, self.expr = head, expr
+
+    def __str__(self) -> str:
+        return f"{self.head} ({_short(self.expr)})"
 
 
 def _short(expr, limit: int = 60) -> str:
@@ -533,6 +586,13 @@ def check_rows(dae: Dae, samples: int = 2, seed: int = 0, max_unknowns: int = MA
     defaults = {p.symbol: sp.Float(p.default) for p in dae.parameters}
     t_end = float(dae.options.get("t_end", 1.0) or 1.0)
     rng = np.random.default_rng(seed)
+    # Components whose rows and description are the same systems up to the names of their
+    # unknowns (the masses of a chain) are the same comparison: its verdict, when it found
+    # the two equal, holds for each of them (random points and times are drawn for the first
+    # one; every point of these systems is as random as any other). A mismatch or an
+    # inconclusive test is never shared: each such component is compared on its own and
+    # gets its own located message.
+    matched: set = set()
     for desc in top.dirac:
         r = rows.get(desc.component)
         if r is None or (wanted is not None and desc.component not in wanted):
@@ -549,6 +609,11 @@ def check_rows(dae: Dae, samples: int = 2, seed: int = 0, max_unknowns: int = MA
             continue
         try:
             sys_rows, sys_desc, foreign = _prepare(full, r, defaults, blocks.get(desc.component, ()))
+            key = (sys_rows.key, sys_desc.key, len(foreign))
+            if key in matched:
+                cert.compared.append(desc.component)
+                cert.shared += 1
+                continue
             if sparse and sys_rows.affine and sys_desc.affine:
                 run = _compare_affine
             elif max(len(sys_rows.unknowns), len(sys_desc.unknowns)) <= max_unknowns:
@@ -570,6 +635,7 @@ def check_rows(dae: Dae, samples: int = 2, seed: int = 0, max_unknowns: int = MA
             cert.inconclusive.append((desc.component, note))
         else:
             cert.compared.append(desc.component)
+            matched.add(key)
     return cert
 
 

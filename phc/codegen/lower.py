@@ -167,12 +167,12 @@ def _differentiator(row: sp.Expr):
     symbol, quadratic in the terms of the row. The result is the same expression (an
     ``Add`` of the same nonzero derivatives, canonically ordered)."""
     if not (row.is_Add and len(row.args) > WIDE_SUM):
-        return lambda s: sp.diff(row, s)
+        return lambda s: budget.derivative(row, s)
     holding: dict = {}
     for term in row.args:
         for s in term.free_symbols:
             holding.setdefault(s, []).append(term)
-    return lambda s: sp.Add(*[sp.diff(term, s) for term in holding.get(s, ())])
+    return lambda s: sp.Add(*[budget.derivative(term, s) for term in holding.get(s, ())])
 
 
 def lower_residual(dae: Dae) -> ResidualIR:

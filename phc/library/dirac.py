@@ -203,7 +203,9 @@ class DiracBuilder:
 def solve_for(expr: sp.Expr, symbol: sp.Symbol) -> sp.Expr:
     """`expr` = 0 solved for `symbol`, which must enter linearly with a coefficient free of
     it (every relation a lowerer marks as a definition is of this form)."""
-    coeff = sp.diff(expr, symbol)
+    from phc.budget import derivative
+
+    coeff = derivative(expr, symbol)
     if symbol in coeff.free_symbols or coeff == 0:
         raise ValueError(f"{expr} = 0 cannot be solved for {symbol} without solving an equation")
     return -expr.xreplace({symbol: sp.Integer(0)}) / coeff

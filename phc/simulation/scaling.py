@@ -336,7 +336,12 @@ def time_roundoff(mod, p, t0, y0, yp0, span, t_out, m: int) -> np.ndarray:
 def energy_sizes(mod, p, t0, y0, s, energy: float) -> np.ndarray:
     """``sqrt(2E / ∂²H/∂y_j²)`` for each differential variable j: its size if it held the
     energy scale E alone (0 where H is not curved in y_j or E is 0). Central differences
-    with a step that grows until the second difference stands above H's round-off."""
+    with a step that grows until the second difference stands above H's round-off.
+
+    One evaluation of H per variable and step would make this quadratic in the size of the
+    model; the generated NumPy H evaluates a matrix of states column by column, so the
+    perturbed states of many variables are one call (:func:`_columns`), checked against
+    single calls."""
     from phc.simulation.guard import CATCH, ModelEvaluationError
 
     n = mod.N
@@ -350,30 +355,78 @@ def energy_sizes(mod, p, t0, y0, s, energy: float) -> np.ndarray:
     try:
         h0 = float(H(t0, y0, p))
         noise = 1e-12 * max(energy, abs(h0))
-        for j in diff:
-            if j == skip:
-                continue
-            delta = max(s[j], abs(y0[j]))
-            delta = delta if delta > 0 else 1.0
-            for _ in range(8):
-                yp_, ym_ = y0.copy(), y0.copy()
-                yp_[j] += delta
-                ym_[j] -= delta
-                hp, hm = float(H(t0, yp_, p)), float(H(t0, ym_, p))
-                d2 = hp - 2.0 * h0 + hm
-                if not np.isfinite(d2):
-                    break
-                # above the round-off of the values differenced: an H linear in y_j (a
-                # potential m·g·y) has no curvature, whatever its round-off at a huge step says
-                if abs(d2) > max(noise, 1e-12 * max(abs(hp), abs(hm))):
-                    k = d2 / delta ** 2
-                    if k > 0:
-                        out[j] = np.sqrt(2.0 * energy / k)
-                    break
-                delta *= 1e3
+        todo = np.array([j for j in diff if j != skip], dtype=int)
+        delta = np.maximum(np.asarray(s, dtype=float)[todo], np.abs(y0[todo]))
+        delta = np.where(delta > 0, delta, 1.0)
+        for _ in range(8):
+            if not len(todo):
+                break
+            hp, hm = _columns(mod, t0, y0, p, todo, delta), _columns(mod, t0, y0, p, todo, -delta)
+            d2 = hp - 2.0 * h0 + hm
+            finite = np.isfinite(d2)
+            # above the round-off of the values differenced: an H linear in y_j (a
+            # potential m·g·y) has no curvature, whatever its round-off at a huge step says
+            with np.errstate(invalid="ignore", over="ignore"):
+                curved = finite & (np.abs(d2) > np.maximum(noise, 1e-12 * np.maximum(np.abs(hp), np.abs(hm))))
+                k = np.where(curved, d2, 0.0) / delta ** 2
+            good = curved & (k > 0)
+            out[todo[good]] = np.sqrt(2.0 * energy / k[good])
+            more = finite & ~curved
+            todo, delta = todo[more], delta[more] * 1e3
     except (ModelEvaluationError, *CATCH):
         return np.zeros(n)
     return np.where(np.isfinite(out), out, 0.0)
+
+
+COLUMNS_BATCH = 1 << 21
+"""Most entries of the matrix of states one batched evaluation of H holds (16 MiB)."""
+
+
+def _columns(mod, t, y0, p, cols, steps) -> np.ndarray:
+    """``H(t, y0 + steps[k]·e_{cols[k]}, p)`` for every k. The NumPy back end's H is
+    straight-line arithmetic on the entries of y, so a matrix of states (one column each)
+    gives the values of all columns in one call; each batch is checked against single calls
+    at its first and last columns (any other shape, value or error: one call per column,
+    as for the compiled back ends)."""
+    H = mod.hamiltonian
+    out = np.empty(len(cols))
+    raw = getattr(H, "__wrapped__", H)
+    batched = getattr(getattr(mod, "module", mod), "BACKEND", "numpy") == "numpy" and len(cols) > 1
+    size = max(2, COLUMNS_BATCH // max(len(y0), 1))
+    start = 0
+    while start < len(cols):
+        stop = min(len(cols), start + size)
+        c, d = cols[start:stop], steps[start:stop]
+        values = None
+        if batched and stop - start > 1:
+            Y = np.repeat(np.asarray(y0, dtype=float)[:, None], stop - start, axis=1)
+            Y[c, np.arange(stop - start)] += d
+            try:
+                with np.errstate(all="ignore"):
+                    values = np.asarray(raw(t, Y, p), dtype=float)
+            except Exception:  # noqa: BLE001 - not column by column: single calls below
+                values = None
+            if values is not None and values.shape == (stop - start,):
+                for k in (0, stop - start - 1):
+                    y = np.array(y0, dtype=float)
+                    y[c[k]] += d[k]
+                    single = float(H(t, y, p))
+                    if not (values[k] == single or abs(values[k] - single) <= 1e-14 * abs(single)):
+                        values = None
+                        break
+            else:
+                values = None
+            if values is None:
+                batched = False
+        single = range(stop - start) if values is None else np.flatnonzero(~np.isfinite(values))
+        values = np.empty(stop - start) if values is None else values
+        for k in single:  # a value that is not finite: the guarded call decides (it may recover or fail)
+            y = np.array(y0, dtype=float)
+            y[c[k]] += d[k]
+            values[k] = float(H(t, y, p))
+        out[start:stop] = values
+        start = stop
+    return out
 
 
 def probe_time(span: Optional[float], t_out=None) -> float:

@@ -1,0 +1,274 @@
+"""Many lumped components of the same kind: work done once per kind, not once per component
+(issue 38), counted in operations, never in time — and every check as strong as before.
+
+* ``phc check``'s rows check: components whose rows and description are the same systems
+  up to names (the masses of a chain) share one lambdified function and one verdict; a
+  component that differs (one wrong sign among a hundred identical springs) is still
+  compared on its own and reported at its own position;
+* the Dirac certificate: one Jacobian per distinct set of relations;
+* the scaling's energy sizes: H evaluated for many perturbed states in one call;
+* lowering: the coefficient of a solved variable taken without sympy's ``diff`` when the
+  terms are plain products (the very expression ``diff`` gives);
+* large model files are scanned and parsed by libyaml (when PyYAML has it) into the same
+  nodes, data and positions as the pure-Python parser, and any problem is reported by the
+  pure-Python parser with the same message.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import sympy as sp
+import yaml
+
+import phc
+import phc.source
+from phc.checks import rows as rows_module
+from phc.checks.certify import certify
+from phc.budget import derivative as _coefficient
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from bench_components import chain_yaml  # noqa: E402
+
+
+def _dae(tmp_path: Path, n: int):
+    path = tmp_path / f"chain_{n}.yaml"
+    path.write_text(chain_yaml(n))
+    dae, diags, _ = phc.validate_file(path)
+    assert dae is not None, [d.render() for d in diags]
+    return dae
+
+
+# ---------------------------------------------------------------------------------------
+# the rows check
+
+
+@pytest.fixture
+def lambdified(monkeypatch):
+    """Counts of the systems the rows check lambdifies, with its kept functions emptied."""
+    calls = []
+    real = sp.lambdify
+    monkeypatch.setattr(rows_module, "_FUNCTIONS", {})
+    monkeypatch.setattr(rows_module.sp, "lambdify", lambda *a, **k: calls.append(1) or real(*a, **k))
+    return calls
+
+
+@pytest.mark.parametrize("n", [11, 41])
+def test_rows_check_lambdifies_each_kind_of_component_once(tmp_path, lambdified, n):
+    cert = rows_module.check_rows(_dae(tmp_path, n))
+    assert cert.ok and not cert.inconclusive and not cert.not_compared
+    assert len(cert.compared) == n  # a wall, (n − 1)/2 springs and masses, the last mass with one port
+    # wall, spring, inner mass, last mass: at most 2 systems each (rows, description)
+    assert len(lambdified) <= 8
+    # the first spring and the first inner mass are compared; every other one shares the verdict
+    # (only the last mass, with one port, differs)
+    assert cert.shared == n - 4
+
+
+def test_a_component_unlike_its_neighbours_is_compared_on_its_own(tmp_path):
+    """One spring among 20 with a sign flipped in its rows: found and located at it, although
+    20 other springs passed the same (up to names) comparison before and after it."""
+    import dataclasses
+
+    dae = _dae(tmp_path, 41)
+    top = dae.topology
+    victim = "k7"
+    rows = []
+    for r in top.rows:
+        if r.component == victim:
+            (label, expr), *rest = r.equations
+            r = dataclasses.replace(r, equations=((label, -expr + 2 * sorted(expr.free_symbols, key=str)[0]),
+                                                  *rest))
+        rows.append(r)
+    dae = dataclasses.replace(dae, topology=dataclasses.replace(top, rows=tuple(rows)))
+    cert = rows_module.check_rows(dae)
+    assert [d.code for d in cert.diagnostics] == ["PHC-E452"]
+    assert f"`{victim}`" in cert.diagnostics[0].message
+    spans = {name: span for name, _, span in top.components}
+    assert cert.diagnostics[0].span == spans[victim]
+    assert victim not in cert.compared and len(cert.compared) == 40
+
+
+# ---------------------------------------------------------------------------------------
+# the Dirac certificate
+
+
+def test_dirac_certificate_takes_one_jacobian_per_kind(tmp_path, monkeypatch):
+    calls = []
+    real = sp.Matrix.jacobian
+    monkeypatch.setattr(sp.MatrixBase, "jacobian", lambda self, *a, **k: calls.append(1) or real(self, *a, **k))
+    monkeypatch.setattr(rows_module, "check_rows", lambda *a, **k: rows_module.RowsCertificate())
+    dae = _dae(tmp_path, 41)
+    cert = certify(dae)
+    assert cert.certified, cert.render_text()
+    assert len(calls) <= 4  # wall, spring, inner mass, last mass
+    # the same result as each component on its own: a Dirac structure of its dimension
+    for c in cert.components:
+        if c.dirac is not None:
+            assert c.dirac and c.dim_d == c.dim_z and c.isotropy <= 1e-12, c
+
+
+# ---------------------------------------------------------------------------------------
+# the energy sizes of the scaling
+
+
+class _Springs:
+    """A module of n decoupled springs: H = Σ ½ k_j y_j², straight-line NumPy as generated."""
+
+    def __init__(self, k):
+        self.k = np.asarray(k, dtype=float)
+        self.N = len(k)
+        self.DIFFERENTIAL = [True] * len(k)
+        self.VARIABLES = [f"s{j}.x" for j in range(len(k))]
+        self.calls = 0
+
+    def hamiltonian(self, t, y, p):
+        self.calls += 1
+        H = 0.0
+        for j in range(self.N):
+            H = H + 0.5 * self.k[j] * y[j] ** 2
+        return H
+
+
+@pytest.mark.parametrize("n", [50, 400])
+def test_energy_sizes_evaluate_h_a_bounded_number_of_times(n):
+    from phc.simulation.scaling import energy_sizes
+
+    rng = np.random.default_rng(1)
+    mod = _Springs(rng.uniform(1.0, 1e4, n))
+    y0 = rng.normal(size=n)
+    E = 2.0
+    sizes = energy_sizes(mod, None, 0.0, y0, np.abs(y0), E)
+    # closed form: ½ k s² = E; central differences are exact for a quadratic up to round-off
+    np.testing.assert_allclose(sizes, np.sqrt(2 * E / mod.k), rtol=1e-7)
+    # h0, one batch each way, and two single calls per batch to check it: not one per variable
+    assert mod.calls <= 1 + 2 * 3
+
+
+def test_energy_sizes_fall_back_to_single_calls_for_a_scalar_only_h():
+    from phc.simulation.scaling import energy_sizes
+
+    class Scalar(_Springs):
+        def hamiltonian(self, t, y, p):
+            if np.ndim(y) != 1:
+                raise TypeError("one state at a time")
+            return super().hamiltonian(t, y, p)
+
+    k = np.array([1.0, 4.0, 9.0])
+    mod = Scalar(k)
+    sizes = energy_sizes(mod, None, 0.0, np.ones(3), np.ones(3), 0.5)
+    np.testing.assert_allclose(sizes, np.sqrt(1.0 / k), rtol=1e-7)
+
+
+# ---------------------------------------------------------------------------------------
+# the coefficient of a solved variable
+
+
+def test_coefficient_is_the_expression_diff_gives():
+    x, y, k, m, c = sp.symbols("x y k m c", real=True)
+    f = sp.Function("f")
+    for expr in (x, -x, 2 * x, k * x, -k * x / m + y, k * x + c * x + y, y - x * k * m, x * y + x,
+                 sp.sin(y) * x - c, x ** 2 + y, sp.sin(x) * k, (x + 1) * k, f(x) + x, y, sp.Integer(0),
+                 x / m - c * y * x):
+        assert _coefficient(expr, x) == sp.diff(expr, x), expr
+        assert sp.srepr(_coefficient(expr, x)) == sp.srepr(sp.diff(expr, x)), expr
+
+
+# ---------------------------------------------------------------------------------------
+# large files: libyaml's events, PyYAML's nodes
+
+libyaml = pytest.mark.skipif(not phc.source._LIBYAML, reason="PyYAML without libyaml")
+
+
+def _big(text: str) -> str:
+    """`text` followed by enough comment lines to take the fast path."""
+    pad = "# " + "x" * 78 + "\n"
+    return text + pad * (phc.source.FAST_MIN_CHARS // len(pad) + 1)
+
+
+def _both(text: str, monkeypatch):
+    fast = phc.source.load_yaml(text, "m.yaml")
+    monkeypatch.setattr(phc.source, "FAST_MIN_CHARS", 10 ** 12)
+    slow = phc.source.load_yaml(text, "m.yaml")
+    monkeypatch.undo()
+    return fast, slow
+
+
+def _walk(node, path=()):
+    yield path, node
+    if isinstance(node, yaml.MappingNode):
+        for i, (k, v) in enumerate(node.value):
+            yield from _walk(k, (*path, i, "k"))
+            yield from _walk(v, (*path, i, "v"))
+    elif isinstance(node, yaml.SequenceNode):
+        for i, v in enumerate(node.value):
+            yield from _walk(v, (*path, i))
+
+
+@libyaml
+def test_large_file_same_nodes_data_and_positions(tmp_path, monkeypatch):
+    text = _big(chain_yaml(301) + "notes:\n  é: \"ünïcode ✓ 😀\"\n  multi: |\n    line one\n    line two\n"
+                "  folded: >-\n    a\n    b\n  quoted: 'it''s'\n  anchors: {a: &A [1, 2.5, true, null, 0x1F], b: *A}\n"
+                "  flow: {x: [1, {y: 2}], z: ~}\n  crlf: [1, 2]\r\n  date: 2024-01-02\n")
+    calls = []
+    real = yaml.SafeLoader
+
+    def counting(text, *rest):  # the pure-Python parser on the text (not on "" for its resolver)
+        if text:
+            calls.append(1)
+        return real(text, *rest)
+
+    monkeypatch.setattr(phc.source.yaml, "SafeLoader", counting)
+    (d1, m1, g1), (d2, m2, g2) = _both(text, monkeypatch)
+    assert calls == [1]  # the second parse only: the first was libyaml's
+    assert g1 == g2 == [] and d1 == d2
+    nodes1, nodes2 = list(_walk(m1.root)), list(_walk(m2.root))
+    assert len(nodes1) == len(nodes2) > 2000
+    for (p1, a), (p2, b) in zip(nodes1, nodes2):
+        assert p1 == p2 and type(a) is type(b) and a.tag == b.tag, p1
+        assert (getattr(a, "style", None) or None) == (getattr(b, "style", None) or None), p1
+        if isinstance(a, yaml.ScalarNode):
+            assert a.value == b.value
+        assert m1._node_span(a) == m2._node_span(b), p1
+    assert m1.node(("notes", "anchors", "b")) is m1.node(("notes", "anchors", "a"))  # an alias: one node
+    for path, offset in ((("notes", "multi"), 12), (("notes", "folded"), 2), (("notes", "é"), 4),
+                         (("components", "m77", "ports", 1), 0), (("connections", 5, 1), 3)):
+        assert m1.locate_in_value(path, offset) == m2.locate_in_value(path, offset), path
+        assert m1.locate_key(path) == m2.locate_key(path), path
+
+
+@libyaml
+@pytest.mark.parametrize("problem", [
+    "a: 1\na: 2\n",                      # duplicate key (a diagnostic; the data is built)
+    "a: [1, 2\n",                         # syntax error
+    "a: *nowhere\n",                      # undefined alias
+    "a: &x 1\nb: &x 2\n",                 # duplicate anchor
+    "a: 1\n---\nb: 2\n",                  # two documents
+    "a:\n\t- 1\n",                        # a tab
+    "a: !!python/object:os.system x\n",   # unsafe tag
+    "a: \x07\n",                          # a control character
+    "- " * 3000 + "x\n",                 # nested very deeply (block lists)
+])
+def test_large_file_problems_are_reported_as_by_the_pure_python_parser(problem, monkeypatch):
+    text = _big("") + problem  # the problem at the end, after the padding
+    (d1, m1, g1), (d2, m2, g2) = _both(text, monkeypatch)
+    assert g1 and [(d.code, d.message, d.span) for d in g1] == [(d.code, d.message, d.span) for d in g2]
+    assert d1 == d2
+
+
+def test_without_libyaml_a_large_file_is_parsed_in_python_and_said_once(monkeypatch):
+    import warnings
+
+    monkeypatch.setattr(phc.source, "_LIBYAML", False)
+    monkeypatch.setattr(phc.source, "_SLOW_SAID", False)
+    text = _big("a: 1\n")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        first = phc.source.load_yaml(text, "m.yaml")
+        second = phc.source.load_yaml(text, "m.yaml")
+    assert first[0] == second[0] == {"a": 1} and not first[2]
+    said = [w for w in caught if issubclass(w.category, phc.PhcWarning)]
+    assert len(said) == 1 and "libyaml" in str(said[0].message)
