@@ -68,12 +68,16 @@ Private control flow, defined where it is used
     diagnostic by the pass), ``phc.codegen.numba_cache.NotInCache`` (the full compile path
     has to run), ``phc.source._NotRegular`` (an ``OSError``: a model path that is not a
     regular file), ``phc.simulation.ida._Stop`` (phc's step hook ends an IDA run from inside
-    IDA's loop; the run returns its message). :data:`PRIVATE_CONTROL_FLOW` names them; ``tests/test_errors.py`` walks
+    IDA's loop; the run returns its message), ``phc.simulation.order.Switch`` (the step hook
+    ends an IDA run to go on at another maximum BDF order; the IDA driver catches it).
+    :data:`PRIVATE_CONTROL_FLOW` names them; ``tests/test_errors.py`` walks
     phc's modules and fails on any other exception defined outside this module.
 """
 
 from __future__ import annotations
 
+import os
+import sys
 from typing import TYPE_CHECKING, Optional
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -319,7 +323,7 @@ class RegistryError(PhcError):
 
 PRIVATE_CONTROL_FLOW = ("phc.cli.report._Exit", "phc.checks.compiled._NotNumeric", "phc.initial_fields._FieldError",
                         "phc.initial_fields._Silent", "phc.codegen.numba_cache.NotInCache",
-                        "phc.source._NotRegular", "phc.simulation.ida._Stop")
+                        "phc.source._NotRegular", "phc.simulation.ida._Stop", "phc.simulation.order.Switch")
 """Exceptions that never leave the code that raises them, defined there (qualified names)."""
 
 __all__ = ["BackendMismatch", "BackendUnavailable", "BackendUnsupported", "CacheWarning", "CodegenError",
@@ -331,3 +335,16 @@ __all__ = ["BackendMismatch", "BackendUnavailable", "BackendUnsupported", "Cache
            "SimulationInterrupted",
            "SimulationSetupError", "SpecError", "SweepSetupError", "SwitchTimeError", "SymbolicBudgetError",
            "TableError", "UnitError", "UsageError"]
+
+
+_PACKAGE = os.path.dirname(os.path.abspath(__file__)) + os.sep
+
+
+def caller_stacklevel() -> int:
+    """The ``stacklevel`` for :func:`warnings.warn` that names the first frame outside phc:
+    a warning points at the user's line that called phc, however deep inside phc it is raised
+    (a fixed level points into phc when the call path changes). Call it in the ``warn`` call."""
+    frame, level = sys._getframe(1), 1
+    while frame is not None and frame.f_code.co_filename.startswith(_PACKAGE):
+        frame, level = frame.f_back, level + 1
+    return level

@@ -152,13 +152,13 @@ def usable(method: str, raw) -> tuple[bool, str]:
 
 def say_unused(why: str) -> None:
     """Say once per process and reason that the C step loop does not run a simulation."""
-    from phc.errors import CompiledLoopWarning
+    from phc.errors import CompiledLoopWarning, caller_stacklevel
 
     if not why or why in _SAID:
         return
     _SAID.add(why)
     warnings.warn(f"the C step loop does not run this simulation: {why}; the Python step loop runs it (the same "
-                  "steps, more time per step)", CompiledLoopWarning, stacklevel=4)
+                  "steps, more time per step)", CompiledLoopWarning, stacklevel=caller_stacklevel())
 
 
 def _address(a: Optional[np.ndarray]) -> Optional[int]:

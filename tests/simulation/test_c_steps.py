@@ -259,8 +259,9 @@ def test_what_the_c_loop_does_not_run_is_said_once(compiled, monkeypatch, loops)
     monkeypatch.setattr(c_steps, "_SAID", set())
     model = compiled("pendulum.yaml")
     options = dict(t_end=0.2, step=1e-2, n_out=11)
-    with pytest.warns(CompiledLoopWarning, match="`discrete_gradient` solver's step loop is not written in C"):
+    with pytest.warns(CompiledLoopWarning, match="`discrete_gradient` solver's step loop is not written in C") as said:
         first = phc.simulate(model, solver="discrete_gradient", **options)
+    assert [w.filename for w in said] == [__file__]  # the caller's line, not one inside phc
     with warnings.catch_warnings():
         warnings.simplefilter("error", CompiledLoopWarning)
         again = phc.simulate(model, solver="discrete_gradient", **options)
