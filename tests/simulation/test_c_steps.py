@@ -28,6 +28,7 @@ import pytest
 import phc
 from compiled_loading import assert_same_trajectory as _assert_same_trajectory
 from compiled_loading import both_loops as _both
+from test_ida import STATE_MODEL  # a state that leaves asin's domain (one copy, in test_ida)
 from phc.codegen.c_backend import available
 from phc.errors import CompiledLoopWarning
 
@@ -130,30 +131,6 @@ def test_two_threads_integrate_at_once(compiled, loops):
         assert np.array_equal(a.t, b.t) and np.array_equal(a.y, b.y) and a.steps == b.steps
 
 
-STATE_MODEL = """\
-format_version: 1
-name: state_model
-components:
-  s:
-    type: phs
-    states: [q]
-    hamiltonian: q**2/2 + asin(q)
-    J: [[0]]
-    R: [[0]]
-    ports:
-      u:
-        domain: electrical
-        causality: effort_in
-        B: [[1]]
-  src: {type: effort_source, domain: electrical, value: 1}
-connections:
-  - [s.u, src.port]
-simulation:
-  t_end: 2.0
-  n_out: 201
-  initial:
-    s.q: 0.0
-"""
 # q' = 1: q(t) = t, and d/dq asin(q) = 1/sqrt(1 − q²) is not defined from t = 1 on
 
 
