@@ -26,6 +26,9 @@ import numpy as np
 import pytest
 
 import phc
+from compiled_loading import assert_same_trajectory as _assert_same_trajectory
+from compiled_loading import both_loops as _both
+from test_ida import STATE_MODEL  # a state that leaves asin's domain (one copy, in test_ida)
 from phc.codegen.c_backend import available
 from phc.errors import CompiledLoopWarning
 
@@ -63,30 +66,6 @@ def loops(monkeypatch):
 
     monkeypatch.setattr(compiled_steps, "integrate", spy)
     return seen
-
-
-def _both(monkeypatch, model, **options):
-    """(C loop, Python loop) results of one simulation."""
-    monkeypatch.setenv("PHC_COMPILED_LOOP", "1")
-    fast = phc.simulate(model, **options)
-    monkeypatch.setenv("PHC_COMPILED_LOOP", "0")
-    slow = phc.simulate(model, **options)
-    monkeypatch.setenv("PHC_COMPILED_LOOP", "1")
-    return fast, slow
-
-
-def _assert_same_trajectory(fast, slow, h):
-    assert fast.success and slow.success, (fast.message, slow.message)
-    assert fast.message == slow.message
-    assert np.array_equal(fast.t, slow.t) and fast.steps == slow.steps
-    diff = fast.differential & (np.array(fast.variables) != "energy.supplied")
-    size = 1.0 + np.abs(slow.y).max(axis=0)
-    err = np.abs(fast.y - slow.y) / size
-    # differential variables: the Newton tolerance (1e-14), accumulated over at most 1000 steps
-    # with margin for the growth of a perturbation along the motion
-    assert err[:, diff].max() <= 1e-9, err[:, diff].max()
-    # algebraic ones (multipliers at the step ends) are differences of them over h
-    assert err[:, ~diff].max(initial=0.0) <= 1e-9 / h, err[:, ~diff].max(initial=0.0)
 
 
 @pytest.mark.parametrize("name, t_end, step", [
@@ -152,30 +131,6 @@ def test_two_threads_integrate_at_once(compiled, loops):
         assert np.array_equal(a.t, b.t) and np.array_equal(a.y, b.y) and a.steps == b.steps
 
 
-STATE_MODEL = """\
-format_version: 1
-name: state_model
-components:
-  s:
-    type: phs
-    states: [q]
-    hamiltonian: q**2/2 + asin(q)
-    J: [[0]]
-    R: [[0]]
-    ports:
-      u:
-        domain: electrical
-        causality: effort_in
-        B: [[1]]
-  src: {type: effort_source, domain: electrical, value: 1}
-connections:
-  - [s.u, src.port]
-simulation:
-  t_end: 2.0
-  n_out: 201
-  initial:
-    s.q: 0.0
-"""
 # q' = 1: q(t) = t, and d/dq asin(q) = 1/sqrt(1 − q²) is not defined from t = 1 on
 
 

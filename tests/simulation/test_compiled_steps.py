@@ -15,6 +15,8 @@ import numpy as np
 import pytest
 
 import phc
+from compiled_loading import assert_same_trajectory as _assert_same_trajectory
+from compiled_loading import both_loops as _both
 from phc.codegen.numba_backend import available
 
 OK, WHY = available()
@@ -51,29 +53,6 @@ def used(monkeypatch):
 
     monkeypatch.setattr(compiled_steps, "integrate", spy)
     return calls
-
-
-def _both(monkeypatch, model, **options):
-    """(compiled loop, Python loop) results of one simulation."""
-    monkeypatch.setenv("PHC_COMPILED_LOOP", "1")
-    fast = phc.simulate(model, **options)
-    monkeypatch.setenv("PHC_COMPILED_LOOP", "0")
-    slow = phc.simulate(model, **options)
-    monkeypatch.setenv("PHC_COMPILED_LOOP", "1")
-    return fast, slow
-
-
-def _assert_same_trajectory(fast, slow, h):
-    assert fast.success and slow.success, (fast.message, slow.message)
-    assert fast.message == slow.message
-    assert np.array_equal(fast.t, slow.t) and fast.steps == slow.steps
-    diff = fast.differential & (np.array(fast.variables) != "energy.supplied")
-    size = 1.0 + np.abs(slow.y).max(axis=0)
-    err = np.abs(fast.y - slow.y) / size
-    # differential variables: the Newton tolerance, accumulated over the steps
-    assert err[:, diff].max() <= 1e-9, err[:, diff].max()
-    # algebraic ones (multipliers at the step ends) are differences of them over h
-    assert err[:, ~diff].max(initial=0.0) <= 1e-9 / h, err[:, ~diff].max(initial=0.0)
 
 
 @pytest.mark.parametrize("name, solver, t_end, step", [
