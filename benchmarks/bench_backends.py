@@ -1,4 +1,4 @@
-"""The compiled backend (numba) against the reference NumPy module: compile, call and run times.
+"""Back ends (numba, C) and the exported FMU against the reference NumPy module: compile, call, step, run times.
 
 For every model (default: the shipped ``models/*.yaml``):
 
@@ -11,6 +11,18 @@ For every model (default: the shipped ``models/*.yaml``):
   state, in microseconds (best of 7 repetitions of a timed loop: a loaded machine only ever
   adds time), called from Python as the integrators call them.
 
+* **per step** (the pendulum and the flexible slider–crank, ``--step-models``): a fixed number
+  of implicit midpoint steps of one fixed step size, CPU time (``time.process_time``) per step,
+  best of ``--step-repeat``: ``phc.simulate`` on the NumPy, numba and C back ends (output at
+  the two ends only; the best call over one step is subtracted from the best over all the
+  steps, which removes what a call costs once: the consistent start, the nominal scales, the
+  step loop's set-up), and the FMU that ``phc export --fmu`` writes for the same model and
+  step, run by FMPy's ``FMU2Slave``: one ``doStep`` per step (one midpoint step each) in a
+  Python loop, only that loop timed (the FMU's step plus one ctypes call; not
+  ``fmpy.simulate_fmu``, whose own Python bookkeeping per communication point would dominate).
+  The export is timed once (wall, and CPU of this process and the C compiler). Without FMPy,
+  or when the model cannot be exported, the FMU's row says why.
+
 Then whole runs of ``phc simulate`` from the shell (a fresh process each: start-up,
 compilation, initialization, integration, post-processing) for the flexible and the rigid
 slider–crank and the pendulum, on each backend, with a cold cache and warm (best of
@@ -20,7 +32,8 @@ machine the wall time includes waiting for a core.
 Writes ``backends.md`` (the tables) and ``backends.json`` (every figure) into ``--out-dir``
 (default ``benchmarks/backends``) and prints the Markdown.
 
-Run: ``python benchmarks/bench_backends.py [--repeat 3] [--models a.yaml b.yaml] [--skip-runs]``
+Run: ``python benchmarks/bench_backends.py [--repeat 3] [--models a.yaml b.yaml] [--skip-runs]
+[--step-models a.yaml ...] [--step-repeat 5]``
 """
 
 from __future__ import annotations
@@ -51,6 +64,10 @@ from phc.codegen import numba_backend  # noqa: E402
 
 RUNS = [ROOT / "models" / "flexible_slider_crank.yaml", ROOT / "models" / "rigid_slider_crank.yaml",
         ROOT / "models" / "pendulum.yaml"]
+
+STEP_RUNS = {"pendulum": (0.01, 2000), "flexible_slider_crank": (1e-5, 1000)}
+"""Per-step rows: model stem -> (midpoint step [s], number of steps). The slider–crank's step is
+its file's `simulation.step`; the pendulum's file has none (its FMU's test steps 0.01 s)."""
 
 _COMPILE = r"""
 import json, sys, time
@@ -106,6 +123,95 @@ def per_call(path: Path) -> dict:
                        "jacobian_us": min(jc.repeat(7, number)) / number * 1e6}
     return {"N": int(ref.N), "jacobian_nnz": int(len(ref.JAC_ROWS)), **times,
             "emitted": list(fast.COMPILE_REPORT.emitted)}
+
+
+def _fmpy():
+    """The FMPy modules the FMU rows use, or the reason they cannot run."""
+    try:
+        import fmpy
+        from fmpy.fmi2 import FMU2Slave
+    except Exception as err:  # ImportError, or a broken installation
+        return None, f"FMPy is not importable ({type(err).__name__}: {err}); the FMU was not measured"
+    return (fmpy, FMU2Slave), f"FMPy {fmpy.__version__}"
+
+
+def _fmu_steps(path: str, h: float, steps: int, repeat: int, fmpy_modules) -> list:
+    """CPU seconds of `steps` calls of ``doStep(t, h)`` on a fresh instance, `repeat` times."""
+    fmpy, slave = fmpy_modules
+    md = fmpy.read_model_description(path)
+    t0 = float(md.defaultExperiment.startTime or 0.0) if md.defaultExperiment else 0.0
+    with tempfile.TemporaryDirectory() as unzipped:
+        fmpy.extract(path, unzipdir=unzipped)
+        times = []
+        for _ in range(repeat):
+            fmu = slave(guid=md.guid, unzipDirectory=unzipped, modelIdentifier=md.coSimulation.modelIdentifier,
+                        instanceName="bench")
+            fmu.instantiate()
+            try:
+                fmu.setupExperiment(startTime=t0)
+                fmu.enterInitializationMode()
+                fmu.exitInitializationMode()
+                do_step = fmu.doStep
+                c = time.process_time()
+                for k in range(steps):
+                    do_step(currentCommunicationPoint=t0 + k * h, communicationStepSize=h)
+                times.append(time.process_time() - c)
+                fmu.terminate()
+            finally:
+                fmu.freeInstance()
+    return times
+
+
+def per_step(path: Path, h: float, steps: int, repeat: int) -> dict:
+    """µs of CPU per implicit midpoint step: phc.simulate on each back end, and the exported FMU."""
+    compiled = phc.compile_model(path, certify=False, backend="numpy")
+    t0 = float(compiled.dae.options["t_start"])
+    out = {"solver": "midpoint", "step": h, "steps": steps, "repeat": repeat, "rows": {}}
+    for backend in ("numpy", "numba", "c"):
+        try:
+            def run(n, b=backend):
+                return phc.simulate(compiled, solver="midpoint", step=h, t_end=t0 + n * h, n_out=2, backend=b)
+
+            for n in (1, steps):  # builds or loads the back end, checks the step count: not timed
+                first = run(n)
+                if not first.success or first.steps != n:
+                    raise RuntimeError(f"the run took {first.steps} steps, not {n} (success={first.success})")
+            best = {}
+            for n in (1, steps):
+                times = []
+                for _ in range(repeat):
+                    c = time.process_time()
+                    run(n)
+                    times.append(time.process_time() - c)
+                best[n] = min(times)
+            out["rows"][backend] = {"us_per_step": (best[steps] - best[1]) / (steps - 1) * 1e6,
+                                    "whole_call_s": best[steps], "one_step_call_s": best[1],
+                                    "measured": f"phc.simulate: ({steps} steps - 1 step) / {steps - 1}"}
+        except Exception as err:  # an unavailable back end is a row that says so
+            out["rows"][backend] = {"us_per_step": None, "note": f"{type(err).__name__}: {err}"}
+    modules, note = _fmpy()
+    if modules is None:
+        out["rows"]["fmu"] = {"us_per_step": None, "note": note}
+        return out
+    from phc.export import export_fmu
+
+    with tempfile.TemporaryDirectory() as folder:
+        target = str(Path(folder) / f"{path.stem}.fmu")
+        cpu, child, wall = time.process_time(), _child_cpu(), time.perf_counter()
+        try:
+            export_fmu(path, target, step=h, certify=False)
+        except Exception as err:
+            out["rows"]["fmu"] = {"us_per_step": None, "note": f"not exported: {err}"}
+            return out
+        export = {"wall": time.perf_counter() - wall, "cpu": time.process_time() - cpu + _child_cpu() - child}
+        try:
+            times = _fmu_steps(target, h, steps, repeat, modules)
+        except Exception as err:  # an FMI error status (FMPy raises on it)
+            out["rows"]["fmu"] = {"us_per_step": None, "export": export, "note": f"doStep failed: {err}"}
+            return out
+    out["rows"]["fmu"] = {"us_per_step": min(times) / steps * 1e6, "export": export, "fmpy": note,
+                          "measured": "FMU2Slave.doStep loop (one midpoint step per call; ctypes call included)"}
+    return out
 
 
 def _child_cpu() -> float:
@@ -165,6 +271,32 @@ def markdown(data: dict) -> str:
         lines.append(f"| {name} | {a['residual_us']:.2f} | {b['residual_us']:.2f} | "
                      f"{a['residual_us'] / b['residual_us']:.1f} | {a['jacobian_us']:.2f} | {b['jacobian_us']:.2f} | "
                      f"{a['jacobian_us'] / b['jacobian_us']:.1f} |")
+    if data.get("steps"):
+        repeat = next(iter(data["steps"].values()))["repeat"]
+        lines += ["", f"## Per step: implicit midpoint, fixed step (CPU µs per step, best of {repeat})\n",
+                  "phc.simulate rows: output at the two ends only; (best call over all the steps − best call "
+                  "over one step) / (steps − 1), which leaves out what a call costs once (the consistent "
+                  "start, the nominal scales, the step loop's set-up). FMU row: the FMU that "
+                  "`phc export --fmu` wrote for the same step, run by FMPy's `FMU2Slave.doStep` in a Python "
+                  "loop, one midpoint step per call (the FMU's step plus one ctypes call; not "
+                  "`fmpy.simulate_fmu`). Ratio: numpy's µs per step over the row's, both measured in this run. "
+                  f"{data.get('fmpy', '')}.\n",
+                  "| model | step [s], steps | runs on | µs per step | ratio to numpy | export: wall / CPU [s] |",
+                  "|---|---|---|---:|---:|---:|"]
+        labels = {"numpy": "phc.simulate, numpy", "numba": "phc.simulate, numba", "c": "phc.simulate, C",
+                  "fmu": "FMU under FMPy (doStep loop)"}
+        for name, st in data["steps"].items():
+            base = st["rows"].get("numpy", {}).get("us_per_step")
+            for runner, r in st["rows"].items():
+                head = f"| {name} | {st['step']:g}, {st['steps']} | {labels[runner]} |"
+                if r.get("us_per_step") is None:
+                    note = " ".join(str(r["note"]).split())[:300].replace("|", "/")
+                    lines.append(f"{head} not measured | — | {note} |")
+                    continue
+                ratio = f"{base / r['us_per_step']:.1f}" if base else "—"
+                ex = r.get("export")
+                export = f"{ex['wall']:.2f} / {ex['cpu']:.2f}" if ex else ""
+                lines.append(f"{head} {r['us_per_step']:.2f} | {ratio} | {export} |")
     if data.get("runs"):
         lines += ["", "## Whole runs: `phc simulate MODEL --no-certify --backend B` (fresh process each)\n",
                   "| model | solver, steps | backend | cold: wall / CPU [s] | warm: wall / CPU [s] | "
@@ -183,8 +315,15 @@ def main(argv=None) -> None:
     ap.add_argument("--models", nargs="*", type=Path, default=sorted((ROOT / "models").glob("*.yaml")))
     ap.add_argument("--repeat", type=int, default=3, help="warm whole runs per backend (the best is kept)")
     ap.add_argument("--skip-runs", action="store_true", help="compile and per-call figures only")
+    ap.add_argument("--step-models", nargs="*", type=Path,
+                    default=[ROOT / "models" / f"{stem}.yaml" for stem in STEP_RUNS],
+                    help=f"per-step rows (models among: {', '.join(STEP_RUNS)}; none: skip them)")
+    ap.add_argument("--step-repeat", type=int, default=5, help="timed repetitions of each per-step row (best kept)")
     ap.add_argument("--out-dir", type=Path, default=ROOT / "benchmarks" / "backends")
     args = ap.parse_args(argv)
+    unknown = [path.name for path in args.step_models if path.stem not in STEP_RUNS]
+    if unknown:
+        ap.error(f"--step-models: no per-step setting for {', '.join(unknown)} (models among: {', '.join(STEP_RUNS)})")
     ok, version = numba_backend.available()
     if not ok:
         sys.exit(f"bench_backends: {version}")
@@ -192,12 +331,15 @@ def main(argv=None) -> None:
     data = {"date": datetime.datetime.now().strftime("%Y-%m-%d %H:%M"),
             "machine": f"{platform.machine()}, {os.cpu_count()} cores, load average {load:.1f} at the start",
             "numba": version, "command": "python benchmarks/bench_backends.py " + " ".join(argv or sys.argv[1:]),
-            "models": {}, "runs": {}}
+            "fmpy": _fmpy()[1], "models": {}, "steps": {}, "runs": {}}
     with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as state:
         os.environ.update(PHC_CACHE_DIR=cache, PHC_STATE_DIR=state)
         for path in args.models:
             print(f"{path.name} ...", file=sys.stderr, flush=True)
             data["models"][path.stem] = {"compile": compile_times(path), "calls": per_call(path)}
+        for path in args.step_models:
+            print(f"{path.name}: per step ...", file=sys.stderr, flush=True)
+            data["steps"][path.stem] = per_step(path, *STEP_RUNS[path.stem], max(1, args.step_repeat))
     if not args.skip_runs:
         data["runs"] = whole_runs(RUNS, args.repeat)
     data["load_at_end"] = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
