@@ -4,6 +4,10 @@ least squares."""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +18,7 @@ import phc
 import phc.simulation.initial as initial
 import phc.simulation.minnorm as minnorm
 from phc.simulation import initial_values, parameter_vector
+from time_limits import SUBPROCESS_TIMEOUT
 
 MODELS = Path(__file__).resolve().parent.parent / "models"
 
@@ -175,3 +180,33 @@ def test_one_blas_thread_is_scoped_and_nests():
             after_nested = blas_threads()
         assert inside == nested == after_nested == [1] * len(before)
         assert blas_threads() == before
+
+
+def test_one_blas_thread_limits_a_blas_loaded_after_its_first_use():
+    """scikit-sundae brings its own OpenBLAS, loaded when IDA is first imported: a block after
+    that import limits it too (a controller made before the import does not know it)."""
+    pytest.importorskip("threadpoolctl")
+    script = textwrap.dedent("""
+        import threadpoolctl
+        import phc.simulation.minnorm as minnorm
+
+        def blas():
+            return {i["filepath"]: i["num_threads"] for i in threadpoolctl.threadpool_info()
+                    if i["user_api"] == "blas"}
+
+        with threadpoolctl.threadpool_limits(limits=2, user_api="blas"):
+            with minnorm.one_blas_thread():
+                first = blas()
+            import sksundae.ida  # noqa: F401 — loads scikit-sundae's libraries
+            later = blas()
+            with minnorm.one_blas_thread():
+                inside = blas()
+        print(len(first), len(later), sorted(set(inside.values())))
+    """)
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")}
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env,
+                         timeout=SUBPROCESS_TIMEOUT)
+    assert out.returncode == 0, out.stderr
+    n_first, n_later, inside = out.stdout.split(maxsplit=2)
+    assert int(n_later) >= int(n_first)
+    assert inside.strip() == "[1]"  # every BLAS loaded, the one IDA brought included

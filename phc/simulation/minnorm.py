@@ -51,6 +51,7 @@ Dense solves run with one BLAS thread (:func:`one_blas_thread`).
 
 from __future__ import annotations
 
+import sys
 import threading
 from contextlib import contextmanager
 
@@ -75,7 +76,7 @@ ONE_THREAD_ENTRIES = 10_000
 """A dense solve of a matrix with more entries than this (100 × 100, where OpenBLAS may start
 threads) runs under :func:`one_blas_thread`."""
 
-_blas = {"controller": None, "depth": 0}
+_blas = {"controller": None, "modules": -1, "depth": 0}
 _blas_lock = threading.Lock()
 
 
@@ -93,11 +94,17 @@ def one_blas_thread():
     blocks cost nothing."""
     with _blas_lock:
         outer = _blas["depth"] > 0
-        if _blas["controller"] is None:
+        # the controller lists the libraries loaded when it is made; an import since then may
+        # have loaded another BLAS (scikit-sundae brings its own OpenBLAS with IDA), so it is
+        # made again when the set of imported modules has grown (about 1 ms; cheaper than that
+        # to notice)
+        if _blas["controller"] is None or (_blas["controller"] and not outer
+                                           and len(sys.modules) != _blas["modules"]):
             try:
                 from threadpoolctl import ThreadpoolController
 
-                _blas["controller"] = ThreadpoolController()  # lists the loaded libraries once
+                _blas["controller"] = ThreadpoolController()
+                _blas["modules"] = len(sys.modules)
             except Exception:  # noqa: BLE001 — not installed or cannot inspect: no limit
                 _blas["controller"] = False
         controller = _blas["controller"]
