@@ -121,7 +121,10 @@ def function_kernels(ir: ResidualIR) -> list[FunctionKernel]:
                                 ("velocity_invariants", ir.velocity_invariants, ir.velocity_invariant_labels)):
         out.append(FunctionKernel(name, Kernel(tuple((i, e, False) for i, e in enumerate(exprs))), len(exprs), False,
                                   "y", "array", tuple(labels)))
-    out.append(FunctionKernel("outputs", Kernel(tuple((i, e, False) for i, (_, e) in enumerate(ir.outputs))),
+    # an output that uses H: its other terms, then b·coeff·xᵀAx added per quadratic energy form
+    # (sparse, as in `hamiltonian`; never the forms written out term by term)
+    energy = tuple(("quad", f.matrix, f.cols, b * f.coeff, i, False) for i, b in ir.output_energy for f in qe)
+    out.append(FunctionKernel("outputs", Kernel(tuple((i, e, False) for i, (_, e) in enumerate(ir.outputs)), energy),
                               len(ir.outputs), False, "yyp", "array", tuple(name for name, _ in ir.outputs)))
     return out
 
