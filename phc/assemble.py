@@ -31,7 +31,7 @@ from typing import Optional
 import sympy as sp
 
 from phc.dae import (STORED_ENERGY, T, Dae, Equation, InitialValue, Invariant, LinearBlock, PortInfo, Topology,
-                     Variable, split_stored_energy)
+                     Variable)
 from phc.diagnostics import Diagnostic, DiagnosticList
 from phc.inputs import SignalBuilder
 from phc.spec.expressions import named_scope
@@ -214,9 +214,9 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
     scope = _output_scope(elab, subs, hamiltonian)
     rates = _rate_scope(elab, subs)
     if elab.quadratic_energy:
-        # the distributed components' H too, kept sparse: the generated `outputs` evaluates their
-        # quadratic forms as sparse products (phc.codegen.kernels), not a sum written out
-        scope["H"] = hamiltonian + STORED_ENERGY
+        # the distributed components' H too: the generated `outputs` takes the value of the
+        # module's `hamiltonian` (sparse quadratic forms), never a sum written out term by term
+        scope["H"] = STORED_ENERGY
     outputs = []
     result_units = ResultUnits(rep, elab, variables, hamiltonian)
     for oname, ospec in sim.outputs.items():
@@ -229,12 +229,7 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
             continue
         oval = final(rep.expr(ctx, oexpr, vpath, scope, check_units=False, rates=rates))
         factor = result_units.output(ctx, oname, oexpr, vpath, getattr(ospec, "unit", None), (*opath, "unit"))
-        oval = oval if factor is None else oval * sp.Float(factor)  # into its declared unit
-        if isinstance(oval, sp.Basic) and oval.has(STORED_ENERGY) and split_stored_energy(oval) is None:
-            # `H` inside a function or a power (`sqrt(H)`): the quadratic forms written out
-            # (long sums become short statements in the printer; the budget bounds the size)
-            oval = oval.xreplace({STORED_ENERGY: _written_out(elab.quadratic_energy)})
-        outputs.append((oname, oval))
+        outputs.append((oname, oval if factor is None else oval * sp.Float(factor)))  # into its declared unit
     velocity_invariants = tuple(Invariant(v.label, final(v.expr), v.component, v.span)
                                 for v in elab.velocity_invariants)
     states_named = {v.name for v in variables if v.differential}
@@ -374,27 +369,6 @@ def _resolve_definitions(uf, defs, rows) -> dict:
         return sign * resolve_root(root)
 
     return {s: value(s) for s in all_syms}
-
-
-def _written_out(forms) -> sp.Expr:
-    """The quadratic energies of the distributed components (``coeff · xᵀ A x``, kept sparse
-    in the DAE) as one expression, term by term: what :data:`~phc.dae.STORED_ENERGY` stands
-    for where an output uses `H` other than affinely."""
-    terms = []
-    for form in forms:
-        upper = _upper_coo(form.matrix)
-        x = form.symbols
-        quad = sp.Add(*[sp.Float(float(v) * (1 if i == j else 2)) * x[i] * x[j]
-                        for i, j, v in zip(upper.row, upper.col, upper.data) if v != 0])
-        terms.append(form.coeff * quad)
-    return sp.Add(*terms)
-
-
-def _upper_coo(matrix):
-    """The upper triangle (diagonal included) of a sparse symmetric matrix, as COO."""
-    import scipy.sparse as sps
-
-    return sps.triu(sps.coo_matrix(matrix)).tocoo()
 
 
 def _rate_scope(elab, subs) -> dict:

@@ -22,37 +22,13 @@ from phc.source import SourceSpan
 T = sp.Symbol("t", real=True)
 """The time symbol shared by all expressions."""
 
-STORED_ENERGY = sp.Symbol("H.quadratic", real=True)
-"""In an output expression, the stored energy of the distributed components: the sum of
-:attr:`Dae.quadratic_energy`, ``Σ coeff·xᵀAx``, which stays sparse. An output that names `H`
-holds ``lumped H + STORED_ENERGY``; the generated ``outputs`` function evaluates the
-quadratic forms as sparse products (:func:`split_stored_energy`), never term by term. No
-model name can be this symbol's (a name in a model file has no ``.quadratic`` part on `H`)."""
-
-
-def split_stored_energy(expr: sp.Expr) -> Optional[tuple[sp.Expr, sp.Expr]]:
-    """``(a, b)`` with ``expr = a + b·STORED_ENERGY`` and neither holding it, when `expr` is
-    affine in :data:`STORED_ENERGY` through sums and products alone (``H``, ``2*H - E0``,
-    ``x*H``); None when it enters otherwise (``sqrt(H)``, ``H**2``, a condition on `H`)."""
-    if expr == STORED_ENERGY:
-        return sp.Integer(0), sp.Integer(1)
-    if not expr.has(STORED_ENERGY):
-        return expr, sp.Integer(0)
-    if expr.is_Add:
-        parts = [split_stored_energy(term) for term in expr.args]
-        if any(part is None for part in parts):
-            return None
-        return sp.Add(*[a for a, _ in parts]), sp.Add(*[b for _, b in parts])
-    if expr.is_Mul:
-        holding = [f for f in expr.args if f.has(STORED_ENERGY)]
-        if len(holding) != 1:
-            return None
-        part = split_stored_energy(holding[0])
-        if part is None:
-            return None
-        rest = sp.Mul(*[f for f in expr.args if f is not holding[0]])
-        return rest * part[0], rest * part[1]
-    return None
+STORED_ENERGY = sp.Symbol("<H>", real=True)
+"""`H` in an output of a model with distributed components: the total stored energy, the
+value of the generated module's ``hamiltonian`` (the lumped parts' H plus the sparse quadratic
+energies :attr:`Dae.quadratic_energy`). The generated ``outputs`` evaluates it once per call,
+as ``hamiltonian`` does, and the output expressions refer to that value: the energy is never
+written out term by term (thousands of terms for a fine mesh). Its name is no identifier a
+model can write."""
 
 
 @dataclass(frozen=True)

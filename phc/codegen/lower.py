@@ -19,9 +19,9 @@ import scipy.sparse as sps
 import sympy as sp
 
 from phc import budget
-from phc.dae import T, Dae, split_stored_energy
+from phc.dae import T, Dae
 from phc.diagnostics import Diagnostic, DiagnosticList
-from phc.errors import CodegenError, ModelError
+from phc.errors import ModelError
 from phc.codegen.nonsmooth import StickInfo, SwitchInfo, plain, switching, with_origins
 
 
@@ -76,7 +76,6 @@ class ResidualIR:
     velocity_invariants: tuple[sp.Expr, ...]
     velocity_invariant_labels: tuple[str, ...]
     outputs: tuple[tuple[str, sp.Expr], ...]
-    """Each output as (name, a): what it is besides the distributed components' stored energy."""
     sources: tuple[str, ...]
     linear_terms: tuple[LinearTermIR, ...] = ()
     quadratic_energy: tuple[QuadraticIR, ...] = ()
@@ -95,9 +94,6 @@ class ResidualIR:
     the last entries of the parameter vector (derived parameters fixed at 0: free)."""
     sticks: tuple[StickInfo, ...] = ()
     """Set-valued ``sign`` terms and their stick modes."""
-    output_energy: tuple[tuple[int, sp.Expr], ...] = ()
-    """(i, b): output i is ``a + b · Σ coeff·xᵀAx`` over `quadratic_energy` (an output that
-    uses `H`, :data:`phc.dae.STORED_ENERGY`): the forms are evaluated as sparse products."""
 
 
 def _ordered_parameters(dae: Dae):
@@ -179,21 +175,6 @@ def _differentiator(row: sp.Expr):
     return lambda s: sp.Add(*[budget.derivative(term, s) for term in holding.get(s, ())])
 
 
-def _split_outputs(dae: Dae) -> tuple[tuple, tuple]:
-    """The outputs without :data:`~phc.dae.STORED_ENERGY`, and (i, b) where output i adds
-    b times the distributed components' stored energy (see ``ResidualIR.output_energy``)."""
-    outputs, energy = [], []
-    for i, (name, expr) in enumerate(dae.outputs):
-        part = split_stored_energy(expr)
-        if part is None:  # the assemble pass writes a non-affine use out
-            raise CodegenError(f"output `{name}` uses the stored energy non-affinely (a phc bug: please report it)")
-        a, b = part
-        outputs.append((name, plain(a)))
-        if b != 0 and dae.quadratic_energy:
-            energy.append((i, plain(b)))
-    return tuple(outputs), tuple(energy)
-
-
 def lower_residual(dae: Dae) -> ResidualIR:
     """Differentiate the residual and order everything for printing.
 
@@ -270,7 +251,6 @@ def lower_residual(dae: Dae) -> ResidualIR:
         return tuple(out)
 
     _check_cse_input(dae, entries, sizes)
-    outputs, output_energy = _split_outputs(dae)
     return ResidualIR(
         name=dae.name,
         variables=tuple(v.name for v in dae.variables),
@@ -297,8 +277,7 @@ def lower_residual(dae: Dae) -> ResidualIR:
         invariant_labels=tuple(inv.label for inv in dae.invariants),
         velocity_invariants=tuple(plain(inv.expr) for inv in dae.velocity_invariants),
         velocity_invariant_labels=tuple(inv.label for inv in dae.velocity_invariants),
-        outputs=outputs,
-        output_energy=output_energy,
+        outputs=tuple((name, plain(expr)) for name, expr in dae.outputs),
         sources=dae.sources,
         linear_terms=linear_terms,
         quadratic_energy=quadratic(dae.quadratic_energy),

@@ -7,11 +7,11 @@ the independent evaluation of the energy: the generated ``hamiltonian`` function
 column of the results), and for the string the closed form of the energy its force pulse
 puts in.
 
-An output affine in `H` adds ``b · coeff · xᵀAx`` per form, evaluated as a sparse product in
-the generated ``outputs`` (:data:`phc.dae.STORED_ENERGY`, ``ResidualIR.output_energy``): it
-works at any mesh size, on every back end, and the generated code does not grow with the
-mesh. (It was refused above 2000 energy terms, about 660 string elements, because the energy
-was written out term by term.)
+An output that uses `H` refers to the stored energy as the generated ``hamiltonian``
+computes it (sparse quadratic forms), evaluated once per call of ``outputs``
+(:data:`phc.dae.STORED_ENERGY`): it works at any mesh size, on every back end, and the
+generated code does not grow with the mesh. (It was refused above 2000 energy terms, about
+660 string elements, because the energy was written out term by term.)
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import pytest
 import sympy as sp
 
 import phc
-from phc.dae import STORED_ENERGY, split_stored_energy
+from phc.dae import STORED_ENERGY
 
 MODELS = Path(__file__).resolve().parents[2] / "models"
 
@@ -44,8 +44,7 @@ def test_output_H_is_the_total_energy(model):
 
 
 def test_an_output_using_H_in_an_expression(tmp_path):
-    """`2*H`, `v*H` (a coefficient that depends on the state) and `H**2` (not affine: the
-    energy written out) see the whole energy too."""
+    """`2*H`, `v*H` and `H**2` see the whole energy too."""
     text = (MODELS / "vibrating_string.yaml").read_text(encoding="utf-8")
     text = text.replace("    energy: H", "    energy: H\n    twice: 2*H + 0*t\n    weighted: string.b.f*H\n"
                         "    squared: H**2")
@@ -58,17 +57,6 @@ def test_an_output_using_H_in_an_expression(tmp_path):
     np.testing.assert_allclose(result.outputs["twice"], 2 * H, rtol=1e-12, atol=1e-18)
     np.testing.assert_allclose(result.outputs["weighted"], v * H, rtol=0, atol=1e-12 * scale * np.abs(v).max())
     np.testing.assert_allclose(result.outputs["squared"], H ** 2, rtol=1e-11, atol=1e-12 * scale ** 2)
-
-
-def test_the_stored_energy_is_split_off_affine_uses_only():
-    x, y, E0 = sp.symbols("x y E0", real=True)
-    H = STORED_ENERGY
-    for expr in (H, 2 * H - E0, x * H + y, x * (H + y), (H - E0) / 2, sp.Integer(3) + x):
-        a, b = split_stored_energy(expr)
-        assert not a.has(H) and not b.has(H)
-        assert sp.expand(a + b * H - expr) == 0
-    for expr in (sp.sqrt(H), H ** 2, H * (H + 1), sp.sin(H), sp.Piecewise((H, x > 0), (0, True)), 1 / H):
-        assert split_stored_energy(expr) is None
 
 
 def _string(tmp_path, elements: int, outputs: str = "") -> Path:
@@ -95,8 +83,9 @@ def _available(backend: str) -> tuple[bool, str]:
 @pytest.mark.parametrize("backend", ["numpy", "numba", "c"])
 def test_an_output_H_of_a_string_beyond_the_former_limit(tmp_path, backend):
     """An 800-element string with `energy: H` compiles on every back end; the output equals
-    the `H` column to round-off at every output time (both sum the same forms, in the same
-    order), and after the pulse the energy is what it put in: 3 F0² tp / (8 Z)."""
+    the `H` column to round-off at every output time (the output takes the module's H), an
+    expression of `H` and a state is that expression of the two columns, and after the pulse
+    the energy is what the pulse put in: 3 F0² tp / (8 Z), independent of the code."""
     ok, why = _available(backend)
     if not ok:
         pytest.skip(f"{backend} back end not available: {why}")
@@ -151,20 +140,20 @@ def _generated(tmp_path, elements: int):
 
 
 def test_the_generated_outputs_do_not_grow_with_the_mesh(tmp_path):
-    """The outputs that use `H` refer to the sparse forms (module constants shared with
-    `hamiltonian`), not to thousands of terms: the `outputs` function of an 800-element
+    """The outputs that use `H` refer to the module's H (sparse forms, module constants shared
+    with `hamiltonian`), not to thousands of terms: the `outputs` function of an 800-element
     string is as long as that of a 100-element one (names may gain a digit), on the NumPy
-    and C back ends, and the numba kernel holds the same few expressions."""
+    and C back ends, and the numba kernel holds the same few expressions and the forms."""
     small, big = _generated(tmp_path, 100), _generated(tmp_path, BIG)
-    for ir in (small[0], big[0]):
-        names = [name for name, _ in ir.outputs]
-        assert sorted(names[i] for i, _ in ir.output_energy) == ["energy", "twice"]
-        assert not any(e.has(STORED_ENERGY) for _, e in ir.outputs)
+    for ir, kernel in ((small[0], small[3]), (big[0], big[3])):
+        uses = sorted(name for name, e in ir.outputs if e.has(STORED_ENERGY))
+        assert uses == ["energy", "twice"]
+        assert kernel is not None  # numba kernels are printed without numba
+        assert kernel.energy is not None and len(kernel.energy.sums) == len(ir.quadratic_energy) > 0
+        assert not kernel.sums
     for text_small, text_big in ((small[1], big[1]), (small[2], big[2])):
         assert len(text_big) <= len(text_small) + 200
         assert len(re.findall(r"\by_string", text_big)) < 20  # a few states named, not 2400 terms
-    if small[3] is not None or big[3] is not None:  # numba kernels are printed without numba
-        ops_small = sum(sp.count_ops(e) for e in small[3].expressions())
-        ops_big = sum(sp.count_ops(e) for e in big[3].expressions())
-        assert ops_big == ops_small
-        assert len(big[3].sums) == len(small[3].sums) == 2 * len(big[0].quadratic_energy)
+    assert "hamiltonian(t, y, p)" in big[1] and "phc_hamiltonian(t, y, p)" in big[2]
+    ops = [sum(sp.count_ops(e) for e in k.expressions() + k.energy.expressions()) for k in (small[3], big[3])]
+    assert ops[0] == ops[1] < 200
