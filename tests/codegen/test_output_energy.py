@@ -83,13 +83,13 @@ def _available(backend: str) -> tuple[bool, str]:
 @pytest.mark.parametrize("backend", ["numpy", "numba", "c"])
 def test_an_output_H_of_a_string_beyond_the_former_limit(tmp_path, backend):
     """An 800-element string with `energy: H` compiles on every back end; the output equals
-    the `H` column to round-off at every output time (the output takes the module's H), an
-    expression of `H` and a state is that expression of the two columns, and after the pulse
+    the `H` column to round-off at every output time (the output takes the module's H),
+    expressions of `H` (with a state, squared) are those expressions of the columns, and after the pulse
     the energy is what the pulse put in: 3 F0² tp / (8 Z), independent of the code."""
     ok, why = _available(backend)
     if not ok:
         pytest.skip(f"{backend} back end not available: {why}")
-    path = _string(tmp_path, BIG, "\n    weighted: string.b.f*H - 2*H")
+    path = _string(tmp_path, BIG, "\n    weighted: string.b.f*H - 2*H\n    squared: H**2")
     compiled = phc.compile_model(path, certify=False, backend=backend)
     assert compiled.backend == backend
     mod = compiled.module
@@ -112,6 +112,7 @@ def test_an_output_H_of_a_string_beyond_the_former_limit(tmp_path, backend):
     v = np.asarray(result.outputs["end_velocity"])
     np.testing.assert_allclose(result.outputs["weighted"], (v - 2) * H, rtol=0,
                                atol=1e-12 * np.abs(H).max() * (np.abs(v).max() + 2))
+    np.testing.assert_allclose(result.outputs["squared"], H ** 2, rtol=1e-12, atol=1e-15 * np.abs(H).max() ** 2)
     F0, tp, Z = 1.0, 0.004, math.sqrt(64.0 * 0.01)
     after = np.asarray(result.t) >= tp
     assert after.sum() >= 2
