@@ -30,7 +30,8 @@ from typing import Optional
 
 import sympy as sp
 
-from phc.dae import T, Dae, Equation, InitialValue, Invariant, LinearBlock, PortInfo, Topology, Variable
+from phc.dae import (STORED_ENERGY, T, Dae, Equation, InitialValue, Invariant, LinearBlock, PortInfo, Topology,
+                     Variable)
 from phc.diagnostics import Diagnostic, DiagnosticList
 from phc.inputs import SignalBuilder
 from phc.spec.expressions import named_scope
@@ -212,21 +213,15 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
 
     scope = _output_scope(elab, subs, hamiltonian)
     rates = _rate_scope(elab, subs)
-    energy_terms = sum(int(_upper_coo(f.matrix).nnz) for f in elab.quadratic_energy)
-    if elab.quadratic_energy and energy_terms <= MAX_OUTPUT_ENERGY_TERMS and any(
-            _mentions_energy(o.value if isinstance(o, OutputSpec) else o) for o in sim.outputs.values()):
-        scope["H"] = _total_energy(hamiltonian, elab.quadratic_energy)  # distributed components' H too
+    if elab.quadratic_energy:
+        # the distributed components' H too: the generated `outputs` takes the value of the
+        # module's `hamiltonian` (sparse quadratic forms), never a sum written out term by term
+        scope["H"] = STORED_ENERGY
     outputs = []
     result_units = ResultUnits(rep, elab, variables, hamiltonian)
     for oname, ospec in sim.outputs.items():
         opath = ("simulation", "outputs", oname)
         oexpr, vpath = (ospec.value, (*opath, "value")) if isinstance(ospec, OutputSpec) else (ospec, opath)
-        if energy_terms > MAX_OUTPUT_ENERGY_TERMS and _mentions_energy(oexpr):
-            rep.error("PHC-E604", f"output `{oname}` uses `H`, but the stored energy of the distributed components "
-                      f"has {energy_terms} terms (more than {MAX_OUTPUT_ENERGY_TERMS}), too many to write into an "
-                      "output", ctx, opath, hint="read H from the results (the `H` column, SimResult.H), or use a "
-                      "coarser mesh")
-            continue
         missing = [name for name in elab.unavailable if isinstance(oexpr, str) and name in oexpr]
         if missing:
             rep.error("PHC-E604", f"output `{oname}` uses `{missing[0]}`, but {elab.unavailable[missing[0]]}", ctx,
@@ -374,38 +369,6 @@ def _resolve_definitions(uf, defs, rows) -> dict:
         return sign * resolve_root(root)
 
     return {s: value(s) for s in all_syms}
-
-
-MAX_OUTPUT_ENERGY_TERMS = 2000
-"""Largest number of terms of the distributed components' quadratic energies written out into
-an output that names `H` (a longer sum makes generated code Python cannot compile)."""
-
-
-def _mentions_energy(text) -> bool:
-    """Whether an output expression's text names `H` (the total stored energy)."""
-    import re
-
-    return isinstance(text, str) and re.search(r"(?<![\w.\[])H(?![\w\[(])", text) is not None
-
-
-def _total_energy(hamiltonian: sp.Expr, forms) -> sp.Expr:
-    """H as an expression, with the quadratic energies of the distributed components
-    (``coeff · xᵀ A x`` kept sparse in the DAE) written out: what an output `H` means."""
-    terms = [hamiltonian]
-    for form in forms:
-        upper = _upper_coo(form.matrix)
-        x = form.symbols
-        quad = sp.Add(*[sp.Float(float(v) * (1 if i == j else 2)) * x[i] * x[j]
-                        for i, j, v in zip(upper.row, upper.col, upper.data) if v != 0])
-        terms.append(form.coeff * quad)
-    return sp.Add(*terms)
-
-
-def _upper_coo(matrix):
-    """The upper triangle (diagonal included) of a sparse symmetric matrix, as COO."""
-    import scipy.sparse as sps
-
-    return sps.triu(sps.coo_matrix(matrix)).tocoo()
 
 
 def _rate_scope(elab, subs) -> dict:

@@ -22,6 +22,14 @@ from phc.source import SourceSpan
 T = sp.Symbol("t", real=True)
 """The time symbol shared by all expressions."""
 
+STORED_ENERGY = sp.Symbol("<H>", real=True)
+"""`H` in an output of a model with distributed components: the total stored energy, the
+value of the generated module's ``hamiltonian`` (the lumped parts' H plus the sparse quadratic
+energies :attr:`Dae.quadratic_energy`). The generated ``outputs`` evaluates it once per call,
+as ``hamiltonian`` does, and the output expressions refer to that value: the energy is never
+written out term by term (thousands of terms for a fine mesh). Its name is no identifier a
+model can write."""
+
 
 @dataclass(frozen=True)
 class Variable:

@@ -168,7 +168,7 @@ def test_a_3000_element_string_gets_through_consistent_initialization(tmp_path, 
     """12 004 unknowns, initialized with a bounded amount of work (counted, not timed): a few
     Gauss–Newton steps, a number of model evaluations independent of the mesh (no finite
     difference per column), and no dense matrix beyond DENSE_LIMIT."""
-    # an output `H` would write out the 9000-term stored energy: refused (PHC-E604, tests/codegen/test_output_energy.py)
+    # without the output `energy: H` (not what this test is about; tests/codegen/test_output_energy.py)
     text = (MODELS / "vibrating_string.yaml").read_text().replace("elements: 16", "elements: 3000")
     text = "\n".join(line for line in text.splitlines() if not line.strip().startswith("energy: H"))
     path = tmp_path / "string3000.yaml"

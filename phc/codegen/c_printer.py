@@ -51,7 +51,7 @@ from phc.codegen.kernels import CJ, Kernel, _canonical, function_kernels, produc
 from phc.codegen.lower import ResidualIR
 from phc.codegen.numba_emit import _NODES, _RELATIONS, _SIMPLE, _is_switch
 from phc.codegen.printer import _cse, _identifier, _Printer
-from phc.dae import T
+from phc.dae import STORED_ENERGY, T
 from phc.errors import BackendUnsupported, CodegenError
 from phc.inputs import InputTable, InputTableSlope
 
@@ -320,8 +320,11 @@ class CPrinter:
                 self.names[s] = ident
                 what = f"der({label})" if vec == "yp" else label
                 self.loads[s] = (f"const double {ident} = {vec}[{j}];", what)
+        # an output that uses H: the value of phc_hamiltonian (defined above phc_outputs), once
+        self.names[STORED_ENERGY] = "energy_H"
+        self.loads[STORED_ENERGY] = ("const double energy_H = phc_hamiltonian(t, y, p);", "the stored energy H")
         self.order = _Printer(self.names)
-        self.known = set(ir.y_symbols) | set(ir.yp_symbols) | set(ir.p_symbols) | {T, CJ}
+        self.known = set(ir.y_symbols) | set(ir.yp_symbols) | set(ir.p_symbols) | {T, CJ, STORED_ENERGY}
         self.constants: list[str] = []
         self._constant_names: dict = {}
 

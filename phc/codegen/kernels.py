@@ -12,13 +12,14 @@ NumPy idioms (one fused sparse matrix per derivative, scipy's products).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 import scipy.sparse as sps
 import sympy as sp
 
 from phc.budget import drop_deltas
 from phc.codegen.lower import ResidualIR
-from phc.dae import T
+from phc.dae import STORED_ENERGY, T
 
 CJ = sp.Symbol("cj")
 """The Jacobian's factor of dF/dẏ (an argument of ``jacobian``)."""
@@ -32,10 +33,13 @@ class Kernel:
     ``("scatter", pos, data, coeff, times_cj)`` adds ``coeff·data`` (times cj) to ``out[pos]``;
     ``("quad", A, cols, coeff, index, absolute)`` adds ``coeff·xᵀAx`` (its absolute value) to
     ``out[index]``; ``("grad", A, cols, pos, coeff)`` adds ``coeff·A x`` to ``out[pos]``
-    (x = y[cols], A a CSR matrix)."""
+    (x = y[cols], A a CSR matrix). With `energy` (the kernel of ``hamiltonian``), the stored
+    energy H is computed first, once, and is the value of :data:`~phc.dae.STORED_ENERGY` in
+    the targets (an output that uses `H`)."""
 
     targets: tuple
     sums: tuple = ()
+    energy: Optional["Kernel"] = None
 
     def expressions(self) -> list:
         """The target expressions, then the coefficient of each sum."""
@@ -103,10 +107,8 @@ def function_kernels(ir: ResidualIR) -> list[FunctionKernel]:
         kernel = Kernel(tuple((k, e, False) for k, e in enumerate(jac)))
     jac_labels = tuple(f"d({ir.equation_labels[i]})/d({ir.variables[j]})" for i, j in zip(ir.jac_rows, ir.jac_cols))
     out.append(FunctionKernel("jacobian", kernel, njac, sums, "yyp_cj", "out", jac_labels))
-    out.append(FunctionKernel(
-        "hamiltonian",
-        Kernel(((0, ir.hamiltonian, False),), tuple(("quad", f.matrix, f.cols, f.coeff, 0, False) for f in qe)),
-        1, False, "y", "scalar", ("H",)))
+    energy = Kernel(((0, ir.hamiltonian, False),), tuple(("quad", f.matrix, f.cols, f.coeff, 0, False) for f in qe))
+    out.append(FunctionKernel("hamiltonian", energy, 1, False, "y", "scalar", ("H",)))
     # sp.Add(*terms): one canonicalization (Python's sum re-flattens a growing Add per term)
     scale = sp.Add(*[sp.Abs(term) for term in sp.Add.make_args(ir.hamiltonian)])
     out.append(FunctionKernel(
@@ -121,7 +123,10 @@ def function_kernels(ir: ResidualIR) -> list[FunctionKernel]:
                                 ("velocity_invariants", ir.velocity_invariants, ir.velocity_invariant_labels)):
         out.append(FunctionKernel(name, Kernel(tuple((i, e, False) for i, e in enumerate(exprs))), len(exprs), False,
                                   "y", "array", tuple(labels)))
-    out.append(FunctionKernel("outputs", Kernel(tuple((i, e, False) for i, (_, e) in enumerate(ir.outputs))),
+    # an output that uses H refers to the value of `hamiltonian`, computed first (sparse forms)
+    uses_energy = any(e.has(STORED_ENERGY) for _, e in ir.outputs)
+    out.append(FunctionKernel("outputs", Kernel(tuple((i, e, False) for i, (_, e) in enumerate(ir.outputs)),
+                                                energy=energy if uses_energy else None),
                               len(ir.outputs), False, "yyp", "array", tuple(name for name, _ in ir.outputs)))
     return out
 

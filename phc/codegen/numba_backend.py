@@ -87,7 +87,7 @@ from phc.codegen.kernels import function_kernels
 from phc.codegen.numba_emit import (_COEFFICIENT, _NODES, _RELATIONS, _SIMPLE, Kernel,  # noqa: F401
                                     _canonical, _coefficient, _Emitter, _emit_kernel, _is_switch, emittable)
 from phc.codegen.printer import ModulePrinter, _array
-from phc.dae import T
+from phc.dae import STORED_ENERGY, T
 
 _KIND = {"linear": 0, "previous": 1}
 
@@ -161,7 +161,8 @@ class KernelPrinter(ModulePrinter):
         self.kernels: dict[str, Kernel] = {}
         self.trivial: set[str] = set()
         """Functions with nothing to compute (the reference module's are used)."""
-        self.known = set(ir.y_symbols) | set(ir.yp_symbols) | set(ir.p_symbols) | {T, sp.Symbol("cj")}
+        self.known = set(ir.y_symbols) | set(ir.yp_symbols) | set(ir.p_symbols) | {T, sp.Symbol("cj"), STORED_ENERGY}
+        self.names[STORED_ENERGY] = "_H"  # an output that uses H (the Python text of a function not emitted)
         self.n_parameters = len(ir.p_symbols)
         self._text_constants: list[str] = []
 
@@ -213,7 +214,8 @@ class KernelPrinter(ModulePrinter):
         """A function computing `kernel` into `out` (zeroed first when `zero`; a new array of
         `scratch` entries when given), then `tail`."""
         targets = tuple((i, e, acc) for i, e, acc in kernel.targets if not (e == 0 and acc))
-        kernel = Kernel(targets, kernel.sums)
+        kernel = Kernel(targets, kernel.sums, kernel.energy)
+        expressions = kernel.expressions() + (kernel.energy.expressions() if kernel.energy is not None else [])
         if not targets and not kernel.sums:
             self.trivial.add(name)
         lines = self._size_check(name, arrays)
@@ -221,13 +223,20 @@ class KernelPrinter(ModulePrinter):
             lines.append(f"{out} = np.{'zeros' if zero else 'empty'}({scratch})")
         elif zero:
             lines.append(f"{out}[:] = 0.0")
-        if all(emittable(e, self.known) for e in kernel.expressions()):
+        if all(emittable(e, self.known) for e in expressions):
             if targets or kernel.sums:
                 self.kernels[name] = kernel
                 yp = "yp" if "yp" in signature else "y"
                 cj = "cj" if "cj" in signature else "0.0"
                 lines.append(f"_X_{name}(t, y, {yp}, p, {cj}, {out})")
         else:
+            if kernel.energy is not None:  # H first, into a scratch entry, as `hamiltonian` computes it
+                lines.append("_e = np.zeros(1)")
+                lines += ModulePrinter._body(self, kernel.energy.expressions(),
+                                             ["_e[0]"] + [f"_k{j}" for j in range(len(kernel.energy.sums))])
+                for j, op in enumerate(kernel.energy.sums):
+                    lines += self._sum_text(op, "_e", f"_k{j}")
+                lines.append("_H = _e[0]")
             saved = self.accumulate
             self.accumulate = set(saved) | {f"{out}[{i}]" for i, _, acc in targets if acc}
             coefficients = [f"_k{j}" for j in range(len(kernel.sums))]

@@ -25,7 +25,7 @@ import sympy as sp
 from phc.codegen.kernels import _COEFFICIENT, Kernel, _canonical, _coefficient, product_parts  # noqa: F401
 from phc.codegen.lower import ResidualIR
 from phc.codegen.printer import _cse
-from phc.dae import T
+from phc.dae import STORED_ENERGY, T
 from phc.inputs import InputTable, InputTableSlope
 
 # ---------------------------------------------------------------------------------------
@@ -268,7 +268,6 @@ def _emit_kernel(context, builder, signature, args, kernel: Kernel, ir_: Residua
 
     intp = context.get_value_type(types.intp)
     dbl = llir.DoubleType()
-    i64 = llir.IntType(64)
 
     def array(k):
         aryty = signature.args[k]
@@ -285,6 +284,27 @@ def _emit_kernel(context, builder, signature, args, kernel: Kernel, ir_: Residua
     for vec, symbols in (("y", ir_.y_symbols), ("yp", ir_.yp_symbols), ("p", ir_.p_symbols)):
         for j, s in enumerate(symbols):
             loaders[s] = (lambda at_, j_: lambda: builder.load(at_(j_)))(at[vec], j)
+    if kernel.energy is not None:
+        # the stored energy H first, as `hamiltonian` computes it, into a local: the value of
+        # STORED_ENERGY in the targets (an output that uses H)
+        slot = cgutils.alloca_once(builder, dbl)
+        builder.store(llir.Constant(dbl, 0.0), slot)
+        local = {**at, "out": lambda j: builder.gep(slot, [j if isinstance(j, llir.Value) else llir.Constant(intp, j)])}
+        _emit_body(context, builder, kernel.energy, local, loaders, cj, tables, printer)
+        energy = builder.load(slot)
+        loaders[STORED_ENERGY] = lambda: energy
+    _emit_body(context, builder, kernel, at, loaders, cj, tables, printer)
+
+
+def _emit_body(context, builder, kernel: Kernel, at: dict, loaders: dict, cj, tables, printer):
+    """The targets and sums of `kernel` into ``at["out"]`` (pointers to its entries by index),
+    its symbols read by `loaders`."""
+    from llvmlite import ir as llir
+    from numba.core import cgutils, types
+
+    intp = context.get_value_type(types.intp)
+    dbl = llir.DoubleType()
+    i64 = llir.IntType(64)
     emitter = _Emitter(context, builder, loaders, tables, printer)
     replacements, reduced = _cse(kernel.expressions(), sp.numbered_symbols("_c"))
     for sym, rhs in replacements:

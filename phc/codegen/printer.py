@@ -33,7 +33,7 @@ from sympy.printing.pycode import PythonCodePrinter
 from phc import __version__
 from phc.budget import drop_deltas
 from phc.codegen.lower import ResidualIR
-from phc.dae import T
+from phc.dae import STORED_ENERGY, T
 from phc.errors import CodegenError
 from phc.inputs import table_arrays
 
@@ -605,10 +605,15 @@ class ModulePrinter:
             "set-valued sign STICKS[j] out[len(SWITCHES) + j] = the value s_j it takes while sticking.",
             [s.boundary for s in ir.switches] + [s.exit for s in ir.sticks],
             [f"out[{k}]" for k in range(n_sw + len(ir.sticks))]))
+        prologue = [f"out = np.empty({len(ir.outputs)})"]
+        if any(e.has(STORED_ENERGY) for _, e in ir.outputs):
+            # an output that uses H: the value of `hamiltonian` (sparse forms), once, not H written out
+            self.names[STORED_ENERGY] = "_H"
+            prologue.append("_H = hamiltonian(t, y, p)")
         parts.append(self._function(
             "outputs(t, y, yp, p)", "Requested outputs, in the order of OUTPUTS.",
             [e for _, e in ir.outputs], [f"out[{i}]" for i in range(len(ir.outputs))],
-            prologue=[f"out = np.empty({len(ir.outputs)})"], epilogue=["return out"]))
+            prologue=prologue, epilogue=["return out"]))
         return "\n\n".join(parts)
 
 

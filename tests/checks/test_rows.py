@@ -285,7 +285,7 @@ def test_a_fine_mesh_is_compared_sparsely(tmp_path, monkeypatch):
     per unknown), and a flipped entry is still found."""
     text = (MODELS / "vibrating_string.yaml").read_text()
     assert "elements: 16" in text
-    # without the output `energy: H`: 2400 energy terms are more than an output writes out (PHC-E604)
+    # without the output `energy: H` (not what this test is about; tests/codegen/test_output_energy.py)
     text = "\n".join(line for line in text.splitlines() if not line.strip().startswith("energy: H"))
     path = _write(tmp_path, "fine.yaml", text.replace("elements: 16", "elements: 800"))
     dae = _dae(path)
