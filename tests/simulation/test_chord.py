@@ -1,0 +1,118 @@
+"""The chord iteration with a pseudo-inverse (:mod:`phc.simulation.chord`) against closed forms:
+the nearest point of a circle and a sphere, the weighted least-norm solution of a linear
+system (one step), a stale matrix refreshed instead of a step that makes things worse."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from phc.simulation.chord import ChordIteration, max_norm, two_norm
+
+EPS = np.finfo(float).eps
+
+
+def _solve(chord, x0, residual, jacobian, **kw):
+    kw = dict(steps=20, contraction=0.5, converged=lambda x, size: size <= 4 * EPS) | kw
+    return chord.solve(np.asarray(x0, dtype=float), residual, jacobian, **kw)
+
+
+@pytest.mark.parametrize("x0", [(1.3, 0.4), (0.2, -0.5, 0.7), (-2.0, 1.0, 0.5, 3.0)])
+def test_projection_onto_a_sphere_is_the_nearest_point(x0):
+    """g(x) = |x|² − 1: the least-norm step is along ∇g = 2x, radial, so every iterate stays on
+    the ray through x0 and the limit is the nearest point x0/|x0| of the sphere. Round-off:
+    the residual |x|² − 1 is evaluated to a few ulps, so the test stops at 16 of them."""
+    x0 = np.asarray(x0, dtype=float)
+    chord = ChordIteration(rtol=1e-13)
+    out = _solve(chord, x0, lambda x: np.array([x @ x - 1.0]), lambda x, g: 2.0 * x[None, :],
+                 converged=lambda x, size: size <= 16 * EPS)
+    assert abs(out.x @ out.x - 1.0) <= 16 * EPS
+    # on the ray through x0 up to the rounding of each step (a few ulps per step, < 10 steps)
+    np.testing.assert_allclose(out.x, x0 / np.linalg.norm(x0), rtol=0, atol=64 * EPS)
+    assert out.start == pytest.approx(abs(x0 @ x0 - 1.0), rel=1e-15) and out.size <= 16 * EPS
+    assert 0 < out.steps < 20
+
+
+def test_a_consistent_linear_system_is_solved_in_one_step_with_least_weighted_change():
+    """A x = b, underdetermined: one step gives the solution nearest to x0 in the weighted
+    norm ‖(x − x0)/w‖, x = x0 − W² Aᵀ (A W² Aᵀ)⁻¹ (A x0 − b); the Jacobian (in the scaled
+    unknowns: A W) is taken once and kept for the next solve."""
+    rng = np.random.default_rng(3)
+    A, b = rng.normal(size=(2, 5)), rng.normal(size=2)
+    w = np.array([1.0, 10.0, 0.1, 2.0, 1.0])
+    calls = []
+
+    def jacobian(x, g):
+        calls.append(x)
+        return A * w[None, :]
+
+    chord = ChordIteration(rtol=1e-13)
+    for x0 in (rng.normal(size=5), rng.normal(size=5)):
+        # converged far above the round-off one step leaves (~1e-14) and far below the
+        # start's O(1): a chord iteration on a nonlinear g would need more than one step
+        out = _solve(chord, x0, lambda x: A @ x - b, jacobian, weights=w, norm=max_norm,
+                     converged=lambda x, size: size <= 1e-12)
+        W2 = np.diag(w**2)
+        exact = x0 - W2 @ A.T @ np.linalg.solve(A @ W2 @ A.T, A @ x0 - b)
+        assert out.steps == 1 and out.size <= 1e-13
+        # the solution, to the round-off of a 2 × 5 pseudo-inverse of entries ~ 10
+        np.testing.assert_allclose(out.x, exact, rtol=0, atol=1e-13 * (1 + np.abs(exact).max()))
+    assert len(calls) == 1 and chord.refreshes == 1
+
+
+def test_an_unchanged_matrix_keeps_its_pseudo_inverse():
+    """`same_matrix`: a refresh whose Jacobian equals the last one computes no SVD."""
+    A = np.array([[2.0, 1.0], [1.0, 3.0]])
+    chord = ChordIteration(rtol=1e-13, same_matrix=1e-14)
+    assert chord.refresh(lambda x, g: A, np.zeros(2)) and chord.refreshes == 1
+    first = chord.pinv
+    assert chord.refresh(lambda x, g: A.copy(), np.ones(2)) and chord.refreshes == 1 and chord.pinv is first
+    assert chord.refresh(lambda x, g: 2 * A, np.ones(2)) and chord.refreshes == 2
+    np.testing.assert_allclose(chord.pinv, np.linalg.inv(2 * A), rtol=1e-14)
+    assert not chord.refresh(lambda x, g: A * np.nan, np.ones(2)) and chord.refreshes == 2  # kept
+
+
+def test_a_step_that_makes_the_residual_worse_is_not_taken():
+    """g(x) = x³ − 8 from x = 3 with the matrix of x = 1 (J = 3) kept from an earlier solve:
+    its step (to x = 3 − 19/3) makes |g| worse, so it is not taken; the iteration tries again
+    from x = 3 with J = 27 and then converges (linearly, rate 1 − 12/27) to the root 2."""
+    chord = ChordIteration(rtol=1e-13)
+
+    def jacobian(x, g):
+        return 3.0 * x[None, :] ** 2
+
+    chord.refresh(jacobian, np.array([1.0]))
+    visited, sizes = [], []
+
+    def residual(x):
+        visited.append(float(x[0]))
+        g = x**3 - 8.0
+        sizes.append(abs(float(g[0])))
+        return g
+
+    out = _solve(chord, [3.0], residual, jacobian, steps=100, converged=lambda x, size: size <= 64 * EPS)
+    assert visited[1] == pytest.approx(3.0 - 19.0 / 3.0, rel=1e-15) and sizes[1] > sizes[0]  # the stale step, tried
+    assert out.steps >= 1 and chord.refreshes == 2
+    assert abs(out.x[0] - 2.0) <= 16 * EPS  # |g| ≤ 64 eps and g' = 12 at the root
+    # only better points were taken: where it ended is the best point it looked at
+    assert out.size == pytest.approx(min(sizes), rel=1e-15)
+
+
+def test_a_non_finite_start_is_returned_unchanged():
+    chord = ChordIteration(rtol=1e-13)
+    x0 = np.array([1.0, 2.0])
+    out = _solve(chord, x0, lambda x: np.array([np.inf]), lambda x, g: np.ones((1, 2)))
+    assert out.steps == 0 and out.size == np.inf and np.array_equal(out.x, x0) and chord.pinv is None
+
+
+def test_slow_stops_ends_where_a_fresh_matrix_still_contracts_slowly():
+    """g(x) = x with a Jacobian that says 4 (as an inexact matrix would): each step shrinks g
+    by 3/4, slower than `contraction`. With ``slow_stops`` the iteration ends after the first
+    slow step with a fresh matrix (the projector reads this as round-off); without, it keeps
+    the matrix and goes on until the steps run out."""
+    kw = dict(steps=20, contraction=0.5, converged=lambda x, size: False, norm=max_norm)
+    stop = ChordIteration(rtol=1e-13).solve(np.array([1.0]), lambda x: x.copy(), lambda x, g: np.array([[4.0]]),
+                                            slow_stops=True, **kw)
+    assert stop.steps == 1 and stop.x[0] == 0.75
+    go_on = ChordIteration(rtol=1e-13).solve(np.array([1.0]), lambda x: x.copy(), lambda x, g: np.array([[4.0]]), **kw)
+    assert go_on.steps == 20 and go_on.x[0] == pytest.approx(0.75**20, rel=1e-13)
