@@ -116,3 +116,42 @@ def test_slow_stops_ends_where_a_fresh_matrix_still_contracts_slowly():
     assert stop.steps == 1 and stop.x[0] == 0.75
     go_on = ChordIteration(rtol=1e-13).solve(np.array([1.0]), lambda x: x.copy(), lambda x, g: np.array([[4.0]]), **kw)
     assert go_on.steps == 20 and go_on.x[0] == pytest.approx(0.75**20, rel=1e-13)
+
+
+class _Circle:
+    """A module with the position invariant x² + y² − L² (differential x, y, v; algebraic λ)."""
+
+    N = 4
+    DIFFERENTIAL = [True, True, True, False]
+    INVARIANTS = ["circle"]
+
+    def invariants(self, t, y, p):
+        return np.array([y[0] ** 2 + y[1] ** 2 - p[0] ** 2])
+
+
+@pytest.mark.parametrize("scales", [None, np.array([2.0, 2.0, 1.0, 1.0])])
+def test_the_midpoint_projector_moves_a_state_to_the_nearest_point_of_its_invariant(scales):
+    """:class:`phc.simulation.midpoint.Projector` on the chord iteration: (x, y) off the circle
+    of radius L goes to L (x, y)/|(x, y)| (the least-norm correction of the variables the
+    invariant depends on is radial, as above); v and λ, which it does not depend on, stay.
+    Its Jacobian is a finite difference (step 1e-7 of the sizes): its entries 2x + h are off
+    by relative errors below 1e-7, which tilt the step by less than 1e-7 rad, so the point
+    reached is the nearest one up to 1e-7 × the distance 0.19 along the circle (2e-8); and
+    on the circle to the projector's own tolerance (TOL of its terms |G| (|y| + s) ~ 2L (L + s))."""
+    from phc.simulation.midpoint import Projector
+
+    L = 2.0
+    mod, p = _Circle(), np.array([L])
+    y = np.array([1.6, 1.5, 0.3, -4.0])
+    proj = Projector(mod, p, y, 0.0, scales)
+    assert list(proj.cols) == [0, 1]
+    out = proj.project(0.0, y)
+    assert out is not y and np.array_equal(out[2:], y[2:])
+    nearest = L * y[:2] / np.linalg.norm(y[:2])
+    np.testing.assert_allclose(out[:2], nearest, rtol=0, atol=2e-8)
+    assert abs(out[0] ** 2 + out[1] ** 2 - L**2) <= Projector.TOL * 2 * L * (L + 2.0) * 4
+    # a second projection of a nearby point reuses the matrix: a few steps, no new one needed
+    refreshes = proj.chord.refreshes
+    again = proj.project(0.0, out + np.array([1e-6, -2e-6, 0.0, 0.0]))
+    assert abs(again[0] ** 2 + again[1] ** 2 - L**2) <= Projector.TOL * 2 * L * (L + 2.0) * 4
+    assert proj.chord.refreshes <= refreshes + 1
