@@ -24,13 +24,18 @@ def test_projection_onto_a_sphere_is_the_nearest_point(x0):
     the residual |x|² − 1 is evaluated to a few ulps, so the test stops at 16 of them."""
     x0 = np.asarray(x0, dtype=float)
     chord = ChordIteration(rtol=1e-13)
-    out = _solve(chord, x0, lambda x: np.array([x @ x - 1.0]), lambda x, g: 2.0 * x[None, :],
+    jacobian = lambda x, g: 2.0 * x[None, :]  # noqa: E731
+    # the matrix of x0 taken before the solve (as the polish does), so that the solve may refresh
+    # it once when the steps contract slowly (by 1 − 1/|x| near the sphere); linear convergence
+    # with the kept matrix then: room for 100 steps
+    assert chord.refresh(jacobian, x0)
+    out = _solve(chord, x0, lambda x: np.array([x @ x - 1.0]), jacobian, steps=100,
                  converged=lambda x, size: size <= 16 * EPS)
     assert abs(out.x @ out.x - 1.0) <= 16 * EPS
-    # on the ray through x0 up to the rounding of each step (a few ulps per step, < 10 steps)
+    # on the ray through x0 up to the rounding of each step (an ulp or so per step, < 30 steps)
     np.testing.assert_allclose(out.x, x0 / np.linalg.norm(x0), rtol=0, atol=64 * EPS)
     assert out.start == pytest.approx(abs(x0 @ x0 - 1.0), rel=1e-15) and out.size <= 16 * EPS
-    assert 0 < out.steps < 20
+    assert 0 < out.steps < 100
 
 
 def test_a_consistent_linear_system_is_solved_in_one_step_with_least_weighted_change():
@@ -136,19 +141,19 @@ def test_the_midpoint_projector_moves_a_state_to_the_nearest_point_of_its_invari
     invariant depends on is radial, as above); v and λ, which it does not depend on, stay.
     Its Jacobian is a finite difference (step 1e-7 of the sizes): its entries 2x + h are off
     by relative errors below 1e-7, which tilt the step by less than 1e-7 rad, so the point
-    reached is the nearest one up to 1e-7 × the distance 0.19 along the circle (2e-8); and
+    reached is the nearest one up to 1e-7 × the distance 2e-4 along the circle (2e-11); and
     on the circle to the projector's own tolerance (TOL of its terms |G| (|y| + s) ~ 2L (L + s))."""
     from phc.simulation.midpoint import Projector
 
     L = 2.0
     mod, p = _Circle(), np.array([L])
-    y = np.array([1.6, 1.5, 0.3, -4.0])
+    y = np.array([1.6 * (1 + 1e-4), 1.2 * (1 + 1e-4), 0.3, -4.0])  # 2e-4 off the circle (a drift)
     proj = Projector(mod, p, y, 0.0, scales)
     assert list(proj.cols) == [0, 1]
     out = proj.project(0.0, y)
     assert out is not y and np.array_equal(out[2:], y[2:])
     nearest = L * y[:2] / np.linalg.norm(y[:2])
-    np.testing.assert_allclose(out[:2], nearest, rtol=0, atol=2e-8)
+    np.testing.assert_allclose(out[:2], nearest, rtol=0, atol=1e-10)
     assert abs(out[0] ** 2 + out[1] ** 2 - L**2) <= Projector.TOL * 2 * L * (L + 2.0) * 4
     # a second projection of a nearby point reuses the matrix: a few steps, no new one needed
     refreshes = proj.chord.refreshes
