@@ -174,6 +174,8 @@ def _energy_direction(compiled, p, t, y, yp) -> np.ndarray:
     M(q)v = p). Their rates are not in ẏ (an index-2 DAE has no use for them), so they are
     taken from the time derivative of the algebraic rows, F_y ż = −F_x ẋ − F_t, solved in
     the least-squares sense (min-norm for the ones H does not see)."""
+    from phc.simulation.minnorm import lsmr_min_norm, min_norm_solve
+
     mod, dae = compiled.module, compiled.dae
     used = set(dae.hamiltonian.free_symbols)
     for form in dae.quadratic_energy:
@@ -198,10 +200,15 @@ def _energy_direction(compiled, p, t, y, yp) -> np.ndarray:
     mod.residual_t(t, y, yp, p, Ft)
     A = Jy[algebraic_rows][:, alg]
     rhs = -(Jy[algebraic_rows][:, np.flatnonzero(diff)] @ yp[diff]) - Ft[algebraic_rows]
-    if A.shape[0] * A.shape[1] <= 4_000_000:
-        z = np.linalg.lstsq(A.toarray(), rhs, rcond=None)[0]
-    else:
-        z = spla.lsqr(A, rhs, atol=1e-14, btol=1e-14, iter_lim=10 * A.shape[1])[0]
+    # The rows are in the model's units, not equilibrated: a row that is merely small (a mass
+    # in kg beside a stiffness in N/m) must not fall under the rank threshold, so only
+    # round-off counts as rank deficiency — numpy's lstsq threshold, eps·max(m, n), which
+    # this check used before. The exact least-norm solution up to 4e6 entries (dense when
+    # rank-deficient), LSMR beyond.
+    cond = np.finfo(float).eps * max(A.shape)
+    z = min_norm_solve(A, rhs, cond=cond, dense_limit=4_000_000, iterative=False)
+    if z is None:
+        z = lsmr_min_norm(A, rhs)[0]
     d[alg] = z
     return d
 

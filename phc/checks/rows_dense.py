@@ -32,6 +32,8 @@ def _scaled(system, u):
 def _newton(system, u, free: Optional[np.ndarray] = None, iterations: int = 60):
     """A zero of the system near `u`, moving only the unknowns in `free` (minimum-norm
     damped Gauss–Newton). Returns (point, largest scaled residual)."""
+    from phc.simulation.minnorm import dense_min_norm  # (not at import: phc.simulation is large)
+
     u = np.array(u, dtype=float)
     free = np.arange(len(u)) if free is None else free
     history: list[float] = []
@@ -44,7 +46,13 @@ def _newton(system, u, free: Optional[np.ndarray] = None, iterations: int = 60):
             history.append(err)
             if len(history) > 8 and err > 0.5 * history[-9]:
                 break  # stalled (a local minimum of the residual): the caller restarts elsewhere
-            step = np.linalg.lstsq(J[:, free], r, rcond=None)[0]
+            Jf = J[:, free]
+            if not np.all(np.isfinite(Jf)):
+                break  # an infinite slope: no step to take from here (the caller restarts elsewhere)
+            # the rows are equilibrated: minnorm's rank threshold leaves out the directions
+            # only round-off of the Jacobian determines (a step along them would be that
+            # round-off magnified)
+            step = dense_min_norm(Jf, r)
             alpha, best = 1.0, None
             while alpha > 1e-4:
                 trial = u.copy()
@@ -141,6 +149,8 @@ def _least_squares(system, u: np.ndarray, free: np.ndarray) -> tuple[np.ndarray,
 def _stationary(system, u: np.ndarray, free: np.ndarray) -> bool:
     """Whether `u` is a settled least-squares point of the scaled residual over the unknowns
     `free` (:data:`SETTLED_FRACTION`)."""
+    from phc.simulation.minnorm import dense_min_norm
+
     with np.errstate(all="ignore"):
         r, J = _scaled(system, u)
         if not (np.all(np.isfinite(r)) and np.all(np.isfinite(J))):
@@ -148,7 +158,12 @@ def _stationary(system, u: np.ndarray, free: np.ndarray) -> bool:
         if not len(free):
             return True
         Jf = J[:, free]
-        reach = Jf @ np.linalg.lstsq(Jf, r, rcond=None)[0]
+        # Every direction above round-off (numpy's lstsq threshold, eps·max(m, n), as this
+        # check had before) counts as one the unknowns can move along: a residual is called
+        # settled — a mismatch — only when it is outside all of them. A coarser threshold
+        # would leave weak directions out and claim mismatches where the iteration may only
+        # have stopped on its way.
+        reach = Jf @ dense_min_norm(Jf, r, cond=np.finfo(float).eps * max(Jf.shape))
         return float(np.linalg.norm(reach)) <= SETTLED_FRACTION * float(np.linalg.norm(r))
 
 

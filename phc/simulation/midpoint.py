@@ -36,6 +36,7 @@ import scipy.sparse.linalg as spla
 
 from phc.simulation import step_logic
 from phc.simulation.backend import BackendRun
+from phc.simulation.chord import ChordIteration, max_norm
 from phc.simulation.guard import ModelEvaluationError
 from phc.simulation.monitor import SingularityMonitor
 
@@ -355,12 +356,23 @@ class Projector:
     """Keeps the position invariants g(y) = 0 at the step ends (the midpoint rule imposes the
     constraints at the midpoints only): a minimum-norm Gauss–Newton correction of the
     differential variables g depends on. The invariant Jacobian G is computed by finite
-    differences once and reused (a chord iteration) until the iteration contracts slowly.
-    Energies that do not depend on those variables (kinetic energies, the beam's) are
-    untouched, so the discrete energy balance stays exact. Used only when the invariants
-    are not rows of F (otherwise :class:`StageSolver` imposes them at the step ends)."""
+    differences once and reused (:class:`~phc.simulation.chord.ChordIteration`) until the
+    iteration contracts slowly (by less than :data:`CONTRACTION`); a slow step with a fresh
+    G means the residual is at round-off, and the projection stops there. Energies that do
+    not depend on those variables (kinetic energies, the beam's) are untouched, so the
+    discrete energy balance stays exact. Used only when the invariants are not rows of F
+    (otherwise :class:`StageSolver` imposes them at the step ends)."""
 
     TOL = 1e-14
+    """The projection stops when max |g| is below this fraction of the size of the
+    invariants' terms (:meth:`_size`)."""
+    STEPS = 8
+    """Most chord steps tried per projection."""
+    CONTRACTION = 0.1
+    """A step that shrinks max |g| by less than this factor refreshes G (once per projection)."""
+    RCOND = 1e-12
+    """Singular values of G below this fraction of the largest are dropped (G is a
+    finite-difference Jacobian: smaller ones are its truncation error)."""
 
     def __init__(self, mod, p, y, t=0.0, scales=None):
         self.mod, self.p = mod, p
@@ -378,54 +390,48 @@ class Projector:
             if np.abs(mod.invariants(t, yh, p) - g0).max() > 0:
                 cols.append(j)
         self.cols = np.array(cols, dtype=int)
-        self.pinv = None
-        self.updates = 0
+        self.chord = ChordIteration(rtol=self.RCOND)
+        self._g_size = None
 
-    def _size(self, y) -> float:
+    def _size(self, x) -> float:
         """What the invariants' residual is measured against: with nominal scales, the size of
-        their terms ``|G| (|y| + s)`` (known once G is), else ``1 + |y|``."""
-        if getattr(self, "_g_size", None) is None:
-            return 1.0 + float(np.abs(y[self.cols]).max())
+        their terms ``|G| (|y| + s)`` (known once G is), else ``1 + |y|`` (x: y at the
+        columns of G)."""
+        if self._g_size is None:
+            return 1.0 + float(np.abs(x).max())
         return self._g_size
 
-    def _constraints(self, t, y):
-        return self.mod.invariants(t, y, self.p)
-
-    def _jacobian(self, t, y, g):
+    def _jacobian(self, t, y, x, g):
+        """G at y with ``y[cols] = x`` (finite differences from g there)."""
+        y = y.copy()
+        y[self.cols] = x
+        if g is None:
+            g = self.mod.invariants(t, y, self.p)
         G = np.empty((len(g), len(self.cols)))
         for c, j in enumerate(self.cols):
             h = 1e-7 * max(self._fd[j], abs(y[j]))
             yh = y.copy()
             yh[j] += h
-            G[:, c] = (self._constraints(t, yh) - g) / h
-        return G
-
-    def _refresh(self, t, y, g):
-        G = self._jacobian(t, y, g)
-        self.pinv = np.linalg.pinv(G, rcond=1e-12)
+            G[:, c] = (self.mod.invariants(t, yh, self.p) - g) / h
         if self.scales is not None:
             size = np.abs(G) @ (np.abs(y[self.cols]) + self.scales[self.cols])
             self._g_size = float(size.max()) if size.size and size.max() > 0 else None
-        self.updates += 1
+        return G
 
     def project(self, t, y):
         if not len(self.cols):
             return y
+
+        def residual(x):
+            yx = y.copy()
+            yx[self.cols] = x
+            return self.mod.invariants(t, yx, self.p)
+
+        out = self.chord.solve(y[self.cols], residual, lambda x, g: self._jacobian(t, y, x, g),
+                               steps=self.STEPS, contraction=self.CONTRACTION, norm=max_norm, slow_stops=True,
+                               converged=lambda x, size: size <= self.TOL * self._size(x))
         y = y.copy()
-        last = np.inf
-        fresh = False
-        for _ in range(8):
-            g = self._constraints(t, y)
-            size = float(np.abs(g).max())
-            if size <= self.TOL * self._size(y):
-                break
-            if self.pinv is None or (size > 0.1 * last and not fresh):
-                self._refresh(t, y, g)
-                fresh = True
-            elif size > 0.1 * last:
-                break  # round-off level reached
-            y[self.cols] -= self.pinv @ g
-            last = size
+        y[self.cols] = out.x
         return y
 
 

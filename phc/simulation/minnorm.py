@@ -46,7 +46,9 @@ a condition estimate (a 300-element beam's Newton matrices are all singular: try
 LU at every step cost four times the rest of its initialization). The answer does not
 depend on it: LSMR and the LU solve the same least-norm problem.
 
-Dense solves run with one BLAS thread (:func:`one_blas_thread`).
+Dense solves run with one BLAS thread (:func:`one_blas_thread`). A chord iteration, which
+solves with one matrix many times, keeps that matrix's pseudo-inverse instead
+(:mod:`phc.simulation.chord`).
 """
 
 from __future__ import annotations

@@ -16,7 +16,8 @@ the system consistent initialization solves (:mod:`phc.simulation.initial`): ``F
 the time derivative of the rows that carry information, with the states held. This module
 solves it at every output time, starting from IDA's values: a chord iteration on the
 weighted minimum-norm (least-squares) step, with the pseudo-inverse of the scaled Jacobian
-computed once and refreshed when a step no longer reduces the residual. Errors after it, same runs: 2.4e-6
+computed once and refreshed when a step no longer reduces the residual
+(:class:`phc.simulation.chord.ChordIteration`). Errors after it, same runs: 2.4e-6
 and 5.9e-6. The states themselves are never moved; a point where the iteration does not
 reduce the residual keeps IDA's values.
 """
@@ -27,9 +28,9 @@ import copy
 from typing import Optional
 
 import numpy as np
-import scipy.linalg as sla
 
 from phc.simulation.backend import BackendRun
+from phc.simulation.chord import ChordIteration
 from phc.simulation.guard import CATCH, ModelEvaluationError
 
 DENSE_ENTRIES = 400_000
@@ -85,29 +86,26 @@ class AlgebraicPolish:
         self.base._prepare()
         rows, cols = self.base._shape
         self.usable = rows * cols <= DENSE_ENTRIES and cols > 0
-        self.pinv = None
-        self._J = None  # the matrix of the pseudo-inverse
+        self.chord = ChordIteration(rtol=PINV_RTOL, same_matrix=SAME_MATRIX)
         self.active = None
-        self.refreshes = 0
         self.improved = 0
 
-    def _refresh(self, prob, u) -> bool:
+    @property
+    def refreshes(self) -> int:
+        """Pseudo-inverses computed so far."""
+        return self.chord.refreshes
+
+    def _jacobian(self, prob, u):
+        """The scaled Jacobian of the active rows at u."""
         J = prob.jacobian(u).toarray() * prob.weights[None, :]
         if not np.all(np.isfinite(J)):
-            return False
+            return J  # refused by the chord iteration
         if self.active is None:
             # rows without unknowns (a position constraint of the held states) keep the
             # residual the states leave: left out, the system is consistent and its residual
             # goes to round-off
             self.active = np.flatnonzero(np.abs(J).max(axis=1) > 0)
-        J = J[self.active]
-        if self._J is not None and self._J.shape == J.shape and \
-                float(np.abs(J - self._J).max()) <= SAME_MATRIX * float(np.abs(self._J).max()):
-            return True  # the same matrix (a linear model's is constant): its pseudo-inverse stands
-        self.pinv = sla.pinv(J, atol=0.0, rtol=PINV_RTOL)
-        self._J = J
-        self.refreshes += 1
-        return True
+        return J[self.active]
 
     def __call__(self, t, y, yp) -> tuple[np.ndarray, np.ndarray, bool]:
         """(y, ẏ) with the algebraic variables and ẏ recomputed at time t, and whether they
@@ -117,37 +115,27 @@ class AlgebraicPolish:
         prob = copy.copy(self.base)
         prob.t0, prob.y, prob.yp = float(t), np.asarray(y, dtype=float).copy(), np.asarray(yp, dtype=float).copy()
         prob.z, prob.w = np.zeros(len(y)), np.zeros(len(y))
+
+        def jacobian(u, g):
+            return self._jacobian(prob, u)
+
+        def negligible(u, step):  # in units of the unknowns' scales
+            return float(np.abs(step).max()) <= STEP_ROUND_OFF * max(1.0, float(np.abs(u / prob.weights).max()))
+
         try:
             u = prob.pack()
-            if self.pinv is None and not self._refresh(prob, u):
+            if self.chord.pinv is None and not self.chord.refresh(jacobian, u):
                 return y, yp, False
-            g = prob.G(u)[self.active]
-            if not np.all(np.isfinite(g)):
-                return y, yp, False
-            start = size = float(np.linalg.norm(g))
-            refreshed = False
-            for _ in range(CHORD_STEPS):
-                if size <= ROUND_OFF * np.sqrt(len(g)):
-                    break  # solved (the rows are equilibrated: this is round-off)
-                step = self.pinv @ g  # in units of the unknowns' scales
-                if float(np.abs(step).max()) <= STEP_ROUND_OFF * max(1.0, float(np.abs(u / prob.weights).max())):
-                    break  # the correction is round-off of the unknowns: as solved as it gets
-                u1 = u - prob.weights * step
-                g1 = prob.G(u1)[self.active]
-                size1 = float(np.linalg.norm(g1)) if np.all(np.isfinite(g1)) else np.inf
-                if size1 < size:
-                    u, g, ratio, size = u1, g1, size1 / size, size1
-                    if ratio > CONTRACTION and not refreshed:
-                        refreshed = self._refresh(prob, u)  # slow: a stale pseudo-inverse
-                    continue
-                if refreshed or not self._refresh(prob, u):
-                    break
-                refreshed = True  # no progress: a stale pseudo-inverse, once more with a fresh one
+            rows = len(self.active)
+            out = self.chord.solve(u, lambda u: prob.G(u)[self.active], jacobian, steps=CHORD_STEPS,
+                                   contraction=CONTRACTION, weights=prob.weights, negligible=negligible,
+                                   # the rows are equilibrated: this is round-off
+                                   converged=lambda u, size: size <= ROUND_OFF * np.sqrt(rows))
         except (ModelEvaluationError, *CATCH, np.linalg.LinAlgError):
             return y, yp, False
-        if not size < start:
+        if not out.size < out.start:
             return y, yp, False
-        y1, yp1, _, _ = prob.unpack(u)
+        y1, yp1, _, _ = prob.unpack(out.x)
         self.improved += 1
         return y1, yp1, True
 
