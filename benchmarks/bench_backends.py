@@ -14,9 +14,9 @@ For every model (default: the shipped ``models/*.yaml``):
 * **per step** (the pendulum and the flexible slider–crank, ``--step-models``): a fixed number
   of implicit midpoint steps of one fixed step size, CPU time (``time.process_time``) per step,
   best of ``--step-repeat``: ``phc.simulate`` on the NumPy, numba and C back ends (output at
-  the two ends only; the best call over one step is subtracted from the best over all the
-  steps, which removes what a call costs once: the consistent start, the nominal scales, the
-  step loop's set-up), and the FMU that ``phc export --fmu`` writes for the same model and
+  the two ends only; the run's ``integrate`` phase of ``SimResult.timings`` over the number of
+  steps: the steps and the step loop's set-up, not the consistent start, the nominal scales,
+  the output polish or the outputs), and the FMU that ``phc export --fmu`` writes for the same model and
   step, run by FMPy's ``FMU2Slave``: one ``doStep`` per step (one midpoint step each) in a
   Python loop, only that loop timed (the FMU's step plus one ctypes call; not
   ``fmpy.simulate_fmu``, whose own Python bookkeeping per communication point would dominate).
@@ -177,16 +177,13 @@ def per_step(path: Path, h: float, steps: int, repeat: int) -> dict:
                 if not first.success or first.steps != n:
                     raise RuntimeError(f"the run took {first.steps} steps, not {n} (success={first.success})")
             best = {}
-            for n in (1, steps):
-                times = []
-                for _ in range(repeat):
-                    c = time.process_time()
-                    run(n)
-                    times.append(time.process_time() - c)
-                best[n] = min(times)
-            out["rows"][backend] = {"us_per_step": (best[steps] - best[1]) / (steps - 1) * 1e6,
-                                    "whole_call_s": best[steps], "one_step_call_s": best[1],
-                                    "measured": f"phc.simulate: ({steps} steps - 1 step) / {steps - 1}"}
+            for n in (1, steps):  # the integrate phase of the run's own clock (SimResult.timings)
+                runs = [run(n) for _ in range(repeat)]
+                best[n] = min(r.timings["integrate"] for r in runs)
+                whole = min(r.cpu_time_s for r in runs)
+            out["rows"][backend] = {"us_per_step": best[steps] / steps * 1e6, "one_step_integrate_s": best[1],
+                                    "run_cpu_s": whole,
+                                    "measured": f"phc.simulate: SimResult.timings['integrate'] of {steps} steps / {steps}"}
         except Exception as err:  # an unavailable back end is a row that says so
             out["rows"][backend] = {"us_per_step": None, "note": f"{type(err).__name__}: {err}"}
     modules, note = _fmpy()
@@ -274,9 +271,9 @@ def markdown(data: dict) -> str:
     if data.get("steps"):
         repeat = next(iter(data["steps"].values()))["repeat"]
         lines += ["", f"## Per step: implicit midpoint, fixed step (CPU µs per step, best of {repeat})\n",
-                  "phc.simulate rows: output at the two ends only; (best call over all the steps − best call "
-                  "over one step) / (steps − 1), which leaves out what a call costs once (the consistent "
-                  "start, the nominal scales, the step loop's set-up). FMU row: the FMU that "
+                  "phc.simulate rows: output at the two ends only; the run's `integrate` phase "
+                  "(`SimResult.timings`: the steps and the step loop's set-up, not the consistent start, "
+                  "the nominal scales, the output polish or the outputs) over the number of steps. FMU row: the FMU that "
                   "`phc export --fmu` wrote for the same step, run by FMPy's `FMU2Slave.doStep` in a Python "
                   "loop, one midpoint step per call (the FMU's step plus one ctypes call; not "
                   "`fmpy.simulate_fmu`). Ratio: numpy's µs per step over the row's, both measured in this run. "

@@ -275,7 +275,7 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
     check_parameters(compiled, params)  # the checks of values in the file (PHC-E405, E122, ...)
     values, fixed = initial_values(compiled, p, initial)
     user_nominal = nominal_indices(mod, {**opts.get("nominal", {}), **(nominal or {})})
-    cpu0 = time.process_time()
+    marks = [("", time.process_time())]  # the phases' ends, for SimResult.timings
     with quiet_floating_point():
         try:
             init = start_state(compiled, p, t0, values, fixed, mod)
@@ -283,22 +283,28 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
             raise _setup_error(err, params) from None
         if hasattr(progress, "restart"):
             progress.restart()
+        marks.append(("start", time.process_time()))
         # every tolerance measures the variables against their nominal scales (docs/tolerances.md)
         scales = nominal_scales(mod, p, init.y0, init.yp0, user_nominal, t0=t0, span=float(t_out[-1] - t0),
                                 t_out=t_out, atol=options.atol * tested_fraction(options.solver, options.rtol))
+        marks.append(("scales", time.process_time()))
         run = partial(backend, mod, p, options=options, progress=progress, names=describe_equations(compiled),
                       nominal=scales)
         if has_switches(mod):  # switching conditions: breakpoints in t, state events (docs/events.md)
             out = integrate_switched(backend, mod, p, t_out, init, fixed, run.keywords)
         else:
             out = _integrate_with_breakpoints(run, mod, p, t_out, init)
+        marks.append(("integrate", time.process_time()))
         # the algebraic variables at the output times, from the states (simulation/polish.py): IDA
         # leaves the index-2 ones out of its error test, the fixed-step solvers extrapolate them
         from phc.simulation.polish import polish_outputs
 
         out = polish_outputs(mod, p, out, scales)
-        cpu = time.process_time() - cpu0
-        result = _finish(compiled, mod, p, out, init, cpu, options, params)
+        marks.append(("polish", time.process_time()))
+        result = _finish(compiled, mod, p, out, init, 0.0, options, params)
+        marks.append(("finish", time.process_time()))
+    result.timings = {name: end - begin for (_, begin), (name, end) in zip(marks, marks[1:])}
+    result.cpu_time_s = marks[-2][1] - marks[0][1]  # the run itself, without `finish` (as always)
     if backend.fixed_step:  # the step actually taken: no longer than `step` nor an output interval
         intervals = np.diff(t_out)
         h = options.step
@@ -524,7 +530,7 @@ MANY_STEPS = 100_000
 does an IDA run that used up `max_steps`."""
 
 
-def _finish(compiled, mod, p, out: BackendRun, init, cpu, options: RunOptions, params=None) -> SimResult:
+def _finish(compiled, mod, p, out: BackendRun, init, cpu: float, options: RunOptions, params=None) -> SimResult:
     rows, failure = _evaluate_along(mod, p, out)
     n = len(rows["H"])
     if n == 0:  # not even the start point can be evaluated: nothing to keep
