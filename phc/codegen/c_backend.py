@@ -58,6 +58,7 @@ import numpy as np
 
 from phc import __version__
 from phc.codegen.c_printer import ABI, CUnsupported, c_source  # noqa: F401 — CUnsupported: the API
+from phc.codegen.cc import compile_library
 from phc.codegen.lower import ResidualIR
 from phc.codegen.numba_cache import FUNCTIONS, _cross_check, _read_private, _tag, signed_cache_dir
 from phc.errors import BackendMismatch, BackendUnavailable, CacheWarning, CodegenError
@@ -161,23 +162,13 @@ def _cpu() -> float:
 
 def _compile(text: str, argv: list[str], digest: str, parent: Optional[Path], flags: tuple = FLAGS) -> bytes:
     """The bytes of the shared library compiled from `text` with `flags` (in a private temporary
-    directory, inside `parent` when given)."""
+    directory, inside `parent` when given); a failing compiler is one :class:`CodegenError`
+    (:func:`phc.codegen.cc.compile_library`)."""
     work = Path(tempfile.mkdtemp(prefix="phc-c-build-", dir=parent))  # mode 0700
     try:
         src, lib = work / f"phc_c_{digest}.c", work / f"phc_c_{digest}.so"
         src.write_text(text, encoding="utf-8")
-        try:
-            done = subprocess.run([*argv, *flags, "-o", str(lib), str(src), *LIBS], capture_output=True, text=True,
-                                  timeout=COMPILE_TIMEOUT, cwd=work, stdin=subprocess.DEVNULL)
-        except subprocess.TimeoutExpired:
-            raise CodegenError(f"the C compiler ({argv[0]}) took more than {COMPILE_TIMEOUT:.0f} s") from None
-        except OSError as err:
-            raise CodegenError(f"the C compiler ({argv[0]}) could not be run: {err.strerror or err}") from None
-        if done.returncode != 0:
-            lines = [line for line in done.stderr.splitlines() if line.strip()]
-            first = next((line for line in lines if "error" in line), lines[0] if lines else "")
-            raise CodegenError(f"the C compiler ({argv[0]}) failed on the generated code (exit "
-                               f"{done.returncode}): {first.strip()[:300]}")
+        compile_library(argv, flags, [src], lib, cwd=work, timeout=COMPILE_TIMEOUT, libs=LIBS)
         return lib.read_bytes()
     finally:
         shutil.rmtree(work, ignore_errors=True)

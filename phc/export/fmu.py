@@ -43,7 +43,6 @@ import os
 import platform
 import re
 import shutil
-import subprocess
 import sys
 import tempfile
 import time
@@ -55,11 +54,14 @@ from typing import Optional
 
 import numpy as np
 
-from phc.errors import ExportError, PhcError
+from phc.errors import CodegenError, ExportError, PhcError
 
 RELATIVE_CHANGE = 1e-3
 """How much each parameter is moved to see whether the initial state depends on it (when phc
 chose some initial values: guesses)."""
+
+BUILD_TIMEOUT = 900.0
+"""Seconds the C compiler may take on the FMU's sources before it is abandoned."""
 
 START_TOLERANCE = 1e-10
 """A differential start value moved by more than this (relative to its nominal scale) depends on the parameter."""
@@ -201,22 +203,17 @@ def _variables(compiled, raw, inputs, p, fixes_start) -> tuple:
 
 def _build(folder: Path, identifier: str, argv: list[str]) -> Path:
     """Compile the sources in `folder`/sources into `folder`/binaries/linux64/<identifier>.so."""
+    from phc.codegen.cc import compile_library
     from phc.simulation.c_steps import FLAGS
 
     target = folder / "binaries" / "linux64" / f"{identifier}.so"
     target.parent.mkdir(parents=True)
-    sources = folder / "sources"
-    command = [*argv, *FLAGS, "-fvisibility=hidden", "-o", str(target), "model.c", "fmu.c", "-lm"]
     try:
-        done = subprocess.run(command, capture_output=True, text=True, timeout=900, cwd=sources,
-                              stdin=subprocess.DEVNULL)
-    except (OSError, subprocess.SubprocessError) as err:
-        raise ExportError(f"the C compiler ({argv[0]}) could not be run: {err}") from None
-    if done.returncode != 0:
-        lines = [line for line in done.stderr.splitlines() if line.strip()]
-        first = next((line for line in lines if "error" in line), lines[0] if lines else "")
-        raise ExportError(f"the C compiler ({argv[0]}) failed on the FMU's sources (a phc bug: please report it): "
-                          f"{first.strip()[:300]}")
+        compile_library(argv, (*FLAGS, "-fvisibility=hidden"), ("model.c", "fmu.c"), target, cwd=folder / "sources",
+                        timeout=BUILD_TIMEOUT, libs=("-lm",), what="the FMU's sources",
+                        hint="a phc bug: please report it")
+    except CodegenError as err:
+        raise ExportError(str(err)) from None
     return target
 
 

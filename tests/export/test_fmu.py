@@ -382,6 +382,24 @@ def test_model_with_events_is_refused(tmp_path):
     assert not (tmp_path / "m.fmu").exists()
 
 
+def test_a_failing_build_of_the_binary_is_one_line_naming_the_compilers_error(tmp_path):
+    """The FMU's binary is built by the C back end's compiler runner (phc.codegen.cc): a compile
+    error is one ExportError line with the compiler's first error line, and no binary is left."""
+    from phc.export.fmu import _build
+
+    argv, _ = c_backend.find_compiler()
+    (tmp_path / "sources").mkdir()
+    (tmp_path / "sources" / "model.c").write_text("double f(double x) { return x; }\n")
+    (tmp_path / "sources" / "fmu.c").write_text("int g(void)\n{\n    return 1 +;\n}\n")  # error on line 3
+    with pytest.raises(ExportError) as err:
+        _build(tmp_path, "broken", argv)
+    message = str(err.value)
+    assert "\n" not in message
+    assert message.startswith(f"the C compiler ({argv[0]}) failed on the FMU's sources (exit ")
+    assert "a phc bug: please report it): fmu.c:3:" in message
+    assert not (tmp_path / "binaries" / "linux64" / "broken.so").exists()
+
+
 def test_flexible_slider_crank_matches_phc_simulate(fmus):
     model = MODELS / "flexible_slider_crank.yaml"
     path, report = fmus("fsc", model)

@@ -1,0 +1,75 @@
+"""Running the system C compiler: the one place phc starts it to build a shared library.
+
+The compiler is the one :func:`phc.codegen.c_backend.find_compiler` finds (``$CC``, else
+``cc``, ``gcc`` or ``clang``). Its callers: the C back end's model libraries and the C step
+loop's library (:mod:`phc.codegen.c_backend`) and the FMU's binary (:mod:`phc.export.fmu`).
+
+The command is ``argv flags... -o output sources... libs...``, run in a working directory,
+without input, with its output captured and a time limit. Every failure becomes one line in a
+:class:`~phc.errors.CodegenError` naming the compiler: it could not be started, it ran past its
+time, or it exited non-zero (with the exit status and the first line it printed that says
+``error``, else its first line).
+"""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+from typing import Iterable, Sequence
+
+from phc.errors import CodegenError
+
+__all__ = ["compile_library", "first_error"]
+
+
+def compile_library(argv: Sequence[str], flags: Iterable[str], sources: Iterable, output, *, cwd, timeout: float,
+                    libs: Iterable[str] = ("-lm",), what: str = "the generated code", hint: str = "") -> Path:
+    """Run ``argv flags... -o output sources... libs...`` in `cwd` and return `output` as a Path.
+
+    Parameters
+    ----------
+    argv : sequence of str
+        The compiler's command (:func:`phc.codegen.c_backend.find_compiler`).
+    flags, sources, libs
+        Put on the command line in this order around ``-o output`` (sources as given: relative
+        to `cwd` or absolute).
+    timeout : float
+        Seconds the compiler may take before it is abandoned.
+    what : str
+        What is compiled, for the message (``"the generated code"``).
+    hint : str
+        Said after the exit status when the compiler fails (``"a phc bug: please report it"``).
+
+    Raises
+    ------
+    CodegenError
+        One line: the compiler could not be run, took more than `timeout` seconds, or failed
+        (its exit status and first error line).
+    """
+    name = argv[0] if argv else "?"
+    command = [*argv, *flags, "-o", str(output), *map(str, sources), *libs]
+    try:
+        done = subprocess.run(command, capture_output=True, text=True, errors="replace", timeout=timeout, cwd=cwd,
+                              stdin=subprocess.DEVNULL)
+    except subprocess.TimeoutExpired:
+        raise CodegenError(f"the C compiler ({name}) took more than {timeout:.0f} s on {what}") from None
+    except (OSError, subprocess.SubprocessError) as err:
+        why = getattr(err, "strerror", None) or str(err)
+        raise CodegenError(f"the C compiler ({name}) could not be run: {_line(why)}") from None
+    if done.returncode != 0:
+        status = f"exit {done.returncode}" + (f"; {hint}" if hint else "")
+        raise CodegenError(f"the C compiler ({name}) failed on {what} ({status}): "
+                           f"{first_error(done.stderr or done.stdout)}")
+    return Path(output)
+
+
+def first_error(text: str) -> str:
+    """The first non-blank line of a compiler's output that says ``error`` (else its first
+    non-blank line), stripped and cut to 300 characters."""
+    lines = [line for line in (text or "").splitlines() if line.strip()]
+    first = next((line for line in lines if "error" in line), lines[0] if lines else "")
+    return first.strip()[:300]
+
+
+def _line(text: str) -> str:
+    return " ".join(str(text).split())[:300]
