@@ -13,6 +13,8 @@ time, or it exited non-zero (with the exit status and the first line it printed 
 
 from __future__ import annotations
 
+import os
+import signal
 import subprocess
 from pathlib import Path
 from typing import Iterable, Sequence
@@ -49,18 +51,34 @@ def compile_library(argv: Sequence[str], flags: Iterable[str], sources: Iterable
     name = argv[0] if argv else "?"
     command = [*argv, *flags, "-o", str(output), *map(str, sources), *libs]
     try:
-        done = subprocess.run(command, capture_output=True, text=True, errors="replace", timeout=timeout, cwd=cwd,
-                              stdin=subprocess.DEVNULL)
-    except subprocess.TimeoutExpired:
-        raise CodegenError(f"the C compiler ({name}) took more than {timeout:.0f} s on {what}") from None
+        # its own process group: at the time limit the driver and what it started (cc1, as, ld),
+        # which hold the output pipes open, are stopped together
+        proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL,
+                                text=True, errors="replace", cwd=cwd, start_new_session=True)
     except (OSError, subprocess.SubprocessError) as err:
         why = getattr(err, "strerror", None) or str(err)
         raise CodegenError(f"the C compiler ({name}) could not be run: {_line(why)}") from None
-    if done.returncode != 0:
-        status = f"exit {done.returncode}" + (f"; {hint}" if hint else "")
-        raise CodegenError(f"the C compiler ({name}) failed on {what} ({status}): "
-                           f"{first_error(done.stderr or done.stdout)}")
+    try:
+        stdout, stderr = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        _stop_group(proc)
+        raise CodegenError(f"the C compiler ({name}) took more than {timeout:.0f} s on {what}") from None
+    except BaseException:  # Ctrl-C: no compiler left running behind phc
+        _stop_group(proc)
+        raise
+    if proc.returncode != 0:
+        status = f"exit {proc.returncode}" + (f"; {hint}" if hint else "")
+        raise CodegenError(f"the C compiler ({name}) failed on {what} ({status}): {first_error(stderr or stdout)}")
     return Path(output)
+
+
+def _stop_group(proc: subprocess.Popen) -> None:
+    """Kill `proc`'s process group and collect it."""
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except OSError:  # already gone
+        pass
+    proc.communicate()
 
 
 def first_error(text: str) -> str:

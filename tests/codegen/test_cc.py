@@ -12,7 +12,10 @@ import hashlib
 import os
 import platform
 import stat
+import time
 import sys
+
+from pathlib import Path
 
 import pytest
 
@@ -73,13 +76,30 @@ def test_a_compiler_that_cannot_be_started_is_one_line(tmp_path):
     assert message == f"the C compiler ({missing}) could not be run: {os.strerror(2)}"
 
 
+def _running(pid: int) -> bool:
+    """Whether process `pid` exists and is not a zombie waiting to be collected."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return False
+    return state != "Z"
+
+
 def test_a_compiler_past_its_time_is_abandoned_with_one_line(tmp_path):
     slow = tmp_path / "slow-cc"
-    slow.write_text("#!/bin/sh\nexec sleep 60\n")  # exec: the process killed at the timeout is the sleep
+    # the shell's child holds the output pipes as cc1 does under the compiler driver: killing
+    # only the driver would leave it running and the call waiting for its 60 s
+    slow.write_text(f"#!/bin/sh\nsleep 60 &\necho $! > {tmp_path / 'child.pid'}\nwait\n")
     slow.chmod(slow.stat().st_mode | stat.S_IXUSR)
     with pytest.raises(CodegenError) as err:
         compile_library([str(slow)], (), ["x.c"], tmp_path / "x.so", cwd=tmp_path, timeout=1, what="x.c")
     assert str(err.value) == f"the C compiler ({slow}) took more than 1 s on x.c"
+    child = int((tmp_path / "child.pid").read_text())
+    for _ in range(100):  # SIGKILL is delivered at once; the re-parented child is collected soon after
+        if not _running(child):
+            break
+        time.sleep(0.05)
+    assert not _running(child), "the compiler's child process was left running"
 
 
 def test_without_a_compiler_discovery_says_so_in_one_line(tmp_path, monkeypatch):
