@@ -131,13 +131,13 @@ def test_a_large_singular_system_gets_its_least_norm_solution_and_one_lu_attempt
     # closed form: v = c + i, and the least norm puts the mean of v at 0: c = -(n - 1)/2
     exact = np.arange(n) - (n - 1) / 2.0
     attempts = []
-    regular_lu = minnorm._regular_lu
+    regular_factor = minnorm._regular_factor
 
     def counting(*args):
         attempts.append(1)
-        return regular_lu(*args)
+        return regular_factor(*args)
 
-    monkeypatch.setattr(minnorm, "_regular_lu", counting)
+    monkeypatch.setattr(minnorm, "_regular_factor", counting)
     # LSMR stops at the relative round-off of the data (1e-15); the error of a least-norm
     # solution is that times the condition of A on its row space (σ₁/σ_r, of the order of
     # (2n/π)² for differences), with 10 for the accumulated rounding of its recurrences
@@ -162,6 +162,85 @@ def test_a_regular_large_system_is_solved_by_lu_every_time(monkeypatch):
         # diagonally dominant, κ₁ <= 5: LU with a step of refinement leaves round-off
         assert np.max(np.abs(v - x)) <= 5 * 10 * np.finfo(float).eps
     assert not solver.singular
+
+
+def _counting_splu(monkeypatch):
+    import scipy.sparse.linalg as spla
+
+    calls = []
+    splu = spla.splu
+
+    def counting(K, *args, **kwargs):
+        calls.append(K.shape)
+        return splu(K, *args, **kwargs)
+
+    monkeypatch.setattr(spla, "splu", counting)
+    return calls
+
+
+@pytest.mark.parametrize("rows", ["square", "wide", "dropped"])
+def test_the_same_matrix_is_factored_once_and_solves_as_a_fresh_factorization(rows, monkeypatch):
+    """The polishing steps of a linear problem: the same matrix, new right-hand sides. The
+    sequence factors it once and returns what a fresh solver (its own factorization) does,
+    bit for bit; a changed entry is factored again."""
+    import scipy.sparse as sps
+
+    n = 300
+    T = sps.diags([np.full(n - 1, -1.0), np.full(n, 3.0), np.full(n - 1, -1.0)], [-1, 0, 1], format="csr")
+    if rows == "square":
+        A = T
+    elif rows == "wide":  # full row rank, fewer rows than unknowns: the augmented system
+        A = T[: n - 20]
+    else:  # a row repeated twice over (structurally dependent, consistent right-hand sides)
+        A = sps.vstack([T, 2.0 * T[5]]).tocsr()
+    rng = np.random.default_rng(3)
+    rhs = [A @ rng.standard_normal(n) for _ in range(3)]
+    fresh = [minnorm.min_norm_solve(A, b) for b in rhs]
+    calls = _counting_splu(monkeypatch)
+    solver = minnorm.LeastNorm()
+    for b, v in zip(rhs, fresh):
+        assert np.array_equal(solver.solve(A.copy(), b), v)
+    assert len(calls) == 1 and not solver.singular
+    # the least-norm solution: it solves the system and lies in the row space of A
+    v = fresh[0]
+    assert np.max(np.abs(A @ v - rhs[0])) <= 1e-13 * np.max(np.abs(rhs[0]))
+    if rows == "wide":
+        lam = np.linalg.lstsq(A.toarray().T, v, rcond=None)[0]
+        assert np.max(np.abs(A.T @ lam - v)) <= 1e-12 * np.max(np.abs(v))
+    B = A.copy()
+    B.data[0] *= 1.5
+    solver.solve(B, rhs[0])
+    assert len(calls) == 2
+
+
+def test_a_zero_right_hand_side_is_answered_by_zero_without_a_factorization(monkeypatch):
+    import scipy.sparse as sps
+
+    n = 300
+    A = sps.diags([np.full(n - 1, -1.0), np.full(n, 3.0), np.full(n - 1, -1.0)], [-1, 0, 1], format="csr")
+    calls = _counting_splu(monkeypatch)
+    solver = minnorm.LeastNorm()
+    v = solver.solve(A, np.zeros(n))
+    assert v.shape == (n,) and not v.any() and not calls
+    # a large rank-deficient system where no dense solve is affordable: zero, not None
+    S, _ = _singular_system(n)
+    assert not minnorm.min_norm_solve(S, np.zeros(n + 1), dense_limit=0, iterative=False).any()
+
+
+def test_a_string_start_is_found_without_a_factorization_when_it_is_consistent(monkeypatch, tmp_path):
+    """A 300-element string at rest (every state held at 0) is consistent as given: its
+    Newton steps have G = 0, the start is all zero and no LU is made."""
+    src = (MODELS / "vibrating_string.yaml").read_text()
+    assert "elements: 16" in src
+    path = tmp_path / "string.yaml"
+    path.write_text(src.replace("elements: 16", "elements: 300").replace("    energy: H\n", ""))
+    mod = phc.compile_model(str(path), certify=False, backend="numpy").module
+    p = mod.full_parameters()
+    dif = [j for j in range(mod.N) if mod.DIFFERENTIAL[j]]
+    calls = _counting_splu(monkeypatch)
+    init = initial.consistent_initial_conditions(mod, p, 0.0, {j: 0.0 for j in dif}, set(dif))
+    assert not calls
+    assert not init.y0.any() and not init.yp0.any() and init.residual == 0.0
 
 
 def test_one_blas_thread_is_scoped_and_nests():

@@ -548,8 +548,8 @@ def _solve(prob: _Problem, tol: float, max_iter: int):
             # differs between CPUs), and the max-norm cannot tell: large D rows sit at their
             # round-off while small F rows are still off. So take the refining steps and
             # keep the last iterate that stays converged.
-            if polish >= POLISH_STEPS:
-                break
+            if polish >= POLISH_STEPS or not g.any():
+                break  # (G = 0 exactly: a refining step would be zero)
             polish += 1
         u = u + prob.step(prob.jacobian(u), g)
         g = prob.G(u)

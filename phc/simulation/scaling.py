@@ -204,9 +204,13 @@ def _drop_noise(s, diff) -> np.ndarray:
     return s
 
 
+_INDEX = re.compile(r"\[\d+\]")
+
+
 def kind_of(name: str) -> str:
-    """The kind of a variable: its name without indices (`rod.p[3]` → `rod.p`)."""
-    return re.sub(r"\[\d+\]", "", name)
+    """The kind of a variable: its name without indices (`rod.p[3]` → `rod.p`). Called for
+    every variable of a start (40 000 of a 10⁴-element string): the pattern is compiled once."""
+    return _INDEX.sub("", name) if "[" in name else name
 
 
 def _jacobian_entries(mod, p, t, y, yp, cj):
