@@ -372,7 +372,10 @@ def _lookup(args, params: dict) -> Optional[Hit]:
             return None
     cache = RunCache(full_size=(record["full_size"],), timings={"load": time.perf_counter() - start})
     warned = tuple(StoredDiagnostic(sev, line) for sev, line in record.get("warnings", ()))
-    compiled = CompiledModel.from_description(description, record["source"], module, module_path, warned, cache)
+    from phc.codegen.backends import check_choice
+
+    compiled = CompiledModel.from_description(description, record["source"], module, module_path, warned, cache,
+                                              backend_request=check_choice(getattr(args, "backend", None)))
     backend_line = record["backend_line"] if record.get("numba") is None else None
     return Hit(compiled, record.get("written_options") or {}, backend_line)
 

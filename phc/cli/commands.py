@@ -198,7 +198,7 @@ def cmd_simulate(args) -> int:
         print(f"  memory   peak {format_bytes(peak_memory())} resident")
         print(f"  compiled {_size_text(compiled.size())} in {compiled.compile_time:.2f} s")
         print(_certificate_line(compiled))
-        print(_backend_line(compiled, args.backend, backend_line))
+        print(_backend_line(compiled, args.backend, backend_line, result))
         for line in _left_out_lines(compiled):
             print(line)
         for e in estimates:
