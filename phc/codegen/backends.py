@@ -174,36 +174,20 @@ def for_run(compiled, backend: Optional[str], method: Optional[str], steps: int)
     `method` is the fixed-step solver whose compiled step loop would run (None for IDA and
     for runs that keep the Python loop, e.g. with switching conditions), `steps` the number
     of steps it takes. `backend` None means what `compiled` was compiled with
-    (``compiled.backend_request``). The rule is in the module docstring."""
+    (``compiled.backend_request``). The rule is in the module docstring. The module built is
+    kept in ``compiled.cache.run_modules``; a model loaded from its description (no
+    ``compiled.dae``) uses the one its cached front end put there (:mod:`phc.fastpath`)."""
     module = for_compiled(compiled, backend)
-    request = check_choice(backend) if backend is not None else getattr(compiled, "backend_request", None)
-    if request != "auto" or name_of(module) != "numpy" or method is None or steps < AUTO_LOOP_STEPS:
-        return module, ""
-    from phc.codegen import numba_backend
-
-    small = module.N < AUTO_MIN_UNKNOWNS
-    numba_ok, numba_why = numba_backend.available()
-    if numba_ok and not small:  # auto tried numba and could not use it (a warning said why)
-        return module, ""
-    why_numpy = (f"{module.N} unknowns, below {AUTO_MIN_UNKNOWNS}" if small
-                 else f"compiled backend unavailable: {numba_why}")
+    target, why_numpy, note = _run_target(compiled, module, backend, method, steps)
+    if target is None:
+        return module, note
     what = f"{steps} {method} steps, at least {AUTO_LOOP_STEPS}"
-    if compiled.dae is None:
+    built = compiled.cache.run_modules.get(target)  # built once per compiled model
+    if built is None and compiled.dae is None:
         return module, (f"numpy (auto: {why_numpy}; {what}, would run faster on a compiled step loop, but this model "
                         "was loaded from its description (phc.fastpath), which cannot build one; --backend numba or "
                         "c compiles it)")
-    target = "numba" if numba_ok else None
-    if target is None:
-        from phc.codegen import c_backend
-        from phc.simulation.c_steps import METHODS
-
-        c_ok, c_why = c_backend.available()
-        if not c_ok or method not in METHODS:
-            no_c = c_why if not c_ok else f"the C step loop runs {', '.join(METHODS)} only"
-            return module, f"numpy (auto: {why_numpy}; no compiled step loop for {what}: {numba_why}; {no_c})"
-        target = "c"
     try:
-        built = compiled.cache.run_modules.get(target)  # built once per compiled model
         if built is None:
             built = compiled.cache.run_modules[target] = for_compiled(compiled, target)
     except SimulationSetupError as err:  # the C back end does not print something the model uses
@@ -211,6 +195,46 @@ def for_run(compiled, backend: Optional[str], method: Optional[str], steps: int)
     if name_of(built) == "numpy":  # a mismatch or a failed compilation: warned, the reference runs
         return built, f"numpy (auto: {why_numpy}; {target} could not build the model's functions for {what})"
     return built, f"{describe(built)}; auto: {what}, run on the compiled step loop ({why_numpy})"
+
+
+def run_target(compiled, backend: Optional[str], method: Optional[str], steps: int) -> Optional[str]:
+    """The compiled backend (``numba`` or ``c``) :func:`for_run` runs this run on instead of
+    the module `compiled` was compiled with, or None."""
+    return _run_target(compiled, for_compiled(compiled, backend), backend, method, steps)[0]
+
+
+def _run_target(compiled, module, backend, method, steps) -> tuple[Optional[str], str, str]:
+    """(target or None, why auto ran NumPy, the note when there is no target)."""
+    request = check_choice(backend) if backend is not None else getattr(compiled, "backend_request", None)
+    if request != "auto" or name_of(module) != "numpy" or method is None or steps < AUTO_LOOP_STEPS:
+        return None, "", ""
+    from phc.codegen import numba_backend
+
+    small = module.N < AUTO_MIN_UNKNOWNS
+    numba_ok, numba_why = numba_backend.available()
+    if numba_ok and not small:  # auto tried numba and could not use it (a warning said why)
+        return None, "", ""
+    why_numpy = (f"{module.N} unknowns, below {AUTO_MIN_UNKNOWNS}" if small
+                 else f"compiled backend unavailable: {numba_why}")
+    if numba_ok:
+        return "numba", why_numpy, ""
+    from phc.codegen import c_backend
+    from phc.simulation.c_steps import METHODS
+
+    c_ok, c_why = c_backend.available()
+    if not c_ok or method not in METHODS:
+        no_c = c_why if not c_ok else f"the C step loop runs {', '.join(METHODS)} only"
+        what = f"{steps} {method} steps, at least {AUTO_LOOP_STEPS}"
+        return None, why_numpy, f"numpy (auto: {why_numpy}; no compiled step loop for {what}: {numba_why}; {no_c})"
+    return "c", why_numpy, ""
+
+
+def kept_text(module) -> Optional[object]:
+    """What loads a compiled module again without the model's system, JSON data: a numba
+    module's ``KERNEL`` (:func:`phc.codegen.numba_cache.load_cached`), a C module's
+    ``C_SOURCE`` (:func:`phc.codegen.c_backend.load_source`); None for another module."""
+    attribute = {"numba": "KERNEL", "c": "C_SOURCE"}.get(name_of(module))
+    return getattr(module, attribute, None) if attribute else None
 
 
 def for_compiled(compiled, backend: Optional[str]) -> ModuleType:
@@ -237,4 +261,4 @@ def for_compiled(compiled, backend: Optional[str]) -> ModuleType:
 
 
 __all__ = ["AUTO_LOOP_STEPS", "AUTO_MIN_UNKNOWNS", "CHOICES", "auto_note", "check_choice", "default_choice", "describe",
-           "for_compiled", "for_run", "name_of", "reference_of", "select"]
+           "for_compiled", "for_run", "kept_text", "name_of", "reference_of", "run_target", "select"]

@@ -261,8 +261,7 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
         t_out = np.linspace(t0, options.t_end, options.n_out)
     # the module that runs: under `auto`, a long fixed-step run goes to a compiled step loop
     # (phc.codegen.backends.for_run; the Python loop runs models with switching conditions)
-    loop = options.solver if backend.fixed_step and not has_switches(compiled.module) else None
-    mod, backend_note = for_run(compiled, requested, loop, _fixed_steps(t_out, options.step) if loop else 0)
+    mod, backend_note = for_run(compiled, requested, *_loop_plan(compiled, options, t_out))
     mod = guard(mod, compiled.source, _locator(compiled))
     from phc.budget import check_output_arrays
 
@@ -312,6 +311,23 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
     if result.interrupted:
         raise SimulationInterrupted(result)
     return result
+
+
+def fixed_step_plan(compiled, *, t_end: Optional[float] = None, n_out: Optional[int] = None,
+                    solver: Optional[str] = None, step: Optional[float] = None) -> tuple[Optional[str], int]:
+    """The fixed-step solver whose compiled step loop a run of `compiled` with these settings
+    (as :func:`simulate` takes them, no `t_eval`) would use and its number of steps, as
+    :func:`simulate` passes them to :func:`phc.codegen.backends.for_run`; ``(None, 0)`` for
+    IDA and for a model with switching conditions (its runs keep the Python loop)."""
+    options = RunOptions.of(compiled.description.options).with_overrides(t_end=t_end, n_out=n_out, solver=solver,
+                                                                         step=step)
+    return _loop_plan(compiled, options, np.linspace(options.t_start, options.t_end, options.n_out))
+
+
+def _loop_plan(compiled, options: RunOptions, t_out: np.ndarray) -> tuple[Optional[str], int]:
+    if not BACKENDS[options.solver].fixed_step or has_switches(compiled.module):
+        return None, 0
+    return options.solver, _fixed_steps(t_out, options.step)
 
 
 def _fixed_steps(t_out: np.ndarray, step: Optional[float]) -> int:
@@ -595,5 +611,6 @@ def _finish(compiled, mod, p, out: BackendRun, init, cpu, options: RunOptions, p
 
 
 __all__ = ["simulate", "SimResult", "SimulationInterrupted", "ModelEvaluationError", "BACKENDS", "Backend", "BackendRun",
+           "fixed_step_plan",
            "IgnoredOptionWarning",
            "InconsistentInitialError", "initial_values", "parameter_vector", "start_state"]
