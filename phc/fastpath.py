@@ -42,7 +42,11 @@ initial value is written in, and when the compilation warned. ``PHC_FRONT_END_CA
 turns it off. On the compiled (numba) backend the record also keeps the kernel text of the
 model's compiled functions, which a hit loads from their signed disk cache
 (:func:`phc.codegen.numba_cache.load_cached`, without sympy); functions missing from that
-cache make it a miss.
+cache make it a miss. Likewise, when ``auto`` runs a long fixed-step run of a model on NumPy
+on a compiled step loop (:func:`phc.codegen.backends.for_run`), the record keeps that
+module's kernel text (numba) or C text (:func:`phc.codegen.c_backend.load_source`), written
+after the run; a hit for such a run loads it, and one whose record keeps none (written by
+a shorter run) or cannot load it is a miss.
 
 ``phc validate`` keeps each file's result (its diagnostics as printed and as JSON, and
 its status line) under the same kind of key (:func:`lookup_validate`); the text and JSON

@@ -185,8 +185,8 @@ def for_run(compiled, backend: Optional[str], method: Optional[str], steps: int)
     built = compiled.cache.run_modules.get(target)  # built once per compiled model
     if built is None and compiled.dae is None:
         return module, (f"numpy (auto: {why_numpy}; {what}, would run faster on a compiled step loop, but this model "
-                        "was loaded from its description (phc.fastpath), which cannot build one; --backend numba or "
-                        "c compiles it)")
+                        "was loaded from its description (CompiledModel.from_description), which cannot build one; "
+                        "--backend numba or c compiles it)")
     try:
         if built is None:
             built = compiled.cache.run_modules[target] = for_compiled(compiled, target)
