@@ -282,7 +282,7 @@ def step_loop(request, monkeypatch):
     if request.param == "c":
         if not c_backend.available()[0]:
             pytest.skip("no C compiler")
-        monkeypatch.setattr(numba_backend, "available", lambda: (False, "numba is not installed (test)"))
+        monkeypatch.setattr(numba_cache, "_AVAILABLE", (False, "numba is not installed (test)"))
     monkeypatch.setattr(numba_cache, "_LOADED", {})  # compiled by an earlier test: not in this test's cache
     monkeypatch.setattr(c_backend, "_LOADED", {})
     monkeypatch.setattr(backends, "AUTO_LOOP_STEPS", 200)

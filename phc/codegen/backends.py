@@ -208,10 +208,10 @@ def _run_target(compiled, module, backend, method, steps) -> tuple[Optional[str]
     request = check_choice(backend) if backend is not None else getattr(compiled, "backend_request", None)
     if request != "auto" or name_of(module) != "numpy" or method is None or steps < AUTO_LOOP_STEPS:
         return None, "", ""
-    from phc.codegen import numba_backend
+    from phc.codegen import numba_cache  # not numba_backend: a cached front end imports no sympy (phc.fastpath)
 
     small = module.N < AUTO_MIN_UNKNOWNS
-    numba_ok, numba_why = numba_backend.available()
+    numba_ok, numba_why = numba_cache.available()
     if numba_ok and not small:  # auto tried numba and could not use it (a warning said why)
         return None, "", ""
     why_numpy = (f"{module.N} unknowns, below {AUTO_MIN_UNKNOWNS}" if small

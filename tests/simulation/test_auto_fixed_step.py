@@ -20,7 +20,7 @@ import pytest
 
 import phc
 from phc.cli import main
-from phc.codegen import backends, c_backend, numba_backend
+from phc.codegen import backends, c_backend, numba_backend, numba_cache
 from phc.compiled import CompiledModel
 from phc.simulation.midpoint import NEWTON_TOL
 
@@ -59,7 +59,7 @@ def short(monkeypatch):
 
 @pytest.fixture
 def no_numba(monkeypatch):
-    monkeypatch.setattr(numba_backend, "available", lambda: (False, "numba is not installed (test)"))
+    monkeypatch.setattr(numba_cache, "_AVAILABLE", (False, "numba is not installed (test)"))
 
 
 @pytest.mark.skipif(not (_numba() or _c()), reason="neither numba nor a C compiler: no compiled step loop")
