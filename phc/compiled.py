@@ -49,10 +49,18 @@ class RunCache:
     timings: dict = field(default_factory=dict)
     """Seconds spent per compilation pass (``elaborate``, ``lower``, ``print``, ``load``,
     ``backend``, ``certify``); a backend built later for a run adds to ``backend``."""
+    run_modules: dict = field(default_factory=dict)
+    """Backend name -> the module built for runs of a model compiled for another
+    (:func:`phc.codegen.backends.for_run`: ``auto`` on a long fixed-step run), so that a
+    parameter study builds it once. Not pickled (a module is rebuilt where it runs)."""
     rebuilt: bool = False
     """True for a model rebuilt from its pickle (a worker of ``phc sweep``): it never reads
     the model's files, which may not exist where it runs (the parameter values it runs
     were checked where it was compiled: `parameter_checks`)."""
+
+    def __getstate__(self) -> dict:
+        """Everything but `run_modules` (modules do not pickle; built again where needed)."""
+        return {**self.__dict__, "run_modules": {}}
 
 
 @dataclass(frozen=True, eq=False)
@@ -84,6 +92,11 @@ class CompiledModel:
         ``description.certificate`` keeps the verdict).
     cache : RunCache
         What runs of it remember.
+    backend_request : str, optional
+        The backend asked for when it was compiled (``auto``, ``numpy``, ``numba`` or ``c``,
+        after ``$PHC_BACKEND``); None when not known. Under ``auto`` a long fixed-step run of
+        a model that runs on NumPy may run on a compiled step loop
+        (:func:`phc.codegen.backends.for_run`).
     """
 
     description: ModelDescription
@@ -95,11 +108,13 @@ class CompiledModel:
     scene: Optional["Scene"] = None
     certificate: Optional[Any] = None
     cache: RunCache = field(default_factory=RunCache, repr=False)
+    backend_request: Optional[str] = None
 
     @classmethod
     def from_description(cls, description: ModelDescription, source: str, module: Optional[ModuleType] = None,
                          module_path: Optional[Path] = None, diagnostics: Sequence = (),
-                         cache: Optional[RunCache] = None) -> "CompiledModel":
+                         cache: Optional[RunCache] = None,
+                         backend_request: Optional[str] = None) -> "CompiledModel":
         """A compiled model from its description and generated source; the module is
         loaded from the source (:func:`phc.codegen.load.load_generated`) unless given."""
         if module is None:
@@ -107,7 +122,8 @@ class CompiledModel:
 
             module, module_path = load_generated(source, description.name)
         return cls(description, module, source, Path(module_path) if module_path is not None else Path(),
-                   tuple(diagnostics), cache=cache if cache is not None else RunCache())
+                   tuple(diagnostics), cache=cache if cache is not None else RunCache(),
+                   backend_request=backend_request)
 
     @property
     def name(self) -> str:
@@ -177,7 +193,7 @@ class CompiledModel:
         sends it only to its own worker processes (a local pool, or Dask workers the user
         runs) and never reads one from a file."""
         state = {f: getattr(self, f) for f in ("description", "source", "module_path", "diagnostics", "dae",
-                                                 "scene", "certificate", "cache")}
+                                                 "scene", "certificate", "cache", "backend_request")}
         state["phc_version"] = _phc_version()
         state["module_backend"] = getattr(self.module, "BACKEND", "numpy")
         return state

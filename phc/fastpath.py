@@ -42,7 +42,11 @@ initial value is written in, and when the compilation warned. ``PHC_FRONT_END_CA
 turns it off. On the compiled (numba) backend the record also keeps the kernel text of the
 model's compiled functions, which a hit loads from their signed disk cache
 (:func:`phc.codegen.numba_cache.load_cached`, without sympy); functions missing from that
-cache make it a miss.
+cache make it a miss. Likewise, when ``auto`` runs a long fixed-step run of a model on NumPy
+on a compiled step loop (:func:`phc.codegen.backends.for_run`), the record keeps that
+module's kernel text (numba) or C text (:func:`phc.codegen.c_backend.load_source`), written
+after the run; a hit for such a run loads it, and one whose record keeps none (written by
+a shorter run) or cannot load it is a miss.
 
 ``phc validate`` keeps each file's result (its diagnostics as printed and as JSON, and
 its status line) under the same kind of key (:func:`lookup_validate`); the text and JSON
@@ -372,9 +376,48 @@ def _lookup(args, params: dict) -> Optional[Hit]:
             return None
     cache = RunCache(full_size=(record["full_size"],), timings={"load": time.perf_counter() - start})
     warned = tuple(StoredDiagnostic(sev, line) for sev, line in record.get("warnings", ()))
-    compiled = CompiledModel.from_description(description, record["source"], module, module_path, warned, cache)
+    from phc.codegen.backends import check_choice
+
+    compiled = CompiledModel.from_description(description, record["source"], module, module_path, warned, cache,
+                                              backend_request=check_choice(getattr(args, "backend", None)))
+    if not _run_module(compiled, args, record.get("run_modules") or {}):
+        return None
     backend_line = record["backend_line"] if record.get("numba") is None else None
     return Hit(compiled, record.get("written_options") or {}, backend_line)
+
+
+def _run_module(compiled: CompiledModel, args, kept: dict) -> bool:
+    """Whether this run of `compiled` can run from the record: under ``auto``, a long
+    fixed-step run of a model on NumPy runs on a compiled step loop
+    (:func:`phc.codegen.backends.for_run`), whose module is loaded here from what the record
+    keeps (numba's kernel text from its signed disk cache, the C text from the C library's)
+    into ``compiled.cache.run_modules``. False (a miss: the full path builds the module, and
+    the record is written again with it) when the record keeps none or it cannot be loaded."""
+    from phc.codegen.backends import run_target
+    from phc.simulation import fixed_step_plan
+
+    method, steps = fixed_step_plan(compiled, t_end=getattr(args, "t_end", None), n_out=getattr(args, "n_out", None),
+                                    solver=getattr(args, "solver", None), step=getattr(args, "step", None))
+    target = run_target(compiled, None, method, steps)
+    if target is None:
+        return True
+    if target not in kept:
+        return False
+    start = time.perf_counter()
+    if target == "numba":
+        from phc.codegen.numba_cache import load_cached
+
+        module = load_cached(kept[target], compiled.module, compiled.source)
+    else:
+        from phc.codegen.c_backend import load_source
+
+        module, _ = load_source(kept[target], compiled.module, compiled.source)  # raises: a miss (lookup)
+    if module is None:
+        return False
+    compiled.cache.run_modules[target] = module
+    timings = compiled.cache.timings
+    timings["backend"] = timings.get("backend", 0.0) + time.perf_counter() - start
+    return True
 
 
 @dataclass(frozen=True)
@@ -555,14 +598,18 @@ def _record(compiled: CompiledModel, backend: Optional[str], written_options: Op
     """The record of a compiled model: its description (:mod:`phc.description`), the
     generated source, and what the command line printed about it."""
     from phc.cli import _backend_line  # the line the full path prints
+    from phc.codegen.backends import kept_text
 
     mod = compiled.module
+    runs = {name: kept_text(m) for name, m in compiled.cache.run_modules.items()}
     return {
         "description": compiled.description.to_dict(), "source": compiled.source,
         "full_size": compiled.full_size(),
         "backend_line": _backend_line(compiled, backend),
         # the compiled functions' kernel text (phc.codegen.numba_cache.load_cached): loaded from the cache
         "numba": getattr(mod, "KERNEL", None) if getattr(mod, "BACKEND", "numpy") == "numba" else None,
+        # the module a long fixed-step run under `auto` ran on (phc.codegen.backends.for_run), the same way
+        "run_modules": {name: text for name, text in runs.items() if text is not None},
         "warnings": [[d.severity, d.render()] for d in compiled.diagnostics if d.severity == "warning"],
         "written_options": written_options,
     }

@@ -233,7 +233,7 @@ def _compile_assembled(path, scene: Optional[Scene], dae: Dae, diags: Diagnostic
     description = describe(name, dae, module, scene)
     timings["describe"] = time.perf_counter() - t
     compiled = CompiledModel(description, module, source, module_path, diags, dae, scene,
-                             cache=RunCache(timings=timings))
+                             cache=RunCache(timings=timings), backend_request=backends.check_choice(backend))
     from phc.simulation.events import locate_switch_times  # conditions in t: their switching times exist
 
     unlocated = locate_switch_times(compiled)

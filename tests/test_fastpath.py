@@ -265,3 +265,64 @@ def test_a_numba_record_whose_compiled_functions_are_gone_is_a_miss(tmp_path, ca
     assert simulate(model, tmp_path / "again.csv", "--backend", "numba") == 0
     assert (tmp_path / "full.csv").read_bytes() == (tmp_path / "again.csv").read_bytes()
     assert hit(model, "--backend", "numba")  # the full path wrote the record and the functions again
+
+
+LONG = ["--solver", "midpoint", "--step", "1e-3", "--n-out", "2", "--backend", "auto"]
+"""A fixed-step run over one output interval: `--t-end` in ms is its number of steps."""
+
+
+@pytest.fixture(params=["numba", "c"])
+def step_loop(request, monkeypatch):
+    """The compiled step loop `auto` switches a long fixed-step run to: numba, or C where
+    numba is made unavailable; the threshold lowered to 200 steps (short runs)."""
+    from phc.codegen import backends, c_backend, numba_backend, numba_cache
+
+    if request.param == "numba" and not numba_backend.available()[0]:
+        pytest.skip("numba is not installed")
+    if request.param == "c":
+        if not c_backend.available()[0]:
+            pytest.skip("no C compiler")
+        monkeypatch.setattr(numba_cache, "_AVAILABLE", (False, "numba is not installed (test)"))
+    monkeypatch.setattr(numba_cache, "_LOADED", {})  # compiled by an earlier test: not in this test's cache
+    monkeypatch.setattr(c_backend, "_LOADED", {})
+    monkeypatch.setattr(backends, "AUTO_LOOP_STEPS", 200)
+    return request.param
+
+
+def _json_run(model: Path, t_end: str, capsys) -> dict:
+    import json
+
+    assert main(["simulate", str(model), "--quiet", "--format", "json", "--t-end", t_end, *LONG]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def test_a_long_fixed_step_run_under_auto_runs_compiled_every_time(tmp_path, cache, capsys, step_loop):
+    """`auto` runs a long fixed-step run of a small model on a compiled step loop
+    (phc.codegen.backends.for_run): the record keeps what loads that module again (numba's
+    kernel text, the C text), so the second, cached run of the same command switches too,
+    runs the same compiled functions and gives the same numbers."""
+    model = tmp_path / "pendulum.yaml"
+    model.write_text(PENDULUM, encoding="utf-8")
+    first = _json_run(model, "0.3", capsys)
+    assert hit(model, "--t-end", "0.3", *LONG)
+    second = _json_run(model, "0.3", capsys)
+    for run in (first, second):
+        assert run["backend"] == step_loop, run["backend_note"]
+        assert "auto: 300 midpoint steps" in run["backend_note"]
+    assert "loaded from its description" not in second["backend_note"]
+    same = ("steps", "n_residual_evals", "n_jacobian_evals", "energy_balance_error", "constraint_drift")
+    assert {k: first[k] for k in same} == {k: second[k] for k in same}  # the same machine code, the same steps
+
+
+def test_a_record_without_the_run_module_is_a_miss_for_a_long_run(tmp_path, cache, capsys, step_loop):
+    """A record written by a short run (NumPy) keeps no compiled module: a long run of the
+    same model is a miss, so the full path builds the module and switches; the record it
+    writes then serves the long run."""
+    model = tmp_path / "pendulum.yaml"
+    model.write_text(PENDULUM, encoding="utf-8")
+    short = _json_run(model, "0.1", capsys)
+    assert (short["backend"], short["backend_note"]) == ("numpy", "")
+    assert hit(model, "--t-end", "0.1", *LONG) and not hit(model, "--t-end", "0.3", *LONG)
+    assert _json_run(model, "0.3", capsys)["backend"] == step_loop
+    assert hit(model, "--t-end", "0.3", *LONG) and hit(model, "--t-end", "0.1", *LONG)
+    assert _json_run(model, "0.3", capsys)["backend"] == step_loop

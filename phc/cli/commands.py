@@ -123,6 +123,7 @@ def cmd_simulate(args) -> int:
     hit = fastpath.lookup(args, params)  # an unchanged model: its cached front end (phc.fastpath)
     if hit is not None:
         compiled, written, backend_line = hit.compiled, hit.written_options, hit.backend_line
+        recorder = first = None
     else:
         backend_line = None
         with fastpath.recording(args) as recorder:
@@ -149,6 +150,8 @@ def cmd_simulate(args) -> int:
                 result = simulate(compiled, progress=progress, **run_kwargs)
         except SimulationInterrupted as stop:
             result, interrupted = stop.result, True
+        if hit is None and compiled is first and compiled.cache.run_modules:
+            recorder.store(compiled, written)  # with the module the run built (phc.codegen.backends.for_run)
         if prof is not None:
             prof.run_cpu = result.cpu_time_s
         if args.estimate_error and not interrupted:
@@ -198,7 +201,7 @@ def cmd_simulate(args) -> int:
         print(f"  memory   peak {format_bytes(peak_memory())} resident")
         print(f"  compiled {_size_text(compiled.size())} in {compiled.compile_time:.2f} s")
         print(_certificate_line(compiled))
-        print(_backend_line(compiled, args.backend, backend_line))
+        print(_backend_line(compiled, args.backend, backend_line, result))
         for line in _left_out_lines(compiled):
             print(line)
         for e in estimates:

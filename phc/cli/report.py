@@ -90,9 +90,12 @@ def _certificate_line(compiled) -> str:
     return f"  {cert.summary}" if cert is not None else "  not certified (--no-certify)"
 
 
-def _backend_line(compiled, requested=None, kept: Optional[str] = None) -> str:
+def _backend_line(compiled, requested=None, kept: Optional[str] = None, result=None) -> str:
     """What runs the generated functions (phc.codegen.backends); `kept` is the line a
-    cached front end printed before (phc.fastpath)."""
+    cached front end printed before (phc.fastpath). A run that chose a backend of its own
+    (`result.backend_note`: ``auto`` on a long fixed-step run) says which and why instead."""
+    if result is not None and getattr(result, "backend_note", ""):
+        return f"  backend  {result.backend_note}"
     if kept is not None:
         return kept
     from phc.codegen.backends import describe

@@ -13,7 +13,16 @@ module that disagrees with the reference at its check point is never used (a war
 so and the reference runs). Asking for ``numba`` explicitly where it cannot be imported is
 an error that says how to install it; asking for ``c`` where no C compiler is found, or for
 a model using something the C back end does not print yet (an input table), is an error
-that says so in one line. ``auto`` never picks ``c`` (yet).
+that says so in one line.
+
+A run of a fixed-step solver (``midpoint``, ``discrete_gradient``, ``midpoint4``) is different:
+its whole step loop runs compiled on the numba or C back end (:mod:`phc.simulation.compiled_steps`),
+20–100 times faster a step than the Python loop on the NumPy module, however small the model.
+So when ``auto`` ran the NumPy module (below :data:`AUTO_MIN_UNKNOWNS` unknowns, or numba
+missing) and a run takes at least :data:`AUTO_LOOP_STEPS` fixed steps, :func:`for_run` runs it
+on ``numba`` when numba can be imported, else on ``c`` when there is a C compiler (whose loop
+is the implicit midpoint rule's only), else on NumPy with the reason in the run's note. An
+explicit ``numpy`` never switches; IDA keeps the size rule.
 """
 
 from __future__ import annotations
@@ -33,6 +42,19 @@ AUTO_MIN_UNKNOWNS = 16
 """``auto`` compiles models with at least this many unknowns. Below, the NumPy module is
 as fast per call (a handful of float operations; calling compiled code from Python costs
 about a microsecond itself) and needs neither numba's import nor a compilation."""
+
+AUTO_LOOP_STEPS = 2000
+"""``auto`` runs a fixed-step solver's run of at least this many steps on a compiled step loop
+(:func:`for_run`). The switch has a one-off cost per run against the time each step saves.
+Measured on the pendulum (7 unknowns; 2-core x86-64 at load average ~3, ``nice -n 19``): the
+NumPy module's Python loop takes 1.35 ms a midpoint step (about 0.86 ms on a quiet machine), numba's
+loop 13 µs and C's 3 µs. Once per run: numba's model functions cost 2.0 s when loaded from
+phc's cache (lowering, numba's import, the cache load) and 4.0 s when compiled cold, its step
+loop 0.4 s from the cache (compiling it cold is a one-off per machine: ~2 min); C costs 0.3 s
+warm and 2.7 s cold (the model's library 0.6 s, the step loop's 2.1 s). At about 1 ms a step
+saved, 2000 steps (2–2.7 s on NumPy) pay back a warm numba load and a cold C compilation; a
+model's first, cold numba compilation pays back from about 3500 steps, and is cached for
+every later run. Below the threshold a run takes at most a few seconds on NumPy anyway."""
 
 
 def default_choice() -> str:
@@ -121,8 +143,9 @@ def _select_c(ir, reference: ModuleType, source: str) -> tuple[ModuleType, str]:
 
 def auto_note(module) -> str:
     """Why ``auto`` runs the NumPy module for a model this small."""
-    return (f"auto: {module.N} unknowns, below {AUTO_MIN_UNKNOWNS}, where the NumPy module is as fast per call; "
-            "--backend numba compiles it anyway")
+    return (f"auto: {module.N} unknowns, below {AUTO_MIN_UNKNOWNS}, where the NumPy module is as fast per call "
+            f"(a fixed-step run of {AUTO_LOOP_STEPS} steps or more runs on a compiled step loop); --backend numba "
+            "compiles it anyway")
 
 
 def describe(module, requested: Optional[str] = None) -> str:
@@ -142,6 +165,76 @@ def describe(module, requested: Optional[str] = None) -> str:
 
     why = why_unavailable()
     return f"numpy (compiled backend unavailable: {why})" if why else "numpy"
+
+
+def for_run(compiled, backend: Optional[str], method: Optional[str], steps: int) -> tuple[ModuleType, str]:
+    """The module a run of `compiled` uses and a one-line note on the choice (empty when it
+    is what :func:`for_compiled` gives with nothing to add).
+
+    `method` is the fixed-step solver whose compiled step loop would run (None for IDA and
+    for runs that keep the Python loop, e.g. with switching conditions), `steps` the number
+    of steps it takes. `backend` None means what `compiled` was compiled with
+    (``compiled.backend_request``). The rule is in the module docstring. The module built is
+    kept in ``compiled.cache.run_modules``; a model loaded from its description (no
+    ``compiled.dae``) uses the one its cached front end put there (:mod:`phc.fastpath`)."""
+    module = for_compiled(compiled, backend)
+    target, why_numpy, note = _run_target(compiled, module, backend, method, steps)
+    if target is None:
+        return module, note
+    what = f"{steps} {method} steps, at least {AUTO_LOOP_STEPS}"
+    built = compiled.cache.run_modules.get(target)  # built once per compiled model
+    if built is None and compiled.dae is None:
+        return module, (f"numpy (auto: {why_numpy}; {what}, would run faster on a compiled step loop, but this model "
+                        "was loaded from its description (CompiledModel.from_description), which cannot build one; "
+                        "--backend numba or c compiles it)")
+    try:
+        if built is None:
+            built = compiled.cache.run_modules[target] = for_compiled(compiled, target)
+    except SimulationSetupError as err:  # the C back end does not print something the model uses
+        return module, f"numpy (auto: {why_numpy}; no compiled step loop for {what}: {err})"
+    if name_of(built) == "numpy":  # a mismatch or a failed compilation: warned, the reference runs
+        return built, f"numpy (auto: {why_numpy}; {target} could not build the model's functions for {what})"
+    return built, f"{describe(built)}; auto: {what}, run on the compiled step loop ({why_numpy})"
+
+
+def run_target(compiled, backend: Optional[str], method: Optional[str], steps: int) -> Optional[str]:
+    """The compiled backend (``numba`` or ``c``) :func:`for_run` runs this run on instead of
+    the module `compiled` was compiled with, or None."""
+    return _run_target(compiled, for_compiled(compiled, backend), backend, method, steps)[0]
+
+
+def _run_target(compiled, module, backend, method, steps) -> tuple[Optional[str], str, str]:
+    """(target or None, why auto ran NumPy, the note when there is no target)."""
+    request = check_choice(backend) if backend is not None else getattr(compiled, "backend_request", None)
+    if request != "auto" or name_of(module) != "numpy" or method is None or steps < AUTO_LOOP_STEPS:
+        return None, "", ""
+    from phc.codegen import numba_cache  # not numba_backend: a cached front end imports no sympy (phc.fastpath)
+
+    small = module.N < AUTO_MIN_UNKNOWNS
+    numba_ok, numba_why = numba_cache.available()
+    if numba_ok and not small:  # auto tried numba and could not use it (a warning said why)
+        return None, "", ""
+    why_numpy = (f"{module.N} unknowns, below {AUTO_MIN_UNKNOWNS}" if small
+                 else f"compiled backend unavailable: {numba_why}")
+    if numba_ok:
+        return "numba", why_numpy, ""
+    from phc.codegen import c_backend
+    from phc.simulation.c_steps import METHODS
+
+    c_ok, c_why = c_backend.available()
+    if not c_ok or method not in METHODS:
+        no_c = c_why if not c_ok else f"the C step loop runs {', '.join(METHODS)} only"
+        what = f"{steps} {method} steps, at least {AUTO_LOOP_STEPS}"
+        return None, why_numpy, f"numpy (auto: {why_numpy}; no compiled step loop for {what}: {numba_why}; {no_c})"
+    return "c", why_numpy, ""
+
+
+def kept_text(module) -> Optional[object]:
+    """What loads a compiled module again without the model's system, JSON data: a numba
+    module's ``KERNEL`` (:func:`phc.codegen.numba_cache.load_cached`), a C module's
+    ``C_SOURCE`` (:func:`phc.codegen.c_backend.load_source`); None for another module."""
+    attribute = {"numba": "KERNEL", "c": "C_SOURCE"}.get(name_of(module))
+    return getattr(module, attribute, None) if attribute else None
 
 
 def for_compiled(compiled, backend: Optional[str]) -> ModuleType:
@@ -167,5 +260,5 @@ def for_compiled(compiled, backend: Optional[str]) -> ModuleType:
     return module
 
 
-__all__ = ["AUTO_MIN_UNKNOWNS", "CHOICES", "auto_note", "check_choice", "default_choice", "describe", "for_compiled",
-           "name_of", "reference_of", "select"]
+__all__ = ["AUTO_LOOP_STEPS", "AUTO_MIN_UNKNOWNS", "CHOICES", "auto_note", "check_choice", "default_choice", "describe",
+           "for_compiled", "for_run", "kept_text", "name_of", "reference_of", "run_target", "select"]

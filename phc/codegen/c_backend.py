@@ -288,11 +288,19 @@ def load_compiled(ir: ResidualIR, reference: ModuleType, reference_source: Optio
     BackendMismatch
         The library disagrees with the reference module at a sample point (a phc bug).
     """
+    return load_source(c_source(ir), reference, reference_source, cache)
+
+
+def load_source(text: str, reference: ModuleType, reference_source: Optional[str] = None,
+                cache: Optional[bool] = None) -> tuple[ModuleType, CReport]:
+    """The C module of the C text `text` (a module's ``C_SOURCE``, which :func:`load_compiled`
+    prints from the model's intermediate representation) and how its library was obtained:
+    from this process, the signed cache, or the compiler. Raises as :func:`load_compiled`
+    (but for `BackendUnsupported`)."""
     argv, identity = find_compiler()
     if argv is None:
         raise BackendUnavailable(identity)
     start, cpu = time.perf_counter(), _cpu()
-    text = c_source(ir)
     digest = library_digest(text, argv, identity)
     if cache is None:
         cache = os.environ.get("PHC_COMPILED_CACHE", "1").strip().lower() not in ("0", "no", "false", "off")
@@ -449,4 +457,4 @@ def assemble(reference: ModuleType, lib: ctypes.CDLL, report: CReport, text: str
 
 
 __all__ = ["CReport", "CUnsupported", "FLAGS", "assemble", "available", "c_cache_dir", "find_compiler",
-           "library_digest", "load_compiled", "sizes_of"]
+           "library_digest", "load_compiled", "load_source", "sizes_of"]

@@ -233,7 +233,7 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
     SimulationInterrupted
         On Ctrl-C (a ``KeyboardInterrupt``); its ``.result`` holds the run up to there.
     """
-    from phc.codegen.backends import for_compiled
+    from phc.codegen.backends import for_run
 
     if isinstance(compiled, (str, os.PathLike)):
         from phc.pipeline import compile_model
@@ -242,12 +242,11 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
     elif not isinstance(compiled, CompiledModel):
         raise TypeError(f"simulate() expects a compiled model (phc.compile_model(path)) or a model file's path, "
                         f"got {type(compiled).__name__}")
-    mod = guard(for_compiled(compiled, backend), compiled.source, _locator(compiled))
     opts = compiled.description.options  # read-only (phc.description)
     # the one options object: the model's (or scene's) run options with this call's overrides
     options = RunOptions.of(opts).with_overrides(t_end=t_end, rtol=rtol, atol=atol, n_out=n_out, solver=solver,
                                                  max_steps=max_steps, step=step, max_order=max_order)
-    backend = BACKENDS[options.solver]
+    requested, backend = backend, BACKENDS[options.solver]
     ignored = backend.ignored({"rtol": rtol, "atol": atol, "step": step, "max_order": max_order})
     if ignored:
         warnings.warn(ignored_option_message(backend, ignored), IgnoredOptionWarning, stacklevel=2)
@@ -260,6 +259,10 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
             t_out = np.concatenate([[t0], t_out])
     else:
         t_out = np.linspace(t0, options.t_end, options.n_out)
+    # the module that runs: under `auto`, a long fixed-step run goes to a compiled step loop
+    # (phc.codegen.backends.for_run; the Python loop runs models with switching conditions)
+    mod, backend_note = for_run(compiled, requested, *_loop_plan(compiled, options, t_out))
+    mod = guard(mod, compiled.source, _locator(compiled))
     from phc.budget import check_output_arrays
 
     columns = 2 * mod.N + len(mod.OUTPUTS) + len(mod.INVARIANTS) + len(getattr(mod, "VELOCITY_INVARIANTS", ())) + 4
@@ -309,9 +312,37 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
         intervals = np.diff(t_out)
         h = options.step
         result.step = float(max(d / max(1, int(np.ceil(d / h - 1e-9))) if h else d for d in intervals))
+    result.backend = getattr(getattr(mod, "module", mod), "BACKEND", "numpy")
+    result.backend_note = backend_note
     if result.interrupted:
         raise SimulationInterrupted(result)
     return result
+
+
+def fixed_step_plan(compiled, *, t_end: Optional[float] = None, n_out: Optional[int] = None,
+                    solver: Optional[str] = None, step: Optional[float] = None) -> tuple[Optional[str], int]:
+    """The fixed-step solver whose compiled step loop a run of `compiled` with these settings
+    (as :func:`simulate` takes them, no `t_eval`) would use and its number of steps, as
+    :func:`simulate` passes them to :func:`phc.codegen.backends.for_run`; ``(None, 0)`` for
+    IDA and for a model with switching conditions (its runs keep the Python loop)."""
+    options = RunOptions.of(compiled.description.options).with_overrides(t_end=t_end, n_out=n_out, solver=solver,
+                                                                         step=step)
+    return _loop_plan(compiled, options, np.linspace(options.t_start, options.t_end, options.n_out))
+
+
+def _loop_plan(compiled, options: RunOptions, t_out: np.ndarray) -> tuple[Optional[str], int]:
+    if not BACKENDS[options.solver].fixed_step or has_switches(compiled.module):
+        return None, 0
+    return options.solver, _fixed_steps(t_out, options.step)
+
+
+def _fixed_steps(t_out: np.ndarray, step: Optional[float]) -> int:
+    """The number of steps a fixed-step solver takes over `t_out`: each output interval in
+    equal steps no longer than `step` (one step each without it)."""
+    intervals = np.diff(np.asarray(t_out, dtype=float))
+    if not step:
+        return len(intervals)
+    return int(np.maximum(1, np.ceil(intervals / step - 1e-9)).sum())
 
 
 def initial_values(compiled, p: np.ndarray, initial: Optional[dict] = None) -> tuple[dict[int, float], set[int]]:
@@ -586,5 +617,6 @@ def _finish(compiled, mod, p, out: BackendRun, init, cpu: float, options: RunOpt
 
 
 __all__ = ["simulate", "SimResult", "SimulationInterrupted", "ModelEvaluationError", "BACKENDS", "Backend", "BackendRun",
+           "fixed_step_plan",
            "IgnoredOptionWarning",
            "InconsistentInitialError", "initial_values", "parameter_vector", "start_state"]

@@ -66,6 +66,11 @@ class SimResult:
     """Switches of the run in time order (:class:`phc.simulation.events.Event`: time,
     condition as written in the model, direction, kind ``time``/``state``/``stick``/``slip``);
     see docs/events.md."""
+    backend: str = "numpy"
+    """What ran the generated functions (``numpy``, ``numba`` or ``c``; :mod:`phc.codegen.backends`)."""
+    backend_note: str = ""
+    """One line on why, when the run chose a backend of its own (``auto`` on a long fixed-step
+    run: :func:`phc.codegen.backends.for_run`); empty otherwise."""
     units: dict = field(default_factory=dict)
     """Unit labels of outputs, variables and `H` where the model's units give them
     (`{"x": "m", "spring.x": "m", "H": "J"}`; docs/units.md). Empty for a model without units."""
@@ -112,6 +117,8 @@ class SimResult:
             "rtol": self.rtol,
             "atol": self.atol,
             "step": self.step,
+            "backend": self.backend,
+            "backend_note": self.backend_note,
             "n_states": int(self.n_states),
             "n_equations": int(self.n_equations),
             "t_final": float(self.t[-1]) if len(self.t) else None,

@@ -1,0 +1,149 @@
+"""``auto`` on a long fixed-step run (:func:`phc.codegen.backends.for_run`).
+
+A model below :data:`~phc.codegen.backends.AUTO_MIN_UNKNOWNS` unknowns compiles to the NumPy
+module under ``auto``; a fixed-step run of at least :data:`~phc.codegen.backends.AUTO_LOOP_STEPS`
+steps then runs on a compiled step loop: numba where it can be imported, else C (the implicit
+midpoint rule's loop only), else NumPy with the reason in the run's note. An explicit
+``numpy``, IDA, a shorter run and a model loaded from its description stay on NumPy. The
+switched run takes the NumPy run's steps: both solve the same implicit midpoint equations to
+the Newton tolerance, so the states agree to that tolerance accumulated over the steps.
+
+The suite runs with ``PHC_BACKEND=numpy`` (tests/conftest.py): these tests ask for ``auto``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import phc
+from phc.cli import main
+from phc.codegen import backends, c_backend, numba_backend, numba_cache
+from phc.compiled import CompiledModel
+from phc.simulation.midpoint import NEWTON_TOL
+
+PENDULUM = Path(__file__).resolve().parents[2] / "models" / "pendulum.yaml"
+H = 1e-3
+"""The step of every run here (the pendulum's period is about 2 s: a fine step)."""
+SHORT = 200
+"""The threshold the rule's own tests set (``AUTO_LOOP_STEPS`` monkeypatched): short runs."""
+
+
+def _numba():
+    return numba_backend.available()[0]
+
+
+def _c():
+    return c_backend.available()[0]
+
+
+@pytest.fixture(scope="module")
+def compiled():
+    model = phc.compile_model(PENDULUM, certify=False, backend="auto")
+    assert model.backend == "numpy" and model.module.N < backends.AUTO_MIN_UNKNOWNS  # the size rule
+    assert model.backend_request == "auto"
+    return model
+
+
+def _run(model, steps, solver="midpoint", **kwargs):
+    """`steps` steps of `H` over one output interval."""
+    return phc.simulate(model, t_end=steps * H, step=H, n_out=2, solver=solver, **kwargs)
+
+
+@pytest.fixture
+def short(monkeypatch):
+    monkeypatch.setattr(backends, "AUTO_LOOP_STEPS", SHORT)
+
+
+@pytest.fixture
+def no_numba(monkeypatch):
+    monkeypatch.setattr(numba_cache, "_AVAILABLE", (False, "numba is not installed (test)"))
+
+
+@pytest.mark.skipif(not (_numba() or _c()), reason="neither numba nor a C compiler: no compiled step loop")
+def test_a_long_midpoint_run_runs_compiled_and_takes_the_numpy_runs_steps(compiled):
+    steps = backends.AUTO_LOOP_STEPS
+    fast = _run(compiled, steps)
+    slow = _run(compiled, steps, backend="numpy")
+    assert fast.backend == ("numba" if _numba() else "c")
+    assert f"auto: {steps} midpoint steps, at least {steps}" in fast.backend_note
+    assert "\n" not in fast.backend_note
+    assert slow.backend == "numpy" and slow.backend_note == ""
+    assert fast.success and slow.success, (fast.message, slow.message)
+    assert fast.steps == slow.steps == steps
+    assert np.array_equal(fast.t, slow.t)
+    # every step solves the same equations to NEWTON_TOL (relative to 1 + |y|); a dense LU
+    # against SuperLU changes the iterates by round-off. Accumulated over the steps, with a
+    # factor 100 for the growth of a perturbation along the swing:
+    diff = fast.differential & (np.array(fast.variables) != "energy.supplied")
+    err = np.abs(fast.y[-1] - slow.y[-1]) / (1.0 + np.abs(slow.y).max(axis=0))
+    bound = 100 * steps * NEWTON_TOL
+    assert err[diff].max() <= bound, err[diff].max()
+    # the algebraic ones (multipliers at the step ends) are differences of those over h
+    assert err[~diff].max(initial=0.0) <= bound / H, err[~diff].max(initial=0.0)
+
+
+@pytest.mark.skipif(not _c(), reason="no C compiler")
+def test_without_numba_a_long_midpoint_run_runs_on_c(compiled, short, no_numba):
+    result = _run(compiled, SHORT)
+    assert result.success, result.message
+    assert result.backend == "c"
+    assert result.backend_note.startswith("c: compiled functions")
+    assert f"auto: {SHORT} midpoint steps" in result.backend_note
+
+
+def test_without_numba_and_c_the_run_stays_numpy_and_says_why(compiled, short, no_numba, monkeypatch):
+    monkeypatch.setattr(c_backend, "available", lambda: (False, "no C compiler found (test)"))
+    result = _run(compiled, SHORT)
+    assert result.success, result.message
+    assert result.backend == "numpy"
+    assert "numba is not installed (test)" in result.backend_note
+    assert "no C compiler found (test)" in result.backend_note
+
+
+def test_c_serves_only_the_midpoint_loop(compiled, short, no_numba, monkeypatch):
+    monkeypatch.setattr(c_backend, "available", lambda: (True, "cc (test)"))
+    result = _run(compiled, SHORT, solver="discrete_gradient")
+    assert result.backend == "numpy"
+    assert "the C step loop runs midpoint only" in result.backend_note
+
+
+def test_explicit_numpy_never_switches(compiled, short):
+    assert _run(compiled, SHORT, backend="numpy").backend == "numpy"
+    requested = phc.compile_model(PENDULUM, certify=False, backend="numpy")
+    assert requested.backend_request == "numpy"
+    result = _run(requested, SHORT)
+    assert (result.backend, result.backend_note) == ("numpy", "")
+
+
+def test_ida_keeps_the_size_rule(compiled, short):
+    result = phc.simulate(compiled, t_end=1.0, n_out=2 * SHORT, solver="ida")
+    assert (result.backend, result.backend_note) == ("numpy", "")
+
+
+def test_a_run_below_the_threshold_stays_numpy(compiled, short):
+    result = _run(compiled, SHORT - 1)
+    assert result.steps == SHORT - 1
+    assert (result.backend, result.backend_note) == ("numpy", "")
+
+
+def test_a_model_loaded_from_its_description_stays_numpy_and_says_so(compiled, short):
+    loaded = CompiledModel.from_description(compiled.description, compiled.source, backend_request="auto")
+    assert loaded.dae is None
+    result = _run(loaded, SHORT)
+    assert result.backend == "numpy"
+    assert "loaded from its description" in result.backend_note
+
+
+@pytest.mark.skipif(not (_numba() or _c()), reason="neither numba nor a C compiler: no compiled step loop")
+def test_the_cli_backend_line_says_why(short, capsys, monkeypatch):
+    monkeypatch.setenv("PHC_FRONT_END_CACHE", "0")
+    args = ["simulate", str(PENDULUM), "--no-certify", "--solver", "midpoint", "--t-end", str(SHORT * H),
+            "--step", str(H), "--n-out", "2", "--backend", "auto"]
+    assert main(args) == 0
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("  backend")]
+    assert len(lines) == 1
+    assert f"auto: {SHORT} midpoint steps" in lines[0]
+    assert lines[0].split()[1].rstrip(":") == ("numba" if _numba() else "c")
