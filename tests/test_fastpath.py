@@ -210,9 +210,10 @@ def test_a_hit_prints_the_same_json_summary(tmp_path, cache, capsys):
     for _ in range(2):
         assert main(["simulate", str(model), *RUN, "--format", "json"]) == 0
         runs.append(json.loads(capsys.readouterr().out))
-    timed = {"cpu_time_s", "peak_memory_bytes", "compile_time_s"}
+    timed = {"cpu_time_s", "peak_memory_bytes", "compile_time_s", "timings"}
     full, cached = runs
     assert set(full) == set(cached)
+    assert set(full["timings"]) == set(cached["timings"])  # the same phases, their own times
     assert {k: v for k, v in full.items() if k not in timed | {"compiled"}} == \
         {k: v for k, v in cached.items() if k not in timed | {"compiled"}}
     assert {k: v for k, v in full["compiled"].items() if k not in timed} == \
