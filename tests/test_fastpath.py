@@ -274,16 +274,16 @@ LONG = ["--solver", "midpoint", "--step", "1e-3", "--n-out", "2", "--backend", "
 
 @pytest.fixture(params=["numba", "c"])
 def step_loop(request, monkeypatch):
-    """The compiled step loop `auto` switches a long fixed-step run to: numba, or C where
-    numba is made unavailable; the threshold lowered to 200 steps (short runs)."""
-    from phc.codegen import backends, c_backend, numba_backend, numba_cache
+    """The compiled step loop `auto` switches a long midpoint run to: C, or numba where the C
+    compiler is made unavailable; the threshold lowered to 200 steps (short runs)."""
+    from phc.codegen import backends, c_backend, cc, numba_backend, numba_cache
 
-    if request.param == "numba" and not numba_backend.available()[0]:
-        pytest.skip("numba is not installed")
-    if request.param == "c":
-        if not c_backend.available()[0]:
-            pytest.skip("no C compiler")
-        monkeypatch.setattr(numba_cache, "_AVAILABLE", (False, "numba is not installed (test)"))
+    if request.param == "numba":
+        if not numba_backend.available()[0]:
+            pytest.skip("numba is not installed")
+        monkeypatch.setattr(cc, "available", lambda: (False, "no C compiler found (test)"))
+    if request.param == "c" and not c_backend.available()[0]:
+        pytest.skip("no C compiler")
     monkeypatch.setattr(numba_cache, "_LOADED", {})  # compiled by an earlier test: not in this test's cache
     monkeypatch.setattr(c_backend, "_LOADED", {})
     monkeypatch.setattr(backends, "AUTO_LOOP_STEPS", 200)

@@ -20,9 +20,11 @@ its whole step loop runs compiled on the numba or C back end (:mod:`phc.simulati
 20–100 times faster a step than the Python loop on the NumPy module, however small the model.
 So when ``auto`` ran the NumPy module (below :data:`AUTO_MIN_UNKNOWNS` unknowns, or numba
 missing) and a run takes at least :data:`AUTO_LOOP_STEPS` fixed steps, :func:`for_run` runs it
-on ``numba`` when numba can be imported, else on ``c`` when there is a C compiler (whose loop
-is the implicit midpoint rule's only), else on NumPy with the reason in the run's note. An
-explicit ``numpy`` never switches; IDA keeps the size rule.
+on ``c`` when there is a C compiler and the solver is the implicit midpoint rule (the one
+loop written in C: about 3 µs a step and 2.7 s to compile cold, where numba's step loop is
+compiled once per machine in about two minutes), else on ``numba`` when numba can be imported,
+else on NumPy with the reason in the run's note. An explicit ``numpy`` never switches; IDA
+keeps the size rule.
 """
 
 from __future__ import annotations
@@ -178,23 +180,31 @@ def for_run(compiled, backend: Optional[str], method: Optional[str], steps: int)
     kept in ``compiled.cache.run_modules``; a model loaded from its description (no
     ``compiled.dae``) uses the one its cached front end put there (:mod:`phc.fastpath`)."""
     module = for_compiled(compiled, backend)
-    target, why_numpy, note = _run_target(compiled, module, backend, method, steps)
-    if target is None:
+    targets, why_numpy, note = _run_targets(compiled, module, backend, method, steps)
+    if not targets:
         return module, note
     what = f"{steps} {method} steps, at least {AUTO_LOOP_STEPS}"
-    built = compiled.cache.run_modules.get(target)  # built once per compiled model
-    if built is None and compiled.dae is None:
+    kept = [target for target in targets if target in compiled.cache.run_modules]  # built once per model
+    if kept:
+        built = compiled.cache.run_modules[kept[0]]
+        return built, f"{describe(built)}; auto: {what}, run on the compiled step loop ({why_numpy})"
+    if compiled.dae is None:
         return module, (f"numpy (auto: {why_numpy}; {what}, would run faster on a compiled step loop, but this model "
                         "was loaded from its description (CompiledModel.from_description), which cannot build one; "
                         "--backend numba or c compiles it)")
-    try:
-        if built is None:
-            built = compiled.cache.run_modules[target] = for_compiled(compiled, target)
-    except SimulationSetupError as err:  # the C back end does not print something the model uses
-        return module, f"numpy (auto: {why_numpy}; no compiled step loop for {what}: {err})"
-    if name_of(built) == "numpy":  # a mismatch or a failed compilation: warned, the reference runs
-        return built, f"numpy (auto: {why_numpy}; {target} could not build the model's functions for {what})"
-    return built, f"{describe(built)}; auto: {what}, run on the compiled step loop ({why_numpy})"
+    refused = []
+    for target in targets:
+        try:
+            built = for_compiled(compiled, target)
+        except SimulationSetupError as err:  # the C back end does not print something the model uses
+            refused.append(str(err))
+            continue
+        if name_of(built) == "numpy":  # a mismatch or a failed compilation: warned, the reference runs
+            refused.append(f"{target} could not build the model's functions")
+            continue
+        compiled.cache.run_modules[target] = built
+        return built, f"{describe(built)}; auto: {what}, run on the compiled step loop ({why_numpy})"
+    return module, f"numpy (auto: {why_numpy}; no compiled step loop for {what}: {'; '.join(refused)})"
 
 
 def run_target(compiled, backend: Optional[str], method: Optional[str], steps: int) -> Optional[str]:
@@ -205,28 +215,32 @@ def run_target(compiled, backend: Optional[str], method: Optional[str], steps: i
 
 def _run_target(compiled, module, backend, method, steps) -> tuple[Optional[str], str, str]:
     """(target or None, why auto ran NumPy, the note when there is no target)."""
+    targets, why_numpy, note = _run_targets(compiled, module, backend, method, steps)
+    return (targets[0] if targets else None), why_numpy, note
+
+
+def _run_targets(compiled, module, backend, method, steps) -> tuple[list[str], str, str]:
+    """(the compiled backends to try in order, why auto ran NumPy, the note when there are
+    none): C first for the implicit midpoint rule, whose loop it has, then numba."""
     request = check_choice(backend) if backend is not None else getattr(compiled, "backend_request", None)
     if request != "auto" or name_of(module) != "numpy" or method is None or steps < AUTO_LOOP_STEPS:
-        return None, "", ""
-    from phc.codegen import numba_cache  # not numba_backend: a cached front end imports no sympy (phc.fastpath)
+        return [], "", ""
+    # neither imports sympy: a cached front end asks this too (phc.fastpath)
+    from phc.codegen import cc, numba_cache
+    from phc.simulation.c_steps import METHODS
 
     small = module.N < AUTO_MIN_UNKNOWNS
     numba_ok, numba_why = numba_cache.available()
     if numba_ok and not small:  # auto tried numba and could not use it (a warning said why)
-        return None, "", ""
+        return [], "", ""
     why_numpy = (f"{module.N} unknowns, below {AUTO_MIN_UNKNOWNS}" if small
                  else f"compiled backend unavailable: {numba_why}")
-    if numba_ok:
-        return "numba", why_numpy, ""
-    from phc.codegen import c_backend
-    from phc.simulation.c_steps import METHODS
-
-    c_ok, c_why = c_backend.available()
-    if not c_ok or method not in METHODS:
-        no_c = c_why if not c_ok else f"the C step loop runs {', '.join(METHODS)} only"
+    c_ok, c_why = cc.available() if method in METHODS else (False, f"the C step loop runs {', '.join(METHODS)} only")
+    targets = ["c"] * c_ok + ["numba"] * numba_ok
+    if not targets:
         what = f"{steps} {method} steps, at least {AUTO_LOOP_STEPS}"
-        return None, why_numpy, f"numpy (auto: {why_numpy}; no compiled step loop for {what}: {numba_why}; {no_c})"
-    return "c", why_numpy, ""
+        return [], why_numpy, f"numpy (auto: {why_numpy}; no compiled step loop for {what}: {numba_why}; {c_why})"
+    return targets, why_numpy, ""
 
 
 def kept_text(module) -> Optional[object]:

@@ -42,9 +42,7 @@ import hashlib
 import hmac
 import os
 import platform
-import shlex
 import shutil
-import subprocess
 import sys
 import tempfile
 import time
@@ -58,7 +56,9 @@ import numpy as np
 
 from phc import __version__
 from phc.codegen.c_printer import ABI, CUnsupported, c_source  # noqa: F401 — CUnsupported: the API
-from phc.codegen.cc import compile_library
+# the compiler's discovery lives with its runner (phc.codegen.cc imports no sympy: the `auto`
+# rule asks for a compiler from a cached front end); its names stay importable from here
+from phc.codegen.cc import _COMPILERS, available, compile_library, find_compiler  # noqa: F401
 from phc.codegen.lower import ResidualIR
 from phc.codegen.numba_cache import FUNCTIONS, _cross_check, _read_private, _tag, signed_cache_dir
 from phc.errors import BackendMismatch, BackendUnavailable, CacheWarning, CodegenError
@@ -73,48 +73,6 @@ COMPILE_TIMEOUT = 900.0
 
 MAGIC = b"phc-c-1\n"
 """First bytes of a library's tag file."""
-
-_COMPILERS: dict = {}
-"""($CC, $PATH) -> (argv, identity) of the compiler found, or (None, why none)."""
-
-
-def find_compiler() -> tuple[Optional[list[str]], str]:
-    """(the compiler's argv, its identity: the first line of ``--version``) or (None, why
-    there is none). ``$CC`` when set (split like a shell word list), else the first of
-    ``cc``, ``gcc``, ``clang`` on the PATH that answers ``--version``."""
-    env = os.environ.get("CC", "").strip()
-    key = (env, os.environ.get("PATH", ""))
-    found = _COMPILERS.get(key)
-    if found is None:
-        found = _COMPILERS[key] = _find(env)
-    return found
-
-
-def _find(env: str) -> tuple[Optional[list[str]], str]:
-    try:
-        candidates = [shlex.split(env)] if env else [["cc"], ["gcc"], ["clang"]]
-    except ValueError:
-        candidates = []
-    for argv in candidates:
-        exe = shutil.which(argv[0]) if argv else None
-        if exe is None:
-            continue
-        try:
-            done = subprocess.run([exe, *argv[1:], "--version"], capture_output=True, text=True, timeout=60,
-                                  stdin=subprocess.DEVNULL)
-        except (OSError, subprocess.SubprocessError):
-            continue
-        if done.returncode == 0:
-            return [exe, *argv[1:]], (done.stdout.strip().splitlines() or [exe])[0].strip()
-    where = f"$CC is `{env}`, which does not run" if env else "no `cc`, `gcc` or `clang` on the PATH"
-    return None, (f"no C compiler found ({where}); install one (e.g. `apt install gcc`) or set $CC, "
-                  "or run with --backend numpy")
-
-
-def available() -> tuple[bool, str]:
-    """(True, the compiler's identity) when a C compiler was found, else (False, why not)."""
-    argv, text = find_compiler()
-    return argv is not None, text
 
 
 @dataclass

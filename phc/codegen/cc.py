@@ -1,7 +1,7 @@
 """Running the system C compiler: the one place phc starts it to build a shared library.
 
-The compiler is the one :func:`phc.codegen.c_backend.find_compiler` finds (``$CC``, else
-``cc``, ``gcc`` or ``clang``). Its callers: the C back end's model libraries and the C step
+The compiler is the one :func:`find_compiler` finds (``$CC``, else ``cc``, ``gcc`` or
+``clang``); this module imports no sympy, so a cached front end can ask for it. Its callers: the C back end's model libraries and the C step
 loop's library (:mod:`phc.codegen.c_backend`) and the FMU's binary (:mod:`phc.export.fmu`).
 
 The command is ``argv flags... -o output sources... libs...``, run in a working directory,
@@ -14,14 +14,59 @@ time, or it exited non-zero (with the exit status and the first line it printed 
 from __future__ import annotations
 
 import os
+import shlex
+import shutil
 import signal
 import subprocess
 from pathlib import Path
-from typing import Iterable, Sequence
+from typing import Iterable, Optional, Sequence
 
 from phc.errors import CodegenError
 
-__all__ = ["compile_library", "first_error"]
+__all__ = ["available", "compile_library", "find_compiler", "first_error"]
+
+_COMPILERS: dict = {}
+"""($CC, $PATH) -> (argv, identity) of the compiler found, or (None, why none)."""
+
+
+def find_compiler() -> tuple[Optional[list[str]], str]:
+    """(the compiler's argv, its identity: the first line of ``--version``) or (None, why
+    there is none). ``$CC`` when set (split like a shell word list), else the first of
+    ``cc``, ``gcc``, ``clang`` on the PATH that answers ``--version``."""
+    env = os.environ.get("CC", "").strip()
+    key = (env, os.environ.get("PATH", ""))
+    found = _COMPILERS.get(key)
+    if found is None:
+        found = _COMPILERS[key] = _find(env)
+    return found
+
+
+def _find(env: str) -> tuple[Optional[list[str]], str]:
+    try:
+        candidates = [shlex.split(env)] if env else [["cc"], ["gcc"], ["clang"]]
+    except ValueError:
+        candidates = []
+    for argv in candidates:
+        exe = shutil.which(argv[0]) if argv else None
+        if exe is None:
+            continue
+        try:
+            done = subprocess.run([exe, *argv[1:], "--version"], capture_output=True, text=True, timeout=60,
+                                  stdin=subprocess.DEVNULL)
+        except (OSError, subprocess.SubprocessError):
+            continue
+        if done.returncode == 0:
+            return [exe, *argv[1:]], (done.stdout.strip().splitlines() or [exe])[0].strip()
+    where = f"$CC is `{env}`, which does not run" if env else "no `cc`, `gcc` or `clang` on the PATH"
+    return None, (f"no C compiler found ({where}); install one (e.g. `apt install gcc`) or set $CC, "
+                  "or run with --backend numpy")
+
+
+def available() -> tuple[bool, str]:
+    """(True, the compiler's identity) when a C compiler was found, else (False, why not)."""
+    argv, text = find_compiler()
+    return argv is not None, text
+
 
 
 def compile_library(argv: Sequence[str], flags: Iterable[str], sources: Iterable, output, *, cwd, timeout: float,
@@ -31,7 +76,7 @@ def compile_library(argv: Sequence[str], flags: Iterable[str], sources: Iterable
     Parameters
     ----------
     argv : sequence of str
-        The compiler's command (:func:`phc.codegen.c_backend.find_compiler`).
+        The compiler's command (:func:`find_compiler`).
     flags, sources, libs
         Put on the command line in this order around ``-o output`` (sources as given: relative
         to `cwd` or absolute).

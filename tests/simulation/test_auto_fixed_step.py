@@ -2,8 +2,9 @@
 
 A model below :data:`~phc.codegen.backends.AUTO_MIN_UNKNOWNS` unknowns compiles to the NumPy
 module under ``auto``; a fixed-step run of at least :data:`~phc.codegen.backends.AUTO_LOOP_STEPS`
-steps then runs on a compiled step loop: numba where it can be imported, else C (the implicit
-midpoint rule's loop only), else NumPy with the reason in the run's note. An explicit
+steps then runs on a compiled step loop: C for the implicit midpoint rule where a compiler is
+found (its one loop in C), else numba where it can be imported, else NumPy with the reason in
+the run's note. An explicit
 ``numpy``, IDA, a shorter run and a model loaded from its description stay on NumPy. The
 switched run takes the NumPy run's steps: both solve the same implicit midpoint equations to
 the Newton tolerance, so the states agree to that tolerance accumulated over the steps.
@@ -20,8 +21,9 @@ import pytest
 
 import phc
 from phc.cli import main
-from phc.codegen import backends, c_backend, numba_backend, numba_cache
+from phc.codegen import backends, c_backend, cc, numba_backend, numba_cache
 from phc.compiled import CompiledModel
+from phc.errors import SimulationSetupError
 from phc.simulation.midpoint import NEWTON_TOL
 
 PENDULUM = Path(__file__).resolve().parents[2] / "models" / "pendulum.yaml"
@@ -67,7 +69,7 @@ def test_a_long_midpoint_run_runs_compiled_and_takes_the_numpy_runs_steps(compil
     steps = backends.AUTO_LOOP_STEPS
     fast = _run(compiled, steps)
     slow = _run(compiled, steps, backend="numpy")
-    assert fast.backend == ("numba" if _numba() else "c")
+    assert fast.backend == ("c" if _c() else "numba")
     assert f"auto: {steps} midpoint steps, at least {steps}" in fast.backend_note
     assert "\n" not in fast.backend_note
     assert slow.backend == "numpy" and slow.backend_note == ""
@@ -94,8 +96,35 @@ def test_without_numba_a_long_midpoint_run_runs_on_c(compiled, short, no_numba):
     assert f"auto: {SHORT} midpoint steps" in result.backend_note
 
 
+@pytest.mark.skipif(not _numba(), reason="numba is not installed")
+def test_without_a_c_compiler_a_long_midpoint_run_runs_on_numba(compiled, short, monkeypatch):
+    monkeypatch.setattr(cc, "available", lambda: (False, "no C compiler found (test)"))
+    result = _run(compiled, SHORT)
+    assert result.success, result.message
+    assert result.backend == "numba"
+    assert f"auto: {SHORT} midpoint steps" in result.backend_note
+
+
+@pytest.mark.skipif(not _numba(), reason="numba is not installed")
+def test_a_model_the_c_back_end_refuses_runs_on_numba(compiled, short, monkeypatch):
+    """C first for midpoint; where it refuses the model (an input table), numba."""
+    real = backends.for_compiled
+
+    def refuse(model, target):
+        if target == "c":
+            raise SimulationSetupError("the C backend does not print input tables yet (test)")
+        return real(model, target)
+
+    monkeypatch.setattr(cc, "available", lambda: (True, "cc (test)"))
+    monkeypatch.setattr(backends, "for_compiled", refuse)
+    monkeypatch.setattr(compiled.cache, "run_modules", {})  # nothing built by the tests before
+    module, note = backends.for_run(compiled, "auto", "midpoint", SHORT)
+    assert backends.name_of(module) == "numba"
+    assert f"auto: {SHORT} midpoint steps" in note
+
+
 def test_without_numba_and_c_the_run_stays_numpy_and_says_why(compiled, short, no_numba, monkeypatch):
-    monkeypatch.setattr(c_backend, "available", lambda: (False, "no C compiler found (test)"))
+    monkeypatch.setattr(cc, "available", lambda: (False, "no C compiler found (test)"))
     result = _run(compiled, SHORT)
     assert result.success, result.message
     assert result.backend == "numpy"
@@ -104,7 +133,7 @@ def test_without_numba_and_c_the_run_stays_numpy_and_says_why(compiled, short, n
 
 
 def test_c_serves_only_the_midpoint_loop(compiled, short, no_numba, monkeypatch):
-    monkeypatch.setattr(c_backend, "available", lambda: (True, "cc (test)"))
+    monkeypatch.setattr(cc, "available", lambda: (True, "cc (test)"))
     result = _run(compiled, SHORT, solver="discrete_gradient")
     assert result.backend == "numpy"
     assert "the C step loop runs midpoint only" in result.backend_note
@@ -146,4 +175,4 @@ def test_the_cli_backend_line_says_why(short, capsys, monkeypatch):
     lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("  backend")]
     assert len(lines) == 1
     assert f"auto: {SHORT} midpoint steps" in lines[0]
-    assert lines[0].split()[1].rstrip(":") == ("numba" if _numba() else "c")
+    assert lines[0].split()[1].rstrip(":") == ("c" if _c() else "numba")
