@@ -173,29 +173,15 @@ EDITS = st.one_of(
 CODE = re.compile(r"\[PHC-[EW]\d{3}\]")
 
 
-@contextlib.contextmanager
-def _env(**values):
-    old = {k: os.environ.get(k) for k in values}
-    os.environ.update({k: v for k, v in values.items() if v is not None})
-    for k, v in values.items():
-        if v is None:
-            os.environ.pop(k, None)
-    try:
-        yield
-    finally:
-        for k, v in old.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-
-
 def _simulate(top: Path, out: Path, cached: bool) -> tuple[int, str, bytes]:
     """(exit status, what it printed, the CSV it wrote or b"")."""
     _remove(out)
     stdout, stderr = io.StringIO(), io.StringIO()
-    with _env(**{fastpath.ENV_SWITCH: None if cached else "0"}), \
-            contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+    with pytest.MonkeyPatch.context() as env, contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+        if cached:
+            env.delenv(fastpath.ENV_SWITCH, raising=False)
+        else:
+            env.setenv(fastpath.ENV_SWITCH, "0")
         code = main(["simulate", str(top), "--out", str(out), "--quiet", "--no-certify"])
     return code, stdout.getvalue() + stderr.getvalue(), out.read_bytes() if out.is_file() else b""
 
@@ -224,7 +210,9 @@ def _run(edits: list) -> None:
         root = base / "model"
         root.mkdir()
         top = _build(root)
-        with _env(PHC_CACHE_DIR=str(base / "cache"), PHC_STATE_DIR=str(base / "state")):
+        with pytest.MonkeyPatch.context() as env:
+            env.setenv("PHC_CACHE_DIR", str(base / "cache"))
+            env.setenv("PHC_STATE_DIR", str(base / "state"))
             assert _check(root, top, []) == 0  # the tree as built runs: the comparisons are not vacuous
             history = []
             for edit in edits:
