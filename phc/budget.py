@@ -5,8 +5,12 @@ a Hamiltonian that is a product of sixty exponentials) can ask for more memory o
 symbolic work than a laptop has. phc estimates both before spending them and refuses
 with a located error that gives the estimate and what drives it.
 
-**Memory.** Each distributed component is estimated from its type and element count
-*before* it is discretized (:func:`admit_mesh`, called by the elaborator): unknowns
+**Memory.** Before anything is elaborated, the components of the model (every copy of a
+nested model file counted) are counted from the files alone, at :data:`BYTES_PER_COMPONENT`
+each (:func:`admit_components`), so a model of 10⁴ components too large for the budget is
+refused in the seconds it takes to read it. Each distributed component is then estimated
+from its type and element count *before* it is discretized (:func:`admit_mesh`, called by
+the elaborator), on top of the components: unknowns
 and Jacobian nonzeros per element are those of phc's own discretizations (the ``cost``
 of each type's entry in :mod:`phc.registry`), and the
 compile peak is about :data:`BYTES_PER_UNKNOWN` per unknown plus
@@ -72,6 +76,10 @@ BYTES_PER_UNKNOWN = 8 * 2**10
 """Compile peak per unknown: symbols, variables, equations, printed source (6.9 KiB measured)."""
 BYTES_PER_NONZERO = 512
 """Compile peak per Jacobian nonzero (0.4 KiB measured)."""
+BYTES_PER_COMPONENT = 48 * 2**10
+"""Compile peak per component on top of its unknowns and nonzeros: its spec, description,
+lowering and generated statements (chains of 3 000 and 10 000 springs and masses, one unknown
+each: 54.7 KiB per component in all, 45 KiB of it beyond the unknown and its nonzeros)."""
 
 DIFF_LIMIT = 100_000
 """Largest bound on the size of one derivative (nodes): about 3 s of sympy work."""
@@ -174,10 +182,12 @@ class Estimate:
 
     unknowns: int = 0
     nonzeros: int = 0
+    components: int = 0
 
     @property
     def compile_bytes(self) -> int:
-        return BASE_BYTES + BYTES_PER_UNKNOWN * self.unknowns + BYTES_PER_NONZERO * self.nonzeros
+        return (BASE_BYTES + BYTES_PER_UNKNOWN * self.unknowns + BYTES_PER_NONZERO * self.nonzeros
+                + BYTES_PER_COMPONENT * self.components)
 
 
 def output_bytes(n_out: int, n_columns: int) -> int:
@@ -248,12 +258,13 @@ def admit_mesh(ledger: MeshLedger, ctx, full: str, comp, path, override_=None
             "PHC-E701", f"`{full}` ({comp.type}) has {n:,} elements, above its limit of {limit:,}", span=span,
             hint="use fewer elements", path=where)
     est = mesh_estimate(comp)
-    total = Estimate(ledger.total.unknowns + est.unknowns, ledger.total.nonzeros + est.nonzeros)
+    total = Estimate(ledger.total.unknowns + est.unknowns, ledger.total.nonzeros + est.nonzeros,
+                     ledger.total.components)
     budget = max_memory()
     if total.compile_bytes > budget:
         others = ledger.total
         per = mesh_estimate(comp.model_copy(update={"elements": 1000}))
-        spare = budget - Estimate(others.unknowns, others.nonzeros).compile_bytes
+        spare = budget - others.compile_bytes
         cost_per_element = (BYTES_PER_UNKNOWN * per.unknowns + BYTES_PER_NONZERO * per.nonzeros) / 1000
         fit = int(spare / cost_per_element) if spare > 0 else 0
         together = (f" (with the {len(ledger.meshes)} distributed component(s) before it: {total.unknowns:,} "
@@ -267,6 +278,23 @@ def admit_mesh(ledger: MeshLedger, ctx, full: str, comp, path, override_=None
     return MeshLedger(total, (*ledger.meshes, (full, est, span, n))), None
 
 
+def admit_components(count: int, nested: Optional[tuple[str, int]]) -> Optional[tuple[str, str]]:
+    """Before anything is elaborated: the problem with a model of `count` components (every
+    copy of a nested model file's components included) as ``(message, hint)``, or None within
+    budget. `nested` is
+    the ``type: model`` entry of the top-level file that brings the most of them, with how
+    many, or None. Meshes are admitted one by one later (:func:`admit_mesh`), on top of this."""
+    need = Estimate(components=count).compile_bytes
+    budget = max_memory()
+    if need <= budget:
+        return None
+    most = (f"; `{nested[0]}` brings {nested[1]:,} of them" if nested is not None and nested[1] > 0 else "")
+    fit = max(0, (budget - BASE_BYTES) // BYTES_PER_COMPONENT)
+    return (f"the model has {count:,} components{most}, an estimated {format_bytes(need)} to compile before "
+            f"any mesh is counted, above the memory budget of {format_bytes(budget)}",
+            f"use at most about {fit:,} components " + _raise_hint(need))
+
+
 def check_assembled(elab, dae) -> list[Diagnostic]:
     """After assembly: the exact size plus the output arrays against the budget. Returns a
     located error when above: at `n_out` when the outputs drive it, else at the component
@@ -276,7 +304,7 @@ def check_assembled(elab, dae) -> list[Diagnostic]:
     n_var = len(dae.variables)
     nonzeros = sum(term.matrix.nnz for block in dae.linear_blocks for term in block.terms)
     nonzeros += sum(len(eq.expr.free_symbols) for eq in dae.equations if eq.expr != 0)
-    compile_est = Estimate(n_var, nonzeros)
+    compile_est = Estimate(n_var, nonzeros, len(elab.components))
     n_out = int(dae.options.get("n_out", 0) or 0)
     columns = 2 * n_var + len(dae.outputs) + len(dae.invariants) + len(dae.velocity_invariants) + 4
     outputs = output_bytes(n_out, columns)
@@ -285,7 +313,8 @@ def check_assembled(elab, dae) -> list[Diagnostic]:
     if total <= budget:
         return []
     what = (f"an estimated {format_bytes(total)} ({format_bytes(compile_est.compile_bytes)} to compile "
-            f"{n_var:,} unknowns with {nonzeros:,} Jacobian nonzeros, {format_bytes(outputs)} for the output "
+            f"{n_var:,} unknowns with {nonzeros:,} Jacobian nonzeros in {len(elab.components):,} components, "
+            f"{format_bytes(outputs)} for the output "
             f"arrays: {n_out:,} points × {columns:,} columns)")
     if outputs >= compile_est.compile_bytes:
         scene = elab.scene

@@ -348,54 +348,75 @@ class _Elaborator(Reporter):
 
     def _check_expansion(self, ctx: FileContext, key: str) -> bool:
         """Before anything is lowered: count the copies of nested model files the top-level
-        file expands to and refuse more than :data:`~phc.files.MAX_MODEL_INSTANCES`.
+        file expands to and refuse more than :data:`~phc.files.MAX_MODEL_INSTANCES`; count
+        the components of all copies and refuse a model whose estimated compile memory is
+        above the budget (:func:`phc.budget.admit_components`), so a model too large is
+        refused in the time it takes to read its files.
 
         Each ``type: model`` entry is its own copy (its own states), so a file included
         twice at each of 18 levels ("diamonds") expands to 2¹⁸ copies although each file is
         read only once. Counting is memoized per file, so it is linear in the number of
         files and references however large the expansion."""
-        memo: dict[str, int] = {}
+        from phc.budget import Estimate, admit_components
 
-        def copies(fctx: FileContext, fkey: str, stack: set, depth: int) -> int:
+        memo: dict[str, tuple[int, int]] = {}
+
+        def copies(fctx: FileContext, fkey: str, stack: set, depth: int) -> tuple[int, int]:
+            """(copies of nested files, components of every copy) of one file."""
             if fkey in memo:
                 return memo[fkey]
-            total = 0
+            total, leaves = 0, 0
             if depth <= MAX_INCLUDE_DEPTH:  # deeper: elaboration reports the depth
                 for cname, comp in fctx.spec.components.items():
                     if isinstance(comp, ModelComponentSpec):
-                        total += child(fctx, cname, comp, stack, depth)
-            memo[fkey] = total
-            return total
+                        n, k = child(fctx, cname, comp, stack, depth)
+                        total, leaves = total + n, leaves + k
+                    else:
+                        leaves += 1
+            memo[fkey] = (total, leaves)
+            return memo[fkey]
 
-        def child(fctx: FileContext, cname: str, comp, stack: set, depth: int) -> int:
+        def child(fctx: FileContext, cname: str, comp, stack: set, depth: int) -> tuple[int, int]:
             path = ("components", cname, "file")
             found = self._nested_ref(fctx, comp.file, path, report=False)
             if found is None or str(found[1]) in stack:
-                return 0  # elaboration reports refusals and cycles
+                return 0, 0  # elaboration reports refusals and cycles
             spec, smap = self._nested_spec(found[1], found[0], comp.file, fctx, path)
             if spec is None:
-                return 0
+                return 0, 0
             sub = str(found[1])
             stack.add(sub)
             try:
-                return 1 + copies(FileContext(str(found[0]), smap, "", spec), sub, stack, depth + 1)
+                n, k = copies(FileContext(str(found[0]), smap, "", spec), sub, stack, depth + 1)
+                return 1 + n, k
             finally:
                 stack.discard(sub)
 
-        per_entry = {}
+        per_entry, leaves = {}, 0
         for cname, comp in ctx.spec.components.items():
-            if isinstance(comp, ModelComponentSpec) and cname not in self.applied.skip:
+            if cname in self.applied.skip:
+                continue
+            if isinstance(comp, ModelComponentSpec):
                 per_entry[cname] = child(ctx, cname, comp, {key}, 1)
-        total = sum(per_entry.values())
-        if total <= MAX_MODEL_INSTANCES:
-            return True
-        worst = max(per_entry, key=per_entry.get)
-        self.error("PHC-E117", f"nested models expand to {total:,} copies of model files, above the limit of "
-                   f"{MAX_MODEL_INSTANCES:,}; `{worst}` brings {per_entry[worst]:,} of them", ctx,
-                   ("components", worst, "file"),
-                   hint="every `type: model` entry is a separate copy, so a file included twice at each level "
-                   "doubles the copies per level; include fewer copies or flatten the model")
-        return False
+                leaves += per_entry[cname][1]
+            else:
+                leaves += 1
+        total = sum(n for n, _ in per_entry.values())
+        if total > MAX_MODEL_INSTANCES:
+            worst = max(per_entry, key=lambda c: per_entry[c][0])
+            self.error("PHC-E117", f"nested models expand to {total:,} copies of model files, above the limit of "
+                       f"{MAX_MODEL_INSTANCES:,}; `{worst}` brings {per_entry[worst][0]:,} of them", ctx,
+                       ("components", worst, "file"),
+                       hint="every `type: model` entry is a separate copy, so a file included twice at each level "
+                       "doubles the copies per level; include fewer copies or flatten the model")
+            return False
+        most = max(per_entry, key=lambda c: per_entry[c][1], default=None)
+        problem = admit_components(leaves, None if most is None else (most, per_entry[most][1]))
+        if problem is not None:
+            self.error("PHC-E700", problem[0], ctx, ("components",), hint=problem[1], key=True)
+            return False
+        self.mesh_ledger = MeshLedger(Estimate(components=leaves))  # meshes are admitted on top of this
+        return True
 
     def _elaborate_file(self, ctx: FileContext, overrides: dict) -> None:
         from phc.library import LOWERERS

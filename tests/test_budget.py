@@ -101,6 +101,68 @@ def test_components_add_up_and_the_one_that_tips_it_is_named(tmp_path):
     assert len(errors) == 1 and "`beam2`" in errors[0].message and "before it" in errors[0].message
 
 
+def _chain(n: int) -> str:
+    """A wall and n springs and masses in a chain (2 n + 1 components), no units."""
+    lines = ["format_version: 1", "name: chain", "components:", "  wall: {type: zero_flow, domain: "
+             "mechanical.translational}"]
+    conns = ["  - [wall.port, k0.a]"]
+    for i in range(n):
+        lines += [f"  k{i}: {{type: spring, terminals: [a, b], k: 100.0}}",
+                  f"  m{i}: {{type: mass, ports: [l{', r' if i < n - 1 else ''}], m: 1.0}}"]
+        conns.append(f"  - [k{i}.b, m{i}.l]")
+        if i < n - 1:
+            conns.append(f"  - [m{i}.r, k{i + 1}.a]")
+    return "\n".join(lines + ["connections:"] + conns) + "\n"
+
+
+def test_many_components_are_refused_before_anything_is_elaborated(tmp_path, monkeypatch):
+    """Issue 32 item 7: the memory estimate of a model of many components comes from counting
+    them in the files (every copy of a nested file), before any component is lowered: not
+    timed, elaboration is made to fail the test if it starts."""
+    from phc.elaborate import _Elaborator
+
+    (tmp_path / "cell.yaml").write_text(_chain(50).replace("name: chain", "name: cell"))  # 101 components
+    top = tmp_path / "top.yaml"
+    top.write_text("format_version: 1\nname: top\ncomponents:\n"
+                   + "".join(f"  c{i}: {{type: model, file: cell.yaml}}\n" for i in range(29))
+                   + "  big: {type: model, file: cell.yaml}\n  wall: {type: zero_flow, domain: electrical}\n")
+    count = 30 * 101 + 1
+    need = budget.Estimate(components=count).compile_bytes
+
+    def elaborate(*args, **kwargs):
+        raise AssertionError("components were elaborated before the model was refused")
+
+    monkeypatch.setattr(_Elaborator, "_elaborate_file", elaborate)
+    with budget.override(need - 2**20):
+        dae, diags = build_dae(top)
+    assert dae is None and _codes(diags) == ["PHC-E700"]
+    d = diags.errors[0]
+    assert (d.span.line, d.span.col) == (3, 1)  # the top file's `components` key
+    assert f"{count:,} components" in d.message and "`c0` brings 101" in d.message
+    assert "--max-memory" in d.hint
+    fit = (need - 2**20 - budget.BASE_BYTES) // budget.BYTES_PER_COMPONENT
+    assert f"at most about {fit:,} components" in d.hint and fit < count
+    with budget.override(need + 2**20), pytest.raises(AssertionError, match="elaborated"):
+        build_dae(top)  # within the budget: elaboration starts
+
+
+def test_the_early_count_is_the_elaborated_one(tmp_path):
+    """The early estimate never exceeds the exact one after assembly (same components, plus
+    their unknowns and nonzeros): a model admitted after assembly is admitted early too."""
+    (tmp_path / "cell.yaml").write_text(_chain(3).replace("name: chain", "name: cell"))
+    top = tmp_path / "top.yaml"
+    top.write_text("format_version: 1\nname: top\ncomponents:\n  a: {type: model, file: cell.yaml}\n"
+                   "  b: {type: model, file: cell.yaml}\n")
+    from phc.elaborate import elaborate
+
+    elab, _ = elaborate(top)
+    assert len(elab.components) == 2 * 7
+    early = budget.Estimate(components=len(elab.components)).compile_bytes
+    with budget.override(early):  # exactly the early estimate: admitted early, refused after assembly
+        diags = build_dae(top)[1]
+    assert _codes(diags) == ["PHC-E700"] and "in 14 components" in diags.errors[0].message
+
+
 def test_scene_mesh_override_is_bounded_in_the_scene_file(tmp_path):
     (tmp_path / "m.yaml").write_text((MODELS / "vibrating_string.yaml").read_text())
     scene = tmp_path / "s.yaml"
