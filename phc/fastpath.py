@@ -391,17 +391,21 @@ def _run_module(compiled: CompiledModel, args, kept: dict) -> bool:
     fixed-step run of a model on NumPy runs on a compiled step loop
     (:func:`phc.codegen.backends.for_run`), whose module is loaded here from what the record
     keeps (numba's kernel text from its signed disk cache, the C text from the C library's)
-    into ``compiled.cache.run_modules``. False (a miss: the full path builds the module, and
-    the record is written again with it) when the record keeps none or it cannot be loaded."""
-    from phc.codegen.backends import run_target
+    into ``compiled.cache.run_modules``: the first of the run's targets in order (C, then
+    numba) that the record keeps, as the full path ran on the first it could build (a model
+    C refuses ran on numba, and its record keeps numba's). False (a miss: the full path
+    builds the module, and the record is written again with it) when the record keeps none
+    of them or the one kept cannot be loaded."""
+    from phc.codegen.backends import run_targets
     from phc.simulation import fixed_step_plan
 
     method, steps = fixed_step_plan(compiled, t_end=getattr(args, "t_end", None), n_out=getattr(args, "n_out", None),
                                     solver=getattr(args, "solver", None), step=getattr(args, "step", None))
-    target = run_target(compiled, None, method, steps)
-    if target is None:
+    targets = run_targets(compiled, None, method, steps)
+    if not targets:
         return True
-    if target not in kept:
+    target = next((t for t in targets if t in kept), None)
+    if target is None:
         return False
     start = time.perf_counter()
     if target == "numba":

@@ -327,3 +327,26 @@ def test_a_record_without_the_run_module_is_a_miss_for_a_long_run(tmp_path, cach
     assert _json_run(model, "0.3", capsys)["backend"] == step_loop
     assert hit(model, "--t-end", "0.3", *LONG) and hit(model, "--t-end", "0.1", *LONG)
     assert _json_run(model, "0.3", capsys)["backend"] == step_loop
+
+
+def test_a_model_c_refuses_runs_from_its_record_on_numba(tmp_path, cache, capsys, monkeypatch):
+    """`auto` tries C first, then numba (phc.codegen.backends.for_run). A model the C back
+    end refuses runs on numba, and its record keeps numba's kernel: the cached run loads that
+    one (it used to look for C only and miss every time)."""
+    from phc.codegen import backends, c_backend, c_printer, numba_backend, numba_cache
+
+    if not numba_backend.available()[0] or not c_backend.available()[0]:
+        pytest.skip("needs numba and a C compiler")
+    monkeypatch.setattr(numba_cache, "_LOADED", {})
+    monkeypatch.setattr(c_backend, "_LOADED", {})
+    monkeypatch.setattr(backends, "AUTO_LOOP_STEPS", 200)
+    monkeypatch.setattr(c_printer, "unsupported", lambda expr, known: "a construct refused by this test")
+    model = tmp_path / "pendulum.yaml"
+    model.write_text(PENDULUM, encoding="utf-8")
+    first = _json_run(model, "0.3", capsys)
+    assert first["backend"] == "numba", first["backend_note"]
+    assert hit(model, "--t-end", "0.3", *LONG)
+    second = _json_run(model, "0.3", capsys)
+    assert second["backend"] == "numba", second["backend_note"]
+    same = ("steps", "n_residual_evals", "n_jacobian_evals", "energy_balance_error")
+    assert {k: first[k] for k in same} == {k: second[k] for k in same}

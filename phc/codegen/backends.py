@@ -207,16 +207,11 @@ def for_run(compiled, backend: Optional[str], method: Optional[str], steps: int)
     return module, f"numpy (auto: {why_numpy}; no compiled step loop for {what}: {'; '.join(refused)})"
 
 
-def run_target(compiled, backend: Optional[str], method: Optional[str], steps: int) -> Optional[str]:
-    """The compiled backend (``numba`` or ``c``) :func:`for_run` runs this run on instead of
-    the module `compiled` was compiled with, or None."""
-    return _run_target(compiled, for_compiled(compiled, backend), backend, method, steps)[0]
-
-
-def _run_target(compiled, module, backend, method, steps) -> tuple[Optional[str], str, str]:
-    """(target or None, why auto ran NumPy, the note when there is no target)."""
-    targets, why_numpy, note = _run_targets(compiled, module, backend, method, steps)
-    return (targets[0] if targets else None), why_numpy, note
+def run_targets(compiled, backend: Optional[str], method: Optional[str], steps: int) -> list[str]:
+    """The compiled backends (``c``, ``numba``) :func:`for_run` tries in order for this run
+    instead of the module `compiled` was compiled with: it runs on the first it has built or
+    can build. Empty when the run stays on that module."""
+    return _run_targets(compiled, for_compiled(compiled, backend), backend, method, steps)[0]
 
 
 def _run_targets(compiled, module, backend, method, steps) -> tuple[list[str], str, str]:
@@ -275,4 +270,4 @@ def for_compiled(compiled, backend: Optional[str]) -> ModuleType:
 
 
 __all__ = ["AUTO_LOOP_STEPS", "AUTO_MIN_UNKNOWNS", "CHOICES", "auto_note", "check_choice", "default_choice", "describe",
-           "for_compiled", "for_run", "kept_text", "name_of", "reference_of", "run_target", "select"]
+           "for_compiled", "for_run", "kept_text", "name_of", "reference_of", "run_targets", "select"]
