@@ -26,6 +26,7 @@ from phc.simulation.ida import MAX_ORDER, applied_atol, integrate_ida
 from phc.simulation.initial import InitialResult, consistent_initial_conditions
 from phc.simulation.monitor import describe_equations, many_steps_hint
 from phc.simulation.order import carry as carry_order
+from phc.simulation.step_logic import substeps
 from phc.names import RUN_LIMITS
 from phc.options import RunOptions
 from phc.simulation.backend import Backend, BackendRun, IgnoredOptionWarning, ignored_option_message
@@ -311,7 +312,7 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
     if backend.fixed_step:  # the step actually taken: no longer than `step` nor an output interval
         intervals = np.diff(t_out)
         h = options.step
-        result.step = float(max(d / max(1, int(np.ceil(d / h - 1e-9))) if h else d for d in intervals))
+        result.step = float(max(d / substeps(d, h or 0.0) for d in intervals))
     result.backend = getattr(getattr(mod, "module", mod), "BACKEND", "numpy")
     result.backend_note = backend_note
     if result.interrupted:
@@ -339,10 +340,7 @@ def _loop_plan(compiled, options: RunOptions, t_out: np.ndarray) -> tuple[Option
 def _fixed_steps(t_out: np.ndarray, step: Optional[float]) -> int:
     """The number of steps a fixed-step solver takes over `t_out`: each output interval in
     equal steps no longer than `step` (one step each without it)."""
-    intervals = np.diff(np.asarray(t_out, dtype=float))
-    if not step:
-        return len(intervals)
-    return int(np.maximum(1, np.ceil(intervals / step - 1e-9)).sum())
+    return sum(substeps(d, step or 0.0) for d in np.diff(np.asarray(t_out, dtype=float)))
 
 
 def initial_values(compiled, p: np.ndarray, initial: Optional[dict] = None) -> tuple[dict[int, float], set[int]]:

@@ -130,7 +130,20 @@ def enabled(mod) -> bool:
     raw = getattr(mod, "module", mod)
     if getattr(raw, "BACKEND", "numpy") != "numba" or raw.N > MAX_UNKNOWNS:
         return False
-    return _functions(raw) is not None
+    if _functions(raw) is not None:
+        return True
+    if _WHY and not _SAID:  # numba is there but the loop did not compile: said once per process
+        from phc.errors import CompiledLoopWarning, caller_stacklevel
+
+        _SAID.append(_WHY)
+        warnings.warn(f"the compiled step loop could not be built ({_WHY}); the Python step loop runs fixed-step "
+                      "simulations in this process (the same steps, more time per step)", CompiledLoopWarning,
+                      stacklevel=caller_stacklevel())
+    return False
+
+
+_SAID: list = []
+"""Why the compiled loop could not be built, once said (:func:`enabled`)."""
 
 
 _ADDRESSES = weakref.WeakKeyDictionary()
@@ -274,7 +287,7 @@ def _compile():
     for name in ("_accept", "_copy", "_factor", "_invert", "_solve", "_lowprec", "_solve32", "_fill", "_stage_residual",
                  "_refactor_matrix", "_all_finite", "_begin", "_refactor", "_correct", "_add", "_precision", "_newton",
                  "_stage", "_discrete_gradient", "_midpoint4_step", "_advance", "_monitor_ratio", "_lagrange_weights",
-                 "_predictor_nodes", "_predict"):
+                 "_predictor_nodes", "_predict", "_substeps"):
         namespace[name] = jit(namespace[name])
     chunk = numba.njit(error_model="numpy")(namespace["_chunk"])
     C1 = types.Array(types.float64, 1, "C")

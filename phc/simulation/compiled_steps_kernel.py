@@ -317,6 +317,7 @@ _discrete_gradient = _here(step_logic.discrete_gradient)
 _midpoint4_step = _here(step_logic.midpoint4)
 _lagrange_weights = _here(step_logic.lagrange_weights)
 _predictor_nodes = _here(step_logic.predictor_nodes)
+_substeps = _here(step_logic.substeps)
 
 
 def _monitor_ratio(jac, t, y, yp, h, p, jrows, jcols, jbuf, M, colscale, threshold):
@@ -506,11 +507,7 @@ def _chunk(res, jac, inv, ham, escale, powers, p, t_out, ys, yps, y, mid, mid_sl
             return
         if ist[_J] == 0:
             interval = t_out[k] - t_out[k - 1]
-            step = fst[_STEP]
-            if step > 0.0:
-                sub = max(1, int(math.ceil(interval / step - 1e-9)))
-            else:
-                sub = 1
+            sub = _substeps(interval, fst[_STEP])
             ist[_SUBSTEPS] = sub
             fst[_H] = interval / sub
             fst[_T] = t_out[k - 1]

@@ -484,7 +484,7 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
     w_prev = events(float(t_out[0]), y, np.asarray(yp0, dtype=float)) if events is not None else None
     try:
         for k in range(1, len(t_out)):
-            substeps = max(1, int(np.ceil(intervals[k - 1] / step - 1e-9))) if step else 1
+            substeps = step_logic.substeps(intervals[k - 1], step or 0.0)
             h = intervals[k - 1] / substeps
             t = t_out[k - 1]
             for _ in range(substeps):

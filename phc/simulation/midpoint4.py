@@ -153,7 +153,7 @@ def integrate_midpoint4(mod, p, t_out, y0, yp0, options, *, progress=None, names
     refused before the run."""
     step, max_steps = options.step, options.max_steps
     intervals = np.diff(np.asarray(t_out, dtype=float))
-    steps = sorted({float(d / max(1, int(np.ceil(d / step - 1e-9)))) if step else float(d) for d in intervals})
+    steps = sorted({float(d / step_logic.substeps(d, step or 0.0)) for d in intervals})
     hits = unstable_modes(mod, p, float(t_out[0]), y0, yp0, steps)
     if hits:
         h, mu = hits[0]

@@ -72,6 +72,16 @@ DOUBLE_NEXT, STRIKE = 0, 1
 _NC = 23
 
 
+def substeps(interval, step):
+    """The number of equal steps an output interval of length `interval` is split into: the
+    fewest no longer than `step` (one when `step` is 0, no step set). The 1e-9 keeps an
+    interval of a whole number of steps from getting one more for the rounding of
+    ``interval / step``. The C step loop (``phc/codegen/c_runtime/steps.c``) computes the same."""
+    if step > 0.0:
+        return max(1, int(np.ceil(interval / step - 1e-9)))
+    return 1
+
+
 def newton(ws, m, c, t, h, y, y1in, s, out):
     """Solve ``F(t + s h, y + s (y1 − y), (y1 − y)/h) = 0`` (the position-constraint rows at the
     step end) for ``y1`` by simplified Newton from ``y1in``, into ``out``; returns

@@ -176,3 +176,17 @@ def test_the_cli_backend_line_says_why(short, capsys, monkeypatch):
     assert len(lines) == 1
     assert f"auto: {SHORT} midpoint steps" in lines[0]
     assert lines[0].split()[1].rstrip(":") == ("c" if _c() else "numba")
+
+
+def test_substeps_split_an_interval_into_the_fewest_steps_not_longer_than_step():
+    """One rule for every loop (phc.simulation.step_logic.substeps): a whole number of steps
+    stays that number despite the rounding of interval/step, a remainder takes one more step,
+    no step set (0) is one step per output interval."""
+    from phc.simulation.step_logic import substeps
+
+    assert substeps(0.3, 0.1) == 3  # 0.3 / 0.1 = 2.9999999999999996
+    assert substeps(1.0, 0.1) == 10 and substeps(0.7, 0.1) == 7
+    assert substeps(1.05, 0.1) == 11 and substeps(0.05, 0.1) == 1
+    assert substeps(1.0, 0.0) == 1
+    for n in range(1, 2000):  # every whole number of steps of a common size
+        assert substeps(n * 1e-3, 1e-3) == n

@@ -434,3 +434,29 @@ def test_both_loops_run_the_step_logic_written_once(compiled, monkeypatch, used,
     assert used == [True, False]
     assert calls[entry] >= 50 and calls["newton"] >= calls[entry]  # 50 steps, each at least one stage
     _assert_same_trajectory(fast, slow, 1e-2)
+
+
+def test_a_loop_that_does_not_compile_is_said_once(monkeypatch):
+    """The compiled step loop failing to build (numba present) is a warning naming why, once
+    per process; the Python loop then runs (enabled() is False), never silently."""
+    import types
+    import warnings
+
+    from phc.errors import CompiledLoopWarning
+    from phc.simulation import compiled_steps
+
+    def broken():
+        raise RuntimeError("a typing error in the step logic (test)")
+
+    monkeypatch.setattr(compiled_steps, "_READY", None)
+    monkeypatch.setattr(compiled_steps, "_WHY", "")
+    monkeypatch.setattr(compiled_steps, "_SAID", [])
+    monkeypatch.setattr(compiled_steps, "_compile", broken)
+    monkeypatch.setattr("phc.codegen.numba_cache.available", lambda: (True, ""))
+    raw = types.SimpleNamespace(BACKEND="numba", N=3)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert not compiled_steps.enabled(raw)
+        assert not compiled_steps.enabled(raw)
+    said = [w for w in caught if issubclass(w.category, CompiledLoopWarning)]
+    assert len(said) == 1 and "a typing error in the step logic (test)" in str(said[0].message)
