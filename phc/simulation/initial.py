@@ -614,19 +614,27 @@ def _initial_conditions(mod, p, t0, values, fixed, tol, max_iter, initial_relati
     # A mechanism whose momenta are 1e-11 kg·m/s in SI passes the first test with all momenta
     # 0 and a GGL multiplier absorbing the velocity constraint; it fails the second and is
     # solved again in the scaled variables (kept if that succeeds).
+    # The scales are computed only when used (their energy sizes cost an evaluation of H per
+    # state, batched): a restart at a breakpoint or an event that solves in the model's units
+    # never needs them.
     from phc.simulation.scaling import nominal_scales
 
-    s = nominal_scales(mod, p, y, np.zeros(n), t0=t0, probe=False, residual=True)
+    def scales():
+        return nominal_scales(mod, p, y, np.zeros(n), t0=t0, probe=False, residual=True)
+
     try:
         result = _consistent(mod, p, t0, y, values, fixed, tol, max_iter, initial_relations, None)
     except InconsistentInitialError as err:
         try:
-            return _consistent(mod, p, t0, y, values, fixed, tol, max_iter, initial_relations, s)
+            return _consistent(mod, p, t0, y, values, fixed, tol, max_iter, initial_relations, scales())
         except (InconsistentInitialError, ModelEvaluationError):
             raise err from None
     # (at the start of a run only: a restart at a breakpoint or an event continues a run whose
     # states were computed in the model's units)
-    if not SCALED_CHECK or not initial_relations or _scaled_residual(mod, p, t0, result, s) <= SCALED_MISS:
+    if not SCALED_CHECK or not initial_relations:
+        return result
+    s = scales()
+    if _scaled_residual(mod, p, t0, result, s) <= SCALED_MISS:
         return result
     try:
         return _consistent(mod, p, t0, y, values, fixed, tol, max_iter, initial_relations, s)
