@@ -476,10 +476,17 @@ def _draw_png(dae, path: str) -> None:
 
 
 def cmd_schema(args) -> int:
+    from phc.io import OutputPathError, check_output_dir
     from phc.spec.export import SCHEMAS, schema_text, stale_schemas, write_schemas
 
+    if (args.check or args.write) and not args.dir:
+        raise UsageError("--dir is empty; give a folder")
     if args.check:
-        stale = stale_schemas(args.dir)
+        try:
+            stale = stale_schemas(args.dir)
+        except OSError as err:  # a name too long, a loop of symbolic links, a file that cannot be read
+            raise UsageError(f"--dir `{args.dir}` cannot be read ({(err.strerror or type(err).__name__).lower()})"
+                             ) from None
         if stale:
             for path in stale:
                 print(inert(f"{path}: stale or missing; regenerate with `phc schema --write --dir {args.dir}`"),
@@ -488,6 +495,10 @@ def cmd_schema(args) -> int:
         print(inert(f"{args.dir}: schemas up to date ({', '.join(SCHEMAS)})"))
         return EXIT_OK
     if args.write:
+        try:
+            check_output_dir(args.dir, "--dir")
+        except OutputPathError as err:
+            raise UsageError(str(err)) from None
         for path in write_schemas(args.dir):
             print(inert(f"wrote {path}"))
         return EXIT_OK
