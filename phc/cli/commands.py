@@ -243,6 +243,14 @@ def cmd_sweep(args) -> int:
         pairs.append((name.strip(), spec))
     if args.retry_failed and not args.resume:
         raise UsageError("--retry-failed needs --resume (it runs the failed points of existing results again)")
+    if args.scheduler is not None and not args.scheduler.strip():
+        raise UsageError("--scheduler is empty; give an address (tcp://host:8786) or a scheduler file")
+    for option, value in (("--plot-output", args.plot_output), ("--plot-against", args.plot_against)):
+        if value is not None and not args.plot:
+            raise UsageError(f"{option} needs --plot (it chooses what the plot draws)")
+        if value is not None and not value.strip():
+            raise UsageError(f"{option} is empty; give a column name" if option == "--plot-output" else
+                             f"{option} is empty; give one or two swept parameters, e.g. k or k,c")
     try:
         check_series_path(args.out, args.series)  # before the compilation
     except SimulationSetupError as err:

@@ -31,6 +31,7 @@ step, a half-second run). The caches and the state folder are temporary
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import random
 import re
 import shutil
@@ -60,6 +61,9 @@ HOSTILE = (
 
 FLAG = "<flag>"
 """The one variant of an option taking no value: switched (added, or removed if in the baseline)."""
+
+PLOT = importlib.util.find_spec("matplotlib") is not None
+"""The sweep's baseline draws its plot when it can (so `--plot-output` and `--plot-against` are read)."""
 
 SCENE = """\
 format_version: 1
@@ -155,7 +159,8 @@ def _baseline(command: str, world: Path) -> tuple[list, dict]:
         "animate": ([pendulum], {"--output": "a.gif", "--frames": "2", "--t-end": "0.1", "--quiet": FLAG}),
         "bench": ([str(world / "models" / "scene.yaml")],
                   {"--out-dir": "bench", "--repeats": "1", "--no-plot": FLAG, "--quiet": FLAG}),
-        "sweep": ([msd], {**quick, "--param": "k=3,4", "--out": "s.csv", "--workers": "1", "--quiet": FLAG}),
+        "sweep": ([msd], {**quick, "--param": "k=3,4", "--out": "s.csv", "--workers": "1", "--quiet": FLAG,
+                          **({"--plot": "s.png"} if PLOT else {})}),  # --plot: --plot-output/-against are used
         "check": ([msd], {"--samples": "1"}),
         "linearize": ([msd], {"--output": "l.json"}),
         "export": ([msd], {"--fmu": "m.fmu"}),
@@ -272,6 +277,21 @@ def _fuzz(command: str, option: str, value: str, world: Path, tmp_path: Path, mo
     argv = _variant(command, option, value, world)
     code, out, err = _run(argv, capsys)
     _check(argv, code, out, err)
+    if value == "":  # an empty value is refused, never read as a default or as the working folder
+        assert code != 0, f"{argv!r}: an empty value was accepted\n{out[-1000:]}"
+
+
+FOUND = [
+    ("animate", "--fps", "9" * 400),  # OverflowError converting the int to a float: "internal error"
+    ("sweep", "--seed", "9" * 400),
+    ("schema", "--dir", "y" * 5000),  # --write: "internal error: OSError: File name too long"
+    ("schema", "--dir", ""),  # --write into the working folder
+    ("simulate", "--allow-path", ""),  # accepted as the working folder
+    ("sweep", "--scheduler", ""),  # silently ignored (`--scheduler x` is refused without dask)
+    ("sweep", "--plot-output", ""),  # silently the default column
+    ("sweep", "--plot-against", ""),
+]
+"""Cases the fuzz found (each failed before its fix); they run whatever the draw."""
 
 
 # -- the tests ----------------------------------------------------------------------------
@@ -303,6 +323,30 @@ def test_every_option_is_fuzzed():
     assert {c for c, _ in default} == set(_subparsers(build_parser()))
     sub = _subparsers(build_parser())["simulate"]
     assert {"--t-end", "--out", "--quiet", "file"} <= {_name(a) for a in _fuzzed_actions(sub)}
+
+
+@pytest.mark.parametrize("case", FOUND, ids=_id)
+def test_found_case(case, world, tmp_path, monkeypatch, capsys):
+    _fuzz(*case, world, tmp_path, monkeypatch, capsys)
+
+
+def test_schema_check_of_an_unreadable_folder_is_a_usage_error(tmp_path, monkeypatch, capsys):
+    """`phc schema --check --dir` of a name too long to open: one usage line, exit 2 (it
+    was an internal error)."""
+    monkeypatch.chdir(tmp_path)
+    argv = ["schema", "--check", "--dir", "y" * 5000]
+    code, out, err = _run(argv, capsys)
+    _check(argv, code, out, err)
+    assert code == 2 and err.startswith("phc schema: error: --dir `yyy"), err
+
+
+def test_sweep_plot_options_need_plot(world, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    argv = ["sweep", str(world / "models" / "msd.yaml"), "--param", "k=3,4", "--out", "s.csv", "--plot-output", "x.max"]
+    code, out, err = _run(argv, capsys)
+    _check(argv, code, out, err)
+    assert code == 2 and "--plot-output needs --plot" in err, err
+    assert not (tmp_path / "s.csv").exists()  # refused before the work
 
 
 @pytest.mark.parametrize("case", _default_cases(), ids=_id)
