@@ -31,6 +31,7 @@ step, a half-second run). The caches and the state folder are temporary
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib.util
 import random
 import re
@@ -294,6 +295,54 @@ FOUND = [
 """Cases the fuzz found (each failed before its fix); they run whatever the draw."""
 
 
+# -- the environment ----------------------------------------------------------------------
+
+NOT_READ = {"PHC_ABI", "PHC_DEBUG"}
+"""`PHC_` names in phc's sources that are not fuzzed: a C macro, and the switch that shows
+tracebacks of internal errors on purpose."""
+
+
+@functools.lru_cache(maxsize=None)
+def _environment_variables() -> tuple:
+    """Every `PHC_...` environment variable named in phc's Python sources (a new one is
+    fuzzed without editing this file)."""
+    names = set()
+    for path in (ROOT / "phc").rglob("*.py"):
+        names |= set(re.findall(r"\bPHC_[A-Z][A-Z_]*[A-Z]\b", path.read_text(encoding="utf-8")))
+    return tuple(sorted(names - NOT_READ))
+
+
+ENV_COMMANDS = ("simulate", "sweep", "compile", "cache")
+"""The baselines run under each hostile environment variable (all of them in the slow run;
+the default run: simulate)."""
+
+
+def _env_cases(commands=ENV_COMMANDS) -> list:
+    return [(command, name, value) for command in commands for name in _environment_variables() for value in HOSTILE]
+
+
+def _default_env_cases() -> list:
+    cases = []
+    for name in _environment_variables():
+        rng = random.Random(f"env {name}")
+        cases += [("simulate", name, value) for value in rng.sample(HOSTILE, PER_OPTION)]
+    return cases
+
+
+def _fuzz_environment(command: str, name: str, value: str, world: Path, tmp_path: Path, monkeypatch,
+                      capsys) -> None:
+    cwd = tmp_path / "a" / "b" / "c" / "d"
+    cwd.mkdir(parents=True)
+    monkeypatch.chdir(cwd)
+    # the caches of these runs are their own: a hostile value must not leave a record the others read
+    monkeypatch.setenv("PHC_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setenv("PHC_STATE_DIR", str(tmp_path / "state"))
+    monkeypatch.setenv(name, value)
+    argv = _argv(command, *_baseline(command, world))
+    code, out, err = _run(argv, capsys)
+    _check(argv, code, out, err)
+
+
 # -- the tests ----------------------------------------------------------------------------
 
 
@@ -355,6 +404,25 @@ def test_hostile_option_value(case, world, tmp_path, monkeypatch, capsys):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("case", [c for c in _cases() if c not in set(_default_cases())], ids=_id)
+@pytest.mark.parametrize("case", sorted(set(_cases()) - set(_default_cases())), ids=_id)
 def test_hostile_option_value_everywhere(case, world, tmp_path, monkeypatch, capsys):
     _fuzz(*case, world, tmp_path, monkeypatch, capsys)
+
+
+def test_every_environment_variable_is_fuzzed():
+    names = _environment_variables()
+    assert {"PHC_MAX_MEMORY", "PHC_CACHE_MAX_MB", "PHC_CACHE_DIR", "PHC_STATE_DIR", "PHC_ALLOW_PATH",
+            "PHC_BACKEND", "PHC_FRONT_END_CACHE"} <= set(names)
+    assert {n for _, n, _ in _default_env_cases()} == set(names)
+
+
+@pytest.mark.parametrize("case", _default_env_cases(), ids=lambda c: "env " + _id(c))
+def test_hostile_environment_variable(case, world, tmp_path, monkeypatch, capsys):
+    _fuzz_environment(*case, world, tmp_path, monkeypatch, capsys)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", sorted(set(_env_cases()) - set(_default_env_cases())),
+                         ids=lambda c: "env " + _id(c))
+def test_hostile_environment_variable_everywhere(case, world, tmp_path, monkeypatch, capsys):
+    _fuzz_environment(*case, world, tmp_path, monkeypatch, capsys)
