@@ -184,11 +184,32 @@ def _argv(command: str, positionals: list, options: dict) -> list:
     return argv + (["--", *positionals] if positionals else [])
 
 
-def _variant(command: str, option: str, value: str, world: Path) -> list:
+COMPANIONS = {
+    ("schema", "--dir"): [{"--write": None, "--check": FLAG}],
+    ("sweep", "--scheduler"): [{"--executor": "dask"}],
+    ("sweep", "--out"): [{"--resume": FLAG}, {"--overwrite": FLAG}],
+    ("sweep", "--series"): [{"--resume": FLAG}],
+    ("sweep", "--retry-failed"): [{"--resume": FLAG}],
+    ("sweep", "--samples"): [{"--param": "k=uniform:3:4"}],
+    ("sweep", "--seed"): [{"--param": "k=uniform:3:4", "--samples": "2"}],
+    ("simulate", "--step"): [{"--solver": "midpoint"}],
+    ("linearize", "--output"): [{"--format": "npz"}],
+    ("linearize", "--modes"): [{"--output": None}],
+}
+"""Options that are read only together with another: each hostile value is also tried with
+these changes to the baseline (an option set, or removed for None)."""
+
+
+def _variant(command: str, option: str, value: str, world: Path, companion=None) -> list:
     sub = _subparsers(build_parser())[command]
     (action,) = [a for a in _fuzzed_actions(sub) if _name(a) == option]
     positionals, options = _baseline(command, world)
     positionals, options = list(positionals), dict(options)
+    for name, setting in (companion or {}).items():
+        if setting is None:
+            options.pop(name, None)
+        else:
+            options[name] = setting
     if not action.option_strings:  # a positional: the baseline's in that place is replaced
         index = [a.dest for a in sub._actions if not a.option_strings].index(action.dest)
         positionals[index:index + 1] = [value]
@@ -275,11 +296,12 @@ def _fuzz(command: str, option: str, value: str, world: Path, tmp_path: Path, mo
     cache = world / ("cache-of-cache" if command == "cache" else "cache")  # `cache clean` empties its own
     monkeypatch.setenv("PHC_CACHE_DIR", str(cache))
     monkeypatch.setenv("PHC_STATE_DIR", str(cache / "state"))
-    argv = _variant(command, option, value, world)
-    code, out, err = _run(argv, capsys)
-    _check(argv, code, out, err)
-    if value == "":  # an empty value is refused, never read as a default or as the working folder
-        assert code != 0, f"{argv!r}: an empty value was accepted\n{out[-1000:]}"
+    for companion in [None, *COMPANIONS.get((command, option), [])]:
+        argv = _variant(command, option, value, world, companion)
+        code, out, err = _run(argv, capsys)
+        _check(argv, code, out, err)
+        if value == "":  # an empty value is refused, never read as a default or as the working folder
+            assert code != 0, f"{argv!r}: an empty value was accepted\n{out[-1000:]}"
 
 
 FOUND = [
@@ -361,6 +383,13 @@ def test_baseline_succeeds(command, world, tmp_path, monkeypatch, capsys):
     code, out, err = _run(argv, capsys)
     _check(argv, code, out, err)
     assert code == 0, f"{argv}: exit {code}\n{err}"
+
+
+def test_companions_name_options_of_the_parser():
+    parsers = _subparsers(build_parser())
+    for (command, option), companions in COMPANIONS.items():
+        names = {_name(a) for a in _fuzzed_actions(parsers[command])}
+        assert option in names and all(set(c) <= names for c in companions), (command, option)
 
 
 def test_every_option_is_fuzzed():
