@@ -386,6 +386,11 @@ def test_baseline_succeeds(command, world, tmp_path, monkeypatch, capsys):
     code, out, err = _run(argv, capsys)
     _check(argv, code, out, err)
     assert code == 0, f"{argv}: exit {code}\n{err}"
+    written = {"compile": "gen", "simulate": "r.csv", "animate": "a.gif", "bench": "bench/bench.csv",
+               "sweep": "s.csv", "linearize": "l.json", "export": "m.fmu", "graph": "g.dot",
+               "schema": "schemas/model.schema.json"}
+    if command in written:
+        assert (cwd / written[command]).exists(), f"{argv}: wrote no {written[command]}"
 
 
 def test_companions_name_options_of_the_parser():
