@@ -30,7 +30,7 @@ def option_problem(kind: str, low: float, high: float, value) -> "str | None":
     shown = f"{value:g}" if isinstance(value, float) else str(value)
     try:
         number = float(value)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):  # OverflowError: an int beyond floats
         number = math.nan
     if kind == "count":
         if not (math.isfinite(number) and number == int(number) and low <= number <= high):

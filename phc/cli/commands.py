@@ -243,6 +243,14 @@ def cmd_sweep(args) -> int:
         pairs.append((name.strip(), spec))
     if args.retry_failed and not args.resume:
         raise UsageError("--retry-failed needs --resume (it runs the failed points of existing results again)")
+    if args.scheduler is not None and not args.scheduler.strip():
+        raise UsageError("--scheduler is empty; give an address (tcp://host:8786) or a scheduler file")
+    for option, value in (("--plot-output", args.plot_output), ("--plot-against", args.plot_against)):
+        if value is not None and not args.plot:
+            raise UsageError(f"{option} needs --plot (it chooses what the plot draws)")
+        if value is not None and not value.strip():
+            raise UsageError(f"{option} is empty; give a column name" if option == "--plot-output" else
+                             f"{option} is empty; give one or two swept parameters, e.g. k or k,c")
     try:
         check_series_path(args.out, args.series)  # before the compilation
     except SimulationSetupError as err:
@@ -476,10 +484,17 @@ def _draw_png(dae, path: str) -> None:
 
 
 def cmd_schema(args) -> int:
+    from phc.io import OutputPathError, check_output_dir
     from phc.spec.export import SCHEMAS, schema_text, stale_schemas, write_schemas
 
+    if (args.check or args.write) and not args.dir:
+        raise UsageError("--dir is empty; give a folder")
     if args.check:
-        stale = stale_schemas(args.dir)
+        try:
+            stale = stale_schemas(args.dir)
+        except OSError as err:  # a name too long, a loop of symbolic links, a file that cannot be read
+            raise UsageError(f"--dir `{args.dir}` cannot be read ({(err.strerror or type(err).__name__).lower()})"
+                             ) from None
         if stale:
             for path in stale:
                 print(inert(f"{path}: stale or missing; regenerate with `phc schema --write --dir {args.dir}`"),
@@ -488,6 +503,10 @@ def cmd_schema(args) -> int:
         print(inert(f"{args.dir}: schemas up to date ({', '.join(SCHEMAS)})"))
         return EXIT_OK
     if args.write:
+        try:
+            check_output_dir(args.dir, "--dir")
+        except OutputPathError as err:
+            raise UsageError(str(err)) from None
         for path in write_schemas(args.dir):
             print(inert(f"wrote {path}"))
         return EXIT_OK

@@ -124,6 +124,8 @@ def _allowed_paths(args):
 
     dirs = getattr(args, "allow_path", None) or []
     for d in dirs:
+        if not d:  # Path("") is the working folder: not what an empty value means
+            raise UsageError("--allow-path is empty; give a folder")
         try:
             is_dir = Path(d).is_dir()
         except OSError as err:  # a name too long, a loop of symbolic links
