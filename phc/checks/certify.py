@@ -32,7 +32,6 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
-import scipy.linalg as sla
 import sympy as sp
 
 from phc.checks.graph import component_graph, component_of, independent_parts, kinematic_loops, traversal_order
@@ -349,19 +348,20 @@ def _couplings(top, projections, samples, diags, graph=None) -> list[ConnectionC
                 V, rmap = Va, dict(ma)
             else:
                 Vb, mb = clusters[cb]
-                V = sla.block_diag(Va, Vb)
+                V = np.zeros((Va.shape[0] + Vb.shape[0], Va.shape[1] + Vb.shape[1]))
+                V[:Va.shape[0], :Va.shape[1]] = Va
+                V[Va.shape[0]:, Va.shape[1]:] = Vb
                 shift = Va.shape[0]
                 rmap = dict(ma)
                 rmap.update({p: ([i + shift for i in f], [i + shift for i in e]) for p, (f, e) in mb.items()})
             fa, ea = rmap[a]
             fb, eb = rmap[b]
-            S = np.zeros((cert.needed, V.shape[0]))
-            d = cert.needed // 2
-            for i in range(d):
-                S[i, fa[i]], S[i, fb[i]] = 1.0, -1.0
-                S[d + i, ea[i]], S[d + i, eb[i]] = 1.0, 1.0
-            GV = S @ V
-            s = np.linalg.svd(GV, compute_uv=False) if GV.size else np.zeros(0)
+            # Γ V: the rows (f_a − f_b, e_a + e_b) of V, without forming the selection matrix
+            GV = np.concatenate((V[fa] - V[fb], V[ea] + V[eb]))
+            if GV.size:  # one SVD gives the rank and the kernel of Γ V
+                _, s, vh = np.linalg.svd(GV, full_matrices=True)
+            else:
+                s, vh = np.zeros(0), np.eye(V.shape[1])
             rank = _rank(s)
             ratio = float(s[-1] / s[0]) if len(s) >= cert.needed and s[0] > 0 else 0.0
             cert.achieved = rank if cert.achieved < 0 else min(cert.achieved, rank)
@@ -370,7 +370,7 @@ def _couplings(top, projections, samples, diags, graph=None) -> list[ConnectionC
                 cert.failing_samples.append({str(sym): float(v) for sym, v in point.items()
                                              if str(sym).startswith((owner[a] + ".", owner[b] + "."))})
             # The interconnected structure: ker(ΓV), coupling rows removed.
-            W = V @ _null(GV, V.shape[1])
+            W = V @ vh[rank:].T
             coupled = set(fa + ea + fb + eb)
             keep = [i for i in range(V.shape[0]) if i not in coupled]
             new_rows, pos = {}, {i: n for n, i in enumerate(keep)}
