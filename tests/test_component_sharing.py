@@ -68,6 +68,35 @@ def test_rows_check_lambdifies_each_kind_of_component_once(tmp_path, lambdified,
     assert cert.shared == n - 4
 
 
+def test_rows_check_builds_the_systems_of_each_kind_once(tmp_path, monkeypatch):
+    """Components equal up to the names of their own symbols are recognised before their
+    systems are built: the systems of a chain are made once per kind of cell, not per cell."""
+    built = []
+    real = rows_module._prepare
+    monkeypatch.setattr(rows_module, "_prepare", lambda *a, **k: built.append(a[1].component) or real(*a, **k))
+    cert = rows_module.check_rows(_dae(tmp_path, 41))
+    assert cert.ok and len(cert.compared) == 41 and cert.shared == 41 - 4
+    assert len(built) == 4  # the wall, the first spring, the first inner mass, the last mass
+
+
+def test_rows_check_does_not_share_across_different_parameters(tmp_path):
+    """Springs alike but for the parameter they read are different systems: a verdict is
+    shared only between components whose rows name the same symbols outside their own."""
+    text = chain_yaml(9)
+    assert "  k3: {type: spring, k: k," in text
+    text = text.replace("  k3: {type: spring, k: k,", "  k3: {type: spring, k: k_other,")
+    text = text.replace("parameters:\n", "parameters:\n  k_other: {value: 30.0, unit: N/m}\n", 1)
+    path = tmp_path / "two_k.yaml"
+    path.write_text(text)
+    dae, diags, _ = phc.validate_file(path)
+    assert dae is not None, [d.render() for d in diags]
+    cert = rows_module.check_rows(dae)
+    assert cert.ok and len(cert.compared) == 9
+    # compared on their own: the wall, k1, m1, k3 (k_other) and the last mass m4; k2 and k4
+    # share k1's verdict, m2 and m3 share m1's
+    assert cert.shared == 4
+
+
 def test_a_component_unlike_its_neighbours_is_compared_on_its_own(tmp_path):
     """One spring among 20 with a sign flipped in its rows: found and located at it, although
     20 other springs passed the same (up to names) comparison before and after it."""
@@ -109,6 +138,40 @@ def test_dirac_certificate_takes_one_jacobian_per_kind(tmp_path, monkeypatch):
     for c in cert.components:
         if c.dirac is not None:
             assert c.dirac and c.dim_d == c.dim_z and c.isotropy <= 1e-12, c
+
+
+@pytest.mark.parametrize("rank_deficient", [False, True])
+def test_constant_structures_are_certified_once_with_the_same_result(tmp_path, monkeypatch, rank_deficient):
+    """Structures with no state and no time (every cell of a chain) are projected once and
+    their couplings ranked at one sample: the certificate is the one every sample gives when
+    each is computed (the shortcut switched off), a failing connection included."""
+    from phc.checks import certify as certify_module
+
+    dae = _dae(tmp_path, 21)
+    if rank_deficient:  # besides the chain, two zero-flow sources joined: Γ has rank 1 of 2
+        text = chain_yaml(21).replace("connections:\n", "  far: {type: zero_flow, domain: mechanical.translational}\n"
+                                      "  far2: {type: zero_flow, domain: mechanical.translational}\n"
+                                      "connections:\n  - [far.port, far2.port]\n", 1)
+        path = tmp_path / "walls.yaml"
+        path.write_text(text)
+        from phc.pipeline import elaborate_file
+
+        dae, _ = elaborate_file(path)  # before the structural check, which refuses the joined sources
+        assert dae is not None
+    monkeypatch.setattr(rows_module, "check_rows", lambda *a, **k: rows_module.RowsCertificate())
+    fast = certify(dae, n_random=3)
+    monkeypatch.setattr(certify_module._Component, "is_constant", property(lambda self: False))
+    slow = certify(dae, n_random=3)
+
+    def summary(cert):
+        return ([(c.label, c.achieved, c.needed, c.conditioning, c.failing_samples) for c in cert.connections],
+                [(c.name, c.dirac, c.dim_d, c.isotropy) for c in cert.components])
+
+    assert summary(fast) == summary(slow)
+    assert fast.certified is (not rank_deficient)
+    if rank_deficient:
+        failing = [c for c in fast.connections if not c.surjective]
+        assert failing and all(len(c.failing_samples) == 4 for c in failing)  # the initial state + 3
 
 
 # ---------------------------------------------------------------------------------------

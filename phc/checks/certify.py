@@ -223,6 +223,12 @@ class _Component:
             self._constant[0] = D
         return D
 
+    @property
+    def is_constant(self) -> bool:
+        """The structure depends on no state and no time: :meth:`structure` returns one array
+        (shared by the components alike up to names) once it has been found."""
+        return self._constant is not None and self._constant[0] is not None
+
     def port_rows(self) -> tuple[list[str], dict]:
         rows, order = {}, []
         for pname, (fi, ei) in self.rel.ports.items():
@@ -272,22 +278,33 @@ def certify(dae: Dae, n_random: int = 2, seed: int = 0) -> Certificate:
     comps = {rel.component: _Component(rel, top.parameter_defaults, shared) for rel in top.dirac}
     comp_certs = []
     projections: list[dict] = [{} for _ in samples]
+    # A constant structure (no state, no time: the masses and springs of a chain) is one array
+    # shared by every sample and every component alike up to names; its isotropy and its
+    # projection on the ports are computed once per array and port selection.
+    constant: dict = {}
     for rel in top.dirac:
         comp = comps[rel.component]
         cert = ComponentCertificate(rel.component, rel.kind, comp.n, note=rel.note)
         order, rows = comp.port_rows()
+        sel = [i for pname in order for i in rows[pname][0] + rows[pname][1]]
         for k, point in enumerate(samples):
             # its own states only (a scan of every state of the model per component was quadratic)
             local = {s: point[s] for s in (*rel.states, T) if s in point}
             D = comp.structure(local)
+            done = constant.get((id(D), tuple(sel))) if comp.is_constant else None
+            if done is None:
+                iso = None
+                if rel.kind != "port_projection":
+                    f, e = D[:comp.n], D[comp.n:]
+                    S = f.T @ e + e.T @ f
+                    iso = float(np.abs(np.linalg.eigvalsh(S)).max(initial=0.0)) if S.size else 0.0
+                done = (iso, _orth(D[sel]) if sel else np.zeros((0, 0)))
+                if comp.is_constant:
+                    constant[(id(D), tuple(sel))] = done
+            iso, P = done
             if rel.kind != "port_projection":
-                f, e = D[:comp.n], D[comp.n:]
-                S = f.T @ e + e.T @ f
-                iso = float(np.abs(np.linalg.eigvalsh(S)).max(initial=0.0)) if S.size else 0.0
                 cert.dim_d = D.shape[1] if cert.dim_d is None else min(cert.dim_d, D.shape[1])
                 cert.isotropy = iso if cert.isotropy is None else max(cert.isotropy, iso)
-            sel = [i for pname in order for i in rows[pname][0] + rows[pname][1]]
-            P = _orth(D[sel]) if sel else np.zeros((0, 0))
             offset, rmap = 0, {}
             for pname in order:
                 d = len(rows[pname][0])
@@ -306,7 +323,9 @@ def certify(dae: Dae, n_random: int = 2, seed: int = 0) -> Certificate:
                                         hint="check the relations: one per flow/effort pair, power conserving"))
         comp_certs.append(cert)
     graph = component_graph(top)  # built once: the traversal, the loops and the parts read it
-    conn_certs = _couplings(top, projections, samples, diags, graph)
+    # with no structure depending on a state or on time, every sample gives the same couplings
+    constant_only = all(c.is_constant for c in comps.values())
+    conn_certs = _couplings(top, projections, samples, diags, graph, constant_only)
     _rigid_ranks(top, samples[0], diags)
     _passivity(top, diags, seed)
     from phc.checks.rows import check_rows
@@ -324,18 +343,19 @@ def certify(dae: Dae, n_random: int = 2, seed: int = 0) -> Certificate:
     return Certificate(dae.name, comp_certs, conn_certs, loops, parts, diags.sorted(), len(samples), rows)
 
 
-def _couplings(top, projections, samples, diags, graph=None) -> list[ConnectionCertificate]:
+def _couplings(top, projections, samples, diags, graph=None, constant_only=False) -> list[ConnectionCertificate]:
     """Interconnect one coupling at a time (BFS) and test the rank of Γ at each step.
 
     Every connection gets its certificate, a nested file's under its own label
     (``inner.connections[0]``) and located in that file. `graph` is the component graph of
-    `top` when the caller has built it."""
+    `top` when the caller has built it. `constant_only`: no component's structure depends on a
+    state or on time, so the first sample's ranks hold at every sample (computed once)."""
     owner = component_of(top)
     order = traversal_order(top if graph is None else graph)
     spans = {label: span for _, _, label, span in top.connections}
     dims = {p.name: p.dimension for p in top.ports}
     certs = [ConnectionCertificate(label, a, b, 2 * dims[a], span=spans.get(label)) for a, b, label in order]
-    for k, point in enumerate(samples):
+    for k, point in enumerate(samples[:1] if constant_only else samples):
         cluster_of = {name: name for name in projections[k]}
         members = {name: [name] for name in projections[k]}
         clusters = {name: projections[k][name] for name in projections[k]}
@@ -367,8 +387,9 @@ def _couplings(top, projections, samples, diags, graph=None) -> list[ConnectionC
             cert.achieved = rank if cert.achieved < 0 else min(cert.achieved, rank)
             cert.conditioning = min(cert.conditioning, ratio)
             if rank < cert.needed:  # the states of the two components (`inner.wheel.th` of `inner.wheel`)
-                cert.failing_samples.append({str(sym): float(v) for sym, v in point.items()
-                                             if str(sym).startswith((owner[a] + ".", owner[b] + "."))})
+                for failed in (samples if constant_only else [point]):
+                    cert.failing_samples.append({str(sym): float(v) for sym, v in failed.items()
+                                                 if str(sym).startswith((owner[a] + ".", owner[b] + "."))})
             # The interconnected structure: ker(ΓV), coupling rows removed.
             W = V @ vh[rank:].T
             coupled = set(fa + ea + fb + eb)
