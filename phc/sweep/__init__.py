@@ -16,7 +16,7 @@ How a sweep runs
   pickles as its generated source plus metadata and is rebuilt on the worker from the
   text in memory (:func:`phc.codegen.load.load_generated`); workers never read a model
   file (each point's parameter values are checked against the model file here, before it
-  is sent: :func:`phc.simulation.check_parameters`, whose answers travel with the model).
+  is sent: :func:`phc.simulation.check_parameters`, whose verdict travels with the point).
   A pickle is code to whoever loads it, so it travels only from this process to the
   workers it starts or the Dask cluster the user names (see docs/security.md).
 * **Executors**: a local process pool (default; one BLAS thread per worker) or Dask
@@ -48,15 +48,15 @@ Every public name of these modules is importable from ``phc.sweep`` too.
 
 # every public name phc.sweep had as one module; __all__ is what it was
 from phc.errors import SweepSetupError  # noqa: F401
-from phc.sweep.design import (ACCURACY_OPTIONS, MAX_POINTS, MESH_PREFIX, Design, Point, compile_group, group_label,
+from phc.sweep.design import (ACCURACY_OPTIONS, MAX_POINTS, MESH_PREFIX, Design, Point, Points, compile_group, group_label,
                               make_design, recompile_for, sample_unit, sweep_axes, transform)  # noqa: F401
 from phc.sweep.executors import (INSTALL_CLUSTER, MAX_ATTEMPTS, DaskExecutor, LocalExecutor, default_workers,
                                  run_point, start_method)  # noqa: F401
 from phc.sweep.plot import INSTALL_PLOT, plot_sweep  # noqa: F401
-from phc.sweep.results import (INSTALL_PARQUET, MACHINE_COLUMNS, RUN_COLUMNS, STATS, AppendLog, SweepReport,
+from phc.sweep.results import (INSTALL_PARQUET, MACHINE_COLUMNS, RUN_COLUMNS, STATS, AppendLog, RowTable, SweepReport,
                                parquet_available, read_results, results_paths, write_parquet)  # noqa: F401
 from phc.sweep.run import run_sweep  # noqa: F401
 
-__all__ = ["AppendLog", "DaskExecutor", "Design", "LocalExecutor", "Point", "SweepReport", "SweepSetupError",
+__all__ = ["AppendLog", "DaskExecutor", "Design", "LocalExecutor", "Point", "Points", "SweepReport", "SweepSetupError",
            "make_design", "plot_sweep", "read_results", "recompile_for", "results_paths", "run_point", "run_sweep",
            "sample_unit"]
