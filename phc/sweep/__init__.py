@@ -32,6 +32,9 @@ How a sweep runs
   replaces that process alone; Dask reschedules it) and the row's ``attempts`` says so; a
   point is charged only for its own runs. When the sweep completes the CSV file is
   rewritten in point order.
+* **The design is streamed**: points are made on demand (:class:`~phc.sweep.design.Points`),
+  checked and sent only when a worker is free, and rows are kept as typed columns
+  (:class:`~phc.sweep.results.RowTable`): a 10⁶-point sweep starts at once in bounded memory.
 * **Swept names are columns**: a name that is also a result column (``steps``,
   ``worker``, ``x.max`` of an output ``x``) is refused where it is written.
 
@@ -48,8 +51,8 @@ Every public name of these modules is importable from ``phc.sweep`` too.
 
 # every public name phc.sweep had as one module; __all__ is what it was
 from phc.errors import SweepSetupError  # noqa: F401
-from phc.sweep.design import (ACCURACY_OPTIONS, MAX_POINTS, MESH_PREFIX, Design, Point, Points, compile_group, group_label,
-                              make_design, recompile_for, sample_unit, sweep_axes, transform)  # noqa: F401
+from phc.sweep.design import (ACCURACY_OPTIONS, MAX_POINTS, MESH_PREFIX, Design, Point, Points, compile_group,
+                              group_label, make_design, recompile_for, sample_unit, sweep_axes, transform)  # noqa: F401
 from phc.sweep.executors import (INSTALL_CLUSTER, MAX_ATTEMPTS, DaskExecutor, LocalExecutor, default_workers,
                                  run_point, start_method)  # noqa: F401
 from phc.sweep.plot import INSTALL_PLOT, plot_sweep  # noqa: F401
@@ -57,6 +60,6 @@ from phc.sweep.results import (INSTALL_PARQUET, MACHINE_COLUMNS, RUN_COLUMNS, ST
                                parquet_available, read_results, results_paths, write_parquet)  # noqa: F401
 from phc.sweep.run import run_sweep  # noqa: F401
 
-__all__ = ["AppendLog", "DaskExecutor", "Design", "LocalExecutor", "Point", "Points", "SweepReport", "SweepSetupError",
+__all__ = ["AppendLog", "DaskExecutor", "Design", "LocalExecutor", "Point", "SweepReport", "SweepSetupError",
            "make_design", "plot_sweep", "read_results", "recompile_for", "results_paths", "run_point", "run_sweep",
            "sample_unit"]
