@@ -114,7 +114,7 @@ class Points(abc.Sequence):
         self.n_draws = samples if self.sampled else 1
         self.radix = [len(a.values) for a in self.grid]
         self._len = math.prod(self.radix) * self.n_draws
-        self._chunk: tuple[int, Optional[np.ndarray]] = (-1, None)
+        self._chunks: dict[int, np.ndarray] = {}  # the last few chunks of samples, by their first sample
         self._lhs: Optional[list] = None
         self.digest = _digest(self.axes, self.kinds, self.samples, seed, sampling)
 
@@ -164,9 +164,12 @@ class Points(abc.Sequence):
 
     def _draw(self, k: int) -> dict:
         start = k - k % CHUNK
-        if self._chunk[0] != start:
-            self._chunk = (start, self._make_chunk(start, min(start + CHUNK, self.n_draws)))
-        row = self._chunk[1][k - start]
+        chunk = self._chunks.get(start)
+        if chunk is None:  # rows come back out of order, around the points being sent: a few chunks kept
+            if len(self._chunks) >= 4:
+                del self._chunks[next(iter(self._chunks))]
+            chunk = self._chunks[start] = self._make_chunk(start, min(start + CHUNK, self.n_draws))
+        row = chunk[k - start]
         return dict(zip([a.name for a in self.sampled], (float(v) for v in row)))
 
     def _make_chunk(self, start: int, stop: int) -> np.ndarray:

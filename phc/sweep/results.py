@@ -181,6 +181,9 @@ class RowTable:
         dtypes = {"float": np.float64, "int": np.int64, "bool": np.bool_}
         self._data = {c: np.zeros(self._cap, dtype=dtypes[self.kinds.get(c, "float")])
                       if self.kinds.get(c, "float") in dtypes else [] for c in self.columns}
+        self._strings: dict[str, dict] = {c: {} for c, col in self._data.items() if isinstance(col, list)}
+        """Per text column, its values seen so far: one string object per value for the
+        workers' names and the messages that repeat (a few thousand kept)."""
 
     def __len__(self) -> int:
         return self._live
@@ -224,7 +227,9 @@ class RowTable:
             value = row.get(c, "")
             kind = self.kinds.get(c, "float")
             if kind == "str":
-                col[slot] = "" if value is None else str(value)
+                text = "" if value is None else str(value)
+                seen = self._strings[c]
+                col[slot] = seen.get(text) or (seen.setdefault(text, text) if len(seen) < 4096 else text)
             elif kind == "bool":
                 col[slot] = bool(value) if not isinstance(value, str) else value.strip().lower() == "true"
             elif kind == "int":

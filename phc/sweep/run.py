@@ -153,15 +153,19 @@ def run_sweep(path: Union[str, os.PathLike], out: Union[str, os.PathLike], *,
 
         bar = CountProgress(len(design.points), label=compiled.name, done=len(report.rows), stream=stream)
 
+    sent: dict[int, dict] = {}  # the swept values of the points being run (not made again for their rows)
+
     def record(out_: dict) -> None:
-        point = design.points[out_["index"]]
-        row = {"point": point.index, **point.values, **out_["row"]}
+        index = out_["index"]
+        values = sent.pop(index, None)
+        point = design.points[index] if values is None else None
+        row = {"point": index, **(values if point is None else point.values), **out_["row"]}
         if series_log is not None and out_["series"] is not None:
             t, outs = out_["series"]
-            series_log.append([[point.index, float(ti), *(float(outs[o][k]) for o in outputs)]
+            series_log.append([[index, float(ti), *(float(outs[o][k]) for o in outputs)]
                                for k, ti in enumerate(t)])
         log.append([[row.get(c, "") for c in columns]])  # the row last: a row means its series is complete
-        report.rows[point.index] = row
+        report.rows[index] = row
         if bar is not None:
             bar.advance(failed=not row["success"])
 
@@ -181,6 +185,7 @@ def run_sweep(path: Union[str, os.PathLike], out: Union[str, os.PathLike], *,
             if refused:
                 record(_failed(task, refused, outputs))
             else:
+                sent[p.index] = p.values
                 yield task
 
     t_run = time.perf_counter()
