@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import csv
 import hashlib
 import itertools
 import json
@@ -285,13 +286,17 @@ def _resume(log: AppendLog, meta_path: Path, meta: dict, series_log: Optional[Ap
     if header != log.columns:
         raise SweepSetupError(f"cannot resume `{log.path}`: its columns are not this sweep's; use --overwrite")
     kinds = _kinds(log.columns)
-    for line in lines:
-        try:
-            row = {c: _parse(v, kinds[c]) for c, v in zip(header, line)}
-        except ValueError:
-            continue
-        if 0 <= row["point"] < meta["points"]:
-            rows[row["point"]] = row
+    try:
+        for line in lines:
+            try:
+                row = {c: _parse(v, kinds[c]) for c, v in zip(header, line)}
+            except ValueError:
+                continue
+            if 0 <= row["point"] < meta["points"]:
+                rows[row["point"]] = row
+    except csv.Error as err:
+        raise SweepSetupError(f"cannot resume `{log.path}`: it is not a CSV file phc can read ({err}); "
+                              "pass --overwrite to start over") from None
     retried = 0
     if retry_failed:
         failed = [i for i, r in rows.items() if not r["success"]]
@@ -302,7 +307,11 @@ def _resume(log: AppendLog, meta_path: Path, meta: dict, series_log: Optional[Ap
     if series_log is not None:
         if series_log.path.exists():
             _, kept = series_log.iter_rows()
-            series_log.rewrite(s for s in kept if s and s[0].isascii() and s[0].isdigit() and int(s[0]) in rows)
+            try:
+                series_log.rewrite(s for s in kept if s and s[0].isascii() and s[0].isdigit() and int(s[0]) in rows)
+            except csv.Error as err:
+                raise SweepSetupError(f"cannot resume the time series `{series_log.path}`: it is not a CSV file phc "
+                                      f"can read ({err}); pass --overwrite to start over") from None
         else:
             series_log.create()
     return retried
