@@ -42,23 +42,6 @@ cluster runs it, never submitted whole."""
 # one run (executed on the workers)
 
 
-def check_key(compiled, params: dict) -> Optional[tuple]:
-    """The key under which :func:`phc.simulation.check_parameters` remembers its verdict on
-    `params` (``compiled.cache.parameter_checks``): the top-level parameters that differ
-    from the model's values, sorted; None when none does (nothing to check)."""
-    mod = compiled.module
-    defaults = dict(zip(mod.PARAMETERS, np.asarray(mod.PARAMETER_DEFAULTS, dtype=float)))
-    changed = {}
-    for key, value in params.items():
-        try:
-            number = float(value)
-        except (TypeError, ValueError):
-            return None  # check_parameters refuses it by itself
-        if "." not in key and key in defaults and number != float(defaults[key]):
-            changed[key] = number
-    return tuple(sorted(changed.items())) or None
-
-
 @contextmanager
 def _checked(compiled, task: dict):
     """The verdict of the client's parameter check (`task["checked"]`, the key of values the
@@ -647,5 +630,5 @@ def _executor(executor, scheduler, workers):
     raise SweepSetupError(f"unknown executor `{executor}`; choose local or dask")
 
 
-__all__ = ["DaskExecutor", "INSTALL_CLUSTER", "LocalExecutor", "MAX_ATTEMPTS", "SUBMIT_AHEAD", "check_key",
+__all__ = ["DaskExecutor", "INSTALL_CLUSTER", "LocalExecutor", "MAX_ATTEMPTS", "SUBMIT_AHEAD",
            "default_workers", "run_point", "start_method"]

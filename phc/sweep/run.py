@@ -17,7 +17,7 @@ from typing import Any, Optional, Sequence, Union
 from phc.errors import ModelError, SweepSetupError
 from phc.io import atomic_write
 from phc.sweep.design import MESH_PREFIX, Design, compile_group, group_label, make_design, sweep_axes
-from phc.sweep.executors import _executor, _failed, check_key
+from phc.sweep.executors import _executor, _failed
 from phc.sweep.results import (INSTALL_PARQUET, MACHINE_COLUMNS, RUN_COLUMNS, STATS, AppendLog, RowTable, SweepReport,
                                _kinds, _parse, check_series_path, parquet_available, results_paths, write_parquet)
 
@@ -223,27 +223,29 @@ def run_sweep(path: Union[str, os.PathLike], out: Union[str, os.PathLike], *,
 
 def _refused(compiled, params: dict) -> tuple[str, Optional[tuple]]:
     """Why the model file refuses a point's parameter values ("" when it does not), and the
-    key of the verdict (:func:`phc.sweep.executors.check_key`, None when the values need no
-    check): checked here, where the model's files are, by elaborating the model with them
-    (:func:`phc.simulation.check_parameters`). Workers never read the model's files, so
-    they may run anywhere (another directory, another machine); their copies of the model
-    were made before this check, so the key travels with the point's task and the worker
-    records the verdict (:func:`phc.sweep.executors.run_point`). The answer is not kept
-    here: a million points would be a million entries."""
+    key under which :func:`phc.simulation.check_parameters` filed its verdict (None when the
+    values needed no check): checked here, where the model's files are, by elaborating the
+    model with them. Workers never read the model's files, so they may run anywhere (another
+    directory, another machine); their copies of the model were made before this check, so
+    the key travels with the point's task and the worker records the verdict
+    (:func:`phc.sweep.executors.run_point`). The key is read off the verdicts the check
+    files (set aside around it), so it is the check's own. The answer is not kept here: a
+    million points would be a million entries."""
     from phc.errors import SimulationSetupError
     from phc.simulation import check_parameters
 
-    key = check_key(compiled, params)
     cache = compiled.cache.parameter_checks
-    known = key in cache
+    kept = dict(cache)
+    cache.clear()
     try:
         check_parameters(compiled, params)
     except SimulationSetupError as err:
-        return str(err), key
+        return str(err), None
     finally:
-        if key is not None and not known:
-            cache.pop(key, None)
-    return "", key
+        filed = list(cache)
+        cache.clear()
+        cache.update(kept)
+    return "", (filed[0] if filed else None)
 
 
 def _version() -> str:
