@@ -16,7 +16,7 @@ How a sweep runs
   pickles as its generated source plus metadata and is rebuilt on the worker from the
   text in memory (:func:`phc.codegen.load.load_generated`); workers never read a model
   file (each point's parameter values are checked against the model file here, before it
-  is sent: :func:`phc.simulation.check_parameters`, whose answers travel with the model).
+  is sent: :func:`phc.simulation.check_parameters`, whose verdict travels with the point).
   A pickle is code to whoever loads it, so it travels only from this process to the
   workers it starts or the Dask cluster the user names (see docs/security.md).
 * **Executors**: a local process pool (default; one BLAS thread per worker) or Dask
@@ -32,6 +32,9 @@ How a sweep runs
   replaces that process alone; Dask reschedules it) and the row's ``attempts`` says so; a
   point is charged only for its own runs. When the sweep completes the CSV file is
   rewritten in point order.
+* **The design is streamed**: points are made on demand (:class:`~phc.sweep.design.Points`),
+  checked and sent only when a worker is free, and rows are kept as typed columns
+  (:class:`~phc.sweep.results.RowTable`): a 10⁶-point sweep starts at once in bounded memory.
 * **Swept names are columns**: a name that is also a result column (``steps``,
   ``worker``, ``x.max`` of an output ``x``) is refused where it is written.
 
@@ -48,12 +51,12 @@ Every public name of these modules is importable from ``phc.sweep`` too.
 
 # every public name phc.sweep had as one module; __all__ is what it was
 from phc.errors import SweepSetupError  # noqa: F401
-from phc.sweep.design import (ACCURACY_OPTIONS, MAX_POINTS, MESH_PREFIX, Design, Point, compile_group, group_label,
-                              make_design, recompile_for, sample_unit, sweep_axes, transform)  # noqa: F401
+from phc.sweep.design import (ACCURACY_OPTIONS, MAX_POINTS, MESH_PREFIX, Design, Point, Points, compile_group,
+                              group_label, make_design, recompile_for, sample_unit, sweep_axes, transform)  # noqa: F401
 from phc.sweep.executors import (INSTALL_CLUSTER, MAX_ATTEMPTS, DaskExecutor, LocalExecutor, default_workers,
                                  run_point, start_method)  # noqa: F401
 from phc.sweep.plot import INSTALL_PLOT, plot_sweep  # noqa: F401
-from phc.sweep.results import (INSTALL_PARQUET, MACHINE_COLUMNS, RUN_COLUMNS, STATS, AppendLog, SweepReport,
+from phc.sweep.results import (INSTALL_PARQUET, MACHINE_COLUMNS, RUN_COLUMNS, STATS, AppendLog, RowTable, SweepReport,
                                parquet_available, read_results, results_paths, write_parquet)  # noqa: F401
 from phc.sweep.run import run_sweep  # noqa: F401
 

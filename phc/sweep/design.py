@@ -12,6 +12,7 @@ from __future__ import annotations
 import itertools
 import math
 import time
+from collections import abc
 from dataclasses import dataclass
 from typing import Any, Optional, Sequence
 
@@ -51,13 +52,172 @@ class Design:
     samples: Optional[int]
     seed: int
     sampling: str
-    points: list[Point]
+    points: "Points"
+    """The points, made on demand (:class:`Points`; a list works too)."""
     kinds: dict[str, str]
     """name -> `run` (run-time parameter), `compile` (compile-time parameter), `mesh`, `option`."""
 
     @property
     def groups(self) -> list[tuple]:
-        return list(dict.fromkeys(p.group for p in self.points))
+        """The compilation groups in the order their first points come."""
+        return list(self.group_counts())
+
+    def group_counts(self) -> dict[tuple, int]:
+        """Compilation group -> its number of points, in the order their first points come."""
+        if isinstance(self.points, Points):
+            return self.points.group_counts()
+        counts: dict[tuple, int] = {}
+        for p in self.points:
+            counts[p.group] = counts.get(p.group, 0) + 1
+        return counts
+
+    @property
+    def digest(self) -> str:
+        return self.points.digest if isinstance(self.points, Points) else _digest(self.axes, self.kinds, self.samples,
+                                                                                   self.seed, self.sampling)
+
+
+CHUNK = 4096
+"""Samples of the distributions made at once (:class:`Points`)."""
+
+
+def _digest(axes: Sequence[Axis], kinds: dict, samples, seed: int, sampling: str) -> str:
+    """A stable hash of a design's definition (its axes, their values or distributions, the
+    sampler and its seed): equal digests mean equal points, in the same order."""
+    import hashlib
+    import json
+
+    definition = {"axes": [{"name": a.name, "kind": kinds.get(a.name, ""), "values": [repr(float(v)) for v in a.values],
+                            "distribution": a.distribution, "a": repr(float(a.a)), "b": repr(float(a.b))}
+                           for a in axes],
+                  "samples": samples, "seed": seed, "sampling": sampling, "points": "grid-major, samples fastest"}
+    return hashlib.sha256(json.dumps(definition, sort_keys=True).encode()).hexdigest()[:32]
+
+
+class Points(abc.Sequence):
+    """The points of a design, made on demand: ``len``, indexing and iteration build a
+    :class:`Point` when asked, never the list of all of them.
+
+    Point `i` is grid combination ``i // samples`` (the grid axes as mixed-radix digits, the
+    last axis fastest) with sample ``i % samples``. Samples are made :data:`CHUNK` at a
+    time from the seed alone: random samples by advancing the generator to the chunk,
+    Latin-hypercube samples from one stored permutation per sampled axis (4 bytes per
+    sample and axis) and the generator's state after it. The points are those of the eager
+    construction (:func:`sample_unit`, then :func:`transform`), in the same order."""
+
+    def __init__(self, axes: Sequence[Axis], kinds: dict, samples: Optional[int], seed: int, sampling: str) -> None:
+        self.axes, self.kinds = list(axes), dict(kinds)
+        self.grid = [a for a in self.axes if not a.sampled]
+        self.sampled = [a for a in self.axes if a.sampled]
+        self.samples = samples if self.sampled else None
+        self.seed, self.sampling = seed, sampling
+        self.n_draws = samples if self.sampled else 1
+        self.radix = [len(a.values) for a in self.grid]
+        self._len = math.prod(self.radix) * self.n_draws
+        self._chunks: dict[int, np.ndarray] = {}  # the last few chunks of samples, by their first sample
+        self._lhs: Optional[list] = None
+        self.digest = _digest(self.axes, self.kinds, self.samples, seed, sampling)
+
+    def __len__(self) -> int:
+        return self._len
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[k] for k in range(*i.indices(self._len))]
+        i = int(i)
+        if i < 0:
+            i += self._len
+        if not 0 <= i < self._len:
+            raise IndexError(f"point {i} of a design of {self._len}")
+        return self._point(i)
+
+    def __iter__(self):
+        for i in range(self._len):
+            yield self._point(i)
+
+    def __repr__(self) -> str:
+        return f"Points({self._len} points, digest {self.digest})"
+
+    # -- one point --------------------------------------------------------------------------
+
+    def _point(self, i: int) -> Point:
+        combo, k = divmod(i, self.n_draws)
+        fixed = {}
+        for axis, n in zip(reversed(self.grid), reversed(self.radix)):
+            combo, digit = divmod(combo, n)
+            fixed[axis.name] = axis.values[digit]
+        draw = self._draw(k) if self.sampled else {}
+        values = {a.name: (fixed if a.name in fixed else draw)[a.name] for a in self.axes}
+        group, params, options = [], {}, {}
+        for name, value in values.items():
+            kind = self.kinds[name]
+            if kind == "mesh":
+                values[name] = value = int(value)
+                group.append((name, value))
+            elif kind == "compile":
+                group.append((name, value))
+            elif kind == "option":
+                options[ACCURACY_OPTIONS[name]] = value
+            else:
+                params[name] = value
+        return Point(i, values, tuple(sorted(group)), params, options)
+
+    def _draw(self, k: int) -> dict:
+        start = k - k % CHUNK
+        chunk = self._chunks.get(start)
+        if chunk is None:  # rows come back out of order, around the points being sent: a few chunks kept
+            if len(self._chunks) >= 4:
+                del self._chunks[next(iter(self._chunks))]
+            chunk = self._chunks[start] = self._make_chunk(start, min(start + CHUNK, self.n_draws))
+        row = chunk[k - start]
+        return dict(zip([a.name for a in self.sampled], (float(v) for v in row)))
+
+    def _make_chunk(self, start: int, stop: int) -> np.ndarray:
+        """Samples `start` to `stop` of the distributions, as the eager construction makes them."""
+        n, dims = self.n_draws, len(self.sampled)
+        if self.sampling == "random":  # rng.random((n, dims)) is one double per draw, row by row
+            rng = np.random.default_rng(self.seed)
+            rng.bit_generator.advance(start * dims)
+            unit = rng.random((stop - start, dims))
+        else:
+            if self._lhs is None:  # per axis: its permutation, the generator's state after it
+                rng = np.random.default_rng(self.seed)
+                self._lhs = []
+                for _ in range(dims):
+                    perm = rng.permutation(n).astype(np.int32 if n < 2**31 else np.int64)
+                    state = rng.bit_generator.state
+                    self._lhs.append((perm, state))
+                    rng.bit_generator.advance(n)  # rng.random(n): n doubles, one 64-bit draw each
+                    after = rng.bit_generator.state  # advance() drops a buffered 32-bit half; doubles keep it
+                    after.update(has_uint32=state["has_uint32"], uinteger=state["uinteger"])
+                    rng.bit_generator.state = after
+            unit = np.empty((stop - start, dims))
+            for j, (perm, state) in enumerate(self._lhs):
+                rng = np.random.Generator(np.random.PCG64())
+                rng.bit_generator.state = state
+                rng.bit_generator.advance(start)
+                unit[:, j] = (perm[start:stop].astype(np.int64) + rng.random(stop - start)) / n
+        return np.column_stack([transform(a, unit[:, j]) for j, a in enumerate(self.sampled)])
+
+    # -- compilation groups -----------------------------------------------------------------
+
+    def group_counts(self) -> dict[tuple, int]:
+        """Compilation group -> number of points, in the order of their first points: from
+        the grid's compile-time axes alone (a sampled compile-time parameter makes every
+        sample a group of its own: then the points are counted one by one)."""
+        keyed = [a for a in self.axes if self.kinds[a.name] in ("mesh", "compile")]
+        if any(a.sampled for a in keyed):
+            counts: dict[tuple, int] = {}
+            for p in self:
+                counts[p.group] = counts.get(p.group, 0) + 1
+            return counts
+        per = self._len // max(1, math.prod(len(a.values) for a in keyed))
+        counts = {}
+        for combo in itertools.product(*(a.values for a in keyed)):
+            group = tuple(sorted((a.name, int(v) if self.kinds[a.name] == "mesh" else v)
+                                 for a, v in zip(keyed, combo)))
+            counts[group] = counts.get(group, 0) + per
+        return counts
 
 
 def sample_unit(n: int, dims: int, seed: int, sampling: str) -> np.ndarray:
@@ -153,31 +313,8 @@ def make_design(compiled, axes: Sequence[Axis], samples: Optional[int] = None, s
         problems.append(("", f"the sweep has {total} points, more than {MAX_POINTS}", "split it"))
     if problems:
         _raise(problems, locate)
-    if sampled:
-        unit = sample_unit(samples, len(sampled), seed, sampling)
-        draws = [dict(zip([a.name for a in sampled], (float(v) for v in row)))
-                 for row in np.column_stack([transform(a, unit[:, j]) for j, a in enumerate(sampled)])]
-    else:
-        draws = [{}]
-    points = []
-    for combo in itertools.product(*(a.values for a in grid)):
-        fixed = dict(zip([a.name for a in grid], combo))
-        for draw in draws:
-            values = {a.name: (fixed if a.name in fixed else draw)[a.name] for a in axes}
-            group, params, options = [], {}, {}
-            for name, value in values.items():
-                kind = kinds[name]
-                if kind == "mesh":
-                    values[name] = value = int(value)
-                    group.append((name, value))
-                elif kind == "compile":
-                    group.append((name, value))
-                elif kind == "option":
-                    options[ACCURACY_OPTIONS[name]] = value
-                else:
-                    params[name] = value
-            points.append(Point(len(points), values, tuple(sorted(group)), params, options))
-    return Design(list(axes), samples if sampled else None, seed, sampling, points, kinds)
+    return Design(list(axes), samples if sampled else None, seed, sampling,
+                  Points(axes, kinds, samples if sampled else None, seed, sampling), kinds)
 
 
 def _column_clashes(compiled, axes: Sequence[Axis]) -> list[tuple]:
@@ -294,5 +431,5 @@ def sweep_axes(compiled, cli: Sequence[tuple[str, str]]) -> tuple[list[Axis], An
     return list(axes.values()), spec, locate
 
 
-__all__ = ["ACCURACY_OPTIONS", "Design", "MAX_POINTS", "MAX_SEED", "MESH_PREFIX", "Point", "compile_group",
+__all__ = ["ACCURACY_OPTIONS", "Design", "MAX_POINTS", "MAX_SEED", "MESH_PREFIX", "Point", "Points", "compile_group",
            "group_label", "make_design", "recompile_for", "sample_unit", "sweep_axes", "transform"]

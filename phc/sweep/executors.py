@@ -21,7 +21,7 @@ import uuid
 import warnings
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator, Optional, Sequence
+from typing import Any, Iterable, Iterator, Optional, Sequence
 
 import numpy as np
 
@@ -33,15 +33,43 @@ MAX_ATTEMPTS = 3
 a local pool; on Dask, a point the scheduler gives up on after ``allowed-failures`` lost
 workers is submitted again while it started on fewer than this many)."""
 INSTALL_CLUSTER = 'pip install "port-hamiltonian-compiler[cluster]"'
+SUBMIT_AHEAD = 256
+"""Points submitted to Dask and not yet returned, at most: the design is taken as the
+cluster runs it, never submitted whole."""
 
 
 # ---------------------------------------------------------------------------------------
 # one run (executed on the workers)
 
 
+@contextmanager
+def _checked(compiled, task: dict):
+    """The verdict of the client's parameter check (`task["checked"]`, the key of values the
+    model file accepts) known to this copy of the model while the point runs: the copy was
+    made (pickled for the pool or the cluster) before the point was checked. Forgotten
+    after, so a worker's cache does not grow with the sweep."""
+    key = task.get("checked")
+    if key is not None:  # hashable whatever carried it (a serializer may make lists of tuples)
+        key = tuple((str(name), float(value)) for name, value in key)
+    cache = compiled.cache.parameter_checks
+    added = key is not None and key not in cache
+    if added:
+        cache[key] = []
+    try:
+        yield
+    finally:
+        if added:
+            cache.pop(key, None)
+
+
 def run_point(compiled, task: dict) -> dict:
     """Run one point: ``{"index", "row", "series"}``. Never raises for a failing point:
     any error becomes ``success`` false with its message."""
+    with _checked(compiled, task):
+        return _run_point(compiled, task)
+
+
+def _run_point(compiled, task: dict) -> dict:
     from phc.errors import InconsistentInitialError
     from phc.simulation import SimulationInterrupted, simulate
 
@@ -257,7 +285,10 @@ class LocalExecutor:
     def describe(self) -> str:
         return f"local process pool, {self.workers} worker{'s' if self.workers != 1 else ''}"
 
-    def run(self, models: dict, tasks: list[dict], outputs: Sequence[str]) -> Iterator[dict]:
+    def run(self, models: dict, tasks: Iterable[dict], outputs: Sequence[str]) -> Iterator[dict]:
+        """The rows of `tasks`, as they finish. `tasks` is taken one point at a time, only
+        when a worker is free: a worker is started for each of the first points (at most
+        `workers`), then a point is taken when one of them returns a row."""
         import pickle
         from collections import deque
         from multiprocessing.connection import wait
@@ -266,23 +297,40 @@ class LocalExecutor:
         if ctx.get_start_method() == "forkserver":
             ctx.set_forkserver_preload(["phc.sweep", "phc.pipeline", "phc.simulation"])
         blob = pickle.dumps(models, protocol=pickle.HIGHEST_PROTOCOL)
-        attempts = {t["index"]: 1 for t in tasks}
+        attempts: dict[int, int] = {}  # points being run -> their run (1 unless a worker died running it)
         deaths: dict[int, list[str]] = {}
-        pending = deque(tasks)
+        pending: deque = deque()  # points to run again after their worker died
+        source = iter(tasks)
+
+        def take() -> Optional[dict]:
+            if pending:
+                return pending.popleft()
+            task = next(source, None)
+            if task is not None:
+                attempts.setdefault(task["index"], 1)
+            return task
+
         workers: list[_Worker] = []
         started = time.perf_counter()
         try:
-            with _one_blas_thread():
-                for _ in range(min(self.workers, len(tasks))):
+            while len(workers) < self.workers:
+                task = take()
+                if task is None:
+                    break
+                with _one_blas_thread():
                     workers.append(_Worker(ctx, blob))
+                workers[-1].give(task, attempts)
             while True:
                 for i, w in enumerate(workers):
-                    if w.task is None and pending:
+                    if w.task is None:
+                        task = take()
+                        if task is None:
+                            break
                         if not w.process.is_alive():  # it died between points: replaced, nobody charged
                             w.death()
                             with _one_blas_thread():
                                 w = workers[i] = _Worker(ctx, blob)
-                        w.give(pending.popleft(), attempts)
+                        w.give(task, attempts)
                 busy = [w for w in workers if w.task is not None]
                 if not busy:
                     break
@@ -299,9 +347,10 @@ class LocalExecutor:
                             with _one_blas_thread():
                                 workers[workers.index(w)] = _Worker(ctx, blob)
                         index = out["index"]
+                        attempts.pop(index, None)
                         if deaths.get(index):
                             out["row"]["message"] += (" (run again after its worker process died: "
-                                                      f"{', '.join(deaths[index])})")
+                                                      f"{', '.join(deaths.pop(index))})")
                         yield out
                         continue
                     # the process died running w.task: that point alone is charged the attempt
@@ -312,9 +361,10 @@ class LocalExecutor:
                     with _one_blas_thread():
                         workers[workers.index(w)] = _Worker(ctx, blob)
                     if attempts[index] > MAX_ATTEMPTS:
+                        attempts.pop(index)
                         yield _failed(dict(task, attempt=MAX_ATTEMPTS),
                                       f"its worker process died each of the {MAX_ATTEMPTS} times it ran this point "
-                                      f"({'; '.join(deaths[index])}; out of memory? a crash in a native library?)",
+                                      f"({'; '.join(deaths.pop(index))}; out of memory? a crash in a native library?)",
                                       outputs)
                     else:
                         pending.appendleft(task)
@@ -448,7 +498,9 @@ class DaskExecutor:
             client.close()
             cluster.close()
 
-    def run(self, models: dict, tasks: list[dict], outputs: Sequence[str]) -> Iterator[dict]:
+    def run(self, models: dict, tasks: Iterable[dict], outputs: Sequence[str]) -> Iterator[dict]:
+        """The rows of `tasks`, as they finish; at most :data:`SUBMIT_AHEAD` points are
+        submitted and not yet returned (a point is taken from `tasks` as one returns)."""
         from distributed import as_completed as dask_completed
 
         started = time.perf_counter()
@@ -470,10 +522,23 @@ class DaskExecutor:
                 loaded = {key: client.submit(_unpickle_model, pickle.dumps(model, protocol=pickle.HIGHEST_PROTOCOL),
                                              pure=False, key=f"{topic}-model-{i}")
                           for i, (key, model) in enumerate(models.items())}
-                futures = {client.submit(_dask_task, loaded[t["group"]], t, topic, pure=False,
-                                         key=f"{topic}-{t['index']}"): t for t in tasks}
+                source = iter(tasks)
+                done = dask_completed([])
+
+                def submit_next() -> bool:
+                    """One more point to the cluster (False when there is none)."""
+                    t = next(source, None)
+                    if t is None:
+                        return False
+                    fut = client.submit(_dask_task, loaded[t["group"]], t, topic, pure=False,
+                                        key=f"{topic}-{t['index']}")
+                    futures[fut] = t
+                    done.add(fut)
+                    return True
+
+                while len(futures) < SUBMIT_AHEAD and submit_next():
+                    pass
                 again: dict[int, int] = {}
-                done = dask_completed(list(futures))
                 for fut in done:
                     task = futures.pop(fut)
                     if math.isnan(self.startup_s):
@@ -502,6 +567,10 @@ class DaskExecutor:
                             lost = ", ".join(sorted(workers - {out["row"]["worker"]}))
                             out["row"]["message"] += f" (run again after its worker was lost: {lost})"
                     fut.release()
+                    starts.pop(task["index"], None)
+                    again.pop(task["index"], None)
+                    while len(futures) < SUBMIT_AHEAD and submit_next():  # the cluster kept busy meanwhile
+                        pass
                     yield out
             finally:
                 for fut in [*futures, *loaded.values()]:
@@ -561,5 +630,5 @@ def _executor(executor, scheduler, workers):
     raise SweepSetupError(f"unknown executor `{executor}`; choose local or dask")
 
 
-__all__ = ["DaskExecutor", "INSTALL_CLUSTER", "LocalExecutor", "MAX_ATTEMPTS", "default_workers", "run_point",
-           "start_method"]
+__all__ = ["DaskExecutor", "INSTALL_CLUSTER", "LocalExecutor", "MAX_ATTEMPTS", "SUBMIT_AHEAD",
+           "default_workers", "run_point", "start_method"]

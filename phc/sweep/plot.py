@@ -39,7 +39,7 @@ def plot_sweep(report: SweepReport, path: Union[str, os.PathLike], column: Optio
     if column not in numeric:
         raise SweepSetupError(f"--plot-output `{column}` is not a column of the results; choose one of "
                               f"{', '.join(numeric)}")
-    varying = [a.name for a in design.axes if len({p.values[a.name] for p in design.points}) > 1]
+    varying = [a.name for a in design.axes if (len(set(a.values)) if not a.sampled else design.samples or 0) > 1]
     against = list(against or varying[:2])
     if not against or len(against) > 2 or any(a not in [x.name for x in design.axes] for a in against):
         raise SweepSetupError(f"--plot-against takes one or two of the swept parameters "

@@ -3,7 +3,9 @@
 
 from __future__ import annotations
 
+import csv
 import hashlib
+import itertools
 import json
 import math
 import os
@@ -16,7 +18,7 @@ from phc.errors import ModelError, SweepSetupError
 from phc.io import atomic_write
 from phc.sweep.design import MESH_PREFIX, Design, compile_group, group_label, make_design, sweep_axes
 from phc.sweep.executors import _executor, _failed
-from phc.sweep.results import (INSTALL_PARQUET, MACHINE_COLUMNS, RUN_COLUMNS, STATS, AppendLog, SweepReport,
+from phc.sweep.results import (INSTALL_PARQUET, MACHINE_COLUMNS, RUN_COLUMNS, STATS, AppendLog, RowTable, SweepReport,
                                _kinds, _parse, check_series_path, parquet_available, results_paths, write_parquet)
 
 
@@ -93,15 +95,15 @@ def run_sweep(path: Union[str, os.PathLike], out: Union[str, os.PathLike], *,
     if twice:  # make_design refuses a swept name that is a result column; outputs are unique
         raise SweepSetupError(f"the results would have two columns named `{twice[0]}`; rename the output or parameter")
     units = _units(compiled, design, outputs)
-    report = SweepReport(compiled.name, str(path), design, columns, units)
+    report = SweepReport(compiled.name, str(path), design, columns, units, rows=RowTable(columns))
     runner = _executor(executor, scheduler, workers)  # a wrong --scheduler before any work
     series_path = Path(series) if series else None
 
     # -- compile each group once ----------------------------------------------------------
     models, failed_groups = {}, {}
-    for group in design.groups:
+    for group, count in design.group_counts().items():
         t = time.perf_counter()
-        entry = {"label": group_label(group), "points": sum(p.group == group for p in design.points),
+        entry = {"label": group_label(group), "points": count,
                  "compile_time_s": compiled.compile_time if not group else math.nan, "error": ""}
         try:
             models[group] = compile_group(compiled, path, group, certify)
@@ -121,7 +123,8 @@ def run_sweep(path: Union[str, os.PathLike], out: Union[str, os.PathLike], *,
     # -- the results files: new, or resumed --------------------------------------------------
     log = AppendLog(paths["csv"], columns)
     series_log = AppendLog(series_path, ["point", "t", *outputs]) if series_path else None
-    meta = {"phc_version": _version(), "model": compiled.name, "file": str(path), "fingerprint": fingerprint,
+    meta = {"phc_version": _version(), "model": compiled.name, "file": str(path), "design": design.digest,
+            "fingerprint": fingerprint,
             "models": hashes,
             "points": len(design.points), "axes": [{"name": a.name, "spec": a.text} for a in design.axes],
             "samples": design.samples, "seed": design.seed, "sampling": design.sampling, "run": run,
@@ -132,7 +135,7 @@ def run_sweep(path: Union[str, os.PathLike], out: Union[str, os.PathLike], *,
         raise SweepSetupError(f"`{paths['csv']}` exists; pass --resume to continue it (finished points are "
                               "skipped) or --overwrite to start over")
     if existing and resume:
-        report.rows, report.retried = _resume(log, paths["meta"], meta, series_log, retry_failed)
+        report.retried = _resume(log, paths["meta"], meta, series_log, report.rows, retry_failed)
         report.resumed = len(report.rows)
     else:
         log.create()
@@ -145,40 +148,55 @@ def run_sweep(path: Union[str, os.PathLike], out: Union[str, os.PathLike], *,
         report.paths["series"] = series_path
 
     # -- run ----------------------------------------------------------------------------
-    todo = [p for p in design.points if p.index not in report.rows]
     bar = None
     if progress:
         from phc.progress import CountProgress
 
         bar = CountProgress(len(design.points), label=compiled.name, done=len(report.rows), stream=stream)
 
+    sent: dict[int, dict] = {}  # the swept values of the points being run (not made again for their rows)
+
     def record(out_: dict) -> None:
-        point = design.points[out_["index"]]
-        row = {"point": point.index, **point.values, **out_["row"]}
+        index = out_["index"]
+        values = sent.pop(index, None)
+        point = design.points[index] if values is None else None
+        row = {"point": index, **(values if point is None else point.values), **out_["row"]}
         if series_log is not None and out_["series"] is not None:
             t, outs = out_["series"]
-            series_log.append([[point.index, float(ti), *(float(outs[o][k]) for o in outputs)]
+            series_log.append([[index, float(ti), *(float(outs[o][k]) for o in outputs)]
                                for k, ti in enumerate(t)])
         log.append([[row.get(c, "") for c in columns]])  # the row last: a row means its series is complete
-        report.rows[point.index] = row
+        report.rows[index] = row
         if bar is not None:
             bar.advance(failed=not row["success"])
 
-    tasks = []
-    for p in todo:
-        task = {"index": p.index, "group": p.group, "params": p.params, "options": p.options, "run": run,
-                "series": series_log is not None}
-        refused = failed_groups.get(p.group) or _refused(models[p.group], p.params)
-        if refused:
-            record(_failed(task, refused, outputs))
-        else:
-            tasks.append(task)
+    def tasks():
+        """The points still to run, made and checked one at a time as the executor takes
+        them; a point the model file refuses (or of a group that did not compile) is
+        recorded here as a failed row and not sent. The check's verdict travels with the
+        task (``checked``): the workers' copies of the model were made before it."""
+        for p in design.points:
+            if p.index in report.rows:
+                continue
+            task = {"index": p.index, "group": p.group, "params": p.params, "options": p.options, "run": run,
+                    "series": series_log is not None}
+            refused = failed_groups.get(p.group)
+            if not refused:
+                refused, task["checked"] = _refused(models[p.group], p.params)
+            if refused:
+                record(_failed(task, refused, outputs))
+            else:
+                sent[p.index] = p.values
+                yield task
+
     t_run = time.perf_counter()
     try:
-        if tasks:
+        pending = tasks()
+        first = next(pending, None)  # nothing to run (all done, all refused): no executor is started
+        if first is not None:
             if bar is not None:
                 bar.draw(force=True)
-            results = runner.run({g: models[g] for g in {t["group"] for t in tasks}}, tasks, outputs)
+            results = runner.run(models, itertools.chain([first], pending), outputs)
             try:
                 for result in results:
                     record(result)
@@ -193,7 +211,7 @@ def run_sweep(path: Union[str, os.PathLike], out: Union[str, os.PathLike], *,
     report.workers_startup_s = runner.startup_s
     report.executor = runner.describe()
     if report.complete:
-        log.rewrite([[r.get(c, "") for c in columns] for r in report.ordered()])
+        log.rewrite([r.get(c, "") for c in columns] for r in report.rows.ordered())
     if parquet_available():
         write_parquet(report, paths["parquet"])
         report.paths["parquet"] = paths["parquet"]
@@ -203,20 +221,31 @@ def run_sweep(path: Union[str, os.PathLike], out: Union[str, os.PathLike], *,
     return report
 
 
-def _refused(compiled, params: dict) -> str:
-    """Why the model file refuses a point's parameter values ("" when it does not): checked
-    here, where the model's files are, by elaborating the model with them
-    (:func:`phc.simulation.check_parameters`). The answer is remembered in the compiled
-    model's run cache, which travels with it: workers never read the model's files, so they
-    may run anywhere (another directory, another machine)."""
+def _refused(compiled, params: dict) -> tuple[str, Optional[tuple]]:
+    """Why the model file refuses a point's parameter values ("" when it does not), and the
+    key under which :func:`phc.simulation.check_parameters` filed its verdict (None when the
+    values needed no check): checked here, where the model's files are, by elaborating the
+    model with them. Workers never read the model's files, so they may run anywhere (another
+    directory, another machine); their copies of the model were made before this check, so
+    the key travels with the point's task and the worker records the verdict
+    (:func:`phc.sweep.executors.run_point`). The key is read off the verdicts the check
+    files (set aside around it), so it is the check's own. The answer is not kept here: a
+    million points would be a million entries."""
     from phc.errors import SimulationSetupError
     from phc.simulation import check_parameters
 
+    cache = compiled.cache.parameter_checks
+    kept = dict(cache)
+    cache.clear()
     try:
         check_parameters(compiled, params)
     except SimulationSetupError as err:
-        return str(err)
-    return ""
+        return str(err), None
+    finally:
+        filed = list(cache)
+        cache.clear()
+        cache.update(kept)
+    return "", (filed[0] if filed else None)
 
 
 def _version() -> str:
@@ -226,17 +255,20 @@ def _version() -> str:
 
 
 def _fingerprint(design: Design, run: dict, series: Optional[Path], outputs) -> str:
+    """The sweep's identity: its design's digest (a hash of its definition, equal digests
+    mean equal points: :class:`~phc.sweep.design.Points`), run options, outputs."""
     h = hashlib.sha256()
-    h.update(json.dumps({"points": [[p.index, sorted(p.values.items())] for p in design.points], "run": run,
+    h.update(json.dumps({"design": design.digest, "points": len(design.points), "run": run,
                          "series": series is not None, "outputs": outputs}, sort_keys=True).encode())
     return h.hexdigest()[:32]
 
 
-def _resume(log: AppendLog, meta_path: Path, meta: dict, series_log: Optional[AppendLog],
-            retry_failed: bool = False) -> tuple[dict[int, dict], int]:
-    """The rows already in the results file, after checking they belong to this sweep (its
-    description records the same model, swept values, run options and phc version), and
-    how many failed rows were dropped to run again (`retry_failed`)."""
+def _resume(log: AppendLog, meta_path: Path, meta: dict, series_log: Optional[AppendLog], rows: RowTable,
+            retry_failed: bool = False) -> int:
+    """The rows already in the results file put in `rows`, after checking they belong to
+    this sweep (its description records the same model, design, run options and phc
+    version), and how many failed rows were dropped to run again (`retry_failed`). The
+    files are read and rewritten a row at a time."""
     try:
         old = json.loads(meta_path.read_text())
     except (OSError, ValueError):
@@ -248,32 +280,43 @@ def _resume(log: AppendLog, meta_path: Path, meta: dict, series_log: Optional[Ap
     why = _mismatch(old, meta)
     if why:
         raise SweepSetupError(f"cannot resume `{log.path}`: {why}; use another --out, or --overwrite to start over")
-    header, lines = log.read()
+    try:
+        header, lines = log.iter_rows()
+    except OSError as err:
+        raise SweepSetupError(f"cannot resume `{log.path}`: cannot read it ({err.strerror or err}); "
+                              "pass --overwrite to start over") from None
     if header != log.columns:
         raise SweepSetupError(f"cannot resume `{log.path}`: its columns are not this sweep's; use --overwrite")
     kinds = _kinds(log.columns)
-    rows = {}
-    for line in lines:
-        try:
-            row = {c: _parse(v, kinds[c]) for c, v in zip(header, line)}
-        except ValueError:
-            continue
-        if 0 <= row["point"] < meta["points"]:
-            rows[row["point"]] = row
+    try:
+        for line in lines:
+            try:
+                row = {c: _parse(v, kinds[c]) for c, v in zip(header, line)}
+            except ValueError:
+                continue
+            if 0 <= row["point"] < meta["points"]:
+                rows[row["point"]] = row
+    except csv.Error as err:
+        raise SweepSetupError(f"cannot resume `{log.path}`: it is not a CSV file phc can read ({err}); "
+                              "pass --overwrite to start over") from None
     retried = 0
     if retry_failed:
         failed = [i for i, r in rows.items() if not r["success"]]
         for i in failed:
             del rows[i]
         retried = len(failed)
-    log.rewrite([[r.get(c, "") for c in log.columns] for r in rows.values()])  # drops a torn line
+    log.rewrite([r.get(c, "") for c in log.columns] for r in rows.values())  # drops a torn line
     if series_log is not None:
         if series_log.path.exists():
-            _, kept = series_log.read()
-            series_log.rewrite([s for s in kept if s and s[0].isascii() and s[0].isdigit() and int(s[0]) in rows])
+            _, kept = series_log.iter_rows()
+            try:
+                series_log.rewrite(s for s in kept if s and s[0].isascii() and s[0].isdigit() and int(s[0]) in rows)
+            except csv.Error as err:
+                raise SweepSetupError(f"cannot resume the time series `{series_log.path}`: it is not a CSV file phc "
+                                      f"can read ({err}); pass --overwrite to start over") from None
         else:
             series_log.create()
-    return rows, retried
+    return retried
 
 
 def _mismatch(old: dict, new: dict) -> str:
@@ -297,6 +340,11 @@ def _mismatch(old: dict, new: dict) -> str:
                       ("run", "run options")):
         if old.get(key) != new[key]:
             return f"it holds a different sweep (its {what}: {old.get(key)}; this one's: {new[key]})"
+    if "design" not in old:
+        return ("its description does not record the design's digest (an older phc wrote it, which recorded every "
+                "point)")
+    if old.get("design") != new["design"]:
+        return "it holds a different sweep (other points)"
     if old.get("fingerprint") != new["fingerprint"]:
         return "it holds a different sweep (other points, outputs, or time series)"
     changed = sorted(set(old.get("models", {})) | set(new["models"]))
