@@ -115,7 +115,7 @@ class Points(abc.Sequence):
         self.radix = [len(a.values) for a in self.grid]
         self._len = math.prod(self.radix) * self.n_draws
         self._chunks: dict[int, np.ndarray] = {}  # the last few chunks of samples, by their first sample
-        self._lhs: Optional[list] = None
+        self._unit = UnitSampler(self.n_draws, len(self.sampled), seed, sampling)
         self.digest = _digest(self.axes, self.kinds, self.samples, seed, sampling)
 
     def __len__(self) -> int:
@@ -174,29 +174,7 @@ class Points(abc.Sequence):
 
     def _make_chunk(self, start: int, stop: int) -> np.ndarray:
         """Samples `start` to `stop` of the distributions, as the eager construction makes them."""
-        n, dims = self.n_draws, len(self.sampled)
-        if self.sampling == "random":  # rng.random((n, dims)) is one double per draw, row by row
-            rng = np.random.default_rng(self.seed)
-            rng.bit_generator.advance(start * dims)
-            unit = rng.random((stop - start, dims))
-        else:
-            if self._lhs is None:  # per axis: its permutation, the generator's state after it
-                rng = np.random.default_rng(self.seed)
-                self._lhs = []
-                for _ in range(dims):
-                    perm = rng.permutation(n).astype(np.int32 if n < 2**31 else np.int64)
-                    state = rng.bit_generator.state
-                    self._lhs.append((perm, state))
-                    rng.bit_generator.advance(n)  # rng.random(n): n doubles, one 64-bit draw each
-                    after = rng.bit_generator.state  # advance() drops a buffered 32-bit half; doubles keep it
-                    after.update(has_uint32=state["has_uint32"], uinteger=state["uinteger"])
-                    rng.bit_generator.state = after
-            unit = np.empty((stop - start, dims))
-            for j, (perm, state) in enumerate(self._lhs):
-                rng = np.random.Generator(np.random.PCG64())
-                rng.bit_generator.state = state
-                rng.bit_generator.advance(start)
-                unit[:, j] = (perm[start:stop].astype(np.int64) + rng.random(stop - start)) / n
+        unit = self._unit.rows(start, stop)
         return np.column_stack([transform(a, unit[:, j]) for j, a in enumerate(self.sampled)])
 
     # -- compilation groups -----------------------------------------------------------------
@@ -220,17 +198,51 @@ class Points(abc.Sequence):
         return counts
 
 
+class UnitSampler:
+    """The `n` points of a design in the unit cube [0, 1)^dims, any rows of them made alone:
+    Latin hypercube (each of the n strata of every coordinate holds exactly one point, at a
+    uniformly random place in it: per coordinate, a random permutation of the strata plus a
+    uniform offset, drawn one coordinate after the other from the seed) or plain uniform
+    random (rows of `dims` draws, row after row).
+
+    Rows `start` to `stop` are made without the rows before them: the uniform draws by
+    advancing the generator past them (one 64-bit draw per double), the Latin hypercube
+    from one stored permutation per coordinate and the generator's state after it (4 bytes
+    per point and coordinate)."""
+
+    def __init__(self, n: int, dims: int, seed: int, sampling: str) -> None:
+        self.n, self.dims, self.seed, self.sampling = n, dims, seed, sampling
+        self._lhs: Optional[list] = None
+
+    def rows(self, start: int, stop: int) -> np.ndarray:
+        n, dims = self.n, self.dims
+        if self.sampling == "random":
+            rng = np.random.default_rng(self.seed)
+            rng.bit_generator.advance(start * dims)
+            return rng.random((stop - start, dims))
+        if self._lhs is None:  # per coordinate: its permutation, the generator's state after it
+            rng = np.random.default_rng(self.seed)
+            self._lhs = []
+            for _ in range(dims):
+                perm = rng.permutation(n).astype(np.int32 if n < 2**31 else np.int64)
+                state = rng.bit_generator.state
+                self._lhs.append((perm, state))
+                rng.bit_generator.advance(n)  # rng.random(n): n doubles, one 64-bit draw each
+                after = rng.bit_generator.state  # advance() drops a buffered 32-bit half; doubles keep it
+                after.update(has_uint32=state["has_uint32"], uinteger=state["uinteger"])
+                rng.bit_generator.state = after
+        unit = np.empty((stop - start, dims))
+        for j, (perm, state) in enumerate(self._lhs):
+            rng = np.random.Generator(np.random.PCG64())
+            rng.bit_generator.state = state
+            rng.bit_generator.advance(start)
+            unit[:, j] = (perm[start:stop].astype(np.int64) + rng.random(stop - start)) / n
+        return unit
+
+
 def sample_unit(n: int, dims: int, seed: int, sampling: str) -> np.ndarray:
-    """`n` points in the unit cube [0, 1)^dims: Latin hypercube (each of the n strata of
-    every coordinate holds exactly one point, at a uniformly random place in it) or plain
-    uniform random."""
-    rng = np.random.default_rng(seed)
-    if sampling == "random":
-        return rng.random((n, dims))
-    u = np.empty((n, dims))
-    for j in range(dims):
-        u[:, j] = (rng.permutation(n) + rng.random(n)) / n
-    return u
+    """All `n` points of :class:`UnitSampler` at once."""
+    return UnitSampler(n, dims, seed, sampling).rows(0, n)
 
 
 def transform(axis: Axis, u: np.ndarray) -> np.ndarray:
@@ -431,5 +443,5 @@ def sweep_axes(compiled, cli: Sequence[tuple[str, str]]) -> tuple[list[Axis], An
     return list(axes.values()), spec, locate
 
 
-__all__ = ["ACCURACY_OPTIONS", "Design", "MAX_POINTS", "MAX_SEED", "MESH_PREFIX", "Point", "Points", "compile_group",
-           "group_label", "make_design", "recompile_for", "sample_unit", "sweep_axes", "transform"]
+__all__ = ["ACCURACY_OPTIONS", "Design", "MAX_POINTS", "MAX_SEED", "MESH_PREFIX", "Point", "Points", "UnitSampler",
+           "compile_group", "group_label", "make_design", "recompile_for", "sample_unit", "sweep_axes", "transform"]
