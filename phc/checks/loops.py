@@ -127,12 +127,14 @@ def classify(graph: nx.MultiGraph, comps: dict, point: dict) -> list[LoopVerdict
                 verdict.reason = (f"`{projected[0]}` is seen only through its ports (a port projection), so "
                                   "relations among its states are not visible")
             else:
-                verdict.constraints = _constraints(graph, comps, members, loop_conns, point)
+                verdict.constraints = max(0, min(_added_per_opening(graph, comps, members, loop_conns, point)))
         verdicts.append(verdict)
     return verdicts
 
 
-def _constraints(graph, comps, members, loop_conns, point) -> int:
+def _added_per_opening(graph, comps, members, loop_conns, point) -> list[int]:
+    """For each connection of the loop, the relations among the storage efforts that
+    closing the loop there adds (with every connection minus without that one)."""
     inside = set(members)
     attached, base = [], []
     for m in members:  # the components hanging on the loop, one connection each
@@ -177,7 +179,7 @@ def _constraints(graph, comps, members, loop_conns, point) -> int:
 
     ports = [(a, b) for a, b, _ in loop_conns]
     closed = relations(base + ports)
-    return max(0, min(closed - relations(base + ports[:k] + ports[k + 1:]) for k in range(len(ports))))
+    return [closed - relations(base + ports[:k] + ports[k + 1:]) for k in range(len(ports))]
 
 
 __all__ = ["LoopVerdict", "MAX_LOOP", "classify", "loops_with_connections"]

@@ -17,7 +17,8 @@ import pytest
 
 import phc
 from phc.checks import loops
-from phc.checks.certify import certify
+from phc.checks.certify import _Component, certify
+from phc.checks.graph import component_graph
 from phc.cli import main
 
 PARALLEL = """\
@@ -162,3 +163,30 @@ def test_phc_check_json_has_loop_constraints(tmp_path, capsys):
     assert entry["constraints"] == 1          # derived in test_two_transformers_close_a_kinematic_chain
     assert entry["reason"] is None
     assert sorted(entry["connections"]) == [f"connections[{i}]" for i in range(4)]
+
+
+@pytest.mark.parametrize("order", [(0, 1, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0)])
+def test_the_verdict_does_not_depend_on_where_the_loop_is_written_closed(tmp_path, order):
+    # BESIDE_RIGID with its connections in another order (the rigid joint last in some):
+    # the count is the same 0 (derived above) whichever connection the cycle basis ends on.
+    head, rest = BESIDE_RIGID.split("connections:\n")
+    lines = rest.splitlines()
+    text = head + "connections:\n" + "\n".join(lines[i] for i in order) + "\n"
+    [verdict] = _verdicts(tmp_path, text)
+    assert verdict.constraints == 0
+
+
+def test_opening_only_at_the_rigid_joint_would_count_one(tmp_path):
+    # Why the minimum over the openings: by hand, with the rigid joint open the masses are
+    # free (no relation among v1, v2, F), closed v1 = v2: 1 added there; 0 at the spring.
+    path = tmp_path / "model.yaml"
+    path.write_text(BESIDE_RIGID)
+    dae, _ = phc.build_dae(path)
+    cert = certify(dae)
+    [verdict] = cert.loop_verdicts
+    comps = {rel.component: _Component(rel, dae.topology.parameter_defaults) for rel in dae.topology.dirac}
+    graph = component_graph(dae.topology)
+    counts = loops._added_per_opening(graph, comps, verdict.components, verdict.connections, {})
+    by_label = dict(zip([label for _, _, label in verdict.connections], counts))
+    assert by_label["connections[0]"] == 1     # m1.b — m2.a, the rigid joint
+    assert by_label["connections[1]"] == 0 and by_label["connections[2]"] == 0
