@@ -186,7 +186,7 @@ def test_opening_only_at_the_rigid_joint_would_count_one(tmp_path):
     [verdict] = cert.loop_verdicts
     comps = {rel.component: _Component(rel, dae.topology.parameter_defaults) for rel in dae.topology.dirac}
     graph = component_graph(dae.topology)
-    counts = loops._added_per_opening(graph, comps, verdict.components, verdict.connections, {})
+    counts = list(loops._added_per_opening(graph, comps, verdict.components, verdict.connections, {}))
     by_label = dict(zip([label for _, _, label in verdict.connections], counts))
     assert by_label["connections[0]"] == 1     # m1.b — m2.a, the rigid joint
     assert by_label["connections[1]"] == 0 and by_label["connections[2]"] == 0
