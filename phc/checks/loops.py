@@ -35,7 +35,6 @@ from typing import Optional
 
 import networkx as nx
 import numpy as np
-import scipy.linalg as sla
 
 from phc.checks.certify import RANK_RTOL
 from phc.dae import T
@@ -108,7 +107,7 @@ def _rank(s: np.ndarray, scale: float, shape: tuple) -> int:
     it: a part that is zero in exact arithmetic has only round-off singular values, and a
     threshold relative to the largest of them would count them."""
     tol = max(RANK_RTOL, 1e4 * max(shape, default=0) * _EPS) * scale
-    return int(np.sum(s > tol))
+    return int(np.count_nonzero(s > tol))
 
 
 def _minimum(counts) -> int:
@@ -237,7 +236,10 @@ def _couple(one, other, a, b):
     if other is not None:
         Vb, pb, eb, fb_ = other
         shift = V.shape[0]
-        V = sla.block_diag(V, Vb)
+        joined = np.zeros((V.shape[0] + Vb.shape[0], V.shape[1] + Vb.shape[1]))
+        joined[:V.shape[0], :V.shape[1]] = V
+        joined[V.shape[0]:, V.shape[1]:] = Vb
+        V = joined
         ports.update({p: ([i + shift for i in f], [i + shift for i in e]) for p, (f, e) in pb.items()})
         efforts = list(efforts) + [i + shift for i in eb]
         frozen += fb_
