@@ -13,7 +13,8 @@ along the loop's connections and those attachments (T. Berger, R. Hochdahl, T. R
 R. Seifried, "Port-Hamiltonian modelling of coupled rigid/flexible multibody systems",
 section 2, Proposition 3); every other port stays free. The relations this structure
 imposes among the storage efforts alone are algebraic relations among the states (``v₁ = v₂``
-of two rigidly joined masses, ``q₁/C₁ + q₂/C₂ = 0`` of two capacitors in a ring); their
+of two rigidly joined masses, ``q₁/C₁ + q₂/C₂ = 0`` of two capacitors in a ring, a model
+phc's structural balance refuses today); their
 number is ``n_e − dim π_e(D)`` with ``π_e`` the projection on the storage efforts.
 
 Relations that involve storage flows are not counted: ``ẋ₁ = ẋ₂`` of two springs in

@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 
 import pytest
+import sympy as sp
 
 import phc
 from phc.checks import loops
@@ -190,3 +191,56 @@ def test_opening_only_at_the_rigid_joint_would_count_one(tmp_path):
     by_label = dict(zip([label for _, _, label in verdict.connections], counts))
     assert by_label["connections[0]"] == 1     # m1.b — m2.a, the rigid joint
     assert by_label["connections[1]"] == 0 and by_label["connections[2]"] == 0
+
+
+def _exact_added(dae, members, connections, attached) -> list[int]:
+    """An independent count, exact (sympy, rational coefficients), in kernel form: the
+    components' relations ``F f + E e + G λ = 0`` stacked with the connection rows
+    ``f_a − f_b``, ``e_a + e_b``; the relations among the storage efforts alone are
+    ``rank M − rank M_other`` (the combinations of rows that vanish on every other column).
+    `attached`: (component, connection) hanging on the loop."""
+    rels = {r.component: r for r in dae.topology.dirac}
+    names = list(members) + [c for c, _ in attached]
+    cols, port_syms, effort_syms = [], {}, []
+    for name in names:
+        r = rels[name]
+        cols += list(r.flows) + list(r.efforts) + list(r.multipliers)
+        for p, (fi, ei) in r.ports.items():
+            port_syms[f"{name}.{p}"] = ([r.flows[i] for i in fi], [r.efforts[i] for i in ei])
+        effort_syms += [s.effort for s in r.storage]
+    defaults = {k: sp.Rational(repr(float(v))) for k, v in dae.topology.parameter_defaults.items()}
+
+    def rows(conns):
+        out = [rel for name in names for rel in rels[name].relations]
+        for a, b in conns:
+            (fa, ea), (fb, eb) = port_syms[a], port_syms[b]
+            out += [x - y for x, y in zip(fa, fb)] + [x + y for x, y in zip(ea, eb)]
+        return out
+
+    def count(conns):
+        M = sp.Matrix(rows(conns)).jacobian(cols).xreplace(defaults).applyfunc(sp.nsimplify)
+        other = [j for j, c in enumerate(cols) if c not in effort_syms]
+        return M.rank() - M.extract(list(range(M.rows)), other).rank()
+
+    base = [conn for _, conn in attached]
+    loop = [(a, b) for a, b, _ in connections]
+    closed = count(base + loop)
+    return [closed - count(base + loop[:k] + loop[k + 1:]) for k in range(len(loop))]
+
+
+@pytest.mark.parametrize("text", [PARALLEL, BESIDE_RIGID, DIAGONAL, LEVER_ON_JUNCTIONS],
+                         ids=["parallel", "beside_rigid", "diagonal", "lever_on_junctions"])
+def test_counts_per_opening_match_an_exact_kernel_form_count(tmp_path, text):
+    path = tmp_path / "model.yaml"
+    path.write_text(text)
+    dae, _ = phc.build_dae(path)
+    comps = {rel.component: _Component(rel, dae.topology.parameter_defaults) for rel in dae.topology.dirac}
+    graph = component_graph(dae.topology)
+    [(members, connections)] = loops.loops_with_connections(graph)
+    attached = []
+    for m in members:
+        for _, other, data in sorted(graph.edges(m, data=True), key=lambda e: e[2]["index"]):
+            if other not in members and other not in [c for c, _ in attached]:
+                attached.append((other, data["ports"]))
+    counts = list(loops._added_per_opening(graph, comps, members, connections, {}))
+    assert counts == _exact_added(dae, members, connections, attached)
