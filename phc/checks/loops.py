@@ -41,8 +41,10 @@ from phc.checks.certify import RANK_RTOL
 from phc.dae import T
 
 MAX_LOOP = 64
-"""Loops with more components are named, not classified (a loop's test costs one SVD per
-connection of a matrix that grows with the loop)."""
+"""Loops with more components are named, not classified: a loop that constrains is built
+once per connection where it can be opened, each time one connection at a time, so its
+cost grows with the square of its length (a compliant loop usually stops at the first
+opening)."""
 
 _EPS = np.finfo(float).eps
 
@@ -148,8 +150,8 @@ def classify(graph: nx.MultiGraph, comps: dict, point: dict) -> list[LoopVerdict
     for members, loop_conns in loops_with_connections(graph):
         verdict = LoopVerdict(list(members), list(loop_conns))
         if len(members) > MAX_LOOP:
-            verdict.reason = (f"{len(members)} components, more than {MAX_LOOP}: the test costs one SVD per "
-                              "connection of a matrix that grows with the loop")
+            verdict.reason = (f"{len(members)} components, more than {MAX_LOOP}: the test builds the loop "
+                              "once per connection, its cost grows with the square of its length")
         else:
             missing = [m for m in members if m not in comps]
             projected = [m for m in members if m in comps and comps[m].rel.kind == "port_projection"]
