@@ -196,7 +196,10 @@ def _added_per_opening(graph, comps, members, loop_conns, point, cache=None):
     for name in names:
         key = (name, tuple(sorted(p for p in used if p.rsplit(".", 1)[0] == name)))
         if key not in cache:
-            cache[key] = _projected(comps[name], point, set(key[1]))
+            if name not in cache:  # its structure at the point, whatever ports a loop uses
+                local = {s: point[s] for s in (*comps[name].rel.states, T) if s in point}
+                cache[name] = comps[name].structure(local)
+            cache[key] = _projected(comps[name], cache[name], set(key[1]))
         start[name], n = cache[key]
         n_efforts += n
 
@@ -294,12 +297,10 @@ def _compact(V, ports: dict, efforts: list, frozen: int):
     return A, out, list(range(row, row + X.shape[0])), frozen + F.shape[1]
 
 
-def _projected(comp, point, used: set):
-    """A component's Dirac structure projected on its ports in `used` and its storage
-    efforts (its other ports are free), as a compact cluster; and its number of storage
-    efforts."""
-    local = {s: point[s] for s in (*comp.rel.states, T) if s in point}
-    D = comp.structure(local)
+def _projected(comp, D, used: set):
+    """A component's Dirac structure `D` (an orthonormal basis, flows then efforts)
+    projected on its ports in `used` and its storage efforts (its other ports are free),
+    as a compact cluster; and its number of storage efforts."""
     n = comp.n
     index = {e: i for i, e in enumerate(comp.rel.efforts)}
     efforts = [s.effort for s in comp.rel.storage]
