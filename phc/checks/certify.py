@@ -98,6 +98,9 @@ class Certificate:
     rows: Optional[object] = None
     """The comparison of each component's compiled rows with its description
     (:class:`phc.checks.rows.RowsCertificate`)."""
+    loop_verdicts: list = field(default_factory=list)
+    """Whether each of `loops` constrains the motion (:class:`phc.checks.loops.LoopVerdict`,
+    same order)."""
 
     @property
     def certified(self) -> bool:
@@ -108,7 +111,8 @@ class Certificate:
         return {"model": self.model, "certified": self.certified, "samples": self.n_samples,
                 "components": [c.to_dict() for c in self.components],
                 "connections": [c.to_dict() for c in self.connections],
-                "loops": self.loops, "independent_parts": self.parts,
+                "loops": self.loops, "loop_constraints": [v.to_dict() for v in self.loop_verdicts],
+                "independent_parts": self.parts,
                 "rows": None if self.rows is None else {
                     "compared": self.rows.compared,
                     "energy_balance_only": [{"component": c, "why": w} for c, w in self.rows.not_compared],
@@ -137,8 +141,13 @@ class Certificate:
             lines.append(f"  {c.label:<{label_width}} {c.port_a} — {c.port_b}: rank {c.achieved}/{c.needed}"
                          f"{' surjective' if c.surjective else ' NOT surjective'} "
                          f"(σ_min/σ_max {c.conditioning:.1e}){fail}{cond}")
-        lines.append("kinematic loops: " + ("; ".join(" – ".join(loop) for loop in self.loops)
-                                            if self.loops else "none"))
+        if not self.loops:
+            lines.append("kinematic loops: none")
+        else:
+            lines.append(f"kinematic loops: {len(self.loops)}")
+            verdicts = self.loop_verdicts if len(self.loop_verdicts) == len(self.loops) else [None] * len(self.loops)
+            for loop, verdict in zip(self.loops, verdicts):
+                lines.append("  " + " – ".join(loop) + (f": {verdict.describe()}" if verdict is not None else ""))
         if self.rows is not None:
             r = self.rows
             lines.append(f"rows against descriptions: {len(r.compared)} component(s) match"
@@ -333,6 +342,10 @@ def certify(dae: Dae, n_random: int = 2, seed: int = 0) -> Certificate:
     rows = check_rows(dae, samples=max(1, n_random), seed=seed)
     diags.extend(rows.diagnostics)
     loops = kinematic_loops(graph)
+    from phc.checks.loops import classify
+
+    # one state where the structure is generic: a random one (the initial state is often special)
+    verdicts = classify(graph, comps, samples[1] if len(samples) > 1 else samples[0])
     parts = independent_parts(graph)
     if len(parts) > 1:
         spans = {name: span for name, _, span in top.components}
@@ -340,7 +353,7 @@ def certify(dae: Dae, n_random: int = 2, seed: int = 0) -> Certificate:
                                 "between them: " + "; ".join("{" + ", ".join(p) + "}" for p in parts),
                                 span=spans.get(parts[1][0]), path=parts[1][0], severity="warning",
                                 hint="intended? each part is simulated independently"))
-    return Certificate(dae.name, comp_certs, conn_certs, loops, parts, diags.sorted(), len(samples), rows)
+    return Certificate(dae.name, comp_certs, conn_certs, loops, parts, diags.sorted(), len(samples), rows, verdicts)
 
 
 def _couplings(top, projections, samples, diags, graph=None, constant_only=False) -> list[ConnectionCertificate]:
