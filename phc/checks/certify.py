@@ -196,6 +196,9 @@ class _Component:
         variables = list(rel.flows) + list(rel.efforts) + list(rel.multipliers)
         self.n = len(rel.flows)
         self._constant: Optional[list] = None
+        self.key: Optional[tuple] = None
+        """The relations up to the names of their variables and states (equal keys: equal
+        Jacobians once renamed); None when not shared."""
         if shared is None or not rel.relations:
             self.K = self._jacobian(list(rel.relations), variables, defaults)
             return
@@ -205,6 +208,7 @@ class _Component:
                  for k, v in enumerate(dict.fromkeys((*variables, *rel.states)))}
         key = (len(rel.flows), len(rel.efforts), len(rel.multipliers), len(rel.states),
                tuple(r.xreplace(canon) for r in rel.relations))
+        self.key = key
         entry = shared.get(key)
         if entry is None:
             K = self._jacobian([r.xreplace(canon) for r in rel.relations], [canon[v] for v in variables], defaults)
@@ -234,9 +238,9 @@ class _Component:
 
     @property
     def is_constant(self) -> bool:
-        """The structure depends on no state and no time: :meth:`structure` returns one array
-        (shared by the components alike up to names) once it has been found."""
-        return self._constant is not None and self._constant[0] is not None
+        """The structure depends on no state and no time: :meth:`structure` returns one array,
+        shared by the components alike up to names (the same :attr:`key`)."""
+        return self._constant is not None
 
     def port_rows(self) -> tuple[list[str], dict]:
         rows, order = {}, []

@@ -145,8 +145,14 @@ def _null(matrix: np.ndarray, n_cols: int) -> np.ndarray:
 def classify(graph: nx.MultiGraph, comps: dict, point: dict) -> list[LoopVerdict]:
     """One verdict per loop of `graph` (the component graph), from the components'
     Dirac structures `comps` (name -> :class:`phc.checks.certify._Component`) at the
-    sampled state `point`."""
-    verdicts, cache = [], {}
+    sampled state `point`.
+
+    Loops alike up to names (the cells of a grid of masses and springs) are classified once:
+    when every component of a loop and of its attachments has a constant structure (no
+    state, no time), the verdict depends only on those structures and on which of their
+    ports are joined in which order (:func:`_shape_key`), so a loop with the key of one
+    classified before takes its verdict."""
+    verdicts, cache, alike, memo = [], {}, {}, {}
     for members, loop_conns in loops_with_connections(graph):
         verdict = LoopVerdict(list(members), list(loop_conns))
         if len(members) > MAX_LOOP:
@@ -161,9 +167,77 @@ def classify(graph: nx.MultiGraph, comps: dict, point: dict) -> list[LoopVerdict
                 verdict.reason = (f"`{projected[0]}` is seen only through its ports (a port projection), so "
                                   "relations among its states are not visible")
             else:
-                verdict.constraints = _minimum(_added_per_opening(graph, comps, members, loop_conns, point, cache))
+                key = _shape_key(graph, comps, members, loop_conns, memo)
+                if key is None or key not in alike:
+                    found = _minimum(_added_per_opening(graph, comps, members, loop_conns, point, cache))
+                    if key is not None:
+                        alike[key] = found
+                verdict.constraints = found if key is None else alike[key]
         verdicts.append(verdict)
     return verdicts
+
+
+def _owner(port: str) -> str:
+    return port.rsplit(".", 1)[0]
+
+
+def _attachments(graph, comps, members, memo=None) -> tuple[list[str], list[tuple[str, str]]]:
+    """The components hanging on the loop `members` by one connection each (a mass on a
+    junction of the loop; port projections left out: their storage is not visible) and
+    those connections, in the order the loop's components and their connections come.
+    `memo` keeps each component's neighbours in that order between loops."""
+    memo = {} if memo is None else memo
+    inside = set(members)
+    attached, seen, base = [], set(), []
+    for m in members:
+        around = memo.get(m)
+        if around is None:
+            around = memo[m] = [(other, data["ports"]) for _, other, data in
+                                sorted(graph.edges(m, data=True), key=lambda e: e[2]["index"])
+                                if other in comps and "ports" in data
+                                and comps[other].rel.kind != "port_projection"]  # storage not visible
+        for other, ports in around:
+            if other in inside or other in seen:
+                continue
+            attached.append(other)
+            seen.add(other)
+            base.append(ports)
+    return attached, base
+
+
+def _shape(comp) -> Optional[tuple]:
+    """A component's structure up to names (None unless constant): its relations
+    (:attr:`phc.checks.certify._Component.key`), its ports' rows, its storage efforts' positions."""
+    if not comp.is_constant or comp.key is None:
+        return None
+    rel = comp.rel
+    index = {e: i for i, e in enumerate(rel.efforts)}
+    efforts = [s.effort for s in rel.storage] + [e for vec in rel.storage_vectors for e in vec.efforts]
+    return (comp.key, tuple((p, tuple(fi), tuple(ei)) for p, (fi, ei) in rel.ports.items()),
+            tuple(index.get(e) for e in dict.fromkeys(efforts)))
+
+
+def _shape_key(graph, comps, members, loop_conns, memo=None) -> Optional[tuple]:
+    """The loop up to the names of its components, or None when some structure depends on a
+    state or on time: per component (loop, then attachments) its relations up to names
+    (:attr:`phc.checks.certify._Component.key`), its ports' rows and its storage efforts'
+    positions, and the joined ports as (position in that list, port name), in order."""
+    memo = {} if memo is None else memo
+    shapes = memo.setdefault("shapes", {})
+    attached, base = _attachments(graph, comps, members, memo.setdefault("around", {}))
+    names = list(members) + attached
+    for name in names:
+        if name not in shapes:
+            shapes[name] = _shape(comps[name])
+        if shapes[name] is None:
+            return None
+    position = {name: k for k, name in enumerate(names)}
+
+    def local(port: str) -> tuple[int, str]:
+        return position[_owner(port)], port.rsplit(".", 1)[1]
+
+    joined = tuple((local(a), local(b)) for a, b in [*base, *((a, b) for a, b, _ in loop_conns)])
+    return tuple(shapes[name] for name in names), joined
 
 
 def _added_per_opening(graph, comps, members, loop_conns, point, cache=None):
@@ -179,16 +253,7 @@ def _added_per_opening(graph, comps, members, loop_conns, point, cache=None):
     relations among the storage efforts alone are ``n_e − rank`` of the structure's
     projection on them."""
     cache = {} if cache is None else cache
-    inside = set(members)
-    attached, base = [], []
-    for m in members:  # the components hanging on the loop, one connection each
-        for _, other, data in sorted(graph.edges(m, data=True), key=lambda e: e[2]["index"]):
-            if other in inside or other in attached or other not in comps or "ports" not in data:
-                continue
-            if comps[other].rel.kind == "port_projection":
-                continue  # its storage is not visible; its port stays free
-            attached.append(other)
-            base.append(data["ports"])
+    attached, base = _attachments(graph, comps, members, cache.setdefault(("around",), {}))
     names = list(members) + attached
     loop_ports = [(a, b) for a, b, _ in loop_conns]
     used = {p for conn in base + loop_ports for p in conn}

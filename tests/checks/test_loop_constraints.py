@@ -244,3 +244,43 @@ def test_counts_per_opening_match_an_exact_kernel_form_count(tmp_path, text):
                 attached.append((other, data["ports"]))
     counts = list(loops._added_per_opening(graph, comps, members, connections, {}))
     assert counts == _exact_added(dae, members, connections, attached)
+
+
+def _ladder(n: int) -> str:
+    """n cells: masses joined by a spring and a damper in parallel, n loops alike but for the
+    two ends."""
+    lines = ["format_version: 1", "name: ladder", "components:",
+             "  m0: {type: mass, m: 1.0, ports: [r1, r2]}"]
+    for i in range(1, n):
+        lines.append(f"  m{i}: {{type: mass, m: 1.0, ports: [l1, l2, r1, r2]}}")
+    lines.append(f"  m{n}: {{type: mass, m: 1.0, ports: [l1, l2]}}")
+    for i in range(n):
+        lines += [f"  k{i}: {{type: spring, k: 3.0, terminals: [a, b]}}",
+                  f"  d{i}: {{type: damper, d: 0.5, terminals: [a, b]}}"]
+    lines.append("connections:")
+    for i in range(n):
+        lines += [f"  - [m{i}.r1, k{i}.a]", f"  - [k{i}.b, m{i + 1}.l1]",
+                  f"  - [m{i}.r2, d{i}.a]", f"  - [d{i}.b, m{i + 1}.l2]"]
+    return "\n".join(lines) + "\n"
+
+
+def test_loops_alike_up_to_names_are_classified_once(tmp_path, monkeypatch):
+    """Each cell of the ladder is a spring and a damper in parallel between two masses: 0
+    relations (as in PARALLEL). The interior cells' loops, with what hangs on them, are the
+    same up to names, so they are classified once; the verdicts are those of classifying
+    each loop on its own."""
+    n = 9
+    shared = _verdicts(tmp_path, _ladder(n))
+    assert len(shared) == n and all(v.constraints == 0 for v in shared)
+    calls = []
+    real = loops._added_per_opening
+    monkeypatch.setattr(loops, "_added_per_opening", lambda *a, **k: calls.append(a[2]) or real(*a, **k))
+    again = _verdicts(tmp_path, _ladder(n))
+    # the first and the last two cells differ (an end mass with two ports, on the loop or
+    # hanging on it); the other cells share one classification
+    assert 1 <= len(calls) <= 5 < n, calls
+    monkeypatch.setattr(loops, "_shape_key", lambda *a, **k: None)  # every loop on its own
+    calls.clear()
+    alone = _verdicts(tmp_path, _ladder(n))
+    assert len(calls) == n
+    assert [(v.components, v.constraints) for v in again] == [(v.components, v.constraints) for v in alone]
