@@ -213,13 +213,40 @@ def _energy_direction(compiled, p, t, y, yp) -> np.ndarray:
     return d
 
 
+def _rate_magnitudes(mod, p, t, y, yp) -> np.ndarray:
+    """Per variable, the size of the terms its rate is the sum of: for each row, the sum of
+    its terms' magnitudes to first order, ``|F_y|·|y| + |F_ẏ|·|ẏ|``, divided by the
+    coefficient of the rate in that row (the largest over the rows the rate is in; 0 for a
+    variable without a rate).
+
+    A rate is computed to round-off of these terms, not of its own value: two rigidly joined
+    masses beside a spring move together, ṗ₁ = e − kx = 0 with e = kx ≠ 0, and the consistent
+    ṗ₁ is a few ε·kx, which dH/dt multiplies by the velocity."""
+    rows, cols = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
+    shape = (len(mod.EQUATIONS), mod.N)
+    y_part = np.zeros(len(rows))
+    mod.jacobian(t, y, yp, p, 0.0, y_part)
+    both = np.zeros(len(rows))
+    mod.jacobian(t, y, yp, p, 1.0, both)
+    rate_part = both - y_part  # F_ẏ, at the pattern's entries
+    row_size = (sps.csr_matrix((np.abs(y_part), (rows, cols)), shape=shape) @ np.abs(y)
+                + sps.csr_matrix((np.abs(rate_part), (rows, cols)), shape=shape) @ np.abs(yp))
+    out = np.zeros(mod.N)
+    has_rate = rate_part != 0.0
+    np.maximum.at(out, cols[has_rate], row_size[rows[has_rate]] / np.abs(rate_part[has_rate]))
+    return out
+
+
 def _power_scale(mod, p, t, y, yp, states) -> float:
     """A power scale at (t, y, ẏ) that does not vanish when dH/dt happens to: the energy
-    scale Σ|terms of H| times the rate ‖ẏ‖/‖y‖ of the energy states."""
+    scale Σ|terms of H| times the rate ‖ṙ‖/‖y‖ of the energy states, ṙ the size of the terms
+    each rate sums (:func:`_rate_magnitudes`, at least |ẏ|): a power that every term of the
+    balance cancels (uniform motion against internal forces) is judged by these terms."""
     ny = float(np.linalg.norm(y[states]))
     if ny == 0.0:
         return 0.0
-    return float(mod.energy_scale(t, y, p)) * float(np.linalg.norm(yp[states])) / ny
+    rates = np.maximum(np.abs(yp[states]), _rate_magnitudes(mod, p, t, y, yp)[states])
+    return float(mod.energy_scale(t, y, p)) * float(np.linalg.norm(rates)) / ny
 
 
 def _parameter_values(dae, mod, p) -> dict:
