@@ -281,9 +281,9 @@ def admit_mesh(ledger: MeshLedger, ctx, full: str, comp, path, override_=None
 def admit_components(count: int, nested: Optional[tuple[str, int]]) -> Optional[tuple[str, str]]:
     """Before anything is elaborated: the problem with a model of `count` components (every
     copy of a nested model file's components included) as ``(message, hint)``, or None within
-    budget. `nested` is
-    the ``type: model`` entry of the top-level file that brings the most of them, with how
-    many, or None. Meshes are admitted one by one later (:func:`admit_mesh`), on top of this."""
+    budget. `nested` is the ``type: model`` entry of the top-level file that brings the most
+    of them, with how many, or None. Meshes are admitted one by one later
+    (:func:`admit_mesh`), on top of this."""
     need = Estimate(components=count).compile_bytes
     budget = max_memory()
     if need <= budget:
