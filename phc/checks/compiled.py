@@ -292,8 +292,14 @@ def _balance(compiled, p, samples, cert, span) -> None:
                     1e-6 * _power_scale(mod, p, t, y, yp, states))
         rows.append((t, dH, err, ports, diss, scale))
     # Absolute round-off: the samples are consistent only to CONSISTENCY_RTOL of the power
-    # that passes through the model (a sample at rest: round-off velocities times forces).
-    floor = CONSISTENCY_RTOL * max((r[-1] for r in rows), default=0.0)
+    # that passes through the model (a sample at rest: round-off velocities times forces),
+    # and a power that would move the energy by less than CONSISTENCY_RTOL of its scale over
+    # the whole simulated span is round-off too (a body coasting with no force on it: every
+    # power is 0 and dH/dt is 1e-81).
+    t0 = float(compiled.options.get("t_start", 0.0))
+    horizon = abs(float(compiled.options.get("t_end", t0 + 1.0)) - t0) or 1.0
+    energy = max((abs(float(mod.energy_scale(t, y, p))) for t, y, _ in samples), default=0.0)
+    floor = CONSISTENCY_RTOL * max(max((r[-1] for r in rows), default=0.0), energy / horizon)
     worst = 0.0
     for t, dH, err, ports, diss, scale in rows:
         residual = dH + ports + diss
