@@ -237,3 +237,37 @@ simulation:
   initial: {load.p: 0.0}
   outputs: {p: load.p}
 """
+
+
+# Two rigidly joined masses with a spring beside them (a loop that does not constrain; a
+# lossless model whose powers all cancel in uniform motion).
+BESIDE_RIGID = """\
+format_version: 1
+name: beside_rigid
+components:
+  m1: {type: mass, m: 1.0, ports: [a, b]}
+  m2: {type: mass, m: 2.0, ports: [a, b]}
+  k: {type: spring, k: 3.0, terminals: [a, b]}
+connections:
+  - [m1.b, m2.a]
+  - [m1.a, k.a]
+  - [k.b, m2.b]
+"""
+
+
+# A planar mass tied to a line mass along both of its axes by two transformers (a loop that
+# closes a kinematic chain; with no force acting, a body that only coasts).
+DIAGONAL = """\
+format_version: 1
+name: diagonal
+components:
+  m1: {type: mass, m: 1.0, dimension: 2, ports: [a, b]}
+  m2: {type: mass, m: 2.0, ports: [a, b]}
+  lx: {type: transformer, ratio: [[1.0, 0.0]]}
+  ly: {type: transformer, ratio: [[0.0, 1.0]]}
+connections:
+  - [m1.a, lx.a]
+  - [lx.b, m2.a]
+  - [m2.b, ly.b]
+  - [ly.a, m1.b]
+"""

@@ -286,9 +286,10 @@ class LocalExecutor:
         return f"local process pool, {self.workers} worker{'s' if self.workers != 1 else ''}"
 
     def run(self, models: dict, tasks: Iterable[dict], outputs: Sequence[str]) -> Iterator[dict]:
-        """The rows of `tasks`, as they finish. `tasks` is taken one point at a time, only
-        when a worker is free: a worker is started for each of the first points (at most
-        `workers`), then a point is taken when one of them returns a row."""
+        """The rows of `tasks`, as they finish. `tasks` is taken one point at a time: a worker
+        is started for each of the first points (at most `workers`), then one more point is
+        taken while they run (its check, in this process, overlaps their runs) and given to
+        the first worker that returns a row; so at most `workers` + 1 points are out."""
         import pickle
         from collections import deque
         from multiprocessing.connection import wait
@@ -301,11 +302,12 @@ class LocalExecutor:
         deaths: dict[int, list[str]] = {}
         pending: deque = deque()  # points to run again after their worker died
         source = iter(tasks)
+        staged: list[dict] = []  # the next point, taken (and checked) while the workers run
 
         def take() -> Optional[dict]:
             if pending:
                 return pending.popleft()
-            task = next(source, None)
+            task = staged.pop() if staged else next(source, None)
             if task is not None:
                 attempts.setdefault(task["index"], 1)
             return task
@@ -334,6 +336,10 @@ class LocalExecutor:
                 busy = [w for w in workers if w.task is not None]
                 if not busy:
                     break
+                if not staged and not pending:
+                    task = next(source, None)
+                    if task is not None:
+                        staged.append(task)
                 ready = set(wait([w.conn for w in busy] + [w.process.sentinel for w in busy]))
                 for w in busy:
                     if w.conn not in ready and w.process.sentinel not in ready:

@@ -30,7 +30,7 @@ from phc.checks.compiled import certify_compiled
 from phc.dae import LinearTerm
 from phc.errors import ModelError
 from phc.library import LOWERERS
-from model_texts import CRANK, LINEAR, MODULATION, PDE1D  # shared with tests/test_registry.py
+from model_texts import BESIDE_RIGID, CRANK, DIAGONAL, LINEAR, MODULATION, PDE1D  # shared with tests/test_registry.py
 
 REPO = Path(__file__).resolve().parents[2]
 MODELS = REPO / "models"
@@ -387,20 +387,6 @@ def test_a_wrong_power_at_a_sample_in_motion_is_still_refused(tmp_path):
     assert [d.code for d in cert.diagnostics.errors] == ["PHC-E450"]
 
 
-RIGID_BESIDE_SPRING = """
-format_version: 1
-name: rigid_beside_spring
-components:
-  m1: {type: mass, m: 1.0, ports: [a, b]}
-  m2: {type: mass, m: 2.0, ports: [a, b]}
-  k: {type: spring, k: 3.0, terminals: [a, b]}
-connections:
-  - [m1.b, m2.a]
-  - [m1.a, k.a]
-  - [k.b, m2.b]
-"""
-
-
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])
 def test_uniform_motion_against_internal_forces_is_certified(tmp_path, seed):
     """Two rigidly joined masses with a spring beside them: a lossless interconnection,
@@ -410,7 +396,7 @@ def test_uniform_motion_against_internal_forces_is_certified(tmp_path, seed):
     cancellation, ~ε·v·kx, with every power of the balance 0. It was refused as "relative
     error 4.8e-01"; the rates are now judged by the terms they sum."""
     path = tmp_path / "m.yaml"
-    path.write_text(RIGID_BESIDE_SPRING)
+    path.write_text(BESIDE_RIGID)
     compiled = phc.compile_model(path, certify=False)
     cert = certify_compiled(compiled, n_random=4, seed=seed)
     assert cert.samples >= 2 and cert.certified, [d.message for d in cert.diagnostics]
@@ -451,22 +437,6 @@ def test_a_wrong_sign_against_internal_forces_is_still_refused(tmp_path):
     assert [d.code for d in cert.diagnostics.errors] == ["PHC-E450"]
 
 
-COASTING = """
-format_version: 1
-name: coasting
-components:
-  m1: {type: mass, m: 1.0, dimension: 2, ports: [a, b]}
-  m2: {type: mass, m: 2.0, ports: [a, b]}
-  lx: {type: transformer, ratio: [[1.0, 0.0]]}
-  ly: {type: transformer, ratio: [[0.0, 1.0]]}
-connections:
-  - [m1.a, lx.a]
-  - [lx.b, m2.a]
-  - [m2.b, ly.b]
-  - [ly.a, m1.b]
-"""
-
-
 def test_coasting_with_no_force_is_certified(tmp_path):
     """A planar mass tied to a line mass along both of its axes: the three velocities are
     equal and nothing acts on them, so every power is 0 and H is constant. The computed
@@ -474,7 +444,7 @@ def test_coasting_with_no_force_is_certified(tmp_path):
     would change H by less than 1e-11 of its scale over the simulated span is round-off,
     not a finding (it was refused as "relative error 1.0e+00")."""
     path = tmp_path / "m.yaml"
-    path.write_text(COASTING)
+    path.write_text(DIAGONAL)
     compiled = phc.compile_model(path, certify=False)
     cert = certify_compiled(compiled, n_random=4, seed=0)
     assert cert.samples >= 2 and cert.certified, [d.message for d in cert.diagnostics]

@@ -22,6 +22,8 @@ from phc.checks.certify import _Component, certify
 from phc.checks.graph import component_graph
 from phc.cli import main
 
+from model_texts import BESIDE_RIGID, DIAGONAL  # shared with test_compiled_certificate.py
+
 PARALLEL = """\
 format_version: 1
 name: parallel
@@ -35,34 +37,6 @@ connections:
   - [k.b, m2.a]
   - [m1.b, d.a]
   - [d.b, m2.b]
-"""
-
-BESIDE_RIGID = """\
-format_version: 1
-name: beside_rigid
-components:
-  m1: {type: mass, m: 1.0, ports: [a, b]}
-  m2: {type: mass, m: 2.0, ports: [a, b]}
-  k: {type: spring, k: 3.0, terminals: [a, b]}
-connections:
-  - [m1.b, m2.a]
-  - [m1.a, k.a]
-  - [k.b, m2.b]
-"""
-
-DIAGONAL = """\
-format_version: 1
-name: diagonal
-components:
-  m1: {type: mass, m: 1.0, dimension: 2, ports: [a, b]}
-  m2: {type: mass, m: 2.0, ports: [a, b]}
-  lx: {type: transformer, ratio: [[1.0, 0.0]]}
-  ly: {type: transformer, ratio: [[0.0, 1.0]]}
-connections:
-  - [m1.a, lx.a]
-  - [lx.b, m2.a]
-  - [m2.b, ly.b]
-  - [ly.a, m1.b]
 """
 
 LEVER_ON_JUNCTIONS = """\
