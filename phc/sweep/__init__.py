@@ -33,7 +33,7 @@ How a sweep runs
   point is charged only for its own runs. When the sweep completes the CSV file is
   rewritten in point order.
 * **The design is streamed**: points are made on demand (:class:`~phc.sweep.design.Points`),
-  checked and sent only when a worker is free, and rows are kept as typed columns
+  checked a point ahead of the workers and sent as they free up, and rows are kept as typed columns
   (:class:`~phc.sweep.results.RowTable`): a 10⁶-point sweep starts at once in bounded memory.
 * **Swept names are columns**: a name that is also a result column (``steps``,
   ``worker``, ``x.max`` of an output ``x``) is refused where it is written.
