@@ -259,8 +259,9 @@ def test_a_million_point_sweep_takes_and_checks_only_the_points_it_runs(tmp_path
     assert meta["points"] == 1_000_000 and meta["design"] == report.design.digest
 
 
-def test_the_local_pool_takes_a_point_only_when_a_worker_is_free(tmp_path, msd, monkeypatch):
-    """2 workers: at most 3 points taken from the sweep before the first row. The points
+def test_the_local_pool_takes_at_most_one_point_ahead_of_its_workers(tmp_path, msd, monkeypatch):
+    """2 workers: at most 3 points taken from the sweep before the first row (one per worker
+    and the next, checked while they run). The points
     checked after the pool started (its copy of the model was pickled before) still run:
     the check's verdict travels with each point."""
     seen = {}
