@@ -259,6 +259,18 @@ def test_a_million_point_sweep_takes_and_checks_only_the_points_it_runs(tmp_path
     assert meta["points"] == 1_000_000 and meta["design"] == report.design.digest
 
 
+class _Counted:
+    """The tasks an executor takes, passed through and counted (`taken`)."""
+
+    def __init__(self, tasks) -> None:
+        self.tasks, self.taken = tasks, 0
+
+    def __iter__(self):
+        for task in self.tasks:
+            self.taken += 1
+            yield task
+
+
 def test_the_local_pool_takes_at_most_one_point_ahead_of_its_workers(tmp_path, msd, monkeypatch):
     """2 workers: at most 3 points taken from the sweep before the first row (one per worker
     and the next, checked while they run). The points
@@ -268,16 +280,9 @@ def test_the_local_pool_takes_at_most_one_point_ahead_of_its_workers(tmp_path, m
 
     class Spy(LocalExecutor):
         def run(self, models, tasks, outputs):
-            taken = 0
-
-            def counted():
-                nonlocal taken
-                for task in tasks:
-                    taken += 1
-                    yield task
-
-            for out in super().run(models, counted(), outputs):
-                seen.setdefault("at first row", taken)
+            counted = _Counted(tasks)
+            for out in super().run(models, iter(counted), outputs):
+                seen.setdefault("at first row", counted.taken)
                 yield out
 
     report = run_sweep(MSD, tmp_path / "r.csv", params=[("k", "1,2,3,4,5,6,7,8")], t_end=0.5, executor=Spy(2),
@@ -299,16 +304,9 @@ def test_dask_keeps_at_most_submit_ahead_points_in_flight(tmp_path, msd, monkeyp
 
     class Spy(executors.DaskExecutor):
         def run(self, models, tasks, outputs):
-            taken = 0
-
-            def counted():
-                nonlocal taken
-                for task in tasks:
-                    taken += 1
-                    yield task
-
-            for n, out in enumerate(super().run(models, counted(), outputs)):
-                flight.append(taken - n)  # submitted, not yet returned (this row included)
+            counted = _Counted(tasks)
+            for n, out in enumerate(super().run(models, iter(counted), outputs)):
+                flight.append(counted.taken - n)  # submitted, not yet returned (this row included)
                 yield out
 
     cluster = distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None,
