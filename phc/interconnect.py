@@ -38,7 +38,7 @@ if TYPE_CHECKING:
     from phc.spec.model import ModelSpec
 
 __all__ = ["Interconnection", "interconnect", "build_interconnection_graph", "check_connections", "component_graph", "component_of",
-           "connected_to", "independent_parts", "kinematic_loops", "reads_of", "to_dot", "traversal_order"]
+           "connected_to", "independent_parts", "kinematic_loops", "reads_of", "short_cycle_basis", "to_dot", "traversal_order"]
 
 
 # -- the one builder ----------------------------------------------------------------------
@@ -318,18 +318,136 @@ def connected_to(source: Source, names) -> set[str]:
 
 
 def kinematic_loops(source: Source) -> list[list[str]]:
-    """A cycle basis of the component graph; parallel connections count as loops.
+    """A cycle basis of the component graph (:func:`short_cycle_basis`); parallel
+    connections count as loops.
 
     Loops of connections imply algebraic constraints among the components' flows
     (information, not an error).
     """
     graph = component_graph(source)
     simple = nx.Graph(graph)
-    loops = [list(c) for c in nx.cycle_basis(simple)]
+    loops = short_cycle_basis(simple)
     for u, v in simple.edges():
         if graph.number_of_edges(u, v) > 1:
             loops.extend([[u, v]] * (graph.number_of_edges(u, v) - 1))
     return loops
+
+
+def short_cycle_basis(graph: nx.Graph, search: int = 64) -> list[list]:
+    """A basis of the cycle space of the simple graph `graph` made of short cycles, each a
+    list of nodes in the order met along it.
+
+    A spanning tree's fundamental cycles (``nx.cycle_basis``) are a basis too, but on a
+    mesh they run around ever larger parts of it (on a 30 × 30 grid of cells, up to 120
+    components), and a loop's test in ``phc check`` grows with its length. Here every edge
+    on a cycle proposes the shortest cycle through it, found by a breadth-first search of at
+    most `search` levels; the proposals are taken shortest first (ties in edge order) while
+    they are independent, and fundamental cycles of a breadth-first tree complete the basis
+    where the proposals do not span it. On a grid every basis cycle is a cell.
+
+    Independence is decided exactly, over GF(2), on the cycles' *chord* coordinates: a
+    cycle is the sum of the fundamental cycles of the tree's chords it uses, so the map to
+    its set of chords is one-to-one on the cycle space. Vectors are Python integers (bit k:
+    chord k), reduced against pivots at their highest bit. The fundamental cycles that
+    complete the basis are those of the chords that are no pivot, independent of the rest
+    because their highest bits differ. The number of cycles is ``m − n + c`` (edges, nodes,
+    connected parts) as for any basis. Deterministic for a given graph: nodes and edges are
+    taken in the graph's order."""
+    order = {node: k for k, node in enumerate(graph)}
+    parent, depth, chords = {}, {}, {}
+    for root in graph:  # a breadth-first tree per connected part
+        if root in parent:
+            continue
+        parent[root], depth[root] = None, 0
+        frontier = [root]
+        while frontier:
+            nxt = []
+            for u in frontier:
+                for v in graph[u]:
+                    if v not in parent:
+                        parent[v], depth[v] = u, depth[u] + 1
+                        nxt.append(v)
+            frontier = nxt
+    for u, v in graph.edges():
+        if parent.get(v) != u and parent.get(u) != v:
+            chords[_edge(u, v, order)] = len(chords)
+    if not chords:
+        return []
+
+    def bits(cycle):
+        vector = 0
+        for k in range(len(cycle)):
+            chord = chords.get(_edge(cycle[k], cycle[k - 1], order))
+            if chord is not None:
+                vector |= 1 << chord
+        return vector
+
+    bridges = {_edge(*bridge, order) for bridge in nx.bridges(graph)}  # edges on no cycle
+    candidates = {}  # one per cycle (several edges propose the same one)
+    for u, v in graph.edges():
+        if _edge(u, v, order) not in bridges:
+            cycle = _shortest_cycle_through(graph, u, v, search)
+            if cycle is not None:
+                candidates.setdefault(frozenset(_edge(cycle[k], cycle[k - 1], order) for k in range(len(cycle))), cycle)
+    pivots, basis = {}, []
+    for cycle in sorted(candidates.values(), key=len):
+        vector = bits(cycle)
+        while vector:
+            top = vector.bit_length() - 1
+            if top not in pivots:
+                pivots[top] = vector
+                basis.append(cycle)
+                break
+            vector ^= pivots[top]
+        if len(basis) == len(chords):
+            break
+    if len(basis) < len(chords):
+        for (u, v), k in chords.items():
+            if k not in pivots:
+                basis.append(_tree_cycle(u, v, parent, depth))
+    return basis
+
+
+def _edge(u, v, order) -> tuple:
+    return (u, v) if order[u] <= order[v] else (v, u)
+
+
+def _shortest_cycle_through(graph: nx.Graph, u, v, levels: int) -> Optional[list]:
+    """The shortest cycle through edge (u, v): a breadth-first path from u to v that does not
+    use the edge, as [u, …, v]; None when none is found within `levels` levels."""
+    previous = {u: None}
+    frontier = [u]
+    for _ in range(levels):
+        nxt = []
+        for a in frontier:
+            for b in graph[a]:
+                if b in previous or (a == u and b == v):
+                    continue
+                previous[b] = a
+                if b == v:
+                    path = [v]
+                    while previous[path[-1]] is not None:
+                        path.append(previous[path[-1]])
+                    return path[::-1]
+                nxt.append(b)
+        frontier = nxt
+        if not frontier:
+            break
+    return None
+
+
+def _tree_cycle(u, v, parent, depth) -> list:
+    """The fundamental cycle of chord (u, v): the tree path from u up to the common ancestor
+    and down to v."""
+    up, down = [u], [v]
+    while depth[up[-1]] > depth[down[-1]]:
+        up.append(parent[up[-1]])
+    while depth[down[-1]] > depth[up[-1]]:
+        down.append(parent[down[-1]])
+    while up[-1] != down[-1]:
+        up.append(parent[up[-1]])
+        down.append(parent[down[-1]])
+    return up + down[-2::-1]
 
 
 def independent_parts(source: Source) -> list[list[str]]:

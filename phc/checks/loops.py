@@ -39,6 +39,7 @@ import numpy as np
 
 from phc.checks.certify import RANK_RTOL
 from phc.dae import T
+from phc.interconnect import short_cycle_basis
 
 MAX_LOOP = 64
 """Loops with more components are named, not classified: a loop that constrains is built
@@ -85,8 +86,7 @@ def loops_with_connections(graph: nx.MultiGraph) -> list[tuple[list[str], list[t
 
     simple = nx.Graph(graph)
     out = []
-    for cycle in nx.cycle_basis(simple):
-        cycle = list(cycle)
+    for cycle in short_cycle_basis(simple):
         out.append((cycle, [edges(cycle[i], cycle[(i + 1) % len(cycle)])[0] for i in range(len(cycle))]))
     for u, v in simple.edges():
         parallel = edges(u, v)

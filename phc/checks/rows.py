@@ -671,8 +671,10 @@ def _canonical_key(desc: ComponentDescription, rows: ComponentRows):
             tuple(e.xreplace(canon) for _, e in rows.equations),
             tuple((canon.get(s, s), e.xreplace(canon)) for s, e in rows.definitions),
             tuple(canon[x] for x in (*desc.flows, *desc.efforts, *desc.multipliers)),
-            tuple((canon[st.flow], canon[st.effort], sp.sympify(st.rate).xreplace(canon),  # safe: sympy exprs
-                   sp.sympify(st.gradient).xreplace(canon)) for st in desc.storage),
+            tuple((canon[st.flow], canon[st.effort],
+                   sp.sympify(st.rate).xreplace(canon),  # safe: a description's rate, a sympy expression
+                   sp.sympify(st.gradient).xreplace(canon))  # safe: a description's gradient, a sympy expression
+                  for st in desc.storage),
             tuple(e.xreplace(canon) for e in (*desc.relations, *desc.laws)),
             tuple((tuple(idx), tuple(rest) if isinstance(rest, (list, tuple)) else rest)
                   for idx, rest in desc.ports.values()))
