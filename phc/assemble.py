@@ -9,8 +9,9 @@ Order matters:
    dangling port);
 2. merge connected port variables by a signed union–find (``f₁ = f₂``, ``e₁ = −e₂``, the
    coupling condition of T. Berger, R. Hochdahl, T. Reis, R. Seifried, "Port-Hamiltonian
-   modelling of coupled rigid/flexible multibody systems", section 2.2) and substitute
-   component-defined port values;
+   modelling of coupled rigid/flexible multibody systems", section 2.2; a wire, a terminal
+   of a two-terminal element joined to a port that reads power-in, ``e₁ = e₂``,
+   ``f₁ = −f₂``: :mod:`phc.wires`) and substitute component-defined port values;
 3. add position invariants of connected ports with positions, and the GGL multipliers
    for all position invariants: the storage flow of each constrained configuration
    variable becomes ``ẋ + (∂g/∂x)ᵀη`` (Gear, Gupta & Leimkuhler 1985), which keeps
@@ -38,6 +39,7 @@ from phc.spec.expressions import named_scope
 from phc.spec.model import InitialSpec, OutputSpec, PieceSpec
 from phc.state_hints import unknown_state
 from phc.units import ResultUnits
+from phc.wires import BOND, WIRE, wire_labels
 
 
 class _SignedUnionFind:
@@ -107,10 +109,14 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
             defs[rb] = rel * da
 
     _propagate_positions(ports, elab.position_maps, connections, rep)
+    # a terminal joined to a port that reads power-in is a wire (e_x = e_y, f_x = −f_y), every
+    # other connection a bond (f_x = f_y, e_x = −e_y): phc.wires, docs/signs.md
+    wires = wire_labels(ports.values(), elab.component_specs, ((pa, pb, label) for pa, pb, _, label in connections))
     for pa, pb, span, label in connections:
+        sf, se = WIRE if label in wires else BOND
         for k in range(pa.dimension):
-            merge(pa.f[k], pb.f[k], 1, f"{label}.f[{k}]", span)
-            merge(pa.e[k], pb.e[k], -1, f"{label}.e[{k}]", span)
+            merge(pa.f[k], pb.f[k], sf, f"{label}.f[{k}]", span)
+            merge(pa.e[k], pb.e[k], se, f"{label}.e[{k}]", span)
         if pa.position is not None and pb.position is not None:
             for k in range(pa.dimension):
                 position_invariants.append(Invariant(f"{label}.position[{k}]", pa.position[k] - pb.position[k],
@@ -238,6 +244,7 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
         components=tuple(elab.components),
         ports=tuple(PortInfo(p.name, p.component, p.domain, p.dimension, p.frame, p.span) for p in ports.values()),
         connections=tuple((pa.name, pb.name, label, span) for pa, pb, span, label in connections),
+        wires=wires,
         exposed=tuple((pname, full) for pname, (full, _) in inter.exposed.items()),
         dirac=tuple(elab.descriptions),
         rows=tuple(elab.rows),

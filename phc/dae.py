@@ -289,6 +289,10 @@ class Topology:
     resistive_laws: tuple = ()
     parameter_defaults: dict = field(default_factory=dict)
     initial: dict = field(default_factory=dict)
+    wires: frozenset = frozenset()
+    """The labels of the connections joined as wires, ``e_x = e_y``, ``f_x = −f_y`` (a
+    terminal joined to a port that reads power-in, :mod:`phc.wires`); the others are bonds,
+    ``f_x = f_y``, ``e_x = −e_y``."""
 
 
 @dataclass(frozen=True)

@@ -144,16 +144,18 @@ def test_schema_errors_use_the_same_path_style(tmp_path, capsys):
 
 # -- PHC-W230 where the user is ---------------------------------------------------------
 
-RC_SERIES = """\
+RC_FED = """\
     format_version: 1
     parameters: {V: 12.0, R: 2.0, C: 0.25}
     components:
-      src: {type: effort_source, domain: electrical, value: V}
-      r: {type: resistor, R: R, terminals: [a, b]}
+      src: {type: flow_source, domain: electrical, value: V/R}
+      n: {type: junction, kind: common_effort, domain: electrical, ports: [s, c, r]}
+      r: {type: resistor, R: R}
       cap: {type: capacitor, C: C}
     connections:
-      - [src.port, r.a]
-      - [r.b, cap.port]
+      - [n.c, cap.port]
+      - [src.port, n.s]
+      - [n.r, r.port]
     simulation:
       t_end: 1.0
       outputs: {q: cap.q}
@@ -162,11 +164,11 @@ RC_SERIES = """\
 
 @pytest.mark.parametrize("command", [["validate"], ["simulate", "--quiet"]])
 def test_the_sign_hint_is_printed_by_validate_and_simulate(tmp_path, capsys, command):
-    """Before, only `phc check` warned that joining the resistor's terminal to the capacitor
-    directly negates the capacitor's charge (docs/signs.md)."""
+    """Before, only `phc check` warned that a current source feeding the node of R ∥ C reads
+    the node power-out like the node's own ports, which negates the charge (docs/signs.md)."""
     path = tmp_path / "rc.yaml"
-    path.write_text(textwrap.dedent(RC_SERIES), encoding="utf-8")
+    path.write_text(textwrap.dedent(RC_FED), encoding="utf-8")
     assert main([*command, str(path)]) == 0
     hints = [line for line in capsys.readouterr().err.splitlines() if "[PHC-W230]" in line]
-    assert len(hints) == 1 and hints[0].startswith(f"{path}:9:") and ": warning: connections[1]: " in hints[0]
-    assert "`r.b` and `cap.port` both read the voltage power-in" in hints[0]
+    assert len(hints) == 1 and hints[0].startswith(f"{path}:10:") and ": warning: connections[1]: " in hints[0]
+    assert "`src.port` and `n.s` both read the voltage power-out" in hints[0]

@@ -13,7 +13,9 @@ states:
 * **Coupling map Γ** (Proposition 3 "Interconnection through a finite-dimensional
   coupling space"): the components are interconnected one connection at a time in breadth-first
   order (Remark 4 "Associativity of interconnection"); at each step
-  ``Γ(d₁, d₂) = (f_c1 − f_c2, e_c1 + e_c2)`` must be onto ``Z_c × Z_c``. Γ only sees the
+  ``Γ(d₁, d₂) = (f_c1 − f_c2, e_c1 + e_c2)`` must be onto ``Z_c × Z_c`` (for a wire,
+  :mod:`phc.wires`, ``(f_c1 + f_c2, e_c1 − e_c2)``: the bond with one port's variables
+  negated, of the same rank). Γ only sees the
   coupling components, so each component is represented by the projection of its Dirac
   structure onto its ports — the cost grows linearly with the number of components.
 * rigid components: ``c'(q)`` and ``A(q)`` of full row rank at the initial
@@ -372,6 +374,7 @@ def _couplings(top, projections, samples, diags, graph=None, constant_only=False
     spans = {label: span for _, _, label, span in top.connections}
     dims = {p.name: p.dimension for p in top.ports}
     certs = [ConnectionCertificate(label, a, b, 2 * dims[a], span=spans.get(label)) for a, b, label in order]
+    wires = getattr(top, "wires", frozenset())
     for k, point in enumerate(samples[:1] if constant_only else samples):
         cluster_of = {name: name for name in projections[k]}
         members = {name: [name] for name in projections[k]}
@@ -393,8 +396,10 @@ def _couplings(top, projections, samples, diags, graph=None, constant_only=False
                 rmap.update({p: ([i + shift for i in f], [i + shift for i in e]) for p, (f, e) in mb.items()})
             fa, ea = rmap[a]
             fb, eb = rmap[b]
-            # Γ V: the rows (f_a − f_b, e_a + e_b) of V, without forming the selection matrix
-            GV = np.concatenate((V[fa] - V[fb], V[ea] + V[eb]))
+            # Γ V: the rows (f_a − f_b, e_a + e_b) of V, without forming the selection matrix;
+            # (f_a + f_b, e_a − e_b) for a wire (phc.wires)
+            GV = (np.concatenate((V[fa] + V[fb], V[ea] - V[eb])) if label in wires
+                  else np.concatenate((V[fa] - V[fb], V[ea] + V[eb])))
             if GV.size:  # one SVD gives the rank and the kernel of Γ V
                 _, s, vh = np.linalg.svd(GV, full_matrices=True)
             else:
@@ -449,7 +454,8 @@ def _symbolic_conditions(top, order, owner, certs) -> list[Optional[str]]:
     The interconnected structure up to a connection is kept in kernel form: the relations
     of all components of the two clusters plus the coupling rows of earlier connections,
     over all their variables (eliminated port variables stay as latent ones). With K those
-    relations and S the rows ``(f_a − f_b, e_a + e_b)`` of the connection, Γ is onto iff
+    relations and S the rows ``(f_a − f_b, e_a + e_b)`` of the connection (``(f_a + f_b,
+    e_a − e_b)`` for a wire), Γ is onto iff
     ``rank [K; S] = rank K + 2 dim``; rank K is constant (Dirac components), so Γ fails
     exactly where all maximal minors of ``[K; S]`` vanish. One maximal minor is computed
     exactly (rational parameters, non-polynomial sub-expressions replaced by symbols), its
@@ -470,7 +476,8 @@ def _symbolic_conditions(top, order, owner, certs) -> list[Optional[str]]:
             ports[f"{r.component}.{pname}"] = ([r.flows[i] for i in fi], [r.efforts[i] for i in ei])
     out: list[Optional[str]] = []
     rng = np.random.default_rng(11)
-    for cert, (a, b, _) in zip(certs, order):
+    wires = getattr(top, "wires", frozenset())
+    for cert, (a, b, label) in zip(certs, order):
         ca, cb = cluster_of.get(owner[a]), cluster_of.get(owner[b])
         if ca is None or cb is None or a not in ports or b not in ports:
             out.append(None)
@@ -478,7 +485,8 @@ def _symbolic_conditions(top, order, owner, certs) -> list[Optional[str]]:
         K_rows = rows[ca] if ca == cb else (rows[ca], rows[cb])
         K_cols = cols[ca] if ca == cb else (cols[ca], cols[cb])
         (fa, ea), (fb, eb) = ports[a], ports[b]
-        S = [x - y for x, y in zip(fa, fb)] + [x + y for x, y in zip(ea, eb)]
+        w = -1 if label in wires else 1  # a wire (phc.wires): f_a + f_b, e_a − e_b
+        S = [x - w * y for x, y in zip(fa, fb)] + [x + w * y for x, y in zip(ea, eb)]
         condition = None
         if not cert.surjective:  # only where the numeric certificate found a failure
             try:

@@ -301,7 +301,10 @@ def _added_per_opening(graph, comps, members, loop_conns, point, cache=None):
 
 def _couple(one, other, a, b):
     """Connect ports `a` and `b` of the cluster `one` (and `other`, a second cluster joined to
-    it): f_a = f_b, e_a = −e_b. A cluster is (V, port rows, effort rows, frozen rank)."""
+    it): f_a = f_b, e_a = −e_b. A wire (:mod:`phc.wires`, e_a = e_b, f_a = −f_b) is coupled
+    as this bond too: it is the bond with port b's flow and effort negated, a change of
+    coordinates of a port that is used once and then projected out, so the storage efforts'
+    relations counted here are the same. A cluster is (V, port rows, effort rows, frozen rank)."""
     V, ports, efforts, frozen = one
     ports = dict(ports)
     if other is not None:

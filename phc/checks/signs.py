@@ -36,15 +36,16 @@ voltage it puts on its node — hold when
   when its port toward the source reads power-in and the other power-out.
 
 This module propagates these orientations along the connections of effort-across ports
-and reports each connection whose two ends read the same orientation: two power-in ends
-(two two-terminal elements in series joined directly, a terminal joined to a capacitor)
-or two power-out ends (a source feeding a common-effort junction, a node between a series
-loop and its capacitor). Past such a connection the circuit is mirrored: voltages and
-flows read with the opposite sign, which is still a power-conserving model but not the one
-the user drew when a source or an output sits on the far side. The number of sign changes
-along a path is the number of such connections on it, so along a series chain of
-two-terminal elements the sign of a node voltage depends on the number of connections in
-between — the trap docs/signs.md describes.
+and reports each bond whose two ends read the same orientation: two power-in ends (two
+one-port elements joined directly) or two power-out ends (a source feeding a common-effort
+junction, a node between a series loop and its capacitor). Past such a connection the
+circuit is mirrored: voltages and flows read with the opposite sign, which is still a
+power-conserving model but not the one the user drew when a source or an output sits on the
+far side. A *wire* (:mod:`phc.wires`: a terminal of a two-terminal element joined to a port
+that reads power-in, ``e_x = e_y``) joins two ends that read the same orientation, so a
+series chain of two-terminal elements keeps its signs; a wire is reported when its ends read
+opposite orientations (port ``a`` of a transformer or gyrator whose port ``b`` faces the
+source).
 
 Components of other types (`phs`, distributed components, a transformer or gyrator to
 another domain such as a motor's shaft), a branch that leaves the model through an open
@@ -226,6 +227,10 @@ def sign_hints(top) -> list[Diagnostic]:
         return []
     cls, fixed, what, sign = _classes(top)
     domain = {p.name: p.domain for p in top.ports}
+    wires = getattr(top, "wires", frozenset())
+    # how a connection passes the reading on: a bond (e_x = −e_y) joins opposite readings,
+    # a wire (e_x = e_y, phc.wires) equal ones
+    turn = {label: 1 if label in wires else -1 for _, _, label, _ in top.connections}
     edges: dict = {}
     for a, b, label, span in top.connections:
         if a in cls and b in cls and cls[a] != cls[b]:
@@ -248,7 +253,8 @@ def sign_hints(top) -> list[Diagnostic]:
     while True:
         votes = {}
         for c in sorted(open_classes, key=str):
-            asked = [-sign.get(x, 1) * reads(y) for x, y, _, _ in edges.get(c, []) if cls[y] in orientation]
+            asked = [turn[label] * sign.get(x, 1) * reads(y) for x, y, label, _ in edges.get(c, [])
+                     if cls[y] in orientation]
             if asked:
                 votes[c] = OUT if sum(asked) >= 0 else IN
         if not votes:
@@ -261,18 +267,44 @@ def sign_hints(top) -> list[Diagnostic]:
     for p, c in cls.items():
         n_ports[c] = n_ports.get(c, 0) + 1
     two_port_nodes = {c for c, _, _ in top.components if fixed.get(c, 0) is None and n_ports.get(c) == 2}
+    types = {name: kind for name, kind, _ in top.components}
     for a, b, label, span in top.connections:
         if a in cls and b in cls and cls[a] != cls[b] and label not in seen:
             seen.add(label)
             oa, ob = reads(a), reads(b)
-            if oa is not None and oa == ob:
-                out.append(_hint(a, b, label, span, oa, what, domain[a], cls, two_port_nodes))
+            if oa is not None and ob is not None and oa == -turn[label] * ob:
+                if label in wires:
+                    out.append(_wire_hint(a, b, label, span, oa, ob, what, domain[a], types))
+                else:
+                    out.append(_hint(a, b, label, span, oa, what, domain[a], cls, two_port_nodes))
     return out
+
+
+def _view(orientation) -> str:
+    return "power-in, e = −v" if orientation == IN else "power-out, e = +v"
+
+
+def _wire_hint(x, y, label, span, ox, oy, what, dom, types) -> Diagnostic:
+    """A wire (phc.wires) between ends that read the across effort the opposite ways: a
+    terminal joined to port `a` of a transformer or gyrator whose port `b` faces the source."""
+    across, through = EFFORT_ACROSS[dom]
+    message = (f"`{x}` reads the {across} {_view(ox)} ({what[x]}) and `{y}` {_view(oy)} ({what[y]}), so the wire "
+               f"e_x = e_y (a terminal joined to a port that reads power-in) turns its sign: past this connection "
+               f"{across}s and {through}s read negated (states, outputs, a source's polarity)")
+    owners = (p.rsplit(".", 1)[0] for p in (x, y))
+    two_port = next((c for c in owners if types.get(c) in ("transformer", "gyrator")), None)
+    hint = "if unintended, "
+    if two_port is not None:
+        hint += (f"turn `{two_port}` round so that its port `a` faces the source (it takes power in at `a`; "
+                 "a transformer's ratio inverts), or ")
+    node = f"`{{type: junction, kind: common_effort, domain: {dom}, ports: [x, y]}}`"
+    hint += f"put two nodes {node} in a row between them; see docs/signs.md"
+    return Diagnostic("PHC-W230", message, span=span, hint=hint, severity="warning", path=label)
 
 
 def _hint(x, y, label, span, orientation, what, dom, cls, two_port_nodes) -> Diagnostic:
     across, through = EFFORT_ACROSS[dom]
-    view = "power-in, e = −v" if orientation == IN else "power-out, e = +v"
+    view = _view(orientation)
     message = (f"`{x}` and `{y}` both read the {across} {view} ({what[x]}, {what[y]}), so e_x = −e_y turns "
                f"its sign: past this connection {across}s and {through}s read negated (states, outputs, a "
                "source's polarity)")

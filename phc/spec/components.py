@@ -305,7 +305,10 @@ class _Element(_OnePort):
     the mechanical domains the relative velocity ``f_a − f_b`` with ``e_b = −e_a`` (a
     spring between two masses), in the electrical, hydraulic and thermal domains the
     relative effort ``e_a − e_b`` with ``f_b = −f_a`` (a resistor between two nodes).
-    Not together with `ports`."""
+    In those domains a series chain keeps the sign as drawn: a terminal joined to another
+    terminal, to a capacitor, inductor or resistor, or to port `a` of a transformer or
+    gyrator is a wire (``e_x = e_y``, ``f_x = −f_y``), so each element's flow is positive
+    from its `a` to its `b` (docs/signs.md). Not together with `ports`."""
 
     @field_validator("terminals")
     @classmethod

@@ -68,9 +68,9 @@ def test_a_resistor_between_a_source_and_a_capacitor_charges_it_with_time_consta
     path.write_text(RC)
     r = phc.simulate(phc.compile_model(path))
     V, R, C = 5.0, 2.0, 0.1
-    # phc's generator convention: the capacitor's port effort is -q/C and tends to the
-    # source's V, i.e. q -> -C V (docs: signs)
-    q = -C * V * (1 - np.exp(-r.t / (R * C)))
+    # the terminal r.b joined to the capacitor is a wire (docs/signs.md, series chains keep
+    # the sign you draw): the capacitor charges to +C V as drawn
+    q = C * V * (1 - np.exp(-r.t / (R * C)))
     assert np.abs(r["cap.q"] - q).max() < 1e-8
 
 
