@@ -62,7 +62,7 @@ _SAID: set = set()
 def _layout() -> list[int]:
     """What ``phc_steps_layout`` must write: the indices the Python driver uses (without the
     struct size, which :func:`library` compares with :class:`_Steps`)."""
-    return [1, _k._NI, _k._NF, _sl._NC,
+    return [2, _k._NI, _k._NF, _sl._NC,
             _k._K, _k._J, _k._SUBSTEPS, _k._STEPS, _k._LAST_LOOK, _k._HAS_MID, _k._MAX_STEPS, _k._STATUS, _k._NFEV,
             _k._NFACT, _k._HIST, _k._MONITOR, _k._METHOD, _k._CODE, _k._ILL, _k._E, _k._NEND, _k._NMID, _k._LOWP,
             _k._STRIKES,
@@ -85,7 +85,7 @@ class _Steps(ctypes.Structure):
             "residual", "jacobian", "invariants", "p", "jrows", "jcols", "end_rows", "emask", "algmask", "weights",
             "colscale", "c", "t_out",
             "ys", "yps", "y", "mid", "mid_slope", "y_prev", "y_new", "pt", "pm", "fst", "ist",
-            "lu", "piv", "eq", "matf",
+            "lu", "piv", "perm", "eq", "matf",
             "xs", "d", "r", "guess", "yp", "g", "jbuf", "ebuf", "mon", "monpiv", "monv")]
 
 
@@ -179,11 +179,13 @@ def bind(raw, p, t_out, ys, yps, y, mid, mid_slope, y_prev, y_new, pt, pm, fst, 
         weights=weights if weights.shape == (n,) else None, colscale=colscale if colscale.shape == (n,) else None,
         c=c, t_out=t_out, ys=ys, yps=yps, y=y, mid=mid, mid_slope=mid_slope, y_prev=y_prev, y_new=y_new, pt=pt,
         pm=pm, fst=fst, ist=ist,
-        lu=np.zeros((2, n, n)), piv=np.zeros((2, n), np.int64), eq=np.ones((2, 2 * n)), matf=np.zeros((2, 3)),
+        lu=np.zeros((2, n, n)), piv=np.zeros((2, n), np.int64), perm=np.zeros((2, n), np.int64),
+        eq=np.ones((2, 2 * n)), matf=np.zeros((2, 3)),
         xs=np.zeros(n), d=np.zeros(n), r=np.zeros(n), guess=np.zeros(n), yp=np.zeros(n), g=np.zeros(max(nend, 1)),
         jbuf=np.zeros(njac), ebuf=np.zeros(njac), mon=np.zeros((n, n)), monpiv=np.zeros(n, np.int64),
         monv=np.zeros(3 * n))
-    kinds = {"jrows": np.int64, "jcols": np.int64, "end_rows": np.int64, "piv": np.int64, "monpiv": np.int64,
+    kinds = {"jrows": np.int64, "jcols": np.int64, "end_rows": np.int64, "piv": np.int64, "perm": np.int64,
+             "monpiv": np.int64,
              "ist": np.int64, "emask": np.int8, "algmask": np.int8}
     for name, a in arrays.items():
         if a is None:

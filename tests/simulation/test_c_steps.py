@@ -248,6 +248,25 @@ def test_the_library_is_built_once_from_the_shipped_source(compiled):
     assert sum(line.startswith("static ") for line in lines) >= 10
 
 
+def test_the_avx2_and_the_baseline_code_give_the_same_trajectory(compiled, monkeypatch, loops):
+    """steps.c runs its solves, its LU and its stage point in an AVX2 copy where the CPU has
+    AVX2, else in the baseline (SSE2) code: the same IEEE operations in the same order, no
+    fused multiply-adds, so the two libraries give the same trajectory bit for bit (on a CPU
+    without AVX2 both run the baseline code and the test only checks the build)."""
+    from phc.simulation import c_steps
+
+    model = compiled("flexible_slider_crank.yaml")
+    options = dict(solver="midpoint", t_end=float(model.dae.options["t_start"]) + 2e-3, step=1e-5, n_out=11)
+    default = phc.simulate(model, **options)
+    monkeypatch.setattr(c_steps, "FLAGS", c_steps.FLAGS + ("-DPHC_NO_AVX2_DISPATCH",))
+    monkeypatch.setattr(c_steps, "_LIBRARY", None)  # built again, without the AVX2 copies
+    baseline = phc.simulate(model, **options)
+    assert c_steps.library() is not None
+    assert loops == ["c", "c"]
+    assert default.success and baseline.success and default.steps == baseline.steps == 200
+    assert np.array_equal(default.y, baseline.y) and np.array_equal(default.yp, baseline.yp)
+
+
 COULOMB = """\
 format_version: 1
 name: coulomb_block

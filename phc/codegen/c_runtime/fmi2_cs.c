@@ -80,7 +80,7 @@ typedef struct {
     double fst[F_NF];
     int64_t ist[I_NI + 2];
     double lu[2 * N * N];
-    int64_t piv[2 * N];
+    int64_t piv[2 * N], perm[2 * N];
     double eq[4 * N], matf[6];
     double xs[N], d[N], r[N], guess[N], yp_scratch[N], g[MAX1(NEND)];
     double jbuf[NJAC], ebuf[NJAC];
@@ -147,6 +147,7 @@ static void bind(Instance *inst)
     w->ist = inst->ist;
     w->lu = inst->lu;
     w->piv = inst->piv;
+    w->perm = inst->perm;
     w->eq = inst->eq;
     w->matf = inst->matf;
     w->xs = inst->xs;

@@ -36,7 +36,11 @@
  * triangular solves. Not LAPACK: a portable link to it needs a LAPACK library on the machine
  * or SciPy's private one, and at the sizes this loop serves (at most 400 unknowns, a few
  * factorizations per hundred steps) the plain loops cost little; they are column oriented, so
- * that the compiler vectorizes their inner loops without reordering any sum.
+ * that the compiler vectorizes their inner loops without reordering any sum. The solves are
+ * most of a routine step's time (one per Newton iteration): they take four columns a pass
+ * and, like the LU and the stage point's loops, run in an AVX2 copy where the CPU has AVX2 — every entry takes the
+ * same IEEE operations in the same order on every path, so the results do not depend on the
+ * CPU (no -ffast-math, no fused multiply-adds).
  *
  * Re-entrant: no static mutable state. Every array is the caller's (struct phc_steps).
  */
@@ -45,7 +49,7 @@
 #include <stdint.h>
 #include <string.h>
 
-#define PHC_STEPS_ABI 1
+#define PHC_STEPS_ABI 2
 
 typedef void (*phc_residual_fn)(double t, const double *y, const double *yp, const double *p, double *out);
 typedef void (*phc_jacobian_fn)(double t, const double *y, const double *yp, const double *p, double cj,
@@ -106,6 +110,7 @@ struct phc_steps {
     /* the Newton matrices (two, as the numba loop keeps; the midpoint rule uses matrix 0) */
     double *lu;                     /* 2 x n x n: LU of the equilibrated matrix, column-major */
     int64_t *piv;                   /* 2 x n: row interchanges */
+    int64_t *perm;                  /* 2 x n: the row interchanges as one permutation (lu_permutation) */
     double *eq;                     /* 2 x 2n: row scales, then column scales */
     double *matf;                   /* 2 x 3: step size, evaluation point, factorized (1) */
     /* scratch */
@@ -120,10 +125,17 @@ struct phc_steps {
 
 static int all_finite(int64_t n, const double *v)
 {
-    for (int64_t i = 0; i < n; ++i)
-        if (!isfinite(v[i]))
-            return 0;
-    return 1;
+    /* the exponent field all ones (an infinity, a NaN) carries into the sign bit when one is added
+     * to it: integer operations without an early exit, which the compiler vectorizes (every
+     * entry is finite on the routine path, which reads them all anyway) */
+    const uint64_t exponent = UINT64_C(0x7ff0000000000000), unit = UINT64_C(1) << 52;
+    uint64_t carry = 0;
+    for (int64_t i = 0; i < n; ++i) {
+        uint64_t bits;
+        memcpy(&bits, v + i, sizeof bits);
+        carry |= (bits & exponent) + unit;
+    }
+    return (carry >> 63) == 0;
 }
 
 static void copy(int64_t n, const double *src, double *dst)
@@ -147,7 +159,8 @@ static double power_of_two_below(double big)
 /* LU = P A in place (L unit lower, U upper), piv[k] the row swapped with row k at step k;
  * 0, or k + 1 when the pivot of column k is exactly zero (LAPACK's info; scipy's splu refuses
  * such a matrix as singular). */
-static int64_t lu_factor(int64_t n, double *a, int64_t *piv)
+static inline __attribute__((always_inline)) int64_t lu_factor_body(int64_t n, double *restrict a,
+                                                                    int64_t *restrict piv)
 {
     for (int64_t k = 0; k < n; ++k) {
         double *ck = a + k * n;
@@ -181,38 +194,115 @@ static int64_t lu_factor(int64_t n, double *a, int64_t *piv)
     return 0;
 }
 
-/* x <- A^-1 x from the LU of lu_factor. Two columns at a time: each entry of x takes the same
- * operations in the same order as column by column, with half the passes over x and half the
- * waits for the entry the next column needs (about 0.8x the time at 83 unknowns). */
+/* The AVX2 copies (here and lu_solve's below): the library must run on any x86-64 CPU (no
+ * -march), so a copy for AVX2's four doubles a vector instruction is compiled beside the
+ * baseline one (SSE2's two) and chosen when the CPU has AVX2 (__builtin_cpu_supports reads the
+ * CPU's features libgcc found once: no state of this file). Same operations in the same order
+ * and no fused multiply-add (the target adds no FMA and the flags forbid contraction): the same
+ * IEEE results on either path. */
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(PHC_NO_AVX2_DISPATCH)
+#define PHC_AVX2_DISPATCH 1
+__attribute__((target("avx2"))) static int64_t lu_factor_avx2(int64_t n, double *a, int64_t *piv)
+{
+    return lu_factor_body(n, a, piv);
+}
+#endif
+
+static int64_t lu_factor(int64_t n, double *a, int64_t *piv)
+{
+#ifdef PHC_AVX2_DISPATCH
+    if (__builtin_cpu_supports("avx2"))
+        return lu_factor_avx2(n, a, piv);
+#endif
+    return lu_factor_body(n, a, piv);
+}
+
+/* The row interchanges of lu_factor as one permutation: (P x)_i = x[perm[i]], for the caller
+ * to gather the right-hand side of lu_solve (without the interchanges one after the other). */
+static void lu_permutation(int64_t n, const int64_t *piv, int64_t *perm)
+{
+    for (int64_t i = 0; i < n; ++i)
+        perm[i] = i;
+    for (int64_t k = 0; k < n; ++k) {
+        const int64_t tmp = perm[k];
+        perm[k] = perm[piv[k]];
+        perm[piv[k]] = tmp;
+    }
+}
+
+/* x <- A^-1 x from the LU of lu_factor; piv NULL: x is P x already (gathered by
+ * lu_permutation's order).
+ *
+ * Four columns at a time: each entry of x takes the same operations in the same order as
+ * column by column (x_i - l_i0 x_0, then - l_i1 x_1, ...), with a quarter of the passes over x
+ * and of the waits for the entries the next columns need. The back substitution does the rows
+ * the next four columns divide first, so that their divisions (the slowest operation here,
+ * one after the other) overlap with the rest of the pass. (Skipping the rows where the four
+ * columns hold only zeros saves nothing measurable at the slider-crank's 83 unknowns: the
+ * factors fill in.) Written once, compiled twice below (SSE2, and AVX2 where the CPU has it). */
+static inline __attribute__((always_inline)) void lu_solve_body(int64_t n, const double *restrict a,
+                                                                const int64_t *restrict piv, double *restrict x)
+{
+    if (piv != NULL)
+        for (int64_t k = 0; k < n; ++k)
+            if (piv[k] != k) {
+                double tmp = x[k];
+                x[k] = x[piv[k]];
+                x[piv[k]] = tmp;
+            }
+    int64_t j = 0;
+    for (; j + 3 < n; j += 4) {  /* L z = P x: columns j ... j + 3, then their rows j + 4 ... */
+        const double *c0 = a + j * n, *c1 = c0 + n, *c2 = c1 + n, *c3 = c2 + n;
+        const double x0 = x[j];
+        const double x1 = x[j + 1] = x[j + 1] - c0[j + 1] * x0;
+        const double x2 = x[j + 2] = (x[j + 2] - c0[j + 2] * x0) - c1[j + 2] * x1;
+        const double x3 = x[j + 3] = ((x[j + 3] - c0[j + 3] * x0) - c1[j + 3] * x1) - c2[j + 3] * x2;
+        for (int64_t i = j + 4; i < n; ++i)
+            x[i] = (((x[i] - c0[i] * x0) - c1[i] * x1) - c2[i] * x2) - c3[i] * x3;
+    }
+    for (; j < n; ++j) {  /* the last n mod 4 columns */
+        const double *c0 = a + j * n;
+        for (int64_t i = j + 1; i < n; ++i)
+            x[i] = x[i] - c0[i] * x[j];
+    }
+    for (j = n - 1; j >= 3; j -= 4) {  /* U x = z: columns j ... j - 3, then their rows ... j - 4 */
+        const double *c0 = a + j * n, *c1 = c0 - n, *c2 = c1 - n, *c3 = c2 - n;
+        const double x0 = x[j] = x[j] / c0[j];
+        const double x1 = x[j - 1] = (x[j - 1] - c0[j - 1] * x0) / c1[j - 1];
+        const double x2 = x[j - 2] = ((x[j - 2] - c0[j - 2] * x0) - c1[j - 2] * x1) / c2[j - 2];
+        const double x3 = x[j - 3] = (((x[j - 3] - c0[j - 3] * x0) - c1[j - 3] * x1) - c2[j - 3] * x2) / c3[j - 3];
+        const int64_t next = j - 7 > 0 ? j - 7 : 0;  /* the next four columns' rows first */
+        for (int64_t i = next; i < j - 3; ++i)
+            x[i] = (((x[i] - c0[i] * x0) - c1[i] * x1) - c2[i] * x2) - c3[i] * x3;
+        for (int64_t i = 0; i < next; ++i)
+            x[i] = (((x[i] - c0[i] * x0) - c1[i] * x1) - c2[i] * x2) - c3[i] * x3;
+    }
+    for (; j >= 0; --j) {  /* the first n mod 4 columns */
+        const double *c0 = a + j * n;
+        x[j] = x[j] / c0[j];
+        for (int64_t i = 0; i < j; ++i)
+            x[i] = x[i] - c0[i] * x[j];
+    }
+}
+
+/* The triangular solves are most of a step's time (seven a step on the slider-crank): their
+ * AVX2 copy takes about 0.8x the time of the baseline one. */
+#ifdef PHC_AVX2_DISPATCH
+__attribute__((target("avx2"))) static void lu_solve_avx2(int64_t n, const double *a, const int64_t *piv, double *x)
+{
+    lu_solve_body(n, a, piv, x);
+}
+#endif
+
 static void lu_solve(int64_t n, const double *a, const int64_t *piv, double *x)
 {
-    for (int64_t k = 0; k < n; ++k)
-        if (piv[k] != k) {
-            double tmp = x[k];
-            x[k] = x[piv[k]];
-            x[piv[k]] = tmp;
-        }
-    int64_t j = 0;
-    for (; j + 1 < n; j += 2) {  /* L z = P x: columns j and j + 1 */
-        const double *c0 = a + j * n, *c1 = c0 + n;
-        const double x0 = x[j];
-        x[j + 1] -= c0[j + 1] * x0;
-        const double x1 = x[j + 1];
-        for (int64_t i = j + 2; i < n; ++i)
-            x[i] = (x[i] - c0[i] * x0) - c1[i] * x1;
+#ifdef PHC_AVX2_DISPATCH
+    if (__builtin_cpu_supports("avx2")) {
+        lu_solve_avx2(n, a, piv, x);
+        return;
     }
-    for (j = n - 1; j >= 1; j -= 2) {  /* U x = z: columns j and j - 1 */
-        const double *c0 = a + j * n, *c1 = c0 - n;
-        x[j] /= c0[j];
-        const double x0 = x[j];
-        x[j - 1] -= c0[j - 1] * x0;
-        x[j - 1] /= c1[j - 1];
-        const double x1 = x[j - 1];
-        for (int64_t i = 0; i < j - 1; ++i)
-            x[i] = (x[i] - c0[i] * x0) - c1[i] * x1;
-    }
-    if (j == 0)  /* n odd: the first column is left */
-        x[0] /= a[0];
+#endif
+    lu_solve_body(n, a, piv, x);
 }
 
 /* x <- A^-T x from the LU of lu_factor (A^T = U^T L^T P) */
@@ -310,16 +400,69 @@ static double inverse_norm1(int64_t n, const double *a, const int64_t *piv, doub
 
 /* ---- the operations of phc.simulation.step_logic.newton ---------------------------------- */
 
+/* The stage point xs = y + s (y1 - y) and the difference quotient d = (y1 - y)/h of the iterate
+ * y1 (a division an unknown: in AVX2's four lanes where the CPU has them, as lu_solve). */
+static inline __attribute__((always_inline)) void stage_point_body(int64_t n, const double *restrict y,
+                                                                   const double *restrict y1, double s, double h,
+                                                                   double *restrict xs, double *restrict d)
+{
+    for (int64_t i = 0; i < n; ++i) {
+        const double dy = y1[i] - y[i];
+        xs[i] = y[i] + s * dy;
+        d[i] = dy / h;
+    }
+}
+
+/* The Newton test's weights' quotients q = w/(1 + |y1| w) (correct), likewise. */
+static inline __attribute__((always_inline)) void quotients_body(int64_t n, const double *restrict wt,
+                                                                 const double *restrict y1, double *restrict q)
+{
+    for (int64_t i = 0; i < n; ++i)
+        q[i] = wt[i] / (1.0 + fabs(y1[i]) * wt[i]);
+}
+
+#ifdef PHC_AVX2_DISPATCH
+__attribute__((target("avx2"))) static void stage_point_avx2(int64_t n, const double *y, const double *y1, double s,
+                                                              double h, double *xs, double *d)
+{
+    stage_point_body(n, y, y1, s, h, xs, d);
+}
+
+__attribute__((target("avx2"))) static void quotients_avx2(int64_t n, const double *wt, const double *y1, double *q)
+{
+    quotients_body(n, wt, y1, q);
+}
+#endif
+
+static void stage_point(int64_t n, const double *y, const double *y1, double s, double h, double *xs, double *d)
+{
+#ifdef PHC_AVX2_DISPATCH
+    if (__builtin_cpu_supports("avx2")) {
+        stage_point_avx2(n, y, y1, s, h, xs, d);
+        return;
+    }
+#endif
+    stage_point_body(n, y, y1, s, h, xs, d);
+}
+
+static void quotients(int64_t n, const double *wt, const double *y1, double *q)
+{
+#ifdef PHC_AVX2_DISPATCH
+    if (__builtin_cpu_supports("avx2")) {
+        quotients_avx2(n, wt, y1, q);
+        return;
+    }
+#endif
+    quotients_body(n, wt, y1, q);
+}
+
 /* F at the stage point of the iterate y1, the end-constraint rows replaced by g(t + h, y1), into
  * out; whether every entry is finite (compiled_steps_kernel._stage_residual) */
 static int stage_residual(const struct phc_steps *w, double t, double h, const double *y, const double *y1, double s,
                           double *out)
 {
     const int64_t n = w->n;
-    for (int64_t i = 0; i < n; ++i) {
-        w->d[i] = (y1[i] - y[i]) / h;
-        w->xs[i] = y[i] + s * (y1[i] - y[i]);
-    }
+    stage_point(n, y, y1, s, h, w->xs, w->d);
     w->residual(t + s * h, w->xs, w->d, w->p, out);
     if (w->nend > 0) {
         w->invariants(t + h, y1, w->p, w->g);
@@ -338,11 +481,7 @@ static int refactor(const struct phc_steps *w, int m, double t, double h, const 
     double *rs = w->eq + (int64_t)m * 2 * n, *cs = rs + n;
     double *matf = w->matf + 3 * m;
     w->ist[I_NFACT] += 1;
-    for (int64_t i = 0; i < n; ++i) {
-        w->d[i] = y1[i] - y[i];
-        w->xs[i] = y[i] + s * w->d[i];
-        w->d[i] = w->d[i] / h;
-    }
+    stage_point(n, y, y1, s, h, w->xs, w->d);
     const double cj = 1.0 / (s * h);
     w->jacobian(t + s * h, w->xs, w->d, w->p, cj, w->jbuf);
     if (w->nend > 0)
@@ -380,11 +519,29 @@ static int refactor(const struct phc_steps *w, int m, double t, double h, const 
             a[j * n + i] *= rs[i] * cs[j];
     if (lu_factor(n, a, w->piv + (int64_t)m * n) != 0)
         return SINGULAR;
+    lu_permutation(n, w->piv + (int64_t)m * n, w->perm + (int64_t)m * n);
     matf[0] = h;
     matf[1] = s;
     matf[2] = 1.0;
     w->ist[I_AGE0 + m] = 0;
     return OK;
+}
+
+/* One entry of the correction's size (correct): the running maxima of its size (times q, the
+ * weights' quotient, when weighted), of |y1| + 1 and of a GGL multiplier's (alg 1) size. */
+static inline void examine(double r, double y1, int weighted, double q, int8_t alg, double *size, double *scale,
+                           double *algmax)
+{
+    double a = fabs(r);
+    if (fabs(y1) + 1.0 > *scale)
+        *scale = fabs(y1) + 1.0;
+    if (weighted) {
+        if (alg == 1 && a > *algmax)
+            *algmax = a;
+        a = a * q;
+    }
+    if (a > *size)
+        *size = a;
 }
 
 /* The correction delta = -J^-1 F at y1 (into w->r) and its size in the Newton test's units: with
@@ -404,27 +561,47 @@ static int correct(const struct phc_steps *w, int m, double t, double h, const d
     *finite_out = 1;
     if (!stage_residual(w, t, h, y, y1, s, r))
         return EVAL;
+    /* delta = C (R J C)^-1 R (-F), the right-hand side gathered in the LU's row order (into d:
+     * free once the residual is evaluated) */
+    const int64_t *perm = w->perm + (int64_t)m * n;
+    double *x = w->d;
     for (int64_t i = 0; i < n; ++i)
-        r[i] = -r[i] * rs[i];
-    lu_solve(n, w->lu + (int64_t)m * n * n, w->piv + (int64_t)m * n, r);
+        x[i] = -r[perm[i]] * rs[perm[i]];
+    lu_solve(n, w->lu + (int64_t)m * n * n, NULL, x);
     for (int64_t i = 0; i < n; ++i)
-        r[i] *= cs[i];
+        r[i] = x[i] * cs[i];
     double size = 0.0, scale = 1.0, alg = 0.0;
-    int finite = 1;
     const int weighted = w->weights != NULL;
-    for (int64_t i = 0; i < n; ++i) {
-        double a = fabs(r[i]);
-        if (!isfinite(a))
-            finite = 0;
-        if (fabs(y1[i]) + 1.0 > scale)
-            scale = fabs(y1[i]) + 1.0;
-        if (weighted) {
-            if (w->algmask[i] == 1 && a > alg)
-                alg = a;
-            a = a * (w->weights[i] / (1.0 + fabs(y1[i]) * w->weights[i]));
-        }
-        if (a > size)
-            size = a;
+    /* the weights' quotients first, in a loop of their own that the compiler vectorizes (one
+     * division an unknown is most of this function's own time); xs, the stage point, is free
+     * once the residual is evaluated (without weights q is read, not used) */
+    double *q = w->xs;
+    if (weighted)
+        quotients(n, w->weights, y1, q);
+    const int finite = all_finite(n, r);
+    /* the largest entries, in four running maxima (every fourth entry each), then the largest of
+     * them: a maximum does not depend on the order (a NaN, never larger, is skipped either way),
+     * and four short chains of comparisons wait less than one long one */
+    double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0, c0 = 1.0, c1 = 1.0, c2 = 1.0, c3 = 1.0;
+    double a0 = 0.0, a1 = 0.0, a2 = 0.0, a3 = 0.0;
+    const int8_t *am = w->algmask;
+    int64_t i = 0;
+    for (; i + 3 < n; i += 4) {
+        examine(r[i], y1[i], weighted, q[i], am[i], &s0, &c0, &a0);
+        examine(r[i + 1], y1[i + 1], weighted, q[i + 1], am[i + 1], &s1, &c1, &a1);
+        examine(r[i + 2], y1[i + 2], weighted, q[i + 2], am[i + 2], &s2, &c2, &a2);
+        examine(r[i + 3], y1[i + 3], weighted, q[i + 3], am[i + 3], &s3, &c3, &a3);
+    }
+    for (; i < n; ++i)
+        examine(r[i], y1[i], weighted, q[i], am[i], &s0, &c0, &a0);
+    const double sizes[4] = {s0, s1, s2, s3}, scales[4] = {c0, c1, c2, c3}, algs[4] = {a0, a1, a2, a3};
+    for (int k = 0; k < 4; ++k) {
+        if (sizes[k] > size)
+            size = sizes[k];
+        if (scales[k] > scale)
+            scale = scales[k];
+        if (algs[k] > alg)
+            alg = algs[k];
     }
     const double states = size;
     if (weighted) {
