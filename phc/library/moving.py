@@ -24,7 +24,9 @@ Effect `axial` (beyond the paper; docs/crank-test-problem.md): the centerline
 the current chord length ``ℓ = L + ∫ε`` (a position invariant). P1/P0 for (p_a, ε) as
 for the string; the modulation is tested with one matrix ``C_ij = ∫ρ φ_i^a φ_j^b`` on
 both sides, so it cancels exactly in the discrete power balance. Only the bending is
-Kelvin–Voigt damped.
+Kelvin–Voigt damped. The flows of `m0`, `mf` are the end cross-sections' rotation rates
+``ω + ∂ẇ/∂ξ = ∂e_p/∂ξ − (1/L − 1/ℓ)(v_f − v_0)`` (the slope rate alone is ``(1 + ε_mean)ω``
+for a stretched beam), their moments acting through the transpose.
 """
 
 from __future__ import annotations
@@ -215,10 +217,27 @@ def lower_moving_beam(b, ctx, name, spec, path):
             fields.d_load_vector("p", r, omega_d * e_pt * rho.expr)
     fields.d_load("p", dof0, nv.dot(eq0 + e0))
     fields.d_load("p", dofL, nv.dot(eqf + ef))
-    ds.rel(ports["m0"].f[0] - fields.d_trace("p", slope0), solve=ports["m0"].f[0], label="m0.flow")
-    fields.d_load("p", slope0, ports["m0"].e[0])
-    ds.rel(ports["mf"].f[0] - fields.d_trace("p", slopeL), solve=ports["mf"].f[0], label="mf.flow")
-    fields.d_load("p", slopeL, ports["mf"].e[0])
+    if axial:
+        # The end cross-sections rotate with the chord (ω = (v_f − v_0)/ℓ) plus the elastic
+        # slope rate ∂ẇ/∂ξ = ∂e_p/∂ξ − (v_f − v_0)/L: the rate of the velocity field's slope
+        # alone, ∂e_p/∂ξ = ωℓ/L + ∂ẇ/∂ξ, would count the chord's rotation (1 + ε_mean) times
+        # and a clamp through `m0` would let the beam lag its hub by L·Ω·ε_mean. The flow is
+        # ∂e_p/∂ξ − c (v_f − v_0), c = 1/L − 1/ℓ, so the moment enters as its transpose: on the
+        # slope and ∓c on the two end values (the port pair's power is exact for any c). ℓ is
+        # the invariant L + ∫ε, not |q_f − q_0|: at a midpoint of a rotating step the chord
+        # of the averaged ends is shorter by O((ωh)²), which would read as a stretch.
+        c = stretch / (L * (L + stretch))
+        for pname, slope in (("m0", slope0), ("mf", slopeL)):
+            rot = fields.d_trace("p", slope) - c * (wL - w0)
+            ds.rel(ports[pname].f[0] - rot, solve=ports[pname].f[0], label=f"{pname}.flow")
+            fields.d_load("p", slope, ports[pname].e[0])
+            fields.d_load("p", dofL, -c * ports[pname].e[0])
+            fields.d_load("p", dof0, c * ports[pname].e[0])
+    else:
+        ds.rel(ports["m0"].f[0] - fields.d_trace("p", slope0), solve=ports["m0"].f[0], label="m0.flow")
+        fields.d_load("p", slope0, ports["m0"].e[0])
+        ds.rel(ports["mf"].f[0] - fields.d_trace("p", slopeL), solve=ports["mf"].f[0], label="mf.flow")
+        fields.d_load("p", slopeL, ports["mf"].e[0])
     structure = ds.describe(states=(q0x, q0y, qfx, qfy))
     # Certification: flows of the four ports range over (λ_t t + λ_0 n, λ_t t + λ_f n, λ_a, λ_b).
     d = DiracBuilder(name, "moving_beam", span)
