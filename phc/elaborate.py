@@ -92,6 +92,7 @@ class _Elaborator(Reporter):
         self.resistive_laws: list = []
         self.rigid_constraints: list = []
         self.extra_outputs: dict = {}
+        self.signals: dict = {}  # signal blocks' outputs by name, read by later components
         self.initial_relations: list = []
         self.position_maps: list = []
         self.compile_time_parameters: set = set()
@@ -462,7 +463,7 @@ class _Elaborator(Reporter):
                 deferred.append((cname, comp, full, path))
                 continue
             self._lower(LOWERERS, ctx, full, comp, path)
-        for cname, comp, full, path in deferred:
+        for cname, comp, full, path in self._reading_order(ctx, deferred):
             self._lower(LOWERERS, ctx, full, comp, path)
         for i, conn in enumerate(spec.connections):
             if self._skipped(ctx, conn.between[0]):
@@ -472,6 +473,42 @@ class _Elaborator(Reporter):
             # in the file nested as `inner` (unique across the model: certificates are keyed by it)
             self.connections.append((a, b, ctx.smap.locate(("connections", i)), f"{ctx.prefix}connections[{i}]"))
         self._check_refs(ctx)
+
+    def _reading_order(self, ctx: FileContext, deferred: list) -> list:
+        """The components that read others' states, each after the deferred components it
+        reads (a source reading a signal block's output after the block), otherwise in the
+        order written. A cycle (blocks reading each other's outputs or states) has no such
+        order: PHC-E128 at each component on it; those and the ones reading them are not
+        lowered."""
+        names = {cname for cname, *_ in deferred}
+        reads = {cname: (state_reads(comp) or set()) & names - {cname} for cname, comp, *_ in deferred}
+        done: set = set()
+        out = []
+        pending = list(deferred)
+        while pending:
+            ready = [item for item in pending if reads[item[0]] <= done]
+            if not ready:  # the rest reads a cycle or is on one
+                left = {cname for cname, *_ in pending}
+                for cname, comp, full, path in pending:
+                    self.failed.add(full)
+                    seen, todo = set(), list(reads[cname] & left)
+                    while todo:  # what cname reads, directly or through others left
+                        r = todo.pop()
+                        if r not in seen:
+                            seen.add(r)
+                            todo.extend(reads[r] & left)
+                    if cname not in seen:
+                        continue  # not on a cycle: it fails with the ones it reads
+                    cycle = ", ".join(f"`{r}`" for r in sorted(seen | {cname}))
+                    self.error("PHC-E128", f"`{cname}` is on a cycle of components that read each other ({cycle}): "
+                               "phc lowers a component after the ones it reads, and a cycle has no such order", ctx, path,
+                               hint="write blocks that feed each other as one `state_space` block (its A, B, C, D "
+                               "combine theirs), reading the plant only")
+                break
+            done |= {cname for cname, *_ in ready}
+            out.extend(ready)
+            pending = [item for item in pending if item[0] not in done]
+        return out
 
     def _lower(self, lowerers, ctx, full, comp, path) -> None:
         from phc.lowering import lower
@@ -534,7 +571,7 @@ class _Elaborator(Reporter):
         return LoweringContext(default_values=ro(self._default_values), variables=ReadOnlySequence(self.variables),
                                ports=ro(self.ports), unset_parameters=frozenset(self.unset_parameters),
                                units=ro(self.units), unit_text=ro(self.unit_text), override_note=self.override_note,
-                               files=self.files)
+                               files=self.files, signals=ro(self.signals))
 
     def _fold(self, lowering) -> None:
         """Append one component's :class:`~phc.lowering.ComponentLowering` to the model:
@@ -568,6 +605,7 @@ class _Elaborator(Reporter):
         self.resistive_laws.extend(lowering.resistive_laws)
         self.rigid_constraints.extend(lowering.rigid_constraints)
         self.extra_outputs.update(lowering.extra_outputs)
+        self.signals.update(lowering.signals)
         self.initial_relations.extend(lowering.initial_relations)
         self.position_maps.extend(lowering.position_maps)
         self.compile_time_parameters |= lowering.compile_time_parameters
