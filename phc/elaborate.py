@@ -43,7 +43,7 @@ import sympy as sp
 from phc.budget import MeshLedger
 from phc.dae import Equation, Invariant, Parameter, Variable
 from phc.diagnostics import Diagnostic, DiagnosticList
-from phc.interconnect import MODULATED, state_reads
+from phc.interconnect import MODULATED, reading_order, state_reads
 from phc.files import MAX_INCLUDE_DEPTH, MAX_MODEL_INSTANCES, FileAccess, FileRefused
 from phc.reporter import FileContext, Port, Reporter
 from phc.scene import SceneApplication
@@ -475,40 +475,22 @@ class _Elaborator(Reporter):
         self._check_refs(ctx)
 
     def _reading_order(self, ctx: FileContext, deferred: list) -> list:
-        """The components that read others' states, each after the deferred components it
-        reads (a source reading a signal block's output after the block), otherwise in the
-        order written. A cycle (blocks reading each other's outputs or states) has no such
-        order: PHC-E128 at each component on it; those and the ones reading them are not
-        lowered."""
-        names = {cname for cname, *_ in deferred}
-        reads = {cname: (state_reads(comp) or set()) & names - {cname} for cname, comp, *_ in deferred}
-        done: set = set()
-        out = []
-        pending = list(deferred)
-        while pending:
-            ready = [item for item in pending if reads[item[0]] <= done]
-            if not ready:  # the rest reads a cycle or is on one
-                left = {cname for cname, *_ in pending}
-                for cname, comp, full, path in pending:
-                    self.failed.add(full)
-                    seen, todo = set(), list(reads[cname] & left)
-                    while todo:  # what cname reads, directly or through others left
-                        r = todo.pop()
-                        if r not in seen:
-                            seen.add(r)
-                            todo.extend(reads[r] & left)
-                    if cname not in seen:
-                        continue  # not on a cycle: it fails with the ones it reads
-                    cycle = ", ".join(f"`{r}`" for r in sorted(seen | {cname}))
-                    self.error("PHC-E128", f"`{cname}` is on a cycle of components that read each other ({cycle}): "
-                               "phc lowers a component after the ones it reads, and a cycle has no such order", ctx, path,
-                               hint="write blocks that feed each other as one `state_space` block (its A, B, C, D "
-                               "combine theirs), reading the plant only")
-                break
-            done |= {cname for cname, *_ in ready}
-            out.extend(ready)
-            pending = [item for item in pending if item[0] not in done]
-        return out
+        """The deferred components in the order :func:`phc.interconnect.reading_order` gives;
+        PHC-E128 at each one on a cycle (those and the ones reading them are not lowered)."""
+        order, cycles = reading_order([(cname, comp) for cname, comp, *_ in deferred])
+        placed = set(order)
+        for cname, comp, full, path in deferred:
+            if cname in placed:
+                continue
+            self.failed.add(full)
+            if cname in cycles:
+                self.error("PHC-E128", f"`{cname}` is on a cycle of components that read each other "
+                           f"({', '.join(f'`{r}`' for r in cycles[cname])}): phc lowers a component after the "
+                           "ones it reads, and a cycle has no such order", ctx, path,
+                           hint="write blocks that feed each other as one `state_space` block (its A, B, C, D "
+                           "combine theirs), reading the plant only")
+        by_name = {item[0]: item for item in deferred}
+        return [by_name[cname] for cname in order]
 
     def _lower(self, lowerers, ctx, full, comp, path) -> None:
         from phc.lowering import lower
