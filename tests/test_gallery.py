@@ -97,6 +97,27 @@ def test_dc_motor_pi_matches_the_closed_loop_equations():
     assert r.outputs["voltage"][-1] > np.interp(tl, r.t, r.outputs["voltage"]) + 0.3  # more voltage for the load
 
 
+def test_dc_motor_pi_closed_loop_eigenvalues_are_those_of_the_motor_equations():
+    """`phc linearize` of the PI loop against the matrix of the equations in the model's
+    header, states (i, ω_m, θ, ω_l, z), with V = Kp (w_ref − N ω_m) + Ki z. The Jacobians
+    are exact (generated code), so QZ round-off on a matrix of norm ~1e4 is the only error:
+    1e-9 relative is far above it."""
+    Kp, Ki = 0.5, 5.0
+    R, L, Km, Jm, N, ks, Jl, c = 1.0, 0.01, 0.05, 1e-4, 0.1, 50.0, 0.01, 1e-3
+    A = np.array([[-R / L, -(Kp * N + Km) / L, 0.0, 0.0, Ki / L],
+                  [Km / Jm, 0.0, -N * ks / Jm, 0.0, 0.0],
+                  [0.0, N, 0.0, -1.0, 0.0],
+                  [0.0, 0.0, ks / Jl, -c / Jl, 0.0],
+                  [0.0, -N, 0.0, 0.0, 0.0]])
+    expected = sorted(np.linalg.eigvals(A), key=lambda z: (round(z.real, 6), z.imag))
+    lin = phc.linearize_model(MODELS / "dc_motor_pi.yaml")
+    found = sorted(lin.eigenvalues, key=lambda z: (round(z.real, 6), z.imag))
+    assert len(found) == 5 and lin.n_states == 5
+    for a, b in zip(found, expected):
+        assert abs(a - b) <= 1e-9 * abs(b), (found, expected)
+    assert max(z.real for z in expected) < 0  # the loop is stable
+
+
 def test_two_mass_chain_with_a_cubic_spring_matches_the_duffing_equations():
     m1, m2, k1, k, k3, c = 1.0, 2.0, 10.0, 5.0, 50.0, 0.5
 
