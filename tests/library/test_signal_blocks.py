@@ -182,6 +182,52 @@ def test_energy_balance_counts_the_drive_as_supplied_power(tmp_path):
     assert work[-1] > 0.1  # the controller did work on the plant
 
 
+INNER = """
+format_version: 1
+parameters: {m: 2.0, v_ref: 1.0, Kp: 3.0, Ki: 5.0}
+components:
+  drive: {type: effort_source, value: "ctrl.y"}
+  body: {type: mass, m: m}
+  ctrl: {type: pi, input: "v_ref - body.p/m", Kp: Kp, Ki: Ki}
+  node: {type: junction, kind: common_flow, ports: [m, f, x]}
+connections:
+  - [node.m, body.port]
+  - [node.f, drive.port]
+ports:
+  x: {port: node.x}
+"""
+
+OUTER = """
+format_version: 1
+components:
+  plant: {type: model, file: inner.yaml}
+  spring: {type: spring, k: 8.0}
+connections:
+  - [plant.x, spring.port]
+simulation:
+  t_end: 2.0
+  n_out: 401
+  rtol: 1.0e-10
+  atol: 1.0e-12
+  outputs:
+    v: plant.body.p / 2.0
+    force: plant.ctrl.y
+"""
+
+
+def test_a_block_in_a_nested_file_reads_the_names_written_there(tmp_path):
+    """Inside a nested file the block reads `body.p` and the source `ctrl.y` (the names
+    written there, without the `plant.` prefix); the model equals the flat one. Both are
+    integrated by IDA at rtol 1e-10: 1e-7 allows for two runs' global errors."""
+    (tmp_path / "inner.yaml").write_text(INNER)
+    (tmp_path / "outer.yaml").write_text(OUTER)
+    nested = phc.simulate(phc.compile_model(tmp_path / "outer.yaml"))
+    flat = phc.simulate(phc.compile_model(_write(tmp_path, PI)))
+    assert nested.success and flat.success
+    for name in ("v", "force"):
+        assert np.abs(nested.outputs[name] - flat.outputs[name]).max() < 1e-7, name
+
+
 def _refused(tmp_path, controller, code):
     path = _write(tmp_path, controller)
     dae, diags = phc.build_dae(path)
