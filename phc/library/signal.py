@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import sympy as sp
 
-from phc.library.lumped import _scope, _state_scope
+from phc.library.lumped import _check_coefficient, _scope, _state_scope
 
 
 def _indexed(name: str, local: str, n: int) -> list[str]:
@@ -72,13 +72,14 @@ def lower_pi(b, ctx, name, spec, path):
     (z, dz), = _states(b, name, "z", 1, span)
     y = Kp * e + Ki * z
     if spec.Kd is not None:
-        if spec.Tf is None:
+        Kd = b.expr(ctx, spec.Kd, (*path, "Kd"), params)
+        if spec.Tf is None:  # reported; lowered on with Tf = 1 so that what reads the block finds its output
             b.error("PHC-E102", f"`{name}` has a derivative gain `Kd` but no filter time constant `Tf`", ctx,
                     (*path, "Kd"), hint="add `Tf` (> 0), e.g. a tenth of the loop's fastest time constant")
-            b.failed.add(name)
-            return
-        Kd = b.expr(ctx, spec.Kd, (*path, "Kd"), params)
-        Tf = b.expr(ctx, spec.Tf, (*path, "Tf"), params)
+            Tf = sp.Integer(1)
+        else:
+            Tf = _check_coefficient(b, ctx, name, spec, path, "Tf", True,
+                                    "the derivative filter's time constant must be positive")
         (d, dd), = _states(b, name, "d", 1, span)
         # Kd·s/(Tf·s + 1) e = Kd (e − d)/Tf with the lag Tf ḋ = e − d
         b.add_equation(dd - (e - d) / Tf, name, "signal", "filter", span)

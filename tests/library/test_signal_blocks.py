@@ -248,3 +248,11 @@ def test_blocks_reading_each_other_in_a_cycle_are_refused(tmp_path):
              '  other: {type: state_space, input: ["ctrl.y"], A: [[-1]], B: [[1]], C: [[1]], D: [[1]]}')
     errors = _refused(tmp_path, cycle, "PHC-E128")
     assert {e.path for e in errors if e.code == "PHC-E128"} >= {"components.ctrl", "components.other"}
+
+
+def test_a_pid_needs_a_positive_filter_time_constant(tmp_path):
+    errors = _refused(tmp_path, '  ctrl: {type: pi, input: "v_ref - body.p/m", Kp: Kp, Ki: Ki, Kd: Kd}', "PHC-E102")
+    assert "`Tf`" in errors[0].message and errors[0].path == "components.ctrl.Kd"
+    errors = _refused(tmp_path, '  ctrl: {type: pi, input: "v_ref - body.p/m", Kp: Kp, Ki: Ki, Kd: Kd, Tf: -Tf}',
+                      "PHC-E405")
+    assert "`Tf` of `ctrl` is -0.05" in errors[0].message
