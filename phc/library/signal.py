@@ -21,19 +21,19 @@ import sympy as sp
 from phc.library.lumped import _check_coefficient, _scope, _state_scope
 
 
-def _indexed(name: str, local: str, n: int) -> list[str]:
+def _indexed(local: str, n: int) -> list[str]:
     return [local] if n == 1 else [f"{local}[{i}]" for i in range(n)]
 
 
 def _publish(b, name: str, y: list) -> None:
     """Make the outputs readable as ``name.y`` (``name.y[k]``) by later components and outputs."""
-    for local, value in zip(_indexed(name, "y", len(y)), y):
+    for local, value in zip(_indexed("y", len(y)), y):
         b.signals[f"{name}.{local}"] = value
         b.extra_outputs[f"{name}.{local}"] = value
 
 
 def _states(b, name: str, local: str, n: int, span) -> list:
-    return [b.add_state(name, loc, span) for loc in _indexed(name, local, n)]
+    return [b.add_state(name, loc, span) for loc in _indexed(local, n)]
 
 
 def lower_state_space(b, ctx, name, spec, path):
@@ -87,6 +87,10 @@ def lower_pi(b, ctx, name, spec, path):
     rate = e
     if spec.limits is not None:
         lo, hi = (b.expr(ctx, v, (*path, "limits", i), params) for i, v in enumerate(spec.limits))
+        bounds = [v.xreplace(dict(b.default_values())) for v in (lo, hi)]
+        if all(v.is_number for v in bounds) and not bounds[0] < bounds[1]:
+            b.error("PHC-E405", f"`limits` of `{name}` are [{float(bounds[0]):g}, {float(bounds[1]):g}] at the "
+                    "default parameters; the lower limit must be below the upper", ctx, (*path, "limits"))
         # conditional integration: hold the integral while the output is clamped and the
         # error would drive it further into the limit
         rate = sp.Piecewise((0, sp.And(y > hi, Ki * e > 0)), (0, sp.And(y < lo, Ki * e < 0)), (e, True))

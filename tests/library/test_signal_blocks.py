@@ -106,6 +106,25 @@ def test_a_first_order_lag_as_a_state_space_block(tmp_path):
     _same_spectrum(lin.eigenvalues, np.linalg.eigvals(A))
 
 
+def test_a_state_space_block_with_two_inputs_states_and_outputs(tmp_path):
+    """ż₀ = e, ż₁ = (−x − z₁)/τ; y₀ = Ki z₀ + Kp e, y₁ = z₁; F = y₀ + kx y₁: the spectrum of
+    (p, x, z₀, z₁), and the outputs `ctrl.y[1]` and `ctrl.z[1]` are the same signal."""
+    tau, kx = 0.2, 2.0
+    block = (f'  ctrl: {{type: state_space, input: ["v_ref - body.p/m", "-spring.x"], '
+             f'A: [[0, 0], [0, -1/{tau}]], B: [[1, 0], [0, 1/{tau}]], C: [[Ki, 0], [0, 1]], D: [[Kp, 0], [0, 0]]}}')
+    text = PLANT.format(controller=block, t_end=2.0).replace('value: "ctrl.y"', f'value: "ctrl.y[0] + {kx}*ctrl.y[1]"')
+    text = text.replace("    force: ctrl.y\n    z: ctrl.z\n", "    lagged: ctrl.y[1]\n    z1: ctrl.z[1]\n")
+    path = tmp_path / "two.yaml"
+    path.write_text(text)
+    A = np.array([[-Kp / m, -k, Ki, kx], [1 / m, 0, 0, 0], [-1 / m, 0, 0, 0], [0, -1 / tau, 0, -1 / tau]])
+    lin = phc.linearize_model(path, certify=False)
+    assert lin.n_states == 4
+    _same_spectrum(lin.eigenvalues, np.linalg.eigvals(A))
+    r = phc.simulate(phc.compile_model(path))
+    assert r.success, r.message
+    assert np.array_equal(r.outputs["lagged"], r.outputs["z1"]) and np.abs(r.outputs["z1"]).max() > 1e-3
+
+
 def test_anti_windup_holds_the_integral_while_the_drive_saturates(tmp_path):
     """A mass with a damper (no spring) driven from rest towards a speed it cannot reach
     quickly: while the output is clamped at Fmax the speed is the closed form
@@ -250,9 +269,12 @@ def test_blocks_reading_each_other_in_a_cycle_are_refused(tmp_path):
     assert {e.path for e in errors if e.code == "PHC-E128"} >= {"components.ctrl", "components.other"}
 
 
-def test_a_pid_needs_a_positive_filter_time_constant(tmp_path):
+def test_a_pid_needs_a_positive_filter_time_constant_and_limits_in_order(tmp_path):
     errors = _refused(tmp_path, '  ctrl: {type: pi, input: "v_ref - body.p/m", Kp: Kp, Ki: Ki, Kd: Kd}', "PHC-E102")
     assert "`Tf`" in errors[0].message and errors[0].path == "components.ctrl.Kd"
     errors = _refused(tmp_path, '  ctrl: {type: pi, input: "v_ref - body.p/m", Kp: Kp, Ki: Ki, Kd: Kd, Tf: -Tf}',
                       "PHC-E405")
     assert "`Tf` of `ctrl` is -0.05" in errors[0].message
+    errors = _refused(tmp_path, '  ctrl: {type: pi, input: "v_ref - body.p/m", Kp: Kp, Ki: Ki, limits: [Fmax, -Fmax]}',
+                      "PHC-E405")
+    assert "`limits` of `ctrl` are [1.5, -1.5]" in errors[0].message
