@@ -171,6 +171,13 @@ def test_the_midpoint_rule_integrates_the_block_with_the_plant_at_second_order(t
         assert 3.9 < coarse / fine < 4.1, errors
 
 
+def test_a_blocks_state_starts_where_the_initial_values_say(tmp_path):
+    r = phc.simulate(phc.compile_model(_write(tmp_path, PI)), initial={"ctrl.z": 0.2})
+    assert r.success, r.message
+    assert r.outputs["z"][0] == 0.2
+    assert abs(r.outputs["force"][0] - (Kp * 1.0 + Ki * 0.2)) < 1e-12  # at rest: e = v_ref = 1
+
+
 def test_check_lists_the_block_outside_the_certificate_and_certifies_the_plant(tmp_path):
     report = phc.certify_model(_write(tmp_path, PI))
     text = report.render_text()
