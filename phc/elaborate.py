@@ -43,7 +43,7 @@ import sympy as sp
 from phc.budget import MeshLedger
 from phc.dae import Equation, Invariant, Parameter, Variable
 from phc.diagnostics import Diagnostic, DiagnosticList
-from phc.interconnect import MODULATED, state_reads
+from phc.interconnect import MODULATED, reading_order, state_reads
 from phc.files import MAX_INCLUDE_DEPTH, MAX_MODEL_INSTANCES, FileAccess, FileRefused
 from phc.reporter import FileContext, Port, Reporter
 from phc.scene import SceneApplication
@@ -92,6 +92,7 @@ class _Elaborator(Reporter):
         self.resistive_laws: list = []
         self.rigid_constraints: list = []
         self.extra_outputs: dict = {}
+        self.signals: dict = {}  # signal blocks' outputs by name, read by later components
         self.initial_relations: list = []
         self.position_maps: list = []
         self.compile_time_parameters: set = set()
@@ -462,7 +463,7 @@ class _Elaborator(Reporter):
                 deferred.append((cname, comp, full, path))
                 continue
             self._lower(LOWERERS, ctx, full, comp, path)
-        for cname, comp, full, path in deferred:
+        for cname, comp, full, path in self._reading_order(ctx, deferred):
             self._lower(LOWERERS, ctx, full, comp, path)
         for i, conn in enumerate(spec.connections):
             if self._skipped(ctx, conn.between[0]):
@@ -472,6 +473,24 @@ class _Elaborator(Reporter):
             # in the file nested as `inner` (unique across the model: certificates are keyed by it)
             self.connections.append((a, b, ctx.smap.locate(("connections", i)), f"{ctx.prefix}connections[{i}]"))
         self._check_refs(ctx)
+
+    def _reading_order(self, ctx: FileContext, deferred: list) -> list:
+        """The deferred components in the order :func:`phc.interconnect.reading_order` gives;
+        PHC-E128 at each one on a cycle (those and the ones reading them are not lowered)."""
+        order, cycles = reading_order([(cname, comp) for cname, comp, *_ in deferred])
+        placed = set(order)
+        for cname, comp, full, path in deferred:
+            if cname in placed:
+                continue
+            self.failed.add(full)
+            if cname in cycles:
+                self.error("PHC-E128", f"`{cname}` is on a cycle of components that read each other "
+                           f"({', '.join(f'`{r}`' for r in cycles[cname])}): phc lowers a component after the "
+                           "ones it reads, and a cycle has no such order", ctx, path,
+                           hint="write blocks that feed each other as one `state_space` block (its A, B, C, D "
+                           "combine theirs), reading the plant only")
+        by_name = {item[0]: item for item in deferred}
+        return [by_name[cname] for cname in order]
 
     def _lower(self, lowerers, ctx, full, comp, path) -> None:
         from phc.lowering import lower
@@ -534,7 +553,7 @@ class _Elaborator(Reporter):
         return LoweringContext(default_values=ro(self._default_values), variables=ReadOnlySequence(self.variables),
                                ports=ro(self.ports), unset_parameters=frozenset(self.unset_parameters),
                                units=ro(self.units), unit_text=ro(self.unit_text), override_note=self.override_note,
-                               files=self.files)
+                               files=self.files, signals=ro(self.signals))
 
     def _fold(self, lowering) -> None:
         """Append one component's :class:`~phc.lowering.ComponentLowering` to the model:
@@ -568,6 +587,7 @@ class _Elaborator(Reporter):
         self.resistive_laws.extend(lowering.resistive_laws)
         self.rigid_constraints.extend(lowering.rigid_constraints)
         self.extra_outputs.update(lowering.extra_outputs)
+        self.signals.update(lowering.signals)
         self.initial_relations.extend(lowering.initial_relations)
         self.position_maps.extend(lowering.position_maps)
         self.compile_time_parameters |= lowering.compile_time_parameters

@@ -38,7 +38,8 @@ if TYPE_CHECKING:
     from phc.spec.model import ModelSpec
 
 __all__ = ["Interconnection", "interconnect", "build_interconnection_graph", "check_connections", "component_graph", "component_of",
-           "connected_to", "independent_parts", "kinematic_loops", "reads_of", "short_cycle_basis", "to_dot", "traversal_order"]
+           "connected_to", "independent_parts", "kinematic_loops", "reading_order", "reads_of", "short_cycle_basis",
+           "to_dot", "traversal_order"]
 
 
 # -- the one builder ----------------------------------------------------------------------
@@ -85,6 +86,37 @@ def state_reads(comp) -> Optional[set]:
             return None
         read |= found
     return read
+
+
+def reading_order(components: list) -> tuple[list[str], dict[str, list[str]]]:
+    """Names of `components` ((name, spec) pairs of one file, each reading others' states:
+    :func:`state_reads`) ordered so that each comes after those of them it reads (a source
+    after the signal block whose output it reads), otherwise as given; and, for each one on
+    a cycle of reads, the sorted names of the components on or reached from that cycle.
+    Those and the ones reading them are left out of the order."""
+    names = {name for name, _ in components}
+    reads = {name: (state_reads(comp) or set()) & names - {name} for name, comp in components}
+    done: set = set()
+    order: list[str] = []
+    pending = [name for name, _ in components]
+    while pending:
+        ready = [name for name in pending if reads[name] <= done]
+        if not ready:
+            break
+        done.update(ready)
+        order.extend(ready)
+        pending = [name for name in pending if name not in done]
+    cycles = {}
+    for name in pending:
+        seen, todo = set(), list(reads[name] - done)
+        while todo:  # what it reads, directly or through the others left
+            r = todo.pop()
+            if r not in seen:
+                seen.add(r)
+                todo.extend(reads[r] - done)
+        if name in seen:
+            cycles[name] = sorted(seen)
+    return order, cycles
 
 
 def _reads_of_value(matrix) -> Optional[set]:

@@ -74,6 +74,9 @@ class LoweringContext:
     """The scene's parameter overrides, named in refusals of their values."""
     files: Optional[FileAccess] = None
     """What referenced files (tables, matrices) are read through."""
+    signals: Mapping = field(default_factory=lambda: MappingProxyType({}))
+    """Output name (``ctrl.y``) -> its expression in states and `t`: the outputs of the
+    signal blocks lowered before this one (:mod:`phc.library.signal`)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -105,6 +108,8 @@ class ComponentLowering:
     resistive_laws: tuple
     rigid_constraints: tuple
     extra_outputs: tuple[tuple[str, sp.Expr], ...]
+    signals: tuple[tuple[str, sp.Expr], ...]
+    """Outputs of a signal block that later components may read (:attr:`LoweringContext.signals`)."""
     initial_relations: tuple
     position_maps: tuple
     compile_time_parameters: frozenset
@@ -159,6 +164,7 @@ class Recorder(Reporter):
         self.resistive_laws: list = []
         self.rigid_constraints: list = []
         self.extra_outputs: dict[str, sp.Expr] = {}
+        self.signals: dict[str, sp.Expr] = {}
         self.initial_relations: list = []
         self.position_maps: list = []
         self.compile_time_parameters: set = set()
@@ -282,6 +288,7 @@ class Recorder(Reporter):
             quadratic_dissipation=tuple(self.quadratic_dissipation), invariants=tuple(self.invariants),
             velocity_invariants=tuple(self.velocity_invariants), resistive_laws=tuple(self.resistive_laws),
             rigid_constraints=tuple(self.rigid_constraints), extra_outputs=tuple(self.extra_outputs.items()),
+            signals=tuple(self.signals.items()),
             initial_relations=tuple(self.initial_relations), position_maps=tuple(self.position_maps),
             compile_time_parameters=frozenset(self.compile_time_parameters),
             initial_fields=tuple(self.initial_fields.items()), unavailable=tuple(self.unavailable.items()),

@@ -15,6 +15,8 @@ initial_fields     mesh-independent initial data (:data:`phc.initial_fields.FIEL
 sign_role          the sign hints of ``phc check`` (:mod:`phc.checks.signs`)
 state_reads        which fields may name other components' states (:mod:`phc.interconnect`)
 drawing            how ``phc animate`` draws it (:mod:`phc.viz`), or None
+signal             a signal block (a controller with state, :mod:`phc.library.signal`): no
+                   ports, no energy, outside the certificate of ``phc check``
 implicit_effects   effects a user-defined entry of the type has without declaring them
                    (:mod:`phc.effects`; ``rigid`` has ``gravity`` and ``damping``)
 rows               where its rows come from (:data:`ROWS`): ``"derived"`` from its
@@ -23,7 +25,7 @@ rows               where its rows come from (:data:`ROWS`): ``"derived"`` from i
                    a function of the spec when the form decides
 =================  ======================================================================
 
-Every field but `implicit_effects` (empty unless given) is a required keyword: an entry that forgets one is a ``TypeError`` when it
+Every field but `implicit_effects` (empty unless given) and `signal` (False unless given) is a required keyword: an entry that forgets one is a ``TypeError`` when it
 is made, and :func:`register` checks the values (a spec whose ``type`` is not the
 entry's name, an unknown sign role, unit information that is neither given nor declared
 absent with a reason) before the type exists for any pass. The per-type tables other
@@ -245,6 +247,10 @@ class ComponentType:
     has without declaring them, e.g. ``damping`` of a ``phs``: its lowerer reads them with
     :func:`phc.effects.is_on`, and a scene may switch them."""
 
+    signal: bool = False
+    """A signal block: no ports and no energy; ``phc check`` lists it as outside the
+    port-Hamiltonian certificate and the rows check does not compare its rows."""
+
     def rows_of(self, spec) -> str:
         """Where the rows of a component with this `spec` come from (one of :data:`ROWS`)."""
         return self.rows(spec) if callable(self.rows) else self.rows
@@ -293,6 +299,10 @@ class ComponentType:
                 out.append("`implicit_effects` needs a spec with an `effects` field")
             out.extend(f"`implicit_effects`: the default of `{k}` is a bool" for k, v in self.implicit_effects.items()
                        if not isinstance(v, bool))
+        if not isinstance(self.signal, bool):
+            out.append("`signal` is a bool")
+        elif self.signal and isinstance(self.state_reads, StateReads) and not self.state_reads.fields:
+            out.append("a signal block reads its input: name the field in `state_reads`")
         if not (callable(self.rows) or self.rows in ROWS):
             out.append(f"`rows` {self.rows!r} is one of {', '.join(ROWS)} (or a function of the spec to one)")
         return out

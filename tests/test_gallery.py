@@ -18,7 +18,7 @@ from scipy.optimize import brentq, fsolve
 import phc
 
 MODELS = Path(__file__).resolve().parents[1] / "models"
-GALLERY = ["dc_motor_gear", "two_mass_cubic_spring", "quarter_car", "hydraulic_cylinder", "thermal_ladder",
+GALLERY = ["dc_motor_gear", "dc_motor_pi", "two_mass_cubic_spring", "quarter_car", "hydraulic_cylinder", "thermal_ladder",
            "rlc_filter", "double_pendulum", "controlled_beam"]
 TIGHT = dict(rtol=1e-11, atol=1e-13)
 
@@ -69,6 +69,53 @@ def test_dc_motor_gear_matches_the_motor_equations():
     assert wl[-1] > 20.0  # a positive voltage turns the load forward
     # the load torque slows the load down: it runs slower after t_load than just before
     assert r.outputs["load_speed"][-1] < np.interp(tl, r.t, r.outputs["load_speed"])
+
+
+def test_dc_motor_pi_matches_the_closed_loop_equations():
+    """The PI-controlled motor against the motor equations plus the controller's integral
+    state, integrated by scipy at rtol 1e-11 (phc at 1e-10): both are far below the
+    tolerances, which allow for the global error of the looser one over 2 s."""
+    V0, Kp, Ki = 10.0, 0.5, 5.0
+    R, L, Km, Jm, N, ks, Jl, c, TL, tl = 1.0, 0.01, 0.05, 1e-4, 0.1, 50.0, 0.01, 1e-3, 0.2, 1.0
+
+    def loop(t, y):
+        i, wm, th, wl, z = y
+        e = V0 - N * wm
+        V = Kp * e + Ki * z
+        return [(V - R * i - Km * wm) / L, (Km * i - N * ks * th) / Jm, N * wm - wl,
+                (ks * th - c * wl - (TL if t >= tl else 0.0)) / Jl, e]
+
+    r = run("dc_motor_pi")
+    i, wm, th, wl, z = piecewise(loop, [0, 0, 0, 0, 0], [tl], r.t)
+    assert np.abs(r.outputs["current"] - i).max() < 1e-6
+    assert np.abs(r.outputs["load_speed"] - wl).max() < 1e-6
+    assert np.abs(r.outputs["error_integral"] - z).max() < 1e-7
+    assert np.abs(r.outputs["voltage"] - (Kp * (V0 - N * wm) + Ki * z)).max() < 1e-6
+    # the integral action holds the speed at the reference before and after the load step
+    assert abs(np.interp(tl, r.t, r.outputs["load_speed"]) - V0) < 0.02
+    assert abs(r.outputs["load_speed"][-1] - V0) < 0.01
+    assert r.outputs["voltage"][-1] > np.interp(tl, r.t, r.outputs["voltage"]) + 0.3  # more voltage for the load
+
+
+def test_dc_motor_pi_closed_loop_eigenvalues_are_those_of_the_motor_equations():
+    """`phc linearize` of the PI loop against the matrix of the equations in the model's
+    header, states (i, ω_m, θ, ω_l, z), with V = Kp (w_ref − N ω_m) + Ki z. The Jacobians
+    are exact (generated code), so QZ round-off on a matrix of norm ~1e4 is the only error:
+    1e-9 relative is far above it."""
+    Kp, Ki = 0.5, 5.0
+    R, L, Km, Jm, N, ks, Jl, c = 1.0, 0.01, 0.05, 1e-4, 0.1, 50.0, 0.01, 1e-3
+    A = np.array([[-R / L, -(Kp * N + Km) / L, 0.0, 0.0, Ki / L],
+                  [Km / Jm, 0.0, -N * ks / Jm, 0.0, 0.0],
+                  [0.0, N, 0.0, -1.0, 0.0],
+                  [0.0, 0.0, ks / Jl, -c / Jl, 0.0],
+                  [0.0, -N, 0.0, 0.0, 0.0]])
+    expected = sorted(np.linalg.eigvals(A), key=lambda z: (round(z.real, 6), z.imag))
+    lin = phc.linearize_model(MODELS / "dc_motor_pi.yaml")
+    found = sorted(lin.eigenvalues, key=lambda z: (round(z.real, 6), z.imag))
+    assert len(found) == 5 and lin.n_states == 5
+    for a, b in zip(found, expected):
+        assert abs(a - b) <= 1e-9 * abs(b), (found, expected)
+    assert max(z.real for z in expected) < 0  # the loop is stable
 
 
 def test_two_mass_chain_with_a_cubic_spring_matches_the_duffing_equations():

@@ -23,3 +23,14 @@ def test_phc_check_of_the_controlled_beam_says_what_the_gallery_claims():
     assert "tip.p" in actuator  # the state it reads
     (hammer,) = [line for line in text.splitlines() if re.match(r"\s+hammer\s", line)]
     assert "inject" not in hammer  # a source of t alone is an input, not a controller
+
+
+def test_phc_check_of_the_pi_controlled_motor_says_what_the_gallery_claims():
+    gallery = (REPO / "docs" / "gallery.md").read_text(encoding="utf-8")
+    report = phc.certify_model(REPO / "models" / "dc_motor_pi.yaml", samples=0)
+    text = report.render_text()
+    assert report.certified
+    for name in ("supply", "speed_control"):
+        (line,) = [line for line in text.splitlines() if re.match(rf"\s+{name}\s", line)]
+        assert line in gallery, line
+    assert "signal block: outside the port-Hamiltonian certificate" in text

@@ -66,6 +66,22 @@ EXAMPLES = {
     "pde1d": PDE1D,
     "moving_beam": MODELS / "moving_beam.yaml",
     "crank_wheel": CRANK,
+    "pi": MODELS / "dc_motor_pi.yaml",
+    "state_space": """
+format_version: 1
+parameters: {m: 1.0, k: 4.0, tau: 0.1}
+components:
+  body: {type: mass, m: m}
+  spring: {type: spring, k: k}
+  lag: {type: state_space, input: ["-2*spring.x"], A: [[-1/tau]], B: [[1/tau]], C: [[1]]}
+  push: {type: effort_source, value: "lag.y"}
+  node: {type: junction, kind: common_flow, ports: [m, s, f]}
+connections:
+  - [node.m, body.port]
+  - [node.s, spring.port]
+  - [node.f, push.port]
+simulation: {t_end: 1.0, initial: {spring.x: 0.1}}
+""",
 }
 """A small model that uses each type (a file, or the text of one)."""
 
@@ -181,7 +197,7 @@ def test_a_forgotten_or_wrong_field_is_refused_at_registration():
     values = {f.name: getattr(spring, f.name) for f in dataclasses.fields(ComponentType)}
     optional = {f.name for f in dataclasses.fields(ComponentType) if f.default_factory is not dataclasses.MISSING
                 or f.default is not dataclasses.MISSING}
-    assert optional == {"implicit_effects"}  # a type without effects of its own needs none
+    assert optional == {"implicit_effects", "signal"}  # none without effects of its own; physical unless said
     for missing in set(values) - optional:
         with pytest.raises(TypeError, match=missing):
             ComponentType(**{k: v for k, v in values.items() if k != missing})
@@ -193,6 +209,7 @@ def test_a_forgotten_or_wrong_field_is_refused_at_registration():
         "cost": (None, "`cost` is not callable"),
         "spatial_order": (0, "`spatial_order` is a positive integer"),
         "rows": ("by hand", "`rows` 'by hand' is one of derived, hand-written"),
+        "signal": ("yes", "`signal` is a bool"),
     }
     for field, (value, message) in wrong.items():
         with pytest.raises(RegistryError, match=re.escape(message)):
@@ -202,6 +219,8 @@ def test_a_forgotten_or_wrong_field_is_refused_at_registration():
     rigid = registry.get("rigid")
     with pytest.raises(RegistryError, match="the default of `gravity` is a bool"):
         registry.register(dataclasses.replace(rigid, implicit_effects={"gravity": "on"}))
+    with pytest.raises(RegistryError, match="name the field in `state_reads`"):
+        registry.register(dataclasses.replace(spring, name="spring", signal=True))
     with pytest.raises(RegistryError, match="registered already"):
         registry.register(spring)
     beam = registry.get("string")
@@ -349,12 +368,13 @@ def test_the_first_use_from_several_threads_at_once_sees_every_built_in_type():
 
 
 ROW_CASES = {
-    **{kind: (kind, EXAMPLES[kind]) for kind in EXAMPLES},
+    **{kind: (kind, EXAMPLES[kind]) for kind in EXAMPLES if not registry.get(kind).signal},
     "phs (kernel form)": ("phs", MODELS / "quarter_car.yaml"),
     "string (modal truncation)": ("string", STRING_MODES),
 }
 """Each registry entry's example, and the forms whose rows come from elsewhere: a kernel-form
-``phs`` (J/R/B in EXAMPLES) and a modal truncation."""
+``phs`` (J/R/B in EXAMPLES) and a modal truncation. Signal blocks have no description to
+derive rows from or compare them with (:func:`test_a_signal_blocks_rows_are_outside_the_rows_check`)."""
 
 
 def _flip_first_term(expr):
@@ -508,7 +528,27 @@ def test_every_types_rows_are_derived_from_its_description(case, tmp_path, reque
 
 
 def test_every_registry_entry_has_a_rows_case():
-    assert {kind for kind, _ in ROW_CASES.values()} == set(registry.names())
+    signal = {kind for kind in registry.names() if registry.get(kind).signal}
+    assert {kind for kind, _ in ROW_CASES.values()} == set(registry.names()) - signal
+    assert signal == {"pi", "state_space"}
+
+
+@pytest.mark.parametrize("kind", sorted(k for k in registry.names() if registry.get(k).signal))
+def test_a_signal_blocks_rows_are_outside_the_rows_check(kind, tmp_path):
+    """A signal block (a controller with state) has no ports and no description: it writes
+    its rows itself, the rows check leaves it out, and ``phc check`` lists it as outside
+    the certificate while every physical component is compared."""
+    from phc.checks.rows import check_rows, hand_written
+
+    dae, diags = phc.build_dae(_model_path(kind, tmp_path))
+    assert dae is not None, diags.render_text()
+    top = dae.topology
+    names = [name for name, ctype, _ in top.components if ctype == kind]
+    assert names and not {rel.component for rel in top.dirac} & set(names)
+    assert not [p for p in top.ports if p.component in names]
+    assert not set(names) & set(hand_written(dae))
+    cert = check_rows(dae)
+    assert not cert.diagnostics and not set(names) & set(cert.compared)
     assert set(STILL_HAND_WRITTEN) <= set(ROW_CASES)
 
 

@@ -44,6 +44,17 @@ def dc_motor_gear(ax):
     b.legend()
 
 
+def dc_motor_pi(ax):
+    r = simulate("dc_motor_pi")
+    a, b = ax
+    a.plot(r.t, r.outputs["load_speed"], label="load speed")
+    a.axhline(10.0, color="0.6", ls=":", label="reference")
+    a.set(xlabel="t [s]", ylabel="[rad/s]", title="PI speed control (load torque on at 1 s)")
+    a.legend()
+    b.plot(r.t, r.outputs["voltage"], color="C3")
+    b.set(xlabel="t [s]", ylabel="supply voltage [V]", title="the controller's output")
+
+
 def two_mass_cubic_spring(ax):
     r = simulate("two_mass_cubic_spring")
     a, b = ax
@@ -146,7 +157,7 @@ def controlled_beam(ax):
     b.legend()
 
 
-PICTURES = {f.__name__: f for f in (dc_motor_gear, two_mass_cubic_spring, quarter_car, hydraulic_cylinder,
+PICTURES = {f.__name__: f for f in (dc_motor_gear, dc_motor_pi, two_mass_cubic_spring, quarter_car, hydraulic_cylinder,
                                     thermal_ladder, rlc_filter, double_pendulum, controlled_beam)}
 
 

@@ -48,6 +48,18 @@ WARN_RTOL = 1e-6
 ISOTROPY_TOL = 1e-9
 """Largest allowed |⟨f₁,e₂⟩ + ⟨f₂,e₁⟩| on an orthonormal basis of D."""
 
+SIGNAL_NOTE = ("signal block: outside the port-Hamiltonian certificate (no ports, no energy; it acts through "
+               "the sources that read it, whose power is counted as supplied power)")
+"""How ``phc check`` lists a signal block (:mod:`phc.library.signal`)."""
+
+
+def _signal_blocks(top) -> set[str]:
+    """The components of `top` that are signal blocks (:attr:`phc.registry.ComponentType.signal`)."""
+    from phc import registry
+
+    return {name for name, kind, _ in top.components
+            if (entry := registry.find(kind)) is not None and entry.signal}
+
 
 @dataclass
 class ComponentCertificate:
@@ -128,7 +140,7 @@ class Certificate:
         kind_width = max([len(c.kind) for c in self.components] + [20])
         for c in self.components:
             if c.dirac is None:
-                status = f"ports only: {c.note}"
+                status = c.note if c.note == SIGNAL_NOTE else f"ports only: {c.note}"
             else:
                 status = (f"Dirac {'ok' if c.dirac else 'FAILED'}: dim D {c.dim_d} / dim Z {c.dim_z}, "
                           f"isotropy {c.isotropy:.1e}")
@@ -337,6 +349,9 @@ def certify(dae: Dae, n_random: int = 2, seed: int = 0) -> Certificate:
                                         span=rel.span, path=rel.component,
                                         hint="check the relations: one per flow/effort pair, power conserving"))
         comp_certs.append(cert)
+    signal = _signal_blocks(top)
+    comp_certs.extend(ComponentCertificate(name, kind, 0, note=SIGNAL_NOTE) for name, kind, _ in top.components
+                      if name in signal)
     graph = component_graph(top)  # built once: the traversal, the loops and the parts read it
     # with no structure depending on a state or on time, every sample gives the same couplings
     constant_only = all(c.is_constant for c in comps.values())
@@ -352,7 +367,8 @@ def certify(dae: Dae, n_random: int = 2, seed: int = 0) -> Certificate:
 
     # one state where the structure is generic: a random one (the initial state is often special)
     verdicts = classify(graph, comps, samples[1] if len(samples) > 1 else samples[0])
-    parts = independent_parts(graph)
+    # a signal block has no port: it acts through the sources that read it, not a connection
+    parts = [p for p in ([n for n in part if n not in signal] for part in independent_parts(graph)) if p]
     if len(parts) > 1:
         spans = {name: span for name, _, span in top.components}
         diags.append(Diagnostic("PHC-W201", f"the model has {len(parts)} independent parts with no connection "

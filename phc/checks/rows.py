@@ -684,7 +684,8 @@ def hand_written(dae: Dae) -> list[str]:
     """The components whose rows are not all derived from their description: those whose
     lowerer wrote a row itself (recorded by the elaborate pass,
     :attr:`~phc.dae.ComponentRows.derived`) and those whose registry entry declares its rows
-    hand-written for their spec (:attr:`phc.registry.ComponentType.rows`)."""
+    hand-written for their spec (:attr:`phc.registry.ComponentType.rows`). Signal blocks
+    (:attr:`phc.registry.ComponentType.signal`) have no description and are left out."""
     from phc import registry
 
     top = dae.topology
@@ -696,6 +697,8 @@ def hand_written(dae: Dae) -> list[str]:
         entry = registry.find(types.get(r.component))
         spec = top.specs.get(r.component)
         declared = entry.rows_of(spec) if entry is not None and spec is not None else None
+        if entry is not None and entry.signal:  # a signal block has no description to compare with
+            continue
         if not r.derived or declared == "hand-written":
             out.append(r.component)
     return out

@@ -20,6 +20,7 @@ from phc.library.moving import lower_crank_wheel, lower_moving_beam
 from phc.library.pde1d import lower_pde1d, pde1d_rows
 from phc.library.phs import lower_phs
 from phc.library.rigid import lower_rigid
+from phc.library.signal import lower_pi, lower_state_space
 from phc.registry import (ASSEMBLED, NO_FIELDS, NO_STATE_READS, ComponentType, Drawing, ElementUnit, InitialFields,
                           PerElement, ROWS, StateReads, Units)
 from phc.spec import components as c
@@ -27,6 +28,7 @@ from phc.spec import components as c
 TRANSLATIONAL, ELECTRICAL, GENERIC = "mechanical.translational", "electrical", "generic"
 DERIVED, HAND_WRITTEN = ROWS
 _MATRICES = "its matrices and expressions are in the model's own units"
+_SIGNAL = "a signal block: its gains and signals have whatever units the controller's designer chose"
 
 
 def _lumped(name, spec, lower, domain, units, sign_role=None, state_reads=NO_STATE_READS, drawing=None):
@@ -166,5 +168,13 @@ BUILTINS = (
                            "center": ("m", "a position")}),
         cost=ASSEMBLED, spatial_order=None, initial_fields=NO_FIELDS, sign_role=None,
         state_reads=NO_STATE_READS, drawing=Drawing(viz.draw_crank_wheel), rows=DERIVED),
+    ComponentType(
+        name="state_space", spec=c.StateSpaceSpec, lower=lower_state_space, default_domain=None,
+        units=Units.absent(_SIGNAL), cost=ASSEMBLED, spatial_order=None, initial_fields=NO_FIELDS,
+        sign_role=None, state_reads=StateReads(("input",)), drawing=None, rows=HAND_WRITTEN, signal=True),
+    ComponentType(
+        name="pi", spec=c.PiSpec, lower=lower_pi, default_domain=None,
+        units=Units.absent(_SIGNAL), cost=ASSEMBLED, spatial_order=None, initial_fields=NO_FIELDS,
+        sign_role=None, state_reads=StateReads(("input",)), drawing=None, rows=HAND_WRITTEN, signal=True),
 )
 """The built-in entries, registered by :func:`phc.registry._load_builtins` on first use."""

@@ -352,19 +352,24 @@ def lower_junction(b, ctx, name, spec, path):
 
 
 def _state_scope(b, ctx) -> dict:
-    """Names a modulated component may read: `t`, parameters, and the states of the
-    components lowered before it, by full name (vector states also as lists)."""
+    """Names a modulated component may read: `t`, parameters, the states of the
+    components lowered before it and the outputs of the signal blocks lowered before it
+    (:mod:`phc.library.signal`), by full name (vectors also as lists); in a nested file
+    also by the name written there (`body.p` for `plant.body.p`)."""
     scope = {"t": T, **ctx.params}
     vectors: dict = {}
-    for v in b.known_variables():
-        if v.differential:
-            if v.name.endswith("]"):
-                base, idx = v.name[:-1].rsplit("[", 1)
-                vectors.setdefault(base, {})[int(idx)] = v.symbol
-            else:
-                scope[v.name] = v.symbol
+    named = [(v.name, v.symbol) for v in b.known_variables() if v.differential]
+    for name, value in (*named, *b.context.signals.items()):
+        if name.endswith("]"):
+            base, idx = name[:-1].rsplit("[", 1)
+            vectors.setdefault(base, {})[int(idx)] = value
+        else:
+            scope[name] = value
     for base, items in vectors.items():
         scope[base] = [items[i] for i in sorted(items)]
+    if ctx.prefix:  # in a nested file, its own components also by the names written there
+        n = len(ctx.prefix)
+        scope.update([(name[n:], value) for name, value in scope.items() if "." in name and name.startswith(ctx.prefix)])
     return scope
 
 

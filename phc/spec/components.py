@@ -665,6 +665,61 @@ class Pde1dSpec(_Component):
     """Number of finite elements."""
 
 
+class StateSpaceSpec(_Component):
+    """A linear signal block (a controller with state): ż = A z + B u, y = C z + D u.
+
+    Not a physical component: it has no ports and no energy. Its input `u` reads other
+    components' states (by full name, as a feedback source's `value`) and other blocks'
+    outputs; its output `y` is read as `<name>.y` (`<name>.y[k]` for several) by a
+    source's `value`, another block's `input` or the model's outputs. Its states
+    `<name>.z` (`<name>.z[i]` for several) are integrated like any other state and start
+    at 0 unless `simulation.initial` gives them. An integrator is `A: [[0]], B: [[1]],
+    C: [[1]]`; a first-order lag with time constant τ and gain K is `A: [[-1/tau]],
+    B: [[K/tau]], C: [[1]]`. `phc check` reports it as outside the port-Hamiltonian
+    certificate; the energy it makes a source inject is counted as supplied power."""
+
+    type: Literal["state_space"]
+    input: Union[Expr, Vector]
+    """Input u: expression(s) in `t`, parameters, other components' states and other
+    blocks' outputs, by full name (`load.p`, `ctrl.y`)."""
+    A: Matrix
+    """State matrix (n × n; numbers or expressions of parameters)."""
+    B: Matrix
+    """Input matrix (n × m, m the number of inputs)."""
+    C: Matrix
+    """Output matrix (p × n, p the number of outputs)."""
+    D: Optional[Matrix] = None
+    """Feedthrough matrix (p × m); zero when left out."""
+
+
+class PiSpec(_Component):
+    """A PI (or, with `Kd`, PID) controller, a signal block: with the error e = `input`,
+    ż = e and y = Kp e + Ki z (+ Kd times the filtered derivative of e).
+
+    With `limits: [lo, hi]` the output is clamped to [lo, hi] and the integrator stops
+    while the output is clamped and e would drive it further (anti-windup by conditional
+    integration). The state is `<name>.z` (the integral of e; with `Kd` also
+    `<name>.d`, the filter state), the output `<name>.y`. Not a physical component:
+    `phc check` reports it as outside the port-Hamiltonian certificate."""
+
+    type: Literal["pi"]
+    input: Expr
+    """The control error e, an expression in `t`, parameters, other components' states
+    and other blocks' outputs by full name (e.g. `w_ref - load.p/J_l`)."""
+    Kp: Expr
+    """Proportional gain."""
+    Ki: Expr
+    """Integral gain."""
+    Kd: Optional[Expr] = None
+    """Derivative gain (a PID); the derivative is filtered with time constant `Tf`."""
+    Tf: Optional[Expr] = None
+    """Time constant of the derivative filter (required with `Kd`, > 0): the derivative
+    part is Kd·s/(Tf·s + 1) applied to e."""
+    limits: Optional[list[Expr]] = Field(None, min_length=2, max_length=2)
+    """Output limits [lo, hi]: the output is clamped and the integrator held while clamped
+    (anti-windup)."""
+
+
 ComponentSpec = Annotated[
     Union[
         PhsSpec, LinearPhsSpec, RigidSpec, ModelComponentSpec,
@@ -672,6 +727,7 @@ ComponentSpec = Annotated[
         EffortSourceSpec, FlowSourceSpec, ZeroEffortSpec, ZeroFlowSpec,
         OrthogonalTransformSpec, TransformerSpec, GyratorSpec, JunctionSpec, ModulationSpec,
         StringSpec, TimoshenkoBeamSpec, EulerBernoulliBeamSpec, Pde1dSpec, MovingBeamSpec, CrankWheelSpec,
+        StateSpaceSpec, PiSpec,
     ],
     Field(discriminator="type"),
 ]
