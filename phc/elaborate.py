@@ -17,7 +17,12 @@ What happens here, in order:
    form, laws, H) and its rows — derived from the description, or checked against it
    by :mod:`phc.checks.rows`. Lowering is a function of the component's spec and a
    read-only context (:func:`phc.lowering.lower`); its frozen result is folded into this
-   pass's state in the order the components are written.
+   pass's state in the order the components are written, except that a component reading
+   others' states (a feedback source, a modulated ratio, a signal block) comes after the
+   ones it reads (:func:`phc.interconnect.reading_order`).
+
+The module is a little over 800 lines because the per-file walk (parameters, nested
+files, scenes, lowering order) shares one state and reads best in one place.
 
 Connections are checked by the interconnect pass (:mod:`phc.interconnect`) and joined by
 the assemble pass (:mod:`phc.assemble`). Every problem becomes a located
