@@ -42,7 +42,9 @@ initial value is written in, and when the compilation warned. ``PHC_FRONT_END_CA
 turns it off. On the compiled (numba) backend the record also keeps the kernel text of the
 model's compiled functions, which a hit loads from their signed disk cache
 (:func:`phc.codegen.numba_cache.load_cached`, without sympy); functions missing from that
-cache make it a miss. Likewise, when ``auto`` runs a long fixed-step run of a model on NumPy
+cache make it a miss; on the C back end (``auto`` without numba) it keeps the C text, whose
+library a hit loads from its signed cache (:func:`phc.codegen.c_backend.load_source`, which
+compiles it again when it is missing). Likewise, when ``auto`` runs a long fixed-step run of a model on NumPy
 on a compiled step loop (:func:`phc.codegen.backends.for_run`), the record keeps that
 module's kernel text (numba) or C text (:func:`phc.codegen.c_backend.load_source`), written
 after the run; a hit for such a run loads it, and one whose record keeps none (written by
@@ -374,6 +376,13 @@ def _lookup(args, params: dict) -> Optional[Hit]:
         module = load_cached(record["numba"], module, record["source"])
         if module is None:
             return None
+    elif record.get("c") is not None:  # the C back end (auto without numba): its library from the signed cache
+        from phc.codegen.c_backend import load_source
+
+        try:
+            module, _ = load_source(record["c"], module, record["source"])
+        except Exception:  # noqa: BLE001 — no compiler now, or the library changed: a miss (the full path says why)
+            return None
     cache = RunCache(full_size=(record["full_size"],), timings={"load": time.perf_counter() - start})
     warned = tuple(StoredDiagnostic(sev, line) for sev, line in record.get("warnings", ()))
     from phc.codegen.backends import check_choice
@@ -382,7 +391,7 @@ def _lookup(args, params: dict) -> Optional[Hit]:
                                               backend_request=check_choice(getattr(args, "backend", None)))
     if not _run_module(compiled, args, record.get("run_modules") or {}):
         return None
-    backend_line = record["backend_line"] if record.get("numba") is None else None
+    backend_line = record["backend_line"] if record.get("numba") is None and record.get("c") is None else None
     return Hit(compiled, record.get("written_options") or {}, backend_line)
 
 
@@ -479,7 +488,7 @@ class Recorder:
         from phc.codegen.backends import name_of
 
         backend = name_of(compiled.module)
-        if backend not in ("numpy", "numba") or (backend == "numba" and not hasattr(compiled.module, "KERNEL")):
+        if backend not in ("numpy", "numba", "c") or (backend == "numba" and not hasattr(compiled.module, "KERNEL")):
             return
         self._write(_record(compiled, getattr(self.args, "backend", None), written_options))
 
@@ -612,6 +621,8 @@ def _record(compiled: CompiledModel, backend: Optional[str], written_options: Op
         "backend_line": _backend_line(compiled, backend),
         # the compiled functions' kernel text (phc.codegen.numba_cache.load_cached): loaded from the cache
         "numba": getattr(mod, "KERNEL", None) if getattr(mod, "BACKEND", "numpy") == "numba" else None,
+        # the C text (phc.codegen.c_backend.load_source): its library from the signed cache, or compiled again
+        "c": getattr(mod, "C_SOURCE", None) if getattr(mod, "BACKEND", "numpy") == "c" else None,
         # the module a long fixed-step run under `auto` ran on (phc.codegen.backends.for_run), the same way
         "run_modules": {name: text for name, text in runs.items() if text is not None},
         "warnings": [[d.severity, d.render()] for d in compiled.diagnostics if d.severity == "warning"],

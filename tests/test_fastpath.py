@@ -246,6 +246,33 @@ def test_a_numba_hit_loads_the_compiled_functions_without_sympy(tmp_path, cache,
     assert (tmp_path / "full.csv").read_bytes() == (tmp_path / "hit.csv").read_bytes()
 
 
+def test_a_c_hit_loads_the_library_without_sympy(tmp_path, cache, capsys, monkeypatch):
+    """On the C back end the record keeps the C text: a hit loads the library from its
+    signed cache, imports neither sympy nor the model language nor the C printer, and writes
+    the full path's CSV."""
+    from phc.codegen import c_backend, cc
+
+    if not cc.available()[0]:
+        pytest.skip("no C compiler")
+    monkeypatch.setattr(c_backend, "_LOADED", {})  # built by an earlier test: not in this test's cache
+    model = tmp_path / "pendulum.yaml"
+    model.write_text(PENDULUM, encoding="utf-8")
+    assert simulate(model, tmp_path / "full.csv", "--backend", "c") == 0
+    assert "backend  c: compiled functions" in capsys.readouterr().out
+    assert hit(model, "--backend", "c") and not hit(model)  # the backend is part of the key
+    code = ("import sys\nfrom phc.cli import main\n"
+            f"code = main(['simulate', {str(model)!r}, '--out', {str(tmp_path / 'hit.csv')!r}, '--backend', 'c', "
+            f"*{RUN!r}])\n"
+            "print(code, sorted(m for m in ('sympy', 'pint', 'pydantic', 'phc.dae', 'phc.elaborate', "
+            "'phc.codegen.c_printer') if m in sys.modules))\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=dict(os.environ),
+                          timeout=SUBPROCESS_TIMEOUT)
+    lines = done.stdout.strip().splitlines()
+    assert lines[-1] == "0 []", done.stdout + done.stderr
+    assert any("c: compiled functions (loaded from the cache" in line for line in lines), done.stdout
+    assert (tmp_path / "full.csv").read_bytes() == (tmp_path / "hit.csv").read_bytes()
+
+
 def test_a_numba_record_whose_compiled_functions_are_gone_is_a_miss(tmp_path, cache, monkeypatch):
     """The compiled functions are evicted from their cache (or signed under another key):
     the record cannot compile them without the model's intermediate representation, so the

@@ -390,7 +390,7 @@ def _couplings(top, projections, samples, diags, graph=None, constant_only=False
     spans = {label: span for _, _, label, span in top.connections}
     dims = {p.name: p.dimension for p in top.ports}
     certs = [ConnectionCertificate(label, a, b, 2 * dims[a], span=spans.get(label)) for a, b, label in order]
-    wires = getattr(top, "wires", frozenset())
+    wires = top.wires
     for k, point in enumerate(samples[:1] if constant_only else samples):
         cluster_of = {name: name for name in projections[k]}
         members = {name: [name] for name in projections[k]}
@@ -492,7 +492,7 @@ def _symbolic_conditions(top, order, owner, certs) -> list[Optional[str]]:
             ports[f"{r.component}.{pname}"] = ([r.flows[i] for i in fi], [r.efforts[i] for i in ei])
     out: list[Optional[str]] = []
     rng = np.random.default_rng(11)
-    wires = getattr(top, "wires", frozenset())
+    wires = top.wires
     for cert, (a, b, label) in zip(certs, order):
         ca, cb = cluster_of.get(owner[a]), cluster_of.get(owner[b])
         if ca is None or cb is None or a not in ports or b not in ports:

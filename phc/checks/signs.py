@@ -227,7 +227,7 @@ def sign_hints(top) -> list[Diagnostic]:
         return []
     cls, fixed, what, sign = _classes(top)
     domain = {p.name: p.domain for p in top.ports}
-    wires = getattr(top, "wires", frozenset())
+    wires = top.wires
     # how a connection passes the reading on: a bond (e_x = −e_y) joins opposite readings,
     # a wire (e_x = e_y, phc.wires) equal ones
     turn = {label: 1 if label in wires else -1 for _, _, label, _ in top.connections}

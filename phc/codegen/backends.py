@@ -5,12 +5,17 @@ Input: the NumPy module printed and loaded for a model (the reference backend) a
 the reference itself (``numpy``), or the same functions compiled to machine code:
 ``numba`` (:mod:`phc.codegen.numba_backend`; needs the optional dependency,
 ``pip install "port-hamiltonian-compiler[fast]"``) or ``c`` (:mod:`phc.codegen.c_backend`:
-C99 compiled by the system C compiler, loaded through ctypes; only when asked for).
+C99 compiled by the system C compiler, loaded through ctypes).
 
-``auto`` (the default, or ``$PHC_BACKEND``) picks ``numba`` when numba can be imported and
-the model has at least :data:`AUTO_MIN_UNKNOWNS` unknowns, ``numpy`` otherwise; a compiled
-module that disagrees with the reference at its check point is never used (a warning says
-so and the reference runs). Asking for ``numba`` explicitly where it cannot be imported is
+``auto`` (the default, or ``$PHC_BACKEND``) runs a model of fewer than
+:data:`AUTO_MIN_UNKNOWNS` unknowns on ``numpy``; a larger one on ``numba`` when numba can be
+imported, else on ``c`` when a C compiler is found and the C back end prints the model, else
+on ``numpy``. numba comes before C for the functions because IDA and the drivers call them
+from Python, and a call through ctypes costs more than a call of numba's dispatcher
+(measured on the flexible slider–crank's residual: about 2 µs with numba, 3–4 µs with C, 22
+µs with NumPy); C's own step loops are faster than numba's, and run the long fixed-step runs
+(below). A compiled module that disagrees with the reference at its check point is never
+used (a warning says so and the reference runs). Asking for ``numba`` explicitly where it cannot be imported is
 an error that says how to install it; asking for ``c`` where no C compiler is found, or for
 a model using something the C back end does not print yet (an input table), is an error
 that says so in one line.
@@ -103,7 +108,7 @@ def select(ir, reference: ModuleType, source: str, backend: Optional[str] = None
     if not ok:
         if choice == "numba":
             raise SimulationSetupError(f"the numba backend is not available: {why}; or use --backend numpy")
-        return reference, f"numpy (compiled backend unavailable: {why})"
+        return _auto_c(ir, reference, source, why)
     try:
         module, _ = numba_backend.load_compiled(ir, reference, source)
     except numba_backend.BackendMismatch as err:
@@ -143,6 +148,33 @@ def _select_c(ir, reference: ModuleType, source: str) -> tuple[ModuleType, str]:
     return module, ""
 
 
+def _auto_c(ir, reference: ModuleType, source: str, numba_why: str) -> tuple[ModuleType, str]:
+    """``auto`` without numba, for a model of :data:`AUTO_MIN_UNKNOWNS` unknowns or more: the C
+    module when a C compiler is found and the C back end prints the model, else the NumPy
+    module; the note says why (once, with the run's backend line)."""
+    from phc.codegen import c_backend, cc
+    from phc.errors import BackendMismatch, BackendUnsupported, CompiledBackendWarning
+
+    c_ok, c_why = cc.available()
+    if not c_ok:
+        return reference, f"numpy (compiled backends unavailable: {numba_why}; {c_why})"
+    try:
+        module, _ = c_backend.load_compiled(ir, reference, source)
+    except BackendUnsupported as err:
+        return reference, f"numpy (numba unavailable: {numba_why}; the C backend: {err})"
+    except BackendMismatch as err:
+        warnings.warn(f"{err}; running the NumPy module instead (please report this phc bug)",
+                      CompiledBackendWarning, stacklevel=3)
+        return reference, f"numpy ({err})"
+    except Exception as err:  # the compiler refused the code: a phc bug, never a failed run
+        first = (str(err).strip().splitlines() or [""])[0][:300]
+        warnings.warn(f"the C backend could not build this model's functions ({type(err).__name__}: {first}); "
+                      "running the NumPy module instead (please report this phc bug)", CompiledBackendWarning,
+                      stacklevel=3)
+        return reference, f"numpy (C compilation failed: {type(err).__name__})"
+    return module, ""
+
+
 def auto_note(module) -> str:
     """Why ``auto`` runs the NumPy module for a model this small."""
     return (f"auto: {module.N} unknowns, below {AUTO_MIN_UNKNOWNS}, where the NumPy module is as fast per call "
@@ -153,7 +185,13 @@ def auto_note(module) -> str:
 def describe(module, requested: Optional[str] = None) -> str:
     """One line on what runs `module`'s functions and, for the NumPy module, why."""
     if name_of(module) == "c":
-        return f"c: compiled functions ({module.C_REPORT.describe()})"
+        line = f"c: compiled functions ({module.C_REPORT.describe()})"
+        if check_choice(requested) == "auto":
+            from phc.codegen.numba_cache import why_unavailable
+
+            why = why_unavailable()
+            line += f"; auto: numba unavailable ({why})" if why else ""
+        return line
     report = getattr(module, "COMPILE_REPORT", None)
     if report is not None:
         return f"numba: compiled functions ({report.describe()})"
@@ -163,10 +201,14 @@ def describe(module, requested: Optional[str] = None) -> str:
         return "numpy (the C backend could not build this model's functions: see the warning)"
     if getattr(module, "N", AUTO_MIN_UNKNOWNS) < AUTO_MIN_UNKNOWNS:
         return f"numpy ({auto_note(module)})"
+    from phc.codegen import cc
     from phc.codegen.numba_cache import why_unavailable
 
     why = why_unavailable()
-    return f"numpy (compiled backend unavailable: {why})" if why else "numpy"
+    if not why:
+        return "numpy"
+    c_ok, c_why = cc.available()
+    return f"numpy (compiled backends unavailable: {why}; {c_why})" if not c_ok else f"numpy (compiled backend unavailable: {why})"
 
 
 def for_run(compiled, backend: Optional[str], method: Optional[str], steps: int) -> tuple[ModuleType, str]:

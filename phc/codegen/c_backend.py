@@ -55,11 +55,20 @@ from typing import Optional
 import numpy as np
 
 from phc import __version__
-from phc.codegen.c_printer import ABI, CUnsupported, c_source  # noqa: F401 — CUnsupported: the API
+from phc.errors import BackendUnsupported as CUnsupported  # noqa: F401 — the API's name
+
+# The printer (phc.codegen.c_printer) imports sympy; loading a library from C text does not
+# need it (a cached front end loads one: phc.fastpath), so it is imported where C is printed.
+ABI = 1
+"""Version of the library's interface (the functions of phc.codegen.c_printer's C text and
+``phc_sizes``)."""
 # the compiler's discovery lives with its runner (phc.codegen.cc imports no sympy: the `auto`
 # rule asks for a compiler from a cached front end); its names stay importable from here
 from phc.codegen.cc import _COMPILERS, available, compile_library, find_compiler  # noqa: F401
-from phc.codegen.lower import ResidualIR
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # imports sympy
+    from phc.codegen.lower import ResidualIR
 from phc.codegen.numba_cache import FUNCTIONS, _cross_check, _read_private, _tag, signed_cache_dir
 from phc.errors import BackendMismatch, BackendUnavailable, CacheWarning, CodegenError
 
@@ -231,7 +240,7 @@ def _obtain(text: str, argv: list[str], digest: str, cache: bool,
     return lib, state, note
 
 
-def load_compiled(ir: ResidualIR, reference: ModuleType, reference_source: Optional[str] = None,
+def load_compiled(ir: "ResidualIR", reference: ModuleType, reference_source: Optional[str] = None,
                   cache: Optional[bool] = None) -> tuple[ModuleType, CReport]:
     """The C module for `ir` (see the module docstring) and how its library was obtained.
 
@@ -246,6 +255,8 @@ def load_compiled(ir: ResidualIR, reference: ModuleType, reference_source: Optio
     BackendMismatch
         The library disagrees with the reference module at a sample point (a phc bug).
     """
+    from phc.codegen.c_printer import c_source
+
     return load_source(c_source(ir), reference, reference_source, cache)
 
 
@@ -325,19 +336,50 @@ def _wrappers(lib: ctypes.CDLL, n: int, m: int, njac: int, npar: int, ninv: int,
 
     def into(name: str, size: int, with_cj: bool):
         f = c_function(name, [_D, P, P, P, _D, P] if with_cj else [_D, P, P, P, P])
+        ndarray, F64, D = np.ndarray, _F64, _D
 
-        def call(t, y, yp, p, *rest):
+        def general(t, y, yp, p, rest):
             y_, yp_, p_ = _given(y, n, "y"), _given(yp, n, "yp"), _given(p, npar, "p")
             out = rest[-1]
             target = _target(out, size, "out")
             buf = None if target is not None or not size else np.empty(size)
-            dest = target if buf is None else _D.from_buffer(buf)
+            dest = target if buf is None else D.from_buffer(buf)
             if with_cj:
                 f(t, y_, yp_, p_, rest[0], dest)
             else:
                 f(t, y_, yp_, p_, dest)
             if buf is not None:
                 out[...] = buf
+
+        # The common call (IDA's and the drivers': writable contiguous float64 vectors of the
+        # right sizes) is tested inline and passed straight on; anything else takes `general`,
+        # which converts or refuses. Half the cost of a call from Python was this wrapper.
+        if with_cj:
+            def call(t, y, yp, p, cj, out):
+                if (type(y) is ndarray and type(yp) is ndarray and type(p) is ndarray and type(out) is ndarray
+                        and y.dtype is F64 and yp.dtype is F64 and p.dtype is F64 and out.dtype is F64
+                        and y.ndim == 1 and yp.ndim == 1 and p.ndim == 1 and out.ndim == 1
+                        and y.shape[0] >= n and yp.shape[0] >= n and p.shape[0] >= npar and out.shape[0] >= size):
+                    try:
+                        f(t, D.from_buffer(y) if n else None, D.from_buffer(yp) if n else None,
+                          D.from_buffer(p) if npar else None, cj, D.from_buffer(out) if size else None)
+                        return
+                    except (TypeError, ValueError, BufferError):  # read-only or strided: converted below
+                        pass
+                general(t, y, yp, p, (cj, out))
+        else:
+            def call(t, y, yp, p, out):
+                if (type(y) is ndarray and type(yp) is ndarray and type(p) is ndarray and type(out) is ndarray
+                        and y.dtype is F64 and yp.dtype is F64 and p.dtype is F64 and out.dtype is F64
+                        and y.ndim == 1 and yp.ndim == 1 and p.ndim == 1 and out.ndim == 1
+                        and y.shape[0] >= n and yp.shape[0] >= n and p.shape[0] >= npar and out.shape[0] >= size):
+                    try:
+                        f(t, D.from_buffer(y) if n else None, D.from_buffer(yp) if n else None,
+                          D.from_buffer(p) if npar else None, D.from_buffer(out) if size else None)
+                        return
+                    except (TypeError, ValueError, BufferError):  # read-only or strided: converted below
+                        pass
+                general(t, y, yp, p, (out,))
 
         call.__name__ = call.__qualname__ = name
         return call

@@ -55,8 +55,7 @@ from phc.dae import STORED_ENERGY, T
 from phc.errors import BackendUnsupported, CodegenError
 from phc.inputs import InputTable, InputTableSlope
 
-ABI = 1
-"""Version of the library's interface (the functions above and ``phc_sizes``)."""
+from phc.codegen.c_backend import ABI  # noqa: E402 — the loader checks it without importing sympy
 
 SIZES = ("abi", "unknowns", "rows", "jacobian entries", "parameters", "invariants", "velocity invariants",
          "outputs")

@@ -150,14 +150,28 @@ def test_sparse_blocks_and_quadratic_forms_on_both_compilation_paths(tmp_path, m
     _assert_same(fast.REFERENCE, fast, seed=11)
 
 
-def test_without_numba_auto_runs_the_numpy_module_and_numba_is_refused(monkeypatch):
-    monkeypatch.setattr(numba_cache, "_AVAILABLE",
-                        (False, 'numba is not installed (pip install "port-hamiltonian-compiler[fast]")'))
-    crank = MODELS[0].parent / "rigid_slider_crank.yaml"  # large enough for `auto` to want numba
+NO_NUMBA = 'numba is not installed (pip install "port-hamiltonian-compiler[fast]")'
+
+
+def test_without_numba_auto_runs_c_where_a_compiler_is_found_and_numba_is_refused(monkeypatch):
+    """`auto` without numba, for a model of AUTO_MIN_UNKNOWNS unknowns or more: the C module
+    when a C compiler is found (a call from Python costs a few µs, the NumPy module's
+    residual and Jacobian of this crank several times that), else the NumPy module, and
+    the backend line says why."""
+    from phc.codegen import cc
+
+    monkeypatch.setattr(numba_cache, "_AVAILABLE", (False, NO_NUMBA))
+    crank = MODELS[0].parent / "rigid_slider_crank.yaml"  # large enough for `auto` to want a compiled backend
+    if cc.available()[0]:
+        compiled = phc.compile_model(crank, certify=False, backend="auto")
+        assert compiled.backend == "c"
+        assert backends.describe(compiled.module, "auto").endswith(f"; auto: numba unavailable ({NO_NUMBA})")
+        _assert_same(compiled.module.REFERENCE, compiled.module, seed=5)
+    monkeypatch.setattr(cc, "available", lambda: (False, "no C compiler found (blocked by the test)"))
     compiled = phc.compile_model(crank, certify=False, backend="auto")
     assert compiled.backend == "numpy" and not hasattr(compiled.module, "REFERENCE")
     assert backends.describe(compiled.module, "auto") == (
-        'numpy (compiled backend unavailable: numba is not installed (pip install "port-hamiltonian-compiler[fast]"))')
+        f"numpy (compiled backends unavailable: {NO_NUMBA}; no C compiler found (blocked by the test))")
     with pytest.raises(SimulationSetupError, match=r"numba is not installed .*compiler\[fast\]"):
         phc.compile_model(crank, certify=False, backend="numba")
     with pytest.raises(SimulationSetupError, match="unknown backend `fortran`"):
@@ -186,8 +200,12 @@ def test_a_fresh_process_without_numba_simulates_with_the_numpy_module(tmp_path)
     done = subprocess.run([sys.executable, "-m", "phc", "simulate", str(model), "--quiet", "--t-end", "0.01",
                            "--no-certify"], capture_output=True, text=True, env=env, timeout=300)
     assert done.returncode == 0, done.stderr
-    assert ('backend  numpy (compiled backend unavailable: numba is not installed (pip install '
-            '"port-hamiltonian-compiler[fast]"))') in done.stdout
+    from phc.codegen import cc
+
+    if cc.available()[0]:  # auto runs the C module instead
+        assert "backend  c: compiled functions" in done.stdout and f"auto: numba unavailable ({NO_NUMBA})" in done.stdout
+    else:
+        assert f"backend  numpy (compiled backends unavailable: {NO_NUMBA}; " in done.stdout
     bad = subprocess.run([sys.executable, "-m", "phc", "simulate", str(model), "--quiet", "--backend", "numba"],
                          capture_output=True, text=True, env=env, timeout=300)
     assert bad.returncode == 2
