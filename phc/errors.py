@@ -305,8 +305,8 @@ class CompiledBackendWarning(PhcWarning):
 
 
 class CompiledLoopWarning(PhcWarning):
-    """A compiled step loop the run's backend offers (the C back end's implicit midpoint loop)
-    cannot run this simulation: the Python step loop runs it instead — the same steps, more time
+    """A compiled step loop the run's backend offers (the C back end's fixed-step loops) cannot
+    run this simulation: the Python step loop runs it instead — the same steps, more time
     per step. Said once per process and reason."""
 
 

@@ -25,8 +25,8 @@ its whole step loop runs compiled on the numba or C back end (:mod:`phc.simulati
 20–100 times faster a step than the Python loop on the NumPy module, however small the model.
 So when ``auto`` ran the NumPy module (below :data:`AUTO_MIN_UNKNOWNS` unknowns, or numba
 missing) and a run takes at least :data:`AUTO_LOOP_STEPS` fixed steps, :func:`for_run` runs it
-on ``c`` when there is a C compiler and the solver is the implicit midpoint rule (the one
-loop written in C: about 3 µs a step and 2.7 s to compile cold, where numba's step loop is
+on ``c`` when there is a C compiler (the three methods' loops are written in C: the midpoint
+rule about 3 µs a step on the pendulum and 2.7 s to compile cold, where numba's step loop is
 compiled once per machine in about two minutes), else on ``numba`` when numba can be imported,
 else on NumPy with the reason in the run's note. An explicit ``numpy`` never switches; IDA
 keeps the size rule.
@@ -258,7 +258,7 @@ def run_targets(compiled, backend: Optional[str], method: Optional[str], steps: 
 
 def _run_targets(compiled, module, backend, method, steps) -> tuple[list[str], str, str]:
     """(the compiled backends to try in order, why auto ran NumPy, the note when there are
-    none): C first for the implicit midpoint rule, whose loop it has, then numba."""
+    none): C first (the fixed-step methods' loops are written in C), then numba."""
     request = check_choice(backend) if backend is not None else getattr(compiled, "backend_request", None)
     if request != "auto" or name_of(module) != "numpy" or method is None or steps < AUTO_LOOP_STEPS:
         return [], "", ""

@@ -1,12 +1,15 @@
-"""The implicit midpoint rule's step loop in C, for models on the C back end.
+"""The fixed-step methods' step loops in C, for models on the C back end.
 
 When a model runs on the ``c`` backend (:mod:`phc.codegen.c_backend`), has at most
-:data:`~phc.simulation.compiled_steps.MAX_UNKNOWNS` unknowns and is integrated by the
-implicit midpoint rule without switching conditions, its steps run in one hand-written C
-function, ``phc_steps_chunk`` of ``phc/codegen/c_runtime/steps.c``, that calls the model's
-compiled residual, Jacobian and position invariants through function pointers (no Python in
+:data:`~phc.simulation.compiled_steps.MAX_UNKNOWNS` unknowns and is integrated by a fixed-step
+method (``midpoint``, ``discrete_gradient``, ``midpoint4``) without switching conditions, its
+steps run in one hand-written C function, ``phc_steps_chunk`` of
+``phc/codegen/c_runtime/steps.c``, that calls the model's compiled residual, Jacobian, position
+invariants, Hamiltonian, energy scale and port powers through function pointers (no Python in
 between). That file is a port of :func:`phc.simulation.step_logic.newton` (the same stopping
-rules, refresh of the Newton matrix, round-off acceptance), of the numba kernel's predictor and
+rules, refresh of the Newton matrix, round-off acceptance: one Newton iteration in C, which
+every method's stages call), of :func:`~phc.simulation.step_logic.discrete_gradient` and
+:func:`~phc.simulation.step_logic.midpoint4`, of the numba kernel's predictor and
 output grid (:mod:`phc.simulation.compiled_steps_kernel`), with a dense LU with partial
 pivoting of the Newton matrix equilibrated as the Python loop's sparse LU is
 (:func:`phc.simulation.midpoint.equilibration`); its header says what is not ported (the
@@ -46,8 +49,11 @@ FLAGS = ("-std=c99", "-O3", "-fPIC", "-shared", "-ffp-contract=off")
 compiler vectorizes the LU's column loops, which reorders no sum; no fused multiply-adds, no
 ``-ffast-math``, no ``-march`` (the cached library must run on any x86-64 CPU)."""
 
-METHODS = ("midpoint",)
+METHODS = ("midpoint", "discrete_gradient", "midpoint4")
 """The fixed-step methods whose step loop is written in C (the others run the Python loop)."""
+
+ABI = 3
+"""``PHC_STEPS_ABI`` of the steps.c this module binds (the layout of ``struct phc_steps``)."""
 
 MAX_NODES = 16
 """Predictor nodes the C file has room for (its ``MAX_NODES``)."""
@@ -62,14 +68,16 @@ _SAID: set = set()
 def _layout() -> list[int]:
     """What ``phc_steps_layout`` must write: the indices the Python driver uses (without the
     struct size, which :func:`library` compares with :class:`_Steps`)."""
-    return [2, _k._NI, _k._NF, _sl._NC,
+    return [ABI, _k._NI, _k._NF, _sl._NC,
             _k._K, _k._J, _k._SUBSTEPS, _k._STEPS, _k._LAST_LOOK, _k._HAS_MID, _k._MAX_STEPS, _k._STATUS, _k._NFEV,
             _k._NFACT, _k._HIST, _k._MONITOR, _k._METHOD, _k._CODE, _k._ILL, _k._E, _k._NEND, _k._NMID, _k._LOWP,
             _k._STRIKES,
             _k._T, _k._H, _k._H_PREV, _k._STEP,
             _sl._TOL, _sl._RATE, _sl._FLOOR, _sl._MAX_AGE, _sl._MAX_NEWTON, _sl._THRESHOLD, _sl._EVERY, _sl._ORDER,
-            _sl._ZONE, _sl._STAGNATION, _sl._ORDER_ALG,
+            _sl._ZONE, _sl._STAGNATION, _sl._ORDER_ALG, _sl._BAL_TOL, _sl._MAX_SECANT, _sl._S_MIN, _sl._S_MAX, _sl._G1,
+            _sl._G2, _sl._M0, _sl._M1, _sl._M2,
             _k._BUDGET, _k._DONE, _k._HARD, _k._LOOK, _k._MAXSTEPS, _sl._OK, _sl._FAIL, _sl._SINGULAR, _sl._EVAL,
+            _sl._PASSIVITY,
             MAX_NODES]
 
 
@@ -86,7 +94,9 @@ class _Steps(ctypes.Structure):
             "colscale", "c", "t_out",
             "ys", "yps", "y", "mid", "mid_slope", "y_prev", "y_new", "pt", "pm", "fst", "ist",
             "lu", "piv", "perm", "eq", "matf",
-            "xs", "d", "r", "guess", "yp", "g", "jbuf", "ebuf", "mon", "monpiv", "monv")]
+            "xs", "d", "r", "guess", "yp", "g", "jbuf", "ebuf", "mon", "monpiv", "monv",
+            "hamiltonian", "energy_scale", "powers", "hist_t", "hist_v", "sub", "start", "y1in", "y_half", "y_best",
+            "y_sec")]
 
 
 def library():
@@ -139,8 +149,7 @@ def usable(method: str, raw) -> tuple[bool, str]:
     if os.environ.get("PHC_COMPILED_LOOP", "1").strip().lower() in ("0", "no", "false", "off"):
         return False, ""
     if method not in METHODS:
-        return False, (f"the `{method}` solver's step loop is not written in C yet (only the implicit midpoint "
-                       "rule's is)")
+        return False, f"the `{method}` solver's step loop is not written in C"
     if raw.N > MAX_UNKNOWNS:
         return False, f"the model has {raw.N} unknowns, more than the {MAX_UNKNOWNS} its dense LU is meant for"
     if getattr(raw, "C_LIBRARY", None) is None:
@@ -166,7 +175,7 @@ def _address(a: Optional[np.ndarray]) -> Optional[int]:
 
 
 def bind(raw, p, t_out, ys, yps, y, mid, mid_slope, y_prev, y_new, pt, pm, fst, ist, c, jrows, jcols, end_rows,
-         emask, weights, algmask, colscale) -> Callable[[int], None]:
+         emask, weights, algmask, colscale, hist_t, hist_v) -> Callable[[int], None]:
     """``chunk(budget)``: a chunk of steps of the C loop on the driver's arrays (all C-contiguous,
     float64 but the int64 index arrays and int8 masks; kept alive by the closure) with scratch
     arrays of its own."""
@@ -183,7 +192,8 @@ def bind(raw, p, t_out, ys, yps, y, mid, mid_slope, y_prev, y_new, pt, pm, fst, 
         eq=np.ones((2, 2 * n)), matf=np.zeros((2, 3)),
         xs=np.zeros(n), d=np.zeros(n), r=np.zeros(n), guess=np.zeros(n), yp=np.zeros(n), g=np.zeros(max(nend, 1)),
         jbuf=np.zeros(njac), ebuf=np.zeros(njac), mon=np.zeros((n, n)), monpiv=np.zeros(n, np.int64),
-        monv=np.zeros(3 * n))
+        monv=np.zeros(3 * n), hist_t=hist_t, hist_v=hist_v, sub=np.zeros((3, n)), start=np.zeros(n),
+        y1in=np.zeros(n), y_half=np.zeros(n), y_best=np.zeros(n), y_sec=np.zeros(n))
     kinds = {"jrows": np.int64, "jcols": np.int64, "end_rows": np.int64, "piv": np.int64, "perm": np.int64,
              "monpiv": np.int64,
              "ist": np.int64, "emask": np.int8, "algmask": np.int8}
@@ -197,6 +207,9 @@ def bind(raw, p, t_out, ys, yps, y, mid, mid_slope, y_prev, y_new, pt, pm, fst, 
                  residual=ctypes.cast(lib_model.phc_residual, _P).value,
                  jacobian=ctypes.cast(lib_model.phc_jacobian, _P).value,
                  invariants=ctypes.cast(lib_model.phc_invariants, _P).value,
+                 hamiltonian=ctypes.cast(lib_model.phc_hamiltonian, _P).value,
+                 energy_scale=ctypes.cast(lib_model.phc_energy_scale, _P).value,
+                 powers=ctypes.cast(lib_model.phc_powers, _P).value,
                  **{name: _address(a) for name, a in arrays.items()})
     pointer = ctypes.byref(run)
     chunk_c = lib.phc_steps_chunk
@@ -215,4 +228,4 @@ def note_events(raw) -> None:
         say_unused("runs with switching conditions (events) need the Python loop, which locates the switches")
 
 
-__all__ = ["FLAGS", "METHODS", "SOURCE", "bind", "library", "note_events", "say_unused", "usable", "why_not"]
+__all__ = ["ABI", "FLAGS", "METHODS", "SOURCE", "bind", "library", "note_events", "say_unused", "usable", "why_not"]

@@ -54,8 +54,8 @@ and kept in phc's signed cache of compiled code (``<phc cache>/numba/``, see
 :mod:`phc.codegen.numba_backend`); :func:`enabled` says whether a run uses it, and
 ``PHC_COMPILED_LOOP=0`` switches it off.
 
-On the C back end (:mod:`phc.codegen.c_backend`), :func:`integrate` runs the implicit midpoint
-rule's chunks in C instead (``phc/codegen/c_runtime/steps.c``, built and bound by
+On the C back end (:mod:`phc.codegen.c_backend`), :func:`integrate` runs the chunks of all three
+methods in C instead (``phc/codegen/c_runtime/steps.c``, built and bound by
 :mod:`phc.simulation.c_steps`): a port of the same step logic on the same state arrays, so that
 everything between chunks — progress, Ctrl-C, the steps handed back — is this driver's, shared.
 
@@ -459,7 +459,7 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
     reported = 1
     if on_c:
         run_c = c_steps.bind(raw, pv, t_out, ys, yps, y, mid, mid_slope, y_prev, y_new, pt, pm, fst, ist, c, jrows,
-                             jcols, end_rows, emask, w, algmask, colscale)
+                             jcols, end_rows, emask, w, algmask, colscale, hist_t, hist_v)
 
     def step_in_python():
         """The rest of the Python loop's body for the step at (t, h, y) the chunk handed back."""

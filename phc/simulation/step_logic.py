@@ -20,6 +20,11 @@ a step *does* is written here, once, as plain Python that numba can compile:
   extrapolated from the last step midpoints (the last one, the line through two, or the
   polynomial through more) and that polynomial's weights.
 
+The C back end's step loop (``phc/codegen/c_runtime/steps.c``, :mod:`phc.simulation.c_steps`)
+cannot run Python: it is a line-by-line port of :func:`newton` (one function there too, which
+every method's stages call), :func:`discrete_gradient` and :func:`midpoint4`, operation by
+operation, and is tested against the Python loop; a change of the logic here is a change there.
+
 The drivers around the steps are still each loop's own: the Python loop's
 :func:`~phc.simulation.midpoint.integrate_fixed_step` (events, projection, splitting, the
 singularity monitor's messages) and the compiled loop's chunk of routine steps

@@ -2,8 +2,8 @@
 
 A model below :data:`~phc.codegen.backends.AUTO_MIN_UNKNOWNS` unknowns compiles to the NumPy
 module under ``auto``; a fixed-step run of at least :data:`~phc.codegen.backends.AUTO_LOOP_STEPS`
-steps then runs on a compiled step loop: C for the implicit midpoint rule where a compiler is
-found (its one loop in C), else numba where it can be imported, else NumPy with the reason in
+steps then runs on a compiled step loop: C where a compiler is found (every fixed-step method's
+loop is written in C), else numba where it can be imported, else NumPy with the reason in
 the run's note. An explicit
 ``numpy``, IDA, a shorter run and a model loaded from its description stay on NumPy. The
 switched run takes the NumPy run's steps: both solve the same implicit midpoint equations to
@@ -132,11 +132,13 @@ def test_without_numba_and_c_the_run_stays_numpy_and_says_why(compiled, short, n
     assert "no C compiler found (test)" in result.backend_note
 
 
-def test_c_serves_only_the_midpoint_loop(compiled, short, no_numba, monkeypatch):
-    monkeypatch.setattr(cc, "available", lambda: (True, "cc (test)"))
-    result = _run(compiled, SHORT, solver="discrete_gradient")
-    assert result.backend == "numpy"
-    assert "the C step loop runs midpoint only" in result.backend_note
+@pytest.mark.skipif(not _c(), reason="no C compiler")
+@pytest.mark.parametrize("solver", ["discrete_gradient", "midpoint4"])
+def test_c_serves_every_fixed_step_loop(compiled, short, no_numba, solver):
+    result = _run(compiled, SHORT, solver=solver)
+    assert result.success, result.message
+    assert result.backend == "c"
+    assert f"auto: {SHORT} {solver} steps" in result.backend_note
 
 
 def test_explicit_numpy_never_switches(compiled, short):

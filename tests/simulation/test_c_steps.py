@@ -1,5 +1,5 @@
-"""The C back end's implicit-midpoint step loop (:mod:`phc.simulation.c_steps`,
-``phc/codegen/c_runtime/steps.c``) against the Python loop.
+"""The C back end's step loops (:mod:`phc.simulation.c_steps`, ``phc/codegen/c_runtime/steps.c``:
+the implicit midpoint rule, the discrete gradient, midpoint4) against the Python loop.
 
 The same model on the C backend is run twice, once with the step loop in C and once with
 ``PHC_COMPILED_LOOP=0`` (the Python loop calling the same compiled C functions through
@@ -88,6 +88,63 @@ def test_the_c_loop_follows_the_python_loop(compiled, monkeypatch, loops, name, 
     assert fast.n_jacobian_evals == pytest.approx(slow.n_jacobian_evals, rel=0.2, abs=3)
 
 
+@pytest.fixture(scope="module")
+def reference():
+    """The NumPy back end's module of a shipped model (the Python loop's reference)."""
+    cache = {}
+
+    def get(name):
+        if name not in cache:
+            cache[name] = phc.compile_model(MODELS / name, certify=False, backend="numpy")
+            assert cache[name].backend == "numpy"
+        return cache[name]
+
+    return get
+
+
+@pytest.mark.parametrize("solver", ["midpoint4", "discrete_gradient"])
+@pytest.mark.parametrize("name, t_end, step", [
+    ("pendulum.yaml", 2.0, 1e-2),
+    ("rlc_circuit.yaml", 2.0, 1e-2),
+    ("mass_spring_damper.yaml", 2.0, 1e-2),
+    ("flexible_slider_crank.yaml", 0.01, 1e-4),
+])
+def test_the_c_loop_of_midpoint4_and_the_discrete_gradient_follows_the_numpy_python_loop(
+        compiled, reference, loops, solver, name, t_end, step):
+    """midpoint4 (three midpoint stages a step, two Newton matrices, its own predictor and
+    passivity guard) and the discrete gradient (the secant iteration on the mean-value point
+    around the stage solve) in C against the same methods in the Python loop on the NumPy back
+    end (SuperLU, NumPy's model functions): every stage is solved to the Newton tolerance
+    (1e-14 relative) and the secant iteration to the balance tolerance (2e-15 of the energy
+    scale), so the loops differ only by the round-off of the linear algebra and of the model
+    functions (C's libm against NumPy's), which each step's Newton test removes down to that
+    tolerance; over at most 200 steps, with margin for the growth of a perturbation along the
+    motion, the differential variables agree to 1e-9 of their size and the multipliers
+    (differences of them over h) to 1e-9/h (tests/compiled_loading.py)."""
+    fast = phc.simulate(compiled(name), solver=solver, t_end=t_end, step=step, n_out=51)
+    slow = phc.simulate(reference(name), solver=solver, t_end=t_end, step=step, n_out=51)
+    half = len(loops) // 2  # one call per piece between input breakpoints; None: the NumPy back end's loop
+    assert loops == ["c"] * half + [None] * half and half >= 1
+    _assert_same_trajectory(fast, slow, step)
+    assert fast.steps == slow.steps and fast.steps >= 100
+    assert fast.constraint_drift <= max(10 * slow.constraint_drift, 1e-13)
+    # both loops keep the method's energy balance (exact for these quadratic Hamiltonians) to round-off
+    assert fast.energy_balance_relative <= max(10 * slow.energy_balance_relative, 1e-13)
+
+
+def test_discrete_gradient_energy_balance_is_exact_for_non_quadratic_h(compiled, loops):
+    """Two masses and a cubic spring: H = k1 x²/2 + k s²/2 + k3 s⁴/4 + kinetic is not quadratic.
+    At a coarse step the midpoint rule misses the discrete energy balance; the discrete
+    gradient's C loop (the secant iteration on the mean-value point) keeps it to round-off."""
+    model = compiled("two_mass_cubic_spring.yaml")
+    options = dict(t_end=5.0, step=0.05, n_out=101, initial={"coupling.s": 0.8})
+    dg = phc.simulate(model, solver="discrete_gradient", **options)
+    mp = phc.simulate(model, solver="midpoint", **options)
+    assert loops == ["c", "c"] and dg.success and mp.success
+    assert dg.energy_balance_relative <= 1e-12
+    assert mp.energy_balance_relative >= 1e-6  # the test can fail: H is not quadratic
+
+
 def test_midpoint_energy_balance_is_exact_for_quadratic_h(compiled, loops):
     """The Cartesian pendulum (lossless; H = |p|²/2m + m g y is quadratic, the pin constraint
     quadratic in the positions): the discrete balance H(y₁) − H(y₀) = ∇H(midpoint)·(y₁ − y₀)
@@ -134,13 +191,14 @@ def test_two_threads_integrate_at_once(compiled, loops):
 # q' = 1: q(t) = t, and d/dq asin(q) = 1/sqrt(1 − q²) is not defined from t = 1 on
 
 
-def test_a_model_that_cannot_be_evaluated_is_handed_back(tmp_path, monkeypatch, loops):
+@pytest.mark.parametrize("solver", ["midpoint", "discrete_gradient", "midpoint4"])
+def test_a_model_that_cannot_be_evaluated_is_handed_back(tmp_path, monkeypatch, loops, solver):
     """The C loop sees non-finite values (C returns NaN where Python raises) and hands the
     step back: the Python code retries, splits, and words the message naming the row."""
     path = tmp_path / "state_model.yaml"
     path.write_text(STATE_MODEL)
     model = phc.compile_model(path, certify=False, backend="c")
-    fast, slow = _both(monkeypatch, model, solver="midpoint", step=0.01)
+    fast, slow = _both(monkeypatch, model, solver=solver, step=0.01)
     assert loops == ["c", None]
     for r in (fast, slow):
         assert not r.success and "cannot be evaluated" in r.message, r.message
@@ -206,30 +264,32 @@ def test_singular_configuration_is_handed_to_the_python_monitor(compiled, monkey
 
 
 def test_what_the_c_loop_does_not_run_is_said_once(compiled, monkeypatch, loops):
-    """A method without a C loop (the discrete gradient) and a model too large for the dense LU
-    run the Python loop, and a CompiledLoopWarning says so once per reason; switched off by
+    """Every fixed-step method runs in C without a word; a model too large for the dense LU
+    runs the Python loop, and a CompiledLoopWarning says so once per reason; switched off by
     PHC_COMPILED_LOOP=0, nothing is said."""
     from phc.simulation import c_steps, compiled_steps
 
     monkeypatch.setattr(c_steps, "_SAID", set())
     model = compiled("pendulum.yaml")
     options = dict(t_end=0.2, step=1e-2, n_out=11)
-    with pytest.warns(CompiledLoopWarning, match="`discrete_gradient` solver's step loop is not written in C") as said:
-        first = phc.simulate(model, solver="discrete_gradient", **options)
-    assert [w.filename for w in said] == [__file__]  # the caller's line, not one inside phc
     with warnings.catch_warnings():
         warnings.simplefilter("error", CompiledLoopWarning)
-        again = phc.simulate(model, solver="discrete_gradient", **options)
+        for solver in ("midpoint", "discrete_gradient", "midpoint4"):
+            assert phc.simulate(model, solver=solver, **options).success
         monkeypatch.setenv("PHC_COMPILED_LOOP", "0")
         phc.simulate(model, solver="midpoint", **options)
         monkeypatch.setenv("PHC_COMPILED_LOOP", "1")
-    assert first.success and np.array_equal(first.y, again.y)
+    assert loops == ["c", "c", "c", None]
     monkeypatch.setattr(compiled_steps, "MAX_UNKNOWNS", model.module.N - 1)
-    with pytest.warns(CompiledLoopWarning, match="more than the"):
-        big = phc.simulate(model, solver="midpoint", **options)
+    with pytest.warns(CompiledLoopWarning, match="more than the") as said:
+        big = phc.simulate(model, solver="midpoint4", **options)
+    assert [w.filename for w in said] == [__file__]  # the caller's line, not one inside phc
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", CompiledLoopWarning)
+        phc.simulate(model, solver="midpoint", **options)  # the same reason: said once
     monkeypatch.setattr(compiled_steps, "MAX_UNKNOWNS", 400)
-    small = phc.simulate(model, solver="midpoint", **options)
-    assert loops == [None, None, None, None, "c"]
+    small = phc.simulate(model, solver="midpoint4", **options)
+    assert loops == ["c", "c", "c", None, None, None, "c"]
     _assert_same_trajectory(small, big, 1e-2)
 
 
@@ -246,6 +306,10 @@ def test_the_library_is_built_once_from_the_shipped_source(compiled):
     statics = [line for line in lines if line.strip().startswith("static ") and (line[0].isspace() or "(" not in line)]
     assert statics == []
     assert sum(line.startswith("static ") for line in lines) >= 10
+    # one Newton iteration in C, which every method's stages call; the ABI the binding expects
+    text = "\n".join(lines)
+    assert text.count("static int newton(") == 1 and text.count("newton(w, ") >= 4
+    assert f"#define PHC_STEPS_ABI {c_steps.ABI}\n" in text
 
 
 def test_the_avx2_and_the_baseline_code_give_the_same_trajectory(compiled, monkeypatch, loops):

@@ -56,6 +56,8 @@ void phc_residual(double t, const double *y, const double *yp, const double *p, 
 void phc_jacobian(double t, const double *y, const double *yp, const double *p, double cj, double *out);
 void phc_invariants(double t, const double *y, const double *p, double *out);
 double phc_hamiltonian(double t, const double *y, const double *p);
+double phc_energy_scale(double t, const double *y, const double *p);
+void phc_powers(double t, const double *y, const double *yp, const double *p, double *out);
 void phc_outputs(double t, const double *y, const double *yp, const double *p, double *out);
 void phc_sizes(long long *out);
 
@@ -86,6 +88,8 @@ typedef struct {
     double jbuf[NJAC], ebuf[NJAC];
     double mon[N * N], monv[3 * N];
     int64_t monpiv[N];
+    double hist_t[6], hist_v[6 * N], sub[3 * N];   /* the other methods' (the FMU runs the midpoint rule) */
+    double stage_start[N], y1in[N], y_half[N], y_best[N], y_sec[N];
     struct phc_steps run;
 } Instance;
 
@@ -161,6 +165,17 @@ static void bind(Instance *inst)
     w->mon = inst->mon;
     w->monpiv = inst->monpiv;
     w->monv = inst->monv;
+    w->hamiltonian = phc_hamiltonian;
+    w->energy_scale = phc_energy_scale;
+    w->powers = phc_powers;
+    w->hist_t = inst->hist_t;
+    w->hist_v = inst->hist_v;
+    w->sub = inst->sub;
+    w->start = inst->stage_start;
+    w->y1in = inst->y1in;
+    w->y_half = inst->y_half;
+    w->y_best = inst->y_best;
+    w->y_sec = inst->y_sec;
 }
 
 /* The start of a run: the exported consistent state and the step loop's state as

@@ -1,29 +1,38 @@
-/* The implicit midpoint rule's step loop in C, for phc's C back end.
+/* The fixed-step methods' step loops in C, for phc's C back end: the implicit midpoint rule,
+ * the discrete-gradient step and the fourth-order composition (midpoint4).
  *
  * Part of phc (a compiler for port-Hamiltonian models); compiled once per machine and phc
  * version into its own shared library (phc/simulation/c_steps.py) and kept in phc's signed
  * cache beside the models' libraries. It does not depend on the model: the model's compiled
- * residual, Jacobian and position invariants (the functions of the library phc prints for the
- * model, phc/codegen/c_printer.py) are handed to it as function pointers and called directly.
+ * residual, Jacobian, position invariants, Hamiltonian, energy scale and port powers (the
+ * functions of the library phc prints for the model, phc/codegen/c_printer.py) are handed to it
+ * as function pointers and called directly.
  *
- * One call, phc_steps_chunk(run, budget), takes up to `budget` steps of the implicit midpoint
- * rule
+ * One call, phc_steps_chunk(run, budget), takes up to `budget` steps of the method
+ * ist[I_METHOD] on the output grid of phc.simulation.midpoint.integrate_fixed_step, and returns.
+ * Every method's stages are solved by one Newton iteration (`newton` below): the implicit
+ * midpoint rule is one stage
  *
  *     F(t + h/2, (y + y1)/2, (y1 - y)/h) = 0,  the position-constraint rows g(t + h, y1) = 0
  *
  * (the GGL formulation of T. Berger, R. Hochdahl, T. Reis, R. Seifried, "Port-Hamiltonian
  * modelling of coupled rigid/flexible multibody systems", the rigid multibody DAE, eq. (3):
- * velocity constraints at the midpoint, position constraints at the step end), on the output
- * grid of phc.simulation.midpoint.integrate_fixed_step, and returns. Between chunks the Python
- * driver (phc.simulation.compiled_steps.integrate, shared with the numba loop) reports progress
- * and sees Ctrl-C. A step that is not routine is handed back to it, which then does exactly what
- * the Python loop does: a Newton iteration that fails or cannot evaluate the model (status
- * HARD: the retry from the constant predictor, the split, the message naming the row), a step
- * Newton found ill-conditioned (HARD), a routine look of the singularity monitor that is not
- * clearly far from singular (LOOK: Python's monitor looks with its SVD and decides).
+ * velocity constraints at the midpoint, position constraints at the step end); the discrete
+ * gradient (phc.simulation.discrete_gradient) solves the same stage at the point y + s (y1 - y)
+ * and a secant iteration on s makes the discrete energy balance of the paper's Remark 3 "Energy
+ * balance" hold for a non-quadratic H; midpoint4 (phc.simulation.midpoint4) is three midpoint
+ * stages of sizes g1 h, g2 h, g1 h (the triple jump) with its own predictor and passivity guard.
+ * Between chunks the Python driver (phc.simulation.compiled_steps.integrate, shared with the
+ * numba loop) reports progress and sees Ctrl-C. A step that is not routine is handed back to it,
+ * which then does exactly what the Python loop does: a step that fails or cannot evaluate the
+ * model (status HARD: the retry from the constant predictor, the split, the discrete gradient's
+ * midpoint fallback, midpoint4's passivity message, the message naming the row), a step Newton
+ * found ill-conditioned (HARD), a routine look of the singularity monitor that is not clearly
+ * far from singular (LOOK: Python's monitor looks with its SVD and decides).
  *
  * What each step does is a line-by-line port of phc/simulation/step_logic.py (`newton`: the
- * stopping rules, the refresh of the Newton matrix, the round-off acceptance) and of the numba
+ * stopping rules, the refresh of the Newton matrix, the round-off acceptance; `discrete_gradient`;
+ * `midpoint4`: the same arithmetic, operation by operation) and of the numba
  * kernel's driver (phc/simulation/compiled_steps_kernel.py: `_predict`, `_accept`, `_chunk`),
  * on the same state arrays with the same layout (checked when the library is loaded:
  * phc_steps_layout). Not ported: the mixed-precision corrections of the numba loop (every
@@ -49,15 +58,17 @@
 #include <stdint.h>
 #include <string.h>
 
-#define PHC_STEPS_ABI 2
+#define PHC_STEPS_ABI 3
 
 typedef void (*phc_residual_fn)(double t, const double *y, const double *yp, const double *p, double *out);
 typedef void (*phc_jacobian_fn)(double t, const double *y, const double *yp, const double *p, double cj,
                                 double *out);
 typedef void (*phc_invariants_fn)(double t, const double *y, const double *p, double *out);
+typedef double (*phc_scalar_fn)(double t, const double *y, const double *p);
+typedef void (*phc_powers_fn)(double t, const double *y, const double *yp, const double *p, double *out);
 
-/* outcome of a stage solve (phc.simulation.step_logic: _OK, _FAIL, _SINGULAR, _EVAL) */
-enum { OK = 0, FAIL = 1, SINGULAR = 2, EVAL = 3 };
+/* outcome of a stage solve or a step (phc.simulation.step_logic: _OK, _FAIL, _SINGULAR, _EVAL, _PASSIVITY) */
+enum { OK = 0, FAIL = 1, SINGULAR = 2, EVAL = 3, PASSIVITY = 4 };
 
 /* the constants vector c (phc.simulation.step_logic: _TOL ... _STRIKES_C) */
 enum { C_TOL, C_RATE, C_FLOOR, C_MAX_AGE, C_MAX_NEWTON, C_BAL_TOL, C_MAX_SECANT, C_S_MIN, C_S_MAX, C_THRESHOLD,
@@ -107,7 +118,7 @@ struct phc_steps {
     double *pt, *pm;                /* npred midpoint times, npred x n midpoints (newest first) */
     double *fst;                    /* F_NF */
     int64_t *ist;                   /* I_NI + 2 */
-    /* the Newton matrices (two, as the numba loop keeps; the midpoint rule uses matrix 0) */
+    /* the Newton matrices (two, as the numba loop keeps: midpoint4's middle stage uses matrix 1, every other stage matrix 0) */
     double *lu;                     /* 2 x n x n: LU of the equilibrated matrix, column-major */
     int64_t *piv;                   /* 2 x n: row interchanges */
     int64_t *perm;                  /* 2 x n: the row interchanges as one permutation (lu_permutation) */
@@ -119,6 +130,14 @@ struct phc_steps {
     double *mon;                    /* n x n: the monitor's matrix */
     int64_t *monpiv;                /* n */
     double *monv;                   /* 3n */
+    /* the discrete gradient and midpoint4 (ABI 3): H, the energy scale, the port powers
+     * (supplied, dissipated) of the model */
+    phc_scalar_fn hamiltonian, energy_scale;
+    phc_powers_fn powers;
+    double *hist_t, *hist_v;        /* 2 x 3, 2 x 3 x n: midpoint4's substep midpoints of the last steps (I_HIST) */
+    double *sub;                    /* 3 x n: midpoint4's substep midpoints of this step */
+    double *start, *y1in;           /* n each: a stage's start and its Newton start */
+    double *y_half, *y_best, *y_sec;   /* n each: the discrete gradient's s = 1/2 step, best, last secant iterate */
 };
 
 /* ---- vectors ------------------------------------------------------------------------------ */
@@ -718,6 +737,181 @@ static int newton(const struct phc_steps *w, int m, double t, double h, const do
     return FAIL;
 }
 
+/* ---- the methods' steps: phc.simulation.step_logic.discrete_gradient, midpoint4, line by line,
+ *      each stage solved by `newton` above ------------------------------------------------- */
+
+/* Python's max(a, b) and min(a, b) of floats: the second only where it is larger (smaller) */
+static double py_max(double a, double b)
+{
+    return b > a ? b : a;
+}
+
+static double py_min(double a, double b)
+{
+    return b < a ? b : a;
+}
+
+/* One discrete-gradient step (phc.simulation.discrete_gradient): the stage equations at
+ * y(s) = y + s (y1 - y) and the energy balance r(s) = H(y1) - H(y) + E1 - E = 0 (E: the energy
+ * accumulator, unknown ist[I_E]), by a safeguarded secant iteration on s from s = 1/2. The step
+ * (or, where no point balances the energy, the best secant iterate, for the Python code to
+ * split) into out; the outcome, *ill <- the last stage's. */
+static int discrete_gradient(const struct phc_steps *w, double t, double h, const double *y, const double *guess,
+                             double *out, int *ill)
+{
+    const int64_t n = w->n, e = w->ist[I_E];
+    const double *c = w->c, *p = w->p;
+    int code = newton(w, 0, t, h, y, guess, 0.5, out, ill);
+    if (code != OK)
+        return code;
+    const double H0 = w->hamiltonian(t, y, p);
+    const double bal = w->hamiltonian(t + h, out, p) - H0 + out[e] - y[e];
+    /* the balance H + E is kept relative to its terms; below 1e-200 the energy is zero */
+    double scale = fabs(w->energy_scale(t, y, p));
+    scale = py_max(scale, fabs(w->energy_scale(t + h, out, p)));
+    scale = py_max(scale, fabs(y[e]));
+    scale = py_max(scale, fabs(out[e]));
+    scale = py_max(scale, 1e-200);
+    if (!(isfinite(bal) && isfinite(scale)))
+        return EVAL;
+    const double tol = c[C_BAL_TOL] * scale;
+    if (fabs(bal) <= tol)
+        return OK;
+    /* first slope from the curvature of phi(sigma) = H(y(sigma)): r'(s) ~ -phi''(s) */
+    double *ym = w->y1in;
+    for (int64_t i = 0; i < n; ++i)
+        ym[i] = y[i] + 0.5 * (out[i] - y[i]);
+    const double curv = 4.0 * (H0 - 2.0 * w->hamiltonian(t + 0.5 * h, ym, p) + w->hamiltonian(t + h, out, p));
+    if (!isfinite(curv))
+        return EVAL;
+    copy(n, out, w->y_half);
+    double s_prev = 0.5, r_prev = bal;
+    const double *y_prev = w->y_half, *y_best = w->y_half;
+    double slope = curv != 0.0 ? -curv : -fabs(bal) * 10.0;
+    double best = fabs(bal);
+    const int64_t secants = (int64_t)c[C_MAX_SECANT];
+    for (int64_t it = 0; it < secants; ++it) {
+        const double s_new = slope != 0.0 ? py_min(py_max(s_prev - r_prev / slope, c[C_S_MIN]), c[C_S_MAX]) : 0.5;
+        if (s_new == s_prev)
+            break;
+        code = newton(w, 0, t, h, y, y_prev, s_new, out, ill);
+        if (code != OK)
+            break;
+        const double r_new = w->hamiltonian(t + h, out, p) - H0 + out[e] - y[e];
+        if (!isfinite(r_new))
+            return EVAL;
+        if (fabs(r_new) < best) {
+            best = fabs(r_new);
+            copy(n, out, w->y_best);
+            y_best = w->y_best;
+        }
+        if (fabs(r_new) <= tol)
+            return OK;
+        if (r_new != r_prev)
+            slope = (r_new - r_prev) / (s_new - s_prev);
+        s_prev = s_new;
+        r_prev = r_new;
+        copy(n, out, w->y_sec);
+        y_prev = w->y_sec;
+    }
+    /* within the round-off floor of H's evaluation: accept; else no point balances the energy
+     * (the constraint projection's work): the Python code splits the step */
+    copy(n, y_best, out);
+    return best <= 1e3 * tol ? OK : FAIL;
+}
+
+/* One step of the fourth-order composition (phc.simulation.midpoint4): midpoint stages of
+ * c[C_G1] h, c[C_G2] h, c[C_G1] h (Newton matrix 0 for the outer ones, 1 for the middle one),
+ * each started from its predicted midpoint, then the passivity guard; the step's end into out.
+ * Predictor: the midpoint of stage i (at t + c[C_M0 + i] h) extrapolated linearly from the same
+ * stage of the last two steps (hist_t, hist_v; ist[I_HIST] of them known), else along the slope
+ * from y to the driver's guess. The history is updated on success, forgotten on failure. */
+static int midpoint4(const struct phc_steps *w, double t, double h, const double *y, const double *guess,
+                     double *out, int *ill)
+{
+    const int64_t n = w->n, nhist = w->ist[I_HIST];
+    const double *c = w->c, *p = w->p;
+    const double fr[3] = {c[C_G1], c[C_G2], c[C_G1]}, mt[3] = {c[C_M0], c[C_M1], c[C_M2]};
+    double *start = w->start, *y1in = w->y1in, *ht = w->hist_t, *hv = w->hist_v, *yp = w->yp;
+    *ill = 0;
+    copy(n, y, start);
+    double tau = t, dissipated = 0.0, scale = 0.0;
+    for (int i = 0; i < 3; ++i) {
+        const int m = i != 1 ? 0 : 1;
+        const double hs = fr[i] * h, ti = t + mt[i] * h;
+        if (nhist == 2) {
+            const double *v0 = hv + (int64_t)i * n, *v1 = hv + (int64_t)(3 + i) * n;
+            const double a = ti - ht[3 + i], den = ht[3 + i] - ht[i];
+            for (int64_t k = 0; k < n; ++k)
+                y1in[k] = 2.0 * (v1[k] + a * (v1[k] - v0[k]) / den) - start[k];
+        } else {
+            const double b = mt[i] * h;
+            for (int64_t k = 0; k < n; ++k)
+                y1in[k] = 2.0 * (y[k] + b * ((guess[k] - y[k]) / h)) - start[k];
+        }
+        int ill_i;
+        const int code = newton(w, m, tau, hs, start, y1in, 0.5, out, &ill_i);
+        *ill = *ill || ill_i;
+        if (code != OK) {
+            w->ist[I_HIST] = 0;
+            return code;
+        }
+        double *vi = w->sub + (int64_t)i * n;
+        for (int64_t k = 0; k < n; ++k) {
+            vi[k] = 0.5 * (start[k] + out[k]);
+            yp[k] = (out[k] - start[k]) / hs;
+        }
+        double pw[2];
+        w->powers(tau + 0.5 * hs, vi, yp, p, pw);
+        const double diss = hs * pw[1];
+        if (!isfinite(diss)) {
+            w->ist[I_HIST] = 0;
+            return EVAL;
+        }
+        dissipated += diss;
+        scale += fabs(diss);
+        copy(n, out, start);
+        tau = tau + hs;
+    }
+    /* round-off of a dissipation that is zero (a body that sticks) is no violation */
+    const double floor = 1e-13 * fabs(w->energy_scale(t, y, p)) + 1e-300;
+    if (dissipated < -1e-9 * scale - floor) {
+        w->ist[I_HIST] = 0;
+        return PASSIVITY;
+    }
+    int64_t k;
+    if (nhist == 2) {
+        for (int i = 0; i < 3; ++i) {
+            ht[i] = ht[3 + i];
+            copy(n, hv + (int64_t)(3 + i) * n, hv + (int64_t)i * n);
+        }
+        k = 1;
+    } else {
+        k = nhist;
+        w->ist[I_HIST] = nhist + 1;
+    }
+    for (int i = 0; i < 3; ++i) {
+        ht[3 * k + i] = t + mt[i] * h;
+        copy(n, w->sub + (int64_t)i * n, hv + (3 * k + i) * n);
+    }
+    return OK;
+}
+
+/* One step of the method ist[I_METHOD] (0 midpoint, 1 discrete gradient, 2 midpoint4) from the
+ * driver's guess into y_new (compiled_steps_kernel._advance); the outcome, *ill <- whether a
+ * stage was ill-conditioned */
+static int advance(const struct phc_steps *w, double t, double h, int *ill)
+{
+    switch (w->ist[I_METHOD]) {
+    case 1:
+        return discrete_gradient(w, t, h, w->y, w->guess, w->y_new, ill);
+    case 2:
+        return midpoint4(w, t, h, w->y, w->guess, w->y_new, ill);
+    default:
+        return newton(w, 0, t, h, w->y, w->guess, 0.5, w->y_new, ill);
+    }
+}
+
 /* ---- the predictor (phc.simulation.step_logic.predictor_nodes, lagrange_weights;
  *      compiled_steps_kernel._predict) ------------------------------------------------------- */
 
@@ -873,8 +1067,7 @@ static int far_from_singular(const struct phc_steps *w, double t, const double *
 }
 
 /* Steps of integrate_fixed_step until `budget` steps are done, the run ends, or a step needs the
- * Python code; the state is in the arrays, the status in ist[I_STATUS] (compiled_steps_kernel._chunk
- * for the implicit midpoint rule, ist[I_METHOD] == 0: the caller runs other methods elsewhere). */
+ * Python code; the state is in the arrays, the status in ist[I_STATUS] (compiled_steps_kernel._chunk). */
 void phc_steps_chunk(const struct phc_steps *w, int64_t budget)
 {
     const int64_t n = w->n, nout = w->nout;
@@ -907,7 +1100,7 @@ void phc_steps_chunk(const struct phc_steps *w, int64_t budget)
         const double t = fst[F_T], h = fst[F_H], h_prev = fst[F_H_PREV];
         predict(w, t, h, h_prev, w->guess);
         int ill;
-        const int code = newton(w, 0, t, h, w->y, w->guess, 0.5, w->y_new, &ill);
+        const int code = advance(w, t, h, &ill);
         const int64_t steps = ist[I_STEPS];
         ist[I_CODE] = code;
         ist[I_ILL] = ill;
@@ -942,8 +1135,8 @@ void phc_steps_layout(int64_t *out)
         I_MONITOR, I_METHOD, I_CODE, I_ILL, I_E, I_NEND, I_NMID, I_LOWP, I_STRIKES,
         F_T, F_H, F_H_PREV, F_STEP,
         C_TOL, C_RATE, C_FLOOR, C_MAX_AGE, C_MAX_NEWTON, C_THRESHOLD, C_EVERY, C_ORDER, C_ZONE, C_STAGNATION,
-        C_ORDER_ALG,
-        ST_BUDGET, ST_DONE, ST_HARD, ST_LOOK, ST_MAXSTEPS, OK, FAIL, SINGULAR, EVAL,
+        C_ORDER_ALG, C_BAL_TOL, C_MAX_SECANT, C_S_MIN, C_S_MAX, C_G1, C_G2, C_M0, C_M1, C_M2,
+        ST_BUDGET, ST_DONE, ST_HARD, ST_LOOK, ST_MAXSTEPS, OK, FAIL, SINGULAR, EVAL, PASSIVITY,
         MAX_NODES, (int64_t)sizeof(struct phc_steps),
     };
     for (size_t i = 0; i < sizeof(layout) / sizeof(layout[0]); ++i)
