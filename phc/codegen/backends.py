@@ -13,8 +13,9 @@ imported, else on ``c`` when a C compiler is found and the C back end prints the
 on ``numpy``. numba comes before C for the functions because IDA and the drivers call them
 from Python, and a call through ctypes costs more than a call of numba's dispatcher
 (measured on the flexible slider–crank's residual: about 2 µs with numba, 3–4 µs with C, 22
-µs with NumPy); C's own step loops are faster than numba's, and run the long fixed-step runs
-(below). A compiled module that disagrees with the reference at its check point is never
+µs with NumPy). A model on numba runs its fixed-step loops on numba's (C's are faster a step,
+but building the C library as well costs more than a run of ordinary length saves); a model
+on NumPy runs its long fixed-step runs on C's (below). A compiled module that disagrees with the reference at its check point is never
 used (a warning says so and the reference runs). Asking for ``numba`` explicitly where it cannot be imported is
 an error that says how to install it; asking for ``c`` where no C compiler is found, or for
 a model using something the C back end does not print yet (an input table), is an error
