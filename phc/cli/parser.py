@@ -179,9 +179,17 @@ def _with_budget(func):
     return run
 
 
-FORMAT_HELP = ("text: one located line per problem; json; github: GitHub Actions annotations "
-               "(::error file=...,line=...,col=...::message); sarif: one SARIF 2.1.0 log on stdout for code "
-               "scanning (github/codeql-action/upload-sarif)")
+_FORMATS = {"text": "one located line per problem", "json": "one JSON document on stdout",
+            "github": "GitHub Actions annotations (::error file=...,line=...,col=...::message)",
+            "sarif": "one SARIF 2.1.0 log on stdout for code scanning (github/codeql-action/upload-sarif)"}
+
+
+def format_help(*choices: str) -> str:
+    """The --format help of a command that offers `choices` (only those)."""
+    return "; ".join(f"{c}: {_FORMATS[c]}" for c in choices)
+
+
+FORMAT_HELP = format_help("text", "json", "github", "sarif")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -207,14 +215,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("compile", help="generate the residual module of each model")
     p.add_argument("files", nargs="+", metavar="FILE")
-    p.add_argument("--format", choices=("text", "github", "sarif"), default="text", help=FORMAT_HELP)
+    p.add_argument("--format", choices=("text", "github", "sarif"), default="text",
+                   help=format_help("text", "github", "sarif"))
     p.add_argument("--no-certify", action="store_true",
                    help="skip the certificate of the compiled equations (power balance, passivity)")
     p.add_argument("-o", "--output", default=".", metavar="DIR", help="directory for the generated module")
     p.add_argument("--backend", choices=("auto", "numpy", "numba", "c"),
                    help="what runs the generated functions: numba (machine code, cached; pip install "
                    "'port-hamiltonian-compiler[fast]'), c (C compiled by the system C compiler, cached), numpy, "
-                   "or auto (numba for models of 16 unknowns or more when installed; the default, or $PHC_BACKEND)")
+                   "or auto (numba for models of 16 unknowns or more when installed, else C where a compiler is found; "
+                   "the default, or $PHC_BACKEND)")
     p.set_defaults(func=cmd_compile)
 
     p = sub.add_parser("simulate", help="compile and simulate a model or a scene")
@@ -228,7 +238,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--backend", choices=("auto", "numpy", "numba", "c"),
                    help="what runs the generated functions: numba (machine code, cached; pip install "
                    "'port-hamiltonian-compiler[fast]'), c (C compiled by the system C compiler, cached), numpy, "
-                   "or auto (numba for models of 16 unknowns or more when installed; the default, or $PHC_BACKEND)")
+                   "or auto (numba for models of 16 unknowns or more when installed, else C where a compiler is found; "
+                   "the default, or $PHC_BACKEND)")
     p.add_argument("--rtol", type=float)
     p.add_argument("--atol", type=float)
     p.add_argument("--param", action="append", metavar="NAME=VALUE", help="override a parameter (repeatable)")
