@@ -84,9 +84,33 @@ def assemble(elab, inter) -> tuple[Optional[Dae], DiagnosticList]:
     reporter = Reporter(elab.files)
     dae = _assemble(elab, reporter, elab.top, inter)
     if dae is not None:
+        reporter.diags.extend(_reading_loops(dae))
         reporter.diags.extend(check_assembled(elab, dae))  # exact size and output arrays, before any code is generated
         dae = dataclasses.replace(dae, left_out=elab.left_out, meshes=dict(elab.meshes))
     return (None if reporter.diags.has_errors else dae), reporter.diags
+
+
+def _reading_loops(dae: Dae) -> list[Diagnostic]:
+    """PHC-E129 at each reading of a port variable that depends on its reader's own output
+    within the same instant (:func:`phc.analysis.matching.reading_loops`)."""
+    from phc.analysis.matching import reading_loops
+
+    out = []
+    for j, loop in reading_loops(dae):
+        v = dae.variables[j]
+        read = v.name[len(v.component) + len(".reads("):-1]
+        # the sources (and ratios) whose relation reads the reader's output, directly or through blocks
+        drivers = [rel.component for rel in dae.topology.dirac
+                   if any(str(s).startswith(v.component + ".") for s in rel.states)]
+        on = [c for i in loop if (c := dae.equations[i].component) not in ("", "energy", v.component)]
+        through = list(dict.fromkeys([*drivers, *on]))
+        cycle = " → ".join(f"`{c}`" for c in [v.component, *through, read, v.component])
+        out.append(Diagnostic(
+            "PHC-E129", f"`{v.component}` reads `{read}`, on which its own output acts at the same instant: an "
+            f"algebraic loop {cycle}", span=v.span, path=v.component,
+            hint="read a variable that the output acts on only through a storage element (a state, a coil's "
+            "current, a mass's velocity), or put a block without feedthrough (a lag, D = 0) in the loop"))
+    return out
 
 
 def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:

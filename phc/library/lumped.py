@@ -213,7 +213,8 @@ def lower_source(b, ctx, name, spec, path, which: str):
     """effort_source / flow_source: the named port variable is a function of t — or, for
     feedback (a controller), also of other components' states by full name."""
     ports = _one_port_ports(b, ctx, name, spec, path, spec.type)
-    values = b.vector(ctx, spec.value, (*path, "value"), _state_scope(b, ctx), spec.dimension, "`value`")
+    values = b.vector(ctx, spec.value, (*path, "value"), _reading_scope(b, ctx, name), spec.dimension, "`value`")
+    register_readings(b, name, values, ctx.smap.locate((*path, "value")))
     read = sorted(set().union(*(v.free_symbols for v in values)) - {T} - set(b.default_values()), key=str)
     position = None
     if getattr(spec, "position", None) is not None:
@@ -351,14 +352,53 @@ def lower_junction(b, ctx, name, spec, path):
     emit(b, d.register(b))
 
 
-def _state_scope(b, ctx) -> dict:
+READING_ROLES = ("flow", "effort")
+"""The roles of the variables a reading (:func:`_reading_scope`) may read: port variables."""
+
+
+def reading_name(reader: str, variable: str) -> str:
+    """The name of the variable holding `reader`'s reading of the port variable `variable`
+    (as :meth:`phc.lowering.Recorder.add_algebraic` names it)."""
+    return f"{reader}.reads({variable})"
+
+
+def _reading_scope(b, ctx, reader: str) -> dict:
+    """:func:`_state_scope` and also the port variables (``coil.port.f``, ``drive.port.e``,
+    ``beam.b.f[1]``) of the components lowered before `reader`, by the names outputs give
+    them. A port variable read stands for a *reading*: an algebraic variable of `reader`
+    (:func:`register_readings`), so that the reading is one row ``r = v`` of the assembled
+    system, never a definition substituted into the source it may drive: assembly refuses a
+    reading that depends on its own reader's output (an algebraic loop, PHC-E129)."""
+    ports = [(v.name, sp.Symbol(reading_name(reader, v.name), real=True))
+             for v in b.known_variables() if v.role in READING_ROLES]
+    return _state_scope(b, ctx, ports)
+
+
+def register_readings(b, reader: str, exprs, span) -> None:
+    """Add the reading variables that `exprs` (parsed in :func:`_reading_scope`) use, each
+    with its row ``reading − port variable = 0``. The row is a measurement, not a relation
+    of the reader's Dirac structure (so it is not compared with its description)."""
+    used = set().union(*(sp.sympify(e).free_symbols for e in exprs)) if exprs else set()
+    by_name = {reading_name(reader, v.name): v for v in b.known_variables() if v.role in READING_ROLES}
+    known = {v.name for v in b.known_variables()}
+    for sym in sorted(used, key=str):
+        port = by_name.get(sym.name)
+        if port is None or sym.name in known:
+            continue
+        b.add_algebraic(reader, f"reads({port.name})", "reading", span)
+        b.add_equation(sym - port.symbol, reader, "reading", f"reads({port.name})", span, derived=True)
+        known.add(sym.name)
+
+
+def _state_scope(b, ctx, ports=()) -> dict:
     """Names a modulated component may read: `t`, parameters, the states of the
     components lowered before it and the outputs of the signal blocks lowered before it
     (:mod:`phc.library.signal`), by full name (vectors also as lists); in a nested file
-    also by the name written there (`body.p` for `plant.body.p`)."""
+    also by the name written there (`body.p` for `plant.body.p`). `ports`: (name, value)
+    pairs of port variables to add (:func:`_reading_scope`)."""
     scope = {"t": T, **ctx.params}
     vectors: dict = {}
-    named = [(v.name, v.symbol) for v in b.known_variables() if v.differential]
+    named = [(v.name, v.symbol) for v in b.known_variables() if v.differential] + list(ports)
     for name, value in (*named, *b.context.signals.items()):
         if name.endswith("]"):
             base, idx = name[:-1].rsplit("[", 1)

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import sympy as sp
 
-from phc.library.lumped import _check_coefficient, _scope, _state_scope
+from phc.library.lumped import _check_coefficient, _reading_scope, _scope, register_readings
 
 
 def _indexed(local: str, n: int) -> list[str]:
@@ -45,7 +45,8 @@ def lower_state_space(b, ctx, name, spec, path):
                 ctx, (*path, "A" if n == 0 else "C"), hint="an integrator is `A: [[0]]`, `B: [[1]]`, `C: [[1]]`")
         b.failed.add(name)
         return
-    u = b.vector(ctx, spec.input, (*path, "input"), _state_scope(b, ctx), None, "`input`")
+    u = b.vector(ctx, spec.input, (*path, "input"), _reading_scope(b, ctx, name), None, "`input`")
+    register_readings(b, name, u, ctx.smap.locate((*path, "input")))
     m = len(u)
     params = _scope(ctx)
     A = b.matrix(ctx, spec.A, (*path, "A"), params, (n, n), "`A`")
@@ -66,7 +67,8 @@ def lower_pi(b, ctx, name, spec, path):
     anti-windup (see :class:`phc.spec.components.PiSpec`)."""
     span = ctx.smap.locate(path)
     params = _scope(ctx)
-    e = b.expr(ctx, spec.input, (*path, "input"), _state_scope(b, ctx))
+    e = b.expr(ctx, spec.input, (*path, "input"), _reading_scope(b, ctx, name))
+    register_readings(b, name, [e], ctx.smap.locate((*path, "input")))
     Kp = b.expr(ctx, spec.Kp, (*path, "Kp"), params)
     Ki = b.expr(ctx, spec.Ki, (*path, "Ki"), params)
     (z, dz), = _states(b, name, "z", 1, span)
