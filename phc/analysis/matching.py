@@ -190,9 +190,15 @@ def check_balance(dae: Dae) -> list[Diagnostic]:
     return out
 
 
+LOOP_ROLES = ("reading", "signal")
+"""Variables that must not depend on themselves within an instant (:func:`reading_loops`)."""
+
+
 def reading_loops(dae: Dae) -> list[tuple[int, list[int]]]:
     """The readings of port variables (variables of role ``reading``, each with its row
-    ``r − v = 0``, :func:`phc.library.lumped.register_readings`) that depend on themselves
+    ``r − v = 0``, labelled with its name: :func:`phc.library.lumped.register_readings`)
+    and the outputs of signal blocks that are variables (role ``signal``, the row
+    ``y − (C z + D u) = 0``: blocks read before they are lowered) that depend on themselves
     through the algebraic part of the system: for each, (its variable index, the rows on the
     loop).
 
@@ -210,7 +216,7 @@ def reading_loops(dae: Dae) -> list[tuple[int, list[int]]]:
     among them, substituted)."""
     from scipy.sparse.csgraph import connected_components
 
-    readings = [j for j, v in enumerate(dae.variables) if v.role == "reading"]
+    readings = [j for j, v in enumerate(dae.variables) if v.role in LOOP_ROLES]
     if not readings:
         return []
     col = {}
@@ -232,7 +238,7 @@ def reading_loops(dae: Dae) -> list[tuple[int, list[int]]]:
     graph = sps.csr_matrix((np.ones(int(keep.sum()), dtype=np.int8), (matched[keep], ci[keep])), shape=(n, n))
     _, labels = connected_components(graph, directed=True, connection="strong")
     row_of = {int(c): i for i, c in enumerate(match) if c >= 0}
-    reading_row = {eq.label: i for i, eq in enumerate(dae.equations) if eq.kind == "reading"}
+    reading_row = {eq.label: i for i, eq in enumerate(dae.equations) if eq.kind in ("reading", "signal")}
     out = []
     for j in readings:
         v = dae.variables[j]
