@@ -110,7 +110,7 @@ def _reading_loops(dae: Dae) -> list[Diagnostic]:
             out.append(Diagnostic(
                 "PHC-E128", f"the output `{v.name}` depends on itself at the same instant: the blocks "
                 f"{', '.join(f'`{c}`' for c in on)} read each other with feedthrough all round (an algebraic loop)",
-                span=v.span, path=v.component,
+                span=v.span, path=f"components.{v.component}",
                 hint="put a block without feedthrough (`D` zero: its output is its state's) in the loop, or write "
                 "the blocks as one `state_space` block (its A, B, C, D combine theirs)"))
             continue
@@ -123,7 +123,7 @@ def _reading_loops(dae: Dae) -> list[Diagnostic]:
         cycle = " → ".join(f"`{c}`" for c in [v.component, *through, read, v.component])
         out.append(Diagnostic(
             "PHC-E129", f"`{v.component}` reads `{read}`, on which its own output acts at the same instant: an "
-            f"algebraic loop {cycle}", span=v.span, path=v.component,
+            f"algebraic loop {cycle}", span=v.span, path=f"components.{v.component}",
             hint="read a variable that the output acts on only through a storage element (a state, a coil's "
             "current, a mass's velocity), or put a block without feedthrough (a lag, D = 0) in the loop"))
     return out

@@ -279,7 +279,7 @@ def test_blocks_reading_each_other_with_feedthrough_all_round_are_an_algebraic_l
     assert len(loop) == 1 and "algebraic loop" in loop[0].message, [str(e) for e in errors]
     assert "`ctrl`" in loop[0].message and "`other`" in loop[0].message
     lines = PLANT.format(controller=cycle, t_end=2.0).splitlines()
-    line = lines.index(cycle.splitlines()[loop[0].path == "other"]) + 1  # the block's own entry
+    line = lines.index(cycle.splitlines()[loop[0].path == "components.other"]) + 1  # the block's own entry
     assert (loop[0].span.line, loop[0].span.col) == (line, lines[line - 1].index("{") + 1)
 
 
