@@ -246,3 +246,52 @@ def test_a_reading_of_an_unknown_port_variable_is_located(tmp_path):
     text = VOLTAGE_LOOP.replace('"u_ref + cap.port.e"', '"u_ref + cap.prt.e"')
     _, error = _refusal(tmp_path, text, "PHC-E101")
     assert "cap.prt.e" in error.message and error.span.line > 1
+
+
+INNER = """
+format_version: 1
+parameters: {m: 2.0, v_ref: 1.0, Kp: 3.0, Ki: 5.0}
+components:
+  drive: {type: effort_source, value: "ctrl.y"}
+  body: {type: mass, m: m}
+  ctrl: {type: pi, input: "v_ref - body.port.f", Kp: Kp, Ki: Ki}
+  node: {type: junction, kind: common_flow, ports: [m, f, x]}
+connections:
+  - [node.m, body.port]
+  - [node.f, drive.port]
+ports:
+  x: {port: node.x}
+"""
+
+OUTER = """
+format_version: 1
+components:
+  plant: {type: model, file: inner.yaml}
+  spring: {type: spring, k: 8.0}
+connections:
+  - [plant.x, spring.port]
+simulation:
+  t_end: 2.0
+  n_out: 201
+  rtol: 1.0e-10
+  atol: 1.0e-12
+  outputs:
+    v: plant.body.p / 2.0
+    z: plant.ctrl.z
+"""
+
+
+def test_a_reading_in_a_nested_file_uses_the_names_written_there(tmp_path):
+    """Inside `inner.yaml` the controller reads `body.port.f` (not `plant.body.port.f`):
+    the loop is v' = (−8 x + 3 (1 − v) + 5 z)/2, x' = v, z' = 1 − v, against scipy."""
+    (tmp_path / "inner.yaml").write_text(INNER)
+    r = phc.simulate(phc.compile_model(_write(tmp_path, OUTER, "outer.yaml")))
+    assert r.success, r.message
+
+    def f(t, y):
+        x, v, z = y
+        return [v, (-8.0 * x + 3.0 * (1.0 - v) + 5.0 * z) / 2.0, 1.0 - v]
+
+    ref = solve_ivp(f, (0.0, r.t[-1]), [0.0, 0.0, 0.0], t_eval=r.t, **TIGHT)
+    assert np.abs(r.outputs["v"] - ref.y[1]).max() < 1e-7 and np.abs(ref.y[1]).max() > 0.1
+    assert np.abs(r.outputs["z"] - ref.y[2]).max() < 1e-7
