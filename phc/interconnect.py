@@ -147,7 +147,10 @@ def _topology_reads(top: Topology) -> list[tuple[str, str]]:
     found = {}
     for rel in top.dirac:
         for state in rel.states:
-            parts = str(state).split(".")
+            name = str(state)
+            if ".reads(" in name and name.endswith(")"):  # a reading (phc.library.lumped.reading_name): its port's owner
+                name = name[name.index(".reads(") + len(".reads("):-1]
+            parts = name.split(".")
             owners = (".".join(parts[:k]) for k in range(len(parts) - 1, 0, -1))  # longest first
             owner = next((o for o in owners if o in names), None)
             if owner is not None and owner != rel.component:

@@ -378,7 +378,7 @@ def register_readings(b, reader: str, exprs, span) -> None:
     """Add the reading variables that `exprs` (parsed in :func:`_reading_scope`) use, each
     with its row ``reading − port variable = 0``. The row is a measurement, not a relation
     of the reader's Dirac structure (so it is not compared with its description)."""
-    used = set().union(*(sp.sympify(e).free_symbols for e in exprs)) if exprs else set()
+    used = set().union(*(getattr(e, "free_symbols", set()) for e in exprs)) if exprs else set()
     by_name = {reading_name(reader, v.name): v for v in b.known_variables() if v.role in READING_ROLES}
     known = {v.name for v in b.known_variables()}
     for sym in sorted(used, key=str):
