@@ -295,3 +295,23 @@ def test_a_reading_in_a_nested_file_uses_the_names_written_there(tmp_path):
     ref = solve_ivp(f, (0.0, r.t[-1]), [0.0, 0.0, 0.0], t_eval=r.t, **TIGHT)
     assert np.abs(r.outputs["v"] - ref.y[1]).max() < 1e-7 and np.abs(ref.y[1]).max() > 0.1
     assert np.abs(r.outputs["z"] - ref.y[2]).max() < 1e-7
+
+
+def test_a_block_reading_the_port_of_the_source_it_drives_is_a_cycle(tmp_path):
+    """`drive.port.f` belongs to the source that reads `ctrl.y`: the two read each other,
+    which no lowering order resolves (PHC-E128 at both, naming both)."""
+    text = VOLTAGE_LOOP.replace('"u_ref + cap.port.e"', '"u_ref - drive.port.f"')
+    _, error = _refusal(tmp_path, text, "PHC-E128")
+    assert "`ctrl`, `drive`" in error.message and error.path in ("components.ctrl", "components.drive")
+
+
+def test_linearize_gives_the_spectrum_of_the_current_loop(tmp_path):
+    """(i, ω, z): L i' = −(R + Kp) i − Km ω + Ki z + Kp i_ref, J ω' = Km i − c ω, z' = i_ref − i.
+    The reading is an algebraic unknown that `phc linearize` eliminates; the Jacobians are
+    exact, so the only error is the eigensolver's round-off on a matrix of norm ~1e3."""
+    A = np.array([[-(R + Kp) / L, -Km / L, Ki / L], [Km / J, -c / J, 0.0], [-1.0, 0.0, 0.0]])
+    lin = phc.linearize_model(_write(tmp_path, CURRENT_LOOP), certify=False)
+    assert lin.n_states == 3
+    found, expected = sorted(lin.eigenvalues, key=lambda z: (z.real, z.imag)), np.linalg.eigvals(A)
+    for lam in expected:
+        assert min(abs(f - lam) for f in found) <= 1e-9 * max(1.0, abs(lam)), (found, expected)
