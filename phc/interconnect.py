@@ -148,7 +148,8 @@ def _topology_reads(top: Topology) -> list[tuple[str, str]]:
     for rel in top.dirac:
         for state in rel.states:
             name = str(state)
-            if ".reads(" in name and name.endswith(")"):  # a reading (phc.library.lumped.reading_name): its port's owner
+            # a reading (phc.library.lumped.reading_name) reads its port's owner
+            if ".reads(" in name and name.endswith(")"):
                 name = name[name.index(".reads(") + len(".reads("):-1]
             parts = name.split(".")
             owners = (".".join(parts[:k]) for k in range(len(parts) - 1, 0, -1))  # longest first

@@ -30,6 +30,7 @@ from phc.dae import T
 from phc.library.dirac import DiracBuilder, emit
 from phc.library.timing import at_times, refuse_time, sample_times
 from phc.registry import FieldView
+from phc.spec.expressions import ExpressionError, validate_syntax
 
 DEFAULT_DOMAIN = FieldView("default_domain")
 """Type -> the domain of its ports when the entry gives none (:mod:`phc.registry`)."""
@@ -213,7 +214,8 @@ def lower_source(b, ctx, name, spec, path, which: str):
     """effort_source / flow_source: the named port variable is a function of t — or, for
     feedback (a controller), also of other components' states by full name."""
     ports = _one_port_ports(b, ctx, name, spec, path, spec.type)
-    values = b.vector(ctx, spec.value, (*path, "value"), _reading_scope(b, ctx, name), spec.dimension, "`value`")
+    values = b.vector(ctx, spec.value, (*path, "value"), _reading_scope(b, ctx, name, spec.value), spec.dimension,
+                      "`value`")
     register_readings(b, name, values, ctx.smap.locate((*path, "value")))
     read = sorted(set().union(*(v.free_symbols for v in values)) - {T} - set(b.default_values()), key=str)
     position = None
@@ -362,15 +364,33 @@ def reading_name(reader: str, variable: str) -> str:
     return f"{reader}.reads({variable})"
 
 
-def _reading_scope(b, ctx, reader: str) -> dict:
+def _written_names(value, prefix: str) -> set[str]:
+    """The names an expression (or a list, or a list of lists) as written uses, by full
+    name (also with a nested file's `prefix`) and without an index (`beam.b.f` for
+    `beam.b.f[1]`); empty when one does not parse (lowering reports it)."""
+    entries = ([e for row in value for e in (row if isinstance(row, list) else [row])]
+               if isinstance(value, list) else [value])
+    try:
+        names = {str(s) for e in entries if isinstance(e, str) for s in validate_syntax(e).free_symbols}
+    except ExpressionError:
+        return set()
+    names |= {n.split("[", 1)[0] for n in names}
+    return names | {prefix + n for n in names}
+
+
+def _reading_scope(b, ctx, reader: str, value) -> dict:
     """:func:`_state_scope` and also the port variables (``coil.port.f``, ``drive.port.e``,
-    ``beam.b.f[1]``) of the components lowered before `reader`, by the names outputs give
-    them. A port variable read stands for a *reading*: an algebraic variable of `reader`
-    (:func:`register_readings`), so that the reading is one row ``r = v`` of the assembled
-    system, never a definition substituted into the source it may drive: assembly refuses a
-    reading that depends on its own reader's output (an algebraic loop, PHC-E129)."""
-    ports = [(v.name, sp.Symbol(reading_name(reader, v.name), real=True))
-             for v in b.known_variables() if v.role in READING_ROLES]
+    ``beam.b.f[1]``) of the components lowered before `reader` that `value` (as written)
+    names, by the names outputs give them. A port variable read stands for a *reading*: an
+    algebraic variable of `reader` (:func:`register_readings`), so that the reading is one
+    row ``r = v`` of the assembled system, never a definition substituted into the source it
+    may drive: assembly refuses a reading that depends on its own reader's output (an
+    algebraic loop, PHC-E129)."""
+    written = _written_names(value, ctx.prefix)
+    ports = []
+    if written:
+        ports = [(v.name, sp.Symbol(reading_name(reader, v.name), real=True)) for v in b.known_variables()
+                 if v.role in READING_ROLES and (v.name in written or v.name.split("[", 1)[0] in written)]
     return _state_scope(b, ctx, ports)
 
 
@@ -378,16 +398,14 @@ def register_readings(b, reader: str, exprs, span) -> None:
     """Add the reading variables that `exprs` (parsed in :func:`_reading_scope`) use, each
     with its row ``reading − port variable = 0``. The row is a measurement, not a relation
     of the reader's Dirac structure (so it is not compared with its description)."""
+    head = reading_name(reader, "")[:-1]
     used = set().union(*(getattr(e, "free_symbols", set()) for e in exprs)) if exprs else set()
-    by_name = {reading_name(reader, v.name): v for v in b.known_variables() if v.role in READING_ROLES}
-    known = {v.name for v in b.known_variables()}
     for sym in sorted(used, key=str):
-        port = by_name.get(sym.name)
-        if port is None or sym.name in known:
-            continue
-        b.add_algebraic(reader, f"reads({port.name})", "reading", span)
-        b.add_equation(sym - port.symbol, reader, "reading", f"reads({port.name})", span, derived=True)
-        known.add(sym.name)
+        if sym.name.startswith(head) and sym.name.endswith(")"):
+            port = sym.name[len(head):-1]
+            b.add_algebraic(reader, f"reads({port})", "reading", span)
+            b.add_equation(sym - sp.Symbol(port, real=True), reader, "reading", f"reads({port})", span,
+                           derived=True)
 
 
 def _state_scope(b, ctx, ports=()) -> dict:

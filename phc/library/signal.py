@@ -62,7 +62,7 @@ def lower_state_space(b, ctx, name, spec, path):
                 ctx, (*path, "A" if n == 0 else "C"), hint="an integrator is `A: [[0]]`, `B: [[1]]`, `C: [[1]]`")
         b.failed.add(name)
         return
-    u = b.vector(ctx, spec.input, (*path, "input"), _reading_scope(b, ctx, name), None, "`input`")
+    u = b.vector(ctx, spec.input, (*path, "input"), _reading_scope(b, ctx, name, spec.input), None, "`input`")
     register_readings(b, name, u, ctx.smap.locate((*path, "input")))
     m = len(u)
     params = _scope(ctx)
@@ -84,7 +84,7 @@ def lower_pi(b, ctx, name, spec, path):
     anti-windup (see :class:`phc.spec.components.PiSpec`)."""
     span = ctx.smap.locate(path)
     params = _scope(ctx)
-    e = b.expr(ctx, spec.input, (*path, "input"), _reading_scope(b, ctx, name))
+    e = b.expr(ctx, spec.input, (*path, "input"), _reading_scope(b, ctx, name, spec.input))
     register_readings(b, name, [e], ctx.smap.locate((*path, "input")))
     Kp = b.expr(ctx, spec.Kp, (*path, "Kp"), params)
     Ki = b.expr(ctx, spec.Ki, (*path, "Ki"), params)
