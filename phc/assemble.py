@@ -84,9 +84,49 @@ def assemble(elab, inter) -> tuple[Optional[Dae], DiagnosticList]:
     reporter = Reporter(elab.files)
     dae = _assemble(elab, reporter, elab.top, inter)
     if dae is not None:
+        reporter.diags.extend(_reading_loops(dae))
         reporter.diags.extend(check_assembled(elab, dae))  # exact size and output arrays, before any code is generated
         dae = dataclasses.replace(dae, left_out=elab.left_out, meshes=dict(elab.meshes))
     return (None if reporter.diags.has_errors else dae), reporter.diags
+
+
+def _reading_loops(dae: Dae) -> list[Diagnostic]:
+    """PHC-E129 at each reading of a port variable that depends on its reader's own output
+    within the same instant, PHC-E128 at each signal block output that depends on itself
+    (:func:`phc.analysis.matching.reading_loops`)."""
+    from phc.analysis.matching import reading_loops
+
+    out = []
+    for j, loop in reading_loops(dae):
+        v = dae.variables[j]
+        if v.role == "signal":
+            # the blocks whose variables the loop's rows hold (an output substituted into
+            # another block's row brings that block's states)
+            blocks = {eq.component for eq in dae.equations if eq.kind == "signal"}
+            owner = {x.symbol: x.component for x in dae.variables} | {
+                x.dsymbol: x.component for x in dae.variables if x.dsymbol is not None}
+            held = {owner[s] for i in loop for s in dae.equations[i].expr.free_symbols if s in owner}
+            on = [v.component, *sorted(held & blocks - {v.component})]
+            out.append(Diagnostic(
+                "PHC-E128", f"the output `{v.name}` depends on itself at the same instant: the blocks "
+                f"{', '.join(f'`{c}`' for c in on)} read each other with feedthrough all round (an algebraic loop)",
+                span=v.span, path=f"components.{v.component}",
+                hint="put a block without feedthrough (`D` zero: its output is its state's) in the loop, or write "
+                "the blocks as one `state_space` block (its A, B, C, D combine theirs)"))
+            continue
+        read = v.name[len(v.component) + len(".reads("):-1]
+        # the sources (and ratios) whose relation reads the reader's output, directly or through blocks
+        drivers = [rel.component for rel in dae.topology.dirac
+                   if any(str(s).startswith(v.component + ".") for s in rel.states)]
+        on = [c for i in loop if (c := dae.equations[i].component) not in ("", "energy", v.component)]
+        through = list(dict.fromkeys([*drivers, *on]))
+        cycle = " → ".join(f"`{c}`" for c in [v.component, *through, read, v.component])
+        out.append(Diagnostic(
+            "PHC-E129", f"`{v.component}` reads `{read}`, on which its own output acts at the same instant: an "
+            f"algebraic loop {cycle}", span=v.span, path=f"components.{v.component}",
+            hint="read a variable that the output acts on only through a storage element (a state, a coil's "
+            "current, a mass's velocity), or put a block without feedthrough (a lag, D = 0) in the loop"))
+    return out
 
 
 def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:

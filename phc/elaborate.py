@@ -481,8 +481,20 @@ class _Elaborator(Reporter):
 
     def _reading_order(self, ctx: FileContext, deferred: list) -> list:
         """The deferred components in the order :func:`phc.interconnect.reading_order` gives;
-        PHC-E128 at each one on a cycle (those and the ones reading them are not lowered)."""
-        order, cycles = reading_order([(cname, comp) for cname, comp, *_ in deferred])
+        PHC-E128 at each one on a cycle (those and the ones reading them are not lowered).
+        Signal blocks may read each other in a cycle: a block read before it is lowered has
+        its outputs as variables of the model (placeholders in :attr:`signals` until it is
+        lowered, :func:`phc.library.signal.lower_state_space`); an algebraic loop among them
+        is refused once the model is assembled (PHC-E128, :func:`phc.assemble.assemble`)."""
+        from phc.library.signal import output_names
+        from phc.registry import find
+
+        blocks = {cname for cname, comp, *_ in deferred if (entry := find(comp.type)) is not None and entry.signal}
+        order, cycles, early = reading_order([(cname, comp) for cname, comp, *_ in deferred],
+                                             cut=lambda reader, read: reader in blocks and read in blocks)
+        for cname, comp, full, path in deferred:
+            if cname in early:  # read before it is lowered: its outputs are variables (phc.library.signal)
+                self.signals.update((name, sp.Symbol(name, real=True)) for name in output_names(full, comp))
         placed = set(order)
         for cname, comp, full, path in deferred:
             if cname in placed:

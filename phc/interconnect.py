@@ -88,19 +88,30 @@ def state_reads(comp) -> Optional[set]:
     return read
 
 
-def reading_order(components: list) -> tuple[list[str], dict[str, list[str]]]:
+def reading_order(components: list, cut=None) -> tuple[list[str], dict[str, list[str]], set[str]]:
     """Names of `components` ((name, spec) pairs of one file, each reading others' states:
     :func:`state_reads`) ordered so that each comes after those of them it reads (a source
-    after the signal block whose output it reads), otherwise as given; and, for each one on
-    a cycle of reads, the sorted names of the components on or reached from that cycle.
-    Those and the ones reading them are left out of the order."""
+    after the signal block whose output it reads), otherwise as given; for each one on a
+    cycle of reads, the sorted names of the components on or reached from that cycle
+    (those and the ones reading them are left out of the order); and the components read
+    before they come in the order.
+
+    `cut(reader, read)` says which reads may come before what they read (a signal block
+    reading another block's output: the output is then a variable of the model, and an
+    algebraic loop among such outputs is found once the model is assembled). Those reads
+    are cut only where nothing else can be ordered (on cycles), one component at a time:
+    the first pending one, as written, whose remaining reads are all cuttable."""
     names = {name for name, _ in components}
     reads = {name: (state_reads(comp) or set()) & names - {name} for name, comp in components}
     done: set = set()
     order: list[str] = []
+    early: set = set()
     pending = [name for name, _ in components]
     while pending:
         ready = [name for name in pending if reads[name] <= done]
+        if not ready and cut is not None:
+            ready = [name for name in pending if all(r in done or cut(name, r) for r in reads[name])][:1]
+            early.update(r for name in ready for r in reads[name] - done)
         if not ready:
             break
         done.update(ready)
@@ -116,7 +127,7 @@ def reading_order(components: list) -> tuple[list[str], dict[str, list[str]]]:
                 todo.extend(reads[r] - done)
         if name in seen:
             cycles[name] = sorted(seen)
-    return order, cycles
+    return order, cycles, early
 
 
 def _reads_of_value(matrix) -> Optional[set]:
@@ -136,7 +147,11 @@ def _topology_reads(top: Topology) -> list[tuple[str, str]]:
     found = {}
     for rel in top.dirac:
         for state in rel.states:
-            parts = str(state).split(".")
+            name = str(state)
+            # a reading (phc.library.lumped.reading_name) reads its port's owner
+            if ".reads(" in name and name.endswith(")"):
+                name = name[name.index(".reads(") + len(".reads("):-1]
+            parts = name.split(".")
             owners = (".".join(parts[:k]) for k in range(len(parts) - 1, 0, -1))  # longest first
             owner = next((o for o in owners if o in names), None)
             if owner is not None and owner != rel.component:

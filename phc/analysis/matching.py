@@ -188,3 +188,66 @@ def check_balance(dae: Dae) -> list[Diagnostic]:
                               hint="a port may be left without a termination, or a multiplier without a "
                               "constraint"))
     return out
+
+
+LOOP_ROLES = ("reading", "signal")
+"""Variables that must not depend on themselves within an instant (:func:`reading_loops`)."""
+
+
+def reading_loops(dae: Dae) -> list[tuple[int, list[int]]]:
+    """The readings of port variables (variables of role ``reading``, each with its row
+    ``r − v = 0``, labelled with its name: :func:`phc.library.lumped.register_readings`)
+    and the outputs of signal blocks that are variables (role ``signal``, the row
+    ``y − (C z + D u) = 0``: blocks read before they are lowered) that depend on themselves
+    through the algebraic part of the system: for each, (its variable index, the rows on the
+    loop).
+
+    The states are known at every instant; the unknowns are the algebraic variables and the
+    states' rates. With a maximum matching of the rows to those unknowns, the unknown a row
+    is matched to depends on the other unknowns in that row; a reading on a cycle of this
+    dependency (a strongly connected component of more than one unknown, the block of a
+    block-lower-triangular ordering) is a value that can only be had by solving an equation
+    in which the reading itself occurs — the source it drives acts back on the variable it
+    reads within the same instant, an algebraic loop. A reading whose variable is a function
+    of the states (a coil's current, a mass's velocity, a capacitor's voltage) or of
+    unknowns computed before it is on no cycle. Where assembly's definitions already
+    resolved the port variable into an expression of the reading itself, the loop is in
+    the reading's own row; those rows are then the loop (the source's definition is
+    among them, substituted)."""
+    from scipy.sparse.csgraph import connected_components
+
+    readings = [j for j, v in enumerate(dae.variables) if v.role in LOOP_ROLES]
+    if not readings:
+        return []
+    col = {}
+    for j, v in enumerate(dae.variables):
+        col[v.dsymbol if v.differential else v.symbol] = j
+    rows = [{col[s] for s in eq.expr.free_symbols if s in col} for eq in dae.equations]
+    for block in dae.linear_blocks:
+        for term in block.terms:
+            coo = term.matrix.tocoo()
+            for i, j in zip(coo.row, coo.col):
+                if term.symbols[j] in col:
+                    rows[block.rows[i]].add(col[term.symbols[j]])
+    m, n = len(rows), len(dae.variables)
+    ri = np.asarray([i for i, found in enumerate(rows) for _ in found], dtype=np.int64)
+    ci = np.asarray([j for found in rows for j in sorted(found)], dtype=np.int64)
+    match = bipartite_matching(sps.csr_matrix((np.ones(len(ri), dtype=np.int8), (ri, ci)), shape=(m, n)))
+    matched = match[ri]
+    keep = (matched >= 0) & (matched != ci)
+    graph = sps.csr_matrix((np.ones(int(keep.sum()), dtype=np.int8), (matched[keep], ci[keep])), shape=(n, n))
+    _, labels = connected_components(graph, directed=True, connection="strong")
+    row_of = {int(c): i for i, c in enumerate(match) if c >= 0}
+    reading_row = {eq.label: i for i, eq in enumerate(dae.equations) if eq.kind in ("reading", "signal")}
+    out = []
+    for j in readings:
+        v = dae.variables[j]
+        own = reading_row.get(v.name)
+        members = np.flatnonzero(labels == labels[j])
+        if len(members) > 1:
+            out.append((j, sorted(row_of[int(c)] for c in members if int(c) in row_of)))
+        elif own is not None and (dae.equations[own].expr - v.symbol).has(v.symbol):
+            # the port variable was resolved (by the definitions of assembly) into an
+            # expression of the reading itself: the loop closed inside one row
+            out.append((j, [own]))
+    return out

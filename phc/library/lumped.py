@@ -30,6 +30,7 @@ from phc.dae import T
 from phc.library.dirac import DiracBuilder, emit
 from phc.library.timing import at_times, refuse_time, sample_times
 from phc.registry import FieldView
+from phc.spec.expressions import ExpressionError, validate_syntax
 
 DEFAULT_DOMAIN = FieldView("default_domain")
 """Type -> the domain of its ports when the entry gives none (:mod:`phc.registry`)."""
@@ -213,7 +214,9 @@ def lower_source(b, ctx, name, spec, path, which: str):
     """effort_source / flow_source: the named port variable is a function of t — or, for
     feedback (a controller), also of other components' states by full name."""
     ports = _one_port_ports(b, ctx, name, spec, path, spec.type)
-    values = b.vector(ctx, spec.value, (*path, "value"), _state_scope(b, ctx), spec.dimension, "`value`")
+    values = b.vector(ctx, spec.value, (*path, "value"), _reading_scope(b, ctx, name, spec.value), spec.dimension,
+                      "`value`")
+    register_readings(b, name, values, ctx.smap.locate((*path, "value")))
     read = sorted(set().union(*(v.free_symbols for v in values)) - {T} - set(b.default_values()), key=str)
     position = None
     if getattr(spec, "position", None) is not None:
@@ -351,14 +354,69 @@ def lower_junction(b, ctx, name, spec, path):
     emit(b, d.register(b))
 
 
-def _state_scope(b, ctx) -> dict:
+READING_ROLES = ("flow", "effort")
+"""The roles of the variables a reading (:func:`_reading_scope`) may read: port variables."""
+
+
+def reading_name(reader: str, variable: str) -> str:
+    """The name of the variable holding `reader`'s reading of the port variable `variable`
+    (as :meth:`phc.lowering.Recorder.add_algebraic` names it)."""
+    return f"{reader}.reads({variable})"
+
+
+def _written_names(value, prefix: str) -> set[str]:
+    """The names an expression (or a list, or a list of lists) as written uses, by full
+    name (also with a nested file's `prefix`) and without an index (`beam.b.f` for
+    `beam.b.f[1]`); empty when one does not parse (lowering reports it)."""
+    entries = ([e for row in value for e in (row if isinstance(row, list) else [row])]
+               if isinstance(value, list) else [value])
+    try:
+        names = {str(s) for e in entries if isinstance(e, str) for s in validate_syntax(e).free_symbols}
+    except ExpressionError:
+        return set()
+    names |= {n.split("[", 1)[0] for n in names}
+    return names | {prefix + n for n in names}
+
+
+def _reading_scope(b, ctx, reader: str, value) -> dict:
+    """:func:`_state_scope` and also the port variables (``coil.port.f``, ``drive.port.e``,
+    ``beam.b.f[1]``) of the components lowered before `reader` that `value` (as written)
+    names, by the names outputs give them. A port variable read stands for a *reading*: an
+    algebraic variable of `reader` (:func:`register_readings`), so that the reading is one
+    row ``r = v`` of the assembled system, never a definition substituted into the source it
+    may drive: assembly refuses a reading that depends on its own reader's output (an
+    algebraic loop, PHC-E129)."""
+    written = _written_names(value, ctx.prefix)
+    ports = []
+    if written:
+        ports = [(v.name, sp.Symbol(reading_name(reader, v.name), real=True)) for v in b.known_variables()
+                 if v.role in READING_ROLES and (v.name in written or v.name.split("[", 1)[0] in written)]
+    return _state_scope(b, ctx, ports)
+
+
+def register_readings(b, reader: str, exprs, span) -> None:
+    """Add the reading variables that `exprs` (parsed in :func:`_reading_scope`) use, each
+    with its row ``reading − port variable = 0``. The row is a measurement, not a relation
+    of the reader's Dirac structure (so it is not compared with its description)."""
+    head = reading_name(reader, "")[:-1]
+    used = set().union(*(getattr(e, "free_symbols", set()) for e in exprs)) if exprs else set()
+    for sym in sorted(used, key=str):
+        if sym.name.startswith(head) and sym.name.endswith(")"):
+            port = sym.name[len(head):-1]
+            b.add_algebraic(reader, f"reads({port})", "reading", span)
+            b.add_equation(sym - sp.Symbol(port, real=True), reader, "reading", f"reads({port})", span,
+                           derived=True)
+
+
+def _state_scope(b, ctx, ports=()) -> dict:
     """Names a modulated component may read: `t`, parameters, the states of the
     components lowered before it and the outputs of the signal blocks lowered before it
     (:mod:`phc.library.signal`), by full name (vectors also as lists); in a nested file
-    also by the name written there (`body.p` for `plant.body.p`)."""
+    also by the name written there (`body.p` for `plant.body.p`). `ports`: (name, value)
+    pairs of port variables to add (:func:`_reading_scope`)."""
     scope = {"t": T, **ctx.params}
     vectors: dict = {}
-    named = [(v.name, v.symbol) for v in b.known_variables() if v.differential]
+    named = [(v.name, v.symbol) for v in b.known_variables() if v.differential] + list(ports)
     for name, value in (*named, *b.context.signals.items()):
         if name.endswith("]"):
             base, idx = name[:-1].rsplit("[", 1)

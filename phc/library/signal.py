@@ -18,18 +18,35 @@ from __future__ import annotations
 
 import sympy as sp
 
-from phc.library.lumped import _check_coefficient, _scope, _state_scope
+from phc.library.lumped import _check_coefficient, _reading_scope, _scope, register_readings
 
 
 def _indexed(local: str, n: int) -> list[str]:
     return [local] if n == 1 else [f"{local}[{i}]" for i in range(n)]
 
 
-def _publish(b, name: str, y: list) -> None:
-    """Make the outputs readable as ``name.y`` (``name.y[k]``) by later components and outputs."""
+def output_names(name: str, spec) -> list[str]:
+    """The full names of a block's outputs: ``name.y``, or ``name.y[k]`` for several."""
+    return [f"{name}.{local}" for local in _indexed("y", len(spec.C) if spec.type == "state_space" else 1)]
+
+
+def _publish(b, name: str, y: list, span=None) -> None:
+    """Make the outputs readable as ``name.y`` (``name.y[k]``) by later components and outputs.
+
+    An output read by a component lowered before this block (blocks that read each other in
+    a cycle, :meth:`phc.elaborate.Elaborator._reading_order`) is already a placeholder symbol
+    of that name: it becomes an algebraic variable with the row ``y − (C z + D u) = 0``, so
+    that what read it early and what reads it now see one variable; an algebraic loop among
+    such outputs (feedthrough all round the cycle) is refused after assembly (PHC-E128)."""
     for local, value in zip(_indexed("y", len(y)), y):
-        b.signals[f"{name}.{local}"] = value
-        b.extra_outputs[f"{name}.{local}"] = value
+        full = f"{name}.{local}"
+        early = b.context.signals.get(full)
+        if isinstance(early, sp.Symbol) and early.name == full:
+            sym = b.add_algebraic(name, local, "signal", span)
+            b.add_equation(sym - value, name, "signal", local, span)  # labelled as the variable
+            value = sym
+        b.signals[full] = value
+        b.extra_outputs[full] = value
 
 
 def _states(b, name: str, local: str, n: int, span) -> list:
@@ -45,7 +62,8 @@ def lower_state_space(b, ctx, name, spec, path):
                 ctx, (*path, "A" if n == 0 else "C"), hint="an integrator is `A: [[0]]`, `B: [[1]]`, `C: [[1]]`")
         b.failed.add(name)
         return
-    u = b.vector(ctx, spec.input, (*path, "input"), _state_scope(b, ctx), None, "`input`")
+    u = b.vector(ctx, spec.input, (*path, "input"), _reading_scope(b, ctx, name, spec.input), None, "`input`")
+    register_readings(b, name, u, ctx.smap.locate((*path, "input")))
     m = len(u)
     params = _scope(ctx)
     A = b.matrix(ctx, spec.A, (*path, "A"), params, (n, n), "`A`")
@@ -58,7 +76,7 @@ def lower_state_space(b, ctx, name, spec, path):
     rhs = A * z + B * uu
     for i, (_, dz) in enumerate(states):
         b.add_equation(dz - rhs[i], name, "signal", f"state[{i}]", span)
-    _publish(b, name, list(C * z + D * uu))
+    _publish(b, name, list(C * z + D * uu), span)
 
 
 def lower_pi(b, ctx, name, spec, path):
@@ -66,7 +84,8 @@ def lower_pi(b, ctx, name, spec, path):
     anti-windup (see :class:`phc.spec.components.PiSpec`)."""
     span = ctx.smap.locate(path)
     params = _scope(ctx)
-    e = b.expr(ctx, spec.input, (*path, "input"), _state_scope(b, ctx))
+    e = b.expr(ctx, spec.input, (*path, "input"), _reading_scope(b, ctx, name, spec.input))
+    register_readings(b, name, [e], ctx.smap.locate((*path, "input")))
     Kp = b.expr(ctx, spec.Kp, (*path, "Kp"), params)
     Ki = b.expr(ctx, spec.Ki, (*path, "Ki"), params)
     (z, dz), = _states(b, name, "z", 1, span)
@@ -96,7 +115,7 @@ def lower_pi(b, ctx, name, spec, path):
         rate = sp.Piecewise((0, sp.And(y > hi, Ki * e > 0)), (0, sp.And(y < lo, Ki * e < 0)), (e, True))
         y = sp.Piecewise((hi, y > hi), (lo, y < lo), (y, True))
     b.add_equation(dz - rate, name, "signal", "integral", span)
-    _publish(b, name, [y])
+    _publish(b, name, [y], span)
 
 
-__all__ = ["lower_pi", "lower_state_space"]
+__all__ = ["lower_pi", "lower_state_space", "output_names"]

@@ -383,8 +383,9 @@ class EffortSourceSpec(_OnePort):
     type: Literal["effort_source"]
     value: Union[Expr, Vector]
     """Expression(s) in `t`, parameters and — for feedback (a controller) — other
-    components' states by full name (`spring.x`). The plant stays certified; a controller
-    may inject energy, which the energy balance counts as supplied power."""
+    components' states and port variables by full name (`spring.x`, `coil.port.f`). The
+    plant stays certified; a controller may inject energy, which the energy balance counts
+    as supplied power."""
 
 
 class FlowSourceSpec(_OnePort):
@@ -392,7 +393,8 @@ class FlowSourceSpec(_OnePort):
 
     type: Literal["flow_source"]
     value: Union[Expr, Vector]
-    """Expression(s) in `t` and parameters."""
+    """Expression(s) in `t`, parameters and — for feedback — other components' states and
+    port variables by full name, as for `effort_source`."""
     position: Optional[Vector] = None
     """Optional position (integral of the flow) in `t`; lets phc keep the driven
     coordinate at position level."""
@@ -669,8 +671,8 @@ class StateSpaceSpec(_Component):
     """A linear signal block (a controller with state): ż = A z + B u, y = C z + D u.
 
     Not a physical component: it has no ports and no energy. Its input `u` reads other
-    components' states (by full name, as a feedback source's `value`) and other blocks'
-    outputs; its output `y` is read as `<name>.y` (`<name>.y[k]` for several) by a
+    components' states and port variables (by full name, as a feedback source's `value`)
+    and other blocks' outputs; its output `y` is read as `<name>.y` (`<name>.y[k]` for several) by a
     source's `value`, another block's `input` or the model's outputs. Its states
     `<name>.z` (`<name>.z[i]` for several) are integrated like any other state and start
     at 0 unless `simulation.initial` gives them. An integrator is `A: [[0]], B: [[1]],
@@ -680,8 +682,8 @@ class StateSpaceSpec(_Component):
 
     type: Literal["state_space"]
     input: Union[Expr, Vector]
-    """Input u: expression(s) in `t`, parameters, other components' states and other
-    blocks' outputs, by full name (`load.p`, `ctrl.y`)."""
+    """Input u: expression(s) in `t`, parameters, other components' states, their port
+    variables and other blocks' outputs, by full name (`load.p`, `coil.port.f`, `ctrl.y`)."""
     A: Matrix
     """State matrix (n × n; numbers or expressions of parameters)."""
     B: Matrix
@@ -704,8 +706,9 @@ class PiSpec(_Component):
 
     type: Literal["pi"]
     input: Expr
-    """The control error e, an expression in `t`, parameters, other components' states
-    and other blocks' outputs by full name (e.g. `w_ref - load.p/J_l`)."""
+    """The control error e, an expression in `t`, parameters, other components' states,
+    their port variables and other blocks' outputs by full name (e.g. `w_ref - load.p/J_l`,
+    `i_ref - coil.port.f`)."""
     Kp: Expr
     """Proportional gain."""
     Ki: Expr

@@ -269,11 +269,47 @@ def test_an_unknown_name_in_the_input_is_located(tmp_path):
     assert "bodyy.p" in errors[0].message
 
 
-def test_blocks_reading_each_other_in_a_cycle_are_refused(tmp_path):
+def test_blocks_reading_each_other_with_feedthrough_all_round_are_an_algebraic_loop(tmp_path):
+    """ctrl.y = z + other.y and other.y = w + ctrl.y: each output depends on itself at the
+    same instant. Refused at one of them, naming both."""
     cycle = ('  ctrl: {type: state_space, input: ["other.y"], A: [[-1]], B: [[1]], C: [[1]], D: [[1]]}\n'
              '  other: {type: state_space, input: ["ctrl.y"], A: [[-1]], B: [[1]], C: [[1]], D: [[1]]}')
     errors = _refused(tmp_path, cycle, "PHC-E128")
-    assert {e.path for e in errors if e.code == "PHC-E128"} >= {"components.ctrl", "components.other"}
+    loop = [e for e in errors if e.code == "PHC-E128"]
+    assert len(loop) == 1 and "algebraic loop" in loop[0].message, [str(e) for e in errors]
+    assert "`ctrl`" in loop[0].message and "`other`" in loop[0].message
+    lines = PLANT.format(controller=cycle, t_end=2.0).splitlines()
+    line = lines.index(cycle.splitlines()[loop[0].path == "components.other"]) + 1  # the block's own entry
+    assert (loop[0].span.line, loop[0].span.col) == (line, lines[line - 1].index("{") + 1)
+
+
+def test_blocks_reading_each_other_through_a_state_are_no_loop(tmp_path):
+    """Two blocks that read each other, one without feedthrough (D = 0 breaks the loop):
+    F = a.y = z_a, ż_a = b.y − v, b.y = z_b, ż_b = −z_b − a.y, with the plant
+    ẋ = v, m v̇ = −k x + F: against scipy (rtol 1e-11; phc's IDA at 1e-10), and the
+    spectrum of `phc linearize` against the hand-derived matrix."""
+    from scipy.integrate import solve_ivp
+
+    pair = ('  ctrl: {type: state_space, input: ["other.y - body.p/m"], A: [[0]], B: [[1]], C: [[1]]}\n'
+            '  other: {type: state_space, input: ["-ctrl.y"], A: [[-1]], B: [[1]], C: [[1]]}')
+    path = _write(tmp_path, pair)
+    r = phc.simulate(phc.compile_model(path), initial={"ctrl.z": 0.5})
+    assert r.success, r.message
+
+    def f(t, y):
+        x, v, za, zb = y
+        return [v, (-k * x + za) / m, zb - v, -zb - za]
+
+    ref = solve_ivp(f, (0.0, r.t[-1]), [0.0, 0.0, 0.5, 0.0], t_eval=r.t, rtol=1e-11, atol=1e-13)
+    v, za = ref.y[1], ref.y[2]
+    assert np.abs(v).max() > 1e-2 and np.abs(r.outputs["v"] - v).max() < 1e-7
+    assert np.abs(r.outputs["force"] - za).max() < 1e-7
+    A = np.array([[0.0, -k, 1.0, 0.0],  # (p, x, z_a, z_b): ṗ = −k x + z_a
+                  [1 / m, 0.0, 0.0, 0.0],
+                  [-1 / m, 0.0, 0.0, 1.0],
+                  [0.0, 0.0, -1.0, -1.0]])
+    lin = phc.linearize_model(path, certify=False)
+    _same_spectrum(lin.eigenvalues, np.linalg.eigvals(A))
 
 
 def test_a_pid_needs_a_positive_filter_time_constant_and_limits_in_order(tmp_path):
