@@ -26,6 +26,8 @@ from typing import Optional
 
 import numpy as np
 
+from phc.simulation.midpoint import EVENT_TOL  # the relative time an event is located to
+
 REST_FRACTION = 1e-6
 """Default rest speed of a contact: this fraction of the largest closing speed it has seen."""
 
@@ -63,12 +65,17 @@ class Contacts:
         self.gap_idx = np.asarray(self.gap, dtype=np.int64)
         self.closing = np.zeros(self.n)
         """The largest closing speed each contact has seen."""
+        self.offset = np.zeros(self.n)
+        """Added to each gap where it is watched: after an impact the gap starts at zero (to the
+        event's location error), and a solver sees a crossing only from a positive value;
+        with the offset a rebound whose whole flight lies within one step (the last bounces
+        before a ball comes to rest) is still an impact at the step's end."""
 
     def outputs(self, t, y, yp, p) -> np.ndarray:
         return np.asarray(self.mod.outputs(t, y, yp, p), dtype=float)
 
     def gaps(self, t, y, yp, p) -> np.ndarray:
-        return self.outputs(t, y, yp, p)[self.gap_idx] if self.n else np.zeros(0)
+        return self.outputs(t, y, yp, p)[self.gap_idx] + self.offset if self.n else np.zeros(0)
 
     def impact(self, k: int, t, y, yp, p, restart) -> tuple[np.ndarray, np.ndarray, Optional[str], float]:
         """The jump of contact k at (t, y, ẏ): ``(y⁺, ẏ⁺, stop message or None, rate before)``;
@@ -94,6 +101,8 @@ class Contacts:
         h_before = float(self.mod.hamiltonian(t, y, p))
         new[energy] += h_before - float(self.mod.hamiltonian(t, new, p))
         y_new, yp_new = restart(new)
+        # watched from just below the event's gap: the event is located to EVENT_TOL in time
+        self.offset[k] = max(0.0, -float(out[self.gap[k]])) + 2.0 * -before * EVENT_TOL * max(1.0, abs(t))
         self.closing[k] = max(self.closing[k], -before)
         rest = (float(out[self.rest[k]]) if self.rest[k] is not None else REST_FRACTION * self.closing[k])
         if e * -before <= rest:
