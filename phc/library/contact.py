@@ -29,6 +29,26 @@ from phc.library.lumped import _scope, _state_scope
 _POSITION = re.compile(r"^(?P<body>.+)\.x(?P<index>\[\d+\])?$")
 
 
+def _momentum(ctx, state: str) -> tuple:
+    """The momentum paired with a position state, or (None, why not): ``<mass>.p[k]`` for
+    ``<mass>.x[k]``; for a coordinate q_i of a rigid body with q̇ = v (no `Z`) and no
+    position constraints, its momentum ``<body>.p_<v_i>`` (the impulse along ∂g/∂q is then
+    Newton's; with Z or constraints it is not, and is refused)."""
+    body, _, local = state.rpartition(".")
+    spec = ctx.spec.components.get(body[len(ctx.prefix):]) if body.startswith(ctx.prefix) else None
+    kind = getattr(spec, "type", None)
+    match = _POSITION.match(state)
+    if kind == "mass" and match:
+        return f"{match['body']}.p{match['index'] or ''}", None
+    if kind == "rigid" and local in spec.q:
+        if spec.Z is not None or spec.constraints or spec.velocity_constraints:
+            return None, (f"a coordinate of the rigid body `{body}`, which has `Z` or constraints: an impact there "
+                          "needs the constraint impulses too, which phc does not compute yet")
+        vnames = spec.v if spec.v is not None else [f"v_{q}" for q in spec.q]
+        return f"{body}.p_{vnames[spec.q.index(local)]}", None
+    return None, None
+
+
 def lower_contact(b, ctx, name, spec, path):
     """The outputs of a contact (see the module docstring); errors are located at its fields."""
     n_errors = len(b.diags.errors)
@@ -48,15 +68,15 @@ def lower_contact(b, ctx, name, spec, path):
         return
     positions = []
     for sym in sorted(gap.free_symbols & set(states), key=lambda s: s.name):
-        match = _POSITION.match(sym.name)
-        momentum = match and f"{match['body']}.p{match['index'] or ''}"
-        if not match or not any(v.name == momentum for v in states.values()):
-            b.error("PHC-E126", f"the `gap` of contact `{name}` uses `{sym.name}`, which is not the position of a "
-                    "mass", ctx, (*path, "gap"), hint="a gap is written in positions `<mass>.x` of masses with "
-                    "`position: true` (declared before the contact)")
+        momentum, why = _momentum(ctx, sym.name)
+        if momentum is None or not any(v.name == momentum for v in states.values()):
+            b.error("PHC-E126", f"the `gap` of contact `{name}` uses `{sym.name}`, {why or 'which is not the position of a mass or of a rigid body'}",
+                    ctx, (*path, "gap"), hint="a gap is written in positions `<mass>.x` of masses with "
+                    "`position: true`, or in the coordinates q of `rigid` bodies without `Z` and `constraints`, "
+                    "declared before the contact")
             b.failed.add(name)
             return
-        positions.append(sym)
+        positions.append((sym, momentum))
     if not positions:
         b.error("PHC-E126", f"the `gap` of contact `{name}` uses no position of a mass, so nothing can hit",
                 ctx, (*path, "gap"), hint="write it in positions `<mass>.x` of masses with `position: true`, e.g. "
@@ -79,9 +99,9 @@ def lower_contact(b, ctx, name, spec, path):
             b.failed.add(name)
             return
     rate = sp.Integer(0)
-    for x in positions:
+    for x, momentum in positions:
         normal = sp.diff(gap, x)
-        b.extra_outputs[f"{name}.normal.{x.name}"] = normal
+        b.extra_outputs[f"{name}.normal.{momentum}"] = normal
         rate += normal * states[x].dsymbol
     b.extra_outputs[f"{name}.gap"] = gap
     b.extra_outputs[f"{name}.gap_rate"] = rate

@@ -240,3 +240,52 @@ def test_contact_mistakes_are_located(tmp_path, gap, restitution, field, text):
     message = str(err.value)
     assert text in message and f"components.floor.{field}" in message
     assert "model.yaml:11:" in message
+
+
+PUCK = """\
+format_version: 1
+name: puck
+parameters:
+  m: 0.5
+  e: 0.6
+  g: 9.81
+components:
+  puck:
+    type: rigid
+    q: [x, y]
+    v: [vx, vy]
+    M: [[m, 0], [0, m]]
+    V: m*g*y
+  wall: {type: contact, gap: 1 - puck.x, restitution: e}
+simulation:
+  t_end: 1.0
+  n_out: 101
+  initial: {puck.x: 0.0, puck.y: 0.0, puck.p_vx: 1.0, puck.p_vy: 2.0}
+"""
+
+
+@pytest.mark.parametrize("solver,kw", SOLVERS[:2], ids=[s for s, _ in SOLVERS[:2]])
+def test_rigid_body_hits_a_wall(tmp_path, solver, kw):
+    """A rigid point mass thrown against a wall x = 1 under gravity: the normal velocity reverses
+    times e, the tangential one is untouched, and the energy drops by (1 − e²)·½ m v_n²."""
+    m, e, g = 0.5, 0.6, 9.81
+    compiled = _compile(tmp_path, PUCK)
+    r = phc.simulate(compiled, solver=solver, **kw)
+    assert r.success, r.message
+    vx, vy = 1.0 / m, 2.0 / m
+    t_hit = 1.0 / vx
+    assert _impacts(r) == [pytest.approx(t_hit, abs=1e-9)]
+    x = r.y[:, r.variables.index("puck.x")]
+    y = r.y[:, r.variables.index("puck.y")]
+    after = r.t > t_hit
+    assert np.allclose(x[after], 1 - e * vx * (r.t[after] - t_hit), rtol=0, atol=1e-9)
+    assert np.allclose(y, vy * r.t - 0.5 * g * r.t**2, rtol=0, atol=1e-9)
+    assert r.H[-1] - r.H[0] + r.energy_supplied[-1] == pytest.approx(0, abs=1e-12)
+    assert r.energy_supplied[-1] == pytest.approx((1 - e**2) * 0.5 * m * vx**2, rel=1e-9)
+
+
+def test_rigid_body_with_constraints_is_refused(tmp_path):
+    model = PUCK.replace("    V: m*g*y\n", "    V: m*g*y\n    constraints: [x**2 + y**2 - 1]\n")
+    with pytest.raises(ModelError) as err:
+        _compile(tmp_path, model)
+    assert "constraint impulses" in str(err.value) and "components.wall.gap" in str(err.value)
