@@ -77,7 +77,8 @@ class Event:
     0 when sticking begins."""
     kind: str
     """``time`` (a condition in t, located before the run), ``state`` (located by root
-    finding), ``stick`` or ``slip`` (a set-valued sign)."""
+    finding), ``stick`` or ``slip`` (a set-valued sign), ``impact`` (a contact's gap closed:
+    `condition` and `equation` name the contact, direction −1)."""
     equation: str = ""
     """The residual row the condition occurs in."""
     comparison: bool = False
@@ -638,8 +639,8 @@ def _handle(watch: Watch, t, y, yp, which, events, dif, energy) -> tuple[np.ndar
         y, yp, rest, before = watch.contacts.impact(k, t, y, yp, watch.p,
                                                     lambda z: _restart(watch, t, z, dif | set(energy)))
         if before < 0:
-            watch.handled.append((t, f"contact `{name}`", name))
-            events.append(Event(t, f"contact `{name}`", -1, "impact", name))
+            watch.handled.append((t, name, name))
+            events.append(Event(t, name, -1, "impact", name))
         if rest is not None:
             raise ContactRest(rest)
         state = (y, yp)

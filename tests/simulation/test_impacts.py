@@ -289,3 +289,22 @@ def test_rigid_body_with_constraints_is_refused(tmp_path):
     with pytest.raises(ModelError) as err:
         _compile(tmp_path, model)
     assert "constraint impulses" in str(err.value) and "components.wall.gap" in str(err.value)
+
+
+@pytest.mark.parametrize("solver,kw", SOLVERS[:2], ids=[s for s, _ in SOLVERS[:2]])
+def test_plastic_stop_on_a_spring_lets_go(tmp_path, solver, kw):
+    """e = 0 against a stop the spring pulls away from: the body stops dead at x = d (one
+    impact, no rest: the gap's acceleration is positive) and oscillates between ±d with
+    H = ½ k d² ever after."""
+    m, k, d, p0 = 2.0, 8.0, 0.6, 4.0
+    compiled = _compile(tmp_path, SPRING_STOP)
+    r = phc.simulate(compiled, solver=solver, params={"e": 0.0}, **kw)
+    assert r.success, r.message
+    w = math.sqrt(k / m)
+    t_hit = math.asin(d / (p0 / m / w)) / w
+    tol = 1e-8 if solver == "ida" else 1e-6  # the spring's motion: IDA's tolerance, midpoint's O(h²)
+    assert _impacts(r) == [pytest.approx(t_hit, abs=tol)]
+    after = r.t > t_hit + 1e-6
+    assert np.allclose(r.H[after], 0.5 * k * d**2, rtol=tol)
+    x = r.y[:, r.variables.index("body.x")]
+    assert x.max() <= d + 1e-9 and x.min() == pytest.approx(-d, abs=1e-3)
