@@ -639,7 +639,7 @@ def _handle(watch: Watch, t, y, yp, which, events, dif, energy) -> tuple[np.ndar
         y, yp, rest, before = watch.contacts.impact(k, t, y, yp, watch.p,
                                                     lambda z: _restart(watch, t, z, dif | set(energy)))
         if before < 0:
-            watch.handled.append((t, name, name))
+            watch.handled.append((t, name, "contact"))
             events.append(Event(t, name, -1, "impact", name))
         if rest is not None:
             raise ContactRest(rest)
@@ -694,6 +694,10 @@ def _chatter(handled, span) -> Optional[str]:
     t_last, condition, equation = handled[-1]
     times = [t for t, c, _ in handled[-4 * CHATTER_COUNT:] if c == condition][-CHATTER_COUNT:]
     if len(times) == CHATTER_COUNT and times[-1] - times[0] <= CHATTER_SPAN * span:
+        if equation == "contact":
+            return (f"contact `{condition}` hit {CHATTER_COUNT} times within {times[-1] - times[0]:.3g} at "
+                    f"t = {t_last:.6g}: the body is coming to rest on it, which phc does not model; give the "
+                    "contact a `rest_speed` (the run then stops where the body comes to rest; docs/events.md)")
         return (f"the switching condition `{condition}` (equation `{equation}`) switched {CHATTER_COUNT} "
                 f"times within {times[-1] - times[0]:.3g} at t = {t_last:.6g}: the solution slides along its "
                 "boundary and no branch holds it there. A Coulomb law written `F*sign(v)` in a row it enters "
