@@ -130,7 +130,10 @@ class Contacts:
 
 
 def has_contacts(mod) -> bool:
-    return any(str(n).endswith(".restitution") for n in getattr(mod, "OUTPUTS", ()))
+    """Whether `mod` has a contact (its outputs ``<c>.gap``, ``<c>.gap_rate``, ``<c>.restitution``)."""
+    outputs = set(getattr(mod, "OUTPUTS", ()))
+    return any(n.endswith(".restitution") and f"{n[:-12]}.gap" in outputs and f"{n[:-12]}.gap_rate" in outputs
+               for n in outputs)
 
 
 __all__ = ["Contacts", "has_contacts", "REST_FRACTION"]

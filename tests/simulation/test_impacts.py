@@ -308,3 +308,17 @@ def test_plastic_stop_on_a_spring_lets_go(tmp_path, solver, kw):
     assert np.allclose(r.H[after], 0.5 * k * d**2, rtol=tol)
     x = r.y[:, r.variables.index("body.x")]
     assert x.max() <= d + 1e-9 and x.min() == pytest.approx(-d, abs=1e-3)
+
+
+def test_check_sees_the_bodies_a_contact_couples_as_one_part(tmp_path):
+    """`phc check`: a contact has no port, but the two masses it couples are not independent
+    parts (no PHC-W201), and a ball with its floor is one part."""
+    from phc.checks.certify import certify
+
+    for text in (TWO_MASSES, BALL):
+        path = tmp_path / "model.yaml"
+        path.write_text(text)
+        dae, _ = phc.build_dae(path)
+        cert = certify(dae)
+        assert len(cert.parts) == 1, cert.parts
+        assert not [d for d in cert.diagnostics if d.code == "PHC-W201"]
