@@ -322,3 +322,17 @@ def test_check_sees_the_bodies_a_contact_couples_as_one_part(tmp_path):
         cert = certify(dae)
         assert len(cert.parts) == 1, cert.parts
         assert not [d for d in cert.diagnostics if d.code == "PHC-W201"]
+
+
+def test_shipped_bouncing_ball_against_closed_form():
+    """models/bouncing_ball.yaml (m = 0.1 kg, h0 = 1 m, e = 0.8, to 2.5 s): its 4 impacts."""
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "models" / "bouncing_ball.yaml"
+    r = phc.simulate(phc.compile_model(path))
+    assert r.success, r.message
+    g, h0, e = 9.81, 1.0, 0.8
+    t1 = math.sqrt(2 * h0 / g)
+    expected = [t1 * (1 + 2 * sum(e**j for j in range(1, k))) for k in range(1, 5)]
+    assert np.allclose(_impacts(r), expected, rtol=0, atol=1e-9)
+    assert r.outputs["energy"][-1] == pytest.approx(0.5 * 0.1 * r.outputs["v"][-1]**2, rel=1e-12)
