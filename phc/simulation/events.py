@@ -394,6 +394,14 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, keywo
     except InconsistentInitialError as err:
         return _stopped(t_out, y, yp, stats, events, "no consistent start with the switching conditions at t0: "
                         + "; ".join(err.problems))
+    if watch.n_ct:  # a contact must start open (or touching: then watched from just below zero)
+        gaps = watch.contacts.gaps(t0, y, yp, watch.p)
+        scale = 1e-12 * (1.0 + float(np.abs(y).max(initial=0.0)))
+        for k in np.flatnonzero(gaps < -scale):
+            return _stopped(t_out, y, yp, stats, events,
+                            f"contact `{watch.contacts.names[k]}` starts closed: its gap is {gaps[k]:.6g} < 0 at "
+                            f"t = {t0:g}; give initial positions where the gap is ≥ 0")
+        watch.contacts.offset[:] = np.where(gaps <= scale, scale, 0.0)
     pieces = [(t_out[:1], y[None, :], yp[None, :])]
     t, seg = t0, 0
     floors: dict = {}  # the scales' round-off floor per mode (parameter vector with the modes)
