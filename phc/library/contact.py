@@ -72,8 +72,8 @@ def lower_contact(b, ctx, name, spec, path):
         if momentum is None or not any(v.name == momentum for v in states.values()):
             why = why or "which is not the position of a mass or of a rigid body"
             b.error("PHC-E126", f"the `gap` of contact `{name}` uses `{sym.name}`, {why}", ctx, (*path, "gap"),
-                    hint="a gap is written in positions `<mass>.x` of masses with `position: true`, or in the coordinates q of `rigid` bodies without `Z` and `constraints`, "
-                    "declared before the contact")
+                    hint="a gap is written in positions `<mass>.x` of masses with `position: true`, or in "
+                    "the coordinates q of `rigid` bodies without `Z` and `constraints`, declared before the contact")
             b.failed.add(name)
             return
         positions.append((sym, momentum))
