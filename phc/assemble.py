@@ -276,6 +276,13 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
         oval = final(rep.expr(ctx, oexpr, vpath, scope, check_units=False, rates=rates))
         factor = result_units.output(ctx, oname, oexpr, vpath, getattr(ospec, "unit", None), (*opath, "unit"))
         outputs.append((oname, oval if factor is None else oval * sp.Float(factor)))  # into its declared unit
+    # a contact's gap, its rate, normal and restitution are outputs the simulation reads at
+    # impacts (phc.library.contact, phc.simulation.impacts)
+    contacts = [name for name, cspec in elab.component_specs.items() if getattr(cspec, "type", None) == "contact"]
+    taken = {name for name, _ in outputs}
+    for name, expr in elab.extra_outputs.items():
+        if any(name.startswith(c + ".") for c in contacts) and name not in taken:
+            outputs.append((name, final(expr)))
     velocity_invariants = tuple(Invariant(v.label, final(v.expr), v.component, v.span)
                                 for v in elab.velocity_invariants)
     states_named = {v.name for v in variables if v.differential}

@@ -67,6 +67,7 @@ EXAMPLES = {
     "moving_beam": MODELS / "moving_beam.yaml",
     "crank_wheel": CRANK,
     "pi": MODELS / "dc_motor_pi.yaml",
+    "contact": MODELS / "bouncing_ball.yaml",
     "state_space": """
 format_version: 1
 parameters: {m: 1.0, k: 4.0, tau: 0.1}

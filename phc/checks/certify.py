@@ -61,6 +61,20 @@ def _signal_blocks(top) -> set[str]:
             if (entry := registry.find(kind)) is not None and entry.signal}
 
 
+def _contact_bodies(top, dae) -> dict[str, set[str]]:
+    """Each `contact` component (:mod:`phc.library.contact`) and the components whose momenta
+    its impacts act on (its outputs ``<contact>.normal.<component>.<momentum>``)."""
+    names = {name for name, _, _ in top.components}
+    out: dict[str, set[str]] = {}
+    for name, kind, _ in top.components:
+        if kind != "contact":
+            continue
+        prefix = f"{name}.normal."
+        momenta = [o[len(prefix):] for o, _ in dae.outputs if o.startswith(prefix)]
+        out[name] = {n for n in names for m in momenta if m.startswith(n + ".")}
+    return out
+
+
 @dataclass
 class ComponentCertificate:
     name: str
@@ -368,7 +382,14 @@ def certify(dae: Dae, n_random: int = 2, seed: int = 0) -> Certificate:
     # one state where the structure is generic: a random one (the initial state is often special)
     verdicts = classify(graph, comps, samples[1] if len(samples) > 1 else samples[0])
     # a signal block has no port: it acts through the sources that read it, not a connection
-    parts = [p for p in ([n for n in part if n not in signal] for part in independent_parts(graph)) if p]
+    # a contact has no port either: it couples the bodies its gap names (at impacts)
+    contacts = _contact_bodies(top, dae)
+    parts = [p for p in ([n for n in part if n not in signal and n not in contacts] for part in
+                         independent_parts(graph)) if p]
+    for bodies in contacts.values():
+        joined = [p for p in parts if set(p) & bodies]
+        if len(joined) > 1:
+            parts = [p for p in parts if p not in joined] + [[n for p in joined for n in p]]
     if len(parts) > 1:
         spans = {name: span for name, _, span in top.components}
         diags.append(Diagnostic("PHC-W201", f"the model has {len(parts)} independent parts with no connection "

@@ -287,7 +287,8 @@ def _export(path, out, step, solver, fmi, params, certify, started) -> FmuReport
     raw = compiled.module
     if has_switches(raw):
         raise ExportError("the model has switching conditions (events: ifelse, abs, sign, min or max of the state, "
-                          "stops); the FMU carries no event handling yet: export a model without them")
+                          "stops) or contacts (impacts); the FMU carries no event handling yet: export a model without "
+                          "them")
     if len(getattr(raw, "BREAKPOINTS", ())):
         raise ExportError("the model's inputs have breakpoints (pieces or tables, first at t = "
                           f"{float(raw.BREAKPOINTS[0]):g}), where phc restarts the run; the FMU does not: drive "

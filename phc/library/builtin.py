@@ -14,6 +14,7 @@ from functools import partial
 
 from phc import viz
 from phc.library import lumped
+from phc.library.contact import lower_contact
 from phc.library.beams import lower_euler_bernoulli, lower_string, lower_timoshenko
 from phc.library.linear import lower_linear_phs
 from phc.library.moving import lower_crank_wheel, lower_moving_beam
@@ -176,5 +177,10 @@ BUILTINS = (
         name="pi", spec=c.PiSpec, lower=lower_pi, default_domain=None,
         units=Units.absent(_SIGNAL), cost=ASSEMBLED, spatial_order=None, initial_fields=NO_FIELDS,
         sign_role=None, state_reads=StateReads(("input",)), drawing=None, rows=HAND_WRITTEN, signal=True),
+    ComponentType(
+        name="contact", spec=c.ContactSpec, lower=lower_contact, default_domain=None,
+        units=Units.absent("a contact's gap is in the units of the positions it is written in"),
+        cost=ASSEMBLED, spatial_order=None, initial_fields=NO_FIELDS, sign_role=None,
+        state_reads=StateReads(("gap",)), drawing=None, rows=DERIVED),
 )
 """The built-in entries, registered by :func:`phc.registry._load_builtins` on first use."""

@@ -39,6 +39,7 @@ import numpy as np
 from phc.errors import InconsistentInitialError, SwitchTimeError
 from phc.simulation.backend import BackendRun
 from phc.simulation.guard import CATCH, ModelEvaluationError
+from phc.simulation.impacts import Contacts, has_contacts
 from phc.simulation.initial import consistent_initial_conditions
 from phc.simulation.order import carry as carry_order
 from phc.simulation.scaling import mode_floor, tested_fraction
@@ -76,7 +77,8 @@ class Event:
     0 when sticking begins."""
     kind: str
     """``time`` (a condition in t, located before the run), ``state`` (located by root
-    finding), ``stick`` or ``slip`` (a set-valued sign)."""
+    finding), ``stick`` or ``slip`` (a set-valued sign), ``impact`` (a contact's gap closed:
+    `condition` and `equation` name the contact, direction −1)."""
     equation: str = ""
     """The residual row the condition occurs in."""
     comparison: bool = False
@@ -87,20 +89,28 @@ class Event:
 
 
 def has_switches(mod) -> bool:
-    return bool(len(getattr(mod, "SWITCHES", ())))
+    """Whether a run of `mod` needs this driver: switching conditions or contacts (impacts)."""
+    return bool(len(getattr(mod, "SWITCHES", ()))) or has_contacts(mod)
+
+
+class ContactRest(Exception):
+    """A contact comes to rest (:mod:`phc.simulation.impacts`): the run stops with this message."""
 
 
 class Watch:
     """The switching functions of the current modes, as the backends watch them:
     ``w(t, y, ẏ)`` positive while every mode holds, one entry per switch (``mode·g``;
     +1 when not watched: conditions in t, a switch whose set-valued sign sticks) and two
-    per set-valued sign (``1 − s`` and ``1 + s`` while sticking, else +1)."""
+    per set-valued sign (``1 − s`` and ``1 + s`` while sticking, else +1), then the gap of
+    every contact (:mod:`phc.simulation.impacts`)."""
 
     def __init__(self, mod, p: np.ndarray):
         self.mod = mod
         self.p = np.array(p, dtype=float)
         self.n_sw, self.n_st = len(mod.SWITCHES), len(mod.STICKS)
-        self.n = self.n_sw + 2 * self.n_st
+        self.contacts = Contacts(mod)
+        self.n_ct = self.contacts.n
+        self.n = self.n_sw + 2 * self.n_st + self.n_ct
         self.slots = np.asarray(mod.SWITCH_SLOTS, dtype=np.int64)
         self.time_only = np.asarray(mod.SWITCH_TIME_ONLY, dtype=bool)
         self.stick_slots = np.asarray(mod.STICK_SLOTS, dtype=np.int64)
@@ -157,8 +167,10 @@ class Watch:
         w = np.ones(self.n)
         w[:self.n_sw] = np.where(self.mask, self.sign * v[:self.n_sw], 1.0)
         s = v[self.n_sw:]
-        w[self.n_sw::2] = np.where(self.stuck, 1.0 - s, 1.0)
-        w[self.n_sw + 1::2] = np.where(self.stuck, 1.0 + s, 1.0)
+        w[self.n_sw:self.n_sw + 2 * self.n_st:2] = np.where(self.stuck, 1.0 - s, 1.0)
+        w[self.n_sw + 1:self.n_sw + 2 * self.n_st:2] = np.where(self.stuck, 1.0 + s, 1.0)
+        if self.n_ct:
+            w[self.n_sw + 2 * self.n_st:] = self.contacts.gaps(t, y, yp, self.p)
         return w
 
     def _failure(self, t, which, reason) -> ModelEvaluationError:
@@ -382,6 +394,14 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, keywo
     except InconsistentInitialError as err:
         return _stopped(t_out, y, yp, stats, events, "no consistent start with the switching conditions at t0: "
                         + "; ".join(err.problems))
+    if watch.n_ct:  # a contact must start open (or touching: then watched from just below zero)
+        gaps = watch.contacts.gaps(t0, y, yp, watch.p)
+        scale = 1e-12 * (1.0 + float(np.abs(y).max(initial=0.0)))
+        for k in np.flatnonzero(gaps < -scale):
+            return _stopped(t_out, y, yp, stats, events,
+                            f"contact `{watch.contacts.names[k]}` starts closed: its gap is {gaps[k]:.6g} < 0 at "
+                            f"t = {t0:g}; give initial positions where the gap is ≥ 0")
+        watch.contacts.offset[:] = np.where(gaps <= scale, scale, 0.0)
     pieces = [(t_out[:1], y[None, :], yp[None, :])]
     t, seg = t0, 0
     floors: dict = {}  # the scales' round-off floor per mode (parameter vector with the modes)
@@ -393,7 +413,7 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, keywo
         try:
             if end - t > ROUNDOFF * max(1.0, abs(t)):
                 grid = piece_grid(t_out, t, end)
-                active = watch if watch.mask.any() or watch.stuck.any() else None
+                active = watch if watch.mask.any() or watch.stuck.any() or watch.n_ct else None
                 seg_keywords = keywords
                 options = keywords["options"]
                 if keywords.get("nominal") is not None:
@@ -448,6 +468,9 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, keywo
                 # matching value, needs none: the integrator goes on from its state)
                 y, yp = _restart(watch, t, y, dif | set(energy))
             y, yp = _settle(watch, t, y, yp, events, dif, energy)
+        except ContactRest as rest:
+            stop = dict(success=False, message=str(rest))
+            break
         except InconsistentInitialError as err:
             stop = dict(success=False, message=f"cannot restart after the switch at t = {t:.6g}: "
                         + "; ".join(err.problems))
@@ -584,8 +607,11 @@ def _handle(watch: Watch, t, y, yp, which, events, dif, energy) -> tuple[np.ndar
     state to restart from."""
     mod = watch.mod
     candidates = []
+    impacts = []
     for i in sorted(int(i) for i in which):
-        if i < watch.n_sw:
+        if i >= watch.n_sw + 2 * watch.n_st:
+            impacts.append(i - watch.n_sw - 2 * watch.n_st)
+        elif i < watch.n_sw:
             j = watch.stick_of(i)
             if j is not None and not watch.stuck[j]:
                 candidates.append(j)
@@ -613,6 +639,21 @@ def _handle(watch: Watch, t, y, yp, which, events, dif, energy) -> tuple[np.ndar
             k = int(watch.stick_switch[j])
             events.append(Event(t, mod.STICKS[j], int(watch.mode(k) * watch.stick_orient[j]), "slip",
                                 mod.STICK_EQUATIONS[j]))
+    if impacts and (candidates or len(impacts) < len(which)):
+        y, yp = _restart(watch, t, state[0] if state is not None else y, dif | set(energy))
+        state = None
+    for k in impacts:  # the momenta jump (phc.simulation.impacts); positions continuous
+        name = watch.contacts.names[k]
+        y, yp, rest, before = watch.contacts.impact(k, t, y, yp, watch.p,
+                                                    lambda z: _restart(watch, t, z, dif | set(energy)))
+        if before < 0:
+            watch.handled.append((t, name, "contact"))
+            events.append(Event(t, name, -1, "impact", name))
+        if rest is not None:
+            raise ContactRest(rest)
+        state = (y, yp)
+    if impacts and not candidates and len(impacts) == len(which):
+        return _settle(watch, t, state[0], state[1], events, dif, energy)
     if state is None or len(candidates) > 1 or len(candidates) < len(which):
         state = _restart(watch, t, state[0] if state is not None else y, dif | set(energy))
     return _settle(watch, t, state[0], state[1], events, dif, energy)
@@ -661,6 +702,10 @@ def _chatter(handled, span) -> Optional[str]:
     t_last, condition, equation = handled[-1]
     times = [t for t, c, _ in handled[-4 * CHATTER_COUNT:] if c == condition][-CHATTER_COUNT:]
     if len(times) == CHATTER_COUNT and times[-1] - times[0] <= CHATTER_SPAN * span:
+        if equation == "contact":
+            return (f"contact `{condition}` hit {CHATTER_COUNT} times within {times[-1] - times[0]:.3g} at "
+                    f"t = {t_last:.6g}: the body is coming to rest on it, which phc does not model; give the "
+                    "contact a `rest_speed` (the run then stops where the body comes to rest; docs/events.md)")
         return (f"the switching condition `{condition}` (equation `{equation}`) switched {CHATTER_COUNT} "
                 f"times within {times[-1] - times[0]:.3g} at t = {t_last:.6g}: the solution slides along its "
                 "boundary and no branch holds it there. A Coulomb law written `F*sign(v)` in a row it enters "

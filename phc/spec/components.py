@@ -723,6 +723,30 @@ class PiSpec(_Component):
     (anti-windup)."""
 
 
+class ContactSpec(_Component):
+    """A unilateral contact with Newton's restitution law (an impact): the `gap` g ≥ 0, an
+    expression in the positions of masses with `position: true` (lowered before it, e.g.
+    `ball.x - floor_height`, or `b.x - a.x - clearance` between two masses). Where g falls
+    through zero with closing velocity ġ⁻ < 0 the run stops, the masses' momenta jump along
+    the contact normal ∂g/∂x so that ġ⁺ = −e·ġ⁻, and the run restarts; the kinetic energy
+    lost, (1 − e²)·½ m_eff ġ⁻², is counted as dissipated (the energy balance stays exact).
+    Outputs `<name>.gap`, `<name>.gap_rate` (ġ), `<name>.restitution` and one
+    `<name>.normal.<momentum>` per momentum the impulse acts on (docs/events.md)."""
+
+    type: Literal["contact"]
+    gap: Expr
+    """The gap g(x) ≥ 0 (open while positive), in the positions `<mass>.x` of masses with
+    `position: true` declared before this entry, `t`-free, and parameters."""
+    restitution: Expr
+    """Newton's coefficient of restitution e in [0, 1] (parameters only): 1 elastic, 0
+    plastic."""
+    rest_speed: Optional[Expr] = None
+    """The rebound speed |ġ⁺| (gap units per time, parameters only) below which a contact
+    that pushes the masses into it comes to rest: phc does not model persistent contact,
+    so the run stops there with a message (the bounces of a ball accumulate at a finite
+    time). Default: 1e-6 of the largest closing speed this contact has seen in the run."""
+
+
 ComponentSpec = Annotated[
     Union[
         PhsSpec, LinearPhsSpec, RigidSpec, ModelComponentSpec,
@@ -730,7 +754,7 @@ ComponentSpec = Annotated[
         EffortSourceSpec, FlowSourceSpec, ZeroEffortSpec, ZeroFlowSpec,
         OrthogonalTransformSpec, TransformerSpec, GyratorSpec, JunctionSpec, ModulationSpec,
         StringSpec, TimoshenkoBeamSpec, EulerBernoulliBeamSpec, Pde1dSpec, MovingBeamSpec, CrankWheelSpec,
-        StateSpaceSpec, PiSpec,
+        StateSpaceSpec, PiSpec, ContactSpec,
     ],
     Field(discriminator="type"),
 ]

@@ -1,0 +1,110 @@
+"""Unilateral contacts with Newton's restitution law (``contact``): impacts.
+
+A contact has no rows, no ports and no energy of its own. It names a gap g(x) ≥ 0 in the
+positions of masses with ``position: true`` (lowered before it); what it adds to the model
+are outputs the simulation driver reads (:mod:`phc.simulation.impacts`):
+
+* ``<name>.gap`` — g, watched as a state event (the run stops where it falls through 0);
+* ``<name>.gap_rate`` — ġ = Σ ∂g/∂x_j ẋ_j, from the solution's rates;
+* ``<name>.restitution`` — Newton's coefficient e ∈ [0, 1];
+* ``<name>.normal.<mass>.x[k]`` — ∂g/∂x_j for every position x_j the gap depends on: the
+  impulse acts on the momentum ``<mass>.p[k]`` paired with x_j along this normal;
+* ``<name>.rest_speed`` — only when given.
+
+At an impact the momenta jump, p_j⁺ = p_j⁻ + λ ∂g/∂x_j with λ such that ġ⁺ = −e ġ⁻; the
+positions are continuous. The kinetic energy lost, (1 − e²)·½ m_eff ġ⁻² with
+1/m_eff = Σ_j (∂g/∂x_j)²/m_j, is added to the dissipated energy, so the run's energy
+balance H(t) − H(0) + E(t) stays exact through the jump.
+"""
+
+from __future__ import annotations
+
+import re
+
+import sympy as sp
+
+from phc.dae import T
+from phc.library.lumped import _scope, _state_scope
+
+_POSITION = re.compile(r"^(?P<body>.+)\.x(?P<index>\[\d+\])?$")
+
+
+def _momentum(ctx, state: str) -> tuple:
+    """The momentum paired with a position state, or (None, why not): ``<mass>.p[k]`` for
+    ``<mass>.x[k]``; for a coordinate q_i of a rigid body with q̇ = v (no `Z`) and no
+    position constraints, its momentum ``<body>.p_<v_i>`` (the impulse along ∂g/∂q is then
+    Newton's; with Z or constraints it is not, and is refused)."""
+    body, _, local = state.rpartition(".")
+    spec = ctx.spec.components.get(body[len(ctx.prefix):]) if body.startswith(ctx.prefix) else None
+    kind = getattr(spec, "type", None)
+    match = _POSITION.match(state)
+    if kind == "mass" and match:
+        return f"{match['body']}.p{match['index'] or ''}", None
+    if kind == "rigid" and local in spec.q:
+        if spec.Z is not None or spec.constraints or spec.velocity_constraints:
+            return None, (f"a coordinate of the rigid body `{body}`, which has `Z` or constraints: an impact there "
+                          "needs the constraint impulses too, which phc does not compute yet")
+        vnames = spec.v if spec.v is not None else [f"v_{q}" for q in spec.q]
+        return f"{body}.p_{vnames[spec.q.index(local)]}", None
+    return None, None
+
+
+def lower_contact(b, ctx, name, spec, path):
+    """The outputs of a contact (see the module docstring); errors are located at its fields."""
+    n_errors = len(b.diags.errors)
+    gap = b.expr(ctx, spec.gap, (*path, "gap"), _state_scope(b, ctx))
+    e = b.expr(ctx, spec.restitution, (*path, "restitution"), _scope(ctx))
+    rest = (None if spec.rest_speed is None
+            else b.expr(ctx, spec.rest_speed, (*path, "rest_speed"), _scope(ctx)))
+    if len(b.diags.errors) > n_errors:
+        b.failed.add(name)
+        return
+    states = {v.symbol: v for v in b.known_variables() if v.differential}
+    if T in gap.free_symbols:
+        b.error("PHC-E126", f"the `gap` of contact `{name}` depends on `t`: phc moves only the masses at an impact",
+                ctx, (*path, "gap"), hint="write the gap in the positions of masses (a moving wall is a mass "
+                "driven by a `flow_source`)")
+        b.failed.add(name)
+        return
+    positions = []
+    for sym in sorted(gap.free_symbols & set(states), key=lambda s: s.name):
+        momentum, why = _momentum(ctx, sym.name)
+        if momentum is None or not any(v.name == momentum for v in states.values()):
+            why = why or "which is not the position of a mass or of a rigid body"
+            b.error("PHC-E126", f"the `gap` of contact `{name}` uses `{sym.name}`, {why}", ctx, (*path, "gap"),
+                    hint="a gap is written in positions `<mass>.x` of masses with `position: true`, or in "
+                    "the coordinates q of `rigid` bodies without `Z` and `constraints`, declared before the contact")
+            b.failed.add(name)
+            return
+        positions.append((sym, momentum))
+    if not positions:
+        b.error("PHC-E126", f"the `gap` of contact `{name}` uses no position of a mass, so nothing can hit",
+                ctx, (*path, "gap"), hint="write it in positions `<mass>.x` of masses with `position: true`, e.g. "
+                "`ball.x - h0`")
+        b.failed.add(name)
+        return
+    for field, value, ok, meaning in (("restitution", e, lambda v: 0 <= v <= 1, "it must lie in [0, 1]"),
+                                      ("rest_speed", rest, lambda v: v >= 0, "it must be ≥ 0")):
+        if value is None:
+            continue
+        if value.free_symbols - set(ctx.params.values()):
+            b.error("PHC-E126", f"`{field}` of contact `{name}` must be written in parameters only", ctx,
+                    (*path, field))
+            b.failed.add(name)
+            return
+        number = value.xreplace(b.default_values())
+        if number.is_number and not ok(float(number)):
+            b.error("PHC-E405", f"`{field}` of contact `{name}` is {float(number):g} at the default parameters; "
+                    f"{meaning}", ctx, (*path, field))
+            b.failed.add(name)
+            return
+    rate = sp.Integer(0)
+    for x, momentum in positions:
+        normal = sp.diff(gap, x)
+        b.extra_outputs[f"{name}.normal.{momentum}"] = normal
+        rate += normal * states[x].dsymbol
+    b.extra_outputs[f"{name}.gap"] = gap
+    b.extra_outputs[f"{name}.gap_rate"] = rate
+    b.extra_outputs[f"{name}.restitution"] = e
+    if rest is not None:
+        b.extra_outputs[f"{name}.rest_speed"] = rest

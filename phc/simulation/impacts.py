@@ -1,0 +1,139 @@
+"""Impacts: the momentum jumps of unilateral contacts with Newton's restitution law.
+
+Input: a generated module whose outputs include a ``contact``'s gap, gap rate, normal and
+restitution (:mod:`phc.library.contact`). Output: the contacts as :class:`Contacts`, which
+the event driver (:mod:`phc.simulation.events`) watches beside the switching functions,
+and :meth:`Contacts.impact`, the jump at a located impact.
+
+At an impact of contact k at (t, y⁻) with closing rate ġ⁻ < 0 the momenta p_j paired with
+the positions x_j in the gap jump along the normal n_j = ∂g/∂x_j, p_j⁺ = p_j⁻ + λ n_j,
+positions continuous. ġ is affine in those momenta (ẋ_j = p_j/m_j), so its slope
+c = dġ/dλ = Σ n_j²/m_j is found exactly from one consistent state at p⁻ + n (phc's own
+consistent initialization computes ẋ, so no mass is read twice), and λ = −(1 + e) ġ⁻/c
+gives ġ⁺ = −e ġ⁻. The kinetic energy lost, H(y⁻) − H(y⁺) = (1 − e²) ġ⁻²/(2c), is added to
+the dissipated energy ``energy.supplied``, so H(t) − H(0) + E(t) stays exact.
+
+Resting contact: the bounces of a ball accumulate at a finite time (Zeno). When the
+rebound speed e|ġ⁻| falls below the contact's rest speed (default 1e-6 of the largest
+closing speed it has seen) and the gap's acceleration after the jump pushes into the
+contact, the body comes to rest on it; phc does not model persistent contact, so the run
+stops there with a message (results up to there kept).
+"""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import numpy as np
+
+from phc.simulation.midpoint import EVENT_TOL  # the relative time an event is located to
+
+REST_FRACTION = 1e-6
+"""Default rest speed of a contact: this fraction of the largest closing speed it has seen."""
+
+
+class Contacts:
+    """The contacts of a generated module, read from its outputs (empty if it has none)."""
+
+    def __init__(self, mod):
+        names = tuple(getattr(mod, "OUTPUTS", ()))
+        index = {n: i for i, n in enumerate(names)}
+        variables = {n: i for i, n in enumerate(mod.VARIABLES)}
+        self.mod = mod
+        self.names: list[str] = []
+        self.gap, self.rate, self.restitution, self.rest = [], [], [], []
+        self.normals: list[list[tuple[int, int]]] = []  # (normal output, momentum)
+        for n in names:
+            if not n.endswith(".restitution"):
+                continue
+            c = n[:-len(".restitution")]
+            if f"{c}.gap" not in index or f"{c}.gap_rate" not in index:
+                continue
+            normals = []
+            for m in names:
+                if m.startswith(f"{c}.normal."):
+                    normals.append((index[m], variables[m[len(f"{c}.normal."):]]))
+            self.names.append(c)
+            self.gap.append(index[f"{c}.gap"])
+            self.rate.append(index[f"{c}.gap_rate"])
+            self.restitution.append(index[n])
+            self.rest.append(index.get(f"{c}.rest_speed"))
+            self.normals.append(normals)
+        self.n = len(self.names)
+        self.gap_idx = np.asarray(self.gap, dtype=np.int64)
+        self.closing = np.zeros(self.n)
+        """The largest closing speed each contact has seen."""
+        self.offset = np.zeros(self.n)
+        """Added to each gap where it is watched: after an impact the gap starts at zero (to the
+        event's location error), and a solver sees a crossing only from a positive value;
+        with the offset a rebound whose whole flight lies within one step (the last bounces
+        before a ball comes to rest) is still an impact at the step's end."""
+
+    def outputs(self, t, y, yp, p) -> np.ndarray:
+        return np.asarray(self.mod.outputs(t, y, yp, p), dtype=float)
+
+    def gaps(self, t, y, yp, p) -> np.ndarray:
+        return self.outputs(t, y, yp, p)[self.gap_idx] + self.offset if self.n else np.zeros(0)
+
+    def impact(self, k: int, t, y, yp, p, restart) -> tuple[np.ndarray, np.ndarray, Optional[str], float]:
+        """The jump of contact k at (t, y, ẏ): ``(y⁺, ẏ⁺, stop message or None, rate before)``;
+        `restart(y)` returns the consistent ``(y, ẏ)`` with the differential states of y."""
+        # the rates at the event from the consistent state (a fixed-step solver hands over the
+        # secant rate of its last partial step, which is off by O(h) from ẋ at the event)
+        y, yp = restart(y)
+        out = self.outputs(t, y, yp, p)
+        before = float(out[self.rate[k]])
+        if before >= 0:  # grazing or opening: no impact
+            return y, yp, None, before
+        e = float(out[self.restitution[k]])
+        normal = np.zeros(len(y))
+        for o, pj in self.normals[k]:
+            normal[pj] += out[o]
+        trial = restart(y + normal)
+        slope = float(self.outputs(t, trial[0], trial[1], p)[self.rate[k]]) - before
+        if not slope > 0:
+            return y, yp, (f"contact `{self.names[k]}` cannot act at t = {t:.6g}: its gap does not respond to an "
+                           "impulse on the masses it names (are they held by a constraint?)"), before
+        energy = self.mod.VARIABLES.index("energy.supplied")
+        new = y + (-(1.0 + e) * before / slope) * normal
+        h_before = float(self.mod.hamiltonian(t, y, p))
+        lost = h_before - float(self.mod.hamiltonian(t, new, p))
+        new[energy] += lost
+        # Newton's law loses (1 − e²) ġ⁻²/2c exactly when the impulse acts along the normal the
+        # velocities see (ġ = Σ n_j ẋ_j with ẋ_j = ∂H/∂p_j); anything else is a fault of phc's pairing
+        newton = (1.0 - e * e) * before * before / (2.0 * slope)
+        # (to round-off of the kinetic energy, and of H where a potential makes it large)
+        if abs(lost - newton) > 1e-8 * 0.5 * before * before / slope + 1e3 * np.finfo(float).eps * abs(h_before):
+            return y, yp, (f"contact `{self.names[k]}` at t = {t:.6g}: the impulse lost {lost:.6g} of energy where "
+                           f"Newton's law loses {newton:.6g}: its normal does not match the bodies' velocities "
+                           "(a fault in phc; please report it)"), before
+        y_new, yp_new = restart(new)
+        # watched from just below the event's gap: the event is located to EVENT_TOL in time
+        self.offset[k] = max(0.0, -float(out[self.gap[k]])) + 2.0 * -before * EVENT_TOL * max(1.0, abs(t))
+        self.closing[k] = max(self.closing[k], -before)
+        rest = (float(out[self.rest[k]]) if self.rest[k] is not None else REST_FRACTION * self.closing[k])
+        if e * -before <= rest:
+            # the gap's acceleration after the jump, Σ n_j ṗ_j/m_j: ġ is affine in the momenta,
+            # so its change when they move by their rates ṗ_j is exact
+            moved = y_new.copy()
+            for _, pj in self.normals[k]:
+                moved[pj] += yp_new[pj]
+            ahead = restart(moved)
+            rate_after = float(self.outputs(t, y_new, yp_new, p)[self.rate[k]])
+            accel = float(self.outputs(t, ahead[0], ahead[1], p)[self.rate[k]]) - rate_after
+            if accel <= 0:
+                return y_new, yp_new, (f"contact `{self.names[k]}` comes to rest at t = {t:.9g}: the rebound speed "
+                                       f"{e * -before:.3g} is below its rest speed {rest:.3g} and the load presses "
+                                       "the masses onto it; phc does not model persistent contact, so the run stops "
+                                       "here (results up to there are kept; docs/events.md)"), before
+        return y_new, yp_new, None, before
+
+
+def has_contacts(mod) -> bool:
+    """Whether `mod` has a contact (its outputs ``<c>.gap``, ``<c>.gap_rate``, ``<c>.restitution``)."""
+    outputs = set(getattr(mod, "OUTPUTS", ()))
+    return any(n.endswith(".restitution") and f"{n[:-12]}.gap" in outputs and f"{n[:-12]}.gap_rate" in outputs
+               for n in outputs)
+
+
+__all__ = ["Contacts", "has_contacts", "REST_FRACTION"]
