@@ -129,10 +129,10 @@ class SingularityMonitor:
         self.stop_time = None
 
     def ratio(self, t, y, yp, h) -> tuple[float, np.ndarray]:
-        """σ_min/σ_max of the equilibrated iteration matrix, the larger of its values at the
-        step h and at :data:`STEP_SPREAD`·h (a singular configuration is singular at both), and
-        the left singular vector of its smallest singular value at h when that is below the
-        threshold (None otherwise)."""
+        """σ_min/σ_max of the equilibrated iteration matrix at the step h; when that is below
+        the threshold, the larger of it and its value at :data:`STEP_SPREAD`·h (a singular
+        configuration is singular at both). With it the left singular vector of the smallest
+        singular value at h when both are below the threshold, else None."""
         ratio, u = self._ratio_at(t, y, yp, h)
         if u is None:
             return ratio, None
