@@ -376,6 +376,15 @@ def certify(dae: Dae, n_random: int = 2, seed: int = 0) -> Certificate:
 
     rows = check_rows(dae, samples=max(1, n_random), seed=seed)
     diags.extend(rows.diagnostics)
+    spans = {name: span for name, _, span in top.components}
+    for name, why in rows.inconclusive:
+        # its own solve failed (a steep law, an exponential that overflows from a random start):
+        # no verdict at this sample, not a mismatch (PHC-E452)
+        diags.append(Diagnostic("PHC-W453", f"the comparison of the equations compiled for `{name}` with its "
+                                f"description is inconclusive at these samples: {why}; other starts were tried",
+                                span=spans.get(name), path=name, severity="warning",
+                                hint="not a fault found in the model or in phc; the compiled energy balance still "
+                                "certifies the component, and `--samples N` tries more states"))
     loops = kinematic_loops(graph)
     from phc.checks.loops import classify
 
