@@ -115,7 +115,12 @@ def per_call(path: Path) -> dict:
     p = np.asarray(ref.full_parameters(), dtype=float)
     out, jac = np.zeros(ref.N), np.zeros(len(ref.JAC_ROWS))
     times = {}
-    for name, mod in (("numpy", ref), ("numba", fast)):
+    modules = [("numpy", ref), ("numba", fast)]
+    from phc.codegen import backends, cc
+
+    if cc.available()[0]:  # the C module's functions, called through ctypes
+        modules.append(("c", backends.for_compiled(compiled, "c")))
+    for name, mod in modules:
         res = timeit.Timer(lambda m=mod: m.residual(0.0, y, yp, p, out))
         jc = timeit.Timer(lambda m=mod: m.jacobian(0.0, y, yp, p, 10.0, jac))
         number = max(1, int(0.05 / max(res.timeit(number=5) / 5, 1e-7)))
@@ -261,13 +266,18 @@ def markdown(data: dict) -> str:
                      f"{nb_warm['backend_wall']:.2f} / {nb_warm['backend_cpu']:.2f} | "
                      f"{nb_cold['wall']:.2f} / {nb_warm['wall']:.2f} |")
     lines += ["", "## Per call, from Python (µs, best of 7)\n",
-              "| model | residual numpy | residual numba | ratio | Jacobian numpy | Jacobian numba | ratio |",
-              "|---|---:|---:|---:|---:|---:|---:|"]
+              "Ratio: numpy's µs over numba's. C: the C module's functions, called through ctypes (empty "
+              "where no C compiler was found).\n",
+              "| model | residual numpy | residual numba | residual C | ratio | Jacobian numpy | Jacobian numba | "
+              "Jacobian C | ratio |",
+              "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for name, row in data["models"].items():
         a, b = row["calls"]["numpy"], row["calls"]["numba"]
-        lines.append(f"| {name} | {a['residual_us']:.2f} | {b['residual_us']:.2f} | "
+        c = row["calls"].get("c")
+        c_res, c_jac = (f"{c['residual_us']:.2f}", f"{c['jacobian_us']:.2f}") if c else ("", "")
+        lines.append(f"| {name} | {a['residual_us']:.2f} | {b['residual_us']:.2f} | {c_res} | "
                      f"{a['residual_us'] / b['residual_us']:.1f} | {a['jacobian_us']:.2f} | {b['jacobian_us']:.2f} | "
-                     f"{a['jacobian_us'] / b['jacobian_us']:.1f} |")
+                     f"{c_jac} | {a['jacobian_us'] / b['jacobian_us']:.1f} |")
     if data.get("steps"):
         repeat = next(iter(data["steps"].values()))["repeat"]
         lines += ["", f"## Per step: implicit midpoint, fixed step (CPU µs per step, best of {repeat})\n",

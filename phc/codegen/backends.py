@@ -11,9 +11,8 @@ C99 compiled by the system C compiler, loaded through ctypes).
 :data:`AUTO_MIN_UNKNOWNS` unknowns on ``numpy``; a larger one on ``numba`` when numba can be
 imported, else on ``c`` when a C compiler is found and the C back end prints the model, else
 on ``numpy``. numba comes before C for the functions because IDA and the drivers call them
-from Python, and a call through ctypes costs more than a call of numba's dispatcher
-(measured on the flexible slider–crank's residual: about 2 µs with numba, 3–4 µs with C, 22
-µs with NumPy). A model on numba runs its fixed-step loops on numba's (C's are faster a step,
+from Python, and a call through ctypes costs more than a call of numba's dispatcher (each
+array is handed over as a pointer; ``benchmarks/bench_backends.py`` measures both per call). A model on numba runs its fixed-step loops on numba's (C's are faster a step,
 but building the C library as well costs more than a run of ordinary length saves); a model
 on NumPy runs its long fixed-step runs on C's (below). A compiled module that disagrees with the reference at its check point is never
 used (a warning says so and the reference runs). Asking for ``numba`` explicitly where it cannot be imported is
