@@ -657,3 +657,98 @@ def nominal_indices(mod, nominal: Optional[Mapping[str, float]]) -> dict[int, fl
 
 
 __all__ = ["nominal_scales", "newton_weights", "weights_from_scales", "nominal_indices", "row_sizes", "kind_of", "probe_time"]
+
+
+SENSITIVITY_STATES = 2000
+"""Up to this many states :func:`promise_scales` looks at the outputs (two evaluations of
+them per state); above, at the energy alone."""
+
+
+def output_sensitivities(mod, p, t0, y0, yp0, s) -> np.ndarray:
+    """``∂o_k/∂y_j`` of the requested outputs with respect to the states at the start, by
+    central differences of ``mod.outputs`` with the step ``1e-6 · s_j`` (two evaluations
+    per state; an empty matrix without outputs or above :data:`SENSITIVITY_STATES` states;
+    zeros where an output cannot be evaluated)."""
+    from phc.simulation.guard import CATCH, ModelEvaluationError
+
+    names = tuple(getattr(mod, "OUTPUTS", ()))
+    n = mod.N
+    states = np.flatnonzero(np.asarray(mod.DIFFERENTIAL, dtype=bool))
+    if not names or len(states) > SENSITIVITY_STATES:
+        return np.zeros((0, n))
+    out = np.zeros((len(names), n))
+    y0, yp0 = np.asarray(y0, dtype=float), np.asarray(yp0, dtype=float)
+    try:
+        for j in states:
+            h = 1e-6 * s[j]
+            yu, yd = y0.copy(), y0.copy()
+            yu[j] += h
+            yd[j] -= h
+            up = np.asarray(mod.outputs(t0, yu, yp0, p), dtype=float)
+            down = np.asarray(mod.outputs(t0, yd, yp0, p), dtype=float)
+            out[:, j] = (up - down) / (2.0 * h)
+    except (ModelEvaluationError, *CATCH):
+        return np.zeros((len(names), n))
+    return np.where(np.isfinite(out), out, 0.0)
+
+
+def promise_scales(mod, p, t0, y0, yp0, scales) -> np.ndarray:
+    """The scales IDA's error test measures the states against: each state's nominal
+    scale raised, where the requested outputs and the energy allow it, to the size at
+    which its error first matters to one of them (docs/tolerances.md, "What the tolerance
+    promises"):
+
+    * the energy: ``sqrt(2E/∂²H/∂y_j²)`` (:func:`energy_sizes`), the size at which the
+      state holds the run's energy scale E — an error of ``atol`` times it changes the
+      energy by about ``atol·E``;
+    * each requested output o_k: ``S_k / |∂o_k/∂y_j|``, the size at which the state's
+      first-order effect on o_k is o_k's size ``S_k = max(|o_k(t₀)|, Σ_j |∂o_k/∂y_j| s_j)``
+      (the output with every state at its nominal size).
+
+    The smallest of these, never below the nominal scale; a state neither sees (H flat in
+    it and no output depends on it directly: a position that only the constraints and the
+    dynamics carry to the outputs) keeps its nominal scale, as do the energy accumulator
+    and the scales the user set. All three sizes are homogeneous of degree one in the
+    state's unit."""
+    base = np.asarray(scales, dtype=float)
+    n = mod.N
+    diff = np.asarray(mod.DIFFERENTIAL, dtype=bool)
+    names = list(mod.VARIABLES)
+    energy_index = names.index("energy.supplied") if "energy.supplied" in names else None
+    if energy_index is not None:
+        energy = float(base[energy_index])
+    else:
+        from phc.simulation.guard import CATCH, ModelEvaluationError
+
+        y = np.where(diff, np.where(y0 < 0, -1.0, 1.0) * np.maximum(np.abs(y0), base), y0)
+        try:
+            energy = abs(float(mod.energy_scale(t0, y, p)))
+        except (ModelEvaluationError, *CATCH):
+            energy = 0.0
+    size = np.full(n, np.inf)
+    if energy > 0 and np.isfinite(energy):
+        e = energy_sizes(mod, p, t0, np.asarray(y0, dtype=float), base, energy)
+        size = np.where(e > 0, e, size)
+    d = output_sensitivities(mod, p, t0, y0, yp0, base)
+    if len(d):
+        try:
+            o0 = np.abs(np.asarray(mod.outputs(t0, y0, yp0, p), dtype=float))
+        except Exception:  # noqa: BLE001 - the derivatives were zeros then too
+            o0 = np.zeros(len(d))
+        a = np.abs(d) * base[None, :]
+        terms = np.where(diff[None, :], a, 0.0)
+        top = terms.max(axis=1, initial=0.0)
+        S = np.maximum(np.where(np.isfinite(o0), o0, 0.0), terms.sum(axis=1))
+        seen = (terms > NOISE_COEFFICIENT * top[:, None]) & (np.abs(d) > 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cand = np.where(seen, S[:, None] / np.abs(d), np.inf)
+        size = np.minimum(size, cand.min(axis=0))
+    keep = ~diff | ~np.isfinite(size)
+    if energy_index is not None:
+        keep[energy_index] = True
+    keep[list(getattr(scales, "user", ()))] = True
+    out = np.where(keep, base, np.maximum(base, size))
+    result = out.view(Scales)
+    for attr in ("floored", "user", "sizes"):
+        setattr(result, attr, getattr(scales, attr, None) if attr != "user" else tuple(getattr(scales, "user", ())))
+    return result
