@@ -668,7 +668,9 @@ def output_sensitivities(mod, p, t0, y0, yp0, s) -> np.ndarray:
     """``∂o_k/∂y_j`` of the requested outputs with respect to the states at the start, by
     central differences of ``mod.outputs`` with the step ``1e-6 · s_j`` (two evaluations
     per state; an empty matrix without outputs or above :data:`SENSITIVITY_STATES` states;
-    zeros where an output cannot be evaluated)."""
+    zeros where an output cannot be evaluated). None where an output reads an algebraic
+    variable or a rate (a support force, a velocity ṡ): it sees the states through the
+    equations, and its derivatives by the states alone would say it sees none."""
     from phc.simulation.guard import CATCH, ModelEvaluationError
 
     names = tuple(getattr(mod, "OUTPUTS", ()))
@@ -679,6 +681,17 @@ def output_sensitivities(mod, p, t0, y0, yp0, s) -> np.ndarray:
     out = np.zeros((len(names), n))
     y0, yp0 = np.asarray(y0, dtype=float), np.asarray(yp0, dtype=float)
     try:
+        o0 = np.asarray(mod.outputs(t0, y0, yp0, p), dtype=float)
+        # an output that reads an algebraic variable (a support force) or a rate sees the
+        # states through the equations, which these derivatives do not follow: say nothing
+        algebraic = ~np.asarray(mod.DIFFERENTIAL, dtype=bool)
+        rng = np.random.default_rng(0)
+        y1 = y0 + np.where(algebraic, 1e-3 * (np.abs(y0) + s) * (1 + rng.random(n)), 0.0)
+        yp1 = yp0 + 1e-3 * (np.abs(yp0) + s) * (1 + rng.random(n))
+        for moved in (np.asarray(mod.outputs(t0, y1, yp0, p), dtype=float),
+                      np.asarray(mod.outputs(t0, y0, yp1, p), dtype=float)):
+            if not np.array_equal(moved, o0):
+                return None
         for j in states:
             h = 1e-6 * s[j]
             yu, yd = y0.copy(), y0.copy()
@@ -708,7 +721,9 @@ def promise_scales(mod, p, t0, y0, yp0, scales) -> np.ndarray:
     The smallest of these, never below the nominal scale; a state neither sees (H flat in
     it and no output depends on it directly: a position that only the constraints and the
     dynamics carry to the outputs) keeps its nominal scale, as do the energy accumulator
-    and the scales the user set. All three sizes are homogeneous of degree one in the
+    and the scales the user set. Where an output reads an algebraic variable or a rate
+    (:func:`output_sensitivities` cannot tell which states it sees) every state keeps its
+    nominal scale. All three sizes are homogeneous of degree one in the
     state's unit."""
     base = np.asarray(scales, dtype=float)
     n = mod.N
@@ -730,6 +745,8 @@ def promise_scales(mod, p, t0, y0, yp0, scales) -> np.ndarray:
         e = energy_sizes(mod, p, t0, np.asarray(y0, dtype=float), base, energy)
         size = np.where(e > 0, e, size)
     d = output_sensitivities(mod, p, t0, y0, yp0, base)
+    if d is None:  # the outputs see the states through the equations: no state is loosened
+        return scales
     if len(d):
         try:
             o0 = np.abs(np.asarray(mod.outputs(t0, y0, yp0, p), dtype=float))
