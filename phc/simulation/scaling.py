@@ -740,13 +740,13 @@ def promise_scales(mod, p, t0, y0, yp0, scales) -> np.ndarray:
             energy = abs(float(mod.energy_scale(t0, y, p)))
         except (ModelEvaluationError, *CATCH):
             energy = 0.0
-    size = np.full(n, np.inf)
+    e = np.zeros(n)
     if energy > 0 and np.isfinite(energy):
         e = energy_sizes(mod, p, t0, np.asarray(y0, dtype=float), base, energy)
-        size = np.where(e > 0, e, size)
     d = output_sensitivities(mod, p, t0, y0, yp0, base)
     if d is None:  # the outputs see the states through the equations: no state is loosened
         return scales
+    seen_size = np.full(n, np.inf)
     if len(d):
         try:
             o0 = np.abs(np.asarray(mod.outputs(t0, y0, yp0, p), dtype=float))
@@ -759,7 +759,13 @@ def promise_scales(mod, p, t0, y0, yp0, scales) -> np.ndarray:
         seen = (terms > NOISE_COEFFICIENT * top[:, None]) & (np.abs(d) > 0)
         with np.errstate(divide="ignore", invalid="ignore"):
             cand = np.where(seen, S[:, None] / np.abs(d), np.inf)
-        size = np.minimum(size, cand.min(axis=0))
+        seen_size = cand.min(axis=0)
+    # the dynamics carry an error from state to state at its energy norm (y_j / e_j): no
+    # state is loosened beyond the energy norm the most demanding output asks of the
+    # states it sees
+    both = (e > 0) & np.isfinite(seen_size)
+    ratio = min(1.0, float((seen_size[both] / e[both]).min())) if both.any() else 1.0
+    size = np.minimum(np.where(e > 0, ratio * e, np.inf), seen_size)
     keep = ~diff | ~np.isfinite(size)
     if energy_index is not None:
         keep[energy_index] = True
