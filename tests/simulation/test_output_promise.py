@@ -26,15 +26,17 @@ from phc.simulation import scaling
 M1, M2, K1, K2 = 1.0, 1.0e-6, 1.0, 1.0e6
 PERIOD = 2 * math.pi * math.sqrt(M1 / K1)  # of the slow mode, to 1e-6 (the tiny mass adds m2/m1)
 
-CHAIN = f"""\
+
+def _chain_text(M1=M1, M2=M2, K1=K1, K2=K2, X0=1.0):
+    return f"""\
 format_version: 1
 name: tiny_mass_chain
 description: A tiny mass on a stiff spring under a large mass on a soft one; only the large mass is observed.
 parameters:
-  m1: {{value: {M1}, unit: kg}}
-  m2: {{value: {M2}, unit: kg}}
-  k1: {{value: {K1}, unit: N/m}}
-  k2: {{value: {K2}, unit: N/m}}
+  m1: {{value: {M1!r}}}
+  m2: {{value: {M2!r}}}
+  k1: {{value: {K1!r}}}
+  k2: {{value: {K2!r}}}
 components:
   mass1: {{type: mass, m: m1}}
   mass2: {{type: mass, m: m2}}
@@ -59,13 +61,16 @@ simulation:
   t_end: {PERIOD!r}
   n_out: 201
   initial:
-    wall_spring.x: 1.0
+    wall_spring.x: {X0!r}
     coupling.s: 0.0
     mass1.p: 0.0
     mass2.p: 0.0
   outputs:
     x1: wall_spring.x
 """
+
+
+CHAIN = _chain_text()
 
 ALONE = f"""\
 format_version: 1
@@ -137,6 +142,16 @@ def test_the_promise_scales_are_the_sizes_at_which_errors_matter(chain):
     their scales come from the energy, ρ·sqrt(2E/∂²H/∂y²): ρ·sqrt(2E/k2) and ρ·sqrt(2E·m2),
     whose ratio is 1/sqrt(k2·m2) whatever E and ρ are. x1, which the output is, keeps the output's
     size (its own: 1 m at the start). Nothing is below its nominal scale."""
+    s, P = _promise(chain)
+    assert all(P[name] >= s[name] for name in s)
+    # the energy sizes come from central differences of H (quadratic here: exact to round-off)
+    assert P["coupling.s"] / P["mass2.p"] == pytest.approx(1.0 / math.sqrt(K2 * M2), rel=1e-6)
+    assert P["coupling.s"] > 1e3 * s["coupling.s"]  # far looser than its own size: the stiff mode carries nothing
+    assert P["wall_spring.x"] == pytest.approx(max(s["wall_spring.x"], 1.0), rel=1e-9)
+
+
+def _promise(compiled):
+    """The nominal and the promise scales of a short IDA run of `compiled`, by variable name."""
     import phc.simulation as sim
 
     seen = {}
@@ -151,18 +166,27 @@ def test_the_promise_scales_are_the_sizes_at_which_errors_matter(chain):
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            phc.simulate(chain, solver="ida", rtol=1e-4, atol=1e-6, n_out=3, t_end=0.01)
+            phc.simulate(compiled, solver="ida", rtol=1e-4, atol=1e-6, n_out=3, t_end=0.01)
     finally:
         sim.nominal_scales = original
-    mod, s = seen["mod"], np.asarray(seen["s"], dtype=float)
-    P = np.asarray(scaling.promise_scales(mod, seen["p"], 0.0, seen["y0"], seen["yp0"], seen["s"]), dtype=float)
+    mod = seen["mod"]
+    P = scaling.promise_scales(mod, seen["p"], 0.0, seen["y0"], seen["yp0"], seen["s"])
     names = list(mod.VARIABLES)
-    j_s, j_p2, j_x1 = names.index("coupling.s"), names.index("mass2.p"), names.index("wall_spring.x")
-    assert np.all(P >= s)
-    # the energy sizes come from central differences of H (quadratic here: exact to round-off)
-    assert P[j_s] / P[j_p2] == pytest.approx(1.0 / math.sqrt(K2 * M2), rel=1e-6)
-    assert P[j_s] > 1e3 * s[j_s]  # far looser than its own size: the stiff mode carries nothing
-    assert P[j_x1] == pytest.approx(max(s[j_x1], 1.0), rel=1e-9)
+    return {n: float(seen["s"][j]) for j, n in enumerate(names)}, {n: float(P[j]) for j, n in enumerate(names)}
+
+
+def test_the_promise_scales_follow_the_units(chain, tmp_path):
+    """The same chain in grams, millimetres and seconds (mass ×1e3, length ×1e3; stiffness
+    g/s² ×1e3, momentum g·mm/s ×1e6): every promise scale is the SI one times its unit's
+    factor (all rules are homogeneous of degree one in the variable's unit)."""
+    grams = _compile(tmp_path, "chain_g_mm", _chain_text(M1=M1 * 1e3, M2=M2 * 1e3, K1=K1 * 1e3, K2=K2 * 1e3,
+                                                          X0=1e3))
+    s_si, P_si = _promise(chain)
+    s_g, P_g = _promise(grams)
+    factor = {"wall_spring.x": 1e3, "coupling.s": 1e3, "mass1.p": 1e6, "mass2.p": 1e6}
+    for name, f in factor.items():
+        assert P_g[name] == pytest.approx(f * P_si[name], rel=1e-6), name
+    assert P_si["coupling.s"] > 1e3 * s_si["coupling.s"]  # and the rule did loosen something
 
 
 def test_promised_atol_is_continuous_and_only_loosens():
