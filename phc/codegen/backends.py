@@ -126,51 +126,53 @@ def select(ir, reference: ModuleType, source: str, backend: Optional[str] = None
 
 def _select_c(ir, reference: ModuleType, source: str) -> tuple[ModuleType, str]:
     from phc.codegen import c_backend
-    from phc.errors import BackendMismatch, BackendUnsupported, CompiledBackendWarning
+    from phc.errors import BackendUnsupported
 
     ok, why = c_backend.available()
     if not ok:
         raise SimulationSetupError(f"the C backend is not available: {why}")
     try:
-        module, _ = c_backend.load_compiled(ir, reference, source)
+        return _load_c(ir, reference, source)
     except BackendUnsupported as err:
         raise SimulationSetupError(f"{err}; run this model with --backend numpy (or numba)") from None
-    except BackendMismatch as err:
-        warnings.warn(f"{err}; running the NumPy module instead (please report this phc bug)",
-                      CompiledBackendWarning, stacklevel=3)
-        return reference, f"numpy ({err})"
-    except Exception as err:  # the compiler refused the code: a phc bug, never a failed run
-        first = (str(err).strip().splitlines() or [""])[0][:300]
-        warnings.warn(f"the C backend could not build this model's functions ({type(err).__name__}: {first}); "
-                      "running the NumPy module instead (please report this phc bug)", CompiledBackendWarning,
-                      stacklevel=3)
-        return reference, f"numpy (C compilation failed: {type(err).__name__})"
-    return module, ""
 
 
 def _auto_c(ir, reference: ModuleType, source: str, numba_why: str) -> tuple[ModuleType, str]:
     """``auto`` without numba, for a model of :data:`AUTO_MIN_UNKNOWNS` unknowns or more: the C
     module when a C compiler is found and the C back end prints the model, else the NumPy
-    module; the note says why (once, with the run's backend line)."""
-    from phc.codegen import c_backend, cc
-    from phc.errors import BackendMismatch, BackendUnsupported, CompiledBackendWarning
+    module; the note says why (the backend line says it for the C module: :func:`describe`)."""
+    from phc.codegen import cc
+    from phc.errors import BackendUnsupported
 
     c_ok, c_why = cc.available()
     if not c_ok:
         return reference, f"numpy (compiled backends unavailable: {numba_why}; {c_why})"
     try:
-        module, _ = c_backend.load_compiled(ir, reference, source)
+        return _load_c(ir, reference, source)
     except BackendUnsupported as err:
         return reference, f"numpy (numba unavailable: {numba_why}; the C backend: {err})"
+
+
+def _load_c(ir, reference: ModuleType, source: str) -> tuple[ModuleType, str]:
+    """The C module and an empty note; the reference and the reason after a warning when the
+    library disagrees with the reference or the compiler refuses the code (a phc bug, never a
+    failed run). ``BackendUnsupported`` (something the C back end does not print) is raised."""
+    from phc.codegen import c_backend
+    from phc.errors import BackendMismatch, BackendUnsupported, CompiledBackendWarning
+
+    try:
+        module, _ = c_backend.load_compiled(ir, reference, source)
+    except BackendUnsupported:
+        raise
     except BackendMismatch as err:
         warnings.warn(f"{err}; running the NumPy module instead (please report this phc bug)",
-                      CompiledBackendWarning, stacklevel=3)
+                      CompiledBackendWarning, stacklevel=4)
         return reference, f"numpy ({err})"
     except Exception as err:  # the compiler refused the code: a phc bug, never a failed run
         first = (str(err).strip().splitlines() or [""])[0][:300]
         warnings.warn(f"the C backend could not build this model's functions ({type(err).__name__}: {first}); "
                       "running the NumPy module instead (please report this phc bug)", CompiledBackendWarning,
-                      stacklevel=3)
+                      stacklevel=4)
         return reference, f"numpy (C compilation failed: {type(err).__name__})"
     return module, ""
 
