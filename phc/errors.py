@@ -69,8 +69,9 @@ Private control flow, defined where it is used
     has to run), ``phc.source._NotRegular`` (an ``OSError``: a model path that is not a
     regular file), ``phc.simulation.ida._Stop`` (phc's step hook ends an IDA run from inside
     IDA's loop; the run returns its message), ``phc.simulation.order.Switch`` (the step hook
-    ends an IDA run to go on at another maximum BDF order; the IDA driver catches it).
-    :data:`PRIVATE_CONTROL_FLOW` names them; ``tests/test_errors.py`` walks
+    ends an IDA run to go on at another maximum BDF order; the IDA driver catches it),
+    ``phc.simulation.events._ContactRest`` (a contact comes to rest: the switched driver
+    stops the run with its message). :data:`PRIVATE_CONTROL_FLOW` names them; ``tests/test_errors.py`` walks
     phc's modules and fails on any other exception defined outside this module.
 """
 
@@ -323,7 +324,8 @@ class RegistryError(PhcError):
 
 PRIVATE_CONTROL_FLOW = ("phc.cli.report._Exit", "phc.checks.compiled._NotNumeric", "phc.initial_fields._FieldError",
                         "phc.initial_fields._Silent", "phc.codegen.numba_cache.NotInCache",
-                        "phc.source._NotRegular", "phc.simulation.ida._Stop", "phc.simulation.order.Switch")
+                        "phc.source._NotRegular", "phc.simulation.ida._Stop", "phc.simulation.order.Switch",
+                        "phc.simulation.events._ContactRest")
 """Exceptions that never leave the code that raises them, defined there (qualified names)."""
 
 __all__ = ["BackendMismatch", "BackendUnavailable", "BackendUnsupported", "CacheWarning", "CodegenError",

@@ -93,7 +93,7 @@ def has_switches(mod) -> bool:
     return bool(len(getattr(mod, "SWITCHES", ()))) or has_contacts(mod)
 
 
-class ContactRest(Exception):
+class _ContactRest(Exception):
     """A contact comes to rest (:mod:`phc.simulation.impacts`): the run stops with this message."""
 
 
@@ -468,7 +468,7 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, keywo
                 # matching value, needs none: the integrator goes on from its state)
                 y, yp = _restart(watch, t, y, dif | set(energy))
             y, yp = _settle(watch, t, y, yp, events, dif, energy)
-        except ContactRest as rest:
+        except _ContactRest as rest:
             stop = dict(success=False, message=str(rest))
             break
         except InconsistentInitialError as err:
@@ -650,7 +650,7 @@ def _handle(watch: Watch, t, y, yp, which, events, dif, energy) -> tuple[np.ndar
             watch.handled.append((t, name, "contact"))
             events.append(Event(t, name, -1, "impact", name))
         if rest is not None:
-            raise ContactRest(rest)
+            raise _ContactRest(rest)
         state = (y, yp)
     if impacts and not candidates and len(impacts) == len(which):
         return _settle(watch, t, state[0], state[1], events, dif, energy)
