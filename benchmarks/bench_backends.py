@@ -74,7 +74,7 @@ import json, sys, time
 t, c = time.perf_counter(), time.process_time()
 import phc
 compiled = phc.compile_model(sys.argv[1], certify=False, backend=sys.argv[2])
-report = getattr(compiled.module, "COMPILE_REPORT", None)
+report = getattr(compiled.module, "COMPILE_REPORT", None) or getattr(compiled.module, "C_REPORT", None)
 print(json.dumps({"wall": time.perf_counter() - t, "cpu": time.process_time() - c,
                   "backend_wall": compiled.timings.get("backend", 0.0),
                   "backend_cpu": report.cpu_seconds if report else 0.0,
@@ -95,8 +95,10 @@ def compile_in_fresh_process(path: Path, backend: str, env: dict) -> dict:
 
 
 def compile_times(path: Path) -> dict:
+    from phc.codegen import cc
+
     out = {}
-    for backend in ("numpy", "numba"):
+    for backend in ("numpy", "numba") + (("c",) if cc.available()[0] else ()):
         with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as state:
             env = _env(cache, state)
             out[backend] = {"cold": compile_in_fresh_process(path, backend, env),
@@ -111,15 +113,24 @@ def per_call(path: Path) -> dict:
     ref = fast.REFERENCE
     run = phc.simulate(compiled, t_end=float(compiled.dae.options["t_start"]) + 1e-9, n_out=2,
                        solver="midpoint", step=1e-9, backend="numpy")
-    y, yp = np.ascontiguousarray(run.y[0]), np.ascontiguousarray(run.yp[0])
+    y, yp = np.array(run.y[0]), np.array(run.yp[0])
+    y.setflags(write=False)  # as IDA hands them over
+    yp.setflags(write=False)
     p = np.asarray(ref.full_parameters(), dtype=float)
     out, jac = np.zeros(ref.N), np.zeros(len(ref.JAC_ROWS))
     times = {}
     modules = [("numpy", ref), ("numba", fast)]
-    from phc.codegen import backends, cc
+    from phc.codegen import backends, c_backend, c_bridge, cc
 
-    if cc.available()[0]:  # the C module's functions, called through ctypes
-        modules.append(("c", backends.for_compiled(compiled, "c")))
+    if cc.available()[0]:  # the C module's functions, through the call bridge and through plain ctypes
+        c_module = backends.for_compiled(compiled, "c")
+        if c_bridge.bridge() is not None:
+            modules.append(("c", c_module))
+        os.environ["PHC_C_BRIDGE"] = "0"
+        try:
+            modules.append(("c_ctypes", c_backend.load_source(c_module.C_SOURCE, ref)[0]))
+        finally:
+            del os.environ["PHC_C_BRIDGE"]
     for name, mod in modules:
         res = timeit.Timer(lambda m=mod: m.residual(0.0, y, yp, p, out))
         jc = timeit.Timer(lambda m=mod: m.jacobian(0.0, y, yp, p, 10.0, jac))
@@ -255,29 +266,38 @@ def markdown(data: dict) -> str:
              f"numba {data['numba']}; command: `{data['command']}`\n",
              "## Compile (fresh process each; cold: empty cache; warm: the same cache again)\n",
              "| model | unknowns | Jacobian nnz | numpy compile [s] | numba backend stage cold: wall / CPU [s] | "
-             "numba backend stage warm: wall / CPU [s] | numba whole compile cold / warm [s] |",
-             "|---|---:|---:|---:|---:|---:|---:|"]
+             "numba backend stage warm: wall / CPU [s] | numba whole compile cold / warm [s] | "
+             "C backend stage cold: wall / CPU [s] | C whole compile cold / warm [s] |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for name, row in data["models"].items():
         c = row["compile"]
         nb_cold, nb_warm = c["numba"]["cold"], c["numba"]["warm"]
+        cc_cold, cc_warm = (c["c"]["cold"], c["c"]["warm"]) if "c" in c else (None, None)
+        c_cells = (f"{cc_cold['backend_wall']:.2f} / {cc_cold['backend_cpu']:.2f} | "
+                   f"{cc_cold['wall']:.2f} / {cc_warm['wall']:.2f} |") if cc_cold else " | |"
         lines.append(f"| {name} | {row['calls']['N']} | {row['calls']['jacobian_nnz']} | "
                      f"{c['numpy']['warm']['wall']:.2f} | "
                      f"{nb_cold['backend_wall']:.2f} / {nb_cold['backend_cpu']:.2f} | "
                      f"{nb_warm['backend_wall']:.2f} / {nb_warm['backend_cpu']:.2f} | "
-                     f"{nb_cold['wall']:.2f} / {nb_warm['wall']:.2f} |")
+                     f"{nb_cold['wall']:.2f} / {nb_warm['wall']:.2f} | " + c_cells)
     lines += ["", "## Per call, from Python (µs, best of 7)\n",
-              "Ratio: numpy's µs over numba's. C: the C module's functions, called through ctypes (empty "
-              "where no C compiler was found).\n",
-              "| model | residual numpy | residual numba | residual C | ratio | Jacobian numpy | Jacobian numba | "
-              "Jacobian C | ratio |",
-              "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+              "With read-only y and ẏ, as IDA hands them over. Ratio: numpy's µs over numba's. C: the C module's "
+              "functions through phc's call bridge (the buffer protocol in C; `auto`'s choice); C ctypes: the "
+              "same functions through plain ctypes (`PHC_C_BRIDGE=0`, or where Python's C headers are "
+              "missing). Empty where no C compiler was found.\n",
+              "| model | residual numpy | residual numba | residual C | residual C ctypes | ratio | "
+              "Jacobian numpy | Jacobian numba | Jacobian C | Jacobian C ctypes | ratio |",
+              "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for name, row in data["models"].items():
         a, b = row["calls"]["numpy"], row["calls"]["numba"]
-        c = row["calls"].get("c")
-        c_res, c_jac = (f"{c['residual_us']:.2f}", f"{c['jacobian_us']:.2f}") if c else ("", "")
-        lines.append(f"| {name} | {a['residual_us']:.2f} | {b['residual_us']:.2f} | {c_res} | "
-                     f"{a['residual_us'] / b['residual_us']:.1f} | {a['jacobian_us']:.2f} | {b['jacobian_us']:.2f} | "
-                     f"{c_jac} | {a['jacobian_us'] / b['jacobian_us']:.1f} |")
+        cells = {}
+        for key in ("c", "c_ctypes"):
+            c = row["calls"].get(key)
+            cells[key] = (f"{c['residual_us']:.2f}", f"{c['jacobian_us']:.2f}") if c else ("", "")
+        lines.append(f"| {name} | {a['residual_us']:.2f} | {b['residual_us']:.2f} | {cells['c'][0]} | "
+                     f"{cells['c_ctypes'][0]} | {a['residual_us'] / b['residual_us']:.1f} | {a['jacobian_us']:.2f} | "
+                     f"{b['jacobian_us']:.2f} | {cells['c'][1]} | {cells['c_ctypes'][1]} | "
+                     f"{a['jacobian_us'] / b['jacobian_us']:.1f} |")
     if data.get("steps"):
         repeat = next(iter(data["steps"].values()))["repeat"]
         lines += ["", f"## Per step: implicit midpoint, fixed step (CPU µs per step, best of {repeat})\n",

@@ -8,14 +8,17 @@ the reference itself (``numpy``), or the same functions compiled to machine code
 C99 compiled by the system C compiler, loaded through ctypes).
 
 ``auto`` (the default, or ``$PHC_BACKEND``) runs a model of fewer than
-:data:`AUTO_MIN_UNKNOWNS` unknowns on ``numpy``; a larger one on ``numba`` when numba can be
-imported, else on ``c`` when a C compiler is found and the C back end prints the model, else
-on ``numpy``. numba comes before C for the functions because IDA and the drivers call them
-from Python, and a call through ctypes costs more than a call of numba's dispatcher (each
-array is handed over as a pointer; ``benchmarks/bench_backends.py`` measures both per call). A model on numba runs its fixed-step loops on numba's (C's are faster a step,
-but building the C library as well costs more than a run of ordinary length saves); a model
-on NumPy runs its long fixed-step runs on C's (below). A compiled module that disagrees with the reference at its check point is never
-used (a warning says so and the reference runs). Asking for ``numba`` explicitly where it cannot be imported is
+:data:`AUTO_MIN_UNKNOWNS` unknowns on ``numpy``; a larger one on ``c`` when a C compiler is
+found and the C back end prints and builds the model, else on ``numba`` when numba can be
+imported, else on ``numpy``. C comes first because it costs least to build (the flexible
+slider–crank's library compiles in well under a second, where numba's functions take seconds
+and its step loop minutes once per machine) and its functions cost no more to call from
+Python than numba's: IDA and the drivers call them through phc's call bridge
+(:mod:`phc.codegen.c_bridge`, the buffer protocol in C), or through ctypes where Python's C
+headers are missing (a few microseconds more a call; the backend line says so).
+``benchmarks/bench_backends.py`` measures the three per call and per step. A compiled module
+that disagrees with the reference at its check point is never used (a warning says so and the
+next choice runs). Asking for ``numba`` explicitly where it cannot be imported is
 an error that says how to install it; asking for ``c`` where no C compiler is found, or for
 a model using something the C back end does not print yet (an input table), is an error
 that says so in one line.
@@ -23,8 +26,8 @@ that says so in one line.
 A run of a fixed-step solver (``midpoint``, ``discrete_gradient``, ``midpoint4``) is different:
 its whole step loop runs compiled on the numba or C back end (:mod:`phc.simulation.compiled_steps`),
 20–100 times faster a step than the Python loop on the NumPy module, however small the model.
-So when ``auto`` ran the NumPy module (below :data:`AUTO_MIN_UNKNOWNS` unknowns, or numba
-missing) and a run takes at least :data:`AUTO_LOOP_STEPS` fixed steps, :func:`for_run` runs it
+So when ``auto`` ran the NumPy module (below :data:`AUTO_MIN_UNKNOWNS` unknowns)
+and a run takes at least :data:`AUTO_LOOP_STEPS` fixed steps, :func:`for_run` runs it
 on ``c`` when there is a C compiler (the three methods' loops are written in C: the midpoint
 rule about 3 µs a step on the pendulum and 2.7 s to compile cold, where numba's step loop is
 compiled once per machine in about two minutes), else on ``numba`` when numba can be imported,
@@ -102,13 +105,18 @@ def select(ir, reference: ModuleType, source: str, backend: Optional[str] = None
         return _select_c(ir, reference, source)
     if choice == "auto" and reference.N < AUTO_MIN_UNKNOWNS:
         return reference, auto_note(reference)
+    c_why = ""
+    if choice == "auto":
+        module, c_why = _auto_c(ir, reference, source)
+        if module is not None:
+            return module, ""
     from phc.codegen import numba_backend
 
     ok, why = numba_backend.available()
     if not ok:
         if choice == "numba":
             raise SimulationSetupError(f"the numba backend is not available: {why}; or use --backend numpy")
-        return _auto_c(ir, reference, source, why)
+        return reference, f"numpy (compiled backends unavailable: {c_why}; {why})"
     try:
         module, _ = numba_backend.load_compiled(ir, reference, source)
     except numba_backend.BackendMismatch as err:
@@ -121,6 +129,8 @@ def select(ir, reference: ModuleType, source: str, backend: Optional[str] = None
                       f"{first}); running the NumPy module instead (please report this phc bug)",
                       numba_backend.CompiledBackendWarning, stacklevel=2)
         return reference, f"numpy (compilation failed: {type(err).__name__})"
+    if c_why:
+        module.AUTO_NOTE = f"auto: the C backend is not used ({c_why})"
     return module, ""
 
 
@@ -137,20 +147,23 @@ def _select_c(ir, reference: ModuleType, source: str) -> tuple[ModuleType, str]:
         raise SimulationSetupError(f"{err}; run this model with --backend numpy (or numba)") from None
 
 
-def _auto_c(ir, reference: ModuleType, source: str, numba_why: str) -> tuple[ModuleType, str]:
-    """``auto`` without numba, for a model of :data:`AUTO_MIN_UNKNOWNS` unknowns or more: the C
-    module when a C compiler is found and the C back end prints the model, else the NumPy
-    module; the note says why (the backend line says it for the C module: :func:`describe`)."""
+def _auto_c(ir, reference: ModuleType, source: str) -> tuple[Optional[ModuleType], str]:
+    """``auto`` for a model of :data:`AUTO_MIN_UNKNOWNS` unknowns or more, first choice: (the C
+    module, "") when a C compiler is found and the C back end prints the model and builds it,
+    else (None, why not): numba is tried next."""
     from phc.codegen import cc
     from phc.errors import BackendUnsupported
 
     c_ok, c_why = cc.available()
     if not c_ok:
-        return reference, f"numpy (compiled backends unavailable: {numba_why}; {c_why})"
+        return None, c_why
     try:
-        return _load_c(ir, reference, source)
+        module, note = _load_c(ir, reference, source)
     except BackendUnsupported as err:
-        return reference, f"numpy (numba unavailable: {numba_why}; the C backend: {err})"
+        return None, f"the C backend: {err}"
+    if name_of(module) != "c":  # a mismatch or a failed compilation: warned (a phc bug)
+        return None, note[len("numpy ("):-1] if note.startswith("numpy (") else note
+    return module, ""
 
 
 def _load_c(ir, reference: ModuleType, source: str) -> tuple[ModuleType, str]:
@@ -185,18 +198,19 @@ def auto_note(module) -> str:
 
 
 def describe(module, requested: Optional[str] = None) -> str:
-    """One line on what runs `module`'s functions and, for the NumPy module, why."""
+    """One line on what runs `module`'s functions and, when ``auto`` did not run C, why."""
+    auto = check_choice(requested) == "auto"
     if name_of(module) == "c":
         line = f"c: compiled functions ({module.C_REPORT.describe()})"
-        if check_choice(requested) == "auto":
-            from phc.codegen.numba_cache import why_unavailable
+        from phc.codegen import c_bridge
 
-            why = why_unavailable()
-            line += f"; auto: numba unavailable ({why})" if why else ""
-        return line
+        why = c_bridge.why_not()
+        return line + (f"; called through ctypes: {why}" if why else "")
     report = getattr(module, "COMPILE_REPORT", None)
     if report is not None:
-        return f"numba: compiled functions ({report.describe()})"
+        line = f"numba: compiled functions ({report.describe()})"
+        note = getattr(module, "AUTO_NOTE", "")
+        return line + (f"; {note}" if auto and note else "")
     if check_choice(requested) == "numpy":
         return "numpy"
     if check_choice(requested) == "c":
@@ -207,10 +221,12 @@ def describe(module, requested: Optional[str] = None) -> str:
     from phc.codegen.numba_cache import why_unavailable
 
     why = why_unavailable()
-    if not why:
-        return "numpy"
     c_ok, c_why = cc.available()
-    return f"numpy (compiled backends unavailable: {why}; {c_why})" if not c_ok else f"numpy (compiled backend unavailable: {why})"
+    if c_ok:
+        return "numpy (the compiled backends could not build this model's functions: see the warnings)" if not why \
+            else f"numpy (the C backend could not build this model's functions; numba unavailable: {why})"
+    return f"numpy (compiled backends unavailable: {c_why}; {why})" if why else \
+        "numpy (the compiled backend could not build this model's functions: see the warning)"
 
 
 def for_run(compiled, backend: Optional[str], method: Optional[str], steps: int) -> tuple[ModuleType, str]:
@@ -268,12 +284,10 @@ def _run_targets(compiled, module, backend, method, steps) -> tuple[list[str], s
     from phc.codegen import cc, numba_cache
     from phc.simulation.c_steps import METHODS
 
-    small = module.N < AUTO_MIN_UNKNOWNS
-    numba_ok, numba_why = numba_cache.available()
-    if numba_ok and not small:  # auto tried numba and could not use it (a warning said why)
+    if module.N >= AUTO_MIN_UNKNOWNS:  # auto tried C and numba and could use neither (the note says why)
         return [], "", ""
-    why_numpy = (f"{module.N} unknowns, below {AUTO_MIN_UNKNOWNS}" if small
-                 else f"compiled backend unavailable: {numba_why}")
+    numba_ok, numba_why = numba_cache.available()
+    why_numpy = f"{module.N} unknowns, below {AUTO_MIN_UNKNOWNS}"
     c_ok, c_why = cc.available() if method in METHODS else (False, f"the C step loop runs {', '.join(METHODS)} only")
     targets = ["c"] * c_ok + ["numba"] * numba_ok
     if not targets:

@@ -327,7 +327,11 @@ def _target(out, n: int, what: str):
 
 def _wrappers(lib: ctypes.CDLL, n: int, m: int, njac: int, npar: int, ninv: int, nvinv: int,
               nout: int) -> dict:
+    from phc.codegen import c_bridge
+
     P = _PTR
+    module = c_bridge.bridge()
+    bridged = module.call if module is not None else None
 
     def c_function(name, argtypes, restype=None):
         f = getattr(lib, f"phc_{name}")
@@ -337,6 +341,12 @@ def _wrappers(lib: ctypes.CDLL, n: int, m: int, njac: int, npar: int, ninv: int,
     def into(name: str, size: int, with_cj: bool):
         f = c_function(name, [_D, P, P, P, _D, P] if with_cj else [_D, P, P, P, P])
         ndarray, F64, D = np.ndarray, _F64, _D
+        state = D * n  # a copy of a read-only state vector (IDA hands y and ẏ over read-only)
+
+        def given(a):
+            if not n:
+                return None
+            return D.from_buffer(a) if a.flags.writeable else state.from_buffer_copy(a)
 
         def general(t, y, yp, p, rest):
             y_, yp_, p_ = _given(y, n, "y"), _given(yp, n, "yp"), _given(p, npar, "p")
@@ -351,8 +361,26 @@ def _wrappers(lib: ctypes.CDLL, n: int, m: int, njac: int, npar: int, ninv: int,
             if buf is not None:
                 out[...] = buf
 
-        # The common call (IDA's and the drivers': writable contiguous float64 vectors of the
-        # right sizes) is tested inline and passed straight on; anything else takes `general`,
+        if bridged is not None:  # the buffer protocol in C (phc.codegen.c_bridge): no conversions
+            address = ctypes.cast(f, ctypes.c_void_p).value
+            if with_cj:
+                def call(t, y, yp, p, cj, out):
+                    try:
+                        bridged(address, n, npar, size, cj, t, y, yp, p, out)
+                    except (TypeError, ValueError, BufferError):  # not a float64 vector: converted or refused
+                        general(t, y, yp, p, (cj, out))
+            else:
+                def call(t, y, yp, p, out):
+                    try:
+                        bridged(address, n, npar, size, None, t, y, yp, p, out)
+                    except (TypeError, ValueError, BufferError):  # not a float64 vector: converted or refused
+                        general(t, y, yp, p, (out,))
+            call.__name__ = call.__qualname__ = name
+            return call
+
+        # Through ctypes: the common call (IDA's and the drivers': contiguous float64 vectors of the right
+        # sizes; IDA's y and ẏ are read-only, so they are copied, n doubles, rather than
+        # converted) is tested inline and passed straight on; anything else takes `general`,
         # which converts or refuses. Half the cost of a call from Python was this wrapper.
         if with_cj:
             def call(t, y, yp, p, cj, out):
@@ -361,10 +389,10 @@ def _wrappers(lib: ctypes.CDLL, n: int, m: int, njac: int, npar: int, ninv: int,
                         and y.ndim == 1 and yp.ndim == 1 and p.ndim == 1 and out.ndim == 1
                         and y.shape[0] >= n and yp.shape[0] >= n and p.shape[0] >= npar and out.shape[0] >= size):
                     try:
-                        f(t, D.from_buffer(y) if n else None, D.from_buffer(yp) if n else None,
-                          D.from_buffer(p) if npar else None, cj, D.from_buffer(out) if size else None)
+                        f(t, given(y), given(yp), D.from_buffer(p) if npar else None, cj,
+                          D.from_buffer(out) if size else None)
                         return
-                    except (TypeError, ValueError, BufferError):  # read-only or strided: converted below
+                    except (TypeError, ValueError, BufferError):  # strided (or a read-only `p`, `out`): converted below
                         pass
                 general(t, y, yp, p, (cj, out))
         else:
@@ -374,10 +402,10 @@ def _wrappers(lib: ctypes.CDLL, n: int, m: int, njac: int, npar: int, ninv: int,
                         and y.ndim == 1 and yp.ndim == 1 and p.ndim == 1 and out.ndim == 1
                         and y.shape[0] >= n and yp.shape[0] >= n and p.shape[0] >= npar and out.shape[0] >= size):
                     try:
-                        f(t, D.from_buffer(y) if n else None, D.from_buffer(yp) if n else None,
-                          D.from_buffer(p) if npar else None, D.from_buffer(out) if size else None)
+                        f(t, given(y), given(yp), D.from_buffer(p) if npar else None,
+                          D.from_buffer(out) if size else None)
                         return
-                    except (TypeError, ValueError, BufferError):  # read-only or strided: converted below
+                    except (TypeError, ValueError, BufferError):  # strided (or a read-only `p`, `out`): converted below
                         pass
                 general(t, y, yp, p, (out,))
 

@@ -137,6 +137,48 @@ def test_arrays_of_any_layout_and_short_arrays(tmp_path):
 
 
 @needs_cc
+def test_the_call_bridge_and_ctypes_compute_the_same_on_arrays_of_any_layout(monkeypatch):
+    """The call bridge (phc.codegen.c_bridge: the buffer protocol in C) and the ctypes
+    wrappers (PHC_C_BRIDGE=0) call the same C functions: bit-for-bit equal results on IDA's
+    read-only state vectors, and vectors that are not contiguous float64 (strided, float32, a
+    list) converted or refused alike. Without Python's C headers only ctypes is checked."""
+    from phc.codegen import c_bridge
+
+    fast = phc.compile_model(ROOT / "models" / "rigid_slider_crank.yaml", certify=False, backend="c").module
+    ref = fast.REFERENCE
+    monkeypatch.setenv("PHC_C_BRIDGE", "0")
+    plain, _ = c_backend.load_source(fast.C_SOURCE, ref)  # the same library, ctypes wrappers
+    assert "called through ctypes: switched off" in backends.describe(plain)
+    monkeypatch.delenv("PHC_C_BRIDGE")
+    bridged, _ = c_backend.load_source(fast.C_SOURCE, ref)
+    rng = np.random.default_rng(3)
+    n, m, nj = ref.N, len(ref.EQUATIONS), len(ref.JAC_ROWS)
+    p = np.asarray(ref.full_parameters(), dtype=float)
+    y, yp = rng.uniform(-1, 1, n), rng.uniform(-1, 1, n)
+    y.setflags(write=False)
+    yp.setflags(write=False)
+    layouts = [(y, yp), (rng.uniform(-1, 1, 2 * n)[::2], yp), (y.astype(np.float32), list(yp))]
+    for a, b in layouts:
+        results = []
+        for module in (bridged, plain):
+            res, jac = np.empty(m), np.zeros(2 * nj)[::2]  # a strided output is written back
+            module.residual(0.4, a, b, p, res)
+            module.jacobian(0.4, a, b, p, 7.0, jac)
+            results.append((res, jac))
+        (r1, j1), (r2, j2) = results
+        assert np.array_equal(r1, r2) and np.array_equal(j1, j2)
+        expected = np.empty(m)
+        ref.residual(0.4, np.asarray(a, float), np.asarray(b, float), p, expected)
+        np.testing.assert_allclose(r1, expected, rtol=0, atol=TOL * max(1.0, np.abs(expected).max()))
+    for module in (bridged, plain):
+        with pytest.raises(ValueError, match="`y` has shape"):
+            module.residual(0.1, y[:-1], yp, p, np.empty(m))
+        with pytest.raises(ValueError, match="`out` has"):
+            module.residual(0.1, y, yp, p, np.empty(m - 1))
+    assert c_bridge.why_not() or c_bridge.bridge() is not None
+
+
+@needs_cc
 @pytest.mark.parametrize("model, step", [("mass_spring_damper", 1e-2), ("pendulum", 1e-2),
                                          ("rigid_slider_crank", 1e-3)])
 def test_a_midpoint_run_on_c_equals_the_numpy_run(model, step):

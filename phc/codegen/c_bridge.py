@@ -1,0 +1,89 @@
+"""The call bridge: the C back end's model functions called from Python without ctypes'
+per-argument conversions.
+
+IDA and phc's drivers call a model's residual and Jacobian from Python once per evaluation.
+Through ctypes, each call converts its four vectors (``ctypes.c_double.from_buffer``, or a
+copy for a read-only vector: IDA hands y and ẏ over read-only), which costs several times
+what the residual of a small model costs. ``phc/codegen/c_runtime/bridge.c`` makes the same
+call through the buffer protocol (one C function, :func:`bridge`'s ``call``). It is built with
+the system C compiler and Python's C headers, once per machine, Python version and phc version,
+into phc's signed cache of compiled code, and loaded as the model libraries are
+(:func:`phc.codegen.c_backend._obtain`); its module object comes from an exported function
+called through ``ctypes.PYFUNCTYPE`` (the GIL held), so nothing is imported by name.
+
+Where it cannot be built (no C headers for this Python: ``python3-dev`` or the like is not
+installed), :func:`bridge` is None, the ctypes wrappers run, and :func:`why_not` says why (the
+C backend's line in ``phc simulate`` repeats it).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import sys
+import sysconfig
+import threading
+from pathlib import Path
+
+SOURCE = Path(__file__).resolve().parent / "c_runtime" / "bridge.c"
+"""The C text of the bridge (shipped in the package)."""
+
+_LOCK = threading.Lock()
+_BRIDGE = None
+"""The bridge's module once built; False when it cannot be built here (:data:`_WHY`)."""
+_WHY = ""
+
+
+def _include() -> str:
+    return sysconfig.get_paths().get("include") or ""
+
+
+def bridge():
+    """The bridge's module (with ``call``), built or loaded once per process, or None when it
+    cannot be built here (:func:`why_not`). ``PHC_C_BRIDGE=0`` switches it off."""
+    global _BRIDGE, _WHY
+    if os.environ.get("PHC_C_BRIDGE", "1").strip().lower() in ("0", "no", "false", "off"):
+        return None
+    with _LOCK:
+        if _BRIDGE is None:
+            try:
+                _BRIDGE = _build()
+            except Exception as err:  # noqa: BLE001 — the ctypes wrappers run instead, and say why
+                _BRIDGE, _WHY = False, f"the call bridge could not be built ({type(err).__name__}: " \
+                                       f"{str(err).strip().splitlines()[0] if str(err).strip() else ''})"
+        return _BRIDGE or None
+
+
+def _build():
+    global _WHY
+    from phc.codegen import c_backend
+
+    argv, identity = c_backend.find_compiler()
+    if argv is None:
+        _WHY = identity
+        return False
+    include = _include()
+    if not include or not os.path.isfile(os.path.join(include, "Python.h")):
+        _WHY = "Python's C headers (Python.h) are not installed for this interpreter"
+        return False
+    flags = ("-std=c99", "-O2", "-fPIC", "-shared", f"-I{include}")
+    # the Python the module is built for is part of the text, so of the cache key
+    text = f"/* built for {sys.implementation.cache_tag} {sys.version.split()[0]} */\n" + \
+        SOURCE.read_text(encoding="utf-8")
+    digest = c_backend.library_digest(text, argv, identity, flags)
+    cache = os.environ.get("PHC_COMPILED_CACHE", "1").strip().lower() not in ("0", "no", "false", "off")
+    lib, _, _ = c_backend._obtain(text, argv, digest, cache, flags)
+    make = ctypes.PYFUNCTYPE(ctypes.py_object)(ctypes.cast(lib.phc_bridge_module, ctypes.c_void_p).value)
+    module = make()
+    module._library = lib  # keeps the library loaded while the module lives
+    return module
+
+
+def why_not() -> str:
+    """Why the bridge is not used in this process ("" when it is, or was not tried)."""
+    if os.environ.get("PHC_C_BRIDGE", "1").strip().lower() in ("0", "no", "false", "off"):
+        return "switched off (PHC_C_BRIDGE=0)"
+    return _WHY
+
+
+__all__ = ["SOURCE", "bridge", "why_not"]
