@@ -137,6 +137,7 @@ class SourceMap:
         self.file = file
         self.root = root
         self._index: dict[int, tuple[dict[Any, _Entry], dict[str, _Entry]]] = {}
+        self._located: dict[tuple, SourceSpan] = {}  # locate() by path: lowerers ask several times
 
     # -- node tree ---------------------------------------------------------------
     def _mapping_index(self, node: MappingNode) -> tuple[dict[Any, _Entry], dict[str, _Entry]]:
@@ -265,7 +266,15 @@ class SourceMap:
         SourceSpan
             Start of the value node; the document start when nothing resolves.
         """
-        return self._node_span(self.node(path))
+        norm = self._norm(path)
+        key = tuple((type(e), e) for e in norm)  # 1 and True are different elements
+        try:
+            hit = self._located.get(key)
+        except TypeError:  # unhashable path element
+            return self._node_span(self.node(norm))
+        if hit is None:
+            hit = self._located[key] = self._node_span(self.node(norm))
+        return hit
 
     def locate_key(self, path: Sequence[PathElem] | str) -> SourceSpan:
         """Span of the mapping *key* of the last element of `path`.

@@ -290,6 +290,32 @@ class _Walker:
     def __init__(self, units: Mapping, written: Mapping):
         self.units, self.written = units, written
         self._one = None
+        # pint arithmetic costs tens of µs an operation: products, powers and comparisons of
+        # the same quantity objects are done once (a sum of 10⁴ like energy terms repeats a
+        # handful); keyed by the operands' ids, which the values keep alive
+        self._products: dict = {}
+        self._powers: dict = {}
+        self._same: dict = {}
+
+    def _mul(self, a, b):
+        hit = self._products.get((id(a), id(b)))
+        if hit is None:
+            hit = self._products[(id(a), id(b))] = (a * b, a, b)
+        return hit[0]
+
+    def _pow(self, a, exponent: float):
+        hit = self._powers.get((id(a), exponent))
+        if hit is None:
+            hit = self._powers[(id(a), exponent)] = (a ** exponent, a)
+        return hit[0]
+
+    def _same_dimension(self, a, b) -> bool:
+        if a is b:
+            return True
+        hit = self._same.get((id(a), id(b)))
+        if hit is None:
+            hit = self._same[(id(a), id(b))] = (same_dimension(a, b), a, b)
+        return hit[0]
 
     def one(self):
         if self._one is None:
@@ -311,7 +337,7 @@ class _Walker:
             elif d is not NUMBER:
                 known.append((a, d))
         for a, d in known[1:]:
-            if not same_dimension(known[0][1], d):
+            if not self._same_dimension(known[0][1], d):
                 first = known[0]
                 if first[1].dimensionality == d.dimensionality:
                     raise DimensionError(f"{what} of one dimension but different scales: "
@@ -344,7 +370,7 @@ class _Walker:
                 return NUMBER
             out = known[0]
             for d in known[1:]:
-                out = out * d
+                out = self._mul(out, d)
             return out
         if isinstance(expr, sp.Pow):
             base, exp = expr.args
@@ -354,10 +380,8 @@ class _Walker:
                 return None
             if db is NUMBER:
                 return NUMBER if self.dim(exp) is NUMBER else self.one()
-            if not db.dimensionality:
-                return db ** float(exp) if exp.is_Number else None
             if exp.is_Number:
-                return db ** float(exp)
+                return self._pow(db, float(exp))
             return None
         if isinstance(expr, sp.Piecewise):
             for _, cond in expr.args:
@@ -504,12 +528,17 @@ def variable_units(elab, si: Optional[bool] = None, scales: Optional[Mapping] = 
         return {}
     out = {}
     domain_of = {}
+    by_domain: dict = {}  # one quantity object per domain and role: shared, and pint is slow
+
     def scaled(domain):
+        if domain in by_domain:
+            return by_domain[domain]
         units = domain_units(domain)
-        if units is None or not scales:
-            return units
-        return (units[0] * 10.0 ** domain_scale(scales, domain, "E"),
-                units[1] * 10.0 ** domain_scale(scales, domain, "F"))
+        if units is not None and scales:
+            units = (units[0] * 10.0 ** domain_scale(scales, domain, "E"),
+                     units[1] * 10.0 ** domain_scale(scales, domain, "F"))
+        by_domain[domain] = units
+        return units
 
     for port in elab.ports.values():
         units = scaled(port.domain)
@@ -529,8 +558,12 @@ def variable_units(elab, si: Optional[bool] = None, scales: Optional[Mapping] = 
         domains = domain_of.get(v.component, set())
         if units is None or units.storage is None or len(domains) != 1:
             continue
-        e, f = scaled(next(iter(domains)))
-        out[v.symbol] = (e if units.storage_of(v.name[len(v.component) + 1:]) == "e" else f) * second
+        domain = next(iter(domains))
+        which = units.storage_of(v.name[len(v.component) + 1:]) == "e"
+        if (domain, which) not in by_domain:
+            e, f = scaled(domain)
+            by_domain[(domain, which)] = (e if which else f) * second
+        out[v.symbol] = by_domain[(domain, which)]
     return out
 
 
@@ -570,10 +603,13 @@ class ResultUnits:
             self.labels["t"] = scaled_label(parse_unit("s") * 10.0 ** time_scale(scales))
         self.state_units = (variable_units(elab, si=True, scales=scales) if (scales or getattr(
             elab, "fields_si", False)) and not elab.units_si else {})
+        labels: dict = {}
         for v in variables:
             q = units.get(v.symbol)
             if q is not None:
-                self.labels[v.name] = unit_label(q)
+                if id(q) not in labels:
+                    labels[id(q)] = (unit_label(q), q)
+                self.labels[v.name] = labels[id(q)][0]
         scope: dict = {"H": self.h_symbol}
         vectors: dict = {}
         for v in elab.variables:
@@ -600,11 +636,15 @@ class ResultUnits:
 
         second = parse_unit("s") * 10.0 ** (time_scale(scales) or 0)
         self.rates = {}
+        per_second: dict = {}  # the states share a few quantity objects (variable_units)
         for v in elab.variables:
             if v.differential and v.dsymbol is not None:
                 self.rates[v.name] = v.dsymbol
                 if v.symbol in units:
-                    units[v.dsymbol] = units[v.symbol] / second
+                    q = units[v.symbol]
+                    if id(q) not in per_second:
+                        per_second[id(q)] = (q / second, q)
+                    units[v.dsymbol] = per_second[id(q)][0]
         self.rates = named_scope(self.rates.items())
 
     def output(self, ctx, name: str, value, path, unit: Optional[str], unit_path) -> Optional[float]:

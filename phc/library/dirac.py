@@ -205,6 +205,13 @@ def solve_for(expr: sp.Expr, symbol: sp.Symbol) -> sp.Expr:
     it (every relation a lowerer marks as a definition is of this form)."""
     from phc.budget import derivative
 
+    if isinstance(expr, sp.Add):  # the common row `symbol ± rest`: no derivative, no substitution
+        for term, sign in ((symbol, 1), (-symbol, -1)):
+            if term in expr.args:
+                rest = sp.Add(*(a for a in expr.args if a != term))
+                if symbol not in rest.free_symbols:
+                    return -rest if sign == 1 else rest
+                break
     coeff = derivative(expr, symbol)
     if symbol in coeff.free_symbols or coeff == 0:
         raise ValueError(f"{expr} = 0 cannot be solved for {symbol} without solving an equation")

@@ -45,9 +45,10 @@ def at_times(expr, times, defaults: dict):
     given times; None where it does not evaluate to numbers."""
     out = []
     base = expr.xreplace(defaults)
+    timed = T in base.free_symbols
     for t in times:
         try:
-            value = base.xreplace({T: sp.Float(t)}).evalf()
+            value = (base.xreplace({T: sp.Float(t)}) if timed else base).evalf()
             out.append(np.array(value, dtype=float) if isinstance(value, sp.MatrixBase) else float(value))
         except (TypeError, ValueError):
             return None

@@ -24,6 +24,7 @@ import re
 import keyword
 import cmath
 import difflib
+import functools
 import math
 import warnings
 from dataclasses import dataclass
@@ -490,8 +491,10 @@ class _Converter:
         return relations[0] if len(relations) == 1 else self.build(node, sp.And, *relations)
 
 
+@functools.lru_cache(maxsize=4096)
 def _parse_tree(text: str) -> tuple[ast.Expression, str, int]:
-    """Check limits and parse; return the tree, the parsed text and its offset in `text`."""
+    """Check limits and parse; return the tree, the parsed text and its offset in `text`.
+    Cached by text (the trees are only read): a model of 10⁴ springs writes `k` 10⁴ times."""
     if len(text) > MAX_LENGTH:
         raise ExpressionError(f"expression is too long ({len(text)} characters, at most {MAX_LENGTH})")
     body = text.lstrip()
