@@ -341,3 +341,31 @@ def test_stiffening_is_in_the_rows_as_the_description_says_it_and_refused_where_
     dae, diags = phc.build_dae(path)
     assert dae is not None, diags
     assert any("centrifugal stiffening" in str(x) for x in dae.left_out), dae.left_out
+
+
+def spin_up_case(ws: float, stiffening: str = "on", length: float = 10.0, t_end: float = 30.0) -> str:
+    """Issue 34's measurement (not a test; docs/crank-test-problem.md#centrifugal-stiffening):
+    the spin-up profile to `ws` with the beam of `length` (10 m: J. C. Simo, L. Vu-Quoc's),
+    the peak lag and the frequency of the tip after the spin-up, phc's and the Galerkin
+    solution's of the consistent theory."""
+    import tempfile
+    from pathlib import Path
+
+    global KANE_L
+    saved, KANE_L = KANE_L, length
+    try:
+        text = KANE.replace(f"L: {saved}", f"L: {length}").replace(f"t_end: {KANE_T_END}", f"t_end: {t_end}")
+        text = text.replace("n_out: 401", f"n_out: {int(round(t_end / 0.01)) + 1}")
+        with tempfile.TemporaryDirectory() as directory:
+            path = Path(directory) / "spin.yaml"
+            path.write_text(text.format(ws=ws, stiffening=stiffening))
+            r = phc.simulate(phc.compile_model(path), solver="midpoint", step=KANE_STEP)
+        tip, ref = _tip(r), galerkin_tip(r.t, ws)
+        after, dt = r.t >= KANE_TS, r.t[1] - r.t[0]
+        freq = [_frequencies(y[after] - y[after].mean(), dt, 5) for y in (tip, ref)]
+        freq = [f[f > 0.5][0] for f in freq]
+        return (f"ws = {ws}, stiffening {stiffening}: phc peak {tip.min():.4f} m, {freq[0]:.4f} rad/s after the "
+                f"spin-up; consistent theory (Galerkin) {ref.min():.4f} m, {freq[1]:.4f} rad/s; energy balance "
+                f"{r.energy_balance_relative:.1e}")
+    finally:
+        KANE_L = saved

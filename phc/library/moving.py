@@ -27,6 +27,11 @@ both sides, so it cancels exactly in the discrete power balance. Only the bendin
 Kelvin–Voigt damped. The flows of `m0`, `mf` are the end cross-sections' rotation rates
 ``ω + ∂ẇ/∂ξ = ∂e_p/∂ξ − (1/L − 1/ℓ)(v_f − v_0)`` (the slope rate alone is ``(1 + ε_mean)ω``
 for a stretched beam), their moments acting through the transpose.
+
+Effect `stiffening` (beyond the paper; docs/crank-test-problem.md#centrifugal-stiffening):
+``ṗ_b ∋ ∂(N ∂w/∂ξ) + ρω²w`` with the centrifugal axial force ``N = ρω²(L² − ξ²)/2`` of a
+spin about ξ = 0, as the skew modulation ``ṗ ∋ ω (a sᵀ − s aᵀ) e`` (``s = Gκ``, ``aᵀe = ω``)
+with the reaction on the chord's rotation: no power for any state, the energy unchanged.
 """
 
 from __future__ import annotations
