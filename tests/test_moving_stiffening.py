@@ -316,7 +316,7 @@ def test_without_stiffening_the_spin_up_departs_from_the_consistent_theory(kane)
     assert err > 0.05, err
 
 
-def test_stiffening_is_in_the_rows_as_the_description_says_it_and_refused_where_not_derived(tmp_path):
+def test_stiffening_is_in_the_rows_as_the_description_says_it_and_refused_where_not_derived(tmp_path, monkeypatch):
     """The rows derived from the complete description agree with the independent rows check,
     the compiled equations are certified power-conserving; with `axial` (whose axial force
     would be EAε) or `modes` the effect is a located error, and with `flexibility` off it is
@@ -330,6 +330,20 @@ def test_stiffening_is_in_the_rows_as_the_description_says_it_and_refused_where_
     cert = check_rows(dae)
     assert "beam" in cert.compared and not cert.diagnostics
     assert certify_compiled(phc.compile_model(path, certify=False), n_random=2).certified
+    from phc.library import moving
+
+    honest = moving._stiffen
+
+    def without_reaction(load, trace, Gk, dof0, dofL, L, omega):
+        # the stiffening force alone, without the reaction on the chord's rotation: no longer
+        # skew, and the certificate of the compiled equations finds the power it creates
+        for j, gj in enumerate(Gk):
+            if gj != 0:
+                load("p", j, omega * omega * gj)
+
+    monkeypatch.setattr(moving, "_stiffen", without_reaction)
+    assert not certify_compiled(phc.compile_model(path, certify=False), n_random=2).certified
+    monkeypatch.setattr(moving, "_stiffen", honest)
     for extra, word in (("axial: on", "`axial`"), ("modes: 2", "`modes`")):
         path.write_text(ROTATING.format(Om=3.0, stiffening=f"on, {extra}", w="0").replace(
             "    EI: 1\n", "    EI: 1\n    EA: 100\n"))

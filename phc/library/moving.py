@@ -275,10 +275,10 @@ def lower_moving_beam(b, ctx, name, spec, path):
 
 
 def _stiffening_matrix(space, kappa_space) -> np.ndarray:
-    """G (H3 DOFs × curvature DOFs), per unit ρ, with ``(Gκ)_j = ∫ n w' φ_j' dξ − ∫ ρ w φ_j dξ``,
-    ``n = ρ(L² − ξ²)/2``, where w is the chord-frame deflection of the curvature κ
-    (w'' = κ, w(0) = w(L) = 0): −ω² Gκ is the weak form of ∂(N ∂w/∂ξ) + ρω²w with the
-    centrifugal axial force N = ω² n of a spin about ξ = 0 (unloaded at ξ = L).
+    """G (H3 DOFs × curvature DOFs), per unit ρ, with ``(Gκ)_j = ∫ n w' φ_j' dξ − ∫ w φ_j dξ``,
+    ``n = (L² − ξ²)/2``, where w is the chord-frame deflection of the curvature κ
+    (w'' = κ, w(0) = w(L) = 0): −ρω² Gκ is the weak form of ∂(N ∂w/∂ξ) + ρω²w with the
+    centrifugal axial force N = ρω² n of a spin about ξ = 0 (unloaded at ξ = L).
 
     κ is linear on each element, so w' (quadratic) and w (cubic) are exact at the Gauss
     points, and the integrands (degree 6) are integrated exactly by the 5-point rule."""
