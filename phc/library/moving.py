@@ -27,6 +27,11 @@ both sides, so it cancels exactly in the discrete power balance. Only the bendin
 Kelvin–Voigt damped. The flows of `m0`, `mf` are the end cross-sections' rotation rates
 ``ω + ∂ẇ/∂ξ = ∂e_p/∂ξ − (1/L − 1/ℓ)(v_f − v_0)`` (the slope rate alone is ``(1 + ε_mean)ω``
 for a stretched beam), their moments acting through the transpose.
+
+Effect `stiffening` (beyond the paper; docs/crank-test-problem.md#centrifugal-stiffening):
+``ṗ_b ∋ ∂(N ∂w/∂ξ) + ρω²w`` with the centrifugal axial force ``N = ρω²(L² − ξ²)/2`` of a
+spin about ξ = 0, as the skew modulation ``ṗ ∋ ω (a sᵀ − s aᵀ) e`` (``s = Gκ``, ``aᵀe = ω``)
+with the reaction on the chord's rotation: no power for any state, the energy unchanged.
 """
 
 from __future__ import annotations
@@ -35,7 +40,7 @@ import numpy as np
 import sympy as sp
 
 from phc.dae import T
-from phc.discretize.fem1d import _GAUSS_W
+from phc.discretize.fem1d import _GAUSS_S, _GAUSS_W
 from phc.discretize.fem1d import DP1, H3, P0, P1, assemble
 from phc.library.beams import FullFields, _inverse, _lower_fields, prepare
 from phc.library.dirac import DiracBuilder, emit
@@ -58,6 +63,8 @@ def lower_moving_beam(b, ctx, name, spec, path):
     if not spec.effects.flexibility:
         if spec.effects.axial:
             b.leave_out(name, "axial deformation (effect `axial`)", "effect `flexibility` is off: a rigid link")
+        if spec.effects.stiffening:
+            b.leave_out(name, "centrifugal stiffening (effect `stiffening`)", "effect `flexibility` is off: a rigid link")
         _lower_rigid_link(b, ctx, name, spec, path)
         return
     axial = bool(spec.effects.axial)
@@ -68,6 +75,12 @@ def lower_moving_beam(b, ctx, name, spec, path):
     if axial and spec.effects.modes is not None:
         b.error("PHC-E145", f"effect `axial` of the moving beam `{name}` does not work with `modes`; drop `modes` "
                 "or turn `axial` off", ctx, (*path, "effects"))
+        return
+    stiffening = bool(spec.effects.stiffening)
+    if stiffening and (axial or spec.effects.modes is not None):
+        other = "`axial`" if axial else "`modes`"
+        b.error("PHC-E145", f"effect `stiffening` of the moving beam `{name}` does not work with {other} yet; turn "
+                f"`stiffening` off or drop {other}", ctx, (*path, "effects"))
         return
     prep = prepare(b, ctx, name, spec, path, ("rhoA", "EI", "EA") if axial else ("rhoA", "EI"))
     if prep is None:
@@ -217,6 +230,11 @@ def lower_moving_beam(b, ctx, name, spec, path):
             fields.d_load_vector("p", r, omega_d * e_pt * rho.expr)
     fields.d_load("p", dof0, nv.dot(eq0 + e0))
     fields.d_load("p", dofL, nv.dot(eqf + ef))
+    if stiffening:
+        G = _stiffening_matrix(space, kappa_space)  # per unit ρ (constant along the beam)
+        kappa_x = fields.fields["kappa"][0].x
+        Gk = [rho.expr * sum((float(v) * kappa_x[k] for k, v in enumerate(row) if v), sp.Integer(0)) for row in G]
+        _stiffen(fields.d_load, fields.d_trace, Gk, dof0, dofL, L, omega_d)
     if axial:
         # The end cross-sections rotate with the chord (ω = (v_f − v_0)/ℓ) plus the elastic
         # slope rate ∂ẇ/∂ξ = ∂e_p/∂ξ − (v_f − v_0)/L: the rate of the velocity field's slope
@@ -254,6 +272,62 @@ def lower_moving_beam(b, ctx, name, spec, path):
                note="moving beam: rigid part ⊕ flexible part through R⁴ (the paper's section 5.1)",
                structure=structure)
     emit(b, structure)
+
+
+def _stiffening_matrix(space, kappa_space) -> np.ndarray:
+    """G (H3 DOFs × curvature DOFs), per unit ρ, with ``(Gκ)_j = ∫ n w' φ_j' dξ − ∫ w φ_j dξ``,
+    ``n = (L² − ξ²)/2``, where w is the chord-frame deflection of the curvature κ
+    (w'' = κ, w(0) = w(L) = 0): −ρω² Gκ is the weak form of ∂(N ∂w/∂ξ) + ρω²w with the
+    centrifugal axial force N = ρω² n of a spin about ξ = 0 (unloaded at ξ = L).
+
+    κ is linear on each element, so w' (quadratic) and w (cubic) are exact at the Gauss
+    points, and the integrands (degree 6) are integrated exactly by the 5-point rule."""
+    mesh = space.mesh
+    h, L, n_el = mesh.h, mesh.length, mesh.elements
+    s = _GAUSS_S
+    nk = kappa_space.size
+    # I1_k(ξ) = ∫₀^ξ κ_k, I2_k(ξ) = ∫₀^ξ (ξ − η) κ_k(η) dη for the DP1 basis (DOF 2e: 1 − σ,
+    # DOF 2e + 1: σ on element e), at the Gauss points of every element.
+    I1 = np.zeros((n_el, len(s), nk))
+    I2 = np.zeros((n_el, len(s), nk))
+    pts = mesh.quadrature_points()
+    for e2 in range(n_el):  # the element of the basis function
+        x0 = e2 * h
+        for loc, (full1, moment, in1, in2) in enumerate((
+                (h / 2, h * (x0 / 2 + h / 6), h * (s - s**2 / 2), h**2 * (s**2 / 2 - s**3 / 6)),
+                (h / 2, h * (x0 / 2 + h / 3), h * s**2 / 2, h**2 * s**3 / 6))):
+            k = 2 * e2 + loc
+            I1[e2, :, k], I2[e2, :, k] = in1, in2
+            for e in range(e2 + 1, n_el):  # ∫ over the whole element: I2 = ξ ∫κ_k − ∫ η κ_k
+                I1[e, :, k] = full1
+                I2[e, :, k] = pts[e] * full1 - moment
+    # w'(0) = −∫(L − η) κ dη / L = −I2(L)/L
+    I2_end = np.array([h / 2 * L - h * ((k // 2) * h / 2 + h * (1 / 6 if k % 2 == 0 else 1 / 3)) for k in range(nk)])
+    slope0 = -I2_end / L
+    wp = slope0[None, None, :] + I1
+    w = slope0[None, None, :] * pts[:, :, None] + I2
+    n = (L**2 - pts**2) / 2
+    weights = h * _GAUSS_W
+    v0, v1 = space.values(0), space.values(1)  # (4, g)
+    local = (np.einsum("eg,egk,ag,g->eak", n, wp, v1, weights)
+             - np.einsum("egk,ag,g->eak", w, v0, weights))
+    G = np.zeros((space.size, nk))
+    for e in range(n_el):
+        np.add.at(G, space.dofs()[e], local[e])
+    return G
+
+
+def _stiffen(load, trace, Gk, dof0, dofL, L, omega) -> None:
+    """The centrifugal stiffening as a skew modulation: ``ṗ ∋ ω (a sᵀ − s aᵀ) e`` with
+    ``s = Gκ`` and ``aᵀe = ω = (e_L − e_0)/L``: the transverse momentum gets −ω² Gκ
+    (∂(N w') + ρω²w), the chord's rotation the reaction ω·(Gκ)ᵀe, and the pair supplies no
+    power, e·ω(a sᵀ − s aᵀ)e = 0 for every state (rows are residuals: the signs flip)."""
+    power = sum((gj * trace("p", j) for j, gj in enumerate(Gk) if gj != 0), sp.Integer(0))
+    for j, gj in enumerate(Gk):
+        if gj != 0:
+            load("p", j, omega * omega * gj)
+    load("p", dofL, -omega * power / L)
+    load("p", dof0, omega * power / L)
 
 
 def _modulate(load, trace, C, rho, omega) -> None:

@@ -83,6 +83,12 @@ class MovingBeamEffects(_Effects):
     longitudinal displacement u(ξ) with axial stiffness `EA`, the chord length becomes
     L + u(L) and the tangential momentum a field p_a(ξ) coupled to the frame's rotation
     (ṗ_a ∋ ω p_b, ṗ_b ∋ −ω p_a). Needs `EA`; not with `modes`."""
+    stiffening: Switch = False
+    """Centrifugal stiffening (beyond the paper; off by default, the paper's model): the
+    axial force of the spin about the end ξ = 0, N = ρω²(L² − ξ²)/2, in the transverse
+    momentum, ṗ_b ∋ ∂(N ∂w/∂ξ) + ρω²w (geometric stiffness and centrifugal softening, the
+    consistent first-order theory of a rotating beam), with the reaction on the chord's
+    rotation that makes the pair power-neutral. Not with `axial` or `modes`."""
 
 
 UserEffects = dict[Identifier, Switch]
