@@ -70,7 +70,9 @@ def summary(reports) -> str:
     for rep in reports:
         kinds = sorted(set(rep.reference.values()))
         ref = ", ".join(kinds)
-        if rep.reference_gap:
+        if rep.reference_check_message:
+            ref += " (not cross-checked: the second run failed)"
+        elif rep.reference_gap:
             ref += " (gap " + ", ".join(f"{g:.1e}" for g in rep.reference_gap.values()) + ")"
         if rep.reference_message:
             ref += " — FAILED: " + rep.reference_message[:80]

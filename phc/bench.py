@@ -222,6 +222,8 @@ class BenchReport:
     reference_gap: dict[str, float] = field(default_factory=dict)
     """Per output: the largest difference of the two reference runs, relative to the
     reference's range (what the reference resolves)."""
+    reference_check_message: str = ""
+    """Why the cross-check reference run failed (empty when it did not)."""
     flags: list = field(default_factory=list)
     """:class:`WorkFlag` s: looser settings that cost more than tighter ones."""
     paths: dict[str, Path] = field(default_factory=dict)
@@ -255,7 +257,10 @@ class BenchReport:
             lines.append(f"  source     {self.reference_source}")
         if self.reference_message:
             lines.append(f"  reference  FAILED: {self.reference_message}")
-        if self.reference_gap:
+        if self.reference_check_message:
+            lines.append(f"  reference  cross-check ({settings_label(self.reference_check)}) failed: "
+                         f"{_short(self.reference_check_message)}")
+        elif self.reference_gap:
             lines.append(f"  reference  agrees with {settings_label(self.reference_check)} within "
                          + ", ".join(f"{o} {_fmt(g)}" for o, g in self.reference_gap.items()) + " (relative)")
         failed = [r for r in self.rows if not r.success]
@@ -287,7 +292,8 @@ class BenchReport:
             "reference_settings": {k: (mesh_label(v) if k == "mesh" else v) for k, v in self.reference_settings.items()},
             "reference_cache_hit": self.reference_cache_hit, "reference_message": self.reference_message,
             "reference_check": {k: (mesh_label(v) if k == "mesh" else v) for k, v in self.reference_check.items()},
-            "reference_gap": self.reference_gap, "flags": [f.as_dict() for f in self.flags],
+            "reference_gap": _jsonable(self.reference_gap), "reference_check_message": self.reference_check_message,
+            "flags": [f.as_dict() for f in self.flags],
             "rows": [_jsonable(r.as_dict(self.outputs)) for r in self.rows],
             "paths": {k: str(v) for k, v in self.paths.items()}, "plot_skipped": self.plot_skipped,
         }
@@ -440,6 +446,7 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
                 bar.show("cross-check reference " + settings_label(other))
                 second, _, _, problem = _reference_run(scene_path, model_path, other, t_out, need_run,
                                                        reference_cache, lambda: compiled_for(ref_mesh))
+                report.reference_check_message = problem
                 report.reference_gap = {o: (_relative_gap(reference[o], second[o]) if not problem else math.nan)
                                         for o in need_run}
                 bar.advance()
@@ -842,7 +849,10 @@ def _markdown(report: BenchReport) -> str:
                                              else ""))
     if report.reference_message:
         lines.append(f"\n**The reference run failed**: {report.reference_message}")
-    if report.reference_check:
+    if report.reference_check_message:
+        lines.append(f"\nCross-check: the second reference run ({settings_label(report.reference_check)}) failed, "
+                     f"the reference is not cross-checked: {_short(report.reference_check_message, 300)}")
+    elif report.reference_check:
         gaps = ", ".join(f"`{o}` {_fmt(g)}" for o, g in report.reference_gap.items())
         lines.append(f"\nCross-check: a second reference run ({settings_label(report.reference_check)}) differs from "
                      f"it by {gaps} (relative to the range): a relative error below that is not resolved.")
