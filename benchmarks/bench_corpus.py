@@ -13,7 +13,8 @@ its outputs against
 * else a **reference run** — IDA at rtol 1e-10 (atol 1e-12, BDF orders up to 5) —
   **cross-checked** by a second method, `midpoint4` at the finest swept step / 16: the
   report gives their difference, below which an error is not resolved
-  (:func:`phc.bench.run_bench`, ``cross_check``).
+  (:func:`phc.bench.run_bench`, ``cross_check``); for the string the other way round
+  (:data:`REFERENCE`).
 
 It prints, for the record (benchmarks/record.py), a summary per model — per solver the least
 CPU time at which its relative error is at most 1e-3, 1e-5 and 1e-7, the Pareto front, the
@@ -44,6 +45,12 @@ from phc.simulation import FIXED_STEP  # noqa: E402
 CORPUS = ROOT / "benchmarks" / "corpus"
 SOLVERS = ["ida", "midpoint", "discrete_gradient", "midpoint4"]
 LEVELS = (1e-3, 1e-5, 1e-7)
+REFERENCE = {
+    # IDA at rtol 1e-10 (atol 1e-12) fails on the string: Newton at 5e-13 locally is below
+    # round-off (tests/simulation/test_tolerance_budget.py stops it at 1e-9). midpoint4 at the
+    # finest step / 16 is its reference, cross-checked by IDA at 1e-9.
+    "vibrating_string": dict(reference_solver="midpoint4", reference_rtol=1e-9),
+}
 
 
 def cheapest(rows, solver: str, level: float) -> str:
@@ -107,12 +114,12 @@ def main(argv=None) -> int:
     out = Path(args.out_dir) if args.out_dir else Path(tempfile.mkdtemp(prefix="phc_corpus_"))
     reports = []
     for scene in scenes:
-        kwargs = {}
+        kwargs = dict(REFERENCE.get(scene.stem, {}))
         if args.quick:
             import yaml
 
             bench = yaml.safe_load(scene.read_text())["bench"]
-            kwargs = dict(tolerances=bench["tolerances"][::2][:3], steps=bench["steps"][:2])
+            kwargs.update(tolerances=bench["tolerances"][::2][:3], steps=bench["steps"][:2])
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the runs' warnings are in their messages
             rep = run_bench(scene, solvers=SOLVERS, repeats=args.repeats, out_dir=out / scene.stem, progress=False,
