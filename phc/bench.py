@@ -13,11 +13,23 @@ measures, per point:
   y_ref`` of the reference (relative); the row's ``error`` / ``error_relative`` are the
   maxima over the outputs;
 * the **CPU time** (process time of :func:`phc.simulate`, consistent initialization
-  included; the minimum over ``repeats`` runs, the median is kept as a noise figure),
+  included; the minimum over ``repeats`` runs, the median is kept as a noise figure; each
+  solver first runs once untimed on each mesh — a fixed-step one at its finest step — so
+  the process's one-time costs — imports, the first calls, building a compiled step loop,
+  which `auto` then uses for every step of that model — are in no row),
   the steps, residual and Jacobian evaluations;
 * the **structure figures**: the relative energy-balance residual and the position
   constraint drift;
 * success and the solver's message — a failed run is a row, never an exception.
+
+Two readings of the rows are written with them:
+
+* the **Pareto front**: a successful row that no other successful row beats in both CPU
+  time and error (``front`` in the table) — the settings worth choosing;
+* the **work check** (:func:`work_flags`): a looser setting of one solver and mesh that
+  took more steps than a tighter one (beyond :data:`STEPS_NOISE`), or more CPU time (beyond
+  :data:`CPU_NOISE` and :data:`CPU_FLOOR_S`) — the promise that a looser tolerance is never
+  slower (docs/tolerances.md), checked on every sweep.
 
 The reference of an output is
 
@@ -34,12 +46,18 @@ The reference of an output is
   and every run evaluates it on its own grid;
 * otherwise a **reference run**: IDA at a tight tolerance (``min(1e-10, tightest swept
   tolerance / 100)``, ``atol = rtol / 100``, BDF orders up to 5 whatever the scene caps
-  them at, up to 10⁷ steps) on the finest mesh swept (the largest element
+  them at, up to 10⁷ steps) — or, with ``reference_solver`` a fixed-step solver such as
+  ``midpoint4``, that solver at ``reference_step`` (default: the finest swept step / 16) —
+  on the finest mesh swept (the largest element
   count of each swept component), on the same output grid. The spatial error of that mesh
   itself is therefore not part of the measured error — the error of a coarse mesh is
   measured relative to the finest one. The run is cached on disk (``$PHC_CACHE_DIR/bench``,
   default ``~/.cache/phc/bench``) under the SHA-256 of the scene file, the model file, the
   phc version and the reference settings, so a repeated bench does not recompute it.
+  With ``cross_check`` a second reference run by the other kind of method (the fixed-step
+  one when the reference is IDA, IDA when it is fixed-step) is compared with the first: their
+  largest relative difference per output (``reference_gap``) bounds what the reference
+  resolves — a row's error below it is not measured.
 
 Mesh variants are in-memory copies of the scene (of a plain model file: a scene around
 it) whose ``accuracy.mesh`` has the swept element counts merged in
@@ -90,6 +108,20 @@ REFERENCE_MAX_ORDER = 5
 tolerances (BDF2 is A-stable for undamped high modes); at the reference's tight tolerance
 the high orders are far cheaper (BDF2 at rtol 1e-10 needs millions of steps)."""
 REFERENCE_MAX_STEPS = 10_000_000
+REFERENCE_STEP_DIVISOR = 16
+"""A fixed-step reference run's default step: the finest swept step divided by this."""
+CROSS_CHECK_SOLVER = "midpoint4"
+"""The fixed-step method of a cross-check of an IDA reference (order 4, symplectic)."""
+STEPS_NOISE = 1.10
+"""A looser setting may take this factor more steps than a tighter one before the work
+check flags it: at equal work IDA's step sequence still differs with the tolerances (where
+a step is rejected, which order it takes), by a few percent (the factor of
+tests/simulation/test_tolerance_budget.py); a trap costs 2 to 100 times more."""
+CPU_NOISE = 1.5
+"""…and this factor more CPU time (process time of runs well under a second varies by tens
+of percent between repeats on a loaded machine)…"""
+CPU_FLOOR_S = 0.02
+"""…when the difference is at least this long (below, timer and start-up noise)."""
 INSTALL_HINT = 'pip install "port-hamiltonian-compiler[plot]"'
 
 
@@ -121,6 +153,9 @@ class BenchRow:
     """max_t |y − y_ref| per output."""
     relative_errors: dict[str, float] = field(default_factory=dict)
     """errors divided by the range of the reference output."""
+    pareto: bool = False
+    """On the Pareto front of the sweep: no other successful row is at once faster and
+    more accurate (:func:`pareto_front`)."""
 
     @property
     def fixed_step(self) -> bool:
@@ -151,6 +186,7 @@ class BenchRow:
             "success": self.success, "cpu_time_s": self.cpu_time_s, "cpu_time_median_s": self.cpu_time_median_s,
             "repeats": self.repeats, "steps": self.steps, "n_residual_evals": self.n_residual_evals,
             "n_jacobian_evals": self.n_jacobian_evals, "error": self.error, "error_relative": self.error_relative,
+            "pareto": self.pareto,
         }
         for name in outputs:
             row[f"error_{name}"] = self.errors.get(name, math.nan)
@@ -181,6 +217,15 @@ class BenchReport:
     reference_cache_path: Optional[Path] = None
     reference_message: str = ""
     """Why the reference run failed (empty when it did not)."""
+    reference_check: dict = field(default_factory=dict)
+    """Settings of the cross-check reference run (empty without `cross_check`)."""
+    reference_gap: dict[str, float] = field(default_factory=dict)
+    """Per output: the largest difference of the two reference runs, relative to the
+    reference's range (what the reference resolves)."""
+    reference_check_message: str = ""
+    """Why the cross-check reference run failed (empty when it did not)."""
+    flags: list = field(default_factory=list)
+    """:class:`WorkFlag` s: looser settings that cost more than tighter ones."""
     paths: dict[str, Path] = field(default_factory=dict)
     """`csv`, `md` and (with matplotlib) `png`."""
     plot_skipped: str = ""
@@ -204,7 +249,7 @@ class BenchReport:
             what = kind
             if kind == "reference run" and self.reference_settings:
                 s = self.reference_settings
-                what += (f" ({s['solver']} rtol {s['rtol']:.1e}, atol {s['atol']:.1e}, mesh {mesh_label(s['mesh'])}, "
+                what += (f" ({settings_label(s)}, mesh {mesh_label(s['mesh'])}, "
                          f"{_fmt(s.get('cpu_time_s', math.nan), '.3g')} s CPU"
                          + ("; cached" if self.reference_cache_hit else "") + ")")
             lines.append(f"  reference  {what}: {', '.join(outs)}")
@@ -212,14 +257,25 @@ class BenchReport:
             lines.append(f"  source     {self.reference_source}")
         if self.reference_message:
             lines.append(f"  reference  FAILED: {self.reference_message}")
+        if self.reference_check_message:
+            lines.append(f"  reference  cross-check ({settings_label(self.reference_check)}) failed: "
+                         f"{_short(self.reference_check_message)}")
+        elif self.reference_gap:
+            lines.append(f"  reference  agrees with {settings_label(self.reference_check)} within "
+                         + ", ".join(f"{o} {_fmt(g)}" for o, g in self.reference_gap.items()) + " (relative)")
         failed = [r for r in self.rows if not r.success]
         lines.append(f"  runs       {len(self.rows) - len(failed)} succeeded, {len(failed)} failed")
         for r in self.rows:
-            status = "ok " if r.success else "FAIL"
+            status = ("ok*" if r.pareto else "ok ") if r.success else "FAIL"
             lines.append(f"  {status} {r.solver:<17} {r.mesh_label:<12} {r.setting:<16} "
                          f"error {_fmt(r.error)} (rel {_fmt(r.error_relative)})  cpu {_fmt(r.cpu_time_s, '.3g')} s  "
                          f"steps {r.steps}  energy {_fmt(r.energy_balance_relative)}"
                          + ("" if r.success and np.isfinite(r.error) else f"  — {_short(r.message)}"))
+        lines.append("  work check " + (f"{len(self.flags)} looser setting(s) cost more than a tighter one"
+                                           if self.flags else "no looser setting costs more than a tighter one")
+                     + "  (* = on the Pareto front)")
+        for flag in self.flags:
+            lines.append(f"    {flag.text()}")
         for key in ("csv", "md", "png"):
             if key in self.paths:
                 lines.append(f"  wrote      {self.paths[key]}")
@@ -235,6 +291,9 @@ class BenchReport:
             "reference_source": self.reference_source,
             "reference_settings": {k: (mesh_label(v) if k == "mesh" else v) for k, v in self.reference_settings.items()},
             "reference_cache_hit": self.reference_cache_hit, "reference_message": self.reference_message,
+            "reference_check": {k: (mesh_label(v) if k == "mesh" else v) for k, v in self.reference_check.items()},
+            "reference_gap": _jsonable(self.reference_gap), "reference_check_message": self.reference_check_message,
+            "flags": [f.as_dict() for f in self.flags],
             "rows": [_jsonable(r.as_dict(self.outputs)) for r in self.rows],
             "paths": {k: str(v) for k, v in self.paths.items()}, "plot_skipped": self.plot_skipped,
         }
@@ -248,7 +307,8 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
               repeats: Optional[int] = None, out_dir: Union[str, os.PathLike] = ".",
               reference_cache: Union[None, bool, str, os.PathLike] = None, progress: bool = True,
               plot: bool = True, outputs=None, reference_rtol: Optional[float] = None,
-              stream=None, reference: Union[None, str, os.PathLike] = None) -> BenchReport:
+              stream=None, reference: Union[None, str, os.PathLike] = None, reference_solver: str = "ida",
+              reference_step: Optional[float] = None, cross_check: bool = False) -> BenchReport:
     """Run the work-precision study of a scene and write ``bench.csv``, ``bench.md`` and
     ``bench.png`` into `out_dir`.
 
@@ -279,6 +339,14 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
     reference
         A CSV file of reference values (a `t` column and one column per output; see
         :mod:`phc.reference_values`), replacing the scene's ``reference_values``.
+    reference_solver, reference_step
+        The method of the reference run: ``ida`` (the default) at `reference_rtol`, or a
+        fixed-step solver at `reference_step` (default: the finest swept step /
+        :data:`REFERENCE_STEP_DIVISOR`).
+    cross_check
+        Run a second reference by the other kind of method (:data:`CROSS_CHECK_SOLVER` at
+        the finest swept step / 16 for an IDA reference, IDA at `reference_rtol` for a
+        fixed-step one) and report their difference (``reference_gap``).
 
     Returns
     -------
@@ -337,7 +405,7 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
     t_run = _merge_times(t_out, published.times) if pub else t_out
     grid = _nearest(t_run, t_out)
     at_ref = {o: (_nearest(t_run, published.series[o][0]), published.series[o][1]) for o in pub}
-    bar = _SweepBar(len(points) + (1 if need_run else 0), enabled=progress, stream=stream)
+    bar = _SweepBar(len(points) + ((2 if cross_check else 1) if need_run else 0), enabled=progress, stream=stream)
     compiled_cache: dict[tuple, object] = {(): base} if not meshes else {}
     reference: dict[str, np.ndarray] = {}
 
@@ -357,18 +425,46 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
         if need_run:
             ref_mesh = {comp: max(counts) for comp, counts in meshes.items()}
             ref_rtol = float(reference_rtol or min(REFERENCE_RTOL, min(tolerances) / 100))
-            settings = dict(solver="ida", rtol=ref_rtol, atol=ref_rtol / 100, mesh=ref_mesh,
-                            max_order=REFERENCE_MAX_ORDER, max_steps=REFERENCE_MAX_STEPS)
+            ref_step = float(reference_step or min(steps) / REFERENCE_STEP_DIVISOR)
+            ida_settings = dict(solver="ida", rtol=ref_rtol, atol=ref_rtol / 100, mesh=ref_mesh,
+                                max_order=REFERENCE_MAX_ORDER, max_steps=REFERENCE_MAX_STEPS)
+            if reference_solver in FIXED_STEP:
+                settings = dict(solver=reference_solver, step=ref_step, mesh=ref_mesh, max_steps=REFERENCE_MAX_STEPS)
+                other = ida_settings
+            else:
+                settings = ida_settings
+                other = dict(solver=CROSS_CHECK_SOLVER, step=min(steps) / REFERENCE_STEP_DIVISOR, mesh=ref_mesh,
+                             max_steps=REFERENCE_MAX_STEPS)
             report.reference_settings = settings
-            bar.show("reference run " + _point_label(ref_mesh, "ida", ref_rtol))
+            bar.show("reference run " + settings_label(settings))
             reference, report.reference_cache_hit, report.reference_cache_path, report.reference_message = \
                 _reference_run(scene_path, model_path, settings, t_out, need_run, reference_cache,
                                lambda: compiled_for(ref_mesh))
             bar.advance()
+            if cross_check and not report.reference_message:
+                report.reference_check = other
+                bar.show("cross-check reference " + settings_label(other))
+                second, _, _, problem = _reference_run(scene_path, model_path, other, t_out, need_run,
+                                                       reference_cache, lambda: compiled_for(ref_mesh))
+                report.reference_check_message = problem
+                report.reference_gap = {o: (_relative_gap(reference[o], second[o]) if not problem else math.nan)
+                                        for o in need_run}
+                bar.advance()
         # -- the sweep ----------------------------------------------------------------
+        warmed = set()
         for mesh, solver, value in points:
             bar.show(_point_label(mesh, solver, value))
             compiled = compiled_for(mesh)
+            key = (tuple(sorted(mesh.items())), solver)
+            if key not in warmed and not isinstance(compiled, Exception):
+                # one untimed run first: the process's one-time costs (imports, the first call of
+                # the generated functions) are no setting's work. A fixed-step solver warms up at
+                # its finest step: where that run is long enough for `auto` to build a compiled
+                # step loop, every row then runs on it (phc.codegen.backends.for_run), instead of
+                # the coarse rows on the Python loop and the fine ones 10–40× faster per step
+                warmed.add(key)
+                warm = min(steps) if solver in FIXED_STEP else value
+                _simulate_once(compiled, solver, warm, t_run)
             row = _run_point(compiled, solver, value, mesh, t_run, repeats, outputs, closed, reference,
                              report.reference_message, grid, at_ref)
             report.rows.append(row)
@@ -379,8 +475,102 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
         bar.close()
 
     report.elapsed_s = time.perf_counter() - started
+    for i in pareto_front(report.rows):
+        report.rows[i].pareto = True
+    report.flags = work_flags(report.rows)
     _write_files(report, out_dir, plot)
     return report
+
+
+# ---------------------------------------------------------------------------------------
+# readings of the rows
+
+
+@dataclass
+class WorkFlag:
+    """A looser setting that cost more than a tighter one of the same solver and mesh."""
+
+    solver: str
+    mesh: str
+    looser: str
+    tighter: str
+    what: str
+    """`steps` or `CPU`."""
+    looser_value: float
+    tighter_value: float
+
+    def text(self) -> str:
+        unit = " s" if self.what == "CPU" else ""
+        fmt = ".3g" if self.what == "CPU" else ".0f"
+        return (f"{self.solver}{'' if self.mesh == 'default' else ' ' + self.mesh}: {self.looser} took "
+                f"{format(self.looser_value, fmt)}{unit} {self.what}, {self.tighter} "
+                f"{format(self.tighter_value, fmt)}{unit} ({self.looser_value / self.tighter_value:.2f}×)")
+
+    def as_dict(self) -> dict:
+        return dict(solver=self.solver, mesh=self.mesh, looser=self.looser, tighter=self.tighter, what=self.what,
+                    looser_value=self.looser_value, tighter_value=self.tighter_value)
+
+
+def _looseness(row: BenchRow) -> float:
+    """Larger is looser: the step of a fixed-step row, rtol (then atol) of an IDA row."""
+    return row.step if row.fixed_step else row.rtol
+
+
+def work_flags(rows) -> list[WorkFlag]:
+    """The looser settings that cost more than a tighter one of the same solver and mesh: more
+    steps than :data:`STEPS_NOISE` times the tighter one's, or more CPU time than
+    :data:`CPU_NOISE` times it and :data:`CPU_FLOOR_S` beyond. Each looser row is compared with
+    every tighter one (a trap need not be next to its neighbour); failed rows are left out (a
+    failure is reported as one)."""
+    groups: dict[tuple[str, str], list[BenchRow]] = {}
+    for r in rows:
+        if r.success:
+            groups.setdefault((r.solver, r.mesh_label), []).append(r)
+    flags = []
+    for (solver, mesh), group in groups.items():
+        group = sorted(group, key=_looseness, reverse=True)  # loosest first
+        for i, loose in enumerate(group):
+            for tight in group[i + 1:]:
+                if _looseness(tight) >= _looseness(loose):
+                    continue  # the same setting twice
+                if loose.steps > STEPS_NOISE * tight.steps:
+                    flags.append(WorkFlag(solver, mesh, loose.setting, tight.setting, "steps", loose.steps,
+                                          tight.steps))
+                if (loose.cpu_time_s > CPU_NOISE * tight.cpu_time_s
+                        and loose.cpu_time_s - tight.cpu_time_s > CPU_FLOOR_S):
+                    flags.append(WorkFlag(solver, mesh, loose.setting, tight.setting, "CPU", loose.cpu_time_s,
+                                          tight.cpu_time_s))
+    return flags
+
+
+def pareto_front(rows) -> list[int]:
+    """Indices of the successful rows with a finite error that no other such row beats in both
+    CPU time and error (≤ in both, < in one)."""
+    ok = [(i, r.cpu_time_s, r.error_relative) for i, r in enumerate(rows)
+          if r.success and np.isfinite(r.error_relative) and np.isfinite(r.cpu_time_s)]
+    front = []
+    for i, cpu, err in ok:
+        beaten = any(c <= cpu and e <= err and (c < cpu or e < err) for j, c, e in ok if j != i)
+        if not beaten:
+            front.append(i)
+    return front
+
+
+def _relative_gap(a: np.ndarray, b: np.ndarray) -> float:
+    """max |a − b| relative to the range of `a` (its largest |a| when flat)."""
+    span = float(np.max(a) - np.min(a))
+    scale = span if span > 0 else float(np.max(np.abs(a)))
+    err = float(np.max(np.abs(a - b)))
+    return err / scale if scale > 0 else (0.0 if err == 0 else math.inf)
+
+
+def settings_label(s: dict) -> str:
+    """`ida rtol 1.0e-10, atol 1.0e-12` or `midpoint4 step 6.2e-06` of a reference run."""
+    if not s:
+        return ""
+    if s.get("step") is not None:
+        return f"{s['solver']} step {s['step']:.2e}"
+    return f"{s['solver']} rtol {s['rtol']:.1e}, atol {s['atol']:.1e}"
 
 
 def parse_meshes(items) -> dict[str, list[int]]:
@@ -587,8 +777,11 @@ def _reference_run(scene_path, model_path, settings, t_out, outputs, reference_c
     compiled = compile_fn()
     if isinstance(compiled, Exception):
         return {}, False, path, f"the reference mesh does not compile: {_short(str(compiled), 300)}"
-    res, problem = _simulate_once(compiled, settings["solver"], settings["rtol"], t_out,
-                                  max_steps=settings["max_steps"], max_order=settings["max_order"])
+    extra = dict(max_steps=settings["max_steps"])
+    if settings["solver"] not in FIXED_STEP:
+        extra["max_order"] = settings["max_order"]
+    value = settings["step"] if settings["solver"] in FIXED_STEP else settings["rtol"]
+    res, problem = _simulate_once(compiled, settings["solver"], value, t_out, **extra)
     if res is None:
         return {}, False, path, problem
     if not res.success or len(res.t) != len(t_out):
@@ -642,7 +835,7 @@ def _markdown(report: BenchReport) -> str:
     for out, kind in report.reference.items():
         if kind == "reference run" and report.reference_settings:
             s = report.reference_settings
-            kind = f"reference run ({s['solver']}, rtol {s['rtol']:.1e}, mesh {mesh_label(s['mesh'])})"
+            kind = f"reference run ({settings_label(s)}, mesh {mesh_label(s['mesh'])})"
         refs_.append(f"`{out}`: {kind}")
     published = [kind.startswith("published reference") for kind in report.reference.values()]
     what = []
@@ -656,14 +849,22 @@ def _markdown(report: BenchReport) -> str:
                                              else ""))
     if report.reference_message:
         lines.append(f"\n**The reference run failed**: {report.reference_message}")
+    if report.reference_check_message:
+        lines.append(f"\nCross-check: the second reference run ({settings_label(report.reference_check)}) failed, "
+                     f"the reference is not cross-checked: {_short(report.reference_check_message, 300)}")
+    elif report.reference_check:
+        gaps = ", ".join(f"`{o}` {_fmt(g)}" for o, g in report.reference_gap.items())
+        lines.append(f"\nCross-check: a second reference run ({settings_label(report.reference_check)}) differs from "
+                     f"it by {gaps} (relative to the range): a relative error below that is not resolved.")
     if report.interrupted:
         lines.append(f"\n**Interrupted**: {len(report.rows)} of {report.planned} runs finished.")
-    lines += ["", ("| solver | mesh | rtol / step | ok | CPU [s] | steps | error | rel. error | "
+    lines += ["", ("| solver | mesh | rtol / step | ok | CPU [s] | steps | error | rel. error | front | "
                    "energy balance (rel.) | constraint drift | message |"),
-              "|---|---|---|---|---:|---:|---:|---:|---:|---:|---|"]
+              "|---|---|---|---|---:|---:|---:|---:|:---:|---:|---:|---|"]
     for r in report.rows:
         lines.append(f"| {r.solver} | {r.mesh_label} | {r.setting} | {'yes' if r.success else 'no'} | "
                      f"{_fmt(r.cpu_time_s, '.3g')} | {r.steps} | {_fmt(r.error)} | {_fmt(r.error_relative)} | "
+                     f"{'◆' if r.pareto else ''} | "
                      f"{_fmt(r.energy_balance_relative)} | {_fmt(r.constraint_drift)} | "
                      f"{_short(r.message).replace('|', '/')} |")
     if len(report.outputs) > 1:  # the error of each output (relative), beside the largest
@@ -673,7 +874,12 @@ def _markdown(report: BenchReport) -> str:
         for r in report.rows:
             lines.append(f"| {r.solver} | {r.mesh_label} | {r.setting} | "
                          + " | ".join(_fmt(r.relative_errors.get(o, math.nan)) for o in report.outputs) + " |")
-    return "\n".join(lines) + "\n"
+    lines += ["", "Front ◆: no other run is both faster and more accurate (relative error). Work check — a "
+              f"looser setting must not take more steps (beyond {STEPS_NOISE:g}×) or more CPU time (beyond "
+              f"{CPU_NOISE:g}× and {CPU_FLOOR_S:g} s) than a tighter one of the same solver: "
+              + ("passed." if not report.flags else f"**{len(report.flags)} flagged**:"), ""]
+    lines += [f"- {flag.text()}" for flag in report.flags]
+    return "\n".join(lines).rstrip("\n") + "\n"
 
 
 def _plot(report: BenchReport, path: Path, Figure, Canvas) -> None:
@@ -795,4 +1001,5 @@ def _jsonable(row: dict) -> dict:
     return {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in row.items()}
 
 
-__all__ = ["run_bench", "BenchReport", "BenchRow", "parse_meshes", "reference_key", "mesh_label"]
+__all__ = ["run_bench", "BenchReport", "BenchRow", "WorkFlag", "parse_meshes", "reference_key", "mesh_label",
+           "work_flags", "pareto_front", "settings_label"]

@@ -97,7 +97,7 @@ def test_reference_run_is_cached(tmp_path):
         second = run_bench(scene, **kwargs)
     finally:
         phc_module.simulate = saved
-    assert second.reference_cache_hit and len(calls) == 1  # only the swept point ran
+    assert second.reference_cache_hit and len(calls) == 2  # only the swept point ran (and its untimed warm-up)
     assert second.rows[0].error == pytest.approx(first.rows[0].error)
     assert 0 < first.rows[0].error < 1e-4
     assert "cached" in second.render_text() and second.plot_skipped == "not requested"
@@ -113,7 +113,7 @@ def test_interrupt_keeps_the_finished_rows(tmp_path, monkeypatch):
 
     def interrupting(*args, **kw):
         calls.append(1)
-        if len(calls) == 3:
+        if len(calls) == 5:  # warm-up, ida ×2, warm-up, then the first midpoint point
             raise KeyboardInterrupt
         return original(*args, **kw)
 
@@ -231,3 +231,74 @@ def test_a_fixed_step_row_reports_the_step_taken(tmp_path):
     (row,) = report.rows
     assert row.step == pytest.approx(0.1 / 3)
     assert float(csv_rows(tmp_path / "out" / "bench.csv")[0]["step"]) == pytest.approx(0.1 / 3)
+
+
+def _row(solver, *, rtol=None, step=None, steps=0, cpu=0.0, error=1.0):
+    from phc.bench import BenchRow
+
+    row = BenchRow(solver, {}, rtol=rtol, atol=None if rtol is None else rtol / 100, step=step, success=True,
+                   steps=steps, cpu_time_s=cpu)
+    row.errors = {"x": error}
+    row.relative_errors = {"x": error}
+    return row
+
+
+def test_the_work_check_flags_a_looser_setting_that_costs_more():
+    """Issue 33: a looser tolerance is never slower. A looser rtol with more steps than a
+    tighter one (beyond the noise factor) is flagged, also when the trap is not next to its
+    neighbour; equal work within the noise is not; nor is a fixed step or another solver."""
+    from phc.bench import CPU_FLOOR_S, CPU_NOISE, STEPS_NOISE, work_flags
+
+    rows = [_row("ida", rtol=1e-4, steps=1500, cpu=0.10), _row("ida", rtol=1e-6, steps=1000, cpu=0.09),
+            _row("ida", rtol=1e-8, steps=1300, cpu=0.12),
+            _row("midpoint", step=0.1, steps=10, cpu=0.05), _row("midpoint", step=0.05, steps=20, cpu=0.04)]
+    flags = work_flags(rows)
+    assert [(f.looser, f.tighter, f.what) for f in flags] == [("rtol 0.0001", "rtol 1e-06", "steps"),
+                                                              ("rtol 0.0001", "rtol 1e-08", "steps")]
+    assert "1500 steps" in flags[0].text() and "(1.50×)" in flags[0].text()
+    # within the noise: not flagged
+    rows = [_row("ida", rtol=1e-4, steps=int(1000 * STEPS_NOISE), cpu=0.1), _row("ida", rtol=1e-6, steps=1000, cpu=0.1)]
+    assert work_flags(rows) == []
+    # CPU: beyond the factor and the floor both
+    slow = 0.1 * CPU_NOISE + CPU_FLOOR_S
+    rows = [_row("ida", rtol=1e-4, steps=10, cpu=slow * 1.01), _row("ida", rtol=1e-6, steps=10, cpu=0.1)]
+    assert [f.what for f in work_flags(rows)] == ["CPU"]
+    rows = [_row("ida", rtol=1e-4, steps=10, cpu=0.004), _row("ida", rtol=1e-6, steps=10, cpu=0.001)]
+    assert work_flags(rows) == []  # 4× but 3 ms: timer noise
+    failed = _row("ida", rtol=1e-4, steps=5000)
+    failed.success = False
+    assert work_flags([failed, _row("ida", rtol=1e-6, steps=10)]) == []
+
+
+def test_the_pareto_front():
+    from phc.bench import pareto_front
+
+    rows = [_row("ida", rtol=1e-4, cpu=1.0, error=1e-4), _row("ida", rtol=1e-6, cpu=2.0, error=1e-6),
+            _row("midpoint", step=0.1, cpu=1.5, error=1e-3),   # slower and less accurate than the first
+            _row("midpoint4", step=0.1, cpu=0.5, error=1e-2),  # fastest
+            _row("midpoint4", step=0.05, cpu=2.0, error=1e-6)]  # ties the second: both stay
+    assert pareto_front(rows) == [0, 1, 3, 4]
+
+
+def test_a_fixed_step_reference_cross_checked_by_ida(tmp_path):
+    """The mass–spring–damper without its closed form: the reference is midpoint4 at the
+    finest step / 16, cross-checked by IDA at rtol 1e-10. Both are within ~1e-9 of the
+    closed form (midpoint4 at h = 0.1/16: error ~ (ωh)⁴/... ≈ 1e-9; IDA at 1e-10), so their gap
+    is below 1e-7, and the rows' errors against it agree with the errors against the closed
+    form to that gap."""
+    cache = tmp_path / "cache"
+    closed = run_bench(msd_scene(tmp_path, name="closed"), solvers=["ida", "midpoint"], tolerances=[1e-5],
+                       steps=[0.1], out_dir=tmp_path / "a", progress=False, plot=False, reference_cache=cache)
+    ref = run_bench(msd_scene(tmp_path, reference=False), solvers=["ida", "midpoint"], tolerances=[1e-5],
+                    steps=[0.1], out_dir=tmp_path / "b", progress=False, plot=False, reference_cache=cache,
+                    reference_solver="midpoint4", cross_check=True)
+    assert ref.reference_settings["solver"] == "midpoint4"
+    assert ref.reference_settings["step"] == pytest.approx(0.1 / 16)
+    assert ref.reference_check["solver"] == "ida" and ref.reference_check["rtol"] == pytest.approx(1e-10)
+    gap = ref.reference_gap["x"]
+    assert 0 < gap < 1e-7
+    for a, b in zip(closed.rows, ref.rows):
+        assert b.error_relative == pytest.approx(a.error_relative, abs=2 * gap)
+    text = (tmp_path / "b" / "bench.md").read_text()
+    assert "Cross-check: a second reference run (ida rtol 1.0e-10" in text and "Work check" in text
+    assert "agrees with ida rtol 1.0e-10" in ref.render_text()

@@ -55,7 +55,8 @@ about a microsecond itself) and needs neither numba's import nor a compilation."
 
 AUTO_LOOP_STEPS = 2000
 """``auto`` runs a fixed-step solver's run of at least this many steps on a compiled step loop
-(:func:`for_run`). The switch has a one-off cost per run against the time each step saves.
+(:func:`for_run`), and a shorter one too once the model has built that loop (its cost is then
+paid). The switch has a one-off cost per model against the time each step saves.
 Measured on the pendulum (7 unknowns; 2-core x86-64 at load average ~3, ``nice -n 19``): the
 NumPy module's Python loop takes 1.35 ms a midpoint step (about 0.86 ms on a quiet machine), numba's
 loop 13 µs and C's 3 µs. Once per run: numba's model functions cost 2.0 s when loaded from
@@ -241,6 +242,16 @@ def for_run(compiled, backend: Optional[str], method: Optional[str], steps: int)
     ``compiled.dae``) uses the one its cached front end put there (:mod:`phc.fastpath`)."""
     module = for_compiled(compiled, backend)
     targets, why_numpy, note = _run_targets(compiled, module, backend, method, steps)
+    if not targets and method is not None and steps < AUTO_LOOP_STEPS:
+        # the threshold weighs the one-off cost of building the compiled loop; where this model
+        # has built it already, a shorter run takes it too (else a finer step, over the
+        # threshold, ran 10–40 times faster than a coarser one: the work check of `phc bench`)
+        longer, why_numpy, _ = _run_targets(compiled, module, backend, method, AUTO_LOOP_STEPS)
+        kept = [target for target in longer if target in compiled.cache.run_modules]
+        if kept:
+            built = compiled.cache.run_modules[kept[0]]
+            return built, (f"{describe(built)}; auto: {steps} {method} steps, below {AUTO_LOOP_STEPS}, on the "
+                           f"compiled step loop this model has built already ({why_numpy})")
     if not targets:
         return module, note
     what = f"{steps} {method} steps, at least {AUTO_LOOP_STEPS}"

@@ -154,10 +154,29 @@ def test_ida_keeps_the_size_rule(compiled, short):
     assert (result.backend, result.backend_note) == ("numpy", "")
 
 
-def test_a_run_below_the_threshold_stays_numpy(compiled, short):
-    result = _run(compiled, SHORT - 1)
+def test_a_run_below_the_threshold_stays_numpy(short):
+    fresh = phc.compile_model(PENDULUM, certify=False, backend="auto")  # no compiled loop built yet
+    result = _run(fresh, SHORT - 1)
     assert result.steps == SHORT - 1
     assert (result.backend, result.backend_note) == ("numpy", "")
+
+
+@pytest.mark.skipif(not (_numba() or _c()), reason="neither numba nor a C compiler: no compiled step loop")
+def test_once_built_the_loop_serves_shorter_runs(short):
+    """The threshold weighs the loop's one-off cost; once the model has built it, a shorter
+    run takes it too — before, a finer step over the threshold ran 10–40 times faster than a
+    coarser one below it (the work check of `phc bench`, docs/benchmarks.md). Same steps,
+    same states to the Newton tolerance accumulated over the steps."""
+    fresh = phc.compile_model(PENDULUM, certify=False, backend="auto")
+    assert _run(fresh, SHORT).backend != "numpy"
+    result = _run(fresh, SHORT // 2)
+    reference = _run(fresh, SHORT // 2, backend="numpy")
+    assert result.backend != "numpy" and "built already" in result.backend_note
+    assert result.steps == reference.steps == SHORT // 2
+    # the bound of the long run above: NEWTON_TOL per step, ×100 for growth along the swing
+    diff = result.differential & (np.array(result.variables) != "energy.supplied")
+    err = np.abs(result.y[-1] - reference.y[-1]) / (1.0 + np.abs(reference.y).max(axis=0))
+    assert err[diff].max() <= 100 * result.steps * NEWTON_TOL, err[diff].max()
 
 
 def test_a_model_loaded_from_its_description_stays_numpy_and_says_so(compiled, short):
