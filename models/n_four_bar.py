@@ -60,7 +60,7 @@ def n_four_bar(loops: int, t_end: float = 10.0) -> dict:
                         f"coupler{k}.p_vx": "m*v0", f"coupler{k}.p_vy": 0.0, f"coupler{k}.p_w": 0.0})
     return {
         "format_version": 1,
-        "name": f"n_four_bar_{loops}",
+        "name": "n_four_bar" if loops == 1 else f"n_four_bar_{loops}",  # the file stem (models/ convention)
         "description": (f"IFToMM benchmark A02: N four-bar mechanism with N = {loops} loop(s), singular "
                         "(all bars horizontal) twice a revolution."),
         "parameters": {
