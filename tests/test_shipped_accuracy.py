@@ -32,7 +32,9 @@ TEST_MODELS = [p for p in [ROOT / "tests" / "models" / "andrews_squeezer.yaml",
 BOUND = 1e-4
 REFERENCE = 2e-9
 """rtol = atol of the references: IDA at local tolerances of 1e-11 (1/200 of it)."""
-CASES = [pytest.param(p, id=p.stem) for p in sorted(MODELS.glob("*.yaml")) if p.stem != "crank_testset"]
+# n_four_bar: IDA stops at its first singular configuration (a fixed-step solver passes it:
+# tests/hard/test_n_four_bar.py), so it has no IDA reference
+CASES = [pytest.param(p, id=p.stem) for p in sorted(MODELS.glob("*.yaml")) if p.stem not in ("crank_testset", "n_four_bar")]
 CASES += [pytest.param(p, id=f"tests-{p.stem}") for p in TEST_MODELS]
 
 

@@ -455,6 +455,7 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
     ok, message, interrupted = True, "integration finished", False
     python = None
     python_nfev = python_njev = 0
+    rank_drops = []  # [first, last] time of the looks at each rank drop passed (midpoint.passed_rank_drop)
     budget = 16
     reported = 1
     if on_c:
@@ -484,6 +485,8 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
             warning = monitor.check(t, y, (new - y) / h if converged else mid_slope, 0.5 * h, limit)
             if warning is None and converged and hard:
                 warning = monitor.check(t + h, new, (new - y) / h, 0.5 * h, limit)
+            if warning and converged and mp.passed_rank_drop(monitor, python, raw, t, h, y.copy(), new, rank_drops):
+                warning = None  # a rank drop of the position constraints that the motion passes: go on
             if warning:
                 ok, message = False, f"{name}: {warning}"
                 return
@@ -533,13 +536,16 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
     if ok and split:
         message += (f"; {split} step(s) needed a restart or a split to be solved (the step is long "
                     "for the dynamics)")
+    if rank_drops:
+        message += "; " + mp.rank_drop_notice([a for a, _ in rank_drops])
     last = int(ist[_K]) - 1 if not ok else nout - 1
     return BackendRun.from_mapping(dict(
         t=t_out[:last + 1], y=ys[:last + 1], yp=yps[:last + 1], steps=int(ist[_STEPS]), success=ok, message=message,
         cpu=time.process_time() - start, interrupted=interrupted, nfev=int(ist[_NFEV]) + python_nfev,
         njev=int(ist[_NFACT]) + python_njev, compiled_loop=True, step_loop="c" if on_c else "numba",
         mixed_precision=bool(low),
-        low_precision_strikes=int(ist[_STRIKES]), unbalanced=int(getattr(python, "unbalanced", 0) or 0)))
+        low_precision_strikes=int(ist[_STRIKES]), unbalanced=int(getattr(python, "unbalanced", 0) or 0),
+        rank_drops=[a for a, _ in rank_drops]))
 
 
 def _max_steps_message(ist, fst) -> str:

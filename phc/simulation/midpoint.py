@@ -146,6 +146,12 @@ class NewtonMatrix:
         self.h = self.s = None
         self.age = 0
         self.factorizations = 0
+        self.pinv = None
+        self.pseudo_inverses = 0
+        """Factorizations that took the least-norm correction (at a rank drop)."""
+        self.least_norm = False
+        """Factorize for the least-norm correction (:meth:`_least_norm`), not by LU."""
+        self.end_rows_index = np.asarray(end_rows, dtype=int)
 
     def factor(self, t, h, y, y1, s=0.5) -> bool:
         """Factorize for the iterate ``y1`` of the step from ``(t, y)``; False if singular."""
@@ -159,17 +165,65 @@ class NewtonMatrix:
         self.factorizations += 1
         self.row_scale, self.col_scale = equilibration(J, self.nominal)
         J = sps.diags(self.row_scale) @ J @ sps.diags(self.col_scale)
+        J = sps.csc_matrix(J)
+        self.pinv = None
+        if self.least_norm:
+            return self._least_norm(J, h, s)
         try:
-            self.lu = spla.splu(sps.csc_matrix(J))
+            self.lu = spla.splu(J)
         except RuntimeError:
             self.lu = None
             return False
         self.h, self.s, self.age = h, s, 0
         return True
 
+    def _least_norm(self, J, h, s) -> bool:
+        """The least-norm inverse of the equilibrated matrix J at a rank drop of the position
+        constraints: from its SVD ``U Σ Vᵀ``, the directions with ``σ_i`` below
+        :data:`LEAST_NORM_RTOL` of the largest whose left singular vector lies mostly (more than
+        half its square) in the position-constraint rows are dropped; every other direction is
+        inverted as the LU would. False (a singular step, as before) when there is none to drop,
+        or the matrix is too large for a dense SVD."""
+        if self.n > LEAST_NORM_LIMIT:
+            self.lu = None
+            return False
+        dense = J.toarray()
+        if not np.all(np.isfinite(dense)):
+            self.lu = None
+            return False
+        u, sigma, vt = np.linalg.svd(dense)
+        in_rows = (u[self.end_rows_index] ** 2).sum(axis=0) if len(self.end_rows_index) else np.zeros(len(sigma))
+        weak = (sigma <= LEAST_NORM_RTOL * sigma[0]) & (in_rows > 0.5)
+        if not weak.any() or (sigma[~weak] <= 0.0).any():
+            self.lu = None
+            return False
+        keep = ~weak
+        self.pinv = (vt[keep].T / sigma[keep]) @ u[:, keep].T
+        self.lu = True  # factorized (the pseudo-inverse stands in for the LU)
+        self.pseudo_inverses += 1
+        self.h, self.s, self.age = h, s, 0
+        return True
+
     def solve(self, rhs):
-        """``J⁻¹ rhs`` through the LU of the equilibrated ``D_r J D_c``: ``D_c (D_r J D_c)⁻¹ D_r rhs``."""
+        """``J⁻¹ rhs`` through the LU of the equilibrated ``D_r J D_c``: ``D_c (D_r J D_c)⁻¹ D_r rhs``;
+        in least-norm mode ``D_c (D_r J D_c)⁺ D_r rhs`` (:meth:`_least_norm`)."""
+        if self.pinv is not None:
+            return self.col_scale * (self.pinv @ (self.row_scale * rhs))
         return self.col_scale * self.lu.solve(self.row_scale * rhs)
+
+
+LEAST_NORM_RTOL = 1e-6
+"""At a rank drop of the position constraints' Jacobian (a mechanism passing a singular
+configuration: the N four-bar with all bars horizontal), a Newton iteration that failed is
+retried with the directions of the equilibrated Newton matrix that are weaker than this
+fraction of the strongest, and lie in the position-constraint rows, dropped: the least-norm
+correction, whose multipliers are the minimal-norm ones (J. García de Jalón, E. Bayo,
+"Kinematic and Dynamic Simulation of Multibody Systems", Springer 1994, ch. on redundant
+constraints). The value is the singularity monitor's threshold for a hard step
+(:data:`HARD_STEP_THRESHOLD`): what it would call singular is not solved for."""
+LEAST_NORM_LIMIT = 2000
+"""Newton matrices with more unknowns than this get no dense SVD at a rank drop (the step
+fails as before)."""
 
 
 def _power_of_two_below(big: np.ndarray) -> np.ndarray:
@@ -270,6 +324,8 @@ class StageSolver:
         self.evaluation_error = None
         """The :class:`~phc.errors.ModelEvaluationError` that stopped the last solve, if any."""
         self.constants = newton_constants()
+        self.least_norm_steps = 0
+        """Solves that needed the least-norm correction (a rank drop of the position constraints)."""
 
     def residual(self, t, h, y, y1, s):
         d = y1 - y
@@ -293,11 +349,32 @@ class StageSolver:
         self.singular = self.refreshed = self.ill_conditioned = False
         try:
             code, self.ill_conditioned = step_logic.newton(self, 0, self.constants, t, h, y, y1, s, out)
+            if code in (step_logic._FAIL, step_logic._SINGULAR) and len(self.end_rows):
+                code = self._least_norm_retry(t, h, y, y1, s, out, code)
         except ModelEvaluationError as err:
             self.evaluation_error = err
             out[...] = y1
             return step_logic._EVAL
         return code
+
+    def _least_norm_retry(self, t, h, y, y1, s, out, code) -> int:
+        """The solve again from `y1`, with the least-norm correction at a rank drop of the position
+        constraints (:meth:`NewtonMatrix._least_norm`); `code` if that finds nothing to drop or
+        fails too. A step so solved is flagged ill-conditioned: the driver asks the singularity
+        monitor, which lets the run go on only if the motion through it is determined
+        (:func:`passes_rank_drop`)."""
+        matrix = self.matrix
+        matrix.least_norm, matrix.lu = True, None
+        try:
+            retry, _ = step_logic.newton(self, 0, self.constants, t, h, y, y1, s, out)
+        finally:
+            matrix.least_norm, matrix.lu, matrix.pinv = False, None, None
+        if retry != step_logic._OK:
+            return code
+        self.singular = False
+        self.ill_conditioned = True
+        self.least_norm_steps += 1
+        return retry
 
     # the operations of phc.simulation.step_logic.newton on this solver (its only Newton matrix: m = 0)
 
@@ -481,6 +558,7 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
     k = 0
     interrupted = False
     event = None
+    rank_drops = []  # [first, last] time of the looks at each rank drop passed
     w_prev = events(float(t_out[0]), y, np.asarray(yp0, dtype=float)) if events is not None else None
     try:
         for k in range(1, len(t_out)):
@@ -514,6 +592,8 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
                     warning = monitor.check(t, y, (y_new - y) / h if converged else mid_slope, 0.5 * h, limit)
                     if warning is None and converged and hard:
                         warning = monitor.check(t + h, y_new, (y_new - y) / h, 0.5 * h, limit)
+                    if warning and converged and passed_rank_drop(monitor, advance, mod, t, h, y, y_new, rank_drops):
+                        warning = None  # a rank drop of the position constraints that the motion passes: go on
                     if warning:
                         ok, message = False, f"{name}: {warning}"
                         break
@@ -566,9 +646,66 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
     if ok and split:
         message += (f"; {split} step(s) needed a restart or a split to be solved (the step is long "
                     "for the dynamics)")
+    if rank_drops:
+        message += "; " + rank_drop_notice([a for a, _ in rank_drops])
     return BackendRun.from_mapping(dict(t=t_out[:k + 1], y=ys[:k + 1], yp=yps[:k + 1], steps=steps, success=ok,
                                         message=message, cpu=time.process_time() - start, interrupted=interrupted,
-                                        event=event))
+                                        event=event, rank_drops=[a for a, _ in rank_drops]))
+
+
+RANK_DROP_GAP = 100
+"""Looks at a rank drop less than this many steps apart are one passage."""
+RANK_DROP_AGREEMENT = 0.1
+"""Passing a rank drop: one step and two half steps must agree on the states' change to this
+fraction of it. Away from it the midpoint rule's local error is O(h³) against a change O(h)
+(the N four-bar at h = 1e-4: 6e-7 of the change); at the singular instant the least-norm
+step's error is larger (there: 5e-3 of the change) but stays a fraction of the change; a
+step whose halves take another branch of the motion, or fail, differs by O(1)."""
+
+
+def rank_drop_notice(times) -> str:
+    """The run message's note on the rank drops a fixed-step run passed."""
+    listed = ", ".join(f"{t:.6g}" for t in times[:6]) + (", …" if len(times) > 6 else "")
+    return (f"passed {len(times)} rank drop(s) of the position constraints' Jacobian (t ≈ {listed}): the "
+            "constraint forces are not determined there (their least-norm part is taken), the motion is — one "
+            "step and two half steps agreed on it")
+
+
+def passed_rank_drop(monitor, advance, mod, t, h, y, y_new, rank_drops) -> bool:
+    """Whether the converged step at the monitor's warning passes a rank drop of the position
+    constraints (:func:`passes_rank_drop`); if so it is added to `rank_drops` (a list of
+    ``[first, last]`` times of the looks at each passage, shared by the Python and compiled loops)."""
+    if not (monitor.positional and passes_rank_drop(advance, mod, t, h, y, y_new)):
+        return False
+    if not rank_drops or t - rank_drops[-1][1] > RANK_DROP_GAP * h:
+        rank_drops.append([t, t])
+    rank_drops[-1][1] = t
+    return True
+
+
+def passes_rank_drop(advance, mod, t, h, y, y_new) -> bool:
+    """Whether the converged step ``(t, y) → (t + h, y_new)`` passes a rank drop of the position
+    constraints' gradients with a determined motion: two half steps from ``y`` reach the same
+    states (the differential variables) to :data:`RANK_DROP_AGREEMENT` of the step's change.
+
+    At an isolated rank drop (the N four-bar mechanism with all bars horizontal) the multipliers
+    lose a direction for an instant, the motion does not (J. García de Jalón, E. Bayo,
+    "Kinematic and Dynamic Simulation of Multibody Systems", Springer 1994, on redundant and
+    singular constraints): the Newton matrix is near singular only in the multiplier
+    direction, a converged step is the unique motion at the step size, and halving the step
+    changes it by the method's error. Where the motion itself is undetermined or leaves the
+    constraint manifold's smooth part, the half steps fail or go elsewhere."""
+    diff = np.asarray(mod.DIFFERENTIAL, dtype=bool)
+    half = 0.5 * h
+    y_a, ok, _ = advance(t, half, y, 0.5 * (y + y_new))
+    if not ok:
+        return False
+    y_b, ok, _ = advance(t + half, half, y_a, y_new.copy())
+    if not ok:
+        return False
+    change = float(np.abs(y_new - y)[diff].max(initial=0.0))
+    gap = float(np.abs(y_b - y_new)[diff].max(initial=0.0))
+    return bool(np.isfinite(gap)) and gap <= RANK_DROP_AGREEMENT * change
 
 
 EVENT_TOL = 1e-12

@@ -117,6 +117,10 @@ class SingularityMonitor:
         self.worst = 1.0
         self.stop_time: Optional[float] = None
         """Time of the configuration a warning is about (may precede the last look)."""
+        self.positional = False
+        """Whether the last warning is a rank drop of the position constraints' gradients (two or
+        more of the rows that become dependent are position invariants): the case a fixed-step
+        solver may pass through (:func:`phc.simulation.midpoint.passes_rank_drop`)."""
         self._looks: list[tuple] = []
         self.history: deque = deque(maxlen=HISTORY)
         """(t, y, ẏ) of the last :data:`HISTORY` looks (a failure's diagnosis: is the
@@ -271,6 +275,7 @@ class SingularityMonitor:
         connections = sorted({self.names[c].split(" row ")[0] for c in culprits if c in self.names})
         where = f" at {', '.join(connections)}" if connections else ""
         positional = [c for c in culprits if c in set(getattr(self.mod, "INVARIANTS", ()))]
+        self.positional = len(positional) >= 2
         condition = (f"the gradients of the position constraints {', '.join(f'`{c}`' for c in positional)} are "
                      "linearly dependent" if len(positional) >= 2 else "their Jacobian rows are linearly dependent")
         return (f"stopped at t = {t:.6g} near a singular configuration: the equations "
