@@ -68,12 +68,16 @@ DEFAULT_MAX_MEMORY = 2 * 2**30
 """Default budget: 2 GiB, what a laptop can give one process without swapping."""
 ENV_VAR = "PHC_MAX_MEMORY"
 
-BASE_BYTES = 256 * 2**20
+BASE_BYTES = 288 * 2**20
 """The interpreter with numpy, scipy, sympy, networkx and the solvers loaded (135–150 MiB
-measured), plus the solvers' fixed working memory (a process that compiles and simulates a
-string of 1 000 or 3 000 elements peaks at 265 MiB)."""
+measured), plus the solvers' fixed working memory (a process that compiles a string of
+1 000 elements with ``energy: H`` and takes ten midpoint steps peaks at 309 MiB, 4 004
+unknowns; ``benchmarks/bench_beam_scale.py``)."""
 BYTES_PER_UNKNOWN = 8 * 2**10
-"""Compile peak per unknown: symbols, variables, equations, printed source (6.9 KiB measured)."""
+"""Compile peak per unknown: symbols, variables, equations, printed source (6.9 KiB measured;
+with this and :data:`BYTES_PER_NONZERO`, from 1 000 to 10 000 elements a string's peak grew
+by 8.8 KiB per unknown against 10 KiB charged, an Euler–Bernoulli beam's by 10.4 KiB against
+11.4 KiB)."""
 BYTES_PER_NONZERO = 512
 """Compile peak per Jacobian nonzero (0.4 KiB measured)."""
 BYTES_PER_COMPONENT = 48 * 2**10

@@ -95,7 +95,8 @@ def function_kernels(ir: ResidualIR) -> list[FunctionKernel]:
     rows = [(i, e) for i, e in enumerate(ir.residual) if e != 0] if sums else list(enumerate(ir.residual))
     out.append(FunctionKernel("residual", Kernel(tuple((i, e, False) for i, e in rows), res_sums), m, sums,
                               "yyp", "out", ir.equation_labels))
-    dt_rows = [(i, drop_deltas(sp.diff(e, T))) for i, e in enumerate(ir.residual)]
+    dt_rows = [(i, drop_deltas(sp.diff(e, T))) for i, e in enumerate(ir.residual)
+               if e != 0 and e.has(T)]  # most rows of a mesh are 0 (linear blocks): no diff
     out.append(FunctionKernel("residual_t", Kernel(tuple((i, e, False) for i, e in dt_rows if e != 0)), m, True,
                               "yyp", "out", ir.equation_labels))
     jac = [dy + CJ * dyp if dyp != 0 else dy for dy, dyp in zip(ir.jac_dy, ir.jac_dyp)]

@@ -110,6 +110,11 @@ def _ordered_parameters(dae: Dae):
     return base + order
 
 
+def _sympy_zero(d):
+    """A Jacobian entry as sympy (the int 0 of an entry only a linear block fills: sympy's zero)."""
+    return sp.S.Zero if d == 0 else d
+
+
 def _refuse(message: str, span, path=None) -> None:
     raise ModelError(DiagnosticList([Diagnostic("PHC-E702", message, span=span, path=path,
                                                 hint=budget.symbolic_hint())]))
@@ -207,6 +212,8 @@ def lower_residual(dae: Dae) -> ResidualIR:
                          [eq.label for eq in dae.equations], y, yp, mode_symbol)
     rows_expr = switched.rows
     for i, eq in enumerate(dae.equations):
+        if eq.expr is sp.S.Zero and rows_expr[i] is sp.S.Zero:
+            continue  # a row of a linear block (most rows of a mesh): its entries come from the block
         syms = eq.expr.free_symbols
         _check_derivatives(eq, syms, col_of_y, col_of_yp, sizes)
         row = rows_expr[i]
@@ -268,8 +275,8 @@ def lower_residual(dae: Dae) -> ResidualIR:
         residual=tuple(rows_expr),
         jac_rows=tuple(k[0] for k in keys),
         jac_cols=tuple(k[1] for k in keys),
-        jac_dy=tuple(sp.Integer(0) if entries[k][0] == 0 else entries[k][0] for k in keys),
-        jac_dyp=tuple(sp.Integer(0) if entries[k][1] == 0 else entries[k][1] for k in keys),
+        jac_dy=tuple(_sympy_zero(entries[k][0]) for k in keys),
+        jac_dyp=tuple(_sympy_zero(entries[k][1]) for k in keys),
         hamiltonian=plain(dae.hamiltonian),
         port_power=plain(dae.port_power),
         dissipation=plain(dae.dissipation),

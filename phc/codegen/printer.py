@@ -244,6 +244,7 @@ class ModulePrinter:
 
     def __init__(self, ir: ResidualIR):
         self.ir = ir
+        self._jac_symbols = None  # free symbols of the Jacobian entries (computed once)
         taken: set = set()
         self.names: dict = {T: "t"}
         self.unpack_y = {}
@@ -319,9 +320,13 @@ class ModulePrinter:
 
     def _jac_dependencies(self, symbols) -> list[int]:
         """Indices of the variables (or derivatives) the Jacobian entries depend on."""
-        used = set()
-        for e in list(self.ir.jac_dy) + list(self.ir.jac_dyp):
-            used |= e.free_symbols
+        used = self._jac_symbols
+        if used is None:
+            used = set()
+            for e in (*self.ir.jac_dy, *self.ir.jac_dyp):
+                if not getattr(e, "is_Number", True):  # numbers (most entries of a mesh) have none
+                    used |= e.free_symbols
+            self._jac_symbols = used
         return [j for j, s in enumerate(symbols) if s in used]
 
     def _statements(self, exprs, targets, symbols, printed: list, top: bool) -> list[str]:
@@ -554,7 +559,8 @@ class ModulePrinter:
             parts.append(self._function(
                 "residual(t, y, yp, p, out)", "Residual F(t, y, yp, p) written into `out`.",
                 ir.residual, [f"out[{i}]" for i in range(len(ir.residual))]))
-        dt_rows = [(i, drop_deltas(sp.diff(e, T))) for i, e in enumerate(ir.residual)]
+        dt_rows = [(i, drop_deltas(sp.diff(e, T))) for i, e in enumerate(ir.residual)
+               if e != 0 and e.has(T)]  # most rows of a mesh are 0 (linear blocks): no diff
         dt_rows = [(i, e) for i, e in dt_rows if e != 0]
         parts.append(self._function(
             "residual_t(t, y, yp, p, out)", "Explicit time derivative dF/dt (consistent initialization).",
