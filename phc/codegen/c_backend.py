@@ -331,7 +331,7 @@ def _wrappers(lib: ctypes.CDLL, n: int, m: int, njac: int, npar: int, ninv: int,
 
     P = _PTR
     module = c_bridge.bridge()
-    bridged = module.call if module is not None else None
+    bridged, bridged_cj = (module.call, module.call_cj) if module is not None else (None, None)
 
     def c_function(name, argtypes, restype=None):
         f = getattr(lib, f"phc_{name}")
@@ -366,13 +366,13 @@ def _wrappers(lib: ctypes.CDLL, n: int, m: int, njac: int, npar: int, ninv: int,
             if with_cj:
                 def call(t, y, yp, p, cj, out):
                     try:
-                        bridged(address, n, npar, size, cj, t, y, yp, p, out)
-                    except (TypeError, ValueError, BufferError):  # not a float64 vector: converted or refused
-                        general(t, y, yp, p, (cj, out))
+                        bridged_cj(address, n, npar, size, t, y, yp, p, cj, out)
+                    except (TypeError, ValueError, BufferError):  # not float64 vectors (or cj not a number):
+                        general(t, y, yp, p, (cj, out))            # converted, or refused by ctypes
             else:
                 def call(t, y, yp, p, out):
                     try:
-                        bridged(address, n, npar, size, None, t, y, yp, p, out)
+                        bridged(address, n, npar, size, t, y, yp, p, out)
                     except (TypeError, ValueError, BufferError):  # not a float64 vector: converted or refused
                         general(t, y, yp, p, (out,))
             call.__name__ = call.__qualname__ = name

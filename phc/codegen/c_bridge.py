@@ -5,7 +5,7 @@ IDA and phc's drivers call a model's residual and Jacobian from Python once per 
 Through ctypes, each call converts its four vectors (``ctypes.c_double.from_buffer``, or a
 copy for a read-only vector: IDA hands y and ẏ over read-only), which costs several times
 what the residual of a small model costs. ``phc/codegen/c_runtime/bridge.c`` makes the same
-call through the buffer protocol (one C function, :func:`bridge`'s ``call``). It is built with
+call through the buffer protocol (``call`` and ``call_cj`` of :func:`bridge`'s module). It is built with
 the system C compiler and Python's C headers, once per machine, Python version and phc version,
 into phc's signed cache of compiled code, and loaded as the model libraries are
 (:func:`phc.codegen.c_backend._obtain`); its module object comes from an exported function

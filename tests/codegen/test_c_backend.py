@@ -175,6 +175,8 @@ def test_the_call_bridge_and_ctypes_compute_the_same_on_arrays_of_any_layout(mon
             module.residual(0.1, y[:-1], yp, p, np.empty(m))
         with pytest.raises(ValueError, match="`out` has"):
             module.residual(0.1, y, yp, p, np.empty(m - 1))
+        with pytest.raises((TypeError, ctypes.ArgumentError)):  # refused before any C code runs
+            module.jacobian(0.1, y, yp, p, None, np.empty(nj))
     assert c_bridge.why_not() or c_bridge.bridge() is not None
 
 

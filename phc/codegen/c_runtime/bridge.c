@@ -45,22 +45,17 @@ static int vector(PyObject *obj, Py_buffer *view, Py_ssize_t n, int out, const c
     return 0;
 }
 
-/* call(address, n, npar, size, cj_or_None, t, y, yp, p, out): the model function at `address`
-   (phc_residual, phc_residual_t: cj is None; phc_jacobian: cj a float) into `out`. */
-static PyObject *call(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+/* The model function at args[0] (sizes args[1..3]) into `out`; `cj_object` is NULL for
+   phc_residual and phc_residual_t, phc_jacobian's cj otherwise. */
+static PyObject *invoke(PyObject *const *args, PyObject *t_object, PyObject *y_object, PyObject *yp_object,
+                        PyObject *p_object, PyObject *cj_object, PyObject *out_object)
 {
-    (void)self;
-    if (nargs != 10) {
-        PyErr_SetString(PyExc_TypeError, "call() takes 10 arguments");
-        return NULL;
-    }
     void *address = PyLong_AsVoidPtr(args[0]);
     Py_ssize_t n = PyLong_AsSsize_t(args[1]);
     Py_ssize_t npar = PyLong_AsSsize_t(args[2]);
     Py_ssize_t size = PyLong_AsSsize_t(args[3]);
-    int with_cj = args[4] != Py_None;
-    double cj = with_cj ? PyFloat_AsDouble(args[4]) : 0.0;
-    double t = PyFloat_AsDouble(args[5]);
+    double cj = cj_object ? PyFloat_AsDouble(cj_object) : 0.0;
+    double t = PyFloat_AsDouble(t_object);
     if (PyErr_Occurred())
         return NULL;
     if (!address) {
@@ -68,16 +63,16 @@ static PyObject *call(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
         return NULL;
     }
     Py_buffer y, yp, p, out;
-    if (vector(args[6], &y, n, 0, "y") < 0)
+    if (vector(y_object, &y, n, 0, "y") < 0)
         return NULL;
-    if (vector(args[7], &yp, n, 0, "yp") < 0)
+    if (vector(yp_object, &yp, n, 0, "yp") < 0)
         goto release_y;
-    if (vector(args[8], &p, npar, 0, "p") < 0)
+    if (vector(p_object, &p, npar, 0, "p") < 0)
         goto release_yp;
-    if (vector(args[9], &out, size, 1, "out") < 0)
+    if (vector(out_object, &out, size, 1, "out") < 0)
         goto release_p;
     Py_BEGIN_ALLOW_THREADS
-    if (with_cj)
+    if (cj_object)
         ((into_cj_fn)address)(t, y.buf, yp.buf, p.buf, cj, out.buf);
     else
         ((into_fn)address)(t, y.buf, yp.buf, p.buf, out.buf);
@@ -96,9 +91,34 @@ release_y:
     return NULL;
 }
 
+/* call(address, n, npar, size, t, y, yp, p, out): phc_residual or phc_residual_t. */
+static PyObject *call(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 9) {
+        PyErr_SetString(PyExc_TypeError, "call() takes 9 arguments");
+        return NULL;
+    }
+    return invoke(args, args[4], args[5], args[6], args[7], NULL, args[8]);
+}
+
+/* call_cj(address, n, npar, size, t, y, yp, p, cj, out): phc_jacobian (cj a float; anything
+   else raises TypeError before the function is called). */
+static PyObject *call_cj(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    if (nargs != 10) {
+        PyErr_SetString(PyExc_TypeError, "call_cj() takes 10 arguments");
+        return NULL;
+    }
+    return invoke(args, args[4], args[5], args[6], args[7], args[8], args[9]);
+}
+
 static PyMethodDef methods[] = {
     {"call", (PyCFunction)(void (*)(void))call, METH_FASTCALL,
-     "call(address, n, npar, size, cj, t, y, yp, p, out): a model function into `out`"},
+     "call(address, n, npar, size, t, y, yp, p, out): phc_residual or phc_residual_t into `out`"},
+    {"call_cj", (PyCFunction)(void (*)(void))call_cj, METH_FASTCALL,
+     "call_cj(address, n, npar, size, t, y, yp, p, cj, out): phc_jacobian into `out`"},
     {NULL, NULL, 0, NULL},
 };
 
