@@ -240,6 +240,23 @@ def _obtain(text: str, argv: list[str], digest: str, cache: bool,
     return lib, state, note
 
 
+def _cache_on() -> bool:
+    """Whether compiled libraries go through the disk cache (not ``PHC_COMPILED_CACHE=0``)."""
+    return os.environ.get("PHC_COMPILED_CACHE", "1").strip().lower() not in ("0", "no", "false", "off")
+
+
+def runtime_library(text: str, flags: tuple) -> tuple[Optional[ctypes.CDLL], str]:
+    """(the library, "") of phc's own C text `text` (the step loop, the call bridge) compiled
+    with `flags`: from this process, the signed cache or the compiler, as a model's library;
+    (None, why) when no C compiler is found. A compiler that fails raises
+    :class:`CodegenError`."""
+    argv, identity = find_compiler()
+    if argv is None:
+        return None, identity
+    lib, _, _ = _obtain(text, argv, library_digest(text, argv, identity, flags), _cache_on(), flags)
+    return lib, ""
+
+
 def load_compiled(ir: "ResidualIR", reference: ModuleType, reference_source: Optional[str] = None,
                   cache: Optional[bool] = None) -> tuple[ModuleType, CReport]:
     """The C module for `ir` (see the module docstring) and how its library was obtained.
@@ -272,7 +289,7 @@ def load_source(text: str, reference: ModuleType, reference_source: Optional[str
     start, cpu = time.perf_counter(), _cpu()
     digest = library_digest(text, argv, identity)
     if cache is None:
-        cache = os.environ.get("PHC_COMPILED_CACHE", "1").strip().lower() not in ("0", "no", "false", "off")
+        cache = _cache_on()
     lib, state, note = _obtain(text, argv, digest, cache)
     report = CReport(time.perf_counter() - start, _cpu() - cpu, state, digest, identity, note)
     module = assemble(reference, lib, report, text)
@@ -485,4 +502,4 @@ def assemble(reference: ModuleType, lib: ctypes.CDLL, report: CReport, text: str
 
 
 __all__ = ["CReport", "CUnsupported", "FLAGS", "assemble", "available", "c_cache_dir", "find_compiler",
-           "library_digest", "load_compiled", "load_source", "sizes_of"]
+           "library_digest", "load_compiled", "load_source", "runtime_library", "sizes_of"]

@@ -8,7 +8,7 @@ what the residual of a small model costs. ``phc/codegen/c_runtime/bridge.c`` mak
 call through the buffer protocol (``call`` and ``call_cj`` of :func:`bridge`'s module). It is built with
 the system C compiler and Python's C headers, once per machine, Python version and phc version,
 into phc's signed cache of compiled code, and loaded as the model libraries are
-(:func:`phc.codegen.c_backend._obtain`); its module object comes from an exported function
+(:func:`phc.codegen.c_backend.runtime_library`); its module object comes from an exported function
 called through ``ctypes.PYFUNCTYPE`` (the GIL held), so nothing is imported by name.
 
 Where it cannot be built (no C headers for this Python: ``python3-dev`` or the like is not
@@ -58,10 +58,6 @@ def _build():
     global _WHY
     from phc.codegen import c_backend
 
-    argv, identity = c_backend.find_compiler()
-    if argv is None:
-        _WHY = identity
-        return False
     include = _include()
     if not include or not os.path.isfile(os.path.join(include, "Python.h")):
         _WHY = "Python's C headers (Python.h) are not installed for this interpreter"
@@ -70,9 +66,10 @@ def _build():
     # the Python the module is built for is part of the text, so of the cache key
     text = f"/* built for {sys.implementation.cache_tag} {sys.version.split()[0]} */\n" + \
         SOURCE.read_text(encoding="utf-8")
-    digest = c_backend.library_digest(text, argv, identity, flags)
-    cache = os.environ.get("PHC_COMPILED_CACHE", "1").strip().lower() not in ("0", "no", "false", "off")
-    lib, _, _ = c_backend._obtain(text, argv, digest, cache, flags)
+    lib, why = c_backend.runtime_library(text, flags)
+    if lib is None:
+        _WHY = why
+        return False
     make = ctypes.PYFUNCTYPE(ctypes.py_object)(ctypes.cast(lib.phc_bridge_module, ctypes.c_void_p).value)
     module = make()
     module._library = lib  # keeps the library loaded while the module lives

@@ -116,14 +116,10 @@ def _build():
     global _WHY
     from phc.codegen import c_backend
 
-    argv, identity = c_backend.find_compiler()
-    if argv is None:
-        _WHY = identity
+    lib, why = c_backend.runtime_library(SOURCE.read_text(encoding="utf-8"), FLAGS)
+    if lib is None:
+        _WHY = why
         return False
-    text = SOURCE.read_text(encoding="utf-8")
-    digest = c_backend.library_digest(text, argv, identity, FLAGS)
-    cache = os.environ.get("PHC_COMPILED_CACHE", "1").strip().lower() not in ("0", "no", "false", "off")
-    lib, _, _ = c_backend._obtain(text, argv, digest, cache, FLAGS)
     expected = _layout()
     out = (ctypes.c_int64 * (len(expected) + 1))()
     lib.phc_steps_layout.argtypes, lib.phc_steps_layout.restype = [ctypes.c_void_p], None
