@@ -247,10 +247,12 @@ def simulate_run(path: Path, backend: str, env: dict) -> dict:
 
 
 def whole_runs(paths, repeat: int) -> dict:
+    from phc.codegen import cc
+
     out = {}
     for path in paths:
         out[path.stem] = {}
-        for backend in ("numpy", "numba"):
+        for backend in ("numpy", "numba") + (("c",) if cc.available()[0] else ()):
             with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as state:
                 env = _env(cache, state)
                 cold = simulate_run(path, backend, env)

@@ -174,9 +174,10 @@ def compile_model(path: str | os.PathLike, scene: Optional[Scene] = None, *, cer
     sampled consistent states, passivity of every dissipative term); a failure is a ModelError.
 
     `backend` chooses what runs the generated functions (:mod:`phc.codegen.backends`):
-    ``auto`` (the default, or ``$PHC_BACKEND``) the compiled ``numba`` module when numba is
-    installed and the model has at least 16 unknowns, else the ``numpy`` module; ``c`` the
-    functions compiled by the system C compiler (:mod:`phc.codegen.c_backend`);
+    ``auto`` (the default, or ``$PHC_BACKEND``) the ``c`` module when a C compiler is found
+    and the C back end prints the model, else the ``numba`` module when numba is installed
+    and the model has at least 16 unknowns, else the ``numpy`` module; ``c`` the functions
+    compiled by the system C compiler (:mod:`phc.codegen.c_backend`);
     ``CompiledModel.backend`` says which.
 
     Raises

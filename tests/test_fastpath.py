@@ -276,6 +276,27 @@ def test_a_c_hit_loads_the_library_without_sympy(tmp_path, cache, capsys, monkey
     assert (tmp_path / "full.csv").read_bytes() == (tmp_path / "hit.csv").read_bytes()
 
 
+def test_auto_runs_a_small_model_on_c_and_its_record_keeps_c(tmp_path, cache, capsys, monkeypatch):
+    """Under `auto` a small model runs on C (the size rule is numba's only), short and long
+    fixed-step runs alike; the cached run loads the same library and gives the same numbers."""
+    from phc.codegen import backends, c_backend, cc
+
+    if not cc.available()[0]:
+        pytest.skip("no C compiler")
+    monkeypatch.setattr(c_backend, "_LOADED", {})
+    monkeypatch.setattr(backends, "AUTO_LOOP_STEPS", 200)
+    model = tmp_path / "pendulum.yaml"
+    model.write_text(PENDULUM, encoding="utf-8")
+    for t_end in ("0.1", "0.3"):
+        first = _json_run(model, t_end, capsys)
+        assert hit(model, "--t-end", t_end, *LONG)
+        second = _json_run(model, t_end, capsys)
+        for run in (first, second):
+            assert (run["backend"], run["backend_note"]) == ("c", ""), run["backend_note"]
+        same = ("steps", "n_residual_evals", "n_jacobian_evals", "energy_balance_error")
+        assert {k: first[k] for k in same} == {k: second[k] for k in same}
+
+
 def test_a_numba_record_whose_compiled_functions_are_gone_is_a_miss(tmp_path, cache, monkeypatch):
     """The compiled functions are evicted from their cache (or signed under another key):
     the record cannot compile them without the model's intermediate representation, so the
@@ -302,22 +323,20 @@ LONG = ["--solver", "midpoint", "--step", "1e-3", "--n-out", "2", "--backend", "
 """A fixed-step run over one output interval: `--t-end` in ms is its number of steps."""
 
 
-@pytest.fixture(params=["numba", "c"])
-def step_loop(request, monkeypatch):
-    """The compiled step loop `auto` switches a long midpoint run to: C, or numba where the C
-    compiler is made unavailable; the threshold lowered to 200 steps (short runs)."""
+@pytest.fixture
+def step_loop(monkeypatch):
+    """The compiled step loop `auto` switches a long midpoint run of a small model to where C
+    is not used (the C compiler made unavailable): numba's; the threshold lowered to 200 steps
+    (short runs)."""
     from phc.codegen import backends, c_backend, cc, numba_backend, numba_cache
 
-    if request.param == "numba":
-        if not numba_backend.available()[0]:
-            pytest.skip("numba is not installed")
-        monkeypatch.setattr(cc, "available", lambda: (False, "no C compiler found (test)"))
-    if request.param == "c" and not c_backend.available()[0]:
-        pytest.skip("no C compiler")
+    if not numba_backend.available()[0]:
+        pytest.skip("numba is not installed")
+    monkeypatch.setattr(cc, "available", lambda: (False, "no C compiler found (test)"))
     monkeypatch.setattr(numba_cache, "_LOADED", {})  # compiled by an earlier test: not in this test's cache
     monkeypatch.setattr(c_backend, "_LOADED", {})
     monkeypatch.setattr(backends, "AUTO_LOOP_STEPS", 200)
-    return request.param
+    return "numba"
 
 
 def _json_run(model: Path, t_end: str, capsys) -> dict:

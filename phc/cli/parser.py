@@ -223,7 +223,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--backend", choices=("auto", "numpy", "numba", "c"),
                    help="what runs the generated functions: numba (machine code, cached; pip install "
                    "'port-hamiltonian-compiler[fast]'), c (C compiled by the system C compiler, cached), numpy, "
-                   "or auto (numba for models of 16 unknowns or more when installed, else C where a compiler is found; "
+                   "or auto (C where a compiler is found, else numba for models of 16 unknowns or more when installed; "
                    "the default, or $PHC_BACKEND)")
     p.set_defaults(func=cmd_compile)
 
@@ -238,7 +238,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--backend", choices=("auto", "numpy", "numba", "c"),
                    help="what runs the generated functions: numba (machine code, cached; pip install "
                    "'port-hamiltonian-compiler[fast]'), c (C compiled by the system C compiler, cached), numpy, "
-                   "or auto (numba for models of 16 unknowns or more when installed, else C where a compiler is found; "
+                   "or auto (C where a compiler is found, else numba for models of 16 unknowns or more when installed; "
                    "the default, or $PHC_BACKEND)")
     p.add_argument("--rtol", type=float)
     p.add_argument("--atol", type=float)

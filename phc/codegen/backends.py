@@ -7,15 +7,15 @@ the reference itself (``numpy``), or the same functions compiled to machine code
 ``pip install "port-hamiltonian-compiler[fast]"``) or ``c`` (:mod:`phc.codegen.c_backend`:
 C99 compiled by the system C compiler, loaded through ctypes).
 
-``auto`` (the default, or ``$PHC_BACKEND``) runs a model of fewer than
-:data:`AUTO_MIN_UNKNOWNS` unknowns on ``numpy``; a larger one on ``c`` when a C compiler is
-found and the C back end prints and builds the model, else on ``numba`` when numba can be
-imported, else on ``numpy``. C comes first because it costs least to build (the flexible
-slider–crank's library compiles in well under a second, where numba's functions take seconds
-and its step loop minutes once per machine) and its functions cost no more to call from
-Python than numba's: IDA and the drivers call them through phc's call bridge
-(:mod:`phc.codegen.c_bridge`, the buffer protocol in C), or through ctypes where Python's C
-headers are missing (a few microseconds more a call; the backend line says so).
+``auto`` (the default, or ``$PHC_BACKEND``) runs a model on ``c`` when a C compiler is found
+and the C back end prints and builds the model, whatever its size; else, for a model of
+:data:`AUTO_MIN_UNKNOWNS` unknowns or more, on ``numba`` when numba can be imported; else on
+``numpy``. C comes first because it costs least to build (a model's library compiles in a fraction of a
+second and is cached by content, where numba's functions take seconds and its step loop
+minutes once per machine) and its functions cost least to call from Python, on small models
+too: IDA and the drivers call them through phc's call bridge (:mod:`phc.codegen.c_bridge`,
+the buffer protocol in C), or through ctypes where Python's C headers
+are missing (a few microseconds more a call; the backend line says so).
 ``benchmarks/bench_backends.py`` measures the three per call and per step. A compiled module
 that disagrees with the reference at its check point is never used (a warning says so and the
 next choice runs). Asking for ``numba`` explicitly where it cannot be imported is
@@ -26,13 +26,11 @@ that says so in one line.
 A run of a fixed-step solver (``midpoint``, ``discrete_gradient``, ``midpoint4``) is different:
 its whole step loop runs compiled on the numba or C back end (:mod:`phc.simulation.compiled_steps`),
 20–100 times faster a step than the Python loop on the NumPy module, however small the model.
-So when ``auto`` ran the NumPy module (below :data:`AUTO_MIN_UNKNOWNS` unknowns)
-and a run takes at least :data:`AUTO_LOOP_STEPS` fixed steps, :func:`for_run` runs it
-on ``c`` when there is a C compiler (the three methods' loops are written in C: the midpoint
-rule about 3 µs a step on the pendulum and 2.7 s to compile cold, where numba's step loop is
-compiled once per machine in about two minutes), else on ``numba`` when numba can be imported,
-else on NumPy with the reason in the run's note. An explicit ``numpy`` never switches; IDA
-keeps the size rule.
+So when ``auto`` ran the NumPy module (no C: below :data:`AUTO_MIN_UNKNOWNS` unknowns)
+and a run takes at least :data:`AUTO_LOOP_STEPS` fixed steps, :func:`for_run` runs it on
+numba's compiled step loop when numba can be imported (C is tried first, for a model the C
+back end could not build at compile time and can now), else on NumPy with the reason in the
+run's note. An explicit ``numpy`` never switches; IDA keeps the size rule.
 """
 
 from __future__ import annotations
@@ -49,9 +47,9 @@ CHOICES = ("auto", "numpy", "numba", "c")
 """Accepted values of ``backend=`` and ``--backend``."""
 
 AUTO_MIN_UNKNOWNS = 16
-"""``auto`` compiles models with at least this many unknowns. Below, the NumPy module is
-as fast per call (a handful of float operations; calling compiled code from Python costs
-about a microsecond itself) and needs neither numba's import nor a compilation."""
+"""Where ``auto`` cannot run C, it compiles with numba models of at least this many unknowns.
+Below, numba's compilation (seconds cold, its import about a second warm) costs more than its
+calls save on a run: the model's functions are a handful of float operations."""
 
 AUTO_LOOP_STEPS = 2000
 """``auto`` runs a fixed-step solver's run of at least this many steps on a compiled step loop
@@ -104,13 +102,16 @@ def select(ir, reference: ModuleType, source: str, backend: Optional[str] = None
         return reference, ""
     if choice == "c":
         return _select_c(ir, reference, source)
-    if choice == "auto" and reference.N < AUTO_MIN_UNKNOWNS:
-        return reference, auto_note(reference)
     c_why = ""
     if choice == "auto":
         module, c_why = _auto_c(ir, reference, source)
         if module is not None:
             return module, ""
+        if reference.N < AUTO_MIN_UNKNOWNS:
+            # kept for `describe`; a dunder name, so the compiled modules built from this one
+            # later (which copy its other attributes) do not inherit it
+            reference.__auto_note__ = auto_note(reference, c_why)
+            return reference, reference.__auto_note__
     from phc.codegen import numba_backend
 
     ok, why = numba_backend.available()
@@ -191,11 +192,12 @@ def _load_c(ir, reference: ModuleType, source: str) -> tuple[ModuleType, str]:
     return module, ""
 
 
-def auto_note(module) -> str:
-    """Why ``auto`` runs the NumPy module for a model this small."""
-    return (f"auto: {module.N} unknowns, below {AUTO_MIN_UNKNOWNS}, where the NumPy module is as fast per call "
-            f"(a fixed-step run of {AUTO_LOOP_STEPS} steps or more runs on a compiled step loop); --backend numba "
-            "compiles it anyway")
+def auto_note(module, c_why: str) -> str:
+    """Why ``auto`` runs the NumPy module for a model this small: C is not used (`c_why`), and
+    numba's compilation costs more than it saves below :data:`AUTO_MIN_UNKNOWNS` unknowns."""
+    return (f"auto: the C backend is not used ({c_why}); {module.N} unknowns, below {AUTO_MIN_UNKNOWNS}, where "
+            f"numba's compilation (seconds) costs more than its calls save (a fixed-step run of {AUTO_LOOP_STEPS} "
+            "steps or more runs on its compiled step loop); --backend numba compiles it anyway")
 
 
 def describe(module, requested: Optional[str] = None) -> str:
@@ -216,8 +218,8 @@ def describe(module, requested: Optional[str] = None) -> str:
         return "numpy"
     if check_choice(requested) == "c":
         return "numpy (the C backend could not build this model's functions: see the warning)"
-    if getattr(module, "N", AUTO_MIN_UNKNOWNS) < AUTO_MIN_UNKNOWNS:
-        return f"numpy ({auto_note(module)})"
+    if getattr(module, "N", AUTO_MIN_UNKNOWNS) < AUTO_MIN_UNKNOWNS and getattr(module, "__auto_note__", ""):
+        return f"numpy ({module.__auto_note__})"
     from phc.codegen import cc
     from phc.codegen.numba_cache import why_unavailable
 
@@ -279,32 +281,29 @@ def for_run(compiled, backend: Optional[str], method: Optional[str], steps: int)
 
 
 def run_targets(compiled, backend: Optional[str], method: Optional[str], steps: int) -> list[str]:
-    """The compiled backends (``c``, ``numba``) :func:`for_run` tries in order for this run
-    instead of the module `compiled` was compiled with: it runs on the first it has built or
+    """The compiled backends :func:`for_run` tries for this run instead of the module
+    `compiled` was compiled with (``numba``, or none): it runs on the first it has built or
     can build. Empty when the run stays on that module."""
     return _run_targets(compiled, for_compiled(compiled, backend), backend, method, steps)[0]
 
 
 def _run_targets(compiled, module, backend, method, steps) -> tuple[list[str], str, str]:
-    """(the compiled backends to try in order, why auto ran NumPy, the note when there are
-    none): C first (the fixed-step methods' loops are written in C), then numba."""
+    """(the compiled backends to try, why auto ran NumPy, the note when there are none).
+    Only numba: ``auto`` runs a model on NumPy when the C back end cannot (no compiler, or a
+    model it does not print), and then it cannot run C's step loop either."""
     request = check_choice(backend) if backend is not None else getattr(compiled, "backend_request", None)
     if request != "auto" or name_of(module) != "numpy" or method is None or steps < AUTO_LOOP_STEPS:
         return [], "", ""
-    # neither imports sympy: a cached front end asks this too (phc.fastpath)
-    from phc.codegen import cc, numba_cache
-    from phc.simulation.c_steps import METHODS
-
     if module.N >= AUTO_MIN_UNKNOWNS:  # auto tried C and numba and could use neither (the note says why)
         return [], "", ""
+    from phc.codegen import numba_cache  # does not import sympy: a cached front end asks this too (phc.fastpath)
+
     numba_ok, numba_why = numba_cache.available()
-    why_numpy = f"{module.N} unknowns, below {AUTO_MIN_UNKNOWNS}"
-    c_ok, c_why = cc.available() if method in METHODS else (False, f"the C step loop runs {', '.join(METHODS)} only")
-    targets = ["c"] * c_ok + ["numba"] * numba_ok
-    if not targets:
+    why_numpy = f"{module.N} unknowns, below {AUTO_MIN_UNKNOWNS}, without C"
+    if not numba_ok:
         what = f"{steps} {method} steps, at least {AUTO_LOOP_STEPS}"
-        return [], why_numpy, f"numpy (auto: {why_numpy}; no compiled step loop for {what}: {numba_why}; {c_why})"
-    return targets, why_numpy, ""
+        return [], why_numpy, f"numpy (auto: {why_numpy}; no compiled step loop for {what}: {numba_why})"
+    return ["numba"], why_numpy, ""
 
 
 def kept_text(module) -> Optional[object]:

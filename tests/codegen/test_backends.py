@@ -186,15 +186,28 @@ def test_auto_runs_c_first_then_numba_then_numpy(monkeypatch):
         backends.check_choice("fortran")
 
 
-def test_auto_leaves_small_models_to_the_numpy_module(monkeypatch):
-    """Below AUTO_MIN_UNKNOWNS numba is not even imported: a handful of float operations
-    cost less in Python than a call into compiled code."""
+def test_auto_runs_small_models_on_c_and_without_c_never_looks_for_numba(monkeypatch):
+    """A small model runs on C under `auto` like any other (through the call bridge a call
+    costs less than the NumPy module's). Without a C compiler it stays on the NumPy module
+    below AUTO_MIN_UNKNOWNS, numba not even imported (its compilation costs more than a handful
+    of float operations save), and the backend line gives both reasons."""
+    from phc.codegen import cc
+
+    pendulum = MODELS[0].parent / "pendulum.yaml"
     monkeypatch.setattr(numba_cache, "_AVAILABLE", None)
     for module in (numba_cache, numba_backend):
         monkeypatch.setattr(module, "available", lambda: pytest.fail("numba was looked for"))
-    compiled = phc.compile_model(MODELS[0].parent / "pendulum.yaml", certify=False, backend="auto")
+    if cc.available()[0]:
+        compiled = phc.compile_model(pendulum, certify=False, backend="auto")
+        assert compiled.module.N < backends.AUTO_MIN_UNKNOWNS and compiled.backend == "c"
+        _assert_same(compiled.module.REFERENCE, compiled.module, seed=3)
+    monkeypatch.setattr(cc, "available", lambda: (False, "no C compiler found (blocked by the test)"))
+    compiled = phc.compile_model(pendulum, certify=False, backend="auto")
     assert compiled.module.N < backends.AUTO_MIN_UNKNOWNS and compiled.backend == "numpy"
-    assert "auto: 7 unknowns" in backends.describe(compiled.module, "auto")
+    line = backends.describe(compiled.module, "auto")
+    assert line.startswith("numpy (auto: the C backend is not used (no C compiler found (blocked by the test)); "
+                           f"7 unknowns, below {backends.AUTO_MIN_UNKNOWNS}"), line
+    assert backends.describe(compiled.module, "numpy") == "numpy"
 
 
 def test_a_fresh_process_without_numba_simulates_with_the_numpy_module(tmp_path):

@@ -1,13 +1,15 @@
 """``auto`` on a long fixed-step run (:func:`phc.codegen.backends.for_run`).
 
-A model below :data:`~phc.codegen.backends.AUTO_MIN_UNKNOWNS` unknowns compiles to the NumPy
-module under ``auto``; a fixed-step run of at least :data:`~phc.codegen.backends.AUTO_LOOP_STEPS`
-steps then runs on a compiled step loop: C where a compiler is found (every fixed-step method's
-loop is written in C), else numba where it can be imported, else NumPy with the reason in
-the run's note. An explicit
-``numpy``, IDA, a shorter run and a model loaded from its description stay on NumPy. The
-switched run takes the NumPy run's steps: both solve the same implicit midpoint equations to
-the Newton tolerance, so the states agree to that tolerance accumulated over the steps.
+``auto`` runs a model on C where a C compiler is found and the C back end prints the model:
+every fixed-step method's loop then runs in C, whatever the run's length. Where C is not used
+(here: the compiler blocked while the model compiles), a model below
+:data:`~phc.codegen.backends.AUTO_MIN_UNKNOWNS` unknowns compiles to the NumPy module; a
+fixed-step run of at least :data:`~phc.codegen.backends.AUTO_LOOP_STEPS` steps then runs on
+numba's compiled step loop where numba can be imported, else on NumPy with the reason in the
+run's note. An explicit ``numpy``, IDA, a shorter run and a model loaded from its description
+stay on NumPy. The switched run takes the NumPy run's steps: both solve the same implicit
+midpoint equations to the Newton tolerance, so the states agree to that tolerance accumulated
+over the steps.
 
 The suite runs with ``PHC_BACKEND=numpy`` (tests/conftest.py): these tests ask for ``auto``.
 """
@@ -41,12 +43,20 @@ def _c():
     return c_backend.available()[0]
 
 
-@pytest.fixture(scope="module")
-def compiled():
-    model = phc.compile_model(PENDULUM, certify=False, backend="auto")
-    assert model.backend == "numpy" and model.module.N < backends.AUTO_MIN_UNKNOWNS  # the size rule
+def _without_c():
+    """The pendulum compiled under ``auto`` while no C compiler is found: the NumPy module
+    (the size rule)."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(cc, "available", lambda: (False, "no C compiler found (test)"))
+        model = phc.compile_model(PENDULUM, certify=False, backend="auto")
+    assert model.backend == "numpy" and model.module.N < backends.AUTO_MIN_UNKNOWNS
     assert model.backend_request == "auto"
     return model
+
+
+@pytest.fixture(scope="module")
+def compiled():
+    return _without_c()
 
 
 def _run(model, steps, solver="midpoint", **kwargs):
@@ -64,12 +74,12 @@ def no_numba(monkeypatch):
     monkeypatch.setattr(numba_cache, "_AVAILABLE", (False, "numba is not installed (test)"))
 
 
-@pytest.mark.skipif(not (_numba() or _c()), reason="neither numba nor a C compiler: no compiled step loop")
+@pytest.mark.skipif(not _numba(), reason="numba is not installed: no compiled step loop without C")
 def test_a_long_midpoint_run_runs_compiled_and_takes_the_numpy_runs_steps(compiled):
     steps = backends.AUTO_LOOP_STEPS
     fast = _run(compiled, steps)
     slow = _run(compiled, steps, backend="numpy")
-    assert fast.backend == ("c" if _c() else "numba")
+    assert fast.backend == "numba"
     assert f"auto: {steps} midpoint steps, at least {steps}" in fast.backend_note
     assert "\n" not in fast.backend_note
     assert slow.backend == "numpy" and slow.backend_note == ""
@@ -88,37 +98,32 @@ def test_a_long_midpoint_run_runs_compiled_and_takes_the_numpy_runs_steps(compil
 
 
 @pytest.mark.skipif(not _c(), reason="no C compiler")
-def test_without_numba_a_long_midpoint_run_runs_on_c(compiled, short, no_numba):
-    result = _run(compiled, SHORT)
-    assert result.success, result.message
-    assert result.backend == "c"
-    assert result.backend_note.startswith("c: compiled functions")
-    assert f"auto: {SHORT} midpoint steps" in result.backend_note
+@pytest.mark.parametrize("solver", ["midpoint", "discrete_gradient", "midpoint4"])
+def test_with_c_every_fixed_step_run_runs_on_c(short, no_numba, solver):
+    """A small model runs on C under `auto` (the size rule is numba's only), and so does its
+    step loop, long run or short, with nothing to switch."""
+    on_c = phc.compile_model(PENDULUM, certify=False, backend="auto")
+    assert on_c.backend == "c"
+    for steps in (SHORT, SHORT // 4):
+        result = _run(on_c, steps, solver=solver)
+        assert result.success, result.message
+        assert (result.backend, result.backend_note) == ("c", ""), result.backend_note
+        assert result.steps == steps
 
 
-@pytest.mark.skipif(not _numba(), reason="numba is not installed")
-def test_without_a_c_compiler_a_long_midpoint_run_runs_on_numba(compiled, short, monkeypatch):
-    monkeypatch.setattr(cc, "available", lambda: (False, "no C compiler found (test)"))
-    result = _run(compiled, SHORT)
-    assert result.success, result.message
-    assert result.backend == "numba"
-    assert f"auto: {SHORT} midpoint steps" in result.backend_note
+@pytest.mark.skipif(not (_numba() and _c()), reason="needs numba and a C compiler")
+def test_a_model_the_c_back_end_refuses_runs_on_numba(short, monkeypatch):
+    """Where the C back end refuses the model (an input table), `auto` compiles it to the
+    NumPy module and a long run switches to numba's loop, never to C's."""
+    from phc.codegen import c_printer
 
-
-@pytest.mark.skipif(not _numba(), reason="numba is not installed")
-def test_a_model_the_c_back_end_refuses_runs_on_numba(compiled, short, monkeypatch):
-    """C first for midpoint; where it refuses the model (an input table), numba."""
-    real = backends.for_compiled
-
-    def refuse(model, target):
-        if target == "c":
-            raise SimulationSetupError("the C backend does not print input tables yet (test)")
-        return real(model, target)
-
-    monkeypatch.setattr(cc, "available", lambda: (True, "cc (test)"))
-    monkeypatch.setattr(backends, "for_compiled", refuse)
-    monkeypatch.setattr(compiled.cache, "run_modules", {})  # nothing built by the tests before
-    module, note = backends.for_run(compiled, "auto", "midpoint", SHORT)
+    monkeypatch.setattr(c_printer, "unsupported", lambda expr, known: "a construct refused by this test")
+    monkeypatch.setattr(c_backend, "_LOADED", {})
+    refused = phc.compile_model(PENDULUM, certify=False, backend="auto")
+    assert refused.backend == "numpy"
+    assert "refused by this test" in backends.describe(refused.module, "auto")
+    assert backends.run_targets(refused, None, "midpoint", SHORT) == ["numba"]
+    module, note = backends.for_run(refused, "auto", "midpoint", SHORT)
     assert backends.name_of(module) == "numba"
     assert f"auto: {SHORT} midpoint steps" in note
 
@@ -129,16 +134,7 @@ def test_without_numba_and_c_the_run_stays_numpy_and_says_why(compiled, short, n
     assert result.success, result.message
     assert result.backend == "numpy"
     assert "numba is not installed (test)" in result.backend_note
-    assert "no C compiler found (test)" in result.backend_note
-
-
-@pytest.mark.skipif(not _c(), reason="no C compiler")
-@pytest.mark.parametrize("solver", ["discrete_gradient", "midpoint4"])
-def test_c_serves_every_fixed_step_loop(compiled, short, no_numba, solver):
-    result = _run(compiled, SHORT, solver=solver)
-    assert result.success, result.message
-    assert result.backend == "c"
-    assert f"auto: {SHORT} {solver} steps" in result.backend_note
+    assert "without C" in result.backend_note
 
 
 def test_explicit_numpy_never_switches(compiled, short):
@@ -155,20 +151,20 @@ def test_ida_keeps_the_size_rule(compiled, short):
 
 
 def test_a_run_below_the_threshold_stays_numpy(short):
-    fresh = phc.compile_model(PENDULUM, certify=False, backend="auto")  # no compiled loop built yet
+    fresh = _without_c()  # no compiled loop built yet
     result = _run(fresh, SHORT - 1)
     assert result.steps == SHORT - 1
     assert (result.backend, result.backend_note) == ("numpy", "")
 
 
-@pytest.mark.skipif(not (_numba() or _c()), reason="neither numba nor a C compiler: no compiled step loop")
+@pytest.mark.skipif(not _numba(), reason="numba is not installed: no compiled step loop without C")
 def test_once_built_the_loop_serves_shorter_runs(short):
     """The threshold weighs the loop's one-off cost; once the model has built it, a shorter
     run takes it too — before, a finer step over the threshold ran 10–40 times faster than a
     coarser one below it (the work check of `phc bench`, docs/benchmarks.md). Same steps,
     same states to the Newton tolerance accumulated over the steps."""
-    fresh = phc.compile_model(PENDULUM, certify=False, backend="auto")
-    assert _run(fresh, SHORT).backend != "numpy"
+    fresh = _without_c()
+    assert _run(fresh, SHORT).backend == "numba"
     result = _run(fresh, SHORT // 2)
     reference = _run(fresh, SHORT // 2, backend="numpy")
     assert result.backend != "numpy" and "built already" in result.backend_note
@@ -187,16 +183,17 @@ def test_a_model_loaded_from_its_description_stays_numpy_and_says_so(compiled, s
     assert "loaded from its description" in result.backend_note
 
 
-@pytest.mark.skipif(not (_numba() or _c()), reason="neither numba nor a C compiler: no compiled step loop")
+@pytest.mark.skipif(not _numba(), reason="numba is not installed: no compiled step loop without C")
 def test_the_cli_backend_line_says_why(short, capsys, monkeypatch):
     monkeypatch.setenv("PHC_FRONT_END_CACHE", "0")
+    monkeypatch.setattr(cc, "available", lambda: (False, "no C compiler found (test)"))
     args = ["simulate", str(PENDULUM), "--no-certify", "--solver", "midpoint", "--t-end", str(SHORT * H),
             "--step", str(H), "--n-out", "2", "--backend", "auto"]
     assert main(args) == 0
     lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("  backend")]
     assert len(lines) == 1
     assert f"auto: {SHORT} midpoint steps" in lines[0]
-    assert lines[0].split()[1].rstrip(":") == ("c" if _c() else "numba")
+    assert lines[0].split()[1].rstrip(":") == "numba"
 
 
 def test_substeps_split_an_interval_into_the_fewest_steps_not_longer_than_step():
