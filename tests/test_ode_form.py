@@ -66,3 +66,27 @@ def test_a_constrained_pendulum_is_refused_not_integrated():
     message = str(err.value)
     assert message.startswith(NOT_AN_ODE)
     assert "singular" in message and "constraints" in message
+
+
+def test_bench_rows_of_scipy_beside_phc(tmp_path, monkeypatch):
+    """`run_bench` with scipy's methods: rows measured against the same closed form on the
+    RLC circuit; on the pendulum one failed row per method that says it is not an ODE."""
+    from phc.bench import run_bench, scipy_solver
+
+    root = MODELS.parent
+    monkeypatch.setenv("PHC_ALLOW_PATH", str(MODELS))
+    solvers = ["ida", scipy_solver("Radau"), scipy_solver("DOP853")]
+    rep = run_bench(root / "benchmarks/corpus/rlc_circuit.yaml", solvers=solvers, tolerances=[1e-4, 1e-6],
+                    out_dir=tmp_path / "rlc", progress=False, plot=False, reference_cache=False)
+    scipy_rows = [r for r in rep.rows if r.solver.startswith("scipy_")]
+    assert len(scipy_rows) == 4 and all(r.success for r in scipy_rows)
+    for r in scipy_rows:
+        # rtol 1e-4 … 1e-6, atol rtol/100: a global error within 100× the tolerance of the
+        # range (error control is local; over ~3 decay times it accumulates, it does not explode)
+        assert r.error_relative < 100 * r.rtol, (r.solver, r.rtol, r.error_relative)
+    assert "scipy_Radau" in (tmp_path / "rlc" / "bench.md").read_text()
+    rep = run_bench(root / "benchmarks/corpus/pendulum.yaml", solvers=solvers, tolerances=[1e-3, 1e-4],
+                    out_dir=tmp_path / "pendulum", progress=False, plot=False, reference_cache=False)
+    scipy_rows = [r for r in rep.rows if r.solver.startswith("scipy_")]
+    assert [r.solver for r in scipy_rows] == ["scipy_Radau", "scipy_DOP853"]
+    assert all(not r.success and r.message.startswith(NOT_AN_ODE) for r in scipy_rows)
