@@ -782,8 +782,9 @@ def _scipy_form(compiled):
 def _run_scipy_point(form, method, rtol, mesh, t_out, repeats, outputs, closed, reference, ref_message,
                      grid=None, at_ref=None) -> BenchRow:
     """A row of scipy's `method` on the ODE form of the model (:mod:`phc.ode_form`), measured
-    as a phc row: the minimum process time over the repeats (of the integration: the ODE
-    form's start is phc's consistent initial state, computed once), the errors against the
+    as a phc row: the minimum process time over the repeats (of the integration and of the
+    algebraic variables at the output times, as phc's time holds its polish; the ODE form's
+    start is phc's consistent initial state, computed once), the errors against the
     same references; `steps` are scipy's steps, the residual and Jacobian evaluations those
     of f and ∂f/∂x."""
     from phc.ode_form import integrate
@@ -803,7 +804,7 @@ def _run_scipy_point(form, method, rtol, mesh, t_out, repeats, outputs, closed, 
     row.cpu_time_s, row.cpu_time_median_s, row.repeats = min(times), statistics.median(times), len(times)
     row.steps, row.n_residual_evals, row.n_jacobian_evals = result["steps"], result["nfev"], result["njev"]
     complete = row.success and len(result["t"]) == len(t_out)
-    values = form.outputs(result["t"], result["x"], result["p"]) if complete else None
+    values = form.outputs(result["t"], result["y"], result["yp"], result["p"]) if complete else None
     _measure(row, values, outputs, closed, reference, grid, at_ref)
     if row.success and ref_message and any(name not in closed and name not in (at_ref or {}) for name in outputs):
         row.message = "no reference: " + ref_message

@@ -57,7 +57,7 @@ class OdeForm:
 
     Attributes: ``x0`` (the differential variables at the start), ``t0``, ``p``,
     :meth:`fun` and :meth:`jac` for ``solve_ivp``, :meth:`full` (all variables and rates at
-    ``(t, x)``) and :meth:`outputs` (the model's outputs along a run)."""
+    ``(t, x)``), :meth:`states` and :meth:`outputs` (along a run)."""
 
     def __init__(self, compiled, params: Optional[dict] = None, t0: Optional[float] = None):
         from phc.simulation import initial_values, parameter_vector, start_state
@@ -168,27 +168,39 @@ class OdeForm:
         y, yp = self._solve(t, x)
         return y.copy(), yp.copy()
 
-    def outputs(self, t: np.ndarray, xs: np.ndarray, ps=None) -> dict[str, np.ndarray]:
-        """The model's outputs (its `OUTPUTS`, closed-form references included) along a run
-        (`ps`: the parameters of each time, with its piece's modes; :func:`integrate`)."""
-        rows = []
+    def states(self, t: np.ndarray, xs: np.ndarray, ps=None) -> tuple[np.ndarray, np.ndarray]:
+        """All variables and rates along a run (`ps`: the parameters of each time, with its
+        piece's modes; :func:`integrate`) — what phc's polish gives its solvers' runs."""
+        ys, yps = np.zeros((len(t), self.mod.N)), np.zeros((len(t), self.mod.N))
         for k, (ti, xi) in enumerate(zip(t, xs)):
-            if ps is not None and not np.array_equal(self.p, ps[k]):
-                self.p = np.array(ps[k], dtype=float)
-                self._minv = None
-            y, yp = self.full(float(ti), xi)
+            self._use(ps, k)
+            ys[k], yps[k] = self.full(float(ti), xi)
+        return ys, yps
+
+    def outputs(self, t: np.ndarray, ys: np.ndarray, yps: np.ndarray, ps=None) -> dict[str, np.ndarray]:
+        """The model's outputs (its `OUTPUTS`, closed-form references included) along a run
+        (from :meth:`states`)."""
+        rows = []
+        for k, (ti, y, yp) in enumerate(zip(t, ys, yps)):
+            self._use(ps, k)
             rows.append(np.asarray(self.mod.outputs(float(ti), y, yp, self.p), dtype=float))
         data = np.array(rows, dtype=float).reshape(len(rows), len(self.mod.OUTPUTS))
         return {name: data[:, k] for k, name in enumerate(self.mod.OUTPUTS)}
+
+    def _use(self, ps, k: int) -> None:
+        if ps is not None and not np.array_equal(self.p, ps[k]):
+            self.p = np.array(ps[k], dtype=float)
+            self._minv = None
 
 
 def integrate(form: OdeForm, method: str, t_out, rtol: float, atol: float, max_steps: int = MAX_STEPS) -> dict:
     """Run scipy's `method` (Radau, BDF, DOP853, ...) on `form` over the output times, as
     ``solve_ivp`` does (the solver object's steps, its dense output at the output times in
-    each step), counting steps; a fresh solver on each piece between the cuts
-    (:meth:`OdeForm.cuts`). Returns ``t``, ``x`` (at the output times reached), ``p`` (the
-    parameters of each, with the modes of its piece), ``steps``, ``nfev``, ``njev``, ``nlu``, ``success``, ``message`` and ``cpu_time_s`` (process time of
-    the integration). A failure — the method's, a residual that cannot be solved for the
+    each step), counting steps, then all variables and rates at the output times
+    (:meth:`OdeForm.states`, as phc's polish gives them); a fresh solver on each piece between the cuts
+    (:meth:`OdeForm.cuts`). Returns ``t``, ``x`` (at the output times reached), ``y``, ``yp``,
+    ``p`` (the parameters of each, with the modes of its piece), ``steps``, ``nfev``, ``njev``, ``nlu``, ``success``, ``message`` and ``cpu_time_s`` (process time of
+    the integration and of the states at the output times). A failure — the method's, a residual that cannot be solved for the
     rates, more than `max_steps` steps — is a result with ``success`` False, never an
     exception."""
     from scipy.integrate import BDF, DOP853, LSODA, RK23, RK45, Radau
@@ -238,8 +250,14 @@ def integrate(form: OdeForm, method: str, t_out, rtol: float, atol: float, max_s
         success, message = False, str(stop)
     except (FloatingPointError, np.linalg.LinAlgError, ValueError, ArithmeticError, SwitchTimeError) as err:
         success, message = False, f"{method} stopped: {err}"
+    nfev, njev = form.nfev, form.njev
+    try:
+        ys, yps = form.states(np.array(ts), np.array(xs), ps)
+    except (FloatingPointError, np.linalg.LinAlgError, ArithmeticError) as err:
+        ys = yps = np.zeros((0, form.mod.N))
+        success, message = False, f"the algebraic variables at the output times: {err}"
     cpu = time.process_time() - start
-    return dict(t=np.array(ts), x=np.array(xs), p=ps, steps=steps, nfev=form.nfev, njev=form.njev, nlu=nlu,
+    return dict(t=np.array(ts), x=np.array(xs), y=ys, yp=yps, p=ps, steps=steps, nfev=nfev, njev=njev, nlu=nlu,
                 success=success, message=message, cpu_time_s=cpu)
 
 

@@ -34,7 +34,7 @@ def test_radau_on_the_ode_form_reproduces_the_rlc_closed_form(rlc):
     run = integrate(rlc, "Radau", t, rtol=1e-10, atol=1e-12)
     assert run["success"], run["message"]
     assert run["steps"] > 0 and run["njev"] >= 1  # the Jacobian was used
-    out = rlc.outputs(run["t"], run["x"], run["p"])
+    out = rlc.outputs(run["t"], run["y"], run["yp"], run["p"])
     q, i = rlc_closed_form(t)
     # Radau at rtol 1e-10 over ~3 decay times: a global error of a few 1e-10 of the amplitude
     # (q ≤ 0.4 C, i ≤ 2.4 A); 1e-7 absolute leaves three decades for its accumulation
