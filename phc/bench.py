@@ -5,8 +5,11 @@
     solvers × (relative tolerances for the error-controlled `ida` | steps for the fixed-step
     `midpoint`, `discrete_gradient` and `midpoint4`) × mesh sizes of the distributed components,
 
-runs each point on the scene's output grid (``t_start … t_end`` with ``n_out`` points) and
-measures, per point:
+and, as peers given the same residual, scipy's ``Radau``, ``BDF`` and ``DOP853`` (the solvers
+``scipy_Radau``, ``scipy_BDF``, ``scipy_DOP853`` of :func:`run_bench`, over the tolerances;
+:mod:`phc.ode_form`: the model as ẋ = f(t, x) where it is one — a constrained DAE gets one
+failed row per method saying it is not an ODE), runs each point on the scene's output grid
+(``t_start … t_end`` with ``n_out`` points) and measures, per point:
 
 * the **error** of every requested output against a reference, ``max_t |y(t) − y_ref(t)|``
   over the output grid (absolute), and the same divided by the range ``max y_ref − min
