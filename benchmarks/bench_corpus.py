@@ -136,8 +136,8 @@ def summary(reports) -> str:
               "variables solved from F at each call (`phc.ode_form`); rtol as swept, atol = rtol/100, the same "
               "references and CPU-time measure as phc's rows. Per model and relative error level: phc's fastest "
               "solver reaching it and scipy's fastest, with scipy's time over phc's (above 1: phc is faster). "
-              "A constrained multibody model (or a string or beam whose fixed ends constrain the momenta) is a higher-index DAE with no "
-              "ODE form: scipy's ODE methods do not apply there.", "",
+              "A constrained multibody model (or a string or beam whose fixed ends constrain the momenta) is "
+              "a higher-index DAE with no ODE form: scipy's ODE methods do not apply there.", "",
               "| model | " + " | ".join(f"≤ {x:g}" for x in GOAL_LEVELS) + " | verdict |",
               "|---|" + "---|" * len(GOAL_LEVELS) + "---|"]
     for rep in reports:

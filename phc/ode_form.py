@@ -197,12 +197,15 @@ def integrate(form: OdeForm, method: str, t_out, rtol: float, atol: float, max_s
     """Run scipy's `method` (Radau, BDF, DOP853, ...) on `form` over the output times, as
     ``solve_ivp`` does (the solver object's steps, its dense output at the output times in
     each step), counting steps, then all variables and rates at the output times
-    (:meth:`OdeForm.states`, as phc's polish gives them); a fresh solver on each piece between the cuts
-    (:meth:`OdeForm.cuts`). Returns ``t``, ``x`` (at the output times reached), ``y``, ``yp``,
-    ``p`` (the parameters of each, with the modes of its piece), ``steps``, ``nfev``, ``njev``, ``nlu``, ``success``, ``message`` and ``cpu_time_s`` (process time of
-    the integration and of the states at the output times). A failure — the method's, a residual that cannot be solved for the
-    rates, more than `max_steps` steps — is a result with ``success`` False, never an
-    exception."""
+    (:meth:`OdeForm.states`, as phc's polish gives them); a fresh solver on each piece
+    between the cuts (:meth:`OdeForm.cuts`).
+
+    Returns ``t``, ``x`` (at the output times reached), ``y``, ``yp``, ``p`` (the parameters
+    of each, with the modes of its piece), ``steps``, ``nfev``, ``njev``, ``nlu``,
+    ``success``, ``message`` and ``cpu_time_s`` (process time of the integration and of the
+    states at the output times). A failure — the method's, a residual that cannot be solved
+    for the rates, more than `max_steps` steps — is a result with ``success`` False, never
+    an exception."""
     from scipy.integrate import BDF, DOP853, LSODA, RK23, RK45, Radau
 
     from phc.simulation.events import SwitchTimeError
