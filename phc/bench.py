@@ -5,8 +5,11 @@
     solvers × (relative tolerances for the error-controlled `ida` | steps for the fixed-step
     `midpoint`, `discrete_gradient` and `midpoint4`) × mesh sizes of the distributed components,
 
-runs each point on the scene's output grid (``t_start … t_end`` with ``n_out`` points) and
-measures, per point:
+and, as peers given the same residual, scipy's ``Radau``, ``BDF`` and ``DOP853`` (the solvers
+``scipy_Radau``, ``scipy_BDF``, ``scipy_DOP853`` of :func:`run_bench`, over the tolerances;
+:mod:`phc.ode_form`: the model as ẋ = f(t, x) where it is one — a constrained DAE gets one
+failed row per method saying it is not an ODE), runs each point on the scene's output grid
+(``t_start … t_end`` with ``n_out`` points) and measures, per point:
 
 * the **error** of every requested output against a reference, ``max_t |y(t) − y_ref(t)|``
   over the output grid (absolute), and the same divided by the range ``max y_ref − min
@@ -123,6 +126,10 @@ of percent between repeats on a loaded machine)…"""
 CPU_FLOOR_S = 0.02
 """…when the difference is at least this long (below, timer and start-up noise)."""
 INSTALL_HINT = 'pip install "port-hamiltonian-compiler[plot]"'
+SCIPY_PREFIX = "scipy_"
+"""A solver ``scipy_Radau``, ``scipy_BDF``, ``scipy_DOP853`` in a sweep: scipy's method on the
+ODE form of the model's residual (:mod:`phc.ode_form`; a model that has none gets one row per
+method saying why)."""
 
 
 # ---------------------------------------------------------------------------------------
@@ -452,10 +459,28 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
                 bar.advance()
         # -- the sweep ----------------------------------------------------------------
         warmed = set()
+        forms: dict[tuple, object] = {}
         for mesh, solver, value in points:
             bar.show(_point_label(mesh, solver, value))
             compiled = compiled_for(mesh)
             key = (tuple(sorted(mesh.items())), solver)
+            method = _scipy_method(solver)
+            if method is not None:  # scipy on the ODE form of the same residual (phc.ode_form)
+                if key[0] not in forms:
+                    forms[key[0]] = _scipy_form(compiled)
+                form = forms[key[0]]
+                if isinstance(form, str) and any(r.solver == solver and r.mesh == mesh for r in report.rows):
+                    bar.advance()  # no ODE form: one row per method says why
+                    continue
+                if key not in warmed and not isinstance(form, str):
+                    warmed.add(key)
+                    from phc.ode_form import integrate
+
+                    integrate(form, method, t_run, value, value / 100)
+                report.rows.append(_run_scipy_point(form, method, value, mesh, t_run, repeats, outputs, closed,
+                                                    reference, report.reference_message, grid, at_ref))
+                bar.advance()
+                continue
             if key not in warmed and not isinstance(compiled, Exception):
                 # one untimed run first: the process's one-time costs (imports, the first call of
                 # the generated functions) are no setting's work. A fixed-step solver warms up at
@@ -693,36 +718,98 @@ def _run_point(compiled, solver, value, mesh, t_out, repeats, outputs, closed, r
     row.steps, row.n_residual_evals, row.n_jacobian_evals = result.steps, result.n_residual_evals, result.n_jacobian_evals
     row.energy_balance_relative = float(result.energy_balance_relative)
     row.constraint_drift = float(result.constraint_drift)
+    at_ref = at_ref or {}
     complete = result.success and len(result.t) == len(t_out) and np.allclose(result.t, t_out, rtol=0, atol=1e-12 * (
         1 + abs(t_out[-1])))
+    _measure(row, result.outputs if complete else None, outputs, closed, reference, grid, at_ref)
+    if not result.success:
+        row.message = result.message
+    elif ref_message and any(name not in closed and name not in at_ref for name in outputs):
+        row.message = "no reference: " + ref_message
+    return row
+
+
+def _measure(row: BenchRow, values, outputs, closed, reference, grid=None, at_ref=None) -> None:
+    """The row's errors: `values` (the run's outputs by name on the run's times, None when
+    the run is incomplete) against the published values, closed forms or reference run."""
     grid = slice(None) if grid is None else grid
     at_ref = at_ref or {}
     for name in outputs:
-        if not complete:
+        if values is None:
             row.errors[name] = row.relative_errors[name] = math.nan
             continue
         if name in at_ref:  # published values at their times: relative to their magnitude
             idx, ref = at_ref[name]
-            err = float(np.max(np.abs(result.outputs[name][idx] - ref)))
+            err = float(np.max(np.abs(values[name][idx] - ref)))
             scale = float(np.max(np.abs(ref)))
             row.errors[name] = err
             row.relative_errors[name] = err / scale if scale > 0 else math.nan
             continue
         if name in closed:
-            ref = result.outputs[reference_name(name)][grid]
+            ref = values[reference_name(name)][grid]
         else:
             ref = reference.get(name)
         if ref is None:
             row.errors[name] = row.relative_errors[name] = math.nan
             continue
-        err = float(np.max(np.abs(result.outputs[name][grid] - ref)))
+        err = float(np.max(np.abs(values[name][grid] - ref)))
         span = float(np.max(ref) - np.min(ref))
         scale = span if span > 0 else float(np.max(np.abs(ref)))
         row.errors[name] = err
         row.relative_errors[name] = err / scale if scale > 0 else math.nan
-    if not result.success:
-        row.message = result.message
-    elif ref_message and any(name not in closed and name not in at_ref for name in outputs):
+
+
+def scipy_solver(method: str) -> str:
+    """The solver name of scipy's `method` in a sweep (``scipy_Radau``)."""
+    return f"{SCIPY_PREFIX}{method}"
+
+
+def _scipy_method(solver: str) -> Optional[str]:
+    return solver[len(SCIPY_PREFIX):] if solver.startswith(SCIPY_PREFIX) else None
+
+
+def _scipy_form(compiled):
+    """The ODE form of a compiled model (:class:`phc.ode_form.OdeForm`), or why there is none."""
+    from phc.ode_form import NotAnODE, OdeForm
+
+    if isinstance(compiled, Exception):
+        return f"compilation failed: {_short(str(compiled), 300)}"
+    try:
+        return OdeForm(compiled)
+    except NotAnODE as err:
+        return str(err)
+    except Exception as err:  # noqa: BLE001 — no form is a row, not an exception
+        return f"no ODE form: {type(err).__name__}: {err}"
+
+
+def _run_scipy_point(form, method, rtol, mesh, t_out, repeats, outputs, closed, reference, ref_message,
+                     grid=None, at_ref=None) -> BenchRow:
+    """A row of scipy's `method` on the ODE form of the model (:mod:`phc.ode_form`), measured
+    as a phc row: the minimum process time over the repeats (of the integration and of the
+    algebraic variables at the output times, as phc's time holds its polish; the ODE form's
+    start is phc's consistent initial state, computed once), the errors against the
+    same references; `steps` are scipy's steps, the residual and Jacobian evaluations those
+    of f and ∂f/∂x."""
+    from phc.ode_form import integrate
+
+    row = BenchRow(scipy_solver(method), dict(mesh), rtol=rtol, atol=rtol / 100)
+    if isinstance(form, str):
+        row.message = form
+        return row
+    times, result = [], None
+    for _ in range(repeats):
+        res = integrate(form, method, t_out, rtol, rtol / 100)
+        result = result or res
+        times.append(res["cpu_time_s"])
+        if not res["success"]:
+            break
+    row.success, row.message = bool(result["success"]), result["message"]
+    row.cpu_time_s, row.cpu_time_median_s, row.repeats = min(times), statistics.median(times), len(times)
+    row.steps, row.n_residual_evals, row.n_jacobian_evals = result["steps"], result["nfev"], result["njev"]
+    complete = row.success and len(result["t"]) == len(t_out)
+    values = form.outputs(result["t"], result["y"], result["yp"], result["p"]) if complete else None
+    _measure(row, values, outputs, closed, reference, grid, at_ref)
+    if row.success and ref_message and any(name not in closed and name not in (at_ref or {}) for name in outputs):
         row.message = "no reference: " + ref_message
     return row
 
@@ -1002,4 +1089,4 @@ def _jsonable(row: dict) -> dict:
 
 
 __all__ = ["run_bench", "BenchReport", "BenchRow", "WorkFlag", "parse_meshes", "reference_key", "mesh_label",
-           "work_flags", "pareto_front", "settings_label"]
+           "work_flags", "pareto_front", "settings_label", "scipy_solver", "SCIPY_PREFIX"]

@@ -464,7 +464,7 @@ def linearize_model(path: str | os.PathLike, *, at: Optional[float] = None, stat
                                                   initial_relations=False)
             y, yp, t = again.y0, again.yp0, at
             point = f"the simulated state at t = {at:g}" + (" from" + given if given else "")
-        jy, jyp = _jacobians(mod, t, y, yp, p)
+        jy, jyp = dense_jacobians(mod, t, y, yp, p)
         fu = _parameter_derivative(mod, t, y, yp, p, [mod.PARAMETERS.index(u.parameter) for u in inputs])
         gy, gyp, gu = _output_derivatives(mod, t, y, yp, p, [mod.PARAMETERS.index(u.parameter) for u in inputs])
 
@@ -492,7 +492,7 @@ def linearize_model(path: str | os.PathLike, *, at: Optional[float] = None, stat
     return lin
 
 
-def _jacobians(mod, t, y, yp, p) -> tuple[np.ndarray, np.ndarray]:
+def dense_jacobians(mod, t, y, yp, p) -> tuple[np.ndarray, np.ndarray]:
     """Dense ∂F/∂y and ∂F/∂ẏ from the module's Jacobian at cj = 0 and cj = 1."""
     rows, cols = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
     buf = np.zeros(len(rows))
@@ -504,6 +504,7 @@ def _jacobians(mod, t, y, yp, p) -> tuple[np.ndarray, np.ndarray]:
     np.add.at(jy, (rows, cols), d0)
     np.add.at(jyp, (rows, cols), buf - d0)
     return jy, jyp
+
 
 
 def _step(x: float) -> float:
