@@ -64,8 +64,11 @@ MIN_STEP = 1e-7
 """A curve on which no step of this relative length is accepted ends there."""
 MAX_LENGTH = 200.0
 """Longest curve traced in one direction, relative to the configuration's size."""
-PROJECTION_RTOL = 1e-10
+PROJECTION_RTOL = 1e-12
 """A projected point is on the constraints when max |g| is below this times the size of g's terms."""
+SAME = 1e-3
+"""Rank drops closer than this fraction of the configuration's size are one (a curve that
+ends at one is traced to it from both sides, each located to its last step)."""
 ENERGY_RTOL = 1e-9
 """Kinetic energies below this fraction of the energy scale count as zero (a turning point)."""
 
@@ -186,13 +189,26 @@ class _Manifold:
         return out
 
 
-def _conditioning(G: np.ndarray, full_rank: int):
-    """(σ_r/σ_max of the equilibrated G with r the rank at the start, rank, left singular
-    vector of σ_r, right singular vectors)."""
-    from phc.checks.certify import _rank
-    from phc.simulation.monitor import _equilibrate
+def _scales(G0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column scales that equilibrate G at the start (LAPACK's ``dgeequ``, as the
+    singularity monitor's :func:`phc.simulation.monitor._equilibrate`; 1 for a zero row or
+    column), kept fixed along the curve: a change of units of the constraints and the
+    coordinates. Equilibrating at each point instead would rescale a row or a column that
+    vanishes at a rank drop (a cusp of the curve) back to size one and hide it."""
+    import scipy.linalg as sla
 
-    E = _equilibrate(G.copy())
+    r, c, _, _, _, info = sla.lapack.dgeequ(G0)
+    if info != 0:
+        return np.ones(G0.shape[0]), np.ones(G0.shape[1])
+    return np.asarray(r, dtype=float), np.asarray(c, dtype=float)
+
+
+def _conditioning(G: np.ndarray, full_rank: int, scales):
+    """(σ_r/σ_max of G scaled by `scales` (:func:`_scales`) with r the rank at the start,
+    rank, left singular vector of σ_r, right singular vectors)."""
+    from phc.checks.certify import _rank
+
+    E = (scales[0][:, None] * G) * scales[1][None, :]
     u, s, vh = np.linalg.svd(E, full_matrices=True)
     if not len(s) or s[0] <= 0:
         return 0.0, 0, u[:, 0] if u.size else u, vh
@@ -321,7 +337,8 @@ def _trace(compiled, p, t0, init, out: MotionSurvey, max_steps: int, deadline: f
     G0 = man.G(q0)
     m, n = G0.shape
     full_rank = min(m, n)
-    ratio0, rank0, _, vh0 = _conditioning(G0, full_rank)
+    man.scales = _scales(G0)
+    ratio0, rank0, _, vh0 = _conditioning(G0, full_rank, man.scales)
     if rank0 < full_rank:
         out.skipped = (f"the initial configuration is itself singular (rank {rank0} of {full_rank}; the coupling "
                        "certificate names the connection)")
@@ -362,7 +379,7 @@ def _trace(compiled, p, t0, init, out: MotionSurvey, max_steps: int, deadline: f
             out.cut_short = "the step or time budget ran out (the curve was traced in part)"
         curves.append((points, end))
         for drop, q in _drops(man, full_rank, points, end, names, kinetic, size):
-            if any(_same_configuration(q, other, 1e-6 * size) for _, other in found):
+            if any(_same_configuration(q, other, SAME * size) for _, other in found):
                 continue
             found.append((drop, q))
     # the energy verdicts of a one-degree-of-freedom mechanism: reached when T > 0 on the way
@@ -376,7 +393,7 @@ def _curve(man, full_rank, q0, direction, size, budget, deadline, kinetic):
     h = FIRST_STEP * size
     q, t = q0.copy(), direction / np.linalg.norm(direction)
     G0 = man.G(q)
-    ratio, _, _, _ = _conditioning(G0, full_rank)
+    ratio, _, _, _ = _conditioning(G0, full_rank, man.scales)
     points = [_Point(0.0, q.copy(), ratio, kinetic(q))]
     steps = 0
     left_start = False
@@ -397,7 +414,7 @@ def _curve(man, full_rank, q0, direction, size, budget, deadline, kinetic):
             if h < MIN_STEP * size:
                 return points, "end", steps  # no step along the constraints from here
             continue
-        ratio, _, _, _ = _conditioning(man.G(q_new), full_rank)
+        ratio, _, _, _ = _conditioning(man.G(q_new), full_rank, man.scales)
         s = points[-1].s + float(np.linalg.norm(q_new - q))
         points.append(_Point(s, q_new.copy(), ratio, kinetic(q_new)))
         if float(t_new @ t) > math.cos(0.3 * MAX_TURN):
@@ -431,8 +448,18 @@ def _drops(man, full_rank, points, end, names, kinetic, size):
 
     ratios = [pt.ratio for pt in points]
     candidates = [k for k in range(1, len(points) - 1) if ratios[k] <= ratios[k - 1] and ratios[k] < ratios[k + 1]]
-    if end == "end" and len(points) >= 2 and ratios[-1] < ratios[-2]:
-        candidates.append(len(points) - 1)  # the curve ends at falling conditioning
+    if end == "end" and ratios[-1] < WARN_RTOL:
+        # the curve ends (no step down to MIN_STEP is accepted) where G becomes singular: a cusp
+        # or an end of the constraints' smooth part, which no continuation passes; located to the
+        # last step only
+        q = points[-1].q
+        ratio, rank, u, _ = _conditioning(man.G(q), full_rank, man.scales)
+        rows = [man.labels[i] for i in np.argsort(-np.abs(u)) if abs(u[i]) > 0.1]
+        drop = RankDrop({name: float(x) for name, x in zip(names, q)}, ratio, min(rank, full_rank - 1), full_rank,
+                        rows, [], "undecided", kinetic(q))
+        drop._s, drop._ends, drop._points = points[-1].s, True, points
+        yield drop, q
+        candidates = [k for k in candidates if points[-1].s - points[k].s > 1e-3 * size]
     for k in candidates:
         a, b = points[max(k - 1, 0)].q, points[min(k + 1, len(points) - 1)].q
 
@@ -441,7 +468,7 @@ def _drops(man, full_rank, points, end, names, kinetic, size):
 
         def f(x):
             q = at(x)
-            return 1.0 if q is None else _conditioning(man.G(q), full_rank)[0]
+            return 1.0 if q is None else _conditioning(man.G(q), full_rank, man.scales)[0]
 
         # golden section to round-off: near a rank drop σ_min falls like the distance to it (a V,
         # which Brent's parabolas do not speed up), and the rank test needs it within round-off
@@ -454,16 +481,15 @@ def _drops(man, full_rank, points, end, names, kinetic, size):
         q = at(x)
         if q is None:
             continue
-        ratio, rank, u, _ = _conditioning(man.G(q), full_rank)
+        ratio, rank, u, _ = _conditioning(man.G(q), full_rank, man.scales)
         if ratio >= WARN_RTOL or not (ratio < RANK_RTOL or _falls_linearly(f, x)):
             continue  # a smooth minimum, not a rank drop
         rank = min(rank, full_rank - 1)
         rows = [man.labels[i] for i in np.argsort(-np.abs(u)) if abs(u[i]) > 0.1]
-        last = k == len(points) - 1 or (end == "end" and points[-1].s - points[k].s <= 2 * (points[k].s - points[k - 1].s))
         drop = RankDrop({name: float(x) for name, x in zip(names, q)}, ratio, rank, full_rank, rows, [],
                         "undecided", kinetic(q))
         drop._s = points[k].s  # where on its curve (the energy verdict)
-        drop._ends = bool(last)
+        drop._ends = False  # the curve went on through it
         drop._points = points
         yield drop, q
 
@@ -517,20 +543,23 @@ def _report(compiled, out: MotionSurvey) -> None:
 
     names = describe_equations(compiled)
     spans = {c.label: c.span for c in compiled.description.connections}
+    components = {name: span for name, _, span in compiled.dae.topology.components}
     for drop in out.drops:
         for attr in ("_s", "_ends", "_points"):
             drop.__dict__.pop(attr, None)
         where = []
         for row in drop.rows:
-            head = names.get(row, f"row `{row}`").split(" row ")[0]
+            label = row.rsplit(".", 1)[0]
+            if row in names:  # a connection's row
+                head = names[row].split(" row ")[0]
+            else:  # a rigid component's own constraint, `body.constraints[0]`
+                owner = next((c for c in sorted(components, key=len, reverse=True) if row.startswith(c + ".")), None)
+                head, label = (f"the constraints of `{owner}`", owner) if owner else (f"row `{row}`", row)
             if head not in where:
                 where.append(head)
-            label = row.rsplit(".", 1)[0]
-            if drop.span is None and label in spans:
-                drop.span, drop.path = spans[label], label
+            if drop.span is None:
+                drop.span, drop.path = spans.get(label, components.get(label)), label
         drop.connections = where
-        if drop.span is None and drop.rows:
-            drop.path = drop.rows[0]
         # located to about √ε of the configuration's size where branches cross: smaller is 0
         size = max([1.0] + [abs(v) for v in drop.configuration.values()])
         config = ", ".join(f"{k} = {0.0 if abs(v) < 1e-7 * size else v:.6g}" for k, v in drop.configuration.items())
