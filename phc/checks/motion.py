@@ -66,6 +66,9 @@ MAX_LENGTH = 200.0
 """Longest curve traced in one direction, relative to the configuration's size."""
 PROJECTION_RTOL = 1e-12
 """A projected point is on the constraints when max |g| is below this times the size of g's terms."""
+LOST = 1e-4
+"""At a rank drop, singular values of the scaled Jacobian below this fraction of the largest
+count as lost (:func:`_lost`)."""
 SAME = 1e-3
 """Rank drops closer than this fraction of the configuration's size are one (a curve that
 ends at one is traced to it from both sides, each located to its last step)."""
@@ -453,9 +456,9 @@ def _drops(man, full_rank, points, end, names, kinetic, size):
         # or an end of the constraints' smooth part, which no continuation passes; located to the
         # last step only
         q = points[-1].q
-        ratio, rank, u, _ = _conditioning(man.G(q), full_rank, man.scales)
-        rows = [man.labels[i] for i in np.argsort(-np.abs(u)) if abs(u[i]) > 0.1]
-        drop = RankDrop({name: float(x) for name, x in zip(names, q)}, ratio, min(rank, full_rank - 1), full_rank,
+        ratio, _, _, _ = _conditioning(man.G(q), full_rank, man.scales)
+        rank, rows = _lost(man, q, full_rank)
+        drop = RankDrop({name: float(x) for name, x in zip(names, q)}, ratio, rank, full_rank,
                         rows, [], "undecided", kinetic(q))
         drop._s, drop._ends, drop._points = points[-1].s, True, points
         yield drop, q
@@ -484,14 +487,28 @@ def _drops(man, full_rank, points, end, names, kinetic, size):
         ratio, rank, u, _ = _conditioning(man.G(q), full_rank, man.scales)
         if ratio >= WARN_RTOL or not (ratio < RANK_RTOL or _falls_linearly(f, x)):
             continue  # a smooth minimum, not a rank drop
-        rank = min(rank, full_rank - 1)
-        rows = [man.labels[i] for i in np.argsort(-np.abs(u)) if abs(u[i]) > 0.1]
+        rank, rows = _lost(man, q, full_rank)
         drop = RankDrop({name: float(x) for name, x in zip(names, q)}, ratio, rank, full_rank, rows, [],
                         "undecided", kinetic(q))
         drop._s = points[k].s  # where on its curve (the energy verdict)
         drop._ends = False  # the curve went on through it
         drop._points = points
         yield drop, q
+
+
+def _lost(man, q, full_rank) -> tuple[int, list[str]]:
+    """(rank, the rows that become dependent) at a located rank drop: the singular values of
+    the scaled G below :data:`LOST` of the largest are lost (at least one), and the rows are
+    the large entries (above 0.1) of their left singular vectors. Where several branches
+    cross (the N four-bar loses one rank per loop at once) the configuration is located to
+    about √ε, so the lost singular values are up to ~1e-6, not round-off."""
+    E = (man.scales[0][:, None] * man.G(q)) * man.scales[1][None, :]
+    u, s, _ = np.linalg.svd(E, full_matrices=True)
+    s = s[:full_rank]
+    lost = [k for k in range(len(s)) if s[k] < LOST * s[0]] or [len(s) - 1]
+    weight = np.abs(u[:, lost]).max(axis=1)
+    rows = [man.labels[i] for i in np.argsort(-weight) if weight[i] > 0.1]
+    return full_rank - len(lost), rows
 
 
 def _falls_linearly(f, x) -> bool:
