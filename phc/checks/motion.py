@@ -16,12 +16,16 @@ predictor along the tangent (the kernel of G, the previous tangent projected on 
 the curve keeps its branch through a crossing of branches) and a corrector, phc's
 minimum-norm Gauss–Newton projection onto the invariants
 (:class:`phc.simulation.midpoint.Projector`, the one the fixed-step solvers use). Along
-the curve the conditioning of G — rows and columns equilibrated as the singularity
-monitor does (:func:`phc.simulation.monitor._equilibrate`) — is watched; at each local
-minimum it is minimized along the curve (Brent's method, scipy), and a minimum where G's
-rank falls below its rank at the start (the certificate's rank threshold,
-:data:`phc.checks.certify.RANK_RTOL`) is a rank drop. The rows that become dependent are
-the large entries of the left singular vector of the smallest singular value.
+the curve the conditioning σ_r/σ_max of G is watched, its rows and columns scaled once, at
+the start, by LAPACK's equilibration (as the singularity monitor scales its matrix, but
+fixed, so that a row or column that vanishes stays visible); at each local minimum the
+configuration is located along the curve (golden section to round-off, scipy). A minimum is
+a rank drop when the ratio is below the certificate's rank threshold
+(:data:`phc.checks.certify.RANK_RTOL`) or falls to zero like the distance to it
+(:func:`_falls_linearly`: where branches cross, the crossing is located only to about √ε);
+a curve that ends where the ratio is below :data:`phc.checks.certify.WARN_RTOL` is a rank
+drop no motion passes (a cusp). The rows that become dependent are the large entries of the
+left singular vectors of the singular values lost (:func:`_lost`).
 
 Whether the motion passes it is decided by energy where that is exact: a lossless
 mechanism with one degree of freedom (G of rank n − 1, every other state a momentum, no
@@ -245,7 +249,7 @@ class _Energy:
     """T(q) = H₀ − V(q) when the model is a lossless one-degree-of-freedom mechanism, else
     the reason it is not (`note`)."""
 
-    def __init__(self, compiled, man: _Manifold, yp0, full_rank: int):
+    def __init__(self, compiled, man: _Manifold, full_rank: int):
         import sympy as sp
 
         mod, dae = compiled.module, compiled.dae
@@ -341,7 +345,7 @@ def _trace(compiled, p, t0, init, out: MotionSurvey, max_steps: int, deadline: f
     m, n = G0.shape
     full_rank = min(m, n)
     man.scales = _scales(G0)
-    ratio0, rank0, _, vh0 = _conditioning(G0, full_rank, man.scales)
+    _, rank0, _, vh0 = _conditioning(G0, full_rank, man.scales)
     if rank0 < full_rank:
         out.skipped = (f"the initial configuration is itself singular (rank {rank0} of {full_rank}; the coupling "
                        "certificate names the connection)")
@@ -349,7 +353,7 @@ def _trace(compiled, p, t0, init, out: MotionSurvey, max_steps: int, deadline: f
     if n <= full_rank:
         out.skipped = "the position constraints fix the configuration (no degree of freedom to trace)"
         return
-    energy = _Energy(compiled, man, init.yp0, full_rank)
+    energy = _Energy(compiled, man, full_rank)
     out.energy_note = energy.note
     kinetic = (lambda q: None) if energy.note else energy.kinetic
     size = max(1.0, float(np.abs(q0).max(initial=0.0)))
