@@ -54,9 +54,9 @@ import numpy as np
 from phc.checks.certify import RANK_RTOL, WARN_RTOL
 from phc.diagnostics import Diagnostic, DiagnosticList
 
-MAX_STEPS = 2000
+MAX_STEPS = 1000
 """Continuation steps of one survey (all curves together)."""
-SECONDS = 20.0
+SECONDS = 10.0
 """Time box of one survey."""
 MAX_TURN = 0.1
 """Largest angle (rad) between consecutive tangents of an accepted step; a longer step is halved."""
@@ -385,7 +385,7 @@ def _trace(compiled, p, t0, init, out: MotionSurvey, max_steps: int, deadline: f
         if end in ("budget", "time"):
             out.cut_short = "the step or time budget ran out (the curve was traced in part)"
         curves.append((points, end))
-        for drop, q in _drops(man, full_rank, points, end, names, kinetic, size):
+        for drop, q in _drops(man, full_rank, points, end, names, kinetic, size, deadline):
             if any(_same_configuration(q, other, SAME * size) for _, other in found):
                 continue
             found.append((drop, q))
@@ -449,7 +449,7 @@ def _periodic(man, q, q0, G0) -> bool:
                 and np.abs(G - G0).max(initial=0.0) <= 1e-12 * scale)
 
 
-def _drops(man, full_rank, points, end, names, kinetic, size):
+def _drops(man, full_rank, points, end, names, kinetic, size, deadline=math.inf):
     """The rank drops at the local minima of the conditioning along `points`."""
     from scipy.optimize import minimize_scalar
 
@@ -468,6 +468,8 @@ def _drops(man, full_rank, points, end, names, kinetic, size):
         yield drop, q
         candidates = [k for k in candidates if points[-1].s - points[k].s > 1e-3 * size]
     for k in candidates:
+        if time.perf_counter() > deadline + SECONDS:  # locating is bounded too (twice the box at most)
+            return
         a, b = points[max(k - 1, 0)].q, points[min(k + 1, len(points) - 1)].q
 
         def at(x):
