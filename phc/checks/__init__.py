@@ -5,7 +5,8 @@ certificate of the assembled model (:mod:`phc.checks.certify`: each component a 
 structure, each coupling surjective, each component's rows against its description,
 :mod:`phc.checks.rows`), the structural balance of the DAE, and the certificate of the
 compiled equations (:mod:`phc.checks.compiled`: power balance and passivity at sampled
-consistent states). Compilation runs the last one with fewer samples on every compile.
+consistent states), and the rank drops of the position constraints along the motion
+(:mod:`phc.checks.motion`). Compilation runs the last one with fewer samples on every compile.
 """
 
 from __future__ import annotations
@@ -28,6 +29,10 @@ class ModelCertificate:
     compiled: Optional[object]
     """:class:`phc.checks.compiled.CompiledCertificate`, or None when the structure failed."""
     diagnostics: DiagnosticList
+    motion: Optional[object] = None
+    """:class:`phc.checks.motion.MotionSurvey`: the rank drops of the position constraints on
+    the configurations reachable from the initial one (None when the compiled equations were
+    not certified)."""
 
     @property
     def certified(self) -> bool:
@@ -39,6 +44,7 @@ class ModelCertificate:
             return {"model": self.model, "certified": False, "diagnostics": self.diagnostics.to_json()}
         report = self.structure.to_dict()
         report["compiled"] = self.compiled.to_dict() if self.compiled is not None else None
+        report["singular_configurations"] = self.motion.to_dict() if self.motion is not None else None
         report["certified"] = self.certified
         return report
 
@@ -51,6 +57,8 @@ class ModelCertificate:
             text = text.replace(f"{model}: {'certified' if self.structure.certified else 'NOT certified'}",
                                 f"{model}: {'certified' if self.certified else 'NOT certified'}", 1)
             text += f"\ncompiled equations\n  {inert(self.compiled.summary())}"
+        if self.motion is not None:
+            text += f"\nsingular configurations along the motion\n  {inert(self.motion.summary())}"
         return text
 
 
@@ -71,15 +79,21 @@ def certify_model(path: str | os.PathLike, samples: int = 2) -> ModelCertificate
     balance = check_balance(dae)
     seen = set(cert.diagnostics)
     cert.diagnostics.extend(d for d in dict.fromkeys(list(diags) + balance) if d not in seen)
-    compiled = None
+    compiled = motion = None
     if cert.certified and not any(d.severity == "error" for d in balance):
         from phc.checks.compiled import certify_compiled
 
         built = _compile_assembled(path, scene, dae, DiagnosticList(list(diags) + balance).sorted(), certify=False)
         compiled = certify_compiled(built, n_random=samples + 2)
         cert.diagnostics.extend(compiled.diagnostics)
+        if compiled.certified and not compiled.skipped:
+            from phc.checks.motion import survey
+
+            # the singular sets the sampled states miss: traced along the constraints (bounded)
+            motion = survey(built)
+            cert.diagnostics.extend(motion.diagnostics)
     cert.diagnostics[:] = cert.diagnostics.sorted()
-    return ModelCertificate(str(path), cert, compiled, cert.diagnostics)
+    return ModelCertificate(str(path), cert, compiled, cert.diagnostics, motion)
 
 
 __all__ = ["ModelCertificate", "certify_model"]
