@@ -13,7 +13,9 @@ from __future__ import annotations
 from typing import Optional
 
 import numpy as np
-from scipy import optimize
+
+# scipy.optimize (a quarter second to import) is imported where a least-squares solve runs: most
+# models' rows are derived, so compiling them never reaches it
 
 RESIDUAL_TOL = 1e-9
 """A point satisfies a system when every row's residual is below this, relative to the
@@ -135,6 +137,8 @@ def _least_squares(system, u: np.ndarray, free: np.ndarray) -> tuple[np.ndarray,
         def jac(x):
             value = system.J(at(x))[:, free] / scale[:, None]
             return np.where(np.isfinite(value), value, 0.0)
+
+        from scipy import optimize
 
         try:
             fit = optimize.least_squares(fun, u[free], jac=jac, method="trf", xtol=1e-15, ftol=1e-15, gtol=1e-14,

@@ -381,7 +381,9 @@ class CPrinter:
             if s in used:
                 body.append(f"{decl}  /* {comment(what)} */")
         if zero:
-            body.append(f"for (int i = 0; i < {zero}; ++i) out[i] = 0.0;")
+            # memset, not a loop: all-zero bytes are +0.0, and at -O1 (phc.codegen.c_backend.FLAGS) gcc
+            # leaves a loop a loop, which cost the Jacobian of the flexible slider-crank (612 entries) 40 %
+            body.append(f"memset(out, 0, {zero} * sizeof(double));")
         for k, (sym, rhs) in enumerate(replacements):
             printer.locals[sym] = f"c{k}"
             body.append(f"const double c{k} = {printer.text(rhs)};")
@@ -480,7 +482,7 @@ class CPrinter:
                   enumerate(zip(ir.variables, ir.differential))]
         lines += [" *", f" * {npar} parameters p[k]:"]
         lines += [f" *   p[{k}]  {comment(name)}" for k, name in enumerate(ir.parameters)]
-        lines += [" */", "", "#include <math.h>", "", f"#define PHC_ABI {ABI}", _HELPERS,
+        lines += [" */", "", "#include <math.h>", "#include <string.h>", "", f"#define PHC_ABI {ABI}", _HELPERS,
                   "/* ---- constant arrays: sparse linear blocks and quadratic forms (CSR) ---------- */"]
         return "\n".join(lines) + "\n"
 

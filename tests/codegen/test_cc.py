@@ -122,6 +122,6 @@ def test_the_library_cache_key_is_unchanged_by_the_runner():
     """The digest of a library (its name in the cache) is what it was before the runner existed:
     the same inputs give the same SHA-256 prefix, so cached libraries stay valid."""
     argv, identity, text = ["/usr/bin/cc"], "cc (GCC) 12.2.0", "int x;\n"
-    material = "\0".join((text, "/usr/bin/cc", identity, "-std=c99 -O2 -fPIC -shared -ffp-contract=off -lm",
+    material = "\0".join((text, "/usr/bin/cc", identity, " ".join((*c_backend.FLAGS, "-lm")),
                           __version__, str(ABI), platform.machine(), sys.platform))
     assert c_backend.library_digest(text, argv, identity) == hashlib.sha256(material.encode()).hexdigest()[:24]
