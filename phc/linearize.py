@@ -506,7 +506,6 @@ def dense_jacobians(mod, t, y, yp, p) -> tuple[np.ndarray, np.ndarray]:
     return jy, jyp
 
 
-
 def _step(x: float) -> float:
     return 1e-6 * max(1.0, abs(x))
 
