@@ -52,18 +52,18 @@ Below, numba's compilation (seconds cold, its import about a second warm) costs 
 calls save on a run: the model's functions are a handful of float operations."""
 
 AUTO_LOOP_STEPS = 2000
-"""``auto`` runs a fixed-step solver's run of at least this many steps on a compiled step loop
-(:func:`for_run`), and a shorter one too once the model has built that loop (its cost is then
-paid). The switch has a one-off cost per model against the time each step saves.
-Measured on the pendulum (7 unknowns; 2-core x86-64 at load average ~3, ``nice -n 19``): the
-NumPy module's Python loop takes 1.35 ms a midpoint step (about 0.86 ms on a quiet machine), numba's
-loop 13 µs and C's 3 µs. Once per run: numba's model functions cost 2.0 s when loaded from
-phc's cache (lowering, numba's import, the cache load) and 4.0 s when compiled cold, its step
-loop 0.4 s from the cache (compiling it cold is a one-off per machine: ~2 min); C costs 0.3 s
-warm and 2.7 s cold (the model's library 0.6 s, the step loop's 2.1 s). At about 1 ms a step
-saved, 2000 steps (2–2.7 s on NumPy) pay back a warm numba load and a cold C compilation; a
-model's first, cold numba compilation pays back from about 3500 steps, and is cached for
-every later run. Below the threshold a run takes at most a few seconds on NumPy anyway."""
+"""Where ``auto`` ran the NumPy module (no C), a fixed-step solver's run of at least this many
+steps runs on numba's compiled step loop (:func:`for_run`), and a shorter one too once the
+model has built that loop (its cost is then paid). The switch has a one-off cost per model
+against the time each step saves. Measured on the pendulum (7 unknowns; 2-core x86-64 at load
+average ~3, ``nice -n 19``): the NumPy module's Python loop takes 1.35 ms a midpoint step
+(about 0.86 ms on a quiet machine), numba's loop 13 µs. Once per run: numba's model functions
+cost 2.0 s when loaded from phc's cache (lowering, numba's import, the cache load) and 4.0 s
+when compiled cold, its step loop 0.4 s from the cache (compiling it cold is a one-off per
+machine: ~2 min). At about 1 ms a step saved, 2000 steps (2–2.7 s on NumPy) pay back a warm
+numba load; a model's first, cold numba compilation pays back from about 3500 steps, and is
+cached for every later run. Below the threshold a run takes at most a few seconds on NumPy
+anyway."""
 
 
 def default_choice() -> str:
