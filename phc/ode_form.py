@@ -36,8 +36,10 @@ from typing import Optional
 
 import numpy as np
 
+from phc.names import PEER_SOLVER_NAMES
+
 NOT_AN_ODE = "not an ODE: scipy's explicit/implicit ODE solvers do not apply"
-SCIPY_METHODS = ("Radau", "BDF", "DOP853")
+SCIPY_METHODS = tuple(name.removeprefix("scipy_") for name in PEER_SOLVER_NAMES)
 """The solve_ivp methods `phc bench` runs (Radau and BDF with the Jacobian of :class:`OdeForm`)."""
 NEWTON_MAX = 8
 CHORD_FAST = 3

@@ -90,3 +90,34 @@ def test_bench_rows_of_scipy_beside_phc(tmp_path, monkeypatch):
     scipy_rows = [r for r in rep.rows if r.solver.startswith("scipy_")]
     assert [r.solver for r in scipy_rows] == ["scipy_Radau", "scipy_DOP853"]
     assert all(not r.success and r.message.startswith(NOT_AN_ODE) for r in scipy_rows)
+
+
+def test_scipy_methods_are_bench_solvers_in_the_cli_and_in_a_scene(tmp_path, monkeypatch, capsys):
+    """`phc bench --solver scipy_BDF` and a scene's `bench.solvers: [scipy_Radau]` sweep them;
+    a misspelt one is refused by the schema with its location."""
+    import shutil
+
+    from phc.cli import main
+    from phc.names import PEER_SOLVER_NAMES
+    from phc.ode_form import SCIPY_METHODS
+
+    assert PEER_SOLVER_NAMES == tuple(f"scipy_{m}" for m in SCIPY_METHODS)
+    root = MODELS.parent
+    monkeypatch.setenv("PHC_ALLOW_PATH", str(MODELS))
+    scene = root / "benchmarks/corpus/rlc_circuit.yaml"
+    args = ["bench", str(scene), "--tol", "1e-4", "--no-plot", "--quiet", "--no-cache"]
+    assert main([*args, "--solver", "scipy_BDF", "--out-dir", str(tmp_path / "cli")]) == 0
+    assert "scipy_BDF" in (tmp_path / "cli" / "bench.md").read_text()
+    capsys.readouterr()
+    text = scene.read_text(encoding="utf-8").replace("model: ../../models/", f"model: {MODELS.as_posix()}/")
+    for solvers, code in (("[scipy_Radau]", 0), ("[scipy_radau]", 1)):
+        written = tmp_path / "scene.yaml"
+        written.write_text(text.replace("bench:\n", f"bench:\n  solvers: {solvers}\n"), encoding="utf-8")
+        assert main(["bench", str(written), "--tol", "1e-4", "--no-plot", "--quiet", "--no-cache",
+                     "--out-dir", str(tmp_path / "scene")]) == code
+        out = capsys.readouterr()
+        if code == 0:
+            assert "scipy_Radau" in (tmp_path / "scene" / "bench.md").read_text()
+        else:
+            assert "scene.yaml:" in out.err and "scipy_radau" in out.err, out.err
+    shutil.rmtree(tmp_path / "scene", ignore_errors=True)

@@ -107,6 +107,12 @@ def _solver_names() -> tuple[str, ...]:
     return SOLVER_NAMES
 
 
+def _peer_solver_names() -> tuple[str, ...]:
+    from phc.names import PEER_SOLVER_NAMES
+
+    return PEER_SOLVER_NAMES
+
+
 def _show_warning(message, category, filename, lineno, file=None, line=None):
     """phc's own warnings as one line `phc: warning: ...`; others as Python prints them."""
     from phc import PhcWarning
@@ -269,8 +275,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("bench", help="work-precision study of a scene: error vs CPU time across solvers, "
                        "tolerances and meshes (CSV, Markdown, PNG)")
     p.add_argument("scene", metavar="SCENE")
-    p.add_argument("--solver", action="append", dest="solvers", choices=_solver_names(),
-                   help="solver to sweep (repeatable; default: the scene's bench.solvers, else all)")
+    p.add_argument("--solver", action="append", dest="solvers", choices=_solver_names() + _peer_solver_names(),
+                   help="solver to sweep (repeatable; default: the scene's bench.solvers, else all of phc's); "
+                   "scipy_Radau, scipy_BDF, scipy_DOP853: scipy's methods given the same residual")
     p.add_argument("--tol", action="append", type=float, dest="tolerances", help="rtol of IDA (repeatable)")
     p.add_argument("--step", action="append", type=float, dest="steps", help="step of fixed-step solvers (repeatable)")
     p.add_argument("--mesh", action="append", metavar="COMP=N1,N2,...", help="element counts to sweep (repeatable)")

@@ -10,7 +10,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field
 
-from phc.names import RUN_LIMITS, SOLVER_NAMES
+from phc.names import PEER_SOLVER_NAMES, RUN_LIMITS, SOLVER_NAMES
 
 
 def _bounds(name: str) -> dict:
@@ -24,6 +24,7 @@ def _bounds(name: str) -> dict:
 
 
 SOLVERS = Literal[SOLVER_NAMES]
+BENCH_SOLVERS = Literal[SOLVER_NAMES + PEER_SOLVER_NAMES]
 TEnd = Annotated[float, Field(**_bounds("t_end"))]
 NOut = Annotated[int, Field(**_bounds("n_out"))]
 Rtol = Annotated[float, Field(**_bounds("rtol"))]

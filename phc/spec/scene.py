@@ -13,7 +13,7 @@ from typing import Annotated, Literal, Optional, Union
 from pydantic import Field, model_validator
 
 from phc.spec.base import Expr, Identifier, SpecModel, Switch
-from phc.spec.run import SOLVERS, Atol, MaxOrder, NOut, Rtol, Step, TEnd
+from phc.spec.run import BENCH_SOLVERS, SOLVERS, Atol, MaxOrder, NOut, Rtol, Step, TEnd
 from phc.spec.model import InitialSpec, InputSpec
 from phc.spec.sweep import SweepSpec
 
@@ -37,8 +37,10 @@ class AccuracySpec(SpecModel):
 class BenchSpec(SpecModel):
     """The sweep of `phc bench` (a work-precision study of this scene)."""
 
-    solvers: Optional[list[SOLVERS]] = None
-    """Solvers to compare (default: all of phc's)."""
+    solvers: Optional[list[BENCH_SOLVERS]] = None
+    """Solvers to compare (default: all of phc's). ``scipy_Radau``, ``scipy_BDF`` and
+    ``scipy_DOP853`` add scipy's methods given the same residual, where the model is an ODE
+    after solving for its rates (a constrained DAE gets a row saying it is not)."""
     tolerances: list[Rtol] = Field([1e-4, 1e-6, 1e-8], min_length=1)
     """Relative tolerances of the error-controlled solvers (atol = rtol/100)."""
     steps: list[Step] = []
