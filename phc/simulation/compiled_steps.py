@@ -468,7 +468,7 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
         t, h = float(fst[_T]), float(fst[_H])
         steps = int(ist[_STEPS])
         converged = ist[_STATUS] == _LOOK or ist[_CODE] == _OK
-        hard = not converged or bool(ist[_ILL] and steps - ist[_LAST_LOOK] >= 10)
+        hard = not converged or bool(ist[_ILL] and steps - ist[_LAST_LOOK] >= mp.LOOK_GAP)
         new = y_new.copy()
         if python is None:
             python = python_advance()
@@ -487,6 +487,7 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
                 warning = monitor.check(t + h, new, (new - y) / h, 0.5 * h, limit)
             if warning and converged and mp.passed_rank_drop(monitor, python, raw, t, h, y.copy(), new, rank_drops):
                 warning = None  # a rank drop of the position constraints that the motion passes: go on
+                ist[_LAST_LOOK] = steps - mp.LOOK_GAP  # the passage's next hard step is handed back too
             if warning:
                 ok, message = False, f"{name}: {warning}"
                 return

@@ -570,7 +570,7 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
                 y_new, converged, reason = advance(t, h, y, 2.0 * mid_guess - y)
                 stage = getattr(advance, "stage", None)
                 hard = not converged
-                if stage is not None and stage.ill_conditioned and steps - last_look >= 10:
+                if stage is not None and stage.ill_conditioned and steps - last_look >= LOOK_GAP:
                     hard = True
                 if not converged and events is not None and _crossed(events, t, h, y, y_new, w_prev):
                     # a step across a switching surface on the old branch may fail (midpoint4's passivity
@@ -594,6 +594,7 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
                         warning = monitor.check(t + h, y_new, (y_new - y) / h, 0.5 * h, limit)
                     if warning and converged and passed_rank_drop(monitor, advance, mod, t, h, y, y_new, rank_drops):
                         warning = None  # a rank drop of the position constraints that the motion passes: go on
+                        last_look = steps - LOOK_GAP  # look at the passage's next hard step too
                     if warning:
                         ok, message = False, f"{name}: {warning}"
                         break
@@ -653,6 +654,15 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
                                         event=event, rank_drops=[a for a, _ in rank_drops]))
 
 
+LOOK_GAP = 10
+"""A step Newton found ill-conditioned is looked at by the monitor if the last look was at least
+this many steps before (the compiled loops' ``steps - last_look >= 10`` is the same rule) —
+except during a passage of a rank drop: after a look that let the run pass one, the next
+ill-conditioned step is looked at as well, so that no step of the passage goes unchecked. With
+every tenth only, a step between two looks can take a mechanism onto another branch of its
+motion, and the looks after it agree with that branch: the N four-bar's cranks turned opposite
+ways after such a step (``midpoint4`` at h = 2.5e-4, in a trial that compared the configuration
+alone, docs/hard-cases.md)."""
 RANK_DROP_GAP = 100
 """Looks at a rank drop less than this many steps apart are one passage."""
 RANK_DROP_AGREEMENT = 0.1
