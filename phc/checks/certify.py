@@ -508,6 +508,8 @@ def _symbolic_conditions(top, order, owner, certs) -> list[Optional[str]]:
     factors are candidates, and a candidate is reported only if the rank of ``[K; S]`` is
     seen to drop at random points of its zero set.
     """
+    if all(cert.surjective for cert in certs):  # a condition is sought only where a coupling failed
+        return [None] * len(certs)
     rels = {r.component: r for r in top.dirac}
     exact = {sym: sp.Rational(repr(float(v))) for sym, v in top.parameter_defaults.items()}
     cluster_of = {c: c for c in rels}
