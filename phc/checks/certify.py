@@ -36,6 +36,7 @@ from typing import Optional
 import numpy as np
 import sympy as sp
 
+from phc.checks.rows import placeholder
 from phc.checks.graph import component_graph, component_of, independent_parts, kinematic_loops, traversal_order
 from phc.dae import T, Dae, DiracRelations
 from phc.diagnostics import Diagnostic, DiagnosticList
@@ -232,7 +233,7 @@ class _Component:
             return
         # by position, with the same assumptions (a derivative of |x| depends on them); a space
         # keeps these names apart from every name a model can have
-        canon = {v: sp.Symbol(f"phc variable {k}", **v.assumptions0)
+        canon = {v: placeholder(f"phc variable {k}", frozenset(v.assumptions0.items()))
                  for k, v in enumerate(dict.fromkeys((*variables, *rel.states)))}
         key = (len(rel.flows), len(rel.efforts), len(rel.multipliers), len(rel.states),
                tuple(r.xreplace(canon) for r in rel.relations))
