@@ -206,6 +206,17 @@ class SourceMap:
         the following element only resolves without it).
         """
         path = self._norm(path)
+        # The common case first: every element resolves in turn. No way of skipping resolves
+        # more elements, so this walk is the best one (linear, no memo of the search).
+        node, steps = self.root, []
+        for i, elem in enumerate(path):
+            entry = self._child(node, elem)
+            if entry is None:
+                break
+            steps.append((i, entry))
+            node = entry.value
+        else:
+            return steps
         memo: dict[tuple[int, int], tuple[tuple[int, int], tuple]] = {}
 
         def best(node: Node | None, i: int) -> tuple[tuple[int, int], tuple]:

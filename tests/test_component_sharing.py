@@ -97,6 +97,19 @@ def test_rows_check_does_not_share_across_different_parameters(tmp_path):
     assert cert.shared == 4
 
 
+def test_placeholders_are_the_symbols_sympy_makes_and_keep_assumptions_apart():
+    """The canonical keys' placeholders are made once (rows check and Dirac certificate):
+    each is equal to the symbol made afresh, and a variable with other assumptions gets
+    another placeholder (a derivative of |x| depends on them, so such components must not
+    share a key)."""
+    real, positive = sp.Symbol("x", real=True), sp.Symbol("y", positive=True)
+    a = rows_module.placeholder("phc own 0", frozenset(real.assumptions0.items()))
+    assert a == sp.Symbol("phc own 0", **real.assumptions0) and a.assumptions0 == real.assumptions0
+    assert a is rows_module.placeholder("phc own 0", frozenset(real.assumptions0.items()))
+    b = rows_module.placeholder("phc own 0", frozenset(positive.assumptions0.items()))
+    assert b != a and b.is_positive and a.is_positive is None
+
+
 def test_a_component_unlike_its_neighbours_is_compared_on_its_own(tmp_path):
     """One spring among 20 with a sign flipped in its rows: found and located at it, although
     20 other springs passed the same (up to names) comparison before and after it."""

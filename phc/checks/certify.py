@@ -36,6 +36,7 @@ from typing import Optional
 import numpy as np
 import sympy as sp
 
+from phc.checks.rows import placeholder
 from phc.checks.graph import component_graph, component_of, independent_parts, kinematic_loops, traversal_order
 from phc.dae import T, Dae, DiracRelations
 from phc.diagnostics import Diagnostic, DiagnosticList
@@ -232,7 +233,7 @@ class _Component:
             return
         # by position, with the same assumptions (a derivative of |x| depends on them); a space
         # keeps these names apart from every name a model can have
-        canon = {v: sp.Symbol(f"phc variable {k}", **v.assumptions0)
+        canon = {v: placeholder(f"phc variable {k}", frozenset(v.assumptions0.items()))
                  for k, v in enumerate(dict.fromkeys((*variables, *rel.states)))}
         key = (len(rel.flows), len(rel.efforts), len(rel.multipliers), len(rel.states),
                tuple(r.xreplace(canon) for r in rel.relations))
@@ -508,6 +509,8 @@ def _symbolic_conditions(top, order, owner, certs) -> list[Optional[str]]:
     factors are candidates, and a candidate is reported only if the rank of ``[K; S]`` is
     seen to drop at random points of its zero set.
     """
+    if all(cert.surjective for cert in certs):  # a condition is sought only where a coupling failed
+        return [None] * len(certs)
     rels = {r.component: r for r in top.dirac}
     exact = {sym: sp.Rational(repr(float(v))) for sym, v in top.parameter_defaults.items()}
     cluster_of = {c: c for c in rels}

@@ -46,6 +46,7 @@ that imposes −u instead of u, or a kinematic row θ̇ = −ω where the descri
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import lru_cache
 from typing import Optional
 
 import numpy as np
@@ -646,6 +647,16 @@ def check_rows(dae: Dae, samples: int = 2, seed: int = 0, max_unknowns: int = MA
     return cert
 
 
+@lru_cache(maxsize=4096)
+def placeholder(name: str, assumptions: frozenset) -> sp.Symbol:
+    """The placeholder symbol `name` with `assumptions` (``frozenset(v.assumptions0.items())``):
+    the same symbol as ``sp.Symbol(name, **assumptions)``, made once. The canonical keys of
+    many equal components (:func:`_canonical_key`, :class:`phc.checks.certify._Component`)
+    use the same few placeholders, and sympy checks a symbol's name and assumptions each
+    time it makes one."""
+    return sp.Symbol(name, **dict(assumptions))
+
+
 def _canonical_key(desc: ComponentDescription, rows: ComponentRows):
     """The component's rows and description up to the names of its own symbols, or None when
     it has vector storage (compared by the sparse path): the component's variables, rates,
@@ -665,7 +676,8 @@ def _canonical_key(desc: ComponentDescription, rows: ComponentRows):
     own += [*desc.flows, *desc.efforts, *desc.multipliers, *desc.states]
     for st in desc.storage:
         own += [st.flow, st.effort]
-    canon = {v: sp.Symbol(f"phc own {k}", **v.assumptions0) for k, v in enumerate(dict.fromkeys(own))}
+    canon = {v: placeholder(f"phc own {k}", frozenset(v.assumptions0.items()))
+             for k, v in enumerate(dict.fromkeys(own))}
     return ("canonical",
             tuple((canon[s], canon.get(ds), role) for s, ds, role in rows.variables),
             tuple(e.xreplace(canon) for _, e in rows.equations),

@@ -382,8 +382,12 @@ def energy_sizes(mod, p, t0, y0, s, energy: float) -> np.ndarray:
     return np.where(np.isfinite(out), out, 0.0)
 
 
-COLUMNS_BATCH = 1 << 21
-"""Most entries of the matrix of states one batched evaluation of H holds (16 MiB)."""
+COLUMNS_BATCH = 1 << 23
+"""Most entries of the matrix of states one batched evaluation of H holds (64 MiB). Each
+evaluation runs the generated H's statements once on rows of this many columns, so the
+interpreter's cost per statement is shared by more columns: for the 9999 unknowns of the
+chain of ``benchmarks/bench_components.py`` the sizes took 3.8 s of CPU with 16 MiB
+batches (209 columns), 2.0 s with 32 MiB, 1.7 s with 64 and 128 MiB, the same sizes to the bit."""
 
 
 def _columns(mod, t, y0, p, cols, steps) -> np.ndarray:
