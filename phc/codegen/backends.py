@@ -293,7 +293,7 @@ def _run_targets(compiled, module, backend, method, steps) -> tuple[list[str], s
         return [], "", ""
     # neither imports sympy: a cached front end asks this too (phc.fastpath)
     from phc.codegen import cc, numba_cache
-    from phc.simulation.c_steps import METHODS
+    from phc.codegen.c_steps import METHODS
 
     if module.N >= AUTO_MIN_UNKNOWNS:  # auto tried C and numba and could use neither (the note says why)
         return [], "", ""

@@ -36,7 +36,7 @@ invariants, H and powers directly (numba first-class functions: no Python in bet
   :data:`~phc.simulation.midpoint.PREDICTOR_ORDER` through the last ones), the singularity
   monitor's routine look every :data:`~phc.simulation.midpoint.MONITOR_EVERY` steps (the equilibrated
   iteration matrix's singular values by LAPACK ``dgesdd``, unless the condition estimate
-  ``dgecon`` puts it far from singular: :data:`~phc.simulation.compiled_steps_kernel._RCOND_MARGIN`),
+  ``dgecon`` puts it far from singular: :data:`~phc.codegen.numba_steps_kernel._RCOND_MARGIN`),
   ``max_steps``.
 
 The compiled function runs chunks of steps (about :data:`CHUNK_SECONDS` each) and returns
@@ -56,7 +56,7 @@ and kept in phc's signed cache of compiled code (``<phc cache>/numba/``, see
 
 On the C back end (:mod:`phc.codegen.c_backend`), :func:`integrate` runs the chunks of all three
 methods in C instead (``phc/codegen/c_runtime/steps.c``, built and bound by
-:mod:`phc.simulation.c_steps`): a port of the same step logic on the same state arrays, so that
+:mod:`phc.codegen.c_steps`): a port of the same step logic on the same state arrays, so that
 everything between chunks — progress, Ctrl-C, the steps handed back — is this driver's, shared.
 
 Where what lives: this module is the Python side — whether a run uses the loop
@@ -64,7 +64,7 @@ Where what lives: this module is the Python side — whether a run uses the loop
 :func:`_compile`, :func:`_attach_cache`), the model's functions handed to it
 (:func:`_functions`) and the driver between chunks (:func:`integrate`). The code numba
 compiles, the chunk of steps and everything it calls, with the layout of the state arrays
-both sides share, is :mod:`phc.simulation.compiled_steps_kernel`; its names are importable
+both sides share, is :mod:`phc.codegen.numba_steps_kernel`; its names are importable
 from here as well (module ``__getattr__``). The cache stamp covers the text of both files.
 """
 
@@ -80,10 +80,10 @@ from typing import Optional
 
 import numpy as np
 
-from phc.simulation import compiled_steps_kernel as _kernel
+from phc.codegen import numba_steps_kernel as _kernel
 from phc.simulation import step_logic as _step_logic
 from phc.simulation.backend import BackendRun
-from phc.simulation.compiled_steps_kernel import (  # the layout of the state arrays the kernel shares
+from phc.codegen.numba_steps_kernel import (  # the layout of the state arrays the kernel shares
     _BUDGET, _CODE, _DONE, _E, _EVERY, _H, _H_PREV, _HARD, _HIST, _ILL, _K, _LAST_LOOK, _LOOK, _LOWP, _MAX_STEPS,
     _MAXSTEPS, _METHOD, _MONITOR, _NEND, _NF, _NFACT, _NFEV, _NI, _OK, _ONE, _ORDER, _ORDER_ALG, _STATUS, _STEP,
     _STEPS, _STRIKES, _STRIKES_C, _T, _THRESHOLD, _ZERO)
@@ -97,7 +97,7 @@ METHODS = {"midpoint": 0, "discrete_gradient": 1, "midpoint4": 2}
 
 MIXED_PRECISION_MIN = 32
 """Smallest system whose Newton corrections use a single-precision copy of the inverse Newton
-matrix (:func:`~phc.simulation.compiled_steps_kernel._lowprec`); ``PHC_MIXED_PRECISION=0``
+matrix (:func:`~phc.codegen.numba_steps_kernel._lowprec`); ``PHC_MIXED_PRECISION=0``
 keeps double precision throughout. Below this size a double-precision product costs no more
 (``dgemv`` against ``sgemv``, measured on 2-core x86-64: equal at 16 unknowns, 0.45–0.66×
 from 32 to 400)."""
@@ -339,7 +339,7 @@ def _attach_cache(dispatcher, py_func) -> None:
 
 
 def _kernel_namespace(externals) -> dict:
-    """The kernel's functions (plain Python in :mod:`phc.simulation.compiled_steps_kernel`, jitted
+    """The kernel's functions (plain Python in :mod:`phc.codegen.numba_steps_kernel`, jitted
     by :func:`_compile`) with the LAPACK/BLAS entry points they call bound as globals: the
     kernel module's own namespace, the one numba resolves the kernel's global names in."""
     ns = vars(_kernel)
@@ -390,9 +390,9 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
     from phc.simulation.monitor import SingularityMonitor
 
     raw = getattr(mod, "module", mod)
-    on_c = getattr(raw, "BACKEND", "numpy") == "c"  # the C back end's loop (phc.simulation.c_steps)
+    on_c = getattr(raw, "BACKEND", "numpy") == "c"  # the C back end's loop (phc.codegen.c_steps)
     if on_c:
-        from phc.simulation import c_steps
+        from phc.codegen import c_steps
 
         use, why = c_steps.usable(method, raw)
         if not use:
@@ -563,7 +563,7 @@ def _counts(python) -> tuple[int, int]:
 
 def __getattr__(name: str):
     """The kernel's functions and constants under this module's name as well (they lived here
-    before the kernel moved to :mod:`phc.simulation.compiled_steps_kernel`), looked up at each
+    before the kernel moved to :mod:`phc.codegen.numba_steps_kernel`), looked up at each
     access so that, once :func:`_build` has run, they are the jitted functions."""
     try:
         return getattr(_kernel, name)

@@ -816,7 +816,7 @@ def integrate_midpoint(mod, p, t_out, y0, yp0, options, *, progress=None, names=
         return advance
 
     if events is not None and getattr(getattr(mod, "module", mod), "BACKEND", "") == "c":
-        from phc.simulation import c_steps
+        from phc.codegen import c_steps
 
         c_steps.note_events(getattr(mod, "module", mod))
     if events is None:  # the whole step loop compiled, when the model runs on the numba or the C backend
