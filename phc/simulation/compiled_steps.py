@@ -472,30 +472,17 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
         new = y_new.copy()
         if python is None:
             python = python_advance()
-        stage = getattr(python, "stage", None)
         if hasattr(python, "nhist"):  # midpoint4's predictor: the history is the kernel's
             python.nhist = 0
-        reason = ""
-        if not converged:
-            new, converged, reason = mp._subdivide(python, t, h, y.copy(), mp.MAX_SPLIT)
-            split += converged
-        if monitor.enabled and (hard or steps % mp.MONITOR_EVERY == 0):
+        look = monitor.enabled and (hard or steps % mp.MONITOR_EVERY == 0)
+        if look:
             ist[_LAST_LOOK] = steps
-            limit = mp.HARD_STEP_THRESHOLD if hard else None
-            warning = monitor.check(t, y, (new - y) / h if converged else mid_slope, 0.5 * h, limit)
-            if warning is None and converged and hard:
-                warning = monitor.check(t + h, new, (new - y) / h, 0.5 * h, limit)
-            if warning and converged and mp.passed_rank_drop(monitor, python, raw, t, h, y.copy(), new, rank_drops):
-                warning = None  # a rank drop of the position constraints that the motion passes: go on
-            if warning:
-                ok, message = False, f"{name}: {warning}"
-                return
-        if not converged:
-            failed = getattr(stage, "evaluation_error", None)
-            if failed is not None:
-                ok, message = False, f"{name}: {failed}; results up to t = {t:.6g} are kept"
-            else:
-                ok, message = False, f"{name}: {reason} at t = {t:.6g}; results up to this time are kept"
+        # the Python loop's own handling of the step (mp.finish_step), on copies of the kernel's arrays
+        new, retried, failure = mp.finish_step(python, monitor, raw, name, t, h, y.copy(), new, bool(converged), "",
+                                               hard, look, mid_slope, rank_drops)
+        split += retried
+        if failure:
+            ok, message = False, failure
             return
         ist[_HIST] = 0  # midpoint4's predictor starts again: the Python step kept its own history
         accept = getattr(_kernel._accept, "py_func", _kernel._accept)  # unjitted: element loops over N ≤ 400
