@@ -520,11 +520,7 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
     except KeyboardInterrupt:
         ok, interrupted = False, True
         message = f"interrupted at t = {t_out[max(int(ist[_K]) - 1, 0)]:.6g}"
-    if ok and split:
-        message += (f"; {split} step(s) needed a restart or a split to be solved (the step is long "
-                    "for the dynamics)")
-    if rank_drops:
-        message += "; " + mp.rank_drop_notice([a for a, _ in rank_drops])
+    message = mp.closing_message(message, ok, split, rank_drops)
     last = int(ist[_K]) - 1 if not ok else nout - 1
     return BackendRun.from_mapping(dict(
         t=t_out[:last + 1], y=ys[:last + 1], yp=yps[:last + 1], steps=int(ist[_STEPS]), success=ok, message=message,

@@ -627,11 +627,7 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
         k = max(k - 1, 0)
         ok, interrupted = False, True
         message = f"interrupted at t = {t_out[k]:.6g}"
-    if ok and split:
-        message += (f"; {split} step(s) needed a restart or a split to be solved (the step is long "
-                    "for the dynamics)")
-    if rank_drops:
-        message += "; " + rank_drop_notice([a for a, _ in rank_drops])
+    message = closing_message(message, ok, split, rank_drops)
     return BackendRun.from_mapping(dict(t=t_out[:k + 1], y=ys[:k + 1], yp=yps[:k + 1], steps=steps, success=ok,
                                         message=message, cpu=time.process_time() - start, interrupted=interrupted,
                                         event=event, rank_drops=[a for a, _ in rank_drops]))
@@ -681,6 +677,18 @@ def finish_step(advance, monitor, mod, name, t, h, y, y_new, converged, reason, 
             return y_new, retried, f"{name}: {failed}; results up to t = {t:.6g} are kept"
         return y_new, retried, f"{name}: {reason} at t = {t:.6g}; results up to this time are kept"
     return y_new, retried, None
+
+
+def closing_message(message: str, ok: bool, split: int, rank_drops) -> str:
+    """The fixed-step loops' message at the end of a run (this module's and
+    :func:`phc.simulation.compiled_steps.integrate`'s): `message` with the steps that needed a
+    retry or a split (of a run that succeeded) and the rank drops passed."""
+    if ok and split:
+        message += (f"; {split} step(s) needed a restart or a split to be solved (the step is long "
+                    "for the dynamics)")
+    if rank_drops:
+        message += "; " + rank_drop_notice([a for a, _ in rank_drops])
+    return message
 
 
 def rank_drop_notice(times) -> str:
