@@ -14,9 +14,6 @@ from typing import Optional
 
 import numpy as np
 
-# scipy.optimize (a quarter second to import) is imported where a least-squares solve runs: most
-# models' rows are derived, so compiling them never reaches it
-
 RESIDUAL_TOL = 1e-9
 """A point satisfies a system when every row's residual is below this, relative to the
 row's largest Jacobian entry times the size of the point."""
@@ -32,50 +29,34 @@ def _scaled(system, u):
 
 
 def _newton(system, u, free: Optional[np.ndarray] = None, iterations: int = 60):
-    """A zero of the system near `u`, moving only the unknowns in `free` (minimum-norm
-    damped Gauss–Newton). Returns (point, largest scaled residual)."""
-    from phc.simulation.minnorm import dense_min_norm  # (not at import: phc.simulation is large)
+    """A zero of the system near `u`, moving only the unknowns in `free`: minimum-norm damped
+    Gauss–Newton (:func:`phc.simulation.gauss_newton.gauss_newton`) on the rows scaled at each
+    iterate. Returns (point, largest scaled residual)."""
+    # (not at import: phc.simulation is large)
+    from phc.simulation.gauss_newton import gauss_newton
+    from phc.simulation.minnorm import dense_min_norm
 
     u = np.array(u, dtype=float)
     free = np.arange(len(u)) if free is None else free
-    history: list[float] = []
+
+    def step(x, r, J):
+        Jf = J[:, free]
+        if not np.all(np.isfinite(Jf)):
+            return None  # an infinite slope: no step to take from here (the caller restarts elsewhere)
+        # the rows are equilibrated: minnorm's rank threshold leaves out the directions only
+        # round-off of the Jacobian determines (a step along them would be that round-off magnified)
+        d = np.zeros(len(x))
+        d[free] = -dense_min_norm(Jf, r)
+        return d
+
     with np.errstate(all="ignore"):
-        r, J = _scaled(system, u)
-        for _ in range(iterations):
-            err = float(np.abs(r).max(initial=0.0))
-            if not np.isfinite(err) or err <= RESIDUAL_TOL * 1e-2:
-                break
-            history.append(err)
-            if len(history) > 8 and err > 0.5 * history[-9]:
-                break  # stalled (a local minimum of the residual): the caller restarts elsewhere
-            Jf = J[:, free]
-            if not np.all(np.isfinite(Jf)):
-                break  # an infinite slope: no step to take from here (the caller restarts elsewhere)
-            # the rows are equilibrated: minnorm's rank threshold leaves out the directions
-            # only round-off of the Jacobian determines (a step along them would be that
-            # round-off magnified)
-            step = dense_min_norm(Jf, r)
-            alpha, best = 1.0, None
-            while alpha > 1e-4:
-                trial = u.copy()
-                trial[free] -= alpha * step
-                rt, Jt = _scaled(system, trial)
-                et = float(np.abs(rt).max(initial=0.0))
-                if np.isfinite(et) and et < err:
-                    best = (trial, rt, Jt)
-                    break
-                alpha /= 2
-            if best is None and not system._complex:
-                # a law with a jump (sign, heaviside, ifelse): the residual need not decrease on
-                # the way across it; take the full step (the iteration count still bounds this)
-                trial = u.copy()
-                trial[free] -= step
-                rt, Jt = _scaled(system, trial)
-                best = (trial, rt, Jt) if np.all(np.isfinite(rt)) else None
-            if best is None:
-                break
-            u, r, J = best
-        return u, float(np.abs(r).max(initial=0.0))
+        # halving down to 1e-4 of the step; a stall (no halving of the residual in 8 iterations:
+        # a local minimum) ends it, and the caller restarts elsewhere; a law with a jump (sign,
+        # heaviside, ifelse) need not decrease on the way across it: the full step is taken
+        # there (the iteration count still bounds this)
+        out = gauss_newton(u, lambda x: _scaled(system, x), step, tol=RESIDUAL_TOL * 1e-2, max_iter=iterations,
+                           damping=1e-4, jumps=not system._complex, stall=(8, 0.5))
+    return out.x, out.size
 
 
 SETTLED_FRACTION = 0.1
@@ -117,6 +98,8 @@ def _least_squares(system, u: np.ndarray, free: np.ndarray) -> tuple[np.ndarray,
     :func:`_newton` stalls on a residual that cannot vanish, this one still converges to the
     minimum, whose residual :func:`_stationary` then judges. Returns (point, largest scaled
     residual)."""
+    from phc.simulation.gauss_newton import least_squares
+
     if not len(free):
         return u, float(np.abs(_scaled(system, u)[0]).max(initial=0.0))
     with np.errstate(all="ignore"):
@@ -138,11 +121,8 @@ def _least_squares(system, u: np.ndarray, free: np.ndarray) -> tuple[np.ndarray,
             value = system.J(at(x))[:, free] / scale[:, None]
             return np.where(np.isfinite(value), value, 0.0)
 
-        from scipy import optimize
-
         try:
-            fit = optimize.least_squares(fun, u[free], jac=jac, method="trf", xtol=1e-15, ftol=1e-15, gtol=1e-14,
-                                         max_nfev=100 * (len(free) + 1))
+            fit = least_squares(fun, u[free], jac, gtol=1e-14, max_nfev=100 * (len(free) + 1))
         except (ValueError, np.linalg.LinAlgError):
             return u, float(np.abs(r).max(initial=0.0))
         point = at(fit.x)

@@ -204,7 +204,7 @@ def _variables(compiled, raw, inputs, p, fixes_start) -> tuple:
 def _build(folder: Path, identifier: str, argv: list[str]) -> Path:
     """Compile the sources in `folder`/sources into `folder`/binaries/linux64/<identifier>.so."""
     from phc.codegen.cc import compile_library
-    from phc.simulation.c_steps import FLAGS
+    from phc.codegen.c_steps import FLAGS
 
     target = folder / "binaries" / "linux64" / f"{identifier}.so"
     target.parent.mkdir(parents=True)
@@ -261,7 +261,7 @@ def _export(path, out, step, solver, fmi, params, certify, started) -> FmuReport
     from phc.options import RunOptions
     from phc.simulation import initial_values, parameter_vector, start_state
     from phc.simulation import midpoint as mp
-    from phc.simulation.c_steps import SOURCE
+    from phc.codegen.c_steps import SOURCE
     from phc.simulation.compiled_steps import MAX_UNKNOWNS, algebraic_mask, step_constants
     from phc.simulation.events import has_switches
     from phc.simulation.guard import quiet_floating_point

@@ -36,7 +36,7 @@ invariants, H and powers directly (numba first-class functions: no Python in bet
   :data:`~phc.simulation.midpoint.PREDICTOR_ORDER` through the last ones), the singularity
   monitor's routine look every :data:`~phc.simulation.midpoint.MONITOR_EVERY` steps (the equilibrated
   iteration matrix's singular values by LAPACK ``dgesdd``, unless the condition estimate
-  ``dgecon`` puts it far from singular: :data:`~phc.simulation.compiled_steps_kernel._RCOND_MARGIN`),
+  ``dgecon`` puts it far from singular: :data:`~phc.codegen.numba_steps_kernel._RCOND_MARGIN`),
   ``max_steps``.
 
 The compiled function runs chunks of steps (about :data:`CHUNK_SECONDS` each) and returns
@@ -56,7 +56,7 @@ and kept in phc's signed cache of compiled code (``<phc cache>/numba/``, see
 
 On the C back end (:mod:`phc.codegen.c_backend`), :func:`integrate` runs the chunks of all three
 methods in C instead (``phc/codegen/c_runtime/steps.c``, built and bound by
-:mod:`phc.simulation.c_steps`): a port of the same step logic on the same state arrays, so that
+:mod:`phc.codegen.c_steps`): a port of the same step logic on the same state arrays, so that
 everything between chunks — progress, Ctrl-C, the steps handed back — is this driver's, shared.
 
 Where what lives: this module is the Python side — whether a run uses the loop
@@ -64,7 +64,7 @@ Where what lives: this module is the Python side — whether a run uses the loop
 :func:`_compile`, :func:`_attach_cache`), the model's functions handed to it
 (:func:`_functions`) and the driver between chunks (:func:`integrate`). The code numba
 compiles, the chunk of steps and everything it calls, with the layout of the state arrays
-both sides share, is :mod:`phc.simulation.compiled_steps_kernel`; its names are importable
+both sides share, is :mod:`phc.codegen.numba_steps_kernel`; its names are importable
 from here as well (module ``__getattr__``). The cache stamp covers the text of both files.
 """
 
@@ -80,10 +80,10 @@ from typing import Optional
 
 import numpy as np
 
-from phc.simulation import compiled_steps_kernel as _kernel
+from phc.codegen import numba_steps_kernel as _kernel
 from phc.simulation import step_logic as _step_logic
 from phc.simulation.backend import BackendRun
-from phc.simulation.compiled_steps_kernel import (  # the layout of the state arrays the kernel shares
+from phc.codegen.numba_steps_kernel import (  # the layout of the state arrays the kernel shares
     _BUDGET, _CODE, _DONE, _E, _EVERY, _H, _H_PREV, _HARD, _HIST, _ILL, _K, _LAST_LOOK, _LOOK, _LOWP, _MAX_STEPS,
     _MAXSTEPS, _METHOD, _MONITOR, _NEND, _NF, _NFACT, _NFEV, _NI, _OK, _ONE, _ORDER, _ORDER_ALG, _STATUS, _STEP,
     _STEPS, _STRIKES, _STRIKES_C, _T, _THRESHOLD, _ZERO)
@@ -97,7 +97,7 @@ METHODS = {"midpoint": 0, "discrete_gradient": 1, "midpoint4": 2}
 
 MIXED_PRECISION_MIN = 32
 """Smallest system whose Newton corrections use a single-precision copy of the inverse Newton
-matrix (:func:`~phc.simulation.compiled_steps_kernel._lowprec`); ``PHC_MIXED_PRECISION=0``
+matrix (:func:`~phc.codegen.numba_steps_kernel._lowprec`); ``PHC_MIXED_PRECISION=0``
 keeps double precision throughout. Below this size a double-precision product costs no more
 (``dgemv`` against ``sgemv``, measured on 2-core x86-64: equal at 16 unknowns, 0.45–0.66×
 from 32 to 400)."""
@@ -339,7 +339,7 @@ def _attach_cache(dispatcher, py_func) -> None:
 
 
 def _kernel_namespace(externals) -> dict:
-    """The kernel's functions (plain Python in :mod:`phc.simulation.compiled_steps_kernel`, jitted
+    """The kernel's functions (plain Python in :mod:`phc.codegen.numba_steps_kernel`, jitted
     by :func:`_compile`) with the LAPACK/BLAS entry points they call bound as globals: the
     kernel module's own namespace, the one numba resolves the kernel's global names in."""
     ns = vars(_kernel)
@@ -390,9 +390,9 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
     from phc.simulation.monitor import SingularityMonitor
 
     raw = getattr(mod, "module", mod)
-    on_c = getattr(raw, "BACKEND", "numpy") == "c"  # the C back end's loop (phc.simulation.c_steps)
+    on_c = getattr(raw, "BACKEND", "numpy") == "c"  # the C back end's loop (phc.codegen.c_steps)
     if on_c:
-        from phc.simulation import c_steps
+        from phc.codegen import c_steps
 
         use, why = c_steps.usable(method, raw)
         if not use:
@@ -472,31 +472,19 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
         new = y_new.copy()
         if python is None:
             python = python_advance()
-        stage = getattr(python, "stage", None)
         if hasattr(python, "nhist"):  # midpoint4's predictor: the history is the kernel's
             python.nhist = 0
-        reason = ""
-        if not converged:
-            new, converged, reason = mp._subdivide(python, t, h, y.copy(), mp.MAX_SPLIT)
-            split += converged
-        if monitor.enabled and (hard or steps % mp.MONITOR_EVERY == 0):
+        look = monitor.enabled and (hard or steps % mp.MONITOR_EVERY == 0)
+        if look:
             ist[_LAST_LOOK] = steps
-            limit = mp.HARD_STEP_THRESHOLD if hard else None
-            warning = monitor.check(t, y, (new - y) / h if converged else mid_slope, 0.5 * h, limit)
-            if warning is None and converged and hard:
-                warning = monitor.check(t + h, new, (new - y) / h, 0.5 * h, limit)
-            if warning and converged and mp.passed_rank_drop(monitor, python, raw, t, h, y.copy(), new, rank_drops):
-                warning = None  # a rank drop of the position constraints that the motion passes: go on
-                ist[_LAST_LOOK] = steps - mp.LOOK_GAP  # the passage's next hard step is handed back too
-            if warning:
-                ok, message = False, f"{name}: {warning}"
-                return
-        if not converged:
-            failed = getattr(stage, "evaluation_error", None)
-            if failed is not None:
-                ok, message = False, f"{name}: {failed}; results up to t = {t:.6g} are kept"
-            else:
-                ok, message = False, f"{name}: {reason} at t = {t:.6g}; results up to this time are kept"
+        # the Python loop's own handling of the step (mp.finish_step), on copies of the kernel's arrays
+        new, retried, failure, passed = mp.finish_step(python, monitor, raw, name, t, h, y.copy(), new,
+                                                       bool(converged), "", hard, look, mid_slope, rank_drops)
+        split += retried
+        if passed:
+            ist[_LAST_LOOK] = steps - mp.LOOK_GAP  # the passage's next hard step is handed back too
+        if failure:
+            ok, message = False, failure
             return
         ist[_HIST] = 0  # midpoint4's predictor starts again: the Python step kept its own history
         accept = getattr(_kernel._accept, "py_func", _kernel._accept)  # unjitted: element loops over N ≤ 400
@@ -534,11 +522,7 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
     except KeyboardInterrupt:
         ok, interrupted = False, True
         message = f"interrupted at t = {t_out[max(int(ist[_K]) - 1, 0)]:.6g}"
-    if ok and split:
-        message += (f"; {split} step(s) needed a restart or a split to be solved (the step is long "
-                    "for the dynamics)")
-    if rank_drops:
-        message += "; " + mp.rank_drop_notice([a for a, _ in rank_drops])
+    message = mp.closing_message(message, ok, split, rank_drops)
     last = int(ist[_K]) - 1 if not ok else nout - 1
     return BackendRun.from_mapping(dict(
         t=t_out[:last + 1], y=ys[:last + 1], yp=yps[:last + 1], steps=int(ist[_STEPS]), success=ok, message=message,
@@ -564,7 +548,7 @@ def _counts(python) -> tuple[int, int]:
 
 def __getattr__(name: str):
     """The kernel's functions and constants under this module's name as well (they lived here
-    before the kernel moved to :mod:`phc.simulation.compiled_steps_kernel`), looked up at each
+    before the kernel moved to :mod:`phc.codegen.numba_steps_kernel`), looked up at each
     access so that, once :func:`_build` has run, they are the jitted functions."""
     try:
         return getattr(_kernel, name)

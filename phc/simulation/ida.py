@@ -18,8 +18,8 @@ What this costs: scikit-sundae builds a result object and copies the state after
 call, and wraps IDA's vectors in NumPy arrays at each residual, Jacobian and root-function
 call — a few microseconds a call, on the smallest models more than the residual itself
 (``benchmarks/bench_ida_callbacks.py`` measures it). Earlier
-versions called SUNDIALS' C functions directly through ``ctypes`` at byte offsets inside
-scikit-sundae's extension object and replaced its callbacks; a dependency upgrade could
+versions called SUNDIALS' C functions directly, at byte offsets inside scikit-sundae's
+extension object, and replaced its callbacks; a dependency upgrade could
 turn that into a memory error, so phc now uses only what scikit-sundae documents.
 """
 

@@ -30,6 +30,8 @@ import scipy.sparse as sps
 
 from phc.analysis.matching import bipartite_matching
 from phc.errors import InconsistentInitialError
+from phc.simulation.chord import max_norm as _norm
+from phc.simulation.gauss_newton import gauss_newton, least_squares
 from phc.simulation.guard import ModelEvaluationError
 from phc.simulation.minnorm import (DENSE_SOLVE_LIMIT, LeastNorm, dense_min_norm, lsmr_min_norm, min_norm_solve,
                                     one_blas_thread)
@@ -526,50 +528,31 @@ def _nested_min_norm(A, b, first) -> np.ndarray:
     return v if miss <= 2 * miss_plain + 1e-14 * np.linalg.norm(b) else plain
 
 
-def _norm(g) -> float:
-    return float(np.abs(g).max(initial=0.0))
-
-
 def _solve(prob: _Problem, tol: float, max_iter: int):
-    u = prob.pack()
-    g = prob.G(u)
-    best = (_norm(g), u)
-    it = polish = 0
+    """Gauss–Newton (:func:`phc.simulation.gauss_newton.gauss_newton`) on ``G = 0`` from the
+    problem's start, with its weighted least-norm steps (:meth:`_Problem.step`), then a
+    least-squares solve from the best point where that ends above `tol`. Returns the point
+    and the iterations (plus the least-squares solve's evaluations)."""
     # Full Gauss–Newton steps, no monotonicity test: D is bilinear (velocity products,
     # forces times rotation rates), so from a rough guess the residual may grow once
-    # before converging quadratically (seen on the slider–crank at dead centre).
-    for it in range(1, max_iter + 1):
-        if best[0] <= tol:
-            # Converged: refine to round-off. `tol` bounds the equilibrated residual, but an
-            # index-2 DAE magnifies what is left: a velocity constraint off by δ makes IDA's
-            # first corrector move the momenta by δ and the efforts by δ/h, so the supplied
-            # energy (∫ effort·flow) jumps by O(δ) at every step size and the error test
-            # fails at t₀. What one step leaves depends on the BLAS kernel's rounding (it
-            # differs between CPUs), and the max-norm cannot tell: large D rows sit at their
-            # round-off while small F rows are still off. So take the refining steps and
-            # keep the last iterate that stays converged.
-            if polish >= POLISH_STEPS or not g.any():
-                break  # (G = 0 exactly: a refining step would be zero)
-            polish += 1
-        u = u + prob.step(prob.jacobian(u), g)
-        g = prob.G(u)
-        if not np.all(np.isfinite(g)):
-            break
-        if polish:
-            if _norm(g) > tol:
-                break
-            best = (_norm(g), u)
-        elif _norm(g) < best[0]:
-            best = (_norm(g), u)
-    if best[0] > tol and len(u) * len(g) <= DENSE_LIMIT:
-        from scipy.optimize import least_squares  # rarely needed; its import costs 0.2 s
-
-        sol = least_squares(prob.G, best[1], jac=lambda x: prob.jacobian(x).toarray(), method="trf",
-                            xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200)
-        if _norm(sol.fun) < best[0]:
-            best = (_norm(sol.fun), sol.x)
+    # before converging quadratically (seen on the slider–crank at dead centre); the best
+    # iterate is kept.
+    # Converged, it refines to round-off (POLISH_STEPS). `tol` bounds the equilibrated
+    # residual, but an index-2 DAE magnifies what is left: a velocity constraint off by δ makes
+    # IDA's first corrector move the momenta by δ and the efforts by δ/h, so the supplied
+    # energy (∫ effort·flow) jumps by O(δ) at every step size and the error test fails at t₀.
+    # What one step leaves depends on the BLAS kernel's rounding (it differs between CPUs), and
+    # the max-norm cannot tell: large D rows sit at their round-off while small F rows are
+    # still off. So take the refining steps and keep the last iterate that stays converged.
+    out = gauss_newton(prob.pack(), lambda u: (prob.G(u), None), lambda u, g, _: prob.step(prob.jacobian(u), g),
+                       tol=tol, max_iter=max_iter, polish=POLISH_STEPS, keep_best=True)
+    best, size, it = out
+    if size > tol and len(best) * len(prob.G(best)) <= DENSE_LIMIT:
+        sol = least_squares(prob.G, best, lambda x: prob.jacobian(x).toarray(), max_nfev=200)
+        if _norm(sol.fun) < size:
+            best = sol.x
         it += sol.nfev
-    return best[1], it
+    return best, it
 
 
 def consistent_initial_conditions(mod, p, t0: float, values: dict[int, float], fixed: set[int],

@@ -579,31 +579,16 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
                                     events(t + h, y_new, (y_new - y) / h), None)
                     steps += 1
                     break
-                if not converged:
-                    # a step of the order of the period defeats the extrapolation: retry from y,
-                    # then split the step (any step size keeps the structure-preserving property)
-                    y_new, converged, reason = _subdivide(advance, t, h, y, MAX_SPLIT)
-                    split += converged
-                if monitor.enabled and (hard or steps % MONITOR_EVERY == 0):
+                look = monitor.enabled and (hard or steps % MONITOR_EVERY == 0)
+                if look:
                     last_look = steps
-                    # a fixed step cannot land on the singular set, only pass it at a distance ~h:
-                    # where Newton struggled, a looser threshold decides
-                    limit = HARD_STEP_THRESHOLD if hard else None
-                    warning = monitor.check(t, y, (y_new - y) / h if converged else mid_slope, 0.5 * h, limit)
-                    if warning is None and converged and hard:
-                        warning = monitor.check(t + h, y_new, (y_new - y) / h, 0.5 * h, limit)
-                    if warning and converged and passed_rank_drop(monitor, advance, mod, t, h, y, y_new, rank_drops):
-                        warning = None  # a rank drop of the position constraints that the motion passes: go on
-                        last_look = steps - LOOK_GAP  # look at the passage's next hard step too
-                    if warning:
-                        ok, message = False, f"{name}: {warning}"
-                        break
-                if not converged:
-                    failed = getattr(stage, "evaluation_error", None)
-                    if failed is not None:  # not even a split step stays inside the domain
-                        ok, message = False, f"{name}: {failed}; results up to t = {t:.6g} are kept"
-                    else:
-                        ok, message = False, f"{name}: {reason} at t = {t:.6g}; results up to this time are kept"
+                y_new, retried, failure, passed = finish_step(advance, monitor, mod, name, t, h, y, y_new,
+                                                              converged, reason, hard, look, mid_slope, rank_drops)
+                split += retried
+                if passed:
+                    last_look = steps - LOOK_GAP  # look at the passage's next hard step too
+                if failure:
+                    ok, message = False, failure
                     break
                 if events is not None:
                     y_end = projector.project(t + h, y_new) if projector else y_new
@@ -644,11 +629,7 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
         k = max(k - 1, 0)
         ok, interrupted = False, True
         message = f"interrupted at t = {t_out[k]:.6g}"
-    if ok and split:
-        message += (f"; {split} step(s) needed a restart or a split to be solved (the step is long "
-                    "for the dynamics)")
-    if rank_drops:
-        message += "; " + rank_drop_notice([a for a, _ in rank_drops])
+    message = closing_message(message, ok, split, rank_drops)
     return BackendRun.from_mapping(dict(t=t_out[:k + 1], y=ys[:k + 1], yp=yps[:k + 1], steps=steps, success=ok,
                                         message=message, cpu=time.process_time() - start, interrupted=interrupted,
                                         event=event, rank_drops=[a for a, _ in rank_drops]))
@@ -671,6 +652,55 @@ fraction of it. Away from it the midpoint rule's local error is O(h³) against a
 (the N four-bar at h = 1e-4: 6e-7 of the change); at the singular instant the least-norm
 step's error is larger (there: 5e-3 of the change) but stays a fraction of the change; a
 step whose halves take another branch of the motion, or fail, differs by O(1)."""
+
+
+def finish_step(advance, monitor, mod, name, t, h, y, y_new, converged, reason, hard, look, mid_slope,
+                rank_drops):
+    """What the fixed-step loops (this module's and the compiled loops' driver,
+    :func:`phc.simulation.compiled_steps.integrate`, for a step a chunk hands back) do after a
+    step from (t, y) of size h to `y_new`, Newton's outcome `converged` (with `reason` when
+    not), before accepting it: a failed step is retried from y, then split
+    (:func:`_subdivide`); the singularity monitor looks when `look` (`hard`: Newton struggled,
+    the looser threshold decides), and a warning stops the run unless the motion passes a rank
+    drop of the position constraints (:func:`passed_rank_drop`). Returns ``(y_new, retried,
+    failure, passed)``: the step's end, whether a retry or a split solved it, the message that
+    ends the run (None: accept the step), and whether the step passed a rank drop (the
+    caller then looks at the passage's next hard step too, without the :data:`LOOK_GAP` wait)."""
+    retried = passed = False
+    if not converged:
+        # a step of the order of the period defeats the extrapolation: retry from y,
+        # then split the step (any step size keeps the structure-preserving property)
+        y_new, converged, reason = _subdivide(advance, t, h, y, MAX_SPLIT)
+        retried = bool(converged)
+    if look:
+        # a fixed step cannot land on the singular set, only pass it at a distance ~h:
+        # where Newton struggled, a looser threshold decides
+        limit = HARD_STEP_THRESHOLD if hard else None
+        warning = monitor.check(t, y, (y_new - y) / h if converged else mid_slope, 0.5 * h, limit)
+        if warning is None and converged and hard:
+            warning = monitor.check(t + h, y_new, (y_new - y) / h, 0.5 * h, limit)
+        if warning and converged and passed_rank_drop(monitor, advance, mod, t, h, y, y_new, rank_drops):
+            warning, passed = None, True  # a rank drop of the position constraints that the motion passes: go on
+        if warning:
+            return y_new, retried, f"{name}: {warning}", passed
+    if not converged:
+        failed = getattr(getattr(advance, "stage", None), "evaluation_error", None)
+        if failed is not None:  # not even a split step stays inside the domain
+            return y_new, retried, f"{name}: {failed}; results up to t = {t:.6g} are kept", passed
+        return y_new, retried, f"{name}: {reason} at t = {t:.6g}; results up to this time are kept", passed
+    return y_new, retried, None, passed
+
+
+def closing_message(message: str, ok: bool, split: int, rank_drops) -> str:
+    """The fixed-step loops' message at the end of a run (this module's and
+    :func:`phc.simulation.compiled_steps.integrate`'s): `message` with the steps that needed a
+    retry or a split (of a run that succeeded) and the rank drops passed."""
+    if ok and split:
+        message += (f"; {split} step(s) needed a restart or a split to be solved (the step is long "
+                    "for the dynamics)")
+    if rank_drops:
+        message += "; " + rank_drop_notice([a for a, _ in rank_drops])
+    return message
 
 
 def rank_drop_notice(times) -> str:
@@ -826,7 +856,7 @@ def integrate_midpoint(mod, p, t_out, y0, yp0, options, *, progress=None, names=
         return advance
 
     if events is not None and getattr(getattr(mod, "module", mod), "BACKEND", "") == "c":
-        from phc.simulation import c_steps
+        from phc.codegen import c_steps
 
         c_steps.note_events(getattr(mod, "module", mod))
     if events is None:  # the whole step loop compiled, when the model runs on the numba or the C backend

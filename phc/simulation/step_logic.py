@@ -20,7 +20,7 @@ a step *does* is written here, once, as plain Python that numba can compile:
   extrapolated from the last step midpoints (the last one, the line through two, or the
   polynomial through more) and that polynomial's weights.
 
-The C back end's step loop (``phc/codegen/c_runtime/steps.c``, :mod:`phc.simulation.c_steps`)
+The C back end's step loop (``phc/codegen/c_runtime/steps.c``, :mod:`phc.codegen.c_steps`)
 cannot run Python: it is a line-by-line port of :func:`newton` (one function there too, which
 every method's stages call), :func:`discrete_gradient` and :func:`midpoint4`, operation by
 operation, and is tested against the Python loop; a change of the logic here is a change there.
@@ -28,7 +28,7 @@ operation, and is tested against the Python loop; a change of the logic here is 
 The drivers around the steps are still each loop's own: the Python loop's
 :func:`~phc.simulation.midpoint.integrate_fixed_step` (events, projection, splitting, the
 singularity monitor's messages) and the compiled loop's chunk of routine steps
-(:func:`phc.simulation.compiled_steps_kernel._chunk`), which hands every other step back.
+(:func:`phc.codegen.numba_steps_kernel._chunk`), which hands every other step back.
 
 Neither loop's data structures appear here. What touches them are a few operations, called
 by name: ``ws`` is the loop's workspace, passed through to them untouched. The Python loop's
@@ -36,7 +36,7 @@ operations are defined at the end of this module: they call the methods of its w
 object (a :class:`~phc.simulation.midpoint.StageSolver`, whose operations are its sparse LU
 and NumPy vector arithmetic, or :class:`~phc.simulation.midpoint.Stages`). The compiled loop
 runs copies of these functions whose globals are its kernel module
-(:func:`phc.simulation.compiled_steps_kernel._here`), where the same names are its own
+(:func:`phc.codegen.numba_steps_kernel._here`), where the same names are its own
 operations on a tuple of arrays (LAPACK/BLAS calls and element loops), and numba compiles
 them with the rest of the kernel. The operations (what they do and return):
 

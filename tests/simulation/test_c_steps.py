@@ -1,4 +1,4 @@
-"""The C back end's step loops (:mod:`phc.simulation.c_steps`, ``phc/codegen/c_runtime/steps.c``:
+"""The C back end's step loops (:mod:`phc.codegen.c_steps`, ``phc/codegen/c_runtime/steps.c``:
 the implicit midpoint rule, the discrete gradient, midpoint4) against the Python loop.
 
 The same model on the C backend is run twice, once with the step loop in C and once with
@@ -281,7 +281,8 @@ def test_what_the_c_loop_does_not_run_is_said_once(compiled, monkeypatch, loops)
     """Every fixed-step method runs in C without a word; a model too large for the dense LU
     runs the Python loop, and a CompiledLoopWarning says so once per reason; switched off by
     PHC_COMPILED_LOOP=0, nothing is said."""
-    from phc.simulation import c_steps, compiled_steps
+    from phc.codegen import c_steps
+    from phc.simulation import compiled_steps
 
     monkeypatch.setattr(c_steps, "_SAID", set())
     model = compiled("pendulum.yaml")
@@ -310,7 +311,7 @@ def test_what_the_c_loop_does_not_run_is_said_once(compiled, monkeypatch, loops)
 def test_the_library_is_built_once_from_the_shipped_source(compiled):
     """The C text ships in the package, the library is built (or loaded from the signed cache)
     once per process and checked against the driver's layout of the state arrays."""
-    from phc.simulation import c_steps
+    from phc.codegen import c_steps
 
     assert c_steps.SOURCE.is_file() and "phc_steps_chunk" in c_steps.SOURCE.read_text(encoding="utf-8")
     lib = c_steps.library()
@@ -331,7 +332,7 @@ def test_the_avx2_and_the_baseline_code_give_the_same_trajectory(compiled, monke
     AVX2, else in the baseline (SSE2) code: the same IEEE operations in the same order, no
     fused multiply-adds, so the two libraries give the same trajectory bit for bit (on a CPU
     without AVX2 both run the baseline code and the test only checks the build)."""
-    from phc.simulation import c_steps
+    from phc.codegen import c_steps
 
     model = compiled("flexible_slider_crank.yaml")
     options = dict(solver="midpoint", t_end=float(model.dae.options["t_start"]) + 2e-3, step=1e-5, n_out=11)
@@ -374,7 +375,7 @@ def test_a_run_with_switching_conditions_says_it_runs_the_python_loop(tmp_path, 
     """Coulomb friction (a sign law: switching conditions, docs/events.md): the Python loop
     locates the switches, and says once that the C loop is not used; the run is the Python
     loop's on the same C functions."""
-    from phc.simulation import c_steps
+    from phc.codegen import c_steps
 
     monkeypatch.setattr(c_steps, "_SAID", set())
     path = tmp_path / "coulomb.yaml"

@@ -404,7 +404,7 @@ def test_the_cache_stamp_covers_every_file_the_loop_is_compiled_from():
     the file of every function the loop is compiled from (the kernel module) and the module that
     compiles it (signatures, LAPACK/BLAS symbols), so that a change to either recompiles it."""
     from phc.simulation import compiled_steps as cs
-    from phc.simulation import compiled_steps_kernel as kernel
+    from phc.codegen import numba_steps_kernel as kernel
 
     ready = cs._build()
     assert ready
@@ -426,7 +426,7 @@ def test_both_loops_run_the_step_logic_written_once(compiled, monkeypatch, used,
     through the entry point of its method and the Newton iteration, and agrees with the
     compiled run to the Newton tolerance."""
     from phc.simulation import compiled_steps as cs
-    from phc.simulation import compiled_steps_kernel as kernel
+    from phc.codegen import numba_steps_kernel as kernel
     from phc.simulation import step_logic
 
     assert cs._build()

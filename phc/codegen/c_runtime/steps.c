@@ -2,7 +2,7 @@
  * the discrete-gradient step and the fourth-order composition (midpoint4).
  *
  * Part of phc (a compiler for port-Hamiltonian models); compiled once per machine and phc
- * version into its own shared library (phc/simulation/c_steps.py) and kept in phc's signed
+ * version into its own shared library (phc/codegen/c_steps.py) and kept in phc's signed
  * cache beside the models' libraries. It does not depend on the model: the model's compiled
  * residual, Jacobian, position invariants, Hamiltonian, energy scale and port powers (the
  * functions of the library phc prints for the model, phc/codegen/c_printer.py) are handed to it
@@ -33,7 +33,7 @@
  * What each step does is a line-by-line port of phc/simulation/step_logic.py (`newton`: the
  * stopping rules, the refresh of the Newton matrix, the round-off acceptance; `discrete_gradient`;
  * `midpoint4`: the same arithmetic, operation by operation) and of the numba
- * kernel's driver (phc/simulation/compiled_steps_kernel.py: `_predict`, `_accept`, `_chunk`),
+ * kernel's driver (phc/codegen/numba_steps_kernel.py: `_predict`, `_accept`, `_chunk`),
  * on the same state arrays with the same layout (checked when the library is loaded:
  * phc_steps_layout). Not ported: the mixed-precision corrections of the numba loop (every
  * correction here is in double precision, so step_logic's precision events never occur).
@@ -75,26 +75,26 @@ enum { C_TOL, C_RATE, C_FLOOR, C_MAX_AGE, C_MAX_NEWTON, C_BAL_TOL, C_MAX_SECANT,
        C_EVERY, C_G1, C_G2, C_M0, C_M1, C_M2, C_ORDER, C_ZONE, C_STAGNATION, C_ONE, C_ZERO, C_ORDER_ALG,
        C_STRIKES, C_NC };
 
-/* status of a chunk (phc.simulation.compiled_steps_kernel: _BUDGET ... _MAXSTEPS) */
+/* status of a chunk (phc.codegen.numba_steps_kernel: _BUDGET ... _MAXSTEPS) */
 enum { ST_BUDGET, ST_DONE, ST_HARD, ST_LOOK, ST_MAXSTEPS };
 
-/* the integer state ist[] (compiled_steps_kernel: _K ... _STRIKES), then the ages of the matrices */
+/* the integer state ist[] (numba_steps_kernel: _K ... _STRIKES), then the ages of the matrices */
 enum { I_K, I_J, I_SUBSTEPS, I_STEPS, I_LAST_LOOK, I_HAS_MID, I_MAX_STEPS, I_STATUS, I_NFEV, I_NFACT, I_HIST,
        I_MONITOR, I_METHOD, I_CODE, I_ILL, I_E, I_NEND, I_NMID, I_LOWP, I_STRIKES, I_NI };
 #define I_AGE0 I_NI
 
-/* the float state fst[] (compiled_steps_kernel: _T, _H, _H_PREV, _STEP) */
+/* the float state fst[] (numba_steps_kernel: _T, _H, _H_PREV, _STEP) */
 enum { F_T, F_H, F_H_PREV, F_STEP, F_NF };
 
 /* The routine look of the singularity monitor is left to Python unless the 1-norm condition
- * estimate is this factor (times n) above the monitor's threshold (compiled_steps_kernel._RCOND_MARGIN). */
+ * estimate is this factor (times n) above the monitor's threshold (numba_steps_kernel._RCOND_MARGIN). */
 #define RCOND_MARGIN 1e3
 
 /* Most midpoints the predictor keeps (phc.simulation.midpoint.MAX_PREDICTOR_ORDER + 1, checked by the caller). */
 #define MAX_NODES 16
 
 /* Everything one run uses: the model and the grid (read only), the run's state (kept between
- * chunks: the driver reads and writes it too), scratch. The Python side (phc/simulation/c_steps.py)
+ * chunks: the driver reads and writes it too), scratch. The Python side (phc/codegen/c_steps.py)
  * allocates every array and mirrors this struct field by field. */
 struct phc_steps {
     /* sizes: unknowns, Jacobian entries, position-constraint rows, output times, predictor nodes */
@@ -476,7 +476,7 @@ static void quotients(int64_t n, const double *wt, const double *y1, double *q)
 }
 
 /* F at the stage point of the iterate y1, the end-constraint rows replaced by g(t + h, y1), into
- * out; whether every entry is finite (compiled_steps_kernel._stage_residual) */
+ * out; whether every entry is finite (numba_steps_kernel._stage_residual) */
 static int stage_residual(const struct phc_steps *w, double t, double h, const double *y, const double *y1, double s,
                           double *out)
 {
@@ -492,7 +492,7 @@ static int stage_residual(const struct phc_steps *w, double t, double h, const d
 }
 
 /* Factorize Newton matrix m for the iterate y1: OK, SINGULAR or EVAL (step_logic's _refactor;
- * compiled_steps_kernel._refactor_matrix with the Python loop's equilibration) */
+ * numba_steps_kernel._refactor_matrix with the Python loop's equilibration) */
 static int refactor(const struct phc_steps *w, int m, double t, double h, const double *y, const double *y1, double s)
 {
     const int64_t n = w->n;
@@ -566,7 +566,7 @@ static inline void examine(double r, double y1, int weighted, double q, int8_t a
 /* The correction delta = -J^-1 F at y1 (into w->r) and its size in the Newton test's units: with
  * weights, a state against its scale or its size, whichever is larger, and the algebraic variables
  * but the GGL multipliers (algmask 1) relative to |y| + 1; else all relative to |y| + 1
- * (step_logic's _correct; compiled_steps_kernel._correct; midpoint.StageSolver.correct) */
+ * (step_logic's _correct; numba_steps_kernel._correct; midpoint.StageSolver.correct) */
 static int correct(const struct phc_steps *w, int m, double t, double h, const double *y, const double *y1, double s,
                    double *size_out, double *states_out, double *scale_out, int *finite_out)
 {
@@ -898,7 +898,7 @@ static int midpoint4(const struct phc_steps *w, double t, double h, const double
 }
 
 /* One step of the method ist[I_METHOD] (0 midpoint, 1 discrete gradient, 2 midpoint4) from the
- * driver's guess into y_new (compiled_steps_kernel._advance); the outcome, *ill <- whether a
+ * driver's guess into y_new (numba_steps_kernel._advance); the outcome, *ill <- whether a
  * stage was ill-conditioned */
 static int advance(const struct phc_steps *w, double t, double h, int *ill)
 {
@@ -913,7 +913,7 @@ static int advance(const struct phc_steps *w, double t, double h, int *ill)
 }
 
 /* ---- the predictor (phc.simulation.step_logic.predictor_nodes, lagrange_weights;
- *      compiled_steps_kernel._predict) ------------------------------------------------------- */
+ *      numba_steps_kernel._predict) ------------------------------------------------------- */
 
 static int64_t predictor_nodes(int64_t order, int64_t known)
 {
@@ -971,7 +971,7 @@ static void predict(const struct phc_steps *w, double t, double h, double h_prev
     }
 }
 
-/* ---- the driver (compiled_steps_kernel._accept, _monitor_ratio, _chunk) ------------------- */
+/* ---- the driver (numba_steps_kernel._accept, _monitor_ratio, _chunk) ------------------- */
 
 /* Take the step (t, h, y) -> y_new: the midpoints' history, the step counter, the output at the
  * end of an output interval; 1 when max_steps is reached */
@@ -1067,7 +1067,7 @@ static int far_from_singular(const struct phc_steps *w, double t, const double *
 }
 
 /* Steps of integrate_fixed_step until `budget` steps are done, the run ends, or a step needs the
- * Python code; the state is in the arrays, the status in ist[I_STATUS] (compiled_steps_kernel._chunk). */
+ * Python code; the state is in the arrays, the status in ist[I_STATUS] (numba_steps_kernel._chunk). */
 void phc_steps_chunk(const struct phc_steps *w, int64_t budget)
 {
     const int64_t n = w->n, nout = w->nout;

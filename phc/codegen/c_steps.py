@@ -10,7 +10,7 @@ between). That file is a port of :func:`phc.simulation.step_logic.newton` (the s
 rules, refresh of the Newton matrix, round-off acceptance: one Newton iteration in C, which
 every method's stages call), of :func:`~phc.simulation.step_logic.discrete_gradient` and
 :func:`~phc.simulation.step_logic.midpoint4`, of the numba kernel's predictor and
-output grid (:mod:`phc.simulation.compiled_steps_kernel`), with a dense LU with partial
+output grid (:mod:`phc.codegen.numba_steps_kernel`), with a dense LU with partial
 pivoting of the Newton matrix equilibrated as the Python loop's sparse LU is
 (:func:`phc.simulation.midpoint.equilibration`); its header says what is not ported (the
 numba loop's mixed-precision corrections: here every correction is in double precision) and
@@ -38,7 +38,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from phc.simulation import compiled_steps_kernel as _k
+from phc.codegen import numba_steps_kernel as _k
 from phc.simulation import step_logic as _sl
 
 SOURCE = Path(__file__).resolve().parents[1] / "codegen" / "c_runtime" / "steps.c"

@@ -1,5 +1,8 @@
 """The kernel of the compiled fixed-step loop: numba nopython code, plain Python until
-:func:`phc.simulation.compiled_steps._compile` jits it.
+:func:`phc.simulation.compiled_steps._compile` jits it. It is the numba back end's part of
+the loop (it calls LAPACK/BLAS through NumPy arrays' ``.ctypes`` pointers), so it lives in
+:mod:`phc.codegen` beside the C back end's port (:mod:`phc.codegen.c_steps`); it imports no
+numba itself, so reading its layout constants costs nothing on other paths.
 
 :mod:`phc.simulation.compiled_steps` says what the compiled loop does and holds its Python
 side (whether a run uses it, building and caching it, the driver between chunks); this module
