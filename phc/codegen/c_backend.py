@@ -77,7 +77,7 @@ FLAGS = ("-std=c99", "-O1", "-fPIC", "-shared", "-ffp-contract=off")
 ``-O1``, not ``-O2``: the generated functions are straight-line code (common subexpressions,
 then one assignment per entry) that ``-O2``'s extra passes barely speed up, while they double
 the compiler's time. On the flexible slider–crank (48 kB of C), gcc 12 takes 0.19 s CPU at
-``-O1`` against 0.34-0.45 s at ``-O2``; the implicit midpoint step (``phc.simulation.c_steps``,
+``-O1`` against 0.34-0.45 s at ``-O2``; the implicit midpoint step (``phc.codegen.c_steps``,
 whose own library keeps ``-O3``) and the residual and Jacobian called from Python cost the same
 within the machine's noise (17.7-19.2 µs per step, 0.84-0.87 µs and 1.0-1.06 µs per call at
 either level; measured by interleaving both libraries in one process, best of 4)."""
