@@ -71,7 +71,8 @@ Private control flow, defined where it is used
     IDA's loop; the run returns its message), ``phc.simulation.order.Switch`` (the step hook
     ends an IDA run to go on at another maximum BDF order; the IDA driver catches it),
     ``phc.simulation.events._ContactRest`` (a contact comes to rest: the switched driver
-    stops the run with its message). :data:`PRIVATE_CONTROL_FLOW` names them; ``tests/test_errors.py`` walks
+    stops the run with its message), ``phc.ode_form._Stop`` (a scipy run of the ODE form
+    ends early; its row keeps the message). :data:`PRIVATE_CONTROL_FLOW` names them; ``tests/test_errors.py`` walks
     phc's modules and fails on any other exception defined outside this module.
 """
 
@@ -110,6 +111,11 @@ class InconsistentInitialError(PhcError):
 
 class SimulationSetupError(PhcError, ValueError):
     """Invalid simulation options (raised before integrating)."""
+
+
+class NotAnODE(SimulationSetupError):
+    """The model has no explicit form ``ẋ = f(t, x)`` for scipy's ODE solvers
+    (:mod:`phc.ode_form`: constraints, a singular ∂F/∂ẋ, state events); the message says why."""
 
 
 class CodegenError(PhcError):
@@ -325,14 +331,14 @@ class RegistryError(PhcError):
 PRIVATE_CONTROL_FLOW = ("phc.cli.report._Exit", "phc.checks.compiled._NotNumeric", "phc.initial_fields._FieldError",
                         "phc.initial_fields._Silent", "phc.codegen.numba_cache.NotInCache",
                         "phc.source._NotRegular", "phc.simulation.ida._Stop", "phc.simulation.order.Switch",
-                        "phc.simulation.events._ContactRest")
+                        "phc.simulation.events._ContactRest", "phc.ode_form._Stop")
 """Exceptions that never leave the code that raises them, defined there (qualified names)."""
 
 __all__ = ["BackendMismatch", "BackendUnavailable", "BackendUnsupported", "CacheWarning", "CodegenError",
            "CompiledBackendWarning", "CompiledLoopWarning",
            "DimensionError", "ExportError", "ExpressionError", "FileRefused", "IgnoredOptionWarning",
            "InconsistentInitialError",
-           "ModelError", "ModelEvaluationError", "NothingToAnimate", "NpzProblem", "OutputPathError",
+           "ModelError", "ModelEvaluationError", "NotAnODE", "NothingToAnimate", "NpzProblem", "OutputPathError",
            "PhcError", "PhcWarning", "PlotUnavailable", "ReferenceValuesError", "RegistryError",
            "SimulationInterrupted",
            "SimulationSetupError", "SpecError", "SweepSetupError", "SwitchTimeError", "SymbolicBudgetError",

@@ -36,6 +36,7 @@ from typing import Optional
 
 import numpy as np
 
+from phc.errors import NotAnODE
 from phc.names import PEER_SOLVER_NAMES
 
 NOT_AN_ODE = "not an ODE: scipy's explicit/implicit ODE solvers do not apply"
@@ -48,10 +49,6 @@ NEWTON_TOL = 1e-13
 a few ulps of the solution)."""
 MAX_STEPS = 200_000
 """A scipy run that takes more steps stops (a failed row): an explicit method on a stiff mode."""
-
-
-class NotAnODE(ValueError):
-    """The model has no explicit form ``ẋ = f(t, x)`` (the message says why)."""
 
 
 class OdeForm:
@@ -267,7 +264,8 @@ def integrate(form: OdeForm, method: str, t_out, rtol: float, atol: float, max_s
 
 
 class _Stop(Exception):
-    pass
+    """A scipy run ends early (too many steps, the method failed): caught in :func:`integrate`,
+    whose result keeps the message."""
 
 
 __all__ = ["OdeForm", "NotAnODE", "NOT_AN_ODE", "SCIPY_METHODS", "integrate"]
