@@ -557,15 +557,11 @@ def _output_derivatives(mod, t, y, yp, p, which) -> tuple[np.ndarray, np.ndarray
 # -- the finite spectrum -------------------------------------------------------------------
 def _equilibrate(A: np.ndarray, E: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Row and column scalings (powers of 2) that bring the largest entry of every row and
-    column of [A E] near 1: rank decisions then compare like with like."""
-    n, m = A.shape
-    r, c = np.ones(n), np.ones(m)
-    M = np.maximum(np.abs(A), np.abs(E))
-    for _ in range(4):
-        rm = (M * r[:, None] * c[None, :]).max(axis=1)
-        r = r / np.where(rm > 0, 2.0 ** np.round(np.log2(np.where(rm > 0, rm, 1.0))), 1.0)
-        cm = (M * r[:, None] * c[None, :]).max(axis=0)
-        c = c / np.where(cm > 0, 2.0 ** np.round(np.log2(np.where(cm > 0, cm, 1.0))), 1.0)
+    column of [A E] near 1 (four rounds of :func:`phc.simulation.equilibrate.equilibrate`
+    on ``max(|A|, |E|)``): rank decisions then compare like with like."""
+    from phc.simulation.equilibrate import equilibrate
+
+    _, r, c = equilibrate(np.maximum(np.abs(A), np.abs(E)), rounds=4, power_of_two=True)
     return r, c
 
 

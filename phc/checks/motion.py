@@ -197,17 +197,16 @@ class _Manifold:
 
 
 def _scales(G0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Row and column scales that equilibrate G at the start (LAPACK's ``dgeequ``, as the
-    singularity monitor's :func:`phc.simulation.monitor._equilibrate`; 1 for a zero row or
-    column), kept fixed along the curve: a change of units of the constraints and the
-    coordinates. Equilibrating at each point instead would rescale a row or a column that
-    vanishes at a rank drop (a cusp of the curve) back to size one and hide it."""
-    import scipy.linalg as sla
+    """Row and column scales that equilibrate G at the start (one round of
+    :func:`phc.simulation.equilibrate.equilibrate`, LAPACK's ``dgeequ``, as the singularity
+    monitor scales its matrix; 1 for a zero row or column), kept fixed along the curve: a
+    change of units of the constraints and the coordinates. Equilibrating at each point
+    instead would rescale a row or a column that vanishes at a rank drop (a cusp of the
+    curve) back to size one and hide it."""
+    from phc.simulation.equilibrate import equilibrate
 
-    r, c, _, _, _, info = sla.lapack.dgeequ(G0)
-    if info != 0:
-        return np.ones(G0.shape[0]), np.ones(G0.shape[1])
-    return np.asarray(r, dtype=float), np.asarray(c, dtype=float)
+    _, r, c = equilibrate(G0, rounds=1)
+    return r, c
 
 
 def _conditioning(G: np.ndarray, full_rank: int, scales):

@@ -483,7 +483,11 @@ def _equilibrated(system: _System):
     columns scaled until each has largest entry ≈ 1): ``(Â, ĉ, s)`` with ``Â = D_r A diag(s)``,
     ``ĉ = D_r c``, so that ``u = s·û``. Modal coordinates and mesh-dependent FE matrices
     are badly scaled (entries from 1e-4 to 1e5 in one component); equilibrated, the
-    saddle-point solves below are accurate to round-off."""
+    saddle-point solves below are accurate to round-off.
+
+    Not :func:`phc.simulation.equilibrate.equilibrate` (alternating max-norm scaling, a
+    fixed number of rounds, dense): Ruiz's symmetric square-root scaling, iterated on the
+    sparse Jacobian until rows and columns both have largest entry within 1 % of 1."""
     A = system.sparse_jacobian().tocsr()
     c = system.F(np.zeros(len(system.unknowns)))
     rows, cols = np.ones(A.shape[0]), np.ones(A.shape[1])

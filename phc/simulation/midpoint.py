@@ -248,7 +248,12 @@ def equilibration(J: sps.spmatrix, nominal=None) -> tuple[np.ndarray, np.ndarray
     correction of a state is a difference of two numbers of the accumulator's size — it came
     out exactly 0 with one BLAS kernel and not with another, and Newton, which measures the
     state in its own scale, saw no correction and accepted a step that was off by 15. Measured
-    in the Newton test's units, the pivots compare like with like."""
+    in the Newton test's units, the pivots compare like with like.
+
+    Not :func:`phc.simulation.equilibrate.equilibrate` (the dense alternating scaling): the
+    columns are the Newton test's units rather than a balance of the matrix, the pass is one,
+    columns first, with scales rounded down to a power of two, on the sparse matrix, and the
+    numba and C step kernels repeat exactly this arithmetic so that their LU matches."""
     J = J.tocsc(copy=False) if sps.issparse(J) else sps.csc_matrix(J)
     m, n = J.shape
     # on the CSC arrays (scipy's max(axis=...) and a scaled copy cost ~0.2 ms a factorization,

@@ -29,6 +29,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from phc.errors import ModelEvaluationError
+from phc.simulation.equilibrate import equilibrate
 
 HISTORY = 64
 """Looks the monitor keeps for a failure's diagnosis."""
@@ -63,19 +64,10 @@ def describe_equations(compiled) -> dict[str, str]:
 
 
 def _equilibrate(J: np.ndarray) -> np.ndarray:
-    """Rows, then columns, scaled to largest entry 1, twice (LAPACK's ``dgeequ``: one call
-    a round instead of a dozen NumPy operations — a look of the monitor is mostly call
-    overhead for small systems); a zero row or column keeps its scale 1."""
-    for _ in range(2):
-        r, c, _, _, _, info = sla.lapack.dgeequ(J)
-        if info != 0:  # a zero row or column: the plain way
-            r = np.abs(J).max(axis=1)
-            J = J / np.where(r > 0, r, 1.0)[:, None]
-            c = np.abs(J).max(axis=0)
-            J = J / np.where(c > 0, c, 1.0)[None, :]
-        else:
-            J = (r[:, None] * J) * c
-    return J
+    """J with rows, then columns, scaled to largest entry 1, twice
+    (:func:`phc.simulation.equilibrate.equilibrate`, LAPACK's ``dgeequ``); a zero row or
+    column keeps its scale 1."""
+    return equilibrate(J, rounds=2)[0]
 
 
 def _far_from_singular(J: np.ndarray, threshold: float) -> Optional[float]:
