@@ -24,6 +24,12 @@ factorized only when the contraction rate of the iteration degrades
 (:data:`REFACTOR_RATE`), when the step size changes, or after :data:`MAX_AGE` steps.
 Exactness is unaffected: the residual is always evaluated exactly, so the converged step
 is the same — only the iteration count changes.
+
+The module is over 800 lines because the Python loop and what it does after each step
+(:func:`finish_step`: a retry, a split, the singularity monitor's look, a passage of a rank
+drop) are one piece, which the compiled loops' driver calls for the steps it hands back; the
+passage logic is the part to move out when it gains the velocity projection that
+``docs/hard-cases.md`` describes as still open.
 """
 
 from __future__ import annotations
