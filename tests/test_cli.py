@@ -159,6 +159,16 @@ def test_simulate_out_writes_time_and_variables(suffix, reader, tmp_path, capsys
     assert str(out) in capsys.readouterr().out
 
 
+def test_simulate_and_sweep_take_o_as_short_for_out(tmp_path):
+    """`phc compile -o DIR` and `phc simulate -o FILE` alike: a new user's first guess."""
+    from phc.cli.parser import build_parser
+
+    out = tmp_path / "x.csv"
+    assert main(["simulate", MSD, "--quiet", "--n-out", "3", "--t-end", "0.1", "-o", str(out)]) == 0
+    assert out.read_text().startswith("t")
+    assert build_parser().parse_args(["sweep", MSD, "-o", "r.csv"]).out == "r.csv"
+
+
 def test_simulate_out_with_unknown_suffix_is_a_usage_error(tmp_path, capsys):
     out = tmp_path / "x.txt"
     assert main(["simulate", MSD, "--quiet", "--out", str(out)]) == 2

@@ -249,7 +249,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rtol", type=float)
     p.add_argument("--atol", type=float)
     p.add_argument("--param", action="append", metavar="NAME=VALUE", help="override a parameter (repeatable)")
-    p.add_argument("--out", metavar="FILE", help="write results to FILE (.csv or .npz)")
+    p.add_argument("-o", "--out", metavar="FILE", help="write results to FILE (.csv or .npz)")
     p.add_argument("--format", choices=("text", "json"), default="text")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--plot", metavar="OUT.png", help="draw the requested outputs over time (needs the `plot` extra: pip install 'port-hamiltonian-compiler[plot]')")
@@ -310,7 +310,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="Dask scheduler address (tcp://host:8786) or scheduler file; default: a LocalCluster")
     p.add_argument("--workers", type=int, help="worker processes of the local pool or LocalCluster (default: "
                    "the CPUs available)")
-    p.add_argument("--out", required=True, metavar="RESULTS",
+    p.add_argument("-o", "--out", required=True, metavar="RESULTS",
                    help="results, .csv (also .parquet with pyarrow) or .parquet: one row per run")
     p.add_argument("--series", metavar="FILE.csv", help="also write every run's output time series (long format)")
     p.add_argument("--resume", action="store_true",
