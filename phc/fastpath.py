@@ -45,10 +45,9 @@ model's compiled functions, which a hit loads from their signed disk cache
 cache make it a miss; on the C back end (``auto`` without numba) it keeps the C text, whose
 library a hit loads from its signed cache (:func:`phc.codegen.c_backend.load_source`, which
 compiles it again when it is missing). Likewise, when ``auto`` runs a long fixed-step run of a model on NumPy
-on a compiled step loop (:func:`phc.codegen.backends.for_run`), the record keeps that
-module's kernel text (numba) or C text (:func:`phc.codegen.c_backend.load_source`), written
-after the run; a hit for such a run loads it, and one whose record keeps none (written by
-a shorter run) or cannot load it is a miss.
+on numba's compiled step loop (:func:`phc.codegen.backends.for_run`), the record keeps that
+module's kernel text, written after the run; a hit for such a run loads it, and one whose
+record keeps none (written by a shorter run) or cannot load it is a miss.
 
 ``phc validate`` keeps each file's result (its diagnostics as printed and as JSON, and
 its status line) under the same kind of key (:func:`lookup_validate`); the text and JSON
@@ -397,14 +396,12 @@ def _lookup(args, params: dict) -> Optional[Hit]:
 
 def _run_module(compiled: CompiledModel, args, kept: dict) -> bool:
     """Whether this run of `compiled` can run from the record: under ``auto``, a long
-    fixed-step run of a model on NumPy runs on a compiled step loop
-    (:func:`phc.codegen.backends.for_run`), whose module is loaded here from what the record
-    keeps (numba's kernel text from its signed disk cache, the C text from the C library's)
-    into ``compiled.cache.run_modules``: the first of the run's targets in order (C, then
-    numba) that the record keeps, as the full path ran on the first it could build (a model
-    C refuses ran on numba, and its record keeps numba's). False (a miss: the full path
-    builds the module, and the record is written again with it) when the record keeps none
-    of them or the one kept cannot be loaded."""
+    fixed-step run of a model on NumPy runs on numba's compiled step loop (the only target
+    of :func:`phc.codegen.backends.run_targets`: ``auto`` runs a model on NumPy only when
+    the C back end cannot take it), whose module is loaded here from the kernel text the
+    record keeps (from numba's signed disk cache) into ``compiled.cache.run_modules``.
+    False (a miss: the full path builds the module, and the record is written again with
+    it) when the record keeps none or the one kept cannot be loaded."""
     from phc.codegen.backends import run_targets
     from phc.simulation import fixed_step_plan
 
@@ -413,21 +410,16 @@ def _run_module(compiled: CompiledModel, args, kept: dict) -> bool:
     targets = run_targets(compiled, None, method, steps)
     if not targets:
         return True
-    target = next((t for t in targets if t in kept), None)
-    if target is None:
+    text = kept.get("numba") if "numba" in targets else None
+    if text is None:
         return False
     start = time.perf_counter()
-    if target == "numba":
-        from phc.codegen.numba_cache import load_cached
+    from phc.codegen.numba_cache import load_cached
 
-        module = load_cached(kept[target], compiled.module, compiled.source)
-    else:
-        from phc.codegen.c_backend import load_source
-
-        module, _ = load_source(kept[target], compiled.module, compiled.source)  # raises: a miss (lookup)
+    module = load_cached(text, compiled.module, compiled.source)
     if module is None:
         return False
-    compiled.cache.run_modules[target] = module
+    compiled.cache.run_modules["numba"] = module
     timings = compiled.cache.timings
     timings["backend"] = timings.get("backend", 0.0) + time.perf_counter() - start
     return True

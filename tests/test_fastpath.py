@@ -349,7 +349,7 @@ def _json_run(model: Path, t_end: str, capsys) -> dict:
 def test_a_long_fixed_step_run_under_auto_runs_compiled_every_time(tmp_path, cache, capsys, step_loop):
     """`auto` runs a long fixed-step run of a small model on a compiled step loop
     (phc.codegen.backends.for_run): the record keeps what loads that module again (numba's
-    kernel text, the C text), so the second, cached run of the same command switches too,
+    kernel text), so the second, cached run of the same command switches too,
     runs the same compiled functions and gives the same numbers."""
     model = tmp_path / "pendulum.yaml"
     model.write_text(PENDULUM, encoding="utf-8")

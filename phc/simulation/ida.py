@@ -374,18 +374,6 @@ def _approaching_singularity(monitor, h, how: str = "Newton's iteration failed b
             f"{how}; {warning}")
 
 
-def _status_text(res, status: int) -> str:
-    """scikit-SUNDAE's text for an IDA return flag."""
-    if res is not None:
-        return str(res.message)
-    try:
-        from sksundae._cy_ida import IDAMESSAGES
-
-        return str(IDAMESSAGES.get(status, f"IDA flag {status}"))
-    except Exception:  # noqa: BLE001 - only the wording of a message
-        return f"IDA flag {status}"
-
-
 def _next_cadence(cadence: int, base: int, before: Optional[float], ratio: Optional[float]) -> int:
     """Steps until the monitor's next look: 1.5× longer (up to :data:`LOOK_STRETCH`× `base`)
     when the ratio moved less than :data:`FLAT_DECADES` since the last look and stays above
@@ -697,7 +685,7 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
                                             h_fail=(1.0 / cj) if cj > 0 else hook.h_last,
                                             max_order=max_order, rtol=rtol, atol=atol, names=names,
                                             scales=nominal, local=local)
-                message = f"IDA failed at t = {t_now:.6g} (status {status}: {_status_text(res, status)}); {hint}"
+                message = f"IDA failed at t = {t_now:.6g} (status {status}: {res.message}); {hint}"
                 break
             if status == IDA_ROOT_RETURN and res.i_events is not None:  # a switching function hit 0
                 event = dict(t=t_now, y=np.array(res.y), yp=np.array(res.yp),

@@ -58,6 +58,7 @@ solves with one matrix many times, keeps that matrix's pseudo-inverse instead
 
 from __future__ import annotations
 
+import os
 import sys
 import threading
 from contextlib import contextmanager
@@ -87,6 +88,25 @@ _blas = {"controller": None, "modules": -1, "depth": 0}
 _blas_lock = threading.Lock()
 
 
+def _thread_controller():
+    """threadpoolctl's controller of the loaded BLAS libraries. Importing threadpoolctl sets
+    ``KMP_DUPLICATE_LIB_OK`` in ``os.environ`` (threadpoolctl 3.x, at module level); phc
+    leaves the user's environment as it found it, so the variable is put back as it was
+    (threadpoolctl only inspects libraries already loaded: it loads no OpenMP runtime that
+    could read it)."""
+    name = "KMP_DUPLICATE_LIB_OK"
+    before = os.environ.get(name)
+    try:
+        from threadpoolctl import ThreadpoolController
+
+        return ThreadpoolController()
+    finally:
+        if before is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = before
+
+
 @contextmanager
 def one_blas_thread():
     """While the block runs, BLAS (OpenBLAS, MKL, BLIS) uses one thread; the previous
@@ -108,9 +128,7 @@ def one_blas_thread():
         if _blas["controller"] is None or (_blas["controller"] and not outer
                                            and len(sys.modules) != _blas["modules"]):
             try:
-                from threadpoolctl import ThreadpoolController
-
-                _blas["controller"] = ThreadpoolController()
+                _blas["controller"] = _thread_controller()
                 _blas["modules"] = len(sys.modules)
             except Exception:  # noqa: BLE001 — not installed or cannot inspect: no limit
                 _blas["controller"] = False
