@@ -15,7 +15,12 @@ states move, and its steps minimize the change of the guesses alone — in the e
 when the guesses store energy (:meth:`_Problem.energy_metric`), else relative to their
 nominal scales — with the nuisance unknowns (rates, algebraic variables) free
 (:func:`_nested_min_norm`): guesses change only as much as the constraints demand, the
-same in every unit system. Fixed values are never moved: if the
+same in every unit system. That holds while the Newton matrix has at most
+:data:`DENSE_LIMIT` entries (about 290 elements of a string); a larger problem takes
+the weighted minimum-norm steps of the sparse solvers, which price the nuisance unknowns at
+:data:`CHEAP` times their scale and can trade a guess against them (a 400-element string
+whose end must follow a moving mass gets a velocity ramp over its whole length).
+Fixed values are never moved: if the
 equations cannot hold with them, the rows that fail are reported with the variables
 they involve — never a silent snap onto the constraint manifold.
 """
@@ -476,7 +481,9 @@ class _Problem:
         them, and they are not of the guess's size: the rates of a wave (ė = T ∂v/∂ξ, 50 m/s
         wave speed) are large where the momenta are 1e-3 kg/(m·s) in SI, so the cheapest
         step shrank a pinned string's whole momentum field by 38 % instead of moving the
-        two end values the pins demand (and the answer depended on the units)."""
+        two end values the pins demand (and the answer depended on the units). Only dense
+        problems (at most :data:`DENSE_LIMIT` Jacobian entries) get that step; larger ones
+        the weighted minimum-norm step with the nuisance priced at :data:`CHEAP` × scale."""
         JW = J @ _diagonal(self.weights)
         guess = self.guess_columns
         if len(guess) and JW.shape[0] * JW.shape[1] <= DENSE_LIMIT:
@@ -504,28 +511,47 @@ def _nested_min_norm(A, b, first) -> np.ndarray:
     has the least norm among all such solutions, and whose other part then has the least
     norm: the nuisance columns N absorb what they can for free (``b`` and the columns of
     `first` are projected onto the complement of N's range), the `first` part is the
-    minimum-norm solution of what is left, and N completes it."""
+    minimum-norm solution of what is left, and N completes it. Where that misses b by
+    more than rounding, one step of iterative refinement (the same split applied to what
+    is left of b) restores the accuracy the projection loses when N is ill-conditioned."""
     n = A.shape[1]
     rest = np.setdiff1d(np.arange(n), first)
     G, N = A[:, first], A[:, rest]
-    v = np.zeros(n)
+    Q = None
     if N.shape[1]:
         Q, R, _ = sla.qr(N, mode="economic", pivoting=True)
         d = np.abs(np.diag(R))
         rank = int(np.sum(d > RANGE_TOL * d[0])) if len(d) and d[0] > 0 else 0
         Q = Q[:, :rank]
-        Gp, bp = G - Q @ (Q.T @ G), b - Q @ (Q.T @ b)
+        Gp = G - Q @ (Q.T @ G)
     else:
-        Gp, bp = G, b
-    v[first] = dense_min_norm(Gp, bp)
-    if N.shape[1]:
-        v[rest] = dense_min_norm(N, b - G @ v[first])
+        Gp = G
+
+    def split(rhs):
+        v = np.zeros(n)
+        v[first] = dense_min_norm(Gp, rhs if Q is None else rhs - Q @ (Q.T @ rhs))
+        if N.shape[1]:
+            v[rest] = dense_min_norm(N, rhs - G @ v[first])
+        return v
+
     # Where N is ill-conditioned (the stiff slope rows of a Hermite beam driven at its ends)
     # the split can leave more of b unsolved than the plain weighted minimum-norm solution:
-    # then that one is the step (the guesses then move as the weights say, as before).
+    # then that one is the step (the guesses then move as the weights say, as before). A miss
+    # within the rounding of A v itself (backward error ‖A v − b‖ ≤ ε (‖A‖_F ‖v‖ + ‖b‖), what
+    # any backward-stable solve leaves) is not one. It used to be judged against 1e-14 ‖b‖,
+    # below the rounding of a string's wave rows (‖A‖ ~ 1e4), so the plain step was taken,
+    # which shrinks the nuisance rates at the guesses' expense: a string whose end node had
+    # to follow a moving mass got a linear velocity ramp over its whole length (kinetic
+    # energy ρLv²/6) instead of a change near the end node alone (at most ρhv²/6).
+    norm_a, norm_b = np.linalg.norm(A), np.linalg.norm(b)
+    v = split(b)
+    miss = np.linalg.norm(A @ v - b)
+    if miss > np.finfo(float).eps * (norm_a * np.linalg.norm(v) + norm_b):
+        v += split(b - A @ v)
+        miss = np.linalg.norm(A @ v - b)
     plain = dense_min_norm(A, b)
-    miss, miss_plain = np.linalg.norm(A @ v - b), np.linalg.norm(A @ plain - b)
-    return v if miss <= 2 * miss_plain + 1e-14 * np.linalg.norm(b) else plain
+    miss_plain = np.linalg.norm(A @ plain - b)
+    return v if miss <= 2 * miss_plain + np.finfo(float).eps * (norm_a * np.linalg.norm(v) + norm_b) else plain
 
 
 def _solve(prob: _Problem, tol: float, max_iter: int):
