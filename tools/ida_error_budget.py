@@ -17,6 +17,15 @@ reference's range and to its largest magnitude (reference: ``midpoint4`` at
 errors and how often each is the largest, and how often the relative part ``rtol_loc·|y|``
 of the dominant variable's tolerance exceeds its absolute part.
 
+``--modes`` also splits the weighted local error of the differential variables among the
+modes of the linearization (``F_ẏ λ v = −F_y v``, dense QZ) at 25 of the steps, by their
+``|Im λ|``: the error vector is written in the finite modes' eigenvectors (least squares) and
+each mode's part is weighted as above. The eigenvectors are not orthogonal in the weighted
+norm, so the shares are a guide, not a partition.
+
+``--local FRACTION`` sets IDA's local tolerance fraction (phc's is
+``phc.simulation.ida.LOCAL_TOLERANCE``, 1/200) for the run.
+
 ``--loosen REGEX FACTOR`` multiplies IDA's absolute tolerance of the variables whose names
 match by FACTOR (an experiment: which variables' tolerances hold the steps); ``--max-order``
 fixes IDA's maximum order. A diagnostic for developers: it wraps phc's internal step hook and
@@ -46,6 +55,8 @@ def main(argv=None) -> None:
     ap.add_argument("--reference-step", type=float, default=2.5e-6)
     ap.add_argument("--backend", default=None)
     ap.add_argument("--top", type=int, default=12)
+    ap.add_argument("--local", type=float, default=None)
+    ap.add_argument("--modes", action="store_true")
     args = ap.parse_args(argv)
 
     compiled = phc.compile_model(args.file, certify=False, backend=args.backend)
@@ -59,7 +70,7 @@ def main(argv=None) -> None:
             hit = [j for j, name in enumerate(names) if re.search(pattern, name)]
             atol[hit] *= float(factor)
         settings, state = options(mod, p, rtol=rtol, atol=atol, **kw)
-        seen.update(names=names, rtol=rtol, atol=np.array(settings["atol"], dtype=float))
+        seen.update(names=names, rtol=rtol, atol=np.array(settings["atol"], dtype=float), mod=mod, p=p)
         return settings, state
 
     ts, ys = [], []
@@ -78,7 +89,10 @@ def main(argv=None) -> None:
         ys.clear()
         return rewind(self, *a)
 
+    fraction = ida.local_fraction
     ida.solver_options, hook.__call__, hook.rewind = solver_options, record, restart
+    if args.local is not None:
+        ida.local_fraction = lambda rtol: args.local
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -87,6 +101,7 @@ def main(argv=None) -> None:
             cpu = time.process_time() - start
     finally:
         ida.solver_options, hook.__call__, hook.rewind = options, call, rewind
+        ida.local_fraction = fraction
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         ref = phc.simulate(compiled, solver="midpoint4", step=args.reference_step, t_eval=run.t)
@@ -118,6 +133,36 @@ def main(argv=None) -> None:
     for j in np.argsort(-share)[:args.top]:
         print(f"  {names[j]:22s} {share[j]:7.3f} {often[j]:8.3f}  {atol[j]:.2e}")
     print(f"  the dominant variable's relative part rtol·|y| exceeds its atol_i at {relative:.0%} of the steps")
+    if args.modes:
+        _modes(seen, T, Y, (h ** 3)[:, None] * 6.0 * D, rtol, atol)
+
+
+def _modes(seen, T, Y, E, rtol, atol) -> None:
+    import scipy.linalg as sla
+
+    from phc.linearize import dense_jacobians
+
+    mod, p = seen["mod"], seen["p"]
+    tested = np.asarray(mod.DIFFERENTIAL, dtype=bool) & (atol < ida.ALGEBRAIC_ATOL)
+    bands = [(0.0, 2e3), (2e3, 2e4), (2e4, 2e5), (2e5, np.inf)]
+    total = np.zeros(len(bands))
+    for n in np.linspace(10, len(E) - 1, 25).astype(int):
+        y, t = Y[n + 3], T[n + 3]
+        yp = (Y[n + 3] - Y[n + 2]) / (T[n + 3] - T[n + 2])
+        Fy, Fyp = dense_jacobians(mod, t, y, yp, p)
+        lam, V = sla.eig(-Fy, Fyp)
+        finite = np.isfinite(lam) & (np.abs(lam) < 1e8)
+        Vd = V[tested][:, finite]
+        c = np.linalg.lstsq(Vd, E[n][tested].astype(complex), rcond=None)[0]
+        w = 1.0 / (rtol * np.abs(y[tested]) + atol[tested])
+        part = np.array([np.mean(np.abs(w * c[m] * Vd[:, m]) ** 2) for m in range(Vd.shape[1])])
+        omega = np.abs(lam[finite].imag)
+        for b, (lo, hi) in enumerate(bands):
+            total[b] += part[(omega >= lo) & (omega < hi)].sum()
+    total /= total.sum()
+    print("  share of the weighted local error of the differential variables by mode, |Im λ| in rad/s:")
+    for (lo, hi), share in zip(bands, total):
+        print(f"    [{lo:.0e}, {hi:.0e}): {share:.3f}")
 
 
 if __name__ == "__main__":
