@@ -105,8 +105,8 @@ def cmd_compile(args) -> int:
             except ModelError as err:
                 files.report(path, err.diagnostics, False)
                 continue
-            if cached:
-                recorder.store(compiled)
+            if cached and all(d.severity in ("error", "warning") for d in compiled.diagnostics):
+                recorder.store(compiled)  # a record keeps the warnings' lines (no notes)
         files.report(path, [d for d in compiled.diagnostics if d.severity != "error"], True)
         out_dir.mkdir(parents=True, exist_ok=True)
         name = compiled.name
