@@ -49,6 +49,11 @@ on numba's compiled step loop (:func:`phc.codegen.backends.for_run`), the record
 module's kernel text, written after the run; a hit for such a run loads it, and one whose
 record keeps none (written by a shorter run) or cannot load it is a miss.
 
+``phc compile`` keeps a record of the same kind for each file under a key of its own
+(:func:`lookup_compile`): a hit writes the full path's ``.py`` (and ``.c``) text and prints its
+lines (the model's warnings, the certificate's verdict, the backend line), with the C library
+loaded from its signed cache as for ``phc simulate``.
+
 ``phc validate`` keeps each file's result (its diagnostics as printed and as JSON, and
 its status line) under the same kind of key (:func:`lookup_validate`); the text and JSON
 formats use it.
@@ -106,7 +111,7 @@ class Hit(NamedTuple):
 
 
 def enabled(args) -> bool:
-    """Whether this `phc simulate` may use (and write) the cached front end."""
+    """Whether this `phc simulate` (or `phc compile`) may use (and write) the cached front end."""
     return (os.environ.get(ENV_SWITCH, "1").strip() != "0" and not getattr(args, "estimate_error", False)
             and not getattr(args, "profile", False))
 
@@ -353,9 +358,20 @@ def _damaged(where: Path) -> None:
     return None
 
 
-def _lookup(args, params: dict) -> Optional[Hit]:
+def lookup_compile(args, path: str) -> Optional[Hit]:
+    """The cached front end of `phc compile` on `path` (one of ``args.files``), or None (a
+    miss, or not applicable): the record `phc compile` wrote for the unchanged file, with
+    the generated module and, on the C back end, its library loaded from the signed cache
+    (the full path's ``.py`` and ``.c`` texts and the lines it printed). Never raises."""
+    try:
+        return _lookup(args, {}, path, "compile")
+    except Exception:  # noqa: BLE001 — a broken record costs the full path, never the command
+        return None
+
+
+def _lookup(args, params: dict, path: Optional[str] = None, command: str = "simulate") -> Optional[Hit]:
     start = time.perf_counter()
-    record = _load(args, args.file, "simulate")
+    record = _load(args, args.file if path is None else path, command)
     if record is None:
         return None
     description = ModelDescription.from_dict(record["description"])
@@ -388,7 +404,7 @@ def _lookup(args, params: dict) -> Optional[Hit]:
 
     compiled = CompiledModel.from_description(description, record["source"], module, module_path, warned, cache,
                                               backend_request=check_choice(getattr(args, "backend", None)))
-    if not _run_module(compiled, args, record.get("run_modules") or {}):
+    if command == "simulate" and not _run_module(compiled, args, record.get("run_modules") or {}):
         return None
     backend_line = record["backend_line"] if record.get("numba") is None and record.get("c") is None else None
     return Hit(compiled, record.get("written_options") or {}, backend_line)
@@ -622,5 +638,5 @@ def _record(compiled: CompiledModel, backend: Optional[str], written_options: Op
     }
 
 
-__all__ = ["ENV_SWITCH", "FOLDER", "Hit", "Recorder", "enabled", "file_state", "lookup", "phc_source_hash",
+__all__ = ["ENV_SWITCH", "FOLDER", "Hit", "Recorder", "enabled", "file_state", "lookup", "lookup_compile", "phc_source_hash",
            "recording"]

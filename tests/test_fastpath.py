@@ -399,3 +399,92 @@ def test_a_model_c_refuses_runs_from_its_record_on_numba(tmp_path, cache, capsys
     assert second["backend"] == "numba", second["backend_note"]
     same = ("steps", "n_residual_evals", "n_jacobian_evals", "energy_balance_error")
     assert {k: first[k] for k in same} == {k: second[k] for k in same}
+
+
+# ---------------------------------------------------------------------------------------
+# phc compile
+
+
+def compile_hit(model: Path, *extra: str) -> bool:
+    """Whether `phc compile model ...` would write its files from the cached front end."""
+    args = build_parser().parse_args(["compile", str(model), *extra])
+    return fastpath.lookup_compile(args, str(model)) is not None
+
+
+def _steady(text: str) -> list[str]:
+    """Printed lines without what differs from run to run: the output directory and the seconds."""
+    import re
+
+    return [re.sub(r"\d+\.\d+ s\b", "<s>", re.sub(r"wrote \S+", "wrote <file>", line)) for line in text.splitlines()]
+
+
+@pytest.mark.parametrize("backend", ["numpy", "c"])
+def test_compile_from_the_cache_writes_the_same_files_and_lines(tmp_path, cache, capsys, monkeypatch, backend):
+    """A second `phc compile` of an unchanged model writes the very bytes the full path
+    wrote (the module, and on the C back end its C text) and prints the same lines; the
+    certificate's verdict is the one the full path reached."""
+    if backend == "c":
+        from phc.codegen import c_backend, cc
+
+        if not cc.available()[0]:
+            pytest.skip("no C compiler")
+        monkeypatch.setattr(c_backend, "_LOADED", {})  # built by an earlier test: not in this test's cache
+    model = tmp_path / "pendulum.yaml"
+    model.write_text(PENDULUM, encoding="utf-8")
+    assert not compile_hit(model, "--backend", backend)
+    assert main(["compile", str(model), "--backend", backend, "-o", str(tmp_path / "full")]) == 0
+    full = capsys.readouterr()
+    assert compile_hit(model, "--backend", backend)
+    assert not compile_hit(model, "--backend", backend, "--no-certify")  # another compilation: its own record
+    if backend == "c":
+        from phc.codegen import c_backend
+
+        monkeypatch.setattr(c_backend, "_LOADED", {})  # as in a fresh process: from the signed cache
+    assert main(["compile", str(model), "--backend", backend, "-o", str(tmp_path / "hit")]) == 0
+    cached = capsys.readouterr()
+    names = sorted(p.name for p in (tmp_path / "full").iterdir())
+    assert names == sorted(p.name for p in (tmp_path / "hit").iterdir())
+    assert ("pendulum.c" in names) == (backend == "c")
+    for name in names:
+        assert (tmp_path / "full" / name).read_bytes() == (tmp_path / "hit" / name).read_bytes(), name
+    steady_full, steady_hit = _steady(full.out), _steady(cached.out)
+    if backend == "c":  # the library: compiled by the full path, loaded from the signed cache by the hit
+        assert "compiled and cached in" in full.out and "loaded from the cache in" in cached.out
+        steady_full = [line.replace("compiled and cached in", "loaded from the cache in") for line in steady_full]
+    assert steady_hit == steady_full
+    assert "certified" in cached.out
+    assert cached.err == full.err
+
+
+def test_compile_from_the_cache_imports_no_sympy(tmp_path, cache):
+    model = tmp_path / "pendulum.yaml"
+    model.write_text(PENDULUM, encoding="utf-8")
+    assert main(["compile", str(model), "--backend", "numpy", "-o", str(tmp_path / "a")]) == 0
+    code = ("import sys\nfrom phc.cli import main\n"
+            f"code = main(['compile', {str(model)!r}, '--backend', 'numpy', '-o', {str(tmp_path / 'b')!r}])\n"
+            f"print(code, sorted(m for m in {SYMBOLIC!r} if m in sys.modules))\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=dict(os.environ),
+                          timeout=SUBPROCESS_TIMEOUT)
+    assert done.stdout.strip().splitlines()[-1] == "0 []", done.stdout + done.stderr
+    assert (tmp_path / "a" / "pendulum.py").read_bytes() == (tmp_path / "b" / "pendulum.py").read_bytes()
+
+
+def test_editing_a_compiled_model_is_a_miss(tmp_path, cache, capsys):
+    model = tmp_path / "pendulum.yaml"
+    model.write_text(PENDULUM, encoding="utf-8")
+    assert main(["compile", str(model), "--backend", "numpy", "-o", str(tmp_path / "a")]) == 0
+    assert compile_hit(model, "--backend", "numpy")
+    model.write_text(PENDULUM.replace("L: {value: 1.0", "L: {value: 2.0"), encoding="utf-8")
+    assert not compile_hit(model, "--backend", "numpy")
+    assert main(["compile", str(model), "--backend", "numpy", "-o", str(tmp_path / "b")]) == 0
+    assert (tmp_path / "a" / "pendulum.py").read_bytes() != (tmp_path / "b" / "pendulum.py").read_bytes()
+    assert compile_hit(model, "--backend", "numpy")  # the full path recorded the edited model
+
+
+def test_compile_in_the_sarif_format_takes_the_full_path(tmp_path, cache, capsys):
+    """The GitHub and SARIF formats report the diagnostics themselves, which a record keeps
+    only as printed lines: they neither read nor write records."""
+    model = tmp_path / "pendulum.yaml"
+    model.write_text(PENDULUM, encoding="utf-8")
+    assert main(["compile", str(model), "--backend", "numpy", "--format", "sarif", "-o", str(tmp_path / "a")]) == 0
+    assert not compile_hit(model, "--backend", "numpy")

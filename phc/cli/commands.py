@@ -81,19 +81,32 @@ MAX_FILE_STEM = 120
 
 
 def cmd_compile(args) -> int:
-    from phc import ModelError, SimulationSetupError, compile_model
+    from phc import fastpath
+    from phc.errors import ModelError, SimulationSetupError
     from phc.io import write_text
 
     files = _Files(args, "compile")
     out_dir = Path(args.output)
+    cached = args.format == "text"  # the GitHub and SARIF formats need the diagnostics themselves
     for path in args.files:
-        try:
-            compiled = compile_model(path, certify=not args.no_certify, backend=args.backend)
-        except SimulationSetupError as err:  # --backend numba without numba
-            raise UsageError(str(err)) from None
-        except ModelError as err:
-            files.report(path, err.diagnostics, False)
-            continue
+        # an unchanged model: the texts and lines its last compilation gave (phc.fastpath)
+        hit = fastpath.lookup_compile(args, path) if cached else None
+        if hit is not None:
+            compiled, kept = hit.compiled, hit.backend_line
+        else:
+            from phc import compile_model
+
+            kept = None
+            try:
+                with fastpath.recording(args, path, command="compile") as recorder:
+                    compiled = compile_model(path, certify=not args.no_certify, backend=args.backend)
+            except SimulationSetupError as err:  # --backend numba without numba
+                raise UsageError(str(err)) from None
+            except ModelError as err:
+                files.report(path, err.diagnostics, False)
+                continue
+            if cached and all(d.severity in ("error", "warning") for d in compiled.diagnostics):
+                recorder.store(compiled)  # a record keeps the warnings' lines (no notes)
         files.report(path, [d for d in compiled.diagnostics if d.severity != "error"], True)
         out_dir.mkdir(parents=True, exist_ok=True)
         name = compiled.name
@@ -107,7 +120,7 @@ def cmd_compile(args) -> int:
             write_text(out_dir / f"{name}.c", c_text)
         files.status(f"{path}: wrote {target} ({compiled.n_states} states, {compiled.n_equations} equations, "
                      f"{compiled.jacobian_nnz} Jacobian nonzeros, compiled in {compiled.compile_time:.2f} s)")
-        for line in [_certificate_line(compiled), _backend_line(compiled, args.backend),
+        for line in [_certificate_line(compiled), _backend_line(compiled, args.backend, kept),
                      *_left_out_lines(compiled)]:
             files.status(line)
     return files.finish()
