@@ -20,6 +20,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import scipy.sparse as sps
 import pytest
 import sympy as sp
 import yaml
@@ -237,6 +238,75 @@ def test_energy_sizes_fall_back_to_single_calls_for_a_scalar_only_h():
     mod = Scalar(k)
     sizes = energy_sizes(mod, None, 0.0, np.ones(3), np.ones(3), 0.5)
     np.testing.assert_allclose(sizes, np.sqrt(1.0 / k), rtol=1e-7)
+
+
+class _Forms(_Springs):
+    """A module whose H is what the NumPy back end generates for distributed components:
+    sparse quadratic forms ``c · y[C] @ (Q @ y[C])`` of index blocks, plus a straight-line
+    term ``½ k y_0²`` (a spring at the end)."""
+
+    def __init__(self, n, repeat=False):
+        rng = np.random.default_rng(2)
+        super().__init__(np.ones(n))
+        half = (n - 1) // 2
+        self.blocks = []
+        for cols in (np.arange(1, 1 + half), np.arange(1 + half, n)):
+            m = len(cols)
+            # a symmetric positive definite tridiagonal matrix (a mass or stiffness matrix)
+            d = rng.uniform(2.0, 4.0, m)
+            Q = sps.diags([d, -np.ones(m - 1), -np.ones(m - 1)], [0, -1, 1], format="csr")
+            self.blocks.append((rng.uniform(0.5, 2.0), Q, cols))
+        if repeat:  # an index block that names a state twice: not what the lazy columns take
+            c, Q, cols = self.blocks[0]
+            self.blocks[0] = (c, sps.csr_matrix(sps.block_diag([Q, sps.eye(1)])), np.append(cols, cols[0]))
+        self.k0 = 5.0
+
+    def hamiltonian(self, t, y, p):
+        self.calls += 1
+        H = 0
+        H += 0.5 * self.k0 * y[0] ** 2
+        for c, Q, cols in self.blocks:
+            H += c * (y[cols] @ (Q @ y[cols]))
+        return H
+
+    def curvature(self):
+        """∂²H/∂y_j² in closed form: k₀, then 2 c Q_jj summed over the positions of state j."""
+        out = np.zeros(self.N)
+        out[0] = self.k0
+        for c, Q, cols in self.blocks:
+            np.add.at(out, cols, 2 * c * Q.diagonal())  # a repeated state: each of its diagonal entries
+        return out
+
+
+@pytest.mark.parametrize("n", [41, 3001])
+def test_energy_sizes_of_sparse_quadratic_forms_take_one_batched_call_each_way(n):
+    """The generated H of a string or a beam (sparse forms of index blocks) is evaluated for all
+    perturbed states at once, without a matrix of states (:class:`phc.simulation.scaling.
+    _OneEntryColumns`): the sizes are the closed form's, with a bounded number of calls."""
+    from phc.simulation.scaling import energy_sizes
+
+    mod = _Forms(n)
+    rng = np.random.default_rng(3)
+    y0 = rng.normal(size=n)
+    E = 3.0
+    sizes = energy_sizes(mod, None, 0.0, y0, np.maximum(np.abs(y0), 1.0), E)
+    # central differences are exact for a quadratic up to round-off: H ≲ 1e4 differenced over
+    # steps of at least 1 (the scales given) leaves ~1e-12 of a curvature ≥ 1
+    np.testing.assert_allclose(sizes, np.sqrt(2 * E / mod.curvature()), rtol=1e-7)
+    # h0, one batched call each way, and two single calls each to check it
+    assert mod.calls <= 1 + 2 * 3
+
+
+def test_energy_sizes_of_a_block_naming_a_state_twice_fall_back():
+    """A repeated index is not taken by the lazy columns (their blocks assume distinct
+    states): the other ways give the same closed-form sizes."""
+    from phc.simulation.scaling import energy_sizes
+
+    mod = _Forms(41, repeat=True)
+    y0 = np.random.default_rng(4).normal(size=41)
+    curv = mod.curvature()  # the repeated state's two positions are not coupled in Q (block diagonal)
+    sizes = energy_sizes(mod, None, 0.0, y0, np.maximum(np.abs(y0), 1.0), 3.0)  # steps ≥ 1: round-off as above
+    np.testing.assert_allclose(sizes, np.sqrt(6.0 / curv), rtol=1e-7)
 
 
 # ---------------------------------------------------------------------------------------
