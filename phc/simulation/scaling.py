@@ -461,11 +461,16 @@ def _columns(mod, t, y0, p, cols, steps) -> np.ndarray:
     blocks, so the perturbed states (one column each) give the values of all columns in one
     call: first as :class:`_OneEntryColumns` (cost linear in the unknowns), else as a matrix
     of states; each batch is checked against single calls at its first and last columns (any
-    other shape, value or error: one call per column, as for the compiled back ends)."""
+    other shape, value or error: one call per column). A compiled module's columns are
+    those of its NumPy reference module, checked against the compiled H the same way."""
     H = mod.hamiltonian
     out = np.empty(len(cols))
     raw = getattr(H, "__wrapped__", H)
-    batched = getattr(getattr(mod, "module", mod), "BACKEND", "numpy") == "numpy" and len(cols) > 1
+    loaded = getattr(mod, "module", mod)
+    reference = getattr(loaded, "REFERENCE", loaded)  # a compiled module's NumPy module (phc.codegen.backends)
+    if reference is not loaded:  # C or numba: their H takes one state; the NumPy H batches, checked against them
+        raw = reference.hamiltonian
+    batched = getattr(reference, "BACKEND", "numpy") == "numpy" and len(cols) > 1
     size = max(2, COLUMNS_BATCH // max(len(y0), 1))
     start = 0
     if batched:
