@@ -391,6 +391,18 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
 
     raw = getattr(mod, "module", mod)
     on_c = getattr(raw, "BACKEND", "numpy") == "c"  # the C back end's loop (phc.codegen.c_steps)
+    if method == "discrete_gradient":
+        from phc.simulation.discrete_gradient import velocity_rows
+
+        if len(velocity_rows(raw)[0]):
+            # the energy at the step's ends needs the velocities made consistent (rows M(q) v = p):
+            # the Python loop does it (phc.simulation.discrete_gradient), the compiled loops do not
+            if on_c:
+                from phc.codegen import c_steps
+
+                c_steps.say_unused("the discrete gradient's energy at the step ends needs the velocities of "
+                                   "M(q) v = p solved there, which only the Python loop does")
+            return None
     if on_c:
         from phc.codegen import c_steps
 

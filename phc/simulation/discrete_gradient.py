@@ -74,6 +74,78 @@ def secant_constants(c):
     return c
 
 
+MOMENTUM_DEFINITION = ".momentum_definition["
+"""The rows ``M(q) v = p`` of a rigid body with a configuration-dependent mass matrix
+(:mod:`phc.library.rigid`), by their equation names."""
+
+
+def velocity_rows(mod) -> tuple[np.ndarray, np.ndarray]:
+    """The rows ``M(q) v = p`` (:data:`MOMENTUM_DEFINITION`) and the algebraic unknowns they
+    determine (the velocities v, which the stored energy ``H = ½pᵀv + V`` is written in), or two
+    empty arrays where there are none or they do not pair up (square)."""
+    rows = np.array([i for i, name in enumerate(mod.EQUATIONS) if MOMENTUM_DEFINITION in str(name)], dtype=np.int64)
+    if not len(rows):
+        return rows, rows
+    jr, jc = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
+    algebraic = ~np.asarray(mod.DIFFERENTIAL, dtype=bool)
+    cols = np.unique(jc[np.isin(jr, rows) & algebraic[jc]]).astype(np.int64)
+    if len(cols) != len(rows):
+        return rows[:0], rows[:0]
+    return rows, cols
+
+
+class EndVelocities:
+    """Makes the velocities of a step's end consistent with its states (module docstring,
+    "The energy at the step's ends"): one Newton correction of the unknowns v of the rows
+    ``M(q) v − p = 0`` at fixed ``(q, p)`` — exact up to round-off, the rows being linear in v."""
+
+    def __init__(self, mod, p):
+        self.mod, self.p = mod, p
+        self.rows, self.cols = velocity_rows(mod)
+        n = mod.N
+        jr, jc = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
+        row_at = {int(r): k for k, r in enumerate(self.rows)}
+        col_at = {int(c): k for k, c in enumerate(self.cols)}
+        self.entries = np.array([k for k, (r, c) in enumerate(zip(jr, jc)) if int(r) in row_at and int(c) in col_at],
+                                dtype=np.int64)
+        self.at = (np.array([row_at[int(jr[k])] for k in self.entries], dtype=np.int64),
+                   np.array([col_at[int(jc[k])] for k in self.entries], dtype=np.int64))
+        self.res, self.jac, self.zero = np.zeros(n), np.zeros(len(jr)), np.zeros(n)
+        self.corrections = 0
+
+    def __bool__(self):
+        return bool(len(self.rows))
+
+    def __call__(self, t, y):
+        """``y``'s velocities in place: ``v ← v − (∂F_R/∂v)⁻¹ F_R(t, y)`` (the rows R do not
+        depend on ẏ: they are evaluated with ẏ = 0, the Jacobian with c_j = 0)."""
+        if not len(self.rows):
+            return
+        self.mod.residual(t, y, self.zero, self.p, self.res)
+        self.mod.jacobian(t, y, self.zero, self.p, 0.0, self.jac)
+        a = np.zeros((len(self.rows), len(self.cols)))
+        np.add.at(a, self.at, self.jac[self.entries])
+        try:
+            dv = np.linalg.solve(a, self.res[self.rows])
+        except np.linalg.LinAlgError:
+            return  # a singular mass matrix: the stage solve reports it
+        if np.all(np.isfinite(dv)):
+            y[self.cols] -= dv
+            self.corrections += 1
+
+
+class _Workspace(Stages):
+    """:class:`~phc.simulation.midpoint.Stages` with the operation ``consistent`` of
+    :func:`phc.simulation.step_logic.discrete_gradient` (:class:`EndVelocities`)."""
+
+    def __init__(self, stage, velocities):
+        super().__init__(stage)
+        self.velocities = velocities
+
+    def consistent(self, t, y):
+        self.velocities(t, y)
+
+
 class DiscreteGradientStep:
     """One step: the stage equations F at ``y(s)`` plus the energy balance ``r(s) = 0``."""
 
@@ -88,7 +160,8 @@ class DiscreteGradientStep:
         self.projects = any(str(v).startswith("ggl.") for v in mod.VARIABLES)
         """The model has GGL multipliers, whose projection may do work (module docstring)."""
         self.constants = secant_constants(self.stage.constants.copy())
-        self.workspace = Stages(self.stage)
+        self.velocities = EndVelocities(mod, p)
+        self.workspace = _Workspace(self.stage, self.velocities)
 
     def __call__(self, t, h, y, guess):
         """One step (:func:`phc.simulation.step_logic.discrete_gradient`, the code the compiled loop
