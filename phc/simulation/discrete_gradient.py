@@ -31,13 +31,38 @@ step solves the n equations of F together with one scalar equation for ``s``,
 the discrete energy balance itself (E = ``energy.supplied``). We solve it by a safeguarded
 secant iteration on ``s`` around the inner (simplified Newton) solve of F, starting at
 ``s = 1/2``: for quadratic H, ``r(1/2) = 0`` and the step *is* the implicit midpoint rule.
-Otherwise ``s* = 1/2 + O(h)`` and ``y(s*) = y_mid + O(h²)``; choosing the root nearest
-``1/2`` makes the method symmetric, so it is of order 2 like the midpoint rule.
+Otherwise, with the segment held at its ``s = 1/2`` value, ``u = s − 1/2`` and the
+derivatives of φ(σ) = H(y(σ)) at ``σ = 1/2`` (φ'' = O(h²), φ''' = O(h³)), the cubic model
+of φ gives ``r(s) ≈ φ'''/24 − φ''·u − φ'''·u²/2`` (the stage's own dependence on s gives the
+same slope ``r' ≈ −φ''`` to leading order). The roots of this quadratic have the product
+−1/12: one always lies within ``1/√12 ≈ 0.29`` of the middle, so for a short step a
+balancing point is expected — ``s* = 1/2 + O(h)`` where the energy along the step is not
+near an inflection (φ'' not small), up to ``1/2 ± 0.29`` where it is (that step is then
+only first order). Choosing the root nearest ``1/2`` makes the method symmetric, so it is
+of order 2 like the midpoint rule.
+
+The energy at the step's ends
+-----------------------------
+H is the energy of the *states*. A rigid body with a configuration-dependent mass matrix
+writes it as ``H = ½pᵀv + V(q)`` in its velocities v, unknowns of the rows ``M(q) v = p``
+(:mod:`phc.library.rigid`), and the stage imposes those rows at ``y(s)``, where the effort
+``v(s) = M(q(s))⁻¹p(s) = ∂H/∂p`` is wanted — not at the step's end, whose velocities are the
+extrapolation ``v_n + (v(s) − v_n)/s`` and are not ``M(q₁)⁻¹p₁``. ``H(y₁)`` at those
+velocities is not the energy of the states: balancing it kept a wrong function constant
+(a cart–pole's energy drifted by 2.6e-3 at h = 0.01, seen in the outputs, whose velocities
+are recomputed from the states) and, the extrapolation's error changing by ``−(1 − s)/s``
+a step, made it unbalanceable (the run stopped at t ≈ 0.74 at every step size). So the
+velocities of both ends are made consistent (:class:`EndVelocities`: one Newton correction
+of the rows ``M(q) v = p`` at fixed states, exact for rows linear in v) before H is taken,
+and the step ends with them. The states' step is unchanged (the stage determines ``v(s)``
+whatever ``v_n`` is). The compiled loops (numba, C) do not do this: a model with such rows
+runs the discrete gradient in the Python loop (:func:`phc.simulation.compiled_steps.integrate`).
 
 Position constraints are imposed at the step ends as in the midpoint rule, by the
 stabilizing multipliers η of the GGL formulation (``q̇ = … + G(q)ᵀη``). Without them the
-root exists for every step size when the energy changes along the segment (``φ(s) =
-H(y(s))`` not affine); when φ is affine the balance holds at any s and ``r ≡ 0``. The
+mean-value theorem gives every *fixed* segment its balancing point; the segment moving
+with s, the coupled problem has one for short steps (the cubic model above), not for
+every step size; when φ is affine the balance holds at any s and ``r ≡ 0``. The
 projection onto the constraints does work, though, ``h ∂H/∂q · G(q)ᵀη`` at the point y(s),
 which is not a port power: zero on exact solutions, where η = 0, but not on the step. Where
 it is as large as the variation of the mean-value mismatch along the segment (fast motion
@@ -184,8 +209,9 @@ class DiscreteGradientStep:
         self._midpoint = y_half
         return y1, False, (f"no point along the step balances the energy (|r| = {best:.1e}, "
                            f"energy scale {scale:.1e}): the mean-value discrete gradient has no solution "
-                           "on this step; a shorter `step` brings the point towards the step's middle, or "
-                           "use `midpoint4`/`midpoint` (energy exact for quadratic H) or `ida`")
+                           "on this step; for a short `step` one is expected within 0.29 of the step's "
+                           "middle where H is smooth along it, or use `midpoint4`/`midpoint` (energy exact "
+                           "for quadratic H) or `ida`")
 
     def fallback(self):
         """The implicit-midpoint step of the last call if it failed only to balance the energy
