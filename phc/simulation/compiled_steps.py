@@ -285,9 +285,9 @@ def _compile():
     namespace = _kernel_namespace(externals)
     jit = numba.njit(error_model="numpy")
     for name in ("_accept", "_copy", "_factor", "_invert", "_solve", "_lowprec", "_solve32", "_fill", "_stage_residual",
-                 "_refactor_matrix", "_all_finite", "_begin", "_refactor", "_correct", "_add", "_precision", "_newton",
-                 "_stage", "_discrete_gradient", "_midpoint4_step", "_advance", "_monitor_ratio", "_lagrange_weights",
-                 "_predictor_nodes", "_predict", "_substeps"):
+                 "_refactor_matrix", "_all_finite", "_begin", "_refactor", "_correct", "_add", "_precision",
+                 "_consistent", "_newton", "_stage", "_discrete_gradient", "_midpoint4_step", "_advance",
+                 "_monitor_ratio", "_lagrange_weights", "_predictor_nodes", "_predict", "_substeps"):
         namespace[name] = jit(namespace[name])
     chunk = numba.njit(error_model="numpy")(namespace["_chunk"])
     C1 = types.Array(types.float64, 1, "C")
