@@ -65,9 +65,10 @@ with s, the coupled problem has one for short steps (the cubic model above), not
 every step size; when φ is affine the balance holds at any s and ``r ≡ 0``. The
 projection onto the constraints does work, though, ``h ∂H/∂q · G(q)ᵀη`` at the point y(s),
 which is not a port power: zero on exact solutions, where η = 0, but not on the step. Where
-it is as large as the variation of the mean-value mismatch along the segment (fast motion
-along strongly curved constraints: Andrews' squeezing mechanism, whose links turn at
-10³ rad/s), no s balances the energy: r(s) stays on one side of 0. Such a step is split like a step
+it is as large as the variation of the mean-value mismatch along the segment, no s
+balances the energy: r(s) stays on one side of 0. (Andrews' squeezing mechanism, whose
+links turn at 10³ rad/s, was taken for such a case; its steps without a balancing point
+came from the end velocities above, and it now balances every step.) Such a step is split like a step
 whose Newton iteration fails (the work shrinks faster than the mismatch's variation on
 shorter steps); where even the shortest split step has no balancing point, that step is
 taken as the implicit-midpoint step (s = 1/2, second order and symmetric), counted, and
