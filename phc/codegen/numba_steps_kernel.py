@@ -16,7 +16,7 @@ steps, the predictor's choice of nodes and weights — is not written here: it i
 rebound to this module's globals (:func:`_here`), where the operations they call by name are
 the compiled loop's, on the workspace tuple ``ws`` that :func:`_chunk` builds (:func:`_begin`,
 :func:`_refactor`, :func:`_correct`, :func:`_add`, :func:`_copy`, :func:`_precision`,
-:func:`_stage`); :func:`~phc.simulation.compiled_steps._compile` jits them with the rest.
+:func:`_stage`, :func:`_consistent`); :func:`~phc.simulation.compiled_steps._compile` jits them with the rest.
 
 The LAPACK/BLAS entry points the kernel calls (``_dgetrf``, ``_dgetri``, ``_dgecon``,
 ``_dgesdd``, ``_dgemv``, ``_sgemv``) are not defined here: :func:`~phc.simulation.compiled_steps._kernel_namespace`
@@ -287,6 +287,12 @@ def _precision(ws, event):
 def _stage(ws, m, t, h, y, y1in, s, out):
     """One stage solve (phc.simulation.step_logic.newton) with the compiled loop's operations."""
     return _newton(ws, m, ws[15], t, h, y, y1in, s, out)
+
+
+def _consistent(ws, t, y):
+    """Nothing: a model whose velocities must be made consistent at the discrete gradient's step
+    ends (rows ``M(q) v = p``) runs that method in the Python loop
+    (:func:`phc.simulation.compiled_steps.integrate`)."""
 
 
 def _advance(ws, ham, escale, powers, t, h, y, guess, out, flags, hist_t, hist_v):

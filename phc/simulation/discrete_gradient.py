@@ -31,18 +31,44 @@ step solves the n equations of F together with one scalar equation for ``s``,
 the discrete energy balance itself (E = ``energy.supplied``). We solve it by a safeguarded
 secant iteration on ``s`` around the inner (simplified Newton) solve of F, starting at
 ``s = 1/2``: for quadratic H, ``r(1/2) = 0`` and the step *is* the implicit midpoint rule.
-Otherwise ``s* = 1/2 + O(h)`` and ``y(s*) = y_mid + O(h²)``; choosing the root nearest
-``1/2`` makes the method symmetric, so it is of order 2 like the midpoint rule.
+Otherwise, with the segment held at its ``s = 1/2`` value, ``u = s − 1/2`` and the
+derivatives of φ(σ) = H(y(σ)) at ``σ = 1/2`` (φ'' = O(h²), φ''' = O(h³)), the cubic model
+of φ gives ``r(s) ≈ φ'''/24 − φ''·u − φ'''·u²/2`` (the stage's own dependence on s gives the
+same slope ``r' ≈ −φ''`` to leading order). The roots of this quadratic have the product
+−1/12: one always lies within ``1/√12 ≈ 0.29`` of the middle, so for a short step a
+balancing point is expected — ``s* = 1/2 + O(h)`` where the energy along the step is not
+near an inflection (φ'' not small), up to ``1/2 ± 0.29`` where it is (that step is then
+only first order). Choosing the root nearest ``1/2`` makes the method symmetric, so it is
+of order 2 like the midpoint rule.
+
+The energy at the step's ends
+-----------------------------
+H is the energy of the *states*. A rigid body with a configuration-dependent mass matrix
+writes it as ``H = ½pᵀv + V(q)`` in its velocities v, unknowns of the rows ``M(q) v = p``
+(:mod:`phc.library.rigid`), and the stage imposes those rows at ``y(s)``, where the effort
+``v(s) = M(q(s))⁻¹p(s) = ∂H/∂p`` is wanted — not at the step's end, whose velocities are the
+extrapolation ``v_n + (v(s) − v_n)/s`` and are not ``M(q₁)⁻¹p₁``. ``H(y₁)`` at those
+velocities is not the energy of the states: balancing it kept a wrong function constant
+(a cart–pole's energy drifted by 2.6e-3 at h = 0.01, seen in the outputs, whose velocities
+are recomputed from the states) and, the extrapolation's error changing by ``−(1 − s)/s``
+a step, made it unbalanceable (the run stopped at t ≈ 0.74 at every step size). So the
+velocities of both ends are made consistent (:class:`EndVelocities`: one Newton correction
+of the rows ``M(q) v = p`` at fixed states, exact for rows linear in v) before H is taken,
+and the step ends with them. The states' step is unchanged (the stage determines ``v(s)``
+whatever ``v_n`` is). The compiled loops (numba, C) do not do this: a model with such rows
+runs the discrete gradient in the Python loop (:func:`phc.simulation.compiled_steps.integrate`).
 
 Position constraints are imposed at the step ends as in the midpoint rule, by the
 stabilizing multipliers η of the GGL formulation (``q̇ = … + G(q)ᵀη``). Without them the
-root exists for every step size when the energy changes along the segment (``φ(s) =
-H(y(s))`` not affine); when φ is affine the balance holds at any s and ``r ≡ 0``. The
+mean-value theorem gives every *fixed* segment its balancing point; the segment moving
+with s, the coupled problem has one for short steps (the cubic model above), not for
+every step size; when φ is affine the balance holds at any s and ``r ≡ 0``. The
 projection onto the constraints does work, though, ``h ∂H/∂q · G(q)ᵀη`` at the point y(s),
 which is not a port power: zero on exact solutions, where η = 0, but not on the step. Where
-it is as large as the variation of the mean-value mismatch along the segment (fast motion
-along strongly curved constraints: Andrews' squeezing mechanism, whose links turn at
-10³ rad/s), no s balances the energy: r(s) stays on one side of 0. Such a step is split like a step
+it is as large as the variation of the mean-value mismatch along the segment, no s
+balances the energy: r(s) stays on one side of 0. (Andrews' squeezing mechanism, whose
+links turn at 10³ rad/s, was taken for such a case; its steps without a balancing point
+came from the end velocities above, and it now balances every step.) Such a step is split like a step
 whose Newton iteration fails (the work shrinks faster than the mismatch's variation on
 shorter steps); where even the shortest split step has no balancing point, that step is
 taken as the implicit-midpoint step (s = 1/2, second order and symmetric), counted, and
@@ -74,6 +100,78 @@ def secant_constants(c):
     return c
 
 
+MOMENTUM_DEFINITION = ".momentum_definition["
+"""The rows ``M(q) v = p`` of a rigid body with a configuration-dependent mass matrix
+(:mod:`phc.library.rigid`), by their equation names."""
+
+
+def velocity_rows(mod) -> tuple[np.ndarray, np.ndarray]:
+    """The rows ``M(q) v = p`` (:data:`MOMENTUM_DEFINITION`) and the algebraic unknowns they
+    determine (the velocities v, which the stored energy ``H = ½pᵀv + V`` is written in), or two
+    empty arrays where there are none or they do not pair up (square)."""
+    rows = np.array([i for i, name in enumerate(mod.EQUATIONS) if MOMENTUM_DEFINITION in str(name)], dtype=np.int64)
+    if not len(rows):
+        return rows, rows
+    jr, jc = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
+    algebraic = ~np.asarray(mod.DIFFERENTIAL, dtype=bool)
+    cols = np.unique(jc[np.isin(jr, rows) & algebraic[jc]]).astype(np.int64)
+    if len(cols) != len(rows):
+        return rows[:0], rows[:0]
+    return rows, cols
+
+
+class EndVelocities:
+    """Makes the velocities of a step's end consistent with its states (module docstring,
+    "The energy at the step's ends"): one Newton correction of the unknowns v of the rows
+    ``M(q) v − p = 0`` at fixed ``(q, p)`` — exact up to round-off, the rows being linear in v."""
+
+    def __init__(self, mod, p):
+        self.mod, self.p = mod, p
+        self.rows, self.cols = velocity_rows(mod)
+        n = mod.N
+        jr, jc = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
+        row_at = {int(r): k for k, r in enumerate(self.rows)}
+        col_at = {int(c): k for k, c in enumerate(self.cols)}
+        self.entries = np.array([k for k, (r, c) in enumerate(zip(jr, jc)) if int(r) in row_at and int(c) in col_at],
+                                dtype=np.int64)
+        self.at = (np.array([row_at[int(jr[k])] for k in self.entries], dtype=np.int64),
+                   np.array([col_at[int(jc[k])] for k in self.entries], dtype=np.int64))
+        self.res, self.jac, self.zero = np.zeros(n), np.zeros(len(jr)), np.zeros(n)
+        self.corrections = 0
+
+    def __bool__(self):
+        return bool(len(self.rows))
+
+    def __call__(self, t, y):
+        """``y``'s velocities in place: ``v ← v − (∂F_R/∂v)⁻¹ F_R(t, y)`` (the rows R do not
+        depend on ẏ: they are evaluated with ẏ = 0, the Jacobian with c_j = 0)."""
+        if not len(self.rows):
+            return
+        self.mod.residual(t, y, self.zero, self.p, self.res)
+        self.mod.jacobian(t, y, self.zero, self.p, 0.0, self.jac)
+        a = np.zeros((len(self.rows), len(self.cols)))
+        np.add.at(a, self.at, self.jac[self.entries])
+        try:
+            dv = np.linalg.solve(a, self.res[self.rows])
+        except np.linalg.LinAlgError:
+            return  # a singular mass matrix: the stage solve reports it
+        if np.all(np.isfinite(dv)):
+            y[self.cols] -= dv
+            self.corrections += 1
+
+
+class _Workspace(Stages):
+    """:class:`~phc.simulation.midpoint.Stages` with the operation ``consistent`` of
+    :func:`phc.simulation.step_logic.discrete_gradient` (:class:`EndVelocities`)."""
+
+    def __init__(self, stage, velocities):
+        super().__init__(stage)
+        self.velocities = velocities
+
+    def consistent(self, t, y):
+        self.velocities(t, y)
+
+
 class DiscreteGradientStep:
     """One step: the stage equations F at ``y(s)`` plus the energy balance ``r(s) = 0``."""
 
@@ -88,7 +186,8 @@ class DiscreteGradientStep:
         self.projects = any(str(v).startswith("ggl.") for v in mod.VARIABLES)
         """The model has GGL multipliers, whose projection may do work (module docstring)."""
         self.constants = secant_constants(self.stage.constants.copy())
-        self.workspace = Stages(self.stage)
+        self.velocities = EndVelocities(mod, p)
+        self.workspace = _Workspace(self.stage, self.velocities)
 
     def __call__(self, t, h, y, guess):
         """One step (:func:`phc.simulation.step_logic.discrete_gradient`, the code the compiled loop
@@ -111,8 +210,9 @@ class DiscreteGradientStep:
         self._midpoint = y_half
         return y1, False, (f"no point along the step balances the energy (|r| = {best:.1e}, "
                            f"energy scale {scale:.1e}): the mean-value discrete gradient has no solution "
-                           "on this step; a shorter `step` brings the point towards the step's middle, or "
-                           "use `midpoint4`/`midpoint` (energy exact for quadratic H) or `ida`")
+                           "on this step; for a short `step` one is expected within 0.29 of the step's "
+                           "middle where H is smooth along it, or use `midpoint4`/`midpoint` (energy exact "
+                           "for quadratic H) or `ida`")
 
     def fallback(self):
         """The implicit-midpoint step of the last call if it failed only to balance the energy

@@ -56,6 +56,11 @@ them with the rest of the kernel. The operations (what they do and return):
     precision contracted where single did not (the Python loop has no single precision).
 ``_stage(ws, m, t, h, y, y1in, s, out) -> (code, ill_conditioned)``
     One stage solve (:func:`newton` with matrix ``m``) into ``out``.
+``_consistent(ws, t, y)``
+    The velocities of ``y`` that H is written in, made consistent with its states at ``t``
+    (the rows ``M(q) v = p``; :class:`phc.simulation.discrete_gradient.EndVelocities`). The
+    compiled loops do not run models that have such rows with the discrete gradient (their
+    ``_consistent`` does nothing).
 
 The numbers the logic uses come in the vector ``c`` (its layout: ``_TOL`` … ``_STRIKES_C``),
 filled from the constants of the methods' modules (:func:`phc.simulation.midpoint.newton_constants`,
@@ -188,7 +193,12 @@ def discrete_gradient(ham, escale, ws, c, e, t, h, y, guess, p, out):
     code, ill = _stage(ws, 0, t, h, y, guess, 0.5, out)
     if code != _OK:
         return code, ill, out, 0.0, 0.0, out, 0
-    H0 = ham(t, y, p)
+    # H of the energy states: the velocities H is written in (H = ½pᵀv + V, M(q) v = p imposed
+    # at the stage point) made consistent at the step's ends (phc.simulation.discrete_gradient)
+    y0 = y.copy()
+    _consistent(ws, t, y0)
+    _consistent(ws, t + h, out)
+    H0 = ham(t, y0, p)
     bal = ham(t + h, out, p) - H0 + out[e] - y[e]
     # the balance H + E is kept relative to its terms; a body at rest that sticks (docs/events.md)
     # has H ~ 1e-250: below 1e-200 the energy is zero
@@ -199,7 +209,7 @@ def discrete_gradient(ham, escale, ws, c, e, t, h, y, guess, p, out):
     if abs(bal) <= tol:
         return _OK, ill, out, abs(bal), scale, out, 0
     # first slope from the curvature of φ(σ) = H(y(σ)): r'(s) ≈ −φ''(s)
-    curv = 4.0 * (H0 - 2.0 * ham(t + 0.5 * h, y + 0.5 * (out - y), p) + ham(t + h, out, p))
+    curv = 4.0 * (H0 - 2.0 * ham(t + 0.5 * h, y0 + 0.5 * (out - y0), p) + ham(t + h, out, p))
     if not np.isfinite(curv):
         return _EVAL, ill, out, 0.0, 0.0, out, 0
     y_half = out.copy()
@@ -218,6 +228,7 @@ def discrete_gradient(ham, escale, ws, c, e, t, h, y, guess, p, out):
         code, ill = _stage(ws, 0, t, h, y, y_prev, s_new, out)
         if code != _OK:
             break
+        _consistent(ws, t + h, out)
         r_new = ham(t + h, out, p) - H0 + out[e] - y[e]
         if not np.isfinite(r_new):
             return _EVAL, ill, out, 0.0, 0.0, y_half, secants
@@ -343,3 +354,7 @@ def _precision(ws, event):
 
 def _stage(ws, m, t, h, y, y1in, s, out):
     return ws.solve_stage(m, t, h, y, y1in, s, out)
+
+
+def _consistent(ws, t, y):
+    ws.consistent(t, y)
