@@ -20,6 +20,7 @@ parameters — is the read-only :class:`LoweringContext` ``b.context``.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 from collections.abc import Sequence as SequenceABC
 from dataclasses import dataclass, field
@@ -32,6 +33,7 @@ from phc.dae import Equation, Invariant, LinearBlock, Parameter, Variable
 from phc.diagnostics import Diagnostic
 from phc.reporter import Port, Reporter
 from phc.files import FileAccess
+from phc.source_map import SourceSpan
 
 
 class ReadOnlySequence(SequenceABC):
@@ -307,4 +309,178 @@ def lower(lowerer: Callable, context: LoweringContext, ctx, name: str, spec: Any
     return recorder.freeze()
 
 
-__all__ = ["ComponentLowering", "LoweringContext", "ReadOnlySequence", "Recorder", "lower"]
+# ---------------------------------------------------------------------------------------
+# identical components: one lowering, renamed (issue 38)
+
+SHAREABLE_TYPES = frozenset({"mass", "inductor", "spring", "capacitor", "damper", "resistor"})
+"""Component types whose lowering depends on nothing but their spec, the parameters and
+their own name (they read no other component): two entries of such a type with the same
+fields are lowered once; the others' lowerings are the first one's with the names changed
+(:class:`SharedLowerings`)."""
+
+_NAME_PREFIXES = ("", "der(", "cert:")
+"""How a component's own names start: ``k1.x``, ``der(k1.x)``, ``cert:k1.x``."""
+
+
+class Unshareable(Exception):
+    """A lowering that cannot be renamed faithfully (something in it is not understood)."""
+
+
+class _Renamer:
+    """The lowering of component `old` as if lowered for `new`: every name of `old` (its
+    variables, ports, rows' labels, paths) becomes `new`'s, every source span the one
+    `spans` gives (template span id -> the instance's), sympy expressions rebuilt with the
+    new symbols without sympy re-canonicalizing sums and products (see :meth:`expr`)."""
+
+    def __init__(self, old: str, new: str, spans: Mapping[int, Any]) -> None:
+        self.old, self.new, self.spans = old, new, spans
+        self.prefixes = [(p + old + ".", p + new + ".") for p in _NAME_PREFIXES]
+        self.memo: dict[int, Any] = {}
+        self.symbols: list[tuple[str, str]] = []  # (old name, new name) of every symbol met
+
+    def name(self, s: str) -> str:
+        if s == self.old:
+            return self.new
+        for a, b in self.prefixes:
+            if s.startswith(a):
+                return b + s[len(a):]
+        if self.old in s:  # the name inside some other text: not something to guess at
+            raise Unshareable(f"`{s}` holds `{self.old}`")
+        return s
+
+    def expr(self, e):
+        """`e` with the symbols renamed. A sum or product is rebuilt from its renamed
+        arguments in their order (``_from_args``, as sympy itself builds it after sorting):
+        that is sympy's canonical form as long as renaming keeps the order of the symbols'
+        names, which :meth:`SharedLowerings.instance` checks afterwards (and lowers the
+        component afresh otherwise). Anything else is rebuilt as ``xreplace`` does."""
+        hit = self.memo.get(id(e))
+        if hit is not None:
+            return hit
+        if e.is_Symbol:
+            if type(e) is not sp.Symbol:
+                raise Unshareable(f"symbol {e!r} of type {type(e).__name__}")
+            n = self.name(e.name)
+            self.symbols.append((e.name, n))
+            out = e if n == e.name else (sp.Symbol(n, real=True) if e.assumptions0 == _REAL
+                                         else sp.Symbol(n, **e.assumptions0))
+        elif not e.args:
+            out = e
+        else:
+            args = tuple(self.expr(a) for a in e.args)
+            if all(a is b for a, b in zip(args, e.args)):
+                out = e
+            elif type(e) is sp.Add or type(e) is sp.Mul:
+                out = type(e)._from_args(args, e.is_commutative)
+            else:
+                out = e.func(*args)
+        self.memo[id(e)] = out
+        return out
+
+    def value(self, v):
+        if v is None or type(v) in (bool, int, float):
+            return v
+        if type(v) is str:
+            return self.name(v)
+        if isinstance(v, sp.Basic):
+            return self.expr(v)
+        if type(v) is SourceSpan:
+            try:
+                return self.spans[id(v)]
+            except KeyError:
+                raise Unshareable(f"span {v} not located by the lowering") from None
+        t = type(v)
+        if t is tuple or t is list:
+            return t(self.value(x) for x in v)
+        if t is frozenset or t is set:
+            return t(self.value(x) for x in v)
+        if t is dict:
+            return {self.value(k): self.value(x) for k, x in v.items()}
+        if dataclasses.is_dataclass(v) and not isinstance(v, type):
+            fields = dataclasses.fields(v)
+            if any(not f.init for f in fields):
+                raise Unshareable(f"{t.__name__} has fields set after construction")
+            return t(**{f.name: self.value(getattr(v, f.name)) for f in fields})
+        if t.__module__.split(".")[0] == "pint":  # a dimension (expr_dims): no names in it, never changed
+            return v
+        raise Unshareable(f"a value of type {t.__name__}")
+
+
+_REAL = sp.Symbol("x", real=True).assumptions0
+
+
+class SharedLowerings:
+    """Lowerings of identical components made once (issue 38): the elaborate pass asks
+    :meth:`lookup` for a component's lowering before running its lowerer; the first of a
+    kind (same type, same fields, same file and entry, no diagnostics) is kept as a template
+    by :meth:`keep`, the next ones are the template renamed (:class:`_Renamer`) — the same
+    variables, rows, ports, description and terms, equal term by term to what the lowerer
+    gives, at a fraction of the cost of sympy arithmetic. Whenever that cannot be shown
+    (a name outside the template's own, a span not found, renaming that reorders names, a
+    port already declared) the component is lowered as usual."""
+
+    def __init__(self) -> None:
+        self.templates: dict = {}  # key -> (template name, lowering, located paths) or None
+
+    @staticmethod
+    def key(ctx, name: str, spec, path, n_defaults: int, n_unset: int):
+        """The kind of a component, or None when it is never shared."""
+        if getattr(spec, "type", None) not in SHAREABLE_TYPES or not path or path[-1] != name:
+            return None
+        import json
+
+        return (spec.type, json.dumps(spec.model_dump(mode="json"), sort_keys=True, default=str), id(ctx),
+                tuple(path[:-1]), n_defaults, n_unset)
+
+    def lower(self, key, lowerer: Callable, context: LoweringContext, ctx, name: str, spec: Any,
+              path: Sequence) -> ComponentLowering:
+        """:func:`lower`, shared by `key` (from :meth:`key`; None: lowered as usual)."""
+        if key is None:
+            return lower(lowerer, context, ctx, name, spec, path)
+        kept = self.templates.get(key)
+        if kept is not None:
+            out = self._instance(kept, context, ctx, name)
+            if out is not None:
+                return out
+        elif key in self.templates:  # a kind found unshareable
+            return lower(lowerer, context, ctx, name, spec, path)
+        smap = ctx.smap
+        located: list = []
+
+        def locate(p, _locate=type(smap).locate):
+            span = _locate(smap, p)
+            located.append((tuple(p) if not isinstance(p, str) else p, span))
+            return span
+
+        smap.locate = locate  # what the lowerer locates: the spans to give each instance
+        try:
+            lowering = lower(lowerer, context, ctx, name, spec, path)
+        finally:
+            del smap.locate
+        if kept is None and key not in self.templates:
+            ok = not lowering.diagnostics and not lowering.failed and all(not isinstance(p, str) for p, _ in located)
+            self.templates[key] = (name, lowering, tuple(located)) if ok else None
+        return lowering
+
+    @staticmethod
+    def _instance(kept, context: LoweringContext, ctx, name: str) -> Optional[ComponentLowering]:
+        old, template, located = kept
+        spans: dict[int, Any] = {}
+        for p, span in located:
+            mine = ctx.smap.locate(tuple(name if e == old else e for e in p))
+            if spans.setdefault(id(span), mine) != mine:
+                return None  # one span of the template is two of this component
+        renamer = _Renamer(old, name, spans)
+        try:
+            out = renamer.value(template)
+        except Unshareable:
+            return None
+        pairs = sorted(set(renamer.symbols))
+        if any(a[1] >= b[1] for a, b in zip(pairs, pairs[1:])):
+            return None  # renaming changes the order of names: sympy would order terms otherwise
+        if any(port.name in context.ports for port in out.ports):
+            return None  # let the lowerer report the port declared twice
+        return out
+
+
+__all__ = ["ComponentLowering", "LoweringContext", "ReadOnlySequence", "Recorder", "SharedLowerings", "lower"]
