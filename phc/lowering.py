@@ -326,87 +326,152 @@ class Unshareable(Exception):
     """A lowering that cannot be renamed faithfully (something in it is not understood)."""
 
 
-class _Renamer:
-    """The lowering of component `old` as if lowered for `new`: every name of `old` (its
-    variables, ports, rows' labels, paths) becomes `new`'s, every source span the one
-    `spans` gives (template span id -> the instance's), sympy expressions rebuilt with the
-    new symbols without sympy re-canonicalizing sums and products (see :meth:`expr`)."""
+_REAL = sp.Symbol("x", real=True).assumptions0
 
-    def __init__(self, old: str, new: str, spans: Mapping[int, Any]) -> None:
-        self.old, self.new, self.spans = old, new, spans
-        self.prefixes = [(p + old + ".", p + new + ".") for p in _NAME_PREFIXES]
-        self.memo: dict[int, Any] = {}
-        self.symbols: list[tuple[str, str]] = []  # (old name, new name) of every symbol met
 
-    def name(self, s: str) -> str:
+class _Template:
+    """The lowering of component `old`, compiled once into a list of steps that build the
+    same value for another component's name: every name of `old` (its variables, ports,
+    rows' labels, paths: ``k1``, ``k1.x``, ``der(k1.x)``, ``cert:k1.x``) becomes the other
+    one's, every source span the other one's span at the same path, and sympy sums and
+    products are rebuilt from their renamed arguments in their order (``_from_args``, as
+    sympy itself builds them after sorting) — sympy's canonical form as long as renaming
+    keeps the order of all symbol names, which :meth:`build` checks. Whatever holds no name
+    and no span is shared as it is. Raises :class:`Unshareable` for anything not understood."""
+
+    def __init__(self, old: str, lowering, located) -> None:
+        self.old = old
+        self.prefixes = [p + old + "." for p in _NAME_PREFIXES]
+        self.located = [p for p, _ in located]
+        self.span_slot = {}
+        for i, (_, span) in enumerate(located):
+            self.span_slot.setdefault(id(span), i)
+        self.values: list = []  # slot -> the template's value (constants stay)
+        self.steps: list = []  # (slot, kind, data): computed in this order
+        self.symbols: list = []  # (name as in the template, (prefix index, rest) or None)
+        self.memo: dict[int, int] = {}
+        self._computed: set[int] = set()  # slots built by a step
+        self.root = self._slot(lowering)
+        self.same_span = [(i, self.span_slot[id(span)]) for i, (_, span) in enumerate(located)
+                          if self.span_slot[id(span)] != i]  # one span of the template at two paths
+        # names as sorted in the template; :meth:`build` checks the new names keep this order
+        self.symbols.sort(key=lambda item: item[0])
+
+    def _rename(self, s: str):
+        """(prefix index, rest) of one of `old`'s names, -1 for `old` itself, None otherwise."""
         if s == self.old:
-            return self.new
-        for a, b in self.prefixes:
-            if s.startswith(a):
-                return b + s[len(a):]
+            return (-1, "")
+        for i, pre in enumerate(self.prefixes):
+            if s.startswith(pre):
+                return (i, s[len(pre):])
         if self.old in s:  # the name inside some other text: not something to guess at
             raise Unshareable(f"`{s}` holds `{self.old}`")
-        return s
+        return None
 
-    def expr(self, e):
-        """`e` with the symbols renamed. A sum or product is rebuilt from its renamed
-        arguments in their order (``_from_args``, as sympy itself builds it after sorting):
-        that is sympy's canonical form as long as renaming keeps the order of the symbols'
-        names, which :meth:`SharedLowerings.instance` checks afterwards (and lowers the
-        component afresh otherwise). Anything else is rebuilt as ``xreplace`` does."""
-        hit = self.memo.get(id(e))
+    def _const(self, v) -> int:
+        self.values.append(v)
+        return len(self.values) - 1
+
+    def _step(self, v, kind, data) -> int:
+        slot = self._const(v)
+        self.steps.append((slot, kind, data))
+        self._computed.add(slot)
+        return slot
+
+    def _slot(self, v) -> int:
+        """The slot of `v` (added with the steps that build it, children first)."""
+        hit = self.memo.get(id(v))
         if hit is not None:
             return hit
-        if e.is_Symbol:
-            if type(e) is not sp.Symbol:
-                raise Unshareable(f"symbol {e!r} of type {type(e).__name__}")
-            n = self.name(e.name)
-            self.symbols.append((e.name, n))
-            out = e if n == e.name else (sp.Symbol(n, real=True) if e.assumptions0 == _REAL
-                                         else sp.Symbol(n, **e.assumptions0))
-        elif not e.args:
-            out = e
-        else:
-            args = tuple(self.expr(a) for a in e.args)
-            if all(a is b for a, b in zip(args, e.args)):
-                out = e
-            elif type(e) is sp.Add or type(e) is sp.Mul:
-                out = type(e)._from_args(args, e.is_commutative)
-            else:
-                out = e.func(*args)
-        self.memo[id(e)] = out
-        return out
+        slot = self._new_slot(v)
+        self.memo[id(v)] = slot
+        return slot
 
-    def value(self, v):
-        if v is None or type(v) in (bool, int, float):
-            return v
-        if type(v) is str:
-            return self.name(v)
+    def _new_slot(self, v) -> int:
+        t = type(v)
+        if v is None or t in (bool, int, float):
+            return self._const(v)
+        if t is str:
+            renamed = self._rename(v)
+            return self._const(v) if renamed is None else self._step(v, "str", renamed)
         if isinstance(v, sp.Basic):
-            return self.expr(v)
-        if type(v) is SourceSpan:
+            if v.is_Symbol:
+                if t is not sp.Symbol or v.assumptions0 != _REAL:
+                    raise Unshareable(f"symbol {v!r} ({t.__name__}, {v.assumptions0})")
+                renamed = self._rename(v.name)
+                self.symbols.append((v.name, renamed))
+                return self._const(v) if renamed is None else self._step(v, "sym", renamed)
+            if not v.args:
+                return self._const(v)
+            args = [self._slot(a) for a in v.args]
+            if not any(a in self._computed for a in args):
+                return self._const(v)
+            kind = "assoc" if t is sp.Add or t is sp.Mul else "func"
+            return self._step(v, kind, (t if kind == "assoc" else v.func, args, v.is_commutative))
+        if t is SourceSpan:
             try:
-                return self.spans[id(v)]
+                return self._step(v, "span", self.span_slot[id(v)])
             except KeyError:
                 raise Unshareable(f"span {v} not located by the lowering") from None
-        t = type(v)
-        if t is tuple or t is list:
-            return t(self.value(x) for x in v)
-        if t is frozenset or t is set:
-            return t(self.value(x) for x in v)
+        if t is tuple or t is list or t is frozenset or t is set:
+            items = [self._slot(x) for x in v]
+            if not any(a in self._computed for a in items):
+                return self._const(v)
+            return self._step(v, "seq", (t, items))
         if t is dict:
-            return {self.value(k): self.value(x) for k, x in v.items()}
+            items = [(self._slot(k), self._slot(x)) for k, x in v.items()]
+            if not any(a in self._computed or b in self._computed for a, b in items):
+                return self._const(v)
+            return self._step(v, "dict", items)
         if dataclasses.is_dataclass(v) and not isinstance(v, type):
             fields = dataclasses.fields(v)
             if any(not f.init for f in fields):
                 raise Unshareable(f"{t.__name__} has fields set after construction")
-            return t(**{f.name: self.value(getattr(v, f.name)) for f in fields})
+            items = [(f.name, self._slot(getattr(v, f.name))) for f in fields]
+            if not any(a in self._computed for _, a in items):
+                return self._const(v)
+            return self._step(v, "dataclass", (t, items))
         if t.__module__.split(".")[0] == "pint":  # a dimension (expr_dims): no names in it, never changed
-            return v
+            return self._const(v)
         raise Unshareable(f"a value of type {t.__name__}")
 
+    def build(self, new: str, spans: Sequence):
+        """The lowering for component `new` (`spans`: its spans at :attr:`located`), or None
+        when renaming would change the order of the names (then sympy's order differs)."""
+        pres = [p + new + "." for p in _NAME_PREFIXES]
 
-_REAL = sp.Symbol("x", real=True).assumptions0
+        def renamed(r):
+            return new if r[0] < 0 else pres[r[0]] + r[1]
+
+        last = None
+        for name, r in self.symbols:
+            now = name if r is None else renamed(r)
+            if last is not None and now <= last:
+                return None
+            last = now
+        vals = list(self.values)
+        for slot, kind, data in self.steps:
+            if kind == "sym":
+                vals[slot] = sp.Symbol(renamed(data), real=True)
+            elif kind == "str":
+                vals[slot] = renamed(data)
+            elif kind == "assoc":
+                cls, args, comm = data
+                vals[slot] = cls._from_args(tuple(vals[a] for a in args), comm)
+            elif kind == "func":
+                func, args, _ = data
+                vals[slot] = func(*(vals[a] for a in args))
+            elif kind == "span":
+                vals[slot] = spans[data]
+            elif kind == "seq":
+                t, items = data
+                vals[slot] = t(vals[a] for a in items)
+            elif kind == "dict":
+                vals[slot] = {vals[a]: vals[b] for a, b in data}
+            else:
+                t, items = data
+                vals[slot] = t(**{f: vals[a] for f, a in items})
+        return vals[self.root]
 
 
 class SharedLowerings:
@@ -437,19 +502,20 @@ class SharedLowerings:
         """:func:`lower`, shared by `key` (from :meth:`key`; None: lowered as usual)."""
         if key is None:
             return lower(lowerer, context, ctx, name, spec, path)
-        kept = self.templates.get(key)
-        if kept is not None:
-            out = self._instance(kept, context, ctx, name)
+        template = self.templates.get(key)
+        if template is not None:
+            out = self._instance(template, context, ctx, name)
             if out is not None:
                 return out
-        elif key in self.templates:  # a kind found unshareable
+            return lower(lowerer, context, ctx, name, spec, path)
+        if key in self.templates:  # a kind found unshareable
             return lower(lowerer, context, ctx, name, spec, path)
         smap = ctx.smap
         located: list = []
 
         def locate(p, _locate=type(smap).locate):
             span = _locate(smap, p)
-            located.append((tuple(p) if not isinstance(p, str) else p, span))
+            located.append((p, span))
             return span
 
         smap.locate = locate  # what the lowerer locates: the spans to give each instance
@@ -457,29 +523,23 @@ class SharedLowerings:
             lowering = lower(lowerer, context, ctx, name, spec, path)
         finally:
             del smap.locate
-        if kept is None and key not in self.templates:
-            ok = not lowering.diagnostics and not lowering.failed and all(not isinstance(p, str) for p, _ in located)
-            self.templates[key] = (name, lowering, tuple(located)) if ok else None
+        self.templates[key] = None
+        if not lowering.diagnostics and not lowering.failed and all(type(p) is tuple for p, _ in located):
+            try:
+                self.templates[key] = _Template(name, lowering, located)
+            except Unshareable:
+                pass
         return lowering
 
     @staticmethod
-    def _instance(kept, context: LoweringContext, ctx, name: str) -> Optional[ComponentLowering]:
-        old, template, located = kept
-        spans: dict[int, Any] = {}
-        for p, span in located:
-            mine = ctx.smap.locate(tuple(name if e == old else e for e in p))
-            if spans.setdefault(id(span), mine) != mine:
-                return None  # one span of the template is two of this component
-        renamer = _Renamer(old, name, spans)
-        try:
-            out = renamer.value(template)
-        except Unshareable:
-            return None
-        pairs = sorted(set(renamer.symbols))
-        if any(a[1] >= b[1] for a, b in zip(pairs, pairs[1:])):
-            return None  # renaming changes the order of names: sympy would order terms otherwise
-        if any(port.name in context.ports for port in out.ports):
-            return None  # let the lowerer report the port declared twice
+    def _instance(template: _Template, context: LoweringContext, ctx, name: str) -> Optional[ComponentLowering]:
+        old = template.old
+        spans = [ctx.smap.locate(tuple(name if e == old else e for e in p)) for p in template.located]
+        if any(spans[i] != spans[j] for i, j in template.same_span):
+            return None  # one span of the template is two of this component
+        out = template.build(name, spans)
+        if out is None or any(port.name in context.ports for port in out.ports):
+            return None  # renaming reorders names, or a port declared twice: the lowerer decides
         return out
 
 
