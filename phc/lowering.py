@@ -406,8 +406,11 @@ class _Template:
             args = [self._slot(a) for a in v.args]
             if not any(a in self._computed for a in args):
                 return self._const(v)
-            kind = "assoc" if t is sp.Add or t is sp.Mul else "func"
-            return self._step(v, kind, (t if kind == "assoc" else v.func, args, v.is_commutative))
+            # sums and products from their arguments in order (see above); a power as it is
+            # (its evaluation changes nothing of a canonical power of a renamed base); the rest
+            # evaluated as sympy's ``xreplace`` does
+            kind = "assoc" if t is sp.Add or t is sp.Mul else "pow" if t is sp.Pow else "func"
+            return self._step(v, kind, (t if kind != "func" else v.func, args, v.is_commutative))
         if t is SourceSpan:
             try:
                 return self._step(v, "span", self.span_slot[id(v)])
@@ -458,6 +461,9 @@ class _Template:
             elif kind == "assoc":
                 cls, args, comm = data
                 vals[slot] = cls._from_args(tuple(vals[a] for a in args), comm)
+            elif kind == "pow":
+                _, (b, e), _ = data
+                vals[slot] = sp.Pow(vals[b], vals[e], evaluate=False)
             elif kind == "func":
                 func, args, _ = data
                 vals[slot] = func(*(vals[a] for a in args))
