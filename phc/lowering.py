@@ -453,30 +453,30 @@ class _Template:
                 return None
             last = now
         vals = list(self.values)
-        for slot, kind, data in self.steps:
-            if kind == "sym":
+        for slot, kind, data in self.steps:  # the most frequent kinds first
+            if kind == "seq":
+                t, items = data
+                vals[slot] = t([vals[a] for a in items])
+            elif kind == "dataclass":
+                t, items = data
+                vals[slot] = t(**{f: vals[a] for f, a in items})
+            elif kind == "sym":
                 vals[slot] = sp.Symbol(renamed(data), real=True)
             elif kind == "str":
                 vals[slot] = renamed(data)
             elif kind == "assoc":
                 cls, args, comm = data
-                vals[slot] = cls._from_args(tuple(vals[a] for a in args), comm)
+                vals[slot] = cls._from_args(tuple([vals[a] for a in args]), comm)
             elif kind == "pow":
                 _, (b, e), _ = data
                 vals[slot] = sp.Pow(vals[b], vals[e], evaluate=False)
             elif kind == "func":
                 func, args, _ = data
-                vals[slot] = func(*(vals[a] for a in args))
+                vals[slot] = func(*[vals[a] for a in args])
             elif kind == "span":
                 vals[slot] = spans[data]
-            elif kind == "seq":
-                t, items = data
-                vals[slot] = t(vals[a] for a in items)
-            elif kind == "dict":
+            else:  # dict
                 vals[slot] = {vals[a]: vals[b] for a, b in data}
-            else:
-                t, items = data
-                vals[slot] = t(**{f: vals[a] for f, a in items})
         return vals[self.root]
 
 
