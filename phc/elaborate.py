@@ -110,6 +110,9 @@ class _Elaborator(Reporter):
         self.left_out: list[tuple[str, str, str]] = []
         self.unavailable: dict[str, str] = {}  # name -> why (an effect that is off)
         self._specs: dict[str, tuple] = {}  # resolved path -> (spec, smap) of a nested file, read once
+        from phc.lowering import SharedLowerings
+
+        self.shared = SharedLowerings()  # identical components lowered once (issue 38)
         self._default_values: dict = {}  # parameter symbol -> its default as Float (see default_values)
         self.unset_parameters: set = set()  # parameters whose value had an error (their default 0 means nothing)
 
@@ -510,8 +513,6 @@ class _Elaborator(Reporter):
         return [by_name[cname] for cname in order]
 
     def _lower(self, lowerers, ctx, full, comp, path) -> None:
-        from phc.lowering import lower
-
         if full in self.applied.effects:
             from phc.effects import apply_overrides
 
@@ -553,7 +554,9 @@ class _Elaborator(Reporter):
                 return
         self.components.append((full, comp.type, ctx.smap.locate(path)))
         self.component_specs[full] = comp
-        lowering = lower(lowerers[comp.type], self._lowering_context(), ctx, full, comp, path)
+        context = self._lowering_context()
+        key = self.shared.key(ctx, full, comp, path, len(self._default_values), len(self.unset_parameters))
+        lowering = self.shared.lower(key, lowerers[comp.type], context, ctx, full, comp, path)
         self._fold(lowering)
         if lowering.errors:
             self.failed.add(full)  # its ports may be missing: do not report them again

@@ -20,6 +20,7 @@ parameters — is the read-only :class:`LoweringContext` ``b.context``.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 from collections.abc import Sequence as SequenceABC
 from dataclasses import dataclass, field
@@ -32,6 +33,7 @@ from phc.dae import Equation, Invariant, LinearBlock, Parameter, Variable
 from phc.diagnostics import Diagnostic
 from phc.reporter import Port, Reporter
 from phc.files import FileAccess
+from phc.source_map import SourceSpan
 
 
 class ReadOnlySequence(SequenceABC):
@@ -307,4 +309,244 @@ def lower(lowerer: Callable, context: LoweringContext, ctx, name: str, spec: Any
     return recorder.freeze()
 
 
-__all__ = ["ComponentLowering", "LoweringContext", "ReadOnlySequence", "Recorder", "lower"]
+# ---------------------------------------------------------------------------------------
+# identical components: one lowering, renamed (issue 38)
+
+SHAREABLE_TYPES = frozenset({"mass", "inductor", "spring", "capacitor", "damper", "resistor"})
+"""Component types whose lowering depends on nothing but their spec, the parameters and
+their own name (they read no other component): two entries of such a type with the same
+fields are lowered once; the others' lowerings are the first one's with the names changed
+(:class:`SharedLowerings`)."""
+
+_NAME_PREFIXES = ("", "der(", "cert:")
+"""How a component's own names start: ``k1.x``, ``der(k1.x)``, ``cert:k1.x``."""
+
+
+class Unshareable(Exception):
+    """A lowering that cannot be renamed faithfully (something in it is not understood)."""
+
+
+_REAL = sp.Symbol("x", real=True).assumptions0
+
+
+class _Template:
+    """The lowering of component `old`, compiled once into a list of steps that build the
+    same value for another component's name: every name of `old` (its variables, ports,
+    rows' labels, paths: ``k1``, ``k1.x``, ``der(k1.x)``, ``cert:k1.x``) becomes the other
+    one's, every source span the other one's span at the same path, and sympy sums and
+    products are rebuilt from their renamed arguments in their order (``_from_args``, as
+    sympy itself builds them after sorting) — sympy's canonical form as long as renaming
+    keeps the order of all symbol names, which :meth:`build` checks. Whatever holds no name
+    and no span is shared as it is. Raises :class:`Unshareable` for anything not understood."""
+
+    def __init__(self, old: str, lowering, located) -> None:
+        self.old = old
+        self.prefixes = [p + old + "." for p in _NAME_PREFIXES]
+        self.located = [p for p, _ in located]
+        self.span_slot = {}
+        for i, (_, span) in enumerate(located):
+            self.span_slot.setdefault(id(span), i)
+        self.values: list = []  # slot -> the template's value (constants stay)
+        self.steps: list = []  # (slot, kind, data): computed in this order
+        self.symbols: list = []  # (name as in the template, (prefix index, rest) or None)
+        self.memo: dict[int, int] = {}
+        self._computed: set[int] = set()  # slots built by a step
+        self.root = self._slot(lowering)
+        self.same_span = [(i, self.span_slot[id(span)]) for i, (_, span) in enumerate(located)
+                          if self.span_slot[id(span)] != i]  # one span of the template at two paths
+        # names as sorted in the template; :meth:`build` checks the new names keep this order
+        self.symbols.sort(key=lambda item: item[0])
+
+    def _rename(self, s: str):
+        """(prefix index, rest) of one of `old`'s names, -1 for `old` itself, None otherwise."""
+        if s == self.old:
+            return (-1, "")
+        for i, pre in enumerate(self.prefixes):
+            if s.startswith(pre):
+                return (i, s[len(pre):])
+        if self.old in s:  # the name inside some other text: not something to guess at
+            raise Unshareable(f"`{s}` holds `{self.old}`")
+        return None
+
+    def _const(self, v) -> int:
+        self.values.append(v)
+        return len(self.values) - 1
+
+    def _step(self, v, kind, data) -> int:
+        slot = self._const(v)
+        self.steps.append((slot, kind, data))
+        self._computed.add(slot)
+        return slot
+
+    def _slot(self, v) -> int:
+        """The slot of `v` (added with the steps that build it, children first)."""
+        hit = self.memo.get(id(v))
+        if hit is not None:
+            return hit
+        slot = self._new_slot(v)
+        self.memo[id(v)] = slot
+        return slot
+
+    def _new_slot(self, v) -> int:
+        t = type(v)
+        if v is None or t in (bool, int, float):
+            return self._const(v)
+        if t is str:
+            renamed = self._rename(v)
+            return self._const(v) if renamed is None else self._step(v, "str", renamed)
+        if isinstance(v, sp.Basic):
+            if v.is_Symbol:
+                if t is not sp.Symbol or v.assumptions0 != _REAL:
+                    raise Unshareable(f"symbol {v!r} ({t.__name__}, {v.assumptions0})")
+                renamed = self._rename(v.name)
+                self.symbols.append((v.name, renamed))
+                return self._const(v) if renamed is None else self._step(v, "sym", renamed)
+            if not v.args:
+                return self._const(v)
+            args = [self._slot(a) for a in v.args]
+            if not any(a in self._computed for a in args):
+                return self._const(v)
+            # sums and products from their arguments in order (see above); a power as it is
+            # (its evaluation changes nothing of a canonical power of a renamed base); the rest
+            # evaluated as sympy's ``xreplace`` does
+            kind = "assoc" if t is sp.Add or t is sp.Mul else "pow" if t is sp.Pow else "func"
+            return self._step(v, kind, (t if kind != "func" else v.func, args, v.is_commutative))
+        if t is SourceSpan:
+            try:
+                return self._step(v, "span", self.span_slot[id(v)])
+            except KeyError:
+                raise Unshareable(f"span {v} not located by the lowering") from None
+        if t is tuple or t is list or t is frozenset or t is set:
+            items = [self._slot(x) for x in v]
+            if not any(a in self._computed for a in items):
+                return self._const(v)
+            return self._step(v, "seq", (t, items))
+        if t is dict:
+            items = [(self._slot(k), self._slot(x)) for k, x in v.items()]
+            if not any(a in self._computed or b in self._computed for a, b in items):
+                return self._const(v)
+            return self._step(v, "dict", items)
+        if dataclasses.is_dataclass(v) and not isinstance(v, type):
+            fields = dataclasses.fields(v)
+            if any(not f.init for f in fields):
+                raise Unshareable(f"{t.__name__} has fields set after construction")
+            items = [(f.name, self._slot(getattr(v, f.name))) for f in fields]
+            if not any(a in self._computed for _, a in items):
+                return self._const(v)
+            return self._step(v, "dataclass", (t, items))
+        if t.__module__.split(".")[0] == "pint":  # a dimension (expr_dims): no names in it, never changed
+            return self._const(v)
+        raise Unshareable(f"a value of type {t.__name__}")
+
+    def build(self, new: str, spans: Sequence):
+        """The lowering for component `new` (`spans`: its spans at :attr:`located`), or None
+        when renaming would change the order of the names (then sympy's order differs)."""
+        pres = [p + new + "." for p in _NAME_PREFIXES]
+
+        def renamed(r):
+            return new if r[0] < 0 else pres[r[0]] + r[1]
+
+        last = None
+        for name, r in self.symbols:
+            now = name if r is None else renamed(r)
+            if last is not None and now <= last:
+                return None
+            last = now
+        vals = list(self.values)
+        for slot, kind, data in self.steps:  # the most frequent kinds first
+            if kind == "seq":
+                t, items = data
+                vals[slot] = t([vals[a] for a in items])
+            elif kind == "dataclass":
+                t, items = data
+                vals[slot] = t(**{f: vals[a] for f, a in items})
+            elif kind == "sym":
+                vals[slot] = sp.Symbol(renamed(data), real=True)
+            elif kind == "str":
+                vals[slot] = renamed(data)
+            elif kind == "assoc":
+                cls, args, comm = data
+                vals[slot] = cls._from_args(tuple([vals[a] for a in args]), comm)
+            elif kind == "pow":
+                _, (b, e), _ = data
+                vals[slot] = sp.Pow(vals[b], vals[e], evaluate=False)
+            elif kind == "func":
+                func, args, _ = data
+                vals[slot] = func(*[vals[a] for a in args])
+            elif kind == "span":
+                vals[slot] = spans[data]
+            else:  # dict
+                vals[slot] = {vals[a]: vals[b] for a, b in data}
+        return vals[self.root]
+
+
+class SharedLowerings:
+    """Lowerings of identical components made once (issue 38): the elaborate pass asks
+    :meth:`lookup` for a component's lowering before running its lowerer; the first of a
+    kind (same type, same fields, same file and entry, no diagnostics) is kept as a template
+    by :meth:`keep`, the next ones are the template renamed (:class:`_Renamer`) — the same
+    variables, rows, ports, description and terms, equal term by term to what the lowerer
+    gives, at a fraction of the cost of sympy arithmetic. Whenever that cannot be shown
+    (a name outside the template's own, a span not found, renaming that reorders names, a
+    port already declared) the component is lowered as usual."""
+
+    def __init__(self) -> None:
+        self.templates: dict = {}  # key -> (template name, lowering, located paths) or None
+
+    @staticmethod
+    def key(ctx, name: str, spec, path, n_defaults: int, n_unset: int):
+        """The kind of a component, or None when it is never shared."""
+        if getattr(spec, "type", None) not in SHAREABLE_TYPES or not path or path[-1] != name:
+            return None
+        import json
+
+        return (spec.type, json.dumps(spec.model_dump(mode="json"), sort_keys=True, default=str), id(ctx),
+                tuple(path[:-1]), n_defaults, n_unset)
+
+    def lower(self, key, lowerer: Callable, context: LoweringContext, ctx, name: str, spec: Any,
+              path: Sequence) -> ComponentLowering:
+        """:func:`lower`, shared by `key` (from :meth:`key`; None: lowered as usual)."""
+        if key is None:
+            return lower(lowerer, context, ctx, name, spec, path)
+        template = self.templates.get(key)
+        if template is not None:
+            out = self._instance(template, context, ctx, name)
+            if out is not None:
+                return out
+            return lower(lowerer, context, ctx, name, spec, path)
+        if key in self.templates:  # a kind found unshareable
+            return lower(lowerer, context, ctx, name, spec, path)
+        smap = ctx.smap
+        located: list = []
+
+        def locate(p, _locate=type(smap).locate):
+            span = _locate(smap, p)
+            located.append((p, span))
+            return span
+
+        smap.locate = locate  # what the lowerer locates: the spans to give each instance
+        try:
+            lowering = lower(lowerer, context, ctx, name, spec, path)
+        finally:
+            del smap.locate
+        self.templates[key] = None
+        if not lowering.diagnostics and not lowering.failed and all(type(p) is tuple for p, _ in located):
+            try:
+                self.templates[key] = _Template(name, lowering, located)
+            except Unshareable:
+                pass
+        return lowering
+
+    @staticmethod
+    def _instance(template: _Template, context: LoweringContext, ctx, name: str) -> Optional[ComponentLowering]:
+        old = template.old
+        spans = [ctx.smap.locate(tuple(name if e == old else e for e in p)) for p in template.located]
+        if any(spans[i] != spans[j] for i, j in template.same_span):
+            return None  # one span of the template is two of this component
+        out = template.build(name, spans)
+        if out is None or any(port.name in context.ports for port in out.ports):
+            return None  # renaming reorders names, or a port declared twice: the lowerer decides
+        return out
+
+
+__all__ = ["ComponentLowering", "LoweringContext", "ReadOnlySequence", "Recorder", "SharedLowerings", "lower"]

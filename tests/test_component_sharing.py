@@ -418,3 +418,109 @@ def test_without_libyaml_a_large_file_is_parsed_in_python_and_said_once(monkeypa
     assert first[0] == second[0] == {"a": 1} and not first[2]
     said = [w for w in caught if issubclass(w.category, phc.PhcWarning)]
     assert len(said) == 1 and "libyaml" in str(said[0].message)
+
+
+# ---------------------------------------------------------------------------------------
+# lowering: identical components lowered once, the others renamed
+
+
+def _elaboration_dump(value):
+    """Everything an elaboration holds, in order, sympy expressions as their full tree
+    (``srepr``: the order of a sum's terms included), so that two elaborations compare
+    equal only when they are the same term by term."""
+    import dataclasses
+
+    if isinstance(value, sp.Basic):
+        return ("sympy", sp.srepr(value))
+    if value is None or isinstance(value, (str, int, float, bool)):
+        return value
+    if isinstance(value, (tuple, list)):
+        return (type(value).__name__, [_elaboration_dump(x) for x in value])
+    if isinstance(value, (set, frozenset)):
+        return ("set", sorted(repr(_elaboration_dump(x)) for x in value))
+    if hasattr(value, "items"):
+        return ("map", [(_elaboration_dump(k), _elaboration_dump(x)) for k, x in value.items()])
+    if dataclasses.is_dataclass(value):
+        return (type(value).__name__, [(f.name, _elaboration_dump(getattr(value, f.name)))
+                                       for f in dataclasses.fields(value)])
+    return repr(value)
+
+
+def _shared_and_alone(path, monkeypatch):
+    """(diagnostics, dump, instances built, instances refused) of `path` elaborated with
+    shared lowerings, then (diagnostics, dump) with every component lowered by its lowerer."""
+    import dataclasses
+
+    import phc.lowering as lowering_module
+    from phc.elaborate import elaborate
+
+    counts = {"built": 0, "refused": 0}
+    real = lowering_module._Template.build
+
+    def build(self, new, spans):
+        out = real(self, new, spans)
+        counts["built" if out is not None else "refused"] += 1
+        return out
+
+    monkeypatch.setattr(lowering_module._Template, "build", build)
+
+    def run():
+        elab, diags = elaborate(path)
+        dump = None if elab is None else {f.name: _elaboration_dump(getattr(elab, f.name))
+                                          for f in dataclasses.fields(elab)
+                                          if f.name not in ("top", "files", "scene", "sources")}
+        return [d.render() for d in diags], dump
+
+    shared = run()
+    monkeypatch.setattr(lowering_module, "SHAREABLE_TYPES", frozenset())
+    alone = run()
+    return shared, alone, counts
+
+
+def test_shared_lowerings_are_the_lowerers_own_term_by_term(tmp_path, monkeypatch):
+    """Masses, springs, dampers (terminals and ports, scalar and 2-D), capacitors,
+    inductors and resistors, three of each kind: every variable, row, port, description,
+    energy and dissipation term is what each component's own lowering gives, in the same
+    order; the components named so that renaming would move their names past the
+    parameter `m` (`a…` to `z…`) are lowered on their own."""
+    lines = ["format_version: 1", "name: kinds", "parameters:", "  m: {value: 1.0}", "  k: {value: 100.0}",
+             "  d: {value: 0.5}", "  C: {value: 1.0e-3}", "  L: {value: 2.0e-3}", "  R: {value: 10.0}",
+             "components:"]
+    for i in (1, 2, 3):
+        lines += [f"  m{i}: {{type: mass, m: 2*m, ports: [l, r]}}",
+                  f"  k{i}: {{type: spring, k: k, terminals: [a, b]}}",
+                  f"  d{i}: {{type: damper, d: d + 1, terminals: [a, b]}}",
+                  f"  v{i}: {{type: mass, m: m, dimension: 2}}",
+                  f"  s{i}: {{type: spring, k: k/2, dimension: 2}}",
+                  f"  c{i}: {{type: capacitor, C: C, terminals: [p, n]}}",
+                  f"  l{i}: {{type: inductor, L: L}}",
+                  f"  r{i}: {{type: resistor, R: R, terminals: [p, n]}}"]
+    lines += ["  a1: {type: spring, k: m}", "  z1: {type: spring, k: m}"]
+    path = tmp_path / "kinds.yaml"
+    path.write_text("\n".join(lines) + "\n")
+    (diags, dump), (diags_alone, dump_alone), counts = _shared_and_alone(path, monkeypatch)
+    assert dump is not None and diags == diags_alone
+    assert dump == dump_alone
+    assert counts == {"built": 2 * 8, "refused": 1}  # z1 after a1: `z1.x` > `m` > `a1.x`
+
+
+def test_components_with_problems_are_each_lowered_and_reported(tmp_path, monkeypatch):
+    """A kind whose first component has an error is never shared: each of its components
+    reports the error at its own line, as without sharing."""
+    lines = ["format_version: 1", "name: bad", "parameters:", "  k: {value: -1.0}", "components:"]
+    lines += [f"  k{i}: {{type: spring, k: k}}" for i in (1, 2, 3)]
+    path = tmp_path / "bad.yaml"
+    path.write_text("\n".join(lines) + "\n")
+    (diags, _), (diags_alone, _), counts = _shared_and_alone(path, monkeypatch)
+    assert diags == diags_alone and counts == {"built": 0, "refused": 0}
+    assert [d.split(":")[1] for d in diags if "PHC-E405" in d] == ["6", "7", "8"]
+
+
+def test_a_chain_shares_its_lowerings_and_validates_as_before(tmp_path, monkeypatch):
+    """The benchmark's chain: one lowering per kind, the rest renamed, the same elaboration."""
+    path = tmp_path / "chain.yaml"
+    path.write_text(chain_yaml(41))
+    (diags, dump), (diags_alone, dump_alone), counts = _shared_and_alone(path, monkeypatch)
+    assert diags == diags_alone and dump == dump_alone
+    # 20 springs and 20 masses; the last mass has one port; k1 and m1 are the templates
+    assert counts == {"built": 19 + 18, "refused": 0}
