@@ -15,11 +15,11 @@ states move, and its steps minimize the change of the guesses alone — in the e
 when the guesses store energy (:meth:`_Problem.energy_metric`), else relative to their
 nominal scales — with the nuisance unknowns (rates, algebraic variables) free
 (:func:`_nested_min_norm`): guesses change only as much as the constraints demand, the
-same in every unit system. That holds while the Newton matrix has at most
-:data:`DENSE_LIMIT` entries (about 290 elements of a string); a larger problem takes
-the weighted minimum-norm steps of the sparse solvers, which price the nuisance unknowns at
-:data:`CHEAP` times their scale and can trade a guess against them (a 400-element string
-whose end must follow a moving mass gets a velocity ramp over its whole length).
+same in every unit system. Up to :data:`DENSE_LIMIT` Newton-matrix entries (about 290
+elements of a string) that step is solved dense, beyond by one sparse LU of its
+optimality system (:meth:`_Problem._sparse_nested_step`); where that fails, the step is
+the sparse solvers' weighted minimum-norm step, which prices the nuisance unknowns at
+:data:`CHEAP` times their scale and can trade a guess against them.
 Fixed values are never moved: if the
 equations cannot hold with them, the rows that fail are reported with the variables
 they involve — never a silent snap onto the constraint manifold.
@@ -484,9 +484,11 @@ class _Problem:
         them, and they are not of the guess's size: the rates of a wave (ė = T ∂v/∂ξ, 50 m/s
         wave speed) are large where the momenta are 1e-3 kg/(m·s) in SI, so the cheapest
         step shrank a pinned string's whole momentum field by 38 % instead of moving the
-        two end values the pins demand (and the answer depended on the units). Only dense
-        problems (at most :data:`DENSE_LIMIT` Jacobian entries) get that step; larger ones
-        the weighted minimum-norm step with the nuisance priced at :data:`CHEAP` × scale."""
+        two end values the pins demand (and the answer depended on the units). Dense
+        problems (at most :data:`DENSE_LIMIT` Jacobian entries) get it from
+        :func:`_nested_min_norm`, larger ones from :meth:`_sparse_nested_step`; where that
+        fails, the step is the weighted minimum-norm step with the nuisance priced at
+        :data:`CHEAP` × scale."""
         JW = J @ _diagonal(self.weights)
         guess = self.guess_columns
         if len(guess) and JW.shape[0] * JW.shape[1] <= DENSE_LIMIT:
