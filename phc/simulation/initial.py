@@ -130,6 +130,7 @@ class _Problem:
         self.guess_columns = np.flatnonzero(diff[self.free])  # guessed states (stage 2)
         self._metric = False  # energy_metric(), computed on first use
         self._hessian = None  # its K
+        self._kkt_failed = False  # the sparse nested step failed once (step())
         n_init = len(getattr(mod, "INITIAL", ()))
         self.C = sps.csr_matrix((np.asarray(getattr(mod, "INITIAL_DATA", [])),
                                  (np.asarray(getattr(mod, "INITIAL_ROWS", []), dtype=np.int64),
@@ -487,8 +488,8 @@ class _Problem:
         two end values the pins demand (and the answer depended on the units). Dense
         problems (at most :data:`DENSE_LIMIT` Jacobian entries) get it from
         :func:`_nested_min_norm`, larger ones from :meth:`_sparse_nested_step`; where that
-        fails, the step is the weighted minimum-norm step with the nuisance priced at
-        :data:`CHEAP` × scale."""
+        fails, the step (and every later one of this problem) is the weighted minimum-norm
+        step with the nuisance priced at :data:`CHEAP` × scale."""
         JW = J @ _diagonal(self.weights)
         guess = self.guess_columns
         if len(guess) and JW.shape[0] * JW.shape[1] <= DENSE_LIMIT:
@@ -501,10 +502,13 @@ class _Problem:
             du = self.weights * v
             du[guess] = T @ v[guess]
             return du
-        if len(guess):
+        if len(guess) and not self._kkt_failed:
             v = self._sparse_nested_step(JW, -g)
             if v is not None:
                 return self.weights * v
+            # as LeastNorm with a singular LU: the later Newton matrices differ by the move
+            # of the iterate, not in what made this one fail; do not pay for it again
+            self._kkt_failed = True
         # dense QR with column pivoting (gelsy) when small, else a sparse LU of the regular
         # system, else LSMR (phc.simulation.minnorm)
         return self.weights * self.solver.solve(JW, -g)
