@@ -15,11 +15,11 @@ states move, and its steps minimize the change of the guesses alone — in the e
 when the guesses store energy (:meth:`_Problem.energy_metric`), else relative to their
 nominal scales — with the nuisance unknowns (rates, algebraic variables) free
 (:func:`_nested_min_norm`): guesses change only as much as the constraints demand, the
-same in every unit system. That holds while the Newton matrix has at most
-:data:`DENSE_LIMIT` entries (about 290 elements of a string); a larger problem takes
-the weighted minimum-norm steps of the sparse solvers, which price the nuisance unknowns at
-:data:`CHEAP` times their scale and can trade a guess against them (a 400-element string
-whose end must follow a moving mass gets a velocity ramp over its whole length).
+same in every unit system. Up to :data:`DENSE_LIMIT` Newton-matrix entries (about 290
+elements of a string) that step is solved dense, beyond by one sparse LU of its
+optimality system (:meth:`_Problem._sparse_nested_step`); where that fails, the step is
+the sparse solvers' weighted minimum-norm step, which prices the nuisance unknowns at
+:data:`CHEAP` times their scale and can trade a guess against them.
 Fixed values are never moved: if the
 equations cannot hold with them, the rows that fail are reported with the variables
 they involve — never a silent snap onto the constraint manifold.
@@ -32,13 +32,14 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sps
+import scipy.sparse.linalg as spla
 
 from phc.analysis.matching import bipartite_matching
 from phc.errors import InconsistentInitialError
 from phc.simulation.chord import max_norm as _norm
 from phc.simulation.gauss_newton import gauss_newton, least_squares
 from phc.simulation.guard import ModelEvaluationError
-from phc.simulation.minnorm import (DENSE_SOLVE_LIMIT, LeastNorm, dense_min_norm, lsmr_min_norm, min_norm_solve,
+from phc.simulation.minnorm import (CONSISTENT, DENSE_SOLVE_LIMIT, LeastNorm, dense_min_norm, lsmr_min_norm, min_norm_solve,
                                     one_blas_thread)
 
 CHEAP = 1e4
@@ -128,6 +129,8 @@ class _Problem:
         self.sizes = (len(self.free), len(self.dif), len(self.zc), len(self.wc))
         self.guess_columns = np.flatnonzero(diff[self.free])  # guessed states (stage 2)
         self._metric = False  # energy_metric(), computed on first use
+        self._hessian = None  # its K
+        self._kkt_failed = False  # the sparse nested step failed once (step())
         n_init = len(getattr(mod, "INITIAL", ()))
         self.C = sps.csr_matrix((np.asarray(getattr(mod, "INITIAL_DATA", [])),
                                  (np.asarray(getattr(mod, "INITIAL_ROWS", []), dtype=np.int64),
@@ -403,6 +406,7 @@ class _Problem:
             return None  # (nearly) singular: some direction stores no energy
         # Δy = D⁻¹ L⁻ᵀ v: ‖v‖² = Δyᵀ K Δy
         self._metric = sla.solve_triangular(Lc.T, np.eye(n), lower=False) / D[:, None]
+        self._hessian = (Lc @ Lc.T) * np.outer(D, D)  # K (rounding-level entries dropped)
         return self._metric
 
     def unpack(self, u):
@@ -481,9 +485,11 @@ class _Problem:
         them, and they are not of the guess's size: the rates of a wave (ė = T ∂v/∂ξ, 50 m/s
         wave speed) are large where the momenta are 1e-3 kg/(m·s) in SI, so the cheapest
         step shrank a pinned string's whole momentum field by 38 % instead of moving the
-        two end values the pins demand (and the answer depended on the units). Only dense
-        problems (at most :data:`DENSE_LIMIT` Jacobian entries) get that step; larger ones
-        the weighted minimum-norm step with the nuisance priced at :data:`CHEAP` × scale."""
+        two end values the pins demand (and the answer depended on the units). Dense
+        problems (at most :data:`DENSE_LIMIT` Jacobian entries) get it from
+        :func:`_nested_min_norm`, larger ones from :meth:`_sparse_nested_step`; where that
+        fails, the step (and every later one of this problem) is the weighted minimum-norm
+        step with the nuisance priced at :data:`CHEAP` × scale."""
         JW = J @ _diagonal(self.weights)
         guess = self.guess_columns
         if len(guess) and JW.shape[0] * JW.shape[1] <= DENSE_LIMIT:
@@ -496,10 +502,82 @@ class _Problem:
             du = self.weights * v
             du[guess] = T @ v[guess]
             return du
+        if len(guess) and not self._kkt_failed:
+            v = self._sparse_nested_step(JW, -g)
+            if v is not None:
+                return self.weights * v
+            # as LeastNorm with a singular LU: the later Newton matrices differ by the move
+            # of the iterate, not in what made this one fail; do not pay for it again
+            self._kkt_failed = True
         # dense QR with column pivoting (gelsy) when small, else a sparse LU of the regular
         # system, else LSMR (phc.simulation.minnorm)
         return self.weights * self.solver.solve(JW, -g)
 
+    def _sparse_nested_step(self, A, b):
+        """The step of :func:`_nested_min_norm` for a sparse `A` (the Newton matrix in the
+        weighted unknowns v), through one sparse LU of the optimality system
+        ``[[E, Aᵀ], [A, 0]] [v; λ] = [0; b]`` of ``min ½vᵀEv subject to A v = b``: E is the
+        guesses' metric on their columns (the energy Hessian ``S K S`` in the weighted
+        guesses, S their scales, when :meth:`energy_metric` has one; else I, their nominal
+        scales) and δ = :data:`KKT_REGULARIZATION` on the nuisance columns (the dense path's
+        second-stage weights, scaled down), so the nuisance unknowns the equations leave
+        undetermined do not make the system singular. What δ trades of the guesses' minimum
+        is taken back by proximal sweeps with the same factors (the nuisance part pulled
+        towards the last sweep's, at most :data:`KKT_SWEEPS`; they end when the guesses'
+        part stops changing), whose limit is the nested solution. None — the caller then
+        takes the weighted minimum-norm step — when the factorization fails (dependent
+        rows, an inconsistent system) or a sweep misses the optimality system by more than
+        its rounding, :data:`~phc.simulation.minnorm.CONSISTENT` of ``‖K‖∞‖x‖∞ + ‖rhs‖∞``
+        after one step of iterative refinement."""
+        guess = self.guess_columns
+        n = A.shape[1]
+        A = sps.csr_matrix(A)
+        T = self.energy_metric()
+        scale = float(np.max(np.abs(A.data))) if A.nnz else 0.0
+        if scale == 0.0 or not np.all(np.isfinite(A.data)) or not np.all(np.isfinite(b)):
+            return None
+        prox = np.full(n, KKT_REGULARIZATION)  # δ on the nuisance columns
+        prox[guess] = 0.0
+        if T is None:
+            E = _diagonal(np.where(prox > 0, prox, 1.0))
+        else:
+            sg = self.weights[guess]
+            Kg = self._hessian * np.outer(sg, sg)
+            Kg /= float(np.max(np.diag(Kg)))  # unit size, like the nominal metric
+            rows, cols = np.nonzero(Kg)
+            E = _diagonal(prox) + sps.csr_matrix((Kg[rows, cols], (guess[rows], guess[cols])), shape=(n, n))
+        # λ scaled by `scale`: the blocks are of one size (no change of v)
+        K = sps.bmat([[E, A.T / scale], [A / scale, None]], format="csc")
+        norm_k = float(abs(K).sum(axis=1).max())  # ‖K‖∞
+        try:
+            lu = spla.splu(K)
+        except (RuntimeError, ValueError):
+            return None
+        v = np.zeros(n)
+        for _ in range(KKT_SWEEPS):
+            # min ½v_gᵀE v_g + ½δ‖v_n − v_n⁽ᵏ⁾‖² subject to A v = b (proximal steps on the
+            # nuisance block): each sweep shrinks what δ trades of the guesses' minimum by
+            # about δ times the nuisance/guess ratio (a 400-element string's end node: 1.6e5,
+            # so its neighbour is off by 1.6e-5 of ρv after one sweep, round-off after three).
+            rhs = np.concatenate([prox * v, b / scale])
+            x = lu.solve(rhs)
+            if not np.all(np.isfinite(x)):
+                return None
+            x += lu.solve(rhs - K @ x)
+            if not np.all(np.isfinite(x)) or _norm(K @ x - rhs) > CONSISTENT * (norm_k * _norm(x) + _norm(rhs)):
+                return None
+            done = _norm(x[guess] - v[guess]) <= np.finfo(float).eps * _norm(x[guess])
+            v = x[:n]
+            if done:
+                break
+        return v
+
+
+KKT_REGULARIZATION = 1e-10
+"""Weight δ of the nuisance unknowns, relative to the guesses' metric, in the sparse nested
+least-norm step (:meth:`_Problem._sparse_nested_step`)."""
+KKT_SWEEPS = 4
+"""Proximal sweeps of that step at most (each one solve with the same factors)."""
 
 RANGE_TOL = 1e-12
 """Directions of the nuisance columns weaker than this, relative to the strongest, are not
