@@ -517,9 +517,9 @@ class ModulePrinter:
             "    \"\"\"A long constant array stored as base64 of its little-endian bytes.\"\"\"\n"
             "    return np.frombuffer(base64.b64decode(text), dtype=dtype).copy()\n\n\n"
             "_floats = np.ndarray.tolist  # an array's entries as Python floats\n\n\n"
-            "def _indexed(stem, start, stop, tail=''):\n"
-            "    \"\"\"The names `stem[i]tail` for i from start to stop - 1 (a mesh's entries).\"\"\"\n"
-            "    return tuple(f'{stem}[{i}]{tail}' for i in range(start, stop))\n",
+            "def _indexed(_stem, _start, _stop, _tail=''):\n"
+            "    \"\"\"The names `_stem[i]_tail` for i from _start to _stop - 1 (a mesh's entries).\"\"\"\n"
+            "    return tuple(f'{_stem}[{_i}]{_tail}' for _i in range(_start, _stop))\n",
             f"MODEL = {str(ir.name)!r}",
             f"SOURCES = {_tuple([os.path.basename(s) for s in ir.sources])}",
             f"N = {n}",

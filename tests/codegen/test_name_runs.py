@@ -22,8 +22,8 @@ MODELS = Path(__file__).resolve().parents[2] / "models"
 
 def _load_tuple(values):
     source = "\n".join([
-        "def _indexed(stem, start, stop, tail=''):",
-        "    return tuple(f'{stem}[{i}]{tail}' for i in range(start, stop))",
+        "def _indexed(_stem, _start, _stop, _tail=''):",
+        "    return tuple(f'{_stem}[{_i}]{_tail}' for _i in range(_start, _stop))",
         f"VALUES = {_tuple(values)}",
     ]) + "\n"
     module, _ = load_generated(source, "names")
