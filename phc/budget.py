@@ -15,7 +15,9 @@ and Jacobian nonzeros per element are those of phc's own discretizations (the ``
 of each type's entry in :mod:`phc.registry`), and the
 compile peak is about :data:`BYTES_PER_UNKNOWN` per unknown plus
 :data:`BYTES_PER_NONZERO` per nonzero on top of :data:`BASE_BYTES` (measured on strings
-and beams of 1 000 to 16 000 elements: 6.9 KiB and 0.4 KiB; the constants round up, and
+and Euler–Bernoulli beams of 1 000 and 10 000 elements, NumPy back end: the compile peak
+grew by 5.8 and 7.5 KiB per unknown, 4 and 6.75 Jacobian nonzeros per unknown, i.e. about
+3.4 KiB per unknown and 0.6 KiB per nonzero; the constants round up, and
 ``benchmarks/bench_beam_scale.py`` prints estimate and measured peak side by side).
 After assembly (:func:`check_assembled`) the count is exact and the output arrays are
 added: ``n_out × (2·variables + outputs + invariants + 4)`` doubles (values and
@@ -73,17 +75,21 @@ BASE_BYTES = 288 * 2**20
 measured), plus the solvers' fixed working memory (a process that compiles a string of
 1 000 elements with ``energy: H`` and takes ten midpoint steps peaks at 309 MiB, 4 004
 unknowns; ``benchmarks/bench_beam_scale.py``)."""
-BYTES_PER_UNKNOWN = 8 * 2**10
-"""Compile peak per unknown: symbols, variables, equations, printed source (6.9 KiB measured;
-with this and :data:`BYTES_PER_NONZERO`, from 1 000 to 10 000 elements a string's peak grew
-by 8.8 KiB per unknown against 10 KiB charged, an Euler–Bernoulli beam's by 10.4 KiB against
-11.4 KiB)."""
-BYTES_PER_NONZERO = 512
-"""Compile peak per Jacobian nonzero (0.4 KiB measured)."""
-BYTES_PER_COMPONENT = 48 * 2**10
+BYTES_PER_UNKNOWN = 4 * 2**10
+"""Compile peak per unknown: two sympy symbols (y and ẏ), the variable and its row, the
+printed source and Python's compilation of it (3.4 KiB measured, with :data:`BYTES_PER_NONZERO`
+fitted to the growth of the compile peak (one process, ``backend="numpy"``, no certificate)
+from 1 000 to 10 000 elements: a string's by 5.8 KiB per unknown against 6.5 KiB charged
+(181 → 384 MiB), an Euler–Bernoulli beam's by 7.5 KiB against 8.2 KiB (204 → 728 MiB)). Until
+the per-unknown names were printed as runs (``_indexed``), Python's compiler alone took
+about 0.9 KiB per name of VARIABLES, ROLES and EQUATIONS, and this was 8 KiB."""
+BYTES_PER_NONZERO = 640
+"""Compile peak per Jacobian nonzero (0.6 KiB measured, see :data:`BYTES_PER_UNKNOWN`)."""
+BYTES_PER_COMPONENT = 52 * 2**10
 """Compile peak per component on top of its unknowns and nonzeros: its spec, description,
 lowering and generated statements (chains of 3 000 and 10 000 springs and masses, one unknown
-each: 54.7 KiB per component in all, 45 KiB of it beyond the unknown and its nonzeros)."""
+each: 54.7 KiB per component in all, measured when a component's unknown was charged 8 KiB;
+with 4 KiB per unknown this is raised by the 4 KiB so that a chain is charged no less)."""
 
 DIFF_LIMIT = 100_000
 """Largest bound on the size of one derivative (nodes): about 3 s of sympy work."""
