@@ -212,7 +212,7 @@ class _Springs:
 
 @pytest.mark.parametrize("n", [50, 400])
 def test_energy_sizes_evaluate_h_a_bounded_number_of_times(n):
-    from phc.simulation.scaling import energy_sizes
+    from phc.simulation.energy_sizes import energy_sizes
 
     rng = np.random.default_rng(1)
     mod = _Springs(rng.uniform(1.0, 1e4, n))
@@ -226,7 +226,7 @@ def test_energy_sizes_evaluate_h_a_bounded_number_of_times(n):
 
 
 def test_energy_sizes_fall_back_to_single_calls_for_a_scalar_only_h():
-    from phc.simulation.scaling import energy_sizes
+    from phc.simulation.energy_sizes import energy_sizes
 
     class Scalar(_Springs):
         def hamiltonian(self, t, y, p):
@@ -279,11 +279,15 @@ class _Forms(_Springs):
 
 
 @pytest.mark.parametrize("n", [41, 3001])
-def test_energy_sizes_of_sparse_quadratic_forms_take_one_batched_call_each_way(n):
+def test_energy_sizes_of_sparse_quadratic_forms_take_one_batched_call_each_way(n, monkeypatch):
     """The generated H of a string or a beam (sparse forms of index blocks) is evaluated for all
-    perturbed states at once, without a matrix of states (:class:`phc.simulation.scaling.
-    _OneEntryColumns`): the sizes are the closed form's, with a bounded number of calls."""
-    from phc.simulation.scaling import energy_sizes
+    perturbed states at once, without a matrix of states (:class:`phc.simulation.energy_sizes.
+    _OneEntryColumns`): the sizes are the closed form's, with a bounded number of calls (the
+    small size with the lazy columns switched on from the first entry)."""
+    from phc.simulation import energy_sizes as module
+    from phc.simulation.energy_sizes import energy_sizes
+
+    monkeypatch.setattr(module, "LAZY_MIN_ENTRIES", 0)
 
     mod = _Forms(n)
     rng = np.random.default_rng(3)
@@ -300,7 +304,7 @@ def test_energy_sizes_of_sparse_quadratic_forms_take_one_batched_call_each_way(n
 def test_energy_sizes_of_a_block_naming_a_state_twice_fall_back():
     """A repeated index is not taken by the lazy columns (their blocks assume distinct
     states): the other ways give the same closed-form sizes."""
-    from phc.simulation.scaling import energy_sizes
+    from phc.simulation.energy_sizes import energy_sizes
 
     mod = _Forms(41, repeat=True)
     y0 = np.random.default_rng(4).normal(size=41)

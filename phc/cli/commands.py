@@ -82,7 +82,7 @@ MAX_FILE_STEM = 120
 
 def cmd_compile(args) -> int:
     from phc import fastpath
-    from phc.errors import ModelError, SimulationSetupError
+    from phc import ModelError, SimulationSetupError
     from phc.io import write_text
 
     files = _Files(args, "compile")

@@ -23,6 +23,10 @@ the sparse solvers' weighted minimum-norm step, which prices the nuisance unknow
 Fixed values are never moved: if the
 equations cannot hold with them, the rows that fail are reported with the variables
 they involve — never a silent snap onto the constraint manifold.
+
+The module is over 800 lines because the problem's weighted unknowns, its two stages and
+the dense and sparse forms of the nested least-norm step share one state (:class:`_Problem`);
+the sparse optimality system is the part to move out next.
 """
 
 from __future__ import annotations
@@ -629,7 +633,12 @@ def _nested_min_norm(A, b, first) -> np.ndarray:
         miss = np.linalg.norm(A @ v - b)
     plain = dense_min_norm(A, b)
     miss_plain = np.linalg.norm(A @ plain - b)
-    return v if miss <= 2 * miss_plain + np.finfo(float).eps * (norm_a * np.linalg.norm(v) + norm_b) else plain
+    # the rounding allowed is that of a step of the plain step's size: a split that blows up
+    # (‖v‖ ≫ ‖plain‖, the nuisance block nearly singular) has a backward error as large as
+    # its size permits, and is no step to take (a Timoshenko beam's certificate samples:
+    # ‖v‖ = 1e8 against 2e3, which collapsed the sampled states)
+    size = min(np.linalg.norm(v), np.linalg.norm(plain))
+    return v if miss <= 2 * miss_plain + np.finfo(float).eps * (norm_a * size + norm_b) else plain
 
 
 def _solve(prob: _Problem, tol: float, max_iter: int):

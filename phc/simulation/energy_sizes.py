@@ -1,0 +1,221 @@
+"""The energy sizes of the states (:func:`energy_sizes`): ``sqrt(2E / ∂²H/∂y_j²)``, the size
+a state would have if it held the energy scale E alone — the energy floor of the nominal
+scales (:mod:`phc.simulation.scaling`, rule 5).
+
+Central differences need H with every state perturbed on its own: one call each would be
+quadratic in the size of the model. The generated NumPy H (a compiled module's NumPy
+reference too) is straight-line arithmetic on entries of y and sparse quadratic forms of
+its index blocks, so the perturbed states of many variables are one call, first as a lazy
+object whose products cost the nonzeros (:class:`_OneEntryColumns`), else as a matrix of
+states (:func:`_columns`), each batch checked against single calls of the module's own H.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+def energy_sizes(mod, p, t0, y0, s, energy: float) -> np.ndarray:
+    """``sqrt(2E / ∂²H/∂y_j²)`` for each differential variable j: its size if it held the
+    energy scale E alone (0 where H is not curved in y_j or E is 0). Central differences
+    with a step that grows until the second difference stands above H's round-off.
+
+    One evaluation of H per variable and step would make this quadratic in the size of the
+    model; the generated NumPy H evaluates a matrix of states column by column, so the
+    perturbed states of many variables are one call (:func:`_columns`), checked against
+    single calls."""
+    from phc.simulation.guard import CATCH, ModelEvaluationError
+
+    n = mod.N
+    out = np.zeros(n)
+    if not energy > 0:
+        return out
+    diff = np.flatnonzero(np.asarray(mod.DIFFERENTIAL, dtype=bool))
+    names = list(mod.VARIABLES)
+    skip = names.index("energy.supplied") if "energy.supplied" in names else -1
+    H = mod.hamiltonian
+    try:
+        h0 = float(H(t0, y0, p))
+        noise = 1e-12 * max(energy, abs(h0))
+        todo = np.array([j for j in diff if j != skip], dtype=int)
+        delta = np.maximum(np.asarray(s, dtype=float)[todo], np.abs(y0[todo]))
+        delta = np.where(delta > 0, delta, 1.0)
+        for _ in range(8):
+            if not len(todo):
+                break
+            hp, hm = _columns(mod, t0, y0, p, todo, delta), _columns(mod, t0, y0, p, todo, -delta)
+            d2 = hp - 2.0 * h0 + hm
+            finite = np.isfinite(d2)
+            # above the round-off of the values differenced: an H linear in y_j (a
+            # potential m·g·y) has no curvature, whatever its round-off at a huge step says
+            with np.errstate(invalid="ignore", over="ignore"):
+                curved = finite & (np.abs(d2) > np.maximum(noise, 1e-12 * np.maximum(np.abs(hp), np.abs(hm))))
+                k = np.where(curved, d2, 0.0) / delta ** 2
+            good = curved & (k > 0)
+            out[todo[good]] = np.sqrt(2.0 * energy / k[good])
+            more = finite & ~curved
+            todo, delta = todo[more], delta[more] * 1e3
+    except (ModelEvaluationError, *CATCH):
+        return np.zeros(n)
+    return np.where(np.isfinite(out), out, 0.0)
+
+
+COLUMNS_BATCH = 1 << 23
+"""Most entries of the matrix of states one batched evaluation of H holds (64 MiB). Each
+evaluation runs the generated H's statements once on rows of this many columns, so the
+interpreter's cost per statement is shared by more columns: for the 9999 unknowns of the
+chain of ``benchmarks/bench_components.py`` the sizes took 3.8 s of CPU with 16 MiB
+batches (209 columns), 2.0 s with 32 MiB, 1.7 s with 64 and 128 MiB, the same sizes to the bit."""
+
+
+class _OneEntryColumns:
+    """The states ``y0 + steps[k]·e_{cols[k]}`` (k < B) as the NumPy back end's H reads them,
+    without a matrix of states: an entry ``y[i]`` is the row of its B values (``y0[i]``
+    where column k does not perturb it), and ``y[idx]`` (an index array, the columns of a
+    sparse quadratic form ``y[c] @ (Q @ y[c])``) a :class:`_PerturbedBlock`. Anything else the
+    generated code might do with y raises TypeError (then the matrix of states, or single
+    calls). Each quadratic form then costs its own nonzeros plus B, not B times the unknowns:
+    a 40 004-unknown string's energy sizes took 160 s of CPU in single calls."""
+
+    def __init__(self, y0, cols, steps):
+        self.y0 = np.asarray(y0, dtype=float)
+        self.cols = np.asarray(cols, dtype=np.int64)
+        self.steps = np.asarray(steps, dtype=float)
+
+    def __getitem__(self, key):
+        if isinstance(key, (int, np.integer)):
+            row = np.full(len(self.cols), self.y0[key])
+            hit = self.cols == int(key) % len(self.y0)
+            row[hit] += self.steps[hit]
+            return row
+        idx = np.asarray(key)
+        if idx.ndim != 1 or idx.dtype.kind not in "iu":
+            raise TypeError("only entries and index arrays of the states")
+        idx = idx.astype(np.int64) % len(self.y0)
+        order = np.argsort(idx, kind="stable")
+        ranked = idx[order]
+        if len(ranked) > 1 and np.any(ranked[1:] == ranked[:-1]):
+            raise TypeError("a repeated index")
+        where = np.searchsorted(ranked, self.cols)
+        inside = where < len(ranked)
+        inside[inside] = ranked[where[inside]] == self.cols[inside]
+        k = np.flatnonzero(inside)
+        import scipy.sparse as sps
+
+        delta = sps.csc_array((self.steps[k], (order[where[k]], k)), shape=(len(idx), len(self.cols)))
+        return _PerturbedBlock(self.y0[idx], delta)
+
+
+class _PerturbedBlock:
+    """B vectors ``base + delta[:, k]`` (`delta` sparse): ``Q @ block`` (Q a scipy sparse
+    matrix) is another block, ``block @ block`` the B inner products of matching columns."""
+
+    def __init__(self, base, delta):
+        self.base, self.delta = base, delta
+
+    def __rmatmul__(self, Q):
+        import scipy.sparse as sps
+
+        if not sps.issparse(Q) or Q.ndim != 2 or Q.shape[1] != len(self.base):
+            return NotImplemented
+        return _PerturbedBlock(np.asarray(Q @ self.base, dtype=float), sps.csc_array(Q @ self.delta))
+
+    def __matmul__(self, other):
+        if not isinstance(other, _PerturbedBlock) or len(other.base) != len(self.base):
+            return NotImplemented
+        fixed = self.base @ other.base  # the unperturbed value, as a single call computes it
+        cross = self.delta.T @ other.base + other.delta.T @ self.base
+        both = np.asarray(self.delta.multiply(other.delta).sum(axis=0)).ravel()
+        return fixed + (np.asarray(cross).ravel() + both)
+
+
+LAZY_MIN_ENTRIES = 1 << 20
+"""The lazy columns are used where the columns times the unknowns reach this (about 10³
+states of a 10³-unknown model): below, the other ways cost milliseconds. Their sums run in
+another order than the generated code's own, so the sizes differ in the last bits, and the
+tolerances built on them (:func:`phc.simulation.scaling.promise_scales`) with them: a
+24-element beam's order choice (tests/simulation/test_ida_order.py) went the other way."""
+LAZY_BATCH = 1 << 16
+"""Columns of one :class:`_OneEntryColumns` evaluation of H (its rows cost this many entries each)."""
+
+
+def _columns(mod, t, y0, p, cols, steps) -> np.ndarray:
+    """``H(t, y0 + steps[k]·e_{cols[k]}, p)`` for every k. The NumPy back end's H is
+    straight-line arithmetic on the entries of y and sparse quadratic forms of its index
+    blocks, so the perturbed states (one column each) give the values of all columns in one
+    call: first as :class:`_OneEntryColumns` (cost linear in the unknowns), else as a matrix
+    of states; each batch is checked against single calls at its first and last columns (any
+    other shape, value or error: one call per column). A compiled module's columns are
+    those of its NumPy reference module, checked against the compiled H the same way."""
+    H = mod.hamiltonian
+    out = np.empty(len(cols))
+    raw = getattr(H, "__wrapped__", H)
+    loaded = getattr(mod, "module", mod)
+    reference = getattr(loaded, "REFERENCE", loaded)  # a compiled module's NumPy module (phc.codegen.backends)
+    if reference is not loaded:  # C or numba: their H takes one state; the NumPy H batches, checked against them
+        raw = reference.hamiltonian
+    batched = getattr(reference, "BACKEND", "numpy") == "numpy" and len(cols) > 1
+    size = max(2, COLUMNS_BATCH // max(len(y0), 1))
+    start = 0
+    if batched and len(cols) * len(y0) >= LAZY_MIN_ENTRIES:
+        start = _lazy_columns(H, raw, t, y0, p, cols, steps, out)
+    while start < len(cols):
+        stop = min(len(cols), start + size)
+        c, d = cols[start:stop], steps[start:stop]
+        values = None
+        if batched and stop - start > 1:
+            Y = np.repeat(np.asarray(y0, dtype=float)[:, None], stop - start, axis=1)
+            Y[c, np.arange(stop - start)] += d
+            try:
+                with np.errstate(all="ignore"):
+                    values = np.asarray(raw(t, Y, p), dtype=float)
+            except Exception:  # noqa: BLE001 - not column by column: single calls below
+                values = None
+            if values is None or values.shape != (stop - start,) or \
+                    not _matches_single(H, t, y0, p, c, d, values, (0, stop - start - 1)):
+                values = None
+            if values is None:
+                batched = False
+        single = range(stop - start) if values is None else np.flatnonzero(~np.isfinite(values))
+        values = np.empty(stop - start) if values is None else values
+        for k in single:  # a value that is not finite: the guarded call decides (it may recover or fail)
+            y = np.array(y0, dtype=float)
+            y[c[k]] += d[k]
+            values[k] = float(H(t, y, p))
+        out[start:stop] = values
+        start = stop
+    return out
+
+
+def _matches_single(H, t, y0, p, c, d, values, ks) -> bool:
+    """Whether the batched `values` of H at columns ``ks`` equal single calls (to 1e-14)."""
+    for k in ks:
+        y = np.array(y0, dtype=float)
+        y[c[k]] += d[k]
+        single = float(H(t, y, p))
+        if not (values[k] == single or abs(values[k] - single) <= 1e-14 * abs(single)):
+            return False
+    return True
+
+
+def _lazy_columns(H, raw, t, y0, p, cols, steps, out) -> int:
+    """The first columns of :func:`_columns` evaluated as :class:`_OneEntryColumns`, in
+    batches of :data:`LAZY_BATCH`, into `out`; returns how many (0 when H does not take
+    them: the first batch that fails a check stops, and the rest goes the other ways)."""
+    start = 0
+    while start < len(cols):
+        stop = min(len(cols), start + LAZY_BATCH)
+        c, d = cols[start:stop], steps[start:stop]
+        try:
+            with np.errstate(all="ignore"):
+                values = np.asarray(raw(t, _OneEntryColumns(y0, c, d), p), dtype=float)
+        except Exception:  # noqa: BLE001 - H reads y otherwise: the matrix of states or single calls
+            return start
+        if values.shape != (stop - start,) or not _matches_single(H, t, y0, p, c, d, values, (0, stop - start - 1)):
+            return start
+        for k in np.flatnonzero(~np.isfinite(values)):  # the guarded call decides (it may recover or fail)
+            y = np.array(y0, dtype=float)
+            y[c[k]] += d[k]
+            values[k] = float(H(t, y, p))
+        out[start:stop] = values
+        start = stop
+    return start
