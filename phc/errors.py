@@ -328,7 +328,7 @@ class RegistryError(PhcError):
     wrong, a name taken)."""
 
 
-PRIVATE_CONTROL_FLOW = ("phc.cli.report._Exit", "phc.checks.compiled._NotNumeric", "phc.initial_fields._FieldError",
+PRIVATE_CONTROL_FLOW = ("phc.cli.report._Exit", "phc.lowering.Unshareable", "phc.checks.compiled._NotNumeric", "phc.initial_fields._FieldError",
                         "phc.initial_fields._Silent", "phc.codegen.numba_cache.NotInCache",
                         "phc.source._NotRegular", "phc.simulation.ida._Stop", "phc.simulation.order.Switch",
                         "phc.simulation.events._ContactRest", "phc.ode_form._Stop")

@@ -356,6 +356,10 @@ class _Template:
                           if self.span_slot[id(span)] != i]  # one span of the template at two paths
         # names as sorted in the template; :meth:`build` checks the new names keep this order
         self.symbols.sort(key=lambda item: item[0])
+        # one entry per name: two equal symbols that are distinct objects (made on both sides
+        # of a clear of sympy's cache, which tests/test_component_scaling.py does) are one
+        # name, not a reordering; counted twice, every instance was refused
+        self.symbols = [item for i, item in enumerate(self.symbols) if i == 0 or item[0] != self.symbols[i - 1][0]]
 
     def _rename(self, s: str):
         """(prefix index, rest) of one of `old`'s names, -1 for `old` itself, None otherwise."""

@@ -528,3 +528,18 @@ def test_a_chain_shares_its_lowerings_and_validates_as_before(tmp_path, monkeypa
     assert diags == diags_alone and dump == dump_alone
     # 20 springs and 20 masses; the last mass has one port; k1 and m1 are the templates
     assert counts == {"built": 19 + 18, "refused": 0}
+
+
+def test_sharing_survives_a_cleared_sympy_cache(tmp_path, monkeypatch):
+    """Symbols made before and after a clear of sympy's cache are distinct objects of one
+    name; the shared lowering counts names, so the chain is shared as in a fresh process
+    (counted twice, every mass was refused: 18 instances lowered on their own)."""
+    from sympy.core.cache import clear_cache
+
+    path = tmp_path / "chain.yaml"
+    path.write_text(chain_yaml(41))
+    phc.build_dae(path)  # symbols made and cached
+    clear_cache()
+    (diags, dump), (diags_alone, dump_alone), counts = _shared_and_alone(path, monkeypatch)
+    assert diags == diags_alone and dump == dump_alone
+    assert counts == {"built": 19 + 18, "refused": 0}
