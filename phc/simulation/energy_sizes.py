@@ -178,20 +178,23 @@ def _columns(mod, t, y0, p, cols, steps) -> np.ndarray:
         single = range(stop - start) if values is None else np.flatnonzero(~np.isfinite(values))
         values = np.empty(stop - start) if values is None else values
         for k in single:  # a value that is not finite: the guarded call decides (it may recover or fail)
-            y = np.array(y0, dtype=float)
-            y[c[k]] += d[k]
-            values[k] = float(H(t, y, p))
+            values[k] = _one_column(H, t, y0, p, c[k], d[k])
         out[start:stop] = values
         start = stop
     return out
 
 
+def _one_column(H, t, y0, p, col, step) -> float:
+    """H, by the guarded single call, at the state y0 with entry `col` moved by `step`."""
+    y = np.array(y0, dtype=float)
+    y[col] += step
+    return float(H(t, y, p))
+
+
 def _matches_single(H, t, y0, p, c, d, values, ks) -> bool:
     """Whether the batched `values` of H at columns ``ks`` equal single calls (to 1e-14)."""
     for k in ks:
-        y = np.array(y0, dtype=float)
-        y[c[k]] += d[k]
-        single = float(H(t, y, p))
+        single = _one_column(H, t, y0, p, c[k], d[k])
         if not (values[k] == single or abs(values[k] - single) <= 1e-14 * abs(single)):
             return False
     return True
@@ -213,9 +216,7 @@ def _lazy_columns(H, raw, t, y0, p, cols, steps, out) -> int:
         if values.shape != (stop - start,) or not _matches_single(H, t, y0, p, c, d, values, (0, stop - start - 1)):
             return start
         for k in np.flatnonzero(~np.isfinite(values)):  # the guarded call decides (it may recover or fail)
-            y = np.array(y0, dtype=float)
-            y[c[k]] += d[k]
-            values[k] = float(H(t, y, p))
+            values[k] = _one_column(H, t, y0, p, c[k], d[k])
         out[start:stop] = values
         start = stop
     return start
