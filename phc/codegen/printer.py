@@ -18,10 +18,8 @@ This printer only builds strings; all analysis happened in :mod:`phc.codegen.low
 
 from __future__ import annotations
 
-import math
-
-import base64
 import keyword
+import math
 import os
 import re
 from typing import Sequence
@@ -32,6 +30,7 @@ from sympy.printing.pycode import PythonCodePrinter
 
 from phc import __version__
 from phc.budget import drop_deltas
+from phc.codegen import packing
 from phc.codegen.lower import ResidualIR
 from phc.codegen.terms import ordered_terms
 from phc.dae import STORED_ENERGY, T
@@ -112,16 +111,15 @@ def _identifier(prefix: str, name: str, taken: set) -> str:
 
 
 PACK_LIMIT = 256
-"""Arrays longer than this are printed as base64 of their bytes: a 1000-element beam's
-40 000 matrix entries as float literals take seconds for Python to compile."""
+"""Arrays longer than this are printed as periodic runs and base64 of their bytes
+(:mod:`phc.codegen.packing`): a 1000-element beam's 40 000 matrix entries as float literals
+take seconds for Python to compile, and a uniform mesh's stencil repeats."""
 
 
 def _array(values: Sequence, dtype: str) -> str:
-    values = list(values)
     if len(values) > PACK_LIMIT and dtype in ("float", "np.int64"):
-        np_dtype = "<f8" if dtype == "float" else "<i8"
-        packed = base64.b64encode(np.asarray(values, dtype=np_dtype).tobytes()).decode()
-        return f"_unpack('{packed}', '{np_dtype}')"
+        return packing.expression(values, "<f8" if dtype == "float" else "<i8")
+    values = list(values)
     if dtype == "bool" and len(values) > PACK_LIMIT:  # run lengths: a mesh's states, then its efforts
         starts = [0] + [k for k in range(1, len(values)) if bool(values[k]) != bool(values[k - 1])]
         counts = [b - a for a, b in zip(starts, [*starts[1:], len(values)])]
@@ -513,9 +511,7 @@ class ModulePrinter:
             "returned as data in compressed-sparse-column order of (JAC_ROWS, JAC_COLS).\n"
             '"""\n',
             "import base64\nimport math\n\nimport numpy as np\n\n\n"
-            "def _unpack(text, dtype):\n"
-            "    \"\"\"A long constant array stored as base64 of its little-endian bytes.\"\"\"\n"
-            "    return np.frombuffer(base64.b64decode(text), dtype=dtype).copy()\n\n\n"
+            + packing.DECODER + "\n\n"
             "_floats = np.ndarray.tolist  # an array's entries as Python floats\n\n\n"
             "def _indexed(_stem, _start, _stop, _tail=''):\n"
             "    \"\"\"The names `_stem[i]_tail` for i from _start to _stop - 1 (a mesh's entries).\"\"\"\n"
