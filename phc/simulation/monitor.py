@@ -454,8 +454,11 @@ def many_steps_hint(mod, p, t, y, yp, *, steps: int, span: float, max_order: int
     ``max_steps``) may have cost them, said only where it holds: lightly damped modes
     (:func:`undamped_modes`, at each state of `t`, `y`, `ẏ`; above :data:`MODES_MAX` unknowns
     those near ``1/h``, :func:`undamped_modes_near`) that the mean step leaves unresolved
-    (ω·h above :data:`UNRESOLVED`) at a BDF order above 2, which is not stable for them —
-    otherwise the error test at the tolerances. A loudspeaker with modes of damping ratio
+    (ω·h above :data:`UNRESOLVED`) at BDF order 3 or 4, which is not stable for them, or at
+    order 5 where they hold its step (ω·h above :data:`phc.simulation.order.HELD`) — then
+    `max_order: 2` is the advice; otherwise the error test at the tolerances, which at order
+    5 may follow undamped modes of ω·h between the two (BDF5 is stable there, and BDF2 would
+    take more steps: the advice is a fixed-step solver or looser tolerances). A loudspeaker with modes of damping ratio
     0.78 and 1 was told of "stiff undamped modes" it does not have, when an index-1
     variable's tolerance was the cause (issue 33); the Euler–Bernoulli beam of 1 000
     elements (modes up to 7.7e9 rad/s) was told it had none, because no mode of its 8 007
@@ -477,10 +480,24 @@ def many_steps_hint(mod, p, t, y, yp, *, steps: int, span: float, max_order: int
             omegas.append(float(w[0]))
     w = max(omegas, default=0.0)
     beyond = " or beyond" if searched else ""  # the sparse search sees the modes near 1/h, not the fastest
-    if w * h > UNRESOLVED and max_order > 2:
+    from phc.simulation.order import DEFAULT_ORDER, HELD  # order.py imports this module
+
+    # BDF3 and BDF4 amplify an undamped mode at every ωh > 0; BDF5 only above BDF5_IMAGINARY,
+    # and IDA can double a step while ωh ≤ HELD: below that the steps are the error test's,
+    # and max_order 2 would shorten them (a 16-element cantilever with a tip mass: 978 824
+    # steps at order 5, 10⁶ steps for its first 0.0047 s of 0.05 s at order 2)
+    stable5 = max_order >= DEFAULT_ORDER and w * h <= HELD
+    if w * h > UNRESOLVED and max_order > 2 and not stable5:
         return (f"{head}: the model has undamped oscillations up to ω ≈ {w:.2g} rad/s{beyond} that steps of this "
                 f"size do not resolve (ωh ≈ {w * h:.2g}), and BDF of order 3–5 is not stable for them; `max_order: "
                 "2` or a fixed-step solver (`--solver midpoint --step …`) steps over them (docs/how-to/solvers.md)")
+    if w * h > UNRESOLVED and max_order > 2:  # BDF5 stable for them, its step not held: the error test's
+        return (f"{head}: the steps follow undamped oscillations up to ω ≈ {w:.2g} rad/s{beyond} (ωh ≈ "
+                f"{w * h:.2g}); BDF5 is stable for them at this ωh (below {HELD:.2f}, where IDA can still double "
+                f"its step), so the steps are what the error test asks for at rtol = {rtol:g}, atol = {atol:g} "
+                "(atol relative to each variable's nominal scale, docs/tolerances.md) and `max_order: 2` would "
+                "make them shorter (BDF2 is second order); a fixed-step solver (`--solver midpoint --step …`) "
+                "steps over the oscillations, or looser tolerances cost fewer steps (docs/how-to/solvers.md)")
     if w * h > UNRESOLVED:  # at max_order 2: A-stable, the modes are damped numerically, not a limit
         modes = (f"the undamped oscillations up to ω ≈ {w:.2g} rad/s{beyond} (ωh ≈ {w * h:.2g}) are not resolved, "
                  f"but BDF at max_order {max_order} is stable for them")

@@ -138,16 +138,18 @@ def test_the_sparse_mode_search_finds_the_modes_of_the_dense_qz():
 
 def test_a_large_model_that_uses_up_max_steps_is_told_of_its_undamped_modes(monkeypatch):
     """A run that stops at max_steps with steps that leave lightly damped modes unresolved at
-    BDF order 5 is told to use max_order 2, also where the model is too large for the dense
-    QZ (here forced by MODES_MAX = 0: the sparse search near 1/h). It used to be told that
-    no undamped mode was left unresolved, without any mode computed. The frequency it names
-    is one of the linearization's (dense QZ), with ω·h above UNRESOLVED."""
+    a BDF order above 2 is told to use max_order 2, also where the model is too large for the
+    dense QZ (here forced by MODES_MAX = 0: the sparse search near 1/h). It used to be told
+    that no undamped mode was left unresolved, without any mode computed. The frequency it
+    names is one of the linearization's (dense QZ), with ω·h above UNRESOLVED. max_order 4:
+    BDF4 amplifies an undamped mode at every ωh (at order 5 and this ωh, ~0.15, BDF5 is stable
+    and the advice is another one: the test below)."""
     compiled = phc.compile_model(MODELS / "euler_bernoulli_beam.yaml", certify=False)
     mod, p, t, y, yp = _start_of(compiled)
     dense = monitor.undamped_modes(mod, p, t, y, yp)
     monkeypatch.setattr(monitor, "MODES_MAX", 0)
     assert monitor.undamped_modes(mod, p, t, y, yp) is None
-    run = phc.simulate(compiled, solver="ida", rtol=1e-6, t_end=2e-3, max_order=5, max_steps=400)
+    run = phc.simulate(compiled, solver="ida", rtol=1e-6, t_end=2e-3, max_order=4, max_steps=400)
     assert not run.success and "(max_steps)" in run.message, run.message
     assert f"IDA took {run.steps} steps" in run.message
     h = float(run.message.split("(mean step ")[1].split(")")[0])
@@ -171,3 +173,53 @@ def test_the_hint_claims_nothing_about_modes_it_could_not_compute(monkeypatch):
     assert "(max_steps)" in run.message
     assert "could not be computed" in run.message and "no undamped mode" not in run.message
     assert sim.MANY_STEPS > 200  # the hint came from the stop, not from the step count
+
+
+OSCILLATOR = """\
+format_version: 1
+name: oscillator
+parameters: {m: 1.0, k: 4.0}
+components:
+  mass: {type: mass, m: m}
+  spring: {type: spring, k: k}
+connections:
+  - [mass.port, spring.port]
+simulation:
+  t_end: 10.0
+  initial: {spring.x: 0.5}
+"""
+
+
+def test_steps_that_bdf5_keeps_stable_are_not_told_to_use_max_order_2(tmp_path):
+    """The hint said "`max_order: 2` … steps over them" wherever ω·h > UNRESOLVED at order 5,
+    also below HELD, where BDF5 is stable for the mode and IDA can still double its step: the
+    steps are the error test's, and BDF2 (second order) needs more of them. A 16-element
+    cantilever with a tip mass (978 824 steps at order 5 over 0.05 s) was told so, and at
+    max_order 2 took 10⁶ steps for its first 0.0047 s. Here an undamped oscillator
+    (ω = sqrt(k/m) = 2 rad/s, the closed form) run by IDA at orders 5 and 2 with the same
+    tolerances: order 2 takes more steps, and the hint for order 5's mean step (ωh between
+    UNRESOLVED and HELD, asserted) names the mode and does not advise max_order 2; at
+    max_order 4 (BDF4 amplifies undamped modes at every ωh) it still does."""
+    from phc.simulation.order import HELD
+
+    path = tmp_path / "oscillator.yaml"
+    path.write_text(OSCILLATOR)
+    compiled = phc.compile_model(path, certify=False)
+    rtol, atol = 1e-4, 1e-6
+    five = phc.simulate(compiled, solver="ida", rtol=rtol, atol=atol, max_order=5)
+    two = phc.simulate(compiled, solver="ida", rtol=rtol, atol=atol, max_order=2)
+    assert five.success and two.success
+    assert two.steps > five.steps, (two.steps, five.steps)  # the advice max_order 2 would cost steps here
+    mod, p = compiled.module, parameter_vector(compiled.module)
+    y, yp = np.asarray(five.y), np.asarray(five.yp)
+    omega = 2.0  # sqrt(k/m)
+    h = 10.0 / five.steps
+    assert monitor.UNRESOLVED < omega * h <= HELD, omega * h  # the window the fix is about
+    hint = monitor.many_steps_hint(mod, p, five.t[[0, -1]], y[[0, -1]], yp[[0, -1]], steps=five.steps,
+                                   span=10.0, max_order=5, rtol=rtol, atol=atol)
+    assert "`max_order: 2` would make them shorter" in hint and "steps over them" not in hint, hint
+    w = float(hint.split("up to ω ≈ ")[1].split(" rad/s")[0])
+    assert abs(w - omega) <= 0.01 * omega  # printed to 2 digits
+    four = monitor.many_steps_hint(mod, p, five.t[[0, -1]], y[[0, -1]], yp[[0, -1]], steps=five.steps,
+                                   span=10.0, max_order=4, rtol=rtol, atol=atol)
+    assert "`max_order: 2` or a fixed-step solver" in four, four
