@@ -84,6 +84,15 @@ either level; measured by interleaving both libraries in one process, best of 4)
 
 LIBS = ("-lm",)
 
+BRIDGE_AFTER = 2000
+"""A C module's residual, residual_t and jacobian go through ctypes for their first
+``BRIDGE_AFTER`` calls (together) and through phc's call bridge (:mod:`phc.codegen.c_bridge`)
+from then on: the same C functions, the same results to the bit. Building the bridge costs the
+C compiler about 0.2 s CPU (Python's C headers; once per machine, Python and phc version,
+then it is loaded from the signed cache), and it saves 1-2 µs a call. ``phc compile``
+(its cross-check and certificate: 540 calls on the flexible slider–crank) does not need it;
+a run of thousands of calls does, and pays at most ``BRIDGE_AFTER`` slower calls (a few ms)."""
+
 COMPILE_TIMEOUT = 900.0
 """Seconds a compilation may take before it is abandoned (a phc bug or a broken compiler)."""
 
@@ -354,8 +363,18 @@ def _wrappers(lib: ctypes.CDLL, n: int, m: int, njac: int, npar: int, ninv: int,
     from phc.codegen import c_bridge
 
     P = _PTR
-    module = c_bridge.bridge()
-    bridged, bridged_cj = (module.call, module.call_cj) if module is not None else (None, None)
+    # the call bridge (phc.codegen.c_bridge) is asked for at the module's BRIDGE_AFTER-th call,
+    # unless this process has it already: until then the calls go through ctypes (the same C
+    # functions, the same results to the bit); `bridged` holds its two entry points (False: none)
+    ready = c_bridge.built()  # built earlier in this process (or switched off): used from the start
+    bridged = [ready.call, ready.call_cj] if ready else [None, None] if ready is None else [False, False]
+    calls = [0]
+
+    def ask_bridge() -> None:
+        calls[0] += 1
+        if calls[0] >= BRIDGE_AFTER:
+            module = c_bridge.bridge()
+            bridged[:] = (module.call, module.call_cj) if module is not None else (False, False)
 
     def c_function(name, argtypes, restype=None):
         f = getattr(lib, f"phc_{name}")
@@ -385,29 +404,24 @@ def _wrappers(lib: ctypes.CDLL, n: int, m: int, njac: int, npar: int, ninv: int,
             if buf is not None:
                 out[...] = buf
 
-        if bridged is not None:  # the buffer protocol in C (phc.codegen.c_bridge): no conversions
-            address = ctypes.cast(f, ctypes.c_void_p).value
-            if with_cj:
-                def call(t, y, yp, p, cj, out):
-                    try:
-                        bridged_cj(address, n, npar, size, t, y, yp, p, cj, out)
-                    except (TypeError, ValueError, BufferError):  # not float64 vectors (or cj not a number):
-                        general(t, y, yp, p, (cj, out))            # converted, or refused by ctypes
-            else:
-                def call(t, y, yp, p, out):
-                    try:
-                        bridged(address, n, npar, size, t, y, yp, p, out)
-                    except (TypeError, ValueError, BufferError):  # not a float64 vector: converted or refused
-                        general(t, y, yp, p, (out,))
-            call.__name__ = call.__qualname__ = name
-            return call
+        address = ctypes.cast(f, ctypes.c_void_p).value
 
-        # Through ctypes: the common call (IDA's and the drivers': contiguous float64 vectors of the right
+        # Through the bridge once it is built (the buffer protocol in C, phc.codegen.c_bridge: no
+        # conversions), else through ctypes: the common call (IDA's and the drivers': contiguous float64 vectors of the right
         # sizes; IDA's y and ẏ are read-only, so they are copied, n doubles, rather than
         # converted) is tested inline and passed straight on; anything else takes `general`,
         # which converts or refuses. Half the cost of a call from Python was this wrapper.
         if with_cj:
             def call(t, y, yp, p, cj, out):
+                via = bridged[1]
+                if via:
+                    try:
+                        via(address, n, npar, size, t, y, yp, p, cj, out)
+                    except (TypeError, ValueError, BufferError):  # not float64 vectors (or cj not a number):
+                        general(t, y, yp, p, (cj, out))            # converted, or refused by ctypes
+                    return
+                if via is None:
+                    ask_bridge()
                 if (type(y) is ndarray and type(yp) is ndarray and type(p) is ndarray and type(out) is ndarray
                         and y.dtype is F64 and yp.dtype is F64 and p.dtype is F64 and out.dtype is F64
                         and y.ndim == 1 and yp.ndim == 1 and p.ndim == 1 and out.ndim == 1
@@ -421,6 +435,15 @@ def _wrappers(lib: ctypes.CDLL, n: int, m: int, njac: int, npar: int, ninv: int,
                 general(t, y, yp, p, (cj, out))
         else:
             def call(t, y, yp, p, out):
+                via = bridged[0]
+                if via:
+                    try:
+                        via(address, n, npar, size, t, y, yp, p, out)
+                    except (TypeError, ValueError, BufferError):  # not a float64 vector: converted or refused
+                        general(t, y, yp, p, (out,))
+                    return
+                if via is None:
+                    ask_bridge()
                 if (type(y) is ndarray and type(yp) is ndarray and type(p) is ndarray and type(out) is ndarray
                         and y.dtype is F64 and yp.dtype is F64 and p.dtype is F64 and out.dtype is F64
                         and y.ndim == 1 and yp.ndim == 1 and p.ndim == 1 and out.ndim == 1

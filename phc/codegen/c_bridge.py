@@ -9,7 +9,9 @@ call through the buffer protocol (``call`` and ``call_cj`` of :func:`bridge`'s m
 the system C compiler and Python's C headers, once per machine, Python version and phc version,
 into phc's signed cache of compiled code, and loaded as the model libraries are
 (:func:`phc.codegen.c_backend.runtime_library`); its module object comes from an exported function
-called through ``ctypes.PYFUNCTYPE`` (the GIL held), so nothing is imported by name.
+called through ``ctypes.PYFUNCTYPE`` (the GIL held), so nothing is imported by name. It is built
+when a C module is called often (:data:`phc.codegen.c_backend.BRIDGE_AFTER`), not when one is
+loaded: ``phc compile`` calls a module a few dozen times and does not pay for it.
 
 Where it cannot be built (no C headers for this Python: ``python3-dev`` or the like is not
 installed), :func:`bridge` is None, the ctypes wrappers run, and :func:`why_not` says why (the
@@ -38,11 +40,24 @@ def _include() -> str:
     return sysconfig.get_paths().get("include") or ""
 
 
+def switched_off() -> bool:
+    """``PHC_C_BRIDGE=0`` (or ``no``, ``false``, ``off``) is set."""
+    return os.environ.get("PHC_C_BRIDGE", "1").strip().lower() in ("0", "no", "false", "off")
+
+
+def built():
+    """The bridge's module when this process has built or loaded it already, False when it
+    cannot be built here (or is switched off), None when it was not asked for yet."""
+    if switched_off():
+        return False
+    return _BRIDGE
+
+
 def bridge():
     """The bridge's module (with ``call``), built or loaded once per process, or None when it
     cannot be built here (:func:`why_not`). ``PHC_C_BRIDGE=0`` switches it off."""
     global _BRIDGE, _WHY
-    if os.environ.get("PHC_C_BRIDGE", "1").strip().lower() in ("0", "no", "false", "off"):
+    if switched_off():
         return None
     with _LOCK:
         if _BRIDGE is None:
@@ -54,13 +69,21 @@ def bridge():
         return _BRIDGE or None
 
 
+_NO_HEADERS = "Python's C headers (Python.h) are not installed for this interpreter"
+
+
+def _have_headers() -> bool:
+    include = _include()
+    return bool(include) and os.path.isfile(os.path.join(include, "Python.h"))
+
+
 def _build():
     global _WHY
     from phc.codegen import c_backend
 
     include = _include()
-    if not include or not os.path.isfile(os.path.join(include, "Python.h")):
-        _WHY = "Python's C headers (Python.h) are not installed for this interpreter"
+    if not _have_headers():
+        _WHY = _NO_HEADERS
         return False
     flags = ("-std=c99", "-O2", "-fPIC", "-shared", f"-I{include}")
     # the Python the module is built for is part of the text, so of the cache key
@@ -77,10 +100,14 @@ def _build():
 
 
 def why_not() -> str:
-    """Why the bridge is not used in this process ("" when it is, or was not tried)."""
-    if os.environ.get("PHC_C_BRIDGE", "1").strip().lower() in ("0", "no", "false", "off"):
+    """Why the bridge is not used in this process ("" when it is, or when it was not built yet
+    and Python's C headers are there: a C module asks for it at its
+    :data:`~phc.codegen.c_backend.BRIDGE_AFTER`-th call)."""
+    if switched_off():
         return "switched off (PHC_C_BRIDGE=0)"
+    if _BRIDGE is None and not _have_headers():
+        return _NO_HEADERS
     return _WHY
 
 
-__all__ = ["SOURCE", "bridge", "why_not"]
+__all__ = ["SOURCE", "bridge", "built", "switched_off", "why_not"]

@@ -30,15 +30,96 @@ RESERVED: dict[str, str] = {
 
 
 class SpecModel(BaseModel):
-    """Base of all spec models: unknown keys are errors, numbers must be finite."""
+    """Base of all spec models: unknown keys are errors, numbers must be finite.
+
+    A key's docstring (the string after its annotation) is its description in the JSON
+    Schema. It is read when a schema is written (:func:`attach_docstrings`), not when the
+    class is made: pydantic's ``use_attribute_docstrings`` reads every class's source as it
+    is defined (about 0.15 s CPU for phc's specs, in every process that validates a file)."""
 
     model_config = ConfigDict(
         extra="forbid",
         allow_inf_nan=False,
         frozen=True,
-        use_attribute_docstrings=True,
         populate_by_name=True,
     )
+
+
+def _own_docstrings(cls: type) -> dict[str, str]:
+    """``name: docstring`` of the keys annotated in `cls`'s own body (a string right after an
+    annotated name), as pydantic's ``use_attribute_docstrings`` reads them."""
+    import ast
+    import inspect
+    import textwrap
+
+    try:
+        source = textwrap.dedent(inspect.getsource(cls))
+    except (OSError, TypeError):  # no source (an interactive session): no descriptions
+        return {}
+    body = next((node for node in ast.parse(source).body if isinstance(node, ast.ClassDef)), None)
+    found: dict[str, str] = {}
+    previous = None
+    for node in body.body if body is not None else ():
+        if (isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant) and isinstance(node.value.value, str)
+                and isinstance(previous, ast.AnnAssign) and isinstance(previous.target, ast.Name)):
+            found[previous.target.id] = inspect.cleandoc(node.value.value)
+        previous = node
+    return found
+
+
+def attach_docstrings() -> None:
+    """Give every key of every :class:`SpecModel` subclass defined so far without a
+    ``description`` its docstring (from the class that annotates it), and rebuild the
+    classes' schemas so that their JSON Schemas carry them. Idempotent."""
+    classes, todo = [], [SpecModel]
+    while todo:
+        cls = todo.pop()
+        for sub in cls.__subclasses__():
+            if sub not in classes:
+                classes.append(sub)
+                todo.append(sub)
+    docs: dict = {}
+    changed = False
+    for cls in classes:
+        for name, field in cls.model_fields.items():
+            if field.description is not None:
+                continue
+            owner = next((c for c in cls.__mro__ if name in c.__dict__.get("__annotations__", {})), None)
+            if owner is None:
+                continue
+            if owner not in docs:
+                docs[owner] = _own_docstrings(owner)
+            if name in docs[owner]:
+                field.description = docs[owner][name]
+                changed = True
+    if not changed:
+        return
+    # rebuilt after the classes their keys hold (pydantic reuses a class's built schema in
+    # the schemas of the classes that hold it)
+    import typing
+
+    def held(tp, out: set) -> set:
+        if isinstance(tp, type) and tp in members:
+            out.add(tp)
+        for arg in typing.get_args(tp):
+            held(arg, out)
+        return out
+
+    members = set(classes)
+    needs = {cls: {c for f in cls.model_fields.values() for c in held(f.annotation, set())} - {cls}
+             for cls in classes}
+    done: set = set()
+
+    def rebuild(cls, path=()):
+        if cls in done or cls in path:
+            return
+        for dep in needs[cls]:
+            rebuild(dep, (*path, cls))
+        cls.model_rebuild(force=True)
+        done.add(cls)
+
+    for cls in classes:
+        rebuild(cls)
 
 
 def _check_identifier(name: str) -> str:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from phc.spec.base import EXPR_DESCRIPTION, IDENTIFIER_PATTERN, RESERVED
+from phc.spec.base import EXPR_DESCRIPTION, IDENTIFIER_PATTERN, RESERVED, attach_docstrings
 from phc.spec.model import ModelSpec
 from phc.spec.scene import SceneSpec
 
@@ -60,6 +60,7 @@ NAME_SCHEMA = {"type": "string", "pattern": IDENTIFIER_PATTERN, "not": {"enum": 
 def build_schema(name: str = "model.schema.json") -> dict:
     """The JSON Schema (draft 2020-12) for one of :data:`SCHEMAS`."""
     model = SCHEMAS[name]
+    attach_docstrings()  # the keys' docstrings are their descriptions
     schema = model.model_json_schema(mode="validation")
     _describe_expressions(schema)
     _names(schema)

@@ -19,6 +19,7 @@ Without a C compiler these tests are skipped, except the refusals, which need no
 from __future__ import annotations
 
 import ctypes
+import json
 import os
 import subprocess
 import sys
@@ -150,6 +151,7 @@ def test_the_call_bridge_and_ctypes_compute_the_same_on_arrays_of_any_layout(mon
     plain, _ = c_backend.load_source(fast.C_SOURCE, ref)  # the same library, ctypes wrappers
     assert "called through ctypes: switched off" in backends.describe(plain)
     monkeypatch.delenv("PHC_C_BRIDGE")
+    c_bridge.bridge()  # built now: a module loaded after it calls through it from its first call
     bridged, _ = c_backend.load_source(fast.C_SOURCE, ref)
     rng = np.random.default_rng(3)
     n, m, nj = ref.N, len(ref.EQUATIONS), len(ref.JAC_ROWS)
@@ -337,6 +339,44 @@ def test_without_a_c_compiler_the_c_backend_is_refused_with_one_message(tmp_path
     assert done.returncode == 2
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and "no C compiler found" in lines[0] and "Traceback" not in done.stderr
+
+
+_BRIDGE_PROBE = r"""
+import json, sys
+import numpy as np
+import phc
+from phc.codegen import c_backend, c_bridge
+compiled = phc.compile_model(sys.argv[1], backend="c")  # certified: its cross-check and certificate call C
+after_compile = c_bridge.built()
+mod = compiled.module
+rng = np.random.default_rng(7)  # a state where every entry is finite, as the load's cross-check uses
+y, yp = rng.uniform(0.2, 0.8, mod.N), rng.uniform(-0.5, 0.5, mod.N)
+p = np.asarray(mod.full_parameters(), dtype=float)
+out, jac = np.empty(len(mod.EQUATIONS)), np.empty(len(mod.JAC_ROWS))
+for k in range(c_backend.BRIDGE_AFTER + 1):
+    mod.residual(0.0, y, yp, p, out)
+    if k == 0:
+        first = out.copy()
+print(json.dumps({"after_compile": after_compile is None, "after_calls": c_bridge.built() is not None,
+                  "why": c_bridge.why_not(), "same": bool(np.array_equal(first, out)), "finite": bool(np.isfinite(out).all())}))
+"""
+
+
+@needs_cc
+def test_compiling_does_not_build_the_call_bridge_a_run_of_calls_does(tmp_path):
+    """Building phc's call bridge costs the C compiler about 0.2 s (Python's C headers), which
+    a certified compilation (a few hundred calls) does not need: in a fresh process with an
+    empty cache it is built at a module's BRIDGE_AFTER-th call, not before, and the calls
+    give the same numbers before and after."""
+    env = dict(os.environ, PHC_CACHE_DIR=str(tmp_path / "cache"), PHC_STATE_DIR=str(tmp_path / "state"))
+    env.pop("PHC_C_BRIDGE", None)
+    done = subprocess.run([sys.executable, "-c", _BRIDGE_PROBE, str(ROOT / "models" / "flexible_slider_crank.yaml")],
+                          capture_output=True, text=True, timeout=600, env=env, cwd=ROOT)
+    assert done.returncode == 0, done.stderr
+    seen = json.loads(done.stdout.strip().splitlines()[-1])
+    assert seen["after_compile"], "the call bridge was built while compiling"
+    assert seen["after_calls"] or seen["why"], "no bridge after BRIDGE_AFTER calls, and no reason given"
+    assert seen["finite"] and seen["same"]  # through ctypes (first call) and the bridge (last): bit-equal
 
 
 @needs_cc
