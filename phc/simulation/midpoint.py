@@ -531,7 +531,12 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
     w(t, y, ẏ), positive while the modes hold: a step at whose end one has fallen to zero
     or below is shortened by regula falsi (Illinois) on its length until the crossing is
     located to :data:`EVENT_TOL`; the run then returns with ``event`` = dict(t, y, yp,
-    which) and the outputs before it."""
+    which) and the outputs before it.
+
+    The routine bookkeeping of a step — the output grid and its substeps, the predicted midpoint
+    that starts Newton, when the monitor looks, the acceptance — is
+    :mod:`phc.simulation.step_logic`'s (``next_step``, ``predict``, ``looks``, ``accept``), the code
+    the compiled loop's chunk runs; what is left here is what that chunk hands back."""
     sl = step_logic
     n = mod.N
     t_out = np.asarray(t_out, dtype=float)
