@@ -9,8 +9,10 @@ invariants, Hamiltonian, energy scale and port powers through function pointers 
 between). That file is a port of :func:`phc.simulation.step_logic.newton` (the same stopping
 rules, refresh of the Newton matrix, round-off acceptance: one Newton iteration in C, which
 every method's stages call), of :func:`~phc.simulation.step_logic.discrete_gradient` and
-:func:`~phc.simulation.step_logic.midpoint4`, of the numba kernel's predictor and
-output grid (:mod:`phc.codegen.numba_steps_kernel`), with a dense LU with partial
+:func:`~phc.simulation.step_logic.midpoint4`, of the driver's bookkeeping that the Python loop
+and the numba kernel share (``step_logic.next_step``, ``predict``, ``looks``, ``accept``: the
+output grid, the predictor, the monitor's cadence, the acceptance) and of the numba kernel's
+chunk (:mod:`phc.codegen.numba_steps_kernel`), with a dense LU with partial
 pivoting of the Newton matrix equilibrated as the Python loop's sparse LU is
 (:func:`phc.simulation.midpoint.equilibration`); its header says what is not ported (the
 numba loop's mixed-precision corrections: here every correction is in double precision) and

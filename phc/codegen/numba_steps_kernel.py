@@ -6,12 +6,14 @@ numba itself, so reading its layout constants costs nothing on other paths.
 
 :mod:`phc.simulation.compiled_steps` says what the compiled loop does and holds its Python
 side (whether a run uses it, building and caching it, the driver between chunks); this module
-holds only the code numba compiles — the chunk of steps (:func:`_chunk`) and everything it
-calls: the predictor, the singularity monitor's routine look, the dense LU / inverse /
-mixed-precision products — and the layout of the state arrays both sides share.
+holds only the code numba compiles — the chunk of steps (:func:`_chunk`) and what only it
+calls: the singularity monitor's routine look (:func:`_monitor_ratio`), the dense LU / inverse /
+mixed-precision products.
 
 The step logic itself — the stage's Newton iteration, the discrete-gradient and midpoint4
-steps, the predictor's choice of nodes and weights — is not written here: it is
+steps — and the chunk's bookkeeping of a routine step — the output grid and its substeps
+(``next_step``), the predictor (``predict``), when the monitor looks (``looks``), the acceptance
+(``accept``), with the layout of the state arrays they work on — are not written here: they are
 :mod:`phc.simulation.step_logic`, the code the Python loop runs as well. Its functions are
 rebound to this module's globals (:func:`_here`), where the operations they call by name are
 the compiled loop's, on the workspace tuple ``ws`` that :func:`_chunk` builds (:func:`_begin`,
@@ -41,16 +43,14 @@ from phc.simulation.step_logic import (  # noqa: F401 — the rebound step logic
     _ORDER, _ORDER_ALG, _PASSIVITY, _RATE, _S_MAX, _S_MIN, _SINGULAR, _STAGNATION, _STRIKES_C, _THRESHOLD, _TOL,
     _ZERO, _ZONE, DOUBLE_NEXT, STRIKE)
 
-# the state arrays shared with the driver (phc.simulation.compiled_steps.integrate)
+# the state arrays shared with the driver (phc.simulation.compiled_steps.integrate); their layout is
+# the step logic's (the Python loop keeps the same state)
+from phc.simulation.step_logic import (  # noqa: F401,E402
+    _CODE, _E, _H, _H_PREV, _HAS_MID, _HIST, _ILL, _J, _K, _LAST_LOOK, _LOWP, _MAX_STEPS, _METHOD, _MONITOR, _NEND,
+    _NF, _NFACT, _NFEV, _NI, _NMID, _STATUS, _STEP, _STEPS, _STRIKES, _SUBSTEPS, _T, LOOK_GAP)
+
 # status of a chunk
 _BUDGET, _DONE, _HARD, _LOOK, _MAXSTEPS = 0, 1, 2, 3, 4
-# integer state
-(_K, _J, _SUBSTEPS, _STEPS, _LAST_LOOK, _HAS_MID, _MAX_STEPS, _STATUS, _NFEV, _NFACT, _HIST, _MONITOR, _METHOD,
- _CODE, _ILL, _E, _NEND, _NMID, _LOWP, _STRIKES) = range(20)
-_NI = 20
-# float state
-_T, _H, _H_PREV, _STEP = range(4)
-_NF = 4
 
 _RCOND_MARGIN = 1e3
 """The routine look of the singularity monitor computes singular values only when LAPACK's
@@ -324,9 +324,16 @@ def _here(func):
 _newton = _here(step_logic.newton)
 _discrete_gradient = _here(step_logic.discrete_gradient)
 _midpoint4_step = _here(step_logic.midpoint4)
-_lagrange_weights = _here(step_logic.lagrange_weights)
-_predictor_nodes = _here(step_logic.predictor_nodes)
-_substeps = _here(step_logic.substeps)
+# the driver's bookkeeping, called by their step_logic names (they call each other by those names)
+lagrange_weights = _here(step_logic.lagrange_weights)
+predictor_nodes = _here(step_logic.predictor_nodes)
+substeps = _here(step_logic.substeps)
+next_step = _here(step_logic.next_step)
+polynomial = _here(step_logic.polynomial)
+extrapolate = _here(step_logic.extrapolate)
+predict = _here(step_logic.predict)
+looks = _here(step_logic.looks)
+accept = _here(step_logic.accept)
 
 
 def _monitor_ratio(jac, t, y, yp, h, p, jrows, jcols, jbuf, M, colscale, threshold):
@@ -407,80 +414,6 @@ def _monitor_ratio(jac, t, y, yp, h, p, jrows, jcols, jbuf, M, colscale, thresho
     return s[n - 1] / s[0] if s[0] > 0 else 0.0
 
 
-def _predict(y, mid, mid_slope, pt, pm, ist, c, t, h, h_prev, algmask, guess):
-    """The start of Newton, ``2 m − y`` with the predicted midpoint m: y + h/2·ẏ₀ at the start,
-    else per variable (differential ones: degree ``c[_ORDER]``, algebraic ones ``c[_ORDER_ALG]``)
-    as :func:`phc.simulation.step_logic.predictor_nodes` says: the last midpoint, the linear
-    extrapolation of the last two, or the Lagrange polynomial through the last ones
-    (midpoint.predict_midpoint, the same arithmetic)."""
-    n = y.shape[0]
-    if ist[_HAS_MID] == 0:
-        for i in range(n):
-            guess[i] = 2.0 * (y[i] + 0.5 * h * mid_slope[i]) - y[i]
-        return
-    tn = t + 0.5 * h
-    nmid = ist[_NMID]
-    od = int(c[_ORDER])
-    oa = int(c[_ORDER_ALG])
-    kd = _predictor_nodes(od, nmid)
-    ka = _predictor_nodes(oa, nmid)
-    wd = np.empty(pm.shape[0])
-    wa = np.empty(pm.shape[0])
-    _lagrange_weights(pt, kd, tn, wd)
-    _lagrange_weights(pt, ka, tn, wa)
-    for i in range(n):
-        k = ka if algmask[i] != 0 else kd
-        if k == 0:
-            mg = mid[i]
-        elif k == 1:
-            mg = mid[i] + 0.5 * (h + h_prev) * mid_slope[i]
-        else:
-            w = wa if algmask[i] != 0 else wd
-            mg = w[0] * pm[0, i]
-            for a in range(1, k):
-                mg = mg + w[a] * pm[a, i]
-        guess[i] = 2.0 * mg - y[i]
-
-
-def _accept(t, h, y, y_new, y_prev, mid, mid_slope, pt, pm, ys, yps, fst, ist):
-    """Take the step (t, h, y) → y_new: the midpoints' history of the predictor, the step
-    counter, the output at the end of an output interval; True when ``max_steps`` is reached.
-    Plain element loops that call nothing: the driver runs the same function, unjitted, for a
-    step the Python code did (:func:`phc.simulation.compiled_steps.integrate`)."""
-    n = y.shape[0]
-    h_prev = fst[_H_PREV]
-    kp = pm.shape[0]
-    for j in range(kp - 1, 0, -1):
-        pt[j] = pt[j - 1]
-    pt[0] = t + 0.5 * h
-    for i in range(n):
-        nm = 0.5 * (y[i] + y_new[i])
-        if ist[_HAS_MID] != 0:
-            mid_slope[i] = (nm - mid[i]) / (0.5 * (h + h_prev))
-        mid[i] = nm
-        for j in range(kp - 1, 0, -1):
-            pm[j, i] = pm[j - 1, i]
-        pm[0, i] = nm
-        y_prev[i] = y[i]
-        y[i] = y_new[i]
-    ist[_HAS_MID] = 1
-    ist[_NMID] = min(ist[_NMID] + 1, kp)
-    fst[_H_PREV] = h
-    fst[_T] = t + h
-    ist[_STEPS] += 1
-    if ist[_STEPS] >= ist[_MAX_STEPS]:
-        return True
-    ist[_J] += 1
-    if ist[_J] >= ist[_SUBSTEPS]:
-        k = ist[_K]
-        for i in range(n):
-            ys[k, i] = y[i]
-            yps[k, i] = (y[i] - y_prev[i]) / h
-        ist[_K] = k + 1
-        ist[_J] = 0
-    return False
-
-
 def _chunk(res, jac, inv, ham, escale, powers, p, t_out, ys, yps, y, mid, mid_slope, y_prev, fst, ist, c, A, lp,
            ipiv, matf, jrows, jcols, end_rows, emask, weights, algmask, hist_t, hist_v, y_new, jbuf, ebuf, M, colscale, pt,
            pm, budget):
@@ -503,7 +436,6 @@ def _chunk(res, jac, inv, ham, escale, powers, p, t_out, ys, yps, y, mid, mid_sl
     flags = np.zeros(1, np.int64)
     ws = (res, jac, inv, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend, weights, algmask, c, jbuf, ebuf, xs,
           d, r, ints, chars, ist)
-    every = int(c[_EVERY])
     nout = t_out.shape[0]
     done = 0
     while True:
@@ -514,25 +446,19 @@ def _chunk(res, jac, inv, ham, escale, powers, p, t_out, ys, yps, y, mid, mid_sl
         if done >= budget:
             ist[_STATUS] = _BUDGET
             return
-        if ist[_J] == 0:
-            interval = t_out[k] - t_out[k - 1]
-            sub = _substeps(interval, fst[_STEP])
-            ist[_SUBSTEPS] = sub
-            fst[_H] = interval / sub
-            fst[_T] = t_out[k - 1]
+        next_step(t_out, fst, ist)
         t = fst[_T]
         h = fst[_H]
-        h_prev = fst[_H_PREV]
-        _predict(y, mid, mid_slope, pt, pm, ist, c, t, h, h_prev, algmask, guess)
+        predict(y, mid, mid_slope, pt, pm, ist, c, t, h, fst[_H_PREV], algmask, guess)
         code = _advance(ws, ham, escale, powers, t, h, y, guess, y_new, flags, hist_t, hist_v)
-        steps = ist[_STEPS]
         ist[_CODE] = code
         ist[_ILL] = flags[0]
-        if code != _OK or (ist[_MONITOR] != 0 and flags[0] != 0 and steps - ist[_LAST_LOOK] >= 10):
+        hard, look = looks(ist, c, code == _OK, flags[0] != 0)
+        if code != _OK or (hard and look):  # the monitor's look at a hard step: the driver's
             ist[_STATUS] = _HARD
             return
-        if ist[_MONITOR] != 0 and steps % every == 0:
-            ist[_LAST_LOOK] = steps
+        if look:  # the routine look
+            ist[_LAST_LOOK] = ist[_STEPS]
             for i in range(n):
                 yp[i] = (y_new[i] - y[i]) / h
             ratio = _monitor_ratio(jac, t, y, yp, 0.5 * h, p, jrows, jcols, jbuf, M, colscale, c[_THRESHOLD])
@@ -540,6 +466,6 @@ def _chunk(res, jac, inv, ham, escale, powers, p, t_out, ys, yps, y, mid, mid_sl
                 ist[_STATUS] = _LOOK
                 return
         done += 1
-        if _accept(t, h, y, y_new, y_prev, mid, mid_slope, pt, pm, ys, yps, fst, ist):
+        if accept(t, h, y, y_new, y_new, y_prev, mid, mid_slope, pt, pm, ys, yps, fst, ist):
             ist[_STATUS] = _MAXSTEPS
             return

@@ -31,9 +31,10 @@ invariants, H and powers directly (numba first-class functions: no Python in bet
   (:mod:`phc.simulation.discrete_gradient`) and midpoint4's composition with its
   predictor and passivity guard (:mod:`phc.simulation.midpoint4`), again the code the Python
   loop runs (:mod:`phc.simulation.step_logic`);
-* the driver of :func:`~phc.simulation.midpoint.integrate_fixed_step`: the output grid and
-  its equal substeps, the predictor of the step midpoints (the polynomial of degree
-  :data:`~phc.simulation.midpoint.PREDICTOR_ORDER` through the last ones), the singularity
+* the routine part of the driver of :func:`~phc.simulation.midpoint.integrate_fixed_step`, again
+  its code (:mod:`phc.simulation.step_logic`: ``next_step``, ``predict``, ``looks``, ``accept``):
+  the output grid and its equal substeps, the predictor of the step midpoints (the polynomial of
+  degree :data:`~phc.simulation.midpoint.PREDICTOR_ORDER` through the last ones), the singularity
   monitor's routine look every :data:`~phc.simulation.midpoint.MONITOR_EVERY` steps (the equilibrated
   iteration matrix's singular values by LAPACK ``dgesdd``, unless the condition estimate
   ``dgecon`` puts it far from singular: :data:`~phc.codegen.numba_steps_kernel._RCOND_MARGIN`),
@@ -84,8 +85,8 @@ from phc.codegen import numba_steps_kernel as _kernel
 from phc.simulation import step_logic as _step_logic
 from phc.simulation.backend import BackendRun
 from phc.codegen.numba_steps_kernel import (  # the layout of the state arrays the kernel shares
-    _BUDGET, _CODE, _DONE, _E, _EVERY, _H, _H_PREV, _HARD, _HIST, _ILL, _K, _LAST_LOOK, _LOOK, _LOWP, _MAX_STEPS,
-    _MAXSTEPS, _METHOD, _MONITOR, _NEND, _NF, _NFACT, _NFEV, _NI, _OK, _ONE, _ORDER, _ORDER_ALG, _STATUS, _STEP,
+    _BUDGET, _CODE, _DONE, _E, _H, _H_PREV, _HARD, _HIST, _ILL, _K, _LAST_LOOK, _LOOK, _LOWP, _MAX_STEPS,
+    _MAXSTEPS, _METHOD, _MONITOR, _NEND, _NF, _NFACT, _NFEV, _NI, _OK, _ONE, _STATUS, _STEP,
     _STEPS, _STRIKES, _STRIKES_C, _T, _THRESHOLD, _ZERO)
 
 MAX_UNKNOWNS = 400
@@ -284,10 +285,11 @@ def _compile():
     fn = {name: types.FunctionType(sig) for name, sig in sigs.items()}
     namespace = _kernel_namespace(externals)
     jit = numba.njit(error_model="numpy")
-    for name in ("_accept", "_copy", "_factor", "_invert", "_solve", "_lowprec", "_solve32", "_fill", "_stage_residual",
+    for name in ("_copy", "_factor", "_invert", "_solve", "_lowprec", "_solve32", "_fill", "_stage_residual",
                  "_refactor_matrix", "_all_finite", "_begin", "_refactor", "_correct", "_add", "_precision",
                  "_consistent", "_newton", "_stage", "_discrete_gradient", "_midpoint4_step", "_advance",
-                 "_monitor_ratio", "_lagrange_weights", "_predictor_nodes", "_predict", "_substeps"):
+                 "_monitor_ratio", "lagrange_weights", "predictor_nodes", "substeps", "next_step", "polynomial",
+                 "extrapolate", "predict", "looks", "accept"):
         namespace[name] = jit(namespace[name])
     chunk = numba.njit(error_model="numpy")(namespace["_chunk"])
     C1 = types.Array(types.float64, 1, "C")
@@ -361,11 +363,9 @@ def step_constants() -> np.ndarray:
     from phc.simulation import midpoint4 as m4
     from phc.simulation.monitor import THRESHOLD
 
-    c = m4.composition_constants(dg.secant_constants(mp.newton_constants()))
-    c[_THRESHOLD], c[_EVERY] = THRESHOLD, mp.MONITOR_EVERY
+    c = mp.driver_constants(m4.composition_constants(dg.secant_constants(mp.newton_constants())))
+    c[_THRESHOLD] = THRESHOLD
     c[_ONE], c[_ZERO] = 1.0, 0.0
-    c[_ORDER] = min(max(int(mp.PREDICTOR_ORDER), 0), mp.MAX_PREDICTOR_ORDER)
-    c[_ORDER_ALG] = min(max(int(mp.PREDICTOR_ORDER_ALGEBRAIC), 0), mp.MAX_PREDICTOR_ORDER)
     c[_STRIKES_C] = LOW_PRECISION_STRIKES
     return c
 
@@ -480,13 +480,12 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
         t, h = float(fst[_T]), float(fst[_H])
         steps = int(ist[_STEPS])
         converged = ist[_STATUS] == _LOOK or ist[_CODE] == _OK
-        hard = not converged or bool(ist[_ILL] and steps - ist[_LAST_LOOK] >= mp.LOOK_GAP)
+        hard, look = _step_logic.looks(ist, c, converged, bool(ist[_ILL]))
         new = y_new.copy()
         if python is None:
             python = python_advance()
         if hasattr(python, "nhist"):  # midpoint4's predictor: the history is the kernel's
             python.nhist = 0
-        look = monitor.enabled and (hard or steps % mp.MONITOR_EVERY == 0)
         if look:
             ist[_LAST_LOOK] = steps
         # the Python loop's own handling of the step (mp.finish_step), on copies of the kernel's arrays
@@ -499,8 +498,8 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
             ok, message = False, failure
             return
         ist[_HIST] = 0  # midpoint4's predictor starts again: the Python step kept its own history
-        accept = getattr(_kernel._accept, "py_func", _kernel._accept)  # unjitted: element loops over N ≤ 400
-        if accept(t, h, y, new, y_prev, mid, mid_slope, pt, pm, ys, yps, fst, ist):
+        # the Python loop's acceptance (plain NumPy: it is the step the chunk hands back)
+        if _step_logic.accept(t, h, y, new, new, y_prev, mid, mid_slope, pt, pm, ys, yps, fst, ist):
             ok, message = False, _max_steps_message(ist, fst)
 
     try:

@@ -95,39 +95,24 @@ MAX_PREDICTOR_ORDER = 4
 
 def predict_midpoint(times, mids, t_new, order=None):
     """The polynomial of degree ``min(order, len(times) − 1)`` through the last midpoints
-    ``mids`` (newest last) at the times ``times``, evaluated at ``t_new`` (Lagrange form:
-    :func:`phc.simulation.step_logic.lagrange_weights`, the compiled loop's predictor's weights)."""
+    ``mids`` (newest last) at the times ``times``, evaluated at ``t_new``
+    (:func:`phc.simulation.step_logic.polynomial`, what both loops' predictor evaluates)."""
     order = PREDICTOR_ORDER if order is None else order
     k = min(int(order) + 1, len(times))
     ts = np.array([float(x) for x in times[len(times) - k:]][::-1])  # newest first
-    ms = list(mids[len(mids) - k:])[::-1]
-    w = np.empty(k)
-    step_logic.lagrange_weights(ts, k, t_new, w)
-    out = w[0] * ms[0]
-    for i in range(1, k):
-        out = out + w[i] * ms[i]
-    return out
+    ms = np.array(list(mids[len(mids) - k:])[::-1], dtype=float)
+    return step_logic.polynomial(ts, ms, k, t_new)
 
 
-def _mid_guess(mod, y, h, h_prev, mid, mid_slope, mid_times, mids, t_new):
-    """The predicted midpoint of the next step (the compiled loop's ``_predict``): per variable
-    (differential: :data:`PREDICTOR_ORDER`, algebraic: :data:`PREDICTOR_ORDER_ALGEBRAIC`) as
-    :func:`phc.simulation.step_logic.predictor_nodes` says: the last midpoint, the linear
-    extrapolation or the polynomial through the last midpoints."""
-    if mid is None:
-        return y + 0.5 * h * mid_slope
-    linear = mid + 0.5 * (h + h_prev) * mid_slope
-
-    def of(order):
-        nodes = step_logic.predictor_nodes(order, len(mids))
-        if nodes == 0:
-            return mid
-        if nodes == 1:
-            return linear
-        return predict_midpoint(mid_times, mids, t_new, order)
-
-    diff = np.asarray(mod.DIFFERENTIAL, dtype=bool)
-    return np.where(diff, of(PREDICTOR_ORDER), of(PREDICTOR_ORDER_ALGEBRAIC))
+def driver_constants(c=None) -> np.ndarray:
+    """The constants vector of :mod:`phc.simulation.step_logic` (a new one, or `c` filled in) with
+    the driver's numbers: the predictor's degrees and the monitor's period, this module's
+    constants as they are at the call."""
+    c = np.zeros(step_logic._NC) if c is None else c
+    c[step_logic._EVERY] = MONITOR_EVERY
+    c[step_logic._ORDER] = min(max(int(PREDICTOR_ORDER), 0), MAX_PREDICTOR_ORDER)
+    c[step_logic._ORDER_ALG] = min(max(int(PREDICTOR_ORDER_ALGEBRAIC), 0), MAX_PREDICTOR_ORDER)
+    return c
 
 
 class NewtonMatrix:
@@ -546,109 +531,95 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
     w(t, y, ẏ), positive while the modes hold: a step at whose end one has fallen to zero
     or below is shortened by regula falsi (Illinois) on its length until the crossing is
     located to :data:`EVENT_TOL`; the run then returns with ``event`` = dict(t, y, yp,
-    which) and the outputs before it."""
+    which) and the outputs before it.
+
+    The routine bookkeeping of a step — the output grid and its substeps, the predicted midpoint
+    that starts Newton, when the monitor looks, the acceptance — is
+    :mod:`phc.simulation.step_logic`'s (``next_step``, ``predict``, ``looks``, ``accept``), the code
+    the compiled loop's chunk runs; what is left here is what that chunk hands back."""
+    sl = step_logic
     n = mod.N
     t_out = np.asarray(t_out, dtype=float)
-    intervals = np.diff(t_out)
     ys, yps = np.empty((len(t_out), n)), np.empty((len(t_out), n))
     ys[0], yps[0] = y0, yp0
     start = time.process_time()
     y = np.array(y0, dtype=float)
-    steps = split = 0
+    split = 0
     ok, message = True, "integration finished"
     monitor = SingularityMonitor(mod, p, names=names, scales=scales)
-    last_look = -MONITOR_EVERY
     projector = make_projector(mod, p, y, float(t_out[0]), scales) if project else None
-    y_prev, h_prev = None, 1.0
-    # Predictor: extrapolate the step midpoints m = (y_n + y_{n+1})/2, not the step ends —
-    # algebraic variables (multipliers) of a midpoint rule oscillate about their midpoint
-    # values from step end to step end, which ruins an extrapolation of the ends.
-    mid, mid_slope = None, np.asarray(yp0, dtype=float)
-    # the last midpoints and their times (newest last), for extrapolations above the linear one
-    mid_times, mids = [], []
-    k = 0
+    # the state of the step logic's driver (phc.simulation.step_logic: next_step, predict, looks,
+    # accept), laid out as the compiled loops keep it
+    ist, fst, c = np.zeros(sl._NI, dtype=np.int64), np.zeros(sl._NF), driver_constants()
+    ist[sl._K], ist[sl._LAST_LOOK], ist[sl._MAX_STEPS], ist[sl._MONITOR] = 1, -MONITOR_EVERY, max_steps, monitor.enabled
+    fst[sl._STEP], fst[sl._H_PREV] = step or 0.0, 1.0
+    algmask = (~np.asarray(mod.DIFFERENTIAL, dtype=bool)).astype(np.int8)
+    # the last step midpoints (newest first) and their times, the last midpoint and the slope between
+    # the last two (ẏ₀ before a second), the step's start before the last
+    pt, pm = np.zeros(MAX_PREDICTOR_ORDER + 1), np.zeros((MAX_PREDICTOR_ORDER + 1, n))
+    mid, mid_slope, y_prev = np.zeros(n), np.array(yp0, dtype=float), np.zeros(n)
     interrupted = False
     event = None
     rank_drops = []  # [first, last] time of the looks at each rank drop passed
     w_prev = events(float(t_out[0]), y, np.asarray(yp0, dtype=float)) if events is not None else None
     try:
-        for k in range(1, len(t_out)):
-            substeps = step_logic.substeps(intervals[k - 1], step or 0.0)
-            h = intervals[k - 1] / substeps
-            t = t_out[k - 1]
-            for _ in range(substeps):
-                mid_guess = _mid_guess(mod, y, h, h_prev, mid, mid_slope, mid_times, mids, t + 0.5 * h)
-                y_new, converged, reason = advance(t, h, y, 2.0 * mid_guess - y)
-                stage = getattr(advance, "stage", None)
-                hard = not converged
-                if stage is not None and stage.ill_conditioned and steps - last_look >= LOOK_GAP:
-                    hard = True
-                if not converged and events is not None and _crossed(events, t, h, y, y_new, w_prev):
-                    # a step across a switching surface on the old branch may fail (midpoint4's passivity
-                    # guard sees the frozen law beyond it): the crossing is before, shorten the step to it
-                    event = _locate(advance, events, projector, t, h, y, y_new, w_prev,
-                                    events(t + h, y_new, (y_new - y) / h), None)
-                    steps += 1
-                    break
-                look = monitor.enabled and (hard or steps % MONITOR_EVERY == 0)
-                if look:
-                    last_look = steps
-                y_new, retried, failure, passed = finish_step(advance, monitor, mod, name, t, h, y, y_new,
-                                                              converged, reason, hard, look, mid_slope, rank_drops)
-                split += retried
-                if passed:
-                    last_look = steps - LOOK_GAP  # look at the passage's next hard step too
-                if failure:
-                    ok, message = False, failure
-                    break
-                if events is not None:
-                    y_end = projector.project(t + h, y_new) if projector else y_new
-                    w_new = events(t + h, y_end, (y_end - y) / h)
-                    crossed = (w_prev > 0) & (w_new <= 0)
-                    if crossed.any():
-                        event = _locate(advance, events, projector, t, h, y, y_end, w_prev, w_new, crossed)
-                        steps += 1
-                        break
-                    w_prev = w_new
-                new_mid = 0.5 * (y + y_new)
-                if mid is not None:
-                    mid_slope = (new_mid - mid) / (0.5 * (h + h_prev))
-                mid = new_mid
-                mid_times.append(t + 0.5 * h)
-                mids.append(new_mid)
-                if len(mids) > MAX_PREDICTOR_ORDER + 1:
-                    del mid_times[0], mids[0]
-                y_prev, h_prev = y, h
-                y = projector.project(t + h, y_new) if projector else y_new
-                t += h
-                steps += 1
-                if steps >= max_steps:
-                    ok, message = False, (f"stopped after {steps} steps at t = {t:.6g} (max_steps); raise `max_steps` "
-                                          "or the step size")
-                    break
-            if not ok or event is not None:
-                k -= 1
+        while ist[sl._K] < len(t_out):
+            sl.next_step(t_out, fst, ist)
+            t, h = float(fst[sl._T]), float(fst[sl._H])
+            guess = np.empty(n)
+            sl.predict(y, mid, mid_slope, pt, pm, ist, c, t, h, fst[sl._H_PREV], algmask, guess)
+            y_new, converged, reason = advance(t, h, y, guess)
+            stage = getattr(advance, "stage", None)
+            hard, look = sl.looks(ist, c, converged, stage is not None and stage.ill_conditioned)
+            if not converged and events is not None and _crossed(events, t, h, y, y_new, w_prev):
+                # a step across a switching surface on the old branch may fail (midpoint4's passivity
+                # guard sees the frozen law beyond it): the crossing is before, shorten the step to it
+                event = _locate(advance, events, projector, t, h, y, y_new, w_prev,
+                                events(t + h, y_new, (y_new - y) / h), None)
+                ist[sl._STEPS] += 1
                 break
-            ys[k] = y
-            yps[k] = (y - y_prev) / h_prev
-            if progress is not None:
-                progress(t)
+            if look:
+                ist[sl._LAST_LOOK] = ist[sl._STEPS]
+            y_new, retried, failure, passed = finish_step(advance, monitor, mod, name, t, h, y, y_new, converged,
+                                                          reason, hard, look, mid_slope, rank_drops)
+            split += retried
+            if passed:
+                ist[sl._LAST_LOOK] = ist[sl._STEPS] - LOOK_GAP  # look at the passage's next hard step too
+            if failure:
+                ok, message = False, failure
+                break
+            y_end = projector.project(t + h, y_new) if projector else y_new
+            if events is not None:
+                w_new = events(t + h, y_end, (y_end - y) / h)
+                crossed = (w_prev > 0) & (w_new <= 0)
+                if crossed.any():
+                    event = _locate(advance, events, projector, t, h, y, y_end, w_prev, w_new, crossed)
+                    ist[sl._STEPS] += 1
+                    break
+                w_prev = w_new
+            k = ist[sl._K]
+            if sl.accept(t, h, y, y_new, y_end, y_prev, mid, mid_slope, pt, pm, ys, yps, fst, ist):
+                ok, message = False, (f"stopped after {ist[sl._STEPS]} steps at t = {fst[sl._T]:.6g} (max_steps); "
+                                      "raise `max_steps` or the step size")
+                break
+            if progress is not None and ist[sl._K] > k:
+                progress(float(fst[sl._T]))
     except ModelEvaluationError as err:
-        k = max(k - 1, 0)
-        ok, message = False, f"{name}: {err}; results up to t = {t_out[k]:.6g} are kept"
+        ok, message = False, f"{name}: {err}; results up to t = {t_out[max(ist[sl._K] - 1, 0)]:.6g} are kept"
     except KeyboardInterrupt:
-        k = max(k - 1, 0)
         ok, interrupted = False, True
-        message = f"interrupted at t = {t_out[k]:.6g}"
+        message = f"interrupted at t = {t_out[max(ist[sl._K] - 1, 0)]:.6g}"
+    k = max(int(ist[sl._K]) - 1, 0)
+    steps = int(ist[sl._STEPS])
     message = closing_message(message, ok, split, rank_drops)
     return BackendRun.from_mapping(dict(t=t_out[:k + 1], y=ys[:k + 1], yp=yps[:k + 1], steps=steps, success=ok,
                                         message=message, cpu=time.process_time() - start, interrupted=interrupted,
                                         event=event, rank_drops=[a for a, _ in rank_drops]))
 
 
-LOOK_GAP = 10
+LOOK_GAP = step_logic.LOOK_GAP
 """A step Newton found ill-conditioned is looked at by the monitor if the last look was at least
-this many steps before (the compiled loops' ``steps - last_look >= 10`` is the same rule) —
+this many steps before (:func:`phc.simulation.step_logic.looks`, in every loop) —
 except during a passage of a rank drop: after a look that let the run pass one, the next
 ill-conditioned step is looked at as well, so that no step of the passage goes unchecked. With
 every tenth only, a step between two looks can take a mechanism onto another branch of its

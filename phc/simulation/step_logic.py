@@ -18,17 +18,32 @@ a step *does* is written here, once, as plain Python that numba can compile:
   predictor and its passivity guard;
 * :func:`predictor_nodes` and :func:`lagrange_weights` — how the start of Newton is
   extrapolated from the last step midpoints (the last one, the line through two, or the
-  polynomial through more) and that polynomial's weights.
+  polynomial through more) and that polynomial's weights;
+* the driver's routine bookkeeping around a step, on the state arrays ``ist``/``fst`` (layout
+  ``_K`` … ``_STRIKES``, ``_T`` … ``_STEP``) both loops keep: :func:`next_step` (the output grid
+  and its equal :func:`substeps`), :func:`predict` (the predicted midpoint, per variable by
+  :func:`extrapolate`/:func:`polynomial`), :func:`looks` (whether the singularity monitor looks:
+  a hard step, the routine period) and :func:`accept` (the midpoints' history, the time, the step
+  count, ``max_steps``, the output at the end of an interval). These are written with whole-array
+  NumPy expressions and the ``_copy`` operation, so that the Python loop runs them at NumPy speed
+  and numba compiles the same text into the compiled loop's chunk.
 
 The C back end's step loop (``phc/codegen/c_runtime/steps.c``, :mod:`phc.codegen.c_steps`)
 cannot run Python: it is a line-by-line port of :func:`newton` (one function there too, which
-every method's stages call), :func:`discrete_gradient` and :func:`midpoint4`, operation by
-operation, and is tested against the Python loop; a change of the logic here is a change there.
+every method's stages call), :func:`discrete_gradient`, :func:`midpoint4` and the driver's
+bookkeeping, operation by operation, and is tested against the Python loop; a change of the
+logic here is a change there.
 
-The drivers around the steps are still each loop's own: the Python loop's
-:func:`~phc.simulation.midpoint.integrate_fixed_step` (events, projection, splitting, the
-singularity monitor's messages) and the compiled loop's chunk of routine steps
-(:func:`phc.codegen.numba_steps_kernel._chunk`), which hands every other step back.
+What stays each loop's own is what is not routine: the Python loop's
+:func:`~phc.simulation.midpoint.integrate_fixed_step` handles events, projection, retries and
+splits and the singularity monitor's full look and messages
+(:func:`~phc.simulation.midpoint.finish_step`); the compiled loop's chunk
+(:func:`phc.codegen.numba_steps_kernel._chunk`) runs the routine steps with the functions above
+and hands every other step back to that same Python code
+(:func:`phc.simulation.compiled_steps.integrate`). The routine look's screen, σ_min/σ_max of the
+equilibrated iteration matrix, is each back end's linear algebra (SciPy's LAPACK in
+:class:`~phc.simulation.monitor.SingularityMonitor`, LAPACK through pointers in
+:func:`phc.codegen.numba_steps_kernel._monitor_ratio`), as the Newton matrix's LU is.
 
 Neither loop's data structures appear here. What touches them are a few operations, called
 by name: ``ws`` is the loop's workspace, passed through to them untouched. The Python loop's
@@ -80,6 +95,16 @@ DOUBLE_NEXT, STRIKE = 0, 1
 (_TOL, _RATE, _FLOOR, _MAX_AGE, _MAX_NEWTON, _BAL_TOL, _MAX_SECANT, _S_MIN, _S_MAX, _THRESHOLD, _EVERY,
  _G1, _G2, _M0, _M1, _M2, _ORDER, _ZONE, _STAGNATION, _ONE, _ZERO, _ORDER_ALG, _STRIKES_C) = range(23)
 _NC = 23
+# the loops' state (the Python loop's, the compiled loops' and steps.c's): integer state ist
+(_K, _J, _SUBSTEPS, _STEPS, _LAST_LOOK, _HAS_MID, _MAX_STEPS, _STATUS, _NFEV, _NFACT, _HIST, _MONITOR, _METHOD,
+ _CODE, _ILL, _E, _NEND, _NMID, _LOWP, _STRIKES) = range(20)
+_NI = 20
+# float state
+_T, _H, _H_PREV, _STEP = range(4)
+_NF = 4
+LOOK_GAP = 10
+"""A step Newton found ill-conditioned is looked at by the singularity monitor if the last look
+was at least this many steps before (:func:`looks`; why: :data:`phc.simulation.midpoint.LOOK_GAP`)."""
 
 
 def substeps(interval, step):
@@ -90,6 +115,106 @@ def substeps(interval, step):
     if step > 0.0:
         return max(1, int(np.ceil(interval / step - 1e-9)))
     return 1
+
+
+def next_step(t_out, fst, ist):
+    """The step the loop takes next on the output grid ``t_out``: at the start of output interval
+    ``ist[_K]`` (``ist[_J]`` substeps of it done: none), the interval's :func:`substeps` into
+    ``ist[_SUBSTEPS]``, their size into ``fst[_H]`` and the time ``fst[_T]`` back to the interval's
+    start (the steps of an interval advance ``fst[_T]`` by ``fst[_H]``: :func:`accept`)."""
+    if ist[_J] == 0:
+        k = ist[_K]
+        interval = t_out[k] - t_out[k - 1]
+        sub = substeps(interval, fst[_STEP])
+        ist[_SUBSTEPS] = sub
+        fst[_H] = interval / sub
+        fst[_T] = t_out[k - 1]
+
+
+def polynomial(pt, pm, k, tn):
+    """``Σ w[a]·pm[a]`` over the newest ``k`` step midpoints ``pm[0:k]`` (newest first, at the
+    times ``pt[0:k]``): the polynomial through them at ``tn`` (:func:`lagrange_weights`)."""
+    w = np.empty(k)
+    lagrange_weights(pt, k, tn, w)
+    out = w[0] * pm[0]
+    for a in range(1, k):
+        out = out + w[a] * pm[a]
+    return out
+
+
+def extrapolate(k, mid, mid_slope, pt, pm, tn, h, h_prev):
+    """The next step midpoint (at ``tn``, step ``h`` after one of ``h_prev``) by the rule
+    :func:`predictor_nodes` returned, ``k``: 0 the last midpoint ``mid``; 1 the line along the last
+    slope ``mid_slope``; k ≥ 3 the polynomial through the last k (:func:`polynomial`)."""
+    if k == 0:
+        return mid
+    if k == 1:
+        return mid + 0.5 * (h + h_prev) * mid_slope
+    return polynomial(pt, pm, k, tn)
+
+
+def predict(y, mid, mid_slope, pt, pm, ist, c, t, h, h_prev, algmask, guess):
+    """The start of Newton into ``guess``: ``2 m − y`` with the predicted midpoint m of the step
+    (t, h) from ``y``. Before any step, ``m = y + h/2·ẏ₀`` (``mid_slope`` holds ẏ₀); then per
+    variable by its degree — differential variables (``algmask`` 0) ``c[_ORDER]``, algebraic ones
+    ``c[_ORDER_ALG]`` — and the ``ist[_NMID]`` midpoints known (:func:`predictor_nodes`,
+    :func:`extrapolate`). Predictor of the midpoints, not the step ends: the algebraic variables
+    (multipliers) of a midpoint rule oscillate about their midpoint values from step end to step
+    end, which ruins an extrapolation of the ends."""
+    if ist[_HAS_MID] == 0:
+        _copy(2.0 * (y + 0.5 * h * mid_slope) - y, guess)
+        return
+    tn = t + 0.5 * h
+    kd = predictor_nodes(int(c[_ORDER]), ist[_NMID])
+    ka = predictor_nodes(int(c[_ORDER_ALG]), ist[_NMID])
+    md = extrapolate(kd, mid, mid_slope, pt, pm, tn, h, h_prev)
+    ma = extrapolate(ka, mid, mid_slope, pt, pm, tn, h, h_prev)
+    _copy(2.0 * np.where(algmask != 0, ma, md) - y, guess)
+
+
+def looks(ist, c, converged, ill):
+    """Whether the singularity monitor looks at the step just solved: ``(hard, look)``. Hard: Newton
+    failed, or found the step ill-conditioned at least :data:`LOOK_GAP` steps after the last look;
+    a look (with the monitor on, ``ist[_MONITOR]``) at a hard step and every ``c[_EVERY]`` steps."""
+    steps = ist[_STEPS]
+    hard = (not converged) or (ill and steps - ist[_LAST_LOOK] >= LOOK_GAP)
+    return hard, ist[_MONITOR] != 0 and (hard or steps % int(c[_EVERY]) == 0)
+
+
+def accept(t, h, y, y_new, y_end, y_prev, mid, mid_slope, pt, pm, ys, yps, fst, ist):
+    """Take the step (t, h, y) → ``y_new`` (the stage solution; ``y_end`` the step's end, the same
+    unless projected): the midpoints' history of the predictor (newest first in ``pt``/``pm``, the
+    slope between the last two in ``mid_slope``), ``y_prev`` ← y ← ``y_end``, the time, the step
+    counter, the output ``ys``/``yps`` at the end of an output interval. True when ``max_steps`` is
+    reached (the interval's output is then not written)."""
+    h_prev = fst[_H_PREV]
+    kp = pm.shape[0]
+    for j in range(kp - 1, 0, -1):
+        pt[j] = pt[j - 1]
+        _copy(pm[j - 1], pm[j])
+    pt[0] = t + 0.5 * h
+    nm = 0.5 * (y + y_new)
+    if ist[_HAS_MID] != 0:
+        _copy((nm - mid) / (0.5 * (h + h_prev)), mid_slope)
+    _copy(nm, mid)
+    _copy(nm, pm[0])
+    _copy(y, y_prev)
+    _copy(y_end, y)
+    ist[_HAS_MID] = 1
+    ist[_NMID] = min(ist[_NMID] + 1, kp)
+    fst[_H_PREV] = h
+    fst[_T] = t + h
+    ist[_STEPS] += 1
+    if ist[_STEPS] >= ist[_MAX_STEPS]:
+        return True
+    ist[_J] += 1
+    if ist[_J] >= ist[_SUBSTEPS]:
+        k = ist[_K]
+        _copy(y, ys[k])
+        _copy((y - y_prev) / h, yps[k])
+        ist[_K] = k + 1
+        ist[_J] = 0
+    return False
 
 
 def newton(ws, m, c, t, h, y, y1in, s, out):

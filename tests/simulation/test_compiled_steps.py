@@ -421,22 +421,28 @@ def test_the_cache_stamp_covers_every_file_the_loop_is_compiled_from():
 @pytest.mark.parametrize("solver, entry", [("midpoint", "newton"), ("discrete_gradient", "discrete_gradient"),
                                            ("midpoint4", "midpoint4")])
 def test_both_loops_run_the_step_logic_written_once(compiled, monkeypatch, used, solver, entry):
-    """Each method's step logic exists once (phc.simulation.step_logic): the compiled loop jits the
-    code of those very functions, and the Python loop calls them — a run with the compiled loop off goes
-    through the entry point of its method and the Newton iteration, and agrees with the
-    compiled run to the Newton tolerance."""
+    """Each method's step logic and the driver's routine bookkeeping exist once
+    (phc.simulation.step_logic): the compiled loop jits the code of those very functions, and the
+    Python loop calls them — a run with the compiled loop off goes through the entry point of its
+    method, the Newton iteration, the output grid, the predictor, the monitor's cadence and the
+    acceptance of every step, and agrees with the compiled run to the Newton tolerance."""
     from phc.simulation import compiled_steps as cs
     from phc.codegen import numba_steps_kernel as kernel
     from phc.simulation import step_logic
 
     assert cs._build()
+    driver = ("next_step", "predict", "looks", "accept")
     for name, func in (("_newton", step_logic.newton), ("_discrete_gradient", step_logic.discrete_gradient),
-                       ("_midpoint4_step", step_logic.midpoint4), ("_lagrange_weights", step_logic.lagrange_weights),
-                       ("_predictor_nodes", step_logic.predictor_nodes)):
+                       ("_midpoint4_step", step_logic.midpoint4), ("lagrange_weights", step_logic.lagrange_weights),
+                       ("predictor_nodes", step_logic.predictor_nodes), ("substeps", step_logic.substeps),
+                       ("extrapolate", step_logic.extrapolate), ("polynomial", step_logic.polynomial),
+                       *((name, getattr(step_logic, name)) for name in driver)):
         jitted = getattr(kernel, name)
         assert jitted.py_func.__code__ is func.__code__ and hasattr(jitted, "py_func"), name
+    for gone in ("_predict", "_accept", "_substeps", "_predictor_nodes", "_lagrange_weights"):
+        assert not hasattr(kernel, gone), gone  # no second copy of the driver in the kernel
     calls = {}
-    for name in {entry, "newton"}:
+    for name in {entry, "newton", *driver}:
         original = getattr(step_logic, name)
 
         def counted(*args, _name=name, _original=original):
@@ -448,6 +454,8 @@ def test_both_loops_run_the_step_logic_written_once(compiled, monkeypatch, used,
     fast, slow = _both(monkeypatch, model, solver=solver, t_end=0.5, step=1e-2, n_out=11)
     assert used == [True, False]
     assert calls[entry] >= 50 and calls["newton"] >= calls[entry]  # 50 steps, each at least one stage
+    for name in driver:  # the Python loop's bookkeeping of each of the 50 steps
+        assert calls[name] >= 50, name
     _assert_same_trajectory(fast, slow, 1e-2)
 
 

@@ -32,8 +32,9 @@
  *
  * What each step does is a line-by-line port of phc/simulation/step_logic.py (`newton`: the
  * stopping rules, the refresh of the Newton matrix, the round-off acceptance; `discrete_gradient`;
- * `midpoint4`: the same arithmetic, operation by operation) and of the numba
- * kernel's driver (phc/codegen/numba_steps_kernel.py: `_predict`, `_accept`, `_chunk`),
+ * `midpoint4`: the same arithmetic, operation by operation), of its driver bookkeeping (`next_step`,
+ * `predict`, `looks`, `accept`, which the Python loop and the numba kernel both run) and of the
+ * numba kernel's chunk (phc/codegen/numba_steps_kernel.py: `_chunk`, `_monitor_ratio`),
  * on the same state arrays with the same layout (checked when the library is loaded:
  * phc_steps_layout). Not ported: the mixed-precision corrections of the numba loop (every
  * correction here is in double precision, so step_logic's precision events never occur).
@@ -912,8 +913,8 @@ static int advance(const struct phc_steps *w, double t, double h, int *ill)
     }
 }
 
-/* ---- the predictor (phc.simulation.step_logic.predictor_nodes, lagrange_weights;
- *      numba_steps_kernel._predict) ------------------------------------------------------- */
+/* ---- the predictor (phc.simulation.step_logic.predictor_nodes, lagrange_weights, extrapolate,
+ *      predict) ---------------------------------------------------------------------------- */
 
 static int64_t predictor_nodes(int64_t order, int64_t known)
 {
@@ -971,7 +972,7 @@ static void predict(const struct phc_steps *w, double t, double h, double h_prev
     }
 }
 
-/* ---- the driver (numba_steps_kernel._accept, _monitor_ratio, _chunk) ------------------- */
+/* ---- the driver (step_logic.next_step, looks, accept; numba_steps_kernel._monitor_ratio, _chunk) */
 
 /* Take the step (t, h, y) -> y_new: the midpoints' history, the step counter, the output at the
  * end of an output interval; 1 when max_steps is reached */
