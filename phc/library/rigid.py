@@ -100,6 +100,9 @@ def lower_rigid(b, ctx, name, spec, path):
     gradV = sp.Matrix([sp.diff(V, qi) for qi in q])
     cq = c.jacobian(qv) if len(c) else sp.zeros(0, nq)
     ct = c.diff(T) if len(c) else sp.zeros(0, 1)  # a moving (rheonomic) constraint: c_q Z v + c_t = 0
+    _check_redundant_constraints(b, ctx, name, path, cq * Z, A, q, times)
+    if len(b.diags.errors) > n_errors:
+        return
     # ∂H/∂q at fixed p: ∇V − ½ vᵀ∂M/∂q v (the second term for configuration-dependent M)
     grad_q = gradV - (sp.Matrix([(vv.T * sp.diff(M, qi) * vv)[0, 0] / 2 for qi in q]) if m_depends_on_q
                       else sp.zeros(nq, 1))
@@ -278,6 +281,56 @@ def _check_mass_matrix(b, ctx, name, path, M, q, times=(0.0,)):
             b.error("PHC-E122", f"mass matrix `M` of `{name}` is not positive definite at the default "
                     f"parameters (smallest eigenvalue {np.linalg.eigvalsh(Mn).min():.3g})", ctx, (*path, "M"))
             return
+
+
+REDUNDANT_RTOL = 1e-9
+"""A constraint row whose distance from the span of the rows before is below this fraction
+of the largest singular value, at every sampled configuration, is redundant (round-off of
+rows of size one: 1e-16; a configuration-dependent rank drop is seen at no more than a
+measure-zero set of configurations, not at three random ones)."""
+
+
+def _check_redundant_constraints(b, ctx, name, path, cqZ, A, q, times=(0.0,)):
+    """Refuse constraints whose velocity rows [c_q Z; A] are dependent at every configuration
+    (a constraint written twice, or one implied by the others): their multipliers are not
+    unique anywhere and no solver can integrate the model. A rank drop at particular
+    configurations only (a mechanism's singular position) is left to the solvers and to
+    `phc check` (PHC-E410 at the initial configuration, PHC-W422 along the motion)."""
+    rows = cqZ.col_join(A) if A.rows else cqZ
+    if rows.rows < 2:
+        return
+    always = None
+    for point in _sample_points(q, times=times):
+        try:
+            R = np.array(numeric_defaults(b, rows.xreplace(point)).evalf(), dtype=float)
+        except (TypeError, ValueError):
+            return
+        if not np.all(np.isfinite(R)):
+            return
+        top = np.linalg.norm(R, 2)
+        if top == 0.0:
+            return
+        dependent, kept = set(), []
+        for i in range(R.shape[0]):
+            trial = R[kept + [i]]
+            s = np.linalg.svd(trial, compute_uv=False)
+            if len(s) < len(kept) + 1 or s[-1] <= REDUNDANT_RTOL * top:
+                dependent.add(i)
+            else:
+                kept.append(i)
+        always = dependent if always is None else always & dependent
+        if not always:
+            return
+    first = min(always)
+    if first < cqZ.rows:
+        key, label, index = "constraints", "position constraint", first
+    else:
+        key, label, index = "velocity_constraints", "velocity constraint", first - cqZ.rows
+    b.error("PHC-E410", f"{label} `{key}[{index}]` of `{name}` is redundant at every configuration: its velocity "
+            "row (c_q·Z for a position constraint) depends on the rows before it at random configurations, so "
+            "its multiplier is never unique and no solver can integrate the model",
+            ctx, (*path, key, index),
+            hint="remove it (a constraint written twice, or one the others imply)")
 
 
 def _check_port_position(b, ctx, name, pname, ppath, r, qv, Z, B, times=(0.0,)):
