@@ -231,8 +231,9 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
         ex = final(eq.expr)
         if ex == 0 and eq.kind != "linear":
             continue
-        if (eq.kind != "linear" and not (ex.free_symbols - constants)
-                and ex.is_number and ex != 0):
+        # is_number first: it stops at a row's first symbol, free_symbols walks the whole row
+        if (eq.kind != "linear" and ex.is_number and ex != 0
+                and not (ex.free_symbols - constants)):
             rep.diags.append(Diagnostic("PHC-E301", f"equation `{eq.label}` reduces to the contradiction "
                                         f"{ex} = 0", span=eq.span))
             continue

@@ -69,6 +69,8 @@ class _Elaborator(Reporter):
 
     def __init__(self) -> None:
         super().__init__()
+        self._pairs: dict = {}  # (id(want), id(dim)) -> pint's comparisons (_compared)
+        self._kinds: dict = {}  # (component kind, port domains) -> (scale terms, expected fields)
         self.variables: list[Variable] = []
         self.equations: list[Equation] = []
         self.parameters: dict[str, Parameter] = {}
@@ -561,7 +563,7 @@ class _Elaborator(Reporter):
         if lowering.errors:
             self.failed.add(full)  # its ports may be missing: do not report them again
         elif self.units:
-            self._check_field_units(ctx, full, comp, path)
+            self._check_field_units(ctx, full, comp, path, key)
 
     def _lowering_context(self):
         """What the next lowerer may read of the model so far: read-only views, no copies
@@ -616,24 +618,32 @@ class _Elaborator(Reporter):
         self.left_out.extend(lowering.left_out)
         self.failed |= lowering.failed
 
-    def _check_field_units(self, ctx: FileContext, full: str, comp, path) -> None:
+    def _check_field_units(self, ctx: FileContext, full: str, comp, path, kind=None) -> None:
         """Fields whose dimension the component knows from its domain (a spring's `k` is
         effort per displacement) must have it when their expression's dimension is known
-        (PHC-E172)."""
-        from phc.units import NUMBER, ScaleSystem, describe, expected_fields, same_dimension, scale_terms
+        (PHC-E172). `kind`: the component's key among identical ones
+        (:meth:`phc.lowering.SharedLowerings.key`, None: none), whose expected fields and
+        scale terms are found once."""
+        from phc.units import NUMBER, ScaleSystem, describe, expected_fields, scale_terms
 
         domains = {port.name[len(full) + 1:]: port.domain for port in self.ports_of.get(full, ())
                    if self.ports.get(port.name) is port}  # its own ports, not a scan of all
-        terms = scale_terms(comp, domains)
-        for field_name, want, meaning in expected_fields(comp, domains):
+        found = None if kind is None else self._kinds.get((kind, frozenset(domains.items())))
+        if found is None:
+            found = (scale_terms(comp, domains), expected_fields(comp, domains))
+            if kind is not None:
+                self._kinds[(kind, frozenset(domains.items()))] = found
+        terms, expected = found
+        for field_name, want, meaning in expected:
             prefix = (*path, field_name)
             for where, dim in self.field_dims.get((id(ctx.smap), prefix[:3]), ()):
                 if where[:len(prefix)] != prefix or dim is None or dim is NUMBER:
                     continue
                 self.fields_checked = True
-                if not same_dimension(want, dim):
+                same, other_dimension, factor = self._compared(want, dim)
+                if not same:
                     self.fields_si = False  # e.g. N/mm, MPa: the states are not in the domain's SI units
-                if want.dimensionality != dim.dimensionality:  # the scale is the model's choice (MPa, cm³)
+                if other_dimension:  # the scale is the model's choice (MPa, cm³)
                     value = getattr(comp, field_name, None)
                     shown = value if not isinstance(value, list) else "…"
                     self.error("PHC-E172", f"`{field_name}` of `{full}` ({comp.type}) must be {meaning}, but "
@@ -643,15 +653,30 @@ class _Elaborator(Reporter):
                 if field_name in terms:
                     if self.scale_system is None:
                         self.scale_system = ScaleSystem()
-                    self._check_scale(ctx, full, comp, field_name, where, want, dim, terms[field_name])
+                    self._check_scale(ctx, full, comp, field_name, where, want, dim, terms[field_name], factor)
 
-    def _check_scale(self, ctx: FileContext, full: str, comp, field_name: str, where, want, dim, coeffs) -> None:
+    def _compared(self, want, dim) -> tuple[bool, bool, float]:
+        """(same dimension and scale, another dimension, :func:`~phc.units.scale_factor`) of a
+        field's quantity `dim` and the one its type wants: pint's arithmetic once per pair (a
+        chain's springs share both)."""
+        from phc.units import same_dimension, scale_factor
+
+        memo = self._pairs
+        hit = memo.get((id(want), id(dim)))
+        if hit is None:  # the quantities are kept with the answer: their ids stay theirs
+            hit = memo[(id(want), id(dim))] = (same_dimension(want, dim),
+                                               want.dimensionality != dim.dimensionality,
+                                               scale_factor(dim, want), want, dim)
+        return hit[0], hit[1], hit[2]
+
+    def _check_scale(self, ctx: FileContext, full: str, comp, field_name: str, where, want, dim, coeffs,
+                     factor: float) -> None:
         """A field's scale must fit the model's one system of units (phc.units.ScaleSystem):
         `k` in N/mm beside a mass in kg, or a speed in rpm, is refused with the factor
-        (PHC-E172), since phc does not convert units."""
-        from phc.units import scale_factor, scaled_label
+        (PHC-E172), since phc does not convert units. `factor`: `dim` over `want`
+        (:func:`~phc.units.scale_factor`)."""
+        from phc.units import scaled_label
 
-        factor = scale_factor(dim, want)
         scale = math.log10(factor) if factor > 0 else float("nan")
         if not math.isfinite(scale):
             return

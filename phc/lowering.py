@@ -437,7 +437,11 @@ class _Template:
             items = [(f.name, self._slot(getattr(v, f.name))) for f in fields]
             if not any(a in self._computed for _, a in items):
                 return self._const(v)
-            return self._step(v, "dataclass", (t, items))
+            if hasattr(t, "__post_init__") or not hasattr(v, "__dict__"):
+                return self._step(v, "dataclass", (t, items))
+            # every field given and nothing run after __init__: the instance is its fields,
+            # set without the frozen class's __init__ (object.__setattr__ per field)
+            return self._step(v, "fields", (t, tuple(f for f, _ in items), [a for _, a in items]))
         if t.__module__.split(".")[0] == "pint":  # a dimension (expr_dims): no names in it, never changed
             return self._const(v)
         raise Unshareable(f"a value of type {t.__name__}")
@@ -457,10 +461,16 @@ class _Template:
                 return None
             last = now
         vals = list(self.values)
+        new_object = object.__new__
         for slot, kind, data in self.steps:  # the most frequent kinds first
             if kind == "seq":
                 t, items = data
                 vals[slot] = t([vals[a] for a in items])
+            elif kind == "fields":
+                t, names, items = data
+                obj = new_object(t)
+                obj.__dict__.update(zip(names, [vals[a] for a in items]))
+                vals[slot] = obj
             elif kind == "dataclass":
                 t, items = data
                 vals[slot] = t(**{f: vals[a] for f, a in items})

@@ -482,6 +482,11 @@ class FieldView(MutableMapping):
             raise KeyError(name)
         return value
 
+    def __contains__(self, name) -> bool:
+        # without the KeyError of Mapping's: asked once per component (phc.elaborate)
+        entry = find(name) if isinstance(name, str) else None
+        return entry is not None and self._value(entry) is not None
+
     def __iter__(self) -> Iterator[str]:
         return (name for name in names() if self._value(COMPONENT_TYPES[name]) is not None)
 

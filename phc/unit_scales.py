@@ -35,14 +35,32 @@ def scale_terms(comp, domains: Mapping[str, str]) -> dict[str, dict]:
     ``{field: {variable: exponent}}`` where a variable is ``"T"`` (the time unit) or
     ``("E"|"F", domain)`` (a domain's effort or flow unit). Empty without pint or where a
     field's unit is not a product of these (the beams' SI fields, the generic domain)."""
-    from phc.units import _element_fields, _type_units, domain_units, have_pint
+    from phc.units import _type_units, have_pint
 
     if not have_pint():
         return {}
-    out: dict[str, dict] = {}
     units = _type_units(comp)
     if units is None:
-        return out
+        return {}
+    # the same for every spring of a chain: computed once per kind (as phc.units.expected_fields)
+    key = (getattr(comp, "type", None), id(units), frozenset(domains.items()),
+           tuple(getattr(comp, eu.field, None) is not None for eu in units.element or ()))
+    found = _TERMS.get(key)
+    if found is None:
+        if len(_TERMS) >= 1024:
+            _TERMS.clear()
+        found = _TERMS[key] = (units, _scale_terms(comp, domains, units))
+    return {field: dict(terms) for field, terms in found[1].items()}
+
+
+_TERMS: dict = {}
+"""scale_terms by (type, port domains, which of its element fields are given)."""
+
+
+def _scale_terms(comp, domains: Mapping[str, str], units) -> dict[str, dict]:
+    from phc.units import _element_fields, domain_units
+
+    out: dict[str, dict] = {}
     if units.element:
         doms = set(domains.values())
         if len(doms) != 1 or domain_units(next(iter(doms))) is None:

@@ -357,7 +357,7 @@ class _Walker:
     def dim(self, expr):
         if isinstance(expr, sp.Symbol):
             return self.units.get(expr)
-        if isinstance(expr, (sp.Number, sp.NumberSymbol)) or expr in (sp.E, sp.pi):
+        if isinstance(expr, (sp.Number, sp.NumberSymbol)):  # e and π are NumberSymbols
             return NUMBER
         if isinstance(expr, sp.Add):
             return self.common(expr.args, "adds terms")

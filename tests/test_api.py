@@ -84,16 +84,16 @@ def test_importing_and_using_phc_changes_no_environment_variable(tmp_path):
 
 def test_only_the_phc_command_tunes_the_garbage_collector():
     """`import phc` leaves Python's collector as it was; the command (phc/_entry.py) freezes
-    what the imports made and collects its youngest generation less often."""
+    what the imports made and collects its youngest and middle generations less often."""
     code = ("import gc, json; before = gc.get_threshold(); import phc; from phc import _entry; "
             "untouched = [gc.get_threshold() == before, gc.get_freeze_count() == 0]\n"
             "try:\n    _entry.main(['--version'])\nexcept SystemExit:\n    pass\n"
             "print(json.dumps(untouched + [gc.get_threshold()[0] == _entry.GC_YOUNG, gc.get_freeze_count() > 0, "
-            "gc.get_threshold()[1:] == before[1:]]))")
+            "gc.get_threshold()[1] == _entry.GC_MIDDLE, gc.get_threshold()[2:] == before[2:]]))")
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO,
                          timeout=SUBPROCESS_TIMEOUT)
     assert run.returncode == 0, run.stderr[-2000:]
-    assert json.loads(run.stdout.splitlines()[-1]) == [True, True, True, True, True]
+    assert json.loads(run.stdout.splitlines()[-1]) == [True, True, True, True, True, True]
 
 
 def test_the_phc_command_runs_with_one_blas_thread_unless_told_otherwise():
