@@ -70,6 +70,32 @@ def test_validate_reports_a_broken_model_with_one_located_line(tmp_path, capsys)
     assert re.match(rf"^{re.escape(str(broken))}:{line_no}:\d+: .*colour.*\[PHC-E010\]$", line)
 
 
+def test_a_scene_names_its_model_file_by_a_normalized_relative_path(tmp_path, capsys, monkeypatch):
+    """`model: ../m.yaml` in scenes/s.yaml: messages about the model say `m.yaml`, not
+    `scenes/../m.yaml`; missing, it is looked for at `other.yaml`; through a symbolic link
+    `..` leads elsewhere, and the path stays as written."""
+    text = (MODELS / "pendulum.yaml").read_text().replace("    q: [x, y]\n", "    q: [x, y]\n    colour: red\n")
+    (tmp_path / "m.yaml").write_text(text)
+    (tmp_path / "scenes").mkdir()
+    (tmp_path / "scenes" / "s.yaml").write_text("format_version: 1\nmodel: ../m.yaml\n")
+    (tmp_path / "scenes" / "gone.yaml").write_text("format_version: 1\nmodel: ../other.yaml\n")
+    monkeypatch.chdir(tmp_path)
+    assert main(["validate", "scenes/s.yaml"]) == 1
+    [line] = error_lines(capsys.readouterr().err)
+    assert line.startswith("m.yaml:") and "[PHC-E010]" in line, line
+    assert main(["validate", "scenes/gone.yaml"]) == 1
+    [line] = error_lines(capsys.readouterr().err)
+    assert "(looked for `other.yaml`)" in line, line
+    elsewhere = tmp_path / "far" / "deep"
+    elsewhere.mkdir(parents=True)
+    (elsewhere / "s.yaml").write_text("format_version: 1\nmodel: ../m.yaml\n")
+    (tmp_path / "far" / "m.yaml").write_text(text)
+    (tmp_path / "link").symlink_to(elsewhere)
+    assert main(["validate", "link/s.yaml"]) == 1
+    [line] = error_lines(capsys.readouterr().err)
+    assert line.startswith("link/../m.yaml:"), line  # far/m.yaml, not the m.yaml beside `link`
+
+
 @pytest.mark.parametrize("command", ["validate", "compile", "simulate"])
 def test_nonexistent_file_is_one_located_line(command, tmp_path, capsys):
     missing = str(tmp_path / "nosuch.yaml")
