@@ -276,7 +276,9 @@ class FieldInitializer:
             if fs.fields is None:
                 self.reporter.error("PHC-E215", f"initial fields of `{fs.component}` need its full discretization, but "
                              "effect `modes` reduces it to modal coordinates", self.ctx, path, key=True,
-                             hint="drop `modes` for this run, or give the modal states per dof")
+                             hint=f"drop `modes` for this run, or instead of `{name}` give values of its modal "
+                             f"coordinates `{fs.component}.za[i]` (the boundary dofs, then the kept modes) and "
+                             f"`{fs.component}.zb[i]`, one a line in `initial:`, e.g. `{fs.component}.za[0]: 0.0`")
                 continue
             by_comp.setdefault(fs.component, {})[field] = (name, spec, path)
         dof_names = {iv.name for iv in out}

@@ -86,7 +86,14 @@ class Scene:
 
     @property
     def model_path(self) -> Path:
-        return self.path.parent / self.spec.model
+        """The model file, relative to the scene's directory, normalized as messages show
+        it (`scenes/../m.yaml` is `m.yaml`) unless a symbolic link makes `..` lead elsewhere."""
+        written = self.path.parent / self.spec.model
+        normal = Path(os.path.normpath(written))
+        try:  # the directories, so that a missing model file is named normalized too
+            return normal if normal == written or os.path.samefile(normal.parent, written.parent) else written
+        except OSError:  # a directory is missing: the path as written
+            return written
 
     @property
     def name(self) -> str:

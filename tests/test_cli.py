@@ -70,6 +70,32 @@ def test_validate_reports_a_broken_model_with_one_located_line(tmp_path, capsys)
     assert re.match(rf"^{re.escape(str(broken))}:{line_no}:\d+: .*colour.*\[PHC-E010\]$", line)
 
 
+def test_a_scene_names_its_model_file_by_a_normalized_relative_path(tmp_path, capsys, monkeypatch):
+    """`model: ../m.yaml` in scenes/s.yaml: messages about the model say `m.yaml`, not
+    `scenes/../m.yaml`; missing, it is looked for at `other.yaml`; through a symbolic link
+    `..` leads elsewhere, and the path stays as written."""
+    text = (MODELS / "pendulum.yaml").read_text().replace("    q: [x, y]\n", "    q: [x, y]\n    colour: red\n")
+    (tmp_path / "m.yaml").write_text(text)
+    (tmp_path / "scenes").mkdir()
+    (tmp_path / "scenes" / "s.yaml").write_text("format_version: 1\nmodel: ../m.yaml\n")
+    (tmp_path / "scenes" / "gone.yaml").write_text("format_version: 1\nmodel: ../other.yaml\n")
+    monkeypatch.chdir(tmp_path)
+    assert main(["validate", "scenes/s.yaml"]) == 1
+    [line] = error_lines(capsys.readouterr().err)
+    assert line.startswith("m.yaml:") and "[PHC-E010]" in line, line
+    assert main(["validate", "scenes/gone.yaml"]) == 1
+    [line] = error_lines(capsys.readouterr().err)
+    assert "(looked for `other.yaml`)" in line, line
+    elsewhere = tmp_path / "far" / "deep"
+    elsewhere.mkdir(parents=True)
+    (elsewhere / "s.yaml").write_text("format_version: 1\nmodel: ../m.yaml\n")
+    (tmp_path / "far" / "m.yaml").write_text(text)
+    (tmp_path / "link").symlink_to(elsewhere)
+    assert main(["validate", "link/s.yaml"]) == 1
+    [line] = error_lines(capsys.readouterr().err)
+    assert line.startswith("link/../m.yaml:"), line  # far/m.yaml, not the m.yaml beside `link`
+
+
 @pytest.mark.parametrize("command", ["validate", "compile", "simulate"])
 def test_nonexistent_file_is_one_located_line(command, tmp_path, capsys):
     missing = str(tmp_path / "nosuch.yaml")
@@ -255,3 +281,34 @@ def test_pre_commit_hook_passes_on_the_shipped_models(capsys, monkeypatch):
                                                                                         str(p.relative_to(REPO))))
     assert "models/pendulum.yaml" in files
     assert main([*hook["entry"].split()[1:], *files]) == 0
+
+
+def test_an_initial_field_under_modes_says_which_keys_to_write_and_they_work(tmp_path, capsys, monkeypatch):
+    """PHC-E215 for a field of a beam reduced by `modes`: the hint names the modal keys with
+    an example, and that example, written as the hint says, is accepted."""
+    model = """\
+format_version: 1
+components:
+  beam: {type: euler_bernoulli_beam, length: 0.3, elements: 4, rhoA: 0.5, EI: 68.0}
+  clamp: {type: zero_flow, domain: mechanical.translational}
+  clamp_rot: {type: zero_flow, domain: mechanical.rotational}
+  free: {type: zero_effort, domain: mechanical.translational}
+  free_rot: {type: zero_effort, domain: mechanical.rotational}
+connections:
+  - [beam.a, clamp.port]
+  - [beam.a_rot, clamp_rot.port]
+  - [beam.b, free.port]
+  - [beam.b_rot, free_rot.port]
+"""
+    monkeypatch.chdir(tmp_path)
+    Path("field.yaml").write_text(model + "simulation:\n  initial:\n    beam.w: 0.001*xi**2\n")
+    Path("plain.yaml").write_text(model)
+    Path("s.yaml").write_text("format_version: 1\nmodel: field.yaml\neffects:\n  beam: {modes: 2}\n")
+    assert main(["validate", "s.yaml"]) == 1
+    [line] = error_lines(capsys.readouterr().err)
+    assert "[PHC-E215]" in line and "instead of `beam.w`" in line, line
+    example = re.search(r"e\.g\. `([^`]+)`", line).group(1)
+    assert example == "beam.za[0]: 0.0", line
+    Path("s2.yaml").write_text(f"format_version: 1\nmodel: plain.yaml\neffects:\n  beam: {{modes: 2}}\n"
+                               f"initial:\n  {example}\n")
+    assert main(["validate", "s2.yaml"]) == 0, capsys.readouterr().err

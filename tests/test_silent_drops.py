@@ -158,9 +158,12 @@ def test_tolerances_in_the_file_with_a_fixed_step_solver_warn_where_written(tmp_
 def test_tolerances_in_the_file_with_solver_midpoint_on_the_command_line(tmp_path, capsys, cache):
     path = _write(tmp_path, "m.yaml", OSCILLATOR.format(settings="  rtol: 1.0e-6\n  max_order: 2"))
     assert _simulate(capsys, path) == []  # IDA uses both
+    # the settings are for the file's own solver (IDA): one line, at the first, not one per setting
     lines = _simulate(capsys, path, "--solver", "midpoint")
-    assert [line.split(": warning: ")[0] for line in lines] == \
-        [_expected(path, k, "", "").split(": warning: ")[0] for k in ("rtol", "max_order")], lines
+    where = _expected(path, "rtol", "", "").split(": warning: ")[0]
+    assert lines == [f"{where}: warning: `simulation.rtol`, `simulation.max_order` are for the file's solver `ida`: "
+                     "`--solver midpoint` ignores them and steps at the output interval. hint: give `--step` to "
+                     "set this run's accuracy [PHC-W250]"], lines
     # a step on the command line says how the fixed-step run's accuracy is set: no warning
     assert _simulate(capsys, path, "--solver", "midpoint", "--step", "0.01") == []
     # a command-line value replaces the file's: the option is reported, not the file's entry
@@ -168,7 +171,9 @@ def test_tolerances_in_the_file_with_solver_midpoint_on_the_command_line(tmp_pat
     with warnings.catch_warnings():
         warnings.simplefilter("always", IgnoredOptionWarning)
         lines = _simulate(capsys, path, "--solver", "midpoint", "--rtol", "1e-3")
-    assert len(lines) == 2 and lines[0].startswith(_expected(path, "max_order", "simulation.max_order", "midpoint"))
+    max_order = _expected(path, "max_order", "", "").split(": warning: ")[0]
+    assert len(lines) == 2 and lines[0].startswith(f"{max_order}: warning: `simulation.max_order` is for the file's "
+                                                   "solver `ida`: `--solver midpoint` ignores it"), lines
     assert lines[1] == "phc: warning: solver `midpoint` ignores `rtol` (a fixed-step method: its accuracy is set by " \
                        "`step`)"
 

@@ -469,3 +469,20 @@ def test_a_dask_worker_with_two_threads_gives_the_rows_of_the_local_pool(tmp_pat
     local, dask = read_results(tmp_path / "local.csv"), read_results(tmp_path / "dask.csv")
     assert [r["point"] for r in local] == list(range(8)) == [r["point"] for r in dask]
     assert all(same(a, b) for a, b in zip(local, dask))
+
+
+def test_the_output_names_every_file_written_and_the_help_says_which(tmp_path, msd, capsys):
+    """`-o r.csv` writes r.csv, r.parquet (with pyarrow) and r.sweep.json: the summary has one
+    `wrote` line for each file that appeared, and `phc sweep --help` names them."""
+    out = tmp_path / "out"
+    out.mkdir()
+    assert main(["sweep", str(MSD), "--param", "k=1,2", "--t-end", "0.5", "--workers", "1", "--quiet",
+                 "-o", str(out / "r.csv"), "--series", str(out / "s.csv")]) == 0
+    wrote = [line.split("wrote", 1)[1].strip() for line in capsys.readouterr().out.splitlines()
+             if line.strip().startswith("wrote")]
+    assert sorted(wrote) == sorted(str(p) for p in out.iterdir()), wrote
+    assert {"r.csv", "r.sweep.json", "s.csv"} <= {Path(p).name for p in wrote}
+    with pytest.raises(SystemExit):
+        main(["sweep", "--help"])
+    help_text = " ".join(capsys.readouterr().out.split())
+    assert "RESULTS.csv" in help_text and "RESULTS.parquet" in help_text and "RESULTS.sweep.json" in help_text

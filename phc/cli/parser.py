@@ -311,7 +311,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, help="worker processes of the local pool or LocalCluster (default: "
                    "the CPUs available)")
     p.add_argument("-o", "--out", required=True, metavar="RESULTS",
-                   help="results, .csv (also .parquet with pyarrow) or .parquet: one row per run")
+                   help="results, one row per run: -o RESULTS.csv (or RESULTS.parquet) writes RESULTS.csv, "
+                   "RESULTS.parquet (with pyarrow) and RESULTS.sweep.json (what was swept, for --resume); "
+                   "each file written is listed")
     p.add_argument("--series", metavar="FILE.csv", help="also write every run's output time series (long format)")
     p.add_argument("--resume", action="store_true",
                    help="continue the results in --out (same model, values, run options and phc version): its rows "

@@ -120,8 +120,16 @@ def _ignored_in_file_lines(compiled, written: dict, args) -> list[str]:
     if backend is None or not written:
         return []
     given = {"rtol": args.rtol, "atol": args.atol, "step": args.step}
+    names = ignored_in_file(backend, written, given)
+    own = BACKENDS.get(compiled.options.get("solver"))
+    kept = []
+    if args.solver and own is not None and own is not backend:
+        # settings the file's own solver uses are for it, not mistakes: said at most once, in
+        # one line, and not when `--step` sets this run's accuracy (then ignored_in_file is empty)
+        kept = [name for name in names if name in own.honours]
+        names = [name for name in names if name not in own.honours]
     lines = []
-    for name in ignored_in_file(backend, written, given):
+    for name in names:
         where, entry = written[name]
         if backend.fixed_step:
             hint = (f"remove `{name}`, or write `step:` beside it (default: the output interval) to keep "
@@ -131,6 +139,12 @@ def _ignored_in_file_lines(compiled, written: dict, args) -> list[str]:
                     "`step` for `--solver midpoint`")
         lines.append(f"{where}: warning: {entry}: {ignored_option_message(backend, [name])}. hint: {hint} "
                      "[PHC-W250]")
+    if kept and backend.fixed_step:
+        one = len(kept) == 1
+        entries = ", ".join(f"`{written[name][1]}`" for name in kept)
+        lines.append(f"{written[kept[0]][0]}: warning: {entries} {'is' if one else 'are'} for the file's solver "
+                     f"`{own.name}`: `--solver {backend.name}` ignores {'it' if one else 'them'} and steps at the "
+                     "output interval. hint: give `--step` to set this run's accuracy [PHC-W250]")
     return lines
 
 
