@@ -761,6 +761,23 @@ def _scaled_residual(mod, p, t0, result: InitialResult, s) -> float:
     return float(np.max(np.abs(f[ok]) / r[ok]))
 
 
+def _chosen(mod, y1, dif, fixed, values, scale, s) -> dict:
+    """The states the initialization chose: not fixed, not the energy accumulator, moved from
+    the value given (0 where none) by more than 1e-12 of their scale (vectorized: a
+    10⁵-element string has 200 002 states)."""
+    idx = np.array(sorted(dif), dtype=np.int64)
+    if not len(idx):
+        return {}
+    given = np.zeros(mod.N)
+    for j, v in values.items():
+        given[j] = v
+    size = 1e-12 * (scale if s is None else np.asarray(s, dtype=float)[idx])
+    moved = np.abs(y1[idx] - given[idx]) > size
+    moved &= ~np.isin(idx, np.fromiter(fixed, dtype=np.int64, count=len(fixed)))
+    moved &= np.asarray(mod.ROLES, dtype=object)[idx] != "energy"
+    return {mod.VARIABLES[j]: float(y1[j]) for j in idx[moved].tolist()}
+
+
 def _consistent(mod, p, t0, y, values, fixed, tol, max_iter, initial_relations, s) -> InitialResult:
     """One consistent initialization, in the model's units (`s` None) or in the variables
     scaled by `s`."""
@@ -781,9 +798,7 @@ def _consistent(mod, p, t0, y, values, fixed, tol, max_iter, initial_relations, 
         # Accept only a solution IDA will accept too: its first error test would otherwise
         # see the remaining mismatch as a jump of the states.
         if _norm(g) <= 10 * tol * scale:
-            chosen = {mod.VARIABLES[j]: float(y1[j]) for j in sorted(dif) if j not in fixed
-                      and mod.ROLES[j] != "energy" and abs(y1[j] - values.get(j, 0.0)) > 1e-12 * (scale if s is None else s[j])}
-            return InitialResult(y1, yp1, chosen, _norm(g), total)
+            return InitialResult(y1, yp1, _chosen(mod, y1, dif, fixed, values, scale, s), _norm(g), total)
     f_final = g[:prob.m] / prob.row_scale
     d_final = np.zeros(prob.m)
     d_final[prob.kept] = g[prob.m:prob.m + len(prob.kept)] / prob.row_scale[prob.kept]
