@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import phc
+from rigid_cases import bead_on_turned_rod
 
 REPO = Path(__file__).resolve().parents[2]
 HARD = REPO / "tests" / "hard" / "models"
@@ -212,27 +213,7 @@ def test_cart_pole_is_second_order(cart_pole):
     assert np.all(np.abs(orders - 2.0) < 0.1), (errors, orders)
 
 
-BEAD = """\
-format_version: 1
-name: bead
-parameters:
-  m: {value: 0.5, unit: kg}
-  J: {value: 0.02, unit: kg*m^2}
-  Om: {value: 2.0, unit: rad/s}
-  r0: {value: 0.1, unit: m}
-components:
-  rod:
-    type: rigid
-    q: [r, th]
-    v: [vr, om]
-    M: [[m, 0], [0, J + m*r**2]]
-    constraints:
-      - th - Om*t
-simulation:
-  t_end: 1.5
-  n_out: 151
-  initial: {rod.r: r0, rod.th: 0, rod.p_vr: 0}
-"""
+BEAD = bead_on_turned_rod(n_out=151)
 
 
 @pytest.mark.parametrize("outputs", [False, True])

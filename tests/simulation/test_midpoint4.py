@@ -6,6 +6,7 @@ import numpy as np
 
 import phc
 from phc.simulation.midpoint4 import GAMMA1, GAMMA2
+from rigid_cases import bead_on_turned_rod
 
 MODELS = Path(__file__).resolve().parents[2] / "models"
 
@@ -108,27 +109,7 @@ def test_a_step_in_the_unstable_band_of_a_damped_mode_is_refused(tmp_path):
     assert np.abs(good.y[-1] - ref.y[-1]).max() < 1e-6
 
 
-BEAD_ON_TURNED_ROD = """\
-format_version: 1
-name: bead
-parameters:
-  m: {value: 0.5, unit: kg}
-  J: {value: 0.02, unit: kg*m^2}
-  Om: {value: 2.0, unit: rad/s}
-  r0: {value: 0.1, unit: m}
-components:
-  rod:
-    type: rigid
-    q: [r, th]
-    v: [vr, om]
-    M: [[m, 0], [0, J + m*r**2]]
-    constraints:
-      - th - Om*t
-simulation:
-  t_end: 1.5
-  n_out: 16
-  initial: {rod.r: r0, rod.th: 0, rod.p_vr: 0}
-"""
+BEAD_ON_TURNED_ROD = bead_on_turned_rod(n_out=16)
 
 
 def test_positions_of_order_four_and_constrained_momenta_of_order_two(tmp_path):
