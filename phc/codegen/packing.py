@@ -6,7 +6,7 @@ values. :func:`pieces` splits an array into *runs* — integers made of p interl
 arithmetic sequences (entry k + p is entry k plus the step of k's sequence), floats whose
 values repeat with period p — and literal stretches in between (the boundary elements,
 another component, irregular data). The module rebuilds the array with ``_runs``
-(:data:`DECODER`): integer runs exactly in int64, float runs by repeating the values (the
+(:func:`_runs`, whose source :func:`decoder_source` prints into the module): integer runs exactly in int64, float runs by repeating the values (the
 same bits). A uniform mesh of 10⁵ elements prints in the size of a few stencils; a
 non-uniform mesh, whose entries differ from element to element, keeps its literal data.
 
@@ -20,6 +20,7 @@ same way; a part without a period at its middle or quarters is halved, down to
 from __future__ import annotations
 
 import base64
+import inspect
 
 import numpy as np
 
@@ -33,25 +34,30 @@ WINDOW = 4 * MAX_PERIOD
 LITERAL_BELOW = 1024
 """A part shorter than this, without a period at its middle or quarters, is printed literally."""
 
-DECODER = (
-    "def _runs(_dtype, _parts):\n"
-    "    \"\"\"A long constant array stored in pieces: ('=', base64 of its little-endian bytes), or a\n"
-    "    run ('~', first, steps, count) of `count` integers made of len(first) interleaved\n"
-    "    sequences, sequence j from first[j] by steps[j] (a mesh's indices), or ('~', values, count)\n"
-    "    of `count` floats that repeat `values` (a mesh's stencil).\"\"\"\n"
-    "    _out = []\n"
-    "    for _part in _parts:\n"
-    "        if _part[0] == '=':\n"
-    "            _out.append(np.frombuffer(base64.b64decode(_part[1]), dtype=_dtype))\n"
-    "        elif len(_part) == 4:\n"
-    "            _k = np.arange(_part[3])\n"
-    "            _j = _k % len(_part[1])\n"
-    "            _out.append(np.array(_part[1], dtype=np.int64)[_j]\n"
-    "                       + (_k // len(_part[1])) * np.array(_part[2], dtype=np.int64)[_j])\n"
-    "        else:\n"
-    "            _out.append(np.resize(np.array(_part[1], dtype=float), _part[2]))\n"
-    "    return np.concatenate(_out).astype(_dtype)\n"
-)
+def _runs(_dtype, _parts):
+    """A long constant array stored in pieces: ('=', base64 of its little-endian bytes), or a
+    run ('~', first, steps, count) of `count` integers made of len(first) interleaved
+    sequences, sequence j from first[j] by steps[j] (a mesh's indices), or ('~', values, count)
+    of `count` floats that repeat `values` (a mesh's stencil)."""
+    _out = []
+    for _part in _parts:
+        if _part[0] == '=':
+            _out.append(np.frombuffer(base64.b64decode(_part[1]), dtype=_dtype))
+        elif len(_part) == 4:
+            _k = np.arange(_part[3])
+            _j = _k % len(_part[1])
+            _out.append(np.array(_part[1], dtype=np.int64)[_j]
+                        + (_k // len(_part[1])) * np.array(_part[2], dtype=np.int64)[_j])
+        else:
+            _out.append(np.resize(np.array(_part[1], dtype=float), _part[2]))
+    return np.concatenate(_out).astype(_dtype)
+
+
+def decoder_source() -> str:
+    """The source of :func:`_runs`, printed into every generated module that stores a long
+    array in runs (the module needs only ``np`` and ``base64``), so that the module and this
+    package decode with the same code."""
+    return inspect.getsource(_runs)
 
 
 def _holds(seq: np.ndarray, p: int, integer: bool) -> np.ndarray:
@@ -134,9 +140,7 @@ def pieces(values, dtype: str) -> list[tuple]:
 
 def decode(parts: list, dtype: str) -> np.ndarray:
     """What the module's ``_runs`` builds from `parts` (for tests and checks)."""
-    namespace = {"np": np, "base64": base64}
-    exec(DECODER, namespace)  # noqa: S102 - phc's own fixed decoder text, no model input
-    return namespace["_runs"](dtype, parts)
+    return _runs(dtype, parts)
 
 
 def expression(values, dtype: str) -> str:

@@ -511,7 +511,7 @@ class ModulePrinter:
             "returned as data in compressed-sparse-column order of (JAC_ROWS, JAC_COLS).\n"
             '"""\n',
             "import base64\nimport math\n\nimport numpy as np\n\n\n"
-            + packing.DECODER + "\n\n"
+            + packing.decoder_source() + "\n\n"
             "_floats = np.ndarray.tolist  # an array's entries as Python floats\n\n\n"
             "def _indexed(_stem, _start, _stop, _tail=''):\n"
             "    \"\"\"The names `_stem[i]_tail` for i from _start to _stop - 1 (a mesh's entries).\"\"\"\n"

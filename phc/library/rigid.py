@@ -31,6 +31,7 @@ from __future__ import annotations
 import numpy as np
 import sympy as sp
 
+from phc.checks.certify import RANK_RTOL
 from phc.dae import T
 from phc.effects import is_on, summed_terms
 from phc.library.dirac import DiracBuilder, emit
@@ -283,11 +284,11 @@ def _check_mass_matrix(b, ctx, name, path, M, q, times=(0.0,)):
             return
 
 
-REDUNDANT_RTOL = 1e-9
-"""A constraint row whose distance from the span of the rows before is below this fraction
-of the largest singular value, at every sampled configuration, is redundant (round-off of
-rows of size one: 1e-16; a configuration-dependent rank drop is seen at no more than a
-measure-zero set of configurations, not at three random ones)."""
+# A constraint row whose distance from the span of the rows before is below the certificate's
+# rank threshold (phc.checks.certify.RANK_RTOL) times the largest singular value, at every
+# sampled configuration, is redundant (round-off of rows of size one: 1e-16; a
+# configuration-dependent rank drop is seen at no more than a measure-zero set of
+# configurations, not at three random ones).
 
 
 def _check_redundant_constraints(b, ctx, name, path, cqZ, A, q, times=(0.0,)):
@@ -314,7 +315,7 @@ def _check_redundant_constraints(b, ctx, name, path, cqZ, A, q, times=(0.0,)):
         for i in range(R.shape[0]):
             trial = R[kept + [i]]
             s = np.linalg.svd(trial, compute_uv=False)
-            if len(s) < len(kept) + 1 or s[-1] <= REDUNDANT_RTOL * top:
+            if len(s) < len(kept) + 1 or s[-1] <= RANK_RTOL * top:
                 dependent.add(i)
             else:
                 kept.append(i)
