@@ -3,16 +3,19 @@
 When a model runs on the ``c`` backend (:mod:`phc.codegen.c_backend`), has at most
 :data:`~phc.simulation.compiled_steps.MAX_UNKNOWNS` unknowns and is integrated by a fixed-step
 method (``midpoint``, ``discrete_gradient``, ``midpoint4``) without switching conditions, its
-steps run in one hand-written C function, ``phc_steps_chunk`` of
-``phc/codegen/c_runtime/steps.c``, that calls the model's compiled residual, Jacobian, position
-invariants, Hamiltonian, energy scale and port powers through function pointers (no Python in
-between). That file is a port of :func:`phc.simulation.step_logic.newton` (the same stopping
-rules, refresh of the Newton matrix, round-off acceptance: one Newton iteration in C, which
-every method's stages call), of :func:`~phc.simulation.step_logic.discrete_gradient` and
-:func:`~phc.simulation.step_logic.midpoint4`, of the driver's bookkeeping that the Python loop
-and the numba kernel share (``step_logic.next_step``, ``predict``, ``looks``, ``accept``: the
-output grid, the predictor, the monitor's cadence, the acceptance) and of the numba kernel's
-chunk (:mod:`phc.codegen.numba_steps_kernel`), with a dense LU with partial
+steps run in one C function, ``phc_steps_chunk`` of ``phc/codegen/c_runtime/steps.c``, that
+calls the model's compiled residual, Jacobian, position invariants, Hamiltonian, energy scale and
+port powers through function pointers (no Python in between). The step logic the Python loop and
+the numba kernel share is not written again in C: :func:`source` translates
+:func:`phc.simulation.step_logic.newton` (the stopping rules, refresh of the Newton matrix,
+round-off acceptance: one Newton iteration, which every method's stages call) and the driver's
+bookkeeping (``step_logic.next_step``, ``predict`` with ``predictor_nodes``,
+``lagrange_weights``, ``polynomial``, ``extrapolate``, and ``accept``) with
+:mod:`phc.codegen.c_translate` and puts the translation into steps.c (when the library is built,
+and into an exported FMU's sources). Written by hand in steps.c are the operations those call
+(:data:`OPERATIONS`), a port of :func:`~phc.simulation.step_logic.discrete_gradient` and
+:func:`~phc.simulation.step_logic.midpoint4` (tested against the Python loop) and the numba
+kernel's chunk (:mod:`phc.codegen.numba_steps_kernel`), with a dense LU with partial
 pivoting of the Newton matrix equilibrated as the Python loop's sparse LU is
 (:func:`phc.simulation.midpoint.equilibration`); its header says what is not ported (the
 numba loop's mixed-precision corrections: here every correction is in double precision) and
@@ -44,7 +47,48 @@ from phc.codegen import numba_steps_kernel as _k
 from phc.simulation import step_logic as _sl
 
 SOURCE = Path(__file__).resolve().parents[1] / "codegen" / "c_runtime" / "steps.c"
-"""The C text of the step loop (shipped in the package)."""
+"""The hand-written part of the step loop's C text (shipped in the package); :func:`source` is
+the whole text."""
+
+TRANSLATED = ("substeps", "next_step", "predictor_nodes", "lagrange_weights", "polynomial", "extrapolate", "predict",
+              "accept", "newton")
+"""The functions of :mod:`phc.simulation.step_logic` steps.c gets translated (each after those it
+calls)."""
+
+MARKER = "/* PHC_STEP_LOGIC */"
+"""The line of steps.c the translation replaces."""
+
+
+def _operations() -> dict:
+    from phc.codegen.c_translate import Op
+
+    return {"_begin": Op("op_begin", ("ws", "i"), ("b", "f", "f", "i")),
+            "_refactor": Op("op_refactor", ("ws", "i", "f", "f", "v", "v", "f"), ("i",)),
+            "_correct": Op("op_correct", ("ws", "i", "f", "f", "v", "v", "f"), ("i", "v", "f", "f", "f", "b", "b")),
+            "_precision": Op("op_precision", ("ws", "i"), ())}
+
+
+_SOURCE_TEXT: Optional[str] = None
+
+
+def translation() -> str:
+    """C text of the :data:`TRANSLATED` functions of :mod:`phc.simulation.step_logic`."""
+    from phc.codegen.c_translate import PRELUDE, Translator
+
+    body = Translator(_sl, _sl.C_SIGNATURES, _operations()).translate(TRANSLATED)
+    return PRELUDE + "\n" + body
+
+
+def source() -> str:
+    """The step loop's whole C text: steps.c with :func:`translation` in place of its
+    :data:`MARKER` line (self-contained: the FMU export ships it as its ``steps.c``)."""
+    global _SOURCE_TEXT
+    if _SOURCE_TEXT is None:
+        text = SOURCE.read_text(encoding="utf-8")
+        if text.count(MARKER) != 1:
+            raise RuntimeError(f"{SOURCE} must have the line {MARKER} once (a phc bug: please report it)")
+        _SOURCE_TEXT = text.replace(MARKER, translation().rstrip("\n"))
+    return _SOURCE_TEXT
 
 FLAGS = ("-std=c99", "-O3", "-fPIC", "-shared", "-ffp-contract=off")
 """The model libraries' flags (:data:`phc.codegen.c_backend.FLAGS`) with ``-O3``: the
@@ -118,7 +162,7 @@ def _build():
     global _WHY
     from phc.codegen import c_backend
 
-    lib, why = c_backend.runtime_library(SOURCE.read_text(encoding="utf-8"), FLAGS)
+    lib, why = c_backend.runtime_library(source(), FLAGS)
     if lib is None:
         _WHY = why
         return False
@@ -226,4 +270,4 @@ def note_events(raw) -> None:
         say_unused("runs with switching conditions (events) need the Python loop, which locates the switches")
 
 
-__all__ = ["ABI", "FLAGS", "METHODS", "SOURCE", "bind", "library", "note_events", "say_unused", "usable", "why_not"]
+__all__ = ["ABI", "FLAGS", "MARKER", "METHODS", "SOURCE", "TRANSLATED", "bind", "library", "note_events", "say_unused", "source", "translation", "usable", "why_not"]

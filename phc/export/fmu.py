@@ -261,7 +261,7 @@ def _export(path, out, step, solver, fmi, params, certify, started) -> FmuReport
     from phc.options import RunOptions
     from phc.simulation import initial_values, parameter_vector, start_state
     from phc.simulation import midpoint as mp
-    from phc.codegen.c_steps import SOURCE
+    from phc.codegen.c_steps import source as steps_source
     from phc.simulation.compiled_steps import MAX_UNKNOWNS, algebraic_mask, step_constants
     from phc.simulation.events import has_switches
     from phc.simulation.guard import quiet_floating_point
@@ -354,7 +354,7 @@ def _export(path, out, step, solver, fmi, params, certify, started) -> FmuReport
         sources.mkdir()
         (sources / "model.c").write_text(model_c, encoding="utf-8")
         (sources / "fmu.c").write_text(fmu_source(d), encoding="utf-8")
-        shutil.copyfile(SOURCE, sources / "steps.c")
+        (sources / "steps.c").write_text(steps_source(), encoding="utf-8")
         shutil.copyfile(FMI2_CS, sources / "fmi2_cs.c")
         (work / "modelDescription.xml").write_text(xml, encoding="utf-8")
         binary = _build(work, identifier, argv)

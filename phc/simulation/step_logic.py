@@ -107,6 +107,25 @@ LOOK_GAP = 10
 was at least this many steps before (:func:`looks`; why: :data:`phc.simulation.midpoint.LOOK_GAP`)."""
 
 
+C_SIGNATURES = {
+    # name: (the kinds of its parameters, of its results) for the C back end's translation
+    # (phc.codegen.c_translate: f double, i int64, b truth value, v vector of n, V rows of n, M mask of n,
+    # F/I double/int64 array indexed by scalars, ws the loop's workspace)
+    "substeps": (("f", "f"), ("i",)),
+    "next_step": (("F", "F", "I"), ()),
+    "predictor_nodes": (("i", "i"), ("i",)),
+    "lagrange_weights": (("F", "i", "f", "F"), ()),
+    "polynomial": (("F", "V", "i", "f"), ("v",)),
+    "extrapolate": (("i", "v", "v", "F", "V", "f", "f", "f"), ("v",)),
+    "predict": (("v", "v", "v", "F", "V", "I", "F", "f", "f", "f", "M", "v"), ()),
+    "accept": (("f", "f", "v", "v", "v", "v", "v", "v", "F", "V", "V", "V", "F", "I"), ("b",)),
+    "newton": (("ws", "i", "F", "f", "f", "v", "v", "f", "v"), ("i", "b")),
+}
+"""The C signatures of the functions the C back end's step loop gets translated from this module
+(:func:`phc.codegen.c_steps.source`); a function edited beyond what the translator accepts fails
+its build and ``tests/codegen/test_c_translate.py`` with the line named."""
+
+
 def substeps(interval, step):
     """The number of equal steps an output interval of length `interval` is split into: the
     fewest no longer than `step` (one when `step` is 0, no step set). The 1e-9 keeps an

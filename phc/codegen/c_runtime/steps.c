@@ -636,121 +636,51 @@ static int correct(const struct phc_steps *w, int m, double t, double h, const d
     return OK;
 }
 
-static void add(int64_t n, double *y1, const double *delta)
+/* The operations step_logic.newton calls (its _begin, _refactor, _correct, _precision) on this
+ * loop's struct: the matrix's age and what it was factorized for, refactor, correct (the
+ * correction in w->r; every correction here is in double precision, so `low` is always 0 and
+ * step_logic's single-precision branches are never taken), and nothing to switch. */
+static int op_begin(const struct phc_steps *w, int64_t m, double *h0, double *s0, int64_t *age)
 {
-    for (int64_t i = 0; i < n; ++i)
-        y1[i] += delta[i];
-}
-
-/* ---- the Newton iteration: phc.simulation.step_logic.newton, line by line ----------------- */
-
-/* Solve F(t + s h, y + s (y1 - y), (y1 - y)/h) = 0 (the position-constraint rows at the step end)
- * for y1 by simplified Newton from y1in, into out; returns the outcome, *ill <- whether a fresh
- * matrix could not reduce a states' correction below c[C_FLOOR] (the driver then asks the
- * singularity monitor). The rules, as step_logic.newton states them: the matrix is refreshed
- * before the first correction when it is not factorized, was factorized for another step size
- * (by more than 1e-3 relative) or evaluation point (by more than 0.2), or is c[C_MAX_AGE] solves
- * old; during the iteration when the contraction rate theta = |D_k|/|D_k-1| exceeds c[C_RATE] or
- * the old matrix diverges. Converged: the estimated error theta/(1 - theta)|D| or the correction
- * itself (1e-2 of it) below c[C_TOL]. Accepted at round-off level: a stagnating iteration whose
- * correction is below c[C_ZONE] c[C_TOL]. (step_logic's single-precision branches are left out:
- * the corrections here are in double precision, so its `low` is always false.) */
-static int newton(const struct phc_steps *w, int m, double t, double h, const double *y, const double *y1in,
-                  double s, double *out, int *ill)
-{
-    const int64_t n = w->n;
-    const double *c = w->c;
     const double *matf = w->matf + 3 * m;
-    *ill = 0;
-    copy(n, y1in, out);
-    /* begin: the matrix's age counts up; was it factorized, for which h and s */
     w->ist[I_AGE0 + m] += 1;
-    const int factorized = matf[2] != 0.0;
-    const double h0 = matf[0], s0 = matf[1];
-    const int64_t age = w->ist[I_AGE0 + m];
-    /* a fresh matrix before the next correction (set where the iteration asks for one) */
-    int pending = !factorized || fabs(h - h0) > 1e-3 * fabs(h) || fabs(s - s0) > 0.2 || (double)age >= c[C_MAX_AGE];
-    int refreshed = 0;  /* a matrix was factorized in this solve */
-    int64_t since = 1;  /* iterations since the last factorization (1: not factorized in this solve) */
-    const double tol = c[C_TOL];
-    double last = -1.0;
-    double rate = INFINITY;  /* the smallest theta of this solve with this matrix */
-    const int64_t iterations = (int64_t)c[C_MAX_NEWTON];
-    for (int64_t it = 0; it < iterations; ++it) {
-        int code;
-        if (pending) {
-            pending = 0;
-            refreshed = 1;
-            code = refactor(w, m, t, h, y, out, s);
-            if (code != OK)
-                return code;
-            since = 0;
-            last = -1.0;
-            rate = INFINITY;
-        }
-        double size, states, scale;
-        int finite;
-        code = correct(w, m, t, h, y, out, s, &size, &states, &scale, &finite);
-        if (code != OK)
-            return code;
-        if (!finite) {
-            if (since == 0)
-                return FAIL;
-            copy(n, y1in, out);  /* restart from the start with a fresh matrix */
-            pending = 1;
-            continue;
-        }
-        const int has_theta = last > 0.0;
-        const double theta = has_theta ? size / last : 0.0;
-        if (has_theta && (theta >= 0.5 || theta >= c[C_STAGNATION] * rate) && size <= c[C_ZONE] * tol * scale) {
-            add(n, out, w->r);  /* stagnating at round-off level: accept */
-            return OK;
-        }
-        if (refreshed && has_theta && theta >= 0.5 && states <= c[C_FLOOR] * scale) {
-            /* no progress with a fresh matrix: round-off amplified by its conditioning — the iterate is
-             * as good as it gets, but the driver is told */
-            add(n, out, w->r);
-            *ill = 1;
-            return OK;
-        }
-        if (has_theta && theta >= 1.0 && since > 0 && size > 1e3 * tol * scale) {
-            pending = 1;  /* the old matrix no longer contracts: refresh it here and retry */
-            continue;
-        }
-        add(n, out, w->r);
-        since += 1;
-        if (size <= 1e-2 * tol * scale)
-            return OK;
-        if (has_theta) {
-            if (theta < 1.0 && theta / (1.0 - theta) * size <= tol * scale)
-                return OK;
-            if (theta < rate)
-                rate = theta;
-            pending = theta > c[C_RATE];
-        }
-        last = size;
-    }
-    if (pending) {  /* asked for in the last iteration: the next solve (a retry, a split) starts with it */
-        const int code = refactor(w, m, t, h, y, out, s);
-        if (code != OK)
-            return code;
-    }
-    return FAIL;
+    *h0 = matf[0];
+    *s0 = matf[1];
+    *age = w->ist[I_AGE0 + m];
+    return matf[2] != 0.0;
 }
+
+static int64_t op_refactor(int64_t n, const struct phc_steps *w, int64_t m, double t, double h, const double *y,
+                           const double *y1, double s)
+{
+    (void)n;
+    return refactor(w, (int)m, t, h, y, y1, s);
+}
+
+static int64_t op_correct(int64_t n, const struct phc_steps *w, int64_t m, double t, double h, const double *y,
+                          const double *y1, double s, double **delta, double *size, double *states, double *scale,
+                          int *finite, int *low)
+{
+    (void)n;
+    *delta = w->r;
+    *low = 0;
+    return correct(w, (int)m, t, h, y, y1, s, size, states, scale, finite);
+}
+
+static void op_precision(const struct phc_steps *w, int64_t event)
+{
+    (void)w;
+    (void)event;
+}
+
+/* ---- phc.simulation.step_logic, translated ------------------------------------------------
+ * substeps, next_step, predictor_nodes, lagrange_weights, polynomial, extrapolate, predict,
+ * accept and newton are not written here: phc.codegen.c_steps.source() puts their translation
+ * (phc.codegen.c_translate, from the Python the other loops run) in place of the next line. */
+/* PHC_STEP_LOGIC */
 
 /* ---- the methods' steps: phc.simulation.step_logic.discrete_gradient, midpoint4, line by line,
  *      each stage solved by `newton` above ------------------------------------------------- */
-
-/* Python's max(a, b) and min(a, b) of floats: the second only where it is larger (smaller) */
-static double py_max(double a, double b)
-{
-    return b > a ? b : a;
-}
-
-static double py_min(double a, double b)
-{
-    return b < a ? b : a;
-}
 
 /* One discrete-gradient step (phc.simulation.discrete_gradient): the stage equations at
  * y(s) = y + s (y1 - y) and the energy balance r(s) = H(y1) - H(y) + E1 - E = 0 (E: the energy
@@ -762,17 +692,17 @@ static int discrete_gradient(const struct phc_steps *w, double t, double h, cons
 {
     const int64_t n = w->n, e = w->ist[I_E];
     const double *c = w->c, *p = w->p;
-    int code = newton(w, 0, t, h, y, guess, 0.5, out, ill);
+    int code = (int)newton(n, w, 0, c, t, h, y, guess, 0.5, out, ill);
     if (code != OK)
         return code;
     const double H0 = w->hamiltonian(t, y, p);
     const double bal = w->hamiltonian(t + h, out, p) - H0 + out[e] - y[e];
     /* the balance H + E is kept relative to its terms; below 1e-200 the energy is zero */
     double scale = fabs(w->energy_scale(t, y, p));
-    scale = py_max(scale, fabs(w->energy_scale(t + h, out, p)));
-    scale = py_max(scale, fabs(y[e]));
-    scale = py_max(scale, fabs(out[e]));
-    scale = py_max(scale, 1e-200);
+    scale = py_max_f(scale, fabs(w->energy_scale(t + h, out, p)));
+    scale = py_max_f(scale, fabs(y[e]));
+    scale = py_max_f(scale, fabs(out[e]));
+    scale = py_max_f(scale, 1e-200);
     if (!(isfinite(bal) && isfinite(scale)))
         return EVAL;
     const double tol = c[C_BAL_TOL] * scale;
@@ -792,10 +722,10 @@ static int discrete_gradient(const struct phc_steps *w, double t, double h, cons
     double best = fabs(bal);
     const int64_t secants = (int64_t)c[C_MAX_SECANT];
     for (int64_t it = 0; it < secants; ++it) {
-        const double s_new = slope != 0.0 ? py_min(py_max(s_prev - r_prev / slope, c[C_S_MIN]), c[C_S_MAX]) : 0.5;
+        const double s_new = slope != 0.0 ? py_min_f(py_max_f(s_prev - r_prev / slope, c[C_S_MIN]), c[C_S_MAX]) : 0.5;
         if (s_new == s_prev)
             break;
-        code = newton(w, 0, t, h, y, y_prev, s_new, out, ill);
+        code = (int)newton(n, w, 0, c, t, h, y, y_prev, s_new, out, ill);
         if (code != OK)
             break;
         const double r_new = w->hamiltonian(t + h, out, p) - H0 + out[e] - y[e];
@@ -851,7 +781,7 @@ static int midpoint4(const struct phc_steps *w, double t, double h, const double
                 y1in[k] = 2.0 * (y[k] + b * ((guess[k] - y[k]) / h)) - start[k];
         }
         int ill_i;
-        const int code = newton(w, m, tau, hs, start, y1in, 0.5, out, &ill_i);
+        const int code = (int)newton(n, w, m, c, tau, hs, start, y1in, 0.5, out, &ill_i);
         *ill = *ill || ill_i;
         if (code != OK) {
             w->ist[I_HIST] = 0;
@@ -909,112 +839,12 @@ static int advance(const struct phc_steps *w, double t, double h, int *ill)
     case 2:
         return midpoint4(w, t, h, w->y, w->guess, w->y_new, ill);
     default:
-        return newton(w, 0, t, h, w->y, w->guess, 0.5, w->y_new, ill);
+        return (int)newton(w->n, w, 0, w->c, t, h, w->y, w->guess, 0.5, w->y_new, ill);
     }
 }
 
-/* ---- the predictor (phc.simulation.step_logic.predictor_nodes, lagrange_weights, extrapolate,
- *      predict) ---------------------------------------------------------------------------- */
+/* ---- the driver (numba_steps_kernel._monitor_ratio, _chunk; step_logic.next_step, predict, accept) */
 
-static int64_t predictor_nodes(int64_t order, int64_t known)
-{
-    if (order == 0)
-        return 0;
-    const int64_t k = order + 1 < known ? order + 1 : known;
-    return k < 3 ? 1 : k;
-}
-
-static void lagrange_weights(const double *pt, int64_t k, double tn, double *wts)
-{
-    for (int64_t a = 0; a < k; ++a) {
-        double wa = 1.0;
-        for (int64_t b = 0; b < k; ++b)
-            if (b != a)
-                wa *= (tn - pt[b]) / (pt[a] - pt[b]);
-        wts[a] = wa;
-    }
-}
-
-/* The start of Newton, 2 m - y with the predicted midpoint m: y + h/2 ydot0 at the start, else
- * per variable (differential: degree c[C_ORDER], algebraic: c[C_ORDER_ALG]) the last midpoint,
- * the linear extrapolation of the last two, or the Lagrange polynomial through the last ones */
-static void predict(const struct phc_steps *w, double t, double h, double h_prev, double *guess)
-{
-    const int64_t n = w->n;
-    const double *y = w->y, *mid = w->mid, *slope = w->mid_slope;
-    if (w->ist[I_HAS_MID] == 0) {
-        for (int64_t i = 0; i < n; ++i)
-            guess[i] = 2.0 * (y[i] + 0.5 * h * slope[i]) - y[i];
-        return;
-    }
-    const double tn = t + 0.5 * h;
-    const int64_t nmid = w->ist[I_NMID];
-    const int64_t kd = predictor_nodes((int64_t)w->c[C_ORDER], nmid);
-    const int64_t ka = predictor_nodes((int64_t)w->c[C_ORDER_ALG], nmid);
-    double wd[MAX_NODES], wa[MAX_NODES];
-    lagrange_weights(w->pt, kd, tn, wd);
-    lagrange_weights(w->pt, ka, tn, wa);
-    for (int64_t i = 0; i < n; ++i) {
-        const int alg = w->algmask[i] != 0;
-        const int64_t k = alg ? ka : kd;
-        double mg;
-        if (k == 0) {
-            mg = mid[i];
-        } else if (k == 1) {
-            mg = mid[i] + 0.5 * (h + h_prev) * slope[i];
-        } else {
-            const double *wt = alg ? wa : wd;
-            mg = wt[0] * w->pm[i];
-            for (int64_t a = 1; a < k; ++a)
-                mg = mg + wt[a] * w->pm[a * n + i];
-        }
-        guess[i] = 2.0 * mg - y[i];
-    }
-}
-
-/* ---- the driver (step_logic.next_step, looks, accept; numba_steps_kernel._monitor_ratio, _chunk) */
-
-/* Take the step (t, h, y) -> y_new: the midpoints' history, the step counter, the output at the
- * end of an output interval; 1 when max_steps is reached */
-static int accept(const struct phc_steps *w, double t, double h)
-{
-    const int64_t n = w->n, kp = w->npred;
-    double *fst = w->fst;
-    int64_t *ist = w->ist;
-    const double h_prev = fst[F_H_PREV];
-    for (int64_t j = kp - 1; j > 0; --j)
-        w->pt[j] = w->pt[j - 1];
-    w->pt[0] = t + 0.5 * h;
-    for (int64_t i = 0; i < n; ++i) {
-        const double nm = 0.5 * (w->y[i] + w->y_new[i]);
-        if (ist[I_HAS_MID] != 0)
-            w->mid_slope[i] = (nm - w->mid[i]) / (0.5 * (h + h_prev));
-        w->mid[i] = nm;
-        for (int64_t j = kp - 1; j > 0; --j)
-            w->pm[j * n + i] = w->pm[(j - 1) * n + i];
-        w->pm[i] = nm;
-        w->y_prev[i] = w->y[i];
-        w->y[i] = w->y_new[i];
-    }
-    ist[I_HAS_MID] = 1;
-    ist[I_NMID] = ist[I_NMID] + 1 < kp ? ist[I_NMID] + 1 : kp;
-    fst[F_H_PREV] = h;
-    fst[F_T] = t + h;
-    ist[I_STEPS] += 1;
-    if (ist[I_STEPS] >= ist[I_MAX_STEPS])
-        return 1;
-    ist[I_J] += 1;
-    if (ist[I_J] >= ist[I_SUBSTEPS]) {
-        const int64_t k = ist[I_K];
-        for (int64_t i = 0; i < n; ++i) {
-            w->ys[k * n + i] = w->y[i];
-            w->yps[k * n + i] = (w->y[i] - w->y_prev[i]) / h;
-        }
-        ist[I_K] = k + 1;
-        ist[I_J] = 0;
-    }
-    return 0;
-}
 
 /* The routine look of the singularity monitor: 1 when the equilibrated iteration matrix at
  * (t, y, yp) (SingularityMonitor.ratio: cj = 1/hm) is clearly far from singular — LAPACK-style
@@ -1086,20 +916,9 @@ void phc_steps_chunk(const struct phc_steps *w, int64_t budget)
             ist[I_STATUS] = ST_BUDGET;
             return;
         }
-        if (ist[I_J] == 0) {  /* a new output interval: its equal substeps */
-            const double interval = w->t_out[k] - w->t_out[k - 1];
-            const double step = fst[F_STEP];
-            int64_t sub = 1;
-            if (step > 0.0) {
-                const double q = ceil(interval / step - 1e-9);
-                sub = q > 1.0 ? (int64_t)q : 1;
-            }
-            ist[I_SUBSTEPS] = sub;
-            fst[F_H] = interval / (double)sub;
-            fst[F_T] = w->t_out[k - 1];
-        }
+        next_step(w->t_out, fst, ist);  /* a new output interval: its equal substeps */
         const double t = fst[F_T], h = fst[F_H], h_prev = fst[F_H_PREV];
-        predict(w, t, h, h_prev, w->guess);
+        predict(n, w->y, w->mid, w->mid_slope, w->pt, w->pm, w->npred, ist, w->c, t, h, h_prev, w->algmask, w->guess);
         int ill;
         const int code = advance(w, t, h, &ill);
         const int64_t steps = ist[I_STEPS];
@@ -1119,7 +938,8 @@ void phc_steps_chunk(const struct phc_steps *w, int64_t budget)
             }
         }
         done += 1;
-        if (accept(w, t, h)) {
+        if (accept(n, t, h, w->y, w->y_new, w->y_new, w->y_prev, w->mid, w->mid_slope, w->pt, w->pm, w->npred, w->ys,
+                   nout, w->yps, nout, fst, ist)) {
             ist[I_STATUS] = ST_MAXSTEPS;
             return;
         }
