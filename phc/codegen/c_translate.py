@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import ast
 import inspect
-import textwrap
 from dataclasses import dataclass
 
 SCALARS = ("b", "i", "f")
@@ -50,6 +49,10 @@ _JOIN = {("b", "b"): "b", ("b", "i"): "i", ("i", "b"): "i", ("i", "i"): "i"}
 
 class TranslationError(Exception):
     """Python outside the subset this translator accepts; the message names function and line."""
+
+
+class _Unknown(TranslationError):
+    """A name not (yet) known while the locals' kinds are inferred."""
 
 
 @dataclass(frozen=True)
@@ -92,11 +95,13 @@ class _Function:
         self.loopvars: set = set()
         self.lines: list = []
         self.counter = 0
+        self.nodes = list(ast.walk(fn.node))
+        self._writes = None
 
     # ---- errors -----------------------------------------------------------------------------
-    def refuse(self, node, what):
-        line = self.tr.first_line + getattr(node, "lineno", 1) - 1
-        raise TranslationError(f"{self.tr.file}:{line}: in {self.name}: {what} (outside the subset "
+    def refuse(self, node, what, error=TranslationError):
+        line = getattr(node, "lineno", self.fn.node.lineno)  # the module's own parse: its lines
+        raise error(f"{self.tr.file}:{line}: in {self.name}: {what} (outside the subset "
                                f"phc.codegen.c_translate translates to C)")
 
     # ---- types ------------------------------------------------------------------------------
@@ -121,7 +126,7 @@ class _Function:
                 return k
             if isinstance(self.tr.globals.get(e.id), int) and not isinstance(self.tr.globals.get(e.id), bool):
                 return "i"
-            self.refuse(e, f"the name {e.id!r} (not an argument, a local or an integer constant)")
+            self.refuse(e, f"the name {e.id!r} (not an argument, a local or an integer constant)", _Unknown)
         if isinstance(e, ast.Attribute):
             if self._is_np(e, "inf"):
                 return "f"
@@ -212,6 +217,8 @@ class _Function:
     # ---- expressions ------------------------------------------------------------------------
     def expr(self, e, idx=None):
         """C text of expression e; `idx` the entry index of a vector expression."""
+        if isinstance(e, (ast.BinOp, ast.Compare, ast.Call, ast.BoolOp, ast.UnaryOp)):
+            self.kind(e)  # refuses what is outside the subset, naming it
         if isinstance(e, ast.Constant):
             if isinstance(e.value, bool):
                 return "1" if e.value else "0"
@@ -485,7 +492,7 @@ class _Function:
         node = self.fn.node
         for _ in range(3):
             changed = False
-            for s in ast.walk(node):
+            for s in self.nodes:
                 if isinstance(s, ast.For) and isinstance(s.target, ast.Name):
                     if self.env.get(s.target.id) not in (None, "i"):
                         self.refuse(s, f"the loop variable {s.target.id} is also assigned")
@@ -520,7 +527,7 @@ class _Function:
                         else:
                             try:
                                 known = self.kind(value)
-                            except TranslationError:
+                            except _Unknown:
                                 continue  # a name not known yet: the next pass
                             if known == "v":
                                 known = "vl"
@@ -554,10 +561,13 @@ class _Function:
             elif k == "fb":
                 size = self._buffer_size(name)
                 out.append(f"double {name}[{size} > 0 ? {size} : 1];")
+                z = self.fresh("z")
+                out.append(f"for (int64_t {z} = 0; {z} < ({size} > 0 ? {size} : 1); ++{z})")  # what a callee leaves
+                out.append(f"    {name}[{z}] = 0.0;")
         return out
 
     def _buffer_size(self, name):
-        for s in ast.walk(self.fn.node):
+        for s in self.nodes:
             if isinstance(s, ast.Assign) and isinstance(s.targets[0], ast.Name) and s.targets[0].id == name:
                 return self.expr(s.value.args[0])
 
@@ -592,8 +602,10 @@ class _Function:
 
     def writes(self):
         """The array arguments the function writes into (the others are const)."""
+        if self._writes is not None:
+            return self._writes
         out = set()
-        for s in ast.walk(self.fn.node):
+        for s in self.nodes:
             if isinstance(s, ast.Call) and getattr(s.func, "id", None) in ("_copy", "_add"):
                 dst = s.args[1] if s.func.id == "_copy" else s.args[0]
                 out.add(getattr(dst, "id", None) or getattr(getattr(dst, "value", None), "id", None))
@@ -611,6 +623,7 @@ class _Function:
                 for pos in op.writes:
                     if isinstance(s.args[pos], ast.Name):
                         out.add(s.args[pos].id)
+        self._writes = out
         return out
 
     def translate(self):
@@ -618,6 +631,7 @@ class _Function:
         self.fn.writes = tuple(self.writes())
         self.body(self.fn.node.body, 1)
         decls = ["    " + d for d in self.declarations()]
+        decls += [f"    (void){name}_rows;" for name, k in self.fn.args if k == "V"]  # not every function reads it
         return "\n".join([self.signature(), "{"] + decls + self.lines + ["}"])
 
 
@@ -632,19 +646,19 @@ class Translator:
         self.file = inspect.getsourcefile(module)
         self.ops = ops
         self.functions: dict = {}
-        self.first_line = 1
         self._signatures = signatures
 
     def translate(self, names) -> str:
         """C text of the functions `names` (in this order: each may call those before it)."""
         out = []
+        with open(self.file, encoding="utf-8") as f:
+            tree = ast.parse(f.read(), self.file)
+        defs = {node.name: node for node in tree.body if isinstance(node, ast.FunctionDef)}
         for name in names:
-            fn = self.globals.get(name)
-            if fn is None or not inspect.isfunction(fn):
+            node = defs.get(name)
+            if node is None or not inspect.isfunction(self.globals.get(name)):
                 raise TranslationError(f"{self.file}: {name} is not a function of {self.module.__name__}")
-            lines, first = inspect.getsourcelines(fn)
-            node = ast.parse(textwrap.dedent("".join(lines))).body[0]
-            self.first_line = first
+            first = node.lineno
             if name not in self._signatures:
                 raise TranslationError(f"{self.file}:{first}: in {name}: no C signature (add one to C_SIGNATURES)")
             args, results = self._signatures[name]

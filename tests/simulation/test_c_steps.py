@@ -317,14 +317,32 @@ def test_the_library_is_built_once_from_the_shipped_source(compiled):
     lib = c_steps.library()
     assert lib is not None and c_steps.library() is lib and c_steps.why_not() == ""
     # re-entrant: every `static` is a function at file scope, none is data
-    lines = c_steps.SOURCE.read_text(encoding="utf-8").splitlines()
+    lines = c_steps.source().splitlines()
     statics = [line for line in lines if line.strip().startswith("static ") and (line[0].isspace() or "(" not in line)]
     assert statics == []
     assert sum(line.startswith("static ") for line in lines) >= 10
-    # one Newton iteration in C, which every method's stages call; the ABI the binding expects
+    # one Newton iteration in C, translated from step_logic, which every method's stages call;
+    # the ABI the binding expects
     text = "\n".join(lines)
-    assert text.count("static int newton(") == 1 and text.count("newton(w, ") >= 4
+    assert text.count("static int64_t newton(") == 1 and text.count("newton(n, w, ") >= 3
     assert f"#define PHC_STEPS_ABI {c_steps.ABI}\n" in text
+
+
+def test_the_translated_step_logic_is_not_written_in_steps_c_again():
+    """step_logic's functions the C loop runs are translated, not ported: the hand-written steps.c
+    defines none of them, the whole text defines each once, from the translation."""
+    import re
+
+    from phc.codegen import c_steps
+
+    hand = c_steps.SOURCE.read_text(encoding="utf-8")
+    whole = c_steps.source()
+    assert hand.count(c_steps.MARKER) == 1 and c_steps.MARKER not in whole
+    for name in c_steps.TRANSLATED:
+        definition = re.compile(rf"^static [a-z0-9_]+ {name}\(", re.M)
+        assert not definition.search(hand), name
+        assert len(definition.findall(whole)) == 1, name
+        assert f"step_logic.{name} (translated by phc.codegen.c_translate)" in whole
 
 
 def test_the_avx2_and_the_baseline_code_give_the_same_trajectory(compiled, monkeypatch, loops):

@@ -1,0 +1,185 @@
+"""The restricted Python → C translator (:mod:`phc.codegen.c_translate`) that gives the C step
+loop the step logic of :mod:`phc.simulation.step_logic`.
+
+The translation must do what the Python does, bit for bit: the translated driver functions are
+compiled and called through ctypes on random inputs and compared with the same Python functions
+on NumPy arrays with ``np.array_equal`` (no tolerance: both take the same IEEE operations in the
+same order; the C is compiled without fused multiply-adds). Python outside the subset is refused
+with the file, line and function named.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import importlib.util
+import textwrap
+
+import numpy as np
+import pytest
+
+from phc.codegen import c_backend, c_steps
+from phc.codegen.c_translate import PRELUDE, TranslationError, Translator
+from phc.simulation import step_logic as sl
+
+DRIVER = ("substeps", "next_step", "predictor_nodes", "lagrange_weights", "polynomial", "extrapolate", "predict",
+          "accept")
+
+_WRAPPERS = """
+int64_t t_substeps(double interval, double step) { return substeps(interval, step); }
+void t_next_step(const double *t_out, double *fst, int64_t *ist) { next_step(t_out, fst, ist); }
+void t_predict(int64_t n, const double *y, const double *mid, const double *mid_slope, const double *pt,
+               const double *pm, int64_t npred, const int64_t *ist, const double *c, double t, double h,
+               double h_prev, const int8_t *algmask, double *guess)
+{ predict(n, y, mid, mid_slope, pt, pm, npred, ist, c, t, h, h_prev, algmask, guess); }
+int t_accept(int64_t n, double t, double h, double *y, const double *y_new, const double *y_end, double *y_prev,
+             double *mid, double *mid_slope, double *pt, double *pm, int64_t npred, double *ys, int64_t nout,
+             double *yps, double *fst, int64_t *ist)
+{ return accept(n, t, h, y, y_new, y_end, y_prev, mid, mid_slope, pt, pm, npred, ys, nout, yps, nout, fst, ist); }
+"""
+
+
+@pytest.fixture(scope="module")
+def driver():
+    text = ("#include <math.h>\n#include <stdint.h>\n" + PRELUDE
+            + Translator(sl, sl.C_SIGNATURES, {}).translate(DRIVER) + _WRAPPERS)
+    lib, why = c_backend.runtime_library(text, c_steps.FLAGS)
+    if lib is None:
+        pytest.skip(f"no C compiler: {why}")
+    return lib
+
+
+def _p(a):
+    return a.ctypes.data_as(ctypes.c_void_p)
+
+
+def test_step_logic_translates_and_steps_c_is_complete():
+    """Every function the C loop takes from step_logic translates; steps.c has the place for
+    them once; the translation is cheap (it runs when the step loop's library is built)."""
+    text = c_steps.translation()
+    for name in c_steps.TRANSLATED:
+        assert f"step_logic.{name} (translated" in text
+    assert c_steps.SOURCE.read_text(encoding="utf-8").count(c_steps.MARKER) == 1
+
+
+def test_substeps_and_next_step_match_python_bit_for_bit(driver):
+    rng = np.random.default_rng(1)
+    driver.t_substeps.restype = ctypes.c_int64
+    driver.t_substeps.argtypes = [ctypes.c_double, ctypes.c_double]
+    for interval, step in [(1.0, 0.1), (0.3, 0.1), (1.0, 0.0), (2.5e-3, 1e-3)] + [
+            tuple(rng.uniform(1e-3, 1.0, 2)) for _ in range(200)]:
+        assert driver.t_substeps(interval, step) == sl.substeps(interval, step)
+    t_out = np.cumsum(rng.uniform(0.01, 0.2, 12))
+    for k in range(1, 12):
+        fst = rng.uniform(size=sl._NF)
+        fst[sl._STEP] = rng.uniform(1e-3, 0.05)
+        ist = np.zeros(sl._NI, dtype=np.int64)
+        ist[sl._K] = k
+        fst_c, ist_c = fst.copy(), ist.copy()
+        sl.next_step(t_out, fst, ist)
+        driver.t_next_step(_p(t_out), _p(fst_c), _p(ist_c))
+        assert np.array_equal(fst, fst_c) and np.array_equal(ist, ist_c)
+
+
+@pytest.mark.parametrize("order, order_alg, nmid", [(0, 0, 0), (1, 0, 5), (2, 1, 2), (3, 1, 4), (5, 2, 6),
+                                                    (7, 3, 8)])
+def test_predict_matches_python_bit_for_bit(driver, order, order_alg, nmid):
+    rng = np.random.default_rng(order * 10 + nmid)
+    n, npred = 9, 8
+    y, mid, slope = rng.normal(size=(3, n))
+    pt = np.sort(rng.uniform(0.0, 1.0, npred))[::-1].copy()
+    pm = rng.normal(size=(npred, n))
+    algmask = rng.integers(0, 3, n).astype(np.int8)
+    c = np.zeros(sl._NC)
+    c[sl._ORDER], c[sl._ORDER_ALG] = order, order_alg
+    ist = np.zeros(sl._NI, dtype=np.int64)
+    ist[sl._HAS_MID], ist[sl._NMID] = int(nmid > 0), nmid
+    t, h, h_prev = 1.0 + rng.uniform(), rng.uniform(1e-3, 1e-2), rng.uniform(1e-3, 1e-2)
+    guess, guess_c = np.empty(n), np.empty(n)
+    sl.predict(y, mid, slope, pt, pm, ist, c, t, h, h_prev, algmask, guess)
+    driver.t_predict(ctypes.c_int64(n), _p(y), _p(mid), _p(slope), _p(pt), _p(pm), ctypes.c_int64(npred), _p(ist),
+                     _p(c), ctypes.c_double(t), ctypes.c_double(h), ctypes.c_double(h_prev), _p(algmask),
+                     _p(guess_c))
+    assert np.array_equal(guess, guess_c)
+
+
+@pytest.mark.parametrize("has_mid, j, max_steps", [(0, 0, 100), (1, 2, 100), (1, 0, 5), (1, 3, 100)])
+def test_accept_matches_python_bit_for_bit(driver, has_mid, j, max_steps):
+    rng = np.random.default_rng(j + 7 * has_mid)
+    n, npred, nout = 6, 4, 5
+    arrays = [rng.normal(size=n) for _ in range(6)]  # y, y_new, y_end, y_prev, mid, mid_slope
+    pt, pm = rng.uniform(size=npred), rng.normal(size=(npred, n))
+    ys, yps = rng.normal(size=(nout, n)), rng.normal(size=(nout, n))
+    fst = rng.uniform(size=sl._NF)
+    ist = np.zeros(sl._NI, dtype=np.int64)
+    ist[sl._HAS_MID], ist[sl._J], ist[sl._SUBSTEPS], ist[sl._K] = has_mid, j, 4, 2
+    ist[sl._STEPS], ist[sl._MAX_STEPS], ist[sl._NMID] = 4, max_steps, 3
+    t, h = 0.5, 1e-2
+    py = [a.copy() for a in arrays + [pt, pm, ys, yps, fst, ist]]
+    cc = [a.copy() for a in arrays + [pt, pm, ys, yps, fst, ist]]
+    done = sl.accept(t, h, *py[:6], *py[6:])
+    y, y_new, y_end, y_prev, mid, slope, pt_c, pm_c, ys_c, yps_c, fst_c, ist_c = cc
+    done_c = driver.t_accept(ctypes.c_int64(n), ctypes.c_double(t), ctypes.c_double(h), _p(y), _p(y_new), _p(y_end),
+                             _p(y_prev), _p(mid), _p(slope), _p(pt_c), _p(pm_c), ctypes.c_int64(npred), _p(ys_c),
+                             ctypes.c_int64(nout), _p(yps_c), _p(fst_c), _p(ist_c))
+    assert bool(done_c) == done
+    for a, b in zip(py, cc):
+        assert np.array_equal(a, b)
+
+
+def _module(tmp_path, source):
+    path = tmp_path / "logic.py"
+    path.write_text("import numpy as np\n\n" + textwrap.dedent(source), encoding="utf-8")
+    spec = importlib.util.spec_from_file_location("logic_under_test", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_subset_is_translated(tmp_path):
+    """Locals typed from their values (int64 where only integers are assigned, double where any
+    double is), Python's true division of integers, min/max, vector statements."""
+    m = _module(tmp_path, """
+        _K = 3
+
+        def f(a, k, x, out):
+            j = k + _K
+            r = j / 2
+            s = 0
+            for i in range(k):
+                s = s + x[i]
+            _copy(a * x + min(r, 1.0), out)
+            return s, j
+        """)
+    text = Translator(m, {"f": (("f", "i", "v", "v"), ("f", "i"))}, {}).translate(["f"])
+    assert "static double f(int64_t n, double a, int64_t k, const double *x, double *out, int64_t *result1)" in text
+    assert "int64_t j = 0;" in text and "double r = 0;" in text and "double s = 0;" in text
+    assert "r = ((double)(j) / 2);" in text and "j = (k + 3 /* _K */);" in text
+    assert "out[i2] = ((a * x[i2]) + py_min_f(r, 1.0));" in text
+    assert "*result1 = j;" in text and "return s;" in text
+
+
+@pytest.mark.parametrize("body, what", [
+    ("while k > 0:\n        k -= 1\n    return k", "the statement While"),
+    ("return 0 < k < 3", "a chained comparison"),
+    ("d = {}\n    return k", "the expression Dict"),
+    ("return k % 2", "the operator Mod"),
+    ("return x", "the vector 'x' where a scalar is expected"),
+    ("return np.sum(x)", "the call 'np.sum'"),
+])
+def test_python_outside_the_subset_is_refused_with_its_line(tmp_path, body, what):
+    m = _module(tmp_path, f"""
+def g(k, x):
+    {body}
+""")
+    with pytest.raises(TranslationError) as err:
+        Translator(m, {"g": (("i", "v"), ("i",))}, {}).translate(["g"])
+    message = str(err.value)
+    assert message.startswith(f"{tmp_path / 'logic.py'}:") and "in g:" in message and what in message, message
+    line = int(message.split(":")[1])
+    assert 5 <= line <= 7  # the function starts on line 5 of the file: its body's line is named
+
+
+def test_a_function_without_a_signature_is_refused(tmp_path):
+    m = _module(tmp_path, "def h(a):\n    return a\n")
+    with pytest.raises(TranslationError, match="in h: no C signature"):
+        Translator(m, {}, {}).translate(["h"])
