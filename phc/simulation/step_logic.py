@@ -29,10 +29,13 @@ a step *does* is written here, once, as plain Python that numba can compile:
   and numba compiles the same text into the compiled loop's chunk.
 
 The C back end's step loop (``phc/codegen/c_runtime/steps.c``, :mod:`phc.codegen.c_steps`)
-cannot run Python: it is a line-by-line port of :func:`newton` (one function there too, which
-every method's stages call), :func:`discrete_gradient`, :func:`midpoint4` and the driver's
-bookkeeping, operation by operation, and is tested against the Python loop; a change of the
-logic here is a change there.
+cannot run Python: it gets :func:`newton` and the driver's bookkeeping (:func:`next_step`,
+:func:`substeps`, :func:`predict` with the predictor's functions, :func:`accept`) translated to
+C from this text by :mod:`phc.codegen.c_translate`, with the C types of :data:`C_SIGNATURES`;
+keep those functions within the translator's subset (its docstring; a function outside it is
+refused with its line, in ``tests/codegen/test_c_translate.py``). :func:`discrete_gradient` and
+:func:`midpoint4` are ported there by hand, operation by operation, and tested against the
+Python loop: a change of their logic here is a change there.
 
 What stays each loop's own is what is not routine: the Python loop's
 :func:`~phc.simulation.midpoint.integrate_fixed_step` handles events, projection, retries and

@@ -10,7 +10,7 @@
  *
  * One call, phc_steps_chunk(run, budget), takes up to `budget` steps of the method
  * ist[I_METHOD] on the output grid of phc.simulation.midpoint.integrate_fixed_step, and returns.
- * Every method's stages are solved by one Newton iteration (`newton` below): the implicit
+ * Every method's stages are solved by one Newton iteration (`newton`, translated): the implicit
  * midpoint rule is one stage
  *
  *     F(t + h/2, (y + y1)/2, (y1 - y)/h) = 0,  the position-constraint rows g(t + h, y1) = 0
@@ -30,13 +30,16 @@
  * found ill-conditioned (HARD), a routine look of the singularity monitor that is not clearly
  * far from singular (LOOK: Python's monitor looks with its SVD and decides).
  *
- * What each step does is a line-by-line port of phc/simulation/step_logic.py (`newton`: the
- * stopping rules, the refresh of the Newton matrix, the round-off acceptance; `discrete_gradient`;
- * `midpoint4`: the same arithmetic, operation by operation), of its driver bookkeeping (`next_step`,
- * `predict`, `looks`, `accept`, which the Python loop and the numba kernel both run) and of the
- * numba kernel's chunk (phc/codegen/numba_steps_kernel.py: `_chunk`, `_monitor_ratio`),
- * on the same state arrays with the same layout (checked when the library is loaded:
- * phc_steps_layout). Not ported: the mixed-precision corrections of the numba loop (every
+ * What each step does is written once, in Python, in phc/simulation/step_logic.py, which the Python
+ * loop runs and the numba kernel compiles. Its Newton iteration (`newton`: the stopping rules, the
+ * refresh of the Newton matrix, the round-off acceptance) and the driver's bookkeeping
+ * (`next_step`, `predict`, `accept`) are not written in this file: phc.codegen.c_steps.source()
+ * translates them to C (phc/codegen/c_translate.py) and puts them at the line PHC_STEP_LOGIC
+ * below, beside the operations they call (op_begin, op_refactor, op_correct, op_precision). This
+ * file keeps a port, operation by operation, of step_logic's `discrete_gradient` and `midpoint4`
+ * and of the numba kernel's chunk (phc/codegen/numba_steps_kernel.py: `_chunk`,
+ * `_monitor_ratio`), on the same state arrays with the same layout (checked when the library is
+ * loaded: phc_steps_layout). Not ported: the mixed-precision corrections of the numba loop (every
  * correction here is in double precision, so step_logic's precision events never occur).
  *
  * Linear algebra: the Newton matrix s*(F_y + cj*F_yp) (the end-constraint rows from g_y) is
