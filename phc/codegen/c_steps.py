@@ -51,7 +51,7 @@ SOURCE = Path(__file__).resolve().parents[1] / "codegen" / "c_runtime" / "steps.
 the whole text."""
 
 TRANSLATED = ("substeps", "next_step", "predictor_nodes", "lagrange_weights", "polynomial", "extrapolate", "predict",
-              "accept", "newton")
+              "accept", "newton", "midpoint4")
 """The functions of :mod:`phc.simulation.step_logic` steps.c gets translated (each after those it
 calls)."""
 
@@ -65,7 +65,8 @@ def _operations() -> dict:
     return {"_begin": Op("op_begin", ("ws", "i"), ("b", "f", "f", "i")),
             "_refactor": Op("op_refactor", ("ws", "i", "f", "f", "v", "v", "f"), ("i",)),
             "_correct": Op("op_correct", ("ws", "i", "f", "f", "v", "v", "f"), ("i", "v", "f", "f", "f", "b", "b")),
-            "_precision": Op("op_precision", ("ws", "i"), ())}
+            "_precision": Op("op_precision", ("ws", "i"), ()),
+            "_stage": Op("op_stage", ("ws", "i", "f", "f", "v", "v", "f", "v"), ("i", "b"), writes=(7,))}
 
 
 _SOURCE_TEXT: Optional[str] = None

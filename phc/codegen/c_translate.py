@@ -97,6 +97,8 @@ class _Function:
         self.counter = 0
         self.nodes = list(ast.walk(fn.node))
         self._writes = None
+        self.pre: list = []  # lines the next statement needs first (temporaries)
+        self.extra: list = []  # their declarations
 
     # ---- errors -----------------------------------------------------------------------------
     def refuse(self, node, what, error=TranslationError):
@@ -121,8 +123,6 @@ class _Function:
                 k = self.env[e.id]
                 if k in ("v", "vl", "vp"):
                     return "v"
-                if k == "M":
-                    return "M"
                 return k
             if isinstance(self.tr.globals.get(e.id), int) and not isinstance(self.tr.globals.get(e.id), bool):
                 return "i"
@@ -134,14 +134,19 @@ class _Function:
                 return "i"
             self.refuse(e, f"the attribute {ast.unparse(e)!r}")
         if isinstance(e, ast.Subscript):
-            base = self.env.get(getattr(e.value, "id", None))
             if isinstance(e.value, ast.Attribute) and e.value.attr == "shape":
                 return "i"
-            if base in ("F", "v", "vl", "vp", "fb"):
+            if isinstance(e.value, ast.Call) and self.env.get(getattr(e.value.func, "id", None)) == "P":
+                return "f"  # an entry of the port powers
+            base = self.env.get(getattr(e.value, "id", None))
+            pair = isinstance(e.slice, ast.Tuple)
+            if pair and len(e.slice.elts) != 2:
+                self.refuse(e, "an index of more than two dimensions")
+            if base in ("F", "v", "vl", "vp", "fb", "tf") and not pair or base == "F3" and pair:
                 return "f"
-            if base in ("I", "ib"):
+            if base == "I" and not pair:
                 return "i"
-            if base == "V":
+            if base in ("V", "Vl") and not pair or base == "V3" and pair:
                 return "v"
             self.refuse(e, f"the subscript {ast.unparse(e)!r}")
         if isinstance(e, ast.BinOp):
@@ -212,6 +217,12 @@ class _Function:
             return "b"
         if self._is_np(f, "where"):
             return "v"
+        if isinstance(f, ast.Attribute) and f.attr == "copy" and not e.args and self.kind(f.value) == "v":
+            return "v"
+        if isinstance(f, ast.Name) and self.env.get(f.id) == "S":
+            return "f"
+        if isinstance(f, ast.Name) and self.env.get(f.id) == "P":
+            return "P"
         self.refuse(e, f"the call {ast.unparse(e.func)!r}")
 
     # ---- expressions ------------------------------------------------------------------------
@@ -240,13 +251,25 @@ class _Function:
         if isinstance(e, ast.Subscript):
             if isinstance(e.value, ast.Attribute) and e.value.attr == "shape":
                 arr = e.value.value.id
-                if self.env.get(arr) != "V" or not (isinstance(e.slice, ast.Constant) and e.slice.value == 0):
-                    self.refuse(e, "a shape other than a matrix argument's rows")
+                if not (isinstance(e.slice, ast.Constant) and e.slice.value == 0):
+                    self.refuse(e, "a shape other than the first dimension")
+                if self.env.get(arr) in ("v", "vl"):
+                    return "n"
+                if self.env.get(arr) != "V":
+                    self.refuse(e, "a shape other than a vector's length or a matrix argument's rows")
                 return f"{arr}_rows"
+            self.kind(e)
+            if isinstance(e.value, ast.Call):  # the port powers: computed before the statement
+                return f"{self.powers(e.value)}[{self.expr(e.slice)}]"
             name = e.value.id
             k = self.env[name]
-            if isinstance(e.slice, ast.Tuple):
-                self.refuse(e, "an index of more than one dimension")
+            if k in ("V", "Vl", "V3"):
+                if idx is None:
+                    self.refuse(e, f"the row {ast.unparse(e)!r} where a scalar is expected")
+                return f"{name}[{self.row_offset(e)} + {idx}]"
+            if isinstance(e.slice, ast.Tuple):  # F3
+                a, b = e.slice.elts
+                return f"{name}[({self.expr(a)}) * 3 + {self.expr(b)}]"
             i = self.expr(e.slice)
             if self.kind(e.slice) not in ("i", "b"):
                 self.refuse(e, "an index that is not an integer")
@@ -290,6 +313,12 @@ class _Function:
                 return f"ceil({self.expr(e.args[0])})"
             if self._is_np(f, "isfinite"):
                 return f"isfinite({self.expr(e.args[0])})"
+            if isinstance(f, ast.Attribute) and f.attr == "copy":
+                return self.expr(f.value, idx)
+            if isinstance(f, ast.Name) and self.env.get(f.id) == "S":
+                if idx is not None:
+                    self.refuse(e, f"a call of {f.id} in a vector expression")
+                return f"{f.id}({', '.join(self.argument(a, k) for a, k in zip(e.args, ('f', 'v', 'F')))})"
             if self._is_np(f, "where"):
                 if idx is None:
                     self.refuse(e, "np.where outside a vector expression")
@@ -314,23 +343,55 @@ class _Function:
         if any(k in ("v", "V", "M") for k in kinds) or (callee.results and callee.results[0] == "v"):
             args.append("n")
         for a, k in zip(e.args, kinds):
-            if k in SCALARS:
-                if self.kind(a) not in SCALARS:
-                    self.refuse(a, f"a vector where {name} takes a scalar")
-                args.append(self.expr(a))
-            else:
-                if not isinstance(a, ast.Name) and not (k == "v" and isinstance(a, ast.Subscript)):
-                    self.refuse(a, f"{name} takes an array here: pass a name")
-                if isinstance(a, ast.Subscript):  # a row of a matrix
-                    args.append(f"{a.value.id} + ({self.expr(a.slice)}) * n")
-                else:
-                    args.append(a.id)
-                    if k == "V":
-                        args.append(f"{a.id}_rows")
+            args.append(self.argument(a, k, name))
         return f"{c_name}({', '.join(args + outs)})"
+
+    def argument(self, a, k, name="a function"):
+        """C text of argument `a` to a parameter of kind `k`: a scalar expression, an array's name
+        (a matrix with its row count), a row's address, or a vector expression computed into a
+        temporary before the statement."""
+        if k in SCALARS:
+            if self.kind(a) not in SCALARS:
+                self.refuse(a, f"a vector where {name} takes a scalar")
+            return self.expr(a)
+        if isinstance(a, ast.Name):
+            return f"{a.id}, {a.id}_rows" if k == "V" else a.id
+        if k == "v" and isinstance(a, ast.Subscript) and self.kind(a) == "v":
+            return f"{a.value.id} + {self.row_offset(a)}"
+        if k == "v" and self.kind(a) == "v":
+            tmp = self.fresh("tmp")
+            self.extra.append(f"double {tmp}[n];")
+            i = self.fresh("i")
+            self.pre += [f"for (int64_t {i} = 0; {i} < n; ++{i})", f"    {tmp}[{i}] = {self.expr(a, i)};"]
+            return tmp
+        self.refuse(a, f"{name} takes an array here: pass a name")
+
+    def row_offset(self, e):
+        """The offset of the row `e` (a matrix's ``m[j]``, a three-index array's ``a[j, i]``)."""
+        k = self.env[e.value.id]
+        if k == "V3":
+            if not isinstance(e.slice, ast.Tuple):
+                self.refuse(e, "a three-index array indexed by other than two numbers")
+            a, b = e.slice.elts
+            return f"(({self.expr(a)}) * 3 + {self.expr(b)}) * n"
+        return f"({self.expr(e.slice)}) * n"
+
+    def powers(self, call):
+        """The port powers' call `call` (a function-pointer argument of kind P) made before the
+        statement, into a temporary of two; its name."""
+        tmp = self.fresh("pw")
+        self.extra.append(f"double {tmp}[2];")
+        args = [self.argument(a, k) for a, k in zip(call.args, ("f", "v", "v", "F"))]
+        if len(call.args) != 4:
+            self.refuse(call, "the port powers called with other than (t, y, yp, p)")
+        self.pre.append(f"{call.func.id}({', '.join(args)}, {tmp});")
+        return tmp
 
     # ---- statements -------------------------------------------------------------------------
     def emit(self, depth, text):
+        for line in self.pre:
+            self.lines.append("    " * depth + line)
+        self.pre = []
         self.lines.append("    " * depth + text)
 
     def fresh(self, base):
@@ -339,14 +400,15 @@ class _Function:
 
     def vector_loop(self, depth, target, e, op="="):
         i = self.fresh("i")
+        line = f"{self.target(target, i)} {op} {self.expr(e, i)};"
         self.emit(depth, f"for (int64_t {i} = 0; {i} < n; ++{i})")
-        self.emit(depth + 1, f"{self.target(target, i)} {op} {self.expr(e, i)};")
+        self.emit(depth + 1, line)
 
     def target(self, t, idx):
         if isinstance(t, ast.Name) and self.env.get(t.id) in ("v", "vl"):
             return f"{t.id}[{idx}]"
-        if isinstance(t, ast.Subscript) and self.env.get(t.value.id) == "V":
-            return f"{t.value.id}[({self.expr(t.slice)}) * n + {idx}]"
+        if isinstance(t, ast.Subscript) and self.env.get(t.value.id) in ("V", "Vl", "V3"):
+            return f"{t.value.id}[{self.row_offset(t)} + {idx}]"
         self.refuse(t, f"{ast.unparse(t)!r} is not a vector to write into")
 
     def body(self, stmts, depth):
@@ -389,8 +451,12 @@ class _Function:
                     if isinstance(v, ast.Name):
                         self.refuse(s, f"{t.id} = {v.id}: a vector named twice (write _copy)")
                     return self.vector_loop(depth, t, v)
-                if k in ("fb", "ib"):
+                if k in ("fb", "Vl"):
                     return  # declared with its length
+                if k == "tf":
+                    for j, x in enumerate(s.value.elts):
+                        self.emit(depth, f"{t.id}[{j}] = {self.expr(x)};")
+                    return
                 if k in SCALARS:
                     return self.emit(depth, f"{t.id} = {self.expr(s.value)};")
                 self.refuse(s, f"the assignment of {t.id}")
@@ -411,7 +477,10 @@ class _Function:
             self.body(s.body, depth + 1)
             orelse = s.orelse
             while len(orelse) == 1 and isinstance(orelse[0], ast.If):
-                self.emit(depth, f"}} else if ({self.expr(orelse[0].test)}) {{")
+                test = self.expr(orelse[0].test)
+                if self.pre:
+                    self.refuse(orelse[0], "an elif condition that needs a temporary (write else: if)")
+                self.emit(depth, f"}} else if ({test}) {{")
                 self.body(orelse[0].body, depth + 1)
                 orelse = orelse[0].orelse
             if orelse:
@@ -478,8 +547,9 @@ class _Function:
                 self.emit(depth, self.call(v0, v0.func.id, ["ret"]) + ";")
                 return self.emit(depth, "return;")
             i = self.fresh("i")
+            line = f"ret[{i}] = {self.expr(vals[0], i)};"
             self.emit(depth, f"for (int64_t {i} = 0; {i} < n; ++{i})")
-            self.emit(depth + 1, f"ret[{i}] = {self.expr(vals[0], i)};")
+            self.emit(depth + 1, line)
             return self.emit(depth, "return;")
         for k, x in enumerate(vals[1:], 1):
             self.emit(depth, f"*result{k} = {self.expr(x)};")
@@ -523,7 +593,11 @@ class _Function:
                         self.refuse(s, f"the loop variable {name} is assigned")
                     if known is None:
                         if isinstance(value, ast.Call) and self._is_np(value.func, "empty"):
-                            known = "fb"
+                            known = "Vl" if isinstance(value.args[0], ast.Tuple) else "fb"
+                        elif isinstance(value, ast.Tuple):
+                            if any(self.kind(x) not in SCALARS for x in value.elts):
+                                self.refuse(s, "a tuple of other than scalars")
+                            known = "tf"
                         else:
                             try:
                                 known = self.kind(value)
@@ -558,6 +632,13 @@ class _Function:
                 out.append(f"double {name}[n];")
             elif k == "vp":
                 out.append(f"double *{name} = NULL;")
+            elif k == "tf":
+                out.append(f"double {name}[{len(self._value(name).elts)}];")
+            elif k == "Vl":
+                rows = self.expr(self._value(name).args[0].elts[0])
+                out.append(f"double {name}[({rows}) * n];")
+                out.append(f"const int64_t {name}_rows = {rows};")
+                out.append(f"(void){name}_rows;")
             elif k == "fb":
                 size = self._buffer_size(name)
                 out.append(f"double {name}[{size} > 0 ? {size} : 1];")
@@ -565,6 +646,11 @@ class _Function:
                 out.append(f"for (int64_t {z} = 0; {z} < ({size} > 0 ? {size} : 1); ++{z})")  # what a callee leaves
                 out.append(f"    {name}[{z}] = 0.0;")
         return out
+
+    def _value(self, name):
+        for s in self.nodes:
+            if isinstance(s, ast.Assign) and isinstance(s.targets[0], ast.Name) and s.targets[0].id == name:
+                return s.value
 
     def _buffer_size(self, name):
         for s in self.nodes:
@@ -590,6 +676,14 @@ class _Function:
                 params.append(f"{const}int64_t *{name}")
             elif k == "M":
                 params.append(f"const int8_t *{name}")
+            elif k == "F3":
+                params.append(f"{const}double *{name}")
+            elif k == "V3":
+                params.append(f"{const}double *{name}")
+            elif k == "S":
+                params.append(f"phc_scalar_fn {name}")
+            elif k == "P":
+                params.append(f"phc_powers_fn {name}")
             elif k == "ws":
                 params.append(f"const struct phc_steps *{name}")
         if res and res[0] == "v":
@@ -630,7 +724,7 @@ class _Function:
         self.infer_locals()
         self.fn.writes = tuple(self.writes())
         self.body(self.fn.node.body, 1)
-        decls = ["    " + d for d in self.declarations()]
+        decls = ["    " + d for d in self.declarations() + self.extra]
         decls += [f"    (void){name}_rows;" for name, k in self.fn.args if k == "V"]  # not every function reads it
         return "\n".join([self.signature(), "{"] + decls + self.lines + ["}"])
 

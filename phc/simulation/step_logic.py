@@ -113,7 +113,8 @@ was at least this many steps before (:func:`looks`; why: :data:`phc.simulation.m
 C_SIGNATURES = {
     # name: (the kinds of its parameters, of its results) for the C back end's translation
     # (phc.codegen.c_translate: f double, i int64, b truth value, v vector of n, V rows of n, M mask of n,
-    # F/I double/int64 array indexed by scalars, ws the loop's workspace)
+    # F/I double/int64 array indexed by scalars, F3 a double array [*, 3], V3 an array [*, 3, n],
+    # ws the loop's workspace)
     "substeps": (("f", "f"), ("i",)),
     "next_step": (("F", "F", "I"), ()),
     "predictor_nodes": (("i", "i"), ("i",)),
@@ -123,6 +124,8 @@ C_SIGNATURES = {
     "predict": (("v", "v", "v", "F", "V", "I", "F", "f", "f", "f", "M", "v"), ()),
     "accept": (("f", "f", "v", "v", "v", "v", "v", "v", "F", "V", "V", "V", "F", "I"), ("b",)),
     "newton": (("ws", "i", "F", "f", "f", "v", "v", "f", "v"), ("i", "b")),
+    # S: the energy scale's C function, P: the port powers' (both the model's)
+    "midpoint4": (("P", "S", "ws", "F", "f", "f", "v", "v", "F", "v", "F3", "V3", "i"), ("i", "b", "i")),
 }
 """The C signatures of the functions the C back end's step loop gets translated from this module
 (:func:`phc.codegen.c_steps.source`); a function edited beyond what the translator accepts fails

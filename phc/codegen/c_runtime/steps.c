@@ -676,11 +676,21 @@ static void op_precision(const struct phc_steps *w, int64_t event)
     (void)event;
 }
 
+/* step_logic's _stage: one stage solve, the translated newton (defined after it) */
+static int64_t op_stage(int64_t n, const struct phc_steps *w, int64_t m, double t, double h, const double *y,
+                        const double *y1in, double s, double *out, int *ill);
+
 /* ---- phc.simulation.step_logic, translated ------------------------------------------------
  * substeps, next_step, predictor_nodes, lagrange_weights, polynomial, extrapolate, predict,
- * accept and newton are not written here: phc.codegen.c_steps.source() puts their translation
+ * accept, newton and midpoint4 are not written here: phc.codegen.c_steps.source() puts their translation
  * (phc.codegen.c_translate, from the Python the other loops run) in place of the next line. */
 /* PHC_STEP_LOGIC */
+
+static int64_t op_stage(int64_t n, const struct phc_steps *w, int64_t m, double t, double h, const double *y,
+                        const double *y1in, double s, double *out, int *ill)
+{
+    return newton(n, w, m, w->c, t, h, y, y1in, s, out, ill);
+}
 
 /* ---- the methods' steps: phc.simulation.step_logic.discrete_gradient, midpoint4, line by line,
  *      each stage solved by `newton` above ------------------------------------------------- */
@@ -754,83 +764,6 @@ static int discrete_gradient(const struct phc_steps *w, double t, double h, cons
     return best <= 1e3 * tol ? OK : FAIL;
 }
 
-/* One step of the fourth-order composition (phc.simulation.midpoint4): midpoint stages of
- * c[C_G1] h, c[C_G2] h, c[C_G1] h (Newton matrix 0 for the outer ones, 1 for the middle one),
- * each started from its predicted midpoint, then the passivity guard; the step's end into out.
- * Predictor: the midpoint of stage i (at t + c[C_M0 + i] h) extrapolated linearly from the same
- * stage of the last two steps (hist_t, hist_v; ist[I_HIST] of them known), else along the slope
- * from y to the driver's guess. The history is updated on success, forgotten on failure. */
-static int midpoint4(const struct phc_steps *w, double t, double h, const double *y, const double *guess,
-                     double *out, int *ill)
-{
-    const int64_t n = w->n, nhist = w->ist[I_HIST];
-    const double *c = w->c, *p = w->p;
-    const double fr[3] = {c[C_G1], c[C_G2], c[C_G1]}, mt[3] = {c[C_M0], c[C_M1], c[C_M2]};
-    double *start = w->start, *y1in = w->y1in, *ht = w->hist_t, *hv = w->hist_v, *yp = w->yp;
-    *ill = 0;
-    copy(n, y, start);
-    double tau = t, dissipated = 0.0, scale = 0.0;
-    for (int i = 0; i < 3; ++i) {
-        const int m = i != 1 ? 0 : 1;
-        const double hs = fr[i] * h, ti = t + mt[i] * h;
-        if (nhist == 2) {
-            const double *v0 = hv + (int64_t)i * n, *v1 = hv + (int64_t)(3 + i) * n;
-            const double a = ti - ht[3 + i], den = ht[3 + i] - ht[i];
-            for (int64_t k = 0; k < n; ++k)
-                y1in[k] = 2.0 * (v1[k] + a * (v1[k] - v0[k]) / den) - start[k];
-        } else {
-            const double b = mt[i] * h;
-            for (int64_t k = 0; k < n; ++k)
-                y1in[k] = 2.0 * (y[k] + b * ((guess[k] - y[k]) / h)) - start[k];
-        }
-        int ill_i;
-        const int code = (int)newton(n, w, m, c, tau, hs, start, y1in, 0.5, out, &ill_i);
-        *ill = *ill || ill_i;
-        if (code != OK) {
-            w->ist[I_HIST] = 0;
-            return code;
-        }
-        double *vi = w->sub + (int64_t)i * n;
-        for (int64_t k = 0; k < n; ++k) {
-            vi[k] = 0.5 * (start[k] + out[k]);
-            yp[k] = (out[k] - start[k]) / hs;
-        }
-        double pw[2];
-        w->powers(tau + 0.5 * hs, vi, yp, p, pw);
-        const double diss = hs * pw[1];
-        if (!isfinite(diss)) {
-            w->ist[I_HIST] = 0;
-            return EVAL;
-        }
-        dissipated += diss;
-        scale += fabs(diss);
-        copy(n, out, start);
-        tau = tau + hs;
-    }
-    /* round-off of a dissipation that is zero (a body that sticks) is no violation */
-    const double floor = 1e-13 * fabs(w->energy_scale(t, y, p)) + 1e-300;
-    if (dissipated < -1e-9 * scale - floor) {
-        w->ist[I_HIST] = 0;
-        return PASSIVITY;
-    }
-    int64_t k;
-    if (nhist == 2) {
-        for (int i = 0; i < 3; ++i) {
-            ht[i] = ht[3 + i];
-            copy(n, hv + (int64_t)(3 + i) * n, hv + (int64_t)i * n);
-        }
-        k = 1;
-    } else {
-        k = nhist;
-        w->ist[I_HIST] = nhist + 1;
-    }
-    for (int i = 0; i < 3; ++i) {
-        ht[3 * k + i] = t + mt[i] * h;
-        copy(n, w->sub + (int64_t)i * n, hv + (3 * k + i) * n);
-    }
-    return OK;
-}
-
 /* One step of the method ist[I_METHOD] (0 midpoint, 1 discrete gradient, 2 midpoint4) from the
  * driver's guess into y_new (numba_steps_kernel._advance); the outcome, *ill <- whether a
  * stage was ill-conditioned */
@@ -839,8 +772,13 @@ static int advance(const struct phc_steps *w, double t, double h, int *ill)
     switch (w->ist[I_METHOD]) {
     case 1:
         return discrete_gradient(w, t, h, w->y, w->guess, w->y_new, ill);
-    case 2:
-        return midpoint4(w, t, h, w->y, w->guess, w->y_new, ill);
+    case 2: {
+        int64_t nhist;
+        const int code = (int)midpoint4(w->n, w->powers, w->energy_scale, w, w->c, t, h, w->y, w->guess, w->p,
+                                        w->y_new, w->hist_t, w->hist_v, w->ist[I_HIST], ill, &nhist);
+        w->ist[I_HIST] = nhist;
+        return code;
+    }
     default:
         return (int)newton(w->n, w, 0, w->c, t, h, w->y, w->guess, 0.5, w->y_new, ill);
     }
