@@ -8,14 +8,14 @@ calls the model's compiled residual, Jacobian, position invariants, Hamiltonian,
 port powers through function pointers (no Python in between). The step logic the Python loop and
 the numba kernel share is not written again in C: :func:`source` translates
 :func:`phc.simulation.step_logic.newton` (the stopping rules, refresh of the Newton matrix,
-round-off acceptance: one Newton iteration, which every method's stages call) and the driver's
-bookkeeping (``step_logic.next_step``, ``predict`` with ``predictor_nodes``,
-``lagrange_weights``, ``polynomial``, ``extrapolate``, and ``accept``) with
-:mod:`phc.codegen.c_translate` and puts the translation into steps.c (when the library is built,
-and into an exported FMU's sources). Written by hand in steps.c are the operations those call
-(:data:`OPERATIONS`), a port of :func:`~phc.simulation.step_logic.discrete_gradient` and
-:func:`~phc.simulation.step_logic.midpoint4` (tested against the Python loop) and the numba
-kernel's chunk (:mod:`phc.codegen.numba_steps_kernel`), with a dense LU with partial
+round-off acceptance: one Newton iteration, which every method's stages call), the methods'
+steps (:func:`~phc.simulation.step_logic.discrete_gradient`,
+:func:`~phc.simulation.step_logic.midpoint4`) and the driver's bookkeeping
+(``step_logic.next_step``, ``predict`` with ``predictor_nodes``, ``lagrange_weights``,
+``polynomial``, ``extrapolate``, and ``accept``) with :mod:`phc.codegen.c_translate` and puts
+the translation into steps.c (when the library is built, and into an exported FMU's sources).
+Written by hand in steps.c are the operations those call (``_operations``: the matrix's age,
+refactor, correct, one stage), and a port of the numba kernel's chunk (:mod:`phc.codegen.numba_steps_kernel`), with a dense LU with partial
 pivoting of the Newton matrix equilibrated as the Python loop's sparse LU is
 (:func:`phc.simulation.midpoint.equilibration`); its header says what is not ported (the
 numba loop's mixed-precision corrections: here every correction is in double precision) and
@@ -51,7 +51,7 @@ SOURCE = Path(__file__).resolve().parents[1] / "codegen" / "c_runtime" / "steps.
 the whole text."""
 
 TRANSLATED = ("substeps", "next_step", "predictor_nodes", "lagrange_weights", "polynomial", "extrapolate", "predict",
-              "accept", "newton", "midpoint4")
+              "accept", "newton", "discrete_gradient", "midpoint4")
 """The functions of :mod:`phc.simulation.step_logic` steps.c gets translated (each after those it
 calls)."""
 
@@ -66,6 +66,7 @@ def _operations() -> dict:
             "_refactor": Op("op_refactor", ("ws", "i", "f", "f", "v", "v", "f"), ("i",)),
             "_correct": Op("op_correct", ("ws", "i", "f", "f", "v", "v", "f"), ("i", "v", "f", "f", "f", "b", "b")),
             "_precision": Op("op_precision", ("ws", "i"), ()),
+            "_consistent": Op("op_consistent", ("ws", "f", "v"), (), writes=(2,)),
             "_stage": Op("op_stage", ("ws", "i", "f", "f", "v", "v", "f", "v"), ("i", "b"), writes=(7,))}
 
 

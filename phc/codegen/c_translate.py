@@ -15,23 +15,30 @@ The subset:
   (:data:`phc.simulation.step_logic.C_SIGNATURES`): ``f`` double, ``i`` int64, ``b`` a truth
   value (C ``int``), ``v`` a vector of ``n`` doubles, ``V`` a matrix of rows of ``n`` doubles
   (row-major; its row count is the extra argument ``<name>_rows``), ``M`` an ``int8`` vector of
-  ``n`` (a mask), ``F``/``I`` a double/int64 buffer indexed by scalars only, ``ws`` the loop's
-  workspace (passed through to the operations);
+  ``n`` (a mask), ``F``/``I`` a double/int64 array indexed by scalars only, ``F3`` a double array
+  ``[*, 3]`` and ``V3`` an array ``[*, 3, n]`` (indexed ``a[j, i]``), ``S`` a model function
+  ``(t, y, p) -> double`` (C ``phc_scalar_fn``), ``P`` the port powers ``(t, y, yp, p)``
+  (``phc_powers_fn``, called as ``powers(...)[k]``), ``ws`` the loop's workspace (passed through
+  to the operations);
 * local scalars (int64 when every value assigned is an integer expression, ``int`` for truth
-  values, else double), local vectors of ``n`` (a C99 array of ``n``) and local buffers
-  (``np.empty(k)``);
+  values, else double), local vectors of ``n`` (a C99 array of ``n``, assigned a vector
+  expression, ``x.copy()`` or another local vector where neither is written in place, so that a
+  copy is what Python's shared name would be), local matrices and buffers (``np.empty((r, n))``,
+  ``np.empty(k)``) and tuples of scalars;
 * ``for`` over ``range`` (a constant step of ±1), ``if``/``elif``/``else``, ``break``,
-  ``continue``, ``return`` (of a tuple: the first value is returned, the others through pointers);
+  ``continue``, ``return`` (of a tuple: the first value is returned, the others written through
+  pointers; a vector into the caller's array);
 * arithmetic on scalars (Python's true division of integers as a double division), comparisons
   (one operator), ``and``/``or``/``not`` of truth values, conditional expressions, ``abs``,
-  ``min``/``max`` of two scalars (Python's choice on ties: the first), ``int``, ``np.ceil``,
+  ``min``/``max`` of scalars (Python's choice on ties: the first), ``int``, ``np.ceil``,
   ``np.isfinite``, ``np.inf``, integer constants of the module (printed as literals);
 * whole-vector arithmetic (``+ - * /`` of vectors and scalars, ``np.where``, a comparison of a
   mask), written only into a vector: ``_copy(expression, dst)``, ``_add(dst, vector)``, a local
-  vector's assignment, a vector function's ``return``. Each becomes one loop over the entries in
-  which every entry takes the IEEE operations NumPy does, in the same order (the expression's
-  parentheses are kept), so results are bit for bit NumPy's; the C is compiled without fused
-  multiply-adds (``-ffp-contract=off``);
+  vector's assignment, a vector function's ``return``, or an argument (computed into a temporary
+  before the statement). Each becomes one loop over the entries in which every entry takes the
+  IEEE operations NumPy does, in the same order (the expression's parentheses are kept), so
+  results are bit for bit NumPy's; the C is compiled without fused multiply-adds
+  (``-ffp-contract=off``);
 * calls of other translated functions and of the loop's operations (``_begin``, ``_correct``, …:
   an operations table gives their C name, argument kinds and results).
 """
@@ -198,9 +205,15 @@ class _Function:
             if f.id == "abs":
                 return self.kind(e.args[0])
             if f.id in ("min", "max"):
-                if len(e.args) != 2:
-                    self.refuse(e, f"{f.id} of other than two scalars")
-                return _join(self.kind(e.args[0]), self.kind(e.args[1]))
+                if len(e.args) < 2:
+                    self.refuse(e, f"{f.id} of fewer than two scalars")
+                kinds = [self.kind(a) for a in e.args]
+                if any(k not in SCALARS for k in kinds):
+                    self.refuse(e, f"{f.id} of a vector")
+                out = kinds[0]
+                for k in kinds[1:]:
+                    out = _join(out, k)
+                return out
             if f.id == "int":
                 return "i"
             if f.id in self.tr.functions:
@@ -306,7 +319,10 @@ class _Function:
                 return f"{'fabs' if self.kind(e.args[0]) == 'f' else 'llabs'}({self.expr(e.args[0])})"
             if isinstance(f, ast.Name) and f.id in ("min", "max"):
                 k = self.kind(e)
-                return f"py_{f.id}_{'f' if k == 'f' else 'i'}({self.expr(e.args[0])}, {self.expr(e.args[1])})"
+                out = self.expr(e.args[0])
+                for a in e.args[1:]:  # Python's max(a, b, c): the first largest, as max(max(a, b), c)
+                    out = f"py_{f.id}_{'f' if k == 'f' else 'i'}({out}, {self.expr(a)})"
+                return out
             if isinstance(f, ast.Name) and f.id == "int":
                 return f"(int64_t)({self.expr(e.args[0])})"
             if self._is_np(f, "ceil"):
@@ -448,8 +464,8 @@ class _Function:
                     v = s.value
                     if isinstance(v, ast.Call) and getattr(v.func, "id", None) in self.tr.functions:
                         return self.emit(depth, self.call(v, v.func.id, [t.id]) + ";")
-                    if isinstance(v, ast.Name):
-                        self.refuse(s, f"{t.id} = {v.id}: a vector named twice (write _copy)")
+                    if isinstance(v, ast.Name) and (t.id in self.writes() or v.id in self.writes()):
+                        self.refuse(s, f"{t.id} = {v.id}: a vector named twice, one written in place (write _copy)")
                     return self.vector_loop(depth, t, v)
                 if k in ("fb", "Vl"):
                     return  # declared with its length
@@ -551,8 +567,14 @@ class _Function:
             self.emit(depth, f"for (int64_t {i} = 0; {i} < n; ++{i})")
             self.emit(depth + 1, line)
             return self.emit(depth, "return;")
-        for k, x in enumerate(vals[1:], 1):
-            self.emit(depth, f"*result{k} = {self.expr(x)};")
+        for k, (x, kind) in enumerate(zip(vals[1:], res[1:]), 1):
+            if kind == "v":
+                i = self.fresh("i")
+                line = f"result{k}[{i}] = {self.expr(x, i)};"
+                self.emit(depth, f"for (int64_t {i} = 0; {i} < n; ++{i})")
+                self.emit(depth + 1, line)
+            else:
+                self.emit(depth, f"*result{k} = {self.expr(x)};")
         self.emit(depth, f"return {self.expr(vals[0])};" if vals else "return;")
 
     # ---- locals -----------------------------------------------------------------------------
@@ -691,7 +713,8 @@ class _Function:
             ret = "void"
         else:
             ret = _CTYPE[res[0]] if res else "void"
-            params += [f"{_CTYPE[k]} *result{j}" for j, k in enumerate(res[1:], 1)]
+            params += [f"double *result{j}" if k == "v" else f"{_CTYPE[k]} *result{j}"
+                       for j, k in enumerate(res[1:], 1)]
         return f"static {ret} {self.name}({', '.join(params)})"
 
     def writes(self):

@@ -29,13 +29,12 @@ a step *does* is written here, once, as plain Python that numba can compile:
   and numba compiles the same text into the compiled loop's chunk.
 
 The C back end's step loop (``phc/codegen/c_runtime/steps.c``, :mod:`phc.codegen.c_steps`)
-cannot run Python: it gets :func:`newton` and the driver's bookkeeping (:func:`next_step`,
-:func:`substeps`, :func:`predict` with the predictor's functions, :func:`accept`) translated to
-C from this text by :mod:`phc.codegen.c_translate`, with the C types of :data:`C_SIGNATURES`;
-keep those functions within the translator's subset (its docstring; a function outside it is
-refused with its line, in ``tests/codegen/test_c_translate.py``). :func:`discrete_gradient` and
-:func:`midpoint4` are ported there by hand, operation by operation, and tested against the
-Python loop: a change of their logic here is a change there.
+cannot run Python: it gets :func:`newton`, :func:`discrete_gradient`, :func:`midpoint4` and the
+driver's bookkeeping (:func:`next_step`, :func:`substeps`, :func:`predict` with the predictor's
+functions, :func:`accept`) translated to C from this text by :mod:`phc.codegen.c_translate`,
+with the C types of :data:`C_SIGNATURES`; keep those functions within the translator's subset
+(its docstring; a function outside it is refused with its line, in
+``tests/codegen/test_c_translate.py``).
 
 What stays each loop's own is what is not routine: the Python loop's
 :func:`~phc.simulation.midpoint.integrate_fixed_step` handles events, projection, retries and
@@ -125,6 +124,8 @@ C_SIGNATURES = {
     "accept": (("f", "f", "v", "v", "v", "v", "v", "v", "F", "V", "V", "V", "F", "I"), ("b",)),
     "newton": (("ws", "i", "F", "f", "f", "v", "v", "f", "v"), ("i", "b")),
     # S: the energy scale's C function, P: the port powers' (both the model's)
+    "discrete_gradient": (("S", "S", "ws", "F", "i", "f", "f", "v", "v", "F", "v"),
+                          ("i", "b", "v", "f", "f", "v", "i")),
     "midpoint4": (("P", "S", "ws", "F", "f", "f", "v", "v", "F", "v", "F3", "V3", "i"), ("i", "b", "i")),
 }
 """The C signatures of the functions the C back end's step loop gets translated from this module

@@ -183,3 +183,25 @@ def test_a_function_without_a_signature_is_refused(tmp_path):
     m = _module(tmp_path, "def h(a):\n    return a\n")
     with pytest.raises(TranslationError, match="in h: no C signature"):
         Translator(m, {}, {}).translate(["h"])
+
+
+def test_a_local_vector_named_twice_is_a_copy_only_where_neither_is_written_in_place(tmp_path):
+    """``b = a`` of two local vectors is Python's one array under two names; a C copy is the same
+    only while neither is changed in place: the translator copies then, else refuses."""
+    m = _module(tmp_path, """
+        def read_only(x, out):
+            a = x.copy()
+            b = a
+            b = 2.0 * x
+            _copy(a + b, out)
+
+        def written(x, out):
+            a = x.copy()
+            b = a
+            _add(b, x)
+            _copy(a, out)
+        """)
+    text = Translator(m, {"read_only": (("v", "v"), ())}, {}).translate(["read_only"])
+    assert "b[i2] = a[i2];" in text and "double b[n];" in text
+    with pytest.raises(TranslationError, match=r"logic.py:12: in written: b = a: a vector named twice"):
+        Translator(m, {"written": (("v", "v"), ())}, {}).translate(["written"])

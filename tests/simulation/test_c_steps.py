@@ -324,7 +324,8 @@ def test_the_library_is_built_once_from_the_shipped_source(compiled):
     # one Newton iteration in C, translated from step_logic, which every method's stages call;
     # the ABI the binding expects
     text = "\n".join(lines)
-    assert text.count("static int64_t newton(") == 1 and text.count("newton(n, w, ") >= 3
+    assert text.count("static int64_t newton(") == 1 and "return newton(n, w, m, w->c, " in text  # op_stage
+    assert text.count("op_stage(n, ws, ") >= 3  # the discrete gradient's stages and midpoint4's
     assert f"#define PHC_STEPS_ABI {c_steps.ABI}\n" in text
 
 

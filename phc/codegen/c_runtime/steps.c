@@ -32,12 +32,12 @@
  *
  * What each step does is written once, in Python, in phc/simulation/step_logic.py, which the Python
  * loop runs and the numba kernel compiles. Its Newton iteration (`newton`: the stopping rules, the
- * refresh of the Newton matrix, the round-off acceptance) and the driver's bookkeeping
- * (`next_step`, `predict`, `accept`) are not written in this file: phc.codegen.c_steps.source()
- * translates them to C (phc/codegen/c_translate.py) and puts them at the line PHC_STEP_LOGIC
- * below, beside the operations they call (op_begin, op_refactor, op_correct, op_precision). This
- * file keeps a port, operation by operation, of step_logic's `discrete_gradient` and `midpoint4`
- * and of the numba kernel's chunk (phc/codegen/numba_steps_kernel.py: `_chunk`,
+ * refresh of the Newton matrix, the round-off acceptance), the methods' steps (`discrete_gradient`,
+ * `midpoint4`) and the driver's bookkeeping (`next_step`, `predict`, `accept`) are not written in
+ * this file: phc.codegen.c_steps.source() translates them to C (phc/codegen/c_translate.py) and
+ * puts them at the line PHC_STEP_LOGIC below, beside the operations they call (op_begin,
+ * op_refactor, op_correct, op_precision, op_consistent, op_stage). This file keeps a port of the
+ * numba kernel's chunk (phc/codegen/numba_steps_kernel.py: `_chunk`,
  * `_monitor_ratio`), on the same state arrays with the same layout (checked when the library is
  * loaded: phc_steps_layout). Not ported: the mixed-precision corrections of the numba loop (every
  * correction here is in double precision, so step_logic's precision events never occur).
@@ -159,11 +159,6 @@ static int all_finite(int64_t n, const double *v)
         carry |= (bits & exponent) + unit;
     }
     return (carry >> 63) == 0;
-}
-
-static void copy(int64_t n, const double *src, double *dst)
-{
-    memmove(dst, src, (size_t)n * sizeof(double));
 }
 
 /* 1/2^e with 2^e <= big < 2^(e+1), 1 where big is not positive: an exact scaling of big to [1, 2)
@@ -676,14 +671,26 @@ static void op_precision(const struct phc_steps *w, int64_t event)
     (void)event;
 }
 
+/* step_logic's _consistent: the velocities H is written in made consistent with the states. The C
+ * loop does not run models that have such rows with the discrete gradient (phc.simulation.compiled_steps):
+ * nothing to do. */
+static void op_consistent(int64_t n, const struct phc_steps *w, double t, double *y)
+{
+    (void)n;
+    (void)w;
+    (void)t;
+    (void)y;
+}
+
 /* step_logic's _stage: one stage solve, the translated newton (defined after it) */
 static int64_t op_stage(int64_t n, const struct phc_steps *w, int64_t m, double t, double h, const double *y,
                         const double *y1in, double s, double *out, int *ill);
 
 /* ---- phc.simulation.step_logic, translated ------------------------------------------------
  * substeps, next_step, predictor_nodes, lagrange_weights, polynomial, extrapolate, predict,
- * accept, newton and midpoint4 are not written here: phc.codegen.c_steps.source() puts their translation
- * (phc.codegen.c_translate, from the Python the other loops run) in place of the next line. */
+ * accept, newton, discrete_gradient and midpoint4 are not written here: phc.codegen.c_steps.source()
+ * puts their translation (phc.codegen.c_translate, from the Python the other loops run) in place
+ * of the next line. */
 /* PHC_STEP_LOGIC */
 
 static int64_t op_stage(int64_t n, const struct phc_steps *w, int64_t m, double t, double h, const double *y,
@@ -692,86 +699,20 @@ static int64_t op_stage(int64_t n, const struct phc_steps *w, int64_t m, double 
     return newton(n, w, m, w->c, t, h, y, y1in, s, out, ill);
 }
 
-/* ---- the methods' steps: phc.simulation.step_logic.discrete_gradient, midpoint4, line by line,
- *      each stage solved by `newton` above ------------------------------------------------- */
-
-/* One discrete-gradient step (phc.simulation.discrete_gradient): the stage equations at
- * y(s) = y + s (y1 - y) and the energy balance r(s) = H(y1) - H(y) + E1 - E = 0 (E: the energy
- * accumulator, unknown ist[I_E]), by a safeguarded secant iteration on s from s = 1/2. The step
- * (or, where no point balances the energy, the best secant iterate, for the Python code to
- * split) into out; the outcome, *ill <- the last stage's. */
-static int discrete_gradient(const struct phc_steps *w, double t, double h, const double *y, const double *guess,
-                             double *out, int *ill)
-{
-    const int64_t n = w->n, e = w->ist[I_E];
-    const double *c = w->c, *p = w->p;
-    int code = (int)newton(n, w, 0, c, t, h, y, guess, 0.5, out, ill);
-    if (code != OK)
-        return code;
-    const double H0 = w->hamiltonian(t, y, p);
-    const double bal = w->hamiltonian(t + h, out, p) - H0 + out[e] - y[e];
-    /* the balance H + E is kept relative to its terms; below 1e-200 the energy is zero */
-    double scale = fabs(w->energy_scale(t, y, p));
-    scale = py_max_f(scale, fabs(w->energy_scale(t + h, out, p)));
-    scale = py_max_f(scale, fabs(y[e]));
-    scale = py_max_f(scale, fabs(out[e]));
-    scale = py_max_f(scale, 1e-200);
-    if (!(isfinite(bal) && isfinite(scale)))
-        return EVAL;
-    const double tol = c[C_BAL_TOL] * scale;
-    if (fabs(bal) <= tol)
-        return OK;
-    /* first slope from the curvature of phi(sigma) = H(y(sigma)): r'(s) ~ -phi''(s) */
-    double *ym = w->y1in;
-    for (int64_t i = 0; i < n; ++i)
-        ym[i] = y[i] + 0.5 * (out[i] - y[i]);
-    const double curv = 4.0 * (H0 - 2.0 * w->hamiltonian(t + 0.5 * h, ym, p) + w->hamiltonian(t + h, out, p));
-    if (!isfinite(curv))
-        return EVAL;
-    copy(n, out, w->y_half);
-    double s_prev = 0.5, r_prev = bal;
-    const double *y_prev = w->y_half, *y_best = w->y_half;
-    double slope = curv != 0.0 ? -curv : -fabs(bal) * 10.0;
-    double best = fabs(bal);
-    const int64_t secants = (int64_t)c[C_MAX_SECANT];
-    for (int64_t it = 0; it < secants; ++it) {
-        const double s_new = slope != 0.0 ? py_min_f(py_max_f(s_prev - r_prev / slope, c[C_S_MIN]), c[C_S_MAX]) : 0.5;
-        if (s_new == s_prev)
-            break;
-        code = (int)newton(n, w, 0, c, t, h, y, y_prev, s_new, out, ill);
-        if (code != OK)
-            break;
-        const double r_new = w->hamiltonian(t + h, out, p) - H0 + out[e] - y[e];
-        if (!isfinite(r_new))
-            return EVAL;
-        if (fabs(r_new) < best) {
-            best = fabs(r_new);
-            copy(n, out, w->y_best);
-            y_best = w->y_best;
-        }
-        if (fabs(r_new) <= tol)
-            return OK;
-        if (r_new != r_prev)
-            slope = (r_new - r_prev) / (s_new - s_prev);
-        s_prev = s_new;
-        r_prev = r_new;
-        copy(n, out, w->y_sec);
-        y_prev = w->y_sec;
-    }
-    /* within the round-off floor of H's evaluation: accept; else no point balances the energy
-     * (the constraint projection's work): the Python code splits the step */
-    copy(n, y_best, out);
-    return best <= 1e3 * tol ? OK : FAIL;
-}
-
 /* One step of the method ist[I_METHOD] (0 midpoint, 1 discrete gradient, 2 midpoint4) from the
  * driver's guess into y_new (numba_steps_kernel._advance); the outcome, *ill <- whether a
  * stage was ill-conditioned */
 static int advance(const struct phc_steps *w, double t, double h, int *ill)
 {
     switch (w->ist[I_METHOD]) {
-    case 1:
-        return discrete_gradient(w, t, h, w->y, w->guess, w->y_new, ill);
+    case 1: {
+        double best, scale;
+        int64_t secants;
+        const int code = (int)discrete_gradient(w->n, w->hamiltonian, w->energy_scale, w, w->c, w->ist[I_E], t, h, w->y,
+                                                w->guess, w->p, w->y_new, ill, w->y_new, &best, &scale, w->y_half,
+                                                &secants);
+        return code;
+    }
     case 2: {
         int64_t nhist;
         const int code = (int)midpoint4(w->n, w->powers, w->energy_scale, w, w->c, t, h, w->y, w->guess, w->p,
@@ -785,7 +726,6 @@ static int advance(const struct phc_steps *w, double t, double h, int *ill)
 }
 
 /* ---- the driver (numba_steps_kernel._monitor_ratio, _chunk; step_logic.next_step, predict, accept) */
-
 
 /* The routine look of the singularity monitor: 1 when the equilibrated iteration matrix at
  * (t, y, yp) (SingularityMonitor.ratio: cj = 1/hm) is clearly far from singular — LAPACK-style
