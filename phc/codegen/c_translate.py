@@ -54,6 +54,16 @@ _CTYPE = {"b": "int", "i": "int64_t", "f": "double"}
 _JOIN = {("b", "b"): "b", ("b", "i"): "i", ("i", "b"): "i", ("i", "i"): "i"}
 
 
+_PARAMETER = {
+    "b": "int {name}", "i": "int64_t {name}", "f": "double {name}",
+    "v": "{const}double *{name}", "F": "{const}double *{name}", "F3": "{const}double *{name}",
+    "V3": "{const}double *{name}", "V": "{const}double *{name}, int64_t {name}_rows",
+    "I": "{const}int64_t *{name}", "M": "const int8_t *{name}",
+    "S": "phc_scalar_fn {name}", "P": "phc_powers_fn {name}", "ws": "const struct phc_steps *{name}",
+}
+"""The C parameter of each kind of argument (``{const}``: ``const`` unless the function writes it)."""
+
+
 class TranslationError(Exception):
     """Python outside the subset this translator accepts; the message names function and line."""
 
@@ -688,26 +698,10 @@ class _Function:
             params.append("int64_t n")
         for name, k in self.fn.args:
             const = "" if name in writes else "const "
-            if k in SCALARS:
-                params.append(f"{_CTYPE[k]} {name}")
-            elif k in ("v", "F"):
-                params.append(f"{const}double *{name}")
-            elif k == "V":
-                params += [f"{const}double *{name}", f"int64_t {name}_rows"]
-            elif k == "I":
-                params.append(f"{const}int64_t *{name}")
-            elif k == "M":
-                params.append(f"const int8_t *{name}")
-            elif k == "F3":
-                params.append(f"{const}double *{name}")
-            elif k == "V3":
-                params.append(f"{const}double *{name}")
-            elif k == "S":
-                params.append(f"phc_scalar_fn {name}")
-            elif k == "P":
-                params.append(f"phc_powers_fn {name}")
-            elif k == "ws":
-                params.append(f"const struct phc_steps *{name}")
+            if k not in _PARAMETER:
+                raise TranslationError(f"{self.tr.file}:{self.fn.node.lineno}: in {self.name}: the kind {k!r} of "
+                                       f"{name} (kinds: {', '.join(_PARAMETER)})")
+            params.append(_PARAMETER[k].format(const=const, name=name))
         if res and res[0] == "v":
             params.append("double *ret")
             ret = "void"
