@@ -53,8 +53,8 @@ def _p(a):
 
 
 def test_step_logic_translates_and_steps_c_is_complete():
-    """Every function the C loop takes from step_logic translates; steps.c has the place for
-    them once; the translation is cheap (it runs when the step loop's library is built)."""
+    """Every function the C loop takes from step_logic translates, and steps.c has the place for
+    them once."""
     text = c_steps.translation()
     for name in c_steps.TRANSLATED:
         assert f"step_logic.{name} (translated" in text
