@@ -105,10 +105,18 @@ _BUNDLE_FILES = 64
 
 
 def _bundle_path(pint):
-    from phc.codegen.load import cache_dir
+    """(the bundle's path, the signing key), or (None, None) where the configured cache
+    directory or the key cannot be used: then pint parses its file, without a warning (the
+    compiled back ends say what is wrong with the cache where they use it)."""
+    import os
+
+    from phc.codegen.load import _problem, configured_cache_dir
     from phc.codegen.numba_cache import signed_cache_dir
 
-    folder, key, _ = signed_cache_dir(cache_dir() / "units")
+    root = configured_cache_dir()
+    if os.path.lexists(root) and _problem(root):  # nothing is created inside a directory phc refuses
+        return None, None
+    folder, key, _ = signed_cache_dir(root / "units")
     if folder is None:
         return None, None
     return folder / f"pint-{pint.__version__}.bundle", key

@@ -132,3 +132,20 @@ def test_the_bundle_is_part_of_the_cache(cache):
     assert files >= 1 and not bundle.exists()
     units._cached_registry(pint)
     assert calls[-1] == [] and bundle.exists()
+
+
+def test_an_unusable_cache_directory_costs_the_cache_only(tmp_path, monkeypatch, reference):
+    """A cache directory others may write: pint parses its file, nothing is written there,
+    and no warning is added to the model's run."""
+    import warnings
+
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    shared.chmod(0o777)
+    monkeypatch.setenv("PHC_CACHE_DIR", str(shared))
+    monkeypatch.setenv("PHC_STATE_DIR", str(tmp_path / "state"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        ureg = units._cached_registry(pint)
+    assert list(shared.iterdir()) == []
+    _same_readings(ureg, reference)
