@@ -193,13 +193,18 @@ def _cached_registry(pint):
             return pint.UnitRegistry()
         try:
             ureg = pint.UnitRegistry(cache_folder=scratch)
-        except Exception:  # noqa: BLE001 — pint refusing its own cache: parse the file instead
-            files = None
-            ureg = pint.UnitRegistry()
-        else:
+        except Exception:  # noqa: BLE001 — pint refusing its own cache: parse the file, and
+            try:  # drop the bundle, so that the next process writes it again
+                path.unlink()
+            except OSError:
+                pass
+            return pint.UnitRegistry()
+        try:
             now = _folder_files(scratch)
-            if now != files:  # no bundle, or pint wrote other files: store what pint wrote
-                _store_bundle(path, key, now)
+        except OSError:
+            return ureg
+        if now != files:  # no bundle, or pint wrote other files: store what pint wrote
+            _store_bundle(path, key, now)
         return ureg
     finally:
         shutil.rmtree(scratch, ignore_errors=True)

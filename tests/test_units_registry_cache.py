@@ -149,3 +149,21 @@ def test_an_unusable_cache_directory_costs_the_cache_only(tmp_path, monkeypatch,
         ureg = units._cached_registry(pint)
     assert list(shared.iterdir()) == []
     _same_readings(ureg, reference)
+
+
+def test_a_bundle_pint_cannot_read_is_dropped(cache, reference):
+    """A bundle that verifies but whose pickles pint cannot load (written by phc itself from
+    wrong bytes): the registry is parsed from pint's file and the bundle removed, so the
+    next process writes a good one."""
+    folder, calls, stored = cache
+    units._cached_registry(pint)
+    bundle = _bundle(folder)
+    files = units._read_bundle(bundle, units._bundle_path(pint)[1])
+    broken = {name: (b"\x80\x05not a pickle" if name.endswith(".pickle") else data) for name, data in files.items()}
+    units._store_bundle(bundle, units._bundle_path(pint)[1], broken)
+    assert units._read_bundle(bundle, units._bundle_path(pint)[1]) == broken  # it verifies
+    ureg = units._cached_registry(pint)
+    _same_readings(ureg, reference)
+    assert not bundle.exists()
+    units._cached_registry(pint)
+    assert units._read_bundle(bundle, units._bundle_path(pint)[1]) == files  # written again
