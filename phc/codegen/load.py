@@ -194,9 +194,11 @@ def _cap_bytes() -> int:
 
 def _entries(folder: Path) -> list[tuple[float, int, Path]]:
     """(last use, size, path) of phc's files in the cache (generated modules, bench references,
-    the signed artefacts of the compiled backends, the records of the cached front end)."""
+    the signed artefacts of the compiled backends, the records of the cached front end, pint's
+    parsed unit definitions)."""
     out = []
-    for pattern in ("phc_*.py", "bench/ref_*.npz", "numba/phc_numba_*", "c/phc_c_*", "front/*.json"):
+    for pattern in ("phc_*.py", "bench/ref_*.npz", "numba/phc_numba_*", "c/phc_c_*", "front/*.json",
+                    "units/pint-*.bundle"):
         for p in folder.glob(pattern):
             try:
                 st = p.lstat()
@@ -241,8 +243,9 @@ def info() -> CacheInfo:
 
 
 def clean() -> tuple[int, int]:
-    """Remove every cached module, bench reference, compiled artefact and front-end record
-    (:mod:`phc.fastpath`); returns (files, bytes) removed."""
+    """Remove every cached module, bench reference, compiled artefact, front-end record
+    (:mod:`phc.fastpath`) and unit-definitions bundle (:mod:`phc.units`); returns (files,
+    bytes) removed."""
     folder = cache_dir()
     files = size = 0
     for _, n, p in _entries(folder):
