@@ -199,6 +199,17 @@ def test_cart_pole_linearized_upright_against_the_hand_derived_system(tmp_path, 
     assert [r[1] for r in rows[:2]] == ["0", "0"] and [r[-1] for r in rows[:2]] == ["-", "-"], rows
 
 
+def test_an_unknown_state_names_the_close_ones(tmp_path, capsys):
+    path = tmp_path / "cart_pole.yaml"
+    path.write_text(CART_POLE)
+    assert main(["linearize", str(path), "--state", "cp.theta=0.1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "did you mean `cp.th`?" in err[0], err
+    assert main(["linearize", str(path), "--state", "pole.angle=0.1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "the states are `cp.s`, `cp.th`, `cp.p_vs`, `cp.p_w`" in err, err
+
+
 RESONANCE = """\
 format_version: 1
 name: resonance
