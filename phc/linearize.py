@@ -625,6 +625,8 @@ def _modes(lam, vectors, names, differential, meshes) -> list[Mode]:
             continue
         if abs(z.imag) <= 1e-12 * scale:
             z = complex(z.real, 0.0)
+        if abs(z) <= 1e-12 * scale:  # a rigid-body (zero) mode off zero by rounding: by the same rule, 0
+            z = 0j
         v = vectors[:, k].astype(complex)
         states = np.abs(v) * differential
         pivot = int(np.argmax(states if states.any() else np.abs(v)))

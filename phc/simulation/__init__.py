@@ -384,7 +384,7 @@ def initial_values(compiled, p: np.ndarray, initial: Optional[dict] = None) -> t
             fixed.add(index[iv.name])
     for name, spec in (initial or {}).items():
         if name not in index or not mod.DIFFERENTIAL[index[name]]:
-            raise SimulationSetupError(f"`{name}` is not a state of the model")
+            raise SimulationSetupError(f"`{name}` is not a state of the model; {_states_hint(name, mod)}")
         value, guess = spec if isinstance(spec, tuple) else (spec, False)
         if not math.isfinite(float(value)):
             raise SimulationSetupError(f"initial value of `{name}` must be a finite number, got {value}")
@@ -397,6 +397,21 @@ def initial_values(compiled, p: np.ndarray, initial: Optional[dict] = None) -> t
     values[energy_idx] = 0.0
     fixed.add(energy_idx)
     return values, fixed
+
+
+def _states_hint(name: str, mod) -> str:
+    """What to say after "`name` is not a state": the states it is close to, else the
+    states of its component, else the first states of the model."""
+    import difflib
+
+    states = [v for v, diff in zip(mod.VARIABLES, mod.DIFFERENTIAL) if diff and v != "energy.supplied"]
+    close = difflib.get_close_matches(name, states, n=3, cutoff=0.6)
+    if close:
+        return "did you mean " + " or ".join(f"`{s}`" for s in close) + "?"
+    comp = name.rpartition(".")[0]
+    own = [s for s in states if s.rpartition(".")[0] == comp] or states
+    listed = ", ".join(f"`{s}`" for s in own[:8]) + (f" (and {len(own) - 8} more)" if len(own) > 8 else "")
+    return f"the states{f' of `{comp}`' if own is not states else ''} are {listed}"
 
 
 def _changed_parameters(mod, p: np.ndarray) -> set[str]:

@@ -106,7 +106,8 @@ class PortSpec(SpecModel):
     """
 
     domain: Domain = "generic"
-    """Physical domain; connected ports must have the same domain."""
+    """Physical domain; connected ports must have the same domain, except that a `generic`
+    port connects to a port of any domain."""
     dimension: int = Field(1, ge=1, le=64)
     """Number of flow (and effort) components."""
     frame: Optional[str] = None
@@ -290,7 +291,9 @@ class ModelComponentSpec(_Component):
 
 class _OnePort(_Component):
     domain: Optional[Domain] = None
-    """Domain of the port (default depends on the type)."""
+    """Domain of the port. Default: `mechanical.translational` for a mass, spring or damper,
+    `electrical` for an inductor, capacitor or resistor, `generic` for the sources and
+    terminations (a `generic` port connects to a port of any domain)."""
     dimension: int = Field(1, ge=1, le=64)
     """Number of flow (and effort) components of each port: a vector element (a planar
     mass has dimension 2, with `m` the same in every direction)."""

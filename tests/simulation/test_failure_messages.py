@@ -164,3 +164,21 @@ def test_fine_rod_reference_run_failure_is_diagnosed():
     # and the stiff undamped modes at order 5 are named as the reason steps are small
     assert 5e6 < _omega(result.message) < 8e6
     assert "max_order: 2" in result.message
+
+
+
+def test_sundials_own_failure_lines_stay_off_the_standard_output(capsys):
+    # g = 1e308 overflows the pendulum's residual at the first step: IDA fails, and
+    # scikit-sundae's error handler prints "[IDAHandleFailure, Error: ...]" with print();
+    # `--format json` must still be one JSON document on stdout, phc's own message the only
+    # account of the failure
+    import json
+
+    from phc.cli import main
+
+    assert main(["simulate", str(REPO / "models" / "pendulum.yaml"), "--t-end", "0.1", "--param", "g=1e308",
+                 "--format", "json"]) == 1
+    out = capsys.readouterr().out
+    report = json.loads(out)
+    assert report["success"] is False and "IDA" in report["message"]
+    assert "IDAHandleFailure" not in out
