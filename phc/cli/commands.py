@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import math
 import sys
-from contextlib import nullcontext
+from contextlib import nullcontext, redirect_stdout
 from pathlib import Path
 from typing import Sequence
 
@@ -159,7 +159,11 @@ def cmd_simulate(args) -> int:
             from phc.simulation import check_parameters
 
             check_parameters(compiled, params, label=lambda name, value: f"--param {name}={value:g}", path=args.file)
-            with (profiled(compiled) if args.profile else nullcontext()) as prof:
+            # scikit-SUNDAE prints SUNDIALS' failure lines ("[IDAHandleFailure, Error: -4] ...") with
+            # print(): in this command they go to stderr beside phc's own message, so that stdout
+            # holds only the report (`--format json` stays one JSON document). The library leaves
+            # sys.stdout alone: redirecting it there would not be safe for a caller's threads.
+            with (profiled(compiled) if args.profile else nullcontext()) as prof, redirect_stdout(sys.stderr):
                 result = simulate(compiled, progress=progress, **run_kwargs)
         except SimulationInterrupted as stop:
             result, interrupted = stop.result, True
@@ -175,7 +179,8 @@ def cmd_simulate(args) -> int:
             from phc import estimate_errors
 
             try:
-                estimates = estimate_errors(compiled, result, run_kwargs)
+                with redirect_stdout(sys.stderr):  # SUNDIALS' own lines, as for the run above
+                    estimates = estimate_errors(compiled, result, run_kwargs)
             except KeyboardInterrupt:
                 interrupted = True
                 print(inert(f"{args.file}: error estimation interrupted; the run itself is complete"), file=sys.stderr)

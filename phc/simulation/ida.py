@@ -25,8 +25,6 @@ turn that into a memory error, so phc now uses only what scikit-sundae documents
 
 from __future__ import annotations
 
-import contextlib
-import io
 import math
 import time
 import warnings
@@ -148,15 +146,6 @@ _STATUS_HINTS = {
 }
 """Hints for failures whose cause the status says; error-test (-3) and Newton (-4) failures
 are diagnosed at the failure point (:func:`phc.simulation.monitor.diagnose_failure`)."""
-
-
-def _quiet(call, *args, **kwargs):
-    """`call(*args, **kwargs)` with what scikit-sundae prints kept off the standard output:
-    its SUNDIALS error handler prints each failure (``[IDAHandleFailure, Error: -4] At t =
-    ...``) with Python's `print`, which broke `phc simulate --format json` (not JSON) and
-    doubled phc's own failure message. phc's message says when, why and what to try."""
-    with contextlib.redirect_stdout(io.StringIO()):
-        return call(*args, **kwargs)
 
 
 def _import_ida():
@@ -646,8 +635,8 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
             new = IDA(resfn, **{**settings, "max_order": choice.order, **first})
         if switch.rewind:
             hook.rewind(t0, y0, yp0)
-            return new, _quiet(new.init_step, t0, y0, yp0)
-        return new, _quiet(new.init_step, switch.t, switch.y, switch.yp)
+            return new, new.init_step(t0, y0, yp0)
+        return new, new.init_step(switch.t, switch.y, switch.yp)
 
     def scales(failed, upto=1):  # the states of the run so far (a system at rest at t0 may move later)
         return check_scales(mod, ys[:upto], yps[:upto], t_end - t0, rtol, atol, failed, scales=nominal)
@@ -656,7 +645,7 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
     yps = np.empty((len(t_out), n))
     ys[0], yps[0] = y0, yp0
     start = time.process_time()
-    init = _quiet(solver.init_step, t0, y0, yp0)
+    init = solver.init_step(t0, y0, yp0)
     if not init.success:
         return BackendRun(t_out[:1], ys[:1], yps[:1], steps=0, success=False, cpu=time.process_time() - start,
                           message=f"IDA could not start: {init.message}" + (f"; {scales(True)}" if scales(True) else ""))
@@ -668,7 +657,7 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
         while k < len(t_out):
             hook.start_call(t_out[k])
             try:
-                res = _quiet(solver.step, float(t_out[k]), method="normal", tstop=t_end)
+                res = solver.step(float(t_out[k]), method="normal", tstop=t_end)
             except Switch as switch:  # phc's choice of the maximum order changed (simulation/order.py)
                 solver, init = restart(switch)
                 max_order = choice.order
