@@ -514,7 +514,8 @@ class _Walker:
             return out
         if isinstance(expr, sp.Pow):
             base, exp = expr.args
-            self.dimensionless(exp, f"the exponent `{exp}`")
+            if not exp.is_Number:  # a number is dimensionless: no message to format (x**2 in every H)
+                self.dimensionless(exp, f"the exponent `{exp}`")
             db = self.dim(base)
             if db is None:
                 return None
