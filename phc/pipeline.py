@@ -283,9 +283,17 @@ def describe(name: str, dae: Dae, module: ModuleType, scene: Optional[Scene] = N
         initial.append(Initial(iv.name, value, bool(iv.guess), Place.of(iv.span), _parameters_in(iv.expr, symbols)))
     topology = dae.topology
     outputs = tuple(module.OUTPUTS)
+    places: dict = {}  # id(span) -> (span, its Place): a mesh's rows share one span
+
+    def place(span) -> Optional[Place]:
+        hit = places.get(id(span))
+        if hit is None:
+            hit = places[id(span)] = (span, Place.of(span))  # the span kept: its id stays its own
+        return hit[1]
+
     return ModelDescription(
         name=name, model=dae.name, n_states=dae.n_states - 1, options=dae.options, units=dict(dae.units or {}),
-        equations=tuple(Labelled(eq.label, eq.component, Place.of(eq.span)) for eq in dae.equations),
+        equations=tuple(Labelled(eq.label, eq.component, place(eq.span)) for eq in dae.equations),
         invariants=tuple(Labelled(x.label, x.component, Place.of(x.span)) for x in dae.invariants),
         velocity_invariants=tuple(Labelled(x.label, x.component, Place.of(x.span)) for x in dae.velocity_invariants),
         initial=tuple(initial), outputs=outputs, output_spans=_output_spans(scene, dae, outputs),

@@ -223,7 +223,10 @@ def lower_residual(dae: Dae) -> ResidualIR:
                 entries.setdefault((i, col_of_y[s]), [0, 0])[0] = budget.drop_deltas(derivative(s))
             elif s in col_of_yp:
                 entries.setdefault((i, col_of_yp[s]), [0, 0])[1] = budget.drop_deltas(derivative(s))
-    raw_terms = []
+    # The entries of the linear blocks (most of a mesh's Jacobian) stay arrays: each entry
+    # (i, j) is the code j·m + i, so the sorted codes are the CSC order of (row, col) pairs.
+    m_rows = max(len(dae.equations), 1)
+    raw_terms, codes = [], []
     for block in dae.linear_blocks:
         rows = np.asarray(block.rows, dtype=np.int64)
         for term in block.terms:
@@ -232,28 +235,29 @@ def lower_residual(dae: Dae) -> ResidualIR:
             A.sort_indices()
             cols = np.array([col_of_y[sym] for sym in term.symbols], dtype=np.int64)
             coo = A.tocoo()  # same entry order as A.data for a canonical CSR
-            gr, gc = rows[coo.row], cols[coo.col]
-            for i, j in zip(gr.tolist(), gc.tolist()):
-                entries.setdefault((i, j), [0, 0])
-            raw_terms.append((term, A, rows, cols, gr, gc))
+            code = cols[coo.col] * m_rows + rows[coo.row]
+            codes.append(code)
+            raw_terms.append((term, A, rows, cols, code))
     # The energy accumulator row Ė − P_ports − P_diss depends on every state of a
     # quadratic dissipation form (a dense row, one per model).
     energy_row = next(i for i, eq in enumerate(dae.equations) if eq.kind == "energy")
     for form in dae.quadratic_dissipation:
         for sym in form.symbols:
             entries.setdefault((energy_row, col_of_y[sym]), [0, 0])
-    keys = sorted(entries, key=lambda ij: (ij[1], ij[0]))
-    position = {k: n for n, k in enumerate(keys)}
+    symbolic = np.array([j * m_rows + i for i, j in entries], dtype=np.int64)
+    keys = np.unique(np.concatenate([symbolic, *codes]))  # sorted by (column, row)
     linear_terms = tuple(
-        LinearTermIR(term.coeff, A, rows, cols, term.derivative,
-                     np.array([position[(i, j)] for i, j in zip(gr.tolist(), gc.tolist())], dtype=np.int64))
-        for term, A, rows, cols, gr, gc in raw_terms)
+        LinearTermIR(term.coeff, A, rows, cols, term.derivative, np.searchsorted(keys, code).astype(np.int64))
+        for term, A, rows, cols, code in raw_terms)
+    jac_dy, jac_dyp = [sp.S.Zero] * len(keys), [sp.S.Zero] * len(keys)  # an entry only a block fills: 0
+    for k, (dy, dyp) in zip(np.searchsorted(keys, symbolic).tolist(), entries.values()):
+        jac_dy[k], jac_dyp[k] = _sympy_zero(dy), _sympy_zero(dyp)
 
     def quadratic(forms, with_pos=False):
         out = []
         for f in forms:
             cols = np.array([col_of_y[sym] for sym in f.symbols], dtype=np.int64)
-            pos = (np.array([position[(energy_row, int(c))] for c in cols], dtype=np.int64) if with_pos else None)
+            pos = np.searchsorted(keys, cols * m_rows + energy_row).astype(np.int64) if with_pos else None
             out.append(QuadraticIR(f.coeff, sps.csr_matrix(f.matrix), cols, pos))
         return tuple(out)
 
@@ -273,10 +277,10 @@ def lower_residual(dae: Dae) -> ResidualIR:
         derived=(tuple((i, p.expr) for i, p in enumerate(params) if p.expr is not None)
                  + tuple((len(params) + k, sp.Integer(0)) for k in range(len(modes)))),
         residual=tuple(rows_expr),
-        jac_rows=tuple(k[0] for k in keys),
-        jac_cols=tuple(k[1] for k in keys),
-        jac_dy=tuple(_sympy_zero(entries[k][0]) for k in keys),
-        jac_dyp=tuple(_sympy_zero(entries[k][1]) for k in keys),
+        jac_rows=tuple((keys % m_rows).tolist()),
+        jac_cols=tuple((keys // m_rows).tolist()),
+        jac_dy=tuple(jac_dy),
+        jac_dyp=tuple(jac_dyp),
         hamiltonian=plain(dae.hamiltonian),
         port_power=plain(dae.port_power),
         dissipation=plain(dae.dissipation),

@@ -191,6 +191,8 @@ def _set_valued(rows, kinds, moving: set):
     (atom, defining row, {row: (a, b)})."""
     found = {}
     for i, row in enumerate(rows):
+        if row is sp.S.Zero:
+            continue  # a row of a linear block (most rows of a mesh)
         for atom in row.atoms(sp.sign):
             if atom.args[0].free_symbols & moving:
                 found.setdefault(atom, []).append(i)
@@ -247,7 +249,8 @@ def switching(rows, kinds, labels, y_symbols, yp_symbols, mode_symbol) -> Switch
             rows[i] = sp.Piecewise((stuck, sp.Gt(K, 0)), (rows[i], True))
     expanded = []
     for i, row in enumerate(rows):
-        expanded.append(_expand_nonsmooth(row, builder.labels) if row.has(*_NONSMOOTH) else row)
+        expanded.append(_expand_nonsmooth(row, builder.labels) if row is not sp.S.Zero and row.has(*_NONSMOOTH)
+                        else row)
     new_rows = []
     for row, label in zip(expanded, labels):
         builder.equation = label

@@ -92,6 +92,15 @@ class _Printer(PythonCodePrinter):
         return f"_table_slope(_TABLE{k}_T, _TABLE{k}_V, _TABLE{k}_KIND, {self._print(expr.args[1])})"
 
 
+def _nonzero(e) -> bool:
+    """``e != 0``, without sympy's comparison for its zero (most rows and Jacobian entries of a
+    mesh, which its linear blocks hold)."""
+    return e is not sp.S.Zero and e != 0
+
+
+_NOT_IDENTIFIER = re.compile(r"[^A-Za-z0-9_]")
+
+
 def _identifier(prefix: str, name: str, taken: set) -> str:
     """A Python identifier for a model name: ``prefix`` + the name with every character
     outside ``[A-Za-z0-9_]`` replaced by ``_``, made unique within ``taken``.
@@ -100,7 +109,7 @@ def _identifier(prefix: str, name: str, taken: set) -> str:
     the generated code uses, so no user name (``N``, ``H``, ``abs``, ``key``, ``P_ports``...)
     can shadow one.
     """
-    base = prefix + (re.sub(r"[^A-Za-z0-9_]", "_", name.replace("[", "_").replace("]", "")).strip("_") or "v")
+    base = prefix + (_NOT_IDENTIFIER.sub("_", name.replace("[", "_").replace("]", "")).strip("_") or "v")
     assert base.isidentifier() and not keyword.iskeyword(base)
     ident, k = base, 1
     while ident in taken:
@@ -311,6 +320,7 @@ class ModulePrinter:
             self.names[s] = ident = _identifier("p_", name, taken)
             self.unpack_p[s] = f"{ident} = p[{j}]"
         self.printer = _Printer(self.names)
+        self._unpack_index: dict = {}  # "y"/"yp"/"p" -> (symbol -> position, lines) of the tables above
         self.accumulate: set = set()  # targets that add to a precomputed value
         self.bulk = False
         """Unpack y, yp and p with one ``tolist()`` (the functions called in every step)."""
@@ -469,13 +479,25 @@ class ModulePrinter:
         lines = []
         bulk = self.bulk and not any(_complex_prone(e) for e in printed if isinstance(e, sp.Basic))
         for name, table in (("y", self.unpack_y), ("yp", self.unpack_yp), ("p", self.unpack_p)):
-            taken = [line for s, line in table.items() if s in used]
+            taken = self._unpack_lines(name, table, used)
             if bulk and taken and BULK_SHARE * len(taken) >= len(table):
                 # the values as Python floats: arithmetic on them costs a third of NumPy scalars'
                 lines.append(f"_{name} = _read({name})")
                 taken = [line.replace(f" = {name}[", f" = _{name}[", 1) for line in taken]
             lines += taken
         return lines + statements
+
+    def _unpack_lines(self, name: str, table: dict, used: set) -> list[str]:
+        """The lines of `table` (symbol -> unpacking line) whose symbols are in `used`, in the
+        table's order. Walks `used` when it is the smaller (a mesh's functions use a few of its
+        many thousand variables: no pass over every variable for each function)."""
+        if len(used) >= len(table):
+            return [line for s, line in table.items() if s in used]
+        index = self._unpack_index.get(name)
+        if index is None or len(index[1]) != len(table):
+            index = self._unpack_index[name] = ({s: k for k, s in enumerate(table)}, list(table.values()))
+        slot, lines = index
+        return [lines[k] for k in sorted(slot[s] for s in used if s in slot)]
 
     def _function(self, signature: str, doc: str, exprs, targets, prologue=(), epilogue=()) -> str:
         body = list(prologue) + self._body(exprs, targets) + list(epilogue)
@@ -581,7 +603,7 @@ class ModulePrinter:
                          "p[list(BASE_PARAMETERS)] = base"]
         for i, expr in ir.derived:
             used = expr.free_symbols
-            derived_lines += [line for s, line in self.unpack_p.items() if s in used]
+            derived_lines += self._unpack_lines("p", self.unpack_p, used)
             derived_lines.append(f"p[{i}] = {self.printer.doprint(expr)}")
         derived_lines.append("return p")
         parts.append("def full_parameters(base=None):\n"
@@ -599,7 +621,7 @@ class ModulePrinter:
         qd_jac = [f"out[_QD{k}_POS] -= 2.0 * _qQD{k} * (_QD{k} @ y[_QD{k}_COLS])" for k in range(len(qd_coeffs))]
         self.bulk = self.bulk_unpack
         if lin or qd_coeffs:
-            rows = [(i, e) for i, e in enumerate(ir.residual) if e != 0]
+            rows = [(i, e) for i, e in enumerate(ir.residual) if _nonzero(e)]
             lin_lines = (["_AY, _AYP, _JY, _JYP = _linear(p)",
                           "if _AY is not None:", "    _matvec_add(_AY, y, out)",
                           "if _AYP is not None:", "    _matvec_add(_AYP, yp, out)"] if lin else [])
@@ -612,16 +634,16 @@ class ModulePrinter:
                 "residual(t, y, yp, p, out)", "Residual F(t, y, yp, p) written into `out`.",
                 ir.residual, [f"out[{i}]" for i in range(len(ir.residual))]))
         dt_rows = [(i, drop_deltas(sp.diff(e, T))) for i, e in enumerate(ir.residual)
-               if e != 0 and e.has(T)]  # most rows of a mesh are 0 (linear blocks): no diff
-        dt_rows = [(i, e) for i, e in dt_rows if e != 0]
+               if _nonzero(e) and e.has(T)]  # most rows of a mesh are 0 (linear blocks): no diff
+        dt_rows = [(i, e) for i, e in dt_rows if _nonzero(e)]
         parts.append(self._function(
             "residual_t(t, y, yp, p, out)", "Explicit time derivative dF/dt (consistent initialization).",
             [e for _, e in dt_rows], [f"out[{i}]" for i, _ in dt_rows], prologue=["out[:] = 0.0"]))
-        jac = [dy + sp.Symbol("cj") * dyp if dyp != 0 else dy for dy, dyp in zip(ir.jac_dy, ir.jac_dyp)]
+        jac = [dy + sp.Symbol("cj") * dyp if _nonzero(dyp) else dy for dy, dyp in zip(ir.jac_dy, ir.jac_dyp)]
         self.names[sp.Symbol("cj")] = "cj"
         jdoc = "Data of dF/dy + cj*dF/dyp in CSC order of (JAC_ROWS, JAC_COLS), written into `out`."
         if lin or qd_coeffs:
-            nz = [(k, e) for k, e in enumerate(jac) if e != 0]
+            nz = [(k, e) for k, e in enumerate(jac) if _nonzero(e)]
             prologue = (["_AY, _AYP, _JY, _JYP = _linear(p)", "out[:] = _JY", "_axpy(cj, _JYP, out)"] if lin
                         else ["out[:] = 0.0"])
             self.accumulate = {f"out[{k}]" for k, _ in nz}
