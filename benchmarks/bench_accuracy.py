@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import phc  # noqa: E402
-from phc.accuracy import relative_output_errors  # noqa: E402
+from phc.study.accuracy import relative_output_errors  # noqa: E402
 
 
 

@@ -20,7 +20,7 @@ functions is not what is measured here), each with the stored energy ``energy: H
 time in CPU seconds (the fair figure on a shared machine) and wall seconds (without the
 compiled-equation certificate, which is not what is measured here), the generated module's
 size in bytes, consistent initialization at t₀, ten midpoint steps, the process's peak
-resident memory and phc's own estimate of the compile memory (:mod:`phc.budget`), which
+resident memory and phc's own estimate of the compile memory (:mod:`phc.frontend.budget`), which
 must stay above it; then the log–log slope of compile CPU time from 10³ elements to the
 largest size (target ≤ 1.15). A size the memory budget refuses is a row saying so. Start-up (imports, the unit registry:
 a 2-element model compiled first in the same process) is a column of its own.
@@ -138,7 +138,7 @@ def _large_model(kind: str, n: int) -> str:
 def measure_large(kind: str, n: int) -> dict:
     """One size of `kind` in this process: compile (CPU and wall), the generated module's
     size, consistent initialization, ten midpoint steps, peak memory and phc's estimate."""
-    from phc import budget
+    from phc.frontend import budget
     from phc.simulation.initial import consistent_initial_conditions
     from phc.spec.components import EulerBernoulliBeamSpec, StringSpec
 
@@ -203,7 +203,7 @@ def large_table(rows) -> list[str]:
     lines = ["| model | elements | unknowns | Jacobian nnz | start-up CPU [s] | compile CPU [s] | compile wall [s] "
              "| module [KiB] "
              f"| consistent init [s] | {STRING_STEPS} midpoint steps [s] | peak memory [MiB] "
-             "| phc.budget estimate [MiB] |",
+             "| phc.frontend.budget estimate [MiB] |",
              "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         if "error" in r:

@@ -7,7 +7,7 @@ Each scene of benchmarks/corpus/ runs a shipped model (models/*.yaml) for a span
 seconds, sweeps IDA over six tolerances (1e-3 … 1e-8, atol = rtol/100) and the fixed-step
 `midpoint`, `discrete_gradient` and `midpoint4` over five steps — and, beside them, scipy's
 Radau, BDF and DOP853 over the same tolerances on the ODE form of the same residual
-(:mod:`phc.ode_form`; a higher-index DAE has none, and its rows say so) — and measures the
+(:mod:`phc.study.ode_form`; a higher-index DAE has none, and its rows say so) — and measures the
 error of its outputs against
 
 * a **closed form** where the model has one (the scene's ``reference:``: the mass–spring–
@@ -15,7 +15,7 @@ error of its outputs against
 * else a **reference run** — IDA at rtol 1e-10 (atol 1e-12, BDF orders up to 5) —
   **cross-checked** by a second method, `midpoint4` at the finest swept step / 16: the
   report gives their difference, below which an error is not resolved
-  (:func:`phc.bench.run_bench`, ``cross_check``); for the string the other way round
+  (:func:`phc.study.bench.run_bench`, ``cross_check``); for the string the other way round
   (:data:`REFERENCE`).
 
 It prints, for the record (benchmarks/record.py), a summary per model — per solver the least
@@ -42,8 +42,8 @@ sys.path.insert(0, str(ROOT))
 # the scenes here run the models under models/ (two directories up): allow reading them
 os.environ["PHC_ALLOW_PATH"] = os.pathsep.join(filter(None, [os.environ.get("PHC_ALLOW_PATH"), str(ROOT / "models")]))
 
-from phc.bench import run_bench, scipy_solver  # noqa: E402
-from phc.ode_form import NOT_AN_ODE, SCIPY_METHODS  # noqa: E402
+from phc.study.bench import run_bench, scipy_solver  # noqa: E402
+from phc.study.ode_form import NOT_AN_ODE, SCIPY_METHODS  # noqa: E402
 
 CORPUS = ROOT / "benchmarks" / "corpus"
 PHC_SOLVERS = ["ida", "midpoint", "discrete_gradient", "midpoint4"]
@@ -133,7 +133,7 @@ def summary(reports) -> str:
     lines += ["", "## phc against scipy on the same residual", "",
               "scipy's Radau, BDF (both with the Jacobian ∂f/∂x from phc's compiled Jacobian) and DOP853 "
               "integrate the model's residual F(t, y, ẏ) = 0 as the ODE ẋ = f(t, x), the rates and algebraic "
-              "variables solved from F at each call (`phc.ode_form`); rtol as swept, atol = rtol/100, the same "
+              "variables solved from F at each call (`phc.study.ode_form`); rtol as swept, atol = rtol/100, the same "
               "references and CPU-time measure as phc's rows. Per model and relative error level: phc's fastest "
               "solver reaching it and scipy's fastest, with scipy's time over phc's (above 1: phc is faster). "
               "A constrained multibody model (or a string or beam whose fixed ends constrain the momenta) is "

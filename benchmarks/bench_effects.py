@@ -34,7 +34,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 import phc  # noqa: E402
-from phc.files import allow_paths  # noqa: E402
+from phc.frontend.files import allow_paths  # noqa: E402
 
 MODEL = ROOT / "models" / "flexible_slider_crank.yaml"
 STEP, T_END, N_OUT = 2.0e-5, 0.1, 201

@@ -13,7 +13,7 @@ Measured:
 * `phc --version`, `phc --help`;
 * `phc validate models/pendulum.yaml` with its result cached (a second run of the
   unchanged file) and without (``PHC_FRONT_END_CACHE=0``);
-* `phc simulate models/pendulum.yaml` with the cached front end (:mod:`phc.fastpath`, a
+* `phc simulate models/pendulum.yaml` with the cached front end (:mod:`phc.codegen.fastpath`, a
   second run of the unchanged model) and with it off (``PHC_FRONT_END_CACHE=0``: reading,
   elaboration, symbolic passes and certificate every time; the generated module and
   compiled code still come from their caches);

@@ -18,17 +18,17 @@ _API = {
     "build_dae": ("phc.pipeline", "build_dae"),
     "validate_file": ("phc.pipeline", "validate_file"),
     "compile_model": ("phc.pipeline", "compile_model"),
-    "CompiledModel": ("phc.compiled", "CompiledModel"),
+    "CompiledModel": ("phc.codegen.compiled", "CompiledModel"),
     # certify
     "certify_model": ("phc.checks", "certify_model"),
     "ModelCertificate": ("phc.checks", "ModelCertificate"),
     # simulate
     "simulate": ("phc.simulation", "simulate"),
     "SimResult": ("phc.simulation", "SimResult"),
-    "estimate_errors": ("phc.accuracy", "estimate_errors"),
+    "estimate_errors": ("phc.study.accuracy", "estimate_errors"),
     # linearize
-    "linearize_model": ("phc.linearize", "linearize_model"),
-    "Linearization": ("phc.linearize", "Linearization"),
+    "linearize_model": ("phc.study.linearize", "linearize_model"),
+    "Linearization": ("phc.study.linearize", "Linearization"),
     # errors and warnings
     "PhcError": ("phc.errors", "PhcError"),
     "PhcWarning": ("phc.errors", "PhcWarning"),

@@ -3,7 +3,7 @@
 Every problem in a user's model is a :class:`Diagnostic` rendered as a single
 line ``file:line:col: [warning: ][path: ]message. hint: ... [CODE]``.
 :func:`from_pydantic` turns a :class:`pydantic.ValidationError` into such
-diagnostics, located through a :class:`~phc.source.SourceMap`.
+diagnostics, located through a :class:`~phc.frontend.source.SourceMap`.
 """
 
 from __future__ import annotations
@@ -19,10 +19,10 @@ from typing import TYPE_CHECKING, Any, Callable, Literal, Optional, Sequence
 import pydantic
 
 from phc.inert import _one_line, printable
-from phc.source_map import path_text
+from phc.frontend.source_map import path_text
 
-if TYPE_CHECKING:  # runtime import would be circular (phc.source imports this module)
-    from phc.source import SourceMap, SourceSpan
+if TYPE_CHECKING:  # runtime import would be circular (phc.frontend.source imports this module)
+    from phc.frontend.source import SourceMap, SourceSpan
 
 __all__ = [
     "ERROR_CODES",

@@ -21,7 +21,7 @@ Everything phc raises on purpose
     ``CodegenError``
         the code generator met something it cannot print (a phc bug, never a user mistake).
     ``RegistryError``
-        a component type :mod:`phc.registry` refuses (a field missing or wrong, a name taken).
+        a component type :mod:`phc.library.registry` refuses (a field missing or wrong, a name taken).
 
 What the user wrote
     ``ExpressionError`` (a malformed or forbidden expression), ``SpecError`` (a sweep
@@ -64,14 +64,14 @@ Private control flow, defined where it is used
     These never leave the module (or the pass) that raises them, so they are not
     ``PhcError``: ``phc.cli.report._Exit`` (leave a command with an exit code),
     ``phc.checks.compiled._NotNumeric`` (a node the numpy tree walk leaves to sympy),
-    ``phc.initial_fields._FieldError`` and its ``_Silent`` (a field problem turned into a
+    ``phc.ir.initial_fields._FieldError`` and its ``_Silent`` (a field problem turned into a
     diagnostic by the pass), ``phc.codegen.numba_cache.NotInCache`` (the full compile path
-    has to run), ``phc.source._NotRegular`` (an ``OSError``: a model path that is not a
+    has to run), ``phc.frontend.source._NotRegular`` (an ``OSError``: a model path that is not a
     regular file), ``phc.simulation.ida._Stop`` (phc's step hook ends an IDA run from inside
     IDA's loop; the run returns its message), ``phc.simulation.order.Switch`` (the step hook
     ends an IDA run to go on at another maximum BDF order; the IDA driver catches it),
     ``phc.simulation.events._ContactRest`` (a contact comes to rest: the switched driver
-    stops the run with its message), ``phc.ode_form._Stop`` (a scipy run of the ODE form
+    stops the run with its message), ``phc.study.ode_form._Stop`` (a scipy run of the ODE form
     ends early; its row keeps the message). :data:`PRIVATE_CONTROL_FLOW` names them; ``tests/test_errors.py`` walks
     phc's modules and fails on any other exception defined outside this module.
 """
@@ -84,7 +84,7 @@ from typing import TYPE_CHECKING, Optional
 
 if TYPE_CHECKING:  # pragma: no cover
     from phc.simulation.result import SimResult
-    from phc.source import SourceSpan
+    from phc.frontend.source import SourceSpan
 
 PLOT_INSTALL_HINT = 'pip install "port-hamiltonian-compiler[plot]"'
 
@@ -115,7 +115,7 @@ class SimulationSetupError(PhcError, ValueError):
 
 class NotAnODE(SimulationSetupError):
     """The model has no explicit form ``ẋ = f(t, x)`` for scipy's ODE solvers
-    (:mod:`phc.ode_form`: constraints, a singular ∂F/∂ẋ, state events); the message says why."""
+    (:mod:`phc.study.ode_form`: constraints, a singular ∂F/∂ẋ, state events); the message says why."""
 
 
 class CodegenError(PhcError):
@@ -245,7 +245,7 @@ class PlotUnavailable(SimulationSetupError):
 
 
 class NothingToAnimate(SimulationSetupError):
-    """The model has no planar mechanism that :func:`phc.viz.animate` knows how to draw."""
+    """The model has no planar mechanism that :func:`phc.study.viz.animate` knows how to draw."""
 
 
 class ModelEvaluationError(PhcError):
@@ -324,14 +324,14 @@ class CacheWarning(PhcWarning):
 
 
 class RegistryError(PhcError):
-    """A component type that cannot be registered (:mod:`phc.registry`: a field missing or
+    """A component type that cannot be registered (:mod:`phc.library.registry`: a field missing or
     wrong, a name taken)."""
 
 
-PRIVATE_CONTROL_FLOW = ("phc.cli.report._Exit", "phc.lowering.Unshareable", "phc.checks.compiled._NotNumeric", "phc.initial_fields._FieldError",
-                        "phc.initial_fields._Silent", "phc.codegen.numba_cache.NotInCache",
-                        "phc.source._NotRegular", "phc.simulation.ida._Stop", "phc.simulation.order.Switch",
-                        "phc.simulation.events._ContactRest", "phc.ode_form._Stop")
+PRIVATE_CONTROL_FLOW = ("phc.cli.report._Exit", "phc.frontend.lowering.Unshareable", "phc.checks.compiled._NotNumeric", "phc.ir.initial_fields._FieldError",
+                        "phc.ir.initial_fields._Silent", "phc.codegen.numba_cache.NotInCache",
+                        "phc.frontend.source._NotRegular", "phc.simulation.ida._Stop", "phc.simulation.order.Switch",
+                        "phc.simulation.events._ContactRest", "phc.study.ode_form._Stop")
 """Exceptions that never leave the code that raises them, defined there (qualified names)."""
 
 __all__ = ["BackendMismatch", "BackendUnavailable", "BackendUnsupported", "CacheWarning", "CodegenError",

@@ -19,7 +19,7 @@ nothing of phc's, so that the cached front end of the command line stays lean.
 
 JSON and SARIF need none of this: ``json.dumps`` writes control characters as ``\\u001b``
 escapes, and SARIF's URIs are percent-encoded. The GitHub format escapes ``%``, CR, LF
-(and ``:`` and ``,`` in properties) on top, as GitHub documents (:mod:`phc.report_formats`).
+(and ``:`` and ``,`` in properties) on top, as GitHub documents (:mod:`phc.cli.report_formats`).
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ SOLVER_NAMES = ("ida", "midpoint", "discrete_gradient", "midpoint4")
 """The integrators, in the order ``--help`` lists them (the model schema's `solver`)."""
 
 PEER_SOLVER_NAMES = ("scipy_Radau", "scipy_BDF", "scipy_DOP853")
-"""scipy's methods given the same residual (:mod:`phc.ode_form`), which ``phc bench`` sweeps
+"""scipy's methods given the same residual (:mod:`phc.study.ode_form`), which ``phc bench`` sweeps
 beside phc's solvers when asked for (``--solver``, a scene's ``bench.solvers``)."""
 
 RUN_LIMITS: dict[str, tuple[str, float, float]] = {

@@ -4,23 +4,23 @@ to the next (the module of each pass states its input and output types at its to
 =============  ==========================================  ===================================
 pass           input → output                              module
 =============  ==========================================  ===================================
-load           file path → Scene or model path              :mod:`phc.scene`, :mod:`phc.source`
-elaborate      path, Scene → Elaboration                    :mod:`phc.elaborate`, :mod:`phc.library`
-interconnect   Elaboration → Interconnection (one graph)    :mod:`phc.interconnect`
-assemble       Elaboration, Interconnection → Dae           :mod:`phc.assemble`
+load           file path → Scene or model path              :mod:`phc.frontend.scene`, :mod:`phc.frontend.source`
+elaborate      path, Scene → Elaboration                    :mod:`phc.frontend.elaborate`, :mod:`phc.library`
+interconnect   Elaboration → Interconnection (one graph)    :mod:`phc.ir.interconnect`
+assemble       Elaboration, Interconnection → Dae           :mod:`phc.ir.assemble`
 analyse        Dae → diagnostics (balance, matching)        :mod:`phc.analysis.matching`
 check rows     Dae → diagnostics (hand-written rows)        :mod:`phc.checks.rows`
 lower          Dae → ResidualIR (Jacobian, sparsity)        :mod:`phc.codegen.lower`
 print          ResidualIR → Python source                   :mod:`phc.codegen.printer`
 load           source → module (cached by content hash)     :mod:`phc.codegen.load`
-describe       Dae, module → ModelDescription               :mod:`phc.description`
+describe       Dae, module → ModelDescription               :mod:`phc.codegen.description`
 certify        CompiledModel → CompiledCertificate          :mod:`phc.checks.compiled`
 =============  ==========================================  ===================================
 
-The result is a :class:`~phc.compiled.CompiledModel`: the frozen, JSON-serializable
-:class:`~phc.description.ModelDescription` (what a run needs: names, labels and their
+The result is a :class:`~phc.codegen.compiled.CompiledModel`: the frozen, JSON-serializable
+:class:`~phc.codegen.description.ModelDescription` (what a run needs: names, labels and their
 places, options, units, initial values, outputs, the certificate's verdict) beside the
-generated module, and the :class:`~phc.compiled.RunCache` of what its runs remember.
+generated module, and the :class:`~phc.codegen.compiled.RunCache` of what its runs remember.
 
 ``phc check`` adds the structural certificate of the assembled model
 (:mod:`phc.checks.certify`: Dirac structures, couplings, each component's rows against
@@ -40,15 +40,15 @@ from phc.codegen import backends
 from phc.codegen.load import load_generated
 from phc.codegen.lower import lower_residual
 from phc.codegen.printer import print_module
-from phc.compiled import CompiledModel, RunCache
-from phc.dae import Dae
-from phc.description import Connection, Initial, Labelled, ModelDescription, Place, SceneRef, Verdict
+from phc.codegen.compiled import CompiledModel, RunCache
+from phc.ir.dae import Dae
+from phc.codegen.description import Connection, Initial, Labelled, ModelDescription, Place, SceneRef, Verdict
 from phc.diagnostics import DiagnosticList
-from phc.assemble import assemble
-from phc.elaborate import elaborate
-from phc.interconnect import interconnect
+from phc.ir.assemble import assemble
+from phc.frontend.elaborate import elaborate
+from phc.ir.interconnect import interconnect
 from phc.errors import ModelError
-from phc.scene import Scene, is_scene_file, load_scene
+from phc.frontend.scene import Scene, is_scene_file, load_scene
 
 
 FAST_SAMPLES = 1
@@ -64,7 +64,7 @@ def elaborate_file(path: str | os.PathLike, scene: Optional[Scene] = None) -> tu
     """The passes load → elaborate → interconnect → assemble for a model file, or a scene
     file (its model with the scene applied). Returns ``(dae, diagnostics)``; `dae` is None
     when any error was found (wiring problems are reported even when components failed).
-    A part (`kind: part`, :mod:`phc.parts`) is refused: it is not a complete model."""
+    A part (`kind: part`, :mod:`phc.frontend.parts`) is refused: it is not a complete model."""
     dae, diags, _, _ = _elaborate_file(path, scene)
     return dae, diags
 
@@ -74,7 +74,7 @@ def _elaborate_file(path, scene=None, allow_part: bool = False
     """:func:`elaborate_file`, also returning the file's kind (``model``, ``part``, or
     ``scene``) and the scene applied (None for a model); with `allow_part` a part is
     elaborated with its exposed ports free."""
-    from phc.parts import part_diagnostics
+    from phc.frontend.parts import part_diagnostics
 
     kind = "model"
     if scene is None and is_scene_file(path):
@@ -115,7 +115,7 @@ def build_dae(path: str | os.PathLike, scene: Optional[Scene] = None) -> tuple[O
 
 def validate_file(path: str | os.PathLike) -> tuple[Optional[Dae], DiagnosticList, str]:
     """What ``phc validate`` checks of one file: a model or scene as :func:`build_dae` does,
-    a part (`kind: part`, see :mod:`phc.parts`) without its structural balance, which
+    a part (`kind: part`, see :mod:`phc.frontend.parts`) without its structural balance, which
     depends on what the model using it connects to its exposed ports.
 
     Returns
@@ -139,7 +139,7 @@ def _coarse_dae(path, scene: Optional[Scene], mesh: dict[str, int]) -> Optional[
     """The model assembled again with `mesh` overriding element counts (the coarse mesh on
     which :func:`phc.checks.rows.check_hand_written` compares a large component), or None
     when that variant does not assemble."""
-    from phc.scene import scene_variant
+    from phc.frontend.scene import scene_variant
 
     try:
         variant = scene_variant(scene if scene is not None else path, mesh=mesh)
@@ -167,7 +167,7 @@ def compile_model(path: str | os.PathLike, scene: Optional[Scene] = None, *, cer
     residual module. `scene` applies an in-memory scene instead (`path` is then unused).
 
     With `certify` (the default) the rows that lowerers write themselves (rather than
-    derive from the component's description; see :data:`phc.registry.ROWS`) are compared
+    derive from the component's description; see :data:`phc.library.registry.ROWS`) are compared
     with the description (:func:`phc.checks.rows.check_hand_written`; a mismatch is a fault
     in phc, ``PHC-E452`` at the component), and the compiled equations are certified before
     they are returned (:func:`phc.checks.compiled.certify_compiled`: the power balance at
@@ -254,7 +254,7 @@ def _compile_assembled(path, scene: Optional[Scene], dae: Dae, diags: Diagnostic
 
 
 def describe(name: str, dae: Dae, module: ModuleType, scene: Optional[Scene] = None) -> ModelDescription:
-    """The description of a compiled model (:mod:`phc.description`): what a run needs of
+    """The description of a compiled model (:mod:`phc.codegen.description`): what a run needs of
     `dae` besides the generated `module`. Initial values written in parameters are
     evaluated at the default parameters (as :func:`phc.simulation.initial_values` does), and
     the places of the outputs are read from the scene or model file."""
@@ -274,7 +274,7 @@ def describe(name: str, dae: Dae, module: ModuleType, scene: Optional[Scene] = N
             p = parameter_vector(module)
             slot = {pname: i for i, pname in enumerate(module.PARAMETERS)}  # not .index per parameter
             by_name = {par.symbol: sp.Float(float(p[slot[par.name]])) for par in dae.parameters}
-        from phc.initial_fields import evaluate
+        from phc.ir.initial_fields import evaluate
 
         try:
             value = float(evaluate(iv.expr, by_name, memo))
@@ -341,7 +341,7 @@ def _output_spans(scene: Optional[Scene], dae: Dae, outputs: tuple[str, ...]) ->
         else:
             path = dae.sources[-1] if dae.sources else None
         if rest and path is not None:
-            from phc.source import _read_parsed
+            from phc.frontend.source import _read_parsed
 
             data, smap, _ = _read_parsed(path)  # read only (parsed when the model was read)
             written = ((data or {}).get("simulation") or {}).get("outputs", {}) if isinstance(data, dict) else {}

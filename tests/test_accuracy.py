@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import phc
-from phc.accuracy import estimate_errors
+from phc.study.accuracy import estimate_errors
 from phc.cli import main
 
 MODELS = Path(__file__).resolve().parents[1] / "models"
@@ -99,7 +99,7 @@ def test_temporal_estimate_brackets_the_small_angle_pendulum(tmp_path, kwargs):
 def test_relative_output_errors_against_a_reference():
     from types import SimpleNamespace
 
-    from phc.accuracy import relative_output_errors
+    from phc.study.accuracy import relative_output_errors
 
     ref = SimpleNamespace(outputs={"x": np.array([0.0, 2.0, -4.0]), "tiny": np.array([1e-17, -2e-17, 0.0]),
                                    "field": np.zeros((3, 2))})

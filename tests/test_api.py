@@ -58,7 +58,7 @@ def test_the_command_line_imports_phc_names_only_from_the_public_api():
                 is_module = importlib.util.find_spec(f"phc.{alias.name}") is not None
                 assert alias.name in phc.__all__ or is_module, alias.name
         if isinstance(node, ast.ImportFrom) and node.module in ("phc.pipeline", "phc.simulation", "phc.errors",
-                                                                "phc.accuracy", "phc.checks"):
+                                                                "phc.study.accuracy", "phc.checks"):
             names = [a.name for a in node.names]
             assert all(n not in phc.__all__ for n in names), f"{node.module}: {names} are public: use `from phc`"
 

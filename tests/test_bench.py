@@ -16,7 +16,7 @@ import pytest
 import yaml
 
 import phc
-from phc.bench import run_bench
+from phc.study.bench import run_bench
 
 ROOT = Path(__file__).resolve().parents[1]
 MSD = ROOT / "models" / "mass_spring_damper.yaml"
@@ -171,7 +171,7 @@ def test_mesh_sweep_against_the_finest_mesh(tmp_path):
 
 
 def test_parse_meshes_and_repeats(tmp_path):
-    from phc.bench import parse_meshes
+    from phc.study.bench import parse_meshes
     from phc.errors import SimulationSetupError
     assert parse_meshes(["rod=4,8", "beam=2", "rod=16"]) == {"rod": [4, 8, 16], "beam": [2]}
     for bad in ("rod", "rod=", "rod=a", "=4", "rod=0"):
@@ -234,7 +234,7 @@ def test_a_fixed_step_row_reports_the_step_taken(tmp_path):
 
 
 def _row(solver, *, rtol=None, step=None, steps=0, cpu=0.0, error=1.0):
-    from phc.bench import BenchRow
+    from phc.study.bench import BenchRow
 
     row = BenchRow(solver, {}, rtol=rtol, atol=None if rtol is None else rtol / 100, step=step, success=True,
                    steps=steps, cpu_time_s=cpu)
@@ -247,7 +247,7 @@ def test_the_work_check_flags_a_looser_setting_that_costs_more():
     """Issue 33: a looser tolerance is never slower. A looser rtol with more steps than a
     tighter one (beyond the noise factor) is flagged, also when the trap is not next to its
     neighbour; equal work within the noise is not; nor is a fixed step or another solver."""
-    from phc.bench import CPU_FLOOR_S, CPU_NOISE, STEPS_NOISE, work_flags
+    from phc.study.bench import CPU_FLOOR_S, CPU_NOISE, STEPS_NOISE, work_flags
 
     rows = [_row("ida", rtol=1e-4, steps=1500, cpu=0.10), _row("ida", rtol=1e-6, steps=1000, cpu=0.09),
             _row("ida", rtol=1e-8, steps=1300, cpu=0.12),
@@ -271,7 +271,7 @@ def test_the_work_check_flags_a_looser_setting_that_costs_more():
 
 
 def test_the_pareto_front():
-    from phc.bench import pareto_front
+    from phc.study.bench import pareto_front
 
     rows = [_row("ida", rtol=1e-4, cpu=1.0, error=1e-4), _row("ida", rtol=1e-6, cpu=2.0, error=1e-6),
             _row("midpoint", step=0.1, cpu=1.5, error=1e-3),   # slower and less accurate than the first

@@ -1,4 +1,4 @@
-"""Resource budget (phc.budget): cost estimated before the work, refused above a budget with
+"""Resource budget (phc.frontend.budget): cost estimated before the work, refused above a budget with
 a located error; symbolic differentiation and CSE bounded."""
 
 import json
@@ -11,7 +11,7 @@ import pytest
 import sympy as sp
 
 import phc
-from phc import budget
+from phc.frontend import budget
 from phc.cli import main
 from phc.errors import ModelError, SimulationSetupError
 from phc.pipeline import build_dae
@@ -119,7 +119,7 @@ def test_many_components_are_refused_before_anything_is_elaborated(tmp_path, mon
     """Issue 32 item 7: the memory estimate of a model of many components comes from counting
     them in the files (every copy of a nested file), before any component is lowered: not
     timed, elaboration is made to fail the test if it starts."""
-    from phc.elaborate import _Elaborator
+    from phc.frontend.elaborate import _Elaborator
 
     (tmp_path / "cell.yaml").write_text(_chain(50).replace("name: chain", "name: cell"))  # 101 components
     top = tmp_path / "top.yaml"
@@ -153,7 +153,7 @@ def test_the_early_count_is_the_elaborated_one(tmp_path):
     top = tmp_path / "top.yaml"
     top.write_text("format_version: 1\nname: top\ncomponents:\n  a: {type: model, file: cell.yaml}\n"
                    "  b: {type: model, file: cell.yaml}\n")
-    from phc.elaborate import elaborate
+    from phc.frontend.elaborate import elaborate
 
     elab, _ = elaborate(top)
     assert len(elab.components) == 2 * 7
@@ -267,12 +267,12 @@ def _costly_model(tmp_path, case):
 
 
 # `python -m phc ARGS` that records every symbolic derivative sympy is asked for: how many, and the
-# largest estimated work (phc.budget.derivative_work) of one; above DIFF_LIMIT it stops at once (exit 3)
+# largest estimated work (phc.frontend.budget.derivative_work) of one; above DIFF_LIMIT it stops at once (exit 3)
 # instead of letting sympy run for minutes. Written to the file named by the first argument.
 COUNTED_PHC = """
 import atexit, os, runpy, sys
 import sympy
-from phc import budget
+from phc.frontend import budget
 out, seen = sys.argv.pop(1), [0, 0]
 new = sympy.Derivative.__new__
 def counted(cls, expr, *variables, **kwargs):

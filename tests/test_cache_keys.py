@@ -1,6 +1,6 @@
 """A cache key is everything the result depends on (issue 32 item 1).
 
-The cached front end (:mod:`phc.fastpath`) keys a record on every file the compilation
+The cached front end (:mod:`phc.codegen.fastpath`) keys a record on every file the compilation
 read *or tried to read*, by the path as written and resolved with the symbolic links on
 the way; the signed compiled-function files (:mod:`phc.codegen.numba_cache`) are tied to
 their names; special files in the state and cache directories are refused without
@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from phc import fastpath
+from phc.codegen import fastpath
 from phc.cli import main
 from model_texts import GEAR_PART, USES_GEAR  # a nested gear stage and a model that uses it
 from time_limits import SUBPROCESS_TIMEOUT
@@ -169,7 +169,7 @@ def test_fifos_in_the_cache_are_refused_without_blocking(tmp_path):
     fifo = tmp_path / "cache-key"
     os.mkfifo(fifo, 0o600)
     code = ("import sys\nfrom phc.codegen.load import read_key\nfrom phc.codegen.numba_cache import _read_private\n"
-            "from phc.fastpath import _read_regular\n"
+            "from phc.codegen.fastpath import _read_regular\n"
             "print(read_key(sys.argv[1]), _read_private(sys.argv[1]), _read_regular(sys.argv[1], 100))\n")
     env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     try:

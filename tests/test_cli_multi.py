@@ -23,7 +23,7 @@ import pytest
 
 import phc
 from phc.cli import main
-from phc.report_formats import github_annotations
+from phc.cli.report_formats import github_annotations
 from model_texts import GEAR_PART, USES_GEAR  # a nested gear stage and a model that uses it
 
 REPO = Path(__file__).resolve().parents[1]
@@ -179,7 +179,7 @@ def test_github_annotations(tmp_path, capsys, monkeypatch):
 
 def test_github_annotations_escape_what_the_workflow_commands_parse():
     from phc.diagnostics import Diagnostic
-    from phc.source import SourceSpan
+    from phc.frontend.source import SourceSpan
 
     d = Diagnostic("PHC-W201", "50% done\nnext", span=SourceSpan("dir,a:b/x.yaml", 2, 3), severity="warning")
     (line,) = github_annotations([d])

@@ -32,7 +32,7 @@ import sympy as sp
 from sympy.core.cache import clear_cache
 
 import phc
-import phc.source
+import phc.frontend.source
 from phc.checks import certify_model
 from phc.codegen.lower import lower_residual
 from phc.codegen.printer import print_module
@@ -82,17 +82,17 @@ def _assert_linear(counts: dict, what: str) -> None:
 
 @pytest.fixture
 def parses(monkeypatch):
-    """Counts of :func:`phc.source.load_yaml` by file name, with the parsed files
-    :func:`phc.source.read_yaml_file` keeps emptied first."""
+    """Counts of :func:`phc.frontend.source.load_yaml` by file name, with the parsed files
+    :func:`phc.frontend.source.read_yaml_file` keeps emptied first."""
     counts: dict = {}
-    load = phc.source.load_yaml
+    load = phc.frontend.source.load_yaml
 
     def counting(text, file, **kwargs):
         counts[Path(file).name] = counts.get(Path(file).name, 0) + 1
         return load(text, file, **kwargs)
 
-    monkeypatch.setattr(phc.source, "_PARSED", {})
-    monkeypatch.setattr(phc.source, "load_yaml", counting)
+    monkeypatch.setattr(phc.frontend.source, "_PARSED", {})
+    monkeypatch.setattr(phc.frontend.source, "load_yaml", counting)
     return counts
 
 
@@ -126,18 +126,18 @@ def test_validate_parses_the_model_file_once(tmp_path, parses):
 
 def test_a_file_changed_on_disk_is_parsed_again(tmp_path, parses):
     path = _write(tmp_path, 1)
-    first, _, _ = phc.source.read_yaml_file(path)
+    first, _, _ = phc.frontend.source.read_yaml_file(path)
     path.write_text(damped_chain(2))
-    second, _, _ = phc.source.read_yaml_file(path)
+    second, _, _ = phc.frontend.source.read_yaml_file(path)
     assert parses == {path.name: 2}
     assert len(second["components"]) == len(first["components"]) + 3
 
 
 def test_each_reader_gets_its_own_data(tmp_path, parses):
     path = _write(tmp_path, 1)
-    first, smap, _ = phc.source.read_yaml_file(path)
+    first, smap, _ = phc.frontend.source.read_yaml_file(path)
     first["components"].clear()
-    again, smap_again, _ = phc.source.read_yaml_file(path)
+    again, smap_again, _ = phc.frontend.source.read_yaml_file(path)
     assert parses == {path.name: 1}
     assert "wall" in again["components"]  # not the data the first reader changed
     assert smap_again.locate(("components", "wall")) == smap.locate(("components", "wall"))
@@ -145,9 +145,9 @@ def test_each_reader_gets_its_own_data(tmp_path, parses):
 
 def test_the_same_text_under_another_name_reports_that_name(tmp_path, parses, monkeypatch):
     path = _write(tmp_path, 1)
-    _, smap, _ = phc.source.read_yaml_file(path)
+    _, smap, _ = phc.frontend.source.read_yaml_file(path)
     monkeypatch.chdir(tmp_path)
-    _, smap_here, _ = phc.source.read_yaml_file("./" + path.name)
+    _, smap_here, _ = phc.frontend.source.read_yaml_file("./" + path.name)
     assert parses == {path.name: 1}
     assert smap_here.locate(("components", "wall")).file == "./" + path.name
     assert smap.locate(("components", "wall")).file == str(path)

@@ -26,10 +26,10 @@ import sympy as sp
 import yaml
 
 import phc
-import phc.source
+import phc.frontend.source
 from phc.checks import rows as rows_module
 from phc.checks.certify import certify
-from phc.budget import derivative as _coefficient
+from phc.frontend.budget import derivative as _coefficient
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from bench_components import chain_yaml  # noqa: E402
@@ -330,19 +330,19 @@ def test_coefficient_is_the_expression_diff_gives():
 # ---------------------------------------------------------------------------------------
 # large files: libyaml's events, PyYAML's nodes
 
-libyaml = pytest.mark.skipif(not phc.source._LIBYAML, reason="PyYAML without libyaml")
+libyaml = pytest.mark.skipif(not phc.frontend.source._LIBYAML, reason="PyYAML without libyaml")
 
 
 def _big(text: str) -> str:
     """`text` followed by enough comment lines to take the fast path."""
     pad = "# " + "x" * 78 + "\n"
-    return text + pad * (phc.source.FAST_MIN_CHARS // len(pad) + 1)
+    return text + pad * (phc.frontend.source.FAST_MIN_CHARS // len(pad) + 1)
 
 
 def _both(text: str, monkeypatch):
-    fast = phc.source.load_yaml(text, "m.yaml")
-    monkeypatch.setattr(phc.source, "FAST_MIN_CHARS", 10 ** 12)
-    slow = phc.source.load_yaml(text, "m.yaml")
+    fast = phc.frontend.source.load_yaml(text, "m.yaml")
+    monkeypatch.setattr(phc.frontend.source, "FAST_MIN_CHARS", 10 ** 12)
+    slow = phc.frontend.source.load_yaml(text, "m.yaml")
     monkeypatch.undo()
     return fast, slow
 
@@ -371,7 +371,7 @@ def test_large_file_same_nodes_data_and_positions(tmp_path, monkeypatch):
             calls.append(1)
         return real(text, *rest)
 
-    monkeypatch.setattr(phc.source.yaml, "SafeLoader", counting)
+    monkeypatch.setattr(phc.frontend.source.yaml, "SafeLoader", counting)
     (d1, m1, g1), (d2, m2, g2) = _both(text, monkeypatch)
     assert calls == [1]  # the second parse only: the first was libyaml's
     assert g1 == g2 == [] and d1 == d2
@@ -412,13 +412,13 @@ def test_large_file_problems_are_reported_as_by_the_pure_python_parser(problem, 
 def test_without_libyaml_a_large_file_is_parsed_in_python_and_said_once(monkeypatch):
     import warnings
 
-    monkeypatch.setattr(phc.source, "_LIBYAML", False)
-    monkeypatch.setattr(phc.source, "_SLOW_SAID", False)
+    monkeypatch.setattr(phc.frontend.source, "_LIBYAML", False)
+    monkeypatch.setattr(phc.frontend.source, "_SLOW_SAID", False)
     text = _big("a: 1\n")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        first = phc.source.load_yaml(text, "m.yaml")
-        second = phc.source.load_yaml(text, "m.yaml")
+        first = phc.frontend.source.load_yaml(text, "m.yaml")
+        second = phc.frontend.source.load_yaml(text, "m.yaml")
     assert first[0] == second[0] == {"a": 1} and not first[2]
     said = [w for w in caught if issubclass(w.category, phc.PhcWarning)]
     assert len(said) == 1 and "libyaml" in str(said[0].message)
@@ -455,8 +455,8 @@ def _shared_and_alone(path, monkeypatch):
     shared lowerings, then (diagnostics, dump) with every component lowered by its lowerer."""
     import dataclasses
 
-    import phc.lowering as lowering_module
-    from phc.elaborate import elaborate
+    import phc.frontend.lowering as lowering_module
+    from phc.frontend.elaborate import elaborate
 
     counts = {"built": 0, "refused": 0}
     real = lowering_module._Template.build

@@ -1,4 +1,4 @@
-"""Tests of :func:`phc.interconnect.short_cycle_basis`, the loops `phc check` reports and
+"""Tests of :func:`phc.ir.interconnect.short_cycle_basis`, the loops `phc check` reports and
 classifies: a basis of the cycle space (checked here by an independent GF(2) rank over
 edge vectors), made of cycles of the graph, and short where short cycles exist (a grid's
 cells, the girth of a cubic graph)."""
@@ -9,7 +9,7 @@ import networkx as nx
 import numpy as np
 import pytest
 
-from phc.interconnect import short_cycle_basis
+from phc.ir.interconnect import short_cycle_basis
 from phc.checks import loops as loop_checks
 
 

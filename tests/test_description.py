@@ -1,6 +1,6 @@
-"""The compiled-model contract (phc.description, phc.compiled): a compiled model's
+"""The compiled-model contract (phc.codegen.description, phc.codegen.compiled): a compiled model's
 description round-trips through JSON, cannot be changed, and is all a run reads — a model
-loaded from it (the cached front end, phc.fastpath) runs bit for bit as the full path."""
+loaded from it (the cached front end, phc.codegen.fastpath) runs bit for bit as the full path."""
 
 from __future__ import annotations
 
@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 import phc
-from phc import fastpath
+from phc.codegen import fastpath
 from phc.cli import _written_options, build_parser
-from phc.compiled import CompiledModel, RunCache
-from phc.description import ModelDescription
+from phc.codegen.compiled import CompiledModel, RunCache
+from phc.codegen.description import ModelDescription
 
 REPO = Path(__file__).resolve().parents[1]
 PENDULUM = REPO / "models" / "pendulum.yaml"

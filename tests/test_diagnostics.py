@@ -17,7 +17,7 @@ from phc.diagnostics import (
     allowed_keys_from_model,
     from_pydantic,
 )
-from phc.source import SourceSpan, load_yaml
+from phc.frontend.source import SourceSpan, load_yaml
 
 LINE_RE = re.compile(r"^file\.yaml:\d+:\d+: ")
 

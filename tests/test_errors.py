@@ -4,15 +4,15 @@
 import pytest
 
 import phc
-from phc.budget import SymbolicBudgetError
+from phc.frontend.budget import SymbolicBudgetError
 from phc.cli import UsageError
-from phc.files import FileRefused
-from phc.inputs import TableError
+from phc.frontend.files import FileRefused
+from phc.frontend.inputs import TableError
 from phc.io import OutputPathError
 from phc.library.linear import NpzProblem
 from phc.simulation.guard import ModelEvaluationError
 from phc.spec.expressions import ExpressionError, parse_expression
-from phc.viz import PlotUnavailable
+from phc.study.viz import PlotUnavailable
 
 
 @pytest.mark.parametrize("cls", [phc.ModelError, phc.InconsistentInitialError, phc.SimulationSetupError,
@@ -68,14 +68,14 @@ def test_every_exception_phc_defines_is_in_phc_errors():
 
 @pytest.mark.parametrize("old_home, name", [
     ("phc.cli", "UsageError"), ("phc.spec.expressions", "ExpressionError"), ("phc.spec.sweep", "SpecError"),
-    ("phc.units", "UnitError"), ("phc.units", "DimensionError"), ("phc.library.linear", "NpzProblem"),
-    ("phc.inputs", "TableError"), ("phc.viz", "PlotUnavailable"), ("phc.viz", "NothingToAnimate"),
-    ("phc.files", "FileRefused"), ("phc.io", "OutputPathError"), ("phc.budget", "SymbolicBudgetError"),
+    ("phc.frontend.units", "UnitError"), ("phc.frontend.units", "DimensionError"), ("phc.library.linear", "NpzProblem"),
+    ("phc.frontend.inputs", "TableError"), ("phc.study.viz", "PlotUnavailable"), ("phc.study.viz", "NothingToAnimate"),
+    ("phc.frontend.files", "FileRefused"), ("phc.io", "OutputPathError"), ("phc.frontend.budget", "SymbolicBudgetError"),
     ("phc.codegen.numba_cache", "BackendUnavailable"), ("phc.codegen.numba_cache", "BackendMismatch"),
     ("phc.codegen.numba_cache", "CompiledBackendWarning"), ("phc.codegen.load", "CacheWarning"),
     ("phc.sweep", "SweepSetupError"), ("phc.simulation.guard", "ModelEvaluationError"),
     ("phc.simulation", "ModelEvaluationError"), ("phc.simulation", "SimulationInterrupted"),
-    ("phc.simulation.result", "SimulationInterrupted"), ("phc.reference_values", "ReferenceValuesError"),
+    ("phc.simulation.result", "SimulationInterrupted"), ("phc.frontend.reference_values", "ReferenceValuesError"),
     ("phc.simulation.events", "SwitchTimeError")])
 def test_an_exception_is_still_importable_from_its_old_home(old_home, name):
     import importlib

@@ -1,4 +1,4 @@
-"""The cached front end of `phc simulate` (phc.fastpath): a hit runs the same simulation
+"""The cached front end of `phc simulate` (phc.codegen.fastpath): a hit runs the same simulation
 as the full path, and anything that could make it stale is a miss."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from phc import fastpath
+from phc.codegen import fastpath
 from phc.cli import build_parser, main
 from phc.errors import CacheWarning
 from model_texts import GEAR_PART, USES_GEAR  # a nested gear stage and a model that uses it
@@ -70,7 +70,7 @@ def test_a_hit_imports_neither_sympy_nor_pint(tmp_path, cache):
     assert simulate(model, tmp_path / "a.csv") == 0
     code = ("import sys\nfrom phc.cli import main\n"
             f"code = main(['simulate', {str(model)!r}, '--out', {str(tmp_path / 'b.csv')!r}, *{RUN!r}])\n"
-            "print(code, sorted(m for m in ('sympy', 'pint', 'pydantic', 'phc.dae', 'phc.elaborate') "
+            "print(code, sorted(m for m in ('sympy', 'pint', 'pydantic', 'phc.ir.dae', 'phc.frontend.elaborate') "
             "if m in sys.modules))\n")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=dict(os.environ),
                           timeout=SUBPROCESS_TIMEOUT)
@@ -193,7 +193,7 @@ def test_validate_from_the_cache_imports_no_sympy(tmp_path, cache):
     assert main(["validate", str(model)]) == 0
     code = ("import sys\nfrom phc.cli import main\n"
             f"code = main(['validate', {str(model)!r}])\n"
-            "print(code, sorted(m for m in ('sympy', 'pint', 'pydantic', 'scipy', 'phc.dae') if m in sys.modules))\n")
+            "print(code, sorted(m for m in ('sympy', 'pint', 'pydantic', 'scipy', 'phc.ir.dae') if m in sys.modules))\n")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=dict(os.environ),
                           timeout=SUBPROCESS_TIMEOUT)
     lines = done.stdout.strip().splitlines()
@@ -233,7 +233,7 @@ def _hit_in_fresh_process(model: Path, out: Path, backend: str, watched: tuple[s
     return lines
 
 
-SYMBOLIC = ("sympy", "pint", "pydantic", "phc.dae", "phc.elaborate")
+SYMBOLIC = ("sympy", "pint", "pydantic", "phc.ir.dae", "phc.frontend.elaborate")
 """What a hit must not import: the model language and the symbolic pipeline."""
 
 

@@ -17,12 +17,12 @@ import numpy as np
 import pytest
 
 import phc
-from phc.accuracy import estimate_errors
+from phc.study.accuracy import estimate_errors
 from phc.cli import main
 from phc.discretize.fem1d import DP1, H3, P0, P1, Mesh
 from phc.errors import ModelError
-from phc.initial_fields import project
-from phc.scene import scene_variant
+from phc.ir.initial_fields import project
+from phc.frontend.scene import scene_variant
 
 RHO, TENSION, L, A = 0.01, 64.0, 0.64, 1e-3
 C = math.sqrt(TENSION / RHO)             # wave speed 80 m/s
@@ -102,7 +102,7 @@ def test_per_dof_values_written_in_a_scene_belong_to_the_scene_mesh(tmp_path):
     scene.write_text("model: plain.yaml\naccuracy: {mesh: {s: 16}}\ninitial:\n" + values)
     compiled = phc.compile_model(scene)  # written for the scene's 16 elements: valid there
     assert _mid_deflection(phc.simulate(compiled, t_end=1e-4), compiled)[0] == pytest.approx(A, rel=1e-12)
-    refined = scene_variant(phc.scene.load_scene(scene)[0], mesh={"s": 32})  # --estimate-error's refinement
+    refined = scene_variant(phc.frontend.scene.load_scene(scene)[0], mesh={"s": 32})  # --estimate-error's refinement
     with pytest.raises(ModelError, match=r"scene.yaml:4:3: .*16-element mesh of `s` in the scene's "
                                          r"`accuracy.mesh`.*32 elements.*PHC-E214"):
         phc.compile_model(refined.model_path, scene=refined)
@@ -387,7 +387,7 @@ def test_moving_beam_axial_displacement_and_velocity_fields(tmp_path):
 def test_bench_mesh_sweep_projects_the_fields(tmp_path):
     """`phc bench --mesh s=4,8,16` against the closed form of the support force: with the
     field every mesh starts from the same standing wave, so the error falls as h² (P1/P0)."""
-    from phc.bench import run_bench
+    from phc.study.bench import run_bench
 
     _string(tmp_path, "s.w: A*sin(pi*xi/L)\ns.velocity: 0\n", elements=8)
     scene = tmp_path / "bench.yaml"

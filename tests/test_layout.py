@@ -42,3 +42,19 @@ def test_the_readme_module_map_names_existing_paths_and_every_subpackage():
     subpackages = {f"{p.parent.name}/" for p in PHC.glob("*/__init__.py")}
     left_out = sorted(subpackages - set(named))
     assert not left_out, f"the README's module map leaves out: {left_out}"
+
+
+TOP_LEVEL = {"__init__", "__main__", "_entry", "pipeline", "errors", "diagnostics", "inert", "io", "names",
+             "options", "progress"}
+"""The modules at the top of phc/: the entry points, the pipeline and what every room shares
+(docs/theory/pipeline.md, "Where the code lives"). A new module goes into its room."""
+
+
+def test_the_top_level_holds_only_what_every_room_shares():
+    top = sorted(p.stem for p in PHC.glob("*.py"))
+    stray = sorted(set(top) - TOP_LEVEL)
+    assert not stray, (f"modules at the top of phc/ that belong in a room (phc/frontend/, phc/ir/, phc/codegen/, "
+                       f"phc/study/, ...; README's module map): {stray}")
+    rooms = sorted(p.parent.name for p in PHC.glob("*/__init__.py"))
+    silent = [room for room in rooms if not ast.get_docstring(ast.parse((PHC / room / "__init__.py").read_text()))]
+    assert not silent, f"rooms whose __init__.py does not say what they hold: {silent}"

@@ -14,7 +14,7 @@ import pytest
 
 import phc
 from phc.cli import main
-from phc.linearize import finite_eigenvalues
+from phc.study.linearize import finite_eigenvalues
 
 ROOT = Path(__file__).resolve().parents[1]
 MODELS = ROOT / "models"

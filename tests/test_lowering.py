@@ -1,5 +1,5 @@
-"""Lowering is a function: :func:`phc.lowering.lower` of a component's spec and a read-only
-context returns a frozen :class:`~phc.lowering.ComponentLowering`, and the elaborate pass
+"""Lowering is a function: :func:`phc.frontend.lowering.lower` of a component's spec and a read-only
+context returns a frozen :class:`~phc.frontend.lowering.ComponentLowering`, and the elaborate pass
 only folds those lowerings (issue 31: no shared builder, no `_Assembly`)."""
 
 from __future__ import annotations
@@ -9,11 +9,11 @@ from types import MappingProxyType
 
 import pytest
 
-import phc.assemble
-import phc.elaborate
-from phc.elaborate import elaborate
+import phc.ir.assemble
+import phc.frontend.elaborate
+from phc.frontend.elaborate import elaborate
 from phc.library import LOWERERS
-from phc.lowering import ComponentLowering, LoweringContext, ReadOnlySequence, lower
+from phc.frontend.lowering import ComponentLowering, LoweringContext, ReadOnlySequence, lower
 from model_texts import PDE1D
 
 # PDE1D with the string written after its terminations: its sparse rows follow theirs
@@ -89,5 +89,5 @@ def test_sparse_rows_count_from_the_component_and_are_shifted_when_folded(tmp_pa
 
 
 def test_no_shared_builder_remains():
-    assert not hasattr(phc.elaborate, "Builder")
-    assert not hasattr(phc.assemble, "_Assembly")
+    assert not hasattr(phc.frontend.elaborate, "Builder")
+    assert not hasattr(phc.ir.assemble, "_Assembly")

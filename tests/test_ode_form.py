@@ -1,4 +1,4 @@
-"""phc.ode_form: a compiled model as ẋ = f(t, x) for scipy's solve_ivp methods (`phc bench`
+"""phc.study.ode_form: a compiled model as ẋ = f(t, x) for scipy's solve_ivp methods (`phc bench`
 runs Radau, BDF and DOP853 with it beside phc's solvers)."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import phc
-from phc.ode_form import NOT_AN_ODE, NotAnODE, OdeForm, integrate
+from phc.study.ode_form import NOT_AN_ODE, NotAnODE, OdeForm, integrate
 
 MODELS = Path(__file__).resolve().parents[1] / "models"
 L, C, R, V0 = 0.5, 0.02, 2.0, 12.0  # models/rlc_circuit.yaml
@@ -71,7 +71,7 @@ def test_a_constrained_pendulum_is_refused_not_integrated():
 def test_bench_rows_of_scipy_beside_phc(tmp_path, monkeypatch):
     """`run_bench` with scipy's methods: rows measured against the same closed form on the
     RLC circuit; on the pendulum one failed row per method that says it is not an ODE."""
-    from phc.bench import run_bench, scipy_solver
+    from phc.study.bench import run_bench, scipy_solver
 
     root = MODELS.parent
     monkeypatch.setenv("PHC_ALLOW_PATH", str(MODELS))
@@ -99,7 +99,7 @@ def test_scipy_methods_are_bench_solvers_in_the_cli_and_in_a_scene(tmp_path, mon
 
     from phc.cli import main
     from phc.names import PEER_SOLVER_NAMES
-    from phc.ode_form import SCIPY_METHODS
+    from phc.study.ode_form import SCIPY_METHODS
 
     assert PEER_SOLVER_NAMES == tuple(f"scipy_{m}" for m in SCIPY_METHODS)
     root = MODELS.parent

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 import phc
-from phc.bench import run_bench
+from phc.study.bench import run_bench
 from phc.errors import ModelError, SimulationSetupError
 
 ROOT = Path(__file__).resolve().parents[1]

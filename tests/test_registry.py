@@ -1,4 +1,4 @@
-"""Tests for the component registry (:mod:`phc.registry`, built-ins in :mod:`phc.library.builtin`).
+"""Tests for the component registry (:mod:`phc.library.registry`, built-ins in :mod:`phc.library.builtin`).
 
 Every registered type has a schema entry, unit information (or a reason it has none), a
 cost model, and a minimal model that compiles and certifies; the per-type tables other
@@ -24,12 +24,12 @@ import scipy.sparse as sps
 import sympy as sp
 
 import phc
-from phc import registry
-from phc.dae import T
+from phc.library import registry
+from phc.ir.dae import T
 from phc.errors import ModelError
 from phc.library import LOWERERS
 from phc.library.dirac import DiracBuilder, emit
-from phc.registry import (ASSEMBLED, NO_FIELDS, NO_STATE_READS, ComponentType, ElementUnit, RegistryError, Units)
+from phc.library.registry import (ASSEMBLED, NO_FIELDS, NO_STATE_READS, ComponentType, ElementUnit, RegistryError, Units)
 from phc.spec.export import build_schema, schema_text
 from phc.spec.base import Expr, SpecModel
 from phc.spec.components import Domain
@@ -153,9 +153,9 @@ def test_the_built_in_types_are_the_spec_union(monkeypatch):
 
 
 def test_the_per_type_tables_are_the_registrys():
-    from phc.accuracy import SPATIAL_ORDER
-    from phc.initial_fields import FIELDS
-    from phc.interconnect import MODULATED
+    from phc.study.accuracy import SPATIAL_ORDER
+    from phc.ir.initial_fields import FIELDS
+    from phc.ir.interconnect import MODULATED
     from phc.library.lumped import DEFAULT_DOMAIN
 
     assert list(LOWERERS) == registry.names()
@@ -170,7 +170,7 @@ def test_the_per_type_tables_are_the_registrys():
 def test_the_effects_message_names_the_registrys_types_with_effects():
     """A scene that switches an effect of a type without effects is told which types have
     them: read from the registry (a type registered later is named too), not a list."""
-    from phc.effects import apply_overrides
+    from phc.frontend.effects import apply_overrides
 
     spring = registry.get("spring").spec.model_validate({"type": "spring", "k": 1.0})
     _, message = apply_overrides(spring, {"damping": False})
@@ -182,8 +182,8 @@ def test_the_effects_message_names_the_registrys_types_with_effects():
 
 def test_implicit_effects_come_from_the_registry():
     """`damping` of a `phs` and `gravity` of a `rigid` exist without being declared: the
-    registry entry says so (no table beside it in phc.effects)."""
-    from phc.effects import effect_names
+    registry entry says so (no table beside it in phc.frontend.effects)."""
+    from phc.frontend.effects import effect_names
 
     assert registry.get("rigid").implicit_effects == {"gravity": True, "damping": True}
     assert registry.get("phs").implicit_effects == {"damping": True}
@@ -347,7 +347,7 @@ def test_the_first_use_from_several_threads_at_once_sees_every_built_in_type():
 
     code = textwrap.dedent("""
         import threading
-        from phc import registry
+        from phc.library import registry
         from phc.library import LOWERERS
         barrier = threading.Barrier(8)
         found = []

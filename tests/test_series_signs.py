@@ -1,7 +1,7 @@
 """Series chains keep the sign a user draws (docs/signs.md, "Series chains keep the sign you
 draw"; issue 36 item 3).
 
-The rule (:mod:`phc.wires`): in the electrical, hydraulic and thermal domains a connection
+The rule (:mod:`phc.ir.wires`): in the electrical, hydraulic and thermal domains a connection
 that joins a terminal of a two-terminal element to a port that reads power-in (another
 terminal, the one port of a storage or resistive element, port `a` of a transformer or
 gyrator) is a wire, ``e_x = e_y``, ``f_x = −f_y``. So along a chain written

@@ -22,7 +22,7 @@ from pathlib import Path
 import pytest
 
 import phc
-from phc.accuracy import relative_output_errors
+from phc.study.accuracy import relative_output_errors
 
 ROOT = Path(__file__).resolve().parents[1]
 MODELS = ROOT / "models"

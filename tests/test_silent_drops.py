@@ -91,7 +91,7 @@ def _signals_read_as_before():
 @pytest.fixture()
 def cache(tmp_path, monkeypatch):
     """A private front-end cache and key (as in tests/test_fastpath.py)."""
-    from phc import fastpath
+    from phc.codegen import fastpath
 
     monkeypatch.setenv("PHC_CACHE_DIR", str(tmp_path / "cache"))
     monkeypatch.setenv("PHC_STATE_DIR", str(tmp_path / "state"))
@@ -126,7 +126,7 @@ def _expected(path: Path, key: str, entry: str, solver: str) -> str:
 
 
 def _hit(path: Path, *extra: str) -> bool:
-    from phc import fastpath
+    from phc.codegen import fastpath
     from phc.cli import build_parser
 
     return fastpath.lookup(build_parser().parse_args(["simulate", str(path), *RUN, *extra]), {}) is not None

@@ -1,11 +1,11 @@
-"""Tests for :mod:`phc.source`: safe YAML loading and source positions."""
+"""Tests for :mod:`phc.frontend.source`: safe YAML loading and source positions."""
 
 from __future__ import annotations
 
 import pytest
 
-from phc import source
-from phc.source import SourceMap, SourceSpan, load_yaml, read_yaml_file
+from phc.frontend import source
+from phc.frontend.source import SourceMap, SourceSpan, load_yaml, read_yaml_file
 
 MODEL = """\
 # a model

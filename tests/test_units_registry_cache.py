@@ -1,4 +1,4 @@
-"""pint's parsed unit definitions kept in phc's signed cache (phc.units._cached_registry).
+"""pint's parsed unit definitions kept in phc's signed cache (phc.frontend.units._cached_registry).
 
 Building pint's UnitRegistry parses its definitions file; pint's own `cache_folder` keeps
 the parsed result as pickles, which pint loads unchecked. phc keeps them as one bundle
@@ -16,7 +16,7 @@ import pytest
 
 pint = pytest.importorskip("pint")
 
-from phc import units  # noqa: E402
+from phc.frontend import units  # noqa: E402
 
 UNITS = ["N/m", "mm", "kg*m^2", "rpm", "psi", "Ohm", "kN*m/rad", "m^3/s", "degC", "µF", "1"]
 
@@ -57,7 +57,7 @@ def _same_readings(ureg, reference) -> None:
     """`ureg` reads every unit of UNITS as a registry parsed from pint's file does."""
     for text in UNITS:
         if text == "Ohm":
-            continue  # phc defines it on top (phc.units._registry)
+            continue  # phc defines it on top (phc.frontend.units._registry)
         a = ureg.Quantity(1, ureg.parse_units(text.replace("µ", "u")))
         b = reference.Quantity(1, reference.parse_units(text.replace("µ", "u")))
         assert a._is_multiplicative == b._is_multiplicative, text

@@ -12,7 +12,7 @@ import pytest
 pytest.importorskip("matplotlib")
 
 import phc  # noqa: E402
-from phc import viz  # noqa: E402
+from phc.study import viz  # noqa: E402
 
 MODELS = Path(__file__).resolve().parents[1] / "models"
 

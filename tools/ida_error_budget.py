@@ -157,7 +157,7 @@ def main(argv=None) -> dict:
 def _modes(seen, T, Y, E, rtol, atol) -> dict:
     import scipy.linalg as sla
 
-    from phc.linearize import dense_jacobians
+    from phc.study.linearize import dense_jacobians
 
     mod, p = seen["mod"], seen["p"]
     # the energy accumulator (its rate is the power; nothing depends on it) is no part of the

@@ -47,7 +47,7 @@ def main() -> int:
         try:
             plain = phc.compile_model(path, certify=False)
             cert0 = certify_compiled(plain, n_random=FAST_SAMPLES, max_unknowns=FAST_BALANCE_LIMIT)
-            plain.cache.start_state = None  # simulate solves the start again (phc.compiled.RunCache)
+            plain.cache.start_state = None  # simulate solves the start again (phc.codegen.compiled.RunCache)
             r0, solver = run(plain, None)
         finally:
             initial._Problem.hopeless = hopeless

@@ -1,6 +1,6 @@
 """The analyse pass: equation/variable balance and maximum matching.
 
-Input: a :class:`~phc.dae.Dae`. Output: located diagnostics (none when the DAE is
+Input: a :class:`~phc.ir.dae.Dae`. Output: located diagnostics (none when the DAE is
 structurally solvable).
 
 A DAE is structurally solvable only if its bipartite incidence graph (equations ×
@@ -19,7 +19,7 @@ import scipy.sparse as sps
 from scipy.sparse.csgraph import maximum_flow
 
 if TYPE_CHECKING:  # the types only: bipartite_matching runs in simulations without sympy or pydantic
-    from phc.dae import Dae
+    from phc.ir.dae import Dae
     from phc.diagnostics import Diagnostic
 
 PREFER_EARLY_WORK = 50_000_000

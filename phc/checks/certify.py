@@ -1,6 +1,6 @@
 """Certificates: Dirac property of every component and surjectivity of every coupling.
 
-Input: an assembled :class:`~phc.dae.Dae`. Output: a :class:`Certificate` (with the
+Input: an assembled :class:`~phc.ir.dae.Dae`. Output: a :class:`Certificate` (with the
 comparison of each component's rows with its description, :mod:`phc.checks.rows`).
 
 This is section 2 of T. Berger, R. Hochdahl, T. Reis, R. Seifried, "Port-Hamiltonian
@@ -14,7 +14,7 @@ states:
   coupling space"): the components are interconnected one connection at a time in breadth-first
   order (Remark 4 "Associativity of interconnection"); at each step
   ``Γ(d₁, d₂) = (f_c1 − f_c2, e_c1 + e_c2)`` must be onto ``Z_c × Z_c`` (for a wire,
-  :mod:`phc.wires`, ``(f_c1 + f_c2, e_c1 − e_c2)``: the bond with one port's variables
+  :mod:`phc.ir.wires`, ``(f_c1 + f_c2, e_c1 − e_c2)``: the bond with one port's variables
   negated, of the same rank). Γ only sees the
   coupling components, so each component is represented by the projection of its Dirac
   structure onto its ports — the cost grows linearly with the number of components.
@@ -38,7 +38,7 @@ import sympy as sp
 
 from phc.checks.rows import placeholder
 from phc.checks.graph import component_graph, component_of, independent_parts, kinematic_loops, traversal_order
-from phc.dae import T, Dae, DiracRelations
+from phc.ir.dae import T, Dae, DiracRelations
 from phc.diagnostics import Diagnostic, DiagnosticList
 from phc.inert import inert
 
@@ -55,8 +55,8 @@ SIGNAL_NOTE = ("signal block: outside the port-Hamiltonian certificate (no ports
 
 
 def _signal_blocks(top) -> set[str]:
-    """The components of `top` that are signal blocks (:attr:`phc.registry.ComponentType.signal`)."""
-    from phc import registry
+    """The components of `top` that are signal blocks (:attr:`phc.library.registry.ComponentType.signal`)."""
+    from phc.library import registry
 
     return {name for name, kind, _ in top.components
             if (entry := registry.find(kind)) is not None and entry.signal}
@@ -444,7 +444,7 @@ def _couplings(top, projections, samples, diags, graph=None, constant_only=False
             fa, ea = rmap[a]
             fb, eb = rmap[b]
             # Γ V: the rows (f_a − f_b, e_a + e_b) of V, without forming the selection matrix;
-            # (f_a + f_b, e_a − e_b) for a wire (phc.wires)
+            # (f_a + f_b, e_a − e_b) for a wire (phc.ir.wires)
             GV = (np.concatenate((V[fa] + V[fb], V[ea] - V[eb])) if label in wires
                   else np.concatenate((V[fa] - V[fb], V[ea] + V[eb])))
             if GV.size:  # one SVD gives the rank and the kernel of Γ V
@@ -534,7 +534,7 @@ def _symbolic_conditions(top, order, owner, certs) -> list[Optional[str]]:
         K_rows = rows[ca] if ca == cb else (rows[ca], rows[cb])
         K_cols = cols[ca] if ca == cb else (cols[ca], cols[cb])
         (fa, ea), (fb, eb) = ports[a], ports[b]
-        w = -1 if label in wires else 1  # a wire (phc.wires): f_a + f_b, e_a − e_b
+        w = -1 if label in wires else 1  # a wire (phc.ir.wires): f_a + f_b, e_a − e_b
         S = [x - w * y for x, y in zip(fa, fb)] + [x + w * y for x, y in zip(ea, eb)]
         condition = None
         if not cert.surjective:  # only where the numeric certificate found a failure

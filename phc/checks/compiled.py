@@ -1,7 +1,7 @@
 """Certify the system that is compiled: its power balance and the passivity of its losses.
 
 Input: a :class:`~phc.pipeline.CompiledModel` (the generated module and the assembled
-:class:`~phc.dae.Dae` it was printed from). Output: a :class:`CompiledCertificate`.
+:class:`~phc.ir.dae.Dae` it was printed from). Output: a :class:`CompiledCertificate`.
 
 The Dirac certificate of :mod:`phc.checks.certify` looks at each component's Dirac
 structure; this one looks at the equations that are integrated. For a port-Hamiltonian
@@ -44,7 +44,7 @@ import scipy.sparse.linalg as spla
 import sympy as sp
 
 from phc.diagnostics import Diagnostic, DiagnosticList
-from phc.source import SourceSpan
+from phc.frontend.source import SourceSpan
 
 BALANCE_RTOL = 1e-6
 """Allowed |dH/dt + P_ports + P_diss| relative to the magnitudes of the terms it sums

@@ -2,7 +2,7 @@
 
 Input: the component graph of an assembled model, each component's Dirac structure
 (:class:`phc.checks.certify._Component`) and a sampled state. Output: one
-:class:`LoopVerdict` per loop of the cycle basis (:func:`phc.interconnect.kinematic_loops`,
+:class:`LoopVerdict` per loop of the cycle basis (:func:`phc.ir.interconnect.kinematic_loops`,
 same order).
 
 A connection sets the two ports' flows equal and their efforts opposite (every domain);
@@ -38,8 +38,8 @@ import networkx as nx
 import numpy as np
 
 from phc.checks.certify import RANK_RTOL
-from phc.dae import T
-from phc.interconnect import short_cycle_basis
+from phc.ir.dae import T
+from phc.ir.interconnect import short_cycle_basis
 
 MAX_LOOP = 64
 """Loops with more components are named, not classified: a loop that constrains is built
@@ -76,7 +76,7 @@ class LoopVerdict:
 
 
 def loops_with_connections(graph: nx.MultiGraph) -> list[tuple[list[str], list[tuple[str, str, str]]]]:
-    """The loops of :func:`phc.interconnect.kinematic_loops` (same order, same components)
+    """The loops of :func:`phc.ir.interconnect.kinematic_loops` (same order, same components)
     with their connections: between consecutive components of a cycle the first connection
     written; a pair joined k times gives k − 1 loops, the first connection and each other."""
 
@@ -301,7 +301,7 @@ def _added_per_opening(graph, comps, members, loop_conns, point, cache=None):
 
 def _couple(one, other, a, b):
     """Connect ports `a` and `b` of the cluster `one` (and `other`, a second cluster joined to
-    it): f_a = f_b, e_a = −e_b. A wire (:mod:`phc.wires`, e_a = e_b, f_a = −f_b) is coupled
+    it): f_a = f_b, e_a = −e_b. A wire (:mod:`phc.ir.wires`, e_a = e_b, f_a = −f_b) is coupled
     as this bond too: it is the bond with port b's flow and effort negated, a change of
     coordinates of a port that is used once and then projected out, so the storage efforts'
     relations counted here are the same. A cluster is (V, port rows, effort rows, frozen rank)."""

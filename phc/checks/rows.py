@@ -1,6 +1,6 @@
 """Do the rows compiled for a component say what its description says?
 
-Input: an assembled :class:`~phc.dae.Dae` (its topology keeps each component's
+Input: an assembled :class:`~phc.ir.dae.Dae` (its topology keeps each component's
 description and the rows its lowerer emitted, before assembly; its sparse blocks keep
 their labels). Output: a :class:`RowsCertificate` with one located error per component
 whose rows and description differ.
@@ -9,11 +9,11 @@ Each component with a complete description (storage bound to states, resistive p
 laws; see :mod:`phc.library.dirac`) is a pair of systems over the same *visible*
 variables — its states x, their rates ẋ and its port flows and efforts:
 
-* the rows: residual rows, sparse blocks (:class:`~phc.dae.LinearBlock`, with the sympy
+* the rows: residual rows, sparse blocks (:class:`~phc.ir.dae.LinearBlock`, with the sympy
   couplings added to their rows) and definitions, with the component's other algebraic
   variables (velocities, co-energies, multipliers) as *hidden* unknowns;
 * the description: its kernel relations ``F f + E e + G λ = b(t)`` and its laws, scalar
-  or sparse (:class:`~phc.dae.SparseRelations`), with each storage pair replaced by
+  or sparse (:class:`~phc.ir.dae.SparseRelations`), with each storage pair replaced by
   ``(ẋ, ∂H/∂x)`` (storage vectors by ``(ẋ, Qx)``) and the multipliers, resistive pairs
   and auxiliary variables hidden. A discretized PDE, a modal truncation, a matrix
   component and the moving beam register the projection of their structure onto their
@@ -54,10 +54,10 @@ import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 import sympy as sp
 
-from phc.budget import drop_deltas
+from phc.frontend.budget import drop_deltas
 from phc.checks.rows_dense import (MEMBERSHIP_TOL, RESIDUAL_TOL, RESTARTS, SETTLED_FRACTION,  # noqa: F401
                                       _member, _newton, _scaled, _visible_tangent, _worst)
-from phc.dae import T, ComponentDescription, ComponentRows, Dae
+from phc.ir.dae import T, ComponentDescription, ComponentRows, Dae
 from phc.diagnostics import Diagnostic, DiagnosticList
 
 MAX_UNKNOWNS = 400
@@ -310,7 +310,7 @@ def _number(coeff, defaults: dict) -> float:
 def _systems(desc: ComponentDescription, rows: ComponentRows, defaults: Optional[dict] = None,
              blocks=()) -> tuple[_System, _System]:
     """The rows and the (complete) description of one component as systems over the same
-    visible unknowns; `blocks` are the component's sparse blocks (:class:`~phc.dae.LinearBlock`,
+    visible unknowns; `blocks` are the component's sparse blocks (:class:`~phc.ir.dae.LinearBlock`,
     whose rows are found in `rows` by their labels)."""
     defaults = defaults or {}
     states = [s for s, ds, _ in rows.variables if ds is not None]
@@ -699,10 +699,10 @@ def _canonical_key(desc: ComponentDescription, rows: ComponentRows):
 def hand_written(dae: Dae) -> list[str]:
     """The components whose rows are not all derived from their description: those whose
     lowerer wrote a row itself (recorded by the elaborate pass,
-    :attr:`~phc.dae.ComponentRows.derived`) and those whose registry entry declares its rows
-    hand-written for their spec (:attr:`phc.registry.ComponentType.rows`). Signal blocks
-    (:attr:`phc.registry.ComponentType.signal`) have no description and are left out."""
-    from phc import registry
+    :attr:`~phc.ir.dae.ComponentRows.derived`) and those whose registry entry declares its rows
+    hand-written for their spec (:attr:`phc.library.registry.ComponentType.rows`). Signal blocks
+    (:attr:`phc.library.registry.ComponentType.signal`) have no description and are left out."""
+    from phc.library import registry
 
     top = dae.topology
     if top is None:

@@ -41,7 +41,7 @@ one-port elements joined directly) or two power-out ends (a source feeding a com
 junction, a node between a series loop and its capacitor). Past such a connection the
 circuit is mirrored: voltages and flows read with the opposite sign, which is still a
 power-conserving model but not the one the user drew when a source or an output sits on the
-far side. A *wire* (:mod:`phc.wires`: a terminal of a two-terminal element joined to a port
+far side. A *wire* (:mod:`phc.ir.wires`: a terminal of a two-terminal element joined to a port
 that reads power-in, ``e_x = e_y``) joins two ends that read the same orientation, so a
 series chain of two-terminal elements keeps its signs; a wire is reported when its ends read
 opposite orientations (port ``a`` of a transformer or gyrator whose port ``b`` faces the
@@ -59,13 +59,13 @@ is not reported though it turns one loop against the other.
 from __future__ import annotations
 
 from phc.diagnostics import Diagnostic
-from phc.registry import FieldView
+from phc.library.registry import FieldView
 
 EFFORT_ACROSS = {"electrical": ("voltage", "current"), "hydraulic": ("pressure", "volume flow"),
                  "thermal": ("temperature", "heat flow")}
 ROLES = FieldView("sign_role")
 """Type -> its role in the hints (``load``, ``source``, ``series``, ``junction``): the
-registry's ``sign_role`` (:mod:`phc.registry`); types without one take no part."""
+registry's ``sign_role`` (:mod:`phc.library.registry`); types without one take no part."""
 IN, OUT = -1, 1
 
 
@@ -221,7 +221,7 @@ def _sides(connections, vertex, owner, ports_of, role_of, neighbours) -> dict:
 
 
 def sign_hints(top) -> list[Diagnostic]:
-    """PHC-W230 warnings for the connections of `top` (a :class:`phc.dae.Topology`) whose
+    """PHC-W230 warnings for the connections of `top` (a :class:`phc.ir.dae.Topology`) whose
     ends read the across effort with the same orientation (see the module docstring)."""
     if top is None:
         return []
@@ -229,7 +229,7 @@ def sign_hints(top) -> list[Diagnostic]:
     domain = {p.name: p.domain for p in top.ports}
     wires = top.wires
     # how a connection passes the reading on: a bond (e_x = −e_y) joins opposite readings,
-    # a wire (e_x = e_y, phc.wires) equal ones
+    # a wire (e_x = e_y, phc.ir.wires) equal ones
     turn = {label: 1 if label in wires else -1 for _, _, label, _ in top.connections}
     edges: dict = {}
     for a, b, label, span in top.connections:
@@ -285,7 +285,7 @@ def _view(orientation) -> str:
 
 
 def _wire_hint(x, y, label, span, ox, oy, what, dom, types) -> Diagnostic:
-    """A wire (phc.wires) between ends that read the across effort the opposite ways: a
+    """A wire (phc.ir.wires) between ends that read the across effort the opposite ways: a
     terminal joined to port `a` of a transformer or gyrator whose port `b` faces the source."""
     across, through = EFFORT_ACROSS[dom]
     message = (f"`{x}` reads the {across} {_view(ox)} ({what[x]}) and `{y}` {_view(oy)} ({what[y]}), so the wire "

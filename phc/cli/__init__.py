@@ -13,6 +13,7 @@ what it does, and every name is importable from ``phc.cli`` too:
 * :mod:`phc.cli.run` — setting up and guarding a run (compile or exit, progress, initial
   values, settings the solver ignores);
 * :mod:`phc.cli.report` — exit codes, diagnostics, summary lines, result files and plots.
+* :mod:`phc.cli.report_formats` — GitHub Actions annotations and SARIF 2.1.0 for CI.
 """
 
 from __future__ import annotations

@@ -41,13 +41,13 @@ def _parse_params(items: Sequence[str]) -> dict[str, float]:
 
 
 def cmd_validate(args) -> int:
-    from phc import fastpath
+    from phc.codegen import fastpath
 
     files = _Files(args, "validate")
     report = []
     for path in args.files:
         kept = fastpath.lookup_validate(args, path) if args.format in ("text", "json") else None
-        if kept is not None:  # an unchanged file: its result as stored (phc.fastpath)
+        if kept is not None:  # an unchanged file: its result as stored (phc.codegen.fastpath)
             files.report(path, [fastpath.StoredDiagnostic(*d) for d in kept["diagnostics"]], kept["valid"])
             report.append({"file": path, "valid": kept["valid"], "kind": kept["kind"], "diagnostics": kept["json"]})
             if kept["status"] is not None:
@@ -81,7 +81,7 @@ MAX_FILE_STEM = 120
 
 
 def cmd_compile(args) -> int:
-    from phc import fastpath
+    from phc.codegen import fastpath
     from phc import ModelError, SimulationSetupError
     from phc.io import write_text
 
@@ -89,7 +89,7 @@ def cmd_compile(args) -> int:
     out_dir = Path(args.output)
     cached = args.format == "text"  # the GitHub and SARIF formats need the diagnostics themselves
     for path in args.files:
-        # an unchanged model: the texts and lines its last compilation gave (phc.fastpath)
+        # an unchanged model: the texts and lines its last compilation gave (phc.codegen.fastpath)
         hit = fastpath.lookup_compile(args, path) if cached else None
         if hit is not None:
             compiled, kept = hit.compiled, hit.backend_line
@@ -127,13 +127,13 @@ def cmd_compile(args) -> int:
 
 
 def cmd_simulate(args) -> int:
-    from phc import fastpath
-    from phc.budget import format_bytes, peak_memory
-    from phc.profile import profiled
+    from phc.codegen import fastpath
+    from phc.frontend.budget import format_bytes, peak_memory
+    from phc.study.profile import profiled
     from phc import SimulationInterrupted, simulate
 
     params = _parse_params(args.param)
-    hit = fastpath.lookup(args, params)  # an unchanged model: its cached front end (phc.fastpath)
+    hit = fastpath.lookup(args, params)  # an unchanged model: its cached front end (phc.codegen.fastpath)
     if hit is not None:
         compiled, written, backend_line = hit.compiled, hit.written_options, hit.backend_line
         recorder = first = None
@@ -301,7 +301,7 @@ def cmd_sweep(args) -> int:
 
 
 def cmd_animate(args) -> int:
-    from phc import viz
+    from phc.study import viz
     from phc import SimulationInterrupted, simulate
 
     compiled = _compile_or_exit(args.file, certify=not args.no_certify)
@@ -326,7 +326,7 @@ def cmd_animate(args) -> int:
 
 
 def cmd_bench(args) -> int:
-    from phc.bench import parse_meshes, run_bench
+    from phc.study.bench import parse_meshes, run_bench
     from phc import ModelError, SimulationSetupError
 
     try:

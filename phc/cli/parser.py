@@ -80,7 +80,7 @@ def _check_arguments(args) -> None:
     from phc.io import OutputPathError, check_output_dir, check_output_file
 
     if getattr(args, "max_memory", None) is not None and not isinstance(args.max_memory, int):
-        args.max_memory = _memory_size(args.max_memory)  # bytes from here on (phc.fastpath, _with_budget)
+        args.max_memory = _memory_size(args.max_memory)  # bytes from here on (phc.codegen.fastpath, _with_budget)
     _check_environment(budget=hasattr(args, "max_memory"))
     for (command, dest), (option, kind, low, high) in NUMERIC_OPTIONS.items():
         value = getattr(args, dest, None) if args.command == command else None
@@ -125,8 +125,8 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
 
 
 def _allowed_paths(args):
-    """Files under each `--allow-path DIR` may be referenced too (see phc.files)."""
-    from phc.files import allow_paths
+    """Files under each `--allow-path DIR` may be referenced too (see phc.frontend.files)."""
+    from phc.frontend.files import allow_paths
 
     dirs = getattr(args, "allow_path", None) or []
     for d in dirs:
@@ -145,7 +145,7 @@ def _allowed_paths(args):
 def _memory_size(text: str) -> int:
     """Bytes of `--max-memory SIZE`, parsed here (not by argparse) with its bounds: a one-line
     usage error, also for a number too large for a float."""
-    from phc.budget import parse_size
+    from phc.frontend.budget import parse_size
 
     try:
         return parse_size(text)
@@ -156,7 +156,7 @@ def _memory_size(text: str) -> int:
 def _check_environment(budget: bool = True) -> None:
     """The environment variables phc reads as numbers: PHC_MAX_MEMORY (for the commands
     with a memory budget) and PHC_CACHE_MAX_MB."""
-    from phc.budget import max_memory
+    from phc.frontend.budget import max_memory
     from phc.codegen.load import cap_problem
 
     try:
@@ -170,10 +170,10 @@ def _check_environment(budget: bool = True) -> None:
 
 
 def _with_budget(func):
-    """Run a command under its `--max-memory` budget (see phc.budget)."""
+    """Run a command under its `--max-memory` budget (see phc.frontend.budget)."""
 
     def run(args) -> int:
-        from phc import budget
+        from phc.frontend import budget
 
         with budget.override(args.max_memory):
             try:

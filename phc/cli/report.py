@@ -48,7 +48,7 @@ class _Files:
         if self.fmt == "text":
             _print_diagnostics(diags)
         elif self.fmt == "github":
-            from phc.report_formats import github_annotations
+            from phc.cli.report_formats import github_annotations
 
             for line in github_annotations(diags, path):
                 print(line)
@@ -63,7 +63,7 @@ class _Files:
 
     def finish(self) -> int:
         if self.fmt == "sarif":
-            from phc.report_formats import sarif_log
+            from phc.cli.report_formats import sarif_log
 
             print(json.dumps(sarif_log(self.diagnostics, __version__, self.command), indent=2))
         if self.n > 1 and self.fmt != "json":
@@ -86,13 +86,13 @@ def _part_line(path: str, dae) -> str:
 
 
 def _certificate_line(compiled) -> str:
-    cert = compiled.description.certificate  # the verdict (phc.description.Verdict)
+    cert = compiled.description.certificate  # the verdict (phc.codegen.description.Verdict)
     return f"  {cert.summary}" if cert is not None else "  not certified (--no-certify)"
 
 
 def _backend_line(compiled, requested=None, kept: Optional[str] = None, result=None) -> str:
     """What runs the generated functions (phc.codegen.backends); `kept` is the line a
-    cached front end printed before (phc.fastpath). A run that chose a backend of its own
+    cached front end printed before (phc.codegen.fastpath). A run that chose a backend of its own
     (`result.backend_note`: ``auto`` on a long fixed-step run) says which and why instead."""
     if result is not None and getattr(result, "backend_note", ""):
         return f"  backend  {result.backend_note}"
@@ -211,7 +211,7 @@ class _Exit(Exception):
 
 
 def _plot(result, path: str, title: str) -> None:
-    from phc import viz
+    from phc.study import viz
 
     try:
         viz.plot_outputs(result, path, title=title)

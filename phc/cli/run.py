@@ -57,7 +57,7 @@ def _initial_spans_from_files(path: str) -> dict:
     """:func:`_initial_spans` read from the files themselves (when no compiled model is at
     hand): the scene's `initial:` entries, then its model's."""
     from phc.spec.load import load_spec
-    from phc.scene import is_scene_file, load_scene
+    from phc.frontend.scene import is_scene_file, load_scene
 
     out = {}
     model = path
@@ -87,7 +87,7 @@ def _written_options(path: str) -> dict[str, list[str]]:
     its entry], the scene's `accuracy:` over its model's `simulation:` (defaults the user
     did not write are not listed)."""
     from phc.spec.load import load_spec
-    from phc.scene import is_scene_file, load_scene
+    from phc.frontend.scene import is_scene_file, load_scene
 
     out: dict[str, list[str]] = {}
     model = path

@@ -241,7 +241,7 @@ def for_run(compiled, backend: Optional[str], method: Optional[str], steps: int)
     of steps it takes. `backend` None means what `compiled` was compiled with
     (``compiled.backend_request``). The rule is in the module docstring. The module built is
     kept in ``compiled.cache.run_modules``; a model loaded from its description (no
-    ``compiled.dae``) uses the one its cached front end put there (:mod:`phc.fastpath`)."""
+    ``compiled.dae``) uses the one its cached front end put there (:mod:`phc.codegen.fastpath`)."""
     module = for_compiled(compiled, backend)
     targets, why_numpy, note = _run_targets(compiled, module, backend, method, steps)
     if not targets and method is not None and steps < AUTO_LOOP_STEPS:
@@ -296,7 +296,7 @@ def _run_targets(compiled, module, backend, method, steps) -> tuple[list[str], s
         return [], "", ""
     if module.N >= AUTO_MIN_UNKNOWNS:  # auto tried C and numba and could use neither (the note says why)
         return [], "", ""
-    from phc.codegen import numba_cache  # does not import sympy: a cached front end asks this too (phc.fastpath)
+    from phc.codegen import numba_cache  # does not import sympy: a cached front end asks this too (phc.codegen.fastpath)
 
     numba_ok, numba_why = numba_cache.available()
     why_numpy = f"{module.N} unknowns, below {AUTO_MIN_UNKNOWNS}, without C"
@@ -326,13 +326,13 @@ def for_compiled(compiled, backend: Optional[str]) -> ModuleType:
     if choice == "numpy" or choice == current or (choice == "auto" and current != "numpy"):
         return reference if choice == "numpy" else compiled.module
     if compiled.dae is None:
-        raise SimulationSetupError(f"backend `{backend}`: this model was loaded from its description (phc.fastpath), "
+        raise SimulationSetupError(f"backend `{backend}`: this model was loaded from its description (phc.codegen.fastpath), "
                                    f"which runs on `{current}` only; compile it (phc.compile_model) for another")
     from phc.codegen.lower import lower_residual
 
     start = time.perf_counter()
     module, _ = select(lower_residual(compiled.dae), reference, compiled.source, choice)
-    timings = compiled.cache.timings  # phc.compiled.RunCache
+    timings = compiled.cache.timings  # phc.codegen.compiled.RunCache
     timings["backend"] = timings.get("backend", 0.0) + time.perf_counter() - start
     return module
 

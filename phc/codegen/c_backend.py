@@ -58,7 +58,7 @@ from phc import __version__
 from phc.errors import BackendUnsupported as CUnsupported  # noqa: F401 — the API's name
 
 # The printer (phc.codegen.c_printer) imports sympy; loading a library from C text does not
-# need it (a cached front end loads one: phc.fastpath), so it is imported where C is printed.
+# need it (a cached front end loads one: phc.codegen.fastpath), so it is imported where C is printed.
 ABI = 1
 """Version of the library's interface (the functions of phc.codegen.c_printer's C text and
 ``phc_sizes``)."""

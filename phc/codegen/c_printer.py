@@ -51,9 +51,9 @@ from phc.codegen.kernels import CJ, Kernel, _canonical, function_kernels, produc
 from phc.codegen.lower import ResidualIR
 from phc.codegen.numba_emit import _NODES, _RELATIONS, _SIMPLE, _is_switch
 from phc.codegen.printer import _cse, _identifier, _Printer
-from phc.dae import STORED_ENERGY, T
+from phc.ir.dae import STORED_ENERGY, T
 from phc.errors import BackendUnsupported, CodegenError
-from phc.inputs import InputTable, InputTableSlope
+from phc.frontend.inputs import InputTable, InputTableSlope
 
 from phc.codegen.c_backend import ABI  # noqa: E402 — the loader checks it without importing sympy
 

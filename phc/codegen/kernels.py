@@ -17,9 +17,9 @@ from typing import Optional
 import scipy.sparse as sps
 import sympy as sp
 
-from phc.budget import drop_deltas
+from phc.frontend.budget import drop_deltas
 from phc.codegen.lower import ResidualIR
-from phc.dae import STORED_ENERGY, T
+from phc.ir.dae import STORED_ENERGY, T
 
 CJ = sp.Symbol("cj")
 """The Jacobian's factor of dF/dẏ (an argument of ``jacobian``)."""
@@ -34,7 +34,7 @@ class Kernel:
     ``("quad", A, cols, coeff, index, absolute)`` adds ``coeff·xᵀAx`` (its absolute value) to
     ``out[index]``; ``("grad", A, cols, pos, coeff)`` adds ``coeff·A x`` to ``out[pos]``
     (x = y[cols], A a CSR matrix). With `energy` (the kernel of ``hamiltonian``), the stored
-    energy H is computed first, once, and is the value of :data:`~phc.dae.STORED_ENERGY` in
+    energy H is computed first, once, and is the value of :data:`~phc.ir.dae.STORED_ENERGY` in
     the targets (an output that uses `H`)."""
 
     targets: tuple

@@ -1,6 +1,6 @@
-"""The lower pass: a :class:`~phc.dae.Dae` to a :class:`ResidualIR`.
+"""The lower pass: a :class:`~phc.ir.dae.Dae` to a :class:`ResidualIR`.
 
-Input: a :class:`~phc.dae.Dae` (assembled, analysed). Output: a :class:`ResidualIR`.
+Input: a :class:`~phc.ir.dae.Dae` (assembled, analysed). Output: a :class:`ResidualIR`.
 
 The IR is everything the printer needs and nothing else: the ordered variables and
 parameters, the residual rows, the analytic Jacobian ``dF/dy + cj·dF/dẏ`` as a sparse
@@ -18,8 +18,8 @@ import numpy as np
 import scipy.sparse as sps
 import sympy as sp
 
-from phc import budget
-from phc.dae import T, Dae
+from phc.frontend import budget
+from phc.ir.dae import T, Dae
 from phc.diagnostics import Diagnostic, DiagnosticList
 from phc.errors import ModelError
 from phc.codegen.nonsmooth import StickInfo, SwitchInfo, plain, switching, with_origins

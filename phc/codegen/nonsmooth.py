@@ -1,6 +1,6 @@
 """Non-smooth functions and switching conditions, for the lower pass.
 
-Input: the residual rows of a :class:`~phc.dae.Dae` (sympy). Output: the rows rewritten
+Input: the residual rows of a :class:`~phc.ir.dae.Dae` (sympy). Output: the rows rewritten
 so that every non-smooth point is a *switch* the simulation driver controls, the
 switches' boundary functions, and the set-valued `sign` terms (:class:`Switching`).
 
@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import sympy as sp
 
-from phc.dae import T
+from phc.ir.dae import T
 
 
 class Switch(sp.Function):

@@ -88,7 +88,7 @@ from phc.codegen.numba_emit import (_COEFFICIENT, _NODES, _RELATIONS, _SIMPLE, K
                                     _canonical, _coefficient, _Emitter, _emit_kernel, _is_switch, emittable)
 from phc.codegen import packing
 from phc.codegen.printer import ModulePrinter, _array
-from phc.dae import STORED_ENERGY, T
+from phc.ir.dae import STORED_ENERGY, T
 
 _KIND = {"linear": 0, "previous": 1}
 
@@ -393,7 +393,7 @@ def load_compiled(ir: ResidualIR, reference: ModuleType, reference_source: str,
     report = CompileReport(time.perf_counter() - start, time.process_time() - cpu, state, digest,
                            tuple(sorted(kernels)), note, hits, misses)
     module = assemble(reference, dispatchers, report)
-    # what the cached front end needs to load these functions again without the IR (phc.fastpath)
+    # what the cached front end needs to load these functions again without the IR (phc.codegen.fastpath)
     module.KERNEL = {"text": text, "emitted": sorted(kernels), "trivial": sorted(kernel_printer.trivial)}
     mismatch = _cross_check(module, reference)
     if mismatch and (hits or state == "memory"):

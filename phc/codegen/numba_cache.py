@@ -4,7 +4,7 @@ compiled functions, and loading a model's compiled functions from that cache alo
 :mod:`phc.codegen.numba_backend` builds the compiled functions from a model's
 intermediate representation (sympy expressions; importing it costs about a second). What
 a run needs once they are built lives here and imports neither sympy nor the model
-language: the cached front end of ``phc simulate`` (:mod:`phc.fastpath`) loads a model's
+language: the cached front end of ``phc simulate`` (:mod:`phc.codegen.fastpath`) loads a model's
 compiled functions with :func:`load_cached`, from the kernel text its record keeps, and
 the compiled step loop (:mod:`phc.simulation.compiled_steps`) keeps its own code in the
 same signed cache. How the cache is keyed, signed and kept private:

@@ -25,8 +25,8 @@ import sympy as sp
 from phc.codegen.kernels import _COEFFICIENT, Kernel, _canonical, _coefficient, product_parts  # noqa: F401
 from phc.codegen.lower import ResidualIR
 from phc.codegen.printer import _cse
-from phc.dae import STORED_ENERGY, T
-from phc.inputs import InputTable, InputTableSlope
+from phc.ir.dae import STORED_ENERGY, T
+from phc.frontend.inputs import InputTable, InputTableSlope
 
 # ---------------------------------------------------------------------------------------
 # what the emitter can write

@@ -29,13 +29,13 @@ import sympy as sp
 from sympy.printing.pycode import PythonCodePrinter
 
 from phc import __version__
-from phc.budget import drop_deltas
+from phc.frontend.budget import drop_deltas
 from phc.codegen import packing
 from phc.codegen.lower import ResidualIR
 from phc.codegen.terms import ordered_terms
-from phc.dae import STORED_ENERGY, T
+from phc.ir.dae import STORED_ENERGY, T
 from phc.errors import CodegenError
-from phc.inputs import table_arrays
+from phc.frontend.inputs import table_arrays
 
 
 class _Printer(PythonCodePrinter):

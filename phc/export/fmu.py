@@ -7,7 +7,7 @@ Input: a model or scene file (and the export's options). Output: an ``.fmu`` (a 
   unless the initial state depends on them, then ``fixed``; parameters fixed at compile time — a
   mesh length — are ``local`` constants), the
   inputs (an additive input on every top-level effort or flow source and exposed port, as
-  ``phc linearize`` defines them: :func:`phc.linearize.compile_with_inputs`), the model's
+  ``phc linearize`` defines them: :func:`phc.study.linearize.compile_with_inputs`), the model's
   outputs, the stored energy ``energy.H`` and the energy-balance error
   ``energy.balance_error`` (outputs), every DAE variable (``local``), with units and
   descriptions;
@@ -257,7 +257,7 @@ def _export(path, out, step, solver, fmi, params, certify, started) -> FmuReport
     from phc.errors import BackendUnsupported, InconsistentInitialError, ModelEvaluationError, SimulationSetupError
     from phc.export.fmu_c import FMI2_CS, FmuData, fmu_source
     from phc.export.fmu_xml import model_description
-    from phc.linearize import compile_with_inputs
+    from phc.study.linearize import compile_with_inputs
     from phc.options import RunOptions
     from phc.simulation import initial_values, parameter_vector, start_state
     from phc.simulation import midpoint as mp

@@ -22,7 +22,7 @@ for strains (frequency error O(h²)); the Euler–Bernoulli beam (N = 2, integra
 parts twice) uses C¹ Hermite cubics for the momentum and discontinuous P1 for the
 curvature (frequency error O(h⁴)).
 
-All blocks stay sparse (:class:`~phc.dae.LinearTerm`); constant coefficients stay
+All blocks stay sparse (:class:`~phc.ir.dae.LinearTerm`); constant coefficients stay
 run-time parameters, coefficients that vary with ``xi`` are evaluated at compile time.
 
 Besides the projection onto its ports (what the Dirac certificate uses), each component
@@ -47,7 +47,7 @@ import numpy as np
 import scipy.sparse as sps
 import sympy as sp
 
-from phc.dae import T, LinearTerm, QuadraticForm
+from phc.ir.dae import T, LinearTerm, QuadraticForm
 from phc.discretize.fem1d import DP1, H3, P0, P1, Mesh, assemble
 from phc.library.dirac import DiracBuilder, emit
 
@@ -158,7 +158,7 @@ class Structure:
 def _describe(name, kind, span, keys, sizes, lam_names, storage, J, dissipation):
     """A :class:`Structure` over coordinate groups `keys` (sizes `sizes`, multipliers named
     `lam_names`): `storage` maps a stored group to ``(states, rates, E terms, Q terms)``
-    (:class:`~phc.dae.LinearTerm` lists with matrices over the group's coordinates, E
+    (:class:`~phc.ir.dae.LinearTerm` lists with matrices over the group's coordinates, E
     multiplying the flows and λ, Q the states); `J` is the lossless operator over all
     coordinates (numbers), `dissipation` a list of ``(coeff, matrix over all coordinates)``."""
     d = DiracBuilder(name, kind, span)
@@ -341,7 +341,7 @@ def _lower_partitioned(b, ctx, name, spec, path, mesh, fields_a, fields_b, coupl
         structure = _describe(name, spec.type, span, keys, sizes, [f"lambda_{k}" for k in keys], storage, lossless,
                               losses)
     handle = FullFields(b, rows, fields, structure)
-    from phc.initial_fields import register  # what initial fields of ξ project onto (docs/how-to/initial-fields.md)
+    from phc.ir.initial_fields import register  # what initial fields of ξ project onto (docs/how-to/initial-fields.md)
 
     register(b, name, spec, mesh, fields)
     described = _boundary_ports(b, name, span, handle, ports, "discretized PDE: skew interconnection by "
@@ -443,7 +443,7 @@ def _lower_fields(b, ctx, name, spec, path, mesh, span, spaces_a, spaces_b, coup
                 "`rotary_inertia` on, or drop `modes`", ctx, path)
         return None
     if k is not None:
-        from phc.initial_fields import register
+        from phc.ir.initial_fields import register
         from phc.library.modal import lower_modal
 
         register(b, name, spec, mesh, None)  # modal coordinates: initial fields are refused, per dof stays

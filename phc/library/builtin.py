@@ -1,6 +1,6 @@
-"""The built-in component types: one :class:`~phc.registry.ComponentType` entry each.
+"""The built-in component types: one :class:`~phc.library.registry.ComponentType` entry each.
 
-Imported by :mod:`phc.registry` on first use. Each entry is everything phc knows of its
+Imported by :mod:`phc.library.registry` on first use. Each entry is everything phc knows of its
 type beside the spec model (:mod:`phc.spec.components`) and the lowerer
 (:mod:`phc.library`); the per-type tables of the other modules are derived from these
 entries. The units of the lumped elements' fields are products of their port domain's
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from functools import partial
 
-from phc import viz
+from phc.study import viz
 from phc.library import lumped
 from phc.library.contact import lower_contact
 from phc.library.beams import lower_euler_bernoulli, lower_string, lower_timoshenko
@@ -22,7 +22,7 @@ from phc.library.pde1d import lower_pde1d, pde1d_rows
 from phc.library.phs import lower_phs
 from phc.library.rigid import lower_rigid
 from phc.library.signal import lower_pi, lower_state_space
-from phc.registry import (ASSEMBLED, NO_FIELDS, NO_STATE_READS, ComponentType, Drawing, ElementUnit, InitialFields,
+from phc.library.registry import (ASSEMBLED, NO_FIELDS, NO_STATE_READS, ComponentType, Drawing, ElementUnit, InitialFields,
                           PerElement, ROWS, StateReads, Units)
 from phc.spec import components as c
 
@@ -183,4 +183,4 @@ BUILTINS = (
         cost=ASSEMBLED, spatial_order=None, initial_fields=NO_FIELDS, sign_role=None,
         state_reads=StateReads(("gap",)), drawing=None, rows=DERIVED),
 )
-"""The built-in entries, registered by :func:`phc.registry._load_builtins` on first use."""
+"""The built-in entries, registered by :func:`phc.library.registry._load_builtins` on first use."""

@@ -23,7 +23,7 @@ import re
 
 import sympy as sp
 
-from phc.dae import T
+from phc.ir.dae import T
 from phc.library.lumped import _scope, _state_scope
 
 _POSITION = re.compile(r"^(?P<body>.+)\.x(?P<index>\[\d+\])?$")

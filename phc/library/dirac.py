@@ -5,7 +5,7 @@ pairs bound to states (``f = ẋ``, ``e = ∂H/∂x``), resistive pairs with the
 Dirac structure in kernel form ``F f + E e + G λ = b(t)`` (T. Berger, R. Hochdahl,
 T. Reis, R. Seifried, "Port-Hamiltonian modelling of coupled rigid/flexible multibody
 systems", section 2, the kernel representation with its ∃λ) and the Hamiltonian. The
-result is one immutable :class:`~phc.dae.ComponentDescription`.
+result is one immutable :class:`~phc.ir.dae.ComponentDescription`.
 
 :func:`emit` derives the component's equation rows from that description — the same
 relations, with every storage pair replaced by ``(ẋ, ∂H/∂x)`` and every internal pair
@@ -24,7 +24,7 @@ truncations, matrix components, the moving beam's flexible part) register the pr
 of their structure onto their ports (``kind="port_projection"``: what the Dirac and
 coupling certificate works with) and, as its `structure`, the complete semi-discrete pH
 system, kept sparse: relations over symbol vectors (:meth:`DiracBuilder.block`, a
-:class:`~phc.dae.LinearTerm` per matrix), storage vectors ``f = ẋ``, ``e = Qx``
+:class:`~phc.ir.dae.LinearTerm` per matrix), storage vectors ``f = ẋ``, ``e = Qx``
 (:meth:`DiracBuilder.storage_vector`) and resistive vectors with sparse laws. A block
 may be solved for a vector (``solve=``): :func:`emit_sparse` derives sparse rows from such
 a structure by composing the matrices of the vectors it eliminates (``linear_phs``,
@@ -43,7 +43,7 @@ import numpy as np
 import scipy.sparse as sps
 import sympy as sp
 
-from phc.dae import ComponentDescription, LinearTerm, SparseRelations, Storage, StorageVector
+from phc.ir.dae import ComponentDescription, LinearTerm, SparseRelations, Storage, StorageVector
 
 
 class DiracBuilder:
@@ -102,7 +102,7 @@ class DiracBuilder:
 
     def storage_vector(self, local: str, states, rates, gradient) -> tuple[tuple, tuple]:
         """Storage pairs bound to `states`, as vectors: ``f = ẋ`` (`rates`) and
-        ``e = Σ gradient`` (:class:`~phc.dae.LinearTerm` over the states: ∂H/∂x of a
+        ``e = Σ gradient`` (:class:`~phc.ir.dae.LinearTerm` over the states: ∂H/∂x of a
         quadratic energy)."""
         f, e = self.vector(local, len(states))
         self.storage_vectors.append(StorageVector(f, e, tuple(states), tuple(rates), tuple(gradient)))
@@ -125,7 +125,7 @@ class DiracBuilder:
         return lam
 
     def block(self, label: str, n: int, terms, law: bool = False, solve=None) -> int:
-        """`n` relations ``Σ terms = 0`` kept sparse (each term a :class:`~phc.dae.LinearTerm`
+        """`n` relations ``Σ terms = 0`` kept sparse (each term a :class:`~phc.ir.dae.LinearTerm`
         over symbols of this description); returns the block's number for :meth:`add_to`.
         `solve`: the vector they are solved for (its term is the identity): :func:`emit`
         eliminates it, or defines it when it is a port's flows or efforts."""
@@ -203,7 +203,7 @@ class DiracBuilder:
 def solve_for(expr: sp.Expr, symbol: sp.Symbol) -> sp.Expr:
     """`expr` = 0 solved for `symbol`, which must enter linearly with a coefficient free of
     it (every relation a lowerer marks as a definition is of this form)."""
-    from phc.budget import derivative
+    from phc.frontend.budget import derivative
 
     if isinstance(expr, sp.Add):  # the common row `symbol ± rest`: no derivative, no substitution
         for term, sign in ((symbol, 1), (-symbol, -1)):
@@ -220,7 +220,7 @@ def solve_for(expr: sp.Expr, symbol: sp.Symbol) -> sp.Expr:
 
 def emit(b, desc: ComponentDescription, dissipation_span=None) -> None:
     """Derive the component's rows from its description and add them to the lowering
-    recorder `b` (:class:`phc.lowering.Recorder`): definitions, residual rows, the
+    recorder `b` (:class:`phc.frontend.lowering.Recorder`): definitions, residual rows, the
     Hamiltonian and the dissipated power (located at `dissipation_span`, or the component).
     A sparse description (blocks, storage vectors) gives sparse rows (:func:`emit_sparse`)."""
     if desc.blocks or desc.storage_vectors:
@@ -288,7 +288,7 @@ def _product(A, B):
 
 
 def _substitute(terms, extras, values: dict, depth: int = 0):
-    """`terms` (:class:`~phc.dae.LinearTerm`) and `extras` (``(row, expr)``) with every term
+    """`terms` (:class:`~phc.ir.dae.LinearTerm`) and `extras` (``(row, expr)``) with every term
     over a vector of `values` (``vector -> (terms, extras, rename)``) replaced by its value."""
     if depth > 64:
         raise ValueError("the sparse description's solved vectors refer to each other in a cycle")
@@ -351,7 +351,7 @@ def emit_sparse(b, desc: ComponentDescription) -> None:
     states, their efforts the gradient ``Σ coeff·A x``; each block solved for a vector
     (``solve``) gives that vector's value, substituted wherever it is used (composed
     matrices), or, for a port's flows or efforts, their definitions; every other block
-    becomes sparse rows (:meth:`~phc.lowering.Recorder.add_linear_rows`) — its terms over
+    becomes sparse rows (:meth:`~phc.frontend.lowering.Recorder.add_linear_rows`) — its terms over
     port variables, which assembly may substitute, and its sympy parts (boundary
     couplings) added to the rows as sympy expressions — unless it vanishes identically
     (:func:`_vanishes`). Scalar relations (over the model's own variables and the ports)

@@ -6,7 +6,7 @@ symmetric; ``½ xᵀQx`` for the default E = I); the power balance
 ``dH/dt = (Qx)ᵀE ẋ = −(Qx)ᵀR(Qx) − Σ f·e`` follows as in :mod:`phc.library.phs` (a linear
 descriptor pH system: Beattie, Mehrmann, Xu, Zwart, "Linear port-Hamiltonian descriptor
 systems", Math. Control Signals Syst. 30, 2018). The matrices become
-:class:`~phc.dae.LinearTerm` blocks that stay sparse through code generation; only the few
+:class:`~phc.ir.dae.LinearTerm` blocks that stay sparse through code generation; only the few
 boundary couplings are sympy expressions.
 
 The rows are derived from the complete description (:func:`phc.library.dirac.emit_sparse`),
@@ -30,8 +30,8 @@ import scipy.sparse as sps
 import sympy as sp
 
 from phc.errors import NpzProblem
-from phc.dae import LinearTerm, QuadraticForm
-from phc.files import SIZE_LIMIT_ENV, FileAccess, FileRefused, size_limit
+from phc.ir.dae import LinearTerm, QuadraticForm
+from phc.frontend.files import SIZE_LIMIT_ENV, FileAccess, FileRefused, size_limit
 from phc.library.dirac import DiracBuilder, emit
 from phc.library.phs import local_scope
 from phc.library.timing import refuse_time
@@ -56,7 +56,7 @@ class NpzArchive:
     An ``.npz`` is a zip of ``.npy`` members. On opening, the zip's central directory is
     bounded (:data:`MAX_NPZ_MEMBERS`), members must be stored or deflated (no bzip2/lzma,
     whose decompression phc cannot bound), not encrypted, and their declared sizes within
-    :func:`phc.files.size_limit` ("matrices") and a deflate ratio of
+    :func:`phc.frontend.files.size_limit` ("matrices") and a deflate ratio of
     :data:`MAX_DEFLATE_RATIO`. :meth:`array` then reads one member: its ``.npy`` header is
     parsed first (numpy's parser with its 10 000-character limit; never unpickling) and
     the dtype (real numbers only: no object, string, complex or structured types), the

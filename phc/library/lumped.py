@@ -26,14 +26,14 @@ from __future__ import annotations
 import numpy as np
 import sympy as sp
 
-from phc.dae import T
+from phc.ir.dae import T
 from phc.library.dirac import DiracBuilder, emit
 from phc.library.timing import at_times, refuse_time, sample_times
-from phc.registry import FieldView
+from phc.library.registry import FieldView
 from phc.spec.expressions import ExpressionError, validate_syntax
 
 DEFAULT_DOMAIN = FieldView("default_domain")
-"""Type -> the domain of its ports when the entry gives none (:mod:`phc.registry`)."""
+"""Type -> the domain of its ports when the entry gives none (:mod:`phc.library.registry`)."""
 
 
 def _scope(ctx):
@@ -360,7 +360,7 @@ READING_ROLES = ("flow", "effort")
 
 def reading_name(reader: str, variable: str) -> str:
     """The name of the variable holding `reader`'s reading of the port variable `variable`
-    (as :meth:`phc.lowering.Recorder.add_algebraic` names it)."""
+    (as :meth:`phc.frontend.lowering.Recorder.add_algebraic` names it)."""
     return f"{reader}.reads({variable})"
 
 

@@ -57,7 +57,7 @@ import scipy.linalg as sla
 import scipy.sparse as sps
 import sympy as sp
 
-from phc.dae import LinearTerm, QuadraticForm
+from phc.ir.dae import LinearTerm, QuadraticForm
 from phc.discretize.fem1d import assemble
 
 

@@ -39,7 +39,7 @@ from __future__ import annotations
 import numpy as np
 import sympy as sp
 
-from phc.dae import T
+from phc.ir.dae import T
 from phc.discretize.fem1d import _GAUSS_S, _GAUSS_W
 from phc.discretize.fem1d import DP1, H3, P0, P1, assemble
 from phc.library.beams import FullFields, _inverse, _lower_fields, prepare

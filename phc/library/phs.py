@@ -21,8 +21,8 @@ from __future__ import annotations
 import numpy as np
 import sympy as sp
 
-from phc.dae import T, Parameter
-from phc.effects import is_on, summed_terms, user_effect_scope
+from phc.ir.dae import T, Parameter
+from phc.frontend.effects import is_on, summed_terms, user_effect_scope
 from phc.library.dirac import DiracBuilder, emit
 from phc.spec.expressions import ExpressionError, parse_equation
 
@@ -105,12 +105,12 @@ def lower_phs(b, ctx, name, spec, path):
 
 
 def _gradient(b, ctx, name, H, xs, hpath) -> sp.Matrix:
-    """∇H within the symbolic budget (:mod:`phc.budget`).
+    """∇H within the symbolic budget (:mod:`phc.frontend.budget`).
 
     The gradient enters the residual and the Jacobian differentiates it once more, so the
     size of both derivatives is bounded before sympy computes them. Beyond the budget
     the Hamiltonian is reported (located) and ∇H = 0 stands in for it."""
-    from phc import budget
+    from phc.frontend import budget
 
     if not xs:
         return sp.zeros(0, 1)

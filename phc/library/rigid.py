@@ -32,8 +32,8 @@ import numpy as np
 import sympy as sp
 
 from phc.checks.certify import RANK_RTOL
-from phc.dae import T
-from phc.effects import is_on, summed_terms
+from phc.ir.dae import T
+from phc.frontend.effects import is_on, summed_terms
 from phc.library.dirac import DiracBuilder, emit
 from phc.library.phs import local_scope, numeric_defaults
 from phc.library.timing import sample_times

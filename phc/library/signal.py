@@ -10,7 +10,7 @@ supplied power, so the energy balance stays exact.
 
 The rows of a block are ``ż − (A z + B u) = 0``; its output ``y = C z + D u`` is not a
 variable but an expression in the states and `t` (recorded in
-:attr:`~phc.lowering.Recorder.signals` for the components lowered after it, and as an
+:attr:`~phc.frontend.lowering.Recorder.signals` for the components lowered after it, and as an
 output of the model).
 """
 
@@ -34,7 +34,7 @@ def _publish(b, name: str, y: list, span=None) -> None:
     """Make the outputs readable as ``name.y`` (``name.y[k]``) by later components and outputs.
 
     An output read by a component lowered before this block (blocks that read each other in
-    a cycle, :meth:`phc.elaborate.Elaborator._reading_order`) is already a placeholder symbol
+    a cycle, :meth:`phc.frontend.elaborate.Elaborator._reading_order`) is already a placeholder symbol
     of that name: it becomes an algebraic variable with the row ``y − (C z + D u) = 0``, so
     that what read it early and what reads it now see one variable; an algebraic loop among
     such outputs (feedthrough all round the cycle) is refused after assembly (PHC-E128)."""

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import sympy as sp
 
-from phc.dae import T
+from phc.ir.dae import T
 
 TIME_CODE = "PHC-E127"
 """A field that may not depend on `t` does."""

@@ -17,7 +17,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from phc.compiled import CompiledModel
+from phc.codegen.compiled import CompiledModel
 from phc.errors import InconsistentInitialError, SimulationSetupError
 from phc.simulation.guard import CATCH as GUARD_CATCH
 from phc.simulation.guard import ModelEvaluationError, guard, quiet_floating_point
@@ -148,8 +148,8 @@ def check_parameters(compiled, params: Optional[dict], label: Optional[Callable[
 
 def _parameter_problems(compiled, changed: dict, path: Optional[str] = None) -> list[str]:
     """The errors of elaborating `compiled`'s model with `changed` over its parameters."""
-    from phc.elaborate import elaborate
-    from phc.scene import is_scene_file, load_scene
+    from phc.frontend.elaborate import elaborate
+    from phc.frontend.scene import is_scene_file, load_scene
 
     scene = compiled.scene
     sources = compiled.description.sources
@@ -243,7 +243,7 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
     elif not isinstance(compiled, CompiledModel):
         raise TypeError(f"simulate() expects a compiled model (phc.compile_model(path)) or a model file's path, "
                         f"got {type(compiled).__name__}")
-    opts = compiled.description.options  # read-only (phc.description)
+    opts = compiled.description.options  # read-only (phc.codegen.description)
     # the one options object: the model's (or scene's) run options with this call's overrides
     options = RunOptions.of(opts).with_overrides(t_end=t_end, rtol=rtol, atol=atol, n_out=n_out, solver=solver,
                                                  max_steps=max_steps, step=step, max_order=max_order)
@@ -264,7 +264,7 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
     # (phc.codegen.backends.for_run; the Python loop runs models with switching conditions)
     mod, backend_note = for_run(compiled, requested, *_loop_plan(compiled, options, t_out))
     mod = guard(mod, compiled.source, _locator(compiled))
-    from phc.budget import check_output_arrays
+    from phc.frontend.budget import check_output_arrays
 
     columns = 2 * mod.N + len(mod.OUTPUTS) + len(mod.INVARIANTS) + len(getattr(mod, "VELOCITY_INVARIANTS", ())) + 4
     too_large = check_output_arrays(len(t_out), columns, "t_eval" if t_eval is not None else "n_out")
@@ -345,7 +345,7 @@ def _fixed_steps(t_out: np.ndarray, step: Optional[float]) -> int:
 
 def initial_values(compiled, p: np.ndarray, initial: Optional[dict] = None) -> tuple[dict[int, float], set[int]]:
     """Initial values by variable index and the indices that are fixed (not guesses): the
-    model's (:attr:`ModelDescription.initial <phc.description.ModelDescription.initial>`:
+    model's (:attr:`ModelDescription.initial <phc.codegen.description.ModelDescription.initial>`:
     a value written in parameters that `p` changes is evaluated again from the assembled
     system), then `initial` (by state name, a value or ``(value, True)`` for a guess); the
     energy accumulator starts fixed at 0.
@@ -362,7 +362,7 @@ def initial_values(compiled, p: np.ndarray, initial: Optional[dict] = None) -> t
     values, fixed = {}, set()
     changed = _changed_parameters(mod, p)
     by_name: Optional[dict] = None  # sympy only for initial values written in overridden parameters
-    memo: dict = {}  # the parameter factors of initial fields, evaluated once (phc.initial_fields)
+    memo: dict = {}  # the parameter factors of initial fields, evaluated once (phc.ir.initial_fields)
     for k, iv in enumerate(compiled.description.initial):
         affected = changed if iv.depends is None else changed.intersection(iv.depends)
         if not affected:
@@ -377,7 +377,7 @@ def initial_values(compiled, p: np.ndarray, initial: Optional[dict] = None) -> t
 
                 slot = {pname: i for i, pname in enumerate(mod.PARAMETERS)}  # not .index per parameter
                 by_name = {par.symbol: sp.Float(float(p[slot[par.name]])) for par in compiled.dae.parameters}
-            from phc.initial_fields import evaluate
+            from phc.ir.initial_fields import evaluate
 
             values[index[iv.name]] = evaluate(compiled.dae.initial[k].expr, by_name, memo)
         if not iv.guess:
@@ -430,7 +430,7 @@ def start_state(compiled, p: np.ndarray, t0: float, values: dict[int, float], fi
                 mod=None) -> InitialResult:
     """The consistent state at the start of a run (:func:`consistent_initial_conditions` with
     the guarded module, as `simulate` runs it), kept in ``compiled.cache`` (a
-    :class:`~phc.compiled.RunCache`) for the last parameters,
+    :class:`~phc.codegen.compiled.RunCache`) for the last parameters,
     initial values and t₀ it was asked for: the certificate of every compilation solves it
     for the model's own values, and `simulate` with those values starts from it instead of
     solving again (the same solve, so the same numbers). Raises what the solve raises."""

@@ -2,7 +2,7 @@
 
 A model file is data: the spec layer only checks shapes, types and names.
 Expressions stay strings (or numbers) here; they are parsed against the names
-in scope by :mod:`phc.elaborate` through the whitelisting parser in
+in scope by :mod:`phc.frontend.elaborate` through the whitelisting parser in
 :mod:`phc.spec.expressions`, never by ``eval``.
 """
 

@@ -154,8 +154,8 @@ def _listed(names: list[str], limit: int = 8) -> str:
 def _unknown_name_hint(word: str, names) -> str:
     """The hint of an unknown name: every close name the model defines (not phc's `t`, `pi`,
     ...; for `body.x` none of another kind such as the momentum `body.p`,
-    :mod:`phc.state_hints`), and for a plain name where a new one is defined (`parameters:`)."""
-    from phc.state_hints import word_kind
+    :mod:`phc.frontend.state_hints`), and for a plain name where a new one is defined (`parameters:`)."""
+    from phc.frontend.state_hints import word_kind
 
     candidates = sorted({n for n in names if n not in _PHC_NAMES})
     if "." in word:

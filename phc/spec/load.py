@@ -1,7 +1,7 @@
 """Reading one model file into a validated :class:`~phc.spec.ModelSpec`, nothing more.
 
-The first step of the elaborate pass (:mod:`phc.elaborate`), and what ``phc.load_model``
-offers on its own: YAML with positions (:mod:`phc.source`), then pydantic validation,
+The first step of the elaborate pass (:mod:`phc.frontend.elaborate`), and what ``phc.load_model``
+offers on its own: YAML with positions (:mod:`phc.frontend.source`), then pydantic validation,
 every problem a located :class:`~phc.diagnostics.Diagnostic`.
 """
 
@@ -13,7 +13,7 @@ from typing import Optional
 import pydantic
 
 from phc.diagnostics import Diagnostic, DiagnosticList, allowed_keys_from_model, from_pydantic
-from phc.source import SourceMap, SourceSpan, load_yaml, read_yaml_file
+from phc.frontend.source import SourceMap, SourceSpan, load_yaml, read_yaml_file
 from phc.spec import ModelSpec
 
 __all__ = ["load_spec", "load_spec_bytes"]

@@ -11,7 +11,7 @@ How a sweep runs
   are run-time arguments of the generated module. Compile-time parameters (a mesh length,
   a coefficient varying along a distributed component) and ``accuracy.mesh.COMPONENT``
   group the points by compilation: each group is compiled once
-  (:func:`phc.scene.scene_variant`, nothing written).
+  (:func:`phc.frontend.scene.scene_variant`, nothing written).
 * **Workers get the compiled model by value**: a :class:`~phc.pipeline.CompiledModel`
   pickles as its generated source plus metadata and is rebuilt on the worker from the
   text in memory (:func:`phc.codegen.load.load_generated`); workers never read a model

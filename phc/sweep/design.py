@@ -383,7 +383,7 @@ def compile_group(compiled, path, group: tuple, certify: bool = True):
            meshes.get(name[len(MESH_PREFIX):]) == value for name, value in group):
         return compiled  # the values it was compiled with
     from phc.pipeline import compile_model
-    from phc.scene import scene_variant
+    from phc.frontend.scene import scene_variant
 
     params = {name: value for name, value in group if not name.startswith(MESH_PREFIX)}
     mesh = {name[len(MESH_PREFIX):]: int(value) for name, value in group if name.startswith(MESH_PREFIX)}

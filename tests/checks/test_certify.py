@@ -28,7 +28,7 @@ from hypothesis import event, given, settings
 from hypothesis import strategies as st
 
 import phc
-from phc import registry
+from phc.library import registry
 from phc.checks.certify import certify
 from phc.cli import main
 from phc.pipeline import elaborate_file as elaborate

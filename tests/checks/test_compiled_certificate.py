@@ -27,7 +27,7 @@ import sympy as sp
 
 import phc
 from phc.checks.compiled import certify_compiled
-from phc.dae import LinearTerm
+from phc.ir.dae import LinearTerm
 from phc.errors import ModelError
 from phc.library import LOWERERS
 from model_texts import BESIDE_RIGID, CRANK, DIAGONAL, LINEAR, MODULATION, PDE1D  # shared with tests/test_registry.py

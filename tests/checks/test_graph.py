@@ -11,13 +11,13 @@ from pathlib import Path
 import pytest
 
 import phc
-from phc import registry
+from phc.library import registry
 from phc.checks.certify import certify
 from phc.checks.graph import (build_interconnection_graph, component_graph, connected_to, independent_parts,
                               kinematic_loops, to_dot, traversal_order)
 from phc.cli import main
-from phc.interconnect import reads_of
-from phc.dae import PortInfo, Topology
+from phc.ir.interconnect import reads_of
+from phc.ir.dae import PortInfo, Topology
 
 REPO = Path(__file__).resolve().parents[2]
 MODELS = REPO / "models"

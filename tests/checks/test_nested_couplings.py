@@ -136,7 +136,7 @@ def test_run_monitor_names_the_nested_connection_of_a_coupling_row(nested):
 def test_traversal_keeps_connections_whose_labels_repeat():
     # labels are unique in an elaborated model; the traversal still tells connections
     # apart by their place, never by their label
-    from phc.dae import PortInfo, Topology
+    from phc.ir.dae import PortInfo, Topology
 
     ports = tuple(PortInfo(f"{c}.p", c, "generic", 1, None) for c in "abcd")
     top = Topology(components=tuple((c, "test", None) for c in "abcd"), ports=ports,

@@ -32,8 +32,8 @@ import sympy as sp
 import phc
 import phc.checks.rows as rows_module
 from phc.checks.rows import _compare_affine, _compare_dense, _prepare, check_rows
-from phc.dae import LinearTerm
-from phc.dae import T as T_SYMBOL
+from phc.ir.dae import LinearTerm
+from phc.ir.dae import T as T_SYMBOL
 from phc.library import LOWERERS
 from model_texts import STRING_MODES  # shared with tests/test_registry.py
 from test_compiled_certificate import INLINE, PDE1D, WrongRow, _write

@@ -9,7 +9,7 @@ puts in.
 
 An output that uses `H` refers to the stored energy as the generated ``hamiltonian``
 computes it (sparse quadratic forms), evaluated once per call of ``outputs``
-(:data:`phc.dae.STORED_ENERGY`): it works at any mesh size, on every back end, and the
+(:data:`phc.ir.dae.STORED_ENERGY`): it works at any mesh size, on every back end, and the
 generated code does not grow with the mesh. (It was refused above 2000 energy terms, about
 660 string elements, because the energy was written out term by term.)
 """
@@ -25,7 +25,7 @@ import pytest
 import sympy as sp
 
 import phc
-from phc.dae import STORED_ENERGY
+from phc.ir.dae import STORED_ENERGY
 
 MODELS = Path(__file__).resolve().parents[2] / "models"
 

@@ -7,7 +7,7 @@ the edits a user (or a build tool) makes: a value edited, a file deleted or rest
 symbolic link repointed (file or directory), a file replaced by a directory or made
 invalid, a column renamed, the same bytes written again, and new bytes of the same size
 with the old modification time put back. After every edit the command runs twice: with
-the cached front end (:mod:`phc.fastpath`, which may answer from a record of an earlier
+the cached front end (:mod:`phc.codegen.fastpath`, which may answer from a record of an earlier
 state of the tree) and with it switched off (``PHC_FRONT_END_CACHE=0``). The two must
 agree: the same exit status; on success the same CSV, byte for byte; on failure the same
 error codes, each in a located one-line message.
@@ -31,7 +31,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from phc import fastpath
+from phc.codegen import fastpath
 from phc.cli import main
 
 EXAMPLES = 5

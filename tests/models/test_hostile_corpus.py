@@ -316,7 +316,7 @@ def test_inline_data_too_large_is_not_called_alias_expansion():
     "too large", with a hint to move the data to a file; "alias expansion" is for aliases
     (billion laughs), whose limit counts the nodes they add.
     (A small limit: PyYAML composes some 15 000 nodes a second, too slow for 100 000 here.)"""
-    from phc.source import load_yaml
+    from phc.frontend.source import load_yaml
 
     row = "[" + ", ".join(["0"] * 40) + "]"
     inline = "J:\n" + "".join(f"  - {row}\n" for _ in range(40))

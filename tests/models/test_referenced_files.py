@@ -21,11 +21,11 @@ import numpy as np
 import pytest
 
 import phc
-from phc import files as phc_files
-from phc import inputs
+from phc.frontend import files as phc_files
+from phc.frontend import inputs
 from phc.cli import main
 from phc.errors import ModelError
-from phc.elaborate import Reporter
+from phc.frontend.elaborate import Reporter
 from time_limits import SUBPROCESS_TIMEOUT
 
 SECRET = "hunter2-s3cr3t-value"
@@ -406,7 +406,7 @@ ports:
 
 
 def test_each_nested_file_is_read_once(tmp_path, monkeypatch):
-    import phc.elaborate as elab
+    import phc.frontend.elaborate as elab
 
     reads = []
     original = elab.load_spec_bytes
@@ -422,7 +422,7 @@ def test_a_diamond_of_18_levels_is_refused_before_expanding(tmp_path, capsys, mo
     """2**19 - 1 copies, counted without making them: each of the 19 files is read once, each
     of the 37 references is followed once (the count is memoized per file), and no file is
     elaborated (counted, not timed)."""
-    import phc.elaborate as elab
+    import phc.frontend.elaborate as elab
 
     reads, refs, elaborated = [], [], []
     load_spec_bytes, nested_ref = elab.load_spec_bytes, elab._Elaborator._nested_ref

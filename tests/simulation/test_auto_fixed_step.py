@@ -24,7 +24,7 @@ import pytest
 import phc
 from phc.cli import main
 from phc.codegen import backends, c_backend, cc, numba_backend, numba_cache
-from phc.compiled import CompiledModel
+from phc.codegen.compiled import CompiledModel
 from phc.errors import SimulationSetupError
 from phc.simulation.midpoint import NEWTON_TOL
 

@@ -146,7 +146,7 @@ def test_fine_rod_reference_run_failure_is_diagnosed():
     ``atol · s_j`` above the round-off of its variable, so the run finishes. A user-set
     nominal scale is taken as given: set below the round-off, the old failure comes back,
     and it is diagnosed."""
-    from phc.scene import scene_variant
+    from phc.frontend.scene import scene_variant
 
     base = phc.compile_model(REPO / "models" / "scenes" / "slider_crank_150rad.yaml", certify=False)
     variant = scene_variant(base.scene, mesh={"rod": 32}, max_order=5)

@@ -79,7 +79,7 @@ def test_one_newton_matrix_per_substep_size():
 
 
 def test_error_estimate_uses_order_4():
-    from phc.accuracy import temporal_estimate
+    from phc.study.accuracy import temporal_estimate
 
     compiled = phc.compile_model(MODELS / "mass_spring_damper.yaml")
     kwargs = dict(solver="midpoint4", step=0.05, t_end=5.0, n_out=11)

@@ -1,5 +1,5 @@
 """An input signal survives a dump and a re-validation unchanged and without pydantic's
-serializer warnings: a scene rebuilds the simulation section that way (phc/scene.py), so a
+serializer warnings: a scene rebuilds the simulation section that way (phc/frontend/scene.py), so a
 table or a list of pieces classified as an expression on the way out would be a silently
 different model on the way back in."""
 

@@ -16,7 +16,7 @@ import pytest
 
 pytest.importorskip("pint")
 
-import phc.units as units
+import phc.frontend.units as units
 from phc.cli import main
 from phc.pipeline import build_dae
 
@@ -223,7 +223,7 @@ def test_units_in_csv_header_json_and_plot(tmp_path, capsys):
     pytest.importorskip("matplotlib")
     from phc import simulate
     from phc.pipeline import compile_model
-    from phc.viz import outputs_figure
+    from phc.study.viz import outputs_figure
 
     result = simulate(compile_model(path))
     figure = outputs_figure(result, ["x", "force"])

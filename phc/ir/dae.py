@@ -1,0 +1,363 @@
+"""The flat relation system every model is lowered to (pipeline stage "assemble").
+
+A :class:`Dae` is ``F(t, y, ẏ, p) = 0``: variables (differential states and algebraic
+variables), equations tagged with their origin, the Hamiltonian, the dissipated and
+port powers for the energy balance (the paper's Remark 3 "Energy balance"), and the position
+invariants that the stabilized formulation keeps. It holds sympy expressions of small
+nonlinear parts only; it is frozen once built.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from collections.abc import Mapping
+from typing import Any, Optional
+
+import scipy.sparse as sps
+import sympy as sp
+
+from phc.codegen.description import freeze, thaw
+from phc.frontend.source import SourceSpan
+
+T = sp.Symbol("t", real=True)
+"""The time symbol shared by all expressions."""
+
+STORED_ENERGY = sp.Symbol("<H>", real=True)
+"""`H` in an output of a model with distributed components: the total stored energy, the
+value of the generated module's ``hamiltonian`` (the lumped parts' H plus the sparse quadratic
+energies :attr:`Dae.quadratic_energy`). The generated ``outputs`` evaluates it once per call,
+as ``hamiltonian`` does, and the output expressions refer to that value: the energy is never
+written out term by term (thousands of terms for a fine mesh). Its name is no identifier a
+model can write."""
+
+
+@dataclass(frozen=True)
+class Variable:
+    """One unknown of the DAE.
+
+    `role` is one of: ``state``, ``velocity``, ``flow``, ``effort``, ``multiplier``,
+    ``resistive``, ``energy``. Differential variables are the energy (storage) states and
+    the energy-balance accumulator; every other variable is algebraic.
+    """
+
+    name: str
+    symbol: sp.Symbol
+    differential: bool
+    role: str
+    component: str
+    dsymbol: Optional[sp.Symbol] = None
+    span: Optional[SourceSpan] = None
+
+
+@dataclass(frozen=True)
+class Equation:
+    """One residual row ``expr = 0`` with its origin (component, kind, label, source)."""
+
+    expr: sp.Expr
+    label: str
+    kind: str
+    component: str
+    span: Optional[SourceSpan] = None
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """A run-time parameter. `expr` is set for derived parameters (in other parameters)."""
+
+    name: str
+    symbol: sp.Symbol
+    default: float
+    expr: Optional[sp.Expr] = None
+    unit: Optional[str] = None
+    description: Optional[str] = None
+    span: Optional[SourceSpan] = None
+
+
+@dataclass(frozen=True)
+class Invariant:
+    """A position-level relation g(x, t) = 0 that the exact flow preserves."""
+
+    label: str
+    expr: sp.Expr
+    component: str
+    span: Optional[SourceSpan] = None
+
+
+@dataclass(frozen=True)
+class InitialValue:
+    """An initial value; `expr` (in parameters) is re-evaluated with run-time parameters."""
+
+    name: str
+    value: float
+    guess: bool
+    span: Optional[SourceSpan] = None
+    expr: Optional[sp.Expr] = None
+
+
+@dataclass(frozen=True, eq=False)
+class LinearTerm:
+    """``coeff · A · v`` with v the values (or, if `derivative`, the time derivatives) of
+    `symbols`; `coeff` depends on parameters only. Large linear parts (discretized PDEs,
+    FE exports) stay sparse matrices instead of sympy scalars."""
+
+    coeff: sp.Expr
+    matrix: sps.csr_matrix
+    symbols: tuple[sp.Symbol, ...]
+    derivative: bool = False
+
+
+@dataclass(frozen=True, eq=False)
+class LinearBlock:
+    """Rows `rows` of the residual get ``Σ terms`` added to their sympy part."""
+
+    label: str
+    component: str
+    rows: tuple[int, ...]
+    terms: tuple[LinearTerm, ...]
+    span: Optional[SourceSpan] = None
+
+
+@dataclass(frozen=True, eq=False)
+class QuadraticForm:
+    """``coeff · xᵀ A x`` over `symbols` (A symmetric, sparse): energy or dissipation."""
+
+    coeff: sp.Expr
+    matrix: sps.csr_matrix
+    symbols: tuple[sp.Symbol, ...]
+    component: str = ""
+    span: Optional[SourceSpan] = None
+
+
+@dataclass(frozen=True, eq=False)
+class Storage:
+    """One storage pair of a component description bound to its state: the pair's flow
+    is the state's rate, ``f = ẋ``, and its effort the co-energy, ``e = ∂H/∂x``
+    (`gradient`, which may use the component's own algebraic variables fixed by its
+    `laws`, e.g. rigid velocities ``M(q) v = p``)."""
+
+    flow: sp.Symbol
+    effort: sp.Symbol
+    state: sp.Symbol
+    rate: sp.Symbol
+    gradient: sp.Expr
+
+
+@dataclass(frozen=True, eq=False)
+class SparseRelations:
+    """`n` relations ``= 0`` of a description kept sparse (discretized PDEs, matrix
+    components): relation i is ``Σ_k coeff_k (A_k v_k)_i + Σ extra_i``, each term a
+    :class:`LinearTerm` over the description's symbols (flows, efforts, multipliers, port
+    variables; never `derivative`: flows are symbols of their own), `extra` sympy
+    expressions added to single relations as ``(i, expr)`` (boundary couplings,
+    modulations). `law` marks resistive or constitutive laws (like
+    :attr:`ComponentDescription.laws`); otherwise they are relations of the Dirac structure."""
+
+    label: str
+    n: int
+    terms: tuple[LinearTerm, ...]
+    extra: tuple[tuple[int, sp.Expr], ...] = ()
+    law: bool = False
+    solve: Optional[tuple[sp.Symbol, ...]] = None
+    """The vector of symbols these relations are solved for (it enters as the identity,
+    once): :func:`phc.library.dirac.emit` eliminates it (an internal vector) or defines it
+    (port variables); None: the relations are residual rows."""
+
+
+@dataclass(frozen=True, eq=False)
+class StorageVector:
+    """Storage pairs bound to states, as vectors (the sparse counterpart of
+    :class:`Storage`): ``f = ẋ`` and ``e = ∂H/∂x = Σ gradient`` — each term a
+    :class:`LinearTerm` over `states`, i.e. a quadratic energy ``H = ½ xᵀQx`` with
+    ``Q = Σ coeff·A``."""
+
+    flows: tuple[sp.Symbol, ...]
+    efforts: tuple[sp.Symbol, ...]
+    states: tuple[sp.Symbol, ...]
+    rates: tuple[sp.Symbol, ...]
+    gradient: tuple[LinearTerm, ...]
+
+
+@dataclass(frozen=True, eq=False)
+class ComponentDescription:
+    """What one component is, in one immutable value: its ports, its Dirac structure in
+    kernel form, its storage bound to its states and its Hamiltonian, its resistive and
+    source laws. The equation rows compiled for the component are derived from it
+    (:func:`phc.library.dirac.emit`) or, where a lowerer writes them directly, checked
+    against it at sampled states (:mod:`phc.checks.rows`).
+
+    ``relations`` are ``F f + E e + G λ = b(t)``: linear in `flows`, `efforts` and
+    `multipliers` (the kernel representation of a Dirac structure, with its ∃λ, in
+    T. Berger, R. Hochdahl, T. Reis, R. Seifried, "Port-Hamiltonian modelling of coupled
+    rigid/flexible multibody systems", section 2); their coefficients may depend on
+    `states` (modulation) and parameters, and an affine part ``b(t)`` is a source's value
+    (the Dirac structure is the linear part). `ports` maps each port name to the indices of
+    its flow and effort entries in `flows`/`efforts`; the other entries are the storage
+    pairs (`storage`) and the resistive or environment pairs. `laws` are the remaining
+    relations ``= 0`` — resistive laws between a resistive pair's flow and effort,
+    constitutive relations of auxiliary variables — and may be nonlinear.
+
+    `complete` is False for a description that is only the projection of the structure
+    onto the ports (large discretized components); such a projection carries the complete
+    description it projects as `structure`, against which the rows are compared.
+    """
+
+    component: str
+    kind: str
+    flows: tuple[sp.Symbol, ...]
+    efforts: tuple[sp.Symbol, ...]
+    multipliers: tuple[sp.Symbol, ...]
+    relations: tuple[sp.Expr, ...]
+    ports: dict
+    states: tuple[sp.Symbol, ...] = ()
+    span: Optional[SourceSpan] = None
+    note: str = ""
+    storage: tuple[Storage, ...] = ()
+    laws: tuple[sp.Expr, ...] = ()
+    hamiltonian: Optional[sp.Expr] = None
+    resistive: tuple[tuple[sp.Symbol, sp.Symbol], ...] = ()
+    """Resistive pairs (f_R, e_R): the dissipated power is Σ f_R·e_R ≥ 0."""
+    complete: bool = False
+    order: tuple = ()
+    """How the rows are derived (:func:`phc.library.dirac.emit`): ``(relation or law,
+    index, symbol solved for or None, row kind, row label, row span or None)`` in
+    declaration order."""
+    internal: Optional[tuple[sp.Symbol, ...]] = None
+    """The flows and efforts of the internal pairs (storage, resistive, auxiliary ones that
+    :func:`phc.library.dirac.emit` eliminates); the others are port variables or variables
+    of the model (a kernel-form ``phs``'s resistive ports). A :class:`DiracBuilder` always
+    gives them, maybe none (a ``phs`` without states); None: a description made otherwise,
+    whose every pair that is not a port's counts as internal."""
+    blocks: tuple[SparseRelations, ...] = ()
+    """Relations and laws kept as sparse matrices over symbol vectors (they belong to the
+    description as `relations` and `laws` do)."""
+    storage_vectors: tuple[StorageVector, ...] = ()
+    """Storage bound to states as vectors (sparse counterpart of `storage`)."""
+    structure: Optional["ComponentDescription"] = None
+    """For a port projection (``kind="port_projection"``, what the Dirac and coupling
+    certificate uses): the complete description it is the projection of — the
+    semi-discrete pH system of a discretized PDE or matrix component, kept sparse
+    (`blocks`, `storage_vectors`). :mod:`phc.checks.rows` compares the component's rows
+    with it."""
+
+
+DiracRelations = ComponentDescription
+"""The former name (the certificate reads only the Dirac part)."""
+
+
+@dataclass(frozen=True, eq=False)
+class ComponentRows:
+    """The rows a lowerer emitted for one component, before assembly: residual rows
+    ``expr = 0`` as ``(label, expr)``, explicit definitions ``symbol = expr`` and the component's own variables
+    as ``(symbol, rate symbol or None, role)``. `sparse` is True when some rows have
+    sparse matrix parts (:class:`LinearBlock`). `derived` is True when every row was
+    derived from the component's description (:func:`phc.library.dirac.emit`); rows a
+    lowerer wrote itself are compared with the description when compiling
+    (:mod:`phc.checks.rows`)."""
+
+    component: str
+    equations: tuple[tuple[str, sp.Expr], ...]
+    definitions: tuple[tuple[sp.Symbol, sp.Expr], ...]
+    variables: tuple[tuple[sp.Symbol, Optional[sp.Symbol], str], ...]
+    sparse: bool = False
+    derived: bool = False
+
+
+@dataclass(frozen=True)
+class PortInfo:
+    name: str
+    component: str
+    domain: str
+    dimension: int
+    frame: Optional[str]
+    span: Optional[SourceSpan] = None
+
+
+@dataclass(frozen=True)
+class Topology:
+    """Components, ports and connections as written (after nesting is flattened)."""
+
+    components: tuple[tuple[str, str, Optional[SourceSpan]], ...]
+    ports: tuple[PortInfo, ...]
+    connections: tuple[tuple[str, str, str, Optional[SourceSpan]], ...]
+    exposed: tuple[tuple[str, str], ...]
+    dirac: tuple[ComponentDescription, ...] = ()
+    rows: tuple[ComponentRows, ...] = ()
+    """Each component's rows as its lowerer emitted them (before assembly)."""
+    specs: dict = field(default_factory=dict)
+    """Full name -> the component's spec as lowered (scene overrides and effects applied)."""
+    rigid_constraints: tuple = ()
+    resistive_laws: tuple = ()
+    parameter_defaults: dict = field(default_factory=dict)
+    initial: dict = field(default_factory=dict)
+    wires: frozenset = frozenset()
+    """The labels of the connections joined as wires, ``e_x = e_y``, ``f_x = −f_y`` (a
+    terminal joined to a port that reads power-in, :mod:`phc.ir.wires`); the others are bonds,
+    ``f_x = f_y``, ``e_x = −e_y``."""
+
+
+@dataclass(frozen=True)
+class Dae:
+    """The assembled system. See the module docstring."""
+
+    name: str
+    variables: tuple[Variable, ...]
+    equations: tuple[Equation, ...]
+    parameters: tuple[Parameter, ...]
+    hamiltonian: sp.Expr
+    dissipation: sp.Expr
+    port_power: sp.Expr
+    invariants: tuple[Invariant, ...] = ()
+    velocity_invariants: tuple[Invariant, ...] = ()
+    outputs: tuple[tuple[str, sp.Expr], ...] = ()
+    initial: tuple[InitialValue, ...] = ()
+    external_ports: tuple[str, ...] = ()
+    sources: tuple[str, ...] = ()
+    options: Mapping[str, Any] = field(default_factory=dict)
+    """The simulation options as the model (and scene) write them, read-only (a
+    ``MappingProxyType``; ``dae.options["rtol"] = 0.5`` raises ``TypeError``). Runs of a
+    compiled model read the copy in its description
+    (:attr:`phc.codegen.compiled.CompiledModel.options`)."""
+    linear_blocks: tuple[LinearBlock, ...] = ()
+    quadratic_energy: tuple[QuadraticForm, ...] = ()
+    quadratic_dissipation: tuple[QuadraticForm, ...] = ()
+    topology: Optional[Topology] = None
+    compile_time_parameters: tuple[str, ...] = ()
+    """Parameters whose values were used at compile time (mesh length, ξ-dependent
+    coefficients): overriding them at run time is refused."""
+
+    def __post_init__(self):
+        object.__setattr__(self, "options", freeze(self.options))
+
+    # a MappingProxyType does not pickle: the state carries a plain copy (Dask, the caches)
+    def __getstate__(self):
+        state = dict(self.__dict__)
+        state["options"] = thaw(self.options)
+        return state
+
+    def __setstate__(self, state):
+        for name, value in state.items():
+            object.__setattr__(self, name, value)
+        object.__setattr__(self, "options", freeze(self.options))
+    initial_relations: tuple[tuple, ...] = ()
+    """Linear relations Σ c_v·v = r imposed only at t₀ (e.g. a beam starting straight and
+    moving rigidly), as (label, {variable symbol: coefficient}) with r = 0, or (label,
+    {variable symbol: coefficient}, r) (a moving beam's initial elastic velocity field)."""
+    input_tables: tuple = ()
+    """Input tables as (times, values, interpolation) (:mod:`phc.frontend.inputs`)."""
+    breakpoints: tuple[float, ...] = ()
+    """Times where an input is not smooth: the integrators stop and restart there."""
+    left_out: tuple[tuple[str, str, str], ...] = ()
+    """What was not compiled, as (component, what, why): effects that are off, components
+    pruned by a scene."""
+    dissipation_terms: tuple[tuple[str, sp.Expr, Optional[SourceSpan]], ...] = ()
+    """Each component's dissipated power (its terms of `dissipation`), as (component, P_diss,
+    source) — what the passivity certificate checks one by one."""
+    meshes: dict = field(default_factory=dict)
+    """Distributed components: full name -> (type, number of elements)."""
+    units: dict = field(default_factory=dict)
+    """Unit labels of variables, outputs and `H` where known (`output.x` is keyed `x`), for
+    result headers, JSON and plot axes (:mod:`phc.frontend.units`, docs/units.md)."""
+
+    @property
+    def n_states(self) -> int:
+        return sum(1 for v in self.variables if v.differential)
