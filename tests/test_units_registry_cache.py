@@ -1,4 +1,4 @@
-"""pint's parsed unit definitions kept in phc's signed cache (phc.frontend.units._cached_registry).
+"""pint's parsed unit definitions kept in phc's signed cache (phc.frontend.pint_cache.cached_registry).
 
 Building pint's UnitRegistry parses its definitions file; pint's own `cache_folder` keeps
 the parsed result as pickles, which pint loads unchecked. phc keeps them as one bundle
@@ -16,7 +16,7 @@ import pytest
 
 pint = pytest.importorskip("pint")
 
-from phc.frontend import units  # noqa: E402
+from phc.frontend import pint_cache, units  # noqa: E402
 
 UNITS = ["N/m", "mm", "kg*m^2", "rpm", "psi", "Ohm", "kN*m/rad", "m^3/s", "degC", "µF", "1"]
 
@@ -36,8 +36,8 @@ def cache(tmp_path, monkeypatch):
 
     monkeypatch.setattr(pint, "UnitRegistry", recording)
     stored = []
-    real_store = units._store_bundle
-    monkeypatch.setattr(units, "_store_bundle", lambda *a: (stored.append(a[0]), real_store(*a)))
+    real_store = pint_cache._store_bundle
+    monkeypatch.setattr(pint_cache, "_store_bundle", lambda *a: (stored.append(a[0]), real_store(*a)))
     return tmp_path / "cache" / "units", calls, stored
 
 
@@ -69,11 +69,11 @@ def _same_readings(ureg, reference) -> None:
 
 def test_written_once_then_handed_to_pint(reference, cache):
     folder, calls, stored = cache
-    first = units._cached_registry(pint)
+    first = pint_cache.cached_registry(pint)
     bundle = _bundle(folder)
     data = bundle.read_bytes()
     assert calls == [[]] and len(stored) == 1  # nothing to hand over: pint parsed, phc stored
-    second = units._cached_registry(pint)
+    second = pint_cache.cached_registry(pint)
     assert len(stored) == 1  # a hit writes nothing
     assert calls[1] and all(name.endswith((".pickle", ".json")) for name in calls[1])  # pint got the files
     assert bundle.read_bytes() == data
@@ -84,7 +84,7 @@ def test_written_once_then_handed_to_pint(reference, cache):
 @pytest.mark.parametrize("damage", ["garbage", "flipped byte", "truncated", "empty"])
 def test_a_damaged_bundle_is_rebuilt(reference, cache, damage):
     folder, calls, stored = cache
-    units._cached_registry(pint)
+    pint_cache.cached_registry(pint)
     bundle = _bundle(folder)
     good = bundle.read_bytes()
     bad = {"garbage": b"not a bundle at all",
@@ -92,19 +92,19 @@ def test_a_damaged_bundle_is_rebuilt(reference, cache, damage):
            "truncated": good[: len(good) // 2],
            "empty": b""}[damage]
     bundle.write_bytes(bad)
-    ureg = units._cached_registry(pint)
+    ureg = pint_cache.cached_registry(pint)
     assert calls[-1] == []  # the damaged bundle's files never reached pint
     assert len(stored) == 2 and bundle.read_bytes() == good  # written again, as before
     _same_readings(ureg, reference)
-    units._cached_registry(pint)
+    pint_cache.cached_registry(pint)
     assert calls[-1] and len(stored) == 2  # and used from then on
 
 
 def test_a_bundle_signed_under_another_key_is_not_used(cache, tmp_path, monkeypatch):
     folder, calls, stored = cache
-    units._cached_registry(pint)
+    pint_cache.cached_registry(pint)
     monkeypatch.setenv("PHC_STATE_DIR", str(tmp_path / "other-state"))  # another user's key
-    units._cached_registry(pint)
+    pint_cache.cached_registry(pint)
     assert calls[-1] == [] and len(stored) == 2
 
 
@@ -112,12 +112,12 @@ def test_a_bundle_names_only_plain_files():
     """A verified payload naming a path outside pint's folder, or holding too many files,
     is refused (the names become files in a temporary folder)."""
     good = {"a.pickle": b"x", "a.json": b"{}"}
-    assert units._unpack(units._pack(good)) == good
+    assert pint_cache._unpack(pint_cache._pack(good)) == good
     for name in ("../a.pickle", "sub/a.pickle", ".hidden", "", "a" * 200):
-        assert units._unpack(units._pack({name: b"x"})) is None, name
-    assert units._unpack(units._pack({f"f{k}": b"" for k in range(units._BUNDLE_FILES + 1)})) is None
-    assert units._unpack(units._pack(good)[:-1]) is None  # a file shorter than its length
-    assert units._unpack(b"phc-pint-0\n") is None
+        assert pint_cache._unpack(pint_cache._pack({name: b"x"})) is None, name
+    assert pint_cache._unpack(pint_cache._pack({f"f{k}": b"" for k in range(pint_cache._BUNDLE_FILES + 1)})) is None
+    assert pint_cache._unpack(pint_cache._pack(good)[:-1]) is None  # a file shorter than its length
+    assert pint_cache._unpack(b"phc-pint-0\n") is None
 
 
 def test_the_bundle_is_part_of_the_cache(cache):
@@ -125,12 +125,12 @@ def test_the_bundle_is_part_of_the_cache(cache):
     from phc.codegen import load
 
     folder, calls, stored = cache
-    units._cached_registry(pint)
+    pint_cache.cached_registry(pint)
     bundle = _bundle(folder)
     assert bundle in [p for _, _, p in load._entries(load.cache_dir())]
     files, _ = load.clean()
     assert files >= 1 and not bundle.exists()
-    units._cached_registry(pint)
+    pint_cache.cached_registry(pint)
     assert calls[-1] == [] and bundle.exists()
 
 
@@ -146,7 +146,7 @@ def test_an_unusable_cache_directory_costs_the_cache_only(tmp_path, monkeypatch,
     monkeypatch.setenv("PHC_STATE_DIR", str(tmp_path / "state"))
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        ureg = units._cached_registry(pint)
+        ureg = pint_cache.cached_registry(pint)
     assert list(shared.iterdir()) == []
     _same_readings(ureg, reference)
 
@@ -156,14 +156,14 @@ def test_a_bundle_pint_cannot_read_is_dropped(cache, reference):
     wrong bytes): the registry is parsed from pint's file and the bundle removed, so the
     next process writes a good one."""
     folder, calls, stored = cache
-    units._cached_registry(pint)
+    pint_cache.cached_registry(pint)
     bundle = _bundle(folder)
-    files = units._read_bundle(bundle, units._bundle_path(pint)[1])
+    files = pint_cache._read_bundle(bundle, pint_cache._bundle_path(pint)[1])
     broken = {name: (b"\x80\x05not a pickle" if name.endswith(".pickle") else data) for name, data in files.items()}
-    units._store_bundle(bundle, units._bundle_path(pint)[1], broken)
-    assert units._read_bundle(bundle, units._bundle_path(pint)[1]) == broken  # it verifies
-    ureg = units._cached_registry(pint)
+    pint_cache._store_bundle(bundle, pint_cache._bundle_path(pint)[1], broken)
+    assert pint_cache._read_bundle(bundle, pint_cache._bundle_path(pint)[1]) == broken  # it verifies
+    ureg = pint_cache.cached_registry(pint)
     _same_readings(ureg, reference)
     assert not bundle.exists()
-    units._cached_registry(pint)
-    assert units._read_bundle(bundle, units._bundle_path(pint)[1]) == files  # written again
+    pint_cache.cached_registry(pint)
+    assert pint_cache._read_bundle(bundle, pint_cache._bundle_path(pint)[1]) == files  # written again

@@ -244,7 +244,7 @@ def info() -> CacheInfo:
 
 def clean() -> tuple[int, int]:
     """Remove every cached module, bench reference, compiled artefact, front-end record
-    (:mod:`phc.codegen.fastpath`) and unit-definitions bundle (:mod:`phc.frontend.units`); returns (files,
+    (:mod:`phc.codegen.fastpath`) and unit-definitions bundle (:mod:`phc.frontend.pint_cache`); returns (files,
     bytes) removed."""
     folder = cache_dir()
     files = size = 0
