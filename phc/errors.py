@@ -122,6 +122,11 @@ class CodegenError(PhcError):
     """The code generator met an expression it has no printed form for."""
 
 
+class TranslationError(CodegenError):
+    """Python of phc's step logic outside the subset phc.codegen.c_translate prints as C (a
+    bug of phc, found by its tests): the message names the file, line and function."""
+
+
 # -- what the user wrote -----------------------------------------------------------------
 
 class ExpressionError(PhcError, ValueError):
@@ -330,11 +335,11 @@ class RegistryError(PhcError):
 
 PRIVATE_CONTROL_FLOW = ("phc.cli.report._Exit", "phc.frontend.lowering.Unshareable", "phc.checks.compiled._NotNumeric", "phc.ir.initial_fields._FieldError",
                         "phc.ir.initial_fields._Silent", "phc.codegen.numba_cache.NotInCache",
-                        "phc.frontend.source._NotRegular", "phc.simulation.ida._Stop", "phc.simulation.order.Switch",
+                        "phc.frontend.source._NotRegular", "phc.codegen.c_translate._Unknown", "phc.simulation.ida._Stop", "phc.simulation.order.Switch",
                         "phc.simulation.events._ContactRest", "phc.study.ode_form._Stop")
 """Exceptions that never leave the code that raises them, defined there (qualified names)."""
 
-__all__ = ["BackendMismatch", "BackendUnavailable", "BackendUnsupported", "CacheWarning", "CodegenError",
+__all__ = ["BackendMismatch", "BackendUnavailable", "BackendUnsupported", "CacheWarning", "CodegenError", "TranslationError",
            "CompiledBackendWarning", "CompiledLoopWarning",
            "DimensionError", "ExportError", "ExpressionError", "FileRefused", "IgnoredOptionWarning",
            "InconsistentInitialError",

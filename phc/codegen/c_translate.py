@@ -49,6 +49,8 @@ import ast
 import inspect
 from dataclasses import dataclass
 
+from phc.errors import TranslationError
+
 SCALARS = ("b", "i", "f")
 _CTYPE = {"b": "int", "i": "int64_t", "f": "double"}
 _JOIN = {("b", "b"): "b", ("b", "i"): "i", ("i", "b"): "i", ("i", "i"): "i"}
@@ -62,10 +64,6 @@ _PARAMETER = {
     "S": "phc_scalar_fn {name}", "P": "phc_powers_fn {name}", "ws": "const struct phc_steps *{name}",
 }
 """The C parameter of each kind of argument (``{const}``: ``const`` unless the function writes it)."""
-
-
-class TranslationError(Exception):
-    """Python outside the subset this translator accepts; the message names function and line."""
 
 
 class _Unknown(TranslationError):
