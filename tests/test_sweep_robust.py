@@ -287,3 +287,37 @@ def test_stopping_a_sweep_leaves_no_worker_behind(signum, code, tmp_path):
     while time.monotonic() < deadline and any(_running(pid) for pid in kids):
         time.sleep(0.05)
     assert not [pid for pid in kids if _running(pid)]
+
+
+def _stopped_before_its_handlers(blob: bytes, parent: int) -> None:
+    """A worker stopped at its first instruction, before it set its own handlers: the
+    SIGTERM stays pending until `_init_pool_worker` has set the default action."""
+    os.kill(os.getpid(), signal.SIGTERM)
+    executors._init_pool_worker(blob, parent)
+    os._exit(0)  # not reached when the pending SIGTERM ends the process
+
+
+def _raise_interrupt(signum, frame):  # the sweep command's SIGTERM handler does this
+    raise KeyboardInterrupt
+
+
+@pytest.mark.skipif(not hasattr(signal, "pthread_sigmask") or "fork" not in
+                    __import__("multiprocessing").get_all_start_methods(), reason="POSIX fork and signal masks")
+def test_a_worker_stopped_before_it_set_its_handlers_ends_quietly():
+    """A forked worker inherits the sweep command's SIGTERM handler (it raises
+    KeyboardInterrupt). Stopped before it installed its own, it must end by SIGTERM, not
+    print a traceback from the inherited handler: the parent holds the signals while it
+    starts the worker, and the worker releases them once its handlers are set."""
+    import multiprocessing
+    import pickle
+
+    ctx = multiprocessing.get_context("fork")
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    try:
+        with executors._signals_held("fork"):
+            process = ctx.Process(target=_stopped_before_its_handlers, args=(pickle.dumps({}), os.getpid()))
+            process.start()
+        process.join(timeout=SUBPROCESS_TIMEOUT)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert process.exitcode == -signal.SIGTERM  # 1 (KeyboardInterrupt in the child) without the hold

@@ -129,6 +129,8 @@ def _init_pool_worker(blob: bytes, parent: int = 0) -> None:
     from a file)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)  # not a handler of the parent's (fork)
+    if hasattr(signal, "pthread_sigmask"):  # held by the parent while it started us (_signals_held)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, _HELD)
     _end_with_parent(parent)
     try:
         from threadpoolctl import threadpool_limits
@@ -142,6 +144,27 @@ def _init_pool_worker(blob: bytes, parent: int = 0) -> None:
         _MODELS.update(pickle.loads(blob))
     except Exception as err:  # noqa: BLE001 — reported on every row instead of a broken pool
         _INIT_ERROR.append(f"{type(err).__name__}: {err}")
+
+
+_HELD = {signal.SIGINT, signal.SIGTERM}
+
+
+@contextmanager
+def _signals_held(method: str):
+    """Hold SIGINT and SIGTERM in this thread while a worker starts. A forked worker inherits
+    the parent's handlers (the sweep command's SIGTERM handler raises KeyboardInterrupt) and
+    would run them, with a traceback, if the sweep were stopped before the worker set its own
+    (:func:`_init_pool_worker`, which releases them); a spawned one inherits the held mask
+    the same way. A signal that comes meanwhile reaches the parent when the block ends. A fork
+    server is left alone: it would keep the mask for every worker it starts later."""
+    if method == "forkserver" or not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, _HELD)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def _end_with_parent(parent: int) -> None:
@@ -386,7 +409,8 @@ class _Worker:
         parent = os.getpid() if ctx.get_start_method() != "forkserver" else 0  # a fork server starts it
         self.process = ctx.Process(target=_pool_worker, args=(child, blob, parent), daemon=True,
                                    name="phc-sweep-worker")
-        self.process.start()
+        with _signals_held(ctx.get_start_method()):
+            self.process.start()
         child.close()  # the worker holds the other end alone: its death is an end of file here
         self.task: Optional[dict] = None
 
