@@ -217,3 +217,28 @@ def test_cli_usage_mistakes_are_one_line(args, capsys):
     assert main(["linearize", str(MODELS / "vibrating_string.yaml"), *args]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("phc linearize: error:"), err
+
+
+@pytest.mark.parametrize("block", [2, 3])
+def test_a_defective_zero_eigenvalue_is_zero_and_a_small_one_is_kept(block):
+    """A free body's zero eigenvalue is defective (position and momentum: a Jordan block of
+    size 2; 3 with a free integrator behind it). Rounding splits it by about ε^(1/m) of the
+    largest eigenvalue (±1.6e-5 at 7000 for m = 2), so no test on the size of λ can tell it
+    from a slow mode; the ranks of the block's chain can, and a slow mode at 1e-6 of the
+    largest eigenvalue (10⁴ times the rank tolerance) must stay what it is."""
+    rng = np.random.default_rng(7)
+    n = block + 4
+    J = np.zeros((n, n))
+    for i in range(block - 1):
+        J[i, i + 1] = 1.0
+    J[block, block] = -7e-6                         # the slow mode, -1e-6 of the largest |λ|
+    J[block + 1, block + 1] = -3.0
+    J[block + 2:, block + 2:] = [[-0.5, 7.0], [-7.0, -0.5]]
+    Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    A, E = 1e3 * Q @ J @ Q.T, np.eye(n)
+    lam, _, n_inf, singular = finite_eigenvalues(A, E)
+    assert n_inf == 0 and not singular
+    assert list(lam[:block]) == [0] * block
+    # the others to the round-off of an orthogonal similarity: ~ε‖A‖ absolute, 1e-12 of 7000
+    expected = np.array([-7e-3, -3e3, -500 + 7e3j, -500 - 7e3j])
+    assert np.abs(lam[block:] - expected).max() < 1e-12 * 7e3 * 10

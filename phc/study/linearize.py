@@ -609,9 +609,30 @@ def finite_eigenvalues(A: np.ndarray, E: np.ndarray, rtol: float = RANK_TOL
         return np.zeros(0, dtype=complex), np.zeros((n, 0), dtype=complex), n, False
     Ar, Er = W.T @ As @ V, W.T @ Es @ V
     lam, w = sla.eig(Ar, Er)
+    zeros = _zero_multiplicity(Ar, Er, tol)
+    if zeros:  # a defective zero (a free body's position and momentum) splits by ~√ε: put it back
+        lam[np.argsort(np.abs(lam), kind="stable")[:zeros]] = 0.0
     vectors = (V @ w) * c[:, None]
     order = np.lexsort((-lam.imag, np.abs(lam)))
     return lam[order], vectors[:, order], n - d, False
+
+
+def _zero_multiplicity(A: np.ndarray, E: np.ndarray, tol: float) -> int:
+    """Algebraic multiplicity of the eigenvalue 0 of the regular pencil ``λE − A`` (E
+    invertible): the dimension where the chain ``N₁ = ker A``, ``N_{k+1} = {x : Ax ∈ E N_k}``
+    stops growing, each step a rank decision at `tol` like the Wong sequence above. The
+    eigenvalues of a Jordan block of size m are perturbed by about ε^{1/m}·‖A‖ by rounding
+    (two rigid-body zeros come out as ±1e-8 of the largest eigenvalue), far above any test
+    on their size, while the ranks that define the block are decided at ε·‖A‖."""
+    n = A.shape[0]
+    N = _null(A, tol)
+    while 0 < N.shape[1] < n:
+        Q = _orth(E @ N, tol)
+        grown = _null(A - Q @ (Q.T @ A), tol)
+        if grown.shape[1] <= N.shape[1]:
+            break
+        N = grown
+    return N.shape[1]
 
 
 def _modes(lam, vectors, names, differential, meshes) -> list[Mode]:
