@@ -10,13 +10,15 @@ dimension the component knows from its port domain (a spring's ``k`` is effort p
 displacement: N/m in ``mechanical.translational``) has that dimension. Results carry the
 units that follow: CSV headers (``output.x [m]``), the JSON summary and plot axes.
 
-Units are parsed by `pint <https://pint.readthedocs.io>`_ (the optional extra
-``units`` of port-hamiltonian-compiler), a maintained library with the SI and its prefixes, instead of a
-hand-written table of units and dimension algebra. Unit text is data: it is first
+Units are parsed by `pint <https://pint.readthedocs.io>`_ (a dependency of
+port-hamiltonian-compiler), a maintained library with the SI and its prefixes; the common
+SI symbols with prefixes, in products, quotients and integer powers, are read by
+:mod:`phc.frontend.si_units` to exactly pint's result (tests/test_units_table.py), so that a
+model in SI units is checked without importing pint. Unit text is data: it is first
 checked against a short whitelist of characters (names, numbers, ``* / ^ **``,
-parentheses, ``·``, superscripts) and a length and exponent limit, and only then handed
-to pint's parser (which never calls ``eval``). Without pint a unit is checked only for
-that syntax, dimensions are not checked, and one warning (PHC-W172) says so.
+parentheses, ``·``, superscripts) and a length and exponent limit, and only then read by
+the table or handed to pint's parser (which never calls ``eval``). Without pint a unit is
+checked only for that syntax, dimensions are not checked, and one warning (PHC-W172) says so.
 
 phc does not convert units: values are used as written, in whatever consistent system of
 units the model chooses (SI, or MPa and cm³ for a hydraulic model). Two terms of one
