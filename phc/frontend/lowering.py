@@ -443,7 +443,7 @@ class _Template:
             # every field given and nothing run after __init__: the instance is its fields,
             # set without the frozen class's __init__ (object.__setattr__ per field)
             return self._step(v, "fields", (t, tuple(f for f, _ in items), [a for _, a in items]))
-        if t.__module__.split(".")[0] == "pint":  # a dimension (expr_dims): no names in it, never changed
+        if t.__module__ == "phc.frontend.si_units":  # a dimension (expr_dims): no names in it, never changed
             return self._const(v)
         raise Unshareable(f"a value of type {t.__name__}")
 

@@ -10,13 +10,15 @@ dimension the component knows from its port domain (a spring's ``k`` is effort p
 displacement: N/m in ``mechanical.translational``) has that dimension. Results carry the
 units that follow: CSV headers (``output.x [m]``), the JSON summary and plot axes.
 
-Units are parsed by `pint <https://pint.readthedocs.io>`_ (the optional extra
-``units`` of port-hamiltonian-compiler), a maintained library with the SI and its prefixes, instead of a
-hand-written table of units and dimension algebra. Unit text is data: it is first
+Units are parsed by `pint <https://pint.readthedocs.io>`_ (a dependency of
+port-hamiltonian-compiler), a maintained library with the SI and its prefixes; the common
+SI symbols with prefixes, in products, quotients and integer powers, are read by
+:mod:`phc.frontend.si_units` to exactly pint's result (tests/test_units_table.py), so that a
+model in SI units is checked without importing pint. Unit text is data: it is first
 checked against a short whitelist of characters (names, numbers, ``* / ^ **``,
-parentheses, ``·``, superscripts) and a length and exponent limit, and only then handed
-to pint's parser (which never calls ``eval``). Without pint a unit is checked only for
-that syntax, dimensions are not checked, and one warning (PHC-W172) says so.
+parentheses, ``·``, superscripts) and a length and exponent limit, and only then read by
+the table or handed to pint's parser (which never calls ``eval``). Without pint a unit is
+checked only for that syntax, dimensions are not checked, and one warning (PHC-W172) says so.
 
 phc does not convert units: values are used as written, in whatever consistent system of
 units the model chooses (SI, or MPa and cm³ for a hydraulic model). Two terms of one
@@ -44,6 +46,7 @@ from typing import Mapping, Optional
 import sympy as sp
 
 from phc.errors import DimensionError, UnitError
+from phc.frontend.si_units import ONE, from_pint, parse_table
 from phc.frontend.unit_scales import (  # noqa: F401 (importable from phc.frontend.units)
     ScaleSystem, domain_scale, scale_factor, scale_terms, time_scale)
 
@@ -91,9 +94,16 @@ def _registry():
     return ureg
 
 
+@functools.lru_cache(maxsize=1)
 def have_pint() -> bool:
-    """True when pint is installed (units are checked), False otherwise (syntax only)."""
-    return _registry() is not None
+    """True when pint is installed (units are checked), False otherwise (syntax only). Does
+    not import pint: the common SI units are read from :mod:`phc.frontend.si_units`."""
+    import importlib.util
+
+    try:
+        return importlib.util.find_spec("pint") is not None
+    except (ImportError, ValueError):
+        return False
 
 
 def check_syntax(text: str) -> None:
@@ -114,8 +124,10 @@ def check_syntax(text: str) -> None:
 
 @functools.lru_cache(maxsize=4096)
 def parse_unit(text: str):
-    """The unit `text` as a pint Quantity of magnitude 1 in `text`'s unit, converted to SI
-    base units (its magnitude is the unit's scale: 0.001 for `mm`); None without pint.
+    """The unit `text` in SI base units: a :class:`phc.frontend.si_units.Quantity` whose
+    magnitude is the unit's scale (0.001 for `mm`); None without pint. The common SI units
+    (:data:`phc.frontend.si_units.UNITS` with prefixes, products, quotients and integer
+    powers) are read from that table, anything else by pint, to the same result.
 
     Raises
     ------
@@ -124,20 +136,27 @@ def parse_unit(text: str):
         unit with an offset (`degC`).
     """
     check_syntax(text)
+    if not have_pint():
+        return None
+    plain = text.replace("µ", "u").replace("μ", "u")
+    table = parse_table(plain)
+    if table is not None:
+        return table
     ureg = _registry()
     if ureg is None:
         return None
     import pint
 
     try:
-        unit = ureg.parse_units(text.replace("µ", "u").replace("μ", "u"))
+        unit = ureg.parse_units(plain)
     except pint.errors.UndefinedUnitError as err:
         names = getattr(err, "unit_names", None) or ()
         name = names[0] if isinstance(names, (tuple, list)) and names else str(names or text)
         raise UnitError(f"unknown unit `{name}`" + (f" in `{text}`" if name != text else ""),
                         _unit_hint(name)) from None
     except (pint.errors.PintError, AttributeError, TypeError, ValueError, SyntaxError,
-            ZeroDivisionError, OverflowError, RecursionError, KeyError, IndexError) as err:
+            ZeroDivisionError, OverflowError, RecursionError, KeyError, IndexError,
+            AssertionError) as err:  # pint's parser asserts on a dangling operator (`N*`)
         raise UnitError(f"cannot read unit `{text}` ({type(err).__name__})",
                         "write e.g. `N*m/rad`, `kg*m^2` or `m/s^2`") from None
     quantity = ureg.Quantity(1, unit)
@@ -145,7 +164,7 @@ def parse_unit(text: str):
         raise UnitError(f"`{text}` is a unit with an offset; phc does not convert units",
                         "give temperatures in `K` (a temperature difference may be `delta_degC`)")
     try:
-        return quantity.to_base_units()
+        return from_pint(quantity.to_base_units(), ureg)
     except Exception as err:  # noqa: BLE001 — any pint failure on odd input is the user's unit
         raise UnitError(f"cannot read unit `{text}` ({type(err).__name__})") from None
 
@@ -321,7 +340,7 @@ class _Walker:
 
     def one(self):
         if self._one is None:
-            self._one = _registry().Quantity(1, "")
+            self._one = ONE
         return self._one
 
     def show(self, term, q) -> str:
@@ -417,7 +436,7 @@ class _Walker:
 
 
 def dimension(expr: sp.Basic, units: Mapping, written: Optional[Mapping] = None):
-    """The dimension of `expr`: a base-unit pint Quantity, :data:`NUMBER` (a plain number) or
+    """The dimension of `expr`: a base-unit Quantity (:mod:`phc.frontend.si_units`), :data:`NUMBER` (a plain number) or
     None (unknown: it uses a name without a unit).
 
     Parameters
@@ -433,7 +452,7 @@ def dimension(expr: sp.Basic, units: Mapping, written: Optional[Mapping] = None)
     DimensionError
         Parts of `expr` have incompatible dimensions (the message names both).
     """
-    if not units or _registry() is None or not isinstance(expr, sp.Basic):
+    if not units or not have_pint() or not isinstance(expr, sp.Basic):
         return None
     if not (expr.free_symbols & units.keys()):
         return None if expr.free_symbols else NUMBER
