@@ -51,7 +51,7 @@ SOURCE = Path(__file__).resolve().parents[1] / "codegen" / "c_runtime" / "steps.
 the whole text."""
 
 TRANSLATED = ("substeps", "next_step", "predictor_nodes", "lagrange_weights", "polynomial", "extrapolate", "predict",
-              "accept", "newton", "discrete_gradient", "midpoint4")
+              "looks", "accept", "newton", "discrete_gradient", "midpoint4", "chunk")
 """The functions of :mod:`phc.simulation.step_logic` steps.c gets translated (each after those it
 calls)."""
 
@@ -67,7 +67,41 @@ def _operations() -> dict:
             "_correct": Op("op_correct", ("ws", "i", "f", "f", "v", "v", "f"), ("i", "v", "f", "f", "f", "b", "b")),
             "_precision": Op("op_precision", ("ws", "i"), ()),
             "_consistent": Op("op_consistent", ("ws", "f", "v"), (), writes=(2,)),
-            "_stage": Op("op_stage", ("ws", "i", "f", "f", "v", "v", "f", "v"), ("i", "b"), writes=(7,))}
+            "_stage": Op("op_stage", ("ws", "i", "f", "f", "v", "v", "f", "v"), ("i", "b"), writes=(7,)),
+            # the chunk's: one step of the run's method; the monitor's routine look (steps.c's
+            # condition estimate of the equilibrated iteration matrix, LAPACK's dgecon on its own LU)
+            "_advance": Op("op_advance", ("ws", "f", "f", "v", "v", "v"), ("i", "b"), writes=(5,)),
+            "_far_from_singular": Op("op_far_from_singular", ("ws", "f", "v", "v", "f"), ("b",))}
+
+
+_ROWS = {"ys": "nout", "yps": "nout", "pm": "npred"}
+"""The row counts (fields of ``struct phc_steps``) of the matrices :func:`phc.simulation.step_logic.chunk` takes."""
+
+
+def entry() -> str:
+    """C text of the library's entry ``phc_steps_chunk(w, budget)``: the translated
+    :func:`phc.simulation.step_logic.chunk` on the run's struct. Its parameters are named as the
+    struct's fields (``ws`` is the struct, ``budget`` the caller's), so the call is written from
+    its parameter list, not by hand."""
+    import inspect
+
+    kinds, _ = _sl.C_SIGNATURES["chunk"]
+    args = ["w->n"]
+    for name, kind in zip(inspect.signature(_sl.chunk).parameters, kinds):
+        if kind == "ws":
+            args.append("w")
+        elif name == "budget":
+            args.append("budget")
+        elif kind == "V":
+            args.append(f"w->{name}, w->{_ROWS[name]}")
+        else:
+            args.append(f"w->{name}")
+    call = ", ".join(args)
+    return ("/* Steps of integrate_fixed_step until `budget` steps are done, the run ends, or a step needs the\n"
+            " * Python code; the state is in the arrays, the status in ist[I_STATUS] (phc.simulation.step_logic.chunk,\n"
+            " * translated; this call is written by phc.codegen.c_steps.entry from chunk's parameters). */\n"
+            "void phc_steps_chunk(const struct phc_steps *w, int64_t budget)\n{\n"
+            f"    chunk({call});\n}}\n")
 
 
 _SOURCE_TEXT: Optional[str] = None
@@ -78,7 +112,7 @@ def translation() -> str:
     from phc.codegen.c_translate import PRELUDE, Translator
 
     body = Translator(_sl, _sl.C_SIGNATURES, _operations()).translate(TRANSLATED)
-    return PRELUDE + "\n" + body
+    return PRELUDE + "\n" + body + "\n" + entry()
 
 
 def source() -> str:
