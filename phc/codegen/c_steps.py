@@ -3,22 +3,26 @@
 When a model runs on the ``c`` backend (:mod:`phc.codegen.c_backend`), has at most
 :data:`~phc.simulation.compiled_steps.MAX_UNKNOWNS` unknowns and is integrated by a fixed-step
 method (``midpoint``, ``discrete_gradient``, ``midpoint4``) without switching conditions, its
-steps run in one C function, ``phc_steps_chunk`` of ``phc/codegen/c_runtime/steps.c``, that
+steps run in one C function, ``phc_steps_chunk`` of the step library, that
 calls the model's compiled residual, Jacobian, position invariants, Hamiltonian, energy scale and
 port powers through function pointers (no Python in between). The step logic the Python loop and
 the numba kernel share is not written again in C: :func:`source` translates
 :func:`phc.simulation.step_logic.newton` (the stopping rules, refresh of the Newton matrix,
 round-off acceptance: one Newton iteration, which every method's stages call), the methods'
 steps (:func:`~phc.simulation.step_logic.discrete_gradient`,
-:func:`~phc.simulation.step_logic.midpoint4`) and the driver's bookkeeping
+:func:`~phc.simulation.step_logic.midpoint4`), the driver's bookkeeping
 (``step_logic.next_step``, ``predict`` with ``predictor_nodes``, ``lagrange_weights``,
-``polynomial``, ``extrapolate``, and ``accept``) with :mod:`phc.codegen.c_translate` and puts
-the translation into steps.c (when the library is built, and into an exported FMU's sources).
-Written by hand in steps.c are the operations those call (``_operations``: the matrix's age,
-refactor, correct, one stage), and a port of the numba kernel's chunk (:mod:`phc.codegen.numba_steps_kernel`), with a dense LU with partial
+``polynomial``, ``extrapolate``, ``looks`` and ``accept``) and the chunk loop
+(:func:`~phc.simulation.step_logic.chunk`, which the numba kernel runs as well) with
+:mod:`phc.codegen.c_translate`, writes the library's entry ``phc_steps_chunk`` from chunk's
+parameters (:func:`entry`), and puts both into steps.c (when the library is built, and into an
+exported FMU's sources). Written by hand in steps.c are the operations those call
+(``_operations``: the matrix's age, refactor, correct, one stage, one step of the run's method,
+and the singularity monitor's routine look — a 1-norm condition estimate of the equilibrated
+iteration matrix, as LAPACK's ``dgecon`` is in the numba kernel), with a dense LU with partial
 pivoting of the Newton matrix equilibrated as the Python loop's sparse LU is
-(:func:`phc.simulation.midpoint.equilibration`); its header says what is not ported (the
-numba loop's mixed-precision corrections: here every correction is in double precision) and
+(:func:`phc.simulation.midpoint.equilibration`); its header says what the numba loop does that
+it does not (mixed-precision corrections: here every correction is in double precision) and
 why LAPACK is not used.
 
 The Python side is the numba loop's: :func:`phc.simulation.compiled_steps.integrate` runs

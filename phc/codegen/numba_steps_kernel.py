@@ -6,19 +6,20 @@ numba itself, so reading its layout constants costs nothing on other paths.
 
 :mod:`phc.simulation.compiled_steps` says what the compiled loop does and holds its Python
 side (whether a run uses it, building and caching it, the driver between chunks); this module
-holds only the code numba compiles — the chunk of steps (:func:`_chunk`) and what only it
-calls: the singularity monitor's routine look (:func:`_monitor_ratio`), the dense LU / inverse /
-mixed-precision products.
+holds only the code numba compiles — the chunk's workspace (:func:`_chunk`, which runs
+:func:`phc.simulation.step_logic.chunk`) and the operations only it has: one step of the run's
+method (:func:`_advance`), the singularity monitor's routine look (:func:`_far_from_singular`,
+:func:`_monitor_ratio`), the dense LU / inverse / mixed-precision products.
 
 The step logic itself — the stage's Newton iteration, the discrete-gradient and midpoint4
-steps — and the chunk's bookkeeping of a routine step — the output grid and its substeps
-(``next_step``), the predictor (``predict``), when the monitor looks (``looks``), the acceptance
-(``accept``), with the layout of the state arrays they work on — are not written here: they are
+steps — and the chunk loop with its bookkeeping of a routine step (``chunk``) — the output grid and
+its substeps (``next_step``), the predictor (``predict``), when the monitor looks (``looks``), the
+acceptance (``accept``), with the layout of the state arrays they work on — are not written here: they are
 :mod:`phc.simulation.step_logic`, the code the Python loop runs as well. Its functions are
 rebound to this module's globals (:func:`_here`), where the operations they call by name are
 the compiled loop's, on the workspace tuple ``ws`` that :func:`_chunk` builds (:func:`_begin`,
 :func:`_refactor`, :func:`_correct`, :func:`_add`, :func:`_copy`, :func:`_precision`,
-:func:`_stage`, :func:`_consistent`); :func:`~phc.simulation.compiled_steps._compile` jits them with the rest.
+:func:`_stage`, :func:`_consistent`, :func:`_advance`, :func:`_far_from_singular`); :func:`~phc.simulation.compiled_steps._compile` jits them with the rest.
 
 The LAPACK/BLAS entry points the kernel calls (``_dgetrf``, ``_dgetri``, ``_dgecon``,
 ``_dgesdd``, ``_dgemv``, ``_sgemv``) are not defined here: :func:`~phc.simulation.compiled_steps._kernel_namespace`

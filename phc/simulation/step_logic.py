@@ -26,12 +26,15 @@ a step *does* is written here, once, as plain Python that numba can compile:
   a hard step, the routine period) and :func:`accept` (the midpoints' history, the time, the step
   count, ``max_steps``, the output at the end of an interval). These are written with whole-array
   NumPy expressions and the ``_copy`` operation, so that the Python loop runs them at NumPy speed
-  and numba compiles the same text into the compiled loop's chunk.
+  and numba compiles the same text into the compiled loop's chunk;
+* :func:`chunk` — the compiled loops' chunk of routine steps (those functions in turn, until a
+  budget of steps, the end, or a step the Python driver must take), which the numba kernel runs
+  and the C loop gets translated; the Python loop takes its steps itself.
 
 The C back end's step loop (``phc/codegen/c_runtime/steps.c``, :mod:`phc.codegen.c_steps`)
-cannot run Python: it gets :func:`newton`, :func:`discrete_gradient`, :func:`midpoint4` and the
+cannot run Python: it gets :func:`newton`, :func:`discrete_gradient`, :func:`midpoint4`, the
 driver's bookkeeping (:func:`next_step`, :func:`substeps`, :func:`predict` with the predictor's
-functions, :func:`accept`) translated to C from this text by :mod:`phc.codegen.c_translate`,
+functions, :func:`looks`, :func:`accept`) and :func:`chunk` translated to C from this text by :mod:`phc.codegen.c_translate`,
 with the C types of :data:`C_SIGNATURES`; keep those functions within the translator's subset
 (its docstring; a function outside it is refused with its line, in
 ``tests/codegen/test_c_translate.py``).
@@ -39,13 +42,13 @@ with the C types of :data:`C_SIGNATURES`; keep those functions within the transl
 What stays each loop's own is what is not routine: the Python loop's
 :func:`~phc.simulation.midpoint.integrate_fixed_step` handles events, projection, retries and
 splits and the singularity monitor's full look and messages
-(:func:`~phc.simulation.midpoint.finish_step`); the compiled loop's chunk
-(:func:`phc.codegen.numba_steps_kernel._chunk`) runs the routine steps with the functions above
-and hands every other step back to that same Python code
+(:func:`~phc.simulation.midpoint.finish_step`); the compiled loops' :func:`chunk` runs the
+routine steps with the functions above and hands every other step back to that same Python code
 (:func:`phc.simulation.compiled_steps.integrate`). The routine look's screen, σ_min/σ_max of the
 equilibrated iteration matrix, is each back end's linear algebra (SciPy's LAPACK in
 :class:`~phc.simulation.monitor.SingularityMonitor`, LAPACK through pointers in
-:func:`phc.codegen.numba_steps_kernel._monitor_ratio`), as the Newton matrix's LU is.
+:func:`phc.codegen.numba_steps_kernel._monitor_ratio`, steps.c's condition estimate in the C
+loop: the operation ``_far_from_singular``), as the Newton matrix's LU is.
 
 Neither loop's data structures appear here. What touches them are a few operations, called
 by name: ``ws`` is the loop's workspace, passed through to them untouched. The Python loop's

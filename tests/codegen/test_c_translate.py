@@ -59,6 +59,9 @@ def test_step_logic_translates_and_steps_c_is_complete():
     for name in c_steps.TRANSLATED:
         assert f"step_logic.{name} (translated" in text
     assert c_steps.SOURCE.read_text(encoding="utf-8").count(c_steps.MARKER) == 1
+    # the chunk loop as well: steps.c does not define the library's entry by hand, the translation does
+    assert "void phc_steps_chunk(" not in c_steps.SOURCE.read_text(encoding="utf-8")
+    assert text.count("void phc_steps_chunk(") == 1 and "static void chunk(" in text
 
 
 def test_substeps_and_next_step_match_python_bit_for_bit(driver):

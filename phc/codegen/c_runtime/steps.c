@@ -8,7 +8,7 @@
  * functions of the library phc prints for the model, phc/codegen/c_printer.py) are handed to it
  * as function pointers and called directly.
  *
- * One call, phc_steps_chunk(run, budget), takes up to `budget` steps of the method
+ * One call, phc_steps_chunk(run, budget) (generated: see below), takes up to `budget` steps of the method
  * ist[I_METHOD] on the output grid of phc.simulation.midpoint.integrate_fixed_step, and returns.
  * Every method's stages are solved by one Newton iteration (`newton`, translated): the implicit
  * midpoint rule is one stage
@@ -33,14 +33,16 @@
  * What each step does is written once, in Python, in phc/simulation/step_logic.py, which the Python
  * loop runs and the numba kernel compiles. Its Newton iteration (`newton`: the stopping rules, the
  * refresh of the Newton matrix, the round-off acceptance), the methods' steps (`discrete_gradient`,
- * `midpoint4`) and the driver's bookkeeping (`next_step`, `predict`, `accept`) are not written in
- * this file: phc.codegen.c_steps.source() translates them to C (phc/codegen/c_translate.py) and
- * puts them at the line PHC_STEP_LOGIC below, beside the operations they call (op_begin,
- * op_refactor, op_correct, op_precision, op_consistent, op_stage). This file keeps a port of the
- * numba kernel's chunk (phc/codegen/numba_steps_kernel.py: `_chunk`,
- * `_monitor_ratio`), on the same state arrays with the same layout (checked when the library is
- * loaded: phc_steps_layout). Not ported: the mixed-precision corrections of the numba loop (every
- * correction here is in double precision, so step_logic's precision events never occur).
+ * `midpoint4`), the driver's bookkeeping (`next_step`, `predict`, `looks`, `accept`) and the chunk
+ * loop itself (`chunk`, which the numba kernel runs too) are not written in this file:
+ * phc.codegen.c_steps.source() translates them to C (phc/codegen/c_translate.py) and puts them,
+ * with the library's entry phc_steps_chunk (chunk on this file's struct, written from chunk's
+ * parameters), at the line PHC_STEP_LOGIC below, beside the operations they call (op_begin,
+ * op_refactor, op_correct, op_precision, op_consistent, op_stage, op_advance and
+ * op_far_from_singular, the monitor's routine look). The state arrays have the layout of the
+ * numba loop's (checked when the library is loaded: phc_steps_layout). Not here: the
+ * mixed-precision corrections of the numba loop (every correction here is in double precision, so
+ * step_logic's precision events never occur).
  *
  * Linear algebra: the Newton matrix s*(F_y + cj*F_yp) (the end-constraint rows from g_y) is
  * equilibrated by powers of two as the Python loop's sparse LU is (phc.simulation.midpoint.
