@@ -3,22 +3,26 @@
 When a model runs on the ``c`` backend (:mod:`phc.codegen.c_backend`), has at most
 :data:`~phc.simulation.compiled_steps.MAX_UNKNOWNS` unknowns and is integrated by a fixed-step
 method (``midpoint``, ``discrete_gradient``, ``midpoint4``) without switching conditions, its
-steps run in one C function, ``phc_steps_chunk`` of ``phc/codegen/c_runtime/steps.c``, that
+steps run in one C function, ``phc_steps_chunk`` of the step library, that
 calls the model's compiled residual, Jacobian, position invariants, Hamiltonian, energy scale and
 port powers through function pointers (no Python in between). The step logic the Python loop and
 the numba kernel share is not written again in C: :func:`source` translates
 :func:`phc.simulation.step_logic.newton` (the stopping rules, refresh of the Newton matrix,
 round-off acceptance: one Newton iteration, which every method's stages call), the methods'
 steps (:func:`~phc.simulation.step_logic.discrete_gradient`,
-:func:`~phc.simulation.step_logic.midpoint4`) and the driver's bookkeeping
+:func:`~phc.simulation.step_logic.midpoint4`), the driver's bookkeeping
 (``step_logic.next_step``, ``predict`` with ``predictor_nodes``, ``lagrange_weights``,
-``polynomial``, ``extrapolate``, and ``accept``) with :mod:`phc.codegen.c_translate` and puts
-the translation into steps.c (when the library is built, and into an exported FMU's sources).
-Written by hand in steps.c are the operations those call (``_operations``: the matrix's age,
-refactor, correct, one stage), and a port of the numba kernel's chunk (:mod:`phc.codegen.numba_steps_kernel`), with a dense LU with partial
+``polynomial``, ``extrapolate``, ``looks`` and ``accept``) and the chunk loop
+(:func:`~phc.simulation.step_logic.chunk`, which the numba kernel runs as well) with
+:mod:`phc.codegen.c_translate`, writes the library's entry ``phc_steps_chunk`` from chunk's
+parameters (:func:`entry`), and puts both into steps.c (when the library is built, and into an
+exported FMU's sources). Written by hand in steps.c are the operations those call
+(``_operations``: the matrix's age, refactor, correct, one stage, one step of the run's method,
+and the singularity monitor's routine look — a 1-norm condition estimate of the equilibrated
+iteration matrix, as LAPACK's ``dgecon`` is in the numba kernel), with a dense LU with partial
 pivoting of the Newton matrix equilibrated as the Python loop's sparse LU is
-(:func:`phc.simulation.midpoint.equilibration`); its header says what is not ported (the
-numba loop's mixed-precision corrections: here every correction is in double precision) and
+(:func:`phc.simulation.midpoint.equilibration`); its header says what the numba loop does that
+it does not (mixed-precision corrections: here every correction is in double precision) and
 why LAPACK is not used.
 
 The Python side is the numba loop's: :func:`phc.simulation.compiled_steps.integrate` runs
@@ -51,7 +55,7 @@ SOURCE = Path(__file__).resolve().parents[1] / "codegen" / "c_runtime" / "steps.
 the whole text."""
 
 TRANSLATED = ("substeps", "next_step", "predictor_nodes", "lagrange_weights", "polynomial", "extrapolate", "predict",
-              "accept", "newton", "discrete_gradient", "midpoint4")
+              "looks", "accept", "newton", "discrete_gradient", "midpoint4", "chunk")
 """The functions of :mod:`phc.simulation.step_logic` steps.c gets translated (each after those it
 calls)."""
 
@@ -67,7 +71,41 @@ def _operations() -> dict:
             "_correct": Op("op_correct", ("ws", "i", "f", "f", "v", "v", "f"), ("i", "v", "f", "f", "f", "b", "b")),
             "_precision": Op("op_precision", ("ws", "i"), ()),
             "_consistent": Op("op_consistent", ("ws", "f", "v"), (), writes=(2,)),
-            "_stage": Op("op_stage", ("ws", "i", "f", "f", "v", "v", "f", "v"), ("i", "b"), writes=(7,))}
+            "_stage": Op("op_stage", ("ws", "i", "f", "f", "v", "v", "f", "v"), ("i", "b"), writes=(7,)),
+            # the chunk's: one step of the run's method; the monitor's routine look (steps.c's
+            # condition estimate of the equilibrated iteration matrix, LAPACK's dgecon on its own LU)
+            "_advance": Op("op_advance", ("ws", "f", "f", "v", "v", "v"), ("i", "b"), writes=(5,)),
+            "_far_from_singular": Op("op_far_from_singular", ("ws", "f", "v", "v", "f"), ("b",))}
+
+
+_ROWS = {"ys": "nout", "yps": "nout", "pm": "npred"}
+"""The row counts (fields of ``struct phc_steps``) of the matrices :func:`phc.simulation.step_logic.chunk` takes."""
+
+
+def entry() -> str:
+    """C text of the library's entry ``phc_steps_chunk(w, budget)``: the translated
+    :func:`phc.simulation.step_logic.chunk` on the run's struct. Its parameters are named as the
+    struct's fields (``ws`` is the struct, ``budget`` the caller's), so the call is written from
+    its parameter list, not by hand."""
+    import inspect
+
+    kinds, _ = _sl.C_SIGNATURES["chunk"]
+    args = ["w->n"]
+    for name, kind in zip(inspect.signature(_sl.chunk).parameters, kinds):
+        if kind == "ws":
+            args.append("w")
+        elif name == "budget":
+            args.append("budget")
+        elif kind == "V":
+            args.append(f"w->{name}, w->{_ROWS[name]}")
+        else:
+            args.append(f"w->{name}")
+    call = ", ".join(args)
+    return ("/* Steps of integrate_fixed_step until `budget` steps are done, the run ends, or a step needs the\n"
+            " * Python code; the state is in the arrays, the status in ist[I_STATUS] (phc.simulation.step_logic.chunk,\n"
+            " * translated; this call is written by phc.codegen.c_steps.entry from chunk's parameters). */\n"
+            "void phc_steps_chunk(const struct phc_steps *w, int64_t budget)\n{\n"
+            f"    chunk({call});\n}}\n")
 
 
 _SOURCE_TEXT: Optional[str] = None
@@ -78,7 +116,7 @@ def translation() -> str:
     from phc.codegen.c_translate import PRELUDE, Translator
 
     body = Translator(_sl, _sl.C_SIGNATURES, _operations()).translate(TRANSLATED)
-    return PRELUDE + "\n" + body
+    return PRELUDE + "\n" + body + "\n" + entry()
 
 
 def source() -> str:

@@ -25,10 +25,12 @@ The subset:
   expression, ``x.copy()`` or another local vector where neither is written in place, so that a
   copy is what Python's shared name would be), local matrices and buffers (``np.empty((r, n))``,
   ``np.empty(k)``) and tuples of scalars;
-* ``for`` over ``range`` (a constant step of ±1), ``if``/``elif``/``else``, ``break``,
+* ``for`` over ``range`` (a constant step of ±1), ``while True:`` (left by ``break`` or
+  ``return``), ``if``/``elif``/``else``, ``break``,
   ``continue``, ``return`` (of a tuple: the first value is returned, the others written through
   pointers; a vector into the caller's array);
-* arithmetic on scalars (Python's true division of integers as a double division), comparisons
+* arithmetic on scalars (Python's true division of integers as a double division, ``%`` of
+  integers with Python's sign: the divisor's), comparisons
   (one operator), ``and``/``or``/``not`` of truth values, conditional expressions, ``abs``,
   ``min``/``max`` of scalars (Python's choice on ties: the first), ``int``, ``np.ceil``,
   ``np.isfinite``, ``np.inf``, integer constants of the module (printed as literals);
@@ -167,11 +169,17 @@ class _Function:
         if isinstance(e, ast.BinOp):
             a, b = self.kind(e.left), self.kind(e.right)
             if "v" in (a, b):
+                if isinstance(e.op, ast.Mod):
+                    self.refuse(e, "the operator Mod of a vector")
                 return "v"
             if a not in SCALARS or b not in SCALARS:
                 self.refuse(e, f"arithmetic on {ast.unparse(e)!r}")
             if isinstance(e.op, ast.Div):
                 return "f"
+            if isinstance(e.op, ast.Mod):
+                if "f" in (a, b):
+                    self.refuse(e, "the operator Mod of doubles (integers only)")
+                return "i"
             if isinstance(e.op, (ast.Add, ast.Sub, ast.Mult)):
                 return "f" if "f" in (a, b) else "i"
             self.refuse(e, f"the operator {type(e.op).__name__}")
@@ -302,8 +310,10 @@ class _Function:
                 return f"{name}[{i}]"
             return f"{name}[{i}]"
         if isinstance(e, ast.BinOp):
-            op = {ast.Add: "+", ast.Sub: "-", ast.Mult: "*", ast.Div: "/"}[type(e.op)]
             a, b = self.expr(e.left, idx), self.expr(e.right, idx)
+            if isinstance(e.op, ast.Mod):
+                return f"py_mod_i({a}, {b})"
+            op = {ast.Add: "+", ast.Sub: "-", ast.Mult: "*", ast.Div: "/"}[type(e.op)]
             if isinstance(e.op, ast.Div) and self.kind(e.left) in ("i", "b") and self.kind(e.right) in ("i", "b"):
                 a = f"(double)({a})"
             return f"({a} {op} {b})"
@@ -513,6 +523,12 @@ class _Function:
             return self.emit(depth, "}")
         if isinstance(s, ast.For):
             return self.for_range(s, depth)
+        if isinstance(s, ast.While):
+            if not (isinstance(s.test, ast.Constant) and s.test.value is True) or s.orelse:
+                self.refuse(s, "the statement While other than `while True:` (left by break or return)")
+            self.emit(depth, "for (;;) {")
+            self.body(s.body, depth + 1)
+            return self.emit(depth, "}")
         if isinstance(s, ast.Break):
             return self.emit(depth, "break;")
         if isinstance(s, ast.Continue):
@@ -788,6 +804,8 @@ static inline double py_min_f(double a, double b) { return b < a ? b : a; }
 static inline double py_max_f(double a, double b) { return b > a ? b : a; }
 static inline int64_t py_min_i(int64_t a, int64_t b) { return b < a ? b : a; }
 static inline int64_t py_max_i(int64_t a, int64_t b) { return b > a ? b : a; }
+/* Python's a % b of integers: the sign of b (C's % takes a's); b is not 0 (Python raises) */
+static inline int64_t py_mod_i(int64_t a, int64_t b) { const int64_t r = a % b; return (r != 0 && ((r < 0) != (b < 0))) ? r + b : r; }
 """
 """What the translated functions need besides ``<math.h>`` and ``<stdint.h>``."""
 

@@ -6,19 +6,20 @@ numba itself, so reading its layout constants costs nothing on other paths.
 
 :mod:`phc.simulation.compiled_steps` says what the compiled loop does and holds its Python
 side (whether a run uses it, building and caching it, the driver between chunks); this module
-holds only the code numba compiles — the chunk of steps (:func:`_chunk`) and what only it
-calls: the singularity monitor's routine look (:func:`_monitor_ratio`), the dense LU / inverse /
-mixed-precision products.
+holds only the code numba compiles — the chunk's workspace (:func:`_chunk`, which runs
+:func:`phc.simulation.step_logic.chunk`) and the operations only it has: one step of the run's
+method (:func:`_advance`), the singularity monitor's routine look (:func:`_far_from_singular`,
+:func:`_monitor_ratio`), the dense LU / inverse / mixed-precision products.
 
 The step logic itself — the stage's Newton iteration, the discrete-gradient and midpoint4
-steps — and the chunk's bookkeeping of a routine step — the output grid and its substeps
-(``next_step``), the predictor (``predict``), when the monitor looks (``looks``), the acceptance
-(``accept``), with the layout of the state arrays they work on — are not written here: they are
+steps — and the chunk loop with its bookkeeping of a routine step (``chunk``) — the output grid and
+its substeps (``next_step``), the predictor (``predict``), when the monitor looks (``looks``), the
+acceptance (``accept``), with the layout of the state arrays they work on — are not written here: they are
 :mod:`phc.simulation.step_logic`, the code the Python loop runs as well. Its functions are
 rebound to this module's globals (:func:`_here`), where the operations they call by name are
 the compiled loop's, on the workspace tuple ``ws`` that :func:`_chunk` builds (:func:`_begin`,
 :func:`_refactor`, :func:`_correct`, :func:`_add`, :func:`_copy`, :func:`_precision`,
-:func:`_stage`, :func:`_consistent`); :func:`~phc.simulation.compiled_steps._compile` jits them with the rest.
+:func:`_stage`, :func:`_consistent`, :func:`_advance`, :func:`_far_from_singular`); :func:`~phc.simulation.compiled_steps._compile` jits them with the rest.
 
 The LAPACK/BLAS entry points the kernel calls (``_dgetrf``, ``_dgetri``, ``_dgecon``,
 ``_dgesdd``, ``_dgemv``, ``_sgemv``) are not defined here: :func:`~phc.simulation.compiled_steps._kernel_namespace`
@@ -49,8 +50,8 @@ from phc.simulation.step_logic import (  # noqa: F401,E402
     _CODE, _E, _H, _H_PREV, _HAS_MID, _HIST, _ILL, _J, _K, _LAST_LOOK, _LOWP, _MAX_STEPS, _METHOD, _MONITOR, _NEND,
     _NF, _NFACT, _NFEV, _NI, _NMID, _STATUS, _STEP, _STEPS, _STRIKES, _SUBSTEPS, _T, LOOK_GAP)
 
-# status of a chunk
-_BUDGET, _DONE, _HARD, _LOOK, _MAXSTEPS = 0, 1, 2, 3, 4
+# status of a chunk (step_logic.chunk sets it; the driver reads it)
+from phc.simulation.step_logic import _BUDGET, _DONE, _HARD, _LOOK, _MAXSTEPS  # noqa: F401,E402
 
 _RCOND_MARGIN = 1e3
 """The routine look of the singularity monitor computes singular values only when LAPACK's
@@ -210,7 +211,7 @@ _AGE0 = _NI  # the ages of the two Newton matrices follow the integer state
 
 # The operations of phc.simulation.step_logic (by their names there) on the compiled loop's workspace: the tuple
 # ws = (res, jac, inv, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend, weights, algmask, c, jbuf, ebuf,
-#       xs, d, r, ints, chars, ist) that _chunk builds.
+#       xs, d, r, ints, chars, ist, M, colscale, ham, escale, powers, hist_t, hist_v) that _chunk builds.
 
 def _begin(ws, m):
     matf, ist = ws[7], ws[23]
@@ -222,7 +223,7 @@ def _begin(ws, m):
 
 def _refactor(ws, m, t, h, y, y1, s):
     (res, jac, inv, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend, weights, algmask, c, jbuf, ebuf, xs, d,
-     r, ints, chars, ist) = ws
+     r, ints, chars, ist, M, colscale, ham, escale, powers, hist_t, hist_v) = ws
     return _refactor_matrix(jac, t, h, y, y1, s, p, A, lp, ipiv, matf, m, jrows, jcols, emask, nend, jbuf, ebuf, xs, d,
                             ints, ist)
 
@@ -233,7 +234,7 @@ def _correct(ws, m, t, h, y, y1, s):
     variables but the GGL multipliers (algmask 1) relative to |y| + 1; else all relative to
     |y| + 1 (:meth:`phc.simulation.midpoint.StageSolver._correct`, on arrays)."""
     (res, jac, inv, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend, weights, algmask, c, jbuf, ebuf, xs, d,
-     r, ints, chars, ist) = ws
+     r, ints, chars, ist, M, colscale, ham, escale, powers, hist_t, hist_v) = ws
     n = y.shape[0]
     ist[_NFEV] += 1
     if not _stage_residual(res, inv, t, h, y, y1, s, p, r, end_rows, nend, xs, d):
@@ -295,10 +296,11 @@ def _consistent(ws, t, y):
     (:func:`phc.simulation.compiled_steps.integrate`)."""
 
 
-def _advance(ws, ham, escale, powers, t, h, y, guess, out, flags, hist_t, hist_v):
+def _advance(ws, t, h, y, guess, out):
     """One step of the method ist[_METHOD] (0 midpoint, 1 discrete gradient, 2 midpoint4) into
-    out; the outcome, flags[0] ← ill-conditioned."""
+    out (step_logic's operation ``_advance``); the outcome and whether a stage was ill-conditioned."""
     ist, c, p = ws[23], ws[15], ws[3]
+    ham, escale, powers, hist_t, hist_v = ws[26], ws[27], ws[28], ws[29], ws[30]
     method = ist[_METHOD]
     if method == 0:
         code, ill = _stage(ws, 0, t, h, y, guess, 0.5, out)
@@ -309,8 +311,16 @@ def _advance(ws, ham, escale, powers, t, h, y, guess, out, flags, hist_t, hist_v
     else:
         code, ill, nhist = _midpoint4_step(powers, escale, ws, c, t, h, y, guess, p, out, hist_t, hist_v, ist[_HIST])
         ist[_HIST] = nhist
-    flags[0] = 1 if ill else 0
-    return code
+    return code, ill
+
+
+def _far_from_singular(ws, t, y, yp, hm):
+    """step_logic's operation ``_far_from_singular``: σ_min/σ_max of the equilibrated iteration
+    matrix (:func:`_monitor_ratio`: LAPACK's condition estimate, then its SVD) not below the
+    monitor's threshold."""
+    jac, p, jrows, jcols, c, jbuf, M, colscale = ws[1], ws[3], ws[8], ws[9], ws[15], ws[16], ws[24], ws[25]
+    ratio = _monitor_ratio(jac, t, y, yp, hm, p, jrows, jcols, jbuf, M, colscale, c[_THRESHOLD])
+    return not (ratio < c[_THRESHOLD])
 
 
 def _here(func):
@@ -334,6 +344,7 @@ extrapolate = _here(step_logic.extrapolate)
 predict = _here(step_logic.predict)
 looks = _here(step_logic.looks)
 accept = _here(step_logic.accept)
+chunk = _here(step_logic.chunk)
 
 
 def _monitor_ratio(jac, t, y, yp, h, p, jrows, jcols, jbuf, M, colscale, threshold):
@@ -418,7 +429,8 @@ def _chunk(res, jac, inv, ham, escale, powers, p, t_out, ys, yps, y, mid, mid_sl
            ipiv, matf, jrows, jcols, end_rows, emask, weights, algmask, hist_t, hist_v, y_new, jbuf, ebuf, M, colscale, pt,
            pm, budget):
     """Steps of integrate_fixed_step until `budget` steps are done, the run ends, or a step needs
-    the Python code (see the module docstring); the state is in the arrays, the status in ist."""
+    the Python code (see the module docstring); the state is in the arrays, the status in ist.
+    The loop is step_logic's :func:`~phc.simulation.step_logic.chunk`; this builds its workspace."""
     n = y.shape[0]
     nend = ist[_NEND]
     ints = np.zeros(4, np.int32)
@@ -433,39 +445,6 @@ def _chunk(res, jac, inv, ham, escale, powers, p, t_out, ys, yps, y, mid, mid_sl
     r = np.empty(n)
     guess = np.empty(n)
     yp = np.empty(n)
-    flags = np.zeros(1, np.int64)
     ws = (res, jac, inv, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend, weights, algmask, c, jbuf, ebuf, xs,
-          d, r, ints, chars, ist)
-    nout = t_out.shape[0]
-    done = 0
-    while True:
-        k = ist[_K]
-        if k >= nout:
-            ist[_STATUS] = _DONE
-            return
-        if done >= budget:
-            ist[_STATUS] = _BUDGET
-            return
-        next_step(t_out, fst, ist)
-        t = fst[_T]
-        h = fst[_H]
-        predict(y, mid, mid_slope, pt, pm, ist, c, t, h, fst[_H_PREV], algmask, guess)
-        code = _advance(ws, ham, escale, powers, t, h, y, guess, y_new, flags, hist_t, hist_v)
-        ist[_CODE] = code
-        ist[_ILL] = flags[0]
-        hard, look = looks(ist, c, code == _OK, flags[0] != 0)
-        if code != _OK or (hard and look):  # the monitor's look at a hard step: the driver's
-            ist[_STATUS] = _HARD
-            return
-        if look:  # the routine look
-            ist[_LAST_LOOK] = ist[_STEPS]
-            for i in range(n):
-                yp[i] = (y_new[i] - y[i]) / h
-            ratio = _monitor_ratio(jac, t, y, yp, 0.5 * h, p, jrows, jcols, jbuf, M, colscale, c[_THRESHOLD])
-            if ratio < c[_THRESHOLD]:
-                ist[_STATUS] = _LOOK
-                return
-        done += 1
-        if accept(t, h, y, y_new, y_new, y_prev, mid, mid_slope, pt, pm, ys, yps, fst, ist):
-            ist[_STATUS] = _MAXSTEPS
-            return
+          d, r, ints, chars, ist, M, colscale, ham, escale, powers, hist_t, hist_v)
+    chunk(ws, t_out, ys, yps, y, mid, mid_slope, y_prev, y_new, pt, pm, fst, ist, c, algmask, guess, yp, budget)

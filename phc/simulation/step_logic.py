@@ -26,12 +26,15 @@ a step *does* is written here, once, as plain Python that numba can compile:
   a hard step, the routine period) and :func:`accept` (the midpoints' history, the time, the step
   count, ``max_steps``, the output at the end of an interval). These are written with whole-array
   NumPy expressions and the ``_copy`` operation, so that the Python loop runs them at NumPy speed
-  and numba compiles the same text into the compiled loop's chunk.
+  and numba compiles the same text into the compiled loop's chunk;
+* :func:`chunk` — the compiled loops' chunk of routine steps (those functions in turn, until a
+  budget of steps, the end, or a step the Python driver must take), which the numba kernel runs
+  and the C loop gets translated; the Python loop takes its steps itself.
 
 The C back end's step loop (``phc/codegen/c_runtime/steps.c``, :mod:`phc.codegen.c_steps`)
-cannot run Python: it gets :func:`newton`, :func:`discrete_gradient`, :func:`midpoint4` and the
+cannot run Python: it gets :func:`newton`, :func:`discrete_gradient`, :func:`midpoint4`, the
 driver's bookkeeping (:func:`next_step`, :func:`substeps`, :func:`predict` with the predictor's
-functions, :func:`accept`) translated to C from this text by :mod:`phc.codegen.c_translate`,
+functions, :func:`looks`, :func:`accept`) and :func:`chunk` translated to C from this text by :mod:`phc.codegen.c_translate`,
 with the C types of :data:`C_SIGNATURES`; keep those functions within the translator's subset
 (its docstring; a function outside it is refused with its line, in
 ``tests/codegen/test_c_translate.py``).
@@ -39,13 +42,13 @@ with the C types of :data:`C_SIGNATURES`; keep those functions within the transl
 What stays each loop's own is what is not routine: the Python loop's
 :func:`~phc.simulation.midpoint.integrate_fixed_step` handles events, projection, retries and
 splits and the singularity monitor's full look and messages
-(:func:`~phc.simulation.midpoint.finish_step`); the compiled loop's chunk
-(:func:`phc.codegen.numba_steps_kernel._chunk`) runs the routine steps with the functions above
-and hands every other step back to that same Python code
+(:func:`~phc.simulation.midpoint.finish_step`); the compiled loops' :func:`chunk` runs the
+routine steps with the functions above and hands every other step back to that same Python code
 (:func:`phc.simulation.compiled_steps.integrate`). The routine look's screen, σ_min/σ_max of the
 equilibrated iteration matrix, is each back end's linear algebra (SciPy's LAPACK in
 :class:`~phc.simulation.monitor.SingularityMonitor`, LAPACK through pointers in
-:func:`phc.codegen.numba_steps_kernel._monitor_ratio`), as the Newton matrix's LU is.
+:func:`phc.codegen.numba_steps_kernel._monitor_ratio`, steps.c's condition estimate in the C
+loop: the operation ``_far_from_singular``), as the Newton matrix's LU is.
 
 Neither loop's data structures appear here. What touches them are a few operations, called
 by name: ``ws`` is the loop's workspace, passed through to them untouched. The Python loop's
@@ -79,6 +82,21 @@ them with the rest of the kernel. The operations (what they do and return):
     compiled loops do not run models that have such rows with the discrete gradient (their
     ``_consistent`` does nothing).
 
+:func:`chunk`, which only the compiled loops run, calls two more, defined by those loops alone:
+
+``_advance(ws, t, h, y, guess, out) -> (code, ill_conditioned)``
+    One step of the run's method (``ist[_METHOD]``: 0 :func:`newton` of the midpoint stage,
+    1 :func:`discrete_gradient`, 2 :func:`midpoint4`) from ``guess`` into ``out``, with the
+    model's Hamiltonian, energy scale and port powers the loop holds.
+``_far_from_singular(ws, t, y, yp, hm) -> bool``
+    The routine look's screen of the singularity monitor: whether the equilibrated iteration
+    matrix ``F_y + F_ẏ/hm`` at ``(t, y, yp)`` (:meth:`~phc.simulation.monitor.SingularityMonitor.ratio`)
+    is clearly far from singular. Its linear algebra is the loop's: LAPACK's 1-norm condition
+    estimate (``dgecon`` on ``dgetrf``'s LU, then ``dgesdd``'s σ_min/σ_max where the estimate is
+    not conclusive) in the numba kernel (``_monitor_ratio``); the same estimate on steps.c's own
+    LU in the C loop (``far_from_singular``), which hands an inconclusive look to Python's
+    monitor. False: the driver looks with the Python monitor and decides.
+
 The numbers the logic uses come in the vector ``c`` (its layout: ``_TOL`` … ``_STRIKES_C``),
 filled from the constants of the methods' modules (:func:`phc.simulation.midpoint.newton_constants`,
 :func:`phc.simulation.discrete_gradient.secant_constants`,
@@ -104,6 +122,8 @@ _NI = 20
 # float state
 _T, _H, _H_PREV, _STEP = range(4)
 _NF = 4
+# status of a compiled loop's chunk (ist[_STATUS], set by :func:`chunk`)
+_BUDGET, _DONE, _HARD, _LOOK, _MAXSTEPS = 0, 1, 2, 3, 4
 LOOK_GAP = 10
 """A step Newton found ill-conditioned is looked at by the singularity monitor if the last look
 was at least this many steps before (:func:`looks`; why: :data:`phc.simulation.midpoint.LOOK_GAP`)."""
@@ -122,11 +142,13 @@ C_SIGNATURES = {
     "extrapolate": (("i", "v", "v", "F", "V", "f", "f", "f"), ("v",)),
     "predict": (("v", "v", "v", "F", "V", "I", "F", "f", "f", "f", "M", "v"), ()),
     "accept": (("f", "f", "v", "v", "v", "v", "v", "v", "F", "V", "V", "V", "F", "I"), ("b",)),
+    "looks": (("I", "F", "b", "b"), ("b", "b")),
     "newton": (("ws", "i", "F", "f", "f", "v", "v", "f", "v"), ("i", "b")),
     # S: the energy scale's C function, P: the port powers' (both the model's)
     "discrete_gradient": (("S", "S", "ws", "F", "i", "f", "f", "v", "v", "F", "v"),
                           ("i", "b", "v", "f", "f", "v", "i")),
     "midpoint4": (("P", "S", "ws", "F", "f", "f", "v", "v", "F", "v", "F3", "V3", "i"), ("i", "b", "i")),
+    "chunk": (("ws", "F", "V", "V", "v", "v", "v", "v", "v", "F", "V", "F", "I", "F", "M", "v", "v", "i"), ()),
 }
 """The C signatures of the functions the C back end's step loop gets translated from this module
 (:func:`phc.codegen.c_steps.source`); a function edited beyond what the translator accepts fails
@@ -241,6 +263,54 @@ def accept(t, h, y, y_new, y_end, y_prev, mid, mid_slope, pt, pm, ys, yps, fst, 
         ist[_K] = k + 1
         ist[_J] = 0
     return False
+
+
+def chunk(ws, t_out, ys, yps, y, mid, mid_slope, y_prev, y_new, pt, pm, fst, ist, c, algmask, guess, yp, budget):
+    """The compiled loops' chunk: routine steps of the output grid ``t_out`` until ``budget`` steps
+    are done (``ist[_STATUS]`` ← :data:`_BUDGET`), the grid's end (:data:`_DONE`), ``max_steps``
+    (:data:`_MAXSTEPS`), or a step that needs the Python driver: one that failed or that the
+    singularity monitor must look at as a hard step (:data:`_HARD`, the outcome in ``ist[_CODE]``
+    and ``ist[_ILL]``), or a routine look the loop's screen does not pass (:data:`_LOOK`). The
+    step is not taken then (the driver takes it: :func:`phc.simulation.compiled_steps.integrate`).
+
+    Each step: :func:`next_step`, :func:`predict` into ``guess``, the method's step into ``y_new``
+    (the operation ``_advance``), :func:`looks`, and on a routine look the operation
+    ``_far_from_singular`` on the step's midpoint slope ``yp`` (the equilibrated iteration matrix
+    with c_j = 2/h), then :func:`accept`. The Python loop does not run this function (it takes
+    each step itself, with events and projection: :func:`~phc.simulation.midpoint.integrate_fixed_step`);
+    the numba kernel runs it (:func:`phc.codegen.numba_steps_kernel._chunk`) and the C loop's
+    ``phc_steps_chunk`` is its translation."""
+    nout = ys.shape[0]
+    done = 0
+    while True:
+        k = ist[_K]
+        if k >= nout:
+            ist[_STATUS] = _DONE
+            return
+        if done >= budget:
+            ist[_STATUS] = _BUDGET
+            return
+        next_step(t_out, fst, ist)
+        t = fst[_T]
+        h = fst[_H]
+        predict(y, mid, mid_slope, pt, pm, ist, c, t, h, fst[_H_PREV], algmask, guess)
+        code, ill = _advance(ws, t, h, y, guess, y_new)  # noqa: F821 — a compiled loop's operation
+        ist[_CODE] = code
+        ist[_ILL] = 1 if ill else 0
+        hard, look = looks(ist, c, code == _OK, ill)
+        if code != _OK or (hard and look):  # the monitor's look at a hard step: the driver's
+            ist[_STATUS] = _HARD
+            return
+        if look:  # the routine look
+            ist[_LAST_LOOK] = ist[_STEPS]
+            _copy((y_new - y) / h, yp)
+            if not _far_from_singular(ws, t, y, yp, 0.5 * h):  # noqa: F821 — a compiled loop's operation
+                ist[_STATUS] = _LOOK
+                return
+        done += 1
+        if accept(t, h, y, y_new, y_new, y_prev, mid, mid_slope, pt, pm, ys, yps, fst, ist):
+            ist[_STATUS] = _MAXSTEPS
+            return
 
 
 def newton(ws, m, c, t, h, y, y1in, s, out):

@@ -59,6 +59,9 @@ def test_step_logic_translates_and_steps_c_is_complete():
     for name in c_steps.TRANSLATED:
         assert f"step_logic.{name} (translated" in text
     assert c_steps.SOURCE.read_text(encoding="utf-8").count(c_steps.MARKER) == 1
+    # the chunk loop as well: steps.c does not define the library's entry by hand, the translation does
+    assert "void phc_steps_chunk(" not in c_steps.SOURCE.read_text(encoding="utf-8")
+    assert text.count("void phc_steps_chunk(") == 1 and "static void chunk(" in text
 
 
 def test_substeps_and_next_step_match_python_bit_for_bit(driver):
@@ -126,6 +129,102 @@ def test_accept_matches_python_bit_for_bit(driver, has_mid, j, max_steps):
         assert np.array_equal(a, b)
 
 
+# The chunk loop (step_logic.chunk) with stand-ins for the loop's two operations it calls, the same
+# in C and in Python: a "step" out = guess + h y that fails from t_fail on and is ill-conditioned
+# from t_ill on, and a routine look that passes before t_look.
+_CHUNK_OPS = """
+struct phc_steps { double t_fail, t_ill, t_look; };
+static int64_t op_advance(int64_t n, const struct phc_steps *w, double t, double h, const double *y,
+                          const double *guess, double *out, int *ill)
+{
+    for (int64_t i = 0; i < n; ++i)
+        out[i] = guess[i] + h * y[i];
+    *ill = t >= w->t_ill;
+    return t >= w->t_fail ? 1 : 0;
+}
+static int op_far_from_singular(int64_t n, const struct phc_steps *w, double t, const double *y, const double *yp,
+                                double hm)
+{
+    (void)n; (void)y; (void)yp; (void)hm;
+    return t < w->t_look;
+}
+"""
+
+_CHUNK_WRAPPER = """
+void t_chunk(int64_t n, const struct phc_steps *w, const double *t_out, double *ys, double *yps, int64_t nout, double *y,
+             double *mid, double *mid_slope, double *y_prev, double *y_new, double *pt, double *pm, int64_t npred,
+             double *fst, int64_t *ist, const double *c, const int8_t *algmask, double *guess, double *yp,
+             int64_t budget)
+{ chunk(n, w, t_out, ys, nout, yps, nout, y, mid, mid_slope, y_prev, y_new, pt, pm, npred, fst, ist, c, algmask, guess,
+        yp, budget); }
+"""
+
+
+def _chunk_in_python():
+    """step_logic.chunk's code with the stand-in operations of _CHUNK_OPS as its globals."""
+    import types
+
+    def _advance(ws, t, h, y, guess, out):
+        sl._copy(guess + h * y, out)
+        return (sl._FAIL if t >= ws[0] else sl._OK), t >= ws[1]
+
+    def _far_from_singular(ws, t, y, yp, hm):
+        return t < ws[2]
+
+    namespace = {**vars(sl), "_advance": _advance, "_far_from_singular": _far_from_singular}
+    return types.FunctionType(sl.chunk.__code__, namespace, "chunk")
+
+
+@pytest.fixture(scope="module")
+def chunk_c():
+    ops = {k: v for k, v in c_steps._operations().items() if k in ("_advance", "_far_from_singular")}
+    text = ("#include <math.h>\n#include <stdint.h>\n" + PRELUDE + _CHUNK_OPS
+            + Translator(sl, sl.C_SIGNATURES, ops).translate(DRIVER + ("looks", "chunk")) + _CHUNK_WRAPPER)
+    lib, why = c_backend.runtime_library(text, c_steps.FLAGS)
+    if lib is None:
+        pytest.skip(f"no C compiler: {why}")
+    return lib
+
+
+@pytest.mark.parametrize("t_fail, t_ill, t_look, budget, max_steps, status", [
+    (np.inf, np.inf, np.inf, 10**6, 10**6, sl._DONE),  # the whole grid, its looks passing
+    (np.inf, np.inf, np.inf, 7, 10**6, sl._BUDGET),
+    (0.33, np.inf, np.inf, 10**6, 10**6, sl._HARD),  # a step that fails
+    (np.inf, 0.2, np.inf, 10**6, 10**6, sl._HARD),  # ill-conditioned, LOOK_GAP steps after the last look
+    (np.inf, np.inf, 0.27, 10**6, 10**6, sl._LOOK),  # a routine look that does not pass
+    (np.inf, np.inf, np.inf, 10**6, 13, sl._MAXSTEPS),
+])
+def test_the_chunk_loop_matches_python_bit_for_bit(chunk_c, t_fail, t_ill, t_look, budget, max_steps, status):
+    """step_logic.chunk, the compiled loops' chunk (the C loop's phc_steps_chunk is its translation),
+    stops with the same status after the same steps and leaves every state array as Python does."""
+    rng = np.random.default_rng(int(status) + budget % 5)
+    n, npred, nout = 5, 4, 6
+    t_out = np.linspace(0.0, 1.0, nout)
+    ys, yps = np.zeros((nout, n)), np.zeros((nout, n))
+    y, mid, slope, y_prev, y_new, guess, yp = (rng.normal(size=n) for _ in range(7))
+    pt, pm = np.zeros(npred), np.zeros((npred, n))
+    fst = np.zeros(sl._NF)
+    fst[sl._STEP] = 0.03
+    ist = np.zeros(sl._NI, dtype=np.int64)
+    ist[sl._K], ist[sl._LAST_LOOK], ist[sl._MAX_STEPS], ist[sl._MONITOR] = 1, -100, max_steps, 1
+    c = np.zeros(sl._NC)
+    c[sl._ORDER], c[sl._ORDER_ALG], c[sl._EVERY] = 2, 1, 20  # 35 steps: looks at steps 0 and 20
+    algmask = rng.integers(0, 3, n).astype(np.int8)
+    arrays = [ys, yps, y, mid, slope, y_prev, y_new, pt, pm, fst, ist, guess, yp]
+    py = [a.copy() for a in arrays]
+    cc = [a.copy() for a in arrays]
+    _chunk_in_python()((t_fail, t_ill, t_look), t_out, *py[:11], c, algmask, *py[11:], budget)
+    ws = (ctypes.c_double * 3)(t_fail, t_ill, t_look)
+    ys_c, yps_c, y_c, mid_c, slope_c, y_prev_c, y_new_c, pt_c, pm_c, fst_c, ist_c, guess_c, yp_c = cc
+    chunk_c.t_chunk(ctypes.c_int64(n), ws, _p(t_out), _p(ys_c), _p(yps_c), ctypes.c_int64(nout), _p(y_c), _p(mid_c),
+                    _p(slope_c), _p(y_prev_c), _p(y_new_c), _p(pt_c), _p(pm_c), ctypes.c_int64(npred), _p(fst_c),
+                    _p(ist_c), _p(c), _p(algmask), _p(guess_c), _p(yp_c), ctypes.c_int64(budget))
+    assert py[10][sl._STATUS] == status  # the case reaches the status it is written for
+    assert py[10][sl._STEPS] >= 5  # and takes steps (a look and the predictor's history on the way)
+    for a, b in zip(py, cc):
+        assert np.array_equal(a, b)
+
+
 def _module(tmp_path, source):
     path = tmp_path / "logic.py"
     path.write_text("import numpy as np\n\n" + textwrap.dedent(source), encoding="utf-8")
@@ -162,7 +261,7 @@ def test_the_subset_is_translated(tmp_path):
     ("while k > 0:\n        k -= 1\n    return k", "the statement While"),
     ("return 0 < k < 3", "a chained comparison"),
     ("d = {}\n    return k", "the expression Dict"),
-    ("return k % 2", "the operator Mod"),
+    ("return k % 2.0", "the operator Mod of doubles"),
     ("return x", "the vector 'x' where a scalar is expected"),
     ("return np.sum(x)", "the call 'np.sum'"),
 ])
@@ -177,6 +276,28 @@ def g(k, x):
     assert message.startswith(f"{tmp_path / 'logic.py'}:") and "in g:" in message and what in message, message
     line = int(message.split(":")[1])
     assert 5 <= line <= 7  # the function starts on line 5 of the file: its body's line is named
+
+
+def test_integer_remainder_and_while_true_are_pythons(tmp_path):
+    """``%`` of integers takes the divisor's sign as Python's does (C's takes the dividend's), and
+    ``while True:`` is left by return as in Python."""
+    m = _module(tmp_path, """
+        def r(a, b):
+            k = 0
+            while True:
+                if k >= 3:
+                    return a % b + k
+                k += 1
+        """)
+    text = "#include <math.h>\n#include <stdint.h>\n" + PRELUDE + Translator(m, {"r": (("i", "i"), ("i",))}, {}).translate(
+        ["r"]) + "int64_t t_r(int64_t a, int64_t b) { return r(a, b); }\n"
+    lib, why = c_backend.runtime_library(text, c_steps.FLAGS)
+    if lib is None:
+        pytest.skip(f"no C compiler: {why}")
+    lib.t_r.restype, lib.t_r.argtypes = ctypes.c_int64, [ctypes.c_int64, ctypes.c_int64]
+    for a in range(-7, 8):
+        for b in (-3, -1, 1, 2, 5):
+            assert lib.t_r(a, b) == m.r(a, b), (a, b)
 
 
 def test_a_function_without_a_signature_is_refused(tmp_path):

@@ -313,7 +313,7 @@ def test_the_library_is_built_once_from_the_shipped_source(compiled):
     once per process and checked against the driver's layout of the state arrays."""
     from phc.codegen import c_steps
 
-    assert c_steps.SOURCE.is_file() and "phc_steps_chunk" in c_steps.SOURCE.read_text(encoding="utf-8")
+    assert c_steps.SOURCE.is_file() and "void phc_steps_chunk(" in c_steps.source()
     lib = c_steps.library()
     assert lib is not None and c_steps.library() is lib and c_steps.why_not() == ""
     # re-entrant: every `static` is a function at file scope, none is data
@@ -344,6 +344,15 @@ def test_the_translated_step_logic_is_not_written_in_steps_c_again():
         assert not definition.search(hand), name
         assert len(definition.findall(whole)) == 1, name
         assert f"step_logic.{name} (translated by phc.codegen.c_translate)" in whole
+    # the chunk loop too: the library's entry is step_logic.chunk on the struct, written by c_steps
+    # from chunk's parameters; steps.c has no loop over steps of its own
+    assert "chunk" in c_steps.TRANSLATED
+    entry = re.compile(r"^void phc_steps_chunk\(", re.M)
+    assert not entry.search(hand) and len(entry.findall(whole)) == 1
+    body = whole[whole.index("void phc_steps_chunk("):]
+    body = body[:body.index("\n}\n")]
+    assert body.count(";") == 1 and "    chunk(w->n, w, w->t_out, " in body
+    assert "for (;;)" not in hand and "ist[I_STATUS]" not in hand  # no hand-written loop sets a chunk's status
 
 
 def test_the_avx2_and_the_baseline_code_give_the_same_trajectory(compiled, monkeypatch, loops):

@@ -441,6 +441,13 @@ def test_both_loops_run_the_step_logic_written_once(compiled, monkeypatch, used,
         assert jitted.py_func.__code__ is func.__code__ and hasattr(jitted, "py_func"), name
     for gone in ("_predict", "_accept", "_substeps", "_predictor_nodes", "_lagrange_weights"):
         assert not hasattr(kernel, gone), gone  # no second copy of the driver in the kernel
+    # the chunk loop itself is step_logic's (the C loop's phc_steps_chunk is its translation): the
+    # kernel's _chunk only builds the workspace and calls it, with no loop of its own
+    assert kernel.chunk.py_func.__code__ is step_logic.chunk.__code__
+    import inspect
+
+    own = inspect.getsource(getattr(kernel._chunk, "py_func", kernel._chunk))
+    assert "while" not in own and own.rstrip().splitlines()[-1].strip().startswith("chunk(ws, ")
     calls = {}
     for name in {entry, "newton", *driver}:
         original = getattr(step_logic, name)

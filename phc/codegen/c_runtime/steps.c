@@ -8,7 +8,7 @@
  * functions of the library phc prints for the model, phc/codegen/c_printer.py) are handed to it
  * as function pointers and called directly.
  *
- * One call, phc_steps_chunk(run, budget), takes up to `budget` steps of the method
+ * One call, phc_steps_chunk(run, budget) (generated: see below), takes up to `budget` steps of the method
  * ist[I_METHOD] on the output grid of phc.simulation.midpoint.integrate_fixed_step, and returns.
  * Every method's stages are solved by one Newton iteration (`newton`, translated): the implicit
  * midpoint rule is one stage
@@ -33,14 +33,16 @@
  * What each step does is written once, in Python, in phc/simulation/step_logic.py, which the Python
  * loop runs and the numba kernel compiles. Its Newton iteration (`newton`: the stopping rules, the
  * refresh of the Newton matrix, the round-off acceptance), the methods' steps (`discrete_gradient`,
- * `midpoint4`) and the driver's bookkeeping (`next_step`, `predict`, `accept`) are not written in
- * this file: phc.codegen.c_steps.source() translates them to C (phc/codegen/c_translate.py) and
- * puts them at the line PHC_STEP_LOGIC below, beside the operations they call (op_begin,
- * op_refactor, op_correct, op_precision, op_consistent, op_stage). This file keeps a port of the
- * numba kernel's chunk (phc/codegen/numba_steps_kernel.py: `_chunk`,
- * `_monitor_ratio`), on the same state arrays with the same layout (checked when the library is
- * loaded: phc_steps_layout). Not ported: the mixed-precision corrections of the numba loop (every
- * correction here is in double precision, so step_logic's precision events never occur).
+ * `midpoint4`), the driver's bookkeeping (`next_step`, `predict`, `looks`, `accept`) and the chunk
+ * loop itself (`chunk`, which the numba kernel runs too) are not written in this file:
+ * phc.codegen.c_steps.source() translates them to C (phc/codegen/c_translate.py) and puts them,
+ * with the library's entry phc_steps_chunk (chunk on this file's struct, written from chunk's
+ * parameters), at the line PHC_STEP_LOGIC below, beside the operations they call (op_begin,
+ * op_refactor, op_correct, op_precision, op_consistent, op_stage, op_advance and
+ * op_far_from_singular, the monitor's routine look). The state arrays have the layout of the
+ * numba loop's (checked when the library is loaded: phc_steps_layout). Not here: the
+ * mixed-precision corrections of the numba loop (every correction here is in double precision, so
+ * step_logic's precision events never occur).
  *
  * Linear algebra: the Newton matrix s*(F_y + cj*F_yp) (the end-constraint rows from g_y) is
  * equilibrated by powers of two as the Python loop's sparse LU is (phc.simulation.midpoint.
@@ -686,9 +688,17 @@ static void op_consistent(int64_t n, const struct phc_steps *w, double t, double
 static int64_t op_stage(int64_t n, const struct phc_steps *w, int64_t m, double t, double h, const double *y,
                         const double *y1in, double s, double *out, int *ill);
 
+/* step_logic's _advance (chunk's step of the run's method) and _far_from_singular (the monitor's
+ * routine look), defined after the translated functions they call */
+static int64_t op_advance(int64_t n, const struct phc_steps *w, double t, double h, const double *y, const double *guess,
+                          double *out, int *ill);
+static int op_far_from_singular(int64_t n, const struct phc_steps *w, double t, const double *y, const double *yp,
+                                double hm);
+
 /* ---- phc.simulation.step_logic, translated ------------------------------------------------
  * substeps, next_step, predictor_nodes, lagrange_weights, polynomial, extrapolate, predict,
- * accept, newton, discrete_gradient and midpoint4 are not written here: phc.codegen.c_steps.source()
+ * looks, accept, newton, discrete_gradient, midpoint4 and chunk (the chunk loop) are not written
+ * here, nor the library's entry phc_steps_chunk (chunk on the struct): phc.codegen.c_steps.source()
  * puts their translation (phc.codegen.c_translate, from the Python the other loops run) in place
  * of the next line. */
 /* PHC_STEP_LOGIC */
@@ -699,41 +709,41 @@ static int64_t op_stage(int64_t n, const struct phc_steps *w, int64_t m, double 
     return newton(n, w, m, w->c, t, h, y, y1in, s, out, ill);
 }
 
-/* One step of the method ist[I_METHOD] (0 midpoint, 1 discrete gradient, 2 midpoint4) from the
- * driver's guess into y_new (numba_steps_kernel._advance); the outcome, *ill <- whether a
+/* step_logic's _advance: one step of the method ist[I_METHOD] (0 midpoint, 1 discrete gradient,
+ * 2 midpoint4) from guess into out (numba_steps_kernel._advance); the outcome, *ill <- whether a
  * stage was ill-conditioned */
-static int advance(const struct phc_steps *w, double t, double h, int *ill)
+static int64_t op_advance(int64_t n, const struct phc_steps *w, double t, double h, const double *y, const double *guess,
+                          double *out, int *ill)
 {
     switch (w->ist[I_METHOD]) {
     case 1: {
         double best, scale;
         int64_t secants;
-        const int code = (int)discrete_gradient(w->n, w->hamiltonian, w->energy_scale, w, w->c, w->ist[I_E], t, h, w->y,
-                                                w->guess, w->p, w->y_new, ill, w->y_new, &best, &scale, w->y_half,
-                                                &secants);
-        return code;
+        return discrete_gradient(n, w->hamiltonian, w->energy_scale, w, w->c, w->ist[I_E], t, h, y, guess, w->p, out,
+                                 ill, out, &best, &scale, w->y_half, &secants);
     }
     case 2: {
         int64_t nhist;
-        const int code = (int)midpoint4(w->n, w->powers, w->energy_scale, w, w->c, t, h, w->y, w->guess, w->p,
-                                        w->y_new, w->hist_t, w->hist_v, w->ist[I_HIST], ill, &nhist);
+        const int64_t code = midpoint4(n, w->powers, w->energy_scale, w, w->c, t, h, y, guess, w->p, out, w->hist_t,
+                                       w->hist_v, w->ist[I_HIST], ill, &nhist);
         w->ist[I_HIST] = nhist;
         return code;
     }
     default:
-        return (int)newton(w->n, w, 0, w->c, t, h, w->y, w->guess, 0.5, w->y_new, ill);
+        return newton(n, w, 0, w->c, t, h, y, guess, 0.5, out, ill);
     }
 }
 
-/* ---- the driver (numba_steps_kernel._monitor_ratio, _chunk; step_logic.next_step, predict, accept) */
+/* ---- the monitor's routine look (numba_steps_kernel._monitor_ratio) ---------------------- */
 
-/* The routine look of the singularity monitor: 1 when the equilibrated iteration matrix at
- * (t, y, yp) (SingularityMonitor.ratio: cj = 1/hm) is clearly far from singular — LAPACK-style
- * 1-norm condition estimate RCOND_MARGIN n times above the threshold — else 0: Python's monitor
- * looks (its SVD decides; the numba loop computes that SVD itself). */
-static int far_from_singular(const struct phc_steps *w, double t, const double *y, const double *yp, double hm)
+/* step_logic's _far_from_singular, the routine look of the singularity monitor: 1 when the
+ * equilibrated iteration matrix at (t, y, yp) (SingularityMonitor.ratio: cj = 1/hm) is clearly far
+ * from singular — LAPACK-style 1-norm condition estimate RCOND_MARGIN n times above the
+ * threshold — else 0: Python's monitor looks (its SVD decides; the numba loop computes that SVD
+ * itself). */
+static int op_far_from_singular(int64_t n, const struct phc_steps *w, double t, const double *y, const double *yp,
+                                double hm)
 {
-    const int64_t n = w->n;
     double *a = w->mon, *rowmax = w->monv, *x = w->monv + n, *sgn = w->monv + 2 * n;
     w->jacobian(t, y, yp, w->p, 1.0 / (hm > 1e-300 ? hm : 1e-300), w->jbuf);
     if (!all_finite(w->njac, w->jbuf))
@@ -776,55 +786,6 @@ static int far_from_singular(const struct phc_steps *w, double t, const double *
         return 0;
     const double rcond = 1.0 / (anorm * inverse_norm1(n, a, w->monpiv, x, sgn));
     return isfinite(rcond) && rcond >= w->c[C_THRESHOLD] * (double)n * RCOND_MARGIN;
-}
-
-/* Steps of integrate_fixed_step until `budget` steps are done, the run ends, or a step needs the
- * Python code; the state is in the arrays, the status in ist[I_STATUS] (numba_steps_kernel._chunk). */
-void phc_steps_chunk(const struct phc_steps *w, int64_t budget)
-{
-    const int64_t n = w->n, nout = w->nout;
-    int64_t *ist = w->ist;
-    double *fst = w->fst;
-    const int64_t every = (int64_t)w->c[C_EVERY];
-    int64_t done = 0;
-    for (;;) {
-        const int64_t k = ist[I_K];
-        if (k >= nout) {
-            ist[I_STATUS] = ST_DONE;
-            return;
-        }
-        if (done >= budget) {
-            ist[I_STATUS] = ST_BUDGET;
-            return;
-        }
-        next_step(w->t_out, fst, ist);  /* a new output interval: its equal substeps */
-        const double t = fst[F_T], h = fst[F_H], h_prev = fst[F_H_PREV];
-        predict(n, w->y, w->mid, w->mid_slope, w->pt, w->pm, w->npred, ist, w->c, t, h, h_prev, w->algmask, w->guess);
-        int ill;
-        const int code = advance(w, t, h, &ill);
-        const int64_t steps = ist[I_STEPS];
-        ist[I_CODE] = code;
-        ist[I_ILL] = ill;
-        if (code != OK || (ist[I_MONITOR] != 0 && ill && steps - ist[I_LAST_LOOK] >= 10)) {
-            ist[I_STATUS] = ST_HARD;
-            return;
-        }
-        if (ist[I_MONITOR] != 0 && every > 0 && steps % every == 0) {
-            ist[I_LAST_LOOK] = steps;
-            for (int64_t i = 0; i < n; ++i)
-                w->yp[i] = (w->y_new[i] - w->y[i]) / h;
-            if (!far_from_singular(w, t, w->y, w->yp, 0.5 * h)) {
-                ist[I_STATUS] = ST_LOOK;
-                return;
-            }
-        }
-        done += 1;
-        if (accept(n, t, h, w->y, w->y_new, w->y_new, w->y_prev, w->mid, w->mid_slope, w->pt, w->pm, w->npred, w->ys,
-                   nout, w->yps, nout, fst, ist)) {
-            ist[I_STATUS] = ST_MAXSTEPS;
-            return;
-        }
-    }
 }
 
 /* The layout this file was written for, for the caller to check before the first chunk:
