@@ -430,6 +430,7 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
     y = np.array(y0, dtype=float)
     mid, mid_slope, y_prev = np.zeros(n), np.array(yp0, dtype=float), np.zeros(n)
     monitor = SingularityMonitor(mod, p, names=names, **({} if scales is None else {"scales": scales}))
+    monitor.start = (float(t_out[0]), np.array(y0, dtype=float), np.array(yp0, dtype=float))
     end_rows = np.ascontiguousarray(mp.constraint_rows(raw), dtype=np.int64)
     jrows = np.ascontiguousarray(raw.JAC_ROWS, dtype=np.int64)
     jcols = np.ascontiguousarray(raw.JAC_COLS, dtype=np.int64)

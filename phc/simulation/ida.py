@@ -38,7 +38,7 @@ from phc.errors import SimulationSetupError
 from phc.simulation.backend import BackendRun
 from phc.simulation.guard import CATCH, GuardedModule, ModelEvaluationError
 from phc.simulation.scaling import promise_scales
-from phc.simulation.monitor import SingularityMonitor, check_scales, diagnose_failure
+from phc.simulation.monitor import SingularityMonitor, check_scales, diagnose_failure, unbounded_growth
 from phc.simulation.order import RECENT_STEPS, OrderChoice, Switch, after_step
 from phc.simulation.tested import (  # noqa: F401  (names of phc.simulation.ida before the split)
     CANCELLATION, SENSITIVITY_DENSE, TERM_FRACTION, algebraic_rates, determined_algebraic, determined_scales,
@@ -454,6 +454,8 @@ class _StepHook:
         # the recent largest step, decaying 0.1 % a step): the steps collapse before IDA gives up.
         self.h_ref = 0.0
         self.normal = (float(t0), np.asarray(y0, dtype=float), np.asarray(yp0, dtype=float))
+        # the last step's end when it is not a normal one (a growth without bound is diagnosed there)
+        self.collapsed = None
         # the monitor looks every `cadence` steps: `base`, stretched up to LOOK_STRETCH-fold while
         # the conditioning stays flat and far above the threshold (a look costs about what one IDA
         # step of a small system costs; a minimum of the conditioning between looks is still
@@ -472,9 +474,16 @@ class _StepHook:
         the steps already taken stay counted."""
         self.t_last, self.h_last, self.h_ref = float(t0), 0.0, 0.0
         self.normal = (float(t0), np.asarray(y0, dtype=float), np.asarray(yp0, dtype=float))
+        self.collapsed = None
         self.edge = None
         self.recent.clear()
         self.monitor.forget()
+
+    def latest(self):
+        """(t, y, ẏ) of the last step's end the hook kept: the normal one or a collapsed one after it."""
+        if self.collapsed is not None and self.collapsed[0] >= self.normal[0]:
+            return self.collapsed
+        return self.normal
 
     def start_call(self, target: float) -> None:
         self.target = float(target)
@@ -512,6 +521,8 @@ class _StepHook:
                 raise calls.error  # creeping up to the edge of the model's domain
         if h > 0.1 * self.h_ref:
             self.normal = (t, np.array(y), np.array(yp))
+        else:
+            self.collapsed = (t, np.array(y), np.array(yp))
         self.since_look += 1
         if self.since_look >= self.cadence and self.monitor.enabled:
             self._look(t, y, yp, h)
@@ -638,6 +649,11 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
             return new, new.init_step(t0, y0, yp0)
         return new, new.init_step(switch.t, switch.y, switch.yp)
 
+    monitor.start = (t0, y0, np.array(yp0, dtype=float))
+
+    def growth():  # a failure's cause when the solution grows without bound (monitor.unbounded_growth)
+        return unbounded_growth(mod, *hook.latest(), start=monitor.start, scales=nominal)
+
     def scales(failed, upto=1):  # the states of the run so far (a system at rest at t0 may move later)
         return check_scales(mod, ys[:upto], yps[:upto], t_end - t0, rtol, atol, failed, scales=nominal)
 
@@ -673,7 +689,7 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
                 if calls.failed_last:  # IDA gave up where the model cannot be evaluated
                     raise calls.error
                 ok = False
-                hint = _STATUS_HINTS.get(status)
+                hint = growth() or _STATUS_HINTS.get(status)
                 approach = _approaching_singularity(monitor, hook.h_ref) if hint is None else None
                 if approach is None and hint is None:  # a rank drop ahead, not yet near: no tolerance is the remedy
                     approach = _approaching_singularity(monitor, hook.h_ref, AHEAD, far=1.0, positional=True)
@@ -697,11 +713,18 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
             progress(float(t_out[k - 1]))
     except _Stop as stop:
         ok, message, used_up = False, stop.message, stop.max_steps
+        grows = growth() if stop.max_steps else None
+        if grows:
+            message = (f"stopped after {hook.steps} steps at t = {hook.t_last:.6g}: {grows}; results up to "
+                       f"t = {t_out[k - 1]:.6g} are kept")
         if monitor.stop_time is not None:
             # the configuration may lie before outputs already filled in: keep none past it
             k = max(1, min(k, int(np.searchsorted(t_out, monitor.stop_time, side="right"))))
     except ModelEvaluationError as err:
-        ok, message = False, f"IDA: {err}; results up to t = {t_out[k - 1]:.6g} are kept"
+        grows = growth()
+        ok, message = False, (f"IDA: {err}; results up to t = {t_out[k - 1]:.6g} are kept" if grows is None else
+                              f"IDA failed at t = {hook.t_last:.6g}: {grows}; then {err}; results up to "
+                              f"t = {t_out[k - 1]:.6g} are kept")
     except KeyboardInterrupt:
         ok, interrupted = False, True
         message = f"interrupted at t = {t_out[k - 1]:.6g}"

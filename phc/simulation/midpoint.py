@@ -44,7 +44,7 @@ from phc.simulation import step_logic
 from phc.simulation.backend import BackendRun
 from phc.simulation.chord import ChordIteration, max_norm
 from phc.simulation.guard import ModelEvaluationError
-from phc.simulation.monitor import SingularityMonitor
+from phc.simulation.monitor import SingularityMonitor, unbounded_growth
 
 NEWTON_TOL = 1e-14
 """Newton stops when the estimated error ``θ/(1−θ)·|Δ|`` of the iterate is below this, in
@@ -547,6 +547,7 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
     split = 0
     ok, message = True, "integration finished"
     monitor = SingularityMonitor(mod, p, names=names, scales=scales)
+    monitor.start = (float(t_out[0]), np.array(y0, dtype=float), np.array(yp0, dtype=float))
     projector = make_projector(mod, p, y, float(t_out[0]), scales) if project else None
     # the state of the step logic's driver (phc.simulation.step_logic: next_step, predict, looks,
     # accept), laid out as the compiled loops keep it
@@ -666,6 +667,11 @@ def finish_step(advance, monitor, mod, name, t, h, y, y_new, converged, reason, 
         if warning:
             return y_new, retried, f"{name}: {warning}", passed
     if not converged:
+        # a solution that grows without bound: no step size follows it (monitor.unbounded_growth)
+        grows = unbounded_growth(mod, t, y, mid_slope, start=monitor.start, scales=monitor.scales)
+        if grows is not None:
+            return y_new, retried, (f"{name}: Newton failed at t = {t:.6g}: {grows}; results up to this time are "
+                                    "kept"), passed
         failed = getattr(getattr(advance, "stage", None), "evaluation_error", None)
         if failed is not None:  # not even a split step stays inside the domain
             return y_new, retried, f"{name}: {failed}; results up to t = {t:.6g} are kept", passed

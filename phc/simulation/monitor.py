@@ -109,6 +109,9 @@ class SingularityMonitor:
         self.worst = 1.0
         self.stop_time: Optional[float] = None
         """Time of the configuration a warning is about (may precede the last look)."""
+        self.start: Optional[tuple] = None
+        """(t₀, y₀, ẏ₀) of the run, kept for the failure diagnosis (:func:`unbounded_growth`);
+        the integrators set it."""
         self.positional = False
         """Whether the last warning is a rank drop of the position constraints' gradients (two or
         more of the rows that become dependent are position invariants): the case a fixed-step
@@ -545,7 +548,8 @@ def roundoff_correction(mod, p, t, y, yp, h, rtol, atol, samples: int = 2, scale
         return None
     Fy, Fyp = _dense_split(mod, p, t, y, yp)
     size = np.abs(Fy) @ np.abs(y) + np.abs(Fyp) @ np.abs(yp)
-    diff = np.asarray(mod.DIFFERENTIAL, dtype=bool)
+    # the states (not the energy supplied, which integrates their power)
+    diff = np.asarray(mod.DIFFERENTIAL, dtype=bool) & (np.asarray(mod.VARIABLES) != "energy.supplied")
     tol = rtol * np.abs(y) + atol * (1.0 if scales is None else np.asarray(scales, dtype=float))
     rng = np.random.default_rng(0)
     try:
@@ -637,3 +641,73 @@ def diagnose_failure(mod, p, t, y, yp, *, status: int, h_typical: float, h_fail:
     else:
         cause = f"{collapse}; try looser tolerances (rtol = {rtol:g}, atol = {atol:g}) or check the model"
     return f"{regular}; {cause}" if regular else cause
+
+
+GROWTH = 1e2
+"""A failed run is diagnosed as unbounded growth when a state ends at least this many times its
+scale (the larger of its nominal scale and its initial size): beyond anything the start of the
+run or the model's parameters made of its size..."""
+GROWTH_FAST = 0.05
+"""...and when it then grows by a factor e in less than this fraction of the time run so far:
+the growth outruns the run's time scale (a slow drift of a state is not a failure's cause)."""
+FINITE_TIME = 1e-2
+"""The e-folding time |x/ẋ| fell below this fraction of its value at the start (its scale over
+its initial rate): the solution grows ever faster as it grows, a finite-time blow-up
+(x ~ (t* − t)^(−α) has |x/ẋ| = (t* − t)/α); an exponential growth keeps it constant."""
+GROWTH_BLOW_UP = 10.0
+"""The size over its scale a state needs for a finite-time blow-up (with :data:`FINITE_TIME`):
+one order of magnitude. A fixed step h fails once the e-folding time nears h, before the state
+is large: the midpoint rule on ẋ = x² has no real solution beyond h·x ≈ 2 (from x₀ = 2 at
+h = 1e-3, some 300 times the scale), on ẋ = 5 − x + 20x³ beyond h·60x² ≈ 1 (from 0 at h = 1e-3,
+about 100 times its scale 1.76)."""
+
+
+def unbounded_growth(mod, t, y, yp, *, start=None, scales=None) -> Optional[str]:
+    """Why a run that failed at (t, y, ẏ) failed, if its solution grows without bound: the
+    differential state that grew most over its scale, if it grows fast (:data:`GROWTH_FAST`) and
+    either its e-folding time |x/ẋ| fell by :data:`FINITE_TIME` from `start` = (t₀, y₀, ẏ₀) with
+    the state :data:`GROWTH_BLOW_UP` times its scale (a finite-time blow-up) or the state is
+    :data:`GROWTH` times its scale (an exponential growth); named with the time, its size and
+    its e-folding time. None otherwise. `scales`: the variables' nominal scales
+    (:mod:`phc.simulation.scaling`). A solver cannot follow such a solution (its steps collapse,
+    or its Newton iteration fails once a step multiplies the state's size): the remedy is in the
+    model, not in the solver's settings."""
+    y, yp = np.asarray(y, dtype=float), np.asarray(yp, dtype=float)
+    # the states (not the energy supplied, which integrates their power)
+    diff = np.asarray(mod.DIFFERENTIAL, dtype=bool) & (np.asarray(mod.VARIABLES) != "energy.supplied")
+    n = len(y)
+    ref = np.ones(n) if scales is None else np.abs(np.asarray(scales, dtype=float))
+    t0, y0, yp0 = (None, np.zeros(n), np.zeros(n)) if start is None else (
+        float(start[0]), np.asarray(start[1], dtype=float), np.asarray(start[2], dtype=float))
+    ref = np.maximum(ref, np.abs(y0))
+    size = np.where(np.isfinite(y), np.abs(y), np.inf)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        grown = np.where(diff & (ref > 0), size / ref, 0.0)
+    i = int(np.argmax(grown))
+    if not grown[i] >= GROWTH_BLOW_UP:
+        return None
+    rate = abs(float(yp[i])) if np.isfinite(yp[i]) else math.inf
+    tau = size[i] / rate if rate > 0 else math.inf
+    elapsed = (t - t0) if t0 is not None else math.inf
+    rate0 = abs(float(yp0[i]))
+    # its e-folding time at the start (a state starting at 0: its scale over its initial rate)
+    tau0 = (abs(float(y0[i])) or ref[i]) / rate0 if rate0 > 0 else math.inf
+    if math.isfinite(size[i]) and not (tau <= GROWTH_FAST * elapsed
+                                       and (grown[i] >= GROWTH or tau <= FINITE_TIME * tau0)):
+        return None
+    name = str(mod.VARIABLES[i])
+    where = (f"`{name}` grows without bound: it reached {y[i]:.3g} at t = {t:.10g}, {grown[i]:.1e} times its "
+             f"scale {ref[i]:.2g}")
+    if not math.isfinite(size[i]):
+        return f"{where}: the solution escapes to infinity. " + _GROWTH_REMEDY
+    if tau <= FINITE_TIME * tau0:
+        return (f"{where}, and grows by a factor e in {tau:.1e} s (in {tau0:.1e} s at the start): a finite-time "
+                f"blow-up: the solution reaches infinity within about {tau:.0e} s; no step size can follow it. "
+                + _GROWTH_REMEDY)
+    return (f"{where}, and grows by a factor e every {tau:.1e} s: an unbounded (exponential) growth, an unstable "
+            f"model. " + _GROWTH_REMEDY)
+
+
+_GROWTH_REMEDY = ("Check the model: the signs of its terms (a feedback of a state onto its own rate with a "
+                  "positive sign, such as +x³ or +x², runs away), its parameters, an energy source that "
+                  "feeds the state without limit")
