@@ -140,9 +140,10 @@ class OrderChoice:
                f"bounded only for ωh < {BDF5_IMAGINARY:g}, and IDA raises a step only by doubling it; BDF of order "
                "1–2 is stable for any ωh)")
         if not math.isnan(self.t_back):
-            return (f"{why} (at t = {self.t:.3g} s); phc tried max_order 2, but its steps were not longer "
-                    f"({self.h_trial:.2g} s), so the run went on at max_order 5 from t = {self.t_back:.3g} s; set "
-                    "`max_order` to choose yourself (docs/how-to/solvers.md)")
+            return (f"{why} (at t = {self.t:.3g} s); phc tried max_order 2 from the start, but its steps "
+                    "stopped lengthening (or too slowly to pay) before they were longer: a mean of "
+                    f"{self.h_trial:.2g} s over its last {CHECK_STEPS} steps, so the run went on at max_order 5 "
+                    f"from t = {self.t_back:.3g} s; set `max_order` to choose yourself (docs/how-to/solvers.md)")
         return (f"{why} (at t = {self.t:.3g} s), so phc ran it at max_order 2"
                 + (f" (steps of {self.h_trial:.2g} s)" if not math.isnan(self.h_trial) else "")
                 + "; set `max_order` to choose yourself (docs/how-to/solvers.md)")
@@ -210,14 +211,15 @@ def after_step(choice: OrderChoice, mod, p, t, y, yp, *, steps: int, recent, t_e
         return
     t_start, s_start = choice.trial_start
     cost = (steps - s_start) - (t - t_start) / choice.h_held  # the trial's steps beyond the held ones
-    if (not math.isnan(before) and rate < TRIAL_GROWTH * before) or cost > TRIAL_BUDGET * (t_end - t_start) / choice.h_held:
+    stalled = not math.isnan(before) and rate < TRIAL_GROWTH * before
+    if stalled or cost > TRIAL_BUDGET * (t_end - t_start) / choice.h_held:
         choice.final = True
         choice.order, choice.t_back = DEFAULT_ORDER, float(t)
         raise Switch(t, y, yp, max(recent, default=rate))
 
 
-__all__ = ["BDF5_IMAGINARY", "HELD", "CHECK_STEPS", "TRIAL_BUDGET", "TRIAL_GROWTH", "OrderChoice", "Switch", "after_step", "carry",
-           "held_by_stability"]
+__all__ = ["BDF5_IMAGINARY", "HELD", "CHECK_STEPS", "TRIAL_BUDGET", "TRIAL_GROWTH", "OrderChoice", "Switch",
+           "after_step", "carry", "held_by_stability"]
 
 
 def carry(keywords: dict, out) -> dict:
