@@ -20,10 +20,18 @@ linearization at the current state (:func:`held_by_stability`). When the fastest
 damped one has ``2·h·ω > 0.7108``, the run starts again at max_order 2 (a new IDA through
 scikit-sundae's public interface; why from the start: :func:`after_step`). Whether that
 pays — BDF2's steps are limited by its own accuracy, which may ask for shorter steps than
-the held BDF5 step on a coarse model at tight tolerances — is measured, not assumed: after
-:data:`CHECK_STEPS` steps at order 2 the step it is taking is compared with the held one,
-and the run goes on at order 5 for good when it is not longer. What was chosen is said
-once in the run's message (:meth:`OrderChoice.note`).
+the held BDF5 step on a coarse model at tight tolerances — is measured, not assumed, and
+measured past order 2's start-up: IDA starts each run with tiny steps and lengthens them as
+the start's fast transients die out under BDF2's damping, which on the flexible slider–crank
+at 150 rad/s (rtol 1e-5) takes ~2 000 steps (its mean step over successive windows of 500
+steps: 4.2e-7, 4.7e-7, 5.7e-7, 7.4e-7, then 1.3e-6 s against order 5's held 9.7e-7 s, and
+2.3e-6 s over the whole run). So the trial compares order 2's progress — simulated time per
+step, the mean step over a window of :data:`CHECK_STEPS` steps — with the held step, window
+after window: order 2 is kept once a window's mean step is longer; the run goes on at order
+5 for good when a window's mean step has stopped growing (less than :data:`TRIAL_GROWTH`
+times the window's before) while not longer than the held one, or when the trial has cost order 5's steps
+:data:`TRIAL_BUDGET` of the rest of the run. What was chosen is said once in the run's
+message (:meth:`OrderChoice.note`).
 """
 
 from __future__ import annotations
@@ -56,6 +64,15 @@ the 1 000-element beam is held from step ~300), and the length of the trial at o
 Looks follow at each doubling of the step count, so a run of n steps looks ~log₂(n/500)
 times; a look costs one dense QZ (up to :data:`DENSE_MODES` unknowns) or one sparse LU and
 a shift-invert Arnoldi search (under a second on 8 007 unknowns)."""
+TRIAL_GROWTH = 1.05
+"""A window of the trial whose mean step is less than this many times the window's before
+has ended order 2's start-up (at 5 % a window its step would take 14 windows to double);
+the crank at rtol 1e-5 lengthens by 11–71 % a window during its start-up."""
+TRIAL_BUDGET = 0.1
+"""The most the trial at order 2 may cost beyond order 5, as a fraction of the steps order 5
+would take for the rest of the run at its held step: the trial's steps less the held steps
+that would have covered the same time. A trial whose windows keep lengthening but stay
+shorter than the held step ends there (at order 5)."""
 DENSE_MODES = 120
 """Systems up to this size have all their modes computed (dense QZ); larger ones are
 searched near ``iω = i·BDF5_IMAGINARY/h`` (:func:`phc.simulation.monitor.undamped_modes_near`):
@@ -96,7 +113,11 @@ class OrderChoice:
     """The fastest undamped mode's angular frequency there."""
     steps_at_switch: int = 0
     h_trial: float = math.nan
-    """The step order 2 was taking at the end of its trial."""
+    """Order 2's mean step over the last window of its trial."""
+    trial_mark: Optional[tuple] = None
+    """(t, steps) where the trial's current window began."""
+    trial_start: Optional[tuple] = None
+    """(t, steps) of the trial's first step."""
     t_back: float = math.nan
     """Time of the return to order 5 (when order 2 did not pay)."""
     next_look: int = CHECK_STEPS
@@ -119,9 +140,10 @@ class OrderChoice:
                f"bounded only for ωh < {BDF5_IMAGINARY:g}, and IDA raises a step only by doubling it; BDF of order "
                "1–2 is stable for any ωh)")
         if not math.isnan(self.t_back):
-            return (f"{why} (at t = {self.t:.3g} s); phc tried max_order 2, but its steps were not longer "
-                    f"({self.h_trial:.2g} s), so the run went on at max_order 5 from t = {self.t_back:.3g} s; set "
-                    "`max_order` to choose yourself (docs/how-to/solvers.md)")
+            return (f"{why} (at t = {self.t:.3g} s); phc tried max_order 2 from the start, but its steps "
+                    "stopped lengthening (or too slowly to pay) before they were longer: a mean of "
+                    f"{self.h_trial:.2g} s over its last {CHECK_STEPS} steps, so the run went on at max_order 5 "
+                    f"from t = {self.t_back:.3g} s; set `max_order` to choose yourself (docs/how-to/solvers.md)")
         return (f"{why} (at t = {self.t:.3g} s), so phc ran it at max_order 2"
                 + (f" (steps of {self.h_trial:.2g} s)" if not math.isnan(self.h_trial) else "")
                 + "; set `max_order` to choose yourself (docs/how-to/solvers.md)")
@@ -144,7 +166,8 @@ RECENT_STEPS = 16
 def after_step(choice: OrderChoice, mod, p, t, y, yp, *, steps: int, recent, t_end: float) -> None:
     """At the end of IDA's step number `steps` (`recent`: the sizes of the last
     :data:`RECENT_STEPS` steps): look at the modes when it is time, or judge the trial at
-    order 2; raises :class:`Switch` to change the order (`choice` records why).
+    order 2 at the end of each of its windows; raises :class:`Switch` to change the order
+    (`choice` records why).
 
     Order 2 starts the run again from its start: held at the edge of its stability, order 5
     leaves the fastest modes as large as its error test allows; at that step (ωh ≈ 0.58)
@@ -154,12 +177,16 @@ def after_step(choice: OrderChoice, mod, p, t, y, yp, *, steps: int, recent, t_e
     kept the held step for 10⁴ steps, where order 2 from the start takes steps 100 times
     longer. The steps order 5 took are wasted: :data:`CHECK_STEPS` at the first look, and as
     the looks come at doublings of the step count, never more than the run's work so far.
-    After :data:`CHECK_STEPS` steps at order 2, the step it is taking is compared with the
-    held one; where it is not longer, the run goes on from there at order 5."""
-    if choice.final or steps < choice.next_look:
+    Order 2's progress is then judged window by window (:data:`CHECK_STEPS` steps each) by its
+    mean step, simulated time over steps, against the held step: a single step early in the
+    trial is still order 2's start-up (module docstring). Where order 2 does not pay, the run
+    goes on from there at order 5."""
+    if choice.final:
         return
-    h = max(recent, default=0.0)
     if choice.order == DEFAULT_ORDER:
+        if steps < choice.next_look:
+            return
+        h = max(recent, default=0.0)
         remaining = (t_end - t) / h if h > 0 else 0.0
         choice.next_look = 2 * steps
         if remaining < CHECK_STEPS:
@@ -169,17 +196,30 @@ def after_step(choice: OrderChoice, mod, p, t, y, yp, *, steps: int, recent, t_e
             return
         choice.order, choice.t, choice.h_held, choice.omega = A_STABLE_ORDER, float(t), float(h), omega
         choice.steps_at_switch = steps
-        choice.next_look = steps + CHECK_STEPS
+        choice.trial_mark = choice.trial_start = None
         raise Switch(t, y, yp, h, rewind=True)
-    choice.h_trial = h
-    choice.final = True
-    if choice.h_trial <= choice.h_held:
+    if choice.trial_mark is None:  # the trial's first step
+        choice.trial_mark = choice.trial_start = (float(t), steps)
+        return
+    t_mark, s_mark = choice.trial_mark
+    if steps - s_mark < CHECK_STEPS:
+        return
+    rate = (t - t_mark) / (steps - s_mark)  # order 2's mean step over this window
+    before, choice.h_trial, choice.trial_mark = choice.h_trial, rate, (float(t), steps)
+    if rate > choice.h_held:
+        choice.final = True  # order 2 pays
+        return
+    t_start, s_start = choice.trial_start
+    cost = (steps - s_start) - (t - t_start) / choice.h_held  # the trial's steps beyond the held ones
+    stalled = not math.isnan(before) and rate < TRIAL_GROWTH * before
+    if stalled or cost > TRIAL_BUDGET * (t_end - t_start) / choice.h_held:
+        choice.final = True
         choice.order, choice.t_back = DEFAULT_ORDER, float(t)
-        raise Switch(t, y, yp, h)
+        raise Switch(t, y, yp, max(recent, default=rate))
 
 
-__all__ = ["BDF5_IMAGINARY", "HELD", "CHECK_STEPS", "OrderChoice", "Switch", "after_step", "carry",
-           "held_by_stability"]
+__all__ = ["BDF5_IMAGINARY", "HELD", "CHECK_STEPS", "TRIAL_BUDGET", "TRIAL_GROWTH", "OrderChoice", "Switch",
+           "after_step", "carry", "held_by_stability"]
 
 
 def carry(keywords: dict, out) -> dict:

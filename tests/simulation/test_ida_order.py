@@ -15,6 +15,7 @@ discrete model, from its eigenvectors (computed here with scipy, not with IDA).
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -200,3 +201,70 @@ def test_order_2_is_dropped_when_its_steps_are_not_longer(tmp_path, monkeypatch)
     run = phc.simulate(compiled)
     assert run.success, run.message
     assert "went on at max_order 5" in run.message, run.message
+
+
+def _trial(held: float, window_steps, t_end: float = 1.0):
+    """Drive the trial at order 2 (after a switch with order 5 held at `held`) through
+    windows of CHECK_STEPS equal steps of the sizes in `window_steps`; the choice and the
+    window at which a Switch back to order 5 came (None: none came)."""
+    choice = order_module.OrderChoice(order=order_module.A_STABLE_ORDER, t=0.0, h_held=held, omega=1.0)
+    t, steps = 0.0, 1000
+    order_module.after_step(choice, None, None, t, None, None, steps=steps, recent=[held], t_end=t_end)
+    for k, h in enumerate(window_steps):
+        for _ in range(order_module.CHECK_STEPS):
+            t, steps = t + h, steps + 1
+            try:
+                order_module.after_step(choice, None, None, t, np.zeros(1), np.zeros(1), steps=steps, recent=[h],
+                                        t_end=t_end)
+            except order_module.Switch:
+                return choice, k
+        if choice.final:
+            break
+    return choice, None
+
+
+def test_the_trial_judges_order_2_after_its_start_up_not_by_its_first_steps():
+    """Order 2 starting far below the held step and lengthening its steps window after window
+    (as on the flexible slider–crank at 150 rad/s, rtol 1e-5: 0.43, 0.48, 0.58, 0.76, then 1.3
+    times order 5's held step) is kept once a window's mean step passes the held one — where
+    a judgement by its first steps would have gone back to order 5. Steps that stop
+    lengthening below the held step, or a trial that lengthens too slowly to pay back within
+    TRIAL_BUDGET of the run, go back to order 5 (from where the trial is, not from the
+    start)."""
+    held = 1e-6
+    choice, back = _trial(held, [0.43 * held, 0.48 * held, 0.58 * held, 0.76 * held, 1.3 * held, 2 * held])
+    assert back is None and choice.final and choice.order == order_module.A_STABLE_ORDER
+    assert choice.h_trial == pytest.approx(1.3 * held) and math.isnan(choice.t_back)
+    assert choice.decided and "so phc ran it at max_order 2" in choice.note()
+    # a plateau below the held step: back to order 5 at the first window less than TRIAL_GROWTH
+    # times as long as the one before (1.02 < 1.05)
+    choice, back = _trial(held, [0.4 * held, 0.6 * held, 0.612 * held, 2 * held])
+    assert back == 2 and choice.order == order_module.DEFAULT_ORDER and choice.final and choice.t_back > 0
+    assert "went on at max_order 5" in choice.note()
+    # lengthening by 6 % a window from 1 % of the held step (it would pass the held step after
+    # 80 windows): the trial's cost (its steps beyond the held ones) passes TRIAL_BUDGET of the
+    # run's held steps (1e5 for t_end = 0.1 s) first, and the run goes back to order 5 there
+    choice, back = _trial(held, [0.01 * held * 1.06 ** k for k in range(100)], t_end=0.1)
+    assert back is not None and back < 80 and choice.order == order_module.DEFAULT_ORDER
+    cost = [(k + 1 - sum(0.01 * 1.06 ** j for j in range(k + 1))) * order_module.CHECK_STEPS for k in range(back + 1)]
+    assert cost[-1] > order_module.TRIAL_BUDGET * 0.1 / held >= cost[-2]
+
+
+def test_the_flexible_slider_crank_runs_at_order_2(tmp_path):
+    """The 150 rad/s crank (models/scenes/slider_crank_150rad.yaml) without its model's
+    `max_order: 2`, with IDA at rtol 1e-5: the rod's undamped modes (up to 4.2e5 rad/s) hold
+    order 5's steps, and order 2, after a start-up of some 2 000 steps shorter than the held
+    step, takes steps about twice as long (docs/tolerances.md). phc chooses order 2, and the
+    run takes fewer steps than at max_order 5."""
+    source = (MODELS / "flexible_slider_crank.yaml").read_text()
+    assert "\n  max_order: 2" in source
+    (tmp_path / "crank.yaml").write_text(
+        "\n".join(line for line in source.splitlines() if not line.startswith("  max_order:")) + "\n")
+    scene = (MODELS / "scenes" / "slider_crank_150rad.yaml").read_text()
+    (tmp_path / "scene.yaml").write_text(scene.replace("model: ../flexible_slider_crank.yaml", "model: crank.yaml"))
+    compiled = phc.compile_model(tmp_path / "scene.yaml", certify=False)
+    chosen = phc.simulate(compiled, solver="ida", rtol=1e-5)
+    assert chosen.success and "so phc ran it at max_order 2" in chosen.message, chosen.message
+    held = phc.simulate(compiled, solver="ida", rtol=1e-5, max_order=5)
+    assert held.success, held.message
+    assert chosen.steps < held.steps, (chosen.steps, held.steps)
