@@ -43,6 +43,11 @@ The subset:
   (``-ffp-contract=off``);
 * calls of other translated functions and of the loop's operations (``_begin``, ``_correct``, …:
   an operations table gives their C name, argument kinds and results).
+
+The module is a little over 800 lines because the translation of a function is one pass over
+its syntax tree in :class:`_Function`, whose cases (statements, scalar and vector expressions,
+calls) share the function's inferred local types and temporaries and read best together; the
+subset above is its specification, and the prelude at the end is the C it relies on.
 """
 
 from __future__ import annotations
