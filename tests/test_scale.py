@@ -249,3 +249,26 @@ def test_compile_pauses_the_garbage_collector_and_restores_it(tmp_path):
         assert not gc.isenabled()   # a collector the caller paused stays paused
     finally:
         gc.enable()
+
+
+def test_incidence_of_a_mesh_reads_every_stored_entry_once(tmp_path):
+    """phc.analysis.matching.incidence reads the linear blocks with numpy; the pairs are
+    those of reading each equation's symbols and each stored matrix entry one by one
+    (written out here), sorted by row then column, without repeats."""
+    from phc.analysis.matching import incidence
+    from phc.pipeline import build_dae
+
+    text = (MODELS / "euler_bernoulli_beam.yaml").read_text().replace("elements: 6", "elements: 40")
+    path = tmp_path / "beam40.yaml"
+    path.write_text(text)
+    dae, _ = build_dae(path)
+    col = {v.symbol: j for j, v in enumerate(dae.variables)}
+    col.update({v.dsymbol: j for j, v in enumerate(dae.variables) if v.dsymbol is not None})
+    expected = {(i, col[s]) for i, eq in enumerate(dae.equations) for s in eq.expr.free_symbols if s in col}
+    for block in dae.linear_blocks:
+        for term in block.terms:
+            m = term.matrix.tocoo()
+            expected |= {(block.rows[int(i)], col[term.symbols[int(j)]]) for i, j in zip(m.row, m.col)}
+    assert dae.linear_blocks and len(expected) > 4 * 40   # the mesh's rows are sparse blocks
+    rows, cols = incidence(dae)
+    assert list(zip(rows.tolist(), cols.tolist())) == sorted(expected)
