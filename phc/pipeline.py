@@ -29,6 +29,8 @@ its description).
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import os
 import time
 from dataclasses import replace
@@ -58,6 +60,26 @@ FAST_BALANCE_LIMIT = 1000
 """Above this many unknowns the certificate of every compilation checks passivity only:
 sampling consistent states of a large model costs as much as several simulation starts
 (`phc check` has no such limit)."""
+
+
+@contextlib.contextmanager
+def collector_paused():
+    """Python's cyclic garbage collector paused while the block runs, and restored as it was
+    found when it ends (also on an error; a collector the caller had paused stays paused).
+
+    A compilation builds objects that live until it ends (sympy symbols and rows, one or more
+    per unknown) and makes almost no cyclic garbage; with the collector running, each of
+    its passes over the older generations walks every object made so far, so that their
+    cost grows faster than the mesh (measured with ``benchmarks/bench_beam_scale.py
+    --measure string 100000``: 48.8 → 34.4 CPU seconds of compile, docs/reference/limits.md). Nothing changes once the block has
+    ended: what it left is collected by the collector's next pass as usual."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
 
 
 def elaborate_file(path: str | os.PathLike, scene: Optional[Scene] = None) -> tuple[Optional[Dae], DiagnosticList]:
@@ -188,6 +210,12 @@ def compile_model(path: str | os.PathLike, scene: Optional[Scene] = None, *, cer
         When `backend` is unknown, ``numba`` and numba cannot be imported, or ``c`` and
         no C compiler is found or the model uses something the C back end does not print.
     """
+    with collector_paused():
+        return _compile_model(path, scene, certify=certify, backend=backend)
+
+
+def _compile_model(path, scene: Optional[Scene], *, certify: bool, backend: Optional[str]) -> CompiledModel:
+    """:func:`compile_model` with the garbage collector already paused."""
     timings = {}
     t = time.perf_counter()
     if scene is None and is_scene_file(path):

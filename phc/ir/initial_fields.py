@@ -98,7 +98,7 @@ def register(b, name: str, spec, mesh: Mesh, fields: Optional[dict], rigid=None)
     :func:`phc.library.beams._lower_partitioned`, None for a modally reduced component)."""
     flat = None
     if fields is not None:
-        flat = {local: (fld.space, tuple(str(x) for x in fld.x), tuple(fld.e), coeff)
+        flat = {local: (fld.space, tuple(x.name for x in fld.x), tuple(fld.e), coeff)
                 for local, (fld, coeff) in fields.items()}
     variables = tuple(getattr(spec, "variables", ()) or ())
     b.initial_fields[name] = FieldSet(name, spec.type, mesh, flat, variables, rigid)
