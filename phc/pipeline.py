@@ -32,6 +32,7 @@ from __future__ import annotations
 import contextlib
 import gc
 import os
+import threading
 import time
 from dataclasses import replace
 from types import ModuleType
@@ -62,10 +63,19 @@ sampling consistent states of a large model costs as much as several simulation 
 (`phc check` has no such limit)."""
 
 
+_PAUSE_LOCK = threading.Lock()
+_PAUSE = {"depth": 0, "ours": False}
+"""Compilations running now (in any thread) and whether the first of them paused the collector."""
+
+
 @contextlib.contextmanager
 def collector_paused():
     """Python's cyclic garbage collector paused while the block runs, and restored as it was
-    found when it ends (also on an error; a collector the caller had paused stays paused).
+    found when the last block running ends (also on an error; a collector the caller had
+    paused stays paused). The collector is one switch for the whole process, so blocks in
+    several threads share one pause: the first to enter pauses a running collector, the last
+    to leave starts it again; a thread that ended its block while another still compiled
+    would otherwise leave the collector off for good, or start it under the other's feet.
 
     A compilation builds objects that live until it ends (sympy symbols and rows, one or more
     per unknown) and makes almost no cyclic garbage; with the collector running, each of
@@ -73,13 +83,19 @@ def collector_paused():
     cost grows faster than the mesh (measured with ``benchmarks/bench_beam_scale.py
     --measure string 100000``: 48.8 → 34.4 CPU seconds of compile, docs/reference/limits.md). Nothing changes once the block has
     ended: what it left is collected by the collector's next pass as usual."""
-    enabled = gc.isenabled()
-    gc.disable()
+    with _PAUSE_LOCK:
+        if _PAUSE["depth"] == 0:
+            _PAUSE["ours"] = gc.isenabled()
+            gc.disable()
+        _PAUSE["depth"] += 1
     try:
         yield
     finally:
-        if enabled:
-            gc.enable()
+        with _PAUSE_LOCK:
+            _PAUSE["depth"] -= 1
+            if _PAUSE["depth"] == 0 and _PAUSE["ours"]:
+                _PAUSE["ours"] = False
+                gc.enable()
 
 
 def elaborate_file(path: str | os.PathLike, scene: Optional[Scene] = None) -> tuple[Optional[Dae], DiagnosticList]:

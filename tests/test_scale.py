@@ -272,3 +272,40 @@ def test_incidence_of_a_mesh_reads_every_stored_entry_once(tmp_path):
     assert dae.linear_blocks and len(expected) > 4 * 40   # the mesh's rows are sparse blocks
     rows, cols = incidence(dae)
     assert list(zip(rows.tolist(), cols.tolist())) == sorted(expected)
+
+
+def test_compiles_in_two_threads_leave_the_collector_as_they_found_it():
+    """The collector is one switch for the process: two overlapping pauses (two threads
+    compiling at once, the first ending before the second) must leave it running, as it was,
+    and keep it paused until the last one ends. With a pause that restored what it saw at its
+    own start, the second thread would see it paused, and leave it off for good."""
+    import gc
+    import threading
+
+    from phc.pipeline import collector_paused
+
+    assert gc.isenabled()
+    entered, release_first, release_second = threading.Event(), threading.Event(), threading.Event()
+    seen = {}
+
+    def first():
+        with collector_paused():
+            entered.set()
+            release_first.wait(10)
+
+    def second():
+        entered.wait(10)
+        with collector_paused():
+            release_first.set()
+            t1.join(10)
+            seen["after the first ended"] = gc.isenabled()
+            release_second.wait(10)
+
+    t1, t2 = threading.Thread(target=first), threading.Thread(target=second)
+    t1.start()
+    t2.start()
+    t1.join(10)
+    release_second.set()
+    t2.join(10)
+    assert seen == {"after the first ended": False}   # still paused for the second compile
+    assert gc.isenabled()                              # running again once both ended
