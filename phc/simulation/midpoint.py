@@ -392,8 +392,13 @@ class StageSolver:
         with C). Started there, the full iteration reaches the step's solution on the branch
         (residual ~1e-12, the cranks together to round-off) even where its stopping test,
         spoiled by the weakly determined multipliers, does not say so; hence the residual
-        decides. Where the least-norm result already solves every row (the one passage step of
-        the N = 1 four-bar), nothing changes."""
+        decides. It must also agree with the least-norm result on the states to the fraction
+        :data:`RANK_DROP_AGREEMENT` of the step's change, the agreement that tells one motion
+        through a rank drop (N = 10: it moves them by 2e-3 to 2e-2 of the change, the impulse
+        of the constraint forces the least-norm step left out); a larger move would be another
+        motion, and the least-norm result is kept for the monitor to judge. Where the
+        least-norm result already solves every row (the one passage step of the N = 1
+        four-bar), nothing changes."""
         matrix = self.matrix
         start = out.copy()
         before = self.residual(t, h, y, start, s).copy()
@@ -407,9 +412,14 @@ class StageSolver:
         finally:
             matrix.lu, matrix.pinv = None, None  # the next step factorizes afresh
         scale = matrix.row_scale
-        if np.all(np.isfinite(after)) and np.abs(scale * after).max() < np.abs(scale * before).max():
-            out[...] = trial
-            self.completed_steps += 1
+        if not (np.all(np.isfinite(after)) and np.abs(scale * after).max() < np.abs(scale * before).max()):
+            return
+        diff = np.asarray(self.mod.DIFFERENTIAL, dtype=bool)
+        change = float(np.abs(start - y)[diff].max(initial=0.0))
+        if float(np.abs(trial - start)[diff].max(initial=0.0)) > RANK_DROP_AGREEMENT * change:
+            return  # another motion, not the same one with other constraint forces: left to the monitor
+        out[...] = trial
+        self.completed_steps += 1
 
     # the operations of phc.simulation.step_logic.newton on this solver (its only Newton matrix: m = 0)
 
