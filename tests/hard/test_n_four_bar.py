@@ -201,7 +201,7 @@ def test_ten_loops_discrete_gradient_keeps_the_energy_through_every_pass(tmp_pat
     energy balance holds to round-off: 1e-10 relative over the 10⁴ steps allows 1e-14 a step,
     some 50 unit round-offs of the energy. The crank angle against the exact motion is not
     asserted: the monitor does not look above 120 unknowns, so no passage is checked by step
-    doubling (measured: 4.1e-5 rad, docs/hard-cases.md)."""
+    doubling (measured: 3.2e-5 rad, docs/hard-cases.md)."""
     path = tmp_path / "n_four_bar_10.yaml"
     _generator().write(10, path)
     compiled = phc.compile_model(path, certify=False)
