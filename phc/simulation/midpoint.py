@@ -322,6 +322,8 @@ class StageSolver:
         self.constants = newton_constants()
         self.least_norm_steps = 0
         """Solves that needed the least-norm correction (a rank drop of the position constraints)."""
+        self.completed_steps = 0
+        """Least-norm solves whose result the full iteration improved (:meth:`_complete`)."""
 
     def residual(self, t, h, y, y1, s):
         d = y1 - y
@@ -367,10 +369,57 @@ class StageSolver:
             matrix.least_norm, matrix.lu, matrix.pinv = False, None, None
         if retry != step_logic._OK:
             return code
+        self._complete(t, h, y, s, out)
         self.singular = False
         self.ill_conditioned = True
         self.least_norm_steps += 1
         return retry
+
+    def _complete(self, t, h, y, s, out) -> None:
+        """Solve the rows the least-norm iteration left out: the full Newton iteration (LU of the
+        whole matrix) from its result `out`, taken when it leaves a smaller residual of the step's
+        equations (rows scaled as in the Newton matrix) than the least-norm result.
+
+        Why: the least-norm correction drops the weak directions, and with them the part of the
+        position constraints' residual along them; in those directions the iterate keeps what
+        its start put there. At the N four-bar's passage these are the relative turns of
+        neighbouring cranks (the null directions of the end constraints' Jacobian): with N = 10
+        the least-norm steps ended with the constraints violated by 3e-10 to 3e-8 and the cranks
+        up to 7e-6 rad apart — a value set by the start (the predictor in the Python loop, the
+        constant predictor of a step the compiled loops hand back, round-off) — and the next
+        regular step pulled them back together with a constraint impulse that changed the
+        energy and so the phase (crank 0 off the exact motion by 3e-4 rad with NumPy, 2.4e-2 rad
+        with C). Started there, the full iteration reaches the step's solution on the branch
+        (residual ~1e-12, the cranks together to round-off) even where its stopping test,
+        spoiled by the weakly determined multipliers, does not say so; hence the residual
+        decides. It must also agree with the least-norm result on the states to the fraction
+        :data:`RANK_DROP_AGREEMENT` of the step's change, the agreement that tells one motion
+        through a rank drop (N = 10: it moves them by 2e-3 to 2e-2 of the change, the impulse
+        of the constraint forces the least-norm step left out); a larger move would be another
+        motion, and the least-norm result is kept for the monitor to judge. Where the
+        least-norm result already solves every row (the one passage step of the N = 1
+        four-bar), nothing changes."""
+        matrix = self.matrix
+        start = out.copy()
+        before = self.residual(t, h, y, start, s).copy()
+        trial = start.copy()
+        matrix.lu, matrix.pinv = None, None
+        try:
+            step_logic.newton(self, 0, self.constants, t, h, y, start, s, trial)
+            after = self.residual(t, h, y, trial, s)
+        except ModelEvaluationError:
+            return
+        finally:
+            matrix.lu, matrix.pinv = None, None  # the next step factorizes afresh
+        scale = matrix.row_scale
+        if not (np.all(np.isfinite(after)) and np.abs(scale * after).max() < np.abs(scale * before).max()):
+            return
+        diff = np.asarray(self.mod.DIFFERENTIAL, dtype=bool)
+        change = float(np.abs(start - y)[diff].max(initial=0.0))
+        if float(np.abs(trial - start)[diff].max(initial=0.0)) > RANK_DROP_AGREEMENT * change:
+            return  # another motion, not the same one with other constraint forces: left to the monitor
+        out[...] = trial
+        self.completed_steps += 1
 
     # the operations of phc.simulation.step_logic.newton on this solver (its only Newton matrix: m = 0)
 
