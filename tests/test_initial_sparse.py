@@ -37,8 +37,8 @@ def _start_and_stage(compiled, monkeypatch):
     solves = []
     solve = initial._solve
 
-    def recording(prob, tol, max_iter):
-        u, it = solve(prob, tol, max_iter)
+    def recording(prob, tol, max_iter, *rest):
+        u, it = solve(prob, tol, max_iter, *rest)
         solves.append((prob, u, tol))
         return u, it
 

@@ -641,11 +641,11 @@ def _nested_min_norm(A, b, first) -> np.ndarray:
     return v if miss <= 2 * miss_plain + np.finfo(float).eps * (norm_a * size + norm_b) else plain
 
 
-def _solve(prob: _Problem, tol: float, max_iter: int):
+def _solve(prob: _Problem, tol: float, max_iter: int, rescue: bool = True):
     """Gauss–Newton (:func:`phc.simulation.gauss_newton.gauss_newton`) on ``G = 0`` from the
-    problem's start, with its weighted least-norm steps (:meth:`_Problem.step`), then a
-    least-squares solve from the best point where that ends above `tol`. Returns the point
-    and the iterations (plus the least-squares solve's evaluations)."""
+    problem's start, with its weighted least-norm steps (:meth:`_Problem.step`), then (with
+    `rescue`) a least-squares solve from the best point where that ends above `tol`. Returns
+    the point and the iterations (plus the least-squares solve's evaluations)."""
     # Full Gauss–Newton steps, no monotonicity test: D is bilinear (velocity products,
     # forces times rotation rates), so from a rough guess the residual may grow once
     # before converging quadratically (seen on the slider–crank at dead centre); the best
@@ -660,7 +660,7 @@ def _solve(prob: _Problem, tol: float, max_iter: int):
     out = gauss_newton(prob.pack(), lambda u: (prob.G(u), None), lambda u, g, _: prob.step(prob.jacobian(u), g),
                        tol=tol, max_iter=max_iter, polish=POLISH_STEPS, keep_best=True)
     best, size, it = out
-    if size > tol and len(best) * len(prob.G(best)) <= DENSE_LIMIT:
+    if rescue and size > tol and len(best) * len(prob.G(best)) <= DENSE_LIMIT:
         sol = least_squares(prob.G, best, lambda x: prob.jacobian(x).toarray(), max_nfev=200)
         if _norm(sol.fun) < size:
             best = sol.x
@@ -670,7 +670,7 @@ def _solve(prob: _Problem, tol: float, max_iter: int):
 
 def consistent_initial_conditions(mod, p, t0: float, values: dict[int, float], fixed: set[int],
                                   tol: float = 1e-11, max_iter: int = 25,
-                                  initial_relations: bool = True) -> InitialResult:
+                                  initial_relations: bool = True, rescue: bool = True) -> InitialResult:
     """Solve for consistent ``(y₀, ẏ₀)``.
 
     Parameters
@@ -688,6 +688,11 @@ def consistent_initial_conditions(mod, p, t0: float, values: dict[int, float], f
     initial_relations : bool
         Impose the module's INITIAL relations (true at the start of a run, false when
         restarting at an input breakpoint).
+    rescue : bool
+        Where Gauss–Newton ends above the tolerance, try SciPy's least-squares solve from its
+        best point (dense, up to 200 evaluations: minutes for a system of a thousand
+        unknowns). A caller that can do without this point (a certificate's random sample)
+        passes false.
 
     Raises
     ------
@@ -696,10 +701,10 @@ def consistent_initial_conditions(mod, p, t0: float, values: dict[int, float], f
     """
     # its dense solves with one BLAS thread (phc.simulation.minnorm.one_blas_thread)
     with one_blas_thread():
-        return _initial_conditions(mod, p, t0, values, fixed, tol, max_iter, initial_relations)
+        return _initial_conditions(mod, p, t0, values, fixed, tol, max_iter, initial_relations, rescue)
 
 
-def _initial_conditions(mod, p, t0, values, fixed, tol, max_iter, initial_relations) -> InitialResult:
+def _initial_conditions(mod, p, t0, values, fixed, tol, max_iter, initial_relations, rescue=True) -> InitialResult:
     n = mod.N
     y = np.zeros(n)
     for j, v in values.items():
@@ -719,10 +724,10 @@ def _initial_conditions(mod, p, t0, values, fixed, tol, max_iter, initial_relati
         return nominal_scales(mod, p, y, np.zeros(n), t0=t0, probe=False, residual=True)
 
     try:
-        result = _consistent(mod, p, t0, y, values, fixed, tol, max_iter, initial_relations, None)
+        result = _consistent(mod, p, t0, y, values, fixed, tol, max_iter, initial_relations, None, rescue)
     except InconsistentInitialError as err:
         try:
-            return _consistent(mod, p, t0, y, values, fixed, tol, max_iter, initial_relations, scales())
+            return _consistent(mod, p, t0, y, values, fixed, tol, max_iter, initial_relations, scales(), rescue)
         except (InconsistentInitialError, ModelEvaluationError):
             raise err from None
     # (at the start of a run only: a restart at a breakpoint or an event continues a run whose
@@ -733,7 +738,7 @@ def _initial_conditions(mod, p, t0, values, fixed, tol, max_iter, initial_relati
     if _scaled_residual(mod, p, t0, result, s) <= SCALED_MISS:
         return result
     try:
-        return _consistent(mod, p, t0, y, values, fixed, tol, max_iter, initial_relations, s)
+        return _consistent(mod, p, t0, y, values, fixed, tol, max_iter, initial_relations, s, rescue)
     except (InconsistentInitialError, ModelEvaluationError):
         return result
 
@@ -778,7 +783,7 @@ def _chosen(mod, y1, dif, fixed, values, scale, s) -> dict:
     return {mod.VARIABLES[j]: float(y1[j]) for j in idx[moved].tolist()}
 
 
-def _consistent(mod, p, t0, y, values, fixed, tol, max_iter, initial_relations, s) -> InitialResult:
+def _consistent(mod, p, t0, y, values, fixed, tol, max_iter, initial_relations, s, rescue) -> InitialResult:
     """One consistent initialization, in the model's units (`s` None) or in the variables
     scaled by `s`."""
     n = mod.N
@@ -791,7 +796,7 @@ def _consistent(mod, p, t0, y, values, fixed, tol, max_iter, initial_relations, 
         prob = _Problem(mod, p, t0, y, stage_fixed, initial_relations, like=prob, scales=s)
         if k < len(stages) - 1 and prob.hopeless(10 * tol * scale):
             continue  # this stage cannot succeed: the next one starts from the same values
-        u, it = _solve(prob, tol * scale, max_iter)
+        u, it = _solve(prob, tol * scale, max_iter, rescue)
         total += it
         y1, yp1, _, _ = prob.unpack(u)
         g = prob.G(u)
