@@ -23,7 +23,7 @@ import re
 
 import sympy as sp
 
-from phc.ir.dae import T
+from phc.ir.dae import T, Parameter
 from phc.library.lumped import _scope, _state_scope
 
 _POSITION = re.compile(r"^(?P<body>.+)\.x(?P<index>\[\d+\])?$")
@@ -108,3 +108,10 @@ def lower_contact(b, ctx, name, spec, path):
     b.extra_outputs[f"{name}.restitution"] = e
     if rest is not None:
         b.extra_outputs[f"{name}.rest_speed"] = rest
+    # persistent contact: the force λ (a multiplier, zero while open), its mode and its row
+    span = ctx.smap.locate(path)
+    force = b.add_algebraic(name, "force", "multiplier", span)
+    closed = sp.Symbol(f"{name}.closed", real=True)
+    b.parameters[closed.name] = Parameter(closed.name, closed, 0.0, description=(
+        f"mode of contact `{name}`: 1 while it is closed, set by the simulation driver"), span=span)
+    b.add_equation(sp.Piecewise((rate, sp.Gt(closed, 0)), (force, True)), name, "contact", "closure", span)
