@@ -404,7 +404,7 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, keywo
         scale = 1e-12 * (1.0 + float(np.abs(y).max(initial=0.0)))
         for k in np.flatnonzero(gaps < -scale):
             return _stopped(t_out, y, yp, stats, events,
-                            f"contact `{watch.contacts.names[k]}` starts closed: its gap is {gaps[k]:.6g} < 0 at "
+                            f"contact `{watch.contacts.names[k]}` starts penetrated: its gap is {gaps[k]:.6g} < 0 at "
                             f"t = {t0:g}; give initial positions where the gap is ≥ 0")
         watch.contacts.offset[:] = np.where(gaps <= scale, scale, 0.0)
         try:

@@ -498,8 +498,8 @@ def test_shipped_bouncing_ball_against_closed_form():
     assert r.outputs["energy"][-1] == pytest.approx(0.5 * 0.1 * r.outputs["v"][-1]**2, rel=1e-12)
 
 
-def test_a_contact_that_starts_closed_stops_the_run_with_a_message(tmp_path):
+def test_a_contact_that_starts_penetrated_stops_the_run_with_a_message(tmp_path):
     compiled = _compile(tmp_path, BALL)
     r = phc.simulate(compiled, initial={"ball.x": -0.01})
     assert not r.success
-    assert "contact `floor` starts closed" in r.message and "-0.01" in r.message
+    assert "contact `floor` starts penetrated" in r.message and "-0.01" in r.message
