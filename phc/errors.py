@@ -70,7 +70,7 @@ Private control flow, defined where it is used
     regular file), ``phc.simulation.ida._Stop`` (phc's step hook ends an IDA run from inside
     IDA's loop; the run returns its message), ``phc.simulation.order.Switch`` (the step hook
     ends an IDA run to go on at another maximum BDF order; the IDA driver catches it),
-    ``phc.simulation.events._ContactRest`` (a contact comes to rest: the switched driver
+    ``phc.simulation.events._ContactRest`` (a contact cannot go on: the switched driver
     stops the run with its message), ``phc.study.ode_form._Stop`` (a scipy run of the ODE form
     ends early; its row keeps the message). :data:`PRIVATE_CONTROL_FLOW` names them; ``tests/test_errors.py`` walks
     phc's modules and fails on any other exception defined outside this module.

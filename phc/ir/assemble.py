@@ -221,6 +221,8 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
             corrections[x] = corrections.get(x, 0) + sp.diff(g, x) * eta
     dsubs = {states[x].dsymbol: states[x].dsymbol + c for x, c in corrections.items()}
 
+    _contact_forces(elab, rows, states)
+
     def final(expr):
         return expr.xreplace(subs).xreplace(dsubs) if dsubs else expr.xreplace(subs)
 
@@ -392,6 +394,51 @@ def _propagate_positions(ports, position_maps, connections, rep) -> None:
             changed = True
         if not changed:
             break
+
+
+def _contact_forces(elab, rows: list, states: dict) -> None:
+    """The force λ of each `contact` (:mod:`phc.library.contact`) acts on the momenta its gap
+    names: the row holding ṗ_j (a mass's or a rigid body's momentum balance, one row) gets
+    ``ṗ_j = … + λ ∂g/∂x_j``. λ is zero while the contact is open; while it is closed its row
+    holds ġ = 0, so the force does no work (λ ġ = 0 in both modes). In that row ġ = Σ n_j ẋ_j
+    is written with each ẋ_j from the row that holds it (a mass's ẋ = p/m): a row without
+    rates, like a velocity constraint, whose derivative (one differentiation, as consistent
+    initialization takes it) determines λ."""
+    contacts = [c for c, spec in elab.component_specs.items() if getattr(spec, "type", None) == "contact"]
+    if not contacts:
+        return
+    by_name = {v.name: v for v in states.values()}
+    symbols = {v.name: v.symbol for v in elab.variables}
+    rates = {v.dsymbol for v in states.values()}
+
+    def holding(rate, skip=-1):
+        """The one row holding `rate` (affine in it, constant slope): (index, slope)."""
+        found = [i for i, eq in enumerate(rows) if i != skip and rate in eq.expr.free_symbols]
+        slope = sp.diff(rows[found[0]].expr, rate) if len(found) == 1 else None
+        if slope is None or not slope.is_number or slope == 0:
+            raise AssertionError(f"contact: the rate `{rate}` is in {len(found)} rows (expected one, affine in it)")
+        return found[0], slope
+
+    for c in contacts:
+        if f"{c}.force" not in symbols:
+            continue  # the contact failed to lower (reported)
+        force = symbols[f"{c}.force"]
+        head = f"{c}.normal."
+        for name, normal in elab.extra_outputs.items():
+            if name.startswith(head):
+                i, slope = holding(by_name[name[len(head):]].dsymbol)
+                eq = rows[i]
+                rows[i] = Equation(eq.expr - slope * force * normal, eq.label, eq.kind, eq.component, eq.span)
+        closure = next(i for i, eq in enumerate(rows) if eq.label == f"{c}.closure")
+        expr = rows[closure].expr
+        for x in sorted(expr.free_symbols & rates, key=lambda s: s.name):
+            i, slope = holding(x, skip=closure)
+            velocity = x - rows[i].expr / slope
+            if velocity.free_symbols & rates:
+                raise AssertionError(f"contact `{c}`: the row holding `{x}` holds other rates")
+            expr = expr.xreplace({x: velocity})
+        eq = rows[closure]
+        rows[closure] = Equation(expr, eq.label, eq.kind, eq.component, eq.span)
 
 
 def _resolve_definitions(uf, defs, rows) -> dict:

@@ -1,6 +1,6 @@
 """Unilateral contacts with Newton's restitution law (``contact``): impacts.
 
-A contact has no rows, no ports and no energy of its own. It names a gap g(x) ≥ 0 in the
+A contact has no ports and no energy of its own. It names a gap g(x) ≥ 0 in the
 positions of masses with ``position: true`` (lowered before it); what it adds to the model
 are outputs the simulation driver reads (:mod:`phc.simulation.impacts`):
 
@@ -15,6 +15,14 @@ At an impact the momenta jump, p_j⁺ = p_j⁻ + λ ∂g/∂x_j with λ such tha
 positions are continuous. The kinetic energy lost, (1 − e²)·½ m_eff ġ⁻² with
 1/m_eff = Σ_j (∂g/∂x_j)²/m_j, is added to the dissipated energy, so the run's energy
 balance H(t) − H(0) + E(t) stays exact through the jump.
+
+Persistent contact: one variable, the contact force ``<name>.force`` = λ, and one row,
+``<name>.closure``: λ = 0 while the contact is open, ġ = 0 while it is closed — its mode is
+the parameter ``<name>.closed`` (0 by default), which the simulation driver sets. Assembly
+(:func:`phc.ir.assemble._contact_forces`) adds λ ∂g/∂x_j to the balance of each momentum
+p_j and writes ġ in the closure row with the velocities the masses' rows give (ẋ = p/m),
+so the closed row is a velocity constraint and λ its multiplier. The force does no work in
+either mode (λ ġ = 0): H(t) − H(0) + E(t) stays exact while the contact is closed.
 """
 
 from __future__ import annotations
@@ -23,7 +31,8 @@ import re
 
 import sympy as sp
 
-from phc.ir.dae import T
+from phc.ir.dae import T, Parameter
+from phc.library.dirac import DiracBuilder, emit
 from phc.library.lumped import _scope, _state_scope
 
 _POSITION = re.compile(r"^(?P<body>.+)\.x(?P<index>\[\d+\])?$")
@@ -108,3 +117,14 @@ def lower_contact(b, ctx, name, spec, path):
     b.extra_outputs[f"{name}.restitution"] = e
     if rest is not None:
         b.extra_outputs[f"{name}.rest_speed"] = rest
+    # persistent contact: the force λ (a multiplier, zero while open), its mode and its row
+    span = ctx.smap.locate(path)
+    force = b.add_algebraic(name, "force", "multiplier", span)
+    closed = sp.Symbol(f"{name}.closed", real=True)
+    b.parameters[closed.name] = Parameter(closed.name, closed, 0.0, description=(
+        f"mode of contact `{name}`: 1 while it is closed, set by the simulation driver"), span=span)
+    # its description: no port, no storage, the multiplier λ and one relation, the row
+    d = DiracBuilder(name, "contact", span)
+    d.multipliers.append(force)
+    d.rel(sp.Piecewise((rate, sp.Gt(closed, 0)), (force, True)), kind="contact", label="closure")
+    emit(b, d.register(b))

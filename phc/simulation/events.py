@@ -39,7 +39,7 @@ import numpy as np
 from phc.errors import InconsistentInitialError, SwitchTimeError
 from phc.simulation.backend import BackendRun
 from phc.simulation.guard import CATCH, ModelEvaluationError
-from phc.simulation.impacts import Contacts, has_contacts
+from phc.simulation.impacts import CLOSE, Contacts, has_contacts
 from phc.simulation.initial import consistent_initial_conditions
 from phc.simulation.order import carry as carry_order
 from phc.simulation.scaling import mode_floor, tested_fraction
@@ -78,7 +78,9 @@ class Event:
     kind: str
     """``time`` (a condition in t, located before the run), ``state`` (located by root
     finding), ``stick`` or ``slip`` (a set-valued sign), ``impact`` (a contact's gap closed:
-    `condition` and `equation` name the contact, direction −1)."""
+    `condition` and `equation` name the contact, direction −1), ``close`` (the contact
+    closes: persistent contact, direction 0) and ``open`` (its force fell to zero and it
+    opens, direction +1)."""
     equation: str = ""
     """The residual row the condition occurs in."""
     comparison: bool = False
@@ -94,15 +96,15 @@ def has_switches(mod) -> bool:
 
 
 class _ContactRest(Exception):
-    """A contact comes to rest (:mod:`phc.simulation.impacts`): the run stops with this message."""
+    """A contact cannot go on (:mod:`phc.simulation.impacts`): the run stops with this message."""
 
 
 class Watch:
     """The switching functions of the current modes, as the backends watch them:
     ``w(t, y, ẏ)`` positive while every mode holds, one entry per switch (``mode·g``;
     +1 when not watched: conditions in t, a switch whose set-valued sign sticks) and two
-    per set-valued sign (``1 − s`` and ``1 + s`` while sticking, else +1), then the gap of
-    every contact (:mod:`phc.simulation.impacts`)."""
+    per set-valued sign (``1 − s`` and ``1 + s`` while sticking, else +1), then for every
+    contact its gap while open, its force while closed (:mod:`phc.simulation.impacts`)."""
 
     def __init__(self, mod, p: np.ndarray):
         self.mod = mod
@@ -121,6 +123,8 @@ class Watch:
         self.buf = np.zeros(self.n_sw + self.n_st)
         self.handled: list = []
         """Every mode change as (t, condition, equation), for the chatter test."""
+        self.span = 0.0
+        """The run's length (the contacts' accumulation test)."""
         self.refresh()
 
     # -- modes ---------------------------------------------------------------------------
@@ -170,7 +174,7 @@ class Watch:
         w[self.n_sw:self.n_sw + 2 * self.n_st:2] = np.where(self.stuck, 1.0 - s, 1.0)
         w[self.n_sw + 1:self.n_sw + 2 * self.n_st:2] = np.where(self.stuck, 1.0 + s, 1.0)
         if self.n_ct:
-            w[self.n_sw + 2 * self.n_st:] = self.contacts.gaps(t, y, yp, self.p)
+            w[self.n_sw + 2 * self.n_st:] = self.contacts.watched(t, y, yp, self.p)
         return w
 
     def _failure(self, t, which, reason) -> ModelEvaluationError:
@@ -375,6 +379,7 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, keywo
     t_out = np.asarray(t_out, dtype=float)
     t0, t1 = float(t_out[0]), float(t_out[-1])
     watch = Watch(mod, p)
+    watch.span = t1 - t0
     energy = [j for j, r in enumerate(mod.ROLES) if r == "energy"]
     dif = set(np.flatnonzero(np.asarray(mod.DIFFERENTIAL)).tolist())
     stats = dict(steps=0, nfev=0, njev=0)
@@ -399,10 +404,15 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, keywo
         scale = 1e-12 * (1.0 + float(np.abs(y).max(initial=0.0)))
         for k in np.flatnonzero(gaps < -scale):
             return _stopped(t_out, y, yp, stats, events,
-                            f"contact `{watch.contacts.names[k]}` starts closed: its gap is {gaps[k]:.6g} < 0 at "
+                            f"contact `{watch.contacts.names[k]}` starts penetrated: its gap is {gaps[k]:.6g} < 0 at "
                             f"t = {t0:g}; give initial positions where the gap is ≥ 0")
         watch.contacts.offset[:] = np.where(gaps <= scale, scale, 0.0)
+        try:
+            y, yp = _close_resting(watch, t0, y, yp, gaps <= scale, events, dif, energy)
+        except _ContactRest as err:
+            return _stopped(t_out, y, yp, stats, events, str(err))
     pieces = [(t_out[:1], y[None, :], yp[None, :])]
+    modes = [watch.p.copy()]  # the parameter vector (with the modes) of each piece
     t, seg = t0, 0
     floors: dict = {}  # the scales' round-off floor per mode (parameter vector with the modes)
     out: Optional[BackendRun] = None
@@ -438,6 +448,7 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, keywo
                 keywords = carry_order(keywords, out)
                 # an output time equal to a restart time keeps its first value (np.unique below)
                 pieces.append(piece_outputs(out, t_out, t, end))
+                modes.append(watch.p.copy())
                 if not out.success:
                     break
                 event, out = out.event, out.replace(event=None)
@@ -482,6 +493,8 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, keywo
             stop = dict(success=False, interrupted=True, message=f"interrupted at t = {t:.6g}")
             break
     merged = {k: np.concatenate([pc[i] for pc in pieces]) for i, k in enumerate(("t", "y", "yp"))}
+    # the modes at each output time, for recomputing the algebraic variables there (polish.py)
+    merged["modes"] = np.concatenate([np.repeat(m[None, :], len(pc[0]), axis=0) for m, pc in zip(modes, pieces)])
     _, first = np.unique(merged["t"], return_index=True)
     merged = {k: v[np.sort(first)] for k, v in merged.items()}
     if out is None:  # no piece ran (the run ended at a breakpoint at its start)
@@ -644,19 +657,81 @@ def _handle(watch: Watch, t, y, yp, which, events, dif, energy) -> tuple[np.ndar
         state = None
     for k in impacts:  # the momenta jump (phc.simulation.impacts); positions continuous
         name = watch.contacts.names[k]
-        y, yp, rest, before = watch.contacts.impact(k, t, y, yp, watch.p,
-                                                    lambda z: _restart(watch, t, z, dif | set(energy)))
+        if watch.contacts.closed(k, watch.p):  # its force fell to zero: it opens
+            y, yp = _open(watch, k, t, y, events, dif, energy)
+            state = (y, yp)
+            continue
+        y, yp, outcome, before = watch.contacts.impact(k, t, y, yp, watch.p,
+                                                       lambda z: _restart(watch, t, z, dif | set(energy)),
+                                                       span=watch.span)
         if before < 0:
             watch.handled.append((t, name, "contact"))
             events.append(Event(t, name, -1, "impact", name))
-        if rest is not None:
-            raise _ContactRest(rest)
+        if outcome == CLOSE:
+            y, yp, _ = _close(watch, k, t, y, yp, events, dif, energy)
+        elif outcome is not None:
+            raise _ContactRest(outcome)
         state = (y, yp)
     if impacts and not candidates and len(impacts) == len(which):
         return _settle(watch, t, state[0], state[1], events, dif, energy)
     if state is None or len(candidates) > 1 or len(candidates) < len(which):
         state = _restart(watch, t, state[0] if state is not None else y, dif | set(energy))
     return _settle(watch, t, state[0], state[1], events, dif, energy)
+
+
+def _close(watch: Watch, k: int, t, y, yp, events, dif, energy):
+    """Close contact k at (t, y) where its gap rate is zero (persistent contact): its row
+    then holds ġ = 0 and its force λ is the multiplier. Returns ``(y, ẏ, closed)``: it stays
+    open where the consistent force pulls (λ < 0)."""
+    contacts = watch.contacts
+    name = contacts.names[k]
+    watch.p[contacts.mode[k]] = 1.0
+    try:
+        y1, yp1 = _restart(watch, t, y, dif | set(energy))
+    except InconsistentInitialError as err:
+        raise _ContactRest(f"contact `{name}` cannot close at t = {t:.6g}: " + "; ".join(err.problems)) from None
+    if y1[contacts.force[k]] < 0:
+        watch.p[contacts.mode[k]] = 0.0
+        return y, yp, False
+    # the impacts that accumulated here are over (the chatter test counts what follows)
+    watch.handled[:] = [h for h in watch.handled if h[1] != name]
+    watch.handled.append((t, name, "contact"))
+    events.append(Event(t, name, 0, "close", name))
+    return y1, yp1, True
+
+
+def _open(watch: Watch, k: int, t, y, events, dif, energy):
+    """Open closed contact k at t (its force fell to zero); its gap, zero to the event's
+    location error, is watched from just below its value."""
+    contacts = watch.contacts
+    name = contacts.names[k]
+    watch.p[contacts.mode[k]] = 0.0
+    y, yp = _restart(watch, t, y, dif | set(energy))
+    gap = float(contacts.outputs(t, y, yp, watch.p)[contacts.gap[k]])
+    contacts.offset[k] = max(0.0, -gap) + 1e-12 * (1.0 + float(np.abs(y).max(initial=0.0)))
+    watch.handled.append((t, name, "contact"))
+    events.append(Event(t, name, 1, "open", name))
+    return y, yp
+
+
+def _close_resting(watch: Watch, t0, y, yp, touching, events, dif, energy):
+    """At the start: close each contact that touches (gap 0) with its gap rate zero, where
+    the load presses the masses onto it (a ball lying on the floor)."""
+    contacts = watch.contacts
+    restart = (lambda z: _restart(watch, t0, z, dif | set(energy)))
+    for k in np.flatnonzero(touching):
+        if contacts.mode[k] is None:
+            continue
+        rate = contacts.rate_of(t0, y, yp, watch.p, int(k))
+        if abs(rate) > 1e-12 * (1.0 + float(np.abs(yp).max(initial=0.0))):
+            continue  # approaching (an impact at once) or leaving
+        y1, yp1, fault = contacts.plastic(int(k), t0, y, yp, watch.p, restart)
+        if fault is not None:
+            raise _ContactRest(fault)
+        y1, yp1, closed = _close(watch, int(k), t0, y1, yp1, events, dif, energy)
+        if closed:
+            y, yp = y1, yp1
+    return y, yp
 
 
 def _settle(watch: Watch, t, y, yp, events, dif, energy, rounds: int = 4):
@@ -703,9 +778,9 @@ def _chatter(handled, span) -> Optional[str]:
     times = [t for t, c, _ in handled[-4 * CHATTER_COUNT:] if c == condition][-CHATTER_COUNT:]
     if len(times) == CHATTER_COUNT and times[-1] - times[0] <= CHATTER_SPAN * span:
         if equation == "contact":
-            return (f"contact `{condition}` hit {CHATTER_COUNT} times within {times[-1] - times[0]:.3g} at "
-                    f"t = {t_last:.6g}: the body is coming to rest on it, which phc does not model; give the "
-                    "contact a `rest_speed` (the run then stops where the body comes to rest; docs/events.md)")
+            return (f"contact `{condition}` switched {CHATTER_COUNT} times within {times[-1] - times[0]:.3g} at "
+                    f"t = {t_last:.6g} (impacts, closing, opening): neither its gap nor its force keeps a sign "
+                    "(docs/events.md)")
         return (f"the switching condition `{condition}` (equation `{equation}`) switched {CHATTER_COUNT} "
                 f"times within {times[-1] - times[0]:.3g} at t = {t_last:.6g}: the solution slides along its "
                 "boundary and no branch holds it there. A Coulomb law written `F*sign(v)` in a row it enters "

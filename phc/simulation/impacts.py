@@ -13,11 +13,17 @@ consistent initialization computes ẋ, so no mass is read twice), and λ = −(
 gives ġ⁺ = −e ġ⁻. The kinetic energy lost, H(y⁻) − H(y⁺) = (1 − e²) ġ⁻²/(2c), is added to
 the dissipated energy ``energy.supplied``, so H(t) − H(0) + E(t) stays exact.
 
-Resting contact: the bounces of a ball accumulate at a finite time (Zeno). When the
+Persistent contact: the bounces of a ball accumulate at a finite time (Zeno). When the
 rebound speed e|ġ⁻| falls below the contact's rest speed (default 1e-6 of the largest
-closing speed it has seen) and the gap's acceleration after the jump pushes into the
-contact, the body comes to rest on it; phc does not model persistent contact, so the run
-stops there with a message (results up to there kept).
+closing speed it has seen), or the impacts accumulate (:data:`ACCUMULATE_COUNT` of them
+within :data:`ACCUMULATE_SPAN` of the run), and the gap's acceleration after a plastic jump
+(ġ⁺ = 0) pushes into the contact, the contact *closes*: the plastic jump's loss
+ġ⁻²/(2c) is booked (what the accumulating bounces would have dissipated), the contact's
+mode ``<c>.closed`` becomes 1, and its row holds ġ = 0 with the force λ = ``<c>.force`` as
+the multiplier (:mod:`phc.library.contact`); λ ġ = 0, so the closed contact does no work.
+While closed the driver watches λ; where it falls through zero the contact opens (mode 0,
+λ = 0) and its gap is watched again. A module compiled without the mode (older phc) stops
+the run where the contact would close, with a message.
 """
 
 from __future__ import annotations
@@ -30,6 +36,11 @@ from phc.simulation.midpoint import EVENT_TOL  # the relative time an event is l
 
 REST_FRACTION = 1e-6
 """Default rest speed of a contact: this fraction of the largest closing speed it has seen."""
+ACCUMULATE_COUNT = 50
+"""Impacts of one contact within :data:`ACCUMULATE_SPAN` of the run's span that close it."""
+ACCUMULATE_SPAN = 1e-6
+CLOSE = "close"
+"""The outcome of :meth:`Contacts.impact` where the contact closes (persistent contact)."""
 
 
 class Contacts:
@@ -41,7 +52,12 @@ class Contacts:
         variables = {n: i for i, n in enumerate(mod.VARIABLES)}
         self.mod = mod
         self.names: list[str] = []
+        parameters = {n: i for i, n in enumerate(getattr(mod, "PARAMETERS", ()))}
         self.gap, self.rate, self.restitution, self.rest = [], [], [], []
+        self.force: list[Optional[int]] = []
+        """The column of each contact's force λ (None: compiled without persistent contact)."""
+        self.mode: list[Optional[int]] = []
+        """The parameter slot of each contact's mode ``<c>.closed`` (1 while closed)."""
         self.normals: list[list[tuple[int, int]]] = []  # (normal output, momentum)
         for n in names:
             if not n.endswith(".restitution"):
@@ -59,7 +75,11 @@ class Contacts:
             self.restitution.append(index[n])
             self.rest.append(index.get(f"{c}.rest_speed"))
             self.normals.append(normals)
+            self.force.append(variables.get(f"{c}.force"))
+            self.mode.append(parameters.get(f"{c}.closed"))
         self.n = len(self.names)
+        self.hits: list[list[float]] = [[] for _ in range(self.n)]
+        """The impact times of each contact (the accumulation test)."""
         self.gap_idx = np.asarray(self.gap, dtype=np.int64)
         self.closing = np.zeros(self.n)
         """The largest closing speed each contact has seen."""
@@ -75,25 +95,57 @@ class Contacts:
     def gaps(self, t, y, yp, p) -> np.ndarray:
         return self.outputs(t, y, yp, p)[self.gap_idx] + self.offset if self.n else np.zeros(0)
 
-    def impact(self, k: int, t, y, yp, p, restart) -> tuple[np.ndarray, np.ndarray, Optional[str], float]:
-        """The jump of contact k at (t, y, ẏ): ``(y⁺, ẏ⁺, stop message or None, rate before)``;
-        `restart(y)` returns the consistent ``(y, ẏ)`` with the differential states of y."""
-        # the rates at the event from the consistent state (a fixed-step solver hands over the
-        # secant rate of its last partial step, which is off by O(h) from ẋ at the event)
-        y, yp = restart(y)
-        out = self.outputs(t, y, yp, p)
-        before = float(out[self.rate[k]])
-        if before >= 0:  # grazing or opening: no impact
-            return y, yp, None, before
-        e = float(out[self.restitution[k]])
-        normal = np.zeros(len(y))
+    def closed(self, k: int, p) -> bool:
+        return self.mode[k] is not None and p[self.mode[k]] > 0
+
+    def watched(self, t, y, yp, p) -> np.ndarray:
+        """What the driver watches of each contact: its gap (with the offset) while open, its
+        force λ while closed (each positive while the mode holds)."""
+        w = self.gaps(t, y, yp, p)
+        for k in range(self.n):
+            if self.closed(k, p):
+                w[k] = y[self.force[k]]
+        return w
+
+    def rate_of(self, t, y, yp, p, k: int) -> float:
+        return float(self.outputs(t, y, yp, p)[self.rate[k]])
+
+    def _normal(self, k: int, out, n: int) -> np.ndarray:
+        normal = np.zeros(n)
         for o, pj in self.normals[k]:
             normal[pj] += out[o]
+        return normal
+
+    def _slope(self, k, t, y, p, normal, before, restart) -> float:
+        """c = dġ/dλ = Σ n_j²/m_j, exactly: ġ is affine in the momenta."""
         trial = restart(y + normal)
-        slope = float(self.outputs(t, trial[0], trial[1], p)[self.rate[k]]) - before
+        return float(self.outputs(t, trial[0], trial[1], p)[self.rate[k]]) - before
+
+    def _accel(self, k, t, y, yp, p, restart) -> float:
+        """The gap's acceleration at a consistent (y, ẏ), Σ n_j ṗ_j/m_j: ġ is affine in the
+        momenta, so its change when they move by their rates ṗ_j is exact."""
+        moved = y.copy()
+        for _, pj in self.normals[k]:
+            moved[pj] += yp[pj]
+        ahead = restart(moved)
+        return float(self.outputs(t, ahead[0], ahead[1], p)[self.rate[k]]) - self.rate_of(t, y, yp, p, k)
+
+    def plastic(self, k: int, t, y, yp, p, restart) -> tuple[np.ndarray, np.ndarray, Optional[str]]:
+        """The jump of contact k at a consistent (t, y, ẏ) to ġ⁺ = 0 (a plastic impact), its
+        loss ġ⁻²/(2c) booked as dissipated: ``(y⁺, ẏ⁺, stop message or None)``."""
+        out = self.outputs(t, y, yp, p)
+        before = float(out[self.rate[k]])
+        if before == 0.0:
+            return y, yp, None
+        normal = self._normal(k, out, len(y))
+        slope = self._slope(k, t, y, p, normal, before, restart)
         if not slope > 0:
             return y, yp, (f"contact `{self.names[k]}` cannot act at t = {t:.6g}: its gap does not respond to an "
-                           "impulse on the masses it names (are they held by a constraint?)"), before
+                           "impulse on the masses it names (are they held by a constraint?)")
+        return self._jump(k, t, y, p, normal, before, slope, 0.0, restart)
+
+    def _jump(self, k, t, y, p, normal, before, slope, e, restart):
+        """p⁺ = p⁻ + λ n with λ = −(1 + e) ġ⁻/c, the energy lost booked and checked."""
         energy = self.mod.VARIABLES.index("energy.supplied")
         new = y + (-(1.0 + e) * before / slope) * normal
         h_before = float(self.mod.hamiltonian(t, y, p))
@@ -104,29 +156,63 @@ class Contacts:
         newton = (1.0 - e * e) * before * before / (2.0 * slope)
         # (to round-off of the kinetic energy, and of H where a potential makes it large)
         if abs(lost - newton) > 1e-8 * 0.5 * before * before / slope + 1e3 * np.finfo(float).eps * abs(h_before):
-            return y, yp, (f"contact `{self.names[k]}` at t = {t:.6g}: the impulse lost {lost:.6g} of energy where "
-                           f"Newton's law loses {newton:.6g}: its normal does not match the bodies' velocities "
-                           "(a fault in phc; please report it)"), before
+            return y, None, (f"contact `{self.names[k]}` at t = {t:.6g}: the impulse lost {lost:.6g} of energy where "
+                             f"Newton's law loses {newton:.6g}: its normal does not match the bodies' velocities "
+                             "(a fault in phc; please report it)")
         y_new, yp_new = restart(new)
+        return y_new, yp_new, None
+
+    def impact(self, k: int, t, y, yp, p, restart, span: float = 0.0
+               ) -> tuple[np.ndarray, np.ndarray, Optional[str], float]:
+        """The jump of contact k at (t, y, ẏ): ``(y⁺, ẏ⁺, outcome, rate before)`` with outcome
+        None, :data:`CLOSE` (the plastic jump was taken and the contact is to close) or a
+        message that stops the run; `restart(y)` returns the consistent ``(y, ẏ)`` with the
+        differential states of y, `span` is the run's length (the accumulation test)."""
+        # the rates at the event from the consistent state (a fixed-step solver hands over the
+        # secant rate of its last partial step, which is off by O(h) from ẋ at the event)
+        y, yp = restart(y)
+        out = self.outputs(t, y, yp, p)
+        before = float(out[self.rate[k]])
+        if before >= 0:  # grazing or opening: no impact
+            return y, yp, None, before
+        e = float(out[self.restitution[k]])
+        normal = self._normal(k, out, len(y))
+        slope = self._slope(k, t, y, p, normal, before, restart)
+        if not slope > 0:
+            return y, yp, (f"contact `{self.names[k]}` cannot act at t = {t:.6g}: its gap does not respond to an "
+                           "impulse on the masses it names (are they held by a constraint?)"), before
         # watched from just below the event's gap: the event is located to EVENT_TOL in time
         self.offset[k] = max(0.0, -float(out[self.gap[k]])) + 2.0 * -before * EVENT_TOL * max(1.0, abs(t))
         self.closing[k] = max(self.closing[k], -before)
+        hits = self.hits[k]
+        hits.append(t)
+        del hits[:-ACCUMULATE_COUNT]
+        accumulating = len(hits) == ACCUMULATE_COUNT and hits[-1] - hits[0] <= ACCUMULATE_SPAN * span
         rest = (float(out[self.rest[k]]) if self.rest[k] is not None else REST_FRACTION * self.closing[k])
-        if e * -before <= rest:
-            # the gap's acceleration after the jump, Σ n_j ṗ_j/m_j: ġ is affine in the momenta,
-            # so its change when they move by their rates ṗ_j is exact
-            moved = y_new.copy()
-            for _, pj in self.normals[k]:
-                moved[pj] += yp_new[pj]
-            ahead = restart(moved)
-            rate_after = float(self.outputs(t, y_new, yp_new, p)[self.rate[k]])
-            accel = float(self.outputs(t, ahead[0], ahead[1], p)[self.rate[k]]) - rate_after
-            if accel <= 0:
-                return y_new, yp_new, (f"contact `{self.names[k]}` comes to rest at t = {t:.9g}: the rebound speed "
-                                       f"{e * -before:.3g} is below its rest speed {rest:.3g} and the load presses "
-                                       "the masses onto it; phc does not model persistent contact, so the run stops "
-                                       "here (results up to there are kept; docs/events.md)"), before
+        if e * -before <= rest or accumulating:
+            # coming to rest: after a plastic jump (ġ⁺ = 0), does the load press the masses on?
+            y_rest, yp_rest, fault = self._jump(k, t, y, p, normal, before, slope, 0.0, restart)
+            if fault is not None:
+                return y, yp, fault, before
+            if self._accel(k, t, y_rest, yp_rest, p, restart) <= 0:
+                if self.mode[k] is None:
+                    return y_rest, yp_rest, (
+                        f"contact `{self.names[k]}` comes to rest at t = {t:.9g}, and the module was compiled "
+                        "without persistent contact: recompile it (results up to there are kept)"), before
+                hits.clear()
+                return y_rest, yp_rest, CLOSE, before
+        y_new, yp_new, fault = self._jump(k, t, y, p, normal, before, slope, e, restart)
+        if fault is not None:
+            return y, yp, fault, before
         return y_new, yp_new, None, before
+
+
+def contact_forces(mod) -> list[int]:
+    """The columns of the contacts' forces λ (``<c>.force``) in `mod`'s variables."""
+    variables = {n: i for i, n in enumerate(getattr(mod, "VARIABLES", ()))}
+    outputs = set(getattr(mod, "OUTPUTS", ()))
+    return [variables[f"{n[:-12]}.force"] for n in outputs
+            if n.endswith(".restitution") and f"{n[:-12]}.gap" in outputs and f"{n[:-12]}.force" in variables]
 
 
 def has_contacts(mod) -> bool:
@@ -136,4 +222,4 @@ def has_contacts(mod) -> bool:
                for n in outputs)
 
 
-__all__ = ["Contacts", "has_contacts", "REST_FRACTION"]
+__all__ = ["ACCUMULATE_COUNT", "ACCUMULATE_SPAN", "CLOSE", "Contacts", "REST_FRACTION", "contact_forces", "has_contacts"]

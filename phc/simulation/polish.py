@@ -149,11 +149,24 @@ def polish_outputs(mod, p, out: BackendRun, scales, t_from: Optional[float] = No
         return out
     if not depends_on_algebraic(mod, p, t[0], y[0], yp[0], np.asarray(scales, dtype=float)):
         return out
-    try:
-        polish = AlgebraicPolish(mod, p, t[0], y[0], scales)
-    except (ModelEvaluationError, *CATCH, np.linalg.LinAlgError):
-        return out
-    if not polish.usable:
+    # a switched run's modes at each output time (phc.simulation.events): the rows of a sticking
+    # friction law or a closed contact are those of its mode
+    modes = out.extra.get("modes")
+    modes = None if modes is None or len(modes) != len(t) else np.asarray(modes, dtype=float)
+    polishers: dict = {}
+
+    def polisher(k):
+        pk = p if modes is None else modes[k]
+        key = np.asarray(pk, dtype=float).tobytes()
+        if key not in polishers:
+            try:
+                polishers[key] = AlgebraicPolish(mod, pk, t[k], y[k], scales)
+            except (ModelEvaluationError, *CATCH, np.linalg.LinAlgError):
+                polishers[key] = None
+        return polishers[key]
+
+    first = polisher(0)
+    if first is None or not first.usable:
         return out
     # the velocities of a configuration-dependent mass matrix are those of the states, v = M(q)⁻¹p:
     # a fixed-step solver's states meet the velocity constraints only at its step points, so at
@@ -168,10 +181,12 @@ def polish_outputs(mod, p, out: BackendRun, scales, t_from: Optional[float] = No
     for k in range(len(t)):
         if t_from is not None and t[k] < t_from:
             continue
-        if np.all(np.isfinite(y[k])) and np.all(np.isfinite(yp[k])):
+        polish = polisher(k)
+        if polish is not None and np.all(np.isfinite(y[k])) and np.all(np.isfinite(yp[k])):
             y[k], yp[k], _ = polish(t[k], y[k], yp[k])
             velocities(t[k], y[k])
-    return out.replace(y=y, yp=yp, polished=polish.improved)
+    improved = sum(q.improved for q in polishers.values() if q is not None)
+    return out.replace(y=y, yp=yp, polished=improved)
 
 
 __all__ = ["AlgebraicPolish", "polish_outputs", "depends_on_algebraic"]

@@ -57,7 +57,11 @@ def determined_algebraic(mod, p, t, y, yp) -> np.ndarray:
     dynamic = np.zeros(m, dtype=bool)
     dynamic[rows[nonzero_yp]] = True
     alg_rows = np.flatnonzero(~dynamic)
-    alg_cols = np.flatnonzero(~diff & np.array([not str(v).startswith("ggl.") for v in mod.VARIABLES]))
+    # GGL multipliers and contact forces (zero while open, index 2 while closed) are never tested
+    from phc.simulation.impacts import contact_forces
+
+    untested = {j for j, v in enumerate(mod.VARIABLES) if str(v).startswith("ggl.")} | set(contact_forces(mod))
+    alg_cols = np.flatnonzero(~diff & np.array([j not in untested for j in range(n)]))
     if not len(alg_rows) or not len(alg_cols):
         return out
     rpos = np.full(m, -1)

@@ -739,8 +739,11 @@ class ContactSpec(_Component):
     through zero with closing velocity ġ⁻ < 0 the run stops, the masses' momenta jump along
     the contact normal ∂g/∂x so that ġ⁺ = −e·ġ⁻, and the run restarts; the kinetic energy
     lost, (1 − e²)·½ m_eff ġ⁻², is counted as dissipated (the energy balance stays exact).
-    Outputs `<name>.gap`, `<name>.gap_rate` (ġ), `<name>.restitution` and one
-    `<name>.normal.<momentum>` per momentum the impulse acts on (docs/events.md)."""
+    Where the bounces die out (see `rest_speed`) or a body starts at rest on it, the contact
+    closes: it holds ġ = 0 with the contact force `<name>.force` ≥ 0 (a variable of the run)
+    until that force falls to zero, where it opens again. Outputs `<name>.gap`,
+    `<name>.gap_rate` (ġ), `<name>.restitution` and one `<name>.normal.<momentum>` per
+    momentum the impulse acts on (docs/events.md)."""
 
     type: Literal["contact"]
     gap: Expr
@@ -751,9 +754,10 @@ class ContactSpec(_Component):
     plastic."""
     rest_speed: Optional[Expr] = None
     """The rebound speed |ġ⁺| (gap units per time, parameters only) below which a contact
-    that pushes the masses into it comes to rest: phc does not model persistent contact,
-    so the run stops there with a message (the bounces of a ball accumulate at a finite
-    time). Default: 1e-6 of the largest closing speed this contact has seen in the run."""
+    whose load presses the masses into it closes (persistent contact: the bounces of a ball
+    accumulate at a finite time, and the ball then lies on the floor); the impact is then
+    plastic. It also closes where 50 impacts fall within 1e-6 of the run. Default: 1e-6 of
+    the largest closing speed this contact has seen in the run."""
 
 
 ComponentSpec = Annotated[
