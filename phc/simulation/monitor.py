@@ -17,6 +17,12 @@ amplifier of the Bari test set for IVP solvers: conductances of 1e-4 S against C
 1e-8 s) gives σ_min/σ_max ∝ h — 5e-13 at h = 1e-8 s, 5e-10 at 1e-5 s — and the same circuit in
 ms, kΩ, µF and mA is equilibrated differently and passed: a verdict that depended on the
 units. The folding slider–crank's ratio stays 6e-9 from h = 1e-10 to 1e-4 s.
+
+The module is over 800 lines because the diagnosis of a failed run (:func:`diagnose_failure`,
+from the module's second half on) asks the monitor's own questions — the two-step ratio, the
+golden-section search, the message that names the dependent equations — at the failure point
+and ahead of it (:func:`singular_ahead`); kept together, there is one definition of a singular
+configuration for the run and for its diagnosis.
 """
 
 from __future__ import annotations
