@@ -17,6 +17,12 @@ amplifier of the Bari test set for IVP solvers: conductances of 1e-4 S against C
 1e-8 s) gives σ_min/σ_max ∝ h — 5e-13 at h = 1e-8 s, 5e-10 at 1e-5 s — and the same circuit in
 ms, kΩ, µF and mA is equilibrated differently and passed: a verdict that depended on the
 units. The folding slider–crank's ratio stays 6e-9 from h = 1e-10 to 1e-4 s.
+
+The module is over 800 lines because the diagnosis of a failed run (:func:`diagnose_failure`,
+from the module's second half on) asks the monitor's own questions — the two-step ratio, the
+golden-section search, the message that names the dependent equations — at the failure point
+and ahead of it (:func:`singular_ahead`); kept together, there is one definition of a singular
+configuration for the run and for its diagnosis.
 """
 
 from __future__ import annotations
@@ -46,6 +52,12 @@ RCOND_MARGIN = 1e3
 on an LU, a fraction of the SVD's cost) is within this factor (times N) of the threshold:
 σ_max/σ_min ≤ N·κ₁, and the estimate is within a small factor of κ₁ in practice. Farther
 out the look returns the estimate's bound ``1/(N·κ₁)`` (as the compiled step loop does)."""
+
+
+def state_mask(mod) -> np.ndarray:
+    """The differential variables that are states of the model: all but the energy supplied
+    (``energy.supplied``, which integrates the ports' power and is no state of any component)."""
+    return np.asarray(mod.DIFFERENTIAL, dtype=bool) & (np.asarray(mod.VARIABLES) != "energy.supplied")
 
 
 def describe_equations(compiled) -> dict[str, str]:
@@ -82,6 +94,52 @@ def _far_from_singular(J: np.ndarray, threshold: float) -> Optional[float]:
     if info != 0 or not np.isfinite(rcond) or rcond < threshold * n * RCOND_MARGIN:
         return None
     return float(rcond) / n
+
+
+def _search_below(f, a, b, threshold, iterations: int = 80, fa=None, fb=None, minimum: bool = False):
+    """(t, ratio, u) where ``f: t -> (ratio, u)`` (u None while the ratio is at or above
+    `threshold`) falls below `threshold` on [a, b], by golden-section search for its minimum;
+    None if it stays above. The first point found below is returned, or with `minimum` the
+    least point found once the bracket is :data:`MINIMUM_XTOL` of its place (where a rank
+    drop lies, not only that one does).
+
+    The search stops early at a smooth minimum well above the threshold: near a
+    singular configuration the ratio falls to zero like a power (≥ 1) of the distance,
+    so below the two inner points it can fall by at most the bracket's width times the
+    steepest slope between the four points (`fa`, `fb`: the ratios at `a` and `b`);
+    when twice that still leaves the smaller inner value above the threshold, it does
+    not fall below it (a smooth minimum flattens as the bracket shrinks, a V does not)."""
+    g = 0.5 * (np.sqrt(5.0) - 1.0)
+    c, d = b - g * (b - a), a + g * (b - a)
+    (fc, uc), (fd, ud) = f(c), f(d)
+    best = None
+    for k in range(iterations):
+        for t, r, u in ((c, fc, uc), (d, fd, ud)):
+            if u is not None and not minimum:
+                return t, r, u
+            if u is not None and (best is None or r < best[1]):
+                best = (t, r, u)
+        if b - a <= 4 * np.finfo(float).eps * max(abs(a), abs(b)):
+            break
+        if best is not None and b - a <= MINIMUM_XTOL * max(abs(a), abs(b)):
+            break
+        if k >= 4 and fa is not None and fb is not None and a < c < d < b:
+            slope = max(abs(fc - fa) / (c - a), abs(fd - fc) / (d - c), abs(fb - fd) / (b - d))
+            if min(fc, fd) - 2.0 * slope * (b - a) > threshold:
+                break
+        if fc < fd:
+            b, d, fd, ud, fb = d, c, fc, uc, fd
+            c = b - g * (b - a)
+            fc, uc = f(c)
+        else:
+            a, c, fc, uc, fa = c, d, fd, ud, fc
+            d = a + g * (b - a)
+            fd, ud = f(d)
+    return best
+
+
+MINIMUM_XTOL = 1e-4
+"""Relative width of the bracket at which :func:`_search_below` with `minimum` stops."""
 
 
 class SingularityMonitor:
@@ -127,25 +185,30 @@ class SingularityMonitor:
         self.history.clear()
         self.stop_time = None
 
-    def ratio(self, t, y, yp, h) -> tuple[float, np.ndarray]:
+    def ratio(self, t, y, yp, h, vectors: bool = True) -> tuple[float, np.ndarray]:
         """σ_min/σ_max of the equilibrated iteration matrix at the step h; when that is below
         the threshold, the larger of it and its value at :data:`STEP_SPREAD`·h (a singular
         configuration is singular at both). With it the left singular vector of the smallest
-        singular value at h when both are below the threshold, else None."""
-        ratio, u = self._ratio_at(t, y, yp, h)
+        singular value at h when both are below the threshold, else None (without `vectors`:
+        an empty array instead of the vector, which a dense SVD with vectors costs)."""
+        ratio, u = self._ratio_at(t, y, yp, h, vectors)
         if u is None:
             return ratio, None
-        longer, _ = self._ratio_at(t, y, yp, STEP_SPREAD * h)
+        longer, _ = self._ratio_at(t, y, yp, STEP_SPREAD * h, vectors=False)
         if longer >= self.threshold:
             return longer, None
         return max(ratio, longer), u
 
-    def _ratio_at(self, t, y, yp, h) -> tuple[float, np.ndarray]:
+    def _equilibrated(self, t, y, yp, h) -> np.ndarray:
+        """The iteration matrix ``F_y + F_ẏ/h`` at (t, y, ẏ), equilibrated (:func:`_equilibrate`)."""
         n = self.mod.N
         self.mod.jacobian(t, y, yp, self.p, 1.0 / max(h, 1e-300), self.buf)
         J = np.zeros((n, n))
         J[self.rows, self.cols] = self.buf
-        J = _equilibrate(J)
+        return _equilibrate(J)
+
+    def _ratio_at(self, t, y, yp, h, vectors: bool = True) -> tuple[float, np.ndarray]:
+        J = self._equilibrated(t, y, yp, h)
         rough = _far_from_singular(J, self.threshold)
         if rough is not None:
             return rough, None
@@ -153,6 +216,8 @@ class SingularityMonitor:
         ratio = float(s[-1] / s[0]) if s[0] > 0 else 0.0
         if ratio >= self.threshold:
             return ratio, None
+        if not vectors:
+            return ratio, np.empty(0)
         u, _, _ = np.linalg.svd(J)
         return ratio, u[:, -1]
 
@@ -179,14 +244,18 @@ class SingularityMonitor:
 
     def _remember(self, look) -> None:
         """Add a look to :attr:`history`, which keeps its reach into the past: once full, a look
-        closer to the previous one than a quarter of the window's mean spacing replaces it (a
-        solver crawling toward a failure with ever shorter steps otherwise fills the window
-        with the last microseconds, and the fall of the conditioning on the way there, which
-        the failure's diagnosis reads, is lost)."""
+        less than a quarter of the window's mean spacing after the look before the last
+        replaces the last (a solver crawling toward a failure with ever shorter steps otherwise
+        fills the window with the last microseconds, and the fall of the conditioning on the
+        way there, which the failure's diagnosis reads, is lost). Looks that come steadily
+        often fill the window at their own pace, so it always ends at the newest look."""
         history = self.history
         if len(history) == history.maxlen:
             spacing = (look[0] - history[0][0]) / history.maxlen
-            if look[0] - history[-1][0] < 0.25 * spacing:
+            # measured from the look before the last: measured from the last one (which each
+            # replacement moves along), a solver looking often for long froze the window
+            # where its looks became dense, and its end, the approach, was lost
+            if look[0] - history[-2][0] < 0.25 * spacing:
                 history[-1] = look
                 return
         history.append(look)
@@ -230,42 +299,17 @@ class SingularityMonitor:
         return y, yp, hb
 
     def _minimize(self, a, b, iterations: int = 80, fa=None, fb=None):
-        """(t, ratio, left singular vector) where the ratio falls below the threshold on
-        [a, b], searching for its minimum; None if it stays above.
-
-        The search stops early at a smooth minimum well above the threshold: near a
-        singular configuration the ratio falls to zero like a power (≥ 1) of the distance,
-        so below the two inner points it can fall by at most the bracket's width times the
-        steepest slope between the four points (`fa`, `fb`: the ratios at `a` and `b`);
-        when twice that still leaves the smaller inner value above the threshold, it does
-        not fall below it (a smooth minimum flattens as the bracket shrinks, a V does not)."""
+        """(t, ratio, left singular vector) where :meth:`ratio` along the cubic Hermite
+        interpolant of the last looks (:meth:`_state_at`) falls below the threshold on [a, b]
+        (:func:`_search_below`); None if it stays above."""
         def f(t):
             y, yp, h = self._state_at(t)
             return self.ratio(t, y, yp, h)
-        g = 0.5 * (np.sqrt(5.0) - 1.0)
-        c, d = b - g * (b - a), a + g * (b - a)
-        (fc, uc), (fd, ud) = f(c), f(d)
-        for k in range(iterations):
-            for t, r, u in ((c, fc, uc), (d, fd, ud)):
-                if u is not None:
-                    return t, r, u
-            if b - a <= 4 * np.finfo(float).eps * max(abs(a), abs(b)):
-                break
-            if k >= 4 and fa is not None and fb is not None and a < c < d < b:
-                slope = max(abs(fc - fa) / (c - a), abs(fd - fc) / (d - c), abs(fb - fd) / (b - d))
-                if min(fc, fd) - 2.0 * slope * (b - a) > self.threshold:
-                    break
-            if fc < fd:
-                b, d, fd, ud, fb = d, c, fc, uc, fd
-                c = b - g * (b - a)
-                fc, uc = f(c)
-            else:
-                a, c, fc, uc, fa = c, d, fd, ud, fc
-                d = a + g * (b - a)
-                fd, ud = f(d)
-        return None
+        return _search_below(f, a, b, self.threshold, iterations, fa, fb)
 
-    def _message(self, t, ratio, u, threshold) -> str:
+    def _dependence(self, u) -> tuple[str, str, str]:
+        """(the equations of the weak direction u, the connections they belong to, the
+        condition that fails) as a message says them; sets :attr:`positional`."""
         culprits = [self.mod.EQUATIONS[i] for i in np.argsort(-np.abs(u))[:4] if abs(u[i]) > 0.1]
         connections = sorted({self.names[c].split(" row ")[0] for c in culprits if c in self.names})
         where = f" at {', '.join(connections)}" if connections else ""
@@ -273,12 +317,20 @@ class SingularityMonitor:
         self.positional = len(positional) >= 2
         condition = (f"the gradients of the position constraints {', '.join(f'`{c}`' for c in positional)} are "
                      "linearly dependent" if len(positional) >= 2 else "their Jacobian rows are linearly dependent")
+        return ", ".join(f"`{c}`" for c in culprits), where, condition
+
+    def _message(self, t, ratio, u, threshold) -> str:
+        equations, where, condition = self._dependence(u)
         return (f"stopped at t = {t:.6g} near a singular configuration: the equations "
-                f"{', '.join(f'`{c}`' for c in culprits)} become dependent{where}. Condition: {condition} "
+                f"{equations} become dependent{where}. Condition: {condition} "
                 f"(σ_min/σ_max of the equilibrated iteration matrix = {ratio:.1e} < {threshold:.0e}), so the "
-                "coupling map loses surjectivity (e.g. a guide with a_s·t = 0: the rod perpendicular to the guide) "
-                "and the model is not a port-Hamiltonian system at this state (run `phc check` for the coupling "
-                "certificate); results up to this time are kept")
+                f"{SURJECTIVITY} at this state (run `phc check` for the coupling certificate); results up to this "
+                "time are kept")
+
+
+SURJECTIVITY = ("coupling map loses surjectivity (e.g. a guide with a_s·t = 0: the rod perpendicular to the guide) "
+                "and the model is not a port-Hamiltonian system")
+"""What a rank drop of the coupling means (the paper's Proposition 3), as messages say it."""
 
 
 SMALL_STATE = 1e2
@@ -305,10 +357,8 @@ def check_scales(mod, y0, yp0, span, rtol, atol, failed: bool = False, scales=No
     is ``atol·s_j``: a state is small only against its own scale (a nominal set far above
     what the state reaches), and states of different sizes no longer strain the error test,
     so the spread is not reported."""
-    diff = np.asarray(mod.DIFFERENTIAL, dtype=bool).copy()
+    diff = state_mask(mod)
     names = list(mod.VARIABLES)
-    if "energy.supplied" in names:
-        diff[names.index("energy.supplied")] = False
     ys, yps = np.atleast_2d(np.asarray(y0, dtype=float)), np.atleast_2d(np.asarray(yp0, dtype=float))
     size = np.maximum(np.abs(ys).max(axis=0), np.abs(yps[0]) * span)[diff]
     labels = [names[j] for j in np.flatnonzero(diff)]
@@ -531,40 +581,168 @@ def _dense_split(mod, p, t, y, yp) -> tuple[np.ndarray, np.ndarray]:
     return Fy, Fyp
 
 
+AHEAD_MOTION = 0.1
+""":func:`singular_ahead` looks along the rates, at y + τẏ, as far as no state moves by more than
+this fraction of its size (the larger of |y| and its nominal scale): there the linear
+extrapolation of the run is accurate to first order."""
+AHEAD_RESIDUAL = 1e-2
+"""The extrapolated state of :func:`singular_ahead` must meet every algebraic equation (a row
+without ẏ) to this fraction of the row's largest term at the failure (``max_k |∂F_i/∂y_k| s_k``,
+s_k the size of y_k): a linear extrapolation of a solution misses them by O(τ²), ½(τ/T)² of
+the row's size over a time τ = :data:`AHEAD_MOTION`·T, 5e-3. A model that is nonlinear on a finer
+scale than its states' sizes fails it (the transistor amplifier: its diode laws change e-fold per
+26 mV of 6 V node voltages), and the extrapolation says nothing there."""
+AHEAD_GRID = 16
+"""Points at which :func:`singular_ahead` looks first; golden-section search refines the least."""
+AHEAD_MAX = 400
+"""Largest system :func:`singular_ahead` searches (some 40 looks of the monitor, each an LU and
+at times a dense SVD)."""
+
+
+def singular_ahead(monitor, t, y, yp, h, scales=None) -> Optional[tuple[float, float, np.ndarray]]:
+    """``(τ, ratio, u)`` of a singular configuration a run at (t, y, ẏ) is heading for: the
+    monitor (:meth:`SingularityMonitor.ratio`: the equilibrated iteration matrix singular at
+    the step `h` and at a :data:`STEP_SPREAD` times longer one, a rank drop whatever the step)
+    finds one at the extrapolated state ``y + τẏ`` within the reach of :data:`AHEAD_MOTION`; u
+    the weak direction there. None when there is none, or the system is larger than
+    :data:`AHEAD_MAX`.
+
+    A BDF code fails *before* such a configuration: the conditioning falls like a power of the
+    distance to it, and the Newton iteration fails on amplified round-off (the tighter the
+    tolerances, the earlier) while the iteration matrix is still regular at the failure point
+    — the folding slider–crank failed 1.4e-5 s before its rod stood perpendicular to the guide,
+    at σ_min/σ_max = 1.6e-9. Along a line through it the ratio falls to (nearly) zero in a V, so
+    a grid of :data:`AHEAD_GRID` points and a golden-section search around its least value
+    find it (:func:`_search_below`). The line need not pass through the singular set exactly:
+    there, along the run's rates, the equilibrated rows of the algebraic equations alone
+    bottom out at σ_min/σ_max = 2.5e-11, the iteration matrix at 4e-14."""
+    mod = monitor.mod
+    if mod.N > AHEAD_MAX or not h > 0:
+        return None
+    y, yp = np.asarray(y, dtype=float), np.asarray(yp, dtype=float)
+    size = np.abs(y) if scales is None else np.maximum(np.abs(y), np.abs(np.asarray(scales, dtype=float)))
+    rate = np.abs(yp)
+    moving = state_mask(mod) & (rate > 0) & (size > 0) & np.isfinite(rate)
+    if not moving.any():
+        return None
+    reach = AHEAD_MOTION * float(np.min(size[moving] / rate[moving]))
+
+    def f(tau):
+        return monitor.ratio(t + tau, y + tau * yp, yp, h, vectors=False)
+
+    taus = reach * np.arange(AHEAD_GRID + 1) / AHEAD_GRID
+    looks = [f(tau) for tau in taus]
+    i = int(np.argmin([r for r, _ in looks]))
+    a, b = max(i - 1, 0), min(i + 1, AHEAD_GRID)
+    found = _search_below(f, float(taus[a]), float(taus[b]), monitor.threshold, fa=looks[a][0], fb=looks[b][0],
+                          minimum=True)
+    if found is None:
+        return None
+    tau = float(found[0])
+    if not _meets_algebraic_rows(mod, monitor.p, t, y, yp, tau, size):
+        return None
+    ratio, u = monitor.ratio(t + tau, y + tau * yp, yp, h)
+    return None if u is None else (tau, ratio, u)
+
+
+def _meets_algebraic_rows(mod, p, t, y, yp, tau, size) -> bool:
+    """Whether ``y + τẏ`` meets the algebraic equations to :data:`AHEAD_RESIDUAL` of each
+    row's largest term at (t, y, ẏ) (`size`: the variables' sizes)."""
+    Fy, Fyp = _dense_split(mod, p, t, y, yp)
+    algebraic = ~np.abs(Fyp).any(axis=1)
+    scale = (np.abs(Fy) * size[None, :]).max(axis=1)
+    out = np.zeros(mod.N)
+    mod.residual(t + tau, y + tau * yp, yp, p, out)
+    return bool(np.all(np.abs(out[algebraic]) <= AHEAD_RESIDUAL * scale[algebraic]))
+
+
 ROUND_OFF_WRMS = 0.2
 """Weighted RMS norm of the round-off part of a Newton correction above which the
 tolerances ask for more than double precision gives (IDA's Newton test needs the
 correction's norm well below 0.33)."""
 
 
-def roundoff_correction(mod, p, t, y, yp, h, rtol, atol, samples: int = 2, scales=None):
+def roundoff_correction(mod, p, t, y, yp, h, rtol, atol, samples: int = 2, scales=None, deflate: int = 0):
     """How far round-off alone moves a Newton correction of a BDF step of size `h` at
     (t, y, ẏ), in IDA's error weights ``1/(rtol|y| + atol)`` of the differential variables:
     ``(wrms, name, noise, tolerance)`` of the worst variable, or None when the system is
     too large. The residual's round-off is modelled as ε times the size of each row's
-    terms (``|F_y||y| + |F_ẏ||ẏ|``) with random signs, and solved with the iteration matrix."""
+    terms (``|F_y||y| + |F_ẏ||ẏ|``) with random signs, and solved with the iteration matrix.
+
+    `deflate` > 0: solved without the `deflate` weakest directions of the equilibrated
+    iteration matrix (its smallest singular values left out: a pseudo-inverse in the
+    equilibrated units) — how far round-off would move the correction without a near rank
+    drop there. The random signs are the same as without (the same seed)."""
     n = mod.N
     if n > DIAGNOSE_MAX or h <= 0:
         return None
     Fy, Fyp = _dense_split(mod, p, t, y, yp)
     size = np.abs(Fy) @ np.abs(y) + np.abs(Fyp) @ np.abs(yp)
-    # the states (not the energy supplied, which integrates their power)
-    diff = np.asarray(mod.DIFFERENTIAL, dtype=bool) & (np.asarray(mod.VARIABLES) != "energy.supplied")
+    diff = state_mask(mod)
     tol = rtol * np.abs(y) + atol * (1.0 if scales is None else np.asarray(scales, dtype=float))
     rng = np.random.default_rng(0)
     try:
-        lu = sla.lu_factor(Fy + Fyp / h, check_finite=True)
+        if deflate > 0:
+            Je, r, c = equilibrate(Fy + Fyp / h, rounds=2)
+            U, S, Vt = np.linalg.svd(Je)
+            keep = max(n - int(deflate), 0)
+
+            def solve(b):
+                return c * (Vt[:keep].T @ ((U[:, :keep].T @ (r * b)) / S[:keep]))
+        else:
+            lu = sla.lu_factor(Fy + Fyp / h, check_finite=True)
+
+            def solve(b):
+                return sla.lu_solve(lu, b)
     except (ValueError, np.linalg.LinAlgError):
         return None
     worst = None
     for _ in range(samples):
-        delta = sla.lu_solve(lu, np.finfo(float).eps * size * rng.choice([-1.0, 1.0], n))
+        delta = solve(np.finfo(float).eps * size * rng.choice([-1.0, 1.0], n))
         weighted = np.where(diff, np.abs(delta) / tol, 0.0)
         wrms = float(np.sqrt(np.mean(weighted[diff] ** 2))) if diff.any() else 0.0
         j = int(np.argmax(weighted))
         if worst is None or wrms > worst[0]:
             worst = (wrms, str(mod.VARIABLES[j]), float(abs(delta[j])), float(tol[j]))
     return worst
+
+
+AHEAD_ROUND_OFF = ("Newton's iteration failed on the round-off that this near rank drop amplifies, so no tolerance is "
+                   "the remedy: looser ones only let IDA come closer to it")
+AHEAD_PASS = ("`midpoint` and `discrete_gradient` can integrate through an isolated rank drop of the position "
+              "constraints (they stop where they cannot)")
+
+
+def _heading_for_singularity(monitor, t, y, yp, h, ratio, floor, rtol, atol, scales) -> Optional[str]:
+    """The singular configuration a run that failed at (t, y, ẏ) was heading for, said as the
+    monitor says one (:meth:`SingularityMonitor._dependence`), when it explains the failure:
+    the monitor finds one ahead at the step `h` (:func:`singular_ahead`), and the round-off
+    `floor` of the Newton correction (:func:`roundoff_correction`) falls below
+    :data:`ROUND_OFF_WRMS` without the directions that become singular there (as many as the
+    iteration matrix there has singular values below the threshold). `ratio`: the iteration
+    matrix's σ_min/σ_max at the failure. None otherwise."""
+    mod, p = monitor.mod, monitor.p
+    try:
+        ahead = singular_ahead(monitor, t, y, yp, h, scales=scales)
+        if ahead is None:
+            return None
+        tau, then, u = ahead
+        s = np.linalg.svd(monitor._equilibrated(t + tau, y + tau * yp, yp, h), compute_uv=False)
+        deficiency = max(1, int(np.count_nonzero(s < monitor.threshold * s[0])))
+        without = roundoff_correction(mod, p, t, y, yp, h, rtol, atol, scales=scales, deflate=deficiency)
+    except (ArithmeticError, ValueError, np.linalg.LinAlgError, ModelEvaluationError):
+        return None
+    if without is None or without[0] > ROUND_OFF_WRMS:
+        return None
+    equations, where, condition = monitor._dependence(u)
+    return (f"stopped at t = {t:.6g} near a singular configuration: the equations {equations} become "
+            f"dependent{where} at t ≈ {t + tau:.6g}, {tau:.1e} s ahead along the run's rates (σ_min/σ_max of the "
+            f"equilibrated iteration matrix {ratio:.1e} at the step h = {h:.1e} here, {then:.1e} < "
+            f"{monitor.threshold:.0e} there). Condition: {condition}, so the {SURJECTIVITY} there (run `phc check` "
+            f"for the coupling certificate). Round-off moves a Newton correction of `{floor[1]}` by ~{floor[2]:.0e}, "
+            f"more than its tolerance {floor[3]:.0e} (weighted norm {floor[0]:.2g}; {without[0]:.2g} without the "
+            f"{deficiency} direction{'s' if deficiency > 1 else ''} that become{'' if deficiency > 1 else 's'} "
+            "singular)")
 
 
 def diagnose_failure(mod, p, t, y, yp, *, status: int, h_typical: float, h_fail: float, max_order: int,
@@ -575,14 +753,20 @@ def diagnose_failure(mod, p, t, y, yp, *, status: int, h_typical: float, h_fail:
     A singular configuration is named only when the equilibrated iteration matrix
     ``F_y + F_ẏ/h`` is numerically singular at the step size the run was taking before it
     collapsed (`h_typical`): an index-2 iteration matrix is conditioned like h², so at the
-    collapsed step (`h_fail`) every configuration looks singular. Otherwise the cause is
-    looked for in the linearized modes (undamped stiff modes at BDF order > 2), then the
-    step and the tolerances, and the remedy is named. `local`: the factor between the
-    tolerances asked for and those IDA's error test uses (:data:`phc.simulation.ida.
-    LOCAL_TOLERANCE`); remedies are stated in the former."""
+    collapsed step (`h_fail`) every configuration looks singular — or when the run was heading
+    for one (:func:`singular_ahead`: the constraint Jacobian loses rank a little ahead along
+    ẏ, the iteration matrix is singular there at both steps of :meth:`SingularityMonitor.ratio`)
+    and the round-off that stopped the Newton iteration (:func:`roundoff_correction`) is the
+    near rank drop's: without the directions that become singular it is within what Newton
+    needs. No tolerance is then the remedy (a looser one only lets IDA come closer).
+    Otherwise the cause is looked for in the linearized modes (undamped stiff modes at BDF
+    order > 2), then the step and the tolerances, and the remedy is named. `local`: the factor
+    between the tolerances asked for and those IDA's error test uses (:data:`phc.simulation.
+    ida.LOCAL_TOLERANCE`); remedies are stated in the former."""
     n = mod.N
     h = max(h_typical, h_fail)
     regular = ""
+    monitor = None
     if n <= DIAGNOSE_MAX and h > 0:
         monitor = SingularityMonitor(mod, p, names=names, scales=scales)
         try:
@@ -595,6 +779,14 @@ def diagnose_failure(mod, p, t, y, yp, *, status: int, h_typical: float, h_fail:
             regular = (f"the iteration matrix F_y + F_ẏ/h is regular there (σ_min/σ_max = {ratio:.1e} at the "
                        f"step h = {h:.1e} the run was taking), so this is not a singular configuration")
     collapse = f"IDA cut the step from h ≈ {h_typical:.1e} to h ≈ {h_fail:.0e}"
+    floor = (roundoff_correction(mod, p, t, y, yp, h_typical, rtol * local, atol * local, scales=scales)
+             if h_typical > 0 else None)
+    if monitor is not None and regular and floor is not None and floor[0] > ROUND_OFF_WRMS:
+        ahead = _heading_for_singularity(monitor, t, y, yp, h_typical, ratio, floor, rtol * local, atol * local,
+                                         scales)
+        if ahead is not None:
+            return f"{ahead}. {collapse}: {AHEAD_ROUND_OFF}" + (
+                f"; {AHEAD_PASS}" if monitor.positional else "") + "; results up to this time are kept"
     try:
         omegas, near = _fastest_undamped(mod, p, t, y, yp, h_typical)
     except (ArithmeticError, ValueError, TypeError, np.linalg.LinAlgError, ModelEvaluationError):
@@ -610,8 +802,6 @@ def diagnose_failure(mod, p, t, y, yp, *, status: int, h_typical: float, h_fail:
         modes_remedy = ("`max_order: 2` (A-stable BDF2 keeps undamped modes bounded at any step; in a scene "
                         "`accuracy: {max_order: 2}`), or `solver: midpoint` (structure preserving), or damp or "
                         "remove the high modes (a `damping` coefficient, a coarser mesh, `modes: k`)")
-    floor = (roundoff_correction(mod, p, t, y, yp, h_typical, rtol * local, atol * local, scales=scales)
-             if h_typical > 0 else None)
     if floor is not None and floor[0] > ROUND_OFF_WRMS:
         wrms, name, noise, tol = floor
         s_name = 1.0 if scales is None else float(scales[list(mod.VARIABLES).index(name)])
@@ -673,8 +863,7 @@ def unbounded_growth(mod, t, y, yp, *, start=None, scales=None) -> Optional[str]
     or its Newton iteration fails once a step multiplies the state's size): the remedy is in the
     model, not in the solver's settings."""
     y, yp = np.asarray(y, dtype=float), np.asarray(yp, dtype=float)
-    # the states (not the energy supplied, which integrates their power)
-    diff = np.asarray(mod.DIFFERENTIAL, dtype=bool) & (np.asarray(mod.VARIABLES) != "energy.supplied")
+    diff = state_mask(mod)
     n = len(y)
     ref = np.ones(n) if scales is None else np.abs(np.asarray(scales, dtype=float))
     t0, y0, yp0 = (None, np.zeros(n), np.zeros(n)) if start is None else (

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 import phc
-from phc.simulation.monitor import diagnose_failure, undamped_modes
+from phc.simulation.monitor import describe_equations, diagnose_failure, undamped_modes
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -94,6 +94,64 @@ def test_a_singular_iteration_matrix_is_named(tmp_path):
                                rtol=1e-10, atol=1e-12)
     assert "singular configuration" in message and "not a singular" not in message
     assert "pendulum.constraints[0]" in message
+
+
+OMEGA = 150.0
+"""Crank speed of models/rigid_slider_crank.yaml [rad/s], imposed by its flow source: θ = ωt."""
+
+
+def _folding_crank_state(delta):
+    """The rigid slider–crank with L = r (the rod folds onto the crank at θ = π/2, where the two
+    pins' vertical constraints become dependent) a crank angle `delta` before the fold, from
+    the midpoint rule (2000 steps): (module, parameters, t, y, ẏ, nominal scales)."""
+    from phc.simulation import parameter_vector
+    from phc.simulation.scaling import nominal_scales
+
+    compiled = phc.compile_model(REPO / "models" / "rigid_slider_crank.yaml", certify=False)
+    mod = compiled.module
+    t_end = (np.pi / 2 - delta) / OMEGA
+    r = phc.simulate(compiled, params={"L": 0.15}, solver="midpoint", step=t_end / 2000, t_end=t_end, n_out=3)
+    assert r.success, r.message
+    p = parameter_vector(mod, {"L": 0.15})
+    scales = nominal_scales(mod, p, r.y[0], r.yp[0], span=2 * t_end)
+    return compiled, mod, p, float(r.t[-1]), np.asarray(r.y[-1]), np.asarray(r.yp[-1]), scales
+
+
+@pytest.mark.parametrize("delta", [1e-2, 3e-3])
+def test_a_rank_drop_ahead_is_named_with_its_time(delta):
+    """IDA at tight tolerances fails a little before a rank drop, where the iteration matrix
+    is still regular (σ_min/σ_max 5e-9 at 0.01 rad before the fold, at h = 1e-6): round-off
+    amplified along the direction that becomes singular moves the Newton correction beyond
+    the tolerance. The diagnosis used to call it "not a singular configuration" and ask for a
+    larger atol, which only lets IDA come closer. Now it names the rank drop ahead, its time
+    — the closed form t* = π/(2ω), reached exactly by the linear extrapolation since θ = ωt
+    and the rod's angle −θ are linear in t — and no tolerance remedy."""
+    compiled, mod, p, t, y, yp, scales = _folding_crank_state(delta)
+    message = diagnose_failure(mod, p, t, y, yp, status=-4, h_typical=1e-6, h_fail=1e-20, max_order=5,
+                               rtol=1e-12, atol=1e-14, names=describe_equations(compiled), scales=scales)
+    assert re.search(r"stopped at t = [0-9.e+-]+ near a singular configuration", message), message
+    assert "not a singular" not in message and "Remedy" not in message and "atol ≥" not in message
+    assert "connection `crank.pin — rod.a`" in message and "connection `rod.b — slider.pin`" in message
+    ahead = float(re.search(r"at t ≈ ([0-9.e+-]+), [0-9.e+-]+ s ahead", message).group(1))
+    t_fold = np.pi / 2 / OMEGA
+    # printed to 6 digits (1e-7 s here); the search brackets the minimum to 1e-4 of τ (< 1e-8 s)
+    assert abs(ahead - t_fold) <= 1.5e-7, (ahead, t_fold)
+
+
+def test_a_rank_drop_ahead_is_not_blamed_for_what_it_does_not_cause():
+    """Far from the fold (θ = π/4) the same tolerances give no singular configuration; near it,
+    with atol = 1e-20 below the round-off of every direction (not only the one that becomes
+    singular), the tolerances are the cause, and the remedy is named."""
+    compiled, mod, p, t, y, yp, scales = _folding_crank_state(np.pi / 4)
+    names = describe_equations(compiled)
+    far = diagnose_failure(mod, p, t, y, yp, status=-4, h_typical=1e-6, h_fail=1e-20, max_order=5,
+                           rtol=1e-12, atol=1e-14, names=names, scales=scales)
+    assert "not a singular configuration" in far and "near a singular configuration" not in far
+    compiled, mod, p, t, y, yp, scales = _folding_crank_state(1e-2)
+    tight = diagnose_failure(mod, p, t, y, yp, status=-4, h_typical=1e-6, h_fail=1e-20, max_order=5,
+                             rtol=1e-15, atol=1e-20, names=names, scales=scales)
+    assert "near a singular configuration" not in tight
+    assert "more than double precision" in tight and "Remedy: atol ≥" in tight
 
 
 REST = """

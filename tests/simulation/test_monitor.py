@@ -130,3 +130,26 @@ def test_the_history_keeps_its_reach_while_a_solver_crawls():
     assert len(times) == HISTORY and times == sorted(times)
     assert times[-1] == 1e-3 * (HISTORY - 1) + 1e-9 * 1000
     assert times[0] <= 0.5 * times[-1]  # the approach is still in the window
+
+
+def test_the_history_follows_a_solver_that_looks_often_for_long():
+    """64 looks a millisecond apart, then 10 000 a microsecond apart over 10 ms (a solver on short
+    steps all the way to a failure, the folding slider–crank's IDA run): the window advances
+    with them. It used to keep the look at 63 ms and the newest one, 10 ms later, and nothing of
+    the 10 ms between — where the conditioning fell, which the failure's diagnosis compares."""
+    from collections import deque
+
+    from phc.simulation.monitor import HISTORY, SingularityMonitor
+
+    monitor = SingularityMonitor.__new__(SingularityMonitor)
+    monitor.history = deque(maxlen=HISTORY)
+    for k in range(HISTORY):
+        monitor._remember((1e-3 * k, None, None))
+    last = 1e-3 * (HISTORY - 1)
+    for k in range(10_000):
+        monitor._remember((last + 1e-6 * (k + 1), None, None))
+    times = np.array([look[0] for look in monitor.history])
+    assert len(times) == HISTORY and np.all(np.diff(times) > 0) and times[-1] == last + 1e-2
+    assert times[0] >= last  # looks coming at one pace, the window is theirs
+    # the look before the newest is near it (it was 10 ms back, 14 % of the window's reach)
+    assert times[-1] - times[-2] <= 0.05 * (times[-1] - times[0])
