@@ -330,29 +330,6 @@ class Unshareable(Exception):
 _REAL = sp.Symbol("x", real=True).assumptions0
 
 
-def _real_symbol_maker() -> Callable[[str], sp.Symbol]:
-    """``name -> Symbol(name, real=True)`` for the renamed instances: sympy's own
-    constructor without its cache (``Symbol.__xnew__``, what ``Symbol`` calls on a miss of the
-    cache, as ``Dummy`` does), when this sympy has it and it makes the same symbol. Every name
-    of an instance is new, so the cache only missed and, full, evicted entries sympy reuses:
-    measured 16 µs a symbol through it, 6 µs without (80 000 symbols on the chain of 10⁴
-    components of issue 38). Symbols are compared by name and assumptions, never by identity
-    (the cache keeps only the last thousand). Falls back to ``Symbol`` otherwise."""
-    make = getattr(sp.Symbol, "__xnew__", None)
-    if make is not None:
-        try:
-            probe = make(sp.Symbol, "phc.probe", real=True)
-            if (type(probe) is sp.Symbol and probe == sp.Symbol("phc.probe", real=True)
-                    and probe.assumptions0 == _REAL and hash(probe) == hash(sp.Symbol("phc.probe", real=True))):
-                return lambda name: make(sp.Symbol, name, real=True)
-        except Exception:  # noqa: BLE001 - any surprise: the public constructor
-            pass
-    return lambda name: sp.Symbol(name, real=True)
-
-
-_real_symbol = _real_symbol_maker()
-
-
 class _Template:
     """The lowering of component `old`, compiled once into a list of steps that build the
     same value for another component's name: every name of `old` (its variables, ports,
@@ -486,7 +463,6 @@ class _Template:
             last = now
         vals = list(self.values)
         new_object = object.__new__
-        symbol = _real_symbol
         for slot, kind, data in self.steps:  # the most frequent kinds first
             if kind == "seq":
                 t, items = data
@@ -500,7 +476,7 @@ class _Template:
                 t, items = data
                 vals[slot] = t(**{f: vals[a] for f, a in items})
             elif kind == "sym":
-                vals[slot] = symbol(renamed(data))
+                vals[slot] = sp.Symbol(renamed(data), real=True)
             elif kind == "str":
                 vals[slot] = renamed(data)
             elif kind == "assoc":
