@@ -37,6 +37,7 @@ import scipy.sparse as sps
 from phc.errors import SimulationSetupError
 from phc.simulation.backend import BackendRun
 from phc.simulation.guard import CATCH, GuardedModule, ModelEvaluationError
+from phc.simulation.ida_bridge import Bridges
 from phc.simulation.scaling import promise_scales
 from phc.simulation.monitor import SingularityMonitor, check_scales, diagnose_failure, unbounded_growth
 from phc.simulation.order import RECENT_STEPS, OrderChoice, Switch, after_step
@@ -374,6 +375,32 @@ def _approaching_singularity(monitor, h, how: str = "Newton's iteration failed b
             f"{how}; {warning}")
 
 
+NEAR_DROP = 1e-4
+"""A failed IDA run whose iteration matrix at its last normal state is conditioned below this,
+weakest in the position constraints, tries a bridge: the N = 1 four-bar failed at 2e-6, 0.03 s
+before a passage, after the monitor's history was cleared by the restart after the one before."""
+
+
+def _near_rank_drop(monitor, t, y, yp, h) -> bool:
+    """Whether (t, y, ẏ) lies near a rank drop of the position constraints: the iteration matrix
+    at the step h conditioned below :data:`NEAR_DROP`, its weakest direction mostly in two or
+    more position-constraint rows. What lets a failed IDA run try a bridge
+    (:mod:`phc.simulation.ida_bridge`), whose own check decides whether the motion passes."""
+    if not monitor.enabled or not h > 0:
+        return False
+    saved, monitor.threshold = monitor.threshold, NEAR_DROP
+    try:
+        ratio, u = monitor._ratio_at(t, y, yp, max(h, monitor.h_floor))
+    except (ModelEvaluationError, *CATCH, np.linalg.LinAlgError):
+        return False
+    finally:
+        monitor.threshold = saved
+    if u is None:
+        return False
+    rows, _ = monitor.dependent(u)
+    return len(set(rows) & set(getattr(monitor.mod, "INVARIANTS", ()))) >= 2
+
+
 def _next_cadence(cadence: int, base: int, before: Optional[float], ratio: Optional[float]) -> int:
     """Steps until the monitor's next look: 1.5× longer (up to :data:`LOOK_STRETCH`× `base`)
     when the ratio moved less than :data:`FLAT_DECADES` since the last look and stays above
@@ -414,10 +441,11 @@ class _Stop(Exception):
     """Raised by :class:`_StepHook` inside IDA's step loop to end a run for a reason phc
     gives (`message`): the monitor's singular configuration, ``max_steps``."""
 
-    def __init__(self, message: str, max_steps: bool = False):
+    def __init__(self, message: str, max_steps: bool = False, rank_drop: bool = False):
         super().__init__(message)
         self.message = message
         self.max_steps = max_steps  # the run used up `max_steps`
+        self.rank_drop = rank_drop  # crawling near a rank drop of the position constraints (a bridge may pass it)
 
 
 class _StepHook:
@@ -553,6 +581,9 @@ class _StepHook:
             if approach is not None:
                 warning = approach
                 monitor.stop_time = t
+            elif _near_rank_drop(monitor, t, y, yp, self.h_ref):  # no fall to read (a restart cleared the looks)
+                raise _Stop(f"IDA's steps shrank to {h:.1e} s at t = {t:.6g}, near a rank drop of the position "
+                            "constraints", rank_drop=True)
         if warning:
             raise _Stop(warning)
         ratio = monitor._looks[-1][-1] if monitor._looks else None
@@ -669,6 +700,26 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
     k, ok, message = 1, True, "integration finished"
     event = None
     interrupted = used_up = False
+    bridges = Bridges(mod, p, t_out, names=names, nominal=nominal, events=events, hook=hook, monitor=monitor)
+
+    def bridge_over(before=None):
+        """The rank drop IDA stopped at bridged (:mod:`phc.simulation.ida_bridge`) and IDA
+        restarted after it: the next output index, or None (the run stops)."""
+        crossed = bridges.cross(max_steps - hook.steps, before)
+        if crossed is None:
+            return None
+        k_next, t_b, y_b, yp_b = crossed
+        for i, (ti, yi, ypi) in enumerate(zip(*bridges.last_outputs)):
+            ys[k_next - len(bridges.last_outputs[0]) + i], yps[k_next - len(bridges.last_outputs[0]) + i] = yi, ypi
+        if t_b < t_end:
+            init = solver.init_step(t_b, y_b, yp_b)  # IDAReInit through scikit-sundae's public interface
+            if not init.success:
+                bridges.note = f"IDA could not restart after the bridge at t = {t_b:.6g}: {init.message}"
+                return None
+            hook.rewind(t_b, y_b, yp_b)
+            hook.evaluations_seen = calls.evaluations
+        return k_next
+
     try:  # a model function outside its domain, a stop, Ctrl-C: keep the outputs filled so far
         while k < len(t_out):
             hook.start_call(t_out[k])
@@ -678,11 +729,25 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
                 solver, init = restart(switch)
                 max_order = choice.order
                 k = 1 if switch.rewind else k
+                if switch.rewind:
+                    bridges.forget()
                 hook.evaluations_seen = calls.evaluations
                 if not init.success:
                     ok, message = False, f"IDA could not go on at max_order {choice.order} at t = {switch.t:.6g}: " \
                         f"{init.message}"
                     break
+                continue
+            except _Stop as stop:  # the monitor's warning: a rank drop of the position constraints is bridged
+                if stop.max_steps or not (monitor.positional or stop.rank_drop):
+                    raise
+                k_next = bridge_over(monitor.stop_time)
+                if k_next is None:
+                    raise _Stop(bridges.with_note(stop.message)) from None
+                if bridges.event is not None:
+                    event = bridges.event
+                    k = k_next
+                    break
+                k = k_next
                 continue
             status, t_now = int(res.status), float(res.t)
             if status < 0:
@@ -690,9 +755,25 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
                     raise calls.error
                 ok = False
                 hint = growth() or _STATUS_HINTS.get(status)
+                monitor.positional = False
                 approach = _approaching_singularity(monitor, hook.h_ref) if hint is None else None
+                positional = approach is not None and monitor.positional
                 if approach is None and hint is None:  # a rank drop ahead, not yet near: no tolerance is the remedy
                     approach = _approaching_singularity(monitor, hook.h_ref, AHEAD, far=1.0, positional=True)
+                    positional = approach is not None
+                if hint is None and not positional:  # the looks since a restart may be too few to show the fall
+                    h_look = hook.h_ref or bridges.h_ida  # (0 when IDA failed right after a restart)
+                    positional = any(_near_rank_drop(monitor, *state, h_look) for state in (hook.latest(), hook.normal))
+                if positional:  # bridged by the midpoint rule when the motion passes it
+                    k_next = bridge_over()
+                    if k_next is not None:
+                        ok = True
+                        k = k_next
+                        if bridges.event is not None:
+                            event = bridges.event
+                            break
+                        continue
+                    approach = bridges.with_note(approach)
                 if approach is not None:
                     hint = approach
                 elif hint is None:  # diagnose before blaming: is the iteration matrix singular there?
@@ -732,8 +813,10 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
     if note:
         message = f"{message}; {note}"
     # the callbacks' counts: scikit-sundae's (res.nfev, res.njev) are lost with a call that raises
-    return BackendRun(t_out[:k], ys[:k], yps[:k], steps=hook.steps, nfev=calls.evaluations, njev=calls.jacobians,
-                      success=ok, event=event,
+    if bridges.records:
+        message = f"{message}; {bridges.notice()}"
+    return BackendRun(t_out[:k], ys[:k], yps[:k], steps=hook.steps, nfev=calls.evaluations + bridges.nfev,
+                      njev=calls.jacobians, success=ok, event=event, events=bridges.events(),
                       message=message, cpu=time.process_time() - start, conditioning=monitor.worst,
                       interrupted=interrupted, extra=dict(max_steps_reached=used_up, t_reached=hook.t_last,
                                                           max_order=choice.order, order_note=choice.note(),

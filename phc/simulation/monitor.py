@@ -265,9 +265,16 @@ class SingularityMonitor:
                 fd, ud = f(d)
         return None
 
-    def _message(self, t, ratio, u, threshold) -> str:
+    def dependent(self, u) -> tuple[list, list]:
+        """(equations, connections) that become dependent along the left singular vector `u` of
+        the smallest singular value: the rows with the largest weights in it, and the connections
+        they belong to (from ``names``)."""
         culprits = [self.mod.EQUATIONS[i] for i in np.argsort(-np.abs(u))[:4] if abs(u[i]) > 0.1]
         connections = sorted({self.names[c].split(" row ")[0] for c in culprits if c in self.names})
+        return culprits, connections
+
+    def _message(self, t, ratio, u, threshold) -> str:
+        culprits, connections = self.dependent(u)
         where = f" at {', '.join(connections)}" if connections else ""
         positional = [c for c in culprits if c in set(getattr(self.mod, "INVARIANTS", ()))]
         self.positional = len(positional) >= 2
