@@ -40,23 +40,27 @@ from phc.errors import InconsistentInitialError
 from phc.simulation.guard import CATCH, ModelEvaluationError
 from phc.simulation.initial import consistent_initial_conditions
 
-PIECE_STEPS = 1
+PIECE_STEPS = 16
 """Midpoint steps between two looks at the conditioning (whether the bridge may end, where it is
 lowest: the time and configuration the run reports)."""
-RECOVERY = 10.0
+RECOVERY = 2.0
 """The bridge ends once the conditioning of IDA's iteration matrix (σ_min/σ_max, equilibrated,
 at IDA's recent step) has risen to this many times its value where the bridge began, past its
 minimum, and it is as far past the minimum as it began before it. IDA began to fail on
 round-off at that value on its way in; a decade lets it restart clear of it."""
-STEP_FRACTION = 0.1
-"""The bridge's step: this fraction of IDA's recent step. The midpoint rule is of order 2, and
-its error in the phase of the motion stays after the bridge: at IDA's own step (1e-3 to 2.4e-3 s
-on the N = 1 four-bar) the crank angle was off by 1.7e-4 rad after six passages."""
+STEP_FRACTIONS = (0.25, 0.5, 1.0)
+"""The bridge's steps, as fractions of IDA's recent step, tried in this order until one passes.
+The midpoint rule is of order 2, and its error in the phase of the motion stays after the
+bridge: at IDA's own step (1e-3 to 2.4e-3 s on the N = 1 four-bar) the crank angle was off by
+1.7e-4 rad after six passages. But a short step does not pass either: where the least-norm
+step's error at the singular instant is not small against a short step's change, one step and
+two half steps disagree (`midpoint` at h = 1e-4 stops at the four-bar's second passage,
+docs/hard-cases.md; a bridge at a tenth of IDA's step stopped at its sixth)."""
 MIN_STEPS = 8
 """Fewest midpoint steps of a bridge beyond its lowest conditioning (a bridge that begins at the
 singular instant, which the monitor located between two looks after IDA had passed it, still
 carries IDA clear of it)."""
-MAX_STEPS = 5000
+MAX_STEPS = 20000
 """Most midpoint steps of one bridge: a window that does not recover by then is not an
 isolated rank drop."""
 RETRIES = 3
@@ -223,9 +227,8 @@ class Bridges:
             if earlier:
                 t_n, y_n, yp_n = earlier[-1]
         self.h_ida = hook.h_ref or self.h_ida  # (0 when IDA failed right after a restart: the last bridge's)
-        h = STEP_FRACTION * self.h_ida
         self.note, self.event = None, None
-        if not h > 0 or steps_left <= 0:
+        if not self.h_ida > 0 or steps_left <= 0:
             return None
         min_length = 0.0
         if self._last_end is not None and t_n <= self._last_end:  # IDA took no normal step after the last one
@@ -242,15 +245,22 @@ class Bridges:
         h_look = max(self.h_ida, monitor.h_floor)
         culprits, connections = self._dependent(t_n, y_n, yp_n, h_look)
         first = int(np.searchsorted(self.t_out, t_n, side="right"))
-        done = bridge(self.mod, self.p, (t_n, y_n, yp_n), self.t_out, first, h, names=self.names,
-                      nominal=self.nominal, events=self.watch, max_steps=steps_left,
-                      ratio=lambda t, y, yp: monitor.ratio(t, y, yp, h_look)[0], min_length=min_length)
-        self.steps += done.steps
-        hook.steps += done.steps
-        self.nfev += done.nfev
+        used = 0
+        for fraction in STEP_FRACTIONS:
+            h = fraction * self.h_ida
+            done = bridge(self.mod, self.p, (t_n, y_n, yp_n), self.t_out, first, h, names=self.names,
+                          nominal=self.nominal, events=self.watch, max_steps=steps_left - used,
+                          ratio=lambda t, y, yp: monitor.ratio(t, y, yp, h_look)[0], min_length=min_length)
+            used += done.steps
+            self.steps += done.steps
+            hook.steps += done.steps
+            self.nfev += done.nfev
+            if done.ok:
+                break
         if not done.ok:
-            self.note = (f"a bridge by the midpoint rule from t = {t_n:.6g} (its rank-drop check, one step against "
-                         f"two half steps, as `--solver midpoint` runs it) did not pass either: {done.message}")
+            self.note = (f"bridges by the midpoint rule from t = {t_n:.6g} at {', '.join(f'{f:g}' for f in STEP_FRACTIONS)} "
+                         f"times IDA's step ({self.h_ida:.2g} s; their rank-drop check, one step against two half "
+                         f"steps, as `--solver midpoint` runs it) did not pass either; at the last: {done.message}")
             return None
         self.last_outputs = (done.t, done.y, done.yp)
         k_next = first + len(done.t)
@@ -297,7 +307,6 @@ class Bridges:
         listed = "; ".join(f"t = {e.t:.6g} ({e.condition[len('rank drop of the position constraints at '):]}; "
                            f"{shown})" for e, shown, *_ in self.records[:4])
         more = f"; … {len(self.records) - 4} more" if len(self.records) > 4 else ""
-        return (f"IDA passed {len(self.records)} rank drop(s) of the position constraints' Jacobian, each bridged "
-                f"by the implicit midpoint rule ({self.steps} steps in all, at IDA's recent step; the motion through "
+        return (f"IDA passed {len(self.records)} rank drop(s) of the position constraints' Jacobian,                 f"by the implicit midpoint rule ({self.steps} steps in all, at IDA's recent step; the motion through "
                 f"it checked by one step against two half steps, as `--solver midpoint` does) and restarted after it: "
                 f"{listed}{more}")
