@@ -307,6 +307,7 @@ class Bridges:
         listed = "; ".join(f"t = {e.t:.6g} ({e.condition[len('rank drop of the position constraints at '):]}; "
                            f"{shown})" for e, shown, *_ in self.records[:4])
         more = f"; … {len(self.records) - 4} more" if len(self.records) > 4 else ""
-        return (f"IDA passed {len(self.records)} rank drop(s) of the position constraints' Jacobian,                 f"by the implicit midpoint rule ({self.steps} steps in all, at IDA's recent step; the motion through "
-                f"it checked by one step against two half steps, as `--solver midpoint` does) and restarted after it: "
-                f"{listed}{more}")
+        return (f"IDA passed {len(self.records)} rank drop(s) of the position constraints' Jacobian, each bridged "
+                f"by the implicit midpoint rule ({self.steps} steps in all, at {', '.join(f'{f:g}' for f in STEP_FRACTIONS)} "
+                f"times IDA's recent step, the first that passed; the motion through it checked by one step against "
+                f"two half steps, as `--solver midpoint` does) and restarted after it: {listed}{more}")
