@@ -761,6 +761,7 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
                 if approach is None and hint is None:  # a rank drop ahead, not yet near: no tolerance is the remedy
                     approach = _approaching_singularity(monitor, hook.h_ref, AHEAD, far=1.0, positional=True)
                     positional = approach is not None
+                positional = positional or bridges.restarted_at(hook.normal[0])  # IDA failed restarting after one
                 if hint is None and not positional:  # the looks since a restart may be too few to show the fall
                     h_look = hook.h_ref or bridges.h_ida  # (0 when IDA failed right after a restart)
                     positional = any(_near_rank_drop(monitor, *state, h_look) for state in (hook.latest(), hook.normal))

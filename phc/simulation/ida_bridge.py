@@ -209,6 +209,11 @@ class Bridges:
         """The run starts again from its start (another maximum order): no bridge was taken."""
         self.records, self._last_end, self._in_a_row = [], None, 0
 
+    def restarted_at(self, t: float) -> bool:
+        """Whether `t` (IDA's last normal state) is the last bridge's end: IDA took no normal step
+        after it, and the bridge is tried again longer (:data:`RETRIES`)."""
+        return self._last_end is not None and t <= self._last_end
+
     def with_note(self, message: Optional[str]) -> Optional[str]:
         """`message` with why the last bridge failed, if one was tried."""
         if self.note is None:
