@@ -195,7 +195,7 @@ def _summary_text(name: str, result) -> str:
 
 def _event_text(e: dict) -> str:
     what = {"stick": "sticks", "slip": "slips " + ("+" if e["direction"] > 0 else "−"),
-            "impact": "impact"}.get(e["kind"])
+            "impact": "impact", "passage": "passed (IDA bridged by the midpoint rule)"}.get(e["kind"])
     if what is None:
         what = (("turns true" if e["direction"] > 0 else "turns false") if e.get("comparison")
                 else "rising" if e["direction"] > 0 else "falling")
