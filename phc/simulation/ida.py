@@ -12,7 +12,8 @@ through a root function that never vanishes (:class:`_StepHook`): the step count
 which scikit-sundae does not report otherwise, are exact; the singularity monitor looks at
 the states every few steps; `max_steps` is honoured exactly; progress is reported. Ctrl-C
 (a ``KeyboardInterrupt`` raised in a callback or between calls) and any failure keep the
-outputs computed before it.
+outputs computed before it. A rank drop of the position constraints that IDA stops at is
+bridged by the midpoint rule, and IDA restarted after it (:mod:`phc.simulation.ida_bridge`).
 
 What this costs: scikit-sundae builds a result object and copies the state after each
 call, and wraps IDA's vectors in NumPy arrays at each residual, Jacobian and root-function
@@ -37,7 +38,7 @@ import scipy.sparse as sps
 from phc.errors import SimulationSetupError
 from phc.simulation.backend import BackendRun
 from phc.simulation.guard import CATCH, GuardedModule, ModelEvaluationError
-from phc.simulation.ida_bridge import Bridges
+from phc.simulation.ida_bridge import Bridges, near_rank_drop
 from phc.simulation.scaling import promise_scales
 from phc.simulation.monitor import SingularityMonitor, check_scales, diagnose_failure, unbounded_growth
 from phc.simulation.order import RECENT_STEPS, OrderChoice, Switch, after_step
@@ -375,32 +376,6 @@ def _approaching_singularity(monitor, h, how: str = "Newton's iteration failed b
             f"{how}; {warning}")
 
 
-NEAR_DROP = 1e-4
-"""A failed IDA run whose iteration matrix at its last normal state is conditioned below this,
-weakest in the position constraints, tries a bridge: the N = 1 four-bar failed at 2e-6, 0.03 s
-before a passage, after the monitor's history was cleared by the restart after the one before."""
-
-
-def _near_rank_drop(monitor, t, y, yp, h) -> bool:
-    """Whether (t, y, ẏ) lies near a rank drop of the position constraints: the iteration matrix
-    at the step h conditioned below :data:`NEAR_DROP`, its weakest direction mostly in two or
-    more position-constraint rows. What lets a failed IDA run try a bridge
-    (:mod:`phc.simulation.ida_bridge`), whose own check decides whether the motion passes."""
-    if not monitor.enabled or not h > 0:
-        return False
-    saved, monitor.threshold = monitor.threshold, NEAR_DROP
-    try:
-        ratio, u = monitor._ratio_at(t, y, yp, max(h, monitor.h_floor))
-    except (ModelEvaluationError, *CATCH, np.linalg.LinAlgError):
-        return False
-    finally:
-        monitor.threshold = saved
-    if u is None:
-        return False
-    rows, _ = monitor.dependent(u)
-    return len(set(rows) & set(getattr(monitor.mod, "INVARIANTS", ()))) >= 2
-
-
 def _next_cadence(cadence: int, base: int, before: Optional[float], ratio: Optional[float]) -> int:
     """Steps until the monitor's next look: 1.5× longer (up to :data:`LOOK_STRETCH`× `base`)
     when the ratio moved less than :data:`FLAT_DECADES` since the last look and stays above
@@ -581,7 +556,7 @@ class _StepHook:
             if approach is not None:
                 warning = approach
                 monitor.stop_time = t
-            elif _near_rank_drop(monitor, t, y, yp, self.h_ref):  # no fall to read (a restart cleared the looks)
+            elif near_rank_drop(monitor, t, y, yp, self.h_ref):  # no fall to read (a restart cleared the looks)
                 raise _Stop(f"IDA's steps shrank to {h:.1e} s at t = {t:.6g}, near a rank drop of the position "
                             "constraints", rank_drop=True)
         if warning:
@@ -764,7 +739,7 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
                 positional = positional or bridges.restarted_at(hook.normal[0])  # IDA failed restarting after one
                 if hint is None and not positional:  # the looks since a restart may be too few to show the fall
                     h_look = hook.h_ref or bridges.h_ida  # (0 when IDA failed right after a restart)
-                    positional = any(_near_rank_drop(monitor, *state, h_look) for state in (hook.latest(), hook.normal))
+                    positional = any(near_rank_drop(monitor, *state, h_look) for state in (hook.latest(), hook.normal))
                 if positional:  # bridged by the midpoint rule when the motion passes it
                     k_next = bridge_over()
                     if k_next is not None:

@@ -68,6 +68,32 @@ RETRIES = 3
 (each doubles the bridge's minimum length)."""
 
 
+NEAR_DROP = 1e-4
+"""A failed IDA run whose iteration matrix at its last normal state is conditioned below this,
+weakest in the position constraints, tries a bridge: the N = 1 four-bar failed at 2e-6, 0.03 s
+before a passage, after the monitor's history was cleared by the restart after the one before."""
+
+
+def near_rank_drop(monitor, t, y, yp, h) -> bool:
+    """Whether (t, y, ẏ) lies near a rank drop of the position constraints: the iteration matrix
+    at the step h conditioned below :data:`NEAR_DROP`, its weakest direction mostly in two or
+    more position-constraint rows. What lets a failed IDA run try a bridge
+    (:func:`bridge`), whose own check decides whether the motion passes."""
+    if not monitor.enabled or not h > 0:
+        return False
+    saved, monitor.threshold = monitor.threshold, NEAR_DROP
+    try:
+        ratio, u = monitor._ratio_at(t, y, yp, max(h, monitor.h_floor))
+    except (ModelEvaluationError, *CATCH, np.linalg.LinAlgError):
+        return False
+    finally:
+        monitor.threshold = saved
+    if u is None:
+        return False
+    rows, _ = monitor.dependent(u)
+    return len(set(rows) & set(getattr(monitor.mod, "INVARIANTS", ()))) >= 2
+
+
 @dataclass
 class Bridge:
     """What one bridge did: ``ok``; its outputs (``t``, ``y``, ``yp`` at the run's output times
