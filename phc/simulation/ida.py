@@ -677,10 +677,10 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
     interrupted = used_up = False
     bridges = Bridges(mod, p, t_out, names=names, nominal=nominal, events=events, hook=hook, monitor=monitor)
 
-    def bridge_over(before=None):
+    def bridge_over(before=None, origin=None):
         """The rank drop IDA stopped at bridged (:mod:`phc.simulation.ida_bridge`) and IDA
         restarted after it: the next output index, or None (the run stops)."""
-        crossed = bridges.cross(max_steps - hook.steps, before)
+        crossed = bridges.cross(max_steps - hook.steps, before, origin)
         if crossed is None:
             return None
         k_next, t_b, y_b, yp_b = crossed
@@ -715,9 +715,10 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
             except _Stop as stop:  # the monitor's warning: a rank drop of the position constraints is bridged
                 if stop.max_steps or not (monitor.positional or stop.rank_drop):
                     raise
-                k_next = bridge_over(monitor.stop_time)
+                k_next = bridge_over(monitor.stop_time, origin=(k, stop.message))
                 if k_next is None:
-                    raise _Stop(bridges.with_note(stop.message)) from None
+                    k, given_up = bridges.give_up(k, stop.message)
+                    raise _Stop(given_up) from None
                 if bridges.event is not None:
                     event = bridges.event
                     k = k_next
@@ -740,16 +741,6 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
                 if hint is None and not positional:  # the looks since a restart may be too few to show the fall
                     h_look = hook.h_ref or bridges.h_ida  # (0 when IDA failed right after a restart)
                     positional = any(near_rank_drop(monitor, *state, h_look) for state in (hook.latest(), hook.normal))
-                if positional:  # bridged by the midpoint rule when the motion passes it
-                    k_next = bridge_over()
-                    if k_next is not None:
-                        ok = True
-                        k = k_next
-                        if bridges.event is not None:
-                            event = bridges.event
-                            break
-                        continue
-                    approach = bridges.with_note(approach)
                 if approach is not None:
                     hint = approach
                 elif hint is None:  # diagnose before blaming: is the iteration matrix singular there?
@@ -759,6 +750,16 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
                                             max_order=max_order, rtol=rtol, atol=atol, names=names,
                                             scales=nominal, local=local)
                 message = f"IDA failed at t = {t_now:.6g} (status {status}: {res.message}); {hint}"
+                if positional:  # bridged by the midpoint rule when the motion passes it
+                    k_next = bridge_over(origin=(k, message))
+                    if k_next is not None:
+                        ok = True
+                        k = k_next
+                        if bridges.event is not None:
+                            event = bridges.event
+                            break
+                        continue
+                    k, message = bridges.give_up(k, message)
                 break
             if status == IDA_ROOT_RETURN and res.i_events is not None:  # a switching function hit 0
                 event = dict(t=t_now, y=np.array(res.y), yp=np.array(res.yp),

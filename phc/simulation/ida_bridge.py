@@ -228,6 +228,7 @@ class Bridges:
         self._last_end: Optional[float] = None
         self._last_length = 0.0
         self._in_a_row = 0
+        self._origin, self._streak = None, 0
         self.h_ida = 0.0
         """IDA's recent step at the last bridge."""
 
@@ -246,7 +247,16 @@ class Bridges:
             return message
         return f"{message}; {self.note}" if message else self.note
 
-    def cross(self, steps_left: int, before: Optional[float] = None):
+    def give_up(self, k: int, message: str) -> tuple[int, str]:
+        """(output index, message) of a run that stops: where bridges in a row did not let IDA go
+        on, the stop where the first of them began — its outputs and diagnosis; the passage
+        is not reported as passed — with why; else `k` and `message` with the last bridge's note."""
+        if self._in_a_row and self._origin is not None:
+            (k0, message0), self.records = self._origin, self.records[:self._streak]
+            return k0, self.with_note(message0)
+        return k, self.with_note(message)
+
+    def cross(self, steps_left: int, before: Optional[float] = None, origin=None):
         """Bridge from the hook's last normal state (or, where that is past `before`, the time of
         the singular configuration the monitor located between its looks, from its last look
         before it): ``(k_next, t, y, ẏ)`` — the next output index and IDA's consistent restart —
@@ -273,6 +283,7 @@ class Bridges:
             self.records.pop()  # the same passage, bridged again longer
         else:
             self._in_a_row = 0
+            self._origin, self._streak = origin, len(self.records)  # what stops the run if IDA cannot go on
         h_look = max(self.h_ida, monitor.h_floor)
         culprits, connections = self._dependent(t_n, y_n, yp_n, h_look)
         first = int(np.searchsorted(self.t_out, t_n, side="right"))
