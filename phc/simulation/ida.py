@@ -38,7 +38,7 @@ import scipy.sparse as sps
 from phc.errors import SimulationSetupError
 from phc.simulation.backend import BackendRun
 from phc.simulation.guard import CATCH, GuardedModule, ModelEvaluationError
-from phc.simulation.ida_bridge import Bridges, near_rank_drop
+from phc.simulation.ida_bridge import NEAR_DROP, Bridges, near_rank_drop
 from phc.simulation.scaling import promise_scales
 from phc.simulation.monitor import SingularityMonitor, check_scales, diagnose_failure, unbounded_growth
 from phc.simulation.order import RECENT_STEPS, OrderChoice, Switch, after_step
@@ -557,8 +557,10 @@ class _StepHook:
                 warning = approach
                 monitor.stop_time = t
             elif near_rank_drop(monitor, t, y, yp, self.h_ref):  # no fall to read (a restart cleared the looks)
-                raise _Stop(f"IDA's steps shrank to {h:.1e} s at t = {t:.6g}, near a rank drop of the position "
-                            "constraints", rank_drop=True)
+                monitor.stop_time = t
+                named = monitor.check(t, np.array(y), np.array(yp), self.h_ref, threshold=NEAR_DROP)
+                raise _Stop(f"IDA's steps shrank to {h:.1e} s" + (f"; {named}" if named else
+                            f" at t = {t:.6g}, near a rank drop of the position constraints"), rank_drop=True)
         if warning:
             raise _Stop(warning)
         ratio = monitor._looks[-1][-1] if monitor._looks else None
