@@ -12,8 +12,7 @@ through a root function that never vanishes (:class:`_StepHook`): the step count
 which scikit-sundae does not report otherwise, are exact; the singularity monitor looks at
 the states every few steps; `max_steps` is honoured exactly; progress is reported. Ctrl-C
 (a ``KeyboardInterrupt`` raised in a callback or between calls) and any failure keep the
-outputs computed before it. A rank drop of the position constraints that IDA stops at is
-bridged by the midpoint rule, and IDA restarted after it (:mod:`phc.simulation.ida_bridge`).
+outputs computed before it. A rank drop IDA stops at is bridged (:mod:`phc.simulation.ida_bridge`).
 
 What this costs: scikit-sundae builds a result object and copies the state after each
 call, and wraps IDA's vectors in NumPy arrays at each residual, Jacobian and root-function
@@ -680,14 +679,13 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
     bridges = Bridges(mod, p, t_out, names=names, nominal=nominal, events=events, hook=hook, monitor=monitor)
 
     def bridge_over(before=None, origin=None):
-        """The rank drop IDA stopped at bridged (:mod:`phc.simulation.ida_bridge`) and IDA
-        restarted after it: the next output index, or None (the run stops)."""
+        """The rank drop bridged (:mod:`phc.simulation.ida_bridge`), IDA restarted: the next output index, or None."""
         crossed = bridges.cross(max_steps - hook.steps, before, origin)
         if crossed is None:
             return None
         k_next, t_b, y_b, yp_b = crossed
-        for i, (ti, yi, ypi) in enumerate(zip(*bridges.last_outputs)):
-            ys[k_next - len(bridges.last_outputs[0]) + i], yps[k_next - len(bridges.last_outputs[0]) + i] = yi, ypi
+        for i, (yi, ypi) in enumerate(zip(*bridges.last_outputs[1:]), start=k_next - len(bridges.last_outputs[0])):
+            ys[i], yps[i] = yi, ypi
         if t_b < t_end:
             init = solver.init_step(t_b, y_b, yp_b)  # IDAReInit through scikit-sundae's public interface
             if not init.success:
@@ -721,11 +719,10 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
                 if k_next is None:
                     k, given_up = bridges.give_up(k, stop.message)
                     raise _Stop(given_up) from None
+                k = k_next
                 if bridges.event is not None:
                     event = bridges.event
-                    k = k_next
                     break
-                k = k_next
                 continue
             status, t_now = int(res.status), float(res.t)
             if status < 0:
@@ -741,8 +738,8 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
                     positional = approach is not None
                 positional = positional or bridges.restarted_at(hook.normal[0])  # IDA failed restarting after one
                 if hint is None and not positional:  # the looks since a restart may be too few to show the fall
-                    h_look = hook.h_ref or bridges.h_ida  # (0 when IDA failed right after a restart)
-                    positional = any(near_rank_drop(monitor, *state, h_look) for state in (hook.latest(), hook.normal))
+                    positional = any(near_rank_drop(monitor, *state, hook.h_ref or bridges.h_ida)  # (h_ref 0: restarted)
+                                     for state in (hook.latest(), hook.normal))
                 if approach is not None:
                     hint = approach
                 elif hint is None:  # diagnose before blaming: is the iteration matrix singular there?
@@ -751,10 +748,11 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
                                             h_fail=(1.0 / cj) if cj > 0 else hook.h_last,
                                             max_order=max_order, rtol=rtol, atol=atol, names=names,
                                             scales=nominal, local=local)
-                message = f"IDA failed at t = {t_now:.6g} (status {status}: {res.message}); {hint}"
+                message = failure = f"IDA failed at t = {t_now:.6g} (status {status}: {res.message}); {hint}"
                 if positional:  # bridged by the midpoint rule when the motion passes it
-                    k_next = bridge_over(origin=(k, message))
+                    k_next = bridge_over(origin=(k, failure))
                     if k_next is not None:
+                        message = "integration finished"
                         ok = True
                         k = k_next
                         if bridges.event is not None:
