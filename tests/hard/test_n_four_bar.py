@@ -235,6 +235,7 @@ def test_ida_passes_every_singular_configuration_n1(shipped):
     docs/hard-cases.md): the bridges take at most IDA's step, and IDA keeps H between them."""
     r = phc.simulate(shipped, solver="ida", t_end=10.0, n_out=1001)
     assert r.success, r.message
+    assert r.message.startswith("integration finished"), r.message
     assert r.t[-1] == pytest.approx(10.0)
     theta = r["crank0.theta"]
     passes = horizontal_passes(theta)
