@@ -195,7 +195,8 @@ def _summary_text(name: str, result) -> str:
 
 def _event_text(e: dict) -> str:
     what = {"stick": "sticks", "slip": "slips " + ("+" if e["direction"] > 0 else "−"),
-            "impact": "impact", "close": "closes", "open": "opens"}.get(e["kind"])
+            "impact": "impact", "close": "closes", "open": "opens",
+            "passage": "passed (IDA bridged by the midpoint rule)"}.get(e["kind"])
     if what is None:
         what = (("turns true" if e["direction"] > 0 else "turns false") if e.get("comparison")
                 else "rising" if e["direction"] > 0 else "falling")

@@ -79,8 +79,10 @@ class Event:
     """``time`` (a condition in t, located before the run), ``state`` (located by root
     finding), ``stick`` or ``slip`` (a set-valued sign), ``impact`` (a contact's gap closed:
     `condition` and `equation` name the contact, direction −1), ``close`` (the contact
-    closes: persistent contact, direction 0) and ``open`` (its force fell to zero and it
-    opens, direction +1)."""
+    closes: persistent contact, direction 0), ``open`` (its force fell to zero and it
+    opens, direction +1) and ``passage`` (IDA passed a rank drop of the position
+    constraints, bridged by the midpoint rule: `condition` names the connections, `equation`
+    the constraint rows, direction 0; :mod:`phc.simulation.ida_bridge`)."""
     equation: str = ""
     """The residual row the condition occurs in."""
     comparison: bool = False

@@ -12,7 +12,7 @@ through a root function that never vanishes (:class:`_StepHook`): the step count
 which scikit-sundae does not report otherwise, are exact; the singularity monitor looks at
 the states every few steps; `max_steps` is honoured exactly; progress is reported. Ctrl-C
 (a ``KeyboardInterrupt`` raised in a callback or between calls) and any failure keep the
-outputs computed before it.
+outputs computed before it. A rank drop IDA stops at is bridged (:mod:`phc.simulation.ida_bridge`).
 
 What this costs: scikit-sundae builds a result object and copies the state after each
 call, and wraps IDA's vectors in NumPy arrays at each residual, Jacobian and root-function
@@ -37,6 +37,7 @@ import scipy.sparse as sps
 from phc.errors import SimulationSetupError
 from phc.simulation.backend import BackendRun
 from phc.simulation.guard import CATCH, GuardedModule, ModelEvaluationError
+from phc.simulation.ida_bridge import NEAR_DROP, Bridges, near_rank_drop
 from phc.simulation.scaling import promise_scales
 from phc.simulation.monitor import SingularityMonitor, check_scales, diagnose_failure, unbounded_growth
 from phc.simulation.order import RECENT_STEPS, OrderChoice, Switch, after_step
@@ -414,10 +415,11 @@ class _Stop(Exception):
     """Raised by :class:`_StepHook` inside IDA's step loop to end a run for a reason phc
     gives (`message`): the monitor's singular configuration, ``max_steps``."""
 
-    def __init__(self, message: str, max_steps: bool = False):
+    def __init__(self, message: str, max_steps: bool = False, rank_drop: bool = False):
         super().__init__(message)
         self.message = message
         self.max_steps = max_steps  # the run used up `max_steps`
+        self.rank_drop = rank_drop  # crawling near a rank drop of the position constraints (a bridge may pass it)
 
 
 class _StepHook:
@@ -553,6 +555,11 @@ class _StepHook:
             if approach is not None:
                 warning = approach
                 monitor.stop_time = t
+            elif near_rank_drop(monitor, t, y, yp, self.h_ref):  # no fall to read (a restart cleared the looks)
+                monitor.stop_time = t
+                named = monitor.check(t, np.array(y), np.array(yp), self.h_ref, threshold=NEAR_DROP)
+                raise _Stop(f"IDA's steps shrank to {h:.1e} s" + (f"; {named}" if named else
+                            f" at t = {t:.6g}, near a rank drop of the position constraints"), rank_drop=True)
         if warning:
             raise _Stop(warning)
         ratio = monitor._looks[-1][-1] if monitor._looks else None
@@ -669,6 +676,25 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
     k, ok, message = 1, True, "integration finished"
     event = None
     interrupted = used_up = False
+    bridges = Bridges(mod, p, t_out, names=names, nominal=nominal, events=events, hook=hook, monitor=monitor)
+
+    def bridge_over(before=None, origin=None):
+        """The rank drop bridged (:mod:`phc.simulation.ida_bridge`), IDA restarted: the next output index, or None."""
+        crossed = bridges.cross(max_steps - hook.steps, before, origin)
+        if crossed is None:
+            return None
+        k_next, t_b, y_b, yp_b = crossed
+        for i, (yi, ypi) in enumerate(zip(*bridges.last_outputs[1:]), start=k_next - len(bridges.last_outputs[0])):
+            ys[i], yps[i] = yi, ypi
+        if t_b < t_end:
+            init = solver.init_step(t_b, y_b, yp_b)  # IDAReInit through scikit-sundae's public interface
+            if not init.success:
+                bridges.note = f"IDA could not restart after the bridge at t = {t_b:.6g}: {init.message}"
+                return None
+            hook.rewind(t_b, y_b, yp_b)
+            hook.evaluations_seen = calls.evaluations
+        return k_next
+
     try:  # a model function outside its domain, a stop, Ctrl-C: keep the outputs filled so far
         while k < len(t_out):
             hook.start_call(t_out[k])
@@ -678,10 +704,24 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
                 solver, init = restart(switch)
                 max_order = choice.order
                 k = 1 if switch.rewind else k
+                if switch.rewind:
+                    bridges.forget()
                 hook.evaluations_seen = calls.evaluations
                 if not init.success:
                     ok, message = False, f"IDA could not go on at max_order {choice.order} at t = {switch.t:.6g}: " \
                         f"{init.message}"
+                    break
+                continue
+            except _Stop as stop:  # the monitor's warning: a rank drop of the position constraints is bridged
+                if stop.max_steps or not (monitor.positional or stop.rank_drop):
+                    raise
+                k_next = bridge_over(monitor.stop_time, origin=(k, stop.message))
+                if k_next is None:
+                    k, given_up = bridges.give_up(k, stop.message)
+                    raise _Stop(given_up) from None
+                k = k_next
+                if bridges.event is not None:
+                    event = bridges.event
                     break
                 continue
             status, t_now = int(res.status), float(res.t)
@@ -690,9 +730,16 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
                     raise calls.error
                 ok = False
                 hint = growth() or _STATUS_HINTS.get(status)
+                monitor.positional = False
                 approach = _approaching_singularity(monitor, hook.h_ref) if hint is None else None
+                positional = approach is not None and monitor.positional
                 if approach is None and hint is None:  # a rank drop ahead, not yet near: no tolerance is the remedy
                     approach = _approaching_singularity(monitor, hook.h_ref, AHEAD, far=1.0, positional=True)
+                    positional = approach is not None
+                positional = positional or bridges.restarted_at(hook.normal[0])  # IDA failed restarting after one
+                if hint is None and not positional:  # the looks since a restart may be too few to show the fall
+                    positional = any(near_rank_drop(monitor, *state, hook.h_ref or bridges.h_ida)  # (h_ref 0: restarted)
+                                     for state in (hook.latest(), hook.normal))
                 if approach is not None:
                     hint = approach
                 elif hint is None:  # diagnose before blaming: is the iteration matrix singular there?
@@ -701,7 +748,18 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
                                             h_fail=(1.0 / cj) if cj > 0 else hook.h_last,
                                             max_order=max_order, rtol=rtol, atol=atol, names=names,
                                             scales=nominal, local=local)
-                message = f"IDA failed at t = {t_now:.6g} (status {status}: {res.message}); {hint}"
+                message = failure = f"IDA failed at t = {t_now:.6g} (status {status}: {res.message}); {hint}"
+                if positional:  # bridged by the midpoint rule when the motion passes it
+                    k_next = bridge_over(origin=(k, failure))
+                    if k_next is not None:
+                        message = "integration finished"
+                        ok = True
+                        k = k_next
+                        if bridges.event is not None:
+                            event = bridges.event
+                            break
+                        continue
+                    k, message = bridges.give_up(k, message)
                 break
             if status == IDA_ROOT_RETURN and res.i_events is not None:  # a switching function hit 0
                 event = dict(t=t_now, y=np.array(res.y), yp=np.array(res.yp),
@@ -732,8 +790,10 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
     if note:
         message = f"{message}; {note}"
     # the callbacks' counts: scikit-sundae's (res.nfev, res.njev) are lost with a call that raises
-    return BackendRun(t_out[:k], ys[:k], yps[:k], steps=hook.steps, nfev=calls.evaluations, njev=calls.jacobians,
-                      success=ok, event=event,
+    if bridges.records:
+        message = f"{message}; {bridges.notice()}"
+    return BackendRun(t_out[:k], ys[:k], yps[:k], steps=hook.steps, nfev=calls.evaluations + bridges.nfev,
+                      njev=calls.jacobians, success=ok, event=event, events=bridges.events(),
                       message=message, cpu=time.process_time() - start, conditioning=monitor.worst,
                       interrupted=interrupted, extra=dict(max_steps_reached=used_up, t_reached=hook.t_last,
                                                           max_order=choice.order, order_note=choice.note(),

@@ -875,6 +875,20 @@ SINGULAR_HINT = ("singular Newton matrix; the model may be at a singular configu
 NEWTON_HINT = "Newton did not converge; reduce `step` (simulation.step)"
 
 
+def midpoint_advance(mod, p, nominal=None):
+    """The midpoint rule's step ``advance(t, h, y, guess) -> (y1, ok, reason)`` on a new
+    :class:`StageSolver` (``advance.stage``): what :func:`integrate_fixed_step` takes, and what
+    bridges IDA over a rank drop (:mod:`phc.simulation.ida_bridge`)."""
+    stage = StageSolver(mod, p, weights=newton_weights_of(nominal, mod))
+
+    def advance(t, h, y, guess):
+        y1, ok = stage.solve(t, h, y, guess, 0.5)
+        return y1, ok, (SINGULAR_HINT if stage.singular else NEWTON_HINT)
+
+    advance.stage = stage
+    return advance
+
+
 def integrate_midpoint(mod, p, t_out, y0, yp0, options, *, progress=None, names=None, events=None,
                        nominal=None) -> BackendRun:
     """Fixed-step implicit midpoint from ``t_out[0]``; output at every ``t_out`` (each output
@@ -883,14 +897,7 @@ def integrate_midpoint(mod, p, t_out, y0, yp0, options, *, progress=None, names=
     step, max_steps = options.step, options.max_steps
 
     def make_advance():
-        stage = StageSolver(mod, p, weights=newton_weights_of(nominal, mod))
-
-        def advance(t, h, y, guess):
-            y1, ok = stage.solve(t, h, y, guess, 0.5)
-            return y1, ok, (SINGULAR_HINT if stage.singular else NEWTON_HINT)
-
-        advance.stage = stage
-        return advance
+        return midpoint_advance(mod, p, nominal)
 
     if events is not None and getattr(getattr(mod, "module", mod), "BACKEND", "") == "c":
         from phc.codegen import c_steps

@@ -307,11 +307,18 @@ class SingularityMonitor:
             return self.ratio(t, y, yp, h)
         return _search_below(f, a, b, self.threshold, iterations, fa, fb)
 
+    def dependent(self, u) -> tuple[list, list]:
+        """(equations, connections) that become dependent along the left singular vector `u` of
+        the smallest singular value: the rows with the largest weights in it, and the connections
+        they belong to (from ``names``)."""
+        culprits = [self.mod.EQUATIONS[i] for i in np.argsort(-np.abs(u))[:4] if abs(u[i]) > 0.1]
+        connections = sorted({self.names[c].split(" row ")[0] for c in culprits if c in self.names})
+        return culprits, connections
+
     def _dependence(self, u) -> tuple[str, str, str]:
         """(the equations of the weak direction u, the connections they belong to, the
         condition that fails) as a message says them; sets :attr:`positional`."""
-        culprits = [self.mod.EQUATIONS[i] for i in np.argsort(-np.abs(u))[:4] if abs(u[i]) > 0.1]
-        connections = sorted({self.names[c].split(" row ")[0] for c in culprits if c in self.names})
+        culprits, connections = self.dependent(u)
         where = f" at {', '.join(connections)}" if connections else ""
         positional = [c for c in culprits if c in set(getattr(self.mod, "INVARIANTS", ()))]
         self.positional = len(positional) >= 2

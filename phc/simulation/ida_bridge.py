@@ -1,0 +1,355 @@
+"""IDA through an isolated rank drop of the position constraints: a bridge by the midpoint rule.
+
+At a singular configuration of a mechanism (the N four-bar with all bars horizontal) the
+position constraints' gradients lose rank for an instant: the constraint forces lose a
+direction, the motion does not. IDA's iteration matrix is conditioned like the distance to
+that instant, and its Newton iteration fails on round-off before reaching it (the N = 1
+four-bar at t = 0.708 s, docs/hard-cases.md). The fixed-step solvers pass such an instant
+with the least-norm stage solve (:class:`phc.simulation.midpoint.StageSolver`) and tell a
+pass from a motion that cannot continue by one step against two half steps
+(:func:`phc.simulation.midpoint.finish_step`).
+
+So when IDA stops at a rank drop of the position constraints (its failure diagnosed there,
+or the singularity monitor's warning), phc bridges the singular window with that same
+driver — :func:`phc.simulation.midpoint.integrate_fixed_step` with the midpoint rule's step
+(:func:`phc.simulation.midpoint.midpoint_advance`), the code a `midpoint` run takes — from
+the last state IDA reached with a normal step, at IDA's recent step size, in pieces of
+:data:`PIECE_STEPS` steps, until the iteration matrix at IDA's step is conditioned again as
+it was :data:`RECOVERY` times better than where the bridge began and the minimum lies
+behind. The bridge's end is made consistent (:func:`phc.simulation.initial.
+consistent_initial_conditions`: the configuration and the energy supplied held, the momenta
+moved as little as the velocity constraints ask, in the energy norm — the midpoint rule meets
+them at its step midpoints, not at the step ends) and IDA is restarted there (scikit-sundae's
+``init_step``, which re-initializes the solver). A motion the fixed-step driver does not let
+through (the folding slider–crank's rod perpendicular to its guide) stops the bridge, and the
+run stops with IDA's diagnosis.
+
+The midpoint rule imposes the position constraints at the step ends and integrates the energy
+accumulator by the same rule, so the run's energy balance is that of the midpoint rule over
+the window (docs/hard-cases.md has the measured figures).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+
+from phc.errors import InconsistentInitialError
+from phc.simulation.guard import CATCH, ModelEvaluationError
+from phc.simulation.initial import consistent_initial_conditions
+
+PIECE_STEPS = 16
+"""Midpoint steps between two looks at the conditioning (whether the bridge may end, where it is
+lowest: the time and configuration the run reports)."""
+RECOVERY = 2.0
+"""The bridge ends once the conditioning of IDA's iteration matrix (σ_min/σ_max, equilibrated,
+at IDA's recent step) has risen to this many times its value where the bridge began, past its
+minimum, and it is as far past the minimum as it began before it. IDA began to fail on
+round-off at that value on its way in; a decade lets it restart clear of it."""
+STEP_FRACTIONS = (0.25, 0.5, 1.0)
+"""The bridge's steps, as fractions of IDA's recent step, tried in this order until one passes.
+The midpoint rule is of order 2, and its error in the phase of the motion stays after the
+bridge: at IDA's own step (1e-3 to 2.4e-3 s on the N = 1 four-bar) the crank angle was off by
+1.7e-4 rad after six passages. But a short step does not pass either: where the least-norm
+step's error at the singular instant is not small against a short step's change, one step and
+two half steps disagree (`midpoint` at h = 1e-4 stops at the four-bar's second passage,
+docs/hard-cases.md; a bridge at a tenth of IDA's step stopped at its sixth)."""
+MIN_STEPS = 8
+"""Fewest midpoint steps of a bridge beyond its lowest conditioning (a bridge that begins at the
+singular instant, which the monitor located between two looks after IDA had passed it, still
+carries IDA clear of it)."""
+MAX_STEPS = 20000
+"""Most midpoint steps of one bridge: a window that does not recover by then is not an
+isolated rank drop."""
+RETRIES = 3
+"""Bridges in a row without IDA taking a normal step after the last one, before the run stops
+(each doubles the bridge's minimum length)."""
+
+
+NEAR_DROP = 1e-4
+"""A failed IDA run whose iteration matrix at its last normal state is conditioned below this,
+weakest in the position constraints, tries a bridge: the N = 1 four-bar failed at 2e-6, 0.03 s
+before a passage, after the monitor's history was cleared by the restart after the one before."""
+
+
+def near_rank_drop(monitor, t, y, yp, h) -> bool:
+    """Whether (t, y, ẏ) lies near a rank drop of the position constraints: the iteration matrix
+    at the step h conditioned below :data:`NEAR_DROP`, its weakest direction mostly in two or
+    more position-constraint rows. What lets a failed IDA run try a bridge
+    (:func:`bridge`), whose own check decides whether the motion passes."""
+    if not monitor.enabled or not h > 0:
+        return False
+    saved, monitor.threshold = monitor.threshold, NEAR_DROP
+    try:
+        ratio, u = monitor._ratio_at(t, y, yp, max(h, monitor.h_floor))
+    except (ModelEvaluationError, *CATCH, np.linalg.LinAlgError):
+        return False
+    finally:
+        monitor.threshold = saved
+    if u is None:
+        return False
+    rows, _ = monitor.dependent(u)
+    return len(set(rows) & set(getattr(monitor.mod, "INVARIANTS", ()))) >= 2
+
+
+@dataclass
+class Bridge:
+    """What one bridge did: ``ok``; its outputs (``t``, ``y``, ``yp`` at the run's output times
+    it covered); the consistent state ``(t_end, y_end, yp_end)`` IDA restarts from; the steps
+    and residual evaluations; the passage times the fixed-step driver checked (``passages``);
+    ``event`` (a switching function that fell to zero inside, as the fixed-step driver reports
+    it) and, when not ``ok``, ``message``."""
+
+    ok: bool
+    t: list = field(default_factory=list)
+    y: list = field(default_factory=list)
+    yp: list = field(default_factory=list)
+    t_end: float = 0.0
+    y_end: Optional[np.ndarray] = None
+    yp_end: Optional[np.ndarray] = None
+    steps: int = 0
+    nfev: int = 0
+    passages: list = field(default_factory=list)
+    event: Optional[dict] = None
+    message: str = ""
+    t_lowest: float = 0.0
+    y_lowest: Optional[np.ndarray] = None
+    """Where the conditioning was lowest among the looks (the configuration the run reports)."""
+
+
+def configuration(mod) -> np.ndarray:
+    """Indices of the differential variables the position constraints depend on (their
+    Jacobian's pattern), and of the energy accumulator: what the restart holds."""
+    from phc.simulation.midpoint import constraint_rows
+
+    rows = set(constraint_rows(mod).tolist())
+    diff = np.asarray(mod.DIFFERENTIAL, dtype=bool)
+    held = {int(c) for r, c in zip(mod.JAC_ROWS, mod.JAC_COLS) if int(r) in rows and diff[int(c)]}
+    names = list(mod.VARIABLES)
+    if "energy.supplied" in names:
+        held.add(names.index("energy.supplied"))
+    return np.array(sorted(held), dtype=int)
+
+
+def bridge(mod, p, start, t_out, first: int, h: float, *, names=None, nominal=None, events=None,
+           max_steps: int, ratio, min_length: float = 0.0) -> Bridge:
+    """Bridge from `start` = (t, y, ẏ) (IDA's last state reached with a normal step) with the
+    midpoint rule at steps of at most `h`, writing the output times ``t_out[first:]`` it passes.
+    `ratio(t, y, ẏ)`: the conditioning of IDA's iteration matrix there (σ_min/σ_max at IDA's
+    step). Ends as the module docstring says, and not before ``start[0] + min_length``."""
+    from phc.simulation.midpoint import integrate_fixed_step, midpoint_advance
+
+    t, y, yp = float(start[0]), np.array(start[1], dtype=float), np.array(start[2], dtype=float)
+    t_end = float(t_out[-1])
+    out = Bridge(ok=False)
+    try:
+        r_start = ratio(t, y, yp)
+    except (ModelEvaluationError, *CATCH, np.linalg.LinAlgError) as err:
+        out.message = f"the bridge could not look at its start: {err}"
+        return out
+    lowest, rising = r_start, False
+    out.t_lowest, out.y_lowest = t, y
+    advance = midpoint_advance(mod, p, nominal)
+    j = first
+    while True:
+        t_b = min(t + PIECE_STEPS * h, t_end)
+        if t_end - t_b < 0.5 * h:
+            t_b = t_end
+        outs = [float(s) for s in t_out[j:] if t < s <= t_b]
+        grid = np.array([t, *outs] if outs and outs[-1] == t_b else [t, *outs, t_b])
+        piece = integrate_fixed_step(mod, p, grid, y, yp, max_steps=max(1, max_steps - out.steps), progress=None,
+                                     step=h, advance=advance, name="IDA's bridge (implicit midpoint)", names=names,
+                                     events=events, scales=nominal)
+        out.steps += piece.steps
+        out.passages += list(piece.extra.get("rank_drops", ()))
+        for i in range(1, min(len(piece.t) - 1, len(outs)) + 1):  # the output times it reached
+            out.t.append(float(piece.t[i]))
+            out.y.append(np.array(piece.y[i]))
+            out.yp.append(np.array(piece.yp[i]))
+        if piece.event is not None:
+            out.event, out.nfev = piece.event, advance.stage.nfev
+            out.ok = True
+            return out
+        if not piece.success:
+            out.nfev = advance.stage.nfev
+            out.message = piece.message
+            return out
+        j += len(outs)
+        t, y, yp = t_b, np.array(piece.y[-1]), np.array(piece.yp[-1])
+        if t >= t_end:
+            break
+        try:
+            r = ratio(t, y, yp)
+        except (ModelEvaluationError, *CATCH, np.linalg.LinAlgError):
+            r = 0.0
+        rising = rising or r > lowest
+        if r < lowest:
+            lowest, out.t_lowest, out.y_lowest = r, t, y
+        if rising and r >= RECOVERY * r_start and t >= float(start[0]) + min_length \
+                and t - out.t_lowest >= max(out.t_lowest - float(start[0]), MIN_STEPS * h * (1 - 1e-9)):
+            break
+        if out.steps >= MAX_STEPS:
+            out.nfev = advance.stage.nfev
+            out.message = (f"the bridge by the midpoint rule did not leave the singular configuration within "
+                           f"{MAX_STEPS} steps (to t = {t:.6g})")
+            return out
+    out.nfev = advance.stage.nfev
+    held = configuration(mod)
+    try:
+        init = consistent_initial_conditions(mod, p, t, dict(enumerate(y)), set(held.tolist()),
+                                             initial_relations=False)
+    except (InconsistentInitialError, ModelEvaluationError) as err:
+        why = "; ".join(err.problems) if isinstance(err, InconsistentInitialError) else str(err)
+        out.message = f"IDA could not restart after the bridge at t = {t:.6g}: {why}"
+        return out
+    out.ok, out.t_end, out.y_end, out.yp_end = True, t, init.y0, init.yp0
+    return out
+
+
+class Bridges:
+    """The bridges of one IDA run (:func:`phc.simulation.ida.integrate_ida`): where to start
+    (the step hook's last normal state), at what step (IDA's recent one), how long at least
+    (:data:`RETRIES`), and what the run reports — a ``passage`` event per bridge
+    (:class:`phc.simulation.events.Event`: the time, the connections whose position constraints
+    became dependent, the constraint rows) and a note in its message."""
+
+    def __init__(self, mod, p, t_out, *, names=None, nominal=None, events=None, hook, monitor):
+        self.mod, self.p, self.t_out = mod, p, np.asarray(t_out, dtype=float)
+        self.names, self.nominal, self.watch = names, nominal, events
+        self.hook, self.monitor = hook, monitor
+        self.records: list = []
+        """(event, configuration text, t_start, t_end, steps) of each bridge."""
+        self.steps = self.nfev = 0
+        self.event: Optional[dict] = None
+        self.note: Optional[str] = None
+        self.last_outputs: tuple = ([], [], [])
+        self._last_end: Optional[float] = None
+        self._last_length = 0.0
+        self._in_a_row = 0
+        self._origin, self._streak = None, 0
+        self.h_ida = 0.0
+        """IDA's recent step at the last bridge."""
+
+    def forget(self) -> None:
+        """The run starts again from its start (another maximum order): no bridge was taken."""
+        self.records, self._last_end, self._in_a_row = [], None, 0
+
+    def restarted_at(self, t: float) -> bool:
+        """Whether `t` (IDA's last normal state) is the last bridge's end: IDA took no normal step
+        after it, and the bridge is tried again longer (:data:`RETRIES`)."""
+        return self._last_end is not None and t <= self._last_end
+
+    def with_note(self, message: Optional[str]) -> Optional[str]:
+        """`message` with why the last bridge failed, if one was tried."""
+        if self.note is None:
+            return message
+        return f"{message}; {self.note}" if message else self.note
+
+    def give_up(self, k: int, message: str) -> tuple[int, str]:
+        """(output index, message) of a run that stops: where bridges in a row did not let IDA go
+        on, the stop where the first of them began — its outputs and diagnosis; the passage
+        is not reported as passed — with why; else `k` and `message` with the last bridge's note."""
+        if self._in_a_row and self._origin is not None:
+            (k0, message0), self.records = self._origin, self.records[:self._streak]
+            return k0, self.with_note(message0)
+        return k, self.with_note(message)
+
+    def cross(self, steps_left: int, before: Optional[float] = None, origin=None):
+        """Bridge from the hook's last normal state (or, where that is past `before`, the time of
+        the singular configuration the monitor located between its looks, from its last look
+        before it): ``(k_next, t, y, ẏ)`` — the next output index and IDA's consistent restart —
+        with the outputs written (:attr:`last_outputs`), or None with :attr:`note` saying why not."""
+        hook, monitor = self.hook, self.monitor
+        t_n, y_n, yp_n = hook.normal
+        if before is not None and t_n >= before:
+            earlier = [look for look in monitor.history if look[0] < before]
+            if earlier:
+                t_n, y_n, yp_n = earlier[-1]
+        self.h_ida = hook.h_ref or self.h_ida  # (0 when IDA failed right after a restart: the last bridge's)
+        self.note, self.event = None, None
+        if not self.h_ida > 0 or steps_left <= 0:
+            return None
+        min_length = 0.0
+        if self._last_end is not None and t_n <= self._last_end:  # IDA took no normal step after the last one
+            self._in_a_row += 1
+            if self._in_a_row > RETRIES:
+                self.note = (f"IDA could not go on after {RETRIES + 1} bridges by the midpoint rule in a row "
+                             f"(the last to t = {self._last_end:.6g})")
+                return None
+            min_length = 2.0 ** self._in_a_row * self._last_length
+            t_n, y_n, yp_n = self._last_start
+            self.records.pop()  # the same passage, bridged again longer
+        else:
+            self._in_a_row = 0
+            self._origin, self._streak = origin, len(self.records)  # what stops the run if IDA cannot go on
+        h_look = max(self.h_ida, monitor.h_floor)
+        culprits, connections = self._dependent(t_n, y_n, yp_n, h_look)
+        first = int(np.searchsorted(self.t_out, t_n, side="right"))
+        used = 0
+        for fraction in STEP_FRACTIONS:
+            h = fraction * self.h_ida
+            done = bridge(self.mod, self.p, (t_n, y_n, yp_n), self.t_out, first, h, names=self.names,
+                          nominal=self.nominal, events=self.watch, max_steps=steps_left - used,
+                          ratio=lambda t, y, yp: monitor.ratio(t, y, yp, h_look)[0], min_length=min_length)
+            used += done.steps
+            self.steps += done.steps
+            hook.steps += done.steps
+            self.nfev += done.nfev
+            if done.ok:
+                break
+        if not done.ok:
+            self.note = (f"bridges by the midpoint rule from t = {t_n:.6g} at {', '.join(f'{f:g}' for f in STEP_FRACTIONS)} "
+                         f"times IDA's step ({self.h_ida:.2g} s; their rank-drop check, one step against two half "
+                         f"steps, as `--solver midpoint` runs it) did not pass either; at the last: {done.message}")
+            return None
+        self.last_outputs = (done.t, done.y, done.yp)
+        k_next = first + len(done.t)
+        if done.event is not None:
+            self.event = done.event
+            return k_next, float(done.event["t"]), done.event["y"], done.event["yp"]
+        from phc.simulation.events import Event
+
+        t_pass = float(done.t_lowest)
+        where = ", ".join(connections) if connections else "the position constraints"
+        event = Event(t_pass, f"rank drop of the position constraints at {where}", 0, "passage",
+                      ", ".join(culprits))
+        held = [j for j in configuration(self.mod) if self.mod.VARIABLES[j] != "energy.supplied"]
+        shown = ", ".join(f"{self.mod.VARIABLES[j]} = {done.y_lowest[j]:.6g}" for j in held[:4])
+        self.records.append((event, shown + (", …" if len(held) > 4 else ""), t_n, done.t_end, done.steps))
+        self._last_start, self._last_end, self._last_length = (t_n, y_n, yp_n), done.t_end, done.t_end - t_n
+        return k_next, done.t_end, done.y_end, done.yp_end
+
+    def _dependent(self, t, y, yp, h):
+        """(constraint rows, connections) that become dependent near (t, y, ẏ): the left singular
+        vector of the smallest singular value of IDA's iteration matrix there
+        (:meth:`phc.simulation.monitor.SingularityMonitor.dependent`)."""
+        monitor = self.monitor
+        saved, monitor.threshold = monitor.threshold, 1.0
+        try:
+            _, u = monitor._ratio_at(t, y, yp, h)
+        except (ModelEvaluationError, *CATCH, np.linalg.LinAlgError):
+            return [], []
+        finally:
+            monitor.threshold = saved
+        if u is None:
+            return [], []
+        culprits, connections = monitor.dependent(u)
+        invariants = set(getattr(self.mod, "INVARIANTS", ()))
+        return [c for c in culprits if c in invariants], connections
+
+    def events(self) -> list:
+        return [r[0] for r in self.records]
+
+    def notice(self) -> str:
+        """The run message's note on the bridges ('' without any)."""
+        if not self.records:
+            return ""
+        listed = "; ".join(f"t = {e.t:.6g} ({e.condition[len('rank drop of the position constraints at '):]}; "
+                           f"{shown})" for e, shown, *_ in self.records[:4])
+        more = f"; … {len(self.records) - 4} more" if len(self.records) > 4 else ""
+        return (f"IDA passed {len(self.records)} rank drop(s) of the position constraints' Jacobian, each bridged "
+                f"by the implicit midpoint rule ({self.steps} steps in all, at {', '.join(f'{f:g}' for f in STEP_FRACTIONS)} "
+                f"times IDA's recent step, the first that passed; the motion through it checked by one step against "
+                f"two half steps, as `--solver midpoint` does) and restarted after it: {listed}{more}")
