@@ -314,8 +314,10 @@ class ModulePrinter:
             self.names[s] = ident = _identifier("y_", name, taken)
             self.unpack_y[s] = f"{ident} = y[{j}]"
         for j, (s, name) in enumerate(zip(ir.yp_symbols, ir.variables)):
-            self.names[s] = ident = _identifier("yp_", name, taken)
-            self.unpack_yp[s] = f"{ident} = yp[{j}]"
+            ident = _identifier("yp_", name, taken)  # reserved for an algebraic variable too: the same names
+            if s is not None:
+                self.names[s] = ident
+                self.unpack_yp[s] = f"{ident} = yp[{j}]"
         for j, (s, name) in enumerate(zip(ir.p_symbols, ir.parameters)):
             self.names[s] = ident = _identifier("p_", name, taken)
             self.unpack_p[s] = f"{ident} = p[{j}]"
@@ -480,7 +482,7 @@ class ModulePrinter:
         bulk = self.bulk and not any(_complex_prone(e) for e in printed if isinstance(e, sp.Basic))
         for name, table in (("y", self.unpack_y), ("yp", self.unpack_yp), ("p", self.unpack_p)):
             taken = self._unpack_lines(name, table, used)
-            if bulk and taken and BULK_SHARE * len(taken) >= len(table):
+            if bulk and taken and BULK_SHARE * len(taken) >= (len(table) if name != "yp" else len(self.ir.variables)):
                 # the values as Python floats: arithmetic on them costs a third of NumPy scalars'
                 lines.append(f"_{name} = _read({name})")
                 taken = [line.replace(f" = {name}[", f" = _{name}[", 1) for line in taken]
