@@ -219,8 +219,12 @@ def _distinct(component: str, parts) -> None:
     vectors = [p for p in parts if isinstance(p, SymbolVector)]
     stems = {v.stem: v.n for v in vectors}
     clash = len(set(scalars)) != len(scalars) or len(stems) != len(vectors)
+    prefixes = tuple(stems)
     for s in scalars if stems and not clash else ():
-        stem, bracket, rest = str(s).rpartition("[")
+        name = s.name if isinstance(s, sp.Symbol) else str(s)
+        if not name.startswith(prefixes):
+            continue
+        stem, bracket, rest = name.rpartition("[")
         if bracket and stem in stems and rest.endswith("]") and rest[:-1].isdigit() and int(rest[:-1]) < stems[stem]:
             clash = True
             break
