@@ -287,6 +287,10 @@ class ComponentDescription:
     relations ``= 0`` — resistive laws between a resistive pair's flow and effort,
     constitutive relations of auxiliary variables — and may be nonlinear.
 
+    `flows`, `efforts` and `internal` are sequences of symbols: tuples, or a :class:`Chained`
+    where they hold a sparse description's vectors (:class:`SymbolVector`, whose symbols are
+    made when first read).
+
     `complete` is False for a description that is only the projection of the structure
     onto the ports (large discretized components); such a projection carries the complete
     description it projects as `structure`, against which the rows are compared.
