@@ -41,6 +41,8 @@ def incidence(dae: Dae) -> tuple[np.ndarray, np.ndarray]:
             col[v.dsymbol] = j
     rows, cols = [], []
     for i, eq in enumerate(dae.equations):
+        if eq.expr.is_Number:
+            continue  # no symbols: a row of a linear block (most rows of a mesh), read from its matrices below
         for s in eq.expr.free_symbols:
             j = col.get(s)
             if j is not None:

@@ -317,7 +317,9 @@ class CPrinter:
                                      ("p", ir.p_symbols, "p_")):
             labels = ir.variables if vec != "p" else ir.parameters
             for j, (s, label) in enumerate(zip(symbols, labels)):
-                ident = _identifier(prefix, label, taken)
+                ident = _identifier(prefix, label, taken)  # reserved for an algebraic rate too: the same names
+                if s is None:
+                    continue
                 self.names[s] = ident
                 what = f"der({label})" if vec == "yp" else label
                 self.loads[s] = (f"const double {ident} = {vec}[{j}];", what)

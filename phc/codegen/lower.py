@@ -12,6 +12,7 @@ happens in the printer; no printing happens here.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 import networkx as nx
 import numpy as np
@@ -57,7 +58,9 @@ class ResidualIR:
     roles: tuple[str, ...]
     equation_labels: tuple[str, ...]
     y_symbols: tuple[sp.Symbol, ...]
-    yp_symbols: tuple[sp.Symbol, ...]
+    yp_symbols: tuple[Optional[sp.Symbol], ...]
+    """The rates of the differential variables; None for an algebraic variable (no symbol:
+    nothing can use the rate of a variable that has none)."""
     parameters: tuple[str, ...]
     base_parameters: tuple[int, ...]
     parameter_defaults: tuple[float, ...]
@@ -269,7 +272,7 @@ def lower_residual(dae: Dae) -> ResidualIR:
         roles=tuple(v.role for v in dae.variables),
         equation_labels=tuple(eq.label for eq in dae.equations),
         y_symbols=tuple(y),
-        yp_symbols=tuple(s if s is not None else sp.Symbol(f"der({v.name})") for s, v in zip(yp, dae.variables)),
+        yp_symbols=tuple(yp),
         parameters=tuple(p.name for p in params) + tuple(name for name, _ in modes),
         base_parameters=tuple(i for i, p in enumerate(params) if p.expr is None),
         parameter_defaults=tuple(p.default for p in params) + (0.0,) * len(modes),

@@ -283,7 +283,8 @@ def _emit_kernel(context, builder, signature, args, kernel: Kernel, ir_: Residua
     loaders = {T: lambda: t, sp.Symbol("cj"): lambda: cj}
     for vec, symbols in (("y", ir_.y_symbols), ("yp", ir_.yp_symbols), ("p", ir_.p_symbols)):
         for j, s in enumerate(symbols):
-            loaders[s] = (lambda at_, j_: lambda: builder.load(at_(j_)))(at[vec], j)
+            if s is not None:  # None: the rate of an algebraic variable
+                loaders[s] = (lambda at_, j_: lambda: builder.load(at_(j_)))(at[vec], j)
     if kernel.energy is not None:
         # the stored energy H first, as `hamiltonian` computes it, into a local: the value of
         # STORED_ENERGY in the targets (an output that uses H)

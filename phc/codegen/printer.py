@@ -119,6 +119,28 @@ def _identifier(prefix: str, name: str, taken: set) -> str:
     return ident
 
 
+_NOT_IDENTIFIER_LINES = re.compile(r"[^A-Za-z0-9_\n]")
+
+
+def _identifiers(prefix: str, names: Sequence[str], taken: set) -> list[str]:
+    """:func:`_identifier` of each of `names` in order, the characters replaced in one pass
+    over all names (a mesh's 10⁵ variables: one regular-expression substitution, not 10⁵)."""
+    joined = "\n".join(names)
+    if joined.count("\n") != max(len(names) - 1, 0):  # a name with a line break: one by one
+        return [_identifier(prefix, name, taken) for name in names]
+    cleaned = _NOT_IDENTIFIER_LINES.sub("_", joined.replace("[", "_").replace("]", "")).split("\n") if names else []
+    out = []
+    for part in cleaned:
+        ident = base = prefix + (part.strip("_") or "v")
+        k = 1
+        while ident in taken:
+            k += 1
+            ident = f"{base}_{k}"
+        taken.add(ident)
+        out.append(ident)
+    return out
+
+
 PACK_LIMIT = 256
 """Arrays longer than this are printed as periodic runs and base64 of their bytes
 (:mod:`phc.codegen.packing`): a 1000-element beam's 40 000 matrix entries as float literals
@@ -310,12 +332,14 @@ class ModulePrinter:
         self.unpack_y = {}
         self.unpack_yp = {}
         self.unpack_p = {}
-        for j, (s, name) in enumerate(zip(ir.y_symbols, ir.variables)):
-            self.names[s] = ident = _identifier("y_", name, taken)
+        for j, (s, ident) in enumerate(zip(ir.y_symbols, _identifiers("y_", ir.variables, taken))):
+            self.names[s] = ident
             self.unpack_y[s] = f"{ident} = y[{j}]"
-        for j, (s, name) in enumerate(zip(ir.yp_symbols, ir.variables)):
-            self.names[s] = ident = _identifier("yp_", name, taken)
-            self.unpack_yp[s] = f"{ident} = yp[{j}]"
+        # reserved for an algebraic variable too (no rate): the same names as with one
+        for j, (s, ident) in enumerate(zip(ir.yp_symbols, _identifiers("yp_", ir.variables, taken))):
+            if s is not None:
+                self.names[s] = ident
+                self.unpack_yp[s] = f"{ident} = yp[{j}]"
         for j, (s, name) in enumerate(zip(ir.p_symbols, ir.parameters)):
             self.names[s] = ident = _identifier("p_", name, taken)
             self.unpack_p[s] = f"{ident} = p[{j}]"
@@ -480,7 +504,7 @@ class ModulePrinter:
         bulk = self.bulk and not any(_complex_prone(e) for e in printed if isinstance(e, sp.Basic))
         for name, table in (("y", self.unpack_y), ("yp", self.unpack_yp), ("p", self.unpack_p)):
             taken = self._unpack_lines(name, table, used)
-            if bulk and taken and BULK_SHARE * len(taken) >= len(table):
+            if bulk and taken and BULK_SHARE * len(taken) >= (len(table) if name != "yp" else len(self.ir.variables)):
                 # the values as Python floats: arithmetic on them costs a third of NumPy scalars'
                 lines.append(f"_{name} = _read({name})")
                 taken = [line.replace(f" = {name}[", f" = _{name}[", 1) for line in taken]

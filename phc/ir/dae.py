@@ -9,8 +9,9 @@ nonlinear parts only; it is frozen once built.
 
 from __future__ import annotations
 
+import bisect
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from collections.abc import Mapping
 from typing import Any, Optional
 
 import scipy.sparse as sps
@@ -142,6 +143,96 @@ class Storage:
     gradient: sp.Expr
 
 
+class SymbolVector(Sequence):
+    """`n` real symbols ``stem[0]``, ..., ``stem[n-1]``, made when one of them is first
+    read: the flows and efforts of a sparse description's storage and resistive vectors,
+    which :func:`phc.library.dirac.emit_sparse` eliminates as whole vectors (by the
+    vector, never symbol by symbol), so a mesh of 10⁵ elements does not make (and keep)
+    10⁵ sympy symbols per vector that no expression ever holds. It is a key by identity
+    (one vector, one object); its symbols are those ``sp.Symbol(f"{stem}[{i}]", real=True)``
+    would give."""
+
+    __slots__ = ("stem", "n", "_symbols")
+
+    def __init__(self, stem: str, n: int) -> None:
+        self.stem, self.n = stem, int(n)
+        self._symbols: Optional[tuple] = None
+
+    @property
+    def made(self) -> bool:
+        """Whether its symbols exist (an expression may hold them only then)."""
+        return self._symbols is not None
+
+    @property
+    def symbols(self) -> tuple:
+        if self._symbols is None:
+            self._symbols = tuple(sp.Symbol(f"{self.stem}[{i}]", real=True) for i in range(self.n))
+        return self._symbols
+
+    def __len__(self) -> int:
+        return self.n
+
+    def __getitem__(self, index):
+        return self.symbols[index]
+
+    def __iter__(self):
+        return iter(self.symbols)
+
+    def __repr__(self) -> str:
+        return f"SymbolVector({self.stem!r}, {self.n})"
+
+    __hash__ = object.__hash__
+    __eq__ = object.__eq__
+
+    def __getstate__(self):
+        return (self.stem, self.n, self._symbols)
+
+    def __setstate__(self, state) -> None:
+        self.stem, self.n, self._symbols = state
+
+
+class Chained(Sequence):
+    """The concatenation of `parts` (symbols and :class:`SymbolVector`), read as one
+    sequence of symbols without making a vector's symbols before one of them is read."""
+
+    __slots__ = ("parts", "_starts", "_n")
+
+    def __init__(self, parts) -> None:
+        self.parts = tuple(parts)
+        starts, n = [], 0
+        for part in self.parts:
+            starts.append(n)
+            n += len(part) if isinstance(part, SymbolVector) else 1
+        self._starts, self._n = starts, n
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __iter__(self):
+        for part in self.parts:
+            if isinstance(part, SymbolVector):
+                yield from part
+            else:
+                yield part
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return tuple(self)[index]
+        if index < 0:
+            index += self._n
+        if not 0 <= index < self._n:
+            raise IndexError(index)
+        k = bisect.bisect_right(self._starts, index) - 1
+        part = self.parts[k]
+        return part[index - self._starts[k]] if isinstance(part, SymbolVector) else part
+
+    def __eq__(self, other):
+        return isinstance(other, (Chained, tuple, list)) and len(self) == len(other) and all(
+            a == b for a, b in zip(self, other))
+
+    __hash__ = None
+
+
 @dataclass(frozen=True, eq=False)
 class SparseRelations:
     """`n` relations ``= 0`` of a description kept sparse (discretized PDEs, matrix
@@ -195,6 +286,10 @@ class ComponentDescription:
     pairs (`storage`) and the resistive or environment pairs. `laws` are the remaining
     relations ``= 0`` — resistive laws between a resistive pair's flow and effort,
     constitutive relations of auxiliary variables — and may be nonlinear.
+
+    `flows`, `efforts` and `internal` are sequences of symbols: tuples, or a :class:`Chained`
+    where they hold a sparse description's vectors (:class:`SymbolVector`, whose symbols are
+    made when first read).
 
     `complete` is False for a description that is only the projection of the structure
     onto the ports (large discretized components); such a projection carries the complete

@@ -43,7 +43,7 @@ import numpy as np
 import scipy.sparse as sps
 import sympy as sp
 
-from phc.ir.dae import ComponentDescription, LinearTerm, SparseRelations, Storage, StorageVector
+from phc.ir.dae import Chained, ComponentDescription, LinearTerm, SparseRelations, Storage, StorageVector, SymbolVector
 
 
 class DiracBuilder:
@@ -51,21 +51,22 @@ class DiracBuilder:
 
     def __init__(self, component: str, kind: str, span=None):
         self.component, self.kind, self.span = component, kind, span
-        self.flows: list[sp.Symbol] = []
-        self.efforts: list[sp.Symbol] = []
+        # flows, efforts and internal symbols: symbols, or whole vectors (:meth:`vector`)
+        self.flows: list = []
+        self.efforts: list = []
         self.multipliers: list[sp.Symbol] = []
         self.relations: list[sp.Expr] = []
         self.laws: list[sp.Expr] = []
         self.ports: dict[str, tuple[list[int], list[int]]] = {}
         self.storage: list[Storage] = []
         self.resistive: list[tuple[sp.Symbol, sp.Symbol]] = []
-        self.internal: list[sp.Symbol] = []
+        self.internal: list = []
         self.hamiltonian: Optional[sp.Expr] = None
         # (relation or law, index, solved-for symbol, row kind, row label) in declaration order
         self.order: list[tuple[str, int, Optional[sp.Symbol], str, str]] = []
         self.blocks: list[list] = []  # [label, n, terms, extra, law] (frozen by describe)
         self.storage_vectors: list[StorageVector] = []
-        self._bound: set = set()  # internal symbols bound by storage or resistive vectors
+        self._bound: set = set()  # internal vectors bound as storage or resistive vectors
 
     def pair(self, local: str) -> tuple[sp.Symbol, sp.Symbol]:
         """A fresh internal flow/effort pair (not bound: the description is then not
@@ -91,13 +92,14 @@ class DiracBuilder:
         return f, e
 
     def vector(self, local: str, n: int) -> tuple[tuple[sp.Symbol, ...], tuple[sp.Symbol, ...]]:
-        """`n` fresh internal flow/effort pairs, as two vectors (see :meth:`pair`)."""
-        f = tuple(sp.Symbol(f"cert:{self.component}.f_{local}[{i}]", real=True) for i in range(n))
-        e = tuple(sp.Symbol(f"cert:{self.component}.e_{local}[{i}]", real=True) for i in range(n))
-        self.flows.extend(f)
-        self.efforts.extend(e)
-        self.internal.extend(f)
-        self.internal.extend(e)
+        """`n` fresh internal flow/effort pairs, as two vectors (see :meth:`pair`), each a
+        :class:`~phc.ir.dae.SymbolVector` (its symbols are made when one is read: a vector
+        :func:`emit_sparse` eliminates is never spelled out)."""
+        f = SymbolVector(f"cert:{self.component}.f_{local}", n)
+        e = SymbolVector(f"cert:{self.component}.e_{local}", n)
+        self.flows.append(f)
+        self.efforts.append(e)
+        self.internal.extend((f, e))
         return f, e
 
     def storage_vector(self, local: str, states, rates, gradient) -> tuple[tuple, tuple]:
@@ -106,16 +108,14 @@ class DiracBuilder:
         quadratic energy)."""
         f, e = self.vector(local, len(states))
         self.storage_vectors.append(StorageVector(f, e, tuple(states), tuple(rates), tuple(gradient)))
-        self._bound.update(f)
-        self._bound.update(e)
+        self._bound.update((f, e))
         return f, e
 
     def resistor_vector(self, local: str, n: int) -> tuple[tuple, tuple]:
         """`n` resistive pairs; their law goes in with :meth:`block` (``law=True``)."""
         f, e = self.vector(local, n)
         self.resistive.extend(zip(f, e))
-        self._bound.update(f)
-        self._bound.update(e)
+        self._bound.update((f, e))
         return f, e
 
     def mults(self, local: str, n: int) -> tuple[sp.Symbol, ...]:
@@ -134,7 +134,8 @@ class DiracBuilder:
             if t.derivative or t.matrix.shape != (n, len(t.symbols)):
                 raise ValueError(f"{self.component}: block {label}: a term of shape {t.matrix.shape} over "
                                  f"{len(t.symbols)} symbols in {n} relations")
-        self.blocks.append([label, n, terms, [], law, tuple(solve) if solve is not None else None])
+        solve = solve if solve is None or isinstance(solve, SymbolVector) else tuple(solve)
+        self.blocks.append([label, n, terms, [], law, solve])
         return len(self.blocks) - 1
 
     def add_to(self, block: int, i: int, expr) -> None:
@@ -143,7 +144,7 @@ class DiracBuilder:
             self.blocks[block][3].append((i, sp.sympify(expr)))  # safe: a sympy expression or number
 
     def port(self, port) -> None:
-        start = len(self.flows)
+        start = _length(self.flows)
         self.flows.extend(port.f)
         self.efforts.extend(port.e)
         idx = list(range(start, start + port.dimension))
@@ -176,21 +177,19 @@ class DiracBuilder:
         """The description. With ``kind="port_projection"`` it is not complete; `structure`
         is then the complete description it projects (see the module docstring)."""
         kind = kind or self.kind
-        symbols = (*self.flows, *self.efforts, *self.multipliers)
-        if len(set(symbols)) != len(symbols):
-            raise ValueError(f"{self.component}: a flow, effort or multiplier of the description is declared twice")
+        _distinct(self.component, (*self.flows, *self.efforts, *self.multipliers))
         bound = {s.flow for s in self.storage} | {s.effort for s in self.storage} | self._bound
         resistive = {x for pair in self.resistive for x in pair}
         complete = kind != "port_projection" and all(s in bound or s in resistive for s in self.internal)
         blocks = tuple(SparseRelations(label, n, tuple(terms), tuple(extra), law, solve)
                        for label, n, terms, extra, law, solve in self.blocks)
         return ComponentDescription(
-            self.component, kind, tuple(self.flows), tuple(self.efforts), tuple(self.multipliers),
+            self.component, kind, _sequence(self.flows), _sequence(self.efforts), tuple(self.multipliers),
             tuple(self.relations), dict(self.ports), tuple(states), self.span, note,
             storage=tuple(self.storage), laws=tuple(self.laws), hamiltonian=self.hamiltonian,
             resistive=tuple(self.resistive), complete=complete, order=tuple(self.order),
             blocks=blocks, storage_vectors=tuple(self.storage_vectors), structure=structure,
-            internal=tuple(self.internal))
+            internal=_sequence(self.internal))
 
     def register(self, b, states=(), note: str = "", kind: Optional[str] = None,
                  structure: Optional[ComponentDescription] = None) -> ComponentDescription:
@@ -198,6 +197,53 @@ class DiracBuilder:
         desc = self.describe(states, note, kind, structure)
         b.dirac.append(desc)
         return desc
+
+
+def _length(parts) -> int:
+    """How many symbols `parts` (symbols and vectors) hold."""
+    return sum(len(p) if isinstance(p, SymbolVector) else 1 for p in parts)
+
+
+def _sequence(parts):
+    """`parts` as one sequence of symbols: a tuple, or (with vectors) a :class:`~phc.ir.dae.Chained`
+    that makes a vector's symbols only when one is read."""
+    if any(isinstance(p, SymbolVector) for p in parts):
+        return Chained(parts)
+    return tuple(parts)
+
+
+def _distinct(component: str, parts) -> None:
+    """Refuse a flow, effort or multiplier declared twice: a symbol twice, a vector's stem
+    twice, or a symbol named as an entry of a vector (``stem[i]``, i below its length)."""
+    scalars = [p for p in parts if not isinstance(p, SymbolVector)]
+    vectors = [p for p in parts if isinstance(p, SymbolVector)]
+    stems = {v.stem: v.n for v in vectors}
+    clash = len(set(scalars)) != len(scalars) or len(stems) != len(vectors)
+    prefixes = tuple(stems)
+    for s in scalars if stems and not clash else ():
+        name = s.name if isinstance(s, sp.Symbol) else str(s)
+        if not name.startswith(prefixes):
+            continue
+        stem, bracket, rest = name.rpartition("[")
+        if bracket and stem in stems and rest.endswith("]") and rest[:-1].isdigit() and int(rest[:-1]) < stems[stem]:
+            clash = True
+            break
+    if clash:
+        raise ValueError(f"{component}: a flow, effort or multiplier of the description is declared twice")
+
+
+def _existing(symbols):
+    """The symbols of `symbols` (a tuple, :class:`~phc.ir.dae.SymbolVector` or
+    :class:`~phc.ir.dae.Chained`) that exist: a vector whose symbols were never made has
+    none in any expression."""
+    parts = symbols.parts if isinstance(symbols, Chained) else (symbols,) if isinstance(symbols, SymbolVector) \
+        else symbols
+    for p in parts:
+        if isinstance(p, SymbolVector):
+            if p.made:
+                yield from p
+        else:
+            yield p
 
 
 def solve_for(expr: sp.Expr, symbol: sp.Symbol) -> sp.Expr:
@@ -361,9 +407,10 @@ def emit_sparse(b, desc: ComponentDescription) -> None:
     ports = {x for idx, _ in desc.ports.values() for i in idx for x in (desc.flows[i], desc.efforts[i])}
     values: dict = {}
     for sv in desc.storage_vectors:
-        values[tuple(sv.flows)] = ((), (), tuple(sv.states))
-        values[tuple(sv.efforts)] = (tuple(sv.gradient), (), None)
-        sigma.update(zip(sv.flows, sv.rates))  # in sympy parts: the rates themselves
+        values[_key(sv.flows)] = ((), (), tuple(sv.states))
+        values[_key(sv.efforts)] = (tuple(sv.gradient), (), None)
+        if not isinstance(sv.flows, SymbolVector) or sv.flows.made:
+            sigma.update(zip(sv.flows, sv.rates))  # in sympy parts: the rates themselves
     residual, definitions = [], []
     for blk in desc.blocks:
         if blk.solve is None:
@@ -378,12 +425,13 @@ def emit_sparse(b, desc: ComponentDescription) -> None:
         terms = tuple(LinearTerm(scale(t.coeff), t.matrix, t.symbols, t.derivative)
                       for t in blk.terms if t is not own[0])
         extras = tuple((i, scale(e)) for i, e in blk.extra)
-        if set(blk.solve) <= ports:
+        internal_vector = isinstance(blk.solve, SymbolVector)  # never a port's or the model's
+        if not internal_vector and set(blk.solve) <= ports:
             definitions.append((blk.solve, terms, extras))
-        elif set(blk.solve) & (ports | {s for s, _, _ in _variables(b)}):
+        elif not internal_vector and set(blk.solve) & (ports | {s for s, _, _ in _variables(b)}):
             raise ValueError(f"{desc.component}: block {blk.label} solves for variables of the model")
         else:
-            values[tuple(blk.solve)] = (terms, extras, None)
+            values[_key(blk.solve)] = (terms, extras, None)
 
     def scalar(expr):
         """A sympy part with scalar storage pairs and eliminated vectors replaced."""
@@ -417,7 +465,7 @@ def emit_sparse(b, desc: ComponentDescription) -> None:
                      derived=True)
     # scalar relations and laws (a boundary port's flow, a trace of the co-energies, a
     # moving frame's kinematics), with scalar storage pairs replaced by (ẋ, ∂H/∂x)
-    eliminated = {x for vector in values for x in vector} | set(desc.internal or ())
+    eliminated = {x for vector in values for x in _existing(vector)} | set(_existing(desc.internal or ()))
     for which, i, solve, kind, label, *rest in desc.order:
         expr = scalar((desc.relations if which == "rel" else desc.laws)[i])
         if expr.free_symbols & eliminated or solve in eliminated:
@@ -436,6 +484,8 @@ def _scalar_values(values: dict, symbols: set) -> dict:
     terms (a storage vector's flows are left to the caller: their rates)."""
     out = {}
     for vector, (terms, extras, rename) in values.items():
+        if isinstance(vector, SymbolVector) and not vector.made:
+            continue  # its symbols were never made: no expression holds them
         hit = [k for k, s in enumerate(vector) if s in symbols]
         if not hit:
             continue
@@ -449,6 +499,12 @@ def _scalar_values(values: dict, symbols: set) -> dict:
         for k in hit:
             out[vector[k]] = _row_expr(terms, k) + sum((e for i, e in extras if i == k), sp.Integer(0))
     return out
+
+
+def _key(symbols):
+    """The key of a vector in :func:`emit_sparse`'s values: a :class:`~phc.ir.dae.SymbolVector`
+    itself (by identity, as the terms over it hold it), any other the tuple of its symbols."""
+    return symbols if isinstance(symbols, SymbolVector) else tuple(symbols)
 
 
 def _variables(b):
