@@ -47,10 +47,10 @@ import numpy as np
 import sympy as sp
 
 from phc import __version__
-from phc.codegen.kernels import CJ, Kernel, _canonical, function_kernels, product_parts
+from phc.codegen.kernels import CJ, Kernel, _canonical, function_kernels, kernel_cse, product_parts
 from phc.codegen.lower import ResidualIR
 from phc.codegen.numba_emit import _NODES, _RELATIONS, _SIMPLE, _is_switch
-from phc.codegen.printer import _cse, _identifier, _Printer
+from phc.codegen.printer import _identifier, _Printer
 from phc.ir.dae import STORED_ENERGY, T
 from phc.errors import BackendUnsupported, CodegenError
 from phc.frontend.inputs import InputTable, InputTableSlope
@@ -368,8 +368,7 @@ class CPrinter:
             what = unsupported(Kernel((), (op,)).expressions()[0], self.known)
             if what:
                 raise CUnsupported(f"the C backend does not support {what} yet (in {name}, a linear block)")
-        exprs = [e for _, e, _ in targets] + Kernel((), kernel.sums).expressions()
-        replacements, reduced = _cse(exprs, sp.numbered_symbols("c"))
+        replacements, reduced = kernel_cse(self.ir, kernel, targets)
         printer = _Expressions(self.names, self.order)
         used = set()
         for e in [rhs for _, rhs in replacements] + list(reduced):
