@@ -22,7 +22,8 @@ the library is re-entrant (threads may call it at once). Inside a function, each
 variable or parameter it uses is a named local (``y_spring_x``, with the model's name in a
 comment), the common subexpressions are locals ``c0, c1, ...`` (the same
 common-subexpression elimination and the same evaluation order as the numba back end's
-emitter, :mod:`phc.codegen.numba_emit`: terms and factors ordered as the NumPy module's
+emitter, :mod:`phc.codegen.numba_emit`: found once per IR with the NumPy module's,
+:func:`phc.codegen.kernels.kernel_cse`; terms and factors ordered as the NumPy module's
 printer orders them, ``a*b/(c*d)`` as it prints them, ``pow``/``sqrt`` and the other
 ``math.h`` functions CPython's ``math`` calls), and every float literal is the ``repr`` of
 the double the NumPy module computes (correctly rounded when read back). The sparse linear

@@ -58,15 +58,20 @@ def _coefficient(op):
 def kernel_cse(ir: ResidualIR, kernel: Kernel, targets: Optional[tuple] = None) -> tuple[list, list]:
     """Common subexpressions of `kernel`'s expressions (its `targets`, else all of them), as
     the compiled back ends print them: ``(replacements, reduced)``, the reduced target
-    expressions then the reduced coefficient of each sum. The targets' are searched once per
-    IR, shared with the NumPy module's printer (:func:`phc.codegen.printer.shared_cse`: the
-    same rows of the residual and the Jacobian), the coefficients' (parameters only) among
-    themselves, with symbols of their own (:class:`sympy.Dummy`)."""
+    expressions then the reduced coefficient of each sum. Searched once per IR, shared with
+    the NumPy module's printer (:func:`phc.codegen.printer.shared_cse`): the whole list where
+    that printer searched it (the energy and its quadratic forms' coefficients), else the
+    targets' list (the rows of the residual and the Jacobian), then the coefficients
+    (parameters only) among themselves, with symbols of their own (:class:`sympy.Dummy`)."""
     targets = kernel.targets if targets is None else targets
-    replacements, reduced = shared_cse(ir, [e for _, e, _ in targets])
+    exprs = [e for _, e, _ in targets]
     coefficients = [_coefficient(op) for op in kernel.sums]
+    whole = ir.common_subexpressions.get(tuple(exprs + coefficients))
+    if whole is not None:
+        return whole
+    replacements, reduced = shared_cse(ir, exprs)
     if coefficients:
-        more, rest = _cse(coefficients, sp.numbered_symbols("k", cls=sp.Dummy))
+        more, rest = _cse(coefficients, sp.numbered_symbols("_c", cls=sp.Dummy))
         replacements, reduced = [*replacements, *more], [*reduced, *rest]
     return replacements, reduced
 
