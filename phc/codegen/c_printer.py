@@ -22,7 +22,8 @@ the library is re-entrant (threads may call it at once). Inside a function, each
 variable or parameter it uses is a named local (``y_spring_x``, with the model's name in a
 comment), the common subexpressions are locals ``c0, c1, ...`` (the same
 common-subexpression elimination and the same evaluation order as the numba back end's
-emitter, :mod:`phc.codegen.numba_emit`: terms and factors ordered as the NumPy module's
+emitter, :mod:`phc.codegen.numba_emit`: found once per IR with the NumPy module's,
+:func:`phc.codegen.kernels.kernel_cse`; terms and factors ordered as the NumPy module's
 printer orders them, ``a*b/(c*d)`` as it prints them, ``pow``/``sqrt`` and the other
 ``math.h`` functions CPython's ``math`` calls), and every float literal is the ``repr`` of
 the double the NumPy module computes (correctly rounded when read back). The sparse linear
@@ -47,10 +48,10 @@ import numpy as np
 import sympy as sp
 
 from phc import __version__
-from phc.codegen.kernels import CJ, Kernel, _canonical, function_kernels, product_parts
+from phc.codegen.kernels import CJ, Kernel, _canonical, function_kernels, kernel_cse, product_parts
 from phc.codegen.lower import ResidualIR
 from phc.codegen.numba_emit import _NODES, _RELATIONS, _SIMPLE, _is_switch
-from phc.codegen.printer import _cse, _identifier, _Printer
+from phc.codegen.printer import _identifier, _Printer
 from phc.ir.dae import STORED_ENERGY, T
 from phc.errors import BackendUnsupported, CodegenError
 from phc.frontend.inputs import InputTable, InputTableSlope
@@ -370,8 +371,7 @@ class CPrinter:
             what = unsupported(Kernel((), (op,)).expressions()[0], self.known)
             if what:
                 raise CUnsupported(f"the C backend does not support {what} yet (in {name}, a linear block)")
-        exprs = [e for _, e, _ in targets] + Kernel((), kernel.sums).expressions()
-        replacements, reduced = _cse(exprs, sp.numbered_symbols("c"))
+        replacements, reduced = kernel_cse(self.ir, kernel, targets)
         printer = _Expressions(self.names, self.order)
         used = set()
         for e in [rhs for _, rhs in replacements] + list(reduced):

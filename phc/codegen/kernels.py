@@ -19,6 +19,7 @@ import sympy as sp
 
 from phc.frontend.budget import drop_deltas
 from phc.codegen.lower import ResidualIR
+from phc.codegen.printer import _cse, shared_cse
 from phc.ir.dae import STORED_ENERGY, T
 
 CJ = sp.Symbol("cj")
@@ -52,6 +53,27 @@ _COEFFICIENT = {"matvec": 5, "scatter": 3, "quad": 3, "grad": 4}
 def _coefficient(op):
     """The coefficient expression of a :class:`Kernel` sum."""
     return op[_COEFFICIENT[op[0]]]
+
+
+def kernel_cse(ir: ResidualIR, kernel: Kernel, targets: Optional[tuple] = None) -> tuple[list, list]:
+    """Common subexpressions of `kernel`'s expressions (its `targets`, else all of them), as
+    the compiled back ends print them: ``(replacements, reduced)``, the reduced target
+    expressions then the reduced coefficient of each sum. Searched once per IR, shared with
+    the NumPy module's printer (:func:`phc.codegen.printer.shared_cse`): the whole list where
+    that printer searched it (the energy and its quadratic forms' coefficients), else the
+    targets' list (the rows of the residual and the Jacobian), then the coefficients
+    (parameters only) among themselves, with symbols of their own (:class:`sympy.Dummy`)."""
+    targets = kernel.targets if targets is None else targets
+    exprs = [e for _, e, _ in targets]
+    coefficients = [_coefficient(op) for op in kernel.sums]
+    whole = ir.common_subexpressions.get(tuple(exprs + coefficients))
+    if whole is not None:
+        return whole
+    replacements, reduced = shared_cse(ir, exprs)
+    if coefficients:
+        more, rest = _cse(coefficients, sp.numbered_symbols("_c", cls=sp.Dummy))
+        replacements, reduced = [*replacements, *more], [*reduced, *rest]
+    return replacements, reduced
 
 
 def _canonical(matrix):
@@ -132,7 +154,7 @@ def function_kernels(ir: ResidualIR) -> list[FunctionKernel]:
     return out
 
 
-__all__ = ["CJ", "FunctionKernel", "Kernel", "function_kernels"]
+__all__ = ["CJ", "FunctionKernel", "Kernel", "function_kernels", "kernel_cse"]
 
 
 def product_parts(e: sp.Mul, order: str) -> tuple[bool, list, list]:

@@ -11,7 +11,7 @@ happens in the printer; no printing happens here.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Optional
 
 import networkx as nx
@@ -97,6 +97,9 @@ class ResidualIR:
     the last entries of the parameter vector (derived parameters fixed at 0: free)."""
     sticks: tuple[StickInfo, ...] = ()
     """Set-valued ``sign`` terms and their stick modes."""
+    common_subexpressions: dict = field(default_factory=dict, compare=False, repr=False)
+    """The common subexpressions of lists of these expressions, by the list: found once for the
+    NumPy module and the compiled back end's printer (:func:`phc.codegen.printer.shared_cse`)."""
 
 
 def _ordered_parameters(dae: Dae):

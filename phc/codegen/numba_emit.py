@@ -22,9 +22,8 @@ import numpy as np
 import sympy as sp
 
 # what each function computes (shared with the C back end), importable from here as before
-from phc.codegen.kernels import _COEFFICIENT, Kernel, _canonical, _coefficient, product_parts  # noqa: F401
+from phc.codegen.kernels import _COEFFICIENT, Kernel, _canonical, _coefficient, kernel_cse, product_parts  # noqa: F401
 from phc.codegen.lower import ResidualIR
-from phc.codegen.printer import _cse
 from phc.ir.dae import STORED_ENERGY, T
 from phc.frontend.inputs import InputTable, InputTableSlope
 
@@ -291,13 +290,13 @@ def _emit_kernel(context, builder, signature, args, kernel: Kernel, ir_: Residua
         slot = cgutils.alloca_once(builder, dbl)
         builder.store(llir.Constant(dbl, 0.0), slot)
         local = {**at, "out": lambda j: builder.gep(slot, [j if isinstance(j, llir.Value) else llir.Constant(intp, j)])}
-        _emit_body(context, builder, kernel.energy, local, loaders, cj, tables, printer)
+        _emit_body(context, builder, kernel.energy, ir_, local, loaders, cj, tables, printer)
         energy = builder.load(slot)
         loaders[STORED_ENERGY] = lambda: energy
-    _emit_body(context, builder, kernel, at, loaders, cj, tables, printer)
+    _emit_body(context, builder, kernel, ir_, at, loaders, cj, tables, printer)
 
 
-def _emit_body(context, builder, kernel: Kernel, at: dict, loaders: dict, cj, tables, printer):
+def _emit_body(context, builder, kernel: Kernel, ir_: ResidualIR, at: dict, loaders: dict, cj, tables, printer):
     """The targets and sums of `kernel` into ``at["out"]`` (pointers to its entries by index),
     its symbols read by `loaders`."""
     from llvmlite import ir as llir
@@ -307,7 +306,7 @@ def _emit_body(context, builder, kernel: Kernel, at: dict, loaders: dict, cj, ta
     dbl = llir.DoubleType()
     i64 = llir.IntType(64)
     emitter = _Emitter(context, builder, loaders, tables, printer)
-    replacements, reduced = _cse(kernel.expressions(), sp.numbered_symbols("_c"))
+    replacements, reduced = kernel_cse(ir_, kernel)
     for sym, rhs in replacements:
         emitter.values[sym] = emitter.value(rhs)
     n_targets = len(kernel.targets)

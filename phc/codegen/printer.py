@@ -312,6 +312,19 @@ def _cse(exprs: list, symbols) -> tuple[list, list]:
     return replacements, reduced
 
 
+def shared_cse(ir: ResidualIR, exprs: Sequence) -> tuple[list, list]:
+    """:func:`_cse` of `exprs` (expressions of `ir`), once per IR: the result the NumPy module's
+    printer found for the same list (it prints first; it records every search), else a new
+    search, recorded. A C build searched the residual's and Jacobian's expressions twice. The
+    replacement symbols are named by whoever searched (``_c0``, or ``_c24`` after a function's
+    switch blocks): a compiled back end names its locals by their position."""
+    key = tuple(exprs)
+    found = ir.common_subexpressions.get(key)
+    if found is None:
+        found = ir.common_subexpressions[key] = _cse(list(exprs), sp.numbered_symbols("_c"))
+    return found
+
+
 def _complex_prone(expr) -> bool:
     """Whether `expr` has a power that is complex for a negative Python float (``x**(1/3)``:
     NumPy scalars give nan, which the guard reports; a complex value could be made real
@@ -459,6 +472,7 @@ class ModulePrinter:
                 lines += ["else:"] + [f"    {sym.name} = math.nan" for _, sym in group]
         exprs = [e.xreplace(pieces) if isinstance(e, sp.Basic) and pieces else e for e in exprs]
         replacements, reduced = _cse(list(exprs), symbols)
+        self.ir.common_subexpressions[tuple(exprs)] = (replacements, reduced)  # for the compiled back end
         for sym, rhs in replacements:
             self.names[sym] = sym.name  # _c0, _c1, ...: generated here
             rhs = self._short_sums(rhs, symbols, printed, lines)
