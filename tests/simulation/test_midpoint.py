@@ -123,6 +123,39 @@ def test_a_step_that_fails_from_its_start_too_is_split_in_halves():
     assert min(h for _, h in tried) == 2.0
 
 
+def test_a_step_whose_halvings_all_fail_is_taken_in_unequal_pieces():
+    """`finish_step`: where every halving of a failed step fails too (here any substep whose
+    midpoint is within 1e-3 of a dyadic point of the step, as the substeps of a halving all are),
+    the step is taken as the pieces 1/3 and 2/3 of it (midpoints at 1/6 and 2/3: off that grid),
+    and counts as split; where those fail as well, the run stops with the reason."""
+    from types import SimpleNamespace
+
+    from phc.simulation.midpoint import MAX_SPLIT, finish_step
+
+    def on_dyadic_grid(x):
+        scaled = x * 2.0 ** (MAX_SPLIT + 1)
+        return abs(scaled - round(scaled)) < 1e-3 * 2.0 ** (MAX_SPLIT + 1)
+
+    def advance(t, h, y, guess):
+        if on_dyadic_grid(t + 0.5 * h):
+            return guess, False, "Newton did not converge"
+        return y + h, True, ""  # y' = 1
+
+    mod = SimpleNamespace(DIFFERENTIAL=[True], VARIABLES=["x"])
+    y_new, retried, failure, passed = finish_step(advance, None, mod, "rule", 0.0, 1.0, np.zeros(1), np.zeros(1),
+                                                  False, "Newton did not converge", False, False, None, [])
+    assert failure is None and retried and not passed and y_new.tolist() == [1.0]
+
+    def never(t, h, y, guess):
+        return guess, False, "Newton did not converge"
+
+    never.stage = None
+    monitor = SimpleNamespace(start=None, scales=None)
+    _, retried, failure, _ = finish_step(never, monitor, mod, "rule", 0.0, 1.0, np.zeros(1), np.zeros(1), False,
+                                         "Newton did not converge", False, False, np.zeros(1), [])
+    assert not retried and failure == "rule: Newton did not converge at t = 0; results up to this time are kept"
+
+
 def test_the_midpoint_predictor_is_the_lagrange_extrapolation():
     """predict_midpoint: a parabola through three midpoints at unequal times is reproduced at a
     new time (to round-off); the prediction error of a smooth function falls like h^(p+1)
