@@ -8,16 +8,14 @@ by ``models/n_four_bar.py`` with ``t_end = 20``, compiled as ``phc compile`` doe
 certificate, default back end), then run with the midpoint rule and the discrete gradient at
 h = 1e-3. The errors are against the exact one-degree-of-freedom motion (all cranks turn
 together; θ'' = −g·M/I·cos θ with I = (N+1)/3 + N and M = (N+1)/2 + N for unit bars, solved
-by SciPy's DOP853 at 1e-12 in the benchmark's process); the benchmark's tolerance is 1e-3 m on
+by SciPy at 1e-12: `exact_theta` of tests/hard/test_n_four_bar.py); the benchmark's tolerance is 1e-3 m on
 the tip B0 of crank 0, at most the crank angle's error in rad.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
-import math
 import resource
 import subprocess
 import sys
@@ -26,27 +24,15 @@ import time
 from pathlib import Path
 
 import numpy as np
-from scipy.integrate import solve_ivp
 
 ROOT = Path(__file__).resolve().parents[1]
-G = 9.81
+sys.path.insert(0, str(ROOT / "tests" / "hard"))
+sys.path.insert(0, str(ROOT / "tests"))
+from test_n_four_bar import _generator, exact_theta  # noqa: E402  (the exact motion the tests check against)
+
 T_END = 20.0
 STEP = 1e-3
 SOLVERS = ("midpoint", "discrete_gradient")
-
-
-def _generator():
-    spec = importlib.util.spec_from_file_location("n_four_bar", ROOT / "models" / "n_four_bar.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def exact_theta(loops: int, t: np.ndarray) -> np.ndarray:
-    inertia, moment = (loops + 1) / 3 + loops, (loops + 1) / 2 + loops
-    sol = solve_ivp(lambda _, x: [x[1], -G * moment / inertia * np.cos(x[0])], (0.0, float(t[-1])),
-                    [np.pi / 2, -1.0], method="DOP853", rtol=1e-12, atol=1e-12, dense_output=True)
-    return sol.sol(t)[0]
 
 
 def measure(loops: int) -> dict:

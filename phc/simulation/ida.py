@@ -347,17 +347,11 @@ def _approaching_singularity(monitor, h, how: str = "Newton's iteration failed b
     if positional:
         # still short of the rank drop: the monitor's check (singular at this step and at a 1000
         # times longer one) does not fire yet; the weakest direction at this step names it
-        saved, monitor.threshold = monitor.threshold, 1.0
-        try:
-            ratio, u = monitor._ratio_at(t_last, y_last, yp_last, h)
-        except (ModelEvaluationError, *CATCH, np.linalg.LinAlgError):
+        look = monitor.weakest(t_last, y_last, yp_last, h, 1.0)
+        if look is None or look[1] is None:
             return None
-        finally:
-            monitor.threshold = saved
-        if u is None:
-            return None
-        weak = [monitor.mod.EQUATIONS[i] for i in np.argsort(-np.abs(u))[:4] if abs(u[i]) > 0.1]
-        rows = [c for c in weak if c in set(getattr(monitor.mod, "INVARIANTS", ()))]
+        ratio, u = look
+        rows = [c for c in monitor.dependent(u)[0] if c in set(getattr(monitor.mod, "INVARIANTS", ()))]
         if len(rows) < 2:
             return None
         where = sorted({monitor.names[c].split(" row ")[0] for c in rows if c in monitor.names})

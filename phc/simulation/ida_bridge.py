@@ -81,15 +81,10 @@ def near_rank_drop(monitor, t, y, yp, h) -> bool:
     (:func:`bridge`), whose own check decides whether the motion passes."""
     if not monitor.enabled or not h > 0:
         return False
-    saved, monitor.threshold = monitor.threshold, NEAR_DROP
-    try:
-        ratio, u = monitor._ratio_at(t, y, yp, max(h, monitor.h_floor))
-    except (ModelEvaluationError, *CATCH, np.linalg.LinAlgError):
+    look = monitor.weakest(t, y, yp, max(h, monitor.h_floor), NEAR_DROP)
+    if look is None or look[1] is None:
         return False
-    finally:
-        monitor.threshold = saved
-    if u is None:
-        return False
+    u = look[1]
     rows, _ = monitor.dependent(u)
     return len(set(rows) & set(getattr(monitor.mod, "INVARIANTS", ()))) >= 2
 

@@ -221,6 +221,19 @@ class SingularityMonitor:
         u, _, _ = np.linalg.svd(J)
         return ratio, u[:, -1]
 
+    def weakest(self, t, y, yp, h, threshold: float):
+        """``(ratio, u)`` of the iteration matrix at this state and step, `u` the left singular
+        vector of its smallest singular value where the ratio is below `threshold` (else None);
+        None where the equations cannot be evaluated there. What the IDA driver asks near a rank
+        drop (:mod:`phc.simulation.ida`, :mod:`phc.simulation.ida_bridge`)."""
+        saved, self.threshold = self.threshold, threshold
+        try:
+            return self._ratio_at(t, y, yp, h)
+        except (ArithmeticError, ValueError, TypeError, np.linalg.LinAlgError, ModelEvaluationError):
+            return None
+        finally:
+            self.threshold = saved
+
     def check(self, t, y, yp, h, threshold: Optional[float] = None) -> Optional[str]:
         """A message if the iteration matrix is nearly singular, else None.
 
