@@ -14,11 +14,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Optional
 
-import networkx as nx
 import numpy as np
 import scipy.sparse as sps
 import sympy as sp
 
+from phc.analysis.order import topological_order
 from phc.frontend import budget
 from phc.ir.dae import T, Dae
 from phc.diagnostics import Diagnostic, DiagnosticList
@@ -106,14 +106,12 @@ def _ordered_parameters(dae: Dae):
     """Base parameters first, then derived ones in dependency order."""
     base = [p for p in dae.parameters if p.expr is None]
     derived = [p for p in dae.parameters if p.expr is not None]
-    graph = nx.DiGraph()
     by_symbol = {p.symbol: p for p in derived}
-    graph.add_nodes_from(by_symbol)
-    for p in derived:
-        for dep in p.expr.free_symbols & set(by_symbol):
-            graph.add_edge(dep, p.symbol)
-    order = [by_symbol[s] for s in nx.topological_sort(graph)]
-    return base + order
+    edges = [(dep, p.symbol) for p in derived for dep in p.expr.free_symbols & set(by_symbol)]
+    order = topological_order(by_symbol, edges)
+    if order is None:  # refused where they are written (PHC-E103): a fault in phc
+        raise AssertionError("derived parameters depend on each other in a cycle")
+    return base + [by_symbol[s] for s in order]
 
 
 def _sympy_zero(d):

@@ -42,9 +42,9 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any, Mapping, Optional, Sequence
 
-import networkx as nx
 import sympy as sp
 
+from phc.analysis.order import topological_order
 from phc.frontend.budget import MeshLedger
 from phc.ir.dae import Equation, Invariant, Parameter, Variable
 from phc.diagnostics import Diagnostic, DiagnosticList
@@ -170,14 +170,14 @@ class _Elaborator(Reporter):
             exprs[name] = self.expr(vctx, value, path, scope, check_units=False)  # checked in order below
             if len(self.diags) > n_diags:  # reported: checks of values that use it would only echo it
                 self.unset_parameters.add(symbols[name])
-        graph = nx.DiGraph()
-        graph.add_nodes_from(symbols.values())
-        for name, ex in exprs.items():
-            for dep in ex.free_symbols & set(symbols.values()):
-                graph.add_edge(dep, symbols[name])
-        try:
-            order = list(nx.topological_sort(graph))
-        except nx.NetworkXUnfeasible:
+        edges = [(dep, symbols[name]) for name, ex in exprs.items() for dep in ex.free_symbols & set(symbols.values())]
+        order = topological_order(symbols.values(), edges)
+        if order is None:
+            import networkx as nx  # only to name the cycle: networkx costs 0.3 s to import
+
+            graph = nx.DiGraph()
+            graph.add_nodes_from(symbols.values())
+            graph.add_edges_from(edges)
             cycle = nx.find_cycle(graph)
             names = " -> ".join(str(a) for a, _ in cycle)
             first = str(cycle[0][0]).rsplit(".", 1)[-1]

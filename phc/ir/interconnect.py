@@ -23,11 +23,10 @@ The connections it returns are the connection edges of the assembled topology.
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Mapping, Optional, Union
-
-import networkx as nx
 
 from phc.ir.dae import Topology
 from phc.diagnostics import Diagnostic, DiagnosticList
@@ -35,6 +34,8 @@ from phc.library.registry import FieldView, find
 from phc.spec.expressions import ExpressionError, validate_syntax
 
 if TYPE_CHECKING:
+    import networkx as nx
+
     from phc.spec.model import ModelSpec
 
 __all__ = ["Interconnection", "interconnect", "build_interconnection_graph", "check_connections", "component_graph", "component_of",
@@ -179,6 +180,8 @@ def _elements(source: Topology | ModelSpec) -> tuple[list, list, list, list, lis
 def build_interconnection_graph(source: Topology | ModelSpec) -> nx.MultiGraph:
     """Components, ports and connections of a :class:`~phc.spec.ModelSpec` or a
     :class:`~phc.ir.dae.Topology` as one multigraph (see the module docstring)."""
+    import networkx as nx  # here, not on import: compile needs no graph (0.3 s CPU)
+
     components, ports, connections, exposed, reads = _elements(source)
     graph = nx.MultiGraph()
     graph.add_nodes_from((("component", name), {"type": type_, "span": span}) for name, type_, span in components)
@@ -193,12 +196,18 @@ def build_interconnection_graph(source: Topology | ModelSpec) -> nx.MultiGraph:
     return graph
 
 
-Source = Union[Topology, "ModelSpec", nx.MultiGraph]
+Source = Union[Topology, "ModelSpec", "nx.MultiGraph"]
 """A topology, a model spec, or a graph already built from one."""
 
 
 def _graph(source: Source) -> nx.MultiGraph:
-    return source if isinstance(source, nx.MultiGraph) else build_interconnection_graph(source)
+    return source if _is_graph(source) else build_interconnection_graph(source)
+
+
+def _is_graph(source) -> bool:
+    """`source` is a networkx multigraph (there is none while networkx was never imported)."""
+    nx = sys.modules.get("networkx")
+    return nx is not None and isinstance(source, nx.MultiGraph)
 
 
 # -- the wiring check ---------------------------------------------------------------------
@@ -341,6 +350,8 @@ def component_graph(source: Source, *, reads: bool = False) -> nx.MultiGraph:
             connections.append(data)
         elif data["kind"] == "reads":
             read.append((u[1], v[1]))
+    import networkx as nx
+
     comps = nx.MultiGraph(view="components", reads=reads)
     comps.add_nodes_from(name for kind, name in graph if kind == "component")
     for data in sorted(connections, key=lambda d: d["index"]):
@@ -354,12 +365,14 @@ def component_graph(source: Source, *, reads: bool = False) -> nx.MultiGraph:
 
 
 def _is_component_graph(source) -> bool:
-    return isinstance(source, nx.MultiGraph) and source.graph.get("view") == "components"
+    return _is_graph(source) and source.graph.get("view") == "components"
 
 
 def connected_to(source: Source, names) -> set[str]:
     """Components with a path to one of `names` through connections and reads: the only
     ones that can influence them (power ports couple both ways)."""
+    import networkx as nx
+
     graph = component_graph(source, reads=True)
     return set().union(*(nx.node_connected_component(graph, name) for name in names))
 
@@ -371,6 +384,8 @@ def kinematic_loops(source: Source) -> list[list[str]]:
     Loops of connections imply algebraic constraints among the components' flows
     (information, not an error).
     """
+    import networkx as nx
+
     graph = component_graph(source)
     simple = nx.Graph(graph)
     loops = short_cycle_basis(simple)
@@ -428,6 +443,8 @@ def short_cycle_basis(graph: nx.Graph, search: int = 64) -> list[list]:
             if chord is not None:
                 vector |= 1 << chord
         return vector
+
+    import networkx as nx
 
     bridges = {_edge(*bridge, order) for bridge in nx.bridges(graph)}  # edges on no cycle
     candidates = {}  # one per cycle (several edges propose the same one)
@@ -503,6 +520,8 @@ def independent_parts(source: Source) -> list[list[str]]:
 
 
 def _parts(graph: nx.MultiGraph) -> list[list[str]]:
+    import networkx as nx
+
     parts = [sorted(c) for c in nx.connected_components(graph)]
     return sorted(parts, key=lambda c: (-len(c), c))
 
@@ -512,6 +531,8 @@ def traversal_order(source: Source) -> list[tuple[str, str, str]]:
     first component: tree edges before the loop-closing ones (any order gives the same
     interconnection by the paper's Remark 4 "Associativity of interconnection"). Every
     connection appears once, told apart by its place in the model (not by its label)."""
+    import networkx as nx
+
     graph = component_graph(source)
     order, seen = [], set()
     for part in _parts(graph):

@@ -20,7 +20,6 @@ ports are then related to the scheme's natural ones by ``f_∂ = T f_nat``,
 
 from __future__ import annotations
 
-import networkx as nx
 import numpy as np
 import sympy as sp
 
@@ -140,6 +139,8 @@ def lower_pde1d(b, ctx, name, spec, path):
         dissipation = [(spec.variables[i], spec.variables[j], Dc[i][j]) for i in range(d) for j in range(d)
                        if np.abs(Dv[i, j]).max() > 0]
     # Partition of the variables by the pattern of P_N (a bipartite graph).
+    import networkx as nx  # here, not on import (0.3 s CPU)
+
     graph = nx.Graph()
     graph.add_nodes_from(range(d))
     graph.add_edges_from((i, j) for i in range(d) for j in range(d) if abs(P[N][i, j]) > 0 and i != j)
