@@ -49,6 +49,30 @@ def test_import_and_help_do_not_load_the_numerical_stack():
     assert out.stdout.strip() == "[]", out.stdout
 
 
+COMPILE_NEVER = ("networkx", "numba", "sksundae", "matplotlib", "scipy.optimize", "scipy.integrate")
+"""What ``phc compile`` of a model without a graph to draw or a run to make does not import:
+networkx (about 0.3 s CPU of a cold compile; the interconnection graph's views import it),
+the run's solvers and the plots."""
+
+
+def test_a_cold_compile_imports_no_graph_library_and_no_solver(tmp_path):
+    """`phc compile --backend c` (numpy without a C compiler) with empty caches, certificate
+    included, in a fresh process: none of :data:`COMPILE_NEVER` is imported, and the files are
+    written. Fails where the compile path imports networkx at the top of a module."""
+    from phc.codegen import cc
+
+    backend = "c" if cc.available()[0] else "numpy"
+    code = ("import sys\nfrom phc.cli import main\n"
+            f"code = main(['compile', 'models/pendulum.yaml', '--backend', {backend!r}, '-o', {str(tmp_path / 'out')!r}])\n"
+            f"print(code, sorted(m for m in {COMPILE_NEVER!r} if m in sys.modules))\n")
+    env = dict(os.environ, PHC_CACHE_DIR=str(tmp_path / "cache"), PHC_STATE_DIR=str(tmp_path / "state"))
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=REPO,
+                         timeout=SUBPROCESS_TIMEOUT)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert run.stdout.strip().splitlines()[-1] == "0 []", run.stdout + run.stderr[-2000:]
+    assert (tmp_path / "out" / "pendulum.py").is_file()
+
+
 def test_the_command_line_imports_phc_names_only_from_the_public_api():
     assert CLI
     trees = [ast.parse(path.read_text()) for path in CLI]
