@@ -323,3 +323,25 @@ def test_cse_input_is_bounded(monkeypatch):
         phc.compile_model(MODELS / "rlc_circuit.yaml")
     (d,) = info.value.diagnostics
     assert d.code == "PHC-E702" and "common-subexpression elimination" in d.message and "the largest is" in d.message
+
+
+def test_derivative_is_sympys_diff_exactly():
+    """budget.derivative writes the product, power and chain rules itself (sympy's derivative
+    machinery is most of a compile's lowering): its result must be sympy's expression, not
+    merely an equal function, since the generated code prints it. Hand-made terms of each kind,
+    then every row of three shipped models (products of sums, square roots, sin/cos of an
+    angle, float coefficients) against every symbol in it."""
+    x, y, z = sp.symbols("x y z", real=True)
+    p = sp.Symbol("p", positive=True)
+    terms = [3 * x * y, -2.5 * x**2 * y * sp.sin(x), (x + y) * (x - 2 * y) * z, x * y / sp.sqrt(x**2 + y**2 + p),
+             (x * y + 1)**3, (x + y)**-2, sp.sqrt(x) * sp.cos(x * y), sp.sin(sp.cos(x) * y) * (x + 1.5),
+             p * x * (0.25 * x + 0.5 * y) * (3.3333333333333335 * x - y) / (p * sp.sqrt((x - y)**2 + 1)),
+             sp.cos(x)**2 * sp.sin(y) - x * sp.exp(x * y) + sp.Abs(x) * y, x**y * y, x * y * sp.Min(x, y)]
+    for term in terms:
+        for s in (x, y, z, p):
+            assert budget.derivative(term, s) == sp.diff(term, s), (term, s)
+    for name in ("flexible_slider_crank", "rigid_slider_crank", "pendulum"):
+        dae, _ = build_dae(MODELS / f"{name}.yaml")
+        for eq in dae.equations:
+            for s in sorted(eq.expr.free_symbols, key=str):
+                assert budget.derivative(eq.expr, s) == sp.diff(eq.expr, s), (name, eq.label, s)
