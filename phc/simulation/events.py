@@ -37,8 +37,8 @@ from typing import Callable, Optional
 import numpy as np
 
 from phc.errors import InconsistentInitialError, SwitchTimeError
-from phc.simulation.backend import BackendRun
 from phc.simulation import friction
+from phc.simulation.backend import BackendRun
 from phc.simulation.guard import CATCH, ModelEvaluationError
 from phc.simulation.impacts import CLOSE, Contacts, has_contacts
 from phc.simulation.initial import consistent_initial_conditions
@@ -78,12 +78,13 @@ class Event:
     0 when sticking begins."""
     kind: str
     """``time`` (a condition in t, located before the run), ``state`` (located by root
-    finding), ``stick`` or ``slip`` (a set-valued sign), ``impact`` (a contact's gap closed:
+    finding), ``stick`` or ``slip`` (a set-valued sign, or friction at the closed contact
+    `condition`: :mod:`phc.simulation.friction`), ``impact`` (a contact's gap closed:
     `condition` and `equation` name the contact, direction −1), ``close`` (the contact
-    closes: persistent contact, direction 0), ``open`` (its force fell to zero and it
-    opens, direction +1) and ``passage`` (IDA passed a rank drop of the position
-    constraints, bridged by the midpoint rule: `condition` names the connections, `equation`
-    the constraint rows, direction 0; :mod:`phc.simulation.ida_bridge`)."""
+    closes: persistent contact, direction 0), ``open`` (its force fell to zero: it opens,
+    direction +1) and ``passage`` (IDA passed a rank drop of the position constraints,
+    bridged by the midpoint rule: `condition` names the connections, `equation` the
+    constraint rows, direction 0; :mod:`phc.simulation.ida_bridge`)."""
     equation: str = ""
     """The residual row the condition occurs in."""
     comparison: bool = False
@@ -660,8 +661,7 @@ def _handle(watch: Watch, t, y, yp, which, events, dif, energy) -> tuple[np.ndar
         state = None
     for k in impacts:  # the momenta jump (phc.simulation.impacts); positions continuous
         if k >= watch.contacts.n:  # friction at a closed contact: stick or slip
-            state = y, yp = friction.on_event(watch, k - watch.contacts.n, t, y, yp, _restarts(watch, t, dif, energy),
-                                              events)
+            state = y, yp = friction.on_event(watch, k - watch.contacts.n, t, y, yp, events, dif, energy)
             continue
         name = watch.contacts.names[k]
         if watch.contacts.closed(k, watch.p):  # its force fell to zero: it opens
@@ -693,9 +693,8 @@ def _close(watch: Watch, k: int, t, y, yp, events, dif, energy):
     contacts = watch.contacts
     name = contacts.names[k]
     watch.p[contacts.mode[k]] = 1.0
-    modes = []  # with friction: sliding, or sticking where it can (phc.simulation.friction)
-    try:
-        y1, yp1 = friction.on_close(watch, k, t, y, yp, _restarts(watch, t, dif, energy), modes)
+    try:  # with friction: sliding, or sticking where it can (events of the mode: phc.simulation.friction)
+        y1, yp1, modes = friction.on_close(watch, k, t, y, yp, dif, energy)
     except InconsistentInitialError as err:
         raise _ContactRest(f"contact `{name}` cannot close at t = {t:.6g}: " + "; ".join(err.problems)) from None
     if y1[contacts.force[k]] < 0:
@@ -706,11 +705,6 @@ def _close(watch: Watch, k: int, t, y, yp, events, dif, energy):
     watch.handled.append((t, name, "contact"))
     events += [Event(t, name, 0, "close", name), *modes]
     return y1, yp1, True
-
-
-def _restarts(watch: Watch, t, dif, energy):
-    """``restart(y, states)``: the consistent state at t, the differential states fixed if `states`."""
-    return lambda z, states=True: _restart(watch, t, z, (dif if states else set()) | set(energy))
 
 
 def _open(watch: Watch, k: int, t, y, events, dif, energy):

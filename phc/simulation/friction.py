@@ -110,25 +110,36 @@ def _stick(watch, i: int, t, y, restart, events):
     return restart(y, True)
 
 
-def on_close(watch, k: int, t, y, yp, restart, events):
+def _restarts(watch, t, dif, energy):
+    """``restart(y, states)``: the consistent state at t, the differential states fixed if `states`."""
+    from phc.simulation.events import _restart  # events imports this module
+
+    return lambda z, states=True: _restart(watch, t, z, (dif if states else set()) | set(energy))
+
+
+def on_close(watch, k: int, t, y, yp, dif, energy):
     """Contact k closes at (t, y) (its mode already 1): the friction mode it closes in —
-    sliding with the sign of v_t, or a stick trial where v_t = 0 — and the consistent state.
-    `restart(y, states)` solves a consistent state, the differential states fixed if `states`."""
+    sliding with the sign of v_t, or a stick trial where v_t = 0. Returns the consistent
+    state and the mode's event, ``(y, ẏ, events)`` (`dif`, `energy`: the columns of the
+    differential states and of the energy)."""
+    restart = _restarts(watch, t, dif, energy)
     f = watch.contacts.friction
     i = f.of[k]
+    events: list = []
     if i is None:
-        return restart(y, True)
+        return (*restart(y, True), events)
     v = float(y[f.slip[i]])
     if abs(v) > 1e-12 * (1.0 + float(np.abs(yp).max(initial=0.0))):
         watch.p[f.mode[i]] = np.sign(v)
         events.append(_event(t, watch.contacts.names[k], np.sign(v), "slip"))
-        return restart(y, True)
-    return _stick(watch, i, t, y, restart, events)
+        return (*restart(y, True), events)
+    return (*_stick(watch, i, t, y, restart, events), events)
 
 
-def on_event(watch, j: int, t, y, yp, restart, events):
+def on_event(watch, j: int, t, y, yp, events, dif, energy):
     """Entry j of the friction watch fell through zero at (t, y): σ v_t of a sliding contact
     (it tries to stick) or a bound of a sticking one (it slips)."""
+    restart = _restarts(watch, t, dif, energy)
     f = watch.contacts.friction
     i = j // 2
     k = f.contact[i]
