@@ -277,3 +277,16 @@ def test_friction_mistakes_are_located(tmp_path):
     with pytest.raises(ModelError) as err:
         _compile(tmp_path, FLOOR.replace("friction: mu}", "friction: -mu}"))
     assert "`friction` of contact `floor` is -0.3" in str(err.value)
+
+
+def test_check_sees_the_masses_friction_couples_as_one_part(tmp_path):
+    """`phc check`: the tangent's mass (bx) is coupled to the gap's (by) through the contact
+    (its friction), so the ramp model is one part (no PHC-W201)."""
+    from phc.checks.certify import certify
+
+    path = tmp_path / "model.yaml"
+    path.write_text(RAMP)
+    dae, _ = phc.build_dae(path)
+    cert = certify(dae)
+    assert len(cert.parts) == 1, cert.parts
+    assert not [d for d in cert.diagnostics if d.code == "PHC-W201"]
