@@ -48,6 +48,8 @@ class Friction:
         self.of: list[Optional[int]] = []
         """For each contact, its index here (None: no friction)."""
         self.contact, self.slip, self.force, self.mode, self.mu = [], [], [], [], []
+        self.tangents: list[list[tuple[int, int]]] = []
+        """(output ∂s/∂x_j, momentum column) of each frictional contact."""
         for k, c in enumerate(contacts.names):
             slots = (variables.get(f"{c}.slip_rate"), variables.get(f"{c}.friction_force"),
                      parameters.get(f"{c}.sliding"), outputs.get(f"{c}.friction"))
@@ -58,6 +60,8 @@ class Friction:
             self.contact.append(k)
             for where, slot in zip((self.slip, self.force, self.mode, self.mu), slots):
                 where.append(slot)
+            head = f"{c}.tangent."
+            self.tangents.append([(o, variables[n[len(head):]]) for n, o in outputs.items() if n.startswith(head)])
         self.n = len(self.contact)
         self.contacts = contacts
 
@@ -89,12 +93,40 @@ def _event(t, name, direction, kind):
     return Event(t, name, int(direction), kind, f"{name}.friction")
 
 
+def _stop(watch, i: int, t, y, restart):
+    """y with the slip rate v_t that the event's location error leaves (v_t is affine in the
+    momenta) removed by a tangential impulse p_j += Λ ∂s/∂x_j, its kinetic energy booked as
+    dissipated; the slope dv_t/dΛ is measured from one consistent state, the contact held
+    open for it (as :meth:`~phc.simulation.impacts.Contacts.plastic` measures the normal's)."""
+    f, contacts = watch.contacts.friction, watch.contacts
+    k = f.contact[i]
+    v = float(y[f.slip[i]])
+    out = contacts.outputs(t, y, y * 0.0, watch.p)
+    direction = np.zeros(len(y))
+    for o, pj in f.tangents[i]:
+        direction[pj] += out[o]
+    closed, watch.p[contacts.mode[k]] = watch.p[contacts.mode[k]], 0.0
+    try:
+        before, after = restart(y, True)[0][f.slip[i]], restart(y + direction, True)[0][f.slip[i]]
+    except InconsistentInitialError:
+        return y
+    finally:
+        watch.p[contacts.mode[k]] = closed
+    if v == 0.0 or not after - before > 0:
+        return y
+    new = y - (before / (after - before)) * direction
+    energy = list(contacts.mod.VARIABLES).index("energy.supplied")
+    new[energy] += float(contacts.mod.hamiltonian(t, y, watch.p)) - float(contacts.mod.hamiltonian(t, new, watch.p))
+    return new
+
+
 def _stick(watch, i: int, t, y, restart, events):
     """Try to stick frictional contact i at (t, y): keep it where the force needed is
     admissible, else slide the way that force cannot hold. Returns the consistent (y, ẏ)."""
     f = watch.contacts.friction
     name = watch.contacts.names[f.contact[i]]
     sigma = watch.p[f.mode[i]]
+    y = _stop(watch, i, t, y, restart)
     watch.p[f.mode[i]] = 0.0
     try:
         y1, yp1 = restart(y, True)

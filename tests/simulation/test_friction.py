@@ -206,14 +206,13 @@ def test_block_launched_on_a_floor_stops_and_stays(tmp_path, solver, kw):
     tol = 1e-9 if solver == "ida" else 1e-12
     assert np.allclose(x, exact, rtol=0, atol=tol)
     v = _col(r, "floor.slip_rate")
-    # after the stop: the speed at the event's location error, mu g * 1e-12
-    assert np.abs(v[~before]).max() < 1e-10
+    assert np.abs(v[~before]).max() < 1e-14  # held at 0 (round-off of the solves)
     force_t = _col(r, "floor.friction_force")
     assert np.allclose(force_t[before], -mu * m * g, rtol=1e-12)
-    # stuck: λ_t = 0 but for the slip rate the stop's location error leaves (v ≈ μ g·1e-12),
-    # which the constraint v_t = 0 removes over the next steps with λ_t ≈ m v/h (1e-7 m g for
-    # midpoint4's stages at h = 2e-3)
-    assert np.abs(force_t[~before]).max() < 1e-6 * m * g
+    # stuck: λ_t = 0 (the slip rate the stop's location error leaves, μ g·1e-12, is removed by
+    # a tangential impulse at the stick, friction._stop; without it midpoint4's stages took it
+    # out over a few steps with λ_t ≈ m v/h = 1e-7 m g); round-off of the solves
+    assert np.abs(force_t[~before]).max() < 1e-12 * m * g
     assert np.allclose(_col(r, "floor.force"), m * g, rtol=1e-12)
     assert r.energy_supplied[-1] == pytest.approx(0.5 * m * v0**2, rel=1e-9)
     assert r.energy_balance_relative < 1e-12
