@@ -64,14 +64,15 @@ def _signal_blocks(top) -> set[str]:
 
 def _contact_bodies(top, dae) -> dict[str, set[str]]:
     """Each `contact` component (:mod:`phc.library.contact`) and the components whose momenta
-    its impacts act on (its outputs ``<contact>.normal.<component>.<momentum>``)."""
+    its impacts and friction act on (its outputs ``<contact>.normal.<component>.<momentum>``,
+    ``<contact>.tangent.…``)."""
     names = {name for name, _, _ in top.components}
     out: dict[str, set[str]] = {}
     for name, kind, _ in top.components:
         if kind != "contact":
             continue
-        prefix = f"{name}.normal."
-        momenta = [o[len(prefix):] for o, _ in dae.outputs if o.startswith(prefix)]
+        heads = (f"{name}.normal.", f"{name}.tangent.")
+        momenta = [o[len(h):] for o, _ in dae.outputs for h in heads if o.startswith(h)]
         out[name] = {n for n in names for m in momenta if m.startswith(n + ".")}
     return out
 

@@ -403,7 +403,8 @@ def _contact_forces(elab, rows: list, states: dict) -> None:
     holds ġ = 0, so the force does no work (λ ġ = 0 in both modes). In that row ġ = Σ n_j ẋ_j
     is written with each ẋ_j from the row that holds it (a mass's ẋ = p/m): a row without
     rates, like a velocity constraint, whose derivative (one differentiation, as consistent
-    initialization takes it) determines λ."""
+    initialization takes it) determines λ. Friction (:func:`phc.library.contact._friction`)
+    likewise: λ_t ∂s/∂x_j on the momenta, and the slip row ``v_t = ṡ`` in those velocities."""
     contacts = [c for c, spec in elab.component_specs.items() if getattr(spec, "type", None) == "contact"]
     if not contacts:
         return
@@ -411,9 +412,9 @@ def _contact_forces(elab, rows: list, states: dict) -> None:
     symbols = {v.name: v.symbol for v in elab.variables}
     rates = {v.dsymbol for v in states.values()}
 
-    def holding(rate, skip=-1):
+    def holding(rate, skip=()):
         """The one row holding `rate` (affine in it, constant slope): (index, slope)."""
-        found = [i for i, eq in enumerate(rows) if i != skip and rate in eq.expr.free_symbols]
+        found = [i for i, eq in enumerate(rows) if i not in skip and rate in eq.expr.free_symbols]
         slope = sp.diff(rows[found[0]].expr, rate) if len(found) == 1 else None
         if slope is None or not slope.is_number or slope == 0:
             raise AssertionError(f"contact: the rate `{rate}` is in {len(found)} rows (expected one, affine in it)")
@@ -422,23 +423,27 @@ def _contact_forces(elab, rows: list, states: dict) -> None:
     for c in contacts:
         if f"{c}.force" not in symbols:
             continue  # the contact failed to lower (reported)
-        force = symbols[f"{c}.force"]
-        head = f"{c}.normal."
-        for name, normal in elab.extra_outputs.items():
-            if name.startswith(head):
-                i, slope = holding(by_name[name[len(head):]].dsymbol)
-                eq = rows[i]
-                rows[i] = Equation(eq.expr - slope * force * normal, eq.label, eq.kind, eq.component, eq.span)
-        closure = next(i for i, eq in enumerate(rows) if eq.label == f"{c}.closure")
-        expr = rows[closure].expr
-        for x in sorted(expr.free_symbols & rates, key=lambda s: s.name):
-            i, slope = holding(x, skip=closure)
-            velocity = x - rows[i].expr / slope
-            if velocity.free_symbols & rates:
-                raise AssertionError(f"contact `{c}`: the row holding `{x}` holds other rates")
-            expr = expr.xreplace({x: velocity})
-        eq = rows[closure]
-        rows[closure] = Equation(expr, eq.label, eq.kind, eq.component, eq.span)
+        # the normal force λ along ∂g/∂x_j; with friction the tangential force λ_t along ∂s/∂x_j
+        for force, head, row in ((symbols[f"{c}.force"], f"{c}.normal.", f"{c}.closure"),
+                                 (symbols.get(f"{c}.friction_force"), f"{c}.tangent.", f"{c}.slip")):
+            if force is None:
+                continue
+            for name, normal in elab.extra_outputs.items():
+                if name.startswith(head):
+                    i, slope = holding(by_name[name[len(head):]].dsymbol)
+                    eq = rows[i]
+                    rows[i] = Equation(eq.expr - slope * force * normal, eq.label, eq.kind, eq.component, eq.span)
+            closure = next(i for i, eq in enumerate(rows) if eq.label == row)
+            own = {i for i, eq in enumerate(rows) if eq.label in (f"{c}.closure", f"{c}.slip")}
+            expr = rows[closure].expr
+            for x in sorted(expr.free_symbols & rates, key=lambda s: s.name):
+                i, slope = holding(x, skip=own)
+                velocity = x - rows[i].expr / slope
+                if velocity.free_symbols & rates:
+                    raise AssertionError(f"contact `{c}`: the row holding `{x}` holds other rates")
+                expr = expr.xreplace({x: velocity})
+            eq = rows[closure]
+            rows[closure] = Equation(expr, eq.label, eq.kind, eq.component, eq.span)
 
 
 def _resolve_definitions(uf, defs, rows) -> dict:

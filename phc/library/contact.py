@@ -65,35 +65,27 @@ def lower_contact(b, ctx, name, spec, path):
     e = b.expr(ctx, spec.restitution, (*path, "restitution"), _scope(ctx))
     rest = (None if spec.rest_speed is None
             else b.expr(ctx, spec.rest_speed, (*path, "rest_speed"), _scope(ctx)))
+    mu = None if spec.friction is None else b.expr(ctx, spec.friction, (*path, "friction"), _scope(ctx))
+    tangent = None if spec.tangent is None else b.expr(ctx, spec.tangent, (*path, "tangent"), _state_scope(b, ctx))
     if len(b.diags.errors) > n_errors:
         b.failed.add(name)
         return
-    states = {v.symbol: v for v in b.known_variables() if v.differential}
-    if T in gap.free_symbols:
-        b.error("PHC-E126", f"the `gap` of contact `{name}` depends on `t`: phc moves only the masses at an impact",
-                ctx, (*path, "gap"), hint="write the gap in the positions of masses (a moving wall is a mass "
-                "driven by a `flow_source`)")
+    if (mu is None) != (tangent is None):
+        field, other = ("friction", "tangent") if mu is not None else ("tangent", "friction")
+        b.error("PHC-E126", f"contact `{name}` has `{field}` but no `{other}`: friction needs both", ctx,
+                (*path, field), hint="give `friction: mu` (Coulomb's coefficient) and `tangent:` the coordinate "
+                "along the surface whose rate is the slip rate, e.g. `block.x` for a floor `block.y`")
         b.failed.add(name)
         return
-    positions = []
-    for sym in sorted(gap.free_symbols & set(states), key=lambda s: s.name):
-        momentum, why = _momentum(ctx, sym.name)
-        if momentum is None or not any(v.name == momentum for v in states.values()):
-            why = why or "which is not the position of a mass or of a rigid body"
-            b.error("PHC-E126", f"the `gap` of contact `{name}` uses `{sym.name}`, {why}", ctx, (*path, "gap"),
-                    hint="a gap is written in positions `<mass>.x` of masses with `position: true`, or in "
-                    "the coordinates q of `rigid` bodies without `Z` and `constraints`, declared before the contact")
-            b.failed.add(name)
-            return
-        positions.append((sym, momentum))
-    if not positions:
-        b.error("PHC-E126", f"the `gap` of contact `{name}` uses no position of a mass, so nothing can hit",
-                ctx, (*path, "gap"), hint="write it in positions `<mass>.x` of masses with `position: true`, e.g. "
-                "`ball.x - h0`")
+    states = {v.symbol: v for v in b.known_variables() if v.differential}
+    positions = _positions(b, ctx, name, "gap", gap, states, path)
+    slides = [] if tangent is None else _positions(b, ctx, name, "tangent", tangent, states, path)
+    if positions is None or slides is None:
         b.failed.add(name)
         return
     for field, value, ok, meaning in (("restitution", e, lambda v: 0 <= v <= 1, "it must lie in [0, 1]"),
-                                      ("rest_speed", rest, lambda v: v >= 0, "it must be ≥ 0")):
+                                      ("rest_speed", rest, lambda v: v >= 0, "it must be ≥ 0"),
+                                      ("friction", mu, lambda v: v >= 0, "it must be ≥ 0")):
         if value is None:
             continue
         if value.free_symbols - set(ctx.params.values()):
@@ -127,4 +119,60 @@ def lower_contact(b, ctx, name, spec, path):
     d = DiracBuilder(name, "contact", span)
     d.multipliers.append(force)
     d.rel(sp.Piecewise((rate, sp.Gt(closed, 0)), (force, True)), kind="contact", label="closure")
+    slip = None if mu is None else _friction(b, d, name, mu, tangent, slides, states, closed, force, span)
     emit(b, d.register(b))
+    if slip is not None:  # the friction power −λ_t ṡ ≥ 0 is dissipated (λ_t = 0 open, ṡ = 0 sticking)
+        b.dissipation.append((name, -slip[0] * slip[1], span))
+
+
+def _friction(b, d, name, mu, tangent, slides, states, closed, force, span) -> tuple:
+    """Coulomb friction at the closed contact (docs/events.md): the slip rate
+    ``<name>.slip_rate`` v_t = ṡ (row ``<name>.slip``, written with the masses' velocities at
+    assembly, as the closure row) and the friction force ``<name>.friction_force`` λ_t, which
+    assembly adds to the momenta as λ_t ∂s/∂x_j (outputs ``<name>.tangent.<momentum>``). Row
+    ``<name>.friction``: λ_t = 0 while open; while closed, by the mode ``<name>.sliding`` σ
+    (set by the driver, :mod:`phc.simulation.friction`): λ_t = −μ σ λ sliding (σ = ±1, the
+    sign of v_t), v_t = 0 sticking (σ = 0; λ_t its multiplier). Returns (λ_t, v_t)."""
+    rate = sp.Integer(0)
+    for x, momentum in slides:
+        direction = sp.diff(tangent, x)
+        b.extra_outputs[f"{name}.tangent.{momentum}"] = direction
+        rate += direction * states[x].dsymbol
+    b.extra_outputs[f"{name}.friction"] = mu
+    slip = b.add_algebraic(name, "slip_rate", "flow", span)
+    lam_t = b.add_algebraic(name, "friction_force", "multiplier", span)
+    sliding = sp.Symbol(f"{name}.sliding", real=True)
+    b.parameters[sliding.name] = Parameter(sliding.name, sliding, 0.0, description=(
+        f"friction mode of contact `{name}`: ±1 sliding (the sign of its slip rate), 0 sticking, set by the "
+        "simulation driver"), span=span)
+    d.multipliers.extend((slip, lam_t))
+    d.rel(slip - rate, kind="contact", label="slip")
+    d.rel(sp.Piecewise((lam_t, sp.Le(closed, 0)), (lam_t + mu * force, sp.Gt(sliding, 0)),
+                       (lam_t - mu * force, sp.Lt(sliding, 0)), (slip, True)), kind="contact", label="friction")
+    return lam_t, slip
+
+
+def _positions(b, ctx, name, field, expr, states, path):
+    """The positions `expr` (the gap or the tangent) is written in, with their momenta; None
+    after a located error."""
+    if T in expr.free_symbols:
+        b.error("PHC-E126", f"the `{field}` of contact `{name}` depends on `t`: phc moves only the masses at an "
+                "impact", ctx, (*path, field), hint="write it in the positions of masses (a moving wall is a mass "
+                "driven by a `flow_source`)")
+        return None
+    positions = []
+    for sym in sorted(expr.free_symbols & set(states), key=lambda s: s.name):
+        momentum, why = _momentum(ctx, sym.name)
+        if momentum is None or not any(v.name == momentum for v in states.values()):
+            why = why or "which is not the position of a mass or of a rigid body"
+            b.error("PHC-E126", f"the `{field}` of contact `{name}` uses `{sym.name}`, {why}", ctx, (*path, field),
+                    hint=f"a {field} is written in positions `<mass>.x` of masses with `position: true`, or in "
+                    "the coordinates q of `rigid` bodies without `Z` and `constraints`, declared before the contact")
+            return None
+        positions.append((sym, momentum))
+    if not positions:
+        b.error("PHC-E126", f"the `{field}` of contact `{name}` uses no position of a mass, so nothing can "
+                f"{'hit' if field == 'gap' else 'slide'}", ctx, (*path, field),
+                hint="write it in positions `<mass>.x` of masses with `position: true`, e.g. `ball.x - h0`")
+        return None
+    return positions

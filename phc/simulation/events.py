@@ -37,6 +37,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from phc.errors import InconsistentInitialError, SwitchTimeError
+from phc.simulation import friction
 from phc.simulation.backend import BackendRun
 from phc.simulation.guard import CATCH, ModelEvaluationError
 from phc.simulation.impacts import CLOSE, Contacts, has_contacts
@@ -77,12 +78,13 @@ class Event:
     0 when sticking begins."""
     kind: str
     """``time`` (a condition in t, located before the run), ``state`` (located by root
-    finding), ``stick`` or ``slip`` (a set-valued sign), ``impact`` (a contact's gap closed:
+    finding), ``stick`` or ``slip`` (a set-valued sign, or friction at the closed contact
+    `condition`: :mod:`phc.simulation.friction`), ``impact`` (a contact's gap closed:
     `condition` and `equation` name the contact, direction −1), ``close`` (the contact
-    closes: persistent contact, direction 0), ``open`` (its force fell to zero and it
-    opens, direction +1) and ``passage`` (IDA passed a rank drop of the position
-    constraints, bridged by the midpoint rule: `condition` names the connections, `equation`
-    the constraint rows, direction 0; :mod:`phc.simulation.ida_bridge`)."""
+    closes: persistent contact, direction 0), ``open`` (its force fell to zero: it opens,
+    direction +1) and ``passage`` (IDA passed a rank drop of the position constraints,
+    bridged by the midpoint rule: `condition` names the connections, `equation` the
+    constraint rows, direction 0; :mod:`phc.simulation.ida_bridge`)."""
     equation: str = ""
     """The residual row the condition occurs in."""
     comparison: bool = False
@@ -113,7 +115,7 @@ class Watch:
         self.p = np.array(p, dtype=float)
         self.n_sw, self.n_st = len(mod.SWITCHES), len(mod.STICKS)
         self.contacts = Contacts(mod)
-        self.n_ct = self.contacts.n
+        self.n_ct = self.contacts.n_watch
         self.n = self.n_sw + 2 * self.n_st + self.n_ct
         self.slots = np.asarray(mod.SWITCH_SLOTS, dtype=np.int64)
         self.time_only = np.asarray(mod.SWITCH_TIME_ONLY, dtype=bool)
@@ -658,6 +660,9 @@ def _handle(watch: Watch, t, y, yp, which, events, dif, energy) -> tuple[np.ndar
         y, yp = _restart(watch, t, state[0] if state is not None else y, dif | set(energy))
         state = None
     for k in impacts:  # the momenta jump (phc.simulation.impacts); positions continuous
+        if k >= watch.contacts.n:  # friction at a closed contact: stick or slip
+            state = y, yp = friction.on_event(watch, k - watch.contacts.n, t, y, yp, events, dif, energy)
+            continue
         name = watch.contacts.names[k]
         if watch.contacts.closed(k, watch.p):  # its force fell to zero: it opens
             y, yp = _open(watch, k, t, y, events, dif, energy)
@@ -688,8 +693,8 @@ def _close(watch: Watch, k: int, t, y, yp, events, dif, energy):
     contacts = watch.contacts
     name = contacts.names[k]
     watch.p[contacts.mode[k]] = 1.0
-    try:
-        y1, yp1 = _restart(watch, t, y, dif | set(energy))
+    try:  # with friction: sliding, or sticking where it can (events of the mode: phc.simulation.friction)
+        y1, yp1, modes = friction.on_close(watch, k, t, y, yp, dif, energy)
     except InconsistentInitialError as err:
         raise _ContactRest(f"contact `{name}` cannot close at t = {t:.6g}: " + "; ".join(err.problems)) from None
     if y1[contacts.force[k]] < 0:
@@ -698,7 +703,7 @@ def _close(watch: Watch, k: int, t, y, yp, events, dif, energy):
     # the impacts that accumulated here are over (the chatter test counts what follows)
     watch.handled[:] = [h for h in watch.handled if h[1] != name]
     watch.handled.append((t, name, "contact"))
-    events.append(Event(t, name, 0, "close", name))
+    events += [Event(t, name, 0, "close", name), *modes]
     return y1, yp1, True
 
 
@@ -747,7 +752,7 @@ def _settle(watch: Watch, t, y, yp, events, dif, energy, rounds: int = 4):
         scale = 1e-9 * (1.0 + float(np.abs(v).max(initial=0.0)))
         wrong = np.flatnonzero(w[:watch.n_sw] < -scale)
         loose = [j for j in np.flatnonzero(watch.stuck) if abs(v[watch.n_sw + j]) > 1.0 + STICK_SLACK]
-        if not len(wrong) and not loose:
+        if not len(wrong) and not loose and not friction.settle(watch, t, y, yp, events):
             break
         for k in wrong:
             new = -watch.mode(int(k))

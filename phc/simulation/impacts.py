@@ -32,6 +32,7 @@ from typing import Optional
 
 import numpy as np
 
+from phc.simulation.friction import Friction
 from phc.simulation.midpoint import EVENT_TOL  # the relative time an event is located to
 
 REST_FRACTION = 1e-6
@@ -88,6 +89,10 @@ class Contacts:
         event's location error), and a solver sees a crossing only from a positive value;
         with the offset a rebound whose whole flight lies within one step (the last bounces
         before a ball comes to rest) is still an impact at the step's end."""
+        self.friction = Friction(mod, self)
+        """Coulomb friction at the closed contacts that have it (:mod:`phc.simulation.friction`)."""
+        self.n_watch = self.n + 2 * self.friction.n
+        """The functions watched: one per contact, two per frictional contact."""
 
     def outputs(self, t, y, yp, p) -> np.ndarray:
         return np.asarray(self.mod.outputs(t, y, yp, p), dtype=float)
@@ -100,12 +105,14 @@ class Contacts:
 
     def watched(self, t, y, yp, p) -> np.ndarray:
         """What the driver watches of each contact: its gap (with the offset) while open, its
-        force λ while closed (each positive while the mode holds)."""
-        w = self.gaps(t, y, yp, p)
+        force λ while closed (each positive while the mode holds); then two functions per
+        frictional contact (:meth:`Friction.watched <phc.simulation.friction.Friction.watched>`)."""
+        out = self.outputs(t, y, yp, p) if self.n else np.zeros(0)
+        w = out[self.gap_idx] + self.offset if self.n else np.zeros(0)
         for k in range(self.n):
             if self.closed(k, p):
                 w[k] = y[self.force[k]]
-        return w
+        return np.concatenate([w, self.friction.watched(y, p, out)]) if self.friction.n else w
 
     def rate_of(self, t, y, yp, p, k: int) -> float:
         return float(self.outputs(t, y, yp, p)[self.rate[k]])
@@ -135,8 +142,8 @@ class Contacts:
         loss ġ⁻²/(2c) booked as dissipated: ``(y⁺, ẏ⁺, stop message or None)``."""
         out = self.outputs(t, y, yp, p)
         before = float(out[self.rate[k]])
-        if before == 0.0:
-            return y, yp, None
+        if abs(before) <= 1e-14 * (1.0 + float(np.abs(yp).max(initial=0.0))):
+            return y, yp, None  # round-off of the consistent start: its loss is below H's round-off
         normal = self._normal(k, out, len(y))
         slope = self._slope(k, t, y, p, normal, before, restart)
         if not slope > 0:

@@ -743,7 +743,8 @@ class ContactSpec(_Component):
     closes: it holds ġ = 0 with the contact force `<name>.force` ≥ 0 (a variable of the run)
     until that force falls to zero, where it opens again. Outputs `<name>.gap`,
     `<name>.gap_rate` (ġ), `<name>.restitution` and one `<name>.normal.<momentum>` per
-    momentum the impulse acts on (docs/events.md)."""
+    momentum the impulse acts on. With `friction` and `tangent`, Coulomb friction acts
+    while the contact is closed (docs/events.md)."""
 
     type: Literal["contact"]
     gap: Expr
@@ -758,6 +759,16 @@ class ContactSpec(_Component):
     accumulate at a finite time, and the ball then lies on the floor); the impact is then
     plastic. It also closes where 50 impacts fall within 1e-6 of the run. Default: 1e-6 of
     the largest closing speed this contact has seen in the run."""
+    friction: Optional[Expr] = None
+    """Coulomb's coefficient of friction μ ≥ 0 (parameters only) while the contact is closed:
+    a tangential force `<name>.friction_force` λ_t along the `tangent` with |λ_t| ≤ μ λ,
+    sticking (the slip rate held at 0, λ_t its multiplier) or sliding (λ_t = −μ λ
+    sign(slip rate)); its power −λ_t·(slip rate) is counted as dissipated. Needs `tangent`.
+    Impacts stay frictionless (docs/events.md)."""
+    tangent: Optional[Expr] = None
+    """The coordinate s(x) along the surface (positions and parameters, like `gap`) whose rate
+    ṡ = Σ ∂s/∂x_j ẋ_j is the slip rate `<name>.slip_rate`, e.g. `block.x` for a floor
+    `block.y`; ∂s/∂x should be orthogonal to the normal ∂g/∂x. Only with `friction`."""
 
 
 ComponentSpec = Annotated[

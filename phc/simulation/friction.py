@@ -1,0 +1,206 @@
+"""Coulomb friction at a closed contact: sticking and sliding as modes with located events.
+
+Input: a generated module whose ``contact`` has `friction` and `tangent`
+(:func:`phc.library.contact._friction`: the variables ``<c>.slip_rate`` v_t and
+``<c>.friction_force`` λ_t, the output ``<c>.friction`` μ, the mode parameter
+``<c>.sliding`` σ). Output: :class:`Friction`, the functions the event driver
+(:mod:`phc.simulation.events`) watches beside each contact's gap or force, and the mode
+changes at their events (:func:`on_close`, :func:`on_event`, :func:`settle`).
+
+While the contact is open λ_t = 0. While it is closed (normal force λ ≥ 0 the multiplier
+of ġ = 0) the row ``<c>.friction`` holds, by σ:
+
+* **sliding** (σ = ±1, the sign of v_t): λ_t = −μ σ λ. The driver watches σ v_t; where it
+  falls through zero the contact tries to **stick**: σ = 0, the row holds v_t = 0 and λ_t is
+  its multiplier, the consistent state is solved, and the stick is kept if |λ_t| ≤ μ λ (the
+  force needed to hold the bodies is admissible; the same switch model of Karnopp as the
+  set-valued ``sign`` of :mod:`phc.simulation.events`). Otherwise it slides on the other way,
+  σ = −sign(λ_t) of the trial. Before the trial the slip rate that the event's location error
+  leaves is removed by a tangential impulse (its tiny kinetic energy booked as dissipated),
+  so a stick holds v_t = 0 to round-off from its first step.
+* **sticking** (σ = 0): the driver watches μ λ − λ_t and μ λ + λ_t; where one falls through
+  zero (|λ_t| reaches μ λ) it **slips**, σ = −sign(λ_t) — λ_t is continuous there.
+
+A contact closes (:func:`on_close`) sliding with σ = sign(v_t) when it slides, and tries to
+stick when v_t = 0 (a block put down on a slope). The friction power is λ_t v_t: −μ λ |v_t| ≤ 0
+sliding, 0 sticking or open; the contact's dissipation term −λ_t v_t books it, so the energy
+balance H(t) − H(0) + E(t) stays exact. Impacts stay frictionless (the impulse acts along the
+normal only): frictional impacts are not modelled.
+"""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import numpy as np
+
+from phc.errors import InconsistentInitialError
+
+STICK_SLACK = 1e-9
+"""A stick is kept while |λ_t| ≤ (1 + slack) μ λ (as :data:`phc.simulation.events.STICK_SLACK`)."""
+
+
+class Friction:
+    """The frictional contacts of a module (`contacts`: a :class:`~phc.simulation.impacts.Contacts`)."""
+
+    def __init__(self, mod, contacts):
+        variables = {n: i for i, n in enumerate(mod.VARIABLES)}
+        parameters = {n: i for i, n in enumerate(getattr(mod, "PARAMETERS", ()))}
+        outputs = {n: i for i, n in enumerate(getattr(mod, "OUTPUTS", ()))}
+        self.of: list[Optional[int]] = []
+        """For each contact, its index here (None: no friction)."""
+        self.contact, self.slip, self.force, self.mode, self.mu = [], [], [], [], []
+        self.tangents: list[list[tuple[int, int]]] = []
+        """(output ∂s/∂x_j, momentum column) of each frictional contact."""
+        for k, c in enumerate(contacts.names):
+            slots = (variables.get(f"{c}.slip_rate"), variables.get(f"{c}.friction_force"),
+                     parameters.get(f"{c}.sliding"), outputs.get(f"{c}.friction"))
+            if None in slots or contacts.mode[k] is None:
+                self.of.append(None)
+                continue
+            self.of.append(len(self.contact))
+            self.contact.append(k)
+            for where, slot in zip((self.slip, self.force, self.mode, self.mu), slots):
+                where.append(slot)
+            head = f"{c}.tangent."
+            self.tangents.append([(o, variables[n[len(head):]]) for n, o in outputs.items() if n.startswith(head)])
+        self.n = len(self.contact)
+        self.contacts = contacts
+
+    def watched(self, y, p, out) -> np.ndarray:
+        """Two entries per frictional contact, positive while its mode holds: σ v_t and +1
+        sliding; μ λ − λ_t and μ λ + λ_t sticking; +1 open. `out`: the module's outputs."""
+        w = np.ones(2 * self.n)
+        for i, k in enumerate(self.contact):
+            if not self.contacts.closed(k, p):
+                continue
+            sigma = p[self.mode[i]]
+            if sigma != 0:
+                w[2 * i] = sigma * y[self.slip[i]]
+            else:
+                bound = out[self.mu[i]] * y[self.contacts.force[k]]
+                w[2 * i], w[2 * i + 1] = bound - y[self.force[i]], bound + y[self.force[i]]
+        return w
+
+    def admissible(self, i: int, y, p, out) -> bool:
+        """|λ_t| ≤ μ λ (to :data:`STICK_SLACK`, and round-off of λ)."""
+        lam = y[self.contacts.force[self.contact[i]]]
+        bound = out[self.mu[i]] * max(lam, 0.0)
+        return abs(y[self.force[i]]) <= (1.0 + STICK_SLACK) * bound + 1e-14 * abs(lam)
+
+
+def _event(t, name, direction, kind):
+    from phc.simulation.events import Event  # events imports this module
+
+    return Event(t, name, int(direction), kind, f"{name}.friction")
+
+
+def _stop(watch, i: int, t, y, restart):
+    """y with the slip rate v_t that the event's location error leaves (v_t is affine in the
+    momenta) removed by a tangential impulse p_j += Λ ∂s/∂x_j, its kinetic energy booked as
+    dissipated; the slope dv_t/dΛ is measured from one consistent state, the contact held
+    open for it (as :meth:`~phc.simulation.impacts.Contacts.plastic` measures the normal's)."""
+    f, contacts = watch.contacts.friction, watch.contacts
+    k = f.contact[i]
+    out = contacts.outputs(t, y, y * 0.0, watch.p)
+    direction = np.zeros(len(y))
+    for o, pj in f.tangents[i]:
+        direction[pj] += out[o]
+    closed, watch.p[contacts.mode[k]] = watch.p[contacts.mode[k]], 0.0
+    try:
+        before, after = restart(y, True)[0][f.slip[i]], restart(y + direction, True)[0][f.slip[i]]
+    except InconsistentInitialError:
+        return y
+    finally:
+        watch.p[contacts.mode[k]] = closed
+    if before == 0.0 or not after - before > 0:
+        return y
+    new = y - (before / (after - before)) * direction
+    energy = list(contacts.mod.VARIABLES).index("energy.supplied")
+    new[energy] += float(contacts.mod.hamiltonian(t, y, watch.p)) - float(contacts.mod.hamiltonian(t, new, watch.p))
+    return new
+
+
+def _stick(watch, i: int, t, y, restart, events):
+    """Try to stick frictional contact i at (t, y): keep it where the force needed is
+    admissible, else slide the way that force cannot hold. Returns the consistent (y, ẏ)."""
+    f = watch.contacts.friction
+    name = watch.contacts.names[f.contact[i]]
+    sigma = watch.p[f.mode[i]]
+    y = _stop(watch, i, t, y, restart)
+    watch.p[f.mode[i]] = 0.0
+    try:
+        y1, yp1 = restart(y, True)
+    except InconsistentInitialError:  # the slip rate held at 0: the momenta move by the event's location error
+        y1, yp1 = restart(y, False)
+    out = watch.contacts.outputs(t, y1, yp1, watch.p)
+    if f.admissible(i, y1, watch.p, out):
+        events.append(_event(t, name, 0, "stick"))
+        return y1, yp1
+    lam_t = y1[f.force[i]]
+    watch.p[f.mode[i]] = -np.sign(lam_t) if lam_t != 0 else sigma
+    events.append(_event(t, name, watch.p[f.mode[i]], "slip"))
+    return restart(y, True)
+
+
+def _restarts(watch, t, dif, energy):
+    """``restart(y, states)``: the consistent state at t, the differential states fixed if `states`."""
+    from phc.simulation.events import _restart  # events imports this module
+
+    return lambda z, states=True: _restart(watch, t, z, (dif if states else set()) | set(energy))
+
+
+def on_close(watch, k: int, t, y, yp, dif, energy):
+    """Contact k closes at (t, y) (its mode already 1): the friction mode it closes in —
+    sliding with the sign of v_t, or a stick trial where v_t = 0. Returns the consistent
+    state and the mode's event, ``(y, ẏ, events)`` (`dif`, `energy`: the columns of the
+    differential states and of the energy)."""
+    restart = _restarts(watch, t, dif, energy)
+    f = watch.contacts.friction
+    i = f.of[k]
+    events: list = []
+    if i is None:
+        return (*restart(y, True), events)
+    v = float(y[f.slip[i]])
+    if abs(v) > 1e-12 * (1.0 + float(np.abs(yp).max(initial=0.0))):
+        watch.p[f.mode[i]] = np.sign(v)
+        events.append(_event(t, watch.contacts.names[k], np.sign(v), "slip"))
+        return (*restart(y, True), events)
+    return (*_stick(watch, i, t, y, restart, events), events)
+
+
+def on_event(watch, j: int, t, y, yp, events, dif, energy):
+    """Entry j of the friction watch fell through zero at (t, y): σ v_t of a sliding contact
+    (it tries to stick) or a bound of a sticking one (it slips)."""
+    restart = _restarts(watch, t, dif, energy)
+    f = watch.contacts.friction
+    i = j // 2
+    k = f.contact[i]
+    if not watch.contacts.closed(k, watch.p):
+        return y, yp
+    watch.handled.append((t, watch.contacts.names[k], "contact"))
+    if watch.p[f.mode[i]] != 0:
+        return _stick(watch, i, t, y, restart, events)
+    sigma = -1.0 if j % 2 == 0 else 1.0  # λ_t reached +μλ: it slides the negative way
+    watch.p[f.mode[i]] = sigma
+    events.append(_event(t, watch.contacts.names[k], sigma, "slip"))
+    return restart(y, True)
+
+
+def settle(watch, t, y, yp, events) -> bool:
+    """After a restart: a sticking contact whose friction force is no longer admissible (a
+    force that jumped at a breakpoint) slips at once. Returns whether a mode changed."""
+    f = watch.contacts.friction
+    if not f.n:
+        return False
+    out = watch.contacts.outputs(t, y, yp, watch.p)
+    changed = False
+    for i, k in enumerate(f.contact):
+        if watch.contacts.closed(k, watch.p) and watch.p[f.mode[i]] == 0 and not f.admissible(i, y, watch.p, out):
+            watch.p[f.mode[i]] = -np.sign(y[f.force[i]])
+            events.append(_event(t, watch.contacts.names[k], watch.p[f.mode[i]], "slip"))
+            changed = True
+    return changed
+
+
+__all__ = ["Friction", "STICK_SLACK", "on_close", "on_event", "settle"]
