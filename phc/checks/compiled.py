@@ -444,7 +444,8 @@ def _passivity_at_samples(compiled, p, samples, cert) -> None:
         k = _first_negative(values)
         if k is not None:
             point = {s: sp.Float(float(np.broadcast_to(v, (len(samples),))[k])) for s, v in columns.items()}
-            _non_passive(cert, component, span, float(values[k]), point, used, set(symbols))
+            resistive = any(v.role == "resistive" for v in dae.variables if v.symbol in used)
+            _non_passive(cert, component, span, float(values[k]), point, used, set(symbols), resistive)
 
 
 def _passivity_random(compiled, p, samples, cert, rng, n: int) -> None:
@@ -477,16 +478,19 @@ def _passivity_random(compiled, p, samples, cert, rng, n: int) -> None:
                 break
 
 
-def _non_passive(cert, component, span, value, point, used, variables) -> None:
+def _non_passive(cert, component, span, value, point, used, variables, resistive: bool = False) -> None:
+    """PHC-E451 for `component`; with `resistive` (the term is a ``phs`` resistive law's f·e)
+    the hint says how to declare a law that supplies power by design."""
     shown = ", ".join(f"{s.name} = {float(point[s]):.4g}"
                       for s in sorted(used, key=lambda s: s.name) if s in point and s in variables)
     cert.diagnostics.append(Diagnostic(
         "PHC-E451",
         f"the dissipation of `{component}` is not passive: its dissipated power is {value:.4g} < 0 at "
         f"{shown or 'a sampled state'}; a dissipative term must never supply energy (for a damping force "
-        f"vᵀF_d(q, v) ≥ 0, for R(x) positive semidefinite); a `phs` resistive law that supplies power by design "
-        f"(a controlled source) is declared `kind: source`",
-        span=span))
+        f"vᵀF_d(q, v) ≥ 0, for R(x) positive semidefinite)",
+        span=span, hint=("a resistive law that supplies power by design (a controlled source, such as a "
+                         "transistor's collector) is declared `kind: source`: its power is then supplied power"
+                         if resistive else None)))
 
 
 def _quadratic_forms(compiled, p, cert) -> None:

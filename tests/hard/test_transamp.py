@@ -239,7 +239,7 @@ def test_an_undeclared_power_supplying_law_is_not_passive(tmp_path):
     cert = certify_compiled(phc.compile_model(undeclared, certify=False), n_random=2)
     e451 = [d for d in cert.diagnostics if d.code == "PHC-E451"]
     assert {d.message.split("`")[1] for d in e451} == {"T1", "T2"}
-    assert all("kind: source" in d.message for d in e451)  # the message says how to declare it
+    assert all("kind: source" in d.hint for d in e451)  # the hint says how to declare it
     assert not cert.supplied
     with pytest.raises(phc.PhcError, match="PHC-E451"):
         phc.compile_model(undeclared)
@@ -248,15 +248,18 @@ def test_an_undeclared_power_supplying_law_is_not_passive(tmp_path):
 @pytest.mark.parametrize("solver", ["ida", "midpoint", "discrete_gradient", "midpoint4"])
 def test_the_energy_balance_counts_the_collectors_as_supplied_power(python_loop, solver):
     """Each solver in SI units to t = 2 ms. At every output the run's port power and dissipation
-    are the circuit's (:func:`powers`, from the node voltages) to 1e-7 of the powers: the run's
-    algebraic variables hold the laws to its tolerance (1e-10 of U_B for IDA here), and the law
-    exp(U_be/U_F) amplifies a voltage error by U_B/U_F ≈ 230 — four orders below the collectors'
-    power (≥ 1e-3 of the powers), which is therefore port power, not dissipation. Then
+    are the circuit's (:func:`powers`, from the node voltages) to 1e-6 of the powers: the run's
+    algebraic variables hold the laws to its tolerance, which the law exp(U_be/U_F) amplifies
+    (measured 4e-8 for IDA's interpolated outputs, 5e-11 for the fixed-step solvers) — three
+    orders below the collectors' power (≥ 1e-3 of the powers asserted, 0.066 measured), which is
+    therefore port power, not dissipation. Then
     H(t) − H(0) = supplied − dissipated, the two integrated by Simpson's rule from the
     circuit's powers (401 outputs, 5 µs apart; Simpson's error on a 100 Hz input is below
-    1e-12 of the energies), to the solver's tolerance: IDA's rtol 1e-8 on the energy moved,
-    the fixed-step solvers' balance (midpoint and discrete gradient exact for this quadratic
-    H, midpoint4 exact in its own quadrature) to its quadrature's error at h = 5 µs."""
+    1e-12 of the energies), to 1e-6 of the energy moved: measured 5e-11 (IDA at rtol 1e-10,
+    midpoint4), 1.8e-7 (the midpoint rule and the discrete gradient — the same method for this
+    quadratic H — whose balance is exact in the midpoint quadrature, not Simpson's, at h = 5 µs).
+    The run's own account E = ∫(P_ports + P_diss) closes to its tolerance (measured 3e-12 for
+    IDA, 2e-14 for the fixed-step solvers)."""
     import scipy.integrate as si
 
     t_end, n = 2.0e-3, 401
@@ -266,8 +269,8 @@ def test_the_energy_balance_counts_the_collectors_as_supplied_power(python_loop,
     U = np.array([r.outputs[f"U{k}"] for k in range(1, 9)])
     ports, dissipated, collectors = powers(r.t, U)
     scale = np.abs(ports) + np.abs(dissipated)
-    assert np.abs(r.port_power - ports).max() <= 1e-7 * scale.max()
-    assert np.abs(r.dissipation - dissipated).max() <= 1e-7 * scale.max()
+    assert np.abs(r.port_power - ports).max() <= 1e-6 * scale.max()
+    assert np.abs(r.dissipation - dissipated).max() <= 1e-6 * scale.max()
     assert np.abs(collectors).max() >= 1e-3 * scale.max()  # the collectors' term counts
     supplied = -si.cumulative_simpson(ports, x=r.t, initial=0.0)
     lost = si.cumulative_simpson(dissipated, x=r.t, initial=0.0)
@@ -293,3 +296,16 @@ def test_the_midpoint_rules_converge_at_second_order_in_the_first_two_millisecon
     e_coarse, e_fine = np.abs(coarse - ida).max(), np.abs(fine - ida).max()
     assert e_coarse / e_fine >= 3.0, (e_coarse, e_fine)
     assert e_fine <= 2.0 * np.abs(coarse - fine).max() / 3.0 + 1.0e-9
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("solver", ["midpoint", "discrete_gradient"])
+def test_the_midpoint_rules_converge_at_second_order_to_the_published_reference(compiled, solver):
+    """The whole run to 0.2 s in SI units, compiled loop: steps of 40 and 20 µs; the error falls
+    by 2² = 4 (measured 4.0; ≥ 3 allows the asymptotic regime's spread) and the error at 20 µs
+    (measured 9.8e-6 V) is within twice the Richardson estimate |U(2h) − U(h)|/3."""
+    coarse = run(compiled, "SI", solver=solver, step=4.0e-5)
+    fine = run(compiled, "SI", solver=solver, step=2.0e-5)
+    e_coarse, e_fine = np.abs(coarse - REFERENCE).max(), np.abs(fine - REFERENCE).max()
+    assert e_coarse / e_fine >= 3.0, (e_coarse, e_fine)
+    assert e_fine <= 2.0 * np.abs(coarse - fine).max() / 3.0
