@@ -106,7 +106,8 @@ class CompiledCertificate:
     def to_dict(self) -> dict:
         return {"certified": self.certified and not self.skipped, "samples": self.samples,
                 "balance_error": self.balance_error, "dissipative_terms": self.terms_checked,
-                "quadratic_forms": self.forms_checked, "supplied_by": list(self.supplied), "seconds": self.seconds, "skipped": self.skipped,
+                "quadratic_forms": self.forms_checked, "supplied_by": list(self.supplied), "seconds": self.seconds,
+                "skipped": self.skipped,
                 "diagnostics": self.diagnostics.to_json()}
 
 
