@@ -19,7 +19,8 @@ states:
   coupling components, so each component is represented by the projection of its Dirac
   structure onto its ports — the cost grows linearly with the number of components.
 * rigid components: ``c'(q)`` and ``A(q)`` of full row rank at the initial
-  configuration (dependent rows are named); resistive laws passive (``f·e ≥ 0``).
+  configuration (dependent rows are named); resistive laws passive (``f·e ≥ 0``), except
+  those declared controlled sources (``kind: source``), whose power is supplied power.
 
 Rank decisions use singular values relative to the largest one: a singular value
 counts when ``σ > RANK_RTOL · σ_max`` (with an absolute floor for all-zero blocks).
@@ -41,6 +42,7 @@ from phc.checks.graph import component_graph, component_of, independent_parts, k
 from phc.ir.dae import T, Dae, DiracRelations
 from phc.diagnostics import Diagnostic, DiagnosticList
 from phc.inert import inert
+from phc.library.phs import CONTROLLED_SOURCE
 
 RANK_RTOL = 1e-9
 """Relative singular-value threshold for numerical rank."""
@@ -160,7 +162,8 @@ class Certificate:
             else:
                 status = (f"Dirac {'ok' if c.dirac else 'FAILED'}: dim D {c.dim_d} / dim Z {c.dim_z}, "
                           f"isotropy {c.isotropy:.1e}")
-                if c.note.startswith("feedback"):  # a controller: what the certificate does not cover
+                # a controller or a controlled source: what the certificate does not cover
+                if c.note.startswith(("feedback", CONTROLLED_SOURCE)):
                     status += f"; {c.note}"
             lines.append(f"  {c.name:<{width}}  {c.kind:<{kind_width}} {status}")
         lines.append("connections (breadth-first; rank of Γ achieved / needed)")
@@ -686,5 +689,6 @@ def _passivity(top, diags, seed) -> None:
                     diags.append(Diagnostic(
                         "PHC-E406", f"resistive port `{label}` of `{name}` is not passive: f·e = {power:.3g} < 0 at "
                         f"f = {[round(float(point[f]), 3) for f in fs]}", span=ctx.smap.locate((*path, "resistive")),
-                        path=name, hint="a resistive law must satisfy f·e ≥ 0 (it dissipates energy)"))
+                        path=name, hint="a resistive law must satisfy f·e ≥ 0 (it dissipates energy); one that "
+                        "supplies power by design (a controlled source) is declared `kind: source`"))
                     break

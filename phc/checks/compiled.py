@@ -20,6 +20,10 @@ the power delivered through the external ports in the generator convention) must
   derivative ∇H·ẏ of the generated ``hamiltonian`` (fourth-order central
   differences), P_ports and P_diss come from the generated ``powers``. A wrong sign or
   term in any compiled row changes ẏ and breaks the identity.
+* **declared controlled sources** (a ``phs`` resistive port with ``kind: source``, such as a
+  transistor's collector) are the environment at their port, like an ``effort_source``: their
+  power is in P_ports (supplied energy), in the balance but not in the passivity checks, and
+  the certificate lists them;
 * **passivity of every dissipative term** (each component's P_diss, kept apart in
   ``Dae.dissipation_terms``): ≥ 0 at the consistent samples, and, for terms that depend
   only on states and velocities (a rigid body's damping force vᵀF_d(q, v), a phs's
@@ -76,6 +80,9 @@ class CompiledCertificate:
     balance_note: str = ""
     """Why the power balance was not sampled (the model is above the size limit of the
     fast certificate); passivity was still checked."""
+    supplied: list = field(default_factory=list)
+    """The declared controlled sources (``component.port`` of a ``phs`` resistive port with
+    ``kind: source``): their power is in the balance as supplied power, not checked for passivity."""
 
     @property
     def certified(self) -> bool:
@@ -88,7 +95,10 @@ class CompiledCertificate:
                    f"power balance at {self.samples} consistent state(s), max relative error {self.balance_error:.1e}")
         what = (f"{balance}; {self.terms_checked} dissipative term(s)"
                 + (f" and {self.forms_checked} quadratic form(s)" if self.forms_checked else "")
-                + f" checked for passivity; {self.seconds:.2f} s")
+                + " checked for passivity"
+                + (f"; supplied power through the declared source(s) {', '.join(self.supplied)}" if self.supplied
+                   else "")
+                + f"; {self.seconds:.2f} s")
         head = "NOT certified (" if not self.certified else (
             "passivity certified, balance not sampled (" if self.balance_note else "certified (")
         return head + what + ")"
@@ -96,7 +106,8 @@ class CompiledCertificate:
     def to_dict(self) -> dict:
         return {"certified": self.certified and not self.skipped, "samples": self.samples,
                 "balance_error": self.balance_error, "dissipative_terms": self.terms_checked,
-                "quadratic_forms": self.forms_checked, "seconds": self.seconds, "skipped": self.skipped,
+                "quadratic_forms": self.forms_checked, "supplied_by": list(self.supplied), "seconds": self.seconds,
+                "skipped": self.skipped,
                 "diagnostics": self.diagnostics.to_json()}
 
 
@@ -434,7 +445,8 @@ def _passivity_at_samples(compiled, p, samples, cert) -> None:
         k = _first_negative(values)
         if k is not None:
             point = {s: sp.Float(float(np.broadcast_to(v, (len(samples),))[k])) for s, v in columns.items()}
-            _non_passive(cert, component, span, float(values[k]), point, used, set(symbols))
+            resistive = any(v.role == "resistive" for v in dae.variables if v.symbol in used)
+            _non_passive(cert, component, span, float(values[k]), point, used, set(symbols), resistive)
 
 
 def _passivity_random(compiled, p, samples, cert, rng, n: int) -> None:
@@ -467,7 +479,9 @@ def _passivity_random(compiled, p, samples, cert, rng, n: int) -> None:
                 break
 
 
-def _non_passive(cert, component, span, value, point, used, variables) -> None:
+def _non_passive(cert, component, span, value, point, used, variables, resistive: bool = False) -> None:
+    """PHC-E451 for `component`; with `resistive` (the term is a ``phs`` resistive law's f·e)
+    the hint says how to declare a law that supplies power by design."""
     shown = ", ".join(f"{s.name} = {float(point[s]):.4g}"
                       for s in sorted(used, key=lambda s: s.name) if s in point and s in variables)
     cert.diagnostics.append(Diagnostic(
@@ -475,7 +489,9 @@ def _non_passive(cert, component, span, value, point, used, variables) -> None:
         f"the dissipation of `{component}` is not passive: its dissipated power is {value:.4g} < 0 at "
         f"{shown or 'a sampled state'}; a dissipative term must never supply energy (for a damping force "
         f"vᵀF_d(q, v) ≥ 0, for R(x) positive semidefinite)",
-        span=span))
+        span=span, hint=("a resistive law that supplies power by design (a controlled source, such as a "
+                         "transistor's collector) is declared `kind: source`: its power is then supplied power"
+                         if resistive else None)))
 
 
 def _quadratic_forms(compiled, p, cert) -> None:
@@ -538,6 +554,7 @@ def certify_compiled(compiled, params: Optional[dict] = None, n_random: int = 2,
             samples, notes = _consistent_samples(compiled, p, n_random, rng)
         cert.samples = len(samples)
         cert.terms_checked = sum(1 for _, term, _ in compiled.dae.dissipation_terms if term != 0)
+        cert.supplied = [f"{component}.{port}" for component, port, _, _ in compiled.dae.supply_terms]
         if samples:
             _balance(compiled, p, samples, cert, span)
             _passivity_at_samples(compiled, p, samples, cert)

@@ -84,6 +84,7 @@ class _Elaborator(Reporter):
         self.hamiltonian: list[sp.Expr] = []
         self.dissipation: list[tuple[str, sp.Expr, Optional[SourceSpan]]] = []  # (component, P_diss, source)
         self.source_power: list[sp.Expr] = []
+        self.supplied: list = []  # declared controlled sources (ComponentLowering.supplied)
         self.linear_blocks: list = []
         self.quadratic_energy: list = []
         self.quadratic_dissipation: list = []
@@ -602,6 +603,7 @@ class _Elaborator(Reporter):
         self.hamiltonian.extend(lowering.hamiltonian)
         self.dissipation.extend(lowering.dissipation)
         self.source_power.extend(lowering.source_power)
+        self.supplied.extend(lowering.supplied)
         self.quadratic_energy.extend(lowering.quadratic_energy)
         self.quadratic_dissipation.extend(lowering.quadratic_dissipation)
         self.invariants.extend(lowering.invariants)
@@ -768,6 +770,8 @@ class Elaboration:
     hamiltonian: tuple
     dissipation: tuple
     source_power: tuple
+    supplied: tuple
+    """Declared controlled sources (:attr:`phc.frontend.lowering.ComponentLowering.supplied`)."""
     linear_blocks: tuple
     quadratic_energy: tuple
     quadratic_dissipation: tuple
@@ -825,7 +829,7 @@ def _finish(b: _Elaborator, ctx: FileContext) -> Elaboration:
         parameters=ro(dict(b.parameters)), default_values=ro(b.default_values()),
         definitions=ro(dict(b.definitions)), ports=ro(dict(b.ports)), port_aliases=ro(dict(b.port_aliases)),
         hamiltonian=tuple(b.hamiltonian), dissipation=tuple(b.dissipation), source_power=tuple(b.source_power),
-        linear_blocks=tuple(b.linear_blocks), quadratic_energy=tuple(b.quadratic_energy),
+        supplied=tuple(b.supplied), linear_blocks=tuple(b.linear_blocks), quadratic_energy=tuple(b.quadratic_energy),
         quadratic_dissipation=tuple(b.quadratic_dissipation), invariants=tuple(b.invariants),
         velocity_invariants=tuple(b.velocity_invariants), connections=tuple(b.connections),
         components=tuple(b.components), component_specs=ro(dict(b.component_specs)), failed=frozenset(b.failed), descriptions=tuple(b.dirac),

@@ -104,6 +104,9 @@ class ComponentLowering:
     hamiltonian: tuple
     dissipation: tuple
     source_power: tuple
+    supplied: tuple
+    """Declared controlled sources (a ``phs`` resistive port with ``kind: source``), as
+    (component, port, power the model delivers to it, source span); their power is in `source_power`."""
     quadratic_energy: tuple
     quadratic_dissipation: tuple
     invariants: tuple[Invariant, ...]
@@ -160,6 +163,7 @@ class Recorder(Reporter):
         self.hamiltonian: list[sp.Expr] = []
         self.dissipation: list = []  # (component, P_diss, source span)
         self.source_power: list[sp.Expr] = []
+        self.supplied: list = []  # (component, port, P delivered to it, source span)
         self.quadratic_energy: list = []
         self.quadratic_dissipation: list = []
         self.invariants: list[Invariant] = []
@@ -287,7 +291,8 @@ class Recorder(Reporter):
             hand_written=frozenset(self.hand_written), ports=tuple(self.ports.values()),
             parameters=tuple(self.parameters.values()), descriptions=tuple(self.dirac),
             hamiltonian=tuple(self.hamiltonian), dissipation=tuple(self.dissipation),
-            source_power=tuple(self.source_power), quadratic_energy=tuple(self.quadratic_energy),
+            source_power=tuple(self.source_power), supplied=tuple(self.supplied),
+            quadratic_energy=tuple(self.quadratic_energy),
             quadratic_dissipation=tuple(self.quadratic_dissipation), invariants=tuple(self.invariants),
             velocity_invariants=tuple(self.velocity_invariants), resistive_laws=tuple(self.resistive_laws),
             rigid_constraints=tuple(self.rigid_constraints), extra_outputs=tuple(self.extra_outputs.items()),

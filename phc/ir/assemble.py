@@ -321,6 +321,7 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
         hamiltonian=hamiltonian,
         dissipation=dissipation,
         dissipation_terms=dissipation_terms,
+        supply_terms=tuple((component, port, final(power), span) for component, port, power, span in elab.supplied),
         port_power=port_power,
         invariants=tuple(invariants),
         velocity_invariants=velocity_invariants,

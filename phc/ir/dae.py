@@ -447,6 +447,10 @@ class Dae:
     dissipation_terms: tuple[tuple[str, sp.Expr, Optional[SourceSpan]], ...] = ()
     """Each component's dissipated power (its terms of `dissipation`), as (component, P_diss,
     source) — what the passivity certificate checks one by one."""
+    supply_terms: tuple[tuple[str, str, sp.Expr, Optional[SourceSpan]], ...] = ()
+    """Declared controlled sources (a ``phs`` resistive port with ``kind: source``), as
+    (component, port, power the model delivers to it, source): their terms of `port_power`,
+    which the certificate lists as supplied power instead of checking them for passivity."""
     meshes: dict = field(default_factory=dict)
     """Distributed components: full name -> (type, number of elements)."""
     units: dict = field(default_factory=dict)

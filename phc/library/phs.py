@@ -26,6 +26,9 @@ from phc.frontend.effects import is_on, summed_terms, user_effect_scope
 from phc.library.dirac import DiracBuilder, emit
 from phc.spec.expressions import ExpressionError, parse_equation
 
+CONTROLLED_SOURCE = "controlled source"
+"""How the certificate's note on a `phs` with a resistive port of ``kind: source`` begins."""
+
 
 def _nonlinear_term(expr, variables: set):
     """A term of `expr` that is not linear in `variables` (a product of two of them, a power,
@@ -231,6 +234,7 @@ def _lower_kernel(b, ctx, name, spec, path, scope, xs, dxs, grad, span):
         dim_z += pspec.dimension
     diss = sp.Integer(0)
     laws = []
+    sources = []  # (port, f·e): controlled sources, whose power is supplied, not dissipated
     for rname, rspec in spec.resistive.items():
         d = rspec.dimension
         fs = [b.add_algebraic(name, f"{rname}.f" + ("" if d == 1 else f"[{k}]"), "resistive", span)
@@ -239,7 +243,11 @@ def _lower_kernel(b, ctx, name, spec, path, scope, xs, dxs, grad, span):
               for k in range(d)]
         bind(f"f_{rname}", fs[0] if d == 1 else fs, f"flow of resistive port `{rname}`")
         bind(f"e_{rname}", es[0] if d == 1 else es, f"effort of resistive port `{rname}`")
-        diss += sum(f * e for f, e in zip(fs, es))
+        power = sum(f * e for f, e in zip(fs, es))
+        if rspec.kind == "source":
+            sources.append((rname, power))
+        else:
+            diss += power
         dim_z += d
         laws.append((rname, rspec))
     for mname in spec.multipliers:
@@ -295,6 +303,15 @@ def _lower_kernel(b, ctx, name, spec, path, scope, xs, dxs, grad, span):
             law_exprs[rname].append(ex)
             d.law(ex, kind="resistive", label=f"{rname}.law[{k}]", span=ctx.smap.locate(lpath))
     b.dissipation.append((name, diss, span))
-    emit(b, d.register(b, states=xs))
-    b.resistive_laws.append((name, [(scope[f"f_{r}"], scope[f"e_{r}"], law_exprs[r]) for r, _ in laws],
-                             ctx, path))
+    for rname, power in sources:
+        # A controlled source is the environment at this port (like an `effort_source`): the
+        # power f·e the model delivers to it is port power, its opposite the energy supplied.
+        b.source_power.append(power)
+        b.supplied.append((name, rname, power, ctx.smap.locate((*path, "resistive", rname))))
+    note = ""
+    if sources:
+        note = (f"{CONTROLLED_SOURCE} {', '.join(f'`{r}`' for r, _ in sources)} (`kind: source`): its power is "
+                "counted as supplied power, not checked for passivity")
+    emit(b, d.register(b, states=xs, note=note))
+    b.resistive_laws.append((name, [(scope[f"f_{r}"], scope[f"e_{r}"], law_exprs[r]) for r, rspec in laws
+                                    if rspec.kind != "source"], ctx, path))

@@ -131,12 +131,17 @@ class PhsPortSpec(PortSpec):
 
 
 class ResistiveSpec(SpecModel):
-    """A resistive port (f_R, e_R) with a constitutive law; passive when f_R·e_R ≥ 0."""
+    """A resistive port (f_R, e_R) with a constitutive law; passive when f_R·e_R ≥ 0, or a
+    controlled source (`kind: source`) whose power is supplied to the model."""
 
     dimension: int = Field(1, ge=1, le=64)
     """Number of components of `f_<name>` and `e_<name>`."""
     law: list[str]
     """`dimension` equations relating `f_<name>` and `e_<name>`, e.g. `e_R = r*f_R`."""
+    kind: Literal["dissipative", "source"] = "dissipative"
+    """`dissipative`: the law dissipates, f·e ≥ 0 (checked). `source`: a controlled source
+    that may supply power (a transistor's collector): its power f·e is counted as power
+    through an external port (supplied energy), not as dissipation, and `phc check` lists it."""
 
 
 class PhsSpec(_Component):
