@@ -32,12 +32,7 @@ TEST_MODELS = [p for p in [ROOT / "tests" / "models" / "andrews_squeezer.yaml",
 BOUND = 1e-4
 REFERENCE = 2e-9
 """rtol = atol of the references: IDA at local tolerances of 1e-11 (1/200 of it)."""
-# n_four_bar: IDA passes its singular configurations only by bridges of the midpoint rule
-# (phc.simulation.ida_bridge), whose steps follow IDA's and whose phase error stays: at rtol 1e-6
-# its outputs were 2.6e-4 off the reference in 123 607 steps and four minutes
-# (benchmarks/results/accuracy.md); the fixed-step solvers' tests cover it
-# (tests/hard/test_n_four_bar.py)
-CASES = [pytest.param(p, id=p.stem) for p in sorted(MODELS.glob("*.yaml")) if p.stem not in ("crank_testset", "n_four_bar")]
+CASES = [pytest.param(p, id=p.stem) for p in sorted(MODELS.glob("*.yaml")) if p.stem != "crank_testset"]
 CASES += [pytest.param(p, id=f"tests-{p.stem}") for p in TEST_MODELS]
 
 

@@ -448,7 +448,7 @@ class _StepHook:
         self.h_last = 0.0
         # A failure is diagnosed at the last state reached with a normal step (h > h_ref/10, h_ref
         # the recent largest step, decaying 0.1 % a step): the steps collapse before IDA gives up.
-        self.h_ref = 0.0
+        self.h_ref = self.h_largest = 0.0
         self.normal = (float(t0), np.asarray(y0, dtype=float), np.asarray(yp0, dtype=float))
         # the last step's end when it is not a normal one (a growth without bound is diagnosed there)
         self.collapsed = None
@@ -505,6 +505,7 @@ class _StepHook:
         h = self.h_last = max(t - self.t_last, math.ulp(t))
         self.t_last = t
         self.h_ref = max(h, 0.999 * self.h_ref)
+        self.h_largest = max(h, self.h_largest)  # (kept over restarts: what bounds a bridge's step)
         calls = self.calls
         if calls.failures != self.failures_seen:  # a trial point the model could not be evaluated at
             self.failures_seen = calls.failures
@@ -670,7 +671,8 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
     k, ok, message = 1, True, "integration finished"
     event = None
     interrupted = used_up = False
-    bridges = Bridges(mod, p, t_out, names=names, nominal=nominal, events=events, hook=hook, monitor=monitor)
+    bridges = Bridges(mod, p, t_out, names=names, nominal=nominal, events=events, hook=hook, monitor=monitor,
+                      rtol=rtol * local, atol=atol_j)
 
     def bridge_over(before=None, origin=None):
         """The rank drop bridged (:mod:`phc.simulation.ida_bridge`), IDA restarted: the next output index, or None."""

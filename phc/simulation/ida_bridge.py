@@ -13,14 +13,20 @@ So when IDA stops at a rank drop of the position constraints (its failure diagno
 or the singularity monitor's warning), phc bridges the singular window with that same
 driver — :func:`phc.simulation.midpoint.integrate_fixed_step` with the midpoint rule's step
 (:func:`phc.simulation.midpoint.midpoint_advance`), the code a `midpoint` run takes — from
-the last state IDA reached with a normal step, at IDA's recent step size, in pieces of
+the last state IDA reached with a normal step, in pieces of
 :data:`PIECE_STEPS` steps, until the iteration matrix at IDA's step is conditioned again as
 it was :data:`RECOVERY` times better than where the bridge began and the minimum lies
 behind. The bridge's end is made consistent (:func:`phc.simulation.initial.
 consistent_initial_conditions`: the configuration and the energy supplied held, the momenta
 moved as little as the velocity constraints ask, in the energy norm — the midpoint rule meets
 them at its step midpoints, not at the step ends) and IDA is restarted there (scikit-sundae's
-``init_step``, which re-initializes the solver). A motion the fixed-step driver does not let
+``init_step``, which re-initializes the solver). The bridge's step is the one whose local error
+in the configuration meets IDA's local tolerance (:func:`tolerance_step`, by step doubling at the
+bridge's start), not IDA's recent step: near the passage IDA crawls, and at rtol 1e-6 a quarter
+of its step there made a bridge of 58 000 steps of 1e-7 s (123 607 steps, 282 s CPU for the N = 1
+four-bar to 10 s), while a quarter of its normal step (1.4e-3 to 1.9e-3 s) left crank 0 3.1e-4
+rad off the exact motion, the midpoint rule's second-order error against IDA's. A motion the
+fixed-step driver does not let
 through (the folding slider–crank's rod perpendicular to its guide) stops the bridge, and the
 run stops with IDA's diagnosis.
 
@@ -48,14 +54,62 @@ RECOVERY = 2.0
 at IDA's recent step) has risen to this many times its value where the bridge began, past its
 minimum, and it is as far past the minimum as it began before it. IDA began to fail on
 round-off at that value on its way in; a decade lets it restart clear of it."""
-STEP_FRACTIONS = (0.25, 0.5, 1.0)
-"""The bridge's steps, as fractions of IDA's recent step, tried in this order until one passes.
-The midpoint rule is of order 2, and its error in the phase of the motion stays after the
-bridge: at IDA's own step (1e-3 to 2.4e-3 s on the N = 1 four-bar) the crank angle was off by
-1.7e-4 rad after six passages. But a short step does not pass either: where the least-norm
+STEP_FACTORS = (1.0, 2.0, 4.0)
+"""The bridge's steps, as multiples of the step the run's tolerance asks (:func:`tolerance_step`),
+tried in this order until one passes. A short step does not always pass: where the least-norm
 step's error at the singular instant is not small against a short step's change, one step and
 two half steps disagree (`midpoint` at h = 1e-4 stops at the four-bar's second passage,
-docs/hard-cases.md; a bridge at a tenth of IDA's step stopped at its sixth)."""
+docs/hard-cases.md), and a longer step then carries the motion through, less accurately."""
+SAFETY = 0.5
+"""The step the tolerance asks is the one whose estimated local error is this fraction of IDA's
+local tolerance (the estimate is taken at the bridge's start, and the motion's rates change
+over the bridge)."""
+TRIALS = 6
+"""Step-doubling estimates at most, from IDA's recent step to the step the tolerance asks."""
+GROWTH = 100.0
+"""The most one estimate moves the trial step by (up or down): from a crawl's step of 1e-8 s, whose
+estimate is round-off, to a step of 1e-3 s takes three."""
+
+
+def tolerance_step(advance, mod, t, y, yp, h0, rtol, atol, h_max) -> float:
+    """The midpoint step whose local error in the configuration (:func:`configuration`: what the
+    restart holds), estimated by step doubling at (t, y, ẏ), meets IDA's local tolerance
+    (``rtol·|y_j| + atol_j``, in IDA's weighted root-mean-square) at :data:`SAFETY` of it, at most
+    `h_max`.
+
+    The midpoint rule is of order 2: its local error in the configuration is ``c h³`` (plus higher
+    terms), that of two half steps ``c h³/4``, so one step and two half steps differ by
+    ``(3/4) c h³``, the local error is 4/3 of that difference, and ``h (SAFETY/e)^{1/3}`` is the
+    step the tolerance asks. The momenta are left out: the rule meets the velocity constraints at
+    its step midpoints, and at the step ends the momenta carry an error of order h² along the
+    constraint directions that alternates from step to step instead of accumulating (on the N = 1
+    four-bar the momenta's step-doubling gap is 5e-8 at h = 1e-4 and 5e-6 at 1e-3, the crank
+    angle's 4e-12 and 4e-9); the restart moves the momenta onto the velocity constraints
+    (:func:`bridge`). Starting from `h0` (IDA's recent step, which may have shrunk to nothing as IDA
+    crawled towards the singular configuration), at most :data:`TRIALS` estimates, each moving the
+    step by at most :data:`GROWTH`; a trial step that does not converge is halved."""
+    held = configuration(mod)
+    weight = 1.0 / (rtol * np.abs(y) + np.broadcast_to(np.asarray(atol, dtype=float), y.shape))
+    h = min(float(h0), h_max)
+    for _ in range(TRIALS):
+        y1, ok, _ = advance(t, h, y, y + h * yp)
+        if ok:
+            y_a, ok, _ = advance(t, 0.5 * h, y, 0.5 * (y + y1))
+        if ok:
+            y_b, ok, _ = advance(t + 0.5 * h, 0.5 * h, y_a, y1.copy())
+        if not ok or not np.all(np.isfinite(y1)):
+            h *= 0.5
+            continue
+        gap = ((y1 - y_b) * weight)[held]
+        error = 4.0 / 3.0 * float(np.sqrt(np.mean(gap * gap))) if gap.size else 0.0
+        factor = min(GROWTH, max(1.0 / GROWTH, (SAFETY / error) ** (1.0 / 3.0) if error > 0 else GROWTH))
+        h_new = min(h * factor, h_max)
+        if 0.8 <= h_new / h <= 1.25 or h_new == h == h_max:
+            return h_new
+        h = h_new
+    return h
+
+
 MIN_STEPS = 8
 """Fewest midpoint steps of a bridge beyond its lowest conditioning (a bridge that begins at the
 singular instant, which the monitor located between two looks after IDA had passed it, still
@@ -65,7 +119,9 @@ MAX_STEPS = 20000
 isolated rank drop."""
 RETRIES = 3
 """Bridges in a row without IDA taking a normal step after the last one, before the run stops
-(each doubles the bridge's minimum length)."""
+(each doubles the bridge's minimum length and its step: IDA at rtol 1e-8, atol 1e-10 failed
+restarting after bridges at 5e-5 s on the N = 1 four-bar, and went on after bridges at twice
+that)."""
 
 
 NEAR_DROP = 1e-4
@@ -210,8 +266,10 @@ class Bridges:
     (:class:`phc.simulation.events.Event`: the time, the connections whose position constraints
     became dependent, the constraint rows) and a note in its message."""
 
-    def __init__(self, mod, p, t_out, *, names=None, nominal=None, events=None, hook, monitor):
+    def __init__(self, mod, p, t_out, *, names=None, nominal=None, events=None, hook, monitor, rtol, atol):
         self.mod, self.p, self.t_out = mod, p, np.asarray(t_out, dtype=float)
+        self.rtol, self.atol = float(rtol), atol
+        """IDA's local tolerances (relative; absolute, per variable or one): what a bridge's step meets."""
         self.names, self.nominal, self.watch = names, nominal, events
         self.hook, self.monitor = hook, monitor
         self.records: list = []
@@ -226,6 +284,10 @@ class Bridges:
         self._origin, self._streak = None, 0
         self.h_ida = 0.0
         """IDA's recent step at the last bridge."""
+        self.h_largest = 0.0
+        """IDA's largest step so far (the hook's): no bridge step is longer at first."""
+        self.h_bridge = 0.0
+        """The step the tolerance asked at the last bridge (:func:`tolerance_step`)."""
 
     def forget(self) -> None:
         """The run starts again from its start (another maximum order): no bridge was taken."""
@@ -263,6 +325,7 @@ class Bridges:
             if earlier:
                 t_n, y_n, yp_n = earlier[-1]
         self.h_ida = hook.h_ref or self.h_ida  # (0 when IDA failed right after a restart: the last bridge's)
+        self.h_largest = max(self.h_largest, getattr(hook, "h_largest", 0.0))
         self.note, self.event = None, None
         if not self.h_ida > 0 or steps_left <= 0:
             return None
@@ -282,9 +345,20 @@ class Bridges:
         h_look = max(self.h_ida, monitor.h_floor)
         culprits, connections = self._dependent(t_n, y_n, yp_n, h_look)
         first = int(np.searchsorted(self.t_out, t_n, side="right"))
+        from phc.simulation.midpoint import midpoint_advance
+
+        probe = midpoint_advance(self.mod, self.p, self.nominal)
+        try:
+            h_tol = tolerance_step(probe, self.mod, t_n, y_n, yp_n, self.h_ida, self.rtol, self.atol,
+                                   max(self.h_largest, self.h_ida))
+        except (ModelEvaluationError, *CATCH, np.linalg.LinAlgError):
+            h_tol = self.h_ida
+        self.nfev += probe.stage.nfev
+        h_tol *= 2.0 ** self._in_a_row  # IDA failed restarting after the last: longer steps (RETRIES)
+        self.h_bridge = h_tol
         used = 0
-        for fraction in STEP_FRACTIONS:
-            h = fraction * self.h_ida
+        for factor in STEP_FACTORS:
+            h = factor * h_tol
             done = bridge(self.mod, self.p, (t_n, y_n, yp_n), self.t_out, first, h, names=self.names,
                           nominal=self.nominal, events=self.watch, max_steps=steps_left - used,
                           ratio=lambda t, y, yp: monitor.ratio(t, y, yp, h_look)[0], min_length=min_length)
@@ -295,9 +369,9 @@ class Bridges:
             if done.ok:
                 break
         if not done.ok:
-            self.note = (f"bridges by the midpoint rule from t = {t_n:.6g} at {', '.join(f'{f:g}' for f in STEP_FRACTIONS)} "
-                         f"times IDA's step ({self.h_ida:.2g} s; their rank-drop check, one step against two half "
-                         f"steps, as `--solver midpoint` runs it) did not pass either; at the last: {done.message}")
+            self.note = (f"bridges by the midpoint rule from t = {t_n:.6g} at {', '.join(f'{f:g}' for f in STEP_FACTORS)} "
+                         f"times the step the tolerance asks ({h_tol:.2g} s; their rank-drop check, one step against "
+                         f"two half steps, as `--solver midpoint` runs it) did not pass either; at the last: {done.message}")
             return None
         self.last_outputs = (done.t, done.y, done.yp)
         k_next = first + len(done.t)
@@ -345,6 +419,6 @@ class Bridges:
                            f"{shown})" for e, shown, *_ in self.records[:4])
         more = f"; … {len(self.records) - 4} more" if len(self.records) > 4 else ""
         return (f"IDA passed {len(self.records)} rank drop(s) of the position constraints' Jacobian, each bridged "
-                f"by the implicit midpoint rule ({self.steps} steps in all, at {', '.join(f'{f:g}' for f in STEP_FRACTIONS)} "
-                f"times IDA's recent step, the first that passed; the motion through it checked by one step against "
+                f"by the implicit midpoint rule ({self.steps} steps in all, at {', '.join(f'{f:g}' for f in STEP_FACTORS)} "
+                f"times the step whose local error meets the run's tolerance, the first that passed; the motion through it checked by one step against "
                 f"two half steps, as `--solver midpoint` does) and restarted after it: {listed}{more}")

@@ -44,6 +44,14 @@ from phc.simulation.midpoint import (NEWTON_HINT, SINGULAR_HINT, StageSolver, St
 PASSIVITY_HINT = ("the step added energy through dissipation (the backward substep of the composition "
                   "outweighed the forward ones: a damped mode with h·|λ| near 1.17); change `step` by about "
                   "10 %, or use `midpoint`")
+ACTIVE_HINT = ("the resistive ports supply power, which no passive law does and the composition's passivity guard "
+               "rejects at every step size; a resistive law of the wrong sign, or a source written as a resistor, "
+               "makes a model active (`phc check` reports PHC-E451) and can make its solution blow up: check the "
+               "law's sign, or, for a model meant to be active, use `midpoint`, `discrete_gradient` or `ida`, which "
+               "follow it and name a blow-up; the dissipated power is {power:.3g} (in the model's unit of power)")
+"""What a step rejected by the passivity guard says where the dissipation itself supplies power at
+the step's state (a blow-up model, docs/hard-cases.md), rather than a damped mode in the unstable
+band (:data:`PASSIVITY_HINT`)."""
 GAMMA1 = 1.0 / (2.0 - 2.0 ** (1.0 / 3.0))
 GAMMA2 = -(2.0 ** (1.0 / 3.0)) / (2.0 - 2.0 ** (1.0 / 3.0))
 FRACTIONS = (GAMMA1, GAMMA2, GAMMA1)
@@ -105,9 +113,26 @@ class Midpoint4Step:
             return out, True, ""
         if code == step_logic._PASSIVITY:
             # passivity violated over the composite step: a damped mode in the band where the
-            # backward substep's anti-dissipation wins (see the module docstring)
+            # backward substep's anti-dissipation wins (see the module docstring) — unless the
+            # dissipation supplies power at the step's state itself: then the model is active
+            supplied = self.supplied_power(t, h, y, out)
+            if supplied is not None:
+                return out, False, ACTIVE_HINT.format(power=supplied)
             return out, False, PASSIVITY_HINT
         return out, False, (SINGULAR_HINT if self.singular else NEWTON_HINT)
+
+    def supplied_power(self, t, h, y, end):
+        """The dissipation power at the step's mean state and slope (from `y` to the rejected step's
+        `end`) where it is negative beyond round-off — power the resistive ports supply, which no
+        passive law does at any state — else None."""
+        if not np.all(np.isfinite(end)):
+            end = y
+        try:
+            power = float(self.mod.powers(t + 0.5 * h, 0.5 * (y + end), (end - y) / h, self.p)[1])
+            floor = 1e-13 * abs(float(self.mod.energy_scale(t, y, self.p))) + 1e-300
+        except (ArithmeticError, ValueError):
+            return None
+        return power if h * power < -floor else None
 
 
 UNSTABLE_BAND = (1.10, 1.23)

@@ -113,6 +113,25 @@ def test_fixed_step_newton_failure_names_the_blow_up(square, solver):
     _kept_against_closed_form(result, 2 * (h * x_last) ** 2 / 4)
 
 
+def test_midpoint4_names_the_supplying_dissipation(square):
+    """midpoint4's passivity guard rejects every step of a model whose "dissipation" supplies
+    power, at any step size: the message says that the resistive ports supply power, what makes
+    a model so, and which solvers follow it — not the advice for a damped mode in the
+    composition's unstable band (change the step by 10 %), which cannot help here. The power it
+    names is that of the law at the rejected step's mean state, e·f = −x·f² with f = x: −x³,
+    within the step's change of x₀ = 2 (the three substeps span at most 2γ₁h ≈ 2.7h, which
+    moves x by 2.7·h·x₀² ≈ 1 % at h = 1e-3: −x³ by 3 %; 5 % allowed)."""
+    for h in (1e-3, 1e-4):
+        result = phc.simulate(square, solver="midpoint4", step=h)
+        message = result.message
+        assert not result.success
+        assert "resistive ports supply power" in message and "PHC-E451" in message
+        assert "`midpoint`, `discrete_gradient` or `ida`" in message
+        assert "h·|λ|" not in message and "change `step`" not in message
+        power = float(re.search(r"the dissipated power is (\S+) ", message).group(1))
+        assert power == pytest.approx(-X0 ** 3, rel=0.05)
+
+
 def test_exponential_growth_is_named_as_such(tmp_path):
     # ẋ = x from 2 overflows the energy x²/2 near t = ln(1e154/2) ≈ 354: IDA follows it there
     compiled = _compile(tmp_path, "-f_src", 400.0)
