@@ -29,6 +29,7 @@ import sympy as sp
 from sympy.printing.pycode import PythonCodePrinter
 
 from phc import __version__
+from phc.analysis.matching import unique_keys
 from phc.frontend.budget import drop_deltas
 from phc.codegen import packing
 from phc.codegen.lower import ResidualIR
@@ -173,7 +174,7 @@ def _fuse(terms, m: int, n: int) -> dict:
         owner.append(np.full(len(coo.data), k))
     r, c, j = np.concatenate(rows), np.concatenate(cols), np.concatenate(jac)
     keys = r * n + c
-    unique, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+    unique, first, inverse = unique_keys(keys, return_index=True, return_inverse=True)
     ur = unique // n
     indptr = np.zeros(m + 1, dtype=np.int64)
     np.add.at(indptr, ur + 1, 1)
