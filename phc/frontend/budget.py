@@ -84,7 +84,8 @@ names and the generated module's index tables (2.8 KiB measured with :data:`BYTE
 fitted to the peaks of one process, ``backend="numpy"``, no certificate, ten midpoint steps:
 string of 10⁵ elements 1 752 MiB (400 004 unknowns, 1.6·10⁶ Jacobian nonzeros);
 Euler–Bernoulli beam of 2·10⁴ elements 877 MiB (160 007 unknowns, 1.08·10⁶ nonzeros) and of
-10⁵ elements 3 586 MiB (800 007, 5.4·10⁶); estimated 1 867, 1 037 and 3 966 MiB). Until the
+10⁵ elements 3 571 MiB (800 007 unknowns; 4.8·10⁶ nonzeros, the registry's count 5.4·10⁶);
+estimated 1 867, 1 037 and 3 966 MiB). Until the
 per-unknown names were printed as runs (``_indexed``), Python's compiler alone took about
 0.9 KiB per name of VARIABLES, ROLES and EQUATIONS, and this was 8 KiB; until the measured
 peaks replaced the growth from 10³ to 10⁴ elements as the fit, it was 4 KiB (an estimate of
