@@ -18,6 +18,7 @@ This printer only builds strings; all analysis happened in :mod:`phc.codegen.low
 
 from __future__ import annotations
 
+import itertools
 import keyword
 import math
 import os
@@ -93,10 +94,13 @@ class _Printer(PythonCodePrinter):
         return f"_table_slope(_TABLE{k}_T, _TABLE{k}_V, _TABLE{k}_KIND, {self._print(expr.args[1])})"
 
 
+_ZERO = sp.S.Zero
+
+
 def _nonzero(e) -> bool:
     """``e != 0``, without sympy's comparison for its zero (most rows and Jacobian entries of a
     mesh, which its linear blocks hold)."""
-    return e is not sp.S.Zero and e != 0
+    return e is not _ZERO and e != 0
 
 
 _NOT_IDENTIFIER = re.compile(r"[^A-Za-z0-9_]")
@@ -422,8 +426,8 @@ class ModulePrinter:
         used = self._jac_symbols
         if used is None:
             used = set()
-            for e in (*self.ir.jac_dy, *self.ir.jac_dyp):
-                if not getattr(e, "is_Number", True):  # numbers (most entries of a mesh) have none
+            for e in itertools.chain(self.ir.jac_dy, self.ir.jac_dyp):
+                if e is not _ZERO and not getattr(e, "is_Number", True):  # numbers (most entries of a mesh) have none
                     used |= e.free_symbols
             self._jac_symbols = used
         return [j for j, s in enumerate(symbols) if s in used]
