@@ -427,7 +427,8 @@ class ModulePrinter:
         if used is None:
             used = set()
             for e in itertools.chain(self.ir.jac_dy, self.ir.jac_dyp):
-                if e is not _ZERO and not getattr(e, "is_Number", True):  # numbers (most entries of a mesh) have none
+                # numbers (most entries of a mesh, mostly the zero) have none
+                if e is not _ZERO and not getattr(e, "is_Number", True):
                     used |= e.free_symbols
             self._jac_symbols = used
         return [j for j, s in enumerate(symbols) if s in used]

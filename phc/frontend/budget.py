@@ -20,7 +20,7 @@ strings (4 unknowns and 16 nonzeros per element) and Euler–Bernoulli beams (8 
 benchmarks/bench_beam_scale.py --measure KIND N``, which prints estimate and measured
 peak side by side): the peak grew by about 15 KiB per string element and 35 KiB per beam
 element, i.e. about 2.8 KiB per unknown and 0.24 KiB per nonzero; the constants round up,
-so that the estimate stays above the measured peak and within about 1.3 times it on
+so that the estimate stays above the measured peak and within about 1.35 times it on
 both kinds from 10⁴ elements up.
 After assembly (:func:`check_assembled`) the count is exact and the output arrays are
 added: ``n_out × (2·variables + outputs + invariants + 4)`` doubles (values and
@@ -75,9 +75,11 @@ ENV_VAR = "PHC_MAX_MEMORY"
 
 BASE_BYTES = 304 * 2**20
 """The interpreter with numpy, scipy, sympy, networkx and the solvers loaded (135–150 MiB
-measured), plus the solvers' fixed working memory (a process that compiles a string of
-1 000 elements with ``energy: H`` and takes ten midpoint steps peaks at 309 MiB, 4 004
-unknowns; ``benchmarks/bench_beam_scale.py``)."""
+measured), plus the solvers' working memory: the intercept of the fit of
+:data:`BYTES_PER_UNKNOWN` and :data:`BYTES_PER_NONZERO` at a string of 10⁵ elements (294 MiB),
+rounded up. Small meshes are charged more than they take (a string of 1 000 elements, 4 004
+unknowns, compiled and run ten midpoint steps with ``energy: H``, peaks at 166 MiB;
+``benchmarks/bench_beam_scale.py --measure string 1000``)."""
 BYTES_PER_UNKNOWN = 3 * 2**10
 """Compile peak per unknown: two sympy symbols (y and ẏ), the variable and its row, the
 names and the generated module's index tables (2.8 KiB measured with :data:`BYTES_PER_NONZERO`,
