@@ -22,6 +22,32 @@ if TYPE_CHECKING:  # the types only: bipartite_matching runs in simulations with
     from phc.ir.dae import Dae
     from phc.diagnostics import Diagnostic
 
+def unique_keys(keys: np.ndarray, return_index: bool = False, return_inverse: bool = False):
+    """``np.unique`` of an integer array (sorted unique values; with `return_index` the
+    position of each value's first occurrence, with `return_inverse` each entry's index in
+    the unique values), by one sort. Recent numpy (2.4 measured) finds the unique values of
+    an integer array by hashing before sorting them, about 60 times slower than a sort on the
+    10⁶–10⁷ (row, column) keys of a 10⁵-element mesh (1.7 s against 0.03 s for 10⁶ keys)."""
+    keys = np.asarray(keys)
+    if not (return_index or return_inverse):
+        s = np.sort(keys)
+        new = np.ones(len(s), dtype=bool)
+        np.not_equal(s[1:], s[:-1], out=new[1:])
+        return s[new]
+    order = np.argsort(keys, kind="stable")
+    s = keys[order]
+    new = np.ones(len(s), dtype=bool)
+    np.not_equal(s[1:], s[:-1], out=new[1:])
+    out = [s[new]]
+    if return_index:
+        out.append(order[new])
+    if return_inverse:
+        inverse = np.empty(len(keys), dtype=np.intp)
+        inverse[order] = np.cumsum(new) - 1
+        out.append(inverse)
+    return tuple(out)
+
+
 PREFER_EARLY_WORK = 50_000_000
 """Above (unmatched rows + columns) × nonzeros, the matching is not rearranged to leave the
 latest rows and columns unmatched (still deterministic, just not that particular one)."""
@@ -57,7 +83,7 @@ def incidence(dae: Dae) -> tuple[np.ndarray, np.ndarray]:
             row_parts.append(block_rows[coo.row])
             col_parts.append(term_cols[coo.col])
     width = max(len(dae.variables), 1)
-    keys = np.unique(np.concatenate(row_parts) * width + np.concatenate(col_parts))
+    keys = unique_keys(np.concatenate(row_parts) * width + np.concatenate(col_parts))
     return keys // width, keys % width
 
 

@@ -18,6 +18,7 @@ import numpy as np
 import scipy.sparse as sps
 import sympy as sp
 
+from phc.analysis.matching import unique_keys
 from phc.analysis.order import topological_order
 from phc.frontend import budget
 from phc.ir.dae import T, Dae
@@ -249,7 +250,7 @@ def lower_residual(dae: Dae) -> ResidualIR:
         for sym in form.symbols:
             entries.setdefault((energy_row, col_of_y[sym]), [0, 0])
     symbolic = np.array([j * m_rows + i for i, j in entries], dtype=np.int64)
-    keys = np.unique(np.concatenate([symbolic, *codes]))  # sorted by (column, row)
+    keys = unique_keys(np.concatenate([symbolic, *codes]))  # sorted by (column, row)
     linear_terms = tuple(
         LinearTermIR(term.coeff, A, rows, cols, term.derivative, np.searchsorted(keys, code).astype(np.int64))
         for term, A, rows, cols, code in raw_terms)

@@ -18,6 +18,7 @@ This printer only builds strings; all analysis happened in :mod:`phc.codegen.low
 
 from __future__ import annotations
 
+import itertools
 import keyword
 import math
 import os
@@ -29,6 +30,7 @@ import sympy as sp
 from sympy.printing.pycode import PythonCodePrinter
 
 from phc import __version__
+from phc.analysis.matching import unique_keys
 from phc.frontend.budget import drop_deltas
 from phc.codegen import packing
 from phc.codegen.lower import ResidualIR
@@ -92,10 +94,13 @@ class _Printer(PythonCodePrinter):
         return f"_table_slope(_TABLE{k}_T, _TABLE{k}_V, _TABLE{k}_KIND, {self._print(expr.args[1])})"
 
 
+_ZERO = sp.S.Zero
+
+
 def _nonzero(e) -> bool:
     """``e != 0``, without sympy's comparison for its zero (most rows and Jacobian entries of a
     mesh, which its linear blocks hold)."""
-    return e is not sp.S.Zero and e != 0
+    return e is not _ZERO and e != 0
 
 
 _NOT_IDENTIFIER = re.compile(r"[^A-Za-z0-9_]")
@@ -173,7 +178,7 @@ def _fuse(terms, m: int, n: int) -> dict:
         owner.append(np.full(len(coo.data), k))
     r, c, j = np.concatenate(rows), np.concatenate(cols), np.concatenate(jac)
     keys = r * n + c
-    unique, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+    unique, first, inverse = unique_keys(keys, return_index=True, return_inverse=True)
     ur = unique // n
     indptr = np.zeros(m + 1, dtype=np.int64)
     np.add.at(indptr, ur + 1, 1)
@@ -421,8 +426,9 @@ class ModulePrinter:
         used = self._jac_symbols
         if used is None:
             used = set()
-            for e in (*self.ir.jac_dy, *self.ir.jac_dyp):
-                if not getattr(e, "is_Number", True):  # numbers (most entries of a mesh) have none
+            for e in itertools.chain(self.ir.jac_dy, self.ir.jac_dyp):
+                # numbers (most entries of a mesh, mostly the zero) have none
+                if e is not _ZERO and not getattr(e, "is_Number", True):
                     used |= e.free_symbols
             self._jac_symbols = used
         return [j for j, s in enumerate(symbols) if s in used]

@@ -14,11 +14,14 @@ the elaborator), on top of the components: unknowns
 and Jacobian nonzeros per element are those of phc's own discretizations (the ``cost``
 of each type's entry in :mod:`phc.library.registry`), and the
 compile peak is about :data:`BYTES_PER_UNKNOWN` per unknown plus
-:data:`BYTES_PER_NONZERO` per nonzero on top of :data:`BASE_BYTES` (measured on strings
-and Euler–Bernoulli beams of 1 000 and 10 000 elements, NumPy back end: the compile peak
-grew by 5.8 and 7.5 KiB per unknown, 4 and 6.75 Jacobian nonzeros per unknown, i.e. about
-3.4 KiB per unknown and 0.6 KiB per nonzero; the constants round up, and
-``benchmarks/bench_beam_scale.py`` prints estimate and measured peak side by side).
+:data:`BYTES_PER_NONZERO` per nonzero on top of :data:`BASE_BYTES`, fitted to the peaks of
+strings (4 unknowns and 16 nonzeros per element) and Euler–Bernoulli beams (8 and 54) of
+10³ to 10⁵ elements, NumPy back end, ten midpoint steps included (``PHC_MAX_MEMORY=8G python
+benchmarks/bench_beam_scale.py --measure KIND N``, which prints estimate and measured
+peak side by side): the peak grew by about 15 KiB per string element and 35 KiB per beam
+element, i.e. about 2.8 KiB per unknown and 0.24 KiB per nonzero; the constants round up,
+so that the estimate stays above the measured peak and within about 1.35 times it on
+both kinds from 10⁴ elements up.
 After assembly (:func:`check_assembled`) the count is exact and the output arrays are
 added: ``n_out × (2·variables + outputs + invariants + 4)`` doubles (values and
 derivatives of every variable, the outputs, the invariants, H and the three power
@@ -70,26 +73,33 @@ DEFAULT_MAX_MEMORY = 2 * 2**30
 """Default budget: 2 GiB, what a laptop can give one process without swapping."""
 ENV_VAR = "PHC_MAX_MEMORY"
 
-BASE_BYTES = 288 * 2**20
+BASE_BYTES = 304 * 2**20
 """The interpreter with numpy, scipy, sympy, networkx and the solvers loaded (135–150 MiB
-measured), plus the solvers' fixed working memory (a process that compiles a string of
-1 000 elements with ``energy: H`` and takes ten midpoint steps peaks at 309 MiB, 4 004
-unknowns; ``benchmarks/bench_beam_scale.py``)."""
-BYTES_PER_UNKNOWN = 4 * 2**10
+measured), plus the solvers' working memory: the intercept of the fit of
+:data:`BYTES_PER_UNKNOWN` and :data:`BYTES_PER_NONZERO` at a string of 10⁵ elements (294 MiB),
+rounded up. Small meshes are charged more than they take (a string of 1 000 elements, 4 004
+unknowns, compiled and run ten midpoint steps with ``energy: H``, peaks at 166 MiB;
+``benchmarks/bench_beam_scale.py --measure string 1000``)."""
+BYTES_PER_UNKNOWN = 3 * 2**10
 """Compile peak per unknown: two sympy symbols (y and ẏ), the variable and its row, the
-printed source and Python's compilation of it (3.4 KiB measured, with :data:`BYTES_PER_NONZERO`
-fitted to the growth of the compile peak (one process, ``backend="numpy"``, no certificate)
-from 1 000 to 10 000 elements: a string's by 5.8 KiB per unknown against 6.5 KiB charged
-(181 → 384 MiB), an Euler–Bernoulli beam's by 7.5 KiB against 8.2 KiB (204 → 728 MiB)). Until
-the per-unknown names were printed as runs (``_indexed``), Python's compiler alone took
-about 0.9 KiB per name of VARIABLES, ROLES and EQUATIONS, and this was 8 KiB."""
-BYTES_PER_NONZERO = 640
-"""Compile peak per Jacobian nonzero (0.6 KiB measured, see :data:`BYTES_PER_UNKNOWN`)."""
-BYTES_PER_COMPONENT = 52 * 2**10
+names and the generated module's index tables (2.8 KiB measured with :data:`BYTES_PER_NONZERO`,
+fitted to the peaks of one process, ``backend="numpy"``, no certificate, ten midpoint steps:
+string of 10⁵ elements 1 752 MiB (400 004 unknowns, 1.6·10⁶ Jacobian nonzeros);
+Euler–Bernoulli beam of 2·10⁴ elements 877 MiB (160 007 unknowns, 1.08·10⁶ nonzeros) and of
+10⁵ elements 3 571 MiB (800 007 unknowns; 4.8·10⁶ nonzeros, the registry's count 5.4·10⁶);
+estimated 1 867, 1 037 and 3 966 MiB). Until the
+per-unknown names were printed as runs (``_indexed``), Python's compiler alone took about
+0.9 KiB per name of VARIABLES, ROLES and EQUATIONS, and this was 8 KiB; until the measured
+peaks replaced the growth from 10³ to 10⁴ elements as the fit, it was 4 KiB (an estimate of
+2.8 GiB for a string of 10⁵ elements that peaks at 1.7 GiB)."""
+BYTES_PER_NONZERO = 256
+"""Compile peak per Jacobian nonzero (0.24 KiB measured, see :data:`BYTES_PER_UNKNOWN`; it
+was 640 bytes, an estimate of 6.6 GiB for a beam of 10⁵ elements that peaks at 3.5 GiB)."""
+BYTES_PER_COMPONENT = 53 * 2**10
 """Compile peak per component on top of its unknowns and nonzeros: its spec, description,
 lowering and generated statements (chains of 3 000 and 10 000 springs and masses, one unknown
 each: 54.7 KiB per component in all, measured when a component's unknown was charged 8 KiB;
-with 4 KiB per unknown this is raised by the 4 KiB so that a chain is charged no less)."""
+with 3 KiB per unknown this is raised by 5 KiB so that a chain is charged no less)."""
 
 DIFF_LIMIT = 100_000
 """Largest bound on the size of one derivative (nodes): about 3 s of sympy work."""

@@ -230,6 +230,10 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
     new_index: dict[int, int] = {}
     constants = {T} | {p.symbol for p in elab.parameters.values()}  # once: per row it made assembly quadratic
     for i, eq in enumerate(rows):
+        if eq.kind == "linear" and eq.expr is sp.S.Zero:  # a row of a sparse block (most rows of a mesh)
+            new_index[i] = len(equations)
+            equations.append(eq)
+            continue
         ex = final(eq.expr)
         if ex == 0 and eq.kind != "linear":
             continue
@@ -245,7 +249,7 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
     for block in elab.linear_blocks:
         for term in block.terms:
             for sym in term.symbols:  # sparse blocks refer to internal variables only
-                if subs.get(sym, sym) != sym:
+                if sym in subs and subs[sym] != sym:
                     raise AssertionError(f"linear block `{block.label}` refers to the port variable `{sym}`")
         linear_blocks.append(LinearBlock(block.label, block.component, tuple(new_index[r] for r in block.rows),
                                          block.terms, block.span))
