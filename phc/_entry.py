@@ -18,7 +18,11 @@ the 12 CPU seconds of ``validate_file`` on that chain, 0.6 with 100); cycles are
 collected. When the command is done, everything left is frozen too: the interpreter's
 collection at exit would walk the whole model once more only to free it as the process
 ends (measured: 1.6 of the 13 CPU seconds of ``phc validate`` on that chain; the
-handlers registered with :mod:`atexit` still run).
+handlers registered with :mod:`atexit` still run). For the same reason a pause of the
+collector (:func:`phc.pipeline.collector_paused`: validate, compile, check) ends, in the
+command, by freezing what the paused block left: the next collection of the youngest
+generation would otherwise walk every object made during the pause (measured 1.4 CPU
+seconds after validating that chain: 2.3 million objects).
 """
 
 from __future__ import annotations
@@ -31,9 +35,14 @@ GC_YOUNG = 50_000
 """Allocations between collections of the youngest generation in the command (Python: 700)."""
 GC_MIDDLE = 100
 """Collections of the youngest generation between two of the middle one (Python: 10)."""
+COMMAND = False
+"""True once :func:`main` runs: the process is the `phc` command's (read by
+:func:`phc.pipeline.collector_paused`, never set by ``import phc``)."""
 
 
 def main(argv=None) -> int:
+    global COMMAND
+    COMMAND = True
     for var in THREAD_VARIABLES:
         os.environ.setdefault(var, "1")
     from phc.cli import main as cli_main

@@ -309,3 +309,29 @@ def test_compiles_in_two_threads_leave_the_collector_as_they_found_it():
     t2.join(10)
     assert seen == {"after the first ended": False}   # still paused for the second compile
     assert gc.isenabled()                              # running again once both ended
+
+
+def test_collector_pause_ends_frozen_only_in_the_command(monkeypatch):
+    """In the `phc` command (phc._entry.COMMAND), which frees its model only at exit, a pause
+    ends by freezing what the block left (the next young collection would walk all of it);
+    in a user's process (`import phc`) nothing is frozen, so the collector still frees it."""
+    import gc
+
+    import phc._entry as entry
+    from phc.pipeline import collector_paused
+
+    assert gc.isenabled()
+    monkeypatch.setattr(entry, "COMMAND", False)
+    frozen = gc.get_freeze_count()
+    with collector_paused():
+        kept = [[i] for i in range(1000)]  # containers the collector tracks
+        assert not gc.isenabled()
+    assert gc.isenabled() and gc.get_freeze_count() == frozen
+    monkeypatch.setattr(entry, "COMMAND", True)
+    try:
+        with collector_paused():
+            kept += [[i] for i in range(1000)]
+        assert gc.isenabled() and gc.get_freeze_count() >= frozen + 2000
+    finally:
+        gc.unfreeze()  # the test process goes on collecting as before
+    assert gc.get_freeze_count() == 0 and len(kept) == 2000

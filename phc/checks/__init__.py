@@ -67,6 +67,14 @@ def certify_model(path: str | os.PathLike, samples: int = 2) -> ModelCertificate
     random states besides the initial one for the structure, two more for the compiled
     equations. A structurally unbalanced model is still certified: the coupling
     certificate says why."""
+    from phc.pipeline import collector_paused
+
+    with collector_paused():  # as compile_model (phc.pipeline.collector_paused)
+        return _certify_model(path, samples)
+
+
+def _certify_model(path, samples: int) -> ModelCertificate:
+    """:func:`certify_model` with the garbage collector already paused."""
     from phc.analysis.matching import check_balance
     from phc.checks.certify import certify
     from phc.diagnostics import DiagnosticList
