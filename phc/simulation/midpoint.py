@@ -362,9 +362,10 @@ class StageSolver:
         monitor, which lets the run go on only if the motion through it is determined
         (:func:`passes_rank_drop`)."""
         matrix = self.matrix
+        start = self._closer_start(t, h, y, y1, s, out)
         matrix.least_norm, matrix.lu = True, None
         try:
-            retry, _ = step_logic.newton(self, 0, self.constants, t, h, y, y1, s, out)
+            retry, _ = step_logic.newton(self, 0, self.constants, t, h, y, start, s, out)
         finally:
             matrix.least_norm, matrix.lu, matrix.pinv = False, None, None
         if retry != step_logic._OK:
@@ -374,6 +375,27 @@ class StageSolver:
         self.ill_conditioned = True
         self.least_norm_steps += 1
         return retry
+
+    def _closer_start(self, t, h, y, y1, s, last) -> np.ndarray:
+        """Where the least-norm iteration starts: the failed iteration's last iterate `last` where
+        it leaves a smaller residual of the step's equations (rows scaled as in the Newton
+        matrix) than the start `y1`, else `y1`. At a passage the full iteration typically
+        stagnates next to the solution — residual at round-off, the states' corrections a few
+        times :data:`ROUNDOFF_FLOOR`, amplified by the near rank drop — and in the directions the
+        least-norm correction drops, the iterate keeps what its start put there: from the
+        predictor (the constant one for a step the compiled loops hand back), the N four-bar
+        with ten loops ended up a tenth of the step's change away from the solution the full
+        iteration then found, and the step was left to the monitor, which stopped the run."""
+        if not np.all(np.isfinite(last)):
+            return y1
+        scale = getattr(self.matrix, "row_scale", None)
+        scale = 1.0 if scale is None else scale
+        try:
+            at_last = float(np.abs(scale * self.residual(t, h, y, last, s)).max())
+            at_start = float(np.abs(scale * self.residual(t, h, y, y1, s)).max())
+        except ModelEvaluationError:
+            return y1
+        return last.copy() if np.isfinite(at_last) and at_last < at_start else y1
 
     def _complete(self, t, h, y, s, out) -> None:
         """Solve the rows the least-norm iteration left out: the full Newton iteration (LU of the

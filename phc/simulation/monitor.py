@@ -182,8 +182,7 @@ def _sparse_ratio(J, threshold: float, vectors: bool = True) -> tuple[float, Opt
             if not (np.isfinite(norm) and norm > 0):
                 break
             x = z / norm
-            # converged, or far enough below the threshold that more steps change no decision
-            if abs(small - before) <= INVERSE_RTOL * small or small < threshold * big * INVERSE_RTOL:
+            if abs(small - before) <= INVERSE_RTOL * small:
                 break
     ratio = small / big if big > 0 and np.isfinite(small) else 0.0
     if ratio >= threshold:

@@ -171,6 +171,62 @@ def test_two_loops_stay_on_the_branch_through_a_passage(tmp_path):
     assert r.constraint_drift < 1e-10  # the position constraints hold to Newton's tolerance
 
 
+def _first_horizontal_instant(loops: int) -> float:
+    """t* of the exact motion's first horizontal configuration (θ(t*) = 0), to 1e-12 s."""
+    from scipy.optimize import brentq
+
+    grid = np.linspace(0.0, 2.0, 401)
+    theta = exact_theta(loops, grid)
+    i = int(np.flatnonzero(np.diff(np.sign(theta)))[0])
+    return brentq(lambda t: exact_theta(loops, np.array([0.0, t]))[-1], grid[i], grid[i + 1], xtol=1e-12)
+
+
+def test_the_monitor_looks_above_the_dense_limit_and_finds_the_passage(tmp_path):
+    """N = 8 has more unknowns than the monitor's dense look takes (``DENSE_SIZE``; up to issue 34
+    it did not look at all there, and the passages went unchecked): it now looks through a sparse
+    LU of the same equilibrated iteration matrix. Checked against the exact motion: the one
+    passage the run reports is at the first horizontal instant t* (θ(t*) = 0) — the looks at
+    a passage begin where Newton first finds its steps ill-conditioned, about ten steps before
+    t* at h = 1e-3, so 0.05 s (far below the ~0.7 s between two passes) places it — and the
+    sparse look's σ_min/σ_max at the outputs around t* agrees with a dense SVD of the same
+    matrix computed here to 5 % (its power and inverse iterations stop at 1e-3 relative
+    change), is smallest at the output nearest t* and below the hard-step threshold there."""
+    from phc.simulation import monitor as monitor_module
+    from phc.simulation import parameter_vector
+    from phc.simulation.equilibrate import equilibrate
+
+    path = tmp_path / "n_four_bar_8.yaml"
+    _generator().write(8, path)
+    compiled = phc.compile_model(path, certify=False)
+    mod = compiled.module
+    assert mod.N > monitor_module.DENSE_SIZE
+    t_star = _first_horizontal_instant(8)
+    r = phc.simulate(compiled, solver="midpoint", step=1e-3, t_end=1.0, n_out=1001)
+    assert r.success, r.message
+    found = re.search(r"passed (\d+) rank drop\(s\) of the position constraints' Jacobian \(t ≈ ([0-9.]+)\)",
+                      r.message)
+    assert found, r.message
+    assert int(found.group(1)) == 1 and abs(float(found.group(2)) - t_star) < 0.05
+    look = monitor_module.SingularityMonitor(mod, parameter_vector(mod))
+    assert look.enabled
+    look.threshold = 1.0  # every look computes σ_min (not the condition estimate's bound)
+    h = 0.5e-3  # the monitor's look at a step of 1e-3: the stage's c_j = 2/h
+    near = np.flatnonzero(np.abs(r.t - t_star) < 0.02)
+    ratios = []
+    for k in near:
+        sparse, _ = look._ratio_at(r.t[k], r.y[k], r.yp[k], h)
+        dense = np.zeros((mod.N, mod.N))
+        buf = np.zeros(len(mod.JAC_ROWS))
+        mod.jacobian(r.t[k], r.y[k], r.yp[k], parameter_vector(mod), 1.0 / h, buf)
+        dense[np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)] = buf
+        s = np.linalg.svd(equilibrate(dense, rounds=2)[0], compute_uv=False)
+        assert sparse == pytest.approx(s[-1] / s[0], rel=0.05)
+        ratios.append(sparse)
+    k_min = near[int(np.argmin(ratios))]
+    assert abs(r.t[k_min] - t_star) <= 0.5 * (r.t[1] - r.t[0]) + 1e-12
+    assert min(ratios) < 1e-6  # below HARD_STEP_THRESHOLD: a hard step there is looked at
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("solver,backend", [("midpoint", "auto"), ("midpoint", "numpy")])
 def test_ten_loops_pass_every_singular_configuration(tmp_path, solver, backend):
