@@ -900,8 +900,9 @@ fraction of it, then the rest). Halving keeps every substep's midpoint on the dy
 the step; unequal pieces move the midpoints off that grid. Measured on the N four-bar with ten
 loops at h = 1e-3 to 20 s (C back end, two BLAS threads): Newton failed at the passage at
 t = 16.412 in the step and every halving of it, and the pieces 1/3, 2/3 passed it; with one
-BLAS thread the same run stops at t = 4.643 whatever the pieces (docs/hard-cases.md: above
-120 unknowns a passage's outcome depends on round-off)."""
+BLAS thread the same run stopped at t = 4.643 whatever the pieces; that was while the monitor
+did not look above 120 unknowns and a passage's outcome depended on round-off
+(docs/hard-cases.md)."""
 
 
 def _uneven(advance, t, h, y, y_fail, reason):

@@ -234,9 +234,9 @@ def test_ten_loops_pass_every_singular_configuration(tmp_path, solver, backend):
     and in the Python loop: the end is reached through every horizontal pass, all eleven cranks
     stay together (a branch switch would separate them by O(1); a least-norm step that leaves
     the position constraints unsolved in its dropped rows separated them by 4e-7 rad), and
-    crank 0 follows the exact 1-dof motion within the benchmark's tolerance. With more than 120
-    unknowns the singularity monitor does not look, so the passages are not checked by step
-    doubling; the exact motion checks the result instead."""
+    crank 0 follows the exact 1-dof motion within the benchmark's tolerance. Above 120 unknowns
+    the singularity monitor looks through a sparse LU (issue 34; before, it did not look and
+    the passages went unchecked)."""
     path = tmp_path / "n_four_bar_10.yaml"
     _generator().write(10, path)
     compiled = phc.compile_model(path, certify=False)
@@ -255,9 +255,8 @@ def test_ten_loops_discrete_gradient_keeps_the_energy_through_every_pass(tmp_pat
     passage; docs/hard-cases.md): every horizontal pass is taken, the eleven cranks stay together
     to round-off of angles up to ~60 rad (a branch switch would separate them by O(1)), and the
     energy balance holds to round-off: 1e-10 relative over the 10⁴ steps allows 1e-14 a step,
-    some 50 unit round-offs of the energy. The crank angle against the exact motion is not
-    asserted: the monitor does not look above 120 unknowns, so no passage is checked by step
-    doubling (measured: 3.2e-5 rad, docs/hard-cases.md)."""
+    some 50 unit round-offs of the energy. The crank angle against the exact motion is asserted
+    to 20 s in :func:`test_ten_loops_to_twenty_seconds_check_every_passage`."""
     path = tmp_path / "n_four_bar_10.yaml"
     _generator().write(10, path)
     compiled = phc.compile_model(path, certify=False)
@@ -268,6 +267,31 @@ def test_ten_loops_discrete_gradient_keeps_the_energy_through_every_pass(tmp_pat
     spread = max(np.abs(r[f"crank{k}.theta"] - theta).max() for k in range(1, 11))
     assert spread < 1e-9
     assert r.energy_balance_relative < 1e-10
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("solver", ["midpoint", "discrete_gradient"])
+def test_ten_loops_to_twenty_seconds_check_every_passage(tmp_path, solver):
+    """N = 10 to 20 s (the benchmark's span) at h = 1e-3 on the default back end: up to issue 34
+    the monitor did not look at these 163 unknowns, and the outcome of a passage was decided by
+    round-off — the midpoint rule stopped at t = 4.64 (Newton failing at a passage) and the
+    discrete gradient went onto another branch after 10 s (the cranks apart by O(1)). Now every
+    horizontal pass is one the run reports as a rank drop checked by one step against two half
+    steps, the eleven cranks stay together to round-off of angles up to ~120 rad, and crank 0
+    follows the exact 1-dof motion within the benchmark's tolerance."""
+    path = tmp_path / "n_four_bar_10.yaml"
+    _generator().write(10, path)
+    compiled = phc.compile_model(path, certify=False)
+    r = _run(compiled, solver, 1e-3, t_end=20.0)
+    assert r.success, r.message
+    theta = r["crank0.theta"]
+    passes = horizontal_passes(theta)
+    assert passes >= 18
+    found = re.search(r"passed (\d+) rank drop\(s\)", r.message)
+    assert found and int(found.group(1)) == passes, r.message
+    spread = max(np.abs(r[f"crank{k}.theta"] - theta).max() for k in range(1, 11))
+    assert spread < 2e-9
+    assert np.abs(theta - exact_theta(10, r.t)).max() < BENCHMARK_TOLERANCE
 
 
 def test_a_rod_folding_onto_its_guide_still_stops():
