@@ -136,7 +136,7 @@ def _sparse_ratio(J, threshold: float, vectors: bool = True) -> tuple[float, Opt
     vector of σ_min, or of the cluster of small ones where a rank drop loses several at once)
     where the ratio is below `threshold`, else None; an empty array without `vectors`. A matrix
     SuperLU finds exactly singular has ratio 0 and u from a dense SVD (where
-    :data:`DIAGNOSE_MAX` allows; else the unit vector of no row)."""
+    :data:`DIAGNOSE_MAX` allows; else a zero vector, which names no rows)."""
     import scipy.sparse.linalg as spla
 
     n = J.shape[0]
