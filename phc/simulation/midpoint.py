@@ -379,7 +379,8 @@ class StageSolver:
     def _closer_start(self, t, h, y, y1, s, last) -> np.ndarray:
         """Where the least-norm iteration starts: the failed iteration's last iterate `last` where
         it leaves a smaller residual of the step's equations (rows scaled as in the Newton
-        matrix) than the start `y1`, else `y1`. At a passage the full iteration typically
+        matrix) than the start `y1`, and one at round-off (:data:`ROUNDOFF_ZONE` times
+        :data:`NEWTON_TOL`), else `y1`. At a passage the full iteration typically
         stagnates next to the solution — residual at round-off, the states' corrections a few
         times :data:`ROUNDOFF_FLOOR`, amplified by the near rank drop — and in the directions the
         least-norm correction drops, the iterate keeps what its start put there: from the
@@ -395,7 +396,11 @@ class StageSolver:
             at_start = float(np.abs(scale * self.residual(t, h, y, y1, s)).max())
         except ModelEvaluationError:
             return y1
-        return last.copy() if np.isfinite(at_last) and at_last < at_start else y1
+        # only an iterate at round-off (a stagnation next to the solution): elsewhere a failed
+        # iteration's iterate is no better a start than the predictor (an IDA bridge at IDA's
+        # collapsed step went astray from such starts)
+        near = at_last <= ROUNDOFF_ZONE * NEWTON_TOL
+        return last.copy() if np.isfinite(at_last) and at_last < at_start and near else y1
 
     def _complete(self, t, h, y, s, out) -> None:
         """Solve the rows the least-norm iteration left out: the full Newton iteration (LU of the
