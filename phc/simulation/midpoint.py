@@ -324,6 +324,11 @@ class StageSolver:
         """Solves that needed the least-norm correction (a rank drop of the position constraints)."""
         self.completed_steps = 0
         """Least-norm solves whose result the full iteration improved (:meth:`_complete`)."""
+        self.restart_near = False
+        """Whether the least-norm retry may start from the failed iteration's last iterate
+        (:meth:`_closer_start`): set by the `midpoint` and `discrete_gradient` runs; the IDA
+        bridge (:mod:`phc.simulation.ida_bridge`) keeps the predictor (with it, the N = 1 four-bar's
+        bridge at IDA's collapsed step failed at the ninth pass)."""
 
     def residual(self, t, h, y, y1, s):
         d = y1 - y
@@ -387,7 +392,7 @@ class StageSolver:
         predictor (the constant one for a step the compiled loops hand back), the N four-bar
         with ten loops ended up a tenth of the step's change away from the solution the full
         iteration then found, and the step was left to the monitor, which stopped the run."""
-        if not np.all(np.isfinite(last)):
+        if not self.restart_near or not np.all(np.isfinite(last)):
             return y1
         scale = getattr(self.matrix, "row_scale", None)
         scale = 1.0 if scale is None else scale
@@ -949,7 +954,9 @@ def integrate_midpoint(mod, p, t_out, y0, yp0, options, *, progress=None, names=
     step, max_steps = options.step, options.max_steps
 
     def make_advance():
-        return midpoint_advance(mod, p, nominal)
+        advance = midpoint_advance(mod, p, nominal)
+        advance.stage.restart_near = True
+        return advance
 
     if events is not None and getattr(getattr(mod, "module", mod), "BACKEND", "") == "c":
         from phc.codegen import c_steps
