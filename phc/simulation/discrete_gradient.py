@@ -178,6 +178,7 @@ class DiscreteGradientStep:
     def __init__(self, mod, p, scales=None):
         self.mod, self.p = mod, p
         self.stage = StageSolver(mod, p, weights=newton_weights_of(scales, mod))
+        self.stage.restart_near = True  # the least-norm retry's start (StageSolver._closer_start)
         self.e = list(mod.VARIABLES).index("energy.supplied")
         self.secant_iterations = 0
         self.unbalanced = 0

@@ -324,6 +324,11 @@ class StageSolver:
         """Solves that needed the least-norm correction (a rank drop of the position constraints)."""
         self.completed_steps = 0
         """Least-norm solves whose result the full iteration improved (:meth:`_complete`)."""
+        self.restart_near = False
+        """Whether the least-norm retry may start from the failed iteration's last iterate
+        (:meth:`_closer_start`): set by the `midpoint` and `discrete_gradient` runs; the IDA
+        bridge (:mod:`phc.simulation.ida_bridge`) keeps the predictor (with it, the N = 1 four-bar's
+        bridge at IDA's collapsed step failed at the ninth pass)."""
 
     def residual(self, t, h, y, y1, s):
         d = y1 - y
@@ -362,9 +367,10 @@ class StageSolver:
         monitor, which lets the run go on only if the motion through it is determined
         (:func:`passes_rank_drop`)."""
         matrix = self.matrix
+        start = self._closer_start(t, h, y, y1, s, out)
         matrix.least_norm, matrix.lu = True, None
         try:
-            retry, _ = step_logic.newton(self, 0, self.constants, t, h, y, y1, s, out)
+            retry, _ = step_logic.newton(self, 0, self.constants, t, h, y, start, s, out)
         finally:
             matrix.least_norm, matrix.lu, matrix.pinv = False, None, None
         if retry != step_logic._OK:
@@ -374,6 +380,32 @@ class StageSolver:
         self.ill_conditioned = True
         self.least_norm_steps += 1
         return retry
+
+    def _closer_start(self, t, h, y, y1, s, last) -> np.ndarray:
+        """Where the least-norm iteration starts: the failed iteration's last iterate `last` where
+        it leaves a smaller residual of the step's equations (rows scaled as in the Newton
+        matrix) than the start `y1`, and one at round-off (:data:`ROUNDOFF_ZONE` times
+        :data:`NEWTON_TOL`), else `y1`. At a passage the full iteration typically
+        stagnates next to the solution — residual at round-off, the states' corrections a few
+        times :data:`ROUNDOFF_FLOOR`, amplified by the near rank drop — and in the directions the
+        least-norm correction drops, the iterate keeps what its start put there: from the
+        predictor (the constant one for a step the compiled loops hand back), the N four-bar
+        with ten loops ended up a tenth of the step's change away from the solution the full
+        iteration then found, and the step was left to the monitor, which stopped the run."""
+        if not self.restart_near or not np.all(np.isfinite(last)):
+            return y1
+        scale = getattr(self.matrix, "row_scale", None)
+        scale = 1.0 if scale is None else scale
+        try:
+            at_last = float(np.abs(scale * self.residual(t, h, y, last, s)).max())
+            at_start = float(np.abs(scale * self.residual(t, h, y, y1, s)).max())
+        except ModelEvaluationError:
+            return y1
+        # only an iterate at round-off (a stagnation next to the solution): elsewhere a failed
+        # iteration's iterate is no better a start than the predictor (an IDA bridge at IDA's
+        # collapsed step went astray from such starts)
+        near = at_last <= ROUNDOFF_ZONE * NEWTON_TOL
+        return last.copy() if np.isfinite(at_last) and at_last < at_start and near else y1
 
     def _complete(self, t, h, y, s, out) -> None:
         """Solve the rows the least-norm iteration left out: the full Newton iteration (LU of the
@@ -878,8 +910,9 @@ fraction of it, then the rest). Halving keeps every substep's midpoint on the dy
 the step; unequal pieces move the midpoints off that grid. Measured on the N four-bar with ten
 loops at h = 1e-3 to 20 s (C back end, two BLAS threads): Newton failed at the passage at
 t = 16.412 in the step and every halving of it, and the pieces 1/3, 2/3 passed it; with one
-BLAS thread the same run stops at t = 4.643 whatever the pieces (docs/hard-cases.md: above
-120 unknowns a passage's outcome depends on round-off)."""
+BLAS thread the same run stopped at t = 4.643 whatever the pieces; that was while the monitor
+did not look above 120 unknowns and a passage's outcome depended on round-off
+(docs/hard-cases.md)."""
 
 
 def _uneven(advance, t, h, y, y_fail, reason):
@@ -921,7 +954,9 @@ def integrate_midpoint(mod, p, t_out, y0, yp0, options, *, progress=None, names=
     step, max_steps = options.step, options.max_steps
 
     def make_advance():
-        return midpoint_advance(mod, p, nominal)
+        advance = midpoint_advance(mod, p, nominal)
+        advance.stage.restart_near = True
+        return advance
 
     if events is not None and getattr(getattr(mod, "module", mod), "BACKEND", "") == "c":
         from phc.codegen import c_steps

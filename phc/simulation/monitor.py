@@ -33,6 +33,7 @@ from typing import Optional
 
 import numpy as np
 import scipy.linalg as sla
+import scipy.sparse as sps
 
 from phc.errors import ModelEvaluationError
 from phc.simulation.equilibrate import equilibrate
@@ -45,8 +46,23 @@ STEP_SPREAD = 1e3
 """A look that finds the iteration matrix nearly singular at the step h looks again at
 ``STEP_SPREAD·h``: a singular configuration is singular at both, an ill-conditioning that the
 step makes (∝ h, or h² for index 2) is gone at the longer one."""
-MAX_SIZE = 120
-"""Systems larger than this are not monitored (the dense SVD would dominate)."""
+MAX_SIZE = 10**7
+"""Systems larger than this are not monitored (a switch: tests and benchmarks set it to 0 to run
+without the monitor)."""
+DENSE_SIZE = 120
+"""Systems up to this size are looked at with dense linear algebra (LAPACK's condition estimate,
+then the SVD); larger ones through a sparse LU of the same equilibrated matrix
+(:func:`_sparse_ratio`), whose cost grows with its nonzeros and fill rather than with N³: the
+dense look of the N four-bar with 40 loops (643 unknowns) cost more than the steps between two
+looks, and the passages of models above this size went unchecked (docs/hard-cases.md)."""
+INVERSE_STEPS = 40
+"""Most steps of the inverse iteration of :func:`_sparse_ratio` (σ_min and its left singular vector)."""
+INVERSE_RTOL = 1e-3
+"""The inverse iteration stops once its estimate of σ_min changes by less than this fraction in a
+step (it decides against thresholds orders of magnitude apart)."""
+POWER_STEPS = 30
+"""Most steps of the power iteration of :func:`_sparse_ratio` for σ_max (of an equilibrated matrix:
+between 1 and the square root of its nonzeros, found to 1e-3 in a few steps)."""
 RCOND_MARGIN = 1e3
 """A look computes singular values only when LAPACK's 1-norm condition estimate (``dgecon``
 on an LU, a fraction of the SVD's cost) is within this factor (times N) of the threshold:
@@ -82,18 +98,96 @@ def _equilibrate(J: np.ndarray) -> np.ndarray:
     return equilibrate(J, rounds=2)[0]
 
 
-def _far_from_singular(J: np.ndarray, threshold: float) -> Optional[float]:
+def _far_from_singular(J: np.ndarray, threshold: float, lu=None) -> Optional[float]:
     """``1/(n·κ̂₁)`` of the equilibrated matrix J from LAPACK's condition estimate when that is
     :data:`RCOND_MARGIN`·n times above `threshold` (about a lower bound of σ_min/σ_max there);
-    None when the singular values must decide."""
+    None when the singular values must decide. For a sparse J, `lu` is its sparse LU
+    (``scipy.sparse.linalg.splu``) and ‖J⁻¹‖₁ is estimated on it by Higham's block 1-norm
+    estimator (``scipy.sparse.linalg.onenormest``; ``dgecon`` runs Hager's and Higham's
+    estimator on the dense LU): a few solves with the LU and its transpose."""
     n = J.shape[0]
-    lu, _, info = sla.lapack.dgetrf(J)
-    if info != 0:
-        return None
-    rcond, info = sla.lapack.dgecon(lu, float(np.abs(J).sum(axis=0).max()), norm="1")
-    if info != 0 or not np.isfinite(rcond) or rcond < threshold * n * RCOND_MARGIN:
+    if lu is not None:
+        import scipy.sparse.linalg as spla
+
+        inverse = spla.LinearOperator((n, n), matvec=lu.solve, rmatvec=lambda x: lu.solve(x, trans="T"),
+                                      dtype=float)
+        with np.errstate(all="ignore"):
+            estimate = float(spla.onenormest(inverse))
+            rcond = 1.0 / (float(abs(J).sum(axis=0).max()) * estimate) if estimate > 0 else math.nan
+    else:
+        lu, _, info = sla.lapack.dgetrf(J)
+        if info != 0:
+            return None
+        rcond, info = sla.lapack.dgecon(lu, float(np.abs(J).sum(axis=0).max()), norm="1")
+        if info != 0:
+            return None
+    if not np.isfinite(rcond) or rcond < threshold * n * RCOND_MARGIN:
         return None
     return float(rcond) / n
+
+
+def _sparse_ratio(J, threshold: float, vectors: bool = True) -> tuple[float, Optional[np.ndarray]]:
+    """``(σ_min/σ_max, u)`` of the equilibrated sparse matrix J (CSC), as the dense look computes
+    them (:meth:`SingularityMonitor._ratio_at`) but from one sparse LU: the condition estimate
+    first (:func:`_far_from_singular`), then σ_min by inverse iteration on ``(J Jᵀ)⁻¹`` (two
+    solves with the LU a step, from a fixed start; its estimate ``1/‖J⁻¹x‖`` is never below
+    σ_min, and near a rank drop, where σ_min is far below the next singular value, it converges
+    in a few steps) and σ_max by power iteration on ``JᵀJ``. `u` (the iterate: the left singular
+    vector of σ_min, or of the cluster of small ones where a rank drop loses several at once)
+    where the ratio is below `threshold`, else None; an empty array without `vectors`. A matrix
+    SuperLU finds exactly singular has ratio 0 and u from a dense SVD (where
+    :data:`DIAGNOSE_MAX` allows; else a zero vector, which names no rows)."""
+    import scipy.sparse.linalg as spla
+
+    n = J.shape[0]
+    J = sps.csc_matrix(J)
+    try:
+        if not np.all(np.isfinite(J.data)):
+            raise ValueError("not finite")
+        lu = spla.splu(J)
+    except (RuntimeError, ValueError):
+        if not vectors:
+            return 0.0, np.empty(0)
+        if n <= DIAGNOSE_MAX and np.all(np.isfinite(J.data)):
+            u, _, _ = np.linalg.svd(J.toarray())
+            return 0.0, u[:, -1]
+        return 0.0, np.zeros(n)
+    rough = _far_from_singular(J, threshold, lu)
+    if rough is not None:
+        return rough, None
+    rng = np.random.default_rng(0)  # the same look every time
+    v = rng.standard_normal(n)
+    v /= np.linalg.norm(v)
+    big = 0.0
+    for _ in range(POWER_STEPS):
+        w = J.T @ (J @ v)
+        norm = float(np.linalg.norm(w))
+        if not norm > 0:
+            break
+        v, before, big = w / norm, big, math.sqrt(norm)
+        if abs(big - before) <= INVERSE_RTOL * big:
+            break
+    x = rng.standard_normal(n)
+    x /= np.linalg.norm(x)
+    small = math.inf
+    with np.errstate(all="ignore"):
+        for _ in range(INVERSE_STEPS):
+            w = lu.solve(x)  # J w = x: ‖w‖ ≤ 1/σ_min
+            norm = float(np.linalg.norm(w))
+            if not np.isfinite(norm):
+                break
+            before, small = small, (1.0 / norm if norm > 0 else math.inf)
+            z = lu.solve(w, trans="T")  # Jᵀ z = w: z = (J Jᵀ)⁻¹ x
+            norm = float(np.linalg.norm(z))
+            if not (np.isfinite(norm) and norm > 0):
+                break
+            x = z / norm
+            if abs(small - before) <= INVERSE_RTOL * small:
+                break
+    ratio = small / big if big > 0 and np.isfinite(small) else 0.0
+    if ratio >= threshold:
+        return ratio, None
+    return ratio, (x if vectors else np.empty(0))
 
 
 def _search_below(f, a, b, threshold, iterations: int = 80, fa=None, fb=None, minimum: bool = False):
@@ -207,7 +301,16 @@ class SingularityMonitor:
         J[self.rows, self.cols] = self.buf
         return _equilibrate(J)
 
+    def _equilibrated_sparse(self, t, y, yp, h):
+        """:meth:`_equilibrated` as a sparse (CSC) matrix."""
+        n = self.mod.N
+        self.mod.jacobian(t, y, yp, self.p, 1.0 / max(h, 1e-300), self.buf)
+        J = sps.csc_matrix((self.buf.copy(), (self.rows, self.cols)), shape=(n, n))
+        return equilibrate(J, rounds=2)[0]
+
     def _ratio_at(self, t, y, yp, h, vectors: bool = True) -> tuple[float, np.ndarray]:
+        if self.mod.N > DENSE_SIZE:
+            return _sparse_ratio(self._equilibrated_sparse(t, y, yp, h), self.threshold, vectors)
         J = self._equilibrated(t, y, yp, h)
         rough = _far_from_singular(J, self.threshold)
         if rough is not None:

@@ -171,6 +171,62 @@ def test_two_loops_stay_on_the_branch_through_a_passage(tmp_path):
     assert r.constraint_drift < 1e-10  # the position constraints hold to Newton's tolerance
 
 
+def _first_horizontal_instant(loops: int) -> float:
+    """t* of the exact motion's first horizontal configuration (θ(t*) = 0), to 1e-12 s."""
+    from scipy.optimize import brentq
+
+    grid = np.linspace(0.0, 2.0, 401)
+    theta = exact_theta(loops, grid)
+    i = int(np.flatnonzero(np.diff(np.sign(theta)))[0])
+    return brentq(lambda t: exact_theta(loops, np.array([0.0, t]))[-1], grid[i], grid[i + 1], xtol=1e-12)
+
+
+def test_the_monitor_looks_above_the_dense_limit_and_finds_the_passage(tmp_path):
+    """N = 8 has more unknowns than the monitor's dense look takes (``DENSE_SIZE``; up to issue 34
+    it did not look at all there, and the passages went unchecked): it now looks through a sparse
+    LU of the same equilibrated iteration matrix. Checked against the exact motion: the one
+    passage the run reports is at the first horizontal instant t* (θ(t*) = 0) — the looks at
+    a passage begin where Newton first finds its steps ill-conditioned, about ten steps before
+    t* at h = 1e-3, so 0.05 s (far below the ~0.7 s between two passes) places it — and the
+    sparse look's σ_min/σ_max at the outputs around t* agrees with a dense SVD of the same
+    matrix computed here to 5 % (its power and inverse iterations stop at 1e-3 relative
+    change), is smallest at the output nearest t* and below the hard-step threshold there."""
+    from phc.simulation import monitor as monitor_module
+    from phc.simulation import parameter_vector
+    from phc.simulation.equilibrate import equilibrate
+
+    path = tmp_path / "n_four_bar_8.yaml"
+    _generator().write(8, path)
+    compiled = phc.compile_model(path, certify=False)
+    mod = compiled.module
+    assert mod.N > monitor_module.DENSE_SIZE
+    t_star = _first_horizontal_instant(8)
+    r = phc.simulate(compiled, solver="midpoint", step=1e-3, t_end=1.0, n_out=1001)
+    assert r.success, r.message
+    found = re.search(r"passed (\d+) rank drop\(s\) of the position constraints' Jacobian \(t ≈ ([0-9.]+)\)",
+                      r.message)
+    assert found, r.message
+    assert int(found.group(1)) == 1 and abs(float(found.group(2)) - t_star) < 0.05
+    look = monitor_module.SingularityMonitor(mod, parameter_vector(mod))
+    assert look.enabled
+    look.threshold = 1.0  # every look computes σ_min (not the condition estimate's bound)
+    h = 0.5e-3  # the monitor's look at a step of 1e-3: the stage's c_j = 2/h
+    near = np.flatnonzero(np.abs(r.t - t_star) < 0.02)
+    ratios = []
+    for k in near:
+        sparse, _ = look._ratio_at(r.t[k], r.y[k], r.yp[k], h)
+        dense = np.zeros((mod.N, mod.N))
+        buf = np.zeros(len(mod.JAC_ROWS))
+        mod.jacobian(r.t[k], r.y[k], r.yp[k], parameter_vector(mod), 1.0 / h, buf)
+        dense[np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)] = buf
+        s = np.linalg.svd(equilibrate(dense, rounds=2)[0], compute_uv=False)
+        assert sparse == pytest.approx(s[-1] / s[0], rel=0.05)
+        ratios.append(sparse)
+    k_min = near[int(np.argmin(ratios))]
+    assert abs(r.t[k_min] - t_star) <= 0.5 * (r.t[1] - r.t[0]) + 1e-12
+    assert min(ratios) < 1e-6  # below HARD_STEP_THRESHOLD: a hard step there is looked at
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("solver,backend", [("midpoint", "auto"), ("midpoint", "numpy")])
 def test_ten_loops_pass_every_singular_configuration(tmp_path, solver, backend):
@@ -178,9 +234,9 @@ def test_ten_loops_pass_every_singular_configuration(tmp_path, solver, backend):
     and in the Python loop: the end is reached through every horizontal pass, all eleven cranks
     stay together (a branch switch would separate them by O(1); a least-norm step that leaves
     the position constraints unsolved in its dropped rows separated them by 4e-7 rad), and
-    crank 0 follows the exact 1-dof motion within the benchmark's tolerance. With more than 120
-    unknowns the singularity monitor does not look, so the passages are not checked by step
-    doubling; the exact motion checks the result instead."""
+    crank 0 follows the exact 1-dof motion within the benchmark's tolerance. Above 120 unknowns
+    the singularity monitor looks through a sparse LU (issue 34; before, it did not look and
+    the passages went unchecked)."""
     path = tmp_path / "n_four_bar_10.yaml"
     _generator().write(10, path)
     compiled = phc.compile_model(path, certify=False)
@@ -199,9 +255,8 @@ def test_ten_loops_discrete_gradient_keeps_the_energy_through_every_pass(tmp_pat
     passage; docs/hard-cases.md): every horizontal pass is taken, the eleven cranks stay together
     to round-off of angles up to ~60 rad (a branch switch would separate them by O(1)), and the
     energy balance holds to round-off: 1e-10 relative over the 10⁴ steps allows 1e-14 a step,
-    some 50 unit round-offs of the energy. The crank angle against the exact motion is not
-    asserted: the monitor does not look above 120 unknowns, so no passage is checked by step
-    doubling (measured: 3.2e-5 rad, docs/hard-cases.md)."""
+    some 50 unit round-offs of the energy. The crank angle against the exact motion is asserted
+    to 20 s in :func:`test_ten_loops_to_twenty_seconds_check_every_passage`."""
     path = tmp_path / "n_four_bar_10.yaml"
     _generator().write(10, path)
     compiled = phc.compile_model(path, certify=False)
@@ -212,6 +267,31 @@ def test_ten_loops_discrete_gradient_keeps_the_energy_through_every_pass(tmp_pat
     spread = max(np.abs(r[f"crank{k}.theta"] - theta).max() for k in range(1, 11))
     assert spread < 1e-9
     assert r.energy_balance_relative < 1e-10
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("solver", ["midpoint", "discrete_gradient"])
+def test_ten_loops_to_twenty_seconds_check_every_passage(tmp_path, solver):
+    """N = 10 to 20 s (the benchmark's span) at h = 1e-3 on the default back end: up to issue 34
+    the monitor did not look at these 163 unknowns, and the outcome of a passage was decided by
+    round-off — the midpoint rule stopped at t = 4.64 (Newton failing at a passage) and the
+    discrete gradient went onto another branch after 10 s (the cranks apart by O(1)). Now every
+    horizontal pass is one the run reports as a rank drop checked by one step against two half
+    steps, the eleven cranks stay together to round-off of angles up to ~120 rad, and crank 0
+    follows the exact 1-dof motion within the benchmark's tolerance."""
+    path = tmp_path / "n_four_bar_10.yaml"
+    _generator().write(10, path)
+    compiled = phc.compile_model(path, certify=False)
+    r = _run(compiled, solver, 1e-3, t_end=20.0)
+    assert r.success, r.message
+    theta = r["crank0.theta"]
+    passes = horizontal_passes(theta)
+    assert passes >= 18
+    found = re.search(r"passed (\d+) rank drop\(s\)", r.message)
+    assert found and int(found.group(1)) == passes, r.message
+    spread = max(np.abs(r[f"crank{k}.theta"] - theta).max() for k in range(1, 11))
+    assert spread < 2e-9
+    assert np.abs(theta - exact_theta(10, r.t)).max() < BENCHMARK_TOLERANCE
 
 
 def test_a_rod_folding_onto_its_guide_still_stops():
