@@ -747,6 +747,13 @@ def finish_step(advance, monitor, mod, name, t, h, y, y_new, converged, reason, 
             warning = monitor.check(t + h, y_new, (y_new - y) / h, 0.5 * h, limit)
         if warning and converged and passed_rank_drop(monitor, advance, mod, t, h, y, y_new, rank_drops):
             warning, passed = None, True  # a rank drop of the position constraints that the motion passes: go on
+        elif (warning and converged and hard and monitor.last_ratio >= monitor.threshold
+              and passes_rank_drop(advance, mod, t, h, y, y_new)):
+            # the looser threshold flagged a step Newton struggled with, but the iteration matrix is
+            # not singular by the run's own threshold (at h and at STEP_SPREAD·h) and two half
+            # steps reach the same end: a stiff, steep stretch (a transistor switching in SI
+            # units), not a singular configuration: go on
+            warning = None
         if warning:
             return y_new, retried, f"{name}: {warning}", passed
     if not converged:

@@ -358,6 +358,11 @@ class SingularityMonitor:
             return None
         return self._message(t, ratio, u, threshold)
 
+    @property
+    def last_ratio(self) -> float:
+        """σ_min/σ_max of the last look (``inf`` before the first)."""
+        return self._looks[-1][4] if self._looks else math.inf
+
     def _remember(self, look) -> None:
         """Add a look to :attr:`history`, which keeps its reach into the past: once full, a look
         less than a quarter of the window's mean spacing after the look before the last
