@@ -5,7 +5,10 @@ benchmarks/corpus/.
 
 Each scene of benchmarks/corpus/ runs a shipped model (models/*.yaml) for a span that takes
 seconds, sweeps IDA over six tolerances (1e-3 … 1e-8, atol = rtol/100) and the fixed-step
-`midpoint`, `discrete_gradient` and `midpoint4` over five steps — and, beside them, scipy's
+`midpoint`, `discrete_gradient` and `midpoint4` over the scene's steps and then finer ones, each
+chosen from the error the finer steps reached, until the tightest goal level (1e-8) is reached
+(:func:`phc.study.bench.next_finer_step`: halvings sized by the measured convergence rate; stopped
+by the reference's gap, a stalled rate or a CPU budget) — and, beside them, scipy's
 Radau, BDF and DOP853 over the same tolerances on the ODE form of the same residual
 (:mod:`phc.study.ode_form`; a higher-index DAE has none, and its rows say so) — and measures the
 error of its outputs against
@@ -24,7 +27,7 @@ fastest solver against scipy's at each relative error 1e-3 … 1e-8, the work ch
 setting must not take more steps or CPU time than a tighter one) —
 followed by each model's `phc bench` table. The per-model files (bench.csv, bench.md) go to
 ``--out-dir`` (default a temporary directory). ``--quick`` sweeps three tolerances and two
-steps (a check that the script runs, not figures).
+steps, none added (a check that the script runs, not figures).
 """
 
 from __future__ import annotations
@@ -178,7 +181,8 @@ def main(argv=None) -> int:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the runs' warnings are in their messages
             rep = run_bench(scene, solvers=SOLVERS, repeats=args.repeats, out_dir=out / scene.stem, progress=False,
-                            plot=False, cross_check=True, **kwargs)
+                            plot=False, cross_check=True, target_error=None if args.quick else min(GOAL_LEVELS),
+                            **kwargs)
         print(f"{scene.stem}: {len(rep.rows)} runs, {rep.elapsed_s:.1f} s, {len(rep.flags)} flagged",
               file=sys.stderr, flush=True)
         reports.append(rep)

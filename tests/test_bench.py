@@ -302,3 +302,50 @@ def test_a_fixed_step_reference_cross_checked_by_ida(tmp_path):
     text = (tmp_path / "b" / "bench.md").read_text()
     assert "Cross-check: a second reference run (ida rtol 1.0e-10" in text and "Work check" in text
     assert "agrees with ida rtol 1.0e-10" in ref.render_text()
+
+
+def test_the_next_finer_step_follows_the_measured_order():
+    """Issue 33: the fixed-step sweep's steps come from the accuracy asked for. Rows with the
+    error of an order-4 method (err = h⁴) at 0.1 and 0.05: to reach 1e-8 from 0.05⁴ = 6.25e-6
+    takes a factor (625)^(1/4) = 5 in h, three halvings (2³ = 8 ≥ 5; two give 4 < 5); an order-2
+    method (err = h²) at 0.05, 2.5e-3, needs 500^(1/2) ≈ 22: capped at three halvings at once.
+    Done when the target is reached; stopped when the error stalls, a finer step failed, or the
+    budget in steps or CPU time is spent."""
+    from phc.study.bench import EXTEND_MAX_CPU_S, EXTEND_MAX_HALVINGS, next_finer_step
+
+    def rows(order, steps, cpu=0.01):
+        return [_row("midpoint", step=h, cpu=cpu, error=h ** order) for h in steps]
+
+    assert next_finer_step(rows(4, [0.1, 0.05]), 1e-8, 0.05) == pytest.approx(0.05 / 8)
+    assert next_finer_step(rows(4, [0.1, 0.05]), 2e-6, 0.05) == pytest.approx(0.025)  # (3.1)^(1/4) < 2: one
+    assert next_finer_step(rows(2, [0.1, 0.05]), 1e-8, 0.05) == pytest.approx(0.05 / 8)
+    assert next_finer_step(rows(4, [0.05]), 1e-8, 0.05) == pytest.approx(0.025)  # one row: halve
+    assert next_finer_step(rows(4, [0.1, 0.05]), 1e-5, 0.05) is None  # reached
+    stalled = rows(4, [0.1, 0.05]) + [_row("midpoint", step=0.025, cpu=0.01, error=0.05 ** 4 * 0.9)]
+    assert next_finer_step(stalled, 1e-8, 0.05) is None  # a halving bought < 2^0.5: round-off or the reference
+    failed = rows(4, [0.1, 0.05, 0.025])
+    failed[-1].success = False
+    assert next_finer_step(failed, 1e-8, 0.05) is None
+    floor = 0.05 / 2 ** EXTEND_MAX_HALVINGS
+    assert next_finer_step(rows(2, [2 * floor, floor]), 1e-12, 0.05) is None  # no finer than the budget
+    assert next_finer_step(rows(2, [4 * floor, 2 * floor]), 1e-12, 0.05) == pytest.approx(floor)  # up to it
+    slow = EXTEND_MAX_CPU_S / 3  # one halving doubles the time: 2/3 of the budget fits, 4/3 does not
+    assert next_finer_step(rows(4, [0.1, 0.05], cpu=slow), 1e-8, 0.05) == pytest.approx(0.025)
+    assert next_finer_step(rows(4, [0.1, 0.05], cpu=slow), 1e-8, 0.05, repeats=2) is None
+
+
+def test_a_fixed_step_sweep_goes_on_until_the_target_is_reached(tmp_path):
+    """The mass–spring–damper against its closed form: midpoint listed at 0.1 and 0.05 only
+    (relative error ~1e-3) goes on to finer steps until one reaches 1e-6 — order 2 from ~1e-3
+    needs ~30× in h, more than the listed steps — and the finest added row is the first to
+    reach it; without a target only the listed steps run."""
+    report = run_bench(msd_scene(tmp_path), solvers=["midpoint"], steps=[0.1, 0.05], out_dir=tmp_path / "out",
+                       progress=False, plot=False, target_error=1e-6)
+    assert report.success, report.render_text()
+    mid = sorted(report.rows, key=lambda r: -r.step)
+    assert len(mid) > 2 and mid[1].error_relative > 1e-4
+    assert mid[-1].error_relative <= 1e-6 < mid[-2].error_relative
+    assert all(a.error_relative > b.error_relative for a, b in zip(mid, mid[1:]))
+    plain = run_bench(msd_scene(tmp_path), solvers=["midpoint"], steps=[0.1, 0.05], out_dir=tmp_path / "o2",
+                      progress=False, plot=False)
+    assert len(plain.rows) == 2

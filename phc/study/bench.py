@@ -319,7 +319,8 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
               reference_cache: Union[None, bool, str, os.PathLike] = None, progress: bool = True,
               plot: bool = True, outputs=None, reference_rtol: Optional[float] = None,
               stream=None, reference: Union[None, str, os.PathLike] = None, reference_solver: str = "ida",
-              reference_step: Optional[float] = None, cross_check: bool = False) -> BenchReport:
+              reference_step: Optional[float] = None, cross_check: bool = False,
+              target_error: Optional[float] = None) -> BenchReport:
     """Run the work-precision study of a scene and write ``bench.csv``, ``bench.md`` and
     ``bench.png`` into `out_dir`.
 
@@ -358,6 +359,12 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
         Run a second reference by the other kind of method (:data:`CROSS_CHECK_SOLVER` at
         the finest swept step / 16 for an IDA reference, IDA at `reference_rtol` for a
         fixed-step one) and report their difference (``reference_gap``).
+    target_error
+        The tightest relative error the study is after (e.g. 1e-8). A fixed-step solver whose
+        finest listed step has not reached it goes on to finer steps, chosen from its measured
+        convergence (:func:`next_finer_step`), until one reaches it — or twice the reference's
+        gap, a stalled convergence, a failed run or the budget (:data:`EXTEND_MAX_HALVINGS`,
+        :data:`EXTEND_MAX_CPU_S`) stops it. ``None``: the listed steps only.
 
     Returns
     -------
@@ -498,6 +505,20 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
                              report.reference_message, grid, at_ref)
             report.rows.append(row)
             bar.advance()
+            if target_error and solver in FIXED_STEP and value == steps[-1]:
+                # the listed steps are done: finer ones until the target is reached (the steps
+                # come from the accuracy asked for, not from a count)
+                floor = 2 * max([g for g in report.reference_gap.values() if math.isfinite(g)], default=0.0)
+                while True:
+                    mine = [r for r in report.rows if r.solver == solver and r.mesh == mesh]
+                    finer = next_finer_step(mine, max(float(target_error), floor), min(steps), repeats)
+                    if finer is None:
+                        break
+                    bar.total += 1
+                    bar.show(_point_label(mesh, solver, finer))
+                    report.rows.append(_run_point(compiled, solver, finer, mesh, t_run, repeats, outputs, closed,
+                                                  reference, report.reference_message, grid, at_ref))
+                    bar.advance()
     except KeyboardInterrupt:
         report.interrupted = True
     finally:
@@ -509,6 +530,58 @@ def run_bench(scene_path: Union[str, os.PathLike], *, solvers=None, tolerances=N
     report.flags = work_flags(report.rows)
     _write_files(report, out_dir, plot)
     return report
+
+
+# ---------------------------------------------------------------------------------------
+# finer steps from the accuracy asked for
+
+EXTEND_MAX_HALVINGS = 6
+"""A fixed-step sweep extended towards ``target_error`` goes at most this many halvings
+below the finest listed step (64× its steps)…"""
+EXTEND_MAX_JUMP = 3
+"""…at most this many halvings at once (the rate measured on the last two steps may be
+pre-asymptotic)…"""
+EXTEND_MIN_RATE = 0.5
+"""…and stops when the error fell slower than h^this over the last refinement (round-off,
+the reference's own error or a Newton tolerance reached: a finer step buys nothing)…"""
+EXTEND_MAX_CPU_S = 2.0
+"""…or when the next run would take more than this CPU time (predicted from the finest run,
+proportional to the steps, times the repeats)."""
+
+
+def next_finer_step(rows, target: float, finest_listed: float, repeats: int = 1) -> Optional[float]:
+    """The next step of a fixed-step solver's sweep towards the relative error `target`, or
+    ``None`` when the sweep is done.
+
+    `rows` are that solver's rows on one mesh so far. The finest successful row with a measured
+    error above `target` is refined by halvings: as many (1 … :data:`EXTEND_MAX_JUMP`) as the
+    rate measured between the two finest rows, ``err ∝ h^p``, says reach `target` (one when
+    there is a single row). ``None`` when the finest row reached `target`, a step finer than
+    `finest_listed` failed, the error fell slower than ``h^``:data:`EXTEND_MIN_RATE`, or the
+    next step would pass the budget (:data:`EXTEND_MAX_HALVINGS`, :data:`EXTEND_MAX_CPU_S`).
+    """
+    if any(not r.success for r in rows if r.step and r.step < finest_listed * (1 - 1e-9)):
+        return None  # an added step failed: finer ones will not do better
+    done = sorted((r for r in rows if r.success and r.step and math.isfinite(r.error_relative)),
+                  key=lambda r: r.step)
+    if not done or done[0].error_relative <= target:
+        return None
+    finest, halvings = done[0], 1
+    if len(done) > 1:
+        coarser = done[1]
+        if not coarser.error_relative > finest.error_relative > 0:
+            return None
+        rate = math.log(coarser.error_relative / finest.error_relative) / math.log(coarser.step / finest.step)
+        if rate < EXTEND_MIN_RATE:
+            return None
+        needed = (finest.error_relative / target) ** (1 / rate)
+        halvings = min(max(math.ceil(math.log2(needed)), 1), EXTEND_MAX_JUMP)
+    # within the budget: no finer than finest_listed / 2^EXTEND_MAX_HALVINGS, no longer a run
+    # than EXTEND_MAX_CPU_S (fewer halvings at once first, then none)
+    room = math.floor(math.log2(finest.step / finest_listed) + EXTEND_MAX_HALVINGS + 1e-9)
+    while halvings > 0 and (halvings > room or finest.cpu_time_s * 2 ** halvings * max(repeats, 1) > EXTEND_MAX_CPU_S):
+        halvings -= 1
+    return finest.step / 2 ** halvings if halvings else None
 
 
 # ---------------------------------------------------------------------------------------
