@@ -40,6 +40,13 @@ import tempfile
 import warnings
 from pathlib import Path
 
+# One thread for BLAS/OpenMP, as benchmarks/record.py sets for its runs: the solves here are
+# small, and the process time counts a threaded BLAS's waiting threads (on a loaded 2-core
+# machine the Timoshenko beam's 80 midpoint steps took 3.8–8.2 s CPU with them, 0.21–0.28 s
+# without, measured by phc.simulate's cpu_time_s)
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 # the scenes here run the models under models/ (two directories up): allow reading them
