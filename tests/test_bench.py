@@ -196,6 +196,10 @@ def test_cli_bench_runs_a_tiny_sweep(tmp_path, capsys):
     assert len(csv_rows(out / "bench.csv")) == 2
     assert main(args + ["--format", "json"]) == 0
     assert '"interrupted": false' in capsys.readouterr().out.replace("False", "false")
+    # --target-error: finer steps until midpoint's error (~1e-3 at 0.05) is within 1e-4
+    assert main(args + ["--target-error", "1e-4"]) == 0
+    rows = csv_rows(out / "bench.csv")
+    assert len(rows) > 2 and min(float(r["error_relative"]) for r in rows) <= 1e-4
 
 
 def test_simulate_reports_the_error_against_a_scenes_closed_form(tmp_path, capsys):

@@ -334,7 +334,7 @@ def cmd_bench(args) -> int:
                            meshes=parse_meshes(args.mesh), repeats=args.repeats, out_dir=args.out_dir,
                            reference_cache=False if args.no_cache else None, progress=not args.quiet,
                            plot=not args.no_plot, outputs=args.outputs, reference_rtol=args.reference_rtol,
-                           reference=args.reference)
+                           reference=args.reference, target_error=args.target_error)
     except ModelError as err:
         _print_diagnostics(err.diagnostics)
         return EXIT_MODEL

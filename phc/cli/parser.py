@@ -41,6 +41,7 @@ NUMERIC_OPTIONS = {
     ("bench", "steps"): ("--step", *RUN_LIMITS["step"]),
     ("bench", "repeats"): ("--repeats", "count", 1, 1000),
     ("bench", "reference_rtol"): ("--reference-rtol", *RUN_LIMITS["rtol"]),
+    ("bench", "target_error"): ("--target-error", *RUN_LIMITS["rtol"]),
     ("check", "samples"): ("--samples", "count", 0, 1000),
     ("sweep", "samples"): ("--samples", "count", 1, 100_000),
     ("sweep", "workers"): ("--workers", "count", 1, 4096),
@@ -287,6 +288,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="reference values (a `t` column and one column per output, e.g. a published reference "
                    "solution): errors of those outputs at those times; replaces the scene's reference_values")
     p.add_argument("--reference-rtol", type=float, help="rtol of the reference run (no closed form)")
+    p.add_argument("--target-error", type=float,
+                   help="relative error to reach: each fixed-step solver goes on to finer steps (from its "
+                   "measured convergence) until its error is at most this")
     p.add_argument("--out-dir", default=".", help="where bench.csv, bench.md and bench.png go")
     p.add_argument("--no-cache", action="store_true", help="recompute the reference run")
     p.add_argument("--no-plot", action="store_true")
