@@ -11,7 +11,9 @@ positions continuous. ġ is affine in those momenta (ẋ_j = p_j/m_j), so its sl
 c = dġ/dλ = Σ n_j²/m_j is found exactly from one consistent state at p⁻ + n (phc's own
 consistent initialization computes ẋ, so no mass is read twice), and λ = −(1 + e) ġ⁻/c
 gives ġ⁺ = −e ġ⁻. The kinetic energy lost, H(y⁻) − H(y⁺) = (1 − e²) ġ⁻²/(2c), is added to
-the dissipated energy ``energy.supplied``, so H(t) − H(0) + E(t) stays exact.
+the dissipated energy ``energy.supplied``, so H(t) − H(0) + E(t) stays exact. This is the jump
+of a single frictionless contact with no other contact closed; with friction or several
+contacts the impact law of :mod:`phc.simulation.impact_law` takes them jointly.
 
 Persistent contact: the bounces of a ball accumulate at a finite time (Zeno). When the
 rebound speed e|ġ⁻| falls below the contact's rest speed (default 1e-6 of the largest
