@@ -26,8 +26,9 @@ in the parameter vector; this driver sets the modes, so each integration piece i
 * **Impacts** of contacts (:mod:`phc.simulation.impacts`, several at once and with friction
   :mod:`phc.simulation.impact_law`), their closing and opening.
 
-Over 800 lines because the driver's loop, its restarts and the handling of every kind of
-event share the watch and its modes; the impact and friction laws live in their own modules.
+The module is over 800 lines because the driver's loop, its restarts and the handling of
+every kind of event share the watch and its modes; the impact and friction laws live in
+their own modules.
 
 Every switch is reported as an :class:`Event` (time, condition, direction, kind). Many
 events within a vanishing time (a discontinuous law that chatters around g = 0 with no
