@@ -425,6 +425,7 @@ def _contact_forces(elab, rows: list, states: dict) -> None:
             raise AssertionError(f"contact: the rate `{rate}` is in {len(found)} rows (expected one, affine in it)")
         return found[0], slope
 
+    contact_rows = {f"{c}.{r}" for c in contacts for r in ("closure", "slip")}
     for c in contacts:
         if f"{c}.force" not in symbols:
             continue  # the contact failed to lower (reported)
@@ -439,7 +440,8 @@ def _contact_forces(elab, rows: list, states: dict) -> None:
                     eq = rows[i]
                     rows[i] = Equation(eq.expr - slope * force * normal, eq.label, eq.kind, eq.component, eq.span)
             closure = next(i for i, eq in enumerate(rows) if eq.label == row)
-            own = {i for i, eq in enumerate(rows) if eq.label in (f"{c}.closure", f"{c}.slip")}
+            # every contact's closure and slip rows hold rates before they are rewritten
+            own = {i for i, eq in enumerate(rows) if eq.label in contact_rows}
             expr = rows[closure].expr
             for x in sorted(expr.free_symbols & rates, key=lambda s: s.name):
                 i, slope = holding(x, skip=own)

@@ -99,11 +99,7 @@ def lower_contact(b, ctx, name, spec, path):
                     f"{meaning}", ctx, (*path, field))
             b.failed.add(name)
             return
-    rate = sp.Integer(0)
-    for x, momentum in positions:
-        normal = sp.diff(gap, x)
-        b.extra_outputs[f"{name}.normal.{momentum}"] = normal
-        rate += normal * states[x].dsymbol
+    rate = _rate(b, f"{name}.normal", gap, positions, states)
     b.extra_outputs[f"{name}.gap"] = gap
     b.extra_outputs[f"{name}.gap_rate"] = rate
     b.extra_outputs[f"{name}.restitution"] = e
@@ -133,11 +129,7 @@ def _friction(b, d, name, mu, tangent, slides, states, closed, force, span) -> t
     ``<name>.friction``: λ_t = 0 while open; while closed, by the mode ``<name>.sliding`` σ
     (set by the driver, :mod:`phc.simulation.friction`): λ_t = −μ σ λ sliding (σ = ±1, the
     sign of v_t), v_t = 0 sticking (σ = 0; λ_t its multiplier). Returns (λ_t, v_t)."""
-    rate = sp.Integer(0)
-    for x, momentum in slides:
-        direction = sp.diff(tangent, x)
-        b.extra_outputs[f"{name}.tangent.{momentum}"] = direction
-        rate += direction * states[x].dsymbol
+    rate = _rate(b, f"{name}.tangent", tangent, slides, states)
     b.extra_outputs[f"{name}.friction"] = mu
     slip = b.add_algebraic(name, "slip_rate", "flow", span)
     lam_t = b.add_algebraic(name, "friction_force", "multiplier", span)
@@ -150,6 +142,17 @@ def _friction(b, d, name, mu, tangent, slides, states, closed, force, span) -> t
     d.rel(sp.Piecewise((lam_t, sp.Le(closed, 0)), (lam_t + mu * force, sp.Gt(sliding, 0)),
                        (lam_t - mu * force, sp.Lt(sliding, 0)), (slip, True)), kind="contact", label="friction")
     return lam_t, slip
+
+
+def _rate(b, head, expr, positions, states):
+    """Σ ∂expr/∂x_j ẋ_j, the rate of a gap or tangent; each ∂expr/∂x_j is the output
+    ``<head>.<momentum>`` (the direction its impulse or force acts along on that momentum)."""
+    rate = sp.Integer(0)
+    for x, momentum in positions:
+        direction = sp.diff(expr, x)
+        b.extra_outputs[f"{head}.{momentum}"] = direction
+        rate += direction * states[x].dsymbol
+    return rate
 
 
 def _positions(b, ctx, name, field, expr, states, path):

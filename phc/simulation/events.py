@@ -23,6 +23,12 @@ in the parameter vector; this driver sets the modes, so each integration piece i
   the driver tries to stick — the rows with ``v = 0`` and ``sign(v) = s`` — and keeps it if
   the consistent ``|s| ≤ 1``; otherwise v reverses. While sticking, ``1 ∓ s`` are watched;
   where ``|s|`` reaches 1 the body slips in the direction of s.
+* **Impacts** of contacts (:mod:`phc.simulation.impacts`, several at once and with friction
+  :mod:`phc.simulation.impact_law`), their closing and opening.
+
+The module is over 800 lines because the driver's loop, its restarts and the handling of
+every kind of event share the watch and its modes; the impact and friction laws live in
+their own modules.
 
 Every switch is reported as an :class:`Event` (time, condition, direction, kind). Many
 events within a vanishing time (a discontinuous law that chatters around g = 0 with no
@@ -37,7 +43,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from phc.errors import InconsistentInitialError, SwitchTimeError
-from phc.simulation import friction
+from phc.simulation import friction, impact_law
 from phc.simulation.backend import BackendRun
 from phc.simulation.guard import CATCH, ModelEvaluationError
 from phc.simulation.impacts import CLOSE, Contacts, has_contacts
@@ -659,7 +665,11 @@ def _handle(watch: Watch, t, y, yp, which, events, dif, energy) -> tuple[np.ndar
     if impacts and (candidates or len(impacts) < len(which)):
         y, yp = _restart(watch, t, state[0] if state is not None else y, dif | set(energy))
         state = None
-    for k in impacts:  # the momenta jump (phc.simulation.impacts); positions continuous
+    hits = [k for k in impacts if k < watch.contacts.n and not watch.contacts.closed(k, watch.p)]
+    joint = bool(hits) and impact_law.wanted(watch, hits)  # frictional, or with other contacts
+    if joint:
+        state = y, yp = impact_law.joint_impact(watch, hits, t, y, yp, events, dif, energy)
+    for k in (k for k in impacts if not (joint and k in hits)):
         if k >= watch.contacts.n:  # friction at a closed contact: stick or slip
             state = y, yp = friction.on_event(watch, k - watch.contacts.n, t, y, yp, events, dif, energy)
             continue

@@ -24,8 +24,8 @@ of ġ = 0) the row ``<c>.friction`` holds, by σ:
 A contact closes (:func:`on_close`) sliding with σ = sign(v_t) when it slides, and tries to
 stick when v_t = 0 (a block put down on a slope). The friction power is λ_t v_t: −μ λ |v_t| ≤ 0
 sliding, 0 sticking or open; the contact's dissipation term −λ_t v_t books it, so the energy
-balance H(t) − H(0) + E(t) stays exact. Impacts stay frictionless (the impulse acts along the
-normal only): frictional impacts are not modelled.
+balance H(t) − H(0) + E(t) stays exact. The impacts of frictional contacts, and the part a
+closed contact takes in another's impact, are :mod:`phc.simulation.impact_law`'s.
 """
 
 from __future__ import annotations

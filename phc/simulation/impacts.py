@@ -11,7 +11,9 @@ positions continuous. ġ is affine in those momenta (ẋ_j = p_j/m_j), so its sl
 c = dġ/dλ = Σ n_j²/m_j is found exactly from one consistent state at p⁻ + n (phc's own
 consistent initialization computes ẋ, so no mass is read twice), and λ = −(1 + e) ġ⁻/c
 gives ġ⁺ = −e ġ⁻. The kinetic energy lost, H(y⁻) − H(y⁺) = (1 − e²) ġ⁻²/(2c), is added to
-the dissipated energy ``energy.supplied``, so H(t) − H(0) + E(t) stays exact.
+the dissipated energy ``energy.supplied``, so H(t) − H(0) + E(t) stays exact. This is the jump
+of a single frictionless contact with no other contact closed; with friction or several
+contacts the impact law of :mod:`phc.simulation.impact_law` takes them jointly.
 
 Persistent contact: the bounces of a ball accumulate at a finite time (Zeno). When the
 rebound speed e|ġ⁻| falls below the contact's rest speed (default 1e-6 of the largest
@@ -169,6 +171,21 @@ class Contacts:
         y_new, yp_new = restart(new)
         return y_new, yp_new, None
 
+    def book(self, k: int, t, out, before: float, span: float, e: float) -> bool:
+        """Record an impact of contact k at t with closing rate `before` < 0 (`out`: the
+        outputs there): its gap is watched from just below the event's value (the event is
+        located to EVENT_TOL in time), its largest closing speed and its impact times (the
+        accumulation test) are updated. Returns whether it comes to rest: its rebound e|ġ⁻|
+        below its rest speed, or its impacts accumulating."""
+        self.offset[k] = max(0.0, -float(out[self.gap[k]])) + 2.0 * -before * EVENT_TOL * max(1.0, abs(t))
+        self.closing[k] = max(self.closing[k], -before)
+        hits = self.hits[k]
+        hits.append(t)
+        del hits[:-ACCUMULATE_COUNT]
+        accumulating = len(hits) == ACCUMULATE_COUNT and hits[-1] - hits[0] <= ACCUMULATE_SPAN * span
+        rest = (float(out[self.rest[k]]) if self.rest[k] is not None else REST_FRACTION * self.closing[k])
+        return bool(e * -before <= rest or accumulating)
+
     def impact(self, k: int, t, y, yp, p, restart, span: float = 0.0
                ) -> tuple[np.ndarray, np.ndarray, Optional[str], float]:
         """The jump of contact k at (t, y, ẏ): ``(y⁺, ẏ⁺, outcome, rate before)`` with outcome
@@ -188,15 +205,7 @@ class Contacts:
         if not slope > 0:
             return y, yp, (f"contact `{self.names[k]}` cannot act at t = {t:.6g}: its gap does not respond to an "
                            "impulse on the masses it names (are they held by a constraint?)"), before
-        # watched from just below the event's gap: the event is located to EVENT_TOL in time
-        self.offset[k] = max(0.0, -float(out[self.gap[k]])) + 2.0 * -before * EVENT_TOL * max(1.0, abs(t))
-        self.closing[k] = max(self.closing[k], -before)
-        hits = self.hits[k]
-        hits.append(t)
-        del hits[:-ACCUMULATE_COUNT]
-        accumulating = len(hits) == ACCUMULATE_COUNT and hits[-1] - hits[0] <= ACCUMULATE_SPAN * span
-        rest = (float(out[self.rest[k]]) if self.rest[k] is not None else REST_FRACTION * self.closing[k])
-        if e * -before <= rest or accumulating:
+        if self.book(k, t, out, before, span, e):
             # coming to rest: after a plastic jump (ġ⁺ = 0), does the load press the masses on?
             y_rest, yp_rest, fault = self._jump(k, t, y, p, normal, before, slope, 0.0, restart)
             if fault is not None:
@@ -206,7 +215,7 @@ class Contacts:
                     return y_rest, yp_rest, (
                         f"contact `{self.names[k]}` comes to rest at t = {t:.9g}, and the module was compiled "
                         "without persistent contact: recompile it (results up to there are kept)"), before
-                hits.clear()
+                self.hits[k].clear()
                 return y_rest, yp_rest, CLOSE, before
         y_new, yp_new, fault = self._jump(k, t, y, p, normal, before, slope, e, restart)
         if fault is not None:

@@ -293,10 +293,13 @@ def test_check_sees_the_masses_friction_couples_as_one_part(tmp_path):
 
 @pytest.mark.parametrize("solver,kw", SOLVERS, ids=[s for s, _ in SOLVERS])
 def test_block_bounces_then_slides_to_rest(tmp_path, solver, kw):
-    """Thrown from the floor with (vx, vy) = (3, 0.5): the impacts are frictionless, so it
-    flies at vx while its bounces (e = 0.5) accumulate; the contact closes at the 20th impact
-    (0.5^20 < 1e-6 < 0.5^19), 2 e^20 vy/(g (1 − e)) before t∞ = 2 vy/(g (1 − e)), sliding (v_t = vx);
-    then it decelerates at μ g and sticks at t_c + vx/(μ g)."""
+    """Thrown from the floor with (vx, vy) = (3, 0.5): its bounces (e = 0.5) accumulate and
+    the contact closes at the 20th impact (0.5^20 < 1e-6 < 0.5^19), 2 e^20 vy/(g (1 − e)) before
+    t∞ = 2 vy/(g (1 − e)), sliding. The impacts are frictional (Coulomb, sliding: the tangential
+    impulse is μ times the normal one), so bounce j (normal speed e^(j−1) vy) takes μ (1 + e) e^(j−1) vy
+    of vx, and the plastic close the rest of the normal momentum: by the balance of the normal
+    momentum vx(t_c) = vx − μ (g t_c − vy). Then it decelerates at μ g and sticks at
+    t_c + vx(t_c)/(μ g) = vx/(μ g) + vy/g."""
     m, g, mu, e, vx, vy = 2.0, 9.81, 0.3, 0.5, 3.0, 0.5
     r = phc.simulate(_compile(tmp_path, FLOOR.replace("block.p_vy: 0.0", f"block.p_vy: {m * vy}")),
                      solver=solver, **kw)
@@ -318,12 +321,21 @@ def test_block_bounces_then_slides_to_rest(tmp_path, solver, kw):
         assert n == 20
         assert t_c == pytest.approx(t_inf - 2 * e**20 * vy / (g * (1 - e)), abs=1e-9)
     assert r.events[n + 1].direction == 1
-    t_s = t_c + vx / (mu * g)
+    t_s = vx / (mu * g) + vy / g
     assert r.events[n + 2].t == pytest.approx(t_s, abs=1e-9)
-    x = _col(r, "block.x")
+    starts = [0.0] + [2 * vy / g * sum(e**i for i in range(j)) for j in range(1, n)] + [t_c]
+    speeds = [vx - mu * (1 + e) * vy * sum(e**i for i in range(j)) for j in range(n)]
+    v_c = vx - mu * (g * t_c - vy)
+    assert v_c == pytest.approx(mu * g * (t_s - t_c), rel=1e-12)
+    exact = np.zeros_like(r.t)
+    x0 = 0.0
+    for a, b, v in zip(starts[:-1], starts[1:], speeds):
+        inside = (r.t >= a) & (r.t <= b)
+        exact[inside] = x0 + v * (r.t[inside] - a)
+        x0 += v * (b - a)
     tau = np.clip(r.t - t_c, 0.0, t_s - t_c)
-    exact = np.where(r.t < t_c, vx * r.t, vx * t_c + vx * tau - 0.5 * mu * g * tau**2)
-    assert np.allclose(x, exact, rtol=0, atol=1e-8)
+    exact[r.t > t_c] = (x0 + v_c * tau - 0.5 * mu * g * tau**2)[r.t > t_c]
+    assert np.allclose(_col(r, "block.x"), exact, rtol=0, atol=1e-8)
     # all the kinetic energy went: the normal part at the impacts, the tangential by friction
     assert r.energy_supplied[-1] + m * g * (_col(r, "block.y")[-1] - 1.0) == pytest.approx(
         0.5 * m * (vx**2 + vy**2), rel=1e-9)
