@@ -579,18 +579,27 @@ class _Template:
         return vals[self.root]
 
 
+MAX_TEMPLATES = 4
+"""Templates kept per kind of component: a component that none of them can give (renaming
+would reorder its names among the parameters', ``v3.x`` after ``k`` where the template's
+``h1.x`` is before it) is lowered by its lowerer and kept as one more, up to this many
+(the grid of bench_components.py lowered every vertical spring on its own: 13 of its 26
+CPU seconds of validate)."""
+
+
 class SharedLowerings:
     """Lowerings of identical components made once (issue 38): the elaborate pass asks
     :meth:`lookup` for a component's lowering before running its lowerer; the first of a
     kind (same type, same fields, same file and entry, no diagnostics) is kept as a template
-    by :meth:`keep`, the next ones are the template renamed (:class:`_Renamer`) — the same
+    (one more for a component no template of its kind gives, up to :data:`MAX_TEMPLATES`),
+    the next ones are a template renamed (:class:`_Template`) — the same
     variables, rows, ports, description and terms, equal term by term to what the lowerer
     gives, at a fraction of the cost of sympy arithmetic. Whenever that cannot be shown
     (a name outside the template's own, a span not found, renaming that reorders names, a
     port already declared) the component is lowered as usual."""
 
     def __init__(self) -> None:
-        self.templates: dict = {}  # key -> (template name, lowering, located paths) or None
+        self.templates: dict = {}  # key -> its templates (at most MAX_TEMPLATES), or None: never shared
 
     @staticmethod
     def key(ctx, name: str, spec, path, n_defaults: int, n_unset: int):
@@ -610,13 +619,14 @@ class SharedLowerings:
         """:func:`lower`, shared by `key` (from :meth:`key`; None: lowered as usual)."""
         if key is None:
             return lower(lowerer, context, ctx, name, spec, path)
-        template = self.templates.get(key)
-        if template is not None:
+        templates = self.templates.get(key)
+        if templates is None and key in self.templates:  # a kind found unshareable
+            return lower(lowerer, context, ctx, name, spec, path)
+        for template in templates or ():
             out = self._instance(template, context, ctx, name)
             if out is not None:
                 return out
-            return lower(lowerer, context, ctx, name, spec, path)
-        if key in self.templates:  # a kind found unshareable
+        if templates is not None and len(templates) >= MAX_TEMPLATES:
             return lower(lowerer, context, ctx, name, spec, path)
         smap = ctx.smap
         located: list = []
@@ -631,12 +641,16 @@ class SharedLowerings:
             lowering = lower(lowerer, context, ctx, name, spec, path)
         finally:
             del smap.locate
-        self.templates[key] = None
+        if templates is None:
+            self.templates[key] = None
         if not lowering.diagnostics and not lowering.failed and all(type(p) is tuple for p, _ in located):
             try:
-                self.templates[key] = _Template(name, lowering, located)
+                template = _Template(name, lowering, located)
             except Unshareable:
-                pass
+                return lowering
+            # a further template of a kind whose templates all refused this component (its
+            # name sorts elsewhere among the parameters': `v1` and `h1` springs beside `k`)
+            self.templates[key] = [*(templates or ()), template]
         return lowering
 
     @staticmethod
