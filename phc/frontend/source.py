@@ -722,7 +722,8 @@ _IMMUTABLE = (str, int, float, bool, type(None))
 def _copy_data(data, memo=None):
     """``copy.deepcopy`` of loaded YAML data: its mappings and sequences copied (one copy of
     a collection met twice through an alias, as deepcopy), its scalars shared (immutable);
-    anything else deep-copied. A fifth of deepcopy's cost on a model of 10⁴ components."""
+    anything else deep-copied (measured: 0.09 s against deepcopy's 0.14 s for the chain of 10⁴
+    components of benchmarks/bench_components.py)."""
     if memo is None:
         memo = {}
     t = type(data)

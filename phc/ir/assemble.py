@@ -50,7 +50,8 @@ def _signed(sign: int, expr):
 
 def _copied(port):
     """A shallow copy of a :class:`~phc.frontend.reporter.Port` (``dataclasses.replace(port)``:
-    the same fields, no ``__init__`` run; a fifth of its cost, 2·10⁴ ports on a chain)."""
+    the same fields, no ``__init__`` run; measured about 0.04 s against 0.1 s for the 2·10⁴
+    ports of a chain of 10⁴ components)."""
     new = object.__new__(type(port))
     new.__dict__.update(port.__dict__)
     return new
