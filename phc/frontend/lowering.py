@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import operator
 from collections.abc import Sequence as SequenceABC
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -334,6 +335,51 @@ class Unshareable(Exception):
 
 _REAL = sp.Symbol("x", real=True).assumptions0
 
+_SEQ, _FIELDS, _SYM, _STR, _ASSOC, _POW, _FUNC, _SPAN, _DATACLASS, _DICT = range(10)
+"""The kinds of :class:`_Template`'s steps, as :meth:`_Template.build` tests them."""
+
+
+def _getter(slots: Sequence[int]) -> Callable:
+    """A function from the slots' values to the tuple of those at `slots` (in order)."""
+    slots = tuple(slots)
+    if len(slots) >= 2:
+        return operator.itemgetter(*slots)
+    if len(slots) == 1:
+        (only,) = slots
+        return lambda vals: (vals[only],)
+    return lambda vals: ()
+
+
+_PROTO = sp.Symbol("phc.prototype", real=True)
+_KB, _EXPR_NEW = type(_PROTO._assumptions), sp.Expr.__new__
+_FACTS = dict(_PROTO._assumptions)  # what sympy deduces from ``real=True`` (before any query adds to it)
+
+
+def _real_symbol(name: str) -> sp.Symbol:
+    """``sp.Symbol(name, real=True)``, equal to it and with the same assumptions, made
+    without sympy's deduction of the assumptions each time (they are a real symbol's,
+    copied from one made by sympy; half the cost of a symbol, 80 000 of them on a chain of
+    10⁴ components). sympy's cache of symbols holds few of them at that size anyway: no
+    code may rely on two equal symbols being one object."""
+    obj = _EXPR_NEW(sp.Symbol)
+    obj.name = name
+    kb = _KB.__new__(_KB)
+    dict.update(kb, _FACTS)
+    kb._generator = _PROTO._assumptions._generator
+    obj._assumptions = kb
+    obj._assumptions_orig = _PROTO._assumptions_orig
+    obj._assumptions0 = _PROTO._assumptions0
+    return obj
+
+
+def _pow(base, exp, commutative):
+    """``sp.Pow(base, exp, evaluate=False)`` of sympy objects (as sympy makes it then)."""
+    obj = _EXPR_NEW(sp.Pow, base, exp)
+    obj = sp.Pow._exec_constructor_postprocessors(obj)
+    if type(obj) is sp.Pow:
+        obj.is_commutative = commutative
+    return obj
+
 
 class _Template:
     """The lowering of component `old`, compiled once into a list of steps that build the
@@ -356,6 +402,8 @@ class _Template:
         self.steps: list = []  # (slot, kind, data): computed in this order
         self.symbols: list = []  # (name as in the template, (prefix index, rest) or None)
         self.memo: dict[int, int] = {}
+        self._plan: Optional[list] = None  # :meth:`_compile_plan`, made by the first :meth:`build`
+        self._names: list = []  # the names renamed by each build: (prefix index, rest)
         self._computed: set[int] = set()  # slots built by a step
         self.root = self._slot(lowering)
         self.same_span = [(i, self.span_slot[id(span)]) for i, (_, span) in enumerate(located)
@@ -452,6 +500,40 @@ class _Template:
             return self._const(v)
         raise Unshareable(f"a value of type {t.__name__}")
 
+    def _compile_plan(self) -> list:
+        """:attr:`steps` as :meth:`build` runs them: a code per kind and getters
+        (:func:`operator.itemgetter`, one C call) of the slots each step reads, every one
+        returning a tuple (issue 38: the steps run ~70 times per component of a chain)."""
+        plan = []
+        index: dict = {}  # a renamed name's (prefix index, rest) -> its place in :attr:`_names`
+        for slot, kind, data in self.steps:
+            if kind == "seq":
+                t, items = data
+                plan.append((slot, _SEQ, t, _getter(items), None))
+            elif kind == "fields":
+                t, names, items = data
+                plan.append((slot, _FIELDS, t, names, _getter(items)))
+            elif kind == "dataclass":
+                t, items = data
+                plan.append((slot, _DATACLASS, t, tuple(f for f, _ in items), _getter([a for _, a in items])))
+            elif kind == "sym" or kind == "str":  # a: the place of the new name, made once per build
+                plan.append((slot, _SYM if kind == "sym" else _STR, index.setdefault(data, len(index)), None, None))
+            elif kind == "span":
+                plan.append((slot, _SPAN, data, None, None))
+            elif kind == "assoc":
+                cls, args, comm = data
+                plan.append((slot, _ASSOC, cls, _getter(args), comm))
+            elif kind == "pow":
+                _, (b, e), comm = data
+                plan.append((slot, _POW, b, e, comm))
+            elif kind == "func":
+                func, args, _ = data
+                plan.append((slot, _FUNC, func, _getter(args), None))
+            else:  # dict
+                plan.append((slot, _DICT, None, _getter([a for a, _ in data]), _getter([b for _, b in data])))
+        self._names = list(index)
+        return plan
+
     def build(self, new: str, spans: Sequence):
         """The lowering for component `new` (`spans`: its spans at :attr:`located`), or None
         when renaming would change the order of the names (then sympy's order differs)."""
@@ -467,51 +549,57 @@ class _Template:
                 return None
             last = now
         vals = list(self.values)
-        new_object = object.__new__
-        for slot, kind, data in self.steps:  # the most frequent kinds first
-            if kind == "seq":
-                t, items = data
-                vals[slot] = t([vals[a] for a in items])
-            elif kind == "fields":
-                t, names, items = data
-                obj = new_object(t)
-                obj.__dict__.update(zip(names, [vals[a] for a in items]))
+        if self._plan is None:
+            self._plan = self._compile_plan()
+        names = [renamed(r) for r in self._names]
+        new_object, symbol = object.__new__, _real_symbol
+        for slot, code, a, b, c in self._plan:  # the most frequent kinds first
+            if code == _SEQ:  # a, b: the sequence's type, getter of its items (a tuple)
+                vals[slot] = a(b(vals))
+            elif code == _FIELDS:  # a: the dataclass, b: its field names, c: getter of their values
+                obj = new_object(a)
+                obj.__dict__.update(zip(b, c(vals)))
                 vals[slot] = obj
-            elif kind == "dataclass":
-                t, items = data
-                vals[slot] = t(**{f: vals[a] for f, a in items})
-            elif kind == "sym":
-                vals[slot] = sp.Symbol(renamed(data), real=True)
-            elif kind == "str":
-                vals[slot] = renamed(data)
-            elif kind == "assoc":
-                cls, args, comm = data
-                vals[slot] = cls._from_args(tuple([vals[a] for a in args]), comm)
-            elif kind == "pow":
-                _, (b, e), _ = data
-                vals[slot] = sp.Pow(vals[b], vals[e], evaluate=False)
-            elif kind == "func":
-                func, args, _ = data
-                vals[slot] = func(*[vals[a] for a in args])
-            elif kind == "span":
-                vals[slot] = spans[data]
-            else:  # dict
-                vals[slot] = {vals[a]: vals[b] for a, b in data}
+            elif code == _SYM:
+                vals[slot] = symbol(names[a])
+            elif code == _STR:
+                vals[slot] = names[a]
+            elif code == _ASSOC:  # a: Add or Mul, b: getter of its arguments, c: commutative
+                vals[slot] = a._from_args(b(vals), c)
+            elif code == _POW:  # a, b: the slots of base and exponent, c: commutative
+                vals[slot] = _pow(vals[a], vals[b], c)
+            elif code == _FUNC:
+                vals[slot] = a(*b(vals))
+            elif code == _SPAN:
+                vals[slot] = spans[a]
+            elif code == _DATACLASS:
+                vals[slot] = a(**dict(zip(b, c(vals))))
+            else:  # dict: b, c: getters of keys and values
+                vals[slot] = dict(zip(b(vals), c(vals)))
         return vals[self.root]
+
+
+MAX_TEMPLATES = 4
+"""Templates kept per kind of component: a component that none of them can give (renaming
+would reorder its names among the parameters', ``v3.x`` after ``k`` where the template's
+``h1.x`` is before it) is lowered by its lowerer and kept as one more, up to this many
+(the grid of bench_components.py lowered every vertical spring on its own: 13 of its 26
+CPU seconds of validate)."""
 
 
 class SharedLowerings:
     """Lowerings of identical components made once (issue 38): the elaborate pass asks
     :meth:`lookup` for a component's lowering before running its lowerer; the first of a
     kind (same type, same fields, same file and entry, no diagnostics) is kept as a template
-    by :meth:`keep`, the next ones are the template renamed (:class:`_Renamer`) — the same
+    (one more for a component no template of its kind gives, up to :data:`MAX_TEMPLATES`),
+    the next ones are a template renamed (:class:`_Template`) — the same
     variables, rows, ports, description and terms, equal term by term to what the lowerer
     gives, at a fraction of the cost of sympy arithmetic. Whenever that cannot be shown
     (a name outside the template's own, a span not found, renaming that reorders names, a
     port already declared) the component is lowered as usual."""
 
     def __init__(self) -> None:
-        self.templates: dict = {}  # key -> (template name, lowering, located paths) or None
+        self.templates: dict = {}  # key -> its templates (at most MAX_TEMPLATES), or None: never shared
 
     @staticmethod
     def key(ctx, name: str, spec, path, n_defaults: int, n_unset: int):
@@ -531,13 +619,14 @@ class SharedLowerings:
         """:func:`lower`, shared by `key` (from :meth:`key`; None: lowered as usual)."""
         if key is None:
             return lower(lowerer, context, ctx, name, spec, path)
-        template = self.templates.get(key)
-        if template is not None:
+        templates = self.templates.get(key)
+        if templates is None and key in self.templates:  # a kind found unshareable
+            return lower(lowerer, context, ctx, name, spec, path)
+        for template in templates or ():
             out = self._instance(template, context, ctx, name)
             if out is not None:
                 return out
-            return lower(lowerer, context, ctx, name, spec, path)
-        if key in self.templates:  # a kind found unshareable
+        if templates is not None and len(templates) >= MAX_TEMPLATES:
             return lower(lowerer, context, ctx, name, spec, path)
         smap = ctx.smap
         located: list = []
@@ -552,12 +641,16 @@ class SharedLowerings:
             lowering = lower(lowerer, context, ctx, name, spec, path)
         finally:
             del smap.locate
-        self.templates[key] = None
+        if templates is None:
+            self.templates[key] = None
         if not lowering.diagnostics and not lowering.failed and all(type(p) is tuple for p, _ in located):
             try:
-                self.templates[key] = _Template(name, lowering, located)
+                template = _Template(name, lowering, located)
             except Unshareable:
-                pass
+                return lowering
+            # a further template of a kind whose templates all refused this component (its
+            # name sorts elsewhere among the parameters': `v1` and `h1` springs beside `k`)
+            self.templates[key] = [*(templates or ()), template]
         return lowering
 
     @staticmethod

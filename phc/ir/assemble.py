@@ -48,6 +48,15 @@ def _signed(sign: int, expr):
     return expr if sign == 1 else -expr
 
 
+def _copied(port):
+    """A shallow copy of a :class:`~phc.frontend.reporter.Port` (``dataclasses.replace(port)``:
+    the same fields, no ``__init__`` run; measured about 0.04 s against 0.1 s for the 2·10⁴
+    ports of a chain of 10⁴ components)."""
+    new = object.__new__(type(port))
+    new.__dict__.update(port.__dict__)
+    return new
+
+
 class _SignedUnionFind:
     """x = s·root bookkeeping for alias elimination."""
 
@@ -137,7 +146,7 @@ def _reading_loops(dae: Dae) -> list[Diagnostic]:
 
 def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
     """The assembled :class:`Dae` of `elab`; problems go to the reporter `rep`."""
-    ports = {name: dataclasses.replace(port) for name, port in elab.ports.items()}  # positions are given below
+    ports = {name: _copied(port) for name, port in elab.ports.items()}  # positions are given below
     position_invariants = list(elab.invariants)  # and those of connected ports with positions
     connections = [(ports[pa.name], ports[pb.name], span, label) for pa, pb, span, label in inter.connections]
     uf = _SignedUnionFind()
@@ -235,7 +244,7 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
             equations.append(eq)
             continue
         ex = final(eq.expr)
-        if ex == 0 and eq.kind != "linear":
+        if ex.is_Number and ex == 0 and eq.kind != "linear":  # a sum or product is never `== 0`
             continue
         # is_number first: it stops at a row's first symbol, free_symbols walks the whole row
         if (eq.kind != "linear" and ex.is_number and ex != 0
@@ -474,9 +483,13 @@ def _resolve_definitions(uf, defs, rows) -> dict:
             return root
         visiting.add(root)
         expr = defs[root]
-        expr = expr.xreplace({s: value(s) for s in expr.free_symbols if s in all_syms})
+        free = expr.free_symbols
+        rule = {s: value(s) for s in free if s in all_syms}
+        if rule:  # else the definition is already resolved (a state's: -k·x), its symbols known
+            expr = expr.xreplace(rule)
+            free = expr.free_symbols
         visiting.discard(root)
-        if root in expr.free_symbols:
+        if root in free:
             rows.append(Equation(root - expr, f"{root.name}.definition", "coupling", "", None))
             del defs[root]
             cache[root] = root
