@@ -30,7 +30,7 @@ from typing import Any, Callable, Mapping, Optional, Sequence
 import pydantic_core
 import sympy as sp
 
-from phc.ir.dae import Equation, Invariant, LinearBlock, Parameter, Variable
+from phc.ir.dae import Equation, Invariant, LinearBlock, Parameter, Variable, real_symbol
 from phc.diagnostics import Diagnostic
 from phc.frontend.reporter import Port, Reporter
 from phc.frontend.files import FileAccess
@@ -205,15 +205,15 @@ class Recorder(Reporter):
     def add_state(self, component: str, local: str, span=None) -> tuple[sp.Symbol, sp.Symbol]:
         """A state ``component.local`` and its rate ``der(component.local)``."""
         name = f"{component}.{local}"
-        sym = sp.Symbol(name, real=True)
-        dsym = sp.Symbol(f"der({name})", real=True)
+        sym = real_symbol(name)  # sympy's Symbol(name, real=True), made in bulk
+        dsym = real_symbol(f"der({name})")
         self.variables.append(Variable(name, sym, True, "state", component, dsym, span))
         return sym, dsym
 
     def add_algebraic(self, component: str, local: str, role: str, span=None) -> sp.Symbol:
         """An algebraic variable ``component.local`` of `role` (flow, effort, multiplier, ...)."""
         name = f"{component}.{local}"
-        sym = sp.Symbol(name, real=True)
+        sym = real_symbol(name)
         self.variables.append(Variable(name, sym, False, role, component, None, span))
         return sym
 
@@ -481,7 +481,7 @@ class _Template:
                 t, items = data
                 vals[slot] = t(**{f: vals[a] for f, a in items})
             elif kind == "sym":
-                vals[slot] = sp.Symbol(renamed(data), real=True)
+                vals[slot] = real_symbol(renamed(data))
             elif kind == "str":
                 vals[slot] = renamed(data)
             elif kind == "assoc":
