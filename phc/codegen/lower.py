@@ -68,8 +68,10 @@ class ResidualIR:
     p_symbols: tuple[sp.Symbol, ...]
     derived: tuple[tuple[int, sp.Expr], ...]
     residual: tuple[sp.Expr, ...]
-    jac_rows: tuple[int, ...]
-    jac_cols: tuple[int, ...]
+    jac_rows: np.ndarray
+    jac_cols: np.ndarray
+    """The Jacobian pattern in CSC order (int64, read-only): arrays, not tuples of Python ints
+    (36 bytes an entry each; a beam of 10⁵ elements has 5.4·10⁶ entries)."""
     jac_dy: tuple[sp.Expr, ...]
     jac_dyp: tuple[sp.Expr, ...]
     hamiltonian: sp.Expr
@@ -113,6 +115,13 @@ def _ordered_parameters(dae: Dae):
     if order is None:  # refused where they are written (PHC-E103): a fault in phc
         raise AssertionError("derived parameters depend on each other in a cycle")
     return base + [by_symbol[s] for s in order]
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    """`a` as int64, not writable (the IR is frozen)."""
+    a = np.ascontiguousarray(a, dtype=np.int64)
+    a.flags.writeable = False
+    return a
 
 
 def _sympy_zero(d):
@@ -282,8 +291,8 @@ def lower_residual(dae: Dae) -> ResidualIR:
         derived=(tuple((i, p.expr) for i, p in enumerate(params) if p.expr is not None)
                  + tuple((len(params) + k, sp.Integer(0)) for k in range(len(modes)))),
         residual=tuple(rows_expr),
-        jac_rows=tuple((keys % m_rows).tolist()),
-        jac_cols=tuple((keys // m_rows).tolist()),
+        jac_rows=_frozen(keys % m_rows),
+        jac_cols=_frozen(keys // m_rows),
         jac_dy=tuple(jac_dy),
         jac_dyp=tuple(jac_dyp),
         hamiltonian=plain(dae.hamiltonian),

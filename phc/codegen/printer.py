@@ -155,7 +155,7 @@ take seconds for Python to compile, and a uniform mesh's stencil repeats."""
 def _array(values: Sequence, dtype: str) -> str:
     if len(values) > PACK_LIMIT and dtype in ("float", "np.int64"):
         return packing.expression(values, "<f8" if dtype == "float" else "<i8")
-    values = list(values)
+    values = values.tolist() if isinstance(values, np.ndarray) else list(values)  # Python numbers' repr
     if dtype == "bool" and len(values) > PACK_LIMIT:  # run lengths: a mesh's states, then its efforts
         starts = [0] + [k for k in range(1, len(values)) if bool(values[k]) != bool(values[k - 1])]
         counts = [b - a for a, b in zip(starts, [*starts[1:], len(values)])]

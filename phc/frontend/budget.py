@@ -16,12 +16,11 @@ of each type's entry in :mod:`phc.library.registry`), and the
 compile peak is about :data:`BYTES_PER_UNKNOWN` per unknown plus
 :data:`BYTES_PER_NONZERO` per nonzero on top of :data:`BASE_BYTES`, fitted to the peaks of
 strings (4 unknowns and 16 nonzeros per element) and Euler–Bernoulli beams (8 and 54) of
-10³ to 10⁵ elements, NumPy back end, ten midpoint steps included (``PHC_MAX_MEMORY=8G python
+10⁴ to 10⁵ elements, NumPy back end, ten midpoint steps included (``PHC_MAX_MEMORY=8G python
 benchmarks/bench_beam_scale.py --measure KIND N``, which prints estimate and measured
-peak side by side): the peak grew by about 15 KiB per string element and 35 KiB per beam
-element, i.e. about 2.8 KiB per unknown and 0.24 KiB per nonzero; the constants round up,
-so that the estimate stays above the measured peak and within about 1.35 times it on
-both kinds from 10⁴ elements up.
+peak side by side): the peak grows by about 12.5 KiB per string element and 27 KiB per beam
+element; the constants round up, so that the estimate stays above the measured peak and
+within about 1.25 times it on both kinds from 10⁴ elements up.
 After assembly (:func:`check_assembled`) the count is exact and the output arrays are
 added: ``n_out × (2·variables + outputs + invariants + 4)`` doubles (values and
 derivatives of every variable, the outputs, the invariants, H and the three power
@@ -73,33 +72,38 @@ DEFAULT_MAX_MEMORY = 2 * 2**30
 """Default budget: 2 GiB, what a laptop can give one process without swapping."""
 ENV_VAR = "PHC_MAX_MEMORY"
 
-BASE_BYTES = 304 * 2**20
+BASE_BYTES = 224 * 2**20
 """The interpreter with numpy, scipy, sympy, networkx and the solvers loaded (135–150 MiB
-measured), plus the solvers' working memory: the intercept of the fit of
-:data:`BYTES_PER_UNKNOWN` and :data:`BYTES_PER_NONZERO` at a string of 10⁵ elements (294 MiB),
-rounded up. Small meshes are charged more than they take (a string of 1 000 elements, 4 004
-unknowns, compiled and run ten midpoint steps with ``energy: H``, peaks at 166 MiB;
-``benchmarks/bench_beam_scale.py --measure string 1000``)."""
-BYTES_PER_UNKNOWN = 3 * 2**10
-"""Compile peak per unknown: two sympy symbols (y and ẏ), the variable and its row, the
-names and the generated module's index tables (2.8 KiB measured with :data:`BYTES_PER_NONZERO`,
-fitted to the peaks of one process, ``backend="numpy"``, no certificate, ten midpoint steps:
-string of 10⁵ elements 1 752 MiB (400 004 unknowns, 1.6·10⁶ Jacobian nonzeros);
-Euler–Bernoulli beam of 2·10⁴ elements 877 MiB (160 007 unknowns, 1.08·10⁶ nonzeros) and of
-10⁵ elements 3 571 MiB (800 007 unknowns; 4.8·10⁶ nonzeros, the registry's count 5.4·10⁶);
-estimated 1 867, 1 037 and 3 966 MiB). Until the
-per-unknown names were printed as runs (``_indexed``), Python's compiler alone took about
-0.9 KiB per name of VARIABLES, ROLES and EQUATIONS, and this was 8 KiB; until the measured
-peaks replaced the growth from 10³ to 10⁴ elements as the fit, it was 4 KiB (an estimate of
-2.8 GiB for a string of 10⁵ elements that peaks at 1.7 GiB)."""
-BYTES_PER_NONZERO = 256
-"""Compile peak per Jacobian nonzero (0.24 KiB measured, see :data:`BYTES_PER_UNKNOWN`; it
-was 640 bytes, an estimate of 6.6 GiB for a beam of 10⁵ elements that peaks at 3.5 GiB)."""
-BYTES_PER_COMPONENT = 53 * 2**10
+measured), plus the solvers' working memory; the intercept of the measured peaks of
+Euler–Bernoulli beams of 2·10⁴ and 10⁵ elements is about 154 MiB, rounded up so that small
+meshes are charged more than they take (a string of 1 000 elements, 4 004 unknowns, compiled
+and run ten midpoint steps with ``energy: H``, peaks at 166–205 MiB;
+``benchmarks/bench_beam_scale.py --measure string 1000``). It was 304 MiB until the
+unknowns of a mesh were made in bulk (issue 35)."""
+BYTES_PER_UNKNOWN = 2688
+"""Compile peak per unknown (2.625 KiB): its sympy symbols (y and ẏ, made in bulk by
+:func:`phc.ir.dae.real_symbol`), the variable and its row, the names and the generated module's
+index tables. With :data:`BYTES_PER_NONZERO` fitted (and rounded up, about 1.07 times the
+peaks) to the peaks of one process, ``backend="numpy"``, no certificate, consistent
+initialization and ten midpoint steps (``PHC_MAX_MEMORY=8G python benchmarks/bench_beam_scale.py
+--measure KIND 100000``, issue 35): string of 10⁵ elements 1 379 MiB (400 004 unknowns,
+1.6·10⁶ Jacobian nonzeros), Euler–Bernoulli beam of 10⁵ elements 2 828 MiB (800 007 unknowns;
+4.8·10⁶ nonzeros, the registry's count 5.4·10⁶), estimated 1 469 and 3 016 MiB. History: 8 KiB
+until the per-unknown names were printed as runs (``_indexed``; Python's compiler alone took
+about 0.9 KiB per name of VARIABLES, ROLES and EQUATIONS); 4 KiB until measured peaks at
+10⁵ elements replaced the growth from 10³ to 10⁴ as the fit; 3 KiB until sympy's symbol
+constructor (0.8 KiB and its assumption work per symbol) and the Jacobian pattern as tuples
+of Python ints (72 bytes a nonzero) left the compile (issue 35: the peaks were 1 736 and
+3 530 MiB)."""
+BYTES_PER_NONZERO = 144
+"""Compile peak per Jacobian nonzero (see :data:`BYTES_PER_UNKNOWN`; it was 640 bytes, then 256
+until the Jacobian pattern became arrays)."""
+BYTES_PER_COMPONENT = 54 * 2**10
 """Compile peak per component on top of its unknowns and nonzeros: its spec, description,
 lowering and generated statements (chains of 3 000 and 10 000 springs and masses, one unknown
 each: 54.7 KiB per component in all, measured when a component's unknown was charged 8 KiB;
-with 3 KiB per unknown this is raised by 5 KiB so that a chain is charged no less)."""
+with 3 KiB per unknown this was raised by 5 KiB so that a chain is charged no less, and by
+1 KiB more with 2.625 KiB per unknown; not measured again since)."""
 
 DIFF_LIMIT = 100_000
 """Largest bound on the size of one derivative (nodes): about 3 s of sympy work."""

@@ -31,7 +31,7 @@ from typing import Any, Callable, Mapping, Optional, Sequence
 import pydantic_core
 import sympy as sp
 
-from phc.ir.dae import Equation, Invariant, LinearBlock, Parameter, Variable
+from phc.ir.dae import Equation, Invariant, LinearBlock, Parameter, Variable, real_symbol
 from phc.diagnostics import Diagnostic
 from phc.frontend.reporter import Port, Reporter
 from phc.frontend.files import FileAccess
@@ -206,15 +206,15 @@ class Recorder(Reporter):
     def add_state(self, component: str, local: str, span=None) -> tuple[sp.Symbol, sp.Symbol]:
         """A state ``component.local`` and its rate ``der(component.local)``."""
         name = f"{component}.{local}"
-        sym = sp.Symbol(name, real=True)
-        dsym = sp.Symbol(f"der({name})", real=True)
+        sym = real_symbol(name)  # sympy's Symbol(name, real=True), made in bulk
+        dsym = real_symbol(f"der({name})")
         self.variables.append(Variable(name, sym, True, "state", component, dsym, span))
         return sym, dsym
 
     def add_algebraic(self, component: str, local: str, role: str, span=None) -> sp.Symbol:
         """An algebraic variable ``component.local`` of `role` (flow, effort, multiplier, ...)."""
         name = f"{component}.{local}"
-        sym = sp.Symbol(name, real=True)
+        sym = real_symbol(name)
         self.variables.append(Variable(name, sym, False, role, component, None, span))
         return sym
 
@@ -350,26 +350,7 @@ def _getter(slots: Sequence[int]) -> Callable:
     return lambda vals: ()
 
 
-_PROTO = sp.Symbol("phc.prototype", real=True)
-_KB, _EXPR_NEW = type(_PROTO._assumptions), sp.Expr.__new__
-_FACTS = dict(_PROTO._assumptions)  # what sympy deduces from ``real=True`` (before any query adds to it)
-
-
-def _real_symbol(name: str) -> sp.Symbol:
-    """``sp.Symbol(name, real=True)``, equal to it and with the same assumptions, made
-    without sympy's deduction of the assumptions each time (they are a real symbol's,
-    copied from one made by sympy; half the cost of a symbol, 80 000 of them on a chain of
-    10⁴ components). sympy's cache of symbols holds few of them at that size anyway: no
-    code may rely on two equal symbols being one object."""
-    obj = _EXPR_NEW(sp.Symbol)
-    obj.name = name
-    kb = _KB.__new__(_KB)
-    dict.update(kb, _FACTS)
-    kb._generator = _PROTO._assumptions._generator
-    obj._assumptions = kb
-    obj._assumptions_orig = _PROTO._assumptions_orig
-    obj._assumptions0 = _PROTO._assumptions0
-    return obj
+_EXPR_NEW = sp.Expr.__new__
 
 
 def _pow(base, exp, commutative):
@@ -552,7 +533,7 @@ class _Template:
         if self._plan is None:
             self._plan = self._compile_plan()
         names = [renamed(r) for r in self._names]
-        new_object, symbol = object.__new__, _real_symbol
+        new_object, symbol = object.__new__, real_symbol
         for slot, code, a, b, c in self._plan:  # the most frequent kinds first
             if code == _SEQ:  # a, b: the sequence's type, getter of its items (a tuple)
                 vals[slot] = a(b(vals))
