@@ -125,8 +125,9 @@ that)."""
 
 
 SAME_PASSAGE = 4.0
-"""A bridge that saw no minimum of the conditioning, followed by another such within this many of
-its lengths after IDA restarted, took one passage (:meth:`Bridges._same_passage`): one event."""
+"""A bridge that sees no minimum of the conditioning, begun within this many of the last bridge's
+lengths after IDA restarted from it, takes the last one's passage (:meth:`Bridges._same_passage`):
+one event."""
 
 
 NEAR_DROP = 1e-4
@@ -208,6 +209,7 @@ def bridge(mod, p, start, t_out, first: int, h: float, *, names=None, nominal=No
     lowest, rising = r_start, False
     out.t_lowest, out.y_lowest = t, y
     advance = midpoint_advance(mod, p, nominal)
+    advance.stage.restart_near = True  # the least-norm retry from a stagnated iterate, as `midpoint` runs
     j = first
     while True:
         t_b = min(t + PIECE_STEPS * h, t_end)
@@ -254,14 +256,38 @@ def bridge(mod, p, start, t_out, first: int, h: float, *, names=None, nominal=No
     out.nfev = advance.stage.nfev
     held = configuration(mod)
     try:
-        init = consistent_initial_conditions(mod, p, t, dict(enumerate(y)), set(held.tolist()),
-                                             initial_relations=False)
+        init = restart_state(mod, p, t, y, held)
     except (InconsistentInitialError, ModelEvaluationError) as err:
         why = "; ".join(err.problems) if isinstance(err, InconsistentInitialError) else str(err)
         out.message = f"IDA could not restart after the bridge at t = {t:.6g}: {why}"
         return out
     out.ok, out.t_end, out.y_end, out.yp_end = True, t, init.y0, init.yp0
     return out
+
+
+RESTART_TOL = 1e-11
+"""The restart's equations are solved to this, absolute (rows equilibrated): IDA's local tolerance
+is far below the start's (1e-11 relative to the largest variable, :func:`phc.simulation.initial.
+consistent_initial_conditions`)."""
+
+
+def restart_state(mod, p, t, y, held):
+    """IDA's consistent restart at the bridge's end (t, y): the configuration `held`, the rest
+    solved to :data:`RESTART_TOL` absolute — else, where that is below what the solve reaches, to
+    the start's relative tolerance.
+
+    Why absolute: the start's tolerance is relative to the largest variable, and near a passage
+    that is a constraint force (9.2e3 N at the end of the N = 10 four-bar's first bridge, which
+    let the velocity constraints' rows keep a residual of 1.6e-6; IDA, whose local tolerance is
+    1e-8/200, then failed at each restart with steps of 1e-22 s, at a regular configuration
+    0.25 s past the passage; solved to round-off, 7e-15, it went on)."""
+    values, fixed = dict(enumerate(y)), set(held.tolist())
+    scale = max(1.0, float(np.abs(y).max(initial=0.0)))
+    try:
+        return consistent_initial_conditions(mod, p, t, values, fixed, tol=RESTART_TOL / scale,
+                                             initial_relations=False, rescue=False)
+    except InconsistentInitialError:
+        return consistent_initial_conditions(mod, p, t, values, fixed, initial_relations=False)
 
 
 class Bridges:
@@ -354,9 +380,13 @@ class Bridges:
         from phc.simulation.midpoint import midpoint_advance
 
         probe = midpoint_advance(self.mod, self.p, self.nominal)
+        probe.stage.restart_near = True
         try:
-            h_tol = tolerance_step(probe, self.mod, t_n, y_n, yp_n, self.h_ida, self.rtol, self.atol,
-                                   max(self.h_largest, self.h_ida))
+            # from IDA's recent step, or the last bridge's where IDA's collapsed below it (crawling
+            # into a passage right after a restart: estimates at its 1e-12 s steps found 9e-9 s on the
+            # N = 1 four-bar, too short for the step-doubling check to pass the rank drop)
+            h_tol = tolerance_step(probe, self.mod, t_n, y_n, yp_n, max(self.h_ida, self.h_bridge), self.rtol,
+                                   self.atol, max(self.h_largest, self.h_ida))
         except (ModelEvaluationError, *CATCH, np.linalg.LinAlgError):
             h_tol = self.h_ida
         self.nfev += probe.stage.nfev
@@ -392,8 +422,12 @@ class Bridges:
                       ", ".join(culprits))
         held = [j for j in configuration(self.mod) if self.mod.VARIABLES[j] != "energy.supplied"]
         shown = ", ".join(f"{self.mod.VARIABLES[j]} = {done.y_lowest[j]:.6g}" for j in held[:4])
-        if self._same_passage(t_n, done.t_lowest):  # one passage: reported once, at this bridge (the one across it)
-            self.records[-1] = (None, *self.records[-1][1:])
+        if self._same_passage(t_n, done.t_lowest):  # one passage, reported once
+            last = self.records[-1]
+            if last[5] > last[2]:  # the last bridge located the singular instant (a minimum inside): its event
+                event = None
+            else:  # it ended short of the instant: this one's
+                self.records[-1] = (None, *last[1:])
         self.records.append((event, shown + (", …" if len(held) > 4 else ""), t_n, done.t_end, done.steps,
                              done.t_lowest))
         self._last_start, self._last_end, self._last_length = (t_n, y_n, yp_n), done.t_end, done.t_end - t_n
@@ -401,16 +435,17 @@ class Bridges:
 
     def _same_passage(self, t_start: float, t_lowest: float) -> bool:
         """Whether a bridge from `t_start`, its conditioning lowest at `t_lowest`, takes the passage
-        the last bridge was to take: neither saw the conditioning fall below its start (no minimum
-        inside; the last may have ended short of the singular instant), and IDA failed again within
-        :data:`SAME_PASSAGE` times the last bridge's length after it. On the N = 1 four-bar at the
-        model's tolerances two of the ten passes were bridged twice so: bridges of 16 steps that
-        ended 2.4e-3 s before the singular instant, IDA failing again 1.5 and 1.9 bridge lengths
-        after them; the passes are 0.5 s (some 500 such lengths) apart."""
+        the last bridge took: it saw no minimum of the conditioning (lowest at its start: the
+        singular instant is behind it or at its start, where IDA failed again on its way out), and
+        IDA failed again within :data:`SAME_PASSAGE` times the last bridge's length after it. On the
+        N = 1 four-bar at the model's tolerances two of the ten passes were bridged twice so (IDA
+        failing again 1.5 and 1.9 bridge lengths after bridges that ended 2.4e-3 s before the
+        singular instant), and each was reported twice; the passes are 0.5 s, some 500 such
+        lengths, apart, and a bridge towards the next one sees its minimum."""
         if not self.records or t_lowest > t_start:
             return False
-        _, _, t0, t1, _, low = self.records[-1]
-        return low <= t0 and 0.0 <= t_start - t1 <= SAME_PASSAGE * (t1 - t0)
+        _, _, t0, t1, _, _ = self.records[-1]
+        return 0.0 <= t_start - t1 <= SAME_PASSAGE * (t1 - t0)
 
     def _dependent(self, t, y, yp, h):
         """(constraint rows, connections) that become dependent near (t, y, ẏ): the left singular
