@@ -424,7 +424,9 @@ class Bridges:
         shown = ", ".join(f"{self.mod.VARIABLES[j]} = {done.y_lowest[j]:.6g}" for j in held[:4])
         if self._same_passage(t_n, done.t_lowest):  # one passage, reported once
             last = self.records[-1]
-            if last[5] > last[2]:  # the last bridge located the singular instant (a minimum inside): its event
+            if last[0] is None or last[5] > last[2]:
+                # the last bridge located the singular instant (a minimum inside), or was merged into
+                # one before it that did: that event
                 event = None
             else:  # it ended short of the instant: this one's
                 self.records[-1] = (None, *last[1:])
