@@ -304,8 +304,8 @@ class Bridges:
         self.names, self.nominal, self.watch = names, nominal, events
         self.hook, self.monitor = hook, monitor
         self.records: list = []
-        """(event, configuration text, t_start, t_end, steps, t_lowest) of each bridge (event None: a
-        bridge before another of the same passage, :meth:`_same_passage`)."""
+        """(event, configuration text, t_start, t_end, steps, t_lowest, the event it handed on) of each
+        bridge (event None: one of a passage another bridge reports, :meth:`_same_passage`)."""
         self.steps = self.nfev = 0
         self.event: Optional[dict] = None
         self.note: Optional[str] = None
@@ -371,6 +371,8 @@ class Bridges:
             min_length = 2.0 ** self._in_a_row * self._last_length
             t_n, y_n, yp_n = self._last_start
             self.records.pop()  # the same passage, bridged again longer
+            if self.records and self.records[-1][6] is not None:  # the bridge it took the event from: back
+                self.records[-1] = (self.records[-1][6], *self.records[-1][1:6], None)
         else:
             self._in_a_row = 0
             self._origin, self._streak = origin, len(self.records)  # what stops the run if IDA cannot go on
@@ -428,10 +430,10 @@ class Bridges:
                 # the last bridge located the singular instant (a minimum inside), or was merged into
                 # one before it that did: that event
                 event = None
-            else:  # it ended short of the instant: this one's
-                self.records[-1] = (None, *last[1:])
+            else:  # it ended short of the instant: this one's (the last's kept, should this be retried)
+                self.records[-1] = (None, *last[1:6], last[0])
         self.records.append((event, shown + (", …" if len(held) > 4 else ""), t_n, done.t_end, done.steps,
-                             done.t_lowest))
+                             done.t_lowest, None))
         self._last_start, self._last_end, self._last_length = (t_n, y_n, yp_n), done.t_end, done.t_end - t_n
         return k_next, done.t_end, done.y_end, done.yp_end
 
@@ -446,7 +448,7 @@ class Bridges:
         lengths, apart, and a bridge towards the next one sees its minimum."""
         if not self.records or t_lowest > t_start:
             return False
-        _, _, t0, t1, _, _ = self.records[-1]
+        _, _, t0, t1, *_ = self.records[-1]
         return 0.0 <= t_start - t1 <= SAME_PASSAGE * (t1 - t0)
 
     def _dependent(self, t, y, yp, h):

@@ -438,10 +438,10 @@ def test_ida_at_tight_tolerances_passes_the_first_singular_configuration(shipped
     """IDA at rtol 1e-10 fails 0.034 s before the first horizontal pass, where the iteration
     matrix is still regular (σ_min/σ_max ~ 1e-3 at its step): round-off that this conditioning
     amplifies, which a looser atol only moves closer (the message said so, and that IDA cannot
-    pass it). The bridge by the midpoint rule starts there and carries it through; IDA, failing
-    again on restarting where the bridge first ended, is bridged again longer
-    (phc.simulation.ida_bridge.RETRIES) and reaches 1 s, crank 0 within the benchmark's
-    tolerance of the exact motion."""
+    pass it). The bridge by the midpoint rule starts there and carries it through, and IDA
+    reaches 1 s, crank 0 within the benchmark's tolerance of the exact motion. (Until its restart
+    was solved to 1e-11 absolute, ida_bridge.restart_state, IDA failed on restarting three times
+    and was bridged ever longer, phc.simulation.ida_bridge.RETRIES.)"""
     r = phc.simulate(shipped, solver="ida", rtol=1e-10, atol=1e-12, t_end=1.0, n_out=101)
     assert r.success, r.message
     assert horizontal_passes(r["crank0.theta"]) == 1
