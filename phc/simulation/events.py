@@ -488,8 +488,7 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, keywo
             stop = dict(success=False, message=str(rest))
             break
         except InconsistentInitialError as err:
-            stop = dict(success=False, message=f"cannot restart after the switch at t = {t:.6g}: "
-                        + "; ".join(err.problems))
+            stop = dict(success=False, message=f"cannot restart after the switch at t = {t:.6g}: {'; '.join(err.problems)}")
             break
         except ModelEvaluationError as err:
             stop = dict(success=False, message=f"cannot restart after the switch at t = {t:.6g}: {err}")
