@@ -454,6 +454,7 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, keywo
                                      message=f"interrupted at t = {t:.6g}" if interrupted else str(err))
                 for key in stats:
                     stats[key] += int(getattr(out, key) or 0)
+                events.extend(out.events)  # the piece's own (IDA's `passage` events), before its switch
                 note = out.extra.get("order_note") or note  # IDA's maximum order phc chose (simulation/order.py)
                 keywords = carry_order(keywords, out)
                 # an output time equal to a restart time keeps its first value (np.unique below)
@@ -493,8 +494,7 @@ def integrate_switched(backend: Callable, mod, p, t_out, init, fixed: set, keywo
             stop = dict(success=False, message=str(rest))
             break
         except InconsistentInitialError as err:
-            stop = dict(success=False, message=f"cannot restart after the switch at t = {t:.6g}: "
-                        + "; ".join(err.problems))
+            stop = dict(success=False, message=f"cannot restart after the switch at t = {t:.6g}: {'; '.join(err.problems)}")
             break
         except ModelEvaluationError as err:
             stop = dict(success=False, message=f"cannot restart after the switch at t = {t:.6g}: {err}")

@@ -124,6 +124,12 @@ restarting after bridges at 5e-5 s on the N = 1 four-bar, and went on after brid
 that)."""
 
 
+SAME_PASSAGE = 4.0
+"""A bridge that sees no minimum of the conditioning, begun within this many of the last bridge's
+lengths after IDA restarted from it, takes the last one's passage (:meth:`Bridges._same_passage`):
+one event."""
+
+
 NEAR_DROP = 1e-4
 """A failed IDA run whose iteration matrix at its last normal state is conditioned below this,
 weakest in the position constraints, tries a bridge: the N = 1 four-bar failed at 2e-6, 0.03 s
@@ -203,6 +209,7 @@ def bridge(mod, p, start, t_out, first: int, h: float, *, names=None, nominal=No
     lowest, rising = r_start, False
     out.t_lowest, out.y_lowest = t, y
     advance = midpoint_advance(mod, p, nominal)
+    advance.stage.restart_near = True  # the least-norm retry from a stagnated iterate, as `midpoint` runs
     j = first
     while True:
         t_b = min(t + PIECE_STEPS * h, t_end)
@@ -249,14 +256,38 @@ def bridge(mod, p, start, t_out, first: int, h: float, *, names=None, nominal=No
     out.nfev = advance.stage.nfev
     held = configuration(mod)
     try:
-        init = consistent_initial_conditions(mod, p, t, dict(enumerate(y)), set(held.tolist()),
-                                             initial_relations=False)
+        init = restart_state(mod, p, t, y, held)
     except (InconsistentInitialError, ModelEvaluationError) as err:
         why = "; ".join(err.problems) if isinstance(err, InconsistentInitialError) else str(err)
         out.message = f"IDA could not restart after the bridge at t = {t:.6g}: {why}"
         return out
     out.ok, out.t_end, out.y_end, out.yp_end = True, t, init.y0, init.yp0
     return out
+
+
+RESTART_TOL = 1e-11
+"""The restart's equations are solved to this, absolute (rows equilibrated): IDA's local tolerance
+is far below the start's (1e-11 relative to the largest variable, :func:`phc.simulation.initial.
+consistent_initial_conditions`)."""
+
+
+def restart_state(mod, p, t, y, held):
+    """IDA's consistent restart at the bridge's end (t, y): the configuration `held`, the rest
+    solved to :data:`RESTART_TOL` absolute — else, where that is below what the solve reaches, to
+    the start's relative tolerance.
+
+    Why absolute: the start's tolerance is relative to the largest variable, and near a passage
+    that is a constraint force (9.2e3 N at the end of the N = 10 four-bar's first bridge, which
+    let the velocity constraints' rows keep a residual of 1.6e-6; IDA, whose local tolerance is
+    1e-8/200, then failed at each restart with steps of 1e-22 s, at a regular configuration
+    0.25 s past the passage; solved to round-off, 7e-15, it went on)."""
+    values, fixed = dict(enumerate(y)), set(held.tolist())
+    scale = max(1.0, float(np.abs(y).max(initial=0.0)))
+    try:
+        return consistent_initial_conditions(mod, p, t, values, fixed, tol=RESTART_TOL / scale,
+                                             initial_relations=False, rescue=False)
+    except InconsistentInitialError:
+        return consistent_initial_conditions(mod, p, t, values, fixed, initial_relations=False)
 
 
 class Bridges:
@@ -273,7 +304,8 @@ class Bridges:
         self.names, self.nominal, self.watch = names, nominal, events
         self.hook, self.monitor = hook, monitor
         self.records: list = []
-        """(event, configuration text, t_start, t_end, steps) of each bridge."""
+        """(event, configuration text, t_start, t_end, steps, t_lowest, the event it handed on) of each
+        bridge (event None: one of a passage another bridge reports, :meth:`_same_passage`)."""
         self.steps = self.nfev = 0
         self.event: Optional[dict] = None
         self.note: Optional[str] = None
@@ -339,6 +371,8 @@ class Bridges:
             min_length = 2.0 ** self._in_a_row * self._last_length
             t_n, y_n, yp_n = self._last_start
             self.records.pop()  # the same passage, bridged again longer
+            if self.records and self.records[-1][6] is not None:  # the bridge it took the event from: back
+                self.records[-1] = (self.records[-1][6], *self.records[-1][1:6], None)
         else:
             self._in_a_row = 0
             self._origin, self._streak = origin, len(self.records)  # what stops the run if IDA cannot go on
@@ -348,9 +382,13 @@ class Bridges:
         from phc.simulation.midpoint import midpoint_advance
 
         probe = midpoint_advance(self.mod, self.p, self.nominal)
+        probe.stage.restart_near = True
         try:
-            h_tol = tolerance_step(probe, self.mod, t_n, y_n, yp_n, self.h_ida, self.rtol, self.atol,
-                                   max(self.h_largest, self.h_ida))
+            # from IDA's recent step, or the last bridge's where IDA's collapsed below it (crawling
+            # into a passage right after a restart: estimates at its 1e-12 s steps found 9e-9 s on the
+            # N = 1 four-bar, too short for the step-doubling check to pass the rank drop)
+            h_tol = tolerance_step(probe, self.mod, t_n, y_n, yp_n, max(self.h_ida, self.h_bridge), self.rtol,
+                                   self.atol, max(self.h_largest, self.h_ida))
         except (ModelEvaluationError, *CATCH, np.linalg.LinAlgError):
             h_tol = self.h_ida
         self.nfev += probe.stage.nfev
@@ -386,9 +424,32 @@ class Bridges:
                       ", ".join(culprits))
         held = [j for j in configuration(self.mod) if self.mod.VARIABLES[j] != "energy.supplied"]
         shown = ", ".join(f"{self.mod.VARIABLES[j]} = {done.y_lowest[j]:.6g}" for j in held[:4])
-        self.records.append((event, shown + (", …" if len(held) > 4 else ""), t_n, done.t_end, done.steps))
+        if self._same_passage(t_n, done.t_lowest):  # one passage, reported once
+            last = self.records[-1]
+            if last[0] is None or last[5] > last[2]:
+                # the last bridge located the singular instant (a minimum inside), or was merged into
+                # one before it that did: that event
+                event = None
+            else:  # it ended short of the instant: this one's (the last's kept, should this be retried)
+                self.records[-1] = (None, *last[1:6], last[0])
+        self.records.append((event, shown + (", …" if len(held) > 4 else ""), t_n, done.t_end, done.steps,
+                             done.t_lowest, None))
         self._last_start, self._last_end, self._last_length = (t_n, y_n, yp_n), done.t_end, done.t_end - t_n
         return k_next, done.t_end, done.y_end, done.yp_end
+
+    def _same_passage(self, t_start: float, t_lowest: float) -> bool:
+        """Whether a bridge from `t_start`, its conditioning lowest at `t_lowest`, takes the passage
+        the last bridge took: it saw no minimum of the conditioning (lowest at its start: the
+        singular instant is behind it or at its start, where IDA failed again on its way out), and
+        IDA failed again within :data:`SAME_PASSAGE` times the last bridge's length after it. On the
+        N = 1 four-bar at the model's tolerances two of the ten passes were bridged twice so (IDA
+        failing again 1.5 and 1.9 bridge lengths after bridges that ended 2.4e-3 s before the
+        singular instant), and each was reported twice; the passes are 0.5 s, some 500 such
+        lengths, apart, and a bridge towards the next one sees its minimum."""
+        if not self.records or t_lowest > t_start:
+            return False
+        _, _, t0, t1, *_ = self.records[-1]
+        return 0.0 <= t_start - t1 <= SAME_PASSAGE * (t1 - t0)
 
     def _dependent(self, t, y, yp, h):
         """(constraint rows, connections) that become dependent near (t, y, ẏ): the left singular
@@ -409,16 +470,20 @@ class Bridges:
         return [c for c in culprits if c in invariants], connections
 
     def events(self) -> list:
-        return [r[0] for r in self.records]
+        """One ``passage`` event per passage (a bridge that took the last one again adds none)."""
+        return [r[0] for r in self.records if r[0] is not None]
 
     def notice(self) -> str:
         """The run message's note on the bridges ('' without any)."""
-        if not self.records:
+        passed = [r for r in self.records if r[0] is not None]
+        if not passed:
             return ""
         listed = "; ".join(f"t = {e.t:.6g} ({e.condition[len('rank drop of the position constraints at '):]}; "
-                           f"{shown})" for e, shown, *_ in self.records[:4])
-        more = f"; … {len(self.records) - 4} more" if len(self.records) > 4 else ""
-        return (f"IDA passed {len(self.records)} rank drop(s) of the position constraints' Jacobian, each bridged "
+                           f"{shown})" for e, shown, *_ in passed[:4])
+        more = f"; … {len(passed) - 4} more" if len(passed) > 4 else ""
+        again = len(self.records) - len(passed)
+        return (f"IDA passed {len(passed)} rank drop(s) of the position constraints' Jacobian, each bridged "
                 f"by the implicit midpoint rule ({self.steps} steps in all, at {', '.join(f'{f:g}' for f in STEP_FACTORS)} "
                 f"times the step whose local error meets the run's tolerance, the first that passed; the motion through it checked by one step against "
-                f"two half steps, as `--solver midpoint` does) and restarted after it: {listed}{more}")
+                f"two half steps, as `--solver midpoint` does) and restarted after it"
+                + (f" ({again} bridged again after IDA failed on its way out)" if again else "") + f": {listed}{more}")

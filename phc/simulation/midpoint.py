@@ -326,9 +326,9 @@ class StageSolver:
         """Least-norm solves whose result the full iteration improved (:meth:`_complete`)."""
         self.restart_near = False
         """Whether the least-norm retry may start from the failed iteration's last iterate
-        (:meth:`_closer_start`): set by the `midpoint`, `discrete_gradient` and `midpoint4` runs; the IDA
-        bridge (:mod:`phc.simulation.ida_bridge`) keeps the predictor (with it, the N = 1 four-bar's
-        bridge at IDA's collapsed step failed at the ninth pass)."""
+        (:meth:`_closer_start`): set by the `midpoint`, `discrete_gradient` and `midpoint4` runs and
+        the IDA bridge (:mod:`phc.simulation.ida_bridge`; with the predictor its steps at the N = 10
+        four-bar's passages failed the step-doubling check at the step the tolerance asks)."""
 
     def residual(self, t, h, y, y1, s):
         d = y1 - y
