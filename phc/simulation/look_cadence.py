@@ -56,9 +56,10 @@ def affordable_cadence(cadence: int, base: int, *, look_cpu: float, step_cpu: fl
     most :data:`LOOK_SHARE` of the integration of the steps between two looks (`step_cpu` a step),
     while the ratio cannot reach `threshold` before the next look: at least
     :data:`APPROACH_LOOKS` looks before a ratio falling as from `before` to `ratio` over the last
-    `steps` steps would reach it; none of this within :data:`NEAR_DECADES` of it."""
-    if ratio is None or not (look_cpu > 0 and step_cpu > 0) or not ratio > 0:
-        return cadence
+    `steps` steps would reach it; none of this within :data:`NEAR_DECADES` of it, nor before the
+    second look (`before` None)."""
+    if ratio is None or before is None or not (look_cpu > 0 and step_cpu > 0) or not ratio > 0:
+        return cadence  # (two looks at least: how the ratio moves is known)
     afford = math.ceil(look_cpu / (LOOK_SHARE * step_cpu))
     if afford <= cadence:
         return cadence
@@ -90,7 +91,7 @@ class LookBudget:
         self.steps = 0
         self.looking = 0.0      # CPU seconds spent in looks
         self.integrating = 0.0  # CPU seconds between looks
-        self._mark = clock()
+        self._mark = self.clock()
         self._look_start = None
 
     def restart(self) -> None:
