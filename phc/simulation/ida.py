@@ -40,6 +40,7 @@ from phc.simulation.guard import CATCH, GuardedModule, ModelEvaluationError
 from phc.simulation.ida_bridge import NEAR_DROP, Bridges, near_rank_drop
 from phc.simulation.scaling import promise_scales
 from phc.simulation.monitor import SingularityMonitor, check_scales, diagnose_failure, unbounded_growth
+from phc.simulation.look_cadence import FAR_RATIO, LookBudget, affordable_cadence, next_cadence
 from phc.simulation.order import RECENT_STEPS, OrderChoice, Switch, after_step
 from phc.simulation.tested import (  # noqa: F401  (names of phc.simulation.ida before the split)
     CANCELLATION, SENSITIVITY_DENSE, TERM_FRACTION, algebraic_rates, determined_algebraic, determined_scales,
@@ -276,12 +277,6 @@ def _callbacks(mod, p, n: int, sparse: bool):
     return resfn, jacfn, state
 
 
-LOOK_STRETCH = 32
-"""Most the singularity monitor's cadence is stretched where the conditioning is flat."""
-FLAT_DECADES = 0.1
-"""Change of the conditioning ratio between two looks (decades) below which it counts as flat."""
-FAR_RATIO = 1e-6
-"""Conditioning ratio above which the monitor may look less often (its threshold is 1e-11)."""
 
 
 EDGE_SHRINK = 1e-6
@@ -369,17 +364,6 @@ def _approaching_singularity(monitor, h, how: str = "Newton's iteration failed b
             f"{how}; {warning}")
 
 
-def _next_cadence(cadence: int, base: int, before: Optional[float], ratio: Optional[float]) -> int:
-    """Steps until the monitor's next look: 1.5× longer (up to :data:`LOOK_STRETCH`× `base`)
-    when the ratio moved less than :data:`FLAT_DECADES` since the last look and stays above
-    :data:`FAR_RATIO`, else back to `base` at once."""
-    if before is None or ratio is None or not (ratio > FAR_RATIO and before > FAR_RATIO):
-        return base
-    if abs(math.log10(ratio / before)) >= FLAT_DECADES:
-        return base
-    return min(LOOK_STRETCH * base, max(cadence + 1, int(1.5 * cadence)))
-
-
 def solver_options(mod, p, *, rtol, atol, max_order=None, sparse: Optional[bool] = None, determined=None):
     """(options of scikit-sundae's ``IDA``, callback state) for `mod` at parameters `p`: the
     tolerances (algebraic variables out of the error test), analytic Jacobian, linear solver
@@ -453,11 +437,13 @@ class _StepHook:
         # the last step's end when it is not a normal one (a growth without bound is diagnosed there)
         self.collapsed = None
         # the monitor looks every `cadence` steps: `base`, stretched up to LOOK_STRETCH-fold while
-        # the conditioning stays flat and far above the threshold (a look costs about what one IDA
-        # step of a small system costs; a minimum of the conditioning between looks is still
-        # located by the monitor's golden-section search)
+        # the conditioning stays flat and far above the threshold, and further where a look costs
+        # more than LOOK_SHARE of the steps between looks while the ratio is not falling toward the
+        # threshold (phc.simulation.look_cadence; a minimum of the conditioning between looks is
+        # still located by the monitor's golden-section search)
         self.base = self.cadence = int(base)
         self.last_ratio = None
+        self.budget = LookBudget()
         self.since_look = self.since_progress = 0
         self.next_crawl_check = 0
         # recoverable model errors seen; (the earliest failed trial time not passed yet, the step size before it)
@@ -536,7 +522,9 @@ class _StepHook:
 
     def _look(self, t, y, yp, h) -> None:
         monitor = self.monitor
-        self.since_look = 0
+        steps, self.since_look = self.since_look, 0
+        budget = self.budget
+        budget.start_look()
         warning = monitor.watch(t, np.array(y), np.array(yp), h)
         if warning is None and self.steps >= self.next_crawl_check \
                 and h * (self.max_steps - self.steps) < self.t_end - t:
@@ -557,8 +545,12 @@ class _StepHook:
                             f" at t = {t:.6g}, near a rank drop of the position constraints"), rank_drop=True)
         if warning:
             raise _Stop(warning)
+        budget.end_look(steps)
         ratio = monitor._looks[-1][-1] if monitor._looks else None
-        self.cadence = _next_cadence(self.cadence, self.base, self.last_ratio, ratio)
+        cadence = next_cadence(self.cadence, self.base, self.last_ratio, ratio)
+        self.cadence = affordable_cadence(cadence, self.base, look_cpu=budget.look_cpu, step_cpu=budget.step_cpu,
+                                          before=self.last_ratio, ratio=ratio, steps=steps,
+                                          threshold=monitor.threshold)
         self.last_ratio = ratio
 
 
