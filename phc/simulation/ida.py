@@ -39,7 +39,7 @@ from phc.simulation.backend import BackendRun
 from phc.simulation.guard import CATCH, GuardedModule, ModelEvaluationError
 from phc.simulation.ida_bridge import NEAR_DROP, Bridges, near_rank_drop
 from phc.simulation.scaling import promise_scales
-from phc.simulation.monitor import SingularityMonitor, check_scales, diagnose_failure, unbounded_growth
+from phc.simulation.monitor import DENSE_SIZE, SingularityMonitor, check_scales, diagnose_failure, unbounded_growth
 from phc.simulation.look_cadence import FAR_RATIO, LookBudget, affordable_cadence, next_cadence
 from phc.simulation.order import RECENT_STEPS, OrderChoice, Switch, after_step
 from phc.simulation.tested import (  # noqa: F401  (names of phc.simulation.ida before the split)
@@ -548,9 +548,12 @@ class _StepHook:
         budget.end_look(steps)
         ratio = monitor._looks[-1][-1] if monitor._looks else None
         cadence = next_cadence(self.cadence, self.base, self.last_ratio, ratio)
-        self.cadence = affordable_cadence(cadence, self.base, look_cpu=budget.look_cpu, step_cpu=budget.step_cpu,
-                                          before=self.last_ratio, ratio=ratio, steps=steps,
-                                          threshold=monitor.threshold)
+        if monitor.mod.N > DENSE_SIZE:  # a sparse look: its cost may be many steps' (dense ones are
+            # cheap, and their cadence stays independent of the machine's timing)
+            cadence = affordable_cadence(cadence, self.base, look_cpu=budget.look_cpu, step_cpu=budget.step_cpu,
+                                         before=self.last_ratio, ratio=ratio, steps=steps,
+                                         threshold=monitor.threshold)
+        self.cadence = cadence
         self.last_ratio = ratio
 
 
