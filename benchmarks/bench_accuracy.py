@@ -35,6 +35,14 @@ from phc.study.accuracy import relative_output_errors  # noqa: E402
 
 
 
+NOT_MEASURED = {
+    "woodpecker": "not measured: IDA does not integrate the woodpecker toy (it fails at t = 0 at the "
+                  "model's tolerances and crawls at 1e-6; docs/hard-cases.md); its accuracy is tested against an "
+                  "independent Moreau time-stepping scheme in tests/hard/test_woodpecker.py",
+}
+"""Shipped models this benchmark (IDA against IDA) leaves out, each with the reason printed in its row."""
+
+
 def _worst(run, ref) -> tuple[str, float]:
     errors = relative_output_errors(run, ref)
     return max(errors.items(), key=lambda kv: kv[1], default=("—", 0.0))
@@ -72,6 +80,9 @@ def main(argv=None) -> int:
     print("|---|---|---:|---:|---:|---|---:|---:|---:|---|")
     for path in sorted((ROOT / "models").glob("*.yaml")):
         if path.stem == "crank_testset" and not args.all:
+            continue
+        if path.stem in NOT_MEASURED:
+            print(f"| {path.stem} | {NOT_MEASURED[path.stem]} | | | | | | | | |", flush=True)
             continue
         compiled = phc.compile_model(path, certify=False)
         t0 = time.perf_counter()
