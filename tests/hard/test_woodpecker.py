@@ -212,3 +212,37 @@ def test_woodpecker_against_the_published_limit_cycle(runs):
     hz = minimize_scalar(misfit, bounds=(2 * np.pi * 60, 2 * np.pi * 90), method="bounded",
                          options={"xatol": 1e-8}).x / (2 * np.pi)
     assert hz == pytest.approx(PUBLISHED_FREE_HZ, abs=5e-3)  # the paper's last digit
+
+
+@pytest.mark.parametrize("mu", [0.29, 0.28])
+def test_woodpecker_jams_at_rest_only_above_the_published_friction_threshold(mu):
+    """Leine et al. (p. 4): the equilibrium, the bird hanging back on the jammed sleeve, is
+    q = (y, -0.1034, -0.2216), and the sleeve can jam there only if μ ≥ 0.285. In closed form:
+    φ_S = φ_M - m_S g l_G / c_φ; the lower edge carries λ_T = (m_S + m_M) g along the pole and
+    λ_N = g (m_S (l_M + l_G) - r_M (m_S + m_M)) / h_M across it, so μ ≥ λ_T/λ_N = 0.28519.
+    Started there at rest, phc's sleeve sticks for μ = 0.29 with these forces, and slides for
+    μ = 0.28 with its friction force μ λ_N."""
+    phi_m = -(rM - r0) / hM
+    phi_s = phi_m - mS * G * lG / C_PHI
+    assert (phi_m, phi_s) == pytest.approx((-0.1034, -0.2216), abs=1e-4)  # the paper's, to its digits
+    lam_t = (mS + mM) * G
+    lam_n = G * (mS * (lM + lG) - rM * (mS + mM)) / hM
+    assert lam_t / lam_n == pytest.approx(0.285, abs=5e-4)
+    compiled = phc.compile_model(ROOT / "models" / "woodpecker.yaml")
+    r = phc.simulate(compiled, t_end=0.02, n_out=21, params={"mu": mu},
+                     initial={"toy.y": 0.0, "toy.phi_M": phi_m, "toy.phi_S": phi_s,
+                              "toy.p_vy": 0.0, "toy.p_w_M": 0.0, "toy.p_w_S": 0.0})
+    assert r.success, r.message
+    y = r.y[:, r.variables.index("toy.y")]
+    normal = r.y[:, r.variables.index("edge_down.force")]
+    friction = r.y[:, r.variables.index("edge_down.friction_force")]
+    kinds = [(ev.kind, ev.condition) for ev in r.events]
+    if mu > lam_t / lam_n:
+        assert kinds == [("close", "edge_down"), ("stick", "edge_down")]
+        assert np.abs(y).max() < 1e-15
+        assert normal == pytest.approx(np.full_like(normal, lam_n), rel=1e-9)
+        assert friction == pytest.approx(np.full_like(friction, lam_t), rel=1e-9)
+    else:
+        assert kinds == [("close", "edge_down"), ("slip", "edge_down")]
+        assert np.all(np.diff(y) < 0) and y[-1] < -5e-5  # it slides down (0.12 mm in 20 ms)
+        assert friction == pytest.approx(mu * normal, rel=1e-9)
