@@ -99,11 +99,10 @@ def library():
     """The driver's library (built, or loaded from phc's signed cache, once per process), or None
     when it cannot be built here (:func:`why_not`)."""
     global _LIBRARY, _WHY
+    if switched_off():
+        return None
     with _LOCK:
         if _LIBRARY is None:
-            if os.environ.get("PHC_NATIVE_IDA", "1").strip().lower() in ("0", "no", "false", "off"):
-                _WHY = ""  # switched off (PHC_NATIVE_IDA=0): nothing to say
-                return None  # (not remembered: the variable may change in the process)
             try:
                 _LIBRARY = _build()
             except Exception as err:  # noqa: BLE001 — scikit-sundae runs instead, and the run says why once
@@ -111,9 +110,14 @@ def library():
         return _LIBRARY or None
 
 
+def switched_off() -> bool:
+    """Whether ``PHC_NATIVE_IDA=0`` (or no, false, off) switches the driver off (read at each run)."""
+    return os.environ.get("PHC_NATIVE_IDA", "1").strip().lower() in ("0", "no", "false", "off")
+
+
 def why_not() -> str:
-    """Why the driver is not used in this process ("" when it is, or was not tried)."""
-    return _WHY
+    """Why the driver is not used in this process ("" when it is, was not tried, or is switched off)."""
+    return "" if switched_off() else _WHY
 
 
 def _build():
@@ -149,4 +153,4 @@ def _build():
     return lib
 
 
-__all__ = ["ABI", "FLAGS", "LIBRARIES", "SOURCE", "find_sundials", "library", "why_not"]
+__all__ = ["ABI", "FLAGS", "LIBRARIES", "SOURCE", "find_sundials", "library", "switched_off", "why_not"]

@@ -152,6 +152,10 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
     steps = since_progress = 0
     nfev = njev = 0
     ok, message, interrupted, used_up = True, "integration finished", False, False
+    # the addresses the C loop writes at, taken once (a NumPy array's .ctypes costs microseconds)
+    where = [_ptr(a) for a in (t_out, k, ys, yps, hist, taken_c, cur, y, yp)]
+    stats_where = [_ptr(a) for a in (counts, reals, y_failed, yp_failed)]
+    advance, stats = lib.phc_ida_advance, lib.phc_ida_stats
     start = time.process_time()
     w = create(t0, y0, yp0, choice.order, 0.0)
     try:
@@ -166,11 +170,10 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
                     budget = 1
                 else:
                     budget = min(budget, max(1, CHECK_STEPS - (steps - choice.trial_mark[1])))
-            result = lib.phc_ida_advance(w, _ptr(t_out), nout, _ptr(k), budget, _ptr(ys), _ptr(yps), _ptr(hist),
-                                         _ptr(taken_c), _ptr(cur), _ptr(y), _ptr(yp))
+            result = advance(w, where[0], nout, where[1], budget, *where[2:])
             taken = int(taken_c[0])
             if result < 0:
-                lib.phc_ida_stats(w, _ptr(counts), _ptr(reals), _ptr(y_failed), _ptr(yp_failed))
+                stats(w, *stats_where)
                 why = lib.phc_ida_message(w).decode(errors="replace")
                 return None, (f"IDA failed at t = {float(cur[0]):.6g} (status {int(result)}: {why}); the run was "
                               "repeated through scikit-sundae, whose path diagnoses failures and bridges rank drops")
@@ -197,7 +200,7 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
                     try:
                         after_step(choice, mod, p, t, y, yp, steps=steps, recent=recent, t_end=t_end)
                     except Switch as switch:  # a new IDA at the order phc chose (IDA sets it when made)
-                        lib.phc_ida_stats(w, _ptr(counts), _ptr(reals), _ptr(y_failed), _ptr(yp_failed))
+                        stats(w, *stats_where)
                         nfev, njev = nfev + int(counts[0]), njev + int(counts[1])
                         lib.phc_ida_free(w)
                         w = None
@@ -233,7 +236,7 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
         message = f"interrupted at t = {t_out[k[0] - 1]:.6g}"
     finally:
         if w:
-            lib.phc_ida_stats(w, _ptr(counts), _ptr(reals), _ptr(y_failed), _ptr(yp_failed))
+            stats(w, *stats_where)
             nfev, njev = nfev + int(counts[0]), njev + int(counts[1])
             lib.phc_ida_free(w)
     kk = int(k[0])
