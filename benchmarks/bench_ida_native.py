@@ -57,7 +57,9 @@ def _run(compiled, *, native: bool, monitor: bool, one_chunk: bool = False, **op
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--models", nargs="*", default=MODELS)
+    ap.add_argument("--models", nargs="*", default=MODELS,
+                    help="file names in models/, or paths relative to the repository")
+    ap.add_argument("--rtol", type=float, default=None, help="instead of each model's own (atol = rtol/100)")
     args = ap.parse_args(argv)
     warnings.simplefilter("ignore")
     if c_ida.library() is None:
@@ -66,7 +68,7 @@ def main(argv=None) -> int:
     major, minor = c_ida.library().sundials_version
     print(f"# IDA's cost per step beside SUNDIALS' own work: native driver (SUNDIALS {major}.{minor}) vs "
           "scikit-sundae\n")
-    print(f"Command: `python benchmarks/bench_ida_native.py --repeat {args.repeat}`; CPU seconds of the integration "
+    print(f"Command: `python benchmarks/bench_ida_native.py {' '.join(argv if argv is not None else sys.argv[1:])}`; CPU seconds of the integration "
           f"phase, best of {args.repeat}, C back end.\n")
     print("| model | configuration | steps | residual evaluations | integrate [s] | per step [µs] | "
           "above C [µs/step] |")
@@ -77,12 +79,13 @@ def main(argv=None) -> int:
                ("scikit-sundae, monitor off", dict(native=False, monitor=False)),
                ("scikit-sundae", dict(native=False, monitor=True))]
     for name in args.models:
-        compiled = phc.compile_model(ROOT / "models" / name, backend="c")
+        compiled = phc.compile_model(ROOT / name if "/" in name else ROOT / "models" / name, backend="c")
+        tolerances = {} if args.rtol is None else dict(rtol=args.rtol, atol=args.rtol * 1e-2)
         base = None
         for label, kw in configs:
             best, steps, nfev = None, None, None
             for _ in range(args.repeat):
-                r = _run(compiled, **kw)
+                r = _run(compiled, **kw, **tolerances)
                 cpu = r.timings["integrate"]
                 if best is None or cpu < best:
                     best, steps, nfev = cpu, r.steps, r.n_residual_evals
@@ -92,7 +95,7 @@ def main(argv=None) -> int:
                 print(f"({label}: {steps} steps, the C loop only {base_steps}: not comparable per step)",
                       file=sys.stderr)
             above = (best - base) / steps * 1e6
-            print(f"| {name.removesuffix('.yaml')} | {label} | {steps} | {nfev} | {best:.3f} | "
+            print(f"| {Path(name).stem} | {label} | {steps} | {nfev} | {best:.3f} | "
                   f"{best / steps * 1e6:.1f} | {above:.1f} |")
     return 0
 

@@ -173,10 +173,9 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
             result = advance(w, where[0], nout, where[1], budget, *where[2:])
             taken = int(taken_c[0])
             if result < 0:
-                stats(w, *stats_where)
-                why = lib.phc_ida_message(w).decode(errors="replace")
-                return None, (f"IDA failed at t = {float(cur[0]):.6g} (status {int(result)}: {why}); the run was "
-                              "repeated through scikit-sundae, whose path diagnoses failures and bridges rank drops")
+                # (IDA's own words, lib.phc_ida_message(w), are the scikit-sundae path's to give)
+                return None, ("a run IDA fails on is run again from its start through scikit-sundae, whose path "
+                              "diagnoses failures and bridges rank drops")
             t = float(cur[0])
             if taken:
                 hs = hist[1:2 * taken:2]
@@ -224,8 +223,8 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
             progress(float(t_out[k[0] - 1]))
     except _Stop as stop:
         if not stop.max_steps:  # the monitor's stop: the scikit-sundae path words it and may bridge it
-            return None, ("the singularity monitor stopped the run; it was repeated through scikit-sundae, whose "
-                          "path bridges rank drops")
+            return None, ("a run the singularity monitor stops is run again from its start through scikit-sundae, "
+                          "whose path bridges rank drops")
         ok, message, used_up = False, stop.message, True
         grows = unbounded_growth(mod, *hook.latest(), start=monitor.start, scales=nominal)
         if grows:

@@ -130,7 +130,7 @@ static int jacobian_cb(phc_real t, phc_real cj, N_Vector yy, N_Vector yp, N_Vect
     }
     /* IDA zeroes a matrix-based linear solver's J before calling this: scatter the pattern's entries */
     double *a = SUNDenseMatrix_Data(J);
-    const sunindextype ld = SUNDenseMatrix_LData(J) / SUNDenseMatrix_Columns(J);
+    const sunindextype ld = SUNDenseMatrix_Rows(J);
     for (int64_t k = 0; k < w->njac; ++k)
         a[w->jrows[k] + w->jcols[k] * ld] = w->jbuf[k];
     return 0;
@@ -281,12 +281,12 @@ int64_t phc_ida_advance(struct phc_ida *w, const double *t_out, int64_t nout, in
                         double *ys, double *yps, double *hist, int64_t *steps, double *cur, double *y, double *yp)
 {
     const int64_t n = w->n;
-    const double t_end = t_out[nout - 1];
     int64_t taken = 0, result = PHC_BUDGET;
     phc_real tret = 0.0, hlast = 0.0;
     double *tmp = N_VGetArrayPointer(w->tmp);
     while (taken < budget && k[0] < nout) {
-        int flag = IDASolve(w->mem, t_end, &tret, w->yy, w->yp, IDA_ONE_STEP);
+        /* toward the next output time: IDA's first step is estimated from it, as in IDA_NORMAL mode */
+        int flag = IDASolve(w->mem, t_out[k[0]], &tret, w->yy, w->yp, IDA_ONE_STEP);
         if (flag < 0) {
             result = flag;
             break;
