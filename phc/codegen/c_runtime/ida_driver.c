@@ -9,7 +9,7 @@
  *
  * One call of phc_ida_advance takes up to `budget` of IDA's steps (IDASolve in IDA_ONE_STEP mode, with
  * the run's end as IDA's stop time), writes the outputs at the output times the steps pass (IDA's own
- * interpolation, IDAGetDky, orders 0 and 1: y and y') and each step's end time and size into the
+ * interpolation, IDAGetDky: y and y') and each step's end time and size into the
  * caller's arrays, and returns; the Python side runs phc's singularity monitor, progress, max_steps and
  * its choice of the maximum order between calls. The residual and Jacobian are the model library's
  * phc_residual and phc_jacobian (phc/codegen/c_printer.py), called through function pointers.
@@ -74,7 +74,7 @@ struct phc_ida {
     double cj;                       /* alpha/h of the latest Jacobian */
     SUNContext ctx;
     void *mem;
-    N_Vector yy, yp, id, atol, tmp;
+    N_Vector yy, yp, id, atol, tmp, tmp2;
     SUNMatrix A;
     SUNLinearSolver LS;
     char message[PHC_MESSAGE];       /* IDA's latest error message */
@@ -169,8 +169,8 @@ void phc_ida_free(struct phc_ida *w)
         SUNLinSolFree(w->LS);
     if (w->A != NULL)
         SUNMatDestroy(w->A);
-    N_Vector vs[5] = {w->yy, w->yp, w->id, w->atol, w->tmp};
-    for (int i = 0; i < 5; ++i)
+    N_Vector vs[6] = {w->yy, w->yp, w->id, w->atol, w->tmp, w->tmp2};
+    for (int i = 0; i < 6; ++i)
         if (vs[i] != NULL)
             N_VDestroy(vs[i]);
     if (w->ctx != NULL)
@@ -232,7 +232,8 @@ struct phc_ida *phc_ida_create(int64_t n, int64_t njac, phc_residual_fn residual
     w->id = N_VNew_Serial((sunindextype)n, w->ctx);
     w->atol = N_VNew_Serial((sunindextype)n, w->ctx);
     w->tmp = N_VNew_Serial((sunindextype)n, w->ctx);
-    if (!w->yy || !w->yp || !w->id || !w->atol || !w->tmp)
+    w->tmp2 = N_VNew_Serial((sunindextype)n, w->ctx);
+    if (!w->yy || !w->yp || !w->id || !w->atol || !w->tmp || !w->tmp2)
         goto fail;
     copy_in(w->yy, y0, n);
     copy_in(w->yp, yp0, n);
@@ -283,7 +284,7 @@ int64_t phc_ida_advance(struct phc_ida *w, const double *t_out, int64_t nout, in
     const int64_t n = w->n;
     int64_t taken = 0, result = PHC_BUDGET;
     phc_real tret = 0.0, hlast = 0.0;
-    double *tmp = N_VGetArrayPointer(w->tmp);
+    double *tmp = N_VGetArrayPointer(w->tmp), *tmp2 = N_VGetArrayPointer(w->tmp2);
     while (taken < budget && k[0] < nout) {
         /* toward the next output time: IDA's first step is estimated from it, as in IDA_NORMAL mode */
         int flag = IDASolve(w->mem, t_out[k[0]], &tret, w->yy, w->yp, IDA_ONE_STEP);
@@ -302,10 +303,13 @@ int64_t phc_ida_advance(struct phc_ida *w, const double *t_out, int64_t nout, in
                 memcpy(row, N_VGetArrayPointer(w->yy), (size_t)n * sizeof(double));
                 memcpy(rowp, N_VGetArrayPointer(w->yp), (size_t)n * sizeof(double));
             } else {
+                /* IDA_NORMAL mode interpolates with IDAGetSolution, which no installed header declares (a
+                 * private function): IDAGetDky, IDA's public interpolation, is the same polynomial summed
+                 * in another order (the outputs agree to rounding: 2e-21 on the pendulum's multiplier) */
                 IDAGetDky(w->mem, t_out[k[0]], 0, w->tmp);
+                IDAGetDky(w->mem, t_out[k[0]], 1, w->tmp2);
                 memcpy(row, tmp, (size_t)n * sizeof(double));
-                IDAGetDky(w->mem, t_out[k[0]], 1, w->tmp);
-                memcpy(rowp, tmp, (size_t)n * sizeof(double));
+                memcpy(rowp, tmp2, (size_t)n * sizeof(double));
             }
             k[0] += 1;
         }
