@@ -10,8 +10,11 @@ them) of `--repeat` runs in five configurations:
 * **C loop only**: the native driver in one call (one chunk of all the steps), the singularity
   monitor off, the maximum order fixed at 5 — SUNDIALS' own work and the model's C functions, and
   phc's set-up of the run; the reference the others are measured against;
+* **native in chunks, monitor off, max_order 5**: the driver returning to Python every
+  ``ida_native.CHUNK`` steps, nothing done there: the cost of the chunks themselves;
 * **native, monitor off** / **native**: the native driver as a run uses it (chunks ending at the
-  monitor's looks, phc's choice of the order, progress), without and with the monitor's looks;
+  monitor's looks and where phc's choice of the order looks, which may start IDA again at
+  order 2), without and with the monitor's looks;
 * **scikit-sundae, monitor off** / **scikit-sundae**: ``PHC_NATIVE_IDA=0``, IDA through
   scikit-sundae's Python callbacks (:mod:`phc.simulation.ida`).
 
@@ -74,6 +77,7 @@ def main(argv=None) -> int:
           "above C [µs/step] |")
     print("|---|---|---:|---:|---:|---:|---:|")
     configs = [("C loop only", dict(native=True, monitor=False, one_chunk=True, max_order=5)),
+               ("native in chunks, monitor off, max_order 5", dict(native=True, monitor=False, max_order=5)),
                ("native, monitor off", dict(native=True, monitor=False)),
                ("native", dict(native=True, monitor=True)),
                ("scikit-sundae, monitor off", dict(native=False, monitor=False)),
