@@ -110,7 +110,7 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
     t_out = np.ascontiguousarray(t_out, dtype=float)
     t0, t_end = float(t_out[0]), float(t_out[-1])
     y0 = np.ascontiguousarray(y0, dtype=float)
-    atol, local, atol_j, yp0, choice, settings, calls = run_settings(mod, p, t0, t_end, y0, yp0, options, nominal)
+    atol, _local, _atol_j, yp0, choice, settings, calls = run_settings(mod, p, t0, t_end, y0, yp0, options, nominal)
     yp0 = np.ascontiguousarray(yp0, dtype=float)
     ida_rtol = float(settings["rtol"])
     atol_vec = np.ascontiguousarray(np.broadcast_to(np.asarray(settings["atol"], dtype=float), (n,)))
