@@ -607,7 +607,7 @@ def main(argv=None):
     ap.add_argument("--part", default="ab")
     ap.add_argument("--methods", default="Radau,LSODA", help="solve_ivp methods of (a), e.g. Radau,LSODA,BDF")
     ap.add_argument("--backends", default="numpy,numba",
-                    help="code backends of the phc rows (numba where it is installed)")
+                    help="code backends of the phc rows (numba where it is installed, c where a C compiler is)")
     ap.add_argument("--solvers", default=None,
                     help="only these phc solvers, e.g. ida (the peers run as always); default: all")
     ap.add_argument("--baseline", default=None,
@@ -624,7 +624,10 @@ def main(argv=None):
     from phc.codegen.numba_backend import available
 
     CLOCK = time.process_time if args.clock == "cpu" else time.perf_counter
-    BACKENDS = [b for b in args.backends.split(",") if b == "numpy" or (b == "numba" and available()[0])]
+    from phc.codegen.c_backend import available as c_available
+
+    BACKENDS = [b for b in args.backends.split(",") if b == "numpy" or (b == "numba" and available()[0])
+                or (b == "c" and c_available()[0])]
     SOLVERS = set(args.solvers.split(",")) if args.solvers else None
     args.out.parent.mkdir(parents=True, exist_ok=True)
     sys.stdout = _Tee(args.out)

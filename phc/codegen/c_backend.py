@@ -122,9 +122,10 @@ class CReport:
         return f"{what} in {self.seconds:.2f} s with {self.compiler}{note}"
 
 
-def library_digest(text: str, argv: list[str], identity: str, flags: tuple = FLAGS) -> str:
+def library_digest(text: str, argv: list[str], identity: str, flags: tuple = FLAGS, libs: tuple = ()) -> str:
     """The name of a library in the cache: the SHA-256 of everything that determines it."""
-    material = "\0".join((text, " ".join(argv), identity, " ".join(tuple(flags) + LIBS), __version__, str(ABI),
+    material = "\0".join((text, " ".join(argv), identity, " ".join(tuple(flags) + LIBS + tuple(libs)), __version__,
+                          str(ABI),
                           platform.machine(), sys.platform))
     return hashlib.sha256(material.encode()).hexdigest()[:24]
 
@@ -143,7 +144,8 @@ def _cpu() -> float:
 # ---------------------------------------------------------------------------------------
 # compiling, the signed cache, loading
 
-def _compile(text: str, argv: list[str], digest: str, parent: Optional[Path], flags: tuple = FLAGS) -> bytes:
+def _compile(text: str, argv: list[str], digest: str, parent: Optional[Path], flags: tuple = FLAGS,
+             libs: tuple = ()) -> bytes:
     """The bytes of the shared library compiled from `text` with `flags` (in a private temporary
     directory, inside `parent` when given); a failing compiler is one :class:`CodegenError`
     (:func:`phc.codegen.cc.compile_library`)."""
@@ -151,7 +153,7 @@ def _compile(text: str, argv: list[str], digest: str, parent: Optional[Path], fl
     try:
         src, lib = work / f"phc_c_{digest}.c", work / f"phc_c_{digest}.so"
         src.write_text(text, encoding="utf-8")
-        compile_library(argv, flags, [src], lib, cwd=work, timeout=COMPILE_TIMEOUT, libs=LIBS)
+        compile_library(argv, flags, [src], lib, cwd=work, timeout=COMPILE_TIMEOUT, libs=tuple(libs) + LIBS)
         return lib.read_bytes()
     finally:
         shutil.rmtree(work, ignore_errors=True)
@@ -227,7 +229,7 @@ _LOADED: dict[str, ctypes.CDLL] = {}
 
 
 def _obtain(text: str, argv: list[str], digest: str, cache: bool,
-            flags: tuple = FLAGS) -> tuple[ctypes.CDLL, str, str]:
+            flags: tuple = FLAGS, libs: tuple = ()) -> tuple[ctypes.CDLL, str, str]:
     """(library, state, note) for `text` (compiled with `flags`, which `digest` covers): from this
     process, the signed cache, or the compiler."""
     lib = _LOADED.get(digest)
@@ -247,7 +249,7 @@ def _obtain(text: str, argv: list[str], digest: str, cache: bool,
     if data is not None:
         state = "warm"
     else:
-        data = _compile(text, argv, digest, folder, flags)
+        data = _compile(text, argv, digest, folder, flags, libs)
         state = "cold" if folder is not None else "off"
         if folder is not None:
             _store(folder, digest, key, data, text)
@@ -261,15 +263,15 @@ def _cache_on() -> bool:
     return os.environ.get("PHC_COMPILED_CACHE", "1").strip().lower() not in ("0", "no", "false", "off")
 
 
-def runtime_library(text: str, flags: tuple) -> tuple[Optional[ctypes.CDLL], str]:
-    """(the library, "") of phc's own C text `text` (the step loop, the call bridge) compiled
-    with `flags`: from this process, the signed cache or the compiler, as a model's library;
+def runtime_library(text: str, flags: tuple, libs: tuple = ()) -> tuple[Optional[ctypes.CDLL], str]:
+    """(the library, "") of phc's own C text `text` (the step loop, the call bridge, the IDA
+    driver) compiled with `flags` and linked with `libs` (before ``-lm``): from this process, the signed cache or the compiler, as a model's library;
     (None, why) when no C compiler is found. A compiler that fails raises
     :class:`CodegenError`."""
     argv, identity = find_compiler()
     if argv is None:
         return None, identity
-    lib, _, _ = _obtain(text, argv, library_digest(text, argv, identity, flags), _cache_on(), flags)
+    lib, _, _ = _obtain(text, argv, library_digest(text, argv, identity, flags, libs), _cache_on(), flags, libs)
     return lib, ""
 
 

@@ -23,6 +23,7 @@ from phc.simulation.guard import CATCH as GUARD_CATCH
 from phc.simulation.guard import ModelEvaluationError, guard, quiet_floating_point
 from phc.simulation.events import breakpoints_within, has_switches, integrate_switched, piece_grid, piece_outputs
 from phc.simulation.ida import MAX_ORDER, applied_atol, integrate_ida
+from phc.simulation import ida_native
 from phc.simulation.initial import InitialResult, consistent_initial_conditions
 from phc.simulation.monitor import describe_equations, many_steps_hint
 from phc.simulation.order import carry as carry_order
@@ -51,7 +52,8 @@ integrate_midpoint4 = _deferred("phc.simulation.midpoint4", "integrate_midpoint4
 _VARIABLE = frozenset({"rtol", "atol", "max_steps", "max_order"})
 _FIXED = frozenset({"step", "max_steps"})
 BACKENDS: dict[str, Backend] = {b.name: b for b in (
-    Backend("ida", integrate_ida, _VARIABLE, False, "SUNDIALS IDA: variable-order, variable-step BDF"),
+    # on the C back end, the native driver where it can (phc.simulation.ida_native), else scikit-sundae
+    Backend("ida", ida_native.integrate, _VARIABLE, False, "SUNDIALS IDA: variable-order, variable-step BDF"),
     Backend("midpoint", integrate_midpoint, _FIXED, True, "implicit midpoint: order 2, energy-exact for quadratic H"),
     Backend("discrete_gradient", integrate_discrete_gradient, _FIXED, True,
             "discrete gradient: order 2, energy-exact for any H"),

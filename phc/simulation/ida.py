@@ -557,6 +557,36 @@ class _StepHook:
         self.last_ratio = ratio
 
 
+def run_settings(mod, p, t0: float, t_end: float, y0, yp0, options, nominal=None):
+    """(atol applied, local fraction, IDA's atol vector, ẏ0, OrderChoice, scikit-sundae's keywords, callback
+    state): what IDA runs with, here and in the native driver (:mod:`phc.simulation.ida_native`)."""
+    rtol = float(options.rtol)
+    atol = applied_atol(rtol, float(options.atol))
+    # the user's max_order, else phc's choice: IDA's default, and 2 where undamped modes hold its steps
+    choice = OrderChoice.fixed(options.max_order) if options.max_order else OrderChoice(order=MAX_ORDER)
+    max_order = choice.order
+    # `nominal`: the variables' nominal scales (phc.simulation.scaling); atol is relative to them.
+    # IDA's local tolerances are 1/200 of what the outputs should meet (local_fraction).
+    determined = determined_algebraic(mod, p, t0, y0, np.asarray(yp0, dtype=float))
+    # the states' scales as far as the requested outputs and the energy need them (promise_scales)
+    promised = nominal
+    if nominal is not None:
+        promised = promise_scales(mod, p, t0, y0, np.asarray(yp0, dtype=float), nominal)
+    # an index-1 variable is tested no tighter than its states' tolerances determine it
+    tested_scales = determined_scales(mod, p, t0, y0, np.asarray(yp0, dtype=float), determined, promised, rtol, atol,
+                                      t_end - t0)
+    if tested_scales is None:
+        tested_scales = promised
+    local = local_fraction(rtol)
+    atol_j = (atol if tested_scales is None else atol * np.asarray(tested_scales, dtype=float)) * local
+    if nominal is not None:  # the promise is about the outputs and the energy (promised_atol)
+        atol_j = promised_atol(atol_j, rtol * local, nominal, promised)
+    yp0 = algebraic_rates(mod, p, t0, y0, yp0, determined)
+    settings, calls = solver_options(mod, p, rtol=rtol * local, atol=atol_j, max_order=max_order,
+                                     determined=determined)  # scikit-sundae's keywords
+    return atol, local, atol_j, yp0, choice, settings, calls
+
+
 def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None, events=None,
                   nominal=None) -> BackendRun:
     """Integrate from ``t_out[0]`` with the `rtol`, `atol`, `max_order` and `max_steps` of
@@ -578,32 +608,11 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
     IDA = _import_ida()
     n = mod.N
     rtol, max_steps = float(options.rtol), int(options.max_steps)
-    atol = applied_atol(rtol, float(options.atol))
-    # the user's max_order, else phc's choice: IDA's default, and 2 where undamped modes hold its steps
-    choice = OrderChoice.fixed(options.max_order) if options.max_order else OrderChoice(order=MAX_ORDER)
-    max_order = choice.order
     t_out = np.asarray(t_out, dtype=float)
     t0, t_end = float(t_out[0]), float(t_out[-1])
     y0 = np.asarray(y0, dtype=float)
-    # `nominal`: the variables' nominal scales (phc.simulation.scaling); atol is relative to them.
-    # IDA's local tolerances are 1/200 of what the outputs should meet (local_fraction).
-    determined = determined_algebraic(mod, p, t0, y0, np.asarray(yp0, dtype=float))
-    # the states' scales as far as the requested outputs and the energy need them (promise_scales)
-    promised = nominal
-    if nominal is not None:
-        promised = promise_scales(mod, p, t0, y0, np.asarray(yp0, dtype=float), nominal)
-    # an index-1 variable is tested no tighter than its states' tolerances determine it
-    tested_scales = determined_scales(mod, p, t0, y0, np.asarray(yp0, dtype=float), determined, promised, rtol, atol,
-                                      t_end - t0)
-    if tested_scales is None:
-        tested_scales = promised
-    local = local_fraction(rtol)
-    atol_j = (atol if tested_scales is None else atol * np.asarray(tested_scales, dtype=float)) * local
-    if nominal is not None:  # the promise is about the outputs and the energy (promised_atol)
-        atol_j = promised_atol(atol_j, rtol * local, nominal, promised)
-    yp0 = algebraic_rates(mod, p, t0, y0, yp0, determined)
-    settings, calls = solver_options(mod, p, rtol=rtol * local, atol=atol_j, max_order=max_order,
-                                     determined=determined)  # scikit-sundae's keywords
+    atol, local, atol_j, yp0, choice, settings, calls = run_settings(mod, p, t0, t_end, y0, yp0, options, nominal)
+    max_order = choice.order
     resfn = settings.pop("resfn")
     monitor = SingularityMonitor(mod, p, names=names, scales=nominal)
     monitor.h_floor = 1e-6 * (t_end - t0)

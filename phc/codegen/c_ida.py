@@ -1,0 +1,156 @@
+"""phc's native IDA driver: ``c_runtime/ida_driver.c`` built against the machine's SUNDIALS.
+
+A run on the C back end (:mod:`phc.codegen.c_backend`) can have IDA call the model's compiled
+residual and Jacobian directly, in C, and take its steps in a C loop
+(:mod:`phc.simulation.ida_native` runs it). This module finds SUNDIALS (:func:`find_sundials`),
+builds the driver once per machine, SUNDIALS and phc version (phc's signed cache of compiled
+code, as the C step loop's library: :func:`phc.codegen.c_backend.runtime_library`), and says
+why it cannot when it cannot (:func:`library` returns None, :func:`why_not` the reason).
+
+SUNDIALS is the machine's own, reached through its public C API (headers and shared libraries;
+version 6 or 7, in double precision): Debian/Ubuntu ``apt install libsundials-dev``,
+conda-forge ``sundials``, Homebrew ``sundials``. scikit-sundae's copy inside its wheel is not
+used (its libraries' names are its private packaging). Where SUNDIALS is looked for, in order:
+``$SUNDIALS_DIR``, ``$CONDA_PREFIX``, the prefix ``pkg-config`` gives for ``sundials_ida``,
+``/usr/local``, ``/usr``, ``/opt/homebrew``, ``/usr/local/opt/sundials``: the first prefix with
+``include/ida/ida.h`` and ``libsundials_ida`` in ``lib``, ``lib64`` or the platform's
+multiarch directory.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import shutil
+import subprocess
+import sys
+import sysconfig
+import threading
+from pathlib import Path
+from typing import Optional
+
+SOURCE = Path(__file__).resolve().parent / "c_runtime" / "ida_driver.c"
+"""The driver's C text (shipped in the package)."""
+
+ABI = 1
+"""``PHC_IDA_ABI`` of the ida_driver.c this module binds."""
+
+FLAGS = ("-std=c99", "-O2", "-fPIC", "-shared", "-ffp-contract=off")
+"""The driver's flags (before SUNDIALS' ``-I``): it is glue around IDA's own code, which SUNDIALS'
+build compiled."""
+
+LIBRARIES = ("sundials_ida", "sundials_sunlinsoldense", "sundials_sunmatrixdense", "sundials_nvecserial")
+"""SUNDIALS' libraries the driver links (and ``sundials_core`` where it exists: SUNDIALS 7)."""
+
+_LOCK = threading.Lock()
+_LIBRARY = None
+"""The loaded driver once built; False when it cannot be built here (:data:`_WHY` says why)."""
+_WHY = ""
+
+
+def _prefixes() -> list[Path]:
+    found = []
+    for var in ("SUNDIALS_DIR", "CONDA_PREFIX"):
+        if os.environ.get(var):
+            found.append(Path(os.environ[var]))
+    if shutil.which("pkg-config"):
+        try:
+            done = subprocess.run(["pkg-config", "--variable=prefix", "sundials_ida"], capture_output=True, text=True,
+                                  timeout=30, stdin=subprocess.DEVNULL)
+            if done.returncode == 0 and done.stdout.strip():
+                found.append(Path(done.stdout.strip()))
+        except (OSError, subprocess.SubprocessError):
+            pass
+    found += [Path("/usr/local"), Path("/usr"), Path("/opt/homebrew"), Path("/usr/local/opt/sundials")]
+    return found
+
+
+def _lib_dirs(prefix: Path) -> list[Path]:
+    dirs = [prefix / "lib", prefix / "lib64"]
+    multiarch = sysconfig.get_config_var("MULTIARCH")
+    if multiarch:
+        dirs.insert(0, prefix / "lib" / multiarch)
+    return dirs
+
+
+def _has(folder: Path, name: str) -> bool:
+    suffix = ".dylib" if sys.platform == "darwin" else ".so"
+    return (folder / f"lib{name}{suffix}").exists()
+
+
+def find_sundials() -> tuple[Optional[tuple[Path, Path, tuple[str, ...]]], str]:
+    """((include dir, library dir, the libraries to link), "") of the first SUNDIALS found
+    (see the module docstring), else (None, why none was found)."""
+    for prefix in _prefixes():
+        include = prefix / "include"
+        if not (include / "ida" / "ida.h").exists():
+            continue
+        for folder in _lib_dirs(prefix):
+            if all(_has(folder, name) for name in LIBRARIES):
+                names = LIBRARIES + (("sundials_core",) if _has(folder, "sundials_core") else ())
+                return (include, folder, names), ""
+    return None, ("SUNDIALS' headers and libraries were not found (looked in $SUNDIALS_DIR, $CONDA_PREFIX, "
+                  "pkg-config's sundials_ida, /usr/local, /usr, Homebrew); install them (`apt install "
+                  "libsundials-dev`, `conda install -c conda-forge sundials`, `brew install sundials`) or set "
+                  "$SUNDIALS_DIR")
+
+
+def library():
+    """The driver's library (built, or loaded from phc's signed cache, once per process), or None
+    when it cannot be built here (:func:`why_not`)."""
+    global _LIBRARY, _WHY
+    if switched_off():
+        return None
+    with _LOCK:
+        if _LIBRARY is None:
+            try:
+                _LIBRARY = _build()
+            except Exception as err:  # noqa: BLE001 — scikit-sundae runs instead, and the run says why once
+                _LIBRARY, _WHY = False, f"{type(err).__name__}: {err}"
+        return _LIBRARY or None
+
+
+def switched_off() -> bool:
+    """Whether ``PHC_NATIVE_IDA=0`` (or no, false, off) switches the driver off (read at each run)."""
+    return os.environ.get("PHC_NATIVE_IDA", "1").strip().lower() in ("0", "no", "false", "off")
+
+
+def why_not() -> str:
+    """Why the driver is not used in this process ("" when it is, was not tried, or is switched off)."""
+    return "" if switched_off() else _WHY
+
+
+def _build():
+    global _WHY
+    from phc.codegen import c_backend
+
+    found, why = find_sundials()
+    if found is None:
+        _WHY = why
+        return False
+    include, folder, names = found
+    flags = FLAGS + (f"-I{include}",)
+    libs = (f"-L{folder}", f"-Wl,-rpath,{folder}") + tuple(f"-l{name}" for name in names)
+    lib, why = c_backend.runtime_library(SOURCE.read_text(encoding="utf-8"), flags, libs)
+    if lib is None:
+        _WHY = why
+        return False
+    version = (ctypes.c_int64 * 4)()
+    lib.phc_ida_version.argtypes, lib.phc_ida_version.restype = [ctypes.c_void_p], None
+    lib.phc_ida_version(ctypes.addressof(version))
+    if version[0] != ABI:
+        _WHY = "ida_driver.c was written for another interface (a phc bug: please report it)"
+        return False
+    P, I, D = ctypes.c_void_p, ctypes.c_int64, ctypes.c_double
+    lib.phc_ida_create.argtypes = [I, I, P, P, P, P, P, D, P, P, D, P, P, I, D, D, I, P]
+    lib.phc_ida_create.restype = P
+    lib.phc_ida_free.argtypes, lib.phc_ida_free.restype = [P], None
+    lib.phc_ida_advance.argtypes = [P, P, I, P, I, P, P, P, P, P, P, P]
+    lib.phc_ida_advance.restype = I
+    lib.phc_ida_stats.argtypes, lib.phc_ida_stats.restype = [P, P, P, P, P], None
+    lib.phc_ida_message.argtypes, lib.phc_ida_message.restype = [P], ctypes.c_char_p
+    lib.sundials_version = (int(version[1]), int(version[2]))
+    return lib
+
+
+__all__ = ["ABI", "FLAGS", "LIBRARIES", "SOURCE", "find_sundials", "library", "switched_off", "why_not"]
