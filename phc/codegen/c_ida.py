@@ -153,4 +153,17 @@ def _build():
     return lib
 
 
-__all__ = ["ABI", "FLAGS", "LIBRARIES", "SOURCE", "find_sundials", "library", "switched_off", "why_not"]
+def address(a) -> int:
+    """Where a contiguous NumPy array's data lies: what the driver's functions take for an array."""
+    return a.ctypes.data
+
+
+def model_functions(model_library) -> tuple[int, int]:
+    """The addresses of a model library's ``phc_residual`` and ``phc_jacobian`` (a library of
+    :mod:`phc.codegen.c_backend`): what ``phc_ida_create`` calls."""
+    return (ctypes.cast(model_library.phc_residual, ctypes.c_void_p).value,
+            ctypes.cast(model_library.phc_jacobian, ctypes.c_void_p).value)
+
+
+__all__ = ["ABI", "FLAGS", "LIBRARIES", "SOURCE", "address", "find_sundials", "library", "model_functions",
+           "switched_off", "why_not"]

@@ -27,7 +27,6 @@ scikit-sundae, whose path diagnoses failures and bridges rank drops
 
 from __future__ import annotations
 
-import ctypes
 import time
 import warnings
 from collections import deque
@@ -92,13 +91,6 @@ def integrate(mod, p, t_out, y0, yp0, options, *, progress=None, names=None, eve
                          nominal=nominal)
 
 
-_P = ctypes.c_void_p
-
-
-def _ptr(a: np.ndarray) -> int:
-    return a.ctypes.data
-
-
 def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
     """(the run, "") through the C driver, or (None, why it handed the run to scikit-sundae)."""
     from phc.codegen import c_ida
@@ -119,8 +111,8 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
     pv = np.ascontiguousarray(p, dtype=float)
     jrows = np.ascontiguousarray(raw.JAC_ROWS, dtype=np.int64)
     jcols = np.ascontiguousarray(raw.JAC_COLS, dtype=np.int64)
-    residual = ctypes.cast(raw.C_LIBRARY.phc_residual, _P).value
-    jacobian = ctypes.cast(raw.C_LIBRARY.phc_jacobian, _P).value
+    residual, jacobian = c_ida.model_functions(raw.C_LIBRARY)
+    _ptr = c_ida.address
 
     monitor = SingularityMonitor(mod, p, names=names, scales=nominal)
     monitor.h_floor = 1e-6 * (t_end - t0)
@@ -152,7 +144,7 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
     steps = since_progress = 0
     nfev = njev = 0
     ok, message, interrupted, used_up = True, "integration finished", False, False
-    # the addresses the C loop writes at, taken once (a NumPy array's .ctypes costs microseconds)
+    # the addresses the C loop writes at, taken once (finding an array's address costs microseconds)
     where = [_ptr(a) for a in (t_out, k, ys, yps, hist, taken_c, cur, y, yp)]
     stats_where = [_ptr(a) for a in (counts, reals, y_failed, yp_failed)]
     advance, stats = lib.phc_ida_advance, lib.phc_ida_stats
