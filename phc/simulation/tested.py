@@ -86,7 +86,25 @@ def determined_algebraic(mod, p, t, y, yp) -> np.ndarray:
             if c2 >= 0 and not seen[c2]:
                 seen[c2] = True
                 stack.append(c2)
-    out[alg_cols[~seen]] = True
+    # a variable its row determines from an undetermined one (a sliding friction force
+    # λ_t = −μσλ, λ a contact's force) inherits that one's index: not determined
+    determined = ~seen & (row_of >= 0)
+    alg_set = ~diff
+    alg_set[list(untested)] = True  # (GGL multipliers and contact forces are algebraic)
+    free = np.zeros(n, dtype=bool)
+    free[alg_set] = True
+    free[alg_cols[determined]] = False
+    row_y = sps.csr_matrix((np.ones(int(nonzero_y.sum())), (rows[nonzero_y], cols[nonzero_y])), shape=(m, n))
+    changed = True
+    while changed:
+        changed = False
+        for i in np.flatnonzero(determined):
+            r = alg_rows[row_of[i]]
+            if free[row_y.indices[row_y.indptr[r]:row_y.indptr[r + 1]]].any():
+                determined[i] = False
+                free[alg_cols[i]] = True
+                changed = True
+    out[alg_cols[determined]] = True
     return out
 
 
