@@ -127,7 +127,8 @@ def _stick(watch, i: int, t, y, restart, events, sliding: bool = False):
     `sliding`: the contact slides now (its σ v_t fell through zero); sliding on the same way
     is then no switch and no event — where it began to slip from sticking its slip rate grows
     from 0 with zero slope (λ_t is continuous there), and IDA's root finding sees round-off
-    of v_t cross zero until it has grown (the sleeve of models/woodpecker.yaml under IDA: 8 such trials within 5e-10 s)."""
+    of v_t cross zero until it has grown (the sleeve of models/woodpecker.yaml under IDA:
+    8 such trials within 5e-10 s)."""
     f = watch.contacts.friction
     name = watch.contacts.names[f.contact[i]]
     sigma = watch.p[f.mode[i]]
@@ -183,7 +184,7 @@ def on_event(watch, j: int, t, y, yp, events, dif, energy):
     k = f.contact[i]
     if not watch.contacts.closed(k, watch.p):
         return y, yp
-    watch.handled.append((t, watch.contacts.names[k], "contact"))
+    watch.handled.append((t, watch.contacts.names[k], "friction"))  # (the chatter test's message)
     if watch.p[f.mode[i]] != 0:
         return _stick(watch, i, t, y, restart, events, sliding=True)
     sigma = -1.0 if j % 2 == 0 else 1.0  # λ_t reached +μλ: it slides the negative way

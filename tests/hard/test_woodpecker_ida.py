@@ -79,3 +79,16 @@ def test_ida_runs_the_first_cycle_like_midpoint4(compiled):
     # the energy balance H(t) − H(0) + E(t) = 0 (E the friction's and the impacts' losses): BDF's
     # own error at rtol 1e-8, relative to the energy's scale
     assert ida.energy_balance_relative < 1e-7
+
+
+def test_friction_chatter_is_named_as_such():
+    """A contact whose friction alternates between sticking and sliding is told apart from one
+    whose gap and force chatter (impacts, closing, opening): the message names the friction."""
+    from phc.simulation.events import CHATTER_COUNT, _chatter
+
+    times = [0.2 + 1e-12 * i for i in range(CHATTER_COUNT)]
+    friction = _chatter([(t, "edge_down", "friction") for t in times], 0.3)
+    assert friction is not None and "friction at contact `edge_down`" in friction
+    assert "sticking and sliding" in friction and "gap" not in friction
+    contact = _chatter([(t, "edge_down", "contact") for t in times], 0.3)
+    assert contact is not None and "neither its gap nor its force" in contact
