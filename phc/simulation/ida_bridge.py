@@ -37,6 +37,7 @@ the window (docs/hard-cases.md has the measured figures).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Optional
 
@@ -174,6 +175,8 @@ class Bridge:
     t_lowest: float = 0.0
     y_lowest: Optional[np.ndarray] = None
     """Where the conditioning was lowest among the looks (the configuration the run reports)."""
+    ratio_lowest: float = math.inf
+    """The lowest conditioning itself (σ_min/σ_max at IDA's step)."""
 
 
 def configuration(mod) -> np.ndarray:
@@ -207,7 +210,7 @@ def bridge(mod, p, start, t_out, first: int, h: float, *, names=None, nominal=No
         out.message = f"the bridge could not look at its start: {err}"
         return out
     lowest, rising = r_start, False
-    out.t_lowest, out.y_lowest = t, y
+    out.t_lowest, out.y_lowest, out.ratio_lowest = t, y, r_start
     advance = midpoint_advance(mod, p, nominal)
     advance.stage.restart_near = True  # the least-norm retry from a stagnated iterate, as `midpoint` runs
     j = first
@@ -244,7 +247,7 @@ def bridge(mod, p, start, t_out, first: int, h: float, *, names=None, nominal=No
             r = 0.0
         rising = rising or r > lowest
         if r < lowest:
-            lowest, out.t_lowest, out.y_lowest = r, t, y
+            lowest, out.t_lowest, out.y_lowest, out.ratio_lowest = r, t, y, r
         if rising and r >= RECOVERY * r_start and t >= float(start[0]) + min_length \
                 and t - out.t_lowest >= max(out.t_lowest - float(start[0]), MIN_STEPS * h * (1 - 1e-9)):
             break
@@ -312,6 +315,7 @@ class Bridges:
         self.last_outputs: tuple = ([], [], [])
         self._last_end: Optional[float] = None
         self._last_length = 0.0
+        self._last_lowest = math.inf  # the last passage's lowest conditioning (_same_passage)
         self._in_a_row = 0
         self._origin, self._streak = None, 0
         self.h_ida = 0.0
@@ -324,6 +328,7 @@ class Bridges:
     def forget(self) -> None:
         """The run starts again from its start (another maximum order): no bridge was taken."""
         self.records, self._last_end, self._in_a_row = [], None, 0
+        self._last_lowest = math.inf
 
     def restarted_at(self, t: float) -> bool:
         """Whether `t` (IDA's last normal state) is the last bridge's end: IDA took no normal step
@@ -424,32 +429,41 @@ class Bridges:
                       ", ".join(culprits))
         held = [j for j in configuration(self.mod) if self.mod.VARIABLES[j] != "energy.supplied"]
         shown = ", ".join(f"{self.mod.VARIABLES[j]} = {done.y_lowest[j]:.6g}" for j in held[:4])
-        if self._same_passage(t_n, done.t_lowest):  # one passage, reported once
+        same = self._same_passage(t_n, done.t_lowest, done.ratio_lowest)
+        if same:  # one passage, reported once
             last = self.records[-1]
-            if last[0] is None or last[5] > last[2]:
-                # the last bridge located the singular instant (a minimum inside), or was merged into
-                # one before it that did: that event
+            if last[0] is None or last[5] > last[2] or done.ratio_lowest >= self._last_lowest:
+                # the last bridge located the singular instant (a minimum inside, or conditioned
+                # lower than this one), or was merged into one before it that did: that event
                 event = None
             else:  # it ended short of the instant: this one's (the last's kept, should this be retried)
                 self.records[-1] = (None, *last[1:6], last[0])
         self.records.append((event, shown + (", …" if len(held) > 4 else ""), t_n, done.t_end, done.steps,
                              done.t_lowest, None))
         self._last_start, self._last_end, self._last_length = (t_n, y_n, yp_n), done.t_end, done.t_end - t_n
+        self._last_lowest = min(done.ratio_lowest, self._last_lowest) if same else done.ratio_lowest
         return k_next, done.t_end, done.y_end, done.yp_end
 
-    def _same_passage(self, t_start: float, t_lowest: float) -> bool:
-        """Whether a bridge from `t_start`, its conditioning lowest at `t_lowest`, takes the passage
-        the last bridge took: it saw no minimum of the conditioning (lowest at its start: the
-        singular instant is behind it or at its start, where IDA failed again on its way out), and
-        IDA failed again within :data:`SAME_PASSAGE` times the last bridge's length after it. On the
-        N = 1 four-bar at the model's tolerances two of the ten passes were bridged twice so (IDA
-        failing again 1.5 and 1.9 bridge lengths after bridges that ended 2.4e-3 s before the
-        singular instant), and each was reported twice; the passes are 0.5 s, some 500 such
-        lengths, apart, and a bridge towards the next one sees its minimum."""
-        if not self.records or t_lowest > t_start:
+    def _same_passage(self, t_start: float, t_lowest: float, ratio_lowest: float = math.inf) -> bool:
+        """Whether a bridge from `t_start`, its conditioning lowest at `t_lowest` (`ratio_lowest`
+        there), takes the passage the last bridge took: IDA failed again within
+        :data:`SAME_PASSAGE` times the last bridge's length after it, and the bridge saw no
+        minimum of the conditioning (lowest at its start: the singular instant is behind it or
+        at its start, where IDA failed again on its way out) or none below the last bridge's
+        lowest (a wobble on the passage's flank, not a rank drop of its own). On the N = 1
+        four-bar at the model's tolerances two of the ten passes were bridged twice the first
+        way (IDA failing again 1.5 and 1.9 bridge lengths after bridges that ended 2.4e-3 s
+        before the singular instant); at rtol = atol = 2e-9 one pass the second way (a bridge
+        from the last one's end at t = 6.4809, its conditioning 2.7e-8 at its lowest, the last
+        one's 4.8e-9 at the singular instant 6.4790), and each was reported twice; the passes
+        are 0.5 s, some 100 such lengths, apart, and a bridge towards the next one sees its
+        own minimum."""
+        if not self.records:
             return False
         _, _, t0, t1, *_ = self.records[-1]
-        return 0.0 <= t_start - t1 <= SAME_PASSAGE * (t1 - t0)
+        if not 0.0 <= t_start - t1 <= SAME_PASSAGE * (t1 - t0):
+            return False
+        return t_lowest <= t_start or ratio_lowest >= self._last_lowest
 
     def _dependent(self, t, y, yp, h):
         """(constraint rows, connections) that become dependent near (t, y, ẏ): the left singular
