@@ -15,15 +15,19 @@ would reach the threshold (but never more often than the base cadence), and with
 :data:`NEAR_DECADES` of the threshold at the base cadence, whatever a look costs. The threshold
 itself (what a look decides) does not change; only when looks happen.
 
-The work is counted, not timed (issue 38/34): floating-point operations of the look's own
-factorization and solves (a sparse LU's from its factors' nonzeros, :func:`sparse_lu_flops`; a
-dense one's from N), and of IDA's steps from IDA's counters — its residual evaluations (each a
-Newton iteration: a residual and a solve with the factors), its Jacobian evaluations (each a
-factorization), its steps — weighed by a fixed work model in nominal nanoseconds (a call through
-Python, a nonzero of a factor; :func:`integration_work`, :class:`LookWork`). The cadence is a function of the run's own counters:
-the same run looks at the same steps on any machine and under any load (when it was timed, the
-N = 1 four-bar at rtol = atol = 1e-6 looked at other steps on a busy machine, which moved its
-bridges and IDA's error from 6.2e-5 to 2.1e-4 rad, so the timed cadence was kept to sparse looks).
+The work is counted, not timed (issue 38/34). A look's work comes from what it did: a sparse
+look's from its matrix's nonzeros, its LU's (:func:`sparse_lu_flops`, the factors' nonzeros) and
+the solves and products it made; a dense look's from N. IDA's work between two looks comes from
+IDA's own counters: its residual evaluations (each a Newton iteration: a residual and a solve with
+the factors), its Jacobian evaluations (each a factorization, of the fill the monitor's LU of the
+same matrix found) and its steps. Both are weighed by a fixed work model in nominal nanoseconds
+(:class:`LookWork`, :func:`integration_work`), so the cadence is a function of the run's own
+counters: the same run looks at the same steps on any machine and under any load. The timed
+cadence did not: on a busy machine a slow look made the next ones rarer (on the N = 1 four-bar at
+rtol = atol = 1e-6 a stretched cadence moved the bridges and IDA's error from 6.2e-5 to 2.1e-4
+rad). The work bound still applies to sparse looks only (above the monitor's ``DENSE_SIZE``): a
+dense look weighs one or two of IDA's steps, and stretching the base cadence of 10 there moved
+that run's bridges as well.
 """
 
 from __future__ import annotations
