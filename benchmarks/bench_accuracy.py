@@ -23,6 +23,7 @@ import argparse
 import sys
 import time
 import warnings
+from contextlib import redirect_stdout
 from pathlib import Path
 
 import numpy as np
@@ -86,13 +87,16 @@ def main(argv=None) -> int:
             print(f"| {path.stem} | {NOT_MEASURED[path.stem]} | | | | | | | | |", flush=True)
             continue
         compiled = phc.compile_model(path, certify=False)
-        t0 = time.perf_counter()
-        run = phc.simulate(compiled, solver="ida", rtol=args.tol, atol=args.tol, max_steps=args.max_steps)
-        elapsed = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        old = _as_is(compiled, solver="ida", rtol=args.tol, atol=args.tol, max_steps=args.max_steps)
-        elapsed_old = time.perf_counter() - t0
-        ref = phc.simulate(compiled, solver="ida", rtol=args.ref, atol=args.ref, max_steps=args.max_steps)
+        # scikit-sundae prints SUNDIALS' failure lines ("[IDAHandleFailure, Error: -4] ...") with
+        # print(): to stderr, so that the table on stdout (the results file) holds only the table
+        with redirect_stdout(sys.stderr):
+            t0 = time.perf_counter()
+            run = phc.simulate(compiled, solver="ida", rtol=args.tol, atol=args.tol, max_steps=args.max_steps)
+            elapsed = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            old = _as_is(compiled, solver="ida", rtol=args.tol, atol=args.tol, max_steps=args.max_steps)
+            elapsed_old = time.perf_counter() - t0
+            ref = phc.simulate(compiled, solver="ida", rtol=args.ref, atol=args.ref, max_steps=args.max_steps)
         name, err = _worst(run, ref)
         name_old, err_old = _worst(old, ref)
         reached = "end" if ref.success else f"t = {ref.t[-1]:.4g} of {run.t[-1]:.4g}"

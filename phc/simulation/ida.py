@@ -40,7 +40,7 @@ from phc.simulation.guard import CATCH, GuardedModule, ModelEvaluationError
 from phc.simulation.ida_bridge import NEAR_DROP, Bridges, near_rank_drop
 from phc.simulation.scaling import promise_scales
 from phc.simulation.monitor import DENSE_SIZE, SingularityMonitor, check_scales, diagnose_failure, unbounded_growth
-from phc.simulation.look_cadence import FAR_RATIO, LookBudget, affordable_cadence, next_cadence
+from phc.simulation.look_cadence import FAR_RATIO, LookBudget, affordable_cadence, integration_work, next_cadence
 from phc.simulation.order import RECENT_STEPS, OrderChoice, Switch, after_step
 from phc.simulation.tested import (  # noqa: F401  (names of phc.simulation.ida before the split)
     CANCELLATION, SENSITIVITY_DENSE, TERM_FRACTION, algebraic_rates, determined_algebraic, determined_scales,
@@ -437,13 +437,15 @@ class _StepHook:
         # the last step's end when it is not a normal one (a growth without bound is diagnosed there)
         self.collapsed = None
         # the monitor looks every `cadence` steps: `base`, stretched up to LOOK_STRETCH-fold while
-        # the conditioning stays flat and far above the threshold, and further where a look costs
-        # more than LOOK_SHARE of the steps between looks while the ratio is not falling toward the
-        # threshold (phc.simulation.look_cadence; a minimum of the conditioning between looks is
-        # still located by the monitor's golden-section search)
+        # the conditioning stays flat and far above the threshold, and further where a look's work
+        # is more than LOOK_SHARE of the work of the steps between looks while the ratio is not
+        # falling toward the threshold (phc.simulation.look_cadence: work counted from IDA's
+        # counters and the looks' factorizations, never timed; a minimum of the conditioning
+        # between looks is still located by the monitor's golden-section search)
         self.base = self.cadence = int(base)
         self.last_ratio = None
         self.budget = LookBudget()
+        self.counted = (calls.evaluations, calls.jacobians)  # IDA's counters at the last look
         self.since_look = self.since_progress = 0
         self.next_crawl_check = 0
         # recoverable model errors seen; (the earliest failed trial time not passed yet, the step size before it)
@@ -523,8 +525,7 @@ class _StepHook:
     def _look(self, t, y, yp, h) -> None:
         monitor = self.monitor
         steps, self.since_look = self.since_look, 0
-        budget = self.budget
-        budget.start_look()
+        looked = monitor.tally.work
         warning = monitor.watch(t, np.array(y), np.array(yp), h)
         if warning is None and self.steps >= self.next_crawl_check \
                 and h * (self.max_steps - self.steps) < self.t_end - t:
@@ -545,14 +546,18 @@ class _StepHook:
                             f" at t = {t:.6g}, near a rank drop of the position constraints"), rank_drop=True)
         if warning:
             raise _Stop(warning)
-        budget.end_look(steps)
+        calls, mod, tally = self.calls, monitor.mod, monitor.tally
+        (residuals, jacobians), self.counted = self.counted, (calls.evaluations, calls.jacobians)
+        self.budget.add(steps, tally.work - looked, integration_work(
+            n=mod.N, nnz=len(monitor.rows), residuals=calls.evaluations - residuals,
+            jacobians=calls.jacobians - jacobians, steps=steps, sparse=mod.N > DENSE_LIMIT,
+            lu_flops=tally.lu_flops, lu_nnz=tally.lu_nnz))
         ratio = monitor._looks[-1][-1] if monitor._looks else None
         cadence = next_cadence(self.cadence, self.base, self.last_ratio, ratio)
-        if monitor.mod.N > DENSE_SIZE:  # a sparse look: its cost may be many steps' (dense ones are
-            # cheap, and their cadence stays independent of the machine's timing)
-            cadence = affordable_cadence(cadence, self.base, look_cpu=budget.look_cpu, step_cpu=budget.step_cpu,
-                                         before=self.last_ratio, ratio=ratio, steps=steps,
-                                         threshold=monitor.threshold)
+        if monitor.mod.N > DENSE_SIZE:  # a sparse look: its work may be many steps'
+            cadence = affordable_cadence(cadence, self.base, look_work=self.budget.look_work,
+                                         step_work=self.budget.step_work, before=self.last_ratio, ratio=ratio,
+                                         steps=steps, threshold=monitor.threshold)
         self.cadence = cadence
         self.last_ratio = ratio
 

@@ -7,23 +7,32 @@ moves, stretched up to :data:`LOOK_STRETCH`-fold while it stays flat and far abo
 What a look costs sets it too (issue 38). A look at a model above the monitor's dense size is a
 sparse LU, a condition estimate and an inverse iteration; at the 1000-element Euler–Bernoulli beam
 (8007 unknowns) one look cost what some 30 of IDA's steps cost, and looking every 20 steps more
-than doubled the run. The hook measures the CPU time of its looks and of the integration between
-them (:class:`LookBudget`) and looks no more often than keeps the looks at :data:`LOOK_SHARE` of the
+than doubled the run. The hook counts the work of its looks and of IDA's steps between them
+(:class:`LookBudget`) and looks no more often than keeps the looks at :data:`LOOK_SHARE` of the
 integration — unless the ratio is falling toward the threshold: then it looks at least
 :data:`APPROACH_LOOKS` times before the ratio, falling as fast as it fell since the last look,
 would reach the threshold (but never more often than the base cadence), and within
 :data:`NEAR_DECADES` of the threshold at the base cadence, whatever a look costs. The threshold
-itself (what a look decides) does not change; only when looks happen. This applies to sparse looks
-only (above the monitor's ``DENSE_SIZE`` unknowns): a dense look is cheap, and at those sizes when
-the monitor looks stays independent of the machine's timing (on the N = 1 four-bar at
-rtol = atol = 1e-6 a cadence stretched by timing moved the bridges and IDA's error from 6.2e-5 to
-2.1e-4 rad).
+itself (what a look decides) does not change; only when looks happen.
+
+The work is counted, not timed (issue 38/34). A look's work comes from what it did: a sparse
+look's from its matrix's nonzeros, its LU's (:func:`sparse_lu_flops`, the factors' nonzeros) and
+the solves and products it made; a dense look's from N. IDA's work between two looks comes from
+IDA's own counters: its residual evaluations (each a Newton iteration: a residual and a solve with
+the factors), its Jacobian evaluations (each a factorization, of the fill the monitor's LU of the
+same matrix found) and its steps. Both are weighed by a fixed work model in nominal nanoseconds
+(:class:`LookWork`, :func:`integration_work`), so the cadence is a function of the run's own
+counters: the same run looks at the same steps on any machine and under any load. The timed
+cadence did not: on a busy machine a slow look made the next ones rarer (on the N = 1 four-bar at
+rtol = atol = 1e-6 a stretched cadence moved the bridges and IDA's error from 6.2e-5 to 2.1e-4
+rad). The work bound still applies to sparse looks only (above the monitor's ``DENSE_SIZE``): a
+dense look weighs one or two of IDA's steps, and stretching the base cadence of 10 there moved
+that run's bridges as well.
 """
 
 from __future__ import annotations
 
 import math
-import time
 from typing import Optional
 
 LOOK_STRETCH = 32
@@ -33,8 +42,8 @@ FLAT_DECADES = 0.1
 FAR_RATIO = 1e-6
 """Conditioning ratio above which the monitor may look less often (its threshold is 1e-11)."""
 LOOK_SHARE = 0.1
-"""Share of the integration's CPU time the monitor's looks may take where the conditioning ratio
-is not falling toward the threshold."""
+"""Share of the integration's work (:func:`integration_work`) the monitor's looks may take where
+the conditioning ratio is not falling toward the threshold."""
 APPROACH_LOOKS = 4
 """Looks at least this many before a falling ratio, at the rate it fell since the last look, would
 reach the threshold (a falling ratio brings the cadence back toward its base)."""
@@ -54,17 +63,17 @@ def next_cadence(cadence: int, base: int, before: Optional[float], ratio: Option
     return min(LOOK_STRETCH * base, max(cadence + 1, int(1.5 * cadence)))
 
 
-def affordable_cadence(cadence: int, base: int, *, look_cpu: float, step_cpu: float, before: Optional[float],
+def affordable_cadence(cadence: int, base: int, *, look_work: float, step_work: float, before: Optional[float],
                        ratio: Optional[float], steps: int, threshold: float) -> int:
-    """`cadence` (from :func:`next_cadence`) lengthened so that a look costing `look_cpu` takes at
-    most :data:`LOOK_SHARE` of the integration of the steps between two looks (`step_cpu` a step),
+    """`cadence` (from :func:`next_cadence`) lengthened so that a look costing `look_work` takes at
+    most :data:`LOOK_SHARE` of the integration of the steps between two looks (`step_work` a step),
     while the ratio cannot reach `threshold` before the next look: at least
     :data:`APPROACH_LOOKS` looks before a ratio falling as from `before` to `ratio` over the last
     `steps` steps would reach it; none of this within :data:`NEAR_DECADES` of it, nor before the
     second look (`before` None)."""
-    if ratio is None or before is None or not (look_cpu > 0 and step_cpu > 0) or not ratio > 0:
+    if ratio is None or before is None or not (look_work > 0 and step_work > 0) or not ratio > 0:
         return cadence  # (two looks at least: how the ratio moves is known)
-    afford = math.ceil(look_cpu / (LOOK_SHARE * step_cpu))
+    afford = math.ceil(look_work / (LOOK_SHARE * step_work))
     if afford <= cadence:
         return cadence
     decades = math.log10(ratio / threshold)  # how far the ratio is from the threshold
@@ -76,52 +85,125 @@ def affordable_cadence(cadence: int, base: int, *, look_cpu: float, step_cpu: fl
     return max(cadence, base, afford)
 
 
-def _cpu() -> float:
-    """The process's CPU seconds (a module function: tests replace it by a counter)."""
-    return time.process_time()
+# The work model: nominal nanoseconds, fixed numbers (calibrated once, on an x86-64 machine, on the
+# N = 10 four-bar and the Euler–Bernoulli beam of 30 and 200 elements: looks of 2–8 ms, steps of
+# 0.1–0.3 ms). They only weigh a look against a step; the cadence they give is the same on any
+# machine, and a machine twice as fast at factorizations gives the same looks.
+LOOK_NS = 2.0e6
+"""A sparse look's fixed part: the Python and SciPy calls of its assembly, equilibration, LU and
+condition estimate (the look at the N = 10 four-bar, 163 unknowns, took 1.9–3.3 ms)."""
+DENSE_LOOK_NS = 1.0e5
+"""A dense look's fixed part (NumPy's and LAPACK's calls on a small matrix)."""
+ASSEMBLE_NS = 150.0
+"""A sparse look's assembly and equilibration, per nonzero of the Jacobian."""
+FACTOR_NS = 100.0
+"""A sparse LU's analysis (ordering, symbolic work), per nonzero of its factors."""
+SOLVE_CALL_NS, SOLVE_NS = 15e3, 10.0
+"""A solve with SciPy's sparse LU: its call, and per nonzero of the factors."""
+PRODUCT_CALL_NS, PRODUCT_NS = 10e3, 5.0
+"""A product with the sparse iteration matrix: its call, and per nonzero."""
+FLOP_NS = 1.0
+"""A floating-point operation of a factorization (sparse: :func:`sparse_lu_flops`; dense: LAPACK's)."""
+STEP_NS = 1.0e5
+"""An IDA step's fixed part: the step hook and scikit-sundae's wrapping of the step (the pendulum's
+steps took ~0.1 ms in all)."""
+VECTOR_NS = 50.0
+"""An IDA step's vector work (BDF's history, prediction, error test, norms), per unknown."""
+CALLBACK_NS = 2.0e4
+"""A residual or Jacobian evaluation IDA asks of phc: the call through scikit-sundae into Python."""
+EVALUATION_NS = 2.0
+"""The generated residual or Jacobian, per nonzero of the Jacobian."""
+C_SOLVE_NS = 2.0
+"""A solve with IDA's own factors (in C), per nonzero of the factors (dense: n² of them)."""
+
+
+def sparse_lu_flops(L, U) -> float:
+    """Floating-point operations of the sparse LU whose factors are L (unit diagonal stored) and
+    U (CSC): a multiplier for each nonzero of L below the diagonal, and for pivot k an update of
+    each pair (entry of L's column k below it, entry of U's row k right of it), two operations."""
+    import numpy as np
+
+    below = np.diff(L.indptr) - 1  # L's column counts below the diagonal
+    right = np.bincount(U.indices, minlength=U.shape[0]) - 1  # U's row counts right of the diagonal
+    return float(below.sum() + 2.0 * np.dot(below.astype(float), np.maximum(right, 0)))
+
+
+class LookWork:
+    """The work of the singularity monitor's looks (:attr:`work`, over the run, in the nominal
+    nanoseconds of the work model above: counted, never timed), and the figures of its last
+    sparse LU, which stand for IDA's own factorization of the same iteration matrix
+    (:attr:`lu_flops`, :attr:`lu_nnz`)."""
+
+    def __init__(self):
+        self.work = 0.0
+        self.lu_flops: Optional[float] = None
+        self.lu_nnz: Optional[int] = None
+
+    def dense(self, n: int, *, svd: int = 0, vectors: bool = False) -> None:
+        """A dense look at n unknowns: the Jacobian, its equilibration, LAPACK's LU and condition
+        estimate, and `svd` singular value decompositions (with `vectors`: one of them with them)."""
+        flops = 2.0 * n ** 3 / 3 + 30.0 * n * n + svd * 4.0 * n ** 3 + (8.0 * n ** 3 if vectors else 0.0)
+        self.work += DENSE_LOOK_NS + FLOP_NS * flops
+
+    def sparse(self, nnz: int, *, lu=None, solves: int = 0, products: int = 0) -> None:
+        """A sparse look at a matrix of `nnz` nonzeros: the Jacobian and its equilibration, the LU
+        `lu` (SciPy's ``SuperLU``; None where it failed), `solves` solves with it and `products`
+        products with the matrix or its transpose."""
+        work = LOOK_NS + ASSEMBLE_NS * nnz + products * (PRODUCT_CALL_NS + PRODUCT_NS * nnz)
+        if lu is not None:
+            self.lu_flops = sparse_lu_flops(lu.L, lu.U)
+            self.lu_nnz = int(lu.L.nnz + lu.U.nnz)
+            work += FACTOR_NS * self.lu_nnz + FLOP_NS * self.lu_flops + solves * (
+                SOLVE_CALL_NS + SOLVE_NS * self.lu_nnz)
+        self.work += work
+
+
+def integration_work(*, n: int, nnz: int, residuals: int, jacobians: int, steps: int, sparse: bool,
+                     lu_flops: Optional[float] = None, lu_nnz: Optional[int] = None) -> float:
+    """The work of IDA's `steps` steps with `residuals` residual evaluations and `jacobians`
+    Jacobian evaluations (IDA's counters over them) at n unknowns and a Jacobian of `nnz`
+    nonzeros, in the work model's nominal nanoseconds: each residual a Newton iteration (the
+    residual and a solve with the factors), each Jacobian a factorization (`sparse`: of
+    `lu_flops` operations and `lu_nnz` nonzeros in its factors, the monitor's LU of the same
+    matrix (:class:`LookWork`), or without fill while it has made none; dense: LAPACK's), each
+    step its fixed part and IDA's vector work."""
+    if sparse:
+        factors = float(lu_nnz if lu_nnz is not None else nnz)
+        factor = FACTOR_NS * factors + FLOP_NS * (lu_flops if lu_flops is not None else 2.0 * nnz)
+    else:
+        factors, factor = float(n * n), FLOP_NS * 2.0 * n ** 3 / 3
+    evaluation = CALLBACK_NS + EVALUATION_NS * nnz
+    return (residuals * (evaluation + C_SOLVE_NS * factors) + jacobians * (evaluation + factor)
+            + steps * (STEP_NS + VECTOR_NS * n))
 
 
 class LookBudget:
-    """The CPU time of the monitor's looks and of the integration between them, over a run.
+    """The work of the monitor's looks and of the integration between them, over a run
+    (counted: :class:`LookWork`, :func:`integration_work`).
 
-    ``start_look()`` and ``end_look(steps)`` bracket a look (`steps`: the steps since the last
-    one); the means (:attr:`look_cpu`, :attr:`step_cpu`) are over the run so far, so one look that
-    happened to be slow (the machine busy) does not swing the cadence. `clock` is the CPU clock
-    (``time.process_time``; tests pass a counter to make the cadence deterministic)."""
+    ``add(steps, look, integration)`` records a look of work `look` after `steps` steps of work
+    `integration`; the means (:attr:`look_work`, :attr:`step_work`) are over the run so far, so
+    that one look that happened to work hard (a golden-section search) does not swing the
+    cadence."""
 
-    def __init__(self, clock=None):
-        self.clock = clock or _cpu
+    def __init__(self):
         self.looks = 0
         self.steps = 0
-        self.looking = 0.0      # CPU seconds spent in looks
-        self.integrating = 0.0  # CPU seconds between looks
-        self._mark = self.clock()
-        self._look_start = None
+        self.looking = 0.0      # work of the looks
+        self.integrating = 0.0  # work of IDA's steps between them
 
-    def restart(self) -> None:
-        """The clock of the integration between looks starts now (a restart of IDA)."""
-        self._mark = self.clock()
-
-    def start_look(self) -> None:
-        now = self.clock()
-        self._look_start = now
-
-    def end_look(self, steps: int) -> None:
-        now = self.clock()
-        if self._look_start is None:
-            return
-        self.integrating += max(0.0, self._look_start - self._mark)
-        self.looking += max(0.0, now - self._look_start)
+    def add(self, steps: int, look: float, integration: float) -> None:
+        self.looking += max(0.0, float(look))
+        self.integrating += max(0.0, float(integration))
         self.steps += int(steps)
         self.looks += 1
-        self._mark, self._look_start = now, None
 
     @property
-    def look_cpu(self) -> float:
-        """Mean CPU seconds of a look (0 before the first)."""
+    def look_work(self) -> float:
+        """Mean work of a look (0 before the first)."""
         return self.looking / self.looks if self.looks else 0.0
 
     @property
-    def step_cpu(self) -> float:
-        """Mean CPU seconds of an integration step between looks (0 before the first look)."""
+    def step_work(self) -> float:
+        """Mean work of an integration step between looks (0 before the first look)."""
         return self.integrating / self.steps if self.steps else 0.0

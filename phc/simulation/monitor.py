@@ -37,6 +37,7 @@ import scipy.sparse as sps
 
 from phc.errors import ModelEvaluationError
 from phc.simulation.equilibrate import equilibrate
+from phc.simulation.look_cadence import LookWork
 
 HISTORY = 64
 """Looks the monitor keeps for a failure's diagnosis."""
@@ -98,18 +99,20 @@ def _equilibrate(J: np.ndarray) -> np.ndarray:
     return equilibrate(J, rounds=2)[0]
 
 
-def _far_from_singular(J: np.ndarray, threshold: float, lu=None) -> Optional[float]:
+def _far_from_singular(J: np.ndarray, threshold: float, lu=None, solve=None) -> Optional[float]:
     """``1/(n·κ̂₁)`` of the equilibrated matrix J from LAPACK's condition estimate when that is
     :data:`RCOND_MARGIN`·n times above `threshold` (about a lower bound of σ_min/σ_max there);
     None when the singular values must decide. For a sparse J, `lu` is its sparse LU
     (``scipy.sparse.linalg.splu``) and ‖J⁻¹‖₁ is estimated on it by Higham's block 1-norm
     estimator (``scipy.sparse.linalg.onenormest``; ``dgecon`` runs Hager's and Higham's
-    estimator on the dense LU): a few solves with the LU and its transpose."""
+    estimator on the dense LU): a few solves with the LU and its transpose (`solve`, ``lu.solve``
+    or one that counts them)."""
     n = J.shape[0]
     if lu is not None:
         import scipy.sparse.linalg as spla
 
-        inverse = spla.LinearOperator((n, n), matvec=lu.solve, rmatvec=lambda x: lu.solve(x, trans="T"),
+        solve = solve or lu.solve
+        inverse = spla.LinearOperator((n, n), matvec=solve, rmatvec=lambda x: solve(x, trans="T"),
                                       dtype=float)
         with np.errstate(all="ignore"):
             estimate = float(spla.onenormest(inverse))
@@ -126,7 +129,8 @@ def _far_from_singular(J: np.ndarray, threshold: float, lu=None) -> Optional[flo
     return float(rcond) / n
 
 
-def _sparse_ratio(J, threshold: float, vectors: bool = True) -> tuple[float, Optional[np.ndarray]]:
+def _sparse_ratio(J, threshold: float, vectors: bool = True,
+                  tally: Optional[LookWork] = None) -> tuple[float, Optional[np.ndarray]]:
     """``(σ_min/σ_max, u)`` of the equilibrated sparse matrix J (CSC), as the dense look computes
     them (:meth:`SingularityMonitor._ratio_at`) but from one sparse LU: the condition estimate
     first (:func:`_far_from_singular`), then σ_min by inverse iteration on ``(J Jᵀ)⁻¹`` (two
@@ -136,11 +140,22 @@ def _sparse_ratio(J, threshold: float, vectors: bool = True) -> tuple[float, Opt
     vector of σ_min, or of the cluster of small ones where a rank drop loses several at once)
     where the ratio is below `threshold`, else None; an empty array without `vectors`. A matrix
     SuperLU finds exactly singular has ratio 0 and u from a dense SVD (where
-    :data:`DIAGNOSE_MAX` allows; else a zero vector, which names no rows)."""
+    :data:`DIAGNOSE_MAX` allows; else a zero vector, which names no rows). `tally` counts the
+    look's work (:class:`~phc.simulation.look_cadence.LookWork`: the LU, its solves, the products)."""
     import scipy.sparse.linalg as spla
 
     n = J.shape[0]
     J = sps.csc_matrix(J)
+    work = {"solves": 0, "products": 0, "lu": None}
+    try:
+        return _sparse_look(J, n, threshold, vectors, work, spla)
+    finally:
+        if tally is not None:
+            tally.sparse(J.nnz, lu=work["lu"], solves=work["solves"], products=work["products"])
+
+
+def _sparse_look(J, n, threshold, vectors, work, spla):
+    """:func:`_sparse_ratio`'s look, its LU, solves and products counted in `work`."""
     try:
         if not np.all(np.isfinite(J.data)):
             raise ValueError("not finite")
@@ -152,7 +167,13 @@ def _sparse_ratio(J, threshold: float, vectors: bool = True) -> tuple[float, Opt
             u, _, _ = np.linalg.svd(J.toarray())
             return 0.0, u[:, -1]
         return 0.0, np.zeros(n)
-    rough = _far_from_singular(J, threshold, lu)
+    work["lu"] = lu
+
+    def solve(x, trans="N"):
+        work["solves"] += 1
+        return lu.solve(x, trans=trans)
+
+    rough = _far_from_singular(J, threshold, lu, solve)
     if rough is not None:
         return rough, None
     rng = np.random.default_rng(0)  # the same look every time
@@ -160,6 +181,7 @@ def _sparse_ratio(J, threshold: float, vectors: bool = True) -> tuple[float, Opt
     v /= np.linalg.norm(v)
     big = 0.0
     for _ in range(POWER_STEPS):
+        work["products"] += 2
         w = J.T @ (J @ v)
         norm = float(np.linalg.norm(w))
         if not norm > 0:
@@ -172,12 +194,12 @@ def _sparse_ratio(J, threshold: float, vectors: bool = True) -> tuple[float, Opt
     small = math.inf
     with np.errstate(all="ignore"):
         for _ in range(INVERSE_STEPS):
-            w = lu.solve(x)  # J w = x: ‖w‖ ≤ 1/σ_min
+            w = solve(x)  # J w = x: ‖w‖ ≤ 1/σ_min
             norm = float(np.linalg.norm(w))
             if not np.isfinite(norm):
                 break
             before, small = small, (1.0 / norm if norm > 0 else math.inf)
-            z = lu.solve(w, trans="T")  # Jᵀ z = w: z = (J Jᵀ)⁻¹ x
+            z = solve(w, trans="T")  # Jᵀ z = w: z = (J Jᵀ)⁻¹ x
             norm = float(np.linalg.norm(z))
             if not (np.isfinite(norm) and norm > 0):
                 break
@@ -269,6 +291,9 @@ class SingularityMonitor:
         more of the rows that become dependent are position invariants): the case a fixed-step
         solver may pass through (:func:`phc.simulation.midpoint.passes_rank_drop`)."""
         self._looks: list[tuple] = []
+        self.tally = LookWork()
+        """The work of the looks, counted (what the IDA step hook's cadence weighs against the steps':
+        :mod:`phc.simulation.look_cadence`)."""
         self.history: deque = deque(maxlen=HISTORY)
         """(t, y, ẏ) of the last :data:`HISTORY` looks (a failure's diagnosis: is the
         conditioning falling toward a singular configuration?)."""
@@ -309,18 +334,20 @@ class SingularityMonitor:
         return equilibrate(J, rounds=2)[0]
 
     def _ratio_at(self, t, y, yp, h, vectors: bool = True) -> tuple[float, np.ndarray]:
-        if self.mod.N > DENSE_SIZE:
-            return _sparse_ratio(self._equilibrated_sparse(t, y, yp, h), self.threshold, vectors)
+        n = self.mod.N
+        if n > DENSE_SIZE:
+            return _sparse_ratio(self._equilibrated_sparse(t, y, yp, h), self.threshold, vectors, self.tally)
         J = self._equilibrated(t, y, yp, h)
         rough = _far_from_singular(J, self.threshold)
         if rough is not None:
+            self.tally.dense(n)
             return rough, None
         s = np.linalg.svd(J, compute_uv=False)  # singular values only: the vectors are computed when needed
         ratio = float(s[-1] / s[0]) if s[0] > 0 else 0.0
-        if ratio >= self.threshold:
-            return ratio, None
-        if not vectors:
-            return ratio, np.empty(0)
+        if ratio >= self.threshold or not vectors:
+            self.tally.dense(n, svd=1)
+            return ratio, (None if ratio >= self.threshold else np.empty(0))
+        self.tally.dense(n, svd=1, vectors=True)
         u, _, _ = np.linalg.svd(J)
         return ratio, u[:, -1]
 
