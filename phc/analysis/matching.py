@@ -114,7 +114,10 @@ def bipartite_matching(pattern, prefer_early: bool = False) -> np.ndarray:
     tails = np.concatenate([np.full(m, source), coo.row, m + np.arange(n)])
     heads = np.concatenate([np.arange(m), m + coo.col, np.full(n, sink)])
     network = sps.csr_matrix((np.ones(len(tails), dtype=np.int32), (tails, heads)), shape=(m + n + 2, m + n + 2))
-    flow = maximum_flow(network, source, sink, method="dinic").flow.tocoo()
+    del coo, tails, heads  # freed before the flow's own arrays are made (a mesh's peak, issue 35)
+    flow = maximum_flow(network, source, sink, method="dinic").flow
+    del network
+    flow = flow.tocoo()
     used = (flow.data > 0) & (flow.row < m) & (flow.col >= m) & (flow.col < m + n)
     match = np.full(m, -1, dtype=np.int64)
     match[flow.row[used]] = flow.col[used] - m
@@ -197,6 +200,7 @@ def maximum_matching(dae: Dae) -> dict[int, int]:
             keep = (rows != i) & (cols != j)
             rows, cols = np.append(rows[keep], i), np.append(cols[keep], j)
     pattern = sps.csr_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(m, n))
+    del rows, cols  # freed before the matching's flow network is made (a mesh's peak, issue 35)
     match = bipartite_matching(pattern, prefer_early=True)
     return {i: int(c) for i, c in enumerate(match) if c >= 0}
 

@@ -347,22 +347,24 @@ class ModulePrinter:
         self._jac_symbols = None  # free symbols of the Jacobian entries (computed once)
         taken: set = set()
         self.names: dict = {T: "t"}
+        # symbol -> its position in y, yp or p, in the order of the positions; the unpacking
+        # line ``name = y[j]`` is written only for the symbols a function uses (a line per
+        # unknown kept here took 0.15 KiB per unknown of a mesh's compile peak, issue 35)
         self.unpack_y = {}
         self.unpack_yp = {}
         self.unpack_p = {}
         for j, (s, ident) in enumerate(zip(ir.y_symbols, _identifiers("y_", ir.variables, taken))):
             self.names[s] = ident
-            self.unpack_y[s] = f"{ident} = y[{j}]"
+            self.unpack_y[s] = j
         # reserved for an algebraic variable too (no rate): the same names as with one
         for j, (s, ident) in enumerate(zip(ir.yp_symbols, _identifiers("yp_", ir.variables, taken))):
             if s is not None:
                 self.names[s] = ident
-                self.unpack_yp[s] = f"{ident} = yp[{j}]"
+                self.unpack_yp[s] = j
         for j, (s, name) in enumerate(zip(ir.p_symbols, ir.parameters)):
-            self.names[s] = ident = _identifier("p_", name, taken)
-            self.unpack_p[s] = f"{ident} = p[{j}]"
+            self.names[s] = _identifier("p_", name, taken)
+            self.unpack_p[s] = j
         self.printer = _Printer(self.names)
-        self._unpack_index: dict = {}  # "y"/"yp"/"p" -> (symbol -> position, lines) of the tables above
         self.accumulate: set = set()  # targets that add to a precomputed value
         self.bulk = False
         """Unpack y, yp and p with one ``tolist()`` (the functions called in every step)."""
@@ -532,16 +534,15 @@ class ModulePrinter:
         return lines + statements
 
     def _unpack_lines(self, name: str, table: dict, used: set) -> list[str]:
-        """The lines of `table` (symbol -> unpacking line) whose symbols are in `used`, in the
-        table's order. Walks `used` when it is the smaller (a mesh's functions use a few of its
-        many thousand variables: no pass over every variable for each function)."""
+        """The unpacking lines ``ident = name[j]`` of the symbols of `table` (symbol -> position
+        j, in the order of the positions) that are in `used`, in the table's order. Walks `used`
+        when it is the smaller (a mesh's functions use a few of its many thousand variables: no
+        pass over every variable for each function)."""
         if len(used) >= len(table):
-            return [line for s, line in table.items() if s in used]
-        index = self._unpack_index.get(name)
-        if index is None or len(index[1]) != len(table):
-            index = self._unpack_index[name] = ({s: k for k, s in enumerate(table)}, list(table.values()))
-        slot, lines = index
-        return [lines[k] for k in sorted(slot[s] for s in used if s in slot)]
+            slots = [(j, s) for s, j in table.items() if s in used]
+        else:
+            slots = sorted(((table[s], s) for s in used if s in table), key=lambda js: js[0])
+        return [f"{self.names[s]} = {name}[{j}]" for j, s in slots]
 
     def _function(self, signature: str, doc: str, exprs, targets, prologue=(), epilogue=()) -> str:
         body = list(prologue) + self._body(exprs, targets) + list(epilogue)

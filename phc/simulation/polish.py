@@ -147,6 +147,12 @@ def polish_outputs(mod, p, out: BackendRun, scales, t_from: Optional[float] = No
     t, y, yp = out.t, out.y, out.yp
     if not len(t) or np.all(np.asarray(mod.DIFFERENTIAL, dtype=bool)):
         return out
+    if len(mod.EQUATIONS) * mod.N > DENSE_ENTRIES:
+        # the system has at least as many rows as equations and a column per unknown (the
+        # algebraic variables and the rates): too large for the dense solve, known before
+        # the problem's index arrays are built (at 8·10⁵ unknowns they took more memory
+        # than the ten midpoint steps they followed, issue 35)
+        return out
     if not depends_on_algebraic(mod, p, t[0], y[0], yp[0], np.asarray(scales, dtype=float)):
         return out
     # a switched run's modes at each output time (phc.simulation.events): the rows of a sticking
