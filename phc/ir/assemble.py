@@ -33,6 +33,7 @@ import sympy as sp
 
 from phc.ir.dae import (STORED_ENERGY, T, Dae, Equation, InitialValue, Invariant, LinearBlock, PortInfo, Topology,
                      Variable)
+from phc.ir.alike import AlikeReplacer
 from phc.diagnostics import Diagnostic, DiagnosticList
 from phc.frontend.inputs import SignalBuilder
 from phc.spec.expressions import named_scope
@@ -232,8 +233,10 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
 
     _contact_forces(elab, rows, states)
 
+    alike = AlikeReplacer(subs)  # rows alike but for their names: one sympy rebuild per shape
+
     def final(expr):
-        return expr.xreplace(subs).xreplace(dsubs) if dsubs else expr.xreplace(subs)
+        return alike(expr).xreplace(dsubs) if dsubs else alike(expr)
 
     equations = []
     new_index: dict[int, int] = {}
@@ -471,6 +474,7 @@ def _resolve_definitions(uf, defs, rows) -> dict:
     """
     cache: dict = {}
     visiting: set = set()
+    alike = AlikeReplacer()
     all_syms = set(uf.parent) | set(defs)
 
     def resolve_root(root):
@@ -486,7 +490,7 @@ def _resolve_definitions(uf, defs, rows) -> dict:
         free = expr.free_symbols
         rule = {s: value(s) for s in free if s in all_syms}
         if rule:  # else the definition is already resolved (a state's: -k·x), its symbols known
-            expr = expr.xreplace(rule)
+            expr = alike(expr, rule)
             free = expr.free_symbols
         visiting.discard(root)
         if root in free:
