@@ -117,7 +117,7 @@ class AlikeReplacer:
     call (the shape holds what it replaces). Results equal sympy's, argument order included."""
 
     def __init__(self, rule: Mapping | None = None) -> None:
-        self.rule = rule
+        self.rule = rule  # None: each call gives its own
         self.plans: dict = {}
         self.rebuilt = 0  # rows rebuilt by sympy (first of their shape, or refused): for tests
         self.renamed = 0  # rows built from their shape's plan
@@ -125,7 +125,7 @@ class AlikeReplacer:
     def __call__(self, expr, rule: Mapping | None = None):
         """``expr.xreplace(rule)`` (by default the replacer's rule), whose keys are symbols."""
         if rule is None:
-            rule = self.rule
+            rule = self.rule if self.rule is not None else {}
         places: list = []
         index: dict = {}
 
@@ -151,11 +151,14 @@ class AlikeReplacer:
                 return (type(e), e)
             return (e.func, *(shape(a, replaced) for a in args))
 
+        def by_sympy():
+            return expr.xreplace(rule)
+
         try:
             key = shape(expr)
         except _Opaque:
             self.rebuilt += 1
-            return expr.xreplace(rule)
+            return by_sympy()
         plan = self.plans.get(key)
         if plan is not None:
             out = plan.build(places)
@@ -163,7 +166,7 @@ class AlikeReplacer:
                 self.renamed += 1
                 return out
         self.rebuilt += 1
-        out = expr.xreplace(rule)
+        out = by_sympy()
         if plan is None:
             self.plans[key] = _Plan(out, places)
         return out

@@ -501,9 +501,17 @@ def _resolve_definitions(uf, defs, rows) -> dict:
         cache[root] = expr
         return expr
 
+    values: dict = {}
+
     def value(sym):
-        root, sign = uf.find(sym)
-        return _signed(sign, resolve_root(root))
+        out = values.get(sym)
+        if out is None:
+            root, sign = uf.find(sym)
+            out = resolve_root(root)
+            out = _signed(sign, out)
+            if root in cache:  # resolved (not a root met again on a cycle being resolved)
+                values[sym] = out
+        return out
 
     return {s: value(s) for s in all_syms}
 
