@@ -119,6 +119,7 @@ class AlikeReplacer:
     def __init__(self, rule: Mapping | None = None) -> None:
         self.rule = rule  # None: each call gives its own
         self.plans: dict = {}
+        self._plain: dict = {}  # symbol -> whether it is Symbol(name, real=True), renamed
         self.rebuilt = 0  # rows rebuilt by sympy (first of their shape, or refused): for tests
         self.renamed = 0  # rows built from their shape's plan
 
@@ -128,14 +129,19 @@ class AlikeReplacer:
             rule = self.rule if self.rule is not None else {}
         places: list = []
         index: dict = {}
+        plain = self._plain
+        Symbol = sp.Symbol
 
-        def shape(e, replaced=False):
+        def shape(e, replaced):
             """`e`'s shape; `replaced`: `e` is (part of) a replacement, which xreplace leaves as it is."""
-            if type(e) is sp.Symbol:
-                if e.assumptions0 != _REAL:
-                    raise _Opaque
+            if type(e) is Symbol:
                 i = index.get(e)
                 if i is None:
+                    ok = plain.get(e)
+                    if ok is None:
+                        ok = plain[e] = e.assumptions0 == _REAL
+                    if not ok:
+                        raise _Opaque
                     i = index[e] = len(places)
                     places.append(e)
                 if replaced:
@@ -146,16 +152,19 @@ class AlikeReplacer:
                 return (i, shape(new, True))
             args = e.args
             if not args:
-                if isinstance(e, sp.Symbol):
+                if isinstance(e, Symbol):
                     raise _Opaque  # a Dummy, a Wild: not renamed
                 return (type(e), e)
-            return (e.func, *(shape(a, replaced) for a in args))
+            out = [e.func]
+            for a in args:
+                out.append(shape(a, replaced))
+            return tuple(out)
 
         def by_sympy():
             return expr.xreplace(rule)
 
         try:
-            key = shape(expr)
+            key = shape(expr, False)
         except _Opaque:
             self.rebuilt += 1
             return by_sympy()
