@@ -13,6 +13,8 @@ parsing and composing it, the one pass that checks tags, keys, duplicates and th
 size (``_Checker``) and building the data (``_Builder``). The positions —
 :class:`SourceSpan`, :class:`SourceMap` and the line/column counting they share with the
 loader's messages — are :mod:`phc.frontend.source_map`; they are importable from here as well.
+The module is a little over 800 lines because the composition of libyaml's events makes some
+of ``_Checker``'s checks itself (issue 38), and the two must be read side by side.
 """
 
 from __future__ import annotations
