@@ -401,12 +401,48 @@ def test_large_file_same_nodes_data_and_positions(tmp_path, monkeypatch):
     "a: !!python/object:os.system x\n",   # unsafe tag
     "a: \x07\n",                          # a control character
     "- " * 3000 + "x\n",                 # nested very deeply (block lists)
+    # the checks the composition of a large file makes itself, or leaves to _Checker
+    "a: {b: 1, c: 2, b: 3}\n",          # duplicate key inside a nested mapping
+    "1: a\n0x1: b\n",                    # two integer keys of one value
+    "? [a, b]\n: 1\n",                   # a list as a key
+    "a: !!binary aGk=\n",                # a tag SafeLoader knows but a model does not take
+    "a: !custom x\n",                    # an unknown tag
+    "a: &x [1]\nb: *x\nc: {d: 1, d: 2}\n",  # an alias, then a duplicate
 ])
 def test_large_file_problems_are_reported_as_by_the_pure_python_parser(problem, monkeypatch):
     text = _big("") + problem  # the problem at the end, after the padding
     (d1, m1, g1), (d2, m2, g2) = _both(text, monkeypatch)
     assert g1 and [(d.code, d.message, d.span) for d in g1] == [(d.code, d.message, d.span) for d in g2]
     assert d1 == d2
+
+
+@libyaml
+@pytest.mark.parametrize("clean", [
+    "a: 1\nb: {c: [1, 2], d: x}\n",       # plain: no walk of _Checker
+    "b: &x {c: 1}\nd: {<<: *x, e: 2}\n",  # a merge key and an alias: _Checker walks it
+    "1: a\n2: b\n",                      # integer keys: _Checker compares their values
+])
+def test_large_plain_file_is_not_walked_twice_and_loads_alike(clean, monkeypatch):
+    """Counted, not timed (issue 38): a large file of safe tags and string keys, none twice,
+    without aliases, is checked while it is composed: ``_Checker`` does not walk it again.
+    Its data, positions and diagnostics are those of the pure-Python parser's path."""
+    walks = []
+    real = phc.frontend.source._Checker.visit
+
+    def counting(self, node):
+        walks.append(1)
+        return real(self, node)
+
+    monkeypatch.setattr(phc.frontend.source._Checker, "visit", counting)
+    text = _big(chain_yaml(41) + clean)
+    fast = phc.frontend.source.load_yaml(text, "m.yaml")
+    walked = bool(walks)
+    monkeypatch.setattr(phc.frontend.source, "FAST_MIN_CHARS", 10 ** 12)
+    slow = phc.frontend.source.load_yaml(text, "m.yaml")
+    assert fast[0] == slow[0] and fast[2] == slow[2] == []
+    assert [fast[1]._node_span(n) for _, n in _walk(fast[1].root)] == [
+        slow[1]._node_span(n) for _, n in _walk(slow[1].root)]
+    assert walked == (not clean.startswith("a: 1")), clean
 
 
 def test_without_libyaml_a_large_file_is_parsed_in_python_and_said_once(monkeypatch):

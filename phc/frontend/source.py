@@ -13,6 +13,8 @@ parsing and composing it, the one pass that checks tags, keys, duplicates and th
 size (``_Checker``) and building the data (``_Builder``). The positions —
 :class:`SourceSpan`, :class:`SourceMap` and the line/column counting they share with the
 loader's messages — are :mod:`phc.frontend.source_map`; they are importable from here as well.
+The module is a little over 800 lines because the composition of libyaml's events makes some
+of ``_Checker``'s checks itself (issue 38), and the two must be read side by side.
 """
 
 from __future__ import annotations
@@ -392,12 +394,16 @@ class _TextMark:
 _SLOW_SAID = False
 
 
-def _fast_compose(text: str) -> tuple[bool, Node | None]:
-    """``(True, root)`` of the one document in `text` composed from libyaml's events (root
-    None for an empty document); ``(False, None)`` when libyaml is not available or the
-    text is anything but one well-formed document without a duplicate or undefined anchor:
-    the pure-Python parser then parses it again, so every error message and position is
-    the same whichever parser ran first.
+def _fast_compose(text: str) -> tuple[bool, Node | None, int | None]:
+    """``(True, root, plain)`` of the one document in `text` composed from libyaml's events
+    (root None for an empty document); ``(False, None, None)`` when libyaml is not available
+    or the text is anything but one well-formed document without a duplicate or undefined
+    anchor: the pure-Python parser then parses it again, so every error message and
+    position is the same whichever parser ran first. `plain` is the number of nodes of a
+    document that the checks of ``_Checker`` would pass without a word (no alias, no merge
+    key, only safe tags, only string keys, none twice in a mapping), None for any other:
+    ``_Checker`` then walks it (issue 38: its walk was a quarter of loading a chain of 10⁴
+    components).
 
     libyaml scans and parses (in C, with explicit stacks); the nodes are composed here,
     without recursion, with PyYAML's resolver (the tags of plain scalars, remembered per
@@ -415,12 +421,12 @@ def _fast_compose(text: str) -> tuple[bool, Node | None]:
             warnings.warn(f"PyYAML was built without libyaml: large model files ({len(text):,} characters here) are "
                           "parsed by its pure-Python parser, several times slower; install PyYAML with libyaml "
                           "(e.g. the wheel from PyPI) for faster loading", PhcWarning, stacklevel=3)
-        return False, None
+        return False, None, None
     loader = yaml.CSafeLoader(text)
     try:
         return _compose_events(loader, text)
     except (yaml.YAMLError, ValueError, TypeError, AttributeError, IndexError):
-        return False, None
+        return False, None, None
     finally:
         loader.dispose()
 
@@ -429,27 +435,28 @@ _FAST_MAX_DEPTH = 100
 """Deeper collections are left to the pure-Python parser (a model needs a few levels)."""
 
 
-def _compose_events(loader, text: str) -> tuple[bool, Node | None]:
+def _compose_events(loader, text: str) -> tuple[bool, Node | None, int | None]:
     get_event, check_event = loader.get_event, loader.check_event
     reference = yaml.SafeLoader("")  # its resolver: the very tags the pure-Python parser gives
     resolve = reference.resolve
     if reference.yaml_path_resolvers:  # someone added path resolvers to PyYAML: its composer, not this one
-        return False, None
+        return False, None, None
     get_event()  # StreamStartEvent
     if check_event(StreamEndEvent):
-        return True, None
+        return True, None, 0
     get_event()  # DocumentStartEvent
     plain: dict[str, str] = {}  # a plain scalar's text -> its resolved tag
     anchors: dict[str, Node] = {}
-    stack: list[list] = []  # [collection node, mapping key waiting for its value]
+    stack: list[list] = []  # [collection node, mapping key waiting for its value, keys seen (mappings)]
     root: Node | None = None
+    count, clean = 0, True  # nodes, and whether _Checker would pass them all without a word
     while True:
         event = get_event()
         kind = type(event)
         if kind is ScalarEvent or kind is SequenceStartEvent or kind is MappingStartEvent:
             tag, anchor = event.tag, event.anchor
             if anchor is not None and anchor in anchors:
-                return False, None  # duplicate anchor: PyYAML's composer reports it
+                return False, None, None  # duplicate anchor: PyYAML's composer reports it
             start = _TextMark(event.start_mark.index, text)
             if kind is ScalarEvent:
                 value = event.value
@@ -472,34 +479,49 @@ def _compose_events(loader, text: str) -> tuple[bool, Node | None]:
                 node = MappingNode(tag, [], start, None, flow_style=event.flow_style)
             if anchor is not None:
                 anchors[anchor] = node
+            count += 1
+            if clean and node.tag not in _SAFE_TAGS:  # what _Checker.check_tag refuses (and !!value, <<)
+                clean = False
         elif kind is AliasEvent:
+            clean = False  # sizes with aliases: _Checker counts them
             node = anchors.get(event.anchor)
             if node is None:
-                return False, None  # undefined alias: PyYAML's composer reports it
+                return False, None, None  # undefined alias: PyYAML's composer reports it
         elif kind is SequenceEndEvent or kind is MappingEndEvent:
             node = stack.pop()[0]
             node.end_mark = _TextMark(event.end_mark.index, text)
             if not stack:
                 root = node
                 break
-            _attach(stack[-1], node)
+            top = stack[-1]
+            if top[1] is None and top[2] is not None:
+                clean = False  # a collection as a mapping's key (_Checker refuses it)
+            _attach(top, node)
             continue
         else:
             return False, None
         if kind is SequenceStartEvent or kind is MappingStartEvent:
             if len(stack) >= _FAST_MAX_DEPTH:
-                return False, None  # nested very deeply: the pure-Python parser says where it gave up
-            stack.append([node, None])
+                return False, None, None  # nested very deeply: the pure-Python parser says where it gave up
+            stack.append([node, None, set() if kind is MappingStartEvent else None])
         elif stack:
-            _attach(stack[-1], node)
+            top = stack[-1]
+            if clean and top[1] is None and top[2] is not None:  # a mapping's key
+                # a string key not seen before in this mapping; anything else (a key that is
+                # a number or a collection, twice the same) is left to _Checker
+                if node.tag != _STR_TAG or type(node) is not ScalarNode or node.value in top[2]:
+                    clean = False
+                else:
+                    top[2].add(node.value)
+            _attach(top, node)
         else:
             root = node
         if not stack:
             break
     get_event()  # DocumentEndEvent
     if not check_event(StreamEndEvent):
-        return False, None  # more than one document: reported by the pure-Python parser
-    return True, root
+        return False, None, None  # more than one document: reported by the pure-Python parser
+    return True, root, count if clean else None
 
 
 def _attach(top: list, node: Node) -> None:
@@ -557,14 +579,14 @@ def load_yaml(text: str, file: str, *, max_nodes: int = MAX_NODES, max_values: i
         return None, None, [Diagnostic(
             "PHC-E003", f"document nested too deeply (more than {MAX_FLOW_DEPTH} levels of `[` / `{{`)",
             span=_offset_span(text, file, deep))]
-    fast, root = _fast_compose(text) if len(text) >= FAST_MIN_CHARS else (False, None)
+    fast, root, plain = _fast_compose(text) if len(text) >= FAST_MIN_CHARS else (False, None, None)
     if not fast:
         root, diags = _compose(text, file)
         if root is _FAILED:
             return None, None, diags
         if diags:
             return None, SourceMap(file, root), diags
-    return _checked(root, file, diags, max_nodes, max_values)
+    return _checked(root, file, diags, max_nodes, max_values, plain)
 
 
 _FAILED = object()
@@ -612,12 +634,16 @@ def _compose(text: str, file: str) -> tuple[Any, list[Diagnostic]]:
     return root, diags
 
 
-def _checked(root: Node | None, file: str, diags: list[Diagnostic], max_nodes: int, max_values: int
-             ) -> tuple[object | None, SourceMap | None, list[Diagnostic]]:
-    """The data of a composed document, after the checks of tags, keys, duplicates and sizes."""
+def _checked(root: Node | None, file: str, diags: list[Diagnostic], max_nodes: int, max_values: int,
+             plain: int | None = None) -> tuple[object | None, SourceMap | None, list[Diagnostic]]:
+    """The data of a composed document, after the checks of tags, keys, duplicates and
+    sizes. `plain`: the number of nodes of a document the composition found to pass those
+    checks (:func:`_fast_compose`), None when not known: then ``_Checker`` walks it."""
     smap = SourceMap(file, root)
     if root is None:
         return None, smap, diags
+    if plain is not None and plain <= max_values and not diags:
+        return _built(root, file, smap, diags)
 
     checker = _Checker(file, max_nodes, max_values)
     try:
@@ -640,7 +666,12 @@ def _checked(root: Node | None, file: str, diags: list[Diagnostic], max_nodes: i
             hint="aliases (`*name`) that repeat large anchors multiply the size; write the data out instead"))
     if any(d.code != "PHC-E002" for d in diags):
         return None, smap, diags
+    return _built(root, file, smap, diags)
 
+
+def _built(root: Node, file: str, smap: SourceMap, diags: list[Diagnostic]
+           ) -> tuple[object | None, SourceMap | None, list[Diagnostic]]:
+    """The Python data of a checked document (:class:`_Builder`)."""
     builder = _Builder(file)
     try:
         data = builder.build(root)
