@@ -31,6 +31,7 @@ from typing import Any, Callable, Mapping, Optional, Sequence
 import pydantic_core
 import sympy as sp
 
+from phc.ir.alike import unevaluated_pow
 from phc.ir.dae import Equation, Invariant, LinearBlock, Parameter, Variable, real_symbol
 from phc.diagnostics import Diagnostic
 from phc.frontend.reporter import Port, Reporter
@@ -350,18 +351,6 @@ def _getter(slots: Sequence[int]) -> Callable:
     return lambda vals: ()
 
 
-_EXPR_NEW = sp.Expr.__new__
-
-
-def _pow(base, exp, commutative):
-    """``sp.Pow(base, exp, evaluate=False)`` of sympy objects (as sympy makes it then)."""
-    obj = _EXPR_NEW(sp.Pow, base, exp)
-    obj = sp.Pow._exec_constructor_postprocessors(obj)
-    if type(obj) is sp.Pow:
-        obj.is_commutative = commutative
-    return obj
-
-
 class _Template:
     """The lowering of component `old`, compiled once into a list of steps that build the
     same value for another component's name: every name of `old` (its variables, ports,
@@ -548,7 +537,7 @@ class _Template:
             elif code == _ASSOC:  # a: Add or Mul, b: getter of its arguments, c: commutative
                 vals[slot] = a._from_args(b(vals), c)
             elif code == _POW:  # a, b: the slots of base and exponent, c: commutative
-                vals[slot] = _pow(vals[a], vals[b], c)
+                vals[slot] = unevaluated_pow(vals[a], vals[b], c)
             elif code == _FUNC:
                 vals[slot] = a(*b(vals))
             elif code == _SPAN:

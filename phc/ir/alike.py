@@ -40,8 +40,9 @@ class _Opaque(Exception):
     """Something in the row that :class:`AlikeReplacer` does not rename (then sympy rebuilds it)."""
 
 
-def _pow(base, exp, commutative):
-    """``sp.Pow(base, exp, evaluate=False)`` as sympy makes it (as :func:`phc.frontend.lowering._pow`)."""
+def unevaluated_pow(base, exp, commutative):
+    """``sp.Pow(base, exp, evaluate=False)`` of sympy objects, as sympy makes it (a rebuild's power:
+    here and in the lowering templates, :mod:`phc.frontend.lowering`)."""
     obj = _EXPR_NEW(sp.Pow, base, exp)
     obj = sp.Pow._exec_constructor_postprocessors(obj)
     if type(obj) is sp.Pow:
@@ -105,7 +106,7 @@ class _Plan:
             if kind == _ASSOC:
                 vals.append(cls._from_args(items, comm))
             elif kind == _POW:
-                vals.append(_pow(items[0], items[1], comm))
+                vals.append(unevaluated_pow(items[0], items[1], comm))
             else:
                 vals.append(cls(*items))
         return get(self.root)
