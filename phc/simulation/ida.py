@@ -21,6 +21,12 @@ call — a few microseconds a call, on the smallest models more than the residua
 versions called SUNDIALS' C functions directly, at byte offsets inside scikit-sundae's
 extension object, and replaced its callbacks; a dependency upgrade could
 turn that into a memory error, so phc now uses only what scikit-sundae documents.
+phc's own C driver against the machine's SUNDIALS (:mod:`phc.simulation.ida_native`) takes its
+settings and its step hook from here.
+
+The module is over 800 lines because it holds, beside the scikit-sundae run, what both IDA
+drivers share: the run's settings (:func:`run_settings`) and the step hook with the monitor's
+look cadence (:class:`_StepHook`).
 """
 
 from __future__ import annotations
