@@ -72,7 +72,8 @@ Private control flow, defined where it is used
     ends an IDA run to go on at another maximum BDF order; the IDA driver catches it),
     ``phc.simulation.events._ContactRest`` (a contact cannot go on: the switched driver
     stops the run with its message), ``phc.study.ode_form._Stop`` (a scipy run of the ODE form
-    ends early; its row keeps the message). :data:`PRIVATE_CONTROL_FLOW` names them; ``tests/test_errors.py`` walks
+    ends early; its row keeps the message), ``phc.ir.alike._Opaque`` (a row the renaming rebuild
+    leaves to sympy). :data:`PRIVATE_CONTROL_FLOW` names them; ``tests/test_errors.py`` walks
     phc's modules and fails on any other exception defined outside this module.
 """
 
@@ -336,7 +337,8 @@ class RegistryError(PhcError):
 PRIVATE_CONTROL_FLOW = ("phc.cli.report._Exit", "phc.frontend.lowering.Unshareable", "phc.checks.compiled._NotNumeric", "phc.ir.initial_fields._FieldError",
                         "phc.ir.initial_fields._Silent", "phc.codegen.numba_cache.NotInCache",
                         "phc.frontend.source._NotRegular", "phc.codegen.c_translate._Unknown", "phc.simulation.ida._Stop", "phc.simulation.order.Switch",
-                        "phc.simulation.events._ContactRest", "phc.study.ode_form._Stop")
+                        "phc.simulation.events._ContactRest", "phc.study.ode_form._Stop",
+                        "phc.ir.alike._Opaque")
 """Exceptions that never leave the code that raises them, defined there (qualified names)."""
 
 __all__ = ["BackendMismatch", "BackendUnavailable", "BackendUnsupported", "CacheWarning", "CodegenError", "TranslationError",
