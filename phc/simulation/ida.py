@@ -510,10 +510,7 @@ class _StepHook:
                 self.edge = None  # passed: it was a trial step's overshoot
             elif h < EDGE_SHRINK * self.edge[1]:
                 raise calls.error  # creeping up to the edge of the model's domain
-        if h > 0.1 * self.h_ref:
-            self.normal = (t, np.array(y), np.array(yp))
-        else:
-            self.collapsed = (t, np.array(y), np.array(yp))
+        self._keep(t, y, yp, h)
         self.since_look += 1
         if self.since_look >= self.cadence and self.monitor.enabled:
             self._look(t, y, yp, h)
@@ -527,6 +524,30 @@ class _StepHook:
         if self.steps >= self.max_steps and t < self.t_end:
             raise _Stop(f"stopped after {self.steps} steps at t = {t:.6g} (max_steps); raise `max_steps` or "
                         "loosen the tolerances", max_steps=True)
+
+    def _keep(self, t, y, yp, h) -> None:
+        """After a step of size h to (t, y, ẏ): the state a failure is diagnosed at — the last one
+        reached with a normal step (h > h_ref/10), or the latest of a collapse."""
+        if h > 0.1 * self.h_ref:
+            self.normal = (t, np.array(y), np.array(yp))
+        else:
+            self.collapsed = (t, np.array(y), np.array(yp))
+
+    def after_chunk(self, steps: int, t, y, yp, hs) -> None:
+        """What :meth:`__call__` does after each step, for a chunk of steps of sizes `hs` (oldest
+        first) ending at (t, y, ẏ), the run's `steps` in all (phc's native IDA driver,
+        :mod:`phc.simulation.ida_native`): h_ref as ``max(h, 0.999 h_ref)`` step by step, the largest
+        step, the state kept for a diagnosis, and the monitor's look where one is due."""
+        taken = len(hs)
+        decay = 0.999 ** np.arange(taken - 1, -1, -1)
+        self.h_ref = max(float(np.max(hs * decay)), self.h_ref * 0.999 ** taken)
+        h = float(hs[-1])
+        self.steps, self.t_last, self.h_last = steps, t, h
+        self.h_largest = max(self.h_largest, float(hs.max()))
+        self.since_look += taken
+        self._keep(t, y, yp, h)
+        if self.since_look >= self.cadence and self.monitor.enabled:
+            self._look(t, y, yp, h)
 
     def _look(self, t, y, yp, h) -> None:
         monitor = self.monitor

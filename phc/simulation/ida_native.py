@@ -173,20 +173,8 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
                 hs = hist[1:2 * taken:2]
                 steps += taken
                 since_progress += taken
-                # the hook's reference step: max(h, 0.999 h_ref) step by step
-                decay = 0.999 ** np.arange(taken - 1, -1, -1)
-                hook.h_ref = max(float(np.max(hs * decay)), hook.h_ref * 0.999 ** taken)
-                h = float(hs[-1])
-                hook.steps, hook.t_last, hook.h_last = steps, t, h
-                hook.h_largest = max(hook.h_largest, float(hs.max()))
-                hook.since_look += taken
                 recent.extend(hs[-RECENT_STEPS:].tolist())
-                if h > 0.1 * hook.h_ref:
-                    hook.normal = (t, y.copy(), yp.copy())
-                else:
-                    hook.collapsed = (t, y.copy(), yp.copy())
-                if hook.since_look >= hook.cadence and monitor.enabled:
-                    hook._look(t, y, yp, h)
+                hook.after_chunk(steps, t, y, yp, hs)
                 if not choice.final:
                     try:
                         after_step(choice, mod, p, t, y, yp, steps=steps, recent=recent, t_end=t_end)
