@@ -796,10 +796,8 @@ def _chatter(handled, span) -> Optional[str]:
     if len(times) == CHATTER_COUNT and times[-1] - times[0] <= CHATTER_SPAN * span:
         if equation == "friction":
             return (f"the friction at contact `{condition}` switched between sticking and sliding {CHATTER_COUNT} "
-                    f"times within {times[-1] - times[0]:.3g} at t = {t_last:.6g}: where it begins to slip, its "
-                    "slip rate grows from 0 with zero slope and the root finding sees its round-off cross zero "
-                    "(docs/hard-cases.md, the woodpecker toy); a looser rtol or a fixed-step solver (`midpoint4`) "
-                    "steps over it")
+                    f"times within {times[-1] - times[0]:.3g} at t = {t_last:.6g}: neither mode holds there "
+                    "(phc.simulation.friction; docs/events.md); a fixed-step solver (`midpoint4`) may step over it")
         if equation == "contact":
             return (f"contact `{condition}` switched {CHATTER_COUNT} times within {times[-1] - times[0]:.3g} at "
                     f"t = {t_last:.6g} (impacts, closing, opening): neither its gap nor its force keeps a sign "

@@ -114,7 +114,7 @@ class Contacts:
         for k in range(self.n):
             if self.closed(k, p):
                 w[k] = y[self.force[k]]
-        return np.concatenate([w, self.friction.watched(y, p, out)]) if self.friction.n else w
+        return np.concatenate([w, self.friction.watched(y, p, out, t)]) if self.friction.n else w
 
     def rate_of(self, t, y, yp, p, k: int) -> float:
         return float(self.outputs(t, y, yp, p)[self.rate[k]])
