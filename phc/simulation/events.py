@@ -702,7 +702,7 @@ def _close(watch: Watch, k: int, t, y, yp, events, dif, energy):
     open where the consistent force pulls (λ < 0)."""
     contacts = watch.contacts
     name = contacts.names[k]
-    watch.p[contacts.mode[k]] = 1.0
+    watch.p[contacts.mode[k]], contacts.consistent[k] = 1.0, None
     try:  # with friction: sliding, or sticking where it can (events of the mode: phc.simulation.friction)
         y1, yp1, modes = friction.on_close(watch, k, t, y, yp, dif, energy)
     except InconsistentInitialError as err:
@@ -719,9 +719,18 @@ def _close(watch: Watch, k: int, t, y, yp, events, dif, energy):
 
 def _open(watch: Watch, k: int, t, y, events, dif, energy):
     """Open closed contact k at t (its force fell to zero); its gap, zero to the event's
-    location error, is watched from just below its value."""
+    location error, is watched from just below its value. The force λ is a multiplier,
+    outside IDA's error test: where it is still positive at the consistent state the contact
+    stays closed, its force watched on consistent states until it falls to zero."""
     contacts = watch.contacts
     name = contacts.names[k]
+    fixed = dif | set(energy)
+    y1, yp1 = _restart(watch, t, y, fixed)
+    if y1[contacts.force[k]] > 1e-9 * (1.0 + float(np.abs(y1).max(initial=0.0))):
+        contacts.consistent[k] = lambda tt, z: _restart(watch, tt, z, fixed)
+        watch.handled.append((t, name, "contact"))
+        return y1, yp1
+    contacts.consistent[k] = None
     watch.p[contacts.mode[k]] = 0.0
     y, yp = _restart(watch, t, y, dif | set(energy))
     gap = float(contacts.outputs(t, y, yp, watch.p)[contacts.gap[k]])
