@@ -107,7 +107,7 @@ def fine(compiled):
     return phc.simulate(compiled, solver="midpoint4", step=2.5e-5)
 
 
-@pytest.mark.parametrize("tol,bound", [(1e-6, 3e-7), (None, 3e-8), (1e-8, 3e-8), (2e-9, 1e-8)],
+@pytest.mark.parametrize("tol,bound", [(1e-6, 3e-7), (None, 3e-8), (1e-8, 3e-8), (2e-9, 3e-8)],
                          ids=["1e-6", "model", "1e-8", "2e-9"])
 def test_ida_has_midpoint4s_stick_slip_events(compiled, fine, tol, bound):
     """IDA runs the 0.3 s to the end at each tolerance, with the stick/slip events of midpoint4
@@ -116,10 +116,13 @@ def test_ida_has_midpoint4s_stick_slip_events(compiled, fine, tol, bound):
     where the sleeve begins to slip: round-off of a slip rate that grows from 0 with zero
     slope taken for a return through zero), and at the model's tolerances it had two extra
     stick/slip pairs of up to 5.4e-8 s (a slip found on IDA's values of the friction force, a
-    multiplier outside its error test, before the consistent force reached the cone). Times:
-    midpoint4 at h = 2.5e-5 is within 1e-9 s of h = 1e-4 on these events; the bounds are a few
-    times IDA's own spread (1.1e-7 s at 1e-6, 5e-9 s at 1e-8 and below) — a stick→slip event
-    is a crossing of |λ_t| = μλ at the rate of the forces, which an error of the states moves."""
+    multiplier outside its error test, before the consistent force reached the cone). Times: a
+    stick→slip event is where μλ − |λ_t| (falling at 2.6 N/s here) crosses zero on the solver's
+    values of the two multipliers; a root found late on them is not moved back, so its time
+    carries their error over that rate — measured, IDA at 2e-9 lands 6e-9 s (at 0.061 s) to
+    1.6e-8 s (at 0.207 s) from midpoint4 at h = 2.5e-5, whose own stick→slip time at 0.207 s
+    moves by 6.5e-9 s from h = 5e-5 (docs/hard-cases.md); the other events agree to 1e-9 s.
+    The bounds are twice that, and at 1e-6 four times its largest difference (8e-8 s)."""
     kw = {} if tol is None else dict(rtol=tol, atol=tol)
     ida = phc.simulate(compiled, solver="ida", **kw)
     assert ida.success, ida.message
