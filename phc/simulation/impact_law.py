@@ -220,7 +220,7 @@ def joint_impact(watch, impacts, t, y, yp, events, dif, energy):
                     if sigma:
                         f.slide(f.of[k], sigma, y, watch.p)
                     else:
-                        watch.p[f.mode[f.of[k]]], f.consistent[f.of[k]] = sigma, None
+                        watch.p[f.mode[f.of[k]]] = sigma
                     name = contacts.names[k]
                     events.append(Event(t, name, int(sigma), "stick" if sigma == 0 else "slip", f"{name}.friction"))
     for k in resting:
