@@ -36,12 +36,7 @@ from phc.study.accuracy import relative_output_errors  # noqa: E402
 
 
 
-NOT_MEASURED = {
-    "woodpecker": "not measured: IDA's reference run (rtol 2e-9) stops at t = 0.207 s, where the sleeve's "
-                  "friction alternates between sticking and sliding 50 times within 1e-9 s (docs/hard-cases.md; "
-                  "at the model's tolerances, rtol 1e-8, IDA runs it); its accuracy is tested against an "
-                  "independent Moreau time-stepping scheme in tests/hard/test_woodpecker.py",
-}
+NOT_MEASURED: dict[str, str] = {}
 """Shipped models this benchmark (IDA against IDA) leaves out, each with the reason printed in its row."""
 
 

@@ -702,7 +702,7 @@ def _close(watch: Watch, k: int, t, y, yp, events, dif, energy):
     open where the consistent force pulls (λ < 0)."""
     contacts = watch.contacts
     name = contacts.names[k]
-    watch.p[contacts.mode[k]] = 1.0
+    watch.p[contacts.mode[k]], contacts.consistent[k] = 1.0, None
     try:  # with friction: sliding, or sticking where it can (events of the mode: phc.simulation.friction)
         y1, yp1, modes = friction.on_close(watch, k, t, y, yp, dif, energy)
     except InconsistentInitialError as err:
@@ -719,9 +719,18 @@ def _close(watch: Watch, k: int, t, y, yp, events, dif, energy):
 
 def _open(watch: Watch, k: int, t, y, events, dif, energy):
     """Open closed contact k at t (its force fell to zero); its gap, zero to the event's
-    location error, is watched from just below its value."""
+    location error, is watched from just below its value. The force λ is a multiplier,
+    outside IDA's error test: where it is still positive at the consistent state the contact
+    stays closed, its force watched on consistent states until it falls to zero."""
     contacts = watch.contacts
     name = contacts.names[k]
+    fixed = dif | set(energy)
+    y1, yp1 = _restart(watch, t, y, fixed)
+    if y1[contacts.force[k]] > 1e-9 * (1.0 + float(np.abs(y1).max(initial=0.0))):
+        contacts.consistent[k] = lambda tt, z: _restart(watch, tt, z, fixed)
+        watch.handled.append((t, name, "contact"))
+        return y1, yp1
+    contacts.consistent[k] = None
     watch.p[contacts.mode[k]] = 0.0
     y, yp = _restart(watch, t, y, dif | set(energy))
     gap = float(contacts.outputs(t, y, yp, watch.p)[contacts.gap[k]])
@@ -796,10 +805,8 @@ def _chatter(handled, span) -> Optional[str]:
     if len(times) == CHATTER_COUNT and times[-1] - times[0] <= CHATTER_SPAN * span:
         if equation == "friction":
             return (f"the friction at contact `{condition}` switched between sticking and sliding {CHATTER_COUNT} "
-                    f"times within {times[-1] - times[0]:.3g} at t = {t_last:.6g}: where it begins to slip, its "
-                    "slip rate grows from 0 with zero slope and the root finding sees its round-off cross zero "
-                    "(docs/hard-cases.md, the woodpecker toy); a looser rtol or a fixed-step solver (`midpoint4`) "
-                    "steps over it")
+                    f"times within {times[-1] - times[0]:.3g} at t = {t_last:.6g}: neither mode holds there "
+                    "(phc.simulation.friction; docs/events.md); a fixed-step solver (`midpoint4`) may step over it")
         if equation == "contact":
             return (f"contact `{condition}` switched {CHATTER_COUNT} times within {times[-1] - times[0]:.3g} at "
                     f"t = {t_last:.6g} (impacts, closing, opening): neither its gap nor its force keeps a sign "

@@ -17,9 +17,17 @@ of ġ = 0) the row ``<c>.friction`` holds, by σ:
   set-valued ``sign`` of :mod:`phc.simulation.events`). Otherwise it slides on the other way,
   σ = −sign(λ_t) of the trial. Before the trial the slip rate that the event's location error
   leaves is removed by a tangential impulse (its tiny kinetic energy booked as dissipated),
-  so a stick holds v_t = 0 to round-off from its first step.
+  so a stick holds v_t = 0 to round-off from its first step. A slide that begins at rest
+  (from sticking, or a trial that failed) has its σ v_t watched from just below zero
+  (:meth:`Friction.slide`): v_t grows from 0 with zero slope there, and its round-off is no
+  return through zero.
 * **sticking** (σ = 0): the driver watches μ λ − λ_t and μ λ + λ_t; where one falls through
-  zero (|λ_t| reaches μ λ) it **slips**, σ = −sign(λ_t) — λ_t is continuous there.
+  zero (|λ_t| reaches μ λ) it **slips**, σ = −sign(λ_t) — λ_t is continuous there. λ and λ_t
+  are multipliers (outside IDA's error test), and a solver's values of them are off by its
+  constraints' round-off over a step; so near the bound (within :data:`NEAR` of μ λ) the
+  bound is evaluated at the consistent state, and a slip found on values that were off by
+  more is confirmed there: where the force is still inside the cone the contact sticks on
+  (:func:`on_event`).
 
 A contact closes (:func:`on_close`) sliding with σ = sign(v_t) when it slides, and tries to
 stick when v_t = 0 (a block put down on a slope). The friction power is λ_t v_t: −μ λ |v_t| ≤ 0
@@ -38,6 +46,10 @@ from phc.errors import InconsistentInitialError
 
 STICK_SLACK = 1e-9
 """A stick is kept while |λ_t| ≤ (1 + slack) μ λ (as :data:`phc.simulation.events.STICK_SLACK`)."""
+NEAR = 1e-3
+"""Within this fraction of μ λ of its bound on a solver's values, a sticking contact's bound is
+evaluated at the consistent state (:meth:`Friction.watched`): above the multipliers' error on
+the solvers (IDA's up to 7e-4 just after a restart, on the woodpecker)."""
 
 
 class Friction:
@@ -66,21 +78,66 @@ class Friction:
             self.tangents.append([(o, variables[n[len(head):]]) for n, o in outputs.items() if n.startswith(head)])
         self.n = len(self.contact)
         self.contacts = contacts
+        self.offset = np.zeros(self.n)
+        """What σ v_t of each sliding contact is watched from below zero (:meth:`slide`)."""
+        self.mod = mod
+        self.fixed = set(np.flatnonzero(np.asarray(mod.DIFFERENTIAL)).tolist()) | {
+            j for j, r in enumerate(getattr(mod, "ROLES", ())) if r == "energy"}
+        """The columns a consistent state keeps (the differential states and the energy)."""
 
-    def watched(self, y, p, out) -> np.ndarray:
+    def watched(self, y, p, out, t=None) -> np.ndarray:
         """Two entries per frictional contact, positive while its mode holds: σ v_t and +1
-        sliding; μ λ − λ_t and μ λ + λ_t sticking; +1 open. `out`: the module's outputs."""
+        sliding; μ λ − λ_t and μ λ + λ_t sticking; +1 open. `out`: the module's outputs at
+        (t, y). λ and λ_t are multipliers, and a solver's values of them are off by its
+        constraints' round-off over a step (IDA's by up to 7e-4 of μ λ on the woodpecker just
+        after a restart, midpoint4's by 7e-6 at h = 1.25e-5): within :data:`NEAR` of the bound
+        on those values, the bound is evaluated at the consistent state of the differential
+        states in `y` (a solve), so the slip is found where the consistent force reaches the
+        cone rather than early or late by their error."""
         w = np.ones(2 * self.n)
         for i, k in enumerate(self.contact):
             if not self.contacts.closed(k, p):
                 continue
             sigma = p[self.mode[i]]
             if sigma != 0:
-                w[2 * i] = sigma * y[self.slip[i]]
-            else:
-                bound = out[self.mu[i]] * y[self.contacts.force[k]]
-                w[2 * i], w[2 * i + 1] = bound - y[self.force[i]], bound + y[self.force[i]]
+                w[2 * i] = sigma * y[self.slip[i]] + self.offset[i]
+                continue
+            bound = out[self.mu[i]] * y[self.contacts.force[k]]
+            w[2 * i], w[2 * i + 1] = bound - y[self.force[i]], bound + y[self.force[i]]
+            if t is not None and min(w[2 * i], w[2 * i + 1]) < NEAR * abs(bound):
+                try:
+                    z, zp = self.consistent(t, y, p)
+                except InconsistentInitialError:
+                    continue
+                bound = self.contacts.outputs(t, z, zp, p)[self.mu[i]] * z[self.contacts.force[k]]
+                w[2 * i], w[2 * i + 1] = bound - z[self.force[i]], bound + z[self.force[i]]
         return w
+
+    def consistent(self, t, y, p):
+        """The consistent ``(y, ẏ)`` at t with the differential states (and the energy) of `y`."""
+        from phc.simulation.initial import consistent_initial_conditions
+
+        r = consistent_initial_conditions(self.mod, p, t, dict(enumerate(y)), self.fixed, initial_relations=False)
+        return r.y0, r.yp0
+
+    def slide(self, i: int, sigma: float, y, p) -> None:
+        """Contact i slides the way σ from (its slip rate in) `y`. Its σ v_t is watched from
+        just below its value there: a slide that begins at rest (from sticking, or a stick
+        trial that failed) has v_t = 0 growing with zero slope, and without the offset the
+        root finding takes its round-off for a return through zero (the sleeve of
+        models/woodpecker.yaml under IDA at rtol 2e-9: 50 stick trials within 7.6e-10 s).
+        The offset, 1e-12 of the state's size as a reopened contact's gap has
+        (:func:`phc.simulation.events._open`), delays a real return through zero by
+        offset/|v̇_t|; a slide that begins with a slip rate above it has none."""
+        p[self.mode[i]] = sigma
+        v = sigma * float(y[self.slip[i]])
+        noise = 1e-12 * (1.0 + float(np.abs(y).max(initial=0.0)))
+        self.offset[i] = max(0.0, -v) + noise if v <= noise else 0.0
+
+    def margin(self, i: int, y, p, out) -> float:
+        """(μ λ − |λ_t|)/(μ λ) of a sticking contact i: how far its force is inside the cone."""
+        bound = out[self.mu[i]] * y[self.contacts.force[self.contact[i]]]
+        return float((bound - abs(y[self.force[i]])) / bound) if bound > 0 else -np.inf
 
     def admissible(self, i: int, y, p, out) -> bool:
         """|λ_t| ≤ μ λ (to :data:`STICK_SLACK`, and round-off of λ)."""
@@ -143,7 +200,7 @@ def _stick(watch, i: int, t, y, restart, events, sliding: bool = False):
         events.append(_event(t, name, 0, "stick"))
         return y1, yp1
     lam_t = y1[f.force[i]]
-    watch.p[f.mode[i]] = -np.sign(lam_t) if lam_t != 0 else sigma
+    f.slide(i, -np.sign(lam_t) if lam_t != 0 else sigma, y, watch.p)
     if not sliding or watch.p[f.mode[i]] != sigma:
         events.append(_event(t, name, watch.p[f.mode[i]], "slip"))
     return restart(y, True)
@@ -169,7 +226,7 @@ def on_close(watch, k: int, t, y, yp, dif, energy):
         return (*restart(y, True), events)
     v = float(y[f.slip[i]])
     if abs(v) > 1e-12 * (1.0 + float(np.abs(yp).max(initial=0.0))):
-        watch.p[f.mode[i]] = np.sign(v)
+        f.slide(i, np.sign(v), y, watch.p)
         events.append(_event(t, watch.contacts.names[k], np.sign(v), "slip"))
         return (*restart(y, True), events)
     return (*_stick(watch, i, t, y, restart, events), events)
@@ -187,8 +244,15 @@ def on_event(watch, j: int, t, y, yp, events, dif, energy):
     watch.handled.append((t, watch.contacts.names[k], "friction"))  # (the chatter test's message)
     if watch.p[f.mode[i]] != 0:
         return _stick(watch, i, t, y, restart, events, sliding=True)
+    # λ_t reached ±μλ on the solver's values of λ and λ_t (multipliers: IDA's are outside its
+    # error test); at the consistent state still sticking the force may be inside the cone yet
+    # (a root on values that were off by more than NEAR): then the slip is not due, and the
+    # contact sticks on from that state, its bound watched on consistent states (Friction.watched)
+    y1, yp1 = restart(y, True)
+    if f.margin(i, y1, watch.p, watch.contacts.outputs(t, y1, yp1, watch.p)) > STICK_SLACK:
+        return y1, yp1
     sigma = -1.0 if j % 2 == 0 else 1.0  # λ_t reached +μλ: it slides the negative way
-    watch.p[f.mode[i]] = sigma
+    f.slide(i, sigma, y, watch.p)
     events.append(_event(t, watch.contacts.names[k], sigma, "slip"))
     return restart(y, True)
 
@@ -203,7 +267,7 @@ def settle(watch, t, y, yp, events) -> bool:
     changed = False
     for i, k in enumerate(f.contact):
         if watch.contacts.closed(k, watch.p) and watch.p[f.mode[i]] == 0 and not f.admissible(i, y, watch.p, out):
-            watch.p[f.mode[i]] = -np.sign(y[f.force[i]])
+            f.slide(i, -np.sign(y[f.force[i]]), y, watch.p)
             events.append(_event(t, watch.contacts.names[k], watch.p[f.mode[i]], "slip"))
             changed = True
     return changed

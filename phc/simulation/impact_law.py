@@ -217,7 +217,10 @@ def joint_impact(watch, impacts, t, y, yp, events, dif, energy):
                 v = float(after[tangents[k]])
                 sigma = 0.0 if abs(v) <= FEASIBLE * speed else float(np.sign(v))
                 if sigma != sliding[k]:
-                    watch.p[f.mode[f.of[k]]] = sigma
+                    if sigma:
+                        f.slide(f.of[k], sigma, y, watch.p)
+                    else:
+                        watch.p[f.mode[f.of[k]]] = sigma
                     name = contacts.names[k]
                     events.append(Event(t, name, int(sigma), "stick" if sigma == 0 else "slip", f"{name}.friction"))
     for k in resting:

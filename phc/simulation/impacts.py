@@ -34,6 +34,7 @@ from typing import Optional
 
 import numpy as np
 
+from phc.errors import InconsistentInitialError
 from phc.simulation.friction import Friction
 from phc.simulation.midpoint import EVENT_TOL  # the relative time an event is located to
 
@@ -91,6 +92,9 @@ class Contacts:
         event's location error), and a solver sees a crossing only from a positive value;
         with the offset a rebound whose whole flight lies within one step (the last bounces
         before a ball comes to rest) is still an impact at the step's end."""
+        self.consistent: list = [None] * self.n
+        """For a closed contact whose force fell to zero on IDA's values only: ``(t, y) -> (y, ẏ)``,
+        the consistent state its force is watched on (:func:`phc.simulation.events._open`)."""
         self.friction = Friction(mod, self)
         """Coulomb friction at the closed contacts that have it (:mod:`phc.simulation.friction`)."""
         self.n_watch = self.n + 2 * self.friction.n
@@ -114,7 +118,12 @@ class Contacts:
         for k in range(self.n):
             if self.closed(k, p):
                 w[k] = y[self.force[k]]
-        return np.concatenate([w, self.friction.watched(y, p, out)]) if self.friction.n else w
+                if self.consistent[k] is not None:  # (phc.simulation.events._open)
+                    try:
+                        w[k] = self.consistent[k](t, y)[0][self.force[k]]
+                    except InconsistentInitialError:
+                        pass
+        return np.concatenate([w, self.friction.watched(y, p, out, t)]) if self.friction.n else w
 
     def rate_of(self, t, y, yp, p, k: int) -> float:
         return float(self.outputs(t, y, yp, p)[self.rate[k]])

@@ -18,8 +18,10 @@ Glocker 1996). The numbers it prints: period T = 0.1452 s, the bird's least angl
 sleeve jams φ_S = -0.53 rad, the 72.91 Hz eigenfrequency of the free flight. The descent per
 period is read off its Figure 4 (docs/hard-cases.md says how). Its model differs in one point:
 Poisson's impact law instead of Newton's; at this model's impacts the two coincide (the only
-impact with e ≠ 0, the beak's, is a single contact sliding throughout; with e = 0 both laws are
-the same problem), so that difference is not a cause."""
+impact with e ≠ 0, the beak's, is a single contact whose slip reverses during the peck and is
+positive at the end of both of Poisson's phases, so both laws give the friction impulse that
+sign; with e = 0 both laws are the same problem), so that difference is not a cause. What the
+remaining gap is the size of: docs/hard-cases.md, "The gap traced"."""
 
 from __future__ import annotations
 
