@@ -46,7 +46,8 @@ from phc.simulation.guard import CATCH, GuardedModule, ModelEvaluationError
 from phc.simulation.ida_bridge import NEAR_DROP, Bridges, near_rank_drop
 from phc.simulation.scaling import promise_scales
 from phc.simulation.monitor import DENSE_SIZE, SingularityMonitor, check_scales, diagnose_failure, unbounded_growth
-from phc.simulation.look_cadence import FAR_RATIO, LookBudget, affordable_cadence, integration_work, next_cadence
+from phc.simulation.look_cadence import (FAR_RATIO, LookBudget, affordable_cadence, crawls, integration_work,
+                                       next_cadence)
 from phc.simulation.order import RECENT_STEPS, OrderChoice, Switch, after_step
 from phc.simulation.tested import (  # noqa: F401  (names of phc.simulation.ida before the split)
     CANCELLATION, SENSITIVITY_DENSE, TERM_FRACTION, algebraic_rates, determined_algebraic, determined_scales,
@@ -533,18 +534,19 @@ class _StepHook:
         else:
             self.collapsed = (t, np.array(y), np.array(yp))
 
-    def after_chunk(self, steps: int, t, y, yp, hs) -> None:
+    def after_chunk(self, steps: int, t, y, yp, hs, h_ref: float, since_look: Optional[int] = None) -> None:
         """What :meth:`__call__` does after each step, for a chunk of steps of sizes `hs` (oldest
         first) ending at (t, y, ẏ), the run's `steps` in all (phc's native IDA driver,
-        :mod:`phc.simulation.ida_native`): h_ref as ``max(h, 0.999 h_ref)`` step by step, the largest
-        step, the state kept for a diagnosis, and the monitor's look where one is due."""
+        :mod:`phc.simulation.ida_native`): `h_ref` (``max(h, 0.999 h_ref)`` step by step, which the
+        driver computes), the largest step, the state kept for a diagnosis, and the monitor's look
+        where one is due. `since_look`: the steps since the monitor's last look where the driver made
+        its routine looks itself."""
         taken = len(hs)
-        decay = 0.999 ** np.arange(taken - 1, -1, -1)
-        self.h_ref = max(float(np.max(hs * decay)), self.h_ref * 0.999 ** taken)
+        self.h_ref = float(h_ref)
         h = float(hs[-1])
         self.steps, self.t_last, self.h_last = steps, t, h
         self.h_largest = max(self.h_largest, float(hs.max()))
-        self.since_look += taken
+        self.since_look = self.since_look + taken if since_look is None else since_look
         self._keep(t, y, yp, h)
         if self.since_look >= self.cadence and self.monitor.enabled:
             self._look(t, y, yp, h)
@@ -554,8 +556,7 @@ class _StepHook:
         steps, self.since_look = self.since_look, 0
         looked = monitor.tally.work
         warning = monitor.watch(t, np.array(y), np.array(yp), h)
-        if warning is None and self.steps >= self.next_crawl_check \
-                and h * (self.max_steps - self.steps) < self.t_end - t:
+        if warning is None and crawls(h, t, self.t_end, self.steps, self.max_steps, self.next_crawl_check):
             # crawling: at this step size the run cannot reach its end within max_steps. Close
             # to a singular configuration IDA may crawl instead of failing (which of the two
             # depends on round-off: the BLAS kernels of the CPU); ask the same question as after

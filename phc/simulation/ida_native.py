@@ -10,11 +10,22 @@ step. IDA's settings are :func:`phc.simulation.ida.run_settings`' (the tolerance
 vector, the maximum order: the same numbers scikit-sundae is given), the dense linear solver
 is SUNDIALS' own, as scikit-sundae's ``dense``.
 
-Between chunks, this module does what :class:`phc.simulation.ida._StepHook` does after a step:
-a chunk ends exactly at the step where the singularity monitor's next look falls
-(``_StepHook._look``: its cadence, crawl check and stops), where phc's choice of the maximum
-order looks next (:func:`phc.simulation.order.after_step`; a switch starts a new IDA), at
-``max_steps``, and after at most :data:`CHUNK` steps (progress, Ctrl-C).
+The singularity monitor's routine looks are the driver's own (:data:`C_LOOKS`): at the
+monitor's cadence it looks at the equilibrated iteration matrix in C, with the fixed-step C
+loop's routine look (``c_runtime/dense_lu.c``: its LU and 1-norm condition estimate, as LAPACK's
+``dgecon`` is in Python's monitor), and a look that finds the matrix clearly far from singular
+costs no Python: it is recorded, and replayed into the monitor between chunks
+(:meth:`~phc.simulation.monitor.SingularityMonitor.routine_looks`: the worst ratio, the last looks,
+the history a diagnosis reads), and the next cadence is set in C
+(:func:`phc.simulation.look_cadence.cadence_after`, translated). Every other look ends the chunk
+and is Python's monitor's, exactly as :class:`phc.simulation.ida._StepHook` makes it without the
+driver (``_StepHook._look``: the look itself, its minimum search, the crawl check, the stops): a
+look the condition estimate does not clear, one that brackets a minimum of the conditioning with
+the two before it (:func:`~phc.simulation.look_cadence.brackets_minimum`), and one where IDA crawls
+(:func:`~phc.simulation.look_cadence.crawls`). Between chunks, this module does what the step hook
+does after a step: a chunk ends where phc's choice of the maximum order looks next
+(:func:`phc.simulation.order.after_step`; a switch starts a new IDA), at ``max_steps``, at a look
+Python makes, and after at most :data:`CHUNK` steps (progress, Ctrl-C).
 
 Not in the native path (the run goes through scikit-sundae, :func:`phc.simulation.ida.integrate_ida`,
 and says why once per process): switching conditions (events: IDA's root finding), models
@@ -45,6 +56,16 @@ Ctrl-C): a millisecond or so on small models."""
 
 DONE = 1
 """``PHC_DONE`` of ida_driver.c: the last output time is reached."""
+
+C_LOOKS = True
+"""Whether the driver makes the monitor's routine looks itself, in C (see the module's docstring);
+False: every look is Python's, the chunks ending at each (the same looks, decided alike: tests
+compare the two)."""
+
+LI_CADENCE, LI_SINCE, LI_BASE, LI_STEPS, LI_NEXT_CHECK, LI_MAX_STEPS, LI_LOOKS, LI_FLAG, LI_CAPACITY = range(9)
+"""The routine look's integer state (ida_driver.c's ``li[]``)."""
+LF_THRESHOLD, LF_H_FLOOR, LF_T_END, LF_LAST_RATIO, LF_T0, LF_R0, LF_T1, LF_R1 = range(8)
+"""Its float state (``lf[]``; NaN: no look)."""
 
 _SAID: set = set()
 
@@ -121,6 +142,15 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
     hook = _StepHook(t0, y0, yp0, t_end=t_end, max_steps=max_steps, monitor=monitor, calls=calls, progress=None,
                      base=10 if n <= 60 else 20)
     status = np.zeros(1, np.int64)
+    c_looks = C_LOOKS and monitor.enabled
+    if c_looks:  # the routine look's state and record (ida_driver.c: phc_ida_watch)
+        capacity = CHUNK // hook.base + 2  # (the cadence is at least the base: CHUNK // base looks a chunk)
+        li, lf = np.zeros(c_ida.LI_N, np.int64), np.full(c_ida.LF_N, np.nan)
+        li[LI_BASE], li[LI_MAX_STEPS], li[LI_CAPACITY] = hook.base, max_steps, capacity
+        lf[LF_THRESHOLD], lf[LF_H_FLOOR], lf[LF_T_END] = monitor.threshold, monitor.h_floor, t_end
+        look_t, look_h, look_r = np.empty(capacity), np.empty(capacity), np.empty(capacity)
+        look_y, look_yp = np.empty((capacity, n)), np.empty((capacity, n))
+        watch_where = [_ptr(a) for a in (li, lf, look_t, look_h, look_r, look_y, look_yp)]
 
     def create(t, y, yp, order, h0):
         w = lib.phc_ida_create(n, len(jrows), residual, jacobian, _ptr(pv), _ptr(jrows), _ptr(jcols), float(t),
@@ -129,14 +159,35 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
                                max_steps + 1, _ptr(status))
         if not w:
             raise RuntimeError(f"SUNDIALS refused the driver's setup (step {int(status[0])} of phc_ida_create)")
+        if c_looks:
+            lib.phc_ida_watch(w, *watch_where)
         return w
+
+    def looks_in() -> None:
+        """The hook's and the monitor's state of the looks, for the driver's routine looks."""
+        li[LI_CADENCE], li[LI_SINCE], li[LI_STEPS], li[LI_NEXT_CHECK] = (hook.cadence, hook.since_look, steps,
+                                                                          hook.next_crawl_check)
+        lf[LF_LAST_RATIO] = np.nan if hook.last_ratio is None else hook.last_ratio
+        last = [(look[0], look[4]) for look in monitor._looks[-2:]]
+        last = [(np.nan, np.nan)] * (2 - len(last)) + last
+        (lf[LF_T0], lf[LF_R0]), (lf[LF_T1], lf[LF_R1]) = last
+
+    def looks_out() -> int:
+        """The driver's routine looks of the chunk, kept by the monitor and the hook; the steps since the
+        last look (a look Python must make: as many as the cadence or more)."""
+        m = int(li[LI_LOOKS])
+        if m:
+            monitor.routine_looks(look_t[:m].tolist(), look_y[:m].copy(), look_yp[:m].copy(), look_h[:m].tolist(),
+                                  look_r[:m].tolist())
+            hook.cadence, hook.last_ratio = int(li[LI_CADENCE]), float(lf[LF_LAST_RATIO])
+        return int(li[LI_SINCE])
 
     nout = len(t_out)
     ys, yps = np.empty((nout, n)), np.empty((nout, n))
     ys[0], yps[0] = y0, yp0
     k = np.ones(1, np.int64)
     hist = np.empty(2 * CHUNK)
-    taken_c, cur = np.zeros(1, np.int64), np.zeros(1)
+    taken_c, cur, h_ref = np.zeros(1, np.int64), np.zeros(1), np.zeros(1)
     y, yp = y0.copy(), yp0.copy()
     counts, reals = np.zeros(6, np.int64), np.zeros(3)
     y_failed, yp_failed = np.empty(n), np.empty(n)
@@ -145,7 +196,7 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
     nfev = njev = 0
     ok, message, interrupted, used_up = True, "integration finished", False, False
     # the addresses the C loop writes at, taken once (finding an array's address costs microseconds)
-    where = [_ptr(a) for a in (t_out, k, ys, yps, hist, taken_c, cur, y, yp)]
+    where = [_ptr(a) for a in (t_out, k, ys, yps, hist, taken_c, cur, y, yp, h_ref)]
     stats_where = [_ptr(a) for a in (counts, reals, y_failed, yp_failed)]
     advance, stats = lib.phc_ida_advance, lib.phc_ida_stats
     start = time.process_time()
@@ -153,7 +204,7 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
     try:
         while True:
             budget = min(CHUNK, max_steps - steps)
-            if monitor.enabled:
+            if monitor.enabled and not c_looks:  # end the chunk at the monitor's next look
                 budget = min(budget, max(1, hook.cadence - hook.since_look))
             if not choice.final:  # end the chunk where phc's choice of the order looks next
                 if choice.order == DEFAULT_ORDER:
@@ -162,6 +213,9 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
                     budget = 1
                 else:
                     budget = min(budget, max(1, CHECK_STEPS - (steps - choice.trial_mark[1])))
+            h_ref[0] = hook.h_ref  # (a rewind clears it)
+            if c_looks:
+                looks_in()
             result = advance(w, where[0], nout, where[1], budget, *where[2:])
             taken = int(taken_c[0])
             if result < 0:
@@ -174,7 +228,7 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
                 steps += taken
                 since_progress += taken
                 recent.extend(hs[-RECENT_STEPS:].tolist())
-                hook.after_chunk(steps, t, y, yp, hs)
+                hook.after_chunk(steps, t, y, yp, hs, h_ref[0], since_look=looks_out() if c_looks else None)
                 if not choice.final:
                     try:
                         after_step(choice, mod, p, t, y, yp, steps=steps, recent=recent, t_end=t_end)

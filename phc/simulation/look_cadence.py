@@ -55,12 +55,45 @@ look costs."""
 def next_cadence(cadence: int, base: int, before: Optional[float], ratio: Optional[float]) -> int:
     """Steps until the monitor's next look by what it found: 1.5× longer (up to
     :data:`LOOK_STRETCH`× `base`) when the ratio moved less than :data:`FLAT_DECADES` since the
-    last look and stays above :data:`FAR_RATIO`, else back to `base` at once."""
-    if before is None or ratio is None or not (ratio > FAR_RATIO and before > FAR_RATIO):
+    last look and stays above :data:`FAR_RATIO`, else back to `base` at once (:func:`cadence_after`;
+    None: no look yet)."""
+    return cadence_after(cadence, base, math.nan if before is None else float(before),
+                         math.nan if ratio is None else float(ratio))
+
+
+# The functions below are what the native IDA driver's routine look decides in C (phc/codegen/c_runtime/
+# ida_driver.c: phc.codegen.c_ida translates them with phc.codegen.c_translate, in the subset it reads;
+# NaN stands for "no look yet"); the Python step hook (phc.simulation.ida._StepHook) and the
+# monitor (phc.simulation.monitor.SingularityMonitor.watch) call them too.
+
+C_SIGNATURES = {"cadence_after": (("i", "i", "f", "f"), ("i",)),
+                "brackets_minimum": (("f", "f", "f", "f", "f", "f"), ("b",)),
+                "crawls": (("f", "f", "f", "i", "i", "i"), ("b",))}
+"""The C kinds of the translated functions' arguments and results (:mod:`phc.codegen.c_translate`)."""
+
+
+def cadence_after(cadence: int, base: int, before: float, ratio: float) -> int:
+    """:func:`next_cadence` on numbers: `before` and `ratio` NaN where there is no look."""
+    if not (ratio > FAR_RATIO and before > FAR_RATIO):
         return base
     if abs(math.log10(ratio / before)) >= FLAT_DECADES:
         return base
     return min(LOOK_STRETCH * base, max(cadence + 1, int(1.5 * cadence)))
+
+
+def brackets_minimum(t0: float, r0: float, t1: float, r1: float, t2: float, r2: float) -> bool:
+    """Whether the monitor's last three looks, at times t0, t1, t2 with conditioning ratios r0, r1,
+    r2, bracket a local minimum of the conditioning (the middle one the lowest, the times
+    increasing): the monitor then searches between them
+    (:meth:`~phc.simulation.monitor.SingularityMonitor.watch`). False where a ratio is NaN."""
+    return r1 < r0 and r1 < r2 and t0 < t1 and t1 < t2
+
+
+def crawls(h: float, t: float, t_end: float, steps: int, max_steps: int, next_check: int) -> bool:
+    """Whether IDA, at `steps` steps at t with steps of h, crawls: at this step size it cannot
+    reach `t_end` within `max_steps`; asked from the step `next_check` on (the IDA step hook's
+    crawl check, :class:`phc.simulation.ida._StepHook`)."""
+    return steps >= next_check and h * (max_steps - steps) < t_end - t
 
 
 def affordable_cadence(cadence: int, base: int, *, look_work: float, step_work: float, before: Optional[float],

@@ -37,7 +37,7 @@ import scipy.sparse as sps
 
 from phc.errors import ModelEvaluationError
 from phc.simulation.equilibrate import equilibrate
-from phc.simulation.look_cadence import LookWork
+from phc.simulation.look_cadence import LookWork, brackets_minimum
 
 HISTORY = 64
 """Looks the monitor keeps for a failure's diagnosis."""
@@ -378,12 +378,29 @@ class SingularityMonitor:
             ratio, u = self.ratio(t, y, yp, h)
         finally:
             self.threshold = saved
-        self.worst = min(self.worst, ratio)
-        self._looks = [*self._looks[-2:], (t, np.array(y, dtype=float), np.array(yp, dtype=float), h, ratio)]
-        self._remember(self._looks[-1][:3])
+        self._record(t, np.array(y, dtype=float), np.array(yp, dtype=float), h, ratio)
         if ratio >= threshold:
             return None
         return self._message(t, ratio, u, threshold)
+
+    def _record(self, t, y, yp, h, ratio) -> None:
+        """Keep a look: the worst ratio, the last three looks, the history."""
+        self.worst = min(self.worst, ratio)
+        self._looks = [*self._looks[-2:], (t, y, yp, h, ratio)]
+        self._remember(self._looks[-1][:3])
+
+    def routine_looks(self, ts, ys, yps, hs, ratios) -> None:
+        """Looks made elsewhere that found the matrix clearly far from singular — the native IDA
+        driver's routine looks in C (:mod:`phc.simulation.ida_native`): at times `ts`, states `ys`,
+        `yps` (rows, kept: not copied), steps `hs` (the floor applied) and ratios `ratios`
+        (``1/(n κ̂₁)``, as :func:`_far_from_singular` gives), kept as :meth:`watch` keeps its own
+        looks that find nothing."""
+        n = self.mod.N
+        for i, t in enumerate(ts):
+            self.tally.dense(n)
+            self._record(t, ys[i], yps[i], hs[i], ratios[i])
+        if len(self._looks) < 3:
+            self.stop_time = None
 
     @property
     def last_ratio(self) -> float:
@@ -423,7 +440,7 @@ class SingularityMonitor:
             self.stop_time = t if warning is not None else None
             return warning
         (t0, *_, r0), (t1, *_, r1), (t2, *_, r2) = self._looks
-        if not (r1 < r0 and r1 < r2 and t0 < t1 < t2):
+        if not brackets_minimum(t0, r0, t1, r1, t2, r2):
             return None
         best = self._minimize(t0, t2, fa=r0, fb=r2)
         if best is None:
