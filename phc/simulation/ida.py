@@ -44,7 +44,7 @@ from phc.errors import SimulationSetupError
 from phc.simulation.backend import BackendRun
 from phc.simulation.guard import CATCH, GuardedModule, ModelEvaluationError
 from phc.simulation.ida_bridge import NEAR_DROP, Bridges, near_rank_drop
-from phc.simulation.scaling import promise_scales
+from phc.simulation.scaling import promise_scales, remember
 from phc.simulation.monitor import DENSE_SIZE, SingularityMonitor, check_scales, diagnose_failure, unbounded_growth
 from phc.simulation.look_cadence import (FAR_RATIO, LookBudget, affordable_cadence, crawls, integration_work,
                                        next_cadence)
@@ -598,6 +598,25 @@ def run_settings(mod, p, t0: float, t_end: float, y0, yp0, options, nominal=None
     # the user's max_order, else phc's choice: IDA's default, and 2 where undamped modes hold its steps
     choice = OrderChoice.fixed(options.max_order) if options.max_order else OrderChoice(order=MAX_ORDER)
     max_order = choice.order
+    local = local_fraction(rtol)
+    # what the tolerances and the start's rates are made of, computed once for a set of inputs
+    # (phc.simulation.scaling.remember: a run repeating another's start, parameters, scales and
+    # tolerances gets the same numbers without evaluating the model again)
+    nominal_parts = (None, None, None) if nominal is None else (
+        np.asarray(nominal, dtype=float), getattr(nominal, "sizes", None), getattr(nominal, "floored", None))
+    determined, atol_j, yp0 = remember(
+        mod, "ida.run_settings", (np.asarray(p, dtype=float), np.asarray(y0, dtype=float),
+                                  np.asarray(yp0, dtype=float), np.array([t0, t_end, rtol, atol]), *nominal_parts),
+        lambda: _tolerances(mod, p, t0, t_end, y0, yp0, rtol, atol, local, nominal))
+    determined, atol_j, yp0 = determined.copy(), np.array(atol_j, dtype=float), yp0.copy()
+    settings, calls = solver_options(mod, p, rtol=rtol * local, atol=atol_j, max_order=max_order,
+                                     determined=determined)  # scikit-sundae's keywords
+    return atol, local, atol_j, yp0, choice, settings, calls
+
+
+def _tolerances(mod, p, t0, t_end, y0, yp0, rtol, atol, local, nominal):
+    """(the index-1 algebraic variables, IDA's absolute tolerances, ẏ0 with their rates) of
+    :func:`run_settings`."""
     # `nominal`: the variables' nominal scales (phc.simulation.scaling); atol is relative to them.
     # IDA's local tolerances are 1/200 of what the outputs should meet (local_fraction).
     determined = determined_algebraic(mod, p, t0, y0, np.asarray(yp0, dtype=float))
@@ -610,14 +629,11 @@ def run_settings(mod, p, t0: float, t_end: float, y0, yp0, options, nominal=None
                                       t_end - t0)
     if tested_scales is None:
         tested_scales = promised
-    local = local_fraction(rtol)
     atol_j = (atol if tested_scales is None else atol * np.asarray(tested_scales, dtype=float)) * local
     if nominal is not None:  # the promise is about the outputs and the energy (promised_atol)
         atol_j = promised_atol(atol_j, rtol * local, nominal, promised)
     yp0 = algebraic_rates(mod, p, t0, y0, yp0, determined)
-    settings, calls = solver_options(mod, p, rtol=rtol * local, atol=atol_j, max_order=max_order,
-                                     determined=determined)  # scikit-sundae's keywords
-    return atol, local, atol_j, yp0, choice, settings, calls
+    return determined, atol_j, yp0
 
 
 def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None, events=None,
