@@ -187,6 +187,7 @@ def _build():
     lib.phc_ida_advance.restype = I
     lib.phc_ida_stats.argtypes, lib.phc_ida_stats.restype = [P, P, P, P, P], None
     lib.phc_ida_watch.argtypes, lib.phc_ida_watch.restype = [P, P, P, P, P, P, P, P], None
+    lib.phc_ida_rcond.argtypes, lib.phc_ida_rcond.restype = [P, D, P, P, D], D
     lib.phc_ida_message.argtypes, lib.phc_ida_message.restype = [P], ctypes.c_char_p
     lib.sundials_version = (int(version[1]), int(version[2]))
     return lib

@@ -152,6 +152,18 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
         look_y, look_yp = np.empty((capacity, n)), np.empty((capacity, n))
         watch_where = [_ptr(a) for a in (li, lf, look_t, look_h, look_r, look_y, look_yp)]
 
+    current = [None]  # the driver's IDA (a switch of the order makes a new one)
+    if c_looks:
+        rcond_c = lib.phc_ida_rcond
+
+        def rcond(t, y_, yp_, h):
+            if not current[0]:  # (freed: the monitor's own look)
+                return np.nan
+            y_, yp_ = np.ascontiguousarray(y_, dtype=float), np.ascontiguousarray(yp_, dtype=float)
+            return rcond_c(current[0], float(t), y_.ctypes.data, yp_.ctypes.data, float(h))
+
+        monitor.rcond = rcond  # the looks Python makes ask the driver's estimate first
+
     def create(t, y, yp, order, h0):
         w = lib.phc_ida_create(n, len(jrows), residual, jacobian, _ptr(pv), _ptr(jrows), _ptr(jcols), float(t),
                                _ptr(np.ascontiguousarray(y, dtype=float)), _ptr(np.ascontiguousarray(yp, dtype=float)),
@@ -161,6 +173,7 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
             raise RuntimeError(f"SUNDIALS refused the driver's setup (step {int(status[0])} of phc_ida_create)")
         if c_looks:
             lib.phc_ida_watch(w, *watch_where)
+        current[0] = w
         return w
 
     def looks_in() -> None:
@@ -236,7 +249,7 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
                         stats(w, *stats_where)
                         nfev, njev = nfev + int(counts[0]), njev + int(counts[1])
                         lib.phc_ida_free(w)
-                        w = None
+                        w = current[0] = None
                         if switch.rewind:
                             hook.rewind(t0, y0, yp0)
                             k[0] = 1
@@ -272,6 +285,7 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
             stats(w, *stats_where)
             nfev, njev = nfev + int(counts[0]), njev + int(counts[1])
             lib.phc_ida_free(w)
+            current[0] = None
     kk = int(k[0])
     if not message.startswith(("stopped ", "interrupted")):
         note = check_scales(mod, ys[:kk], yps[:kk], t_end - t0, rtol, atol, not ok, scales=nominal)

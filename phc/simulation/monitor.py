@@ -124,6 +124,12 @@ def _far_from_singular(J: np.ndarray, threshold: float, lu=None, solve=None) -> 
         rcond, info = sla.lapack.dgecon(lu, float(np.abs(J).sum(axis=0).max()), norm="1")
         if info != 0:
             return None
+    return clear_ratio(rcond, threshold, n)
+
+
+def clear_ratio(rcond: float, threshold: float, n: int) -> Optional[float]:
+    """``rcond/n`` where the condition estimate `rcond` clears a look (:data:`RCOND_MARGIN`·n times
+    above `threshold`), else None: the singular values must decide."""
     if not np.isfinite(rcond) or rcond < threshold * n * RCOND_MARGIN:
         return None
     return float(rcond) / n
@@ -291,6 +297,10 @@ class SingularityMonitor:
         more of the rows that become dependent are position invariants): the case a fixed-step
         solver may pass through (:func:`phc.simulation.midpoint.passes_rank_drop`)."""
         self._looks: list[tuple] = []
+        self.rcond = None
+        """``rcond(t, y, ẏ, h)``, the condition estimate of the equilibrated iteration matrix made
+        elsewhere, or None: the native IDA driver's, in C (:mod:`phc.simulation.ida_native`), which a
+        dense look asks first (:meth:`_ratio_at`: where it clears the look, no LU or SVD here)."""
         self.tally = LookWork()
         """The work of the looks, counted (what the IDA step hook's cadence weighs against the steps':
         :mod:`phc.simulation.look_cadence`)."""
@@ -337,6 +347,11 @@ class SingularityMonitor:
         n = self.mod.N
         if n > DENSE_SIZE:
             return _sparse_ratio(self._equilibrated_sparse(t, y, yp, h), self.threshold, vectors, self.tally)
+        if self.rcond is not None:
+            rough = clear_ratio(self.rcond(t, y, yp, h), self.threshold, n)
+            if rough is not None:
+                self.tally.dense(n)
+                return rough, None
         J = self._equilibrated(t, y, yp, h)
         rough = _far_from_singular(J, self.threshold)
         if rough is not None:

@@ -360,6 +360,16 @@ static int routine_look(struct phc_ida *w, double t, double h, int64_t steps)
     return LOOK_NONE;
 }
 
+/* The routine look's condition estimate at any (t, y, yp) and step h (monitor_rcond): what Python's
+ * monitor asks first at the looks it makes during a native run (its minimum search between looks
+ * evaluates it along an interpolant), before its own LU and SVD where the estimate does not clear the
+ * look (phc.simulation.monitor.SingularityMonitor.rcond). */
+double phc_ida_rcond(struct phc_ida *w, double t, const double *y, const double *yp, double h)
+{
+    return monitor_rcond(w->n, w->njac, w->jacobian, w->p, w->jrows, w->jcols, NULL, w->mjbuf, w->mon, w->monpiv,
+                         w->monv, t, y, yp, h);
+}
+
 /* Up to `budget` of IDA's steps toward t_out[nout - 1]. `k[0]`: the next output index (advanced as the
  * steps pass output times; ys and yps are nout x n). Step i of the call: its end time and size in
  * hist[2 i], hist[2 i + 1]. After the call: steps[0] the steps taken, cur[0] IDA's time, y and yp its
