@@ -326,3 +326,41 @@ def test_a_local_vector_named_twice_is_a_copy_only_where_neither_is_written_in_p
     assert "b[i2] = a[i2];" in text and "double b[n];" in text
     with pytest.raises(TranslationError, match=r"logic.py:12: in written: b = a: a vector named twice"):
         Translator(m, {"written": (("v", "v"), ())}, {}).translate(["written"])
+
+
+def test_the_look_logic_of_the_native_ida_driver_is_pythons():
+    """The native IDA driver's routine look decides with phc.simulation.look_cadence's functions,
+    translated (float constants of the module, math.log10, NaN for "no look"): on a grid of cadences
+    and ratios (NaN, far below, near and far above FAR_RATIO, flat and moving) and of look times and
+    step counts, the C gives Python's answers exactly."""
+    import itertools
+    import math
+
+    from phc.codegen import c_ida
+    from phc.simulation import look_cadence as lc
+
+    text = ("#include <math.h>\n#include <stdint.h>\n" + PRELUDE
+            + Translator(lc, lc.C_SIGNATURES, {}).translate(c_ida.LOOK_TRANSLATED)
+            + "int64_t t_cadence(int64_t c, int64_t b, double x, double r) { return cadence_after(c, b, x, r); }\n"
+            "int t_brackets(double a, double b, double c, double d, double e, double f)"
+            " { return brackets_minimum(a, b, c, d, e, f); }\n"
+            "int t_crawls(double h, double t, double te, int64_t s, int64_t m, int64_t k)"
+            " { return crawls(h, t, te, s, m, k); }\n")
+    lib, why = c_backend.runtime_library(text, c_steps.FLAGS)
+    if lib is None:
+        pytest.skip(f"no C compiler: {why}")
+    D, I = ctypes.c_double, ctypes.c_int64
+    lib.t_cadence.argtypes, lib.t_cadence.restype = [I, I, D, D], I
+    lib.t_brackets.argtypes, lib.t_brackets.restype = [D] * 6, ctypes.c_int
+    lib.t_crawls.argtypes, lib.t_crawls.restype = [D, D, D, I, I, I], ctypes.c_int
+    ratios = [math.nan, 1e-12, 1e-6, 1.0000001e-6, 2e-6, 0.01, 0.0125, 0.0126, 0.02, 0.5]
+    for cadence, base in ((10, 10), (15, 10), (300, 10), (320, 10), (20, 20)):
+        for before, ratio in itertools.product(ratios, ratios):
+            assert lib.t_cadence(cadence, base, before, ratio) == lc.cadence_after(cadence, base, before, ratio)
+    assert lc.next_cadence(10, 10, None, 0.5) == lc.cadence_after(10, 10, math.nan, 0.5) == 10
+    times = [math.nan, 0.0, 1.0, 2.0]
+    for t0, t1, t2 in itertools.product(times, repeat=3):
+        for r0, r1, r2 in itertools.product([math.nan, 0.1, 0.2], repeat=3):
+            assert bool(lib.t_brackets(t0, r0, t1, r1, t2, r2)) == lc.brackets_minimum(t0, r0, t1, r1, t2, r2)
+    for h, steps, check in itertools.product([1e-9, 1e-3, 0.5], [0, 10, 99, 100], [0, 50]):
+        assert bool(lib.t_crawls(h, 0.25, 1.0, steps, 100, check)) == lc.crawls(h, 0.25, 1.0, steps, 100, check)
