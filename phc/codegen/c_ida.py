@@ -39,10 +39,10 @@ LOOK_MARKER = "/* PHC_LOOK_LOGIC */"
 """The line of ida_driver.c that :func:`source` replaces with the routine look's decisions
 (:data:`LOOK_TRANSLATED` of :mod:`phc.simulation.look_cadence`, translated)."""
 
-LOOK_TRANSLATED = ("cadence_after", "brackets_minimum", "crawls")
+LOOK_TRANSLATED = ("cadence_after", "brackets_minimum", "crawls", "hermite", "golden_search")
 """The functions of :mod:`phc.simulation.look_cadence` the driver's routine look calls."""
 
-LI_N, LF_N = 9, 8
+LI_N, LF_N = 10, 8
 """Sizes of the routine look's state arrays (ida_driver.c's ``LI_N``, ``LF_N``; checked when the driver
 is loaded). Their entries: :mod:`phc.simulation.ida_native` (``LI_*``, ``LF_*``)."""
 
@@ -63,13 +63,14 @@ def source() -> str:
     global _SOURCE_TEXT
     if _SOURCE_TEXT is None:
         from phc.codegen.c_steps import with_dense_lu
-        from phc.codegen.c_translate import PRELUDE, Translator
+        from phc.codegen.c_translate import PRELUDE, Op, Translator
         from phc.simulation import look_cadence
 
         text = SOURCE.read_text(encoding="utf-8")
         if text.count(LOOK_MARKER) != 1:
             raise RuntimeError(f"{SOURCE} must have the line {LOOK_MARKER} once (a phc bug: please report it)")
-        logic = PRELUDE + "\n" + Translator(look_cadence, look_cadence.C_SIGNATURES, {}).translate(LOOK_TRANSLATED)
+        ops = {"_ratio_at_time": Op("op_ratio_at_time", ("ws", "f"), ("f", "b", "b"))}
+        logic = PRELUDE + "\n" + Translator(look_cadence, look_cadence.C_SIGNATURES, ops).translate(LOOK_TRANSLATED)
         _SOURCE_TEXT = with_dense_lu(text.replace(LOOK_MARKER, logic.rstrip("\n")), SOURCE.name)
     return _SOURCE_TEXT
 
@@ -186,7 +187,7 @@ def _build():
     lib.phc_ida_advance.argtypes = [P, P, I, P, I, P, P, P, P, P, P, P, P]
     lib.phc_ida_advance.restype = I
     lib.phc_ida_stats.argtypes, lib.phc_ida_stats.restype = [P, P, P, P, P], None
-    lib.phc_ida_watch.argtypes, lib.phc_ida_watch.restype = [P, P, P, P, P, P, P, P], None
+    lib.phc_ida_watch.argtypes, lib.phc_ida_watch.restype = [P] * 11, None
     lib.phc_ida_rcond.argtypes, lib.phc_ida_rcond.restype = [P, D, P, P, D], D
     lib.phc_ida_message.argtypes, lib.phc_ida_message.restype = [P], ctypes.c_char_p
     lib.sundials_version = (int(version[1]), int(version[2]))

@@ -30,7 +30,7 @@ The subset:
   ``continue``, ``return`` (of a tuple: the first value is returned, the others written through
   pointers; a vector into the caller's array);
 * arithmetic on scalars (Python's true division of integers as a double division, ``%`` of
-  integers with Python's sign: the divisor's), comparisons
+  integers with Python's sign: the divisor's, ``**`` of a double as C's ``pow``), comparisons
   (one operator), ``and``/``or``/``not`` of truth values, conditional expressions, ``abs``,
   ``min``/``max`` of scalars (Python's choice on ties: the first), ``int``, ``np.ceil``,
   ``math.log10``, ``np.isfinite``, ``np.inf``, integer and float constants of the module (printed
@@ -184,6 +184,10 @@ class _Function:
                 self.refuse(e, f"arithmetic on {ast.unparse(e)!r}")
             if isinstance(e.op, ast.Div):
                 return "f"
+            if isinstance(e.op, ast.Pow):
+                if "f" not in (a, b):
+                    self.refuse(e, "the operator Pow of integers (a double to a power only)")
+                return "f"
             if isinstance(e.op, ast.Mod):
                 if "f" in (a, b):
                     self.refuse(e, "the operator Mod of doubles (integers only)")
@@ -330,6 +334,8 @@ class _Function:
             a, b = self.expr(e.left, idx), self.expr(e.right, idx)
             if isinstance(e.op, ast.Mod):
                 return f"py_mod_i({a}, {b})"
+            if isinstance(e.op, ast.Pow):  # Python's float ** number: C's pow (CPython calls it)
+                return f"pow({a}, {b})"
             op = {ast.Add: "+", ast.Sub: "-", ast.Mult: "*", ast.Div: "/"}[type(e.op)]
             if isinstance(e.op, ast.Div) and self.kind(e.left) in ("i", "b") and self.kind(e.right) in ("i", "b"):
                 a = f"(double)({a})"

@@ -47,6 +47,7 @@ import numpy as np
 from phc.simulation.backend import BackendRun
 from phc.simulation.guard import GuardedModule
 from phc.simulation.ida import (DENSE_LIMIT, PROGRESS_STEPS, _Stop, _StepHook, integrate_ida, run_settings)
+from phc.simulation.look_cadence import SEARCH_ITERATIONS
 from phc.simulation.monitor import SingularityMonitor, check_scales, unbounded_growth
 from phc.simulation.order import CHECK_STEPS, DEFAULT_ORDER, RECENT_STEPS, Switch, after_step
 
@@ -62,7 +63,7 @@ C_LOOKS = True
 False: every look is Python's, the chunks ending at each (the same looks, decided alike: tests
 compare the two)."""
 
-LI_CADENCE, LI_SINCE, LI_BASE, LI_STEPS, LI_NEXT_CHECK, LI_MAX_STEPS, LI_LOOKS, LI_FLAG, LI_CAPACITY = range(9)
+LI_CADENCE, LI_SINCE, LI_BASE, LI_STEPS, LI_NEXT_CHECK, LI_MAX_STEPS, LI_LOOKS, LI_FLAG, LI_CAPACITY, LI_ITERATIONS = range(10)
 """The routine look's integer state (ida_driver.c's ``li[]``)."""
 LF_THRESHOLD, LF_H_FLOOR, LF_T_END, LF_LAST_RATIO, LF_T0, LF_R0, LF_T1, LF_R1 = range(8)
 """Its float state (``lf[]``; NaN: no look)."""
@@ -146,11 +147,12 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
     if c_looks:  # the routine look's state and record (ida_driver.c: phc_ida_watch)
         capacity = CHUNK // hook.base + 2  # (the cadence is at least the base: CHUNK // base looks a chunk)
         li, lf = np.zeros(c_ida.LI_N, np.int64), np.full(c_ida.LF_N, np.nan)
-        li[LI_BASE], li[LI_MAX_STEPS], li[LI_CAPACITY] = hook.base, max_steps, capacity
+        li[LI_BASE], li[LI_MAX_STEPS], li[LI_CAPACITY], li[LI_ITERATIONS] = hook.base, max_steps, capacity, SEARCH_ITERATIONS
         lf[LF_THRESHOLD], lf[LF_H_FLOOR], lf[LF_T_END] = monitor.threshold, monitor.h_floor, t_end
         look_t, look_h, look_r = np.empty(capacity), np.empty(capacity), np.empty(capacity)
         look_y, look_yp = np.empty((capacity, n)), np.empty((capacity, n))
-        watch_where = [_ptr(a) for a in (li, lf, look_t, look_h, look_r, look_y, look_yp)]
+        last_h, last_y, last_yp = np.zeros(3), np.zeros((3, n)), np.zeros((3, n))  # the last looks (the search's)
+        watch_where = [_ptr(a) for a in (li, lf, look_t, look_h, look_r, look_y, look_yp, last_h, last_y, last_yp)]
 
     current = [None]  # the driver's IDA (a switch of the order makes a new one)
     if c_looks:
@@ -181,9 +183,12 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
         li[LI_CADENCE], li[LI_SINCE], li[LI_STEPS], li[LI_NEXT_CHECK] = (hook.cadence, hook.since_look, steps,
                                                                           hook.next_crawl_check)
         lf[LF_LAST_RATIO] = np.nan if hook.last_ratio is None else hook.last_ratio
-        last = [(look[0], look[4]) for look in monitor._looks[-2:]]
+        looks = monitor._looks[-2:]
+        last = [(look[0], look[4]) for look in looks]
         last = [(np.nan, np.nan)] * (2 - len(last)) + last
         (lf[LF_T0], lf[LF_R0]), (lf[LF_T1], lf[LF_R1]) = last
+        for i, look in enumerate(looks, 2 - len(looks)):
+            last_y[i], last_yp[i], last_h[i] = look[1], look[2], look[3]
 
     def looks_out() -> int:
         """The driver's routine looks of the chunk, kept by the monitor and the hook; the steps since the

@@ -37,7 +37,8 @@ import scipy.sparse as sps
 
 from phc.errors import ModelEvaluationError
 from phc.simulation.equilibrate import equilibrate
-from phc.simulation.look_cadence import LookWork, brackets_minimum
+from phc.simulation.look_cadence import (MINIMUM_XTOL, SEARCH_ITERATIONS, LookWork, brackets_minimum, hermite,  # noqa: F401
+                                       run_golden_search)
 
 HISTORY = 64
 """Looks the monitor keeps for a failure's diagnosis."""
@@ -218,7 +219,8 @@ def _sparse_look(J, n, threshold, vectors, work, spla):
     return ratio, (x if vectors else np.empty(0))
 
 
-def _search_below(f, a, b, threshold, iterations: int = 80, fa=None, fb=None, minimum: bool = False):
+def _search_below(f, a, b, threshold, iterations: int = SEARCH_ITERATIONS, fa=None, fb=None,
+                  minimum: bool = False):
     """(t, ratio, u) where ``f: t -> (ratio, u)`` (u None while the ratio is at or above
     `threshold`) falls below `threshold` on [a, b], by golden-section search for its minimum;
     None if it stays above. The first point found below is returned, or with `minimum` the
@@ -230,38 +232,20 @@ def _search_below(f, a, b, threshold, iterations: int = 80, fa=None, fb=None, mi
     so below the two inner points it can fall by at most the bracket's width times the
     steepest slope between the four points (`fa`, `fb`: the ratios at `a` and `b`);
     when twice that still leaves the smaller inner value above the threshold, it does
-    not fall below it (a smooth minimum flattens as the bracket shrinks, a V does not)."""
-    g = 0.5 * (np.sqrt(5.0) - 1.0)
-    c, d = b - g * (b - a), a + g * (b - a)
-    (fc, uc), (fd, ud) = f(c), f(d)
-    best = None
-    for k in range(iterations):
-        for t, r, u in ((c, fc, uc), (d, fd, ud)):
-            if u is not None and not minimum:
-                return t, r, u
-            if u is not None and (best is None or r < best[1]):
-                best = (t, r, u)
-        if b - a <= 4 * np.finfo(float).eps * max(abs(a), abs(b)):
-            break
-        if best is not None and b - a <= MINIMUM_XTOL * max(abs(a), abs(b)):
-            break
-        if k >= 4 and fa is not None and fb is not None and a < c < d < b:
-            slope = max(abs(fc - fa) / (c - a), abs(fd - fc) / (d - c), abs(fb - fd) / (b - d))
-            if min(fc, fd) - 2.0 * slope * (b - a) > threshold:
-                break
-        if fc < fd:
-            b, d, fd, ud, fb = d, c, fc, uc, fd
-            c = b - g * (b - a)
-            fc, uc = f(c)
-        else:
-            a, c, fc, uc, fa = c, d, fd, ud, fc
-            d = a + g * (b - a)
-            fd, ud = f(d)
-    return best
+    not fall below it (a smooth minimum flattens as the bracket shrinks, a V does not).
+    The search itself is :func:`phc.simulation.look_cadence.golden_search` (which the native IDA
+    driver runs in C)."""
+    vectors = {}
 
+    def ratio_at_time(ws, t):
+        ratio, u = f(t)
+        if u is not None:
+            vectors[t] = u
+        return ratio, u is not None, False
 
-MINIMUM_XTOL = 1e-4
-"""Relative width of the bracket at which :func:`_search_below` with `minimum` stops."""
+    found, t, ratio = run_golden_search(ratio_at_time, a, b, threshold, iterations,
+                                        math.nan if fa is None else fa, math.nan if fb is None else fb, minimum)
+    return (t, ratio, vectors[t]) if found == 1 else None
 
 
 class SingularityMonitor:
@@ -470,15 +454,11 @@ class SingularityMonitor:
         looks = self._looks
         i = 0 if t <= looks[1][0] else 1
         (ta, ya, ypa, _, _), (tb, yb, ypb, hb, _) = looks[i], looks[i + 1]
-        d = tb - ta
-        s = (t - ta) / d
-        h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
-        y = h00 * ya + h10 * d * ypa + h01 * yb + h11 * d * ypb
-        dh00, dh10, dh01, dh11 = 6 * s**2 - 6 * s, 3 * s**2 - 4 * s + 1, -6 * s**2 + 6 * s, 3 * s**2 - 2 * s
-        yp = (dh00 * ya + dh01 * yb) / d + dh10 * ypa + dh11 * ypb
+        y, yp = np.empty(len(ya)), np.empty(len(ya))
+        hermite(ta, ya, ypa, tb, yb, ypb, t, y, yp)  # (phc.simulation.look_cadence: the native driver's too)
         return y, yp, hb
 
-    def _minimize(self, a, b, iterations: int = 80, fa=None, fb=None):
+    def _minimize(self, a, b, iterations: int = SEARCH_ITERATIONS, fa=None, fb=None):
         """(t, ratio, left singular vector) where :meth:`ratio` along the cubic Hermite
         interpolant of the last looks (:meth:`_state_at`) falls below the threshold on [a, b]
         (:func:`_search_below`); None if it stays above."""

@@ -71,6 +71,14 @@ typedef void (*phc_jacobian_fn)(double t, const double *y, const double *yp, con
 
 /* PHC_DENSE_LU */
 
+/* The workspace of the translated search (look_cadence.golden_search's `ws`): the run's driver, and
+ * its operation, the conditioning ratio at a time between the last looks (defined below). */
+struct phc_ida;
+struct phc_steps {
+    struct phc_ida *w;
+};
+static double op_ratio_at_time(const struct phc_steps *ws, double t, int *below, int *unknown);
+
 /* PHC_LOOK_LOGIC */
 
 /* what phc_ida_advance returns (besides IDA's negative flags, passed on) */
@@ -79,8 +87,9 @@ enum { PHC_BUDGET = 0, PHC_DONE = 1, PHC_LOOK = 2 };
 /* the routine look's integer state li[] (phc.simulation.ida_native: LI_*): the cadence, the steps since
  * the last look, the base cadence, the run's steps before the call, the step the crawl check is next
  * asked at, max_steps, the looks recorded in the call, why the call ended at a look (LOOK_*), the
- * record's capacity */
-enum { LI_CADENCE, LI_SINCE, LI_BASE, LI_STEPS, LI_NEXT_CHECK, LI_MAX_STEPS, LI_LOOKS, LI_FLAG, LI_CAPACITY, LI_N };
+ * record's capacity, the most iterations of the search between looks */
+enum { LI_CADENCE, LI_SINCE, LI_BASE, LI_STEPS, LI_NEXT_CHECK, LI_MAX_STEPS, LI_LOOKS, LI_FLAG, LI_CAPACITY,
+       LI_ITERATIONS, LI_N };
 /* its float state lf[]: the monitor's threshold, its step floor h_floor, the run's end, the ratio of
  * the last look (NaN: none), the times and ratios of the last two looks, oldest first (NaN: none) */
 enum { LF_THRESHOLD, LF_H_FLOOR, LF_T_END, LF_LAST_RATIO, LF_T0, LF_R0, LF_T1, LF_R1, LF_N };
@@ -111,6 +120,9 @@ struct phc_ida {
      * scratch */
     int64_t *li;
     double *lf, *look_t, *look_h, *look_r, *look_y, *look_yp;
+    double *last_h, *last_y, *last_yp; /* 3, 3n, 3n: steps and states of the last two looks, then this one */
+    double last_t[3];                /* their times (the search's) */
+    double *sy, *syp;                /* n each: a state the search looks at */
     double *mon, *monv, *mjbuf;      /* n x n, 3n, njac */
     int64_t *monpiv;                 /* n */
 };
@@ -211,6 +223,8 @@ void phc_ida_free(struct phc_ida *w)
     free(w->monv);
     free(w->mjbuf);
     free(w->monpiv);
+    free(w->sy);
+    free(w->syp);
     free(w);
 }
 
@@ -247,8 +261,10 @@ struct phc_ida *phc_ida_create(int64_t n, int64_t njac, phc_residual_fn residual
     w->monv = (double *)malloc((size_t)(3 * n) * sizeof(double));
     w->mjbuf = (double *)malloc((size_t)(njac > 0 ? njac : 1) * sizeof(double));
     w->monpiv = (int64_t *)malloc((size_t)n * sizeof(int64_t));
+    w->sy = (double *)malloc((size_t)n * sizeof(double));
+    w->syp = (double *)malloc((size_t)n * sizeof(double));
     if (!w->jrows || !w->jcols || !w->jbuf || !w->y_failed || !w->yp_failed || !w->mon || !w->monv || !w->mjbuf
-        || !w->monpiv)
+        || !w->monpiv || !w->sy || !w->syp)
         goto fail;
     memcpy(w->jrows, jrows, (size_t)njac * sizeof(int64_t));
     memcpy(w->jcols, jcols, (size_t)njac * sizeof(int64_t));
@@ -310,11 +326,15 @@ fail:
 }
 
 /* Switch the routine look on (li not NULL) or off: its state li[LI_N], lf[LF_N] and the record of the
- * looks it passes, of li[LI_CAPACITY] looks (times, steps, ratios; states y, yp: capacity x n each), are
- * the caller's arrays, read and written by each phc_ida_advance. */
+ * looks it passes, of li[LI_CAPACITY] looks (times, steps, ratios; states y, yp: capacity x n each), and
+ * the steps and states of the monitor's last two looks (last_h: 3, last_y, last_yp: 3 x n, the first two
+ * rows theirs, oldest first) are the caller's arrays, read and written by each phc_ida_advance. */
 void phc_ida_watch(struct phc_ida *w, int64_t *li, double *lf, double *look_t, double *look_h, double *look_r,
-                   double *look_y, double *look_yp)
+                   double *look_y, double *look_yp, double *last_h, double *last_y, double *last_yp)
 {
+    w->last_h = last_h;
+    w->last_y = last_y;
+    w->last_yp = last_yp;
     w->li = li;
     w->lf = lf;
     w->look_t = look_t;
@@ -322,6 +342,23 @@ void phc_ida_watch(struct phc_ida *w, int64_t *li, double *lf, double *look_t, d
     w->look_r = look_r;
     w->look_y = look_y;
     w->look_yp = look_yp;
+}
+
+/* look_cadence.golden_search's operation: the conditioning ratio at time t on the cubic Hermite interpolant
+ * of the last three looks (SingularityMonitor._state_at: look_cadence.hermite between the two looks around t,
+ * at the later one's step), where the routine look clears it; else *unknown (Python's monitor searches). */
+static double op_ratio_at_time(const struct phc_steps *ws, double t, int *below, int *unknown)
+{
+    struct phc_ida *w = ws->w;
+    const int64_t n = w->n;
+    const int64_t i = t <= w->last_t[1] ? 0 : 1;
+    hermite(n, w->last_t[i], w->last_y + i * n, w->last_yp + i * n, w->last_t[i + 1], w->last_y + (i + 1) * n,
+            w->last_yp + (i + 1) * n, t, w->sy, w->syp);
+    const double rcond = monitor_rcond(n, w->njac, w->jacobian, w->p, w->jrows, w->jcols, NULL, w->mjbuf, w->mon,
+                                       w->monpiv, w->monv, t, w->sy, w->syp, w->last_h[i + 1]);
+    *below = 0;
+    *unknown = !far_from_singular(rcond, w->lf[LF_THRESHOLD], n);
+    return *unknown ? NAN : rcond / (double)n;
 }
 
 /* The routine look after a step of size h to IDA's state at t (the run's `steps` steps): LOOK_NONE
@@ -340,8 +377,21 @@ static int routine_look(struct phc_ida *w, double t, double h, int64_t steps)
     if (!far_from_singular(rcond, lf[LF_THRESHOLD], n))
         return LOOK_NOT_CLEAR;
     const double ratio = rcond / (double)n;  /* monitor._far_from_singular's value */
-    if (brackets_minimum(lf[LF_T0], lf[LF_R0], lf[LF_T1], lf[LF_R1], t, ratio))
-        return LOOK_MINIMUM;
+    if (brackets_minimum(lf[LF_T0], lf[LF_R0], lf[LF_T1], lf[LF_R1], t, ratio)) {
+        /* the monitor's search for the minimum between the last three looks (SingularityMonitor.watch),
+         * while every point it looks at is clearly far from singular */
+        struct phc_steps ws = {w};
+        double t_found, r_found;
+        w->last_t[0] = lf[LF_T0];
+        w->last_t[1] = lf[LF_T1];
+        w->last_t[2] = t;
+        w->last_h[2] = hm;
+        memcpy(w->last_y + 2 * n, y, (size_t)n * sizeof(double));
+        memcpy(w->last_yp + 2 * n, yp, (size_t)n * sizeof(double));
+        if (golden_search(&ws, lf[LF_T0], t, lf[LF_THRESHOLD], li[LI_ITERATIONS], lf[LF_R0], ratio, 0, &t_found,
+                          &r_found) != 0)
+            return LOOK_MINIMUM;
+    }
     if (crawls(h, t, lf[LF_T_END], steps, li[LI_MAX_STEPS], li[LI_NEXT_CHECK]))
         return LOOK_CRAWL;
     const int64_t k = li[LI_LOOKS]++;
@@ -354,6 +404,12 @@ static int routine_look(struct phc_ida *w, double t, double h, int64_t steps)
     lf[LF_R0] = lf[LF_R1];
     lf[LF_T1] = t;
     lf[LF_R1] = ratio;
+    w->last_h[0] = w->last_h[1];
+    w->last_h[1] = hm;
+    memcpy(w->last_y, w->last_y + n, (size_t)n * sizeof(double));
+    memcpy(w->last_yp, w->last_yp + n, (size_t)n * sizeof(double));
+    memcpy(w->last_y + n, y, (size_t)n * sizeof(double));
+    memcpy(w->last_yp + n, yp, (size_t)n * sizeof(double));
     li[LI_CADENCE] = cadence_after(li[LI_CADENCE], li[LI_BASE], lf[LF_LAST_RATIO], ratio);
     lf[LF_LAST_RATIO] = ratio;
     li[LI_SINCE] = 0;
