@@ -20,9 +20,12 @@ the history a diagnosis reads), and the next cadence is set in C
 (:func:`phc.simulation.look_cadence.cadence_after`, translated). Every other look ends the chunk
 and is Python's monitor's, exactly as :class:`phc.simulation.ida._StepHook` makes it without the
 driver (``_StepHook._look``: the look itself, its minimum search, the crawl check, the stops): a
-look the condition estimate does not clear, one that brackets a minimum of the conditioning with
-the two before it (:func:`~phc.simulation.look_cadence.brackets_minimum`), and one where IDA crawls
-(:func:`~phc.simulation.look_cadence.crawls`). Between chunks, this module does what the step hook
+look the condition estimate does not clear; one that brackets a minimum of the conditioning with
+the two before it (:func:`~phc.simulation.look_cadence.brackets_minimum`) where the monitor's
+search between them (:func:`~phc.simulation.look_cadence.golden_search` along
+:func:`~phc.simulation.look_cadence.hermite`, which the driver runs in C first) meets a point the
+estimate does not clear; and one where IDA crawls (:func:`~phc.simulation.look_cadence.crawls`).
+Python's looks ask the driver's estimate first (``SingularityMonitor.rcond``). Between chunks, this module does what the step hook
 does after a step: a chunk ends where phc's choice of the maximum order looks next
 (:func:`phc.simulation.order.after_step`; a switch starts a new IDA), at ``max_steps``, at a look
 Python makes, and after at most :data:`CHUNK` steps (progress, Ctrl-C).

@@ -27,11 +27,12 @@
  * had looked, phc.simulation.monitor.SingularityMonitor.routine_looks) and sets the next cadence; any
  * other look ends the call (PHC_LOOK) without being recorded, and Python's monitor makes it, as the
  * step hook does without the driver (phc.simulation.ida._StepHook._look): a look the estimate does not
- * clear, one whose ratio with the two looks before brackets a minimum of the conditioning (the
- * monitor searches between them), and one where IDA crawls (its step cannot reach the end within
- * max_steps). Those decisions and the cadence are phc.simulation.look_cadence's functions
- * (cadence_after, brackets_minimum, crawls), translated by phc.codegen.c_translate at the line
- * PHC_LOOK_LOGIC below: written once, in Python, which the step hook and the monitor call.
+ * clear; one whose ratio with the two looks before brackets a minimum of the conditioning, where the
+ * monitor's search between them (run here first) meets a point the estimate does not clear; and one
+ * where IDA crawls (its step cannot reach the end within max_steps). Those decisions, the search, its
+ * interpolant and the cadence are phc.simulation.look_cadence's functions (cadence_after,
+ * brackets_minimum, crawls, golden_search, hermite), translated by phc.codegen.c_translate at the line
+ * PHC_LOOK_LOGIC below: written once, in Python, which the step hook and the monitor run.
  *
  * Re-entrant: no static mutable state. Everything a run uses is in its struct phc_ida (IDA's user data),
  * allocated by phc_ida_create and released by phc_ida_free.
