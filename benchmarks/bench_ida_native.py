@@ -12,9 +12,11 @@ them) of `--repeat` runs in five configurations:
   phc's set-up of the run; the reference the others are measured against;
 * **native in chunks, monitor off, max_order 5**: the driver returning to Python every
   ``ida_native.CHUNK`` steps, nothing done there: the cost of the chunks themselves;
-* **native, monitor off** / **native**: the native driver as a run uses it (chunks ending at the
-  monitor's looks and where phc's choice of the order looks, which may start IDA again at
-  order 2), without and with the monitor's looks;
+* **native, monitor off** / **native**: the native driver as a run uses it (the monitor's
+  routine looks in C, chunks ending at a look Python's monitor makes and where phc's choice of
+  the order looks, which may start IDA again at order 2), without and with the monitor's looks;
+* **native, every look in Python**: the same with ``ida_native.C_LOOKS = False``: each of the
+  monitor's looks ends a chunk and is made in Python (the driver before its routine look in C);
 * **scikit-sundae, monitor off** / **scikit-sundae**: ``PHC_NATIVE_IDA=0``, IDA through
   scikit-sundae's Python callbacks (:mod:`phc.simulation.ida`).
 
@@ -41,9 +43,10 @@ from phc.simulation import ida_native, monitor as monitor_module  # noqa: E402
 MODELS = ["pendulum.yaml", "double_pendulum.yaml"]
 
 
-def _run(compiled, *, native: bool, monitor: bool, one_chunk: bool = False, **options):
+def _run(compiled, *, native: bool, monitor: bool, one_chunk: bool = False, c_looks: bool = True, **options):
     os.environ["PHC_NATIVE_IDA"] = "1" if native else "0"
-    size, chunk = monitor_module.MAX_SIZE, ida_native.CHUNK
+    size, chunk, looks = monitor_module.MAX_SIZE, ida_native.CHUNK, ida_native.C_LOOKS
+    ida_native.C_LOOKS = c_looks
     try:
         if not monitor:
             monitor_module.MAX_SIZE = -1  # SingularityMonitor.enabled is N <= MAX_SIZE
@@ -51,7 +54,7 @@ def _run(compiled, *, native: bool, monitor: bool, one_chunk: bool = False, **op
             ida_native.CHUNK = 10 ** 9
         r = phc.simulate(compiled, solver="ida", **options)
     finally:
-        monitor_module.MAX_SIZE, ida_native.CHUNK = size, chunk
+        monitor_module.MAX_SIZE, ida_native.CHUNK, ida_native.C_LOOKS = size, chunk, looks
     if not r.success:
         raise SystemExit(f"the run failed: {r.message}")
     return r
@@ -80,6 +83,7 @@ def main(argv=None) -> int:
                ("native in chunks, monitor off, max_order 5", dict(native=True, monitor=False, max_order=5)),
                ("native, monitor off", dict(native=True, monitor=False)),
                ("native", dict(native=True, monitor=True)),
+               ("native, every look in Python", dict(native=True, monitor=True, c_looks=False)),
                ("scikit-sundae, monitor off", dict(native=False, monitor=False)),
                ("scikit-sundae", dict(native=False, monitor=True))]
     for name in args.models:

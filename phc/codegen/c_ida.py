@@ -32,8 +32,47 @@ from typing import Optional
 SOURCE = Path(__file__).resolve().parent / "c_runtime" / "ida_driver.c"
 """The driver's C text (shipped in the package)."""
 
-ABI = 1
+ABI = 2
 """``PHC_IDA_ABI`` of the ida_driver.c this module binds."""
+
+LOOK_MARKER = "/* PHC_LOOK_LOGIC */"
+"""The line of ida_driver.c that :func:`source` replaces with the routine look's decisions
+(:data:`LOOK_TRANSLATED` of :mod:`phc.simulation.look_cadence`, translated)."""
+
+LOOK_TRANSLATED = ("cadence_after", "brackets_minimum", "crawls", "hermite", "golden_search")
+"""The functions of :mod:`phc.simulation.look_cadence` the driver's routine look calls."""
+
+LI_N, LF_N = 10, 8
+"""Sizes of the routine look's state arrays (ida_driver.c's ``LI_N``, ``LF_N``; checked when the driver
+is loaded). Their entries: :mod:`phc.simulation.ida_native` (``LI_*``, ``LF_*``)."""
+
+PHC_LOOK = 2
+"""What ``phc_ida_advance`` returns when a look is Python's monitor's to make."""
+
+LOOK_NOT_CLEAR, LOOK_MINIMUM, LOOK_CRAWL = 1, 2, 3
+"""Why (``li[LI_FLAG]``): the condition estimate does not clear the look; the look and the two before
+bracket a minimum of the conditioning; IDA crawls."""
+
+_SOURCE_TEXT: Optional[str] = None
+
+
+def source() -> str:
+    """The driver's whole C text: ida_driver.c with the dense LU and routine look shared with the
+    fixed-step loop (:func:`phc.codegen.c_steps.with_dense_lu`) and the translated
+    :data:`LOOK_TRANSLATED` in place of its marker lines."""
+    global _SOURCE_TEXT
+    if _SOURCE_TEXT is None:
+        from phc.codegen.c_steps import with_dense_lu
+        from phc.codegen.c_translate import PRELUDE, Op, Translator
+        from phc.simulation import look_cadence
+
+        text = SOURCE.read_text(encoding="utf-8")
+        if text.count(LOOK_MARKER) != 1:
+            raise RuntimeError(f"{SOURCE} must have the line {LOOK_MARKER} once (a phc bug: please report it)")
+        ops = {"_ratio_at_time": Op("op_ratio_at_time", ("ws", "f"), ("f", "b", "b"))}
+        logic = PRELUDE + "\n" + Translator(look_cadence, look_cadence.C_SIGNATURES, ops).translate(LOOK_TRANSLATED)
+        _SOURCE_TEXT = with_dense_lu(text.replace(LOOK_MARKER, logic.rstrip("\n")), SOURCE.name)
+    return _SOURCE_TEXT
 
 FLAGS = ("-std=c99", "-O2", "-fPIC", "-shared", "-ffp-contract=off")
 """The driver's flags (before SUNDIALS' ``-I``): it is glue around IDA's own code, which SUNDIALS'
@@ -131,23 +170,25 @@ def _build():
     include, folder, names = found
     flags = FLAGS + (f"-I{include}",)
     libs = (f"-L{folder}", f"-Wl,-rpath,{folder}") + tuple(f"-l{name}" for name in names)
-    lib, why = c_backend.runtime_library(SOURCE.read_text(encoding="utf-8"), flags, libs)
+    lib, why = c_backend.runtime_library(source(), flags, libs)
     if lib is None:
         _WHY = why
         return False
-    version = (ctypes.c_int64 * 4)()
+    version = (ctypes.c_int64 * 10)()
     lib.phc_ida_version.argtypes, lib.phc_ida_version.restype = [ctypes.c_void_p], None
     lib.phc_ida_version(ctypes.addressof(version))
-    if version[0] != ABI:
+    if list(version[:1]) + list(version[4:]) != [ABI, LI_N, LF_N, PHC_LOOK, LOOK_NOT_CLEAR, LOOK_MINIMUM, LOOK_CRAWL]:
         _WHY = "ida_driver.c was written for another interface (a phc bug: please report it)"
         return False
     P, I, D = ctypes.c_void_p, ctypes.c_int64, ctypes.c_double
     lib.phc_ida_create.argtypes = [I, I, P, P, P, P, P, D, P, P, D, P, P, I, D, D, I, P]
     lib.phc_ida_create.restype = P
     lib.phc_ida_free.argtypes, lib.phc_ida_free.restype = [P], None
-    lib.phc_ida_advance.argtypes = [P, P, I, P, I, P, P, P, P, P, P, P]
+    lib.phc_ida_advance.argtypes = [P, P, I, P, I, P, P, P, P, P, P, P, P]
     lib.phc_ida_advance.restype = I
     lib.phc_ida_stats.argtypes, lib.phc_ida_stats.restype = [P, P, P, P, P], None
+    lib.phc_ida_watch.argtypes, lib.phc_ida_watch.restype = [P] * 11, None
+    lib.phc_ida_rcond.argtypes, lib.phc_ida_rcond.restype = [P, D, P, P, D], D
     lib.phc_ida_message.argtypes, lib.phc_ida_message.restype = [P], ctypes.c_char_p
     lib.sundials_version = (int(version[1]), int(version[2]))
     return lib
@@ -165,5 +206,6 @@ def model_functions(model_library) -> tuple[int, int]:
             ctypes.cast(model_library.phc_jacobian, ctypes.c_void_p).value)
 
 
-__all__ = ["ABI", "FLAGS", "LIBRARIES", "SOURCE", "address", "find_sundials", "library", "model_functions",
-           "switched_off", "why_not"]
+__all__ = ["ABI", "FLAGS", "LF_N", "LI_N", "LIBRARIES", "LOOK_CRAWL", "LOOK_MARKER", "LOOK_MINIMUM",
+           "LOOK_NOT_CLEAR", "LOOK_TRANSLATED", "PHC_LOOK", "SOURCE", "address", "find_sundials", "library",
+           "model_functions", "source", "switched_off", "why_not"]

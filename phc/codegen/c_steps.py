@@ -62,6 +62,19 @@ calls)."""
 MARKER = "/* PHC_STEP_LOGIC */"
 """The line of steps.c the translation replaces."""
 
+DENSE_LU = Path(__file__).resolve().parent / "c_runtime" / "dense_lu.c"
+"""The dense LU and the singularity monitor's routine look, shared with the native IDA driver
+(:mod:`phc.codegen.c_ida`); :func:`with_dense_lu` puts it at a source's :data:`DENSE_LU_MARKER` line."""
+
+DENSE_LU_MARKER = "/* PHC_DENSE_LU */"
+
+
+def with_dense_lu(text: str, name: str) -> str:
+    """`text` (the C source `name`) with dense_lu.c in place of its :data:`DENSE_LU_MARKER` line."""
+    if text.count(DENSE_LU_MARKER) != 1:
+        raise RuntimeError(f"{name} must have the line {DENSE_LU_MARKER} once (a phc bug: please report it)")
+    return text.replace(DENSE_LU_MARKER, DENSE_LU.read_text(encoding="utf-8").rstrip("\n"))
+
 
 def _operations() -> dict:
     from phc.codegen.c_translate import Op
@@ -127,7 +140,7 @@ def source() -> str:
         text = SOURCE.read_text(encoding="utf-8")
         if text.count(MARKER) != 1:
             raise RuntimeError(f"{SOURCE} must have the line {MARKER} once (a phc bug: please report it)")
-        _SOURCE_TEXT = text.replace(MARKER, translation().rstrip("\n"))
+        _SOURCE_TEXT = with_dense_lu(text.replace(MARKER, translation().rstrip("\n")), SOURCE.name)
     return _SOURCE_TEXT
 
 FLAGS = ("-std=c99", "-O3", "-fPIC", "-shared", "-ffp-contract=off")
@@ -310,4 +323,4 @@ def note_events(raw) -> None:
         say_unused("runs with switching conditions (events) need the Python loop, which locates the switches")
 
 
-__all__ = ["ABI", "FLAGS", "MARKER", "METHODS", "SOURCE", "TRANSLATED", "bind", "library", "note_events", "say_unused", "source", "translation", "usable", "why_not"]
+__all__ = ["ABI", "DENSE_LU", "DENSE_LU_MARKER", "FLAGS", "MARKER", "METHODS", "SOURCE", "TRANSLATED", "bind", "library", "note_events", "say_unused", "source", "translation", "usable", "why_not", "with_dense_lu"]

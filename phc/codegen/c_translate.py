@@ -30,10 +30,11 @@ The subset:
   ``continue``, ``return`` (of a tuple: the first value is returned, the others written through
   pointers; a vector into the caller's array);
 * arithmetic on scalars (Python's true division of integers as a double division, ``%`` of
-  integers with Python's sign: the divisor's), comparisons
+  integers with Python's sign: the divisor's, ``**`` of a double as C's ``pow``), comparisons
   (one operator), ``and``/``or``/``not`` of truth values, conditional expressions, ``abs``,
   ``min``/``max`` of scalars (Python's choice on ties: the first), ``int``, ``np.ceil``,
-  ``np.isfinite``, ``np.inf``, integer constants of the module (printed as literals);
+  ``math.log10``, ``np.isfinite``, ``np.inf``, integer and float constants of the module (printed
+  as literals, a float by its shortest round-trip text);
 * whole-vector arithmetic (``+ - * /`` of vectors and scalars, ``np.where``, a comparison of a
   mask), written only into a vector: ``_copy(expression, dst)``, ``_add(dst, vector)``, a local
   vector's assignment, a vector function's ``return``, or an argument (computed into a temporary
@@ -148,7 +149,9 @@ class _Function:
                 return k
             if isinstance(self.tr.globals.get(e.id), int) and not isinstance(self.tr.globals.get(e.id), bool):
                 return "i"
-            self.refuse(e, f"the name {e.id!r} (not an argument, a local or an integer constant)", _Unknown)
+            if isinstance(self.tr.globals.get(e.id), float):
+                return "f"
+            self.refuse(e, f"the name {e.id!r} (not an argument, a local or a number constant)", _Unknown)
         if isinstance(e, ast.Attribute):
             if self._is_np(e, "inf"):
                 return "f"
@@ -180,6 +183,10 @@ class _Function:
             if a not in SCALARS or b not in SCALARS:
                 self.refuse(e, f"arithmetic on {ast.unparse(e)!r}")
             if isinstance(e.op, ast.Div):
+                return "f"
+            if isinstance(e.op, ast.Pow):
+                if "f" not in (a, b):
+                    self.refuse(e, "the operator Pow of integers (a double to a power only)")
                 return "f"
             if isinstance(e.op, ast.Mod):
                 if "f" in (a, b):
@@ -220,6 +227,10 @@ class _Function:
     def _is_np(e, attr):
         return isinstance(e, ast.Attribute) and e.attr == attr and isinstance(e.value, ast.Name) and e.value.id == "np"
 
+    @staticmethod
+    def _is_math(e, attr):
+        return isinstance(e, ast.Attribute) and e.attr == attr and isinstance(e.value, ast.Name) and e.value.id == "math"
+
     def call_kind(self, e):
         f = e.func
         if isinstance(f, ast.Name):
@@ -244,6 +255,10 @@ class _Function:
                 res = self.tr.ops[f.id].results
                 return res[0] if res else "none"
         if self._is_np(f, "ceil"):
+            return "f"
+        if self._is_math(f, "log10"):
+            if self.kind(e.args[0]) not in SCALARS:
+                self.refuse(e, "math.log10 of a vector")
             return "f"
         if self._is_np(f, "isfinite"):
             if self.kind(e.args[0]) not in SCALARS:
@@ -273,7 +288,8 @@ class _Function:
         if isinstance(e, ast.Name):
             k = self.env.get(e.id)
             if k is None:
-                return f"{self.tr.globals[e.id]} /* {e.id} */"
+                value = self.tr.globals[e.id]
+                return f"{repr(float(value)) if isinstance(value, float) else value} /* {e.id} */"
             if k in ("v", "vl", "vp", "M"):
                 if idx is None:
                     self.refuse(e, f"the vector {e.id!r} where a scalar is expected")
@@ -318,6 +334,8 @@ class _Function:
             a, b = self.expr(e.left, idx), self.expr(e.right, idx)
             if isinstance(e.op, ast.Mod):
                 return f"py_mod_i({a}, {b})"
+            if isinstance(e.op, ast.Pow):  # Python's float ** number: C's pow (CPython calls it)
+                return f"pow({a}, {b})"
             op = {ast.Add: "+", ast.Sub: "-", ast.Mult: "*", ast.Div: "/"}[type(e.op)]
             if isinstance(e.op, ast.Div) and self.kind(e.left) in ("i", "b") and self.kind(e.right) in ("i", "b"):
                 a = f"(double)({a})"
@@ -350,6 +368,8 @@ class _Function:
                 return f"(int64_t)({self.expr(e.args[0])})"
             if self._is_np(f, "ceil"):
                 return f"ceil({self.expr(e.args[0])})"
+            if self._is_math(f, "log10"):
+                return f"log10({self.expr(e.args[0])})"
             if self._is_np(f, "isfinite"):
                 return f"isfinite({self.expr(e.args[0])})"
             if isinstance(f, ast.Attribute) and f.attr == "copy":

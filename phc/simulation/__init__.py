@@ -32,7 +32,7 @@ from phc.names import RUN_LIMITS
 from phc.options import RunOptions
 from phc.simulation.backend import Backend, BackendRun, IgnoredOptionWarning, ignored_option_message
 from phc.simulation.result import SimResult, SimulationInterrupted
-from phc.simulation.scaling import nominal_indices, nominal_scales, tested_fraction
+from phc.simulation.scaling import cached_nominal_scales, nominal_indices, nominal_scales, tested_fraction
 
 
 def _deferred(module: str, name: str) -> Callable:
@@ -291,8 +291,8 @@ def simulate(compiled, t_end: Optional[float] = None, *, params: Optional[dict] 
             progress.restart()
         marks.append(("start", time.process_time()))
         # every tolerance measures the variables against their nominal scales (docs/tolerances.md)
-        scales = nominal_scales(mod, p, init.y0, init.yp0, user_nominal, t0=t0, span=float(t_out[-1] - t0),
-                                t_out=t_out, atol=options.atol * tested_fraction(options.solver, options.rtol))
+        scales = cached_nominal_scales(mod, p, init.y0, init.yp0, user_nominal, t0=t0, span=float(t_out[-1] - t0),
+                                       t_out=t_out, atol=options.atol * tested_fraction(options.solver, options.rtol))
         marks.append(("scales", time.process_time()))
         run = partial(backend, mod, p, options=options, progress=progress, names=describe_equations(compiled),
                       nominal=scales)

@@ -44,9 +44,10 @@ from phc.errors import SimulationSetupError
 from phc.simulation.backend import BackendRun
 from phc.simulation.guard import CATCH, GuardedModule, ModelEvaluationError
 from phc.simulation.ida_bridge import NEAR_DROP, Bridges, near_rank_drop
-from phc.simulation.scaling import promise_scales
+from phc.simulation.scaling import promise_scales, remember
 from phc.simulation.monitor import DENSE_SIZE, SingularityMonitor, check_scales, diagnose_failure, unbounded_growth
-from phc.simulation.look_cadence import FAR_RATIO, LookBudget, affordable_cadence, integration_work, next_cadence
+from phc.simulation.look_cadence import (FAR_RATIO, LookBudget, affordable_cadence, crawls, integration_work,
+                                       next_cadence)
 from phc.simulation.order import RECENT_STEPS, OrderChoice, Switch, after_step
 from phc.simulation.tested import (  # noqa: F401  (names of phc.simulation.ida before the split)
     CANCELLATION, SENSITIVITY_DENSE, TERM_FRACTION, algebraic_rates, determined_algebraic, determined_scales,
@@ -533,18 +534,19 @@ class _StepHook:
         else:
             self.collapsed = (t, np.array(y), np.array(yp))
 
-    def after_chunk(self, steps: int, t, y, yp, hs) -> None:
+    def after_chunk(self, steps: int, t, y, yp, hs, h_ref: float, since_look: Optional[int] = None) -> None:
         """What :meth:`__call__` does after each step, for a chunk of steps of sizes `hs` (oldest
         first) ending at (t, y, ẏ), the run's `steps` in all (phc's native IDA driver,
-        :mod:`phc.simulation.ida_native`): h_ref as ``max(h, 0.999 h_ref)`` step by step, the largest
-        step, the state kept for a diagnosis, and the monitor's look where one is due."""
+        :mod:`phc.simulation.ida_native`): `h_ref` (``max(h, 0.999 h_ref)`` step by step, which the
+        driver computes), the largest step, the state kept for a diagnosis, and the monitor's look
+        where one is due. `since_look`: the steps since the monitor's last look where the driver made
+        its routine looks itself."""
         taken = len(hs)
-        decay = 0.999 ** np.arange(taken - 1, -1, -1)
-        self.h_ref = max(float(np.max(hs * decay)), self.h_ref * 0.999 ** taken)
+        self.h_ref = float(h_ref)
         h = float(hs[-1])
         self.steps, self.t_last, self.h_last = steps, t, h
         self.h_largest = max(self.h_largest, float(hs.max()))
-        self.since_look += taken
+        self.since_look = self.since_look + taken if since_look is None else since_look
         self._keep(t, y, yp, h)
         if self.since_look >= self.cadence and self.monitor.enabled:
             self._look(t, y, yp, h)
@@ -554,8 +556,7 @@ class _StepHook:
         steps, self.since_look = self.since_look, 0
         looked = monitor.tally.work
         warning = monitor.watch(t, np.array(y), np.array(yp), h)
-        if warning is None and self.steps >= self.next_crawl_check \
-                and h * (self.max_steps - self.steps) < self.t_end - t:
+        if warning is None and crawls(h, t, self.t_end, self.steps, self.max_steps, self.next_crawl_check):
             # crawling: at this step size the run cannot reach its end within max_steps. Close
             # to a singular configuration IDA may crawl instead of failing (which of the two
             # depends on round-off: the BLAS kernels of the CPU); ask the same question as after
@@ -597,6 +598,25 @@ def run_settings(mod, p, t0: float, t_end: float, y0, yp0, options, nominal=None
     # the user's max_order, else phc's choice: IDA's default, and 2 where undamped modes hold its steps
     choice = OrderChoice.fixed(options.max_order) if options.max_order else OrderChoice(order=MAX_ORDER)
     max_order = choice.order
+    local = local_fraction(rtol)
+    # what the tolerances and the start's rates are made of, computed once for a set of inputs
+    # (phc.simulation.scaling.remember: a run repeating another's start, parameters, scales and
+    # tolerances gets the same numbers without evaluating the model again)
+    nominal_parts = (None, None, None) if nominal is None else (
+        np.asarray(nominal, dtype=float), getattr(nominal, "sizes", None), getattr(nominal, "floored", None))
+    determined, atol_j, yp0 = remember(
+        mod, "ida.run_settings", (np.asarray(p, dtype=float), np.asarray(y0, dtype=float),
+                                  np.asarray(yp0, dtype=float), np.array([t0, t_end, rtol, atol]), *nominal_parts),
+        lambda: _tolerances(mod, p, t0, t_end, y0, yp0, rtol, atol, local, nominal))
+    determined, atol_j, yp0 = determined.copy(), np.array(atol_j, dtype=float), yp0.copy()
+    settings, calls = solver_options(mod, p, rtol=rtol * local, atol=atol_j, max_order=max_order,
+                                     determined=determined)  # scikit-sundae's keywords
+    return atol, local, atol_j, yp0, choice, settings, calls
+
+
+def _tolerances(mod, p, t0, t_end, y0, yp0, rtol, atol, local, nominal):
+    """(the index-1 algebraic variables, IDA's absolute tolerances, ẏ0 with their rates) of
+    :func:`run_settings`."""
     # `nominal`: the variables' nominal scales (phc.simulation.scaling); atol is relative to them.
     # IDA's local tolerances are 1/200 of what the outputs should meet (local_fraction).
     determined = determined_algebraic(mod, p, t0, y0, np.asarray(yp0, dtype=float))
@@ -609,14 +629,11 @@ def run_settings(mod, p, t0: float, t_end: float, y0, yp0, options, nominal=None
                                       t_end - t0)
     if tested_scales is None:
         tested_scales = promised
-    local = local_fraction(rtol)
     atol_j = (atol if tested_scales is None else atol * np.asarray(tested_scales, dtype=float)) * local
     if nominal is not None:  # the promise is about the outputs and the energy (promised_atol)
         atol_j = promised_atol(atol_j, rtol * local, nominal, promised)
     yp0 = algebraic_rates(mod, p, t0, y0, yp0, determined)
-    settings, calls = solver_options(mod, p, rtol=rtol * local, atol=atol_j, max_order=max_order,
-                                     determined=determined)  # scikit-sundae's keywords
-    return atol, local, atol_j, yp0, choice, settings, calls
+    return determined, atol_j, yp0
 
 
 def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None, events=None,

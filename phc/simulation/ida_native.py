@@ -10,11 +10,25 @@ step. IDA's settings are :func:`phc.simulation.ida.run_settings`' (the tolerance
 vector, the maximum order: the same numbers scikit-sundae is given), the dense linear solver
 is SUNDIALS' own, as scikit-sundae's ``dense``.
 
-Between chunks, this module does what :class:`phc.simulation.ida._StepHook` does after a step:
-a chunk ends exactly at the step where the singularity monitor's next look falls
-(``_StepHook._look``: its cadence, crawl check and stops), where phc's choice of the maximum
-order looks next (:func:`phc.simulation.order.after_step`; a switch starts a new IDA), at
-``max_steps``, and after at most :data:`CHUNK` steps (progress, Ctrl-C).
+The singularity monitor's routine looks are the driver's own (:data:`C_LOOKS`): at the
+monitor's cadence it looks at the equilibrated iteration matrix in C, with the fixed-step C
+loop's routine look (``c_runtime/dense_lu.c``: its LU and 1-norm condition estimate, as LAPACK's
+``dgecon`` is in Python's monitor), and a look that finds the matrix clearly far from singular
+costs no Python: it is recorded, and replayed into the monitor between chunks
+(:meth:`~phc.simulation.monitor.SingularityMonitor.routine_looks`: the worst ratio, the last looks,
+the history a diagnosis reads), and the next cadence is set in C
+(:func:`phc.simulation.look_cadence.cadence_after`, translated). Every other look ends the chunk
+and is Python's monitor's, exactly as :class:`phc.simulation.ida._StepHook` makes it without the
+driver (``_StepHook._look``: the look itself, its minimum search, the crawl check, the stops): a
+look the condition estimate does not clear; one that brackets a minimum of the conditioning with
+the two before it (:func:`~phc.simulation.look_cadence.brackets_minimum`) where the monitor's
+search between them (:func:`~phc.simulation.look_cadence.golden_search` along
+:func:`~phc.simulation.look_cadence.hermite`, which the driver runs in C first) meets a point the
+estimate does not clear; and one where IDA crawls (:func:`~phc.simulation.look_cadence.crawls`).
+Python's looks ask the driver's estimate first (``SingularityMonitor.rcond``). Between chunks, this module does what the step hook
+does after a step: a chunk ends where phc's choice of the maximum order looks next
+(:func:`phc.simulation.order.after_step`; a switch starts a new IDA), at ``max_steps``, at a look
+Python makes, and after at most :data:`CHUNK` steps (progress, Ctrl-C).
 
 Not in the native path (the run goes through scikit-sundae, :func:`phc.simulation.ida.integrate_ida`,
 and says why once per process): switching conditions (events: IDA's root finding), models
@@ -36,6 +50,7 @@ import numpy as np
 from phc.simulation.backend import BackendRun
 from phc.simulation.guard import GuardedModule
 from phc.simulation.ida import (DENSE_LIMIT, PROGRESS_STEPS, _Stop, _StepHook, integrate_ida, run_settings)
+from phc.simulation.look_cadence import SEARCH_ITERATIONS
 from phc.simulation.monitor import SingularityMonitor, check_scales, unbounded_growth
 from phc.simulation.order import CHECK_STEPS, DEFAULT_ORDER, RECENT_STEPS, Switch, after_step
 
@@ -45,6 +60,16 @@ Ctrl-C): a millisecond or so on small models."""
 
 DONE = 1
 """``PHC_DONE`` of ida_driver.c: the last output time is reached."""
+
+C_LOOKS = True
+"""Whether the driver makes the monitor's routine looks itself, in C (see the module's docstring);
+False: every look is Python's, the chunks ending at each (the same looks, decided alike: tests
+compare the two)."""
+
+LI_CADENCE, LI_SINCE, LI_BASE, LI_STEPS, LI_NEXT_CHECK, LI_MAX_STEPS, LI_LOOKS, LI_FLAG, LI_CAPACITY, LI_ITERATIONS = range(10)
+"""The routine look's integer state (ida_driver.c's ``li[]``)."""
+LF_THRESHOLD, LF_H_FLOOR, LF_T_END, LF_LAST_RATIO, LF_T0, LF_R0, LF_T1, LF_R1 = range(8)
+"""Its float state (``lf[]``; NaN: no look)."""
 
 _SAID: set = set()
 
@@ -121,6 +146,28 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
     hook = _StepHook(t0, y0, yp0, t_end=t_end, max_steps=max_steps, monitor=monitor, calls=calls, progress=None,
                      base=10 if n <= 60 else 20)
     status = np.zeros(1, np.int64)
+    c_looks = C_LOOKS and monitor.enabled
+    if c_looks:  # the routine look's state and record (ida_driver.c: phc_ida_watch)
+        capacity = CHUNK // hook.base + 2  # (the cadence is at least the base: CHUNK // base looks a chunk)
+        li, lf = np.zeros(c_ida.LI_N, np.int64), np.full(c_ida.LF_N, np.nan)
+        li[LI_BASE], li[LI_MAX_STEPS], li[LI_CAPACITY], li[LI_ITERATIONS] = hook.base, max_steps, capacity, SEARCH_ITERATIONS
+        lf[LF_THRESHOLD], lf[LF_H_FLOOR], lf[LF_T_END] = monitor.threshold, monitor.h_floor, t_end
+        look_t, look_h, look_r = np.empty(capacity), np.empty(capacity), np.empty(capacity)
+        look_y, look_yp = np.empty((capacity, n)), np.empty((capacity, n))
+        last_h, last_y, last_yp = np.zeros(3), np.zeros((3, n)), np.zeros((3, n))  # the last looks (the search's)
+        watch_where = [_ptr(a) for a in (li, lf, look_t, look_h, look_r, look_y, look_yp, last_h, last_y, last_yp)]
+
+    current = [None]  # the driver's IDA (a switch of the order makes a new one)
+    if c_looks:
+        rcond_c = lib.phc_ida_rcond
+
+        def rcond(t, y_, yp_, h):
+            if not current[0]:  # (freed: the monitor's own look)
+                return np.nan
+            y_, yp_ = np.ascontiguousarray(y_, dtype=float), np.ascontiguousarray(yp_, dtype=float)
+            return rcond_c(current[0], float(t), y_.ctypes.data, yp_.ctypes.data, float(h))
+
+        monitor.rcond = rcond  # the looks Python makes ask the driver's estimate first
 
     def create(t, y, yp, order, h0):
         w = lib.phc_ida_create(n, len(jrows), residual, jacobian, _ptr(pv), _ptr(jrows), _ptr(jcols), float(t),
@@ -129,14 +176,39 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
                                max_steps + 1, _ptr(status))
         if not w:
             raise RuntimeError(f"SUNDIALS refused the driver's setup (step {int(status[0])} of phc_ida_create)")
+        if c_looks:
+            lib.phc_ida_watch(w, *watch_where)
+        current[0] = w
         return w
+
+    def looks_in() -> None:
+        """The hook's and the monitor's state of the looks, for the driver's routine looks."""
+        li[LI_CADENCE], li[LI_SINCE], li[LI_STEPS], li[LI_NEXT_CHECK] = (hook.cadence, hook.since_look, steps,
+                                                                          hook.next_crawl_check)
+        lf[LF_LAST_RATIO] = np.nan if hook.last_ratio is None else hook.last_ratio
+        looks = monitor._looks[-2:]
+        last = [(look[0], look[4]) for look in looks]
+        last = [(np.nan, np.nan)] * (2 - len(last)) + last
+        (lf[LF_T0], lf[LF_R0]), (lf[LF_T1], lf[LF_R1]) = last
+        for i, look in enumerate(looks, 2 - len(looks)):
+            last_y[i], last_yp[i], last_h[i] = look[1], look[2], look[3]
+
+    def looks_out() -> int:
+        """The driver's routine looks of the chunk, kept by the monitor and the hook; the steps since the
+        last look (a look Python must make: as many as the cadence or more)."""
+        m = int(li[LI_LOOKS])
+        if m:
+            monitor.routine_looks(look_t[:m].tolist(), look_y[:m].copy(), look_yp[:m].copy(), look_h[:m].tolist(),
+                                  look_r[:m].tolist())
+            hook.cadence, hook.last_ratio = int(li[LI_CADENCE]), float(lf[LF_LAST_RATIO])
+        return int(li[LI_SINCE])
 
     nout = len(t_out)
     ys, yps = np.empty((nout, n)), np.empty((nout, n))
     ys[0], yps[0] = y0, yp0
     k = np.ones(1, np.int64)
     hist = np.empty(2 * CHUNK)
-    taken_c, cur = np.zeros(1, np.int64), np.zeros(1)
+    taken_c, cur, h_ref = np.zeros(1, np.int64), np.zeros(1), np.zeros(1)
     y, yp = y0.copy(), yp0.copy()
     counts, reals = np.zeros(6, np.int64), np.zeros(3)
     y_failed, yp_failed = np.empty(n), np.empty(n)
@@ -145,7 +217,7 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
     nfev = njev = 0
     ok, message, interrupted, used_up = True, "integration finished", False, False
     # the addresses the C loop writes at, taken once (finding an array's address costs microseconds)
-    where = [_ptr(a) for a in (t_out, k, ys, yps, hist, taken_c, cur, y, yp)]
+    where = [_ptr(a) for a in (t_out, k, ys, yps, hist, taken_c, cur, y, yp, h_ref)]
     stats_where = [_ptr(a) for a in (counts, reals, y_failed, yp_failed)]
     advance, stats = lib.phc_ida_advance, lib.phc_ida_stats
     start = time.process_time()
@@ -153,7 +225,7 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
     try:
         while True:
             budget = min(CHUNK, max_steps - steps)
-            if monitor.enabled:
+            if monitor.enabled and not c_looks:  # end the chunk at the monitor's next look
                 budget = min(budget, max(1, hook.cadence - hook.since_look))
             if not choice.final:  # end the chunk where phc's choice of the order looks next
                 if choice.order == DEFAULT_ORDER:
@@ -162,6 +234,9 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
                     budget = 1
                 else:
                     budget = min(budget, max(1, CHECK_STEPS - (steps - choice.trial_mark[1])))
+            h_ref[0] = hook.h_ref  # (a rewind clears it)
+            if c_looks:
+                looks_in()
             result = advance(w, where[0], nout, where[1], budget, *where[2:])
             taken = int(taken_c[0])
             if result < 0:
@@ -174,7 +249,7 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
                 steps += taken
                 since_progress += taken
                 recent.extend(hs[-RECENT_STEPS:].tolist())
-                hook.after_chunk(steps, t, y, yp, hs)
+                hook.after_chunk(steps, t, y, yp, hs, h_ref[0], since_look=looks_out() if c_looks else None)
                 if not choice.final:
                     try:
                         after_step(choice, mod, p, t, y, yp, steps=steps, recent=recent, t_end=t_end)
@@ -182,7 +257,7 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
                         stats(w, *stats_where)
                         nfev, njev = nfev + int(counts[0]), njev + int(counts[1])
                         lib.phc_ida_free(w)
-                        w = None
+                        w = current[0] = None
                         if switch.rewind:
                             hook.rewind(t0, y0, yp0)
                             k[0] = 1
@@ -218,6 +293,7 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
             stats(w, *stats_where)
             nfev, njev = nfev + int(counts[0]), njev + int(counts[1])
             lib.phc_ida_free(w)
+            current[0] = None
     kk = int(k[0])
     if not message.startswith(("stopped ", "interrupted")):
         note = check_scales(mod, ys[:kk], yps[:kk], t_end - t0, rtol, atol, not ok, scales=nominal)

@@ -33,6 +33,7 @@ that run's bridges as well.
 from __future__ import annotations
 
 import math
+import sys
 from typing import Optional
 
 LOOK_STRETCH = 32
@@ -55,12 +56,56 @@ look costs."""
 def next_cadence(cadence: int, base: int, before: Optional[float], ratio: Optional[float]) -> int:
     """Steps until the monitor's next look by what it found: 1.5× longer (up to
     :data:`LOOK_STRETCH`× `base`) when the ratio moved less than :data:`FLAT_DECADES` since the
-    last look and stays above :data:`FAR_RATIO`, else back to `base` at once."""
-    if before is None or ratio is None or not (ratio > FAR_RATIO and before > FAR_RATIO):
+    last look and stays above :data:`FAR_RATIO`, else back to `base` at once (:func:`cadence_after`;
+    None: no look yet)."""
+    return cadence_after(cadence, base, math.nan if before is None else float(before),
+                         math.nan if ratio is None else float(ratio))
+
+
+# The functions below are what the native IDA driver's routine look decides in C (phc/codegen/c_runtime/
+# ida_driver.c: phc.codegen.c_ida translates them with phc.codegen.c_translate, in the subset it reads;
+# NaN stands for "no look yet"); the Python step hook (phc.simulation.ida._StepHook) and the
+# monitor (phc.simulation.monitor.SingularityMonitor.watch) call them too.
+
+C_SIGNATURES = {"cadence_after": (("i", "i", "f", "f"), ("i",)),
+                "brackets_minimum": (("f", "f", "f", "f", "f", "f"), ("b",)),
+                "crawls": (("f", "f", "f", "i", "i", "i"), ("b",)),
+                "hermite": (("f", "v", "v", "f", "v", "v", "f", "v", "v"), ()),
+                "golden_search": (("ws", "f", "f", "f", "i", "f", "f", "b"), ("i", "f", "f"))}
+"""The C kinds of the translated functions' arguments and results (:mod:`phc.codegen.c_translate`)."""
+
+GOLDEN = 0.5 * (math.sqrt(5.0) - 1.0)
+"""The golden section's ratio (:func:`golden_search`)."""
+EPSILON = sys.float_info.epsilon
+"""Double precision's machine epsilon."""
+MINIMUM_XTOL = 1e-4
+"""Relative width of the bracket at which :func:`golden_search` with `minimum` stops."""
+SEARCH_ITERATIONS = 80
+"""Most iterations of the monitor's search for a minimum between its looks."""
+
+
+def cadence_after(cadence: int, base: int, before: float, ratio: float) -> int:
+    """:func:`next_cadence` on numbers: `before` and `ratio` NaN where there is no look."""
+    if not (ratio > FAR_RATIO and before > FAR_RATIO):
         return base
     if abs(math.log10(ratio / before)) >= FLAT_DECADES:
         return base
     return min(LOOK_STRETCH * base, max(cadence + 1, int(1.5 * cadence)))
+
+
+def brackets_minimum(t0: float, r0: float, t1: float, r1: float, t2: float, r2: float) -> bool:
+    """Whether the monitor's last three looks, at times t0, t1, t2 with conditioning ratios r0, r1,
+    r2, bracket a local minimum of the conditioning (the middle one the lowest, the times
+    increasing): the monitor then searches between them
+    (:meth:`~phc.simulation.monitor.SingularityMonitor.watch`). False where a ratio is NaN."""
+    return r1 < r0 and r1 < r2 and t0 < t1 and t1 < t2
+
+
+def crawls(h: float, t: float, t_end: float, steps: int, max_steps: int, next_check: int) -> bool:
+    """Whether IDA, at `steps` steps at t with steps of h, crawls: at this step size it cannot
+    reach `t_end` within `max_steps`; asked from the step `next_check` on (the IDA step hook's
+    crawl check, :class:`phc.simulation.ida._StepHook`)."""
+    return steps >= next_check and h * (max_steps - steps) < t_end - t
 
 
 def affordable_cadence(cadence: int, base: int, *, look_work: float, step_work: float, before: Optional[float],
@@ -83,6 +128,103 @@ def affordable_cadence(cadence: int, base: int, *, look_work: float, step_work: 
         fall = math.log10(before / ratio) / steps  # decades a step, at the last interval's rate
         afford = min(afford, int(decades / (APPROACH_LOOKS * fall)))
     return max(cadence, base, afford)
+
+
+def _copy(src, dst):
+    dst[...] = src
+
+
+def hermite(ta, ya, ypa, tb, yb, ypb, t, y, yp) -> None:
+    """(y, ẏ) at t on the cubic Hermite interpolant through the looks (ta, ya, ẏa) and (tb, yb, ẏb),
+    into y and yp: the states the monitor's search between its looks looks at
+    (:meth:`phc.simulation.monitor.SingularityMonitor._state_at`)."""
+    d = tb - ta
+    s = (t - ta) / d
+    h00 = 2 * s**3 - 3 * s**2 + 1
+    h10 = s**3 - 2 * s**2 + s
+    h01 = -2 * s**3 + 3 * s**2
+    h11 = s**3 - s**2
+    _copy(h00 * ya + h10 * d * ypa + h01 * yb + h11 * d * ypb, y)
+    dh00 = 6 * s**2 - 6 * s
+    dh10 = 3 * s**2 - 4 * s + 1
+    dh01 = -6 * s**2 + 6 * s
+    dh11 = 3 * s**2 - 2 * s
+    _copy((dh00 * ya + dh01 * yb) / d + dh10 * ypa + dh11 * ypb, yp)
+
+
+def golden_search(ws, a, b, threshold, iterations, fa, fb, minimum):
+    """``(found, t, ratio)``: where the monitor's conditioning ratio falls below `threshold` on
+    [a, b], by golden-section search for its minimum — found 1 at the first point found below (with
+    `minimum`: the least point found once the bracket is :data:`MINIMUM_XTOL` of its place), 0 where
+    it stays above, -1 where the operation ``_ratio_at_time(ws, t) -> (ratio, below, unknown)``
+    cannot tell (the native IDA driver's estimate, which does not clear a point: Python's monitor
+    then searches itself). `fa`, `fb`: the ratios at a and b (NaN: unknown). What it stops at:
+    :func:`phc.simulation.monitor._search_below`, which runs it with the monitor's ratio."""
+    g = GOLDEN
+    c = b - g * (b - a)
+    d = a + g * (b - a)
+    fc, bc, xc = _ratio_at_time(ws, c)  # noqa: F821 — the caller's operation
+    if xc:
+        return -1, 0.0, 0.0
+    fd, bd, xd = _ratio_at_time(ws, d)  # noqa: F821
+    if xd:
+        return -1, 0.0, 0.0
+    found = False
+    best_t = 0.0
+    best_r = 0.0
+    for k in range(iterations):
+        if bc:
+            if not minimum:
+                return 1, c, fc
+            if not found or fc < best_r:
+                found = True
+                best_t = c
+                best_r = fc
+        if bd:
+            if not minimum:
+                return 1, d, fd
+            if not found or fd < best_r:
+                found = True
+                best_t = d
+                best_r = fd
+        if b - a <= 4 * EPSILON * max(abs(a), abs(b)):
+            break
+        if found and b - a <= MINIMUM_XTOL * max(abs(a), abs(b)):
+            break
+        if k >= 4 and fa == fa and fb == fb and a < c and c < d and d < b:  # (NaN: fa, fb unknown)
+            slope = max(abs(fc - fa) / (c - a), abs(fd - fc) / (d - c), abs(fb - fd) / (b - d))
+            if min(fc, fd) - 2.0 * slope * (b - a) > threshold:
+                break
+        if fc < fd:
+            fb = fd
+            b = d
+            d = c
+            fd = fc
+            bd = bc
+            c = b - g * (b - a)
+            fc, bc, xc = _ratio_at_time(ws, c)  # noqa: F821
+            if xc:
+                return -1, 0.0, 0.0
+        else:
+            fa = fc
+            a = c
+            c = d
+            fc = fd
+            bc = bd
+            d = a + g * (b - a)
+            fd, bd, xd = _ratio_at_time(ws, d)  # noqa: F821
+            if xd:
+                return -1, 0.0, 0.0
+    return (1 if found else 0), best_t, best_r
+
+
+def run_golden_search(ratio_at_time, a, b, threshold, iterations, fa, fb, minimum):
+    """:func:`golden_search` in Python, its operation ``_ratio_at_time`` the callable `ratio_at_time`."""
+    import types
+
+    search = types.FunctionType(golden_search.__code__, {**globals(), "_ratio_at_time": ratio_at_time},
+                                golden_search.__name__)
+    return search(None, a, b, threshold, iterations, fa, fb, minimum)
 
 
 # The work model: nominal nanoseconds, fixed numbers (calibrated once, on an x86-64 machine, on the

@@ -37,7 +37,8 @@ import scipy.sparse as sps
 
 from phc.errors import ModelEvaluationError
 from phc.simulation.equilibrate import equilibrate
-from phc.simulation.look_cadence import LookWork
+from phc.simulation.look_cadence import (MINIMUM_XTOL, SEARCH_ITERATIONS, LookWork, brackets_minimum, hermite,  # noqa: F401
+                                       run_golden_search)
 
 HISTORY = 64
 """Looks the monitor keeps for a failure's diagnosis."""
@@ -124,6 +125,12 @@ def _far_from_singular(J: np.ndarray, threshold: float, lu=None, solve=None) -> 
         rcond, info = sla.lapack.dgecon(lu, float(np.abs(J).sum(axis=0).max()), norm="1")
         if info != 0:
             return None
+    return clear_ratio(rcond, threshold, n)
+
+
+def clear_ratio(rcond: float, threshold: float, n: int) -> Optional[float]:
+    """``rcond/n`` where the condition estimate `rcond` clears a look (:data:`RCOND_MARGIN`·n times
+    above `threshold`), else None: the singular values must decide."""
     if not np.isfinite(rcond) or rcond < threshold * n * RCOND_MARGIN:
         return None
     return float(rcond) / n
@@ -212,7 +219,8 @@ def _sparse_look(J, n, threshold, vectors, work, spla):
     return ratio, (x if vectors else np.empty(0))
 
 
-def _search_below(f, a, b, threshold, iterations: int = 80, fa=None, fb=None, minimum: bool = False):
+def _search_below(f, a, b, threshold, iterations: int = SEARCH_ITERATIONS, fa=None, fb=None,
+                  minimum: bool = False):
     """(t, ratio, u) where ``f: t -> (ratio, u)`` (u None while the ratio is at or above
     `threshold`) falls below `threshold` on [a, b], by golden-section search for its minimum;
     None if it stays above. The first point found below is returned, or with `minimum` the
@@ -224,38 +232,20 @@ def _search_below(f, a, b, threshold, iterations: int = 80, fa=None, fb=None, mi
     so below the two inner points it can fall by at most the bracket's width times the
     steepest slope between the four points (`fa`, `fb`: the ratios at `a` and `b`);
     when twice that still leaves the smaller inner value above the threshold, it does
-    not fall below it (a smooth minimum flattens as the bracket shrinks, a V does not)."""
-    g = 0.5 * (np.sqrt(5.0) - 1.0)
-    c, d = b - g * (b - a), a + g * (b - a)
-    (fc, uc), (fd, ud) = f(c), f(d)
-    best = None
-    for k in range(iterations):
-        for t, r, u in ((c, fc, uc), (d, fd, ud)):
-            if u is not None and not minimum:
-                return t, r, u
-            if u is not None and (best is None or r < best[1]):
-                best = (t, r, u)
-        if b - a <= 4 * np.finfo(float).eps * max(abs(a), abs(b)):
-            break
-        if best is not None and b - a <= MINIMUM_XTOL * max(abs(a), abs(b)):
-            break
-        if k >= 4 and fa is not None and fb is not None and a < c < d < b:
-            slope = max(abs(fc - fa) / (c - a), abs(fd - fc) / (d - c), abs(fb - fd) / (b - d))
-            if min(fc, fd) - 2.0 * slope * (b - a) > threshold:
-                break
-        if fc < fd:
-            b, d, fd, ud, fb = d, c, fc, uc, fd
-            c = b - g * (b - a)
-            fc, uc = f(c)
-        else:
-            a, c, fc, uc, fa = c, d, fd, ud, fc
-            d = a + g * (b - a)
-            fd, ud = f(d)
-    return best
+    not fall below it (a smooth minimum flattens as the bracket shrinks, a V does not).
+    The search itself is :func:`phc.simulation.look_cadence.golden_search` (which the native IDA
+    driver runs in C)."""
+    vectors = {}
 
+    def ratio_at_time(ws, t):
+        ratio, u = f(t)
+        if u is not None:
+            vectors[t] = u
+        return ratio, u is not None, False
 
-MINIMUM_XTOL = 1e-4
-"""Relative width of the bracket at which :func:`_search_below` with `minimum` stops."""
+    found, t, ratio = run_golden_search(ratio_at_time, a, b, threshold, iterations,
+                                        math.nan if fa is None else fa, math.nan if fb is None else fb, minimum)
+    return (t, ratio, vectors[t]) if found == 1 else None
 
 
 class SingularityMonitor:
@@ -291,6 +281,10 @@ class SingularityMonitor:
         more of the rows that become dependent are position invariants): the case a fixed-step
         solver may pass through (:func:`phc.simulation.midpoint.passes_rank_drop`)."""
         self._looks: list[tuple] = []
+        self.rcond = None
+        """``rcond(t, y, ẏ, h)``, the condition estimate of the equilibrated iteration matrix made
+        elsewhere, or None: the native IDA driver's, in C (:mod:`phc.simulation.ida_native`), which a
+        dense look asks first (:meth:`_ratio_at`: where it clears the look, no LU or SVD here)."""
         self.tally = LookWork()
         """The work of the looks, counted (what the IDA step hook's cadence weighs against the steps':
         :mod:`phc.simulation.look_cadence`)."""
@@ -337,6 +331,11 @@ class SingularityMonitor:
         n = self.mod.N
         if n > DENSE_SIZE:
             return _sparse_ratio(self._equilibrated_sparse(t, y, yp, h), self.threshold, vectors, self.tally)
+        if self.rcond is not None:
+            rough = clear_ratio(self.rcond(t, y, yp, h), self.threshold, n)
+            if rough is not None:
+                self.tally.dense(n)
+                return rough, None
         J = self._equilibrated(t, y, yp, h)
         rough = _far_from_singular(J, self.threshold)
         if rough is not None:
@@ -378,12 +377,29 @@ class SingularityMonitor:
             ratio, u = self.ratio(t, y, yp, h)
         finally:
             self.threshold = saved
-        self.worst = min(self.worst, ratio)
-        self._looks = [*self._looks[-2:], (t, np.array(y, dtype=float), np.array(yp, dtype=float), h, ratio)]
-        self._remember(self._looks[-1][:3])
+        self._record(t, np.array(y, dtype=float), np.array(yp, dtype=float), h, ratio)
         if ratio >= threshold:
             return None
         return self._message(t, ratio, u, threshold)
+
+    def _record(self, t, y, yp, h, ratio) -> None:
+        """Keep a look: the worst ratio, the last three looks, the history."""
+        self.worst = min(self.worst, ratio)
+        self._looks = [*self._looks[-2:], (t, y, yp, h, ratio)]
+        self._remember(self._looks[-1][:3])
+
+    def routine_looks(self, ts, ys, yps, hs, ratios) -> None:
+        """Looks made elsewhere that found the matrix clearly far from singular — the native IDA
+        driver's routine looks in C (:mod:`phc.simulation.ida_native`): at times `ts`, states `ys`,
+        `yps` (rows, kept: not copied), steps `hs` (the floor applied) and ratios `ratios`
+        (``1/(n κ̂₁)``, as :func:`_far_from_singular` gives), kept as :meth:`watch` keeps its own
+        looks that find nothing."""
+        n = self.mod.N
+        for i, t in enumerate(ts):
+            self.tally.dense(n)
+            self._record(t, ys[i], yps[i], hs[i], ratios[i])
+        if len(self._looks) < 3:
+            self.stop_time = None
 
     @property
     def last_ratio(self) -> float:
@@ -423,7 +439,7 @@ class SingularityMonitor:
             self.stop_time = t if warning is not None else None
             return warning
         (t0, *_, r0), (t1, *_, r1), (t2, *_, r2) = self._looks
-        if not (r1 < r0 and r1 < r2 and t0 < t1 < t2):
+        if not brackets_minimum(t0, r0, t1, r1, t2, r2):
             return None
         best = self._minimize(t0, t2, fa=r0, fb=r2)
         if best is None:
@@ -438,15 +454,11 @@ class SingularityMonitor:
         looks = self._looks
         i = 0 if t <= looks[1][0] else 1
         (ta, ya, ypa, _, _), (tb, yb, ypb, hb, _) = looks[i], looks[i + 1]
-        d = tb - ta
-        s = (t - ta) / d
-        h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
-        y = h00 * ya + h10 * d * ypa + h01 * yb + h11 * d * ypb
-        dh00, dh10, dh01, dh11 = 6 * s**2 - 6 * s, 3 * s**2 - 4 * s + 1, -6 * s**2 + 6 * s, 3 * s**2 - 2 * s
-        yp = (dh00 * ya + dh01 * yb) / d + dh10 * ypa + dh11 * ypb
+        y, yp = np.empty(len(ya)), np.empty(len(ya))
+        hermite(ta, ya, ypa, tb, yb, ypb, t, y, yp)  # (phc.simulation.look_cadence: the native driver's too)
         return y, yp, hb
 
-    def _minimize(self, a, b, iterations: int = 80, fa=None, fb=None):
+    def _minimize(self, a, b, iterations: int = SEARCH_ITERATIONS, fa=None, fb=None):
         """(t, ratio, left singular vector) where :meth:`ratio` along the cubic Hermite
         interpolant of the last looks (:meth:`_state_at`) falls below the threshold on [a, b]
         (:func:`_search_below`); None if it stays above."""

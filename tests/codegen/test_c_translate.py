@@ -326,3 +326,108 @@ def test_a_local_vector_named_twice_is_a_copy_only_where_neither_is_written_in_p
     assert "b[i2] = a[i2];" in text and "double b[n];" in text
     with pytest.raises(TranslationError, match=r"logic.py:12: in written: b = a: a vector named twice"):
         Translator(m, {"written": (("v", "v"), ())}, {}).translate(["written"])
+
+
+def test_the_look_logic_of_the_native_ida_driver_is_pythons():
+    """The native IDA driver's routine look decides with phc.simulation.look_cadence's functions,
+    translated (float constants of the module, math.log10, NaN for "no look"): on a grid of cadences
+    and ratios (NaN, far below, near and far above FAR_RATIO, flat and moving) and of look times and
+    step counts, the C gives Python's answers exactly."""
+    import itertools
+    import math
+
+    from phc.simulation import look_cadence as lc
+
+    text = ("#include <math.h>\n#include <stdint.h>\n" + PRELUDE
+            + Translator(lc, lc.C_SIGNATURES, {}).translate(("cadence_after", "brackets_minimum", "crawls"))
+            + "int64_t t_cadence(int64_t c, int64_t b, double x, double r) { return cadence_after(c, b, x, r); }\n"
+            "int t_brackets(double a, double b, double c, double d, double e, double f)"
+            " { return brackets_minimum(a, b, c, d, e, f); }\n"
+            "int t_crawls(double h, double t, double te, int64_t s, int64_t m, int64_t k)"
+            " { return crawls(h, t, te, s, m, k); }\n")
+    lib, why = c_backend.runtime_library(text, c_steps.FLAGS)
+    if lib is None:
+        pytest.skip(f"no C compiler: {why}")
+    D, I = ctypes.c_double, ctypes.c_int64
+    lib.t_cadence.argtypes, lib.t_cadence.restype = [I, I, D, D], I
+    lib.t_brackets.argtypes, lib.t_brackets.restype = [D] * 6, ctypes.c_int
+    lib.t_crawls.argtypes, lib.t_crawls.restype = [D, D, D, I, I, I], ctypes.c_int
+    ratios = [math.nan, 1e-12, 1e-6, 1.0000001e-6, 2e-6, 0.01, 0.0125, 0.0126, 0.02, 0.5]
+    for cadence, base in ((10, 10), (15, 10), (300, 10), (320, 10), (20, 20)):
+        for before, ratio in itertools.product(ratios, ratios):
+            assert lib.t_cadence(cadence, base, before, ratio) == lc.cadence_after(cadence, base, before, ratio)
+    assert lc.next_cadence(10, 10, None, 0.5) == lc.cadence_after(10, 10, math.nan, 0.5) == 10
+    times = [math.nan, 0.0, 1.0, 2.0]
+    for t0, t1, t2 in itertools.product(times, repeat=3):
+        for r0, r1, r2 in itertools.product([math.nan, 0.1, 0.2], repeat=3):
+            assert bool(lib.t_brackets(t0, r0, t1, r1, t2, r2)) == lc.brackets_minimum(t0, r0, t1, r1, t2, r2)
+    for h, steps, check in itertools.product([1e-9, 1e-3, 0.5], [0, 10, 99, 100], [0, 50]):
+        assert bool(lib.t_crawls(h, 0.25, 1.0, steps, 100, check)) == lc.crawls(h, 0.25, 1.0, steps, 100, check)
+
+
+_SEARCH_WRAPPERS = """
+struct phc_steps { double centre, floor, stop; };
+static double op_ratio_at_time(const struct phc_steps *ws, double t, int *below, int *unknown)
+{
+    const double r = (t - ws->centre) * (t - ws->centre) + ws->floor;
+    *below = r < 1e-8;
+    *unknown = t > ws->stop;
+    return r;
+}
+"""
+
+
+def test_the_search_between_looks_and_its_interpolant_are_pythons():
+    """The monitor's search for a minimum between its looks (look_cadence.golden_search) and the Hermite
+    interpolant it looks along, translated for the native IDA driver: on parabolas (t − centre)² + floor,
+    "below" under 1e-8 (so found where floor is 1e-9, never where it is 1e-3), with and without `minimum`,
+    with and without the end ratios, and an operation that cannot tell beyond `stop`, the C search gives
+    Python's result bit for bit (every outcome occurs), and the interpolant Python's states."""
+    import math
+
+    from phc.codegen.c_translate import Op
+    from phc.simulation import look_cadence as lc
+
+    ops = {"_ratio_at_time": Op("op_ratio_at_time", ("ws", "f"), ("f", "b", "b"))}
+    text = ("#include <math.h>\n#include <stdint.h>\n" + PRELUDE + _SEARCH_WRAPPERS
+            + Translator(lc, lc.C_SIGNATURES, ops).translate(("hermite", "golden_search"))
+            + "int64_t t_search(double centre, double floor, double stop, double a, double b, double threshold,"
+            " int64_t iterations, double fa, double fb, int minimum, double *t, double *r)\n"
+            "{ struct phc_steps ws = {centre, floor, stop};"
+            " return golden_search(&ws, a, b, threshold, iterations, fa, fb, minimum, t, r); }\n"
+            "void t_hermite(int64_t n, double ta, const double *ya, const double *ypa, double tb, const double *yb,"
+            " const double *ypb, double t, double *y, double *yp) { hermite(n, ta, ya, ypa, tb, yb, ypb, t, y, yp); }\n")
+    lib, why = c_backend.runtime_library(text, c_steps.FLAGS)
+    if lib is None:
+        pytest.skip(f"no C compiler: {why}")
+    D, I, P = ctypes.c_double, ctypes.c_int64, ctypes.c_void_p
+    lib.t_search.argtypes, lib.t_search.restype = [D] * 6 + [I, D, D, ctypes.c_int, P, P], I
+    lib.t_hermite.argtypes, lib.t_hermite.restype = [I, D, P, P, D, P, P, D, P, P], None
+    t_c, r_c = np.zeros(1), np.zeros(1)
+    cases, codes = 0, set()
+    for centre in (0.1, 0.37, 0.9):
+        for floor in (1e-3, 1e-9):
+            for stop in (math.inf, 0.5):
+                for threshold in (1e-6, 1e-2):
+                    for minimum in (False, True):
+                        for fa, fb in ((math.nan, math.nan), (0.2, 0.3)):
+                            def op(ws, t, centre=centre, floor=floor, stop=stop):
+                                r = (t - centre) * (t - centre) + floor
+                                return r, r < 1e-8, t > stop
+
+                            expected = lc.run_golden_search(op, 0.0, 1.0, threshold, 80, fa, fb, minimum)
+                            code = lib.t_search(centre, floor, stop, 0.0, 1.0, threshold, 80, fa, fb, minimum, _p(t_c),
+                                                _p(r_c))
+                            assert (code, t_c[0], r_c[0]) == expected
+                            codes.add(code)
+                            cases += 1
+    assert cases == 96 and codes == {-1, 0, 1}  # every outcome met
+    rng = np.random.default_rng(3)
+    n = 7
+    ya, ypa, yb, ypb = (rng.standard_normal(n) for _ in range(4))
+    for t in (0.2, 0.25, 0.31, 0.6):
+        y, yp = np.zeros(n), np.zeros(n)
+        lc.hermite(0.2, ya, ypa, 0.6, yb, ypb, t, y, yp)
+        yc, ypc = np.zeros(n), np.zeros(n)
+        lib.t_hermite(n, 0.2, _p(ya), _p(ypa), 0.6, _p(yb), _p(ypb), t, _p(yc), _p(ypc))
+        assert np.array_equal(y, yc) and np.array_equal(yp, ypc)

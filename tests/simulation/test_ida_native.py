@@ -127,3 +127,94 @@ def test_switched_off_by_the_environment(monkeypatch):
     monkeypatch.setattr(c_ida, "_LIBRARY", None)
     assert c_ida.library() is None and c_ida.why_not() == ""
     assert ida_native.usable(SimpleNamespace(BACKEND="c", C_LIBRARY=object(), N=3)) == (False, "")
+
+
+class _Handed(Exception):
+    """The native driver handed the run to scikit-sundae (the test stops there)."""
+
+
+def _looks(compiled, monkeypatch, c_looks: bool, **options):
+    """A native run with the monitor's routine looks in C or all in Python: (every look the monitor kept:
+    (t, h, ratio); the looks Python's monitor made itself; the stops the step hook raised: (t, message);
+    the run, or None where the native path handed it over)."""
+    from phc.simulation import ida as ida_module
+    from phc.simulation.monitor import SingularityMonitor
+
+    kept, checks, stops = [], [], []
+    record, check, look = SingularityMonitor._record, SingularityMonitor.check, ida_module._StepHook._look
+
+    def spy_record(self, t, y, yp, h, ratio):
+        kept.append((t, h, ratio))
+        return record(self, t, y, yp, h, ratio)
+
+    def spy_check(self, *args, **kwargs):
+        checks.append(args[0])
+        return check(self, *args, **kwargs)
+
+    def spy_look(self, t, y, yp, h):
+        try:
+            return look(self, t, y, yp, h)
+        except ida_module._Stop as stop:
+            stops.append((t, stop.message))
+            raise
+
+    def handed(*args, **kwargs):
+        raise _Handed
+
+    run = None
+    with monkeypatch.context() as patch, warnings.catch_warnings():
+        patch.setattr(SingularityMonitor, "_record", spy_record)
+        patch.setattr(SingularityMonitor, "check", spy_check)
+        patch.setattr(ida_module._StepHook, "_look", spy_look)
+        patch.setattr(ida_native, "integrate_ida", handed)
+        patch.setattr(ida_native, "C_LOOKS", c_looks)
+        patch.setenv("PHC_NATIVE_IDA", "1")
+        warnings.simplefilter("ignore")
+        try:
+            run = phc.simulate(compiled, solver="ida", **options)
+        except _Handed:
+            pass
+    return kept, checks, stops, run
+
+
+@needs_sundials
+def test_routine_looks_in_c_stop_the_folding_slider_crank_as_pythons(monkeypatch):
+    """The rigid slider–crank with its rod as long as the crank folds at θ = π/2 (the rod perpendicular to
+    the guide: tests/simulation/test_monitor.py). With the routine looks in C, the monitor looks at the same
+    steps as when Python makes every look (the cadence, the minimum test and the crawl check are the same
+    functions, translated), keeps ratios within 1e-6 of Python's (two condition estimates of the same
+    equilibrated matrix from two LUs of it: they differ by the LU's rounding times the matrix's condition,
+    below 1/(RCOND_MARGIN·threshold) = 1e8 where the C look passes, so ~1e-8), and hands the same step to
+    Python, which stops the run with the same message; and the C looks did take over some looks."""
+    compiled = phc.compile_model(MODELS / "rigid_slider_crank.yaml", certify=False, backend="c")
+    options = dict(params={"L": 0.15}, t_end=0.011)
+    kept_c, checks_c, stops_c, run_c = _looks(compiled, monkeypatch, True, **options)
+    kept_py, checks_py, stops_py, run_py = _looks(compiled, monkeypatch, False, **options)
+    assert run_c is None and run_py is None  # the monitor stopped both: handed to scikit-sundae's path
+    assert stops_c and stops_c == stops_py
+    assert "singular configuration" in stops_c[-1][1]
+    assert [k[:2] for k in kept_c] == [k[:2] for k in kept_py]
+    np.testing.assert_allclose([k[2] for k in kept_c], [k[2] for k in kept_py], rtol=1e-6)
+    assert len(checks_py) == len(kept_py) and len(checks_c) < len(kept_c)
+
+
+@needs_sundials
+def test_routine_looks_in_c_leave_the_run_unchanged_and_python_idle(pendulum, monkeypatch):
+    """Far from any singular configuration (the pendulum) Python's monitor makes almost none of the looks,
+    the run's outputs are bit for bit those of a run whose looks are all Python's (a look does not change
+    IDA's steps), and the monitor keeps as many looks within 10 % and its worst ratio within 10 % (its ratios
+    are condition estimates, 1/(n κ̂₁) with κ̂₁ a lower bound of κ₁, from two LUs of the same matrix: where
+    the estimator's choice of its next vector is a tie, their rounding may choose differently, and the two
+    estimates, both within a small factor of κ₁, then differ by more than rounding — and the cadence they
+    set with them)."""
+    options = dict(t_end=T_END, n_out=251, rtol=RTOL, atol=RTOL * 1e-2)
+    kept_c, checks_c, _, run_c = _looks(pendulum, monkeypatch, True, **options)
+    kept_py, checks_py, _, run_py = _looks(pendulum, monkeypatch, False, **options)
+    assert run_c.success and run_py.success
+    np.testing.assert_array_equal(run_c.y, run_py.y)
+    assert run_c.steps == run_py.steps
+    assert len(checks_py) == len(kept_py) > 50
+    assert len(checks_c) < 0.25 * len(kept_c)
+    assert abs(len(kept_c) - len(kept_py)) <= 0.1 * len(kept_py)
+    worst_c, worst_py = min(k[2] for k in kept_c), min(k[2] for k in kept_py)
+    assert worst_c == pytest.approx(worst_py, rel=0.1)

@@ -19,6 +19,21 @@
  * callbacks make it by returning NaN); the latest such point is kept (t_failed, y_failed, yp_failed) so
  * that Python can evaluate it again through phc's guard and give the located error.
  *
+ * The singularity monitor's routine look (phc_ida_watch switches it on): after every `cadence` steps
+ * the driver looks at the iteration matrix itself, with the fixed-step loop's routine look (dense_lu.c,
+ * put at the line PHC_DENSE_LU below when the library is built: the equilibrated matrix's LU and
+ * LAPACK-style 1-norm condition estimate). A look that finds the matrix clearly far from singular is
+ * recorded (time, step, ratio 1/(n kappa_1), state: Python's monitor replays it between calls as if it
+ * had looked, phc.simulation.monitor.SingularityMonitor.routine_looks) and sets the next cadence; any
+ * other look ends the call (PHC_LOOK) without being recorded, and Python's monitor makes it, as the
+ * step hook does without the driver (phc.simulation.ida._StepHook._look): a look the estimate does not
+ * clear; one whose ratio with the two looks before brackets a minimum of the conditioning, where the
+ * monitor's search between them (run here first) meets a point the estimate does not clear; and one
+ * where IDA crawls (its step cannot reach the end within max_steps). Those decisions, the search, its
+ * interpolant and the cadence are phc.simulation.look_cadence's functions (cadence_after,
+ * brackets_minimum, crawls, golden_search, hermite), translated by phc.codegen.c_translate at the line
+ * PHC_LOOK_LOGIC below: written once, in Python, which the step hook and the monitor run.
+ *
  * Re-entrant: no static mutable state. Everything a run uses is in its struct phc_ida (IDA's user data),
  * allocated by phc_ida_create and released by phc_ida_free.
  */
@@ -49,14 +64,38 @@ typedef realtype phc_real;
 typedef sunrealtype phc_real;
 #endif
 
-#define PHC_IDA_ABI 1
+#define PHC_IDA_ABI 2
 
 typedef void (*phc_residual_fn)(double t, const double *y, const double *yp, const double *p, double *out);
 typedef void (*phc_jacobian_fn)(double t, const double *y, const double *yp, const double *p, double cj,
                                 double *out);
 
+/* PHC_DENSE_LU */
+
+/* The workspace of the translated search (look_cadence.golden_search's `ws`): the run's driver, and
+ * its operation, the conditioning ratio at a time between the last looks (defined below). */
+struct phc_ida;
+struct phc_steps {
+    struct phc_ida *w;
+};
+static double op_ratio_at_time(const struct phc_steps *ws, double t, int *below, int *unknown);
+
+/* PHC_LOOK_LOGIC */
+
 /* what phc_ida_advance returns (besides IDA's negative flags, passed on) */
-enum { PHC_BUDGET = 0, PHC_DONE = 1 };
+enum { PHC_BUDGET = 0, PHC_DONE = 1, PHC_LOOK = 2 };
+
+/* the routine look's integer state li[] (phc.simulation.ida_native: LI_*): the cadence, the steps since
+ * the last look, the base cadence, the run's steps before the call, the step the crawl check is next
+ * asked at, max_steps, the looks recorded in the call, why the call ended at a look (LOOK_*), the
+ * record's capacity, the most iterations of the search between looks */
+enum { LI_CADENCE, LI_SINCE, LI_BASE, LI_STEPS, LI_NEXT_CHECK, LI_MAX_STEPS, LI_LOOKS, LI_FLAG, LI_CAPACITY,
+       LI_ITERATIONS, LI_N };
+/* its float state lf[]: the monitor's threshold, its step floor h_floor, the run's end, the ratio of
+ * the last look (NaN: none), the times and ratios of the last two looks, oldest first (NaN: none) */
+enum { LF_THRESHOLD, LF_H_FLOOR, LF_T_END, LF_LAST_RATIO, LF_T0, LF_R0, LF_T1, LF_R1, LF_N };
+/* why a look ends the call (li[LI_FLAG]) */
+enum { LOOK_NONE, LOOK_NOT_CLEAR, LOOK_MINIMUM, LOOK_CRAWL };
 
 #define PHC_MESSAGE 512
 
@@ -78,15 +117,16 @@ struct phc_ida {
     SUNMatrix A;
     SUNLinearSolver LS;
     char message[PHC_MESSAGE];       /* IDA's latest error message */
+    /* the routine look (phc_ida_watch; li NULL: off): its state and record (the caller's arrays) and
+     * scratch */
+    int64_t *li;
+    double *lf, *look_t, *look_h, *look_r, *look_y, *look_yp;
+    double *last_h, *last_y, *last_yp; /* 3, 3n, 3n: steps and states of the last two looks, then this one */
+    double last_t[3];                /* their times (the search's) */
+    double *sy, *syp;                /* n each: a state the search looks at */
+    double *mon, *monv, *mjbuf;      /* n x n, 3n, njac */
+    int64_t *monpiv;                 /* n */
 };
-
-static int all_finite(int64_t n, const double *v)
-{
-    double s = 0.0;
-    for (int64_t i = 0; i < n; ++i)
-        s += v[i] * 0.0;             /* 0 for every finite entry, NaN for an infinity or a NaN */
-    return s == 0.0;
-}
 
 static void fail_at(struct phc_ida *w, double t, const double *y, const double *yp)
 {
@@ -180,6 +220,12 @@ void phc_ida_free(struct phc_ida *w)
     free(w->jbuf);
     free(w->y_failed);
     free(w->yp_failed);
+    free(w->mon);
+    free(w->monv);
+    free(w->mjbuf);
+    free(w->monpiv);
+    free(w->sy);
+    free(w->syp);
     free(w);
 }
 
@@ -212,7 +258,14 @@ struct phc_ida *phc_ida_create(int64_t n, int64_t njac, phc_residual_fn residual
     w->jbuf = (double *)malloc((size_t)(njac > 0 ? njac : 1) * sizeof(double));
     w->y_failed = (double *)calloc((size_t)n, sizeof(double));
     w->yp_failed = (double *)calloc((size_t)n, sizeof(double));
-    if (!w->jrows || !w->jcols || !w->jbuf || !w->y_failed || !w->yp_failed)
+    w->mon = (double *)malloc((size_t)(n * n) * sizeof(double));
+    w->monv = (double *)malloc((size_t)(3 * n) * sizeof(double));
+    w->mjbuf = (double *)malloc((size_t)(njac > 0 ? njac : 1) * sizeof(double));
+    w->monpiv = (int64_t *)malloc((size_t)n * sizeof(int64_t));
+    w->sy = (double *)malloc((size_t)n * sizeof(double));
+    w->syp = (double *)malloc((size_t)n * sizeof(double));
+    if (!w->jrows || !w->jcols || !w->jbuf || !w->y_failed || !w->yp_failed || !w->mon || !w->monv || !w->mjbuf
+        || !w->monpiv || !w->sy || !w->syp)
         goto fail;
     memcpy(w->jrows, jrows, (size_t)njac * sizeof(int64_t));
     memcpy(w->jcols, jcols, (size_t)njac * sizeof(int64_t));
@@ -273,18 +326,127 @@ fail:
     return NULL;
 }
 
+/* Switch the routine look on (li not NULL) or off: its state li[LI_N], lf[LF_N] and the record of the
+ * looks it passes, of li[LI_CAPACITY] looks (times, steps, ratios; states y, yp: capacity x n each), and
+ * the steps and states of the monitor's last two looks (last_h: 3, last_y, last_yp: 3 x n, the first two
+ * rows theirs, oldest first) are the caller's arrays, read and written by each phc_ida_advance. */
+void phc_ida_watch(struct phc_ida *w, int64_t *li, double *lf, double *look_t, double *look_h, double *look_r,
+                   double *look_y, double *look_yp, double *last_h, double *last_y, double *last_yp)
+{
+    w->last_h = last_h;
+    w->last_y = last_y;
+    w->last_yp = last_yp;
+    w->li = li;
+    w->lf = lf;
+    w->look_t = look_t;
+    w->look_h = look_h;
+    w->look_r = look_r;
+    w->look_y = look_y;
+    w->look_yp = look_yp;
+}
+
+/* look_cadence.golden_search's operation: the conditioning ratio at time t on the cubic Hermite interpolant
+ * of the last three looks (SingularityMonitor._state_at: look_cadence.hermite between the two looks around t,
+ * at the later one's step), where the routine look clears it; else *unknown (Python's monitor searches). */
+static double op_ratio_at_time(const struct phc_steps *ws, double t, int *below, int *unknown)
+{
+    struct phc_ida *w = ws->w;
+    const int64_t n = w->n;
+    const int64_t i = t <= w->last_t[1] ? 0 : 1;
+    hermite(n, w->last_t[i], w->last_y + i * n, w->last_yp + i * n, w->last_t[i + 1], w->last_y + (i + 1) * n,
+            w->last_yp + (i + 1) * n, t, w->sy, w->syp);
+    const double rcond = monitor_rcond(n, w->njac, w->jacobian, w->p, w->jrows, w->jcols, NULL, w->mjbuf, w->mon,
+                                       w->monpiv, w->monv, t, w->sy, w->syp, w->last_h[i + 1]);
+    *below = 0;
+    *unknown = !far_from_singular(rcond, w->lf[LF_THRESHOLD], n);
+    return *unknown ? NAN : rcond / (double)n;
+}
+
+/* The routine look after a step of size h to IDA's state at t (the run's `steps` steps): LOOK_NONE
+ * when it is clearly far from singular and recorded (the next cadence set), else why Python's monitor
+ * must look (nothing recorded, nothing changed). As _StepHook._look: the monitor's check at
+ * max(h, h_floor), its minimum search, the crawl check with h, then the cadence. */
+static int routine_look(struct phc_ida *w, double t, double h, int64_t steps)
+{
+    int64_t *li = w->li;
+    double *lf = w->lf;
+    const int64_t n = w->n;
+    const double *y = N_VGetArrayPointer(w->yy), *yp = N_VGetArrayPointer(w->yp);
+    const double hm = h >= lf[LF_H_FLOOR] ? h : lf[LF_H_FLOOR];
+    const double rcond = monitor_rcond(n, w->njac, w->jacobian, w->p, w->jrows, w->jcols, NULL, w->mjbuf, w->mon,
+                                       w->monpiv, w->monv, t, y, yp, hm);
+    if (!far_from_singular(rcond, lf[LF_THRESHOLD], n))
+        return LOOK_NOT_CLEAR;
+    const double ratio = rcond / (double)n;  /* monitor._far_from_singular's value */
+    if (brackets_minimum(lf[LF_T0], lf[LF_R0], lf[LF_T1], lf[LF_R1], t, ratio)) {
+        /* the monitor's search for the minimum between the last three looks (SingularityMonitor.watch),
+         * while every point it looks at is clearly far from singular */
+        struct phc_steps ws = {w};
+        double t_found, r_found;
+        w->last_t[0] = lf[LF_T0];
+        w->last_t[1] = lf[LF_T1];
+        w->last_t[2] = t;
+        w->last_h[2] = hm;
+        memcpy(w->last_y + 2 * n, y, (size_t)n * sizeof(double));
+        memcpy(w->last_yp + 2 * n, yp, (size_t)n * sizeof(double));
+        if (golden_search(&ws, lf[LF_T0], t, lf[LF_THRESHOLD], li[LI_ITERATIONS], lf[LF_R0], ratio, 0, &t_found,
+                          &r_found) != 0)
+            return LOOK_MINIMUM;
+    }
+    if (crawls(h, t, lf[LF_T_END], steps, li[LI_MAX_STEPS], li[LI_NEXT_CHECK]))
+        return LOOK_CRAWL;
+    const int64_t k = li[LI_LOOKS]++;
+    w->look_t[k] = t;
+    w->look_h[k] = hm;
+    w->look_r[k] = ratio;
+    memcpy(w->look_y + k * n, y, (size_t)n * sizeof(double));
+    memcpy(w->look_yp + k * n, yp, (size_t)n * sizeof(double));
+    lf[LF_T0] = lf[LF_T1];
+    lf[LF_R0] = lf[LF_R1];
+    lf[LF_T1] = t;
+    lf[LF_R1] = ratio;
+    w->last_h[0] = w->last_h[1];
+    w->last_h[1] = hm;
+    memcpy(w->last_y, w->last_y + n, (size_t)n * sizeof(double));
+    memcpy(w->last_yp, w->last_yp + n, (size_t)n * sizeof(double));
+    memcpy(w->last_y + n, y, (size_t)n * sizeof(double));
+    memcpy(w->last_yp + n, yp, (size_t)n * sizeof(double));
+    li[LI_CADENCE] = cadence_after(li[LI_CADENCE], li[LI_BASE], lf[LF_LAST_RATIO], ratio);
+    lf[LF_LAST_RATIO] = ratio;
+    li[LI_SINCE] = 0;
+    return LOOK_NONE;
+}
+
+/* The routine look's condition estimate at any (t, y, yp) and step h (monitor_rcond): what Python's
+ * monitor asks first at the looks it makes during a native run (its minimum search between looks
+ * evaluates it along an interpolant), before its own LU and SVD where the estimate does not clear the
+ * look (phc.simulation.monitor.SingularityMonitor.rcond). */
+double phc_ida_rcond(struct phc_ida *w, double t, const double *y, const double *yp, double h)
+{
+    return monitor_rcond(w->n, w->njac, w->jacobian, w->p, w->jrows, w->jcols, NULL, w->mjbuf, w->mon, w->monpiv,
+                         w->monv, t, y, yp, h);
+}
+
 /* Up to `budget` of IDA's steps toward t_out[nout - 1]. `k[0]`: the next output index (advanced as the
  * steps pass output times; ys and yps are nout x n). Step i of the call: its end time and size in
  * hist[2 i], hist[2 i + 1]. After the call: steps[0] the steps taken, cur[0] IDA's time, y and yp its
- * state there (n each). Returns PHC_DONE (the last output written), PHC_BUDGET (the budget used), or
+ * state there (n each). h_ref[0], the recent largest step, is max(h, 0.999 h_ref) after each step h
+ * (phc.simulation.ida._StepHook's, step by step: the same whatever the chunks). With the routine look on (phc_ida_watch), a look after a step that Python's monitor
+ * must make ends the call after that step (PHC_LOOK, li[LI_FLAG] says why), as does a full record of
+ * looks (PHC_BUDGET). Returns PHC_DONE (the last output written), PHC_BUDGET (the budget used), PHC_LOOK, or
  * IDA's negative flag. */
 int64_t phc_ida_advance(struct phc_ida *w, const double *t_out, int64_t nout, int64_t *k, int64_t budget,
-                        double *ys, double *yps, double *hist, int64_t *steps, double *cur, double *y, double *yp)
+                        double *ys, double *yps, double *hist, int64_t *steps, double *cur, double *y, double *yp,
+                        double *h_ref)
 {
     const int64_t n = w->n;
     int64_t taken = 0, result = PHC_BUDGET;
     phc_real tret = 0.0, hlast = 0.0;
     double *tmp = N_VGetArrayPointer(w->tmp), *tmp2 = N_VGetArrayPointer(w->tmp2);
+    if (w->li != NULL) {
+        w->li[LI_LOOKS] = 0;
+        w->li[LI_FLAG] = LOOK_NONE;
+    }
     while (taken < budget && k[0] < nout) {
         /* toward the next output time: IDA's first step is estimated from it, as in IDA_NORMAL mode */
         int flag = IDASolve(w->mem, t_out[k[0]], &tret, w->yy, w->yp, IDA_ONE_STEP);
@@ -296,6 +458,7 @@ int64_t phc_ida_advance(struct phc_ida *w, const double *t_out, int64_t nout, in
         hist[2 * taken] = tret;
         hist[2 * taken + 1] = hlast;
         ++taken;
+        h_ref[0] = 0.999 * h_ref[0] > hlast ? 0.999 * h_ref[0] : hlast;  /* Python's max(h, 0.999 h_ref) */
         while (k[0] < nout && t_out[k[0]] <= tret) {
             /* the output times this step passed: IDA's interpolating polynomial (exact at tret) */
             double *row = ys + k[0] * n, *rowp = yps + k[0] * n;
@@ -312,6 +475,16 @@ int64_t phc_ida_advance(struct phc_ida *w, const double *t_out, int64_t nout, in
                 memcpy(rowp, tmp2, (size_t)n * sizeof(double));
             }
             k[0] += 1;
+        }
+        if (w->li != NULL && ++w->li[LI_SINCE] >= w->li[LI_CADENCE]) {
+            const int why = routine_look(w, tret, hlast, w->li[LI_STEPS] + taken);
+            if (why != LOOK_NONE) {
+                w->li[LI_FLAG] = why;
+                result = PHC_LOOK;
+                break;
+            }
+            if (w->li[LI_LOOKS] >= w->li[LI_CAPACITY])
+                break;
         }
     }
     if (k[0] >= nout && result == PHC_BUDGET)
@@ -352,11 +525,18 @@ const char *phc_ida_message(const struct phc_ida *w)
     return w->message;
 }
 
-/* [ABI, SUNDIALS' major version, minor version, sizeof(sunindextype)] */
+/* [ABI, SUNDIALS' major version, minor version, sizeof(sunindextype), LI_N, LF_N, PHC_LOOK, LOOK_NOT_CLEAR,
+ * LOOK_MINIMUM, LOOK_CRAWL] */
 void phc_ida_version(int64_t *out)
 {
     out[0] = PHC_IDA_ABI;
     out[1] = SUNDIALS_VERSION_MAJOR;
     out[2] = SUNDIALS_VERSION_MINOR;
     out[3] = (int64_t)sizeof(sunindextype);
+    out[4] = LI_N;
+    out[5] = LF_N;
+    out[6] = PHC_LOOK;
+    out[7] = LOOK_NOT_CLEAR;
+    out[8] = LOOK_MINIMUM;
+    out[9] = LOOK_CRAWL;
 }

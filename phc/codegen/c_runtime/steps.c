@@ -47,7 +47,8 @@
  * Linear algebra: the Newton matrix s*(F_y + cj*F_yp) (the end-constraint rows from g_y) is
  * equilibrated by powers of two as the Python loop's sparse LU is (phc.simulation.midpoint.
  * equilibration: columns by the nominal scales, else to a largest entry in [1, 2), then rows),
- * factorized by a dense LU with partial pivoting written below, and each correction is two
+ * factorized by a dense LU with partial pivoting (dense_lu.c, put at the line PHC_DENSE_LU below
+ * when the library is built; the native IDA driver's routine look uses it too), and each correction is two
  * triangular solves. Not LAPACK: a portable link to it needs a LAPACK library on the machine
  * or SciPy's private one, and at the sizes this loop serves (at most 400 unknowns, a few
  * factorizations per hundred steps) the plain loops cost little; they are column oriented, so
@@ -91,10 +92,6 @@ enum { I_K, I_J, I_SUBSTEPS, I_STEPS, I_LAST_LOOK, I_HAS_MID, I_MAX_STEPS, I_STA
 
 /* the float state fst[] (numba_steps_kernel: _T, _H, _H_PREV, _STEP) */
 enum { F_T, F_H, F_H_PREV, F_STEP, F_NF };
-
-/* The routine look of the singularity monitor is left to Python unless the 1-norm condition
- * estimate is this factor (times n) above the monitor's threshold (numba_steps_kernel._RCOND_MARGIN). */
-#define RCOND_MARGIN 1e3
 
 /* Most midpoints the predictor keeps (phc.simulation.midpoint.MAX_PREDICTOR_ORDER + 1, checked by the caller). */
 #define MAX_NODES 16
@@ -146,22 +143,7 @@ struct phc_steps {
     double *y_half, *y_best, *y_sec;   /* n each: the discrete gradient's s = 1/2 step, best, last secant iterate */
 };
 
-/* ---- vectors ------------------------------------------------------------------------------ */
-
-static int all_finite(int64_t n, const double *v)
-{
-    /* the exponent field all ones (an infinity, a NaN) carries into the sign bit when one is added
-     * to it: integer operations without an early exit, which the compiler vectorizes (every
-     * entry is finite on the routine path, which reads them all anyway) */
-    const uint64_t exponent = UINT64_C(0x7ff0000000000000), unit = UINT64_C(1) << 52;
-    uint64_t carry = 0;
-    for (int64_t i = 0; i < n; ++i) {
-        uint64_t bits;
-        memcpy(&bits, v + i, sizeof bits);
-        carry |= (bits & exponent) + unit;
-    }
-    return (carry >> 63) == 0;
-}
+/* PHC_DENSE_LU */
 
 /* 1/2^e with 2^e <= big < 2^(e+1), 1 where big is not positive: an exact scaling of big to [1, 2)
  * (phc.simulation.midpoint._power_of_two_below) */
@@ -172,69 +154,6 @@ static double power_of_two_below(double big)
         return 1.0;
     frexp(big, &e);
     return ldexp(1.0, -(e - 1));
-}
-
-/* ---- dense LU with partial pivoting, column-major (a[j*n + i] is row i, column j) -------- */
-
-/* LU = P A in place (L unit lower, U upper), piv[k] the row swapped with row k at step k;
- * 0, or k + 1 when the pivot of column k is exactly zero (LAPACK's info; scipy's splu refuses
- * such a matrix as singular). */
-static inline __attribute__((always_inline)) int64_t lu_factor_body(int64_t n, double *restrict a,
-                                                                    int64_t *restrict piv)
-{
-    for (int64_t k = 0; k < n; ++k) {
-        double *ck = a + k * n;
-        int64_t p = k;
-        double big = fabs(ck[k]);
-        for (int64_t i = k + 1; i < n; ++i)
-            if (fabs(ck[i]) > big) {
-                big = fabs(ck[i]);
-                p = i;
-            }
-        piv[k] = p;
-        if (big == 0.0)
-            return k + 1;
-        if (p != k)
-            for (int64_t j = 0; j < n; ++j) {
-                double tmp = a[j * n + k];
-                a[j * n + k] = a[j * n + p];
-                a[j * n + p] = tmp;
-            }
-        const double pivot = ck[k];
-        for (int64_t i = k + 1; i < n; ++i)
-            ck[i] /= pivot;
-        for (int64_t j = k + 1; j < n; ++j) {   /* the rank-one update, column by column */
-            double *cj = a + j * n;
-            const double f = cj[k];
-            if (f != 0.0)
-                for (int64_t i = k + 1; i < n; ++i)
-                    cj[i] -= ck[i] * f;
-        }
-    }
-    return 0;
-}
-
-/* The AVX2 copies (here and lu_solve's below): the library must run on any x86-64 CPU (no
- * -march), so a copy for AVX2's four doubles a vector instruction is compiled beside the
- * baseline one (SSE2's two) and chosen when the CPU has AVX2 (__builtin_cpu_supports reads the
- * CPU's features libgcc found once: no state of this file). Same operations in the same order
- * and no fused multiply-add (the target adds no FMA and the flags forbid contraction): the same
- * IEEE results on either path. */
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(PHC_NO_AVX2_DISPATCH)
-#define PHC_AVX2_DISPATCH 1
-__attribute__((target("avx2"))) static int64_t lu_factor_avx2(int64_t n, double *a, int64_t *piv)
-{
-    return lu_factor_body(n, a, piv);
-}
-#endif
-
-static int64_t lu_factor(int64_t n, double *a, int64_t *piv)
-{
-#ifdef PHC_AVX2_DISPATCH
-    if (__builtin_cpu_supports("avx2"))
-        return lu_factor_avx2(n, a, piv);
-#endif
-    return lu_factor_body(n, a, piv);
 }
 
 /* The row interchanges of lu_factor as one permutation: (P x)_i = x[perm[i]], for the caller
@@ -248,174 +167,6 @@ static void lu_permutation(int64_t n, const int64_t *piv, int64_t *perm)
         perm[k] = perm[piv[k]];
         perm[piv[k]] = tmp;
     }
-}
-
-/* x <- A^-1 x from the LU of lu_factor; piv NULL: x is P x already (gathered by
- * lu_permutation's order).
- *
- * Four columns at a time: each entry of x takes the same operations in the same order as
- * column by column (x_i - l_i0 x_0, then - l_i1 x_1, ...), with a quarter of the passes over x
- * and of the waits for the entries the next columns need. The back substitution does the rows
- * the next four columns divide first, so that their divisions (the slowest operation here,
- * one after the other) overlap with the rest of the pass. (Skipping the rows where the four
- * columns hold only zeros saves nothing measurable at the slider-crank's 83 unknowns: the
- * factors fill in.) Written once, compiled twice below (SSE2, and AVX2 where the CPU has it). */
-static inline __attribute__((always_inline)) void lu_solve_body(int64_t n, const double *restrict a,
-                                                                const int64_t *restrict piv, double *restrict x)
-{
-    if (piv != NULL)
-        for (int64_t k = 0; k < n; ++k)
-            if (piv[k] != k) {
-                double tmp = x[k];
-                x[k] = x[piv[k]];
-                x[piv[k]] = tmp;
-            }
-    int64_t j = 0;
-    for (; j + 3 < n; j += 4) {  /* L z = P x: columns j ... j + 3, then their rows j + 4 ... */
-        const double *c0 = a + j * n, *c1 = c0 + n, *c2 = c1 + n, *c3 = c2 + n;
-        const double x0 = x[j];
-        const double x1 = x[j + 1] = x[j + 1] - c0[j + 1] * x0;
-        const double x2 = x[j + 2] = (x[j + 2] - c0[j + 2] * x0) - c1[j + 2] * x1;
-        const double x3 = x[j + 3] = ((x[j + 3] - c0[j + 3] * x0) - c1[j + 3] * x1) - c2[j + 3] * x2;
-        for (int64_t i = j + 4; i < n; ++i)
-            x[i] = (((x[i] - c0[i] * x0) - c1[i] * x1) - c2[i] * x2) - c3[i] * x3;
-    }
-    for (; j < n; ++j) {  /* the last n mod 4 columns */
-        const double *c0 = a + j * n;
-        for (int64_t i = j + 1; i < n; ++i)
-            x[i] = x[i] - c0[i] * x[j];
-    }
-    for (j = n - 1; j >= 3; j -= 4) {  /* U x = z: columns j ... j - 3, then their rows ... j - 4 */
-        const double *c0 = a + j * n, *c1 = c0 - n, *c2 = c1 - n, *c3 = c2 - n;
-        const double x0 = x[j] = x[j] / c0[j];
-        const double x1 = x[j - 1] = (x[j - 1] - c0[j - 1] * x0) / c1[j - 1];
-        const double x2 = x[j - 2] = ((x[j - 2] - c0[j - 2] * x0) - c1[j - 2] * x1) / c2[j - 2];
-        const double x3 = x[j - 3] = (((x[j - 3] - c0[j - 3] * x0) - c1[j - 3] * x1) - c2[j - 3] * x2) / c3[j - 3];
-        const int64_t next = j - 7 > 0 ? j - 7 : 0;  /* the next four columns' rows first */
-        for (int64_t i = next; i < j - 3; ++i)
-            x[i] = (((x[i] - c0[i] * x0) - c1[i] * x1) - c2[i] * x2) - c3[i] * x3;
-        for (int64_t i = 0; i < next; ++i)
-            x[i] = (((x[i] - c0[i] * x0) - c1[i] * x1) - c2[i] * x2) - c3[i] * x3;
-    }
-    for (; j >= 0; --j) {  /* the first n mod 4 columns */
-        const double *c0 = a + j * n;
-        x[j] = x[j] / c0[j];
-        for (int64_t i = 0; i < j; ++i)
-            x[i] = x[i] - c0[i] * x[j];
-    }
-}
-
-/* The triangular solves are most of a step's time (seven a step on the slider-crank): their
- * AVX2 copy takes about 0.8x the time of the baseline one. */
-#ifdef PHC_AVX2_DISPATCH
-__attribute__((target("avx2"))) static void lu_solve_avx2(int64_t n, const double *a, const int64_t *piv, double *x)
-{
-    lu_solve_body(n, a, piv, x);
-}
-#endif
-
-static void lu_solve(int64_t n, const double *a, const int64_t *piv, double *x)
-{
-#ifdef PHC_AVX2_DISPATCH
-    if (__builtin_cpu_supports("avx2")) {
-        lu_solve_avx2(n, a, piv, x);
-        return;
-    }
-#endif
-    lu_solve_body(n, a, piv, x);
-}
-
-/* x <- A^-T x from the LU of lu_factor (A^T = U^T L^T P) */
-static void lu_solve_transposed(int64_t n, const double *a, const int64_t *piv, double *x)
-{
-    for (int64_t j = 0; j < n; ++j) {       /* U^T z = x */
-        const double *cj = a + j * n;
-        double acc = x[j];
-        for (int64_t i = 0; i < j; ++i)
-            acc -= cj[i] * x[i];
-        x[j] = acc / cj[j];
-    }
-    for (int64_t j = n - 1; j >= 0; --j) {  /* L^T w = z */
-        const double *cj = a + j * n;
-        double acc = x[j];
-        for (int64_t i = j + 1; i < n; ++i)
-            acc -= cj[i] * x[i];
-        x[j] = acc;
-    }
-    for (int64_t k = n - 1; k >= 0; --k)    /* x = P^T w */
-        if (piv[k] != k) {
-            double tmp = x[k];
-            x[k] = x[piv[k]];
-            x[piv[k]] = tmp;
-        }
-}
-
-static double norm1(int64_t n, const double *x)
-{
-    double s = 0.0;
-    for (int64_t i = 0; i < n; ++i)
-        s += fabs(x[i]);
-    return s;
-}
-
-static int64_t argmax_abs(int64_t n, const double *x)
-{
-    int64_t j = 0;
-    for (int64_t i = 1; i < n; ++i)
-        if (fabs(x[i]) > fabs(x[j]))
-            j = i;
-    return j;
-}
-
-/* An estimate of ||A^-1||_1 from the LU of A, a lower bound within a small factor in practice:
- * Hager's method with Higham's refinements, as LAPACK's dlacn2 (under dgecon) runs it
- * (N. J. Higham, "FORTRAN codes for estimating the one-norm of a real or complex matrix",
- * ACM TOMS 14, 1988). x and sgn: n entries of scratch each. */
-static double inverse_norm1(int64_t n, const double *a, const int64_t *piv, double *x, double *sgn)
-{
-    for (int64_t i = 0; i < n; ++i)
-        x[i] = 1.0 / (double)n;
-    lu_solve(n, a, piv, x);
-    double est = norm1(n, x);
-    if (n == 1)
-        return est;
-    for (int64_t i = 0; i < n; ++i) {
-        sgn[i] = x[i] >= 0.0 ? 1.0 : -1.0;
-        x[i] = sgn[i];
-    }
-    lu_solve_transposed(n, a, piv, x);
-    int64_t j = argmax_abs(n, x);
-    for (int iter = 2; iter <= 5; ++iter) {
-        for (int64_t i = 0; i < n; ++i)
-            x[i] = 0.0;
-        x[j] = 1.0;
-        lu_solve(n, a, piv, x);
-        const double old = est;
-        est = norm1(n, x);
-        int same = 1;
-        for (int64_t i = 0; i < n; ++i)
-            if ((x[i] >= 0.0 ? 1.0 : -1.0) != sgn[i])
-                same = 0;
-        if (same || est <= old) {
-            if (est < old)
-                est = old;
-            break;
-        }
-        for (int64_t i = 0; i < n; ++i) {
-            sgn[i] = x[i] >= 0.0 ? 1.0 : -1.0;
-            x[i] = sgn[i];
-        }
-        lu_solve_transposed(n, a, piv, x);
-        const int64_t last = j;
-        j = argmax_abs(n, x);
-        if (fabs(x[last]) == fabs(x[j]))
-            break;
-    }
-    for (int64_t i = 0; i < n; ++i)  /* an alternating-sign vector catches what the iteration misses */
-        x[i] = (i % 2 ? -1.0 : 1.0) * (1.0 + (double)i / (double)(n - 1));
-    lu_solve(n, a, piv, x);
-    const double alt = 2.0 * norm1(n, x) / (3.0 * (double)n);
-    return alt > est ? alt : est;
 }
 
 /* ---- the operations of phc.simulation.step_logic.newton ---------------------------------- */
@@ -738,55 +489,17 @@ static int64_t op_advance(int64_t n, const struct phc_steps *w, double t, double
 
 /* step_logic's _far_from_singular, the routine look of the singularity monitor: 1 when the
  * equilibrated iteration matrix at (t, y, yp) (SingularityMonitor.ratio: cj = 1/hm) is clearly far
- * from singular — LAPACK-style 1-norm condition estimate RCOND_MARGIN n times above the
- * threshold — else 0: Python's monitor looks (its SVD decides; the numba loop computes that SVD
- * itself). */
+ * from singular (dense_lu.c's monitor_rcond and far_from_singular: the LAPACK-style 1-norm condition
+ * estimate RCOND_MARGIN n times above the threshold), else 0: Python's monitor looks (its SVD
+ * decides; the numba loop computes that SVD itself). */
 static int op_far_from_singular(int64_t n, const struct phc_steps *w, double t, const double *y, const double *yp,
                                 double hm)
 {
-    double *a = w->mon, *rowmax = w->monv, *x = w->monv + n, *sgn = w->monv + 2 * n;
-    w->jacobian(t, y, yp, w->p, 1.0 / (hm > 1e-300 ? hm : 1e-300), w->jbuf);
-    if (!all_finite(w->njac, w->jbuf))
-        return 0;
-    memset(a, 0, (size_t)(n * n) * sizeof(double));
-    for (int64_t k = 0; k < w->njac; ++k)
-        a[w->jcols[k] * n + w->jrows[k]] = w->jbuf[k];
-    if (w->colscale != NULL)  /* scaled variables y/s: columns times s */
-        for (int64_t j = 0; j < n; ++j)
-            for (int64_t i = 0; i < n; ++i)
-                a[j * n + i] *= w->colscale[j];
-    for (int sweep = 0; sweep < 2; ++sweep) {
-        for (int64_t i = 0; i < n; ++i)
-            rowmax[i] = 0.0;
-        for (int64_t j = 0; j < n; ++j)
-            for (int64_t i = 0; i < n; ++i)
-                if (fabs(a[j * n + i]) > rowmax[i])
-                    rowmax[i] = fabs(a[j * n + i]);
-        for (int64_t j = 0; j < n; ++j)
-            for (int64_t i = 0; i < n; ++i)
-                if (rowmax[i] > 0.0)
-                    a[j * n + i] /= rowmax[i];
-        for (int64_t j = 0; j < n; ++j) {
-            double big = 0.0;
-            for (int64_t i = 0; i < n; ++i)
-                if (fabs(a[j * n + i]) > big)
-                    big = fabs(a[j * n + i]);
-            if (big > 0.0)
-                for (int64_t i = 0; i < n; ++i)
-                    a[j * n + i] /= big;
-        }
-    }
-    double anorm = 0.0;
-    for (int64_t j = 0; j < n; ++j) {
-        const double col = norm1(n, a + j * n);
-        if (col > anorm)
-            anorm = col;
-    }
-    if (lu_factor(n, a, w->monpiv) != 0)
-        return 0;
-    const double rcond = 1.0 / (anorm * inverse_norm1(n, a, w->monpiv, x, sgn));
-    return isfinite(rcond) && rcond >= w->c[C_THRESHOLD] * (double)n * RCOND_MARGIN;
+    const double rcond = monitor_rcond(n, w->njac, w->jacobian, w->p, w->jrows, w->jcols, w->colscale, w->jbuf,
+                                       w->mon, w->monpiv, w->monv, t, y, yp, hm);
+    return far_from_singular(rcond, w->c[C_THRESHOLD], n);
 }
+
 
 /* The layout this file was written for, for the caller to check before the first chunk:
  * the ABI, the sizes of the state vectors, the indices the driver shares, sizeof(struct phc_steps). */
