@@ -340,6 +340,14 @@ _SEQ, _FIELDS, _SYM, _STR, _ASSOC, _POW, _FUNC, _SPAN, _DATACLASS, _DICT = range
 """The kinds of :class:`_Template`'s steps, as :meth:`_Template.build` tests them."""
 
 
+def _place_of(path: tuple, old: str) -> Optional[int]:
+    """The one index of `path` holding `old` (None: none); :class:`Unshareable` for two."""
+    at = [i for i, e in enumerate(path) if e == old]
+    if len(at) > 1:
+        raise Unshareable(f"path {path} names `{old}` twice")
+    return at[0] if at else None
+
+
 def _getter(slots: Sequence[int]) -> Callable:
     """A function from the slots' values to the tuple of those at `slots` (in order)."""
     slots = tuple(slots)
@@ -365,6 +373,9 @@ class _Template:
         self.old = old
         self.prefixes = [p + old + "." for p in _NAME_PREFIXES]
         self.located = [p for p, _ in located]
+        # each located path with the place of `old` in it (the component's own entry), None
+        # where it has none: :meth:`SharedLowerings._instance` puts the new name there
+        self.renamed_paths = [(p, _place_of(p, old)) for p in self.located]
         self.span_slot = {}
         for i, (_, span) in enumerate(located):
             self.span_slot.setdefault(id(span), i)
@@ -508,20 +519,20 @@ class _Template:
         """The lowering for component `new` (`spans`: its spans at :attr:`located`), or None
         when renaming would change the order of the names (then sympy's order differs)."""
         pres = [p + new + "." for p in _NAME_PREFIXES]
-
-        def renamed(r):
-            return new if r[0] < 0 else pres[r[0]] + r[1]
-
-        last = None
-        for name, r in self.symbols:
-            now = name if r is None else renamed(r)
-            if last is not None and now <= last:
-                return None
-            last = now
-        vals = list(self.values)
         if self._plan is None:
             self._plan = self._compile_plan()
-        names = [renamed(r) for r in self._names]
+            place = {r: i for i, r in enumerate(self._names)}
+            # the symbols' names in the template's order: as written, or the place of the new one
+            self._order = [(name, None if r is None else place[r]) for name, r in self.symbols]
+        names = [new if r[0] < 0 else pres[r[0]] + r[1] for r in self._names]
+        last = None
+        for name, at in self._order:
+            if at is not None:
+                name = names[at]
+            if last is not None and name <= last:
+                return None
+            last = name
+        vals = list(self.values)
         new_object, symbol = object.__new__, real_symbol
         for slot, code, a, b, c in self._plan:  # the most frequent kinds first
             if code == _SEQ:  # a, b: the sequence's type, getter of its items (a tuple)
@@ -625,8 +636,8 @@ class SharedLowerings:
 
     @staticmethod
     def _instance(template: _Template, context: LoweringContext, ctx, name: str) -> Optional[ComponentLowering]:
-        old = template.old
-        spans = [ctx.smap.locate(tuple(name if e == old else e for e in p)) for p in template.located]
+        locate = ctx.smap.locate
+        spans = [locate(p if at is None else (*p[:at], name, *p[at + 1:])) for p, at in template.renamed_paths]
         if any(spans[i] != spans[j] for i, j in template.same_span):
             return None  # one span of the template is two of this component
         out = template.build(name, spans)
