@@ -591,7 +591,6 @@ class _Elaborator(Reporter):
         its rows after the rows so far (its sparse blocks' row indices shifted with them),
         its definitions, ports, terms and diagnostics."""
         self.diags.extend(lowering.diagnostics)
-        self.expr_dims.update(lowering.expr_dims)
         for key, entries in lowering.field_dims:
             self.field_dims.setdefault(key, []).extend(entries)
         start = len(self.equations)
