@@ -123,6 +123,7 @@ class AlikeReplacer:
         self._plain: dict = {}  # symbol -> whether it is Symbol(name, real=True), renamed
         self.rebuilt = 0  # rows rebuilt by sympy (first of their shape, or refused): for tests
         self.renamed = 0  # rows built from their shape's plan
+        self.unchanged = 0  # rows the rule does not touch, returned as they are (as xreplace does)
 
     def __call__(self, expr, rule: Mapping | None = None):
         """``expr.xreplace(rule)`` (by default the replacer's rule), whose keys are symbols."""
@@ -132,6 +133,7 @@ class AlikeReplacer:
         index: dict = {}
         plain = self._plain
         Symbol = sp.Symbol
+        replaces = []  # a symbol of the row that the rule replaces (one is enough to know)
 
         def shape(e, replaced):
             """`e`'s shape; `replaced`: `e` is (part of) a replacement, which xreplace leaves as it is."""
@@ -150,6 +152,8 @@ class AlikeReplacer:
                 new = rule.get(e)
                 if new is None or new is e:
                     return i
+                if not replaces:
+                    replaces.append(e)
                 return (i, shape(new, True))
             args = e.args
             if not args:
@@ -169,6 +173,9 @@ class AlikeReplacer:
         except _Opaque:
             self.rebuilt += 1
             return by_sympy()
+        if not replaces:  # nothing to replace: xreplace gives the row itself
+            self.unchanged += 1
+            return expr
         plan = self.plans.get(key)
         if plan is not None:
             out = plan.build(places)

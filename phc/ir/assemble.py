@@ -496,7 +496,7 @@ def _resolve_definitions(uf, defs, rows) -> dict:
             bound = free - rule.keys()
             for s in rule:
                 r = uf.find(s)[0]
-                bound |= bounds.get(r, (r,))
+                bound.update(bounds.get(r, (r,)))
             free = expr.free_symbols if root in bound else bound
         visiting.discard(root)
         if root in free:
