@@ -158,7 +158,9 @@ def build_dae(path: str | os.PathLike, scene: Optional[Scene] = None) -> tuple[O
 def validate_file(path: str | os.PathLike) -> tuple[Optional[Dae], DiagnosticList, str]:
     """What ``phc validate`` checks of one file: a model or scene as :func:`build_dae` does,
     a part (`kind: part`, see :mod:`phc.frontend.parts`) without its structural balance, which
-    depends on what the model using it connects to its exposed ports.
+    depends on what the model using it connects to its exposed ports. Nothing beyond the
+    assembled system: no code is generated, and the code generator's modules are not imported
+    (``tests/test_validate_large.py``).
 
     Returns
     -------

@@ -22,7 +22,8 @@ of symbols, so sympy would build the same result up to that renaming (equal symb
 one row, which could cancel, are one place, so a row where two of them coincide has
 another shape). Only symbols made as ``Symbol(name, real=True)`` (as phc makes its
 variables and parameters, :func:`phc.ir.dae.real_symbol`) are places; a row holding any
-other symbol (other assumptions, a Dummy) is rebuilt by sympy.
+other symbol (other assumptions, a Dummy) is rebuilt by sympy. A row in which the rule
+replaces nothing (an energy term in states) is returned as it is, as ``xreplace`` returns it.
 """
 
 from __future__ import annotations
