@@ -40,10 +40,6 @@ from types import ModuleType
 from typing import Optional
 
 from phc.analysis.matching import check_balance
-from phc.codegen import backends
-from phc.codegen.load import load_generated
-from phc.codegen.lower import lower_residual
-from phc.codegen.printer import print_module
 from phc.codegen.compiled import CompiledModel, RunCache
 from phc.ir.dae import Dae
 from phc.codegen.description import Connection, Initial, Labelled, ModelDescription, Place, SceneRef, Verdict
@@ -162,7 +158,9 @@ def build_dae(path: str | os.PathLike, scene: Optional[Scene] = None) -> tuple[O
 def validate_file(path: str | os.PathLike) -> tuple[Optional[Dae], DiagnosticList, str]:
     """What ``phc validate`` checks of one file: a model or scene as :func:`build_dae` does,
     a part (`kind: part`, see :mod:`phc.frontend.parts`) without its structural balance, which
-    depends on what the model using it connects to its exposed ports.
+    depends on what the model using it connects to its exposed ports. Nothing beyond the
+    assembled system: no code is generated, and the code generator's modules are not imported
+    (``tests/test_validate_large.py``).
 
     Returns
     -------
@@ -259,6 +257,13 @@ def _compile_assembled(path, scene: Optional[Scene], dae: Dae, diags: Diagnostic
     """:func:`compile_model` from the model already assembled and checked (`dae` with its
     `diags`, from `path` and `scene`): ``phc check`` compiles what it has certified
     without reading and assembling the model again."""
+    # the code generator's passes, imported here: `phc validate` never loads them
+    # (tests/test_validate_large.py)
+    from phc.codegen import backends
+    from phc.codegen.load import load_generated
+    from phc.codegen.lower import lower_residual
+    from phc.codegen.printer import print_module
+
     timings = {} if timings is None else timings
     if certify:
         from phc.checks.rows import check_hand_written

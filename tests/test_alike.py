@@ -99,3 +99,16 @@ def test_assembly_of_a_chain_rebuilds_a_bounded_number_of_rows(tmp_path, monkeyp
         assert _same(row, R(f"der(k{i}.x)") - R(f"m{i - 1}.p") / mm + R(f"m{i}.p") / mm)
     assert rebuilt[150] == rebuilt[300], rebuilt
     assert alike_module.AlikeReplacer is AlikeReplacer
+
+
+def test_a_row_the_rule_does_not_touch_is_the_row_itself():
+    """As ``xreplace`` returns the very expression when nothing in it is replaced (an energy
+    term ``k·x²/2`` in states only), so does the replacer, without rebuilding it; a row with
+    one replaced symbol deep inside is rebuilt as sympy does."""
+    k, x, y, f, g = R("k"), R("s1.x"), R("s2.x"), R("s1.a.f"), R("m1.p")
+    alike = AlikeReplacer({f: g / R("m")})
+    energy = k * x**2 / 2
+    assert alike(energy) is energy is energy.xreplace(alike.rule)
+    assert alike.unchanged == 1 and alike.rebuilt == alike.renamed == 0
+    row = sp.sin(k * y**2 + f) - x
+    assert _same(alike(row), row.xreplace(alike.rule)) and alike(row) is not row

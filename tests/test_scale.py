@@ -79,16 +79,16 @@ def test_matching_of_a_20000_chain_does_not_recurse(monkeypatch):
     of 20 000 links executes no more Python lines and calls than that of 2 000 (one compiled
     maximum flow on a network of rows + nonzeros + columns edges does the work; counted,
     not timed)."""
-    import phc.analysis.matching as matching
+    import scipy.sparse.csgraph as csgraph  # bipartite_matching imports maximum_flow from it when called
 
     flows = []   # edges of each maximum-flow network
-    maximum_flow = matching.maximum_flow
+    maximum_flow = csgraph.maximum_flow
 
     def counting_flow(network, *args, **kwargs):
         flows.append(network.nnz)
         return maximum_flow(network, *args, **kwargs)
 
-    monkeypatch.setattr(matching, "maximum_flow", counting_flow)
+    monkeypatch.setattr(csgraph, "maximum_flow", counting_flow)
     limit = sys.getrecursionlimit()
     sys.setrecursionlimit(200)  # anything recursive in the chain length would fail at once
     try:

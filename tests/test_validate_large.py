@@ -13,14 +13,20 @@ skipped on the way.
 
 from __future__ import annotations
 
+import os
+import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+import scipy.sparse as sps
 import sympy as sp
 from sympy.core.cache import clear_cache
 
 import phc
+from phc.analysis.matching import bipartite_matching, check_balance, perfect_without_search
 from phc.frontend.elaborate import elaborate
+from time_limits import SUBPROCESS_TIMEOUT
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from bench_components import chain_yaml  # noqa: E402
@@ -107,3 +113,87 @@ def test_components_named_on_both_sides_of_a_parameter_share_two_templates(tmp_p
     # v1 refused by h1's template, then a template itself; v2…v4 refused by h1's too (the
     # order of names, checked before anything is built), then built from v1's
     assert counts == {"built": 3 + 3, "refused": 1 + 3}
+
+
+VALIDATE_NEVER = ("scipy", "phc.codegen.lower", "phc.codegen.printer", "phc.codegen.backends",
+                  "phc.library.beams", "phc.discretize.fem1d", "phc.checks.certify")
+"""What ``phc validate`` of a valid model of lumped components does not import: the code
+generator's passes (validate stops at the assembled, matched system), scipy (its sparse
+matrices belong to meshes, its maximum flow to models that no matching without search
+pairs: :func:`phc.analysis.matching.perfect_without_search`), the distributed components'
+modules and the certificate's."""
+
+
+def test_validate_of_a_lumped_chain_loads_no_code_generator_and_no_scipy(tmp_path):
+    """`phc validate` of a chain of springs and masses, in a fresh process: the model is
+    valid (exit 0, its counts printed) and none of :data:`VALIDATE_NEVER` was imported.
+    Fails where the validate path imports one of them at the top of a module."""
+    path = tmp_path / "chain.yaml"
+    path.write_text(chain_yaml(41))
+    code = ("import sys\nfrom phc._entry import main\n"
+            f"code = main(['validate', {str(path)!r}])\n"
+            f"print(code, sorted(m for m in {VALIDATE_NEVER!r} if m in sys.modules))\n")
+    env = dict(os.environ, PHC_CACHE_DIR=str(tmp_path / "cache"), PHC_STATE_DIR=str(tmp_path / "state"))
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
+                         cwd=Path(__file__).resolve().parents[1], timeout=SUBPROCESS_TIMEOUT)
+    assert run.returncode == 0, run.stderr[-2000:]
+    lines = run.stdout.strip().splitlines()
+    assert lines[-2].endswith("chain.yaml: ok (40 states, 41 equations, 41 unknowns)"), run.stdout
+    assert lines[-1] == "0 []", run.stdout + run.stderr[-2000:]
+
+
+def _pattern(text: str) -> tuple[int, int, np.ndarray, np.ndarray]:
+    """(rows, columns, row indices, column indices) of a 0/1 matrix written row by row."""
+    a = np.array([[int(ch) for ch in line.split()] for line in text.strip().splitlines()])
+    rows, cols = np.nonzero(a)
+    return a.shape[0], a.shape[1], rows, cols
+
+
+def test_a_matching_without_search_never_calls_a_singular_pattern_solvable():
+    """On 3000 random square patterns (1 to 11 rows, densities 5–50 %), whenever
+    :func:`perfect_without_search` says True the maximum matching (scipy's maximum flow) pairs
+    every row: its True is a matching found, never a guess. (It may say False where a
+    perfect matching exists; the check then searches: the next test.)"""
+    rng = np.random.default_rng(38)
+    solvable = found = 0
+    for _ in range(3000):
+        n = int(rng.integers(1, 12))
+        a = (rng.random((n, n)) < rng.uniform(0.05, 0.5)).astype(np.int8)
+        rows, cols = np.nonzero(a)
+        perfect = bool(np.all(bipartite_matching(sps.csr_matrix(a)) >= 0))
+        fast = perfect_without_search(n, n, rows, cols)
+        assert perfect or not fast, a
+        solvable, found = solvable + perfect, found + fast
+    assert found > solvable / 2  # it does find most: otherwise it would only cost time
+
+
+def test_a_wrong_guess_falls_back_to_the_search():
+    """A pattern whose every row and column has two or more entries, so that the rule must
+    guess: row 0 takes column 1, which rows 1 and 3 both need. The matching without search
+    says False, and :func:`check_balance` of a system with this incidence still finds it
+    solvable (no diagnostics) through the maximum matching; with a fifth unknown that no
+    row holds it reports that unknown (PHC-E303)."""
+    m, n, rows, cols = _pattern("""
+        0 1 1 1
+        1 1 0 0
+        0 0 1 1
+        1 1 0 0""")
+    assert not perfect_without_search(m, n, rows, cols)
+    assert np.all(bipartite_matching(sps.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(m, n))) >= 0)
+    assert check_balance(_system(m, n, rows, cols)) == []
+    codes = [d.code for d in check_balance(_system(m, n + 1, rows, cols))]
+    assert codes == ["PHC-E303"], codes
+
+
+def _system(m: int, n: int, rows, cols):
+    """A stand-in for a :class:`phc.ir.dae.Dae` with `m` rows over `n` algebraic unknowns:
+    row i is the sum of the unknowns its pattern entries name (what :func:`check_balance` reads)."""
+    from types import SimpleNamespace
+
+    from phc.ir.dae import Equation, Variable
+
+    xs = [sp.Symbol(f"v{j}", real=True) for j in range(n)]
+    variables = tuple(Variable(x.name, x, False, "effort", "c", None, None) for x in xs)
+    equations = tuple(Equation(sp.Add(*[xs[j] for i2, j in zip(rows, cols) if i2 == i]), f"c.row[{i}]", "law", "c",
+                               None) for i in range(m))
+    return SimpleNamespace(variables=variables, equations=equations, linear_blocks=())

@@ -12,13 +12,13 @@ ModelingToolkit's structural checks.
 from __future__ import annotations
 
 import heapq
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Optional
 
 import numpy as np
-import scipy.sparse as sps
-from scipy.sparse.csgraph import maximum_flow
 
 if TYPE_CHECKING:  # the types only: bipartite_matching runs in simulations without sympy or pydantic
+    import scipy.sparse as sps
+
     from phc.ir.dae import Dae
     from phc.diagnostics import Diagnostic
 
@@ -103,6 +103,9 @@ def bipartite_matching(pattern, prefer_early: bool = False) -> np.ndarray:
     are lexicographically first, and then likewise its matched columns: of redundant rows
     the latest are left unmatched, of undetermined columns the latest (a diagnosis names
     what was added last)."""
+    import scipy.sparse as sps  # here: a balanced model's check needs no search (check_balance)
+    from scipy.sparse.csgraph import maximum_flow
+
     a = sps.csr_matrix(pattern, copy=True)
     a.sum_duplicates()  # duplicates would also corrupt scipy's matching (scipy issue 26160)
     a.eliminate_zeros()
@@ -184,14 +187,17 @@ def _prefer_early(a: sps.csr_matrix, match: np.ndarray) -> np.ndarray:
     return np.asarray(row_match, dtype=np.int64)
 
 
-def maximum_matching(dae: Dae) -> dict[int, int]:
+def maximum_matching(dae: Dae, pattern: Optional[tuple[np.ndarray, np.ndarray]] = None) -> dict[int, int]:
     """Maximum matching equation index → variable index.
 
     Of several redundant equations the latest are left unmatched, of undetermined
     variables the latest (:func:`bipartite_matching` with `prefer_early`): the diagnosis
-    is reproducible and names what was added last."""
+    is reproducible and names what was added last. `pattern`: ``incidence(dae)`` when
+    the caller has it."""
+    import scipy.sparse as sps
+
     m, n = len(dae.equations), len(dae.variables)
-    rows, cols = incidence(dae)
+    rows, cols = incidence(dae) if pattern is None else pattern
     # The energy accumulator Ė = P is matched to its own row first: it is phc's
     # bookkeeping, and must never be reported as an undetermined unknown.
     for i, eq in enumerate(dae.equations):
@@ -206,9 +212,16 @@ def maximum_matching(dae: Dae) -> dict[int, int]:
 
 
 def check_balance(dae: Dae) -> list[Diagnostic]:
-    """Counts and unmatched equations/variables as diagnostics (empty when solvable)."""
+    """Counts and unmatched equations/variables as diagnostics (empty when solvable).
+
+    A model that a matching without search (:func:`perfect_without_search`) pairs row by
+    row with its unknowns is solvable, and nothing more is computed; otherwise the maximum
+    matching (:func:`maximum_matching`) finds what to report."""
     n_eq, n_var = len(dae.equations), len(dae.variables)
-    match = maximum_matching(dae)
+    pattern = incidence(dae)
+    if n_eq == n_var and perfect_without_search(n_eq, n_var, *pattern):
+        return []
+    match = maximum_matching(dae, pattern)
     if n_eq == n_var and len(match) == n_eq:
         return []
     matched_vars = set(match.values())
@@ -232,6 +245,61 @@ def check_balance(dae: Dae) -> list[Diagnostic]:
                               hint="a port may be left without a termination, or a multiplier without a "
                               "constraint"))
     return out
+
+
+WITHOUT_SEARCH_LIMIT = 1_000_000
+"""Above this many incidence entries :func:`perfect_without_search` is not tried (its loop is
+Python's; a mesh that large has its rows in sparse blocks, and scipy is loaded anyway)."""
+
+
+def perfect_without_search(m: int, n: int, rows: np.ndarray, cols: np.ndarray) -> bool:
+    """Whether the m × n pattern (`rows`, `cols`: its entries, as :func:`incidence` gives
+    them) has a perfect matching that the Karp–Sipser rule finds without search: a row or
+    column left with one unmatched neighbour takes it (some maximum matching pairs them,
+    so this choice is never wrong), and when none is left the first unmatched row takes its
+    first unmatched column (a guess). True means every row and every column were paired
+    (m = n): the structural condition :func:`check_balance` tests, shown by the matching
+    found. False means only that this rule did not find one (a guess may have been wrong);
+    the caller then searches (:func:`maximum_matching`). Linear in the entries; models made
+    of lumped components are paired by the first rule alone, or nearly (a chain of 10⁴
+    components: no guess that fails), so `phc validate` of a model without errors loads no
+    graph solver (scipy's, about 0.4 s CPU to import)."""
+    if m != n or len(rows) > WITHOUT_SEARCH_LIMIT:
+        return False
+    adj: list[list[int]] = [[] for _ in range(m + n)]  # rows 0..m−1, columns m..m+n−1
+    for i, j in zip(rows.tolist(), cols.tolist()):
+        adj[i].append(m + j)
+        adj[m + j].append(i)
+    deg = [len(a) for a in adj]  # unmatched neighbours of each vertex
+    if 0 in deg:
+        return False
+    mate = [-1] * (m + n)
+    single = [v for v in range(m + n - 1, -1, -1) if deg[v] == 1]  # popped from the end: lowest first
+    first = 0  # rows before it are matched
+    for _ in range(m):
+        v = -1
+        while single:
+            v = single.pop()
+            if mate[v] < 0:
+                break
+            v = -1
+        if v < 0:
+            while mate[first] >= 0:
+                first += 1
+            v = first
+        u = next((w for w in adj[v] if mate[w] < 0), -1)
+        if u < 0:
+            return False
+        mate[v], mate[u] = u, v
+        for x in (v, u):
+            for w in adj[x]:
+                if mate[w] < 0:
+                    deg[w] -= 1
+                    if deg[w] == 1:
+                        single.append(w)
+                    elif deg[w] == 0:
+                        return False  # left without a partner: this rule found no perfect matching
+    return True
 
 
 LOOP_ROLES = ("reading", "signal")
@@ -258,11 +326,12 @@ def reading_loops(dae: Dae) -> list[tuple[int, list[int]]]:
     resolved the port variable into an expression of the reading itself, the loop is in
     the reading's own row; those rows are then the loop (the source's definition is
     among them, substituted)."""
-    from scipy.sparse.csgraph import connected_components
-
     readings = [j for j, v in enumerate(dae.variables) if v.role in LOOP_ROLES]
     if not readings:
         return []
+    import scipy.sparse as sps
+    from scipy.sparse.csgraph import connected_components
+
     col = {}
     for j, v in enumerate(dae.variables):
         col[v.dsymbol if v.differential else v.symbol] = j

@@ -71,6 +71,8 @@ class _Elaborator(Reporter):
         super().__init__()
         self._pairs: dict = {}  # (id(want), id(dim)) -> pint's comparisons (_compared)
         self._kinds: dict = {}  # (component kind, port domains) -> (scale terms, expected fields)
+        self._fields_clean: set = set()  # component kinds whose field units passed (_check_field_units)
+        self._context = None  # the last LoweringContext and what it was made of (_lowering_context)
         self.variables: list[Variable] = []
         self.equations: list[Equation] = []
         self.parameters: dict[str, Parameter] = {}
@@ -526,7 +528,7 @@ class _Elaborator(Reporter):
                                              path=f"effects.{full}"))
                 self.failed.add(full)
                 return
-        if "elements" in type(comp).model_fields:
+        if _has_field(comp, "elements"):
             self.written_meshes[full] = comp.elements  # what per-dof initial values were written for
         if full in self.applied.shapes:
             shape, span = self.applied.shapes[full]
@@ -538,13 +540,13 @@ class _Elaborator(Reporter):
             comp = comp.model_copy(update={"initial_shape": shape})
         if full in self.applied.meshes:
             elements, span = self.applied.meshes[full]
-            if "elements" not in type(comp).model_fields:
+            if not _has_field(comp, "elements"):
                 self.diags.append(Diagnostic("PHC-E603", f"`{full}` ({comp.type}) has no mesh; `accuracy.mesh` "
                                              "applies to distributed components", span=span))
                 self.failed.add(full)
                 return
             comp = comp.model_copy(update={"elements": elements})
-        if "elements" in type(comp).model_fields:
+        if _has_field(comp, "elements"):
             self.meshes[full] = (comp.type, comp.elements)
             from phc.frontend.budget import admit_mesh
 
@@ -572,18 +574,23 @@ class _Elaborator(Reporter):
         from phc.frontend.lowering import LoweringContext, ReadOnlySequence
 
         self._sync_defaults()  # the defaults of parameters added since
+        # its views are live, so the last context serves while what it copied is unchanged
+        made_of = (len(self.unset_parameters), self.override_note, self.files)
+        if self._context is not None and self._context[0] == made_of:
+            return self._context[1]
         ro = MappingProxyType
-        return LoweringContext(default_values=ro(self._default_values), variables=ReadOnlySequence(self.variables),
+        context = LoweringContext(default_values=ro(self._default_values), variables=ReadOnlySequence(self.variables),
                                ports=ro(self.ports), unset_parameters=frozenset(self.unset_parameters),
                                units=ro(self.units), unit_text=ro(self.unit_text), override_note=self.override_note,
                                files=self.files, signals=ro(self.signals))
+        self._context = (made_of, context)
+        return context
 
     def _fold(self, lowering) -> None:
         """Append one component's :class:`~phc.frontend.lowering.ComponentLowering` to the model:
         its rows after the rows so far (its sparse blocks' row indices shifted with them),
         its definitions, ports, terms and diagnostics."""
         self.diags.extend(lowering.diagnostics)
-        self.expr_dims.update(lowering.expr_dims)
         for key, entries in lowering.field_dims:
             self.field_dims.setdefault(key, []).extend(entries)
         start = len(self.equations)
@@ -625,9 +632,14 @@ class _Elaborator(Reporter):
         effort per displacement) must have it when their expression's dimension is known
         (PHC-E172). `kind`: the component's key among identical ones
         (:meth:`phc.frontend.lowering.SharedLowerings.key`, None: none), whose expected fields and
-        scale terms are found once."""
+        scale terms are found once. Once a component of a kind has passed without a word, the
+        next ones of that kind pass too (the same fields, expressions and domains; what the
+        first one added to the system of units is there, and adding it again changes
+        nothing), and are not checked again (issue 38)."""
         from phc.frontend.units import NUMBER, ScaleSystem, describe, expected_fields, scale_terms
 
+        if kind is not None and kind in self._fields_clean:
+            return  # one of its kind (so with the same ports and domains) passed: so does this one
         domains = {port.name[len(full) + 1:]: port.domain for port in self.ports_of.get(full, ())
                    if self.ports.get(port.name) is port}  # its own ports, not a scan of all
         found = None if kind is None else self._kinds.get((kind, frozenset(domains.items())))
@@ -636,6 +648,7 @@ class _Elaborator(Reporter):
             if kind is not None:
                 self._kinds[(kind, frozenset(domains.items()))] = found
         terms, expected = found
+        n_diags = len(self.diags)
         for field_name, want, meaning in expected:
             prefix = (*path, field_name)
             for where, dim in self.field_dims.get((id(ctx.smap), prefix[:3]), ()):
@@ -656,6 +669,8 @@ class _Elaborator(Reporter):
                     if self.scale_system is None:
                         self.scale_system = ScaleSystem()
                     self._check_scale(ctx, full, comp, field_name, where, want, dim, terms[field_name], factor)
+        if kind is not None and len(self.diags) == n_diags:
+            self._fields_clean.add(kind)
 
     def _compared(self, want, dim) -> tuple[bool, bool, float]:
         """(same dimension and scale, another dimension, :func:`~phc.frontend.units.scale_factor`) of a
@@ -738,6 +753,20 @@ class _Elaborator(Reporter):
 
     def resolve_alias(self, name: str) -> str:
         return resolve_alias(self.port_aliases, name)
+
+
+_FIELDS: dict = {}
+"""Spec class -> the names of its fields (pydantic's ``model_fields``, read once per class:
+its lookup on the class is a descriptor call, three per component)."""
+
+
+def _has_field(spec, name: str) -> bool:
+    """Whether the spec's class has the field `name`."""
+    cls = type(spec)
+    names = _FIELDS.get(cls)
+    if names is None:
+        names = _FIELDS[cls] = frozenset(cls.model_fields)
+    return name in names
 
 
 def resolve_alias(aliases: Mapping[str, str], name: str) -> str:

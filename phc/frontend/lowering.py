@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-import operator
 from collections.abc import Sequence as SequenceABC
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -129,10 +128,10 @@ class ComponentLowering:
     failed: frozenset
     """Components the lowerer itself marked as failed (besides any with an error)."""
     diagnostics: tuple[Diagnostic, ...]
-    expr_dims: tuple
-    """((source map id, path), dimension) of the expressions parsed (:class:`~phc.frontend.reporter.Reporter`)."""
     field_dims: tuple
-    """((source map id, field path), [(path, dimension)]) of the expressions parsed."""
+    """((source map id, field path), [(path, dimension)]) of the expressions parsed
+    (:class:`~phc.frontend.reporter.Reporter`), read by the elaborate pass's check of the
+    fields' units."""
 
     @property
     def errors(self) -> int:
@@ -303,7 +302,6 @@ class Recorder(Reporter):
             compile_time_parameters=frozenset(self.compile_time_parameters),
             initial_fields=tuple(self.initial_fields.items()), unavailable=tuple(self.unavailable.items()),
             left_out=tuple(self.left_out), failed=frozenset(self.failed), diagnostics=tuple(self.diags),
-            expr_dims=tuple(self.expr_dims.items()),
             field_dims=tuple((key, tuple(entries)) for key, entries in self.field_dims.items()))
 
 
@@ -336,24 +334,19 @@ class Unshareable(Exception):
 
 _REAL = sp.Symbol("x", real=True).assumptions0
 
-_SEQ, _FIELDS, _SYM, _STR, _ASSOC, _POW, _FUNC, _SPAN, _DATACLASS, _DICT = range(10)
-"""The kinds of :class:`_Template`'s steps, as :meth:`_Template.build` tests them."""
 
-
-def _getter(slots: Sequence[int]) -> Callable:
-    """A function from the slots' values to the tuple of those at `slots` (in order)."""
-    slots = tuple(slots)
-    if len(slots) >= 2:
-        return operator.itemgetter(*slots)
-    if len(slots) == 1:
-        (only,) = slots
-        return lambda vals: (vals[only],)
-    return lambda vals: ()
+def _place_of(path: tuple, old: str) -> Optional[int]:
+    """The one index of `path` holding `old` (None: none); :class:`Unshareable` for two."""
+    at = [i for i, e in enumerate(path) if e == old]
+    if len(at) > 1:
+        raise Unshareable(f"path {path} names `{old}` twice")
+    return at[0] if at else None
 
 
 class _Template:
-    """The lowering of component `old`, compiled once into a list of steps that build the
-    same value for another component's name: every name of `old` (its variables, ports,
+    """The lowering of component `old`, compiled once into steps (and those into one
+    function, :meth:`_compile_function`) that build the same value for another component's
+    name: every name of `old` (its variables, ports,
     rows' labels, paths: ``k1``, ``k1.x``, ``der(k1.x)``, ``cert:k1.x``) becomes the other
     one's, every source span the other one's span at the same path, and sympy sums and
     products are rebuilt from their renamed arguments in their order (``_from_args``, as
@@ -365,6 +358,9 @@ class _Template:
         self.old = old
         self.prefixes = [p + old + "." for p in _NAME_PREFIXES]
         self.located = [p for p, _ in located]
+        # each located path with the place of `old` in it (the component's own entry), None
+        # where it has none: :meth:`SharedLowerings._instance` puts the new name there
+        self.renamed_paths = [(p, _place_of(p, old)) for p in self.located]
         self.span_slot = {}
         for i, (_, span) in enumerate(located):
             self.span_slot.setdefault(id(span), i)
@@ -372,7 +368,7 @@ class _Template:
         self.steps: list = []  # (slot, kind, data): computed in this order
         self.symbols: list = []  # (name as in the template, (prefix index, rest) or None)
         self.memo: dict[int, int] = {}
-        self._plan: Optional[list] = None  # :meth:`_compile_plan`, made by the first :meth:`build`
+        self._function: Optional[Callable] = None  # :meth:`_compile_function`, made by the first :meth:`build`
         self._names: list = []  # the names renamed by each build: (prefix index, rest)
         self._computed: set[int] = set()  # slots built by a step
         self.root = self._slot(lowering)
@@ -466,87 +462,98 @@ class _Template:
             # every field given and nothing run after __init__: the instance is its fields,
             # set without the frozen class's __init__ (object.__setattr__ per field)
             return self._step(v, "fields", (t, tuple(f for f, _ in items), [a for _, a in items]))
-        if t.__module__ == "phc.frontend.si_units":  # a dimension (expr_dims): no names in it, never changed
+        if t.__module__ == "phc.frontend.si_units":  # a dimension (field_dims): no names in it, never changed
             return self._const(v)
         raise Unshareable(f"a value of type {t.__name__}")
 
-    def _compile_plan(self) -> list:
-        """:attr:`steps` as :meth:`build` runs them: a code per kind and getters
-        (:func:`operator.itemgetter`, one C call) of the slots each step reads, every one
-        returning a tuple (issue 38: the steps run ~70 times per component of a chain)."""
-        plan = []
-        index: dict = {}  # a renamed name's (prefix index, rest) -> its place in :attr:`_names`
+    def _compile_function(self) -> Callable:
+        """:attr:`steps` as one Python function ``build(names, spans)``, straight-line code with
+        one assignment per step (issue 38: the steps run ~70 times per component of a chain;
+        as a loop testing each step's kind they were two thirds of the instances' cost). The
+        text is phc's own, made here from the steps: local names ``v<slot>`` and indices into
+        the lists it is given (the template's values ``C``, the classes and constants ``K``,
+        the new names, the spans), never a name, value or text of the model. Sets
+        :attr:`_names`, the renamed names in the order ``names`` holds them."""
+        index: dict = {}  # a renamed name's (prefix index, rest) -> its place in `names`
+        extra: list = []  # K: classes, field names, flags the code refers to
+        extra_at: dict = {}
+        computed: set = set()
+
+        def obj(x) -> str:
+            key = (type(x), x) if isinstance(x, (bool, tuple)) else id(x)
+            if key not in extra_at:
+                extra_at[key] = len(extra)
+                extra.append(x)
+            return f"K[{extra_at[key]}]"
+
+        def ref(slot: int) -> str:
+            return f"v{slot}" if slot in computed else f"C[{slot}]"
+
+        def items(slots) -> str:
+            refs = [ref(a) for a in slots]
+            return "()" if not refs else f"({refs[0]},)" if len(refs) == 1 else f"({', '.join(refs)})"
+
+        lines = ["def build(names, spans):"]
         for slot, kind, data in self.steps:
             if kind == "seq":
-                t, items = data
-                plan.append((slot, _SEQ, t, _getter(items), None))
-            elif kind == "fields":
-                t, names, items = data
-                plan.append((slot, _FIELDS, t, names, _getter(items)))
+                t, args = data
+                expr = items(args) if t is tuple else f"[{', '.join(ref(a) for a in args)}]" if t is list \
+                    else f"{obj(t)}({items(args)})"
+            elif kind == "fields":  # every field given, nothing run after __init__: set them
+                t, names, args = data
+                lines.append(f"    v{slot} = new({obj(t)})")
+                lines.append(f"    v{slot}.__dict__.update(zip({obj(tuple(names))}, {items(args)}))")
+                computed.add(slot)
+                continue
             elif kind == "dataclass":
-                t, items = data
-                plan.append((slot, _DATACLASS, t, tuple(f for f, _ in items), _getter([a for _, a in items])))
-            elif kind == "sym" or kind == "str":  # a: the place of the new name, made once per build
-                plan.append((slot, _SYM if kind == "sym" else _STR, index.setdefault(data, len(index)), None, None))
+                t, fields = data
+                expr = f"{obj(t)}(**dict(zip({obj(tuple(f for f, _ in fields))}, {items([a for _, a in fields])})))"
+            elif kind == "sym":
+                expr = f"symbol(names[{index.setdefault(data, len(index))}])"
+            elif kind == "str":
+                expr = f"names[{index.setdefault(data, len(index))}]"
             elif kind == "span":
-                plan.append((slot, _SPAN, data, None, None))
-            elif kind == "assoc":
+                expr = f"spans[{int(data)}]"
+            elif kind == "assoc":  # sums and products from their arguments in order (see above)
                 cls, args, comm = data
-                plan.append((slot, _ASSOC, cls, _getter(args), comm))
+                expr = f"{obj(cls)}._from_args({items(args)}, {obj(comm)})"
             elif kind == "pow":
-                _, (b, e), comm = data
-                plan.append((slot, _POW, b, e, comm))
+                _, (base, exp), comm = data
+                expr = f"upow({ref(base)}, {ref(exp)}, {obj(comm)})"
             elif kind == "func":
                 func, args, _ = data
-                plan.append((slot, _FUNC, func, _getter(args), None))
+                expr = f"{obj(func)}(*{items(args)})"
             else:  # dict
-                plan.append((slot, _DICT, None, _getter([a for a, _ in data]), _getter([b for _, b in data])))
+                expr = "{" + ", ".join(f"{ref(a)}: {ref(b)}" for a, b in data) + "}"
+            lines.append(f"    v{slot} = {expr}")
+            computed.add(slot)
+        lines.append(f"    return {ref(self.root)}")
+        namespace = {"C": self.values, "K": extra, "new": object.__new__, "symbol": real_symbol,
+                     "upow": unevaluated_pow}
+        # safe: phc's own text, made above from slots and indices (no text of the model in it)
+        exec(compile("\n".join(lines) + "\n", f"<phc.frontend.lowering template of {len(self.steps)} steps>",
+                     "exec", dont_inherit=True), namespace)
         self._names = list(index)
-        return plan
+        return namespace["build"]
 
     def build(self, new: str, spans: Sequence):
         """The lowering for component `new` (`spans`: its spans at :attr:`located`), or None
         when renaming would change the order of the names (then sympy's order differs)."""
         pres = [p + new + "." for p in _NAME_PREFIXES]
-
-        def renamed(r):
-            return new if r[0] < 0 else pres[r[0]] + r[1]
-
+        if self._function is None:
+            self._function = self._compile_function()
+            place = {r: i for i, r in enumerate(self._names)}
+            # the symbols' names in the template's order: as written, or the place of the new one
+            self._order = [(name, None if r is None else place[r]) for name, r in self.symbols]
+        names = [new if r[0] < 0 else pres[r[0]] + r[1] for r in self._names]
         last = None
-        for name, r in self.symbols:
-            now = name if r is None else renamed(r)
-            if last is not None and now <= last:
+        for name, at in self._order:
+            if at is not None:
+                name = names[at]
+            if last is not None and name <= last:
                 return None
-            last = now
-        vals = list(self.values)
-        if self._plan is None:
-            self._plan = self._compile_plan()
-        names = [renamed(r) for r in self._names]
-        new_object, symbol = object.__new__, real_symbol
-        for slot, code, a, b, c in self._plan:  # the most frequent kinds first
-            if code == _SEQ:  # a, b: the sequence's type, getter of its items (a tuple)
-                vals[slot] = a(b(vals))
-            elif code == _FIELDS:  # a: the dataclass, b: its field names, c: getter of their values
-                obj = new_object(a)
-                obj.__dict__.update(zip(b, c(vals)))
-                vals[slot] = obj
-            elif code == _SYM:
-                vals[slot] = symbol(names[a])
-            elif code == _STR:
-                vals[slot] = names[a]
-            elif code == _ASSOC:  # a: Add or Mul, b: getter of its arguments, c: commutative
-                vals[slot] = a._from_args(b(vals), c)
-            elif code == _POW:  # a, b: the slots of base and exponent, c: commutative
-                vals[slot] = unevaluated_pow(vals[a], vals[b], c)
-            elif code == _FUNC:
-                vals[slot] = a(*b(vals))
-            elif code == _SPAN:
-                vals[slot] = spans[a]
-            elif code == _DATACLASS:
-                vals[slot] = a(**dict(zip(b, c(vals))))
-            else:  # dict: b, c: getters of keys and values
-                vals[slot] = dict(zip(b(vals), c(vals)))
-        return vals[self.root]
+            last = name
+        return self._function(names, spans)
 
 
 MAX_TEMPLATES = 4
@@ -625,8 +632,8 @@ class SharedLowerings:
 
     @staticmethod
     def _instance(template: _Template, context: LoweringContext, ctx, name: str) -> Optional[ComponentLowering]:
-        old = template.old
-        spans = [ctx.smap.locate(tuple(name if e == old else e for e in p)) for p in template.located]
+        locate = ctx.smap.locate
+        spans = [locate(p if at is None else (*p[:at], name, *p[at + 1:])) for p, at in template.renamed_paths]
         if any(spans[i] != spans[j] for i, j in template.same_span):
             return None  # one span of the template is two of this component
         out = template.build(name, spans)

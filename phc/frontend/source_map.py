@@ -277,8 +277,8 @@ class SourceMap:
         SourceSpan
             Start of the value node; the document start when nothing resolves.
         """
-        norm = self._norm(path)
-        key = tuple((type(e), e) for e in norm)  # 1 and True are different elements
+        norm = path if type(path) is tuple else self._norm(path)
+        key = (norm, tuple(map(type, norm)))  # 1 and True are different elements
         try:
             hit = self._located.get(key)
         except TypeError:  # unhashable path element

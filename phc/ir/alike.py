@@ -22,7 +22,8 @@ of symbols, so sympy would build the same result up to that renaming (equal symb
 one row, which could cancel, are one place, so a row where two of them coincide has
 another shape). Only symbols made as ``Symbol(name, real=True)`` (as phc makes its
 variables and parameters, :func:`phc.ir.dae.real_symbol`) are places; a row holding any
-other symbol (other assumptions, a Dummy) is rebuilt by sympy.
+other symbol (other assumptions, a Dummy) is rebuilt by sympy. A row in which the rule
+replaces nothing (an energy term in states) is returned as it is, as ``xreplace`` returns it.
 """
 
 from __future__ import annotations
@@ -123,6 +124,7 @@ class AlikeReplacer:
         self._plain: dict = {}  # symbol -> whether it is Symbol(name, real=True), renamed
         self.rebuilt = 0  # rows rebuilt by sympy (first of their shape, or refused): for tests
         self.renamed = 0  # rows built from their shape's plan
+        self.unchanged = 0  # rows the rule does not touch, returned as they are (as xreplace does)
 
     def __call__(self, expr, rule: Mapping | None = None):
         """``expr.xreplace(rule)`` (by default the replacer's rule), whose keys are symbols."""
@@ -132,6 +134,7 @@ class AlikeReplacer:
         index: dict = {}
         plain = self._plain
         Symbol = sp.Symbol
+        replaces = []  # a symbol of the row that the rule replaces (one is enough to know)
 
         def shape(e, replaced):
             """`e`'s shape; `replaced`: `e` is (part of) a replacement, which xreplace leaves as it is."""
@@ -150,6 +153,8 @@ class AlikeReplacer:
                 new = rule.get(e)
                 if new is None or new is e:
                     return i
+                if not replaces:
+                    replaces.append(e)
                 return (i, shape(new, True))
             args = e.args
             if not args:
@@ -169,6 +174,9 @@ class AlikeReplacer:
         except _Opaque:
             self.rebuilt += 1
             return by_sympy()
+        if not replaces:  # nothing to replace: xreplace gives the row itself
+            self.unchanged += 1
+            return expr
         plan = self.plans.get(key)
         if plan is not None:
             out = plan.build(places)

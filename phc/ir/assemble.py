@@ -473,6 +473,7 @@ def _resolve_definitions(uf, defs, rows) -> dict:
     back into an equation.
     """
     cache: dict = {}
+    bounds: dict = {}  # resolved root -> a superset of its value's free symbols
     visiting: set = set()
     all_syms = set(uf.parent) | set(defs)
 
@@ -490,7 +491,13 @@ def _resolve_definitions(uf, defs, rows) -> dict:
         rule = {s: value(s) for s in free if s in all_syms}
         if rule:  # else the definition is already resolved (a state's: -k·x), its symbols known
             expr = expr.xreplace(rule)  # small rules of short rows: sympy's (AlikeReplacer measured slower here)
-            free = expr.free_symbols
+            # what the value can hold: the symbols not replaced and those of the values put in
+            # (a superset: a sum may cancel); walked again only when it holds `root`
+            bound = free - rule.keys()
+            for s in rule:
+                r = uf.find(s)[0]
+                bound.update(bounds.get(r, (r,)))
+            free = expr.free_symbols if root in bound else bound
         visiting.discard(root)
         if root in free:
             rows.append(Equation(root - expr, f"{root.name}.definition", "coupling", "", None))
@@ -498,6 +505,7 @@ def _resolve_definitions(uf, defs, rows) -> dict:
             cache[root] = root
             return root
         cache[root] = expr
+        bounds[root] = free
         return expr
 
     values: dict = {}

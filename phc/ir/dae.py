@@ -12,13 +12,15 @@ from __future__ import annotations
 import bisect
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Optional
+from typing import TYPE_CHECKING, Any, Optional
 
-import scipy.sparse as sps
 import sympy as sp
 
 from phc.codegen.description import freeze, thaw
 from phc.frontend.source import SourceSpan
+
+if TYPE_CHECKING:  # the annotations only: a model of lumped components never loads scipy to be validated
+    import scipy.sparse as sps
 
 T = sp.Symbol("t", real=True)
 """The time symbol shared by all expressions."""

@@ -49,16 +49,17 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 import numpy as np
-import scipy.sparse.linalg as spla
 import sympy as sp
 
 from phc.ir.dae import InitialValue
-from phc.discretize.fem1d import _GAUSS_W, H3, Mesh, assemble
 from phc.library.registry import FieldView, find
 from phc.spec.model import InitialSpec
+
+if TYPE_CHECKING:
+    from phc.discretize.fem1d import Mesh
 
 XI = sp.Symbol("xi", real=True)  # the same symbol as phc.library.beams.XI
 
@@ -93,6 +94,21 @@ class FieldSet:
     """Moving beam: (v0, vL) symbols, the end normal velocities."""
 
 
+def _splu(matrix):
+    """scipy's sparse LU of `matrix`. scipy and :mod:`phc.discretize.fem1d` are imported
+    when a field is projected: a model without meshes is validated without them."""
+    import scipy.sparse.linalg as spla
+
+    return spla.splu(matrix)
+
+
+def _assemble(*args, **kwargs):
+    """:func:`phc.discretize.fem1d.assemble` (imported on first use, see :func:`_splu`)."""
+    from phc.discretize.fem1d import assemble as fem_assemble
+
+    return fem_assemble(*args, **kwargs)
+
+
 def register(b, name: str, spec, mesh: Mesh, fields: Optional[dict], rigid=None) -> None:
     """Called by the lowerers of distributed components (`fields` from
     :func:`phc.library.beams._lower_partitioned`, None for a modally reduced component)."""
@@ -116,6 +132,8 @@ def field_names(fs: FieldSet) -> dict[str, str]:
 def _load(space, values: np.ndarray) -> np.ndarray:
     """``∫ g φ_i`` for g given at the Gauss points (elements × gauss)."""
     mesh = space.mesh
+    from phc.discretize.fem1d import _GAUSS_W
+
     local = np.einsum("ag,eg,g->ea", space.values(0), values, mesh.h * _GAUSS_W)
     out = np.zeros(space.size)
     np.add.at(out, space.dofs().ravel(), local.ravel())
@@ -131,16 +149,18 @@ def project(space, g, weight=None, keep: Optional[np.ndarray] = None) -> np.ndar
     values = np.broadcast_to(np.asarray(g(xq), dtype=float), xq.shape)
     w = None if weight is None else np.broadcast_to(np.asarray(weight(xq), dtype=float), xq.shape)
     rhs = _load(space, values if w is None else w * values)
-    M = assemble(space, 0, space, 0, weight).tocsc()
+    M = _assemble(space, 0, space, 0, weight).tocsc()
     x = np.zeros(space.size)
     idx = np.arange(space.size) if keep is None else keep
-    x[idx] = spla.splu(M[idx][:, idx].tocsc()).solve(rhs[idx])
+    x[idx] = _splu(M[idx][:, idx].tocsc()).solve(rhs[idx])
     return x
 
 
 def trace_dofs(space) -> list[tuple[int, float, int]]:
     """The dofs that are the traces of a continuous space at the ends: (dof, ξ, derivative);
     none for the discontinuous spaces (P0, DP1), whose values are not what a port sees."""
+    from phc.discretize.fem1d import H3
+
     L, n = space.mesh.length, space.mesh.elements
     if isinstance(space, H3):
         return [(0, 0.0, 0), (1, 0.0, 1), (2 * n, L, 0), (2 * n + 1, L, 1)]
@@ -157,14 +177,14 @@ def project_traces(space, g, traces: dict) -> np.ndarray:
     xq = space.mesh.quadrature_points()
     values = np.broadcast_to(np.asarray(g(xq), dtype=float), xq.shape)
     rhs = _load(space, values)
-    M = assemble(space, 0, space, 0).tocsc()
+    M = _assemble(space, 0, space, 0).tocsc()
     x = np.zeros(space.size)
     fixed = np.array(sorted(traces), dtype=np.int64)
     x[fixed] = [traces[k] for k in fixed]
     keep = np.setdiff1d(np.arange(space.size), fixed)
     if len(keep):
         rhs = rhs - M @ x
-        x[keep] = spla.splu(M[keep][:, keep].tocsc()).solve(rhs[keep])
+        x[keep] = _splu(M[keep][:, keep].tocsc()).solve(rhs[keep])
     return x
 
 
@@ -592,8 +612,8 @@ class FieldInitializer:
         e = project_traces(space, q, traces)
         if weight is None:
             return e
-        M = assemble(space, 0, space, 0).tocsc()
-        return spla.splu(assemble(space, 0, space, 0, weight).tocsc()).solve(M @ e)
+        M = _assemble(space, 0, space, 0).tocsc()
+        return _splu(_assemble(space, 0, space, 0, weight).tocsc()).solve(M @ e)
 
     def _axial_velocity(self, fs, ex) -> list:
         """Relations ``e_a(ξ_i) − e_a(0) = u̇_h(ξ_i)`` (axial velocity relative to the end ξ = 0)."""
@@ -651,8 +671,8 @@ def _project_coenergy(space, v, weight):
     """p with ``∫ c p_h φ = ∫ v φ`` (c = `weight`, the energy coefficient of p)."""
     xq = space.mesh.quadrature_points()
     rhs = _load(space, np.broadcast_to(np.asarray(v(xq), dtype=float), xq.shape))
-    M = assemble(space, 0, space, 0, weight).tocsc()
-    return spla.splu(M).solve(rhs)
+    M = _assemble(space, 0, space, 0, weight).tocsc()
+    return _splu(M).solve(rhs)
 
 
 __all__ = ["FIELDS", "FieldSet", "FieldInitializer", "evaluate", "project", "project_traces", "register",

@@ -6,19 +6,21 @@ type beside the spec model (:mod:`phc.spec.components`) and the lowerer
 entries. The units of the lumped elements' fields are products of their port domain's
 effort ``e``, flow ``f`` and the second ``s``; the distributed components' fields are in
 fixed SI units.
+
+The lowerers of the distributed components (and of ``linear_phs``) are imported when first
+called (:class:`_Deferred`): their modules load scipy's sparse matrices, which a model of
+lumped components never needs (`phc validate` of one imports no scipy,
+tests/test_validate_large.py).
 """
 
 from __future__ import annotations
 
+import importlib
 from functools import partial
 
 from phc.study import viz
 from phc.library import lumped
 from phc.library.contact import lower_contact
-from phc.library.beams import lower_euler_bernoulli, lower_string, lower_timoshenko
-from phc.library.linear import lower_linear_phs
-from phc.library.moving import lower_crank_wheel, lower_moving_beam
-from phc.library.pde1d import lower_pde1d, pde1d_rows
 from phc.library.phs import lower_phs
 from phc.library.rigid import lower_rigid
 from phc.library.signal import lower_pi, lower_state_space
@@ -30,6 +32,33 @@ TRANSLATIONAL, ELECTRICAL, GENERIC = "mechanical.translational", "electrical", "
 DERIVED, HAND_WRITTEN = ROWS
 _MATRICES = "its matrices and expressions are in the model's own units"
 _SIGNAL = "a signal block: its gains and signals have whatever units the controller's designer chose"
+
+
+class _Deferred:
+    """``module.name`` (a lowerer, or another function of a component), imported on its first call."""
+
+    __slots__ = ("module", "name", "_function")
+
+    def __init__(self, module: str, name: str) -> None:
+        self.module, self.name, self._function = module, name, None
+
+    def __call__(self, *args, **kwargs):
+        if self._function is None:
+            self._function = getattr(importlib.import_module(self.module), self.name)
+        return self._function(*args, **kwargs)
+
+    def __repr__(self) -> str:
+        return f"{self.module}.{self.name}"
+
+
+lower_euler_bernoulli = _Deferred("phc.library.beams", "lower_euler_bernoulli")
+lower_string = _Deferred("phc.library.beams", "lower_string")
+lower_timoshenko = _Deferred("phc.library.beams", "lower_timoshenko")
+lower_linear_phs = _Deferred("phc.library.linear", "lower_linear_phs")
+lower_crank_wheel = _Deferred("phc.library.moving", "lower_crank_wheel")
+lower_moving_beam = _Deferred("phc.library.moving", "lower_moving_beam")
+lower_pde1d = _Deferred("phc.library.pde1d", "lower_pde1d")
+pde1d_rows = _Deferred("phc.library.pde1d", "pde1d_rows")
 
 
 def _lumped(name, spec, lower, domain, units, sign_role=None, state_reads=NO_STATE_READS, drawing=None):

@@ -40,7 +40,6 @@ from __future__ import annotations
 from typing import Optional
 
 import numpy as np
-import scipy.sparse as sps
 import sympy as sp
 
 from phc.ir.dae import Chained, ComponentDescription, LinearTerm, SparseRelations, Storage, StorageVector, SymbolVector
@@ -307,6 +306,7 @@ def emit(b, desc: ComponentDescription, dissipation_span=None) -> None:
 # -- sparse descriptions --------------------------------------------------------------------
 
 def _is_identity(m) -> bool:
+    import scipy.sparse as sps  # sparse descriptions only: lumped models never load scipy
     n = m.shape[0]
     if m.shape != (n, n) or m.nnz != n:
         return False
@@ -336,6 +336,7 @@ def _product(A, B):
 def _substitute(terms, extras, values: dict, depth: int = 0):
     """`terms` (:class:`~phc.ir.dae.LinearTerm`) and `extras` (``(row, expr)``) with every term
     over a vector of `values` (``vector -> (terms, extras, rename)``) replaced by its value."""
+    import scipy.sparse as sps  # sparse descriptions only: lumped models never load scipy
     if depth > 64:
         raise ValueError("the sparse description's solved vectors refer to each other in a cycle")
     out_terms, out_extras = [], list(extras)
@@ -364,6 +365,7 @@ def _substitute(terms, extras, values: dict, depth: int = 0):
 
 def _row_expr(terms, k: int) -> sp.Expr:
     """Row `k` of Σ terms as a sympy expression."""
+    import scipy.sparse as sps  # sparse descriptions only: lumped models never load scipy
     out = sp.Integer(0)
     for t in terms:
         if t.derivative:
@@ -378,6 +380,7 @@ def _vanishes(terms, extras) -> bool:
     the terms whose coefficients differ by a rational factor cancel to round-off (a
     relation that the storage and the laws already imply, e.g. ``e = Eᵀz`` with
     ``z = Qx``, ``e = EᵀQx``)."""
+    import scipy.sparse as sps  # sparse descriptions only: lumped models never load scipy
     if any(e != 0 for _, e in extras):
         return False
     groups: dict = {}
@@ -403,6 +406,7 @@ def emit_sparse(b, desc: ComponentDescription) -> None:
     (:func:`_vanishes`). Scalar relations (over the model's own variables and the ports)
     come last: a definition where solved for a symbol, a row otherwise; scalar storage pairs
     (a moving frame's) are replaced by ``(ẋ, ∂H/∂x)`` wherever they appear."""
+    import scipy.sparse as sps  # sparse descriptions only: lumped models never load scipy
     sigma = {**{st.flow: st.rate for st in desc.storage}, **{st.effort: st.gradient for st in desc.storage}}
     ports = {x for idx, _ in desc.ports.values() for i in idx for x in (desc.flows[i], desc.efforts[i])}
     values: dict = {}

@@ -31,7 +31,6 @@ from __future__ import annotations
 import numpy as np
 import sympy as sp
 
-from phc.checks.certify import RANK_RTOL
 from phc.ir.dae import T
 from phc.frontend.effects import is_on, summed_terms
 from phc.library.dirac import DiracBuilder, emit
@@ -297,6 +296,7 @@ def _check_redundant_constraints(b, ctx, name, path, cqZ, A, q, times=(0.0,)):
     unique anywhere and no solver can integrate the model. A rank drop at particular
     configurations only (a mechanism's singular position) is left to the solvers and to
     `phc check` (PHC-E410 at the initial configuration, PHC-W422 along the motion)."""
+    from phc.checks.certify import RANK_RTOL  # here: the certificate's modules load scipy's linear algebra
     rows = cqZ.col_join(A) if A.rows else cqZ
     if rows.rows < 2:
         return
