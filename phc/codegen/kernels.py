@@ -121,12 +121,16 @@ def function_kernels(ir: ResidualIR) -> list[FunctionKernel]:
                if e != 0 and e.has(T)]  # most rows of a mesh are 0 (linear blocks): no diff
     out.append(FunctionKernel("residual_t", Kernel(tuple((i, e, False) for i, e in dt_rows if e != 0)), m, True,
                               "yyp", "out", ir.equation_labels))
-    jac = [dy + CJ * dyp if dyp != 0 else dy for dy, dyp in zip(ir.jac_dy, ir.jac_dyp)]
+    # dF/dy + cj·dF/dẏ where it has a symbolic part; every other entry is 0 but for the blocks
+    jac_symbolic = [(k, dy + CJ * dyp if dyp != 0 else dy) for k, dy, dyp in ir.jac_symbolic]
     if sums:
         jac_sums = tuple(("scatter", t.pos, _canonical(t.matrix).data, t.coeff, t.derivative) for t in lin)
         jac_sums += tuple(("grad", f.matrix, f.cols, f.pos, -2 * f.coeff) for f in qd)
-        kernel = Kernel(tuple((k, e, True) for k, e in enumerate(jac) if e != 0), jac_sums)
+        kernel = Kernel(tuple((k, e, True) for k, e in jac_symbolic if e != 0), jac_sums)
     else:
+        jac = [sp.S.Zero] * njac
+        for k, e in jac_symbolic:
+            jac[k] = e
         kernel = Kernel(tuple((k, e, False) for k, e in enumerate(jac)))
     jac_labels = tuple(f"d({ir.equation_labels[i]})/d({ir.variables[j]})" for i, j in zip(ir.jac_rows, ir.jac_cols))
     out.append(FunctionKernel("jacobian", kernel, njac, sums, "yyp_cj", "out", jac_labels))

@@ -428,8 +428,8 @@ class ModulePrinter:
         used = self._jac_symbols
         if used is None:
             used = set()
-            for e in itertools.chain(self.ir.jac_dy, self.ir.jac_dyp):
-                # numbers (most entries of a mesh, mostly the zero) have none
+            for e in itertools.chain.from_iterable(entry[1:] for entry in self.ir.jac_symbolic):
+                # numbers have none (the entries only a block fills are not among these)
                 if e is not _ZERO and not getattr(e, "is_Number", True):
                     used |= e.free_symbols
             self._jac_symbols = used
@@ -684,11 +684,12 @@ class ModulePrinter:
         parts.append(self._function(
             "residual_t(t, y, yp, p, out)", "Explicit time derivative dF/dt (consistent initialization).",
             [e for _, e in dt_rows], [f"out[{i}]" for i, _ in dt_rows], prologue=["out[:] = 0.0"]))
-        jac = [dy + sp.Symbol("cj") * dyp if _nonzero(dyp) else dy for dy, dyp in zip(ir.jac_dy, ir.jac_dyp)]
+        # dF/dy + cj·dF/dẏ at the entries with a symbolic part (the others are 0 but for the blocks)
+        jac_symbolic = [(k, dy + sp.Symbol("cj") * dyp if _nonzero(dyp) else dy) for k, dy, dyp in ir.jac_symbolic]
         self.names[sp.Symbol("cj")] = "cj"
         jdoc = "Data of dF/dy + cj*dF/dyp in CSC order of (JAC_ROWS, JAC_COLS), written into `out`."
         if lin or qd_coeffs:
-            nz = [(k, e) for k, e in enumerate(jac) if _nonzero(e)]
+            nz = [(k, e) for k, e in jac_symbolic if _nonzero(e)]
             prologue = (["_AY, _AYP, _JY, _JYP = _linear(p)", "out[:] = _JY", "_axpy(cj, _JYP, out)"] if lin
                         else ["out[:] = 0.0"])
             self.accumulate = {f"out[{k}]" for k, _ in nz}
@@ -697,6 +698,9 @@ class ModulePrinter:
                 [f"out[{k}]" for k, _ in nz] + qd_targets, prologue=prologue, epilogue=qd_jac))
             self.accumulate = set()
         else:
+            jac = [_ZERO] * len(ir.jac_rows)
+            for k, e in jac_symbolic:
+                jac[k] = e
             parts.append(self._function("jacobian(t, y, yp, p, cj, out)", jdoc, jac,
                                         [f"out[{k}]" for k in range(len(jac))]))
         self.bulk = False
