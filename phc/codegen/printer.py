@@ -146,6 +146,46 @@ def _identifiers(prefix: str, names: Sequence[str], taken: set) -> list[str]:
     return out
 
 
+def _clean(name: str) -> str:
+    """The part of an identifier :func:`_identifier` makes of `name` after its prefix (before
+    any suffix that makes it unique)."""
+    return _NOT_IDENTIFIER.sub("_", name.replace("[", "_").replace("]", "")).strip("_") or "v"
+
+
+class _Names(dict):
+    """Symbol -> its name in the generated code. The names of the model's variables and
+    their rates are made when first printed (``y_`` or ``yp_`` and the cleaned model name;
+    :func:`_identifiers` would give each the same, the cleaned names being distinct): a mesh's
+    functions print a few of its 10⁵-odd variables, and a name kept for each took 0.2 KiB per
+    unknown of the compile peak (issue 35)."""
+
+    def __init__(self, base: dict, variables: Sequence[str], y_slot: dict, yp_slot: dict):
+        super().__init__(base)
+        self._variables, self._y, self._yp = variables, y_slot, yp_slot
+
+    def __missing__(self, symbol):
+        j = self._y.get(symbol)
+        prefix = "y_"
+        if j is None:
+            j = self._yp.get(symbol)  # raises KeyError below when it is neither
+            prefix = "yp_"
+        if j is None:
+            raise KeyError(symbol)
+        ident = self[symbol] = prefix + _clean(self._variables[j])
+        return ident
+
+
+def _distinct_cleaned(names: Sequence[str]) -> bool:
+    """Whether :func:`_clean` of `names` are all distinct (then :func:`_identifiers` adds no
+    suffix to any of them)."""
+    joined = "\n".join(names)
+    if joined.count("\n") != max(len(names) - 1, 0):
+        return False  # a name with a line break: the caller names them one by one
+    cleaned = _NOT_IDENTIFIER_LINES.sub("_", joined.replace("[", "_").replace("]", "")).split("\n") if names else []
+    del joined
+    return len({part.strip("_") or "v" for part in cleaned}) == len(cleaned)
+
+
 PACK_LIMIT = 256
 """Arrays longer than this are printed as periodic runs and base64 of their bytes
 (:mod:`phc.codegen.packing`): a 1000-element beam's 40 000 matrix entries as float literals
@@ -346,21 +386,24 @@ class ModulePrinter:
         self.ir = ir
         self._jac_symbols = None  # free symbols of the Jacobian entries (computed once)
         taken: set = set()
-        self.names: dict = {T: "t"}
         # symbol -> its position in y, yp or p, in the order of the positions; the unpacking
         # line ``name = y[j]`` is written only for the symbols a function uses (a line per
         # unknown kept here took 0.15 KiB per unknown of a mesh's compile peak, issue 35)
-        self.unpack_y = {}
-        self.unpack_yp = {}
+        n = len(ir.y_symbols)
+        self.unpack_y = dict(zip(ir.y_symbols, range(n)))
+        self.unpack_yp = {s: j for j, s in enumerate(ir.yp_symbols) if s is not None}
         self.unpack_p = {}
-        for j, (s, ident) in enumerate(zip(ir.y_symbols, _identifiers("y_", ir.variables, taken))):
-            self.names[s] = ident
-            self.unpack_y[s] = j
-        # reserved for an algebraic variable too (no rate): the same names as with one
-        for j, (s, ident) in enumerate(zip(ir.yp_symbols, _identifiers("yp_", ir.variables, taken))):
-            if s is not None:
+        if _distinct_cleaned(ir.variables):
+            # the prefixes y_, yp_ and p_ keep the three kinds of names apart: no suffix anywhere
+            self.names: dict = _Names({T: "t"}, ir.variables, self.unpack_y, self.unpack_yp)
+        else:  # some names clean to the same identifier: all named now, the later ones suffixed
+            self.names = {T: "t"}
+            for s, ident in zip(ir.y_symbols, _identifiers("y_", ir.variables, taken)):
                 self.names[s] = ident
-                self.unpack_yp[s] = j
+            # reserved for an algebraic variable too (no rate): the same names as with one
+            for s, ident in zip(ir.yp_symbols, _identifiers("yp_", ir.variables, taken)):
+                if s is not None:
+                    self.names[s] = ident
         for j, (s, name) in enumerate(zip(ir.p_symbols, ir.parameters)):
             self.names[s] = _identifier("p_", name, taken)
             self.unpack_p[s] = j
