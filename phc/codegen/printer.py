@@ -195,11 +195,12 @@ take seconds for Python to compile, and a uniform mesh's stencil repeats."""
 def _array(values: Sequence, dtype: str) -> str:
     if len(values) > PACK_LIMIT and dtype in ("float", "np.int64"):
         return packing.expression(values, "<f8" if dtype == "float" else "<i8")
-    values = values.tolist() if isinstance(values, np.ndarray) else list(values)  # Python numbers' repr
     if dtype == "bool" and len(values) > PACK_LIMIT:  # run lengths: a mesh's states, then its efforts
-        starts = [0] + [k for k in range(1, len(values)) if bool(values[k]) != bool(values[k - 1])]
-        counts = [b - a for a, b in zip(starts, [*starts[1:], len(values)])]
-        return f"np.repeat(np.array({[bool(values[a]) for a in starts]!r}), {counts!r})"
+        flags = np.asarray([bool(v) for v in values] if not isinstance(values, np.ndarray) else values, dtype=bool)
+        starts = [0] + (np.flatnonzero(flags[1:] != flags[:-1]) + 1).tolist()
+        counts = [b - a for a, b in zip(starts, [*starts[1:], len(flags)])]
+        return f"np.repeat(np.array({[bool(flags[a]) for a in starts]!r}), {counts!r})"
+    values = values.tolist() if isinstance(values, np.ndarray) else list(values)  # Python numbers' repr
     body = ", ".join(repr(v) for v in values)
     return f"np.array([{body}], dtype={dtype})"
 
@@ -264,8 +265,8 @@ def _table_slope(times, values, kind, t):
 
 def _sparse_constant(name: str, matrix) -> list[str]:
     m = matrix.tocsr()
-    return [f"{name} = _sps.csr_matrix(({_array(m.data.tolist(), 'float')}, "
-            f"{_array(m.indices.tolist(), 'np.int64')}, {_array(m.indptr.tolist(), 'np.int64')}), "
+    return [f"{name} = _sps.csr_matrix(({_array(m.data, 'float')}, "
+            f"{_array(m.indices, 'np.int64')}, {_array(m.indptr, 'np.int64')}), "
             f"shape={tuple(int(x) for x in m.shape)!r})"]
 
 
@@ -668,18 +669,18 @@ class ModulePrinter:
                 continue
             fused = _fuse(terms, len(ir.residual), n)
             self.fused[wrt] = (terms, fused)
-            sparse_consts += [f"_L{wrt}_INDPTR = {_array(fused['indptr'].tolist(), 'np.int64')}",
-                              f"_L{wrt}_INDICES = {_array(fused['indices'].tolist(), 'np.int64')}",
-                              f"_L{wrt}_JAC = {_array(fused['jac'].tolist(), 'np.int64')}"]
+            sparse_consts += [f"_L{wrt}_INDPTR = {_array(fused['indptr'], 'np.int64')}",
+                              f"_L{wrt}_INDICES = {_array(fused['indices'], 'np.int64')}",
+                              f"_L{wrt}_JAC = {_array(fused['jac'], 'np.int64')}"]
             for k, (pos, data) in enumerate(zip(fused["pos"], fused["data"])):
-                sparse_consts += [f"_L{wrt}{k}_POS = {_array(pos.tolist(), 'np.int64')}",
-                                  f"_L{wrt}{k}_DATA = {_array(data.tolist(), 'float')}"]
+                sparse_consts += [f"_L{wrt}{k}_POS = {_array(pos, 'np.int64')}",
+                                  f"_L{wrt}{k}_DATA = {_array(data, 'float')}"]
         for prefix, forms in (("QE", ir.quadratic_energy), ("QD", ir.quadratic_dissipation)):
             for k, f in enumerate(forms):
                 sparse_consts += _sparse_constant(f"_{prefix}{k}", f.matrix)
-                sparse_consts.append(f"_{prefix}{k}_COLS = {_array(f.cols.tolist(), 'np.int64')}")
+                sparse_consts.append(f"_{prefix}{k}_COLS = {_array(f.cols, 'np.int64')}")
                 if f.pos is not None:
-                    sparse_consts.append(f"_{prefix}{k}_POS = {_array(f.pos.tolist(), 'np.int64')}")
+                    sparse_consts.append(f"_{prefix}{k}_POS = {_array(f.pos, 'np.int64')}")
         if sparse_consts:
             parts[1] = parts[1].replace("import numpy as np\n", "import numpy as np\nimport scipy.sparse as _sps\n"
                                         "from scipy.linalg.blas import daxpy as _daxpy\n", 1)
