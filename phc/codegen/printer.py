@@ -208,18 +208,18 @@ def _array(values: Sequence, dtype: str) -> str:
 def _fuse(terms, m: int, n: int) -> dict:
     """One sparse pattern for several linear terms: global CSR structure, each term's
     positions in it, and the Jacobian data positions of the pattern entries."""
-    rows, cols, jac, owner = [], [], [], []
-    datas = []
-    for k, t in enumerate(terms):
+    keys, datas = [], []
+    for t in terms:
         coo = t.matrix.tocoo()
-        rows.append(t.rows[coo.row])
-        cols.append(t.cols[coo.col])
-        jac.append(t.pos)
+        key = t.rows[coo.row] * n  # the entry (i, j) as i·n + j: sorted, the CSR order
+        key += t.cols[coo.col]
+        keys.append(key)
         datas.append(coo.data)
-        owner.append(np.full(len(coo.data), k))
-    r, c, j = np.concatenate(rows), np.concatenate(cols), np.concatenate(jac)
-    keys = r * n + c
+        del coo, key
+    keys = np.concatenate(keys)  # (the per-term pieces freed: a mesh's millions of entries)
     unique, first, inverse = unique_keys(keys, return_index=True, return_inverse=True)
+    del keys
+    j = np.concatenate([t.pos for t in terms])
     ur = unique // n
     indptr = np.zeros(m + 1, dtype=np.int64)
     np.add.at(indptr, ur + 1, 1)
