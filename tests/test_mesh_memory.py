@@ -111,13 +111,16 @@ def test_a_mesh_at_rest_starts_without_a_newton_matrix(tmp_path, monkeypatch):
     assert not init.y0.any() and not init.yp0.any()
 
 
-@pytest.mark.parametrize("moving", [False, True])
-def test_the_start_of_a_mesh_holds_no_more_than_a_few_jacobians(tmp_path, moving):
+@pytest.mark.parametrize("moving, arrays", [(False, 24), (True, 40)])
+def test_the_start_of_a_mesh_holds_no_more_than_a_few_jacobians(tmp_path, moving, arrays):
     """Consistent initialization of a 400-element cantilever (3 207 unknowns, 21 624
-    Jacobian entries) allocates at most 40 arrays the size of the Jacobian's data at once
-    (an n × n dense matrix would be 480 of them), at rest and when it has to move the tip's
-    velocity onto the clamp's constraint (Newton steps). 40: the flat Jacobian of [F; D]
-    (twice the entries, with its row and column indices) and the sparse LU of its step."""
+    Jacobian entries) allocates at most `arrays` arrays the size of the Jacobian's data at
+    once (an n × n dense matrix would be 480 of them). At rest, 24: no Newton matrix — the
+    module's memo of its blocks (four), the flat F_y and F_ẏ, the rows' scales and the
+    matching's pattern of F_ẏ, the nominal scales' entries; building the Newton structure
+    there took 34. Moving the clamped end's momentum onto the clamp's constraint (Newton
+    steps), 40: the flat Jacobian of [F; D] (twice the entries, with its row and column
+    indices) and the sparse LU of its step besides."""
     mod = _compiled(tmp_path, 400).module
     p = mod.full_parameters()
     dif = np.flatnonzero(np.asarray(mod.DIFFERENTIAL))
@@ -134,7 +137,52 @@ def test_the_start_of_a_mesh_holds_no_more_than_a_few_jacobians(tmp_path, moving
         peak = tracemalloc.get_traced_memory()[1] - start
     finally:
         tracemalloc.stop()
-    assert peak < 40 * 8 * nnz, (peak, 8 * nnz)
+    assert peak < arrays * 8 * nnz, (peak, 8 * nnz)
     res = np.zeros(mod.N)
     mod.residual(0.0, init.y0, init.yp0, p, res)
     assert np.abs(res).max() < 1e-8
+
+
+def test_the_newton_matrix_is_scaled_as_the_sparse_products_scaled_it(tmp_path, monkeypatch):
+    """The midpoint Newton matrix is scaled on its own arrays: the matrix factored is the one
+    ``D_r @ J @ D_c`` gives (the same pattern, stored zeros dropped, the same bits: the scales
+    are powers of two)."""
+    import scipy.sparse as sps
+
+    from phc.simulation import midpoint
+
+    mod = _compiled(tmp_path, 30).module
+    p = mod.full_parameters()
+    matrix = midpoint.NewtonMatrix(mod, p)
+    factored = []
+    monkeypatch.setattr(midpoint.spla, "splu", lambda J, *a, **k: factored.append(J.copy()) or object())
+    rng = np.random.default_rng(1)
+    y, y1 = rng.standard_normal(mod.N), rng.standard_normal(mod.N)
+    y[0] = y1[0] = 0.0  # an entry that is zero here
+    assert matrix.factor(0.1, 1e-3, y, y1)
+    buf = np.zeros(len(mod.JAC_ROWS))
+    d = y1 - y
+    mod.jacobian(0.1 + 0.5e-3, y + 0.5 * d, d / 1e-3, p, 1.0 / 0.5e-3, buf)
+    J = sps.csc_matrix((0.5 * buf, (mod.JAC_ROWS, mod.JAC_COLS)), shape=(mod.N, mod.N))
+    expected = sps.csc_matrix(sps.diags(matrix.row_scale) @ J @ sps.diags(matrix.col_scale))
+    got = factored[0]
+    got.sort_indices()
+    expected.sort_indices()
+    assert np.array_equal(got.indptr, expected.indptr) and np.array_equal(got.indices, expected.indices)
+    assert np.array_equal(got.data, expected.data)
+
+
+def test_kind_groups_are_the_names_grouped_by_kind():
+    """The nominal scales' groups of variables of one kind (their names without indices),
+    found by runs, are those a dictionary of every name gives: each kind with more than one
+    variable, its indices ascending, interleaved kinds included."""
+    from phc.simulation.scaling import kind_groups, kind_of
+
+    rng = np.random.default_rng(2)
+    names = [f"{rng.choice(['a.p', 'a.e', 'b.q', 'c'])}[{i}]" if rng.random() < 0.8 else f"x{i % 3}"
+             for i in range(400)]
+    expected: dict = {}
+    for j, name in enumerate(names):
+        expected.setdefault(kind_of(name), []).append(j)
+    got = kind_groups(names)
+    assert [g.tolist() for g in got] == [m for m in expected.values() if len(m) > 1]
