@@ -147,8 +147,7 @@ def _identifiers(prefix: str, names: Sequence[str], taken: set) -> list[str]:
 
 
 def _clean(name: str) -> str:
-    """The part of an identifier :func:`_identifier` makes of `name` after its prefix (before
-    any suffix that makes it unique)."""
+    """What :func:`_identifier` makes of `name` after the prefix (before any suffix)."""
     return _NOT_IDENTIFIER.sub("_", name.replace("[", "_").replace("]", "")).strip("_") or "v"
 
 
@@ -164,20 +163,17 @@ class _Names(dict):
         self._variables, self._y, self._yp = variables, y_slot, yp_slot
 
     def __missing__(self, symbol):
-        j = self._y.get(symbol)
-        prefix = "y_"
+        j, prefix = self._y.get(symbol), "y_"
         if j is None:
-            j = self._yp.get(symbol)  # raises KeyError below when it is neither
-            prefix = "yp_"
-        if j is None:
+            j, prefix = self._yp.get(symbol), "yp_"
+        if j is None:  # neither a variable nor a rate
             raise KeyError(symbol)
         ident = self[symbol] = prefix + _clean(self._variables[j])
         return ident
 
 
 def _distinct_cleaned(names: Sequence[str]) -> bool:
-    """Whether :func:`_clean` of `names` are all distinct (then :func:`_identifiers` adds no
-    suffix to any of them)."""
+    """Whether :func:`_clean` of `names` are all distinct (:func:`_identifiers` adds no suffix)."""
     joined = "\n".join(names)
     if joined.count("\n") != max(len(names) - 1, 0):
         return False  # a name with a line break: the caller names them one by one
