@@ -34,6 +34,10 @@ compilation, the certificate and the back end's build are counted), giving the c
 seconds (user + system), IDA's steps, residual and Jacobian evaluations and the CPU seconds
 of the integration alone (issue 38: 1 000 elements in under 60 s CPU).
 
+One size alone, in this process: ``python benchmarks/bench_beam_scale.py --measure eb 100000``
+prints that row as JSON; with ``--phases`` also each pass's CPU seconds and peak resident
+memory (read and reset through ``/proc/self``, Linux), which says where the peak is reached.
+
 Run: ``python benchmarks/bench_beam_scale.py [--elements 125 250 500 1000]
 [--string-elements 1000 10000 100000] [--eb-elements 1000 10000 100000]
 [--ida-elements 1000] [--ida-t-end 1e-3] [--out beam_scale.md]``
@@ -135,9 +139,55 @@ def _large_model(kind: str, n: int) -> str:
     return MODEL.format(n=n) + "simulation:\n  n_out: 11\n  outputs:\n    tip_velocity: beam.b.f\n    energy: H\n"
 
 
-def measure_large(kind: str, n: int) -> dict:
+class Phases:
+    """CPU seconds and peak resident memory of each pass of a compilation and of the run
+    (``--phases``): the passes of :mod:`phc.pipeline` wrapped, the peak read from
+    ``/proc/self/status`` (``VmHWM``) and reset before each (``/proc/self/clear_refs``, Linux),
+    so each phase's peak is its own; `peak` is the largest of them."""
+
+    PASSES = ("build_dae", "lower_residual", "print_module", "load_generated", "describe")
+
+    def __init__(self) -> None:
+        self.rows: list[dict] = []
+        self.peak = 0
+
+    @staticmethod
+    def _status() -> dict:
+        out = {}
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith(("VmHWM", "VmRSS")):
+                    key, value = line.split(":")
+                    out[key] = int(value.split()[0]) * 1024
+        return out
+
+    def wrap(self, name: str, fn):
+        def timed(*args, **kwargs):
+            before = self._status()
+            self.peak = max(self.peak, before["VmHWM"])
+            with open("/proc/self/clear_refs", "w") as fh:
+                fh.write("5")  # reset the peak to the present resident size
+            cpu = time.process_time()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                after = self._status()
+                self.peak = max(self.peak, after["VmHWM"])
+                self.rows.append(dict(phase=name, cpu=time.process_time() - cpu, rss_before=before["VmRSS"],
+                                      peak=after["VmHWM"], rss_after=after["VmRSS"]))
+        return timed
+
+    def install(self) -> None:
+        import phc.pipeline as pipeline
+
+        for name in self.PASSES:
+            setattr(pipeline, name, self.wrap(name, getattr(pipeline, name)))
+
+
+def measure_large(kind: str, n: int, phases: Optional[Phases] = None) -> dict:
     """One size of `kind` in this process: compile (CPU and wall), the generated module's
-    size, consistent initialization, ten midpoint steps, peak memory and phc's estimate."""
+    size, consistent initialization, ten midpoint steps, peak memory and phc's estimate;
+    with `phases`, each pass's CPU time and peak memory too."""
     from phc.frontend import budget
     from phc.simulation.initial import consistent_initial_conditions
     from phc.spec.components import EulerBernoulliBeamSpec, StringSpec
@@ -153,6 +203,10 @@ def measure_large(kind: str, n: int) -> dict:
         startup_cpu = time.process_time() - cpu
         path = Path(tmp) / f"{kind}{n}.yaml"
         path.write_text(_large_model(kind, n))
+        initialize, simulate = consistent_initial_conditions, phc.simulate
+        if phases is not None:
+            phases.install()
+            initialize, simulate = phases.wrap("initialize", initialize), phases.wrap("simulate", simulate)
         t, cpu = time.perf_counter(), time.process_time()
         compiled = phc.compile_model(path, backend="numpy", **_NO_CERTIFICATE)
         compile_s, compile_cpu = time.perf_counter() - t, time.process_time() - cpu
@@ -160,11 +214,11 @@ def measure_large(kind: str, n: int) -> dict:
         p = mod.full_parameters()
         dif = [int(j) for j in range(mod.N) if mod.DIFFERENTIAL[j]]
         t = time.perf_counter()
-        consistent_initial_conditions(mod, p, 0.0, {j: 0.0 for j in dif}, set(dif))
+        initialize(mod, p, 0.0, {j: 0.0 for j in dif}, set(dif))
         init_s = time.perf_counter() - t
         h = 1e-7
         t = time.perf_counter()
-        result = phc.simulate(compiled, t_end=STRING_STEPS * h, n_out=STRING_STEPS + 1, solver="midpoint", step=h)
+        result = simulate(compiled, t_end=STRING_STEPS * h, n_out=STRING_STEPS + 1, solver="midpoint", step=h)
         run_s = time.perf_counter() - t
     spec = (StringSpec(type="string", length=1, elements=n, rho=1, T=1) if kind == "string" else
             EulerBernoulliBeamSpec(type="euler_bernoulli_beam", length=1, elements=n, rhoA=1, EI=1))
@@ -172,7 +226,9 @@ def measure_large(kind: str, n: int) -> dict:
                 compile_cpu=compile_cpu, startup_cpu=startup_cpu, module_bytes=len(compiled.source.encode()), init_s=init_s,
                 steps=int(result.steps), steps_s=max(run_s - init_s, 0.0), success=bool(result.success),
                 energy_finite=bool(np.all(np.isfinite(result.outputs["energy"]))),
-                peak_bytes=budget.peak_memory(), estimate_bytes=budget.mesh_estimate(spec).compile_bytes)
+                peak_bytes=max(budget.peak_memory(), phases.peak if phases is not None else 0),
+                estimate_bytes=budget.mesh_estimate(spec).compile_bytes,
+                **({"phases": phases.rows} if phases is not None else {}))
 
 
 def large_rows(kind: str, sizes) -> list[dict]:
@@ -234,10 +290,13 @@ def main(argv=None) -> None:
                         help="element counts of models/euler_bernoulli_beam.yaml run with IDA (`phc simulate`)")
     parser.add_argument("--ida-t-end", type=float, default=IDA_T_END, help="simulated time of the IDA runs [s]")
     parser.add_argument("--out", default="beam_scale.md", help="Markdown file the tables are written to")
-    parser.add_argument("--measure", nargs=2, metavar=("KIND", "N"), help=argparse.SUPPRESS)
+    parser.add_argument("--measure", nargs=2, metavar=("KIND", "N"),
+                        help="measure one size of `string` or `eb` in this process and print it as JSON")
+    parser.add_argument("--phases", action="store_true",
+                        help="with --measure: each pass's CPU seconds and peak resident memory (Linux)")
     args = parser.parse_args(argv)
     if args.measure:
-        print(json.dumps(measure_large(args.measure[0], int(args.measure[1]))))
+        print(json.dumps(measure_large(args.measure[0], int(args.measure[1]), Phases() if args.phases else None)))
         return
     lines = beam_table(args.elements) if args.elements else []
     large = large_rows("string", args.string_elements or []) + large_rows("eb", args.eb_elements or [])

@@ -306,6 +306,17 @@ def unsupported(expr, known: set) -> Optional[str]:
     return None
 
 
+class _Labels:
+    """``index -> label`` of a function's entries, read from its sequence of labels when asked
+    (no dictionary of every entry: a mesh's Jacobian has millions)."""
+
+    def __init__(self, labels) -> None:
+        self._labels = labels
+
+    def get(self, index, default=None):
+        return self._labels[index] if isinstance(index, (int, np.integer)) and 0 <= index < len(self._labels) else default
+
+
 class CPrinter:
     """Prints the C file of a model (see the module docstring)."""
 
@@ -452,7 +463,7 @@ class CPrinter:
         parts = []
         for f in function_kernels(ir):  # what each function computes (phc.codegen.kernels)
             args = self._HEADS[f.args]
-            labels = dict(enumerate(f.labels))
+            labels = _Labels(f.labels)
             if f.returns == "scalar":  # the value returned, computed in a local vector of one entry
                 parts.append(self.function(f.name, f"double phc_{f.name}({args})", self._DOCS[f.name], f.kernel,
                                            labels, local_out=1, tail=["return out[0];"]))

@@ -12,6 +12,7 @@ NumPy idioms (one fused sparse matrix per derivative, scipy's products).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from collections.abc import Sequence
 from typing import Optional
 
 import scipy.sparse as sps
@@ -105,6 +106,23 @@ class FunctionKernel:
     """A name for each entry (the equation, Jacobian entry, output...), for comments."""
 
 
+class JacobianLabels(Sequence):
+    """``d(row)/d(variable)`` of each Jacobian entry, made when read (a comment names the few
+    entries a function writes; a mesh of 10⁵ elements has 5.4·10⁶ entries)."""
+
+    def __init__(self, ir: ResidualIR) -> None:
+        self._ir = ir
+
+    def __len__(self) -> int:
+        return len(self._ir.jac_rows)
+
+    def __getitem__(self, k):
+        if isinstance(k, slice):
+            return tuple(self[i] for i in range(*k.indices(len(self))))
+        ir = self._ir
+        return f"d({ir.equation_labels[int(ir.jac_rows[k])]})/d({ir.variables[int(ir.jac_cols[k])]})"
+
+
 def function_kernels(ir: ResidualIR) -> list[FunctionKernel]:
     """The kernels of ``residual``, ``residual_t``, ``jacobian``, ``hamiltonian``,
     ``energy_scale``, ``powers``, ``invariants``, ``velocity_invariants`` and ``outputs``."""
@@ -121,15 +139,18 @@ def function_kernels(ir: ResidualIR) -> list[FunctionKernel]:
                if e != 0 and e.has(T)]  # most rows of a mesh are 0 (linear blocks): no diff
     out.append(FunctionKernel("residual_t", Kernel(tuple((i, e, False) for i, e in dt_rows if e != 0)), m, True,
                               "yyp", "out", ir.equation_labels))
-    jac = [dy + CJ * dyp if dyp != 0 else dy for dy, dyp in zip(ir.jac_dy, ir.jac_dyp)]
+    # dF/dy + cj·dF/dẏ where it has a symbolic part; every other entry is 0 but for the blocks
+    jac_symbolic = [(k, dy + CJ * dyp if dyp != 0 else dy) for k, dy, dyp in ir.jac_symbolic]
     if sums:
         jac_sums = tuple(("scatter", t.pos, _canonical(t.matrix).data, t.coeff, t.derivative) for t in lin)
         jac_sums += tuple(("grad", f.matrix, f.cols, f.pos, -2 * f.coeff) for f in qd)
-        kernel = Kernel(tuple((k, e, True) for k, e in enumerate(jac) if e != 0), jac_sums)
+        kernel = Kernel(tuple((k, e, True) for k, e in jac_symbolic if e != 0), jac_sums)
     else:
+        jac = [sp.S.Zero] * njac
+        for k, e in jac_symbolic:
+            jac[k] = e
         kernel = Kernel(tuple((k, e, False) for k, e in enumerate(jac)))
-    jac_labels = tuple(f"d({ir.equation_labels[i]})/d({ir.variables[j]})" for i, j in zip(ir.jac_rows, ir.jac_cols))
-    out.append(FunctionKernel("jacobian", kernel, njac, sums, "yyp_cj", "out", jac_labels))
+    out.append(FunctionKernel("jacobian", kernel, njac, sums, "yyp_cj", "out", JacobianLabels(ir)))
     energy = Kernel(((0, ir.hamiltonian, False),), tuple(("quad", f.matrix, f.cols, f.coeff, 0, False) for f in qe))
     out.append(FunctionKernel("hamiltonian", energy, 1, False, "y", "scalar", ("H",)))
     # sp.Add(*terms): one canonicalization (Python's sum re-flattens a growing Add per term)

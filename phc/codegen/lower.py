@@ -72,8 +72,11 @@ class ResidualIR:
     jac_cols: np.ndarray
     """The Jacobian pattern in CSC order (int64, read-only): arrays, not tuples of Python ints
     (36 bytes an entry each; a beam of 10⁵ elements has 5.4·10⁶ entries)."""
-    jac_dy: tuple[sp.Expr, ...]
-    jac_dyp: tuple[sp.Expr, ...]
+    jac_symbolic: tuple[tuple[int, sp.Expr, sp.Expr], ...]
+    """The Jacobian entries with a symbolic part, as ``(k, dF/dy, dF/dẏ)`` with k their
+    position in the pattern (ascending): every other entry of (`jac_rows`, `jac_cols`) is 0
+    there and filled by the linear blocks alone (a mesh of 10⁵ elements has 5.4·10⁶ entries
+    and a few dozen of these)."""
     hamiltonian: sp.Expr
     port_power: sp.Expr
     dissipation: sp.Expr
@@ -103,6 +106,22 @@ class ResidualIR:
     common_subexpressions: dict = field(default_factory=dict, compare=False, repr=False)
     """The common subexpressions of lists of these expressions, by the list: found once for the
     NumPy module and the compiled back end's printer (:func:`phc.codegen.printer.shared_cse`)."""
+
+    @property
+    def jac_dy(self) -> tuple[sp.Expr, ...]:
+        """dF/dy at every entry of the pattern (sympy's zero where only a block fills it)."""
+        return self._full_jacobian(1)
+
+    @property
+    def jac_dyp(self) -> tuple[sp.Expr, ...]:
+        """dF/dẏ at every entry of the pattern (sympy's zero where only a block fills it)."""
+        return self._full_jacobian(2)
+
+    def _full_jacobian(self, part: int) -> tuple[sp.Expr, ...]:
+        full = [sp.S.Zero] * len(self.jac_rows)
+        for entry in self.jac_symbolic:
+            full[entry[0]] = entry[part]
+        return tuple(full)
 
 
 def _ordered_parameters(dae: Dae):
@@ -263,9 +282,10 @@ def lower_residual(dae: Dae) -> ResidualIR:
     linear_terms = tuple(
         LinearTermIR(term.coeff, A, rows, cols, term.derivative, np.searchsorted(keys, code).astype(np.int64))
         for term, A, rows, cols, code in raw_terms)
-    jac_dy, jac_dyp = [sp.S.Zero] * len(keys), [sp.S.Zero] * len(keys)  # an entry only a block fills: 0
-    for k, (dy, dyp) in zip(np.searchsorted(keys, symbolic).tolist(), entries.values()):
-        jac_dy[k], jac_dyp[k] = _sympy_zero(dy), _sympy_zero(dyp)
+    # the entries with a symbolic part only (an entry only a block fills is 0 there)
+    jac_symbolic = sorted([(k, _sympy_zero(dy), _sympy_zero(dyp))
+                           for k, (dy, dyp) in zip(np.searchsorted(keys, symbolic).tolist(), entries.values())],
+                          key=lambda entry: entry[0])
 
     def quadratic(forms, with_pos=False):
         out = []
@@ -293,8 +313,7 @@ def lower_residual(dae: Dae) -> ResidualIR:
         residual=tuple(rows_expr),
         jac_rows=_frozen(keys % m_rows),
         jac_cols=_frozen(keys // m_rows),
-        jac_dy=tuple(jac_dy),
-        jac_dyp=tuple(jac_dyp),
+        jac_symbolic=tuple(jac_symbolic),
         hamiltonian=plain(dae.hamiltonian),
         port_power=plain(dae.port_power),
         dissipation=plain(dae.dissipation),

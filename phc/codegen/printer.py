@@ -146,6 +146,42 @@ def _identifiers(prefix: str, names: Sequence[str], taken: set) -> list[str]:
     return out
 
 
+def _clean(name: str) -> str:
+    """What :func:`_identifier` makes of `name` after the prefix (before any suffix)."""
+    return _NOT_IDENTIFIER.sub("_", name.replace("[", "_").replace("]", "")).strip("_") or "v"
+
+
+class _Names(dict):
+    """Symbol -> its name in the generated code. The names of the model's variables and
+    their rates are made when first printed (``y_`` or ``yp_`` and the cleaned model name;
+    :func:`_identifiers` would give each the same, the cleaned names being distinct): a mesh's
+    functions print a few of its 10⁵-odd variables, and a name kept for each took 0.2 KiB per
+    unknown of the compile peak (issue 35)."""
+
+    def __init__(self, base: dict, variables: Sequence[str], y_slot: dict, yp_slot: dict):
+        super().__init__(base)
+        self._variables, self._y, self._yp = variables, y_slot, yp_slot
+
+    def __missing__(self, symbol):
+        j, prefix = self._y.get(symbol), "y_"
+        if j is None:
+            j, prefix = self._yp.get(symbol), "yp_"
+        if j is None:  # neither a variable nor a rate
+            raise KeyError(symbol)
+        ident = self[symbol] = prefix + _clean(self._variables[j])
+        return ident
+
+
+def _distinct_cleaned(names: Sequence[str]) -> bool:
+    """Whether :func:`_clean` of `names` are all distinct (:func:`_identifiers` adds no suffix)."""
+    joined = "\n".join(names)
+    if joined.count("\n") != max(len(names) - 1, 0):
+        return False  # a name with a line break: the caller names them one by one
+    cleaned = _NOT_IDENTIFIER_LINES.sub("_", joined.replace("[", "_").replace("]", "")).split("\n") if names else []
+    del joined
+    return len({part.strip("_") or "v" for part in cleaned}) == len(cleaned)
+
+
 PACK_LIMIT = 256
 """Arrays longer than this are printed as periodic runs and base64 of their bytes
 (:mod:`phc.codegen.packing`): a 1000-element beam's 40 000 matrix entries as float literals
@@ -155,11 +191,12 @@ take seconds for Python to compile, and a uniform mesh's stencil repeats."""
 def _array(values: Sequence, dtype: str) -> str:
     if len(values) > PACK_LIMIT and dtype in ("float", "np.int64"):
         return packing.expression(values, "<f8" if dtype == "float" else "<i8")
-    values = values.tolist() if isinstance(values, np.ndarray) else list(values)  # Python numbers' repr
     if dtype == "bool" and len(values) > PACK_LIMIT:  # run lengths: a mesh's states, then its efforts
-        starts = [0] + [k for k in range(1, len(values)) if bool(values[k]) != bool(values[k - 1])]
-        counts = [b - a for a, b in zip(starts, [*starts[1:], len(values)])]
-        return f"np.repeat(np.array({[bool(values[a]) for a in starts]!r}), {counts!r})"
+        flags = np.asarray([bool(v) for v in values] if not isinstance(values, np.ndarray) else values, dtype=bool)
+        starts = [0] + (np.flatnonzero(flags[1:] != flags[:-1]) + 1).tolist()
+        counts = [b - a for a, b in zip(starts, [*starts[1:], len(flags)])]
+        return f"np.repeat(np.array({[bool(flags[a]) for a in starts]!r}), {counts!r})"
+    values = values.tolist() if isinstance(values, np.ndarray) else list(values)  # Python numbers' repr
     body = ", ".join(repr(v) for v in values)
     return f"np.array([{body}], dtype={dtype})"
 
@@ -167,18 +204,18 @@ def _array(values: Sequence, dtype: str) -> str:
 def _fuse(terms, m: int, n: int) -> dict:
     """One sparse pattern for several linear terms: global CSR structure, each term's
     positions in it, and the Jacobian data positions of the pattern entries."""
-    rows, cols, jac, owner = [], [], [], []
-    datas = []
-    for k, t in enumerate(terms):
+    keys, datas = [], []
+    for t in terms:
         coo = t.matrix.tocoo()
-        rows.append(t.rows[coo.row])
-        cols.append(t.cols[coo.col])
-        jac.append(t.pos)
+        key = t.rows[coo.row] * n  # the entry (i, j) as i·n + j: sorted, the CSR order
+        key += t.cols[coo.col]
+        keys.append(key)
         datas.append(coo.data)
-        owner.append(np.full(len(coo.data), k))
-    r, c, j = np.concatenate(rows), np.concatenate(cols), np.concatenate(jac)
-    keys = r * n + c
+        del coo, key
+    keys = np.concatenate(keys)  # (the per-term pieces freed: a mesh's millions of entries)
     unique, first, inverse = unique_keys(keys, return_index=True, return_inverse=True)
+    del keys
+    j = np.concatenate([t.pos for t in terms])
     ur = unique // n
     indptr = np.zeros(m + 1, dtype=np.int64)
     np.add.at(indptr, ur + 1, 1)
@@ -224,8 +261,8 @@ def _table_slope(times, values, kind, t):
 
 def _sparse_constant(name: str, matrix) -> list[str]:
     m = matrix.tocsr()
-    return [f"{name} = _sps.csr_matrix(({_array(m.data.tolist(), 'float')}, "
-            f"{_array(m.indices.tolist(), 'np.int64')}, {_array(m.indptr.tolist(), 'np.int64')}), "
+    return [f"{name} = _sps.csr_matrix(({_array(m.data, 'float')}, "
+            f"{_array(m.indices, 'np.int64')}, {_array(m.indptr, 'np.int64')}), "
             f"shape={tuple(int(x) for x in m.shape)!r})"]
 
 
@@ -346,21 +383,24 @@ class ModulePrinter:
         self.ir = ir
         self._jac_symbols = None  # free symbols of the Jacobian entries (computed once)
         taken: set = set()
-        self.names: dict = {T: "t"}
         # symbol -> its position in y, yp or p, in the order of the positions; the unpacking
         # line ``name = y[j]`` is written only for the symbols a function uses (a line per
         # unknown kept here took 0.15 KiB per unknown of a mesh's compile peak, issue 35)
-        self.unpack_y = {}
-        self.unpack_yp = {}
+        n = len(ir.y_symbols)
+        self.unpack_y = dict(zip(ir.y_symbols, range(n)))
+        self.unpack_yp = {s: j for j, s in enumerate(ir.yp_symbols) if s is not None}
         self.unpack_p = {}
-        for j, (s, ident) in enumerate(zip(ir.y_symbols, _identifiers("y_", ir.variables, taken))):
-            self.names[s] = ident
-            self.unpack_y[s] = j
-        # reserved for an algebraic variable too (no rate): the same names as with one
-        for j, (s, ident) in enumerate(zip(ir.yp_symbols, _identifiers("yp_", ir.variables, taken))):
-            if s is not None:
+        if _distinct_cleaned(ir.variables):
+            # the prefixes y_, yp_ and p_ keep the three kinds of names apart: no suffix anywhere
+            self.names: dict = _Names({T: "t"}, ir.variables, self.unpack_y, self.unpack_yp)
+        else:  # some names clean to the same identifier: all named now, the later ones suffixed
+            self.names = {T: "t"}
+            for s, ident in zip(ir.y_symbols, _identifiers("y_", ir.variables, taken)):
                 self.names[s] = ident
-                self.unpack_yp[s] = j
+            # reserved for an algebraic variable too (no rate): the same names as with one
+            for s, ident in zip(ir.yp_symbols, _identifiers("yp_", ir.variables, taken)):
+                if s is not None:
+                    self.names[s] = ident
         for j, (s, name) in enumerate(zip(ir.p_symbols, ir.parameters)):
             self.names[s] = _identifier("p_", name, taken)
             self.unpack_p[s] = j
@@ -428,8 +468,8 @@ class ModulePrinter:
         used = self._jac_symbols
         if used is None:
             used = set()
-            for e in itertools.chain(self.ir.jac_dy, self.ir.jac_dyp):
-                # numbers (most entries of a mesh, mostly the zero) have none
+            for e in itertools.chain.from_iterable(entry[1:] for entry in self.ir.jac_symbolic):
+                # numbers have none (the entries only a block fills are not among these)
                 if e is not _ZERO and not getattr(e, "is_Number", True):
                     used |= e.free_symbols
             self._jac_symbols = used
@@ -625,18 +665,18 @@ class ModulePrinter:
                 continue
             fused = _fuse(terms, len(ir.residual), n)
             self.fused[wrt] = (terms, fused)
-            sparse_consts += [f"_L{wrt}_INDPTR = {_array(fused['indptr'].tolist(), 'np.int64')}",
-                              f"_L{wrt}_INDICES = {_array(fused['indices'].tolist(), 'np.int64')}",
-                              f"_L{wrt}_JAC = {_array(fused['jac'].tolist(), 'np.int64')}"]
+            sparse_consts += [f"_L{wrt}_INDPTR = {_array(fused['indptr'], 'np.int64')}",
+                              f"_L{wrt}_INDICES = {_array(fused['indices'], 'np.int64')}",
+                              f"_L{wrt}_JAC = {_array(fused['jac'], 'np.int64')}"]
             for k, (pos, data) in enumerate(zip(fused["pos"], fused["data"])):
-                sparse_consts += [f"_L{wrt}{k}_POS = {_array(pos.tolist(), 'np.int64')}",
-                                  f"_L{wrt}{k}_DATA = {_array(data.tolist(), 'float')}"]
+                sparse_consts += [f"_L{wrt}{k}_POS = {_array(pos, 'np.int64')}",
+                                  f"_L{wrt}{k}_DATA = {_array(data, 'float')}"]
         for prefix, forms in (("QE", ir.quadratic_energy), ("QD", ir.quadratic_dissipation)):
             for k, f in enumerate(forms):
                 sparse_consts += _sparse_constant(f"_{prefix}{k}", f.matrix)
-                sparse_consts.append(f"_{prefix}{k}_COLS = {_array(f.cols.tolist(), 'np.int64')}")
+                sparse_consts.append(f"_{prefix}{k}_COLS = {_array(f.cols, 'np.int64')}")
                 if f.pos is not None:
-                    sparse_consts.append(f"_{prefix}{k}_POS = {_array(f.pos.tolist(), 'np.int64')}")
+                    sparse_consts.append(f"_{prefix}{k}_POS = {_array(f.pos, 'np.int64')}")
         if sparse_consts:
             parts[1] = parts[1].replace("import numpy as np\n", "import numpy as np\nimport scipy.sparse as _sps\n"
                                         "from scipy.linalg.blas import daxpy as _daxpy\n", 1)
@@ -684,11 +724,12 @@ class ModulePrinter:
         parts.append(self._function(
             "residual_t(t, y, yp, p, out)", "Explicit time derivative dF/dt (consistent initialization).",
             [e for _, e in dt_rows], [f"out[{i}]" for i, _ in dt_rows], prologue=["out[:] = 0.0"]))
-        jac = [dy + sp.Symbol("cj") * dyp if _nonzero(dyp) else dy for dy, dyp in zip(ir.jac_dy, ir.jac_dyp)]
+        # dF/dy + cj·dF/dẏ at the entries with a symbolic part (the others are 0 but for the blocks)
+        jac_symbolic = [(k, dy + sp.Symbol("cj") * dyp if _nonzero(dyp) else dy) for k, dy, dyp in ir.jac_symbolic]
         self.names[sp.Symbol("cj")] = "cj"
         jdoc = "Data of dF/dy + cj*dF/dyp in CSC order of (JAC_ROWS, JAC_COLS), written into `out`."
         if lin or qd_coeffs:
-            nz = [(k, e) for k, e in enumerate(jac) if _nonzero(e)]
+            nz = [(k, e) for k, e in jac_symbolic if _nonzero(e)]
             prologue = (["_AY, _AYP, _JY, _JYP = _linear(p)", "out[:] = _JY", "_axpy(cj, _JYP, out)"] if lin
                         else ["out[:] = 0.0"])
             self.accumulate = {f"out[{k}]" for k, _ in nz}
@@ -697,6 +738,9 @@ class ModulePrinter:
                 [f"out[{k}]" for k, _ in nz] + qd_targets, prologue=prologue, epilogue=qd_jac))
             self.accumulate = set()
         else:
+            jac = [_ZERO] * len(ir.jac_rows)
+            for k, e in jac_symbolic:
+                jac[k] = e
             parts.append(self._function("jacobian(t, y, yp, p, cj, out)", jdoc, jac,
                                         [f"out[{k}]" for k in range(len(jac))]))
         self.bulk = False

@@ -94,7 +94,11 @@ about 0.9 KiB per name of VARIABLES, ROLES and EQUATIONS); 4 KiB until measured 
 10⁵ elements replaced the growth from 10³ to 10⁴ as the fit; 3 KiB until sympy's symbol
 constructor (0.8 KiB and its assumption work per symbol) and the Jacobian pattern as tuples
 of Python ints (72 bytes a nonzero) left the compile (issue 35: the peaks were 1 736 and
-3 530 MiB)."""
+3 530 MiB). Kept when the run's start left out its copies (issue 35: the lowered system's
+symbolic Jacobian entries only, consistent initialization without a Newton matrix at a
+consistent start; the same command with ``--phases``): 1 309 and 2 494 MiB, estimated 1.12 and
+1.21 times that, the beam's peak in its run (the iteration matrix's sparse LUs on top of what
+the compilation keeps)."""
 BYTES_PER_NONZERO = 144
 """Compile peak per Jacobian nonzero (see :data:`BYTES_PER_UNKNOWN`; it was 640 bytes, then 256
 until the Jacobian pattern became arrays)."""

@@ -466,12 +466,15 @@ def _setup_error(err: ModelEvaluationError, params: Optional[dict]) -> Exception
 def _locator(compiled) -> Callable[[str, str], Optional[str]]:
     """``locate(kind, label) -> "file:line"`` for equations, invariants and outputs (best effort)."""
     desc = compiled.description
-    spans = {("equation", eq.label): eq.span for eq in desc.equations if eq.span is not None}
-    for inv in desc.invariants + desc.velocity_invariants:
-        if inv.span is not None:
-            spans[("invariant", inv.label)] = inv.span
+    spans: dict = {}  # made on the first call (a message about a failure): a mesh has 10⁵-odd rows
 
     def locate(kind: str, label: str) -> Optional[str]:
+        if not spans:
+            spans.update({("equation", eq.label): eq.span for eq in desc.equations if eq.span is not None})
+            for inv in desc.invariants + desc.velocity_invariants:
+                if inv.span is not None:
+                    spans[("invariant", inv.label)] = inv.span
+            spans[None] = None  # made (a model may have no located row)
         span = spans.get((kind, label))
         if span is None and kind == "output":
             span = desc.output_spans.get(label)

@@ -102,30 +102,51 @@ class _Problem:
         self.buf = np.zeros(len(self.rows))
         diff = np.asarray(mod.DIFFERENTIAL, dtype=bool)
         self.dif = np.flatnonzero(diff)
-        self.free = np.array([j for j in range(n) if j not in fixed], dtype=np.int64)
+        held = np.zeros(n, dtype=bool)
+        held[np.fromiter(fixed, dtype=np.int64, count=len(fixed))] = True
+        self.free = np.flatnonzero(~held)  # ascending, as the held indices are not
         self.y = y.copy()
         self.yp = np.zeros(n)
         if like is not None:
-            self.start_jacobian, self.row_scale, self.kept = like.start_jacobian, like.row_scale, like.kept
+            self.row_scale, self.kept = like.row_scale, like.kept
             self.zc, self.wc = like.zc, like.wc
         else:
-            jy, jyp = self.start_jacobian = self.split(self.y, self.yp)
+            # on the module's flat Jacobian data (no sparse matrices beside it: a mesh of 10⁵
+            # elements has 5·10⁶ entries)
+            jy, jyp = self._jac_data(self.y, self.yp)
+            rows, cols = self.rows, self.cols
             # Row equilibration: Hermite slope rows of a beam scale like h³; without it their
             # residuals look tiny while the states they determine are still off (and IDA's
             # first error test then sees a jump).
-            mags = np.maximum(np.asarray(abs(jy).multiply(self.s[None, :]).max(axis=1).todense()).ravel(),
-                              np.asarray(abs(jyp).multiply(self.s[None, :]).max(axis=1).todense()).ravel())
+            mags = np.zeros(self.m)
+            np.maximum.at(mags, rows, np.abs(jy) * self.s[cols])
+            np.maximum.at(mags, rows, np.abs(jyp) * self.s[cols])
             self.row_scale = np.where(mags > 0, 1.0 / np.where(mags > 0, mags, 1.0), 1.0)
-            self.kept = self._kept_rows(jyp)
-            sub_y, sub_yp = jy[self.kept], jyp[self.kept]
-            self.zc = np.flatnonzero(~diff & (np.asarray(abs(sub_y).sum(axis=0)).ravel() > 0))
-            self.wc = np.flatnonzero(diff & (np.asarray(abs(sub_yp).sum(axis=0)).ravel() > 0))
+            del mags
+            nz = np.flatnonzero(jyp != 0)  # the pattern of F_ẏ (what the matching reads of it)
+            self.kept = self._kept_rows(sps.csc_matrix((jyp[nz], (rows[nz], cols[nz])), shape=(self.m, n)))
+            del nz
+            in_kept = np.zeros(self.m, dtype=bool)
+            in_kept[self.kept] = True
+            sel = np.flatnonzero(in_kept[rows])
+            # columns with an entry of nonzero magnitude in a kept row (the sums are of
+            # magnitudes: NaN stays NaN, which is not > 0, in any order of summation)
+            used_y = np.bincount(cols[sel], weights=np.abs(jy[sel]), minlength=n) > 0
+            used_yp = np.bincount(cols[sel], weights=np.abs(jyp[sel]), minlength=n) > 0
+            self.zc = np.flatnonzero(~diff & used_y)
+            self.wc = np.flatnonzero(diff & used_yp)
+            del jy, jyp, sel
         self.z = np.zeros(n)
         self.w = np.zeros(n)
-        depends_y = set(np.asarray(getattr(mod, "JAC_DEPENDS_ON_Y", range(n))).tolist())
-        depends_yp = set(np.asarray(getattr(mod, "JAC_DEPENDS_ON_YP", range(n))).tolist())
-        self.fd_y = [j for j in self.free if j in depends_y] if len(self.kept) else []
-        self.fd_yp = [j for j in self.dif if j in depends_yp] if len(self.kept) else []
+        # the columns whose Jacobian entries vary, among the free states and the rates (as
+        # arrays: a mesh of 10⁵ elements has 8·10⁵ unknowns, none of them varying)
+        depends_y = np.zeros(n, dtype=bool)
+        depends_y[np.asarray(getattr(mod, "JAC_DEPENDS_ON_Y", np.arange(n)), dtype=np.int64)] = True
+        depends_yp = np.zeros(n, dtype=bool)
+        depends_yp[np.asarray(getattr(mod, "JAC_DEPENDS_ON_YP", np.arange(n)), dtype=np.int64)] = True
+        none = np.zeros(0, dtype=np.int64)
+        self.fd_y = self.free[depends_y[self.free]] if len(self.kept) else none
+        self.fd_yp = self.dif[depends_yp[self.dif]] if len(self.kept) else none
         s = self.s  # a step of one nominal scale costs the same in every variable
         weights = np.concatenate([np.where(diff[self.free], 1.0, CHEAP) * s[self.free], CHEAP * s[self.dif],
                                   CHEAP * s[self.zc], CHEAP * s[self.wc]])
@@ -144,10 +165,24 @@ class _Problem:
             self.C = sps.csr_matrix((0, n))
             self.c = np.zeros(0)
         self._prepared = False  # _prepare() on first use: a hopeless stage never needs it
+        self._d_ent = None  # _prepare_d() on the first evaluation of D: a start that is
+        # already consistent (a mesh at rest) never needs the Jacobian's structure
         self.solver = LeastNorm()  # the Newton steps' least-norm solves (one rank decision)
 
+    def _prepare_d(self):
+        """Index arrays for evaluating D, built once: D's entries in CSR order (row, then
+        column), so the sums of jy[k] @ ẏ and jyp[k] @ w are accumulated in the order of a
+        CSR mat-vec."""
+        rows, cols = self.rows, self.cols
+        kpos = np.full(self.m, -1, dtype=np.int64)
+        kpos[self.kept] = np.arange(len(self.kept))
+        d_ent = np.flatnonzero(kpos[rows] >= 0)
+        d_ent = d_ent[np.lexsort((cols[d_ent], rows[d_ent]))]  # only the kept rows' entries sorted
+        self._d_ent, self._d_row, self._d_col = d_ent, kpos[rows[d_ent]], cols[d_ent]
+
     def _prepare(self):
-        """Index arrays for evaluating D and assembling the Jacobian of G, built once.
+        """Index arrays for assembling the Jacobian of G, built once (on the first Newton
+        step: a consistent start needs none).
 
         Every evaluation then works on the flat Jacobian data of the module (no sparse
         matrices are built per call), and the finite-difference columns of dD/dy and
@@ -167,11 +202,8 @@ class _Problem:
             return out
 
         pf, pd, pz, pw = position(self.free), position(self.dif), position(self.zc), position(self.wc)
-        # D's entries in CSR order (row, then column): the sums of jy[k] @ ẏ and jyp[k] @ w
-        # are accumulated in the order of a CSR mat-vec.
-        order = np.lexsort((cols, rows))
-        d_ent = order[kpos[rows[order]] >= 0]
-        self._d_ent, self._d_row, self._d_col = d_ent, kpos[rows[d_ent]], cols[d_ent]
+        if self._d_ent is None:
+            self._prepare_d()
         fd_yp = np.zeros(n, dtype=bool)
         fd_yp[np.asarray(self.fd_yp, dtype=np.int64)] = True
         # Exact blocks of J = [F; D; C] (before row scaling): (Jacobian entries, y or ẏ part,
@@ -246,17 +278,6 @@ class _Problem:
         jy = self.buf.copy()
         mod.jacobian(self.t0, y, yp, self.p, 1.0, self.buf)
         return jy, self.buf - jy
-
-    def split(self, y, yp):
-        """(F_y, F_ẏ) as sparse CSC matrices."""
-        mod = self.mod
-        shape = (self.m, mod.N)
-        mod.jacobian(self.t0, y, yp, self.p, 0.0, self.buf)
-        jy = self.buf.copy()
-        mod.jacobian(self.t0, y, yp, self.p, 1.0, self.buf)
-        jyp = self.buf - jy
-        return (sps.csc_matrix((jy, (self.rows, self.cols)), shape=shape).tocsr(),
-                sps.csc_matrix((jyp, (self.rows, self.cols)), shape=shape).tocsr())
 
     def _kept_rows(self, jyp) -> np.ndarray:
         """Rows whose time derivative carries information (not absorbed by a private ÿ)."""
@@ -435,8 +456,8 @@ class _Problem:
         `jy`, `jyp`: the data of `_jac_data(y, yp)` if already at hand."""
         if not len(self.kept):
             return np.zeros(0)
-        if not self._prepared:
-            self._prepare()
+        if self._d_ent is None:
+            self._prepare_d()
         if jy is None:
             jy, jyp = self._jac_data(y, yp)
         ydot = z.copy()

@@ -57,6 +57,7 @@ How ``s`` is found, in this order (docs/tolerances.md):
 from __future__ import annotations
 
 import hashlib
+import itertools
 import re
 import weakref
 from typing import Mapping, Optional
@@ -224,10 +225,19 @@ def kind_groups(names) -> list[np.ndarray]:
     joined = "\0".join(names)
     kinds = (_INDEX.sub("", joined).split("\0") if names and joined.count("\0") == len(names) - 1
              else [kind_of(name) for name in names])  # a name holding the separator: one by one
-    groups: dict[str, list[int]] = {}
-    for j, kind in enumerate(kinds):
-        groups.setdefault(kind, []).append(j)
-    return [np.array(members) for members in groups.values() if len(members) > 1]
+    # runs of one kind (a mesh's vector is one run), grouped by kind: Python work per run, not
+    # per name (itertools.groupby walks the names in C)
+    groups: dict[str, list[tuple[int, int]]] = {}
+    start = 0
+    for kind, run in itertools.groupby(kinds):
+        count = len(list(run))
+        groups.setdefault(kind, []).append((start, count))
+        start += count
+    out = []
+    for runs in groups.values():
+        if sum(count for _, count in runs) > 1:
+            out.append(np.concatenate([np.arange(first, first + count) for first, count in runs]))
+    return out
 
 
 def _jacobian_entries(mod, p, t, y, yp, cj):
@@ -624,9 +634,11 @@ def nominal_indices(mod, nominal: Optional[Mapping[str, float]]) -> dict[int, fl
     raises :class:`~phc.errors.SimulationSetupError`."""
     from phc.errors import SimulationSetupError
 
+    if not nominal:
+        return {}
     index = {name: j for j, name in enumerate(mod.VARIABLES)}
     out = {}
-    for name, value in (nominal or {}).items():
+    for name, value in nominal.items():
         if name not in index or not mod.DIFFERENTIAL[index[name]]:
             raise SimulationSetupError(f"nominal scale: `{name}` is not a state of the model")
         value = float(value)
