@@ -6,29 +6,27 @@ ends, and the constraint forces (the multipliers' impulses) act there. At the st
 momenta along the constraint forces are therefore free to alternate: ``p_n = p̃_n + (−1)ⁿ a`` with
 ``a`` along the constraint forces leaves every step's mean, and so the configuration, the velocity
 constraints and the motion, as they are, carried by a multiplier alternating about its midpoint
-value. In a regular run ``a`` is of the order of the method's error; a rank drop of the position
-constraints excites it (the redundant multiplier's impulse is not determined at the singular
+value. A rank drop of the position constraints excites it (the redundant multiplier's impulse is not determined at the singular
 configuration): at the N four-bar's first horizontal pass, ``midpoint4`` at h = 1e-4 left
 ``a`` = 2.1e-4 kg m²/s along (1, −1, −1/2) in (crank 0's, crank 1's, the coupler's angular
 momentum) — the momentum of the other branch of the motion, (1, −1, −2) in (θ₀, θ₁, φ), a
 constraint force at every configuration of the parallelogram branch but the horizontal ones —
 and it stays for the rest of the run, the same size whatever the step. One step (three
 substeps) flips its sign and two half steps (six) do not, so their comparison sees ``2a``: 0.16
-of the step's change at h = 1e-4, and more at smaller steps, whose change is smaller
+to 0.45 of the step's change at h = 1e-4, and more at smaller steps, whose change is smaller
 (docs/hard-cases.md).
 
 :func:`force_directions` gives, in the differential variables, the directions the multipliers'
 impulses move: ``E⁻¹ F_z`` for the multipliers z (the algebraic variables the algebraic rows do
 not determine, :func:`phc.simulation.tested.determined_algebraic`: the connections' efforts and
 the GGL multipliers, which only the constraints' derivatives determine), ``E = ∂F/∂ẏ`` on the
-differential rows and columns, at the step's midpoint. The configuration variables (those the position constraints depend on) are left out of
-them: the configuration is compared in full. The directions are the constraint forces at the step,
-the weak one next to a rank drop included (no singular value is dropped from the fit).
+differential rows and columns, at the step's midpoint. The configuration variables (those the
+position constraints depend on) are left out of them: the configuration is compared in full. The
+directions are the constraint forces at the step, the weak one next to a rank drop included (no
+singular value is dropped from the fit).
 
 Reference for redundant and singular constraints: J. García de Jalón, E. Bayo, "Kinematic and
-Dynamic Simulation of Multibody Systems", Springer 1994; for the midpoint rule's end values on a
-constrained system, E. Hairer, C. Lubich, M. Roche, "The Numerical Solution of
-Differential-Algebraic Systems by Runge–Kutta Methods", Springer LNM 1409, 1989.
+Dynamic Simulation of Multibody Systems", Springer 1994.
 """
 
 from __future__ import annotations
