@@ -597,7 +597,7 @@ def make_projector(mod, p, y, t=0.0, scales=None):
 
 
 def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, advance, name, project=True,
-                         names=None, events=None, scales=None):
+                         names=None, events=None, scales=None, determined=True):
     """Fixed-step driver shared by the structure-preserving backends.
 
     ``advance(t, h, y, guess) -> (y1, ok, reason)`` takes one step. Output at every
@@ -617,7 +617,11 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
     The routine bookkeeping of a step — the output grid and its substeps, the predicted midpoint
     that starts Newton, when the monitor looks, the acceptance — is
     :mod:`phc.simulation.step_logic`'s (``next_step``, ``predict``, ``looks``, ``accept``), the code
-    the compiled loop's chunk runs; what is left here is what that chunk hands back."""
+    the compiled loop's chunk runs; what is left here is what that chunk hands back.
+
+    `determined` (the default): a passage of a rank drop is judged with the run's rate before the
+    step (:func:`passes_rank_drop`, :func:`finish_step`); False: by the plain comparison of one step
+    and two half steps (the IDA bridge's, :mod:`phc.simulation.ida_bridge`)."""
     sl = step_logic
     n = mod.N
     t_out = np.asarray(t_out, dtype=float)
@@ -663,7 +667,7 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
             if look:
                 ist[sl._LAST_LOOK] = ist[sl._STEPS]
             y_new, retried, failure, passed = finish_step(advance, monitor, mod, name, t, h, y, y_new, converged,
-                                                          reason, hard, look, mid_slope, rank_drops)
+                                                          reason, hard, look, mid_slope, rank_drops, determined)
             split += retried
             if passed:
                 ist[sl._LAST_LOOK] = ist[sl._STEPS] - LOOK_GAP  # look at the passage's next hard step too
@@ -737,7 +741,7 @@ step whose halves take another branch of the motion, or fail, differs by O(1).""
 
 
 def finish_step(advance, monitor, mod, name, t, h, y, y_new, converged, reason, hard, look, mid_slope,
-                rank_drops):
+                rank_drops, determined=True):
     """What the fixed-step loops (this module's and the compiled loops' driver,
     :func:`phc.simulation.compiled_steps.integrate`, for a step a chunk hands back) do after a
     step from (t, y) of size h to `y_new`, Newton's outcome `converged` (with `reason` when
@@ -763,9 +767,10 @@ def finish_step(advance, monitor, mod, name, t, h, y, y_new, converged, reason, 
         warning = monitor.check(t, y, (y_new - y) / h if converged else mid_slope, 0.5 * h, limit)
         if warning is None and converged and hard:
             warning = monitor.check(t + h, y_new, (y_new - y) / h, 0.5 * h, limit)
-        if warning and converged and passed_rank_drop(monitor, advance, mod, t, h, y, y_new, rank_drops, mid_slope):
+        slope = mid_slope if determined else None
+        if warning and converged and passed_rank_drop(monitor, advance, mod, t, h, y, y_new, rank_drops, slope):
             warning, passed = None, True  # a rank drop of the position constraints that the motion passes: go on
-        elif warning and monitor.positional:
+        elif warning and monitor.positional and determined:
             # the step may have converged on another solution of its equations (or failed) from a start
             # that carried the passage's undetermined multiplier: solved again from least-norm multipliers
             y_again = _least_norm_start_step(advance, mod, t, h, y, mid_slope)
@@ -860,29 +865,38 @@ def passes_rank_drop(advance, mod, t, h, y, y_new, p=None, slope=None) -> bool:
     changes it by the method's error. Where the motion itself is undetermined or leaves the
     constraint manifold's smooth part, the half steps fail or go elsewhere.
 
-    The half steps start their algebraic variables at the step's midpoint values (the mean of
-    its ends): a midpoint step's algebraic variables are unknowns inside the step, and their end
+    Given the rate (below), the half steps start their algebraic variables at the step's midpoint
+    values (the mean of its ends): a midpoint step's algebraic variables are unknowns inside the step, and their end
     values, which oscillate about the midpoint values, are no start after a passage (they carry
     the undetermined multiplier in full, ±9e8 N after the N four-bar's first one, and from the
     line between the ends the four-bar's first half step converged on another solution of its
     equations, crank 0's momentum −1.652 → −1.872 kg m²/s, docs/hard-cases.md).
 
     With the parameters `p` and the run's rate before the step, `slope` (ẏ between the last two
-    step midpoints), the step must first continue the motion (:data:`RANK_DROP_JUMP`), and a step
-    whose halves disagree is judged once more on the state the midpoint rule determines
-    (:func:`_determined_agree`)."""
+    step midpoints), the step must first continue the motion (:data:`RANK_DROP_JUMP`), the halves
+    start as said above, and a step whose halves disagree is judged once more on the state the
+    midpoint rule determines (:func:`_determined_agree`). Without them the comparison is the plain
+    one, from the line between the step's ends (the IDA bridge's, :mod:`phc.simulation.ida_bridge`:
+    with the rest, at N = 10 one passage event came 0.025 s before the singular instant; not
+    traced)."""
     diff = np.asarray(mod.DIFFERENTIAL, dtype=bool)
     found = None
-    if p is not None and slope is not None:
-        rate = float(np.abs(np.asarray(slope, dtype=float))[diff].max(initial=0.0))
-        moved = float(np.abs(y_new - y)[diff].max(initial=0.0))
-        if rate > 0 and not moved <= RANK_DROP_JUMP * h * rate:  # (at rest before the step: no scale)
-            found = undetermined.force_directions(mod, p, t, h, y, y_new, constraint_rows(mod))
-            if found is None:
-                return False
-            moved = float(np.abs(undetermined.without(np.where(diff, y_new - y, 0.0), found)).max(initial=0.0))
-            if not (np.isfinite(moved) and moved <= RANK_DROP_JUMP * h * rate):
-                return False  # not the motion: the state is continuous through a rank drop it passes
+    if p is None or slope is None:  # the comparison as it was (the IDA bridge's, ida_bridge.bridge)
+        y_a, ok, _ = advance(t, 0.5 * h, y, 0.5 * (y + y_new))
+        if ok:
+            y_b, ok, _ = advance(t + 0.5 * h, 0.5 * h, y_a, y_new.copy())
+        change = float(np.abs(y_new - y)[diff].max(initial=0.0))
+        gap = float(np.abs(y_b - y_new)[diff].max(initial=0.0)) if ok else np.inf
+        return bool(np.isfinite(gap)) and gap <= RANK_DROP_AGREEMENT * change
+    rate = float(np.abs(np.asarray(slope, dtype=float))[diff].max(initial=0.0))
+    moved = float(np.abs(y_new - y)[diff].max(initial=0.0))
+    if rate > 0 and not moved <= RANK_DROP_JUMP * h * rate:  # (at rest before the step: no scale)
+        found = undetermined.force_directions(mod, p, t, h, y, y_new, constraint_rows(mod))
+        if found is None:
+            return False
+        moved = float(np.abs(undetermined.without(np.where(diff, y_new - y, 0.0), found)).max(initial=0.0))
+        if not (np.isfinite(moved) and moved <= RANK_DROP_JUMP * h * rate):
+            return False  # not the motion: the state is continuous through a rank drop it passes
     half = 0.5 * h
     y_a, ok, _ = advance(t, half, y, np.where(diff, 0.5 * (y + y_new), y_new))
     if not ok:
