@@ -770,14 +770,13 @@ def finish_step(advance, monitor, mod, name, t, h, y, y_new, converged, reason, 
         slope = mid_slope if determined else None
         if warning and converged and passed_rank_drop(monitor, advance, mod, t, h, y, y_new, rank_drops, slope):
             warning, passed = None, True  # a rank drop of the position constraints that the motion passes: go on
-        elif warning and monitor.positional and determined:
+        elif warning and monitor.positional and determined and (
+                again := _least_norm_start_step(advance, mod, t, h, y, mid_slope)) is not None and passed_rank_drop(
+                    monitor, advance, mod, t, h, y, again, rank_drops, mid_slope):
             # the step may have converged on another solution of its equations (or failed) from a start
             # that carried the passage's undetermined multiplier: solved again from least-norm multipliers
-            y_again = _least_norm_start_step(advance, mod, t, h, y, mid_slope)
-            if y_again is not None and passed_rank_drop(monitor, advance, mod, t, h, y, y_again, rank_drops,
-                                                        mid_slope):
-                y_new, warning, passed = y_again, None, True
-                retried, converged = retried or not converged, True
+            y_new, warning, passed = again, None, True
+            retried, converged = retried or not converged, True
         elif (warning and converged and hard and monitor.last_ratio >= monitor.threshold
               and passes_rank_drop(advance, mod, t, h, y, y_new)):
             # the looser threshold flagged a step Newton struggled with, but the iteration matrix is
