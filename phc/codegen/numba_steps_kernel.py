@@ -309,7 +309,8 @@ def _advance(ws, t, h, y, guess, out):
                                                                         out)
         _copy(y1, out)  # the Python code takes a step no point balances (split, midpoint fallback)
     else:
-        code, ill, nhist = _midpoint4_step(powers, escale, ws, c, t, h, y, guess, p, out, hist_t, hist_v, ist[_HIST])
+        code, ill, nhist = _midpoint4_step(powers, escale, ws, c, t, h, y, guess, p, out, hist_t, hist_v, ist[_HIST],
+                                           ws[14])
         ist[_HIST] = nhist
     return code, ill
 

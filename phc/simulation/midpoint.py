@@ -40,7 +40,7 @@ import numpy as np
 import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 
-from phc.simulation import step_logic
+from phc.simulation import step_logic, undetermined
 from phc.simulation.backend import BackendRun
 from phc.simulation.chord import ChordIteration, max_norm
 from phc.simulation.guard import ModelEvaluationError
@@ -605,7 +605,7 @@ def make_projector(mod, p, y, t=0.0, scales=None):
 
 
 def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, advance, name, project=True,
-                         names=None, events=None, scales=None):
+                         names=None, events=None, scales=None, determined=True):
     """Fixed-step driver shared by the structure-preserving backends.
 
     ``advance(t, h, y, guess) -> (y1, ok, reason)`` takes one step. Output at every
@@ -625,7 +625,11 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
     The routine bookkeeping of a step — the output grid and its substeps, the predicted midpoint
     that starts Newton, when the monitor looks, the acceptance — is
     :mod:`phc.simulation.step_logic`'s (``next_step``, ``predict``, ``looks``, ``accept``), the code
-    the compiled loop's chunk runs; what is left here is what that chunk hands back."""
+    the compiled loop's chunk runs; what is left here is what that chunk hands back.
+
+    `determined` (the default): a passage of a rank drop is judged with the run's rate before the
+    step (:func:`passes_rank_drop`, :func:`finish_step`); False: by the plain comparison of one step
+    and two half steps (the IDA bridge's, :mod:`phc.simulation.ida_bridge`)."""
     sl = step_logic
     n = mod.N
     t_out = np.asarray(t_out, dtype=float)
@@ -671,7 +675,7 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
             if look:
                 ist[sl._LAST_LOOK] = ist[sl._STEPS]
             y_new, retried, failure, passed = finish_step(advance, monitor, mod, name, t, h, y, y_new, converged,
-                                                          reason, hard, look, mid_slope, rank_drops)
+                                                          reason, hard, look, mid_slope, rank_drops, determined)
             split += retried
             if passed:
                 ist[sl._LAST_LOOK] = ist[sl._STEPS] - LOOK_GAP  # look at the passage's next hard step too
@@ -718,6 +722,24 @@ ways after such a step (``midpoint4`` at h = 2.5e-4, in a trial that compared th
 alone, docs/hard-cases.md)."""
 RANK_DROP_GAP = 100
 """Looks at a rank drop less than this many steps apart are one passage."""
+RANK_DROP_JUMP = 10.0
+"""A step at a passage (:func:`passes_rank_drop`, given the rate before it) continues the motion
+when no differential variable changes by more than this many times the largest change that rate
+gives, the momenta along the constraint forces left out where that decides (they alternate,
+:func:`_determined_agree`): the state is continuous through a rank drop the motion passes, a
+step of it changes by h times the rate and the method's error. The equations of a step next to the singular instant have other solutions,
+and a step and its halves can find the same one (in a trial, ``midpoint4`` at h = 1e-4 reversed
+the N four-bar's motion, the coupler's vertical momentum −4.95 → +4.95 kg m/s, a change 400 times
+the rate's, and its halves agreed on it to 0.05 of that change). The steps the four-bar's runs
+keep change by at most 0.8 times that bound."""
+RANK_DROP_DETERMINED = 0.01
+"""Passing a rank drop on the state the midpoint rule determines (:func:`_determined_agree`): one
+step and two half steps must agree on it to this fraction of the step's change there. With the
+momenta along the constraint forces left out, the N four-bar's halves agree to 1.8e-3 of the
+change or better at its passages (``midpoint4``, h = 1e-4, 10 s: at most 2e-5 but next to the
+singular instants), and a step Newton solved onto another solution of its equations there was
+0.13 off; the folding slider–crank's halves disagree by 0.2 (``midpoint``, h = 1e-5, in the rod's
+bending momenta), a motion that does not continue through its rank drop."""
 RANK_DROP_AGREEMENT = 0.1
 """Passing a rank drop: one step and two half steps must agree on the states' change to this
 fraction of it. Away from it the midpoint rule's local error is O(h³) against a change O(h)
@@ -727,7 +749,7 @@ step whose halves take another branch of the motion, or fail, differs by O(1).""
 
 
 def finish_step(advance, monitor, mod, name, t, h, y, y_new, converged, reason, hard, look, mid_slope,
-                rank_drops):
+                rank_drops, determined=True):
     """What the fixed-step loops (this module's and the compiled loops' driver,
     :func:`phc.simulation.compiled_steps.integrate`, for a step a chunk hands back) do after a
     step from (t, y) of size h to `y_new`, Newton's outcome `converged` (with `reason` when
@@ -753,8 +775,16 @@ def finish_step(advance, monitor, mod, name, t, h, y, y_new, converged, reason, 
         warning = monitor.check(t, y, (y_new - y) / h if converged else mid_slope, 0.5 * h, limit)
         if warning is None and converged and hard:
             warning = monitor.check(t + h, y_new, (y_new - y) / h, 0.5 * h, limit)
-        if warning and converged and passed_rank_drop(monitor, advance, mod, t, h, y, y_new, rank_drops):
+        slope = mid_slope if determined else None
+        if warning and converged and passed_rank_drop(monitor, advance, mod, t, h, y, y_new, rank_drops, slope):
             warning, passed = None, True  # a rank drop of the position constraints that the motion passes: go on
+        elif warning and monitor.positional and determined and (
+                again := _least_norm_start_step(advance, mod, t, h, y, mid_slope)) is not None and passed_rank_drop(
+                    monitor, advance, mod, t, h, y, again, rank_drops, mid_slope):
+            # the step may have converged on another solution of its equations (or failed) from a start
+            # that carried the passage's undetermined multiplier: solved again from least-norm multipliers
+            y_new, warning, passed = again, None, True
+            retried, converged = retried or not converged, True
         elif (warning and converged and hard and monitor.last_ratio >= monitor.threshold
               and passes_rank_drop(advance, mod, t, h, y, y_new)):
             # the looser threshold flagged a step Newton struggled with, but the iteration matrix is
@@ -777,6 +807,25 @@ def finish_step(advance, monitor, mod, name, t, h, y, y_new, converged, reason, 
     return y_new, retried, None, passed
 
 
+def _least_norm_start_step(advance, mod, t, h, y, slope):
+    """The step from (t, y) of size h solved with Newton started at zero for the algebraic
+    variables inside the step (the guess ``−y`` there: a midpoint step's values inside the step are
+    the mean of its ends) and along the rate `slope` for the differential ones; None if it fails.
+
+    At a rank drop the least-norm iteration keeps what its start puts in the multiplier directions
+    it drops (:meth:`StageSolver._least_norm_retry`); from zero the step's multipliers there are the
+    least-norm ones. The run's retry of a failed step starts from the end values (the constant
+    predictor), and after a passage those carry the undetermined multiplier in full (±9e8 N after
+    the N four-bar's first one, against values of order one inside the steps): from there a
+    ``midpoint4`` step at h = 1e-4 converged on a solution that reversed the motion (the coupler's
+    vertical momentum −4.95 → +4.95 kg m/s, docs/hard-cases.md)."""
+    diff = np.asarray(mod.DIFFERENTIAL, dtype=bool)
+    if hasattr(advance, "nhist"):
+        advance.nhist = 0  # midpoint4: from the guess, not from its substeps' history
+    y1, ok, _ = advance(t, h, y, np.where(diff, y + h * np.asarray(slope, dtype=float), -y))
+    return y1 if ok and np.all(np.isfinite(y1)) else None
+
+
 def closing_message(message: str, ok: bool, split: int, rank_drops) -> str:
     """The fixed-step loops' message at the end of a run (this module's and
     :func:`phc.simulation.compiled_steps.integrate`'s): `message` with the steps that needed a
@@ -797,11 +846,12 @@ def rank_drop_notice(times) -> str:
             "step and two half steps agreed on it")
 
 
-def passed_rank_drop(monitor, advance, mod, t, h, y, y_new, rank_drops) -> bool:
+def passed_rank_drop(monitor, advance, mod, t, h, y, y_new, rank_drops, slope=None) -> bool:
     """Whether the converged step at the monitor's warning passes a rank drop of the position
-    constraints (:func:`passes_rank_drop`); if so it is added to `rank_drops` (a list of
-    ``[first, last]`` times of the looks at each passage, shared by the Python and compiled loops)."""
-    if not (monitor.positional and passes_rank_drop(advance, mod, t, h, y, y_new)):
+    constraints (:func:`passes_rank_drop`, `slope` the run's ẏ before the step); if so it is added
+    to `rank_drops` (a list of ``[first, last]`` times of the looks at each passage, shared by the
+    Python and compiled loops)."""
+    if not (monitor.positional and passes_rank_drop(advance, mod, t, h, y, y_new, monitor.p, slope)):
         return False
     if not rank_drops or t - rank_drops[-1][1] > RANK_DROP_GAP * h:
         rank_drops.append([t, t])
@@ -809,7 +859,7 @@ def passed_rank_drop(monitor, advance, mod, t, h, y, y_new, rank_drops) -> bool:
     return True
 
 
-def passes_rank_drop(advance, mod, t, h, y, y_new) -> bool:
+def passes_rank_drop(advance, mod, t, h, y, y_new, p=None, slope=None) -> bool:
     """Whether the converged step ``(t, y) → (t + h, y_new)`` passes a rank drop of the position
     constraints' gradients with a determined motion: two half steps from ``y`` reach the same
     states (the differential variables) to :data:`RANK_DROP_AGREEMENT` of the step's change.
@@ -820,18 +870,75 @@ def passes_rank_drop(advance, mod, t, h, y, y_new) -> bool:
     singular constraints): the Newton matrix is near singular only in the multiplier
     direction, a converged step is the unique motion at the step size, and halving the step
     changes it by the method's error. Where the motion itself is undetermined or leaves the
-    constraint manifold's smooth part, the half steps fail or go elsewhere."""
+    constraint manifold's smooth part, the half steps fail or go elsewhere.
+
+    Given the rate (below), the half steps start their algebraic variables at the step's midpoint
+    values (the mean of its ends): a midpoint step's algebraic variables are unknowns inside the step, and their end
+    values, which oscillate about the midpoint values, are no start after a passage (they carry
+    the undetermined multiplier in full, ±9e8 N after the N four-bar's first one, and from the
+    line between the ends the four-bar's first half step converged on another solution of its
+    equations, crank 0's momentum −1.652 → −1.872 kg m²/s, docs/hard-cases.md).
+
+    With the parameters `p` and the run's rate before the step, `slope` (ẏ between the last two
+    step midpoints), the step must first continue the motion (:data:`RANK_DROP_JUMP`), the halves
+    start as said above, and a step whose halves disagree is judged once more on the state the
+    midpoint rule determines (:func:`_determined_agree`). Without them the comparison is the plain
+    one, from the line between the step's ends (the IDA bridge's, :mod:`phc.simulation.ida_bridge`:
+    with the rest, at N = 10 one passage event came 0.025 s before the singular instant; not
+    traced)."""
     diff = np.asarray(mod.DIFFERENTIAL, dtype=bool)
+    found = None
+    if p is None or slope is None:  # the comparison as it was (the IDA bridge's, ida_bridge.bridge)
+        y_a, ok, _ = advance(t, 0.5 * h, y, 0.5 * (y + y_new))
+        if ok:
+            y_b, ok, _ = advance(t + 0.5 * h, 0.5 * h, y_a, y_new.copy())
+        change = float(np.abs(y_new - y)[diff].max(initial=0.0))
+        gap = float(np.abs(y_b - y_new)[diff].max(initial=0.0)) if ok else np.inf
+        return bool(np.isfinite(gap)) and gap <= RANK_DROP_AGREEMENT * change
+    rate = float(np.abs(np.asarray(slope, dtype=float))[diff].max(initial=0.0))
+    moved = float(np.abs(y_new - y)[diff].max(initial=0.0))
+    if rate > 0 and not moved <= RANK_DROP_JUMP * h * rate:  # (at rest before the step: no scale)
+        found = undetermined.force_directions(mod, p, t, h, y, y_new, constraint_rows(mod))
+        if found is None:
+            return False
+        moved = float(np.abs(undetermined.without(np.where(diff, y_new - y, 0.0), found)).max(initial=0.0))
+        if not (np.isfinite(moved) and moved <= RANK_DROP_JUMP * h * rate):
+            return False  # not the motion: the state is continuous through a rank drop it passes
     half = 0.5 * h
-    y_a, ok, _ = advance(t, half, y, 0.5 * (y + y_new))
+    y_a, ok, _ = advance(t, half, y, np.where(diff, 0.5 * (y + y_new), y_new))
     if not ok:
         return False
-    y_b, ok, _ = advance(t + half, half, y_a, y_new.copy())
+    y_b, ok, _ = advance(t + half, half, y_a, np.where(diff, y_new, y + y_new - y_a))
     if not ok:
         return False
     change = float(np.abs(y_new - y)[diff].max(initial=0.0))
-    gap = float(np.abs(y_b - y_new)[diff].max(initial=0.0))
-    return bool(np.isfinite(gap)) and gap <= RANK_DROP_AGREEMENT * change
+    gaps = np.where(diff, y_b - y_new, 0.0)
+    gap = float(np.abs(gaps).max(initial=0.0))
+    if not np.isfinite(gap):
+        return False
+    if gap <= RANK_DROP_AGREEMENT * change:
+        return True
+    return p is not None and slope is not None and _determined_agree(mod, p, t, h, y, y_new, gaps, found)
+
+
+def _determined_agree(mod, p, t, h, y, y_new, gaps, found) -> bool:
+    """The comparison of :func:`passes_rank_drop` on what the midpoint rule determines at the step
+    ends: the configuration, and the momenta less their components along the constraint forces
+    (:func:`phc.simulation.undetermined.force_directions`), which alternate from substep to substep
+    about values the steps' means fix (one step of ``midpoint4``, three substeps, flips them; two
+    half steps do not). Those components carry the impulse of the redundant multiplier a rank drop
+    leaves undetermined, excited at the passage and left there for the rest of the run. The halves
+    `gaps` (their end less the step's, zero outside the differential variables) must agree with the
+    step on the rest to :data:`RANK_DROP_DETERMINED` of the step's change there (`found`: the
+    directions, if computed already)."""
+    if found is None:
+        found = undetermined.force_directions(mod, p, t, h, y, y_new, constraint_rows(mod))
+    if found is None:
+        return False
+    diff = np.asarray(mod.DIFFERENTIAL, dtype=bool)
+    moved = float(np.abs(undetermined.without(np.where(diff, y_new - y, 0.0), found)).max(initial=0.0))
+    rest = float(np.abs(undetermined.without(gaps, found)).max(initial=0.0))
+    return bool(np.isfinite(rest)) and rest <= RANK_DROP_DETERMINED * moved
 
 
 EVENT_TOL = 1e-12

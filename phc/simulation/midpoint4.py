@@ -93,6 +93,9 @@ class Midpoint4Step:
         self.singular = False
         self.constants = composition_constants(self.stages[0].constants.copy())
         self.hist_t, self.hist_v = np.zeros((2, 3)), np.zeros((2, 3, mod.N))
+        self.algmask = (~np.asarray(mod.DIFFERENTIAL, dtype=bool)).astype(np.int8)
+        """The algebraic variables (1), as the driver's predictor takes them
+        (:func:`phc.simulation.step_logic.midpoint4` starts them at the step's midpoint)."""
         self.nhist = 0
         """The substep midpoints (times ``hist_t[k]``, values ``hist_v[k]``) of the last ``nhist``
         steps (at most two)."""
@@ -114,7 +117,7 @@ class Midpoint4Step:
         out = np.array(guess, dtype=float)
         code, self.ill_conditioned, self.nhist = step_logic.midpoint4(
             self.mod.powers, self.mod.energy_scale, self.workspace, self.constants, t, h, y, guess, self.p, out,
-            self.hist_t, self.hist_v, self.nhist)
+            self.hist_t, self.hist_v, self.nhist, self.algmask)
         self.singular = code == step_logic._SINGULAR
         if code == step_logic._OK:
             return out, True, ""

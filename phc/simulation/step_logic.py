@@ -147,7 +147,7 @@ C_SIGNATURES = {
     # S: the energy scale's C function, P: the port powers' (both the model's)
     "discrete_gradient": (("S", "S", "ws", "F", "i", "f", "f", "v", "v", "F", "v"),
                           ("i", "b", "v", "f", "f", "v", "i")),
-    "midpoint4": (("P", "S", "ws", "F", "f", "f", "v", "v", "F", "v", "F3", "V3", "i"), ("i", "b", "i")),
+    "midpoint4": (("P", "S", "ws", "F", "f", "f", "v", "v", "F", "v", "F3", "V3", "i", "M"), ("i", "b", "i")),
     "chunk": (("ws", "F", "V", "V", "v", "v", "v", "v", "v", "F", "V", "F", "I", "F", "M", "v", "v", "i"), ()),
 }
 """The C signatures of the functions the C back end's step loop gets translated from this module
@@ -468,7 +468,7 @@ def discrete_gradient(ham, escale, ws, c, e, t, h, y, guess, p, out):
     return (_OK if best <= 1e3 * tol else _FAIL), ill, y_best, best, scale, y_half, secants
 
 
-def midpoint4(powers, escale, ws, c, t, h, y, guess, p, out, hist_t, hist_v, nhist):
+def midpoint4(powers, escale, ws, c, t, h, y, guess, p, out, hist_t, hist_v, nhist, algmask):
     """One step of the fourth-order composition (:mod:`phc.simulation.midpoint4`): midpoint
     substeps of ``c[_G1]·h, c[_G2]·h, c[_G1]·h`` (matrix 0 for the outer ones, 1 for the middle
     one), each started from its predicted midpoint, then the passivity guard. Returns
@@ -476,7 +476,14 @@ def midpoint4(powers, escale, ws, c, t, h, y, guess, p, out, hist_t, hist_v, nhi
 
     Predictor: the midpoint of substep i (at ``t + c[_M0 + i]·h``) extrapolated linearly from
     the same substep of the last two steps (``hist_t[k, i]``, ``hist_v[k, i]``, ``nhist`` of them
-    known), else along the slope from ``y`` to the driver's ``guess``. The history is updated
+    known), else: the differential variables along the slope from ``y`` to the driver's ``guess``,
+    the algebraic ones (``algmask`` not 0) at the step's predicted midpoint ``(y + guess)/2``
+    (:func:`predict`'s guess is ``2 m − y``). Their values at ``y`` are the end values of the last
+    step, which oscillate about the midpoint values; after a passage of a rank drop they carry the
+    undetermined multiplier in full (±9e8 N after the N four-bar's first passage, against values
+    of order one at the midpoints), and the line from there started the substeps on another
+    solution of their equations: at h = 1e-4 a step reversed the four-bar's motion (the
+    coupler's vertical momentum −4.95 → +4.95 kg m/s, docs/hard-cases.md). The history is updated
     on success and forgotten (``nhist = 0``) on failure. A composite step whose net dissipated
     energy ``Σ γᵢh·P_diss(midpointᵢ)`` is negative violates passivity: :data:`_PASSIVITY`."""
     fr = (c[_G1], c[_G2], c[_G1])
@@ -494,7 +501,7 @@ def midpoint4(powers, escale, ws, c, t, h, y, guess, p, out, hist_t, hist_v, nhi
         if nhist == 2:
             mid = hist_v[1, i] + (ti - hist_t[1, i]) * (hist_v[1, i] - hist_v[0, i]) / (hist_t[1, i] - hist_t[0, i])
         else:
-            mid = y + mt[i] * h * ((guess - y) / h)
+            mid = np.where(algmask != 0, 0.5 * (y + guess), y + mt[i] * h * ((guess - y) / h))
         code, ill_i = _stage(ws, m, tau, hs, start, 2.0 * mid - start, 0.5, out)
         ill = ill or ill_i
         if code != _OK:

@@ -476,7 +476,7 @@ static int64_t op_advance(int64_t n, const struct phc_steps *w, double t, double
     case 2: {
         int64_t nhist;
         const int64_t code = midpoint4(n, w->powers, w->energy_scale, w, w->c, t, h, y, guess, w->p, out, w->hist_t,
-                                       w->hist_v, w->ist[I_HIST], ill, &nhist);
+                                       w->hist_v, w->ist[I_HIST], w->algmask, ill, &nhist);
         w->ist[I_HIST] = nhist;
         return code;
     }
