@@ -165,7 +165,7 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
             if not current[0]:  # (freed: the monitor's own look)
                 return np.nan
             y_, yp_ = np.ascontiguousarray(y_, dtype=float), np.ascontiguousarray(yp_, dtype=float)
-            return rcond_c(current[0], float(t), y_.ctypes.data, yp_.ctypes.data, float(h))
+            return rcond_c(current[0], float(t), _ptr(y_), _ptr(yp_), float(h))
 
         monitor.rcond = rcond  # the looks Python makes ask the driver's estimate first
 

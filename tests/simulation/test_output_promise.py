@@ -155,20 +155,20 @@ def _promise(compiled):
     import phc.simulation as sim
 
     seen = {}
-    original = sim.nominal_scales
+    original = sim.cached_nominal_scales  # what simulate calls (the probe, kept per inputs)
 
     def capture(mod, p, y0, yp0, *args, **kwargs):
         s = original(mod, p, y0, yp0, *args, **kwargs)
         seen.update(mod=mod, p=p, y0=np.array(y0), yp0=np.array(yp0), s=s)
         return s
 
-    sim.nominal_scales = capture
+    sim.cached_nominal_scales = capture
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             phc.simulate(compiled, solver="ida", rtol=1e-4, atol=1e-6, n_out=3, t_end=0.01)
     finally:
-        sim.nominal_scales = original
+        sim.cached_nominal_scales = original
     mod = seen["mod"]
     P = scaling.promise_scales(mod, seen["p"], 0.0, seen["y0"], seen["yp0"], seen["s"])
     names = list(mod.VARIABLES)
