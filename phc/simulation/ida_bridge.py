@@ -222,7 +222,7 @@ def bridge(mod, p, start, t_out, first: int, h: float, *, names=None, nominal=No
         grid = np.array([t, *outs] if outs and outs[-1] == t_b else [t, *outs, t_b])
         piece = integrate_fixed_step(mod, p, grid, y, yp, max_steps=max(1, max_steps - out.steps), progress=None,
                                      step=h, advance=advance, name="IDA's bridge (implicit midpoint)", names=names,
-                                     events=events, scales=nominal, determined=False)
+                                     events=events, scales=nominal)
         out.steps += piece.steps
         out.passages += list(piece.extra.get("rank_drops", ()))
         for i in range(1, min(len(piece.t) - 1, len(outs)) + 1):  # the output times it reached

@@ -605,7 +605,7 @@ def make_projector(mod, p, y, t=0.0, scales=None):
 
 
 def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, advance, name, project=True,
-                         names=None, events=None, scales=None, determined=True):
+                         names=None, events=None, scales=None):
     """Fixed-step driver shared by the structure-preserving backends.
 
     ``advance(t, h, y, guess) -> (y1, ok, reason)`` takes one step. Output at every
@@ -627,9 +627,9 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
     :mod:`phc.simulation.step_logic`'s (``next_step``, ``predict``, ``looks``, ``accept``), the code
     the compiled loop's chunk runs; what is left here is what that chunk hands back.
 
-    `determined` (the default): a passage of a rank drop is judged with the run's rate before the
-    step (:func:`passes_rank_drop`, :func:`finish_step`); False: by the plain comparison of one step
-    and two half steps (the IDA bridge's, :mod:`phc.simulation.ida_bridge`)."""
+    A passage of a rank drop is judged by :func:`passes_rank_drop` with the run's rate before the
+    step (:func:`finish_step`), in every caller: the fixed-step solvers and the IDA bridge
+    (:mod:`phc.simulation.ida_bridge`), which runs this driver."""
     sl = step_logic
     n = mod.N
     t_out = np.asarray(t_out, dtype=float)
@@ -675,7 +675,7 @@ def integrate_fixed_step(mod, p, t_out, y0, yp0, *, max_steps, progress, step, a
             if look:
                 ist[sl._LAST_LOOK] = ist[sl._STEPS]
             y_new, retried, failure, passed = finish_step(advance, monitor, mod, name, t, h, y, y_new, converged,
-                                                          reason, hard, look, mid_slope, rank_drops, determined)
+                                                          reason, hard, look, mid_slope, rank_drops)
             split += retried
             if passed:
                 ist[sl._LAST_LOOK] = ist[sl._STEPS] - LOOK_GAP  # look at the passage's next hard step too
@@ -749,7 +749,7 @@ step whose halves take another branch of the motion, or fail, differs by O(1).""
 
 
 def finish_step(advance, monitor, mod, name, t, h, y, y_new, converged, reason, hard, look, mid_slope,
-                rank_drops, determined=True):
+                rank_drops):
     """What the fixed-step loops (this module's and the compiled loops' driver,
     :func:`phc.simulation.compiled_steps.integrate`, for a step a chunk hands back) do after a
     step from (t, y) of size h to `y_new`, Newton's outcome `converged` (with `reason` when
@@ -775,10 +775,9 @@ def finish_step(advance, monitor, mod, name, t, h, y, y_new, converged, reason, 
         warning = monitor.check(t, y, (y_new - y) / h if converged else mid_slope, 0.5 * h, limit)
         if warning is None and converged and hard:
             warning = monitor.check(t + h, y_new, (y_new - y) / h, 0.5 * h, limit)
-        slope = mid_slope if determined else None
-        if warning and converged and passed_rank_drop(monitor, advance, mod, t, h, y, y_new, rank_drops, slope):
+        if warning and converged and passed_rank_drop(monitor, advance, mod, t, h, y, y_new, rank_drops, mid_slope):
             warning, passed = None, True  # a rank drop of the position constraints that the motion passes: go on
-        elif warning and monitor.positional and determined and (
+        elif warning and monitor.positional and (
                 again := _least_norm_start_step(advance, mod, t, h, y, mid_slope)) is not None and passed_rank_drop(
                     monitor, advance, mod, t, h, y, again, rank_drops, mid_slope):
             # the step may have converged on another solution of its equations (or failed) from a start
@@ -882,10 +881,16 @@ def passes_rank_drop(advance, mod, t, h, y, y_new, p=None, slope=None) -> bool:
     With the parameters `p` and the run's rate before the step, `slope` (ẏ between the last two
     step midpoints), the step must first continue the motion (:data:`RANK_DROP_JUMP`), the halves
     start as said above, and a step whose halves disagree is judged once more on the state the
-    midpoint rule determines (:func:`_determined_agree`). Without them the comparison is the plain
-    one, from the line between the step's ends (the IDA bridge's, :mod:`phc.simulation.ida_bridge`:
-    with the rest, at N = 10 one passage event came 0.025 s before the singular instant; not
-    traced)."""
+    midpoint rule determines (:func:`_determined_agree`). That is the one passage check, of the
+    fixed-step solvers and of the IDA bridge (:mod:`phc.simulation.ida_bridge`) alike. The bridge
+    used to judge without the rate (the plain comparison below), because with it one N = 10 IDA
+    run reported a passage 0.025 s before the singular instant. Traced (issue 34): that was not the
+    check's doing. The same code gives different bridges from run to run there (IDA's failure point
+    before a passage, and so where a bridge starts and ends, moves with round-off: one run of that
+    code bridged 0.6967 → 0.9703 s, another 0.7112 → 0.7327 s), and with the check given the rate
+    the bridge passes every step the plain comparison passes on that run (docs/hard-cases.md).
+    Without `p` and `slope` the comparison is the plain one, from the line between the step's ends:
+    :func:`finish_step`'s test of a stiff, steep stretch, which is not a rank drop."""
     diff = np.asarray(mod.DIFFERENTIAL, dtype=bool)
     found = None
     if p is None or slope is None:  # the comparison as it was (the IDA bridge's, ida_bridge.bridge)

@@ -356,6 +356,32 @@ def test_ida_passes_every_singular_configuration_n1(ida_default):
     assert np.abs(r.H - r.H[0]).max() / abs(r.H[0]) < 1.3e-6
 
 
+def test_the_ida_bridge_judges_passages_as_the_fixed_step_solvers(shipped, monkeypatch):
+    """One passage check (issue 34): the IDA bridge runs the fixed-step driver, and every rank
+    drop it lets through is judged as `midpoint` judges it — given the run's rate before the step
+    (phc.simulation.midpoint.passes_rank_drop: the continuity bound, the halves from the step's
+    midpoint values, the state the midpoint rule determines). The bridge used to call it without
+    the rate (the plain comparison). IDA on N = 1 to 1 s, one horizontal pass: every look of the
+    bridge's monitor that a passage decides is given a rate, at least one was made, and the run
+    passes the instant as one `passage` event, crank 0 within the benchmark's tolerance."""
+    import phc.simulation.midpoint as mp
+
+    calls = []
+    judged = mp.passed_rank_drop
+
+    def spy(monitor, advance, mod, t, h, y, y_new, rank_drops, slope=None):
+        calls.append(slope)
+        return judged(monitor, advance, mod, t, h, y, y_new, rank_drops, slope)
+
+    monkeypatch.setattr(mp, "passed_rank_drop", spy)
+    r = phc.simulate(shipped, solver="ida", t_end=1.0, n_out=101)
+    assert r.success, r.message
+    assert horizontal_passes(r["crank0.theta"]) == 1
+    assert [e.kind for e in r.events] == ["passage"], r.events
+    assert calls and all(s is not None for s in calls), calls
+    assert np.abs(r["crank0.theta"] - exact_theta(1, r.t)).max() < BENCHMARK_TOLERANCE
+
+
 @pytest.mark.slow
 def test_ida_passes_every_singular_configuration_n10(tmp_path):
     """IDA on N = 10 (163 unknowns, the sparse linear solver) to 10 s at the model's tolerances: it
