@@ -61,3 +61,18 @@ def test_ida_at_the_reference_tolerances_reports_each_pass_once():
     # each at an exact singular instant, to a few bridge lengths (the bridge step with the lowest
     # conditioning is reported)
     assert np.abs(np.array(passages) - singular).max() < 0.01, (passages, singular)
+
+
+def test_a_long_bridge_does_not_take_the_next_pass():
+    """A bridge that located its instant counts, for the window in which a failure after it is the
+    same passage, only twice the way to its minimum: the rest of it is the conditioning's slow
+    recovery. IDA on the N = 10 four-bar (`phc.simulate(c, solver='ida', t_end=10, n_out=1001)`):
+    its first bridge ran from 0.6967 to 0.9703 s (3 020 steps), lowest at 0.7201, and the bridge of
+    the next pass, from 1.2385 s (lowest at 1.2410, 0.5 s later, 1.98e-12 against 1.43e-12), fell
+    within four of its lengths: 9 events for 10 passes."""
+    b = _after(0.696736, 0.970281, 0.720141, 1.428e-12)
+    assert not b._same_passage(1.238522, 1.241034, 1.979e-12)  # the next pass: an event of its own
+    assert b._same_passage(0.975, 0.975, 2e-9)  # IDA failing again on its way out: the same passage
+    window = SAME_PASSAGE * 2.0 * (0.720141 - 0.696736)
+    assert b._same_passage(0.970281 + 0.99 * window, 0.970281 + 0.99 * window, 2e-9)
+    assert not b._same_passage(0.970281 + 1.01 * window, 0.970281 + 1.01 * window, 2e-9)
