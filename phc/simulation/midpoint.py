@@ -885,10 +885,10 @@ def passes_rank_drop(advance, mod, t, h, y, y_new, p=None, slope=None) -> bool:
     fixed-step solvers and of the IDA bridge (:mod:`phc.simulation.ida_bridge`) alike. The bridge
     used to judge without the rate (the plain comparison below), because with it one N = 10 IDA
     run reported a passage 0.025 s before the singular instant. Traced (issue 34): that was not the
-    check's doing. The same code gives different bridges from run to run there (IDA's failure point
-    before a passage, and so where a bridge starts and ends, moves with round-off: one run of that
-    code bridged 0.6967 → 0.9703 s, another 0.7112 → 0.7327 s), and with the check given the rate
-    the bridge passes every step the plain comparison passes on that run (docs/hard-cases.md).
+    check's doing: the same code and command gave that early event in one run of three (IDA's
+    failure point before a passage, and so where a bridge starts, varies from run to run); what
+    reports a bridge's shallow minimum as a passage is how bridges are counted
+    (:meth:`phc.simulation.ida_bridge.Bridges._same_passage`, docs/hard-cases.md).
     Without `p` and `slope` the comparison is the plain one, from the line between the step's ends:
     :func:`finish_step`'s test of a stiff, steep stretch, which is not a rank drop."""
     diff = np.asarray(mod.DIFFERENTIAL, dtype=bool)
