@@ -46,9 +46,16 @@ routine goes back to the Python code, which then does exactly what the Python lo
 step whose Newton iteration fails from the predictor (the retry from the constant
 predictor, the split, the failure message naming the row or expression that could not be
 evaluated), a step Newton found ill-conditioned (the monitor's look with the looser
-threshold), a routine look that finds the matrix nearly singular (the message). The
-trajectory is the Python loop's up to the Newton tolerance (a dense inverse instead of
-SuperLU: the corrections differ by round-off).
+threshold), a routine look that finds the matrix nearly singular (the message), and in a run
+with switching conditions (:mod:`phc.simulation.events`) the step at whose end a watched
+switching function has fallen through zero: the chunk evaluates them after each step (the
+model's ``events``, which the numba back end leaves as NumPy text, compiled here per model:
+:func:`_events_function`; the run's modes as :func:`watch_map`), and the Python loop's
+:func:`~phc.simulation.midpoint._locate` finds the event, which the run returns as the Python
+loop does. Runs with contacts (impacts, whose watched functions are Python's) keep the Python
+loop. The trajectory is the Python loop's up to the Newton tolerance (a dense inverse instead of
+SuperLU: the corrections differ by round-off), and so are the events' times, each located to
+:data:`~phc.simulation.midpoint.EVENT_TOL`.
 
 The compiled loop is model-independent (the model's functions are arguments), compiled once
 and kept in phc's signed cache of compiled code (``<phc cache>/numba/``, see
