@@ -12,10 +12,9 @@ import math
 
 import numpy as np
 import pytest
+from compiled_loading import assert_same_trajectory, both_loops
 
 import phc
-from compiled_loading import assert_same_trajectory
-from compiled_loading import both_loops
 from phc.codegen.numba_backend import available
 from phc.simulation.midpoint import EVENT_TOL
 
