@@ -160,3 +160,21 @@ def test_the_watch_map_is_the_watch(tmp_path):
                 v = watch.values(0.3, y, yp)
                 mine = wmap[0] + wmap[1] * v[wmap[2].astype(int)]
                 assert np.array_equal(mine, watch(0.3, y, yp))
+
+
+def test_a_diode_switching_with_a_source_in_t_follows_the_python_loop(tmp_path, monkeypatch, loops):
+    """The half-wave rectifier of test_events.py (a comparison ``e_D > 0`` watched while a sine
+    source drives it): five switches, each within the location tolerance of the Python loop's and
+    within the method's error (midpoint at h = 1e-5: 3e-7, test_events.py) of the independent
+    solution written there."""
+    from test_events import RECTIFIER, _rectifier_reference
+
+    model = _model(tmp_path, RECTIFIER)
+    fast, slow = both_loops(monkeypatch, model, solver="midpoint", step=1e-5)
+    half = len(loops) // 2
+    assert half >= 6 and loops == [True] * half + [False] * half  # a piece per event at least
+    _same_events(fast, slow, 1e-5)
+    reference, switches = _rectifier_reference(fast.t)
+    assert len(fast.events) == len(switches) == 5
+    assert max(abs(e.t - s) for e, s in zip(fast.events, switches)) < 3e-7
+    assert_same_trajectory(fast, slow, 1e-5)
