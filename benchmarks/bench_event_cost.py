@@ -10,9 +10,11 @@ a few times every period: many state events over a long run. It runs on the numb
 * with ``PHC_COMPILED_LOOP=0`` (the Python step loop on the same compiled functions: what every
   run with events did before),
 
-against the same block with a viscous law (``e_fr = d*f_fr``: no events), compiled loop. It
-prints the CPU time per step of each, and the cost of one event in steps of the viscous run:
-(CPU of the run with events − its steps × the viscous run's CPU per step) / events. An
+against the same block with the law ``e_fr = d*f_fr`` at d = 0 (no friction, no events; the same
+unknowns: a damped law would meet midpoint4's passivity guard, whose backward substep adds energy
+through dissipation), compiled loop. It
+prints the CPU time per step of each, and the cost of one event in steps of the event-free run:
+(CPU of the run with events − its steps × the event-free run's CPU per step) / events. An
 event's cost is the location (regula falsi on shortened steps, each a Newton solve in Python),
 the restart from a consistent state (:func:`phc.simulation.events.integrate_switched`) and a
 new entry into the compiled loop.
@@ -40,7 +42,7 @@ parameters:
   m: 1.0
   k: 4.0
   Fc: 1.0
-  d: 0.05
+  d: 0.0
   F: 2.5
   w: 3.0
 components:
@@ -102,7 +104,7 @@ def main() -> None:
     print(f"Driven Coulomb block (F = 2.5 F_c, ω = 3 rad/s) over {args.t_end:g} s, numba back end; CPU time, "
           f"best of {args.repeat} runs (the Python loop: one run).\n")
     print("| method | h | events | steps | µs/step, events, compiled loop | µs/step, events, Python loop "
-          "| µs/step, no events (viscous), compiled loop | one event, in steps (compiled loop) |")
+          "| µs/step, no events (d = 0), compiled loop | one event, in steps (compiled loop) |")
     print("|---|---|---|---|---|---|---|---|")
     for solver, step in METHODS:
         fast, r_fast = _run(models["events"], solver, step, "1", args.repeat)
@@ -114,8 +116,9 @@ def main() -> None:
         event_fast = (fast - r_fast.steps * per) / n / per
         print(f"| {solver} | {step:g} | {len(r_fast.events)} | {r_fast.steps} | {1e6 * fast / r_fast.steps:.1f} "
               f"| {1e6 * slow / r_slow.steps:.1f} | {1e6 * per:.1f} | {event_fast:.0f} |")
-    print("\nOne event in steps: (CPU of the run with events − its steps × the viscous run's CPU per step) / events "
-          "/ the viscous run's CPU per step; it includes locating the event, the restart and re-entering the loop.")
+    print("\nOne event in steps: (CPU of the run with events − its steps × the event-free run's CPU per step) / "
+          "events / the event-free run's CPU per step; it includes locating the event, the restart and re-entering "
+          "the loop.")
 
 
 if __name__ == "__main__":
