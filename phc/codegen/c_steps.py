@@ -88,7 +88,24 @@ def _operations() -> dict:
             # the chunk's: one step of the run's method; the monitor's routine look (steps.c's
             # condition estimate of the equilibrated iteration matrix, LAPACK's dgecon on its own LU)
             "_advance": Op("op_advance", ("ws", "f", "f", "v", "v", "v"), ("i", "b"), writes=(5,)),
-            "_far_from_singular": Op("op_far_from_singular", ("ws", "f", "v", "v", "f"), ("b",))}
+            "_far_from_singular": Op("op_far_from_singular", ("ws", "f", "v", "v", "f"), ("b",)),
+            # the switching functions of a run with events: the C loop runs none (note_events)
+            "_watch": Op("op_watch", ("ws", "f", "f", "v", "v"), ("b",))}
+
+
+_WATCH_STUB = """/* step_logic's _watch: a run with switching conditions keeps the Python loop on the C back end
+ * (phc.codegen.c_steps.note_events), so no step of this loop has a switching function to watch */
+static int op_watch(int64_t n, const struct phc_steps *w, double t, double h, const double *y, const double *y_new)
+{
+    (void)n;
+    (void)w;
+    (void)t;
+    (void)h;
+    (void)y;
+    (void)y_new;
+    return 0;
+}
+"""
 
 
 _ROWS = {"ys": "nout", "yps": "nout", "pm": "npred"}
@@ -129,7 +146,7 @@ def translation() -> str:
     from phc.codegen.c_translate import PRELUDE, Translator
 
     body = Translator(_sl, _sl.C_SIGNATURES, _operations()).translate(TRANSLATED)
-    return PRELUDE + "\n" + body + "\n" + entry()
+    return PRELUDE + "\n" + _WATCH_STUB + "\n" + body + "\n" + entry()
 
 
 def source() -> str:

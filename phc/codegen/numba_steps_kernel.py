@@ -9,7 +9,8 @@ side (whether a run uses it, building and caching it, the driver between chunks)
 holds only the code numba compiles — the chunk's workspace (:func:`_chunk`, which runs
 :func:`phc.simulation.step_logic.chunk`) and the operations only it has: one step of the run's
 method (:func:`_advance`), the singularity monitor's routine look (:func:`_far_from_singular`,
-:func:`_monitor_ratio`), the dense LU / inverse / mixed-precision products.
+:func:`_monitor_ratio`), the switching functions of a run with events (:func:`_watch`), the dense
+LU / inverse / mixed-precision products.
 
 The step logic itself — the stage's Newton iteration, the discrete-gradient and midpoint4
 steps — and the chunk loop with its bookkeeping of a routine step (``chunk``) — the output grid and
@@ -51,7 +52,7 @@ from phc.simulation.step_logic import (  # noqa: F401,E402
     _NF, _NFACT, _NFEV, _NI, _NMID, _STATUS, _STEP, _STEPS, _STRIKES, _SUBSTEPS, _T, LOOK_GAP)
 
 # status of a chunk (step_logic.chunk sets it; the driver reads it)
-from phc.simulation.step_logic import _BUDGET, _DONE, _HARD, _LOOK, _MAXSTEPS  # noqa: F401,E402
+from phc.simulation.step_logic import _BUDGET, _DONE, _EVENT, _HARD, _LOOK, _MAXSTEPS  # noqa: F401,E402
 
 _RCOND_MARGIN = 1e3
 """The routine look of the singularity monitor computes singular values only when LAPACK's
@@ -60,6 +61,39 @@ _RCOND_MARGIN = 1e3
 
 def _no_invariants(t, y, p):
     return np.zeros(0)
+
+
+def _no_events(t, y, yp, p, out):
+    """The switching functions of a run without events (never called: nothing is watched)."""
+
+
+def _watch(ws, t, h, y, y_new):
+    """step_logic's operation ``_watch``: the watched switching functions at the step's end,
+    ``w_i = a_i + b_i·v[k_i]`` with ``v`` the model's ``events(t + h, y_new, (y_new − y)/h)``
+    (the rows of ``wmap``: a, b, k; :func:`phc.simulation.compiled_steps.watch_map` writes them
+    from the run's :class:`~phc.simulation.events.Watch`). True when one falls from above zero
+    (``wprev``, the values at the step's start) to zero or below, or a value is not finite: the
+    step is handed back. Else the values become the next step's start."""
+    wmap, wprev, wnew, vbuf, slope = ws[32], ws[33], ws[34], ws[35], ws[36]
+    nw = wprev.shape[0]
+    if nw == 0:
+        return False
+    for i in range(y.shape[0]):
+        slope[i] = (y_new[i] - y[i]) / h
+    ws[31](t + h, y_new, slope, ws[3], vbuf)
+    if not _all_finite(vbuf):
+        return True
+    crossed = False
+    for i in range(nw):
+        w = wmap[0, i] + wmap[1, i] * vbuf[int(wmap[2, i])]
+        wnew[i] = w
+        if wprev[i] > 0.0 and w <= 0.0:
+            crossed = True
+    if crossed:
+        return True
+    for i in range(nw):
+        wprev[i] = wnew[i]
+    return False
 
 
 def _copy(a, b):
@@ -223,7 +257,7 @@ def _begin(ws, m):
 
 def _refactor(ws, m, t, h, y, y1, s):
     (res, jac, inv, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend, weights, algmask, c, jbuf, ebuf, xs, d,
-     r, ints, chars, ist, M, colscale, ham, escale, powers, hist_t, hist_v) = ws
+     r, ints, chars, ist, M, colscale, ham, escale, powers, hist_t, hist_v, _ev, _wmap, _wprev, _wnew, _v, _sl) = ws
     return _refactor_matrix(jac, t, h, y, y1, s, p, A, lp, ipiv, matf, m, jrows, jcols, emask, nend, jbuf, ebuf, xs, d,
                             ints, ist)
 
@@ -234,7 +268,7 @@ def _correct(ws, m, t, h, y, y1, s):
     variables but the GGL multipliers (algmask 1) relative to |y| + 1; else all relative to
     |y| + 1 (:meth:`phc.simulation.midpoint.StageSolver._correct`, on arrays)."""
     (res, jac, inv, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend, weights, algmask, c, jbuf, ebuf, xs, d,
-     r, ints, chars, ist, M, colscale, ham, escale, powers, hist_t, hist_v) = ws
+     r, ints, chars, ist, M, colscale, ham, escale, powers, hist_t, hist_v, _ev, _wmap, _wprev, _wnew, _v, _sl) = ws
     n = y.shape[0]
     ist[_NFEV] += 1
     if not _stage_residual(res, inv, t, h, y, y1, s, p, r, end_rows, nend, xs, d):
@@ -426,9 +460,9 @@ def _monitor_ratio(jac, t, y, yp, h, p, jrows, jcols, jbuf, M, colscale, thresho
     return s[n - 1] / s[0] if s[0] > 0 else 0.0
 
 
-def _chunk(res, jac, inv, ham, escale, powers, p, t_out, ys, yps, y, mid, mid_slope, y_prev, fst, ist, c, A, lp,
-           ipiv, matf, jrows, jcols, end_rows, emask, weights, algmask, hist_t, hist_v, y_new, jbuf, ebuf, M, colscale, pt,
-           pm, budget):
+def _chunk(res, jac, inv, ham, escale, powers, events, p, t_out, ys, yps, y, mid, mid_slope, y_prev, fst, ist, c, A,
+           lp, ipiv, matf, jrows, jcols, end_rows, emask, weights, algmask, hist_t, hist_v, y_new, jbuf, ebuf, M, colscale,
+           pt, pm, wmap, wprev, wnew, vbuf, budget):
     """Steps of integrate_fixed_step until `budget` steps are done, the run ends, or a step needs
     the Python code (see the module docstring); the state is in the arrays, the status in ist.
     The loop is step_logic's :func:`~phc.simulation.step_logic.chunk`; this builds its workspace."""
@@ -447,5 +481,6 @@ def _chunk(res, jac, inv, ham, escale, powers, p, t_out, ys, yps, y, mid, mid_sl
     guess = np.empty(n)
     yp = np.empty(n)
     ws = (res, jac, inv, p, A, lp, ipiv, matf, jrows, jcols, emask, end_rows, nend, weights, algmask, c, jbuf, ebuf, xs,
-          d, r, ints, chars, ist, M, colscale, ham, escale, powers, hist_t, hist_v)
+          d, r, ints, chars, ist, M, colscale, ham, escale, powers, hist_t, hist_v, events, wmap, wprev, wnew, vbuf,
+          np.empty(n))
     chunk(ws, t_out, ys, yps, y, mid, mid_slope, y_prev, y_new, pt, pm, fst, ist, c, algmask, guess, yp, budget)

@@ -46,9 +46,16 @@ routine goes back to the Python code, which then does exactly what the Python lo
 step whose Newton iteration fails from the predictor (the retry from the constant
 predictor, the split, the failure message naming the row or expression that could not be
 evaluated), a step Newton found ill-conditioned (the monitor's look with the looser
-threshold), a routine look that finds the matrix nearly singular (the message). The
-trajectory is the Python loop's up to the Newton tolerance (a dense inverse instead of
-SuperLU: the corrections differ by round-off).
+threshold), a routine look that finds the matrix nearly singular (the message), and in a run
+with switching conditions (:mod:`phc.simulation.events`) the step at whose end a watched
+switching function has fallen through zero: the chunk evaluates them after each step (the
+model's ``events``, which the numba back end leaves as NumPy text, compiled here per model:
+:func:`_events_function`; the run's modes as :func:`watch_map`), and the Python loop's
+:func:`~phc.simulation.midpoint._locate` finds the event, which the run returns as the Python
+loop does. Runs with contacts (impacts, whose watched functions are Python's) keep the Python
+loop. The trajectory is the Python loop's up to the Newton tolerance (a dense inverse instead of
+SuperLU: the corrections differ by round-off), and so are the events' times, each located to
+:data:`~phc.simulation.midpoint.EVENT_TOL`.
 
 The compiled loop is model-independent (the model's functions are arguments), compiled once
 and kept in phc's signed cache of compiled code (``<phc cache>/numba/``, see
@@ -85,7 +92,7 @@ from phc.codegen import numba_steps_kernel as _kernel
 from phc.simulation import step_logic as _step_logic
 from phc.simulation.backend import BackendRun
 from phc.codegen.numba_steps_kernel import (  # the layout of the state arrays the kernel shares
-    _BUDGET, _CODE, _DONE, _E, _H, _H_PREV, _HARD, _HIST, _ILL, _K, _LAST_LOOK, _LOOK, _LOWP, _MAX_STEPS,
+    _BUDGET, _CODE, _DONE, _E, _EVENT, _H, _H_PREV, _HARD, _HIST, _ILL, _K, _LAST_LOOK, _LOOK, _LOWP, _MAX_STEPS,
     _MAXSTEPS, _METHOD, _MONITOR, _NEND, _NF, _NFACT, _NFEV, _NI, _OK, _ONE, _STATUS, _STEP,
     _STEPS, _STRIKES, _STRIKES_C, _T, _THRESHOLD, _ZERO)
 
@@ -218,6 +225,62 @@ def _lookup(raw, ready):
     return tuple(found)
 
 
+_EVENTS = weakref.WeakKeyDictionary()
+"""Per generated module: its switching functions compiled (:func:`_events_function`), or False."""
+
+
+def _events_function(raw):
+    """The model's switching functions ``events(t, y, yp, p, out)`` as the compiled loop calls them
+    (an :func:`_address` object), or None when numba cannot compile them (the run keeps the Python
+    loop). The numba back end compiles the functions of :data:`phc.codegen.numba_cache.FUNCTIONS`;
+    ``events``, which only runs with switching conditions, is the NumPy module's text, compiled
+    here once per module and process for the signature the loop expects (the same arithmetic
+    as the Python loop's calls: the values agree to the last bit)."""
+    try:
+        found = _EVENTS.get(raw)
+    except TypeError:
+        found = None
+    if found is not None:
+        return found or None
+    sig = _READY[2]["events"]
+    func = getattr(raw, "events", None)
+    try:
+        if getattr(func, "nopython_signatures", None) is None:
+            import numba
+
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                func = numba.njit(sig, error_model="numpy")(func)
+        found = _address(func, sig)
+    except Exception:  # noqa: BLE001 — the Python loop runs the model's events as written
+        found = False
+    try:
+        _EVENTS[raw] = found
+    except TypeError:
+        pass
+    return found or None
+
+
+def watch_map(watch) -> np.ndarray:
+    """The run's :class:`~phc.simulation.events.Watch` (its current modes) as the compiled loop
+    evaluates it: rows a, b, k of ``w_i = a_i + b_i·v[k_i]``, ``v`` the model's ``events`` values —
+    a watched switch ``mode·g`` (a = 0, b = mode), an unwatched one 1, a sticking sign's
+    ``1 − s`` and ``1 + s`` (else 1), in the order of ``Watch.__call__`` (contacts are not mapped:
+    a run with contacts keeps the Python loop). a + b·v is the Watch's value exactly (0 + x = x,
+    1 + (−1)·s = 1 − s in IEEE arithmetic)."""
+    n_sw, n_st = watch.n_sw, watch.n_st
+    wmap = np.zeros((3, n_sw + 2 * n_st))
+    wmap[0, :n_sw] = np.where(watch.mask, 0.0, 1.0)
+    wmap[1, :n_sw] = np.where(watch.mask, watch.sign, 0.0)
+    wmap[2, :n_sw] = np.arange(n_sw)
+    for j in range(n_st):
+        for col, b in ((n_sw + 2 * j, -1.0), (n_sw + 2 * j + 1, 1.0)):
+            wmap[0, col] = 1.0
+            wmap[1, col] = b if watch.stuck[j] else 0.0
+            wmap[2, col] = n_sw + j
+    return wmap
+
+
 def mixed_precision(n: int) -> bool:
     """Whether the compiled loop's Newton corrections of a system of `n` unknowns start with the
     single-precision copy of the inverse: from :data:`MIXED_PRECISION_MIN` unknowns on;
@@ -240,7 +303,8 @@ def _signatures():
             "invariants": vector(f64, given, given),
             "hamiltonian": f64(f64, given, given),
             "energy_scale": f64(f64, given, given),
-            "powers": types.UniTuple(f64, 2)(f64, given, given, given)}
+            "powers": types.UniTuple(f64, 2)(f64, given, given, given),
+            "events": types.none(f64, given, given, given, out)}
 
 
 def _build():
@@ -288,7 +352,7 @@ def _compile():
     for name in ("_copy", "_factor", "_invert", "_solve", "_lowprec", "_solve32", "_fill", "_stage_residual",
                  "_refactor_matrix", "_all_finite", "_begin", "_refactor", "_correct", "_add", "_precision",
                  "_consistent", "_newton", "_stage", "_discrete_gradient", "_midpoint4_step", "_advance",
-                 "_monitor_ratio", "_far_from_singular", "lagrange_weights", "predictor_nodes", "substeps", "next_step",
+                 "_monitor_ratio", "_far_from_singular", "_watch", "lagrange_weights", "predictor_nodes", "substeps", "next_step",
                  "polynomial", "extrapolate", "predict", "looks", "accept", "chunk"):
         namespace[name] = jit(namespace[name])
     chunk = numba.njit(error_model="numpy")(namespace["_chunk"])
@@ -297,20 +361,26 @@ def _compile():
     C3 = types.Array(types.float64, 3, "C")
     I1 = types.Array(types.int64, 1, "C")
     I2 = types.Array(types.int32, 2, "C")
+    events = types.FunctionType(sigs["events"])
     B1 = types.Array(types.int8, 1, "C")
     LP = types.Tuple((types.Array(types.float32, 3, "C"), C3, types.Array(types.float32, 1, "C")))
     signature = types.void(fn["residual"], fn["jacobian"], fn["invariants"], fn["hamiltonian"], fn["energy_scale"],
-                           fn["powers"], C1, C1, C2, C2, C1, C1, C1, C1, C1, I1, C1, C3, LP, I2, C2, I1, I1, I1,
-                           B1, C1, B1, C2, C3, C1, C1, C1, C2, C1, C1, C2, types.int64)
+                           fn["powers"], events, C1, C1, C2, C2, C1, C1, C1, C1, C1, I1, C1, C3, LP, I2, C2, I1, I1,
+                           I1, B1, C1, B1, C2, C3, C1, C1, C1, C2, C1, C1, C2, C2, C1, C1, C1, types.int64)
     _attach_cache(chunk, namespace["_chunk"])
     dummy = numba.njit(error_model="numpy")(namespace["_no_invariants"])
     _attach_cache(dummy, namespace["_no_invariants"])
+    no_events = numba.njit(error_model="numpy")(namespace["_no_events"])
+    _attach_cache(no_events, namespace["_no_events"])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # numba's NumbaExperimentalFeatureWarning on first-class functions
         chunk.compile(signature)
         dummy.compile(sigs["invariants"].args)
+        no_events.compile(sigs["events"].args)
     chunk.disable_compile()
     dummy.disable_compile()
+    no_events.disable_compile()
+    sigs["no_events"] = _address(no_events, sigs["events"])
     return chunk, dummy, sigs
 
 
@@ -378,19 +448,28 @@ def algebraic_mask(raw) -> np.ndarray:
 
 
 def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step, name, names=None,
-              python_advance=None, weights=None, scales=None) -> Optional[dict]:
+              python_advance=None, weights=None, scales=None, events=None) -> Optional[dict]:
     """Run a fixed-step solver with the compiled loop; None when it does not apply (the caller
     runs its Python loop). Returns what :func:`~phc.simulation.midpoint.integrate_fixed_step`
     returns, plus ``nfev``/``njev``. `python_advance()` makes the Python step object used for
     steps the compiled loop hands back; `weights` (optional, shape (N,)) are Newton weights:
     converged when max |Δⱼ|·wⱼ ≤ NEWTON_TOL (default: max |Δ| ≤ NEWTON_TOL·(1 + max |y|));
     `scales` are the nominal scales the singularity monitor scales the columns by
-    (:mod:`phc.simulation.scaling`)."""
+    (:mod:`phc.simulation.scaling`).
+
+    `events` (a :class:`phc.simulation.events.Watch`, optional) are the run's switching functions:
+    the chunk evaluates them after each step (the operation ``_watch``) and hands back the first
+    step at whose end one has fallen to zero or below; that step is located here by the Python
+    loop's code (:func:`phc.simulation.midpoint._locate`) and the run returns with ``event`` as
+    :func:`~phc.simulation.midpoint.integrate_fixed_step` does. A run with contacts (impacts)
+    or on the C back end keeps the Python loop (None)."""
     from phc.simulation import midpoint as mp
     from phc.simulation.monitor import SingularityMonitor
 
     raw = getattr(mod, "module", mod)
     on_c = getattr(raw, "BACKEND", "numpy") == "c"  # the C back end's loop (phc.codegen.c_steps)
+    if events is not None and (on_c or events.n_ct):  # the C loop watches nothing; contacts are Python's
+        return None
     if method == "discrete_gradient":
         from phc.simulation.discrete_gradient import velocity_rows
 
@@ -420,6 +499,9 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
     if not on_c:
         funcs = _functions(raw)
         chunk = _READY[0]
+        evf = _READY[2]["no_events"] if events is None else _events_function(raw)
+        if evf is None:
+            return None
 
     n = raw.N
     t_out = np.ascontiguousarray(t_out, dtype=float)
@@ -464,6 +546,14 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
     jbuf, ebuf = np.zeros(len(jrows)), np.zeros(len(jrows))
     M = np.zeros((n, n) if not on_c else (1, 1))
     pv = np.ascontiguousarray(p, dtype=float)
+    # the watched switching functions (a run with events): their map, values at the step's start
+    # and end, the model's events values (phc.codegen.numba_steps_kernel._watch)
+    wmap = np.zeros((3, 0)) if events is None else watch_map(events)
+    wprev = np.ascontiguousarray(events(float(t_out[0]), y, np.asarray(yp0, dtype=float)) if events is not None
+                                 else np.zeros(0), dtype=float)
+    wnew = np.zeros(wprev.shape[0])
+    vbuf = np.zeros(0 if events is None else events.n_sw + events.n_st)
+    event = None
     split = 0
     ok, message, interrupted = True, "integration finished", False
     python = None
@@ -475,18 +565,49 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
         run_c = c_steps.bind(raw, pv, t_out, ys, yps, y, mid, mid_slope, y_prev, y_new, pt, pm, fst, ist, c, jrows,
                              jcols, end_rows, emask, w, algmask, colscale, hist_t, hist_v)
 
+    def python_step():
+        nonlocal python
+        if python is None:
+            python = python_advance()
+        if hasattr(python, "nhist"):  # midpoint4's predictor: the history is the kernel's
+            python.nhist = 0
+        return python
+
+    def located(t, h, new, w_new, crossed):
+        """The event the Python loop locates in the step (t, h, y) → `new` (mp._locate)."""
+        found = mp._locate(python_step(), events, None, t, h, y.copy(), new, wprev.copy(), w_new, crossed)
+        ist[_STEPS] += 1
+        return found
+
+    def event_in_python():
+        """The step the chunk handed back with a switching function at or below zero at its end
+        (or not finite: the Watch says which, as in the Python loop): the event, located as the
+        Python loop locates it, or None (then the step is taken, as the Python loop takes it)."""
+        nonlocal ok, message
+        t, h = float(fst[_T]), float(fst[_H])
+        new = y_new.copy()
+        w_new = events(t + h, new, (new - y) / h)
+        crossed = (wprev > 0) & (w_new <= 0)
+        if crossed.any():
+            return located(t, h, new, w_new, crossed)
+        wprev[:] = w_new
+        if _step_logic.accept(t, h, y, new, new, y_prev, mid, mid_slope, pt, pm, ys, yps, fst, ist):
+            ok, message = False, _max_steps_message(ist, fst)
+        return None
+
     def step_in_python():
-        """The rest of the Python loop's body for the step at (t, h, y) the chunk handed back."""
-        nonlocal python, split, ok, message
+        """The rest of the Python loop's body for the step at (t, h, y) the chunk handed back:
+        None, or the event it found (a run with `events`)."""
+        nonlocal split, ok, message
         t, h = float(fst[_T]), float(fst[_H])
         steps = int(ist[_STEPS])
         converged = ist[_STATUS] == _LOOK or ist[_CODE] == _OK
         hard, look = _step_logic.looks(ist, c, converged, bool(ist[_ILL]))
         new = y_new.copy()
-        if python is None:
-            python = python_advance()
-        if hasattr(python, "nhist"):  # midpoint4's predictor: the history is the kernel's
-            python.nhist = 0
+        python_step()
+        if not converged and events is not None and mp._crossed(events, t, h, y, new, wprev):
+            # a failed step across a switching surface: the crossing is before (integrate_fixed_step)
+            return located(t, h, new, events(t + h, new, (new - y) / h), None)
         if look:
             ist[_LAST_LOOK] = steps
         # the Python loop's own handling of the step (mp.finish_step), on copies of the kernel's arrays
@@ -497,11 +618,18 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
             ist[_LAST_LOOK] = steps - mp.LOOK_GAP  # the passage's next hard step is handed back too
         if failure:
             ok, message = False, failure
-            return
+            return None
+        if events is not None:
+            w_new = events(t + h, new, (new - y) / h)
+            crossed = (wprev > 0) & (w_new <= 0)
+            if crossed.any():
+                return located(t, h, new, w_new, crossed)
+            wprev[:] = w_new
         ist[_HIST] = 0  # midpoint4's predictor starts again: the Python step kept its own history
         # the Python loop's acceptance (plain NumPy: it is the step the chunk hands back)
         if _step_logic.accept(t, h, y, new, new, y_prev, mid, mid_slope, pt, pm, ys, yps, fst, ist):
             ok, message = False, _max_steps_message(ist, fst)
+        return None
 
     try:
         while True:
@@ -510,15 +638,16 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
             if on_c:
                 run_c(budget)
             else:
-                chunk(*funcs, pv, t_out, ys, yps, y, mid, mid_slope, y_prev, fst, ist, c, A, lp, ipiv, matf, jrows,
-                      jcols, end_rows, emask, w, algmask, hist_t, hist_v, y_new, jbuf, ebuf, M, colscale, pt, pm, budget)
+                chunk(*funcs, evf, pv, t_out, ys, yps, y, mid, mid_slope, y_prev, fst, ist, c, A, lp, ipiv, matf,
+                      jrows, jcols, end_rows, emask, w, algmask, hist_t, hist_v, y_new, jbuf, ebuf, M, colscale, pt, pm,
+                      wmap, wprev, wnew, vbuf, budget)
             took = time.perf_counter() - t0
             status = int(ist[_STATUS])
             if status == _BUDGET:
                 taken = max(int(ist[_STEPS]) - before, 1)
                 budget = int(min(max(CHUNK_SECONDS * taken / max(took, 1e-9), 1), 1_000_000))
-            elif status in (_HARD, _LOOK):
-                step_in_python()
+            elif status in (_HARD, _LOOK, _EVENT):
+                event = step_in_python() if status != _EVENT else event_in_python()
                 if python is not None:
                     python_nfev, python_njev = _counts(python)
             elif status == _MAXSTEPS:
@@ -526,7 +655,7 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
             if progress is not None and ist[_K] > reported:
                 reported = int(ist[_K])
                 progress(float(t_out[reported - 1]))
-            if not ok or status == _DONE:
+            if not ok or status == _DONE or event is not None:
                 break
     except mp.ModelEvaluationError as err:
         k = max(int(ist[_K]) - 1, 0)
@@ -535,14 +664,14 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
         ok, interrupted = False, True
         message = f"interrupted at t = {t_out[max(int(ist[_K]) - 1, 0)]:.6g}"
     message = mp.closing_message(message, ok, split, rank_drops)
-    last = int(ist[_K]) - 1 if not ok else nout - 1
+    last = int(ist[_K]) - 1 if not ok or event is not None else nout - 1
     return BackendRun.from_mapping(dict(
         t=t_out[:last + 1], y=ys[:last + 1], yp=yps[:last + 1], steps=int(ist[_STEPS]), success=ok, message=message,
         cpu=time.process_time() - start, interrupted=interrupted, nfev=int(ist[_NFEV]) + python_nfev,
         njev=int(ist[_NFACT]) + python_njev, compiled_loop=True, step_loop="c" if on_c else "numba",
         mixed_precision=bool(low),
         low_precision_strikes=int(ist[_STRIKES]), unbalanced=int(getattr(python, "unbalanced", 0) or 0),
-        rank_drops=[a for a, _ in rank_drops]))
+        rank_drops=[a for a, _ in rank_drops], event=event))
 
 
 def _max_steps_message(ist, fst) -> str:
@@ -568,4 +697,4 @@ def __getattr__(name: str):
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
 
 
-__all__ = ["MAX_UNKNOWNS", "algebraic_mask", "enabled", "integrate", "step_constants", "why_not"]
+__all__ = ["MAX_UNKNOWNS", "algebraic_mask", "enabled", "integrate", "step_constants", "watch_map", "why_not"]

@@ -231,15 +231,15 @@ def integrate_discrete_gradient(mod, p, t_out, y0, yp0, options, *, progress=Non
     (each output interval is split into equal steps no longer than ``options.step``; a
     fixed-step method's accuracy is set by `step` alone)."""
     step, max_steps = options.step, options.max_steps
-    if events is None:  # the whole step loop compiled, when the model runs on the numba backend
-        from phc.simulation import compiled_steps
+    # the whole step loop compiled, when the model runs on the numba or the C backend (with events: numba)
+    from phc.simulation import compiled_steps
 
-        out = compiled_steps.integrate("discrete_gradient", mod, p, t_out, y0, yp0, max_steps=max_steps,
-                                       progress=progress, step=step, name="discrete gradient", names=names,
-                                       python_advance=lambda: DiscreteGradientStep(mod, p, nominal),
-                                       weights=newton_weights_of(nominal, mod), scales=nominal)
-        if out is not None:
-            return _report_unbalanced(out)
+    out = compiled_steps.integrate("discrete_gradient", mod, p, t_out, y0, yp0, max_steps=max_steps,
+                                   progress=progress, step=step, name="discrete gradient", names=names,
+                                   python_advance=lambda: DiscreteGradientStep(mod, p, nominal),
+                                   weights=newton_weights_of(nominal, mod), scales=nominal, events=events)
+    if out is not None:
+        return _report_unbalanced(out)
     advance = DiscreteGradientStep(mod, p, nominal)
     out = integrate_fixed_step(mod, p, t_out, y0, yp0, max_steps=max_steps, progress=progress, step=step,
                                advance=advance, name="discrete gradient", names=names, events=events,

@@ -1089,14 +1089,14 @@ def integrate_midpoint(mod, p, t_out, y0, yp0, options, *, progress=None, names=
         from phc.codegen import c_steps
 
         c_steps.note_events(getattr(mod, "module", mod))
-    if events is None:  # the whole step loop compiled, when the model runs on the numba or the C backend
-        from phc.simulation import compiled_steps
+    # the whole step loop compiled, when the model runs on the numba or the C backend (with events: numba)
+    from phc.simulation import compiled_steps
 
-        out = compiled_steps.integrate("midpoint", mod, p, t_out, y0, yp0, max_steps=max_steps, progress=progress,
-                                       step=step, name="implicit midpoint", names=names, python_advance=make_advance,
-                                       weights=newton_weights_of(nominal, mod), scales=nominal)
-        if out is not None:
-            return out
+    out = compiled_steps.integrate("midpoint", mod, p, t_out, y0, yp0, max_steps=max_steps, progress=progress,
+                                   step=step, name="implicit midpoint", names=names, python_advance=make_advance,
+                                   weights=newton_weights_of(nominal, mod), scales=nominal, events=events)
+    if out is not None:
+        return out
     advance = make_advance()
     stage = advance.stage
     out = integrate_fixed_step(mod, p, t_out, y0, yp0, max_steps=max_steps, progress=progress, step=step,

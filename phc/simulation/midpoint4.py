@@ -199,15 +199,15 @@ def integrate_midpoint4(mod, p, t_out, y0, yp0, options, *, progress=None, names
                              f"{mu.imag:+.2g}j) at h·|λ| = {h * abs(mu):.3f}, inside the composition's unstable band "
                              f"{UNSTABLE_BAND[0]}–{UNSTABLE_BAND[1]}: its backward substep would amplify it; change "
                              "`step` (e.g. by 20 %) or use `midpoint`")))
-    if events is None:  # the whole step loop compiled, when the model runs on the numba backend
-        from phc.simulation import compiled_steps
+    # the whole step loop compiled, when the model runs on the numba or the C backend (with events: numba)
+    from phc.simulation import compiled_steps
 
-        out = compiled_steps.integrate("midpoint4", mod, p, t_out, y0, yp0, max_steps=max_steps, progress=progress,
-                                       step=step, name="midpoint composition (order 4)", names=names,
-                                       python_advance=lambda: Midpoint4Step(mod, p, nominal),
-                                       weights=newton_weights_of(nominal, mod), scales=nominal)
-        if out is not None:
-            return out
+    out = compiled_steps.integrate("midpoint4", mod, p, t_out, y0, yp0, max_steps=max_steps, progress=progress,
+                                   step=step, name="midpoint composition (order 4)", names=names,
+                                   python_advance=lambda: Midpoint4Step(mod, p, nominal),
+                                   weights=newton_weights_of(nominal, mod), scales=nominal, events=events)
+    if out is not None:
+        return out
     advance = Midpoint4Step(mod, p, nominal)
     out = integrate_fixed_step(mod, p, t_out, y0, yp0, max_steps=max_steps, progress=progress, step=step,
                                advance=advance, name="midpoint composition (order 4)", names=names, events=events,

@@ -96,6 +96,14 @@ them with the rest of the kernel. The operations (what they do and return):
     not conclusive) in the numba kernel (``_monitor_ratio``); the same estimate on steps.c's own
     LU in the C loop (``far_from_singular``), which hands an inconclusive look to Python's
     monitor. False: the driver looks with the Python monitor and decides.
+``_watch(ws, t, h, y, y_new) -> bool``
+    The switching functions of a run with events (:class:`phc.simulation.events.Watch`, the
+    modes' ``w = mode·g`` and a sticking sign's ``1 ∓ s``) at the step's end ``(t + h, y_new)``
+    with the step's slope: True when one has fallen from above zero to zero or below, or is not
+    finite (the driver then evaluates them itself and locates the event with the Python loop's
+    code, :func:`phc.simulation.midpoint._locate`); False (the values kept as the next step's
+    start) otherwise, and always in a run without events. The numba kernel evaluates the model's
+    ``events`` compiled; the C loop runs no events (its ``op_watch`` is False).
 
 The numbers the logic uses come in the vector ``c`` (its layout: ``_TOL`` … ``_STRIKES_C``),
 filled from the constants of the methods' modules (:func:`phc.simulation.midpoint.newton_constants`,
@@ -123,7 +131,7 @@ _NI = 20
 _T, _H, _H_PREV, _STEP = range(4)
 _NF = 4
 # status of a compiled loop's chunk (ist[_STATUS], set by :func:`chunk`)
-_BUDGET, _DONE, _HARD, _LOOK, _MAXSTEPS = 0, 1, 2, 3, 4
+_BUDGET, _DONE, _HARD, _LOOK, _MAXSTEPS, _EVENT = 0, 1, 2, 3, 4, 5
 LOOK_GAP = 10
 """A step Newton found ill-conditioned is looked at by the singularity monitor if the last look
 was at least this many steps before (:func:`looks`; why: :data:`phc.simulation.midpoint.LOOK_GAP`)."""
@@ -270,7 +278,9 @@ def chunk(ws, t_out, ys, yps, y, mid, mid_slope, y_prev, y_new, pt, pm, fst, ist
     are done (``ist[_STATUS]`` ← :data:`_BUDGET`), the grid's end (:data:`_DONE`), ``max_steps``
     (:data:`_MAXSTEPS`), or a step that needs the Python driver: one that failed or that the
     singularity monitor must look at as a hard step (:data:`_HARD`, the outcome in ``ist[_CODE]``
-    and ``ist[_ILL]``), or a routine look the loop's screen does not pass (:data:`_LOOK`). The
+    and ``ist[_ILL]``), a routine look the loop's screen does not pass (:data:`_LOOK`), or a
+    step at whose end a watched switching function has fallen to zero or below (:data:`_EVENT`,
+    the operation ``_watch``: the driver locates the event). The
     step is not taken then (the driver takes it: :func:`phc.simulation.compiled_steps.integrate`).
 
     Each step: :func:`next_step`, :func:`predict` into ``guess``, the method's step into ``y_new``
@@ -307,6 +317,9 @@ def chunk(ws, t_out, ys, yps, y, mid, mid_slope, y_prev, y_new, pt, pm, fst, ist
             if not _far_from_singular(ws, t, y, yp, 0.5 * h):  # noqa: F821 — a compiled loop's operation
                 ist[_STATUS] = _LOOK
                 return
+        if _watch(ws, t, h, y, y_new):  # noqa: F821 — a compiled loop's operation: a switching function crossed
+            ist[_STATUS] = _EVENT
+            return
         done += 1
         if accept(t, h, y, y_new, y_new, y_prev, mid, mid_slope, pt, pm, ys, yps, fst, ist):
             ist[_STATUS] = _MAXSTEPS

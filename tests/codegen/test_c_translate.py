@@ -129,11 +129,12 @@ def test_accept_matches_python_bit_for_bit(driver, has_mid, j, max_steps):
         assert np.array_equal(a, b)
 
 
-# The chunk loop (step_logic.chunk) with stand-ins for the loop's two operations it calls, the same
+# The chunk loop (step_logic.chunk) with stand-ins for the loop's three operations it calls, the same
 # in C and in Python: a "step" out = guess + h y that fails from t_fail on and is ill-conditioned
-# from t_ill on, and a routine look that passes before t_look.
+# from t_ill on, a routine look that passes before t_look, and a switching function that crosses
+# zero at the end of a step past t_event.
 _CHUNK_OPS = """
-struct phc_steps { double t_fail, t_ill, t_look; };
+struct phc_steps { double t_fail, t_ill, t_look, t_event; };
 static int64_t op_advance(int64_t n, const struct phc_steps *w, double t, double h, const double *y,
                           const double *guess, double *out, int *ill)
 {
@@ -147,6 +148,11 @@ static int op_far_from_singular(int64_t n, const struct phc_steps *w, double t, 
 {
     (void)n; (void)y; (void)yp; (void)hm;
     return t < w->t_look;
+}
+static int op_watch(int64_t n, const struct phc_steps *w, double t, double h, const double *y, const double *y_new)
+{
+    (void)n; (void)y; (void)y_new;
+    return t + h > w->t_event;
 }
 """
 
@@ -171,13 +177,16 @@ def _chunk_in_python():
     def _far_from_singular(ws, t, y, yp, hm):
         return t < ws[2]
 
-    namespace = {**vars(sl), "_advance": _advance, "_far_from_singular": _far_from_singular}
+    def _watch(ws, t, h, y, y_new):
+        return t + h > ws[3]
+
+    namespace = {**vars(sl), "_advance": _advance, "_far_from_singular": _far_from_singular, "_watch": _watch}
     return types.FunctionType(sl.chunk.__code__, namespace, "chunk")
 
 
 @pytest.fixture(scope="module")
 def chunk_c():
-    ops = {k: v for k, v in c_steps._operations().items() if k in ("_advance", "_far_from_singular")}
+    ops = {k: v for k, v in c_steps._operations().items() if k in ("_advance", "_far_from_singular", "_watch")}
     text = ("#include <math.h>\n#include <stdint.h>\n" + PRELUDE + _CHUNK_OPS
             + Translator(sl, sl.C_SIGNATURES, ops).translate(DRIVER + ("looks", "chunk")) + _CHUNK_WRAPPER)
     lib, why = c_backend.runtime_library(text, c_steps.FLAGS)
@@ -186,15 +195,17 @@ def chunk_c():
     return lib
 
 
-@pytest.mark.parametrize("t_fail, t_ill, t_look, budget, max_steps, status", [
-    (np.inf, np.inf, np.inf, 10**6, 10**6, sl._DONE),  # the whole grid, its looks passing
-    (np.inf, np.inf, np.inf, 7, 10**6, sl._BUDGET),
-    (0.33, np.inf, np.inf, 10**6, 10**6, sl._HARD),  # a step that fails
-    (np.inf, 0.2, np.inf, 10**6, 10**6, sl._HARD),  # ill-conditioned, LOOK_GAP steps after the last look
-    (np.inf, np.inf, 0.27, 10**6, 10**6, sl._LOOK),  # a routine look that does not pass
-    (np.inf, np.inf, np.inf, 10**6, 13, sl._MAXSTEPS),
+@pytest.mark.parametrize("t_fail, t_ill, t_look, t_event, budget, max_steps, status", [
+    (np.inf, np.inf, np.inf, np.inf, 10**6, 10**6, sl._DONE),  # the whole grid, its looks passing
+    (np.inf, np.inf, np.inf, np.inf, 7, 10**6, sl._BUDGET),
+    (0.33, np.inf, np.inf, np.inf, 10**6, 10**6, sl._HARD),  # a step that fails
+    (np.inf, 0.2, np.inf, np.inf, 10**6, 10**6, sl._HARD),  # ill-conditioned, LOOK_GAP steps after the last look
+    (np.inf, np.inf, 0.27, np.inf, 10**6, 10**6, sl._LOOK),  # a routine look that does not pass
+    (np.inf, np.inf, np.inf, np.inf, 10**6, 13, sl._MAXSTEPS),
+    (np.inf, np.inf, np.inf, 0.41, 10**6, 10**6, sl._EVENT),  # a switching function crossed: handed back
 ])
-def test_the_chunk_loop_matches_python_bit_for_bit(chunk_c, t_fail, t_ill, t_look, budget, max_steps, status):
+def test_the_chunk_loop_matches_python_bit_for_bit(chunk_c, t_fail, t_ill, t_look, t_event, budget, max_steps,
+                                                   status):
     """step_logic.chunk, the compiled loops' chunk (the C loop's phc_steps_chunk is its translation),
     stops with the same status after the same steps and leaves every state array as Python does."""
     rng = np.random.default_rng(int(status) + budget % 5)
@@ -213,8 +224,8 @@ def test_the_chunk_loop_matches_python_bit_for_bit(chunk_c, t_fail, t_ill, t_loo
     arrays = [ys, yps, y, mid, slope, y_prev, y_new, pt, pm, fst, ist, guess, yp]
     py = [a.copy() for a in arrays]
     cc = [a.copy() for a in arrays]
-    _chunk_in_python()((t_fail, t_ill, t_look), t_out, *py[:11], c, algmask, *py[11:], budget)
-    ws = (ctypes.c_double * 3)(t_fail, t_ill, t_look)
+    _chunk_in_python()((t_fail, t_ill, t_look, t_event), t_out, *py[:11], c, algmask, *py[11:], budget)
+    ws = (ctypes.c_double * 4)(t_fail, t_ill, t_look, t_event)
     ys_c, yps_c, y_c, mid_c, slope_c, y_prev_c, y_new_c, pt_c, pm_c, fst_c, ist_c, guess_c, yp_c = cc
     chunk_c.t_chunk(ctypes.c_int64(n), ws, _p(t_out), _p(ys_c), _p(yps_c), ctypes.c_int64(nout), _p(y_c), _p(mid_c),
                     _p(slope_c), _p(y_prev_c), _p(y_new_c), _p(pt_c), _p(pm_c), ctypes.c_int64(npred), _p(fst_c),
