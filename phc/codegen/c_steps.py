@@ -132,15 +132,26 @@ def translation() -> str:
     return PRELUDE + "\n" + body + "\n" + entry()
 
 
+def make_source() -> str:
+    """The step loop's whole C text, translated anew (:func:`source` keeps it)."""
+    text = SOURCE.read_text(encoding="utf-8")
+    if text.count(MARKER) != 1:
+        raise RuntimeError(f"{SOURCE} must have the line {MARKER} once (a phc bug: please report it)")
+    return with_dense_lu(text.replace(MARKER, translation().rstrip("\n")), SOURCE.name)
+
+
 def source() -> str:
     """The step loop's whole C text: steps.c with :func:`translation` in place of its
-    :data:`MARKER` line (self-contained: the FMU export ships it as its ``steps.c``)."""
+    :data:`MARKER` line (self-contained: the FMU export ships it as its ``steps.c``); once per
+    process, and kept in the signed cache keyed by the files it is made from (the layout's
+    constants are numba_steps_kernel's: :func:`phc.codegen.c_backend.translated_text`)."""
     global _SOURCE_TEXT
     if _SOURCE_TEXT is None:
-        text = SOURCE.read_text(encoding="utf-8")
-        if text.count(MARKER) != 1:
-            raise RuntimeError(f"{SOURCE} must have the line {MARKER} once (a phc bug: please report it)")
-        _SOURCE_TEXT = with_dense_lu(text.replace(MARKER, translation().rstrip("\n")), SOURCE.name)
+        from phc.codegen import c_backend
+        from phc.codegen.c_ida import TRANSLATOR
+
+        _SOURCE_TEXT = c_backend.translated_text(
+            "steps", (SOURCE, DENSE_LU, __file__, _sl.__file__, _k.__file__, TRANSLATOR), make_source)
     return _SOURCE_TEXT
 
 FLAGS = ("-std=c99", "-O3", "-fPIC", "-shared", "-ffp-contract=off")
@@ -316,6 +327,42 @@ def bind(raw, p, t_out, ys, yps, y, mid, mid_slope, y_prev, y_new, pt, pm, fst, 
     return chunk
 
 
+def midpoint_steps(raw, p, t_out, y0, yp0) -> tuple[int, np.ndarray]:
+    """Implicit-midpoint steps of the C loop, one per interval of the grid `t_out` from the
+    consistent start (`y0`, `yp0`) of the C module `raw`, with the Newton test relative to
+    |y| + 1 and the singularity monitor off: what the nominal-scales probe
+    (:func:`phc.simulation.scaling._probe`) runs, :class:`~phc.simulation.midpoint.StageSolver`'s
+    stage solved by the same Newton iteration (``step_logic.newton``). Returns ``(k, ys)``: the
+    first `k` rows of `ys` are the solution at ``t_out[:k]``; the loop stops at the first step it
+    hands back (a failed or ill-conditioned step: the Python stage solver may retry it)."""
+    from phc.simulation import midpoint as mp
+    from phc.simulation.compiled_steps import METHODS as CODES, algebraic_mask, step_constants
+
+    n = int(raw.N)
+    t_out = np.ascontiguousarray(t_out, dtype=float)
+    nout = len(t_out)
+    ys, yps = np.zeros((nout, n)), np.zeros((nout, n))
+    ys[0], yps[0] = y0, yp0
+    y = np.array(y0, dtype=float)
+    mid, mid_slope, y_prev, y_new = np.zeros(n), np.array(yp0, dtype=float), np.zeros(n), np.zeros(n)
+    end_rows = np.ascontiguousarray(mp.constraint_rows(raw), dtype=np.int64)
+    jrows = np.ascontiguousarray(raw.JAC_ROWS, dtype=np.int64)
+    jcols = np.ascontiguousarray(raw.JAC_COLS, dtype=np.int64)
+    ist = np.zeros(_k._NI + 2, dtype=np.int64)
+    ist[_k._K], ist[_k._LAST_LOOK], ist[_k._MAX_STEPS] = 1, -mp.MONITOR_EVERY, nout
+    ist[_k._MONITOR], ist[_k._METHOD], ist[_k._NEND] = 0, CODES["midpoint"], len(end_rows)
+    names = list(raw.VARIABLES)
+    ist[_k._E] = names.index("energy.supplied") if "energy.supplied" in names else 0
+    fst = np.zeros(_k._NF)
+    fst[_k._STEP], fst[_k._H_PREV] = 0.0, 1.0  # (no step size: one step per output interval)
+    pt, pm = np.zeros(mp.MAX_PREDICTOR_ORDER + 1), np.zeros((mp.MAX_PREDICTOR_ORDER + 1, n))
+    run = bind(raw, np.ascontiguousarray(p, dtype=float), t_out, ys, yps, y, mid, mid_slope, y_prev, y_new, pt, pm,
+               fst, ist, step_constants(), jrows, jcols, end_rows, np.isin(jrows, end_rows).astype(np.int8),
+               np.zeros(0), algebraic_mask(raw), np.zeros(0), np.zeros((2, 3)), np.zeros((2, 3, n)))
+    run(nout)
+    return int(ist[_k._K]), ys
+
+
 def note_events(raw) -> None:
     """Say once that a run with switching conditions does not use the C step loop (the Python
     loop locates the switches)."""
@@ -323,4 +370,4 @@ def note_events(raw) -> None:
         say_unused("runs with switching conditions (events) need the Python loop, which locates the switches")
 
 
-__all__ = ["ABI", "DENSE_LU", "DENSE_LU_MARKER", "FLAGS", "MARKER", "METHODS", "SOURCE", "TRANSLATED", "bind", "library", "note_events", "say_unused", "source", "translation", "usable", "why_not", "with_dense_lu"]
+__all__ = ["ABI", "DENSE_LU", "DENSE_LU_MARKER", "FLAGS", "MARKER", "METHODS", "SOURCE", "TRANSLATED", "bind", "library", "make_source", "note_events", "say_unused", "source", "translation", "usable", "why_not", "with_dense_lu"]

@@ -383,6 +383,20 @@ def _throughput(mod, p, t, y, yp) -> float:
     return value if np.isfinite(value) else 0.0
 
 
+def _c_steps(raw, p, t0, h, y0, yp0) -> np.ndarray:
+    """The probe's step ends (after `y0`) the C back end's step loop takes
+    (:func:`phc.codegen.c_steps.midpoint_steps`, up to the first step it hands back); none where it
+    does not run (another back end, the loop switched off or not built)."""
+    if getattr(raw, "BACKEND", "") != "c":
+        return np.zeros((0, raw.N))
+    from phc.codegen import c_steps
+
+    if not c_steps.usable("midpoint", raw)[0]:
+        return np.zeros((0, raw.N))
+    k, ys = c_steps.midpoint_steps(raw, p, t0 + h * np.arange(PROBE_STEPS + 1), y0, yp0)
+    return ys[1:k]
+
+
 def _probe(mod, p, t0, y0, yp0, tau, weights) -> tuple[np.ndarray, float, float]:
     """Largest |y|, energy scale and power throughput (:func:`_throughput`) over a few
     implicit-midpoint steps (best effort: the probe stops at the first step Newton cannot do)."""
@@ -401,20 +415,34 @@ def _probe(mod, p, t0, y0, yp0, tau, weights) -> tuple[np.ndarray, float, float]
         # find: a start at rest where everything is round-off (a source sin(ωt) at t = 0) has
         # scales of 1e-20 that no Newton iteration meets
         del weights
-        stage = StageSolver(getattr(mod, "module", mod), p)  # unguarded: a failure ends the probe anyway
+        raw = getattr(mod, "module", mod)  # unguarded: a failure ends the probe anyway
         h = tau / PROBE_STEPS
         y = np.array(y0, dtype=float)
         slope = np.asarray(yp0, dtype=float)
         t = t0
-        for _ in range(PROBE_STEPS):
-            y1, ok = stage.solve(t, h, y, y + h * slope, 0.5)
-            if not ok or not np.all(np.isfinite(y1)):
+        # the steps the C step loop takes (the same stage, solved by the same Newton iteration, each
+        # from a better guess), then the Python stage solver's from where the loop handed a step back
+        for y1 in _c_steps(raw, p, t0, h, y0, yp0):
+            if not np.all(np.isfinite(y1)):
                 break
             slope = (y1 - y) / h
             power = max(power, _throughput(mod, p, t + 0.5 * h, 0.5 * (y + y1), slope))
             y, t = y1, t + h
             np.maximum(big, np.abs(y), out=big)
             energy = max(energy, abs(float(mod.energy_scale(t, y, p))))
+        else:
+            stage = None
+            while t < t0 + tau - 0.5 * h:
+                if stage is None:
+                    stage = StageSolver(raw, p)
+                y1, ok = stage.solve(t, h, y, y + h * slope, 0.5)
+                if not ok or not np.all(np.isfinite(y1)):
+                    break
+                slope = (y1 - y) / h
+                power = max(power, _throughput(mod, p, t + 0.5 * h, 0.5 * (y + y1), slope))
+                y, t = y1, t + h
+                np.maximum(big, np.abs(y), out=big)
+                energy = max(energy, abs(float(mod.energy_scale(t, y, p))))
     except (ModelEvaluationError, *CATCH):
         pass
     return big, energy if np.isfinite(energy) else 0.0, power

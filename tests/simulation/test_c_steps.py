@@ -415,3 +415,41 @@ def test_a_run_with_switching_conditions_says_it_runs_the_python_loop(tmp_path, 
     slow = phc.simulate(model, solver="midpoint", step=1e-3)
     assert fast.success and fast.events and "c" not in loops
     assert np.array_equal(fast.y, slow.y)
+
+
+@pytest.mark.parametrize("name", ["pendulum.yaml", "rigid_slider_crank.yaml", "dc_motor_pi.yaml"])
+def test_the_nominal_scales_probe_takes_its_steps_in_c_as_the_python_stage_solver_does(compiled, monkeypatch, name):
+    """The nominal-scales probe (phc.simulation.scaling._probe) takes its implicit-midpoint steps
+    in the C loop (c_steps.midpoint_steps): the same stage solved by the same Newton iteration as
+    the Python StageSolver's, each from another guess, so the largest |y| it sees, the energy
+    scale and the power throughput agree with the Python probe's to the Newton tolerance
+    (NEWTON_TOL = 1e-14 relative to 1 + max |y|; 1e-10 leaves room for the conditioning)."""
+    from phc.codegen import c_steps
+    from phc.simulation import scaling
+
+    seen, taken = [], []
+    probe, steps = scaling._probe, c_steps.midpoint_steps
+
+    def spy(*args):
+        seen.append(args)
+        return probe(*args)
+
+    def counting(*args):
+        k, ys = steps(*args)
+        taken.append(k)
+        return k, ys
+
+    monkeypatch.setattr(scaling, "_probe", spy)
+    monkeypatch.setattr(c_steps, "midpoint_steps", counting)
+    phc.simulate(compiled(name), solver="ida", t_end=0.5)
+    (args,) = seen
+    in_c = probe(*args)
+    assert taken[-1] == scaling.PROBE_STEPS + 1  # every step in C
+    monkeypatch.setattr(scaling, "_c_steps", lambda raw, *rest: np.zeros((0, raw.N)))
+    in_python = probe(*args)
+    big_c, big_py = in_c[0], in_python[0]
+    scale = 1.0 + np.abs(big_py).max()
+    assert np.abs(big_c - big_py).max() <= 1e-10 * scale
+    assert in_c[1] == pytest.approx(in_python[1], rel=1e-10, abs=1e-10 * scale)
+    assert in_c[2] == pytest.approx(in_python[2], rel=1e-10, abs=1e-10 * scale)
+    assert np.abs(big_py - np.abs(args[3])).max() > 1e-6 * scale  # the probe saw the states move
