@@ -363,6 +363,40 @@ def midpoint_steps(raw, p, t_out, y0, yp0) -> tuple[int, np.ndarray]:
     return int(ist[_k._K]), ys
 
 
+_ALONG = ("hamiltonian", "energy_scale", "powers", "invariants", "velocity_invariants", "outputs")
+"""The model's functions ``phc_steps_along`` calls at each point (in its order)."""
+
+
+def along(raw, p, t, y, yp) -> Optional[dict]:
+    """H, the energy scale, the port powers, the invariants, the velocity invariants and the
+    outputs of the C module `raw` at the points (``t[i]``, ``y[i]``, ``yp[i]``), in one call of
+    the step library's ``phc_steps_along`` (the model's own C functions, the values to the bit
+    of one call per point and function): a dict of arrays with the keys of
+    ``phc.simulation._evaluate_along``'s rows, not checked for finite values; None where the
+    library or the model's library is not at hand."""
+    if getattr(raw, "BACKEND", "") != "c" or getattr(raw, "C_LIBRARY", None) is None or library() is None:
+        return None
+    lib, model = library(), raw.C_LIBRARY
+    n, npts = int(raw.N), len(t)
+    ninv, nvinv = len(raw.INVARIANTS), len(getattr(raw, "VELOCITY_INVARIANTS", ()))
+    nout = len(raw.OUTPUTS)
+    t = np.ascontiguousarray(t, dtype=float)
+    y = np.ascontiguousarray(y, dtype=float).reshape(npts, n)
+    yp = np.ascontiguousarray(yp, dtype=float).reshape(npts, n)
+    pv = np.ascontiguousarray(p, dtype=float)
+    rows = {"H": np.zeros(npts), "scale": np.zeros(npts), "powers": np.zeros((npts, 2)),
+            "inv": np.zeros((npts, ninv)), "vinv": np.zeros((npts, nvinv)), "outs": np.zeros((npts, nout))}
+    entry = lib.phc_steps_along
+    entry.restype = None  # (every argument an address or a size: ctypes' default conversions)
+    fns = [ctypes.cast(getattr(model, f"phc_{name}"), _P).value for name in _ALONG]
+    def at(a):
+        return _P(a.ctypes.data if a.size else None)
+
+    entry(*[_P(f) for f in fns], _I(n), _I(npts), *map(at, (t, y, yp, pv)), _I(ninv), _I(nvinv), _I(nout),
+          *[at(rows[k]) for k in ("H", "scale", "powers", "inv", "vinv", "outs")])
+    return rows
+
+
 def note_events(raw) -> None:
     """Say once that a run with switching conditions does not use the C step loop (the Python
     loop locates the switches)."""
@@ -370,4 +404,4 @@ def note_events(raw) -> None:
         say_unused("runs with switching conditions (events) need the Python loop, which locates the switches")
 
 
-__all__ = ["ABI", "DENSE_LU", "DENSE_LU_MARKER", "FLAGS", "MARKER", "METHODS", "SOURCE", "TRANSLATED", "bind", "library", "make_source", "note_events", "say_unused", "source", "translation", "usable", "why_not", "with_dense_lu"]
+__all__ = ["ABI", "DENSE_LU", "DENSE_LU_MARKER", "FLAGS", "MARKER", "METHODS", "SOURCE", "TRANSLATED", "bind", "along", "library", "make_source", "midpoint_steps", "note_events", "say_unused", "source", "translation", "usable", "why_not", "with_dense_lu"]

@@ -453,3 +453,32 @@ def test_the_nominal_scales_probe_takes_its_steps_in_c_as_the_python_stage_solve
     assert in_c[1] == pytest.approx(in_python[1], rel=1e-10, abs=1e-10 * scale)
     assert in_c[2] == pytest.approx(in_python[2], rel=1e-10, abs=1e-10 * scale)
     assert np.abs(big_py - np.abs(args[3])).max() > 1e-6 * scale  # the probe saw the states move
+
+
+@pytest.mark.parametrize("name", ["rigid_slider_crank.yaml", "dc_motor_pi.yaml"])
+def test_the_functions_along_a_run_are_one_c_call_with_the_values_of_one_call_per_point(compiled, monkeypatch, name):
+    """A run's H, energy scale, powers, invariants and outputs at its output points are one call
+    of the step library (c_steps.along): the model's own C functions, so the values equal those of
+    one call per point and function to the bit."""
+    import phc.simulation as simulation
+    from phc.codegen import c_steps
+
+    seen, batched = [], []
+    evaluate, along = simulation._evaluate_along, c_steps.along
+    monkeypatch.setattr(simulation, "_evaluate_along", lambda *a: seen.append(a) or evaluate(*a))
+    monkeypatch.setattr(c_steps, "along", lambda *a: batched.append(1) or along(*a))
+    result = phc.simulate(compiled(name), solver="ida", t_end=0.5, n_out=21)
+    assert batched and result.success
+    mod, p, out = seen[0]
+    rows = c_steps.along(getattr(mod, "module", mod), p, out.t, out.y, out.yp)
+    raw = getattr(mod, "module", mod)
+    single = {"H": [raw.hamiltonian(*a, p) for a in zip(out.t, out.y)],
+              "scale": [raw.energy_scale(*a, p) for a in zip(out.t, out.y)],
+              "powers": [raw.powers(*a, p) for a in zip(out.t, out.y, out.yp)],
+              "inv": [raw.invariants(*a, p) for a in zip(out.t, out.y)],
+              "vinv": [raw.velocity_invariants(*a, p) for a in zip(out.t, out.y)],
+              "outs": [raw.outputs(*a, p) for a in zip(out.t, out.y, out.yp)]}
+    for key, values in single.items():
+        assert np.array_equal(rows[key], np.array(values, dtype=float).reshape(rows[key].shape)), key
+    assert rows["outs"].shape == (21, len(raw.OUTPUTS))
+    np.testing.assert_array_equal(result.H, rows["H"])
