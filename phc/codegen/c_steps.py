@@ -334,7 +334,8 @@ def midpoint_steps(raw, p, t_out, y0, yp0) -> tuple[int, np.ndarray]:
     (:func:`phc.simulation.scaling._probe`) runs, :class:`~phc.simulation.midpoint.StageSolver`'s
     stage solved by the same Newton iteration (``step_logic.newton``). Returns ``(k, ys)``: the
     first `k` rows of `ys` are the solution at ``t_out[:k]``; the loop stops at the first step it
-    hands back (a failed or ill-conditioned step: the Python stage solver may retry it)."""
+    hands back (a failed or ill-conditioned step: the Python stage solver may retry it), and
+    ``k = 1`` where the loop does not run (:func:`usable`: switched off, not built)."""
     from phc.simulation import midpoint as mp
     from phc.simulation.compiled_steps import METHODS as CODES, algebraic_mask, step_constants
 
@@ -343,6 +344,8 @@ def midpoint_steps(raw, p, t_out, y0, yp0) -> tuple[int, np.ndarray]:
     nout = len(t_out)
     ys, yps = np.zeros((nout, n)), np.zeros((nout, n))
     ys[0], yps[0] = y0, yp0
+    if not usable("midpoint", raw)[0]:
+        return 1, ys
     y = np.array(y0, dtype=float)
     mid, mid_slope, y_prev, y_new = np.zeros(n), np.array(yp0, dtype=float), np.zeros(n), np.zeros(n)
     end_rows = np.ascontiguousarray(mp.constraint_rows(raw), dtype=np.int64)
@@ -367,13 +370,14 @@ _ALONG = ("hamiltonian", "energy_scale", "powers", "invariants", "velocity_invar
 """The model's functions ``phc_steps_along`` calls at each point (in its order)."""
 
 
-def along(raw, p, t, y, yp) -> Optional[dict]:
+def along(raw, p, t, y, yp, only_h: bool = False) -> Optional[dict]:
     """H, the energy scale, the port powers, the invariants, the velocity invariants and the
     outputs of the C module `raw` at the points (``t[i]``, ``y[i]``, ``yp[i]``), in one call of
     the step library's ``phc_steps_along`` (the model's own C functions, the values to the bit
     of one call per point and function): a dict of arrays with the keys of
     ``phc.simulation._evaluate_along``'s rows, not checked for finite values; None where the
-    library or the model's library is not at hand."""
+    library or the model's library is not at hand. `only_h`: H alone (`yp` is not read; the
+    other rows stay zero)."""
     if getattr(raw, "BACKEND", "") != "c" or getattr(raw, "C_LIBRARY", None) is None or library() is None:
         return None
     lib, model = library(), raw.C_LIBRARY
@@ -388,7 +392,8 @@ def along(raw, p, t, y, yp) -> Optional[dict]:
             "inv": np.zeros((npts, ninv)), "vinv": np.zeros((npts, nvinv)), "outs": np.zeros((npts, nout))}
     entry = lib.phc_steps_along
     entry.restype = None  # (every argument an address or a size: ctypes' default conversions)
-    fns = [ctypes.cast(getattr(model, f"phc_{name}"), _P).value for name in _ALONG]
+    fns = [ctypes.cast(getattr(model, f"phc_{name}"), _P).value if name == "hamiltonian" or not only_h else None
+           for name in _ALONG]
     def at(a):
         return _P(a.ctypes.data if a.size else None)
 

@@ -160,7 +160,9 @@ def _columns(mod, t, y0, p, cols, steps) -> np.ndarray:
     unguarded = getattr(loaded, "hamiltonian", None) if loaded is not mod else None
     size = max(2, COLUMNS_BATCH // max(len(y0), 1))
     start = 0
-    if batched and len(cols) * len(y0) >= LAZY_MIN_ENTRIES:
+    if getattr(loaded, "BACKEND", "") == "c" and len(cols) > 1:  # the C H itself at every column: one C call
+        start = _c_columns(H, loaded, t, y0, p, cols, steps, size, out)
+    if batched and start < len(cols) and len(cols) * len(y0) >= LAZY_MIN_ENTRIES:
         start = _lazy_columns(H, raw, t, y0, p, cols, steps, out)
     while start < len(cols):
         stop = min(len(cols), start + size)
@@ -186,6 +188,29 @@ def _columns(mod, t, y0, p, cols, steps) -> np.ndarray:
         out[start:stop] = values
         start = stop
     return out
+
+
+def _c_columns(H, loaded, t, y0, p, cols, steps, size, out) -> int:
+    """The columns of :func:`_columns` by the C module `loaded`'s own H, called by the step
+    library on a matrix of states (:func:`phc.codegen.c_steps.along`: the values of single
+    calls to the bit), in batches of `size`, into `out`; how many (0: the library is not at
+    hand). A value that is not finite is the guarded `H`'s to decide (it may recover or fail)."""
+    from phc.codegen import c_steps
+
+    start = 0
+    while start < len(cols):
+        stop = min(len(cols), start + size)
+        Y = np.repeat(np.asarray(y0, dtype=float)[None, :], stop - start, axis=0)
+        Y[np.arange(stop - start), cols[start:stop]] += steps[start:stop]
+        rows = c_steps.along(loaded, p, np.full(stop - start, float(t)), Y, Y, only_h=True)
+        if rows is None:
+            return start
+        values = rows["H"]
+        for k in np.flatnonzero(~np.isfinite(values)):
+            values[k] = _one_column(H, t, y0, p, cols[start + k], steps[start + k])
+        out[start:stop] = values
+        start = stop
+    return start
 
 
 def _one_column(H, t, y0, p, col, step, unguarded=None) -> float:

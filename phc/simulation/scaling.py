@@ -22,7 +22,8 @@ How ``s`` is found, in this order (docs/tolerances.md):
 
 1. the size at the start, ``|y_j(t₀)|``, and the rate at the start over the probe's time
    scale τ, ``|ẏ_j(t₀)| τ``;
-2. a short probe: :data:`PROBE_STEPS` implicit-midpoint steps over τ (20 % of the run);
+2. a short probe: :data:`PROBE_STEPS` implicit-midpoint steps over τ (20 % of the run; on
+   the C back end in its step loop, :func:`phc.codegen.c_steps.midpoint_steps`);
    the largest ``|y_j|`` seen, and for
    the energy accumulator the largest energy scale (sum of |terms| of H), also with every
    state at its scale;
@@ -383,20 +384,6 @@ def _throughput(mod, p, t, y, yp) -> float:
     return value if np.isfinite(value) else 0.0
 
 
-def _c_steps(raw, p, t0, h, y0, yp0) -> np.ndarray:
-    """The probe's step ends (after `y0`) the C back end's step loop takes
-    (:func:`phc.codegen.c_steps.midpoint_steps`, up to the first step it hands back); none where it
-    does not run (another back end, the loop switched off or not built)."""
-    if getattr(raw, "BACKEND", "") != "c":
-        return np.zeros((0, raw.N))
-    from phc.codegen import c_steps
-
-    if not c_steps.usable("midpoint", raw)[0]:
-        return np.zeros((0, raw.N))
-    k, ys = c_steps.midpoint_steps(raw, p, t0 + h * np.arange(PROBE_STEPS + 1), y0, yp0)
-    return ys[1:k]
-
-
 def _probe(mod, p, t0, y0, yp0, tau, weights) -> tuple[np.ndarray, float, float]:
     """Largest |y|, energy scale and power throughput (:func:`_throughput`) over a few
     implicit-midpoint steps (best effort: the probe stops at the first step Newton cannot do)."""
@@ -421,28 +408,26 @@ def _probe(mod, p, t0, y0, yp0, tau, weights) -> tuple[np.ndarray, float, float]
         slope = np.asarray(yp0, dtype=float)
         t = t0
         # the steps the C step loop takes (the same stage, solved by the same Newton iteration, each
-        # from a better guess), then the Python stage solver's from where the loop handed a step back
-        for y1 in _c_steps(raw, p, t0, h, y0, yp0):
-            if not np.all(np.isfinite(y1)):
+        # from a better guess), then the Python stage solver's from a step the loop handed back
+        in_c, stage = [], None
+        if getattr(raw, "BACKEND", "") == "c":
+            from phc.codegen import c_steps
+
+            k, ys = c_steps.midpoint_steps(raw, p, t0 + h * np.arange(PROBE_STEPS + 1), y0, yp0)
+            in_c = ys[1:k]
+        for i in range(PROBE_STEPS):
+            if i < len(in_c):
+                y1, ok = in_c[i], True
+            else:
+                stage = StageSolver(raw, p) if stage is None else stage
+                y1, ok = stage.solve(t, h, y, y + h * slope, 0.5)
+            if not ok or not np.all(np.isfinite(y1)):
                 break
             slope = (y1 - y) / h
             power = max(power, _throughput(mod, p, t + 0.5 * h, 0.5 * (y + y1), slope))
             y, t = y1, t + h
             np.maximum(big, np.abs(y), out=big)
             energy = max(energy, abs(float(mod.energy_scale(t, y, p))))
-        else:
-            stage = None
-            while t < t0 + tau - 0.5 * h:
-                if stage is None:
-                    stage = StageSolver(raw, p)
-                y1, ok = stage.solve(t, h, y, y + h * slope, 0.5)
-                if not ok or not np.all(np.isfinite(y1)):
-                    break
-                slope = (y1 - y) / h
-                power = max(power, _throughput(mod, p, t + 0.5 * h, 0.5 * (y + y1), slope))
-                y, t = y1, t + h
-                np.maximum(big, np.abs(y), out=big)
-                energy = max(energy, abs(float(mod.energy_scale(t, y, p))))
     except (ModelEvaluationError, *CATCH):
         pass
     return big, energy if np.isfinite(energy) else 0.0, power

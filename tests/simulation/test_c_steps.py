@@ -445,8 +445,10 @@ def test_the_nominal_scales_probe_takes_its_steps_in_c_as_the_python_stage_solve
     (args,) = seen
     in_c = probe(*args)
     assert taken[-1] == scaling.PROBE_STEPS + 1  # every step in C
-    monkeypatch.setattr(scaling, "_c_steps", lambda raw, *rest: np.zeros((0, raw.N)))
+    monkeypatch.setenv("PHC_COMPILED_LOOP", "0")  # the probe's steps in Python
+    taken.clear()
     in_python = probe(*args)
+    assert taken == [1]
     big_c, big_py = in_c[0], in_python[0]
     scale = 1.0 + np.abs(big_py).max()
     assert np.abs(big_c - big_py).max() <= 1e-10 * scale
@@ -482,3 +484,22 @@ def test_the_functions_along_a_run_are_one_c_call_with_the_values_of_one_call_pe
         assert np.array_equal(rows[key], np.array(values, dtype=float).reshape(rows[key].shape)), key
     assert rows["outs"].shape == (21, len(raw.OUTPUTS))
     np.testing.assert_array_equal(result.H, rows["H"])
+
+
+def test_the_energy_sizes_of_a_c_module_are_one_c_call_with_the_values_of_single_calls(compiled, monkeypatch):
+    """The nominal scales' energy sizes (phc.simulation.energy_sizes) evaluate the C module's H at
+    the perturbed states in one call of the step library (its NumPy reference's H does not take a
+    matrix of states on the slider–crank: sin); the sizes equal those of single calls to the bit."""
+    from phc.codegen import c_steps
+    from phc.simulation import scaling
+
+    seen, batched = [], []
+    sizes, along = scaling.energy_sizes, c_steps.along
+    monkeypatch.setattr(scaling, "energy_sizes", lambda *a: seen.append(a) or sizes(*a))
+    monkeypatch.setattr(c_steps, "along", lambda *a, **k: batched.append(k) or along(*a, **k))
+    phc.simulate(compiled("rigid_slider_crank.yaml"), solver="ida", t_end=0.5)
+    assert seen and {"only_h": True} in batched
+    in_c = sizes(*seen[0])
+    monkeypatch.setattr(c_steps, "along", lambda *a, **k: None)  # single calls of the C H
+    single = sizes(*seen[0])
+    assert np.array_equal(in_c, single) and (single > 0).sum() >= 4  # the momenta and the height are curved
