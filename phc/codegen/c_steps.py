@@ -39,6 +39,7 @@ integrate at once (ctypes releases the GIL during a chunk).
 from __future__ import annotations
 
 import ctypes
+import functools
 import os
 import threading
 import warnings
@@ -239,6 +240,8 @@ def _build():
         _WHY = "steps.c was written for another layout of the step loop's state (a phc bug: please report it)"
         return False
     lib.phc_steps_chunk.argtypes, lib.phc_steps_chunk.restype = [ctypes.POINTER(_Steps), ctypes.c_int64], None
+    lib.phc_steps_along.argtypes = [_P] * 6 + [_I] * 2 + [_P] * 4 + [_I] * 3 + [_P] * 6
+    lib.phc_steps_along.restype = None
     return lib
 
 
@@ -376,30 +379,32 @@ def along(raw, p, t, y, yp, only_h: bool = False) -> Optional[dict]:
     the step library's ``phc_steps_along`` (the model's own C functions, the values to the bit
     of one call per point and function): a dict of arrays with the keys of
     ``phc.simulation._evaluate_along``'s rows, not checked for finite values; None where the
-    library or the model's library is not at hand. `only_h`: H alone (`yp` is not read; the
-    other rows stay zero)."""
+    library or the model's library is not at hand. `only_h`: ``{"H": ...}`` alone (`yp` is not
+    read)."""
     if getattr(raw, "BACKEND", "") != "c" or getattr(raw, "C_LIBRARY", None) is None or library() is None:
         return None
-    lib, model = library(), raw.C_LIBRARY
     n, npts = int(raw.N), len(t)
-    ninv, nvinv = len(raw.INVARIANTS), len(getattr(raw, "VELOCITY_INVARIANTS", ()))
-    nout = len(raw.OUTPUTS)
+    sizes = (1, 1, 2, len(raw.INVARIANTS), len(getattr(raw, "VELOCITY_INVARIANTS", ())), len(raw.OUTPUTS))
     t = np.ascontiguousarray(t, dtype=float)
     y = np.ascontiguousarray(y, dtype=float).reshape(npts, n)
-    yp = np.ascontiguousarray(yp, dtype=float).reshape(npts, n)
+    yp = y if only_h else np.ascontiguousarray(yp, dtype=float).reshape(npts, n)
     pv = np.ascontiguousarray(p, dtype=float)
-    rows = {"H": np.zeros(npts), "scale": np.zeros(npts), "powers": np.zeros((npts, 2)),
-            "inv": np.zeros((npts, ninv)), "vinv": np.zeros((npts, nvinv)), "outs": np.zeros((npts, nout))}
-    entry = lib.phc_steps_along
-    entry.restype = None  # (every argument an address or a size: ctypes' default conversions)
-    fns = [ctypes.cast(getattr(model, f"phc_{name}"), _P).value if name == "hamiltonian" or not only_h else None
-           for name in _ALONG]
-    def at(a):
-        return _P(a.ctypes.data if a.size else None)
-
-    entry(*[_P(f) for f in fns], _I(n), _I(npts), *map(at, (t, y, yp, pv)), _I(ninv), _I(nvinv), _I(nout),
-          *[at(rows[k]) for k in ("H", "scale", "powers", "inv", "vinv", "outs")])
+    keys = ("H",) if only_h else ("H", "scale", "powers", "inv", "vinv", "outs")
+    rows = {key: np.zeros((npts, size) if key in ("powers", "inv", "vinv", "outs") else npts)
+            for key, size in zip(keys, sizes)}
+    fns = _addresses(raw.C_LIBRARY)
+    library().phc_steps_along(*(fns[:1] + (None,) * 5 if only_h else fns), n, npts,
+                              *[a.ctypes.data if a.size else None for a in (t, y, yp, pv)], *sizes[3:],
+                              *[rows[key].ctypes.data if key in rows and rows[key].size else None
+                                for key in ("H", "scale", "powers", "inv", "vinv", "outs")])
     return rows
+
+
+@functools.lru_cache(maxsize=64)
+def _addresses(model) -> tuple:
+    """The addresses of the model library's functions :data:`_ALONG` (a loaded library lives as
+    long as the process: :mod:`phc.codegen.c_backend` keeps it)."""
+    return tuple(ctypes.cast(getattr(model, f"phc_{name}"), _P).value for name in _ALONG)
 
 
 def note_events(raw) -> None:

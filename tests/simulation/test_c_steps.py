@@ -21,6 +21,7 @@ import math
 import re
 import threading
 import warnings
+import weakref
 from pathlib import Path
 
 import numpy as np
@@ -439,6 +440,7 @@ def test_the_nominal_scales_probe_takes_its_steps_in_c_as_the_python_stage_solve
         taken.append(k)
         return k, ys
 
+    monkeypatch.setattr(scaling, "_CACHE", weakref.WeakKeyDictionary())  # no scales kept from another test
     monkeypatch.setattr(scaling, "_probe", spy)
     monkeypatch.setattr(c_steps, "midpoint_steps", counting)
     phc.simulate(compiled(name), solver="ida", t_end=0.5)
@@ -495,6 +497,7 @@ def test_the_energy_sizes_of_a_c_module_are_one_c_call_with_the_values_of_single
 
     seen, batched = [], []
     sizes, along = scaling.energy_sizes, c_steps.along
+    monkeypatch.setattr(scaling, "_CACHE", weakref.WeakKeyDictionary())  # no scales kept from another test
     monkeypatch.setattr(scaling, "energy_sizes", lambda *a: seen.append(a) or sizes(*a))
     monkeypatch.setattr(c_steps, "along", lambda *a, **k: batched.append(k) or along(*a, **k))
     phc.simulate(compiled("rigid_slider_crank.yaml"), solver="ida", t_end=0.5)
