@@ -584,3 +584,35 @@ def test_sharing_survives_a_cleared_sympy_cache(tmp_path, monkeypatch):
     (diags, dump), (diags_alone, dump_alone), counts = _shared_and_alone(path, monkeypatch)
     assert diags == diags_alone and dump == dump_alone
     assert counts == {"built": 19 + 18, "refused": 0}
+
+
+def test_energy_sizes_of_a_guarded_module_call_its_own_h_and_the_guard_only_where_that_fails():
+    """Single calls go to the module's own H (the guard costs tens of µs a call); a value that
+    is not finite goes to the guarded H, which decides (here: a ModelEvaluationError, so no sizes)."""
+    from phc.simulation.energy_sizes import energy_sizes
+    from phc.simulation.guard import GuardedModule
+
+    class Scalar(_Springs):
+        def hamiltonian(self, t, y, p):
+            if np.ndim(y) != 1:
+                raise TypeError("one state at a time")
+            return super().hamiltonian(t, y, p)
+
+    k = np.array([1.0, 4.0, 9.0])
+    raw = Scalar(k)
+    guarded = GuardedModule(raw)
+    through_guard = []
+    wrapped = guarded.hamiltonian
+    guarded.hamiltonian = lambda t, y, p: through_guard.append(np.ndim(y)) or wrapped(t, y, p)
+    sizes = energy_sizes(guarded, None, 0.0, np.ones(3), np.ones(3), 0.5)
+    np.testing.assert_allclose(sizes, np.sqrt(1.0 / k), rtol=1e-7)  # ½ k s² = E, as above
+    # one state through the guard: H at the start only (the others: the batch it refuses), every
+    # perturbed state by the module's own H
+    assert through_guard.count(1) == 1
+
+    class Pole(Scalar):  # H not finite once y_0 moves up: the guard's verdict
+        def hamiltonian(self, t, y, p):
+            return super().hamiltonian(t, y, p) + (np.inf if y[0] > 1.0 else 0.0)
+
+    guarded = GuardedModule(Pole(k))
+    assert not energy_sizes(guarded, None, 0.0, np.ones(3), np.ones(3), 0.5).any()

@@ -263,6 +263,34 @@ def _cache_on() -> bool:
     return os.environ.get("PHC_COMPILED_CACHE", "1").strip().lower() not in ("0", "no", "false", "off")
 
 
+def translated_text(name: str, inputs, make) -> str:
+    """``make()``, phc's C text `name` that is translated from Python (the step loop's, the IDA
+    driver's), kept in the signed cache under a digest of the files it is made from (`inputs`:
+    the C files and the Python modules the translation reads) and phc's version: a process
+    that loads the library from the cache no longer translates its text first (10–25 ms).
+    A cached text that does not verify, a cache that is off or unusable: made anew."""
+    from phc.codegen.load import write_atomic
+    from phc.codegen.numba_cache import _signed, _verified
+
+    h = hashlib.sha256("\0".join((name, __version__, str(ABI))).encode())
+    for path in inputs:
+        h.update(b"\0" + Path(path).read_bytes())
+    folder = signed_cache_dir(c_cache_dir())[:2] if _cache_on() else (None, None)
+    if folder[0] is None:
+        return make()
+    (folder, key), file = folder, folder[0] / f"phc_text_{name}_{h.hexdigest()[:24]}.c"
+    data = _read_private(str(file))
+    text = _verified(key, data, file.name) if data is not None else None
+    if text is not None:
+        return text.decode("utf-8")
+    made = make()
+    try:
+        write_atomic(file, _signed(key, made.encode("utf-8"), file.name))
+    except OSError:  # a full or read-only disk costs the cached text, not the run
+        pass
+    return made
+
+
 def runtime_library(text: str, flags: tuple, libs: tuple = ()) -> tuple[Optional[ctypes.CDLL], str]:
     """(the library, "") of phc's own C text `text` (the step loop, the call bridge, the IDA
     driver) compiled with `flags` and linked with `libs` (before ``-lm``): from this process, the signed cache or the compiler, as a model's library;

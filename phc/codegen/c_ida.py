@@ -55,23 +55,37 @@ bracket a minimum of the conditioning; IDA crawls."""
 
 _SOURCE_TEXT: Optional[str] = None
 
+TRANSLATOR = Path(__file__).resolve().parent / "c_translate.py"
+"""phc.codegen.c_translate's file (a key of the cached translation; the module is imported only to translate)."""
+
+
+def make_source() -> str:
+    """The driver's whole C text, translated anew (:func:`source` keeps it)."""
+    from phc.codegen import c_steps, c_translate
+    from phc.simulation import look_cadence
+
+    text = SOURCE.read_text(encoding="utf-8")
+    if text.count(LOOK_MARKER) != 1:
+        raise RuntimeError(f"{SOURCE} must have the line {LOOK_MARKER} once (a phc bug: please report it)")
+    ops = {"_ratio_at_time": c_translate.Op("op_ratio_at_time", ("ws", "f"), ("f", "b", "b"))}
+    logic = (c_translate.PRELUDE + "\n"
+             + c_translate.Translator(look_cadence, look_cadence.C_SIGNATURES, ops).translate(LOOK_TRANSLATED))
+    return c_steps.with_dense_lu(text.replace(LOOK_MARKER, logic.rstrip("\n")), SOURCE.name)
+
 
 def source() -> str:
     """The driver's whole C text: ida_driver.c with the dense LU and routine look shared with the
     fixed-step loop (:func:`phc.codegen.c_steps.with_dense_lu`) and the translated
-    :data:`LOOK_TRANSLATED` in place of its marker lines."""
+    :data:`LOOK_TRANSLATED` in place of its marker lines; once per process, and kept in the signed
+    cache keyed by the files it is made from (:func:`phc.codegen.c_backend.translated_text`)."""
     global _SOURCE_TEXT
     if _SOURCE_TEXT is None:
-        from phc.codegen.c_steps import with_dense_lu
-        from phc.codegen.c_translate import PRELUDE, Op, Translator
+        from phc.codegen import c_backend, c_steps
         from phc.simulation import look_cadence
 
-        text = SOURCE.read_text(encoding="utf-8")
-        if text.count(LOOK_MARKER) != 1:
-            raise RuntimeError(f"{SOURCE} must have the line {LOOK_MARKER} once (a phc bug: please report it)")
-        ops = {"_ratio_at_time": Op("op_ratio_at_time", ("ws", "f"), ("f", "b", "b"))}
-        logic = PRELUDE + "\n" + Translator(look_cadence, look_cadence.C_SIGNATURES, ops).translate(LOOK_TRANSLATED)
-        _SOURCE_TEXT = with_dense_lu(text.replace(LOOK_MARKER, logic.rstrip("\n")), SOURCE.name)
+        _SOURCE_TEXT = c_backend.translated_text(
+            "ida_driver", (SOURCE, c_steps.DENSE_LU, __file__, c_steps.__file__, TRANSLATOR, look_cadence.__file__),
+            make_source)
     return _SOURCE_TEXT
 
 FLAGS = ("-std=c99", "-O2", "-fPIC", "-shared", "-ffp-contract=off")
@@ -207,5 +221,5 @@ def model_functions(model_library) -> tuple[int, int]:
 
 
 __all__ = ["ABI", "FLAGS", "LF_N", "LI_N", "LIBRARIES", "LOOK_CRAWL", "LOOK_MARKER", "LOOK_MINIMUM",
-           "LOOK_NOT_CLEAR", "LOOK_TRANSLATED", "PHC_LOOK", "SOURCE", "address", "find_sundials", "library",
-           "model_functions", "source", "switched_off", "why_not"]
+           "LOOK_NOT_CLEAR", "LOOK_TRANSLATED", "PHC_LOOK", "SOURCE", "TRANSLATOR", "address", "find_sundials",
+           "library", "make_source", "model_functions", "source", "switched_off", "why_not"]

@@ -39,6 +39,7 @@ integrate at once (ctypes releases the GIL during a chunk).
 from __future__ import annotations
 
 import ctypes
+import functools
 import os
 import threading
 import warnings
@@ -149,15 +150,26 @@ def translation() -> str:
     return PRELUDE + "\n" + _WATCH_STUB + "\n" + body + "\n" + entry()
 
 
+def make_source() -> str:
+    """The step loop's whole C text, translated anew (:func:`source` keeps it)."""
+    text = SOURCE.read_text(encoding="utf-8")
+    if text.count(MARKER) != 1:
+        raise RuntimeError(f"{SOURCE} must have the line {MARKER} once (a phc bug: please report it)")
+    return with_dense_lu(text.replace(MARKER, translation().rstrip("\n")), SOURCE.name)
+
+
 def source() -> str:
     """The step loop's whole C text: steps.c with :func:`translation` in place of its
-    :data:`MARKER` line (self-contained: the FMU export ships it as its ``steps.c``)."""
+    :data:`MARKER` line (self-contained: the FMU export ships it as its ``steps.c``); once per
+    process, and kept in the signed cache keyed by the files it is made from (the layout's
+    constants are numba_steps_kernel's: :func:`phc.codegen.c_backend.translated_text`)."""
     global _SOURCE_TEXT
     if _SOURCE_TEXT is None:
-        text = SOURCE.read_text(encoding="utf-8")
-        if text.count(MARKER) != 1:
-            raise RuntimeError(f"{SOURCE} must have the line {MARKER} once (a phc bug: please report it)")
-        _SOURCE_TEXT = with_dense_lu(text.replace(MARKER, translation().rstrip("\n")), SOURCE.name)
+        from phc.codegen import c_backend
+        from phc.codegen.c_ida import TRANSLATOR
+
+        _SOURCE_TEXT = c_backend.translated_text(
+            "steps", (SOURCE, DENSE_LU, __file__, _sl.__file__, _k.__file__, TRANSLATOR), make_source)
     return _SOURCE_TEXT
 
 FLAGS = ("-std=c99", "-O3", "-fPIC", "-shared", "-ffp-contract=off")
@@ -245,6 +257,8 @@ def _build():
         _WHY = "steps.c was written for another layout of the step loop's state (a phc bug: please report it)"
         return False
     lib.phc_steps_chunk.argtypes, lib.phc_steps_chunk.restype = [ctypes.POINTER(_Steps), ctypes.c_int64], None
+    lib.phc_steps_along.argtypes = [_P] * 6 + [_I] * 2 + [_P] * 4 + [_I] * 3 + [_P] * 6
+    lib.phc_steps_along.restype = None
     return lib
 
 
@@ -333,6 +347,83 @@ def bind(raw, p, t_out, ys, yps, y, mid, mid_slope, y_prev, y_new, pt, pm, fst, 
     return chunk
 
 
+def midpoint_steps(raw, p, t_out, y0, yp0) -> tuple[int, np.ndarray]:
+    """Implicit-midpoint steps of the C loop, one per interval of the grid `t_out` from the
+    consistent start (`y0`, `yp0`) of the C module `raw`, with the Newton test relative to
+    |y| + 1 and the singularity monitor off: what the nominal-scales probe
+    (:func:`phc.simulation.scaling._probe`) runs, :class:`~phc.simulation.midpoint.StageSolver`'s
+    stage solved by the same Newton iteration (``step_logic.newton``). Returns ``(k, ys)``: the
+    first `k` rows of `ys` are the solution at ``t_out[:k]``; the loop stops at the first step it
+    hands back (a failed or ill-conditioned step: the Python stage solver may retry it), and
+    ``k = 1`` where the loop does not run (:func:`usable`: switched off, not built)."""
+    from phc.simulation import midpoint as mp
+    from phc.simulation.compiled_steps import METHODS as CODES, algebraic_mask, step_constants
+
+    n = int(raw.N)
+    t_out = np.ascontiguousarray(t_out, dtype=float)
+    nout = len(t_out)
+    ys, yps = np.zeros((nout, n)), np.zeros((nout, n))
+    ys[0], yps[0] = y0, yp0
+    if not usable("midpoint", raw)[0]:
+        return 1, ys
+    y = np.array(y0, dtype=float)
+    mid, mid_slope, y_prev, y_new = np.zeros(n), np.array(yp0, dtype=float), np.zeros(n), np.zeros(n)
+    end_rows = np.ascontiguousarray(mp.constraint_rows(raw), dtype=np.int64)
+    jrows = np.ascontiguousarray(raw.JAC_ROWS, dtype=np.int64)
+    jcols = np.ascontiguousarray(raw.JAC_COLS, dtype=np.int64)
+    ist = np.zeros(_k._NI + 2, dtype=np.int64)
+    ist[_k._K], ist[_k._LAST_LOOK], ist[_k._MAX_STEPS] = 1, -mp.MONITOR_EVERY, nout
+    ist[_k._MONITOR], ist[_k._METHOD], ist[_k._NEND] = 0, CODES["midpoint"], len(end_rows)
+    names = list(raw.VARIABLES)
+    ist[_k._E] = names.index("energy.supplied") if "energy.supplied" in names else 0
+    fst = np.zeros(_k._NF)
+    fst[_k._STEP], fst[_k._H_PREV] = 0.0, 1.0  # (no step size: one step per output interval)
+    pt, pm = np.zeros(mp.MAX_PREDICTOR_ORDER + 1), np.zeros((mp.MAX_PREDICTOR_ORDER + 1, n))
+    run = bind(raw, np.ascontiguousarray(p, dtype=float), t_out, ys, yps, y, mid, mid_slope, y_prev, y_new, pt, pm,
+               fst, ist, step_constants(), jrows, jcols, end_rows, np.isin(jrows, end_rows).astype(np.int8),
+               np.zeros(0), algebraic_mask(raw), np.zeros(0), np.zeros((2, 3)), np.zeros((2, 3, n)))
+    run(nout)
+    return int(ist[_k._K]), ys
+
+
+_ALONG = ("hamiltonian", "energy_scale", "powers", "invariants", "velocity_invariants", "outputs")
+"""The model's functions ``phc_steps_along`` calls at each point (in its order)."""
+
+
+def along(raw, p, t, y, yp, only_h: bool = False) -> Optional[dict]:
+    """H, the energy scale, the port powers, the invariants, the velocity invariants and the
+    outputs of the C module `raw` at the points (``t[i]``, ``y[i]``, ``yp[i]``), in one call of
+    the step library's ``phc_steps_along`` (the model's own C functions, the values to the bit
+    of one call per point and function): a dict of arrays with the keys of
+    ``phc.simulation._evaluate_along``'s rows, not checked for finite values; None where the
+    library or the model's library is not at hand. `only_h`: ``{"H": ...}`` alone (`yp` is not
+    read)."""
+    if getattr(raw, "BACKEND", "") != "c" or getattr(raw, "C_LIBRARY", None) is None or library() is None:
+        return None
+    n, npts = int(raw.N), len(t)
+    sizes = (1, 1, 2, len(raw.INVARIANTS), len(getattr(raw, "VELOCITY_INVARIANTS", ())), len(raw.OUTPUTS))
+    t = np.ascontiguousarray(t, dtype=float)
+    y = np.ascontiguousarray(y, dtype=float).reshape(npts, n)
+    yp = y if only_h else np.ascontiguousarray(yp, dtype=float).reshape(npts, n)
+    pv = np.ascontiguousarray(p, dtype=float)
+    keys = ("H",) if only_h else ("H", "scale", "powers", "inv", "vinv", "outs")
+    rows = {key: np.zeros((npts, size) if key in ("powers", "inv", "vinv", "outs") else npts)
+            for key, size in zip(keys, sizes)}
+    fns = _addresses(raw.C_LIBRARY)
+    library().phc_steps_along(*(fns[:1] + (None,) * 5 if only_h else fns), n, npts,
+                              *[a.ctypes.data if a.size else None for a in (t, y, yp, pv)], *sizes[3:],
+                              *[rows[key].ctypes.data if key in rows and rows[key].size else None
+                                for key in ("H", "scale", "powers", "inv", "vinv", "outs")])
+    return rows
+
+
+@functools.lru_cache(maxsize=64)
+def _addresses(model) -> tuple:
+    """The addresses of the model library's functions :data:`_ALONG` (a loaded library lives as
+    long as the process: :mod:`phc.codegen.c_backend` keeps it)."""
+    return tuple(ctypes.cast(getattr(model, f"phc_{name}"), _P).value for name in _ALONG)
+
+
 def note_events(raw) -> None:
     """Say once that a run with switching conditions does not use the C step loop (the Python
     loop locates the switches)."""
@@ -340,4 +431,4 @@ def note_events(raw) -> None:
         say_unused("runs with switching conditions (events) need the Python loop, which locates the switches")
 
 
-__all__ = ["ABI", "DENSE_LU", "DENSE_LU_MARKER", "FLAGS", "MARKER", "METHODS", "SOURCE", "TRANSLATED", "bind", "library", "note_events", "say_unused", "source", "translation", "usable", "why_not", "with_dense_lu"]
+__all__ = ["ABI", "DENSE_LU", "DENSE_LU_MARKER", "FLAGS", "MARKER", "METHODS", "SOURCE", "TRANSLATED", "bind", "along", "library", "make_source", "midpoint_steps", "note_events", "say_unused", "source", "translation", "usable", "why_not", "with_dense_lu"]

@@ -549,6 +549,12 @@ def _evaluate_along(mod, p, out: BackendRun) -> tuple[dict, Optional[ModelEvalua
     t, y, yp = out.t, out.y, out.yp
     raw = getattr(mod, "module", mod)
     try:
+        if getattr(raw, "BACKEND", "") == "c" and len(t) > 1:  # one call over all points (phc.codegen.c_steps)
+            from phc.codegen import c_steps
+
+            rows = c_steps.along(raw, p, t, y, yp)
+            if rows is not None and all(np.isfinite(v).all() for v in rows.values()):
+                return rows, None
         rows = {"H": [raw.hamiltonian(ti, yi, p) for ti, yi in zip(t, y)],
                 "powers": [raw.powers(ti, yi, ypi, p) for ti, yi, ypi in zip(t, y, yp)],
                 "scale": [float(raw.energy_scale(ti, yi, p)) for ti, yi in zip(t, y)],

@@ -22,7 +22,8 @@ How ``s`` is found, in this order (docs/tolerances.md):
 
 1. the size at the start, ``|y_j(t₀)|``, and the rate at the start over the probe's time
    scale τ, ``|ẏ_j(t₀)| τ``;
-2. a short probe: :data:`PROBE_STEPS` implicit-midpoint steps over τ (20 % of the run);
+2. a short probe: :data:`PROBE_STEPS` implicit-midpoint steps over τ (20 % of the run; on
+   the C back end in its step loop, :func:`phc.codegen.c_steps.midpoint_steps`);
    the largest ``|y_j|`` seen, and for
    the energy accumulator the largest energy scale (sum of |terms| of H), also with every
    state at its scale;
@@ -401,13 +402,25 @@ def _probe(mod, p, t0, y0, yp0, tau, weights) -> tuple[np.ndarray, float, float]
         # find: a start at rest where everything is round-off (a source sin(ωt) at t = 0) has
         # scales of 1e-20 that no Newton iteration meets
         del weights
-        stage = StageSolver(getattr(mod, "module", mod), p)  # unguarded: a failure ends the probe anyway
+        raw = getattr(mod, "module", mod)  # unguarded: a failure ends the probe anyway
         h = tau / PROBE_STEPS
         y = np.array(y0, dtype=float)
         slope = np.asarray(yp0, dtype=float)
         t = t0
-        for _ in range(PROBE_STEPS):
-            y1, ok = stage.solve(t, h, y, y + h * slope, 0.5)
+        # the steps the C step loop takes (the same stage, solved by the same Newton iteration, each
+        # from a better guess), then the Python stage solver's from a step the loop handed back
+        in_c, stage = [], None
+        if getattr(raw, "BACKEND", "") == "c":
+            from phc.codegen import c_steps
+
+            k, ys = c_steps.midpoint_steps(raw, p, t0 + h * np.arange(PROBE_STEPS + 1), y0, yp0)
+            in_c = ys[1:k]
+        for i in range(PROBE_STEPS):
+            if i < len(in_c):
+                y1, ok = in_c[i], True
+            else:
+                stage = StageSolver(raw, p) if stage is None else stage
+                y1, ok = stage.solve(t, h, y, y + h * slope, 0.5)
             if not ok or not np.all(np.isfinite(y1)):
                 break
             slope = (y1 - y) / h

@@ -293,6 +293,36 @@ def test_libraries_are_cached_signed_and_a_tampered_one_is_rebuilt(tmp_path, mon
     assert list(folder.iterdir()) == []
 
 
+def test_a_translated_text_is_kept_signed_and_made_again_when_tampered_or_its_inputs_change(tmp_path, monkeypatch):
+    monkeypatch.setenv("PHC_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setenv("PHC_STATE_DIR", str(tmp_path / "state"))
+    source = tmp_path / "input.py"
+    source.write_text("x = 1\n")
+    made = []
+
+    def make():
+        made.append(1)
+        return f"/* made {len(made)} */\n"
+
+    first = c_backend.translated_text("probe", (source,), make)
+    assert first == "/* made 1 */\n" and len(made) == 1
+    assert c_backend.translated_text("probe", (source,), make) == first and len(made) == 1  # from the cache
+    (kept,) = (tmp_path / "cache" / "c").glob("phc_text_probe_*.c")
+    kept.write_bytes(kept.read_bytes().replace(b"made 1", b"made 9"))  # tampered: not used, made again
+    assert c_backend.translated_text("probe", (source,), make) == "/* made 2 */\n"
+    source.write_text("x = 2\n")  # another input: another text
+    assert c_backend.translated_text("probe", (source,), make) == "/* made 3 */\n"
+    monkeypatch.setenv("PHC_COMPILED_CACHE", "0")  # the cache off: always made
+    assert c_backend.translated_text("probe", (source,), make) == "/* made 4 */\n"
+
+
+def test_the_cached_translations_are_the_translations():
+    from phc.codegen import c_ida, c_steps
+
+    assert c_steps.source() == c_steps.make_source()
+    assert c_ida.source() == c_ida.make_source()
+
+
 @needs_cc
 def test_a_cache_directory_others_can_write_is_not_used(tmp_path, monkeypatch):
     monkeypatch.setenv("PHC_CACHE_DIR", str(tmp_path / "cache"))

@@ -21,6 +21,7 @@ import math
 import re
 import threading
 import warnings
+import weakref
 from pathlib import Path
 
 import numpy as np
@@ -415,3 +416,93 @@ def test_a_run_with_switching_conditions_says_it_runs_the_python_loop(tmp_path, 
     slow = phc.simulate(model, solver="midpoint", step=1e-3)
     assert fast.success and fast.events and "c" not in loops
     assert np.array_equal(fast.y, slow.y)
+
+
+@pytest.mark.parametrize("name", ["pendulum.yaml", "rigid_slider_crank.yaml", "dc_motor_pi.yaml"])
+def test_the_nominal_scales_probe_takes_its_steps_in_c_as_the_python_stage_solver_does(compiled, monkeypatch, name):
+    """The nominal-scales probe (phc.simulation.scaling._probe) takes its implicit-midpoint steps
+    in the C loop (c_steps.midpoint_steps): the same stage solved by the same Newton iteration as
+    the Python StageSolver's, each from another guess, so the largest |y| it sees, the energy
+    scale and the power throughput agree with the Python probe's to the Newton tolerance
+    (NEWTON_TOL = 1e-14 relative to 1 + max |y|; 1e-10 leaves room for the conditioning)."""
+    from phc.codegen import c_steps
+    from phc.simulation import scaling
+
+    seen, taken = [], []
+    probe, steps = scaling._probe, c_steps.midpoint_steps
+
+    def spy(*args):
+        seen.append(args)
+        return probe(*args)
+
+    def counting(*args):
+        k, ys = steps(*args)
+        taken.append(k)
+        return k, ys
+
+    monkeypatch.setattr(scaling, "_CACHE", weakref.WeakKeyDictionary())  # no scales kept from another test
+    monkeypatch.setattr(scaling, "_probe", spy)
+    monkeypatch.setattr(c_steps, "midpoint_steps", counting)
+    phc.simulate(compiled(name), solver="ida", t_end=0.5)
+    (args,) = seen
+    in_c = probe(*args)
+    assert taken[-1] == scaling.PROBE_STEPS + 1  # every step in C
+    monkeypatch.setenv("PHC_COMPILED_LOOP", "0")  # the probe's steps in Python
+    taken.clear()
+    in_python = probe(*args)
+    assert taken == [1]
+    big_c, big_py = in_c[0], in_python[0]
+    scale = 1.0 + np.abs(big_py).max()
+    assert np.abs(big_c - big_py).max() <= 1e-10 * scale
+    assert in_c[1] == pytest.approx(in_python[1], rel=1e-10, abs=1e-10 * scale)
+    assert in_c[2] == pytest.approx(in_python[2], rel=1e-10, abs=1e-10 * scale)
+    assert np.abs(big_py - np.abs(args[3])).max() > 1e-6 * scale  # the probe saw the states move
+
+
+@pytest.mark.parametrize("name", ["rigid_slider_crank.yaml", "dc_motor_pi.yaml"])
+def test_the_functions_along_a_run_are_one_c_call_with_the_values_of_one_call_per_point(compiled, monkeypatch, name):
+    """A run's H, energy scale, powers, invariants and outputs at its output points are one call
+    of the step library (c_steps.along): the model's own C functions, so the values equal those of
+    one call per point and function to the bit."""
+    import phc.simulation as simulation
+    from phc.codegen import c_steps
+
+    seen, batched = [], []
+    evaluate, along = simulation._evaluate_along, c_steps.along
+    monkeypatch.setattr(simulation, "_evaluate_along", lambda *a: seen.append(a) or evaluate(*a))
+    monkeypatch.setattr(c_steps, "along", lambda *a: batched.append(1) or along(*a))
+    result = phc.simulate(compiled(name), solver="ida", t_end=0.5, n_out=21)
+    assert batched and result.success
+    mod, p, out = seen[0]
+    rows = c_steps.along(getattr(mod, "module", mod), p, out.t, out.y, out.yp)
+    raw = getattr(mod, "module", mod)
+    single = {"H": [raw.hamiltonian(*a, p) for a in zip(out.t, out.y)],
+              "scale": [raw.energy_scale(*a, p) for a in zip(out.t, out.y)],
+              "powers": [raw.powers(*a, p) for a in zip(out.t, out.y, out.yp)],
+              "inv": [raw.invariants(*a, p) for a in zip(out.t, out.y)],
+              "vinv": [raw.velocity_invariants(*a, p) for a in zip(out.t, out.y)],
+              "outs": [raw.outputs(*a, p) for a in zip(out.t, out.y, out.yp)]}
+    for key, values in single.items():
+        assert np.array_equal(rows[key], np.array(values, dtype=float).reshape(rows[key].shape)), key
+    assert rows["outs"].shape == (21, len(raw.OUTPUTS))
+    np.testing.assert_array_equal(result.H, rows["H"])
+
+
+def test_the_energy_sizes_of_a_c_module_are_one_c_call_with_the_values_of_single_calls(compiled, monkeypatch):
+    """The nominal scales' energy sizes (phc.simulation.energy_sizes) evaluate the C module's H at
+    the perturbed states in one call of the step library (its NumPy reference's H does not take a
+    matrix of states on the slider–crank: sin); the sizes equal those of single calls to the bit."""
+    from phc.codegen import c_steps
+    from phc.simulation import scaling
+
+    seen, batched = [], []
+    sizes, along = scaling.energy_sizes, c_steps.along
+    monkeypatch.setattr(scaling, "_CACHE", weakref.WeakKeyDictionary())  # no scales kept from another test
+    monkeypatch.setattr(scaling, "energy_sizes", lambda *a: seen.append(a) or sizes(*a))
+    monkeypatch.setattr(c_steps, "along", lambda *a, **k: batched.append(k) or along(*a, **k))
+    phc.simulate(compiled("rigid_slider_crank.yaml"), solver="ida", t_end=0.5)
+    assert seen and {"only_h": True} in batched
+    in_c = sizes(*seen[0])
+    monkeypatch.setattr(c_steps, "along", lambda *a, **k: None)  # single calls of the C H
+    single = sizes(*seen[0])
+    assert np.array_equal(in_c, single) and (single > 0).sum() >= 4  # the momenta and the height are curved

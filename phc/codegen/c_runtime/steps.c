@@ -518,3 +518,31 @@ void phc_steps_layout(int64_t *out)
     for (size_t i = 0; i < sizeof(layout) / sizeof(layout[0]); ++i)
         out[i] = layout[i];
 }
+
+/* The model's functions along a solution: at each of the `npts` points (t[i], ys[i], yps[i]) (rows of
+ * n), H, the energy scale, the port powers (2), the position and velocity invariants (ninv, nvinv)
+ * and the outputs (nout), into rows of the caller's arrays. What phc.simulation's `_evaluate_along`
+ * calls once for a run's output points instead of six calls of the model's functions from Python
+ * per point (phc/codegen/c_steps.py: along; a NULL function is skipped: H alone at many states is
+ * what the energy sizes of the nominal scales need); the same functions, the same values to the bit. */
+void phc_steps_along(phc_scalar_fn hamiltonian, phc_scalar_fn energy_scale, phc_powers_fn powers,
+                     phc_invariants_fn invariants, phc_invariants_fn velocity_invariants, phc_powers_fn outputs,
+                     int64_t n, int64_t npts, const double *t, const double *ys, const double *yps, const double *p,
+                     int64_t ninv, int64_t nvinv, int64_t nout, double *H, double *scale, double *pw, double *inv,
+                     double *vinv, double *outs)
+{
+    for (int64_t i = 0; i < npts; ++i) {
+        const double *y = ys + i * n, *yp = yps + i * n;
+        H[i] = hamiltonian(t[i], y, p);
+        if (energy_scale)
+            scale[i] = energy_scale(t[i], y, p);
+        if (powers)
+            powers(t[i], y, yp, p, pw + 2 * i);
+        if (ninv && invariants)
+            invariants(t[i], y, p, inv + i * ninv);
+        if (nvinv && velocity_invariants)
+            velocity_invariants(t[i], y, p, vinv + i * nvinv);
+        if (nout && outputs)
+            outputs(t[i], y, yp, p, outs + i * nout);
+    }
+}
