@@ -25,14 +25,13 @@ Order matters:
 
 from __future__ import annotations
 
-import dataclasses
 import difflib
 from typing import Optional
 
 import sympy as sp
 
-from phc.ir.dae import (STORED_ENERGY, T, Dae, Equation, InitialValue, Invariant, LinearBlock, PortInfo, Topology,
-                     Variable)
+from phc.ir.dae import (STORED_ENERGY, T, Dae, Equation, InitialValue, Invariant, LinearBlock, PortInfo, TermSum,
+                     Topology, Variable)
 from phc.ir.alike import AlikeReplacer
 from phc.diagnostics import Diagnostic, DiagnosticList
 from phc.frontend.inputs import SignalBuilder
@@ -102,7 +101,6 @@ def assemble(elab, inter) -> tuple[Optional[Dae], DiagnosticList]:
     if dae is not None:
         reporter.diags.extend(_reading_loops(dae))
         reporter.diags.extend(check_assembled(elab, dae))  # exact size and output arrays, before any code is generated
-        dae = dataclasses.replace(dae, left_out=elab.left_out, meshes=dict(elab.meshes))
     return (None if reporter.diags.has_errors else dae), reporter.diags
 
 
@@ -268,20 +266,28 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
 
     # sp.Add(*terms) is linear in the number of terms; Python's sum() re-canonicalizes
     # the growing Add at every step (quadratic, visible at a few hundred components).
-    hamiltonian = sp.Add(*[final(h) for h in elab.hamiltonian])
+    # The sum itself is built only when something reads it (a TermSum, phc.ir.dae): the
+    # checks below read its terms, validation never needs it in sympy's canonical order.
+    energy_terms = TermSum(final(h) for h in elab.hamiltonian)
+    written_h = energy_terms.unevaluated()
+    hamiltonian = energy_terms
     dissipation_terms = tuple((component, final(d), span) for component, d, span in elab.dissipation)
     dissipation = sp.Add(*[d for _, d, _ in dissipation_terms])
     port_power = final(sp.Add(*exposed_power, *elab.source_power))
-    if T in hamiltonian.free_symbols:
+    if T in written_h.free_symbols:
         # An explicit time dependence of H (a potential V(q, t), a mass matrix M(t), a
         # coefficient k(t)) is energy exchanged with whatever varies it: dH/dt = ∇H·ẏ + ∂H/∂t,
         # so the model delivers −∂H/∂t and H(t) − H(0) + E(t) stays the balance residual.
+        hamiltonian = energy_terms.build()
         port_power = port_power - sp.diff(hamiltonian, T)
     energy = sp.Symbol("energy.supplied", real=True)
     denergy = sp.Symbol("der(energy.supplied)", real=True)
     variables.append(Variable(energy.name, energy, True, "energy", "energy", denergy, None))
     equations.append(Equation(denergy - port_power - dissipation, "energy.balance", "energy", "energy", None))
 
+    if isinstance(hamiltonian, TermSum) and any(
+            "H" in str(ospec.value if isinstance(ospec, OutputSpec) else ospec) for ospec in sim.outputs.values()):
+        hamiltonian = energy_terms.build()  # an output may read `H` (the text is not parsed yet)
     scope = _output_scope(elab, subs, hamiltonian)
     rates = _rate_scope(elab, subs)
     if elab.quadratic_energy:
@@ -289,7 +295,7 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
         # module's `hamiltonian` (sparse quadratic forms), never a sum written out term by term
         scope["H"] = STORED_ENERGY
     outputs = []
-    result_units = ResultUnits(rep, elab, variables, hamiltonian)
+    result_units = ResultUnits(rep, elab, variables, written_h)  # its unit: that of the terms
     for oname, ospec in sim.outputs.items():
         opath = ("simulation", "outputs", oname)
         oexpr, vpath = (ospec.value, (*opath, "value")) if isinstance(ospec, OutputSpec) else (ospec, opath)
@@ -355,6 +361,8 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
                  "max_order": sim.max_order, "step": sim.step,
                  "nominal": _nominal_scales(rep, ctx, {v.name for v in variables if v.differential}, elab)},
         units=dict(result_units.labels),
+        left_out=elab.left_out,
+        meshes=dict(elab.meshes),
     )
 
 
