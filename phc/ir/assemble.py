@@ -64,16 +64,23 @@ class _SignedUnionFind:
         self.parent: dict[sp.Symbol, tuple[sp.Symbol, int]] = {}
 
     def find(self, x):
-        sign = 1
-        path = []
-        while x in self.parent:
-            p, s = self.parent[x]
-            path.append((x, sign))
+        parent = self.parent
+        up = parent.get(x)  # one lookup a step (a symbol's hash is a Python call)
+        if up is None:
+            return x, 1
+        root, sign = up
+        up = parent.get(root)
+        if up is None:  # x's parent is its root: nothing to compress (most calls)
+            return root, sign
+        path = [(x, 1)]
+        while up is not None:
+            path.append((root, sign))
+            root, s = up
             sign *= s
-            x = p
+            up = parent.get(root)
         for node, s0 in path:  # path compression
-            self.parent[node] = (x, sign * s0)
-        return x, sign
+            parent[node] = (root, sign * s0)
+        return root, sign
 
     def union(self, a, b, sign):
         """Impose a = sign·b. Returns (root_a, root_b, rel) with root_a = rel·root_b, or None if same class."""
@@ -274,7 +281,8 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
     dissipation_terms = tuple((component, final(d), span) for component, d, span in elab.dissipation)
     dissipation = sp.Add(*[d for _, d, _ in dissipation_terms])
     port_power = final(sp.Add(*exposed_power, *elab.source_power))
-    if T in written_h.free_symbols:
+    h_symbols = written_h.free_symbols
+    if T in h_symbols:
         # An explicit time dependence of H (a potential V(q, t), a mass matrix M(t), a
         # coefficient k(t)) is energy exchanged with whatever varies it: dH/dt = ∇H·ẏ + ∂H/∂t,
         # so the model delivers −∂H/∂t and H(t) − H(0) + E(t) stays the balance residual.
@@ -295,7 +303,7 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
         # module's `hamiltonian` (sparse quadratic forms), never a sum written out term by term
         scope["H"] = STORED_ENERGY
     outputs = []
-    result_units = ResultUnits(rep, elab, variables, written_h)  # its unit: that of the terms
+    result_units = ResultUnits(rep, elab, variables, written_h, h_symbols)  # its unit: that of the terms
     for oname, ospec in sim.outputs.items():
         opath = ("simulation", "outputs", oname)
         oexpr, vpath = (ospec.value, (*opath, "value")) if isinstance(ospec, OutputSpec) else (ospec, opath)
