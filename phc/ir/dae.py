@@ -457,7 +457,7 @@ class _SumOnRead:
 
     def __get__(self, obj, owner=None):
         if obj is None:
-            raise AttributeError(self.name)
+            return self
         value = obj.__dict__[self.name]
         if type(value) is TermSum:
             value = obj.__dict__[self.name] = value.build()
