@@ -112,3 +112,19 @@ def test_a_row_the_rule_does_not_touch_is_the_row_itself():
     assert alike.unchanged == 1 and alike.rebuilt == alike.renamed == 0
     row = sp.sin(k * y**2 + f) - x
     assert _same(alike(row), row.xreplace(alike.rule)) and alike(row) is not row
+
+
+def test_rows_whose_names_sort_otherwise_are_renamed_from_a_plan_for_that_order():
+    """A shape's rows whose names sort otherwise than its first row's: the first of each
+    order is rebuilt by sympy, the next ones of that order renamed from it, all equal to
+    xreplace's (the rows of a grid's masses, `h9_9` beside `m10_9`)."""
+    alike = AlikeReplacer()
+    rows = []
+    for lo, hi in (("a", "b"), ("d", "c"), ("f", "e"), ("g", "h"), ("j", "i")):
+        x, y = R(f"{lo}1.x"), R(f"{hi}2.x")  # the replaced symbol's name sorts before, then after
+        rows.append((R("z") + 3 * x, {R("z"): 2 * y}))
+    out = [alike(row, rule) for row, rule in rows]
+    assert all(_same(o, row.xreplace(rule)) for o, (row, rule) in zip(out, rows))
+    # orders: (a1 < b2), (d1 > c2), (f1 > e2), (g1 < h2), (j1 > i2): the first and second
+    # of each are rebuilt, the others renamed from the plan of their order
+    assert alike.rebuilt == 2 and alike.renamed == 3

@@ -197,3 +197,34 @@ def _system(m: int, n: int, rows, cols):
     equations = tuple(Equation(sp.Add(*[xs[j] for i2, j in zip(rows, cols) if i2 == i]), f"c.row[{i}]", "law", "c",
                                None) for i in range(m))
     return SimpleNamespace(variables=variables, equations=equations, linear_blocks=())
+
+
+def test_the_stored_energy_is_the_sum_of_the_cells_energies_whenever_it_is_read(tmp_path):
+    """Assembly leaves H unsummed until it is read (:class:`phc.ir.dae.TermSum`): what is
+    read, directly, through ``dataclasses.replace``, a pickle or an output ``H``, is the sum
+    of the cells' energies written here, and its unit, found from the terms, is J."""
+    import dataclasses
+    import pickle
+
+    from phc.ir.dae import TermSum
+
+    cells = 10
+    text = chain_yaml(2 * cells + 1).replace("  outputs: {x1: k1.x}", "  outputs: {x1: k1.x, E: 2*H}")
+    path = tmp_path / "chain.yaml"
+    path.write_text(text)
+    dae, diags, _ = phc.validate_file(path)
+    assert dae is not None, [str(d) for d in diags]
+    m, k = sp.Symbol("m", real=True), sp.Symbol("k", real=True)
+    expected = sp.Add(*[k * sp.Symbol(f"k{i}.x", real=True) ** 2 / 2 + sp.Symbol(f"m{i}.p", real=True) ** 2 / (2 * m)
+                        for i in range(1, cells + 1)])
+    assert dict(dae.outputs)["E"] == 2 * expected  # an output reading H has the sum
+    assert dae.units["H"] == "J"
+
+    path.write_text(chain_yaml(2 * cells + 1))  # no output reads H: nothing sums it until read
+    dae, _, _ = phc.validate_file(path)
+    assert type(dae.__dict__["hamiltonian"]) is TermSum
+    assert dae.units["H"] == "J"
+    copied = dataclasses.replace(dae, name="copy")
+    assert copied.hamiltonian == expected and dae.hamiltonian == expected
+    assert type(dae.__dict__["hamiltonian"]) is not TermSum  # summed once, kept
+    assert pickle.loads(pickle.dumps(dae)).hamiltonian == expected

@@ -324,10 +324,12 @@ class _Walker:
             hit = self._products[(id(a), id(b))] = (a * b, a, b)
         return hit[0]
 
-    def _pow(self, a, exponent: float):
-        hit = self._powers.get((id(a), exponent))
+    def _pow(self, a, exponent):
+        """``a ** float(exponent)`` of a quantity `a` and a sympy number `exponent` (its float
+        is sympy's evaluation, a dozen µs: done once per exponent object too)."""
+        hit = self._powers.get((id(a), id(exponent)))
         if hit is None:
-            hit = self._powers[(id(a), exponent)] = (a ** exponent, a)
+            hit = self._powers[(id(a), id(exponent))] = (a ** float(exponent), a, exponent)
         return hit[0]
 
     def _same_dimension(self, a, b) -> bool:
@@ -403,7 +405,7 @@ class _Walker:
             if db is NUMBER:
                 return NUMBER if self.dim(exp) is NUMBER else self.one()
             if exp.is_Number:
-                return self._pow(db, float(exp))
+                return self._pow(db, exp)
             return None
         if isinstance(expr, sp.Piecewise):
             for _, cond in expr.args:
@@ -435,7 +437,7 @@ class _Walker:
         return None
 
 
-def dimension(expr: sp.Basic, units: Mapping, written: Optional[Mapping] = None):
+def dimension(expr: sp.Basic, units: Mapping, written: Optional[Mapping] = None, symbols: Optional[set] = None):
     """The dimension of `expr`: a base-unit Quantity (:mod:`phc.frontend.si_units`), :data:`NUMBER` (a plain number) or
     None (unknown: it uses a name without a unit).
 
@@ -446,6 +448,8 @@ def dimension(expr: sp.Basic, units: Mapping, written: Optional[Mapping] = None)
         The base-unit quantities of the symbols that have a unit.
     written : mapping Symbol -> str, optional
         The units as the model wrote them (shown in messages).
+    symbols : set, optional
+        ``expr.free_symbols`` when the caller has it (a walk of a long sum saved).
 
     Raises
     ------
@@ -454,8 +458,9 @@ def dimension(expr: sp.Basic, units: Mapping, written: Optional[Mapping] = None)
     """
     if not units or not have_pint() or not isinstance(expr, sp.Basic):
         return None
-    if not (expr.free_symbols & units.keys()):
-        return None if expr.free_symbols else NUMBER
+    free = expr.free_symbols if symbols is None else symbols
+    if not (free & units.keys()):
+        return None if free else NUMBER
     return _Walker(units, written or {}).dim(expr)
 
 
@@ -573,10 +578,15 @@ def variable_units(elab, si: Optional[bool] = None, scales: Optional[Mapping] = 
             out[sym] = units[1]
     second = parse_unit("s") * 10.0 ** time_scale(scales)
     specs = elab.component_specs
+    of_type: dict = {}  # the registry's units by component type: looked up once per type
     for v in elab.variables:
         if v.role != "state" or v.component not in specs:
             continue
-        units = _type_units(specs[v.component])
+        spec = specs[v.component]
+        kind = getattr(spec, "type", None)
+        units = of_type.get(kind, of_type)
+        if units is of_type:
+            units = of_type[kind] = _type_units(spec)
         domains = domain_of.get(v.component, set())
         if units is None or units.storage is None or len(domains) != 1:
             continue
@@ -594,7 +604,7 @@ class ResultUnits:
     or derived from the dimension of its expression, and the units of its variables and of
     `H`. Checks outputs and initial values through `reporter` (its `units` are set here)."""
 
-    def __init__(self, reporter, elab, variables, hamiltonian):
+    def __init__(self, reporter, elab, variables, hamiltonian, h_symbols: Optional[set] = None):
         self.reporter = reporter
         self.active = bool(elab.units) and have_pint()
         self.labels: dict[str, str] = {}
@@ -605,7 +615,7 @@ class ResultUnits:
         self.h_symbol = sp.Symbol("H", real=True)
         self.rotational = any(getattr(p, "domain", None) == "mechanical.rotational" for p in elab.ports.values())
         try:
-            h = dimension(hamiltonian, units)
+            h = dimension(hamiltonian, units, symbols=h_symbols)
         except DimensionError:
             h = None
         if h is not None and h is not NUMBER:

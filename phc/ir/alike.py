@@ -12,8 +12,9 @@ old ones' places: sums and products from their arguments in the order the first 
 have (``_from_args``), which is sympy's canonical order as long as the new names are in
 the same relative order as the old ones (sympy orders arguments by their class, their
 numbers and their symbols' names, :meth:`sympy.core.basic.Basic.compare`); when they are
-not, the row is rebuilt by sympy. The principle, and the check, are those of the
-renamed lowerings of :class:`phc.frontend.lowering.SharedLowerings`.
+not, the row is rebuilt by sympy, and its rebuild becomes the plan of its shape for rows
+whose names sort as its own do (:data:`MAX_ORDERS`). The principle, and the check, are
+those of the renamed lowerings of :class:`phc.frontend.lowering.SharedLowerings`.
 
 The shape of a row is its tree with each symbol replaced by its place among the row's
 symbols (first occurrence first) and, where the rule replaces it, by the shape of what
@@ -51,6 +52,18 @@ def unevaluated_pow(base, exp, commutative):
     return obj
 
 
+def _order(places: list) -> tuple:
+    """The places' indices with their names in sorted order (sympy's order of symbols)."""
+    return tuple(sorted(range(len(places)), key=lambda i: places[i].name))
+
+
+MAX_ORDERS = 4096
+"""Plans kept for rows whose names sort otherwise than their shape's first row's (one per
+shape and order of names): the rows of a grid's masses name their neighbours `h9_10`,
+`m9_9`, `v10_9`..., whose order changes as the indices gain digits (the grid of
+bench_components.py had a third of its rows rebuilt by sympy without them)."""
+
+
 class _Plan:
     """The rebuild of one shape's result from the symbols in their places."""
 
@@ -86,7 +99,7 @@ class _Plan:
         self.consts: list = []
         self.root = visit(result)[0]
         # the places' names in sympy's order: a new row is built only if its names sort alike
-        self.order = sorted(range(n_places), key=lambda i: places[i].name)
+        self.order = _order(places)
 
     def _const(self, e) -> int:
         self.consts.append(e)
@@ -121,6 +134,7 @@ class AlikeReplacer:
     def __init__(self, rule: Mapping | None = None) -> None:
         self.rule = rule  # None: each call gives its own
         self.plans: dict = {}
+        self.ordered: dict = {}  # (shape, order of its names) -> plan, for names sorting otherwise (MAX_ORDERS)
         self._plain: dict = {}  # symbol -> whether it is Symbol(name, real=True), renamed
         self.rebuilt = 0  # rows rebuilt by sympy (first of their shape, or refused): for tests
         self.renamed = 0  # rows built from their shape's plan
@@ -178,8 +192,13 @@ class AlikeReplacer:
             self.unchanged += 1
             return expr
         plan = self.plans.get(key)
+        order = None
         if plan is not None:
             out = plan.build(places)
+            if out is None:  # names in another order: the plan made for that order, if any
+                order = _order(places)
+                other = self.ordered.get((key, order))
+                out = None if other is None else other.build(places)
             if out is not None:
                 self.renamed += 1
                 return out
@@ -187,4 +206,6 @@ class AlikeReplacer:
         out = by_sympy()
         if plan is None:
             self.plans[key] = _Plan(out, places)
+        elif len(self.ordered) < MAX_ORDERS:
+            self.ordered[(key, order)] = _Plan(out, places)
         return out

@@ -25,14 +25,13 @@ Order matters:
 
 from __future__ import annotations
 
-import dataclasses
 import difflib
 from typing import Optional
 
 import sympy as sp
 
-from phc.ir.dae import (STORED_ENERGY, T, Dae, Equation, InitialValue, Invariant, LinearBlock, PortInfo, Topology,
-                     Variable)
+from phc.ir.dae import (STORED_ENERGY, T, Dae, Equation, InitialValue, Invariant, LinearBlock, PortInfo, TermSum,
+                     Topology, Variable)
 from phc.ir.alike import AlikeReplacer
 from phc.diagnostics import Diagnostic, DiagnosticList
 from phc.frontend.inputs import SignalBuilder
@@ -65,16 +64,23 @@ class _SignedUnionFind:
         self.parent: dict[sp.Symbol, tuple[sp.Symbol, int]] = {}
 
     def find(self, x):
-        sign = 1
-        path = []
-        while x in self.parent:
-            p, s = self.parent[x]
-            path.append((x, sign))
+        parent = self.parent
+        up = parent.get(x)  # one lookup a step (a symbol's hash is a Python call)
+        if up is None:
+            return x, 1
+        root, sign = up
+        up = parent.get(root)
+        if up is None:  # x's parent is its root: nothing to compress (most calls)
+            return root, sign
+        path = [(x, 1)]
+        while up is not None:
+            path.append((root, sign))
+            root, s = up
             sign *= s
-            x = p
+            up = parent.get(root)
         for node, s0 in path:  # path compression
-            self.parent[node] = (x, sign * s0)
-        return x, sign
+            parent[node] = (root, sign * s0)
+        return root, sign
 
     def union(self, a, b, sign):
         """Impose a = sign·b. Returns (root_a, root_b, rel) with root_a = rel·root_b, or None if same class."""
@@ -102,7 +108,6 @@ def assemble(elab, inter) -> tuple[Optional[Dae], DiagnosticList]:
     if dae is not None:
         reporter.diags.extend(_reading_loops(dae))
         reporter.diags.extend(check_assembled(elab, dae))  # exact size and output arrays, before any code is generated
-        dae = dataclasses.replace(dae, left_out=elab.left_out, meshes=dict(elab.meshes))
     return (None if reporter.diags.has_errors else dae), reporter.diags
 
 
@@ -268,20 +273,29 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
 
     # sp.Add(*terms) is linear in the number of terms; Python's sum() re-canonicalizes
     # the growing Add at every step (quadratic, visible at a few hundred components).
-    hamiltonian = sp.Add(*[final(h) for h in elab.hamiltonian])
+    # The sum itself is built only when something reads it (a TermSum, phc.ir.dae): the
+    # checks below read its terms, validation never needs it in sympy's canonical order.
+    energy_terms = TermSum(final(h) for h in elab.hamiltonian)
+    written_h = energy_terms.unevaluated()
+    hamiltonian = energy_terms
     dissipation_terms = tuple((component, final(d), span) for component, d, span in elab.dissipation)
     dissipation = sp.Add(*[d for _, d, _ in dissipation_terms])
     port_power = final(sp.Add(*exposed_power, *elab.source_power))
-    if T in hamiltonian.free_symbols:
+    h_symbols = written_h.free_symbols
+    if T in h_symbols:
         # An explicit time dependence of H (a potential V(q, t), a mass matrix M(t), a
         # coefficient k(t)) is energy exchanged with whatever varies it: dH/dt = ∇H·ẏ + ∂H/∂t,
         # so the model delivers −∂H/∂t and H(t) − H(0) + E(t) stays the balance residual.
+        hamiltonian = energy_terms.build()
         port_power = port_power - sp.diff(hamiltonian, T)
     energy = sp.Symbol("energy.supplied", real=True)
     denergy = sp.Symbol("der(energy.supplied)", real=True)
     variables.append(Variable(energy.name, energy, True, "energy", "energy", denergy, None))
     equations.append(Equation(denergy - port_power - dissipation, "energy.balance", "energy", "energy", None))
 
+    if isinstance(hamiltonian, TermSum) and any(
+            "H" in str(ospec.value if isinstance(ospec, OutputSpec) else ospec) for ospec in sim.outputs.values()):
+        hamiltonian = energy_terms.build()  # an output may read `H` (the text is not parsed yet)
     scope = _output_scope(elab, subs, hamiltonian)
     rates = _rate_scope(elab, subs)
     if elab.quadratic_energy:
@@ -289,7 +303,7 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
         # module's `hamiltonian` (sparse quadratic forms), never a sum written out term by term
         scope["H"] = STORED_ENERGY
     outputs = []
-    result_units = ResultUnits(rep, elab, variables, hamiltonian)
+    result_units = ResultUnits(rep, elab, variables, written_h, h_symbols)  # its unit: that of the terms
     for oname, ospec in sim.outputs.items():
         opath = ("simulation", "outputs", oname)
         oexpr, vpath = (ospec.value, (*opath, "value")) if isinstance(ospec, OutputSpec) else (ospec, opath)
@@ -355,6 +369,8 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
                  "max_order": sim.max_order, "step": sim.step,
                  "nominal": _nominal_scales(rep, ctx, {v.name for v in variables if v.differential}, elab)},
         units=dict(result_units.labels),
+        left_out=elab.left_out,
+        meshes=dict(elab.meshes),
     )
 
 
