@@ -318,9 +318,9 @@ def roundoff_sizes(rows, cols, vals, y, s, n: int, m: int, samples: int = 4,
                 out = np.abs(np.linalg.inv(J)) @ rho
             else:
                 import scipy.sparse as sps
-                from scipy.sparse.linalg import splu
+                from phc.simulation.sparse_lu import sparse_lu
 
-                lu = splu(sps.csc_matrix((vals, (rows, cols)), shape=(m, n)))
+                lu = sparse_lu(sps.csc_matrix((vals, (rows, cols)), shape=(m, n)))
                 rng = np.random.default_rng(0)
                 out = np.zeros(n)
                 for _ in range(samples):
