@@ -300,7 +300,9 @@ def roundoff_sizes(rows, cols, vals, y, s, n: int, m: int, samples: int = 4,
     import warnings
 
     ok = np.isfinite(vals)
-    rows, cols, vals = rows[ok], cols[ok], vals[ok]
+    if not ok.all():  # copies only where needed: they would be alive beside the LU below
+        rows, cols, vals = rows[ok], cols[ok], vals[ok]
+    del ok
     size = np.maximum(np.abs(np.where(np.isfinite(y), y, 0.0)), s)
     rho = np.zeros(m)
     np.add.at(rho, rows, np.abs(vals) * size[cols])
