@@ -42,7 +42,8 @@ from typing import Optional
 from phc.analysis.matching import check_balance
 from phc.codegen.compiled import CompiledModel, RunCache
 from phc.ir.dae import Dae
-from phc.codegen.description import Connection, Initial, Labelled, ModelDescription, Place, SceneRef, Verdict
+from phc.codegen.description import (Connection, Initial, Labelled, LabelledRows, ModelDescription, Place, SceneRef,
+                                     Verdict)
 from phc.diagnostics import DiagnosticList
 from phc.ir.assemble import assemble
 from phc.frontend.elaborate import elaborate
@@ -351,7 +352,7 @@ def describe(name: str, dae: Dae, module: ModuleType, scene: Optional[Scene] = N
 
     return ModelDescription(
         name=name, model=dae.name, n_states=dae.n_states - 1, options=dae.options, units=dict(dae.units or {}),
-        equations=tuple(Labelled(eq.label, eq.component, place(eq.span)) for eq in dae.equations),
+        equations=LabelledRows((eq.label, eq.component, place(eq.span)) for eq in dae.equations),
         invariants=tuple(Labelled(x.label, x.component, Place.of(x.span)) for x in dae.invariants),
         velocity_invariants=tuple(Labelled(x.label, x.component, Place.of(x.span)) for x in dae.velocity_invariants),
         initial=tuple(initial), outputs=outputs, output_spans=_output_spans(scene, dae, outputs),

@@ -154,3 +154,22 @@ def test_a_pickled_model_keeps_its_description_and_cache(pendulum):
     assert twin.description == pendulum.description
     assert twin.cache.timings == pendulum.cache.timings
     _same_run(phc.simulate(pendulum, t_end=0.1, n_out=11), phc.simulate(twin, t_end=0.1, n_out=11))
+
+
+def test_equation_rows_are_labelled_when_read_and_share_their_places():
+    """The equations of a description hold one place per distinct place (a mesh's rows share
+    one) and read back as the Labelled items they were made from."""
+    from phc.codegen.description import Labelled, LabelledRows, Place
+
+    here, there = Place("m.yaml", 3, 5), Place("m.yaml", 9)
+    items = [Labelled("beam.row[0]", "beam", here), Labelled("beam.row[1]", "beam", Place("m.yaml", 3, 5)),
+             Labelled("energy.balance", "energy", None), Labelled("load.port", "load", there)]
+    rows = LabelledRows(items)
+    assert len(rows) == 4 and list(rows) == items and rows == tuple(items)
+    assert rows[1] == items[1] and rows[-1] == items[-1] and rows[1:3] == tuple(items[1:3])
+    assert len(rows._places) == 3  # equal places stored once: here, None, there
+    assert rows != tuple(items[:3]) and rows != LabelledRows(items[:3])
+    desc = phc.compile_model(PENDULUM, certify=False).description
+    back = ModelDescription.from_json(desc.to_json())
+    assert isinstance(back.equations, LabelledRows) and back.equations == desc.equations
+    assert [eq.label for eq in back.equations] == list(desc.equations.labels)

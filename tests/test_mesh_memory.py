@@ -155,7 +155,9 @@ def test_the_newton_matrix_is_scaled_as_the_sparse_products_scaled_it(tmp_path, 
     p = mod.full_parameters()
     matrix = midpoint.NewtonMatrix(mod, p)
     factored = []
-    monkeypatch.setattr(midpoint.spla, "splu", lambda J, *a, **k: factored.append(J.copy()) or object())
+    import scipy.sparse.linalg as spla  # what phc.simulation.sparse_lu factorizes with
+
+    monkeypatch.setattr(spla, "splu", lambda J, *a, **k: factored.append(J.copy()) or object())
     rng = np.random.default_rng(1)
     y, y1 = rng.standard_normal(mod.N), rng.standard_normal(mod.N)
     y[0] = y1[0] = 0.0  # an entry that is zero here

@@ -17,14 +17,16 @@ The cached front end of the command line (:mod:`phc.codegen.fastpath`) stores ex
 :meth:`ModelDescription.from_json` into a :class:`~phc.codegen.compiled.CompiledModel`.
 
 Every mapping in a description is read-only (a :class:`types.MappingProxyType` over a
-private copy) and every sequence a tuple: ``compiled.options["rtol"] = 0.5`` raises
-``TypeError`` instead of changing the next run. A description pickles through its JSON
+private copy) and every sequence a tuple, the equations a read-only :class:`LabelledRows`:
+``compiled.options["rtol"] = 0.5`` raises ``TypeError`` instead of changing the next run. A description pickles through its JSON
 text. This module imports nothing beyond the standard library.
 """
 
 from __future__ import annotations
 
 import json
+from array import array
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any, Mapping, Optional
@@ -80,6 +82,20 @@ def _place(data) -> Optional[Place]:
     return Place(str(data[0]), int(data[1]), int(data[2])) if data else None
 
 
+def _rows(items) -> "LabelledRows":
+    """The :class:`LabelledRows` of JSON ``[label, component, place]`` items, each distinct
+    place made once."""
+    made: dict = {}
+
+    def place(data):
+        key = tuple(data) if data else None
+        if key not in made:
+            made[key] = _place(data)
+        return made[key]
+
+    return LabelledRows((str(lab), str(comp), place(s)) for lab, comp, s in items)
+
+
 @dataclass(frozen=True)
 class Labelled:
     """An equation or invariant of the compiled model: its label, the component it comes
@@ -88,6 +104,68 @@ class Labelled:
     label: str
     component: str = ""
     span: Optional[Place] = None
+
+
+class LabelledRows(Sequence):
+    """The equations of a compiled model as a read-only sequence of :class:`Labelled`, each
+    made when it is read: the labels and components as tuples of strings (the strings shared
+    with whoever made them), the places as indices into the few distinct places (the rows of a
+    mesh share one). A mesh of 10⁵ Euler–Bernoulli elements has 8·10⁵ rows: a Labelled object
+    for each held about 120 MiB (issue 35); these hold about 16 bytes a row. Equal to another
+    sequence of the same Labelled (a tuple of them included)."""
+
+    __slots__ = ("labels", "components", "_where", "_places")
+
+    def __init__(self, items: Iterable = ()) -> None:
+        """From ``Labelled`` items or ``(label, component, place)`` triples (place a
+        :class:`Place` or None)."""
+        labels, components, where, places = [], [], array("l"), []
+        index: dict = {}
+        last, last_i = object(), -1
+        for item in items:
+            label, component, place = ((item.label, item.component, item.span) if isinstance(item, Labelled)
+                                       else item)
+            if place is not last:  # consecutive rows mostly share one Place object
+                last, last_i = place, index.get(place)
+                if last_i is None:
+                    last_i = index[place] = len(places)
+                    places.append(place)
+            labels.append(label)
+            components.append(component)
+            where.append(last_i)
+        self.labels, self.components = tuple(labels), tuple(components)
+        self._where, self._places = where, tuple(places)
+
+    def __len__(self) -> int:
+        return len(self.labels)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return tuple(self[k] for k in range(*i.indices(len(self))))
+        return Labelled(self.labels[i], self.components[i], self._places[self._where[i]])
+
+    def __iter__(self):
+        places, where = self._places, self._where
+        for k, (label, component) in enumerate(zip(self.labels, self.components)):
+            yield Labelled(label, component, places[where[k]])
+
+    def __eq__(self, other) -> bool:
+        if isinstance(other, LabelledRows):
+            return (self.labels == other.labels and self.components == other.components
+                    and all(a == b for a, b in zip(self.spans(), other.spans())))
+        if isinstance(other, (tuple, list)):
+            return len(other) == len(self) and all(a == b for a, b in zip(self, other))
+        return NotImplemented
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def spans(self):
+        """The place of each row, in order (None where not located)."""
+        places = self._places
+        return (places[k] for k in self._where)
+
+    def __repr__(self) -> str:
+        return f"LabelledRows({len(self)} rows)"
 
 
 @dataclass(frozen=True)
@@ -160,8 +238,10 @@ class ModelDescription:
         ``max_steps``, ``solver``, ``max_order``, ``step``, ``nominal``), read-only.
     units : Mapping
         Unit labels of variables, outputs and ``H`` where known.
-    equations, invariants, velocity_invariants : tuple of Labelled
-        In the order of the generated module's rows.
+    equations : LabelledRows
+        A read-only sequence of Labelled, in the order of the generated module's rows.
+    invariants, velocity_invariants : tuple of Labelled
+        In the order of the generated module's invariants.
     initial : tuple of Initial
         The model's initial values.
     outputs : tuple of str
@@ -197,7 +277,7 @@ class ModelDescription:
     n_states: int
     options: Mapping[str, Any]
     units: Mapping[str, str]
-    equations: tuple[Labelled, ...]
+    equations: Sequence[Labelled]
     invariants: tuple[Labelled, ...]
     velocity_invariants: tuple[Labelled, ...]
     initial: tuple[Initial, ...]
@@ -212,7 +292,9 @@ class ModelDescription:
     def __post_init__(self) -> None:
         for f in ("options", "units", "output_spans"):
             object.__setattr__(self, f, freeze(getattr(self, f)))
-        for f in ("equations", "invariants", "velocity_invariants", "initial", "outputs", "connections", "sources"):
+        if not isinstance(self.equations, LabelledRows):
+            object.__setattr__(self, "equations", LabelledRows(self.equations))
+        for f in ("invariants", "velocity_invariants", "initial", "outputs", "connections", "sources"):
             object.__setattr__(self, f, tuple(getattr(self, f)))
         object.__setattr__(self, "left_out", tuple(tuple(x) for x in self.left_out))
 
@@ -228,10 +310,15 @@ class ModelDescription:
         def labelled(items):
             return [[x.label, x.component, _place_json(x.span)] for x in items]
 
+        equations = self.equations
+        places = {id(p): _place_json(p) for p in equations._places}  # one list per distinct place
+
         return {
             "format": FORMAT, "name": self.name, "model": self.model, "n_states": self.n_states,
             "options": thaw(self.options), "units": thaw(self.units),
-            "equations": labelled(self.equations), "invariants": labelled(self.invariants),
+            "equations": [[label, component, places[id(place)]] for label, component, place
+                          in zip(equations.labels, equations.components, equations.spans())],
+            "invariants": labelled(self.invariants),
             "velocity_invariants": labelled(self.velocity_invariants),
             "initial": [[iv.name, iv.value, iv.guess, _place_json(iv.span),
                          list(iv.depends) if iv.depends is not None else None] for iv in self.initial],
@@ -262,7 +349,7 @@ class ModelDescription:
             scene, cert = data["scene"], data["certificate"]
             return cls(
                 name=data["name"], model=data["model"], n_states=int(data["n_states"]), options=data["options"],
-                units=data["units"], equations=labelled(data["equations"]), invariants=labelled(data["invariants"]),
+                units=data["units"], equations=_rows(data["equations"]), invariants=labelled(data["invariants"]),
                 velocity_invariants=labelled(data["velocity_invariants"]),
                 initial=tuple(Initial(str(n), float(v), bool(g), _place(s), tuple(d) if d is not None else None)
                               for n, v, g, s, d in data["initial"]),

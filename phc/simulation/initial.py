@@ -36,11 +36,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sps
-import scipy.sparse.linalg as spla
 
 from phc.analysis.matching import bipartite_matching
 from phc.errors import InconsistentInitialError
 from phc.simulation.chord import max_norm as _norm
+from phc.simulation.sparse_lu import sparse_lu
 from phc.simulation.gauss_newton import gauss_newton, least_squares
 from phc.simulation.guard import ModelEvaluationError
 from phc.simulation.minnorm import (CONSISTENT, DENSE_SOLVE_LIMIT, LeastNorm, dense_min_norm, lsmr_min_norm, min_norm_solve,
@@ -575,7 +575,7 @@ class _Problem:
         K = sps.bmat([[E, A.T / scale], [A / scale, None]], format="csc")
         norm_k = float(abs(K).sum(axis=1).max())  # ‖K‖∞
         try:
-            lu = spla.splu(K)
+            lu = sparse_lu(K)
         except (RuntimeError, ValueError):
             return None
         v = np.zeros(n)

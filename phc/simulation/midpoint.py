@@ -38,13 +38,13 @@ import time
 
 import numpy as np
 import scipy.sparse as sps
-import scipy.sparse.linalg as spla
 
 from phc.simulation import step_logic, undetermined
 from phc.simulation.backend import BackendRun
 from phc.simulation.chord import ChordIteration, max_norm
 from phc.simulation.guard import ModelEvaluationError
 from phc.simulation.monitor import SingularityMonitor, unbounded_growth
+from phc.simulation.sparse_lu import sparse_lu
 
 NEWTON_TOL = 1e-14
 """Newton stops when the estimated error ``θ/(1−θ)·|Δ|`` of the iterate is below this, in
@@ -167,7 +167,7 @@ class NewtonMatrix:
         if self.least_norm:
             return self._least_norm(J, h, s)
         try:
-            self.lu = spla.splu(J)
+            self.lu = sparse_lu(J)
         except RuntimeError:
             self.lu = None
             return False

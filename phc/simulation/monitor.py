@@ -37,6 +37,7 @@ import scipy.sparse as sps
 
 from phc.errors import ModelEvaluationError
 from phc.simulation.equilibrate import equilibrate
+from phc.simulation.sparse_lu import sparse_lu
 from phc.simulation.look_cadence import (MINIMUM_XTOL, SEARCH_ITERATIONS, LookWork, brackets_minimum, hermite,  # noqa: F401
                                        run_golden_search)
 
@@ -166,7 +167,7 @@ def _sparse_look(J, n, threshold, vectors, work, spla):
     try:
         if not np.all(np.isfinite(J.data)):
             raise ValueError("not finite")
-        lu = spla.splu(J)
+        lu = sparse_lu(J)
     except (RuntimeError, ValueError):
         if not vectors:
             return 0.0, np.empty(0)

@@ -301,7 +301,9 @@ def roundoff_sizes(rows, cols, vals, y, s, n: int, m: int, samples: int = 4,
     import warnings
 
     ok = np.isfinite(vals)
-    rows, cols, vals = rows[ok], cols[ok], vals[ok]
+    if not ok.all():  # copies only where needed: they would be alive beside the LU below
+        rows, cols, vals = rows[ok], cols[ok], vals[ok]
+    del ok
     size = np.maximum(np.abs(np.where(np.isfinite(y), y, 0.0)), s)
     rho = np.zeros(m)
     np.add.at(rho, rows, np.abs(vals) * size[cols])
@@ -319,9 +321,9 @@ def roundoff_sizes(rows, cols, vals, y, s, n: int, m: int, samples: int = 4,
                 out = np.abs(np.linalg.inv(J)) @ rho
             else:
                 import scipy.sparse as sps
-                from scipy.sparse.linalg import splu
+                from phc.simulation.sparse_lu import sparse_lu
 
-                lu = splu(sps.csc_matrix((vals, (rows, cols)), shape=(m, n)))
+                lu = sparse_lu(sps.csc_matrix((vals, (rows, cols)), shape=(m, n)))
                 rng = np.random.default_rng(0)
                 out = np.zeros(n)
                 for _ in range(samples):
