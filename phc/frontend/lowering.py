@@ -530,8 +530,8 @@ class _Template:
         lines.append(f"    return {ref(self.root)}")
         namespace = {"C": self.values, "K": extra, "new": object.__new__, "symbol": real_symbol,
                      "upow": unevaluated_pow}
-        # safe: phc's own text, made above from slots and indices (no text of the model in it)
-        exec(compile("\n".join(lines) + "\n", f"<phc.frontend.lowering template of {len(self.steps)} steps>",
+        exec(compile("\n".join(lines) + "\n",  # safe: phc's own text from slots and indices, no model text
+                     f"<phc.frontend.lowering template of {len(self.steps)} steps>",
                      "exec", dont_inherit=True), namespace)
         self._names = list(index)
         return namespace["build"]
