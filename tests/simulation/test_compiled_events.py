@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 import pytest
+import test_events as event_models
 from compiled_loading import assert_same_trajectory, both_loops
 
 import phc
@@ -21,58 +22,9 @@ from phc.simulation.midpoint import EVENT_TOL
 OK, WHY = available()
 pytestmark = pytest.mark.skipif(not OK, reason=f"the compiled loop needs numba: {WHY}")
 
-COULOMB = """\
-format_version: 1
-name: coulomb_block
-parameters:
-  m: 1.0
-  k: 4.0
-  Fc: 1.0
-components:
-  block:
-    type: phs
-    states: [p, x]
-    hamiltonian: p**2/(2*m) + k*x**2/2
-    resistive:
-      fr: {law: ["e_fr = Fc*sign(f_fr)"]}
-    relations:
-      - f_x = e_p
-      - f_p = -e_x - e_fr
-      - f_fr = e_p
-simulation:
-  t_end: 5.0
-  n_out: 101
-  initial: {block.x: 1.1, block.p: 0.0}
-"""
-
-PUSHED = """\
-format_version: 1
-name: pushed_block
-parameters:
-  m: 2.0
-  Fc: 3.0
-  c: 4.0
-components:
-  push: {type: effort_source, domain: mechanical.translational, value: "c*t"}
-  block:
-    type: phs
-    states: [p]
-    hamiltonian: p**2/(2*m)
-    ports:
-      a: {domain: mechanical.translational}
-    resistive:
-      fr: {law: [e_fr = Fc*sign(f_fr)]}
-    relations:
-      - f_p = -e_a - e_fr
-      - f_fr = e_p
-      - f_a = e_p
-connections:
-  - [push.port, block.a]
-simulation:
-  t_end: 2.0
-  n_out: 201
-  initial: {block.p: 0.0}
-"""
+# The models of tests/simulation/test_events.py (their tolerances and outputs do not change fixed steps).
+COULOMB = event_models.FRICTION.format(law="e_fr = Fc*sign(f_fr)")
+PUSHED = event_models.PUSHED.format(force="c*t")
 
 
 @pytest.fixture
