@@ -225,17 +225,20 @@ def test_energy_sizes_evaluate_h_a_bounded_number_of_times(n):
     assert mod.calls <= 1 + 2 * 3
 
 
+class _ScalarSprings(_Springs):
+    """The springs with an H that takes one state at a time (as a NumPy module's H with math.sin)."""
+
+    def hamiltonian(self, t, y, p):
+        if np.ndim(y) != 1:
+            raise TypeError("one state at a time")
+        return super().hamiltonian(t, y, p)
+
+
 def test_energy_sizes_fall_back_to_single_calls_for_a_scalar_only_h():
     from phc.simulation.energy_sizes import energy_sizes
 
-    class Scalar(_Springs):
-        def hamiltonian(self, t, y, p):
-            if np.ndim(y) != 1:
-                raise TypeError("one state at a time")
-            return super().hamiltonian(t, y, p)
-
     k = np.array([1.0, 4.0, 9.0])
-    mod = Scalar(k)
+    mod = _ScalarSprings(k)
     sizes = energy_sizes(mod, None, 0.0, np.ones(3), np.ones(3), 0.5)
     np.testing.assert_allclose(sizes, np.sqrt(1.0 / k), rtol=1e-7)
 
@@ -592,14 +595,8 @@ def test_energy_sizes_of_a_guarded_module_call_its_own_h_and_the_guard_only_wher
     from phc.simulation.energy_sizes import energy_sizes
     from phc.simulation.guard import GuardedModule
 
-    class Scalar(_Springs):
-        def hamiltonian(self, t, y, p):
-            if np.ndim(y) != 1:
-                raise TypeError("one state at a time")
-            return super().hamiltonian(t, y, p)
-
     k = np.array([1.0, 4.0, 9.0])
-    raw = Scalar(k)
+    raw = _ScalarSprings(k)
     guarded = GuardedModule(raw)
     through_guard = []
     wrapped = guarded.hamiltonian
@@ -610,7 +607,7 @@ def test_energy_sizes_of_a_guarded_module_call_its_own_h_and_the_guard_only_wher
     # perturbed state by the module's own H
     assert through_guard.count(1) == 1
 
-    class Pole(Scalar):  # H not finite once y_0 moves up: the guard's verdict
+    class Pole(_ScalarSprings):  # H not finite once y_0 moves up: the guard's verdict
         def hamiltonian(self, t, y, p):
             return super().hamiltonian(t, y, p) + (np.inf if y[0] > 1.0 else 0.0)
 
