@@ -404,10 +404,16 @@ class _Problem:
             ar.append(at[r[k]])
             ac.append(c[k])
             av.append(scale[r[k]] * v[k])
-        A = sps.csr_matrix((np.concatenate(av), (np.concatenate(ar), np.concatenate(ac))),
-                           shape=(int(keep.sum()), nf + nd))  # duplicates are summed
+        shape = (int(keep.sum()), nf + nd)
+        ar, ac, av = np.concatenate(ar), np.concatenate(ac), np.concatenate(av)
+        if shape[0] * shape[1] <= DENSE_SOLVE_LIMIT:  # solved dense anyway: no sparse matrix (a restart at an event)
+            A = np.bincount(ar * shape[1] + ac, weights=av, minlength=shape[0] * shape[1]).reshape(shape)
+            values = A.ravel()
+        else:
+            A = sps.csr_matrix((av, (ar, ac)), shape=shape)  # duplicates are summed
+            values = A.data
         g0 = g0[keep]
-        if not len(g0) or not np.all(np.isfinite(A.data)):
+        if not len(g0) or not np.all(np.isfinite(values)):
             return False
 
         # a residual ‖g₀ + A Δu‖₂ above `enough` is hopeless (some row above the bound, with a
