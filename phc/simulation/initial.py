@@ -188,14 +188,20 @@ class _Problem:
         self._metric = False  # energy_metric(), computed on first use
         self._hessian = None  # its K
         self._kkt_failed = False  # the sparse nested step failed once (step())
-        n_init = len(getattr(mod, "INITIAL", ()))
-        self.C = sps.csr_matrix((np.asarray(getattr(mod, "INITIAL_DATA", [])),
-                                 (np.asarray(getattr(mod, "INITIAL_ROWS", []), dtype=np.int64),
-                                  np.asarray(getattr(mod, "INITIAL_COLS", []), dtype=np.int64))), shape=(n_init, n))
-        self.c = np.asarray(getattr(mod, "INITIAL_RHS", np.zeros(n_init)), dtype=float)  # C y = c
-        if not initial_relations:
-            self.C = sps.csr_matrix((0, n))
-            self.c = np.zeros(0)
+        cache = _structures(mod)
+        relations = None if cache is None else cache.get(("initial relations", bool(initial_relations)))
+        if relations is None:
+            n_init = len(getattr(mod, "INITIAL", ()))
+            relations = (sps.csr_matrix((np.asarray(getattr(mod, "INITIAL_DATA", [])),
+                                         (np.asarray(getattr(mod, "INITIAL_ROWS", []), dtype=np.int64),
+                                          np.asarray(getattr(mod, "INITIAL_COLS", []), dtype=np.int64))),
+                                        shape=(n_init, n)),
+                         np.asarray(getattr(mod, "INITIAL_RHS", np.zeros(n_init)), dtype=float))
+            if not initial_relations:
+                relations = (sps.csr_matrix((0, n)), np.zeros(0))
+            if cache is not None:
+                cache[("initial relations", bool(initial_relations))] = relations
+        self.C, self.c = relations  # C y = c (shared: read only)
         self._prepared = False  # _prepare() on first use: a hopeless stage never needs it
         self._d_ent = None  # _prepare_d() on the first evaluation of D: a start that is
         # already consistent (a mesh at rest) never needs the Jacobian's structure
@@ -538,7 +544,7 @@ class _Problem:
     def G(self, u):
         y, yp, z, w = self.unpack(u)
         return np.concatenate([self.row_scale * self.F(y, yp), self.row_scale[self.kept] * self.D(y, yp, z, w),
-                               self.C @ y - self.c])
+                               self.C @ y - self.c if self.C.shape[0] else self.c])
 
     def jacobian(self, u):
         """The Newton matrix of G at u (sparse)."""
