@@ -68,8 +68,11 @@ POLISH_STEPS = 3
 """Gauss–Newton steps after convergence that refine the solution to round-off."""
 
 
-STRUCTURE_CACHE = 64
+STRUCTURE_CACHE = 32
 """Most structures kept per module (:func:`_structures`)."""
+STRUCTURE_ENTRIES = 20_000
+"""Modules with more Jacobian entries keep none (a mesh's index arrays would stay in memory
+for the module's lifetime; one consistent initialization at the start builds them once)."""
 
 _STRUCTURES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
@@ -79,7 +82,9 @@ def _structures(mod):
     depend on (the kept rows by the pattern of F_ẏ, the Newton matrix's index arrays by the
     kept rows and the unknowns): a run with events restarts from a consistent state at every
     event, in a few modes, and these depend on the patterns alone. None where `mod` cannot
-    be weakly referenced (nothing is cached then)."""
+    be weakly referenced or is large (:data:`STRUCTURE_ENTRIES`): nothing is cached then."""
+    if len(getattr(mod, "JAC_ROWS", ())) > STRUCTURE_ENTRIES:
+        return None
     try:
         cache = _STRUCTURES.get(mod)
         if cache is None:
