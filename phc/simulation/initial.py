@@ -31,6 +31,7 @@ the sparse optimality system is the part to move out next.
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -65,6 +66,34 @@ costs n²/2 evaluations of H); beyond, in their nominal scales."""
 
 POLISH_STEPS = 3
 """Gauss–Newton steps after convergence that refine the solution to round-off."""
+
+
+STRUCTURE_CACHE = 32
+"""Most structures kept per module (:func:`_structures`)."""
+STRUCTURE_ENTRIES = 20_000
+"""Modules with more Jacobian entries keep none (a mesh's index arrays would stay in memory
+for the module's lifetime; one consistent initialization at the start builds them once)."""
+
+_STRUCTURES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _structures(mod):
+    """The structures of :class:`_Problem` already built for `mod`, by the patterns they
+    depend on (the kept rows by the pattern of F_ẏ, the Newton matrix's index arrays by the
+    kept rows and the unknowns): a run with events restarts from a consistent state at every
+    event, in a few modes, and these depend on the patterns alone. None where `mod` cannot
+    be weakly referenced or is large (:data:`STRUCTURE_ENTRIES`): nothing is cached then."""
+    if len(getattr(mod, "JAC_ROWS", ())) > STRUCTURE_ENTRIES:
+        return None
+    try:
+        cache = _STRUCTURES.get(mod)
+        if cache is None:
+            cache = _STRUCTURES[mod] = {}
+    except TypeError:
+        return None
+    if len(cache) > STRUCTURE_CACHE:
+        cache.clear()
+    return cache
 
 
 def _diagonal(w: np.ndarray):
@@ -123,9 +152,17 @@ class _Problem:
             np.maximum.at(mags, rows, np.abs(jyp) * self.s[cols])
             self.row_scale = np.where(mags > 0, 1.0 / np.where(mags > 0, mags, 1.0), 1.0)
             del mags
-            nz = np.flatnonzero(jyp != 0)  # the pattern of F_ẏ (what the matching reads of it)
-            self.kept = self._kept_rows(sps.csc_matrix((jyp[nz], (rows[nz], cols[nz])), shape=(self.m, n)))
-            del nz
+            pattern = jyp != 0  # the pattern of F_ẏ (what the matching reads of it)
+            cache = _structures(mod)
+            key = ("kept", np.packbits(pattern).tobytes())
+            self.kept = None if cache is None else cache.get(key)
+            if self.kept is None:
+                nz = np.flatnonzero(pattern)
+                self.kept = self._kept_rows(sps.csc_matrix((jyp[nz], (rows[nz], cols[nz])), shape=(self.m, n)))
+                if cache is not None:
+                    cache[key] = self.kept
+                del nz
+            del pattern
             in_kept = np.zeros(self.m, dtype=bool)
             in_kept[self.kept] = True
             sel = np.flatnonzero(in_kept[rows])
@@ -156,14 +193,20 @@ class _Problem:
         self._metric = False  # energy_metric(), computed on first use
         self._hessian = None  # its K
         self._kkt_failed = False  # the sparse nested step failed once (step())
-        n_init = len(getattr(mod, "INITIAL", ()))
-        self.C = sps.csr_matrix((np.asarray(getattr(mod, "INITIAL_DATA", [])),
-                                 (np.asarray(getattr(mod, "INITIAL_ROWS", []), dtype=np.int64),
-                                  np.asarray(getattr(mod, "INITIAL_COLS", []), dtype=np.int64))), shape=(n_init, n))
-        self.c = np.asarray(getattr(mod, "INITIAL_RHS", np.zeros(n_init)), dtype=float)  # C y = c
-        if not initial_relations:
-            self.C = sps.csr_matrix((0, n))
-            self.c = np.zeros(0)
+        cache = _structures(mod)
+        relations = None if cache is None else cache.get(("initial relations", bool(initial_relations)))
+        if relations is None:
+            n_init = len(getattr(mod, "INITIAL", ()))
+            relations = (sps.csr_matrix((np.asarray(getattr(mod, "INITIAL_DATA", [])),
+                                         (np.asarray(getattr(mod, "INITIAL_ROWS", []), dtype=np.int64),
+                                          np.asarray(getattr(mod, "INITIAL_COLS", []), dtype=np.int64))),
+                                        shape=(n_init, n)),
+                         np.asarray(getattr(mod, "INITIAL_RHS", np.zeros(n_init)), dtype=float))
+            if not initial_relations:
+                relations = (sps.csr_matrix((0, n)), np.zeros(0))
+            if cache is not None:
+                cache[("initial relations", bool(initial_relations))] = relations
+        self.C, self.c = relations  # C y = c (shared: read only)
         self._prepared = False  # _prepare() on first use: a hopeless stage never needs it
         self._d_ent = None  # _prepare_d() on the first evaluation of D: a start that is
         # already consistent (a mesh at rest) never needs the Jacobian's structure
@@ -180,7 +223,34 @@ class _Problem:
         d_ent = d_ent[np.lexsort((cols[d_ent], rows[d_ent]))]  # only the kept rows' entries sorted
         self._d_ent, self._d_row, self._d_col = d_ent, kpos[rows[d_ent]], cols[d_ent]
 
+    _STRUCTURE = ("_d_ent", "_d_row", "_d_col", "_exact_entries", "_group_entries", "_c_data", "_shape", "_csr_perm",
+                  "_csr_indices", "_csr_indptr", "_nnz", "_dense_index")
+
     def _prepare(self):
+        """The index arrays of :meth:`_build` (those of an earlier problem of the module with
+        the same kept rows and unknowns, :func:`_structures`), then the row scaling of this
+        start applied to them."""
+        cache = _structures(self.mod)
+        key = None
+        if cache is not None:
+            key = ("prepare", self.free.tobytes(), self.dif.tobytes(), self.zc.tobytes(), self.wc.tobytes(),
+                   self.kept.tobytes(), np.asarray(self.fd_y).tobytes(), np.asarray(self.fd_yp).tobytes(),
+                   self.C.shape, self.C.indptr.tobytes(), self.C.indices.tobytes(), self.C.data.tobytes())
+        known = None if cache is None else cache.get(key)
+        if known is None:
+            self._build()
+            if cache is not None:
+                cache[key] = tuple(getattr(self, name) for name in self._STRUCTURE)
+        else:
+            for name, value in zip(self._STRUCTURE, known):
+                setattr(self, name, value)
+        rows = self.rows
+        self._exact = [(e, part, self.row_scale[rows[e]]) for e, part in self._exact_entries]
+        self._groups = [(ycols, ypcols, ent_row, ent_h, self.row_scale[self.kept[ent_row]])
+                        for ycols, ypcols, ent_row, ent_h in self._group_entries]
+        self._prepared = True
+
+    def _build(self):
         """Index arrays for assembling the Jacobian of G, built once (on the first Newton
         step: a consistent start needs none).
 
@@ -219,7 +289,7 @@ class _Problem:
                 ((kpos[rows] >= 0) & (pw[cols] >= 0), 1, r_d, nf + nd + nz + pw[cols])):  # dD/dw
             e = np.flatnonzero(sel)
             blocks.append((e, part, jr[e], jc[e]))
-        self._exact = [(e, part, self.row_scale[rows[e]]) for e, part, _, _ in blocks]
+        self._exact_entries = [(e, part) for e, part, _, _ in blocks]
         # Finite-difference columns (y and ẏ), each with the kept rows of its pattern, and a
         # greedy coloring of their intersection graph.
         kept_ent = np.flatnonzero(kpos[rows] >= 0)
@@ -241,7 +311,7 @@ class _Problem:
             for r in s.tolist():
                 occupied[r].append(c)
             members[c].append((kind, j, s))
-        self._groups = []
+        self._group_entries = []
         fd_rows, fd_cols_out = [], []
         for group in members:
             ycols = np.array([j for kind, j, _ in group if kind == 0], dtype=np.int64)
@@ -253,7 +323,7 @@ class _Problem:
                             + [i for i, (kind, _, _) in enumerate(group) if kind == 1], dtype=np.int64)
             inv = np.empty(len(group), dtype=np.int64)
             inv[slot] = np.arange(len(group))
-            self._groups.append((ycols, ypcols, ent_row, inv[ent_h], self.row_scale[self.kept[ent_row]]))
+            self._group_entries.append((ycols, ypcols, ent_row, inv[ent_h]))
             fd_rows.append(m + ent_row)
             fd_cols_out.append(np.array([pf[j] if kind == 0 else nf + pd[j] for kind, j, s in group
                                          for _ in range(len(s))], dtype=np.int64))
@@ -269,7 +339,9 @@ class _Problem:
         self._csr_indices = all_cols[csr_order]
         self._csr_indptr = np.concatenate([[0], np.cumsum(np.bincount(all_rows, minlength=self._shape[0]))])
         self._nnz = len(all_rows)
-        self._prepared = True
+        # position of each entry in the flat dense matrix (dense_jacobian: small problems)
+        csr_rows = np.repeat(np.arange(self._shape[0], dtype=np.int64), np.diff(self._csr_indptr))
+        self._dense_index = csr_rows * self._shape[1] + self._csr_indices
 
     def _jac_data(self, y, yp):
         """Data of (F_y, F_ẏ) in the module's CSC order."""
@@ -343,10 +415,16 @@ class _Problem:
             ar.append(at[r[k]])
             ac.append(c[k])
             av.append(scale[r[k]] * v[k])
-        A = sps.csr_matrix((np.concatenate(av), (np.concatenate(ar), np.concatenate(ac))),
-                           shape=(int(keep.sum()), nf + nd))  # duplicates are summed
+        shape = (int(keep.sum()), nf + nd)
+        ar, ac, av = np.concatenate(ar), np.concatenate(ac), np.concatenate(av)
+        if shape[0] * shape[1] <= DENSE_SOLVE_LIMIT:  # solved dense anyway: no sparse matrix (a restart at an event)
+            A = np.bincount(ar * shape[1] + ac, weights=av, minlength=shape[0] * shape[1]).reshape(shape)
+            values = A.ravel()
+        else:
+            A = sps.csr_matrix((av, (ar, ac)), shape=shape)  # duplicates are summed
+            values = A.data
         g0 = g0[keep]
-        if not len(g0) or not np.all(np.isfinite(A.data)):
+        if not len(g0) or not np.all(np.isfinite(values)):
             return False
 
         # a residual ‖g₀ + A Δu‖₂ above `enough` is hopeless (some row above the bound, with a
@@ -471,9 +549,26 @@ class _Problem:
     def G(self, u):
         y, yp, z, w = self.unpack(u)
         return np.concatenate([self.row_scale * self.F(y, yp), self.row_scale[self.kept] * self.D(y, yp, z, w),
-                               self.C @ y - self.c])
+                               self.C @ y - self.c if self.C.shape[0] else self.c])
 
     def jacobian(self, u):
+        """The Newton matrix of G at u (sparse)."""
+        return sps.csr_matrix((self._jacobian_data(u), self._csr_indices, self._csr_indptr), shape=self._shape)
+
+    def dense_jacobian(self, u) -> np.ndarray:
+        """The Newton matrix of G at u as a dense array (for a small problem: no sparse
+        matrix is built; the same entries as :meth:`jacobian`)."""
+        data = self._jacobian_data(u)  # (prepares the problem on first use)
+        size = self._shape[0] * self._shape[1]
+        return np.bincount(self._dense_index, weights=data, minlength=size).reshape(self._shape)
+
+    def shape(self) -> tuple[int, int]:
+        """The shape of the Newton matrix."""
+        nk = len(self.kept)
+        return self.m + nk + self.C.shape[0], sum(self.sizes)
+
+    def _jacobian_data(self, u) -> np.ndarray:
+        """The Newton matrix's entries at u in its CSR order."""
         if not self._prepared:
             self._prepare()
         y, yp, z, w = self.unpack(u)
@@ -497,7 +592,7 @@ class _Problem:
                 data[pos:pos + len(ent_row)] = scale * col
                 pos += len(ent_row)
         data[pos:] = self._c_data
-        return sps.csr_matrix((data[self._csr_perm], self._csr_indices, self._csr_indptr), shape=self._shape)
+        return data[self._csr_perm]
 
     def step(self, J, g):
         """Weighted minimum-norm solution of J Δu = −g.
@@ -514,21 +609,23 @@ class _Problem:
         problems (at most :data:`DENSE_LIMIT` Jacobian entries) get it from
         :func:`_nested_min_norm`, larger ones from :meth:`_sparse_nested_step`; where that
         fails, the step (and every later one of this problem) is the weighted minimum-norm
-        step with the nuisance priced at :data:`CHEAP` × scale."""
-        JW = J @ _diagonal(self.weights)
+        step with the nuisance priced at :data:`CHEAP` × scale. `J` is sparse, or a dense
+        array (:meth:`dense_jacobian`, a small problem)."""
+        dense = isinstance(J, np.ndarray)
+        JW = J * self.weights[None, :] if dense else J @ _diagonal(self.weights)
         guess = self.guess_columns
         if len(guess) and JW.shape[0] * JW.shape[1] <= DENSE_LIMIT:
-            A = JW.toarray()
+            A = JW if dense else JW.toarray()
             T = self.energy_metric()
             if T is None:
                 return self.weights * _nested_min_norm(A, -g, guess)
-            A[:, guess] = J[:, guess].toarray() @ T
+            A[:, guess] = (J[:, guess] if dense else J[:, guess].toarray()) @ T
             v = _nested_min_norm(A, -g, guess)
             du = self.weights * v
             du[guess] = T @ v[guess]
             return du
         if len(guess) and not self._kkt_failed:
-            v = self._sparse_nested_step(JW, -g)
+            v = self._sparse_nested_step(sps.csr_matrix(JW) if dense else JW, -g)
             if v is not None:
                 return self.weights * v
             # as LeastNorm with a singular LU: the later Newton matrices differ by the move
@@ -678,7 +775,11 @@ def _solve(prob: _Problem, tol: float, max_iter: int, rescue: bool = True):
     # What one step leaves depends on the BLAS kernel's rounding (it differs between CPUs), and
     # the max-norm cannot tell: large D rows sit at their round-off while small F rows are
     # still off. So take the refining steps and keep the last iterate that stays converged.
-    out = gauss_newton(prob.pack(), lambda u: (prob.G(u), None), lambda u, g, _: prob.step(prob.jacobian(u), g),
+    # a small problem (solved dense anyway) takes its Newton matrix dense: building a sparse
+    # one costs more than the whole solve of a few unknowns (a restart at every event of a run)
+    rows, cols = prob.shape()
+    jacobian = prob.dense_jacobian if rows * cols <= DENSE_SOLVE_LIMIT else prob.jacobian
+    out = gauss_newton(prob.pack(), lambda u: (prob.G(u), None), lambda u, g, _: prob.step(jacobian(u), g),
                        tol=tol, max_iter=max_iter, polish=POLISH_STEPS, keep_best=True)
     best, size, it = out
     if rescue and size > tol and len(best) * len(prob.G(best)) <= DENSE_LIMIT:

@@ -115,3 +115,44 @@ def test_finite_differences_are_grouped():
         # groups, a bound that does not grow along a banded chain; plus the base point
         degree = max(sum(1 for b in rows_of if b is not a and a & b) for a in rows_of)
         assert calls["residual_t"] <= 1 + degree + 1 < len(rows_of)
+
+
+class _Module(SimpleNamespace):
+    """A module object that can be weakly referenced and hashed by identity, as a generated
+    module can (the structure cache, phc.simulation.initial._structures, keys on it)."""
+
+    __eq__ = object.__eq__
+    __hash__ = object.__hash__
+
+
+@pytest.mark.parametrize("stage", ["states held", "states free"])
+def test_dense_jacobian_is_the_sparse_one(stage):
+    mod, _, _ = _chain(5)
+    rng = np.random.default_rng(4)
+    fixed = set(range(5)) | {7} if stage == "states held" else {7}
+    prob = _Problem(mod, None, 0.4, rng.normal(size=mod.N), fixed)
+    u = prob.pack() + rng.normal(size=len(prob.pack()))
+    dense = prob.dense_jacobian(u)
+    assert dense.shape == prob.shape()
+    # the same entries put in place: equal to the last bit
+    np.testing.assert_array_equal(dense, prob.jacobian(u).toarray())
+
+
+def test_structure_is_reused_with_this_start_s_row_scaling():
+    base, _, _ = _chain(6)
+    cached = _Module(**vars(base))  # the same functions; `base` itself cannot be cached
+    rng = np.random.default_rng(6)
+    held = set(range(6)) | {8}
+    first = _Problem(cached, None, 0.2, rng.normal(size=base.N), held)
+    first.jacobian(first.pack())
+    for fixed in (held, {8}):  # the same unknowns (reused), other unknowns (built anew)
+        y = 3.0 * rng.normal(size=base.N)
+        again = _Problem(cached, None, 0.7, y, fixed)
+        fresh = _Problem(base, None, 0.7, y, fixed)
+        u = again.pack() + rng.normal(size=len(again.pack()))
+        J = again.jacobian(u).toarray()
+        assert (again._csr_indices is first._csr_indices) == (fixed == held)
+        assert not np.array_equal(again.row_scale, first.row_scale)  # another start: other row scales
+        np.testing.assert_array_equal(again.kept, fresh.kept)
+        np.testing.assert_array_equal(J, fresh.jacobian(u).toarray())
+        np.testing.assert_array_equal(again.G(u), fresh.G(u))
