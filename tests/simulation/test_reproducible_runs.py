@@ -8,6 +8,16 @@ reads what the first put into a shared cache directory (the front end's and the 
 caches), so a cold and a warm start are compared too. The model is the N = 1 four-bar through
 its first two singular configurations (0.7085 s and 1.2155 s), where IDA's steps collapse and
 phc's bridges by the midpoint rule run: there a difference in the last bit is amplified most.
+
+What made the N = 10 runs differ was not the hash seed but scipy's ``onenormest``, whose random
+columns come from NumPy's global random state, seeded by the operating system in each process;
+the singularity monitor's sparse looks (above 120 unknowns) decide on its estimate. It is seeded
+now (:func:`phc.simulation.sparse_lu.inverse_norm_estimate`); each child process estimates the
+norm of one matrix's inverse with it, on a matrix where scipy's own estimate takes three values
+under six seeds (``tests/simulation/test_sparse_lu.py``). The N = 1 four-bar's looks are dense,
+so its run repeated itself before the fix too: a model above 120 unknowns that shows the old
+difference takes minutes (the N = 10 four-bar, from t = 1.20 s to 1.32 s: six different results
+in eight processes before, four of four equal after).
 """
 
 from __future__ import annotations
@@ -27,10 +37,17 @@ CHILD = r"""
 import json, sys
 import numpy as np
 import phc
+import scipy.sparse as sps
+import scipy.sparse.linalg as spla
+from phc.simulation.sparse_lu import inverse_norm_estimate
+A = (sps.random(150, 150, density=0.03, random_state=9) + sps.identity(150)).tocsc()
+lu = spla.splu(A)
+op = spla.LinearOperator(A.shape, matvec=lu.solve, rmatvec=lambda x: lu.solve(x, trans="T"), dtype=float)
+estimate = inverse_norm_estimate(op)  # in a fresh process: NumPy's global random state seeded by the OS
 c = phc.compile_model(sys.argv[1], certify=False)
 r = phc.simulate(c, solver="ida", t_end=1.5, n_out=151)
 np.save(sys.argv[2], np.concatenate([np.asarray(r.t)[:, None], np.asarray(r.y)], axis=1))
-print(json.dumps({"success": bool(r.success), "steps": int(r.steps),
+print(json.dumps({"estimate": estimate.hex(), "success": bool(r.success), "steps": int(r.steps),
                   "events": [[e.kind, float(e.t)] for e in r.events]}))
 """
 
