@@ -16,8 +16,9 @@ now (:func:`phc.simulation.sparse_lu.inverse_norm_estimate`); each child process
 norm of one matrix's inverse with it, on a matrix where scipy's own estimate takes three values
 under six seeds (``tests/simulation/test_sparse_lu.py``). The N = 1 four-bar's looks are dense,
 so its run repeated itself before the fix too: a model above 120 unknowns that shows the old
-difference takes minutes (the N = 10 four-bar, from t = 1.20 s to 1.32 s: six different results
-in eight processes before, four of four equal after).
+difference costs more than this test may (the N = 10 four-bar, from its state at t = 1.20 s
+0.12 s further, 3 to 9 s CPU a process after a 1.2 s run to get there: six different results in
+eight processes before, four of four equal after).
 """
 
 from __future__ import annotations
