@@ -106,7 +106,8 @@ def _far_from_singular(J: np.ndarray, threshold: float, lu=None, solve=None) -> 
     :data:`RCOND_MARGIN`·n times above `threshold` (about a lower bound of σ_min/σ_max there);
     None when the singular values must decide. For a sparse J, `lu` is its sparse LU
     (``scipy.sparse.linalg.splu``) and ‖J⁻¹‖₁ is estimated on it by Higham's block 1-norm
-    estimator (``scipy.sparse.linalg.onenormest``, seeded: :func:`phc.simulation.sparse_lu.inverse_norm_estimate`; ``dgecon`` runs Hager's and Higham's
+    estimator (``scipy.sparse.linalg.onenormest``, seeded:
+    :func:`phc.simulation.sparse_lu.inverse_norm_estimate`; ``dgecon`` runs Hager's and Higham's
     estimator on the dense LU): a few solves with the LU and its transpose (`solve`, ``lu.solve``
     or one that counts them)."""
     n = J.shape[0]
