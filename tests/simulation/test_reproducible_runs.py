@@ -56,8 +56,8 @@ print(json.dumps({"estimate": estimate.hex(), "success": bool(r.success), "steps
 def _run(seed: int, cache: Path, out: Path) -> dict:
     env = dict(os.environ, PYTHONHASHSEED=str(seed), PHC_CACHE_DIR=str(cache), OPENBLAS_NUM_THREADS="1",
                PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep))
-    done = subprocess.run([sys.executable, "-c", CHILD, str(MODEL), str(out)], env=env, capture_output=True, check=False,
-                          text=True, timeout=300)
+    done = subprocess.run([sys.executable, "-c", CHILD, str(MODEL), str(out)], env=env, capture_output=True,
+                          check=False, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
     return json.loads(done.stdout.strip().splitlines()[-1])
 
