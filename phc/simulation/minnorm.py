@@ -69,6 +69,7 @@ import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 
 from phc.analysis.matching import bipartite_matching
+from phc.simulation.sparse_lu import inverse_norm_estimate
 
 DENSE_SOLVE_LIMIT = 40_000
 """Systems with at most this many matrix entries (200 × 200) are solved dense (gelsy)."""
@@ -215,7 +216,7 @@ def _factor(A, cond):
     k = K.shape[0]
     inverse = spla.LinearOperator((k, k), matvec=lu.solve, rmatvec=lambda x: lu.solve(x, trans="T"), dtype=float)
     with np.errstate(all="ignore"):
-        norm_inv = spla.onenormest(inverse)
+        norm_inv = inverse_norm_estimate(inverse)  # seeded: the same rank decision in every process
     if not np.isfinite(norm_inv) or norm_inv * norm_k * cond >= 1.0:
         return None
 

@@ -19,6 +19,10 @@ results stay bit for bit what they were.
 
 from __future__ import annotations
 
+import threading
+
+import numpy as np
+
 NARROW_PANEL_FROM = 50_000
 """Unknowns from which the panel is one column (the work arrays are then tens of MiB)."""
 
@@ -32,3 +36,33 @@ def sparse_lu(J):
     if J.shape[1] >= NARROW_PANEL_FROM:
         return spla.splu(J, panel_size=1)
     return spla.splu(J)
+
+
+ESTIMATE_SEED = 0
+"""The seed of the random columns of :func:`inverse_norm_estimate` (the same estimate in every process)."""
+_RANDOM_LOCK = threading.Lock()
+
+
+def inverse_norm_estimate(operator) -> float:
+    """Higham's block 1-norm estimate of `operator` (a ``LinearOperator``: an inverse applied
+    through a factorization), ``scipy.sparse.linalg.onenormest``, with its random columns drawn
+    from :data:`ESTIMATE_SEED`.
+
+    Why seeded: scipy draws the estimator's starting ±1 columns (and the resampled ones) from
+    NumPy's global random state, which a fresh process seeds from the operating system. The
+    estimate, a lower bound of the norm, then differed from process to process in its last bits
+    or more, and what phc decides on it (the singularity monitor's sparse looks above
+    :data:`phc.simulation.monitor.DENSE_SIZE` unknowns, the least-norm solver's rank decision)
+    differed with it: IDA on the N = 10 four-bar took other bridges, other passages and 10⁴ to
+    10⁵ more steps from run to run (issue 34). The global state is put back afterwards (phc
+    leaves the user's random numbers as it found them; another thread drawing from it meanwhile
+    is not excluded)."""
+    import scipy.sparse.linalg as spla
+
+    with _RANDOM_LOCK:
+        saved = np.random.get_state()
+        np.random.seed(ESTIMATE_SEED)
+        try:
+            return float(spla.onenormest(operator))
+        finally:
+            np.random.set_state(saved)
