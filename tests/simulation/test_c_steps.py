@@ -490,8 +490,9 @@ def test_the_functions_along_a_run_are_one_c_call_with_the_values_of_one_call_pe
 
 def test_the_energy_sizes_of_a_c_module_are_one_c_call_with_the_values_of_single_calls(compiled, monkeypatch):
     """The nominal scales' energy sizes (phc.simulation.energy_sizes) evaluate the C module's H at
-    the perturbed states in one call of the step library (its NumPy reference's H does not take a
-    matrix of states on the slider–crank: sin); the sizes equal those of single calls to the bit."""
+    the perturbed states in two calls of the step library (the first round, then every later round;
+    its NumPy reference's H does not take a matrix of states on the slider–crank: sin); the sizes
+    equal those of single calls to the bit."""
     from phc.codegen import c_steps
     from phc.simulation import scaling
 
@@ -502,7 +503,11 @@ def test_the_energy_sizes_of_a_c_module_are_one_c_call_with_the_values_of_single
     monkeypatch.setattr(c_steps, "along", lambda *a, **k: batched.append(k) or along(*a, **k))
     phc.simulate(compiled("rigid_slider_crank.yaml"), solver="ida", t_end=0.5)
     assert seen and {"only_h": True} in batched
+    batched.clear()
     in_c = sizes(*seen[0])
+    # the first round's ±steps, then the later rounds of the variables H is not yet curved in (one
+    # H is linear in, the crank's angle or the slider's position, takes every round): two calls
+    assert batched == [{"only_h": True}] * 2
     monkeypatch.setattr(c_steps, "along", lambda *a, **k: None)  # single calls of the C H
     single = sizes(*seen[0])
     assert np.array_equal(in_c, single) and (single > 0).sum() >= 4  # the momenta and the height are curved
