@@ -409,14 +409,15 @@ def _probe(mod, p, t0, y0, yp0, tau, weights) -> tuple[np.ndarray, float, float]
         y = np.array(y0, dtype=float)
         slope = np.asarray(yp0, dtype=float)
         t = t0
-        # the steps the C step loop takes (the same stage, solved by the same Newton iteration, each
-        # from a better guess), then the Python stage solver's from a step the loop handed back
-        in_c, stage = [], None
+        # the C step loop's steps (the same stage and Newton iteration, each from a better guess; their values
+        # one call, where not finite the guarded call's), then the Python stage solver's from one it handed back
+        in_c, stage, seen = [], None, None
         if getattr(raw, "BACKEND", "") == "c":
             from phc.codegen import c_steps
 
             k, ys = c_steps.midpoint_steps(raw, p, t0 + h * np.arange(PROBE_STEPS + 1), y0, yp0)
             in_c = ys[1:k]
+            seen = c_steps.probe_values(raw, p, t0, h, y, in_c)
         for i in range(PROBE_STEPS):
             if i < len(in_c):
                 y1, ok = in_c[i], True
@@ -426,10 +427,11 @@ def _probe(mod, p, t0, y0, yp0, tau, weights) -> tuple[np.ndarray, float, float]
             if not ok or not np.all(np.isfinite(y1)):
                 break
             slope = (y1 - y) / h
-            power = max(power, _throughput(mod, p, t + 0.5 * h, 0.5 * (y + y1), slope))
+            pw, es = (float(seen[0][i]), float(seen[1][i])) if seen is not None and i < len(in_c) else (np.nan,) * 2
+            power = max(power, pw if np.isfinite(pw) else _throughput(mod, p, t + 0.5 * h, 0.5 * (y + y1), slope))
             y, t = y1, t + h
             np.maximum(big, np.abs(y), out=big)
-            energy = max(energy, abs(float(mod.energy_scale(t, y, p))))
+            energy = max(energy, abs(es if np.isfinite(es) else float(mod.energy_scale(t, y, p))))
     except (ModelEvaluationError, *CATCH):
         pass
     return big, energy if np.isfinite(energy) else 0.0, power
