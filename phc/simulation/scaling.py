@@ -683,14 +683,14 @@ them per state); above, at the energy alone."""
 def output_sensitivities(mod, p, t0, y0, yp0, s) -> np.ndarray:
     """``∂o_k/∂y_j`` of the requested outputs with respect to the states at the start, by
     central differences of ``mod.outputs`` with the step ``1e-6 · s_j`` (two evaluations
-    per state; an empty matrix without outputs or above :data:`SENSITIVITY_STATES` states;
-    zeros where an output cannot be evaluated). None where an output reads an algebraic
-    variable or a rate (a support force, a velocity ṡ): it sees the states through the
-    equations, and its derivatives by the states alone would say it sees none."""
+    per state: a C module's in one call, c_steps.along; an empty matrix without outputs or above
+    :data:`SENSITIVITY_STATES` states; zeros where an output cannot be evaluated). None where an
+    output reads an algebraic variable or a rate (a support force, a velocity ṡ): it sees the
+    states through the equations, and its derivatives by the states alone would say it sees none."""
+    from phc.codegen import c_steps
     from phc.simulation.guard import CATCH, ModelEvaluationError
 
-    names = tuple(getattr(mod, "OUTPUTS", ()))
-    n = mod.N
+    names, n = tuple(getattr(mod, "OUTPUTS", ())), mod.N
     states = np.flatnonzero(np.asarray(mod.DIFFERENTIAL, dtype=bool))
     if not names or len(states) > SENSITIVITY_STATES:
         return np.zeros((0, n))
@@ -708,14 +708,14 @@ def output_sensitivities(mod, p, t0, y0, yp0, s) -> np.ndarray:
                       np.asarray(mod.outputs(t0, y0, yp1, p), dtype=float)):
             if not np.array_equal(moved, o0):
                 return None
-        for j in states:
-            h = 1e-6 * s[j]
-            yu, yd = y0.copy(), y0.copy()
-            yu[j] += h
-            yd[j] -= h
-            up = np.asarray(mod.outputs(t0, yu, yp0, p), dtype=float)
-            down = np.asarray(mod.outputs(t0, yd, yp0, p), dtype=float)
-            out[:, j] = (up - down) / (2.0 * h)
+        k, h = len(states), 1e-6 * s[states]
+        Y = np.repeat(y0[None, :], 2 * k, axis=0)  # each state up, then each down, by its step h
+        Y[np.arange(k), states], Y[np.arange(k, 2 * k), states] = y0[states] + h, y0[states] - h
+        rows = c_steps.along(getattr(mod, "module", mod), p, np.full(2 * k, float(t0)), Y, np.tile(yp0, (2 * k, 1)))
+        values = np.full((2 * k, len(names)), np.nan) if rows is None else rows["outs"]
+        for i in np.flatnonzero(~np.isfinite(values).all(axis=1)):  # (single calls, through the guard)
+            values[i] = np.asarray(mod.outputs(t0, Y[i], yp0, p), dtype=float)
+        out[:, states] = ((values[:k] - values[k:]) / (2.0 * h)[:, None]).T
     except (ModelEvaluationError, *CATCH):
         return np.zeros((len(names), n))
     return np.where(np.isfinite(out), out, 0.0)

@@ -553,3 +553,36 @@ def test_the_probe_takes_the_values_at_the_c_steps_from_one_call_and_finds_what_
     alone = probe(mod, p, 0.0, y0, yp0, tau, None)
     assert len(calls) == 2 + (2 + 2 * scaling.PROBE_STEPS)  # the second probe: the start and every step
     assert np.array_equal(found[0], alone[0]) and found[1:] == alone[1:] and found[1] > 0
+
+
+def test_the_output_sensitivities_of_a_c_module_are_one_c_call_with_the_values_of_single_calls(
+        compiled, monkeypatch):
+    """The derivatives of the requested outputs by the states (phc.simulation.scaling.
+    output_sensitivities, what IDA's promise scales are made of) evaluate the outputs of a C module
+    at every perturbed state in one call of the step library: the same matrix to the bit as one
+    guarded call per state (the library not at hand), and the central difference of the outputs
+    written out here for each state."""
+    from phc.codegen import c_steps
+    from phc.simulation import scaling
+    from phc.simulation.guard import GuardedModule
+
+    raw = compiled("two_mass_cubic_spring.yaml").module
+    mod = GuardedModule(raw)
+    p = phc.simulation.parameter_vector(raw)
+    rng = np.random.default_rng(5)
+    y0, yp0 = rng.normal(size=raw.N), rng.normal(size=raw.N)
+    s = 0.5 + rng.random(raw.N)
+    calls, along = [], c_steps.along
+    monkeypatch.setattr(c_steps, "along", lambda *a, **k: calls.append(k) or along(*a, **k))
+    in_c = scaling.output_sensitivities(mod, p, 0.0, y0, yp0, s)
+    assert calls == [{}]  # one call, every function at every perturbed state
+    states = np.flatnonzero(raw.DIFFERENTIAL)
+    for j in states:  # the central difference, state by state
+        up, down = y0.copy(), y0.copy()
+        up[j] += 1e-6 * s[j]
+        down[j] -= 1e-6 * s[j]
+        expected = (raw.outputs(0.0, up, yp0, p) - raw.outputs(0.0, down, yp0, p)) / (2.0 * 1e-6 * s[j])
+        assert np.array_equal(in_c[:, j], expected)
+    monkeypatch.setattr(c_steps, "along", lambda *a, **k: None)
+    single = scaling.output_sensitivities(mod, p, 0.0, y0, yp0, s)
+    assert np.array_equal(in_c, single) and np.count_nonzero(in_c[:, states]) >= len(states)
