@@ -53,6 +53,8 @@ def energy_sizes(mod, p, t0, y0, s, energy: float) -> np.ndarray:
             if in_c:
                 if r == 1:
                     ahead, pos = _c_ahead(loaded, t0, y0, p, todo, delta, ROUNDS - 1), np.arange(len(todo))
+                    if ahead is not None and _rounds_at_once(ahead, todo, delta, h0, noise, energy, out):
+                        break
                 pair = ahead[r - 1][:, pos] if ahead is not None else \
                     _c_values(loaded, t0, y0, p, np.concatenate([todo, todo]), np.concatenate([delta, -delta]))
                 pair = None if pair is None else pair.reshape(2, len(todo))
@@ -122,6 +124,34 @@ def _c_ahead(loaded, t, y0, p, todo, delta, rounds) -> np.ndarray | None:
         d = d * 1e3
     values = _c_values(loaded, t, y0, p, np.tile(todo, 2 * rounds), np.concatenate(steps))
     return None if values is None else values.reshape(rounds, 2, len(todo))
+
+
+def _rounds_at_once(ahead, todo, delta, h0, noise, energy, out) -> bool:
+    """The later rounds of :func:`energy_sizes` from :func:`_c_ahead`'s values, all at once: each
+    variable leaves at the first round whose second difference is not finite or stands above
+    the round-off, as it does round by round (the same operations on the same numbers), and its
+    size goes into `out`. False (`out` untouched) where a round would read a value that is not
+    finite: the guarded H decides there, round by round."""
+    steps = np.empty(ahead.shape[::2])
+    d = delta
+    for r in range(len(steps)):  # the steps as the rounds grow them
+        steps[r], d = d, d * 1e3
+    hp, hm = ahead[:, 0], ahead[:, 1]
+    with np.errstate(invalid="ignore", over="ignore"):
+        d2 = hp - 2.0 * h0 + hm
+        finite = np.isfinite(d2)
+        curved = finite & (np.abs(d2) > np.maximum(noise, 1e-12 * np.maximum(np.abs(hp), np.abs(hm))))
+        k = np.where(curved, d2, 0.0) / steps ** 2
+    leaves = ~finite | curved
+    last = np.where(leaves.any(axis=0), leaves.argmax(axis=0), len(steps) - 1)  # the last round each is in
+    reached = np.arange(len(steps))[:, None] <= last[None, :]
+    if (reached & ~(np.isfinite(hp) & np.isfinite(hm))).any():
+        return False
+    cols = np.arange(len(todo))
+    k, curved = k[last, cols], curved[last, cols]
+    good = curved & (k > 0)
+    out[todo[good]] = np.sqrt(2.0 * energy / k[good])
+    return True
 
 
 def _filled(H, t, y0, p, cols, steps, values) -> np.ndarray:
