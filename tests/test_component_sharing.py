@@ -613,3 +613,54 @@ def test_energy_sizes_of_a_guarded_module_call_its_own_h_and_the_guard_only_wher
 
     guarded = GuardedModule(Pole(k))
     assert not energy_sizes(guarded, None, 0.0, np.ones(3), np.ones(3), 0.5).any()
+
+
+def test_energy_sizes_of_a_c_module_take_the_later_rounds_from_one_call_and_read_only_what_a_round_needs(
+        monkeypatch):
+    """On the C back end the rounds after the first come from one call of the step library at every
+    step a variable may still need (phc.simulation.energy_sizes._c_ahead); a value there that is not
+    finite goes to the guarded H only where a round reads it, so the sizes and the guard's verdicts
+    are those of one round at a time (here: single calls, with the library not at hand)."""
+    from phc.codegen import c_steps
+    from phc.simulation.energy_sizes import energy_sizes
+    from phc.simulation.guard import GuardedModule
+
+    class Fake:
+        """H = ½ y0² + 9.81 y1 + c y2²: y0 curved at the first step, y1 linear (every round), y2
+        curved only at the second step (2c below H's round-off at a unit step), and no value once
+        y2 passes 1e7 (steps 1e9 and more, which only the rounds after y2's own are at)."""
+        BACKEND, N, DIFFERENTIAL, VARIABLES = "c", 3, [True] * 3, ["a.x", "b.x", "c.x"]
+        c, pole = 1e-13, (2, 1e7)
+
+        def hamiltonian(self, t, y, p):
+            j, at = self.pole
+            return 0.5 * y[0] ** 2 + 9.81 * y[1] + self.c * y[2] ** 2 + (np.inf if y[j] > at else 0.0)
+
+    calls = []
+
+    def along(raw, p, t, Y, Yp, only_h=False):  # the step library: one value per state, as single calls
+        calls.append(len(t))
+        return {"H": np.array([raw.hamiltonian(0.0, y, p) for y in Y])}
+
+    def run(raw, batched):
+        guarded, through_guard = GuardedModule(raw), []
+        wrapped = guarded.hamiltonian
+        guarded.hamiltonian = lambda t, y, p: through_guard.append(1) or wrapped(t, y, p)
+        monkeypatch.setattr(c_steps, "along", along if batched else (lambda *a, **k: None))
+        return energy_sizes(guarded, None, 0.0, np.ones(3), np.ones(3), 0.5), len(through_guard)
+
+    raw = Fake()
+    sizes, guard_calls = run(raw, True)
+    # the first round: ±1 for the three states; then rounds 2..8 at ±1e3…±1e21 for y1 and y2
+    assert calls == [2 * 3, 2 * 7 * 2]
+    single, single_guard_calls = run(raw, False)
+    assert np.array_equal(sizes, single)
+    assert guard_calls == single_guard_calls == 1  # H at the start: no perturbed state reaches the guard
+    # ½ k s² = E with k = 1 and k = 2c (the second difference at step 1e3 is exact to ~1e-15/1e-7)
+    np.testing.assert_allclose(sizes, [1.0, 0.0, np.sqrt(0.5 / raw.c)], rtol=1e-6)
+
+    raw.pole = (1, 1e5)  # y1 has no value at its third step (1e6): the guard's verdict, no sizes, both ways
+    calls.clear()
+    sizes, _ = run(raw, True)
+    assert not sizes.any() and calls == [6, 28]
+    assert not run(raw, False)[0].any()

@@ -417,6 +417,30 @@ def along(raw, p, t, y, yp, only_h: bool = False) -> Optional[dict]:
     return rows
 
 
+def probe_values(raw, p, t0, h, y0, ys) -> Optional[tuple[np.ndarray, np.ndarray]]:
+    """(``|P_ports| + |P_diss|`` at each step's midpoint, the energy scale at its end) of the
+    nominal-scales probe's steps this loop took (:func:`midpoint_steps`; `ys`: the states after
+    them, from `y0`, steps `h` from `t0`), at the points and summed as
+    :func:`phc.simulation.scaling._probe` evaluates them one by one: one :func:`along` call,
+    values that are not finite as they are (the probe's guarded calls decide there); None where
+    the library is not at hand."""
+    k = len(ys)
+    if not k:
+        return None
+    t = [t0]
+    for _ in range(k):  # (the times as the probe adds them up)
+        t.append(t[-1] + h)
+    t = np.array(t)
+    before = np.vstack([np.asarray(y0, dtype=float)[None, :], ys[:-1]])
+    slope = (ys - before) / h
+    rows = along(raw, p, np.concatenate([t[:-1] + 0.5 * h, t[1:]]), np.vstack([0.5 * (before + ys), ys]),
+                 np.vstack([slope, slope]))
+    if rows is None:
+        return None
+    with np.errstate(all="ignore"):
+        return np.abs(rows["powers"][:k]).sum(axis=1), rows["scale"][k:]
+
+
 @functools.lru_cache(maxsize=64)
 def _addresses(model) -> tuple:
     """The addresses of the model library's functions :data:`_ALONG` (a loaded library lives as
@@ -431,4 +455,4 @@ def note_events(raw) -> None:
         say_unused("runs with switching conditions (events) need the Python loop, which locates the switches")
 
 
-__all__ = ["ABI", "DENSE_LU", "DENSE_LU_MARKER", "FLAGS", "MARKER", "METHODS", "SOURCE", "TRANSLATED", "bind", "along", "library", "make_source", "midpoint_steps", "note_events", "say_unused", "source", "translation", "usable", "why_not", "with_dense_lu"]
+__all__ = ["ABI", "DENSE_LU", "DENSE_LU_MARKER", "FLAGS", "MARKER", "METHODS", "SOURCE", "TRANSLATED", "bind", "along", "library", "make_source", "midpoint_steps", "note_events", "probe_values", "say_unused", "source", "translation", "usable", "why_not", "with_dense_lu"]

@@ -8,6 +8,10 @@ reference too) is straight-line arithmetic on entries of y and sparse quadratic 
 its index blocks, so the perturbed states of many variables are one call, first as a lazy
 object whose products cost the nonzeros (:class:`_OneEntryColumns`), else as a matrix of
 states (:func:`_columns`), each batch checked against single calls of the module's own H.
+A C module's H at many states is one call of the step library (its own H at each state): the
+first round's states are one call, and the later rounds' states of the variables still left
+(:func:`_c_ahead`) another, of which a round reads its own (the rounds grow the step of a
+variable H is linear in eight times: 16 calls became 2, the same sizes to the bit).
 """
 
 from __future__ import annotations
@@ -33,16 +37,32 @@ def energy_sizes(mod, p, t0, y0, s, energy: float) -> np.ndarray:
     names = list(mod.VARIABLES)
     skip = names.index("energy.supplied") if "energy.supplied" in names else -1
     H = mod.hamiltonian
+    loaded = getattr(mod, "module", mod)
+    in_c = getattr(loaded, "BACKEND", "") == "c"  # the C H at many states is one call: few, larger calls
     try:
         h0 = float(H(t0, y0, p))
         noise = 1e-12 * max(energy, abs(h0))
         todo = np.array([j for j in diff if j != skip], dtype=int)
         delta = np.maximum(np.asarray(s, dtype=float)[todo], np.abs(y0[todo]))
         delta = np.where(delta > 0, delta, 1.0)
-        for _ in range(8):
+        ahead = None  # (C) H at the later rounds' steps, evaluated at once after the first round
+        for r in range(ROUNDS):
             if not len(todo):
                 break
-            hp, hm = _columns(mod, t0, y0, p, todo, delta), _columns(mod, t0, y0, p, todo, -delta)
+            pair = None
+            if in_c:
+                if r == 1:
+                    ahead, pos = _c_ahead(loaded, t0, y0, p, todo, delta, ROUNDS - 1), np.arange(len(todo))
+                    if ahead is not None and _rounds_at_once(ahead, todo, delta, h0, noise, energy, out):
+                        break
+                pair = ahead[r - 1][:, pos] if ahead is not None else \
+                    _c_values(loaded, t0, y0, p, np.concatenate([todo, todo]), np.concatenate([delta, -delta]))
+                pair = None if pair is None else pair.reshape(2, len(todo))
+                in_c = pair is not None
+            if pair is not None:
+                hp, hm = _filled(H, t0, y0, p, todo, delta, pair[0]), _filled(H, t0, y0, p, todo, -delta, pair[1])
+            else:
+                hp, hm = _columns(mod, t0, y0, p, todo, delta), _columns(mod, t0, y0, p, todo, -delta)
             d2 = hp - 2.0 * h0 + hm
             finite = np.isfinite(d2)
             # above the round-off of the values differenced: an H linear in y_j (a
@@ -54,9 +74,93 @@ def energy_sizes(mod, p, t0, y0, s, energy: float) -> np.ndarray:
             out[todo[good]] = np.sqrt(2.0 * energy / k[good])
             more = finite & ~curved
             todo, delta = todo[more], delta[more] * 1e3
+            if ahead is not None:
+                pos = pos[more]
     except (ModelEvaluationError, *CATCH):
         return np.zeros(n)
     return np.where(np.isfinite(out), out, 0.0)
+
+
+ROUNDS = 8
+"""Steps :func:`energy_sizes` tries for a variable, each 1e3 times the one before, until the
+second difference stands above H's round-off (a variable H is linear in takes them all)."""
+
+AHEAD_ENTRIES = 1 << 23
+"""Most entries (states times unknowns) of the matrix of states :func:`_c_ahead` evaluates H
+at for the later rounds of a C module at once (64 MiB); above, one C call a round."""
+
+
+def _c_values(loaded, t, y0, p, cols, steps) -> np.ndarray | None:
+    """``H(t, y0 + steps[k]·e_{cols[k]}, p)`` for every k by the C module `loaded`'s own H, in
+    calls of the step library (:func:`phc.codegen.c_steps.along`: the values to the bit of
+    single calls, not finite ones included), in batches of :data:`COLUMNS_BATCH` entries; None
+    where the library is not at hand."""
+    from phc.codegen import c_steps
+
+    out = np.empty(len(cols))
+    size = max(2, COLUMNS_BATCH // max(len(y0), 1))
+    for start in range(0, len(cols), size):
+        stop = min(len(cols), start + size)
+        Y = np.repeat(np.asarray(y0, dtype=float)[None, :], stop - start, axis=0)
+        Y[np.arange(stop - start), cols[start:stop]] += steps[start:stop]
+        rows = c_steps.along(loaded, p, np.full(stop - start, float(t)), Y, Y, only_h=True)
+        if rows is None:
+            return None
+        out[start:stop] = rows["H"]
+    return out
+
+
+def _c_ahead(loaded, t, y0, p, todo, delta, rounds) -> np.ndarray | None:
+    """The values of H :func:`energy_sizes` would ask for in its next `rounds` rounds were every
+    variable of `todo` still in them (steps `delta`, 1e3 times more each round, as the rounds
+    grow them), each round's ``+step`` and ``-step`` states: an array (rounds, 2, len(todo))
+    from one C call, values that are not finite left as they are (:func:`_filled` decides where a
+    round reads one); None above :data:`AHEAD_ENTRIES` or where the library is not at hand."""
+    if not len(todo) or 2 * rounds * len(todo) * len(y0) > AHEAD_ENTRIES:
+        return None
+    steps, d = [], delta
+    for _ in range(rounds):
+        steps += [d, -d]
+        d = d * 1e3
+    values = _c_values(loaded, t, y0, p, np.tile(todo, 2 * rounds), np.concatenate(steps))
+    return None if values is None else values.reshape(rounds, 2, len(todo))
+
+
+def _rounds_at_once(ahead, todo, delta, h0, noise, energy, out) -> bool:
+    """The later rounds of :func:`energy_sizes` from :func:`_c_ahead`'s values, all at once: each
+    variable leaves at the first round whose second difference is not finite or stands above
+    the round-off, as it does round by round (the same operations on the same numbers), and its
+    size goes into `out`. False (`out` untouched) where a round would read a value that is not
+    finite: the guarded H decides there, round by round."""
+    steps = np.empty(ahead.shape[::2])
+    d = delta
+    for r in range(len(steps)):  # the steps as the rounds grow them
+        steps[r], d = d, d * 1e3
+    hp, hm = ahead[:, 0], ahead[:, 1]
+    with np.errstate(invalid="ignore", over="ignore"):
+        d2 = hp - 2.0 * h0 + hm
+        finite = np.isfinite(d2)
+        curved = finite & (np.abs(d2) > np.maximum(noise, 1e-12 * np.maximum(np.abs(hp), np.abs(hm))))
+        k = np.where(curved, d2, 0.0) / steps ** 2
+    leaves = ~finite | curved
+    last = np.where(leaves.any(axis=0), leaves.argmax(axis=0), len(steps) - 1)  # the last round each is in
+    reached = np.arange(len(steps))[:, None] <= last[None, :]
+    if (reached & ~(np.isfinite(hp) & np.isfinite(hm))).any():
+        return False
+    cols = np.arange(len(todo))
+    k, curved = k[last, cols], curved[last, cols]
+    good = curved & (k > 0)
+    out[todo[good]] = np.sqrt(2.0 * energy / k[good])
+    return True
+
+
+def _filled(H, t, y0, p, cols, steps, values) -> np.ndarray:
+    """`values` of H at the states ``y0 + steps[k]·e_{cols[k]}`` with each value that is not
+    finite replaced by the guarded `H`'s (it may recover or fail), as :func:`_c_columns` does."""
+    values = np.array(values, dtype=float)
+    for k in np.flatnonzero(~np.isfinite(values)):
+        values[k] = _one_column(H, t, y0, p, cols[k], steps[k])
+    return values
 
 
 COLUMNS_BATCH = 1 << 23

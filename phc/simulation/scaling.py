@@ -409,14 +409,15 @@ def _probe(mod, p, t0, y0, yp0, tau, weights) -> tuple[np.ndarray, float, float]
         y = np.array(y0, dtype=float)
         slope = np.asarray(yp0, dtype=float)
         t = t0
-        # the steps the C step loop takes (the same stage, solved by the same Newton iteration, each
-        # from a better guess), then the Python stage solver's from a step the loop handed back
-        in_c, stage = [], None
+        # the C step loop's steps (the same stage and Newton iteration, each from a better guess; their values
+        # one call, where not finite the guarded call's), then the Python stage solver's from one it handed back
+        in_c, stage, seen = [], None, None
         if getattr(raw, "BACKEND", "") == "c":
             from phc.codegen import c_steps
 
             k, ys = c_steps.midpoint_steps(raw, p, t0 + h * np.arange(PROBE_STEPS + 1), y0, yp0)
             in_c = ys[1:k]
+            seen = c_steps.probe_values(raw, p, t0, h, y, in_c)
         for i in range(PROBE_STEPS):
             if i < len(in_c):
                 y1, ok = in_c[i], True
@@ -426,10 +427,11 @@ def _probe(mod, p, t0, y0, yp0, tau, weights) -> tuple[np.ndarray, float, float]
             if not ok or not np.all(np.isfinite(y1)):
                 break
             slope = (y1 - y) / h
-            power = max(power, _throughput(mod, p, t + 0.5 * h, 0.5 * (y + y1), slope))
+            pw, es = (float(seen[0][i]), float(seen[1][i])) if seen is not None and i < len(in_c) else (np.nan,) * 2
+            power = max(power, pw if np.isfinite(pw) else _throughput(mod, p, t + 0.5 * h, 0.5 * (y + y1), slope))
             y, t = y1, t + h
             np.maximum(big, np.abs(y), out=big)
-            energy = max(energy, abs(float(mod.energy_scale(t, y, p))))
+            energy = max(energy, abs(es if np.isfinite(es) else float(mod.energy_scale(t, y, p))))
     except (ModelEvaluationError, *CATCH):
         pass
     return big, energy if np.isfinite(energy) else 0.0, power
@@ -681,14 +683,14 @@ them per state); above, at the energy alone."""
 def output_sensitivities(mod, p, t0, y0, yp0, s) -> np.ndarray:
     """``∂o_k/∂y_j`` of the requested outputs with respect to the states at the start, by
     central differences of ``mod.outputs`` with the step ``1e-6 · s_j`` (two evaluations
-    per state; an empty matrix without outputs or above :data:`SENSITIVITY_STATES` states;
-    zeros where an output cannot be evaluated). None where an output reads an algebraic
-    variable or a rate (a support force, a velocity ṡ): it sees the states through the
-    equations, and its derivatives by the states alone would say it sees none."""
+    per state: a C module's in one call, c_steps.along; an empty matrix without outputs or above
+    :data:`SENSITIVITY_STATES` states; zeros where an output cannot be evaluated). None where an
+    output reads an algebraic variable or a rate (a support force, a velocity ṡ): it sees the
+    states through the equations, and its derivatives by the states alone would say it sees none."""
+    from phc.codegen import c_steps
     from phc.simulation.guard import CATCH, ModelEvaluationError
 
-    names = tuple(getattr(mod, "OUTPUTS", ()))
-    n = mod.N
+    names, n = tuple(getattr(mod, "OUTPUTS", ())), mod.N
     states = np.flatnonzero(np.asarray(mod.DIFFERENTIAL, dtype=bool))
     if not names or len(states) > SENSITIVITY_STATES:
         return np.zeros((0, n))
@@ -706,14 +708,14 @@ def output_sensitivities(mod, p, t0, y0, yp0, s) -> np.ndarray:
                       np.asarray(mod.outputs(t0, y0, yp1, p), dtype=float)):
             if not np.array_equal(moved, o0):
                 return None
-        for j in states:
-            h = 1e-6 * s[j]
-            yu, yd = y0.copy(), y0.copy()
-            yu[j] += h
-            yd[j] -= h
-            up = np.asarray(mod.outputs(t0, yu, yp0, p), dtype=float)
-            down = np.asarray(mod.outputs(t0, yd, yp0, p), dtype=float)
-            out[:, j] = (up - down) / (2.0 * h)
+        k, h = len(states), 1e-6 * s[states]
+        Y = np.repeat(y0[None, :], 2 * k, axis=0)  # each state up, then each down, by its step h
+        Y[np.arange(k), states], Y[np.arange(k, 2 * k), states] = y0[states] + h, y0[states] - h
+        rows = c_steps.along(getattr(mod, "module", mod), p, np.full(2 * k, float(t0)), Y, np.tile(yp0, (2 * k, 1)))
+        values = np.full((2 * k, len(names)), np.nan) if rows is None else rows["outs"]
+        for i in np.flatnonzero(~np.isfinite(values).all(axis=1)):  # (single calls, through the guard)
+            values[i] = np.asarray(mod.outputs(t0, Y[i], yp0, p), dtype=float)
+        out[:, states] = ((values[:k] - values[k:]) / (2.0 * h)[:, None]).T
     except (ModelEvaluationError, *CATCH):
         return np.zeros((len(names), n))
     return np.where(np.isfinite(out), out, 0.0)

@@ -490,8 +490,9 @@ def test_the_functions_along_a_run_are_one_c_call_with_the_values_of_one_call_pe
 
 def test_the_energy_sizes_of_a_c_module_are_one_c_call_with_the_values_of_single_calls(compiled, monkeypatch):
     """The nominal scales' energy sizes (phc.simulation.energy_sizes) evaluate the C module's H at
-    the perturbed states in one call of the step library (its NumPy reference's H does not take a
-    matrix of states on the slider–crank: sin); the sizes equal those of single calls to the bit."""
+    the perturbed states in two calls of the step library (the first round, then every later round;
+    its NumPy reference's H does not take a matrix of states on the slider–crank: sin); the sizes
+    equal those of single calls to the bit."""
     from phc.codegen import c_steps
     from phc.simulation import scaling
 
@@ -502,7 +503,86 @@ def test_the_energy_sizes_of_a_c_module_are_one_c_call_with_the_values_of_single
     monkeypatch.setattr(c_steps, "along", lambda *a, **k: batched.append(k) or along(*a, **k))
     phc.simulate(compiled("rigid_slider_crank.yaml"), solver="ida", t_end=0.5)
     assert seen and {"only_h": True} in batched
+    batched.clear()
     in_c = sizes(*seen[0])
+    # the first round's ±steps, then the later rounds of the variables H is not yet curved in (one
+    # H is linear in, the crank's angle or the slider's position, takes every round): two calls
+    assert batched == [{"only_h": True}] * 2
     monkeypatch.setattr(c_steps, "along", lambda *a, **k: None)  # single calls of the C H
     single = sizes(*seen[0])
     assert np.array_equal(in_c, single) and (single > 0).sum() >= 4  # the momenta and the height are curved
+
+
+def test_the_probe_takes_the_values_at_the_c_steps_from_one_call_and_finds_what_single_calls_find(
+        compiled, monkeypatch):
+    """The nominal scales' probe (phc.simulation.scaling._probe) reads the power throughput at the
+    midpoints and the energy scale at the ends of the steps the C loop took from one call of the step
+    library (c_steps.probe_values): the values to the bit of the guarded single calls, which it makes
+    only at the start. Without the library at hand (single calls at every step) the probe finds the
+    same largest states, energy and power."""
+    from phc.codegen import c_steps
+    from phc.simulation import scaling
+    from phc.simulation.guard import GuardedModule
+
+    starts, probe = [], scaling._probe
+    monkeypatch.setattr(scaling, "_CACHE", weakref.WeakKeyDictionary())  # no scales kept from another test
+    monkeypatch.setattr(scaling, "_probe", lambda *a: starts.append(a) or probe(*a))
+    phc.simulate(compiled("rigid_slider_crank.yaml"), solver="ida", t_end=0.5)
+    guarded, p, _, y0, yp0 = starts[0][:5]  # the run's consistent start
+    raw = guarded.module
+    mod = GuardedModule(raw)
+    tau = 0.05  # the crank turns in the probe's steps: the energy and the states move
+
+    h = tau / scaling.PROBE_STEPS
+    k, ys = c_steps.midpoint_steps(raw, p, h * np.arange(scaling.PROBE_STEPS + 1), y0, yp0)
+    assert k == scaling.PROBE_STEPS + 1  # every step in C
+    power, scale = c_steps.probe_values(raw, p, 0.0, h, y0, ys[1:k])
+    t, y = 0.0, y0
+    for i, y1 in enumerate(ys[1:k]):  # the probe's own single calls, as it makes them
+        assert power[i] == float(np.abs(raw.powers(t + 0.5 * h, 0.5 * (y + y1), (y1 - y) / h, p)).sum())
+        y, t = y1, t + h
+        assert scale[i] == raw.energy_scale(t, y, p)
+
+    calls = []
+    for name in ("energy_scale", "powers"):
+        wrapped = getattr(mod, name)
+        setattr(mod, name, lambda *a, _w=wrapped, _n=name: calls.append(_n) or _w(*a))
+    found = probe(mod, p, 0.0, y0, yp0, tau, None)
+    assert sorted(calls) == ["energy_scale", "powers"]  # at the start only
+    monkeypatch.setattr(c_steps, "along", lambda *a, **k: None)
+    alone = probe(mod, p, 0.0, y0, yp0, tau, None)
+    assert len(calls) == 2 + (2 + 2 * scaling.PROBE_STEPS)  # the second probe: the start and every step
+    assert np.array_equal(found[0], alone[0]) and found[1:] == alone[1:] and found[1] > 0
+
+
+def test_the_output_sensitivities_of_a_c_module_are_one_c_call_with_the_values_of_single_calls(
+        compiled, monkeypatch):
+    """The derivatives of the requested outputs by the states (phc.simulation.scaling.
+    output_sensitivities, what IDA's promise scales are made of) evaluate the outputs of a C module
+    at every perturbed state in one call of the step library: the same matrix to the bit as one
+    guarded call per state (the library not at hand), and the central difference of the outputs
+    written out here for each state."""
+    from phc.codegen import c_steps
+    from phc.simulation import scaling
+    from phc.simulation.guard import GuardedModule
+
+    raw = compiled("two_mass_cubic_spring.yaml").module
+    mod = GuardedModule(raw)
+    p = phc.simulation.parameter_vector(raw)
+    rng = np.random.default_rng(5)
+    y0, yp0 = rng.normal(size=raw.N), rng.normal(size=raw.N)
+    s = 0.5 + rng.random(raw.N)
+    calls, along = [], c_steps.along
+    monkeypatch.setattr(c_steps, "along", lambda *a, **k: calls.append(k) or along(*a, **k))
+    in_c = scaling.output_sensitivities(mod, p, 0.0, y0, yp0, s)
+    assert calls == [{}]  # one call, every function at every perturbed state
+    states = np.flatnonzero(raw.DIFFERENTIAL)
+    for j in states:  # the central difference, state by state
+        up, down = y0.copy(), y0.copy()
+        up[j] += 1e-6 * s[j]
+        down[j] -= 1e-6 * s[j]
+        expected = (raw.outputs(0.0, up, yp0, p) - raw.outputs(0.0, down, yp0, p)) / (2.0 * 1e-6 * s[j])
+        assert np.array_equal(in_c[:, j], expected)
+    monkeypatch.setattr(c_steps, "along", lambda *a, **k: None)
+    single = scaling.output_sensitivities(mod, p, 0.0, y0, yp0, s)
+    assert np.array_equal(in_c, single) and np.count_nonzero(in_c[:, states]) >= len(states)
