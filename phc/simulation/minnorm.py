@@ -19,7 +19,8 @@ its rank threshold. Three ways, by size and rank:
   condition κ₁ of the matrix K factored stays below ``1/cond``. A certain lower bound
   comes from the factors alone: with ``Pr K Pc = L U``, ``U⁻¹ = Pcᵀ K⁻¹ Prᵀ L``, so
   ``1/|u_ii| ≤ ‖U⁻¹‖₁ ≤ ‖K⁻¹‖₁ ‖L‖₁`` and ``κ₁ ≥ ‖K‖₁ / (‖L‖₁ min|u_ii|)``; a system it
-  already rejects costs no solve. Otherwise ``onenormest`` of the inverse through the
+  already rejects costs no solve. Otherwise Higham and Tisseur's block estimate
+  (:func:`phc.simulation.sparse_lu.inverse_norm_estimate`) of the inverse through the
   factors estimates κ₁. Then the regular system has one solution and gelsy, which
   truncates no direction of such a matrix, computes the same one: the two agree to the
   round-off of the factorizations (one step of iterative refinement is taken). Rows left
@@ -216,7 +217,7 @@ def _factor(A, cond):
     k = K.shape[0]
     inverse = spla.LinearOperator((k, k), matvec=lu.solve, rmatvec=lambda x: lu.solve(x, trans="T"), dtype=float)
     with np.errstate(all="ignore"):
-        norm_inv = inverse_norm_estimate(inverse)  # seeded: the same rank decision in every process
+        norm_inv = inverse_norm_estimate(inverse)  # the same rank decision in every process
     if not np.isfinite(norm_inv) or norm_inv * norm_k * cond >= 1.0:
         return None
 

@@ -106,8 +106,8 @@ def _far_from_singular(J: np.ndarray, threshold: float, lu=None, solve=None) -> 
     :data:`RCOND_MARGIN`·n times above `threshold` (about a lower bound of σ_min/σ_max there);
     None when the singular values must decide. For a sparse J, `lu` is its sparse LU
     (``scipy.sparse.linalg.splu``) and ‖J⁻¹‖₁ is estimated on it by Higham's block 1-norm
-    estimator (``scipy.sparse.linalg.onenormest``, seeded:
-    :func:`phc.simulation.sparse_lu.inverse_norm_estimate`; ``dgecon`` runs Hager's and Higham's
+    estimator (:func:`phc.simulation.sparse_lu.inverse_norm_estimate`, with its own seeded
+    generator; ``dgecon`` runs Hager's and Higham's
     estimator on the dense LU): a few solves with the LU and its transpose (`solve`, ``lu.solve``
     or one that counts them)."""
     n = J.shape[0]
@@ -118,7 +118,7 @@ def _far_from_singular(J: np.ndarray, threshold: float, lu=None, solve=None) -> 
         inverse = spla.LinearOperator((n, n), matvec=solve, rmatvec=lambda x: solve(x, trans="T"),
                                       dtype=float)
         with np.errstate(all="ignore"):
-            estimate = inverse_norm_estimate(inverse)  # seeded: the same in every process
+            estimate = inverse_norm_estimate(inverse)  # the same in every process
             rcond = 1.0 / (float(abs(J).sum(axis=0).max()) * estimate) if estimate > 0 else math.nan
     else:
         lu, _, info = sla.lapack.dgetrf(J)

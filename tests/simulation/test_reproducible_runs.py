@@ -11,8 +11,9 @@ phc's bridges by the midpoint rule run: there a difference in the last bit is am
 
 What made the N = 10 runs differ was not the hash seed but scipy's ``onenormest``, whose random
 columns come from NumPy's global random state, seeded by the operating system in each process;
-the singularity monitor's sparse looks (above 120 unknowns) decide on its estimate. It is seeded
-now (:func:`phc.simulation.sparse_lu.inverse_norm_estimate`); each child process estimates the
+the singularity monitor's sparse looks (above 120 unknowns) decide on its estimate. phc now runs
+the same algorithm with its own seeded generator
+(:func:`phc.simulation.sparse_lu.inverse_norm_estimate`); each child process estimates the
 norm of one matrix's inverse with it, on a matrix where scipy's own estimate takes three values
 under six seeds (``tests/simulation/test_sparse_lu.py``). The N = 1 four-bar's looks are dense,
 so its run repeated itself before the fix too: a model above 120 unknowns that shows the old

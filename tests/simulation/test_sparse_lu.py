@@ -4,6 +4,7 @@ NARROW_PANEL_FROM unknowns on (SuperLU's dense work arrays are n × panel), scip
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import scipy.sparse as sps
 import scipy.sparse.linalg as spla
 
@@ -60,3 +61,37 @@ def test_inverse_norm_estimate_does_not_depend_on_numpys_global_random_state():
     assert len(estimates) == 1
     exact = float(np.abs(spla.inv(A).toarray()).sum(axis=0).max())
     assert estimates.pop() <= exact * (1 + 1e-12)  # a lower bound (to the round-off of the solves)
+
+
+def test_inverse_norm_estimate_is_higham_and_tisseurs_without_the_global_random_state(monkeypatch):
+    """phc's estimate is Algorithm 2.4 of Higham and Tisseur with its own seeded generator: on
+    matrices of several sizes and conditions it is, to the bit, what scipy's implementation of the
+    same algorithm gives after ``numpy.random.seed(ESTIMATE_SEED)`` (the same random columns, the
+    same operations), and it never touches NumPy's global random state (which another thread of
+    the user's may be drawing from): the global functions are made to fail while it runs."""
+    from phc.simulation.sparse_lu import ESTIMATE_SEED
+
+    cases = [(sps.random(n, n, density=d, random_state=s) + c * sps.identity(n)).tocsc()
+             for n, d, s, c in [(3, 0.5, 1, 1.0), (40, 0.1, 2, 0.5), (150, 0.03, 9, 1.0),
+                                (300, 0.01, 4, 0.05), (120, 0.3, 5, 0.0)]]
+    assert all(np.linalg.matrix_rank(A.toarray()) == A.shape[0] for A in cases)
+    theirs = []
+    for A in cases:
+        np.random.seed(ESTIMATE_SEED)
+        theirs.append(float(spla.onenormest(_inverse_operator(A))))
+
+    def forbidden(*args, **kwargs):
+        raise AssertionError("NumPy's global random state used")
+
+    for name in ("randint", "seed", "get_state", "set_state", "rand", "random"):
+        monkeypatch.setattr(np.random, name, forbidden)
+    ours = [inverse_norm_estimate(_inverse_operator(A)) for A in cases]
+    assert ours == theirs
+
+
+def test_inverse_norm_estimate_of_a_diagonal_is_exact():
+    """On a diagonal matrix the 1-norm of the inverse is 1/min|d_i|, and the estimator finds it
+    (its second iteration tries the unit column of the largest entry): a closed form."""
+    d = np.array([3.0, -0.5, 2.0, 1e-3, 7.0, -4.0, 0.25, 9.0])
+    op = _inverse_operator(sps.diags(d).tocsc())
+    assert inverse_norm_estimate(op) == pytest.approx(1e3, rel=1e-14)  # one division's round-off
