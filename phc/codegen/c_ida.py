@@ -156,7 +156,8 @@ def pkg_config_prefix() -> Optional[Path]:
     env = sorted((k, v) for k, v in os.environ.items() if k.startswith("PKG_CONFIG"))
     material = json.dumps([__version__, exe, os.path.realpath(exe), _stat(exe), env])
     folder, key = signed_cache_dir(c_backend.c_cache_dir())[:2] if c_backend._cache_on() else (None, None)
-    file = None if folder is None else folder / f"phc_sundials_pc_{hashlib.sha256(material.encode()).hexdigest()[:24]}.json"
+    name = f"phc_sundials_pc_{hashlib.sha256(material.encode()).hexdigest()[:24]}.json"
+    file = None if folder is None else folder / name
     if file is not None:
         data = _read_private(str(file))
         payload = _verified(key, data, file.name) if data is not None else None
