@@ -11,10 +11,11 @@ SUNDIALS is the machine's own, reached through its public C API (headers and sha
 version 6 or 7, in double precision): Debian/Ubuntu ``apt install libsundials-dev``,
 conda-forge ``sundials``, Homebrew ``sundials``. scikit-sundae's copy inside its wheel is not
 used (its libraries' names are its private packaging). Where SUNDIALS is looked for, in order:
-``$SUNDIALS_DIR``, ``$CONDA_PREFIX``, the prefix ``pkg-config`` gives for ``sundials_ida``,
+``$SUNDIALS_DIR``, ``$CONDA_PREFIX``, the prefix ``pkg-config`` gives for ``sundials_ida`` (kept in
+phc's cache until pkg-config's search directories change: :func:`pkg_config_prefix`),
 ``/usr/local``, ``/usr``, ``/opt/homebrew``, ``/usr/local/opt/sundials``: the first prefix with
 ``include/ida/ida.h`` and ``libsundials_ida`` in ``lib``, ``lib64`` or the platform's
-multiarch directory.
+multiarch directory (looked at in each process).
 """
 
 from __future__ import annotations
@@ -299,4 +300,4 @@ def model_functions(model_library) -> tuple[int, int]:
 
 __all__ = ["ABI", "FLAGS", "LF_N", "LI_N", "LIBRARIES", "LOOK_CRAWL", "LOOK_MARKER", "LOOK_MINIMUM",
            "LOOK_NOT_CLEAR", "LOOK_TRANSLATED", "PHC_LOOK", "SOURCE", "TRANSLATOR", "address", "find_sundials",
-           "library", "make_source", "model_functions", "source", "switched_off", "why_not"]
+           "library", "make_source", "model_functions", "pkg_config_prefix", "source", "switched_off", "why_not"]
