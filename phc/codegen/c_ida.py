@@ -11,10 +11,11 @@ SUNDIALS is the machine's own, reached through its public C API (headers and sha
 version 6 or 7, in double precision): Debian/Ubuntu ``apt install libsundials-dev``,
 conda-forge ``sundials``, Homebrew ``sundials``. scikit-sundae's copy inside its wheel is not
 used (its libraries' names are its private packaging). Where SUNDIALS is looked for, in order:
-``$SUNDIALS_DIR``, ``$CONDA_PREFIX``, the prefix ``pkg-config`` gives for ``sundials_ida``,
+``$SUNDIALS_DIR``, ``$CONDA_PREFIX``, the prefix ``pkg-config`` gives for ``sundials_ida`` (kept in
+phc's cache until pkg-config's search directories change: :func:`pkg_config_prefix`),
 ``/usr/local``, ``/usr``, ``/opt/homebrew``, ``/usr/local/opt/sundials``: the first prefix with
 ``include/ida/ida.h`` and ``libsundials_ida`` in ``lib``, ``lib64`` or the platform's
-multiarch directory.
+multiarch directory (looked at in each process).
 """
 
 from __future__ import annotations
@@ -101,19 +102,96 @@ _LIBRARY = None
 _WHY = ""
 
 
+def _pkg_config(*args: str) -> Optional[str]:
+    """pkg-config's answer (stripped), or None when it fails or says nothing."""
+    try:
+        done = subprocess.run(["pkg-config", *args], capture_output=True, text=True, timeout=30,
+                              stdin=subprocess.DEVNULL)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return done.stdout.strip() if done.returncode == 0 and done.stdout.strip() else None
+
+
+def _stat(path: str) -> Optional[list[int]]:
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return [st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns]
+
+
+PC_FILE = "sundials_ida.pc"
+"""The pkg-config file whose ``prefix`` is looked up."""
+
+
+def _pc_stats(dirs) -> dict[str, Optional[list[int]]]:
+    """The stat of each of pkg-config's search directories and of :data:`PC_FILE` in it (None where
+    absent): a SUNDIALS installed, removed or moved where pkg-config looks changes one of them (a
+    directory's modification time changes when a file is added, removed or renamed in it)."""
+    out = {}
+    for folder in dirs:
+        out[folder] = _stat(folder)
+        out[os.path.join(folder, PC_FILE)] = _stat(os.path.join(folder, PC_FILE))
+    return out
+
+
+def pkg_config_prefix() -> Optional[Path]:
+    """The prefix ``pkg-config --variable=prefix sundials_ida`` gives (None: no pkg-config, or it
+    knows no SUNDIALS), kept in phc's signed cache so that a later process does not run pkg-config
+    again (a child process of about 8 ms CPU): the record is named by a digest of pkg-config's
+    executable (path and stat) and the ``PKG_CONFIG*`` environment variables, and holds the stat of
+    every directory pkg-config searches and of ``sundials_ida.pc`` in each
+    (:func:`_pc_stats`); any difference asks pkg-config again. A cache that is off or unusable:
+    pkg-config is asked each time."""
+    import hashlib
+    import json
+
+    from phc import __version__
+    from phc.codegen import c_backend
+    from phc.codegen.load import write_atomic
+    from phc.codegen.numba_cache import _read_private, _signed, _verified, signed_cache_dir
+
+    exe = shutil.which("pkg-config")
+    if exe is None:
+        return None
+    env = sorted((k, v) for k, v in os.environ.items() if k.startswith("PKG_CONFIG"))
+    material = json.dumps([__version__, exe, os.path.realpath(exe), _stat(exe), env])
+    folder, key = signed_cache_dir(c_backend.c_cache_dir())[:2] if c_backend._cache_on() else (None, None)
+    name = f"phc_sundials_pc_{hashlib.sha256(material.encode()).hexdigest()[:24]}.json"
+    file = None if folder is None else folder / name
+    if file is not None:
+        data = _read_private(str(file))
+        payload = _verified(key, data, file.name) if data is not None else None
+        try:
+            record = json.loads(payload.decode("utf-8")) if payload is not None else None
+            if record is not None and _pc_stats(record["dirs"]) == record["stats"]:
+                return None if record["prefix"] is None else Path(record["prefix"])
+        except (ValueError, KeyError, TypeError):  # a record of another layout: asked again
+            pass
+    # where pkg-config looks: $PKG_CONFIG_PATH, then $PKG_CONFIG_LIBDIR or its built-in path
+    searched = _pkg_config("--variable=pc_path", "pkg-config")
+    dirs = None if searched is None else [
+        d for var in ("PKG_CONFIG_PATH", "PKG_CONFIG_LIBDIR") for d in os.environ.get(var, "").split(os.pathsep) if d
+    ] + [d for d in searched.split(os.pathsep) if d]
+    stats = None if dirs is None else _pc_stats(dirs)  # (before asking: a change meanwhile is seen next time)
+    prefix = _pkg_config("--variable=prefix", "sundials_ida")
+    if file is not None and stats is not None:  # (a pkg-config that does not say where it looks: not kept)
+        record = {"dirs": dirs, "stats": stats, "prefix": prefix}
+        try:
+            write_atomic(file, _signed(key, json.dumps(record).encode("utf-8"), file.name))
+        except OSError:  # a full or read-only disk costs the kept answer, not the run
+            pass
+    return None if prefix is None else Path(prefix)
+
+
 def _prefixes() -> list[Path]:
     found = []
     for var in ("SUNDIALS_DIR", "CONDA_PREFIX"):
         if os.environ.get(var):
             found.append(Path(os.environ[var]))
-    if shutil.which("pkg-config"):
-        try:
-            done = subprocess.run(["pkg-config", "--variable=prefix", "sundials_ida"], capture_output=True, text=True,
-                                  timeout=30, stdin=subprocess.DEVNULL)
-            if done.returncode == 0 and done.stdout.strip():
-                found.append(Path(done.stdout.strip()))
-        except (OSError, subprocess.SubprocessError):
-            pass
+    prefix = pkg_config_prefix()
+    if prefix is not None:
+        found.append(prefix)
     found += [Path("/usr/local"), Path("/usr"), Path("/opt/homebrew"), Path("/usr/local/opt/sundials")]
     return found
 
@@ -222,4 +300,4 @@ def model_functions(model_library) -> tuple[int, int]:
 
 __all__ = ["ABI", "FLAGS", "LF_N", "LI_N", "LIBRARIES", "LOOK_CRAWL", "LOOK_MARKER", "LOOK_MINIMUM",
            "LOOK_NOT_CLEAR", "LOOK_TRANSLATED", "PHC_LOOK", "SOURCE", "TRANSLATOR", "address", "find_sundials",
-           "library", "make_source", "model_functions", "source", "switched_off", "why_not"]
+           "library", "make_source", "model_functions", "pkg_config_prefix", "source", "switched_off", "why_not"]

@@ -380,7 +380,7 @@ def midpoint_steps(raw, p, t_out, y0, yp0) -> tuple[int, np.ndarray]:
     fst[_k._STEP], fst[_k._H_PREV] = 0.0, 1.0  # (no step size: one step per output interval)
     pt, pm = np.zeros(mp.MAX_PREDICTOR_ORDER + 1), np.zeros((mp.MAX_PREDICTOR_ORDER + 1, n))
     run = bind(raw, np.ascontiguousarray(p, dtype=float), t_out, ys, yps, y, mid, mid_slope, y_prev, y_new, pt, pm,
-               fst, ist, step_constants(), jrows, jcols, end_rows, np.isin(jrows, end_rows).astype(np.int8),
+               fst, ist, step_constants("midpoint"), jrows, jcols, end_rows, np.isin(jrows, end_rows).astype(np.int8),
                np.zeros(0), algebraic_mask(raw), np.zeros(0), np.zeros((2, 3)), np.zeros((2, 3, n)))
     run(nout)
     return int(ist[_k._K]), ys

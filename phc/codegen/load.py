@@ -72,6 +72,17 @@ def _problem(path: Path) -> str | None:
     return _unsafe_parent(path)
 
 
+def _parents(path: str) -> list[str]:
+    """The directories above the absolute `path`, nearest first (``Path(path).parents`` as strings,
+    without pathlib's parsing: a run checks its cache directories several times)."""
+    out = []
+    parent = os.path.dirname(path)
+    while parent != path:
+        out.append(parent)
+        path, parent = parent, os.path.dirname(parent)
+    return out
+
+
 def _unsafe_parent(path: Path) -> str | None:
     """Why a directory on the way to `path` (as written or resolved) lets another user
     rename or replace `path` — owned by another user (not root), or writable by others
@@ -79,11 +90,10 @@ def _unsafe_parent(path: Path) -> str | None:
     race: its parent's other writers could swap it for a link between check and use."""
     seen: set[str] = set()
     for candidate in (os.path.abspath(path), os.path.realpath(path)):
-        for parent in Path(candidate).parents:
-            key = str(parent)
-            if key in seen:
+        for parent in _parents(candidate):
+            if parent in seen:
                 continue
-            seen.add(key)
+            seen.add(parent)
             try:
                 st = os.stat(parent)
             except OSError as err:

@@ -423,17 +423,27 @@ def _kernel_namespace(externals) -> dict:
 # ---------------------------------------------------------------------------------------------------
 # the Python driver
 
-def step_constants() -> np.ndarray:
+def step_constants(method: Optional[str] = None) -> np.ndarray:
     """The constants vector of the step logic (:mod:`phc.simulation.step_logic`: the methods'
     tolerances, limits, the predictor's orders, the monitor's threshold and period), as the
     Python loop uses them: what the compiled loops and an exported FMU (:mod:`phc.export.fmu`)
-    are handed."""
-    from phc.simulation import discrete_gradient as dg
+    are handed. With `method` ``"midpoint"``: without the secant iteration's and the composition's
+    numbers (left 0), which its steps never read — the nominal-scales probe's midpoint steps
+    (:func:`phc.codegen.c_steps.midpoint_steps`) then need not import
+    :mod:`~phc.simulation.discrete_gradient` and :mod:`~phc.simulation.midpoint4` (about 1 ms of a
+    process's first IDA run)."""
     from phc.simulation import midpoint as mp
-    from phc.simulation import midpoint4 as m4
     from phc.simulation.monitor import THRESHOLD
 
-    c = mp.driver_constants(m4.composition_constants(dg.secant_constants(mp.newton_constants())))
+    if method not in (None, "midpoint"):
+        raise ValueError(f"step_constants: method {method!r} is not None or 'midpoint'")
+    c = mp.newton_constants()
+    if method is None:
+        from phc.simulation import discrete_gradient as dg
+        from phc.simulation import midpoint4 as m4
+
+        c = m4.composition_constants(dg.secant_constants(c))
+    c = mp.driver_constants(c)
     c[_THRESHOLD] = THRESHOLD
     c[_ONE], c[_ZERO] = 1.0, 0.0
     c[_STRIKES_C] = LOW_PRECISION_STRIKES

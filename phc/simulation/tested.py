@@ -19,6 +19,14 @@ from phc.simulation.guard import CATCH, ModelEvaluationError
 from phc.simulation.minnorm import dense_min_norm, min_norm_solve
 
 
+def _adjacency(keys, values, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """(pointers, entries): the `values` of key k are ``entries[pointers[k]:pointers[k + 1]]``, for
+    keys 0 … size − 1 (a compressed sparse pattern without scipy's checks, which cost more than the
+    rest of :func:`determined_algebraic` on a small model)."""
+    order = np.argsort(keys, kind="stable")
+    return np.searchsorted(keys[order], np.arange(size + 1)), values[order]
+
+
 def determined_algebraic(mod, p, t, y, yp) -> np.ndarray:
     """Mask of the algebraic variables the algebraic rows determine from the states (index 1:
     a junction effort, a resistor's flow), as opposed to those only the derivative of a
@@ -73,19 +81,22 @@ def determined_algebraic(mod, p, t, y, yp) -> np.ndarray:
     cpos = np.full(n, -1)
     cpos[alg_cols] = np.arange(len(alg_cols))
     sel = (rpos[rows] >= 0) & (cpos[cols] >= 0) & nonzero_y
-    pattern = sps.csr_matrix((np.ones(int(sel.sum())), (rpos[rows[sel]], cpos[cols[sel]])),
-                             shape=(len(alg_rows), len(alg_cols)))
-    match = bipartite_matching(pattern)
+    if sel.any():
+        pattern = sps.csr_matrix((np.ones(int(sel.sum())), (rpos[rows[sel]], cpos[cols[sel]])),
+                                 shape=(len(alg_rows), len(alg_cols)))
+        match = bipartite_matching(pattern)
+    else:  # no algebraic row has an algebraic variable: nothing matched (what the matching returns)
+        match = np.full(len(alg_rows), -1, dtype=np.int64)
     row_of = np.full(len(alg_cols), -1)
     matched = np.flatnonzero(match >= 0)
     row_of[match[matched]] = matched
-    by_col = pattern.tocsc()
+    col_ptr, col_rows = _adjacency(cpos[cols[sel]], rpos[rows[sel]], len(alg_cols))  # each column's rows
     seen = np.zeros(len(alg_cols), dtype=bool)
     stack = list(np.flatnonzero(row_of < 0))
     seen[stack] = True
     while stack:  # alternating paths: unmatched column → its rows → their matched columns
         c = stack.pop()
-        for r in by_col.indices[by_col.indptr[c]:by_col.indptr[c + 1]]:
+        for r in col_rows[col_ptr[c]:col_ptr[c + 1]]:
             c2 = match[r]
             if c2 >= 0 and not seen[c2]:
                 seen[c2] = True
@@ -98,13 +109,13 @@ def determined_algebraic(mod, p, t, y, yp) -> np.ndarray:
     free = np.zeros(n, dtype=bool)
     free[alg_set] = True
     free[alg_cols[determined]] = False
-    row_y = sps.csr_matrix((np.ones(int(nonzero_y.sum())), (rows[nonzero_y], cols[nonzero_y])), shape=(m, n))
+    row_ptr, row_cols = _adjacency(rows[nonzero_y], cols[nonzero_y], m)  # each row's columns in F_y
     changed = True
     while changed:
         changed = False
         for i in np.flatnonzero(determined):
             r = alg_rows[row_of[i]]
-            if free[row_y.indices[row_y.indptr[r]:row_y.indptr[r + 1]]].any():
+            if free[row_cols[row_ptr[r]:row_ptr[r + 1]]].any():
                 determined[i] = False
                 free[alg_cols[i]] = True
                 changed = True

@@ -142,3 +142,11 @@ def test_cache_info_and_clean(cache, capsys):
     assert main(["cache", "clean"]) == 0
     assert "removed 1 files" in capsys.readouterr().out
     assert not _target(cache).exists()
+
+
+def test_the_parents_checked_are_pathlibs(tmp_path):
+    """The directories above a cache directory that _unsafe_parent checks, as strings: those of
+    ``Path.parents`` (the root has none; repeated and trailing separators are normalized away first)."""
+    for path in ("/", "/a", "/a//b/", str(tmp_path / "x" / "y"), os.path.realpath(tmp_path)):
+        path = os.path.abspath(path)
+        assert load._parents(path) == [str(parent) for parent in Path(path).parents]

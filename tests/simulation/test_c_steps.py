@@ -459,6 +459,34 @@ def test_the_nominal_scales_probe_takes_its_steps_in_c_as_the_python_stage_solve
     assert np.abs(big_py - np.abs(args[3])).max() > 1e-6 * scale  # the probe saw the states move
 
 
+def test_the_probes_midpoint_steps_do_not_read_the_other_methods_constants(compiled, monkeypatch):
+    """The probe's midpoint steps are handed step_constants("midpoint"), without the secant iteration's and
+    the composition's numbers (so a first run need not import discrete_gradient and midpoint4): its steps
+    are those of the whole vector to the bit, and so with those entries garbage."""
+    from phc.codegen import c_steps
+    from phc.simulation import compiled_steps
+    from phc.simulation import step_logic as sl
+
+    raw = compiled("rigid_slider_crank.yaml").module
+    raw = getattr(raw, "module", raw)
+    p = phc.simulation.parameter_vector(raw)
+    r = phc.simulate(compiled("rigid_slider_crank.yaml"), solver="ida", t_end=1e-3, n_out=2)
+    y0, yp0 = r.y[0], r.yp[0]
+    t = np.linspace(0.0, 1e-3, 9)
+    full, part = compiled_steps.step_constants(), compiled_steps.step_constants("midpoint")
+    others = [sl._BAL_TOL, sl._MAX_SECANT, sl._S_MIN, sl._S_MAX, sl._G1, sl._G2, sl._M0, sl._M1, sl._M2]
+    kept = np.setdiff1d(np.arange(len(full)), others)
+    assert np.array_equal(part[kept], full[kept]) and not part[others].any()
+    with pytest.raises(ValueError):
+        compiled_steps.step_constants("midpoint4")
+    runs = []
+    for constants in (full, part, np.where(np.isin(np.arange(len(full)), others), 1e300, full)):
+        monkeypatch.setattr(compiled_steps, "step_constants", lambda method=None, c=constants: c.copy())
+        runs.append(c_steps.midpoint_steps(raw, p, t, y0, yp0))
+    assert runs[0][0] == len(t)  # every step taken
+    for k, ys in runs[1:]:
+        assert k == runs[0][0] and np.array_equal(ys, runs[0][1])
+
 @pytest.mark.parametrize("name", ["rigid_slider_crank.yaml", "dc_motor_pi.yaml"])
 def test_the_functions_along_a_run_are_one_c_call_with_the_values_of_one_call_per_point(compiled, monkeypatch, name):
     """A run's H, energy scale, powers, invariants and outputs at its output points are one call

@@ -385,6 +385,23 @@ def test_index1_algebraic_variables_are_in_the_error_test():
     assert mask.sum() == int((~np.asarray(mod.DIFFERENTIAL, dtype=bool)).sum())  # all index 1 here
 
 
+def test_the_adjacency_of_determined_algebraic_is_scipys_pattern():
+    """determined_algebraic's rows of each column (and columns of each row) without scipy: as sets, what
+    scipy's compressed columns of the same entries hold (duplicates, empty columns, unsorted keys)."""
+    import scipy.sparse as sps
+
+    from phc.simulation.tested import _adjacency
+
+    rng = np.random.default_rng(3)
+    for size, count in ((1, 0), (7, 12), (40, 300)):
+        keys, values = rng.integers(0, size, count), rng.integers(0, 9, count)
+        ptr, entries = _adjacency(keys, values, size)
+        csc = sps.csc_matrix((np.ones(count), (values, keys)), shape=(9, size))
+        for k in range(size):
+            assert set(entries[ptr[k]:ptr[k + 1]]) == set(csc.indices[csc.indptr[k]:csc.indptr[k + 1]])
+        assert ptr[-1] == count
+
+
 from model_texts import WHEEL  # noqa: E402 - tests/library/test_rheonomic.py's wheel
 
 
