@@ -125,11 +125,11 @@ class _Elaborator(Reporter):
         """Each lowered component's rows as its lowerer emitted them (before assembly
         substitutes definitions and merges ports): what :mod:`phc.checks.rows` compares
         with the component's description."""
-        from phc.ir.dae import ComponentRows
+        from phc.ir.dae import ComponentRows, FieldTuples
 
         equations: dict[str, list] = {}
-        for eq in self.equations:
-            equations.setdefault(eq.component, []).append((eq.label, eq.expr))
+        for eq in self.equations:  # the Equation objects: read as (label, expr) pairs
+            equations.setdefault(eq.component, []).append(eq)
         sparse = {blk.component for blk in self.linear_blocks}
         definitions: dict[str, list] = {}
         for sym, expr in self.definitions.items():
@@ -137,10 +137,11 @@ class _Elaborator(Reporter):
             if owner is not None:
                 definitions.setdefault(owner, []).append((sym, expr))
         variables: dict[str, list] = {}
-        for v in self.variables:
-            variables.setdefault(v.component, []).append((v.symbol, v.dsymbol, v.role))
-        return tuple(ComponentRows(name, tuple(equations.get(name, ())), tuple(definitions.get(name, ())),
-                                   tuple(variables.get(name, ())), name in sparse,
+        for v in self.variables:  # read as (symbol, dsymbol, role)
+            variables.setdefault(v.component, []).append(v)
+        return tuple(ComponentRows(name, FieldTuples(equations.get(name, ()), ("label", "expr")),
+                                   tuple(definitions.get(name, ())),
+                                   FieldTuples(variables.get(name, ()), ("symbol", "dsymbol", "role")), name in sparse,
                                    derived=name not in self.hand_written)
                      for name, _, _ in self.components if name not in self.failed)
 

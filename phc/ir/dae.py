@@ -69,9 +69,10 @@ def real_symbol(name: str) -> sp.Symbol:
     return _MAKE_REAL(name) if _MAKE_REAL is not None else sp.Symbol(name, real=True)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Variable:
-    """One unknown of the DAE.
+    """One unknown of the DAE (slotted, as :class:`Equation`: a mesh of 10⁵ elements has
+    about 8·10⁵ of each, and an instance's ``__dict__`` was a third of its size).
 
     `role` is one of: ``state``, ``velocity``, ``flow``, ``effort``, ``multiplier``,
     ``resistive``, ``energy``. Differential variables are the energy (storage) states and
@@ -87,7 +88,7 @@ class Variable:
     span: Optional[SourceSpan] = None
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Equation:
     """One residual row ``expr = 0`` with its origin (component, kind, label, source)."""
 
@@ -376,11 +377,54 @@ DiracRelations = ComponentDescription
 """The former name (the certificate reads only the Dirac part)."""
 
 
+class FieldTuples(Sequence):
+    """``tuple((getattr(o, a) for a in names) for o in objects)``, made when read: a
+    component's rows (:class:`ComponentRows`) as views of its :class:`Equation` and
+    :class:`Variable` objects, which the DAE holds anyway, instead of a tuple of tuples per
+    row (10⁵ elements: about 8·10⁵ rows and as many variables). It reads as a tuple of
+    tuples: indexing, iteration, ``len``, ``==`` with one."""
+
+    __slots__ = ("objects", "names")
+
+    def __init__(self, objects, names: tuple[str, ...]) -> None:
+        self.objects, self.names = tuple(objects), tuple(names)
+
+    def _item(self, o) -> tuple:
+        return tuple(getattr(o, a) for a in self.names)
+
+    def __len__(self) -> int:
+        return len(self.objects)
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return tuple(self._item(o) for o in self.objects[index])
+        return self._item(self.objects[index])
+
+    def __iter__(self):
+        return (self._item(o) for o in self.objects)
+
+    def __eq__(self, other):
+        return isinstance(other, (FieldTuples, tuple, list)) and len(self) == len(other) and all(
+            a == b for a, b in zip(self, other))
+
+    __hash__ = None
+
+    def __repr__(self) -> str:
+        return repr(tuple(self))
+
+    def __getstate__(self):
+        return (self.objects, self.names)
+
+    def __setstate__(self, state) -> None:
+        self.objects, self.names = state
+
+
 @dataclass(frozen=True, eq=False)
 class ComponentRows:
     """The rows a lowerer emitted for one component, before assembly: residual rows
     ``expr = 0`` as ``(label, expr)``, explicit definitions ``symbol = expr`` and the component's own variables
-    as ``(symbol, rate symbol or None, role)``. `sparse` is True when some rows have
+    as ``(symbol, rate symbol or None, role)`` (each may be a :class:`FieldTuples`, a view
+    of the rows' :class:`Equation` and :class:`Variable` objects). `sparse` is True when some rows have
     sparse matrix parts (:class:`LinearBlock`). `derived` is True when every row was
     derived from the component's description (:func:`phc.library.dirac.emit`); rows a
     lowerer wrote itself are compared with the description when compiling
