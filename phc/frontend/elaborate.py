@@ -46,7 +46,7 @@ import sympy as sp
 
 from phc.analysis.order import topological_order
 from phc.frontend.budget import MeshLedger
-from phc.ir.dae import Equation, Invariant, Parameter, Variable
+from phc.ir.dae import Equation, Invariant, Parameter, Variable, shifted_rows
 from phc.diagnostics import Diagnostic, DiagnosticList
 from phc.ir.interconnect import MODULATED, reading_order, state_reads
 from phc.frontend.files import MAX_INCLUDE_DEPTH, MAX_MODEL_INSTANCES, FileAccess, FileRefused
@@ -597,7 +597,7 @@ class _Elaborator(Reporter):
         start = len(self.equations)
         self.variables.extend(lowering.variables)
         self.equations.extend(lowering.equations)
-        self.linear_blocks.extend(dataclasses.replace(block, rows=tuple(start + r for r in block.rows))
+        self.linear_blocks.extend(dataclasses.replace(block, rows=shifted_rows(block.rows, start))
                                   for block in lowering.linear_blocks)
         for sym, expr in lowering.definitions:
             self.definitions[sym] = expr

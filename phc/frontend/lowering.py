@@ -249,7 +249,7 @@ class Recorder(Reporter):
         start = len(self.equations)
         for i in range(n_rows):
             self.equations.append(Equation(sp.Integer(0), f"{component}.{label}[{i}]", "linear", component, span))
-        rows = tuple(range(start, start + n_rows))
+        rows = range(start, start + n_rows)
         self.linear_blocks.append(LinearBlock(f"{component}.{label}", component, rows, tuple(terms), span))
         return list(rows)
 
@@ -420,7 +420,7 @@ class _Template:
 
     def _new_slot(self, v) -> int:
         t = type(v)
-        if v is None or t in (bool, int, float):
+        if v is None or t in (bool, int, float, range):  # a range: a sparse block's rows
             return self._const(v)
         if t is str:
             renamed = self._rename(v)

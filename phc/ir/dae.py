@@ -147,13 +147,29 @@ class LinearTerm:
 
 @dataclass(frozen=True, eq=False)
 class LinearBlock:
-    """Rows `rows` of the residual get ``Σ terms`` added to their sympy part."""
+    """Rows `rows` of the residual get ``Σ terms`` added to their sympy part. `rows` is a
+    ``range`` where they are consecutive (a mesh's: no Python int per row), else a tuple;
+    :func:`shifted_rows` moves them."""
 
     label: str
     component: str
     rows: tuple[int, ...]
     terms: tuple[LinearTerm, ...]
     span: Optional[SourceSpan] = None
+
+
+def shifted_rows(rows, index) -> "range | tuple[int, ...]":
+    """`rows` (of a :class:`LinearBlock`) mapped by `index` (an offset added to each, or a
+    callable on a row index): a ``range`` when the images are consecutive, else a tuple."""
+    if isinstance(index, int):
+        if isinstance(rows, range) and rows.step == 1:
+            return range(rows.start + index, rows.stop + index)
+        out = tuple(index + r for r in rows)
+    else:
+        out = tuple(index(r) for r in rows)
+    if out and out[-1] - out[0] == len(out) - 1 and all(b - a == 1 for a, b in zip(out, out[1:])):
+        return range(out[0], out[-1] + 1)
+    return out
 
 
 @dataclass(frozen=True, eq=False)
