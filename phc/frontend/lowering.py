@@ -38,13 +38,6 @@ from phc.frontend.files import FileAccess
 from phc.frontend.source_map import SourceSpan
 
 
-
-def _set_fields(obj, names, values) -> None:
-    """Set a frozen slotted instance's fields (as its ``__init__`` would, without it)."""
-    for name, value in zip(names, values):
-        object.__setattr__(obj, name, value)
-
-
 class ReadOnlySequence(SequenceABC):
     """A read-only view of a list (no copy): what a lowerer sees of a list the elaborate
     pass extends between lowerings."""
@@ -465,7 +458,7 @@ class _Template:
             if not any(a in self._computed for _, a in items):
                 return self._const(v)
             if hasattr(t, "__post_init__") or not (hasattr(v, "__dict__") or hasattr(t, "__slots__")):
-                # (a slotted class's instances are their fields as well: set by `setfields`)
+                # (a slotted class's instances are their fields as well: made by its __init__)
                 return self._step(v, "dataclass", (t, items))
             # every field given and nothing run after __init__: the instance is its fields,
             # set without the frozen class's __init__ (object.__setattr__ per field)
@@ -509,10 +502,10 @@ class _Template:
                     else f"{obj(t)}({items(args)})"
             elif kind == "fields":  # every field given, nothing run after __init__: set them
                 t, names, args = data
-                lines.append(f"    v{slot} = new({obj(t)})")
-                if t.__dictoffset__ == 0:  # a slotted class (Variable, Equation): no __dict__
-                    lines.append(f"    setfields(v{slot}, {obj(tuple(names))}, {items(args)})")
+                if t.__dictoffset__ == 0:  # a slotted class (Variable, Equation): its __init__, by position
+                    lines.append(f"    v{slot} = {obj(t)}{items(args)}")
                 else:
+                    lines.append(f"    v{slot} = new({obj(t)})")
                     lines.append(f"    v{slot}.__dict__.update(zip({obj(tuple(names))}, {items(args)}))")
                 computed.add(slot)
                 continue
@@ -540,7 +533,7 @@ class _Template:
             computed.add(slot)
         lines.append(f"    return {ref(self.root)}")
         namespace = {"C": self.values, "K": extra, "new": object.__new__, "symbol": real_symbol,
-                     "upow": unevaluated_pow, "setfields": _set_fields}
+                     "upow": unevaluated_pow}
         exec(compile("\n".join(lines) + "\n",  # safe: phc's own text from slots and indices, no model text
                      f"<phc.frontend.lowering template of {len(self.steps)} steps>",
                      "exec", dont_inherit=True), namespace)
