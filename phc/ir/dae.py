@@ -69,6 +69,15 @@ def real_symbol(name: str) -> sp.Symbol:
     return _MAKE_REAL(name) if _MAKE_REAL is not None else sp.Symbol(name, real=True)
 
 
+def _slotted_getstate(self) -> tuple:
+    return tuple(getattr(self, name) for name in self.__slots__)
+
+
+def _slotted_setstate(self, state) -> None:
+    for name, value in zip(self.__slots__, state):
+        object.__setattr__(self, name, value)
+
+
 @dataclass(frozen=True, slots=True)
 class Variable:
     """One unknown of the DAE (slotted, as :class:`Equation`: a mesh of 10⁵ elements has
@@ -87,6 +96,10 @@ class Variable:
     dsymbol: Optional[sp.Symbol] = None
     span: Optional[SourceSpan] = None
 
+    # pickled as its fields in order (Python 3.10's first releases could not unpickle a
+    # frozen slotted dataclass by themselves)
+    __getstate__, __setstate__ = _slotted_getstate, _slotted_setstate
+
 
 @dataclass(frozen=True, slots=True)
 class Equation:
@@ -97,6 +110,8 @@ class Equation:
     kind: str
     component: str
     span: Optional[SourceSpan] = None
+
+    __getstate__, __setstate__ = _slotted_getstate, _slotted_setstate  # as Variable's
 
 
 @dataclass(frozen=True)
