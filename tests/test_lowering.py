@@ -83,7 +83,7 @@ def test_sparse_rows_count_from_the_component_and_are_shifted_when_folded(tmp_pa
     own = [i for i, eq in enumerate(elab.equations) if eq.component == "s"]
     assert before > 0 and own[0] == before
     for block, folded in zip(alone.linear_blocks, [b for b in elab.linear_blocks if b.component == "s"]):
-        assert folded.rows == tuple(before + r for r in block.rows)
+        assert tuple(folded.rows) == tuple(before + r for r in block.rows)  # a range (consecutive rows)
     assert [(elab.equations[i].label, str(elab.equations[i].expr)) for i in own] == \
         [(label, expr) for label, expr, _ in _rows(alone)]
 

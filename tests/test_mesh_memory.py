@@ -188,3 +188,53 @@ def test_kind_groups_are_the_names_grouped_by_kind():
         expected.setdefault(kind_of(name), []).append(j)
     got = kind_groups(names)
     assert [g.tolist() for g in got] == [m for m in expected.values() if len(m) > 1]
+
+
+def test_a_mesh_keeps_no_object_per_row_beyond_its_rows(tmp_path):
+    """Issue 35: what the assembled system holds per unknown. Its variables and equations
+    are slotted (no ``__dict__`` each), a sparse block's rows are a ``range`` (no Python int
+    per row), and the component rows the rows check reads are views of the same objects
+    (no tuple per row), read as the tuples they stand for; the system pickles (the caches,
+    Dask) and comes back equal."""
+    import pickle
+
+    from phc.ir.dae import FieldTuples
+
+    path = tmp_path / "beam40.yaml"
+    path.write_text(BEAM.format(n=40))
+    dae, _ = build_dae(path)
+    assert not any(hasattr(v, "__dict__") for v in dae.variables)
+    assert not any(hasattr(eq, "__dict__") for eq in dae.equations)
+    assert dae.linear_blocks and all(isinstance(b.rows, range) for b in dae.linear_blocks)
+    covered = sorted(r for b in dae.linear_blocks for r in b.rows)
+    assert covered == sorted(i for i, eq in enumerate(dae.equations) if eq.kind == "linear")
+    for b in dae.linear_blocks:  # the block's rows are its own, in order: label[0], label[1], ...
+        assert [dae.equations[r].label for r in b.rows] == [f"{b.label}[{k}]" for k in range(len(b.rows))]
+    (beam,) = [r for r in dae.topology.rows if r.component == "beam"]
+    assert isinstance(beam.equations, FieldTuples) and isinstance(beam.variables, FieldTuples)
+    pairs = tuple(beam.equations)
+    assert beam.equations == pairs and len(pairs) == len(beam.equations) and beam.equations[-1] == pairs[-1]
+    assert beam.equations[1:3] == pairs[1:3] and all(type(p) is tuple and len(p) == 2 for p in pairs)
+    linear = {eq.label: eq.expr for eq in dae.equations if eq.kind == "linear" and eq.component == "beam"}
+    assert set(linear) <= set(dict(pairs))  # the boundary rows' couplings are assembled into them
+    viewed = {id(eq) for eq in beam.equations.objects}  # the rows assembly kept as they were: shared
+    shared = [eq for eq in dae.equations if id(eq) in viewed]
+    assert len(shared) >= len(linear) - 8 and all(dict(pairs)[eq.label] is eq.expr for eq in shared)
+    own = {v.symbol: (v.dsymbol, v.role) for v in dae.variables if v.component == "beam"}
+    assert all(own[s] == (ds, role) for s, ds, role in beam.variables if s in own)
+    back = pickle.loads(pickle.dumps(dae))
+    assert back.variables == dae.variables and back.equations == dae.equations
+    assert [b.rows for b in back.linear_blocks] == [b.rows for b in dae.linear_blocks]
+    assert tuple(back.topology.rows[0].equations) == tuple(dae.topology.rows[0].equations)
+
+
+def test_shifted_rows_are_a_range_exactly_when_consecutive():
+    from phc.ir.dae import shifted_rows
+
+    assert shifted_rows(range(3, 7), 10) == range(13, 17)
+    assert shifted_rows((3, 4, 5), 2) == range(5, 8)
+    assert shifted_rows((3, 5), 2) == (5, 7)
+    index = {0: 4, 1: 5, 2: 6, 3: 9}
+    assert shifted_rows(range(3), index.__getitem__) == range(4, 7)
+    assert shifted_rows(range(4), index.__getitem__) == (4, 5, 6, 9)
+    assert shifted_rows((), 5) == ()

@@ -46,7 +46,7 @@ import sympy as sp
 
 from phc.analysis.order import topological_order
 from phc.frontend.budget import MeshLedger
-from phc.ir.dae import Equation, Invariant, Parameter, Variable
+from phc.ir.dae import Equation, Invariant, Parameter, Variable, shifted_rows
 from phc.diagnostics import Diagnostic, DiagnosticList
 from phc.ir.interconnect import MODULATED, reading_order, state_reads
 from phc.frontend.files import MAX_INCLUDE_DEPTH, MAX_MODEL_INSTANCES, FileAccess, FileRefused
@@ -125,11 +125,11 @@ class _Elaborator(Reporter):
         """Each lowered component's rows as its lowerer emitted them (before assembly
         substitutes definitions and merges ports): what :mod:`phc.checks.rows` compares
         with the component's description."""
-        from phc.ir.dae import ComponentRows
+        from phc.ir.dae import ComponentRows, FieldTuples
 
         equations: dict[str, list] = {}
-        for eq in self.equations:
-            equations.setdefault(eq.component, []).append((eq.label, eq.expr))
+        for eq in self.equations:  # the Equation objects: read as (label, expr) pairs
+            equations.setdefault(eq.component, []).append(eq)
         sparse = {blk.component for blk in self.linear_blocks}
         definitions: dict[str, list] = {}
         for sym, expr in self.definitions.items():
@@ -137,10 +137,11 @@ class _Elaborator(Reporter):
             if owner is not None:
                 definitions.setdefault(owner, []).append((sym, expr))
         variables: dict[str, list] = {}
-        for v in self.variables:
-            variables.setdefault(v.component, []).append((v.symbol, v.dsymbol, v.role))
-        return tuple(ComponentRows(name, tuple(equations.get(name, ())), tuple(definitions.get(name, ())),
-                                   tuple(variables.get(name, ())), name in sparse,
+        for v in self.variables:  # read as (symbol, dsymbol, role)
+            variables.setdefault(v.component, []).append(v)
+        return tuple(ComponentRows(name, FieldTuples(equations.get(name, ()), ("label", "expr")),
+                                   tuple(definitions.get(name, ())),
+                                   FieldTuples(variables.get(name, ()), ("symbol", "dsymbol", "role")), name in sparse,
                                    derived=name not in self.hand_written)
                      for name, _, _ in self.components if name not in self.failed)
 
@@ -596,7 +597,7 @@ class _Elaborator(Reporter):
         start = len(self.equations)
         self.variables.extend(lowering.variables)
         self.equations.extend(lowering.equations)
-        self.linear_blocks.extend(dataclasses.replace(block, rows=tuple(start + r for r in block.rows))
+        self.linear_blocks.extend(dataclasses.replace(block, rows=shifted_rows(block.rows, start))
                                   for block in lowering.linear_blocks)
         for sym, expr in lowering.definitions:
             self.definitions[sym] = expr

@@ -242,7 +242,7 @@ class Recorder(Reporter):
         start = len(self.equations)
         for i in range(n_rows):
             self.equations.append(Equation(sp.Integer(0), f"{component}.{label}[{i}]", "linear", component, span))
-        rows = tuple(range(start, start + n_rows))
+        rows = range(start, start + n_rows)
         self.linear_blocks.append(LinearBlock(f"{component}.{label}", component, rows, tuple(terms), span))
         return list(rows)
 
@@ -413,7 +413,7 @@ class _Template:
 
     def _new_slot(self, v) -> int:
         t = type(v)
-        if v is None or t in (bool, int, float):
+        if v is None or t in (bool, int, float, range):  # a range: a sparse block's rows
             return self._const(v)
         if t is str:
             renamed = self._rename(v)
@@ -457,7 +457,8 @@ class _Template:
             items = [(f.name, self._slot(getattr(v, f.name))) for f in fields]
             if not any(a in self._computed for _, a in items):
                 return self._const(v)
-            if hasattr(t, "__post_init__") or not hasattr(v, "__dict__"):
+            if hasattr(t, "__post_init__") or not (hasattr(v, "__dict__") or hasattr(t, "__slots__")):
+                # (a slotted class's instances are their fields as well: made by its __init__)
                 return self._step(v, "dataclass", (t, items))
             # every field given and nothing run after __init__: the instance is its fields,
             # set without the frozen class's __init__ (object.__setattr__ per field)
@@ -501,8 +502,11 @@ class _Template:
                     else f"{obj(t)}({items(args)})"
             elif kind == "fields":  # every field given, nothing run after __init__: set them
                 t, names, args = data
-                lines.append(f"    v{slot} = new({obj(t)})")
-                lines.append(f"    v{slot}.__dict__.update(zip({obj(tuple(names))}, {items(args)}))")
+                if t.__dictoffset__ == 0:  # a slotted class (Variable, Equation): its __init__, by position
+                    lines.append(f"    v{slot} = {obj(t)}{items(args)}")
+                else:
+                    lines.append(f"    v{slot} = new({obj(t)})")
+                    lines.append(f"    v{slot}.__dict__.update(zip({obj(tuple(names))}, {items(args)}))")
                 computed.add(slot)
                 continue
             elif kind == "dataclass":

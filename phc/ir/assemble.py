@@ -31,7 +31,7 @@ from typing import Optional
 import sympy as sp
 
 from phc.ir.dae import (STORED_ENERGY, T, Dae, Equation, InitialValue, Invariant, LinearBlock, PortInfo, TermSum,
-                     Topology, Variable)
+                     Topology, Variable, shifted_rows)
 from phc.ir.alike import AlikeReplacer
 from phc.diagnostics import Diagnostic, DiagnosticList
 from phc.frontend.inputs import SignalBuilder
@@ -268,7 +268,7 @@ def _assemble(elab, rep, ctx, inter) -> Optional[Dae]:
             for sym in term.symbols:  # sparse blocks refer to internal variables only
                 if sym in subs and subs[sym] != sym:
                     raise AssertionError(f"linear block `{block.label}` refers to the port variable `{sym}`")
-        linear_blocks.append(LinearBlock(block.label, block.component, tuple(new_index[r] for r in block.rows),
+        linear_blocks.append(LinearBlock(block.label, block.component, shifted_rows(block.rows, new_index.__getitem__),
                                          block.terms, block.span))
 
     # sp.Add(*terms) is linear in the number of terms; Python's sum() re-canonicalizes

@@ -69,9 +69,19 @@ def real_symbol(name: str) -> sp.Symbol:
     return _MAKE_REAL(name) if _MAKE_REAL is not None else sp.Symbol(name, real=True)
 
 
-@dataclass(frozen=True)
+def _slotted_getstate(self) -> tuple:
+    return tuple(getattr(self, name) for name in self.__slots__)
+
+
+def _slotted_setstate(self, state) -> None:
+    for name, value in zip(self.__slots__, state):
+        object.__setattr__(self, name, value)
+
+
+@dataclass(frozen=True, slots=True)
 class Variable:
-    """One unknown of the DAE.
+    """One unknown of the DAE (slotted, as :class:`Equation`: a mesh of 10⁵ elements has
+    about 8·10⁵ of each, and an instance's ``__dict__`` was a third of its size).
 
     `role` is one of: ``state``, ``velocity``, ``flow``, ``effort``, ``multiplier``,
     ``resistive``, ``energy``. Differential variables are the energy (storage) states and
@@ -86,8 +96,12 @@ class Variable:
     dsymbol: Optional[sp.Symbol] = None
     span: Optional[SourceSpan] = None
 
+    # pickled as its fields in order (Python 3.10's first releases could not unpickle a
+    # frozen slotted dataclass by themselves)
+    __getstate__, __setstate__ = _slotted_getstate, _slotted_setstate
 
-@dataclass(frozen=True)
+
+@dataclass(frozen=True, slots=True)
 class Equation:
     """One residual row ``expr = 0`` with its origin (component, kind, label, source)."""
 
@@ -96,6 +110,8 @@ class Equation:
     kind: str
     component: str
     span: Optional[SourceSpan] = None
+
+    __getstate__, __setstate__ = _slotted_getstate, _slotted_setstate  # as Variable's
 
 
 @dataclass(frozen=True)
@@ -146,13 +162,29 @@ class LinearTerm:
 
 @dataclass(frozen=True, eq=False)
 class LinearBlock:
-    """Rows `rows` of the residual get ``Σ terms`` added to their sympy part."""
+    """Rows `rows` of the residual get ``Σ terms`` added to their sympy part. `rows` is a
+    ``range`` where they are consecutive (a mesh's: no Python int per row), else a tuple;
+    :func:`shifted_rows` moves them."""
 
     label: str
     component: str
     rows: tuple[int, ...]
     terms: tuple[LinearTerm, ...]
     span: Optional[SourceSpan] = None
+
+
+def shifted_rows(rows, index) -> "range | tuple[int, ...]":
+    """`rows` (of a :class:`LinearBlock`) mapped by `index` (an offset added to each, or a
+    callable on a row index): a ``range`` when the images are consecutive, else a tuple."""
+    if isinstance(index, int):
+        if isinstance(rows, range) and rows.step == 1:
+            return range(rows.start + index, rows.stop + index)
+        out = tuple(index + r for r in rows)
+    else:
+        out = tuple(index(r) for r in rows)
+    if out and out[-1] - out[0] == len(out) - 1 and all(b - a == 1 for a, b in zip(out, out[1:])):
+        return range(out[0], out[-1] + 1)
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -376,11 +408,54 @@ DiracRelations = ComponentDescription
 """The former name (the certificate reads only the Dirac part)."""
 
 
+class FieldTuples(Sequence):
+    """``tuple((getattr(o, a) for a in names) for o in objects)``, made when read: a
+    component's rows (:class:`ComponentRows`) as views of its :class:`Equation` and
+    :class:`Variable` objects, which the DAE holds anyway, instead of a tuple of tuples per
+    row (10⁵ elements: about 8·10⁵ rows and as many variables). It reads as a tuple of
+    tuples: indexing, iteration, ``len``, ``==`` with one."""
+
+    __slots__ = ("objects", "names")
+
+    def __init__(self, objects, names: tuple[str, ...]) -> None:
+        self.objects, self.names = tuple(objects), tuple(names)
+
+    def _item(self, o) -> tuple:
+        return tuple(getattr(o, a) for a in self.names)
+
+    def __len__(self) -> int:
+        return len(self.objects)
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return tuple(self._item(o) for o in self.objects[index])
+        return self._item(self.objects[index])
+
+    def __iter__(self):
+        return (self._item(o) for o in self.objects)
+
+    def __eq__(self, other):
+        return isinstance(other, (FieldTuples, tuple, list)) and len(self) == len(other) and all(
+            a == b for a, b in zip(self, other))
+
+    __hash__ = None
+
+    def __repr__(self) -> str:
+        return repr(tuple(self))
+
+    def __getstate__(self):
+        return (self.objects, self.names)
+
+    def __setstate__(self, state) -> None:
+        self.objects, self.names = state
+
+
 @dataclass(frozen=True, eq=False)
 class ComponentRows:
     """The rows a lowerer emitted for one component, before assembly: residual rows
     ``expr = 0`` as ``(label, expr)``, explicit definitions ``symbol = expr`` and the component's own variables
-    as ``(symbol, rate symbol or None, role)``. `sparse` is True when some rows have
+    as ``(symbol, rate symbol or None, role)`` (each may be a :class:`FieldTuples`, a view
+    of the rows' :class:`Equation` and :class:`Variable` objects). `sparse` is True when some rows have
     sparse matrix parts (:class:`LinearBlock`). `derived` is True when every row was
     derived from the component's description (:func:`phc.library.dirac.emit`); rows a
     lowerer wrote itself are compared with the description when compiling
