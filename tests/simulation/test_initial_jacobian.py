@@ -156,3 +156,48 @@ def test_structure_is_reused_with_this_start_s_row_scaling():
         np.testing.assert_array_equal(again.kept, fresh.kept)
         np.testing.assert_array_equal(J, fresh.jacobian(u).toarray())
         np.testing.assert_array_equal(again.G(u), fresh.G(u))
+
+
+def test_refining_steps_share_the_newton_matrix_of_the_first_converged_iterate():
+    """The refining steps after convergence (POLISH_STEPS) take the Newton matrix of the first
+    converged iterate: one matrix for all of them (a restart at every event of a run pays for
+    each), and the same root as refining with a fresh matrix at every step."""
+    from phc.simulation import initial
+    from phc.simulation.chord import max_norm
+    from phc.simulation.gauss_newton import gauss_newton
+
+    mod, _, _ = _chain(5)
+    y = np.random.default_rng(3).normal(size=mod.N)
+    tol = 1e-11
+
+    def problem():
+        prob = _Problem(mod, None, 0.3, y, {7})
+        prob.matrices = []
+        dense = prob.dense_jacobian
+
+        def counted(u):
+            prob.matrices.append(u.copy())
+            return dense(u)
+
+        prob.dense_jacobian = counted
+        return prob
+
+    prob = problem()
+    u, iterations = initial._solve(prob, tol, 25)
+    assert initial.POLISH_STEPS >= 2 and iterations > initial.POLISH_STEPS  # refined after some steps
+    # the steps up to convergence each at their own iterate, then one matrix for the refining steps
+    plain = problem()
+    unrefined = gauss_newton(plain.pack(), lambda v: (plain.G(v), None),
+                             lambda v, g, _: plain.step(plain.dense_jacobian(v), g), tol=tol, max_iter=25,
+                             keep_best=True)
+    assert len(prob.matrices) == len(plain.matrices) + 1
+    np.testing.assert_array_equal(prob.matrices[-1], unrefined.x)  # the first converged iterate
+    # refined as with a fresh matrix at every step: the same root to round-off (the rows are
+    # equilibrated to unit size and the unknowns are O(1): 100 units of round-off)
+    fresh = problem()
+    refined = gauss_newton(fresh.pack(), lambda v: (fresh.G(v), None),
+                           lambda v, g, _: fresh.step(fresh.dense_jacobian(v), g), tol=tol, max_iter=25,
+                           polish=initial.POLISH_STEPS, keep_best=True)
+    assert len(fresh.matrices) == len(prob.matrices) + initial.POLISH_STEPS - 1
+    assert max_norm(prob.G(u)) <= 1e-14
+    assert max_norm(u - refined.x) <= 1e-14 * (1.0 + max_norm(refined.x))
