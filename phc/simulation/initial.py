@@ -65,8 +65,7 @@ ENERGY_METRIC_LIMIT = 300
 costs n²/2 evaluations of H); beyond, in their nominal scales."""
 
 POLISH_STEPS = 3
-"""Gauss–Newton steps after convergence that refine the solution to round-off (with the Newton
-matrix of the first converged iterate: :func:`_solve`)."""
+"""Gauss–Newton steps after convergence that refine the solution to round-off."""
 
 
 STRUCTURE_CACHE = 32
@@ -783,24 +782,10 @@ def _solve(prob: _Problem, tol: float, max_iter: int, rescue: bool = True):
     # still off. So take the refining steps and keep the last iterate that stays converged.
     # a small problem (solved dense anyway) takes its Newton matrix dense: building a sparse
     # one costs more than the whole solve of a few unknowns (a restart at every event of a run)
-    # The refining steps share one Newton matrix, the one at the first converged iterate: they
-    # move the iterate by about the tolerance, which changes the matrix far less than its
-    # finite-difference columns are accurate to (relative steps of 1e-7), and their fixed
-    # point is the same (G = 0). Each fresh matrix cost as much as the rest of the step (a
-    # restart at every event of a run: two solves, three refining steps each).
     rows, cols = prob.shape()
     jacobian = prob.dense_jacobian if rows * cols <= DENSE_SOLVE_LIMIT else prob.jacobian
-    kept = []
-
-    def step(u, g, _):
-        if _norm(g) > tol:
-            return prob.step(jacobian(u), g)
-        if not kept:  # the first refining step (gauss_newton refines converged iterates only)
-            kept.append(jacobian(u))
-        return prob.step(kept[0], g)
-
-    out = gauss_newton(prob.pack(), lambda u: (prob.G(u), None), step, tol=tol, max_iter=max_iter,
-                       polish=POLISH_STEPS, keep_best=True)
+    out = gauss_newton(prob.pack(), lambda u: (prob.G(u), None), lambda u, g, _: prob.step(jacobian(u), g),
+                       tol=tol, max_iter=max_iter, polish=POLISH_STEPS, keep_best=True)
     best, size, it = out
     if rescue and size > tol and len(best) * len(prob.G(best)) <= DENSE_LIMIT:
         sol = least_squares(prob.G, best, lambda x: prob.jacobian(x).toarray(), max_nfev=200)
