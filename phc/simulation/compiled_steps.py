@@ -187,15 +187,33 @@ def _address(func, sig):
     """`func` (a numba dispatcher compiled for `sig`) as an object of numba's wrapper-address
     protocol holding its address: numba looks the address of a dispatcher passed as a
     first-class function up on every call of the kernel (about 0.1 ms each, six functions a
-    chunk), this object hands it over. It keeps `func` alive, and with it the machine code."""
+    chunk), this object hands it over, and its numba type is made once (:func:`_compiled_class`).
+    It keeps `func` alive, and with it the machine code."""
+    return _compiled_class()(func, sig)
+
+
+_COMPILED = []
+"""The class of :func:`_address`'s objects, made once per process (:func:`_compiled_class`)."""
+
+
+def _compiled_class():
+    """The class of :func:`_address`'s objects, with numba's type of an argument (``typeof``)
+    registered for it: each object's type, made once. numba's own rule for the protocol builds a
+    new ``FunctionType`` of the signature at every call of the kernel, about 20 µs for each of the
+    seven functions a chunk takes (a new chunk at every event of a run with switching
+    conditions)."""
+    if _COMPILED:
+        return _COMPILED[0]
     from numba.core import types
     from numba.experimental.function_type import _get_wrapper_address
+    from numba.extending import typeof_impl
 
     class _Compiled(types.WrapperAddressProtocol):
-        __slots__ = ("func", "_sig", "_addr")
+        __slots__ = ("func", "_sig", "_addr", "numba_type")
 
-        def __init__(self):
+        def __init__(self, func, sig):
             self.func, self._sig, self._addr = func, sig, _get_wrapper_address(func, sig)
+            self.numba_type = types.FunctionType(sig)
 
         def __wrapper_address__(self):
             return self._addr
@@ -203,7 +221,12 @@ def _address(func, sig):
         def signature(self):
             return self._sig
 
-    return _Compiled()
+    @typeof_impl.register(_Compiled)
+    def _typeof_compiled(val, c):
+        return val.numba_type
+
+    _COMPILED.append(_Compiled)
+    return _Compiled
 
 
 def _lookup(raw, ready):

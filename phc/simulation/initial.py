@@ -392,25 +392,30 @@ class _Problem:
         position[self.free] = np.arange(nf)
         dpos = np.full(n, -1, dtype=np.int64)
         dpos[self.dif] = np.arange(nd)
-        C = self.C.tocoo()
+        if self.C.shape[0]:
+            C = self.C.tocoo()
+            c_row, c_col, c_data, cy = C.row, C.col, C.data, self.C @ self.y - self.c
+        else:  # no initial relations (a restart at an event): no sparse matrices for nothing
+            c_row = c_col = np.zeros(0, dtype=np.int64)
+            c_data = cy = np.zeros(0)
         ey = np.flatnonzero((position[cols] >= 0) & (jy0 != 0))
         eyp = np.flatnonzero((dpos[cols] >= 0) & (jyp0 != 0))
-        ec = np.flatnonzero((position[C.col] >= 0) & (C.data != 0))
+        ec = np.flatnonzero((position[c_col] >= 0) & (c_data != 0))
         curved = np.zeros(m, dtype=bool)  # a derivative by an unknown varies
         curved[rows[((position[cols] >= 0) & (jy0 != jy1)) | (jyp0 != jyp1)]] = True
-        keep = np.concatenate([~curved, np.ones(C.shape[0], dtype=bool)])
-        g0 = np.concatenate([self.row_scale * f0, self.C @ self.y - self.c])
+        keep = np.concatenate([~curved, np.ones(len(cy), dtype=bool)])
+        g0 = np.concatenate([self.row_scale * f0, cy])
         touched = np.zeros(len(g0), dtype=bool)  # rows with an unknown
-        touched[np.concatenate([rows[ey], rows[eyp], m + C.row[ec]])] = True
+        touched[np.concatenate([rows[ey], rows[eyp], m + c_row[ec]])] = True
         if not np.all(np.isfinite(g0[keep])):
             return False
         if _norm(g0[keep & ~touched]) > bound:
             return True  # a row of held values only that misses the bound
         at = np.where(keep, np.cumsum(keep) - 1, -1)  # row of A of each row of G
-        scale = np.concatenate([self.row_scale, np.ones(C.shape[0])])
+        scale = np.concatenate([self.row_scale, np.ones(len(cy))])
         ar, ac, av = [], [], []
         for r, c, v in ((rows[ey], position[cols[ey]], jy0[ey]), (rows[eyp], nf + dpos[cols[eyp]], jyp0[eyp]),
-                        (m + C.row[ec], position[C.col[ec]], C.data[ec])):
+                        (m + c_row[ec], position[c_col[ec]], c_data[ec])):
             k = at[r] >= 0
             ar.append(at[r[k]])
             ac.append(c[k])

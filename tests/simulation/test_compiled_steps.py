@@ -386,6 +386,8 @@ def test_near_a_singular_configuration_the_corrections_go_back_to_double(compile
 def test_the_model_functions_are_looked_up_once_per_module(compiled):
     """The compiled functions reach the kernel as numba wrapper-address objects made once per
     module: the same objects on every run, with the addresses numba itself would look up."""
+    import numba
+    from numba.core import types
     from numba.experimental.function_type import _get_wrapper_address
 
     from phc.simulation import compiled_steps as cs
@@ -397,6 +399,8 @@ def test_the_model_functions_are_looked_up_once_per_module(compiled):
     for obj, name in zip(first, cs._FUNCTION_NAMES):
         assert obj.signature() == sigs[name]
         assert obj.__wrapper_address__() == _get_wrapper_address(obj.func, sigs[name])
+        # numba's type of the argument, made once per object, is the one its own rule makes
+        assert numba.typeof(obj) is obj.numba_type and obj.numba_type == types.FunctionType(sigs[name])
 
 
 def test_the_cache_stamp_covers_every_file_the_loop_is_compiled_from():
