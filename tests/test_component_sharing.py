@@ -664,3 +664,29 @@ def test_energy_sizes_of_a_c_module_take_the_later_rounds_from_one_call_and_read
     sizes, _ = run(raw, True)
     assert not sizes.any() and calls == [6, 28]
     assert not run(raw, False)[0].any()
+
+
+@libyaml
+def test_plain_large_file_is_built_as_the_general_builder_builds_it(monkeypatch):
+    """A plain document (no alias, string keys, none twice) is built by ``build_plain``,
+    without the memo of shared nodes: the same data and the same diagnostics as
+    ``_Builder.build``, for every kind of scalar, the tagged collections that ``build``
+    hands to PyYAML's constructor, and a value that cannot be built (issue 38)."""
+    text = _big(chain_yaml(41) + "extra:\n  i: 0x1F\n  f: 2.5e-3\n  b: [on, false]\n  n: ~\n"
+                "  d: 2024-01-02\n  q: '007'\n  o: !!omap [{a: 1}, {b: 2}]\n  s: !!set {x, y}\n"
+                "  p: !!pairs [{a: 1}]\n  bad: !!int twelve\n  nested: {a: [[1, {b: c}]]}\n")
+    ok, root, plain = phc.frontend.source._fast_compose(text)
+    assert ok and plain is not None  # the composition found it plain
+    general = phc.frontend.source._Builder("m.yaml")
+    fast = phc.frontend.source._Builder("m.yaml")
+    data = general.build(root)
+    assert fast.build_plain(root) == data
+    assert data["extra"]["i"] == 31 and data["extra"]["b"] == [True, False] and data["extra"]["q"] == "007"
+    assert data["extra"]["bad"] is None and data["extra"]["nested"] == {"a": [[1, {"b": "c"}]]}
+    assert [(d.code, d.message, d.span) for d in fast.diags] == [(d.code, d.message, d.span) for d in general.diags]
+    assert [d.span.line for d in general.diags] == [text.splitlines().index("  bad: !!int twelve") + 1]
+    used = []
+    monkeypatch.setattr(phc.frontend.source._Builder, "build_plain",
+                        lambda self, node: used.append(1) or phc.frontend.source._Builder.build(self, node))
+    phc.frontend.source.load_yaml(text, "m.yaml")
+    assert used == [1]  # load_yaml took the plain builder
