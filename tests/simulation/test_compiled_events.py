@@ -235,3 +235,28 @@ def test_a_c_library_without_switching_functions_keeps_the_python_loop(tmp_path,
     slow = phc.simulate(model, solver="midpoint", step=1e-3)
     assert fast.success and fast.events and "c" not in step_loops
     assert np.array_equal(fast.y, slow.y)
+
+
+def test_auto_without_c_runs_a_long_event_run_on_numbas_loop(tmp_path, monkeypatch, step_loops):
+    """``auto`` where C is not used (the compiler blocked while the model compiles): the small
+    model is the NumPy module, and a fixed-step run of at least AUTO_LOOP_STEPS steps with
+    switching conditions switches to numba's compiled loop, which watches them
+    (phc.simulation.fixed_step_plan excludes contacts alone); the events are the NumPy module's
+    Python loop's, each time within the locator's tolerance."""
+    from phc.codegen import backends, cc
+
+    path = tmp_path / "auto.yaml"
+    path.write_text(COULOMB)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(cc, "available", lambda: (False, "no C compiler found (test)"))
+        model = phc.compile_model(path, certify=False, backend="auto")
+    assert model.backend == "numpy"
+    h = 1e-3
+    assert 5.0 / h >= backends.AUTO_LOOP_STEPS  # the model's t_end: a long run
+    fast = phc.simulate(model, solver="midpoint", step=h)
+    assert fast.backend == "numba" and "compiled step loop" in fast.backend_note, fast.backend_note
+    assert step_loops and set(step_loops) == {"numba"}
+    slow = phc.simulate(model, solver="midpoint", step=h, backend="numpy")
+    assert slow.backend == "numpy"
+    _same_events(fast, slow, h)
+    assert_same_trajectory(fast, slow, h)
