@@ -2,7 +2,7 @@
 
 When a model runs on the ``c`` backend (:mod:`phc.codegen.c_backend`), has at most
 :data:`~phc.simulation.compiled_steps.MAX_UNKNOWNS` unknowns and is integrated by a fixed-step
-method (``midpoint``, ``discrete_gradient``, ``midpoint4``) without switching conditions, its
+method (``midpoint``, ``discrete_gradient``, ``midpoint4``) without contacts, its
 steps run in one C function, ``phc_steps_chunk`` of the step library, that
 calls the model's compiled residual, Jacobian, position invariants, Hamiltonian, energy scale and
 port powers through function pointers (no Python in between). The step logic the Python loop and
@@ -18,8 +18,9 @@ steps (:func:`~phc.simulation.step_logic.discrete_gradient`,
 parameters (:func:`entry`), and puts both into steps.c (when the library is built, and into an
 exported FMU's sources). Written by hand in steps.c are the operations those call
 (``_operations``: the matrix's age, refactor, correct, one stage, one step of the run's method,
-and the singularity monitor's routine look — a 1-norm condition estimate of the equilibrated
-iteration matrix, as LAPACK's ``dgecon`` is in the numba kernel), with a dense LU with partial
+the singularity monitor's routine look — a 1-norm condition estimate of the equilibrated
+iteration matrix, as LAPACK's ``dgecon`` is in the numba kernel — and the watch of a run's
+switching functions, ``op_watch``, which calls the model library's ``phc_events``), with a dense LU with partial
 pivoting of the Newton matrix equilibrated as the Python loop's sparse LU is
 (:func:`phc.simulation.midpoint.equilibration`); its header says what the numba loop does that
 it does not (mixed-precision corrections: here every correction is in double precision) and

@@ -4,7 +4,9 @@ switching conditions steps in the compiled loop between events, which hands back
 whose end a switching function has fallen through zero; the Python loop's code locates the
 event. Against the Python loop (``PHC_COMPILED_LOOP=0``) on the same compiled functions: the
 same events, their times within the location tolerance, the same trajectory to the Newton
-tolerance; against closed forms where the motion has one."""
+tolerance; against closed forms where the motion has one. The C back end's loop (steps.c's
+``op_watch`` on the model library's ``phc_events``) against both: the same events, their times
+within the location tolerance, the same trajectory to the Newton tolerance."""
 
 from __future__ import annotations
 
