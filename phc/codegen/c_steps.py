@@ -453,4 +453,4 @@ def watches(raw) -> bool:
     return lib is not None and hasattr(lib, "phc_events")
 
 
-__all__ = ["ABI", "DENSE_LU", "DENSE_LU_MARKER", "FLAGS", "MARKER", "METHODS", "SOURCE", "TRANSLATED", "bind", "along", "library", "make_source", "midpoint_steps", "probe_values", "say_unused", "source", "translation", "usable", "why_not", "with_dense_lu"]
+__all__ = ["ABI", "DENSE_LU", "DENSE_LU_MARKER", "FLAGS", "MARKER", "METHODS", "SOURCE", "TRANSLATED", "bind", "along", "library", "make_source", "midpoint_steps", "probe_values", "say_unused", "source", "translation", "usable", "watches", "why_not", "with_dense_lu"]
