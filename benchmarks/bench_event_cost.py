@@ -19,6 +19,10 @@ event's cost is the location (regula falsi on shortened steps, each a Newton sol
 the restart from a consistent state (:func:`phc.simulation.events.integrate_switched`) and a
 new entry into the compiled loop.
 
+``--backend c`` runs the same on the C back end (the C step loop, ``phc/codegen/c_runtime/steps.c``,
+watches the switching functions with the model library's ``phc_events``; its Python loop is what a run
+with events on the C back end did before).
+
 CPU time (``time.process_time``): the compiled loop's runs best of ``--repeat`` after one warm-up
 run (which compiles or loads the compiled loop and the model's functions), the Python loop's one
 run (it takes seconds). Run from the repository root:
@@ -93,15 +97,16 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--t-end", type=float, default=20.0)
+    parser.add_argument("--backend", choices=("numba", "c"), default="numba")
     args = parser.parse_args()
     folder = Path(tempfile.mkdtemp())
     models = {}
     for name, law in (("events", "e_fr = Fc*sign(f_fr)"), ("smooth", "e_fr = d*f_fr")):
         path = folder / f"{name}.yaml"
         path.write_text(BLOCK.format(law=law, t_end=args.t_end))
-        models[name] = phc.compile_model(path, certify=False, backend="numba")
-        assert models[name].backend == "numba", "numba is needed"
-    print(f"Driven Coulomb block (F = 2.5 F_c, ω = 3 rad/s) over {args.t_end:g} s, numba back end; CPU time, "
+        models[name] = phc.compile_model(path, certify=False, backend=args.backend)
+        assert models[name].backend == args.backend, f"{args.backend} is needed"
+    print(f"Driven Coulomb block (F = 2.5 F_c, ω = 3 rad/s) over {args.t_end:g} s, {args.backend} back end; CPU time, "
           f"best of {args.repeat} runs (the Python loop: one run).\n")
     print("| method | h | events | steps | µs/step, events, compiled loop | µs/step, events, Python loop "
           "| µs/step, no events (d = 0), compiled loop | one event, in steps (compiled loop) |")

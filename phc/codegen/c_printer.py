@@ -15,6 +15,7 @@ same arguments (arrays as pointers to ``double``)::
     void   phc_invariants(double t, const double *y, const double *p, double *out);
     void   phc_velocity_invariants(double t, const double *y, const double *p, double *out);
     void   phc_outputs(double t, const double *y, const double *yp, const double *p, double *out);
+    void   phc_events(double t, const double *y, const double *yp, const double *p, double *out);
     void   phc_sizes(long long *out);  /* the sizes it was generated for (SIZES below) */
 
 Every function reads its arguments and writes only its `out`: no static mutable state, so
@@ -48,7 +49,7 @@ import numpy as np
 import sympy as sp
 
 from phc import __version__
-from phc.codegen.kernels import CJ, Kernel, _canonical, function_kernels, kernel_cse, product_parts
+from phc.codegen.kernels import CJ, Kernel, _canonical, events_kernel, function_kernels, kernel_cse, product_parts
 from phc.codegen.lower import ResidualIR
 from phc.codegen.numba_emit import _NODES, _RELATIONS, _SIMPLE, _is_switch
 from phc.codegen.printer import _identifier, _Printer
@@ -456,12 +457,14 @@ class CPrinter:
         "invariants": "Position-level invariants g(t, y).",
         "velocity_invariants": "Velocity-level constraints.",
         "outputs": "Requested outputs, in the order of OUTPUTS.",
+        "events": "Switching functions: out[k] = g_k of SWITCHES[k], then the value of each set-valued sign of "
+                  "STICKS while it sticks (the C step loop watches them).",
     }
 
     def print(self) -> str:
         ir = self.ir
         parts = []
-        for f in function_kernels(ir):  # what each function computes (phc.codegen.kernels)
+        for f in function_kernels(ir) + [events_kernel(ir)]:  # what each function computes (phc.codegen.kernels)
             args = self._HEADS[f.args]
             labels = _Labels(f.labels)
             if f.returns == "scalar":  # the value returned, computed in a local vector of one entry

@@ -2,7 +2,7 @@
 
 When a model runs on the ``c`` backend (:mod:`phc.codegen.c_backend`), has at most
 :data:`~phc.simulation.compiled_steps.MAX_UNKNOWNS` unknowns and is integrated by a fixed-step
-method (``midpoint``, ``discrete_gradient``, ``midpoint4``) without switching conditions, its
+method (``midpoint``, ``discrete_gradient``, ``midpoint4``) without contacts, its
 steps run in one C function, ``phc_steps_chunk`` of the step library, that
 calls the model's compiled residual, Jacobian, position invariants, Hamiltonian, energy scale and
 port powers through function pointers (no Python in between). The step logic the Python loop and
@@ -18,8 +18,9 @@ steps (:func:`~phc.simulation.step_logic.discrete_gradient`,
 parameters (:func:`entry`), and puts both into steps.c (when the library is built, and into an
 exported FMU's sources). Written by hand in steps.c are the operations those call
 (``_operations``: the matrix's age, refactor, correct, one stage, one step of the run's method,
-and the singularity monitor's routine look — a 1-norm condition estimate of the equilibrated
-iteration matrix, as LAPACK's ``dgecon`` is in the numba kernel), with a dense LU with partial
+the singularity monitor's routine look — a 1-norm condition estimate of the equilibrated
+iteration matrix, as LAPACK's ``dgecon`` is in the numba kernel — and the watch of a run's
+switching functions, ``op_watch``, which calls the model library's ``phc_events``), with a dense LU with partial
 pivoting of the Newton matrix equilibrated as the Python loop's sparse LU is
 (:func:`phc.simulation.midpoint.equilibration`); its header says what the numba loop does that
 it does not (mixed-precision corrections: here every correction is in double precision) and
@@ -90,23 +91,8 @@ def _operations() -> dict:
             # condition estimate of the equilibrated iteration matrix, LAPACK's dgecon on its own LU)
             "_advance": Op("op_advance", ("ws", "f", "f", "v", "v", "v"), ("i", "b"), writes=(5,)),
             "_far_from_singular": Op("op_far_from_singular", ("ws", "f", "v", "v", "f"), ("b",)),
-            # the switching functions of a run with events: the C loop runs none (note_events)
+            # the switching functions of a run with events at the step's end (steps.c: the model's phc_events)
             "_watch": Op("op_watch", ("ws", "f", "f", "v", "v"), ("b",))}
-
-
-_WATCH_STUB = """/* step_logic's _watch: a run with switching conditions keeps the Python loop on the C back end
- * (phc.codegen.c_steps.note_events), so no step of this loop has a switching function to watch */
-static int op_watch(int64_t n, const struct phc_steps *w, double t, double h, const double *y, const double *y_new)
-{
-    (void)n;
-    (void)w;
-    (void)t;
-    (void)h;
-    (void)y;
-    (void)y_new;
-    return 0;
-}
-"""
 
 
 _ROWS = {"ys": "nout", "yps": "nout", "pm": "npred"}
@@ -147,7 +133,7 @@ def translation() -> str:
     from phc.codegen.c_translate import PRELUDE, Translator
 
     body = Translator(_sl, _sl.C_SIGNATURES, _operations()).translate(TRANSLATED)
-    return PRELUDE + "\n" + _WATCH_STUB + "\n" + body + "\n" + entry()
+    return PRELUDE + "\n" + body + "\n" + entry()
 
 
 def make_source() -> str:
@@ -180,7 +166,7 @@ compiler vectorizes the LU's column loops, which reorders no sum; no fused multi
 METHODS = ("midpoint", "discrete_gradient", "midpoint4")
 """The fixed-step methods whose step loop is written in C (the others run the Python loop)."""
 
-ABI = 3
+ABI = 4
 """``PHC_STEPS_ABI`` of the steps.c this module binds (the layout of ``struct phc_steps``)."""
 
 MAX_NODES = 16
@@ -204,8 +190,8 @@ def _layout() -> list[int]:
             _sl._TOL, _sl._RATE, _sl._FLOOR, _sl._MAX_AGE, _sl._MAX_NEWTON, _sl._THRESHOLD, _sl._EVERY, _sl._ORDER,
             _sl._ZONE, _sl._STAGNATION, _sl._ORDER_ALG, _sl._BAL_TOL, _sl._MAX_SECANT, _sl._S_MIN, _sl._S_MAX, _sl._G1,
             _sl._G2, _sl._M0, _sl._M1, _sl._M2,
-            _k._BUDGET, _k._DONE, _k._HARD, _k._LOOK, _k._MAXSTEPS, _sl._OK, _sl._FAIL, _sl._SINGULAR, _sl._EVAL,
-            _sl._PASSIVITY,
+            _k._BUDGET, _k._DONE, _k._HARD, _k._LOOK, _k._MAXSTEPS, _sl._EVENT, _sl._OK, _sl._FAIL, _sl._SINGULAR,
+            _sl._EVAL, _sl._PASSIVITY,
             MAX_NODES]
 
 
@@ -224,7 +210,8 @@ class _Steps(ctypes.Structure):
             "lu", "piv", "perm", "eq", "matf",
             "xs", "d", "r", "guess", "yp", "g", "jbuf", "ebuf", "mon", "monpiv", "monv",
             "hamiltonian", "energy_scale", "powers", "hist_t", "hist_v", "sub", "start", "y1in", "y_half", "y_best",
-            "y_sec")]
+            "y_sec", "events")] + [(name, _I) for name in ("nwatch", "nev")] + [
+        (name, _P) for name in ("wmap", "wprev", "wnew", "vbuf", "slope")]
 
 
 def library():
@@ -301,10 +288,14 @@ def _address(a: Optional[np.ndarray]) -> Optional[int]:
 
 
 def bind(raw, p, t_out, ys, yps, y, mid, mid_slope, y_prev, y_new, pt, pm, fst, ist, c, jrows, jcols, end_rows,
-         emask, weights, algmask, colscale, hist_t, hist_v) -> Callable[[int], None]:
+         emask, weights, algmask, colscale, hist_t, hist_v, wmap=None, wprev=None, wnew=None,
+         vbuf=None) -> Callable[[int], None]:
     """``chunk(budget)``: a chunk of steps of the C loop on the driver's arrays (all C-contiguous,
     float64 but the int64 index arrays and int8 masks; kept alive by the closure) with scratch
-    arrays of its own."""
+    arrays of its own. A run with switching conditions passes the watched functions' map `wmap`
+    (3 × m, :func:`phc.simulation.compiled_steps.watch_map`), their values `wprev` at the current
+    step's start and `wnew` (m each) and `vbuf` (the model's ``events`` values): the loop calls
+    the model's ``phc_events`` after each step (steps.c's ``op_watch``)."""
     lib = library()
     n, njac, nend = int(raw.N), len(jrows), len(end_rows)
     if pm.shape[0] > MAX_NODES:
@@ -320,6 +311,11 @@ def bind(raw, p, t_out, ys, yps, y, mid, mid_slope, y_prev, y_new, pt, pm, fst, 
         jbuf=np.zeros(njac), ebuf=np.zeros(njac), mon=np.zeros((n, n)), monpiv=np.zeros(n, np.int64),
         monv=np.zeros(3 * n), hist_t=hist_t, hist_v=hist_v, sub=np.zeros((3, n)), start=np.zeros(n),
         y1in=np.zeros(n), y_half=np.zeros(n), y_best=np.zeros(n), y_sec=np.zeros(n))
+    nwatch = 0 if wmap is None else wmap.shape[1]
+    if nwatch:
+        if wmap.shape != (3, nwatch) or wprev.shape != (nwatch,) or wnew.shape != (nwatch,):
+            raise ValueError(f"the watched functions' map must be 3 x {nwatch} and their values {nwatch} each")
+        arrays.update(wmap=wmap, wprev=wprev, wnew=wnew, vbuf=vbuf, slope=np.zeros(n))
     kinds = {"jrows": np.int64, "jcols": np.int64, "end_rows": np.int64, "piv": np.int64, "perm": np.int64,
              "monpiv": np.int64,
              "ist": np.int64, "emask": np.int8, "algmask": np.int8}
@@ -336,6 +332,8 @@ def bind(raw, p, t_out, ys, yps, y, mid, mid_slope, y_prev, y_new, pt, pm, fst, 
                  hamiltonian=ctypes.cast(lib_model.phc_hamiltonian, _P).value,
                  energy_scale=ctypes.cast(lib_model.phc_energy_scale, _P).value,
                  powers=ctypes.cast(lib_model.phc_powers, _P).value,
+                 events=ctypes.cast(lib_model.phc_events, _P).value if nwatch else None,
+                 nwatch=nwatch, nev=len(vbuf) if nwatch else 0,
                  **{name: _address(a) for name, a in arrays.items()})
     pointer = ctypes.byref(run)
     chunk_c = lib.phc_steps_chunk
@@ -448,11 +446,11 @@ def _addresses(model) -> tuple:
     return tuple(ctypes.cast(getattr(model, f"phc_{name}"), _P).value for name in _ALONG)
 
 
-def note_events(raw) -> None:
-    """Say once that a run with switching conditions does not use the C step loop (the Python
-    loop locates the switches)."""
-    if getattr(raw, "BACKEND", "") == "c" and usable("midpoint", raw)[0]:
-        say_unused("runs with switching conditions (events) need the Python loop, which locates the switches")
+def watches(raw) -> bool:
+    """Whether the C module `raw`'s library has the switching functions the loop watches
+    (``phc_events``: printed by :mod:`phc.codegen.c_printer` since the step library's ABI 4)."""
+    lib = getattr(raw, "C_LIBRARY", None)
+    return lib is not None and hasattr(lib, "phc_events")
 
 
-__all__ = ["ABI", "DENSE_LU", "DENSE_LU_MARKER", "FLAGS", "MARKER", "METHODS", "SOURCE", "TRANSLATED", "bind", "along", "library", "make_source", "midpoint_steps", "note_events", "probe_values", "say_unused", "source", "translation", "usable", "why_not", "with_dense_lu"]
+__all__ = ["ABI", "DENSE_LU", "DENSE_LU_MARKER", "FLAGS", "MARKER", "METHODS", "SOURCE", "TRANSLATED", "bind", "along", "library", "make_source", "midpoint_steps", "probe_values", "say_unused", "source", "translation", "usable", "watches", "why_not", "with_dense_lu"]

@@ -175,7 +175,16 @@ def function_kernels(ir: ResidualIR) -> list[FunctionKernel]:
     return out
 
 
-__all__ = ["CJ", "FunctionKernel", "Kernel", "function_kernels", "kernel_cse"]
+def events_kernel(ir: ResidualIR) -> FunctionKernel:
+    """The kernel of ``events(t, y, yp, p, out)``, the switching functions (:attr:`ResidualIR.events`):
+    not one of :func:`function_kernels` (the numba back end leaves ``events`` as the NumPy module's
+    text); the C back end prints it as ``phc_events``, which the C step loop watches."""
+    labels = tuple(s.label for s in ir.switches) + tuple(s.label for s in ir.sticks)
+    return FunctionKernel("events", Kernel(tuple((i, e, False) for i, e in enumerate(ir.events))), len(labels),
+                          False, "yyp", "out", labels)
+
+
+__all__ = ["CJ", "FunctionKernel", "Kernel", "events_kernel", "function_kernels", "kernel_cse"]
 
 
 def product_parts(e: sp.Mul, order: str) -> tuple[bool, list, list]:

@@ -108,6 +108,13 @@ class ResidualIR:
     NumPy module and the compiled back end's printer (:func:`phc.codegen.printer.shared_cse`)."""
 
     @property
+    def events(self) -> tuple[sp.Expr, ...]:
+        """The switching functions, in the order ``events(t, y, yp, p, out)`` writes them: each switch's
+        g_k (its boundary), then each set-valued sign's value while sticking (its exit). The one list
+        the NumPy module's ``events`` and the C library's ``phc_events`` are printed from."""
+        return tuple(s.boundary for s in self.switches) + tuple(s.exit for s in self.sticks)
+
+    @property
     def jac_dy(self) -> tuple[sp.Expr, ...]:
         """dF/dy at every entry of the pattern (sympy's zero where only a block fills it)."""
         return self._full_jacobian(1)

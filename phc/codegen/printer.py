@@ -780,7 +780,7 @@ class ModulePrinter:
             "events(t, y, yp, p, out)",
             "Switching functions: out[k] = g_k (SWITCHES[k] switches where g_k changes sign), then for each "
             "set-valued sign STICKS[j] out[len(SWITCHES) + j] = the value s_j it takes while sticking.",
-            [s.boundary for s in ir.switches] + [s.exit for s in ir.sticks],
+            list(ir.events),
             [f"out[{k}]" for k in range(n_sw + len(ir.sticks))]))
         prologue = [f"out = np.empty({len(ir.outputs)})"]
         if any(e.has(STORED_ENERGY) for _, e in ir.outputs):

@@ -22,6 +22,7 @@ from phc.errors import InconsistentInitialError, SimulationSetupError
 from phc.simulation.guard import CATCH as GUARD_CATCH
 from phc.simulation.guard import ModelEvaluationError, guard, quiet_floating_point
 from phc.simulation.events import breakpoints_within, has_switches, integrate_switched, piece_grid, piece_outputs
+from phc.simulation.impacts import has_contacts
 from phc.simulation.ida import MAX_ORDER, applied_atol, integrate_ida
 from phc.simulation import ida_native
 from phc.simulation.initial import InitialResult, consistent_initial_conditions
@@ -327,14 +328,15 @@ def fixed_step_plan(compiled, *, t_end: Optional[float] = None, n_out: Optional[
     """The fixed-step solver whose compiled step loop a run of `compiled` with these settings
     (as :func:`simulate` takes them, no `t_eval`) would use and its number of steps, as
     :func:`simulate` passes them to :func:`phc.codegen.backends.for_run`; ``(None, 0)`` for
-    IDA and for a model with switching conditions (its runs keep the Python loop)."""
+    IDA and for a model with contacts (impacts: its runs keep the Python loop; switching conditions
+    are watched in the compiled loops)."""
     options = RunOptions.of(compiled.description.options).with_overrides(t_end=t_end, n_out=n_out, solver=solver,
                                                                          step=step)
     return _loop_plan(compiled, options, np.linspace(options.t_start, options.t_end, options.n_out))
 
 
 def _loop_plan(compiled, options: RunOptions, t_out: np.ndarray) -> tuple[Optional[str], int]:
-    if not BACKENDS[options.solver].fixed_step or has_switches(compiled.module):
+    if not BACKENDS[options.solver].fixed_step or has_contacts(compiled.module):
         return None, 0
     return options.solver, _fixed_steps(t_out, options.step)
 

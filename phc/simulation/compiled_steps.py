@@ -494,14 +494,15 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
     the chunk evaluates them after each step (the operation ``_watch``) and hands back the first
     step at whose end one has fallen to zero or below; that step is located here by the Python
     loop's code (:func:`phc.simulation.midpoint._locate`) and the run returns with ``event`` as
-    :func:`~phc.simulation.midpoint.integrate_fixed_step` does. A run with contacts (impacts)
-    or on the C back end keeps the Python loop (None)."""
+    :func:`~phc.simulation.midpoint.integrate_fixed_step` does; the C loop calls the model
+    library's ``phc_events`` (:func:`phc.codegen.c_steps.bind`). A run with contacts (impacts)
+    keeps the Python loop (None)."""
     from phc.simulation import midpoint as mp
     from phc.simulation.monitor import SingularityMonitor
 
     raw = getattr(mod, "module", mod)
     on_c = getattr(raw, "BACKEND", "numpy") == "c"  # the C back end's loop (phc.codegen.c_steps)
-    if events is not None and (on_c or events.n_ct):  # the C loop watches nothing; contacts are Python's
+    if events is not None and events.n_ct:  # contacts' watched functions are Python's
         return None
     if method == "discrete_gradient":
         from phc.simulation.discrete_gradient import velocity_rows
@@ -519,6 +520,8 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
         from phc.codegen import c_steps
 
         use, why = c_steps.usable(method, raw)
+        if use and events is not None and not c_steps.watches(raw):
+            use, why = False, "the model's C library has no switching functions (phc_events): compile it again"
         if not use:
             c_steps.say_unused(why)
             return None
@@ -596,7 +599,8 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
     reported = 1
     if on_c:
         run_c = c_steps.bind(raw, pv, t_out, ys, yps, y, mid, mid_slope, y_prev, y_new, pt, pm, fst, ist, c, jrows,
-                             jcols, end_rows, emask, w, algmask, colscale, hist_t, hist_v)
+                             jcols, end_rows, emask, w, algmask, colscale, hist_t, hist_v,
+                             *((wmap, wprev, wnew, vbuf) if events is not None else ()))
 
     def python_step():
         nonlocal python

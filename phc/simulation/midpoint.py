@@ -1085,11 +1085,7 @@ def integrate_midpoint(mod, p, t_out, y0, yp0, options, *, progress=None, names=
         advance.stage.restart_near = True
         return advance
 
-    if events is not None and getattr(getattr(mod, "module", mod), "BACKEND", "") == "c":
-        from phc.codegen import c_steps
-
-        c_steps.note_events(getattr(mod, "module", mod))
-    # the whole step loop compiled, when the model runs on the numba or the C backend (with events: numba)
+    # the whole step loop compiled, when the model runs on the numba or the C backend
     from phc.simulation import compiled_steps
 
     out = compiled_steps.integrate("midpoint", mod, p, t_out, y0, yp0, max_steps=max_steps, progress=progress,

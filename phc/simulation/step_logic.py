@@ -103,7 +103,7 @@ them with the rest of the kernel. The operations (what they do and return):
     finite (the driver then evaluates them itself and locates the event with the Python loop's
     code, :func:`phc.simulation.midpoint._locate`); False (the values kept as the next step's
     start) otherwise, and always in a run without events. The numba kernel evaluates the model's
-    ``events`` compiled; the C loop runs no events (its ``op_watch`` is False).
+    ``events`` compiled; the C loop the model library's ``phc_events`` (steps.c's ``op_watch``).
 
 The numbers the logic uses come in the vector ``c`` (its layout: ``_TOL`` … ``_STRIKES_C``),
 filled from the constants of the methods' modules (:func:`phc.simulation.midpoint.newton_constants`,

@@ -375,49 +375,6 @@ def test_the_avx2_and_the_baseline_code_give_the_same_trajectory(compiled, monke
     assert np.array_equal(default.y, baseline.y) and np.array_equal(default.yp, baseline.yp)
 
 
-COULOMB = """\
-format_version: 1
-name: coulomb_block
-parameters:
-  m: 1.0
-  k: 4.0
-  Fc: 1.0
-components:
-  block:
-    type: phs
-    states: [p, x]
-    hamiltonian: p**2/(2*m) + k*x**2/2
-    resistive:
-      fr: {law: ["e_fr = Fc*sign(f_fr)"]}
-    relations:
-      - f_x = e_p
-      - f_p = -e_x - e_fr
-      - f_fr = e_p
-simulation:
-  t_end: 2.0
-  n_out: 41
-  initial: {block.x: 1.1, block.p: 0.0}
-"""
-
-
-def test_a_run_with_switching_conditions_says_it_runs_the_python_loop(tmp_path, monkeypatch, loops):
-    """Coulomb friction (a sign law: switching conditions, docs/events.md): the Python loop
-    locates the switches, and says once that the C loop is not used; the run is the Python
-    loop's on the same C functions."""
-    from phc.codegen import c_steps
-
-    monkeypatch.setattr(c_steps, "_SAID", set())
-    path = tmp_path / "coulomb.yaml"
-    path.write_text(COULOMB)
-    model = phc.compile_model(path, certify=False, backend="c")
-    with pytest.warns(CompiledLoopWarning, match="switching conditions"):
-        fast = phc.simulate(model, solver="midpoint", step=1e-3)
-    monkeypatch.setenv("PHC_COMPILED_LOOP", "0")
-    slow = phc.simulate(model, solver="midpoint", step=1e-3)
-    assert fast.success and fast.events and "c" not in loops
-    assert np.array_equal(fast.y, slow.y)
-
-
 @pytest.mark.parametrize("name", ["pendulum.yaml", "rigid_slider_crank.yaml", "dc_motor_pi.yaml"])
 def test_the_nominal_scales_probe_takes_its_steps_in_c_as_the_python_stage_solver_does(compiled, monkeypatch, name):
     """The nominal-scales probe (phc.simulation.scaling._probe) takes its implicit-midpoint steps

@@ -176,6 +176,9 @@ static void bind(Instance *inst)
     w->y_half = inst->y_half;
     w->y_best = inst->y_best;
     w->y_sec = inst->y_sec;
+    w->events = NULL; /* no switching functions watched (a model with events is not exported) */
+    w->nwatch = 0;
+    w->nev = 0;
 }
 
 /* The start of a run: the exported consistent state and the step loop's state as

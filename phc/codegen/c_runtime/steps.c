@@ -38,8 +38,9 @@
  * phc.codegen.c_steps.source() translates them to C (phc/codegen/c_translate.py) and puts them,
  * with the library's entry phc_steps_chunk (chunk on this file's struct, written from chunk's
  * parameters), at the line PHC_STEP_LOGIC below, beside the operations they call (op_begin,
- * op_refactor, op_correct, op_precision, op_consistent, op_stage, op_advance and
- * op_far_from_singular, the monitor's routine look). The state arrays have the layout of the
+ * op_refactor, op_correct, op_precision, op_consistent, op_stage, op_advance,
+ * op_far_from_singular, the monitor's routine look, and op_watch, the switching functions of a run
+ * with events). The state arrays have the layout of the
  * numba loop's (checked when the library is loaded: phc_steps_layout). Not here: the
  * mixed-precision corrections of the numba loop (every correction here is in double precision, so
  * step_logic's precision events never occur).
@@ -65,7 +66,7 @@
 #include <stdint.h>
 #include <string.h>
 
-#define PHC_STEPS_ABI 3
+#define PHC_STEPS_ABI 4
 
 typedef void (*phc_residual_fn)(double t, const double *y, const double *yp, const double *p, double *out);
 typedef void (*phc_jacobian_fn)(double t, const double *y, const double *yp, const double *p, double cj,
@@ -82,8 +83,8 @@ enum { C_TOL, C_RATE, C_FLOOR, C_MAX_AGE, C_MAX_NEWTON, C_BAL_TOL, C_MAX_SECANT,
        C_EVERY, C_G1, C_G2, C_M0, C_M1, C_M2, C_ORDER, C_ZONE, C_STAGNATION, C_ONE, C_ZERO, C_ORDER_ALG,
        C_STRIKES, C_NC };
 
-/* status of a chunk (phc.codegen.numba_steps_kernel: _BUDGET ... _MAXSTEPS) */
-enum { ST_BUDGET, ST_DONE, ST_HARD, ST_LOOK, ST_MAXSTEPS };
+/* status of a chunk (phc.codegen.numba_steps_kernel: _BUDGET ... _MAXSTEPS, _EVENT) */
+enum { ST_BUDGET, ST_DONE, ST_HARD, ST_LOOK, ST_MAXSTEPS, ST_EVENT };
 
 /* the integer state ist[] (numba_steps_kernel: _K ... _STRIKES), then the ages of the matrices */
 enum { I_K, I_J, I_SUBSTEPS, I_STEPS, I_LAST_LOOK, I_HAS_MID, I_MAX_STEPS, I_STATUS, I_NFEV, I_NFACT, I_HIST,
@@ -141,6 +142,14 @@ struct phc_steps {
     double *sub;                    /* 3 x n: midpoint4's substep midpoints of this step */
     double *start, *y1in;           /* n each: a stage's start and its Newton start */
     double *y_half, *y_best, *y_sec;   /* n each: the discrete gradient's s = 1/2 step, best, last secant iterate */
+    /* a run with switching conditions (ABI 4; nwatch = 0: none): the model's switching functions
+     * (phc_events of its library, nev values), the watched functions w_i = a_i + b_i v[k_i] as rows
+     * a, b, k of wmap (3 x nwatch: phc.simulation.compiled_steps.watch_map), their values at the
+     * step's start and end, the model's values, the step's slope (n) */
+    phc_residual_fn events;
+    int64_t nwatch, nev;
+    const double *wmap;
+    double *wprev, *wnew, *vbuf, *slope;
 };
 
 /* PHC_DENSE_LU */
@@ -435,6 +444,37 @@ static void op_consistent(int64_t n, const struct phc_steps *w, double t, double
     (void)y;
 }
 
+/* step_logic's _watch (numba_steps_kernel._watch, the same operations in the same order): the
+ * watched switching functions at the step's end, w_i = a_i + b_i v[k_i] with v the model's
+ * events(t + h, y_new, (y_new - y)/h). 1 when one falls from above zero (wprev, the values at the
+ * step's start) to zero or below, or a value of v is not finite: the step is handed back and the
+ * driver locates the event (phc.simulation.compiled_steps.integrate). Else the values become the
+ * next step's start; 0. A run without switching conditions (nwatch = 0) watches nothing. */
+static int op_watch(int64_t n, const struct phc_steps *w, double t, double h, const double *y, const double *y_new)
+{
+    const int64_t nw = w->nwatch;
+    if (nw == 0)
+        return 0;
+    for (int64_t i = 0; i < n; ++i)
+        w->slope[i] = (y_new[i] - y[i]) / h;
+    w->events(t + h, y_new, w->slope, w->p, w->vbuf);
+    if (!all_finite(w->nev, w->vbuf))
+        return 1;
+    const double *a = w->wmap, *b = w->wmap + nw, *k = w->wmap + 2 * nw;
+    int crossed = 0;
+    for (int64_t i = 0; i < nw; ++i) {
+        const double value = a[i] + b[i] * w->vbuf[(int64_t)k[i]];
+        w->wnew[i] = value;
+        if (w->wprev[i] > 0.0 && value <= 0.0)
+            crossed = 1;
+    }
+    if (crossed)
+        return 1;
+    for (int64_t i = 0; i < nw; ++i)
+        w->wprev[i] = w->wnew[i];
+    return 0;
+}
+
 /* step_logic's _stage: one stage solve, the translated newton (defined after it) */
 static int64_t op_stage(int64_t n, const struct phc_steps *w, int64_t m, double t, double h, const double *y,
                         const double *y1in, double s, double *out, int *ill);
@@ -512,7 +552,7 @@ void phc_steps_layout(int64_t *out)
         F_T, F_H, F_H_PREV, F_STEP,
         C_TOL, C_RATE, C_FLOOR, C_MAX_AGE, C_MAX_NEWTON, C_THRESHOLD, C_EVERY, C_ORDER, C_ZONE, C_STAGNATION,
         C_ORDER_ALG, C_BAL_TOL, C_MAX_SECANT, C_S_MIN, C_S_MAX, C_G1, C_G2, C_M0, C_M1, C_M2,
-        ST_BUDGET, ST_DONE, ST_HARD, ST_LOOK, ST_MAXSTEPS, OK, FAIL, SINGULAR, EVAL, PASSIVITY,
+        ST_BUDGET, ST_DONE, ST_HARD, ST_LOOK, ST_MAXSTEPS, ST_EVENT, OK, FAIL, SINGULAR, EVAL, PASSIVITY,
         MAX_NODES, (int64_t)sizeof(struct phc_steps),
     };
     for (size_t i = 0; i < sizeof(layout) / sizeof(layout[0]); ++i)
