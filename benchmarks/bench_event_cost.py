@@ -19,9 +19,9 @@ event's cost is the location (regula falsi on shortened steps, each a Newton sol
 the restart from a consistent state (:func:`phc.simulation.events.integrate_switched`) and a
 new entry into the compiled loop.
 
-It runs on each back end of ``--backends`` (default ``numba,c``, those available); on ``c`` (the C step loop, ``phc/codegen/c_runtime/steps.c``,
-watches the switching functions with the model library's ``phc_events``; its Python loop is what a run
-with events on the C back end did before).
+It runs on each back end of ``--backends`` (default ``numba,c``, those available); on ``c`` the C
+step loop (``phc/codegen/c_runtime/steps.c``) watches the switching functions with the model
+library's ``phc_events`` (its Python loop is what a run with events on the C back end did before).
 
 CPU time (``time.process_time``): the compiled loop's runs best of ``--repeat`` after one warm-up
 run (which compiles or loads the compiled loop and the model's functions), the Python loop's one
