@@ -14,8 +14,9 @@ of ġ = 0) the row ``<c>.friction`` holds, by σ:
   falls through zero the contact tries to **stick**: σ = 0, the row holds v_t = 0 and λ_t is
   its multiplier, the consistent state is solved, and the stick is kept if |λ_t| ≤ μ λ (the
   force needed to hold the bodies is admissible; the same switch model of Karnopp as the
-  set-valued ``sign`` of :mod:`phc.simulation.events`). Otherwise it slides on the other way,
-  σ = −sign(λ_t) of the trial. Before the trial the slip rate that the event's location error
+  set-valued ``sign`` of :mod:`phc.simulation.events`). Otherwise it slides the way the
+  force cannot hold, σ = −sign(λ_t) of the trial. On the bound (within the slack) one rule,
+  :func:`slides_on`, decides for both: the way it was sliding it slides on, else it sticks. Before the trial the slip rate that the event's location error
   leaves is removed by a tangential impulse (its tiny kinetic energy booked as dissipated),
   so a stick holds v_t = 0 to round-off from its first step. A slide that begins at rest
   (from sticking, or a trial that failed) has its σ v_t watched from just below zero
