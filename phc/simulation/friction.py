@@ -16,8 +16,9 @@ of ġ = 0) the row ``<c>.friction`` holds, by σ:
   force needed to hold the bodies is admissible; the same switch model of Karnopp as the
   set-valued ``sign`` of :mod:`phc.simulation.events`). Otherwise it slides the way the
   force cannot hold, σ = −sign(λ_t) of the trial. On the bound (within the slack) one rule,
-  :func:`slides_on`, decides for both: the way it was sliding it slides on, else it sticks. Before the trial the slip rate that the event's location error
-  leaves is removed by a tangential impulse (its tiny kinetic energy booked as dissipated),
+  :func:`slides_on`, decides for both: the way it was sliding it slides on, else it sticks.
+  Before the trial the slip rate that the event's location error leaves is removed by a
+  tangential impulse (its tiny kinetic energy booked as dissipated),
   so a stick holds v_t = 0 to round-off from its first step. A slide that begins at rest
   (from sticking, or a trial that failed) has its σ v_t watched from just below zero
   (:meth:`Friction.slide`): v_t grows from 0 with zero slope there, and its round-off is no
