@@ -285,6 +285,20 @@ def test_a_stick_trial_on_the_bound_follows_the_slide(tmp_path, way):
         assert s == pytest.approx(1.0, abs=1e-12)
 
 
+def test_the_rule_of_a_stick_trial():
+    """friction.slides_on (λ_t against the slide: σ = −sign λ_t): clearly inside the bound it
+    sticks, clearly outside it slides the way the force points; on the bound (within the 1e-9
+    slack) it slides on only the way it was sliding, else (against, at rest) it sticks."""
+    from phc.simulation.friction import STICK_SLACK, slides_on
+
+    on = 1.0 + 0.5 * STICK_SLACK
+    assert slides_on(0.5, 1.0, -1.0) == 0.0 and slides_on(-0.5, 1.0, 1.0) == 0.0  # inside
+    assert slides_on(2.0, 1.0, 1.0) == -1.0 and slides_on(-2.0, 1.0, 0.0) == 1.0  # outside
+    assert slides_on(on, 1.0, -1.0) == -1.0 and slides_on(-on, 1.0, 1.0) == 1.0  # on it, along
+    assert slides_on(on, 1.0, 1.0) == 0.0 and slides_on(-1.0, 1.0, 0.0) == 0.0  # on it, against / at rest
+    assert slides_on(1.0, 1.0, 1.0, orient=1.0) == 1.0  # a set-valued sign's orientation
+
+
 def test_the_pushed_block_slips_at_the_closed_form_time_once(tmp_path):
     """The run through t*: one stick (from rest at t = 0) and one slip, at t* = F_c/c to IDA's
     event location at rtol 1e-10 (1e-9 s, as above) — no stick/slip pair at the same instant
