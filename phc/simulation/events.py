@@ -581,7 +581,9 @@ def _start(watch: Watch, t0, y, yp, fixed, events, span) -> tuple[np.ndarray, np
 def _try_stick(watch: Watch, j: int, t, y, fixed, initial=False):
     """Stick set-valued sign j at (t, y) if the force it needs is within the bound: sets the
     modes and returns the consistent state, else sets the slip mode the force points to and
-    returns None."""
+    returns None. On the bound the rule of the contacts' friction decides
+    (:func:`phc.simulation.friction.slides_on`): a body sliding the way the force points
+    slides on, one at rest (`initial`) or sliding the other way sticks."""
     mod = watch.mod
     k = int(watch.stick_switch[j])
     trial = watch.p.copy()
@@ -592,11 +594,12 @@ def _try_stick(watch: Watch, j: int, t, y, fixed, initial=False):
     except InconsistentInitialError:
         return None
     s = watch.values(t, r.y0, r.yp0, trial)[watch.n_sw + j]
-    if abs(s) <= 1.0 + STICK_SLACK:
+    way = friction.slides_on(float(s), 1.0, 0.0 if initial else watch.mode(k), float(watch.stick_orient[j]))
+    if way == 0:
         watch.p = trial
         watch.refresh()
         return r.y0, r.yp0
-    watch.set_mode(k, float(watch.stick_orient[j] * np.sign(s)))
+    watch.set_mode(k, way)
     return None
 
 
@@ -652,16 +655,18 @@ def _handle(watch: Watch, t, y, yp, which, events, dif, energy) -> tuple[np.ndar
             watch.handled.append((t, mod.STICKS[j], mod.STICK_EQUATIONS[j]))
             events.append(Event(t, mod.STICKS[j], bound, "slip", mod.STICK_EQUATIONS[j]))
     state = None
+    before = {j: watch.mode(int(watch.stick_switch[j])) for j in candidates}
     for j in candidates:
         watch.handled.append((t, mod.STICKS[j], mod.STICK_EQUATIONS[j]))
         trial = _try_stick(watch, j, t, y, set(energy))
         if trial is not None:
             state = trial
             events.append(Event(t, mod.STICKS[j], 0, "stick", mod.STICK_EQUATIONS[j]))
-        else:
+        elif watch.mode(int(watch.stick_switch[j])) != before[j]:
             k = int(watch.stick_switch[j])
             events.append(Event(t, mod.STICKS[j], int(watch.mode(k) * watch.stick_orient[j]), "slip",
                                 mod.STICK_EQUATIONS[j]))
+        # else: the trial failed the way it was sliding: no new slip, it slides on
     if impacts and (candidates or len(impacts) < len(which)):
         y, yp = _restart(watch, t, state[0] if state is not None else y, dif | set(energy))
         state = None

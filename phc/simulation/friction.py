@@ -14,9 +14,11 @@ of ġ = 0) the row ``<c>.friction`` holds, by σ:
   falls through zero the contact tries to **stick**: σ = 0, the row holds v_t = 0 and λ_t is
   its multiplier, the consistent state is solved, and the stick is kept if |λ_t| ≤ μ λ (the
   force needed to hold the bodies is admissible; the same switch model of Karnopp as the
-  set-valued ``sign`` of :mod:`phc.simulation.events`). Otherwise it slides on the other way,
-  σ = −sign(λ_t) of the trial. Before the trial the slip rate that the event's location error
-  leaves is removed by a tangential impulse (its tiny kinetic energy booked as dissipated),
+  set-valued ``sign`` of :mod:`phc.simulation.events`). Otherwise it slides the way the
+  force cannot hold, σ = −sign(λ_t) of the trial. On the bound (within the slack) one rule,
+  :func:`slides_on`, decides for both: the way it was sliding it slides on, else it sticks.
+  Before the trial the slip rate that the event's location error leaves is removed by a
+  tangential impulse (its tiny kinetic energy booked as dissipated),
   so a stick holds v_t = 0 to round-off from its first step. A slide that begins at rest
   (from sticking, or a trial that failed) has its σ v_t watched from just below zero
   (:meth:`Friction.slide`): v_t grows from 0 with zero slope there, and its round-off is no
@@ -50,6 +52,34 @@ NEAR = 1e-3
 """Within this fraction of μ λ of its bound on a solver's values, a sticking contact's bound is
 evaluated at the consistent state (:meth:`Friction.watched`): above the multipliers' error on
 the solvers (IDA's up to 7e-4 just after a restart, on the woodpecker)."""
+
+
+def slides_on(need: float, bound: float, way: float, orient: float = -1.0, floor: float = 0.0) -> float:
+    """The decision of a stick trial, the one rule of the contacts' friction and of the
+    set-valued sign (:func:`phc.simulation.events._try_stick`): 0.0 where the contact (or
+    body) sticks, else the way ±1 it slides. `need`: the force the trial needs to hold it
+    (λ_t; the sign's value s), `bound` ≥ 0 the most the law can give (μ λ; 1), `way` the
+    way it was sliding before the trial (±1; 0 at rest), `orient` the way a force beyond
+    the bound makes it slide per sign of `need` (σ = −sign λ_t: −1; the sign's orientation),
+    `floor` an absolute round-off of |need| beside the bound's relative one.
+
+    Clearly inside the bound (|need| below it by more than :data:`STICK_SLACK` of it and
+    `floor`) it sticks; clearly outside it slides the way the force points. On the bound —
+    within that slack — round-off of the trial would choose between the two: there a
+    contact that was sliding the way the force points slides on (its slip began just now,
+    v_t grows from 0 with zero slope, and the root finding took its round-off for a
+    return through zero), and one at rest, or sliding the other way, sticks (as Karnopp's
+    switch model: the force is admissible). The slack covers the bound's change over an
+    event's location error, which round-off of the state decides (1e-13 s after the
+    woodpecker's slip the need was 6.4e-12 of μ λ beyond it), and round-off of λ, λ_t."""
+    excess = abs(need) - bound
+    slack = STICK_SLACK * bound + floor
+    if excess < -slack:
+        return 0.0
+    new = float(orient * np.sign(need)) if need != 0 else float(way)
+    if excess > slack:
+        return new
+    return new if way != 0 and new == way else 0.0
 
 
 class Friction:
@@ -139,11 +169,12 @@ class Friction:
         bound = out[self.mu[i]] * y[self.contacts.force[self.contact[i]]]
         return float((bound - abs(y[self.force[i]])) / bound) if bound > 0 else -np.inf
 
-    def admissible(self, i: int, y, p, out) -> bool:
-        """|λ_t| ≤ μ λ (to :data:`STICK_SLACK`, and round-off of λ)."""
+    def decide(self, i: int, y, p, out, way: float) -> float:
+        """The stick trial of contact i at the consistent sticking state `y` (:func:`slides_on`):
+        0.0 it sticks, else the way σ it slides; `way` the way it was sliding (0: at rest)."""
         lam = y[self.contacts.force[self.contact[i]]]
         bound = out[self.mu[i]] * max(lam, 0.0)
-        return abs(y[self.force[i]]) <= (1.0 + STICK_SLACK) * bound + 1e-14 * abs(lam)
+        return slides_on(float(y[self.force[i]]), float(bound), float(way), -1.0, 1e-14 * abs(float(lam)))
 
 
 def _event(t, name, direction, kind):
@@ -180,7 +211,8 @@ def _stop(watch, i: int, t, y, restart):
 
 def _stick(watch, i: int, t, y, restart, events, sliding: bool = False):
     """Try to stick frictional contact i at (t, y): keep it where the force needed is
-    admissible, else slide the way that force cannot hold. Returns the consistent (y, ẏ).
+    admissible, else slide the way that force cannot hold (:func:`slides_on`: on the bound a
+    contact sliding the way the force points slides on). Returns the consistent (y, ẏ).
     `sliding`: the contact slides now (its σ v_t fell through zero); sliding on the same way
     is then no switch and no event — where it began to slip from sticking its slip rate grows
     from 0 with zero slope (λ_t is continuous there), and IDA's root finding sees round-off
@@ -196,11 +228,11 @@ def _stick(watch, i: int, t, y, restart, events, sliding: bool = False):
     except InconsistentInitialError:  # the slip rate held at 0: the momenta move by the event's location error
         y1, yp1 = restart(y, False)
     out = watch.contacts.outputs(t, y1, yp1, watch.p)
-    if f.admissible(i, y1, watch.p, out):
+    way = f.decide(i, y1, watch.p, out, sigma if sliding else 0.0)
+    if way == 0:
         events.append(_event(t, name, 0, "stick"))
         return y1, yp1
-    lam_t = y1[f.force[i]]
-    f.slide(i, -np.sign(lam_t) if lam_t != 0 else sigma, y, watch.p)
+    f.slide(i, way, y, watch.p)
     if not sliding or watch.p[f.mode[i]] != sigma:
         events.append(_event(t, name, watch.p[f.mode[i]], "slip"))
     return restart(y, True)
@@ -266,11 +298,14 @@ def settle(watch, t, y, yp, events) -> bool:
     out = watch.contacts.outputs(t, y, yp, watch.p)
     changed = False
     for i, k in enumerate(f.contact):
-        if watch.contacts.closed(k, watch.p) and watch.p[f.mode[i]] == 0 and not f.admissible(i, y, watch.p, out):
-            f.slide(i, -np.sign(y[f.force[i]]), y, watch.p)
+        if not watch.contacts.closed(k, watch.p) or watch.p[f.mode[i]] != 0:
+            continue
+        way = f.decide(i, y, watch.p, out, 0.0)
+        if way:
+            f.slide(i, way, y, watch.p)
             events.append(_event(t, watch.contacts.names[k], watch.p[f.mode[i]], "slip"))
             changed = True
     return changed
 
 
-__all__ = ["Friction", "STICK_SLACK", "on_close", "on_event", "settle"]
+__all__ = ["Friction", "STICK_SLACK", "on_close", "on_event", "settle", "slides_on"]

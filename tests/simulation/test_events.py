@@ -256,6 +256,59 @@ def test_a_pushed_block_sticks_until_the_force_exceeds_friction(tmp_path, solver
     assert np.abs(r["v"] - expected).max() < (1e-9 if solver == "ida" else 1e-5)
 
 
+@pytest.mark.parametrize("way", [1.0, -1.0], ids=["along", "against"])
+def test_a_stick_trial_on_the_bound_follows_the_slide(tmp_path, way):
+    """Force c·t against F_c, the block at rest at t* = F_c/c, where c·t* = F_c exactly (3.0 =
+    4.0 · 0.75 in binary): a stick trial there needs s = 1, on the bound, pointing the +
+    way. Sliding + (it began to slip at t*; round-off of v, 0 with zero slope, fell through
+    zero) it slides on — no event, the mode unchanged; sliding − (the force points against
+    the slide) it sticks, as Karnopp's model keeps an admissible force (friction.slides_on).
+    Before, both stuck: s was within the stick test's slack."""
+    from phc.simulation import parameter_vector
+    from phc.simulation.events import Watch, _handle
+
+    mod = _compile(tmp_path, PUSHED.format(force="c*t")).module
+    watch = Watch(mod, np.array(parameter_vector(mod), dtype=float))
+    k = list(mod.SWITCHES).index("sign(block.fr.f)")
+    watch.set_mode(k, way)
+    dif = set(np.flatnonzero(np.asarray(mod.DIFFERENTIAL)).tolist())
+    energy = [j for j, r in enumerate(mod.ROLES) if r == "energy"]
+    events: list = []
+    y, yp = _handle(watch, 0.75, np.zeros(mod.N), np.zeros(mod.N), [k], events, dif, energy)
+    s = watch.values(0.75, y, yp)[watch.n_sw + watch.stick_of(k)]
+    if way > 0:
+        assert events == [] and watch.mode(k) == 1.0 and not watch.stuck.any()
+        assert 0.0 <= s <= 1.0  # the friction force slides on at +F_c
+        assert yp[list(mod.VARIABLES).index("block.p")] == pytest.approx(0.0, abs=1e-12)  # ṗ = c t* − F_c = 0
+    else:
+        assert [(e.kind, e.direction) for e in events] == [("stick", 0)] and watch.stuck.all()
+        assert s == pytest.approx(1.0, abs=1e-12)
+
+
+def test_the_rule_of_a_stick_trial():
+    """friction.slides_on (λ_t against the slide: σ = −sign λ_t): clearly inside the bound it
+    sticks, clearly outside it slides the way the force points; on the bound (within the 1e-9
+    slack) it slides on only the way it was sliding, else (against, at rest) it sticks."""
+    from phc.simulation.friction import STICK_SLACK, slides_on
+
+    on = 1.0 + 0.5 * STICK_SLACK
+    assert slides_on(0.5, 1.0, -1.0) == 0.0 and slides_on(-0.5, 1.0, 1.0) == 0.0  # inside
+    assert slides_on(2.0, 1.0, 1.0) == -1.0 and slides_on(-2.0, 1.0, 0.0) == 1.0  # outside
+    assert slides_on(on, 1.0, -1.0) == -1.0 and slides_on(-on, 1.0, 1.0) == 1.0  # on it, along
+    assert slides_on(on, 1.0, 1.0) == 0.0 and slides_on(-1.0, 1.0, 0.0) == 0.0  # on it, against / at rest
+    assert slides_on(1.0, 1.0, 1.0, orient=1.0) == 1.0  # a set-valued sign's orientation
+
+
+def test_the_pushed_block_slips_at_the_closed_form_time_once(tmp_path):
+    """The run through t*: one stick (from rest at t = 0) and one slip, at t* = F_c/c to IDA's
+    event location at rtol 1e-10 (1e-9 s, as above) — no stick/slip pair at the same instant
+    where the force reaches the bound."""
+    r = phc.simulate(_compile(tmp_path, PUSHED.format(force="c*t")), solver="ida")
+    assert r.success, r.message
+    assert [(e.kind, e.direction) for e in r.events] == [("stick", 0), ("slip", 1)]
+    assert r.events[0].t == 0.0 and abs(r.events[1].t - 0.75) < 1e-9
+
+
 def test_a_force_step_beyond_friction_breaks_the_stick_at_the_breakpoint(tmp_path):
     compiled = _compile(tmp_path, PUSHED.format(force="ifelse(t < 0.5, 0.5*Fc, 2*Fc)"))
     r = phc.simulate(compiled)
