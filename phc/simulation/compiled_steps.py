@@ -375,7 +375,8 @@ def _compile():
     for name in ("_copy", "_factor", "_invert", "_solve", "_lowprec", "_solve32", "_fill", "_stage_residual",
                  "_refactor_matrix", "_all_finite", "_begin", "_refactor", "_correct", "_add", "_precision",
                  "_consistent", "_newton", "_stage", "_discrete_gradient", "passivity_floor", "_midpoint4_step",
-                 "_advance", "_monitor_ratio", "_far_from_singular", "_watch", "lagrange_weights", "predictor_nodes", "substeps", "next_step",
+                 "_advance", "_monitor_ratio", "_far_from_singular", "_watch", "lagrange_weights", "predictor_nodes",
+                 "substeps", "next_step",
                  "polynomial", "extrapolate", "predict", "looks", "accept", "chunk"):
         namespace[name] = jit(namespace[name])
     chunk = numba.njit(error_model="numpy")(namespace["_chunk"])
