@@ -57,7 +57,7 @@ SOURCE = Path(__file__).resolve().parents[1] / "codegen" / "c_runtime" / "steps.
 the whole text."""
 
 TRANSLATED = ("substeps", "next_step", "predictor_nodes", "lagrange_weights", "polynomial", "extrapolate", "predict",
-              "looks", "accept", "newton", "discrete_gradient", "midpoint4", "chunk")
+              "looks", "accept", "newton", "discrete_gradient", "passivity_floor", "midpoint4", "chunk")
 """The functions of :mod:`phc.simulation.step_logic` steps.c gets translated (each after those it
 calls)."""
 
@@ -166,8 +166,9 @@ compiler vectorizes the LU's column loops, which reorders no sum; no fused multi
 METHODS = ("midpoint", "discrete_gradient", "midpoint4")
 """The fixed-step methods whose step loop is written in C (the others run the Python loop)."""
 
-ABI = 4
-"""``PHC_STEPS_ABI`` of the steps.c this module binds (the layout of ``struct phc_steps``)."""
+ABI = 5
+"""``PHC_STEPS_ABI`` of the steps.c this module binds (the layout of ``struct phc_steps`` and of
+the constants vector: ABI 5 added ``C_RUN_ENERGY``, midpoint4's passivity floor)."""
 
 MAX_NODES = 16
 """Predictor nodes the C file has room for (its ``MAX_NODES``)."""
@@ -189,7 +190,7 @@ def _layout() -> list[int]:
             _k._T, _k._H, _k._H_PREV, _k._STEP,
             _sl._TOL, _sl._RATE, _sl._FLOOR, _sl._MAX_AGE, _sl._MAX_NEWTON, _sl._THRESHOLD, _sl._EVERY, _sl._ORDER,
             _sl._ZONE, _sl._STAGNATION, _sl._ORDER_ALG, _sl._BAL_TOL, _sl._MAX_SECANT, _sl._S_MIN, _sl._S_MAX, _sl._G1,
-            _sl._G2, _sl._M0, _sl._M1, _sl._M2,
+            _sl._G2, _sl._M0, _sl._M1, _sl._M2, _sl._RUN_ENERGY,
             _k._BUDGET, _k._DONE, _k._HARD, _k._LOOK, _k._MAXSTEPS, _sl._EVENT, _sl._OK, _sl._FAIL, _sl._SINGULAR,
             _sl._EVAL, _sl._PASSIVITY,
             MAX_NODES]

@@ -42,8 +42,8 @@ import numpy as np
 from phc.simulation import step_logic
 from phc.simulation.step_logic import (  # noqa: F401 — the rebound step logic reads them here
     _BAL_TOL, _EVAL, _EVERY, _FAIL, _FLOOR, _G1, _G2, _M0, _M1, _M2, _MAX_AGE, _MAX_NEWTON, _MAX_SECANT, _OK, _ONE,
-    _ORDER, _ORDER_ALG, _PASSIVITY, _RATE, _S_MAX, _S_MIN, _SINGULAR, _STAGNATION, _STRIKES_C, _THRESHOLD, _TOL,
-    _ZERO, _ZONE, DOUBLE_NEXT, STRIKE)
+    _ORDER, _ORDER_ALG, _PASSIVITY, _RATE, _RUN_ENERGY, _S_MAX, _S_MIN, _SINGULAR, _STAGNATION, _STRIKES_C,
+    _THRESHOLD, _TOL, _ZERO, _ZONE, DOUBLE_NEXT, STRIKE)
 
 # the state arrays shared with the driver (phc.simulation.compiled_steps.integrate); their layout is
 # the step logic's (the Python loop keeps the same state)
@@ -369,6 +369,7 @@ def _here(func):
 _newton = _here(step_logic.newton)
 _discrete_gradient = _here(step_logic.discrete_gradient)
 _midpoint4_step = _here(step_logic.midpoint4)
+passivity_floor = _here(step_logic.passivity_floor)  # midpoint4 calls it by its step_logic name
 # the driver's bookkeeping, called by their step_logic names (they call each other by those names)
 lagrange_weights = _here(step_logic.lagrange_weights)
 predictor_nodes = _here(step_logic.predictor_nodes)

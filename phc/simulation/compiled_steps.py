@@ -94,7 +94,7 @@ from phc.simulation.backend import BackendRun
 from phc.codegen.numba_steps_kernel import (  # the layout of the state arrays the kernel shares
     _BUDGET, _CODE, _DONE, _E, _EVENT, _H, _H_PREV, _HARD, _HIST, _ILL, _K, _LAST_LOOK, _LOOK, _LOWP, _MAX_STEPS,
     _MAXSTEPS, _METHOD, _MONITOR, _NEND, _NF, _NFACT, _NFEV, _NI, _OK, _ONE, _STATUS, _STEP,
-    _STEPS, _STRIKES, _STRIKES_C, _T, _THRESHOLD, _ZERO)
+    _RUN_ENERGY, _STEPS, _STRIKES, _STRIKES_C, _T, _THRESHOLD, _ZERO)
 
 MAX_UNKNOWNS = 400
 """Largest system whose step loop is compiled (dense LU); larger ones keep the sparse Python loop."""
@@ -374,8 +374,9 @@ def _compile():
     jit = numba.njit(error_model="numpy")
     for name in ("_copy", "_factor", "_invert", "_solve", "_lowprec", "_solve32", "_fill", "_stage_residual",
                  "_refactor_matrix", "_all_finite", "_begin", "_refactor", "_correct", "_add", "_precision",
-                 "_consistent", "_newton", "_stage", "_discrete_gradient", "_midpoint4_step", "_advance",
-                 "_monitor_ratio", "_far_from_singular", "_watch", "lagrange_weights", "predictor_nodes", "substeps", "next_step",
+                 "_consistent", "_newton", "_stage", "_discrete_gradient", "passivity_floor", "_midpoint4_step",
+                 "_advance", "_monitor_ratio", "_far_from_singular", "_watch", "lagrange_weights", "predictor_nodes",
+                 "substeps", "next_step",
                  "polynomial", "extrapolate", "predict", "looks", "accept", "chunk"):
         namespace[name] = jit(namespace[name])
     chunk = numba.njit(error_model="numpy")(namespace["_chunk"])
@@ -561,6 +562,9 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
     fst[_STEP] = float(step) if step else 0.0
     fst[_H_PREV] = 1.0
     c = step_constants()
+    from phc.simulation.midpoint4 import run_energy
+
+    c[_RUN_ENERGY] = run_energy(raw, scales)  # midpoint4's passivity floor (step_logic.passivity_floor)
     pt, pm = np.zeros(mp.MAX_PREDICTOR_ORDER + 1), np.zeros((mp.MAX_PREDICTOR_ORDER + 1, n))
     A = np.zeros((2, n, n) if not on_c else (2, 1, 1))  # the numba loop's matrices (the C loop has its own)
     low = mixed_precision(n) and not on_c  # the C loop corrects in double precision only

@@ -60,6 +60,25 @@ MID_TIMES = (0.5 * GAMMA1, GAMMA1 + 0.5 * GAMMA2, 1.0 - 0.5 * GAMMA1)
 """Midpoints of the substeps as fractions of the step (0.676, 0.5, 0.324: inside the step)."""
 
 
+def run_energy(mod, scales) -> float:
+    """The run's energy scale: the energy scale of the model with every state at its nominal
+    size — the nominal scale of the energy accumulator ``energy.supplied``, which
+    :func:`phc.simulation.scaling.nominal_scales` sets to at least that (the energy supplied is
+    measured against what the states can hold). 0 without nominal scales. Computed once per
+    run; the passivity guard's round-off floor is ``1e-13·max(|escale|, run_energy)``
+    (:func:`phc.simulation.step_logic.passivity_floor`): the state's own energy scale vanishes
+    with the state (a driven block that sticks at rest: H ≈ 1e-73, its dissipated power's
+    round-off ±4e-54), which rejected steps that dissipate nothing."""
+    if scales is None:
+        return 0.0
+    s = np.asarray(scales, dtype=float)
+    names = list(getattr(mod, "module", mod).VARIABLES)
+    if "energy.supplied" not in names or s.shape != (len(names),):
+        return 0.0
+    e = abs(float(s[names.index("energy.supplied")]))
+    return e if np.isfinite(e) else 0.0
+
+
 def composition_constants(c):
     """`c`, the constants vector of :mod:`phc.simulation.step_logic`, with the composition's numbers."""
     c[step_logic._G1], c[step_logic._G2] = GAMMA1, GAMMA2
@@ -92,6 +111,7 @@ class Midpoint4Step:
         self.ill_conditioned = False
         self.singular = False
         self.constants = composition_constants(self.stages[0].constants.copy())
+        self.constants[step_logic._RUN_ENERGY] = run_energy(mod, scales)
         self.hist_t, self.hist_v = np.zeros((2, 3)), np.zeros((2, 3, mod.N))
         self.algmask = (~np.asarray(mod.DIFFERENTIAL, dtype=bool)).astype(np.int8)
         """The algebraic variables (1), as the driver's predictor takes them
@@ -139,7 +159,8 @@ class Midpoint4Step:
             end = y
         try:
             power = float(self.mod.powers(t + 0.5 * h, 0.5 * (y + end), (end - y) / h, self.p)[1])
-            floor = 1e-13 * abs(float(self.mod.energy_scale(t, y, self.p))) + 1e-300
+            floor = step_logic.passivity_floor(abs(float(self.mod.energy_scale(t, y, self.p))),
+                                               self.constants[step_logic._RUN_ENERGY])
         except (ArithmeticError, ValueError):
             return None
         return power if h * power < -floor else None

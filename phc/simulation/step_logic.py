@@ -105,10 +105,11 @@ them with the rest of the kernel. The operations (what they do and return):
     start) otherwise, and always in a run without events. The numba kernel evaluates the model's
     ``events`` compiled; the C loop the model library's ``phc_events`` (steps.c's ``op_watch``).
 
-The numbers the logic uses come in the vector ``c`` (its layout: ``_TOL`` … ``_STRIKES_C``),
+The numbers the logic uses come in the vector ``c`` (its layout: ``_TOL`` … ``_RUN_ENERGY``),
 filled from the constants of the methods' modules (:func:`phc.simulation.midpoint.newton_constants`,
 :func:`phc.simulation.discrete_gradient.secant_constants`,
-:func:`phc.simulation.midpoint4.composition_constants`).
+:func:`phc.simulation.midpoint4.composition_constants`); ``c[_RUN_ENERGY]`` is the run's energy
+scale (:func:`phc.simulation.midpoint4.run_energy`, set per run; 0 where none is known).
 """
 
 from __future__ import annotations
@@ -121,8 +122,8 @@ _OK, _FAIL, _SINGULAR, _EVAL, _PASSIVITY = 0, 1, 2, 3, 4
 DOUBLE_NEXT, STRIKE = 0, 1
 # the constants vector c
 (_TOL, _RATE, _FLOOR, _MAX_AGE, _MAX_NEWTON, _BAL_TOL, _MAX_SECANT, _S_MIN, _S_MAX, _THRESHOLD, _EVERY,
- _G1, _G2, _M0, _M1, _M2, _ORDER, _ZONE, _STAGNATION, _ONE, _ZERO, _ORDER_ALG, _STRIKES_C) = range(23)
-_NC = 23
+ _G1, _G2, _M0, _M1, _M2, _ORDER, _ZONE, _STAGNATION, _ONE, _ZERO, _ORDER_ALG, _STRIKES_C, _RUN_ENERGY) = range(24)
+_NC = 24
 # the loops' state (the Python loop's, the compiled loops' and steps.c's): integer state ist
 (_K, _J, _SUBSTEPS, _STEPS, _LAST_LOOK, _HAS_MID, _MAX_STEPS, _STATUS, _NFEV, _NFACT, _HIST, _MONITOR, _METHOD,
  _CODE, _ILL, _E, _NEND, _NMID, _LOWP, _STRIKES) = range(20)
@@ -155,6 +156,7 @@ C_SIGNATURES = {
     # S: the energy scale's C function, P: the port powers' (both the model's)
     "discrete_gradient": (("S", "S", "ws", "F", "i", "f", "f", "v", "v", "F", "v"),
                           ("i", "b", "v", "f", "f", "v", "i")),
+    "passivity_floor": (("f", "f"), ("f",)),
     "midpoint4": (("P", "S", "ws", "F", "f", "f", "v", "v", "F", "v", "F3", "V3", "i", "M"), ("i", "b", "i")),
     "chunk": (("ws", "F", "V", "V", "v", "v", "v", "v", "v", "F", "V", "F", "I", "F", "M", "v", "v", "i"), ()),
 }
@@ -481,6 +483,15 @@ def discrete_gradient(ham, escale, ws, c, e, t, h, y, guess, p, out):
     return (_OK if best <= 1e3 * tol else _FAIL), ill, y_best, best, scale, y_half, secants
 
 
+def passivity_floor(escale, run_energy):
+    """The energy below which a composite step's net dissipation counts as round-off of zero
+    (midpoint4's passivity guard): ``1e-13·max(escale, run_energy)`` with ``escale`` the energy
+    scale of the step's state and ``run_energy`` the run's (``c[_RUN_ENERGY]``). The state's
+    alone vanishes with the state: a driven block that sticks holds H ≈ 1e-73, whose round-off
+    power (±4e-54) the guard took for a passivity violation."""
+    return 1e-13 * max(escale, run_energy) + 1e-300
+
+
 def midpoint4(powers, escale, ws, c, t, h, y, guess, p, out, hist_t, hist_v, nhist, algmask):
     """One step of the fourth-order composition (:mod:`phc.simulation.midpoint4`): midpoint
     substeps of ``c[_G1]·h, c[_G2]·h, c[_G1]·h`` (matrix 0 for the outer ones, 1 for the middle
@@ -528,7 +539,7 @@ def midpoint4(powers, escale, ws, c, t, h, y, guess, p, out, hist_t, hist_v, nhi
         _copy(out, start)
         tau = tau + hs
     # round-off of a dissipation that is zero (a body that sticks, docs/events.md) is no violation
-    floor = 1e-13 * abs(escale(t, y, p)) + 1e-300
+    floor = passivity_floor(abs(escale(t, y, p)), c[_RUN_ENERGY])
     if dissipated < -1e-9 * scale - floor:
         return _PASSIVITY, ill, 0
     if nhist == 2:

@@ -340,3 +340,29 @@ def test_block_bounces_then_slides_to_rest(tmp_path, solver, kw):
     assert r.energy_supplied[-1] + m * g * (_col(r, "block.y")[-1] - 1.0) == pytest.approx(
         0.5 * m * (vx**2 + vy**2), rel=1e-9)
     assert r.energy_balance_relative < 1e-12
+
+
+@pytest.mark.parametrize("h, t_end", [(1e-3, 0.5), (7e-4, 2.5)])
+def test_midpoint4_rejects_no_step_of_the_stuck_ramp_block(tmp_path, h, t_end):
+    """The block pushed by c t (above) while it sticks: at rest its energy scale is ~1e-100
+    to 1e-72, and the dissipated power's round-off was rejected by midpoint4's passivity guard
+    against a floor of 1e-13 times that alone (to t = 0.5 at h = 1e-3: 8 steps retried in
+    pieces; h = 7e-4: the run stopped at t = 0, "the resistive ports supply power"). The floor
+    takes the run's energy scale (phc.simulation.midpoint4.run_energy): no step is retried, and
+    the motion is the closed form of test_block_pushed_by_a_ramp_slips_at_t_star (stuck until
+    t* = μ m g/c, then x = c (t − t*)³/(6 m), which the composition of order 4 integrates
+    exactly: 1e-12 as there)."""
+    m, g, mu, c = 2.0, 9.81, 0.3, 4.0
+    t_star = mu * m * g / c
+    r = phc.simulate(_compile(tmp_path, RAMP), solver="midpoint4", step=h, t_end=t_end)
+    assert r.success, r.message
+    assert "needed a restart or a split" not in r.message, r.message
+    x = _col(r, "bx.x")
+    before, after = r.t < t_star, r.t > t_star
+    assert np.abs(x[before]).max() < 1e-15
+    if t_end < t_star:
+        assert _kinds(r) == [("close", "floor", 0), ("stick", "floor", 0)]
+        return
+    assert _kinds(r) == [("close", "floor", 0), ("stick", "floor", 0), ("slip", "floor", 1)]
+    assert r.events[2].t == pytest.approx(t_star, abs=2e-12)
+    assert np.allclose(x[after], c * (r.t[after] - t_star)**3 / (6 * m), rtol=0, atol=1e-12)

@@ -3,6 +3,7 @@
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 import phc
 from phc.simulation.midpoint4 import GAMMA1, GAMMA2
@@ -136,3 +137,119 @@ def test_positions_of_order_four_and_constrained_momenta_of_order_two(tmp_path):
     ratios = errors[:-1] / errors[1:]
     assert (ratios[:, 0] > 0.8 * 16).all(), ratios
     assert (ratios[:, 1] > 0.8 * 4).all(), ratios
+
+
+# ---------------------------------------------------------------------------------------------------
+# the passivity guard's round-off floor, on the three step loops (the Python loop, numba's, steps.c's)
+
+def _loop_model(tmp_path, text, backend):
+    """`text` compiled for `backend` (numpy: the Python loop; numba, c: their compiled loops), or a skip."""
+    if backend == "numba":
+        from phc.codegen.numba_backend import available
+    elif backend == "c":
+        from phc.codegen.c_backend import available
+    else:
+        available = None
+    if available is not None:
+        ok, why = available()
+        if not ok:
+            pytest.skip(f"the {backend} step loop is not available: {why}")
+    path = tmp_path / f"model_{backend}.yaml"
+    path.write_text(text)
+    model = phc.compile_model(path, certify=False, backend=backend)
+    assert model.backend == backend
+    return model
+
+
+@pytest.fixture
+def step_loops(monkeypatch):
+    """Per call of compiled_steps.integrate: the loop that ran the piece ("c", "numba"), None for Python's."""
+    from phc.simulation import compiled_steps
+
+    seen = []
+    original = compiled_steps.integrate
+
+    def spy(*args, **kwargs):
+        out = original(*args, **kwargs)
+        seen.append(None if out is None else out["step_loop"])
+        return out
+
+    monkeypatch.setattr(compiled_steps, "integrate", spy)
+    return seen
+
+
+LOOPS = (("numpy", None), ("numba", "numba"), ("c", "c"))
+
+
+@pytest.mark.parametrize("backend, loop", LOOPS, ids=[b for b, _ in LOOPS])
+@pytest.mark.parametrize("c, t_end", [(0.4, 0.5), (4.0, 1.0)], ids=["stuck", "stick-slip"])
+def test_a_driven_block_that_sticks_passes_the_passivity_guard(tmp_path, step_loops, backend, loop, c, t_end):
+    """The block of test_events.py pushed by c·t against Coulomb friction F_c = 3 (m = 2): stuck
+    (v = 0, no power dissipated) until t* = F_c/c, then m v̇ = c (t − t*), v = c (t − t*)²/(2m).
+    While it sticks its energy scale is H ≈ 1e-73 and the dissipated power round-off (±4e-54):
+    against a floor of 1e-13 times the state's energy scale alone, midpoint4's passivity guard
+    rejected such steps: the numba loop stopped ("the resistive ports supply power") at t = 0.3125
+    (c = 0.4), the numba and the C loop at t = 0.745 (c = 4). With the run's energy scale in the
+    floor (midpoint4.run_energy) no step is rejected, on every loop.
+
+    Closed form: ṗ = c t − F_c is linear in t, which the composition of order 4 integrates
+    exactly; the slip is located to EVENT_TOL = 1e-12·max(1, t) in time (regula falsi on a
+    switching function linear in t), which moves v by at most (c/m)(t − t*)·1e-12 ≤ 1e-12; the
+    rest is round-off of a few hundred steps (1e-13 allowed, v ≤ 0.125)."""
+    from test_events import PUSHED
+
+    model = _loop_model(tmp_path, PUSHED.format(force="c*t").replace("c: 4.0", f"c: {c}"), backend)
+    r = phc.simulate(model, solver="midpoint4", step=1e-3, t_end=t_end)
+    assert r.success, r.message
+    assert "needed a restart or a split" not in r.message, r.message  # no step rejected and retried
+    assert step_loops and set(step_loops) == {loop}
+    m, fc = 2.0, 3.0
+    t_star = fc / c
+    if t_star < t_end:
+        assert [(e.kind, e.direction) for e in r.events] == [("stick", 0), ("slip", 1)]
+        assert abs(r.events[1].t - t_star) <= 2e-12
+    else:
+        assert [(e.kind, e.direction) for e in r.events] == [("stick", 0)]
+    stuck = r.t < t_star
+    assert np.abs(r["v"][stuck]).max() < 1e-12  # sticking is exact
+    exact = np.where(stuck, 0.0, c * (r.t - t_star) ** 2 / (2 * m))
+    assert np.abs(r["v"] - exact).max() < 1e-12
+
+
+ACTIVE = """\
+format_version: 1
+name: negative_damper
+parameters:
+  m: 1.0
+  k: 4.0
+  d: 0.5
+components:
+  osc:
+    type: phs
+    states: [p, x]
+    hamiltonian: p**2/(2*m) + k*x**2/2
+    resistive:
+      dmp: {law: [e_dmp = -d*f_dmp]}
+    relations:
+      - f_x = e_p
+      - f_p = -e_x - e_dmp
+      - f_dmp = e_p
+simulation:
+  t_end: 1.0
+  n_out: 11
+  initial: {osc.x: 1.0, osc.p: 0.0}
+"""
+"""An oscillator with a damper of negative coefficient (ṗ = −k x + d v): an active model, its
+"dissipated" power −d v² < 0."""
+
+
+@pytest.mark.parametrize("backend, loop", LOOPS, ids=[b for b, _ in LOOPS])
+def test_the_guard_still_rejects_a_negative_damper(tmp_path, step_loops, backend, loop):
+    """The floor is round-off of the run's energy (1e-13 · H ≈ 2e-13), far below a negative
+    damper's −d v² h per step (≈ 5e-4·v² at h = 1e-3, with v of order one once it moves): every loop
+    rejects the step where the block moves and says that the resistive ports supply power."""
+    model = _loop_model(tmp_path, ACTIVE, backend)
+    r = phc.simulate(model, solver="midpoint4", step=1e-3)
+    assert not r.success
+    assert "resistive ports supply power" in r.message and "PHC-E451" in r.message
+    assert step_loops and step_loops[0] == loop

@@ -66,7 +66,7 @@
 #include <stdint.h>
 #include <string.h>
 
-#define PHC_STEPS_ABI 4
+#define PHC_STEPS_ABI 5
 
 typedef void (*phc_residual_fn)(double t, const double *y, const double *yp, const double *p, double *out);
 typedef void (*phc_jacobian_fn)(double t, const double *y, const double *yp, const double *p, double cj,
@@ -78,10 +78,10 @@ typedef void (*phc_powers_fn)(double t, const double *y, const double *yp, const
 /* outcome of a stage solve or a step (phc.simulation.step_logic: _OK, _FAIL, _SINGULAR, _EVAL, _PASSIVITY) */
 enum { OK = 0, FAIL = 1, SINGULAR = 2, EVAL = 3, PASSIVITY = 4 };
 
-/* the constants vector c (phc.simulation.step_logic: _TOL ... _STRIKES_C) */
+/* the constants vector c (phc.simulation.step_logic: _TOL ... _RUN_ENERGY; C_RUN_ENERGY since ABI 5) */
 enum { C_TOL, C_RATE, C_FLOOR, C_MAX_AGE, C_MAX_NEWTON, C_BAL_TOL, C_MAX_SECANT, C_S_MIN, C_S_MAX, C_THRESHOLD,
        C_EVERY, C_G1, C_G2, C_M0, C_M1, C_M2, C_ORDER, C_ZONE, C_STAGNATION, C_ONE, C_ZERO, C_ORDER_ALG,
-       C_STRIKES, C_NC };
+       C_STRIKES, C_RUN_ENERGY, C_NC };
 
 /* status of a chunk (phc.codegen.numba_steps_kernel: _BUDGET ... _MAXSTEPS, _EVENT) */
 enum { ST_BUDGET, ST_DONE, ST_HARD, ST_LOOK, ST_MAXSTEPS, ST_EVENT };
@@ -551,7 +551,7 @@ void phc_steps_layout(int64_t *out)
         I_MONITOR, I_METHOD, I_CODE, I_ILL, I_E, I_NEND, I_NMID, I_LOWP, I_STRIKES,
         F_T, F_H, F_H_PREV, F_STEP,
         C_TOL, C_RATE, C_FLOOR, C_MAX_AGE, C_MAX_NEWTON, C_THRESHOLD, C_EVERY, C_ORDER, C_ZONE, C_STAGNATION,
-        C_ORDER_ALG, C_BAL_TOL, C_MAX_SECANT, C_S_MIN, C_S_MAX, C_G1, C_G2, C_M0, C_M1, C_M2,
+        C_ORDER_ALG, C_BAL_TOL, C_MAX_SECANT, C_S_MIN, C_S_MAX, C_G1, C_G2, C_M0, C_M1, C_M2, C_RUN_ENERGY,
         ST_BUDGET, ST_DONE, ST_HARD, ST_LOOK, ST_MAXSTEPS, ST_EVENT, OK, FAIL, SINGULAR, EVAL, PASSIVITY,
         MAX_NODES, (int64_t)sizeof(struct phc_steps),
     };
