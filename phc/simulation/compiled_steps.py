@@ -562,9 +562,9 @@ def integrate(method: str, mod, p, t_out, y0, yp0, *, max_steps, progress, step,
     fst[_STEP] = float(step) if step else 0.0
     fst[_H_PREV] = 1.0
     c = step_constants()
-    from phc.simulation.midpoint4 import run_energy
+    from phc.simulation.scaling import run_energy
 
-    c[_RUN_ENERGY] = run_energy(raw, scales)  # midpoint4's passivity floor (step_logic.passivity_floor)
+    c[_RUN_ENERGY] = run_energy(raw, scales)  # the energy checks' round-off floor (scaling.run_energy)
     pt, pm = np.zeros(mp.MAX_PREDICTOR_ORDER + 1), np.zeros((mp.MAX_PREDICTOR_ORDER + 1, n))
     A = np.zeros((2, n, n) if not on_c else (2, 1, 1))  # the numba loop's matrices (the C loop has its own)
     low = mixed_precision(n) and not on_c  # the C loop corrects in double precision only

@@ -83,6 +83,7 @@ import numpy as np
 
 from phc.simulation import step_logic
 from phc.simulation.backend import BackendRun
+from phc.simulation.scaling import run_energy
 from phc.simulation.midpoint import (NEWTON_HINT, SINGULAR_HINT, StageSolver, Stages, integrate_fixed_step,
                                      newton_weights_of)
 
@@ -187,6 +188,7 @@ class DiscreteGradientStep:
         self.projects = any(str(v).startswith("ggl.") for v in mod.VARIABLES)
         """The model has GGL multipliers, whose projection may do work (module docstring)."""
         self.constants = secant_constants(self.stage.constants.copy())
+        self.constants[step_logic._RUN_ENERGY] = run_energy(mod, scales)
         self.velocities = EndVelocities(mod, p)
         self.workspace = _Workspace(self.stage, self.velocities)
 

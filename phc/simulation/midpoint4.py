@@ -38,6 +38,7 @@ import numpy as np
 
 from phc.simulation import step_logic
 from phc.simulation.backend import BackendRun
+from phc.simulation.scaling import run_energy
 from phc.simulation.midpoint import (NEWTON_HINT, SINGULAR_HINT, StageSolver, Stages, integrate_fixed_step,
                                      newton_weights_of)
 
@@ -58,25 +59,6 @@ FRACTIONS = (GAMMA1, GAMMA2, GAMMA1)
 """Substep sizes as fractions of the step."""
 MID_TIMES = (0.5 * GAMMA1, GAMMA1 + 0.5 * GAMMA2, 1.0 - 0.5 * GAMMA1)
 """Midpoints of the substeps as fractions of the step (0.676, 0.5, 0.324: inside the step)."""
-
-
-def run_energy(mod, scales) -> float:
-    """The run's energy scale: the energy scale of the model with every state at its nominal
-    size — the nominal scale of the energy accumulator ``energy.supplied``, which
-    :func:`phc.simulation.scaling.nominal_scales` sets to at least that (the energy supplied is
-    measured against what the states can hold). 0 without nominal scales. Computed once per
-    run; the passivity guard's round-off floor is ``1e-13·max(|escale|, run_energy)``
-    (:func:`phc.simulation.step_logic.passivity_floor`): the state's own energy scale vanishes
-    with the state (a driven block that sticks at rest: H ≈ 1e-73, its dissipated power's
-    round-off ±4e-54), which rejected steps that dissipate nothing."""
-    if scales is None:
-        return 0.0
-    s = np.asarray(scales, dtype=float)
-    names = list(getattr(mod, "module", mod).VARIABLES)
-    if "energy.supplied" not in names or s.shape != (len(names),):
-        return 0.0
-    e = abs(float(s[names.index("energy.supplied")]))
-    return e if np.isfinite(e) else 0.0
 
 
 def composition_constants(c):

@@ -798,3 +798,24 @@ def promise_scales(mod, p, t0, y0, yp0, scales) -> np.ndarray:
     for attr in ("floored", "user", "sizes"):
         setattr(result, attr, getattr(scales, attr, None) if attr != "user" else tuple(getattr(scales, "user", ())))
     return result
+
+
+def run_energy(mod, scales) -> float:
+    """The run's energy scale: the energy scale of the model with every state at its nominal
+    size — the nominal scale of the energy accumulator ``energy.supplied``, which
+    :func:`phc.simulation.scaling.nominal_scales` sets to at least that (the energy supplied is
+    measured against what the states can hold). 0 without nominal scales. Computed once per
+    run (``c[_RUN_ENERGY]`` of :mod:`phc.simulation.step_logic`). It floors the energy checks,
+    whose scale would otherwise vanish with the state (a driven block that sticks at rest:
+    H ≈ 1e-73, its dissipated power's round-off ±4e-54): midpoint4's passivity guard
+    (:func:`phc.simulation.step_logic.passivity_floor`, ``1e-13·max(|escale|, run_energy)``)
+    and the discrete gradient's energy balance (``c[_TOL]²·run_energy``: the stage values'
+    tolerance, squared where H is stationary)."""
+    if scales is None:
+        return 0.0
+    s = np.asarray(scales, dtype=float)
+    names = list(getattr(mod, "module", mod).VARIABLES)
+    if "energy.supplied" not in names or s.shape != (len(names),):
+        return 0.0
+    e = abs(float(s[names.index("energy.supplied")]))
+    return e if np.isfinite(e) else 0.0

@@ -109,7 +109,7 @@ The numbers the logic uses come in the vector ``c`` (its layout: ``_TOL`` … ``
 filled from the constants of the methods' modules (:func:`phc.simulation.midpoint.newton_constants`,
 :func:`phc.simulation.discrete_gradient.secant_constants`,
 :func:`phc.simulation.midpoint4.composition_constants`); ``c[_RUN_ENERGY]`` is the run's energy
-scale (:func:`phc.simulation.midpoint4.run_energy`, set per run; 0 where none is known).
+scale (:func:`phc.simulation.scaling.run_energy`, set per run; 0 where none is known).
 """
 
 from __future__ import annotations
@@ -441,7 +441,10 @@ def discrete_gradient(ham, escale, ws, c, e, t, h, y, guess, p, out):
     scale = max(abs(escale(t, y, p)), abs(escale(t + h, out, p)), abs(y[e]), abs(out[e]), 1e-200)
     if not (np.isfinite(bal) and np.isfinite(scale)):
         return _EVAL, ill, out, 0.0, 0.0, out, 0
-    tol = c[_BAL_TOL] * scale
+    # the stage values are known to c[_TOL] of their nominal sizes; where H is stationary (a body
+    # at rest that sticks: H ~ 1e-33 and below) its error is second order in theirs, c[_TOL]²
+    # of the run's energy scale c[_RUN_ENERGY] (scaling.run_energy): no secant resolves less
+    tol = max(c[_BAL_TOL] * scale, c[_TOL] * c[_TOL] * c[_RUN_ENERGY])
     if abs(bal) <= tol:
         return _OK, ill, out, abs(bal), scale, out, 0
     # first slope from the curvature of φ(σ) = H(y(σ)): r'(s) ≈ −φ''(s)

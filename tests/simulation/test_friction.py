@@ -348,7 +348,7 @@ def test_midpoint4_rejects_no_step_of_the_stuck_ramp_block(tmp_path, h, t_end):
     to 1e-72, and the dissipated power's round-off was rejected by midpoint4's passivity guard
     against a floor of 1e-13 times that alone (to t = 0.5 at h = 1e-3: 8 steps retried in
     pieces; h = 7e-4: the run stopped at t = 0, "the resistive ports supply power"). The floor
-    takes the run's energy scale (phc.simulation.midpoint4.run_energy): no step is retried, and
+    takes the run's energy scale (phc.simulation.scaling.run_energy): no step is retried, and
     the motion is the closed form of test_block_pushed_by_a_ramp_slips_at_t_star (stuck until
     t* = μ m g/c, then x = c (t − t*)³/(6 m), which the composition of order 4 integrates
     exactly: 1e-12 as there)."""

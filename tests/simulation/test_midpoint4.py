@@ -190,7 +190,7 @@ def test_a_driven_block_that_sticks_passes_the_passivity_guard(tmp_path, step_lo
     against a floor of 1e-13 times the state's energy scale alone, midpoint4's passivity guard
     rejected such steps: the numba loop stopped ("the resistive ports supply power") at t = 0.3125
     (c = 0.4), the numba and the C loop at t = 0.745 (c = 4). With the run's energy scale in the
-    floor (midpoint4.run_energy) no step is rejected, on every loop.
+    floor (scaling.run_energy) no step is rejected, on every loop.
 
     Closed form: ṗ = c t − F_c is linear in t, which the composition of order 4 integrates
     exactly; the slip is located to EVENT_TOL = 1e-12·max(1, t) in time (regula falsi on a
