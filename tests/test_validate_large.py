@@ -228,3 +228,36 @@ def test_the_stored_energy_is_the_sum_of_the_cells_energies_whenever_it_is_read(
     assert copied.hamiltonian == expected and dae.hamiltonian == expected
     assert type(dae.__dict__["hamiltonian"]) is not TermSum  # summed once, kept
     assert pickle.loads(pickle.dumps(dae)).hamiltonian == expected
+
+
+def test_the_rows_free_symbols_are_found_once_and_are_each_rows_own(tmp_path):
+    """:meth:`phc.ir.dae.Dae.row_symbols`, read by the budget's count of nonzeros and the
+    structural check's incidence: each row's set is the one sympy finds in that row (the
+    chain's rows written out here: a spring's ``der(k_i.x)`` reads the flows of its two
+    masses), found once per system, not carried by a copy or a pickle."""
+    import dataclasses
+    import pickle
+
+    from phc.analysis.matching import incidence
+
+    cells = 4
+    path = tmp_path / "chain.yaml"
+    path.write_text(chain_yaml(2 * cells + 1))
+    dae, diags, _ = phc.validate_file(path)
+    assert dae is not None, [str(d) for d in diags]
+    found = dae.row_symbols()
+    assert len(found) == len(dae.equations)
+    for eq, symbols in zip(dae.equations, found):
+        assert symbols == (set() if eq.expr.is_Number else eq.expr.free_symbols), eq.label
+    sym = {name: sp.Symbol(name, real=True) for name in ("der(k2.x)", "m1.p", "m2.p", "m")}
+    spring = next(s for s in found if sym["der(k2.x)"] in s)
+    assert spring == set(sym.values())  # der(k2.x) − m1.p/m + m2.p/m
+    assert dae.row_symbols() is found  # kept
+    assert "_row_symbols" not in dataclasses.replace(dae, name="copy").__dict__
+    again = pickle.loads(pickle.dumps(dae))
+    assert "_row_symbols" not in again.__dict__ and again.row_symbols() == found
+    # the incidence is read from them: variable j in row i exactly where its symbol is there
+    col = {s: j for j, v in enumerate(dae.variables) for s in (v.symbol, v.dsymbol) if s is not None}
+    rows, cols = incidence(dae)
+    assert sorted(zip(rows.tolist(), cols.tolist())) == sorted(
+        {(i, col[s]) for i, eq in enumerate(dae.equations) for s in eq.expr.free_symbols if s in col})

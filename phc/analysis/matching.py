@@ -66,10 +66,15 @@ def incidence(dae: Dae) -> tuple[np.ndarray, np.ndarray]:
         if v.dsymbol is not None:
             col[v.dsymbol] = j
     rows, cols = [], []
-    for i, eq in enumerate(dae.equations):
-        if eq.expr.is_Number:
-            continue  # no symbols: a row of a linear block (most rows of a mesh), read from its matrices below
-        for s in eq.expr.free_symbols:
+    if hasattr(dae, "row_symbols"):
+        found = dae.row_symbols()
+    else:  # a system that is not a Dae, with `equations`
+        from phc.ir.dae import equation_symbols
+
+        found = equation_symbols(dae.equations)
+    for i, symbols in enumerate(found):
+        # a number has none: a row of a linear block (most rows of a mesh), read from its matrices below
+        for s in symbols:
             j = col.get(s)
             if j is not None:
                 rows.append(i)

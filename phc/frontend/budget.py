@@ -331,8 +331,7 @@ def check_assembled(elab, dae) -> list[Diagnostic]:
 
     n_var = len(dae.variables)
     nonzeros = sum(term.matrix.nnz for block in dae.linear_blocks for term in block.terms)
-    nonzeros += sum(len(eq.expr.free_symbols) for eq in dae.equations
-                    if not (getattr(eq.expr, "is_Number", True) and eq.expr == 0))  # a sum is never `== 0`: no sympify
+    nonzeros += sum(map(len, dae.row_symbols()))  # a number (a row of a sparse block) has none
     compile_est = Estimate(n_var, nonzeros, len(elab.components))
     n_out = int(dae.options.get("n_out", 0) or 0)
     columns = 2 * n_var + len(dae.outputs) + len(dae.invariants) + len(dae.velocity_invariants) + 4

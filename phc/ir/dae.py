@@ -581,6 +581,7 @@ class Dae:
         state = dict(self.__dict__)
         state["options"] = thaw(self.options)
         state["hamiltonian"] = self.hamiltonian  # built, if it was still a TermSum
+        state.pop("_row_symbols", None)  # found again when read
         return state
 
     def __setstate__(self, state):
@@ -614,6 +615,24 @@ class Dae:
     @property
     def n_states(self) -> int:
         return sum(1 for v in self.variables if v.differential)
+
+    def row_symbols(self) -> tuple:
+        """The free symbols of each equation's expression, in the order of `equations` (an
+        empty set for a number: the rows of sparse blocks), read only. Found once per system:
+        the memory budget's count of nonzeros and the structural check's incidence both read
+        them (a walk of every row each, measured 0.04 CPU s for a chain of 10⁴ components)."""
+        found = self.__dict__.get("_row_symbols")
+        if found is None:
+            found = equation_symbols(self.equations)
+            object.__setattr__(self, "_row_symbols", found)  # equations is a tuple of frozen rows
+        return found
+
+
+def equation_symbols(equations) -> tuple:
+    """The free symbols of each row's expression (an empty set for a number), as
+    :meth:`Dae.row_symbols` keeps them: for a system that is not a :class:`Dae`."""
+    empty = frozenset()
+    return tuple(empty if getattr(eq.expr, "is_Number", True) else eq.expr.free_symbols for eq in equations)
 
 
 Dae.hamiltonian = _SumOnRead("hamiltonian")  # after @dataclass: the field stays one without a default

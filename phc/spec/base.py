@@ -42,6 +42,7 @@ class SpecModel(BaseModel):
         allow_inf_nan=False,
         frozen=True,
         populate_by_name=True,
+        defer_build=True,
     )
 
 

@@ -13,7 +13,7 @@ from typing import Optional
 import pydantic
 
 from phc.diagnostics import Diagnostic, DiagnosticList, allowed_keys_from_model, from_pydantic
-from phc.frontend.source import SourceMap, SourceSpan, load_yaml, read_yaml_file
+from phc.frontend.source import SourceMap, SourceSpan, _read_parsed, load_yaml
 from phc.spec import ModelSpec
 
 __all__ = ["load_spec", "load_spec_bytes"]
@@ -29,7 +29,9 @@ def load_spec(path: str | os.PathLike) -> tuple[Optional[ModelSpec], Optional[So
     spec, smap, diagnostics
         `spec` is None when the file has errors.
     """
-    data, smap, problems = read_yaml_file(path)
+    # the parsed data as the file's other reads share it, not a copy: validation only reads it
+    # (pydantic builds the spec's own dicts and lists), and nothing else is kept of it
+    data, smap, problems = _read_parsed(path)
     return _spec_from_yaml(path, data, smap, problems)
 
 
