@@ -778,17 +778,24 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
                 if calls.failed_last:  # IDA gave up where the model cannot be evaluated
                     raise calls.error
                 ok = False
-                hint = growth() or _STATUS_HINTS.get(status)
                 monitor.positional = False
-                approach = _approaching_singularity(monitor, hook.h_ref) if hint is None else None
+                approach = _approaching_singularity(monitor, hook.h_ref)
                 positional = approach is not None and monitor.positional
-                if approach is None and hint is None:  # a rank drop ahead, not yet near: no tolerance is the remedy
-                    approach = _approaching_singularity(monitor, hook.h_ref, AHEAD, far=1.0, positional=True)
-                    positional = approach is not None
                 positional = positional or bridges.restarted_at(hook.normal[0])  # IDA failed restarting after one
-                if hint is None and not positional:  # the looks since a restart may be too few to show the fall
+                if not positional:  # the looks since a restart, or rare looks, may be too few to show the fall
                     positional = any(near_rank_drop(monitor, *state, hook.h_ref or bridges.h_ida)  # (h_ref 0: restarted)
                                      for state in (hook.latest(), hook.normal))
+                # near a rank drop of the position constraints IDA's last steps carry momenta and
+                # constraint forces far above their scales: that is the singular configuration, not
+                # a solution growing without bound (the N = 8 four-bar was blamed on a coupler's
+                # momentum "growing without bound" when the monitor had looked rarely before it)
+                hint = None if positional else (growth() or _STATUS_HINTS.get(status))
+                if hint is not None:
+                    approach = None
+                if approach is None and hint is None and not positional:
+                    # a rank drop ahead, not yet near: no tolerance is the remedy
+                    approach = _approaching_singularity(monitor, hook.h_ref, AHEAD, far=1.0, positional=True)
+                    positional = approach is not None
                 if approach is not None:
                     hint = approach
                 elif hint is None:  # diagnose before blaming: is the iteration matrix singular there?

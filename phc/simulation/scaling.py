@@ -53,6 +53,10 @@ How ``s`` is found, in this order (docs/tolerances.md):
    314 rad/s, 0.045 s into a run, is known to ~2e-14 V whatever the states, and a diode's
    current that follows it through 1 Ω cannot be held to 5e-14 A (IDA then failed its
    error test on every step near the diode's switching, 15 000 steps for one half-period).
+
+The module is over 800 lines because the nine rules above, the promise scales of the
+outputs and the run's energy scale are one definition of "how large is this quantity":
+split, each rule would need the others' private helpers (row sizes, kinds, round-off).
 """
 
 from __future__ import annotations

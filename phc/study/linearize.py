@@ -603,27 +603,37 @@ def finite_eigenvalues(A: np.ndarray, E: np.ndarray, rtol: float = RANK_TOL
         keep = (np.abs(beta) > 1e-8 * np.hypot(np.abs(alpha), np.abs(beta))) & (np.abs(alpha) + np.abs(beta) > tol)
         lam = alpha[keep] / beta[keep]
         vectors = vecs[:, keep] * c[:, None]
-        order = np.lexsort((-lam.imag, np.abs(lam)))
+        order = _order(lam)
         return lam[order], vectors[:, order], int(n - keep.sum()), True
     if d == 0:
         return np.zeros(0, dtype=complex), np.zeros((n, 0), dtype=complex), n, False
     Ar, Er = W.T @ As @ V, W.T @ Es @ V
     lam, w = sla.eig(Ar, Er)
-    zeros = _zero_multiplicity(Ar, Er, tol)
-    if zeros:  # a defective zero (a free body's position and momentum) splits by ~√ε: put it back
-        lam[np.argsort(np.abs(lam), kind="stable")[:zeros]] = 0.0
+    zeros = _zero_chain(Ar, Er, tol).shape[1]
+    if zeros:
+        lam[_cloud(Ar, w, zeros, tol)] = 0.0
     vectors = (V @ w) * c[:, None]
-    order = np.lexsort((-lam.imag, np.abs(lam)))
+    order = _order(lam)
     return lam[order], vectors[:, order], n - d, False
 
 
-def _zero_multiplicity(A: np.ndarray, E: np.ndarray, tol: float) -> int:
-    """Algebraic multiplicity of the eigenvalue 0 of the regular pencil ``λE − A`` (E
-    invertible): the dimension where the chain ``N₁ = ker A``, ``N_{k+1} = {x : Ax ∈ E N_k}``
-    stops growing, each step a rank decision at `tol` like the Wong sequence above. The
-    eigenvalues of a Jordan block of size m are perturbed by about ε^{1/m}·‖A‖ by rounding
-    (two rigid-body zeros come out as ±1e-8 of the largest eigenvalue), far above any test
-    on their size, while the ranks that define the block are decided at ε·‖A‖."""
+def _order(lam: np.ndarray) -> np.ndarray:
+    """The order of the eigenvalues: by modulus, a complex pair with Im λ > 0 first. QZ
+    gives the two values of a pair from one 2×2 block with their own β, so their moduli may
+    differ in the last bits, in either direction depending on the BLAS kernel: a pair is
+    recognised as such (conjugates to round-off of its modulus), not by its moduli."""
+    order = list(np.lexsort((-lam.imag, np.abs(lam))))
+    for i in range(len(order) - 1):
+        a, b = lam[order[i]], lam[order[i + 1]]
+        if a.imag < 0 < b.imag and abs(a - np.conj(b)) <= 64 * np.finfo(float).eps * abs(a):
+            order[i], order[i + 1] = order[i + 1], order[i]
+    return np.asarray(order, dtype=np.int64)
+
+
+def _zero_chain(A: np.ndarray, E: np.ndarray, tol: float) -> np.ndarray:
+    """Orthonormal basis of the generalized eigenspace of the eigenvalue 0 of the regular
+    pencil ``λE − A`` (E invertible): the chain ``N₁ = ker A``, ``N_{k+1} = {x : Ax ∈ E N_k}``
+    until it stops growing, each step a rank decision at `tol` like the Wong sequence above."""
     n = A.shape[0]
     N = _null(A, tol)
     while 0 < N.shape[1] < n:
@@ -632,7 +642,24 @@ def _zero_multiplicity(A: np.ndarray, E: np.ndarray, tol: float) -> int:
         if grown.shape[1] <= N.shape[1]:
             break
         N = grown
-    return N.shape[1]
+    return N
+
+
+def _cloud(A: np.ndarray, w: np.ndarray, zeros: int, tol: float) -> np.ndarray:
+    """Indices of the `zeros` eigenvalues that rounding split off the eigenvalue 0 (its
+    algebraic multiplicity, :func:`_zero_chain`). A Jordan block of size m at 0 (a free
+    body's position and momentum: m = 2; 3 with a free integrator behind it) comes out of QZ
+    as m values spread by about ε^{1/m}·‖A‖ (±0.04 at ‖A‖ = 7000 for m = 3): more than a
+    slow mode may be, so the smallest values are not the ones to set to 0 (which of the
+    two is larger depends on the BLAS kernel's rounding). Their eigenvectors tell them
+    apart: a split value λ of the block has the eigenvector ``(1, λ/a, λ²/a², …)`` in the
+    block's chain, within |λ|/‖A‖ of ``ker A``, while a slow mode's (well separated from
+    the block, or it would not be a mode of its own) is not. The `zeros` vectors nearest
+    ``ker A`` are the split values."""
+    kernel = _null(A, tol)
+    v = w / np.maximum(np.linalg.norm(w, axis=0), 1e-300)
+    away = np.linalg.norm(v - kernel @ (kernel.T @ v), axis=0)
+    return np.argsort(away, kind="stable")[:zeros]
 
 
 def _modes(lam, vectors, names, differential, meshes) -> list[Mode]:

@@ -116,7 +116,9 @@ def test_four_bar_hanging_down_reaches_the_horizontal_only_with_enough_energy(tm
     _check_horizontal(s.drops)
     kinetic = 0.5 * INERTIA * v0**2 - G * MOMENT
     for d in s.drops:
-        assert d.kinetic_energy == pytest.approx(kinetic, rel=1e-6)
+        # T = H₀ − V at the located configuration: located to 1e-6 in θ (_check_horizontal: where
+        # the branches cross, to about √ε), where V = g P sin θ has the slope g P
+        assert d.kinetic_energy == pytest.approx(kinetic, abs=G * MOMENT * 1e-6)
         assert d.verdict == ("passes" if kinetic > 0 else "not reached")
 
 

@@ -9,11 +9,14 @@ the global error of the looser of the two over the run.
 
 from __future__ import annotations
 
+import inspect
+
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
 import phc
+from phc.simulation.initial import consistent_initial_conditions
 
 TIGHT = dict(rtol=1e-11, atol=1e-13, method="LSODA")
 
@@ -179,8 +182,15 @@ def test_the_reading_is_the_port_variable_as_outputs_name_it(tmp_path):
     text = CURRENT_LOOP.replace("    V: ctrl.y\n", "    V: ctrl.y\n    i_state: coil.phi / L\n")
     r = phc.simulate(phc.compile_model(_write(tmp_path, text)))
     assert r.success, r.message
-    # the same variable of the same solution: equal to round-off
-    assert np.abs(r.outputs["i"] - r.outputs["i_state"]).max() <= 1e-12 * np.abs(r.outputs["i"]).max()
+    size = np.abs(r.outputs["i"]).max()
+    # the same variable of the same solution: equal to round-off where the algebraic unknowns
+    # are polished from the states (every output time after the first)
+    assert np.abs(r.outputs["i"] - r.outputs["i_state"])[1:].max() <= 1e-12 * size
+    # at t0 the port current is the consistent initialization's unknown, solved to that
+    # solve's tolerance (relative to the rows' sizes; this loop's rows are of the current's
+    # size): 1e-12 of it on one BLAS kernel, 2e-12 on another (measured)
+    tol = inspect.signature(consistent_initial_conditions).parameters["tol"].default
+    assert abs(r.outputs["i"][0] - r.outputs["i_state"][0]) <= tol * size
     assert np.abs(r.outputs["i"]).max() > 1.0
 
 

@@ -49,8 +49,10 @@ estimate = inverse_norm_estimate(op)  # in a fresh process: NumPy's global rando
 c = phc.compile_model(sys.argv[1], certify=False)
 r = phc.simulate(c, solver="ida", t_end=1.5, n_out=151)
 np.save(sys.argv[2], np.concatenate([np.asarray(r.t)[:, None], np.asarray(r.y)], axis=1))
+theta = np.asarray(r["crank0.theta"])
+passes = int(np.count_nonzero(np.diff(np.floor(theta / np.pi)) != 0))  # horizontal positions crossed
 print(json.dumps({"estimate": estimate.hex(), "success": bool(r.success), "steps": int(r.steps),
-                  "events": [[e.kind, float(e.t)] for e in r.events]}))
+                  "events": [[e.kind, float(e.t)] for e in r.events], "passes": passes}))
 """
 
 
@@ -68,8 +70,12 @@ def test_ida_run_is_bit_for_bit_the_same_in_two_processes_with_different_hash_se
     a = _run(0, cache, tmp_path / "a.npy")
     b = _run(1, cache, tmp_path / "b.npy")
     assert a["success"] and b["success"]
-    # the run passes both singular configurations (else it compares less than it should)
-    assert [kind for kind, _ in a["events"]] == ["passage", "passage"]
+    # the run passes both singular configurations (else it compares less than it should), by a
+    # bridge at least the first: whether IDA passes the second itself or hands it to a bridge
+    # depends on the BLAS kernel's rounding (one CPU bridges both, another only the first)
+    assert a["passes"] == 2
+    kinds = [kind for kind, _ in a["events"]]
+    assert kinds in (["passage"], ["passage", "passage"]), kinds
     assert a == b  # the same steps and the same events, to the bit of their times
     ya, yb = np.load(tmp_path / "a.npy"), np.load(tmp_path / "b.npy")
     assert ya.shape == yb.shape
