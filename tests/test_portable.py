@@ -137,3 +137,38 @@ def test_the_rectifier_s_diode_does_not_make_ida_crawl_on_any_kernel(kernel, t_e
     assert out["event_error"] < 1e-10
     assert out["v_error"] < 1e-7
     assert out["steps"] < 10_000
+
+
+DEFECTIVE = """
+import json
+import numpy as np
+from phc.study.linearize import finite_eigenvalues
+out = {}
+for block in (2, 3):
+    rng = np.random.default_rng(7)
+    n = block + 4
+    J = np.zeros((n, n))
+    for i in range(block - 1):
+        J[i, i + 1] = 1.0
+    J[block, block] = -7e-6
+    J[block + 1, block + 1] = -3.0
+    J[block + 2:, block + 2:] = [[-0.5, 7.0], [-7.0, -0.5]]
+    Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    lam = finite_eigenvalues(1e3 * Q @ J @ Q.T, np.eye(n))[0]
+    out[block] = [[z.real, z.imag] for z in lam.tolist()]
+print(json.dumps(out))
+"""
+
+
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_a_defective_zero_and_a_slow_mode_are_told_apart_on_every_kernel(kernel, tmp_path):
+    """A Jordan block of size 3 at 0 comes out of QZ as three values of about ε^{1/3}·‖A‖
+    (0.04 here), around a slow mode at −7e-3: with the SkylakeX kernel the slow mode was set to
+    0 and a rounding value kept in its place (tests/test_linearize.py has the reasons for the
+    tolerance: the round-off of an orthogonal similarity, 1e-12 of the largest |λ| = 7000)."""
+    out = _run(DEFECTIVE, kernel, tmp_path)
+    expected = [-7e-3, -3e3, -500 + 7e3j, -500 - 7e3j]
+    for block, values in out.items():
+        lam = [complex(re, im) for re, im in values]
+        assert lam[:int(block)] == [0] * int(block)
+        assert max(abs(a - b) for a, b in zip(lam[int(block):], expected)) < 1e-12 * 7e3 * 10, (kernel, lam)
