@@ -22,7 +22,7 @@ from pathlib import Path
 import pytest
 
 import phc
-from phc.study.accuracy import relative_output_errors
+from phc.study.accuracy import estimate_errors, relative_output_errors
 
 ROOT = Path(__file__).resolve().parents[1]
 MODELS = ROOT / "models"
@@ -32,6 +32,17 @@ TEST_MODELS = [p for p in [ROOT / "tests" / "models" / "andrews_squeezer.yaml",
 BOUND = 1e-4
 REFERENCE = 2e-9
 """rtol = atol of the references: IDA at local tolerances of 1e-11 (1/200 of it)."""
+ESTIMATED = {
+    "n_four_bar": "IDA passes the N four-bar's eight singular configurations in 10 s, each either itself or "
+                  "by a bridge of midpoint steps, and which depends on the BLAS kernel's rounding; the step "
+                  "sequences after the restarts differ, and so does BDF's phase error of the crank: 4e-5 with "
+                  "the Haswell kernel, 1.5e-4 to 2.5e-4 with SkylakeX (an AVX-512 AMD EPYC)",
+}
+"""Shipped models whose error at rtol 1e-6 is above the bound on some CPUs (the promise is
+measured, not guaranteed: docs/tolerances.md, "What `rtol` promises"), with the reason. For them
+the test asks what every run does promise: the run's error estimate (a rerun at a tenth of the
+tolerances, phc.study.accuracy) reports an error above the bound, to a factor 2, and the error
+stays within ten times the bound."""
 NOT_IDA: dict[str, str] = {}  # (the woodpecker's reference runs since issue 34 item 6: 1.2e-5 at 1e-6)
 """Shipped models this IDA-against-IDA test leaves out, with the reason (benchmarks/bench_accuracy.py likewise)."""
 CASES = [pytest.param(p, id=p.stem) for p in sorted(MODELS.glob("*.yaml"))
@@ -53,4 +64,12 @@ def test_rtol_1e6_gives_outputs_within_1e4(model):
     errors = relative_output_errors(run, ref)
     assert errors, "no output above round-off to compare"
     name, err = max(errors.items(), key=lambda kv: kv[1])
+    if model.stem in ESTIMATED and err >= BOUND:
+        (estimate,) = [e for e in estimate_errors(compiled, run, dict(solver="ida", rtol=1e-6, atol=1e-6,
+                                                                      max_steps=2_000_000))
+                       if e.kind == "temporal"]
+        scale = float(abs(ref.outputs[name]).max())
+        assert estimate.ok and estimate.per_output[name] >= err * scale / 2, (name, err, estimate.per_output)
+        assert err < 10 * BOUND, f"{name}: relative error {err:.2e}"
+        return
     assert err < BOUND, f"{name}: relative error {err:.2e}"
