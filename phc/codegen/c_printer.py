@@ -49,10 +49,11 @@ import numpy as np
 import sympy as sp
 
 from phc import __version__
-from phc.codegen.kernels import CJ, Kernel, _canonical, events_kernel, function_kernels, kernel_cse, product_parts
+from phc.codegen.kernels import (CJ, Kernel, Repeated, _canonical, events_kernel, function_kernels, kernel_cse,
+                                 product_parts, repeated, slot)
 from phc.codegen.lower import ResidualIR
 from phc.codegen.numba_emit import _NODES, _RELATIONS, _SIMPLE, _is_switch
-from phc.codegen.printer import _identifier, _Printer
+from phc.codegen.printer import _cse, _identifier, _Printer
 from phc.ir.dae import STORED_ENERGY, T
 from phc.errors import BackendUnsupported, CodegenError
 from phc.frontend.inputs import InputTable, InputTableSlope
@@ -326,6 +327,7 @@ class CPrinter:
         taken: set = set()
         self.names: dict = {T: "t", CJ: "cj"}
         self.loads: dict = {}  # symbol -> (declaration, model name)
+        self.entries: dict = {}  # (vector, index) -> symbol
         for vec, symbols, prefix in (("y", ir.y_symbols, "y_"), ("yp", ir.yp_symbols, "yp_"),
                                      ("p", ir.p_symbols, "p_")):
             labels = ir.variables if vec != "p" else ir.parameters
@@ -334,6 +336,7 @@ class CPrinter:
                 if s is None:
                     continue
                 self.names[s] = ident
+                self.entries[(vec, j)] = s
                 what = f"der({label})" if vec == "yp" else label
                 self.loads[s] = (f"const double {ident} = {vec}[{j}];", what)
         # an output that uses H: the value of phc_hamiltonian (defined above phc_outputs), once
@@ -383,11 +386,13 @@ class CPrinter:
             what = unsupported(Kernel((), (op,)).expressions()[0], self.known)
             if what:
                 raise CUnsupported(f"the C backend does not support {what} yet (in {name}, a linear block)")
-        replacements, reduced = kernel_cse(self.ir, kernel, targets)
+        targets, loops = repeated(self.ir, targets)
+        replacements, reduced = kernel_cse(self.ir, Kernel(targets, kernel.sums), targets)
         printer = _Expressions(self.names, self.order)
         used = set()
         for e in [rhs for _, rhs in replacements] + list(reduced):
             used |= e.free_symbols if isinstance(e, sp.Basic) else set()
+        loop_text = [line for r in loops for line in self._loop(r, labels, used)]
         body = [f"/* {comment(doc)} */"] if doc else []
         if local_out:
             body.append(f"double out[{local_out}] = {{{', '.join(['0.0'] * local_out)}}};")
@@ -405,11 +410,56 @@ class CPrinter:
             label = labels.get(index)
             note = f"  /* {comment(label)} */" if label else ""
             body.append(f"out[{index}] {'+=' if accumulate else '='} {printer.text(e)};{note}")
+        body += loop_text
         coefficients = [printer.text(e) for e in reduced[len(targets):]]
         for op, c in zip(kernel.sums, coefficients):
             body += self._sum(op, c)
         body += list(tail)
         return head + "\n{\n" + "".join(f"    {line}\n" for line in body) + "}\n"
+
+    def _subscript(self, at: np.ndarray, stem: str) -> str:
+        """The C index of ``at[k]`` in a loop over k: ``a + d*k`` for an arithmetic progression,
+        else a constant array's entry."""
+        if len(at) > 1:
+            step = int(at[1] - at[0])
+            if np.array_equal(np.diff(at), np.full(len(at) - 1, step)):
+                start = int(at[0])
+                term = "k" if step == 1 else f"{step}*k"
+                return term if start == 0 else f"{start} + {term}"
+        return f"{self.array(stem, at, 'int')}[k]"
+
+    def _loop(self, r: Repeated, labels, used: set) -> list[str]:
+        """One :class:`~phc.codegen.kernels.Repeated` expression as a loop over its instances; an
+        entry every instance reads is the function's named local (added to `used`)."""
+        names = dict(self.names)
+        loads = []
+        for j, (vector, at) in enumerate(r.slots):
+            if (at == at[0]).all():
+                symbol = self.entries[(vector, int(at[0]))]
+                names[slot(j)] = self.names[symbol]
+                used.add(symbol)
+            else:
+                names[slot(j)] = f"s{j}"
+                loads.append(f"const double s{j} = {vector}[{self._subscript(at, 'at')}];")
+        inner = _Expressions(names, self.order)
+        replacements, (value,) = _cse([r.template], sp.numbered_symbols("_l", cls=sp.Dummy))
+        for m, (symbol, rhs) in enumerate(replacements):
+            inner.locals[symbol] = f"l{m}"
+            loads.append(f"const double l{m} = {inner.text(rhs)};")
+        used |= {s for s in r.template.free_symbols if s in self.loads}
+        first, last = labels.get(int(r.index[0])), labels.get(int(r.index[-1]))
+        text = inner.text(value)
+        if (r.index == r.index[0]).all():  # terms of one sum: added up, then to the entry
+            what = f" of {comment(first)}" if first else ""
+            head = f"/* {r.count} terms{what} of one form: a loop over the entries they read */"
+            return [head, "{", "    double sum = 0.0;", f"    for (int k = 0; k < {r.count}; ++k) {{",
+                    *(f"        {line}" for line in loads), f"        sum += {text};", "    }",
+                    f"    out[{int(r.index[0])}] += sum;", "}"]
+        what = f" ({comment(first)} ... {comment(last)})" if first and last else ""
+        head = f"/* one expression at {r.count} entries{what}: a loop over the entries it reads */"
+        target = f"out[{self._subscript(r.index, 'at')}] {'+=' if r.accumulate else '='}"
+        return [head, f"for (int k = 0; k < {r.count}; ++k) {{", *(f"    {line}" for line in loads),
+                f"    {target} {text};", "}"]
 
     def _sum(self, op, c: str) -> list[str]:
         kind = op[0]

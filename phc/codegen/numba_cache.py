@@ -37,7 +37,7 @@ from phc.errors import BackendMismatch, BackendUnavailable, CompiledBackendWarni
 NUMBA_MIN = (0, 59)
 """Oldest numba version this backend supports."""
 
-EMITTER_VERSION = "1"
+EMITTER_VERSION = "2"
 """Changes whenever the code the emitter writes changes (part of the cache key)."""
 
 FUNCTIONS = ("residual", "residual_t", "jacobian", "hamiltonian", "energy_scale", "powers", "invariants",

@@ -23,6 +23,7 @@ import sympy as sp
 
 # what each function computes (shared with the C back end), importable from here as before
 from phc.codegen.kernels import _COEFFICIENT, Kernel, _canonical, _coefficient, kernel_cse, product_parts  # noqa: F401
+from phc.codegen.kernels import repeated, slot
 from phc.codegen.lower import ResidualIR
 from phc.ir.dae import STORED_ENERGY, T
 from phc.frontend.inputs import InputTable, InputTableSlope
@@ -296,6 +297,13 @@ def _emit_kernel(context, builder, signature, args, kernel: Kernel, ir_: Residua
     _emit_body(context, builder, kernel, ir_, at, loaders, cj, tables, printer)
 
 
+def _cse_one(template):
+    """The common subexpressions of one :class:`~phc.codegen.kernels.Repeated` template."""
+    from phc.codegen.printer import _cse
+
+    return _cse([template], sp.numbered_symbols("_l", cls=sp.Dummy))
+
+
 def _emit_body(context, builder, kernel: Kernel, ir_: ResidualIR, at: dict, loaders: dict, cj, tables, printer):
     """The targets and sums of `kernel` into ``at["out"]`` (pointers to its entries by index),
     its symbols read by `loaders`."""
@@ -306,15 +314,16 @@ def _emit_body(context, builder, kernel: Kernel, ir_: ResidualIR, at: dict, load
     dbl = llir.DoubleType()
     i64 = llir.IntType(64)
     emitter = _Emitter(context, builder, loaders, tables, printer)
-    replacements, reduced = kernel_cse(ir_, kernel)
+    # an expression recurring at many entries: one loop over them (phc.codegen.kernels.repeated)
+    targets, loops = repeated(ir_, kernel.targets)
+    replacements, reduced = kernel_cse(ir_, Kernel(targets, kernel.sums), targets)
     for sym, rhs in replacements:
         emitter.values[sym] = emitter.value(rhs)
-    n_targets = len(kernel.targets)
-    for (index, _, accumulate), e in zip(kernel.targets, reduced):
+    n_targets = len(targets)
+    for (index, _, accumulate), e in zip(targets, reduced):
         v = emitter.value(e)
         ptr = at["out"](index)
         builder.store(builder.fadd(builder.load(ptr), v) if accumulate else v, ptr)
-    coefficients = [emitter.value(e) for e in reduced[n_targets:]]
 
     def constant(values, kind):
         """Pointer to a constant array (int64 or float64) in the module."""
@@ -330,6 +339,38 @@ def _emit_body(context, builder, kernel: Kernel, ir_: ResidualIR, at: dict, load
     def add_to(index_value, value):
         ptr = at["out"](index_value)
         builder.store(builder.fadd(builder.load(ptr), value), ptr)
+
+    def entry(values, k):
+        """``values[k]`` for the loop index k: ``a + d*k`` for a progression, else a constant array's entry."""
+        if len(values) > 1:
+            step = int(values[1] - values[0])
+            if np.array_equal(np.diff(values), np.full(len(values) - 1, step)):
+                return builder.add(llir.Constant(intp, int(values[0])), builder.mul(llir.Constant(intp, step), k))
+        return load(constant(values, "i"), k)
+
+    for r in loops:
+        found, (template,) = _cse_one(r.template)
+        total = None
+        if (r.index == r.index[0]).all():  # terms of one sum: added up, then to the entry
+            total = cgutils.alloca_once(builder, dbl)
+            builder.store(llir.Constant(dbl, 0.0), total)
+        with cgutils.for_range(builder, llir.Constant(intp, r.count), intp=intp) as loop:
+            k = loop.index
+            inner = dict(loaders)
+            for j, (vec, values) in enumerate(r.slots):
+                inner[slot(j)] = (lambda vec_, values_: lambda: builder.load(at[vec_](entry(values_, k))))(vec, values)
+            body = _Emitter(context, builder, inner, tables, printer)
+            for sym, rhs in found:
+                body.values[sym] = body.value(rhs)
+            v = body.value(template)
+            if total is not None:
+                builder.store(builder.fadd(builder.load(total), v), total)
+            else:
+                ptr = at["out"](entry(r.index, k))
+                builder.store(builder.fadd(builder.load(ptr), v) if r.accumulate else v, ptr)
+        if total is not None:
+            add_to(llir.Constant(intp, int(r.index[0])), builder.load(total))
+    coefficients = [emitter.value(e) for e in reduced[n_targets:]]
 
     def row_products(A, cols, vec, each_row):
         """For every row i of A: each_row(i, Σ_k A_ik v[cols[k]])."""

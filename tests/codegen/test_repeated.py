@@ -1,0 +1,154 @@
+"""Repeated components are generated once (:func:`phc.codegen.kernels.repeated`).
+
+An expression that recurs at many entries of a generated function, up to which entries of
+y, ẏ and p it reads (the rows of 10⁴ identical spring–mass cells, the terms of their
+energy), is written once as a loop over index arrays by the C and numba back ends. Checked
+here: the split loses and invents nothing (every target and every term of a long sum is
+written exactly once, and the template at each instance's entries is the original
+expression, exactly, as sympy expressions); the C functions' code does not grow with the
+number of cells (only the constant index arrays do); and the loops compute what the NumPy
+reference computes, to the bound of tests/codegen/test_c_backend.py (a loop only changes
+the order in which a long sum adds its terms: (number of terms)·ε relative to the sum of
+their magnitudes, far below 1e-12 for the few hundred terms here).
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+import sympy as sp
+
+import phc
+from phc.codegen import c_backend
+from phc.codegen.kernels import REPEAT_MIN, function_kernels, repeated, slot
+from phc.codegen.lower import lower_residual
+from phc.pipeline import build_dae
+from compiled_loading import assert_close, call
+
+_OK, _WHY = c_backend.available()
+needs_cc = pytest.mark.skipif(not _OK, reason=f"C backend not tested: {_WHY}")
+
+TOL = 1e-12
+"""As tests/codegen/test_c_backend.py (see the module docstring)."""
+
+
+def chain(cells: int, nonlinear: bool = False) -> str:
+    """A wall, then cells spring–mass; odd cells use `ka`, `ma`, even ones `kb`, `mb` (a
+    parameter read at an entry that changes from instance to instance). With `nonlinear`,
+    an output per cell with functions and a condition (a nonlinear template)."""
+    # no units: the outputs mix a length and a momentum in functions on purpose
+    lines = ["format_version: 1", f"name: chain_{cells}", "parameters:",
+             "  ka: 100.0", "  kb: 70.0", "  ma: 1.0", "  mb: 2.5", "components:",
+             "  wall: {type: zero_flow, domain: mechanical.translational}"]
+    for i in range(1, cells + 1):
+        ports = "[l, r]" if i < cells else "[l]"
+        side = "a" if i % 2 else "b"
+        lines += [f"  k{i}: {{type: spring, k: k{side}, terminals: [a, b]}}",
+                  f"  m{i}: {{type: mass, m: m{side}, ports: {ports}}}"]
+    lines += ["connections:", "  - [wall.port, k1.a]", "  - [k1.b, m1.l]"]
+    for i in range(2, cells + 1):
+        lines += [f"  - [m{i - 1}.r, k{i}.a]", f"  - [k{i}.b, m{i}.l]"]
+    lines += ["simulation:", "  t_end: 1.0", "  initial: {k1.x: 0.01}", "  outputs:"]
+    lines += ["    x1: k1.x"]
+    if nonlinear:
+        lines += [f"    o{i}: \"sin(k{i}.x)*m{i}.p + ifelse(m{i}.p > 0, k{i}.x**2, -sqrt(1 + m{i}.p**2))\""
+                  for i in range(1, cells + 1)]
+    return "\n".join(lines) + "\n"
+
+
+def _ir(tmp_path, text, name="chain.yaml"):
+    path = tmp_path / name
+    path.write_text(text)
+    dae, _ = build_dae(path)
+    return lower_residual(dae), path
+
+
+def _value_at(ir, r, k):
+    """Instance k of a Repeated: its template with its slots replaced by the entries it reads."""
+    vectors = {"y": ir.y_symbols, "yp": ir.yp_symbols, "p": ir.p_symbols}
+    return r.template.xreplace({slot(j): vectors[v][int(at[k])] for j, (v, at) in enumerate(r.slots)})
+
+
+def test_the_split_writes_every_target_and_term_once_as_it_was(tmp_path):
+    ir, _ = _ir(tmp_path, chain(40, nonlinear=True))
+    rng = np.random.default_rng(5)
+    symbols = [s for s in (*ir.y_symbols, *ir.yp_symbols, *ir.p_symbols) if s is not None]
+    point = {s: sp.Float(rng.uniform(-1.5, 1.5)) for s in symbols}
+    kinds = set()
+    for f in function_kernels(ir):
+        targets = f.kernel.targets
+        left, loops = repeated(ir, targets)
+        original = {i: (e, acc) for i, e, acc in targets}
+        written: dict = {i: [] for i in original}
+        for i, e, acc in left:
+            assert acc == original[i][1]
+            written[i].append(e)
+        for r in loops:
+            assert r.count >= REPEAT_MIN and len(r.index) == r.count
+            summed = bool((r.index == r.index[0]).all())
+            kinds.add(summed)
+            for k in range(r.count):
+                i = int(r.index[k])
+                assert summed or r.accumulate == original[i][1]
+                written[i].append(_value_at(ir, r, k))
+        for i, (e, _) in original.items():
+            # a target is written by one statement, or by one statement and the loops of its
+            # long sum's terms: the parts add up to the expression (sympy may evaluate a
+            # template in its own way, Abs(1/m) as 1/Abs(m): compared at a point, where the
+            # parts' sum has the round-off of sympy's 15-digit evaluation of a few hundred terms)
+            assert written[i], (f.name, i)
+            whole = sp.Add(*written[i])
+            if whole != e:
+                a, b = float(whole.xreplace(point).evalf()), float(e.xreplace(point).evalf())
+                assert abs(a - b) <= 1e-12 * max(1.0, abs(b)), (f.name, i, whole, e)
+        if f.name in ("residual", "jacobian", "hamiltonian", "outputs"):
+            assert loops, f.name  # 40 cells: every one of these has a repeated expression
+    assert kinds == {True, False}  # rows and terms of one sum were both looped
+
+
+def test_fewer_instances_than_the_minimum_stay_straight_line(tmp_path):
+    ir, _ = _ir(tmp_path, chain(REPEAT_MIN // 2 - 1))
+    for f in function_kernels(ir):
+        left, loops = repeated(ir, f.kernel.targets)
+        assert not loops and left == tuple(f.kernel.targets), f.name
+
+
+def _bodies(source: str) -> str:
+    """The C text without its constant arrays and comments: the code."""
+    code = re.sub(r"static const (int|double) \w+\[\d+\] = \{[^}]*\};", "", source)
+    code = re.sub(r"/\*.*?\*/", "", code, flags=re.S)
+    return "\n".join(line for line in code.splitlines() if line.strip())
+
+
+@needs_cc
+def test_c_code_of_a_chain_does_not_grow_with_its_cells(tmp_path):
+    small = phc.compile_model(_ir(tmp_path, chain(40), "a.yaml")[1], certify=False, backend="c").module
+    large = phc.compile_model(_ir(tmp_path, chain(400), "b.yaml")[1], certify=False, backend="c").module
+    assert "a loop over the entries" in large.C_SOURCE
+    a, b = _bodies(small.C_SOURCE), _bodies(large.C_SOURCE)
+    # the same statements; only loop counts, and the entries that are not in any loop (the
+    # wall's and the free end's cells) change their numbers
+    assert len(a.splitlines()) == len(b.splitlines())
+    assert len(b) < 1.1 * len(a)
+    assert len(large.C_SOURCE) < 4 * len(small.C_SOURCE)  # 10x the cells: index arrays only
+
+
+@pytest.mark.parametrize("backend", ["c", "numba"])
+def test_loops_compute_what_the_reference_computes(tmp_path, backend):
+    if backend == "c" and not _OK:
+        pytest.skip(f"C backend not tested: {_WHY}")
+    if backend == "numba":
+        pytest.importorskip("numba")
+    path = _ir(tmp_path, chain(60, nonlinear=True))[1]
+    fast = phc.compile_model(path, certify=False, backend=backend).module
+    assert fast.BACKEND == backend
+    ref = fast.REFERENCE
+    rng = np.random.default_rng(7)
+    p = np.asarray(ref.full_parameters(), dtype=float)
+    for _ in range(4):
+        t, cj = float(rng.uniform(0.0, 2.0)), float(rng.uniform(0.1, 50.0))
+        y, yp = rng.uniform(-1.0, 1.0, ref.N), rng.uniform(-1.0, 1.0, ref.N)
+        for name in ("residual", "jacobian", "hamiltonian", "energy_scale", "powers", "outputs"):
+            assert_close(name, call(ref, name, t, y, yp, p, cj), call(fast, name, t, y, yp, p, cj), TOL)
