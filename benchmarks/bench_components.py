@@ -22,6 +22,12 @@ stage in a fresh process, its CPU seconds (user + system of the child):
   CPU time between the step loop's first and last output report over the steps between them
   (best of ``REPEATS`` runs after a warm-up run; :func:`measure_steps`).
 
+* the C back end's library of the model (no disk cache): the size of its C file, the lines
+  of code outside its constant index arrays, the CPU seconds of printing it and of the C
+  compiler (:func:`measure_c`). A repeated component is generated once, as a loop over
+  index arrays, so the code's lines should not grow with the network and the compiler's
+  time only with the arrays.
+
 The slope columns are the log–log slopes of CPU time against the number of components
 between consecutive sizes and, in the last row of each network, from the second size to
 the last (the issue's target: ≤ 1.15 from 10² to 10⁴). A stage that does not finish in
@@ -153,6 +159,39 @@ def measure_steps(path: str) -> dict:
     return {"unknowns": int(compiled.module.N), "step_s": best}
 
 
+def code_lines(text: str) -> int:
+    """Lines of a C file outside its constant arrays and comments: its code."""
+    import re
+
+    code = re.sub(r"static const (int|double) \w+\[\d+\] = \{[^}]*\};", "", text)
+    code = re.sub(r"/\*.*?\*/", "", code, flags=re.S)
+    return sum(1 for line in code.splitlines() if line.strip())
+
+
+def measure_c(path: str) -> dict:
+    """In this process: the C back end's file for the model at `path` (its size and lines of
+    code) and the CPU seconds of printing it and of the C compiler building it (not cached)."""
+    sys.path.insert(0, str(ROOT))
+    import phc
+    from phc.codegen import c_backend
+    from phc.codegen.c_printer import c_source
+    from phc.codegen.lower import lower_residual
+
+    ok, why = c_backend.available()
+    if not ok:
+        return {"c_error": why}
+    compiled = phc.compile_model(path, certify=False, backend="numpy")
+    ir = lower_residual(compiled.dae)
+    start = time.process_time()
+    text = c_source(ir)
+    printed = time.process_time() - start
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    c_backend.load_source(text, compiled.module, None, cache=False)
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return {"c_kb": len(text.encode()) / 1024, "c_lines": code_lines(text), "c_print": printed,
+            "c_cc": (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)}
+
+
 def measure(network: str, size: int, directory: Path, timeout: float) -> dict:
     text = NETWORKS[network](size)
     path = directory / f"{network}_{size}.yaml"
@@ -164,18 +203,20 @@ def measure(network: str, size: int, directory: Path, timeout: float) -> dict:
     stages = {"validate": [*python, "validate", str(path)],
               "compile": [*python, "compile", str(path), "--backend", "numpy", "-o", str(directory / "out")],
               "check": [*python, "check", str(path)],
-              "step": [sys.executable, __file__, "--measure-steps", str(path)]}
+              "step": [sys.executable, __file__, "--measure-steps", str(path)],
+              "c": [sys.executable, __file__, "--measure-c", str(path)]}
     for stage, argv in stages.items():
         print(f"{network} {comps} components: {stage} ...", file=sys.stderr, flush=True)
-        if stage == "step":
+        if stage in ("step", "c"):
+            key = "step_error" if stage == "step" else "c_error"
             try:
                 run = subprocess.run(argv, env=env, cwd=ROOT, capture_output=True, text=True, timeout=timeout)
                 if run.returncode == 0:
                     row.update(json.loads(run.stdout.strip().splitlines()[-1]))
                 else:
-                    row["step_error"] = ((run.stderr.strip() or "?").splitlines() or ["?"])[-1]
+                    row[key] = ((run.stderr.strip() or "?").splitlines() or ["?"])[-1]
             except subprocess.TimeoutExpired:
-                row["step_error"] = f"timeout ({timeout:.0f} s wall)"
+                row[key] = f"timeout ({timeout:.0f} s wall)"
             continue
         row[stage], error = _cpu_of_child(argv, env, timeout)
         if error:
@@ -190,16 +231,23 @@ def _slope(a: dict, b: dict, key: str) -> str:
 
 
 def _cell(row: dict, key: str, scale: float = 1.0, digits: int = 2) -> str:
-    if f"{key}_error" in row:
-        return f"failed: {row[f'{key}_error'][:80]}"
+    error = row.get(f"{key}_error") or (row.get("c_error") if key.startswith("c_") else None)
+    if error:
+        return f"failed: {error[:80]}"
     return f"{row[key] * scale:.{digits}f}" if key in row else "–"
 
 
-def table(rows: list[dict]) -> list[str]:
-    stages = (("validate", 1.0, 2), ("compile", 1.0, 2), ("check", 1.0, 2), ("step_s", 1e3, 2))
-    lines = ["| network | components | connections | unknowns | validate [s CPU] | compile [s CPU] "
-             "| check [s CPU] | midpoint step [ms CPU] | slopes (validate, compile, check, step) |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---|"]
+def table(rows: list[dict], c: bool = False) -> list[str]:
+    if c:
+        stages = (("c_kb", 1.0, 1), ("c_lines", 1.0, 0), ("c_print", 1.0, 2), ("c_cc", 1.0, 2))
+        lines = ["| network | components | connections | unknowns | C file [kB] | C code [lines] "
+                 "| C print [s CPU] | C compiler [s CPU] | slopes (file, code, print, compiler) |",
+                 "|---|---:|---:|---:|---:|---:|---:|---:|---|"]
+    else:
+        stages = (("validate", 1.0, 2), ("compile", 1.0, 2), ("check", 1.0, 2), ("step_s", 1e3, 2))
+        lines = ["| network | components | connections | unknowns | validate [s CPU] | compile [s CPU] "
+                 "| check [s CPU] | midpoint step [ms CPU] | slopes (validate, compile, check, step) |",
+                 "|---|---:|---:|---:|---:|---:|---:|---:|---|"]
     for network in dict.fromkeys(r["network"] for r in rows):
         group = [r for r in rows if r["network"] == network]
         for k, r in enumerate(group):
@@ -222,14 +270,20 @@ def main(argv=None) -> None:
     parser.add_argument("--networks", nargs="+", choices=sorted(NETWORKS), default=["chain", "grid"])
     parser.add_argument("--timeout", type=float, default=900.0, help="wall seconds allowed to one stage")
     parser.add_argument("--measure-steps", help=argparse.SUPPRESS)
+    parser.add_argument("--measure-c", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.measure_steps:
         print(json.dumps(measure_steps(args.measure_steps)))
+        return
+    if args.measure_c:
+        print(json.dumps(measure_c(args.measure_c)))
         return
     sizes = [n for n in args.sizes if args.max_size is None or n <= args.max_size]
     with tempfile.TemporaryDirectory() as tmp:
         rows = [measure(network, n, Path(tmp), args.timeout) for network in args.networks for n in sizes]
     print("\n".join(table(rows)))
+    print("\nThe C back end's library (a repeated component generated once, as a loop over index arrays):\n")
+    print("\n".join(table(rows, c=True)))
 
 
 if __name__ == "__main__":

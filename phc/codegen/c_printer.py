@@ -29,7 +29,9 @@ printer orders them, ``a*b/(c*d)`` as it prints them, ``pow``/``sqrt`` and the o
 ``math.h`` functions CPython's ``math`` calls), and every float literal is the ``repr`` of
 the double the NumPy module computes (correctly rounded when read back). The sparse linear
 blocks and the quadratic energy and dissipation forms are loops over constant CSR arrays
-(``static const``) of the file.
+(``static const``) of the file, and so is an expression that recurs at many entries (the
+rows of identical components, the terms of their energy: :func:`phc.codegen.kernels.repeated`),
+written once as a loop over the entries it reads and writes.
 
 What the printer does not write in C yet is refused with :class:`CUnsupported`, naming the
 construct and where it is used: input tables (a CSV file as a port's input), and any
