@@ -152,3 +152,48 @@ def test_loops_compute_what_the_reference_computes(tmp_path, backend):
         y, yp = rng.uniform(-1.0, 1.0, ref.N), rng.uniform(-1.0, 1.0, ref.N)
         for name in ("residual", "jacobian", "hamiltonian", "energy_scale", "powers", "outputs"):
             assert_close(name, call(ref, name, t, y, yp, p, cj), call(fast, name, t, y, yp, p, cj), TOL)
+
+
+@needs_cc
+def test_a_chain_run_on_the_loops_is_the_midpoint_rule_of_the_chain_written_here(tmp_path):
+    """End to end: the chain's trajectory on the C back end (its functions are loops) against
+    the implicit midpoint rule applied in this test to the chain's equations of motion,
+    m_i ü_i = k_i (u_{i−1} − u_i) + k_{i+1} (u_{i+1} − u_i), u_0 = 0 (the wall), the last
+    cell free. The rule's step map of a linear system, (I − hA/2)⁻¹(I + hA/2), commutes
+    with a linear change of variables, so phc's steps in spring elongations and momenta are
+    these steps in positions and momenta, and k1.x = ±u_1 (k1.x(0) = 0.01 with every other
+    elongation 0 is u_i(0) = ±0.01 for all i). The model is linear, so Newton ends on its
+    first correction; what is left is round-off, a few ε per step times the 500 steps here
+    relative to the amplitude (about 1e-13 of it): 1e-10 of it is far above that and far
+    below the change a wrong entry or a wrong step would make."""
+    cells, h, steps = 24, 2e-3, 500
+    path = tmp_path / "chain.yaml"
+    path.write_text(chain(cells))
+    compiled = phc.compile_model(path, certify=False, backend="c")
+    assert "a loop over the entries" in compiled.module.C_SOURCE
+    t_eval = h * np.arange(steps + 1)
+    result = phc.simulate(compiled, t_eval=t_eval, solver="midpoint", step=h)
+    assert result.success, result.message
+
+    k = np.array([100.0 if i % 2 else 70.0 for i in range(1, cells + 1)])
+    m = np.array([1.0 if i % 2 else 2.5 for i in range(1, cells + 1)])
+    K = np.zeros((cells, cells))  # stiffness: spring i joins mass i−1 (the wall for i = 1) and mass i
+    for i in range(cells):
+        K[i, i] += k[i]
+        if i > 0:
+            K[i - 1, i - 1] += k[i]
+            K[i - 1, i] -= k[i]
+            K[i, i - 1] -= k[i]
+    A = np.block([[np.zeros((cells, cells)), np.diag(1.0 / m)], [-K, np.zeros((cells, cells))]])
+    eye = np.eye(2 * cells)
+    step = np.linalg.solve(eye - 0.5 * h * A, eye + 0.5 * h * A)
+    z = np.concatenate([np.full(cells, 0.01), np.zeros(cells)])
+    u1 = [z[0]]
+    for _ in range(steps):
+        z = step @ z
+        u1.append(z[0])
+    x1 = result.y[:, list(result.variables).index("k1.x")]
+    assert x1[0] == pytest.approx(0.01)
+    assert np.ptp(x1) > 0.01  # it moves: the first spring swings through more than its start
+    # k1.x = ±(u_1 − u_0) and u(0) = ±0.01: either sign gives the same function (docstring)
+    assert np.abs(x1 - np.asarray(u1)).max() <= 1e-10 * 0.01
