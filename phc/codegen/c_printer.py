@@ -30,7 +30,7 @@ printer orders them, ``a*b/(c*d)`` as it prints them, ``pow``/``sqrt`` and the o
 the double the NumPy module computes (correctly rounded when read back). The sparse linear
 blocks and the quadratic energy and dissipation forms are loops over constant CSR arrays
 (``static const``) of the file, and so is an expression that recurs at many entries (the
-rows of identical components, the terms of their energy: :func:`phc.codegen.kernels.repeated`),
+rows of identical components, the terms of their energy: :func:`phc.codegen.repeat.repeated`),
 written once as a loop over the entries it reads and writes.
 
 What the printer does not write in C yet is refused with :class:`CUnsupported`, naming the
@@ -310,6 +310,16 @@ def unsupported(expr, known: set) -> Optional[str]:
     return None
 
 
+class _Slotted:
+    """The symbols of `known` and the slots of a :class:`~phc.codegen.repeat.Repeated` template."""
+
+    def __init__(self, known) -> None:
+        self._known = known
+
+    def __contains__(self, s) -> bool:
+        return s in self._known or (s.is_Symbol and s.name.startswith("phc·slot"))
+
+
 class _Labels:
     """``index -> label`` of a function's entries, read from its sequence of labels when asked
     (no dictionary of every entry: a mesh's Jacobian has millions)."""
@@ -380,15 +390,18 @@ class CPrinter:
         """The C function `head` computing `kernel` into ``out`` (zeroed first when `zero` > 0;
         a local array of `local_out` entries when given); `labels` name the targets in comments."""
         targets = tuple((i, e, acc) for i, e, acc in kernel.targets if not (e == 0 and acc))
-        for i, e, _ in targets:
-            what = unsupported(e, self.known)
+        targets, loops = repeated(self.ir, targets)
+        # what the printer has no rule for: each expression written one by one, each template once
+        checks = [(e, self.known, i) for i, e, _ in targets]
+        checks += [(r.template, _Slotted(self.known), int(r.index[0])) for r in loops]
+        for e, known, i in checks:
+            what = unsupported(e, known)
             if what:
                 raise CUnsupported(f"the C backend does not support {what} yet (in {name}, {labels.get(i, i)})")
         for op in kernel.sums:
             what = unsupported(Kernel((), (op,)).expressions()[0], self.known)
             if what:
                 raise CUnsupported(f"the C backend does not support {what} yet (in {name}, a linear block)")
-        targets, loops = repeated(self.ir, targets)
         replacements, reduced = kernel_cse(self.ir, Kernel(targets, kernel.sums), targets)
         printer = _Expressions(self.names, self.order)
         used = set()
@@ -431,7 +444,7 @@ class CPrinter:
         return f"{self.array(stem, at, 'int')}[k]"
 
     def _loop(self, r: Repeated, labels, used: set) -> list[str]:
-        """One :class:`~phc.codegen.kernels.Repeated` expression as a loop over its instances; an
+        """One :class:`~phc.codegen.repeat.Repeated` expression as a loop over its instances; an
         entry every instance reads is the function's named local (added to `used`)."""
         names = dict(self.names)
         loads = []

@@ -21,7 +21,8 @@ import sympy as sp
 
 from phc.frontend.budget import drop_deltas
 from phc.codegen.lower import ResidualIR
-from phc.codegen.printer import _cse, shared_cse
+from phc.codegen.printer import _cse, energy_scale_expression, shared_cse
+from phc.codegen.repeat import REPEAT_MIN, Repeated, repeated, slot  # noqa: F401 (the back ends' names)
 from phc.ir.dae import STORED_ENERGY, T
 
 CJ = sp.Symbol("cj")
@@ -154,8 +155,7 @@ def function_kernels(ir: ResidualIR) -> list[FunctionKernel]:
     out.append(FunctionKernel("jacobian", kernel, njac, sums, "yyp_cj", "out", JacobianLabels(ir)))
     energy = Kernel(((0, ir.hamiltonian, False),), tuple(("quad", f.matrix, f.cols, f.coeff, 0, False) for f in qe))
     out.append(FunctionKernel("hamiltonian", energy, 1, False, "y", "scalar", ("H",)))
-    # sp.Add(*terms): one canonicalization (Python's sum re-flattens a growing Add per term)
-    scale = sp.Add(*[sp.Abs(term) for term in sp.Add.make_args(ir.hamiltonian)])
+    scale = energy_scale_expression(ir)
     out.append(FunctionKernel(
         "energy_scale",
         Kernel(((0, scale, False),), tuple(("quad", f.matrix, f.cols, f.coeff, 0, True) for f in qe)),
@@ -183,140 +183,6 @@ def events_kernel(ir: ResidualIR) -> FunctionKernel:
     labels = tuple(s.label for s in ir.switches) + tuple(s.label for s in ir.sticks)
     return FunctionKernel("events", Kernel(tuple((i, e, False) for i, e in enumerate(ir.events))), len(labels),
                           False, "yyp", "out", labels)
-
-
-REPEAT_MIN = 16
-"""A compiled back end writes an expression that recurs, up to which entries of ``y``, ``ẏ``
-and ``p`` it reads, in at least this many targets (or terms of one long sum) once, as a loop
-over index arrays (:func:`repeated`). A network of 10⁴ identical cells then compiles as a
-handful of loops: straight-line code of one statement per entry makes the C compiler's time
-grow faster than the code (register allocation over one huge function: 468 s of gcc for
-the chain of 10⁴ springs and masses)."""
-
-
-@dataclass(frozen=True)
-class Repeated:
-    """`template` at `count` instances: instance k adds (``accumulate``) or writes its value
-    into ``out[index[k]]``, its :func:`slot` j read as ``vector[at[k]]`` for the j-th pair
-    ``(vector, at)`` of `slots` (``vector`` one of ``"y"``, ``"yp"``, ``"p"``)."""
-
-    template: sp.Expr
-    index: np.ndarray
-    slots: tuple
-    accumulate: bool
-
-    @property
-    def count(self) -> int:
-        return len(self.index)
-
-
-_SLOTS: list = []
-
-
-def slot(j: int) -> sp.Symbol:
-    """The j-th placeholder of a :class:`Repeated` template (one name for every template, so
-    equal templates are equal expressions; no model symbol has this name)."""
-    while len(_SLOTS) <= j:
-        _SLOTS.append(sp.Symbol(f"phc·slot{len(_SLOTS)}"))
-    return _SLOTS[j]
-
-
-def _template(e, where: dict):
-    """(`e` with the y, ẏ and p entries it reads as slots, those entries in slot order), or
-    None when `e` reads a symbol of neither (a model time, cj, H: the same in every instance
-    and kept as they are). The slots are numbered by first appearance in a preorder walk, and
-    again in the walk of the result: two instances whose terms sort differently (the names
-    of their symbols order them) mostly end up the same template."""
-    if e.is_Number:
-        return e, ()
-    if e.is_Symbol:
-        at = where.get(e)
-        return (slot(0), (at,)) if at is not None else (e, ())
-    order: dict = {}
-    for node in sp.preorder_traversal(e):
-        if node.is_Symbol and node in where and node not in order:
-            order[node] = slot(len(order))
-    if not order:
-        return e, ()
-    first = e.xreplace(order)
-    renumber: dict = {}
-    for node in sp.preorder_traversal(first):
-        if node in _SLOT_SET and node not in renumber:
-            renumber[node] = slot(len(renumber))
-    if all(a == b for a, b in renumber.items()):
-        entries = tuple(where[s] for s in order)
-        return first, entries
-    back = {v: k for k, v in order.items()}  # slot -> symbol
-    second = first.xreplace({a: b for a, b in renumber.items()})
-    entries = [None] * len(renumber)
-    for a, b in renumber.items():
-        entries[int(b.name[len("phc·slot"):])] = where[back[a]]
-    return second, tuple(entries)
-
-
-class _SlotSet:
-    def __contains__(self, s) -> bool:
-        return s.is_Symbol and s.name.startswith("phc·slot")
-
-
-_SLOT_SET = _SlotSet()
-
-
-def repeated(ir: ResidualIR, targets: tuple, minimum: int = REPEAT_MIN) -> tuple[tuple, tuple]:
-    """`targets` (``(index, expression, accumulate)``) split into those written one by one and
-    the :class:`Repeated` loops that write the others: an expression recurring in `minimum`
-    targets or more up to the y, ẏ and p entries it reads, or a term recurring as often in one
-    long sum (the sum keeps its other terms; the loop adds the rest). The loops write after the
-    targets (a long sum's loops add to what its target wrote)."""
-    where = {}
-    for vector, symbols in (("y", ir.y_symbols), ("yp", ir.yp_symbols), ("p", ir.p_symbols)):
-        for j, s in enumerate(symbols):
-            if s is not None:
-                where[s] = (vector, j)
-    items = []  # (target position, out index, expression, accumulate, part of a long sum)
-    for k, (i, e, acc) in enumerate(targets):
-        if e.is_Add and len(e.args) >= minimum:
-            items += [(k, i, term, True, True) for term in e.args]
-        else:
-            items.append((k, i, e, acc, False))
-    groups: dict = {}
-    for item in items:
-        found = _template(item[2], where)
-        if found is None:
-            continue
-        template, entries = found
-        groups.setdefault((template, item[3], tuple(v for v, _ in entries)), []).append((item, entries))
-    looped = set()
-    loops = []
-    for (template, acc, vectors), members in groups.items():
-        if len(members) < minimum:
-            continue
-        if all(item[4] and item[0] == members[0][0][0] for item, _ in members):
-            # terms of one sum: added in the order of the entries they read (an index array
-            # that is often a progression; sympy orders them by name: k1, k10, k100, ...)
-            members.sort(key=lambda member: tuple(at for _, at in member[1]))
-        index = np.array([item[1] for item, _ in members], dtype=np.int64)
-        slots = tuple((vector, np.array([entries[j][1] for _, entries in members], dtype=np.int64))
-                      for j, vector in enumerate(vectors))
-        loops.append(Repeated(template, index, slots, acc))
-        looped.update(id(item) for item, _ in members)
-    if not loops:
-        return tuple(targets), ()
-    left = []
-    terms: dict = {}
-    for item in items:
-        k, i, e, acc, part = item
-        if part:
-            terms.setdefault(k, [])
-            if id(item) not in looped:
-                terms[k].append(e)
-        elif id(item) not in looped:
-            left.append((k, (i, e, acc)))
-    for k, rest in terms.items():
-        i, _, acc = targets[k]
-        left.append((k, (i, sp.Add(*rest), acc)))
-    left.sort(key=lambda pair: pair[0])
-    return tuple(t for _, t in left), tuple(loops)
 
 
 __all__ = ["CJ", "FunctionKernel", "Kernel", "REPEAT_MIN", "Repeated", "events_kernel", "function_kernels",

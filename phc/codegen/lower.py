@@ -104,6 +104,10 @@ class ResidualIR:
     sticks: tuple[StickInfo, ...] = ()
     """Set-valued ``sign`` terms and their stick modes."""
     common_subexpressions: dict = field(default_factory=dict, compare=False, repr=False)
+    templates: dict = field(default_factory=dict, compare=False, repr=False)
+    """Each expression's template up to the entries it reads, by the expression: found once for
+    every printer (:func:`phc.codegen.repeat.repeated`); and, by the name ``"energy scale"``,
+    the expression of ``energy_scale`` (:func:`phc.codegen.printer.energy_scale_expression`)."""
     """The common subexpressions of lists of these expressions, by the list: found once for the
     NumPy module and the compiled back end's printer (:func:`phc.codegen.printer.shared_cse`)."""
 

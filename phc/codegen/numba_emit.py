@@ -298,7 +298,7 @@ def _emit_kernel(context, builder, signature, args, kernel: Kernel, ir_: Residua
 
 
 def _cse_one(template):
-    """The common subexpressions of one :class:`~phc.codegen.kernels.Repeated` template."""
+    """The common subexpressions of one :class:`~phc.codegen.repeat.Repeated` template."""
     from phc.codegen.printer import _cse
 
     return _cse([template], sp.numbered_symbols("_l", cls=sp.Dummy))
@@ -314,7 +314,7 @@ def _emit_body(context, builder, kernel: Kernel, ir_: ResidualIR, at: dict, load
     dbl = llir.DoubleType()
     i64 = llir.IntType(64)
     emitter = _Emitter(context, builder, loaders, tables, printer)
-    # an expression recurring at many entries: one loop over them (phc.codegen.kernels.repeated)
+    # an expression recurring at many entries: one loop over them (phc.codegen.repeat.repeated)
     targets, loops = repeated(ir_, kernel.targets)
     replacements, reduced = kernel_cse(ir_, Kernel(targets, kernel.sums), targets)
     for sym, rhs in replacements:

@@ -13,7 +13,13 @@ variable, common subexpressions as ``_c0, _c1, ...``), and exposes::
     hamiltonian(t, y, p), powers(t, y, yp, p) -> (port power, dissipation)
     invariants(t, y, p), velocity_invariants(t, y, p), outputs(t, y, yp, p)
 
-This printer only builds strings; all analysis happened in :mod:`phc.codegen.lower`.
+This printer only builds strings; all analysis happened in :mod:`phc.codegen.lower`. An
+expression that recurs at many entries is one vectorized statement
+(:meth:`ModulePrinter._vectorized`, the split from :mod:`phc.codegen.repeat`).
+
+The module is over 800 lines because it is one printer: the module's constant tables, its
+functions and their statements (scalar, vectorized, conditional) are printed from one table
+of names, which a split would have to pass around.
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ from phc.analysis.matching import unique_keys
 from phc.frontend.budget import drop_deltas
 from phc.codegen import packing
 from phc.codegen.lower import ResidualIR
+from phc.codegen.repeat import REPEAT_MIN, repeated, slot
 from phc.codegen.terms import ordered_terms
 from phc.ir.dae import STORED_ENERGY, T
 from phc.errors import CodegenError
@@ -367,6 +374,31 @@ def shared_cse(ir: ResidualIR, exprs: Sequence) -> tuple[list, list]:
     return found
 
 
+_OUT_ENTRY = re.compile(r"out\[(\d+)\]")
+"""A target that is an entry of the output array (its index the group)."""
+
+
+def _vectorizable(node) -> bool:
+    """Whether `node` is evaluated by NumPy on arrays as Python evaluates it on floats: a
+    number, a symbol, a sum, a product, an integer power or ``abs`` (``math`` functions raise
+    on a domain error; NumPy's return nan)."""
+    if node.is_Atom:
+        return node.is_Symbol or node.is_Number
+    if node.is_Pow:
+        return node.exp.is_Integer
+    return node.is_Add or node.is_Mul or isinstance(node, sp.Abs)
+
+
+def energy_scale_expression(ir: ResidualIR) -> sp.Expr:
+    """The sum of the absolute values of the terms of H, the scale of relative energy errors
+    (``energy_scale``). Each ``abs`` is left as written: sympy's evaluation of ``Abs`` (taking
+    out factors of known sign) took 3 s for the 6000 terms of a chain of 3000 cells."""
+    memo = ir.templates  # (built once for the NumPy module and a compiled back end)
+    if "energy scale" not in memo:
+        memo["energy scale"] = sp.Add(*[sp.Abs(term, evaluate=False) for term in sp.Add.make_args(ir.hamiltonian)])
+    return memo["energy scale"]
+
+
 def _complex_prone(expr) -> bool:
     """Whether `expr` has a power that is complex for a negative Python float (``x**(1/3)``:
     NumPy scalars give nan, which the guard reports; a complex value could be made real
@@ -406,6 +438,7 @@ class ModulePrinter:
             self.unpack_p[s] = j
         self.printer = _Printer(self.names)
         self.accumulate: set = set()  # targets that add to a precomputed value
+        self.vector_constants: list = []  # the index arrays of vectorized statements (_vectorized)
         self.bulk = False
         """Unpack y, yp and p with one ``tolist()`` (the functions called in every step)."""
 
@@ -554,10 +587,92 @@ class ModulePrinter:
             lines.append(f"{sym} = {text}" if k == 0 else f"{sym} = {sym} + {text}")
         return sym
 
+    def _vectorized(self, exprs: list, targets: list) -> tuple[list, list, list]:
+        """(`exprs`, `targets`) without the ones that an expression recurring at
+        :data:`~phc.codegen.repeat.REPEAT_MIN` entries or more writes (or adds: the terms of a
+        long sum), and the vectorized statements that write those: the expression once, on the
+        index arrays of its entries (:func:`phc.codegen.repeat.repeated`). Only a rational
+        expression (sums, products, integer powers, ``abs``) is vectorized: NumPy's elementwise
+        arithmetic then rounds as Python's does, and a division by zero or an overflow raises
+        as Python's does where the function reads floats (the statements run under
+        ``np.errstate``, see :meth:`_body`). Only entries of ``out``, or a scalar that a long sum
+        is written into, are vectorized targets."""
+        if len(exprs) < REPEAT_MIN and not any(isinstance(e, sp.Add) and len(e.args) >= REPEAT_MIN for e in exprs):
+            return exprs, targets, []
+        if not all(isinstance(e, sp.Basic) for e in exprs):
+            return exprs, targets, []
+        index = [_OUT_ENTRY.fullmatch(t) for t in targets]
+
+        def accept(template, positions) -> bool:
+            if not all(_vectorizable(node) for node in sp.preorder_traversal(template)):
+                return False
+            if all(index[k] is not None for k in positions):
+                return True
+            return all(k == positions[0] for k in positions)  # the terms of one long sum
+
+        items = tuple((k, e, targets[k] in self.accumulate) for k, e in enumerate(exprs))
+        left, loops = repeated(self.ir, items, accept=accept)
+        if not loops:
+            return exprs, targets, []
+        lines = []
+        for r in loops:
+            n = len(self.vector_constants)
+            self.vector_constants.append("")  # (its index arrays: filled below)
+            constants = []
+            names = dict(self.names)
+            varying = False
+            for j, (vector, at) in enumerate(r.slots):
+                if (at == at[0]).all():
+                    names[slot(j)] = f"{vector}[{int(at[0])}]"
+                else:
+                    names[slot(j)] = f"{vector}[{self._entries(f'_V{n}_{j}', at, constants)}]"
+                    varying = True
+            replacements, (value,) = sp.cse([r.template], symbols=sp.numbered_symbols(f"_v{n}w"), order="none")
+            body = []
+            printer = _Printer(names)
+            for symbol, rhs in replacements:
+                names[symbol] = symbol.name
+                body.append(f"{symbol.name} = {printer.doprint(rhs)}")
+            text = printer.doprint(value)
+            positions = r.index.tolist()
+            first = targets[positions[0]]
+            if index[positions[0]] is None or (r.index == r.index[0]).all():  # the terms of one sum
+                total = f"np.sum({text})" if varying else f"{r.count} * ({text})"
+                body.append(f"{first} = {first} + {total}")
+                what = f"{r.count} terms of {first}: one expression"
+            else:
+                out = np.array([int(index[k].group(1)) for k in positions], dtype=np.int64)
+                if r.accumulate and len(np.unique(out)) < len(out):
+                    body.append(f"np.add.at(out, {self._entries(f'_V{n}_out', out, constants, slices=False)}, {text})")
+                else:
+                    op = "+=" if r.accumulate else "="
+                    body.append(f"out[{self._entries(f'_V{n}_out', out, constants)}] {op} {text}")
+                what = f"{first} ... {targets[positions[-1]]}: one expression at {r.count} entries"
+            self.vector_constants[n] = "\n".join(constants)
+            lines += [f"# {what}, on the arrays of the entries it reads"] + body
+        kept = [(e, targets[i]) for i, e, _ in left]
+        return [e for e, _ in kept], [t for _, t in kept], lines
+
+    def _entries(self, name: str, at: np.ndarray, constants: list, slices: bool = True) -> str:
+        """A subscript for the entries `at`: a slice where they are an increasing progression
+        (a view, no copy), else the module constant `name` (appended to `constants`)."""
+        if slices and len(at) > 1:
+            step = int(at[1] - at[0])
+            if step > 0 and np.array_equal(np.diff(at), np.full(len(at) - 1, step)):
+                start, stop = int(at[0]), int(at[-1]) + 1
+                return f"{start}:{stop}" if step == 1 else f"{start}:{stop}:{step}"
+        constants.append(f"{name} = {_array(at, 'np.int64')}")
+        return name
+
     def _body(self, exprs: Sequence[sp.Expr], targets: Sequence[str]) -> list[str]:
-        """Unpack used symbols, common subexpressions, then one assignment per target."""
+        """Unpack used symbols, common subexpressions, then one assignment per target; then the
+        vectorized statements of expressions that recur at many entries (:meth:`_vectorized`),
+        which raise on a division by zero, an overflow or an invalid operation where the
+        function reads its arguments as Python floats (the call is then evaluated again on
+        NumPy scalars, see :meth:`_function`), as the scalar statements do."""
         printed: list = []
-        statements = self._statements(list(exprs), list(targets), sp.numbered_symbols("_c"), printed, True)
+        exprs, targets, vector = self._vectorized(list(exprs), list(targets))
+        statements = self._statements(exprs, targets, sp.numbered_symbols("_c"), printed, True)
         used = set()
         for e in printed:
             if isinstance(e, sp.Basic):
@@ -571,6 +686,10 @@ class ModulePrinter:
                 lines.append(f"_{name} = _read({name})")
                 taken = [line.replace(f" = {name}[", f" = _{name}[", 1) for line in taken]
             lines += taken
+        if vector and any(" = _read(" in line for line in lines):
+            statements += ["with np.errstate(**(_RAISE if _read is _floats else {})):"] + ["    " + v for v in vector]
+        else:
+            statements += vector
         return lines + statements
 
     def _unpack_lines(self, name: str, table: dict, used: set) -> list[str]:
@@ -619,7 +738,9 @@ class ModulePrinter:
             '"""\n',
             "import base64\nimport math\n\nimport numpy as np\n\n\n"
             + packing.decoder_source() + "\n\n"
-            "_floats = np.ndarray.tolist  # an array's entries as Python floats\n\n\n"
+            "_floats = np.ndarray.tolist  # an array's entries as Python floats\n"
+            "# vectorized statements raise where Python floats would (division by zero, overflow)\n"
+            "_RAISE = {'divide': 'raise', 'over': 'raise', 'invalid': 'raise'}\n\n\n"
             "def _indexed(_stem, _start, _stop, _tail=''):\n"
             "    \"\"\"The names `_stem[i]_tail` for i from _start to _stop - 1 (a mesh's entries).\"\"\"\n"
             "    return tuple(f'{_stem}[{_i}]{_tail}' for _i in range(_start, _stop))\n",
@@ -691,6 +812,7 @@ class ModulePrinter:
             derived_lines += self._unpack_lines("p", self.unpack_p, used)
             derived_lines.append(f"p[{i}] = {self.printer.doprint(expr)}")
         derived_lines.append("return p")
+        constants_at = len(parts)  # the vectorized statements' index arrays go here (below)
         parts.append("def full_parameters(base=None):\n"
                      '    """Full parameter vector (derived parameters appended) from base values."""\n'
                      "    if base is None:\n"
@@ -755,12 +877,11 @@ class ModulePrinter:
         qe, qe_t, qe_lines = quadratic(ir.quadratic_energy, "QE", "H")
         parts.append(self._function("hamiltonian(t, y, p)", "Total stored energy H.",
                                     [ir.hamiltonian] + qe, ["H"] + qe_t, epilogue=qe_lines + ["return H"]))
-        terms = sp.Add.make_args(ir.hamiltonian)
         qe, qe_t, qe_lines = quadratic(ir.quadratic_energy, "QE", "S", absolute=True)
         parts.append(self._function(
             "energy_scale(t, y, p)",
             "Sum of |terms| of H: the scale for relative energy errors (H itself may be ~0).",
-            [sp.Add(*[sp.Abs(term) for term in terms])] + qe, ["S"] + qe_t,
+            [energy_scale_expression(ir)] + qe, ["S"] + qe_t,
             epilogue=qe_lines + ["return S"]))
         qd, qd_t, qd_lines = quadratic(ir.quadratic_dissipation, "QD", "P_diss")
         parts.append(self._function(
@@ -791,6 +912,10 @@ class ModulePrinter:
             "outputs(t, y, yp, p)", "Requested outputs, in the order of OUTPUTS.",
             [e for _, e in ir.outputs], [f"out[{i}]" for i in range(len(ir.outputs))],
             prologue=prologue, epilogue=["return out"]))
+        constants = [c for c in self.vector_constants if c]
+        if constants:
+            parts.insert(constants_at, "# The entries of expressions that recur at many entries (one vectorized statement each).\n"
+                         + "\n".join(constants) + "\n")
         return "\n\n".join(parts)
 
 

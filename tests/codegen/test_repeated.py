@@ -1,8 +1,9 @@
-"""Repeated components are generated once (:func:`phc.codegen.kernels.repeated`).
+"""Repeated components are generated once (:func:`phc.codegen.repeat.repeated`).
 
 An expression that recurs at many entries of a generated function, up to which entries of
 y, ẏ and p it reads (the rows of 10⁴ identical spring–mass cells, the terms of their
-energy), is written once as a loop over index arrays by the C and numba back ends. Checked
+energy), is written once as a loop over index arrays by the C and numba back ends, and as a
+vectorized statement by the NumPy module where it is rational. Checked
 here: the split loses and invents nothing (every target and every term of a long sum is
 written exactly once, and the template at each instance's entries is the original
 expression, exactly, as sympy expressions); the C functions' code does not grow with the
@@ -197,3 +198,84 @@ def test_a_chain_run_on_the_loops_is_the_midpoint_rule_of_the_chain_written_here
     assert np.ptp(x1) > 0.01  # it moves: the first spring swings through more than its start
     # k1.x = ±(u_1 − u_0) and u(0) = ±0.01: either sign gives the same function (docstring)
     assert np.abs(x1 - np.asarray(u1)).max() <= 1e-10 * 0.01
+
+
+def _numpy_module(tmp_path, cells, name, nonlinear=False):
+    path = tmp_path / name
+    path.write_text(chain(cells, nonlinear=nonlinear))
+    return phc.compile_model(path, certify=False, backend="numpy")
+
+
+def test_numpy_module_vectorizes_and_computes_the_equations(tmp_path):
+    """The NumPy module (the reference of the compiled back ends) writes a recurring rational
+    expression once, on arrays; each function's value is the value of the lowered equations
+    at the same point, evaluated here by sympy (no printer involved). Bound: the functions add
+    at most a few hundred terms, each rounded: 1e-12 of the sum of the terms' magnitudes
+    (sympy's value is exact at the point, to 15 digits)."""
+    compiled = _numpy_module(tmp_path, 40, "a.yaml", nonlinear=True)
+    mod, source = compiled.module, compiled.source
+    ir = lower_residual(build_dae(tmp_path / "a.yaml")[0])
+    assert not ir.linear_terms and not ir.quadratic_energy  # every row is an expression here
+    assert source.count("one expression at") >= 4 and "terms of H: one expression" in source
+    body = source.split("def _residual(", 1)[1].split("\ndef ", 1)[0]
+    assert body.count("\n") < 40  # 80 rows, a handful of statements
+    assert source.count("math.sin(") >= 40  # a template with functions stays one statement per entry
+    rng = np.random.default_rng(11)
+    p = np.asarray(mod.full_parameters(), dtype=float)
+    for _ in range(3):
+        t, cj = float(rng.uniform(0.0, 2.0)), float(rng.uniform(0.1, 50.0))
+        y, yp = rng.uniform(-1.0, 1.0, mod.N), rng.uniform(-1.0, 1.0, mod.N)
+        point = {sym: sp.Float(v) for syms, vals in ((ir.y_symbols, y), (ir.yp_symbols, yp), (ir.p_symbols, p))
+                 for sym, v in zip(syms, vals) if sym is not None}
+        point[sp.Symbol("cj")] = sp.Float(cj)
+
+        def exact(e):
+            return float(sp.sympify(e).xreplace(point).evalf(20)) if e != 0 else 0.0
+
+        def magnitude(e):
+            return sum(abs(exact(term)) for term in sp.Add.make_args(sp.expand(e))) if e != 0 else 0.0
+
+        out = np.zeros(mod.N)
+        mod.residual(t, y, yp, p, out)
+        for i, e in enumerate(ir.residual):
+            assert abs(out[i] - exact(e)) <= 1e-12 * max(magnitude(e), 1e-300), (i, e)
+        jac = np.zeros(len(mod.JAC_ROWS))
+        mod.jacobian(t, y, yp, p, cj, jac)
+        for k, dy, dyp in ir.jac_symbolic:
+            e = dy + sp.Symbol("cj") * dyp
+            assert abs(jac[k] - exact(e)) <= 1e-12 * max(magnitude(e), 1e-300), (k, e)
+        H = ir.hamiltonian
+        assert abs(mod.hamiltonian(t, y, p) - exact(H)) <= 1e-12 * magnitude(H)
+        assert abs(mod.energy_scale(t, y, p) - magnitude(H)) <= 1e-12 * magnitude(H)
+
+
+def test_numpy_module_of_a_chain_does_not_grow_with_its_cells(tmp_path):
+    small = _numpy_module(tmp_path, 40, "a.yaml").source
+    large = _numpy_module(tmp_path, 400, "b.yaml").source
+
+    def functions(source):  # the code of the functions, without the module's constant tables
+        return [line for line in source.split("\ndef full_parameters(", 1)[1].splitlines() if line.strip()]
+
+    # the same statements; only the bounds of slices and the names of the entries outside the
+    # repeated cells (the wall's, the free end's) change
+    assert len(functions(small)) == len(functions(large))
+    assert len("".join(functions(large))) < 1.1 * len("".join(functions(small)))
+
+
+def test_numpy_module_divides_by_zero_as_numpy_does(tmp_path):
+    """A vectorized statement that divides by a zero mass raises inside the fast path on
+    Python floats, as the scalar statements do; the call is then evaluated on NumPy scalars
+    and arrays: inf or nan where the mass is 0, every other entry as with the mass set."""
+    mod = _numpy_module(tmp_path, 40, "a.yaml").module
+    p = np.asarray(mod.full_parameters(), dtype=float)
+    zero = p.copy()
+    zero[list(mod.PARAMETERS).index("mb")] = 0.0
+    rng = np.random.default_rng(3)
+    y, yp = rng.uniform(-1.0, 1.0, mod.N), rng.uniform(-1.0, 1.0, mod.N)
+    a, b = np.zeros(mod.N), np.zeros(mod.N)
+    mod.residual(0.0, y, yp, p, a)
+    with np.errstate(all="ignore"):
+        mod.residual(0.0, y, yp, zero, b)
+    bad = ~np.isfinite(b)
+    assert bad.any() and np.isfinite(a).all()
+    assert np.array_equal(a[~bad], b[~bad])
