@@ -53,6 +53,7 @@ import sympy as sp
 from phc import __version__
 from phc.codegen.kernels import (CJ, Kernel, Repeated, _canonical, events_kernel, function_kernels, kernel_cse,
                                  product_parts, repeated, slot)
+from phc.codegen.repeat import is_slot, progression
 from phc.codegen.lower import ResidualIR
 from phc.codegen.numba_emit import _NODES, _RELATIONS, _SIMPLE, _is_switch
 from phc.codegen.printer import _cse, _identifier, _Printer
@@ -317,7 +318,7 @@ class _Slotted:
         self._known = known
 
     def __contains__(self, s) -> bool:
-        return s in self._known or (s.is_Symbol and s.name.startswith("phc·slot"))
+        return s in self._known or is_slot(s)
 
 
 class _Labels:
@@ -435,12 +436,11 @@ class CPrinter:
     def _subscript(self, at: np.ndarray, stem: str) -> str:
         """The C index of ``at[k]`` in a loop over k: ``a + d*k`` for an arithmetic progression,
         else a constant array's entry."""
-        if len(at) > 1:
-            step = int(at[1] - at[0])
-            if np.array_equal(np.diff(at), np.full(len(at) - 1, step)):
-                start = int(at[0])
-                term = "k" if step == 1 else f"{step}*k"
-                return term if start == 0 else f"{start} + {term}"
+        found = progression(at)
+        if found is not None:
+            start, step = found
+            term = "k" if step == 1 else f"{step}*k"
+            return term if start == 0 else f"{start} + {term}"
         return f"{self.array(stem, at, 'int')}[k]"
 
     def _loop(self, r: Repeated, labels, used: set) -> list[str]:

@@ -40,7 +40,7 @@ from phc.analysis.matching import unique_keys
 from phc.frontend.budget import drop_deltas
 from phc.codegen import packing
 from phc.codegen.lower import ResidualIR
-from phc.codegen.repeat import REPEAT_MIN, repeated, slot
+from phc.codegen.repeat import REPEAT_MIN, progression, repeated, slot
 from phc.codegen.terms import ordered_terms
 from phc.ir.dae import STORED_ENERGY, T
 from phc.errors import CodegenError
@@ -627,7 +627,7 @@ class ModulePrinter:
                 else:
                     names[slot(j)] = f"{vector}[{self._entries(f'_V{n}_{j}', at, constants)}]"
                     varying = True
-            replacements, (value,) = sp.cse([r.template], symbols=sp.numbered_symbols(f"_v{n}w"), order="none")
+            replacements, (value,) = _cse([r.template], sp.numbered_symbols(f"_v{n}w"))
             body = []
             printer = _Printer(names)
             for symbol, rhs in replacements:
@@ -656,11 +656,11 @@ class ModulePrinter:
     def _entries(self, name: str, at: np.ndarray, constants: list, slices: bool = True) -> str:
         """A subscript for the entries `at`: a slice where they are an increasing progression
         (a view, no copy), else the module constant `name` (appended to `constants`)."""
-        if slices and len(at) > 1:
-            step = int(at[1] - at[0])
-            if step > 0 and np.array_equal(np.diff(at), np.full(len(at) - 1, step)):
-                start, stop = int(at[0]), int(at[-1]) + 1
-                return f"{start}:{stop}" if step == 1 else f"{start}:{stop}:{step}"
+        found = progression(at) if slices else None
+        if found is not None and found[1] > 0:
+            start, step = found
+            stop = int(at[-1]) + 1
+            return f"{start}:{stop}" if step == 1 else f"{start}:{stop}:{step}"
         constants.append(f"{name} = {_array(at, 'np.int64')}")
         return name
 

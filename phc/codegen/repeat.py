@@ -88,9 +88,25 @@ def _template(e, where: dict):
     return second, tuple(entries)
 
 
+def is_slot(s) -> bool:
+    """Whether `s` is a :func:`slot` placeholder."""
+    return s.is_Symbol and s.name.startswith("phc·slot")
+
+
+def progression(at: np.ndarray) -> Optional[tuple[int, int]]:
+    """``(start, step)`` when the entries `at` are ``start + step·k`` (two or more), else None:
+    the index a loop computes, or a slice, instead of a constant array."""
+    if len(at) < 2:
+        return None
+    step = int(at[1] - at[0])
+    if not np.array_equal(np.diff(at), np.full(len(at) - 1, step)):
+        return None
+    return int(at[0]), step
+
+
 class _SlotSet:
     def __contains__(self, s) -> bool:
-        return s.is_Symbol and s.name.startswith("phc·slot")
+        return is_slot(s)
 
 
 _SLOT_SET = _SlotSet()
@@ -162,4 +178,4 @@ def repeated(ir, targets: tuple, minimum: int = REPEAT_MIN,
     return tuple(t for _, t in left), tuple(loops)
 
 
-__all__ = ["REPEAT_MIN", "Repeated", "repeated", "slot"]
+__all__ = ["REPEAT_MIN", "Repeated", "is_slot", "progression", "repeated", "slot"]
