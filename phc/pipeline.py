@@ -281,14 +281,20 @@ def _compile_assembled(path, scene: Optional[Scene], dae: Dae, diags: Diagnostic
     t = time.perf_counter()
     source = print_module(ir)
     timings["print"] = time.perf_counter() - t
+    compiled_functions = backends.check_choice(backend) != "numpy"  # (phc.codegen.backends)
+    if not compiled_functions:
+        # printed, and no compiled functions to build from it: the lowered system is freed
+        # before the module makes its arrays (the compile's peak, for a mesh)
+        del ir
     t = time.perf_counter()
     name = scene.name if scene is not None else dae.name
     module, module_path = load_generated(source, name)
     timings["load"] = time.perf_counter() - t
-    if backends.check_choice(backend) != "numpy":  # compiled functions (phc.codegen.backends)
+    if compiled_functions:
         t = time.perf_counter()
         module, _ = backends.select(ir, module, source, backend)
         timings["backend"] = time.perf_counter() - t
+        del ir  # freed before the description is made
     t = time.perf_counter()
     description = describe(name, dae, module, scene)
     timings["describe"] = time.perf_counter() - t

@@ -13,13 +13,15 @@ rows and columns have largest entry ≈ 1).
 
 from __future__ import annotations
 
+from typing import Optional
+
 import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sps
 
 
-def equilibrate(M: np.ndarray, rounds: int = 1, power_of_two: bool = False
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def equilibrate(M: np.ndarray, rounds: int = 1, power_of_two: bool = False, *, overwrite: bool = False,
+                col_of: Optional[np.ndarray] = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(D_r M D_c, r, c)``: `rounds` rounds of scaling the rows of M to largest entry 1 and
     then the columns to largest entry 1; ``r`` and ``c`` are the products of the rounds'
     scales. A zero row or column keeps its scale 1.
@@ -35,9 +37,11 @@ def equilibrate(M: np.ndarray, rounds: int = 1, power_of_two: bool = False
     D_c`` equals the product of M with the returned scales to the last bit.
 
     A sparse M (SciPy) is scaled the same way on its nonzeros and returned as a CSC matrix
-    (the singularity monitor's look at a large system)."""
+    (the singularity monitor's look at a large system). With `overwrite`, a CSC matrix of
+    floats in canonical form (sorted indices, no duplicates) is scaled in place and returned
+    (no copy of a mesh's matrix beside it); `col_of`, its entries' columns, saves making them."""
     if sps.issparse(M):
-        return _equilibrate_sparse(M, rounds, power_of_two)
+        return _equilibrate_sparse(M, rounds, power_of_two, overwrite, col_of)
     M = np.asarray(M, dtype=float)
     m, n = M.shape
     r_all, c_all = np.ones(m), np.ones(n)
@@ -69,16 +73,20 @@ def _scale_of(largest: np.ndarray, power_of_two: bool) -> np.ndarray:
     return np.where(nonzero, largest, 1.0)
 
 
-def _equilibrate_sparse(M, rounds: int, power_of_two: bool) -> tuple[sps.csc_matrix, np.ndarray, np.ndarray]:
+def _equilibrate_sparse(M, rounds: int, power_of_two: bool, overwrite: bool = False,
+                        col_of: Optional[np.ndarray] = None) -> tuple[sps.csc_matrix, np.ndarray, np.ndarray]:
     """:func:`equilibrate` of a sparse matrix: the same rounds (rows to largest entry 1, then
     columns) on the stored entries, O(nonzeros) each."""
-    M = sps.csc_matrix(M, dtype=float, copy=True)
-    M.sum_duplicates()
+    if not (overwrite and M.format == "csc" and M.dtype == np.float64 and M.has_canonical_format):
+        M = sps.csc_matrix(M, dtype=float, copy=True)
+        M.sum_duplicates()
+        col_of = None
     m, n = M.shape
     r_all, c_all = np.ones(m), np.ones(n)
     if M.nnz == 0:
         return M, r_all, c_all
-    col_of = np.repeat(np.arange(n), np.diff(M.indptr))
+    if col_of is None:
+        col_of = np.repeat(np.arange(n, dtype=np.int32), np.diff(M.indptr))
     for _ in range(rounds):
         rm = np.zeros(m)
         np.maximum.at(rm, M.indices, np.abs(M.data))

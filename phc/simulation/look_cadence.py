@@ -259,15 +259,22 @@ C_SOLVE_NS = 2.0
 """A solve with IDA's own factors (in C), per nonzero of the factors (dense: n² of them)."""
 
 
-def sparse_lu_flops(L, U) -> float:
-    """Floating-point operations of the sparse LU whose factors are L (unit diagonal stored) and
-    U (CSC): a multiplier for each nonzero of L below the diagonal, and for pivot k an update of
-    each pair (entry of L's column k below it, entry of U's row k right of it), two operations."""
+def sparse_lu_flops(lu) -> tuple[float, int]:
+    """Floating-point operations of a sparse LU (SciPy's ``SuperLU``) whose factors are L (unit
+    diagonal stored) and U (CSC), and the factors' nonzeros: a multiplier for each nonzero of L
+    below the diagonal, and for pivot k an update of each pair (entry of L's column k below it,
+    entry of U's row k right of it), two operations. Each of ``lu.L`` and ``lu.U`` is a copy of
+    its factor: they are read one at a time (a mesh's factors are its look's largest arrays)."""
     import numpy as np
 
-    below = np.diff(L.indptr) - 1  # L's column counts below the diagonal
+    L = lu.L
+    below, nnz = np.diff(L.indptr) - 1, int(L.nnz)  # L's column counts below the diagonal
+    del L
+    U = lu.U
     right = np.bincount(U.indices, minlength=U.shape[0]) - 1  # U's row counts right of the diagonal
-    return float(below.sum() + 2.0 * np.dot(below.astype(float), np.maximum(right, 0)))
+    nnz += int(U.nnz)
+    del U
+    return float(below.sum() + 2.0 * np.dot(below.astype(float), np.maximum(right, 0))), nnz
 
 
 class LookWork:
@@ -293,8 +300,7 @@ class LookWork:
         products with the matrix or its transpose."""
         work = LOOK_NS + ASSEMBLE_NS * nnz + products * (PRODUCT_CALL_NS + PRODUCT_NS * nnz)
         if lu is not None:
-            self.lu_flops = sparse_lu_flops(lu.L, lu.U)
-            self.lu_nnz = int(lu.L.nnz + lu.U.nnz)
+            self.lu_flops, self.lu_nnz = sparse_lu_flops(lu)
             work += FACTOR_NS * self.lu_nnz + FLOP_NS * self.lu_flops + solves * (
                 SOLVE_CALL_NS + SOLVE_NS * self.lu_nnz)
         self.work += work

@@ -44,7 +44,7 @@ from phc.simulation.backend import BackendRun
 from phc.simulation.chord import ChordIteration, max_norm
 from phc.simulation.guard import ModelEvaluationError
 from phc.simulation.monitor import SingularityMonitor, unbounded_growth
-from phc.simulation.sparse_lu import sparse_lu
+from phc.simulation.sparse_lu import csc_structure, sparse_lu
 
 NEWTON_TOL = 1e-14
 """Newton stops when the estimated error ``θ/(1−θ)·|Δ|`` of the iterate is below this, in
@@ -126,14 +126,13 @@ class NewtonMatrix:
         self.mod, self.p, self.n = mod, p, mod.N
         self.nominal = None if nominal is None else np.asarray(nominal, dtype=float)
         """Scales of the unknowns in which the Newton test measures corrections (0: none)."""
-        rows, cols = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
-        # JAC_ROWS/JAC_COLS are in CSC order: build the structure once
-        self.indices = rows.astype(np.int32)
-        self.indptr = np.searchsorted(cols, np.arange(self.n + 1)).astype(np.int32)
-        self.col_of = cols.astype(np.int32)  # the column of each entry (CSC order)
+        rows = np.asarray(mod.JAC_ROWS)
+        # JAC_ROWS/JAC_COLS are in CSC order: the structure is built once
+        self.indices, self.indptr, self.col_of = csc_structure(rows, mod.JAC_COLS, self.n)
         self.buf = np.zeros(len(rows))
-        self.end_buf = np.zeros(len(rows))
         self.end_mask = np.isin(rows, np.asarray(end_rows, dtype=int))
+        self.end_buf = np.zeros(len(rows)) if self.end_mask.any() else None
+        """The Jacobian at the step's end, for the position-constraint rows (None without any)."""
         self.lu = None
         self.h = self.s = None
         self.age = 0
@@ -150,7 +149,7 @@ class NewtonMatrix:
         d = y1 - y
         self.mod.jacobian(t + s * h, y + s * d, d / h, self.p, 1.0 / (s * h), self.buf)
         data = s * self.buf
-        if self.end_mask.any():
+        if self.end_buf is not None:
             self.mod.jacobian(t + h, y1, d / h, self.p, 1.0 / (s * h), self.end_buf)
             data[self.end_mask] = self.end_buf[self.end_mask]
         J = sps.csc_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
@@ -164,6 +163,7 @@ class NewtonMatrix:
         J = sps.csc_matrix((data, self.indices.copy(), self.indptr.copy()), shape=(self.n, self.n))
         J.eliminate_zeros()
         self.pinv = None
+        self.lu = None  # the last factors freed before the new ones are made (a mesh's run peaks here)
         if self.least_norm:
             return self._least_norm(J, h, s)
         try:

@@ -37,12 +37,23 @@ import scipy.sparse as sps
 
 from phc.errors import ModelEvaluationError
 from phc.simulation.equilibrate import equilibrate
-from phc.simulation.sparse_lu import inverse_norm_estimate, sparse_lu
+from phc.simulation.sparse_lu import csc_structure, inverse_norm_estimate, sparse_lu
 from phc.simulation.look_cadence import (MINIMUM_XTOL, SEARCH_ITERATIONS, LookWork, brackets_minimum, hermite,  # noqa: F401
                                        run_golden_search)
 
 HISTORY = 64
-"""Looks the monitor keeps for a failure's diagnosis."""
+"""Most looks the monitor keeps for a failure's diagnosis."""
+HISTORY_BYTES = 64 * 2**20
+"""Most memory the kept looks take (each a copy of y and ẏ): a large model keeps fewer of them,
+at least :data:`HISTORY_MIN` (a mesh of 8·10⁵ unknowns kept 64 looks of 12.8 MB each, 820 MB
+more than its run needs; up to 65 536 unknowns the 64 looks fit)."""
+HISTORY_MIN = 4
+"""Fewest looks kept: the diagnosis compares the conditioning at four of them (:func:`phc.simulation.ida._approaching_singularity`)."""
+
+
+def history_length(n: int) -> int:
+    """How many looks a monitor of `n` unknowns keeps (:data:`HISTORY`, :data:`HISTORY_BYTES`)."""
+    return int(min(HISTORY, max(HISTORY_MIN, HISTORY_BYTES // (16 * max(n, 1)))))
 THRESHOLD = 1e-11
 """σ_min/σ_max of the equilibrated iteration matrix below which a run stops."""
 STEP_SPREAD = 1e3
@@ -271,6 +282,9 @@ class SingularityMonitor:
         BDF code starts (and restarts) with tiny steps. Integrators set it from the span."""
         self.rows, self.cols = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
         self.buf = np.zeros(len(self.rows))
+        self._csc: Optional[tuple] = None
+        """The iteration matrix's CSC structure (:func:`~phc.simulation.sparse_lu.csc_structure`),
+        made at the first sparse look."""
         self.enabled = mod.N <= MAX_SIZE
         self.worst = 1.0
         self.stop_time: Optional[float] = None
@@ -290,8 +304,8 @@ class SingularityMonitor:
         self.tally = LookWork()
         """The work of the looks, counted (what the IDA step hook's cadence weighs against the steps':
         :mod:`phc.simulation.look_cadence`)."""
-        self.history: deque = deque(maxlen=HISTORY)
-        """(t, y, ẏ) of the last :data:`HISTORY` looks (a failure's diagnosis: is the
+        self.history: deque = deque(maxlen=history_length(mod.N))
+        """(t, y, ẏ) of the last :func:`history_length` looks (a failure's diagnosis: is the
         conditioning falling toward a singular configuration?)."""
 
     def forget(self) -> None:
@@ -325,9 +339,12 @@ class SingularityMonitor:
     def _equilibrated_sparse(self, t, y, yp, h):
         """:meth:`_equilibrated` as a sparse (CSC) matrix."""
         n = self.mod.N
+        if self._csc is None:
+            self._csc = csc_structure(self.rows, self.cols, n)
+        indices, indptr, col_of = self._csc
         self.mod.jacobian(t, y, yp, self.p, 1.0 / max(h, 1e-300), self.buf)
-        J = sps.csc_matrix((self.buf.copy(), (self.rows, self.cols)), shape=(n, n))
-        return equilibrate(J, rounds=2)[0]
+        J = sps.csc_matrix((self.buf.copy(), indices, indptr), shape=(n, n))
+        return equilibrate(J, rounds=2, overwrite=True, col_of=col_of)[0]
 
     def _ratio_at(self, t, y, yp, h, vectors: bool = True) -> tuple[float, np.ndarray]:
         n = self.mod.N

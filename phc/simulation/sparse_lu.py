@@ -36,6 +36,19 @@ def sparse_lu(J):
     return spla.splu(J)
 
 
+def csc_structure(rows, cols, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(indices, indptr, col_of)`` (int32) of an n × n sparse matrix whose entries are given
+    in CSC order by their `rows` and `cols` (a generated module's ``JAC_ROWS``/``JAC_COLS``:
+    sorted by column, then row, no duplicates): a matrix of data ``d`` in that order is
+    ``csc_matrix((d, indices, indptr))``, without the copies and the sort of a conversion from
+    coordinates, and ``col_of`` is each entry's column (for scaling the columns in place). The
+    solvers' iteration matrices and the singularity monitor's looks share it."""
+    rows, cols = np.asarray(rows), np.asarray(cols)
+    indices = rows.astype(np.int32)
+    indptr = np.searchsorted(cols, np.arange(n + 1)).astype(np.int32)
+    return indices, indptr, cols.astype(np.int32)
+
+
 ESTIMATE_SEED = 0
 """The seed of the random ±1 columns of :func:`inverse_norm_estimate` (the same estimate in every
 process)."""

@@ -153,3 +153,21 @@ def test_the_history_follows_a_solver_that_looks_often_for_long():
     assert times[0] >= last  # looks coming at one pace, the window is theirs
     # the look before the newest is near it (it was 10 ms back, 14 % of the window's reach)
     assert times[-1] - times[-2] <= 0.05 * (times[-1] - times[0])
+
+
+def test_the_history_of_a_large_model_stays_within_its_memory():
+    """Each kept look holds a copy of y and ẏ: a mesh of 8·10⁵ unknowns kept 64 of them, 820 MB.
+    The window is as long as HISTORY_BYTES allows, never shorter than the four looks the
+    failure's diagnosis compares, and a model up to 65 536 unknowns keeps all 64."""
+    from types import SimpleNamespace
+
+    from phc.simulation.monitor import HISTORY, HISTORY_BYTES, HISTORY_MIN, SingularityMonitor, history_length
+
+    assert history_length(10) == history_length(65_536) == HISTORY
+    for n in (65_537, 200_000, 800_007, 10**7):
+        kept = history_length(n)
+        assert HISTORY_MIN <= kept < HISTORY
+        assert kept == HISTORY_MIN or kept * 16 * n <= HISTORY_BYTES
+    assert history_length(800_007) * 16 * 800_007 <= HISTORY_BYTES
+    mod = SimpleNamespace(N=800_007, JAC_ROWS=np.zeros(0, dtype=np.int64), JAC_COLS=np.zeros(0, dtype=np.int64))
+    assert SingularityMonitor(mod, np.zeros(0)).history.maxlen == history_length(800_007)
