@@ -18,9 +18,10 @@ compile peak is about :data:`BYTES_PER_UNKNOWN` per unknown plus
 strings (4 unknowns and 16 nonzeros per element) and Euler–Bernoulli beams (8 and 54) of
 10⁴ to 10⁵ elements, NumPy back end, ten midpoint steps included (``PHC_MAX_MEMORY=8G python
 benchmarks/bench_beam_scale.py --measure KIND N``, which prints estimate and measured
-peak side by side): the peak grows by about 12.5 KiB per string element and 27 KiB per beam
-element; the constants round up, so that the estimate stays above the measured peak and
-within about 1.25 times it on both kinds from 10⁴ elements up.
+peak side by side): the peak grows by about 9.5 KiB per string element and 19 KiB per beam
+element, about 2.4 KiB per unknown on both (the nonzeros add little of their own); the
+constants round up, so that the estimate stays above the measured peak, within about 1.12
+times it at 10⁵ elements and 1.3 times at 10⁴ (where the base, charged in full, weighs more).
 After assembly (:func:`check_assembled`) the count is exact and the output arrays are
 added: ``n_out × (2·variables + outputs + invariants + 4)`` doubles (values and
 derivatives of every variable, the outputs, the invariants, H and the three power
@@ -80,28 +81,30 @@ meshes are charged more than they take (a string of 1 000 elements, 4 004 unknow
 and run ten midpoint steps with ``energy: H``, peaks at 166–205 MiB;
 ``benchmarks/bench_beam_scale.py --measure string 1000``). It was 304 MiB until the
 unknowns of a mesh were made in bulk (issue 35)."""
-BYTES_PER_UNKNOWN = 2688
-"""Compile peak per unknown (2.625 KiB): its sympy symbols (y and ẏ, made in bulk by
+BYTES_PER_UNKNOWN = 2560
+"""Compile peak per unknown (2.5 KiB): its sympy symbols (y and ẏ, made in bulk by
 :func:`phc.ir.dae.real_symbol`), the variable and its row, the names and the generated module's
-index tables. With :data:`BYTES_PER_NONZERO` fitted (and rounded up, about 1.07 times the
-peaks) to the peaks of one process, ``backend="numpy"``, no certificate, consistent
-initialization and ten midpoint steps (``PHC_MAX_MEMORY=8G python benchmarks/bench_beam_scale.py
---measure KIND 100000``, issue 35): string of 10⁵ elements 1 379 MiB (400 004 unknowns,
-1.6·10⁶ Jacobian nonzeros), Euler–Bernoulli beam of 10⁵ elements 2 828 MiB (800 007 unknowns;
-4.8·10⁶ nonzeros, the registry's count 5.4·10⁶), estimated 1 469 and 3 016 MiB. History: 8 KiB
-until the per-unknown names were printed as runs (``_indexed``; Python's compiler alone took
-about 0.9 KiB per name of VARIABLES, ROLES and EQUATIONS); 4 KiB until measured peaks at
-10⁵ elements replaced the growth from 10³ to 10⁴ as the fit; 3 KiB until sympy's symbol
-constructor (0.8 KiB and its assumption work per symbol) and the Jacobian pattern as tuples
-of Python ints (72 bytes a nonzero) left the compile (issue 35: the peaks were 1 736 and
-3 530 MiB). Kept when the run's start left out its copies (issue 35: the lowered system's
-symbolic Jacobian entries only, consistent initialization without a Newton matrix at a
-consistent start; the same command with ``--phases``): 1 309 and 2 494 MiB, estimated 1.12 and
-1.21 times that, the beam's peak in its run (the iteration matrix's sparse LUs on top of what
-the compilation keeps)."""
-BYTES_PER_NONZERO = 144
-"""Compile peak per Jacobian nonzero (see :data:`BYTES_PER_UNKNOWN`; it was 640 bytes, then 256
-until the Jacobian pattern became arrays)."""
+index tables, and in the run its share of the iteration matrix's sparse LU and of the cached
+linear blocks. With :data:`BYTES_PER_NONZERO`, fitted (and rounded up) to the peaks of one
+process, ``backend="numpy"``, no certificate, consistent initialization and ten midpoint steps
+(``PHC_MAX_MEMORY=8G python benchmarks/bench_beam_scale.py --measure KIND N``, the large-mesh
+table of ``benchmarks/results/beam_scale.md``; issue 35): strings of 10⁴ and 10⁵ elements 246
+and 1 104 MiB (40 004 and 400 004 unknowns), Euler–Bernoulli beams of 10⁴ and 10⁵ elements 327
+and 2 019 MiB (80 008 and 800 008 unknowns; the registry's 5.4·10⁶ nonzeros at 10⁵), estimated
+324, 1 225, 428 and 2 260 MiB (1.32, 1.11, 1.31 and 1.12 times). ``phc simulate`` of that beam
+(ten midpoint steps, the CSV written) peaked at 2 122 MiB. History: 8 KiB until the per-unknown
+names were printed as runs (``_indexed``; Python's compiler alone took about 0.9 KiB per name
+of VARIABLES, ROLES and EQUATIONS); 4 KiB until measured peaks at 10⁵ elements replaced the
+growth from 10³ to 10⁴ as the fit; 3 KiB until sympy's symbol constructor (0.8 KiB and its
+assumption work per symbol) and the Jacobian pattern as tuples of Python ints (72 bytes a
+nonzero) left the compile (the peaks were 1 736 and 3 530 MiB); 2.625 KiB, with 144 bytes a
+nonzero, until the run kept one LU at a time, the lowered system was freed before the module
+is loaded and the fit was made again (the beam's peak had been 2 828 MiB, then 2 494)."""
+BYTES_PER_NONZERO = 16
+"""Compile peak per Jacobian nonzero beyond what :data:`BYTES_PER_UNKNOWN` charges (see there;
+strings and beams, 4 and 6.75 nonzeros per unknown, grow by the same 2.4 KiB per unknown: the
+nonzeros' own arrays are within that). It was 640 bytes, then 256 until the Jacobian pattern
+became arrays, then 144."""
 BYTES_PER_COMPONENT = 54 * 2**10
 """Compile peak per component on top of its unknowns and nonzeros: its spec, description,
 lowering and generated statements (chains of 3 000 and 10 000 springs and masses, one unknown
