@@ -232,7 +232,8 @@ def measure_large(kind: str, n: int, phases: Optional[Phases] = None) -> dict:
                 steps=int(result.steps), steps_s=max(run_s - init_s, 0.0), success=bool(result.success),
                 energy_finite=bool(np.all(np.isfinite(result.outputs["energy"]))),
                 peak_bytes=max(budget.peak_memory(), phases.peak if phases is not None else 0),
-                estimate_bytes=budget.mesh_estimate(spec).compile_bytes,
+                estimate_bytes=budget.mesh_estimate(spec).compile_bytes + budget.output_bytes(
+                    STRING_STEPS + 1, budget.output_columns(mod.N, len(mod.OUTPUTS))),
                 **({"phases": phases.rows} if phases is not None else {}))
 
 

@@ -142,7 +142,8 @@ def test_the_mesh_estimate_is_above_the_measured_peak_and_within_one_and_a_half_
                          capture_output=True, text=True, env=env, check=True)
     row = json.loads(run.stdout.strip().splitlines()[-1])
     peak, estimate = row["peak_bytes"], row["estimate_bytes"]
-    assert estimate == budget.mesh_estimate(_mesh_spec(kind, n)).compile_bytes
+    outputs = budget.output_bytes(11, budget.output_columns(row["unknowns"], 2))  # its ten steps' 11 points
+    assert estimate == budget.mesh_estimate(_mesh_spec(kind, n)).compile_bytes + outputs
     assert peak < estimate < 1.5 * peak, (peak / 2**20, estimate / 2**20)
 
 
@@ -216,7 +217,8 @@ def test_scene_mesh_override_is_bounded_in_the_scene_file(tmp_path):
     assert dae is None
     assert [(d.span.file, d.span.line) for d in diags.errors] == [(str(scene), 3)]
     scene.write_text("model: m.yaml\naccuracy:\n  mesh: {string: 195000}\n")  # within the limit, not the budget
-    diags = build_dae(scene)[1]
+    with budget.override("1G"):  # a string of 195 000 elements is estimated at about 1.8 GiB to compile
+        diags = build_dae(scene)[1]
     assert _codes(diags) == ["PHC-E700"] and diags.errors[0].span.file == str(scene)
 
 

@@ -6,7 +6,8 @@ values. :func:`pieces` splits an array into *runs* — integers made of p interl
 arithmetic sequences (entry k + p is entry k plus the step of k's sequence), floats whose
 values repeat with period p — and literal stretches in between (the boundary elements,
 another component, irregular data). The module rebuilds the array with ``_runs``
-(:func:`_runs`, whose source :func:`decoder_source` prints into the module): integer runs exactly in int64, float runs by repeating the values (the
+(:func:`_runs`, whose source :func:`decoder_source` prints into the module): integer runs exactly in int64
+(then stored in the array's own type: int32 for the index arrays that fit), float runs by repeating the values (the
 same bits). A uniform mesh of 10⁵ elements prints in the size of a few stencils; a
 non-uniform mesh, whose entries differ from element to element, keeps its literal data.
 
@@ -50,7 +51,7 @@ def _runs(_dtype, _parts):
                         + (_k // len(_part[1])) * np.array(_part[2], dtype=np.int64)[_j])
         else:
             _out.append(np.resize(np.array(_part[1], dtype=float), _part[2]))
-    return np.concatenate(_out).astype(_dtype)
+    return np.concatenate(_out, dtype=_dtype, casting='same_kind')
 
 
 def decoder_source() -> str:
@@ -116,10 +117,13 @@ def _literal(values: np.ndarray, dtype: str) -> tuple:
 
 
 def pieces(values, dtype: str) -> list[tuple]:
-    """`values` (int64 with ``dtype='<i8'``, float64 with ``'<f8'``) as the parts ``_runs`` reads."""
+    """`values` (int64 with ``dtype='<i8'``, int32 with ``'<i4'``, float64 with ``'<f8'``) as the
+    parts ``_runs`` reads."""
     a = np.ascontiguousarray(values, dtype=dtype)
-    integer = dtype == "<i8"
-    seq = a if integer else a.view(np.int64)  # floats compared by bits: -0.0 is not 0.0, NaN is NaN
+    integer = dtype in ("<i8", "<i4")
+    # integers compared in int64 (an int32 run's second differences may not fit in 32 bits), floats
+    # by bits: -0.0 is not 0.0, NaN is NaN
+    seq = a.astype(np.int64, copy=False) if integer else a.view(np.int64)
     parts, at = [], 0
     for s, e, p in _runs_of(seq, integer):
         if integer:

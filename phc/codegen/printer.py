@@ -195,9 +195,12 @@ PACK_LIMIT = 256
 take seconds for Python to compile, and a uniform mesh's stencil repeats."""
 
 
+_PACKED = {"float": "<f8", "np.int64": "<i8", "np.int32": "<i4"}
+
+
 def _array(values: Sequence, dtype: str) -> str:
-    if len(values) > PACK_LIMIT and dtype in ("float", "np.int64"):
-        return packing.expression(values, "<f8" if dtype == "float" else "<i8")
+    if len(values) > PACK_LIMIT and dtype in _PACKED:
+        return packing.expression(values, _PACKED[dtype])
     if dtype == "bool" and len(values) > PACK_LIMIT:  # run lengths: a mesh's states, then its efforts
         flags = np.asarray([bool(v) for v in values] if not isinstance(values, np.ndarray) else values, dtype=bool)
         starts = [0] + (np.flatnonzero(flags[1:] != flags[:-1]) + 1).tolist()
@@ -266,10 +269,25 @@ def _table_slope(times, values, kind, t):
 '''
 
 
+def _index_type(values: Sequence) -> str:
+    """The type of an index array the module's own code reads (a sparse block's structure, the
+    positions of its entries): int32 where every entry fits, as SciPy stores a sparse matrix's
+    indices (a module of 10⁵ mesh elements holds about 10⁷ such entries; int64 doubled them, and
+    SciPy converted them to int32 copies of its own)."""
+    a = np.asarray(values)
+    fits = a.size == 0 or (int(a.min()) >= -2 ** 31 and int(a.max()) < 2 ** 31)
+    return "np.int32" if fits else "np.int64"
+
+
+def _indices(values: Sequence) -> str:
+    """`values` printed as an index array of :func:`_index_type`."""
+    return _array(values, _index_type(values))
+
+
 def _sparse_constant(name: str, matrix) -> list[str]:
     m = matrix.tocsr()
     return [f"{name} = _sps.csr_matrix(({_array(m.data, 'float')}, "
-            f"{_array(m.indices, 'np.int64')}, {_array(m.indptr, 'np.int64')}), "
+            f"{_indices(m.indices)}, {_indices(m.indptr)}), "
             f"shape={tuple(int(x) for x in m.shape)!r})"]
 
 
@@ -786,18 +804,18 @@ class ModulePrinter:
                 continue
             fused = _fuse(terms, len(ir.residual), n)
             self.fused[wrt] = (terms, fused)
-            sparse_consts += [f"_L{wrt}_INDPTR = {_array(fused['indptr'], 'np.int64')}",
-                              f"_L{wrt}_INDICES = {_array(fused['indices'], 'np.int64')}",
-                              f"_L{wrt}_JAC = {_array(fused['jac'], 'np.int64')}"]
+            sparse_consts += [f"_L{wrt}_INDPTR = {_indices(fused['indptr'])}",
+                              f"_L{wrt}_INDICES = {_indices(fused['indices'])}",
+                              f"_L{wrt}_JAC = {_indices(fused['jac'])}"]
             for k, (pos, data) in enumerate(zip(fused["pos"], fused["data"])):
-                sparse_consts += [f"_L{wrt}{k}_POS = {_array(pos, 'np.int64')}",
+                sparse_consts += [f"_L{wrt}{k}_POS = {_indices(pos)}",
                                   f"_L{wrt}{k}_DATA = {_array(data, 'float')}"]
         for prefix, forms in (("QE", ir.quadratic_energy), ("QD", ir.quadratic_dissipation)):
             for k, f in enumerate(forms):
                 sparse_consts += _sparse_constant(f"_{prefix}{k}", f.matrix)
-                sparse_consts.append(f"_{prefix}{k}_COLS = {_array(f.cols, 'np.int64')}")
+                sparse_consts.append(f"_{prefix}{k}_COLS = {_indices(f.cols)}")
                 if f.pos is not None:
-                    sparse_consts.append(f"_{prefix}{k}_POS = {_array(f.pos, 'np.int64')}")
+                    sparse_consts.append(f"_{prefix}{k}_POS = {_indices(f.pos)}")
         if sparse_consts:
             parts[1] = parts[1].replace("import numpy as np\n", "import numpy as np\nimport scipy.sparse as _sps\n"
                                         "from scipy.linalg.blas import daxpy as _daxpy\n", 1)

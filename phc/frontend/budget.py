@@ -16,11 +16,11 @@ of each type's entry in :mod:`phc.library.registry`), and the
 compile peak is about :data:`BYTES_PER_UNKNOWN` per unknown plus
 :data:`BYTES_PER_NONZERO` per nonzero on top of :data:`BASE_BYTES`, fitted to the peaks of
 strings (4 unknowns and 16 nonzeros per element) and Euler–Bernoulli beams (8 and 54) of
-10⁴ to 10⁵ elements, NumPy back end, ten midpoint steps included (``PHC_MAX_MEMORY=8G python
-benchmarks/bench_beam_scale.py --measure KIND N``, which prints estimate and measured
-peak side by side): the peak grows by about 9.5 KiB per string element and 19 KiB per beam
-element, about 2.4 KiB per unknown on both (the nonzeros add little of their own); the
-constants round up, so that the estimate stays above the measured peak, within about 1.12
+10⁴ to 10⁵ elements, NumPy back end, ten midpoint steps included, less their output arrays
+(``PHC_MAX_MEMORY=8G python benchmarks/bench_beam_scale.py --measure KIND N``, which prints
+the estimate with those outputs and the measured peak side by side): the peak grows by about
+2.2 KiB per unknown on both, outputs included (the nonzeros add little of their own); the
+constants round up, so that the estimate stays above the measured peak, within about 1.1
 times it at 10⁵ elements and 1.3 times at 10⁴ (where the base, charged in full, weighs more).
 After assembly (:func:`check_assembled`) the count is exact and the output arrays are
 added: ``n_out × (2·variables + outputs + invariants + 4)`` doubles (values and
@@ -81,30 +81,34 @@ meshes are charged more than they take (a string of 1 000 elements, 4 004 unknow
 and run ten midpoint steps with ``energy: H``, peaks at 166–205 MiB;
 ``benchmarks/bench_beam_scale.py --measure string 1000``). It was 304 MiB until the
 unknowns of a mesh were made in bulk (issue 35)."""
-BYTES_PER_UNKNOWN = 2560
-"""Compile peak per unknown (2.5 KiB): its sympy symbols (y and ẏ, made in bulk by
+BYTES_PER_UNKNOWN = 2130
+"""Compile peak per unknown (about 2.1 KiB): its sympy symbols (y and ẏ, made in bulk by
 :func:`phc.ir.dae.real_symbol`), the variable and its row, the names and the generated module's
 index tables, and in the run its share of the iteration matrix's sparse LU and of the cached
 linear blocks. With :data:`BYTES_PER_NONZERO`, fitted (and rounded up) to the peaks of one
 process, ``backend="numpy"``, no certificate, consistent initialization and ten midpoint steps
 (``PHC_MAX_MEMORY=8G python benchmarks/bench_beam_scale.py --measure KIND N``, the large-mesh
-table of ``benchmarks/results/beam_scale.md``; issue 35): strings of 10⁴ and 10⁵ elements 246
-and 1 104 MiB (40 004 and 400 004 unknowns), Euler–Bernoulli beams of 10⁴ and 10⁵ elements 327
-and 2 019 MiB (80 008 and 800 008 unknowns; the registry's 5.4·10⁶ nonzeros at 10⁵), estimated
-324, 1 225, 428 and 2 260 MiB (1.32, 1.11, 1.31 and 1.12 times). ``phc simulate`` of that beam
-(ten midpoint steps, the CSV written) peaked at 2 122 MiB. History: 8 KiB until the per-unknown
-names were printed as runs (``_indexed``; Python's compiler alone took about 0.9 KiB per name
-of VARIABLES, ROLES and EQUATIONS); 4 KiB until measured peaks at 10⁵ elements replaced the
-growth from 10³ to 10⁴ as the fit; 3 KiB until sympy's symbol constructor (0.8 KiB and its
-assumption work per symbol) and the Jacobian pattern as tuples of Python ints (72 bytes a
-nonzero) left the compile (the peaks were 1 736 and 3 530 MiB); 2.625 KiB, with 144 bytes a
-nonzero, until the run kept one LU at a time, the lowered system was freed before the module
-is loaded and the fit was made again (the beam's peak had been 2 828 MiB, then 2 494)."""
-BYTES_PER_NONZERO = 16
+table of ``benchmarks/results/beam_scale.md``; issue 35), less the run's output arrays
+(:func:`output_bytes`, which :func:`check_assembled` charges beside this: 11 points there, 176
+bytes an unknown): strings of 10⁴ and 10⁵ elements 240 and 1 036 MiB (40 004 and 400 004
+unknowns), Euler–Bernoulli beams of 10⁴ and 10⁵ elements 307 and 1 830 MiB (80 007 and 800 007
+unknowns, 5.4·10⁵ and 4.8·10⁶ nonzeros), estimated with their outputs at 313, 1 116, 404 and
+2 020 MiB (1.30, 1.08, 1.32 and 1.10 times). History: 8 KiB until the per-unknown names were
+printed as runs (``_indexed``; Python's compiler alone took about 0.9 KiB per name of
+VARIABLES, ROLES and EQUATIONS); 4 KiB until measured peaks at 10⁵ elements replaced the growth
+from 10³ to 10⁴ as the fit; 3 KiB until sympy's symbol constructor (0.8 KiB and its assumption
+work per symbol) and the Jacobian pattern as tuples of Python ints (72 bytes a nonzero) left the
+compile (the peaks were 1 736 and 3 530 MiB); 2.625 KiB, with 144 bytes a nonzero, until the run
+kept one LU at a time, the lowered system was freed before the module is loaded and the fit was
+made again (the beam's peak had been 2 828 MiB, then 2 494); 2.5 KiB, with 16 bytes a nonzero
+and the output arrays inside, until the module's own index arrays became int32, the fixed-step
+solvers' monitor stopped copying its looks' factors and a look no longer sat beside Newton's
+factors (the beam's peak had been 2 019 MiB)."""
+BYTES_PER_NONZERO = 8
 """Compile peak per Jacobian nonzero beyond what :data:`BYTES_PER_UNKNOWN` charges (see there;
-strings and beams, 4 and 6.75 nonzeros per unknown, grow by the same 2.4 KiB per unknown: the
-nonzeros' own arrays are within that). It was 640 bytes, then 256 until the Jacobian pattern
-became arrays, then 144."""
+strings and beams, 4 and 6 nonzeros per unknown, grow by about the same 2.2–2.3 KiB per unknown:
+the nonzeros' own arrays are within that). It was 640 bytes, then 256 until the Jacobian pattern
+became arrays, then 144, then 16."""
 BYTES_PER_COMPONENT = 54 * 2**10
 """Compile peak per component on top of its unknowns and nonzeros: its spec, description,
 lowering and generated statements (chains of 3 000 and 10 000 springs and masses, one unknown
@@ -226,6 +230,12 @@ def output_bytes(n_out: int, n_columns: int) -> int:
     return 8 * int(n_out) * int(n_columns)
 
 
+def output_columns(variables: int, outputs: int, invariants: int = 0) -> int:
+    """The columns of a run's output arrays: each variable's value and derivative, the outputs,
+    the invariants, H and the three power columns."""
+    return 2 * int(variables) + int(outputs) + int(invariants) + 4
+
+
 def mesh_estimate(comp) -> Estimate:
     """Unknowns and Jacobian nonzeros of a distributed component from its spec alone: the
     ``cost`` of its type's registry entry (:mod:`phc.library.registry`; per element of phc's
@@ -337,7 +347,7 @@ def check_assembled(elab, dae) -> list[Diagnostic]:
     nonzeros += sum(map(len, dae.row_symbols()))  # a number (a row of a sparse block) has none
     compile_est = Estimate(n_var, nonzeros, len(elab.components))
     n_out = int(dae.options.get("n_out", 0) or 0)
-    columns = 2 * n_var + len(dae.outputs) + len(dae.invariants) + len(dae.velocity_invariants) + 4
+    columns = output_columns(n_var, len(dae.outputs), len(dae.invariants) + len(dae.velocity_invariants))
     outputs = output_bytes(n_out, columns)
     total = compile_est.compile_bytes + outputs
     budget = max_memory()

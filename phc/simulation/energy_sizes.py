@@ -11,7 +11,9 @@ states (:func:`_columns`), each batch checked against single calls of the module
 A C module's H at many states is one call of the step library (its own H at each state): the
 first round's states are one call, and the later rounds' states of the variables still left
 (:func:`_c_ahead`) another, of which a round reads its own (the rounds grow the step of a
-variable H is linear in eight times: 16 calls became 2, the same sizes to the bit).
+variable H is linear in eight times: 16 calls became 2, the same sizes to the bit), up to
+:data:`C_COLUMNS_ENTRIES`: each of its states costs the whole H, and a mesh's many states take
+the NumPy reference's lazy columns instead.
 """
 
 from __future__ import annotations
@@ -38,7 +40,8 @@ def energy_sizes(mod, p, t0, y0, s, energy: float) -> np.ndarray:
     skip = names.index("energy.supplied") if "energy.supplied" in names else -1
     H = mod.hamiltonian
     loaded = getattr(mod, "module", mod)
-    in_c = getattr(loaded, "BACKEND", "") == "c"  # the C H at many states is one call: few, larger calls
+    # the C H at many states is one call: few, larger calls (not for a mesh: C_COLUMNS_ENTRIES)
+    in_c = getattr(loaded, "BACKEND", "") == "c" and 2 * len(diff) * n <= C_COLUMNS_ENTRIES
     try:
         h0 = float(H(t0, y0, p))
         noise = 1e-12 * max(energy, abs(h0))
@@ -238,6 +241,11 @@ states of a 10³-unknown model): below, the other ways cost milliseconds. Their 
 another order than the generated code's own, so the sizes differ in the last bits, and the
 tolerances built on them (:func:`phc.simulation.scaling.promise_scales`) with them: a
 24-element beam's order choice (tests/simulation/test_ida_order.py) went the other way."""
+C_COLUMNS_ENTRIES = 1 << 30
+"""Most entries (states times unknowns) a C module's own H is evaluated at, one full state per
+column; above, the columns come from its NumPy reference's lazy columns (:class:`_OneEntryColumns`,
+linear in the unknowns). Each column costs the whole H in C: the 4·10⁵ states of a 10⁵-element
+beam (8·10⁵ unknowns) took more than ten minutes before a step was made."""
 LAZY_BATCH = 1 << 16
 """Columns of one :class:`_OneEntryColumns` evaluation of H (its rows cost this many entries each)."""
 
@@ -264,7 +272,8 @@ def _columns(mod, t, y0, p, cols, steps) -> np.ndarray:
     unguarded = getattr(loaded, "hamiltonian", None) if loaded is not mod else None
     size = max(2, COLUMNS_BATCH // max(len(y0), 1))
     start = 0
-    if getattr(loaded, "BACKEND", "") == "c" and len(cols) > 1:  # the C H itself at every column: one C call
+    if getattr(loaded, "BACKEND", "") == "c" and 1 < len(cols) and len(cols) * len(y0) <= C_COLUMNS_ENTRIES:
+        # the C H itself at every column: one C call
         start = _c_columns(H, loaded, t, y0, p, cols, steps, size, out)
     if batched and start < len(cols) and len(cols) * len(y0) >= LAZY_MIN_ENTRIES:
         start = _lazy_columns(H, raw, t, y0, p, cols, steps, out)

@@ -663,7 +663,7 @@ def integrate_ida(mod, p, t_out, y0, yp0, options, *, progress=None, names=None,
     atol, local, atol_j, yp0, choice, settings, calls = run_settings(mod, p, t0, t_end, y0, yp0, options, nominal)
     max_order = choice.order
     resfn = settings.pop("resfn")
-    monitor = SingularityMonitor(mod, p, names=names, scales=nominal)
+    monitor = SingularityMonitor(mod, p, names=names, scales=nominal, count_factors=True)
     monitor.h_floor = 1e-6 * (t_end - t0)
     hook = _StepHook(t0, y0, yp0, t_end=t_end, max_steps=max_steps, monitor=monitor, calls=calls, progress=progress,
                      base=10 if n <= 60 else 20,

@@ -139,7 +139,7 @@ def _native(mod, p, t_out, y0, yp0, options, *, progress, names, nominal):
     residual, jacobian = c_ida.model_functions(raw.C_LIBRARY)
     _ptr = c_ida.address
 
-    monitor = SingularityMonitor(mod, p, names=names, scales=nominal)
+    monitor = SingularityMonitor(mod, p, names=names, scales=nominal, count_factors=True)
     monitor.h_floor = 1e-6 * (t_end - t0)
     monitor.start = (t0, y0, yp0.copy())
     # the step hook's state and its monitor looks (_StepHook._look), fed at the ends of chunks

@@ -281,9 +281,15 @@ class LookWork:
     """The work of the singularity monitor's looks (:attr:`work`, over the run, in the nominal
     nanoseconds of the work model above: counted, never timed), and the figures of its last
     sparse LU, which stand for IDA's own factorization of the same iteration matrix
-    (:attr:`lu_flops`, :attr:`lu_nnz`)."""
+    (:attr:`lu_flops`, :attr:`lu_nnz`).
 
-    def __init__(self):
+    Only IDA's step hook reads them (:class:`phc.simulation.ida._StepHook`). Without `factors`
+    (the fixed-step solvers' monitors) a sparse look's LU is charged as an LU without fill and its
+    factors are not read: counting them copies each factor (:func:`sparse_lu_flops`), and at a
+    mesh of 10⁵ elements those copies were the largest arrays of the run's peak."""
+
+    def __init__(self, factors: bool = True):
+        self.factors = factors
         self.work = 0.0
         self.lu_flops: Optional[float] = None
         self.lu_nnz: Optional[int] = None
@@ -300,9 +306,10 @@ class LookWork:
         products with the matrix or its transpose."""
         work = LOOK_NS + ASSEMBLE_NS * nnz + products * (PRODUCT_CALL_NS + PRODUCT_NS * nnz)
         if lu is not None:
-            self.lu_flops, self.lu_nnz = sparse_lu_flops(lu)
-            work += FACTOR_NS * self.lu_nnz + FLOP_NS * self.lu_flops + solves * (
-                SOLVE_CALL_NS + SOLVE_NS * self.lu_nnz)
+            flops, factors = sparse_lu_flops(lu) if self.factors else (2.0 * nnz, nnz)
+            if self.factors:
+                self.lu_flops, self.lu_nnz = flops, factors
+            work += FACTOR_NS * factors + FLOP_NS * flops + solves * (SOLVE_CALL_NS + SOLVE_NS * factors)
         self.work += work
 
 

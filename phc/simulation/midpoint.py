@@ -148,13 +148,14 @@ class NewtonMatrix:
         """Factorize for the iterate ``y1`` of the step from ``(t, y)``; False if singular."""
         d = y1 - y
         self.mod.jacobian(t + s * h, y + s * d, d / h, self.p, 1.0 / (s * h), self.buf)
-        data = s * self.buf
+        data = self.buf  # scaled in place: J's data (the next factorization writes it afresh)
+        data *= s
         if self.end_buf is not None:
             self.mod.jacobian(t + h, y1, d / h, self.p, 1.0 / (s * h), self.end_buf)
             data[self.end_mask] = self.end_buf[self.end_mask]
         J = sps.csc_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
         self.factorizations += 1
-        self.row_scale, self.col_scale = equilibration(J, self.nominal)
+        self.row_scale, self.col_scale = equilibration(J, self.nominal, col_of=self.col_of)
         # D_r J D_c on J's own data (the scales are powers of two: exact in any order), without
         # the stored zeros, as the sparse products D_r @ J @ D_c left it; no copies of the
         # matrix beside its LU (a mesh of 10⁵ elements: 5·10⁶ entries)
@@ -229,7 +230,7 @@ def _power_of_two_below(big: np.ndarray) -> np.ndarray:
     return np.ldexp(1.0, -exponent)
 
 
-def equilibration(J: sps.spmatrix, nominal=None) -> tuple[np.ndarray, np.ndarray]:
+def equilibration(J: sps.spmatrix, nominal=None, col_of=None) -> tuple[np.ndarray, np.ndarray]:
     """Column scales ``D_c`` and row scales ``D_r`` (powers of two, so scaling is exact) for the
     LU of ``D_r J D_c``.
 
@@ -256,7 +257,8 @@ def equilibration(J: sps.spmatrix, nominal=None) -> tuple[np.ndarray, np.ndarray
     # on the CSC arrays (scipy's max(axis=...) and a scaled copy cost ~0.2 ms a factorization,
     # more than the LU of a small model); duplicate entries count as their largest part
     size = np.abs(J.data)
-    col_of = np.repeat(np.arange(n), np.diff(J.indptr))
+    if col_of is None:  # each entry's column (the caller's, where it keeps J's structure)
+        col_of = np.repeat(np.arange(n), np.diff(J.indptr))
     col_max = np.zeros(n)
     np.maximum.at(col_max, col_of, size)
     cols = _power_of_two_below(col_max)
@@ -265,7 +267,8 @@ def equilibration(J: sps.spmatrix, nominal=None) -> tuple[np.ndarray, np.ndarray
         given = (nominal > 0) & np.isfinite(nominal)
         cols[given] = 1.0 / _power_of_two_below(nominal[given])
     row_max = np.zeros(m)
-    np.maximum.at(row_max, J.indices, size * cols[col_of])
+    size *= cols[col_of]
+    np.maximum.at(row_max, J.indices, size)
     rows = _power_of_two_below(row_max)
     return rows, cols
 
@@ -748,6 +751,25 @@ step's error is larger (there: 5e-3 of the change) but stays a fraction of the c
 step whose halves take another branch of the motion, or fail, differs by O(1)."""
 
 
+LOOK_BESIDE_FACTORS = 64 * 2 ** 20
+"""Bytes of Newton's sparse factors (their nonzeros, 12 bytes each: value and row index) above which
+they are freed before the singularity monitor's sparse look makes its own LU; the next step
+factorizes again (:func:`release_large_factors`)."""
+
+
+def release_large_factors(advance) -> None:
+    """Free the Newton matrices' sparse factors of `advance` (its :class:`StageSolver`, or the stages
+    of :mod:`phc.simulation.midpoint4`) where they hold more than :data:`LOOK_BESIDE_FACTORS`: the monitor's look is
+    about to factorize a matrix of the same size, and the two factorizations side by side made the
+    peak of a large mesh's run (a 10⁵-element Euler–Bernoulli beam: its look every
+    :data:`MONITOR_EVERY` steps). The next step factorizes afresh, as after a step Newton found
+    slow; below the size, nothing changes."""
+    for stage in (*getattr(advance, "stages", ()), getattr(advance, "stage", None)):
+        matrix = getattr(stage, "matrix", None)
+        if matrix is not None and 12 * getattr(matrix.lu, "nnz", 0) > LOOK_BESIDE_FACTORS:
+            matrix.lu = None
+
+
 def finish_step(advance, monitor, mod, name, t, h, y, y_new, converged, reason, hard, look, mid_slope,
                 rank_drops):
     """What the fixed-step loops (this module's and the compiled loops' driver,
@@ -769,6 +791,7 @@ def finish_step(advance, monitor, mod, name, t, h, y, y_new, converged, reason, 
             y_new, converged, reason = _uneven(advance, t, h, y, y_new, reason)
         retried = bool(converged)
     if look:
+        release_large_factors(advance)
         # a fixed step cannot land on the singular set, only pass it at a distance ~h:
         # where Newton struggled, a looser threshold decides
         limit = HARD_STEP_THRESHOLD if hard else None

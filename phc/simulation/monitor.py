@@ -268,7 +268,8 @@ class SingularityMonitor:
     become dependent (with the connections they belong to, from ``names``) and the
     condition that fails."""
 
-    def __init__(self, mod, p, threshold: float = THRESHOLD, names: Optional[dict] = None, scales=None):
+    def __init__(self, mod, p, threshold: float = THRESHOLD, names: Optional[dict] = None, scales=None,
+                 count_factors: bool = False):
         self.mod, self.p, self.threshold = mod, p, threshold
         self.scales = None if scales is None else np.asarray(scales, dtype=float)
         """Nominal scales of the variables (:mod:`phc.simulation.scaling`), kept for the
@@ -281,7 +282,8 @@ class SingularityMonitor:
         iteration matrix is conditioned like h² however regular the configuration, and a
         BDF code starts (and restarts) with tiny steps. Integrators set it from the span."""
         self.rows, self.cols = np.asarray(mod.JAC_ROWS), np.asarray(mod.JAC_COLS)
-        self.buf = np.zeros(len(self.rows))
+        self.buf = np.zeros(len(self.rows)) if mod.N <= DENSE_SIZE else None
+        """The Jacobian's entries of a dense look (a sparse look hands its own array to its matrix)."""
         self._csc: Optional[tuple] = None
         """The iteration matrix's CSC structure (:func:`~phc.simulation.sparse_lu.csc_structure`),
         made at the first sparse look."""
@@ -301,9 +303,10 @@ class SingularityMonitor:
         """``rcond(t, y, ẏ, h)``, the condition estimate of the equilibrated iteration matrix made
         elsewhere, or None: the native IDA driver's, in C (:mod:`phc.simulation.ida_native`), which a
         dense look asks first (:meth:`_ratio_at`: where it clears the look, no LU or SVD here)."""
-        self.tally = LookWork()
+        self.tally = LookWork(factors=count_factors)
         """The work of the looks, counted (what the IDA step hook's cadence weighs against the steps':
-        :mod:`phc.simulation.look_cadence`)."""
+        :mod:`phc.simulation.look_cadence`; with `count_factors` the sparse LU's fill and operations
+        as well, which only that hook reads)."""
         self.history: deque = deque(maxlen=history_length(mod.N))
         """(t, y, ẏ) of the last :func:`history_length` looks (a failure's diagnosis: is the
         conditioning falling toward a singular configuration?)."""
@@ -342,8 +345,9 @@ class SingularityMonitor:
         if self._csc is None:
             self._csc = csc_structure(self.rows, self.cols, n)
         indices, indptr, col_of = self._csc
-        self.mod.jacobian(t, y, yp, self.p, 1.0 / max(h, 1e-300), self.buf)
-        J = sps.csc_matrix((self.buf.copy(), indices, indptr), shape=(n, n))
+        data = np.empty(len(self.rows))  # the matrix's own: nothing of a mesh's size kept between looks
+        self.mod.jacobian(t, y, yp, self.p, 1.0 / max(h, 1e-300), data)
+        J = sps.csc_matrix((data, indices, indptr), shape=(n, n))
         return equilibrate(J, rounds=2, overwrite=True, col_of=col_of)[0]
 
     def _ratio_at(self, t, y, yp, h, vectors: bool = True) -> tuple[float, np.ndarray]:

@@ -48,6 +48,20 @@ def test_every_array_comes_back_bit_for_bit(seed):
         assert _same_bits(packing.decode(packing.pieces(values, dtype), dtype), values)
 
 
+def test_int32_index_arrays_come_back_exactly():
+    """The module's own index arrays are int32 where they fit (:func:`phc.codegen.printer._index_type`):
+    their runs are found and rebuilt in int64, also near the top of the int32 range, where a run's
+    second differences do not fit in 32 bits."""
+    rng = np.random.default_rng(7)
+    top = 2 ** 31 - 1
+    arrays = [_stencil_indices(3000).astype(np.int32),
+              np.concatenate([np.arange(5000) * 400_000, [top, 0, top, 0] * 300, [-2 ** 31, top]]).astype(np.int32),
+              rng.integers(-2 ** 31, 2 ** 31, 5000).astype(np.int32)]
+    for values in arrays:
+        back = packing.decode(packing.pieces(values, "<i4"), "<i4")
+        assert back.dtype == np.int32 and np.array_equal(back, values)
+
+
 def test_a_mesh_stencil_prints_in_constant_size():
     sizes = [len(packing.expression(_stencil_indices(n), "<i8")) for n in (1000, 10000, 100000)]
     assert sizes[0] == pytest.approx(sizes[2], abs=20)  # only the counts' digits differ

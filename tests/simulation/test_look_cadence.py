@@ -144,6 +144,36 @@ def test_the_work_of_a_look_is_counted_from_its_lu():
     assert look_cadence.integration_work(residuals=60, jacobians=4, steps=40, **kw) == pytest.approx(2 * base)
 
 
+def test_a_fixed_step_monitor_does_not_copy_the_factors_of_its_looks():
+    """Only IDA's step hook reads a look's fill, and reading it copies both factors: the monitor of
+    a fixed-step run charges its LU as one without fill and never touches ``L`` or ``U``."""
+
+    class Factors:
+        """An LU whose factors may not be read."""
+
+        @property
+        def L(self):
+            raise AssertionError("L read")
+
+        U = L
+
+    from phc.simulation.monitor import SingularityMonitor
+
+    nnz, solves = 148, 3
+    work = look_cadence.LookWork(factors=False)
+    work.sparse(nnz, lu=Factors(), solves=solves)
+    assert work.lu_flops is None and work.lu_nnz is None
+    assert work.work == pytest.approx(look_cadence.LOOK_NS + look_cadence.ASSEMBLE_NS * nnz
+                                      + look_cadence.FACTOR_NS * nnz + look_cadence.FLOP_NS * 2 * nnz
+                                      + solves * (look_cadence.SOLVE_CALL_NS + look_cadence.SOLVE_NS * nnz))
+
+    class Module:
+        N, JAC_ROWS, JAC_COLS = 2, [0, 1], [0, 1]
+
+    assert not SingularityMonitor(Module, None).tally.factors
+    assert SingularityMonitor(Module, None, count_factors=True).tally.factors
+
+
 def test_an_expensive_look_still_finds_the_four_bar_passage(tmp_path, looks):
     """The N = 8 four-bar (above the dense size) with IDA, a look weighing several steps: far from
     the passage the hook looks rarely, the falling
