@@ -20,8 +20,8 @@ functions is not what is measured here), each with the stored energy ``energy: H
 time in CPU seconds (the fair figure on a shared machine) and wall seconds (without the
 compiled-equation certificate, which is not what is measured here), the generated module's
 size in bytes, consistent initialization at t₀, ten midpoint steps, the process's peak
-resident memory and phc's own estimate of the compile memory (:mod:`phc.frontend.budget`), which
-must stay above it; then the log–log slope of compile CPU time from 10³ elements to the
+resident memory and phc's own estimate of the compile memory (:mod:`phc.frontend.budget`) with
+the output arrays of those ten steps, which must stay above it; then the log–log slope of compile CPU time from 10³ elements to the
 largest size (target ≤ 1.15). A size the memory budget refuses is a row saying so. Start-up (imports, the unit registry:
 a 2-element model compiled first in the same process) is a column of its own.
 Until the structural matching was made non-recursive, 2000 string elements ended in a
