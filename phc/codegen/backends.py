@@ -8,7 +8,8 @@ the reference itself (``numpy``), or the same functions compiled to machine code
 C99 compiled by the system C compiler, loaded through ctypes).
 
 ``auto`` (the default, or ``$PHC_BACKEND``) runs a model on ``c`` when a C compiler is found
-and the C back end prints and builds the model, whatever its size; else, for a model of
+and the C back end prints and builds the model, up to :data:`AUTO_MAX_NONZEROS` Jacobian
+nonzeros (above, a mesh whose arrays would be compiled into the code, on ``numpy``); else, for a model of
 :data:`AUTO_MIN_UNKNOWNS` unknowns or more, on ``numba`` when numba can be imported; else on
 ``numpy``. C comes first because it costs least to build (a model's library compiles in a fraction of a
 second and is cached by content, where numba's functions take seconds and its step loop
@@ -50,6 +51,15 @@ AUTO_MIN_UNKNOWNS = 16
 """Where ``auto`` cannot run C, it compiles with numba models of at least this many unknowns.
 Below, numba's compilation (seconds cold, its import about a second warm) costs more than its
 calls save on a run: the model's functions are a handful of float operations."""
+
+AUTO_MAX_NONZEROS = 1 << 20
+"""Above this many Jacobian nonzeros (a mesh of about 2·10⁴ beam elements) ``auto`` runs the
+NumPy module. The compiled back ends print a mesh's index and value arrays into their source
+(the C text of a 2·10⁴-element Euler–Bernoulli beam, 1.08·10⁶ nonzeros, is 35 MB), and their
+compilation's time and memory grow with it: that beam took 11 s and 270 MiB more to compile on C
+than on NumPy, and the 10⁵-element beam's ``phc simulate`` peaked at 2.5 GiB on C against 1.9 on
+NumPy. What a mesh's run computes is its sparse products (SciPy's, on NumPy), and its fixed-step
+runs keep the Python step loop at that size anyway. ``--backend c`` or ``numba`` compiles it."""
 
 AUTO_LOOP_STEPS = 2000
 """Where ``auto`` ran the NumPy module (no C), a fixed-step solver's run of at least this many
@@ -103,6 +113,11 @@ def select(ir, reference: ModuleType, source: str, backend: Optional[str] = None
     if choice == "c":
         return _select_c(ir, reference, source)
     c_why = ""
+    if choice == "auto" and len(ir.jac_rows) > AUTO_MAX_NONZEROS:
+        reference.__auto_note__ = (f"auto: {len(ir.jac_rows):,} Jacobian nonzeros, above {AUTO_MAX_NONZEROS:,}, "
+                                   "where compiling a mesh's arrays into C or numba costs more time and memory than "
+                                   "its sparse products save; --backend c compiles it anyway")
+        return reference, reference.__auto_note__
     if choice == "auto":
         module, c_why = _auto_c(ir, reference, source)
         if module is not None:
@@ -218,7 +233,8 @@ def describe(module, requested: Optional[str] = None) -> str:
         return "numpy"
     if check_choice(requested) == "c":
         return "numpy (the C backend could not build this model's functions: see the warning)"
-    if getattr(module, "N", AUTO_MIN_UNKNOWNS) < AUTO_MIN_UNKNOWNS and getattr(module, "__auto_note__", ""):
+    if getattr(module, "__auto_note__", "") and (getattr(module, "N", AUTO_MIN_UNKNOWNS) < AUTO_MIN_UNKNOWNS
+                                                 or len(getattr(module, "JAC_ROWS", ())) > AUTO_MAX_NONZEROS):
         return f"numpy ({module.__auto_note__})"
     from phc.codegen import cc
     from phc.codegen.numba_cache import why_unavailable
@@ -337,5 +353,5 @@ def for_compiled(compiled, backend: Optional[str]) -> ModuleType:
     return module
 
 
-__all__ = ["AUTO_LOOP_STEPS", "AUTO_MIN_UNKNOWNS", "CHOICES", "auto_note", "check_choice", "default_choice", "describe",
+__all__ = ["AUTO_LOOP_STEPS", "AUTO_MAX_NONZEROS", "AUTO_MIN_UNKNOWNS", "CHOICES", "auto_note", "check_choice", "default_choice", "describe",
            "for_compiled", "for_run", "kept_text", "name_of", "reference_of", "run_targets", "select"]

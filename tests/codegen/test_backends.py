@@ -210,6 +210,32 @@ def test_auto_runs_small_models_on_c_and_without_c_never_looks_for_numba(monkeyp
     assert backends.describe(compiled.module, "numpy") == "numpy"
 
 
+def test_auto_runs_a_mesh_of_many_nonzeros_on_numpy_and_says_why(monkeypatch):
+    """Above AUTO_MAX_NONZEROS Jacobian nonzeros `auto` neither compiles C nor looks for numba:
+    their code would carry the mesh's arrays. The backend line gives the count and the way to
+    compile anyway, and an explicit `c` still compiles (shown here with the threshold lowered to
+    below the rigid slider–crank's nonzeros)."""
+    from phc.codegen import cc
+
+    crank = MODELS[0].parent / "rigid_slider_crank.yaml"
+    monkeypatch.setattr(backends, "AUTO_MAX_NONZEROS", 10)
+    monkeypatch.setattr(cc, "available", lambda: pytest.fail("a C compiler was looked for"))
+    monkeypatch.setattr(numba_cache, "_AVAILABLE", None)
+    for module in (numba_cache, numba_backend):
+        monkeypatch.setattr(module, "available", lambda: pytest.fail("numba was looked for"))
+    compiled = phc.compile_model(crank, certify=False, backend="auto")
+    nnz = len(compiled.module.JAC_ROWS)
+    assert compiled.backend == "numpy" and nnz > 10
+    assert backends.describe(compiled.module, "auto") == (
+        f"numpy (auto: {nnz:,} Jacobian nonzeros, above 10, where compiling a mesh's arrays into C or numba costs "
+        "more time and memory than its sparse products save; --backend c compiles it anyway)")
+    assert backends.describe(compiled.module, "numpy") == "numpy"
+    monkeypatch.undo()
+    monkeypatch.setattr(backends, "AUTO_MAX_NONZEROS", 10)
+    if cc.available()[0]:
+        assert phc.compile_model(crank, certify=False, backend="c").backend == "c"
+
+
 def test_a_fresh_process_without_numba_simulates_with_the_numpy_module(tmp_path):
     """`import numba` fails (as on a machine where it is not installed): phc still works."""
     blocker = tmp_path / "blocker"
