@@ -227,7 +227,8 @@ def measure_large(kind: str, n: int, phases: Optional[Phases] = None) -> dict:
         run_s = time.perf_counter() - t
     spec = (StringSpec(type="string", length=1, elements=n, rho=1, T=1) if kind == "string" else
             EulerBernoulliBeamSpec(type="euler_bernoulli_beam", length=1, elements=n, rhoA=1, EI=1))
-    return dict(kind=kind, elements=n, unknowns=mod.N, jacobian_nnz=len(mod.JAC_ROWS), compile_s=compile_s,
+    return dict(kind=kind, elements=n, unknowns=mod.N, outputs=len(mod.OUTPUTS), jacobian_nnz=len(mod.JAC_ROWS),
+                compile_s=compile_s,
                 compile_cpu=compile_cpu, startup_cpu=startup_cpu, module_bytes=len(compiled.source.encode()), init_s=init_s,
                 steps=int(result.steps), steps_s=max(run_s - init_s, 0.0), success=bool(result.success),
                 energy_finite=bool(np.all(np.isfinite(result.outputs["energy"]))),

@@ -142,7 +142,7 @@ def test_the_mesh_estimate_is_above_the_measured_peak_and_within_one_and_a_half_
                          capture_output=True, text=True, env=env, check=True)
     row = json.loads(run.stdout.strip().splitlines()[-1])
     peak, estimate = row["peak_bytes"], row["estimate_bytes"]
-    outputs = budget.output_bytes(11, budget.output_columns(row["unknowns"], 2))  # its ten steps' 11 points
+    outputs = budget.output_bytes(11, budget.output_columns(row["unknowns"], row["outputs"]))  # ten steps' 11 points
     assert estimate == budget.mesh_estimate(_mesh_spec(kind, n)).compile_bytes + outputs
     assert peak < estimate < 1.5 * peak, (peak / 2**20, estimate / 2**20)
 
