@@ -498,6 +498,36 @@ def test_the_energy_sizes_of_a_c_module_are_one_c_call_with_the_values_of_single
     assert np.array_equal(in_c, single) and (single > 0).sum() >= 4  # the momenta and the height are curved
 
 
+def test_a_c_mesh_takes_its_energy_sizes_from_the_lazy_numpy_columns_above_the_c_limit(compiled, monkeypatch):
+    """Each state the energy sizes perturb costs a whole evaluation of the C H, quadratic in a
+    mesh's size (a 10⁵-element beam: minutes before the first step). Above
+    ``energy_sizes.C_COLUMNS_ENTRIES`` states × unknowns the C module's sizes come from its NumPy
+    reference's lazy columns, without a call of the C H at a matrix of states, and agree with the
+    C columns' to rounding (the lazy sums run in another order)."""
+    from phc.codegen import c_steps
+    from phc.simulation import energy_sizes as es
+    from phc.simulation import scaling
+
+    seen = []
+    sizes = scaling.energy_sizes
+    monkeypatch.setattr(scaling, "_CACHE", weakref.WeakKeyDictionary())
+    monkeypatch.setattr(scaling, "energy_sizes", lambda *a: seen.append(a) or sizes(*a))
+    string = compiled("vibrating_string.yaml")
+    phc.simulate(string, solver="midpoint", t_end=1e-3)
+    assert seen
+    in_c = sizes(*seen[0])
+    along, calls = c_steps.along, []
+    monkeypatch.setattr(c_steps, "along", lambda *a, **k: calls.append(k) or along(*a, **k))
+    monkeypatch.setattr(es, "C_COLUMNS_ENTRIES", 0)
+    lazy = sizes(*seen[0])
+    assert not calls
+    assert (in_c > 0).sum() >= 16
+    # the sizes are sqrt(2E/k) from second differences of H: the string's 16 elements' states each
+    # hold a share of H of order 1e-2, so sums of H in another order, a few ε of H apart, move a
+    # second difference by ~1e-13 of itself; 1e-9 leaves that four decades
+    np.testing.assert_allclose(lazy, in_c, rtol=1e-9, atol=0)
+
+
 def test_the_probe_takes_the_values_at_the_c_steps_from_one_call_and_finds_what_single_calls_find(
         compiled, monkeypatch):
     """The nominal scales' probe (phc.simulation.scaling._probe) reads the power throughput at the
